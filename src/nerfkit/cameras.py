@@ -1,0 +1,170 @@
+"""Cameras, rays and the one camera convention nerfkit uses.
+
+Convention (everywhere in nerfkit):
+
+* Camera axes are **OpenCV**: +x right, +y down, +z forward (the camera looks along +z).
+* ``c2w`` is a 4x4 camera-to-world matrix; ``x_w = R @ x_c + t`` with ``R = c2w[:3, :3]``,
+  ``t = c2w[:3, 3]`` (the camera centre in world coordinates).
+* Pixels are ``uv = (x, y) = (column, row)``; the centre of pixel ``(col, row)`` is at
+  ``uv = (col + 0.5, row + 0.5)``.
+* ``K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``. A course file with only ``focal``
+  means ``cx = W / 2``, ``cy = H / 2``.
+* Blender / nerfstudio ``transform_matrix`` uses OpenGL axes (+y up, +z backward);
+  :func:`opengl_to_opencv` is the one place that converts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+# Flips camera y and z: OpenGL camera axes <-> OpenCV camera axes (its own inverse).
+_GL_CV_FLIP = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def opengl_to_opencv(c2w: np.ndarray) -> np.ndarray:
+    """Convert camera-to-world matrices (..., 4, 4) between OpenGL and OpenCV axes.
+
+    ``c2w_cv = c2w_gl @ diag(1, -1, -1, 1)``; the same formula converts back.
+    """
+    return np.asarray(c2w) @ _GL_CV_FLIP.astype(np.asarray(c2w).dtype)
+
+
+opencv_to_opengl = opengl_to_opencv
+
+
+def intrinsics_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """The 3x3 pinhole matrix ``K`` (float32)."""
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=np.float32)
+
+
+def transform(c2w: Tensor, x: Tensor) -> Tensor:
+    """Apply rigid transforms to points.
+
+    Args:
+        c2w: (..., 4, 4) or (4, 4) transform (camera-to-world for camera points).
+        x: (..., 3) points in the source frame; broadcast against ``c2w``'s batch shape.
+
+    Returns:
+        (..., 3) points in the target frame: ``R @ x + t``.
+
+    Example: ``transform(torch.linalg.inv(c2w), transform(c2w, x)) == x``.
+    """
+    R = c2w[..., :3, :3]
+    t = c2w[..., :3, 3]
+    return (R @ x.unsqueeze(-1)).squeeze(-1) + t
+
+
+def pixel_to_camera(K: Tensor, uv: Tensor, s: Tensor | float) -> Tensor:
+    """Back-project pixels to camera-frame points at depth ``s`` (the z coordinate).
+
+    Args:
+        K: (..., 3, 3) or (3, 3) intrinsics.
+        uv: (..., 2) pixel coordinates (x, y); pixel centres are at +0.5.
+        s: (...) or scalar depth along the camera's +z axis.
+
+    Returns:
+        (..., 3) points ``s * K^-1 @ [u, v, 1]``.
+    """
+    fx, fy = K[..., 0, 0], K[..., 1, 1]
+    cx, cy = K[..., 0, 2], K[..., 1, 2]
+    skew = K[..., 0, 1]
+    y = (uv[..., 1] - cy) / fy
+    x = (uv[..., 0] - cx - skew * y) / fx
+    xyz = torch.stack([x, y, torch.ones_like(x)], dim=-1)
+    s = torch.as_tensor(s, dtype=xyz.dtype, device=xyz.device)
+    return xyz * s.unsqueeze(-1) if s.ndim else xyz * s
+
+
+@dataclass
+class Rays:
+    """A batch of rays in world coordinates.
+
+    Attributes:
+        origins: (n_rays, 3) ray origins (camera centres).
+        directions: (n_rays, 3) unit directions.
+    """
+
+    origins: Tensor
+    directions: Tensor
+
+    def __len__(self) -> int:
+        return self.origins.shape[0]
+
+    def __getitem__(self, idx) -> "Rays":
+        return Rays(self.origins[idx], self.directions[idx])
+
+    def to(self, device: torch.device | str) -> "Rays":
+        return Rays(self.origins.to(device), self.directions.to(device))
+
+
+def pixel_to_ray(K: Tensor, c2w: Tensor, uv: Tensor) -> tuple[Tensor, Tensor]:
+    """Rays through pixels.
+
+    Args:
+        K: (..., 3, 3) or (3, 3) intrinsics.
+        c2w: (..., 4, 4) or (4, 4) camera-to-world (OpenCV axes).
+        uv: (..., 2) pixel coordinates (x, y), pixel centres at +0.5.
+
+    Returns:
+        ``(rays_o, rays_d)``, each (..., 3); ``rays_d`` has unit length.
+    """
+    x_c = pixel_to_camera(K, uv, 1.0)
+    rays_d = (c2w[..., :3, :3] @ x_c.unsqueeze(-1)).squeeze(-1)
+    rays_d = rays_d / torch.linalg.norm(rays_d, dim=-1, keepdim=True)
+    rays_o = c2w[..., :3, 3].expand_as(rays_d)
+    return rays_o, rays_d
+
+
+def image_rays(K: Tensor, c2w: Tensor, width: int, height: int) -> Rays:
+    """All pixel-centre rays of one image, row-major: (height * width) rays."""
+    rows, cols = torch.meshgrid(
+        torch.arange(height, dtype=torch.float32, device=c2w.device),
+        torch.arange(width, dtype=torch.float32, device=c2w.device),
+        indexing="ij",
+    )
+    uv = torch.stack([cols, rows], dim=-1).reshape(-1, 2) + 0.5
+    o, d = pixel_to_ray(K.to(c2w.device, torch.float32), c2w.float(), uv)
+    return Rays(o, d)
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """OpenCV camera-to-world (4, 4) at ``eye`` looking at ``target``; image-up is ``up``."""
+    forward = target - eye
+    forward = forward / np.linalg.norm(forward)
+    right = np.cross(forward, up)  # +x = forward x up gives +y (down) = forward x right
+    if np.linalg.norm(right) < 1e-8:
+        raise ValueError("look_at: up is parallel to the viewing direction")
+    right = right / np.linalg.norm(right)
+    down = np.cross(forward, right)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, down, forward, eye
+    return c2w
+
+
+def orbit_path(
+    center: np.ndarray,
+    up: np.ndarray,
+    radius: float,
+    height: float,
+    n_frames: int,
+) -> np.ndarray:
+    """Camera-to-world poses (n_frames, 4, 4) circling ``center`` about the ``up`` axis.
+
+    Cameras sit ``height`` above the centre along ``up``, ``radius`` away from the axis,
+    and look at ``center``.
+    """
+    up = np.asarray(up, dtype=np.float64)
+    up = up / np.linalg.norm(up)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    a = np.cross(up, helper)
+    a /= np.linalg.norm(a)
+    b = np.cross(up, a)
+    poses = []
+    for theta in np.linspace(0.0, 2.0 * np.pi, n_frames, endpoint=False):
+        eye = center + radius * (np.cos(theta) * a + np.sin(theta) * b) + height * up
+        poses.append(look_at(eye, center, up))
+    return np.stack(poses).astype(np.float32)

@@ -1,0 +1,1 @@
+"""One module per ``nerfkit`` subcommand; see :mod:`nerfkit.cli`."""

@@ -1,0 +1,103 @@
+"""Dataclass configs <-> command-line flags <-> JSON.
+
+A config is a dataclass whose fields carry ``metadata={"help": ...}``. Each field becomes
+a ``--kebab-case`` flag; the resolved config is saved as JSON into every run folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import types
+import typing
+from pathlib import Path
+from typing import Any, TypeVar
+
+from .errors import fail
+
+T = TypeVar("T")
+
+
+def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors argparse
+    """A dataclass field with a default and a help line."""
+    return dataclasses.field(default=default, metadata={"help": help, **kwargs})
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _base_type(tp: Any) -> tuple[Any, bool]:
+    """(type, optional) for ``X`` or ``X | None``."""
+    if isinstance(tp, types.UnionType) or typing.get_origin(tp) is typing.Union:
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        return args[0], True
+    return tp, False
+
+
+def add_dataclass_args(parser: argparse.ArgumentParser, cls: type, group_title: str | None = None,
+                       skip: tuple[str, ...] = ()) -> None:
+    """Add one flag per field of dataclass ``cls`` (defaults left unset: None)."""
+    target = parser.add_argument_group(group_title) if group_title else parser
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        if f.name in skip or f.metadata.get("cli") is False:
+            continue
+        tp, _ = _base_type(hints[f.name])
+        default = f.default if f.default is not dataclasses.MISSING else None
+        help_text = f.metadata.get("help", "")
+        if default is not None and default != "":
+            help_text += f" (default: {default})"
+        kw: dict[str, Any] = {"dest": f.name, "default": None, "help": help_text}
+        if "choices" in f.metadata:
+            kw["choices"] = f.metadata["choices"]
+        if tp is bool:
+            target.add_argument(_flag(f.name), action=argparse.BooleanOptionalAction, **kw)
+        else:
+            target.add_argument(_flag(f.name), type=tp if tp in (int, float, str) else str,
+                                metavar=f.metadata.get("metavar", tp.__name__.upper() if hasattr(tp, "__name__") else "X"),
+                                **kw)
+
+
+def dataclass_from_args(cls: type[T], args: argparse.Namespace, base: T | None = None) -> T:
+    """Build ``cls`` from parsed flags; unset flags keep ``base``'s (or the default) values."""
+    values = dataclasses.asdict(base) if base is not None else {}
+    for f in dataclasses.fields(cls):
+        v = getattr(args, f.name, None)
+        if v is not None:
+            values[f.name] = v
+    return cls(**values)
+
+
+def dataclass_from_dict(cls: type[T], d: dict, where: str) -> T:
+    """Build ``cls`` from JSON data, refusing unknown keys and wrong types with a clear error."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(d) - names
+    if unknown:
+        raise fail(where, f"unknown config keys: {', '.join(sorted(unknown))}")
+    out = {}
+    for k, v in d.items():
+        tp, optional = _base_type(hints[k])
+        if v is None and optional:
+            out[k] = None
+        elif tp is float and isinstance(v, (int, float)) and not isinstance(v, bool):
+            out[k] = float(v)
+        elif tp in (int, str, bool) and type(v) is tp:
+            out[k] = v
+        elif tp not in (int, float, str, bool):
+            out[k] = v
+        else:
+            raise fail(where, f"config key '{k}' should be {tp.__name__}, got {type(v).__name__}")
+    return cls(**out)
+
+
+def load_json(path: str | Path) -> Any:
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise fail(path, "no such file") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise fail(path, f"not valid JSON ({e})", "The file may be truncated; re-create it") from None

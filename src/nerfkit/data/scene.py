@@ -1,0 +1,132 @@
+"""The one scene type every data format loads into.
+
+A :class:`Scene` holds three splits of :class:`Views` (train, val, test) in nerfkit's
+camera convention (OpenCV axes, see :mod:`nerfkit.cameras`), plus the depth range
+(near/far) and the scene's centre and up direction used for orbit paths.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..cameras import orbit_path
+
+
+@dataclass
+class Views:
+    """The cameras (and images, when there are any) of one split.
+
+    Attributes:
+        c2w: (N, 4, 4) float32 camera-to-world, OpenCV axes.
+        K: (N, 3, 3) float32 intrinsics, one per view.
+        width, height: image size in pixels (the same for every view of a split).
+        images: (N, H, W, 3) uint8, or None for pose-only splits (e.g. a render path).
+        names: N strings tracing each view back to its photo, or None.
+    """
+
+    c2w: np.ndarray
+    K: np.ndarray
+    width: int
+    height: int
+    images: np.ndarray | None = None
+    names: list[str] | None = None
+
+    def __len__(self) -> int:
+        return int(self.c2w.shape[0])
+
+    @property
+    def has_images(self) -> bool:
+        return self.images is not None and len(self.images) > 0
+
+    def subset(self, idx) -> "Views":
+        idx = np.asarray(idx)
+        return replace(
+            self,
+            c2w=self.c2w[idx],
+            K=self.K[idx],
+            images=None if self.images is None else self.images[idx],
+            names=None if self.names is None else [self.names[i] for i in np.atleast_1d(idx)],
+        )
+
+    @staticmethod
+    def empty(width: int, height: int) -> "Views":
+        return Views(np.zeros((0, 4, 4), np.float32), np.zeros((0, 3, 3), np.float32), width, height)
+
+
+@dataclass
+class Scene:
+    """A posed dataset.
+
+    Attributes:
+        train, val, test: the splits (val/test may be empty; test often has poses only).
+        near, far: depth range of the object along rays, in scene units.
+        center: (3,) point the cameras look at (orbit centre).
+        up: (3,) unit world up direction (orbit axis).
+        source: where the scene came from (for messages).
+    """
+
+    train: Views
+    val: Views
+    test: Views
+    near: float
+    far: float
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3, np.float32))
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0], np.float32))
+    source: str = ""
+
+    @property
+    def splits(self) -> dict[str, Views]:
+        return {"train": self.train, "val": self.val, "test": self.test}
+
+    def render_path(self, n_frames: int = 60) -> Views:
+        """Poses for a video: the test split when it has poses, else an orbit."""
+        if len(self.test) > 0:
+            return self.test
+        return self.orbit(n_frames)
+
+    def orbit(self, n_frames: int = 60) -> Views:
+        """A circle of cameras about ``up`` through ``center`` at the training cameras' mean
+        distance and elevation, with the first training camera's intrinsics."""
+        if len(self.train) == 0:
+            raise ValueError("cannot make an orbit without training cameras")
+        offsets = self.train.c2w[:, :3, 3] - self.center
+        height = float(np.mean(offsets @ self.up))
+        radial = offsets - np.outer(offsets @ self.up, self.up)
+        radius = float(np.mean(np.linalg.norm(radial, axis=1)))
+        c2w = orbit_path(self.center, self.up, radius, height, n_frames)
+        K = np.repeat(self.train.K[:1], n_frames, axis=0)
+        return Views(c2w, K, self.train.width, self.train.height)
+
+
+def estimate_center(c2w: np.ndarray) -> np.ndarray:
+    """The point nearest (least squares) to every camera's optical axis, (3,).
+
+    Falls back to the mean camera position when the axes are (nearly) parallel.
+    """
+    origins = c2w[:, :3, 3].astype(np.float64)
+    dirs = c2w[:, :3, 2].astype(np.float64)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    projectors = np.eye(3)[None] - dirs[:, :, None] * dirs[:, None, :]  # (N, 3, 3)
+    A = projectors.sum(0)
+    b = (projectors @ origins[:, :, None]).sum(0)[:, 0]
+    if np.linalg.cond(A) > 1e6:
+        return origins.mean(0).astype(np.float32)
+    return np.linalg.solve(A, b).astype(np.float32)
+
+
+def estimate_up(c2w: np.ndarray) -> np.ndarray:
+    """World up (3,) as the mean of the cameras' up vectors (-y in OpenCV axes)."""
+    up = -c2w[:, :3, 1].astype(np.float64).mean(0)
+    n = np.linalg.norm(up)
+    return (up / n).astype(np.float32) if n > 1e-6 else np.array([0.0, 0.0, 1.0], np.float32)
+
+
+def estimate_near_far(c2w: np.ndarray, center: np.ndarray) -> tuple[float, float]:
+    """Depth range from the cameras alone: 0.5x to 1.5x their mean distance to the centre.
+
+    For the lego scene (cameras 4.03 from the origin) this gives the course's 2 and 6.
+    """
+    dist = float(np.mean(np.linalg.norm(c2w[:, :3, 3] - center, axis=1)))
+    return 0.5 * dist, 1.5 * dist

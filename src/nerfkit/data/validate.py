@@ -1,0 +1,91 @@
+"""Checks shared by every loader. Each raises :class:`NerfkitError` naming the file and field."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import fail
+
+# Refuse images beyond this many pixels per split (a crafted header could ask for terabytes).
+MAX_PIXELS = 4_000_000_000
+
+
+def check_poses(c2w: np.ndarray, where: str, field: str, tol: float = 1e-3) -> np.ndarray:
+    """Validate (N, 4, 4) rigid camera-to-world matrices; return them as float32.
+
+    Accepts (N, 3, 4) too and appends the [0, 0, 0, 1] row.
+    """
+    c2w = np.asarray(c2w)
+    if c2w.dtype.kind not in "fiu":
+        raise fail(where, f"'{field}' has dtype {c2w.dtype}, expected numbers", "Store poses as float32")
+    if c2w.ndim != 3 or c2w.shape[1:] not in ((4, 4), (3, 4)):
+        raise fail(where, f"'{field}' has shape {c2w.shape}, expected (N, 4, 4) camera-to-world matrices")
+    if c2w.shape[1] == 3:
+        bottom = np.broadcast_to(np.array([0, 0, 0, 1], c2w.dtype), (c2w.shape[0], 1, 4))
+        c2w = np.concatenate([c2w, bottom], axis=1)
+    c2w = c2w.astype(np.float64)
+    bad = ~np.isfinite(c2w).all(axis=(1, 2))
+    if bad.any():
+        raise fail(where, f"'{field}'[{int(np.argmax(bad))}] has NaN or inf values", "Remove or re-estimate that pose")
+    if not np.allclose(c2w[:, 3], [0, 0, 0, 1], atol=tol):
+        i = int(np.argmax(~np.isclose(c2w[:, 3], [0, 0, 0, 1], atol=tol).all(axis=1)))
+        raise fail(where, f"'{field}'[{i}] last row is {c2w[i, 3].tolist()}, expected [0, 0, 0, 1]")
+    R = c2w[:, :3, :3]
+    ortho_err = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    bad = (ortho_err > 10 * tol) | (np.abs(det - 1.0) > 10 * tol)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise fail(
+            where,
+            f"'{field}'[{i}] rotation is not rigid (|R R^T - I| = {ortho_err[i]:.3g}, det = {det[i]:.3g})",
+            "Poses must be rotations plus translations, without scale or reflection",
+        )
+    return c2w.astype(np.float32)
+
+
+def check_intrinsics(K: np.ndarray, where: str, field: str, width: int, height: int) -> np.ndarray:
+    """Validate a (3, 3) or (N, 3, 3) pinhole matrix; return it as float32."""
+    K = np.asarray(K)
+    if K.dtype.kind not in "fiu" or K.shape[-2:] != (3, 3) or K.ndim not in (2, 3):
+        raise fail(where, f"'{field}' has shape {K.shape} and dtype {K.dtype}, expected a 3x3 float matrix")
+    if not np.isfinite(K).all():
+        raise fail(where, f"'{field}' has NaN or inf values")
+    Ks = K.reshape(-1, 3, 3)
+    if (Ks[:, 0, 0] <= 0).any() or (Ks[:, 1, 1] <= 0).any():
+        raise fail(where, f"'{field}' has a zero or negative focal length", "fx and fy must be positive pixels")
+    if not np.allclose(Ks[:, 2], [0, 0, 1]) or not np.allclose(Ks[:, 1, 0], 0) or not np.allclose(Ks[:, 0, 1], 0, atol=1e-3 * Ks[:, 0, 0].max()):
+        raise fail(where, f"'{field}' is not of the form [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
+    return K.astype(np.float32)
+
+
+def check_images(images: np.ndarray, where: str, field: str) -> np.ndarray:
+    """Validate (N, H, W, 3) images; return them as uint8.
+
+    Float images must lie in [0, 1]; uint8 are taken as they are.
+    """
+    images = np.asarray(images)
+    if images.ndim != 4 or images.shape[-1] != 3:
+        hint = "Composite RGBA onto a background first" if images.ndim == 4 and images.shape[-1] == 4 else None
+        raise fail(where, f"'{field}' has shape {images.shape}, expected (N, H, W, 3) RGB images", hint)
+    if images.shape[0] == 0 or images.shape[1] == 0 or images.shape[2] == 0:
+        raise fail(where, f"'{field}' is empty (shape {images.shape})")
+    if images.dtype == np.uint8:
+        return images
+    if images.dtype.kind == "f":
+        if not np.isfinite(images).all():
+            raise fail(where, f"'{field}' has NaN or inf pixels")
+        lo, hi = float(images.min()), float(images.max())
+        if lo < 0.0 or hi > 1.0:
+            raise fail(where, f"'{field}' float pixels span [{lo:.3g}, {hi:.3g}], expected [0, 1]",
+                       "Store images as uint8 0-255 or float 0-1")
+        return (images * 255.0 + 0.5).astype(np.uint8)
+    raise fail(where, f"'{field}' has dtype {images.dtype}, expected uint8 (0-255) or float (0-1)")
+
+
+def check_near_far(near: float, far: float, where: str) -> tuple[float, float]:
+    if not (np.isfinite(near) and np.isfinite(far)):
+        raise fail(where, f"near/far must be finite, got near={near}, far={far}")
+    if near < 0 or near >= far:
+        raise fail(where, f"near={near} and far={far}: need 0 <= near < far", "Fix the depth range of the scene")
+    return float(near), float(far)

@@ -1,0 +1,20 @@
+"""The project's one user-facing error type.
+
+Anything a user can cause (a bad file, a bad flag, photos with no tags) raises
+:class:`NerfkitError` with one readable line: which file, what is wrong, what to do.
+The CLI turns it into that line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+
+class NerfkitError(Exception):
+    """A user error: bad input, bad option, or a missing prerequisite."""
+
+
+def fail(where: object, problem: str, fix: str | None = None) -> NerfkitError:
+    """Build a NerfkitError reading ``<where>: <problem>. <fix>``."""
+    msg = f"{where}: {problem}"
+    if fix:
+        msg += f". {fix}"
+    return NerfkitError(msg)

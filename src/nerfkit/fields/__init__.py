@@ -1,0 +1,1 @@
+"""Neural fields: encodings and networks mapping coordinates to values."""

@@ -1,0 +1,41 @@
+"""Radiance-field models, by name.
+
+``vanilla``: the course NeRF (8x256 MLP with positional encoding).
+``fast``: grid-based field with empty-space skipping, practical on a CPU.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import asdict, fields
+from typing import Any
+
+from .base import NerfModel, RenderOutput, SceneBounds
+
+# name -> (module, model class, config dataclass)
+_REGISTRY = {
+    "vanilla": ("nerfkit.models.vanilla", "VanillaNeRF", "VanillaConfig"),
+    "fast": ("nerfkit.models.fast", "FastNeRF", "FastConfig"),
+}
+
+MODEL_NAMES = tuple(_REGISTRY)
+
+
+def model_config_class(name: str):
+    module, _, cfg = _REGISTRY[name]
+    return getattr(importlib.import_module(module), cfg)
+
+
+def build_model(name: str, config: Any, bounds: SceneBounds) -> NerfModel:
+    module, cls, _ = _REGISTRY[name]
+    return getattr(importlib.import_module(module), cls)(config, bounds)
+
+
+def config_from_dict(name: str, d: dict):
+    cls = model_config_class(name)
+    known = {f.name for f in fields(cls)}
+    return cls(**{k: v for k, v in d.items() if k in known})
+
+
+__all__ = ["MODEL_NAMES", "NerfModel", "RenderOutput", "SceneBounds", "asdict", "build_model",
+           "config_from_dict", "model_config_class"]

@@ -1,0 +1,117 @@
+"""The contract between the trainer/renderer and a radiance-field model.
+
+The trainer never does camera math and never knows how a model samples its rays: it
+hands a model a batch of :class:`~nerfkit.cameras.Rays` and gets a :class:`RenderOutput`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from ..cameras import Rays
+
+
+@dataclass
+class SceneBounds:
+    """What a model may know about the scene: depth range and a bounding sphere.
+
+    Attributes:
+        near, far: depth range along rays.
+        center: (3,) scene centre; radius: radius of a sphere holding the object.
+        up: (3,) world up.
+    """
+
+    near: float
+    far: float
+    center: np.ndarray
+    radius: float
+    up: np.ndarray
+
+    @staticmethod
+    def from_scene(scene) -> "SceneBounds":
+        c2w = scene.train.c2w
+        dist = float(np.mean(np.linalg.norm(c2w[:, :3, 3] - scene.center, axis=1)))
+        # The object lies between near and far of every camera; its radius is at most
+        # half that depth range, and no larger than the camera distance minus near.
+        radius = max(min(0.5 * (scene.far - scene.near), dist - scene.near), 1e-3)
+        return SceneBounds(float(scene.near), float(scene.far), np.asarray(scene.center, np.float32),
+                           float(radius), np.asarray(scene.up, np.float32))
+
+    def to_dict(self) -> dict:
+        return {"near": self.near, "far": self.far, "center": [float(c) for c in self.center],
+                "radius": self.radius, "up": [float(u) for u in self.up]}
+
+    @staticmethod
+    def from_dict(d: dict) -> "SceneBounds":
+        return SceneBounds(float(d["near"]), float(d["far"]), np.asarray(d["center"], np.float32),
+                           float(d["radius"]), np.asarray(d["up"], np.float32))
+
+
+@dataclass
+class RenderOutput:
+    """What a model returns for n_rays rays.
+
+    Attributes:
+        rgb: (n_rays, 3) colour, background already composited.
+        depth: (n_rays,) expected depth sum(w_i t_i) (unnormalised; divide by acc for
+            the depth of the surface that was hit).
+        acc: (n_rays,) opacity sum(w_i).
+        n_samples: number of field evaluations spent (for throughput figures).
+        extras: model-specific tensors the model's own loss uses (e.g. coarse rgb).
+    """
+
+    rgb: Tensor
+    depth: Tensor
+    acc: Tensor
+    n_samples: int = 0
+    extras: dict[str, Tensor] = field(default_factory=dict)
+
+
+class NerfModel(nn.Module):
+    """Base class of radiance-field models.
+
+    Subclasses implement :meth:`render_rays` and may override the hooks. The trainer:
+    ``model.before_step(step, progress)`` (True means the parameters were replaced, so
+    the optimizer is rebuilt), ``out = model.render_rays(...)``, ``loss = model.loss(out,
+    rgb)``, backward, optimizer step, ``model.after_step(step)``.
+    A model's ``state_dict`` must be loadable into a freshly built model of the same
+    config (models that grow their grids resize themselves in ``load_state_dict``).
+    """
+
+    def __init__(self, bounds: SceneBounds):
+        super().__init__()
+        self.bounds = bounds
+
+    def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
+        """Render rays (differentiable). ``background``: (3,) colour for empty space."""
+        raise NotImplementedError
+
+    def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
+        """Photometric MSE; models add their own terms (coarse network, regularisers)."""
+        return torch.mean((out.rgb - target_rgb) ** 2)
+
+    def param_groups(self, lr: float) -> list[dict]:
+        """Optimizer parameter groups; ``lr`` is the configured base learning rate."""
+        return [{"params": [p for p in self.parameters() if p.requires_grad], "lr": lr}]
+
+    def make_optimizer(self, lr: float) -> torch.optim.Optimizer:
+        return torch.optim.Adam(self.param_groups(lr))
+
+    def before_step(self, step: int, progress: float) -> bool:
+        """Called before each training step; ``progress`` in [0, 1]. Return True when
+        parameters were replaced (the optimizer is then rebuilt)."""
+        return False
+
+    def after_step(self, step: int) -> None:
+        """Called after each optimizer step."""
+
+    def extra_state(self) -> dict:
+        """JSON-able state beyond tensors (e.g. current grid resolution), saved in checkpoints."""
+        return {}
+
+    def load_extra_state(self, state: dict) -> None:
+        """Restore :meth:`extra_state` before ``load_state_dict``."""

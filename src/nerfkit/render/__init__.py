@@ -1,0 +1,1 @@
+"""Ray sampling and volume rendering: small pure functions over flat tensors."""

@@ -1,0 +1,120 @@
+"""Where along each ray to evaluate the field.
+
+Shapes: ``n_rays`` rays, ``n_samples`` samples per ray; ``t`` is distance along the
+(unit) ray direction, so the world point is ``o + t * d``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+
+def stratified_t(
+    near: Tensor | float,
+    far: Tensor | float,
+    n_rays: int,
+    n_samples: int,
+    perturb: bool,
+    device: torch.device | str | None = None,
+    generator: torch.Generator | None = None,
+) -> Tensor:
+    """Sample distances in ``n_samples`` equal bins between near and far.
+
+    With ``perturb`` each sample is uniform inside its bin (stratified sampling, as in
+    NeRF); without, it is the bin's midpoint.
+
+    Args:
+        near, far: scalars or (n_rays,) tensors.
+
+    Returns:
+        t: (n_rays, n_samples), increasing along each ray.
+
+    Example: near=2, far=6, n_samples=4, perturb=False -> [2.5, 3.5, 4.5, 5.5].
+    """
+    near = torch.as_tensor(near, dtype=torch.float32, device=device).reshape(-1, 1)
+    far = torch.as_tensor(far, dtype=torch.float32, device=device).reshape(-1, 1)
+    edges = torch.linspace(0.0, 1.0, n_samples + 1, device=near.device)
+    lower, width = edges[:-1], edges[1] - edges[0]
+    if perturb:
+        u = torch.rand((n_rays, n_samples), device=near.device, generator=generator)
+    else:
+        u = torch.full((n_rays, n_samples), 0.5, device=near.device)
+    frac = lower + u * width
+    return near + (far - near) * frac
+
+
+def sample_along_rays(
+    rays_o: Tensor,
+    rays_d: Tensor,
+    near: Tensor | float = 2.0,
+    far: Tensor | float = 6.0,
+    n_samples: int = 64,
+    perturb: bool = True,
+    generator: torch.Generator | None = None,
+) -> tuple[Tensor, Tensor]:
+    """The course's ray sampler: stratified points between near and far.
+
+    Args:
+        rays_o, rays_d: (n_rays, 3) origins and unit directions.
+
+    Returns:
+        ``(points, t)``: (n_rays, n_samples, 3) world points and their (n_rays, n_samples)
+        distances along the rays.
+    """
+    t = stratified_t(near, far, rays_o.shape[0], n_samples, perturb, rays_o.device, generator)
+    points = rays_o[:, None, :] + t[..., None] * rays_d[:, None, :]
+    return points, t
+
+
+def intervals_from_t(t: Tensor, far: Tensor | float | None = None) -> Tensor:
+    """Interval lengths (n_rays, n_samples) for samples at ``t``: gaps to the next sample.
+
+    The last sample's interval reaches ``far`` when given, else repeats the previous gap.
+    """
+    deltas = t[..., 1:] - t[..., :-1]
+    if far is None:
+        last = deltas[..., -1:] if deltas.shape[-1] else torch.ones_like(t[..., :1])
+    else:
+        far = torch.as_tensor(far, dtype=t.dtype, device=t.device).reshape(-1, 1)
+        last = torch.clamp(far - t[..., -1:], min=0.0).expand_as(t[..., -1:])
+    return torch.cat([deltas, last], dim=-1)
+
+
+def sample_pdf(
+    bins: Tensor,
+    weights: Tensor,
+    n_samples: int,
+    perturb: bool,
+    generator: torch.Generator | None = None,
+) -> Tensor:
+    """Inverse-transform sampling of the piecewise-constant pdf given by ``weights``.
+
+    Used for NeRF's hierarchical (coarse-to-fine) sampling.
+
+    Args:
+        bins: (n_rays, n_bins + 1) bin edges along each ray (increasing).
+        weights: (n_rays, n_bins) non-negative weights of the bins.
+        n_samples: samples to draw per ray.
+
+    Returns:
+        (n_rays, n_samples) sorted distances inside the bins.
+    """
+    weights = weights.detach() + 1e-5  # avoid nan on all-zero rays
+    pdf = weights / weights.sum(dim=-1, keepdim=True)
+    cdf = torch.cumsum(pdf, dim=-1)
+    cdf = torch.cat([torch.zeros_like(cdf[..., :1]), cdf], dim=-1)  # (n_rays, n_bins + 1)
+    n_rays = bins.shape[0]
+    if perturb:
+        u = torch.rand((n_rays, n_samples), device=bins.device, generator=generator)
+    else:
+        u = torch.linspace(0.0, 1.0, n_samples, device=bins.device).expand(n_rays, n_samples)
+    u = u.contiguous()
+    idx = torch.searchsorted(cdf, u, right=True)
+    below = torch.clamp(idx - 1, min=0)
+    above = torch.clamp(idx, max=cdf.shape[-1] - 1)
+    cdf_lo, cdf_hi = torch.gather(cdf, -1, below), torch.gather(cdf, -1, above)
+    bin_lo, bin_hi = torch.gather(bins, -1, below), torch.gather(bins, -1, above)
+    denom = torch.where(cdf_hi - cdf_lo < 1e-5, torch.ones_like(cdf_hi), cdf_hi - cdf_lo)
+    frac = (u - cdf_lo) / denom
+    return (bin_lo + frac * (bin_hi - bin_lo)).detach()

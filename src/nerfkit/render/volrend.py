@@ -1,0 +1,86 @@
+"""Volume rendering (emission-absorption), as in NeRF.
+
+For samples i along a ray with density sigma_i, colour c_i and interval length delta_i::
+
+    alpha_i = 1 - exp(-sigma_i * delta_i)
+    T_i     = exp(-sum_{j < i} sigma_j * delta_j)        (transmittance)
+    w_i     = T_i * alpha_i
+    C       = sum_i w_i * c_i  +  T_final * background
+
+All functions take flat tensors: (n_rays, n_samples) for per-sample scalars and
+(n_rays, n_samples, 3) for colours.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+
+def render_weights(sigmas: Tensor, deltas: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Compositing weights from densities.
+
+    Args:
+        sigmas: (n_rays, n_samples) non-negative densities.
+        deltas: (n_rays, n_samples) interval lengths (or broadcastable, e.g. a scalar).
+
+    Returns:
+        ``(weights, transmittance, alphas)``, each (n_rays, n_samples); the
+        transmittance is the light reaching each sample *before* it.
+
+    Example: one sample with sigma=1e10 takes all the weight (w = 1) and every later
+    sample gets w = 0.
+    """
+    tau = sigmas * deltas  # optical thickness of each interval
+    alphas = -torch.expm1(-tau)
+    # exclusive cumulative sum: thickness in front of each sample
+    accum = torch.cumsum(tau, dim=-1) - tau
+    transmittance = torch.exp(-accum)
+    weights = transmittance * alphas
+    return weights, transmittance, alphas
+
+
+def composite(
+    weights: Tensor,
+    rgbs: Tensor,
+    t: Tensor | None = None,
+    background: Tensor | float | None = None,
+) -> tuple[Tensor, Tensor | None, Tensor]:
+    """Accumulate colour (and expected depth) along rays.
+
+    Args:
+        weights: (n_rays, n_samples) from :func:`render_weights`.
+        rgbs: (n_rays, n_samples, 3) sample colours.
+        t: optional (n_rays, n_samples) sample distances, for the expected depth.
+        background: optional colour (3,) or scalar filling the transmittance left over.
+
+    Returns:
+        ``(rgb, depth, acc)``: (n_rays, 3) colour, (n_rays,) expected depth
+        ``sum w_i t_i`` (None without ``t``), and (n_rays,) opacity ``sum w_i``.
+    """
+    acc = weights.sum(dim=-1)
+    rgb = (weights.unsqueeze(-1) * rgbs).sum(dim=-2)
+    if background is not None:
+        bg = torch.as_tensor(background, dtype=rgb.dtype, device=rgb.device)
+        rgb = rgb + (1.0 - acc).unsqueeze(-1) * bg
+    depth = (weights * t).sum(dim=-1) if t is not None else None
+    return rgb, depth, acc
+
+
+def volrend(sigmas: Tensor, rgbs: Tensor, step_size: Tensor | float, background: Tensor | float | None = None) -> Tensor:
+    """The course's volume renderer.
+
+    Args:
+        sigmas: (n_rays, n_samples, 1) or (n_rays, n_samples) densities.
+        rgbs: (n_rays, n_samples, 3) colours.
+        step_size: scalar or (n_rays, n_samples) interval lengths.
+        background: optional colour for light that passes through.
+
+    Returns:
+        (n_rays, 3) rendered colours.
+    """
+    if sigmas.dim() == rgbs.dim():
+        sigmas = sigmas.squeeze(-1)
+    weights, _, _ = render_weights(sigmas, torch.as_tensor(step_size, dtype=sigmas.dtype, device=sigmas.device))
+    rgb, _, _ = composite(weights, rgbs, background=background)
+    return rgb
