@@ -90,6 +90,17 @@ class NerfModel(nn.Module):
         """Render rays (differentiable). ``background``: (3,) colour for empty space."""
         raise NotImplementedError
 
+    def query(self, points: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:
+        """The field itself: (n, 3) world points and unit view directions ->
+        ((n,) density, (n, 3) colour in [0, 1]). Used by export and viewers."""
+        raise NotImplementedError
+
+    def density(self, points: Tensor) -> Tensor:
+        """(n, 3) world points -> (n,) density (colour not needed)."""
+        d = torch.zeros_like(points)
+        d[:, 2] = 1.0
+        return self.query(points, d)[0]
+
     def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
         """Photometric MSE; models add their own terms (coarse network, regularisers)."""
         return torch.mean((out.rgb - target_rgb) ** 2)

@@ -1,0 +1,106 @@
+"""Reading the images people actually have.
+
+JPEG/PNG/TIFF/WebP (and HEIC when pillow-heif is installed), greyscale, palette, RGBA
+(composited on a background), 16-bit, EXIF-rotated phone photos (returned upright).
+Every failure is a :class:`NerfkitError` naming the file.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .errors import fail
+
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp", ".heic", ".heif"}
+# PIL refuses larger images as a "decompression bomb"; phone photos are ~12-50 MP.
+MAX_IMAGE_PIXELS = 250_000_000
+
+
+def _open(path: Path):
+    from PIL import Image, UnidentifiedImageError
+
+    Image.MAX_IMAGE_PIXELS = MAX_IMAGE_PIXELS
+    if path.suffix.lower() in {".heic", ".heif"}:
+        try:
+            import pillow_heif
+
+            pillow_heif.register_heif_opener()
+        except ImportError:
+            raise fail(path, "HEIC photos need pillow-heif", "pip install pillow-heif, or export the photos as JPEG") from None
+    if not path.exists():
+        raise fail(path, "no such file", "Check the path")
+    if path.is_dir():
+        raise fail(path, "is a folder, expected an image file")
+    try:
+        img = Image.open(path)
+        img.load()
+    except UnidentifiedImageError:
+        raise fail(path, "not an image nerfkit can read", "Use JPEG, PNG, TIFF, WebP or HEIC") from None
+    except Image.DecompressionBombError as e:
+        raise fail(path, f"image is too large ({e})") from None
+    except (OSError, SyntaxError, ValueError) as e:
+        raise fail(path, f"cannot decode image ({e})", "The file may be truncated or corrupt") from None
+    if img.width == 0 or img.height == 0:
+        raise fail(path, "image is empty (0 pixels)")
+    return img
+
+
+def exif_focal_35mm(path: str | Path) -> float | None:
+    """EXIF ``FocalLengthIn35mmFilm`` in mm, or None when the photo doesn't say."""
+    try:
+        img = _open(Path(path))
+        exif = img.getexif()
+        value = exif.get_ifd(0x8769).get(0xA405) or exif.get(0xA405)
+        return float(value) if value else None
+    except Exception:  # noqa: BLE001 - EXIF is optional metadata
+        return None
+
+
+def load_image(path: str | Path, background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+    """Load an image upright as float32 RGB in [0, 1], shape (H, W, 3).
+
+    EXIF orientation is applied; greyscale is replicated to RGB; transparency is
+    composited over ``background``; 16-bit images keep their precision.
+    """
+    from PIL import ImageOps
+
+    path = Path(path)
+    img = _open(path)
+    try:
+        img = ImageOps.exif_transpose(img)
+    except Exception:  # noqa: BLE001 - a broken EXIF block should not stop us
+        pass
+    mode = img.mode
+    if mode in ("I;16", "I;16B", "I;16L", "I"):
+        arr = np.asarray(img, dtype=np.float32)
+        scale = 65535.0 if arr.max() > 255 or mode.startswith("I;16") else 255.0
+        rgb = np.repeat((arr / scale)[..., None], 3, axis=2)
+        return np.clip(rgb, 0.0, 1.0).astype(np.float32)
+    if mode == "F":
+        arr = np.asarray(img, dtype=np.float32)
+        return np.repeat(np.clip(arr, 0, 1)[..., None], 3, axis=2)
+    has_alpha = mode in ("RGBA", "LA", "PA") or (mode == "P" and "transparency" in img.info)
+    img = img.convert("RGBA" if has_alpha else "RGB")
+    arr = np.asarray(img, dtype=np.float32) / 255.0
+    if has_alpha:
+        alpha = arr[..., 3:4]
+        arr = arr[..., :3] * alpha + np.asarray(background, np.float32) * (1.0 - alpha)
+    return np.ascontiguousarray(arr[..., :3], dtype=np.float32)
+
+
+def load_image_uint8(path: str | Path, background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+    """Like :func:`load_image` but (H, W, 3) uint8, for OpenCV and for datasets."""
+    return (load_image(path, background) * 255.0 + 0.5).astype(np.uint8)
+
+
+def list_images(folder: str | Path) -> list[Path]:
+    """Image files in a folder (not recursive), sorted by name; a clear error when there are none."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise fail(folder, "no such folder" if not folder.exists() else "is not a folder")
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise fail(folder, "holds no images", f"Expected files ending in {', '.join(sorted(IMAGE_SUFFIXES))}")
+    return files
