@@ -42,8 +42,8 @@ def add_dataclass_args(parser: argparse.ArgumentParser, cls: type, group_title: 
     target = parser.add_argument_group(group_title) if group_title else parser
     hints = typing.get_type_hints(cls)
     for f in dataclasses.fields(cls):
-        if f.name in skip or f.metadata.get("cli") is False:
-            continue
+        if f.name in skip or f.metadata.get("cli") is False or _flag(f.name) in parser._option_string_actions:
+            continue  # a flag shared by two configs is added once
         tp, _ = _base_type(hints[f.name])
         default = f.default if f.default is not dataclasses.MISSING else None
         help_text = f.metadata.get("help", "")

@@ -1,0 +1,72 @@
+"""Render whole images from a model, in chunks so memory stays bounded."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+import torch
+
+from ..cameras import image_rays
+from ..data.scene import Views
+from ..models.base import NerfModel
+
+
+@dataclass
+class RenderedView:
+    """One rendered image: rgb (H, W, 3) float32 in [0, 1], depth and acc (H, W).
+
+    ``depth`` is the expected depth divided by the opacity (the depth of what the ray
+    hit); it is 0 where nothing was hit.
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    acc: np.ndarray
+
+
+@torch.no_grad()
+def render_image(
+    model: NerfModel,
+    K: np.ndarray,
+    c2w: np.ndarray,
+    width: int,
+    height: int,
+    background: torch.Tensor,
+    chunk: int = 16384,
+    autocast_dtype: torch.dtype | None = None,
+) -> RenderedView:
+    """Render one view, ``chunk`` rays at a time (peak memory ~ chunk x samples)."""
+    device = background.device
+    rays = image_rays(torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(c2w, dtype=torch.float32).to(device),
+                      width, height)
+    rgb, depth, acc = [], [], []
+    was_training = model.training
+    model.eval()
+    try:
+        for start in range(0, len(rays), chunk):
+            with torch.autocast(device.type, dtype=autocast_dtype or torch.bfloat16, enabled=autocast_dtype is not None):
+                out = model.render_rays(rays[start:start + chunk], background, perturb=False)
+            rgb.append(out.rgb.float())
+            depth.append(out.depth.float())
+            acc.append(out.acc.float())
+    finally:
+        model.train(was_training)
+    rgb_t = torch.cat(rgb).clamp(0, 1).reshape(height, width, 3)
+    acc_t = torch.cat(acc).reshape(height, width)
+    depth_t = torch.cat(depth).reshape(height, width) / acc_t.clamp_min(1e-6)
+    depth_t = torch.where(acc_t > 1e-3, depth_t, torch.zeros_like(depth_t))
+    return RenderedView(rgb_t.cpu().numpy(), depth_t.cpu().numpy(), acc_t.cpu().numpy())
+
+
+def render_views(
+    model: NerfModel,
+    views: Views,
+    background: torch.Tensor,
+    chunk: int = 16384,
+    autocast_dtype: torch.dtype | None = None,
+) -> Iterator[RenderedView]:
+    """Render every view of a split, one at a time (a generator: memory holds one image)."""
+    for i in range(len(views)):
+        yield render_image(model, views.K[i], views.c2w[i], views.width, views.height, background, chunk, autocast_dtype)

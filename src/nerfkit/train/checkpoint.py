@@ -1,0 +1,149 @@
+"""Checkpoints and run folders.
+
+A run folder::
+
+    RUN/config.json                 resolved train + model config, scene bounds, data path
+    RUN/checkpoints/step_00001234.pt   model, optimizer, RNG streams, metric rows
+    RUN/metrics.csv, metrics.json   one row per logged step (train) or evaluation (val)
+    RUN/plots/, RUN/progress/, RUN/videos/
+
+Checkpoints are written atomically and read with ``torch.load(weights_only=True)``,
+so a crafted file cannot run code. A checkpoint that fails to load is reported and the
+previous one is used.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from ..config import dataclass_from_dict, load_json
+from ..errors import NerfkitError, fail
+from ..io.atomic import atomic_path, write_json
+from ..models import SceneBounds, build_model, config_from_dict, model_config_class
+from ..models.base import NerfModel
+from .config import TrainConfig
+
+FORMAT = "nerfkit-checkpoint"
+VERSION = 1
+
+
+@dataclass
+class RunInfo:
+    """What a run folder says about itself."""
+
+    run_dir: Path
+    train: TrainConfig
+    model_config: Any
+    bounds: SceneBounds
+
+
+def write_run_config(run_dir: Path, train: TrainConfig, model_config: Any, bounds: SceneBounds, scene_info: dict) -> None:
+    from .. import __version__
+
+    write_json(run_dir / "config.json", {
+        "nerfkit_version": __version__,
+        "train": asdict(train),
+        "model": asdict(model_config),
+        "bounds": bounds.to_dict(),
+        "scene": scene_info,
+    })
+
+
+def read_run(run_dir: str | Path) -> RunInfo:
+    run_dir = Path(run_dir)
+    cfg_path = run_dir / "config.json"
+    if not run_dir.is_dir():
+        raise fail(run_dir, "no such run folder", "Give the --out folder of a `nerfkit train` run")
+    if not cfg_path.exists():
+        raise fail(cfg_path, "missing", "This folder is not a nerfkit run (train writes config.json first)")
+    d = load_json(cfg_path)
+    try:
+        train = dataclass_from_dict(TrainConfig, d["train"], str(cfg_path))
+        model_config = dataclass_from_dict(model_config_class(train.model), d["model"], str(cfg_path))
+        bounds = SceneBounds.from_dict(d["bounds"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise fail(cfg_path, f"malformed run config ({type(e).__name__}: {e})") from None
+    return RunInfo(run_dir, train, model_config, bounds)
+
+
+def checkpoint_paths(run_dir: Path) -> list[Path]:
+    """Checkpoints of a run, newest first."""
+    return sorted((run_dir / "checkpoints").glob("step_*.pt"), reverse=True)
+
+
+def save_checkpoint(run_dir: Path, step: int, model: NerfModel, optimizer: torch.optim.Optimizer,
+                    extra: dict, keep: int = 3) -> Path:
+    """Write ``checkpoints/step_XXXXXXXX.pt`` atomically and prune old ones."""
+    path = run_dir / "checkpoints" / f"step_{step:08d}.pt"
+    payload = {
+        "format": FORMAT,
+        "version": VERSION,
+        "model_name": type(model).__name__,
+        "step": step,
+        "model": model.state_dict(),
+        "model_extra": json.dumps(model.extra_state()),
+        "optimizer": optimizer.state_dict(),
+        **extra,
+    }
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    for old in checkpoint_paths(run_dir)[keep:]:
+        old.unlink(missing_ok=True)
+    return path
+
+
+def _read_checkpoint(path: Path, model_name: str) -> dict:
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # noqa: BLE001 - truncated zip, unpickling refused, ...
+        raise fail(path, f"cannot load checkpoint ({type(e).__name__}: {str(e).splitlines()[0][:200]})") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise fail(path, "not a nerfkit checkpoint")
+    if ckpt.get("version") != VERSION:
+        raise fail(path, f"checkpoint version {ckpt.get('version')} is not {VERSION}", "Re-train with this nerfkit")
+    if ckpt.get("model_name") != model_name:
+        raise fail(path, f"checkpoint is for model {ckpt.get('model_name')}, this run uses {model_name}")
+    return ckpt
+
+
+def load_latest_checkpoint(run_dir: Path, model: NerfModel) -> tuple[dict, Path] | None:
+    """Load the newest loadable checkpoint into ``model``; warn about and skip broken ones.
+
+    Returns the checkpoint dict (optimizer state, RNG streams, ...) and its path, or None
+    when the run has no checkpoint. Raises when checkpoints exist but none loads.
+    """
+    paths = checkpoint_paths(run_dir)
+    errors = []
+    for path in paths:
+        try:
+            ckpt = _read_checkpoint(path, type(model).__name__)
+            model.load_extra_state(json.loads(ckpt["model_extra"]))
+            model.load_state_dict(ckpt["model"])
+            return ckpt, path
+        except (NerfkitError, RuntimeError, KeyError, ValueError) as e:
+            errors.append(str(e))
+            print(f"warning: {e}; trying an older checkpoint", file=sys.stderr)
+    if paths:
+        raise fail(run_dir, "no checkpoint could be loaded: " + "; ".join(errors))
+    return None
+
+
+def load_run(run_dir: str | Path, device: torch.device | str = "cpu") -> tuple[NerfModel, RunInfo, int]:
+    """A trained model from a run folder: (model in eval mode, run info, step)."""
+    info = read_run(run_dir)
+    model = build_model(info.train.model, info.model_config, info.bounds)
+    loaded = load_latest_checkpoint(info.run_dir, model)
+    if loaded is None:
+        raise fail(info.run_dir, "has no checkpoint yet", "Wait for training to write one, or train longer")
+    model.to(device).eval()
+    return model, info, int(loaded[0]["step"])
+
+
+__all__ = ["RunInfo", "load_latest_checkpoint", "load_run", "read_run", "save_checkpoint", "write_run_config",
+           "config_from_dict"]

@@ -1,0 +1,82 @@
+"""Training configuration: one dataclass, turned into flags and saved into every run."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from ..config import option
+from ..errors import fail
+from ..models import MODEL_NAMES
+
+
+@dataclass
+class TrainConfig:
+    data: str = option("", "dataset to train on: a course .npz, or any format `nerfkit convert` reads",
+                       metavar="PATH")
+    model: str = option("fast", "which radiance field to train", choices=list(MODEL_NAMES))
+    out: str = option("runs/latest", "run folder for checkpoints, metrics, plots and videos", metavar="DIR")
+    steps: int = option(0, "optimizer steps (0: run until --minutes is spent)")
+    minutes: float = option(0.0, "training-time budget in minutes, evaluation excluded (0: no limit)")
+    batch_rays: int = option(0, "rays per step (0: the model's default)")
+    lr: float = option(0.0, "base learning rate (0: the model's default)")
+    lr_final_factor: float = option(0.1, "learning rate decays exponentially to lr x this at the end")
+    seed: int = option(0, "random seed (rays, sampling, initialisation)")
+    device: str = option("auto", "auto, cpu, cuda or cuda:N")
+    precision: str = option("auto", "auto (bf16 where the hardware has it), fp32, or bf16", choices=["auto", "fp32", "bf16"])
+    background: str = option("black", "colour behind the object: black, white, or r,g,b in [0, 1]")
+    eval_every: int = option(0, "steps between validation renders (0: about 10 over the run)")
+    eval_views: int = option(2, "validation views rendered at each periodic evaluation")
+    checkpoint_seconds: float = option(60.0, "seconds of training between checkpoints")
+    keep_checkpoints: int = option(3, "how many recent checkpoints to keep")
+    render_chunk: int = option(16384, "rays rendered at once when rendering full images")
+
+    def validate(self) -> "TrainConfig":
+        if self.steps < 0 or self.minutes < 0:
+            raise fail("train", "--steps and --minutes must be >= 0")
+        if self.steps == 0 and self.minutes == 0:
+            raise fail("train", "no stopping rule", "Give --steps N or --minutes M (or both)")
+        if self.batch_rays < 0 or self.lr < 0 or not 0 < self.lr_final_factor <= 1:
+            raise fail("train", "--batch-rays and --lr must be >= 0 and --lr-final-factor in (0, 1]")
+        parse_background(self.background)
+        return self
+
+
+def parse_background(text: str) -> tuple[float, float, float]:
+    """'black' | 'white' | 'r,g,b' -> an RGB triple in [0, 1]."""
+    named = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0)}
+    if text in named:
+        return named[text]
+    try:
+        rgb = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        rgb = ()
+    if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
+        raise fail("--background", f"'{text}' is not a colour", "Use black, white, or r,g,b with values in [0, 1]")
+    return rgb  # type: ignore[return-value]
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise fail("--device", f"'{name}' is not a device", "Use auto, cpu, cuda or cuda:N") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise fail("--device", "CUDA was asked for but this PyTorch has no CUDA device", "Use --device cpu")
+    return device
+
+
+def resolve_autocast(precision: str, device: torch.device) -> torch.dtype | None:
+    """The autocast dtype for a precision setting, or None for plain fp32."""
+    if precision == "fp32":
+        return None
+    if device.type == "cuda":
+        supported = torch.cuda.is_bf16_supported()
+    else:
+        supported = torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported()
+    if precision == "bf16":
+        return torch.bfloat16
+    return torch.bfloat16 if supported else None

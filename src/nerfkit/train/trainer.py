@@ -1,0 +1,330 @@
+"""The training loop: rays in, Adam steps, evaluations, checkpoints, plots.
+
+The trainer never does camera math or sampling; it asks the model to render a batch of
+rays (see :mod:`nerfkit.models.base`) and keeps the run folder up to date.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import signal
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..data.rays import RaysData
+from ..data.scene import Scene
+from ..errors import fail
+from ..io.atomic import write_image, write_json, write_text
+from ..models import SceneBounds, build_model
+from ..models.base import NerfModel
+from ..render.renderer import render_image
+from ..viz.plots import image_grid, plot_curves
+from .checkpoint import load_latest_checkpoint, read_run, save_checkpoint, write_run_config
+from .config import TrainConfig, parse_background, resolve_autocast, resolve_device
+from .metrics import psnr, psnr_from_mse
+
+# Stop after this many consecutive steps with a non-finite loss or gradient.
+MAX_BAD_STEPS = 20
+
+
+@dataclass
+class TrainResult:
+    run_dir: Path
+    step: int
+    train_seconds: float
+    final_val_psnr: float | None
+    interrupted: bool = False
+    rows: list[dict] = field(default_factory=list)
+
+
+def resolved_config(cfg: TrainConfig, model_config) -> TrainConfig:
+    """Fill the model-dependent defaults (batch size, learning rate)."""
+    defaults = getattr(model_config, "TRAIN_DEFAULTS", {"batch_rays": 1024, "lr": 5e-4})
+    if cfg.batch_rays == 0:
+        cfg.batch_rays = int(defaults["batch_rays"])
+    if cfg.lr == 0:
+        cfg.lr = float(defaults["lr"])
+    return cfg
+
+
+class Trainer:
+    """Trains one model on one scene into one run folder (new, or resumed)."""
+
+    def __init__(self, scene: Scene, cfg: TrainConfig, model_config, resume: bool = False, quiet: bool = False):
+        if not scene.train.has_images:
+            raise fail(scene.source, "has no training images")
+        self.scene, self.cfg, self.model_config, self.quiet = scene, cfg, model_config, quiet
+        self.run_dir = Path(cfg.out)
+        self.device = resolve_device(cfg.device)
+        self.autocast = resolve_autocast(cfg.precision, self.device)
+        self.background = torch.tensor(parse_background(cfg.background), dtype=torch.float32, device=self.device)
+        torch.manual_seed(cfg.seed)
+        self.bounds = SceneBounds.from_scene(scene) if not resume else read_run(self.run_dir).bounds
+        self.model: NerfModel = build_model(cfg.model, model_config, self.bounds).to(self.device)
+        self.optimizer = self.model.make_optimizer(cfg.lr)
+        self._remember_initial_lr()
+        self.rays = RaysData(scene.train, self.device, seed=cfg.seed)
+        self.step = 0
+        self.train_seconds = 0.0
+        self.rows: list[dict] = []
+        self.bad_steps = 0
+        self._last_eval_tenth = 0
+        if resume:
+            self._resume()
+        else:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            write_run_config(self.run_dir, cfg, model_config, self.bounds, {
+                "source": scene.source, "width": scene.train.width, "height": scene.train.height,
+                "n_train": len(scene.train), "n_val": len(scene.val), "n_test": len(scene.test),
+                "near": scene.near, "far": scene.far,
+            })
+
+    # -- state ---------------------------------------------------------------------
+    def _remember_initial_lr(self) -> None:
+        for g in self.optimizer.param_groups:
+            g.setdefault("initial_lr", g["lr"])
+
+    def _rng_state(self) -> dict:
+        state = {"torch_rng": torch.get_rng_state(), "sampler_rng": self.rays.rng_state()}
+        if self.device.type == "cuda":
+            state["cuda_rng"] = torch.cuda.get_rng_state(self.device)
+        return state
+
+    def save(self) -> Path:
+        extra = {**self._rng_state(), "train_seconds": self.train_seconds, "rows": json.dumps(self.rows),
+                 "bad_steps": self.bad_steps}
+        return save_checkpoint(self.run_dir, self.step, self.model, self.optimizer, extra, self.cfg.keep_checkpoints)
+
+    def _resume(self) -> None:
+        loaded = load_latest_checkpoint(self.run_dir, self.model)
+        if loaded is None:
+            self.log(f"{self.run_dir}: no checkpoint yet, starting from step 0")
+            return
+        ckpt, path = loaded
+        self.model.to(self.device)
+        self.optimizer = self.model.make_optimizer(self.cfg.lr)
+        self.optimizer.load_state_dict(ckpt["optimizer"])
+        self._remember_initial_lr()
+        self.step = int(ckpt["step"])
+        self.train_seconds = float(ckpt["train_seconds"])
+        self.rows = json.loads(ckpt["rows"])
+        self.bad_steps = int(ckpt.get("bad_steps", 0))
+        torch.set_rng_state(ckpt["torch_rng"])
+        self.rays.set_rng_state(ckpt["sampler_rng"])
+        if "cuda_rng" in ckpt and self.device.type == "cuda":
+            torch.cuda.set_rng_state(ckpt["cuda_rng"], self.device)
+        self.log(f"resumed from {path.name} (step {self.step}, {self.train_seconds:.0f} s trained)")
+
+    # -- schedule ------------------------------------------------------------------
+    def progress(self) -> float:
+        """Fraction of the run done, by steps or by training time, whichever is further."""
+        p = 0.0
+        if self.cfg.steps:
+            p = max(p, self.step / self.cfg.steps)
+        if self.cfg.minutes:
+            p = max(p, self.train_seconds / (60.0 * self.cfg.minutes))
+        return min(p, 1.0)
+
+    def done(self) -> bool:
+        return self.progress() >= 1.0
+
+    def _set_lr(self) -> None:
+        factor = self.cfg.lr_final_factor ** self.progress()
+        for g in self.optimizer.param_groups:
+            g["lr"] = g["initial_lr"] * factor
+
+    def _eval_due(self) -> bool:
+        if self.cfg.eval_every:
+            return self.step % self.cfg.eval_every == 0
+        if self.cfg.steps:
+            return self.step % max(self.cfg.steps // 10, 1) == 0
+        # time budget: evaluate each time another tenth of it is spent
+        tenths = math.floor(10 * self.progress())
+        due = tenths > self._last_eval_tenth
+        self._last_eval_tenth = tenths
+        return due
+
+    # -- one step ------------------------------------------------------------------
+    def train_step(self) -> dict:
+        if self.model.before_step(self.step, self.progress()):
+            state = self.optimizer.state_dict()
+            self.optimizer = self.model.make_optimizer(self.cfg.lr)
+            self._remember_initial_lr()
+            del state  # parameters were replaced: their Adam moments no longer apply
+        self._set_lr()
+        batch = self.rays.sample(self.cfg.batch_rays)
+        with torch.autocast(self.device.type, dtype=self.autocast or torch.bfloat16, enabled=self.autocast is not None):
+            out = self.model.render_rays(batch.rays, self.background, perturb=True)
+            loss = self.model.loss(out, batch.rgb)
+        self.optimizer.zero_grad(set_to_none=True)
+        finite = bool(torch.isfinite(loss))
+        if finite:
+            loss.backward()
+            finite = all(torch.isfinite(p.grad).all() for p in self.model.parameters() if p.grad is not None)
+        if not finite:
+            self.optimizer.zero_grad(set_to_none=True)
+            self.bad_steps += 1
+            self.log(f"step {self.step}: non-finite loss or gradient, step skipped ({self.bad_steps} in a row)")
+            if self.bad_steps >= MAX_BAD_STEPS:
+                raise fail(self.run_dir, f"training diverged: {self.bad_steps} steps in a row had non-finite values",
+                           "The last good checkpoint is kept; lower --lr and resume with --resume")
+            return {"loss": float("nan"), "psnr": float("nan"), "samples": 0}
+        self.bad_steps = 0
+        self.optimizer.step()
+        self.model.after_step(self.step)
+        mse = float(torch.mean((out.rgb.detach().float() - batch.rgb) ** 2))
+        return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples}
+
+    # -- evaluation ------------------------------------------------------------------
+    def evaluate(self, n_views: int | None = None) -> float | None:
+        """Mean PSNR over the first ``n_views`` validation images (all when None)."""
+        val = self.scene.val
+        if not val.has_images:
+            return None
+        n = len(val) if n_views is None else min(n_views, len(val))
+        scores = []
+        for i in range(n):
+            view = render_image(self.model, val.K[i], val.c2w[i], val.width, val.height, self.background,
+                                self.cfg.render_chunk, self.autocast)
+            target = val.images[i].astype(np.float32) / 255.0
+            scores.append(psnr(view.rgb, target))
+            if i == 0:
+                write_image(self.run_dir / "progress" / f"step_{self.step:08d}.png", view.rgb)
+        return float(np.mean(scores))
+
+    # -- the loop ------------------------------------------------------------------
+    def log(self, msg: str) -> None:
+        if not self.quiet:
+            from tqdm import tqdm
+
+            tqdm.write(msg, file=sys.stderr)
+
+    def run(self, stop_after: int | None = None) -> TrainResult:
+        """Train until the stopping rule (or Ctrl-C, or step ``stop_after``), then save."""
+        from tqdm import tqdm
+
+        interrupted = False
+        previous = signal.getsignal(signal.SIGINT)
+
+        def on_sigint(signum, frame):  # finish the current step, then save and stop
+            nonlocal interrupted
+            interrupted = True
+
+        signal.signal(signal.SIGINT, on_sigint)
+        total = self.cfg.steps if self.cfg.steps else None
+        bar = tqdm(total=total, initial=self.step, desc=f"train {self.cfg.model}", unit="step", dynamic_ncols=True,
+                   disable=self.quiet, mininterval=1.0, file=sys.stderr)
+        last_ckpt = time.perf_counter()
+        samples = 0
+        train_psnr = []
+        try:
+            if self.step == 0:
+                self._record_eval()
+            while not self.done() and not interrupted and (stop_after is None or self.step < stop_after):
+                t0 = time.perf_counter()
+                stats = self.train_step()
+                if self.device.type == "cuda":
+                    torch.cuda.synchronize(self.device)
+                self.train_seconds += time.perf_counter() - t0
+                self.step += 1
+                samples += stats["samples"]
+                if math.isfinite(stats["psnr"]):
+                    train_psnr.append(stats["psnr"])
+                if self.step % 10 == 0 or self.done():
+                    self.rows.append({"step": self.step, "seconds": round(self.train_seconds, 3), "split": "train",
+                                      "loss": stats["loss"], "psnr": float(np.mean(train_psnr[-10:] or [float("nan")]))})
+                bar.update(1)
+                bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}",
+                                spr=f"{stats['samples'] / self.cfg.batch_rays:.0f}", refresh=False)
+                if self.cfg.minutes and not total:
+                    bar.set_description(f"train {self.cfg.model} {self.train_seconds:.0f}/{60 * self.cfg.minutes:.0f}s")
+                if self._eval_due() or self.done():
+                    self._record_eval()
+                if time.perf_counter() - last_ckpt >= self.cfg.checkpoint_seconds:
+                    self.save()
+                    last_ckpt = time.perf_counter()
+        finally:
+            bar.close()
+            signal.signal(signal.SIGINT, previous)
+        self.save()
+        self.write_reports()
+        if interrupted:
+            self.log(f"interrupted: checkpoint saved at step {self.step}; continue with "
+                     f"`nerfkit train --resume {self.run_dir}`")
+        final = [r for r in self.rows if r["split"] == "val"]
+        return TrainResult(self.run_dir, self.step, self.train_seconds,
+                           final[-1]["psnr"] if final else None, interrupted, self.rows)
+
+    def _record_eval(self) -> None:
+        if any(r["split"] == "val" and r["step"] == self.step for r in self.rows):
+            return
+        n = None if self.done() else self.cfg.eval_views
+        val_psnr = self.evaluate(n)
+        if val_psnr is None:
+            return
+        self.rows.append({"step": self.step, "seconds": round(self.train_seconds, 3), "split": "val",
+                          "loss": float("nan"), "psnr": val_psnr, "views": n or len(self.scene.val)})
+        self.log(f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {val_psnr:.2f} dB")
+
+    def write_reports(self) -> None:
+        """metrics.csv/json, PSNR and loss curves, and the progression figure."""
+        write_json(self.run_dir / "metrics.json", {"rows": self.rows, "step": self.step,
+                                                   "train_seconds": self.train_seconds})
+        buf = io.StringIO()
+        keys = ["step", "seconds", "split", "loss", "psnr", "views"]
+        writer = csv.DictWriter(buf, fieldnames=keys, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(self.rows)
+        write_text(self.run_dir / "metrics.csv", buf.getvalue())
+        train = [r for r in self.rows if r["split"] == "train"]
+        val = [r for r in self.rows if r["split"] == "val"]
+        plots = self.run_dir / "plots"
+        plot_curves(plots / "psnr.png", {
+            "train (batch)": ([r["seconds"] for r in train], [r["psnr"] for r in train]),
+            "validation (full images)": ([r["seconds"] for r in val], [r["psnr"] for r in val]),
+        }, "training seconds", "PSNR (dB)", f"{self.cfg.model}: PSNR")
+        plot_curves(plots / "loss.png", {"train loss": ([r["step"] for r in train], [r["loss"] for r in train])},
+                    "step", "MSE loss", f"{self.cfg.model}: training loss", logy=True)
+        snaps = sorted((self.run_dir / "progress").glob("step_*.png"))
+        if len(snaps) > 8:  # keep the first, the last and evenly spaced ones between
+            snaps = [snaps[int(round(i))] for i in np.linspace(0, len(snaps) - 1, 8)]
+        if snaps and self.scene.val.has_images:
+            import imageio.v3 as iio
+
+            images = [iio.imread(p) for p in snaps] + [self.scene.val.images[0]]
+            titles = [f"step {int(p.stem.split('_')[1])}" for p in snaps] + ["ground truth"]
+            image_grid(plots / "progress.png", images, titles, ncols=min(len(images), 5),
+                       suptitle="validation view 0 during training")
+
+
+def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False) -> TrainResult:
+    """Train a new run (``cfg.out`` is created; an existing run there is refused)."""
+    run_dir = Path(cfg.out)
+    if (run_dir / "config.json").exists():
+        raise fail(run_dir, "already holds a run", "Continue it with --resume, or choose another --out")
+    cfg = resolved_config(cfg.validate(), model_config)
+    return Trainer(scene, cfg, model_config, quiet=quiet).run()
+
+
+def resume(run_dir: str | Path, scene: Scene, steps: int | None = None, minutes: float | None = None,
+           quiet: bool = False) -> TrainResult:
+    """Continue a run from its newest good checkpoint (optionally with a new stopping rule)."""
+    info = read_run(run_dir)
+    cfg = info.train
+    if steps is not None:
+        cfg.steps = steps
+    if minutes is not None:
+        cfg.minutes = minutes
+    cfg.out = str(run_dir)
+    return Trainer(scene, cfg, info.model_config, resume=True, quiet=quiet).run()
+
+
+__all__ = ["TrainResult", "Trainer", "asdict", "resume", "train"]

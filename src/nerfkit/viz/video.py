@@ -1,0 +1,48 @@
+"""Videos (MP4 via imageio-ffmpeg, GIF via Pillow) and depth colour maps."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from ..io.atomic import atomic_path
+
+
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    """Float [0, 1] (H, W, 3) -> uint8."""
+    return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def colorize_depth(depth: np.ndarray, acc: np.ndarray, near: float, far: float, cmap: str = "turbo") -> np.ndarray:
+    """Colour-map depth (H, W) into (H, W, 3) float; near is warm, far is cool; empty is black.
+
+    The range is clipped to [near, far] so every frame of a video shares one scale.
+    """
+    import matplotlib
+
+    norm = np.clip((depth - near) / max(far - near, 1e-8), 0.0, 1.0)
+    colored = matplotlib.colormaps[cmap](1.0 - norm)[..., :3]
+    return (colored * np.clip(acc, 0.0, 1.0)[..., None]).astype(np.float32)
+
+
+def write_video(path: str | Path, frames: Iterable[np.ndarray], fps: int = 30) -> None:
+    """Write frames (uint8 (H, W, 3)) to MP4 (H.264) or GIF, chosen by the extension, atomically."""
+    import imageio.v3 as iio
+
+    path = Path(path)
+    frames = [f if f.dtype == np.uint8 else to_uint8(f) for f in frames]
+    if not frames:
+        raise ValueError("no frames to write")
+    with atomic_path(path) as tmp:
+        if path.suffix.lower() == ".gif":
+            iio.imwrite(tmp, np.stack(frames), extension=".gif", duration=1000.0 / fps, loop=0)
+        else:
+            # H.264 wants even sizes; pad by one pixel when needed.
+            h, w = frames[0].shape[:2]
+            ph, pw = h % 2, w % 2
+            if ph or pw:
+                frames = [np.pad(f, ((0, ph), (0, pw), (0, 0)), mode="edge") for f in frames]
+            iio.imwrite(tmp, np.stack(frames), extension=".mp4", plugin="FFMPEG", fps=fps,
+                        codec="libx264", quality=8, macro_block_size=1, ffmpeg_log_level="error")

@@ -1,0 +1,147 @@
+"""The course npz loader: round trips, and one clear error per kind of broken file."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+import torch
+
+from nerfkit.data.npz import load_npz, save_npz
+from nerfkit.data.rays import RaysData
+from nerfkit.errors import NerfkitError
+
+
+def course_arrays(n=4, size=8):
+    rng = np.random.default_rng(0)
+    c2w = np.tile(np.eye(4, dtype=np.float32), (n, 1, 1))
+    c2w[:, :3, 3] = rng.normal(size=(n, 3)) + [0, 0, 4]
+    return {
+        "images_train": rng.integers(0, 255, (n, size, size, 3), dtype=np.uint8),
+        "c2ws_train": c2w,
+        "images_val": rng.integers(0, 255, (2, size, size, 3), dtype=np.uint8),
+        "c2ws_val": c2w[:2],
+        "c2ws_test": c2w[:3],
+        "focal": np.float32(10.0),
+    }
+
+
+def write(tmp_path, **arrays):
+    path = tmp_path / "scene.npz"
+    np.savez(path, **arrays)
+    return path
+
+
+def test_course_layout_loads_with_focal_meaning_centered_principal_point(tmp_path):
+    scene = load_npz(write(tmp_path, **course_arrays()))
+    assert len(scene.train) == 4 and len(scene.val) == 2 and len(scene.test) == 3
+    assert not scene.test.has_images
+    assert np.allclose(scene.train.K[0], [[10, 0, 4], [0, 10, 4], [0, 0, 1]])
+    assert scene.near < scene.far
+
+
+def test_round_trip_keeps_cameras_images_names(tmp_path, sphere):
+    save_npz(sphere, tmp_path / "s.npz")
+    back = load_npz(tmp_path / "s.npz")
+    for split in ("train", "val", "test"):
+        a, b = sphere.splits[split], back.splits[split]
+        assert np.allclose(a.c2w, b.c2w) and np.allclose(a.K, b.K) and a.names == b.names
+    assert np.array_equal(sphere.train.images, back.train.images)
+    assert (back.near, back.far) == (sphere.near, sphere.far)
+
+
+def test_rays_data_uv_indexes_the_sampled_pixels(sphere):
+    rays = RaysData(sphere.train, seed=0)
+    batch = rays.sample(500)
+    images = torch.from_numpy(sphere.train.images)
+    pixels = images[batch.image_index, batch.uv[:, 1], batch.uv[:, 0]].float() / 255
+    assert torch.equal(pixels, batch.rgb)
+    # ray directions go through the pixel centres (uv + 0.5)
+    i, (u, v) = int(batch.image_index[0]), batch.uv[0].tolist()
+    K, c2w = sphere.train.K[i], sphere.train.c2w[i]
+    d_cam = c2w[:3, :3].T @ batch.rays.directions[0].numpy()
+    assert np.allclose(K @ (d_cam / d_cam[2]), [u + 0.5, v + 0.5, 1], atol=1e-3)
+    per_image = rays.sample_from_images(64, 4)
+    assert len(torch.unique(per_image.image_index)) == 4
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda a: a.pop("c2ws_train"), "missing key 'c2ws_train'"),
+    (lambda a: a.pop("focal"), "missing 'focal'"),
+    (lambda a: a.update(c2ws_train=a["c2ws_train"][:3]), "has 4 images but 'c2ws_train' has 3 poses"),
+    (lambda a: a.update(images_train=a["images_train"][..., :2]), "expected (N, H, W, 3)"),
+    (lambda a: a.update(images_train=a["images_train"].astype(np.float32)), "expected [0, 1]"),
+    (lambda a: a.update(images_train=a["images_train"].astype(np.int64)), "dtype int64"),
+    (lambda a: a.update(focal=np.float32(-3)), "must be positive"),
+    (lambda a: a.update(focal=np.float32(np.nan)), "'focal' is nan"),
+    (lambda a: a["c2ws_train"].__setitem__((1, 0, 0), np.inf), "'c2ws_train'[1] has NaN or inf"),
+    (lambda a: a["c2ws_train"].__setitem__((2, slice(0, 3), 0), 2.0), "'c2ws_train'[2] rotation is not rigid"),
+    (lambda a: a["c2ws_train"].__setitem__((0, 3, 0), 1.0), "last row"),
+    (lambda a: a.update(near=np.float32(5), far=np.float32(2)), "need 0 <= near < far"),
+    (lambda a: a.update(near=np.float32(1)), "only one of 'near' and 'far'"),
+    (lambda a: a.update(images_val=a["images_val"][:, :4]), "images are 8x4"),
+    (lambda a: a.pop("c2ws_val"), "'images_val' is present but 'c2ws_val' is missing"),
+    (lambda a: a.update(images_train=np.zeros((0, 8, 8, 3), np.uint8), c2ws_train=np.zeros((0, 4, 4))), "is empty"),
+    (lambda a: a.update(K=np.array([[0.0, 0, 4], [0, 10, 4], [0, 0, 1]])), "zero or negative focal"),
+])
+def test_broken_files_give_one_clear_error(tmp_path, mutate, message):
+    arrays = course_arrays()
+    mutate(arrays)
+    path = write(tmp_path, **arrays)
+    with pytest.raises(NerfkitError) as err:
+        load_npz(path)
+    assert message in str(err.value)
+    assert str(path) in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_pickled_object_array_is_refused_without_running_it(tmp_path):
+    class Boom:
+        def __reduce__(self):
+            return (exec, ("open('%s', 'w').write('pwned')" % (tmp_path / "pwned").as_posix(),))
+
+    arrays = course_arrays()
+    arrays["evil"] = np.array([Boom()], dtype=object)
+    path = tmp_path / "evil.npz"
+    np.savez(path, **arrays)
+    with pytest.raises(NerfkitError, match="object array"):
+        load_npz(path)
+    assert not (tmp_path / "pwned").exists()
+    assert pickle  # the payload above is a real pickle gadget
+
+
+@pytest.mark.parametrize("content", [b"", b"not a zip file at all", b"PK\x03\x04garbage"])
+def test_non_npz_files_are_refused(tmp_path, content):
+    path = tmp_path / "bad.npz"
+    path.write_bytes(content)
+    with pytest.raises(NerfkitError, match="not a valid .npz|cannot read|holds no arrays"):
+        load_npz(path)
+
+
+def test_truncated_npz_is_refused(tmp_path):
+    path = write(tmp_path, **course_arrays(size=64))
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(NerfkitError):
+        load_npz(path)
+
+
+def test_header_declaring_a_huge_array_is_refused_before_allocating(tmp_path):
+    import zipfile
+
+    path = write(tmp_path, **course_arrays())
+    with zipfile.ZipFile(path) as zf:
+        members = {n: zf.read(n) for n in zf.namelist()}
+    raw = members["images_train.npy"]
+    header_end = raw.index(b"\n") + 1  # the real header ends at the first newline
+    d = "{'descr': '|u1', 'fortran_order': False, 'shape': (400000, 8000, 8000, 3), }"
+    prefix = np.lib.format.magic(1, 0)
+    d += " " * (63 - (len(prefix) + 2 + len(d)) % 64) + "\n"
+    fake = prefix + len(d).to_bytes(2, "little") + d.encode() + raw[header_end:]
+    members["images_train.npy"] = fake
+    with zipfile.ZipFile(path, "w") as zf:
+        for n, b in members.items():
+            zf.writestr(n, b)
+    with pytest.raises(NerfkitError, match="declares shape"):
+        load_npz(path)

@@ -1,0 +1,181 @@
+"""The course API: cameras, rays, sampling, volume rendering, encoding."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from nerfkit import pixel_to_camera, pixel_to_ray, positional_encoding, sample_along_rays, transform, volrend
+from nerfkit.cameras import image_rays, look_at, opengl_to_opencv, orbit_path
+from nerfkit.render.sampling import intervals_from_t, sample_pdf, stratified_t
+from nerfkit.render.volrend import composite, render_weights
+
+
+def random_c2w(gen: torch.Generator, n: int) -> torch.Tensor:
+    q, _ = torch.linalg.qr(torch.randn(n, 3, 3, generator=gen, dtype=torch.float64))
+    q = q * torch.sign(torch.linalg.det(q))[:, None, None]  # proper rotations
+    c2w = torch.eye(4, dtype=torch.float64).repeat(n, 1, 1)
+    c2w[:, :3, :3] = q
+    c2w[:, :3, 3] = torch.randn(n, 3, generator=gen, dtype=torch.float64) * 3
+    return c2w
+
+
+def test_volrend_matches_course_reference():
+    torch.manual_seed(42)
+    sigmas = torch.rand((10, 64, 1))
+    rgbs = torch.rand((10, 64, 3))
+    step_size = (6.0 - 2.0) / 64
+    rendered = volrend(sigmas, rgbs, step_size)
+    expected = torch.tensor([
+        [0.5006, 0.3728, 0.4728], [0.4322, 0.3559, 0.4134], [0.4027, 0.4394, 0.4610], [0.4514, 0.3829, 0.4196],
+        [0.4002, 0.4599, 0.4103], [0.4471, 0.4044, 0.4069], [0.4285, 0.4072, 0.3777], [0.4152, 0.4190, 0.4361],
+        [0.4051, 0.3651, 0.3969], [0.3253, 0.3587, 0.4215]])
+    assert torch.allclose(rendered, expected, rtol=1e-4, atol=1e-4)
+
+
+def test_huge_density_takes_all_weight():
+    sigmas = torch.zeros(3, 16)
+    sigmas[:, 5] = 1e10
+    rgbs = torch.rand(3, 16, 3)
+    weights, trans, _ = render_weights(sigmas, torch.full_like(sigmas, 0.1))
+    assert torch.allclose(weights[:, 5], torch.ones(3))
+    assert torch.all(weights[:, 6:] == 0)
+    rgb, _, acc = composite(weights, rgbs, background=torch.tensor([0.2, 0.3, 0.4]))
+    assert torch.allclose(rgb, rgbs[:, 5])
+    assert torch.allclose(acc, torch.ones(3))
+
+
+def test_zero_density_renders_background():
+    sigmas = torch.zeros(4, 8)
+    rgbs = torch.rand(4, 8, 3)
+    bg = torch.tensor([0.1, 0.7, 0.9])
+    rgb = volrend(sigmas, rgbs, 0.5, background=bg)
+    assert torch.allclose(rgb, bg.expand(4, 3))
+
+
+@pytest.mark.parametrize("scale", [1e-40, 1e-10, 1.0, 1e3, 1e10])
+def test_volrend_finite_values_and_gradients_across_density_scales(scale):
+    sigmas = (torch.rand(5, 32, dtype=torch.float64) * scale).requires_grad_()
+    rgbs = torch.rand(5, 32, 3, dtype=torch.float64, requires_grad=True)
+    weights, _, _ = render_weights(sigmas, torch.full_like(sigmas, 0.05))
+    rgb, _, acc = composite(weights, rgbs)
+    (rgb.sum() + acc.sum()).backward()
+    assert torch.isfinite(rgb).all() and torch.isfinite(sigmas.grad).all() and torch.isfinite(rgbs.grad).all()
+    assert torch.all(acc <= 1 + 1e-9) and torch.all(weights >= 0)
+
+
+def test_weights_match_closed_form_for_constant_density():
+    # constant sigma: T_i = exp(-sigma * delta * i), alpha = 1 - exp(-sigma * delta)
+    sigma, delta, n = 0.7, 0.25, 10
+    weights, trans, alphas = render_weights(torch.full((1, n), sigma, dtype=torch.float64), torch.tensor(delta))
+    i = torch.arange(n, dtype=torch.float64)
+    expected = torch.exp(-sigma * delta * i) * (1 - np.exp(-sigma * delta))
+    assert torch.allclose(weights[0], expected)
+    assert torch.allclose(weights.sum(), torch.tensor(1 - np.exp(-sigma * delta * n), dtype=torch.float64))
+
+
+def test_transform_round_trips_through_inverse():
+    gen = torch.Generator().manual_seed(0)
+    c2w = random_c2w(gen, 6)
+    x = torch.randn(6, 3, dtype=torch.float64, generator=gen)
+    assert torch.allclose(transform(torch.linalg.inv(c2w), transform(c2w, x)), x)
+    # a single (4, 4) matrix broadcasts over many points
+    pts = torch.randn(10, 3, dtype=torch.float64, generator=gen)
+    assert torch.allclose(transform(c2w[0], pts), pts @ c2w[0, :3, :3].T + c2w[0, :3, 3])
+
+
+def test_pixel_to_camera_projects_back():
+    K = torch.tensor([[300.0, 0, 100], [0, 310, 90], [0, 0, 1]], dtype=torch.float64)
+    uv = torch.tensor([[10.5, 20.5], [150.0, 5.0]], dtype=torch.float64)
+    s = torch.tensor([2.0, 3.5], dtype=torch.float64)
+    x = pixel_to_camera(K, uv, s)
+    assert torch.allclose(x[:, 2], s)
+    proj = (K @ x.T).T
+    assert torch.allclose(proj[:, :2] / proj[:, 2:], uv)
+
+
+def test_principal_point_ray_is_camera_z_axis():
+    gen = torch.Generator().manual_seed(1)
+    c2w = random_c2w(gen, 1)[0]
+    K = torch.tensor([[200.0, 0, 64], [0, 200, 48], [0, 0, 1]], dtype=torch.float64)
+    o, d = pixel_to_ray(K, c2w, torch.tensor([64.0, 48.0], dtype=torch.float64))
+    assert torch.allclose(o, c2w[:3, 3])
+    assert torch.allclose(d, c2w[:3, 2])
+    # +u goes toward camera +x (right), +v toward camera +y (down)
+    _, d_right = pixel_to_ray(K, c2w, torch.tensor([164.0, 48.0], dtype=torch.float64))
+    assert torch.dot(d_right - d, c2w[:3, 0]) > 0
+
+
+def test_opengl_opencv_conversion_flips_y_and_z_and_is_its_own_inverse():
+    c2w = random_c2w(torch.Generator().manual_seed(2), 3).numpy()
+    cv = opengl_to_opencv(c2w)
+    assert np.allclose(cv[:, :3, 0], c2w[:, :3, 0])
+    assert np.allclose(cv[:, :3, 1:3], -c2w[:, :3, 1:3])
+    assert np.allclose(opengl_to_opencv(cv), c2w)
+
+
+def test_look_at_and_orbit_point_at_target():
+    c2w = look_at(np.array([3.0, 1.0, 2.0]), np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    assert np.allclose(c2w[:3, 2], -np.array([3.0, 1.0, 2.0]) / np.linalg.norm([3.0, 1.0, 2.0]))
+    assert c2w[:3, 1] @ np.array([0, 0, 1.0]) < 0  # image down is world down-ish
+    assert np.isclose(np.linalg.det(c2w[:3, :3]), 1.0)
+    poses = orbit_path(np.array([1.0, 2.0, 0.0]), np.array([0, 0, 1.0]), radius=2.0, height=1.0, n_frames=12)
+    to_center = np.array([1.0, 2.0, 0.0]) - poses[:, :3, 3]
+    cosines = np.einsum("ni,ni->n", poses[:, :3, 2], to_center / np.linalg.norm(to_center, axis=1, keepdims=True))
+    assert np.allclose(cosines, 1.0, atol=1e-5)
+    assert np.allclose(poses[:, 2, 3], 1.0, atol=1e-5)
+
+
+def test_stratified_samples_stay_in_their_bins():
+    t = stratified_t(2.0, 6.0, n_rays=100, n_samples=8, perturb=True)
+    edges = torch.linspace(2.0, 6.0, 9)
+    assert torch.all(t >= edges[:-1]) and torch.all(t <= edges[1:])
+    assert torch.all(t[:, 1:] > t[:, :-1])
+    mid = stratified_t(2.0, 6.0, n_rays=1, n_samples=4, perturb=False)
+    assert torch.allclose(mid, torch.tensor([[2.5, 3.5, 4.5, 5.5]]))
+
+
+def test_sample_along_rays_points_lie_on_rays():
+    o = torch.tensor([[0.0, 0, 0], [1, 1, 1]])
+    d = torch.nn.functional.normalize(torch.tensor([[0.0, 0, 1], [1, 0, 0]]), dim=-1)
+    pts, t = sample_along_rays(o, d, 2.0, 6.0, n_samples=16, perturb=True)
+    assert pts.shape == (2, 16, 3) and t.shape == (2, 16)
+    assert torch.allclose(pts, o[:, None] + t[..., None] * d[:, None])
+
+
+def test_intervals_reach_far():
+    t = torch.tensor([[1.0, 2.0, 4.0]])
+    assert torch.allclose(intervals_from_t(t, 5.0), torch.tensor([[1.0, 2.0, 1.0]]))
+
+
+def test_sample_pdf_concentrates_where_the_weight_is():
+    bins = torch.linspace(0.0, 1.0, 11).expand(4, 11).contiguous()
+    weights = torch.zeros(4, 10)
+    weights[:, 7] = 1.0
+    t = sample_pdf(bins, weights, 64, perturb=True, generator=torch.Generator().manual_seed(0))
+    inside = ((t >= 0.7) & (t <= 0.8)).float().mean()
+    assert inside > 0.95
+
+
+def test_positional_encoding_values_and_dims():
+    x = torch.zeros(5, 2)
+    e = positional_encoding(x, 10)
+    assert e.shape == (5, 42)  # the 2D warm-up: 2 * (1 + 2 * 10)
+    assert torch.all(e[:, :2] == 0)
+    per_octave = e[:, 2:].reshape(5, 10, 4)  # [sin x, sin y, cos x, cos y] for each octave
+    assert torch.all(per_octave[..., :2] == 0) and torch.all(per_octave[..., 2:] == 1)
+    x = torch.tensor([[0.25, -0.5, 1.0]])
+    e = positional_encoding(x, 4)
+    assert e.shape == (1, 27)
+    assert torch.allclose(e[0, 3 + 6 * 2:3 + 6 * 2 + 3], torch.sin(4 * torch.pi * x[0]), atol=1e-6)
+    assert torch.allclose(e[0, 3 + 6 * 2 + 3:3 + 6 * 3], torch.cos(4 * torch.pi * x[0]), atol=1e-6)
+
+
+def test_image_rays_row_major_pixel_centres():
+    K = torch.tensor([[50.0, 0, 4], [0, 50, 3], [0, 0, 1]])
+    rays = image_rays(K, torch.eye(4), width=8, height=6)
+    assert len(rays) == 48
+    # pixel (col 4, row 3) -> uv (4.5, 3.5): x and y offsets of +0.5 / 50
+    d = rays.directions[3 * 8 + 4]
+    assert torch.allclose(d[:2] / d[2], torch.tensor([0.01, 0.01]), atol=1e-6)

@@ -1,0 +1,127 @@
+"""Training, checkpoints, resume, rendering and evaluation on a tiny generated scene."""
+
+from __future__ import annotations
+
+import json
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import torch
+
+from nerfkit.cli import main
+from nerfkit.models.base import SceneBounds
+from nerfkit.models.vanilla import VanillaConfig, VanillaNeRF
+from nerfkit.train.config import TrainConfig
+from nerfkit.train.trainer import Trainer, resume, train
+
+SMALL = dict(n_samples=16, width=32, depth=4)
+
+
+def small_cfg(tmp_path, name="run", **kw):
+    base = dict(data="sphere", model="vanilla", out=str(tmp_path / name), steps=300, batch_rays=256, lr=3e-3,
+                seed=0, eval_views=1, checkpoint_seconds=1e9)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def background_psnr(scene) -> float:
+    """PSNR of rendering nothing but the black background on the validation views."""
+    img = scene.val.images.astype(np.float64) / 255
+    return -10 * np.log10(np.mean(img ** 2))
+
+
+def test_training_rises_well_above_the_empty_render(tmp_path, sphere):
+    result = train(sphere, small_cfg(tmp_path), VanillaConfig(**SMALL), quiet=True)
+    val = [r for r in result.rows if r["split"] == "val"]
+    assert val[0]["step"] == 0 and val[-1]["step"] == 300
+    baseline = background_psnr(sphere)
+    assert val[-1]["psnr"] > baseline + 4.0, (baseline, val)
+    assert val[-1]["psnr"] > val[0]["psnr"] + 4.0
+    run = tmp_path / "run"
+    for f in ["config.json", "metrics.csv", "metrics.json", "plots/psnr.png", "plots/loss.png", "plots/progress.png"]:
+        assert (run / f).exists(), f
+    assert iio.imread(run / "plots" / "psnr.png").ndim == 3
+    rows = json.loads((run / "metrics.json").read_text())["rows"]
+    assert [r["step"] for r in rows if r["split"] == "train"] == list(range(10, 301, 10))
+
+
+def test_default_init_leaves_the_dead_zone(sphere):
+    """The robust default gives every sample positive density at init; the course's zero
+    bias can give none (ReLU then passes no gradient)."""
+    torch.manual_seed(0)
+    bounds = SceneBounds.from_scene(sphere)
+    model = VanillaNeRF(VanillaConfig(), bounds)
+    pts = torch.rand(4096, 3) * 4 - 2
+    dirs = torch.nn.functional.normalize(torch.randn(4096, 3), dim=-1)
+    sigma, rgb = model.query(pts, dirs)
+    assert (sigma > 0).float().mean() > 0.99
+    # with the dead init forced (bias very negative) no sample has density and no gradient flows
+    dead = VanillaNeRF(VanillaConfig(density_bias_init=-10.0), bounds)
+    sigma_dead, _ = dead.query(pts, dirs)
+    sigma_dead.sum().backward()
+    assert torch.all(sigma_dead == 0)
+    assert all(p.grad is None or torch.all(p.grad == 0) for n, p in dead.coarse.named_parameters()
+               if "color" not in n and "feature" not in n)
+
+
+def test_hierarchical_sampling_trains(tmp_path, sphere):
+    result = train(sphere, small_cfg(tmp_path, steps=250), VanillaConfig(n_samples=8, n_importance=8, width=32, depth=4),
+                   quiet=True)
+    val = [r for r in result.rows if r["split"] == "val"]
+    assert val[-1]["psnr"] > background_psnr(sphere) + 2.0
+
+
+def test_resume_continues_exactly(tmp_path, sphere):
+    """Stopping at step 60 and resuming to 120 gives the same model as 120 steps straight."""
+    straight = train(sphere, small_cfg(tmp_path, "a", steps=120, eval_every=60), VanillaConfig(**SMALL), quiet=True)
+    cfg_b = small_cfg(tmp_path, "b", steps=120, eval_every=60)
+    first = Trainer(sphere, cfg_b, VanillaConfig(**SMALL), quiet=True).run(stop_after=60)
+    assert first.step == 60
+    resumed = resume(tmp_path / "b", sphere, quiet=True)
+    assert resumed.step == 120
+    a = torch.load(tmp_path / "a" / "checkpoints" / "step_00000120.pt", weights_only=True)
+    b = torch.load(tmp_path / "b" / "checkpoints" / "step_00000120.pt", weights_only=True)
+    for k in a["model"]:
+        torch.testing.assert_close(a["model"][k], b["model"][k], rtol=1e-4, atol=1e-5)
+    steps_a = [(r["step"], r["split"]) for r in straight.rows]
+    steps_b = [(r["step"], r["split"]) for r in resumed.rows]
+    assert steps_a == steps_b  # no duplicated or missing rows
+
+
+def test_refuses_to_overwrite_a_run(tmp_path, sphere):
+    cfg = small_cfg(tmp_path, steps=2)
+    train(sphere, cfg, VanillaConfig(**SMALL), quiet=True)
+    from nerfkit.errors import NerfkitError
+
+    with pytest.raises(NerfkitError, match="already holds a run"):
+        train(sphere, cfg, VanillaConfig(**SMALL), quiet=True)
+
+
+def test_cli_train_render_eval(tmp_path, sphere_npz, capsys):
+    run = tmp_path / "cli_run"
+    code = main(["train", "--data", str(sphere_npz), "--model", "vanilla", "--out", str(run), "--steps", "20",
+                 "--batch-rays", "128", "--n-samples", "8", "--width", "16", "--depth", "2", "--lr", "2e-3"])
+    assert code == 0
+    assert main(["render", str(run), "--path", "orbit", "--frames", "4"]) == 0
+    for name in ["orbit.mp4", "orbit.gif", "depth.mp4"]:
+        assert (run / "videos" / name).stat().st_size > 0
+    gif = iio.imread(run / "videos" / "orbit.gif")
+    assert gif.shape == (4, 32, 32, 3)
+    capsys.readouterr()
+    assert main(["eval", str(run), "--split", "val"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["n_images"] == 2 and len(out["per_image"]) == 2
+    assert np.isclose(out["psnr"], np.mean([p["psnr"] for p in out["per_image"]]), atol=1e-3)
+    assert 0 < out["ssim"] <= 1
+    assert json.loads((run / "eval_val.json").read_text())["psnr"] == out["psnr"]
+
+
+def test_cli_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
+    assert main(["train", "--data", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "r"), "--steps", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "missing.npz" in err and "Traceback" not in err and err.count("\n") == 1
+    assert main(["eval", str(tmp_path / "nope")]) == 2
+    assert main(["eval", str(tmp_path)]) == 2
+    assert "config.json" in capsys.readouterr().err
+    assert main(["train", "--data", "x.npz", "--background", "purple", "--steps", "1"]) == 2
