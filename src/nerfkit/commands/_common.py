@@ -8,8 +8,8 @@ from pathlib import Path
 
 def add_run_device_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N (default: auto)")
-    p.add_argument("--chunk", type=int, default=16384, help="rays rendered at once; lower it if memory runs out "
-                                                             "(default: 16384)")
+    p.add_argument("--chunk", type=int, default=0, help="rays rendered at once; lower it if memory runs out "
+                                                         "(default: the run's render chunk)")
 
 
 def scene_for_run(info, data: str | None):

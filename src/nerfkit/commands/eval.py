@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
                    "Choose a split with images (--split val)")
     bg = torch.tensor(parse_background(info.train.background), device=device)
     result = {"split": args.split, "step": step, "data": scene.source,
-              **evaluate_views(model, views, bg, args.chunk, resolve_autocast(info.train.precision, device))}
+              **evaluate_views(model, views, bg, args.chunk or info.train.render_chunk, resolve_autocast(info.train.precision, device))}
     write_json(Path(args.run) / f"eval_{args.split}.json", result)
     print(json.dumps(result, indent=2))
     return 0

@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     views = scene.orbit(args.frames) if args.path == "orbit" else scene.render_path(args.frames)
     bg = torch.tensor(parse_background(args.background or info.train.background), device=device)
     out = Path(args.out) if args.out else Path(args.run) / "videos"
-    paths = render_videos(model, views, out, bg, scene.near, scene.far, args.fps, args.chunk,
+    paths = render_videos(model, views, out, bg, scene.near, scene.far, args.fps, args.chunk or info.train.render_chunk,
                           resolve_autocast(info.train.precision, device))
     print(f"rendered {len(views)} frames of step {step} ({paths.seconds_per_frame:.2f} s/frame):")
     for p in (paths.rgb_mp4, paths.rgb_gif, paths.depth_mp4):

@@ -30,7 +30,8 @@ from .base import NerfModel, RenderOutput, SceneBounds
 
 @dataclass
 class VanillaConfig:
-    TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 1024, "lr": 5e-4}
+    # 4096 rays x 64 samples x 256 floats is ~270 MB per activation when rendering
+    TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 4096}
 
     n_samples: int = option(64, "stratified samples per ray")
     n_importance: int = option(0, "extra samples per ray from hierarchical (coarse-to-fine) sampling; 0 = off")

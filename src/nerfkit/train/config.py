@@ -30,7 +30,7 @@ class TrainConfig:
     eval_views: int = option(2, "validation views rendered at each periodic evaluation")
     checkpoint_seconds: float = option(60.0, "seconds of training between checkpoints")
     keep_checkpoints: int = option(3, "how many recent checkpoints to keep")
-    render_chunk: int = option(16384, "rays rendered at once when rendering full images")
+    render_chunk: int = option(0, "rays rendered at once for full images; bounds memory (0: the model's default)")
 
     def validate(self) -> "TrainConfig":
         if self.steps < 0 or self.minutes < 0:

@@ -47,7 +47,9 @@ class TrainResult:
 
 def resolved_config(cfg: TrainConfig, model_config) -> TrainConfig:
     """Fill the model-dependent defaults (batch size, learning rate)."""
-    defaults = getattr(model_config, "TRAIN_DEFAULTS", {"batch_rays": 1024, "lr": 5e-4})
+    defaults = {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 8192, **getattr(model_config, "TRAIN_DEFAULTS", {})}
+    if cfg.render_chunk == 0:
+        cfg.render_chunk = int(defaults["render_chunk"])
     if cfg.batch_rays == 0:
         cfg.batch_rays = int(defaults["batch_rays"])
     if cfg.lr == 0:

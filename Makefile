@@ -1,0 +1,29 @@
+# nerfkit: the two commands of the README.
+#   make demo   set up .venv and run the main job on the bundled lego scene
+#   make test   set up .venv and run the test suite
+# TORCH_SPEC picks the PyTorch build; the default is the CPU wheel these machines carry.
+# On a CUDA machine: make demo TORCH_SPEC="torch>=2.4"
+
+PYTHON ?= python3
+VENV ?= .venv
+TORCH_SPEC ?= torch==2.13.0
+BIN = $(VENV)/bin
+
+.PHONY: setup demo test bench clean
+
+setup: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet "$(TORCH_SPEC)"
+	$(BIN)/python -m pip install --quiet -e ".[test]"
+	touch $@
+
+demo: setup
+	$(BIN)/nerfkit demo
+
+test: setup
+	$(BIN)/python -m pytest
+
+clean:
+	rm -rf $(VENV) runs
