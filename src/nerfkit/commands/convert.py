@@ -1,0 +1,157 @@
+"""`nerfkit convert`: any dataset to a course npz, a transforms.json folder or a COLMAP project."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "convert a dataset between formats (npz, Blender, transforms.json, COLMAP), optionally resized"
+
+EPILOG = """\
+inputs (file or folder): a course .npz; a Blender scene (transforms_train.json + RGBA PNGs);
+a nerfstudio/instant-ngp transforms.json; a COLMAP model (sparse/0 with cameras/images/points3D,
+binary or text) with its photos in images/ (or --images DIR), imported without re-running SfM.
+
+outputs (by --to):
+  out.npz            course layout: images_*, c2ws_*, focal, K, near, far
+  out_folder/        nerfstudio transforms.json + images/ (any folder name)
+  out_folder/ --format colmap   COLMAP project: sparse/0 (PINHOLE cameras) + images/
+
+examples:
+  nerfkit convert data/nerf_synthetic/lego --to lego_200.npz --size 200
+  nerfkit convert lego_200.npz --to lego_ns/
+  nerfkit convert my_colmap_project/ --to scene.npz --downscale 4
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("convert", help=HELP, description=HELP + ".", epilog=EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("src", metavar="SRC", help="dataset file or folder")
+    p.add_argument("--to", required=True, metavar="OUT", help="output: a .npz file or a folder (see below)")
+    p.add_argument("--format", choices=["auto", "npz", "transforms", "colmap"], default="auto",
+                   help="output format; auto: npz for *.npz, else transforms.json (default: auto)")
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--size", type=int, metavar="PX",
+                      help="resample so the longest image side is PX pixels (K follows)")
+    size.add_argument("--downscale", type=float, metavar="F", help="divide the image size by F (K follows)")
+    p.add_argument("--background", default="black",
+                   help="colour under transparent pixels of RGBA inputs: black, white or r,g,b in [0, 1] "
+                        "(default: black)")
+    p.add_argument("--images", metavar="DIR", help="photo folder of a COLMAP model (default: the project's images/)")
+    p.add_argument("--text", action="store_true", help="with --format colmap: write the text model instead of binary")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.set_defaults(func=run)
+
+
+def parse_color(text: str) -> tuple[float, float, float]:
+    """'black', 'white' or 'r,g,b' (each in [0, 1])."""
+    from ..errors import fail
+
+    named = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0)}
+    if text.strip().lower() in named:
+        return named[text.strip().lower()]
+    try:
+        rgb = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        rgb = ()
+    if len(rgb) != 3 or not all(0.0 <= c <= 1.0 for c in rgb):
+        raise fail("--background", f"'{text}' is not a colour", "Use black, white, or r,g,b with values in [0, 1]")
+    return rgb  # type: ignore[return-value]
+
+
+def output_format(out: str, fmt: str) -> str:
+    if fmt != "auto":
+        return fmt
+    return "npz" if out.lower().endswith(".npz") else "transforms"
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..data.load import detect_format, load_scene
+    from ..errors import fail
+
+    out = Path(args.to)
+    fmt = output_format(args.to, args.format)
+    if fmt == "npz" and out.suffix.lower() != ".npz":
+        raise fail(out, "an npz output must end in .npz")
+    if fmt != "npz" and out.suffix.lower() == ".npz":
+        raise fail(out, f"--format {fmt} writes a folder, not an .npz file")
+    if out.exists() and not args.force and (out.is_file() or any(out.iterdir())):
+        raise fail(out, "already exists", "Pass --force to overwrite it, or choose another --to")
+    if Path(args.src).resolve() == out.resolve():
+        raise fail(out, "is the input itself", "Choose another --to")
+    background = parse_color(args.background)
+    src_fmt = detect_format(args.src)
+    if args.images and src_fmt == "colmap":
+        from ..data.colmap import load_colmap
+
+        scene = load_colmap(args.src, images=args.images, background=background, size=args.size,
+                            downscale=args.downscale)
+    else:
+        if args.images:
+            raise fail("--images", f"only applies to COLMAP inputs; {args.src} is {src_fmt}")
+        scene = load_scene(args.src, background=background, size=args.size, downscale=args.downscale)
+    written = write_scene_as(scene, out, fmt, text=args.text)
+    n = {k: len(v) for k, v in scene.splits.items()}
+    print(f"{args.src} ({src_fmt}) -> {out} ({fmt}): {n['train']} train, {n['val']} val, {n['test']} test views, "
+          f"{scene.train.width}x{scene.train.height}, fx={scene.train.K[0, 0, 0]:.2f}, "
+          f"near={scene.near:.3g}, far={scene.far:.3g}")
+    for p in written:
+        print(f"  {p}")
+    return 0
+
+
+def write_scene_as(scene, out, fmt: str, text: bool = False) -> list:
+    """Write ``scene`` to ``out`` in ``fmt`` ('npz', 'transforms' or 'colmap'); the paths written."""
+    from pathlib import Path
+
+    from ..errors import fail
+
+    out = Path(out)
+    if fmt == "npz":
+        from ..data.npz import save_npz
+
+        save_npz(scene, out)
+        return [out]
+    if fmt == "colmap":
+        return write_colmap_project(scene, out, text)
+    try:
+        from ..data.nerfstudio import write_transforms_json
+    except ImportError:
+        raise fail(out, "transforms.json output needs nerfkit.data.nerfstudio, which this build lacks",
+                   "Convert to .npz instead") from None
+    write_transforms_json(scene, out)
+    return [out / "transforms.json"]
+
+
+def write_colmap_project(scene, out, text: bool = False) -> list:
+    """A COLMAP project: ``sparse/0`` (PINHOLE cameras) and ``images/`` (PNG).
+
+    COLMAP has no splits and no pose-only views: when any split has images, only the
+    views with images are written (a test split of render poses is left out).
+    """
+    from dataclasses import replace
+    from pathlib import Path
+
+    from ..data.colmap import write_colmap_model
+    from ..images import IMAGE_SUFFIXES
+    from ..io.atomic import write_image
+
+    out = Path(out)
+    written = []
+    splits = {}
+    for split, v in scene.splits.items():
+        names = v.names or [f"{split}_{i:04d}" for i in range(len(v))]
+        names = [n if Path(n).suffix.lower() in IMAGE_SUFFIXES else n + ".png" for n in names]
+        if v.images is not None:
+            names = [str(Path(n).with_suffix(".png")) for n in names]  # pixels are written as PNG
+            for name, im in zip(names, v.images):
+                write_image(out / "images" / name, im)
+        splits[split] = replace(v, names=names)
+    with_images = tuple(k for k, v in scene.splits.items() if v.images is not None and len(v))
+    keep = with_images or tuple(scene.splits)
+    written.append(write_colmap_model(replace(scene, **splits), out / "sparse" / "0", text=text, splits=keep))
+    if any(v.images is not None for v in scene.splits.values()):
+        written.append(out / "images")
+    return written

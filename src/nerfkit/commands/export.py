@@ -1,0 +1,119 @@
+"""`nerfkit export`: a trained run as a coloured mesh and/or point cloud (PLY)."""
+
+from __future__ import annotations
+
+import argparse
+
+# Field points evaluated per call when sampling the density grid and vertex colours.
+POINT_CHUNK = 65536
+
+HELP = "export a trained run as a coloured mesh (marching cubes) and/or a point cloud (PLY)"
+
+EPILOG = """\
+mesh: the density is sampled on a RESOLUTION^3 grid over the scene box (a cube of half-size
+radius x --box-scale about the scene centre, from the run's scene bounds), the THRESHOLD
+iso-surface is extracted with marching cubes (closed where it meets the box), and vertices
+are coloured by the field seen from outside along the normal.
+points: every --every-th training view is rendered; pixels with opacity > --acc-min are
+back-projected to their expected depth and coloured by the rendered colour.
+
+examples:
+  nerfkit export runs/lego --mesh lego.ply
+  nerfkit export runs/lego --mesh lego.ply --resolution 384 --threshold 40 --color-dirs 5
+  nerfkit export runs/lego --points lego_points.ply --every 5 --stride 2
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from ._common import add_run_device_args
+
+    p = sub.add_parser("export", help=HELP, description=HELP + ".", epilog=EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run", metavar="RUN", help="run folder written by `nerfkit train`")
+    p.add_argument("--mesh", metavar="OUT.ply", help="write a vertex-coloured triangle mesh here")
+    p.add_argument("--points", metavar="OUT.ply", help="write a coloured point cloud here")
+    g = p.add_argument_group("mesh")
+    g.add_argument("--resolution", type=int, default=256, help="grid cells per side (default: 256)")
+    g.add_argument("--threshold", type=float, default=25.0,
+                   help="density of the surface (default: 25; higher = tighter, fewer floaters)")
+    g.add_argument("--box-scale", type=float, default=1.0,
+                   help="scale the scene box (half-size = scene radius x this; default: 1)")
+    g.add_argument("--color-dirs", type=int, default=1,
+                   help="view directions averaged per vertex colour (1 = along the normal; default: 1)")
+    g = p.add_argument_group("points")
+    g.add_argument("--data", help="dataset for the training views (default: the run's)")
+    g.add_argument("--every", type=int, default=1, help="use every N-th training view (default: 1)")
+    g.add_argument("--stride", type=int, default=1, help="use every N-th pixel in each direction (default: 1)")
+    g.add_argument("--acc-min", type=float, default=0.5, help="keep pixels with opacity above this (default: 0.5)")
+    g.add_argument("--no-crop", action="store_true", help="keep points outside the scene box")
+    add_run_device_args(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import fail
+
+    if not args.mesh and not args.points:
+        raise fail("export", "nothing to export", "Pass --mesh OUT.ply and/or --points OUT.ply")
+    for flag, path in (("--mesh", args.mesh), ("--points", args.points)):
+        if path and not path.lower().endswith(".ply"):
+            raise fail(flag, f"'{path}' should end in .ply")
+    if args.resolution < 8 or args.resolution > 1024:
+        raise fail("--resolution", f"{args.resolution} is outside 8..1024")
+    if args.box_scale <= 0 or args.every < 1 or args.stride < 1 or not 0 <= args.acc_min < 1:
+        raise fail("export", "--box-scale must be > 0, --every and --stride >= 1, --acc-min in [0, 1)")
+    model, info, device, step = load_model(args.run, args.device)
+    center, radius = info.bounds.center, info.bounds.radius * args.box_scale
+    if args.mesh:
+        export_mesh(model, center, radius, args, device, step)
+    if args.points:
+        export_points(model, info, center, radius, args, device, step)
+    return 0
+
+
+def load_model(run_dir: str, device_name: str):
+    """(model in eval mode, run info, device, step): the one place that builds a model from a run."""
+    from ..train.checkpoint import load_run
+    from ..train.config import resolve_device
+
+    device = resolve_device(device_name)
+    model, info, step = load_run(run_dir, device)
+    return model, info, device, step
+
+
+def export_mesh(model, center, radius: float, args, device, step: int) -> None:
+    from ..export import mesh_from_model, write_mesh_ply
+
+    mesh = mesh_from_model(model, center, radius, args.resolution, args.threshold, args.color_dirs,
+                           chunk=POINT_CHUNK, device=device)
+    write_mesh_ply(args.mesh, mesh)
+    print(f"mesh of step {step}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces "
+          f"(threshold {args.threshold:g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide box) -> {args.mesh}")
+
+
+def export_points(model, info, center, radius: float, args, device, step: int) -> None:
+    import torch
+
+    from ..export import crop_to_box, points_from_views, write_points_ply
+    from ..render.renderer import render_image
+    from ..train.config import parse_background
+    from ._common import scene_for_run
+
+    scene = scene_for_run(info, args.data)
+    views = scene.train.subset(list(range(0, len(scene.train), args.every)))
+    background = parse_background(info.train.background)
+    bg = torch.tensor(background, dtype=torch.float32, device=device)
+
+    chunk = args.chunk or getattr(info.train, "render_chunk", 0) or 8192
+
+    def render_fn(K, c2w, w, h):
+        out = render_image(model, K, c2w, w, h, bg, chunk)
+        return out.rgb, out.depth, out.acc
+
+    pts, cols = points_from_views(render_fn, views, args.acc_min, background, args.stride)
+    n_all = len(pts)
+    if not args.no_crop:
+        pts, cols = crop_to_box(pts, cols, center, radius)
+    write_points_ply(args.points, pts, cols)
+    print(f"point cloud of step {step}: {len(pts)} points from {len(views)} views "
+          f"({n_all - len(pts)} outside the scene box dropped) -> {args.points}")

@@ -1,0 +1,154 @@
+"""Blender-style synthetic datasets (the original NeRF release: lego, chair, ...).
+
+Layout::
+
+    scene/transforms_train.json   {"camera_angle_x": 0.691, "frames": [
+    scene/transforms_val.json        {"file_path": "./train/r_0", "transform_matrix": 4x4}, ...]}
+    scene/transforms_test.json
+    scene/train/r_0.png ...       RGBA PNGs
+
+``transform_matrix`` is camera-to-world with OpenGL camera axes; it is converted with
+:func:`nerfkit.cameras.opengl_to_opencv`. The focal length is
+``0.5 * W / tan(0.5 * camera_angle_x)`` with the principal point at the image centre.
+Transparent pixels are composited on ``background`` (black by default, as in the course npz).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..cameras import intrinsics_matrix, opengl_to_opencv
+from ..config import load_json
+from ..errors import fail
+from ..images import IMAGE_SUFFIXES, load_image_uint8
+from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
+from .validate import check_near_far, check_poses
+
+SPLITS = ("train", "val", "test")
+
+
+def blender_folder(path: str | Path) -> Path | None:
+    """The dataset folder when ``path`` is a Blender dataset (folder or one of its json files)."""
+    path = Path(path)
+    if path.is_file() and path.name in {f"transforms_{s}.json" for s in SPLITS}:
+        return path.parent
+    if path.is_dir() and (path / "transforms_train.json").is_file():
+        return path
+    return None
+
+
+def focal_from_angle(camera_angle_x: float, width: int) -> float:
+    """Focal length in pixels of a pinhole camera with horizontal field of view ``camera_angle_x`` (radians)."""
+    return 0.5 * width / math.tan(0.5 * camera_angle_x)
+
+
+def _frame_image_path(folder: Path, file_path: str, where: str) -> Path:
+    """Resolve a frame's ``file_path`` (often given without extension) to an image file."""
+    p = (folder / file_path).resolve() if not Path(file_path).is_absolute() else Path(file_path)
+    if p.is_file():
+        return p
+    for suffix in (".png", ".PNG", *sorted(IMAGE_SUFFIXES)):
+        q = p.with_name(p.name + suffix)
+        if q.is_file():
+            return q
+    raise fail(where, f"frame image '{file_path}' not found (looked for {p.name}.png beside the json)",
+               "Check the frames' file_path entries and that the images were copied")
+
+
+def _read_split(folder: Path, split: str, background, out_size, with_images: bool):
+    """Cameras and images of one split; None when its json is absent."""
+    from .load import resize_image, scale_intrinsics
+
+    json_path = folder / f"transforms_{split}.json"
+    if not json_path.is_file():
+        return None
+    where = str(json_path)
+    meta = load_json(json_path)
+    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
+        raise fail(where, "expected an object with a 'frames' list", "Is this a Blender-style transforms file?")
+    frames = meta["frames"]
+    if not frames:
+        raise fail(where, "'frames' is empty")
+    angle = meta.get("camera_angle_x")
+    if not isinstance(angle, (int, float)) or not 0.0 < float(angle) < math.pi:
+        raise fail(where, f"'camera_angle_x' is {angle!r}, expected the horizontal field of view in radians (0, pi)")
+
+    poses, images, names = [], [], []
+    size = None  # (width, height) of the files
+    for i, fr in enumerate(frames):
+        if not isinstance(fr, dict) or "transform_matrix" not in fr or "file_path" not in fr:
+            raise fail(where, f"frames[{i}] needs 'file_path' and 'transform_matrix'")
+        try:
+            m = np.asarray(fr["transform_matrix"], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise fail(where, f"frames[{i}].transform_matrix is not a 4x4 number matrix") from None
+        if m.shape not in ((4, 4), (3, 4)):
+            raise fail(where, f"frames[{i}].transform_matrix has shape {m.shape}, expected 4x4")
+        poses.append(m if m.shape == (4, 4) else np.vstack([m, [0, 0, 0, 1]]))
+        img_path = _frame_image_path(folder, str(fr["file_path"]), where)
+        names.append(str(fr["file_path"]).removeprefix("./") or img_path.stem)
+        if with_images or size is None:
+            img = load_image_uint8(img_path, background)
+            h, w = img.shape[:2]
+            if size is None:
+                size = (w, h)
+            elif (w, h) != size:
+                raise fail(img_path, f"image is {w}x{h} but the split's first image is {size[0]}x{size[1]}",
+                           "All images of a Blender dataset must have one size")
+            if with_images:
+                images.append(resize_image(img, *out_size(w, h)))
+    c2w_gl = check_poses(np.stack(poses), where, "transform_matrix")
+    c2w = opengl_to_opencv(c2w_gl.astype(np.float64)).astype(np.float32)
+    w, h = size
+    f = focal_from_angle(float(angle), w)
+    K = scale_intrinsics(intrinsics_matrix(f, f, w / 2, h / 2), w, h, *out_size(w, h))
+    ow, oh = out_size(w, h)
+    Ks = np.repeat(K[None], len(frames), axis=0)
+    return Views(c2w, Ks, ow, oh, np.stack(images) if with_images else None, names)
+
+
+def load_blender(
+    path: str | Path,
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    size: int | None = None,
+    downscale: float | None = None,
+    test_images: bool = True,
+    near: float | None = None,
+    far: float | None = None,
+) -> Scene:
+    """Load a Blender-style dataset folder (or one of its transforms_*.json) into a Scene.
+
+    Args:
+        background: RGB in [0, 1] under transparent pixels (default black, as the course npz).
+        size, downscale: optional resampling (longest side in pixels, or a divisor); K follows.
+        test_images: also load the test split's images (False: its poses only, for render paths).
+        near, far: depth range; default 0.5x / 1.5x the cameras' mean distance to the
+            centre (2 and 6 for the original scenes, which is what they were made with).
+    """
+    from .load import output_size
+
+    folder = blender_folder(path)
+    if folder is None:
+        raise fail(path, "not a Blender-style dataset", "Expected a folder holding transforms_train.json")
+
+    def out_size(w: int, h: int) -> tuple[int, int]:
+        return output_size(w, h, size, downscale)
+
+    splits = {s: _read_split(folder, s, background, out_size, with_images=(s != "test" or test_images))
+              for s in SPLITS}
+    train = splits["train"]
+    empty = Views.empty(train.width, train.height)
+    val = splits["val"] or empty
+    test = splits["test"] or empty
+    for s, v in (("val", val), ("test", test)):
+        if len(v) and (v.width, v.height) != (train.width, train.height):
+            raise fail(folder / f"transforms_{s}.json", f"{s} images are {v.width}x{v.height} but train images are "
+                                                       f"{train.width}x{train.height}")
+    center = estimate_center(train.c2w)
+    up = estimate_up(train.c2w)
+    n, f = estimate_near_far(train.c2w, center)
+    n, f = check_near_far(n if near is None else near, f if far is None else far, str(folder))
+    return Scene(train, val, test, n, f, center, up, source=str(folder))

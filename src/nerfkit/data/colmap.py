@@ -1,0 +1,291 @@
+"""COLMAP models (``cameras``/``images``/``points3D``, binary or text) <-> :class:`Scene`.
+
+COLMAP's camera axes are OpenCV's (+x right, +y down, +z forward) and its pixel
+coordinates put the centre of the top-left pixel at (0.5, 0.5), as nerfkit does, so poses
+and K carry over unchanged: ``c2w = inverse(image.cam_from_world())``. Distorted camera
+models (SIMPLE_RADIAL, OPENCV, ...) are undistorted to pinhole images with pycolmap's
+own undistorter. Reading and writing go through pycolmap.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..errors import fail
+from ..images import load_image_uint8
+from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
+from .validate import check_near_far
+
+if TYPE_CHECKING:  # pragma: no cover
+    import pycolmap
+
+MODEL_FILES = ("cameras", "images")
+PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
+
+
+def _import_pycolmap(where: object):
+    try:
+        import pycolmap
+    except ImportError:
+        raise fail(where, "reading COLMAP models needs pycolmap", "pip install 'nerfkit[sfm]'") from None
+    return pycolmap
+
+
+def is_model_dir(folder: Path) -> bool:
+    """True when ``folder`` holds a COLMAP model (cameras and images, .bin or .txt)."""
+    return folder.is_dir() and any(all((folder / f"{n}{ext}").is_file() for n in MODEL_FILES)
+                                   for ext in (".bin", ".txt"))
+
+
+def find_colmap_model(path: str | Path) -> Path | None:
+    """The model folder for ``path``: the folder itself, or ``sparse/0``, ``sparse``,
+    ``colmap/sparse/0`` below it (the largest-numbered layouts COLMAP and nerfstudio write)."""
+    path = Path(path)
+    for cand in (path, path / "sparse" / "0", path / "sparse", path / "colmap" / "sparse" / "0"):
+        if is_model_dir(cand):
+            return cand
+    sparse = path / "sparse"
+    if sparse.is_dir():  # sparse/1, sparse/2, ... when model 0 is missing
+        for cand in sorted(p for p in sparse.iterdir() if p.is_dir()):
+            if is_model_dir(cand):
+                return cand
+    return None
+
+
+def find_image_dir(model_dir: Path) -> Path | None:
+    """The photos of a model: ``images/`` in the project folder (up to three levels above)."""
+    for up in (model_dir, *list(model_dir.parents)[:3]):
+        if (up / "images").is_dir():
+            return up / "images"
+    return None
+
+
+def read_model(model_dir: str | Path) -> "pycolmap.Reconstruction":
+    """Read a COLMAP model folder (binary or text) with pycolmap; NerfkitError when it can't."""
+    model_dir = Path(model_dir)
+    pycolmap = _import_pycolmap(model_dir)
+    if not is_model_dir(model_dir):
+        raise fail(model_dir, "not a COLMAP model folder", "Expected cameras.bin/images.bin/points3D.bin (or .txt)")
+    try:
+        return pycolmap.Reconstruction(str(model_dir))
+    except Exception as e:  # noqa: BLE001 - pycolmap raises ValueError/RuntimeError on bad files
+        raise fail(model_dir, f"cannot read the COLMAP model ({e})", "The files may be truncated or corrupt") from None
+
+
+def camera_matrix(camera) -> np.ndarray:
+    """K (3, 3) float64 of a pinhole pycolmap camera."""
+    return np.asarray(camera.calibration_matrix(), np.float64)
+
+
+def image_c2w(image) -> np.ndarray:
+    """Camera-to-world (4, 4) float64 of a posed pycolmap image (OpenCV axes)."""
+    w2c = np.eye(4)
+    w2c[:3] = np.asarray(image.cam_from_world().matrix(), np.float64)
+    return np.linalg.inv(w2c)
+
+
+def undistort(image: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
+    """Undistort a (H, W, 3) uint8 photo taken with a pycolmap camera.
+
+    Returns ``(pinhole_image, K)``; pinhole cameras are returned unchanged. The output
+    size can differ slightly from the input (pycolmap keeps only valid pixels).
+    """
+    import pycolmap
+
+    if camera.model_name in PINHOLE_MODELS:
+        return image, camera_matrix(camera)
+    bitmap, pinhole = pycolmap.undistort_image(pycolmap.UndistortCameraOptions(),
+                                               pycolmap.Bitmap.from_array(np.ascontiguousarray(image)), camera)
+    return np.asarray(bitmap.to_array()).reshape(pinhole.height, pinhole.width, 3), camera_matrix(pinhole)
+
+
+def near_far_from_points(c2w: np.ndarray, K: np.ndarray, width: int, height: int, points: np.ndarray,
+                         lo: float = 1.0, hi: float = 99.0, margin: float = 0.1) -> tuple[float, float] | None:
+    """Depth range of 3D points (P, 3) seen by cameras c2w (N, 4, 4) with intrinsics K (N, 3, 3).
+
+    Per camera, the depths of the points inside its image; over all cameras the ``lo``-th
+    and ``hi``-th percentiles, widened by ``margin``. None when too few points are visible.
+    """
+    depths = []
+    for c, k in zip(c2w.astype(np.float64), K.astype(np.float64)):
+        x = (points - c[:3, 3]) @ c[:3, :3]  # camera-frame coordinates
+        z = x[:, 2]
+        front = z > 1e-9
+        uv = (x[front] @ k.T)[:, :2] / z[front, None]
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
+        depths.append(z[front][inside])
+    d = np.concatenate(depths) if depths else np.zeros(0)
+    if d.size < 10:
+        return None
+    near, far = np.percentile(d, lo), np.percentile(d, hi)
+    return float(near * (1 - margin)), float(far * (1 + margin))
+
+
+def split_every(n: int, val_every: int) -> tuple[np.ndarray, np.ndarray]:
+    """Train and val indices: every ``val_every``-th view (from the 4th) is held out (LLFF-style)."""
+    idx = np.arange(n)
+    if val_every <= 0 or n < 3:
+        return idx, idx[:0]
+    val = idx[(idx % val_every) == val_every // 2]
+    return np.setdiff1d(idx, val), val
+
+
+def reconstruction_to_scene(
+    rec: "pycolmap.Reconstruction",
+    image_dir: str | Path | None,
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    val_every: int = 8,
+    size: int | None = None,
+    downscale: float | None = None,
+    source: str = "",
+) -> Scene:
+    """A Scene from the registered images of a reconstruction (sorted by name).
+
+    With ``image_dir`` the photos are loaded and undistorted; without it the scene has
+    poses only (pinhole K of the undistorted cameras). All views must share one image
+    size after undistortion (one camera, or several of the same size).
+    """
+    import pycolmap
+
+    from .load import output_size, resize_image, scale_intrinsics
+
+    where = source or "COLMAP model"
+    images = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
+    if not images:
+        raise fail(where, "has no registered images", "Re-run SfM or check the model")
+    names, c2ws, Ks, pixels = [], [], [], []
+    size_wh = None
+    pinholes: dict[int, "pycolmap.Camera"] = {}
+    for im in images:
+        cam = rec.cameras[im.camera_id]
+        if im.camera_id not in pinholes:
+            try:
+                pinholes[im.camera_id] = (cam if cam.model_name in PINHOLE_MODELS
+                                          else pycolmap.undistort_camera(pycolmap.UndistortCameraOptions(), cam))
+            except Exception as e:  # noqa: BLE001 - e.g. equirectangular cameras
+                raise fail(where, f"camera {im.camera_id} ({cam.model_name}) cannot be undistorted to a pinhole ({e})",
+                           "Use a pinhole, radial or OpenCV camera model") from None
+        pin = pinholes[im.camera_id]
+        K = camera_matrix(pin)
+        if image_dir is not None:
+            photo = load_image_uint8(Path(image_dir) / im.name, background)
+            if photo.shape[:2] != (cam.height, cam.width):
+                raise fail(Path(image_dir) / im.name,
+                           f"photo is {photo.shape[1]}x{photo.shape[0]} but the model's camera "
+                           f"{im.camera_id} is {cam.width}x{cam.height}",
+                           "Pass the photos the model was made from (not resized)")
+            photo, K = undistort(photo, cam)
+        wh = (int(pin.width), int(pin.height))
+        if size_wh is None:
+            size_wh = wh
+        elif wh != size_wh:
+            raise fail(where, f"images have different sizes after undistortion ({size_wh} and {wh} for {im.name})",
+                       "nerfkit needs one image size per dataset; use a single camera")
+        out_wh = output_size(*wh, size, downscale)
+        if image_dir is not None:
+            pixels.append(resize_image(photo, *out_wh))
+        names.append(im.name)
+        c2ws.append(image_c2w(im))
+        Ks.append(scale_intrinsics(K, *wh, *out_wh))
+    W, H = output_size(*size_wh, size, downscale)
+    c2w = np.stack(c2ws).astype(np.float32)
+    K = np.stack(Ks).astype(np.float32)
+    imgs = np.stack(pixels) if pixels else None
+    points = np.array([p.xyz for p in rec.points3D.values()], np.float64).reshape(-1, 3)
+    center = estimate_center(c2w)
+    up = estimate_up(c2w)
+    nf = near_far_from_points(c2w, K, W, H, points) or estimate_near_far(c2w, center)
+    if nf[1] <= 0:
+        raise fail(where, "cannot tell the depth range: too few 3D points, and the cameras share no look-at point",
+                   "Use a model with its points3D")
+    near, far = check_near_far(*nf, where)
+    tr, va = split_every(len(names), val_every)
+    all_views = Views(c2w, K, W, H, imgs, names)
+    return Scene(all_views.subset(tr), all_views.subset(va), Views.empty(W, H), near, far, center, up,
+                 source=source)
+
+
+def load_colmap(
+    path: str | Path,
+    images: str | Path | None = None,
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    size: int | None = None,
+    downscale: float | None = None,
+    val_every: int = 8,
+) -> Scene:
+    """Load a COLMAP model (``path`` = model folder, or a project with ``sparse/0``) and its
+    photos (``images``, default: the project's ``images/`` folder) without re-running SfM."""
+    path = Path(path)
+    if path.is_file():  # one of the model's files
+        path = path.parent
+    model_dir = find_colmap_model(path)
+    if model_dir is None:
+        raise fail(path, "no COLMAP model found", "Expected cameras/images/points3D .bin or .txt here or in sparse/0")
+    image_dir = Path(images) if images is not None else find_image_dir(model_dir)
+    if image_dir is None:
+        raise fail(model_dir, "found the COLMAP model but not its photos",
+                   "Put them in an images/ folder of the project, or convert with --images DIR")
+    if not image_dir.is_dir():
+        raise fail(image_dir, "no such image folder")
+    rec = read_model(model_dir)
+    return reconstruction_to_scene(rec, image_dir, background, val_every, size, downscale, source=str(model_dir))
+
+
+def scene_to_reconstruction(scene: Scene, splits: tuple[str, ...] = ("train", "val", "test"),
+                            points: np.ndarray | None = None) -> "pycolmap.Reconstruction":
+    """A pycolmap Reconstruction with one PINHOLE camera per distinct K and every view posed.
+
+    Image names are the views' names (``<split>_<index>.png`` when a split has none).
+    ``points`` (P, 3) optionally become 3D points (without tracks).
+    """
+    pycolmap = _import_pycolmap(scene.source or "scene")
+    rec = pycolmap.Reconstruction()
+    cam_ids: dict[tuple, int] = {}
+    image_id = 0
+    for split in splits:
+        v = scene.splits[split]
+        for i in range(len(v)):
+            fx, fy, cx, cy = (float(v.K[i, 0, 0]), float(v.K[i, 1, 1]), float(v.K[i, 0, 2]), float(v.K[i, 1, 2]))
+            key = (fx, fy, cx, cy, v.width, v.height)
+            if key not in cam_ids:
+                cam = pycolmap.Camera.create_from_model_name(len(cam_ids) + 1, "PINHOLE", fx, v.width, v.height)
+                cam.params = [fx, fy, cx, cy]
+                rec.add_camera_with_trivial_rig(cam)
+                cam_ids[key] = cam.camera_id
+            image_id += 1
+            name = v.names[i] if v.names is not None else f"{split}_{i:04d}.png"
+            w2c = np.linalg.inv(v.c2w[i].astype(np.float64))
+            pose = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3])
+            rec.add_image_with_trivial_frame(pycolmap.Image(name=name, camera_id=cam_ids[key], image_id=image_id), pose)
+    if points is not None:
+        for p in np.asarray(points, np.float64).reshape(-1, 3):
+            rec.add_point3D(p, pycolmap.Track(), np.zeros(3, np.uint8))
+    return rec
+
+
+def write_reconstruction(rec: "pycolmap.Reconstruction", out_dir: str | Path, text: bool = False) -> Path:
+    """Write a pycolmap model folder (binary, or text with ``text=True``).
+
+    pycolmap writes into a temporary folder; each file is then moved into place through
+    :func:`nerfkit.io.atomic.write_bytes`, so a crash never leaves a half-written file.
+    """
+    import tempfile
+
+    from ..io.atomic import write_bytes
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out_dir) as tmp:
+        (rec.write_text if text else rec.write)(tmp)
+        for f in sorted(Path(tmp).iterdir()):
+            write_bytes(out_dir / f.name, f.read_bytes())
+    return out_dir
+
+
+def write_colmap_model(scene: Scene, out_dir: str | Path, text: bool = False,
+                       splits: tuple[str, ...] = ("train", "val", "test")) -> Path:
+    """Write the scene's cameras as a COLMAP model folder (PINHOLE cameras, no points)."""
+    return write_reconstruction(scene_to_reconstruction(scene, splits), out_dir, text)

@@ -1,0 +1,168 @@
+"""Load any supported dataset into a :class:`Scene`, choosing the reader by path.
+
+Supported (file or folder):
+
+* the course npz (``*.npz``, or a folder holding exactly one ``.npz``);
+* Blender-style synthetic scenes (a folder with ``transforms_train.json``, or that file);
+* nerfstudio / instant-ngp ``transforms.json`` (the file, or a folder holding it);
+* COLMAP models (a folder with ``cameras``/``images``/``points3D`` ``.bin`` or ``.txt``,
+  or a project folder with ``sparse/0`` and ``images/``), without re-running SfM.
+
+Also the resampling every format shares: :func:`resample_scene` resizes images and
+scales ``K`` so that the cameras stay exact.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import fail
+from .npz import load_npz
+from .scene import Scene, Views
+
+FORMATS = "a course .npz, a Blender folder (transforms_train.json), a transforms.json, or a COLMAP model folder"
+
+
+def output_size(width: int, height: int, size: int | None = None, downscale: float | None = None) -> tuple[int, int]:
+    """Image size after resampling: ``size`` = new longest side in pixels, or ``downscale`` = divisor.
+
+    Neither given: unchanged. Both given: an error (they would disagree).
+    """
+    if size is not None and downscale is not None:
+        raise fail("--size/--downscale", "give one of them, not both")
+    if size is not None:
+        if size < 1:
+            raise fail("--size", f"{size} must be a positive number of pixels")
+        s = size / max(width, height)
+    elif downscale is not None:
+        if not downscale > 0:
+            raise fail("--downscale", f"{downscale} must be positive (2 halves the images)")
+        s = 1.0 / downscale
+    else:
+        return width, height
+    return max(1, round(width * s)), max(1, round(height * s))
+
+
+def scale_intrinsics(K: np.ndarray, width: int, height: int, new_width: int, new_height: int) -> np.ndarray:
+    """K (..., 3, 3) for images resampled from ``width x height`` to ``new_width x new_height``.
+
+    Pixel edges map to pixel edges (u' = u * new_width / width), so with pixel centres at
+    +0.5 the rays through corresponding image points are unchanged.
+    """
+    sx, sy = new_width / width, new_height / height
+    out = np.array(K, dtype=np.float64, copy=True)
+    out[..., 0, :] *= sx
+    out[..., 1, :] *= sy
+    return out.astype(np.float32)
+
+
+def resize_image(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Resample a (H, W, 3) uint8 image to (height, width, 3): area averaging when shrinking,
+    bicubic when enlarging."""
+    from PIL import Image
+
+    if image.shape[1] == width and image.shape[0] == height:
+        return image
+    shrink = width <= image.shape[1] and height <= image.shape[0]
+    method = Image.Resampling.BOX if shrink else Image.Resampling.BICUBIC
+    return np.asarray(Image.fromarray(image).resize((width, height), method))
+
+
+def resample_views(views: Views, new_width: int, new_height: int) -> Views:
+    """The same cameras at another image size (images resized, K scaled)."""
+    if (new_width, new_height) == (views.width, views.height):
+        return views
+    images = None
+    if views.images is not None:
+        images = (np.stack([resize_image(im, new_width, new_height) for im in views.images])
+                  if len(views.images) else np.zeros((0, new_height, new_width, 3), np.uint8))
+    K = scale_intrinsics(views.K, views.width, views.height, new_width, new_height)
+    return replace(views, K=K, width=new_width, height=new_height, images=images)
+
+
+def resample_scene(scene: Scene, size: int | None = None, downscale: float | None = None) -> Scene:
+    """Every split resampled (see :func:`output_size`); poses, near/far unchanged."""
+    if output_size(scene.train.width, scene.train.height, size, downscale) == (scene.train.width, scene.train.height):
+        return scene
+    return replace(scene, **{name: resample_views(v, *output_size(v.width, v.height, size, downscale))
+                             for name, v in scene.splits.items()})
+
+
+def detect_format(path: str | Path) -> str:
+    """'npz', 'blender', 'transforms' or 'colmap' for a dataset path; NerfkitError otherwise."""
+    from .blender import blender_folder
+    from .colmap import find_colmap_model
+
+    path = Path(path)
+    if not path.exists():
+        raise fail(path, "no such file or folder", "Check the path")
+    if path.is_file():
+        if path.suffix.lower() == ".npz":
+            return "npz"
+        if blender_folder(path) is not None:
+            return "blender"
+        if path.suffix.lower() == ".json":
+            return "transforms"
+        if path.suffix.lower() in (".bin", ".txt") and find_colmap_model(path.parent) is not None:
+            return "colmap"
+        raise fail(path, "unrecognised dataset file", f"Expected {FORMATS}")
+    npzs = sorted(path.glob("*.npz"))
+    if len(npzs) == 1:
+        return "npz"
+    if len(npzs) > 1:
+        raise fail(path, f"holds {len(npzs)} .npz files ({', '.join(p.name for p in npzs[:4])})",
+                   "Pass the one you mean")
+    if blender_folder(path) is not None:
+        return "blender"
+    if (path / "transforms.json").is_file():
+        return "transforms"
+    if find_colmap_model(path) is not None:
+        return "colmap"
+    raise fail(path, "folder holds no dataset nerfkit recognises", f"Expected {FORMATS}")
+
+
+def load_scene(
+    path: str | Path,
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    size: int | None = None,
+    downscale: float | None = None,
+) -> Scene:
+    """Read a dataset file or folder (any supported format) into a Scene.
+
+    Args:
+        background: RGB in [0, 1] under transparent pixels (RGBA formats; default black).
+        size, downscale: optional resampling, see :func:`output_size`.
+    Raises NerfkitError naming the path when the format is unsupported or the data is bad.
+    """
+    path = Path(path)
+    fmt = detect_format(path)
+    if fmt == "npz":
+        if path.is_dir():
+            path = next(path.glob("*.npz"))
+        return resample_scene(load_npz(path), size, downscale)
+    if fmt == "blender":
+        from .blender import load_blender
+
+        return load_blender(path, background=background, size=size, downscale=downscale)
+    if fmt == "colmap":
+        from .colmap import load_colmap
+
+        return load_colmap(path, background=background, size=size, downscale=downscale)
+    return resample_scene(_load_transforms(path, background), size, downscale)
+
+
+def _load_transforms(path: Path, background) -> Scene:
+    """nerfstudio / instant-ngp transforms.json through :mod:`nerfkit.data.nerfstudio`."""
+    import inspect
+
+    try:
+        from .nerfstudio import load_transforms_json
+    except ImportError:
+        raise fail(path, "transforms.json support (nerfkit.data.nerfstudio) is not installed in this build",
+                   "Convert the dataset to a course .npz first") from None
+    if "background" in inspect.signature(load_transforms_json).parameters:
+        return load_transforms_json(path, background=background)
+    return load_transforms_json(path)

@@ -1,0 +1,264 @@
+"""Export a radiance field as a coloured mesh or a coloured point cloud (PLY files).
+
+The core works on plain callables so it can be tested with analytic fields:
+
+* ``density_fn(points (n, 3) float32 tensor) -> (n,) density``
+* ``color_fn(points (n, 3), directions (n, 3)) -> (n, 3) colour in [0, 1]``
+
+Mesh: the density is sampled on a grid over the scene box (a cube of half-size
+``radius`` about ``center``), the box border is padded with empty space so the surface
+closes where it meets the box (the mesh is cropped to the box and watertight), marching
+cubes (scikit-image) extracts the ``threshold`` iso-surface, and each vertex is coloured
+by the field seen from outside, looking along the inward normal (optionally averaged over
+a small cone of directions).
+
+Points: each training view's expected depth (depth / acc, the depth of what the ray hit)
+is back-projected where the opacity exceeds ``acc_min``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from .errors import fail
+from .io.atomic import atomic_path
+
+DensityFn = Callable[[torch.Tensor], torch.Tensor]
+ColorFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+@dataclass
+class Mesh:
+    """A triangle mesh: vertices (V, 3) float32 world units, faces (F, 3) int64,
+    normals (V, 3) unit outward, colors (V, 3) uint8 or None."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    colors: np.ndarray | None = None
+
+
+def grid_axis(center: float, radius: float, resolution: int) -> np.ndarray:
+    """``resolution`` sample positions spanning [center - radius, center + radius]."""
+    return np.linspace(center - radius, center + radius, resolution, dtype=np.float64)
+
+
+@torch.no_grad()
+def sample_density_grid(density_fn: DensityFn, center, radius: float, resolution: int,
+                        chunk: int = 65536, device: str | torch.device = "cpu", progress: bool = False) -> np.ndarray:
+    """Density on a ``resolution``^3 grid over the cube ``center +- radius``.
+
+    Returns (R, R, R) float32 indexed [i, j, k] <-> (x_i, y_j, z_k). Points are evaluated
+    ``chunk`` at a time (one z-slab per call when possible) so memory stays bounded.
+    """
+    if resolution < 2:
+        raise fail("--resolution", f"{resolution} is too small", "Use at least 2 (typically 128-512)")
+    center = np.asarray(center, np.float64).reshape(3)
+    xs, ys, zs = (grid_axis(center[a], radius, resolution) for a in range(3))
+    grid = np.empty((resolution,) * 3, np.float32)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    plane = np.stack([X.ravel(), Y.ravel()], 1)  # (R*R, 2) for one z value
+    slabs = max(1, chunk // plane.shape[0])
+    it = range(0, resolution, slabs)
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, desc="density grid", unit="slab", total=(resolution + slabs - 1) // slabs)
+    for k0 in it:
+        kz = zs[k0:k0 + slabs]
+        pts = np.concatenate([np.column_stack([plane, np.full(len(plane), z)]) for z in kz])
+        out = []
+        for s in range(0, len(pts), chunk):
+            p = torch.as_tensor(pts[s:s + chunk], dtype=torch.float32, device=device)
+            out.append(torch.as_tensor(density_fn(p)).float().reshape(-1).cpu())
+        vals = torch.cat(out).numpy().reshape(len(kz), resolution, resolution)
+        grid[:, :, k0:k0 + len(kz)] = np.moveaxis(vals, 0, -1)
+    return np.nan_to_num(grid, nan=0.0, posinf=np.finfo(np.float32).max, neginf=0.0)
+
+
+def marching_cubes(grid: np.ndarray, center, radius: float, threshold: float) -> Mesh:
+    """The ``threshold`` iso-surface of a density grid over the cube ``center +- radius``.
+
+    The grid is padded with zero density so surfaces cut by the box are closed there.
+    Raises NerfkitError when no surface crosses the threshold.
+    """
+    from skimage.measure import marching_cubes as sk_marching_cubes
+
+    lo, hi = float(grid.min()), float(grid.max())
+    if not lo < threshold < hi or threshold <= 0:
+        raise fail("--threshold", f"{threshold:g} does not cut the density field (it spans {lo:.3g} to {hi:.3g})",
+                   f"Pick a value between those (e.g. --threshold {0.5 * (max(lo, 0) + hi):.3g}); "
+                   f"well-trained NeRFs typically need 10-50")
+    res = grid.shape[0]
+    step = 2.0 * radius / (res - 1)
+    padded = np.pad(grid, 1, mode="constant", constant_values=0.0)
+    # 'descent': density is higher inside, so triangles face outward.
+    verts, faces, normals, _ = sk_marching_cubes(padded, level=threshold, spacing=(step,) * 3,
+                                                 gradient_direction="descent", allow_degenerate=False)
+    origin = np.asarray(center, np.float64).reshape(3) - radius - step  # the pad adds one cell
+    verts = verts + origin
+    # Padding can put vertices just outside the box; crop them onto it.
+    verts = np.clip(verts, np.asarray(center) - radius, np.asarray(center) + radius)
+    n = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    if signed_volume(verts, faces) < 0:  # make the winding counter-clockwise seen from outside
+        faces = faces[:, ::-1]
+    return Mesh(verts.astype(np.float32), faces.astype(np.int64), n.astype(np.float32))
+
+
+def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Volume enclosed by a closed triangle mesh; positive when faces wind counter-clockwise
+    seen from outside (outward face normals)."""
+    v = vertices.astype(np.float64)[faces]  # (F, 3, 3)
+    return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
+
+
+def cone_directions(normals: np.ndarray, n_dirs: int, half_angle_deg: float = 30.0) -> np.ndarray:
+    """View directions (n_dirs, V, 3) looking at vertices from outside: the first is the
+    inward normal ``-normal``, the rest are tilted by ``half_angle_deg`` around it."""
+    d0 = -normals.astype(np.float64)
+    if n_dirs <= 1:
+        return d0[None]
+    helper = np.where(np.abs(d0[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    a = np.cross(d0, helper)
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = np.cross(d0, a)
+    t = np.deg2rad(half_angle_deg)
+    dirs = [d0]
+    for phi in np.linspace(0, 2 * np.pi, n_dirs - 1, endpoint=False):
+        dirs.append(np.cos(t) * d0 + np.sin(t) * (np.cos(phi) * a + np.sin(phi) * b))
+    return np.stack(dirs)
+
+
+@torch.no_grad()
+def vertex_colors(color_fn: ColorFn, vertices: np.ndarray, normals: np.ndarray, n_dirs: int = 1,
+                  chunk: int = 65536, device: str | torch.device = "cpu") -> np.ndarray:
+    """(V, 3) uint8 colours: ``color_fn`` at each vertex, averaged over :func:`cone_directions`."""
+    dirs = cone_directions(normals, n_dirs)
+    acc = np.zeros((len(vertices), 3), np.float64)
+    for d in dirs:
+        for s in range(0, len(vertices), chunk):
+            p = torch.as_tensor(vertices[s:s + chunk], dtype=torch.float32, device=device)
+            v = torch.as_tensor(d[s:s + chunk], dtype=torch.float32, device=device)
+            acc[s:s + chunk] += torch.as_tensor(color_fn(p, v)).float().cpu().numpy()
+    return (np.clip(acc / len(dirs), 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int = 256, threshold: float = 25.0,
+                 color_fn: ColorFn | None = None, n_dirs: int = 1, chunk: int = 65536,
+                 device: str | torch.device = "cpu", progress: bool = False) -> Mesh:
+    """Density grid -> marching cubes -> (optional) vertex colours. See the module docstring."""
+    grid = sample_density_grid(density_fn, center, radius, resolution, chunk, device, progress)
+    mesh = marching_cubes(grid, center, radius, threshold)
+    if color_fn is not None:
+        mesh.colors = vertex_colors(color_fn, mesh.vertices, mesh.normals, n_dirs, chunk, device)
+    return mesh
+
+
+def to_trimesh(mesh: Mesh):
+    """The mesh as a ``trimesh.Trimesh`` (vertex colours RGBA when present)."""
+    import trimesh
+
+    colors = None
+    if mesh.colors is not None:
+        colors = np.concatenate([mesh.colors, np.full((len(mesh.colors), 1), 255, np.uint8)], 1)
+    return trimesh.Trimesh(vertices=mesh.vertices, faces=mesh.faces, vertex_normals=mesh.normals,
+                           vertex_colors=colors, process=False)
+
+
+def write_mesh_ply(path: str | Path, mesh: Mesh) -> None:
+    """Write a binary PLY (vertices, faces, normals, vertex colours), atomically."""
+    with atomic_path(path) as tmp:
+        to_trimesh(mesh).export(tmp, file_type="ply")
+
+
+def write_points_ply(path: str | Path, points: np.ndarray, colors: np.ndarray | None = None) -> None:
+    """Write a coloured point cloud (points (P, 3), colours (P, 3) uint8) as binary PLY, atomically."""
+    import trimesh
+
+    c = None
+    if colors is not None:
+        c = np.concatenate([colors, np.full((len(colors), 1), 255, np.uint8)], 1)
+    with atomic_path(path) as tmp:
+        trimesh.PointCloud(np.asarray(points, np.float32), colors=c).export(tmp, file_type="ply")
+
+
+def depth_to_points(rgb: np.ndarray, depth: np.ndarray, acc: np.ndarray, K: np.ndarray, c2w: np.ndarray,
+                    acc_min: float = 0.5, background=(0.0, 0.0, 0.0), stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Back-project one rendered view into world points.
+
+    Args:
+        rgb: (H, W, 3) float rendered colour (composited on ``background``).
+        depth: (H, W) depth along each unit ray (expected depth / acc).
+        acc: (H, W) opacity; only pixels with ``acc > acc_min`` are kept.
+        K, c2w: the view's intrinsics (3, 3) and camera-to-world (4, 4).
+        stride: keep every ``stride``-th pixel in each direction.
+    Returns:
+        points (P, 3) float32 and colours (P, 3) uint8 (the background removed again:
+        ``(rgb - (1 - acc) * background) / acc``).
+    """
+    H, W = depth.shape
+    rows, cols = np.mgrid[0:H:stride, 0:W:stride]
+    keep = acc[rows, cols] > acc_min
+    r, c = rows[keep], cols[keep]
+    uv1 = np.stack([c + 0.5, r + 0.5, np.ones_like(r, dtype=np.float64)], 1)
+    d_cam = uv1 @ np.linalg.inv(K.astype(np.float64)).T
+    d_world = d_cam @ c2w[:3, :3].astype(np.float64).T
+    d_world /= np.linalg.norm(d_world, axis=1, keepdims=True)
+    pts = c2w[:3, 3].astype(np.float64) + d_world * depth[r, c, None]
+    a = acc[r, c, None]
+    col = (rgb[r, c] - (1.0 - a) * np.asarray(background, np.float64)) / a
+    return pts.astype(np.float32), (np.clip(col, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def crop_to_box(points: np.ndarray, colors: np.ndarray, center, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Keep points inside the cube ``center +- radius``."""
+    inside = np.all(np.abs(points - np.asarray(center, np.float32).reshape(1, 3)) <= radius, axis=1)
+    return points[inside], colors[inside]
+
+
+# --------------------------------------------------------------------------- trained models
+
+
+def model_fields(model) -> tuple[DensityFn, ColorFn]:
+    """``density_fn`` and ``color_fn`` of a :class:`~nerfkit.models.base.NerfModel` (its
+    ``density(points)`` and the colour half of ``query(points, dirs)``)."""
+    return model.density, lambda p, d: model.query(p, d)[1]
+
+
+def mesh_from_model(model, center, radius: float, resolution: int = 256, threshold: float = 25.0, n_dirs: int = 1,
+                    chunk: int = 65536, device: str | torch.device = "cpu", progress: bool = True) -> Mesh:
+    """A coloured mesh of a trained model over the cube ``center +- radius``."""
+    density_fn, color_fn = model_fields(model)
+    return extract_mesh(density_fn, center, radius, resolution, threshold, color_fn, n_dirs, chunk, device, progress)
+
+
+def points_from_views(render_fn: Callable, views, acc_min: float = 0.5, background=(0.0, 0.0, 0.0), stride: int = 1,
+                      progress: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """A coloured point cloud from rendered views.
+
+    Args:
+        render_fn: ``(K, c2w, width, height) -> (rgb (H, W, 3), depth (H, W), acc (H, W))``
+            with ``depth`` the expected depth divided by acc (e.g. the renderer's output).
+        views: a :class:`~nerfkit.data.scene.Views`.
+    Returns: points (P, 3) float32 and colours (P, 3) uint8 of every view, concatenated.
+    """
+    it = range(len(views))
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, desc="points", unit="view")
+    pts, cols = [], []
+    for i in it:
+        rgb, depth, acc = render_fn(views.K[i], views.c2w[i], views.width, views.height)
+        p, c = depth_to_points(np.asarray(rgb), np.asarray(depth), np.asarray(acc), views.K[i], views.c2w[i],
+                               acc_min, background, stride)
+        pts.append(p)
+        cols.append(c)
+    if not pts:
+        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8)
+    return np.concatenate(pts), np.concatenate(cols)

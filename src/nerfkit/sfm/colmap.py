@@ -1,0 +1,612 @@
+"""Camera poses without tags: structure-from-motion with pycolmap (COLMAP).
+
+What nerfstudio's ``ns-process-data`` and instant-ngp's ``colmap2nerf`` do:
+
+1. SIFT features (images limited to ``max_image_size`` pixels for speed),
+2. exhaustive matching (every pair; small sets) or sequential matching (neighbours in
+   file-name order; long captures),
+3. incremental mapping with one shared camera (SIMPLE_RADIAL: focal, centre, k1),
+4. a registration report: how many photos got a pose, and why the others did not,
+5. a world frame: metric and gravity-aligned from an ArUco tag seen in the photos when
+   one is given (tag frame: origin at the tag centre, +z out of the tag, metres), else
+   normalised (cameras centred on the point they look at, up -> +z where up is the
+   direction perpendicular to the level-held cameras' x axes, signed by the mean camera
+   up; mean camera distance ``target_distance``).
+
+The output folder holds ``colmap/database.db`` and the aligned model ``colmap/sparse/0``;
+:func:`nerfkit.sfm.build_dataset` then writes the undistorted dataset.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Iterator
+
+import numpy as np
+
+from ..data.colmap import write_reconstruction
+from ..errors import fail
+from ..images import list_images
+
+if TYPE_CHECKING:  # pragma: no cover
+    import pycolmap
+
+MATCHERS = ("auto", "exhaustive", "sequential")
+# "auto" matches every pair up to this many photos, neighbours in name order beyond.
+EXHAUSTIVE_MAX = 100
+FEW_FEATURES = 100
+
+
+@dataclass
+class SfmReport:
+    """What structure-from-motion achieved.
+
+    Attributes:
+        n_photos: photos found; registered: names that got a pose;
+        unregistered: name -> reason for the others;
+        n_points: sparse 3D points; reprojection_error: mean, pixels;
+        n_models: separate reconstructions found (only the largest is used);
+        matcher: "exhaustive" or "sequential"; seconds: stage -> wall time;
+        frame: how the world frame was fixed (tag / normalised), human readable.
+    """
+
+    n_photos: int
+    registered: list[str]
+    unregistered: dict[str, str]
+    n_points: int
+    reprojection_error: float
+    n_models: int
+    matcher: str
+    seconds: dict[str, float] = field(default_factory=dict)
+    frame: str = ""
+    camera: dict = field(default_factory=dict)
+
+    def summary(self) -> str:
+        """A few lines for the terminal."""
+        lines = [f"registered {len(self.registered)} of {self.n_photos} photos "
+                 f"({self.n_points} points, mean reprojection error {self.reprojection_error:.2f} px, "
+                 f"{self.matcher} matching, {sum(self.seconds.values()):.0f} s)"]
+        if self.n_models > 1:
+            lines.append(f"  SfM found {self.n_models} separate models; using the largest")
+        for name, why in sorted(self.unregistered.items()):
+            lines.append(f"  not registered: {name}: {why}")
+        if self.frame:
+            lines.append(f"  world frame: {self.frame}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        return {"n_photos": self.n_photos, "n_registered": len(self.registered), "registered": self.registered,
+                "unregistered": self.unregistered, "n_points": self.n_points,
+                "reprojection_error": self.reprojection_error, "n_models": self.n_models, "matcher": self.matcher,
+                "seconds": self.seconds, "frame": self.frame, "camera": self.camera}
+
+
+@dataclass
+class SfmResult:
+    """The largest reconstruction (in the final world frame), its folder, and the report."""
+
+    reconstruction: "pycolmap.Reconstruction"
+    model_dir: Path
+    image_dir: Path  # the upright photos COLMAP used (the input folder, or upright copies)
+    report: SfmReport
+    tag_size: float | None = None  # set when the world frame is the tag's (metres)
+
+
+def _import_pycolmap():
+    try:
+        import pycolmap
+    except ImportError:
+        raise fail("poses --method colmap", "structure-from-motion needs pycolmap",
+                   "pip install 'nerfkit[sfm]'") from None
+    return pycolmap
+
+
+@contextlib.contextmanager
+def _quiet_colmap(verbose: bool) -> Iterator[None]:
+    """Silence COLMAP's INFO/WARNING log lines unless ``verbose``."""
+    import pycolmap
+
+    old = pycolmap.logging.minloglevel
+    if not verbose:
+        pycolmap.logging.minloglevel = 2
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = old
+
+
+def _say(progress: bool, msg: str) -> None:
+    if progress:
+        print(msg, file=sys.stderr, flush=True)
+
+
+def choose_matcher(matcher: str, n_photos: int) -> str:
+    if matcher not in MATCHERS:
+        raise fail("--matcher", f"'{matcher}' is not one of {', '.join(MATCHERS)}")
+    if matcher == "auto":
+        return "exhaustive" if n_photos <= EXHAUSTIVE_MAX else "sequential"
+    return matcher
+
+
+# Formats COLMAP reads directly; others (HEIC, WebP, ...) are converted first.
+COLMAP_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp"}
+
+
+@dataclass
+class PhotoInfo:
+    """What the photo header says: upright size, EXIF orientation and 35 mm focal length."""
+
+    path: Path
+    width: int
+    height: int
+    orientation: int
+    f35: float | None
+
+
+def photo_info(path: Path) -> PhotoInfo:
+    """Header facts of one photo (no pixel decoding, except for formats PIL must decode)."""
+    from ..images import _open, exif_focal_35mm
+
+    img = _open(path)
+    try:
+        orientation = int(img.getexif().get(0x0112, 1) or 1)
+    except Exception:  # noqa: BLE001 - broken EXIF: treat as upright, as load_image does
+        orientation = 1
+    w, h = img.size
+    if orientation in (5, 6, 7, 8):  # stored rotated by 90 degrees
+        w, h = h, w
+    return PhotoInfo(path, w, h, orientation, exif_focal_35mm(path))
+
+
+def prepare_photos(photos: list[Path], work: Path, progress: bool = True
+                   ) -> tuple[Path, list[str], dict[str, str], PhotoInfo]:
+    """Photos COLMAP can use as nerfkit sees them (upright), all of one size.
+
+    COLMAP ignores EXIF orientation and cannot read HEIC, while nerfkit loads photos
+    upright. When a photo needs it, upright copies of all photos are written to
+    ``work/images`` (JPEG inputs stay JPEG, quality 95; others become PNG).
+    Photos whose upright size differs from the most common one are left out (SfM
+    shares one camera).
+
+    Returns (folder COLMAP reads, image names in it, left-out name -> reason, the
+    header of the first photo used).
+    """
+    from collections import Counter
+
+    from ..images import load_image_uint8
+    from ..io.atomic import write_image
+
+    infos = [photo_info(p) for p in photos]
+    sizes = Counter((i.width, i.height) for i in infos)
+    (W, H), _ = sizes.most_common(1)[0]
+    skipped = {i.path.name: f"{i.width}x{i.height} upright while most photos are {W}x{H} "
+                            f"(SfM shares one camera; take all photos held the same way)"
+               for i in infos if (i.width, i.height) != (W, H)}
+    kept = [i for i in infos if (i.width, i.height) == (W, H)]
+    needs_copy = any(i.orientation != 1 or i.path.suffix.lower() not in COLMAP_SUFFIXES for i in kept)
+    if not needs_copy:
+        return kept[0].path.parent, [i.path.name for i in kept], skipped, kept[0]
+    out = work / "images"
+    _say(progress, f"sfm: writing upright copies of {len(kept)} photos for COLMAP (EXIF rotation or format)...")
+    names = []
+    for i in kept:
+        jpeg = i.path.suffix.lower() in (".jpg", ".jpeg", ".heic", ".heif")
+        name = i.path.name if i.path.suffix.lower() in COLMAP_SUFFIXES else i.path.name + (".jpg" if jpeg else ".png")
+        img = load_image_uint8(i.path)
+        if jpeg:
+            from PIL import Image
+
+            from ..io.atomic import atomic_path
+
+            with atomic_path(out / name) as tmp:
+                Image.fromarray(img).save(tmp, format="JPEG", quality=95, subsampling=0)  # 4:4:4 keeps detail
+        else:
+            write_image(out / name, img)
+        names.append(name)
+    return out, names, skipped, kept[0]
+
+
+def run_sfm(
+    image_dir: str | Path,
+    out_dir: str | Path,
+    matcher: str = "auto",
+    max_image_size: int = 1000,
+    camera_model: str = "SIMPLE_RADIAL",
+    single_camera: bool = True,
+    max_features: int = 4096,
+    overlap: int = 10,
+    threads: int = -1,
+    seed: int = 0,
+    progress: bool = True,
+    verbose: bool = False,
+) -> SfmResult:
+    """Run SfM on the photos of ``image_dir``; write ``out_dir/colmap/{database.db,sparse/0}``.
+
+    Args:
+        matcher: "exhaustive" (all pairs), "sequential" (each photo with the next
+            ``overlap`` in name order) or "auto" (exhaustive up to 100 photos).
+        max_image_size: photos are downscaled to this longest side for features only
+            (poses and intrinsics are for the full-size photos).
+        camera_model: COLMAP camera model; single_camera: one camera shared by all photos.
+        threads: CPU threads (-1: all cores); seed: COLMAP's random seed (repeatable runs).
+    Returns:
+        The largest reconstruction (COLMAP's frame; see :func:`align_reconstruction`).
+    Raises:
+        NerfkitError when there are no photos or nothing could be reconstructed.
+    """
+    pycolmap = _import_pycolmap()
+    image_dir = Path(image_dir)
+    photos = list_images(image_dir)
+    matcher = choose_matcher(matcher, len(photos))
+    if len(photos) < 3:
+        raise fail(image_dir, f"holds {len(photos)} photos; structure-from-motion needs at least 3",
+                   "Take 30-100 overlapping photos around the object")
+    work = Path(out_dir) / "colmap"
+    if work.exists():
+        shutil.rmtree(work)
+    (work / "sparse").mkdir(parents=True)
+    colmap_dir, names, left_out, first = prepare_photos(photos, work, progress)
+    if len(names) < 3:
+        raise fail(image_dir, f"only {len(names)} photos share one size; structure-from-motion needs at least 3",
+                   "Take all photos held the same way (portrait or landscape)")
+    db_path = work / "database.db"
+    device = pycolmap.Device.cpu
+    seconds: dict[str, float] = {}
+    pycolmap.set_random_seed(seed)
+
+    with _quiet_colmap(verbose):
+        t0 = time.perf_counter()
+        _say(progress, f"sfm: extracting SIFT features from {len(names)} photos "
+                       f"(longest side <= {max_image_size} px)...")
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = camera_model
+        if colmap_dir != image_dir and first.f35 and camera_model == "SIMPLE_RADIAL":
+            # The copies lost their EXIF; give COLMAP the focal length it would have read.
+            from ..capture.camera import exif_fx
+
+            f = exif_fx(first.f35, first.width, first.height)
+            reader.camera_params = f"{f},{first.width / 2},{first.height / 2},0"
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.max_image_size = max_image_size
+        extraction.num_threads = threads
+        extraction.sift.max_num_features = max_features
+        try:
+            pycolmap.extract_features(db_path, colmap_dir, image_names=names,
+                                      camera_mode=(pycolmap.CameraMode.SINGLE if single_camera
+                                                   else pycolmap.CameraMode.AUTO),
+                                      reader_options=reader, extraction_options=extraction, device=device)
+        except Exception as e:  # noqa: BLE001 - e.g. an unknown camera model name
+            raise fail(image_dir, f"feature extraction failed ({e})", "Check --camera-model and the photos") from None
+        seconds["features"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        n_pairs = len(names) * (len(names) - 1) // 2 if matcher == "exhaustive" else len(names) * overlap
+        _say(progress, f"sfm: {matcher} matching (~{n_pairs} photo pairs)...")
+        matching = pycolmap.FeatureMatchingOptions()
+        matching.num_threads = threads
+        verification = pycolmap.TwoViewGeometryOptions()
+        verification.ransac.random_seed = seed
+        if matcher == "exhaustive":
+            pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification,
+                                      device=device)
+        else:
+            pairing = pycolmap.SequentialPairingOptions()
+            pairing.overlap = overlap
+            pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
+                                      verification_options=verification, device=device)
+        seconds["matching"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        _say(progress, "sfm: incremental mapping...")
+        options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads = threads
+        options.random_seed = seed
+        options.min_model_size = 3
+        counter = {"n": 0}
+
+        def on_image() -> None:
+            counter["n"] += 1
+            if progress and (counter["n"] % 10 == 0):
+                print(f"sfm:   {counter['n'] + 2} photos registered", file=sys.stderr, flush=True)
+
+        models = pycolmap.incremental_mapping(db_path, colmap_dir, work / "sparse", options=options,
+                                              next_image_callback=on_image)
+        seconds["mapping"] = time.perf_counter() - t0
+
+    if not models:
+        report = {**registration_report(db_path, names, None, {}), **left_out}
+        reasons = "; ".join(sorted({r for r in report.values()}))[:300]
+        raise fail(image_dir, f"structure-from-motion registered no photos ({reasons})",
+                   "Take more overlapping photos of a textured scene, or use ArUco tags (--method tags)")
+    best_key = max(models, key=lambda k: models[k].num_reg_images())
+    rec = models[best_key]
+    unregistered = {**registration_report(db_path, names, rec, {k: m for k, m in models.items() if k != best_key}),
+                    **left_out}
+    registered = sorted(rec.images[i].name for i in rec.reg_image_ids())
+    cam = next(iter(rec.cameras.values()))
+    report = SfmReport(
+        n_photos=len(photos), registered=registered, unregistered=unregistered, n_points=rec.num_points3D(),
+        reprojection_error=float(rec.compute_mean_reprojection_error()), n_models=len(models), matcher=matcher,
+        seconds={k: round(v, 2) for k, v in seconds.items()},
+        camera={"model": cam.model_name, "width": cam.width, "height": cam.height,
+                "params": [float(p) for p in cam.params]},
+    )
+    # Keep one model: the largest, as sparse/0.
+    model_dir = work / "sparse" / "0"
+    for sub in (work / "sparse").iterdir():
+        shutil.rmtree(sub) if sub.is_dir() else sub.unlink()
+    write_reconstruction(rec, model_dir)
+    _say(progress, "sfm: " + report.summary().splitlines()[0])
+    return SfmResult(rec, model_dir, colmap_dir, report)
+
+
+def registration_report(db_path: Path, names: list[str], rec, others: dict) -> dict[str, str]:
+    """Why each photo missing from ``rec`` was not registered: name -> reason.
+
+    Reads the feature/match database: too few features, no verified partner photo,
+    a separate (smaller) model, or matches that did not yield a pose.
+    """
+    import pycolmap
+
+    min_inliers = pycolmap.TwoViewGeometryOptions().min_num_inliers
+    db = pycolmap.Database.open(str(db_path))
+    try:
+        ids = {im.name: im.image_id for im in db.read_all_images()}
+        n_feat = {name: db.num_keypoints_for_image(i) if db.exists_keypoints(i) else 0 for name, i in ids.items()}
+        pair_ids, geoms = db.read_two_view_geometries()
+    finally:
+        db.close()
+    partners: dict[int, int] = {}
+    best: dict[int, int] = {}
+    for pid, g in zip(pair_ids, geoms):
+        a, b = pycolmap.pair_id_to_image_pair(pid)
+        n = len(g.inlier_matches)
+        for i in (a, b):
+            best[i] = max(best.get(i, 0), n)
+            if n >= min_inliers:
+                partners[i] = partners.get(i, 0) + 1
+    in_rec = set() if rec is None else {rec.images[i].name for i in rec.reg_image_ids()}
+    in_other = {}
+    for k, m in others.items():
+        for i in m.reg_image_ids():
+            in_other[m.images[i].name] = m.num_reg_images()
+    out = {}
+    for name in names:
+        if name in in_rec:
+            continue
+        i = ids.get(name)
+        if i is None:
+            out[name] = "could not be read by COLMAP"
+        elif n_feat.get(name, 0) < FEW_FEATURES:
+            out[name] = f"only {n_feat.get(name, 0)} features (blurred, dark or textureless?)"
+        elif partners.get(i, 0) == 0:
+            out[name] = (f"matched no other photo (best pair: {best.get(i, 0)} verified matches, "
+                         f"needs {min_inliers}); too little overlap with the others?")
+        elif name in in_other:
+            out[name] = f"in a separate model of {in_other[name]} photos that did not connect to the main one"
+        else:
+            out[name] = f"matched {partners[i]} photos but no pose could be estimated from them"
+    return out
+
+
+# --------------------------------------------------------------------------- alignment
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
+    """Least-squares similarity ``dst ~ s * R @ src + t`` (Umeyama 1991).
+
+    Args: src, dst: (n, 3) corresponding points, n >= 3 not collinear.
+    Returns: (s, R (3, 3) proper rotation, t (3,)).
+    """
+    src = np.asarray(src, np.float64)
+    dst = np.asarray(dst, np.float64)
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / len(src)
+    U, S, Vt = np.linalg.svd(cov)
+    D = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        D[2, 2] = -1.0
+    R = U @ D @ Vt
+    var_s = (xs ** 2).sum() / len(src)
+    s = float(np.trace(np.diag(S) @ D) / var_s) if with_scale else 1.0
+    t = mu_d - s * R @ mu_s
+    return s, R, t
+
+
+def apply_similarity(c2w: np.ndarray, s: float, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Camera-to-world poses (N, 4, 4) after the world moves by ``x -> s R x + t``
+    (rotations turn by R, centres move; the cameras stay rigid)."""
+    out = np.array(c2w, np.float64, copy=True)
+    out[:, :3, :3] = R @ out[:, :3, :3]
+    out[:, :3, 3] = s * out[:, :3, 3] @ R.T + t
+    return out
+
+
+def compare_poses(c2w_est: np.ndarray, c2w_ref: np.ndarray, with_scale: bool = True) -> dict:
+    """Pose errors after the best similarity alignment of the camera centres.
+
+    Returns a dict: rotation error (degrees, median/max), centre error (in the reference's
+    units, median/max, and relative to the reference cameras' spread), scale s.
+    """
+    s, R, t = umeyama(c2w_est[:, :3, 3], c2w_ref[:, :3, 3], with_scale)
+    aligned = apply_similarity(c2w_est, s, R, t)
+    rel = np.swapaxes(aligned[:, :3, :3], 1, 2) @ c2w_ref[:, :3, :3].astype(np.float64)
+    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)
+    rot = np.degrees(np.arccos(cos))
+    pos = np.linalg.norm(aligned[:, :3, 3] - c2w_ref[:, :3, 3], axis=1)
+    spread = float(np.sqrt(((c2w_ref[:, :3, 3] - c2w_ref[:, :3, 3].mean(0)) ** 2).sum(1).mean()))
+    return {"n": int(len(rot)), "scale": s,
+            "rot_err_deg_median": float(np.median(rot)), "rot_err_deg_max": float(rot.max()),
+            "pos_err_median": float(np.median(pos)), "pos_err_max": float(pos.max()),
+            "pos_err_rel_median": float(np.median(pos) / spread), "spread": spread}
+
+
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation (3, 3) taking unit vector ``a`` to unit vector ``b``."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(a @ b)
+    if c < -1 + 1e-9:  # opposite: turn 180 degrees about any axis perpendicular to a
+        axis = np.cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0])
+        axis /= np.linalg.norm(axis)
+        return 2 * np.outer(axis, axis) - np.eye(3)
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx / (1 + c)
+
+
+def estimate_vertical(c2w: np.ndarray) -> np.ndarray:
+    """World up (3,) from camera poses (N, 4, 4), robust to cameras looking down.
+
+    People hold cameras level (little roll), so every camera's x axis is horizontal and
+    up is the direction most perpendicular to all of them (nerfstudio's "vertical"
+    orientation); its sign follows the mean camera up (-y). When the x axes span too
+    little (all nearly parallel: a forward-facing capture), the mean camera up, made
+    perpendicular to the common x axis, is used instead.
+    """
+    from ..data.scene import estimate_up
+
+    mean_up = estimate_up(c2w).astype(np.float64)
+    x_axes = c2w[:, :3, 0].astype(np.float64)
+    _, S, Vt = np.linalg.svd(x_axes, full_matrices=False)
+    if len(S) == 3 and S[1] > 0.17 * np.sqrt(len(c2w)):
+        up = Vt[2]
+    else:
+        up = mean_up - Vt[0] * (Vt[0] @ mean_up)
+    up = up / np.linalg.norm(up)
+    return up if up @ mean_up >= 0 else -up
+
+
+def normalising_similarity(c2w: np.ndarray, target_distance: float = 4.0) -> tuple[float, np.ndarray, np.ndarray]:
+    """(s, R, t) moving the cameras' look-at point to the origin, up (see
+    :func:`estimate_vertical`) to +z, and the cameras' mean distance from that point to
+    ``target_distance`` (lego-like units)."""
+    from ..data.scene import estimate_center
+
+    center = estimate_center(c2w).astype(np.float64)
+    up = estimate_vertical(c2w)
+    R = rotation_between(up, np.array([0.0, 0.0, 1.0]))
+    dist = float(np.mean(np.linalg.norm(c2w[:, :3, 3] - center, axis=1)))
+    s = target_distance / max(dist, 1e-12)
+    return s, R, -s * R @ center
+
+
+def transform_reconstruction(rec, s: float, R: np.ndarray, t: np.ndarray) -> None:
+    """Apply ``x -> s R x + t`` to a pycolmap reconstruction in place (cameras and points)."""
+    import pycolmap
+
+    rec.transform(pycolmap.Sim3d(float(s), pycolmap.Rotation3d(np.asarray(R, np.float64)), np.asarray(t, np.float64)))
+
+
+def reconstruction_c2w(rec) -> tuple[list[str], np.ndarray]:
+    """Names and camera-to-world poses (N, 4, 4) of the registered images, sorted by name."""
+    from ..data.colmap import image_c2w
+
+    ims = sorted((rec.images[i] for i in rec.reg_image_ids()), key=lambda im: im.name)
+    return [im.name for im in ims], np.stack([image_c2w(im) for im in ims])
+
+
+# --------------------------------------------------------------------------- tags
+
+
+def detect_tag(image: np.ndarray, tag_id: int, dictionary: str = "DICT_4X4_50") -> np.ndarray | None:
+    """Corners (4, 2) of ArUco tag ``tag_id`` in an (H, W, 3) uint8 photo, or None.
+
+    Uses the capture package's detector (sub-pixel corners); corners come in OpenCV's
+    order (top-left, top-right, bottom-right, bottom-left of the printed tag) and are
+    returned in COLMAP's / nerfkit's pixel convention (pixel centres at +0.5).
+    """
+    from ..capture.aruco import detect, make_detector, marker_bits
+
+    det = detect(image, make_detector(dictionary), marker_bits=marker_bits(dictionary))
+    hits = np.flatnonzero(det.ids == tag_id)
+    if hits.size == 0:
+        return None
+    return det.corners[hits[0]].astype(np.float64) + 0.5  # OpenCV centres at integers -> +0.5
+
+
+def triangulate(w2c: np.ndarray, rays: np.ndarray) -> np.ndarray:
+    """Least-squares (DLT) point (3,) from normalised image points ``rays`` (n, 2) seen by
+    cameras ``w2c`` (n, 3, 4)."""
+    A = []
+    for P, (x, y) in zip(w2c, rays):
+        A.append(x * P[2] - P[0])
+        A.append(y * P[2] - P[1])
+    _, _, Vt = np.linalg.svd(np.asarray(A))
+    X = Vt[-1]
+    return X[:3] / X[3]
+
+
+def tag_similarity(rec, image_dir: Path, tag_size: float, tag_id: int = 0, dictionary: str = "DICT_4X4_50",
+                   min_views: int = 3) -> tuple[tuple[float, np.ndarray, np.ndarray], dict] | None:
+    """(s, R, t) taking the reconstruction into the tag frame (metres, +z out of the tag),
+    and facts about the fit; None when the tag is seen in fewer than ``min_views`` photos.
+
+    The tag's corners are detected in every registered photo, undistorted with the
+    photo's camera model, and triangulated; the triangulated square fixes scale
+    (``tag_size`` = printed side length in metres), orientation and origin.
+    """
+    from ..images import load_image_uint8
+
+    obs: list[tuple[np.ndarray, np.ndarray]] = []  # (w2c 3x4, normalised corners 4x2)
+    for i in rec.reg_image_ids():
+        im = rec.images[i]
+        corners = detect_tag(load_image_uint8(image_dir / im.name), tag_id, dictionary)
+        if corners is None:
+            continue
+        cam = rec.cameras[im.camera_id]
+        obs.append((np.asarray(im.cam_from_world().matrix(), np.float64), np.asarray(cam.cam_from_img(corners))))
+    if len(obs) < min_views:
+        return None
+    w2c = np.stack([o[0] for o in obs])
+    X = np.stack([triangulate(w2c, np.stack([o[1][k] for o in obs])) for k in range(4)])  # (4, 3) corners
+    # Tag frame (as OpenCV's ArUco pose): x along corner0->corner1, y along corner3->corner0, z out of the tag.
+    half = tag_size / 2
+    tag_pts = np.array([[-half, half, 0], [half, half, 0], [half, -half, 0], [-half, -half, 0]])
+    s, R, t = umeyama(X, tag_pts)
+    sides = np.linalg.norm(X - np.roll(X, -1, axis=0), axis=1) * s
+    residual = float(np.abs(np.linalg.norm((s * X @ R.T + t) - tag_pts, axis=1)).max())
+    info = {"views": len(obs), "side_lengths_m": [float(x) for x in sides], "fit_residual_m": residual}
+    return (s, R, t), info
+
+
+def align_reconstruction(result: SfmResult, tag_size: float | None = None, tag_id: int = 0,
+                         tag_dict: str = "DICT_4X4_50", target_distance: float = 4.0,
+                         progress: bool = True) -> str:
+    """Move the reconstruction into nerfkit's world frame (in place; rewrites the model).
+
+    With ``tag_size`` (metres) and the tag visible in >= 3 registered photos: the tag
+    frame (metric, +z up out of the tag). Otherwise normalised (see
+    :func:`normalising_similarity`). Returns a one-line description, also stored in
+    ``result.report.frame``.
+    """
+    rec = result.reconstruction
+    frame = None
+    if tag_size is not None:
+        fit = tag_similarity(rec, result.image_dir, tag_size, tag_id, tag_dict)
+        if fit is None:
+            _say(progress, f"sfm: tag {tag_id} seen in fewer than 3 registered photos; normalising the scene instead")
+        else:
+            (s, R, t), info = fit
+            transform_reconstruction(rec, s, R, t)
+            result.tag_size = tag_size
+            frame = (f"metric, from ArUco tag {tag_id} ({tag_size * 100:g} cm) seen in {info['views']} photos: "
+                     f"origin at the tag centre, +z up out of the tag, metres "
+                     f"(triangulated sides {', '.join(f'{x * 100:.2f}' for x in info['side_lengths_m'])} cm)")
+    if frame is None:
+        _, c2w = reconstruction_c2w(rec)
+        s, R, t = normalising_similarity(c2w, target_distance)
+        transform_reconstruction(rec, s, R, t)
+        frame = (f"normalised (no tag{'' if tag_size is None else ' found'}): "
+                 f"cameras centred on the point they look at, "
+                 f"up (perpendicular to the cameras' x axes) -> +z, mean camera distance {target_distance:g} "
+                 f"(arbitrary units, not metric)")
+    write_reconstruction(rec, result.model_dir)
+    result.report.frame = frame
+    return frame

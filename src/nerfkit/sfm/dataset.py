@@ -1,0 +1,152 @@
+"""From an SfM reconstruction to the same dataset the tag path writes.
+
+:func:`sfm_dataset` is the whole ``nerfkit poses --method colmap`` pipeline: run SfM, fix
+the world frame (tag, or normalised), then hand the posed photos to
+:func:`nerfkit.capture.dataset.build_dataset` (undistort, crop, resize, split, near/far,
+``dataset.npz`` + ``transforms.json`` + ``images/``), plus ``sfm_report.json``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..data.scene import Scene
+from ..errors import fail
+from ..io.atomic import write_json
+from .colmap import SfmReport, SfmResult, align_reconstruction, run_sfm
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..capture.camera import Camera
+    from ..capture.dataset import DatasetConfig
+
+REPORT_FILE = "sfm_report.json"
+
+
+def opencv_camera(camera) -> "Camera":
+    """A pycolmap camera as the capture package's OpenCV camera (K with pixel centres at
+    integers, distortion k1 k2 p1 p2 k3). Raises NerfkitError for models OpenCV's
+    5-coefficient model cannot express (fisheye, FULL_OPENCV, ...)."""
+    from ..capture.camera import Camera
+
+    p = [float(x) for x in camera.params]
+    name = camera.model_name
+    if name == "SIMPLE_PINHOLE":
+        (f, cx, cy), dist = p, [0.0] * 5
+        fx = fy = f
+    elif name == "PINHOLE":
+        (fx, fy, cx, cy), dist = p, [0.0] * 5
+    elif name == "SIMPLE_RADIAL":
+        f, cx, cy, k = p
+        fx = fy = f
+        dist = [k, 0.0, 0.0, 0.0, 0.0]
+    elif name == "RADIAL":
+        f, cx, cy, k1, k2 = p
+        fx = fy = f
+        dist = [k1, k2, 0.0, 0.0, 0.0]
+    elif name == "OPENCV":
+        fx, fy, cx, cy, k1, k2, p1, p2 = p
+        dist = [k1, k2, p1, p2, 0.0]
+    else:
+        raise fail(f"camera model {name}", "cannot be written as an OpenCV k1 k2 p1 p2 k3 camera",
+                   "Use --camera-model SIMPLE_RADIAL, RADIAL or OPENCV")
+    # COLMAP puts pixel centres at +0.5, OpenCV at integers.
+    K = np.array([[fx, 0.0, cx - 0.5], [0.0, fy, cy - 0.5], [0.0, 0.0, 1.0]])
+    return Camera(K, np.asarray(dist, np.float64), int(camera.width), int(camera.height), f"COLMAP {name} (SfM)")
+
+
+def posed_photos(result: SfmResult) -> list:
+    """The registered photos as the capture package's ``PosedPhoto`` (name order)."""
+    from ..capture.poses import PosedPhoto
+    from ..data.colmap import image_c2w
+
+    rec = result.reconstruction
+    cams = {cid: opencv_camera(c) for cid, c in rec.cameras.items()}
+    out = []
+    for i in rec.reg_image_ids():
+        im = rec.images[i]
+        out.append(PosedPhoto(im.name, result.image_dir / im.name, image_c2w(im), image_error(rec, im),
+                              cams[im.camera_id]))
+    return sorted(out, key=lambda p: p.name)
+
+
+def image_error(rec, image) -> float:
+    """Mean reprojection error (pixels) of the 3D points an image sees (their track errors)."""
+    errs = [rec.points3D[p.point3D_id].error for p in image.points2D if p.has_point3D()]
+    return float(np.mean(errs)) if errs else float("nan")
+
+
+def near_far_from_model(result: SfmResult) -> tuple[float, float] | None:
+    """Depth range of the sparse points seen by the registered cameras (see
+    :func:`nerfkit.data.colmap.near_far_from_points`), at the photos' own resolution."""
+    from ..data.colmap import image_c2w, near_far_from_points
+
+    rec = result.reconstruction
+    ims = [rec.images[i] for i in rec.reg_image_ids()]
+    cam = rec.cameras[ims[0].camera_id]
+    K = np.asarray(cam.calibration_matrix(), np.float64)
+    c2w = np.stack([image_c2w(im) for im in ims])
+    points = np.array([p.xyz for p in rec.points3D.values()], np.float64).reshape(-1, 3)
+    return near_far_from_points(c2w, np.repeat(K[None], len(ims), 0), cam.width, cam.height, points)
+
+
+def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | None" = None, jobs: int = 2,
+                  progress: bool = True) -> Scene:
+    """Write the dataset of an aligned SfM result with the tag path's dataset builder.
+
+    In the tag frame (``result.tag_size`` set) the builder's tag-based bounds are used;
+    in a normalised frame near/far come from the sparse points (unless ``cfg`` sets them).
+    """
+    from dataclasses import replace
+
+    from ..capture.dataset import DatasetConfig
+    from ..capture.dataset import build_dataset as capture_build_dataset
+
+    cfg = cfg or DatasetConfig()
+    tag_size = result.tag_size
+    if tag_size is None:
+        nf = near_far_from_model(result)
+        if nf is not None:
+            cfg = replace(cfg, near=cfg.near if cfg.near is not None else nf[0],
+                          far=cfg.far if cfg.far is not None else nf[1])
+        # Only sizes the object sphere in the summary once near/far are given.
+        tag_size = 0.1 * float(np.mean([np.linalg.norm(p.c2w[:3, 3]) for p in posed_photos(result)]))
+    extra = {"world": result.report.frame, "poses": "structure-from-motion (COLMAP via pycolmap)",
+             "sfm": {k: v for k, v in result.report.to_dict().items() if k not in ("registered",)}}
+    scene, _ = capture_build_dataset(posed_photos(result), out_dir, cfg, tag_size, jobs=jobs, progress=progress,
+                                     extra=extra)
+    write_json(Path(out_dir) / REPORT_FILE, result.report.to_dict())
+    return scene
+
+
+def sfm_dataset(
+    image_dir: str | Path,
+    out_dir: str | Path,
+    cfg: "DatasetConfig | None" = None,
+    matcher: str = "auto",
+    max_image_size: int = 1000,
+    tag_size: float | None = None,
+    tag_id: int = 0,
+    tag_dict: str = "DICT_4X4_50",
+    camera_model: str = "SIMPLE_RADIAL",
+    threads: int = -1,
+    seed: int = 0,
+    jobs: int = 2,
+    progress: bool = True,
+    verbose: bool = False,
+) -> tuple[Scene, SfmReport]:
+    """Photos -> SfM -> world frame -> dataset in ``out_dir``.
+
+    The world frame is the tag's (metres, +z up) when ``tag_size`` is given and tag
+    ``tag_id`` is seen in at least 3 registered photos, else normalised (see
+    :func:`nerfkit.sfm.colmap.align_reconstruction`). ``cfg`` holds the dataset options
+    (size, splits, near/far) shared with the tag path. COLMAP's files stay in
+    ``out_dir/colmap`` (database and the aligned model ``sparse/0``).
+    """
+    result = run_sfm(image_dir, out_dir, matcher=matcher, max_image_size=max_image_size, camera_model=camera_model,
+                     threads=threads, seed=seed, progress=progress, verbose=verbose)
+    align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=tag_dict, progress=progress)
+    scene = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress)
+    return scene, result.report

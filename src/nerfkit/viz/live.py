@@ -1,0 +1,339 @@
+"""A live viewer of a trained (or training) run in the browser, with viser.
+
+``serve_run(RUN)`` shows the training cameras (frustums with thumbnails) and renders the
+NeRF from the browser's camera: a small preview as soon as the camera moves, refined
+step by step up to ``max_side`` pixels once it stops. An RGB / depth toggle and a
+resolution slider sit in the side panel. With ``watch=True`` the newest checkpoint is
+re-loaded whenever training writes a new one (so it can attach to a run in progress).
+
+It listens on 127.0.0.1 unless another ``host`` is passed explicitly (the viewer has no
+authentication: anyone who can reach the port sees the scene).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from ..cameras import image_rays
+from ..errors import NerfkitError, fail
+
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
+PREVIEW_SIDE = 64
+SETTLE_SECONDS = 0.25
+
+
+# --------------------------------------------------------------------------- camera maths (pure)
+
+
+def quat_to_matrix(wxyz) -> np.ndarray:
+    """Rotation matrix (3, 3) of a unit quaternion (w, x, y, z)."""
+    from viser import transforms as vtf
+
+    return np.asarray(vtf.SO3(np.asarray(wxyz, np.float64)).as_matrix())
+
+
+def matrix_to_quat(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of a rotation matrix (3, 3)."""
+    from viser import transforms as vtf
+
+    return np.asarray(vtf.SO3.from_matrix(np.asarray(R, np.float64)).wxyz)
+
+
+def viewer_camera(wxyz, position, fov: float, aspect: float, long_side: int) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """nerfkit camera of a viser camera (OpenCV axes, ``P_world = R p_cam + t``).
+
+    Args:
+        wxyz, position: the camera's rotation (quaternion) and centre in the world.
+        fov: vertical field of view (radians); aspect: width / height.
+        long_side: pixels of the longer image side.
+    Returns:
+        (K (3, 3) float32, c2w (4, 4) float32, width, height); square pixels, principal
+        point at the image centre.
+    """
+    if aspect >= 1:
+        w, h = long_side, max(1, round(long_side / aspect))
+    else:
+        w, h = max(1, round(long_side * aspect)), long_side
+    fy = 0.5 * h / np.tan(0.5 * fov)
+    K = np.array([[fy, 0, w / 2], [0, fy, h / 2], [0, 0, 1]], np.float32)
+    c2w = np.eye(4, dtype=np.float32)
+    c2w[:3, :3] = quat_to_matrix(wxyz)
+    c2w[:3, 3] = np.asarray(position, np.float64)
+    return K, c2w, w, h
+
+
+def refinement_sides(preview: int, max_side: int) -> list[int]:
+    """Long sides rendered one after another while the camera rests: preview, 2x, ..., max."""
+    sides = [max(8, min(preview, max_side))]
+    while sides[-1] < max_side:
+        sides.append(min(2 * sides[-1], max_side))
+    return sides
+
+
+def depth_image(depth: np.ndarray, acc: np.ndarray, near: float, far: float) -> np.ndarray:
+    """(H, W, 3) uint8 turbo colour map of depth in [near, far]; black where nothing was hit."""
+    from matplotlib import colormaps
+
+    t = np.clip((depth - near) / max(far - near, 1e-9), 0, 1)
+    rgb = colormaps["turbo"](t)[..., :3]
+    rgb[acc < 0.05] = 0
+    return (rgb * 255 + 0.5).astype(np.uint8)
+
+
+# --------------------------------------------------------------------------- model + checkpoints
+
+
+@dataclass
+class LoadedRun:
+    """What the viewer draws: the model, the run info, its step, and the checkpoint file."""
+
+    model: object
+    info: object
+    step: int
+    checkpoint: Path | None
+
+
+def newest_checkpoint(run_dir: Path) -> tuple[Path, float] | None:
+    """(path, mtime) of the newest checkpoint file of a run, or None."""
+    paths = sorted((run_dir / "checkpoints").glob("step_*.pt"), reverse=True)
+    for p in paths:
+        try:
+            return p, p.stat().st_mtime
+        except FileNotFoundError:  # pruned while we looked
+            continue
+    return None
+
+
+class RunWatcher:
+    """Loads a run and re-loads it when a newer checkpoint appears.
+
+    ``loader(run_dir) -> (model, info, step)`` (default: ``train.checkpoint.load_run``).
+    """
+
+    def __init__(self, run_dir: str | Path, loader: Callable, device: str | torch.device = "cpu"):
+        self.run_dir = Path(run_dir)
+        self.loader = loader
+        self.device = device
+        self.current: LoadedRun | None = None
+        self._seen: tuple[Path, float] | None = None
+        self.status = "waiting for the first checkpoint"
+
+    def poll(self) -> bool:
+        """Load the run if its newest checkpoint changed; True when a new model was loaded."""
+        newest = newest_checkpoint(self.run_dir)
+        if newest is None or newest == self._seen:
+            return False
+        try:
+            model, info, step = self.loader(self.run_dir)
+        except NerfkitError as e:  # e.g. a checkpoint half-written by another filesystem
+            self.status = f"could not load: {e}"
+            return False
+        self._seen = newest
+        self.current = LoadedRun(model, info, int(step), newest[0])
+        self.status = f"step {step}"
+        return True
+
+
+# --------------------------------------------------------------------------- rendering
+
+
+@torch.no_grad()
+def render_camera(model, K: np.ndarray, c2w: np.ndarray, w: int, h: int, background: torch.Tensor,
+                  chunk: int = 4096, abort: Callable[[], bool] | None = None):
+    """rgb (H, W, 3) float, depth (H, W) (expected depth / acc), acc (H, W); None if aborted."""
+    device = background.device
+    rays = image_rays(torch.as_tensor(K), torch.as_tensor(c2w).to(device), w, h)
+    rgb, depth, acc = [], [], []
+    for s in range(0, len(rays), chunk):
+        if abort is not None and abort():
+            return None
+        out = model.render_rays(rays[s:s + chunk], background, perturb=False)
+        rgb.append(out.rgb.float().cpu())
+        depth.append(out.depth.float().cpu())
+        acc.append(out.acc.float().cpu())
+    a = torch.cat(acc).reshape(h, w).numpy()
+    d = torch.cat(depth).reshape(h, w).numpy() / np.maximum(a, 1e-6)
+    return torch.cat(rgb).clamp(0, 1).reshape(h, w, 3).numpy(), d, a
+
+
+@dataclass
+class _ClientState:
+    key: tuple = ()
+    level: int = 0
+    changed_at: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+class LiveViewer:
+    """The viser server, its panel, and the render loop (see the module docstring)."""
+
+    def __init__(self, watcher: RunWatcher, scene=None, host: str = "127.0.0.1", port: int = 8080,
+                 max_side: int = 256, preview: int = PREVIEW_SIDE, chunk: int = 4096, watch: bool = True):
+        import viser
+
+        self.watcher = watcher
+        self.scene = scene
+        self.max_side = max_side
+        self.preview = preview
+        self.chunk = chunk
+        self.watch = watch
+        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self._states: dict[int, _ClientState] = {}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        gui = self.server.gui
+        self.mode = gui.add_dropdown("Show", ("RGB", "Depth"), initial_value="RGB")
+        self.res = gui.add_slider("Max resolution", min=32, max=1024, step=32, initial_value=max_side)
+        self.follow = gui.add_checkbox("Follow training", initial_value=watch)
+        self.status = gui.add_markdown("loading...")
+        self.frustums = gui.add_checkbox("Training cameras", initial_value=True)
+        self.frustums.on_update(lambda _: self._set_frustums_visible(self.frustums.value))
+        self._frustum_handles: list = []
+        if scene is not None:
+            self.server.scene.set_up_direction(tuple(float(u) for u in scene.up))
+            self._add_training_cameras(scene)
+        self.server.on_client_connect(self._on_connect)
+
+    # -- scene
+
+    def _add_training_cameras(self, scene) -> None:
+        v = scene.train
+        if len(v) == 0:
+            return
+        spread = float(np.mean(np.linalg.norm(v.c2w[:, :3, 3] - scene.center, axis=1)))
+        step = max(1, len(v) // 100)  # at most ~100 frustums
+        for i in range(0, len(v), step):
+            fy = float(v.K[i, 1, 1])
+            thumb = None
+            if v.images is not None:
+                s = max(1, max(v.width, v.height) // 64)
+                thumb = v.images[i, ::s, ::s]
+            name = v.names[i] if v.names else f"{i:04d}"
+            self._frustum_handles.append(self.server.scene.add_camera_frustum(
+                f"/train/{i:04d}_{Path(name).stem}", fov=float(2 * np.arctan(0.5 * v.height / fy)),
+                aspect=v.width / v.height, scale=0.08 * spread, image=thumb, format="jpeg",
+                wxyz=matrix_to_quat(v.c2w[i, :3, :3]), position=v.c2w[i, :3, 3].astype(np.float64),
+                color=(40, 120, 220)))
+
+    def _set_frustums_visible(self, visible: bool) -> None:
+        for h in self._frustum_handles:
+            h.visible = visible
+
+    def _on_connect(self, client) -> None:
+        if self.scene is not None and len(self.scene.train):
+            c2w = self.scene.train.c2w[0]
+            client.camera.position = c2w[:3, 3].astype(np.float64)
+            client.camera.look_at = np.asarray(self.scene.center, np.float64)
+            client.camera.up_direction = np.asarray(self.scene.up, np.float64)
+
+    # -- render loop
+
+    def _camera_key(self, client) -> tuple:
+        cam = client.camera
+        return (tuple(np.round(cam.wxyz, 5)), tuple(np.round(cam.position, 5)), round(float(cam.fov), 5),
+                round(float(cam.aspect), 4), self.mode.value, int(self.res.value),
+                None if self.watcher.current is None else self.watcher.current.step)
+
+    def render_for(self, wxyz, position, fov: float, aspect: float, side: int, mode: str,
+                   abort: Callable[[], bool] | None = None) -> np.ndarray | None:
+        """The image (H, W, 3) uint8 the viewer shows for a camera, or None (aborted / no model)."""
+        run = self.watcher.current
+        if run is None:
+            return None
+        from ..train.config import parse_background
+
+        K, c2w, w, h = viewer_camera(wxyz, position, fov, aspect, side)
+        device = next(iter(run.model.parameters()), torch.zeros(0)).device
+        bg = torch.tensor(parse_background(run.info.train.background), dtype=torch.float32, device=device)
+        with self._lock:
+            out = render_camera(run.model, K, c2w, w, h, bg, self.chunk, abort)
+        if out is None:
+            return None
+        rgb, depth, acc = out
+        if mode == "Depth":
+            b = run.info.bounds
+            return depth_image(depth, acc, b.near, b.far)
+        return (rgb * 255 + 0.5).astype(np.uint8)
+
+    def step(self) -> None:
+        """One pass of the loop: poll checkpoints, then refine every client's image once."""
+        if self.follow.value or self.watcher.current is None:
+            if self.watcher.poll():
+                self.status.content = f"**{self.watcher.run_dir.name}**: {self.watcher.status}"
+            elif self.watcher.current is None:
+                self.status.content = self.watcher.status
+        sides = refinement_sides(self.preview, int(self.res.value))
+        now = time.monotonic()
+        for cid, client in list(self.server.get_clients().items()):
+            st = self._states.setdefault(cid, _ClientState())
+            try:
+                key = self._camera_key(client)
+            except AssertionError:  # the client has not sent its camera yet
+                continue
+            if key != st.key:
+                st.key, st.level, st.changed_at = key, 0, now
+            if st.level >= len(sides) or (st.level > 0 and now - st.changed_at < SETTLE_SECONDS):
+                continue
+            cam = client.camera
+            img = self.render_for(cam.wxyz, cam.position, cam.fov, cam.aspect, sides[st.level], self.mode.value,
+                                  abort=lambda c=client, k=key: self._camera_key(c) != k)
+            if img is not None:
+                client.scene.set_background_image(img, format="jpeg", jpeg_quality=90)
+                st.level += 1
+        for cid in set(self._states) - set(self.server.get_clients()):
+            del self._states[cid]
+
+    def serve_forever(self, poll_seconds: float = 0.05) -> None:
+        try:
+            while not self._stop.is_set():
+                self.step()
+                time.sleep(poll_seconds)
+        finally:
+            self.server.stop()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+
+def serve_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080, device: str = "auto",
+              data: str | None = None, max_side: int = 256, watch: bool = True, chunk: int = 4096) -> None:
+    """Serve a live viewer of ``run_dir`` until interrupted (Ctrl-C).
+
+    Args:
+        host: interface to listen on; anything but 127.0.0.1/localhost exposes the scene
+            to the network (the ``view`` command should only pass it on an explicit flag).
+        data: dataset for the training cameras (default: the run's own).
+        max_side: longest side of the fully refined image (pixels).
+        watch: re-load the newest checkpoint while training writes new ones.
+    """
+    from ..commands._common import scene_for_run
+    from ..train.checkpoint import load_run, read_run
+    from ..train.config import resolve_device
+
+    run_dir = Path(run_dir)
+    info = read_run(run_dir)  # fails early, with one line, when RUN is not a run folder
+    dev = resolve_device(device)
+    scene = None
+    try:
+        scene = scene_for_run(info, data)
+    except NerfkitError as e:
+        print(f"note: training cameras not shown ({e})", file=sys.stderr)
+    watcher = RunWatcher(run_dir, lambda d: load_run(d, dev), dev)
+    try:
+        viewer = LiveViewer(watcher, scene, host, port, max_side, chunk=chunk, watch=watch)
+    except OSError as e:
+        raise fail(f"{host}:{port}", f"cannot listen there ({e.strerror or e})", "Pick another --port") from None
+    port = viewer.server.get_port()  # viser moves to the next free port when this one is taken
+    if host not in LOCAL_HOSTS:
+        print(f"warning: listening on {host}: anyone who can reach port {port} can see this scene", file=sys.stderr)
+    print(f"nerfkit viewer of {run_dir} at http://{'localhost' if host in LOCAL_HOSTS else host}:{port} "
+          f"(Ctrl-C to stop)", flush=True)
+    viewer.serve_forever()

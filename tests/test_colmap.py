@@ -1,0 +1,418 @@
+"""COLMAP models (read/write/import) and structure-from-motion on a generated scene.
+
+The SfM scene is a ray-cast textured room with a textured box and an ArUco tag on the
+floor, seen by 12 cameras at 320x240 (known poses, metres).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pycolmap = pytest.importorskip("pycolmap")
+
+from nerfkit.cameras import intrinsics_matrix, look_at  # noqa: E402
+from nerfkit.cli import main  # noqa: E402
+from nerfkit.data.colmap import (load_colmap, read_model, reconstruction_to_scene,  # noqa: E402
+                                 split_every, write_colmap_model, write_reconstruction)
+from nerfkit.data.load import detect_format, load_scene  # noqa: E402
+from nerfkit.data.synthetic import sphere_scene  # noqa: E402
+from nerfkit.errors import NerfkitError  # noqa: E402
+from nerfkit.io.atomic import write_image  # noqa: E402
+from nerfkit.sfm.colmap import (align_reconstruction, apply_similarity, compare_poses,  # noqa: E402
+                                normalising_similarity, rotation_between, run_sfm, umeyama)
+from nerfkit.sfm.dataset import sfm_dataset  # noqa: E402
+
+# ----------------------------------------------------------------------------- model I/O
+
+
+def _same_cameras(a, b, atol=1e-5):
+    """Views a and b hold the same cameras (matched by name)."""
+    idx = {n: i for i, n in enumerate(b.names)}
+    assert sorted(a.names) == sorted(b.names)
+    for i, n in enumerate(a.names):
+        j = idx[n]
+        np.testing.assert_allclose(b.c2w[j], a.c2w[i], atol=atol)
+        np.testing.assert_allclose(b.K[j], a.K[i], rtol=1e-5)
+
+
+@pytest.mark.parametrize("text", [False, True])
+def test_model_write_read_round_trip(tmp_path, text):
+    scene = sphere_scene(n_train=5, n_val=2, size=24, n_test=3)
+    write_colmap_model(scene, tmp_path / "m", text=text)
+    assert (tmp_path / "m" / ("cameras.txt" if text else "cameras.bin")).is_file()
+    rec = read_model(tmp_path / "m")
+    assert rec.num_reg_images() == 10 and rec.num_cameras() == 1  # one shared K
+    back = reconstruction_to_scene(rec, None, val_every=0)
+    everything = [scene.train, scene.val, scene.test]
+    names = sum((v.names for v in everything), [])
+    c2w = np.concatenate([v.c2w for v in everything])
+    K = np.concatenate([v.K for v in everything])
+    from nerfkit.data.scene import Views
+
+    _same_cameras(Views(c2w, K, 24, 24, None, names), back.train)
+
+
+def test_colmap_project_round_trip_with_images(tmp_path):
+    """Scene -> COLMAP project (sparse/0 + images/) -> load_scene: same cameras and pixels."""
+    scene = sphere_scene(n_train=6, n_val=2, size=20, n_test=2)
+    assert main(["convert", "--format", "colmap", "--to", str(tmp_path / "proj"), _npz(scene, tmp_path)]) == 0
+    assert detect_format(tmp_path / "proj") == "colmap"
+    back = load_scene(tmp_path / "proj")
+    assert load_scene(tmp_path / "proj" / "sparse" / "0" / "cameras.bin").train.names == back.train.names
+    assert len(back.train) + len(back.val) == 8  # the pose-only test split is left out
+    for a in (scene.train, scene.val):
+        for i, n in enumerate(a.names):
+            for b in (back.train, back.val):
+                if n + ".png" in b.names:
+                    j = b.names.index(n + ".png")
+                    np.testing.assert_allclose(b.c2w[j], a.c2w[i], atol=1e-5)
+                    np.testing.assert_allclose(b.K[j], a.K[i], rtol=1e-5)
+                    np.testing.assert_array_equal(b.images[j], a.images[i])
+    assert (back.near, back.far) == pytest.approx((2.0, 6.0), rel=1e-4)  # 0.5x, 1.5x camera distance (no points)
+
+
+def _npz(scene, tmp_path):
+    from nerfkit.data.npz import save_npz
+
+    save_npz(scene, tmp_path / "scene.npz")
+    return str(tmp_path / "scene.npz")
+
+
+def test_split_every():
+    tr, va = split_every(20, 8)
+    assert list(va) == [4, 12] and len(tr) == 18 and not set(tr) & set(va)
+    assert len(split_every(20, 0)[1]) == 0
+
+
+def test_distorted_model_is_undistorted(tmp_path):
+    """A SIMPLE_RADIAL model with strong k1: after import, known 3D points appear exactly
+    where the pinhole K and the pose put them (dot centroids within 0.15 px)."""
+    W, H = 160, 120
+    cam = pycolmap.Camera.create_from_model_name(1, "SIMPLE_RADIAL", 120.0, W, H)
+    cam.params = [120.0, 80.0, 60.0, -0.2]
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(cam)
+    gx, gy = np.meshgrid(np.linspace(-0.55, 0.55, 6), np.linspace(-0.4, 0.4, 5))  # dots >= 20 px apart
+    pts_cam = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], 1)
+    uv = np.asarray(cam.img_from_cam(pts_cam))  # distorted pixel positions (centres at +0.5)
+    img = np.zeros((H, W, 3))
+    rows, cols = np.mgrid[0:H, 0:W] + 0.5
+    for u, v in uv:  # smooth dots: their centroid is the projected point
+        img += np.exp(-((cols - u) ** 2 + (rows - v) ** 2) / (2 * 0.8 ** 2))[..., None]
+    write_image(tmp_path / "images" / "a.png", np.clip(img, 0, 1))
+    c2w = look_at(np.array([0.5, -2.0, 0.3]), np.zeros(3), np.array([0, 0, 1.0]))
+    w2c = np.linalg.inv(c2w)
+    rec.add_image_with_trivial_frame(pycolmap.Image(name="a.png", camera_id=1, image_id=1),
+                                     pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3]))
+    for X in pts_cam @ c2w[:3, :3].T + c2w[:3, 3]:  # the points give near/far
+        rec.add_point3D(X, pycolmap.Track(), np.zeros(3, np.uint8))
+    write_reconstruction(rec, tmp_path / "sparse" / "0")
+    scene = load_colmap(tmp_path, val_every=0)
+    K, out = scene.train.K[0].astype(np.float64), scene.train.images[0].astype(np.float64).mean(-1)
+    np.testing.assert_allclose(scene.train.c2w[0], c2w, atol=1e-5)
+    assert 0.8 < scene.near < 1.0 < scene.far < 1.2  # every point is at depth 1
+    expected = (pts_cam @ K.T)[:, :2]  # pinhole projection of the same points
+    r2, c2 = np.mgrid[0:out.shape[0], 0:out.shape[1]] + 0.5
+    errs = []
+    for u, v in expected:
+        win = (np.abs(c2 - u) < 3) & (np.abs(r2 - v) < 3)
+        if u < 4 or v < 4 or u > out.shape[1] - 4 or v > out.shape[0] - 4:
+            continue
+        wgt = out * win
+        errs.append(np.hypot((wgt * c2).sum() / wgt.sum() - u, (wgt * r2).sum() / wgt.sum() - v))
+    assert len(errs) >= 15
+    assert max(errs) < 0.15, errs
+    # and the undistortion did something: the distorted positions are far off
+    assert np.abs(uv - (pts_cam @ intrinsics_matrix(120, 120, 80, 60).T)[:, :2]).max() > 3
+
+
+def test_bad_models_are_one_line_errors(tmp_path):
+    (tmp_path / "m").mkdir()
+    for n in ("cameras.bin", "images.bin", "points3D.bin"):
+        (tmp_path / "m" / n).write_bytes(b"garbage")
+    with pytest.raises(NerfkitError, match="cannot read the COLMAP model"):
+        read_model(tmp_path / "m")
+    write_colmap_model(sphere_scene(n_train=3, n_val=1, size=8), tmp_path / "p" / "sparse" / "0")
+    with pytest.raises(NerfkitError, match="not its photos"):
+        load_scene(tmp_path / "p")  # no images/ folder
+    (tmp_path / "p" / "images").mkdir()
+    with pytest.raises(NerfkitError, match="no such file"):
+        load_scene(tmp_path / "p")  # images/ without the photos
+
+
+# ----------------------------------------------------------------------------- alignment maths
+
+
+def test_umeyama_recovers_similarity():
+    rng = np.random.default_rng(0)
+    src = rng.normal(size=(20, 3))
+    R = rotation_between(np.array([0, 0, 1.0]), np.array([1.0, 2.0, -0.5]))
+    s, t = 2.5, np.array([1.0, -2.0, 0.5])
+    s2, R2, t2 = umeyama(src, s * src @ R.T + t)
+    assert s2 == pytest.approx(s) and np.allclose(R2, R) and np.allclose(t2, t)
+    assert np.linalg.det(R2) == pytest.approx(1.0)
+
+
+def test_compare_poses_invariant_to_similarity():
+    c2w = np.stack([look_at(np.array([3 * np.cos(a), 3 * np.sin(a), 1.0]), np.zeros(3), np.array([0, 0, 1.0]))
+                    for a in np.linspace(0, 2, 8)])
+    R = rotation_between(np.array([0, 0, 1.0]), np.array([0.3, -1.0, 0.2]))
+    moved = apply_similarity(c2w, 0.37, R, np.array([5.0, 1, -2]))
+    err = compare_poses(moved, c2w)
+    assert err["rot_err_deg_max"] < 1e-4 and err["pos_err_max"] < 1e-9 and err["scale"] == pytest.approx(1 / 0.37)
+    noisy = moved.copy()
+    noisy[0, :3, 3] += 0.1
+    assert compare_poses(noisy, c2w)["pos_err_max"] > 0.05
+
+
+def test_normalising_similarity():
+    """Cameras around (5, -3, 2) with up = -y world, 10 units away -> centred, +z up, distance 4."""
+    up = np.array([0, -1.0, 0])
+    centre = np.array([5.0, -3, 2])
+    eyes = [centre + 10 * np.array([np.cos(a), -0.5, np.sin(a)]) / np.linalg.norm([np.cos(a), -0.5, np.sin(a)])
+            for a in np.linspace(0, 2 * np.pi, 9)[:-1]]
+    c2w = np.stack([look_at(e, centre, up) for e in eyes])
+    out = apply_similarity(c2w, *normalising_similarity(c2w, 4.0))
+    np.testing.assert_allclose(np.linalg.norm(out[:, :3, 3], axis=1), 4.0, rtol=1e-6)
+    np.testing.assert_allclose(-out[:, :3, 1].mean(0) / np.linalg.norm(out[:, :3, 1].mean(0)), [0, 0, 1], atol=1e-6)
+    np.testing.assert_allclose(out[:, :3, 3].mean(0)[:2], 0, atol=1e-6)
+
+
+# ----------------------------------------------------------------------------- SfM
+
+
+def test_prepare_photos_makes_upright_copies(tmp_path):
+    """COLMAP ignores EXIF rotation: rotated photos are copied upright; odd sizes left out."""
+    from PIL import Image
+
+    from nerfkit.images import load_image_uint8
+    from nerfkit.sfm.colmap import prepare_photos
+
+    rng = np.random.default_rng(0)
+    upright = [(rng.random((60, 40, 3)) * 255).astype(np.uint8) for _ in range(3)]  # portrait 40x60
+    (tmp_path / "in").mkdir()
+    for i, im in enumerate(upright[:2]):  # stored landscape, EXIF 6 = rotate 90 degrees clockwise to view
+        exif = Image.Exif()
+        exif[0x0112] = 6
+        Image.fromarray(np.rot90(im, 1)).save(tmp_path / "in" / f"{i}.jpg", exif=exif.tobytes(), quality=100)
+    Image.fromarray(upright[2]).save(tmp_path / "in" / "2.png")
+    Image.fromarray(upright[2][:50]).save(tmp_path / "in" / "3.png")  # another size
+    photos = sorted((tmp_path / "in").iterdir())
+    folder, names, skipped, first = prepare_photos(photos, tmp_path / "work", progress=False)
+    assert folder == tmp_path / "work" / "images" and names == ["0.jpg", "1.jpg", "2.png"]
+    assert list(skipped) == ["3.png"] and "40x50" in skipped["3.png"]
+    assert (first.width, first.height, first.orientation) == (40, 60, 6)
+    for n in names:
+        stored = np.asarray(Image.open(folder / n))  # what COLMAP reads: the raw pixels
+        assert stored.shape == (60, 40, 3)
+        diff = np.abs(stored.astype(float) - load_image_uint8(tmp_path / "in" / n).astype(float))
+        assert diff.mean() < 3  # upright (a rotated copy would differ by ~85 on this noise)
+    # all upright already: COLMAP reads the input folder itself
+    folder2, names2, _, _ = prepare_photos([photos[2], photos[2]], tmp_path / "work2", progress=False)
+    assert folder2 == tmp_path / "in" and not (tmp_path / "work2").exists()
+
+
+def _noise_texture(rng, n=256):
+    """(n, n) value noise over four octaves: blobs at many scales for SIFT."""
+    from PIL import Image
+
+    tex = np.zeros((n, n))
+    for cells, amp in ((8, 1.0), (16, 0.7), (32, 0.5), (64, 0.35)):
+        small = Image.fromarray((rng.random((cells, cells)) * 255).astype(np.uint8))
+        tex += amp * np.asarray(small.resize((n, n), Image.Resampling.BICUBIC), np.float64) / 255
+    tex -= tex.min()
+    return tex / tex.max()
+
+
+def _tag_image(tag_id=0):
+    import cv2
+
+    d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    return cv2.aruco.generateImageMarker(d, tag_id, 48, borderBits=1).astype(np.float64) / 255
+
+
+def render_room(K, c2w, width, height, textures, tag, ss=2):
+    """Ray-cast (H, W, 3) uint8: the inside of the room [-3,3]^2 x [0,3], a box [-0.6,0.6]^2 x
+    [0,1.2], and ``tag = (image, x0, y0, side)`` on the floor z = 0 (readable from above)."""
+    rows, cols = np.mgrid[0:height * ss, 0:width * ss]
+    uv1 = np.stack([(cols + 0.5) / ss, (rows + 0.5) / ss, np.ones(cols.shape)], -1).reshape(-1, 3)
+    d = uv1 @ np.linalg.inv(K).T @ c2w[:3, :3].T
+    o = c2w[:3, 3]
+    n_rays = np.arange(len(d))
+
+    def slab(lo, hi, inside):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (lo - o) / d, (hi - o) / d
+        tmin, tmax = np.minimum(t1, t2), np.maximum(t1, t2)
+        if inside:  # where the ray leaves the room
+            return tmax.min(1), tmax.argmin(1)
+        tn, tf = tmin.max(1), tmax.min(1)
+        return np.where((tn <= tf) & (tn > 0), tn, np.inf), tmin.argmax(1)
+
+    t_room, a_room = slab(np.array([-3, -3, 0.0]), np.array([3, 3, 3.0]), True)
+    t_box, a_box = slab(np.array([-0.6, -0.6, 0.0]), np.array([0.6, 0.6, 1.2]), False)
+    box = t_box < t_room
+    t, axis = np.where(box, t_box, t_room), np.where(box, a_box, a_room)
+    p = o + t[:, None] * d
+    sign = p[n_rays, axis] > 0
+    face = axis * 2 + sign + 6 * box
+    pu = p[n_rays, np.where(axis == 0, 1, 0)]
+    pv = p[n_rays, np.where(axis == 2, 1, 2)]
+    n = textures.shape[1]
+    scale = np.where(box, n / 1.3, n / 6.2)
+    x, y = (pu + 3.1) * scale % (n - 1), (pv + 3.1) * scale % (n - 1)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = x - x0, y - y0
+    T = textures
+    val = (T[face, y0, x0] * (1 - fx) * (1 - fy) + T[face, y0, x0 + 1] * fx * (1 - fy)
+           + T[face, y0 + 1, x0] * (1 - fx) * fy + T[face, y0 + 1, x0 + 1] * fx * fy)
+    tint = np.array([[0.9, 0.6, 0.5], [0.5, 0.8, 0.6], [0.6, 0.6, 0.9], [0.8, 0.8, 0.5]])[face % 4]
+    timg, tx, ty, side = tag
+    floor = ~box & (axis == 2) & (p[:, 2] < 1.5)
+    m = side / 4
+    paper = floor & (p[:, 0] > tx - m) & (p[:, 0] < tx + side + m) & (p[:, 1] > ty - m) & (p[:, 1] < ty + side + m)
+    inner = floor & (p[:, 0] >= tx) & (p[:, 0] < tx + side) & (p[:, 1] > ty) & (p[:, 1] <= ty + side)
+    k = timg.shape[0]
+    col = np.clip(((p[:, 0] - tx) / side * k).astype(int), 0, k - 1)
+    row = np.clip(((ty + side - p[:, 1]) / side * k).astype(int), 0, k - 1)  # row 0 at +y: not mirrored
+    val = np.where(paper, np.where(inner, timg[row, col], 1.0) * 0.9, val)
+    tint = np.where(paper[:, None], 1.0, tint)
+    img = (val[:, None] * tint + 0.05).reshape(height, ss, width, ss, 3).mean((1, 3))
+    return np.clip(img, 0, 1)
+
+
+ROOM_K = intrinsics_matrix(260.0, 260.0, 160.0, 120.0).astype(np.float64)
+TAG_SIZE = 0.4
+
+
+def make_room(folder, n=12):
+    """Write n photos (+ a blank one and a noise one) of the room; return {name: c2w}."""
+    rng = np.random.default_rng(0)
+    textures = np.stack([_noise_texture(rng) for _ in range(12)])
+    tag = (_tag_image(0), 0.8, -0.2, TAG_SIZE)
+    truth = {}
+    for i, az in enumerate(np.radians(np.linspace(-60, 60, n))):
+        eye = np.array([2.2 * np.cos(az), 2.2 * np.sin(az), 1.6 + 0.2 * np.sin(3 * az)])
+        c2w = look_at(eye, np.array([0.4, 0, 0.3]), np.array([0, 0, 1.0]))
+        write_image(folder / f"img_{i:02d}.png", render_room(ROOM_K, c2w, 320, 240, textures, tag))
+        truth[f"img_{i:02d}.png"] = c2w
+    write_image(folder / "x_blank.png", np.full((240, 320, 3), 0.5))
+    write_image(folder / "x_noise.png", rng.random((240, 320, 3)))
+    return truth
+
+
+@pytest.fixture(scope="module")
+def room(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("room") / "photos"
+    return folder, make_room(folder)
+
+
+@pytest.fixture(scope="module")
+def room_sfm(room, tmp_path_factory):
+    """One SfM run on the room photos (COLMAP's arbitrary frame); tests copy it before changing it."""
+    folder, truth = room
+    return run_sfm(folder, tmp_path_factory.mktemp("sfm"), matcher="exhaustive", progress=False), truth
+
+
+@pytest.mark.slow
+def test_sfm_recovers_poses_and_explains_failures(room_sfm):
+    result, truth = room_sfm
+    rep = result.report
+    assert rep.n_photos == 14
+    assert sorted(rep.registered) == sorted(truth)
+    assert set(rep.unregistered) == {"x_blank.png", "x_noise.png"}
+    assert "features" in rep.unregistered["x_blank.png"]
+    assert "matched no other photo" in rep.unregistered["x_noise.png"]
+    assert rep.reprojection_error < 1.0
+    # poses after the best similarity: rotations within 1 degree, centres within 2% of the spread
+    from nerfkit.sfm.colmap import reconstruction_c2w
+
+    names, c2w = reconstruction_c2w(result.reconstruction)
+    err = compare_poses(c2w, np.stack([truth[n] for n in names]))
+    assert err["rot_err_deg_max"] < 1.0, err
+    assert err["pos_err_rel_median"] < 0.02, err
+    f = rep.camera["params"][0]
+    assert f == pytest.approx(260.0, rel=0.02)
+    assert (result.model_dir / "cameras.bin").is_file()
+
+
+@pytest.mark.slow
+def test_sfm_normalised_dataset(room_sfm, tmp_path):
+    """Without a tag: centred on the look-at point, +z = mean camera up, mean distance 4;
+    near/far from the sparse points; the dataset says the frame is not metric."""
+    import copy
+    import json
+
+    from nerfkit.capture.dataset import DatasetConfig
+    from nerfkit.sfm.colmap import reconstruction_c2w
+    from nerfkit.sfm.dataset import build_dataset
+
+    result, truth = room_sfm
+    result = copy.copy(result)
+    result.reconstruction = pycolmap.Reconstruction(result.reconstruction)
+    result.model_dir = tmp_path / "model"
+    frame = align_reconstruction(result, tag_size=None, progress=False)
+    assert "normalised" in frame and result.tag_size is None
+    names, c2w = reconstruction_c2w(result.reconstruction)
+    assert np.linalg.norm(c2w[:, :3, 3], axis=1).mean() == pytest.approx(4.0, rel=1e-6)
+    ref = np.stack([truth[n] for n in names])
+    # Up is the true vertical although every camera looks ~25 degrees down: the cameras'
+    # elevation angles (their tilt against +z) are the true ones.
+    def tilt(c):
+        return np.degrees(np.arcsin(c[:, 2, 2]))
+
+    assert np.abs(tilt(ref)).mean() > 15
+    np.testing.assert_allclose(tilt(c2w), tilt(ref), atol=1.0)
+    scene = build_dataset(result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160),
+                          progress=False)
+    assert len(scene.train) == 12 and scene.train.width == 160
+    # near/far from the sparse points, scaled like the cameras (box ~1.4 m away, far walls 3-5 m)
+    from nerfkit.data.scene import estimate_center
+
+    s = 4.0 / np.linalg.norm(ref[:, :3, 3] - estimate_center(ref), axis=1).mean()
+    assert 1.0 * s < scene.near < 1.6 * s and 3.0 * s < scene.far < 7.0 * s
+    meta = json.loads((tmp_path / "ds" / "transforms.json").read_text())
+    assert "normalised" in json.dumps(meta)
+    assert load_scene(tmp_path / "ds").train.images.shape == scene.train.images.shape
+
+
+@pytest.mark.slow
+def test_sfm_dataset_metric_from_tag(room, tmp_path):
+    """Whole pipeline with the tag: metric scale and +z up straight from the photos."""
+    folder, truth = room
+    from nerfkit.capture.dataset import DatasetConfig
+
+    scene, rep = sfm_dataset(folder, tmp_path / "ds", DatasetConfig(val_every=6, test_every=0), matcher="exhaustive",
+                             tag_size=TAG_SIZE, progress=False)
+    assert "metric" in rep.frame
+    back = load_scene(tmp_path / "ds")  # the written dataset
+    assert len(back.train) + len(back.val) == 12 and len(back.val) == 2
+    assert back.train.images.shape[1:] == (back.train.height, back.train.width, 3)
+    names = back.train.names + back.val.names
+    c2w = np.concatenate([back.train.c2w, back.val.c2w]).astype(np.float64)
+    ref = np.stack([truth[n] for n in names])
+    err = compare_poses(c2w, ref, with_scale=False)
+    assert err["rot_err_deg_max"] < 1.0 and err["pos_err_max"] < 0.1, err  # metres, cameras ~2 m away
+    # Metric: distances between cameras are the true ones. SfM's focal length is ~2% off
+    # on this small scene (and depth scales with it), hence 3%.
+    d_est = np.linalg.norm(c2w[:, None, :3, 3] - c2w[None, :, :3, 3], axis=-1)
+    d_ref = np.linalg.norm(ref[:, None, :3, 3] - ref[None, :, :3, 3], axis=-1)
+    assert np.abs(d_est - d_ref).max() < 0.03 * d_ref.max()
+    # up is +z out of the floor: camera heights above the tag (z = 0) are the true ~1.6 m
+    np.testing.assert_allclose(c2w[:, 2, 3], ref[:, 2, 3], rtol=0.04)
+    assert 0.3 < back.near < 1.5 and back.far > 2.5  # the box is 1.5-3 m from the cameras (bounds: capture.dataset)
+
+
+def test_sfm_with_nothing_to_match_fails_cleanly(tmp_path):
+    rng = np.random.default_rng(3)
+    for i in range(3):
+        write_image(tmp_path / "p" / f"{i}.png", rng.random((120, 160, 3)))
+    with pytest.raises(NerfkitError, match="registered no photos"):
+        run_sfm(tmp_path / "p", tmp_path / "out", progress=False)
+    for f in sorted((tmp_path / "p").iterdir())[:2]:
+        f.unlink()
+    with pytest.raises(NerfkitError, match="at least 3"):
+        run_sfm(tmp_path / "p", tmp_path / "out", progress=False)
+    with pytest.raises(NerfkitError, match="--matcher"):
+        run_sfm(tmp_path / "p", tmp_path / "out", progress=False, matcher="fast")

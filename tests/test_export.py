@@ -1,0 +1,191 @@
+"""Mesh and point-cloud export on analytic fields, read back with trimesh."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+trimesh = pytest.importorskip("trimesh")
+pytest.importorskip("skimage")
+
+from nerfkit import export as ex  # noqa: E402
+from nerfkit.cameras import Rays, image_rays  # noqa: E402
+from nerfkit.data.synthetic import sphere_color, sphere_scene  # noqa: E402
+from nerfkit.errors import NerfkitError  # noqa: E402
+from nerfkit.models.base import NerfModel, RenderOutput, SceneBounds  # noqa: E402
+
+CENTER = np.array([0.1, -0.2, 0.3])
+R = 0.7
+
+
+def sphere_density(p: torch.Tensor) -> torch.Tensor:
+    """Density 50 + 500 (R - |p - c|), clamped at 0: exactly 50 on the sphere of radius R."""
+    d = torch.linalg.norm(p - torch.tensor(CENTER, dtype=p.dtype), dim=1)
+    return torch.clamp(50.0 + 500.0 * (R - d), min=0.0)
+
+
+def direction_color(p: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+    """A colour that reveals the view direction: (d + 1) / 2."""
+    return (d + 1) / 2
+
+
+def test_sphere_mesh_is_closed_and_round(tmp_path):
+    mesh = ex.extract_mesh(sphere_density, CENTER, 1.0, resolution=64, threshold=50.0, color_fn=direction_color)
+    r = np.linalg.norm(mesh.vertices - CENTER, axis=1)
+    assert abs(r.mean() - R) < 0.002 and r.std() < 0.002  # voxel = 2/63 = 0.032
+    # normals point outward, colours saw the field from outside along -normal
+    outward = (mesh.vertices - CENTER) / r[:, None]
+    assert (np.sum(mesh.normals * outward, 1) > 0.99).all()
+    np.testing.assert_allclose(mesh.colors / 255.0, (1 - outward) / 2, atol=0.02)
+    path = tmp_path / "sphere.ply"
+    ex.write_mesh_ply(path, mesh)
+    back = trimesh.load(path, process=False)
+    assert back.is_watertight and back.is_winding_consistent
+    assert back.volume == pytest.approx(4 / 3 * np.pi * R ** 3, rel=0.01)  # positive: faces wind outward
+    assert len(back.vertices) == len(mesh.vertices) and len(back.faces) == len(mesh.faces)
+    np.testing.assert_array_equal(np.asarray(back.visual.vertex_colors)[:, :3], mesh.colors)
+
+
+def test_surface_cut_by_the_box_is_closed_there():
+    """A sphere larger than the box: the mesh is cropped to the box and still watertight."""
+    mesh = ex.extract_mesh(sphere_density, CENTER, 0.5, resolution=40, threshold=50.0)
+    tm = ex.to_trimesh(mesh)
+    assert tm.is_watertight
+    assert np.abs(mesh.vertices - CENTER).max() <= 0.5 + 1e-6
+    # the box corners (distance 0.866 > R) are cut off by the sphere: volume < box volume
+    assert 0.85 < tm.volume < 1.0
+
+
+def test_color_cone_average():
+    dirs = ex.cone_directions(np.array([[0.0, 0.0, 1.0]]), 5, half_angle_deg=30)
+    assert dirs.shape == (5, 1, 3)
+    np.testing.assert_allclose(np.linalg.norm(dirs, axis=-1), 1.0)
+    np.testing.assert_allclose(dirs[0, 0], [0, 0, -1])
+    np.testing.assert_allclose(dirs[1:, 0] @ [0, 0, -1], np.cos(np.radians(30)))
+    # the centre plus 4 symmetric tilts: a direction-linear colour averages to mean z = -(1 + 4 cos 30) / 5
+    c = ex.vertex_colors(direction_color, np.zeros((1, 3), np.float32), np.array([[0, 0, 1.0]]), n_dirs=5)
+    assert abs(c[0, 2] / 255 - (1 - (1 + 4 * np.cos(np.radians(30))) / 5) / 2) < 0.003
+    assert abs(c[0, 0] / 255 - 0.5) < 0.003 and abs(c[0, 1] / 255 - 0.5) < 0.003
+
+
+def test_grid_orientation_and_chunking():
+    """grid[i, j, k] is the field at (x_i, y_j, z_k), whatever the chunk size."""
+    def fn(p):
+        return p[:, 0] + 10 * p[:, 1] + 100 * p[:, 2]
+
+    g1 = ex.sample_density_grid(fn, [0, 0, 0], 1.0, 7, chunk=10)
+    g2 = ex.sample_density_grid(fn, [0, 0, 0], 1.0, 7, chunk=1 << 16)
+    ax = ex.grid_axis(0.0, 1.0, 7)
+    X, Y, Z = np.meshgrid(ax, ax, ax, indexing="ij")
+    np.testing.assert_allclose(g1, X + 10 * Y + 100 * Z, atol=1e-4)
+    np.testing.assert_array_equal(g1, g2)
+
+
+def test_threshold_outside_the_field_is_a_clear_error():
+    with pytest.raises(NerfkitError, match="--threshold"):
+        ex.extract_mesh(sphere_density, CENTER, 1.0, resolution=16, threshold=1e6)
+    with pytest.raises(NerfkitError, match="--threshold"):
+        ex.extract_mesh(sphere_density, CENTER, 1.0, resolution=16, threshold=0.0)
+
+
+# ----------------------------------------------------------------------------- points
+
+
+def sphere_hits(K, c2w, w, h):
+    """Exact render of the unit sphere: rgb (H, W, 3) on black, depth along rays, acc in {0, 1}."""
+    rays = image_rays(torch.from_numpy(K), torch.from_numpy(c2w).float(), w, h)
+    o, d = rays.origins.double().numpy(), rays.directions.double().numpy()
+    b = (o * d).sum(1)
+    disc = b * b - ((o * o).sum(1) - 1.0)
+    hit = disc > 0
+    t = np.where(hit, -b - np.sqrt(np.where(hit, disc, 0)), 0.0)
+    rgb = np.zeros((len(o), 3))
+    rgb[hit] = sphere_color(o[hit] + t[hit, None] * d[hit])
+    return rgb.reshape(h, w, 3), t.reshape(h, w), hit.reshape(h, w).astype(np.float64)
+
+
+def test_points_from_expected_depth_lie_on_the_surface(tmp_path):
+    views = sphere_scene(n_train=3, n_val=1, size=24).train
+    pts, cols = ex.points_from_views(sphere_hits, views, progress=False)
+    assert len(pts) > 3 * 100
+    np.testing.assert_allclose(np.linalg.norm(pts, axis=1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(cols / 255.0, sphere_color(pts.astype(np.float64)), atol=0.01)
+    path = tmp_path / "points.ply"
+    ex.write_points_ply(path, pts, cols)
+    back = trimesh.load(path)
+    assert isinstance(back, trimesh.PointCloud) and len(back.vertices) == len(pts)
+    np.testing.assert_array_equal(np.asarray(back.colors)[:, :3], cols)
+
+
+def test_depth_to_points_keeps_opaque_pixels_and_unmixes_background():
+    K = np.array([[10.0, 0, 2], [0, 10, 2], [0, 0, 1]])
+    c2w = np.eye(4)
+    acc = np.array([[0.2, 0.6], [0.9, 1.0]]).repeat(2, 0).repeat(2, 1)
+    rgb = np.zeros((4, 4, 3))
+    rgb[:] = 0.4 * acc[..., None] + (1 - acc[..., None]) * 1.0  # colour 0.4 over a white background
+    depth = np.full((4, 4), 2.0)
+    pts, cols = ex.depth_to_points(rgb, depth, acc, K, c2w, acc_min=0.5, background=(1, 1, 1))
+    assert len(pts) == 12  # the 0.2 quarter is dropped
+    np.testing.assert_allclose(cols, round(0.4 * 255), atol=1)
+    np.testing.assert_allclose(np.linalg.norm(pts, axis=1), 2.0, atol=1e-6)  # depth along unit rays
+
+
+def test_crop_to_box():
+    pts = np.array([[0, 0, 0], [0.9, 0, 0], [1.1, 0, 0]], np.float32)
+    p, c = ex.crop_to_box(pts, np.zeros((3, 3), np.uint8), [0, 0, 0], 1.0)
+    assert len(p) == 2 and len(c) == 2
+
+
+# ----------------------------------------------------------------------------- the command
+
+
+class SphereModel(NerfModel):
+    """An analytic 'trained model': the textured unit sphere as a density field."""
+
+    def query(self, points, directions):
+        r = torch.linalg.norm(points, dim=1)
+        sigma = torch.clamp(50.0 + 500.0 * (1.0 - r), min=0.0)
+        rgb = torch.from_numpy(sphere_color(points.double().numpy() / np.maximum(r.double().numpy(), 1e-9)[:, None]))
+        return sigma, rgb.float()
+
+    def render_rays(self, rays: Rays, background, perturb):
+        o, d = rays.origins.double(), rays.directions.double()
+        b = (o * d).sum(1)
+        disc = b * b - ((o * o).sum(1) - 1.0)
+        hit = disc > 0
+        t = torch.where(hit, -b - torch.sqrt(torch.clamp(disc, min=0)), torch.zeros_like(b))
+        p = (o + t[:, None] * d).numpy()
+        rgb = torch.from_numpy(sphere_color(p)).float() * hit[:, None] + background * (~hit[:, None])
+        return RenderOutput(rgb, (t * hit).float(), hit.float())
+
+
+def test_export_command_writes_both_files(tmp_path, monkeypatch, capsys):
+    from types import SimpleNamespace
+
+    from nerfkit.cli import main
+    from nerfkit.commands import export as cmd
+    from nerfkit.data.npz import save_npz
+
+    scene = sphere_scene(n_train=4, n_val=1, size=16)
+    save_npz(scene, tmp_path / "s.npz")
+    bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
+    info = SimpleNamespace(bounds=bounds, run_dir=tmp_path,
+                           train=SimpleNamespace(data=str(tmp_path / "s.npz"), background="black"))
+    monkeypatch.setattr(cmd, "load_model", lambda run, dev: (SphereModel(bounds), info, "cpu", 7))
+    rc = main(["export", str(tmp_path), "--mesh", str(tmp_path / "m.ply"), "--points", str(tmp_path / "p.ply"),
+               "--resolution", "48", "--threshold", "50"])
+    assert rc == 0, capsys.readouterr().err
+    mesh = trimesh.load(tmp_path / "m.ply", process=False)
+    assert mesh.is_watertight
+    assert np.linalg.norm(mesh.vertices, axis=1).mean() == pytest.approx(1.0, abs=0.01)
+    cloud = trimesh.load(tmp_path / "p.ply")
+    assert len(cloud.vertices) > 100
+    np.testing.assert_allclose(np.linalg.norm(cloud.vertices, axis=1), 1.0, atol=1e-4)
+    out = capsys.readouterr().out
+    assert "step 7" in out
+    assert main(["export", str(tmp_path)]) == 2  # nothing asked for
+    assert main(["export", str(tmp_path), "--mesh", str(tmp_path / "m.obj")]) == 2
+    json.dumps(bounds.to_dict())

@@ -1,0 +1,242 @@
+"""Dataset formats: Blender loader, the load_scene dispatcher, resampling, conversions.
+
+Every fixture is generated here (small RGBA PNGs and json files in tmp_path).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from nerfkit.cameras import intrinsics_matrix, look_at, opencv_to_opengl
+from nerfkit.cli import main
+from nerfkit.data.blender import focal_from_angle, load_blender
+from nerfkit.data.load import detect_format, load_scene, output_size, resample_scene, scale_intrinsics
+from nerfkit.data.npz import load_npz, save_npz
+from nerfkit.data.synthetic import render_sphere, sphere_cameras, sphere_scene
+from nerfkit.errors import NerfkitError
+from nerfkit.io.atomic import write_image
+
+ANGLE = 0.6911112070083618  # lego's camera_angle_x
+
+
+def _rgba(rng, w, h):
+    """A random RGBA image with fully transparent, opaque and half-transparent regions."""
+    img = rng.integers(0, 256, (h, w, 4), dtype=np.uint8)
+    img[..., 3] = 255
+    img[: h // 4, :, 3] = 0  # top quarter transparent
+    img[h // 4: h // 2, :, 3] = 128  # half transparent band
+    return img
+
+
+def make_blender(folder, n=(3, 2, 2), size=(40, 30), seed=0):
+    """Write a Blender-layout scene; return {split: (c2w_cv (N,4,4), rgba images)}."""
+    rng = np.random.default_rng(seed)
+    w, h = size
+    truth = {}
+    for split, count in zip(("train", "val", "test"), n):
+        c2w_cv = sphere_cameras(count, seed=seed + len(split)).astype(np.float64)
+        frames, images = [], []
+        for i in range(count):
+            img = _rgba(rng, w, h)
+            write_image(folder / split / f"r_{i}.png", img)
+            images.append(img)
+            frames.append({"file_path": f"./{split}/r_{i}", "rotation": 0.0,
+                           "transform_matrix": opencv_to_opengl(c2w_cv[i]).tolist()})
+        (folder / f"transforms_{split}.json").write_text(json.dumps({"camera_angle_x": ANGLE, "frames": frames}))
+        truth[split] = (c2w_cv, np.stack(images))
+    return truth
+
+
+def _composite(rgba, bg):
+    a = rgba[..., 3:4].astype(np.float64) / 255
+    return (rgba[..., :3] / 255 * a + np.asarray(bg) * (1 - a)) * 255
+
+
+# ----------------------------------------------------------------------------- Blender
+
+
+def test_blender_cameras_and_compositing(tmp_path):
+    truth = make_blender(tmp_path)
+    for bg in ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)):
+        scene = load_blender(tmp_path, background=bg)
+        f = 0.5 * 40 / math.tan(0.5 * ANGLE)
+        for split in ("train", "val", "test"):
+            v = scene.splits[split]
+            c2w, rgba = truth[split]
+            np.testing.assert_allclose(v.c2w, c2w, atol=1e-6)  # OpenGL -> OpenCV undone exactly
+            np.testing.assert_allclose(v.K, np.repeat(intrinsics_matrix(f, f, 20, 15)[None], len(v), 0), rtol=1e-6)
+            np.testing.assert_allclose(v.images.astype(float), _composite(rgba, bg), atol=1.01)
+            assert v.names == [f"{split}/r_{i}" for i in range(len(v))]
+        assert (scene.train.width, scene.train.height) == (40, 30)
+    # transparent top rows are exactly the background
+    assert (load_blender(tmp_path, background=(1.0, 1.0, 1.0)).train.images[:, :7] == 255).all()
+
+
+def test_blender_camera_axes_see_the_origin(tmp_path):
+    """The cameras look at the origin: its projection lands at the image centre."""
+    make_blender(tmp_path)
+    scene = load_scene(tmp_path / "transforms_val.json")  # a json file selects its folder
+    for c2w, K in zip(scene.train.c2w, scene.train.K):
+        x = np.linalg.inv(c2w.astype(np.float64)) @ np.array([0, 0, 0, 1.0])
+        assert x[2] > 0  # in front (+z forward)
+        uv = (K @ x[:3])[:2] / x[2]
+        np.testing.assert_allclose(uv, [20, 15], atol=1e-3)
+
+
+def test_focal_from_angle_lego():
+    # lego: 800 px wide, camera_angle_x 0.6911 -> 1111.11 px (the course's 277.78 at 200 px)
+    assert focal_from_angle(ANGLE, 800) == pytest.approx(1111.1111, rel=1e-6)
+    assert focal_from_angle(ANGLE, 200) == pytest.approx(277.77777, rel=1e-6)
+
+
+def test_blender_resize_scales_K(tmp_path):
+    make_blender(tmp_path, size=(40, 30))
+    full = load_blender(tmp_path)
+    half = load_blender(tmp_path, downscale=2)
+    assert (half.train.width, half.train.height) == (20, 15)
+    assert half.train.images.shape == (3, 15, 20, 3)
+    np.testing.assert_allclose(half.train.K[:, :2], full.train.K[:, :2] / 2, rtol=1e-6)
+    np.testing.assert_allclose(half.train.c2w, full.train.c2w)
+    # BOX resampling by 2 = mean of 2x2 blocks
+    blocks = full.train.images.astype(float).reshape(3, 15, 2, 20, 2, 3).mean((2, 4))
+    assert np.abs(half.train.images - blocks).max() <= 1.0
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.pop("camera_angle_x"), "camera_angle_x"),
+    (lambda d: d["frames"][1].pop("transform_matrix"), "frames[1]"),
+    (lambda d: d["frames"][0].update(transform_matrix=[[1, 0], [0, 1]]), "shape"),
+    (lambda d: d["frames"][0].update(transform_matrix=np.diag([2.0, 2, 2, 1]).tolist()), "not rigid"),
+    (lambda d: d["frames"][0].update(file_path="./train/missing"), "not found"),
+    (lambda d: d.update(frames=[]), "empty"),
+])
+def test_blender_bad_input_is_one_line(tmp_path, edit, message):
+    make_blender(tmp_path)
+    p = tmp_path / "transforms_train.json"
+    d = json.loads(p.read_text())
+    edit(d)
+    p.write_text(json.dumps(d))
+    with pytest.raises(NerfkitError) as e:
+        load_blender(tmp_path)
+    assert message in str(e.value) and "\n" not in str(e.value)
+    assert "transforms_train.json" in str(e.value) or "missing" in str(e.value)
+
+
+def test_blender_truncated_json(tmp_path):
+    make_blender(tmp_path)
+    p = tmp_path / "transforms_train.json"
+    p.write_text(p.read_text()[:50])
+    with pytest.raises(NerfkitError, match="not valid JSON"):
+        load_scene(tmp_path)
+
+
+# ----------------------------------------------------------------------------- dispatcher
+
+
+def test_detect_format(tmp_path):
+    make_blender(tmp_path / "b")
+    assert detect_format(tmp_path / "b") == "blender"
+    assert detect_format(tmp_path / "b" / "transforms_train.json") == "blender"
+    save_npz(sphere_scene(n_train=3, n_val=1, size=8), tmp_path / "n" / "scene.npz")
+    assert detect_format(tmp_path / "n" / "scene.npz") == "npz"
+    assert detect_format(tmp_path / "n") == "npz"  # a folder holding one npz
+    (tmp_path / "t").mkdir()
+    (tmp_path / "t" / "transforms.json").write_text("{}")
+    assert detect_format(tmp_path / "t") == "transforms"
+    for bad in (tmp_path / "nothing", tmp_path / "b" / "train"):
+        with pytest.raises(NerfkitError):
+            detect_format(bad)
+    (tmp_path / "n" / "other.npz").write_bytes(b"")
+    with pytest.raises(NerfkitError, match="2 .npz files"):
+        load_scene(tmp_path / "n")
+
+
+def test_blender_to_npz_round_trip(tmp_path):
+    make_blender(tmp_path / "b")
+    scene = load_scene(tmp_path / "b")
+    assert main(["convert", str(tmp_path / "b"), "--to", str(tmp_path / "out.npz")]) == 0
+    back = load_scene(tmp_path / "out.npz")
+    for split in ("train", "val", "test"):
+        a, b = scene.splits[split], back.splits[split]
+        np.testing.assert_allclose(b.c2w, a.c2w, atol=1e-6)
+        np.testing.assert_allclose(b.K, a.K, rtol=1e-6)
+        np.testing.assert_array_equal(b.images, a.images)
+        assert b.names == a.names
+    assert (back.near, back.far) == pytest.approx((scene.near, scene.far))
+
+
+def test_convert_resize_and_refuses_overwrite(tmp_path, capsys):
+    make_blender(tmp_path / "b", size=(40, 30))
+    out = tmp_path / "small.npz"
+    assert main(["convert", str(tmp_path / "b"), "--to", str(out), "--size", "20", "--background", "white"]) == 0
+    s = load_npz(out)
+    assert (s.train.width, s.train.height) == (20, 15)
+    assert s.train.images[:, :3].min() == 255  # transparent rows on white
+    assert main(["convert", str(tmp_path / "b"), "--to", str(out)]) == 2  # exists, no --force
+    assert "already exists" in capsys.readouterr().err
+    assert main(["convert", str(tmp_path / "b"), "--to", str(out), "--background", "pink", "--force"]) == 2
+    assert main(["convert", str(tmp_path / "b"), "--to", str(tmp_path / "x.npz"), "--format", "colmap"]) == 2
+
+
+def test_npz_to_transforms_round_trip(tmp_path):
+    pytest.importorskip("nerfkit.data.nerfstudio")
+    scene = sphere_scene(n_train=4, n_val=2, size=16, n_test=3)
+    save_npz(scene, tmp_path / "s.npz")
+    assert main(["convert", str(tmp_path / "s.npz"), "--to", str(tmp_path / "ns")]) == 0
+    back = load_scene(tmp_path / "ns")
+    for split in ("train", "val"):
+        a, b = scene.splits[split], back.splits[split]
+        np.testing.assert_allclose(b.c2w, a.c2w, atol=1e-5)
+        np.testing.assert_allclose(b.K, a.K, rtol=1e-5)
+        np.testing.assert_array_equal(b.images, a.images)
+
+
+# ----------------------------------------------------------------------------- resampling
+
+
+def test_output_size_rules():
+    assert output_size(400, 300) == (400, 300)
+    assert output_size(400, 300, size=200) == (200, 150)
+    assert output_size(400, 300, downscale=4) == (100, 75)
+    assert output_size(286, 214, downscale=2) == (143, 107)
+    for kw in ({"size": 0}, {"downscale": 0}, {"downscale": -1}, {"size": 10, "downscale": 2}):
+        with pytest.raises(NerfkitError):
+            output_size(400, 300, **kw)
+
+
+def test_scaled_K_matches_resampled_pixels():
+    """Rendering at 32 px with the scaled K matches area-downsampling a 128 px render much
+    better than the classic half-pixel mistake (cx' = (cx + 0.5) s - 0.5 in this convention)."""
+    K128 = intrinsics_matrix(140.0, 140.0, 64.0, 64.0)
+    c2w = look_at(np.array([0.3, -3.5, 1.2]), np.zeros(3), np.array([0, 0, 1.0])).astype(np.float32)
+    down = render_sphere(K128, c2w, 128, 128).astype(float).reshape(32, 4, 32, 4, 3).mean((1, 3))
+
+    def err(K):
+        return np.abs(render_sphere(K, c2w, 32, 32).astype(float) - down).mean()
+
+    K32 = scale_intrinsics(K128, 128, 128, 32, 32)
+    np.testing.assert_allclose(K32, intrinsics_matrix(35.0, 35.0, 16.0, 16.0))
+    wrong = K32.copy()
+    wrong[:2, 2] = (64.0 + 0.5) / 4 - 0.5  # 15.625: off by 3/8 px
+    wrong_other_way = K32.copy()
+    wrong_other_way[:2, 2] += 0.375
+    assert err(K32) < 0.7 * min(err(wrong), err(wrong_other_way))
+
+
+def test_resample_scene_projects_consistently():
+    scene = sphere_scene(n_train=3, n_val=1, size=32, n_test=2)
+    small = resample_scene(scene, size=20)
+    assert (small.train.width, small.train.height) == (20, 20)
+    assert small.test.images is None and small.test.K.shape == (2, 3, 3)
+    X = np.array([0.3, -0.2, 0.4, 1.0])
+    for v0, v1 in ((scene.train, small.train), (scene.test, small.test)):
+        for i in range(len(v0)):
+            x = np.linalg.inv(v0.c2w[i]) @ X
+            uv0 = (v0.K[i] @ x[:3])[:2] / x[2]
+            uv1 = (v1.K[i] @ x[:3])[:2] / x[2]
+            np.testing.assert_allclose(uv1, uv0 * 20 / 32, rtol=1e-5)
+    assert resample_scene(scene) is scene
