@@ -1,22 +1,36 @@
 """nerfkit: phone photos to neural radiance fields, practical on a CPU.
 
 The course API lives here under its familiar names; see :mod:`nerfkit.cameras` for the
-one camera convention (OpenCV axes, pixel centres at +0.5).
+one camera convention (OpenCV axes, pixel centres at +0.5). The names are imported on
+first use, so ``import nerfkit`` (and ``nerfkit --help``) does not pay for torch.
 """
 
-from .cameras import Rays, pixel_to_camera, pixel_to_ray, transform
-from .fields.encoding import positional_encoding
-from .render.sampling import sample_along_rays
-from .render.volrend import volrend
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "Rays",
-    "pixel_to_camera",
-    "pixel_to_ray",
-    "positional_encoding",
-    "sample_along_rays",
-    "transform",
-    "volrend",
-]
+_API = {
+    "Rays": "nerfkit.cameras",
+    "pixel_to_camera": "nerfkit.cameras",
+    "pixel_to_ray": "nerfkit.cameras",
+    "transform": "nerfkit.cameras",
+    "positional_encoding": "nerfkit.fields.encoding",
+    "sample_along_rays": "nerfkit.render.sampling",
+    "volrend": "nerfkit.render.volrend",
+}
+
+__all__ = sorted(_API)
+
+
+def __getattr__(name: str):
+    if name in _API:
+        value = getattr(importlib.import_module(_API[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'nerfkit' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(list(globals()) + list(_API))

@@ -81,8 +81,9 @@ class Scene:
         return {"train": self.train, "val": self.val, "test": self.test}
 
     def render_path(self, n_frames: int = 60) -> Views:
-        """Poses for a video: the test split when it has poses, else an orbit."""
-        if len(self.test) > 0:
+        """Poses for a video: the test split when it is a pose-only path (as in the course
+        files), else an orbit (a captured dataset's test split holds held-out photos)."""
+        if len(self.test) > 0 and not self.test.has_images:
             return self.test
         return self.orbit(n_frames)
 

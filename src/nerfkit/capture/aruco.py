@@ -1,0 +1,529 @@
+"""ArUco tags: dictionaries, tag sheets (layouts and OpenCV boards) and detection.
+
+Conventions
+-----------
+* Pixels are OpenCV's: the centre of pixel (col, row) is at (col, row).
+* A tag's own frame: origin at its centre, +x to the right of the printed tag, +y up the
+  printed tag, +z out of the paper toward the viewer. Its corners, in the order OpenCV
+  detects them (top-left, top-right, bottom-right, bottom-left of the printed tag), are
+  ``(-s/2, s/2, 0), (s/2, s/2, 0), (s/2, -s/2, 0), (-s/2, -s/2, 0)``: the order
+  ``cv2.SOLVEPNP_IPPE_SQUARE`` expects.
+* A :class:`Layout` gives the corners of every tag of a sheet in one sheet frame with the
+  same axes (tags printed on one sheet lie in ``z = 0`` and face ``+z``).
+
+Layout files (JSON, metres) take one of these forms::
+
+    {"tag_size": 0.06, "tags": {"0": {"center": [0, 0], "rotation_deg": 0}, "1": ...}}
+    {"tags": {"0": [[x, y, z], [x, y, z], [x, y, z], [x, y, z]], ...}}      # corners, order above
+    {"board": "grid", "markers_x": 2, "markers_y": 3, "marker_length": 0.06,
+     "marker_separation": 0.02, "first_id": 0}                              # cv2.aruco.GridBoard
+    {"board": "charuco", "squares_x": 5, "squares_y": 7, "square_length": 0.04,
+     "marker_length": 0.03, "legacy": false}                                # cv2.aruco.CharucoBoard
+
+Boards are centred on the board's centre. A camera file written by ``nerfkit calibrate``
+is also a layout file (its ``"layout"`` entry, e.g. the layout it estimated).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import fail
+
+# Dictionaries tried when no tag is found, to suggest the right --dict. The _1000
+# dictionaries contain the _50/_100/_250 ones as prefixes, so they find any id.
+SEARCH_DICTIONARIES = [
+    "DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X6_1000", "DICT_7X7_1000",
+    "DICT_ARUCO_ORIGINAL", "DICT_APRILTAG_36h11", "DICT_APRILTAG_25h9", "DICT_APRILTAG_16h5",
+    "DICT_ARUCO_MIP_36h12",
+]
+
+
+def dictionary_names() -> list[str]:
+    """Every predefined dictionary name OpenCV knows (e.g. ``DICT_4X4_50``)."""
+    import cv2
+
+    return sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
+
+
+def get_dictionary(name: str):
+    """The ``cv2.aruco.Dictionary`` called ``name`` (case-insensitive), or a NerfkitError."""
+    import cv2
+
+    key = name.strip().upper()
+    key = key if key.startswith("DICT_") else "DICT_" + key
+    match = [n for n in dictionary_names() if n.upper() == key]
+    if not match:
+        raise fail("--dict", f"unknown ArUco dictionary '{name}'",
+                   "Use one of DICT_4X4_50, DICT_5X5_100, DICT_6X6_250, DICT_APRILTAG_36h11, ...")
+    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, match[0]))
+
+
+def smallest_dictionary_for(family: str, max_id: int) -> str:
+    """``DICT_4X4_1000`` and max id 57 -> ``DICT_4X4_100``: the smallest size holding the id."""
+    if not family.endswith("_1000"):
+        return family
+    base = family[: -len("1000")]
+    for n in (50, 100, 250, 1000):
+        if max_id < n:
+            return f"{base}{n}"
+    return family
+
+
+def square_corners(size: float) -> np.ndarray:
+    """(4, 3) corners of one tag of side ``size`` in its own frame, OpenCV corner order."""
+    h = size / 2.0
+    return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
+
+
+def tag_pose_in_layout(corners: np.ndarray) -> np.ndarray:
+    """(4, 4) transform from a tag's own frame to the layout frame, fitted (Kabsch) to its
+    (4, 3) layout corners."""
+    size = float(np.mean(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
+    src = square_corners(size)
+    mu_s, mu_d = src.mean(0), corners.mean(0)
+    U, _, Vt = np.linalg.svd((corners - mu_d).T @ (src - mu_s))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, mu_d - R @ mu_s
+    return T
+
+
+@dataclass
+class Layout:
+    """Where the tags of a sheet are, in the sheet's frame (metres).
+
+    Attributes:
+        tags: tag id -> (4, 3) corners in OpenCV corner order.
+        charuco: for ChArUco boards, the cv2.aruco.CharucoBoard (then calibration and poses
+            use its chessboard corners, far more precise than tag corners).
+        charuco_corners: (M, 3) chessboard corners in the sheet frame (ChArUco only).
+        spec: the JSON the layout came from (for writing it back).
+        source: a description for messages.
+    """
+
+    tags: dict[int, np.ndarray]
+    charuco: Any = None
+    charuco_corners: np.ndarray | None = None
+    spec: dict = field(default_factory=dict)
+    source: str = ""
+
+    @property
+    def ids(self) -> list[int]:
+        return sorted(self.tags)
+
+    @property
+    def tag_size(self) -> float:
+        """Mean side length of the tags."""
+        sides = [np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean() for c in self.tags.values()]
+        return float(np.mean(sides))
+
+    def is_planar(self, tol: float = 1e-9) -> bool:
+        """True when every corner lies in z = 0 (what calibrateCamera's initialisation needs)."""
+        pts = np.concatenate(list(self.tags.values()))
+        return bool(np.abs(pts[:, 2]).max() <= tol)
+
+    @staticmethod
+    def single(tag_id: int, size: float) -> "Layout":
+        """One tag whose frame is the sheet frame."""
+        return Layout({int(tag_id): square_corners(size)},
+                      spec={"tag_size": size, "tags": {str(tag_id): {"center": [0, 0], "rotation_deg": 0}}},
+                      source=f"tag {tag_id}")
+
+    def match(self, det: "Detection") -> tuple[np.ndarray, np.ndarray, list[int]]:
+        """Object and image points of a detection's tags (or ChArUco corners) in this layout.
+
+        Returns:
+            ``(obj, img, ids)``: (n, 3) float32 sheet points, (n, 2) float32 pixels, and the
+            tag ids used (charuco corner ids for ChArUco boards).
+        """
+        if self.charuco is not None:
+            if det.charuco_ids is None or len(det.charuco_ids) == 0:
+                return np.zeros((0, 3), np.float32), np.zeros((0, 2), np.float32), []
+            obj = self.charuco_corners[det.charuco_ids]
+            return obj.astype(np.float32), det.charuco_corners.astype(np.float32), [int(i) for i in det.charuco_ids]
+        objs, imgs, used = [], [], []
+        for i, tag_id in enumerate(det.ids):
+            tag_id = int(tag_id)
+            if tag_id in self.tags and list(det.ids).count(tag_id) == 1:
+                objs.append(self.tags[tag_id])
+                imgs.append(det.corners[i])
+                used.append(tag_id)
+        if not used:
+            return np.zeros((0, 3), np.float32), np.zeros((0, 2), np.float32), []
+        return (np.concatenate(objs).astype(np.float32), np.concatenate(imgs).astype(np.float32), used)
+
+    def to_json(self) -> dict:
+        """The layout as a layout-file dict (explicit corners for estimated layouts)."""
+        if self.spec:
+            return dict(self.spec)
+        return {"tags": {str(k): np.round(v, 7).tolist() for k, v in sorted(self.tags.items())}}
+
+
+def _board_to_layout_axes(points: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """OpenCV board frame (x right, y down the print, z into it) -> ours (y up, z out), centred."""
+    p = np.asarray(points, np.float64).reshape(-1, 3) - centre
+    return p * np.array([1.0, -1.0, -1.0])
+
+
+def layout_from_json(spec: dict, where: str, dictionary: str, tag_size: float | None = None) -> Layout:
+    """Build a :class:`Layout` from a layout-file dict (see the module docstring)."""
+    import cv2
+
+    if not isinstance(spec, dict):
+        raise fail(where, "a layout must be a JSON object")
+    if "layout" in spec:  # a camera file
+        if not isinstance(spec["layout"], dict):
+            raise fail(where, "this camera file holds no layout (it was calibrated with each tag on its own)",
+                       "Pass a layout file, or calibrate again without --per-tag")
+        return layout_from_json(spec["layout"], where, dictionary, tag_size)
+    board = spec.get("board")
+    if board is not None:
+        try:
+            d = get_dictionary(spec.get("dictionary", dictionary))
+            if board == "grid":
+                b = cv2.aruco.GridBoard((int(spec["markers_x"]), int(spec["markers_y"])),
+                                        float(spec["marker_length"]), float(spec["marker_separation"]), d,
+                                        np.arange(int(spec.get("first_id", 0)),
+                                                  int(spec.get("first_id", 0)) + int(spec["markers_x"]) * int(spec["markers_y"])))
+            elif board == "charuco":
+                b = cv2.aruco.CharucoBoard((int(spec["squares_x"]), int(spec["squares_y"])),
+                                           float(spec["square_length"]), float(spec["marker_length"]), d)
+                b.setLegacyPattern(bool(spec.get("legacy", False)))
+            else:
+                raise fail(where, f"unknown board type '{board}'", "Use \"grid\" or \"charuco\"")
+        except KeyError as e:
+            raise fail(where, f"board '{board}' is missing the key {e}") from None
+        except (TypeError, ValueError, cv2.error) as e:
+            raise fail(where, f"invalid board description ({e})") from None
+        obj = np.asarray(b.getObjPoints(), np.float64)  # (n, 4, 3)
+        pts = obj.reshape(-1, 3)
+        centre = (pts.min(0) + pts.max(0)) / 2.0
+        if board == "charuco":
+            sq = float(spec["square_length"])
+            centre = np.array([int(spec["squares_x"]) * sq / 2, int(spec["squares_y"]) * sq / 2, 0.0])
+        tags = {int(i): _board_to_layout_axes(c, centre) for i, c in zip(b.getIds().ravel(), obj)}
+        layout = Layout(tags, spec=dict(spec), source=f"{where} ({board} board)")
+        if board == "charuco":
+            layout.charuco = b
+            layout.charuco_corners = _board_to_layout_axes(b.getChessboardCorners(), centre)
+        return layout
+    tags_spec = spec.get("tags")
+    if not isinstance(tags_spec, dict) or not tags_spec:
+        raise fail(where, "a layout needs a non-empty \"tags\" object (tag id -> corners or centre) or a \"board\"")
+    default_size = spec.get("tag_size", tag_size)
+    tags: dict[int, np.ndarray] = {}
+    for key, value in tags_spec.items():
+        try:
+            tag_id = int(key)
+        except ValueError:
+            raise fail(where, f"tag id '{key}' is not an integer") from None
+        if isinstance(value, dict):
+            size = value.get("size", default_size)
+            if size is None or "center" not in value:
+                raise fail(where, f"tag {key} needs \"center\" and a size (\"size\", top-level \"tag_size\" or --tag-size)")
+            c = np.asarray(value["center"], np.float64).ravel()
+            if c.size not in (2, 3) or not np.isfinite(c).all() or not float(size) > 0:
+                raise fail(where, f"tag {key}: bad centre {value['center']} or size {size}")
+            a = np.deg2rad(float(value.get("rotation_deg", 0.0)))
+            Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+            tags[tag_id] = square_corners(float(size)) @ Rz.T + np.append(c[:2], c[2] if c.size == 3 else 0.0)
+        else:
+            corners = np.asarray(value, np.float64)
+            if corners.shape != (4, 3) or not np.isfinite(corners).all():
+                raise fail(where, f"tag {key} must have 4 corners [x, y, z], got shape {corners.shape}")
+            tags[tag_id] = corners
+        sides = np.linalg.norm(tags[tag_id] - np.roll(tags[tag_id], -1, axis=0), axis=1)
+        if sides.min() <= 0 or sides.max() / sides.min() > 1.05:
+            raise fail(where, f"tag {key}'s corners are not a square (sides {np.round(sides, 4).tolist()})",
+                       "List corners in OpenCV order: top-left, top-right, bottom-right, bottom-left")
+    return Layout(tags, spec=dict(spec), source=where)
+
+
+def load_layout(path: str | Path, dictionary: str, tag_size: float | None = None) -> Layout:
+    """Read a layout file (or a camera file holding a layout)."""
+    path = Path(path)
+    try:
+        spec = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise fail(path, "no such layout file", "Check the --layout path") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise fail(path, f"not valid JSON ({e})") from None
+    return layout_from_json(spec, str(path), dictionary, tag_size)
+
+
+@dataclass
+class Detection:
+    """Tags found in one upright photo (OpenCV pixel coordinates, full resolution).
+
+    Attributes:
+        width, height: image size in pixels.
+        ids: (n,) tag ids.
+        corners: (n, 4, 2) tag corners, OpenCV corner order.
+        sharpness: variance of the Laplacian of a ~1000 px copy (low = blurred).
+        charuco_ids, charuco_corners: (m,) and (m, 2) ChArUco chessboard corners, or None.
+    """
+
+    width: int
+    height: int
+    ids: np.ndarray
+    corners: np.ndarray
+    sharpness: float = 0.0
+    charuco_ids: np.ndarray | None = None
+    charuco_corners: np.ndarray | None = None
+
+    def to_json(self) -> dict:
+        d = {"width": self.width, "height": self.height, "ids": [int(i) for i in self.ids],
+             "corners": np.round(self.corners, 4).tolist(), "sharpness": round(float(self.sharpness), 3)}
+        if self.charuco_ids is not None:
+            d["charuco_ids"] = [int(i) for i in self.charuco_ids]
+            d["charuco_corners"] = np.round(self.charuco_corners, 4).tolist()
+        return d
+
+    @staticmethod
+    def from_json(d: dict) -> "Detection":
+        ids = np.asarray(d["ids"], np.int64).reshape(-1)
+        corners = np.asarray(d["corners"], np.float64).reshape(-1, 4, 2)
+        if corners.shape[0] != ids.shape[0]:
+            raise ValueError("ids and corners differ in length")
+        det = Detection(int(d["width"]), int(d["height"]), ids, corners, float(d.get("sharpness", 0.0)))
+        if "charuco_ids" in d:
+            det.charuco_ids = np.asarray(d["charuco_ids"], np.int64).reshape(-1)
+            det.charuco_corners = np.asarray(d["charuco_corners"], np.float64).reshape(-1, 2)
+        return det
+
+
+def make_detector(dictionary: str, board: Layout | None = None):
+    """An ArUco (or ChArUco) detector refining corners to sub-pixel at detection scale."""
+    import cv2
+
+    params = cv2.aruco.DetectorParameters()
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    if board is not None and board.charuco is not None:
+        return cv2.aruco.CharucoDetector(board.charuco, cv2.aruco.CharucoParameters(), params)
+    return cv2.aruco.ArucoDetector(get_dictionary(dictionary), params)
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 luminance of an (H, W, 3) RGB or (H, W) image."""
+    import cv2
+
+    return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+
+
+def sharpness(gray: np.ndarray) -> float:
+    """Variance of the Laplacian on a copy at most 1000 px wide: comparable across sizes."""
+    import cv2
+
+    s = min(1.0, 1000.0 / max(gray.shape))
+    small = cv2.resize(gray, None, fx=s, fy=s, interpolation=cv2.INTER_AREA) if s < 1 else gray
+    return float(cv2.Laplacian(small, cv2.CV_64F).var())
+
+
+def _refine(gray: np.ndarray, pts: np.ndarray, win: int, max_shift: float) -> np.ndarray:
+    """cornerSubPix at full resolution; points that move more than ``max_shift`` keep their
+    input position (the refinement latched onto something else)."""
+    import cv2
+
+    h, w = gray.shape
+    p = pts.reshape(-1, 1, 2).astype(np.float32).copy()
+    inside = ((p[:, 0, 0] > win + 1) & (p[:, 0, 0] < w - win - 2) & (p[:, 0, 1] > win + 1) & (p[:, 0, 1] < h - win - 2))
+    if not inside.any():
+        return pts
+    q = p[inside].copy()
+    cv2.cornerSubPix(gray, q, (win, win), (-1, -1), (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-3))
+    moved = np.linalg.norm(q - p[inside], axis=2)[:, 0]
+    q[moved > max_shift] = p[inside][moved > max_shift]
+    p[inside] = q
+    return p.reshape(pts.shape).astype(np.float64)
+
+
+def _edge_points(gray: np.ndarray, p: np.ndarray, q: np.ndarray, outward: np.ndarray, reach: float,
+                 frac: tuple[float, float] = (0.15, 0.85)) -> np.ndarray:
+    """Sub-pixel points (k, 2) on the straight edge from ``p`` to ``q`` of a dark tag on white
+    paper: along each of up to 60 normals, where the intensity crosses halfway between the
+    dark inside and the bright outside (unbiased by symmetric blur)."""
+    import cv2
+
+    length = float(np.linalg.norm(q - p))
+    t = (q - p) / length
+    m = int(np.clip(length, 6, 60))
+    base = p[None] + np.linspace(*frac, m)[:, None] * length * t[None]  # (m, 2)
+    offs = np.arange(-reach, reach + 1e-9, 0.25)
+    pts = base[:, None, :] + offs[None, :, None] * outward[None, None, :]  # (m, o, 2)
+    prof = cv2.remap(gray, pts[..., 0].astype(np.float32), pts[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
+    q4 = max(1, len(offs) // 4)
+    lo, hi = prof[:, :q4].mean(1), prof[:, -q4:].mean(1)
+    out = []
+    for i in np.flatnonzero(hi - lo > 10):
+        pr, mid = prof[i], (lo[i] + hi[i]) / 2
+        j = np.flatnonzero((pr[:-1] < mid) & (pr[1:] >= mid))
+        if len(j) != 1:  # noise or a neighbouring edge: skip this normal
+            continue
+        j = j[0]
+        f = (mid - pr[j]) / (pr[j + 1] - pr[j])
+        out.append(base[i] + (offs[j] + f * 0.25) * outward)
+    return np.asarray(out, np.float64).reshape(-1, 2)
+
+
+def _fit_edge_line(pts: np.ndarray, length: float, min_keep: float = 0.7) -> tuple[np.ndarray, np.ndarray] | None:
+    """(point, direction) of the straight line through edge points, refitted without
+    outliers; None when the edge is not straight enough to trust (fewer than ``min_keep``
+    of the points agree, or they scatter more than 0.2 px + 0.2% of the edge length: a
+    shadow or an object over part of the edge)."""
+    import cv2
+
+    if len(pts) < 6:
+        return None
+    keep = np.ones(len(pts), bool)
+    for _ in range(3):
+        vx, vy, lx, ly = cv2.fitLine(pts[keep].astype(np.float32), cv2.DIST_L2, 0, 0.01, 0.01).ravel()
+        r = (pts[:, 0] - lx) * vy - (pts[:, 1] - ly) * vx  # signed distance to the line
+        sigma = 1.4826 * np.median(np.abs(r[keep]))
+        new = np.abs(r) < max(0.25, 3.0 * sigma)
+        if new.sum() < max(6, min_keep * len(pts)):
+            return None
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    if np.sqrt(np.mean(r[keep] ** 2)) > 0.2 + 0.002 * length:
+        return None
+    return np.array([lx, ly], np.float64), np.array([vx, vy], np.float64)
+
+
+def refine_corners_by_edges(gray: np.ndarray, corners: np.ndarray, marker_bits: int = 4, passes: int = 2) -> np.ndarray | None:
+    """Refine a tag's 4 corners (4, 2) by fitting lines to its 4 outer edges and intersecting
+    them; None when an edge cannot be measured.
+
+    Halves the corner error of cornerSubPix on our synthetic photos (0.19 -> 0.08 px RMS)
+    and removes its inward bias at blurred corners.
+    """
+    import cv2
+
+    c = np.asarray(corners, np.float64).copy()
+    side = float(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean())
+    reach = max(1.5, 0.45 * side / (marker_bits + 2))  # stay inside the black border
+    x0, y0 = np.floor(c.min(0) - reach - 3).astype(int)
+    x1, y1 = np.ceil(c.max(0) + reach + 3).astype(int)
+    h, w = gray.shape
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w - 1), min(y1, h - 1)
+    if x1 - x0 < 4 or y1 - y0 < 4:
+        return None
+    crop = gray[y0: y1 + 1, x0: x1 + 1].astype(np.float32)
+    c -= (x0, y0)
+    start = c.copy()
+    for _ in range(passes):
+        lines = []
+        centre = c.mean(0)
+        for k in range(4):
+            p, q = c[k], c[(k + 1) % 4]
+            t = (q - p) / np.linalg.norm(q - p)
+            n = np.array([t[1], -t[0]])
+            if np.dot((p + q) / 2 - centre, n) < 0:
+                n = -n
+            pts = _edge_points(crop, p, q, n, reach)
+            line = _fit_edge_line(pts, float(np.linalg.norm(q - p)))
+            if line is None:
+                return None
+            lines.append(line)
+        new = np.zeros((4, 2))
+        for k in range(4):  # corner k joins edge k-1 (into it) and edge k (out of it)
+            (p1, d1), (p2, d2) = lines[(k - 1) % 4], lines[k]
+            M = np.column_stack([d1, -d2])
+            if abs(np.linalg.det(M)) < 1e-6:
+                return None
+            new[k] = p1 + np.linalg.solve(M, p2 - p1)[0] * d1
+        c = new
+    if np.abs(c - start).max() > max(2.0, 0.5 * side / (marker_bits + 2)):
+        return None  # the lines latched onto something else
+    return c + (x0, y0)
+
+
+def detect(image: np.ndarray, detector, detect_side: int = 2000, marker_bits: int = 4) -> Detection:
+    """Find tags in an upright photo: detect on a copy at most ``detect_side`` pixels on its
+    long side, then refine every corner on the full-resolution image, by fitting lines to
+    the tag's edges (:func:`refine_corners_by_edges`), else with cornerSubPix.
+
+    Args:
+        image: (H, W, 3) RGB or (H, W) uint8.
+        detector: from :func:`make_detector`.
+        marker_bits: the dictionary's marker size (4 for 4x4), to size the refinement window.
+
+    Returns:
+        a :class:`Detection` in full-resolution OpenCV pixel coordinates.
+    """
+    import cv2
+
+    gray = to_gray(image)
+    h, w = gray.shape
+    s = min(1.0, detect_side / max(h, w))
+    small = cv2.resize(gray, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA) if s < 1 else gray
+    sx, sy = small.shape[1] / w, small.shape[0] / h
+
+    def up(p: np.ndarray) -> np.ndarray:  # small-image pixel -> full-image pixel (OpenCV centres)
+        return (p + 0.5) / np.array([sx, sy]) - 0.5
+
+    charuco_ids = charuco_corners = None
+    if isinstance(detector, cv2.aruco.CharucoDetector):
+        ch_corners, ch_ids, corners, ids = detector.detectBoard(small)
+        if ch_ids is not None and len(ch_ids):
+            charuco_ids = ch_ids.ravel().astype(np.int64)
+            charuco_corners = up(ch_corners.reshape(-1, 2).astype(np.float64))
+            if s < 1:
+                sq = detector.getBoard().getSquareLength() / detector.getBoard().getMarkerLength()
+                side_px = _median_side(corners, sx) if corners else 40.0 / sx
+                win = int(np.clip(0.25 * side_px * sq, 2, 30))
+                charuco_corners = _refine(gray, charuco_corners, win, max_shift=2.0 / s)
+    else:
+        corners, ids, _ = detector.detectMarkers(small)
+    if ids is None or len(ids) == 0:
+        return Detection(w, h, np.zeros(0, np.int64), np.zeros((0, 4, 2)), sharpness(gray), charuco_ids, charuco_corners)
+    ids = ids.ravel().astype(np.int64)
+    corners = up(np.asarray(corners, np.float64).reshape(-1, 4, 2))
+    for i in range(len(ids)):
+        refined = refine_corners_by_edges(gray, corners[i], marker_bits)
+        if refined is not None:
+            corners[i] = refined
+        elif s < 1:  # the detector refined at its scale only
+            side = float(np.linalg.norm(corners[i] - np.roll(corners[i], -1, axis=0), axis=1).mean())
+            module = side / (marker_bits + 2)
+            win = int(np.clip(round(0.4 * module), 2, 30))
+            corners[i] = _refine(gray, corners[i], win, max_shift=min(0.5 * module, 2.0 / s))
+    return Detection(w, h, ids, corners, sharpness(gray), charuco_ids, charuco_corners)
+
+
+def _median_side(corners, scale: float) -> float:
+    c = np.asarray(corners, np.float64).reshape(-1, 4, 2)
+    return float(np.median(np.linalg.norm(c - np.roll(c, -1, axis=1), axis=2))) / scale
+
+
+def marker_bits(dictionary: str) -> int:
+    return int(get_dictionary(dictionary).markerSize)
+
+
+def suggest_dictionaries(images: list[np.ndarray], detect_side: int = 1600) -> list[tuple[str, list[int]]]:
+    """Try the common dictionaries on a few photos; return ``(name, ids found)``, best first."""
+    import cv2
+
+    found = []
+    for name in SEARCH_DICTIONARIES:
+        det = make_detector(name)
+        ids: set[int] = set()
+        for img in images:
+            gray = to_gray(img)
+            s = min(1.0, detect_side / max(gray.shape))
+            small = cv2.resize(gray, None, fx=s, fy=s, interpolation=cv2.INTER_AREA) if s < 1 else gray
+            _, got, _ = det.detectMarkers(small)
+            if got is not None:
+                ids.update(int(i) for i in got.ravel())
+        if ids:
+            found.append((smallest_dictionary_for(name, max(ids)), sorted(ids)))
+    found.sort(key=lambda t: -len(t[1]))
+    return found

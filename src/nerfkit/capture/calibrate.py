@@ -1,0 +1,523 @@
+"""Camera calibration from photos of ArUco tags (``cv2.calibrateCamera``).
+
+Three kinds of targets:
+
+* a known layout (a layout file or an OpenCV GridBoard/ChArUco board): one view per photo
+  with every visible tag's corners at their true sheet positions;
+* several tags with an unknown layout: the layout is *estimated*. Each tag first serves as
+  its own planar target for a rough calibration; relative tag poses (IPPE) give a first
+  layout (the tags share the sheet plane); then calibration and layout are refined in
+  turn: calibrate with the layout, back-project every tag corner onto the sheet plane of
+  each photo, fit each tag's square to the averaged points, and repeat. Different tags
+  never share 3D corners (that mistake silently ruins a calibration);
+* ``per_tag=True`` (or a single tag): every tag in every photo is its own planar view.
+
+Photos whose RMS error is far above the median are dropped and the camera recalibrated.
+Because a low RMS does not prove a good calibration, :func:`sanity_checks` compares the
+result with what phone cameras are like (square pixels, centred principal point, the EXIF
+focal length) and warns when they disagree.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..config import option
+from ..errors import fail
+from .aruco import Layout, square_corners
+from .camera import FILM_DIAGONAL_MM, exif_fx
+from .photos import PhotoRecord
+
+# Per-tag calibration: at most this many tag views (cost grows as views^3).
+MAX_TAG_VIEWS = 150
+DIST_MODELS = ("k1k2p1p2k3", "k1k2p1p2", "k1k2", "k1", "none")
+
+
+@dataclass
+class CalibrateConfig:
+    """Calibration options (each becomes a ``nerfkit calibrate`` flag)."""
+
+    dist_model: str = option("k1k2p1p2", "distortion coefficients to estimate (k3 over-fits small photo sets; "
+                             "k1k2p1p2 matches nerfstudio's OPENCV model)", choices=list(DIST_MODELS))
+    fix_aspect: bool = option(False, "force fx = fy (square pixels, true of phone cameras)")
+    fix_principal_point: bool = option(False, "keep the principal point at the image centre")
+    outlier_factor: float = option(3.0, "drop photos whose reprojection error exceeds this many times the median, "
+                                   "then recalibrate")
+    per_tag: bool = option(False, "treat each tag as its own planar target instead of estimating the sheet layout")
+    min_photos: int = option(5, "refuse to calibrate from fewer usable photos")
+
+
+@dataclass
+class Fit:
+    """One calibrateCamera result over named views.
+
+    Attributes:
+        K: (3, 3), dist: (5,), rms: overall RMS (px).
+        keys: names of the views used; rvecs/tvecs: their poses (sheet -> camera).
+        errors: view name -> RMS error (px), for the views used.
+        dropped: view name -> reason, for views rejected as outliers.
+        std: standard deviations of fx, fy, cx, cy (px).
+    """
+
+    K: np.ndarray
+    dist: np.ndarray
+    rms: float
+    keys: list[str]
+    rvecs: list[np.ndarray]
+    tvecs: list[np.ndarray]
+    errors: dict[str, float]
+    dropped: dict[str, str] = field(default_factory=dict)
+    std: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    rounds: list[str] = field(default_factory=list)
+
+
+def calib_flags(cfg: CalibrateConfig) -> int:
+    import cv2
+
+    flags = 0
+    model = cfg.dist_model
+    if model != "k1k2p1p2k3":
+        flags |= cv2.CALIB_FIX_K3
+    if model in ("k1k2", "k1", "none"):
+        flags |= cv2.CALIB_ZERO_TANGENT_DIST
+    if model in ("k1", "none"):
+        flags |= cv2.CALIB_FIX_K2
+    if model == "none":
+        flags |= cv2.CALIB_FIX_K1
+    if cfg.fix_aspect:
+        flags |= cv2.CALIB_FIX_ASPECT_RATIO
+    if cfg.fix_principal_point:
+        flags |= cv2.CALIB_FIX_PRINCIPAL_POINT
+    return flags
+
+
+def fit_views(views: list[tuple[str, np.ndarray, np.ndarray]], size: tuple[int, int], flags: int,
+              outlier_factor: float = 3.0, K0: np.ndarray | None = None, min_views: int = 3,
+              floor_px: float = 0.5, max_rounds: int = 5) -> Fit:
+    """calibrateCamera on named views, dropping outlier views and recalibrating.
+
+    Args:
+        views: ``(name, obj (n, 3), img (n, 2))`` with n >= 4 per view.
+        size: (width, height).
+        flags: cv2.CALIB_* flags; K0 (3, 3) turns on CALIB_USE_INTRINSIC_GUESS.
+        outlier_factor: a view is an outlier when its RMS exceeds
+            ``max(outlier_factor * median, median + floor_px)``.
+    """
+    import cv2
+
+    views = list(views)
+    dropped: dict[str, str] = {}
+    rounds: list[str] = []
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-10)
+    for _ in range(max_rounds + 1):
+        if len(views) < min_views:
+            raise fail("calibration", f"only {len(views)} usable views (need at least {min_views})",
+                       "Take more photos of the tag sheet from different angles")
+        objs = [v[1].astype(np.float32) for v in views]
+        imgs = [v[2].astype(np.float32).reshape(-1, 1, 2) for v in views]
+        f = flags
+        if K0 is not None:
+            f |= cv2.CALIB_USE_INTRINSIC_GUESS
+            K_init = K0.copy()
+        else:
+            K_init = np.eye(3)
+        if f & cv2.CALIB_FIX_ASPECT_RATIO and K0 is None:
+            K_init = np.eye(3)  # aspect ratio fx/fy = 1 is then kept
+        try:
+            rms, K, dist, rvecs, tvecs, std_i, _, per_view = cv2.calibrateCameraExtended(
+                objs, imgs, size, K_init, np.zeros(5), flags=f, criteria=crit)
+        except cv2.error as e:
+            raise fail("calibration", f"OpenCV could not calibrate ({str(e).strip().splitlines()[-1]})",
+                       "Take photos from more varied angles (tilted 20-60 degrees, not only head-on)") from None
+        errs = per_view.ravel()
+        med = float(np.median(errs))
+        thr = max(outlier_factor * med, med + floor_px)
+        bad = errs > thr
+        if not bad.any() or outlier_factor <= 0:
+            break
+        for i in np.flatnonzero(bad):
+            dropped[views[i][0]] = f"outlier: reprojection error {errs[i]:.2f} px > {thr:.2f} px " \
+                                   f"({outlier_factor:g} x median {med:.2f} px)"
+        rounds.append(f"rms {rms:.3f} px with {len(views)} views; dropped {int(bad.sum())} outlier(s) "
+                      f"above {thr:.2f} px and recalibrated")
+        views = [v for v, b in zip(views, bad) if not b]
+    return Fit(K, dist.ravel()[:5].astype(np.float64), float(rms), [v[0] for v in views], list(rvecs), list(tvecs),
+               {v[0]: float(e) for v, e in zip(views, errs)}, dropped, np.asarray(std_i).ravel()[:4], rounds)
+
+
+# ---------------------------------------------------------------- layout estimation
+
+
+def tag_views(records: list[PhotoRecord], tag_size: float, max_views: int = 0) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """Every tag of every photo as its own planar view named ``"<photo>#<id>"``.
+
+    Each view holds one tag's 4 corners, so no two tags ever share 3D points. With
+    ``max_views`` > 0, keep at most that many: each photo's largest tag first, then each
+    photo's second largest, and so on (calibrateCamera's cost grows with the cube of the
+    number of views)."""
+    sq = square_corners(tag_size)
+    ranked: list[tuple[int, float, tuple]] = []
+    for r in records:
+        det = r.detection
+        ids = list(det.ids)
+        sides = np.linalg.norm(det.corners - np.roll(det.corners, -1, axis=1), axis=2).mean(1)
+        order = [i for i in np.argsort(-sides) if ids.count(ids[i]) == 1]
+        for rank, i in enumerate(order):
+            ranked.append((rank, -float(sides[i]), (f"{r.name}#{int(ids[i])}", sq, det.corners[i])))
+    if max_views > 0 and len(ranked) > max_views:
+        ranked = sorted(ranked, key=lambda t: t[:2])[:max_views]
+    return [v for *_, v in ranked]
+
+
+def tag_pose(corners: np.ndarray, K: np.ndarray, dist: np.ndarray, tag_size: float) -> np.ndarray | None:
+    """(4, 4) tag-to-camera transform of one detected tag (IPPE_SQUARE, lower-error solution)."""
+    import cv2
+
+    ok, rvecs, tvecs, errs = cv2.solvePnPGeneric(square_corners(tag_size), corners.reshape(-1, 1, 2), K, dist,
+                                                 flags=cv2.SOLVEPNP_IPPE_SQUARE)
+    if not ok:
+        return None
+    best = int(np.argmin(np.ravel(errs)))
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(rvecs[best])[0]
+    T[:3, 3] = np.ravel(tvecs[best])
+    return T
+
+
+def _square_at(x: float, y: float, yaw: float, tag_size: float) -> np.ndarray:
+    Rz = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    return square_corners(tag_size) @ Rz.T + np.array([x, y, 0.0])
+
+
+def fit_square_2d(points: np.ndarray, tag_size: float) -> np.ndarray:
+    """Corners (4, 3) in z = 0 of the square of side ``tag_size`` (rotated and shifted in
+    the plane) closest in least squares to (4, 2+) ``points`` (OpenCV corner order)."""
+    src = square_corners(tag_size)[:, :2]
+    dst = np.asarray(points, np.float64)[:, :2]
+    a, b = src - src.mean(0), dst - dst.mean(0)
+    yaw = np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a * b))
+    c = dst.mean(0)
+    return _square_at(c[0], c[1], yaw, tag_size)
+
+
+def initial_layout(records: list[PhotoRecord], K: np.ndarray, dist: np.ndarray, tag_size: float) -> tuple[Layout, int]:
+    """A first layout from relative tag poses (median over photos), all tags in the plane of
+    the reference tag (the most often seen). Tags never seen together with the tags already
+    placed are left out. Returns the layout and the reference id."""
+    counts: dict[int, int] = {}
+    poses: list[dict[int, np.ndarray]] = []
+    for r in records:
+        ids = list(r.detection.ids)
+        p = {}
+        for i, t in enumerate(ids):
+            if ids.count(t) == 1:
+                T = tag_pose(r.detection.corners[i], K, dist, tag_size)
+                if T is not None:
+                    p[int(t)] = T
+                    counts[int(t)] = counts.get(int(t), 0) + 1
+        poses.append(p)
+    ref = min(counts, key=lambda t: (-counts[t], t))
+    placed = {ref: (0.0, 0.0, 0.0)}  # id -> (x, y, yaw) in the reference tag's frame
+    changed = True
+    while changed:  # grow from placed tags to tags seen together with them
+        changed = False
+        for tag in sorted(counts):
+            if tag in placed:
+                continue
+            xs, ys, yaws = [], [], []
+            for p in poses:
+                if tag not in p:
+                    continue
+                for anchor, (ax, ay, ayaw) in placed.items():
+                    if anchor in p:
+                        rel = np.linalg.inv(p[anchor]) @ p[tag]  # tag -> anchor frame
+                        yaw = np.arctan2(rel[1, 0], rel[0, 0]) + ayaw
+                        c, s = np.cos(ayaw), np.sin(ayaw)
+                        xs.append(ax + c * rel[0, 3] - s * rel[1, 3])
+                        ys.append(ay + s * rel[0, 3] + c * rel[1, 3])
+                        yaws.append(yaw)
+                        break
+            if xs:
+                yaw = float(np.angle(np.median(np.cos(yaws)) + 1j * np.median(np.sin(yaws))))
+                placed[tag] = (float(np.median(xs)), float(np.median(ys)), yaw)
+                changed = True
+    tags = {t: _square_at(x, y, yaw, tag_size) for t, (x, y, yaw) in placed.items()}
+    return Layout(tags, source="estimated"), ref
+
+
+def refine_layout(records: dict[str, PhotoRecord], fit: Fit, layout: Layout, ref: int, tag_size: float) -> Layout:
+    """Re-estimate every tag but ``ref``: back-project its corners onto the sheet plane of
+    each calibrated photo, average, and fit a square of side ``tag_size``."""
+    import cv2
+
+    acc: dict[int, list[np.ndarray]] = {t: [] for t in layout.tags if t != ref}
+    for key, rvec, tvec in zip(fit.keys, fit.rvecs, fit.tvecs):
+        det = records[key].detection
+        R = cv2.Rodrigues(rvec)[0]
+        t = np.ravel(tvec)
+        origin = -R.T @ t  # camera centre in the sheet frame
+        ids = list(det.ids)
+        for i, tag in enumerate(ids):
+            tag = int(tag)
+            if tag not in acc or ids.count(tag) != 1:
+                continue
+            xy = cv2.undistortPoints(det.corners[i].reshape(-1, 1, 2), fit.K, fit.dist,
+                                     criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)).reshape(-1, 2)
+            d = (R.T @ np.column_stack([xy, np.ones(4)]).T).T  # ray directions in the sheet frame
+            if np.any(np.abs(d[:, 2]) < 1e-9):
+                continue
+            s = -origin[2] / d[:, 2]
+            if np.any(s <= 0):
+                continue
+            acc[tag].append(origin + s[:, None] * d)
+    tags = {ref: layout.tags[ref]}
+    for tag, pts in acc.items():
+        tags[tag] = fit_square_2d(np.mean(pts, axis=0), tag_size) if pts else layout.tags[tag]
+    return Layout(tags, source="estimated")
+
+
+# ---------------------------------------------------------------- the whole calibration
+
+
+@dataclass
+class Calibration:
+    """What ``nerfkit calibrate`` found.
+
+    Attributes:
+        K, dist, rms, width, height: the camera.
+        target: "layout file", "estimated layout" or "per-tag".
+        layout: the layout used or estimated (None in per-tag mode).
+        std: standard deviations of fx, fy, cx, cy.
+        notes: human-readable lines about what happened (outlier rounds, layout fit).
+        sanity: from :func:`sanity_checks`.
+    """
+
+    K: np.ndarray
+    dist: np.ndarray
+    rms: float
+    width: int
+    height: int
+    target: str
+    layout: Layout | None
+    std: np.ndarray
+    notes: list[str]
+    sanity: dict
+
+
+def _views_for_layout(records: list[PhotoRecord], layout: Layout, min_points: int) -> list:
+    views = []
+    for r in records:
+        obj, img, used = layout.match(r.detection)
+        if len(obj) >= min_points:
+            views.append((r.name, obj, img))
+        else:
+            got = [int(i) for i in r.detection.ids]
+            r.skip("no tag of the layout found" if not got else
+                   f"too few layout points ({len(obj)}; tags seen: {got})")
+    return views
+
+
+def _layout_sheet_views(records: list[PhotoRecord], layout: Layout) -> list:
+    return [(r.name, *layout.match(r.detection)[:2]) for r in records if len(layout.match(r.detection)[0]) >= 4]
+
+
+def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_size: float,
+                      layout: Layout | None, cfg: CalibrateConfig, dictionary: str = "") -> Calibration:
+    """Calibrate from detected photos of one size; marks each record used/skipped with a reason.
+
+    Args:
+        records: readable photos of size ``size`` (others should be skipped beforehand).
+        tag_size: tag side in metres (scales the estimated layout; intrinsics don't depend on it).
+        layout: known sheet layout, or None.
+    """
+    import cv2
+
+    flags = calib_flags(cfg)
+    notes: list[str] = []
+    with_tags = []
+    for r in records:
+        ch = r.detection.charuco_ids
+        n = len(r.detection.ids) if layout is None or layout.charuco is None else (0 if ch is None else len(ch))
+        if n == 0:
+            r.skip("no tags found" if layout is None or layout.charuco is None else "no ChArUco corners found")
+        else:
+            with_tags.append(r)
+    by_name = {r.name: r for r in with_tags}
+    ids_together = any(len(set(int(i) for i in r.detection.ids)) > 1 for r in with_tags)
+
+    if layout is not None:
+        target = f"layout ({layout.source})"
+        views = _views_for_layout(with_tags, layout, 6 if layout.charuco is not None else 4)
+        K0 = None
+        if not layout.is_planar():  # calibrateCamera can only initialise from planar targets
+            fx0 = 1.2 * max(size)
+            K0 = np.array([[fx0, 0, (size[0] - 1) / 2], [0, fx0, (size[1] - 1) / 2], [0, 0, 1]])
+            notes.append("non-planar layout: started from fx = 1.2 x image width")
+        fit = fit_views(views, size, flags, cfg.outlier_factor, K0)
+    elif cfg.per_tag or not ids_together:
+        target = "per-tag"
+        views = tag_views(with_tags, tag_size, max_views=MAX_TAG_VIEWS)
+        fit = fit_views(views, size, flags, cfg.outlier_factor)
+        notes.append(f"each tag is its own planar target ({len(views)} tag views"
+                     + (f", the largest {MAX_TAG_VIEWS}" if len(views) == MAX_TAG_VIEWS else "") + ")" +
+                     ("" if ids_together else ": no photo shows two different tags"))
+        layout = None
+    else:
+        target = "estimated layout"
+        # Rough intrinsics from per-tag views (square pixels, centred principal point: robust).
+        rough_flags = (cv2.CALIB_FIX_ASPECT_RATIO | cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_ZERO_TANGENT_DIST
+                       | cv2.CALIB_FIX_K3 | cv2.CALIB_FIX_K2)
+        rough = fit_views(tag_views(with_tags, tag_size, max_views=60), size, rough_flags, cfg.outlier_factor)
+        layout, ref = initial_layout(with_tags, rough.K, rough.dist, tag_size)
+        fit = None
+        change = float("nan")
+        for it in range(10):
+            fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor,
+                            None if fit is None else fit.K)
+            new = refine_layout(by_name, fit, layout, ref, tag_size)
+            change = max(float(np.abs(new.tags[t] - layout.tags[t]).max()) for t in layout.tags)
+            layout = new
+            if change < 5e-4 * tag_size:  # 0.03 mm for 6 cm tags
+                break
+        fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor, fit.K)
+        notes.append(f"estimated the layout of {len(layout.tags)} tags (reference tag {ref}) in {it + 1} "
+                     f"rounds of calibrate + re-fit; last change {change * 1000:.3f} mm")
+        missing = sorted({int(i) for r in with_tags for i in r.detection.ids} - set(layout.tags))
+        if missing:
+            notes.append(f"tags {missing} were never seen together with the others and were ignored")
+        for r in with_tags:
+            if not any(int(i) in layout.tags for i in r.detection.ids):
+                r.skip("none of its tags belong to the estimated layout")
+    notes.extend(fit.rounds)
+
+    # Per-photo outcome (views may be per tag: a photo is used when any of its views is).
+    def photo_of(key: str) -> str:
+        return key.rsplit("#", 1)[0] if target == "per-tag" else key
+
+    per_photo: dict[str, list[float]] = {}
+    for key, err in fit.errors.items():
+        per_photo.setdefault(photo_of(key), []).append(err)
+    for r in with_tags:
+        if r.reason:
+            continue
+        if r.name in per_photo:
+            r.used = True
+            r.error_px = float(np.sqrt(np.mean(np.square(per_photo[r.name]))))
+            n_drop = sum(1 for k in fit.dropped if photo_of(k) == r.name)
+            if n_drop:
+                r.info["tag_views_dropped"] = n_drop
+        else:
+            reasons = [v for k, v in fit.dropped.items() if photo_of(k) == r.name]
+            r.skip(reasons[0] if reasons else "its tags were not among the tag views used")
+    used = [r for r in with_tags if r.used]
+    if len(used) < cfg.min_photos:
+        raise fail("calibration", f"only {len(used)} usable photos (need at least {cfg.min_photos})",
+                   "Take 20-50 sharp photos of the tag sheet from varied angles and distances")
+    coverage = corner_coverage(used, size)
+    f35 = [r.exif_f35 for r in used if r.exif_f35]
+    sanity = sanity_checks(fit.K, fit.dist, size, fit.rms, fit.std, f35, coverage, len(used))
+    return Calibration(fit.K, fit.dist, fit.rms, size[0], size[1], target, layout, fit.std, notes, sanity)
+
+
+def corner_coverage(records: list[PhotoRecord], size: tuple[int, int], cells: int = 3) -> float:
+    """Fraction of a cells x cells grid over the image that holds at least one used corner."""
+    hit = np.zeros((cells, cells), bool)
+    for r in records:
+        pts = r.detection.corners.reshape(-1, 2)
+        if r.detection.charuco_corners is not None:
+            pts = np.concatenate([pts, r.detection.charuco_corners])
+        ix = np.clip((pts[:, 0] / size[0] * cells).astype(int), 0, cells - 1)
+        iy = np.clip((pts[:, 1] / size[1] * cells).astype(int), 0, cells - 1)
+        hit[iy, ix] = True
+    return float(hit.mean())
+
+
+def sanity_checks(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], rms: float, std: np.ndarray,
+                  exif_f35: list[float], coverage: float, n_photos: int) -> dict:
+    """Plausibility of a phone calibration; ``warnings`` lists each failed check in words.
+
+    Checks: fx/fy (phone pixels are square), principal point offset from the image centre,
+    agreement with the EXIF 35 mm-equivalent focal length, RMS, parameter uncertainty,
+    coverage of the image by tag corners, number of photos.
+    """
+    w, h = size
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    diag = float(np.hypot(w, h))
+    dx, dy = cx - (w - 1) / 2.0, cy - (h - 1) / 2.0
+    out: dict = {
+        "fx_fy_ratio": round(float(fx / fy), 5),
+        "principal_point_offset_px": [round(float(dx), 2), round(float(dy), 2)],
+        "principal_point_offset_of_diagonal": round(float(np.hypot(dx, dy) / diag), 5),
+        "std_fx_fy_cx_cy": [round(float(s), 3) for s in std],
+        "corner_coverage": round(coverage, 3),
+        "photos_used": n_photos,
+    }
+    warnings: list[str] = []
+    if abs(fx / fy - 1) > 0.015:
+        warnings.append(f"fx and fy differ by {abs(fx / fy - 1) * 100:.1f}% (fx={fx:.1f}, fy={fy:.1f}); phone pixels "
+                        "are square, so the calibration is probably poorly constrained. Take more tilted photos, "
+                        "or re-run with --fix-aspect")
+    if np.hypot(dx, dy) > 0.02 * diag:
+        warnings.append(f"principal point is {np.hypot(dx, dy):.0f} px ({np.hypot(dx, dy) / diag * 100:.1f}% of the "
+                        f"diagonal) from the image centre (dx={dx:.0f}, dy={dy:.0f}); phone lenses are nearly centred. "
+                        "Take photos with the tags near the image edges and corners, or re-run with "
+                        "--fix-principal-point")
+    if exif_f35:
+        f35 = float(np.median(exif_f35))
+        efx = exif_fx(f35, w, h)
+        out["exif_focal_35mm"] = f35
+        out["exif_fx"] = round(efx, 2)
+        out["fx_over_exif_fx"] = round(float(fx / efx), 4)
+        if abs(fx / efx - 1) > 0.07:
+            warnings.append(f"fx={fx:.0f} px disagrees with the EXIF focal length ({f35:g} mm in 35 mm terms -> "
+                            f"{efx:.0f} px, {(fx / efx - 1) * 100:+.0f}%). Check the photos come from one lens and "
+                            "were not cropped or zoomed")
+        if len(set(exif_f35)) > 1:
+            warnings.append(f"photos report different focal lengths {sorted(set(exif_f35))} (zoom or lens switch); "
+                            "calibrate one lens at a time")
+    else:
+        out["exif_focal_35mm"] = None
+    if rms > 1.0:
+        warnings.append(f"RMS reprojection error {rms:.2f} px is high (expect well under 1 px): blurred photos, "
+                        "a bent sheet or a wrong layout")
+    if std[0] > 0.01 * fx or std[1] > 0.01 * fy:
+        warnings.append(f"focal length is uncertain (+/-{std[0]:.1f} px); add photos from more varied angles")
+    if coverage < 0.67:
+        warnings.append(f"tag corners cover only {coverage * 100:.0f}% of a 3x3 grid over the image; lens distortion "
+                        "near the edges is extrapolated. Add photos with the tags near the edges and corners")
+    if n_photos < 10:
+        warnings.append(f"only {n_photos} photos used; 20-50 give a steadier calibration")
+    out["warnings"] = warnings
+    out["film_diagonal_mm"] = FILM_DIAGONAL_MM
+    return out
+
+
+def calibration_json(cal: Calibration, records: list[PhotoRecord], dictionary: str, tag_size: float | None,
+                     photos_dir: str) -> dict:
+    """The camera file's content."""
+    K = cal.K
+    return {
+        "format": "nerfkit-camera",
+        "version": 1,
+        "pixel_convention": "opencv: pixel centres at integer coordinates (nerfkit and nerfstudio use cx + 0.5, cy + 0.5)",
+        "width": cal.width,
+        "height": cal.height,
+        "K": np.round(K, 6).tolist(),
+        "fx": round(float(K[0, 0]), 4), "fy": round(float(K[1, 1]), 4),
+        "cx": round(float(K[0, 2]), 4), "cy": round(float(K[1, 2]), 4),
+        "dist": [round(float(d), 8) for d in cal.dist],
+        "dist_names": ["k1", "k2", "p1", "p2", "k3"],
+        "rms": round(float(cal.rms), 5),
+        "target": cal.target,
+        "dictionary": dictionary,
+        "tag_size": tag_size,
+        "layout": None if cal.layout is None else cal.layout.to_json(),
+        "sanity": cal.sanity,
+        "notes": cal.notes,
+        "photos_dir": photos_dir,
+        "photos_used": sum(r.used for r in records),
+        "photos_skipped": sum(not r.used for r in records),
+        "images": [r.summary() for r in records],
+    }

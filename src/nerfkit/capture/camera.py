@@ -1,0 +1,132 @@
+"""A calibrated camera (OpenCV pinhole + distortion) and the camera file that stores it.
+
+The camera file (JSON, written by ``nerfkit calibrate``) holds, among other things::
+
+    "width", "height"            image size the calibration is for (upright photos)
+    "K"                          3x3, OpenCV pixel convention (pixel centres at integers)
+    "dist"                       [k1, k2, p1, p2, k3] (OpenCV order)
+    "rms"                        RMS reprojection error in pixels
+
+nerfkit's own convention puts pixel centres at +0.5, so its ``cx, cy`` are the file's plus
+0.5 (:func:`nerfkit_K`). Nerfstudio and COLMAP use nerfkit's convention.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import fail
+
+# Diagonal of a 36 x 24 mm film frame: fx ~= f35 * image_diagonal_px / 43.27.
+FILM_DIAGONAL_MM = 43.2666
+
+
+@dataclass
+class Camera:
+    """Intrinsics of upright photos of one size.
+
+    Attributes:
+        K: (3, 3) float64, OpenCV convention (pixel centres at integers).
+        dist: (5,) float64 k1, k2, p1, p2, k3.
+        width, height: image size in pixels.
+        source: where it came from (a file, or "EXIF ...").
+    """
+
+    K: np.ndarray
+    dist: np.ndarray
+    width: int
+    height: int
+    source: str = ""
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(np.abs(self.dist) > 0))
+
+    def scaled_to(self, width: int, height: int) -> "Camera":
+        """The same camera for photos resized to ``width x height`` (same aspect ratio).
+
+        Scaling happens in continuous coordinates: ``fx' = fx s``, ``cx' = (cx + 0.5) s - 0.5``.
+        """
+        sx, sy = width / self.width, height / self.height
+        K = self.K.copy()
+        K[0, 0] *= sx
+        K[1, 1] *= sy
+        K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
+        K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+        return Camera(K, self.dist.copy(), width, height, self.source)
+
+    def compatible(self, width: int, height: int) -> str | None:
+        """None when photos of this size can use this camera (same size or same aspect
+        ratio), else the reason they cannot."""
+        if (width, height) == (self.width, self.height):
+            return None
+        if (width, height) == (self.height, self.width):
+            return (f"{'portrait' if height > width else 'landscape'} {width}x{height} but the camera was "
+                    f"calibrated on {self.width}x{self.height} photos: calibrate with photos held the same way")
+        if abs(width / height - self.width / self.height) < 0.005:
+            return None
+        return f"size {width}x{height} has a different aspect ratio from the camera's {self.width}x{self.height}"
+
+
+def nerfkit_K(K_cv: np.ndarray) -> np.ndarray:
+    """OpenCV-convention K -> nerfkit/nerfstudio convention (pixel centres at +0.5)."""
+    K = np.array(K_cv, np.float64, copy=True)
+    K[0, 2] += 0.5
+    K[1, 2] += 0.5
+    return K
+
+
+def opencv_K(K_nk: np.ndarray) -> np.ndarray:
+    """nerfkit/nerfstudio-convention K -> OpenCV convention (inverse of :func:`nerfkit_K`)."""
+    K = np.array(K_nk, np.float64, copy=True)
+    K[0, 2] -= 0.5
+    K[1, 2] -= 0.5
+    return K
+
+
+def exif_fx(f35: float, width: int, height: int) -> float:
+    """Focal length in pixels implied by EXIF FocalLengthIn35mmFilm."""
+    return float(f35) * float(np.hypot(width, height)) / FILM_DIAGONAL_MM
+
+
+def camera_from_focal(fx: float, width: int, height: int, source: str) -> Camera:
+    """A distortion-free camera with square pixels and the principal point at the centre."""
+    K = np.array([[fx, 0, (width - 1) / 2.0], [0, fx, (height - 1) / 2.0], [0, 0, 1]], np.float64)
+    return Camera(K, np.zeros(5), width, height, source)
+
+
+def load_camera(path: str | Path) -> Camera:
+    """Read a camera file written by ``nerfkit calibrate`` (or the same keys by hand)."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise fail(path, "no such camera file", "Run nerfkit calibrate first, or omit --camera to use the EXIF focal length") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise fail(path, f"not valid JSON ({e})", "Re-run nerfkit calibrate") from None
+    if not isinstance(data, dict):
+        raise fail(path, "a camera file must be a JSON object")
+    for key in ("K", "dist", "width", "height"):
+        if key not in data:
+            raise fail(path, f"missing '{key}'", "Expected a camera file written by nerfkit calibrate")
+    try:
+        K = np.asarray(data["K"], np.float64)
+        dist = np.asarray(data["dist"], np.float64).ravel()
+        width, height = int(data["width"]), int(data["height"])
+    except (TypeError, ValueError) as e:
+        raise fail(path, f"bad camera values ({e})") from None
+    if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise fail(path, f"'K' must be a 3x3 matrix with positive focal lengths, got {K.tolist()}")
+    if dist.size not in (0, 4, 5, 8, 12, 14) or not np.isfinite(dist).all():
+        raise fail(path, f"'dist' must hold 4, 5, 8, 12 or 14 OpenCV coefficients, got {dist.size}")
+    if dist.size > 5 and np.any(dist[5:] != 0):
+        raise fail(path, "only the k1, k2, p1, p2, k3 distortion model is supported",
+                   "Re-calibrate with nerfkit calibrate")
+    dist = np.pad(dist[:5], (0, 5 - min(dist.size, 5)))
+    if width <= 0 or height <= 0:
+        raise fail(path, f"bad image size {width}x{height}")
+    return Camera(K, dist, width, height, str(path))

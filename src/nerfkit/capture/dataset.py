@@ -1,0 +1,277 @@
+"""Posed photos -> a NeRF dataset: undistort, crop, resize, split, bounds, write.
+
+Writes into the dataset folder:
+
+* ``images/<photo name>``: undistorted, cropped, resized views (JPEG/PNG photos keep
+  their file name; other formats get ``.png`` appended);
+* ``transforms.json``: nerfstudio layout (see :mod:`nerfkit.data.nerfstudio`);
+* ``dataset.npz``: the course layout with ``K``, ``near``, ``far``, ``center``, ``up`` and
+  ``names_*`` (each view's photo file name);
+* ``poses.json`` (written by ``nerfkit poses``) is the input: every photo's pose or the
+  reason it has none, the camera, and the tag settings, so ``nerfkit dataset`` can
+  rebuild the dataset with other options without re-detecting.
+
+This module is where OpenCV pixel coordinates become nerfkit's (+0.5).
+"""
+
+from __future__ import annotations
+
+import json
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..config import option
+from ..data.npz import save_npz
+from ..data.nerfstudio import write_transforms_json
+from ..data.scene import Scene, Views, estimate_center
+from ..errors import fail
+from ..io.atomic import write_json
+from .camera import Camera, nerfkit_K
+from .poses import UP, PosedPhoto
+from .undistort import make_undistorter, output_size, resize_K_nerfkit
+
+POSES_FILE = "poses.json"
+NPZ_FILE = "dataset.npz"
+
+
+@dataclass
+class DatasetConfig:
+    """Options of the dataset step (``nerfkit dataset``, and ``nerfkit poses``)."""
+
+    max_side: int = option(512, "downscale views so the longer side is at most this many pixels (0: keep size)")
+    val_every: int = option(10, "every Nth posed photo (in name order) goes to the val split (0: none)")
+    test_every: int = option(10, "every Nth posed photo goes to the test split, offset from val (0: none)")
+    center: str = option("", "object centre 'x,y,z' in the tag frame (metres); default: the point the cameras "
+                         "look at", metavar="X,Y,Z")
+    near: float | None = option(None, "near bound along rays (default: from the cameras and the tag size)")
+    far: float | None = option(None, "far bound along rays (default: from the cameras and the tag size)")
+    jpeg_quality: int = option(95, "JPEG quality of the written views")
+
+
+def split_indices(n: int, val_every: int, test_every: int) -> list[str]:
+    """Split name for each of ``n`` photos: val at i % val_every == val_every // 2, test at
+    i % test_every == 0 (if not val), train otherwise; at least one train view is kept."""
+    out = []
+    for i in range(n):
+        if val_every > 0 and i % val_every == val_every // 2:
+            out.append("val")
+        elif test_every > 0 and i % test_every == 0 and n > 2:
+            out.append("test")
+        else:
+            out.append("train")
+    if "train" not in out and n:
+        out[0] = "train"
+    return out
+
+
+def parse_center(text: str) -> np.ndarray | None:
+    if not text:
+        return None
+    try:
+        c = np.array([float(v) for v in text.replace(" ", "").split(",")], np.float32)
+    except ValueError:
+        c = np.zeros(0)
+    if c.shape != (3,) or not np.isfinite(c).all():
+        raise fail("--center", f"expected three numbers 'x,y,z', got '{text}'")
+    return c
+
+
+def plane_hit_distance(c2w: np.ndarray, K_nk: np.ndarray, size: tuple[int, int]) -> float:
+    """Nearest distance along the image's border rays (corners and edge midpoints) at which
+    a camera sees the plane z = 0, or inf when none of them hits it."""
+    w, h = size
+    uv = np.array([[0, 0], [w / 2, 0], [w, 0], [w, h / 2], [w, h], [w / 2, h], [0, h], [0, h / 2]], np.float64)
+    d_cam = np.column_stack([(uv[:, 0] - K_nk[0, 2]) / K_nk[0, 0], (uv[:, 1] - K_nk[1, 2]) / K_nk[1, 1], np.ones(len(uv))])
+    d = d_cam @ c2w[:3, :3].T
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o = c2w[:3, 3]
+    with np.errstate(divide="ignore"):
+        t = np.where(d[:, 2] < -1e-6, -o[2] / d[:, 2], np.inf)
+    return float(t.min())
+
+
+def estimate_bounds(c2w: np.ndarray, center: np.ndarray, tag_size: float, K_nk: np.ndarray,
+                    size: tuple[int, int]) -> tuple[float, float, float]:
+    """near, far and the object radius from the cameras and the tag scale.
+
+    The object is taken to lie within a sphere about ``center`` of radius
+    ``max(2.5 tag sizes, distance from the centre to the tag + one tag size)`` (it sits beside
+    the tag). far reaches the far side of that sphere from every camera; near is 0.9 x the
+    closest of: the sphere's near side, and the table (z = 0) at the image border.
+    """
+    radius = max(2.5 * tag_size, float(np.linalg.norm(center)) + tag_size)
+    d = np.linalg.norm(c2w[:, :3, 3] - center, axis=1)
+    near_each = [min(di - radius, plane_hit_distance(c, K_nk, size)) for di, c in zip(d, c2w)]
+    near = 0.9 * float(min(near_each))
+    near = max(near, 0.02 * float(d.min()))
+    far = float((d + radius).max())
+    return near, far, radius
+
+
+def _load_view(p: PosedPhoto, base: Camera, und, out_size: tuple[int, int]) -> np.ndarray:
+    import cv2
+
+    from ..images import load_image_uint8
+
+    img = load_image_uint8(p.path)
+    if (img.shape[1], img.shape[0]) != (p.camera.width, p.camera.height):
+        raise fail(p.path, f"is now {img.shape[1]}x{img.shape[0]}, but was {p.camera.width}x{p.camera.height} "
+                           "when it was posed", "Re-run nerfkit poses")
+    if (img.shape[1], img.shape[0]) != (base.width, base.height):
+        img = cv2.resize(img, (base.width, base.height), interpolation=cv2.INTER_AREA)
+    img = und(img)
+    if (img.shape[1], img.shape[0]) != out_size:
+        img = cv2.resize(img, out_size, interpolation=cv2.INTER_AREA)
+    return img
+
+
+def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConfig, tag_size: float,
+                  jobs: int = 2, progress: bool = True, extra: dict | None = None,
+                  up: np.ndarray | None = None) -> tuple[Scene, dict]:
+    """Undistort, crop, resize and split ``posed`` photos, then write the dataset files.
+
+    ``up`` is the scene's up direction (default +z: the tag-plane normal toward the cameras).
+    Returns the Scene (nerfkit conventions) and a summary dict.
+    """
+    from tqdm import tqdm
+
+    if not posed:
+        raise fail(out_dir, "no posed photos to build a dataset from")
+    out_dir = Path(out_dir)
+    posed = sorted(posed, key=lambda p: p.name)
+    sizes = [(p.camera.width, p.camera.height) for p in posed]
+    base_size = max(set(sizes), key=lambda s: (sizes.count(s), s[0] * s[1]))
+    base = next(p.camera for p in posed if (p.camera.width, p.camera.height) == base_size)
+    und = make_undistorter(base)
+    out_size = output_size(*und.size, cfg.max_side)
+    K = resize_K_nerfkit(nerfkit_K(und.K), und.size, out_size).astype(np.float32)
+
+    bar = tqdm(total=len(posed), desc="undistorting", unit="photo", disable=not progress, leave=False)
+
+    def work(p: PosedPhoto) -> np.ndarray:
+        img = _load_view(p, base, und, out_size)
+        bar.update(1)
+        return img
+
+    try:
+        if jobs > 1:
+            with ThreadPoolExecutor(jobs) as pool:
+                images = list(pool.map(work, posed))
+        else:
+            images = [work(p) for p in posed]
+    finally:
+        bar.close()
+    images = np.stack(images)
+    c2w = np.stack([p.c2w for p in posed]).astype(np.float64)
+    names = [p.name for p in posed]
+
+    center = parse_center(cfg.center)
+    center_note = "given with --center"
+    if center is None:
+        center = estimate_center(c2w.astype(np.float32)).astype(np.float64)
+        center_note = "the point nearest every camera's optical axis"
+        mean_dist = float(np.mean(np.linalg.norm(c2w[:, :3, 3], axis=1)))
+        if not np.isfinite(center).all() or np.linalg.norm(center) > 2 * mean_dist:
+            center = np.zeros(3)
+            center_note = "the tag centre (the cameras' optical axes do not meet near the tag)"
+    near, far, radius = estimate_bounds(c2w, center, tag_size, K.astype(np.float64), out_size)
+    if cfg.near is not None:
+        near = float(cfg.near)
+    if cfg.far is not None:
+        far = float(cfg.far)
+    if not 0 <= near < far:
+        raise fail("--near/--far", f"near={near:g} and far={far:g}: need 0 <= near < far")
+
+    split = split_indices(len(posed), cfg.val_every, cfg.test_every)
+    views = {}
+    for s in ("train", "val", "test"):
+        idx = [i for i, x in enumerate(split) if x == s]
+        if idx:
+            views[s] = Views(c2w[idx].astype(np.float32), np.repeat(K[None], len(idx), 0), out_size[0], out_size[1],
+                             images[idx], [names[i] for i in idx])
+        else:
+            views[s] = Views.empty(out_size[0], out_size[1])
+    up = UP.copy() if up is None else (np.asarray(up, np.float64) / np.linalg.norm(up)).astype(np.float32)
+    scene = Scene(views["train"], views["val"], views["test"], near, far, center.astype(np.float32), up,
+                  source=str(out_dir))
+    summary = {
+        "views": {s: len(v) for s, v in scene.splits.items()},
+        "size": list(out_size),
+        "K": np.round(K.astype(np.float64), 4).tolist(),
+        "near": round(near, 5), "far": round(far, 5),
+        "center": np.round(center, 5).tolist(), "center_from": center_note,
+        "object_radius": round(radius, 5),
+        "up": [float(u) for u in up],
+        "tag_size": float(tag_size),
+        "undistorted": base.has_distortion,
+        "crop": list(und.roi),
+        "source_size": list(base_size),
+        "world": "tag frame: origin at the tag centre, x right and y up along the printed tag, z out of the tag "
+                 "toward the cameras (= up); metres",
+    }
+    write_transforms_json(scene, out_dir, jpeg_quality=cfg.jpeg_quality, extra={**summary, **(extra or {})})
+    save_npz(scene, out_dir / NPZ_FILE)
+    return scene, summary
+
+
+# ---------------------------------------------------------------- poses.json
+
+
+def write_poses_json(path: str | Path, records, posed: list[PosedPhoto], camera: Camera, meta: dict) -> None:
+    """Every photo's outcome and pose (OpenCV axes), the camera and the tag settings."""
+    by_name = {p.name: p for p in posed}
+    photos = []
+    for r in records:
+        d = r.summary()
+        if r.name in by_name:
+            d["c2w"] = np.round(by_name[r.name].c2w, 8).tolist()
+        photos.append(d)
+    write_json(path, {
+        "format": "nerfkit-poses", "version": 1,
+        "pose_convention": "c2w: camera-to-world, OpenCV camera axes (+x right, +y down, +z forward)",
+        "camera": {"K": camera.K.tolist(), "dist": camera.dist.tolist(), "width": camera.width,
+                   "height": camera.height, "source": camera.source},
+        **meta,
+        "photos_posed": len(posed),
+        "photos_skipped": len(records) - len(posed),
+        "photos": photos,
+    })
+
+
+def read_poses_json(path: str | Path) -> tuple[list[PosedPhoto], dict]:
+    """Posed photos and the metadata from a poses.json (a dataset folder works too)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / POSES_FILE
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise fail(path, "no such file", "Run nerfkit poses first; it writes poses.json into the dataset folder") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise fail(path, f"not valid JSON ({e})", "Re-run nerfkit poses") from None
+    if not isinstance(data, dict) or data.get("format") != "nerfkit-poses":
+        raise fail(path, "is not a poses.json written by nerfkit poses")
+    try:
+        cam = data["camera"]
+        camera = Camera(np.asarray(cam["K"], np.float64), np.asarray(cam["dist"], np.float64),
+                        int(cam["width"]), int(cam["height"]), str(cam.get("source", "")))
+        photos_dir = Path(data["photos_dir"])
+        if not photos_dir.is_absolute():
+            photos_dir = path.parent / photos_dir
+        posed = []
+        for d in data["photos"]:
+            if "c2w" not in d:
+                continue
+            w, h = d["size"]
+            cam_i = camera if (w, h) == (camera.width, camera.height) else camera.scaled_to(w, h)
+            posed.append(PosedPhoto(d["file"], photos_dir / d["file"], np.asarray(d["c2w"], np.float64),
+                                    float(d.get("error_px") or 0.0), cam_i))
+    except (KeyError, TypeError, ValueError) as e:
+        raise fail(path, f"malformed poses.json ({type(e).__name__}: {e})", "Re-run nerfkit poses") from None
+    if not posed:
+        raise fail(path, "holds no posed photos", "Check the poses run's summary for why photos were skipped")
+    return posed, data
+

@@ -1,0 +1,258 @@
+"""Scan a folder of photos: load each upright, detect tags, cache the results.
+
+Every photo becomes a :class:`PhotoRecord`; unreadable files are recorded with the reason
+instead of stopping the run. Detections are cached in a JSON file keyed by file name, size
+and modification time (and the detection settings), so re-running on the same folder only
+looks at new or changed photos.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import NerfkitError, fail
+from ..images import exif_focal_35mm, list_images, load_image_uint8
+from ..io.atomic import write_json
+from .aruco import Detection, Layout, detect, make_detector, marker_bits, suggest_dictionaries
+
+CACHE_VERSION = 2
+
+
+@dataclass
+class PhotoRecord:
+    """One photo and what happened to it.
+
+    Attributes:
+        name: file name (the key tying every output back to the photo).
+        path: full path.
+        detection: tags found, or None when the photo could not be read.
+        error: why the photo could not be read, or None.
+        exif_f35: EXIF FocalLengthIn35mmFilm in mm, or None.
+        used: whether the stage using it (calibration, posing) kept it.
+        reason: why it was skipped (empty when used).
+        error_px: reprojection error (RMS, pixels) in the stage that used it.
+        info: free-form per-stage details (e.g. pose ambiguity).
+    """
+
+    name: str
+    path: Path
+    detection: Detection | None = None
+    error: str | None = None
+    exif_f35: float | None = None
+    used: bool = False
+    reason: str = ""
+    error_px: float | None = None
+    info: dict = field(default_factory=dict)
+
+    @property
+    def size(self) -> tuple[int, int] | None:
+        return None if self.detection is None else (self.detection.width, self.detection.height)
+
+    def skip(self, reason: str) -> None:
+        self.used, self.reason = False, reason
+
+    def summary(self) -> dict:
+        d = {"file": self.name, "used": self.used, "reason": self.reason or None,
+             "error_px": None if self.error_px is None else round(float(self.error_px), 4)}
+        if self.detection is not None:
+            d["size"] = [self.detection.width, self.detection.height]
+            d["tags"] = [int(i) for i in self.detection.ids]
+            d["sharpness"] = round(self.detection.sharpness, 2)
+        if self.exif_f35:
+            d["exif_focal_35mm"] = self.exif_f35
+        d.update(self.info)
+        return d
+
+
+def _file_key(path: Path) -> list:
+    st = path.stat()
+    return [st.st_size, st.st_mtime_ns]
+
+
+def _load_cache(cache_path: Path | None, settings: dict) -> dict:
+    if cache_path is None or not cache_path.exists():
+        return {}
+    try:
+        data = json.loads(cache_path.read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        return {}  # a broken cache is only a lost speed-up
+    if data.get("version") != CACHE_VERSION or data.get("settings") != settings:
+        return {}
+    return data.get("photos", {}) if isinstance(data.get("photos"), dict) else {}
+
+
+def _detect_one(path: Path, detector, detect_side: int, bits: int) -> dict:
+    """Load upright, detect; a JSON-ready cache entry (never raises for a bad photo)."""
+    entry: dict = {"key": _file_key(path)}
+    try:
+        image = load_image_uint8(path)
+    except NerfkitError as e:
+        entry["error"] = str(e).split(": ", 1)[-1]
+        return entry
+    except MemoryError:
+        entry["error"] = "out of memory while decoding"
+        return entry
+    try:
+        entry["detection"] = detect(image, detector, detect_side, bits).to_json()
+    except Exception as e:  # noqa: BLE001 - one odd photo must not stop the run
+        entry["error"] = f"tag detection failed ({type(e).__name__}: {str(e).strip().splitlines()[-1][:120]})"
+        return entry
+    entry["exif_f35"] = _exif_f35(path)
+    return entry
+
+
+def _exif_f35(path: Path) -> float | None:
+    """EXIF FocalLengthIn35mmFilm without decoding the pixels again (falls back to
+    :func:`nerfkit.images.exif_focal_35mm`, which does)."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as img:
+            exif = img.getexif()
+            value = exif.get_ifd(0x8769).get(0xA405) or exif.get(0xA405)
+            return float(value) if value else None
+    except Exception:  # noqa: BLE001 - EXIF is optional metadata
+        return exif_focal_35mm(path)
+
+
+def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = None, detect_side: int = 2000,
+                cache_path: str | Path | None = None, jobs: int = 2, progress: bool = True,
+                files: list[Path] | None = None) -> list[PhotoRecord]:
+    """Detect tags in every photo of ``folder`` (sorted by name), reusing the cache.
+
+    Unreadable photos come back skipped with the reason; :func:`require_tags` checks that
+    some photo shows a tag. Raises NerfkitError when the folder holds no images.
+    """
+    from tqdm import tqdm
+
+    files = list_images(folder) if files is None else files
+    charuco = layout is not None and layout.charuco is not None
+    settings = {"dictionary": dictionary, "detect_side": int(detect_side),
+                "charuco": layout.to_json() if charuco else None}
+    cache_path = Path(cache_path) if cache_path else None
+    cache = _load_cache(cache_path, settings)
+    entries: dict[str, dict] = {}
+    todo = []
+    for f in files:
+        c = cache.get(f.name)
+        if c is not None and c.get("key") == _file_key(f):
+            entries[f.name] = c
+        else:
+            todo.append(f)
+
+    def save() -> None:
+        if cache_path is not None:
+            write_json(cache_path, {"version": CACHE_VERSION, "settings": settings,
+                                    "photos": {k: entries[k] for k in sorted(entries)}})
+
+    if todo:
+        bits = marker_bits(dictionary)
+        local = threading.local()  # one detector per thread: OpenCV detectors are not shared
+
+        def work(f: Path) -> dict:
+            if not hasattr(local, "detector"):
+                local.detector = make_detector(dictionary, layout if charuco else None)
+            return _detect_one(f, local.detector, detect_side, bits)
+
+        bar = tqdm(total=len(todo), desc=f"detecting tags ({len(files) - len(todo)} cached)", unit="photo",
+                   disable=not progress, leave=False)
+        pool = ThreadPoolExecutor(max(1, jobs))
+        try:
+            futures = {pool.submit(work, f): f for f in todo}
+            for i, fut in enumerate(as_completed(futures)):
+                entries[futures[fut].name] = fut.result()
+                bar.update(1)
+                if (i + 1) % 10 == 0:
+                    save()  # an interrupted run keeps what it did
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+            bar.close()
+            save()
+    records = []
+    for f in files:
+        e = entries[f.name]
+        rec = PhotoRecord(f.name, f)
+        if "error" in e:
+            rec.error = e["error"]
+            rec.skip(f"unreadable: {e['error']}")
+        else:
+            rec.detection = Detection.from_json(e["detection"])
+            rec.exif_f35 = e.get("exif_f35")
+        records.append(rec)
+    return records
+
+
+def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str) -> None:
+    """Raise a helpful NerfkitError when no photo shows any tag of ``dictionary``."""
+    readable = [r for r in records if r.detection is not None]
+    if not readable:
+        reasons = "; ".join(f"{r.name}: {r.error}" for r in records[:3])
+        raise fail(folder, f"none of the {len(records)} photos could be read ({reasons})",
+                   "Use JPEG, PNG or HEIC photos")
+    if any(len(r.detection.ids) or (r.detection.charuco_ids is not None and len(r.detection.charuco_ids))
+           for r in readable):
+        return
+    sample = readable[:: max(1, len(readable) // 5)][:5]
+    images = []
+    for r in sample:
+        try:
+            images.append(load_image_uint8(r.path))
+        except NerfkitError:
+            pass
+    found = suggest_dictionaries(images)
+    if found:
+        best = ", ".join(f"{name} (ids {', '.join(map(str, ids[:6]))})" for name, ids in found[:3])
+        raise fail(folder, f"no {dictionary} tags found in any of {len(readable)} photos, but other dictionaries "
+                           f"find tags: {best}", f"Re-run with --dict {found[0][0]}")
+    raise fail(folder, f"no {dictionary} tags found in any of {len(readable)} photos (also tried "
+                       f"{', '.join(n.replace('_1000', '_*') for n in ('DICT_4X4_1000', 'DICT_5X5_1000', 'DICT_6X6_1000'))}, "
+                       "ArUco original and AprilTag dictionaries)",
+               "Check that the tags are in focus, fully visible and not too small (at least ~30 px wide)")
+
+
+def group_by_size(records: list[PhotoRecord]) -> tuple[tuple[int, int] | None, list[PhotoRecord]]:
+    """Keep the most common image size; skip the other readable photos with a reason.
+
+    Returns the kept size and the kept records.
+    """
+    sizes: dict[tuple[int, int], int] = {}
+    for r in records:
+        if r.detection is not None:
+            sizes[r.size] = sizes.get(r.size, 0) + 1
+    if not sizes:
+        return None, []
+    main = max(sizes, key=lambda s: (sizes[s], s[0] * s[1]))
+    kept = []
+    for r in records:
+        if r.detection is None:
+            continue
+        if r.size == main:
+            kept.append(r)
+        elif r.size == (main[1], main[0]):
+            r.skip(f"{'portrait' if r.size[1] > r.size[0] else 'landscape'} {r.size[0]}x{r.size[1]} while most "
+                   f"photos are {main[0]}x{main[1]}: photos held the other way need their own calibration")
+        else:
+            r.skip(f"size {r.size[0]}x{r.size[1]} differs from most photos ({main[0]}x{main[1]})")
+    return main, kept
+
+
+def blur_hint(records: list[PhotoRecord], rec: PhotoRecord) -> str:
+    """' (looks blurred: ...)' when the photo is much less sharp than the folder's median."""
+    values = [r.detection.sharpness for r in records if r.detection is not None]
+    if rec.detection is None or len(values) < 3:
+        return ""
+    med = float(np.median(values))
+    if med > 0 and rec.detection.sharpness < 0.3 * med:
+        return f" (looks blurred: sharpness {rec.detection.sharpness:.0f} vs median {med:.0f})"
+    return ""
+
+
+def default_jobs() -> int:
+    return max(1, min(4, os.cpu_count() or 1))

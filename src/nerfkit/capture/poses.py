@@ -1,0 +1,201 @@
+"""Camera poses of object photos from the tag(s) they show (``cv2.solvePnP``).
+
+World frame: the frame of the tag (``--tag-id``) or of the layout (``--layout``):
+origin at the tag centre (layouts: the layout's origin), ``x`` to the right and ``y`` up
+the printed tag, ``z`` out of the tag toward the cameras. The scene's ``up`` is ``+z``,
+the tag-plane normal pointing toward the cameras, so orbits circle about the table's
+normal. Units are those of ``--tag-size`` (metres).
+
+One tag: ``SOLVEPNP_IPPE_SQUARE`` (made for one square; both of its solutions are checked
+and the better kept, the ratio of their errors recorded as ``pose_ambiguity``). Several
+tags of a layout: all visible corners jointly (SQPnP and per-tag IPPE starts, refined with
+Levenberg-Marquardt).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config import option
+from ..errors import fail
+from .aruco import Detection, Layout, square_corners, tag_pose_in_layout
+from .camera import Camera, camera_from_focal, exif_fx
+from .photos import PhotoRecord, blur_hint
+
+UP = np.array([0.0, 0.0, 1.0], np.float32)
+
+
+@dataclass
+class PoseConfig:
+    """Options of ``nerfkit poses``."""
+
+    max_error: float = option(2.0, "skip photos whose pose reprojection error (RMS, pixels) exceeds this")
+    min_tag_px: float = option(16.0, "skip photos whose tag is smaller than this many pixels across "
+                               "(too small for a reliable pose)")
+
+
+@dataclass
+class PosedPhoto:
+    """A photo with its pose.
+
+    Attributes:
+        name: file name; path: full path.
+        c2w: (4, 4) float64 camera-to-world, OpenCV axes, world = tag/layout frame.
+        error_px: RMS reprojection error of the tag corners.
+        camera: the camera of this photo's size (OpenCV convention).
+    """
+
+    name: str
+    path: object
+    c2w: np.ndarray
+    error_px: float
+    camera: Camera
+
+
+def rt_to_c2w(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
+    """OpenCV's world-to-camera (rvec, tvec) -> (4, 4) camera-to-world."""
+    import cv2
+
+    R = cv2.Rodrigues(np.asarray(rvec, np.float64))[0]
+    c2w = np.eye(4)
+    c2w[:3, :3] = R.T
+    c2w[:3, 3] = -R.T @ np.ravel(tvec)
+    return c2w
+
+
+def reprojection_rms(obj: np.ndarray, img: np.ndarray, rvec, tvec, K, dist) -> float:
+    import cv2
+
+    proj, _ = cv2.projectPoints(obj.reshape(-1, 1, 3).astype(np.float64), rvec, tvec, K, dist)
+    return float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img.reshape(-1, 2)) ** 2, axis=1))))
+
+
+def solve_pose(det: Detection, camera: Camera, layout: Layout) -> tuple[np.ndarray | None, float, str, dict]:
+    """Pose of one photo in the layout's frame.
+
+    Returns:
+        ``(c2w, error_px, reason, info)``: c2w (4, 4) or None with the reason when the
+        photo has no usable tag.
+    """
+    import cv2
+
+    K, dist = camera.K, camera.dist
+    obj, img, used = layout.match(det)
+    if not used:
+        seen = sorted({int(i) for i in det.ids})
+        if not seen:
+            return None, float("nan"), "no tags found", {}
+        want = ", ".join(map(str, layout.ids[:8]))
+        return None, float("nan"), f"tag {want} not found (saw ids {seen})", {}
+    info: dict = {"tags_used": used}
+    candidates: list[tuple[np.ndarray, np.ndarray]] = []
+    ambiguity = None
+    for tag in used if layout.charuco is None else []:
+        i = list(det.ids).index(tag)
+        side = float(np.linalg.norm(layout.tags[tag] - np.roll(layout.tags[tag], -1, axis=0), axis=1).mean())
+        ok, rvecs, tvecs, errs = cv2.solvePnPGeneric(square_corners(side), det.corners[i].reshape(-1, 1, 2),
+                                                     K, dist, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+        if not ok:
+            continue
+        errs = np.ravel(errs)
+        if len(errs) == 2 and len(used) == 1:
+            ambiguity = float(max(errs) / max(min(errs), 1e-9))
+        T_sheet_tag = tag_pose_in_layout(layout.tags[tag])
+        for rv, tv in zip(rvecs, tvecs):
+            T_cam_tag = np.eye(4)
+            T_cam_tag[:3, :3] = cv2.Rodrigues(rv)[0]
+            T_cam_tag[:3, 3] = np.ravel(tv)
+            T_cam_sheet = T_cam_tag @ np.linalg.inv(T_sheet_tag)
+            candidates.append((cv2.Rodrigues(T_cam_sheet[:3, :3])[0], T_cam_sheet[:3, 3].reshape(3, 1)))
+    if len(obj) >= 6 and (len(used) > 1 or layout.charuco is not None):
+        ok, rv, tv = cv2.solvePnP(obj, img, K, dist, flags=cv2.SOLVEPNP_SQPNP)
+        if ok:
+            candidates.append((rv, tv))
+    if not candidates:
+        return None, float("nan"), "pose estimation failed", info
+    best = None
+    for rv, tv in candidates:
+        rv, tv = rv.astype(np.float64).copy(), tv.astype(np.float64).copy()
+        if len(obj) > 4:  # one square: IPPE alone (LM refinement measured no better)
+            rv, tv = cv2.solvePnPRefineLM(obj, img, K, dist, rv, tv)
+        err = reprojection_rms(obj, img, rv, tv, K, dist)
+        if best is None or err < best[0]:
+            best = (err, rv, tv)
+    err, rv, tv = best
+    if ambiguity is not None:
+        info["pose_ambiguity"] = round(ambiguity, 2)
+    c2w = rt_to_c2w(rv, tv)
+    if c2w[2, 3] <= 0:  # the camera would be behind the tag plane: a failed fit
+        return None, err, "camera below the tag plane (bad fit)", info
+    return c2w, err, "", info
+
+
+def choose_tag(records: list[PhotoRecord]) -> tuple[int, str]:
+    """The tag id seen in the most photos, and a note about the choice."""
+    counts: dict[int, int] = {}
+    for r in records:
+        if r.detection is not None:
+            for t in set(int(i) for i in r.detection.ids):
+                counts[t] = counts.get(t, 0) + 1
+    if not counts:
+        raise fail("poses", "no tags found in any photo")
+    best = min(counts, key=lambda t: (-counts[t], t))
+    note = f"using tag {best} (seen in {counts[best]} photos)"
+    others = {t: c for t, c in counts.items() if t != best}
+    if others:
+        note += (f"; also seen: {', '.join(f'{t} ({c})' for t, c in sorted(others.items()))}. Pass --tag-id to "
+                 "choose another, or --layout to use several tags together")
+    return best, note
+
+
+def exif_camera(records: list[PhotoRecord]) -> tuple[Camera, str]:
+    """A distortion-free camera from the photos' EXIF FocalLengthIn35mmFilm (most common
+    value and size), or a NerfkitError when the photos carry none."""
+    values = [(r.exif_f35, r.size) for r in records if r.exif_f35 and r.detection is not None]
+    if not values:
+        raise fail("poses", "no --camera given and the photos have no EXIF FocalLengthIn35mmFilm",
+                    "Run nerfkit calibrate on photos of the tag sheet and pass --camera camera.json, "
+                    "or give the focal length with --focal-px")
+    f35, size = max(set(values), key=values.count)
+    fx = exif_fx(f35, *size)
+    cam = camera_from_focal(fx, size[0], size[1], f"EXIF FocalLengthIn35mmFilm {f35:g} mm")
+    note = (f"no --camera: using the EXIF focal length {f35:g} mm (35 mm equivalent) -> fx = fy = {fx:.1f} px at "
+            f"{size[0]}x{size[1]}, principal point at the centre, no lens distortion. Calibrate for better poses")
+    return cam, note
+
+
+def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg: PoseConfig) -> list[PosedPhoto]:
+    """Pose every readable photo; marks each record used or skipped with the reason."""
+    posed = []
+    cams: dict[tuple[int, int], Camera] = {}
+    for r in records:
+        if r.detection is None:
+            continue
+        w, h = r.size
+        why = camera.compatible(w, h)
+        if why:
+            r.skip(why)
+            continue
+        cam = cams.setdefault((w, h), camera.scaled_to(w, h))
+        c2w, err, reason, info = solve_pose(r.detection, cam, layout)
+        r.info.update(info)
+        if c2w is None:
+            r.error_px = None if not np.isfinite(err) else err
+            r.skip(reason + (blur_hint(records, r) if reason.startswith(("no tags", "tag ")) else ""))
+            continue
+        r.error_px = err
+        sides = [np.linalg.norm(r.detection.corners[list(r.detection.ids).index(t)] -
+                                np.roll(r.detection.corners[list(r.detection.ids).index(t)], -1, axis=0), axis=1).mean()
+                 for t in info.get("tags_used", []) if layout.charuco is None]
+        if sides and max(sides) < cfg.min_tag_px:
+            r.skip(f"tag too small ({max(sides):.0f} px across < {cfg.min_tag_px:g} px) for a reliable pose")
+            continue
+        if err > cfg.max_error:
+            r.skip(f"bad fit: reprojection error {err:.2f} px > {cfg.max_error:g} px" + blur_hint(records, r))
+            continue
+        r.used = True
+        r.reason = ""
+        posed.append(PosedPhoto(r.name, r.path, c2w, err, cam))
+    return posed

@@ -1,0 +1,57 @@
+"""Plain-text summaries of a capture run, printed by the capture commands."""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+
+import numpy as np
+
+from .photos import PhotoRecord
+
+
+def table(rows: list[list[str]], headers: list[str], max_width: int = 90) -> str:
+    """A fixed-width text table; the last column is cut to keep lines under ``max_width``."""
+    cols = [headers] + rows
+    widths = [max(len(str(r[i])) for r in cols) for i in range(len(headers))]
+    room = max(20, max_width - sum(widths[:-1]) - 2 * (len(widths) - 1))
+    widths[-1] = min(widths[-1], room)
+
+    def fmt(r: list) -> str:
+        cells = [str(c) for c in r]
+        last = cells[-1] if len(cells[-1]) <= widths[-1] else cells[-1][: widths[-1] - 3] + "..."
+        return "  ".join([c.ljust(w) for c, w in zip(cells[:-1], widths[:-1])] + [last]).rstrip()
+
+    line = "  ".join("-" * w for w in widths)
+    return "\n".join([fmt(headers), line] + [fmt(r) for r in rows])
+
+
+def _reason_kind(reason: str) -> str:
+    """Group similar reasons ('bad fit: reprojection error 3.1 px > 2 px' -> 'bad fit')."""
+    kind = reason.split(":")[0].split(" (")[0]
+    return re.sub(r"\d+(\.\d+)?", "N", kind)
+
+
+def photo_summary(records: list[PhotoRecord], used_word: str = "used", full: bool = False) -> str:
+    """Counts, the error of the photos used, and a table of every skipped photo with its reason
+    (every photo when ``full``)."""
+    used = [r for r in records if r.used]
+    skipped = [r for r in records if not r.used]
+    lines = [f"{len(records)} photos: {len(used)} {used_word}, {len(skipped)} skipped"]
+    errs = [r.error_px for r in used if r.error_px is not None]
+    if errs:
+        lines.append(f"reprojection error of the photos {used_word} (RMS px): median {np.median(errs):.3f}, "
+                     f"max {np.max(errs):.3f}")
+    if skipped:
+        kinds = Counter(_reason_kind(r.reason) for r in skipped)
+        lines.append("skipped: " + "; ".join(f"{n} x {k}" for k, n in kinds.most_common()))
+    shown = records if full else skipped
+    if shown:
+        rows = []
+        for r in shown:
+            tags = "-" if r.detection is None else (",".join(map(str, sorted(set(int(i) for i in r.detection.ids)))) or "none")
+            err = "" if r.error_px is None else f"{r.error_px:.3f}"
+            rows.append([r.name, used_word if r.used else "skipped", tags, err, r.reason])
+        lines.append("")
+        lines.append(table(rows, ["photo", "status", "tags", "err px", "reason"]))
+    return "\n".join(lines)

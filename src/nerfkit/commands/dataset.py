@@ -1,0 +1,70 @@
+"""`nerfkit dataset`: (re)build a NeRF dataset from the poses `nerfkit poses` found."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "undistort, resize and split posed photos into a NeRF dataset (npz + transforms.json)"
+
+DESCRIPTION = """\
+Build the dataset from DATASET_DIR/poses.json (written by `nerfkit poses`): undistort each
+photo (keeping the calibrated focal length, cropped to the largest rectangle of valid
+pixels, K updated), downscale it,
+split the views into train/val/test, estimate near/far from the cameras and the tag size,
+and write images/, transforms.json (nerfstudio layout, OpenGL axes) and dataset.npz (the
+course layout plus K, near, far, center, up and each view's photo name).
+`nerfkit poses` runs this step itself; run it again to change the size or the split.
+
+example:
+  nerfkit dataset my_object/ --max-side 800 --out my_object_800/
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from ..capture.dataset import DatasetConfig
+    from ..config import add_dataclass_args
+
+    p = sub.add_parser("dataset", help=HELP, description=DESCRIPTION,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("poses", metavar="DATASET_DIR", help="folder with poses.json from `nerfkit poses` (or the file)")
+    p.add_argument("--out", help="folder to write (default: the same folder)")
+    p.add_argument("--jobs", type=int, default=0, help="photos processed in parallel (default: up to 4 cores)")
+    add_dataclass_args(p, DatasetConfig, "dataset")
+    p.set_defaults(func=run)
+
+
+def build_and_report(posed, out, cfg, tag_size: float, jobs: int, extra: dict | None = None) -> int:
+    """Build the dataset and print what was written."""
+    from ..capture.dataset import NPZ_FILE, build_dataset
+
+    scene, s = build_dataset(posed, out, cfg, tag_size, jobs=jobs, extra=extra)
+    K = s["K"]
+    print(f"dataset: {s['views']['train']} train, {s['views']['val']} val, {s['views']['test']} test views of "
+          f"{s['size'][0]}x{s['size'][1]} (from {s['source_size'][0]}x{s['source_size'][1]}"
+          f"{', undistorted and cropped' if s['undistorted'] else ''})")
+    print(f"K: fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f} (pixel centres at +0.5)")
+    print(f"near {s['near']:.4f}  far {s['far']:.4f}  centre {s['center']} ({s['center_from']})  up {s['up']}")
+    print(f"wrote {out}/{NPZ_FILE}, {out}/transforms.json and {out}/images/")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..capture.dataset import DatasetConfig, read_poses_json
+    from ..capture.photos import default_jobs
+    from ..config import dataclass_from_args
+    from ..errors import fail
+
+    cfg = dataclass_from_args(DatasetConfig, args)
+    posed, data = read_poses_json(args.poses)
+    src = Path(args.poses)
+    out = Path(args.out) if args.out else (src if src.is_dir() else src.parent)
+    tag_size = data.get("tag_size")
+    if not isinstance(tag_size, (int, float)) or not tag_size > 0:
+        raise fail(args.poses, "poses.json has no valid tag_size", "Re-run nerfkit poses")
+    missing = [p.name for p in posed if not Path(p.path).is_file()]
+    if missing:
+        raise fail(posed[0].path.parent, f"{len(missing)} posed photos are missing (e.g. {missing[0]})",
+                   "The photos moved; re-run nerfkit poses on their new folder")
+    return build_and_report(posed, out, cfg, float(tag_size), args.jobs or default_jobs(), {"notes": data.get("notes", [])})

@@ -1,0 +1,145 @@
+"""`nerfkit poses`: a camera pose per object photo, from the ArUco tag beside the object or from SfM."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "pose photos of an object beside an ArUco tag and build a NeRF dataset"
+
+DESCRIPTION = """\
+Give every photo a camera-to-world pose from the tag it shows (solvePnP: IPPE_SQUARE for
+one tag, or all tags of a --layout jointly), skip photos with no tag or a bad fit (with
+the reason), then build the dataset (as `nerfkit dataset` does): undistort, crop, resize,
+split into train/val/test, estimate near/far, and write dataset.npz, transforms.json and
+the images into DATASET_DIR, plus poses.json with every photo's outcome.
+
+World frame: the tag's. Origin at the tag centre, x to the right and y up along the
+printed tag, z out of the tag toward the cameras; the scene's up is +z. Units: metres.
+
+Without --camera the EXIF focal length of the photos is used (no lens distortion).
+
+With --method colmap, poses come from structure-from-motion (pycolmap) instead; a tag
+seen in the photos (give --tag-size) fixes the metric scale and up, otherwise the scene is
+centred and scaled to a mean camera distance of 4 and the report says so.
+
+examples:
+  nerfkit poses object_photos/ --camera camera.json --tag-size 0.06 --out my_object/
+  nerfkit poses object_photos/ --method colmap --out my_object/
+  nerfkit train --data my_object/dataset.npz
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from ..capture.dataset import DatasetConfig
+    from ..capture.poses import PoseConfig
+    from ..config import add_dataclass_args
+
+    p = sub.add_parser("poses", help=HELP, description=DESCRIPTION,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("photos", metavar="OBJECT_DIR", help="folder of photos of the object beside the tag")
+    p.add_argument("--method", choices=["tags", "colmap"], default="tags",
+                   help="tags: poses from the ArUco tag (default); colmap: structure-from-motion with pycolmap, "
+                        "for photos without tags (a tag, with --tag-size, then fixes scale and up)")
+    p.add_argument("--matcher", choices=["auto", "exhaustive", "sequential"], default="auto",
+                   help="SfM matching with --method colmap (auto: exhaustive up to 100 photos)")
+    p.add_argument("--sfm-max-size", type=int, default=1000, help="longest side used for SfM features, px (default 1000)")
+    p.add_argument("--camera", help="camera file from `nerfkit calibrate` (default: the photos' EXIF focal length)")
+    p.add_argument("--focal-px", type=float, help="focal length in pixels, when there is no camera file or EXIF")
+    p.add_argument("--tag-size", type=float, help="side of the tag's black square in metres, e.g. 0.06")
+    p.add_argument("--tag-id", type=int, help="the tag that defines the world (default: the one seen most)")
+    p.add_argument("--layout", help="layout JSON of several tags to use jointly (their frame is the world)")
+    p.add_argument("--dict", help="ArUco dictionary (default: the camera file's, else DICT_4X4_50)")
+    p.add_argument("--out", required=True, metavar="DATASET_DIR", help="dataset folder to write")
+    p.add_argument("--no-dataset", action="store_true", help="only write poses.json (build later with `nerfkit dataset`)")
+    p.add_argument("--detect-size", type=int, default=2000, help="tag detection size (long side, px; default 2000)")
+    p.add_argument("--jobs", type=int, default=0, help="photos processed in parallel (default: up to 4 cores)")
+    p.add_argument("--no-cache", action="store_true", help="ignore cached detections")
+    p.add_argument("--all-photos", action="store_true", help="list every photo in the summary, not only skipped ones")
+    add_dataclass_args(p, PoseConfig, "poses")
+    add_dataclass_args(p, DatasetConfig, "dataset")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    from ..capture.aruco import Layout, get_dictionary, load_layout
+    from ..capture.camera import camera_from_focal, load_camera
+    from ..capture.dataset import POSES_FILE, DatasetConfig, write_poses_json
+    from ..capture.photos import default_jobs, group_by_size, require_tags, scan_photos
+    from ..capture.poses import PoseConfig, choose_tag, exif_camera, pose_records
+    from ..capture.report import photo_summary
+    from ..config import dataclass_from_args
+    from ..errors import fail
+
+    pcfg = dataclass_from_args(PoseConfig, args)
+    dcfg = dataclass_from_args(DatasetConfig, args)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise fail(out, "exists and is not a folder", "--out names the dataset folder to write")
+    camera = load_camera(args.camera) if args.camera else None
+    dictionary = args.dict
+    if dictionary is None and args.camera:
+        dictionary = json.loads(Path(args.camera).read_text()).get("dictionary")
+    dictionary = dictionary or "DICT_4X4_50"
+    get_dictionary(dictionary)
+    if args.tag_size is not None and not args.tag_size > 0:
+        raise fail("--tag-size", f"{args.tag_size} must be a positive length in metres")
+    if args.method == "colmap":
+        from ..sfm import sfm_dataset
+
+        _, report = sfm_dataset(args.photos, out, dcfg, matcher=args.matcher, max_image_size=args.sfm_max_size,
+                                tag_size=args.tag_size, tag_id=args.tag_id or 0, tag_dict=dictionary,
+                                jobs=args.jobs or default_jobs())
+        print(report.summary())
+        return 0
+    layout = load_layout(args.layout, dictionary, args.tag_size) if args.layout else None
+    if layout is None and args.tag_size is None:
+        raise fail("--tag-size", "is required", "Measure the tag's black square, e.g. --tag-size 0.06")
+    if args.focal_px is not None and not args.focal_px > 0:
+        raise fail("--focal-px", f"{args.focal_px} must be positive")
+
+    cache = None if args.no_cache else out / "detections.json"
+    records = scan_photos(args.photos, dictionary, layout, args.detect_size, cache, args.jobs or default_jobs())
+    require_tags(records, args.photos, dictionary)
+    notes = []
+    if layout is None:
+        tag_id = args.tag_id
+        if tag_id is None:
+            tag_id, note = choose_tag(records)
+            notes.append(note)
+        layout = Layout.single(tag_id, args.tag_size)
+    elif args.tag_id is not None:
+        notes.append("--tag-id is ignored with --layout: the layout's frame is the world")
+    tag_size = args.tag_size or layout.tag_size
+
+    if camera is None:
+        if args.focal_px:
+            size, _ = group_by_size(records)
+            camera = camera_from_focal(args.focal_px, size[0], size[1], f"--focal-px {args.focal_px:g}")
+            notes.append(f"no --camera: fx = fy = {args.focal_px:g} px, principal point at the centre, no distortion")
+        else:
+            camera, note = exif_camera(records)
+            notes.append(note)
+    posed = pose_records(records, camera, layout, pcfg)
+    meta = {"photos_dir": str(Path(args.photos).resolve()), "dictionary": dictionary, "tag_size": tag_size,
+            "layout": layout.to_json(), "world": "tag frame: origin at the tag centre, x right and y up along the "
+            "printed tag, z out of the tag toward the cameras (scene up); metres", "notes": notes,
+            "max_error_px": pcfg.max_error}
+    out.mkdir(parents=True, exist_ok=True)
+    write_poses_json(out / POSES_FILE, records, posed, camera, meta)
+
+    for n in notes:
+        print(n)
+    print(f"camera: {camera.source or 'given'} ({camera.width}x{camera.height}, fx {camera.K[0, 0]:.1f})")
+    print(photo_summary(records, "posed", full=args.all_photos))
+    print(f"wrote {out / POSES_FILE}")
+    if not posed:
+        raise fail(args.photos, "no photo could be posed (see the table above)",
+                   "Check --tag-size/--tag-id and that the tag is sharp and fully visible")
+    if args.no_dataset:
+        return 0
+    from .dataset import build_and_report
+
+    return build_and_report(posed, out, dcfg, tag_size, args.jobs or default_jobs(), {"notes": notes})

@@ -1,0 +1,93 @@
+"""`nerfkit view`: look at a dataset's cameras, rays and samples (browser or PNG)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+HELP = "view a dataset's cameras, rays and samples in the browser (viser) or as a PNG"
+
+DESCRIPTION = """\
+Shows each camera as a frustum textured with its image, the world axes, the tag plane and
+the scene centre; --rays N adds N random training rays with their samples between near
+and far (as training samples them). DATASET is anything `nerfkit train --data` reads.
+The server listens on 127.0.0.1 only, unless you pass --host explicitly.
+A run folder (from `nerfkit train`) opens the live viewer of the trained model instead.
+
+examples:
+  nerfkit view my_object/ --rays 50              then open http://127.0.0.1:8080
+  nerfkit view my_object/dataset.npz --rays 30 --png cameras.png
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("view", help=HELP, description=DESCRIPTION,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("path", metavar="DATASET", help="dataset file or folder (or a run folder)")
+    p.add_argument("--rays", type=int, default=0, help="training rays to draw with their samples (default: 0)")
+    p.add_argument("--samples", type=int, default=32, help="samples per drawn ray (default: 32)")
+    p.add_argument("--png", metavar="FILE", help="write a static PNG (matplotlib) instead of serving, then exit")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1, this machine "
+                   "only; 0.0.0.0 exposes the viewer to the network)")
+    p.add_argument("--port", type=int, default=8080, help="port (default: 8080)")
+    p.set_defaults(func=run)
+
+
+def is_run_folder(path: Path) -> bool:
+    return path.is_dir() and (path / "config.json").is_file() and (path / "checkpoints").is_dir()
+
+
+def dataset_tag_size(path: Path) -> float | None:
+    """The tag size a capture dataset records (transforms.json beside it), if any."""
+    import json
+
+    folder = path if path.is_dir() else path.parent
+    tj = folder / "transforms.json"
+    try:
+        v = json.loads(tj.read_text()).get("nerfkit", {}).get("tag_size")
+        return float(v) if isinstance(v, (int, float)) and v > 0 else None
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import fail
+
+    path = Path(args.path)
+    if args.rays < 0 or args.samples < 1:
+        raise fail("--rays/--samples", "need --rays >= 0 and --samples >= 1")
+    if not 0 < args.port < 65536:
+        raise fail("--port", f"{args.port} is not a port number")
+    if is_run_folder(path):
+        if args.png:
+            raise fail(path, "--png draws datasets; this is a trained run", "Pass the run's dataset instead")
+        try:
+            from ..viz.live import serve_run
+        except ImportError:
+            raise fail(path, "is a trained run, but the live viewer (nerfkit.viz.live) is not available in this build",
+                       "View its dataset instead: nerfkit view DATASET") from None
+        serve_run(path, host=args.host, port=args.port)
+        return 0
+
+    from ..data.load import load_scene
+
+    scene = load_scene(path)
+    tag_size = dataset_tag_size(path)
+    if args.png:
+        from ..viz.scene_plot import plot_scene
+
+        plot_scene(scene, args.png, n_rays=args.rays, n_samples=args.samples, tag_size=tag_size)
+        print(f"wrote {args.png}")
+        return 0
+    from ..viz.viewer import serve_dataset, wait_until_interrupted
+
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"warning: listening on {args.host}: anyone who can reach this machine can see the dataset")
+    server, _ = serve_dataset(scene, host=args.host, port=args.port, n_rays=args.rays, n_samples=args.samples,
+                              tag_size=tag_size, block=False)
+    shown = "127.0.0.1" if args.host in ("127.0.0.1", "localhost") else args.host
+    print(f"{len(scene.train)} train, {len(scene.val)} val, {len(scene.test)} test cameras; near {scene.near:.4g}, "
+          f"far {scene.far:.4g}")
+    print(f"viewer at http://{shown}:{server.get_port()} (Ctrl-C to stop)")
+    wait_until_interrupted(server)
+    return 0

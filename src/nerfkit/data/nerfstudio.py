@@ -1,0 +1,303 @@
+"""Nerfstudio-style ``transforms.json``, read and written.
+
+Layout (nerfstudio's, plus an optional ``"nerfkit"`` block)::
+
+    {
+      "camera_model": "OPENCV",
+      "fl_x": 500.0, "fl_y": 500.0, "cx": 320.0, "cy": 240.0, "w": 640, "h": 480,
+      "k1": 0, "k2": 0, "p1": 0, "p2": 0,
+      "frames": [{"file_path": "images/IMG_0930.JPG", "transform_matrix": [[...4x4...]],
+                  "split": "train"}, ...],
+      "train_filenames": [...], "val_filenames": [...], "test_filenames": [...],
+      "nerfkit": {"near": 0.1, "far": 0.6, "center": [x, y, z], "up": [0, 0, 1], ...}
+    }
+
+* ``transform_matrix`` is camera-to-world with **OpenGL** camera axes (+y up, +z backward);
+  :func:`nerfkit.cameras.opengl_to_opencv` converts.
+* ``cx, cy`` put pixel centres at +0.5, as nerfkit does (OpenCV's are 0.5 smaller).
+* Intrinsics may be given per frame (the same keys inside a frame override the top level).
+* The split comes from each frame's ``"split"`` (nerfkit), else nerfstudio's
+  ``*_filenames`` lists, else every frame is a training view.
+* Non-zero distortion (``k1 k2 k3 k4 p1 p2``) is removed on load with OpenCV (with a
+  warning); fisheye models are refused.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ..cameras import opencv_to_opengl, opengl_to_opencv
+from ..errors import fail
+from ..io.atomic import atomic_path, write_json
+from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
+from .validate import check_intrinsics, check_near_far, check_poses
+
+SPLITS = ("train", "val", "test")
+DIST_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+KEEP_SUFFIXES = {".jpg", ".jpeg", ".png"}
+
+
+def image_file_name(name: str) -> str:
+    """File name for a view named after its photo: the photo's own name when it is a JPEG
+    or PNG, else the name plus ``.png`` (``IMG_1.HEIC`` -> ``IMG_1.HEIC.png``)."""
+    base = Path(name).name
+    return base if Path(base).suffix.lower() in KEEP_SUFFIXES else base + ".png"
+
+
+def _number(d: dict, key: str, where: str, default=None) -> float | None:
+    v = d.get(key)
+    if v is None:
+        return default
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise fail(where, f"'{key}' must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _find_image(folder: Path, file_path: str, where: str) -> Path:
+    p = folder / file_path
+    if p.is_file():
+        return p
+    if not p.suffix:
+        for ext in (".png", ".jpg", ".jpeg", ".PNG", ".JPG"):
+            if p.with_suffix(ext).is_file():
+                return p.with_suffix(ext)
+    raise fail(where, f"frame image '{file_path}' not found (looked for {p})", "Check the file_path entries")
+
+
+def _undistort(image: np.ndarray, K: np.ndarray, dist: dict[str, float], where: str) -> tuple[np.ndarray, np.ndarray]:
+    """Remove OpenCV distortion; K and the result use nerfkit's +0.5 pixel convention."""
+    import cv2
+
+    h, w = image.shape[:2]
+    coeffs = np.array([dist["k1"], dist["k2"], dist["p1"], dist["p2"], dist["k3"]], np.float64)
+    K_cv = K.astype(np.float64).copy()
+    K_cv[:2, 2] -= 0.5
+    newK, _ = cv2.getOptimalNewCameraMatrix(K_cv, coeffs, (w, h), 0.0, (w, h))
+    out = cv2.undistort(image, K_cv, coeffs, None, newK)
+    newK = newK.astype(np.float64)
+    newK[:2, 2] += 0.5
+    return out, newK
+
+
+def load_transforms_json(path: str | Path, load_images: bool = True,
+                         background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Scene:
+    """Read a nerfstudio-style transforms.json (or a folder holding one) into a Scene.
+
+    ``background`` (RGB in [0, 1]) goes under transparent pixels of RGBA images.
+    """
+    from ..images import load_image_uint8
+
+    path = Path(path)
+    if path.is_dir():
+        path = path / "transforms.json"
+    where = str(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise fail(where, "no such file", "Expected a nerfstudio transforms.json") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise fail(where, f"not valid JSON ({e})", "The file may be truncated; re-export it") from None
+    if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
+        raise fail(where, "expected an object with a non-empty \"frames\" list")
+    model = str(data.get("camera_model", "OPENCV")).upper()
+    if model not in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
+        raise fail(where, f"camera_model {model} is not supported",
+                   "Undistort the images first (e.g. with nerfstudio's ns-process-data) and use OPENCV/PINHOLE")
+    folder = path.parent
+    nk = data.get("nerfkit") if isinstance(data.get("nerfkit"), dict) else {}
+
+    # Split assignment.
+    lists = {s: data.get(f"{s}_filenames") for s in SPLITS}
+    by_list: dict[str, str] = {}
+    for s, names in lists.items():
+        if isinstance(names, list):
+            for n in names:
+                by_list[str(n)] = s
+                by_list[str(Path(str(n)).as_posix()).lstrip("./")] = s
+
+    per_split: dict[str, list] = {s: [] for s in SPLITS}
+    undistorted = 0
+    for k, fr in enumerate(data["frames"]):
+        fwhere = f"{where} frames[{k}]"
+        if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
+            raise fail(fwhere, "each frame needs \"file_path\" and \"transform_matrix\"")
+        fp = str(fr["file_path"])
+        split = fr.get("split")
+        if split is None:
+            split = by_list.get(fp, by_list.get(fp.lstrip("./"), "train" if not by_list else None))
+            if split is None:
+                continue  # listed in none of the *_filenames: nerfstudio ignores it too
+        if split not in SPLITS:
+            raise fail(fwhere, f"split '{split}' is not one of train, val, test")
+        try:
+            M = np.asarray(fr["transform_matrix"], np.float64)
+        except (TypeError, ValueError):
+            raise fail(fwhere, "transform_matrix must be a 4x4 list of numbers") from None
+        c2w = opengl_to_opencv(check_poses(M[None], fwhere, "transform_matrix")[0].astype(np.float64))
+        cam = {key: fr.get(key, data.get(key)) for key in ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", *DIST_KEYS)}
+        image = None
+        size = None
+        if load_images:
+            image = load_image_uint8(_find_image(folder, fp, fwhere), background)
+            size = (image.shape[1], image.shape[0])
+        w = _number(cam, "w", fwhere)
+        h = _number(cam, "h", fwhere)
+        if size is None:
+            if w is None or h is None:
+                raise fail(fwhere, "needs \"w\" and \"h\" when images are not loaded")
+            size = (int(w), int(h))
+        w = size[0] if w is None else w
+        h = size[1] if h is None else h
+        fx = _number(cam, "fl_x", fwhere)
+        if fx is None:
+            angle = _number(cam, "camera_angle_x", fwhere)
+            if angle is None:
+                raise fail(fwhere, "no focal length: expected \"fl_x\" (or \"camera_angle_x\")")
+            fx = 0.5 * w / math.tan(0.5 * angle)
+        fy = _number(cam, "fl_y", fwhere, fx)
+        cx = _number(cam, "cx", fwhere, w / 2.0)
+        cy = _number(cam, "cy", fwhere, h / 2.0)
+        K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], np.float64)
+        if (size[0], size[1]) != (int(round(w)), int(round(h))):
+            sx, sy = size[0] / w, size[1] / h
+            if abs(sx - sy) > 0.01:
+                raise fail(fwhere, f"image is {size[0]}x{size[1]} but w, h say {w:g}x{h:g}")
+            K[0] *= sx
+            K[1] *= sy  # a uniformly downscaled copy (nerfstudio's images_2, ...)
+        dist = {key: (_number(cam, key, fwhere) or 0.0) for key in DIST_KEYS}
+        if dist["k4"]:
+            raise fail(fwhere, "k4 (a fisheye or rational distortion term) is not supported", "Undistort the images first")
+        if any(dist.values()):
+            if image is None:
+                raise fail(fwhere, "has lens distortion, which nerfkit removes only when it loads the images")
+            image, K = _undistort(image, K, dist, fwhere)
+            undistorted += 1
+        K = check_intrinsics(K, fwhere, "intrinsics", size[0], size[1])
+        name = fr["name"] if isinstance(fr.get("name"), str) else Path(fp).name
+        per_split[split].append((c2w, K, size, image, name))
+    if undistorted:
+        warnings.warn(f"{where}: {undistorted} frames have lens distortion (k1 k2 p1 p2 ...); nerfkit undistorted "
+                      "them on load (pinhole K updated). Undistort once beforehand to avoid this each time", stacklevel=2)
+
+    views: dict[str, Views] = {}
+    for split, items in per_split.items():
+        if not items:
+            views[split] = None
+            continue
+        sizes = sorted({it[2] for it in items})
+        if len(sizes) > 1:
+            raise fail(where, f"the {split} frames have different image sizes {sizes}",
+                       "nerfkit needs one image size per split; resize the images to one size")
+        w, h = sizes[0]
+        images = np.stack([it[3] for it in items]) if load_images else None
+        views[split] = Views(np.stack([it[0] for it in items]).astype(np.float32),
+                             np.stack([it[1] for it in items]).astype(np.float32), w, h, images,
+                             [it[4] for it in items])
+    if views["train"] is None:
+        raise fail(where, "has no training frames", "Mark some frames \"split\": \"train\" or list them in train_filenames")
+    train = views["train"]
+    for split in ("val", "test"):
+        if views[split] is None:
+            views[split] = Views.empty(train.width, train.height)
+    for split, mats in (nk.get("poses_only") or {}).items():  # pose-only splits (render paths)
+        if split in SPLITS and len(views[split]) == 0 and mats:
+            c2w = opengl_to_opencv(check_poses(np.asarray(mats, np.float64), where, f"nerfkit.poses_only.{split}"))
+            views[split] = Views(c2w.astype(np.float32), np.repeat(train.K[:1], len(c2w), axis=0), train.width, train.height)
+
+    center = estimate_center(train.c2w)
+    up = estimate_up(train.c2w)
+    if "center" in nk:
+        center = np.asarray(nk["center"], np.float32).reshape(3)
+    if "up" in nk:
+        up = np.asarray(nk["up"], np.float32).reshape(3)
+        up = up / max(float(np.linalg.norm(up)), 1e-8)
+    if "near" in nk and "far" in nk:
+        near, far = check_near_far(float(nk["near"]), float(nk["far"]), where)
+    else:
+        near, far = estimate_near_far(train.c2w, center)
+    return Scene(train, views["val"], views["test"], near, far, center.astype(np.float32), up.astype(np.float32),
+                 source=where)
+
+
+def _save_image(path: Path, image: np.ndarray, jpeg_quality: int) -> None:
+    from PIL import Image
+
+    with atomic_path(path) as tmp:
+        if path.suffix.lower() in (".jpg", ".jpeg"):
+            Image.fromarray(image).save(tmp, format="JPEG", quality=jpeg_quality)
+        else:
+            Image.fromarray(image).save(tmp, format="PNG")
+
+
+def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool = True, jpeg_quality: int = 95,
+                          image_dir: str = "images", extra: dict | None = None) -> Path:
+    """Write ``folder/transforms.json`` (and the views' images into ``folder/image_dir``).
+
+    Each view's file is named after ``Views.names`` (see :func:`image_file_name`), else
+    ``<split>_<index>.png``. Splits without images are stored as poses only under
+    ``nerfkit.poses_only``. Returns the path of transforms.json.
+    """
+    folder = Path(folder)
+    frames, lists, poses_only = [], {s: [] for s in SPLITS}, {}
+    Ks, sizes = [], []
+    seen: set[str] = set()
+    for split, v in scene.splits.items():
+        if len(v) == 0:
+            continue
+        if not v.has_images:
+            poses_only[split] = opencv_to_opengl(v.c2w.astype(np.float64)).tolist()
+            continue
+        for i in range(len(v)):
+            name = v.names[i] if v.names is not None else f"{split}_{i:04d}.png"
+            fname = image_file_name(name)
+            if fname in seen:
+                raise fail(folder, f"two views would both be written as '{fname}'", "Give the views distinct names")
+            seen.add(fname)
+            rel = f"{image_dir}/{fname}"
+            if write_images:
+                _save_image(folder / rel, v.images[i], jpeg_quality)
+            frames.append({"file_path": rel, "transform_matrix": opencv_to_opengl(v.c2w[i].astype(np.float64)).tolist(),
+                           "split": split, "name": name})
+            lists[split].append(rel)
+            Ks.append(v.K[i].astype(np.float64))
+            sizes.append((v.width, v.height))
+    if not frames:
+        raise fail(folder, "the scene has no views with images to write")
+    shared = all(np.allclose(K, Ks[0], rtol=1e-6, atol=1e-6) for K in Ks) and len(set(sizes)) == 1
+
+    def intr(K: np.ndarray, size: tuple[int, int]) -> dict:
+        return {"fl_x": float(K[0, 0]), "fl_y": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
+                "w": int(size[0]), "h": int(size[1])}
+
+    out: dict = {"camera_model": "OPENCV"}
+    if shared:
+        out.update(intr(Ks[0], sizes[0]))
+    else:
+        for fr, K, size in zip(frames, Ks, sizes):
+            fr.update(intr(K, size))
+    out.update({"k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0})
+    out["frames"] = frames
+    for s in SPLITS:
+        out[f"{s}_filenames"] = lists[s]
+    nk = {"near": float(scene.near), "far": float(scene.far),
+          "center": [float(c) for c in scene.center], "up": [float(u) for u in scene.up],
+          "convention": "transform_matrix: camera-to-world, OpenGL camera axes; cx, cy: pixel centres at +0.5"}
+    if poses_only:
+        nk["poses_only"] = poses_only
+    out["nerfkit"] = {**(extra or {}), **nk}  # the scene's own values win over extra's
+    path = folder / "transforms.json"
+    write_json(path, out)
+    return path
+
+
+def is_transforms_json(path: str | Path) -> bool:
+    """True for a transforms.json file or a folder holding one (cheap check for loaders)."""
+    path = Path(path)
+    return (path.is_file() and path.name.endswith(".json") and path.name.startswith("transforms")) or \
+        (path.is_dir() and (path / "transforms.json").is_file())
+

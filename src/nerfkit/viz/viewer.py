@@ -1,0 +1,129 @@
+"""Interactive dataset viewer in the browser (viser).
+
+Shows every camera as a frustum textured with its image, the world axes, the tag plane
+(the world's z = 0, perpendicular to the scene's up), the scene centre, and on request
+training rays with their stratified samples (the course's visual sanity check).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..data.scene import Scene
+from .scene_plot import SPLIT_COLORS, plane_basis, sample_rays, scene_scale
+
+
+def _wxyz(R: np.ndarray) -> np.ndarray:
+    import viser.transforms as vtf
+
+    return vtf.SO3.from_matrix(np.asarray(R, np.float64)).wxyz
+
+
+def _thumbnail(image: np.ndarray, max_side: int) -> np.ndarray:
+    import cv2
+
+    s = max_side / max(image.shape[:2])
+    return image if s >= 1 else cv2.resize(image, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+
+
+def populate(server, scene: Scene, n_rays: int = 0, n_samples: int = 32, tag_size: float | None = None,
+             image_max_side: int = 256, seed: int = 0) -> dict:
+    """Add the scene to a viser server; returns the handles by kind (for updates and tests)."""
+    up = np.asarray(scene.up, np.float64)
+    server.scene.set_up_direction(tuple(float(u) for u in up))
+    scale = scene_scale(scene)
+    handles: dict = {"frustums": [], "rays": None, "samples": None}
+    handles["axes"] = server.scene.add_frame("/world", axes_length=1.5 * tag_size if tag_size else 0.25 * scale,
+                                             axes_radius=0.02 * (1.5 * tag_size if tag_size else 0.25 * scale))
+    a, b = plane_basis(up)
+    R_plane = np.column_stack([a, b, up / np.linalg.norm(up)])
+    handles["plane"] = server.scene.add_grid("/tag_plane", width=scale, height=scale, cell_size=scale / 10,
+                                             section_size=scale / 2, plane="xy", wxyz=_wxyz(R_plane),
+                                             plane_color=(200, 200, 200), plane_opacity=0.25)
+    if tag_size:
+        s = tag_size / 2
+        verts = np.array([-a - b, a - b, a + b, -a + b]) * s + up * 1e-4
+        handles["tag"] = server.scene.add_mesh_simple("/tag", verts.astype(np.float32),
+                                                      np.array([[0, 1, 2], [0, 2, 3]], np.uint32),
+                                                      color=(20, 20, 20), side="double")
+    handles["center"] = server.scene.add_icosphere("/center", radius=0.01 * scale, color=(220, 0, 220),
+                                                   position=tuple(float(c) for c in scene.center))
+    for split, v in scene.splits.items():
+        color = tuple(int(255 * c) for c in SPLIT_COLORS.get(split, (0, 0, 0)))
+        for i in range(len(v)):
+            c2w = v.c2w[i].astype(np.float64)
+            K = v.K[i]
+            img = None if v.images is None else _thumbnail(v.images[i], image_max_side)
+            name = v.names[i] if v.names is not None else f"{i:04d}"
+            h = server.scene.add_camera_frustum(
+                f"/cameras/{split}/{name}", fov=float(2 * np.arctan2(v.height / 2, K[1, 1])),
+                aspect=v.width / v.height, scale=0.1 * scale, thickness=0.004 * scale, color=color, image=img,
+                wxyz=_wxyz(c2w[:3, :3]), position=tuple(c2w[:3, 3]))
+            handles["frustums"].append(h)
+    set_rays(server, scene, handles, n_rays, n_samples, seed)
+    return handles
+
+
+def set_rays(server, scene: Scene, handles: dict, n_rays: int, n_samples: int, seed: int = 0) -> None:
+    """Replace the shown rays and samples with ``n_rays`` new ones (0 removes them)."""
+    for key in ("rays", "samples"):
+        if handles.get(key) is not None:
+            handles[key].remove()
+            handles[key] = None
+    if n_rays <= 0 or len(scene.train) == 0:
+        return
+    rs = sample_rays(scene.train, scene.near, scene.far, n_rays, n_samples, seed)
+    rng = np.random.default_rng(seed)
+    cols = rng.integers(60, 255, (n_rays, 3)).astype(np.uint8)
+    scale = scene_scale(scene)
+    handles["rays"] = server.scene.add_line_segments("/rays/lines", rs.segments.astype(np.float32),
+                                                     np.repeat(cols[:, None], 2, axis=1), thickness=0.002 * scale)
+    handles["samples"] = server.scene.add_point_cloud("/rays/samples", rs.points.reshape(-1, 3).astype(np.float32),
+                                                      np.repeat(cols, rs.points.shape[1], axis=0),
+                                                      point_size=0.006 * scale, precision="float32")
+
+
+def serve_dataset(scene: Scene, host: str = "127.0.0.1", port: int = 8080, n_rays: int = 0, n_samples: int = 32,
+                  tag_size: float | None = None, block: bool = True):
+    """Start a viser server showing ``scene``; with ``block`` wait until Ctrl-C, then stop.
+
+    Returns ``(server, handles)`` (after stopping, when blocking). viser moves to the next
+    free port when ``port`` is taken: ``server.get_port()`` tells which it got.
+    """
+    import viser
+
+    server = viser.ViserServer(host=host, port=port, verbose=False)
+    handles = populate(server, scene, n_rays, n_samples, tag_size)
+    state = {"seed": 0}
+    with server.gui.add_folder("rays"):
+        n_in = server.gui.add_slider("rays", min=0, max=1000, step=10, initial_value=int(n_rays))
+        s_in = server.gui.add_slider("samples per ray", min=2, max=128, step=2, initial_value=int(n_samples))
+        again = server.gui.add_button("new random rays")
+
+    def refresh(_=None) -> None:
+        set_rays(server, scene, handles, int(n_in.value), int(s_in.value), state["seed"])
+
+    def reseed(_=None) -> None:
+        state["seed"] += 1
+        refresh()
+
+    n_in.on_update(refresh)
+    s_in.on_update(refresh)
+    again.on_click(reseed)
+    handles["gui"] = {"rays": n_in, "samples": s_in, "resample": again}
+    if block:
+        wait_until_interrupted(server)
+    return server, handles
+
+
+def wait_until_interrupted(server) -> None:
+    """Keep serving until Ctrl-C, then stop the server."""
+    import time
+
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()

@@ -1,0 +1,173 @@
+"""Camera calibration from synthetic photos of a tag sheet with known K and distortion."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from nerfkit.capture import aruco as A
+from nerfkit.capture import calibrate as C
+from nerfkit.capture import synthetic as S
+from nerfkit.capture.photos import PhotoRecord
+from nerfkit.cli import main
+
+SIZE = (640, 480)
+TAG = 0.05  # the synthetic sheet's tag size
+
+
+@pytest.fixture(scope="module")
+def sheet():
+    return S.cached_capture("sheet", 12, 5)
+
+
+@pytest.fixture(scope="module")
+def records(sheet):
+    det = A.make_detector("DICT_4X4_50")
+    return [PhotoRecord(n, None, A.detect(im, det)) for n, im in zip(sheet.names, sheet.images)]
+
+
+def fresh(records):
+    out = []
+    for r in records:
+        out.append(PhotoRecord(r.name, r.path, r.detection))
+    return out
+
+
+def rel_errors(K, K_true):
+    return np.abs([K[0, 0] / K_true[0, 0] - 1, K[1, 1] / K_true[1, 1] - 1,
+                   K[0, 2] / K_true[0, 2] - 1, K[1, 2] / K_true[1, 2] - 1])
+
+
+def test_every_photo_shows_several_tags(records):
+    # The scenario under test: several tags per photo, layout unknown to the calibration.
+    assert np.mean([len(r.detection.ids) >= 4 for r in records]) > 0.7
+
+
+def test_sheet_without_layout_recovers_intrinsics_within_1_percent(sheet, records):
+    cal = C.calibrate_records(fresh(records), SIZE, TAG, None, C.CalibrateConfig())
+    assert cal.target == "estimated layout"
+    assert rel_errors(cal.K, sheet.K).max() < 0.01
+    assert np.abs(cal.dist[:2] - sheet.dist[:2]).max() < 0.02
+    assert cal.rms < 0.5
+    assert cal.sanity["warnings"] == []
+
+
+def test_estimated_layout_matches_the_printed_sheet(sheet, records):
+    cal = C.calibrate_records(fresh(records), SIZE, TAG, None, C.CalibrateConfig())
+    est = cal.layout.tags
+    ref = next(t for t, c in est.items() if np.allclose(c.mean(0), 0))
+    # Express the true layout in the reference tag's frame, as the estimate is.
+    T = np.linalg.inv(A.tag_pose_in_layout(sheet.layout.tags[ref]))
+    for t, corners in sheet.layout.tags.items():
+        truth = corners @ T[:3, :3].T + T[:3, 3]
+        assert np.abs(est[t] - truth).max() < 0.001, t  # within 1 mm
+
+
+def test_naive_shared_corners_would_ruin_calibration(sheet, records):
+    # Negative control: giving every tag the same 3D corners (the common mistake) is far off,
+    # so the test above is sensitive to the problem it guards against.
+    sq = A.square_corners(TAG)
+    views = [(r.name, np.concatenate([sq] * len(r.detection.ids)), r.detection.corners.reshape(-1, 2))
+             for r in records]
+    fit = C.fit_views(views, SIZE, C.calib_flags(C.CalibrateConfig()), outlier_factor=0)
+    assert fit.rms > 10 or rel_errors(fit.K, sheet.K).max() > 0.02
+
+
+def test_tag_views_never_share_3d_points_within_a_view(records):
+    views = C.tag_views(records, TAG)
+    assert len(views) == sum(len(r.detection.ids) for r in records)
+    for name, obj, img in views:
+        assert obj.shape == (4, 3) and img.shape == (4, 2)
+        assert len({tuple(p) for p in np.round(obj, 9)}) == 4
+
+
+def test_per_tag_mode_and_known_layout_also_recover_intrinsics(sheet, records):
+    per_tag = C.calibrate_records(fresh(records), SIZE, TAG, None, C.CalibrateConfig(per_tag=True))
+    assert per_tag.target == "per-tag"
+    assert rel_errors(per_tag.K, sheet.K).max() < 0.01
+    known = C.calibrate_records(fresh(records), SIZE, TAG, sheet.layout, C.CalibrateConfig())
+    assert known.target.startswith("layout")
+    assert rel_errors(known.K, sheet.K).max() < 0.01
+
+
+def test_outlier_photo_is_dropped_and_the_camera_recalibrated(sheet, records):
+    recs = fresh(records)
+    bad = recs[3]
+    rng = np.random.default_rng(0)
+    bad.detection = A.Detection(bad.detection.width, bad.detection.height, bad.detection.ids,
+                                bad.detection.corners + rng.normal(0, 3.0, bad.detection.corners.shape))
+    cal = C.calibrate_records(recs, SIZE, TAG, sheet.layout, C.CalibrateConfig())
+    assert not bad.used and bad.reason.startswith("outlier")
+    assert any("dropped 1 outlier" in n for n in cal.notes)
+    assert all(r.used for r in recs if r is not bad)
+    assert rel_errors(cal.K, sheet.K).max() < 0.01
+
+
+def test_sanity_checks_flag_implausible_phone_calibrations():
+    K = np.array([[1000.0, 0, 639.5], [0, 1000.0, 479.5], [0, 0, 1]])
+    w, h = 1280, 960
+    f35 = 1000.0 * 43.2666 / np.hypot(w, h)  # the EXIF focal length this fx implies
+    good = C.sanity_checks(K, np.zeros(5), (w, h), 0.4, np.array([2.0, 2.0, 1.0, 1.0]), [f35], 1.0, 30)
+    assert good["warnings"] == []
+    assert good["fx_over_exif_fx"] == pytest.approx(1.0, abs=1e-3)
+    # The real iPhone case from the issue: fx, fy 4% apart and the principal point 130 px off.
+    K_bad = K.copy()
+    K_bad[1, 1] = 1040.0
+    K_bad[0, 2] += 130
+    bad = C.sanity_checks(K_bad, np.zeros(5), (w, h), 0.58, np.array([2.0, 2.0, 1.0, 1.0]), [f35 * 1.2], 1.0, 30)
+    text = " ".join(bad["warnings"])
+    assert "fx and fy differ by 3.8%" in text
+    assert "principal point is 130 px" in text
+    assert "EXIF focal length" in text
+
+
+def test_calibrate_command_writes_camera_file_and_explains_skips(tmp_path, sheet, capsys):
+    folder = tmp_path / "photos"
+    sheet.write(folder)
+    S.write_photo(folder / "zz_blank.jpg", np.full((480, 640, 3), 128, np.uint8))
+    (folder / "zz_corrupt.jpg").write_bytes(b"\xff\xd8\xff\xe0 not really a jpeg")
+    out = tmp_path / "cam" / "camera.json"
+    assert main(["calibrate", str(folder), "--dict", "DICT_4X4_50", "--tag-size", str(TAG), "--out", str(out)]) == 0
+    cam = json.loads(out.read_text())
+    K = np.array(cam["K"])
+    assert rel_errors(K, sheet.K).max() < 0.01
+    assert cam["width"] == 640 and cam["height"] == 480 and 0 < cam["rms"] < 0.5
+    by_file = {im["file"]: im for im in cam["images"]}
+    assert by_file["zz_blank.jpg"]["used"] is False and "no tags" in by_file["zz_blank.jpg"]["reason"]
+    assert by_file["zz_corrupt.jpg"]["used"] is False and "unreadable" in by_file["zz_corrupt.jpg"]["reason"]
+    assert all(by_file[n]["used"] and by_file[n]["error_px"] < 0.5 for n in sheet.names)
+    assert cam["layout"]["tags"] and cam["sanity"]["warnings"] == []
+    printed = capsys.readouterr().out
+    assert "zz_corrupt.jpg" in printed and "RMS reprojection error" in printed
+    # Second run reuses the detection cache: the cache file is there and results are identical.
+    assert (out.parent / "camera.detections.json").exists()
+    assert main(["calibrate", str(folder), "--tag-size", str(TAG), "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["K"] == cam["K"]
+    # The estimated layout in the camera file serves as a layout file for the next calibration.
+    out2 = tmp_path / "cam2.json"
+    assert main(["calibrate", str(folder), "--layout", str(out), "--out", str(out2)]) == 0
+    cam2 = json.loads(out2.read_text())
+    assert cam2["target"].startswith("layout") and rel_errors(np.array(cam2["K"]), sheet.K).max() < 0.01
+
+
+def test_charuco_board_calibration_uses_chessboard_corners():
+    spec = {"board": "charuco", "squares_x": 5, "squares_y": 7, "square_length": 0.03, "marker_length": 0.022}
+    layout = A.layout_from_json(spec, "charuco.json", "DICT_4X4_50")
+    scene = S.SynthScene([S.charuco_sheet(layout)], table=S.table_texture(0))
+    rng = np.random.default_rng(2)
+    poses = S.sheet_views(8, S.DEFAULT_K, SIZE, 0.12, rng)
+    rays = S.camera_rays(S.DEFAULT_K, S.DEFAULT_DIST, *SIZE)
+    det = A.make_detector("DICT_4X4_50", layout)
+    recs, errs = [], []
+    for k, pose in enumerate(poses):
+        d = A.detect(S.render(scene, rays, pose, noise=1.0, rng=rng), det)
+        truth = S.project(S.DEFAULT_K, S.DEFAULT_DIST, pose, layout.charuco_corners[d.charuco_ids])
+        errs.append(np.linalg.norm(d.charuco_corners - truth, axis=1))
+        recs.append(PhotoRecord(f"c{k}.jpg", None, d))
+    errs = np.concatenate(errs)
+    assert len(errs) >= 8 * 15 and np.sqrt(np.mean(errs ** 2)) < 0.15
+    cal = C.calibrate_records(recs, SIZE, 0.022, layout, C.CalibrateConfig())
+    assert "charuco" in cal.target
+    assert rel_errors(cal.K, S.DEFAULT_K).max() < 0.01

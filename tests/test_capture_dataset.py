@@ -1,0 +1,155 @@
+"""The dataset step: undistortion geometry, splits, bounds, and files that load back."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from nerfkit.capture import aruco as A
+from nerfkit.capture import synthetic as S
+from nerfkit.capture.camera import Camera, nerfkit_K
+from nerfkit.capture.dataset import DatasetConfig, build_dataset, estimate_bounds, split_indices
+from nerfkit.capture.poses import PosedPhoto
+from nerfkit.capture.undistort import make_undistorter
+from nerfkit.cli import main
+from nerfkit.data.nerfstudio import load_transforms_json
+from nerfkit.data.npz import load_npz
+
+TAG = 0.06
+
+
+@pytest.fixture(scope="module")
+def obj():
+    return S.cached_capture("object", 10, 1)
+
+
+@pytest.fixture(scope="module")
+def posed(obj, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("photos")
+    paths = obj.write(folder, quality=98)
+    cam = Camera(obj.K, obj.dist, obj.width, obj.height, "truth")
+    return [PosedPhoto(n, p, c, 0.1, cam) for n, p, c in zip(obj.names, paths, obj.c2w)]
+
+
+@given(st.integers(0, 200), st.integers(0, 12), st.integers(0, 12))
+def test_split_indices_partition_deterministically(n, val_every, test_every):
+    s = split_indices(n, val_every, test_every)
+    assert len(s) == n and set(s) <= {"train", "val", "test"}
+    assert s == split_indices(n, val_every, test_every)
+    if n:
+        assert "train" in s
+    if val_every == 0:
+        assert "val" not in s
+    if n >= 20 and val_every >= 2:
+        assert s.count("val") == len(range(val_every // 2, n, val_every))
+
+
+def project_pinhole_nerfkit(K_nk, c2w, X):
+    """Pinhole projection in nerfkit's convention (pixel centres at +0.5)."""
+    w2c = np.linalg.inv(c2w)
+    x = X @ w2c[:3, :3].T + w2c[:3, 3]
+    uv = x @ np.asarray(K_nk, np.float64).T
+    return uv[:, :2] / uv[:, 2:]
+
+
+def test_undistorted_views_are_exact_pinhole_images(obj):
+    cam = Camera(obj.K, obj.dist, obj.width, obj.height)
+    und = make_undistorter(cam)
+    # Barrel distortion: the valid rectangle keeps more than the photo's frame, focal unchanged.
+    assert und.size[0] >= obj.width and und.K[0, 0] == obj.K[0, 0]
+    det = A.make_detector("DICT_4X4_50")
+    errs = []
+    for img, c2w in zip(obj.images, obj.c2w):
+        out = und(img)
+        assert out.shape[:2] == (und.size[1], und.size[0])
+        assert out[[0, 0, -1, -1], [0, -1, 0, -1]].min() > 40  # corners have real pixels, not black fill
+        d = A.detect(out, det)
+        if len(d.ids):
+            truth = project_pinhole_nerfkit(nerfkit_K(und.K), c2w, obj.layout.tags[0]) - 0.5  # to OpenCV pixels
+            errs.append(np.linalg.norm(d.corners[0] - truth, axis=1))
+    errs = np.concatenate(errs)
+    assert len(errs) >= 24 and np.sqrt(np.mean(errs ** 2)) < 0.2
+
+
+def test_bounds_contain_the_object_from_every_camera(obj):
+    K = nerfkit_K(obj.K)
+    sphere_c, sphere_r = obj.scene.spheres[0].center, obj.scene.spheres[0].radius
+    center = np.array([0.07, 0.02, 0.02])
+    near, far, radius = estimate_bounds(obj.c2w, center, TAG, K, (obj.width, obj.height))
+    d = np.linalg.norm(obj.c2w[:, :3, 3] - sphere_c, axis=1)
+    assert 0 < near < (d - sphere_r).min()
+    assert far > (d + sphere_r).max()
+    d_tag = np.linalg.norm(obj.c2w[:, :3, 3], axis=1)
+    assert far > (d_tag + TAG).max() and near < (d_tag - TAG).min()
+
+
+def test_dataset_files_load_back_with_the_same_cameras(posed, obj, tmp_path):
+    out = tmp_path / "ds"
+    scene, summary = build_dataset(posed, out, DatasetConfig(max_side=400, val_every=4, test_every=5), TAG,
+                                   jobs=2, progress=False)
+    assert summary["views"] == {"train": 6, "val": 2, "test": 2}
+    a = load_npz(out / "dataset.npz")
+    b = load_transforms_json(out)
+    for split in ("train", "val", "test"):
+        va, vb, vs = a.splits[split], b.splits[split], scene.splits[split]
+        assert va.names == vb.names == vs.names and len(va) > 0
+        assert set(va.names) <= set(obj.names)  # each view traces back to its photo
+        np.testing.assert_allclose(va.c2w, vs.c2w, atol=1e-6)
+        np.testing.assert_allclose(vb.c2w, vs.c2w, atol=1e-6)
+        np.testing.assert_allclose(va.K, vb.K, rtol=1e-6)
+        assert np.array_equal(va.images, vs.images)
+        assert np.abs(vb.images.astype(int) - va.images).mean() < 2.0  # JPEG q95 copies
+        for name, c2w in zip(va.names, va.c2w):
+            np.testing.assert_allclose(c2w, obj.c2w[obj.names.index(name)], atol=1e-6)
+    assert max(a.train.width, a.train.height) == 400
+    for s in (a, b):
+        assert (s.near, s.far) == pytest.approx((scene.near, scene.far), rel=1e-6)
+        np.testing.assert_allclose(s.up, [0, 0, 1])
+        np.testing.assert_allclose(s.center, scene.center, atol=1e-6)
+    tj = json.loads((out / "transforms.json").read_text())
+    assert all(f["file_path"] == f"images/{f['name']}" for f in tj["frames"])
+    assert tj["nerfkit"]["tag_size"] == TAG
+
+
+def test_dataset_cameras_project_the_tag_onto_its_pixels(posed, obj, tmp_path):
+    # The whole chain (undistort, crop, resize, +0.5 convention): the npz's K and c2w must put
+    # the tag's true corners where the tag is in the npz's own images.
+    scene, _ = build_dataset(posed, tmp_path / "ds", DatasetConfig(max_side=480, val_every=0, test_every=0), TAG,
+                             jobs=1, progress=False)
+    s = load_npz(tmp_path / "ds" / "dataset.npz")
+    det = A.make_detector("DICT_4X4_50")
+    errs = []
+    for img, K, c2w in zip(s.train.images, s.train.K, s.train.c2w):
+        d = A.detect(img, det)
+        if len(d.ids):
+            truth = project_pinhole_nerfkit(K, c2w.astype(np.float64), obj.layout.tags[0]) - 0.5
+            errs.append(np.linalg.norm(d.corners[0] - truth, axis=1))
+    errs = np.concatenate(errs)
+    assert len(errs) >= 24 and np.sqrt(np.mean(errs ** 2)) < 0.3
+
+
+def test_center_override_and_dataset_command_rebuild(posed, tmp_path):
+    from nerfkit.capture.dataset import write_poses_json
+    from nerfkit.capture.photos import PhotoRecord
+
+    out = tmp_path / "ds"
+    recs = []
+    for p in posed:
+        r = PhotoRecord(p.name, p.path, A.Detection(p.camera.width, p.camera.height, np.zeros(0, np.int64),
+                                                    np.zeros((0, 4, 2))))
+        r.used, r.error_px = True, 0.1
+        recs.append(r)
+    write_poses_json(out / "poses.json", recs, posed, posed[0].camera,
+                     {"photos_dir": str(posed[0].path.parent), "tag_size": TAG})
+    assert main(["dataset", str(out), "--max-side", "320", "--center", "0.1,0.02,0.03", "--near", "0.05"]) == 0
+    s = load_npz(out / "dataset.npz")
+    np.testing.assert_allclose(s.center, [0.1, 0.02, 0.03], atol=1e-7)
+    assert s.near == pytest.approx(0.05) and max(s.train.width, s.train.height) == 320
+    assert main(["dataset", str(out), "--max-side", "160", "--out", str(tmp_path / "small")]) == 0
+    small = load_npz(tmp_path / "small" / "dataset.npz")
+    ratio = small.train.width / s.train.width
+    np.testing.assert_allclose(small.train.K[0, 0, 0], s.train.K[0, 0, 0] * ratio, rtol=2e-2)

@@ -1,0 +1,194 @@
+"""Poses of synthetic object photos (known cameras) from the tag beside the object."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from nerfkit.capture import aruco as A
+from nerfkit.capture import synthetic as S
+from nerfkit.capture.camera import Camera, camera_from_focal, exif_fx
+from nerfkit.capture.poses import solve_pose
+from nerfkit.cli import main
+from nerfkit.errors import NerfkitError
+
+TAG = 0.06
+
+
+@pytest.fixture(scope="module")
+def obj():
+    return S.cached_capture("object", 10, 1)
+
+
+def pose_error(c2w, truth):
+    """(position error in metres, rotation error in degrees)."""
+    dR = truth[:3, :3].T @ c2w[:3, :3]
+    ang = np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))
+    return float(np.linalg.norm(c2w[:3, 3] - truth[:3, 3])), float(ang)
+
+
+def write_camera(path, cap):
+    path.write_text(json.dumps({"K": cap.K.tolist(), "dist": cap.dist.tolist(), "width": cap.width,
+                                "height": cap.height, "dictionary": "DICT_4X4_50"}))
+    return path
+
+
+def test_single_tag_poses_within_millimetres_and_a_fraction_of_a_degree(obj):
+    cam = Camera(obj.K, obj.dist, obj.width, obj.height)
+    det = A.make_detector("DICT_4X4_50")
+    layout = A.Layout.single(0, TAG)
+    errs = []
+    for img, truth in zip(obj.images, obj.c2w):
+        c2w, err, reason, info = solve_pose(A.detect(img, det), cam, layout)
+        if c2w is None:
+            assert reason == "no tags found"  # the sphere hides the tag in a few views
+            continue
+        assert err < 1.0 and info["tags_used"] == [0]
+        errs.append(pose_error(c2w, truth))
+    errs = np.array(errs)
+    assert len(errs) >= 6
+    assert errs[:, 0].max() < 0.003 and errs[:, 1].max() < 0.5
+
+
+def test_layout_poses_use_all_tags_jointly():
+    sheet = S.cached_capture("sheet", 12, 5)
+    cam = Camera(sheet.K, sheet.dist, sheet.width, sheet.height)
+    det = A.make_detector("DICT_4X4_50")
+    n_joint = 0
+    for img, truth in zip(sheet.images[:6], sheet.c2w[:6]):
+        c2w, err, reason, info = solve_pose(A.detect(img, det), cam, sheet.layout)
+        assert c2w is not None, reason
+        n_joint += len(info["tags_used"]) > 1
+        pos, ang = pose_error(c2w, truth)
+        assert pos < 0.002 and ang < 0.3
+    assert n_joint >= 4
+
+
+def test_poses_command_with_exif_rotated_photos_and_photos_without_tags(tmp_path, obj, capsys):
+    folder = tmp_path / "object"
+    folder.mkdir()
+    for k, (name, img) in enumerate(zip(obj.names, obj.images)):
+        # Store most photos rotated with an EXIF orientation flag, as phones do.
+        S.write_photo(folder / name, img, orientation=(1, 6, 8, 3)[k % 4])
+    S.write_photo(folder / "zz_table.jpg", np.full((480, 640, 3), 140, np.uint8))
+    S.write_photo(folder / "zz_blurred.jpg", cv2.GaussianBlur(obj.images[5], (0, 0), 8))
+    S.write_photo(folder / "zz_portrait.jpg", np.ascontiguousarray(np.rot90(obj.images[5])))
+    (folder / "zz_broken.jpg").write_bytes(b"garbage")
+    cam_file = write_camera(tmp_path / "camera.json", obj)
+    out = tmp_path / "ds"
+    assert main(["poses", str(folder), "--camera", str(cam_file), "--tag-size", str(TAG), "--out", str(out),
+                 "--no-dataset"]) == 0
+    poses = json.loads((out / "poses.json").read_text())
+    photos = {p["file"]: p for p in poses["photos"]}
+    n_posed = 0
+    for name, truth in zip(obj.names, obj.c2w):
+        p = photos[name]
+        if p["used"]:
+            n_posed += 1
+            pos, ang = pose_error(np.array(p["c2w"]), truth)
+            assert pos < 0.003 and ang < 0.5, name
+            assert p["size"] == [640, 480]  # upright, whatever the stored orientation
+        else:
+            assert p["reason"].startswith("no tags found")
+    assert n_posed >= 6
+    assert photos["zz_table.jpg"]["reason"].startswith("no tags found")
+    assert photos["zz_blurred.jpg"]["reason"].startswith("no tags found (looks blurred")
+    assert "portrait 480x640" in photos["zz_portrait.jpg"]["reason"]
+    assert photos["zz_broken.jpg"]["reason"].startswith("unreadable")
+    assert poses["photos_posed"] == n_posed
+    text = capsys.readouterr().out
+    assert "zz_broken.jpg" in text and "skipped" in text
+
+
+def test_poses_start_from_the_exif_focal_length_without_a_camera_file(tmp_path):
+    K = np.array([[540.0, 0, 319.5], [0, 540.0, 239.5], [0, 0, 1]])
+    cap = S.make_object_capture(n=4, K=K, dist=np.zeros(5), seed=3, object_center=(0.14, 0.05, 0.045))
+    f35 = round(540.0 * 43.2666 / np.hypot(640, 480))
+    folder = tmp_path / "object"
+    cap.write(folder, f35=f35)
+    out = tmp_path / "ds"
+    assert main(["poses", str(folder), "--tag-size", str(TAG), "--out", str(out), "--no-dataset"]) == 0
+    poses = json.loads((out / "poses.json").read_text())
+    assert poses["camera"]["source"].startswith("EXIF")
+    assert poses["camera"]["K"][0][0] == pytest.approx(exif_fx(f35, 640, 480))
+    assert any("EXIF focal length" in n for n in poses["notes"])
+    posed = [p for p in poses["photos"] if p["used"]]
+    assert len(posed) >= 3
+    for p in posed:
+        pos, ang = pose_error(np.array(p["c2w"]), cap.c2w[cap.names.index(p["file"])])
+        assert pos < 0.01 and ang < 1.0  # the EXIF focal length is ~1% off
+
+
+def test_no_camera_and_no_exif_is_a_clear_error(tmp_path, obj):
+    folder = tmp_path / "object"
+    obj.write(folder)
+    with pytest.raises(NerfkitError, match="no --camera given and the photos have no EXIF"):
+        main_raise(["poses", str(folder), "--tag-size", str(TAG), "--out", str(tmp_path / "ds")])
+
+
+def main_raise(argv):
+    from nerfkit.cli import build_parser
+
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+def test_no_tags_of_the_dictionary_suggests_the_one_that_finds_them(tmp_path):
+    import cv2
+
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    img = np.full((480, 640, 3), 235, np.uint8)
+    marker = cv2.aruco.generateImageMarker(A.get_dictionary("DICT_5X5_100"), 77, 140)
+    img[170:310, 250:390] = marker[..., None]
+    for k in range(3):
+        S.write_photo(folder / f"p{k}.png", img)
+    with pytest.raises(NerfkitError) as e:
+        main_raise(["calibrate", str(folder), "--tag-size", "0.05", "--out", str(tmp_path / "c.json")])
+    msg = str(e.value)
+    assert "no DICT_4X4_50 tags found" in msg and "--dict DICT_5X5_100" in msg and "\n" not in msg
+    blank = tmp_path / "blank"
+    blank.mkdir()
+    S.write_photo(blank / "a.png", np.full((100, 100, 3), 200, np.uint8))
+    with pytest.raises(NerfkitError, match="no DICT_4X4_50 tags found in any of 1 photos \\(also tried"):
+        main_raise(["poses", str(blank), "--focal-px", "100", "--tag-size", "0.05", "--out", str(tmp_path / "d")])
+
+
+def test_camera_scaling_to_a_resized_photo_keeps_rays():
+    cam = camera_from_focal(1000.0, 4000, 3000, "test")
+    small = cam.scaled_to(1000, 750)
+    # The image centre stays the image centre; the focal length scales with the width.
+    assert small.K[0, 0] == pytest.approx(250.0)
+    assert small.K[0, 2] == pytest.approx((1000 - 1) / 2)
+    assert cam.compatible(2000, 1500) is None
+    assert "portrait" in cam.compatible(3000, 4000)
+    assert "aspect ratio" in cam.compatible(3000, 3000)
+
+
+def test_poses_builds_the_dataset_by_default_and_heic_photos_keep_their_name(tmp_path, obj):
+    from PIL import Image
+
+    from nerfkit.data.load import load_scene
+
+    pillow_heif = pytest.importorskip("pillow_heif")
+    pillow_heif.register_heif_opener()
+    folder = tmp_path / "object"
+    folder.mkdir()
+    for k, (name, img) in enumerate(zip(obj.names, obj.images)):
+        if k == 5:
+            Image.fromarray(img).save(folder / "phone_shot.HEIC", quality=95)
+        else:
+            S.write_photo(folder / name, img)
+    out = tmp_path / "ds"
+    assert main(["poses", str(folder), "--camera", str(write_camera(tmp_path / "camera.json", obj)),
+                 "--tag-size", str(TAG), "--out", str(out), "--max-side", "320"]) == 0
+    scene = load_scene(out)  # the dataset folder holds one npz: dataset.npz
+    names = [n for v in scene.splits.values() for n in (v.names or [])]
+    assert "phone_shot.HEIC" in names
+    assert (out / "images" / "phone_shot.HEIC.png").exists()
+    tj = json.loads((out / "transforms.json").read_text())
+    assert "images/phone_shot.HEIC.png" in [f["file_path"] for f in tj["frames"]]
+    assert max(scene.train.width, scene.train.height) == 320 and scene.near < scene.far

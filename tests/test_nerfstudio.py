@@ -1,0 +1,152 @@
+"""nerfstudio-style transforms.json: round trips, axes, intrinsics, splits, distortion, errors."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from nerfkit.cameras import look_at
+from nerfkit.data.nerfstudio import image_file_name, load_transforms_json, write_transforms_json
+from nerfkit.data.scene import Scene, Views
+from nerfkit.errors import NerfkitError
+
+
+def random_views(n, w=32, h=24, seed=0, names=None, K=None):
+    rng = np.random.default_rng(seed)
+    c2w = np.stack([look_at(rng.normal(0, 1, 3) * 2 + np.array([0, 0, 3.0]), np.zeros(3), np.array([0, 0, 1.0]))
+                    for _ in range(n)]).astype(np.float32)
+    K = np.array([[30.0, 0, 16.5], [0, 31.0, 11.25], [0, 0, 1]], np.float32) if K is None else K
+    images = rng.integers(0, 256, (n, h, w, 3), dtype=np.uint8)
+    return Views(c2w, np.repeat(K[None], n, 0), w, h, images, names)
+
+
+def make_scene(**kw):
+    train = random_views(5, names=[f"IMG_{i}.png" for i in range(5)], seed=1)
+    val = random_views(2, names=["v0.png", "v1.HEIC"], seed=2)
+    test = Views.empty(32, 24)
+    return Scene(train, val, test, 0.5, 4.5, np.array([0.1, 0.2, 0.3], np.float32), np.array([0, 0, 1], np.float32),
+                 **kw)
+
+
+def test_round_trip_keeps_cameras_images_names_and_bounds(tmp_path):
+    scene = make_scene()
+    path = write_transforms_json(scene, tmp_path)
+    back = load_transforms_json(path)
+    for split in ("train", "val"):
+        a, b = scene.splits[split], back.splits[split]
+        np.testing.assert_allclose(b.c2w, a.c2w, atol=1e-6)
+        np.testing.assert_allclose(b.K, a.K, rtol=1e-6)
+        assert np.array_equal(b.images, a.images)  # PNG: lossless
+        assert b.names == a.names
+    assert len(back.test) == 0
+    assert (back.near, back.far) == (0.5, 4.5)
+    np.testing.assert_allclose(back.center, [0.1, 0.2, 0.3], atol=1e-7)
+    assert (tmp_path / "images" / "v1.HEIC.png").exists()
+    data = json.loads(path.read_text())
+    assert data["val_filenames"] == ["images/v0.png", "images/v1.HEIC.png"]
+    assert {"fl_x", "fl_y", "cx", "cy", "w", "h"} <= set(data)
+
+
+def test_transform_matrix_uses_opengl_axes(tmp_path):
+    # An OpenGL camera with identity pose looks along world -z with +y up.
+    img = np.zeros((8, 10, 3), np.uint8)
+    from PIL import Image
+
+    Image.fromarray(img).save(tmp_path / "a.png")
+    (tmp_path / "transforms.json").write_text(json.dumps({
+        "fl_x": 10.0, "w": 10, "h": 8,
+        "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}]}))
+    s = load_transforms_json(tmp_path)
+    R = s.train.c2w[0, :3, :3]
+    np.testing.assert_allclose(R[:, 2], [0, 0, -1])   # OpenCV forward = world -z
+    np.testing.assert_allclose(R[:, 1], [0, -1, 0])   # OpenCV down = world -y
+    np.testing.assert_allclose(s.train.K[0], [[10, 0, 5], [0, 10, 4], [0, 0, 1]])  # cx, cy default to the centre
+    data = json.loads(write_transforms_json(s, tmp_path / "out").read_text())
+    np.testing.assert_allclose(data["frames"][0]["transform_matrix"], np.eye(4), atol=1e-7)
+
+
+def test_per_frame_intrinsics_when_views_differ(tmp_path):
+    train = random_views(3, seed=3)
+    train.K[1, 0, 0] = 40.0
+    scene = Scene(train, Views.empty(32, 24), Views.empty(32, 24), 1.0, 2.0)
+    data = json.loads(write_transforms_json(scene, tmp_path).read_text())
+    assert "fl_x" not in data and data["frames"][1]["fl_x"] == 40.0
+    back = load_transforms_json(tmp_path)
+    np.testing.assert_allclose(back.train.K, train.K, rtol=1e-6)
+
+
+def test_nerfstudio_filename_lists_and_camera_angle(tmp_path):
+    from PIL import Image
+
+    frames = []
+    for i in range(4):
+        Image.fromarray(np.full((6, 8, 3), i * 40, np.uint8)).save(tmp_path / f"f{i}.png")
+        frames.append({"file_path": f"f{i}", "transform_matrix": np.eye(4).tolist()})  # no extension
+    (tmp_path / "transforms.json").write_text(json.dumps({
+        "camera_angle_x": 2 * np.arctan(4 / 10.0), "frames": frames,
+        "train_filenames": ["f0", "f1"], "val_filenames": ["f2"], "test_filenames": ["f3"]}))
+    s = load_transforms_json(tmp_path / "transforms.json")
+    assert (len(s.train), len(s.val), len(s.test)) == (2, 1, 1)
+    assert s.train.K[0, 0, 0] == pytest.approx(10.0)
+    assert s.test.images[0, 0, 0, 0] == 120
+
+
+def test_distortion_is_removed_on_load_with_a_warning(tmp_path):
+    import cv2
+    from PIL import Image
+
+    rng = np.random.default_rng(0)
+    img = cv2.resize(rng.integers(0, 255, (12, 16, 3), dtype=np.uint8), (64, 48), interpolation=cv2.INTER_CUBIC)
+    Image.fromarray(img).save(tmp_path / "a.png")
+    (tmp_path / "transforms.json").write_text(json.dumps({
+        "fl_x": 50.0, "fl_y": 50.0, "cx": 32.0, "cy": 24.0, "w": 64, "h": 48, "k1": -0.2, "k2": 0.0,
+        "p1": 0.0, "p2": 0.0, "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}]}))
+    with pytest.warns(UserWarning, match="undistorted them on load"):
+        s = load_transforms_json(tmp_path)
+    K_cv = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
+    dist = np.array([-0.2, 0, 0, 0, 0])
+    newK, _ = cv2.getOptimalNewCameraMatrix(K_cv, dist, (64, 48), 0.0, (64, 48))
+    expected = cv2.undistort(img, K_cv, dist, None, newK)
+    assert np.array_equal(s.train.images[0], expected)
+    np.testing.assert_allclose(s.train.K[0, :2, 2], newK[:2, 2] + 0.5, rtol=1e-5)
+
+
+@pytest.mark.parametrize("content, message", [
+    ("{not json", "not valid JSON"),
+    (json.dumps({"frames": []}), "non-empty \"frames\""),
+    (json.dumps({"camera_model": "OPENCV_FISHEYE", "frames": [{}]}), "OPENCV_FISHEYE is not supported"),
+    (json.dumps({"fl_x": 5, "frames": [{"file_path": "missing.png", "transform_matrix": np.eye(4).tolist()}]}),
+     "not found"),
+    (json.dumps({"fl_x": 5, "frames": [{"file_path": "a.png", "transform_matrix": (2 * np.eye(4)).tolist()}]}),
+     "not rigid|last row"),
+    (json.dumps({"fl_x": 5, "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist(),
+                                        "split": "holdout"}]}), "split 'holdout'"),
+])
+def test_bad_transforms_are_one_line_errors(tmp_path, content, message):
+    from PIL import Image
+
+    Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(tmp_path / "a.png")
+    (tmp_path / "transforms.json").write_text(content)
+    with pytest.raises(NerfkitError, match=message) as e:
+        load_transforms_json(tmp_path)
+    assert "\n" not in str(e.value) and "transforms.json" in str(e.value)
+
+
+def test_pose_only_split_round_trips(tmp_path):
+    scene = make_scene()
+    scene.test = Views(scene.train.c2w[:3].copy(), scene.train.K[:3].copy(), 32, 24)
+    write_transforms_json(scene, tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = load_transforms_json(tmp_path)
+    assert back.test.images is None
+    np.testing.assert_allclose(back.test.c2w, scene.test.c2w, atol=1e-6)
+
+
+def test_image_file_names_keep_the_photo_name():
+    assert image_file_name("IMG_0930.JPG") == "IMG_0930.JPG"
+    assert image_file_name("IMG_1.heic") == "IMG_1.heic.png"
+    assert image_file_name("dir/x.png") == "x.png"

@@ -1,0 +1,126 @@
+"""Dataset viewer geometry, the static PNG, the viser server and `nerfkit view` routing."""
+
+from __future__ import annotations
+
+import socket
+import sys
+import types
+
+import numpy as np
+import pytest
+
+from nerfkit.cameras import look_at
+from nerfkit.cli import main
+from nerfkit.data.npz import save_npz
+from nerfkit.data.scene import Scene, Views
+from nerfkit.errors import NerfkitError
+from nerfkit.viz.scene_plot import frustum_points, plot_scene, sample_rays
+
+
+def small_scene(n=6, w=40, h=30):
+    rng = np.random.default_rng(0)
+    c2w, imgs = [], []
+    for k in range(n):
+        a = 2 * np.pi * k / n
+        eye = np.array([0.4 * np.cos(a), 0.4 * np.sin(a), 0.25])
+        c2w.append(look_at(eye, np.zeros(3), np.array([0, 0, 1.0])))
+        imgs.append(np.full((h, w, 3), (40 * k) % 255, np.uint8))
+    K = np.array([[35.0, 0, 20.0], [0, 35.0, 15.0], [0, 0, 1]], np.float32)
+    views = Views(np.array(c2w, np.float32), np.repeat(K[None], n, 0), w, h, np.array(imgs),
+                  [f"IMG_{k}.JPG" for k in range(n)])
+    return Scene(views.subset(np.arange(n - 2)), views.subset([n - 2]), views.subset([n - 1]), 0.2, 0.7,
+                 np.zeros(3, np.float32), np.array([0, 0, 1], np.float32), source="test")
+
+
+def test_frustum_corners_project_back_to_the_image_corners():
+    s = small_scene()
+    v = s.train
+    f = frustum_points(v.K[0].astype(float), v.c2w[0].astype(float), v.width, v.height, 0.3)
+    np.testing.assert_allclose(f[0], v.c2w[0, :3, 3], atol=1e-6)
+    w2c = np.linalg.inv(v.c2w[0].astype(float))
+    x = f[1:] @ w2c[:3, :3].T + w2c[:3, 3]
+    np.testing.assert_allclose(x[:, 2], 0.3, atol=1e-9)
+    uv = x @ v.K[0].astype(float).T
+    np.testing.assert_allclose(uv[:, :2] / uv[:, 2:], [[0, 0], [40, 0], [40, 30], [0, 30]], atol=1e-6)
+
+
+def test_sampled_points_lie_on_their_rays_between_near_and_far():
+    s = small_scene()
+    rs = sample_rays(s.train, s.near, s.far, 25, 16, seed=3)
+    t = np.einsum("nsk,nk->ns", rs.points - rs.origins[:, None], rs.directions)
+    off = rs.points - (rs.origins[:, None] + t[..., None] * rs.directions[:, None])
+    assert np.abs(off).max() < 1e-5
+    assert t.min() >= s.near - 1e-5 and t.max() <= s.far + 1e-5
+    assert np.all(np.diff(t, axis=1) > 0)
+    # Rays start at training cameras.
+    cams = s.train.c2w[:, :3, 3]
+    assert np.min(np.linalg.norm(rs.origins[:, None] - cams[None], axis=2), axis=1).max() < 1e-6
+
+
+def test_png_shows_cameras_in_split_colours(tmp_path):
+    from PIL import Image
+
+    out = tmp_path / "scene.png"
+    plot_scene(small_scene(), out, n_rays=10, n_samples=8, tag_size=0.06)
+    img = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    assert img.shape[0] > 500 and img.shape[1] > 500
+    # Train frustums are drawn in matplotlib blue (31, 119, 180), val in orange (255, 127, 14).
+    blue = (np.abs(img - [31, 119, 180]).sum(-1) < 40).sum()
+    orange = (np.abs(img - [255, 127, 14]).sum(-1) < 40).sum()
+    assert blue > 50 and orange > 10
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_viser_server_shows_every_camera_and_the_rays():
+    from nerfkit.viz.viewer import serve_dataset, set_rays
+
+    scene = small_scene()
+    server, handles = serve_dataset(scene, host="127.0.0.1", port=free_port(), n_rays=12, n_samples=8,
+                                    tag_size=0.06, block=False)
+    try:
+        assert server.get_host() == "127.0.0.1"
+        assert len(handles["frustums"]) == len(scene.train) + len(scene.val) + len(scene.test)
+        assert handles["samples"].points.shape == (12 * 8, 3)
+        pos = np.array([h.position for h in handles["frustums"][: len(scene.train)]])
+        np.testing.assert_allclose(pos, scene.train.c2w[:, :3, 3], atol=1e-5)
+        set_rays(server, scene, handles, 0, 8)
+        assert handles["rays"] is None and handles["samples"] is None
+    finally:
+        server.stop()
+
+
+def test_view_command_writes_png_for_a_dataset(tmp_path, capsys):
+    save_npz(small_scene(), tmp_path / "d.npz")
+    assert main(["view", str(tmp_path / "d.npz"), "--rays", "5", "--png", str(tmp_path / "v.png")]) == 0
+    assert (tmp_path / "v.png").stat().st_size > 10_000
+
+
+def run_folder(tmp_path):
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "config.json").write_text("{}")
+    return run
+
+
+def test_view_of_a_run_folder_calls_the_live_viewer(tmp_path, monkeypatch):
+    calls = []
+    fake = types.ModuleType("nerfkit.viz.live")
+    fake.serve_run = lambda run_dir, host, port: calls.append((str(run_dir), host, port))
+    monkeypatch.setitem(sys.modules, "nerfkit.viz.live", fake)
+    run = run_folder(tmp_path)
+    assert main(["view", str(run), "--port", "9123"]) == 0
+    assert calls == [(str(run), "127.0.0.1", 9123)]
+
+
+def test_view_of_a_run_folder_without_the_live_viewer_is_a_clear_error(tmp_path, monkeypatch):
+    from nerfkit.cli import build_parser
+
+    monkeypatch.setitem(sys.modules, "nerfkit.viz.live", None)  # import fails
+    args = build_parser().parse_args(["view", str(run_folder(tmp_path))])
+    with pytest.raises(NerfkitError, match="live viewer .* is not available"):
+        args.func(args)
