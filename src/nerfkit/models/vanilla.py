@@ -25,7 +25,13 @@ from ..config import option
 from ..fields.encoding import encoded_dim, positional_encoding
 from ..render.sampling import intervals_from_t, sample_pdf, stratified_t
 from ..render.volrend import composite, render_weights
+from ..render.occupancy import OccupancyGrid
 from .base import NerfModel, RenderOutput, SceneBounds
+
+# A cell stays occupied while alpha = 1 - exp(-sigma * sample spacing) exceeds this.
+OCCUPANCY_ALPHA = 0.01
+# Cell densities decay by this factor per refresh before taking the new maximum (instant-ngp).
+OCCUPANCY_DECAY = 0.8
 
 
 @dataclass
@@ -40,6 +46,12 @@ class VanillaConfig:
     width: int = option(256, "MLP width")
     depth: int = option(8, "MLP layers before the density head")
     density_bias_init: float = option(0.1, "initial bias of the density head (0 = the course's init)")
+    occupancy: bool = option(False, "skip samples in empty space (an occupancy grid refreshed from the MLP's "
+                                    "density); the network and the sampling are the course's, only fewer samples "
+                                    "are evaluated")
+    occupancy_res: int = option(64, "occupancy grid cells per axis")
+    occupancy_every: int = option(200, "steps between occupancy refreshes")
+    occupancy_warmup: int = option(500, "steps before the first refresh (every sample is evaluated until then)")
 
 
 class NeRFMLP(nn.Module):
@@ -88,6 +100,54 @@ class VanillaNeRF(NerfModel):
         self.cfg = cfg
         self.coarse = NeRFMLP(cfg)
         self.fine = NeRFMLP(cfg) if cfg.n_importance > 0 else None
+        self.grid: OccupancyGrid | None = None
+        if cfg.occupancy:
+            r = cfg.occupancy_res
+            voxel = 2.0 * bounds.radius / r
+            self.grid = OccupancyGrid(torch.as_tensor(bounds.center) - bounds.radius, voxel, (r + 1,) * 3)
+            # per-cell density estimate (inf: not measured yet, so occupied); saved in checkpoints
+            self.register_buffer("cell_sigma", torch.full((r, r, r), float("inf")))
+
+    def _apply(self, fn, *args, **kwargs):
+        out = super()._apply(fn, *args, **kwargs)
+        if self.grid is not None:
+            self.grid.to(self.cell_sigma.device)
+            self._refresh_occ()
+        return out
+
+    def _refresh_occ(self) -> None:
+        spacing = (self.bounds.far - self.bounds.near) / self.cfg.n_samples
+        self.grid.set_from_cell_sigma(self.cell_sigma, spacing, OCCUPANCY_ALPHA)
+
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        result = super().load_state_dict(state_dict, strict, assign)
+        if self.grid is not None:
+            self._refresh_occ()
+        return result
+
+    @torch.no_grad()
+    def update_occupancy(self) -> None:
+        """Re-measure each cell's density at a random point inside it (decayed running max)."""
+        r, device = self.cfg.occupancy_res, self.cell_sigma.device
+        idx = torch.stack(torch.meshgrid(*[torch.arange(r, device=device)] * 3, indexing="ij"), -1).reshape(-1, 3)
+        xyz = idx.flip(-1).float() + torch.rand(idx.shape, device=device)  # (z, y, x) index -> x, y, z
+        pts = self.grid.lo + xyz * self.grid.voxel
+        dirs = torch.zeros_like(pts)
+        dirs[:, 2] = 1.0
+        net = self.fine if self.fine is not None else self.coarse
+        sigma = torch.cat([net(chunk, dirs[:len(chunk)])[0] for chunk in pts.split(65536)]).reshape(r, r, r)
+        old = torch.where(torch.isinf(self.cell_sigma), torch.zeros_like(sigma), self.cell_sigma)
+        self.cell_sigma.copy_(torch.maximum(old * OCCUPANCY_DECAY, sigma.float()))
+        self._refresh_occ()
+
+    def before_step(self, step: int, progress: float) -> bool:
+        cfg = self.cfg
+        if self.grid is not None and step >= cfg.occupancy_warmup and step % cfg.occupancy_every == 0:
+            with torch.autocast(self.cell_sigma.device.type, dtype=torch.bfloat16,
+                                enabled=self.cell_sigma.device.type == "cpu"
+                                and torch.ops.mkldnn._is_mkldnn_bf16_supported()):
+                self.update_occupancy()
+        return False
 
     def query(self, points: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:
         net = self.fine if self.fine is not None else self.coarse
@@ -97,11 +157,22 @@ class VanillaNeRF(NerfModel):
         n_rays, n_samples = t.shape
         pts = rays.origins[:, None, :] + t[..., None] * rays.directions[:, None, :]
         dirs = rays.directions[:, None, :].expand(n_rays, n_samples, 3)
-        sigma, rgb = net(pts.reshape(-1, 3), dirs.reshape(-1, 3))
-        sigma, rgb = sigma.view(n_rays, n_samples), rgb.view(n_rays, n_samples, 3)
+        if self.grid is None:
+            sigma, rgb = net(pts.reshape(-1, 3), dirs.reshape(-1, 3))
+            sigma, rgb = sigma.view(n_rays, n_samples), rgb.view(n_rays, n_samples, 3)
+            evaluated = n_rays * n_samples
+        else:  # evaluate the network only where the grid says there may be matter
+            inside = ((pts >= self.grid.lo) & (pts <= self.grid.hi)).all(-1)
+            keep = inside.clone()
+            keep[inside] = self.grid.is_occupied(pts[inside])
+            s_k, rgb_k = net(pts[keep], dirs[keep])
+            sigma = torch.zeros((n_rays, n_samples), dtype=s_k.dtype, device=pts.device).masked_scatter(keep, s_k)
+            rgb = torch.zeros((n_rays, n_samples, 3), dtype=rgb_k.dtype, device=pts.device)
+            rgb = rgb.masked_scatter(keep[..., None].expand_as(rgb), rgb_k)
+            evaluated = int(keep.sum())
         weights, _, _ = render_weights(sigma, intervals_from_t(t, self.bounds.far))
         color, depth, acc = composite(weights, rgb, t, background)
-        return RenderOutput(color, depth, acc, n_rays * n_samples), weights
+        return RenderOutput(color, depth, acc, evaluated), weights
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
         n = len(rays)
