@@ -20,6 +20,13 @@ COMMANDS = [
     "train",
     "render",
     "eval",
+    "fit-image",
+    "convert",
+    "export",
+    "calibrate",
+    "poses",
+    "dataset",
+    "view",
 ]
 
 DESCRIPTION = """\

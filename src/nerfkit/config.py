@@ -72,17 +72,21 @@ def dataclass_from_args(cls: type[T], args: argparse.Namespace, base: T | None =
 
 def dataclass_from_dict(cls: type[T], d: dict, where: str) -> T:
     """Build ``cls`` from JSON data, refusing unknown keys and wrong types with a clear error."""
+    if not isinstance(d, dict):
+        raise fail(where, f"expected a JSON object of {cls.__name__} settings, got {type(d).__name__}")
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(d) - names
     if unknown:
-        raise fail(where, f"unknown config keys: {', '.join(sorted(unknown))}")
+        raise fail(where, f"unknown config keys: {', '.join(sorted(map(repr, unknown)))}")
     out = {}
     for k, v in d.items():
         tp, optional = _base_type(hints[k])
         if v is None and optional:
             out[k] = None
         elif tp is float and isinstance(v, (int, float)) and not isinstance(v, bool):
+            if v != v:
+                raise fail(where, f"config key '{k}' is NaN, expected a number")
             out[k] = float(v)
         elif tp in (int, str, bool) and type(v) is tp:
             out[k] = v
@@ -99,5 +103,8 @@ def load_json(path: str | Path) -> Any:
         return json.loads(path.read_text())
     except FileNotFoundError:
         raise fail(path, "no such file") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise fail(path, f"not valid JSON ({e})", "The file may be truncated; re-create it") from None
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
+        raise fail(path, f"not valid JSON ({type(e).__name__}: {e})",
+                   "The file may be truncated; re-create it") from None
+    except (OSError, ValueError) as e:  # a folder, no permission, a NUL byte in the name
+        raise fail(path, f"cannot read ({type(e).__name__}: {e})") from None

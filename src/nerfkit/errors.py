@@ -17,4 +17,4 @@ def fail(where: object, problem: str, fix: str | None = None) -> NerfkitError:
     msg = f"{where}: {problem}"
     if fix:
         msg += f". {fix}"
-    return NerfkitError(msg)
+    return NerfkitError(msg.replace("\r", " ").replace("\n", " "))

@@ -29,9 +29,13 @@ def _open(path: Path):
             pillow_heif.register_heif_opener()
         except ImportError:
             raise fail(path, "HEIC photos need pillow-heif", "pip install pillow-heif, or export the photos as JPEG") from None
-    if not path.exists():
+    try:
+        exists, is_dir = path.exists(), path.is_dir()
+    except (OSError, ValueError) as e:  # a NUL byte, a name too long, a loop of links
+        raise fail(repr(str(path)[:200]), f"not a usable path ({type(e).__name__})") from None
+    if not exists:
         raise fail(path, "no such file", "Check the path")
-    if path.is_dir():
+    if is_dir:
         raise fail(path, "is a folder, expected an image file")
     try:
         img = Image.open(path)
@@ -58,20 +62,31 @@ def exif_focal_35mm(path: str | Path) -> float | None:
         return None
 
 
+def _open_upright(path: Path):
+    from PIL import ImageOps
+
+    img = _open(path)
+    try:
+        img = ImageOps.exif_transpose(img)
+    except Exception:  # noqa: BLE001 - a broken EXIF block should not stop us
+        pass
+    return img
+
+
+def _has_alpha(img) -> bool:
+    return img.mode in ("RGBA", "LA", "PA") or (img.mode == "P" and "transparency" in img.info)
+
+
 def load_image(path: str | Path, background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
     """Load an image upright as float32 RGB in [0, 1], shape (H, W, 3).
 
     EXIF orientation is applied; greyscale is replicated to RGB; transparency is
     composited over ``background``; 16-bit images keep their precision.
     """
-    from PIL import ImageOps
+    return _to_float(_open_upright(Path(path)), background)
 
-    path = Path(path)
-    img = _open(path)
-    try:
-        img = ImageOps.exif_transpose(img)
-    except Exception:  # noqa: BLE001 - a broken EXIF block should not stop us
-        pass
+
+def _to_float(img, background) -> np.ndarray:
     mode = img.mode
     if mode in ("I;16", "I;16B", "I;16L", "I"):
         arr = np.asarray(img, dtype=np.float32)
@@ -79,11 +94,12 @@ def load_image(path: str | Path, background: tuple[float, float, float] = (0.0, 
         rgb = np.repeat((arr / scale)[..., None], 3, axis=2)
         return np.clip(rgb, 0.0, 1.0).astype(np.float32)
     if mode == "F":
-        arr = np.asarray(img, dtype=np.float32)
+        arr = np.nan_to_num(np.asarray(img, dtype=np.float32), nan=0.0, posinf=1.0, neginf=0.0)
         return np.repeat(np.clip(arr, 0, 1)[..., None], 3, axis=2)
-    has_alpha = mode in ("RGBA", "LA", "PA") or (mode == "P" and "transparency" in img.info)
+    has_alpha = _has_alpha(img)
     img = img.convert("RGBA" if has_alpha else "RGB")
-    arr = np.asarray(img, dtype=np.float32) / 255.0
+    arr = np.asarray(img, dtype=np.float32)
+    arr /= 255.0
     if has_alpha:
         alpha = arr[..., 3:4]
         arr = arr[..., :3] * alpha + np.asarray(background, np.float32) * (1.0 - alpha)
@@ -91,8 +107,18 @@ def load_image(path: str | Path, background: tuple[float, float, float] = (0.0, 
 
 
 def load_image_uint8(path: str | Path, background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
-    """Like :func:`load_image` but (H, W, 3) uint8, for OpenCV and for datasets."""
-    return (load_image(path, background) * 255.0 + 0.5).astype(np.uint8)
+    """Like :func:`load_image` but (H, W, 3) uint8, for OpenCV and for datasets.
+
+    8-bit photos without transparency (nearly every phone photo) go straight to uint8:
+    no float32 copy of a 12-MP image (~150 MB each) is made.
+    """
+    img = _open_upright(Path(path))
+    if img.mode not in ("I;16", "I;16B", "I;16L", "I", "F") and not _has_alpha(img):
+        return np.array(img if img.mode == "RGB" else img.convert("RGB"), dtype=np.uint8)
+    rgb = _to_float(img, background)
+    rgb *= 255.0
+    rgb += 0.5
+    return rgb.astype(np.uint8)
 
 
 def list_images(folder: str | Path) -> list[Path]:

@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cameras import intrinsics_matrix, opengl_to_opencv
+from ..cameras import opengl_to_opencv
 from ..config import load_json
 from ..errors import fail
 from ..images import IMAGE_SUFFIXES, load_image_uint8
 from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
-from .validate import check_near_far, check_poses
+from .validate import check_intrinsics, check_near_far, check_poses, check_scene
 
 SPLITS = ("train", "val", "test")
 
@@ -47,14 +47,19 @@ def focal_from_angle(camera_angle_x: float, width: int) -> float:
 
 def _frame_image_path(folder: Path, file_path: str, where: str) -> Path:
     """Resolve a frame's ``file_path`` (often given without extension) to an image file."""
-    p = (folder / file_path).resolve() if not Path(file_path).is_absolute() else Path(file_path)
-    if p.is_file():
-        return p
-    for suffix in (".png", ".PNG", *sorted(IMAGE_SUFFIXES)):
-        q = p.with_name(p.name + suffix)
-        if q.is_file():
-            return q
-    raise fail(where, f"frame image '{file_path}' not found (looked for {p.name}.png beside the json)",
+    try:
+        p = (folder / file_path).resolve() if not Path(file_path).is_absolute() else Path(file_path)
+        if p.is_file():
+            return p
+        for suffix in (".png", ".PNG", *sorted(IMAGE_SUFFIXES)):
+            q = p.with_name(p.name + suffix)
+            if q.is_file():
+                return q
+    except (OSError, ValueError) as e:  # a NUL byte, a name too long, a loop of links
+        raise fail(where, f"frame image {file_path[:100]!r} is not a usable path ({type(e).__name__}: {e})",
+                   "Check the frames' file_path entries") from None
+    looked = p.name[:200] + ".png"
+    raise fail(where, f"frame image {file_path[:200]!r} not found (looked for {looked!r} beside the json)",
                "Check the frames' file_path entries and that the images were copied")
 
 
@@ -73,7 +78,7 @@ def _read_split(folder: Path, split: str, background, out_size, with_images: boo
     if not frames:
         raise fail(where, "'frames' is empty")
     angle = meta.get("camera_angle_x")
-    if not isinstance(angle, (int, float)) or not 0.0 < float(angle) < math.pi:
+    if isinstance(angle, bool) or not isinstance(angle, (int, float)) or not 0.0 < float(angle) < math.pi:
         raise fail(where, f"'camera_angle_x' is {angle!r}, expected the horizontal field of view in radians (0, pi)")
 
     poses, images, names = [], [], []
@@ -104,7 +109,8 @@ def _read_split(folder: Path, split: str, background, out_size, with_images: boo
     c2w = opengl_to_opencv(c2w_gl.astype(np.float64)).astype(np.float32)
     w, h = size
     f = focal_from_angle(float(angle), w)
-    K = scale_intrinsics(intrinsics_matrix(f, f, w / 2, h / 2), w, h, *out_size(w, h))
+    K = check_intrinsics(np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1]]), where, "camera_angle_x", w, h)
+    K = scale_intrinsics(K, w, h, *out_size(w, h))
     ow, oh = out_size(w, h)
     Ks = np.repeat(K[None], len(frames), axis=0)
     return Views(c2w, Ks, ow, oh, np.stack(images) if with_images else None, names)
@@ -151,4 +157,4 @@ def load_blender(
     up = estimate_up(train.c2w)
     n, f = estimate_near_far(train.c2w, center)
     n, f = check_near_far(n if near is None else near, f if far is None else far, str(folder))
-    return Scene(train, val, test, n, f, center, up, source=str(folder))
+    return check_scene(Scene(train, val, test, n, f, center, up, source=str(folder)))

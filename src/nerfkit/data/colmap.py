@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import fail
 from ..images import load_image_uint8
 from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
-from .validate import check_near_far
+from .validate import check_intrinsics, check_near_far, check_poses, check_scene
 
 if TYPE_CHECKING:  # pragma: no cover
     import pycolmap
@@ -63,16 +63,87 @@ def find_image_dir(model_dir: Path) -> Path | None:
     return None
 
 
+_PRECHECK = """
+import sys
+try:
+    import pycolmap
+    pycolmap.Reconstruction(sys.argv[1])
+except BaseException as e:
+    print(" ".join(str(e).split())[:300] or type(e).__name__, file=sys.stderr)
+    sys.exit(3)
+"""
+
+
+def _precheck_binary_model(model_dir: Path) -> None:
+    """Read a binary model once in a child process whose memory is capped.
+
+    pycolmap trusts the counts in a binary model's headers: 8 crafted bytes (a points3D.bin
+    declaring 10^15 points) make it allocate until the machine runs out of memory, and a
+    crafted file could crash it. A text model is bounded by its size, so only binary
+    models are checked. Skipped where ``resource`` does not exist (Windows).
+    """
+    import struct
+
+    size = 0
+    for f in sorted(model_dir.glob("*.bin")):
+        n = f.stat().st_size
+        size += n
+        with open(f, "rb") as fh:
+            head = fh.read(8)
+        # Every binary model file starts with a uint64 record count; a record takes >= 8 bytes.
+        if len(head) < 8 or struct.unpack("<Q", head)[0] > (n - 8) // 8:
+            count = struct.unpack("<Q", head)[0] if len(head) == 8 else None
+            raise fail(f, "cannot read the COLMAP model: " + (f"the file declares {count} records but holds {n} bytes"
+                                                               if count is not None else "the file is truncated"),
+                       "The model is truncated or corrupt; re-export it from COLMAP")
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - Windows
+        return
+    import signal
+    import subprocess
+    import sys
+
+    limit = 512 * 1024**2 + 64 * size  # pycolmap holds a model in a few times its file size
+    # pycolmap reads ~100 MB/s; a corrupt count can also make it loop past the end of a file
+    cpu_seconds = int(10 + size / 1e6)
+
+    def cap_child() -> None:
+        resource.setrlimit(resource.RLIMIT_DATA, (limit, limit))
+        resource.setrlimit(resource.RLIMIT_CPU, (cpu_seconds, cpu_seconds + 5))
+
+    try:
+        proc = subprocess.run([sys.executable, "-c", _PRECHECK, str(model_dir)], preexec_fn=cap_child,
+                              capture_output=True, text=True, timeout=10 * cpu_seconds + 60)
+    except subprocess.TimeoutExpired:
+        raise fail(model_dir, "cannot read the COLMAP model: reading it did not finish",
+                   "The files may be truncated or corrupt") from None
+    if proc.returncode != 0:
+        lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+        if proc.returncode > 0 and lines:
+            reason = lines[-1][:300]
+        elif proc.returncode in (-signal.SIGXCPU, -signal.SIGKILL):
+            reason = f"pycolmap was still reading after {cpu_seconds} s of CPU time"
+        else:
+            reason = f"pycolmap crashed, exit code {proc.returncode}"
+        raise fail(model_dir, f"cannot read the COLMAP model ({reason})",
+                   "The files may be truncated or corrupt, or declare more data than they hold")
+
+
 def read_model(model_dir: str | Path) -> "pycolmap.Reconstruction":
     """Read a COLMAP model folder (binary or text) with pycolmap; NerfkitError when it can't."""
     model_dir = Path(model_dir)
     pycolmap = _import_pycolmap(model_dir)
     if not is_model_dir(model_dir):
         raise fail(model_dir, "not a COLMAP model folder", "Expected cameras.bin/images.bin/points3D.bin (or .txt)")
+    if any((model_dir / f"{n}.bin").is_file() for n in MODEL_FILES):
+        _precheck_binary_model(model_dir)
     try:
         return pycolmap.Reconstruction(str(model_dir))
     except Exception as e:  # noqa: BLE001 - pycolmap raises ValueError/RuntimeError on bad files
-        raise fail(model_dir, f"cannot read the COLMAP model ({e})", "The files may be truncated or corrupt") from None
+        reason = " ".join(str(e).split())[:300]  # pycolmap's messages can span lines
+        raise fail(model_dir, f"cannot read the COLMAP model ({reason})",
+                   "The files may be truncated or corrupt") from None
 
 
 def camera_matrix(camera) -> np.ndarray:
@@ -169,7 +240,10 @@ def reconstruction_to_scene(
                 raise fail(where, f"camera {im.camera_id} ({cam.model_name}) cannot be undistorted to a pinhole ({e})",
                            "Use a pinhole, radial or OpenCV camera model") from None
         pin = pinholes[im.camera_id]
-        K = camera_matrix(pin)
+        if not (0 < cam.width <= 1_000_000 and 0 < cam.height <= 1_000_000 and 0 < pin.width and 0 < pin.height):
+            raise fail(where, f"camera {im.camera_id} has image size {cam.width}x{cam.height}",
+                       "The model's cameras.txt/bin is corrupt")
+        K = check_intrinsics(camera_matrix(pin), where, f"camera {im.camera_id}", int(pin.width), int(pin.height))
         if image_dir is not None:
             photo = load_image_uint8(Path(image_dir) / im.name, background)
             if photo.shape[:2] != (cam.height, cam.width):
@@ -188,7 +262,10 @@ def reconstruction_to_scene(
         if image_dir is not None:
             pixels.append(resize_image(photo, *out_wh))
         names.append(im.name)
-        c2ws.append(image_c2w(im))
+        try:
+            c2ws.append(check_poses(image_c2w(im)[None], where, f"pose of {im.name}")[0])
+        except np.linalg.LinAlgError:  # a singular matrix from a zero quaternion
+            raise fail(where, f"image {im.name!r} has a degenerate pose", "The model's images.txt/bin is corrupt") from None
         Ks.append(scale_intrinsics(K, *wh, *out_wh))
     W, H = output_size(*size_wh, size, downscale)
     c2w = np.stack(c2ws).astype(np.float32)
@@ -204,8 +281,8 @@ def reconstruction_to_scene(
     near, far = check_near_far(*nf, where)
     tr, va = split_every(len(names), val_every)
     all_views = Views(c2w, K, W, H, imgs, names)
-    return Scene(all_views.subset(tr), all_views.subset(va), Views.empty(W, H), near, far, center, up,
-                 source=source)
+    return check_scene(Scene(all_views.subset(tr), all_views.subset(va), Views.empty(W, H), near, far, center, up,
+                             source=source), where)
 
 
 def load_colmap(

@@ -22,6 +22,7 @@ import numpy as np
 from ..errors import fail
 from .npz import load_npz
 from .scene import Scene, Views
+from .validate import MAX_PIXELS, check_scene
 
 FORMATS = "a course .npz, a Blender folder (transforms_train.json), a transforms.json, or a COLMAP model folder"
 
@@ -75,6 +76,9 @@ def resample_views(views: Views, new_width: int, new_height: int) -> Views:
     """The same cameras at another image size (images resized, K scaled)."""
     if (new_width, new_height) == (views.width, views.height):
         return views
+    if views.images is not None and len(views.images) * new_width * new_height > MAX_PIXELS:
+        raise fail(f"{new_width}x{new_height}", f"resampling {len(views.images)} images to this size needs more than "
+                   f"{MAX_PIXELS:.2g} pixels", "Choose a smaller --size")
     images = None
     if views.images is not None:
         images = (np.stack([resize_image(im, new_width, new_height) for im in views.images])
@@ -97,9 +101,13 @@ def detect_format(path: str | Path) -> str:
     from .colmap import find_colmap_model
 
     path = Path(path)
-    if not path.exists():
+    try:
+        exists, is_file = path.exists(), path.is_file()
+    except (OSError, ValueError) as e:  # a NUL byte, a name too long, a loop of links
+        raise fail(repr(str(path)[:200]), f"not a usable path ({type(e).__name__})") from None
+    if not exists:
         raise fail(path, "no such file or folder", "Check the path")
-    if path.is_file():
+    if is_file:
         if path.suffix.lower() == ".npz":
             return "npz"
         if blender_folder(path) is not None:
@@ -142,16 +150,18 @@ def load_scene(
     if fmt == "npz":
         if path.is_dir():
             path = next(path.glob("*.npz"))
-        return resample_scene(load_npz(path), size, downscale)
-    if fmt == "blender":
+        scene = resample_scene(load_npz(path), size, downscale)
+    elif fmt == "blender":
         from .blender import load_blender
 
-        return load_blender(path, background=background, size=size, downscale=downscale)
-    if fmt == "colmap":
+        scene = load_blender(path, background=background, size=size, downscale=downscale)
+    elif fmt == "colmap":
         from .colmap import load_colmap
 
-        return load_colmap(path, background=background, size=size, downscale=downscale)
-    return resample_scene(_load_transforms(path, background), size, downscale)
+        scene = load_colmap(path, background=background, size=size, downscale=downscale)
+    else:
+        scene = resample_scene(_load_transforms(path, background), size, downscale)
+    return check_scene(scene, scene.source or str(path))  # the same guarantees for every format
 
 
 def _load_transforms(path: Path, background) -> Scene:

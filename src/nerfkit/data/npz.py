@@ -21,7 +21,8 @@ import numpy as np
 from ..errors import NerfkitError, fail
 from ..io.atomic import write_npz
 from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
-from .validate import MAX_PIXELS, check_images, check_intrinsics, check_near_far, check_poses
+from .validate import (MAX_PIXELS, check_images, check_intrinsics, check_near_far, check_poses, check_scene,
+                       check_vector3)
 
 SPLITS = ("train", "val", "test")
 
@@ -85,7 +86,7 @@ def _names(arrays: dict, split: str, n: int, where: str) -> list[str] | None:
     a = arrays[key]
     if a.dtype.kind not in "US" or a.shape != (n,):
         raise fail(where, f"'{key}' must be {n} strings, got shape {a.shape} dtype {a.dtype}")
-    return [str(s) for s in a.tolist()]
+    return [s.decode("utf-8", "replace") if isinstance(s, bytes) else str(s) for s in a.tolist()]
 
 
 def load_npz(path: str | Path) -> Scene:
@@ -108,7 +109,7 @@ def load_npz(path: str | Path) -> Scene:
         focal = _scalar(arrays, "focal", where)
         if focal <= 0:
             raise fail(where, f"'focal' is {focal}, must be positive (pixels)")
-        K = np.array([[focal, 0, w / 2], [0, focal, h / 2], [0, 0, 1]], np.float32)
+        K = check_intrinsics(np.array([[focal, 0, w / 2], [0, focal, h / 2], [0, 0, 1]]), where, "focal", w, h)
     else:
         raise fail(where, "missing 'focal' (or 'K')", "Add the focal length in pixels as 'focal' or a 3x3 'K'")
 
@@ -143,12 +144,14 @@ def load_npz(path: str | Path) -> Scene:
         near, far = check_near_far(_scalar(arrays, "near", where), _scalar(arrays, "far", where), where)
     else:
         near, far = estimate_near_far(train.c2w, center)
+        if not (np.isfinite(near) and np.isfinite(far) and 0 <= near < far):
+            raise fail(where, f"cannot estimate near/far from the cameras (got {near:.3g}, {far:.3g}: do they all "
+                              "sit at one spot?)", "Store the depth range as 'near' and 'far'")
     if "center" in arrays:
-        center = arrays["center"].astype(np.float32).reshape(3)
+        center = check_vector3(arrays["center"], where, "center")
     if "up" in arrays:
-        up = arrays["up"].astype(np.float32).reshape(3)
-        up /= max(np.linalg.norm(up), 1e-8)
-    return Scene(train, val, test, near, far, center, up, source=where)
+        up = check_vector3(arrays["up"], where, "up", unit=True)
+    return check_scene(Scene(train, val, test, near, far, center, up, source=where))
 
 
 def save_npz(scene: Scene, path: str | Path) -> None:

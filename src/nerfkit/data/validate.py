@@ -8,6 +8,8 @@ from ..errors import fail
 
 # Refuse images beyond this many pixels per split (a crafted header could ask for terabytes).
 MAX_PIXELS = 4_000_000_000
+# Coordinates and focal lengths beyond this are refused: float32 (and squared distances) overflow.
+MAX_COORD = 1e15
 
 
 def check_poses(c2w: np.ndarray, where: str, field: str, tol: float = 1e-3) -> np.ndarray:
@@ -24,9 +26,11 @@ def check_poses(c2w: np.ndarray, where: str, field: str, tol: float = 1e-3) -> n
         bottom = np.broadcast_to(np.array([0, 0, 0, 1], c2w.dtype), (c2w.shape[0], 1, 4))
         c2w = np.concatenate([c2w, bottom], axis=1)
     c2w = c2w.astype(np.float64)
-    bad = ~np.isfinite(c2w).all(axis=(1, 2))
+    # Finite in float64 but beyond float32 (e.g. 1e300) would turn into inf when stored.
+    bad = ~(np.isfinite(c2w) & (np.abs(c2w) <= MAX_COORD)).all(axis=(1, 2))
     if bad.any():
-        raise fail(where, f"'{field}'[{int(np.argmax(bad))}] has NaN or inf values", "Remove or re-estimate that pose")
+        raise fail(where, f"'{field}'[{int(np.argmax(bad))}] has NaN or inf values (or values beyond {MAX_COORD:g})",
+                   "Remove or re-estimate that pose")
     if not np.allclose(c2w[:, 3], [0, 0, 0, 1], atol=tol):
         i = int(np.argmax(~np.isclose(c2w[:, 3], [0, 0, 0, 1], atol=tol).all(axis=1)))
         raise fail(where, f"'{field}'[{i}] last row is {c2w[i, 3].tolist()}, expected [0, 0, 0, 1]")
@@ -49,8 +53,8 @@ def check_intrinsics(K: np.ndarray, where: str, field: str, width: int, height: 
     K = np.asarray(K)
     if K.dtype.kind not in "fiu" or K.shape[-2:] != (3, 3) or K.ndim not in (2, 3):
         raise fail(where, f"'{field}' has shape {K.shape} and dtype {K.dtype}, expected a 3x3 float matrix")
-    if not np.isfinite(K).all():
-        raise fail(where, f"'{field}' has NaN or inf values")
+    if not np.isfinite(K).all() or np.abs(K).max(initial=0.0) > MAX_COORD:
+        raise fail(where, f"'{field}' has NaN or inf values (or values beyond {MAX_COORD:g})")
     Ks = K.reshape(-1, 3, 3)
     if (Ks[:, 0, 0] <= 0).any() or (Ks[:, 1, 1] <= 0).any():
         raise fail(where, f"'{field}' has a zero or negative focal length", "fx and fy must be positive pixels")
@@ -84,8 +88,63 @@ def check_images(images: np.ndarray, where: str, field: str) -> np.ndarray:
 
 
 def check_near_far(near: float, far: float, where: str) -> tuple[float, float]:
+    try:
+        near, far = float(near), float(far)
+    except (TypeError, ValueError):
+        raise fail(where, f"near/far must be numbers, got near={near!r}, far={far!r}") from None
     if not (np.isfinite(near) and np.isfinite(far)):
         raise fail(where, f"near/far must be finite, got near={near}, far={far}")
     if near < 0 or near >= far:
         raise fail(where, f"near={near} and far={far}: need 0 <= near < far", "Fix the depth range of the scene")
     return float(near), float(far)
+
+
+def check_vector3(v, where: str, field: str, unit: bool = False) -> np.ndarray:
+    """A finite (3,) vector as float32 (normalised when ``unit``)."""
+    a = np.asarray(v)
+    if a.dtype.kind not in "fiu" or a.size != 3:
+        raise fail(where, f"'{field}' must be 3 numbers, got shape {a.shape} dtype {a.dtype}")
+    a = a.astype(np.float64).reshape(3)
+    if not (np.isfinite(a).all() and np.abs(a).max() <= MAX_COORD):
+        raise fail(where, f"'{field}' is {a.tolist()}, expected finite numbers")
+    if unit:
+        n = float(np.linalg.norm(a))
+        if n < 1e-8:
+            raise fail(where, f"'{field}' is the zero vector, expected a direction")
+        a = a / n
+    return a.astype(np.float32)
+
+
+def check_scene(scene, where: str | None = None):
+    """Check a loaded :class:`~nerfkit.data.scene.Scene` end to end; return it unchanged.
+
+    Every loader calls this last, so no format can hand the trainer NaN poses, a
+    non-positive focal length, near >= far, or images that disagree with their cameras.
+    """
+    where = str(where or scene.source or "dataset")
+    if len(scene.train) == 0:
+        raise fail(where, "has no training views")
+    for split, v in scene.splits.items():
+        n = len(v)
+        if not (isinstance(v.width, (int, np.integer)) and isinstance(v.height, (int, np.integer))
+                and v.width > 0 and v.height > 0):
+            raise fail(where, f"the {split} views have image size {v.width}x{v.height}, expected positive pixels")
+        if n == 0:
+            continue
+        check_poses(v.c2w, where, f"{split} poses")
+        K = check_intrinsics(v.K, where, f"{split} intrinsics", v.width, v.height)
+        if K.shape != (n, 3, 3):
+            raise fail(where, f"the {split} split has {n} poses but intrinsics of shape {K.shape}")
+        if v.images is not None and v.images.size > 0:
+            im = v.images
+            if im.dtype != np.uint8 or im.shape != (n, v.height, v.width, 3):
+                raise fail(where, f"the {split} images are {im.shape} {im.dtype}, expected ({n}, {v.height}, "
+                                  f"{v.width}, 3) uint8")
+        if v.names is not None and len(v.names) != n:
+            raise fail(where, f"the {split} split has {n} views but {len(v.names)} names")
+    check_near_far(scene.near, scene.far, where)
+    check_vector3(scene.center, where, "center")
+    up = check_vector3(scene.up, where, "up")
+    if abs(float(np.linalg.norm(up)) - 1.0) > 1e-3:
+        raise fail(where, f"'up' {up.tolist()} is not a unit vector")
+    return scene

@@ -54,6 +54,16 @@ class VanillaConfig:
     occupancy_warmup: int = option(500, "steps before the first refresh (every sample is evaluated until then)")
 
 
+def _validate(cfg: VanillaConfig) -> None:
+    from ..errors import fail
+
+    if not (1 <= cfg.n_samples <= 4096 and 0 <= cfg.n_importance <= 4096 and 2 <= cfg.depth <= 64
+            and 1 <= cfg.width <= 4096 and 0 <= cfg.pos_freqs <= 32 and 0 <= cfg.dir_freqs <= 32
+            and 4 <= cfg.occupancy_res <= 512 and cfg.occupancy_every >= 1 and cfg.occupancy_warmup >= 0):
+        raise fail("vanilla model", "settings out of range (need 1 <= n_samples, 2 <= depth <= 64, "
+                   "1 <= width <= 4096, 0 <= L <= 32, 4 <= occupancy_res <= 512)")
+
+
 class NeRFMLP(nn.Module):
     """(points, directions) -> (sigma, rgb), the course network."""
 
@@ -97,6 +107,7 @@ class VanillaNeRF(NerfModel):
 
     def __init__(self, cfg: VanillaConfig, bounds: SceneBounds):
         super().__init__(bounds)
+        _validate(cfg)
         self.cfg = cfg
         self.coarse = NeRFMLP(cfg)
         self.fine = NeRFMLP(cfg) if cfg.n_importance > 0 else None

@@ -25,7 +25,7 @@ import torch
 from ..config import dataclass_from_dict, load_json
 from ..errors import NerfkitError, fail
 from ..io.atomic import atomic_path, write_json
-from ..models import SceneBounds, build_model, config_from_dict, model_config_class
+from ..models import MODEL_NAMES, SceneBounds, build_model, config_from_dict, model_config_class
 from ..models.base import NerfModel
 from .config import TrainConfig
 
@@ -63,13 +63,39 @@ def read_run(run_dir: str | Path) -> RunInfo:
     if not cfg_path.exists():
         raise fail(cfg_path, "missing", "This folder is not a nerfkit run (train writes config.json first)")
     d = load_json(cfg_path)
+    if not isinstance(d, dict):
+        raise fail(cfg_path, f"expected a JSON object, got {type(d).__name__}", "This is not a run's config.json")
+    for key in ("train", "model", "bounds"):
+        if not isinstance(d.get(key), dict):
+            raise fail(cfg_path, f"'{key}' is missing or not an object", "This is not a run's config.json")
     try:
         train = dataclass_from_dict(TrainConfig, d["train"], str(cfg_path))
+        if train.model not in MODEL_NAMES:
+            raise fail(cfg_path, f"unknown model '{train.model}'", f"Expected one of {', '.join(MODEL_NAMES)}")
         model_config = dataclass_from_dict(model_config_class(train.model), d["model"], str(cfg_path))
         bounds = SceneBounds.from_dict(d["bounds"])
     except (KeyError, TypeError, ValueError) as e:
         raise fail(cfg_path, f"malformed run config ({type(e).__name__}: {e})") from None
+    for cfg in (train, model_config):
+        if hasattr(cfg, "validate"):
+            try:
+                cfg.validate()
+            except NerfkitError as e:
+                raise fail(cfg_path, f"invalid {type(cfg).__name__} settings ({e})") from None
+    _check_bounds(bounds, str(cfg_path))
     return RunInfo(run_dir, train, model_config, bounds)
+
+
+def _check_bounds(b: SceneBounds, where: str) -> None:
+    import numpy as np
+
+    from ..data.validate import check_near_far, check_vector3
+
+    check_near_far(b.near, b.far, where)
+    b.center = check_vector3(b.center, where, "bounds.center")
+    b.up = check_vector3(b.up, where, "bounds.up", unit=True)
+    if not (np.isfinite(b.radius) and b.radius > 0):
+        raise fail(where, f"'bounds.radius' is {b.radius}, expected a positive number")
 
 
 def checkpoint_paths(run_dir: Path) -> list[Path]:
@@ -109,6 +135,9 @@ def _read_checkpoint(path: Path, model_name: str) -> dict:
         raise fail(path, f"checkpoint version {ckpt.get('version')} is not {VERSION}", "Re-train with this nerfkit")
     if ckpt.get("model_name") != model_name:
         raise fail(path, f"checkpoint is for model {ckpt.get('model_name')}, this run uses {model_name}")
+    step = ckpt.get("step")
+    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+        raise fail(path, f"checkpoint step is {step!r}, expected a whole number >= 0")
     return ckpt
 
 
@@ -123,12 +152,25 @@ def load_latest_checkpoint(run_dir: Path, model: NerfModel) -> tuple[dict, Path]
     for path in paths:
         try:
             ckpt = _read_checkpoint(path, type(model).__name__)
+            if not isinstance(ckpt.get("model_extra"), str) or not isinstance(ckpt.get("model"), dict):
+                raise fail(path, "malformed checkpoint ('model' or 'model_extra' has the wrong type)")
+            # parameters only: buffers may hold inf on purpose (e.g. "not measured yet")
+            params = {name for name, _ in model.named_parameters()}
+            if not all(torch.isfinite(t).all() for name, t in ckpt["model"].items()
+                       if name in params and isinstance(t, torch.Tensor) and t.is_floating_point()):
+                raise fail(path, "the model weights hold NaN or inf values")
             model.load_extra_state(json.loads(ckpt["model_extra"]))
             model.load_state_dict(ckpt["model"])
+            for msg in errors:  # the newer checkpoints that were skipped
+                print(f"warning: {msg}; used the older {path.name}", file=sys.stderr)
             return ckpt, path
-        except (NerfkitError, RuntimeError, KeyError, ValueError) as e:
-            errors.append(str(e))
-            print(f"warning: {e}; trying an older checkpoint", file=sys.stderr)
+        except (NerfkitError, RuntimeError, KeyError, ValueError, TypeError, IndexError, AttributeError,
+                OverflowError, MemoryError) as e:
+            # one line: load_state_dict lists every mismatched tensor on its own line
+            msg = " ".join(str(e).split())[:300]
+            if not isinstance(e, NerfkitError):
+                msg = f"{path}: {type(e).__name__}: {msg}"
+            errors.append(msg)  # reported once: as warnings if an older one loads, else in the error
     if paths:
         raise fail(run_dir, "no checkpoint could be loaded: " + "; ".join(errors))
     return None
@@ -137,7 +179,13 @@ def load_latest_checkpoint(run_dir: Path, model: NerfModel) -> tuple[dict, Path]
 def load_run(run_dir: str | Path, device: torch.device | str = "cpu") -> tuple[NerfModel, RunInfo, int]:
     """A trained model from a run folder: (model in eval mode, run info, step)."""
     info = read_run(run_dir)
-    model = build_model(info.train.model, info.model_config, info.bounds)
+    try:
+        model = build_model(info.train.model, info.model_config, info.bounds)
+    except NerfkitError as e:
+        raise fail(info.run_dir / "config.json", str(e)) from None
+    except (RuntimeError, ValueError, TypeError, OverflowError, MemoryError) as e:  # e.g. a negative width
+        raise fail(info.run_dir / "config.json", f"its model settings do not build a model "
+                   f"({type(e).__name__}: {str(e).splitlines()[0][:200] if str(e) else ''})") from None
     loaded = load_latest_checkpoint(info.run_dir, model)
     if loaded is None:
         raise fail(info.run_dir, "has no checkpoint yet", "Wait for training to write one, or train longer")

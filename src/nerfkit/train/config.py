@@ -39,6 +39,10 @@ class TrainConfig:
             raise fail("train", "no stopping rule", "Give --steps N or --minutes M (or both)")
         if self.batch_rays < 0 or self.lr < 0 or not 0 < self.lr_final_factor <= 1:
             raise fail("train", "--batch-rays and --lr must be >= 0 and --lr-final-factor in (0, 1]")
+        if self.render_chunk < 0 or self.eval_views < 0 or self.eval_every < 0 or self.keep_checkpoints < 1 \
+                or not self.checkpoint_seconds > 0:
+            raise fail("train", "--render-chunk, --eval-views, --eval-every must be >= 0, --keep-checkpoints >= 1 "
+                       "and --checkpoint-seconds > 0")
         parse_background(self.background)
         return self
 

@@ -63,6 +63,7 @@ class Trainer:
     def __init__(self, scene: Scene, cfg: TrainConfig, model_config, resume: bool = False, quiet: bool = False):
         if not scene.train.has_images:
             raise fail(scene.source, "has no training images")
+        cfg = resolved_config(cfg, model_config)
         self.scene, self.cfg, self.model_config, self.quiet = scene, cfg, model_config, quiet
         self.run_dir = Path(cfg.out)
         self.device = resolve_device(cfg.device)

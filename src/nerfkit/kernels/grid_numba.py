@@ -1,0 +1,475 @@
+"""Compiled (numba) CPU kernels of the grid field; importing this module needs numba.
+
+Each kernel has a pure-torch reference in :mod:`nerfkit.kernels.reference` (or in
+:mod:`nerfkit.render.occupancy` for the marching) and tests comparing the two. All
+kernels take numpy views of contiguous CPU tensors (no copies) and write their outputs
+in place. ``cache=True`` keeps the machine code on disk, so only the first run on a
+machine pays the compile time.
+
+Per-ray loops run over both cores with ``prange``. The backward pass adds gradients
+into one dense buffer per lane (a fixed split of the rays), so no two threads ever add
+into the same memory (deterministic, no atomics); the optimizer sums the lanes.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+# Per-sample record written by the training forward pass (sample-major: [k, ray, field]).
+F_FX, F_FY, F_FZ, F_RAW, F_SIGMA, F_R, F_G, F_B, F_T = range(9)
+N_FIELDS = 9
+# how many samples ahead along the ray to prefetch grid rows
+PREFETCH_AHEAD = 4
+# when only rendering (no backward pass), samples of smaller weight skip their colour
+SKIP_COLOUR_BELOW = 1e-7
+
+
+def _make_prefetch():
+    """``prefetch(arr2d, row, col)``: a hint to pull ``arr2d[row, col]``'s cache line in.
+
+    Gathers from the grid are latency-bound; prefetching the cell a few samples ahead
+    along the ray overlaps those misses with the shading of the current sample.
+    """
+    from llvmlite import binding, ir
+
+    name = "llvm.prefetch.p0" if binding.llvm_version_info[0] >= 15 else "llvm.prefetch.p0i8"
+
+    @intrinsic
+    def prefetch(typingctx, arr, row, col):
+        sig = types.void(arr, row, col)
+
+        def codegen(context, builder, signature, args):
+            arrty = signature.args[0]
+            ary = context.make_array(arrty)(context, builder, args[0])
+            ptr = cgutils.get_item_pointer(context, builder, arrty, ary, [args[1], args[2]], wraparound=False)
+            i8p = ir.PointerType(ir.IntType(8))
+            i32 = ir.IntType(32)
+            fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                                name)
+            builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
+            return context.get_dummy_value()
+
+        return sig, codegen
+
+    return prefetch
+
+
+prefetch = _make_prefetch()
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _softplus(x):
+    # log(1 + e^x): log1p is ~3x slower than log here, and for x < -15 the result is
+    # e^x to within 2e-7 (relative), far below float32 resolution of the inputs
+    if x > 20.0:
+        return x
+    e = math.exp(x)
+    if x < -15.0:
+        return e
+    return math.log(1.0 + e)
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _softplus_grad(x):
+    # torch's softplus backward: 1 above the threshold, sigmoid(x) below it
+    if x > 20.0:
+        return 1.0
+    e = math.exp(x)
+    return e / (1.0 + e)
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _sigmoid(x):
+    if x >= 0:
+        return 1.0 / (1.0 + math.exp(-x))
+    e = math.exp(x)
+    return e / (1.0 + e)
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _cell(g, r):
+    """Clamped cell index and fraction along one axis (matches reference.cell_of)."""
+    hi = r - 1.0
+    if g < 0.0:
+        g = 0.0
+    if g > hi:
+        g = hi
+    i = float(math.floor(g))
+    if i > hi - 1.0:
+        i = hi - 1.0
+    return int(i), g - i
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _leap(k, ta, tb, ur, inv_step, ox, oy, oz, idx, idy, idz, x0, y0, z0, size):
+    """Index of the next lattice point to look at after finding the cube
+    ``[x0, x0 + size] x [y0, ...] x [z0, ...]`` (grid units) empty at lattice point ``k``.
+
+    That is the first lattice point at or beyond where the ray leaves the cube, less a
+    tolerance of 1e-6 steps (a point that close to the exit is looked at again rather
+    than risk skipping a point of the next cell), and always at least ``k + 1``.
+    ``idx, idy, idz`` are the inverse ray directions in grid units (inf for 0).
+    """
+    t_exit = 1e30
+    if idx > 0:
+        t_exit = min(t_exit, (x0 + size - ox) * idx)
+    elif idx < 0:
+        t_exit = min(t_exit, (x0 - ox) * idx)
+    if idy > 0:
+        t_exit = min(t_exit, (y0 + size - oy) * idy)
+    elif idy < 0:
+        t_exit = min(t_exit, (y0 - oy) * idy)
+    if idz > 0:
+        t_exit = min(t_exit, (z0 + size - oz) * idz)
+    elif idz < 0:
+        t_exit = min(t_exit, (z0 - oz) * idz)
+    kn = int(math.ceil((min(t_exit, tb) - ta) * inv_step - ur - 1e-6))
+    return max(k + 1, kn)
+
+
+@njit(cache=True, parallel=True, fastmath=False)
+def render_forward(grid, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
+                   rays_o, rays_d, sh, t0, t1, u, step, dscale, eps,
+                   out_rgb, out_depth, out_acc, out_count,
+                   store, s_idx, s_f):
+    """March, shade and composite every ray (foreground only: no background term).
+
+    Args:
+        grid: (N, C) float32 vertex features; rx, ry, rz: vertex counts.
+        lo: (3,) float64 box corner; inv_voxel: 1 / voxel.
+        occ: (rz-1, ry-1, rx-1) uint8 cell occupancy; coarse: occupancy max-pooled by cf.
+        rays_o, rays_d: (n, 3) float64; sh: (n, K) float32 SH basis of the directions.
+        t0, t1, u: (n,) float64 ray segment in the box and per-ray lattice jitter.
+        step: sample spacing = interval length; dscale: density scale; eps: stop when
+            the transmittance falls below it.
+        out_rgb (n, 3), out_depth (n,), out_acc (n,) float32; out_count (n,) int32.
+        store: keep per-sample records for the backward pass in s_idx (cap, n) int64
+            (base vertex row) and s_f (cap, n, 9) float32.
+    """
+    n = rays_o.shape[0]
+    C = grid.shape[1]
+    K = sh.shape[1]
+    sxy = rx * ry
+    cap = s_idx.shape[0]
+    inv_step = 1.0 / step
+    for r in prange(n):
+        ta = t0[r]
+        tb = t1[r]
+        ur = u[r]
+        ox = (rays_o[r, 0] - lo[0]) * inv_voxel
+        oy = (rays_o[r, 1] - lo[1]) * inv_voxel
+        oz = (rays_o[r, 2] - lo[2]) * inv_voxel
+        dx = rays_d[r, 0] * inv_voxel
+        dy = rays_d[r, 1] * inv_voxel
+        dz = rays_d[r, 2] * inv_voxel
+        idx = 1.0 / dx if dx != 0.0 else 0.0
+        idy = 1.0 / dy if dy != 0.0 else 0.0
+        idz = 1.0 / dz if dz != 0.0 else 0.0
+        T = 1.0
+        cr = 0.0
+        cg = 0.0
+        cb = 0.0
+        dep = 0.0
+        cnt = 0
+        k = 0
+        while True:
+            t = ta + (k + ur) * step
+            if t >= tb or T < eps:
+                break
+            ix, fx = _cell(ox + t * dx, rx)
+            iy, fy = _cell(oy + t * dy, ry)
+            iz, fz = _cell(oz + t * dz, rz)
+            if cf > 1:
+                bx, by, bz = ix // cf, iy // cf, iz // cf
+                if coarse[bz, by, bx] == 0:
+                    k = _leap(k, ta, tb, ur, inv_step, ox, oy, oz, idx, idy, idz, bx * cf, by * cf, bz * cf, cf)
+                    continue
+            if occ[iz, iy, ix] == 0:
+                k = _leap(k, ta, tb, ur, inv_step, ox, oy, oz, idx, idy, idz, ix, iy, iz, 1)
+                continue
+            tp = t + PREFETCH_AHEAD * step
+            if tp < tb:
+                jx, _ = _cell(ox + tp * dx, rx)
+                jy, _ = _cell(oy + tp * dy, ry)
+                jz, _ = _cell(oz + tp * dz, rz)
+                qb = (jz * ry + jy) * rx + jx
+                for q in range(4):
+                    qrow = qb + (q >> 1) * sxy + (q & 1) * rx
+                    prefetch(grid, qrow, 0)
+                    prefetch(grid, qrow + 1, C - 1)
+            if store and cnt >= cap:
+                break
+            base = (iz * ry + iy) * rx + ix
+            raw = 0.0
+            zr = 0.0
+            zg = 0.0
+            zb = 0.0
+            for cz in range(2):
+                wz = fz if cz else 1.0 - fz
+                for cy in range(2):
+                    wzy = wz * (fy if cy else 1.0 - fy)
+                    row0 = base + cz * sxy + cy * rx
+                    for cx in range(2):
+                        w = wzy * (fx if cx else 1.0 - fx)
+                        row = row0 + cx
+                        raw += w * grid[row, 0]
+                        sr = 0.0
+                        sg = 0.0
+                        sb = 0.0
+                        for j in range(K):
+                            shj = sh[r, j]
+                            sr += grid[row, 1 + j] * shj
+                            sg += grid[row, 1 + K + j] * shj
+                            sb += grid[row, 1 + 2 * K + j] * shj
+                        zr += w * sr
+                        zg += w * sg
+                        zb += w * sb
+            sigma = dscale * _softplus(raw)
+            tau = sigma * step
+            e = math.exp(-tau)
+            wgt = T * (1.0 - e)
+            if store or wgt > SKIP_COLOUR_BELOW:
+                colr = _sigmoid(zr)
+                colg = _sigmoid(zg)
+                colb = _sigmoid(zb)
+                cr += wgt * colr
+                cg += wgt * colg
+                cb += wgt * colb
+            else:  # rendering only: a sample this faint changes no colour channel by 1e-7
+                colr = colg = colb = 0.5
+            dep += wgt * t
+            if store:
+                s_idx[cnt, r] = base
+                s_f[cnt, r, 0] = fx
+                s_f[cnt, r, 1] = fy
+                s_f[cnt, r, 2] = fz
+                s_f[cnt, r, 3] = raw
+                s_f[cnt, r, 4] = sigma
+                s_f[cnt, r, 5] = colr
+                s_f[cnt, r, 6] = colg
+                s_f[cnt, r, 7] = colb
+                s_f[cnt, r, 8] = t
+            cnt += 1
+            T = T * e
+            k += 1
+        out_rgb[r, 0] = cr
+        out_rgb[r, 1] = cg
+        out_rgb[r, 2] = cb
+        out_depth[r] = dep
+        out_acc[r] = 1.0 - T
+        out_count[r] = cnt
+
+
+@njit(cache=True, parallel=True, fastmath=False)
+def render_backward(s_idx, s_f, counts, sh, rx, ry, step, dscale, rgb, depth, acc, g_rgb, g_depth, g_acc,
+                    grads, touched):
+    """Gradients of the loss w.r.t. the grid, added into per-lane buffers.
+
+    With ``tau_k = sigma_k step``, ``T_{k+1} = T_k exp(-tau_k)`` and suffix sums over the
+    later samples: ``dC/dtau_k = T_{k+1} c_k - sum_{i>k} w_i c_i``,
+    ``dD/dtau_k = T_{k+1} t_k - sum_{i>k} w_i t_i``, ``dA/dtau_k = T_{k+1} - sum_{i>k} w_i``
+    and ``dC/dc_k = w_k``; the suffix sums are the totals minus running prefix sums.
+
+    Lane ``l`` of ``L = grads.shape[0]`` handles a contiguous range of rays and adds only
+    into ``grads[l]`` (N, C), so lanes never race and the result does not depend on
+    thread scheduling; the optimizer sums the lanes. ``touched`` (N,) uint8 marks every
+    vertex of every sample (concurrent writes of the same value 1 are benign).
+
+    Args:
+        s_idx (cap, n), s_f (cap, n, 9), counts (n,): records from :func:`render_forward`.
+        rgb, depth, acc: the forward outputs (foreground colour, no background).
+        g_rgb (n, 3), g_depth (n,), g_acc (n,): upstream gradients.
+    """
+    n = counts.shape[0]
+    K = sh.shape[1]
+    L = grads.shape[0]
+    sxy = rx * ry
+    C = grads.shape[2]
+    scratch = np.zeros((L, C), np.float32)
+    for lane in prange(L):
+        grad = grads[lane]
+        gf = scratch[lane]
+        for r in range(lane * n // L, (lane + 1) * n // L):
+            gr = g_rgb[r, 0]
+            gg = g_rgb[r, 1]
+            gb = g_rgb[r, 2]
+            gd = g_depth[r]
+            ga = g_acc[r]
+            T = 1.0
+            pr = 0.0
+            pg = 0.0
+            pb = 0.0
+            pd = 0.0
+            pa = 0.0
+            cnt = counts[r]
+            for k in range(cnt):
+                if k + 2 < cnt:
+                    qb = s_idx[k + 2, r]
+                    for q in range(4):
+                        qrow = qb + (q >> 1) * sxy + (q & 1) * rx
+                        prefetch(grad, qrow, 0)
+                        prefetch(grad, qrow + 1, C - 1)
+                raw = s_f[k, r, 3]
+                sigma = s_f[k, r, 4]
+                colr = s_f[k, r, 5]
+                colg = s_f[k, r, 6]
+                colb = s_f[k, r, 7]
+                t = s_f[k, r, 8]
+                tau = sigma * step
+                e = math.exp(-tau)
+                w = T * (1.0 - e)
+                Tn = T * e
+                pr += w * colr
+                pg += w * colg
+                pb += w * colb
+                pd += w * t
+                pa += w
+                dtau = (gr * (Tn * colr - (rgb[r, 0] - pr)) + gg * (Tn * colg - (rgb[r, 1] - pg))
+                        + gb * (Tn * colb - (rgb[r, 2] - pb)) + gd * (Tn * t - (depth[r] - pd))
+                        + ga * (Tn - (acc[r] - pa)))
+                gf[0] = dtau * step * dscale * _softplus_grad(raw)
+                dzr = w * gr * colr * (1.0 - colr)
+                dzg = w * gg * colg * (1.0 - colg)
+                dzb = w * gb * colb * (1.0 - colb)
+                for j in range(K):
+                    shj = sh[r, j]
+                    gf[1 + j] = dzr * shj
+                    gf[1 + K + j] = dzg * shj
+                    gf[1 + 2 * K + j] = dzb * shj
+                T = Tn
+                base = s_idx[k, r]
+                fx = s_f[k, r, 0]
+                fy = s_f[k, r, 1]
+                fz = s_f[k, r, 2]
+                for cz in range(2):
+                    wz = fz if cz else 1.0 - fz
+                    for cy in range(2):
+                        wzy = wz * (fy if cy else 1.0 - fy)
+                        row0 = base + cz * sxy + cy * rx
+                        for cx in range(2):
+                            wc = np.float32(wzy * (fx if cx else 1.0 - fx))
+                            row = row0 + cx
+                            for c in range(1 + 3 * K):
+                                grad[row, c] += wc * gf[c]
+                            touched[row] = 1
+
+
+@njit(cache=True)
+def touched_rows(touched):
+    """The rows (m,) int64 whose ``touched`` flag is set, in increasing order."""
+    m = 0
+    for i in range(touched.shape[0]):
+        if touched[i]:
+            m += 1
+    rows = np.empty(m, np.int64)
+    j = 0
+    for i in range(touched.shape[0]):
+        if touched[i]:
+            rows[j] = i
+            j += 1
+    return rows
+
+
+@njit(cache=True, parallel=True, fastmath=False)
+def adam_rows(param, grads, rows, touched, exp_avg, exp_avg_sq, lr, beta1, beta2, eps, bc1, bc2):
+    """Adam on the given rows, with the gradient summed over lanes; then zero those
+    gradient rows and clear their ``touched`` flags.
+
+    Args:
+        param, exp_avg, exp_avg_sq: (N, C) float32; grads: (L, N, C); rows: (m,) int64
+            distinct rows; touched: (N,) uint8.
+        lr: (C,) per-channel learning rate; bc1, bc2: bias corrections ``1 - beta^step``.
+    """
+    C = param.shape[1]
+    L = grads.shape[0]
+    m_rows = rows.shape[0]
+    for j in prange(m_rows):
+        if j + 8 < m_rows:  # the rows are scattered: start fetching a later one now
+            q = rows[j + 8]
+            prefetch(param, q, 0)
+            prefetch(exp_avg, q, 0)
+            prefetch(exp_avg_sq, q, 0)
+            for lane in range(L):
+                prefetch(grads[lane], q, 0)
+        i = rows[j]
+        for c in range(C):
+            g = grads[0, i, c]
+            grads[0, i, c] = 0.0
+            for lane in range(1, L):
+                g += grads[lane, i, c]
+                grads[lane, i, c] = 0.0
+            m = beta1 * exp_avg[i, c] + (1.0 - beta1) * g
+            v = beta2 * exp_avg_sq[i, c] + (1.0 - beta2) * g * g
+            exp_avg[i, c] = m
+            exp_avg_sq[i, c] = v
+            param[i, c] -= lr[c] * (m / bc1) / (math.sqrt(v / bc2) + eps)
+        touched[i] = 0
+
+
+@njit(cache=True, parallel=True, fastmath=False)
+def clear_rows(grads, rows, touched):
+    """Zero the given gradient rows (of every lane) and clear their ``touched`` flags."""
+    L = grads.shape[0]
+    for j in prange(rows.shape[0]):
+        i = rows[j]
+        for lane in range(L):
+            grads[lane, i, :] = 0.0
+        touched[i] = 0
+
+
+@njit(cache=True, parallel=True, fastmath=False)
+def occupancy_from_grid(grid, rx, ry, rz, raw_thr, occ, coarse, cf):
+    """Mark the cells whose largest corner raw density exceeds ``raw_thr``.
+
+    Trilinear interpolation never exceeds a cell's largest corner and the density
+    activation is increasing, so this bounds every sample in the cell.
+
+    Args:
+        grid: (N, C) float32 (channel 0: raw density); rx, ry, rz: vertex counts.
+        occ: (rz-1, ry-1, rx-1) uint8 output.
+        coarse: (ceil((rz-1)/cf), ...) uint8 output, zero on entry: 1 where any cell of the
+            block is occupied.
+    """
+    sxy = rx * ry
+    for z in prange(rz - 1):
+        for y in range(ry - 1):
+            b0 = (z * ry + y) * rx
+            # largest of the four x-edges' left ends, carried along x
+            prev = max(max(grid[b0, 0], grid[b0 + rx, 0]), max(grid[b0 + sxy, 0], grid[b0 + sxy + rx, 0]))
+            for x in range(rx - 1):
+                b = b0 + x + 1
+                cur = max(max(grid[b, 0], grid[b + rx, 0]), max(grid[b + sxy, 0], grid[b + sxy + rx, 0]))
+                o = 1 if max(prev, cur) > raw_thr else 0
+                occ[z, y, x] = o
+                if o:
+                    coarse[z // cf, y // cf, x // cf] = 1
+                prev = cur
+
+
+def warm_up() -> None:
+    """Compile (or load from the on-disk cache) every kernel on tiny inputs."""
+    C, K = 13, 4
+    rx = ry = rz = 3
+    grid = np.zeros((rx * ry * rz, C), np.float32)
+    occ = np.ones((2, 2, 2), np.uint8)
+    o = np.zeros((1, 3))
+    d = np.array([[1.0, 0.0, 0.0]])
+    sh = np.ones((1, K), np.float32)
+    t0, t1, u = np.zeros(1), np.ones(1), np.full(1, 0.5)
+    rgb, dep, acc, cnt = np.zeros((1, 3), np.float32), np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32)
+    s_idx, s_f = np.zeros((4, 1), np.int64), np.zeros((4, 1, N_FIELDS), np.float32)
+    render_forward(grid, rx, ry, rz, np.zeros(3), 1.0, occ, occ, 1, o, d, sh, t0, t1, u, 0.5, 1.0, 1e-4,
+                   rgb, dep, acc, cnt, True, s_idx, s_f)
+    grads = np.zeros((2,) + grid.shape, np.float32)
+    touched = np.zeros(rx * ry * rz, np.uint8)
+    render_backward(s_idx, s_f, cnt, sh, rx, ry, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, grads, touched)
+    m = np.zeros_like(grid)
+    rows = touched_rows(touched)
+    adam_rows(grid, grads, rows, touched, m, m.copy(), np.ones(C, np.float32), 0.9, 0.99, 1e-15, 0.1, 0.01)
+    clear_rows(grads, touched_rows(touched), touched)
+    occupancy_from_grid(grid, rx, ry, rz, 0.0, occ, occ.copy(), 1)

@@ -1,0 +1,197 @@
+"""Pure-torch reference implementations of the fast grid field's operations.
+
+These are the slow, obviously-correct versions: each compiled kernel in
+:mod:`nerfkit.kernels.grid_numba` is tested against them (values and gradients), and
+they are the path used on CUDA or when numba is missing.
+
+The grid is a dense *vertex* grid over an axis-aligned box: vertex ``(ix, iy, iz)`` sits
+at ``lo + voxel * (ix, iy, iz)`` and its ``C`` feature channels are row
+``(iz * ry + iy) * rx + ix`` of a flat ``(rx * ry * rz, C)`` tensor. Channel 0 is raw
+density, channels ``1 + c * K + j`` are the spherical-harmonic coefficient ``j`` of colour
+channel ``c`` (``K = (degree + 1) ** 2``).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from ..render.volrend import composite, render_weights
+
+# Real spherical-harmonic constants (as in Plenoxels / instant-ngp).
+SH_C0 = 0.28209479177387814
+SH_C1 = 0.4886025119029199
+SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+
+
+def sh_dim(degree: int) -> int:
+    """Number of SH basis functions up to ``degree``: ``(degree + 1) ** 2``."""
+    return (degree + 1) ** 2
+
+
+def sh_basis(dirs: Tensor, degree: int) -> Tensor:
+    """Real spherical-harmonic basis of unit directions.
+
+    Args:
+        dirs: (n, 3) unit vectors.
+        degree: 0, 1 or 2.
+
+    Returns:
+        (n, (degree + 1) ** 2). Example: degree 0 gives the constant 0.2821 for every direction.
+    """
+    if degree not in (0, 1, 2):
+        raise ValueError(f"SH degree must be 0, 1 or 2, got {degree}")
+    x, y, z = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+    out = [torch.full_like(x, SH_C0)]
+    if degree >= 1:
+        out += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
+    if degree >= 2:
+        out += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2 * z * z - x * x - y * y),
+                SH_C2[3] * x * z, SH_C2[4] * (x * x - y * y)]
+    return torch.stack(out, dim=-1)
+
+
+def grid_coords(points: Tensor, lo: Tensor, voxel: float) -> Tensor:
+    """World points (n, 3) -> continuous grid coordinates (n, 3): ``(p - lo) / voxel``."""
+    return (points - lo) / voxel
+
+
+def cell_of(g: Tensor, res: tuple[int, int, int]) -> Tensor:
+    """The cell (n, 3) long ``(ix, iy, iz)`` holding grid coordinates ``g`` (n, 3).
+
+    Coordinates are clamped into the box first, so every point has a cell in
+    ``[0, res - 2]`` per axis. The same rule picks the trilinear base vertex and the
+    occupancy cell, in both the reference and the compiled kernels.
+    """
+    hi = torch.tensor([r - 1 for r in res], dtype=g.dtype, device=g.device)
+    gc = torch.minimum(torch.clamp(g, min=0.0), hi)
+    i0 = torch.minimum(torch.floor(gc), hi - 1)
+    return i0.long()
+
+
+def trilinear_corners(g: Tensor, res: tuple[int, int, int]) -> tuple[Tensor, Tensor]:
+    """The 8 vertices around grid coordinates and their trilinear weights.
+
+    Args:
+        g: (n, 3) grid coordinates (clamped into the box).
+        res: vertex counts ``(rx, ry, rz)``, each >= 2.
+
+    Returns:
+        ``(idx, w)``: (n, 8) long flat vertex rows and (n, 8) weights summing to 1,
+        corners ordered ``dz, dy, dx`` (dx fastest).
+    """
+    rx, ry, _ = res
+    hi = torch.tensor([r - 1 for r in res], dtype=g.dtype, device=g.device)
+    gc = torch.minimum(torch.clamp(g, min=0.0), hi)
+    i0 = torch.minimum(torch.floor(gc), hi - 1)
+    f = gc - i0
+    i0 = i0.long()
+    base = (i0[:, 2] * ry + i0[:, 1]) * rx + i0[:, 0]
+    idx, w = [], []
+    for dz in (0, 1):
+        wz = f[:, 2] if dz else 1 - f[:, 2]
+        for dy in (0, 1):
+            wy = f[:, 1] if dy else 1 - f[:, 1]
+            for dx in (0, 1):
+                wx = f[:, 0] if dx else 1 - f[:, 0]
+                idx.append(base + (dz * ry + dy) * rx + dx)
+                w.append(wz * wy * wx)
+    return torch.stack(idx, -1), torch.stack(w, -1)
+
+
+def grid_interp(grid: Tensor, g: Tensor, res: tuple[int, int, int]) -> Tensor:
+    """Trilinear interpolation of a flat vertex grid (differentiable in ``grid``).
+
+    Args:
+        grid: (rx * ry * rz, C) vertex features.
+        g: (n, 3) grid coordinates.
+        res: ``(rx, ry, rz)``.
+
+    Returns:
+        (n, C) interpolated features. Example: at an integer coordinate it returns that
+        vertex's row exactly.
+    """
+    idx, w = trilinear_corners(g, res)
+    return (grid[idx] * w.unsqueeze(-1)).sum(dim=1)
+
+
+def decode(feat: Tensor, sh: Tensor, density_scale: float) -> tuple[Tensor, Tensor]:
+    """Interpolated features -> density and colour.
+
+    ``sigma = density_scale * softplus(feat[:, 0])`` (world units, 1/length) and
+    ``rgb_c = sigmoid(sum_j feat[:, 1 + c K + j] * sh_j)``.
+
+    Args:
+        feat: (n, 1 + 3 K) features.
+        sh: (n, K) SH basis of each sample's view direction.
+
+    Returns:
+        ``(sigma (n,), rgb (n, 3))``.
+    """
+    n, K = sh.shape
+    sigma = density_scale * F.softplus(feat[:, 0])
+    coef = feat[:, 1:1 + 3 * K].reshape(n, 3, K)
+    rgb = torch.sigmoid((coef * sh.unsqueeze(1)).sum(-1))
+    return sigma, rgb
+
+
+def render_samples(
+    grid: Tensor,
+    res: tuple[int, int, int],
+    lo: Tensor,
+    voxel: float,
+    rays_o: Tensor,
+    rays_d: Tensor,
+    sh: Tensor,
+    t: Tensor,
+    mask: Tensor,
+    step: float,
+    density_scale: float,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Volume-render padded samples of the grid field (the reference for the fused kernel).
+
+    Uses exactly :func:`~nerfkit.render.volrend.render_weights` and
+    :func:`~nerfkit.render.volrend.composite` with interval length ``step`` for every
+    sample; padding samples (``mask`` False) have zero density and zero weight.
+
+    Args:
+        grid: (N, C) vertex features; res, lo, voxel: the grid's geometry.
+        rays_o, rays_d: (n_rays, 3); sh: (n_rays, K) SH basis of the ray directions.
+        t: (n_rays, S) sample distances; mask: (n_rays, S) which samples are real.
+
+    Returns:
+        ``(rgb (n_rays, 3) without background, depth (n_rays,), acc (n_rays,))``.
+    """
+    n_rays, S = t.shape
+    ray_id = torch.arange(n_rays, device=t.device).unsqueeze(1).expand(n_rays, S)[mask]
+    pts = rays_o[ray_id] + t[mask].unsqueeze(-1) * rays_d[ray_id]
+    feat = grid_interp(grid, grid_coords(pts, lo, voxel), res)
+    sig, col = decode(feat, sh[ray_id], density_scale)
+    sigmas = torch.zeros((n_rays, S), dtype=sig.dtype, device=t.device).masked_scatter(mask, sig)
+    rgbs = torch.zeros((n_rays, S, 3), dtype=col.dtype, device=t.device)
+    rgbs = rgbs.masked_scatter(mask.unsqueeze(-1).expand(n_rays, S, 3), col)
+    weights, _, _ = render_weights(sigmas, torch.full_like(sigmas, step))
+    rgb, depth, acc = composite(weights, rgbs, t)
+    return rgb, depth, acc
+
+
+def adam_rows(param: Tensor, g: Tensor, rows: Tensor, exp_avg: Tensor, exp_avg_sq: Tensor, lr: Tensor,
+              beta1: float, beta2: float, eps: float, step: int) -> None:
+    """Adam applied in place to the given rows only (lazy/sparse Adam).
+
+    Args:
+        param, exp_avg, exp_avg_sq: (N, C).
+        g: (m, C) gradient of those rows.
+        rows: (m,) long rows to update; other rows (and their moments) stay untouched.
+        lr: (C,) per-channel learning rate.
+        step: the (global) step count after this update, for bias correction.
+    """
+    m = exp_avg[rows].mul_(beta1).add_(g, alpha=1 - beta1)
+    v = exp_avg_sq[rows].mul_(beta2).addcmul_(g, g, value=1 - beta2)
+    exp_avg[rows] = m
+    exp_avg_sq[rows] = v
+    bc1 = 1 - beta1 ** step
+    bc2 = 1 - beta2 ** step
+    denom = (v / bc2).sqrt_().add_(eps)
+    param[rows] -= lr * (m / bc1) / denom

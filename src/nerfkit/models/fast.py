@@ -1,0 +1,403 @@
+"""``fast``: a grid radiance field that trains in about a minute on a CPU.
+
+The field is a dense vertex grid over a box around the scene (a "Plenoxels/DVGO"-style
+explicit field, no MLP): per vertex a raw density and spherical-harmonic colour
+coefficients, trilinearly interpolated, then ``sigma = scale * softplus(raw)`` and
+``rgb = sigmoid(SH(dir) . coef)``. It stays a true NeRF: view-dependent colour and the
+volume-rendering math of :func:`~nerfkit.render.volrend.render_weights` /
+:func:`~nerfkit.render.volrend.composite`.
+
+Speed comes from counting samples, not steps:
+
+* an occupancy grid (:mod:`nerfkit.render.occupancy`) built from an exact upper bound
+  of the density in each cell skips empty space; rays stop once their transmittance
+  falls below ``early_stop_eps``;
+* coarse-to-fine growth of the grid; at the first growth the box (at first the cube
+  around the scene's bounding sphere from the cameras, which is loose) shrinks around
+  where opaque training rays ended;
+* on the CPU one fused compiled kernel (numba, :mod:`nerfkit.kernels.grid_numba`) per
+  ray, and Adam updating only the vertices a step touched
+  (:class:`~nerfkit.kernels.optim.GridAdam`). On CUDA, or without numba, the same math
+  runs in pure torch.
+
+Outside the box rays see either the background colour the trainer passes, or (with
+``background="learned"``) a learned colour per direction (spherical harmonics), for
+captures whose surroundings are not a flat colour.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from ..cameras import Rays
+from ..config import option
+from ..errors import fail
+from ..kernels import numba_kernels
+from ..kernels import reference as ref
+from ..kernels.ops import GradSink, GridGeom, MarchSpec, cell_density_max, render_grid
+from ..kernels.optim import GridAdam
+from ..render.occupancy import OccupancyGrid, ray_aabb
+from .base import NerfModel, RenderOutput, SceneBounds
+
+
+@dataclass
+class FastConfig:
+    """Options of the ``fast`` model."""
+
+    TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 4096, "lr": 0.3, "render_chunk": 65536}
+
+    resolutions: str = option("32,64,128,192", "grid sizes of the coarse-to-fine stages, as the side of a cube "
+                              "with as many vertices (comma-separated)")
+    upsample_steps: str = option("60,300,4000", "steps at which the grid grows to the next size (one fewer than "
+                                 "--resolutions)")
+    sh_degree: int = option(1, "spherical-harmonic degree of the view-dependent colour (0, 1 or 2)")
+    step_ratio: float = option(0.5, "distance between samples along a ray, in voxels")
+    init_alpha: float = option(1e-4, "opacity of one sample of the initial, near-empty density")
+    occ_alpha: float = option(1e-2, "cells whose largest sample opacity is below this are skipped")
+    occ_every: int = option(16, "steps between occupancy-grid refreshes")
+    occ_start: int = option(4, "first step with empty-space skipping (all cells are sampled before)")
+    occ_warmup: int = option(64, "until this step the occupancy is refreshed every --occ-start steps (carving "
+                             "empty space quickly while every step is still expensive)")
+    coarse_factor: int = option(8, "block size (in cells) of the coarse occupancy used to leap empty space")
+    early_stop_eps: float = option(1e-4, "stop a ray once its transmittance is below this")
+    colour_lr_ratio: float = option(1.0, "learning rate of the colour coefficients relative to --lr")
+    adam_eps: float = option(1e-15, "Adam epsilon")
+    shrink_box: bool = option(True, "at the first growth, shrink the box around where opaque training rays end")
+    box_pad: int = option(3, "margin around the shrunken box, in voxels (plus 5% of its size)")
+    background: str = option("given", "outside the box: 'given' (the trainer's colour) or 'learned' "
+                             "(a colour per direction)", choices=["given", "learned"])
+    kernels: str = option("auto", "auto (compiled numba on the CPU when available), numba, or torch",
+                          choices=["auto", "numba", "torch"])
+
+    def stages(self) -> tuple[list[int], list[int]]:
+        """``(sizes, steps)``: grid size of each stage and the steps at which stages start."""
+        try:
+            sizes = [int(s) for s in self.resolutions.split(",") if s.strip()]
+            steps = [int(s) for s in self.upsample_steps.split(",") if s.strip()]
+        except ValueError:
+            raise fail("--resolutions/--upsample-steps", "expected comma-separated integers") from None
+        if not sizes or min(sizes) < 4:
+            raise fail("--resolutions", f"'{self.resolutions}' needs sizes >= 4")
+        steps = steps[:len(sizes) - 1]
+        if len(steps) != len(sizes) - 1 or steps != sorted(steps):
+            raise fail("--upsample-steps", f"needs {len(sizes) - 1} increasing steps for {len(sizes)} resolutions")
+        return sizes, steps
+
+
+def fit_grid(lo: np.ndarray, hi: np.ndarray, size: int) -> tuple[np.ndarray, float, tuple[int, int, int]]:
+    """A grid of about ``size ** 3`` vertices with cubic voxels covering the box ``[lo, hi]``.
+
+    Returns ``(lo, voxel, res)``; the grid is centred on the box and covers it.
+    """
+    ext = np.maximum(hi - lo, 1e-6)
+    voxel = float(np.cbrt(np.prod(ext)) / max(size - 1, 1))
+    res = np.maximum(np.ceil(ext / voxel - 1e-6).astype(int) + 1, 2)
+    center = 0.5 * (lo + hi)
+    new_lo = center - 0.5 * voxel * (res - 1)
+    return new_lo.astype(np.float32), voxel, (int(res[0]), int(res[1]), int(res[2]))
+
+
+class FastNeRF(NerfModel):
+    """Grid field + occupancy grid + fused kernels (see the module docstring)."""
+
+    def __init__(self, config: FastConfig, bounds: SceneBounds):
+        super().__init__(bounds)
+        self.config = config
+        if config.sh_degree not in (0, 1, 2):
+            raise fail("--sh-degree", f"must be 0, 1 or 2, got {config.sh_degree}")
+        self.sizes, self.steps = config.stages()
+        self.K = ref.sh_dim(config.sh_degree)
+        self.n_channels = 1 + 3 * self.K
+        c = np.asarray(bounds.center, np.float32)
+        lo, voxel, res = fit_grid(c - bounds.radius, c + bounds.radius, self.sizes[0])
+        # densities are in units of the first stage's voxel: sigma = softplus(raw) / voxel0
+        self.density_scale = 1.0 / voxel
+        self.stage = 0
+        self.occ_active = False
+        self._set_geometry(lo, voxel, res)
+        raw0 = self._raw_for_alpha(config.init_alpha, config.step_ratio * voxel)
+        grid = torch.zeros((self.geom.n_vertices, self.n_channels))
+        grid[:, 0] = raw0
+        self.grid = nn.Parameter(grid)
+        if config.background == "learned":
+            self.bg_coef = nn.Parameter(torch.zeros(3, 16))
+        else:
+            self.register_parameter("bg_coef", None)
+        self.sink = GradSink(self.geom.n_vertices, self.n_channels)
+        # where opaque training rays ended (ring buffer), to shrink the box at the first growth
+        self.register_buffer("surface_pts", torch.zeros(1 << 16, 3))
+        self.register_buffer("surface_count", torch.zeros((), dtype=torch.long))
+
+    # -- geometry --------------------------------------------------------------------
+    def _set_geometry(self, lo, voxel: float, res: tuple[int, int, int]) -> None:
+        device = self.grid.device if hasattr(self, "grid") else torch.device("cpu")
+        self.geom = GridGeom(torch.as_tensor(np.asarray(lo), dtype=torch.float32, device=device), float(voxel),
+                             tuple(int(r) for r in res))
+        self.step_size = self.config.step_ratio * self.geom.voxel
+        rx, ry, rz = self.geom.res
+        # the occupancy grid is saved with the model so that a resumed run samples exactly
+        # as the uninterrupted one would
+        self.register_buffer("occ_cells", torch.ones((rz - 1, ry - 1, rx - 1), dtype=torch.uint8, device=device))
+        self._set_occupancy(self.occ_cells)
+
+    def _raw_for_alpha(self, alpha: float, step: float) -> float:
+        sigma = -math.log1p(-alpha) / step
+        x = sigma / self.density_scale
+        return float(math.log(math.expm1(x))) if x < 20 else x
+
+    def _backend(self) -> str:
+        if self.config.kernels == "torch" or self.grid.device.type != "cpu":
+            return "torch"
+        if numba_kernels() is None:
+            if self.config.kernels == "numba":
+                raise fail("--kernels numba", "numba is not available", "pip install 'nerfkit[fast]' or use auto")
+            return "torch"
+        return "numba"
+
+    def _set_occupancy(self, occ: Tensor, coarse: Tensor | None = None) -> None:
+        """Install a cell occupancy (rz-1, ry-1, rx-1) uint8 (and its block max-pool)."""
+        self.occ_cells = occ.to(torch.uint8).contiguous()
+        if coarse is None:
+            grid = OccupancyGrid(self.geom.lo, self.geom.voxel, self.geom.res, device=occ.device)
+            grid.occ = self.occ_cells.bool()
+            coarse = grid.coarse(self.config.coarse_factor)
+        self._coarse_u8 = coarse.to(torch.uint8).contiguous()
+
+    @property
+    def occupancy(self) -> OccupancyGrid:
+        """The current occupancy grid (a snapshot, for inspection and other samplers)."""
+        grid = OccupancyGrid(self.geom.lo, self.geom.voxel, self.geom.res, device=self.occ_cells.device)
+        grid.occ = self.occ_cells.bool()
+        return grid
+
+    @property
+    def occupied_fraction(self) -> float:
+        return float(self.occ_cells.float().mean())
+
+    def _spec(self) -> MarchSpec:
+        return MarchSpec(self.occ_cells, self._coarse_u8, self.config.coarse_factor, self.step_size,
+                         self.config.early_stop_eps, self.density_scale)
+
+    def _apply(self, fn, recurse=True):
+        out = super()._apply(fn, recurse)
+        device = self.grid.device
+        if self.geom.lo.device != device:
+            self.geom.lo = self.geom.lo.to(device)
+            self._coarse_u8 = self._coarse_u8.to(device)
+            self.sink = GradSink(self.geom.n_vertices, self.n_channels, device)
+        return out
+
+    # -- rendering -------------------------------------------------------------------
+    def _background(self, dirs: Tensor, background: Tensor | None) -> Tensor:
+        if self.bg_coef is not None:
+            return torch.sigmoid(_sh16(dirs) @ self.bg_coef.t())
+        if background is None:
+            return torch.zeros(3, device=dirs.device)
+        return torch.as_tensor(background, dtype=torch.float32, device=dirs.device)
+
+    def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
+        o = rays.origins.float()
+        d = rays.directions.float()
+        n = o.shape[0]
+        t0, t1 = ray_aabb(o, d, self.geom.lo, self.geom.hi, self.bounds.near, self.bounds.far)
+        u = torch.rand(n, device=o.device) if perturb else torch.full((n,), 0.5, device=o.device)
+        out = render_grid(self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree,
+                          self.sink, self._backend())
+        if perturb and self.training and self.config.shrink_box and self.stage == 0 and self.steps:
+            self._remember_surface(o, d, out.depth.detach(), out.acc.detach())
+        bg = self._background(d, background)
+        rgb = out.rgb + (1.0 - out.acc).unsqueeze(-1) * bg
+        return RenderOutput(rgb, out.depth, out.acc, out.n_samples, {"samples_per_ray": out.counts})
+
+    def query(self, points: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:
+        pts = points.float()
+        inside = ((pts >= self.geom.lo) & (pts <= self.geom.hi)).all(-1)
+        feat = ref.grid_interp(self.grid, ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res)
+        sigma, rgb = ref.decode(feat, ref.sh_basis(directions.float(), self.config.sh_degree), self.density_scale)
+        return sigma * inside, rgb
+
+    def density(self, points: Tensor) -> Tensor:
+        pts = points.float()
+        inside = ((pts >= self.geom.lo) & (pts <= self.geom.hi)).all(-1)
+        raw = ref.grid_interp(self.grid[:, :1], ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res)
+        return self.density_scale * F.softplus(raw[:, 0]) * inside
+
+    # -- optimisation ----------------------------------------------------------------
+    def param_groups(self, lr: float) -> list[dict]:
+        scale = [1.0] + [self.config.colour_lr_ratio] * (self.n_channels - 1)
+        groups = [{"params": [self.grid], "lr": lr, "channel_lr_scale": scale}]
+        if self.bg_coef is not None:
+            groups.append({"params": [self.bg_coef], "lr": 0.1 * lr})
+        return groups
+
+    def make_optimizer(self, lr: float) -> torch.optim.Optimizer:
+        return GridAdam(self.param_groups(lr), sinks={self.grid: self.sink}, eps=self.config.adam_eps)
+
+    def before_step(self, step: int, progress: float) -> bool:
+        grew = False
+        while self.stage < len(self.steps) and step >= self.steps[self.stage]:
+            self._grow(self.sizes[self.stage + 1], shrink=self.config.shrink_box and self.stage == 0)
+            self.stage += 1
+            grew = True
+        return grew
+
+    def after_step(self, step: int) -> None:
+        done = step + 1
+        c = self.config
+        every = c.occ_start if done <= c.occ_warmup else c.occ_every
+        if done >= c.occ_start and done % max(every, 1) == 0:
+            self.occ_active = True
+            self.refresh_occupancy()
+
+    @torch.no_grad()
+    def refresh_occupancy(self) -> None:
+        """Rebuild the occupancy grid from the current densities (exact per-cell bound)."""
+        thr = self.occ_threshold()
+        nb = numba_kernels() if self._backend() == "numba" else None
+        if nb is not None:
+            rx, ry, rz = self.geom.res
+            occ = torch.empty((rz - 1, ry - 1, rx - 1), dtype=torch.uint8)
+            cf = max(self.config.coarse_factor, 1)
+            coarse = torch.zeros((-(-(rz - 1) // cf), -(-(ry - 1) // cf), -(-(rx - 1) // cf)), dtype=torch.uint8)
+            nb.occupancy_from_grid(self.grid.detach().numpy(), rx, ry, rz, self._raw_threshold(thr), occ.numpy(),
+                                   coarse.numpy(), cf)
+            self._set_occupancy(occ, coarse)
+            return
+        grid = self.occupancy
+        grid.set_from_cell_sigma(cell_density_max(self.grid, self.geom, self.density_scale), self.step_size, thr)
+        self._set_occupancy(grid.occ)
+
+    def _raw_threshold(self, alpha: float) -> float:
+        """The raw density above which one sample's opacity exceeds ``alpha``."""
+        x = -math.log1p(-alpha) / (self.step_size * self.density_scale)  # softplus(raw) > x
+        return float(math.log(math.expm1(x))) if x < 20 else x
+
+    @torch.no_grad()
+    def occ_threshold(self, n_probe: int = 1 << 14) -> float:
+        """``min(occ_alpha, mean cell opacity)`` (as instant-ngp): early in training, when
+        every density is still tiny, only the cells below average are skipped. The mean
+        is estimated on ``n_probe`` random cells (fixed seed)."""
+        rx, ry, rz = self.geom.res
+        n_cells = (rx - 1) * (ry - 1) * (rz - 1)
+        gen = torch.Generator().manual_seed(0)
+        cells = torch.randint(0, n_cells, (min(n_probe, n_cells),), generator=gen).to(self.grid.device)
+        x, y, z = cells % (rx - 1), (cells // (rx - 1)) % (ry - 1), cells // ((rx - 1) * (ry - 1))
+        base = (z * ry + y) * rx + x
+        offs = torch.tensor([dz * rx * ry + dy * rx + dx for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)],
+                            device=self.grid.device)
+        raw = self.grid.detach()[(base.unsqueeze(1) + offs).reshape(-1), 0].reshape(-1, 8).amax(1)
+        alpha = -torch.expm1(-self.density_scale * F.softplus(raw) * self.step_size)
+        return min(self.config.occ_alpha, float(alpha.mean()))
+
+    @torch.no_grad()
+    def _remember_surface(self, o: Tensor, d: Tensor, depth: Tensor, acc: Tensor) -> None:
+        """Keep (in a ring buffer) where opaque training rays end, for the box shrink."""
+        hit = acc > 0.5
+        if not hit.any():
+            return
+        pts = (o[hit] + d[hit] * (depth[hit] / acc[hit]).unsqueeze(-1)).to(self.surface_pts)
+        cap = self.surface_pts.shape[0]
+        pts = pts[-cap:]
+        start = int(self.surface_count) % cap
+        idx = (start + torch.arange(len(pts), device=pts.device)) % cap
+        self.surface_pts[idx] = pts
+        self.surface_count += len(pts)
+
+    @torch.no_grad()
+    def surface_box(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """A box (lo, hi) around where opaque training rays ended, or None with too few.
+
+        The 0.1% and 99.9% quantiles per axis of the remembered end points, padded by
+        ``box_pad`` voxels plus 5% of the extent (kept inside the current box).
+        """
+        n = min(int(self.surface_count), self.surface_pts.shape[0])
+        if n < 1000:
+            return None
+        pts = self.surface_pts[:n].double()
+        lo = torch.quantile(pts, 0.001, dim=0).cpu().numpy()
+        hi = torch.quantile(pts, 0.999, dim=0).cpu().numpy()
+        pad = self.config.box_pad * self.geom.voxel + 0.05 * (hi - lo)
+        box_lo, box_hi = self.geom.lo.cpu().numpy(), self.geom.hi.cpu().numpy()
+        return np.maximum(lo - pad, box_lo), np.minimum(hi + pad, box_hi)
+
+    @torch.no_grad()
+    def _grow(self, size: int, shrink: bool) -> None:
+        old_geom, old_grid = self.geom, self.grid.detach()
+        lo = old_geom.lo.cpu().numpy()
+        hi = old_geom.hi.cpu().numpy()
+        if shrink:
+            box = self.surface_box()
+            if box is not None:
+                lo, hi = box
+        new_lo, voxel, res = fit_grid(lo, hi, size)
+        self._set_geometry(new_lo, voxel, res)
+        new = resample_grid(old_grid, old_geom, self.geom)
+        self.grid = nn.Parameter(new)
+        self.sink = GradSink(self.geom.n_vertices, self.n_channels, new.device)
+        if self.occ_active:
+            self.refresh_occupancy()
+        else:
+            self._set_occupancy(self.occ_cells.new_ones(self.occ_cells.shape))
+
+    # -- checkpoints -----------------------------------------------------------------
+    def extra_state(self) -> dict:
+        return {"lo": [float(v) for v in self.geom.lo.cpu()], "voxel": self.geom.voxel, "res": list(self.geom.res),
+                "stage": self.stage, "occ_active": self.occ_active, "density_scale": self.density_scale}
+
+    def load_extra_state(self, state: dict) -> None:
+        device = self.grid.device
+        self.density_scale = float(state["density_scale"])
+        self.stage = int(state["stage"])
+        self.occ_active = bool(state["occ_active"])
+        self._set_geometry(np.asarray(state["lo"], np.float32), float(state["voxel"]), tuple(state["res"]))
+        self.grid = nn.Parameter(torch.zeros((self.geom.n_vertices, self.n_channels), device=device))
+        self.sink = GradSink(self.geom.n_vertices, self.n_channels, device)
+
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        result = super().load_state_dict(state_dict, strict=strict, assign=assign)
+        self._set_occupancy(self.occ_cells)
+        return result
+
+
+def _sh16(dirs: Tensor) -> Tensor:
+    """(n, 3) unit directions -> (n, 16): the real spherical harmonics up to degree 3
+    (unnormalised), a smooth basis for the learned background colour."""
+    x, y, z = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+    one = torch.ones_like(x)
+    return torch.stack([one, x, y, z, x * y, y * z, x * z, x * x - y * y, 3 * z * z - 1,
+                        x * (x * x - 3 * y * y), y * (3 * x * x - y * y), z * (x * x - y * y), x * y * z,
+                        x * (5 * z * z - 1), y * (5 * z * z - 1), z * (5 * z * z - 3)], dim=-1)
+
+
+@torch.no_grad()
+def resample_grid(grid: Tensor, old: GridGeom, new: GridGeom, slab: int = 16) -> Tensor:
+    """Trilinearly resample a vertex grid (N_old, C) onto another grid's vertices (N_new, C).
+
+    Vertices of the new grid outside the old box take the value at the nearest point
+    of the old box (coordinates are clamped), as :func:`reference.grid_interp` does.
+    """
+    rx, ry, rz = old.res
+    C = grid.shape[1]
+    vol = grid.reshape(rz, ry, rx, C).permute(3, 0, 1, 2).unsqueeze(0)  # (1, C, rz, ry, rx)
+    nx, ny, nz = new.res
+    dev, dt = grid.device, grid.dtype
+    span = old.voxel * torch.tensor([rx - 1, ry - 1, rz - 1], dtype=dt, device=dev)
+    lo_old, lo_new = old.lo.to(dev, dt), new.lo.to(dev, dt)
+    xs = lo_new[0] + new.voxel * torch.arange(nx, dtype=dt, device=dev)
+    ys = lo_new[1] + new.voxel * torch.arange(ny, dtype=dt, device=dev)
+    out = torch.empty((nz, ny, nx, C), dtype=dt, device=dev)
+    for z0 in range(0, nz, slab):
+        zs = lo_new[2] + new.voxel * torch.arange(z0, min(z0 + slab, nz), dtype=dt, device=dev)
+        Z, Y, X = torch.meshgrid(zs, ys, xs, indexing="ij")
+        pts = torch.stack([X, Y, Z], dim=-1)
+        norm = ((pts - lo_old) / span * 2 - 1).clamp(-1, 1)
+        vals = F.grid_sample(vol, norm.unsqueeze(0), mode="bilinear", padding_mode="border", align_corners=True)
+        out[z0:z0 + len(zs)] = vals[0].permute(1, 2, 3, 0)
+    return out.reshape(-1, C)

@@ -1,0 +1,631 @@
+"""Hostile and broken inputs, one by one (issue 6): regression cases for the bugs the fuzz
+found, exit codes and one-line errors of every command that takes files, what the servers
+listen on, and that photo loading does not make float32 copies.
+
+The random versions of these checks live in ``test_fuzz_loaders.py``; crash/resume,
+atomic writes, crafted checkpoints and the non-finite guard in ``test_reliability.py``.
+"""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import io
+import json
+import re
+import shutil
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nerfkit.cli import build_parser, main
+from nerfkit.errors import NerfkitError
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "nerfkit"
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
+
+# Bugs in files owned by the capture work (camera file, layout file, transforms.json),
+# reported with a fix; these cases pass once the fixes land.
+CAPTURE_BUG = pytest.mark.xfail(strict=False, reason="reported bug in nerfkit.capture / nerfkit.data.nerfstudio")
+
+
+def one_line_error(excinfo, *fragments) -> str:
+    msg = str(excinfo.value)
+    assert "\n" not in msg and "Traceback" not in msg, msg
+    for f in fragments:
+        assert f in msg, (f, msg)
+    return msg
+
+
+# ============================================================================= course npz
+
+
+def course_arrays(n=3, size=6):
+    rng = np.random.default_rng(0)
+    c2w = np.tile(np.eye(4, dtype=np.float32), (n, 1, 1))
+    c2w[:, :3, 3] = rng.normal(size=(n, 3)) * 0.3 + [0, 0, 4]
+    return {"images_train": rng.integers(0, 255, (n, size, size, 3), dtype=np.uint8), "c2ws_train": c2w,
+            "focal": np.float32(10.0)}
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda a: a.update(center=np.zeros(2)), "'center' must be 3 numbers"),
+    (lambda a: a.update(center=np.array(["a", "b", "c"])), "'center' must be 3 numbers"),
+    (lambda a: a.update(center=np.array([np.nan, 0, 0])), "'center' is [nan"),
+    (lambda a: a.update(up=np.zeros(3)), "'up' is the zero vector"),
+    (lambda a: a.update(up=np.array([np.inf, 0, 0])), "'up' is [inf"),
+    (lambda a: a.update(focal=np.float64(1e300)), "'focal' has NaN or inf values"),
+    (lambda a: a["c2ws_train"].__setitem__((0, 0, 3), 1e30), "'c2ws_train'[0] has NaN or inf values"),
+    (lambda a: a.update(c2ws_train=np.repeat(a["c2ws_train"][:1], 3, 0)), "cannot estimate near/far"),
+    (lambda a: a.update(K=np.array([[1e300, 0, 3], [0, 1e300, 3], [0, 0, 1]])), "'K' has NaN or inf values"),
+])
+def test_npz_values_that_used_to_crash_or_load_as_garbage(tmp_path, edit, message):
+    from nerfkit.data.npz import load_npz
+
+    a = course_arrays()
+    edit(a)
+    np.savez(tmp_path / "s.npz", **a)
+    with pytest.raises(NerfkitError) as e:
+        load_npz(tmp_path / "s.npz")
+    one_line_error(e, message, "s.npz")
+
+
+def test_npz_byte_string_names_are_decoded(tmp_path):
+    from nerfkit.data.npz import load_npz
+
+    np.savez(tmp_path / "s.npz", **course_arrays(), names_train=np.array([b"a.jpg", b"b.jpg", b"c.jpg"]))
+    assert load_npz(tmp_path / "s.npz").train.names == ["a.jpg", "b.jpg", "c.jpg"]
+
+
+# ============================================================================= images
+
+
+def test_float_tiff_with_nan_loads_finite(tmp_path):
+    from PIL import Image
+
+    from nerfkit.images import load_image
+
+    Image.fromarray(np.array([[np.nan, np.inf], [-np.inf, 0.5]], np.float32)).save(tmp_path / "f.tif")
+    img = load_image(tmp_path / "f.tif")
+    assert np.isfinite(img).all() and img.min() >= 0 and img.max() <= 1
+
+
+@pytest.mark.parametrize("name", ["a\x00b.png", "x" * 5000 + ".png"])
+def test_unusable_image_paths_are_one_line_errors(tmp_path, name):
+    from nerfkit.data.load import load_scene
+    from nerfkit.images import load_image_uint8
+
+    for fn in (load_image_uint8, load_scene):
+        with pytest.raises(NerfkitError, match="not a usable path|no such file") as e:
+            fn(str(tmp_path / name))
+        one_line_error(e)
+
+
+def test_uint8_loading_of_a_photo_makes_no_float_copy(tmp_path):
+    """A 12-MP photo as float32 is ~150 MB; load_image_uint8 must not build one (nor three)."""
+    import tracemalloc
+
+    from PIL import Image
+
+    from nerfkit.images import load_image_uint8
+
+    w, h = 1600, 1200
+    yy, xx = np.mgrid[0:h, 0:w]
+    Image.fromarray(np.stack([xx % 256, yy % 256, (xx + yy) % 256], -1).astype(np.uint8)).save(tmp_path / "p.jpg")
+    tracemalloc.start()
+    img = load_image_uint8(tmp_path / "p.jpg")
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert img.shape == (h, w, 3) and img.dtype == np.uint8
+    assert peak < 2.5 * img.nbytes, f"peak {peak / 1e6:.1f} MB for a {img.nbytes / 1e6:.1f} MB image"
+
+
+# ============================================================================= Blender folders
+
+
+def make_blender(folder: Path, angle=0.69, n=3):
+    from PIL import Image
+
+    from nerfkit.cameras import opencv_to_opengl
+    from nerfkit.data.synthetic import sphere_cameras
+
+    c2w = sphere_cameras(n, seed=1).astype(np.float64)
+    (folder / "train").mkdir(parents=True)
+    for i in range(n):
+        Image.new("RGBA", (8, 6), (10, 20, 30, 255)).save(folder / "train" / f"r_{i}.png")
+    frames = [{"file_path": f"./train/r_{i}", "transform_matrix": opencv_to_opengl(c2w[i]).tolist()} for i in range(n)]
+    (folder / "transforms_train.json").write_text(json.dumps({"camera_angle_x": angle, "frames": frames}))
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.update(camera_angle_x=True), "'camera_angle_x' is True"),
+    (lambda d: d.update(camera_angle_x=1e-300), "'camera_angle_x' has NaN or inf values"),
+    (lambda d: d["frames"][0]["transform_matrix"][0].__setitem__(3, 1e300), "has NaN or inf values"),
+    (lambda d: d["frames"][0].update(file_path="a\x00b"), "is not a usable path"),
+    (lambda d: d["frames"][0].update(file_path="x" * 5000), "is not a usable path"),
+    (lambda d: d["frames"][0].update(file_path="line\nbreak"), "not found"),
+])
+def test_blender_values_that_used_to_crash_or_load_as_garbage(tmp_path, edit, message):
+    from nerfkit.data.load import load_scene
+
+    make_blender(tmp_path)
+    p = tmp_path / "transforms_train.json"
+    d = json.loads(p.read_text())
+    edit(d)
+    p.write_text(json.dumps(d))
+    with pytest.raises(NerfkitError) as e:
+        load_scene(tmp_path)
+    one_line_error(e, message)
+
+
+# ============================================================================= COLMAP models
+
+
+def colmap_project(folder: Path, cams="1 PINHOLE 16 12 20 20 8 6\n", pose="1 0 0 0 {x} 0 4", n=4) -> Path:
+    from PIL import Image
+
+    m = folder / "sparse" / "0"
+    m.mkdir(parents=True)
+    (m / "cameras.txt").write_text(cams)
+    (m / "images.txt").write_text("".join(f"{i + 1} {pose.format(x=0.1 * i)} 1 {i}.png\n\n" for i in range(n)))
+    pts = np.random.default_rng(0).normal(size=(30, 3)) * 0.3
+    (m / "points3D.txt").write_text("".join(f"{j + 1} {x} {y} {z} 1 2 3 0.5\n" for j, (x, y, z) in enumerate(pts)))
+    (folder / "images").mkdir()
+    for i in range(n):
+        Image.new("RGB", (16, 12)).save(folder / "images" / f"{i}.png")
+    return folder
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"cams": "1 PINHOLE 16 12 0 0 8 6\n"}, "zero or negative focal"),
+    ({"cams": "1 PINHOLE 16 12 -20 -20 8 6\n"}, "zero or negative focal"),
+    ({"cams": "1 PINHOLE 0 12 20 20 8 6\n"}, "has image size 0x12"),
+    ({"pose": "1 0 0 0 1e300 0 4"}, "has NaN or inf values"),
+    ({"pose": "0 0.5 0 0 {x} 0 4"}, "rotation is not rigid"),  # a quaternion of norm 0.5
+    ({"cams": "1 PINHOLE 16 12 nan 20 8 6\n"}, "cannot read the COLMAP model"),
+])
+def test_colmap_values_that_used_to_load_as_garbage(tmp_path, kw, message):
+    pytest.importorskip("pycolmap")
+    from nerfkit.data.load import load_scene
+
+    with pytest.raises(NerfkitError) as e:
+        load_scene(colmap_project(tmp_path, **kw))
+    one_line_error(e, message)
+
+
+def _binary_model(folder: Path) -> Path:
+    from nerfkit.data.colmap import write_colmap_model
+    from nerfkit.data.synthetic import sphere_scene
+
+    return write_colmap_model(sphere_scene(n_train=3, n_val=1, size=8), folder)
+
+
+def test_colmap_binary_header_declaring_a_huge_count_is_refused_at_once(tmp_path):
+    """8 bytes claiming 10^15 points made pycolmap allocate until the machine ran out of memory."""
+    pytest.importorskip("pycolmap")
+    from nerfkit.data.colmap import read_model
+
+    m = _binary_model(tmp_path / "m")
+    (m / "points3D.bin").write_bytes(struct.pack("<Q", 10**15))
+    with pytest.raises(NerfkitError) as e:
+        read_model(m)
+    one_line_error(e, "declares 1000000000000000 records but holds 8 bytes")
+
+
+def test_colmap_binary_nested_count_is_read_in_a_memory_capped_child(tmp_path):
+    """A huge per-image point count inside images.bin: pycolmap tries to allocate it."""
+    pytest.importorskip("pycolmap")
+    from nerfkit.data.colmap import read_model
+
+    m = _binary_model(tmp_path / "m")
+    b = bytearray((m / "images.bin").read_bytes())
+    off = b.index(b"\x00", 8 + 4 + 32 + 24 + 4) + 1  # after the first image's name
+    b[off:off + 8] = struct.pack("<Q", 10**15)
+    (m / "images.bin").write_bytes(bytes(b))
+    with pytest.raises(NerfkitError) as e:
+        read_model(m)
+    one_line_error(e, "cannot read the COLMAP model")
+
+
+# ============================================================================= run config.json and checkpoints
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    from nerfkit.data.npz import save_npz
+    from nerfkit.data.synthetic import sphere_scene
+    from nerfkit.models.vanilla import VanillaConfig
+    from nerfkit.train.config import TrainConfig
+    from nerfkit.train.trainer import train
+
+    root = tmp_path_factory.mktemp("hostile")
+    scene = sphere_scene(n_train=4, n_val=1, size=8)
+    save_npz(scene, root / "data.npz")
+    train(scene, TrainConfig(data=str(root / "data.npz"), model="vanilla", out=str(root / "run"), steps=3,
+                             batch_rays=16, lr=1e-3, eval_views=1, checkpoint_seconds=1e9),
+          VanillaConfig(n_samples=4, width=8, depth=2), quiet=True)
+    return root / "run"
+
+
+def edited_run(tiny_run, tmp_path, edit_config=None, edit_checkpoint=None) -> Path:
+    import torch
+
+    run = shutil.copytree(tiny_run, tmp_path / "run")
+    if edit_config:
+        cfg = json.loads((run / "config.json").read_text())
+        cfg = edit_config(cfg) or cfg
+        (run / "config.json").write_text(json.dumps(cfg))
+    if edit_checkpoint:
+        path = sorted((run / "checkpoints").glob("*.pt"))[-1]
+        ckpt = torch.load(path, weights_only=True)
+        edit_checkpoint(ckpt)
+        torch.save(ckpt, path)
+    return run
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda c: [c], "expected a JSON object, got list"),
+    (lambda c: c.update(train=[]), "'train' is missing or not an object"),
+    (lambda c: c.update(model=["width"]), "'model' is missing or not an object"),
+    (lambda c: c["train"].update(model="nope"), "unknown model 'nope'"),
+    (lambda c: c["train"].update(lr=float("nan")), "'lr' is NaN"),
+    (lambda c: c["train"].update(lr_final_factor=5.0), "invalid TrainConfig settings"),
+    (lambda c: c["bounds"].update(near=float("nan")), "near/far must be finite"),
+    (lambda c: c["bounds"].update(near=7.0), "need 0 <= near < far"),
+    (lambda c: c["bounds"].update(center=[1.0]), "'bounds.center' must be 3 numbers"),
+    (lambda c: c["bounds"].update(up=[0, 0, 0]), "'bounds.up' is the zero vector"),
+    (lambda c: c["bounds"].update(radius=-1), "'bounds.radius' is -1"),
+    (lambda c: c["model"].update(width=-1), "settings out of range"),
+])
+def test_run_config_values_that_used_to_crash_or_load_as_garbage(tiny_run, tmp_path, edit, message):
+    from nerfkit.train.checkpoint import load_run
+
+    with pytest.raises(NerfkitError) as e:
+        load_run(edited_run(tiny_run, tmp_path, edit_config=edit))
+    one_line_error(e, message, "config.json")
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda k: k.update(model_extra=5), "'model' or 'model_extra' has the wrong type"),
+    (lambda k: k.update(model=[1, 2]), "'model' or 'model_extra' has the wrong type"),
+    (lambda k: k.update(step="x"), "checkpoint step is 'x'"),
+    (lambda k: k.update(step=-5), "checkpoint step is -5"),
+    (lambda k: k["model"].update({next(iter(k["model"])): next(iter(k["model"].values())) * float("nan")}),
+     "weights hold NaN or inf"),
+    (lambda k: k["model"].update({next(iter(k["model"])): np.float32(0) + __import__("torch").zeros(1)}),
+     "size mismatch"),
+])
+def test_checkpoint_values_that_used_to_crash_or_load_as_garbage(tiny_run, tmp_path, capsys, edit, message):
+    from nerfkit.train.checkpoint import load_run
+
+    with pytest.raises(NerfkitError) as e:
+        load_run(edited_run(tiny_run, tmp_path, edit_checkpoint=edit))
+    one_line_error(e, message, "no checkpoint could be loaded")
+    assert capsys.readouterr().err == ""  # the reason is in the error, not repeated as a warning
+
+
+# ============================================================================= files owned by the capture work
+
+
+@CAPTURE_BUG
+@pytest.mark.parametrize("text", [
+    '{"K": [[1000, 0, 640], [0, 1000, 480], [0, 0, 1]], "dist": [0, 0, 0, 0, 0], "width": Infinity, "height": 960}',
+    "DIRECTORY",
+])
+def test_camera_file_crashes(tmp_path, text):
+    from nerfkit.capture.camera import load_camera
+
+    path = tmp_path / "camera.json"
+    if text == "DIRECTORY":
+        path.mkdir()
+    else:
+        path.write_text(text)
+    with pytest.raises(NerfkitError) as e:
+        load_camera(path)
+    one_line_error(e)
+
+
+@CAPTURE_BUG
+@pytest.mark.parametrize("spec", [
+    {"tags": {"0": {"center": "ab", "size": 0.05}}},
+    {"tags": {"0": {"center": [0, 0], "size": "big"}}},
+    {"tags": {"0": {"center": [0, 0], "size": 0.05, "rotation_deg": "x"}}},
+    {"tags": {"0": [[0, 0, 0], [1, 0]]}},
+    {"tags": {"0": {"center": [0, 0], "size": float("inf")}}},
+    {"tag_size": "x", "tags": {"0": {"center": [0, 0]}}},
+    {"board": "grid", "markers_x": -2, "markers_y": 2, "marker_length": 0.04, "marker_separation": 0.01},
+    {"board": "grid", "markers_x": 10**6, "markers_y": 10**6, "marker_length": 0.04, "marker_separation": 0.01},
+    {"board": "grid", "markers_x": float("inf"), "markers_y": 2, "marker_length": 0.04, "marker_separation": 0.01},
+    {"board": "grid", "dictionary": ["x"], "markers_x": 2, "markers_y": 2, "marker_length": 0.04,
+     "marker_separation": 0.01},
+    {"board": "charuco", "squares_x": 5, "squares_y": 5, "square_length": 0.01, "marker_length": 0.04},
+])
+def test_layout_file_crashes(tmp_path, spec):
+    from nerfkit.capture.aruco import load_layout
+
+    path = tmp_path / "layout.json"
+    path.write_text(json.dumps(spec))
+    try:
+        layout = load_layout(path, "DICT_4X4_50")
+    except NerfkitError as e:
+        assert "\n" not in str(e)
+        return
+    for c in layout.tags.values():  # if it loads, the corners must be usable
+        assert np.isfinite(c).all()
+    assert np.isfinite(layout.tag_size) and layout.tag_size > 0
+
+
+@CAPTURE_BUG
+@pytest.mark.parametrize("edit", [
+    lambda d: d.update(w=0),
+    lambda d: (d.pop("fl_x"), d.pop("fl_y"), d.update(camera_angle_x=0)),
+    lambda d: d.update(nerfkit={"center": [1, 2]}),
+    lambda d: d.update(nerfkit={"near": "a", "far": 2}),
+    lambda d: d.update(nerfkit={"poses_only": [1, 2]}),
+    lambda d: d.update(nerfkit={"poses_only": {"test": "abc"}}),
+])
+def test_transforms_json_crashes(tmp_path, edit):
+    from PIL import Image
+
+    from nerfkit.data.load import load_scene
+
+    (tmp_path / "images").mkdir()
+    frames = []
+    for i in range(3):
+        Image.new("RGB", (16, 12)).save(tmp_path / "images" / f"{i}.png")
+        m = np.eye(4)
+        m[:3, 3] = [0.3 * i, 0, 4]
+        frames.append({"file_path": f"images/{i}.png", "transform_matrix": m.tolist()})
+    d = {"fl_x": 20, "fl_y": 20, "cx": 8, "cy": 6, "w": 16, "h": 12, "frames": frames}
+    edit(d)
+    (tmp_path / "transforms.json").write_text(json.dumps(d))
+    with pytest.raises(NerfkitError) as e:
+        load_scene(tmp_path)
+    one_line_error(e)
+
+
+# ============================================================================= exit codes through the CLI
+
+
+def _broken_inputs(root: Path, run: Path) -> dict[str, Path]:
+    """A few broken files and folders, made once."""
+    from PIL import Image
+
+    b = {}
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "truncated.npz").write_bytes(b"PK\x03\x04 truncated")
+    b["truncated_npz"] = root / "truncated.npz"
+    bad = course_arrays()
+    bad["c2ws_train"][0, :3, :3] *= 2.0
+    np.savez(root / "nonrigid.npz", **bad)
+    b["nonrigid_npz"] = root / "nonrigid.npz"
+    buf = io.BytesIO()
+    Image.new("RGB", (64, 48), (200, 10, 10)).save(buf, "JPEG")
+    (root / "photos").mkdir(exist_ok=True)
+    (root / "photos" / "IMG_0001.jpg").write_bytes(buf.getvalue()[:100])
+    (root / "photos" / "IMG_0002.jpg").write_text("not a photo")
+    b["photos"] = root / "photos"
+    b["truncated_jpg"] = root / "photos" / "IMG_0001.jpg"
+    (root / "camera.json").write_text('{"K": [[0, 0, 1], [0, 0, 1], [0, 0, 1]], "dist": [], "width": 8, "height": 6}')
+    b["camera"] = root / "camera.json"
+    (root / "layout.json").write_text('{"tags": {"0": [[0, 0, 0]]}}')
+    b["layout"] = root / "layout.json"
+    broken_run = shutil.copytree(run, root / "broken_run")
+    (broken_run / "config.json").write_text('{"train": {"model": "vanilla"')
+    b["broken_run"] = broken_run
+    nan_run = shutil.copytree(run, root / "nan_run")
+    import torch
+
+    for p in (nan_run / "checkpoints").glob("*.pt"):
+        ckpt = torch.load(p, weights_only=True)
+        for k, v in ckpt["model"].items():
+            if v.is_floating_point():
+                ckpt["model"][k] = v * float("nan")
+        torch.save(ckpt, p)
+    b["nan_run"] = nan_run
+    b["run"] = run
+    (root / "poses").mkdir(exist_ok=True)
+    (root / "poses" / "poses.json").write_text('{"format": "nerfkit-poses", "camera": 5}')
+    b["poses_json"] = root / "poses"
+    return b
+
+
+CASES = [
+    ("train --data truncated", lambda b, t: ["train", "--data", str(b["truncated_npz"]), "--out", str(t / "r"),
+                                             "--steps", "1", "--model", "vanilla"]),
+    ("train --data non-rigid", lambda b, t: ["train", "--data", str(b["nonrigid_npz"]), "--out", str(t / "r"),
+                                             "--steps", "1", "--model", "vanilla"]),
+    ("train --data missing", lambda b, t: ["train", "--data", str(t / "nope.npz"), "--out", str(t / "r"),
+                                           "--steps", "1"]),
+    ("train --resume broken", lambda b, t: ["train", "--resume", str(b["broken_run"])]),
+    ("eval broken run", lambda b, t: ["eval", str(b["broken_run"])]),
+    ("eval --data broken", lambda b, t: ["eval", str(b["run"]), "--data", str(b["nonrigid_npz"])]),
+    ("eval nan checkpoint", lambda b, t: ["eval", str(b["nan_run"])]),
+    ("render broken run", lambda b, t: ["render", str(b["broken_run"])]),
+    ("render missing run", lambda b, t: ["render", str(t / "no_run")]),
+    ("convert truncated", lambda b, t: ["convert", str(b["truncated_npz"]), "--to", str(t / "o.npz")]),
+    ("convert non-rigid", lambda b, t: ["convert", str(b["nonrigid_npz"]), "--to", str(t / "o")]),
+    ("export broken run", lambda b, t: ["export", str(b["broken_run"]), "--mesh", str(t / "m.ply")]),
+    ("fit-image truncated", lambda b, t: ["fit-image", str(b["truncated_jpg"]), "--out", str(t / "f"),
+                                          "--steps", "1", "--quiet"]),
+    ("fit-image missing", lambda b, t: ["fit-image", str(t / "none.jpg"), "--out", str(t / "f"), "--quiet"]),
+    ("calibrate unreadable photos", lambda b, t: ["calibrate", str(b["photos"]), "--tag-size", "0.05", "--out",
+                                                  str(t / "cam.json"), "--no-cache", "--jobs", "1"]),
+    ("calibrate bad layout", lambda b, t: ["calibrate", str(b["photos"]), "--layout", str(b["layout"]), "--out",
+                                           str(t / "cam.json")]),
+    ("poses bad camera", lambda b, t: ["poses", str(b["photos"]), "--camera", str(b["camera"]), "--tag-size",
+                                       "0.05", "--out", str(t / "ds")]),
+    ("poses unreadable photos", lambda b, t: ["poses", str(b["photos"]), "--tag-size", "0.05", "--focal-px", "50",
+                                              "--out", str(t / "ds"), "--no-cache", "--jobs", "1"]),
+    ("dataset broken poses.json", lambda b, t: ["dataset", str(b["poses_json"]), "--out", str(t / "ds")]),
+    ("view --png truncated", lambda b, t: ["view", str(b["truncated_npz"]), "--png", str(t / "v.png")]),
+    ("view --png non-rigid", lambda b, t: ["view", str(b["nonrigid_npz"]), "--png", str(t / "v.png")]),
+]
+
+
+@pytest.fixture(scope="module")
+def broken(tiny_run, tmp_path_factory):
+    return _broken_inputs(tmp_path_factory.mktemp("broken"), tiny_run)
+
+
+@pytest.mark.parametrize("name, argv", CASES, ids=[c[0] for c in CASES])
+def test_cli_exit_code_2_and_one_line_for_broken_inputs(broken, tmp_path, capsys, name, argv):
+    args = argv(broken, tmp_path)
+    code = main(args)
+    out, err = capsys.readouterr()
+    # A tqdm bar (leave=False) is erased on a terminal but stays in a captured stream: not counted here
+    # (reported: the capture commands could pass disable=None so that pipes and logs get no bar).
+    shown = [ln.rsplit("\r", 1)[-1] for ln in err.splitlines()]
+    lines = [ln for ln in shown if ln.strip() and not re.search(r"\|\s*\d+/\d+ \[", ln)]
+    assert code == 2, (code, err)
+    assert "Traceback" not in err
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"nerfkit {args[0]}: error: "), lines
+
+
+def test_a_broken_newest_checkpoint_is_one_warning_when_an_older_one_loads(broken, tmp_path, capsys):
+    from nerfkit.train.checkpoint import load_run
+
+    run = shutil.copytree(broken["run"], tmp_path / "run")
+    good = sorted((run / "checkpoints").glob("*.pt"))[-1]
+    shutil.copy(sorted((broken["nan_run"] / "checkpoints").glob("*.pt"))[-1], run / "checkpoints" / "step_00009999.pt")
+    _, _, step = load_run(run)
+    assert step == int(good.stem.split("_")[1])
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "step_00009999.pt" in lines[0] and "NaN or inf" in lines[0], lines
+
+
+# ============================================================================= network exposure
+
+
+def test_view_listens_on_localhost_unless_told_otherwise():
+    parser = build_parser()
+    assert parser.parse_args(["view", "x"]).host == "127.0.0.1"
+    assert parser.parse_args(["view", "x", "--host", "0.0.0.0"]).host == "0.0.0.0"
+
+
+def test_every_host_flag_of_every_command_defaults_to_localhost():
+    import argparse
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    seen = 0
+    for name, p in sub.choices.items():
+        for action in p._actions:
+            if action.dest in ("host", "bind", "address") or any("host" in o for o in action.option_strings):
+                seen += 1
+                assert action.default in LOCAL_HOSTS, (name, action.default)
+    assert seen >= 1  # at least `view --host`
+
+
+def test_every_serve_function_defaults_to_localhost():
+    import importlib
+    import pkgutil
+
+    import nerfkit.commands
+    import nerfkit.viz
+
+    checked = []
+    for pkg in (nerfkit.viz, nerfkit.commands):
+        for mod in pkgutil.iter_modules(pkg.__path__):
+            module = importlib.import_module(f"{pkg.__name__}.{mod.name}")
+            for name, obj in vars(module).items():
+                funcs = [obj] if inspect.isfunction(obj) else \
+                    [m for m in vars(obj).values() if inspect.isfunction(m)] if inspect.isclass(obj) else []
+                for f in funcs:
+                    if getattr(f, "__module__", None) != module.__name__:
+                        continue
+                    param = inspect.signature(f).parameters.get("host")
+                    if param is not None:
+                        checked.append(f"{module.__name__}.{f.__qualname__}")
+                        assert param.default in LOCAL_HOSTS, (f.__qualname__, param.default)
+    from nerfkit.viz.viewer import serve_dataset
+
+    assert inspect.signature(serve_dataset).parameters["host"].default == "127.0.0.1"
+    try:
+        from nerfkit.viz.live import LiveViewer, serve_run
+    except ImportError:
+        pass
+    else:
+        assert inspect.signature(serve_run).parameters["host"].default == "127.0.0.1"
+        assert inspect.signature(LiveViewer).parameters["host"].default == "127.0.0.1"
+    assert len(checked) >= 2, checked
+
+
+def test_every_viser_server_is_given_a_host_explicitly():
+    """viser's own default is 0.0.0.0 (every interface): nerfkit must always pass ``host``."""
+    calls = 0
+    for path in SRC.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Call):
+                f = node.func
+                name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
+                if name == "ViserServer":
+                    calls += 1
+                    assert any(k.arg == "host" for k in node.keywords), \
+                        f"{path}:{node.lineno} relies on viser's default host 0.0.0.0"
+    assert calls >= 1
+
+
+def _listening(port: int) -> list[str]:
+    """Local addresses listening on TCP ``port`` (from /proc/net/tcp and tcp6)."""
+    found = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            rows = Path(table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for row in rows:
+            local, state = row.split()[1], row.split()[3]
+            addr, p = local.split(":")
+            if int(p, 16) == port and state == "0A":  # LISTEN
+                found.append(addr)
+    return found
+
+
+def test_the_dataset_viewer_really_binds_to_localhost_only():
+    pytest.importorskip("viser")
+    if not Path("/proc/net/tcp").exists():
+        pytest.skip("needs /proc/net/tcp")
+    import socket
+
+    from nerfkit.data.synthetic import sphere_scene
+    from nerfkit.viz.viewer import serve_dataset
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server, _ = serve_dataset(sphere_scene(n_train=3, n_val=1, size=8), port=port, block=False)
+    try:
+        addrs = _listening(server.get_port())
+        assert addrs, "the viewer is not listening"
+        assert set(addrs) <= {"0100007F", "00000000000000000000000001000000"}, addrs  # 127.0.0.1, ::1
+    finally:
+        server.stop()
+
+
+def test_view_command_passes_localhost_and_warns_for_other_hosts(tmp_path, monkeypatch, capsys):
+    from nerfkit.data.npz import save_npz
+    from nerfkit.data.synthetic import sphere_scene
+    from nerfkit.viz import viewer
+
+    save_npz(sphere_scene(n_train=3, n_val=1, size=8), tmp_path / "d.npz")
+    calls = []
+
+    class FakeServer:
+        def get_port(self):
+            return 8080
+
+    def fake_serve(scene, host, port, **kw):
+        calls.append(host)
+        return FakeServer(), {}
+
+    monkeypatch.setattr(viewer, "serve_dataset", fake_serve)
+    monkeypatch.setattr(viewer, "wait_until_interrupted", lambda server: None)
+    assert main(["view", str(tmp_path / "d.npz")]) == 0
+    assert "warning" not in capsys.readouterr().out
+    assert main(["view", str(tmp_path / "d.npz"), "--host", "0.0.0.0"]) == 0
+    assert calls == ["127.0.0.1", "0.0.0.0"]
+    assert "warning: listening on 0.0.0.0" in capsys.readouterr().out

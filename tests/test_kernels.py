@@ -1,0 +1,283 @@
+"""The fast grid field's operations: compiled kernels against their pure-torch references
+(values and gradients), and the references against analytic facts."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from nerfkit.kernels import numba_kernels
+from nerfkit.kernels import reference as ref
+from nerfkit.kernels.ops import GradSink, GridGeom, MarchSpec, cell_density_max, render_grid
+from nerfkit.kernels.optim import GridAdam
+from nerfkit.render.occupancy import OccupancyGrid, ray_aabb
+
+needs_numba = pytest.mark.skipif(numba_kernels() is None, reason="numba not available")
+
+
+def fibonacci_sphere(n: int) -> torch.Tensor:
+    i = torch.arange(n, dtype=torch.float64) + 0.5
+    z = 1 - 2 * i / n
+    phi = math.pi * (1 + 5 ** 0.5) * i
+    r = torch.sqrt(1 - z * z)
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2])
+def test_sh_basis_is_orthonormal_on_the_sphere(degree):
+    d = fibonacci_sphere(20000)
+    Y = ref.sh_basis(d, degree)
+    gram = 4 * math.pi * (Y.T @ Y) / len(d)  # integral of Y_i Y_j over the sphere
+    torch.testing.assert_close(gram, torch.eye(ref.sh_dim(degree), dtype=torch.float64), atol=2e-3, rtol=0)
+
+
+def test_sh_basis_rejects_unsupported_degree():
+    with pytest.raises(ValueError):
+        ref.sh_basis(torch.zeros(1, 3), 3)
+
+
+def test_trilinear_reproduces_vertices_and_linear_functions():
+    torch.manual_seed(0)
+    res = (5, 4, 6)
+    geom = GridGeom(torch.tensor([-1.0, 0.5, 2.0], dtype=torch.float64), 0.3, res)
+    pos = geom.vertex_positions()
+    # a linear function of position, stored at the vertices, is reproduced exactly anywhere inside
+    A = torch.randn(3, 2, dtype=torch.float64)
+    grid = pos @ A + 0.7
+    pts = geom.lo + torch.rand(500, 3, dtype=torch.float64) * (geom.hi - geom.lo)
+    got = ref.grid_interp(grid, ref.grid_coords(pts, geom.lo, geom.voxel), res)
+    torch.testing.assert_close(got, pts @ A + 0.7)
+    # at vertices it returns the vertex rows themselves
+    rows = torch.randint(0, geom.n_vertices, (50,))
+    got = ref.grid_interp(grid, ref.grid_coords(geom.vertex_positions(rows), geom.lo, geom.voxel), res)
+    torch.testing.assert_close(got, grid[rows])
+    _, w = ref.trilinear_corners(ref.grid_coords(pts, geom.lo, geom.voxel), res)
+    torch.testing.assert_close(w.sum(1), torch.ones(500, dtype=torch.float64))
+
+
+def random_field(seed: int, res=(9, 7, 8), sh_degree: int = 1):
+    """A random grid (and its geometry) whose density is random inside two balls and
+    zero-ish (raw -30) outside them, so that an occupancy grid skips part of the box."""
+    g = torch.Generator().manual_seed(seed)
+    geom = GridGeom(torch.tensor([-1.0, -0.8, -0.9]), 0.25, res)
+    C = 1 + 3 * ref.sh_dim(sh_degree)
+    grid = torch.randn(geom.n_vertices, C, generator=g) * 1.5
+    raw = torch.randn(geom.n_vertices, generator=g) * 2 + 1
+    pos = geom.vertex_positions()
+    span = geom.hi - geom.lo
+    c1, c2 = (geom.lo + torch.rand(3, generator=g) * span for _ in range(2))
+    inside = ((pos - c1).norm(dim=1) < 0.5) | ((pos - c2).norm(dim=1) < 0.4)
+    grid[:, 0] = torch.where(inside, raw, torch.full_like(raw, -30.0))
+    return grid, geom
+
+
+def spec_for(grid, geom, step=0.1, coarse_factor=1, alpha_thre=1e-6, eps=1e-4, density_scale=1.0):
+    occ = OccupancyGrid(geom.lo, geom.voxel, geom.res)
+    occ.set_from_cell_sigma(cell_density_max(grid, geom, density_scale), step, alpha_thre)
+    coarse = occ.coarse(coarse_factor).to(torch.uint8).contiguous()
+    return MarchSpec(occ.occ.to(torch.uint8), coarse, coarse_factor, step, eps, density_scale), occ
+
+
+def random_rays(n: int, geom: GridGeom, seed: int):
+    g = torch.Generator().manual_seed(seed)
+    center = 0.5 * (geom.lo + geom.hi)
+    dirs = torch.randn(n, 3, generator=g)
+    dirs = dirs / dirs.norm(dim=1, keepdim=True)
+    o = center - 4 * dirs + 0.4 * torch.randn(n, 3, generator=g)
+    t0, t1 = ray_aabb(o, dirs, geom.lo, geom.hi, 0.5, 10.0)
+    u = torch.rand(n, generator=g)
+    return o, dirs, t0, t1, u
+
+
+def as64(geom):
+    return GridGeom(geom.lo.double(), geom.voxel, geom.res)
+
+
+@needs_numba
+@pytest.mark.parametrize("coarse_factor", [1, 2, 4])
+@pytest.mark.parametrize("sh_degree", [0, 1, 2])
+def test_compiled_render_matches_reference_values_and_gradients(coarse_factor, sh_degree):
+    grid, geom = random_field(seed=coarse_factor * 10 + sh_degree, sh_degree=sh_degree)
+    spec, occ = spec_for(grid, geom, coarse_factor=coarse_factor)
+    assert 0.05 < occ.occupied_fraction < 0.8  # the test really skips cells
+    o, d, t0, t1, u = random_rays(400, geom, seed=1)
+
+    g_fast = grid.clone().requires_grad_()
+    sink = GradSink(geom.n_vertices, grid.shape[1])
+    fast = render_grid(g_fast, geom, spec, o, d, t0, t1, u, sh_degree, sink, "numba")
+    g_ref = grid.double().requires_grad_()
+    slow = render_grid(g_ref, as64(geom), spec, o.double(), d.double(), t0.double(), t1.double(), u.double(),
+                       sh_degree, None, "torch")
+
+    assert torch.equal(fast.counts.long(), slow.counts.long())  # the very same samples
+    assert fast.n_samples > 300
+    torch.testing.assert_close(fast.rgb.double(), slow.rgb, atol=1e-6, rtol=1e-5)
+    torch.testing.assert_close(fast.depth.double(), slow.depth, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(fast.acc.double(), slow.acc, atol=1e-6, rtol=1e-5)
+
+    gen = torch.Generator().manual_seed(2)
+    w_rgb, w_d, w_a = (torch.randn(400, 3, generator=gen), torch.randn(400, generator=gen),
+                       torch.randn(400, generator=gen))
+    ((fast.rgb * w_rgb).sum() + (fast.depth * w_d).sum() + (fast.acc * w_a).sum()).backward()
+    ((slow.rgb * w_rgb.double()).sum() + (slow.depth * w_d.double()).sum() + (slow.acc * w_a.double()).sum()).backward()
+    assert g_fast.grad is None  # the compiled path routes the gradient into the sink
+    torch.testing.assert_close(sink.grad.sum(0).double(), g_ref.grad, atol=2e-5, rtol=1e-4)
+    # every vertex that got a gradient is marked touched (and only corners of samples are)
+    nonzero = (g_ref.grad != 0).any(1)
+    assert torch.equal(sink.touched.bool() | nonzero, sink.touched.bool())
+
+
+@needs_numba
+def test_compiled_render_without_grad_matches_training_pass():
+    grid, geom = random_field(seed=5)
+    spec, _ = spec_for(grid, geom, coarse_factor=2)
+    o, d, t0, t1, u = random_rays(300, geom, seed=3)
+    with torch.no_grad():
+        a = render_grid(grid, geom, spec, o, d, t0, t1, u, 1, None, "numba")
+    b = render_grid(grid.clone().requires_grad_(), geom, spec, o, d, t0, t1, u, 1,
+                    GradSink(geom.n_vertices, grid.shape[1]), "numba")
+    assert torch.equal(a.counts, b.counts) and torch.equal(a.acc, b.acc.detach())
+    # rendering skips the colour of samples of weight < 1e-7 (each changes a channel by < 1e-7)
+    torch.testing.assert_close(a.rgb, b.rgb.detach(), atol=1e-6, rtol=0)
+
+
+@needs_numba
+def test_opaque_spike_takes_all_weight_and_stops_the_ray():
+    res = (6, 6, 6)
+    geom = GridGeom(torch.zeros(3), 1.0, res)
+    grid = torch.zeros(geom.n_vertices, 13)
+    grid[:, 0] = -30.0
+    grid[:, 1] = 10.0  # red coefficient of SH band 0: colour ~ (1, 0.5, 0.5)
+    pos = geom.vertex_positions()
+    grid[pos[:, 2] >= 3, 0] = 60.0  # a huge density behind z = 3
+    spec, _ = spec_for(grid, geom, step=0.25)
+    o = torch.tensor([[2.5, 2.5, -1.0]])
+    d = torch.tensor([[0.0, 0.0, 1.0]])
+    t0, t1 = ray_aabb(o, d, geom.lo, geom.hi, 0.0, 100.0)
+    out = render_grid(grid, geom, spec, o, d, t0, t1, torch.full((1,), 0.5), 1, None, "numba")
+    assert out.acc.item() == pytest.approx(1.0, abs=1e-6)
+    # raw density crosses 0 at z = 2.33 (world), so the ray stops between z 2.2 and 2.7 (t = z + 1)
+    assert 3.2 < out.depth.item() < 3.7
+    assert out.counts.item() <= 4  # skipped empty cells, and nothing after the wall is evaluated
+    assert out.rgb[0, 0].item() > 0.9
+
+
+@needs_numba
+def test_occupancy_kernel_matches_reference():
+    grid, geom = random_field(seed=7, res=(21, 13, 17))
+    step, dscale = 0.1, 2.0
+    for alpha in (1e-3, 0.1, 0.5):
+        occ = OccupancyGrid(geom.lo, geom.voxel, geom.res)
+        occ.set_from_cell_sigma(cell_density_max(grid, geom, dscale), step, alpha)
+        x = -math.log1p(-alpha) / (step * dscale)
+        raw_thr = math.log(math.expm1(x))
+        rx, ry, rz = geom.res
+        got = np.zeros((rz - 1, ry - 1, rx - 1), np.uint8)
+        cf = 4
+        coarse = np.zeros((-(-(rz - 1) // cf), -(-(ry - 1) // cf), -(-(rx - 1) // cf)), np.uint8)
+        numba_kernels().occupancy_from_grid(grid.numpy(), rx, ry, rz, raw_thr, got, coarse, cf)
+        assert np.array_equal(got.astype(bool), occ.occ.numpy())
+        assert np.array_equal(coarse.astype(bool), occ.coarse(cf).numpy())
+
+
+def test_cell_density_max_bounds_every_point_in_the_cell():
+    grid, geom = random_field(seed=8)
+    smax = cell_density_max(grid, geom, 3.0)
+    pts = geom.lo + torch.rand(4000, 3) * (geom.hi - geom.lo)
+    feat = ref.grid_interp(grid, ref.grid_coords(pts, geom.lo, geom.voxel), geom.res)
+    sigma = 3.0 * torch.nn.functional.softplus(feat[:, 0])
+    c = ref.cell_of(ref.grid_coords(pts, geom.lo, geom.voxel), geom.res)
+    assert (sigma <= smax[c[:, 2], c[:, 1], c[:, 0]] * (1 + 1e-5)).all()
+
+
+def adam_case(seed: int, n_rows=50, C=4):
+    g = torch.Generator().manual_seed(seed)
+    p = torch.randn(n_rows, C, generator=g)
+    grads = [torch.randn(n_rows, C, generator=g) * (torch.rand(n_rows, 1, generator=g) < 0.5) for _ in range(4)]
+    return p, grads
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_grid_adam_with_every_row_touched_equals_torch_adam(backend, monkeypatch):
+    if backend == "numba" and numba_kernels() is None:
+        pytest.skip("numba not available")
+    if backend == "torch":
+        monkeypatch.setattr("nerfkit.kernels.optim.numba_kernels", lambda: None)
+        monkeypatch.setattr("nerfkit.kernels.ops.numba_kernels", lambda: None)
+    p0, grads = adam_case(0)
+    grads = [g + 0.1 for g in grads]  # every row has a gradient
+    a = torch.nn.Parameter(p0.clone())
+    sink = GradSink(*p0.shape, lanes=2)
+    opt = GridAdam([{"params": [a], "lr": 0.05}], sinks={a: sink}, betas=(0.9, 0.99), eps=1e-8)
+    b = torch.nn.Parameter(p0.clone())
+    ref_opt = torch.optim.Adam([b], lr=0.05, betas=(0.9, 0.99), eps=1e-8)
+    for g in grads:
+        opt.zero_grad()
+        sink.grad[0] += 0.25 * g  # split over two lanes, as the compiled backward does
+        sink.grad[1] += 0.75 * g
+        sink.touched[:] = 1
+        sink.dirty = True
+        opt.step()
+        ref_opt.zero_grad()
+        b.grad = g.clone()
+        ref_opt.step()
+        torch.testing.assert_close(a.data, b.data)
+    assert not sink.touched.any() and not sink.grad.any()  # consumed
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_grid_adam_updates_only_touched_rows_with_per_channel_lr(backend, monkeypatch):
+    if backend == "numba" and numba_kernels() is None:
+        pytest.skip("numba not available")
+    if backend == "torch":
+        monkeypatch.setattr("nerfkit.kernels.optim.numba_kernels", lambda: None)
+        monkeypatch.setattr("nerfkit.kernels.ops.numba_kernels", lambda: None)
+    p0, grads = adam_case(1)
+    a = torch.nn.Parameter(p0.clone())
+    sink = GradSink(*p0.shape, lanes=1)
+    scale = [1.0, 0.5, 0.5, 0.25]
+    opt = GridAdam([{"params": [a], "lr": 0.1, "channel_lr_scale": scale}], sinks={a: sink})
+    # reference: lazy Adam by hand, only on rows with a gradient
+    p = p0.clone()
+    m = torch.zeros_like(p)
+    v = torch.zeros_like(p)
+    lr = 0.1 * torch.tensor(scale)
+    for step, g in enumerate(grads, start=1):
+        rows = torch.nonzero((g != 0).any(1)).squeeze(1)
+        a.grad = g.clone()  # the torch path: a dense .grad, folded into the sink
+        opt.step()
+        ref.adam_rows(p, g[rows], rows, m, v, lr, 0.9, 0.99, 1e-15, step)
+        torch.testing.assert_close(a.data, p)
+    untouched = ~torch.stack([(g != 0).any(1) for g in grads]).any(0)
+    assert untouched.any()
+    torch.testing.assert_close(a.data[untouched], p0[untouched], rtol=0, atol=0)
+
+
+def test_grid_adam_state_dict_round_trip_resumes_identically():
+    p0, grads = adam_case(2)
+
+    def make(p):
+        prm = torch.nn.Parameter(p.clone())
+        sink = GradSink(*p.shape, lanes=1)
+        return prm, sink, GridAdam([{"params": [prm], "lr": 0.1, "channel_lr_scale": [1, 2, 3, 4]}],
+                                   sinks={prm: sink})
+
+    def step(prm, opt, g):
+        prm.grad = g.clone()
+        opt.step()
+
+    a, _, opt_a = make(p0)
+    for g in grads:
+        step(a, opt_a, g)
+    b, _, opt_b = make(p0)
+    for g in grads[:2]:
+        step(b, opt_b, g)
+    saved = opt_b.state_dict()
+    c, _, opt_c = make(b.data)
+    opt_c.load_state_dict(saved)
+    for g in grads[2:]:
+        step(c, opt_c, g)
+    torch.testing.assert_close(c.data, a.data)
