@@ -97,14 +97,15 @@ def dataclass_from_dict(cls: type[T], d: dict, where: str) -> T:
     return cls(**out)
 
 
-def load_json(path: str | Path) -> Any:
+def load_json(path: str | Path, missing: str = "no such file", missing_fix: str | None = None,
+              invalid_fix: str = "The file may be truncated; re-create it") -> Any:
+    """Parse a JSON file; every failure is one NerfkitError naming the file (hints per caller)."""
     path = Path(path)
     try:
         return json.loads(path.read_text())
     except FileNotFoundError:
-        raise fail(path, "no such file") from None
+        raise fail(path, missing, missing_fix) from None
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
-        raise fail(path, f"not valid JSON ({type(e).__name__}: {e})",
-                   "The file may be truncated; re-create it") from None
+        raise fail(path, f"not valid JSON ({type(e).__name__}: {e})", invalid_fix) from None
     except (OSError, ValueError) as e:  # a folder, no permission, a NUL byte in the name
         raise fail(path, f"cannot read ({type(e).__name__}: {e})") from None

@@ -26,7 +26,6 @@ is also a layout file (its ``"layout"`` entry, e.g. the layout it estimated).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -249,12 +248,9 @@ def layout_from_json(spec: dict, where: str, dictionary: str, tag_size: float | 
 def load_layout(path: str | Path, dictionary: str, tag_size: float | None = None) -> Layout:
     """Read a layout file (or a camera file holding a layout)."""
     path = Path(path)
-    try:
-        spec = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise fail(path, "no such layout file", "Check the --layout path") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise fail(path, f"not valid JSON ({e})") from None
+    from ..config import load_json
+
+    spec = load_json(path, "no such layout file", "Check the --layout path")
     return layout_from_json(spec, str(path), dictionary, tag_size)
 
 

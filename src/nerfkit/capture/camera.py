@@ -13,12 +13,12 @@ nerfkit's own convention puts pixel centres at +0.5, so its ``cx, cy`` are the f
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..config import load_json
 from ..errors import fail
 
 # Diagonal of a 36 x 24 mm film frame: fx ~= f35 * image_diagonal_px / 43.27.
@@ -102,12 +102,7 @@ def camera_from_focal(fx: float, width: int, height: int, source: str) -> Camera
 def load_camera(path: str | Path) -> Camera:
     """Read a camera file written by ``nerfkit calibrate`` (or the same keys by hand)."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise fail(path, "no such camera file", "Run nerfkit calibrate first, or omit --camera to use the EXIF focal length") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise fail(path, f"not valid JSON ({e})", "Re-run nerfkit calibrate") from None
+    data = load_json(path, "no such camera file", "Run nerfkit calibrate first, or omit --camera to use the EXIF focal length", "Re-run nerfkit calibrate")
     if not isinstance(data, dict):
         raise fail(path, "a camera file must be a JSON object")
     for key in ("K", "dist", "width", "height"):

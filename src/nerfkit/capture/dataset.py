@@ -16,14 +16,13 @@ This module is where OpenCV pixel coordinates become nerfkit's (+0.5).
 
 from __future__ import annotations
 
-import json
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..config import option
+from ..config import load_json, option
 from ..data.npz import save_npz
 from ..data.nerfstudio import write_transforms_json
 from ..data.scene import Scene, Views, estimate_center
@@ -246,12 +245,7 @@ def read_poses_json(path: str | Path) -> tuple[list[PosedPhoto], dict]:
     path = Path(path)
     if path.is_dir():
         path = path / POSES_FILE
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise fail(path, "no such file", "Run nerfkit poses first; it writes poses.json into the dataset folder") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise fail(path, f"not valid JSON ({e})", "Re-run nerfkit poses") from None
+    data = load_json(path, "no such file", "Run nerfkit poses first; it writes poses.json into the dataset folder", "Re-run nerfkit poses")
     if not isinstance(data, dict) or data.get("format") != "nerfkit-poses":
         raise fail(path, "is not a poses.json written by nerfkit poses")
     try:

@@ -24,7 +24,6 @@ Layout (nerfstudio's, plus an optional ``"nerfkit"`` block)::
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from pathlib import Path
@@ -32,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cameras import opencv_to_opengl, opengl_to_opencv
+from ..config import load_json
 from ..errors import fail
 from ..io.atomic import atomic_path, write_json
 from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
@@ -96,12 +96,7 @@ def load_transforms_json(path: str | Path, load_images: bool = True,
     if path.is_dir():
         path = path / "transforms.json"
     where = str(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise fail(where, "no such file", "Expected a nerfstudio transforms.json") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise fail(where, f"not valid JSON ({e})", "The file may be truncated; re-export it") from None
+    data = load_json(path, "no such file", "Expected a nerfstudio transforms.json", "The file may be truncated; re-export it")
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
         raise fail(where, "expected an object with a non-empty \"frames\" list")
     model = str(data.get("camera_model", "OPENCV")).upper()
