@@ -1,6 +1,6 @@
 """Held-out PSNR against training time, ``vanilla`` vs ``fast``, under the same budgets.
 
-    python benchmarks/time_to_psnr.py OUT [--data data/lego_200x200.npz] [--budgets 10,60,600]
+    python benchmarks/time_to_psnr.py OUT [--data src/nerfkit/assets/lego_200x200.npz] [--budgets 10,60,600]
 
 For every model and every budget B (seconds of training, evaluation excluded) one fresh
 run trains with ``--minutes B/60`` exactly as ``nerfkit train`` would (its learning-rate
@@ -33,7 +33,7 @@ CURVE_TIMES = [2, 5, 10, 20, 30, 45, 60, 90, 120, 180, 240, 300, 420, 600, 900, 
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("out", help="output folder")
-    p.add_argument("--data", default=str(Path(__file__).resolve().parents[1] / "data" / "lego_200x200.npz"))
+    p.add_argument("--data", default=str(Path(__file__).resolve().parents[1] / "src" / "nerfkit" / "assets" / "lego_200x200.npz"))
     p.add_argument("--models", default="fast,vanilla", help="comma-separated model names")
     p.add_argument("--budgets", default="10,60,600", help="training seconds, comma-separated")
     p.add_argument("--curve-views", type=int, default=0,
