@@ -46,7 +46,7 @@ def add_dataclass_args(parser: argparse.ArgumentParser, cls: type, group_title: 
             continue  # a flag shared by two configs is added once
         tp, _ = _base_type(hints[f.name])
         default = f.default if f.default is not dataclasses.MISSING else None
-        help_text = f.metadata.get("help", "")
+        help_text = f.metadata.get("help", "").replace("%", "%%")  # argparse %-formats help
         if default is not None and default != "":
             help_text += f" (default: {default})"
         kw: dict[str, Any] = {"dest": f.name, "default": None, "help": help_text}

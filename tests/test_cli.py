@@ -1,0 +1,27 @@
+"""The command line itself: every subcommand's --help renders, and the top-level help lists them."""
+
+from __future__ import annotations
+
+import pytest
+
+from nerfkit.cli import COMMANDS, main
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_subcommand_help_renders(command, capsys):
+    # argparse %-formats help strings: a stray '%' in one option's help used to crash --help.
+    with pytest.raises(SystemExit) as e:
+        main([command, "--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"usage: nerfkit {command}")
+    assert "--" in out  # at least one option is described
+
+
+def test_top_level_help_lists_every_command(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    for command in COMMANDS:
+        assert command in out, command
