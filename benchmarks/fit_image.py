@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="extra image(s) to fit (skipped with a note when the file does not exist)")
     parser.add_argument("--steps", type=int, default=2000, help="training steps per fit (default: 2000)")
     parser.add_argument("--precisions", default="fp32,bf16", help="comma-separated (default: fp32,bf16)")
-    parser.add_argument("--eval-every", type=int, default=25)
+    parser.add_argument("--eval-every", type=int, default=50, help="as fit-image's --eval-every (default: 50)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help="also write each run folder here (figures, metrics)")
     args = parser.parse_args(argv)

@@ -37,6 +37,7 @@ typical flows:
   nerfkit train --data scene.npz --out runs/x   train a NeRF on a dataset
   nerfkit render runs/x                         orbit video + depth video of a trained run
   nerfkit eval runs/x --split val               PSNR/SSIM on held-out views, as JSON
+  nerfkit fit-image photo.jpg                   the course warm-up: fit an MLP (x, y) -> RGB to one image
 """
 
 

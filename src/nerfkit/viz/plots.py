@@ -61,7 +61,7 @@ def image_grid(
     n = len(images)
     ncols = ncols or n
     nrows = (n + ncols - 1) // ncols
-    fig, axes = plt.subplots(nrows, ncols, figsize=(tile_inches * ncols, tile_inches * nrows + 0.4), dpi=110,
+    fig, axes = plt.subplots(nrows, ncols, figsize=(tile_inches * ncols, (tile_inches + 0.35) * nrows + 0.4), dpi=110,
                              squeeze=False)
     for ax in axes.flat:
         ax.axis("off")
