@@ -148,7 +148,7 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
     out_size = output_size(*und.size, cfg.max_side)
     K = resize_K_nerfkit(nerfkit_K(und.K), und.size, out_size).astype(np.float32)
 
-    bar = tqdm(total=len(posed), desc="undistorting", unit="photo", disable=not progress, leave=False)
+    bar = tqdm(total=len(posed), desc="undistorting", unit="photo", disable=None if progress else True, leave=False)
 
     def work(p: PosedPhoto) -> np.ndarray:
         img = _load_view(p, base, und, out_size)

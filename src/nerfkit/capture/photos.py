@@ -162,7 +162,7 @@ def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = Non
             return _detect_one(f, local.detector, detect_side, bits)
 
         bar = tqdm(total=len(todo), desc=f"detecting tags ({len(files) - len(todo)} cached)", unit="photo",
-                   disable=not progress, leave=False)
+                   disable=None if progress else True, leave=False)
         pool = ThreadPoolExecutor(max(1, jobs))
         try:
             futures = {pool.submit(work, f): f for f in todo}

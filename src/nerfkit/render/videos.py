@@ -45,7 +45,7 @@ def render_videos(
     rgb_frames, depth_frames = [], []
     t0 = time.perf_counter()
     for view in tqdm(render_views(model, views, background, chunk, autocast_dtype), total=len(views),
-                     desc="render", unit="frame", disable=not progress):
+                     desc="render", unit="frame", disable=None if progress else True):
         rgb_frames.append(to_uint8(view.rgb))
         depth_frames.append(to_uint8(colorize_depth(view.depth, view.acc, near, far)))
     per_frame = (time.perf_counter() - t0) / max(len(views), 1)

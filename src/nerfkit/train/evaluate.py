@@ -22,7 +22,7 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
 
     per_image = []
     renders = render_views(model, views, background, chunk, autocast_dtype)
-    for i, view in enumerate(tqdm(renders, total=len(views), desc="eval", unit="view", disable=not progress)):
+    for i, view in enumerate(tqdm(renders, total=len(views), desc="eval", unit="view", disable=None if progress else True)):
         target = views.images[i].astype(np.float32) / 255.0
         per_image.append({
             "index": i,

@@ -224,7 +224,8 @@ class Trainer:
         signal.signal(signal.SIGINT, on_sigint)
         total = self.cfg.steps if self.cfg.steps else None
         bar = tqdm(total=total, initial=self.step, desc=f"train {self.cfg.model}", unit="step", dynamic_ncols=True,
-                   disable=self.quiet, mininterval=1.0, file=sys.stderr)
+                   disable=self.quiet, file=sys.stderr,
+                   mininterval=1.0 if sys.stderr.isatty() else 30.0)  # sparse updates in log files
         last_ckpt = time.perf_counter()
         samples = 0
         train_psnr = []
