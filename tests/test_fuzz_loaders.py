@@ -40,13 +40,6 @@ from nerfkit.errors import NerfkitError
 SCALE = float(os.environ.get("NERFKIT_FUZZ_SCALE", "1"))
 RANDOM = os.environ.get("NERFKIT_FUZZ_RANDOM", "") not in ("", "0")
 
-# Loaders owned by the capture work (camera file, layout file, transforms.json): the fuzz
-# found crashes there that are reported, not fixed here. Remove this marker once they are.
-CAPTURE_BUGS = pytest.mark.xfail(
-    strict=False,
-    reason="known bugs in nerfkit.capture / nerfkit.data.nerfstudio (see the issue 6 report): "
-           "ValueError/TypeError/OverflowError/ZeroDivisionError/cv2 SystemError escape as tracebacks")
-
 
 def fuzz(n: int):
     """Hypothesis settings for one loader: n examples (times NERFKIT_FUZZ_SCALE), no deadline."""
@@ -414,7 +407,6 @@ def dump_json(obj) -> str:
     return json.dumps(obj, allow_nan=True)
 
 
-@CAPTURE_BUGS
 @fuzz(150)
 @given(spec=camera_json())
 @example(spec={**GOOD_CAMERA, "width": float("inf")})  # found by the fuzz: OverflowError
@@ -476,7 +468,6 @@ def layout_json(draw):
     return spec
 
 
-@CAPTURE_BUGS
 @fuzz(150)
 @given(spec=layout_json())
 @example(spec={"tags": {"0": {"center": "ab", "size": 0.05}}})  # found by the fuzz: ValueError
@@ -584,7 +575,6 @@ def apply_transforms_mutation(d, folder: Path, m):
     return d
 
 
-@CAPTURE_BUGS
 @fuzz(150)
 @given(mutations=st.lists(transforms_mutation(), min_size=1, max_size=3))
 @example(mutations=[("top", ("w", 0), 0.0)])  # found by the fuzz: ZeroDivisionError

@@ -26,10 +26,6 @@ from nerfkit.errors import NerfkitError
 SRC = Path(__file__).resolve().parents[1] / "src" / "nerfkit"
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 
-# Bugs in files owned by the capture work (camera file, layout file, transforms.json),
-# reported with a fix; these cases pass once the fixes land.
-CAPTURE_BUG = pytest.mark.xfail(strict=False, reason="reported bug in nerfkit.capture / nerfkit.data.nerfstudio")
-
 
 def one_line_error(excinfo, *fragments) -> str:
     msg = str(excinfo.value)
@@ -309,7 +305,6 @@ def test_checkpoint_values_that_used_to_crash_or_load_as_garbage(tiny_run, tmp_p
 # ============================================================================= files owned by the capture work
 
 
-@CAPTURE_BUG
 @pytest.mark.parametrize("text", [
     '{"K": [[1000, 0, 640], [0, 1000, 480], [0, 0, 1]], "dist": [0, 0, 0, 0, 0], "width": Infinity, "height": 960}',
     "DIRECTORY",
@@ -327,7 +322,6 @@ def test_camera_file_crashes(tmp_path, text):
     one_line_error(e)
 
 
-@CAPTURE_BUG
 @pytest.mark.parametrize("spec", [
     {"tags": {"0": {"center": "ab", "size": 0.05}}},
     {"tags": {"0": {"center": [0, 0], "size": "big"}}},
@@ -357,7 +351,6 @@ def test_layout_file_crashes(tmp_path, spec):
     assert np.isfinite(layout.tag_size) and layout.tag_size > 0
 
 
-@CAPTURE_BUG
 @pytest.mark.parametrize("edit", [
     lambda d: d.update(w=0),
     lambda d: (d.pop("fl_x"), d.pop("fl_y"), d.update(camera_angle_x=0)),
@@ -384,6 +377,29 @@ def test_transforms_json_crashes(tmp_path, edit):
     with pytest.raises(NerfkitError) as e:
         load_scene(tmp_path)
     one_line_error(e)
+
+
+# ============================================================================= fast model grid sizes
+
+
+def test_fast_grid_resolution_is_bounded_in_config_and_checkpoint():
+    """A config or a crafted checkpoint must not make the fast model allocate a huge grid."""
+    from nerfkit.models.base import SceneBounds
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    with pytest.raises(NerfkitError) as e:
+        FastConfig(resolutions="16,100000", upsample_steps="10").stages()
+    one_line_error(e, "--resolutions", "'resolutions'", "Use smaller sizes")
+
+    bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1], np.float32))
+    model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", kernels="torch"), bounds)
+    shape = tuple(model.grid.shape)
+    for res in ([4096, 4096, 4096], [100000, 2, 2], [8, 8, True], "8,8,8", [8, 8]):
+        state = {**model.extra_state(), "res": res}
+        with pytest.raises(NerfkitError) as e:
+            model.load_extra_state(state)
+        one_line_error(e, "'res'", "model_extra")
+        assert tuple(model.grid.shape) == shape  # refused before anything was replaced
 
 
 # ============================================================================= exit codes through the CLI

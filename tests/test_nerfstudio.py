@@ -57,7 +57,7 @@ def test_transform_matrix_uses_opengl_axes(tmp_path):
 
     Image.fromarray(img).save(tmp_path / "a.png")
     (tmp_path / "transforms.json").write_text(json.dumps({
-        "fl_x": 10.0, "w": 10, "h": 8,
+        "fl_x": 10.0, "w": 10, "h": 8, "nerfkit": {"near": 0.5, "far": 3.0},  # one camera: no depth range to estimate
         "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}]}))
     s = load_transforms_json(tmp_path)
     R = s.train.c2w[0, :3, :3]
@@ -86,7 +86,7 @@ def test_nerfstudio_filename_lists_and_camera_angle(tmp_path):
         Image.fromarray(np.full((6, 8, 3), i * 40, np.uint8)).save(tmp_path / f"f{i}.png")
         frames.append({"file_path": f"f{i}", "transform_matrix": np.eye(4).tolist()})  # no extension
     (tmp_path / "transforms.json").write_text(json.dumps({
-        "camera_angle_x": 2 * np.arctan(4 / 10.0), "frames": frames,
+        "camera_angle_x": 2 * np.arctan(4 / 10.0), "frames": frames, "nerfkit": {"near": 0.5, "far": 3.0},
         "train_filenames": ["f0", "f1"], "val_filenames": ["f2"], "test_filenames": ["f3"]}))
     s = load_transforms_json(tmp_path / "transforms.json")
     assert (len(s.train), len(s.val), len(s.test)) == (2, 1, 1)
@@ -103,7 +103,8 @@ def test_distortion_is_removed_on_load_with_a_warning(tmp_path):
     Image.fromarray(img).save(tmp_path / "a.png")
     (tmp_path / "transforms.json").write_text(json.dumps({
         "fl_x": 50.0, "fl_y": 50.0, "cx": 32.0, "cy": 24.0, "w": 64, "h": 48, "k1": -0.2, "k2": 0.0,
-        "p1": 0.0, "p2": 0.0, "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}]}))
+        "p1": 0.0, "p2": 0.0, "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}],
+        "nerfkit": {"near": 0.5, "far": 3.0}}))
     with pytest.warns(UserWarning, match="undistorted them on load"):
         s = load_transforms_json(tmp_path)
     K_cv = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])

@@ -7,6 +7,9 @@ The CLI turns it into that line on stderr and exit code 2.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 
 class NerfkitError(Exception):
     """A user error: bad input, bad option, or a missing prerequisite."""
@@ -18,3 +21,13 @@ def fail(where: object, problem: str, fix: str | None = None) -> NerfkitError:
     if fix:
         msg += f". {fix}"
     return NerfkitError(msg.replace("\r", " ").replace("\n", " "))
+
+
+@contextmanager
+def advice(fix: str) -> Iterator[None]:
+    """Append ``fix`` to any NerfkitError raised inside: shared checks say what is wrong,
+    the loader of each kind of file says what to do about it."""
+    try:
+        yield
+    except NerfkitError as e:
+        raise NerfkitError(f"{e}. {fix}") from None

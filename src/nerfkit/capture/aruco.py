@@ -32,7 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import fail
+from ..data.validate import check_count, check_number, check_numbers, short_repr
+from ..errors import advice, fail
 
 # Dictionaries tried when no tag is found, to suggest the right --dict. The _1000
 # dictionaries contain the _50/_100/_250 ones as prefixes, so they find any id.
@@ -43,6 +44,11 @@ SEARCH_DICTIONARIES = [
 ]
 
 
+# Boards with more markers (or squares) than this per side are refused.
+MAX_BOARD_SIDE = 100
+POSITIVE_LENGTH = "a positive length in metres"
+
+
 def dictionary_names() -> list[str]:
     """Every predefined dictionary name OpenCV knows (e.g. ``DICT_4X4_50``)."""
     import cv2
@@ -50,15 +56,15 @@ def dictionary_names() -> list[str]:
     return sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
 
 
-def get_dictionary(name: str):
+def get_dictionary(name: str, where: str = "--dict"):
     """The ``cv2.aruco.Dictionary`` called ``name`` (case-insensitive), or a NerfkitError."""
     import cv2
 
-    key = name.strip().upper()
+    key = name.strip().upper() if isinstance(name, str) else ""
     key = key if key.startswith("DICT_") else "DICT_" + key
     match = [n for n in dictionary_names() if n.upper() == key]
     if not match:
-        raise fail("--dict", f"unknown ArUco dictionary '{name}'",
+        raise fail(where, f"unknown ArUco dictionary {short_repr(name)}",
                    "Use one of DICT_4X4_50, DICT_5X5_100, DICT_6X6_250, DICT_APRILTAG_36h11, ...")
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, match[0]))
 
@@ -173,8 +179,6 @@ def _board_to_layout_axes(points: np.ndarray, centre: np.ndarray) -> np.ndarray:
 
 def layout_from_json(spec: dict, where: str, dictionary: str, tag_size: float | None = None) -> Layout:
     """Build a :class:`Layout` from a layout-file dict (see the module docstring)."""
-    import cv2
-
     if not isinstance(spec, dict):
         raise fail(where, "a layout must be a JSON object")
     if "layout" in spec:  # a camera file
@@ -182,67 +186,126 @@ def layout_from_json(spec: dict, where: str, dictionary: str, tag_size: float | 
             raise fail(where, "this camera file holds no layout (it was calibrated with each tag on its own)",
                        "Pass a layout file, or calibrate again without --per-tag")
         return layout_from_json(spec["layout"], where, dictionary, tag_size)
-    board = spec.get("board")
-    if board is not None:
-        try:
-            d = get_dictionary(spec.get("dictionary", dictionary))
-            if board == "grid":
-                b = cv2.aruco.GridBoard((int(spec["markers_x"]), int(spec["markers_y"])),
-                                        float(spec["marker_length"]), float(spec["marker_separation"]), d,
-                                        np.arange(int(spec.get("first_id", 0)),
-                                                  int(spec.get("first_id", 0)) + int(spec["markers_x"]) * int(spec["markers_y"])))
-            elif board == "charuco":
-                b = cv2.aruco.CharucoBoard((int(spec["squares_x"]), int(spec["squares_y"])),
-                                           float(spec["square_length"]), float(spec["marker_length"]), d)
-                b.setLegacyPattern(bool(spec.get("legacy", False)))
-            else:
-                raise fail(where, f"unknown board type '{board}'", "Use \"grid\" or \"charuco\"")
-        except KeyError as e:
-            raise fail(where, f"board '{board}' is missing the key {e}") from None
-        except (TypeError, ValueError, cv2.error) as e:
-            raise fail(where, f"invalid board description ({e})") from None
-        obj = np.asarray(b.getObjPoints(), np.float64)  # (n, 4, 3)
-        pts = obj.reshape(-1, 3)
-        centre = (pts.min(0) + pts.max(0)) / 2.0
-        if board == "charuco":
-            sq = float(spec["square_length"])
-            centre = np.array([int(spec["squares_x"]) * sq / 2, int(spec["squares_y"]) * sq / 2, 0.0])
-        tags = {int(i): _board_to_layout_axes(c, centre) for i, c in zip(b.getIds().ravel(), obj)}
-        layout = Layout(tags, spec=dict(spec), source=f"{where} ({board} board)")
-        if board == "charuco":
-            layout.charuco = b
-            layout.charuco_corners = _board_to_layout_axes(b.getChessboardCorners(), centre)
-        return layout
+    if spec.get("board") is not None:
+        layout = _board_layout(spec, where, dictionary)
+    else:
+        layout = Layout(_tags_from_spec(spec, where, tag_size), spec=dict(spec), source=where)
+    for tag_id, corners in layout.tags.items():
+        _check_square(tag_id, corners, where)
+    return layout
+
+
+def _check_square(tag_id: int, corners: np.ndarray, where: str) -> None:
+    sides = np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)
+    if not sides.min() > 0 or sides.max() / sides.min() > 1.05:
+        raise fail(where, f"tag {tag_id}'s corners are not a square (sides {np.round(sides, 4).tolist()})",
+                   "List corners in OpenCV order: top-left, top-right, bottom-right, bottom-left")
+
+
+def _tags_from_spec(spec: dict, where: str, tag_size: float | None) -> dict[int, np.ndarray]:
+    """Tag id -> (4, 3) corners of a ``{"tags": ...}`` layout."""
     tags_spec = spec.get("tags")
     if not isinstance(tags_spec, dict) or not tags_spec:
         raise fail(where, "a layout needs a non-empty \"tags\" object (tag id -> corners or centre) or a \"board\"")
+    if "tag_size" in spec:
+        check_number(spec["tag_size"], where, "tag_size", 0.0, expected=POSITIVE_LENGTH)
     default_size = spec.get("tag_size", tag_size)
     tags: dict[int, np.ndarray] = {}
     for key, value in tags_spec.items():
         try:
             tag_id = int(key)
         except ValueError:
-            raise fail(where, f"tag id '{key}' is not an integer") from None
-        if isinstance(value, dict):
-            size = value.get("size", default_size)
-            if size is None or "center" not in value:
-                raise fail(where, f"tag {key} needs \"center\" and a size (\"size\", top-level \"tag_size\" or --tag-size)")
-            c = np.asarray(value["center"], np.float64).ravel()
-            if c.size not in (2, 3) or not np.isfinite(c).all() or not float(size) > 0:
-                raise fail(where, f"tag {key}: bad centre {value['center']} or size {size}")
-            a = np.deg2rad(float(value.get("rotation_deg", 0.0)))
-            Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
-            tags[tag_id] = square_corners(float(size)) @ Rz.T + np.append(c[:2], c[2] if c.size == 3 else 0.0)
-        else:
-            corners = np.asarray(value, np.float64)
-            if corners.shape != (4, 3) or not np.isfinite(corners).all():
-                raise fail(where, f"tag {key} must have 4 corners [x, y, z], got shape {corners.shape}")
-            tags[tag_id] = corners
-        sides = np.linalg.norm(tags[tag_id] - np.roll(tags[tag_id], -1, axis=0), axis=1)
-        if sides.min() <= 0 or sides.max() / sides.min() > 1.05:
-            raise fail(where, f"tag {key}'s corners are not a square (sides {np.round(sides, 4).tolist()})",
-                       "List corners in OpenCV order: top-left, top-right, bottom-right, bottom-left")
-    return Layout(tags, spec=dict(spec), source=where)
+            raise fail(where, f"tag id {short_repr(key)} is not an integer") from None
+        if tag_id < 0 or tag_id in tags:
+            raise fail(where, f"tag id {short_repr(key)} is negative or given twice")
+        tags[tag_id] = _tag_corners(key, value, default_size, where)
+    return tags
+
+
+def _tag_corners(key: str, value, default_size, where: str) -> np.ndarray:
+    """(4, 3) corners of one tag: ``{"center", "size", "rotation_deg"}`` or 4 corners [x, y, z]."""
+    if not isinstance(value, dict):
+        corners = check_numbers(value, where, f"tags.{key}")
+        if corners.shape != (4, 3):
+            raise fail(where, f"tag {key} must have 4 corners [x, y, z], got shape {corners.shape}")
+        return corners
+    size = value.get("size", default_size)
+    if size is None or "center" not in value:
+        raise fail(where, f"tag {key} needs \"center\" and a size (\"size\", top-level \"tag_size\" or --tag-size)")
+    size = check_number(size, where, f"tags.{key}.size", 0.0, expected=POSITIVE_LENGTH)
+    c = check_numbers(value["center"], where, f"tags.{key}.center").ravel()
+    if c.size not in (2, 3):
+        raise fail(where, f"'tags.{key}.center' must be 2 or 3 numbers, got {c.size}")
+    a = np.deg2rad(check_number(value.get("rotation_deg", 0.0), where, f"tags.{key}.rotation_deg"))
+    Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    return square_corners(size) @ Rz.T + np.append(c[:2], c[2] if c.size == 3 else 0.0)
+
+
+def _board_layout(spec: dict, where: str, dictionary: str) -> Layout:
+    """The layout of an OpenCV GridBoard or CharucoBoard description."""
+    import cv2
+
+    board = spec["board"]
+    if board not in ("grid", "charuco"):
+        raise fail(where, f"unknown board type {short_repr(board)}", "Use \"grid\" or \"charuco\"")
+    d = get_dictionary(spec.get("dictionary", dictionary), where)
+    try:
+        b, centre = _grid_board(spec, where, d) if board == "grid" else _charuco_board(spec, where, d)
+        obj = np.asarray(b.getObjPoints(), np.float64)  # (n, 4, 3)
+        ids = b.getIds().ravel()
+        chessboard = b.getChessboardCorners() if board == "charuco" else None
+    except KeyError as e:
+        raise fail(where, f"board '{board}' is missing the key {e}") from None
+    except (cv2.error, SystemError, ValueError, TypeError, OverflowError, AttributeError, MemoryError) as e:
+        raise fail(where, f"invalid board description ({type(e).__name__}: {short_repr(str(e))})") from None
+    if centre is None:
+        pts = obj.reshape(-1, 3)
+        centre = (pts.min(0) + pts.max(0)) / 2.0
+    tags = {int(i): _board_to_layout_axes(c, centre) for i, c in zip(ids, obj)}
+    layout = Layout(tags, spec=dict(spec), source=f"{where} ({board} board)")
+    if board == "charuco":
+        layout.charuco = b
+        layout.charuco_corners = _board_to_layout_axes(chessboard, centre)
+    return layout
+
+
+def _grid_board(spec: dict, where: str, d):
+    """(cv2.aruco.GridBoard, None): markers_x x markers_y tags, ids from first_id."""
+    import cv2
+
+    nx = check_count(spec["markers_x"], where, "markers_x", 1, MAX_BOARD_SIDE)
+    ny = check_count(spec["markers_y"], where, "markers_y", 1, MAX_BOARD_SIDE)
+    length = check_number(spec["marker_length"], where, "marker_length", 0.0, expected=POSITIVE_LENGTH)
+    gap = check_number(spec["marker_separation"], where, "marker_separation", 0.0, expected=POSITIVE_LENGTH)
+    first = check_count(spec.get("first_id", 0), where, "first_id", 0, len(d.bytesList))
+    _check_ids_fit(first, nx * ny, d, where)
+    return cv2.aruco.GridBoard((nx, ny), length, gap, d, np.arange(first, first + nx * ny)), None
+
+
+def _charuco_board(spec: dict, where: str, d):
+    """(cv2.aruco.CharucoBoard, its centre): squares_x x squares_y squares, a tag in every other one."""
+    import cv2
+
+    sx = check_count(spec["squares_x"], where, "squares_x", 2, MAX_BOARD_SIDE)
+    sy = check_count(spec["squares_y"], where, "squares_y", 2, MAX_BOARD_SIDE)
+    square = check_number(spec["square_length"], where, "square_length", 0.0, expected=POSITIVE_LENGTH)
+    marker = check_number(spec["marker_length"], where, "marker_length", 0.0, square,
+                          f"a positive length in metres, smaller than square_length {square:g}")
+    legacy = spec.get("legacy", False)
+    if not isinstance(legacy, bool):
+        raise fail(where, f"'legacy' is {short_repr(legacy)}, expected true or false")
+    _check_ids_fit(0, sx * sy // 2, d, where)
+    b = cv2.aruco.CharucoBoard((sx, sy), square, marker, d)
+    b.setLegacyPattern(legacy)
+    return b, np.array([sx * square / 2, sy * square / 2, 0.0])
+
+
+def _check_ids_fit(first: int, count: int, d, where: str) -> None:
+    """The board's tag ids first .. first + count - 1 must exist in the dictionary ``d``."""
+    size = len(d.bytesList)
+    if first + count > size:
+        raise fail(where, f"the board needs tag ids {first} to {first + count - 1}, but its dictionary holds "
+                          f"ids 0 to {size - 1}", "Use a smaller board, a lower first_id or a larger dictionary")
 
 
 def load_layout(path: str | Path, dictionary: str, tag_size: float | None = None) -> Layout:
@@ -251,7 +314,8 @@ def load_layout(path: str | Path, dictionary: str, tag_size: float | None = None
     from ..config import load_json
 
     spec = load_json(path, "no such layout file", "Check the --layout path")
-    return layout_from_json(spec, str(path), dictionary, tag_size)
+    with advice("Fix the layout file; its forms are described at the top of nerfkit/capture/aruco.py"):
+        return layout_from_json(spec, str(path), dictionary, tag_size)
 
 
 @dataclass
@@ -275,11 +339,12 @@ class Detection:
     charuco_corners: np.ndarray | None = None
 
     def to_json(self) -> dict:
+        # Corners unrounded (float64 round-trips exactly through JSON): a cached re-run gives the same calibration.
         d = {"width": self.width, "height": self.height, "ids": [int(i) for i in self.ids],
-             "corners": np.round(self.corners, 4).tolist(), "sharpness": round(float(self.sharpness), 3)}
+             "corners": np.asarray(self.corners, np.float64).tolist(), "sharpness": float(self.sharpness)}
         if self.charuco_ids is not None:
             d["charuco_ids"] = [int(i) for i in self.charuco_ids]
-            d["charuco_corners"] = np.round(self.charuco_corners, 4).tolist()
+            d["charuco_corners"] = np.asarray(self.charuco_corners, np.float64).tolist()
         return d
 
     @staticmethod

@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from ..config import load_json
-from ..errors import fail
+from ..data.validate import MAX_SIDE, check_count, check_intrinsics, check_numbers, short_repr
+from ..errors import advice, fail
 
 # Diagonal of a 36 x 24 mm film frame: fx ~= f35 * image_diagonal_px / 43.27.
 FILM_DIAGONAL_MM = 43.2666
@@ -99,29 +100,33 @@ def camera_from_focal(fx: float, width: int, height: int, source: str) -> Camera
     return Camera(K, np.zeros(5), width, height, source)
 
 
+def camera_from_dict(data, where: str, source: str | None = None) -> Camera:
+    """A :class:`Camera` from camera-file keys (K, dist, width, height), every value checked."""
+    if not isinstance(data, dict):
+        raise fail(where, f"a camera must be a JSON object with K, dist, width and height, got {type(data).__name__}")
+    for key in ("K", "dist", "width", "height"):
+        if key not in data:
+            raise fail(where, f"the camera is missing '{key}'")
+    width = check_count(data["width"], where, "width", 1, MAX_SIDE)
+    height = check_count(data["height"], where, "height", 1, MAX_SIDE)
+    K = check_numbers(data["K"], where, "K")
+    if K.shape != (3, 3):
+        raise fail(where, f"'K' has shape {K.shape}, expected 3x3 [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
+    if not np.array_equal(K[2], [0, 0, 1]):
+        raise fail(where, f"'K' has the bottom row {short_repr(K[2].tolist())}, expected exactly [0, 0, 1]")
+    check_intrinsics(K, where, "K", width, height)  # positive focal lengths, no skew
+    dist = check_numbers(data["dist"], where, "dist").ravel()
+    if dist.size not in (0, 4, 5, 8, 12, 14):
+        raise fail(where, f"'dist' must hold 4, 5, 8, 12 or 14 OpenCV coefficients, got {dist.size}")
+    if dist.size > 5 and np.any(dist[5:] != 0):
+        raise fail(where, "only the k1, k2, p1, p2, k3 distortion model is supported")
+    dist = np.pad(dist[:5], (0, 5 - min(dist.size, 5)))
+    return Camera(K, dist, width, height, str(where) if source is None else source)
+
+
 def load_camera(path: str | Path) -> Camera:
     """Read a camera file written by ``nerfkit calibrate`` (or the same keys by hand)."""
     path = Path(path)
     data = load_json(path, "no such camera file", "Run nerfkit calibrate first, or omit --camera to use the EXIF focal length", "Re-run nerfkit calibrate")
-    if not isinstance(data, dict):
-        raise fail(path, "a camera file must be a JSON object")
-    for key in ("K", "dist", "width", "height"):
-        if key not in data:
-            raise fail(path, f"missing '{key}'", "Expected a camera file written by nerfkit calibrate")
-    try:
-        K = np.asarray(data["K"], np.float64)
-        dist = np.asarray(data["dist"], np.float64).ravel()
-        width, height = int(data["width"]), int(data["height"])
-    except (TypeError, ValueError) as e:
-        raise fail(path, f"bad camera values ({e})") from None
-    if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise fail(path, f"'K' must be a 3x3 matrix with positive focal lengths, got {K.tolist()}")
-    if dist.size not in (0, 4, 5, 8, 12, 14) or not np.isfinite(dist).all():
-        raise fail(path, f"'dist' must hold 4, 5, 8, 12 or 14 OpenCV coefficients, got {dist.size}")
-    if dist.size > 5 and np.any(dist[5:] != 0):
-        raise fail(path, "only the k1, k2, p1, p2, k3 distortion model is supported",
-                   "Re-calibrate with nerfkit calibrate")
-    dist = np.pad(dist[:5], (0, 5 - min(dist.size, 5)))
-    if width <= 0 or height <= 0:
-        raise fail(path, f"bad image size {width}x{height}")
-    return Camera(K, dist, width, height, str(path))
+    with advice("Re-run nerfkit calibrate, or fix the file by hand"):
+        return camera_from_dict(data, str(path))

@@ -26,9 +26,10 @@ from ..config import load_json, option
 from ..data.npz import save_npz
 from ..data.nerfstudio import write_transforms_json
 from ..data.scene import Scene, Views, estimate_center
-from ..errors import fail
+from ..data.validate import MAX_SIDE, check_count, check_poses, check_scene, short_repr
+from ..errors import advice, fail
 from ..io.atomic import write_json
-from .camera import Camera, nerfkit_K
+from .camera import Camera, camera_from_dict, nerfkit_K
 from .poses import UP, PosedPhoto
 from .undistort import make_undistorter, output_size, resize_K_nerfkit
 
@@ -194,8 +195,8 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
         else:
             views[s] = Views.empty(out_size[0], out_size[1])
     up = UP.copy() if up is None else (np.asarray(up, np.float64) / np.linalg.norm(up)).astype(np.float32)
-    scene = Scene(views["train"], views["val"], views["test"], near, far, center.astype(np.float32), up,
-                  source=str(out_dir))
+    scene = check_scene(Scene(views["train"], views["val"], views["test"], near, far, center.astype(np.float32), up,
+                              source=str(out_dir)))
     summary = {
         "views": {s: len(v) for s, v in scene.splits.items()},
         "size": list(out_size),
@@ -248,24 +249,29 @@ def read_poses_json(path: str | Path) -> tuple[list[PosedPhoto], dict]:
     data = load_json(path, "no such file", "Run nerfkit poses first; it writes poses.json into the dataset folder", "Re-run nerfkit poses")
     if not isinstance(data, dict) or data.get("format") != "nerfkit-poses":
         raise fail(path, "is not a poses.json written by nerfkit poses")
-    try:
-        cam = data["camera"]
-        camera = Camera(np.asarray(cam["K"], np.float64), np.asarray(cam["dist"], np.float64),
-                        int(cam["width"]), int(cam["height"]), str(cam.get("source", "")))
-        photos_dir = Path(data["photos_dir"])
-        if not photos_dir.is_absolute():
-            photos_dir = path.parent / photos_dir
-        posed = []
-        for d in data["photos"]:
-            if "c2w" not in d:
-                continue
-            w, h = d["size"]
-            cam_i = camera if (w, h) == (camera.width, camera.height) else camera.scaled_to(w, h)
-            posed.append(PosedPhoto(d["file"], photos_dir / d["file"], np.asarray(d["c2w"], np.float64),
-                                    float(d.get("error_px") or 0.0), cam_i))
-    except (KeyError, TypeError, ValueError) as e:
-        raise fail(path, f"malformed poses.json ({type(e).__name__}: {e})", "Re-run nerfkit poses") from None
+    with advice("Re-run nerfkit poses"):
+        camera = camera_from_dict(data.get("camera"), f"{path} camera")
+        camera.source = str(data["camera"].get("source", ""))
+        try:
+            photos_dir = Path(data["photos_dir"])
+            if not photos_dir.is_absolute():
+                photos_dir = path.parent / photos_dir
+            photos = data["photos"]
+            if not isinstance(photos, list) or not all(isinstance(d, dict) for d in photos):
+                raise fail(path, "'photos' must be a list of objects")
+            posed = [_posed_photo(d, i, camera, photos_dir, str(path)) for i, d in enumerate(photos) if "c2w" in d]
+        except (KeyError, TypeError, ValueError, OverflowError) as e:
+            raise fail(path, f"malformed poses.json ({type(e).__name__}: {short_repr(str(e))})") from None
     if not posed:
         raise fail(path, "holds no posed photos", "Check the poses run's summary for why photos were skipped")
     return posed, data
 
+
+def _posed_photo(d: dict, i: int, camera: Camera, photos_dir: Path, where: str) -> PosedPhoto:
+    """One photo of poses.json with its checked pose and the camera of its size."""
+    w, h = d["size"]
+    w = check_count(w, where, f"photos[{i}].size", 1, MAX_SIDE)
+    h = check_count(h, where, f"photos[{i}].size", 1, MAX_SIDE)
+    c2w = check_poses([d["c2w"]], where, f"photos[{i}].c2w")[0].astype(np.float64)
+    cam = camera if (w, h) == (camera.width, camera.height) else camera.scaled_to(w, h)
+    return PosedPhoto(str(d["file"]), photos_dir / d["file"], c2w, float(d.get("error_px") or 0.0), cam)

@@ -54,15 +54,15 @@ def run(args: argparse.Namespace) -> int:
     from ..capture.dataset import DatasetConfig, read_poses_json
     from ..capture.photos import default_jobs
     from ..config import dataclass_from_args
-    from ..errors import fail
+    from ..data.validate import check_number
+    from ..errors import advice, fail
 
     cfg = dataclass_from_args(DatasetConfig, args)
     posed, data = read_poses_json(args.poses)
     src = Path(args.poses)
     out = Path(args.out) if args.out else (src if src.is_dir() else src.parent)
-    tag_size = data.get("tag_size")
-    if not isinstance(tag_size, (int, float)) or not tag_size > 0:
-        raise fail(args.poses, "poses.json has no valid tag_size", "Re-run nerfkit poses")
+    with advice("Re-run nerfkit poses"):
+        tag_size = check_number(data.get("tag_size"), args.poses, "tag_size", 0.0, expected="the tag size in metres")
     missing = [p.name for p in posed if not Path(p.path).is_file()]
     if missing:
         raise fail(posed[0].path.parent, f"{len(missing)} posed photos are missing (e.g. {missing[0]})",

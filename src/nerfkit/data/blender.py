@@ -25,7 +25,7 @@ from ..config import load_json
 from ..errors import fail
 from ..images import IMAGE_SUFFIXES, load_image_uint8
 from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
-from .validate import check_intrinsics, check_near_far, check_poses, check_scene
+from .validate import check_fov, check_intrinsics, check_near_far, check_poses, check_scene
 
 SPLITS = ("train", "val", "test")
 
@@ -45,7 +45,7 @@ def focal_from_angle(camera_angle_x: float, width: int) -> float:
     return 0.5 * width / math.tan(0.5 * camera_angle_x)
 
 
-def _frame_image_path(folder: Path, file_path: str, where: str) -> Path:
+def frame_image_path(folder: Path, file_path: str, where: str) -> Path:
     """Resolve a frame's ``file_path`` (often given without extension) to an image file."""
     try:
         p = (folder / file_path).resolve() if not Path(file_path).is_absolute() else Path(file_path)
@@ -77,9 +77,7 @@ def _read_split(folder: Path, split: str, background, out_size, with_images: boo
     frames = meta["frames"]
     if not frames:
         raise fail(where, "'frames' is empty")
-    angle = meta.get("camera_angle_x")
-    if isinstance(angle, bool) or not isinstance(angle, (int, float)) or not 0.0 < float(angle) < math.pi:
-        raise fail(where, f"'camera_angle_x' is {angle!r}, expected the horizontal field of view in radians (0, pi)")
+    angle = check_fov(meta.get("camera_angle_x"), where)
 
     poses, images, names = [], [], []
     size = None  # (width, height) of the files
@@ -93,7 +91,7 @@ def _read_split(folder: Path, split: str, background, out_size, with_images: boo
         if m.shape not in ((4, 4), (3, 4)):
             raise fail(where, f"frames[{i}].transform_matrix has shape {m.shape}, expected 4x4")
         poses.append(m if m.shape == (4, 4) else np.vstack([m, [0, 0, 0, 1]]))
-        img_path = _frame_image_path(folder, str(fr["file_path"]), where)
+        img_path = frame_image_path(folder, str(fr["file_path"]), where)
         names.append(str(fr["file_path"]).removeprefix("./") or img_path.stem)
         if with_images or size is None:
             img = load_image_uint8(img_path, background)

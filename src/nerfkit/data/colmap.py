@@ -232,15 +232,17 @@ def reconstruction_to_scene(
     pinholes: dict[int, "pycolmap.Camera"] = {}
     for im in images:
         cam = rec.cameras[im.camera_id]
-        if im.camera_id not in pinholes:
+        # before undistorting: pycolmap walks the image border, for ever on a 10^11-pixel-wide camera
+        size_ok = 0 < cam.width <= 1_000_000 and 0 < cam.height <= 1_000_000
+        if size_ok and im.camera_id not in pinholes:
             try:
                 pinholes[im.camera_id] = (cam if cam.model_name in PINHOLE_MODELS
                                           else pycolmap.undistort_camera(pycolmap.UndistortCameraOptions(), cam))
             except Exception as e:  # noqa: BLE001 - e.g. equirectangular cameras
                 raise fail(where, f"camera {im.camera_id} ({cam.model_name}) cannot be undistorted to a pinhole ({e})",
                            "Use a pinhole, radial or OpenCV camera model") from None
-        pin = pinholes[im.camera_id]
-        if not (0 < cam.width <= 1_000_000 and 0 < cam.height <= 1_000_000 and 0 < pin.width and 0 < pin.height):
+        pin = pinholes.get(im.camera_id)
+        if not (size_ok and 0 < pin.width and 0 < pin.height):
             raise fail(where, f"camera {im.camera_id} has image size {cam.width}x{cam.height}",
                        "The model's cameras.txt/bin is corrupt")
         K = check_intrinsics(camera_matrix(pin), where, f"camera {im.camera_id}", int(pin.width), int(pin.height))

@@ -24,7 +24,6 @@ Layout (nerfstudio's, plus an optional ``"nerfkit"`` block)::
 
 from __future__ import annotations
 
-import math
 import warnings
 from pathlib import Path
 
@@ -34,8 +33,10 @@ from ..cameras import opencv_to_opengl, opengl_to_opencv
 from ..config import load_json
 from ..errors import fail
 from ..io.atomic import atomic_path, write_json
-from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
-from .validate import check_intrinsics, check_near_far, check_poses
+from .blender import focal_from_angle, frame_image_path
+from .scene import Scene, Views, estimate_center, estimate_up
+from .validate import (MAX_SIDE, check_count, check_fov, check_intrinsics, check_near_far, check_number, check_poses,
+                       check_scene, check_vector3, near_far_from_cameras, short_repr)
 
 SPLITS = ("train", "val", "test")
 DIST_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
@@ -51,22 +52,13 @@ def image_file_name(name: str) -> str:
 
 def _number(d: dict, key: str, where: str, default=None) -> float | None:
     v = d.get(key)
-    if v is None:
-        return default
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise fail(where, f"'{key}' must be a finite number, got {v!r}")
-    return float(v)
+    return default if v is None else check_number(v, where, key)
 
 
-def _find_image(folder: Path, file_path: str, where: str) -> Path:
-    p = folder / file_path
-    if p.is_file():
-        return p
-    if not p.suffix:
-        for ext in (".png", ".jpg", ".jpeg", ".PNG", ".JPG"):
-            if p.with_suffix(ext).is_file():
-                return p.with_suffix(ext)
-    raise fail(where, f"frame image '{file_path}' not found (looked for {p})", "Check the file_path entries")
+def _side(d: dict, key: str, where: str) -> int | None:
+    """Image width or height ("w", "h"): whole pixels, or None when absent."""
+    v = d.get(key)
+    return None if v is None else check_count(v, where, key, 1, MAX_SIDE)
 
 
 def _undistort(image: np.ndarray, K: np.ndarray, dist: dict[str, float], where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -77,112 +69,101 @@ def _undistort(image: np.ndarray, K: np.ndarray, dist: dict[str, float], where: 
     coeffs = np.array([dist["k1"], dist["k2"], dist["p1"], dist["p2"], dist["k3"]], np.float64)
     K_cv = K.astype(np.float64).copy()
     K_cv[:2, 2] -= 0.5
-    newK, _ = cv2.getOptimalNewCameraMatrix(K_cv, coeffs, (w, h), 0.0, (w, h))
-    out = cv2.undistort(image, K_cv, coeffs, None, newK)
+    try:
+        newK, _ = cv2.getOptimalNewCameraMatrix(K_cv, coeffs, (w, h), 0.0, (w, h))
+        out = cv2.undistort(image, K_cv, coeffs, None, newK)
+    except cv2.error as e:
+        raise fail(where, f"cannot undistort with k1 k2 p1 p2 k3 = {coeffs.tolist()} ({short_repr(str(e))})",
+                   "Check the distortion coefficients") from None
     newK = newK.astype(np.float64)
     newK[:2, 2] += 0.5
-    return out, newK
+    return out, check_intrinsics(newK, where, "intrinsics after undistortion", w, h).astype(np.float64)
 
 
-def load_transforms_json(path: str | Path, load_images: bool = True,
-                         background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Scene:
-    """Read a nerfstudio-style transforms.json (or a folder holding one) into a Scene.
+def _intrinsics(cam: dict, image_size: tuple[int, int] | None, where: str) -> tuple[np.ndarray, tuple[int, int]]:
+    """A frame's pinhole K and image size from fl_x/fl_y/cx/cy/w/h (or camera_angle_x)."""
+    w, h = _side(cam, "w", where), _side(cam, "h", where)
+    size = image_size
+    if size is None:
+        if w is None or h is None:
+            raise fail(where, "needs \"w\" and \"h\" when images are not loaded")
+        size = (w, h)
+    w = size[0] if w is None else w
+    h = size[1] if h is None else h
+    fx = _number(cam, "fl_x", where)
+    if fx is None:
+        if cam.get("camera_angle_x") is None:
+            raise fail(where, "no focal length: expected \"fl_x\" (or \"camera_angle_x\")")
+        fx = focal_from_angle(check_fov(cam["camera_angle_x"], where), w)
+    fy = _number(cam, "fl_y", where, fx)
+    cx = _number(cam, "cx", where, w / 2.0)
+    cy = _number(cam, "cy", where, h / 2.0)
+    K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], np.float64)
+    if size != (w, h):
+        sx, sy = size[0] / w, size[1] / h
+        if abs(sx - sy) > 0.01:
+            raise fail(where, f"image is {size[0]}x{size[1]} but w, h say {w}x{h}")
+        K[0] *= sx
+        K[1] *= sy  # a uniformly downscaled copy (nerfstudio's images_2, ...)
+    return check_intrinsics(K, where, "intrinsics", *size).astype(np.float64), size
 
-    ``background`` (RGB in [0, 1]) goes under transparent pixels of RGBA images.
-    """
+
+def _frame_split(fr: dict, by_list: dict[str, str], where: str) -> str | None:
+    """The frame's split: its "split", else the *_filenames lists; None when they leave it out."""
+    fp = str(fr["file_path"])
+    split = fr.get("split")
+    if split is None:
+        split = by_list.get(fp, by_list.get(fp.lstrip("./"), "train" if not by_list else None))
+        if split is None:
+            return None  # listed in none of the *_filenames: nerfstudio ignores it too
+    if split not in SPLITS:
+        raise fail(where, f"split {short_repr(split)} is not one of train, val, test")
+    return split
+
+
+def _read_frame(fr, data: dict, folder: Path, by_list: dict[str, str], where: str, load_images: bool,
+                background) -> tuple | None:
+    """(split, c2w, K, size, image, name, undistorted) of one frame; None when no split lists it."""
     from ..images import load_image_uint8
 
-    path = Path(path)
-    if path.is_dir():
-        path = path / "transforms.json"
-    where = str(path)
-    data = load_json(path, "no such file", "Expected a nerfstudio transforms.json", "The file may be truncated; re-export it")
-    if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
-        raise fail(where, "expected an object with a non-empty \"frames\" list")
-    model = str(data.get("camera_model", "OPENCV")).upper()
-    if model not in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
-        raise fail(where, f"camera_model {model} is not supported",
-                   "Undistort the images first (e.g. with nerfstudio's ns-process-data) and use OPENCV/PINHOLE")
-    folder = path.parent
-    nk = data.get("nerfkit") if isinstance(data.get("nerfkit"), dict) else {}
+    if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
+        raise fail(where, "each frame needs \"file_path\" and \"transform_matrix\"")
+    split = _frame_split(fr, by_list, where)
+    if split is None:
+        return None
+    c2w = opengl_to_opencv(check_poses([fr["transform_matrix"]], where, "transform_matrix")[0].astype(np.float64))
+    cam = {key: fr.get(key, data.get(key)) for key in ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", *DIST_KEYS)}
+    fp = str(fr["file_path"])
+    image = load_image_uint8(frame_image_path(folder, fp, where), background) if load_images else None
+    K, size = _intrinsics(cam, None if image is None else (image.shape[1], image.shape[0]), where)
+    dist = {key: (_number(cam, key, where) or 0.0) for key in DIST_KEYS}
+    if dist["k4"]:
+        raise fail(where, "k4 (a fisheye or rational distortion term) is not supported", "Undistort the images first")
+    if any(dist.values()):
+        if image is None:
+            raise fail(where, "has lens distortion, which nerfkit removes only when it loads the images")
+        image, K = _undistort(image, K, dist, where)
+    name = fr["name"] if isinstance(fr.get("name"), str) else Path(fp).name
+    return split, c2w, K, size, image, name, any(dist.values())
 
-    # Split assignment.
-    lists = {s: data.get(f"{s}_filenames") for s in SPLITS}
+
+def _split_lists(data: dict) -> dict[str, str]:
+    """File name -> split from nerfstudio's ``*_filenames`` lists."""
     by_list: dict[str, str] = {}
-    for s, names in lists.items():
+    for s in SPLITS:
+        names = data.get(f"{s}_filenames")
         if isinstance(names, list):
             for n in names:
                 by_list[str(n)] = s
                 by_list[str(Path(str(n)).as_posix()).lstrip("./")] = s
+    return by_list
 
-    per_split: dict[str, list] = {s: [] for s in SPLITS}
-    undistorted = 0
-    for k, fr in enumerate(data["frames"]):
-        fwhere = f"{where} frames[{k}]"
-        if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
-            raise fail(fwhere, "each frame needs \"file_path\" and \"transform_matrix\"")
-        fp = str(fr["file_path"])
-        split = fr.get("split")
-        if split is None:
-            split = by_list.get(fp, by_list.get(fp.lstrip("./"), "train" if not by_list else None))
-            if split is None:
-                continue  # listed in none of the *_filenames: nerfstudio ignores it too
-        if split not in SPLITS:
-            raise fail(fwhere, f"split '{split}' is not one of train, val, test")
-        try:
-            M = np.asarray(fr["transform_matrix"], np.float64)
-        except (TypeError, ValueError):
-            raise fail(fwhere, "transform_matrix must be a 4x4 list of numbers") from None
-        c2w = opengl_to_opencv(check_poses(M[None], fwhere, "transform_matrix")[0].astype(np.float64))
-        cam = {key: fr.get(key, data.get(key)) for key in ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", *DIST_KEYS)}
-        image = None
-        size = None
-        if load_images:
-            image = load_image_uint8(_find_image(folder, fp, fwhere), background)
-            size = (image.shape[1], image.shape[0])
-        w = _number(cam, "w", fwhere)
-        h = _number(cam, "h", fwhere)
-        if size is None:
-            if w is None or h is None:
-                raise fail(fwhere, "needs \"w\" and \"h\" when images are not loaded")
-            size = (int(w), int(h))
-        w = size[0] if w is None else w
-        h = size[1] if h is None else h
-        fx = _number(cam, "fl_x", fwhere)
-        if fx is None:
-            angle = _number(cam, "camera_angle_x", fwhere)
-            if angle is None:
-                raise fail(fwhere, "no focal length: expected \"fl_x\" (or \"camera_angle_x\")")
-            fx = 0.5 * w / math.tan(0.5 * angle)
-        fy = _number(cam, "fl_y", fwhere, fx)
-        cx = _number(cam, "cx", fwhere, w / 2.0)
-        cy = _number(cam, "cy", fwhere, h / 2.0)
-        K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], np.float64)
-        if (size[0], size[1]) != (int(round(w)), int(round(h))):
-            sx, sy = size[0] / w, size[1] / h
-            if abs(sx - sy) > 0.01:
-                raise fail(fwhere, f"image is {size[0]}x{size[1]} but w, h say {w:g}x{h:g}")
-            K[0] *= sx
-            K[1] *= sy  # a uniformly downscaled copy (nerfstudio's images_2, ...)
-        dist = {key: (_number(cam, key, fwhere) or 0.0) for key in DIST_KEYS}
-        if dist["k4"]:
-            raise fail(fwhere, "k4 (a fisheye or rational distortion term) is not supported", "Undistort the images first")
-        if any(dist.values()):
-            if image is None:
-                raise fail(fwhere, "has lens distortion, which nerfkit removes only when it loads the images")
-            image, K = _undistort(image, K, dist, fwhere)
-            undistorted += 1
-        K = check_intrinsics(K, fwhere, "intrinsics", size[0], size[1])
-        name = fr["name"] if isinstance(fr.get("name"), str) else Path(fp).name
-        per_split[split].append((c2w, K, size, image, name))
-    if undistorted:
-        warnings.warn(f"{where}: {undistorted} frames have lens distortion (k1 k2 p1 p2 ...); nerfkit undistorted "
-                      "them on load (pinhole K updated). Undistort once beforehand to avoid this each time", stacklevel=2)
 
+def _stack_views(per_split: dict[str, list], where: str, load_images: bool) -> dict[str, Views]:
+    """Views per split from the frames' (c2w, K, size, image, name); pose-less splits empty."""
     views: dict[str, Views] = {}
     for split, items in per_split.items():
         if not items:
-            views[split] = None
             continue
         sizes = sorted({it[2] for it in items})
         if len(sizes) > 1:
@@ -193,30 +174,79 @@ def load_transforms_json(path: str | Path, load_images: bool = True,
         views[split] = Views(np.stack([it[0] for it in items]).astype(np.float32),
                              np.stack([it[1] for it in items]).astype(np.float32), w, h, images,
                              [it[4] for it in items])
-    if views["train"] is None:
+    if "train" not in views:
         raise fail(where, "has no training frames", "Mark some frames \"split\": \"train\" or list them in train_filenames")
     train = views["train"]
     for split in ("val", "test"):
-        if views[split] is None:
-            views[split] = Views.empty(train.width, train.height)
-    for split, mats in (nk.get("poses_only") or {}).items():  # pose-only splits (render paths)
-        if split in SPLITS and len(views[split]) == 0 and mats:
-            c2w = opengl_to_opencv(check_poses(np.asarray(mats, np.float64), where, f"nerfkit.poses_only.{split}"))
-            views[split] = Views(c2w.astype(np.float32), np.repeat(train.K[:1], len(c2w), axis=0), train.width, train.height)
+        views.setdefault(split, Views.empty(train.width, train.height))
+    return views
 
-    center = estimate_center(train.c2w)
-    up = estimate_up(train.c2w)
-    if "center" in nk:
-        center = np.asarray(nk["center"], np.float32).reshape(3)
-    if "up" in nk:
-        up = np.asarray(nk["up"], np.float32).reshape(3)
-        up = up / max(float(np.linalg.norm(up)), 1e-8)
-    if "near" in nk and "far" in nk:
-        near, far = check_near_far(float(nk["near"]), float(nk["far"]), where)
+
+def _add_pose_only_splits(views: dict[str, Views], nk: dict, where: str) -> None:
+    """Fill empty splits from ``nerfkit.poses_only`` (render paths: poses without images)."""
+    poses_only = nk.get("poses_only") or {}
+    if not isinstance(poses_only, dict):
+        raise fail(where, f"'nerfkit.poses_only' is {short_repr(poses_only)}, expected an object: split -> "
+                          "list of 4x4 matrices", "Fix or re-export the file")
+    train = views["train"]
+    for split, mats in poses_only.items():
+        if split in SPLITS and len(views[split]) == 0 and mats:
+            c2w = opengl_to_opencv(check_poses(mats, where, f"nerfkit.poses_only.{split}").astype(np.float64))
+            views[split] = Views(c2w.astype(np.float32), np.repeat(train.K[:1], len(c2w), axis=0), train.width,
+                                 train.height)
+
+
+def _scene_bounds(nk: dict, train: Views, where: str) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """center, up, near, far: from the ``nerfkit`` block, else estimated from the cameras."""
+    center = check_vector3(nk["center"], where, "nerfkit.center") if "center" in nk else estimate_center(train.c2w)
+    up = check_vector3(nk["up"], where, "nerfkit.up", unit=True) if "up" in nk else estimate_up(train.c2w)
+    if "near" in nk or "far" in nk:
+        near, far = check_near_far(nk.get("near"), nk.get("far"), where)
     else:
-        near, far = estimate_near_far(train.c2w, center)
-    return Scene(train, views["val"], views["test"], near, far, center.astype(np.float32), up.astype(np.float32),
-                 source=where)
+        near, far = near_far_from_cameras(train.c2w, center, where, "Store the depth range as nerfkit.near and far")
+    return center.astype(np.float32), up.astype(np.float32), near, far
+
+
+def load_transforms_json(path: str | Path, load_images: bool = True,
+                         background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Scene:
+    """Read a nerfstudio-style transforms.json (or a folder holding one) into a Scene.
+
+    ``background`` (RGB in [0, 1]) goes under transparent pixels of RGBA images.
+    """
+    path = Path(path)
+    try:
+        if path.is_dir():
+            path = path / "transforms.json"
+    except OSError as e:  # a name too long, a loop of links
+        raise fail(repr(str(path)[:200]), f"not a usable path ({type(e).__name__})") from None
+    where = str(path)
+    data = load_json(path, "no such file", "Expected a nerfstudio transforms.json", "The file may be truncated; re-export it")
+    if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
+        raise fail(where, "expected an object with a non-empty \"frames\" list")
+    model = str(data.get("camera_model", "OPENCV")).upper()
+    if model not in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
+        raise fail(where, f"camera_model {model[:40]} is not supported",
+                   "Undistort the images first (e.g. with nerfstudio's ns-process-data) and use OPENCV/PINHOLE")
+    nk = data.get("nerfkit") or {}
+    if not isinstance(nk, dict):
+        raise fail(where, f"'nerfkit' is {short_repr(nk)}, expected an object", "Fix or re-export the file")
+
+    by_list = _split_lists(data)
+    per_split: dict[str, list] = {s: [] for s in SPLITS}
+    undistorted = 0
+    for k, fr in enumerate(data["frames"]):
+        frame = _read_frame(fr, data, path.parent, by_list, f"{where} frames[{k}]", load_images, background)
+        if frame is not None:
+            per_split[frame[0]].append(frame[1:6])
+            undistorted += frame[6]
+    if undistorted:
+        warnings.warn(f"{where}: {undistorted} frames have lens distortion (k1 k2 p1 p2 ...); nerfkit undistorted "
+                      "them on load (pinhole K updated). Undistort once beforehand to avoid this each time", stacklevel=2)
+
+    views = _stack_views(per_split, where, load_images)
+    _add_pose_only_splits(views, nk, where)
+    center, up, near, far = _scene_bounds(nk, views["train"], where)
+    return check_scene(Scene(views["train"], views["val"], views["test"], near, far, center, up, source=where))
 
 
 def _save_image(path: Path, image: np.ndarray, jpeg_quality: int) -> None:

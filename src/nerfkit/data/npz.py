@@ -20,9 +20,9 @@ import numpy as np
 
 from ..errors import NerfkitError, fail
 from ..io.atomic import write_npz
-from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
+from .scene import Scene, Views, estimate_center, estimate_up
 from .validate import (MAX_PIXELS, check_images, check_intrinsics, check_near_far, check_poses, check_scene,
-                       check_vector3)
+                       check_vector3, near_far_from_cameras)
 
 SPLITS = ("train", "val", "test")
 
@@ -143,10 +143,7 @@ def load_npz(path: str | Path) -> Scene:
             raise fail(where, "has only one of 'near' and 'far'", "Store both or neither")
         near, far = check_near_far(_scalar(arrays, "near", where), _scalar(arrays, "far", where), where)
     else:
-        near, far = estimate_near_far(train.c2w, center)
-        if not (np.isfinite(near) and np.isfinite(far) and 0 <= near < far):
-            raise fail(where, f"cannot estimate near/far from the cameras (got {near:.3g}, {far:.3g}: do they all "
-                              "sit at one spot?)", "Store the depth range as 'near' and 'far'")
+        near, far = near_far_from_cameras(train.c2w, center, where, "Store the depth range as 'near' and 'far'")
     if "center" in arrays:
         center = check_vector3(arrays["center"], where, "center")
     if "up" in arrays:

@@ -2,14 +2,70 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..errors import fail
+from .scene import estimate_near_far
 
 # Refuse images beyond this many pixels per split (a crafted header could ask for terabytes).
 MAX_PIXELS = 4_000_000_000
 # Coordinates and focal lengths beyond this are refused: float32 (and squared distances) overflow.
 MAX_COORD = 1e15
+# Image sides beyond this many pixels are refused in camera and transforms files.
+MAX_SIDE = 100_000
+
+
+def short_repr(value) -> str:
+    """A short repr of a (possibly huge) value read from a file, for messages."""
+    r = repr(value)
+    return r if len(r) <= 60 else r[:57] + "..."
+
+
+def _array(value, where: str, field: str) -> np.ndarray:
+    """``np.asarray(value)``; ragged lists and integers too large for numpy are a NerfkitError."""
+    try:
+        return np.asarray(value)
+    except (ValueError, TypeError, OverflowError):
+        raise fail(where, f"'{field}' is not an array of numbers (ragged or mixed lists?)") from None
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def check_number(value, where: str, field: str, above: float | None = None, below: float | None = None,
+                 expected: str = "a finite number") -> float:
+    """A finite number (not a bool, nor a string), strictly between ``above`` and ``below`` when given."""
+    ok = (_is_number(value) and abs(value) <= MAX_COORD and (above is None or value > above)
+          and (below is None or value < below))
+    if not ok:
+        raise fail(where, f"'{field}' is {short_repr(value)}, expected {expected}")
+    return float(value)
+
+
+def check_count(value, where: str, field: str, lo: int, hi: int) -> int:
+    """A whole number in [lo, hi]: an int, or a float without a fraction (not a bool)."""
+    if not (_is_number(value) and lo <= value <= hi and float(value).is_integer()):
+        raise fail(where, f"'{field}' is {short_repr(value)}, expected a whole number from {lo} to {hi}")
+    return int(value)
+
+
+def check_fov(angle, where: str, field: str = "camera_angle_x") -> float:
+    """A horizontal field of view in radians, in (0, pi)."""
+    return check_number(angle, where, field, 0.0, math.pi, "the horizontal field of view in radians (0, pi)")
+
+
+def check_numbers(value, where: str, field: str) -> np.ndarray:
+    """Finite numbers of any shape (a JSON list or an array) as float64."""
+    a = _array(value, where, field)
+    if a.dtype.kind not in "fiu":
+        raise fail(where, f"'{field}' must hold numbers, got {short_repr(value)}")
+    a = a.astype(np.float64)
+    if not (np.isfinite(a).all() and np.abs(a).max(initial=0.0) <= MAX_COORD):
+        raise fail(where, f"'{field}' has NaN or inf values (or values beyond {MAX_COORD:g})")
+    return a
 
 
 def check_poses(c2w: np.ndarray, where: str, field: str, tol: float = 1e-3) -> np.ndarray:
@@ -17,7 +73,7 @@ def check_poses(c2w: np.ndarray, where: str, field: str, tol: float = 1e-3) -> n
 
     Accepts (N, 3, 4) too and appends the [0, 0, 0, 1] row.
     """
-    c2w = np.asarray(c2w)
+    c2w = _array(c2w, where, field)
     if c2w.dtype.kind not in "fiu":
         raise fail(where, f"'{field}' has dtype {c2w.dtype}, expected numbers", "Store poses as float32")
     if c2w.ndim != 3 or c2w.shape[1:] not in ((4, 4), (3, 4)):
@@ -50,7 +106,7 @@ def check_poses(c2w: np.ndarray, where: str, field: str, tol: float = 1e-3) -> n
 
 def check_intrinsics(K: np.ndarray, where: str, field: str, width: int, height: int) -> np.ndarray:
     """Validate a (3, 3) or (N, 3, 3) pinhole matrix; return it as float32."""
-    K = np.asarray(K)
+    K = _array(K, where, field)
     if K.dtype.kind not in "fiu" or K.shape[-2:] != (3, 3) or K.ndim not in (2, 3):
         raise fail(where, f"'{field}' has shape {K.shape} and dtype {K.dtype}, expected a 3x3 float matrix")
     if not np.isfinite(K).all() or np.abs(K).max(initial=0.0) > MAX_COORD:
@@ -90,8 +146,8 @@ def check_images(images: np.ndarray, where: str, field: str) -> np.ndarray:
 def check_near_far(near: float, far: float, where: str) -> tuple[float, float]:
     try:
         near, far = float(near), float(far)
-    except (TypeError, ValueError):
-        raise fail(where, f"near/far must be numbers, got near={near!r}, far={far!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise fail(where, f"near/far must be numbers, got near={short_repr(near)}, far={short_repr(far)}") from None
     if not (np.isfinite(near) and np.isfinite(far)):
         raise fail(where, f"near/far must be finite, got near={near}, far={far}")
     if near < 0 or near >= far:
@@ -99,9 +155,18 @@ def check_near_far(near: float, far: float, where: str) -> tuple[float, float]:
     return float(near), float(far)
 
 
+def near_far_from_cameras(c2w: np.ndarray, center: np.ndarray, where: str, fix: str) -> tuple[float, float]:
+    """:func:`~nerfkit.data.scene.estimate_near_far`, refused when the cameras give no depth range."""
+    near, far = estimate_near_far(c2w, center)
+    if not (np.isfinite(near) and np.isfinite(far) and 0 <= near < far):
+        raise fail(where, f"cannot estimate near/far from the cameras (got {near:.3g}, {far:.3g}: do they all "
+                          "sit at one spot?)", fix)
+    return near, far
+
+
 def check_vector3(v, where: str, field: str, unit: bool = False) -> np.ndarray:
     """A finite (3,) vector as float32 (normalised when ``unit``)."""
-    a = np.asarray(v)
+    a = _array(v, where, field)
     if a.dtype.kind not in "fiu" or a.size != 3:
         raise fail(where, f"'{field}' must be 3 numbers, got shape {a.shape} dtype {a.dtype}")
     a = a.astype(np.float64).reshape(3)

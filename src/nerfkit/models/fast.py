@@ -38,6 +38,7 @@ from torch import Tensor, nn
 
 from ..cameras import Rays
 from ..config import option
+from ..data.validate import short_repr
 from ..errors import fail
 from ..kernels import numba_kernels
 from ..kernels import reference as ref
@@ -85,10 +86,28 @@ class FastConfig:
             raise fail("--resolutions/--upsample-steps", "expected comma-separated integers") from None
         if not sizes or min(sizes) < 4:
             raise fail("--resolutions", f"'{self.resolutions}' needs sizes >= 4")
+        if max(sizes) ** 3 > MAX_GRID_VERTICES:  # a size is the side of a cube of vertices
+            raise fail("--resolutions", f"'resolutions' is '{self.resolutions}': sizes above "
+                       f"{round(MAX_GRID_VERTICES ** (1 / 3))} make grids too large to allocate", "Use smaller sizes")
         steps = steps[:len(sizes) - 1]
         if len(steps) != len(sizes) - 1 or steps != sorted(steps):
             raise fail("--upsample-steps", f"needs {len(sizes) - 1} increasing steps for {len(sizes)} resolutions")
         return sizes, steps
+
+
+# Largest grid: each side and the vertex count (512^3 vertices of 4+ float32 channels: 2+ GB).
+MAX_GRID_SIDE = 4096
+MAX_GRID_VERTICES = 512 ** 3
+
+
+def check_grid_res(res, where: str, field: str, fix: str) -> tuple[int, int, int]:
+    """A grid resolution (x, y, z vertex counts) small enough to allocate, as ints."""
+    ok = (isinstance(res, (list, tuple)) and len(res) == 3
+          and all(isinstance(r, int) and not isinstance(r, bool) and 2 <= r <= MAX_GRID_SIDE for r in res))
+    if not ok or math.prod(res) > MAX_GRID_VERTICES:
+        raise fail(where, f"'{field}' is {short_repr(res)}, expected 3 vertex counts from 2 to {MAX_GRID_SIDE}, "
+                          f"at most 512^3 vertices in all", fix)
+    return int(res[0]), int(res[1]), int(res[2])
 
 
 def fit_grid(lo: np.ndarray, hi: np.ndarray, size: int) -> tuple[np.ndarray, float, tuple[int, int, int]]:
@@ -353,10 +372,12 @@ class FastNeRF(NerfModel):
 
     def load_extra_state(self, state: dict) -> None:
         device = self.grid.device
+        res = check_grid_res(state["res"], "checkpoint 'model_extra'", "res",  # checked before allocating
+                             "The checkpoint is corrupt or not from nerfkit; delete it or re-train")
         self.density_scale = float(state["density_scale"])
         self.stage = int(state["stage"])
         self.occ_active = bool(state["occ_active"])
-        self._set_geometry(np.asarray(state["lo"], np.float32), float(state["voxel"]), tuple(state["res"]))
+        self._set_geometry(np.asarray(state["lo"], np.float32), float(state["voxel"]), res)
         self.grid = nn.Parameter(torch.zeros((self.geom.n_vertices, self.n_channels), device=device))
         self.sink = GradSink(self.geom.n_vertices, self.n_channels, device)
 
