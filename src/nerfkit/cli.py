@@ -41,15 +41,27 @@ typical flows:
 """
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = "") -> argparse.ArgumentParser:
+    """The full parser; with ``only`` a command name (or None for no command), the other
+    commands get a one-line stub, which is all the top-level ``--help`` shows. Registering
+    ``train`` imports torch (its model flags), so ``nerfkit --help`` skips it."""
     parser = argparse.ArgumentParser(prog="nerfkit", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--verbose", action="store_true", help="show full tracebacks on errors")
     parser.add_argument("--version", action="version", version=f"nerfkit {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
-        importlib.import_module(f"nerfkit.commands.{name.replace('-', '_')}").register(sub)
+        module = importlib.import_module(f"nerfkit.commands.{name.replace('-', '_')}")
+        if only == "" or name == only:
+            module.register(sub)
+        else:
+            sub.add_parser(name, help=module.HELP)
     return parser
+
+
+def command_in(argv: list[str]) -> str | None:
+    """The subcommand named in ``argv`` (the first word that is not an option), if any."""
+    return next((a for a in argv if not a.startswith("-")), None)
 
 
 def _version() -> str:
@@ -59,7 +71,8 @@ def _version() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser(command_in(argv))
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
