@@ -166,7 +166,7 @@ def test_export_command_writes_both_files(tmp_path, monkeypatch, capsys):
     from types import SimpleNamespace
 
     from nerfkit.cli import main
-    from nerfkit.commands import export as cmd
+    from nerfkit.commands import _common
     from nerfkit.data.npz import save_npz
 
     scene = sphere_scene(n_train=4, n_val=1, size=16)
@@ -174,7 +174,8 @@ def test_export_command_writes_both_files(tmp_path, monkeypatch, capsys):
     bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
     info = SimpleNamespace(bounds=bounds, run_dir=tmp_path,
                            train=SimpleNamespace(data=str(tmp_path / "s.npz"), background="black"))
-    monkeypatch.setattr(cmd, "load_model", lambda run, dev: (SphereModel(bounds), info, "cpu", 7))
+    opened = _common.OpenRun(SphereModel(bounds), info, 7, torch.device("cpu"), 8192, None)
+    monkeypatch.setattr(_common, "open_run", lambda args: opened)
     rc = main(["export", str(tmp_path), "--mesh", str(tmp_path / "m.ply"), "--points", str(tmp_path / "p.ply"),
                "--resolution", "48", "--threshold", "50"])
     assert rc == 0, capsys.readouterr().err

@@ -62,58 +62,44 @@ def run(args: argparse.Namespace) -> int:
         raise fail("--resolution", f"{args.resolution} is outside 8..1024")
     if args.box_scale <= 0 or args.every < 1 or args.stride < 1 or not 0 <= args.acc_min < 1:
         raise fail("export", "--box-scale must be > 0, --every and --stride >= 1, --acc-min in [0, 1)")
-    model, info, device, step = load_model(args.run, args.device)
-    center, radius = info.bounds.center, info.bounds.radius * args.box_scale
+    from ._common import open_run
+
+    run_ = open_run(args)
+    center, radius = run_.info.bounds.center, run_.info.bounds.radius * args.box_scale
     if args.mesh:
-        export_mesh(model, center, radius, args, device, step)
+        export_mesh(run_, center, radius, args)
     if args.points:
-        export_points(model, info, center, radius, args, device, step)
+        export_points(run_, center, radius, args)
     return 0
 
 
-def load_model(run_dir: str, device_name: str):
-    """(model in eval mode, run info, device, step): the one place that builds a model from a run."""
-    from ..train.checkpoint import load_run
-    from ..train.config import resolve_device
-
-    device = resolve_device(device_name)
-    model, info, step = load_run(run_dir, device)
-    return model, info, device, step
-
-
-def export_mesh(model, center, radius: float, args, device, step: int) -> None:
+def export_mesh(run_, center, radius: float, args) -> None:
     from ..export import mesh_from_model, write_mesh_ply
 
-    mesh = mesh_from_model(model, center, radius, args.resolution, args.threshold, args.color_dirs,
-                           chunk=POINT_CHUNK, device=device)
+    mesh = mesh_from_model(run_.model, center, radius, args.resolution, args.threshold, args.color_dirs,
+                           chunk=POINT_CHUNK, device=run_.device)
     write_mesh_ply(args.mesh, mesh)
-    print(f"mesh of step {step}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces "
+    print(f"mesh of step {run_.step}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces "
           f"(threshold {args.threshold:g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide box) -> {args.mesh}")
 
 
-def export_points(model, info, center, radius: float, args, device, step: int) -> None:
-    import torch
-
+def export_points(run_, center, radius: float, args) -> None:
     from ..export import crop_to_box, points_from_views, write_points_ply
     from ..render.renderer import render_image
-    from ..train.config import parse_background
     from ._common import scene_for_run
 
-    scene = scene_for_run(info, args.data)
+    scene = scene_for_run(run_.info, args.data)
     views = scene.train.subset(list(range(0, len(scene.train), args.every)))
-    background = parse_background(info.train.background)
-    bg = torch.tensor(background, dtype=torch.float32, device=device)
-
-    chunk = args.chunk or getattr(info.train, "render_chunk", 0) or 8192
+    bg = run_.background()
 
     def render_fn(K, c2w, w, h):
-        out = render_image(model, K, c2w, w, h, bg, chunk)
+        out = render_image(run_.model, K, c2w, w, h, bg, run_.chunk)
         return out.rgb, out.depth, out.acc
 
-    pts, cols = points_from_views(render_fn, views, args.acc_min, background, args.stride)
+    pts, cols = points_from_views(render_fn, views, args.acc_min, tuple(bg.tolist()), args.stride)
     n_all = len(pts)
     if not args.no_crop:
         pts, cols = crop_to_box(pts, cols, center, radius)
     write_points_ply(args.points, pts, cols)
-    print(f"point cloud of step {step}: {len(pts)} points from {len(views)} views "
+    print(f"point cloud of step {run_.step}: {len(pts)} points from {len(views)} views "
           f"({n_all - len(pts)} outside the scene box dropped) -> {args.points}")

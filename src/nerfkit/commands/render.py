@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import add_run_device_args, scene_for_run
+from ._common import add_run_args
 
 HELP = "render a trained run to MP4/GIF and a depth video"
 
@@ -12,41 +12,34 @@ HELP = "render a trained run to MP4/GIF and a depth video"
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("render", help=HELP, description=HELP + ". Uses the dataset's test poses when it has "
                        "them, else an orbit around the object.")
-    p.add_argument("run", metavar="RUN", help="run folder written by `nerfkit train`")
-    p.add_argument("--data", help="dataset (default: the one the run was trained on)")
+    add_run_args(p)
     p.add_argument("--path", choices=["auto", "test", "orbit"], default="auto",
                    help="camera path: the dataset's test poses, a generated orbit, or auto (test if present)")
     p.add_argument("--frames", type=int, default=60, help="frames of a generated orbit (default: 60)")
     p.add_argument("--fps", type=int, default=30, help="frames per second (default: 30)")
     p.add_argument("--background", help="override the run's background colour (black, white, r,g,b)")
     p.add_argument("--out", help="output folder (default: RUN/videos)")
-    add_run_device_args(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    import torch
-
     from ..errors import fail
     from ..render.videos import render_videos
-    from ..train.checkpoint import load_run
-    from ..train.config import parse_background, resolve_autocast, resolve_device
+    from ._common import open_run, scene_for_run
 
-    device = resolve_device(args.device)
-    model, info, step = load_run(args.run, device)
-    scene = scene_for_run(info, args.data)
+    run_ = open_run(args)
+    scene = scene_for_run(run_.info, args.data)
     if args.frames < 1:
         raise fail("--frames", "must be at least 1")
     if args.path == "test" and len(scene.test) == 0:
         raise fail(scene.source, "has no test poses", "Use --path orbit")
     views = scene.orbit(args.frames) if args.path == "orbit" else scene.render_path(args.frames)
-    bg = torch.tensor(parse_background(args.background or info.train.background), device=device)
     out = Path(args.out) if args.out else Path(args.run) / "videos"
-    paths = render_videos(model, views, out, bg, scene.near, scene.far, args.fps, args.chunk or info.train.render_chunk,
-                          resolve_autocast(info.train.precision, device))
-    print(f"rendered {len(views)} frames of step {step} ({paths.seconds_per_frame:.2f} s/frame):")
+    paths = render_videos(run_.model, views, out, run_.background(args.background), scene.near, scene.far, args.fps,
+                          run_.chunk, run_.autocast)
+    print(f"rendered {len(views)} frames of step {run_.step} ({paths.seconds_per_frame:.2f} s/frame):")
     for p in (paths.rgb_mp4, paths.rgb_gif, paths.depth_mp4):
         print(f"  {p}")
     return 0
