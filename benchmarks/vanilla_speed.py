@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import platform
 import statistics
 import time
 from datetime import date
 
+import numpy as np
 import torch
 
 from nerfkit.data.npz import load_npz
@@ -26,6 +26,7 @@ from nerfkit.models.base import SceneBounds
 from nerfkit.models.vanilla import VanillaConfig, VanillaNeRF
 from nerfkit.render.renderer import render_image
 from nerfkit.train.checkpoint import load_run
+from nerfkit.train.metrics import psnr
 
 
 def step_times(model, rays, batch, autocast, repeats):
@@ -71,15 +72,20 @@ def speed_table(scene, rays, batches, samples, repeats, render):
 
 def occupancy_table(run, scene, rays, batch, repeats):
     """Trained weights, with and without empty-space skipping (same MLP, same samples)."""
-    plain, info, step = load_run(run)
+    loaded, info, step = load_run(run)
     if info.train.model != "vanilla":
         raise SystemExit(f"{run} is a {info.train.model} run; --run needs a vanilla run")
+    plain = VanillaNeRF(dataclasses.replace(info.model_config, occupancy=False), info.bounds)
+    plain.load_state_dict(loaded.state_dict(), strict=False)  # the same MLP, every sample evaluated
     cfg = dataclasses.replace(info.model_config, occupancy=True)
-    skip = VanillaNeRF(cfg, info.bounds)
-    skip.load_state_dict(plain.state_dict(), strict=False)
-    with torch.autocast("cpu", dtype=torch.bfloat16):
-        for _ in range(3):  # a few refreshes: the running max settles
-            skip.update_occupancy()
+    if info.model_config.occupancy:
+        skip = loaded  # the grid the run trained with
+    else:
+        skip = VanillaNeRF(cfg, info.bounds)
+        skip.load_state_dict(loaded.state_dict(), strict=False)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            for _ in range(3):  # a few refreshes: the running max settles
+                skip.update_occupancy()
     occupied = skip.grid.occupied_fraction
     print(f"\n# trained run {run} (step {step}), bf16, batch {batch}; occupancy grid {cfg.occupancy_res}^3, "
           f"{occupied:.1%} of cells occupied")
@@ -91,9 +97,9 @@ def occupancy_table(run, scene, rays, batch, repeats):
         sec, n = step_times(model, rays, batch, True, repeats)
         model.eval()
         frame, view = render_seconds(model, scene, True)
-        mse = float(((view.rgb.float().cpu() - torch.as_tensor(scene.val.images[0]).float() / 255) ** 2).mean())
+        score = psnr(view.rgb, scene.val.images[0].astype(np.float32) / 255.0)
         rows[name] = (sec, frame)
-        print(f"| {name} | {n / batch:.1f} | {sec:.3f} | {frame:.2f} | {-10 * math.log10(mse):.2f} |")
+        print(f"| {name} | {n / batch:.1f} | {sec:.3f} | {frame:.2f} | {score:.2f} |")
     print(f"| speed-up | | {rows['off'][0] / rows['on'][0]:.2f}x | {rows['off'][1] / rows['on'][1]:.2f}x | |")
 
 

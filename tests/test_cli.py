@@ -43,3 +43,21 @@ def test_options_before_the_command_still_find_it(capsys):
         main(["--verbose", "eval", "--help"])
     assert e.value.code == 0
     assert capsys.readouterr().out.startswith("usage: nerfkit eval")
+
+
+def test_every_model_flag_reaches_its_config():
+    # A model field named like a training flag would be shadowed on the command line (the fast
+    # model's background option once was): every field must map to a flag of its own.
+    import dataclasses
+
+    from nerfkit.cli import build_parser
+    from nerfkit.config import dataclass_from_args
+    from nerfkit.models import MODEL_NAMES, model_config_class
+    from nerfkit.train.config import TrainConfig
+
+    train_fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    for name in MODEL_NAMES:
+        cls = model_config_class(name)
+        assert not train_fields & {f.name for f in dataclasses.fields(cls)}, name
+    args = build_parser("train").parse_args(["train", "--learn-background"])
+    assert dataclass_from_args(model_config_class("fast"), args).learn_background is True

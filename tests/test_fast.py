@@ -149,7 +149,7 @@ def test_learned_background_recovers_a_grey_backdrop():
     for split in (grey.train, grey.val):
         black = (split.images == 0).all(-1)
         split.images[black] = 128
-    model = FastNeRF(FastConfig(background="learned", **SMALL), SceneBounds.from_scene(grey))
+    model = FastNeRF(FastConfig(learn_background=True, **SMALL), SceneBounds.from_scene(grey))
     train_loop(model, grey, 50, batch=512)
     # rays that miss the box see only the learned background
     d = torch.nn.functional.normalize(torch.randn(100, 3, generator=torch.Generator().manual_seed(1)), dim=-1)

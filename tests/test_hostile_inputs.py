@@ -283,14 +283,22 @@ def test_run_config_values_that_used_to_crash_or_load_as_garbage(tiny_run, tmp_p
     one_line_error(e, message, "config.json")
 
 
+def first_weight(ckpt: dict) -> str:
+    """The name of the first weight matrix in a checkpoint's model state."""
+    return next(name for name in ckpt["model"] if name.endswith(".weight"))
+
+
 @pytest.mark.parametrize("edit, message", [
     (lambda k: k.update(model_extra=5), "'model' or 'model_extra' has the wrong type"),
     (lambda k: k.update(model=[1, 2]), "'model' or 'model_extra' has the wrong type"),
     (lambda k: k.update(step="x"), "checkpoint step is 'x'"),
     (lambda k: k.update(step=-5), "checkpoint step is -5"),
-    (lambda k: k["model"].update({next(iter(k["model"])): next(iter(k["model"].values())) * float("nan")}),
+    (lambda k: k["model"].update({first_weight(k): k["model"][first_weight(k)] * float("nan")}),
      "weights hold NaN or inf"),
-    (lambda k: k["model"].update({next(iter(k["model"])): np.float32(0) + __import__("torch").zeros(1)}),
+    (lambda k: k["model"].update({first_weight(k): k["model"][first_weight(k)] * float("inf")}),
+     "weights hold NaN or inf"),
+    (lambda k: k["model"].update(cell_sigma=k["model"]["cell_sigma"] * float("nan")), "state holds NaN"),
+    (lambda k: k["model"].update({first_weight(k): np.float32(0) + __import__("torch").zeros(1)}),
      "size mismatch"),
 ])
 def test_checkpoint_values_that_used_to_crash_or_load_as_garbage(tiny_run, tmp_path, capsys, edit, message):

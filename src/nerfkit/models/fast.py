@@ -21,7 +21,7 @@ Speed comes from counting samples, not steps:
   runs in pure torch.
 
 Outside the box rays see either the background colour the trainer passes, or (with
-``background="learned"``) a learned colour per direction (spherical harmonics), for
+``learn_background``) a learned colour per direction (spherical harmonics), for
 captures whose surroundings are not a flat colour.
 """
 
@@ -72,8 +72,9 @@ class FastConfig:
     adam_eps: float = option(1e-15, "Adam epsilon")
     shrink_box: bool = option(True, "at the first growth, shrink the box around where opaque training rays end")
     box_pad: int = option(3, "margin around the shrunken box, in voxels (plus 5% of its size)")
-    background: str = option("given", "outside the box: 'given' (the trainer's colour) or 'learned' "
-                             "(a colour per direction)", choices=["given", "learned"])
+    learn_background: bool = option(False, "learn what rays see outside the box (a colour per direction) "
+                                    "instead of the --background colour: for real photos, whose background is "
+                                    "a room, not a flat colour")
     kernels: str = option("auto", "auto (compiled numba on the CPU when available), numba, or torch",
                           choices=["auto", "numba", "torch"])
 
@@ -145,7 +146,7 @@ class FastNeRF(NerfModel):
         grid = torch.zeros((self.geom.n_vertices, self.n_channels))
         grid[:, 0] = raw0
         self.grid = nn.Parameter(grid)
-        if config.background == "learned":
+        if config.learn_background:
             self.bg_coef = nn.Parameter(torch.zeros(3, 16))
         else:
             self.register_parameter("bg_coef", None)

@@ -154,11 +154,13 @@ def load_latest_checkpoint(run_dir: Path, model: NerfModel) -> tuple[dict, Path]
             ckpt = _read_checkpoint(path, type(model).__name__)
             if not isinstance(ckpt.get("model_extra"), str) or not isinstance(ckpt.get("model"), dict):
                 raise fail(path, "malformed checkpoint ('model' or 'model_extra' has the wrong type)")
-            # parameters only: buffers may hold inf on purpose (e.g. "not measured yet")
+            # weights must be finite; buffers may hold inf on purpose (e.g. "not measured yet"), never NaN
             params = {name for name, _ in model.named_parameters()}
-            if not all(torch.isfinite(t).all() for name, t in ckpt["model"].items()
-                       if name in params and isinstance(t, torch.Tensor) and t.is_floating_point()):
+            floats = {name: t for name, t in ckpt["model"].items() if isinstance(t, torch.Tensor) and t.is_floating_point()}
+            if not all(torch.isfinite(t).all() for name, t in floats.items() if name in params):
                 raise fail(path, "the model weights hold NaN or inf values")
+            if any(torch.isnan(t).any() for t in floats.values()):
+                raise fail(path, "the model state holds NaN values")
             model.load_extra_state(json.loads(ckpt["model_extra"]))
             model.load_state_dict(ckpt["model"])
             for msg in errors:  # the newer checkpoints that were skipped
