@@ -152,3 +152,22 @@ def test_vanilla_occupancy_skipping_keeps_the_image_and_saves_samples(tmp_path, 
     rays = image_rays(torch.from_numpy(v.K[0]), torch.from_numpy(v.c2w[0]), v.width, v.height)
     with torch.no_grad():
         assert model.render_rays(rays, bg, perturb=False).n_samples < 0.5 * len(rays) * 32
+
+
+def test_progress_bar_in_a_log_file_redraws_rarely(tmp_path, sphere_npz):
+    # Not a terminal: the bar redraws every 30 s, not every step (a 5-minute run once wrote
+    # thousands of redraws into its log). A 3-second run draws the start and the end only.
+    import subprocess
+    import sys
+
+    log = tmp_path / "train.log"
+    with open(log, "w") as f:
+        code = subprocess.run([sys.executable, "-m", "nerfkit.cli", "train", "--data", str(sphere_npz),
+                               "--model", "vanilla", "--out", str(tmp_path / "run"), "--minutes", "0.05",
+                               "--batch-rays", "64", "--n-samples", "8", "--width", "16", "--depth", "2",
+                               "--eval-views", "1", "--eval-every", "1000000"], stderr=f, stdout=f).returncode
+    assert code == 0, log.read_text()[-2000:]
+    text = log.read_text()
+    steps = json.loads((tmp_path / "run" / "metrics.json").read_text())["step"]
+    assert steps > 20
+    assert text.count("step/s") <= 4, text[-2000:]

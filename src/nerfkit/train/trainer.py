@@ -249,7 +249,8 @@ class Trainer:
                 bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}",
                                 spr=f"{stats['samples'] / self.cfg.batch_rays:.0f}", refresh=False)
                 if self.cfg.minutes and not total:
-                    bar.set_description(f"train {self.cfg.model} {self.train_seconds:.0f}/{60 * self.cfg.minutes:.0f}s")
+                    bar.set_description(f"train {self.cfg.model} {self.train_seconds:.0f}/{60 * self.cfg.minutes:.0f}s",
+                                        refresh=False)  # redraws follow the bar's own interval
                 if self._eval_due() or self.done():
                     self._record_eval()
                 if time.perf_counter() - last_ckpt >= self.cfg.checkpoint_seconds:
