@@ -180,3 +180,31 @@ def test_trainer_runs_fast_model_and_resumes_exactly(tmp_path, scene):
     b = torch.load(tmp_path / "b" / "checkpoints" / "step_00000040.pt", weights_only=True)
     for k in a["model"]:
         torch.testing.assert_close(a["model"][k], b["model"][k], rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("kernels", ["numba", "torch"])
+def test_a_non_finite_grid_gradient_is_refused_and_counted(scene, kernels):
+    # The compiled path keeps the grid gradient in a sink, not in .grad: the optimizer itself
+    # must refuse a NaN there (and say so), or Adam would write it into the grid.
+    if kernels == "numba" and numba_kernels() is None:
+        pytest.skip("numba is not installed")
+    model = FastNeRF(FastConfig(kernels=kernels, **SMALL), SceneBounds.from_scene(scene))
+    opt = model.make_optimizer(0.1)
+    batch = RaysData(scene.train, "cpu", seed=0).sample(256)
+    model.render_rays(batch.rays, torch.zeros(3), perturb=True).rgb.sum().backward()
+    before = model.grid.detach().clone()
+    if model.grid.grad is not None:  # torch path: a dense .grad
+        touched = torch.nonzero(model.grid.grad.abs().sum(1)).squeeze(1)
+        model.grid.grad[touched[0], 0] = float("nan")
+    else:
+        touched = torch.nonzero(model.sink.touched).squeeze(1)
+        model.sink.grad[-1, touched[0], 1] = float("inf")
+    opt.step()
+    assert opt.nonfinite_rows == 1
+    after = model.grid.detach()
+    assert torch.isfinite(after).all()
+    assert torch.equal(after[touched[0]], before[touched[0]])  # the bad row is left as it was
+    assert not torch.equal(after[touched[1:]], before[touched[1:]])  # the others are updated
+    model.render_rays(batch.rays, torch.zeros(3), perturb=True).rgb.sum().backward()
+    opt.step()
+    assert opt.nonfinite_rows == 0

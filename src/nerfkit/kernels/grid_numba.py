@@ -384,10 +384,15 @@ def adam_rows(param, grads, rows, touched, exp_avg, exp_avg_sq, lr, beta1, beta2
         param, exp_avg, exp_avg_sq: (N, C) float32; grads: (L, N, C); rows: (m,) int64
             distinct rows; touched: (N,) uint8.
         lr: (C,) per-channel learning rate; bc1, bc2: bias corrections ``1 - beta^step``.
+
+    Returns:
+        how many rows had a non-finite gradient; those rows (parameter and moments) are
+        left as they were.
     """
     C = param.shape[1]
     L = grads.shape[0]
     m_rows = rows.shape[0]
+    skipped = 0
     for j in prange(m_rows):
         if j + 8 < m_rows:  # the rows are scattered: start fetching a later one now
             q = rows[j + 8]
@@ -397,18 +402,28 @@ def adam_rows(param, grads, rows, touched, exp_avg, exp_avg_sq, lr, beta1, beta2
             for lane in range(L):
                 prefetch(grads[lane], q, 0)
         i = rows[j]
+        ok = 1
+        for c in range(C):  # a row with a non-finite gradient is skipped whole (and counted)
+            g = grads[0, i, c]
+            for lane in range(1, L):
+                g += grads[lane, i, c]
+            if not math.isfinite(g):
+                ok = 0
         for c in range(C):
             g = grads[0, i, c]
             grads[0, i, c] = 0.0
             for lane in range(1, L):
                 g += grads[lane, i, c]
                 grads[lane, i, c] = 0.0
-            m = beta1 * exp_avg[i, c] + (1.0 - beta1) * g
-            v = beta2 * exp_avg_sq[i, c] + (1.0 - beta2) * g * g
-            exp_avg[i, c] = m
-            exp_avg_sq[i, c] = v
-            param[i, c] -= lr[c] * (m / bc1) / (math.sqrt(v / bc2) + eps)
+            if ok:
+                m = beta1 * exp_avg[i, c] + (1.0 - beta1) * g
+                v = beta2 * exp_avg_sq[i, c] + (1.0 - beta2) * g * g
+                exp_avg[i, c] = m
+                exp_avg_sq[i, c] = v
+                param[i, c] -= lr[c] * (m / bc1) / (math.sqrt(v / bc2) + eps)
         touched[i] = 0
+        skipped += 1 - ok
+    return skipped
 
 
 @njit(cache=True, parallel=True, fastmath=False)

@@ -10,6 +10,10 @@ rays of one step touch a few hundred thousand rows. :class:`GridAdam` is a
   first. A group may carry ``channel_lr_scale`` (one factor per column) so density and
   colour columns of one tensor get different learning rates.
 * other parameters get the ordinary dense Adam update.
+
+A grid row whose gradient is not finite is not updated; ``nonfinite_rows`` counts them
+for the last step, so the trainer's numerical guard sees them without a separate pass
+over the gradient (which would cost about 15% of a step).
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ class GridAdam(torch.optim.Optimizer):
     def __init__(self, params, sinks: dict | None = None, betas=(0.9, 0.99), eps: float = 1e-15):
         super().__init__(params, dict(lr=1e-2, betas=betas, eps=eps, channel_lr_scale=None))
         self._sinks = {id(p): s for p, s in (sinks or {}).items()}
+        self.nonfinite_rows = 0
 
     def sink_of(self, p: Tensor) -> GradSink | None:
         return self._sinks.get(id(p))
@@ -49,6 +54,7 @@ class GridAdam(torch.optim.Optimizer):
         if closure is not None:
             with torch.enable_grad():
                 loss = closure()
+        self.nonfinite_rows = 0
         for group in self.param_groups:
             beta1, beta2 = group["betas"]
             for p in group["params"]:
@@ -79,12 +85,12 @@ class GridAdam(torch.optim.Optimizer):
 
                     touched = sink.touched.numpy()
                     with numba.parallel_chunksize(4096):
-                        nb.adam_rows(p.data.numpy(), sink.grad.numpy(), nb.touched_rows(touched), touched,
+                        self.nonfinite_rows += nb.adam_rows(p.data.numpy(), sink.grad.numpy(), nb.touched_rows(touched), touched,
                                      state["exp_avg"].numpy(), state["exp_avg_sq"].numpy(), lr.numpy(),
                                      beta1, beta2, group["eps"], 1 - beta1 ** step, 1 - beta2 ** step)
                 else:
                     rows = sink.touched_rows()
-                    ref.adam_rows(p.data, sink.total(rows), rows, state["exp_avg"], state["exp_avg_sq"], lr,
+                    self.nonfinite_rows += ref.adam_rows(p.data, sink.total(rows), rows, state["exp_avg"], state["exp_avg_sq"], lr,
                                   beta1, beta2, group["eps"], step)
                     sink.grad[:, rows] = 0.0
                     sink.touched.zero_()

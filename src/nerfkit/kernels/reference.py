@@ -186,7 +186,14 @@ def adam_rows(param: Tensor, g: Tensor, rows: Tensor, exp_avg: Tensor, exp_avg_s
         rows: (m,) long rows to update; other rows (and their moments) stay untouched.
         lr: (C,) per-channel learning rate.
         step: the (global) step count after this update, for bias correction.
+
+    Returns:
+        how many rows had a non-finite gradient; those rows are left as they were.
     """
+    finite = torch.isfinite(g).all(dim=1)
+    skipped = int((~finite).sum())
+    if skipped:
+        rows, g = rows[finite], g[finite]
     m = exp_avg[rows].mul_(beta1).add_(g, alpha=1 - beta1)
     v = exp_avg_sq[rows].mul_(beta2).addcmul_(g, g, value=1 - beta2)
     exp_avg[rows] = m
@@ -195,3 +202,4 @@ def adam_rows(param: Tensor, g: Tensor, rows: Tensor, exp_avg: Tensor, exp_avg_s
     bc2 = 1 - beta2 ** step
     denom = (v / bc2).sqrt_().add_(eps)
     param[rows] -= lr * (m / bc1) / denom
+    return skipped

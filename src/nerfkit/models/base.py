@@ -112,6 +112,11 @@ class NerfModel(nn.Module):
     def make_optimizer(self, lr: float) -> torch.optim.Optimizer:
         return torch.optim.Adam(self.param_groups(lr))
 
+    def gradients_finite(self) -> bool:
+        """True when every gradient of the last backward pass is finite (checked before
+        the optimizer step; models keeping gradients outside ``.grad`` check those too)."""
+        return all(bool(torch.isfinite(p.grad).all()) for p in self.parameters() if p.grad is not None)
+
     def before_step(self, step: int, progress: float) -> bool:
         """Called before each training step; ``progress`` in [0, 1]. Return True when
         parameters were replaced (the optimizer is then rebuilt)."""

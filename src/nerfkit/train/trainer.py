@@ -171,20 +171,28 @@ class Trainer:
         finite = bool(torch.isfinite(loss))
         if finite:
             loss.backward()
-            finite = all(torch.isfinite(p.grad).all() for p in self.model.parameters() if p.grad is not None)
+            finite = self.model.gradients_finite()
         if not finite:
             self.optimizer.zero_grad(set_to_none=True)
-            self.bad_steps += 1
-            self.log(f"step {self.step}: non-finite loss or gradient, step skipped ({self.bad_steps} in a row)")
-            if self.bad_steps >= MAX_BAD_STEPS:
-                raise fail(self.run_dir, f"training diverged: {self.bad_steps} steps in a row had non-finite values",
-                           "The last good checkpoint is kept; lower --lr and resume with --resume")
+            self._bad_step("non-finite loss or gradient, step skipped")
             return {"loss": float("nan"), "psnr": float("nan"), "samples": 0}
-        self.bad_steps = 0
         self.optimizer.step()
+        skipped = getattr(self.optimizer, "nonfinite_rows", 0)  # grid rows the optimizer refused
+        if skipped:
+            self._bad_step(f"{skipped} grid rows had non-finite gradients and were not updated")
+        else:
+            self.bad_steps = 0
         self.model.after_step(self.step)
         mse = float(torch.mean((out.rgb.detach().float() - batch.rgb) ** 2))
         return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples}
+
+    def _bad_step(self, what: str) -> None:
+        """Report a step with non-finite values; stop after MAX_BAD_STEPS in a row."""
+        self.bad_steps += 1
+        self.log(f"step {self.step}: {what} ({self.bad_steps} in a row)")
+        if self.bad_steps >= MAX_BAD_STEPS:
+            raise fail(self.run_dir, f"training diverged: {self.bad_steps} steps in a row had non-finite values",
+                       "The last good checkpoint is kept; lower --lr and resume with --resume")
 
     # -- evaluation ------------------------------------------------------------------
     def evaluate(self, n_views: int | None = None) -> float | None:
