@@ -122,8 +122,8 @@ def _frame_split(fr: dict, by_list: dict[str, str], where: str) -> str | None:
 
 
 def _read_frame(fr, data: dict, folder: Path, by_list: dict[str, str], where: str, load_images: bool,
-                background) -> tuple | None:
-    """(split, c2w, K, size, image, name, undistorted) of one frame; None when no split lists it."""
+                background) -> tuple[str, tuple, bool] | None:
+    """(split, (c2w, K, size, image, name), undistorted) of one frame; None when no split lists it."""
     from ..images import load_image_uint8
 
     if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
@@ -144,7 +144,7 @@ def _read_frame(fr, data: dict, folder: Path, by_list: dict[str, str], where: st
             raise fail(where, "has lens distortion, which nerfkit removes only when it loads the images")
         image, K = _undistort(image, K, dist, where)
     name = fr["name"] if isinstance(fr.get("name"), str) else Path(fp).name
-    return split, c2w, K, size, image, name, any(dist.values())
+    return split, (c2w, K, size, image, name), any(dist.values())
 
 
 def _split_lists(data: dict) -> dict[str, str]:
@@ -237,8 +237,9 @@ def load_transforms_json(path: str | Path, load_images: bool = True,
     for k, fr in enumerate(data["frames"]):
         frame = _read_frame(fr, data, path.parent, by_list, f"{where} frames[{k}]", load_images, background)
         if frame is not None:
-            per_split[frame[0]].append(frame[1:6])
-            undistorted += frame[6]
+            split, item, was_distorted = frame
+            per_split[split].append(item)
+            undistorted += was_distorted
     if undistorted:
         warnings.warn(f"{where}: {undistorted} frames have lens distortion (k1 k2 p1 p2 ...); nerfkit undistorted "
                       "them on load (pinhole K updated). Undistort once beforehand to avoid this each time", stacklevel=2)
