@@ -130,10 +130,12 @@ def _load_view(p: PosedPhoto, base: Camera, und, out_size: tuple[int, int]) -> n
 
 def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConfig, tag_size: float,
                   jobs: int = 2, progress: bool = True, extra: dict | None = None,
-                  up: np.ndarray | None = None) -> tuple[Scene, dict]:
+                  up: np.ndarray | None = None, on_tag_plane: bool = True) -> tuple[Scene, dict]:
     """Undistort, crop, resize and split ``posed`` photos, then write the dataset files.
 
     ``up`` is the scene's up direction (default +z: the tag-plane normal toward the cameras).
+    ``on_tag_plane``: the world is the tag frame and the object stands on the tag's plane
+    (z = 0), recorded as the scene's table. The scene is marked a real capture.
     Returns the Scene (nerfkit conventions) and a summary dict.
     """
     from tqdm import tqdm
@@ -195,8 +197,9 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
         else:
             views[s] = Views.empty(out_size[0], out_size[1])
     up = UP.copy() if up is None else (np.asarray(up, np.float64) / np.linalg.norm(up)).astype(np.float32)
+    table = np.array([0.0, 0.0, 1.0, 0.0], np.float32) if on_tag_plane else None
     scene = check_scene(Scene(views["train"], views["val"], views["test"], near, far, center.astype(np.float32), up,
-                              source=str(out_dir)))
+                              source=str(out_dir), capture=True, table=table))
     summary = {
         "views": {s: len(v) for s, v in scene.splits.items()},
         "size": list(out_size),
@@ -206,6 +209,8 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
         "object_radius": round(radius, 5),
         "up": [float(u) for u in up],
         "tag_size": float(tag_size),
+        "capture": True,
+        "table_plane": None if table is None else table.tolist(),
         "undistorted": base.has_distortion,
         "crop": list(und.roi),
         "source_size": list(base_size),

@@ -35,8 +35,8 @@ from ..errors import fail
 from ..io.atomic import atomic_path, write_json
 from .blender import focal_from_angle, frame_image_path
 from .scene import Scene, Views, estimate_center, estimate_up
-from .validate import (MAX_SIDE, check_count, check_fov, check_intrinsics, check_near_far, check_number, check_poses,
-                       check_scene, check_vector3, near_far_from_cameras, short_repr)
+from .validate import (MAX_SIDE, check_count, check_fov, check_intrinsics, check_near_far, check_number, check_plane,
+                       check_poses, check_scene, check_vector3, near_far_from_cameras, short_repr)
 
 SPLITS = ("train", "val", "test")
 DIST_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
@@ -247,7 +247,9 @@ def load_transforms_json(path: str | Path, load_images: bool = True,
     views = _stack_views(per_split, where, load_images)
     _add_pose_only_splits(views, nk, where)
     center, up, near, far = _scene_bounds(nk, views["train"], where)
-    return check_scene(Scene(views["train"], views["val"], views["test"], near, far, center, up, source=where))
+    table = check_plane(nk["table_plane"], where, "nerfkit.table_plane") if nk.get("table_plane") is not None else None
+    return check_scene(Scene(views["train"], views["val"], views["test"], near, far, center, up, source=where,
+                             capture=nk.get("capture") is True, table=table))
 
 
 def _save_image(path: Path, image: np.ndarray, jpeg_quality: int) -> None:
@@ -312,7 +314,8 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
         out[f"{s}_filenames"] = lists[s]
     nk = {"near": float(scene.near), "far": float(scene.far),
           "center": [float(c) for c in scene.center], "up": [float(u) for u in scene.up],
-          "convention": "transform_matrix: camera-to-world, OpenGL camera axes; cx, cy: pixel centres at +0.5"}
+          "convention": "transform_matrix: camera-to-world, OpenGL camera axes; cx, cy: pixel centres at +0.5",
+          "capture": bool(scene.capture), "table_plane": None if scene.table is None else [float(v) for v in scene.table]}
     if poses_only:
         nk["poses_only"] = poses_only
     out["nerfkit"] = {**(extra or {}), **nk}  # the scene's own values win over extra's

@@ -7,6 +7,7 @@ Keys (all arrays, no pickles)::
     c2ws_test    (T, 4, 4)                                     optional (render path)
     focal ()     or  K (3, 3)                                  one is required
     near (), far (), images_test, names_train/val/test (str)   optional (nerfkit's)
+    capture () (1: real photos), table_plane (4,) (nx, ny, nz, d)  optional (nerfkit's)
 
 ``focal`` alone means ``fx = fy = focal``, ``cx = W / 2``, ``cy = H / 2``.
 """
@@ -21,8 +22,8 @@ import numpy as np
 from ..errors import NerfkitError, fail
 from ..io.atomic import write_npz
 from .scene import Scene, Views, estimate_center, estimate_up
-from .validate import (MAX_PIXELS, check_images, check_intrinsics, check_near_far, check_poses, check_scene,
-                       check_vector3, near_far_from_cameras)
+from .validate import (MAX_PIXELS, check_images, check_intrinsics, check_near_far, check_plane, check_poses,
+                       check_scene, check_vector3, near_far_from_cameras)
 
 SPLITS = ("train", "val", "test")
 
@@ -148,7 +149,9 @@ def load_npz(path: str | Path) -> Scene:
         center = check_vector3(arrays["center"], where, "center")
     if "up" in arrays:
         up = check_vector3(arrays["up"], where, "up", unit=True)
-    return check_scene(Scene(train, val, test, near, far, center, up, source=where))
+    capture = bool(_scalar(arrays, "capture", where)) if "capture" in arrays else False
+    table = check_plane(arrays["table_plane"], where, "table_plane") if "table_plane" in arrays else None
+    return check_scene(Scene(train, val, test, near, far, center, up, source=where, capture=capture, table=table))
 
 
 def save_npz(scene: Scene, path: str | Path) -> None:
@@ -166,6 +169,10 @@ def save_npz(scene: Scene, path: str | Path) -> None:
         "center": np.asarray(scene.center, np.float32),
         "up": np.asarray(scene.up, np.float32),
     }
+    if scene.capture:
+        out["capture"] = np.uint8(1)
+    if scene.table is not None:
+        out["table_plane"] = np.asarray(scene.table, np.float32)
     for split, v in scene.splits.items():
         if len(v) == 0 and split != "train":
             continue

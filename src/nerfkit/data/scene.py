@@ -65,6 +65,10 @@ class Scene:
         center: (3,) point the cameras look at (orbit centre).
         up: (3,) unit world up direction (orbit axis).
         source: where the scene came from (for messages).
+        capture: True for real photos (a room around the object, exposure changing between
+            shots, poses from tags or SfM); training then picks its real-capture settings.
+        table: (4,) plane ``(n, d)`` with ``n . x + d = 0`` on which the object stands, ``n``
+            the unit normal toward the cameras, or None (e.g. the tag plane of a tag capture).
     """
 
     train: Views
@@ -75,6 +79,8 @@ class Scene:
     center: np.ndarray = field(default_factory=lambda: np.zeros(3, np.float32))
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0], np.float32))
     source: str = ""
+    capture: bool = False
+    table: np.ndarray | None = None
 
     @property
     def splits(self) -> dict[str, Views]:

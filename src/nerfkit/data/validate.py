@@ -180,6 +180,18 @@ def check_vector3(v, where: str, field: str, unit: bool = False) -> np.ndarray:
     return a.astype(np.float32)
 
 
+def check_plane(v, where: str, field: str) -> np.ndarray:
+    """A plane ``(nx, ny, nz, d)`` (``n . x + d = 0``) as float32 with a unit normal."""
+    a = _array(v, where, field)
+    if a.dtype.kind not in "fiu" or a.size != 4:
+        raise fail(where, f"'{field}' must be 4 numbers (nx, ny, nz, d), got shape {a.shape} dtype {a.dtype}")
+    a = a.astype(np.float64).reshape(4)
+    n = float(np.linalg.norm(a[:3]))
+    if not (np.isfinite(a).all() and np.abs(a).max() <= MAX_COORD) or n < 1e-8:
+        raise fail(where, f"'{field}' is {a.tolist()}, expected a finite plane with a non-zero normal")
+    return (a / n).astype(np.float32)
+
+
 def check_scene(scene, where: str | None = None):
     """Check a loaded :class:`~nerfkit.data.scene.Scene` end to end; return it unchanged.
 
@@ -212,4 +224,6 @@ def check_scene(scene, where: str | None = None):
     up = check_vector3(scene.up, where, "up")
     if abs(float(np.linalg.norm(up)) - 1.0) > 1e-3:
         raise fail(where, f"'up' {up.tolist()} is not a unit vector")
+    if scene.table is not None:
+        scene.table = check_plane(scene.table, where, "table_plane")
     return scene

@@ -116,7 +116,7 @@ def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | 
     extra = {"world": result.report.frame, "poses": "structure-from-motion (COLMAP via pycolmap)",
              "sfm": {k: v for k, v in result.report.to_dict().items() if k not in ("registered",)}}
     scene, _ = capture_build_dataset(posed_photos(result), out_dir, cfg, tag_size, jobs=jobs, progress=progress,
-                                     extra=extra)
+                                     extra=extra, on_tag_plane=result.tag_size is not None)
     write_json(Path(out_dir) / REPORT_FILE, result.report.to_dict())
     return scene
 
