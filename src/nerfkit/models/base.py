@@ -23,6 +23,7 @@ class SceneBounds:
         near, far: depth range along rays.
         center: (3,) scene centre; radius: radius of a sphere holding the object.
         up: (3,) world up.
+        table: (4,) plane ``(n, d)`` the object stands on (normal toward the cameras), or None.
     """
 
     near: float
@@ -30,6 +31,7 @@ class SceneBounds:
     center: np.ndarray
     radius: float
     up: np.ndarray
+    table: np.ndarray | None = None
 
     @staticmethod
     def from_scene(scene) -> "SceneBounds":
@@ -39,16 +41,20 @@ class SceneBounds:
         # half that depth range, and no larger than the camera distance minus near.
         radius = max(min(0.5 * (scene.far - scene.near), dist - scene.near), 1e-3)
         return SceneBounds(float(scene.near), float(scene.far), np.asarray(scene.center, np.float32),
-                           float(radius), np.asarray(scene.up, np.float32))
+                           float(radius), np.asarray(scene.up, np.float32),
+                           None if scene.table is None else np.asarray(scene.table, np.float32))
 
     def to_dict(self) -> dict:
         return {"near": self.near, "far": self.far, "center": [float(c) for c in self.center],
-                "radius": self.radius, "up": [float(u) for u in self.up]}
+                "radius": self.radius, "up": [float(u) for u in self.up],
+                "table": None if self.table is None else [float(v) for v in self.table]}
 
     @staticmethod
     def from_dict(d: dict) -> "SceneBounds":
+        table = d.get("table")
         return SceneBounds(float(d["near"]), float(d["far"]), np.asarray(d["center"], np.float32),
-                           float(d["radius"]), np.asarray(d["up"], np.float32))
+                           float(d["radius"]), np.asarray(d["up"], np.float32),
+                           None if table is None else np.asarray(table, np.float32))
 
 
 @dataclass

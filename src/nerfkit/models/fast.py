@@ -22,7 +22,10 @@ Speed comes from counting samples, not steps:
 
 Outside the box rays see either the background colour the trainer passes, or (with
 ``learn_background``) a learned colour per direction (spherical harmonics), for
-captures whose surroundings are not a flat colour.
+captures whose surroundings are not a flat colour. With ``table`` and a scene that
+has a table plane (a tag capture), rays stop at the table, which shows a learned
+texture (:class:`~nerfkit.fields.background.TablePlane`): the box then holds only the
+object, not the table around it.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from ..cameras import Rays
 from ..config import option
 from ..data.validate import short_repr
 from ..errors import fail
+from ..fields.background import TablePlane, sh16
 from ..kernels import numba_kernels
 from ..kernels import reference as ref
 from ..kernels.ops import GradSink, GridGeom, MarchSpec, cell_density_max, render_grid
@@ -75,6 +79,9 @@ class FastConfig:
     learn_background: bool = option(False, "learn what rays see outside the box (a colour per direction) "
                                     "instead of the --background colour: for real photos, whose background is "
                                     "a room, not a flat colour")
+    table: bool = option(False, "rays stop at the scene's table plane (a tag capture's tag plane), which shows a "
+                         "learned texture: the box then holds only the object")
+    table_resolution: int = option(512, "texels per side of the table texture")
     kernels: str = option("auto", "auto (compiled numba on the CPU when available), numba, or torch",
                           choices=["auto", "numba", "torch"])
 
@@ -150,6 +157,11 @@ class FastNeRF(NerfModel):
             self.bg_coef = nn.Parameter(torch.zeros(3, 16))
         else:
             self.register_parameter("bg_coef", None)
+        self.table = None
+        if config.table and bounds.table is not None:
+            if not 2 <= config.table_resolution <= MAX_GRID_SIDE:
+                raise fail("--table-resolution", f"{config.table_resolution} must be from 2 to {MAX_GRID_SIDE}")
+            self.table = TablePlane(bounds.table, bounds.center, bounds.radius, config.table_resolution)
         self.sink = GradSink(self.geom.n_vertices, self.n_channels)
         # where opaque training rays ended (ring buffer), to shrink the box at the first growth
         self.register_buffer("surface_pts", torch.zeros(1 << 16, 3))
@@ -215,24 +227,40 @@ class FastNeRF(NerfModel):
         return out
 
     # -- rendering -------------------------------------------------------------------
-    def _background(self, dirs: Tensor, background: Tensor | None) -> Tensor:
+    def _background(self, o: Tensor, d: Tensor, t_table: Tensor | None, background: Tensor | None) -> Tensor:
+        """(n, 3) colour behind the box: the table where rays meet it, else the room
+        (learned) or the flat ``background``."""
         if self.bg_coef is not None:
-            return torch.sigmoid(_sh16(dirs) @ self.bg_coef.t())
-        if background is None:
-            return torch.zeros(3, device=dirs.device)
-        return torch.as_tensor(background, dtype=torch.float32, device=dirs.device)
+            bg = torch.sigmoid(sh16(d) @ self.bg_coef.t())
+        elif background is None:
+            bg = torch.zeros(3, device=d.device)
+        else:
+            bg = torch.as_tensor(background, dtype=torch.float32, device=d.device)
+        if t_table is None:
+            return bg
+        hit = torch.isfinite(t_table)
+        if not hit.any():
+            return bg.expand_as(d)
+        on_table = o[hit] + d[hit] * t_table[hit].unsqueeze(-1)
+        out = bg.expand_as(d).clone()
+        out[hit] = self.table.colour(on_table).to(out.dtype)
+        return out
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
         o = rays.origins.float()
         d = rays.directions.float()
         n = o.shape[0]
         t0, t1 = ray_aabb(o, d, self.geom.lo, self.geom.hi, self.bounds.near, self.bounds.far)
+        t_table = None
+        if self.table is not None:  # nothing behind the table is seen
+            t_table = self.table.hit(o, d)
+            t1 = torch.minimum(t1, t_table)
         u = torch.rand(n, device=o.device) if perturb else torch.full((n,), 0.5, device=o.device)
         out = render_grid(self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree,
                           self.sink, self._backend())
         if perturb and self.training and self.config.shrink_box and self.stage == 0 and self.steps:
             self._remember_surface(o, d, out.depth.detach(), out.acc.detach())
-        bg = self._background(d, background)
+        bg = self._background(o, d, t_table, background)
         rgb = out.rgb + (1.0 - out.acc).unsqueeze(-1) * bg
         return RenderOutput(rgb, out.depth, out.acc, out.n_samples, {"samples_per_ray": out.counts})
 
@@ -255,6 +283,8 @@ class FastNeRF(NerfModel):
         groups = [{"params": [self.grid], "lr": lr, "channel_lr_scale": scale}]
         if self.bg_coef is not None:
             groups.append({"params": [self.bg_coef], "lr": 0.1 * lr})
+        if self.table is not None:
+            groups.append({"params": list(self.table.parameters()), "lr": 0.1 * lr})
         return groups
 
     def make_optimizer(self, lr: float) -> torch.optim.Optimizer:
@@ -386,16 +416,6 @@ class FastNeRF(NerfModel):
         result = super().load_state_dict(state_dict, strict=strict, assign=assign)
         self._set_occupancy(self.occ_cells)
         return result
-
-
-def _sh16(dirs: Tensor) -> Tensor:
-    """(n, 3) unit directions -> (n, 16): the real spherical harmonics up to degree 3
-    (unnormalised), a smooth basis for the learned background colour."""
-    x, y, z = dirs[:, 0], dirs[:, 1], dirs[:, 2]
-    one = torch.ones_like(x)
-    return torch.stack([one, x, y, z, x * y, y * z, x * z, x * x - y * y, 3 * z * z - 1,
-                        x * (x * x - 3 * y * y), y * (3 * x * x - y * y), z * (x * x - y * y), x * y * z,
-                        x * (5 * z * z - 1), y * (5 * z * z - 1), z * (5 * z * z - 3)], dim=-1)
 
 
 @torch.no_grad()

@@ -1,0 +1,112 @@
+"""What rays see beyond a model's box: the room (a colour per direction) and the table.
+
+A real capture shows an object standing on a table in a room. Inside its box a model
+represents the object with density; beyond the box the photos still show the table
+(with parallax: it is a plane, not a colour per direction) and the room. Filling that
+with density makes haze and floaters; a flat colour makes dark surfaces see-through.
+
+* :func:`sh16`: the basis of a smooth colour per ray direction (real spherical harmonics
+  up to degree 3), for the far room.
+* :class:`TablePlane`: an opaque textured plane (the tag's plane in a tag capture). Rays
+  stop where they meet it; its texture lives on a 2D grid in *contracted* plane
+  coordinates (mip-NeRF 360's contraction in 2D), so a finite texture covers the whole
+  infinite plane, finely near the object and ever more coarsely far from it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+
+def sh16(dirs: Tensor) -> Tensor:
+    """(n, 3) unit directions -> (n, 16): the real spherical harmonics up to degree 3
+    (unnormalised), a smooth basis for a colour per direction."""
+    x, y, z = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+    one = torch.ones_like(x)
+    return torch.stack([one, x, y, z, x * y, y * z, x * z, x * x - y * y, 3 * z * z - 1,
+                        x * (x * x - 3 * y * y), y * (3 * x * x - y * y), z * (x * x - y * y), x * y * z,
+                        x * (5 * z * z - 1), y * (5 * z * z - 1), z * (5 * z * z - 3)], dim=-1)
+
+
+def plane_hit(origins: Tensor, dirs: Tensor, plane: Tensor) -> Tensor:
+    """Distance along each ray to the plane ``n . x + d = 0`` from its front side.
+
+    Args:
+        origins, dirs: (n, 3); plane: (4,) ``(nx, ny, nz, d)`` with a unit normal pointing
+            to the side the cameras are on.
+
+    Returns:
+        (n,) ``t > 0`` where the ray meets the plane coming from the front, ``inf`` elsewhere.
+        Example: a ray from (0, 0, 2) straight down meets z = 0 at t = 2.
+    """
+    n, d = plane[:3].to(origins), plane[3].to(origins)
+    height = origins @ n + d  # (n,) signed distance of the origin to the plane
+    speed = dirs @ n  # (n,) rate of approach (negative: heading to the plane)
+    t = -height / speed.clamp(max=-1e-12)
+    hits = (height > 0) & (speed < -1e-9)
+    return torch.where(hits, t, torch.full_like(t, math.inf))
+
+
+def contract_disc(q: Tensor) -> Tensor:
+    """mip-NeRF 360's contraction in 2D: (n, 2) -> (n, 2) inside the disc of radius 2.
+
+    ``q`` for ``|q| <= 1``, ``(2 - 1 / |q|) q / |q|`` beyond: the unit disc keeps its
+    scale, the rest of the plane is squeezed into the ring ``1 < r < 2``.
+    """
+    r = torch.linalg.norm(q, dim=-1, keepdim=True).clamp(min=1e-12)
+    return torch.where(r <= 1.0, q, (2.0 - 1.0 / r) * q / r)
+
+
+class TablePlane(nn.Module):
+    """An opaque textured plane: where rays stop and which colour they see there.
+
+    The texture is the sum of a coarse and a fine grid of colour logits (the coarse one
+    fills what few rays see quickly), sampled bilinearly at the contracted plane
+    coordinates ``contract_disc((p - origin) . (e1, e2) / radius) / 2`` in [-1, 1]^2.
+
+    Args:
+        plane: (4,) ``(n, d)``, unit normal toward the cameras.
+        center: (3,) the object's centre; its foot on the plane is the texture's centre.
+        radius: plane distance from that foot kept at full texture resolution (the rest
+            of the plane is contracted).
+        resolution: texels per side of the fine texture (half of them cover the disc of
+            ``radius``); the coarse texture has 1/16 as many per side.
+    """
+
+    def __init__(self, plane, center, radius: float, resolution: int = 512):
+        super().__init__()
+        plane = torch.as_tensor(plane, dtype=torch.float32).reshape(4)
+        n = plane[:3] / plane[:3].norm()
+        c = torch.as_tensor(center, dtype=torch.float32).reshape(3)
+        origin = c - (c @ n + plane[3]) * n
+        helper = torch.tensor([1.0, 0.0, 0.0]) if abs(float(n[0])) < 0.9 else torch.tensor([0.0, 1.0, 0.0])
+        e1 = torch.linalg.cross(n, helper)
+        e1 = e1 / e1.norm()
+        e2 = torch.linalg.cross(n, e1)
+        self.register_buffer("plane", torch.cat([n, plane[3:]]))
+        self.register_buffer("origin", origin)
+        self.register_buffer("axes", torch.stack([e1, e2], dim=1))  # (3, 2)
+        self.radius = float(radius)
+        self.fine = nn.Parameter(torch.zeros(1, 3, resolution, resolution))
+        coarse = max(resolution // 16, 2)
+        self.coarse = nn.Parameter(torch.zeros(1, 3, coarse, coarse))
+
+    def hit(self, origins: Tensor, dirs: Tensor) -> Tensor:
+        """(n,) distance to the plane along each ray, ``inf`` for rays that miss it."""
+        return plane_hit(origins, dirs, self.plane)
+
+    def texture_coords(self, points: Tensor) -> Tensor:
+        """(n, 3) points on the plane -> (n, 2) texture coordinates in [-1, 1]."""
+        q = (points - self.origin) @ self.axes / self.radius
+        return 0.5 * contract_disc(q)
+
+    def colour(self, points: Tensor) -> Tensor:
+        """(n, 3) points on the plane -> (n, 3) colours in (0, 1)."""
+        uv = self.texture_coords(points.float()).reshape(1, 1, -1, 2)
+        logits = sum(F.grid_sample(t, uv, mode="bilinear", padding_mode="border", align_corners=False)
+                     for t in (self.fine, self.coarse))
+        return torch.sigmoid(logits[0, :, 0].t())

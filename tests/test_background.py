@@ -1,0 +1,56 @@
+"""The table plane and the room behind a real capture's object."""
+
+import math
+
+import numpy as np
+import torch
+
+from nerfkit.fields.background import TablePlane, contract_disc, plane_hit, sh16
+
+
+def test_plane_hit_distances_front_side_only():
+    plane = torch.tensor([0.0, 0.0, 1.0, 0.0])
+    o = torch.tensor([[0.0, 0.0, 2.0], [1.0, 1.0, 3.0], [0.0, 0.0, 2.0], [0.0, 0.0, -1.0]])
+    d = torch.tensor([[0.0, 0.0, -1.0], [0.6, 0.0, -0.8], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])
+    t = plane_hit(o, d, plane)
+    assert torch.allclose(t[:2], torch.tensor([2.0, 3.75]))
+    assert math.isinf(t[2]) and math.isinf(t[3])  # parallel; below the table
+    p = o[1] + t[1] * d[1]
+    assert abs(float(p[2])) < 1e-6
+
+
+def test_contraction_keeps_the_unit_disc_and_squeezes_the_rest_below_radius_two():
+    q = torch.tensor([[0.3, -0.4], [3.0, 4.0], [1e6, 0.0]])
+    c = contract_disc(q)
+    assert torch.allclose(c[0], q[0])
+    assert torch.allclose(c[1], torch.tensor([0.6, 0.8]) * (2 - 1 / 5.0))
+    assert float(c.norm(dim=1).max()) < 2.0
+    r = torch.linspace(0.1, 50, 200)
+    cr = contract_disc(torch.stack([r, torch.zeros_like(r)], 1))[:, 0]
+    assert bool((cr[1:] > cr[:-1]).all())  # monotonic: near texels never overlap far ones
+
+
+def test_table_texture_is_sampled_where_rays_hit_and_frames_are_orthonormal():
+    table = TablePlane(torch.tensor([0.0, 0.0, 2.0, 0.0]), torch.tensor([0.5, 0.0, 1.0]), radius=1.0, resolution=64)
+    axes = torch.cat([table.axes, table.plane[:3, None]], 1)
+    assert torch.allclose(axes.t() @ axes, torch.eye(3), atol=1e-6)
+    assert torch.allclose(table.origin, torch.tensor([0.5, 0.0, 0.0]))
+    with torch.no_grad():  # left half of the texture red, right half blue
+        table.fine.zero_()
+        table.fine[0, 0, :, :32] = 4.0
+        table.fine[0, 2, :, 32:] = 4.0
+    e1 = table.axes[:, 0]
+    x = torch.stack([table.origin - 0.5 * e1, table.origin + 0.5 * e1])  # texel columns grow along e1
+    col = table.colour(x)
+    assert col[0, 0] > 0.95 and col[0, 2] < 0.55
+    assert col[1, 2] > 0.95 and col[1, 0] < 0.55
+
+
+def test_sh16_is_a_basis_of_sixteen_independent_functions():
+    g = torch.Generator().manual_seed(0)
+    d = torch.randn(500, 3, generator=g)
+    d = d / d.norm(dim=1, keepdim=True)
+    B = sh16(d)
+    assert B.shape == (500, 16)
+    assert int(torch.linalg.matrix_rank(B.double())) == 16
+    assert np.isclose(float(B[:, 0].min()), 1.0)
