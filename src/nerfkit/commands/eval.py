@@ -14,6 +14,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "written to RUN/eval_<split>.json.")
     add_run_args(p)
     p.add_argument("--split", choices=["val", "test", "train"], default="val", help="which images (default: val)")
+    p.add_argument("--fit-views", type=int, default=None, metavar="STEPS",
+                   help="also score each view after fitting its pose and exposure to its photo with the scene frozen, "
+                        "for this many steps (default: 100 for runs trained with --capture, else 0: off)")
     p.set_defaults(func=run)
 
 
@@ -24,6 +27,7 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import fail
     from ..io.atomic import write_json
     from ..train.evaluate import evaluate_views
+    from ..train.view_corrections import ViewFitConfig
     from ._common import open_run, scene_for_run
 
     run_ = open_run(args)
@@ -32,8 +36,15 @@ def run(args: argparse.Namespace) -> int:
     if not views.has_images:
         raise fail(scene.source, f"the {args.split} split has no images to compare with",
                    "Choose a split with images (--split val)")
+    steps = args.fit_views
+    if steps is None:
+        steps = 100 if getattr(run_.info.train, "capture", "off") == "on" else 0
+    if steps < 0:
+        raise fail("--fit-views", f"{steps} must be >= 0")
+    fit = ViewFitConfig(steps=steps) if steps else None
     result = {"split": args.split, "step": run_.step, "data": scene.source,
-              **evaluate_views(run_.model, views, run_.background(), run_.chunk, run_.autocast)}
+              **evaluate_views(run_.model, views, run_.background(), run_.chunk, run_.autocast, fit=fit,
+                               scale=run_.info.bounds.radius)}
     write_json(Path(args.run) / f"eval_{args.split}.json", result)
     print(json.dumps(result, indent=2))
     return 0

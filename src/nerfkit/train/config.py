@@ -31,6 +31,12 @@ class TrainConfig:
     checkpoint_seconds: float = option(60.0, "seconds of training between checkpoints")
     keep_checkpoints: int = option(3, "how many recent checkpoints to keep")
     render_chunk: int = option(0, "rays rendered at once for full images; bounds memory (0: the model's default)")
+    capture: str = option("auto", "real-capture training: per-view pose and exposure corrections, and (fast model) "
+                          "the room and the table as background instead of density. auto: on for datasets that "
+                          "record they are real photos (nerfkit poses writes that)", choices=["auto", "on", "off"])
+    pose_lr: float = option(1e-3, "with --capture: learning rate of the per-view pose corrections (0: off)")
+    pose_start: int = option(100, "with --capture: first step that corrects poses (the scene takes shape first)")
+    exposure_lr: float = option(2e-3, "with --capture: learning rate of the per-view exposure corrections (0: off)")
 
     def validate(self) -> "TrainConfig":
         if self.steps < 0 or self.minutes < 0:
@@ -43,6 +49,8 @@ class TrainConfig:
                 or not self.checkpoint_seconds > 0:
             raise fail("train", "--render-chunk, --eval-views, --eval-every must be >= 0, --keep-checkpoints >= 1 "
                        "and --checkpoint-seconds > 0")
+        if not (self.pose_lr >= 0 and self.exposure_lr >= 0 and self.pose_start >= 0):
+            raise fail("train", "--pose-lr, --exposure-lr and --pose-start must be >= 0")
         parse_background(self.background)
         return self
 

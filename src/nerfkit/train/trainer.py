@@ -13,7 +13,7 @@ import math
 import signal
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +30,7 @@ from ..viz.plots import image_grid, plot_curves
 from .checkpoint import load_latest_checkpoint, read_run, save_checkpoint, write_run_config
 from .config import TrainConfig, parse_background, resolve_autocast, resolve_device
 from .metrics import psnr, psnr_from_mse
+from .view_corrections import ViewCorrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
@@ -43,6 +44,19 @@ class TrainResult:
     final_val_psnr: float | None
     interrupted: bool = False
     rows: list[dict] = field(default_factory=list)
+
+
+def capture_settings(cfg: TrainConfig, model_config, scene: Scene):
+    """Resolve ``--capture auto`` from the dataset; in capture mode, models that can
+    learn the room and the table behind the object do. Returns ``(cfg, model_config)``."""
+    on = cfg.capture == "on" or (cfg.capture == "auto" and scene.capture)
+    cfg = replace(cfg, capture="on" if on else "off")
+    names = {f.name for f in fields(model_config)}
+    if on and "learn_background" in names:
+        model_config = replace(model_config, learn_background=True)
+    if on and "table" in names:
+        model_config = replace(model_config, table=scene.table is not None)
+    return cfg, model_config
 
 
 def resolved_config(cfg: TrainConfig, model_config) -> TrainConfig:
@@ -75,6 +89,14 @@ class Trainer:
         self.optimizer = self.model.make_optimizer(cfg.lr)
         self._remember_initial_lr()
         self.rays = RaysData(scene.train, self.device, seed=cfg.seed)
+        self.views: ViewCorrections | None = None
+        self.view_optimizer: torch.optim.Optimizer | None = None
+        if cfg.capture == "on" and (cfg.pose_lr > 0 or cfg.exposure_lr > 0):
+            self.views = ViewCorrections(len(scene.train), self.bounds.radius, cfg.pose_lr > 0,
+                                         cfg.exposure_lr > 0).to(self.device)
+            self.view_optimizer = torch.optim.Adam(self.views.param_groups(cfg.pose_lr, cfg.exposure_lr))
+            for g in self.view_optimizer.param_groups:
+                g.setdefault("initial_lr", g["lr"])
         self.step = 0
         self.train_seconds = 0.0
         self.rows: list[dict] = []
@@ -104,6 +126,9 @@ class Trainer:
     def save(self) -> Path:
         extra = {**self._rng_state(), "train_seconds": self.train_seconds, "rows": json.dumps(self.rows),
                  "bad_steps": self.bad_steps}
+        if self.views is not None:
+            extra["views"] = self.views.state_dict()
+            extra["views_optimizer"] = self.view_optimizer.state_dict()
         return save_checkpoint(self.run_dir, self.step, self.model, self.optimizer, extra, self.cfg.keep_checkpoints)
 
     def _resume(self) -> None:
@@ -120,6 +145,12 @@ class Trainer:
         self.train_seconds = float(ckpt["train_seconds"])
         self.rows = json.loads(ckpt["rows"])
         self.bad_steps = int(ckpt.get("bad_steps", 0))
+        if self.views is not None:
+            if "views" not in ckpt:
+                raise fail(path, "holds no per-view corrections, but this run trains them",
+                           "The checkpoint is from another nerfkit; re-train")
+            self.views.load_state_dict(ckpt["views"])
+            self.view_optimizer.load_state_dict(ckpt["views_optimizer"])
         torch.set_rng_state(ckpt["torch_rng"])
         self.rays.set_rng_state(ckpt["sampler_rng"])
         if "cuda_rng" in ckpt and self.device.type == "cuda":
@@ -141,7 +172,10 @@ class Trainer:
 
     def _set_lr(self) -> None:
         factor = self.cfg.lr_final_factor ** self.progress()
-        for g in self.optimizer.param_groups:
+        groups = list(self.optimizer.param_groups)
+        if self.view_optimizer is not None:
+            groups += self.view_optimizer.param_groups
+        for g in groups:
             g["lr"] = g["initial_lr"] * factor
 
     def _eval_due(self) -> bool:
@@ -164,19 +198,27 @@ class Trainer:
             del state  # parameters were replaced: their Adam moments no longer apply
         self._set_lr()
         batch = self.rays.sample(self.cfg.batch_rays)
+        rays, views = batch.rays, self.views
+        if views is not None and views.pose is not None and self.step >= self.cfg.pose_start:
+            rays = views.pose(rays, batch.image_index)
         with torch.autocast(self.device.type, dtype=self.autocast or torch.bfloat16, enabled=self.autocast is not None):
-            out = self.model.render_rays(batch.rays, self.background, perturb=True)
+            out = self.model.render_rays(rays, self.background, perturb=True)
+            if views is not None and views.exposure is not None:
+                out = replace(out, rgb=views.exposure(out.rgb.float(), batch.image_index))
             loss = self.model.loss(out, batch.rgb)
-        self.optimizer.zero_grad(set_to_none=True)
+        self._zero_grad()
         finite = bool(torch.isfinite(loss))
         if finite:
             loss.backward()
-            finite = self.model.gradients_finite()
+            finite = self.model.gradients_finite() and (views is None or all(
+                bool(torch.isfinite(p.grad).all()) for p in views.parameters() if p.grad is not None))
         if not finite:
-            self.optimizer.zero_grad(set_to_none=True)
+            self._zero_grad()
             self._bad_step("non-finite loss or gradient, step skipped")
             return {"loss": float("nan"), "psnr": float("nan"), "samples": 0}
         self.optimizer.step()
+        if self.view_optimizer is not None:
+            self.view_optimizer.step()
         skipped = getattr(self.optimizer, "nonfinite_rows", 0)  # grid rows the optimizer refused
         if skipped:
             self._bad_step(f"{skipped} grid rows had non-finite gradients and were not updated")
@@ -185,6 +227,11 @@ class Trainer:
         self.model.after_step(self.step)
         mse = float(torch.mean((out.rgb.detach().float() - batch.rgb) ** 2))
         return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples}
+
+    def _zero_grad(self) -> None:
+        self.optimizer.zero_grad(set_to_none=True)
+        if self.view_optimizer is not None:
+            self.view_optimizer.zero_grad(set_to_none=True)
 
     def _bad_step(self, what: str) -> None:
         """Report a step with non-finite values; stop after MAX_BAD_STEPS in a row."""
@@ -297,6 +344,11 @@ class Trainer:
         writer.writeheader()
         writer.writerows(self.rows)
         write_text(self.run_dir / "metrics.csv", buf.getvalue())
+        if self.views is not None:
+            write_json(self.run_dir / "view_corrections.json", {
+                "what": "per training view: pose correction (rotation in degrees, translation in scene units) "
+                        "and exposure gain relative to the average view",
+                "views": self.views.report(self.scene.train.names)})
         train = [r for r in self.rows if r["split"] == "train"]
         val = [r for r in self.rows if r["split"] == "val"]
         plots = self.run_dir / "plots"
@@ -323,7 +375,8 @@ def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False) -> 
     run_dir = Path(cfg.out)
     if (run_dir / "config.json").exists():
         raise fail(run_dir, "already holds a run", "Continue it with --resume, or choose another --out")
-    cfg = resolved_config(cfg.validate(), model_config)
+    cfg, model_config = capture_settings(cfg.validate(), model_config, scene)
+    cfg = resolved_config(cfg, model_config)
     return Trainer(scene, cfg, model_config, quiet=quiet).run()
 
 
