@@ -339,12 +339,10 @@ def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0,
         raw = ref.grid_interp(grid.detach()[:, :1], ref.grid_coords(points, lo, geom.voxel), geom.res)[:, 0]
         return spec.density_scale * torch.nn.functional.softplus(raw)
 
-    # the lattice positions are constants (as in nerfacc and the compiled backward): rays get
-    # gradients only through the sample points ``o + t d`` and the SH basis
-    t0, t1, u = t0.detach(), t1.detach(), u.detach()
-    with torch.no_grad():
-        samples = occ.sampling(rays_o, rays_d, 0.0, math.inf, spec.step, sigma_fn=sigma_fn,
-                               early_stop_eps=spec.eps, u=u, t_bounds=(t0, t1))
+    # sampling runs under no_grad, so the lattice t are constants (as in nerfacc and the
+    # compiled backward): rays get gradients only through the points o + t d and the SH basis
+    samples = occ.sampling(rays_o, rays_d, 0.0, math.inf, spec.step, sigma_fn=sigma_fn, early_stop_eps=spec.eps,
+                           u=u, t_bounds=(t0, t1))
     rgb, depth, acc = ref.render_samples(grid, geom.res, lo, geom.voxel, rays_o, rays_d, sh.to(grid.dtype),
                                          samples.t, samples.mask, spec.step, spec.density_scale)
     counts = samples.mask.sum(1).int()
