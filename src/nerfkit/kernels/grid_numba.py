@@ -301,43 +301,61 @@ def render_forward(grid, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
 
 
 @njit(cache=True, fastmath=False, inline="always")
-def _sample_point_grad(grid, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh, g_sh, r):
-    """Gradient of the loss w.r.t. one sample's (unclamped) grid coordinates, and its
-    share of ``dL/dsh`` added into ``g_sh[r]``.
+def _trilinear_grad(v000, v001, v010, v011, v100, v101, v110, v111, fx, fy, fz):
+    """Trilinear interpolation of 8 corner values ``v{z}{y}{x}`` at fractions ``fx, fy, fz``
+    and its derivatives: ``(value, d/dfx, d/dfy, d/dfz)``."""
+    e00 = v000 + fx * (v001 - v000)
+    e01 = v010 + fx * (v011 - v010)
+    e10 = v100 + fx * (v101 - v100)
+    e11 = v110 + fx * (v111 - v110)
+    b0 = e00 + fy * (e01 - e00)
+    b1 = e10 + fy * (e11 - e10)
+    d0 = (v001 - v000) + fy * ((v011 - v010) - (v001 - v000))
+    d1 = (v101 - v100) + fy * ((v111 - v110) - (v101 - v100))
+    return (b0 + fz * (b1 - b0), d0 + fz * (d1 - d0),
+            (e01 - e00) + fz * ((e11 - e10) - (e01 - e00)), b1 - b0)
 
-    Each corner's feature row ``v`` enters the loss through
-    ``q = graw v_0 + sum_c dz_c sum_j v_{1+cK+j} sh_j`` (``graw = dL/draw``,
-    ``dz_c = dL/dz_c``), and the x-derivative of a corner weight ``wx wy wz`` is
-    ``+-wy wz``; likewise along y and z. Clamping is left to the caller.
+
+@njit(cache=True, fastmath=False, inline="always")
+def _colour_dot(grid, row, j, K, dzr, dzg, dzb):
+    """``sum_c dL/dz_c * coefficient j of colour c`` at one vertex row."""
+    return dzr * grid[row, 1 + j] + dzg * grid[row, 1 + K + j] + dzb * grid[row, 1 + 2 * K + j]
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _sample_point_grad(grid, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh, g_sh, r):
+    """Gradient of the loss w.r.t. one sample's grid coordinates (before clamping), and
+    its share of ``dL/dsh`` added into ``g_sh[r]``.
+
+    The loss sees the sample through ``raw`` and ``z_c = sum_j Z_cj sh_j`` (``Z_cj`` the
+    interpolated coefficients), so ``dL/dg = graw draw/dg + sum_j sh_j dA_j/dg`` and
+    ``dL/dsh_j = A_j`` with ``A_j = sum_c dz_c Z_cj``, interpolated like any feature.
 
     Returns:
         ``(dL/dgx, dL/dgy, dL/dgz)`` in grid units.
     """
     K = sh.shape[1]
-    ax = 0.0
-    ay = 0.0
-    az = 0.0
-    for cz in range(2):
-        wz = fz if cz else 1.0 - fz
-        sz = 1.0 if cz else -1.0
-        for cy in range(2):
-            wy = fy if cy else 1.0 - fy
-            sy = 1.0 if cy else -1.0
-            for cx in range(2):
-                wx = fx if cx else 1.0 - fx
-                sx = 1.0 if cx else -1.0
-                row = base + cz * sxy + cy * rx + cx
-                w = wx * wy * wz
-                q = graw * grid[row, 0]
-                for j in range(K):
-                    vr = grid[row, 1 + j]
-                    vg = grid[row, 1 + K + j]
-                    vb = grid[row, 1 + 2 * K + j]
-                    q += (dzr * vr + dzg * vg + dzb * vb) * sh[r, j]
-                    g_sh[r, j] += w * (dzr * vr + dzg * vg + dzb * vb)
-                ax += sx * wy * wz * q
-                ay += sy * wx * wz * q
-                az += sz * wx * wy * q
+    r000 = base
+    r010 = base + rx
+    r100 = base + sxy
+    r110 = base + sxy + rx
+    _, ax, ay, az = _trilinear_grad(grid[r000, 0], grid[r000 + 1, 0], grid[r010, 0], grid[r010 + 1, 0],
+                                    grid[r100, 0], grid[r100 + 1, 0], grid[r110, 0], grid[r110 + 1, 0], fx, fy, fz)
+    ax *= graw
+    ay *= graw
+    az *= graw
+    for j in range(K):
+        A, bx, by, bz = _trilinear_grad(
+            _colour_dot(grid, r000, j, K, dzr, dzg, dzb), _colour_dot(grid, r000 + 1, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r010, j, K, dzr, dzg, dzb), _colour_dot(grid, r010 + 1, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r100, j, K, dzr, dzg, dzb), _colour_dot(grid, r100 + 1, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r110, j, K, dzr, dzg, dzb), _colour_dot(grid, r110 + 1, j, K, dzr, dzg, dzb),
+            fx, fy, fz)
+        g_sh[r, j] += A
+        shj = sh[r, j]
+        ax += shj * bx
+        ay += shj * by
+        az += shj * bz
     return ax, ay, az
 
 
