@@ -324,8 +324,8 @@ def _colour_dot(grid, row, j, K, dzr, dzg, dzb):
 
 @njit(cache=True, fastmath=False, inline="always")
 def _sample_point_grad(grid, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh, g_sh, r):
-    """Gradient of the loss w.r.t. one sample's grid coordinates (before clamping), and
-    its share of ``dL/dsh`` added into ``g_sh[r]``.
+    """Gradient of the loss w.r.t. one sample's (clamped) grid coordinates, and its
+    share of ``dL/dsh`` added into ``g_sh[r]``; the caller applies the clamp's slope.
 
     The loss sees the sample through ``raw`` and ``z_c = sum_j Z_cj sh_j`` (``Z_cj`` the
     interpolated coefficients), so ``dL/dg = graw draw/dg + sum_j sh_j dA_j/dg`` and

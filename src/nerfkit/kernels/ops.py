@@ -265,9 +265,9 @@ class _NumbaRender(torch.autograd.Function):
             sink.dirty = True
         ctx.lease.release()
         ctx.saved = None
-        grads = [torch.from_numpy(g).to(like) if need else None
-                 for g, like, need in zip((g_o, g_d, g_sh), ctx.ray_like, (need_o, need_d, need_sh))]
-        return (None, *grads) + (None,) * 7
+        ray_out = [torch.from_numpy(g).to(like) if need else None
+                   for g, like, need in zip((g_o, g_d, g_sh), ctx.ray_like, (need_o, need_d, need_sh))]
+        return (None, *ray_out) + (None,) * 7
 
 
 @dataclass
