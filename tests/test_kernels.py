@@ -130,6 +130,136 @@ def test_compiled_render_matches_reference_values_and_gradients(coarse_factor, s
     assert torch.equal(sink.touched.bool() | nonzero, sink.touched.bool())
 
 
+def loss_weights(n: int, seed: int = 2):
+    """Random upstream gradients for (rgb (n, 3), depth (n,), acc (n,))."""
+    gen = torch.Generator().manual_seed(seed)
+    return torch.randn(n, 3, generator=gen), torch.randn(n, generator=gen), torch.randn(n, generator=gen)
+
+
+def render_with_ray_grads(backend, grid, geom, spec, rays, sh_degree, train_grid=False, dtype=torch.float32):
+    """Render with ``rays_o``, ``rays_d`` requiring grad, backpropagate a random linear loss
+    and return ``(rays_o.grad, rays_d.grad, grid gradient or None, output)``."""
+    o, d, t0, t1, u = (x.to(dtype) for x in rays)
+    o, d = o.clone().requires_grad_(), d.clone().requires_grad_()
+    g = grid.to(dtype).clone().requires_grad_(train_grid)
+    sink = GradSink(geom.n_vertices, grid.shape[1]) if train_grid and backend == "numba" else None
+    geom = GridGeom(geom.lo.to(dtype), geom.voxel, geom.res)
+    out = render_grid(g, geom, spec, o, d, t0, t1, u, sh_degree, sink, backend)
+    w_rgb, w_d, w_a = (w.to(dtype) for w in loss_weights(o.shape[0]))
+    ((out.rgb * w_rgb).sum() + (out.depth * w_d).sum() + (out.acc * w_a).sum()).backward()
+    g_grid = sink.grad.sum(0) if sink is not None else g.grad
+    return o.grad, d.grad, g_grid, out
+
+
+@needs_numba
+@pytest.mark.parametrize("coarse_factor", [1, 3])
+@pytest.mark.parametrize("sh_degree", [0, 1, 2])
+def test_compiled_ray_gradients_match_reference_autograd(coarse_factor, sh_degree):
+    grid, geom = random_field(seed=20 + coarse_factor * 10 + sh_degree, sh_degree=sh_degree)
+    spec, occ = spec_for(grid, geom, coarse_factor=coarse_factor)
+    assert 0.05 < occ.occupied_fraction < 0.8
+    rays = random_rays(400, geom, seed=4)
+    go, gd, _, fast = render_with_ray_grads("numba", grid, geom, spec, rays, sh_degree, train_grid=True)
+    ro, rd, _, slow = render_with_ray_grads("torch", grid, geom, spec, rays, sh_degree, dtype=torch.float64)
+    assert torch.equal(fast.counts.long(), slow.counts.long()) and fast.n_samples > 300
+    assert go.dtype == torch.float32 and gd.dtype == torch.float32  # the rays' own dtype
+    # the largest entries are ~100 (o) and ~500 (d, which also carries t up to ~5)
+    torch.testing.assert_close(go.double(), ro, atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(gd.double(), rd, atol=5e-4, rtol=1e-4)
+
+
+@needs_numba
+def test_ray_gradients_leave_the_grid_gradient_bitwise_unchanged():
+    grid, geom = random_field(seed=31)
+    spec, _ = spec_for(grid, geom, coarse_factor=2)
+    o, d, t0, t1, u = random_rays(300, geom, seed=5)
+    _, _, with_rays, _ = render_with_ray_grads("numba", grid, geom, spec, (o, d, t0, t1, u), 1, train_grid=True)
+    g = grid.clone().requires_grad_()
+    sink = GradSink(geom.n_vertices, grid.shape[1])
+    out = render_grid(g, geom, spec, o, d, t0, t1, u, 1, sink, "numba")
+    w_rgb, w_d, w_a = loss_weights(300)
+    ((out.rgb * w_rgb).sum() + (out.depth * w_d).sum() + (out.acc * w_a).sum()).backward()
+    assert torch.equal(sink.grad.sum(0), with_rays)
+
+
+@needs_numba
+def test_frozen_grid_gives_ray_gradients_without_a_sink():
+    grid, geom = random_field(seed=32, sh_degree=2)
+    spec, _ = spec_for(grid, geom, coarse_factor=2)
+    rays = random_rays(300, geom, seed=6)
+    go, gd, g_grid, _ = render_with_ray_grads("numba", grid, geom, spec, rays, 2, train_grid=False)
+    assert g_grid is None
+    to, td, _, _ = render_with_ray_grads("numba", grid, geom, spec, rays, 2, train_grid=True)
+    assert torch.equal(go, to) and torch.equal(gd, td)
+    ro, rd, _, _ = render_with_ray_grads("torch", grid, geom, spec, rays, 2, dtype=torch.float64)
+    torch.testing.assert_close(go.double(), ro, atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(gd.double(), rd, atol=5e-4, rtol=1e-4)
+    # training the grid still needs its sink
+    g = grid.clone().requires_grad_()
+    with pytest.raises(ValueError):
+        render_grid(g, geom, spec, *rays, 2, None, "numba")
+
+
+@needs_numba
+def test_ray_gradients_on_the_box_faces_match_reference_clamping():
+    """Samples outside the box (clamped: slope 0), on its lower face (slope 1) and on its
+    upper face (torch's minimum splits the slope: 1/2)."""
+    geom = GridGeom(torch.tensor([-1.0, -1.0, -1.0]), 0.25, (9, 7, 8))  # exact binary coordinates
+    grid = torch.randn(geom.n_vertices, 13, generator=torch.Generator().manual_seed(3))
+    spec, occ = spec_for(grid, geom)
+    assert occ.occupied_fraction == 1.0
+    hi = geom.hi
+    # along x, on the faces y = lo, y = hi, z = hi, starting 0.3 before the box and ending 0.3 after it
+    o = torch.tensor([[-1.3, -1.0, 0.1], [-1.3, hi[1], 0.2], [-1.3, 0.05, hi[2]], [-1.3, hi[1], hi[2]]])
+    d = torch.tensor([[1.0, 0.0, 0.0]]).expand(4, 3).contiguous()
+    t0, t1 = torch.zeros(4), torch.full((4,), 2.6)
+    rays = (o, d, t0, t1, torch.full((4,), 0.3))
+    go, gd, _, fast = render_with_ray_grads("numba", grid, geom, spec, rays, 1)
+    ro, rd, _, _ = render_with_ray_grads("torch", grid, geom, spec, rays, 1, dtype=torch.float64)
+    assert fast.counts.min() == 26
+    torch.testing.assert_close(go.double(), ro, atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(gd.double(), rd, atol=5e-4, rtol=1e-4)
+
+
+def linear_field(geom: GridGeom, sh_degree: int) -> torch.Tensor:
+    """Features linear in position: trilinear interpolation reproduces them exactly, so
+    the rendered colour is a smooth function of the rays (no kinks at cell faces)."""
+    g = torch.Generator().manual_seed(9)
+    C = 1 + 3 * ref.sh_dim(sh_degree)
+    A = torch.randn(3, C, generator=g)
+    grid = geom.vertex_positions() @ A + 0.5 * torch.randn(C, generator=g)
+    return grid.float()
+
+
+@needs_numba
+@pytest.mark.parametrize("sh_degree", [0, 2])
+def test_ray_origin_gradient_predicts_the_change_of_colour(sh_degree):
+    geom = GridGeom(torch.tensor([-1.0, -0.8, -0.9]), 0.25, (9, 7, 8))
+    grid = linear_field(geom, sh_degree)
+    spec, occ = spec_for(grid, geom, eps=0.0)  # no early stop: the samples cannot change
+    assert occ.occupied_fraction == 1.0
+    o, d, _, _, _ = random_rays(200, geom, seed=7)
+    # samples only inside a box 0.05 smaller on every side: shifted by < 0.01 they stay in the grid's box
+    t0, t1 = ray_aabb(o, d, geom.lo + 0.05, geom.hi - 0.05, 0.5, 10.0)
+    u = torch.full((200,), 0.5)
+    w = torch.randn(200, 3, generator=torch.Generator().manual_seed(8))
+
+    def colour(origins):
+        out = render_grid(grid, geom, spec, origins, d, t0, t1, u, sh_degree, None, "numba")
+        return (out.rgb.double() * w).sum(1)  # per ray
+
+    oo = o.clone().requires_grad_()
+    out = render_grid(grid, geom, spec, oo, d, t0, t1, u, sh_degree, None, "numba")
+    (out.rgb * w).sum().backward()
+    v = torch.randn(200, 3, generator=torch.Generator().manual_seed(9))
+    h = 2e-3
+    with torch.no_grad():
+        fd = (colour(o + h * v) - colour(o - h * v)) / (2 * h)
+    predicted = (oo.grad.double() * v.double()).sum(1)
+    assert predicted.abs().max() > 0.5
+    torch.testing.assert_close(fd, predicted, atol=5e-4, rtol=1e-3)  # seen: 8e-5
+
+
 @needs_numba
 def test_compiled_render_without_grad_matches_training_pass():
     grid, geom = random_field(seed=5)

@@ -23,6 +23,10 @@ from numba.extending import intrinsic
 # Per-sample record written by the training forward pass (sample-major: [k, ray, field]).
 F_FX, F_FY, F_FZ, F_RAW, F_SIGMA, F_R, F_G, F_B, F_T = range(9)
 N_FIELDS = 9
+# the base vertex row of a stored sample is ``s_idx & ROW_MASK``; the bits above hold, per
+# axis, how the clamp into the box passes d(coordinate) on (see :func:`_edge_code`)
+EDGE_SHIFT = 56
+ROW_MASK = (1 << EDGE_SHIFT) - 1
 # how many samples ahead along the ray to prefetch grid rows
 PREFETCH_AHEAD = 4
 # when only rendering (no backward pass), samples of smaller weight skip their colour
@@ -106,6 +110,34 @@ def _cell(g, r):
 
 
 @njit(cache=True, fastmath=False, inline="always")
+def _edge_code(g, r):
+    """How :func:`_cell`'s clamp passes a derivative along one axis, as torch's autograd
+    of ``minimum(clamp(g, min=0), r - 1)`` does: 0 inside ``[0, r-1)`` (slope 1), 1 outside
+    (slope 0), 2 exactly on the upper face (slope 1/2)."""
+    hi = r - 1.0
+    if g < 0.0 or g > hi:
+        return 1
+    if g == hi:
+        return 2
+    return 0
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _edge_bits(gx, gy, gz, rx, ry, rz):
+    """The three axes' :func:`_edge_code` packed above ``EDGE_SHIFT`` (0 for a point
+    strictly inside the box)."""
+    code = _edge_code(gx, rx) | (_edge_code(gy, ry) << 2) | (_edge_code(gz, rz) << 4)
+    return code << EDGE_SHIFT
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _edge_slope(bits, axis):
+    """d(clamped coordinate)/d(coordinate) along ``axis`` from a stored sample's bits."""
+    code = (bits >> (EDGE_SHIFT + 2 * axis)) & 3
+    return 1.0 if code == 0 else (0.0 if code == 1 else 0.5)
+
+
+@njit(cache=True, fastmath=False, inline="always")
 def _leap(k, ta, tb, ur, inv_step, ox, oy, oz, idx, idy, idz, x0, y0, z0, size):
     """Index of the next lattice point to look at after finding the cube
     ``[x0, x0 + size] x [y0, ...] x [z0, ...]`` (grid units) empty at lattice point ``k``.
@@ -149,7 +181,7 @@ def render_forward(grid, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
             the transmittance falls below it.
         out_rgb (n, 3), out_depth (n,), out_acc (n,) float32; out_count (n,) int32.
         store: keep per-sample records for the backward pass in s_idx (cap, n) int64
-            (base vertex row) and s_f (cap, n, 9) float32.
+            (base vertex row, and edge bits: see ``ROW_MASK``) and s_f (cap, n, 9) float32.
     """
     n = rays_o.shape[0]
     C = grid.shape[1]
@@ -181,9 +213,12 @@ def render_forward(grid, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
             t = ta + (k + ur) * step
             if t >= tb or T < eps:
                 break
-            ix, fx = _cell(ox + t * dx, rx)
-            iy, fy = _cell(oy + t * dy, ry)
-            iz, fz = _cell(oz + t * dz, rz)
+            gx = ox + t * dx
+            gy = oy + t * dy
+            gz = oz + t * dz
+            ix, fx = _cell(gx, rx)
+            iy, fy = _cell(gy, ry)
+            iz, fz = _cell(gz, rz)
             if cf > 1:
                 bx, by, bz = ix // cf, iy // cf, iz // cf
                 if coarse[bz, by, bx] == 0:
@@ -244,7 +279,7 @@ def render_forward(grid, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
                 colr = colg = colb = 0.5
             dep += wgt * t
             if store:
-                s_idx[cnt, r] = base
+                s_idx[cnt, r] = base | _edge_bits(gx, gy, gz, rx, ry, rz)
                 s_f[cnt, r, 0] = fx
                 s_f[cnt, r, 1] = fy
                 s_f[cnt, r, 2] = fz
@@ -265,10 +300,70 @@ def render_forward(grid, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
         out_count[r] = cnt
 
 
+@njit(cache=True, fastmath=False, inline="always")
+def _trilinear_grad(v000, v001, v010, v011, v100, v101, v110, v111, fx, fy, fz):
+    """Trilinear interpolation of 8 corner values ``v{z}{y}{x}`` at fractions ``fx, fy, fz``
+    and its derivatives: ``(value, d/dfx, d/dfy, d/dfz)``."""
+    e00 = v000 + fx * (v001 - v000)
+    e01 = v010 + fx * (v011 - v010)
+    e10 = v100 + fx * (v101 - v100)
+    e11 = v110 + fx * (v111 - v110)
+    b0 = e00 + fy * (e01 - e00)
+    b1 = e10 + fy * (e11 - e10)
+    d0 = (v001 - v000) + fy * ((v011 - v010) - (v001 - v000))
+    d1 = (v101 - v100) + fy * ((v111 - v110) - (v101 - v100))
+    return (b0 + fz * (b1 - b0), d0 + fz * (d1 - d0),
+            (e01 - e00) + fz * ((e11 - e10) - (e01 - e00)), b1 - b0)
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _colour_dot(grid, row, j, K, dzr, dzg, dzb):
+    """``sum_c dL/dz_c * coefficient j of colour c`` at one vertex row."""
+    return dzr * grid[row, 1 + j] + dzg * grid[row, 1 + K + j] + dzb * grid[row, 1 + 2 * K + j]
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _sample_point_grad(grid, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh, g_sh, r):
+    """Gradient of the loss w.r.t. one sample's (clamped) grid coordinates, and its
+    share of ``dL/dsh`` added into ``g_sh[r]``; the caller applies the clamp's slope.
+
+    The loss sees the sample through ``raw`` and ``z_c = sum_j Z_cj sh_j`` (``Z_cj`` the
+    interpolated coefficients), so ``dL/dg = graw draw/dg + sum_j sh_j dA_j/dg`` and
+    ``dL/dsh_j = A_j`` with ``A_j = sum_c dz_c Z_cj``, interpolated like any feature.
+
+    Returns:
+        ``(dL/dgx, dL/dgy, dL/dgz)`` in grid units.
+    """
+    K = sh.shape[1]
+    r000 = base
+    r010 = base + rx
+    r100 = base + sxy
+    r110 = base + sxy + rx
+    _, ax, ay, az = _trilinear_grad(grid[r000, 0], grid[r000 + 1, 0], grid[r010, 0], grid[r010 + 1, 0],
+                                    grid[r100, 0], grid[r100 + 1, 0], grid[r110, 0], grid[r110 + 1, 0], fx, fy, fz)
+    ax *= graw
+    ay *= graw
+    az *= graw
+    for j in range(K):
+        A, bx, by, bz = _trilinear_grad(
+            _colour_dot(grid, r000, j, K, dzr, dzg, dzb), _colour_dot(grid, r000 + 1, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r010, j, K, dzr, dzg, dzb), _colour_dot(grid, r010 + 1, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r100, j, K, dzr, dzg, dzb), _colour_dot(grid, r100 + 1, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r110, j, K, dzr, dzg, dzb), _colour_dot(grid, r110 + 1, j, K, dzr, dzg, dzb),
+            fx, fy, fz)
+        g_sh[r, j] += A
+        shj = sh[r, j]
+        ax += shj * bx
+        ay += shj * by
+        az += shj * bz
+    return ax, ay, az
+
+
 @njit(cache=True, parallel=True, fastmath=False)
-def render_backward(s_idx, s_f, counts, sh, rx, ry, step, dscale, rgb, depth, acc, g_rgb, g_depth, g_acc,
-                    grads, touched):
-    """Gradients of the loss w.r.t. the grid, added into per-lane buffers.
+def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscale, rgb, depth, acc,
+                    g_rgb, g_depth, g_acc, grads, touched, ray_grads, g_o, g_d, g_sh):
+    """Gradients of the loss w.r.t. the grid (added into per-lane buffers) and, with
+    ``ray_grads``, w.r.t. the rays.
 
     With ``tau_k = sigma_k step``, ``T_{k+1} = T_k exp(-tau_k)`` and suffix sums over the
     later samples: ``dC/dtau_k = T_{k+1} c_k - sum_{i>k} w_i c_i``,
@@ -278,16 +373,27 @@ def render_backward(s_idx, s_f, counts, sh, rx, ry, step, dscale, rgb, depth, ac
     Lane ``l`` of ``L = grads.shape[0]`` handles a contiguous range of rays and adds only
     into ``grads[l]`` (N, C), so lanes never race and the result does not depend on
     thread scheduling; the optimizer sums the lanes. ``touched`` (N,) uint8 marks every
-    vertex of every sample (concurrent writes of the same value 1 are benign).
+    vertex of every sample (concurrent writes of the same value 1 are benign). ``grads``
+    of shape (L, 0, C) asks for no grid gradient.
+
+    Ray gradients hold each sample's ``t`` fixed: the sample at ``x = o + t d`` gives
+    ``dL/do += dL/dx`` and ``dL/dd += t dL/dx`` (:func:`_sample_point_grad`, times
+    ``inv_voxel`` and the clamp's slope); the colour's dependence on the direction is
+    returned as ``dL/dsh``, for torch to chain through the SH basis.
 
     Args:
         s_idx (cap, n), s_f (cap, n, 9), counts (n,): records from :func:`render_forward`.
+        sh (n, K) float32; grid (N, C) float32: the forward's inputs (grid read only with
+            ``ray_grads``); inv_voxel: 1 / voxel.
         rgb, depth, acc: the forward outputs (foreground colour, no background).
         g_rgb (n, 3), g_depth (n,), g_acc (n,): upstream gradients.
+        g_o (n, 3), g_d (n, 3), g_sh (n, K) float64, zero on entry: the ray gradients
+            (left untouched without ``ray_grads``).
     """
     n = counts.shape[0]
     K = sh.shape[1]
     L = grads.shape[0]
+    grid_grad = grads.shape[1] != 0
     sxy = rx * ry
     C = grads.shape[2]
     scratch = np.zeros((L, C), np.float32)
@@ -309,11 +415,15 @@ def render_backward(s_idx, s_f, counts, sh, rx, ry, step, dscale, rgb, depth, ac
             cnt = counts[r]
             for k in range(cnt):
                 if k + 2 < cnt:
-                    qb = s_idx[k + 2, r]
+                    qb = s_idx[k + 2, r] & ROW_MASK
                     for q in range(4):
                         qrow = qb + (q >> 1) * sxy + (q & 1) * rx
-                        prefetch(grad, qrow, 0)
-                        prefetch(grad, qrow + 1, C - 1)
+                        if grid_grad:
+                            prefetch(grad, qrow, 0)
+                            prefetch(grad, qrow + 1, C - 1)
+                        if ray_grads:
+                            prefetch(grid, qrow, 0)
+                            prefetch(grid, qrow + 1, C - 1)
                 raw = s_f[k, r, 3]
                 sigma = s_f[k, r, 4]
                 colr = s_f[k, r, 5]
@@ -332,20 +442,36 @@ def render_backward(s_idx, s_f, counts, sh, rx, ry, step, dscale, rgb, depth, ac
                 dtau = (gr * (Tn * colr - (rgb[r, 0] - pr)) + gg * (Tn * colg - (rgb[r, 1] - pg))
                         + gb * (Tn * colb - (rgb[r, 2] - pb)) + gd * (Tn * t - (depth[r] - pd))
                         + ga * (Tn - (acc[r] - pa)))
-                gf[0] = dtau * step * dscale * _softplus_grad(raw)
+                graw = dtau * step * dscale * _softplus_grad(raw)
                 dzr = w * gr * colr * (1.0 - colr)
                 dzg = w * gg * colg * (1.0 - colg)
                 dzb = w * gb * colb * (1.0 - colb)
+                T = Tn
+                bits = s_idx[k, r]
+                base = bits & ROW_MASK
+                fx = s_f[k, r, 0]
+                fy = s_f[k, r, 1]
+                fz = s_f[k, r, 2]
+                if ray_grads:
+                    ax, ay, az = _sample_point_grad(grid, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb,
+                                                    sh, g_sh, r)
+                    ax *= inv_voxel * _edge_slope(bits, 0)
+                    ay *= inv_voxel * _edge_slope(bits, 1)
+                    az *= inv_voxel * _edge_slope(bits, 2)
+                    g_o[r, 0] += ax
+                    g_o[r, 1] += ay
+                    g_o[r, 2] += az
+                    g_d[r, 0] += t * ax
+                    g_d[r, 1] += t * ay
+                    g_d[r, 2] += t * az
+                if not grid_grad:
+                    continue
+                gf[0] = graw
                 for j in range(K):
                     shj = sh[r, j]
                     gf[1 + j] = dzr * shj
                     gf[1 + K + j] = dzg * shj
                     gf[1 + 2 * K + j] = dzb * shj
-                T = Tn
-                base = s_idx[k, r]
-                fx = s_f[k, r, 0]
-                fy = s_f[k, r, 1]
-                fz = s_f[k, r, 2]
                 for cz in range(2):
                     wz = fz if cz else 1.0 - fz
                     for cy in range(2):
@@ -482,7 +608,9 @@ def warm_up() -> None:
                    rgb, dep, acc, cnt, True, s_idx, s_f)
     grads = np.zeros((2,) + grid.shape, np.float32)
     touched = np.zeros(rx * ry * rz, np.uint8)
-    render_backward(s_idx, s_f, cnt, sh, rx, ry, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, grads, touched)
+    g_o, g_sh = np.zeros((1, 3)), np.zeros((1, K))
+    render_backward(s_idx, s_f, cnt, sh, grid, rx, ry, 1.0, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, grads, touched,
+                    True, g_o, g_o.copy(), g_sh)
     m = np.zeros_like(grid)
     rows = touched_rows(touched)
     adam_rows(grid, grads, rows, touched, m, m.copy(), np.ones(C, np.float32), 0.9, 0.99, 1e-15, 0.1, 0.01)

@@ -5,9 +5,13 @@
   backward kernel turns the upstream gradients into per-sample feature gradients and a
   race-free scatter adds them into a :class:`GradSink` (dense rows + touched flags),
   which :class:`~nerfkit.kernels.optim.GridAdam` consumes. The grid parameter itself
-  gets no ``.grad``.
+  gets no ``.grad``. When ``rays_o`` / ``rays_d`` require grad (camera-pose refinement)
+  the same kernel also returns their gradients, and ``dL/dsh`` for torch to chain into
+  ``rays_d``; the grid may then be frozen (no sink).
 * ``torch`` path (CUDA, or no numba): :meth:`OccupancyGrid.sampling` +
   :func:`reference.render_samples` under autograd; the grid gets a dense ``.grad``.
+
+Ray gradients on both paths hold each sample's ``t`` fixed.
 
 Both paths produce the same samples (same lattice, same occupancy rule, same early
 termination) and the same values; ``tests/test_kernels.py`` checks values and gradients.
@@ -218,14 +222,19 @@ def _forward_numba(nb, grid: Tensor, geom: GridGeom, spec: MarchSpec, rays_o, ra
 
 
 class _NumbaRender(torch.autograd.Function):
+    """The compiled training pass. Differentiable in ``grid`` (into ``sink``, not ``.grad``)
+    and in ``rays_o``, ``rays_d`` and ``sh`` (with each sample's ``t`` fixed); the backward
+    computes only the gradients asked for."""
+
     @staticmethod
     def forward(ctx, grid, rays_o, rays_d, sh, t0, t1, u, geom, spec, sink, nb):
         lease = _lease()
         rgb, depth, acc, count, s_idx, s_f = _forward_numba(nb, grid, geom, spec, rays_o, rays_d, sh,
                                                             t0, t1, u, True, lease)
         ctx.lease = lease
-        ctx.saved = (rgb, depth, acc, count, s_idx, s_f, _np32(sh))
+        ctx.saved = (rgb, depth, acc, count, s_idx, s_f, _np32(sh), grid.detach().numpy())
         ctx.geom, ctx.spec, ctx.sink, ctx.nb = geom, spec, sink, nb
+        ctx.ray_like = [torch.empty(0, dtype=x.dtype, device=x.device) for x in (rays_o, rays_d, sh)]
         ctx.n_samples = int(count.sum())
         out = [torch.from_numpy(a) for a in (rgb, depth, acc, count)]
         ctx.mark_non_differentiable(out[3])
@@ -233,20 +242,32 @@ class _NumbaRender(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g_rgb, g_depth, g_acc, _g_count):
-        rgb, depth, acc, count, s_idx, s_f, sh = ctx.saved
-        n = rgb.shape[0]
+        rgb, depth, acc, count, s_idx, s_f, sh, grid = ctx.saved
+        n, K = sh.shape
 
         def arr(g, shape):
             return np.zeros(shape, np.float32) if g is None else _np32(g)
 
+        need_grid, need_o, need_d, need_sh = ctx.needs_input_grad[:4]
         nb, sink, geom = ctx.nb, ctx.sink, ctx.geom
-        nb.render_backward(s_idx, s_f, count, sh, geom.res[0], geom.res[1], float(ctx.spec.step),
-                           float(ctx.spec.density_scale), rgb, depth, acc, arr(g_rgb, (n, 3)), arr(g_depth, (n,)),
-                           arr(g_acc, (n,)), sink.grad.numpy(), sink.touched.numpy())
-        sink.dirty = True
+        if need_grid:
+            grads, touched = sink.grad.numpy(), sink.touched.numpy()
+        else:  # no grid gradient: empty lanes, still one per worker
+            grads, touched = np.zeros((default_lanes(), 0, grid.shape[1]), np.float32), np.zeros(0, np.uint8)
+        ray_grads = need_o or need_d or need_sh
+        m = n if ray_grads else 0
+        g_o, g_d, g_sh = np.zeros((m, 3)), np.zeros((m, 3)), np.zeros((m, K))
+        nb.render_backward(s_idx, s_f, count, sh, grid, geom.res[0], geom.res[1], 1.0 / geom.voxel,
+                           float(ctx.spec.step), float(ctx.spec.density_scale), rgb, depth, acc,
+                           arr(g_rgb, (n, 3)), arr(g_depth, (n,)), arr(g_acc, (n,)), grads, touched,
+                           ray_grads, g_o, g_d, g_sh)
+        if need_grid:
+            sink.dirty = True
         ctx.lease.release()
         ctx.saved = None
-        return (None,) * 11
+        ray_out = [torch.from_numpy(g).to(like) if need else None
+                   for g, like, need in zip((g_o, g_d, g_sh), ctx.ray_like, (need_o, need_d, need_sh))]
+        return (None, *ray_out) + (None,) * 7
 
 
 @dataclass
@@ -274,21 +295,27 @@ def render_grid(
     sink: GradSink | None,
     backend: str,
 ) -> GridRender:
-    """Render rays through the grid field (differentiable in ``grid`` when it requires grad).
+    """Render rays through the grid field, differentiable in whichever of ``grid``,
+    ``rays_o`` and ``rays_d`` require grad.
+
+    Ray gradients hold every sample's ``t`` fixed (the lattice ``t0 + (k + u) step`` and
+    the choice of samples are constants, as in nerfacc): ``t0``, ``t1`` and ``u`` get no
+    gradient even when computed from the rays.
 
     Args:
         grid: (N, C) vertex features, ``C >= 1 + 3 (sh_degree + 1)^2``.
         rays_o, rays_d: (n, 3); t0, t1: (n,) segment inside the box and [near, far];
         u: (n,) lattice jitter in [0, 1).
-        sink: where the compiled backward puts the grid gradient (needed with grad).
+        sink: where the compiled backward puts the grid gradient (needed when the grid
+            requires grad; may be None for a frozen grid).
         backend: ``"numba"`` or ``"torch"``.
     """
     sh = ref.sh_basis(rays_d.float(), sh_degree)
     nb = numba_kernels() if backend == "numba" else None
     if nb is not None and grid.device.type == "cpu":
-        if grid.requires_grad and torch.is_grad_enabled():
-            if sink is None:
-                raise ValueError("render_grid: a GradSink is needed to train on the compiled path")
+        if torch.is_grad_enabled() and (grid.requires_grad or rays_o.requires_grad or rays_d.requires_grad):
+            if grid.requires_grad and sink is None:
+                raise ValueError("render_grid: a GradSink is needed to train the grid on the compiled path")
             rgb, depth, acc, counts = _NumbaRender.apply(grid, rays_o, rays_d, sh, t0, t1, u, geom, spec, sink, nb)
         else:
             out = _forward_numba(nb, grid, geom, spec, rays_o, rays_d, sh, t0, t1, u, False, None)
@@ -299,7 +326,8 @@ def render_grid(
 
 
 def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0, t1, u, sh) -> GridRender:
-    """The pure-torch path of :func:`render_grid` (autograd gives the grid a dense grad)."""
+    """The pure-torch path of :func:`render_grid`: autograd gives the grid a dense grad and
+    the rays (``rays_o``, ``rays_d``, ``sh``) their gradients with the sample ``t`` fixed."""
     from ..render.occupancy import OccupancyGrid
 
     occ = OccupancyGrid(geom.lo, geom.voxel, geom.res, device=grid.device)
@@ -311,6 +339,8 @@ def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0,
         raw = ref.grid_interp(grid.detach()[:, :1], ref.grid_coords(points, lo, geom.voxel), geom.res)[:, 0]
         return spec.density_scale * torch.nn.functional.softplus(raw)
 
+    # sampling runs under no_grad, so the lattice t are constants (as in nerfacc and the
+    # compiled backward): rays get gradients only through the points o + t d and the SH basis
     samples = occ.sampling(rays_o, rays_d, 0.0, math.inf, spec.step, sigma_fn=sigma_fn, early_stop_eps=spec.eps,
                            u=u, t_bounds=(t0, t1))
     rgb, depth, acc = ref.render_samples(grid, geom.res, lo, geom.voxel, rays_o, rays_d, sh.to(grid.dtype),
