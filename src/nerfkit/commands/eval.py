@@ -11,13 +11,31 @@ HELP = "evaluate a trained run on held-out images (prints JSON)"
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help=HELP, description=HELP + ": mean psnr and ssim plus a per-image list; also "
-                       "written to RUN/eval_<split>.json.")
+                       "written to RUN/eval_<split>.json, with a contact sheet (photos beside renders) in "
+                       "RUN/eval_<split>.png.")
     add_run_args(p)
     p.add_argument("--split", choices=["val", "test", "train"], default="val", help="which images (default: val)")
     p.add_argument("--fit-views", type=int, default=None, metavar="STEPS",
                    help="also score each view after fitting its pose and exposure to its photo with the scene frozen, "
                         "for this many steps (default: 100 for runs trained with --capture, else 0: off)")
     p.set_defaults(func=run)
+
+
+def write_contact_sheet(path, sheet: list, split: str) -> None:
+    """Photo beside render (and beside the render after fitting pose and exposure), a row per view."""
+    from ..viz.plots import image_grid
+
+    images, titles = [], []
+    for photo, render, fitted, row in sheet:
+        name = row["name"] or f"view {row['index']}"
+        images += [photo, render]
+        titles += [f"{name[:28]}", f"render {row['psnr']:.1f} dB"]
+        if fitted is not None:
+            images.append(fitted)
+            titles.append(f"pose+exposure fitted {row['psnr_fitted']:.1f} dB")
+    if images:
+        image_grid(path, images, titles, ncols=3 if sheet[0][2] is not None else 2,
+                   suptitle=f"{split} photos and renders")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -42,9 +60,11 @@ def run(args: argparse.Namespace) -> int:
     if steps < 0:
         raise fail("--fit-views", f"{steps} must be >= 0")
     fit = ViewFitConfig(steps=steps) if steps else None
+    sheet: list = []
     result = {"split": args.split, "step": run_.step, "data": scene.source,
               **evaluate_views(run_.model, views, run_.background(), run_.chunk, run_.autocast, fit=fit,
-                               scale=run_.info.bounds.radius)}
+                               scale=run_.info.bounds.radius, sheet=sheet)}
     write_json(Path(args.run) / f"eval_{args.split}.json", result)
+    write_contact_sheet(Path(args.run) / f"eval_{args.split}.png", sheet, args.split)
     print(json.dumps(result, indent=2))
     return 0

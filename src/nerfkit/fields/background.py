@@ -67,6 +67,9 @@ class TablePlane(nn.Module):
     The texture is the sum of a coarse and a fine grid of colour logits (the coarse one
     fills what few rays see quickly), sampled bilinearly at the contracted plane
     coordinates ``contract_disc((p - origin) . (e1, e2) / radius) / 2`` in [-1, 1]^2.
+    Each texture is a (texels, 3) parameter (a row per texel, row-major), so a sparse
+    optimizer can update only the texels a step's rays touched: a texel is seen by few
+    rays, and dense Adam's momentum would keep moving it long after its one noisy hit.
 
     Args:
         plane: (4,) ``(n, d)``, unit normal toward the cameras.
@@ -91,9 +94,13 @@ class TablePlane(nn.Module):
         self.register_buffer("origin", origin)
         self.register_buffer("axes", torch.stack([e1, e2], dim=1))  # (3, 2)
         self.radius = float(radius)
-        self.fine = nn.Parameter(torch.zeros(1, 3, resolution, resolution))
-        coarse = max(resolution // 16, 2)
-        self.coarse = nn.Parameter(torch.zeros(1, 3, coarse, coarse))
+        self.sizes = (int(resolution), max(int(resolution) // 16, 2))
+        self.fine = nn.Parameter(torch.zeros(self.sizes[0] ** 2, 3))
+        self.coarse = nn.Parameter(torch.zeros(self.sizes[1] ** 2, 3))
+
+    def textures(self) -> list[tuple[nn.Parameter, int]]:
+        """``(parameter (side * side, 3), side)`` of the fine and the coarse texture."""
+        return [(self.fine, self.sizes[0]), (self.coarse, self.sizes[1])]
 
     def hit(self, origins: Tensor, dirs: Tensor) -> Tensor:
         """(n,) distance to the plane along each ray, ``inf`` for rays that miss it."""
@@ -107,6 +114,7 @@ class TablePlane(nn.Module):
     def colour(self, points: Tensor) -> Tensor:
         """(n, 3) points on the plane -> (n, 3) colours in (0, 1)."""
         uv = self.texture_coords(points.float()).reshape(1, 1, -1, 2)
-        logits = sum(F.grid_sample(t, uv, mode="bilinear", padding_mode="border", align_corners=False)
-                     for t in (self.fine, self.coarse))
+        logits = sum(F.grid_sample(t.reshape(1, side, side, 3).permute(0, 3, 1, 2), uv, mode="bilinear",
+                                   padding_mode="border", align_corners=False)
+                     for t, side in self.textures())
         return torch.sigmoid(logits[0, :, 0].t())

@@ -81,7 +81,8 @@ class FastConfig:
                                     "a room, not a flat colour")
     table: bool = option(False, "rays stop at the scene's table plane (a tag capture's tag plane), which shows a "
                          "learned texture: the box then holds only the object")
-    table_resolution: int = option(512, "texels per side of the table texture")
+    table_resolution: int = option(1024, "texels per side of the table texture")
+    table_lr_ratio: float = option(0.5, "learning rate of the table texture relative to --lr")
     kernels: str = option("auto", "auto (compiled numba on the CPU when available), numba, or torch",
                           choices=["auto", "numba", "torch"])
 
@@ -162,6 +163,7 @@ class FastNeRF(NerfModel):
             if not 2 <= config.table_resolution <= MAX_GRID_SIDE:
                 raise fail("--table-resolution", f"{config.table_resolution} must be from 2 to {MAX_GRID_SIDE}")
             self.table = TablePlane(bounds.table, bounds.center, bounds.radius, config.table_resolution)
+        self.table_sinks = self._table_sinks(torch.device("cpu"))
         self.sink = GradSink(self.geom.n_vertices, self.n_channels)
         # where opaque training rays ended (ring buffer), to shrink the box at the first growth
         self.register_buffer("surface_pts", torch.zeros(1 << 16, 3))
@@ -217,6 +219,12 @@ class FastNeRF(NerfModel):
         return MarchSpec(self.occ_cells, self._coarse_u8, self.config.coarse_factor, self.step_size,
                          self.config.early_stop_eps, self.density_scale)
 
+    def _table_sinks(self, device) -> dict:
+        """A one-lane gradient sink per table texture (its optimizer updates touched texels only)."""
+        if self.table is None:
+            return {}
+        return {p: GradSink(side * side, 3, device, lanes=1) for p, side in self.table.textures()}
+
     def _apply(self, fn, recurse=True):
         out = super()._apply(fn, recurse)
         device = self.grid.device
@@ -224,6 +232,7 @@ class FastNeRF(NerfModel):
             self.geom.lo = self.geom.lo.to(device)
             self._coarse_u8 = self._coarse_u8.to(device)
             self.sink = GradSink(self.geom.n_vertices, self.n_channels, device)
+            self.table_sinks = self._table_sinks(device)
         return out
 
     # -- rendering -------------------------------------------------------------------
@@ -284,11 +293,12 @@ class FastNeRF(NerfModel):
         if self.bg_coef is not None:
             groups.append({"params": [self.bg_coef], "lr": 0.1 * lr})
         if self.table is not None:
-            groups.append({"params": list(self.table.parameters()), "lr": 0.1 * lr})
+            groups.append({"params": list(self.table.parameters()), "lr": self.config.table_lr_ratio * lr})
         return groups
 
     def make_optimizer(self, lr: float) -> torch.optim.Optimizer:
-        return GridAdam(self.param_groups(lr), sinks={self.grid: self.sink}, eps=self.config.adam_eps)
+        return GridAdam(self.param_groups(lr), sinks={self.grid: self.sink, **self.table_sinks},
+                        eps=self.config.adam_eps)
 
     def before_step(self, step: int, progress: float) -> bool:
         grew = False

@@ -54,23 +54,28 @@ def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: n
 
 def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chunk: int = 16384,
                    autocast_dtype: torch.dtype | None = None, progress: bool = True,
-                   fit: ViewFitConfig | None = None, scale: float = 1.0) -> dict:
+                   fit: ViewFitConfig | None = None, scale: float = 1.0, sheet: list | None = None,
+                   sheet_views: int = 6) -> dict:
     """Render every view and compare with its image.
 
     Returns ``{"psnr": mean, "ssim": mean, "n_images": N, "per_image": [{index, name,
     psnr, ssim}, ...]}``; with ``fit``, also ``"fitted": {"psnr", "ssim", ...}`` and per
     image ``psnr_fitted``, ``ssim_fitted``, after fitting each view's pose and exposure to
-    its photo (``scale``: the scene's length unit). Memory holds one image at a time.
+    its photo (``scale``: the scene's length unit). Memory holds one image at a time, plus
+    the images appended to ``sheet`` (``(photo, render, fitted render or None, row)`` of
+    ``sheet_views`` views spread over the split), when a list is given.
     """
     from tqdm import tqdm
 
     per_image = []
+    shown = set(np.linspace(0, len(views) - 1, min(sheet_views, len(views))).round().astype(int).tolist())
     for i in tqdm(range(len(views)), desc="eval", unit="view", disable=None if progress else True):
         target = views.images[i].astype(np.float32) / 255.0
         view = render_image(model, views.K[i], views.c2w[i], views.width, views.height, background, chunk,
                             autocast_dtype)
         row = {"index": i, "name": views.names[i] if views.names else None,
                "psnr": round(psnr(view.rgb, target), 4), "ssim": round(ssim(view.rgb, target), 5)}
+        rgb = None
         if fit is not None:
             c2w, gain, offset = fit_held_out_view(model, views.K[i], views.c2w[i], views.images[i], background,
                                                   scale, fit, seed=i)
@@ -81,6 +86,8 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
                            (np.trace(c2w[:3, :3] @ views.c2w[i][:3, :3].T) - 1) / 2, -1, 1)))), 4),
                        fitted_translation=round(float(np.linalg.norm(c2w[:3, 3] - views.c2w[i][:3, 3])), 6),
                        fitted_gain=[round(float(g), 4) for g in gain])
+        if sheet is not None and i in shown:
+            sheet.append((views.images[i], view.rgb, rgb, row))
         per_image.append(row)
     out = {
         "psnr": round(float(np.mean([p["psnr"] for p in per_image])), 4),
