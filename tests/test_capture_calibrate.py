@@ -71,7 +71,7 @@ def test_naive_shared_corners_would_ruin_calibration(sheet, records):
     sq = A.square_corners(TAG)
     views = [(r.name, np.concatenate([sq] * len(r.detection.ids)), r.detection.corners.reshape(-1, 2))
              for r in records]
-    fit = C.fit_views(views, SIZE, C.calib_flags(C.CalibrateConfig()), outlier_factor=0)
+    fit = C.fit_views(views, SIZE, C.calib_flags(C.CalibrateConfig(), "k1k2p1p2"), outlier_factor=0)
     assert fit.rms > 10 or rel_errors(fit.K, sheet.K).max() > 0.02
 
 
