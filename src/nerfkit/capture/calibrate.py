@@ -243,11 +243,18 @@ def select_dist_model(views: list, size: tuple[int, int], cfg: CalibrateConfig, 
                     "chosen": chosen, "why": why, "models": rows}
 
 
-def explicit_model(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], model: str) -> dict:
-    """The selection record of a model chosen with --dist-model (checked, not cross-validated)."""
-    check = distortion_check(K, dist, size)
+def explicit_model(views: list, size: tuple[int, int], cfg: CalibrateConfig, fit: Fit, photo_of=lambda key: key,
+                   K0: np.ndarray | None = None) -> dict:
+    """The selection record of the model given with --dist-model: checked over the frame and
+    cross-validated (its held-out error sets the pose error limit), but not replaced."""
+    model = cfg.dist_model
+    kept = [v for v in views if v[0] in set(fit.keys)]
+    held, spread = cross_validate(kept, size, calib_flags(cfg, model), photo_folds(kept, cfg.folds, photo_of), K0)
+    check = distortion_check(fit.K, fit.dist, size)
     return {"method": "given with --dist-model", "chosen": model, "why": "given with --dist-model",
-            "models": {model: {"check": check, "eligible": check["ok"], "rejected": check["reason"] or None}}}
+            "models": {model: {"heldout_rms": round(held, 4), "fit_rms": round(fit.rms, 4),
+                               "frame_spread_px": round(spread, 3) if np.isfinite(spread) else None, "check": check,
+                               "eligible": check["ok"], "rejected": check["reason"] or None}}}
 
 
 # ---------------------------------------------------------------- layout estimation
@@ -515,7 +522,7 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
         model, selection = select_dist_model([v for v in views if v[0] in kept], size, cfg, photo_of, K0)
     fit = fit_views(views, size, calib_flags(cfg, model), cfg.outlier_factor, K0)
     if cfg.dist_model != "auto":
-        selection = explicit_model(fit.K, fit.dist, size, model)
+        selection = explicit_model(views, size, cfg, fit, photo_of, K0)
     if layout is not None and target == "estimated layout":
         for r in with_tags:
             if not any(int(i) in layout.tags for i in r.detection.ids):
