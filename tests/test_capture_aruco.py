@@ -149,7 +149,6 @@ def test_mixed_sizes_keep_the_main_group_and_explain_the_rest():
 def test_second_detection_pass_recovers_missed_tags_of_known_ids_only(tmp_path, monkeypatch):
     import cv2
 
-
     d = A.get_dictionary("DICT_4X4_50")
     for name, tag in (("a.png", 0), ("b.png", 0), ("c.png", 7)):
         img = np.full((240, 320, 3), 230, np.uint8)
