@@ -144,3 +144,28 @@ def test_mixed_sizes_keep_the_main_group_and_explain_the_rest():
     size, kept = P.group_by_size(recs)
     assert size == (4032, 3024) and [r.name for r in kept] == ["a", "b"]
     assert "portrait 3024x4032" in recs[2].reason and "1920x1080" in recs[3].reason
+
+
+def test_second_detection_pass_recovers_missed_tags_of_known_ids_only(tmp_path, monkeypatch):
+    import cv2
+
+    d = A.get_dictionary("DICT_4X4_50")
+    for name, tag in (("a.png", 0), ("b.png", 0), ("c.png", 7)):
+        img = np.full((240, 320, 3), 230, np.uint8)
+        img[70:150, 120:200] = cv2.aruco.generateImageMarker(d, tag, 80)[..., None]
+        S.write_photo(tmp_path / name, img)
+    first = P.detect
+
+    def missing_b_and_c(image, detector, *args, **kwargs):  # the first pass misses b.png and c.png
+        det = first(image, detector, *args, **kwargs)
+        if kwargs.get("upscale") or not hasattr(missing_b_and_c, "seen"):
+            missing_b_and_c.seen = True
+            return det
+        return A.Detection(det.width, det.height, det.ids[:0], det.corners[:0], det.sharpness)
+
+    monkeypatch.setattr(P, "detect", missing_b_and_c)
+    recs = {r.name: r for r in P.scan_photos(tmp_path, "DICT_4X4_50", jobs=1, progress=False)}
+    assert list(recs["a.png"].detection.ids) == [0] and "detection" not in recs["a.png"].info
+    assert list(recs["b.png"].detection.ids) == [0] and recs["b.png"].info["detection"].startswith("second pass")
+    # Tag 7 appears in no first-pass detection: a permissive detector's find is not trusted.
+    assert len(recs["c.png"].detection.ids) == 0 and recs["c.png"].info["second_pass_ignored_ids"] == [7]

@@ -71,7 +71,7 @@ def test_naive_shared_corners_would_ruin_calibration(sheet, records):
     sq = A.square_corners(TAG)
     views = [(r.name, np.concatenate([sq] * len(r.detection.ids)), r.detection.corners.reshape(-1, 2))
              for r in records]
-    fit = C.fit_views(views, SIZE, C.calib_flags(C.CalibrateConfig()), outlier_factor=0)
+    fit = C.fit_views(views, SIZE, C.calib_flags(C.CalibrateConfig(), "k1k2p1p2"), outlier_factor=0)
     assert fit.rms > 10 or rel_errors(fit.K, sheet.K).max() > 0.02
 
 
@@ -139,8 +139,10 @@ def test_calibrate_command_writes_camera_file_and_explains_skips(tmp_path, sheet
     assert by_file["zz_corrupt.jpg"]["used"] is False and "unreadable" in by_file["zz_corrupt.jpg"]["reason"]
     assert all(by_file[n]["used"] and by_file[n]["error_px"] < 0.5 for n in sheet.names)
     assert cam["layout"]["tags"] and cam["sanity"]["warnings"] == []
+    assert cam["dist_model"] in C.DIST_MODELS and cam["heldout_rms"] < 0.5
+    assert cam["model_selection"]["chosen"] == cam["dist_model"] and len(cam["model_selection"]["models"]) == 5
     printed = capsys.readouterr().out
-    assert "zz_corrupt.jpg" in printed and "RMS reprojection error" in printed
+    assert "zz_corrupt.jpg" in printed and "RMS reprojection error" in printed and "held-out px" in printed
     # Second run reuses the detection cache: the cache file is there and results are identical.
     assert (out.parent / "camera.detections.json").exists()
     assert main(["calibrate", str(folder), "--tag-size", str(TAG), "--out", str(out)]) == 0
@@ -171,3 +173,67 @@ def test_charuco_board_calibration_uses_chessboard_corners():
     cal = C.calibrate_records(recs, SIZE, 0.022, layout, C.CalibrateConfig())
     assert "charuco" in cal.target
     assert rel_errors(cal.K, S.DEFAULT_K).max() < 0.01
+
+
+# ---------------------------------------------------------------- distortion model choice (issue 11)
+
+K_SMALL = np.array([[270.0, 0, 161.2], [0, 270.0, 118.4], [0, 0, 1]])
+SMALL = (320, 240)
+LENSES = {"zero": np.zeros(5), "mild": np.array([-0.05, 0.0, 0, 0, 0]), "strong barrel": np.array([-0.2, 0.03, 0, 0, 0])}
+
+
+def test_distortion_check_accepts_real_lenses_and_rejects_turning_polynomials():
+    from nerfkit.capture.distortion import distortion_check
+
+    K = S.DEFAULT_K
+    for name, dist in LENSES.items():
+        assert distortion_check(K, dist, SIZE)["ok"], name
+    # The issue's iPhone fit: fits the centre, then the radial mapping turns back inside the frame.
+    turning = distortion_check(K, np.array([0.24, -0.90, 0, 0, 0]), SIZE)
+    assert not turning["ok"] and not turning["monotonic"] and "not monotonic" in turning["reason"]
+    # Monotonic but moving the corners by more than 10% of the diagonal.
+    huge = distortion_check(K, np.array([0.8, 0, 0, 0, 0]), SIZE)
+    assert huge["monotonic"] and not huge["ok"] and huge["corner_displacement_px"] > huge["limit_px"] == 80.0
+
+
+@pytest.fixture(scope="module", params=list(LENSES))
+def lens_capture(request):
+    dist = LENSES[request.param]
+    cap = S.make_calibration_capture(n=14, size=SMALL, K=K_SMALL, dist=dist, seed=3)
+    det = A.make_detector("DICT_4X4_50")
+    return request.param, cap, [PhotoRecord(n, None, A.detect(im, det)) for n, im in zip(cap.names, cap.images)]
+
+
+def test_auto_distortion_model_generalises_on_synthetic_lenses(lens_capture):
+    name, cap, recs = lens_capture
+    cal = C.calibrate_records(fresh(recs), SMALL, TAG, None, C.CalibrateConfig())
+    sel = cal.selection
+    assert set(sel["models"]) == set(C.DIST_MODELS) and sel["chosen"] == cal.dist_model
+    assert rel_errors(cal.K, cap.K).max() < 0.01
+    assert sel["models"][cal.dist_model]["heldout_rms"] < 0.2
+    if name == "zero":
+        assert cal.dist_model in ("none", "k1") and np.abs(cal.dist).max() < 0.01
+    else:  # a radial model close to the truth, never the tangential or k3 ones
+        assert cal.dist_model in ("k1", "k1k2")
+        assert abs(cal.dist[0] - cap.dist[0]) < 0.03
+        none = sel["models"]["none"]["heldout_rms"]
+        assert none > 3 * sel["models"][cal.dist_model]["heldout_rms"]  # distortion matters, and was kept
+    # The model chosen is plausible out to the image corners.
+    assert sel["models"][cal.dist_model]["check"]["ok"]
+
+
+def test_explicit_model_is_kept_and_checked(lens_capture):
+    name, cap, recs = lens_capture
+    if name != "strong barrel":
+        pytest.skip("one lens is enough")
+    cal = C.calibrate_records(fresh(recs), SMALL, TAG, None, C.CalibrateConfig(dist_model="k1"))
+    assert cal.dist_model == "k1" and cal.selection["method"] == "given with --dist-model"
+    assert "k1" in cal.selection["models"] and cal.dist[1] == 0
+
+
+def test_folds_keep_the_views_of_a_photo_together():
+    views = [(f"p{k // 3}#{k % 3}", None, None) for k in range(15)]
+    folds = C.photo_folds(views, 5, lambda key: key.rsplit("#", 1)[0])
+    assert sorted(j for f in folds for j in f) == list(range(15))
+    for f in folds:
+        assert len({views[j][0].split("#")[0] for j in f}) == 1

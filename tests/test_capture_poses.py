@@ -192,3 +192,61 @@ def test_poses_builds_the_dataset_by_default_and_heic_photos_keep_their_name(tmp
     tj = json.loads((out / "transforms.json").read_text())
     assert "images/phone_shot.HEIC.png" in [f["file_path"] for f in tj["frames"]]
     assert max(scene.train.width, scene.train.height) == 320 and scene.near < scene.far
+
+
+# ---------------------------------------------------------------- issue 11: every photo where the tag is found
+
+
+def test_error_limit_follows_the_calibration_and_the_tag_size():
+    from nerfkit.capture.poses import PoseConfig, error_limit
+
+    cam = camera_from_focal(500.0, 640, 480, "test")
+    cam.heldout_rms = 0.5
+    assert error_limit(cam, 20.0, PoseConfig())[0] == pytest.approx(1.5)  # 3 x held-out
+    assert error_limit(cam, 200.0, PoseConfig())[0] == pytest.approx(4.0)  # 2% of a 200 px tag
+    cam.heldout_rms = 0.1
+    assert error_limit(cam, 20.0, PoseConfig())[0] == pytest.approx(1.0)  # the floor
+    assert error_limit(cam.scaled_to(1280, 960), 20.0, PoseConfig())[1].startswith("floor")
+    assert cam.scaled_to(1280, 960).heldout_rms == pytest.approx(0.2)  # held-out error scales with the photo
+    assert error_limit(cam, 20.0, PoseConfig(max_error=2.5)) == (2.5, "--max-error")
+
+
+def test_a_tag_disagreeing_with_the_others_is_dropped_and_the_pose_kept():
+    from nerfkit.capture.poses import solve_pose_robust
+
+    sheet = S.cached_capture("sheet", 12, 5)
+    cam = Camera(sheet.K, sheet.dist, sheet.width, sheet.height)
+    det = A.detect(sheet.images[0], A.make_detector("DICT_4X4_50"))
+    assert len(det.ids) >= 4
+    bad = int(det.ids[1])
+    moved = A.Detection(det.width, det.height, det.ids, det.corners.copy())
+    moved.corners[1] += 6.0  # e.g. the object hides part of this tag, or the paper lifts
+    c2w, err, reason, info = solve_pose_robust(moved, cam, sheet.layout, limit=1.0)
+    assert c2w is not None and err < 0.5, reason
+    assert list(info["tags_dropped"]) == [str(bad)] and bad not in info["tags_used"]
+    pos, ang = pose_error(c2w, sheet.c2w[0])
+    assert pos < 0.002 and ang < 0.3
+
+
+def test_poses_use_the_camera_files_layout_when_photos_show_several_tags(tmp_path):
+    sheet = S.cached_capture("sheet", 12, 5)
+    folder = tmp_path / "object"
+    folder.mkdir()
+    for name, img in zip(sheet.names[:4], sheet.images[:4]):
+        S.write_photo(folder / name, img)
+    cam = json.loads(write_camera(tmp_path / "camera.json", sheet).read_text())
+    cam["layout"] = sheet.layout.to_json()
+    cam["heldout_rms"] = 0.1
+    (tmp_path / "camera.json").write_text(json.dumps(cam))
+    out = tmp_path / "ds"
+    assert main(["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", "0.05",
+                 "--out", str(out), "--no-dataset"]) == 0
+    poses = json.loads((out / "poses.json").read_text())
+    assert any("camera file's layout" in n for n in poses["notes"])
+    for p in poses["photos"]:
+        assert p["used"] and len(p["tags_used"]) > 1, p
+        pos, ang = pose_error(np.array(p["c2w"]), sheet.c2w[sheet.names.index(p["file"])])
+        assert pos < 0.002 and ang < 0.3
+    assert main(["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", "0.05",
+                 "--out", str(out), "--no-dataset", "--single-tag"]) == 0
+    assert all(len(p["tags_used"]) == 1 for p in json.loads((out / "poses.json").read_text())["photos"] if p["used"])

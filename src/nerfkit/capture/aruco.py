@@ -507,7 +507,48 @@ def refine_corners_by_edges(gray: np.ndarray, corners: np.ndarray, marker_bits: 
     return c + (x0, y0)
 
 
-def detect(image: np.ndarray, detector, detect_side: int = 2000, marker_bits: int = 4) -> Detection:
+def careful_detector(dictionary: str):
+    """A slower, more permissive ArUco detector for a second pass on photos where
+    :func:`make_detector` found nothing: finer adaptive-threshold steps, smaller and less
+    square-looking candidates accepted (blur, steep angles, small tags). Its extra finds
+    can include false ids: callers keep only ids the capture is known to hold."""
+    import cv2
+
+    p = cv2.aruco.DetectorParameters()
+    p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    p.adaptiveThreshWinSizeMin, p.adaptiveThreshWinSizeMax, p.adaptiveThreshWinSizeStep = 3, 63, 4
+    p.minMarkerPerimeterRate = 0.01
+    p.polygonalApproxAccuracyRate = 0.06
+    p.perspectiveRemovePixelPerCell = 8
+    p.perspectiveRemoveIgnoredMarginPerCell = 0.2
+    p.minCornerDistanceRate = 0.02
+    p.minDistanceToBorder = 1
+    return cv2.aruco.ArucoDetector(get_dictionary(dictionary), p)
+
+
+def detect_careful(image: np.ndarray, dictionary: str, detect_side: int = 2000, marker_bits: int = 4) -> Detection:
+    """Second detection pass: :func:`careful_detector` at the first pass's scale, at full
+    resolution, and upscaled 2x (3x) for small photos, each also on a contrast-equalised
+    (CLAHE) copy; the first of these that finds a tag wins. Corners are refined on the
+    original full-resolution image as in :func:`detect`."""
+    import cv2
+
+    gray = to_gray(image)
+    long_side = max(gray.shape)
+    sides = [min(detect_side, long_side), long_side] + [k * long_side for k in (2, 3) if k * long_side <= 1500]
+    clahe = cv2.createCLAHE(2.0, (8, 8))
+    det = careful_detector(dictionary)
+    found = None
+    for side in dict.fromkeys(sides):
+        for prepare in (None, clahe.apply):
+            found = detect(gray, det, side, marker_bits, upscale=True, prepare=prepare)
+            if len(found.ids):
+                return found
+    return found
+
+
+def detect(image: np.ndarray, detector, detect_side: int = 2000, marker_bits: int = 4, upscale: bool = False,
+           prepare=None) -> Detection:
     """Find tags in an upright photo: detect on a copy at most ``detect_side`` pixels on its
     long side, then refine every corner on the full-resolution image, by fitting lines to
     the tag's edges (:func:`refine_corners_by_edges`), else with cornerSubPix.
@@ -516,6 +557,8 @@ def detect(image: np.ndarray, detector, detect_side: int = 2000, marker_bits: in
         image: (H, W, 3) RGB or (H, W) uint8.
         detector: from :func:`make_detector`.
         marker_bits: the dictionary's marker size (4 for 4x4), to size the refinement window.
+        upscale: also enlarge photos smaller than ``detect_side`` (second pass).
+        prepare: optional function applied to the detection copy (e.g. contrast equalisation).
 
     Returns:
         a :class:`Detection` in full-resolution OpenCV pixel coordinates.
@@ -524,8 +567,11 @@ def detect(image: np.ndarray, detector, detect_side: int = 2000, marker_bits: in
 
     gray = to_gray(image)
     h, w = gray.shape
-    s = min(1.0, detect_side / max(h, w))
-    small = cv2.resize(gray, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA) if s < 1 else gray
+    s = detect_side / max(h, w) if upscale else min(1.0, detect_side / max(h, w))
+    small = gray if s == 1 else cv2.resize(gray, (max(1, round(w * s)), max(1, round(h * s))),
+                                           interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_CUBIC)
+    if prepare is not None:
+        small = prepare(small)
     sx, sy = small.shape[1] / w, small.shape[0] / h
 
     def up(p: np.ndarray) -> np.ndarray:  # small-image pixel -> full-image pixel (OpenCV centres)
@@ -552,7 +598,7 @@ def detect(image: np.ndarray, detector, detect_side: int = 2000, marker_bits: in
         refined = refine_corners_by_edges(gray, corners[i], marker_bits)
         if refined is not None:
             corners[i] = refined
-        elif s < 1:  # the detector refined at its scale only
+        elif s != 1:  # the detector refined at its scale only
             side = float(np.linalg.norm(corners[i] - np.roll(corners[i], -1, axis=0), axis=1).mean())
             module = side / (marker_bits + 2)
             win = int(np.clip(round(0.4 * module), 2, 30))

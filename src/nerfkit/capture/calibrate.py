@@ -12,6 +12,13 @@ Three kinds of targets:
   never share 3D corners (that mistake silently ruins a calibration);
 * ``per_tag=True`` (or a single tag): every tag in every photo is its own planar view.
 
+The layout is estimated with a k1-only model and then frozen, so it cannot absorb the
+distortion model chosen afterwards (nor the reverse). The distortion model (none, k1, k1k2,
+k1k2p1p2, k1k2p1p2k3) is chosen by k-fold cross-validation over photos
+(:func:`select_dist_model`): the simplest model within a small margin of the best held-out
+error among the models that pass :func:`~.distortion.distortion_check` and whose prediction
+at the frame's edges is stable across folds.
+
 Photos whose RMS error is far above the median are dropped and the camera recalibrated.
 Because a low RMS does not prove a good calibration, :func:`sanity_checks` compares the
 result with what phone cameras are like (square pixels, centred principal point, the EXIF
@@ -25,22 +32,30 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..config import option
-from ..errors import fail
+from ..errors import NerfkitError, fail
 from .aruco import Layout, square_corners
 from .camera import FILM_DIAGONAL_MM, exif_fx
+from .distortion import distortion_check, fold_spread, frame_displacement, heldout_errors
 from .photos import PhotoRecord
 
 # Per-tag calibration: at most this many tag views (cost grows as views^3).
 MAX_TAG_VIEWS = 150
 DIST_MODELS = ("k1k2p1p2k3", "k1k2p1p2", "k1k2", "k1", "none")
+SIMPLEST_FIRST = tuple(reversed(DIST_MODELS))
+# The layout is estimated with this model, then frozen while the distortion model is chosen.
+LAYOUT_MODEL = "k1"
 
 
 @dataclass
 class CalibrateConfig:
     """Calibration options (each becomes a ``nerfkit calibrate`` flag)."""
 
-    dist_model: str = option("k1k2p1p2", "distortion coefficients to estimate (k3 over-fits small photo sets; "
-                             "k1k2p1p2 matches nerfstudio's OPENCV model)", choices=list(DIST_MODELS))
+    dist_model: str = option("auto", "distortion coefficients to estimate; auto: chosen by cross-validation over "
+                             "photos (the simplest model that generalises and stays plausible out to the image "
+                             "corners)", choices=["auto", *DIST_MODELS])
+    folds: int = option(5, "cross-validation folds over photos for --dist-model auto")
+    select_tolerance: float = option(0.05, "auto picks the simplest model whose held-out error is within this "
+                                     "fraction of the best, or this many pixels, whichever is larger")
     fix_aspect: bool = option(False, "force fx = fy (square pixels, true of phone cameras)")
     fix_principal_point: bool = option(False, "keep the principal point at the image centre")
     outlier_factor: float = option(3.0, "drop photos whose reprojection error exceeds this many times the median, "
@@ -73,11 +88,14 @@ class Fit:
     rounds: list[str] = field(default_factory=list)
 
 
-def calib_flags(cfg: CalibrateConfig) -> int:
+def calib_flags(cfg: CalibrateConfig, model: str | None = None) -> int:
+    """cv2.CALIB_* flags of a distortion model (default: the config's; "auto" is not a model)."""
     import cv2
 
     flags = 0
-    model = cfg.dist_model
+    model = model or cfg.dist_model
+    if model not in DIST_MODELS:
+        raise ValueError(f"not a distortion model: {model!r}")
     if model != "k1k2p1p2k3":
         flags |= cv2.CALIB_FIX_K3
     if model in ("k1k2", "k1", "none"):
@@ -145,6 +163,98 @@ def fit_views(views: list[tuple[str, np.ndarray, np.ndarray]], size: tuple[int, 
         views = [v for v, b in zip(views, bad) if not b]
     return Fit(K, dist.ravel()[:5].astype(np.float64), float(rms), [v[0] for v in views], list(rvecs), list(tvecs),
                {v[0]: float(e) for v, e in zip(views, errs)}, dropped, np.asarray(std_i).ravel()[:4], rounds)
+
+
+# ---------------------------------------------------------------- distortion model choice
+
+
+def photo_folds(views: list, n_folds: int, photo_of=lambda key: key) -> list[list[int]]:
+    """Indices of ``views`` split into at most ``n_folds`` folds by photo (all views of a
+    photo in the same fold; photos dealt round-robin in name order)."""
+    photos = sorted({photo_of(v[0]) for v in views})
+    k = max(1, min(n_folds, len(photos)))
+    fold_of = {p: i % k for i, p in enumerate(photos)}
+    return [[j for j, v in enumerate(views) if fold_of[photo_of(v[0])] == f] for f in range(k)]
+
+
+def cross_validate(views: list, size: tuple[int, int], flags: int, folds: list[list[int]],
+                   K0: np.ndarray | None = None) -> tuple[float, float]:
+    """(held-out RMS px, spread px of the frame's undistortion across folds) of one model.
+
+    Each fold calibrates on the other folds' views; every held-out view is then posed with
+    solvePnP using that fold's intrinsics and its points reprojected."""
+    sq, disps = [], []
+    for test in folds:
+        held = set(test)
+        try:
+            fit = fit_views([v for j, v in enumerate(views) if j not in held], size, flags, 0, K0)
+        except NerfkitError:
+            return float("inf"), float("inf")
+        sq.append(heldout_errors([views[j] for j in test], fit.K, fit.dist))
+        disps.append(frame_displacement(fit.K, fit.dist, size))
+    return float(np.sqrt(np.mean(np.concatenate(sq)))), fold_spread(disps)
+
+
+def select_dist_model(views: list, size: tuple[int, int], cfg: CalibrateConfig, photo_of=lambda key: key,
+                      K0: np.ndarray | None = None) -> tuple[str, dict]:
+    """Choose the distortion model by k-fold cross-validation over photos.
+
+    A model is eligible when its fit on all views passes :func:`distortion_check` and its
+    undistortion of the frame's corners and edge midpoints agrees across folds within
+    ``max(1 px, 2 x its held-out error)`` (otherwise the photos do not determine it at the
+    edges: it is extrapolation). The choice is the simplest eligible model whose held-out
+    error is within ``max(tol x best, tol px)`` of the best eligible one. "none" is always
+    eligible.
+
+    Returns:
+        (model, selection): ``selection`` holds per-model held-out RMS, fit RMS, frame
+        spread, check result and coefficients, and ``why`` in words.
+    """
+    folds = photo_folds(views, cfg.folds, photo_of)
+    rows: dict[str, dict] = {}
+    for model in SIMPLEST_FIRST:
+        flags = calib_flags(cfg, model)
+        try:
+            full = fit_views(views, size, flags, 0, K0)
+        except NerfkitError as e:
+            rows[model] = {"eligible": False, "rejected": f"calibration failed ({e})"}
+            continue
+        held, spread = cross_validate(views, size, flags, folds, K0)
+        check = distortion_check(full.K, full.dist, size)
+        limit = max(1.0, 2.0 * held)
+        rejected = "" if check["ok"] else check["reason"]
+        if not rejected and not spread <= limit:
+            rejected = (f"unstable at the frame's edges: undistortion there varies by {spread:.1f} px "
+                        f"across folds (> {limit:.1f} px)")
+        rows[model] = {"heldout_rms": round(held, 4), "fit_rms": round(full.rms, 4),
+                       "frame_spread_px": round(spread, 3) if np.isfinite(spread) else None,
+                       "check": check, "eligible": not rejected, "rejected": rejected or None,
+                       "fx": round(float(full.K[0, 0]), 3), "dist": [round(float(d), 6) for d in full.dist]}
+    eligible = [m for m in SIMPLEST_FIRST if rows[m]["eligible"]]
+    best = min(eligible, key=lambda m: rows[m]["heldout_rms"])
+    best_err = rows[best]["heldout_rms"]
+    tol = max(cfg.select_tolerance * best_err, cfg.select_tolerance)
+    chosen = next(m for m in eligible if rows[m]["heldout_rms"] <= best_err + tol)
+    why = (f"{chosen}: simplest model passing the checks with held-out error {rows[chosen]['heldout_rms']:.3f} px, "
+           f"within {tol:.3f} px of the best eligible ({best}, {best_err:.3f} px)")
+    if chosen == best:
+        why = f"{chosen}: lowest held-out error among the models passing the checks ({best_err:.3f} px)"
+    return chosen, {"method": f"{len(folds)}-fold cross-validation over photos", "tolerance": cfg.select_tolerance,
+                    "chosen": chosen, "why": why, "models": rows}
+
+
+def explicit_model(views: list, size: tuple[int, int], cfg: CalibrateConfig, fit: Fit, photo_of=lambda key: key,
+                   K0: np.ndarray | None = None) -> dict:
+    """The selection record of the model given with --dist-model: checked over the frame and
+    cross-validated (its held-out error sets the pose error limit), but not replaced."""
+    model = cfg.dist_model
+    kept = [v for v in views if v[0] in set(fit.keys)]
+    held, spread = cross_validate(kept, size, calib_flags(cfg, model), photo_folds(kept, cfg.folds, photo_of), K0)
+    check = distortion_check(fit.K, fit.dist, size)
+    return {"method": "given with --dist-model", "chosen": model, "why": "given with --dist-model",
+            "models": {model: {"heldout_rms": round(held, 4), "fit_rms": round(fit.rms, 4),
+                               "frame_spread_px": round(spread, 3) if np.isfinite(spread) else None, "check": check,
+                               "eligible": check["ok"], "rejected": check["reason"] or None}}}
 
 
 # ---------------------------------------------------------------- layout estimation
@@ -292,6 +402,8 @@ class Calibration:
         std: standard deviations of fx, fy, cx, cy.
         notes: human-readable lines about what happened (outlier rounds, layout fit).
         sanity: from :func:`sanity_checks`.
+        dist_model: the distortion model used; selection: how it was chosen
+            (:func:`select_dist_model` or :func:`explicit_model`).
     """
 
     K: np.ndarray
@@ -304,6 +416,8 @@ class Calibration:
     std: np.ndarray
     notes: list[str]
     sanity: dict
+    dist_model: str = ""
+    selection: dict = field(default_factory=dict)
 
 
 def _views_for_layout(records: list[PhotoRecord], layout: Layout, min_points: int) -> list:
@@ -323,6 +437,38 @@ def _layout_sheet_views(records: list[PhotoRecord], layout: Layout) -> list:
     return [(r.name, *layout.match(r.detection)[:2]) for r in records if len(layout.match(r.detection)[0]) >= 4]
 
 
+def estimate_layout(with_tags: list[PhotoRecord], by_name: dict, size: tuple[int, int], tag_size: float,
+                    cfg: CalibrateConfig, notes: list[str]) -> Layout:
+    """The sheet layout from photos showing several tags: a first layout from relative tag
+    poses, then rounds of calibrate (with :data:`LAYOUT_MODEL`) + re-fit of the tags. The
+    result is frozen: the distortion model is chosen afterwards on this layout."""
+    import cv2
+
+    # Rough intrinsics from per-tag views (square pixels, centred principal point: robust).
+    rough_flags = (cv2.CALIB_FIX_ASPECT_RATIO | cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_ZERO_TANGENT_DIST
+                   | cv2.CALIB_FIX_K3 | cv2.CALIB_FIX_K2)
+    rough = fit_views(tag_views(with_tags, tag_size, max_views=60), size, rough_flags, cfg.outlier_factor)
+    layout, ref = initial_layout(with_tags, rough.K, rough.dist, tag_size)
+    flags = calib_flags(cfg, LAYOUT_MODEL)
+    fit = None
+    change = float("nan")
+    for it in range(10):
+        fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor,
+                        None if fit is None else fit.K)
+        new = refine_layout(by_name, fit, layout, ref, tag_size)
+        change = max(float(np.abs(new.tags[t] - layout.tags[t]).max()) for t in layout.tags)
+        layout = new
+        if change < 5e-4 * tag_size:  # 0.03 mm for 6 cm tags
+            break
+    notes.append(f"estimated the layout of {len(layout.tags)} tags (reference tag {ref}) in {it + 1} "
+                 f"rounds of calibrate ({LAYOUT_MODEL} distortion) + re-fit; last change {change * 1000:.3f} mm; "
+                 "then froze it to choose the distortion model")
+    missing = sorted({int(i) for r in with_tags for i in r.detection.ids} - set(layout.tags))
+    if missing:
+        notes.append(f"tags {missing} were never seen together with the others and were ignored")
+    return layout
+
+
 def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_size: float,
                       layout: Layout | None, cfg: CalibrateConfig, dictionary: str = "") -> Calibration:
     """Calibrate from detected photos of one size; marks each record used/skipped with a reason.
@@ -332,9 +478,6 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
         tag_size: tag side in metres (scales the estimated layout; intrinsics don't depend on it).
         layout: known sheet layout, or None.
     """
-    import cv2
-
-    flags = calib_flags(cfg)
     notes: list[str] = []
     with_tags = []
     for r in records:
@@ -347,55 +490,46 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
     by_name = {r.name: r for r in with_tags}
     ids_together = any(len(set(int(i) for i in r.detection.ids)) > 1 for r in with_tags)
 
+    K0 = None
+    per_tag = layout is None and (cfg.per_tag or not ids_together)
+
+    def photo_of(key: str) -> str:  # views may be per tag ("<photo>#<id>")
+        return key.rsplit("#", 1)[0] if per_tag else key
+
     if layout is not None:
         target = f"layout ({layout.source})"
         views = _views_for_layout(with_tags, layout, 6 if layout.charuco is not None else 4)
-        K0 = None
         if not layout.is_planar():  # calibrateCamera can only initialise from planar targets
             fx0 = 1.2 * max(size)
             K0 = np.array([[fx0, 0, (size[0] - 1) / 2], [0, fx0, (size[1] - 1) / 2], [0, 0, 1]])
             notes.append("non-planar layout: started from fx = 1.2 x image width")
-        fit = fit_views(views, size, flags, cfg.outlier_factor, K0)
-    elif cfg.per_tag or not ids_together:
+    elif per_tag:
         target = "per-tag"
         views = tag_views(with_tags, tag_size, max_views=MAX_TAG_VIEWS)
-        fit = fit_views(views, size, flags, cfg.outlier_factor)
         notes.append(f"each tag is its own planar target ({len(views)} tag views"
                      + (f", the largest {MAX_TAG_VIEWS}" if len(views) == MAX_TAG_VIEWS else "") + ")" +
                      ("" if ids_together else ": no photo shows two different tags"))
         layout = None
     else:
         target = "estimated layout"
-        # Rough intrinsics from per-tag views (square pixels, centred principal point: robust).
-        rough_flags = (cv2.CALIB_FIX_ASPECT_RATIO | cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_ZERO_TANGENT_DIST
-                       | cv2.CALIB_FIX_K3 | cv2.CALIB_FIX_K2)
-        rough = fit_views(tag_views(with_tags, tag_size, max_views=60), size, rough_flags, cfg.outlier_factor)
-        layout, ref = initial_layout(with_tags, rough.K, rough.dist, tag_size)
-        fit = None
-        change = float("nan")
-        for it in range(10):
-            fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor,
-                            None if fit is None else fit.K)
-            new = refine_layout(by_name, fit, layout, ref, tag_size)
-            change = max(float(np.abs(new.tags[t] - layout.tags[t]).max()) for t in layout.tags)
-            layout = new
-            if change < 5e-4 * tag_size:  # 0.03 mm for 6 cm tags
-                break
-        fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor, fit.K)
-        notes.append(f"estimated the layout of {len(layout.tags)} tags (reference tag {ref}) in {it + 1} "
-                     f"rounds of calibrate + re-fit; last change {change * 1000:.3f} mm")
-        missing = sorted({int(i) for r in with_tags for i in r.detection.ids} - set(layout.tags))
-        if missing:
-            notes.append(f"tags {missing} were never seen together with the others and were ignored")
+        layout = estimate_layout(with_tags, by_name, size, tag_size, cfg, notes)
+        views = _layout_sheet_views(with_tags, layout)
+    model = cfg.dist_model
+    if model == "auto":
+        # Outliers first (with the layout model), so they do not sway the choice.
+        pre = fit_views(views, size, calib_flags(cfg, LAYOUT_MODEL), cfg.outlier_factor, K0)
+        kept = set(pre.keys)
+        model, selection = select_dist_model([v for v in views if v[0] in kept], size, cfg, photo_of, K0)
+    fit = fit_views(views, size, calib_flags(cfg, model), cfg.outlier_factor, K0)
+    if cfg.dist_model != "auto":
+        selection = explicit_model(views, size, cfg, fit, photo_of, K0)
+    if layout is not None and target == "estimated layout":
         for r in with_tags:
             if not any(int(i) in layout.tags for i in r.detection.ids):
                 r.skip("none of its tags belong to the estimated layout")
     notes.extend(fit.rounds)
 
     # Per-photo outcome (views may be per tag: a photo is used when any of its views is).
-    def photo_of(key: str) -> str:
-        return key.rsplit("#", 1)[0] if target == "per-tag" else key
-
     per_photo: dict[str, list[float]] = {}
     for key, err in fit.errors.items():
         per_photo.setdefault(photo_of(key), []).append(err)
@@ -418,7 +552,12 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
     coverage = corner_coverage(used, size)
     f35 = [r.exif_f35 for r in used if r.exif_f35]
     sanity = sanity_checks(fit.K, fit.dist, size, fit.rms, fit.std, f35, coverage, len(used))
-    return Calibration(fit.K, fit.dist, fit.rms, size[0], size[1], target, layout, fit.std, notes, sanity)
+    check = selection["models"][model]["check"]
+    if not check["ok"]:
+        sanity["warnings"].append(f"the {model} distortion model is implausible over the frame ({check['reason']}); "
+                                  "use --dist-model auto")
+    return Calibration(fit.K, fit.dist, fit.rms, size[0], size[1], target, layout, fit.std, notes, sanity,
+                       model, selection)
 
 
 def corner_coverage(records: list[PhotoRecord], size: tuple[int, int], cells: int = 3) -> float:
@@ -510,6 +649,9 @@ def calibration_json(cal: Calibration, records: list[PhotoRecord], dictionary: s
         "dist": [round(float(d), 8) for d in cal.dist],
         "dist_names": ["k1", "k2", "p1", "p2", "k3"],
         "rms": round(float(cal.rms), 5),
+        "dist_model": cal.dist_model,
+        "heldout_rms": cal.selection.get("models", {}).get(cal.dist_model, {}).get("heldout_rms"),
+        "model_selection": cal.selection,
         "target": cal.target,
         "dictionary": dictionary,
         "tag_size": tag_size,

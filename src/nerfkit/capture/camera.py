@@ -35,6 +35,8 @@ class Camera:
         dist: (5,) float64 k1, k2, p1, p2, k3.
         width, height: image size in pixels.
         source: where it came from (a file, or "EXIF ...").
+        heldout_rms: the calibration's held-out reprojection error (px at this size), or
+            None when unknown (EXIF focal length, old camera files).
     """
 
     K: np.ndarray
@@ -42,6 +44,7 @@ class Camera:
     width: int
     height: int
     source: str = ""
+    heldout_rms: float | None = None
 
     @property
     def has_distortion(self) -> bool:
@@ -58,7 +61,8 @@ class Camera:
         K[1, 1] *= sy
         K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
         K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
-        return Camera(K, self.dist.copy(), width, height, self.source)
+        held = None if self.heldout_rms is None else self.heldout_rms * float(np.sqrt(sx * sy))
+        return Camera(K, self.dist.copy(), width, height, self.source, held)
 
     def compatible(self, width: int, height: int) -> str | None:
         """None when photos of this size can use this camera (same size or same aspect
@@ -121,7 +125,9 @@ def camera_from_dict(data, where: str, source: str | None = None) -> Camera:
     if dist.size > 5 and np.any(dist[5:] != 0):
         raise fail(where, "only the k1, k2, p1, p2, k3 distortion model is supported")
     dist = np.pad(dist[:5], (0, 5 - min(dist.size, 5)))
-    return Camera(K, dist, width, height, str(where) if source is None else source)
+    held = data.get("heldout_rms")
+    held = float(held) if isinstance(held, (int, float)) and not isinstance(held, bool) and 0 < held < 1e4 else None
+    return Camera(K, dist, width, height, str(where) if source is None else source, held)
 
 
 def load_camera(path: str | Path) -> Camera:

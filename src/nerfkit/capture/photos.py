@@ -1,7 +1,10 @@
 """Scan a folder of photos: load each upright, detect tags, cache the results.
 
 Every photo becomes a :class:`PhotoRecord`; unreadable files are recorded with the reason
-instead of stopping the run. Detections are cached in a JSON file keyed by file name, size
+instead of stopping the run. Photos where no tag is found get a second, more careful detection pass
+(:func:`~.aruco.detect_careful`); its finds are kept only for tag ids that the first pass
+found in other photos (or that the layout holds), since a permissive detector can read
+false ids in textures. Detections are cached in a JSON file keyed by file name, size
 and modification time (and the detection settings), so re-running on the same folder only
 looks at new or changed photos.
 """
@@ -20,9 +23,9 @@ import numpy as np
 from ..errors import NerfkitError, fail
 from ..images import exif_focal_35mm, list_images, load_image_uint8
 from ..io.atomic import write_json
-from .aruco import Detection, Layout, detect, make_detector, marker_bits, suggest_dictionaries
+from .aruco import Detection, Layout, detect, detect_careful, make_detector, marker_bits, suggest_dictionaries
 
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 
 
 @dataclass
@@ -88,8 +91,9 @@ def _load_cache(cache_path: Path | None, settings: dict) -> dict:
     return data.get("photos", {}) if isinstance(data.get("photos"), dict) else {}
 
 
-def _detect_one(path: Path, detector, detect_side: int, bits: int) -> dict:
-    """Load upright, detect; a JSON-ready cache entry (never raises for a bad photo)."""
+def _detect_one(path: Path, detector, detect_side: int, bits: int, dictionary: str = "") -> dict:
+    """Load upright, detect (a second, careful pass when no tag is found and ``dictionary``
+    is given); a JSON-ready cache entry (never raises for a bad photo)."""
     entry: dict = {"key": _file_key(path)}
     try:
         image = load_image_uint8(path)
@@ -100,7 +104,12 @@ def _detect_one(path: Path, detector, detect_side: int, bits: int) -> dict:
         entry["error"] = "out of memory while decoding"
         return entry
     try:
-        entry["detection"] = detect(image, detector, detect_side, bits).to_json()
+        det = detect(image, detector, detect_side, bits)
+        if dictionary and not len(det.ids) and det.charuco_ids is None:
+            second = detect_careful(image, dictionary, detect_side, bits)
+            if len(second.ids):
+                det, entry["second_pass"] = second, True
+        entry["detection"] = det.to_json()
     except Exception as e:  # noqa: BLE001 - one odd photo must not stop the run
         entry["error"] = f"tag detection failed ({type(e).__name__}: {str(e).strip().splitlines()[-1][:120]})"
         return entry
@@ -159,7 +168,7 @@ def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = Non
         def work(f: Path) -> dict:
             if not hasattr(local, "detector"):
                 local.detector = make_detector(dictionary, layout if charuco else None)
-            return _detect_one(f, local.detector, detect_side, bits)
+            return _detect_one(f, local.detector, detect_side, bits, "" if charuco else dictionary)
 
         bar = tqdm(total=len(todo), desc=f"detecting tags ({len(files) - len(todo)} cached)", unit="photo",
                    disable=None if progress else True, leave=False)
@@ -175,6 +184,8 @@ def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = Non
             pool.shutdown(wait=True, cancel_futures=True)
             bar.close()
             save()
+    known = {int(i) for e in entries.values() if "detection" in e and not e.get("second_pass")
+             for i in e["detection"]["ids"]} | set(layout.ids if layout is not None else [])
     records = []
     for f in files:
         e = entries[f.name]
@@ -185,8 +196,22 @@ def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = Non
         else:
             rec.detection = Detection.from_json(e["detection"])
             rec.exif_f35 = e.get("exif_f35")
+            if e.get("second_pass"):
+                _keep_known_ids(rec, known)
         records.append(rec)
     return records
+
+
+def _keep_known_ids(rec: PhotoRecord, known: set[int]) -> None:
+    """Drop second-pass tags whose id no first pass saw; note what the second pass found."""
+    det = rec.detection
+    keep = np.array([int(i) in known for i in det.ids], bool)
+    dropped = sorted({int(i) for i in det.ids[~keep]})
+    det.ids, det.corners = det.ids[keep], det.corners[keep]
+    if len(det.ids):
+        rec.info["detection"] = "second pass (careful detector)"
+    if dropped:
+        rec.info["second_pass_ignored_ids"] = dropped
 
 
 def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str) -> None:

@@ -9,7 +9,12 @@ normal. Units are those of ``--tag-size`` (metres).
 One tag: ``SOLVEPNP_IPPE_SQUARE`` (made for one square; both of its solutions are checked
 and the better kept, the ratio of their errors recorded as ``pose_ambiguity``). Several
 tags of a layout: all visible corners jointly (SQPnP and per-tag IPPE starts, refined with
-Levenberg-Marquardt).
+Levenberg-Marquardt); a tag that disagrees with the others (occluded by the object,
+lifted paper) is dropped and the pose refitted.
+
+A fit is judged against what the calibration and the tag's size make plausible
+(:func:`error_limit`): by default ``max(3 x the calibration's held-out error, 1 px, 2% of the
+tag's side in pixels)``, so large tags in big photos are not held to a small-photo figure.
 """
 
 from __future__ import annotations
@@ -25,13 +30,23 @@ from .camera import Camera, camera_from_focal, exif_fx
 from .photos import PhotoRecord, blur_hint
 
 UP = np.array([0.0, 0.0, 1.0], np.float32)
+# Automatic error limit: this many times the calibration's held-out error ...
+HELDOUT_FACTOR = 3.0
+# ... assumed held-out error (px) when the camera does not say (EXIF focal length) ...
+DEFAULT_HELDOUT_PX = 1.0
+# ... and at least this (px), and this fraction of the tag side in pixels (corner precision
+# scales with the tag's size in the photo: blur, JPEG, print quality).
+FLOOR_PX = 1.0
+FLOOR_OF_TAG_SIDE = 0.02
 
 
 @dataclass
 class PoseConfig:
     """Options of ``nerfkit poses``."""
 
-    max_error: float = option(2.0, "skip photos whose pose reprojection error (RMS, pixels) exceeds this")
+    max_error: float = option(0.0, "skip photos whose pose reprojection error (RMS, pixels) exceeds this; 0: "
+                              "automatic, max(3 x the calibration's held-out error, 1 px, 2% of the tag's side "
+                              "in pixels)")
     min_tag_px: float = option(16.0, "skip photos whose tag is smaller than this many pixels across "
                                "(too small for a reliable pose)")
 
@@ -132,6 +147,58 @@ def solve_pose(det: Detection, camera: Camera, layout: Layout) -> tuple[np.ndarr
     return c2w, err, "", info
 
 
+def error_limit(camera: Camera, side_px: float, cfg: PoseConfig) -> tuple[float, str]:
+    """(largest plausible RMS reprojection error in px, how it was set) for a photo whose
+    largest tag used is ``side_px`` across."""
+    if cfg.max_error > 0:
+        return cfg.max_error, "--max-error"
+    held = camera.heldout_rms if camera.heldout_rms is not None else DEFAULT_HELDOUT_PX
+    parts = {f"{HELDOUT_FACTOR:g} x held-out {held:.2f} px": HELDOUT_FACTOR * held, "floor": FLOOR_PX,
+             f"{FLOOR_OF_TAG_SIDE * 100:g}% of the tag side": FLOOR_OF_TAG_SIDE * side_px}
+    how = max(parts, key=parts.get)
+    return parts[how], how
+
+
+def tag_side_px(det: Detection, tag: int) -> float:
+    c = det.corners[list(det.ids).index(tag)]
+    return float(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean())
+
+
+def tag_errors(det: Detection, c2w: np.ndarray, camera: Camera, layout: Layout, used: list[int]) -> dict[int, float]:
+    """RMS reprojection error (px) of each used tag under the pose ``c2w``."""
+    import cv2
+
+    w2c = np.linalg.inv(c2w)
+    rvec = cv2.Rodrigues(w2c[:3, :3])[0]
+    ids = list(det.ids)
+    return {t: reprojection_rms(layout.tags[t], det.corners[ids.index(t)], rvec, w2c[:3, 3], camera.K, camera.dist)
+            for t in used}
+
+
+def without_tag(det: Detection, tag: int) -> Detection:
+    keep = det.ids != tag
+    return Detection(det.width, det.height, det.ids[keep], det.corners[keep], det.sharpness)
+
+
+def solve_pose_robust(det: Detection, camera: Camera, layout: Layout, limit: float):
+    """:func:`solve_pose`, then, while the fit exceeds ``limit`` and more than one tag is
+    used, drop the tag that fits worst and refit. Dropped tags go to ``info["tags_dropped"]``."""
+    c2w, err, reason, info = solve_pose(det, camera, layout)
+    dropped: dict[int, float] = {}
+    while c2w is not None and err > limit and len(info.get("tags_used", [])) > 1 and layout.charuco is None:
+        errs = tag_errors(det, c2w, camera, layout, info["tags_used"])
+        worst = max(errs, key=errs.get)
+        det = without_tag(det, worst)
+        c2w2, err2, reason2, info2 = solve_pose(det, camera, layout)
+        if c2w2 is None or err2 >= err:
+            break
+        dropped[worst] = round(errs[worst], 2)
+        c2w, err, reason, info = c2w2, err2, reason2, info2
+    if dropped:
+        info["tags_dropped"] = {str(t): e for t, e in dropped.items()}
+    return c2w, err, reason, info
+
+
 def choose_tag(records: list[PhotoRecord]) -> tuple[int, str]:
     """The tag id seen in the most photos, and a note about the choice."""
     counts: dict[int, int] = {}
@@ -179,21 +246,23 @@ def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
             r.skip(why)
             continue
         cam = cams.setdefault((w, h), camera.scaled_to(w, h))
-        c2w, err, reason, info = solve_pose(r.detection, cam, layout)
+        det = r.detection
+        sides = [tag_side_px(det, int(t)) for t in set(int(i) for i in det.ids)
+                 if int(t) in layout.tags and layout.charuco is None]
+        limit, how = error_limit(cam, max(sides, default=0.0), cfg)
+        c2w, err, reason, info = solve_pose_robust(det, cam, layout, limit)
         r.info.update(info)
         if c2w is None:
             r.error_px = None if not np.isfinite(err) else err
             r.skip(reason + (blur_hint(records, r) if reason.startswith(("no tags", "tag ")) else ""))
             continue
         r.error_px = err
-        sides = [np.linalg.norm(r.detection.corners[list(r.detection.ids).index(t)] -
-                                np.roll(r.detection.corners[list(r.detection.ids).index(t)], -1, axis=0), axis=1).mean()
-                 for t in info.get("tags_used", []) if layout.charuco is None]
-        if sides and max(sides) < cfg.min_tag_px:
-            r.skip(f"tag too small ({max(sides):.0f} px across < {cfg.min_tag_px:g} px) for a reliable pose")
+        side = max((tag_side_px(det, t) for t in info.get("tags_used", []) if layout.charuco is None), default=None)
+        if side is not None and side < cfg.min_tag_px:
+            r.skip(f"tag too small ({side:.0f} px across < {cfg.min_tag_px:g} px) for a reliable pose")
             continue
-        if err > cfg.max_error:
-            r.skip(f"bad fit: reprojection error {err:.2f} px > {cfg.max_error:g} px" + blur_hint(records, r))
+        if err > limit:
+            r.skip(f"bad fit: reprojection error {err:.2f} px > {limit:.2f} px ({how})" + blur_hint(records, r))
             continue
         r.used = True
         r.reason = ""

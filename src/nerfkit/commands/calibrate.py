@@ -45,6 +45,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def selection_table(sel: dict) -> str:
+    """How the distortion model was chosen: one row per model tried."""
+    from ..capture.report import table
+
+    def px(v) -> str:
+        return "-" if v is None else f"{v:.3f}"
+
+    rows = [[m, px(r.get("heldout_rms")), px(r.get("fit_rms")), px(r.get("frame_spread_px")),
+             px(r.get("check", {}).get("corner_displacement_px")),
+             ("chosen" if m == sel["chosen"] else "ok") if r.get("eligible") else (r.get("rejected") or "")]
+            for m, r in sel["models"].items()]
+    head = f"distortion model {sel['chosen']} ({sel['method']}): {sel['why']}"
+    return head + "\n" + table(rows, ["model", "held-out px", "fit px", "edge spread", "corner shift", "verdict"],
+                                max_width=130)
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -97,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"fx {K[0, 0]:.2f} (+/-{std[0]:.2f})  fy {K[1, 1]:.2f} (+/-{std[1]:.2f})  "
           f"cx {K[0, 2]:.2f} (+/-{std[2]:.2f})  cy {K[1, 2]:.2f} (+/-{std[3]:.2f})")
     print("dist k1 k2 p1 p2 k3: " + " ".join(f"{v:.5f}" for v in d))
+    print(selection_table(cal.selection))
     s = cal.sanity
     exif = f", fx / EXIF fx {s['fx_over_exif_fx']:.3f}" if s.get("exif_focal_35mm") else ", no EXIF focal length"
     print(f"checks: fx/fy {s['fx_fy_ratio']:.4f}, principal point {np.hypot(*s['principal_point_offset_px']):.1f} px "

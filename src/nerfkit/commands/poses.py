@@ -47,7 +47,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--focal-px", type=float, help="focal length in pixels, when there is no camera file or EXIF")
     p.add_argument("--tag-size", type=float, help="side of the tag's black square in metres, e.g. 0.06")
     p.add_argument("--tag-id", type=int, help="the tag that defines the world (default: the one seen most)")
-    p.add_argument("--layout", help="layout JSON of several tags to use jointly (their frame is the world)")
+    p.add_argument("--layout", help="layout JSON of several tags to use jointly (their frame is the world); by "
+                   "default the camera file's layout (e.g. the one calibrate estimated) is used when the photos "
+                   "show several of its tags")
+    p.add_argument("--single-tag", action="store_true", help="never use the camera file's layout automatically")
     p.add_argument("--dict", help="ArUco dictionary (default: the camera file's, else DICT_4X4_50)")
     p.add_argument("--out", required=True, metavar="DATASET_DIR", help="dataset folder to write")
     p.add_argument("--no-dataset", action="store_true", help="only write poses.json (build later with `nerfkit dataset`)")
@@ -58,6 +61,37 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_dataclass_args(p, PoseConfig, "poses")
     add_dataclass_args(p, DatasetConfig, "dataset")
     p.set_defaults(func=run)
+
+
+def camera_layout(camera_file: str, dictionary: str, records) -> tuple[object, str]:
+    """(the camera file's layout, a note) when most photos with tags show two or more of its
+    tags; else (None, a note or "")."""
+    import json
+    from pathlib import Path
+
+    import numpy as np
+
+    from ..capture.aruco import layout_from_json
+    from ..errors import NerfkitError
+
+    spec = json.loads(Path(camera_file).read_text()).get("layout")
+    if not isinstance(spec, dict):
+        return None, ""
+    try:
+        layout = layout_from_json(spec, camera_file, dictionary)
+    except NerfkitError as e:
+        return None, f"the camera file's layout is not usable ({e}); posing from one tag"
+    if len(layout.tags) < 2 or layout.charuco is not None:
+        return None, ""
+    counts = [len({int(i) for i in r.detection.ids} & set(layout.tags)) for r in records
+              if r.detection is not None and len(r.detection.ids)]
+    several = sum(c >= 2 for c in counts)
+    if not counts or several < 0.5 * len(counts):
+        return None, ""
+    return layout, (f"using the camera file's layout of {len(layout.tags)} tags (world: its frame, tag "
+                    f"{min(layout.tags, key=lambda t: np.abs(layout.tags[t].mean(0)).sum())} at the origin): "
+                    f"{several} of {len(counts)} photos with tags show 2 or more of them. Pass --single-tag "
+                    "to pose from one tag")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -104,6 +138,10 @@ def run(args: argparse.Namespace) -> int:
     records = scan_photos(args.photos, dictionary, layout, args.detect_size, cache, args.jobs or default_jobs())
     require_tags(records, args.photos, dictionary)
     notes = []
+    if layout is None and args.camera and args.tag_id is None and not args.single_tag:
+        layout, note = camera_layout(args.camera, dictionary, records)
+        if note:
+            notes.append(note)
     if layout is None:
         tag_id = args.tag_id
         if tag_id is None:
@@ -126,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
     meta = {"photos_dir": str(Path(args.photos).resolve()), "dictionary": dictionary, "tag_size": tag_size,
             "layout": layout.to_json(), "world": "tag frame: origin at the tag centre, x right and y up along the "
             "printed tag, z out of the tag toward the cameras (scene up); metres", "notes": notes,
-            "max_error_px": pcfg.max_error}
+            "max_error_px": pcfg.max_error or "auto: max(3 x held-out error, 1 px, 2% of the tag side)"}
     out.mkdir(parents=True, exist_ok=True)
     write_poses_json(out / POSES_FILE, records, posed, camera, meta)
 

@@ -1,0 +1,105 @@
+"""Calibrate + pose real phone captures and print what came out (no photos in the repository).
+
+Runs ``nerfkit calibrate`` on a capture's calibration folder and ``nerfkit poses`` (only
+poses.json, ``--no-dataset``) on its object folder, then prints one row per capture:
+photos, photos with a tag detected, photos posed, the distortion model chosen and its
+coefficients, the held-out reprojection error, and fx against the EXIF focal length::
+
+    python benchmarks/capture_real.py                       # both dev captures
+    python benchmarks/capture_real.py --labubu /path/labubu --steve /path/steve --work /tmp/cr
+
+The capture folders default to ``../shared/data/captures/{labubu,steve}`` relative to the
+repository. Outputs go to --work (default /tmp/nerfkit_capture_real).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_ROOT = REPO.parent / "shared" / "data" / "captures"
+
+# name -> (calibration subfolder, object subfolder, tag side in metres)
+CAPTURES = {
+    "labubu": ("calibration_resized", "myscan_resized", 0.06),
+    "steve": ("calibration", "object", 0.055),
+}
+
+
+def run_capture(name: str, folder: Path, work: Path, extra: list[str]) -> dict:
+    from nerfkit.cli import main
+
+    calib, obj, tag = CAPTURES[name]
+    out = work / name
+    cam = out / "camera.json"
+    t0 = time.perf_counter()
+    if main(["calibrate", str(folder / calib), "--tag-size", str(tag), "--out", str(cam), *extra]) != 0:
+        raise SystemExit(f"{name}: calibrate failed")
+    t_cal = time.perf_counter() - t0
+    if main(["poses", str(folder / obj), "--camera", str(cam), "--tag-size", str(tag), "--out", str(out / "poses"),
+             "--no-dataset"]) != 0:
+        raise SystemExit(f"{name}: poses failed")
+    c = json.loads(cam.read_text())
+    p = json.loads((out / "poses" / "poses.json").read_text())
+    photos = p["photos"]
+    detected = [x for x in photos if x.get("tags")]
+    exif = c["sanity"].get("exif_fx")
+    return {
+        "capture": name, "calib_photos": len(c["images"]), "calib_used": c["photos_used"],
+        "model": c["dist_model"], "dist": c["dist"], "heldout": c.get("heldout_rms"), "rms": c["rms"],
+        "fx": c["fx"], "exif_fx": exif, "photos": len(photos), "detected": len(detected),
+        "posed": sum(x["used"] for x in photos), "second_pass": sum(1 for x in photos if x.get("detection")),
+        "calib_s": t_cal, "why": c["model_selection"]["why"],
+        "dropped": [f"{x['file']}: {x['reason']}" for x in detected if not x["used"]],
+    }
+
+
+def print_table(rows: list[dict]) -> None:
+    from nerfkit.capture.report import table
+
+    out = []
+    for r in rows:
+        k = r["dist"]
+        exif = f"{r['fx']:.1f} / {r['exif_fx']:.1f} ({(r['fx'] / r['exif_fx'] - 1) * 100:+.1f}%)" if r["exif_fx"] \
+            else f"{r['fx']:.1f} / no EXIF"
+        out.append([r["capture"], f"{r['calib_used']}/{r['calib_photos']}", r["photos"], r["detected"],
+                    f"{r['posed']} ({r['posed'] / max(r['detected'], 1) * 100:.0f}%)", r["model"],
+                    " ".join(f"{v:+.3f}" for v in k[:2]) + (f" p {k[2]:+.3f} {k[3]:+.3f}" if any(k[2:4]) else ""),
+                    f"{r['heldout']:.3f}", exif])
+    print(table(out, ["capture", "calib used", "photos", "tag found", "posed", "model", "k1 k2 (p1 p2)",
+                      "held-out px", "fx / EXIF fx"], max_width=160))
+    for r in rows:
+        print(f"\n{r['capture']}: {r['why']}; calibration took {r['calib_s']:.1f} s; "
+              f"{r['second_pass']} photos found by the second detection pass")
+        for d in r["dropped"]:
+            print(f"  dropped {d}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    for name in CAPTURES:
+        ap.add_argument(f"--{name}", type=Path, default=DEFAULT_ROOT / name, help=f"the {name} capture folder")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/nerfkit_capture_real"))
+    ap.add_argument("--only", choices=list(CAPTURES), help="run one capture")
+    ap.add_argument("--dist-model", default="auto", help="passed to nerfkit calibrate (compare with e.g. k1k2p1p2)")
+    args = ap.parse_args()
+    rows = []
+    for name in CAPTURES:
+        folder = getattr(args, name)
+        if args.only and name != args.only:
+            continue
+        if not folder.is_dir():
+            print(f"skipping {name}: no folder {folder}", file=sys.stderr)
+            continue
+        rows.append(run_capture(name, folder, args.work, ["--dist-model", args.dist_model]))
+    print()
+    print_table(rows)
+    return 0 if rows else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
