@@ -61,6 +61,75 @@ def contract_disc(q: Tensor) -> Tensor:
     return torch.where(r <= 1.0, q, (2.0 - 1.0 / r) * q / r)
 
 
+def bilinear_taps(uv: Tensor, side: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The four texels under each texture coordinate, as ``grid_sample`` picks them
+    (``align_corners=False``, ``padding_mode="border"``).
+
+    Args:
+        uv: (n, 2) coordinates in [-1, 1] (x: column, y: row); side: texels per side.
+
+    Returns:
+        ``rows (n, 4)`` texel rows (row-major) of the corners 00, 01 (x + 1), 10 (y + 1), 11;
+        ``fx, fy (n,)`` the fractions between them; ``inside (n, 2)`` 1 where the coordinate
+        is not clamped to the border (its derivative is 0 there).
+    """
+    g = ((uv + 1.0) * side - 1.0) / 2.0  # texel coordinates, texel centres at integers
+    inside = ((g >= 0) & (g <= side - 1)).to(uv.dtype)
+    g = g.clamp(0, side - 1)
+    i = g.floor().clamp(max=max(side - 2, 0))
+    f = g - i
+    i = i.long()
+    x0, y0 = i[:, 0], i[:, 1]
+    x1, y1 = (x0 + 1).clamp(max=side - 1), (y0 + 1).clamp(max=side - 1)
+    rows = torch.stack([y0 * side + x0, y0 * side + x1, y1 * side + x0, y1 * side + x1], dim=1)
+    return rows, f[:, 0], f[:, 1], inside
+
+
+class _SparseTexture(torch.autograd.Function):
+    """Bilinear texture lookup whose texture gradient goes into a GradSink (touched rows
+    only, no dense ``.grad``); the coordinates get their ordinary gradient."""
+
+    @staticmethod
+    def forward(ctx, tex, uv, side, sink):
+        rows, fx, fy, inside = bilinear_taps(uv.detach(), side)
+        t = tex.detach()[rows]  # (n, 4, C)
+        w = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], dim=1)
+        ctx.save_for_backward(t, w, fx, fy, inside, rows)
+        ctx.side, ctx.sink = side, sink
+        return (w.unsqueeze(-1) * t).sum(1)
+
+    @staticmethod
+    def backward(ctx, g):
+        t, w, fx, fy, inside, rows = ctx.saved_tensors
+        sink, side = ctx.sink, ctx.side
+        if ctx.needs_input_grad[0]:
+            contrib = (w.unsqueeze(-1) * g.unsqueeze(1)).reshape(-1, g.shape[1])
+            flat = rows.reshape(-1)
+            sink.grad[0].index_add_(0, flat, contrib.to(sink.grad.dtype))
+            sink.touched[flat] = 1
+            sink.dirty = True
+        g_uv = None
+        if ctx.needs_input_grad[1]:
+            fx_, fy_ = fx.unsqueeze(-1), fy.unsqueeze(-1)
+            dx = (1 - fy_) * (t[:, 1] - t[:, 0]) + fy_ * (t[:, 3] - t[:, 2])  # d value / d texel x
+            dy = (1 - fx_) * (t[:, 2] - t[:, 0]) + fx_ * (t[:, 3] - t[:, 1])
+            g_uv = torch.stack([(g * dx).sum(-1), (g * dy).sum(-1)], dim=-1) * inside * (side / 2.0)
+        return None, g_uv, None, None
+
+
+def sample_texture(tex: Tensor, side: int, uv: Tensor, sink=None) -> Tensor:
+    """Bilinear lookup of a (side * side, C) row-major texture at (n, 2) coordinates in
+    [-1, 1] -> (n, C), exactly ``F.grid_sample(..., align_corners=False,
+    padding_mode="border")``. With a ``sink`` (:class:`~nerfkit.kernels.ops.GradSink`)
+    the texture's gradient is added there, sparsely, instead of into ``tex.grad``."""
+    if sink is not None and tex.requires_grad and torch.is_grad_enabled():
+        return _SparseTexture.apply(tex, uv, side, sink)
+    img = tex.reshape(1, side, side, -1).permute(0, 3, 1, 2)
+    out = F.grid_sample(img, uv.reshape(1, 1, -1, 2).to(img.dtype), mode="bilinear", padding_mode="border",
+                        align_corners=False)
+    return out[0, :, 0].t()
+
+
 class TablePlane(nn.Module):
     """An opaque textured plane: where rays stop and which colour they see there.
 
@@ -104,17 +173,18 @@ class TablePlane(nn.Module):
 
     def hit(self, origins: Tensor, dirs: Tensor) -> Tensor:
         """(n,) distance to the plane along each ray, ``inf`` for rays that miss it."""
-        return plane_hit(origins, dirs, self.plane)
+        with torch.autocast(origins.device.type, enabled=False):
+            return plane_hit(origins.float(), dirs.float(), self.plane)
 
     def texture_coords(self, points: Tensor) -> Tensor:
         """(n, 3) points on the plane -> (n, 2) texture coordinates in [-1, 1]."""
         q = (points - self.origin) @ self.axes / self.radius
         return 0.5 * contract_disc(q)
 
-    def colour(self, points: Tensor) -> Tensor:
-        """(n, 3) points on the plane -> (n, 3) colours in (0, 1)."""
-        uv = self.texture_coords(points.float()).reshape(1, 1, -1, 2)
-        logits = sum(F.grid_sample(t.reshape(1, side, side, 3).permute(0, 3, 1, 2), uv, mode="bilinear",
-                                   padding_mode="border", align_corners=False)
-                     for t, side in self.textures())
-        return torch.sigmoid(logits[0, :, 0].t())
+    def colour(self, points: Tensor, sinks: dict | None = None) -> Tensor:
+        """(n, 3) points on the plane -> (n, 3) colours in (0, 1). ``sinks``: a GradSink
+        per texture parameter, to receive the texture gradients sparsely."""
+        sinks = sinks or {}
+        with torch.autocast(points.device.type, enabled=False):  # texel indices need float32
+            uv = self.texture_coords(points.float())
+            return torch.sigmoid(sum(sample_texture(t, side, uv, sinks.get(t)) for t, side in self.textures()))

@@ -252,7 +252,7 @@ class FastNeRF(NerfModel):
             return bg.expand_as(d)
         on_table = o[hit] + d[hit] * t_table[hit].unsqueeze(-1)
         out = bg.expand_as(d).clone()
-        out[hit] = self.table.colour(on_table).to(out.dtype)
+        out[hit] = self.table.colour(on_table, self.table_sinks).to(out.dtype)
         return out
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
