@@ -1,11 +1,17 @@
-"""Calibrate + pose real phone captures and print what came out (no photos in the repository).
+"""Real phone captures end to end: calibrate -> poses -> train -> eval -> render (no photos in the repository).
 
-Runs ``nerfkit calibrate`` on a capture's calibration folder and ``nerfkit poses`` (only
-poses.json, ``--no-dataset``) on its object folder, then prints one row per capture:
-photos, photos with a tag detected, photos posed, the distortion model chosen and its
-coefficients, the held-out reprojection error, and fx against the EXIF focal length::
+Runs ``nerfkit calibrate`` on a capture's calibration folder, ``nerfkit poses`` on its
+object folder (building the dataset), ``nerfkit train`` for ``--minutes`` (the dataset
+records it is a capture, so training picks the capture settings unless ``--capture off``),
+``nerfkit eval --split val`` (scored as rendered, and after fitting each held-out view's
+pose and exposure with the scene frozen) and ``nerfkit render`` (orbit and depth videos).
+Prints one row per capture: photos, photos with a tag detected, photos posed, the
+distortion model chosen and its coefficients, the held-out reprojection error, fx against
+the EXIF focal length, then the training steps and validation PSNR/SSIM. The contact
+sheet (validation photo beside render) is RUN/eval_val.png::
 
-    python benchmarks/capture_real.py                       # both dev captures
+    python benchmarks/capture_real.py                       # both dev captures, 3 minutes each
+    python benchmarks/capture_real.py --minutes 0           # calibration and poses only
     python benchmarks/capture_real.py --labubu /path/labubu --steve /path/steve --work /tmp/cr
 
 The capture folders default to ``../shared/data/captures/{labubu,steve}`` relative to the
@@ -30,7 +36,26 @@ CAPTURES = {
 }
 
 
-def run_capture(name: str, folder: Path, work: Path, extra: list[str]) -> dict:
+def train_capture(name: str, out: Path, minutes: float, capture: str) -> dict:
+    """Train, evaluate and render one capture's dataset; the figures of the run."""
+    from nerfkit.cli import main
+
+    run = out / f"run_{capture}"
+    if main(["train", "--data", str(out / "poses" / "dataset.npz"), "--out", str(run), "--minutes", str(minutes),
+             "--capture", capture]) != 0:
+        raise SystemExit(f"{name}: train failed")
+    if main(["eval", str(run), "--split", "val"]) != 0:
+        raise SystemExit(f"{name}: eval failed")
+    if main(["render", str(run)]) != 0:
+        raise SystemExit(f"{name}: render failed")
+    e = json.loads((run / "eval_val.json").read_text())
+    m = json.loads((run / "metrics.json").read_text())
+    return {"steps": m["step"], "val_psnr": e["psnr"], "val_ssim": e["ssim"], "n_val": e["n_images"],
+            "fitted_psnr": e.get("fitted", {}).get("psnr"), "fitted_ssim": e.get("fitted", {}).get("ssim"),
+            "sheet": str(run / "eval_val.png"), "run": str(run)}
+
+
+def run_capture(name: str, folder: Path, work: Path, extra: list[str], dataset: bool = False) -> dict:
     from nerfkit.cli import main
 
     calib, obj, tag = CAPTURES[name]
@@ -41,7 +66,7 @@ def run_capture(name: str, folder: Path, work: Path, extra: list[str]) -> dict:
         raise SystemExit(f"{name}: calibrate failed")
     t_cal = time.perf_counter() - t0
     if main(["poses", str(folder / obj), "--camera", str(cam), "--tag-size", str(tag), "--out", str(out / "poses"),
-             "--no-dataset"]) != 0:
+             *([] if dataset else ["--no-dataset"])]) != 0:
         raise SystemExit(f"{name}: poses failed")
     c = json.loads(cam.read_text())
     p = json.loads((out / "poses" / "poses.json").read_text())
@@ -77,6 +102,15 @@ def print_table(rows: list[dict]) -> None:
               f"{r['second_pass']} photos found by the second detection pass")
         for d in r["dropped"]:
             print(f"  dropped {d}")
+    trained = [r for r in rows if "steps" in r]
+    if trained:
+        print()
+        print(table([[r["capture"], r["capture_mode"], r["steps"], r["n_val"], f"{r['val_psnr']:.2f}",
+                      f"{r['val_ssim']:.3f}",
+                      "-" if r["fitted_psnr"] is None else f"{r['fitted_psnr']:.2f} / {r['fitted_ssim']:.3f}",
+                      r["sheet"]] for r in trained],
+                    ["capture", "--capture", "steps", "val views", "val PSNR", "val SSIM",
+                     "PSNR / SSIM, pose+exposure fitted", "contact sheet"], max_width=200))
 
 
 def main() -> int:
@@ -86,6 +120,8 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=Path("/tmp/nerfkit_capture_real"))
     ap.add_argument("--only", choices=list(CAPTURES), help="run one capture")
     ap.add_argument("--dist-model", default="auto", help="passed to nerfkit calibrate (compare with e.g. k1k2p1p2)")
+    ap.add_argument("--minutes", type=float, default=3.0, help="training minutes per capture (0: no training)")
+    ap.add_argument("--capture", default="auto", choices=["auto", "on", "off"], help="passed to nerfkit train")
     args = ap.parse_args()
     rows = []
     for name in CAPTURES:
@@ -95,7 +131,11 @@ def main() -> int:
         if not folder.is_dir():
             print(f"skipping {name}: no folder {folder}", file=sys.stderr)
             continue
-        rows.append(run_capture(name, folder, args.work, ["--dist-model", args.dist_model]))
+        row = run_capture(name, folder, args.work, ["--dist-model", args.dist_model], dataset=args.minutes > 0)
+        if args.minutes > 0:
+            row.update(capture_mode=args.capture,
+                       **train_capture(name, args.work / name, args.minutes, args.capture))
+        rows.append(row)
     print()
     print_table(rows)
     return 0 if rows else 1

@@ -107,3 +107,12 @@ def test_exposure_correction_recovers_known_gains_while_the_scene_is_learned():
         opt.step()
     expected = (gains / gains.log().mean(0).exp()).numpy()  # relative to the average view
     np.testing.assert_allclose(exposure.gains(), expected, rtol=0.02)
+
+
+def test_a_common_motion_of_every_view_is_no_correction():
+    pose = PoseCorrection(3, scale=1.0)
+    with torch.no_grad():
+        pose.rotation[:] = torch.tensor([0.1, 0.0, 0.0])
+        pose.translation[:] = torch.tensor([0.0, 0.2, 0.0])
+    c2w = np.repeat(np.eye(4)[None], 3, 0)
+    np.testing.assert_allclose(pose.corrected_c2w(c2w), c2w, atol=1e-7)

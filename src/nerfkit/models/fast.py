@@ -82,7 +82,9 @@ class FastConfig:
     table: bool = option(False, "rays stop at the scene's table plane (a tag capture's tag plane), which shows a "
                          "learned texture: the box then holds only the object")
     table_resolution: int = option(1024, "texels per side of the table texture")
-    table_lr_ratio: float = option(0.5, "learning rate of the table texture relative to --lr")
+    table_lr_ratio: float = option(1.0, "learning rate of the table texture relative to --lr")
+    opacity_weight: float = option(0.01, "with --table: weight of the mean opacity of the box in the loss, so that "
+                                   "what the table and the room explain is not copied into clouds of density")
     kernels: str = option("auto", "auto (compiled numba on the CPU when available), numba, or torch",
                           choices=["auto", "numba", "torch"])
 
@@ -285,6 +287,12 @@ class FastNeRF(NerfModel):
         inside = ((pts >= self.geom.lo) & (pts <= self.geom.hi)).all(-1)
         raw = ref.grid_interp(self.grid[:, :1], ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res)
         return self.density_scale * F.softplus(raw[:, 0]) * inside
+
+    def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
+        loss = torch.mean((out.rgb - target_rgb) ** 2)
+        if self.table is not None and self.config.opacity_weight > 0:
+            loss = loss + self.config.opacity_weight * out.acc.float().mean()
+        return loss
 
     # -- optimisation ----------------------------------------------------------------
     def param_groups(self, lr: float) -> list[dict]:

@@ -44,7 +44,9 @@ class PoseCorrection(nn.Module):
 
     View ``i`` sees along ``R_i d`` from ``o + scale * t_i``, with ``R_i = exp([w_i]_x)``;
     ``scale`` (the scene's size) makes one unit of ``t`` comparable to one radian of ``w``
-    for the optimizer.
+    for the optimizer. With several views the mean of ``w`` and of ``t`` is removed: moving
+    every camera and the scene together changes no photo, so without this the whole rig
+    could drift away from the poses the held-out views are given in.
 
     Args:
         n_views: number of views; scale: scene length unit of the translations.
@@ -56,27 +58,35 @@ class PoseCorrection(nn.Module):
         self.translation = nn.Parameter(torch.zeros(n_views, 3))
         self.scale = float(scale)
 
+    def centred(self) -> tuple[Tensor, Tensor]:
+        """(n_views, 3) rotation vectors and translations, mean removed (one view: as is)."""
+        if self.rotation.shape[0] == 1:
+            return self.rotation, self.translation
+        return self.rotation - self.rotation.mean(0), self.translation - self.translation.mean(0)
+
     def forward(self, rays: Rays, view: Tensor) -> Rays:
         """Rays (n_rays) of views ``view`` (n_rays,) -> the corrected rays."""
-        R = so3_exp(self.rotation)[view]  # (n_rays, 3, 3)
+        w, t = self.centred()
+        R = so3_exp(w)[view]  # (n_rays, 3, 3)
         d = (R @ rays.directions.unsqueeze(-1)).squeeze(-1)
-        o = rays.origins + self.scale * self.translation[view]
+        o = rays.origins + self.scale * t[view]
         return Rays(o, d)
 
     @torch.no_grad()
     def corrected_c2w(self, c2w: np.ndarray) -> np.ndarray:
         """(n_views, 4, 4) camera-to-world poses with the corrections applied."""
-        R = so3_exp(self.rotation).cpu().double().numpy()
+        w, t = self.centred()
+        R = so3_exp(w).cpu().double().numpy()
         out = np.array(c2w, np.float64, copy=True)
         out[:, :3, :3] = R @ out[:, :3, :3]
-        out[:, :3, 3] += self.scale * self.translation.cpu().double().numpy()
+        out[:, :3, 3] += self.scale * t.cpu().double().numpy()
         return out.astype(np.asarray(c2w).dtype)
 
     @torch.no_grad()
     def magnitudes(self) -> tuple[np.ndarray, np.ndarray]:
         """Per view: rotation angle (degrees) and translation length (scene units)."""
-        deg = np.degrees(self.rotation.norm(dim=1).cpu().numpy())
-        return deg, self.scale * self.translation.norm(dim=1).cpu().numpy()
+        w, t = self.centred()
+        return np.degrees(w.norm(dim=1).cpu().numpy()), self.scale * t.norm(dim=1).cpu().numpy()
 
 
 class ExposureCorrection(nn.Module):
