@@ -102,6 +102,8 @@ def tabletop_scene(n_train: int = 16, n_val: int = 2, size: int = 32, seed: int 
     target = np.array([0.0, 0.0, 1.0])
 
     def views(n: int, s: int, g) -> Views:
+        if n == 0:
+            return Views.empty(size, size)
         rng = np.random.default_rng(s)
         az = rng.uniform(0, 2 * np.pi, n)
         el = np.deg2rad(rng.uniform(20.0, 50.0, n))

@@ -83,7 +83,7 @@ class FastConfig:
                          "learned texture: the box then holds only the object")
     table_resolution: int = option(1024, "texels per side of the table texture")
     table_lr_ratio: float = option(1.0, "learning rate of the table texture relative to --lr")
-    opacity_weight: float = option(0.01, "with --table: weight of the mean opacity of the box in the loss, so that "
+    opacity_weight: float = option(0.005, "with --table: weight of the mean opacity of the box in the loss, so that "
                                    "what the table and the room explain is not copied into clouds of density")
     kernels: str = option("auto", "auto (compiled numba on the CPU when available), numba, or torch",
                           choices=["auto", "numba", "torch"])
