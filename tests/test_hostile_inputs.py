@@ -253,11 +253,11 @@ def edited_run(tiny_run, tmp_path, edit_config=None, edit_checkpoint=None) -> Pa
         cfg = json.loads((run / "config.json").read_text())
         cfg = edit_config(cfg) or cfg
         (run / "config.json").write_text(json.dumps(cfg))
-    if edit_checkpoint:
-        path = sorted((run / "checkpoints").glob("*.pt"))[-1]
-        ckpt = torch.load(path, weights_only=True)
-        edit_checkpoint(ckpt)
-        torch.save(ckpt, path)
+    if edit_checkpoint:  # the newest checkpoint and the final model.pt hold the same model
+        for path in (sorted((run / "checkpoints").glob("*.pt"))[-1], run / "model.pt"):
+            ckpt = torch.load(path, weights_only=True)
+            edit_checkpoint(ckpt)
+            torch.save(ckpt, path)
     return run
 
 
@@ -442,7 +442,7 @@ def _broken_inputs(root: Path, run: Path) -> dict[str, Path]:
     nan_run = shutil.copytree(run, root / "nan_run")
     import torch
 
-    for p in (nan_run / "checkpoints").glob("*.pt"):
+    for p in nan_run.rglob("*.pt"):  # the checkpoints and the final model.pt
         ckpt = torch.load(p, weights_only=True)
         for k, v in ckpt["model"].items():
             if v.is_floating_point():
@@ -453,6 +453,11 @@ def _broken_inputs(root: Path, run: Path) -> dict[str, Path]:
     (root / "poses").mkdir(exist_ok=True)
     (root / "poses" / "poses.json").write_text('{"format": "nerfkit-poses", "camera": 5}')
     b["poses_json"] = root / "poses"
+    outside = root / "outside"  # a transforms.json whose frame reaches out of its folder
+    outside.mkdir(exist_ok=True)
+    frame = {"file_path": "/etc/hostname", "transform_matrix": np.eye(4).tolist()}
+    (outside / "transforms.json").write_text(json.dumps({"fl_x": 10, "w": 8, "h": 8, "frames": [frame]}))
+    b["outside_paths"] = outside
     return b
 
 
@@ -486,6 +491,20 @@ CASES = [
     ("dataset broken poses.json", lambda b, t: ["dataset", str(b["poses_json"]), "--out", str(t / "ds")]),
     ("view --png truncated", lambda b, t: ["view", str(b["truncated_npz"]), "--png", str(t / "v.png")]),
     ("view --png non-rigid", lambda b, t: ["view", str(b["nonrigid_npz"]), "--png", str(t / "v.png")]),
+    # issue 12: paths outside the dataset, outputs onto inputs, numbers checked when parsed
+    ("train --data outside paths", lambda b, t: ["train", "--data", str(b["outside_paths"]), "--out", str(t / "r"),
+                                                 "--steps", "1"]),
+    ("convert outside paths", lambda b, t: ["convert", str(b["outside_paths"]), "--to", str(t / "o.npz")]),
+    ("convert onto its source", lambda b, t: ["convert", str(b["outside_paths"] / "transforms.json"), "--to",
+                                              str(b["outside_paths"]), "--force"]),
+    ("train --minutes nan", lambda b, t: ["train", "--data", str(b["nonrigid_npz"]), "--out", str(t / "r"),
+                                          "--minutes", "nan"]),
+    ("train --lr inf", lambda b, t: ["train", "--data", str(b["nonrigid_npz"]), "--out", str(t / "r"), "--lr", "inf"]),
+    ("train --resume --lr", lambda b, t: ["train", "--resume", str(b["run"]), "--lr", "1"]),
+    ("render --fps 0", lambda b, t: ["render", str(b["run"]), "--fps", "0", "--out", str(t / "v")]),
+    ("render --chunk -1", lambda b, t: ["render", str(b["run"]), "--chunk", "-1"]),
+    ("eval --chunk -1", lambda b, t: ["eval", str(b["run"]), "--chunk", "-1"]),
+    ("export --resolution 0", lambda b, t: ["export", str(b["run"]), "--mesh", str(t / "m.ply"), "--resolution", "0"]),
 ]
 
 

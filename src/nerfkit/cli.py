@@ -12,7 +12,7 @@ import importlib
 import sys
 import traceback
 
-from .errors import NerfkitError
+from .errors import NerfkitError, is_out_of_memory
 
 # In the order --help lists them.
 COMMANDS = [
@@ -41,11 +41,23 @@ typical flows:
 """
 
 
+class UsageError(Exception):
+    """A bad command line (unknown flag, a number out of range): one line, exit code 2."""
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse, but a bad command line is one line on stderr (as every other error is),
+    not the usage block: ``nerfkit render: error: argument --fps: 0 is below the minimum 1``."""
+
+    def error(self, message: str):
+        raise UsageError(f"{self.prog}: error: {message} (see {self.prog} --help)")
+
+
 def build_parser(only: str | None = "") -> argparse.ArgumentParser:
     """The full parser; with ``only`` a command name (or None for no command), the other
     commands get a one-line stub, which is all the top-level ``--help`` shows. Registering
     ``train`` imports torch (its model flags), so ``nerfkit --help`` skips it."""
-    parser = argparse.ArgumentParser(prog="nerfkit", description=DESCRIPTION,
+    parser = Parser(prog="nerfkit", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--verbose", action="store_true", help="show full tracebacks on errors")
     parser.add_argument("--version", action="version", version=f"nerfkit {_version()}")
@@ -73,7 +85,11 @@ def _version() -> str:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser(command_in(argv))
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except UsageError as e:
+        print(e, file=sys.stderr)
+        return 2
     if args.command is None:
         parser.print_help()
         return 2
@@ -83,6 +99,14 @@ def main(argv: list[str] | None = None) -> int:
         if args.verbose:
             traceback.print_exc()
         print(f"nerfkit {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except (MemoryError, RuntimeError) as e:
+        if not is_out_of_memory(e):
+            raise
+        if args.verbose:
+            traceback.print_exc()
+        hint = getattr(sys.modules[args.func.__module__], "MEMORY_HINT", "Use smaller inputs")
+        print(f"nerfkit {args.command}: error: out of memory ({type(e).__name__}). {hint}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"nerfkit {args.command}: interrupted", file=sys.stderr)

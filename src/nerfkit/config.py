@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import types
 import typing
 from pathlib import Path
@@ -20,7 +21,8 @@ T = TypeVar("T")
 
 
 def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors argparse
-    """A dataclass field with a default and a help line."""
+    """A dataclass field with a default and a help line; ``min``, ``max`` (inclusive) and
+    ``above`` (exclusive) bound a number's flag, checked when the command line is parsed."""
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})
 
 
@@ -34,6 +36,38 @@ def _base_type(tp: Any) -> tuple[Any, bool]:
         args = [a for a in typing.get_args(tp) if a is not type(None)]
         return args[0], True
     return tp, False
+
+
+def number(kind: type = float, min: float | None = None, max: float | None = None,  # noqa: A002 - reads like a range
+           above: float | None = None) -> Any:
+    """An argparse ``type`` for a finite ``kind`` (int or float) within [min, max] (or > above):
+    ``--minutes nan``, ``--fps 0`` or ``--chunk -1`` are refused when the command line is parsed."""
+
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(f"'{text}' is not {'a whole number' if kind is int else 'a number'}") from None
+        if kind is float and not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"'{text}' is not a finite number")
+        if min is not None and v < min:
+            raise argparse.ArgumentTypeError(f"{text} is below the minimum {min}")
+        if max is not None and v > max:
+            raise argparse.ArgumentTypeError(f"{text} is above the maximum {max}")
+        if above is not None and not v > above:
+            raise argparse.ArgumentTypeError(f"{text} must be greater than {above}")
+        return v
+
+    parse.__name__ = kind.__name__  # argparse names the type in its messages
+    return parse
+
+
+def _field_type(tp: Any, meta: Any) -> Any:
+    """The argparse type of a field: numbers are checked (finite, and the field's
+    ``min``/``max``/``above`` metadata); other types pass through."""
+    if tp in (int, float):
+        return number(tp, meta.get("min"), meta.get("max"), meta.get("above"))
+    return tp if tp is str else str
 
 
 def add_dataclass_args(parser: argparse.ArgumentParser, cls: type, group_title: str | None = None,
@@ -55,7 +89,7 @@ def add_dataclass_args(parser: argparse.ArgumentParser, cls: type, group_title: 
         if tp is bool:
             target.add_argument(_flag(f.name), action=argparse.BooleanOptionalAction, **kw)
         else:
-            target.add_argument(_flag(f.name), type=tp if tp in (int, float, str) else str,
+            target.add_argument(_flag(f.name), type=_field_type(tp, f.metadata),
                                 metavar=f.metadata.get("metavar", tp.__name__.upper() if hasattr(tp, "__name__") else "X"),
                                 **kw)
 
@@ -87,6 +121,8 @@ def dataclass_from_dict(cls: type[T], d: dict, where: str) -> T:
         elif tp is float and isinstance(v, (int, float)) and not isinstance(v, bool):
             if v != v:
                 raise fail(where, f"config key '{k}' is NaN, expected a number")
+            if not math.isfinite(v):
+                raise fail(where, f"config key '{k}' is {v}, expected a finite number")
             out[k] = float(v)
         elif tp in (int, str, bool) and type(v) is tp:
             out[k] = v

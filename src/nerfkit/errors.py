@@ -31,3 +31,11 @@ def advice(fix: str) -> Iterator[None]:
         yield
     except NerfkitError as e:
         raise NerfkitError(f"{e}. {fix}") from None
+
+
+def is_out_of_memory(e: BaseException) -> bool:
+    """A MemoryError, or PyTorch's RuntimeError for an allocation that failed (CPU or CUDA)."""
+    if isinstance(e, MemoryError):
+        return True
+    text = str(e).lower()
+    return isinstance(e, RuntimeError) and any(s in text for s in ("out of memory", "can't allocate memory", "not enough memory"))

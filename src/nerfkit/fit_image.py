@@ -51,28 +51,29 @@ SWEEPABLE = ("L", "width", "depth", "lr", "batch", "steps")
 class FitImageConfig:
     """Hyperparameters of ``nerfkit fit-image`` (each is a flag of the same name)."""
 
-    L: int = option(10, "positional-encoding octaves; the MLP sees 2 * (1 + 2 L) inputs (42 at L = 10)")
-    width: int = option(256, "hidden layer width")
-    depth: int = option(3, "number of hidden Linear+ReLU layers")
-    lr: float = option(1e-2, "Adam learning rate")
-    batch: int = option(10_000, "random pixels per training step")
-    steps: int = option(2000, "training steps")
+    L: int = option(10, "positional-encoding octaves; the MLP sees 2 * (1 + 2 L) inputs (42 at L = 10)", min=0,
+                    max=30)
+    width: int = option(256, "hidden layer width", min=1)
+    depth: int = option(3, "number of hidden Linear+ReLU layers", min=1)
+    lr: float = option(1e-2, "Adam learning rate", above=0)
+    batch: int = option(10_000, "random pixels per training step", min=1)
+    steps: int = option(2000, "training steps", min=0)
     seed: int = option(0, "random seed (weights, pixel sampling, PSNR subset); same seed, same result")
     device: str = option("auto", "auto = cuda when available, else cpu", choices=["auto", "cpu", "cuda"])
     precision: str = option("auto", "matmul precision: bf16 autocast or fp32; auto = bf16 on CPUs with native "
                             "bf16 (avx512_bf16/amx) and on CUDA GPUs that support it, else fp32",
                             choices=["auto", "bf16", "fp32"])
     eval_every: int = option(50, "evaluate PSNR for the curve every N steps and at the progression steps (one "
-                             "evaluation of a 512x512 image costs about as much as 9 training steps)")
+                             "evaluation of a 512x512 image costs about as much as 9 training steps)", min=1)
     eval_pixels: int = option(262_144, "the curve's PSNR uses the full image up to this many pixels, else a "
-                              "fixed random subset of this size (the final PSNR always uses every pixel)")
+                              "fixed random subset of this size (the final PSNR always uses every pixel)", min=1)
     progress_steps: str = option("0,50,100,200,500", "steps shown in the progression figure, comma-separated "
                                  "(the final step is always added)", metavar="LIST")
     background: str = option("white", "colour behind transparent pixels: white, black, grey, R,G,B in 0-1, "
                              "or #rrggbb", metavar="COLOUR")
-    chunk: int = option(65_536, "pixels per forward pass when rendering whole images (bounds memory)")
+    chunk: int = option(65_536, "pixels per forward pass when rendering whole images (bounds memory)", min=1)
     preview_size: int = option(1024, "figures show images at full resolution up to this long side, larger "
-                               "images on a downscaled grid")
+                               "images on a downscaled grid", min=8)
 
 
 # ---------------------------------------------------------------------------------------
@@ -430,6 +431,11 @@ def load_target(image: str | Path | None, background: str) -> tuple[np.ndarray, 
 
     path = default_image_path() if image is None else Path(image)
     return load_image(path, parse_background(background)), path
+
+
+# What a fit (write_run) and a sweep (_write_sweep_summary) write into their folder.
+RUN_FILES = ("psnr.png", "progression.png", "final.png", "metrics.json", "config.json")
+SWEEP_FILES = ("sweep_grid.png", "sweep_psnr.png", "sweep.json")
 
 
 def write_run(out: str | Path, result: FitResult, target: np.ndarray, image_path: Path) -> None:

@@ -39,6 +39,10 @@ def _open(path: Path):
         raise fail(path, "is a folder, expected an image file")
     try:
         img = Image.open(path)
+        if img.width * img.height > MAX_IMAGE_PIXELS:  # PIL only warns below twice its limit
+            raise fail(path, f"image is {img.width}x{img.height} ({img.width * img.height / 1e6:.0f} megapixels), "
+                             f"more than nerfkit reads ({MAX_IMAGE_PIXELS / 1e6:.0f} megapixels)",
+                       "Downscale it first")
         img.load()
     except UnidentifiedImageError:
         raise fail(path, "not an image nerfkit can read", "Use JPEG, PNG, TIFF, WebP or HEIC") from None

@@ -29,12 +29,15 @@ from ..data.scene import Scene, Views, estimate_center
 from ..data.validate import MAX_SIDE, check_count, check_poses, check_scene, short_repr
 from ..errors import advice, fail
 from ..io.atomic import write_json
+from ..io.paths import resolve_inside
 from .camera import Camera, camera_from_dict, nerfkit_K
 from .poses import UP, PosedPhoto
 from .undistort import make_undistorter, output_size, resize_K_nerfkit
 
 POSES_FILE = "poses.json"
 NPZ_FILE = "dataset.npz"
+# What build_dataset writes into its folder (checked with nerfkit.io.paths.guard_outputs).
+DATASET_OUTPUTS = (NPZ_FILE, "transforms.json", "images")
 
 
 @dataclass
@@ -246,8 +249,10 @@ def write_poses_json(path: str | Path, records, posed: list[PosedPhoto], camera:
     })
 
 
-def read_poses_json(path: str | Path) -> tuple[list[PosedPhoto], dict]:
-    """Posed photos and the metadata from a poses.json (a dataset folder works too)."""
+def read_poses_json(path: str | Path, allow_outside: bool = False) -> tuple[list[PosedPhoto], dict]:
+    """Posed photos and the metadata from a poses.json (a dataset folder works too).
+
+    Each photo must lie in the recorded photo folder (``allow_outside``: anywhere)."""
     path = Path(path)
     if path.is_dir():
         path = path / POSES_FILE
@@ -264,7 +269,8 @@ def read_poses_json(path: str | Path) -> tuple[list[PosedPhoto], dict]:
             photos = data["photos"]
             if not isinstance(photos, list) or not all(isinstance(d, dict) for d in photos):
                 raise fail(path, "'photos' must be a list of objects")
-            posed = [_posed_photo(d, i, camera, photos_dir, str(path)) for i, d in enumerate(photos) if "c2w" in d]
+            posed = [_posed_photo(d, i, camera, photos_dir, str(path), allow_outside)
+                     for i, d in enumerate(photos) if "c2w" in d]
         except (KeyError, TypeError, ValueError, OverflowError) as e:
             raise fail(path, f"malformed poses.json ({type(e).__name__}: {short_repr(str(e))})") from None
     if not posed:
@@ -272,11 +278,14 @@ def read_poses_json(path: str | Path) -> tuple[list[PosedPhoto], dict]:
     return posed, data
 
 
-def _posed_photo(d: dict, i: int, camera: Camera, photos_dir: Path, where: str) -> PosedPhoto:
+def _posed_photo(d: dict, i: int, camera: Camera, photos_dir: Path, where: str, allow_outside: bool = False) -> PosedPhoto:
     """One photo of poses.json with its checked pose and the camera of its size."""
     w, h = d["size"]
     w = check_count(w, where, f"photos[{i}].size", 1, MAX_SIDE)
     h = check_count(h, where, f"photos[{i}].size", 1, MAX_SIDE)
     c2w = check_poses([d["c2w"]], where, f"photos[{i}].c2w")[0].astype(np.float64)
     cam = camera if (w, h) == (camera.width, camera.height) else camera.scaled_to(w, h)
-    return PosedPhoto(str(d["file"]), photos_dir / d["file"], c2w, float(d.get("error_px") or 0.0), cam)
+    if not isinstance(d["file"], str):
+        raise fail(where, f"photos[{i}].file is {short_repr(d['file'])}, expected a file name")
+    path = resolve_inside(photos_dir, d["file"], allow_outside, f"{where} photos[{i}].file")
+    return PosedPhoto(d["file"], path, c2w, float(d.get("error_px") or 0.0), cam)

@@ -16,22 +16,46 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
 
 
 def add_run_device_args(p: argparse.ArgumentParser) -> None:
+    from ..config import number
+    from ..train.config import MAX_BATCH_RAYS
+
     p.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N (default: auto)")
-    p.add_argument("--chunk", type=int, default=0, help="rays rendered at once; lower it if memory runs out "
-                                                         "(default: the run's render chunk)")
+    p.add_argument("--chunk", type=number(int, 0, MAX_BATCH_RAYS), default=0,
+                   help="rays rendered at once; lower it if memory runs out (default: the run's render chunk)")
+    add_outside_flag(p)
 
 
-def scene_for_run(info, data: str | None):
-    """The run's dataset (or ``data`` when given), with a clear error when it has moved."""
-    from ..data.load import load_scene
+def add_outside_flag(p: argparse.ArgumentParser) -> None:
+    """``--allow-outside-paths``: the opt-in to read dataset files outside the dataset folder."""
+    from ..io.paths import OUTSIDE_FLAG
+
+    p.add_argument(OUTSIDE_FLAG, action="store_true",
+                   help="read dataset images that lie outside the dataset's folder (only for a dataset you trust)")
+
+
+def run_dataset_path(info) -> Path:
+    """The dataset a run was trained on (absolute since runs record it so; older runs
+    recorded it as typed, relative to the folder train ran in)."""
     from ..errors import fail
 
-    path = data or info.train.data
-    if not path:
+    if not info.train.data:
         raise fail(info.run_dir, "the run does not record its dataset", "Pass --data")
-    if not Path(path).exists():
+    path = Path(info.train.data)
+    if not path.exists():
         raise fail(path, "the run's dataset is not there any more", "Pass --data with its new location")
-    return load_scene(path)
+    return path
+
+
+def scene_for_run(info, data: str | None, need: str = "train", allow_outside: bool = False):
+    """The run's dataset (checked against the run's fingerprint), or ``data`` when given."""
+    from ..data.load import load_scene
+    from ..train.checkpoint import check_dataset
+
+    if data:
+        return load_scene(data, need=need, allow_outside=allow_outside)
+    scene = load_scene(run_dataset_path(info), allow_outside=allow_outside or info.train.allow_outside_paths)
+    check_dataset(info, scene)
+    return scene
 
 
 @dataclass

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 HELP = "calibrate a camera from photos of printed ArUco tags"
+MEMORY_HINT = "Lower --detect-size or --jobs"
 
 DESCRIPTION = """\
 Estimate the camera matrix K and lens distortion from 20-50 photos of a printed sheet of
@@ -25,22 +26,23 @@ example:
 
 def register(sub: argparse._SubParsersAction) -> None:
     from ..capture.calibrate import CalibrateConfig
-    from ..config import add_dataclass_args
+    from ..config import add_dataclass_args, number
 
     p = sub.add_parser("calibrate", help=HELP, description=DESCRIPTION,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("photos", metavar="PHOTOS_DIR", help="folder of photos of the tag sheet")
     p.add_argument("--dict", default="DICT_4X4_50", help="ArUco dictionary of the tags (default: DICT_4X4_50)")
-    p.add_argument("--tag-size", type=float, help="side of one tag's black square in metres, e.g. 0.06 "
+    p.add_argument("--tag-size", type=number(float, above=0), help="side of one tag's black square in metres, e.g. 0.06 "
                    "(needed unless the layout file gives sizes)")
     p.add_argument("--layout", help="sheet layout JSON (tag id -> corners/centre, or a GridBoard/ChArUco board)")
     p.add_argument("--out", default="camera.json", help="camera file to write (default: camera.json)")
-    p.add_argument("--detect-size", type=int, default=2000,
+    p.add_argument("--detect-size", type=number(int, 64, 100_000), default=2000,
                    help="detect tags on a copy this many pixels on the long side, then refine corners at full "
                         "resolution (default: 2000)")
-    p.add_argument("--jobs", type=int, default=0, help="photos processed in parallel (default: up to 4 cores)")
+    p.add_argument("--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel (default: up to 4 cores)")
     p.add_argument("--no-cache", action="store_true", help="ignore cached detections")
     p.add_argument("--all-photos", action="store_true", help="list every photo in the summary, not only skipped ones")
+    p.add_argument("--force", action="store_true", help="replace an existing camera file")
     add_dataclass_args(p, CalibrateConfig, "calibration")
     p.set_defaults(func=run)
 
@@ -73,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from ..config import dataclass_from_args
     from ..errors import fail
     from ..io.atomic import write_json
+    from ..io.paths import guard_outputs
 
     cfg = dataclass_from_args(CalibrateConfig, args)
     get_dictionary(args.dict)
@@ -85,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.is_dir():
         out = out / "camera.json"
+    guard_outputs([out], [args.photos, args.layout], args.force)
     cache = None if args.no_cache else out.with_name(out.stem + ".detections.json")
 
     records = scan_photos(args.photos, args.dict, layout, args.detect_size, cache, args.jobs or default_jobs())

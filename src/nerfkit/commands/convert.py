@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+MEMORY_HINT = "Use --size or --downscale to make the images smaller"
 HELP = "convert a dataset between formats (npz, Blender, transforms.json, COLMAP), optionally resized"
 
 EPILOG = """\
@@ -24,6 +25,9 @@ examples:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from ..config import number
+    from ._common import add_outside_flag
+
     p = sub.add_parser("convert", help=HELP, description=HELP + ".", epilog=EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("src", metavar="SRC", help="dataset file or folder")
@@ -31,15 +35,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--format", choices=["auto", "npz", "transforms", "colmap"], default="auto",
                    help="output format; auto: npz for *.npz, else transforms.json (default: auto)")
     size = p.add_mutually_exclusive_group()
-    size.add_argument("--size", type=int, metavar="PX",
+    size.add_argument("--size", type=number(int, 1, 100_000), metavar="PX",
                       help="resample so the longest image side is PX pixels (K follows)")
-    size.add_argument("--downscale", type=float, metavar="F", help="divide the image size by F (K follows)")
+    size.add_argument("--downscale", type=number(float, above=0), metavar="F", help="divide the image size by F (K follows)")
     p.add_argument("--background", default="black",
                    help="colour under transparent pixels of RGBA inputs: black, white or r,g,b in [0, 1] "
                         "(default: black)")
     p.add_argument("--images", metavar="DIR", help="photo folder of a COLMAP model (default: the project's images/)")
     p.add_argument("--text", action="store_true", help="with --format colmap: write the text model instead of binary")
-    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.add_argument("--force", action="store_true", help="replace an existing output (never an input)")
+    add_outside_flag(p)
     p.set_defaults(func=run)
 
 
@@ -70,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..data.load import detect_format, load_scene
     from ..errors import fail
+    from ..io.paths import guard_outputs
 
     out = Path(args.to)
     fmt = output_format(args.to, args.format)
@@ -77,21 +83,21 @@ def run(args: argparse.Namespace) -> int:
         raise fail(out, "an npz output must end in .npz")
     if fmt != "npz" and out.suffix.lower() == ".npz":
         raise fail(out, f"--format {fmt} writes a folder, not an .npz file")
-    if out.exists() and not args.force and (out.is_file() or any(out.iterdir())):
-        raise fail(out, "already exists", "Pass --force to overwrite it, or choose another --to")
-    if Path(args.src).resolve() == out.resolve():
-        raise fail(out, "is the input itself", "Choose another --to")
+    src = Path(args.src)
+    root = src if src.is_dir() or src.suffix.lower() == ".npz" else src.parent  # a json's images sit beside it
+    guard_outputs(output_targets(out, fmt), [src, root, args.images], args.force, "--to")
     background = parse_color(args.background)
     src_fmt = detect_format(args.src)
     if args.images and src_fmt == "colmap":
         from ..data.colmap import load_colmap
 
         scene = load_colmap(args.src, images=args.images, background=background, size=args.size,
-                            downscale=args.downscale)
+                            downscale=args.downscale, allow_outside=args.allow_outside_paths)
     else:
         if args.images:
             raise fail("--images", f"only applies to COLMAP inputs; {args.src} is {src_fmt}")
-        scene = load_scene(args.src, background=background, size=args.size, downscale=args.downscale)
+        scene = load_scene(args.src, background=background, size=args.size, downscale=args.downscale,
+                           allow_outside=args.allow_outside_paths)
     written = write_scene_as(scene, out, fmt, text=args.text)
     n = {k: len(v) for k, v in scene.splits.items()}
     print(f"{args.src} ({src_fmt}) -> {out} ({fmt}): {n['train']} train, {n['val']} val, {n['test']} test views, "
@@ -100,6 +106,16 @@ def run(args: argparse.Namespace) -> int:
     for p in written:
         print(f"  {p}")
     return 0
+
+
+def output_targets(out, fmt: str) -> list:
+    """What ``write_scene_as`` writes: the npz, or the files and folders it puts into ``out``."""
+    from pathlib import Path
+
+    out = Path(out)
+    if fmt == "npz":
+        return [out]
+    return [out / "sparse", out / "images"] if fmt == "colmap" else [out / "transforms.json", out / "images"]
 
 
 def write_scene_as(scene, out, fmt: str, text: bool = False) -> list:
@@ -135,17 +151,22 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
     from pathlib import Path
 
     from ..data.colmap import write_colmap_model
+    from ..errors import fail
     from ..images import IMAGE_SUFFIXES
     from ..io.atomic import write_image
+    from ..io.paths import safe_output_name
 
     out = Path(out)
-    written = []
-    splits = {}
+    written, splits, seen = [], {}, set()
     for split, v in scene.splits.items():
-        names = v.names or [f"{split}_{i:04d}" for i in range(len(v))]
+        names = [safe_output_name(n, f"{split}_{i:04d}") for i, n in enumerate(v.names)] if v.names else \
+            [f"{split}_{i:04d}" for i in range(len(v))]
         names = [n if Path(n).suffix.lower() in IMAGE_SUFFIXES else n + ".png" for n in names]
         if v.images is not None:
             names = [str(Path(n).with_suffix(".png")) for n in names]  # pixels are written as PNG
+            if len(set(names)) < len(names) or seen & set(names):
+                raise fail(out, "two views would both be written as the same image file", "Give the views distinct names")
+            seen |= set(names)
             for name, im in zip(names, v.images):
                 write_image(out / "images" / name, im)
         splits[split] = replace(v, names=names)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+MEMORY_HINT = "Lower --max-side or --jobs"
 HELP = "undistort, resize and split posed photos into a NeRF dataset (npz + transforms.json)"
 
 DESCRIPTION = """\
@@ -13,7 +14,8 @@ pixels, K updated), downscale it,
 split the views into train/val/test, estimate near/far from the cameras and the tag size,
 and write images/, transforms.json (nerfstudio layout, OpenGL axes) and dataset.npz (the
 course layout plus K, near, far, center, up and each view's photo name).
-`nerfkit poses` runs this step itself; run it again to change the size or the split.
+`nerfkit poses` runs this step itself; run it again with --force to change the size or
+the split in place.
 
 example:
   nerfkit dataset my_object/ --max-side 800 --out my_object_800/
@@ -22,13 +24,17 @@ example:
 
 def register(sub: argparse._SubParsersAction) -> None:
     from ..capture.dataset import DatasetConfig
-    from ..config import add_dataclass_args
+    from ..config import add_dataclass_args, number
+    from ._common import add_outside_flag
 
     p = sub.add_parser("dataset", help=HELP, description=DESCRIPTION,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("poses", metavar="DATASET_DIR", help="folder with poses.json from `nerfkit poses` (or the file)")
     p.add_argument("--out", help="folder to write (default: the same folder)")
-    p.add_argument("--jobs", type=int, default=0, help="photos processed in parallel (default: up to 4 cores)")
+    p.add_argument("--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel (default: up to 4 cores)")
+    p.add_argument("--force", action="store_true", help="replace an existing dataset (dataset.npz, transforms.json, "
+                   "images/) in the output folder")
+    add_outside_flag(p)
     add_dataclass_args(p, DatasetConfig, "dataset")
     p.set_defaults(func=run)
 
@@ -51,16 +57,19 @@ def build_and_report(posed, out, cfg, tag_size: float, jobs: int, extra: dict | 
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..capture.dataset import DatasetConfig, read_poses_json
+    from ..capture.dataset import DATASET_OUTPUTS, POSES_FILE, DatasetConfig, read_poses_json
     from ..capture.photos import default_jobs
     from ..config import dataclass_from_args
     from ..data.validate import check_number
     from ..errors import advice, fail
+    from ..io.paths import guard_outputs
 
     cfg = dataclass_from_args(DatasetConfig, args)
-    posed, data = read_poses_json(args.poses)
+    posed, data = read_poses_json(args.poses, allow_outside=args.allow_outside_paths)
     src = Path(args.poses)
     out = Path(args.out) if args.out else (src if src.is_dir() else src.parent)
+    guard_outputs([out / name for name in DATASET_OUTPUTS], [src / POSES_FILE if src.is_dir() else src,
+                                                             *(p.path for p in posed)], args.force)
     with advice("Re-run nerfkit poses"):
         tag_size = check_number(data.get("tag_size"), args.poses, "tag_size", 0.0, expected="the tag size in metres")
     missing = [p.name for p in posed if not Path(p.path).is_file()]

@@ -7,6 +7,7 @@ import argparse
 from ._common import add_run_args
 
 HELP = "evaluate a trained run on held-out images (prints JSON)"
+MEMORY_HINT = "Lower --chunk (rays rendered at once)"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -49,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from ._common import open_run, scene_for_run
 
     run_ = open_run(args)
-    scene = scene_for_run(run_.info, args.data)
+    scene = scene_for_run(run_.info, args.data, need=args.split, allow_outside=args.allow_outside_paths)
     views = scene.splits[args.split]
     if not views.has_images:
         raise fail(scene.source, f"the {args.split} split has no images to compare with",

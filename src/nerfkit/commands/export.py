@@ -7,6 +7,7 @@ import argparse
 # Field points evaluated per call when sampling the density grid and vertex colours.
 POINT_CHUNK = 65536
 
+MEMORY_HINT = "Lower --resolution or --chunk"
 HELP = "export a trained run as a coloured mesh (marching cubes) and/or a point cloud (PLY)"
 
 EPILOG = """\
@@ -25,6 +26,7 @@ examples:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from ..config import number
     from ._common import add_run_device_args
 
     p = sub.add_parser("export", help=HELP, description=HELP + ".", epilog=EPILOG,
@@ -33,24 +35,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mesh", metavar="OUT.ply", help="write a vertex-coloured triangle mesh here")
     p.add_argument("--points", metavar="OUT.ply", help="write a coloured point cloud here")
     g = p.add_argument_group("mesh")
-    g.add_argument("--resolution", type=int, default=256, help="grid cells per side (default: 256)")
-    g.add_argument("--threshold", type=float, default=25.0,
+    g.add_argument("--resolution", type=number(int, 8, 1024), default=256, help="grid cells per side (default: 256)")
+    g.add_argument("--threshold", type=number(float), default=25.0,
                    help="density of the surface (default: 25; higher = tighter, fewer floaters)")
-    g.add_argument("--box-scale", type=float, default=1.0,
+    g.add_argument("--box-scale", type=number(float, above=0), default=1.0,
                    help="scale the scene box (half-size = scene radius x this; default: 1)")
-    g.add_argument("--color-dirs", type=int, default=1,
+    g.add_argument("--color-dirs", type=number(int, 1, 64), default=1,
                    help="view directions averaged per vertex colour (1 = along the normal; default: 1)")
     g = p.add_argument_group("points")
     g.add_argument("--data", help="dataset for the training views (default: the run's)")
-    g.add_argument("--every", type=int, default=1, help="use every N-th training view (default: 1)")
-    g.add_argument("--stride", type=int, default=1, help="use every N-th pixel in each direction (default: 1)")
-    g.add_argument("--acc-min", type=float, default=0.5, help="keep pixels with opacity above this (default: 0.5)")
+    g.add_argument("--every", type=number(int, 1), default=1, help="use every N-th training view (default: 1)")
+    g.add_argument("--stride", type=number(int, 1), default=1, help="use every N-th pixel in each direction (default: 1)")
+    g.add_argument("--acc-min", type=number(float, 0, 0.999), default=0.5, help="keep pixels with opacity above this (default: 0.5)")
     g.add_argument("--no-crop", action="store_true", help="keep points outside the scene box")
+    p.add_argument("--force", action="store_true", help="replace existing output files")
     add_run_device_args(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from ..errors import fail
 
     if not args.mesh and not args.points:
@@ -58,11 +63,13 @@ def run(args: argparse.Namespace) -> int:
     for flag, path in (("--mesh", args.mesh), ("--points", args.points)):
         if path and not path.lower().endswith(".ply"):
             raise fail(flag, f"'{path}' should end in .ply")
-    if args.resolution < 8 or args.resolution > 1024:
-        raise fail("--resolution", f"{args.resolution} is outside 8..1024")
-    if args.box_scale <= 0 or args.every < 1 or args.stride < 1 or not 0 <= args.acc_min < 1:
-        raise fail("export", "--box-scale must be > 0, --every and --stride >= 1, --acc-min in [0, 1)")
+    if args.mesh and args.points and Path(args.mesh).resolve() == Path(args.points).resolve():
+        raise fail("--mesh/--points", "name the same file")
+    from ..io.paths import guard_outputs
+    from ..train.checkpoint import read_run
     from ._common import open_run
+
+    guard_outputs([args.mesh, args.points], [args.data or read_run(args.run).train.data], args.force, "--mesh/--points")
 
     run_ = open_run(args)
     center, radius = run_.info.bounds.center, run_.info.bounds.radius * args.box_scale
@@ -88,7 +95,7 @@ def export_points(run_, center, radius: float, args) -> None:
     from ..render.renderer import render_image
     from ._common import scene_for_run
 
-    scene = scene_for_run(run_.info, args.data)
+    scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
     views = scene.train.subset(list(range(0, len(scene.train), args.every)))
     bg = run_.background()
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+MEMORY_HINT = "Lower --batch and --chunk, or downscale the image"
 HELP = "fit a neural field (x, y) -> RGB to one image; PSNR curve, progression figure, sweeps"
 
 DESCRIPTION = """\
@@ -40,6 +41,7 @@ def register(subparsers) -> None:
                    help="train one model per combination, e.g. --sweep L=3,10 width=64,256 "
                         "(keys: L, width, depth, lr, batch, steps)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--force", action="store_true", help="replace the results of an earlier fit in --out")
     add_dataclass_args(p, FitImageConfig, group_title="model and training")
     p.set_defaults(func=run)
 
@@ -49,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
 
     from ..config import dataclass_from_args
     from ..errors import fail
-    from ..fit_image import FitImageConfig, default_image_path, parse_sweep, run_fit, run_sweep
+    from ..fit_image import RUN_FILES, SWEEP_FILES, FitImageConfig, default_image_path, parse_sweep, run_fit, run_sweep
+    from ..io.paths import guard_outputs
 
     cfg = dataclass_from_args(FitImageConfig, args)
     image = args.image
@@ -61,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
         raise fail("--sweep", "no KEY=V1,V2 items", "Example: --sweep L=3,10 width=64,256")
     stem = Path(image).stem if image else default_image_path().stem
     out = Path(args.out) if args.out else Path("runs") / "fit-image" / (stem + ("-sweep" if sweep else ""))
+    guard_outputs([out / name for name in (SWEEP_FILES if sweep else RUN_FILES)], [image], args.force)
     progress = not args.quiet
 
     if sweep:

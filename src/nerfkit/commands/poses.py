@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+MEMORY_HINT = "Lower --max-side, --detect-size or --jobs"
 HELP = "pose photos of an object beside an ArUco tag and build a NeRF dataset"
 
 DESCRIPTION = """\
@@ -32,7 +33,7 @@ examples:
 def register(sub: argparse._SubParsersAction) -> None:
     from ..capture.dataset import DatasetConfig
     from ..capture.poses import PoseConfig
-    from ..config import add_dataclass_args
+    from ..config import add_dataclass_args, number
 
     p = sub.add_parser("poses", help=HELP, description=DESCRIPTION,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -42,11 +43,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "for photos without tags (a tag, with --tag-size, then fixes scale and up)")
     p.add_argument("--matcher", choices=["auto", "exhaustive", "sequential"], default="auto",
                    help="SfM matching with --method colmap (auto: exhaustive up to 100 photos)")
-    p.add_argument("--sfm-max-size", type=int, default=1000, help="longest side used for SfM features, px (default 1000)")
+    p.add_argument("--sfm-max-size", type=number(int, 64, 100_000), default=1000, help="longest side used for SfM features, px (default 1000)")
     p.add_argument("--camera", help="camera file from `nerfkit calibrate` (default: the photos' EXIF focal length)")
-    p.add_argument("--focal-px", type=float, help="focal length in pixels, when there is no camera file or EXIF")
-    p.add_argument("--tag-size", type=float, help="side of the tag's black square in metres, e.g. 0.06")
-    p.add_argument("--tag-id", type=int, help="the tag that defines the world (default: the one seen most)")
+    p.add_argument("--focal-px", type=number(float, above=0), help="focal length in pixels, when there is no camera file or EXIF")
+    p.add_argument("--tag-size", type=number(float, above=0), help="side of the tag's black square in metres, e.g. 0.06")
+    p.add_argument("--tag-id", type=number(int, 0), help="the tag that defines the world (default: the one seen most)")
     p.add_argument("--layout", help="layout JSON of several tags to use jointly (their frame is the world); by "
                    "default the camera file's layout (e.g. the one calibrate estimated) is used when the photos "
                    "show several of its tags")
@@ -54,10 +55,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dict", help="ArUco dictionary (default: the camera file's, else DICT_4X4_50)")
     p.add_argument("--out", required=True, metavar="DATASET_DIR", help="dataset folder to write")
     p.add_argument("--no-dataset", action="store_true", help="only write poses.json (build later with `nerfkit dataset`)")
-    p.add_argument("--detect-size", type=int, default=2000, help="tag detection size (long side, px; default 2000)")
-    p.add_argument("--jobs", type=int, default=0, help="photos processed in parallel (default: up to 4 cores)")
+    p.add_argument("--detect-size", type=number(int, 64, 100_000), default=2000, help="tag detection size (long side, px; default 2000)")
+    p.add_argument("--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel (default: up to 4 cores)")
     p.add_argument("--no-cache", action="store_true", help="ignore cached detections")
     p.add_argument("--all-photos", action="store_true", help="list every photo in the summary, not only skipped ones")
+    p.add_argument("--force", action="store_true", help="replace the dataset files of an earlier run in --out")
     add_dataclass_args(p, PoseConfig, "poses")
     add_dataclass_args(p, DatasetConfig, "dataset")
     p.set_defaults(func=run)
@@ -100,18 +102,25 @@ def run(args: argparse.Namespace) -> int:
 
     from ..capture.aruco import Layout, get_dictionary, load_layout
     from ..capture.camera import camera_from_focal, load_camera
-    from ..capture.dataset import POSES_FILE, DatasetConfig, write_poses_json
+    from ..capture.dataset import DATASET_OUTPUTS, POSES_FILE, DatasetConfig, write_poses_json
     from ..capture.photos import default_jobs, group_by_size, require_tags, scan_photos
     from ..capture.poses import PoseConfig, choose_tag, exif_camera, pose_records
     from ..capture.report import photo_summary
     from ..config import dataclass_from_args
     from ..errors import fail
+    from ..io.paths import guard_outputs
 
     pcfg = dataclass_from_args(PoseConfig, args)
     dcfg = dataclass_from_args(DatasetConfig, args)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise fail(out, "exists and is not a folder", "--out names the dataset folder to write")
+    outputs = [POSES_FILE] + ([] if args.no_dataset else list(DATASET_OUTPUTS))
+    if args.method == "colmap":
+        from ..sfm.dataset import REPORT_FILE
+
+        outputs = [*DATASET_OUTPUTS, REPORT_FILE, "colmap"]
+    guard_outputs([out / name for name in outputs], [args.photos, args.camera, args.layout], args.force)
     camera = load_camera(args.camera) if args.camera else None
     dictionary = args.dict
     if dictionary is None and args.camera:

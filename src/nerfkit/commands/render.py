@@ -7,18 +7,23 @@ import argparse
 from ._common import add_run_args
 
 HELP = "render a trained run to MP4/GIF and a depth video"
+MEMORY_HINT = "Lower --chunk (rays rendered at once)"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from ..config import number
+
     p = sub.add_parser("render", help=HELP, description=HELP + ". Uses the dataset's test poses when it has "
                        "them, else an orbit around the object.")
     add_run_args(p)
     p.add_argument("--path", choices=["auto", "test", "orbit"], default="auto",
                    help="camera path: the dataset's test poses, a generated orbit, or auto (test if present)")
-    p.add_argument("--frames", type=int, default=60, help="frames of a generated orbit (default: 60)")
-    p.add_argument("--fps", type=int, default=30, help="frames per second (default: 30)")
+    p.add_argument("--frames", type=number(int, 1, 100_000), default=60, help="frames of a generated orbit (default: 60)")
+    p.add_argument("--fps", type=number(int, 1, 1000), default=30, help="frames per second (default: 30)")
     p.add_argument("--background", help="override the run's background colour (black, white, r,g,b)")
     p.add_argument("--out", help="output folder (default: RUN/videos)")
+    p.add_argument("--force", action="store_true", help="replace videos already in --out (RUN/videos is always "
+                   "replaced: it belongs to the run)")
     p.set_defaults(func=run)
 
 
@@ -26,17 +31,19 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..errors import fail
-    from ..render.videos import render_videos
+    from ..io.paths import guard_outputs
+    from ..render.videos import VIDEO_FILES, render_videos
+    from ..train.checkpoint import read_run
     from ._common import open_run, scene_for_run
 
+    out = Path(args.out) if args.out else Path(args.run) / "videos"
+    dataset = args.data or read_run(args.run).train.data
+    guard_outputs([out / name for name in VIDEO_FILES], [dataset], args.force or not args.out)
     run_ = open_run(args)
-    scene = scene_for_run(run_.info, args.data)
-    if args.frames < 1:
-        raise fail("--frames", "must be at least 1")
+    scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
     if args.path == "test" and len(scene.test) == 0:
         raise fail(scene.source, "has no test poses", "Use --path orbit")
     views = scene.orbit(args.frames) if args.path == "orbit" else scene.render_path(args.frames)
-    out = Path(args.out) if args.out else Path(args.run) / "videos"
     paths = render_videos(run_.model, views, out, run_.background(args.background), scene.near, scene.far, args.fps,
                           run_.chunk, run_.autocast)
     print(f"rendered {len(views)} frames of step {run_.step} ({paths.seconds_per_frame:.2f} s/frame):")

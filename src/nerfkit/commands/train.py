@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from pathlib import Path
 
 from ..config import add_dataclass_args, dataclass_from_args
 
+MEMORY_HINT = "Lower --batch-rays (rays per step) or --render-chunk (rays per rendered chunk)"
 HELP = "train a NeRF on a dataset (or --resume a run)"
 EPILOG = """\
 examples:
@@ -41,16 +43,46 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+# TrainConfig fields that --resume applies to the continued run (the others would change
+# what the run is, so they are refused): the stopping rule, where and how often to save.
+RESUME_APPLIES = ("steps", "minutes", "device", "checkpoint_seconds", "keep_checkpoints", "eval_every", "eval_views",
+                  "render_chunk")
+
+
+def resume_changes(args: argparse.Namespace) -> dict:
+    """The flags given with --resume as TrainConfig changes; refuses the ones it cannot apply."""
+    from ..errors import fail
+    from ..train.config import TrainConfig
+
+    given = {f.name for f in dataclasses.fields(TrainConfig) if getattr(args, f.name, None) is not None}
+    for cls in _model_config_classes().values():
+        given |= {f.name for f in dataclasses.fields(cls) if getattr(args, f.name, None) is not None}
+    refused = sorted(given - set(RESUME_APPLIES) - {"data", "allow_outside_paths"})
+    if refused:
+        flags = ", ".join("--" + k.replace("_", "-") for k in refused)
+        raise fail("--resume", f"{flags} cannot change when a run continues (the run keeps its own settings)",
+                   "Resume without them, or start a new run with another --out; --resume applies only "
+                   + ", ".join("--" + k.replace("_", "-") for k in RESUME_APPLIES))
+    return {k: getattr(args, k) for k in RESUME_APPLIES if k in given}
+
+
 def run(args: argparse.Namespace) -> int:
+    import sys
+
     from ..data.load import load_scene
     from ..errors import fail
     from ..train.checkpoint import read_run
     from ..train.config import TrainConfig
-    from ..train.trainer import resume, train
+    from ..train.trainer import check_new_run_folder, resume, train
 
     if args.resume:
+        changes = resume_changes(args)
         info = read_run(args.resume)
-        result = resume(args.resume, load_scene(args.data or info.train.data), steps=args.steps, minutes=args.minutes)
+        for k, v in changes.items():
+            print(f"resuming with --{k.replace('_', '-')} {v} (was {getattr(info.train, k)})", file=sys.stderr)
+        data = args.data or info.train.data
+        scene = load_scene(data, allow_outside=bool(args.allow_outside_paths or info.train.allow_outside_paths))
+        result = resume(args.resume, scene, changes=changes)
     else:
         cfg = dataclass_from_args(TrainConfig, args)
         if not cfg.data:
@@ -63,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
             raise fail("--model", f"model '{cfg.model}' is not available in this installation",
                        f"Choose one of: {', '.join(classes)}")
         model_cfg = dataclass_from_args(classes[cfg.model], args)
-        result = train(load_scene(cfg.data), cfg, model_cfg)
+        check_new_run_folder(Path(cfg.out))  # before loading the dataset: a refusal should be quick
+        result = train(load_scene(cfg.data, allow_outside=cfg.allow_outside_paths), cfg, model_cfg)
     summary = f"run: {result.run_dir}  steps: {result.step}  training time: {result.train_seconds:.0f} s"
     if result.final_val_psnr is not None:
         summary += f"  val PSNR: {result.final_val_psnr:.2f} dB"

@@ -21,20 +21,26 @@ examples:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from ..config import number
+    from ._common import add_outside_flag
+
     p = sub.add_parser("view", help=HELP, description=DESCRIPTION,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("path", metavar="DATASET", help="dataset file or folder (or a run folder)")
-    p.add_argument("--rays", type=int, default=0, help="training rays to draw with their samples (default: 0)")
-    p.add_argument("--samples", type=int, default=32, help="samples per drawn ray (default: 32)")
+    p.add_argument("--rays", type=number(int, 0, 100_000), default=0, help="training rays to draw with their samples (default: 0)")
+    p.add_argument("--samples", type=number(int, 1, 4096), default=32, help="samples per drawn ray (default: 32)")
     p.add_argument("--png", metavar="FILE", help="write a static PNG (matplotlib) instead of serving, then exit")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1, this machine "
                    "only; 0.0.0.0 exposes the viewer to the network)")
-    p.add_argument("--port", type=int, default=8080, help="port (default: 8080)")
+    p.add_argument("--port", type=number(int, 1, 65535), default=8080, help="port (default: 8080)")
+    p.add_argument("--force", action="store_true", help="replace an existing --png file")
+    add_outside_flag(p)
     p.set_defaults(func=run)
 
 
 def is_run_folder(path: Path) -> bool:
-    return path.is_dir() and (path / "config.json").is_file() and (path / "checkpoints").is_dir()
+    return path.is_dir() and (path / "config.json").is_file() and \
+        ((path / "checkpoints").is_dir() or (path / "model.pt").is_file())
 
 
 def dataset_tag_size(path: Path) -> float | None:
@@ -71,7 +77,11 @@ def run(args: argparse.Namespace) -> int:
 
     from ..data.load import load_scene
 
-    scene = load_scene(path)
+    if args.png:
+        from ..io.paths import guard_outputs
+
+        guard_outputs([args.png], [path], args.force, "--png")
+    scene = load_scene(path, allow_outside=args.allow_outside_paths)
     tag_size = dataset_tag_size(path)
     if args.png:
         from ..viz.scene_plot import plot_scene

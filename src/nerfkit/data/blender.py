@@ -24,6 +24,7 @@ from ..cameras import opengl_to_opencv
 from ..config import load_json
 from ..errors import fail
 from ..images import IMAGE_SUFFIXES, load_image_uint8
+from ..io.paths import resolve_inside
 from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
 from .validate import check_fov, check_intrinsics, check_near_far, check_poses, check_scene
 
@@ -35,7 +36,7 @@ def blender_folder(path: str | Path) -> Path | None:
     path = Path(path)
     if path.is_file() and path.name in {f"transforms_{s}.json" for s in SPLITS}:
         return path.parent
-    if path.is_dir() and (path / "transforms_train.json").is_file():
+    if path.is_dir() and any((path / f"transforms_{s}.json").is_file() for s in SPLITS):
         return path
     return None
 
@@ -45,25 +46,23 @@ def focal_from_angle(camera_angle_x: float, width: int) -> float:
     return 0.5 * width / math.tan(0.5 * camera_angle_x)
 
 
-def frame_image_path(folder: Path, file_path: str, where: str) -> Path:
-    """Resolve a frame's ``file_path`` (often given without extension) to an image file."""
+def frame_image_path(folder: Path, file_path: str, where: str, allow_outside: bool = False) -> Path:
+    """Resolve a frame's ``file_path`` (often given without extension) to an image file
+    inside ``folder`` (see :func:`nerfkit.io.paths.resolve_inside`)."""
     try:
-        p = (folder / file_path).resolve() if not Path(file_path).is_absolute() else Path(file_path)
-        if p.is_file():
-            return p
-        for suffix in (".png", ".PNG", *sorted(IMAGE_SUFFIXES)):
-            q = p.with_name(p.name + suffix)
-            if q.is_file():
-                return q
+        for name in (file_path, *(file_path + s for s in (".png", ".PNG", *sorted(IMAGE_SUFFIXES)))):
+            if (Path(folder) / name).is_file():
+                return resolve_inside(folder, name, allow_outside, where)
+        resolve_inside(folder, file_path, allow_outside, where)  # outside is refused before "not found"
     except (OSError, ValueError) as e:  # a NUL byte, a name too long, a loop of links
         raise fail(where, f"frame image {file_path[:100]!r} is not a usable path ({type(e).__name__}: {e})",
                    "Check the frames' file_path entries") from None
-    looked = p.name[:200] + ".png"
+    looked = Path(file_path).name[:200] + ".png"
     raise fail(where, f"frame image {file_path[:200]!r} not found (looked for {looked!r} beside the json)",
                "Check the frames' file_path entries and that the images were copied")
 
 
-def _read_split(folder: Path, split: str, background, out_size, with_images: bool):
+def _read_split(folder: Path, split: str, background, out_size, with_images: bool, allow_outside: bool = False):
     """Cameras and images of one split; None when its json is absent."""
     from .load import resize_image, scale_intrinsics
 
@@ -91,7 +90,7 @@ def _read_split(folder: Path, split: str, background, out_size, with_images: boo
         if m.shape not in ((4, 4), (3, 4)):
             raise fail(where, f"frames[{i}].transform_matrix has shape {m.shape}, expected 4x4")
         poses.append(m if m.shape == (4, 4) else np.vstack([m, [0, 0, 0, 1]]))
-        img_path = frame_image_path(folder, str(fr["file_path"]), where)
+        img_path = frame_image_path(folder, str(fr["file_path"]), where, allow_outside)
         names.append(str(fr["file_path"]).removeprefix("./") or img_path.stem)
         if with_images or size is None:
             img = load_image_uint8(img_path, background)
@@ -122,6 +121,8 @@ def load_blender(
     test_images: bool = True,
     near: float | None = None,
     far: float | None = None,
+    allow_outside: bool = False,
+    need: str = "train",
 ) -> Scene:
     """Load a Blender-style dataset folder (or one of its transforms_*.json) into a Scene.
 
@@ -131,6 +132,8 @@ def load_blender(
         test_images: also load the test split's images (False: its poses only, for render paths).
         near, far: depth range; default 0.5x / 1.5x the cameras' mean distance to the
             centre (2 and 6 for the original scenes, which is what they were made with).
+        allow_outside: accept frame images outside the folder (see :mod:`nerfkit.io.paths`).
+        need: the split that must be present (``train``; ``test`` for a folder of held-out views).
     """
     from .load import output_size
 
@@ -141,18 +144,20 @@ def load_blender(
     def out_size(w: int, h: int) -> tuple[int, int]:
         return output_size(w, h, size, downscale)
 
-    splits = {s: _read_split(folder, s, background, out_size, with_images=(s != "test" or test_images))
-              for s in SPLITS}
-    train = splits["train"]
-    empty = Views.empty(train.width, train.height)
-    val = splits["val"] or empty
-    test = splits["test"] or empty
-    for s, v in (("val", val), ("test", test)):
-        if len(v) and (v.width, v.height) != (train.width, train.height):
-            raise fail(folder / f"transforms_{s}.json", f"{s} images are {v.width}x{v.height} but train images are "
-                                                       f"{train.width}x{train.height}")
-    center = estimate_center(train.c2w)
-    up = estimate_up(train.c2w)
-    n, f = estimate_near_far(train.c2w, center)
+    splits = {s: _read_split(folder, s, background, out_size, with_images=(s != "test" or test_images or s == need),
+                             allow_outside=allow_outside) for s in SPLITS}
+    if splits[need] is None:
+        raise fail(folder, f"has no transforms_{need}.json", "A Blender dataset needs the split being read")
+    ref = splits[need]
+    empty = Views.empty(ref.width, ref.height)
+    train, val, test = (splits[s] or empty for s in SPLITS)
+    for s, v in (("train", train), ("val", val), ("test", test)):
+        if len(v) and (v.width, v.height) != (ref.width, ref.height):
+            raise fail(folder / f"transforms_{s}.json", f"{s} images are {v.width}x{v.height} but {need} images are "
+                                                       f"{ref.width}x{ref.height}")
+    ref = ref if not len(train) else train
+    center = estimate_center(ref.c2w)
+    up = estimate_up(ref.c2w)
+    n, f = estimate_near_far(ref.c2w, center)
     n, f = check_near_far(n if near is None else near, f if far is None else far, str(folder))
-    return check_scene(Scene(train, val, test, n, f, center, up, source=str(folder)))
+    return check_scene(Scene(train, val, test, n, f, center, up, source=str(folder)), need=need)

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..errors import fail
 from ..images import load_image_uint8
+from ..io.paths import resolve_inside, safe_output_name
 from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
 from .validate import check_intrinsics, check_near_far, check_poses, check_scene
 
@@ -212,6 +213,7 @@ def reconstruction_to_scene(
     size: int | None = None,
     downscale: float | None = None,
     source: str = "",
+    allow_outside: bool = False,
 ) -> Scene:
     """A Scene from the registered images of a reconstruction (sorted by name).
 
@@ -247,9 +249,10 @@ def reconstruction_to_scene(
                        "The model's cameras.txt/bin is corrupt")
         K = check_intrinsics(camera_matrix(pin), where, f"camera {im.camera_id}", int(pin.width), int(pin.height))
         if image_dir is not None:
-            photo = load_image_uint8(Path(image_dir) / im.name, background)
+            photo_path = resolve_inside(image_dir, im.name, allow_outside, where)
+            photo = load_image_uint8(photo_path, background)
             if photo.shape[:2] != (cam.height, cam.width):
-                raise fail(Path(image_dir) / im.name,
+                raise fail(photo_path,
                            f"photo is {photo.shape[1]}x{photo.shape[0]} but the model's camera "
                            f"{im.camera_id} is {cam.width}x{cam.height}",
                            "Pass the photos the model was made from (not resized)")
@@ -294,9 +297,11 @@ def load_colmap(
     size: int | None = None,
     downscale: float | None = None,
     val_every: int = 8,
+    allow_outside: bool = False,
 ) -> Scene:
     """Load a COLMAP model (``path`` = model folder, or a project with ``sparse/0``) and its
-    photos (``images``, default: the project's ``images/`` folder) without re-running SfM."""
+    photos (``images``, default: the project's ``images/`` folder) without re-running SfM.
+    Image names that lead outside the photo folder are refused unless ``allow_outside``."""
     path = Path(path)
     if path.is_file():  # one of the model's files
         path = path.parent
@@ -310,7 +315,8 @@ def load_colmap(
     if not image_dir.is_dir():
         raise fail(image_dir, "no such image folder")
     rec = read_model(model_dir)
-    return reconstruction_to_scene(rec, image_dir, background, val_every, size, downscale, source=str(model_dir))
+    return reconstruction_to_scene(rec, image_dir, background, val_every, size, downscale, source=str(model_dir),
+                                   allow_outside=allow_outside)
 
 
 def scene_to_reconstruction(scene: Scene, splits: tuple[str, ...] = ("train", "val", "test"),
@@ -335,7 +341,7 @@ def scene_to_reconstruction(scene: Scene, splits: tuple[str, ...] = ("train", "v
                 rec.add_camera_with_trivial_rig(cam)
                 cam_ids[key] = cam.camera_id
             image_id += 1
-            name = v.names[i] if v.names is not None else f"{split}_{i:04d}.png"
+            name = safe_output_name(v.names[i]) if v.names is not None else f"{split}_{i:04d}.png"
             w2c = np.linalg.inv(v.c2w[i].astype(np.float64))
             pose = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3])
             rec.add_image_with_trivial_frame(pycolmap.Image(name=name, camera_id=cam_ids[key], image_id=image_id), pose)

@@ -137,12 +137,17 @@ def load_scene(
     background: tuple[float, float, float] = (0.0, 0.0, 0.0),
     size: int | None = None,
     downscale: float | None = None,
+    allow_outside: bool = False,
+    need: str = "train",
 ) -> Scene:
     """Read a dataset file or folder (any supported format) into a Scene.
 
     Args:
         background: RGB in [0, 1] under transparent pixels (RGBA formats; default black).
         size, downscale: optional resampling, see :func:`output_size`.
+        allow_outside: accept image paths outside the dataset folder (``--allow-outside-paths``).
+        need: the split that must be present: ``train``, or the split an evaluation reads
+            (a file of held-out views needs no training split).
     Raises NerfkitError naming the path when the format is unsupported or the data is bad.
     """
     path = Path(path)
@@ -150,29 +155,26 @@ def load_scene(
     if fmt == "npz":
         if path.is_dir():
             path = next(path.glob("*.npz"))
-        scene = resample_scene(load_npz(path), size, downscale)
+        scene = resample_scene(load_npz(path, need=need), size, downscale)
     elif fmt == "blender":
         from .blender import load_blender
 
-        scene = load_blender(path, background=background, size=size, downscale=downscale)
+        scene = load_blender(path, background=background, size=size, downscale=downscale, allow_outside=allow_outside,
+                             need=need)
     elif fmt == "colmap":
         from .colmap import load_colmap
 
-        scene = load_colmap(path, background=background, size=size, downscale=downscale)
+        scene = load_colmap(path, background=background, size=size, downscale=downscale, allow_outside=allow_outside)
     else:
-        scene = resample_scene(_load_transforms(path, background), size, downscale)
-    return check_scene(scene, scene.source or str(path))  # the same guarantees for every format
+        scene = resample_scene(_load_transforms(path, background, allow_outside, need), size, downscale)
+    return check_scene(scene, scene.source or str(path), need=need)  # the same guarantees for every format
 
 
-def _load_transforms(path: Path, background) -> Scene:
+def _load_transforms(path: Path, background, allow_outside: bool, need: str) -> Scene:
     """nerfstudio / instant-ngp transforms.json through :mod:`nerfkit.data.nerfstudio`."""
-    import inspect
-
     try:
         from .nerfstudio import load_transforms_json
     except ImportError:
         raise fail(path, "transforms.json support (nerfkit.data.nerfstudio) is not installed in this build",
                    "Convert the dataset to a course .npz first") from None
-    if "background" in inspect.signature(load_transforms_json).parameters:
-        return load_transforms_json(path, background=background)
-    return load_transforms_json(path)
+    return load_transforms_json(path, background=background, allow_outside=allow_outside, need=need)

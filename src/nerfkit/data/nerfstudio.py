@@ -33,6 +33,7 @@ from ..cameras import opencv_to_opengl, opengl_to_opencv
 from ..config import load_json
 from ..errors import fail
 from ..io.atomic import atomic_path, write_json
+from ..io.paths import safe_output_name
 from .blender import focal_from_angle, frame_image_path
 from .scene import Scene, Views, estimate_center, estimate_up
 from .validate import (MAX_SIDE, check_count, check_fov, check_intrinsics, check_near_far, check_number, check_plane,
@@ -45,8 +46,9 @@ KEEP_SUFFIXES = {".jpg", ".jpeg", ".png"}
 
 def image_file_name(name: str) -> str:
     """File name for a view named after its photo: the photo's own name when it is a JPEG
-    or PNG, else the name plus ``.png`` (``IMG_1.HEIC`` -> ``IMG_1.HEIC.png``)."""
-    base = Path(name).name
+    or PNG, else the name plus ``.png`` (``IMG_1.HEIC`` -> ``IMG_1.HEIC.png``). Always a
+    plain name (:func:`nerfkit.io.paths.safe_output_name`): a crafted one never leaves the folder."""
+    base = safe_output_name(name)
     return base if Path(base).suffix.lower() in KEEP_SUFFIXES else base + ".png"
 
 
@@ -122,7 +124,7 @@ def _frame_split(fr: dict, by_list: dict[str, str], where: str) -> str | None:
 
 
 def _read_frame(fr, data: dict, folder: Path, by_list: dict[str, str], where: str, load_images: bool,
-                background) -> tuple[str, tuple, bool] | None:
+                background, allow_outside: bool = False) -> tuple[str, tuple, bool] | None:
     """(split, (c2w, K, size, image, name), undistorted) of one frame; None when no split lists it."""
     from ..images import load_image_uint8
 
@@ -134,7 +136,7 @@ def _read_frame(fr, data: dict, folder: Path, by_list: dict[str, str], where: st
     c2w = opengl_to_opencv(check_poses([fr["transform_matrix"]], where, "transform_matrix")[0].astype(np.float64))
     cam = {key: fr.get(key, data.get(key)) for key in ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", *DIST_KEYS)}
     fp = str(fr["file_path"])
-    image = load_image_uint8(frame_image_path(folder, fp, where), background) if load_images else None
+    image = load_image_uint8(frame_image_path(folder, fp, where, allow_outside), background) if load_images else None
     K, size = _intrinsics(cam, None if image is None else (image.shape[1], image.shape[0]), where)
     dist = {key: (_number(cam, key, where) or 0.0) for key in DIST_KEYS}
     if dist["k4"]:
@@ -159,7 +161,7 @@ def _split_lists(data: dict) -> dict[str, str]:
     return by_list
 
 
-def _stack_views(per_split: dict[str, list], where: str, load_images: bool) -> dict[str, Views]:
+def _stack_views(per_split: dict[str, list], where: str, load_images: bool, need: str = "train") -> dict[str, Views]:
     """Views per split from the frames' (c2w, K, size, image, name); pose-less splits empty."""
     views: dict[str, Views] = {}
     for split, items in per_split.items():
@@ -174,21 +176,22 @@ def _stack_views(per_split: dict[str, list], where: str, load_images: bool) -> d
         views[split] = Views(np.stack([it[0] for it in items]).astype(np.float32),
                              np.stack([it[1] for it in items]).astype(np.float32), w, h, images,
                              [it[4] for it in items])
-    if "train" not in views:
-        raise fail(where, "has no training frames", "Mark some frames \"split\": \"train\" or list them in train_filenames")
-    train = views["train"]
-    for split in ("val", "test"):
-        views.setdefault(split, Views.empty(train.width, train.height))
+    if need not in views:
+        raise fail(where, f"has no {'training' if need == 'train' else need} frames",
+                   f"Mark some frames \"split\": \"{need}\" or list them in {need}_filenames")
+    ref = views[need]
+    for split in SPLITS:
+        views.setdefault(split, Views.empty(ref.width, ref.height))
     return views
 
 
-def _add_pose_only_splits(views: dict[str, Views], nk: dict, where: str) -> None:
+def _add_pose_only_splits(views: dict[str, Views], nk: dict, where: str, need: str = "train") -> None:
     """Fill empty splits from ``nerfkit.poses_only`` (render paths: poses without images)."""
     poses_only = nk.get("poses_only") or {}
     if not isinstance(poses_only, dict):
         raise fail(where, f"'nerfkit.poses_only' is {short_repr(poses_only)}, expected an object: split -> "
                           "list of 4x4 matrices", "Fix or re-export the file")
-    train = views["train"]
+    train = views[need]  # the K and size of the views with images
     for split, mats in poses_only.items():
         if split in SPLITS and len(views[split]) == 0 and mats:
             c2w = opengl_to_opencv(check_poses(mats, where, f"nerfkit.poses_only.{split}").astype(np.float64))
@@ -208,10 +211,13 @@ def _scene_bounds(nk: dict, train: Views, where: str) -> tuple[np.ndarray, np.nd
 
 
 def load_transforms_json(path: str | Path, load_images: bool = True,
-                         background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Scene:
+                         background: tuple[float, float, float] = (0.0, 0.0, 0.0), allow_outside: bool = False,
+                         need: str = "train") -> Scene:
     """Read a nerfstudio-style transforms.json (or a folder holding one) into a Scene.
 
-    ``background`` (RGB in [0, 1]) goes under transparent pixels of RGBA images.
+    ``background`` (RGB in [0, 1]) goes under transparent pixels of RGBA images; images
+    outside the file's folder are refused unless ``allow_outside``; ``need`` is the split
+    that must have frames.
     """
     path = Path(path)
     try:
@@ -235,7 +241,8 @@ def load_transforms_json(path: str | Path, load_images: bool = True,
     per_split: dict[str, list] = {s: [] for s in SPLITS}
     undistorted = 0
     for k, fr in enumerate(data["frames"]):
-        frame = _read_frame(fr, data, path.parent, by_list, f"{where} frames[{k}]", load_images, background)
+        frame = _read_frame(fr, data, path.parent, by_list, f"{where} frames[{k}]", load_images, background,
+                            allow_outside)
         if frame is not None:
             split, item, was_distorted = frame
             per_split[split].append(item)
@@ -244,12 +251,12 @@ def load_transforms_json(path: str | Path, load_images: bool = True,
         warnings.warn(f"{where}: {undistorted} frames have lens distortion (k1 k2 p1 p2 ...); nerfkit undistorted "
                       "them on load (pinhole K updated). Undistort once beforehand to avoid this each time", stacklevel=2)
 
-    views = _stack_views(per_split, where, load_images)
-    _add_pose_only_splits(views, nk, where)
-    center, up, near, far = _scene_bounds(nk, views["train"], where)
+    views = _stack_views(per_split, where, load_images, need)
+    _add_pose_only_splits(views, nk, where, need)
+    center, up, near, far = _scene_bounds(nk, views["train"] if len(views["train"]) else views[need], where)
     table = check_plane(nk["table_plane"], where, "nerfkit.table_plane") if nk.get("table_plane") is not None else None
     return check_scene(Scene(views["train"], views["val"], views["test"], near, far, center, up, source=where,
-                             capture=nk.get("capture") is True, table=table))
+                             capture=nk.get("capture") is True, table=table), need=need)
 
 
 def _save_image(path: Path, image: np.ndarray, jpeg_quality: int) -> None:

@@ -90,19 +90,24 @@ def _names(arrays: dict, split: str, n: int, where: str) -> list[str] | None:
     return [s.decode("utf-8", "replace") if isinstance(s, bytes) else str(s) for s in a.tolist()]
 
 
-def load_npz(path: str | Path) -> Scene:
-    """Load a course-layout npz into a :class:`Scene`, validating every field."""
+def load_npz(path: str | Path, need: str = "train") -> Scene:
+    """Load a course-layout npz into a :class:`Scene`, validating every field.
+
+    ``need`` is the split that must be there: ``train`` normally; a file of held-out views
+    (only ``images_test``, ``c2ws_test`` and ``focal``) loads with ``need="test"``.
+    """
     path = Path(path)
     where = str(path)
     arrays = _read_npz(path)
-    for key in ("images_train", "c2ws_train"):
+    base = "train" if need == "train" or "c2ws_train" in arrays else need
+    for key in (f"images_{base}", f"c2ws_{base}"):
         if key not in arrays:
             raise fail(where, f"missing key '{key}' (found: {', '.join(sorted(arrays))})",
                        "Expected the course layout: images_train, c2ws_train, images_val, c2ws_val, c2ws_test, focal")
-    train_images = check_images(arrays["images_train"], where, "images_train")
+    train_images = check_images(arrays[f"images_{base}"], where, f"images_{base}")
     n, h, w, _ = train_images.shape
     if n * h * w > MAX_PIXELS:
-        raise fail(where, f"images_train holds {n * h * w} pixels, more than nerfkit loads at once")
+        raise fail(where, f"images_{base} holds {n * h * w} pixels, more than nerfkit loads at once")
 
     if "K" in arrays:
         K = check_intrinsics(arrays["K"], where, "K", w, h)
@@ -137,21 +142,23 @@ def load_npz(path: str | Path) -> Scene:
     if K.ndim == 3 and K.shape[0] != n:
         raise fail(where, "a per-view 'K' of shape (N, 3, 3) is only supported for the train split; store one 3x3 K")
     train, val, test = views("train"), views("val"), views("test")
-    center = estimate_center(train.c2w)
-    up = estimate_up(train.c2w)
+    ref = views(base)
+    center = estimate_center(ref.c2w)
+    up = estimate_up(ref.c2w)
     if "near" in arrays or "far" in arrays:
         if not ("near" in arrays and "far" in arrays):
             raise fail(where, "has only one of 'near' and 'far'", "Store both or neither")
         near, far = check_near_far(_scalar(arrays, "near", where), _scalar(arrays, "far", where), where)
     else:
-        near, far = near_far_from_cameras(train.c2w, center, where, "Store the depth range as 'near' and 'far'")
+        near, far = near_far_from_cameras(ref.c2w, center, where, "Store the depth range as 'near' and 'far'")
     if "center" in arrays:
         center = check_vector3(arrays["center"], where, "center")
     if "up" in arrays:
         up = check_vector3(arrays["up"], where, "up", unit=True)
     capture = bool(_scalar(arrays, "capture", where)) if "capture" in arrays else False
     table = check_plane(arrays["table_plane"], where, "table_plane") if "table_plane" in arrays else None
-    return check_scene(Scene(train, val, test, near, far, center, up, source=where, capture=capture, table=table))
+    return check_scene(Scene(train, val, test, near, far, center, up, source=where, capture=capture, table=table),
+                       need=need)
 
 
 def save_npz(scene: Scene, path: str | Path) -> None:

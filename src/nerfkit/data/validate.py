@@ -192,15 +192,15 @@ def check_plane(v, where: str, field: str) -> np.ndarray:
     return (a / n).astype(np.float32)
 
 
-def check_scene(scene, where: str | None = None):
+def check_scene(scene, where: str | None = None, need: str = "train"):
     """Check a loaded :class:`~nerfkit.data.scene.Scene` end to end; return it unchanged.
 
     Every loader calls this last, so no format can hand the trainer NaN poses, a
     non-positive focal length, near >= far, or images that disagree with their cameras.
     """
     where = str(where or scene.source or "dataset")
-    if len(scene.train) == 0:
-        raise fail(where, "has no training views")
+    if len(scene.splits[need]) == 0:
+        raise fail(where, "has no training views" if need == "train" else f"has no {need} views")
     for split, v in scene.splits.items():
         n = len(v)
         if not (isinstance(v.width, (int, np.integer)) and isinstance(v.height, (int, np.integer))

@@ -1,7 +1,9 @@
 """Atomic file writes: write to a temporary name beside the target, fsync, rename.
 
 A crash (or SIGKILL) at any moment leaves either the old file or the new one at the
-target path, never a truncated mix.
+target path, never a truncated mix (and at worst a temporary beside it, which
+:func:`remove_stale_temporaries` deletes). Files get the permissions the umask gives any
+new file (0644 under the usual 022), not mkstemp's private 0600.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
+TMP_MARK = ".tmp."  # in the name of every temporary file atomic_path makes
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
@@ -25,19 +29,48 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp.", suffix=path.suffix if suffix is None else suffix,
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TMP_MARK}", suffix=path.suffix if suffix is None else suffix,
                                dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     try:
         yield tmp_path
         with open(tmp_path, "rb+") as f:
+            os.fchmod(f.fileno(), 0o666 & ~_umask())  # mkstemp makes 0600; outputs follow the umask
             os.fsync(f.fileno())
         os.replace(tmp_path, path)
         _fsync_dir(path.parent)
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def stale_temporaries(folder: str | os.PathLike) -> list[Path]:
+    """Temporary files :func:`atomic_path` left in ``folder`` (and below) when a process was
+    killed mid-write (SIGKILL, power loss): ``.<name>.tmp.<random><suffix>``."""
+    return sorted(p for p in Path(folder).rglob(f".*{TMP_MARK}*") if p.is_file())
+
+
+def remove_stale_temporaries(folder: str | os.PathLike) -> int:
+    """Delete :func:`stale_temporaries`; call only while no other process writes ``folder``
+    (e.g. holding its :func:`nerfkit.io.lock.folder_lock`). Returns how many were removed."""
+    stale = stale_temporaries(folder)
+    for p in stale:
+        p.unlink(missing_ok=True)
+    return len(stale)
+
+
+def _umask() -> int:
+    """The process umask, read without changing it where Linux allows (no race with threads)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _fsync_dir(directory: Path) -> None:

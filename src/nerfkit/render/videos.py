@@ -13,6 +13,9 @@ from ..viz.video import colorize_depth, to_uint8, write_video
 from .renderer import render_views
 
 
+VIDEO_FILES = ("orbit.mp4", "orbit.gif", "depth.mp4")
+
+
 @dataclass
 class VideoPaths:
     rgb_mp4: Path
@@ -50,7 +53,7 @@ def render_videos(
         depth_frames.append(to_uint8(colorize_depth(view.depth, view.acc, near, far)))
     per_frame = (time.perf_counter() - t0) / max(len(views), 1)
     out_dir = Path(out_dir)
-    paths = VideoPaths(out_dir / "orbit.mp4", out_dir / "orbit.gif", out_dir / "depth.mp4", per_frame)
+    paths = VideoPaths(*(out_dir / name for name in VIDEO_FILES), per_frame)
     write_video(paths.rgb_mp4, rgb_frames, fps)
     write_video(paths.rgb_gif, rgb_frames[:: max(1, len(rgb_frames) // 60)], min(fps, 20))
     write_video(paths.depth_mp4, depth_frames, fps)

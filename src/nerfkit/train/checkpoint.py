@@ -2,8 +2,10 @@
 
 A run folder::
 
-    RUN/config.json                 resolved train + model config, scene bounds, data path
-    RUN/checkpoints/step_00001234.pt   model, optimizer, RNG streams, metric rows
+    RUN/config.json                 resolved train + model config, scene bounds, data path + fingerprint
+    RUN/model.pt                    the final model: parameters and buffers only (what eval/render use)
+    RUN/checkpoints/step_00001234.pt   model, optimizer, RNG streams, metric rows (what --resume uses)
+    RUN/.lock                       held by the one process training the run
     RUN/metrics.csv, metrics.json   one row per logged step (train) or evaluation (val)
     RUN/plots/, RUN/progress/, RUN/videos/
 
@@ -14,9 +16,10 @@ previous one is used.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -24,13 +27,15 @@ import torch
 
 from ..config import dataclass_from_dict, load_json
 from ..errors import NerfkitError, fail
-from ..io.atomic import atomic_path, write_json
+from ..io.atomic import atomic_path, remove_stale_temporaries, write_json
+from ..io.lock import folder_lock
 from ..models import MODEL_NAMES, SceneBounds, build_model, config_from_dict, model_config_class
 from ..models.base import NerfModel
 from .config import TrainConfig
 
 FORMAT = "nerfkit-checkpoint"
 VERSION = 1
+MODEL_FILE = "model.pt"
 
 
 @dataclass
@@ -41,6 +46,7 @@ class RunInfo:
     train: TrainConfig
     model_config: Any
     bounds: SceneBounds
+    scene: dict = field(default_factory=dict)  # what config.json says about the dataset (fingerprint, ...)
 
 
 def write_run_config(run_dir: Path, train: TrainConfig, model_config: Any, bounds: SceneBounds, scene_info: dict) -> None:
@@ -83,7 +89,37 @@ def read_run(run_dir: str | Path) -> RunInfo:
             except NerfkitError as e:
                 raise fail(cfg_path, f"invalid {type(cfg).__name__} settings ({e})") from None
     _check_bounds(bounds, str(cfg_path))
-    return RunInfo(run_dir, train, model_config, bounds)
+    return RunInfo(run_dir, train, model_config, bounds, d["scene"] if isinstance(d.get("scene"), dict) else {})
+
+
+def dataset_fingerprint(scene) -> dict:
+    """What identifies a dataset: its view counts, image size, and hashes of every pose and
+    of the training images. Stored in the run's config.json, checked on resume and eval."""
+    import hashlib
+
+    import numpy as np
+
+    poses = hashlib.sha256()
+    for v in scene.splits.values():
+        poses.update(np.ascontiguousarray(v.c2w, np.float32).tobytes())
+    images = hashlib.sha256(np.ascontiguousarray(scene.train.images).tobytes()) if scene.train.has_images else None
+    return {"views": [len(v) for v in scene.splits.values()], "image_size": [scene.train.width, scene.train.height],
+            "poses_sha256": poses.hexdigest(), "train_images_sha256": images.hexdigest() if images else None}
+
+
+def check_dataset(info: RunInfo, scene) -> None:
+    """Refuse a dataset that is not the one the run was trained on (runs from before
+    fingerprints were recorded are not checked)."""
+    stored = info.scene.get("fingerprint")
+    if not isinstance(stored, dict):
+        return
+    now = dataset_fingerprint(scene)
+    differ = [k for k in now if stored.get(k) != now[k]]
+    if differ:
+        raise fail(scene.source or info.train.data, f"is not the dataset run {info.run_dir} was trained on "
+                   f"({', '.join(k.replace('_sha256', '') for k in differ)} differ)",
+                   "Pass --data with the run's own dataset; a dataset changed in place cannot continue or score "
+                   "this run")
 
 
 def _check_bounds(b: SceneBounds, where: str) -> None:
@@ -103,25 +139,45 @@ def checkpoint_paths(run_dir: Path) -> list[Path]:
     return sorted((run_dir / "checkpoints").glob("step_*.pt"), reverse=True)
 
 
+def _model_payload(step: int, model: NerfModel) -> dict:
+    return {"format": FORMAT, "version": VERSION, "model_name": type(model).__name__, "step": step,
+            "model": model.state_dict(), "model_extra": json.dumps(model.extra_state())}
+
+
 def save_checkpoint(run_dir: Path, step: int, model: NerfModel, optimizer: torch.optim.Optimizer,
                     extra: dict, keep: int = 3) -> Path:
     """Write ``checkpoints/step_XXXXXXXX.pt`` atomically and prune old ones."""
     path = run_dir / "checkpoints" / f"step_{step:08d}.pt"
-    payload = {
-        "format": FORMAT,
-        "version": VERSION,
-        "model_name": type(model).__name__,
-        "step": step,
-        "model": model.state_dict(),
-        "model_extra": json.dumps(model.extra_state()),
-        "optimizer": optimizer.state_dict(),
-        **extra,
-    }
     with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+        torch.save({**_model_payload(step, model), "optimizer": optimizer.state_dict(), **extra}, tmp)
     for old in checkpoint_paths(run_dir)[keep:]:
         old.unlink(missing_ok=True)
     return path
+
+
+def save_model(run_dir: Path, step: int, model: NerfModel) -> Path:
+    """Write ``RUN/model.pt`` atomically: the model's parameters, buffers and extra state at
+    ``step``, without the optimizer state (a third of a ``fast`` checkpoint's size)."""
+    path = run_dir / MODEL_FILE
+    with atomic_path(path) as tmp:
+        torch.save(_model_payload(step, model), tmp)
+    return path
+
+
+def _checkpoint_step(path: Path) -> int:
+    try:
+        return int(path.stem.split("_")[1])
+    except (IndexError, ValueError):
+        return -1
+
+
+@contextlib.contextmanager
+def run_lock(run_dir: str | Path):
+    """Hold the run folder's lock (one process per run), and remove the temporaries a
+    killed process left there."""
+    with folder_lock(run_dir) as folder:
+        remove_stale_temporaries(folder)
+        yield folder
 
 
 def _read_checkpoint(path: Path, model_name: str) -> dict:
@@ -141,17 +197,24 @@ def _read_checkpoint(path: Path, model_name: str) -> dict:
     return ckpt
 
 
-def load_latest_checkpoint(run_dir: Path, model: NerfModel) -> tuple[dict, Path] | None:
+def load_latest_checkpoint(run_dir: Path, model: NerfModel, final_model: bool = False) -> tuple[dict, Path] | None:
     """Load the newest loadable checkpoint into ``model``; warn about and skip broken ones.
 
     Returns the checkpoint dict (optimizer state, RNG streams, ...) and its path, or None
-    when the run has no checkpoint. Raises when checkpoints exist but none loads.
+    when the run has no checkpoint. Raises when checkpoints exist but none loads. With
+    ``final_model``, ``RUN/model.pt`` comes first when it is at least as new as the newest
+    checkpoint (it has no optimizer state: for rendering, not for resuming).
     """
     paths = checkpoint_paths(run_dir)
+    if final_model and (run_dir / MODEL_FILE).is_file():
+        paths = [run_dir / MODEL_FILE, *paths]
+    newest = max((_checkpoint_step(p) for p in checkpoint_paths(run_dir)), default=-1)
     errors = []
     for path in paths:
         try:
             ckpt = _read_checkpoint(path, type(model).__name__)
+            if path.name == MODEL_FILE and ckpt["step"] < newest:
+                continue  # training went on after model.pt was written (resumed, then killed)
             if not isinstance(ckpt.get("model_extra"), str) or not isinstance(ckpt.get("model"), dict):
                 raise fail(path, "malformed checkpoint ('model' or 'model_extra' has the wrong type)")
             # weights must be finite; buffers may hold inf on purpose (e.g. "not measured yet"), never NaN
@@ -188,12 +251,12 @@ def load_run(run_dir: str | Path, device: torch.device | str = "cpu") -> tuple[N
     except (RuntimeError, ValueError, TypeError, OverflowError, MemoryError) as e:  # e.g. a negative width
         raise fail(info.run_dir / "config.json", f"its model settings do not build a model "
                    f"({type(e).__name__}: {str(e).splitlines()[0][:200] if str(e) else ''})") from None
-    loaded = load_latest_checkpoint(info.run_dir, model)
+    loaded = load_latest_checkpoint(info.run_dir, model, final_model=True)
     if loaded is None:
         raise fail(info.run_dir, "has no checkpoint yet", "Wait for training to write one, or train longer")
     model.to(device).eval()
     return model, info, int(loaded[0]["step"])
 
 
-__all__ = ["RunInfo", "load_latest_checkpoint", "load_run", "read_run", "save_checkpoint", "write_run_config",
-           "config_from_dict"]
+__all__ = ["MODEL_FILE", "RunInfo", "check_dataset", "dataset_fingerprint", "load_latest_checkpoint", "load_run",
+           "read_run", "run_lock", "save_checkpoint", "save_model", "write_run_config", "config_from_dict"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -10,6 +11,10 @@ from ..config import option
 from ..errors import fail
 from ..models import MODEL_NAMES
 
+# Rays per training step or per rendering chunk: far more than fits any memory is refused
+# when the command line is parsed (a batch that still does not fit is a one-line error).
+MAX_BATCH_RAYS = 1 << 20
+
 
 @dataclass
 class TrainConfig:
@@ -17,28 +22,38 @@ class TrainConfig:
                        metavar="PATH")
     model: str = option("fast", "which radiance field to train", choices=list(MODEL_NAMES))
     out: str = option("runs/latest", "run folder for checkpoints, metrics, plots and videos", metavar="DIR")
-    steps: int = option(0, "optimizer steps (0: run until --minutes is spent)")
-    minutes: float = option(0.0, "training-time budget in minutes, evaluation excluded (0: no limit)")
-    batch_rays: int = option(0, "rays per step (0: the model's default)")
-    lr: float = option(0.0, "base learning rate (0: the model's default)")
-    lr_final_factor: float = option(0.1, "learning rate decays exponentially to lr x this at the end")
-    seed: int = option(0, "random seed (rays, sampling, initialisation)")
+    steps: int = option(0, "optimizer steps (0: run until --minutes is spent)", min=0)
+    minutes: float = option(0.0, "training-time budget in minutes, evaluation excluded (0: no limit)", min=0)
+    batch_rays: int = option(0, "rays per step (0: the model's default); lower it if memory runs out", min=0,
+                             max=MAX_BATCH_RAYS)
+    lr: float = option(0.0, "base learning rate (0: the model's default)", min=0)
+    lr_final_factor: float = option(0.1, "learning rate decays exponentially to lr x this at the end", above=0, max=1)
+    seed: int = option(0, "random seed (rays, sampling, initialisation)", min=0)
     device: str = option("auto", "auto, cpu, cuda or cuda:N")
     precision: str = option("auto", "auto (bf16 where the hardware has it), fp32, or bf16", choices=["auto", "fp32", "bf16"])
     background: str = option("black", "colour behind the object: black, white, or r,g,b in [0, 1]")
-    eval_every: int = option(0, "steps between validation renders (0: about 10 over the run)")
-    eval_views: int = option(2, "validation views rendered at each periodic evaluation")
-    checkpoint_seconds: float = option(60.0, "seconds of training between checkpoints")
-    keep_checkpoints: int = option(3, "how many recent checkpoints to keep")
-    render_chunk: int = option(0, "rays rendered at once for full images; bounds memory (0: the model's default)")
+    eval_every: int = option(0, "steps between validation renders (0: about 10 over the run)", min=0)
+    eval_views: int = option(2, "validation views rendered at each periodic evaluation", min=0)
+    checkpoint_seconds: float = option(60.0, "seconds of training between checkpoints", above=0)
+    keep_checkpoints: int = option(3, "how many recent checkpoints to keep", min=1)
+    render_chunk: int = option(0, "rays rendered at once for full images; bounds memory (0: the model's default)",
+                               min=0, max=MAX_BATCH_RAYS)
+    allow_outside_paths: bool = option(False, "read dataset images that lie outside the dataset's folder "
+                                       "(only for a dataset file you trust)")
     capture: str = option("auto", "real-capture training: per-view pose and exposure corrections, and (fast model) "
                           "the room and the table as background instead of density. auto: on for datasets that "
                           "record they are real photos (nerfkit poses writes that)", choices=["auto", "on", "off"])
-    pose_lr: float = option(1e-3, "with --capture: learning rate of the per-view pose corrections (0: off)")
-    pose_start: int = option(100, "with --capture: first step that corrects poses (the scene takes shape first)")
-    exposure_lr: float = option(2e-3, "with --capture: learning rate of the per-view exposure corrections (0: off)")
+    pose_lr: float = option(1e-3, "with --capture: learning rate of the per-view pose corrections (0: off)", min=0)
+    pose_start: int = option(100, "with --capture: first step that corrects poses (the scene takes shape first)",
+                             min=0)
+    exposure_lr: float = option(2e-3, "with --capture: learning rate of the per-view exposure corrections (0: off)",
+                                min=0)
 
     def validate(self) -> "TrainConfig":
+        if not all(math.isfinite(v) for v in (self.minutes, self.lr, self.lr_final_factor, self.checkpoint_seconds)):
+            raise fail("train", "--minutes, --lr, --lr-final-factor and --checkpoint-seconds must be finite numbers")
+        if not 0 <= self.batch_rays <= MAX_BATCH_RAYS or not 0 <= self.render_chunk <= MAX_BATCH_RAYS:
+            raise fail("train", f"--batch-rays and --render-chunk must be in 0..{MAX_BATCH_RAYS}")
         if self.steps < 0 or self.minutes < 0:
             raise fail("train", "--steps and --minutes must be >= 0")
         if self.steps == 0 and self.minutes == 0:

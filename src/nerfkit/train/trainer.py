@@ -22,18 +22,23 @@ import torch
 from ..data.rays import RaysData
 from ..data.scene import Scene
 from ..errors import fail
-from ..io.atomic import write_image, write_json, write_text
+from ..io.atomic import TMP_MARK, write_image, write_json, write_text
+from ..io.lock import LOCK_FILE
 from ..models import SceneBounds, build_model
 from ..models.base import NerfModel
 from ..render.renderer import render_image
 from ..viz.plots import image_grid, plot_curves
-from .checkpoint import load_latest_checkpoint, read_run, save_checkpoint, write_run_config
+from .checkpoint import (check_dataset, checkpoint_paths, dataset_fingerprint, load_latest_checkpoint, read_run,
+                         run_lock, save_checkpoint, save_model, write_run_config)
 from .config import TrainConfig, parse_background, resolve_autocast, resolve_device
 from .metrics import psnr, psnr_from_mse
 from .view_corrections import ViewCorrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
+# Signals that stop training cleanly (finish the step, save, exit): Ctrl-C, and what
+# `kill`, `timeout`, schedulers and containers send.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 @dataclass
@@ -109,7 +114,7 @@ class Trainer:
             write_run_config(self.run_dir, cfg, model_config, self.bounds, {
                 "source": scene.source, "width": scene.train.width, "height": scene.train.height,
                 "n_train": len(scene.train), "n_val": len(scene.val), "n_test": len(scene.test),
-                "near": scene.near, "far": scene.far,
+                "near": scene.near, "far": scene.far, "fingerprint": dataset_fingerprint(scene),
             })
 
     # -- state ---------------------------------------------------------------------
@@ -238,8 +243,9 @@ class Trainer:
         self.bad_steps += 1
         self.log(f"step {self.step}: {what} ({self.bad_steps} in a row)")
         if self.bad_steps >= MAX_BAD_STEPS:
-            raise fail(self.run_dir, f"training diverged: {self.bad_steps} steps in a row had non-finite values",
-                       "The last good checkpoint is kept; lower --lr and resume with --resume")
+            fix = ("The last good checkpoint is kept; lower --lr and resume with --resume" if checkpoint_paths(self.run_dir)
+                   else "No checkpoint was written yet; start again with a lower --lr into a new --out")
+            raise fail(self.run_dir, f"training diverged: {self.bad_steps} steps in a row had non-finite values", fix)
 
     # -- evaluation ------------------------------------------------------------------
     def evaluate(self, n_views: int | None = None) -> float | None:
@@ -266,17 +272,18 @@ class Trainer:
             tqdm.write(msg, file=sys.stderr)
 
     def run(self, stop_after: int | None = None) -> TrainResult:
-        """Train until the stopping rule (or Ctrl-C, or step ``stop_after``), then save."""
+        """Train until the stopping rule (or Ctrl-C / SIGTERM, or step ``stop_after``), then save."""
         from tqdm import tqdm
 
         interrupted = False
-        previous = signal.getsignal(signal.SIGINT)
+        previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
 
-        def on_sigint(signum, frame):  # finish the current step, then save and stop
+        def on_stop_signal(signum, frame):  # finish the current step, then save and stop
             nonlocal interrupted
             interrupted = True
 
-        signal.signal(signal.SIGINT, on_sigint)
+        for s in STOP_SIGNALS:
+            signal.signal(s, on_stop_signal)
         total = self.cfg.steps if self.cfg.steps else None
         bar = tqdm(total=total, initial=self.step, desc=f"train {self.cfg.model}", unit="step", dynamic_ncols=True,
                    disable=self.quiet, file=sys.stderr,
@@ -313,8 +320,10 @@ class Trainer:
                     last_ckpt = time.perf_counter()
         finally:
             bar.close()
-            signal.signal(signal.SIGINT, previous)
+            for s, handler in previous.items():
+                signal.signal(s, handler)
         self.save()
+        save_model(self.run_dir, self.step, self.model)
         self.write_reports()
         if interrupted:
             self.log(f"interrupted: checkpoint saved at step {self.step}; continue with "
@@ -371,26 +380,44 @@ class Trainer:
 
 
 def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False) -> TrainResult:
-    """Train a new run (``cfg.out`` is created; an existing run there is refused)."""
+    """Train a new run (``cfg.out`` is created; an existing run, or a folder of other files, is refused)."""
     run_dir = Path(cfg.out)
-    if (run_dir / "config.json").exists():
-        raise fail(run_dir, "already holds a run", "Continue it with --resume, or choose another --out")
+    check_new_run_folder(run_dir)
     cfg, model_config = capture_settings(cfg.validate(), model_config, scene)
     cfg = resolved_config(cfg, model_config)
-    return Trainer(scene, cfg, model_config, quiet=quiet).run()
+    if cfg.data:
+        cfg.data = str(Path(cfg.data).resolve())  # eval and --resume must find it from any folder
+    with run_lock(run_dir):
+        check_new_run_folder(run_dir)  # again, holding the lock: another process may have just started
+        return Trainer(scene, cfg, model_config, quiet=quiet).run()
+
+
+def check_new_run_folder(run_dir: Path) -> None:
+    """A new run goes into a new or empty folder, never over another run or the user's files."""
+    if (run_dir / "config.json").exists():
+        raise fail(run_dir, "already holds a run", "Continue it with --resume, or choose another --out")
+    if run_dir.is_file():
+        raise fail(run_dir, "is a file", "--out names the run folder to create")
+    if run_dir.is_dir() and any(p.name != LOCK_FILE and TMP_MARK not in p.name for p in run_dir.iterdir()):
+        raise fail(run_dir, "holds files that are not a nerfkit run", "Choose a new or empty --out")
 
 
 def resume(run_dir: str | Path, scene: Scene, steps: int | None = None, minutes: float | None = None,
-           quiet: bool = False) -> TrainResult:
-    """Continue a run from its newest good checkpoint (optionally with a new stopping rule)."""
-    info = read_run(run_dir)
-    cfg = info.train
-    if steps is not None:
-        cfg.steps = steps
-    if minutes is not None:
-        cfg.minutes = minutes
-    cfg.out = str(run_dir)
-    return Trainer(scene, cfg, info.model_config, resume=True, quiet=quiet).run()
+           quiet: bool = False, changes: dict | None = None) -> TrainResult:
+    """Continue a run from its newest good checkpoint (optionally with a new stopping rule,
+    and the TrainConfig fields in ``changes``) on the dataset it was trained on."""
+    with run_lock(run_dir):
+        info = read_run(run_dir)
+        check_dataset(info, scene)
+        cfg = info.train
+        if steps is not None:
+            cfg.steps = steps
+        if minutes is not None:
+            cfg.minutes = minutes
+        for key, value in (changes or {}).items():
+            setattr(cfg, key, value)
+        cfg.out = str(run_dir)
+        return Trainer(scene, cfg.validate(), info.model_config, resume=True, quiet=quiet).run()
 
 
 __all__ = ["TrainResult", "Trainer", "asdict", "resume", "train"]

@@ -102,14 +102,16 @@ class LoadedRun:
 
 
 def newest_checkpoint(run_dir: Path) -> tuple[Path, float] | None:
-    """(path, mtime) of the newest checkpoint file of a run, or None."""
-    paths = sorted((run_dir / "checkpoints").glob("step_*.pt"), reverse=True)
-    for p in paths:
-        try:
-            return p, p.stat().st_mtime
-        except FileNotFoundError:  # pruned while we looked
-            continue
-    return None
+    """(path, mtime) of the newest checkpoint file of a run (or its final ``model.pt``), or None."""
+    found = []
+    for group in (sorted((run_dir / "checkpoints").glob("step_*.pt"), reverse=True), [run_dir / "model.pt"]):
+        for p in group:
+            try:
+                found.append((p, p.stat().st_mtime))
+                break
+            except FileNotFoundError:  # pruned while we looked
+                continue
+    return max(found, key=lambda f: f[1], default=None)
 
 
 class RunWatcher:

@@ -1,0 +1,43 @@
+"""One process per run folder: an exclusive ``flock`` on ``RUN/.lock``.
+
+The lock file holds the pid of the process that has the lock, so the refusal can say
+which process is using the folder. The kernel drops the lock when the process ends, even
+on SIGKILL, so a crashed run never leaves its folder locked. The file itself stays (removing
+it would let two processes lock two different files of the same name).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+from pathlib import Path
+from typing import Iterator
+
+from ..errors import fail
+
+LOCK_FILE = ".lock"
+
+
+@contextlib.contextmanager
+def folder_lock(folder: str | os.PathLike) -> Iterator[Path]:
+    """Hold the exclusive lock of ``folder`` (created if needed) for the ``with`` block."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    fd = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            other = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "unknown"
+            raise fail(folder, f"is in use by another nerfkit process (pid {other})",
+                       "Wait for it to finish or stop it; two processes must never write one run") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        try:
+            yield folder
+        finally:
+            os.ftruncate(fd, 0)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+    finally:
+        os.close(fd)
