@@ -145,7 +145,7 @@ def test_calibrate_command_writes_camera_file_and_explains_skips(tmp_path, sheet
     assert "zz_corrupt.jpg" in printed and "RMS reprojection error" in printed and "held-out px" in printed
     # Second run reuses the detection cache: the cache file is there and results are identical.
     assert (out.parent / "camera.detections.json").exists()
-    assert main(["calibrate", str(folder), "--tag-size", str(TAG), "--out", str(out)]) == 0
+    assert main(["calibrate", str(folder), "--tag-size", str(TAG), "--out", str(out), "--force"]) == 0
     assert json.loads(out.read_text())["K"] == cam["K"]
     # The estimated layout in the camera file serves as a layout file for the next calibration.
     out2 = tmp_path / "cam2.json"

@@ -172,7 +172,7 @@ def test_export_command_writes_both_files(tmp_path, monkeypatch, capsys):
     scene = sphere_scene(n_train=4, n_val=1, size=16)
     save_npz(scene, tmp_path / "s.npz")
     bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
-    info = SimpleNamespace(bounds=bounds, run_dir=tmp_path,
+    info = SimpleNamespace(bounds=bounds, run_dir=tmp_path, scene={},
                            train=SimpleNamespace(data=str(tmp_path / "s.npz"), background="black"))
     opened = _common.OpenRun(SphereModel(bounds), info, 7, torch.device("cpu"), 8192, None)
     monkeypatch.setattr(_common, "open_run", lambda args: opened)

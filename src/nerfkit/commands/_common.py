@@ -53,7 +53,8 @@ def scene_for_run(info, data: str | None, need: str = "train", allow_outside: bo
 
     if data:
         return load_scene(data, need=need, allow_outside=allow_outside)
-    scene = load_scene(run_dataset_path(info), allow_outside=allow_outside or info.train.allow_outside_paths)
+    allow_outside = allow_outside or getattr(info.train, "allow_outside_paths", False)  # as the run was trained
+    scene = load_scene(run_dataset_path(info), allow_outside=allow_outside)
     check_dataset(info, scene)
     return scene
 

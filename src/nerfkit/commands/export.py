@@ -66,12 +66,10 @@ def run(args: argparse.Namespace) -> int:
     if args.mesh and args.points and Path(args.mesh).resolve() == Path(args.points).resolve():
         raise fail("--mesh/--points", "name the same file")
     from ..io.paths import guard_outputs
-    from ..train.checkpoint import read_run
     from ._common import open_run
 
-    guard_outputs([args.mesh, args.points], [args.data or read_run(args.run).train.data], args.force, "--mesh/--points")
-
     run_ = open_run(args)
+    guard_outputs([args.mesh, args.points], [args.data or run_.info.train.data], args.force, "--mesh/--points")
     center, radius = run_.info.bounds.center, run_.info.bounds.radius * args.box_scale
     if args.mesh:
         export_mesh(run_, center, radius, args)
