@@ -11,12 +11,14 @@ MEMORY_HINT = "Lower --chunk (rays rendered at once)"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from ..config import number
+
     p = sub.add_parser("eval", help=HELP, description=HELP + ": mean psnr and ssim plus a per-image list; also "
                        "written to RUN/eval_<split>.json, with a contact sheet (photos beside renders) in "
                        "RUN/eval_<split>.png.")
     add_run_args(p)
     p.add_argument("--split", choices=["val", "test", "train"], default="val", help="which images (default: val)")
-    p.add_argument("--fit-views", type=int, default=None, metavar="STEPS",
+    p.add_argument("--fit-views", type=number(int, 0, 100_000), default=None, metavar="STEPS",
                    help="also score each view after fitting its pose and exposure to its photo with the scene frozen, "
                         "for this many steps (default: 100 for runs trained with --capture, else 0: off)")
     p.set_defaults(func=run)
@@ -58,8 +60,6 @@ def run(args: argparse.Namespace) -> int:
     steps = args.fit_views
     if steps is None:
         steps = 100 if getattr(run_.info.train, "capture", "off") == "on" else 0
-    if steps < 0:
-        raise fail("--fit-views", f"{steps} must be >= 0")
     fit = ViewFitConfig(steps=steps) if steps else None
     sheet: list = []
     result = {"split": args.split, "step": run_.step, "data": scene.source,
