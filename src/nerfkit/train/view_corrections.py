@@ -39,6 +39,11 @@ def so3_exp(w: Tensor) -> Tensor:
     return torch.linalg.matrix_exp(skew(w))
 
 
+def mean_removed(*params: Tensor) -> tuple[Tensor, ...]:
+    """Each (n_views, k) parameter less its mean over views; a single view's as it is."""
+    return tuple(p if p.shape[0] == 1 else p - p.mean(0) for p in params)
+
+
 class PoseCorrection(nn.Module):
     """Per-view rigid corrections in the world frame, about each camera's centre.
 
@@ -60,9 +65,7 @@ class PoseCorrection(nn.Module):
 
     def centred(self) -> tuple[Tensor, Tensor]:
         """(n_views, 3) rotation vectors and translations, mean removed (one view: as is)."""
-        if self.rotation.shape[0] == 1:
-            return self.rotation, self.translation
-        return self.rotation - self.rotation.mean(0), self.translation - self.translation.mean(0)
+        return mean_removed(self.rotation, self.translation)
 
     def forward(self, rays: Rays, view: Tensor) -> Rays:
         """Rays (n_rays) of views ``view`` (n_rays,) -> the corrected rays."""
@@ -102,9 +105,7 @@ class ExposureCorrection(nn.Module):
 
     def centred(self) -> tuple[Tensor, Tensor]:
         """(n_views, 3) log gains and offsets with their mean over views removed."""
-        if self.log_gain.shape[0] == 1:
-            return self.log_gain, self.offset
-        return self.log_gain - self.log_gain.mean(0), self.offset - self.offset.mean(0)
+        return mean_removed(self.log_gain, self.offset)
 
     def forward(self, rgb: Tensor, view: Tensor) -> Tensor:
         """(n_rays, 3) rendered colours of views ``view`` (n_rays,) -> corrected colours."""
