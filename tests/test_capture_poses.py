@@ -248,5 +248,5 @@ def test_poses_use_the_camera_files_layout_when_photos_show_several_tags(tmp_pat
         pos, ang = pose_error(np.array(p["c2w"]), sheet.c2w[sheet.names.index(p["file"])])
         assert pos < 0.002 and ang < 0.3
     assert main(["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", "0.05",
-                 "--out", str(out), "--no-dataset", "--single-tag"]) == 0
+                 "--out", str(out), "--no-dataset", "--single-tag", "--force"]) == 0
     assert all(len(p["tags_used"]) == 1 for p in json.loads((out / "poses.json").read_text())["photos"] if p["used"])
