@@ -26,7 +26,7 @@ centred and scaled to a mean camera distance of 4 and the report says so.
 examples:
   nerfkit poses object_photos/ --camera camera.json --tag-size 0.06 --out my_object/
   nerfkit poses object_photos/ --method colmap --out my_object/
-  nerfkit train --data my_object/dataset.npz --learn-background
+  nerfkit train --data my_object/dataset.npz --minutes 3     (capture settings are automatic)
 """
 
 
