@@ -57,6 +57,11 @@ class SceneBounds:
                            None if table is None else np.asarray(table, np.float32))
 
 
+def grads_finite(params) -> bool:
+    """True when every ``.grad`` among ``params`` (those that have one) is finite."""
+    return all(bool(torch.isfinite(p.grad).all()) for p in params if p.grad is not None)
+
+
 @dataclass
 class RenderOutput:
     """What a model returns for n_rays rays.
@@ -121,7 +126,7 @@ class NerfModel(nn.Module):
     def gradients_finite(self) -> bool:
         """True when every gradient of the last backward pass is finite (checked before
         the optimizer step; models keeping gradients outside ``.grad`` check those too)."""
-        return all(bool(torch.isfinite(p.grad).all()) for p in self.parameters() if p.grad is not None)
+        return grads_finite(self.parameters())
 
     def before_step(self, step: int, progress: float) -> bool:
         """Called before each training step; ``progress`` in [0, 1]. Return True when

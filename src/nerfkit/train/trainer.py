@@ -25,7 +25,7 @@ from ..errors import fail
 from ..io.atomic import TMP_MARK, write_image, write_json, write_text
 from ..io.lock import LOCK_FILE
 from ..models import SceneBounds, build_model
-from ..models.base import NerfModel
+from ..models.base import NerfModel, grads_finite
 from ..render.renderer import render_image
 from ..viz.plots import image_grid, plot_curves
 from .checkpoint import (check_dataset, checkpoint_paths, dataset_fingerprint, load_latest_checkpoint, read_run,
@@ -92,7 +92,6 @@ class Trainer:
         self.bounds = SceneBounds.from_scene(scene) if not resume else read_run(self.run_dir).bounds
         self.model: NerfModel = build_model(cfg.model, model_config, self.bounds).to(self.device)
         self.optimizer = self.model.make_optimizer(cfg.lr)
-        self._remember_initial_lr()
         self.rays = RaysData(scene.train, self.device, seed=cfg.seed)
         self.views: ViewCorrections | None = None
         self.view_optimizer: torch.optim.Optimizer | None = None
@@ -100,8 +99,7 @@ class Trainer:
             self.views = ViewCorrections(len(scene.train), self.bounds.radius, cfg.pose_lr > 0,
                                          cfg.exposure_lr > 0).to(self.device)
             self.view_optimizer = torch.optim.Adam(self.views.param_groups(cfg.pose_lr, cfg.exposure_lr))
-            for g in self.view_optimizer.param_groups:
-                g.setdefault("initial_lr", g["lr"])
+        self._remember_initial_lr()
         self.step = 0
         self.train_seconds = 0.0
         self.rows: list[dict] = []
@@ -118,8 +116,15 @@ class Trainer:
             })
 
     # -- state ---------------------------------------------------------------------
+    def _param_groups(self) -> list[dict]:
+        """Every optimizer parameter group: the model's, then the per-view corrections'."""
+        groups = list(self.optimizer.param_groups)
+        if self.view_optimizer is not None:
+            groups += self.view_optimizer.param_groups
+        return groups
+
     def _remember_initial_lr(self) -> None:
-        for g in self.optimizer.param_groups:
+        for g in self._param_groups():
             g.setdefault("initial_lr", g["lr"])
 
     def _rng_state(self) -> dict:
@@ -177,10 +182,7 @@ class Trainer:
 
     def _set_lr(self) -> None:
         factor = self.cfg.lr_final_factor ** self.progress()
-        groups = list(self.optimizer.param_groups)
-        if self.view_optimizer is not None:
-            groups += self.view_optimizer.param_groups
-        for g in groups:
+        for g in self._param_groups():
             g["lr"] = g["initial_lr"] * factor
 
     def _eval_due(self) -> bool:
@@ -215,8 +217,7 @@ class Trainer:
         finite = bool(torch.isfinite(loss))
         if finite:
             loss.backward()
-            finite = self.model.gradients_finite() and (views is None or all(
-                bool(torch.isfinite(p.grad).all()) for p in views.parameters() if p.grad is not None))
+            finite = self.model.gradients_finite() and (views is None or grads_finite(views.parameters()))
         if not finite:
             self._zero_grad()
             self._bad_step("non-finite loss or gradient, step skipped")
