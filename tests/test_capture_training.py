@@ -45,6 +45,31 @@ def test_auto_capture_settings_follow_the_dataset(tabletop):
     assert c.capture == "on" and m.learn_background and m.table
     c, m = capture_settings(TrainConfig(capture="off"), FastConfig(), tabletop)
     assert c.capture == "off" and not m.learn_background and not m.table
+    # the distortion loss is on for captures unless a weight is given
+    assert capture_settings(TrainConfig(), FastConfig(), tabletop)[1].distortion_weight == 0.01
+    assert capture_settings(TrainConfig(capture="off"), FastConfig(), tabletop)[1].distortion_weight == 0.0
+    assert capture_settings(TrainConfig(), FastConfig(distortion_weight=0.2), tabletop)[1].distortion_weight == 0.2
+
+
+def test_distortion_loss_enters_the_fast_model_loss_in_units_of_the_radius(tabletop):
+    from nerfkit.cameras import image_rays
+    from nerfkit.models import SceneBounds
+    from nerfkit.models.fast import FastNeRF
+
+    torch.manual_seed(0)
+    bounds = SceneBounds.from_scene(tabletop)
+    losses = {}
+    for w in (0.0, 0.5):
+        model = FastNeRF(FastConfig(resolutions="16", upsample_steps="", table=True, table_resolution=16,
+                                    distortion_weight=w, init_alpha=0.2), bounds)
+        rays = image_rays(torch.as_tensor(tabletop.train.K[0]).float(), torch.as_tensor(tabletop.train.c2w[0]).float(),
+                          tabletop.train.width, tabletop.train.height)
+        out = model.render_rays(rays, torch.zeros(3), perturb=False)
+        target = torch.full_like(out.rgb, 0.5)
+        losses[w] = (float(model.loss(out, target).detach()), out)
+    dist = losses[0.5][1].extras["distortion"]
+    assert float(dist.mean()) > 0  # a hazy initial field spreads its weight
+    assert losses[0.5][0] - losses[0.0][0] == pytest.approx(0.5 / bounds.radius * float(dist.mean()), rel=1e-4)
 
 
 def test_capture_training_recovers_exposure_and_beats_plain_training(tmp_path, tabletop):

@@ -411,3 +411,73 @@ def test_grid_adam_state_dict_round_trip_resumes_identically():
     for g in grads[2:]:
         step(c, opt_c, g)
     torch.testing.assert_close(c.data, a.data)
+
+
+def distortion_brute_force(w, t, interval, t_end=None):
+    """mip-NeRF 360's distortion, summed over every pair (float64), with the leftover
+    weight as one more sample at ``t_end`` where that is finite."""
+    out = []
+    for r in range(w.shape[0]):
+        ws, ts = list(w[r].tolist()), list(t[r].tolist())
+        own = sum(x * x * interval for x in ws) / 3.0
+        if t_end is not None and math.isfinite(float(t_end[r])):
+            ws.append(1.0 - sum(w[r].tolist()))
+            ts.append(float(t_end[r]))
+        out.append(sum(a * b * abs(ta - tb) for a, ta in zip(ws, ts) for b, tb in zip(ws, ts)) + own)
+    return torch.tensor(out, dtype=torch.float64)
+
+
+def test_distortion_matches_all_pairs_and_the_worked_examples():
+    from nerfkit.render.volrend import distortion, render_weights
+
+    gen = torch.Generator().manual_seed(5)
+    sig = torch.rand(6, 9, generator=gen, dtype=torch.float64) * 3
+    t = torch.cumsum(torch.full((6, 9), 0.2, dtype=torch.float64), 1) + torch.rand(6, 1, generator=gen)
+    w, _, _ = render_weights(sig, torch.tensor(0.2, dtype=torch.float64))
+    ends = torch.tensor([3.0, math.inf, 2.5, 4.0, math.inf, 3.3], dtype=torch.float64)
+    torch.testing.assert_close(distortion(w, t, 0.2), distortion_brute_force(w, t, 0.2))
+    torch.testing.assert_close(distortion(w, t, 0.2, ends), distortion_brute_force(w, t, 0.2, ends))
+    # all weight in one sample: only its own interval term; half of it 2 further on a surface
+    one = torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64)
+    tt = torch.tensor([[0.5, 1.5, 2.5]], dtype=torch.float64)
+    assert float(distortion(one, tt, 1.0)) == pytest.approx(1 / 3)
+    half = one * 0.5
+    assert float(distortion(half, tt, 1.0, torch.tensor([3.5], dtype=torch.float64))) == pytest.approx(
+        2 * 0.5 * 0.5 * 2 + 0.25 / 3)
+    # haze spread in front of a surface costs more than the same weight next to it
+    near = torch.tensor([[0.0, 0.0, 0.3]], dtype=torch.float64)
+    far = torch.tensor([[0.3, 0.0, 0.0]], dtype=torch.float64)
+    end = torch.tensor([2.6], dtype=torch.float64)
+    assert float(distortion(far, tt, 1.0, end)) > 5 * float(distortion(near, tt, 1.0, end))
+
+
+@needs_numba
+@pytest.mark.parametrize("sh_degree", [0, 2])
+def test_compiled_distortion_matches_reference_values_and_gradients(sh_degree):
+    """The distortion loss (with a surface behind some rays) through the compiled
+    forward/backward against autograd on the torch reference, grid and ray gradients."""
+    grid, geom = random_field(seed=70 + sh_degree, sh_degree=sh_degree)
+    spec, _ = spec_for(grid, geom)
+    o, d, t0, t1, u = random_rays(300, geom, seed=3)
+    t_end = torch.where(torch.arange(300) % 3 == 0, torch.full_like(t1, math.inf), t1 + 0.3)
+    outs, grads = [], []
+    for backend, dt in (("numba", torch.float32), ("torch", torch.float64)):
+        g = grid.to(dt).clone().requires_grad_()
+        oo, dd = o.to(dt).clone().requires_grad_(), d.to(dt).clone().requires_grad_()
+        sink = GradSink(geom.n_vertices, grid.shape[1]) if backend == "numba" else None
+        gm = GridGeom(geom.lo.to(dt), geom.voxel, geom.res)
+        out = render_grid(g, gm, spec, oo, dd, t0.to(dt), t1.to(dt), u.to(dt), sh_degree, sink, backend,
+                          t_end=t_end.to(dt))
+        w_rgb, _, w_a = (w.to(dt) for w in loss_weights(300))
+        loss = 3.0 * out.distortion.sum()  # alone at degree 0, so that its gradient is checked by itself
+        if sh_degree:
+            loss = loss + (out.rgb * w_rgb).sum() + (out.acc * w_a).sum()
+        loss.backward()
+        outs.append(out)
+        grads.append((sink.grad.sum(0) if sink is not None else g.grad, oo.grad, dd.grad))
+    fast, slow = outs
+    assert torch.equal(fast.counts.long(), slow.counts.long())
+    assert float(slow.distortion.detach().abs().max()) > 1e-3  # the loss is not trivially zero
+    torch.testing.assert_close(fast.distortion.double(), slow.distortion, atol=1e-6, rtol=1e-4)
+    for got, want in zip(grads[0], grads[1]):
+        torch.testing.assert_close(got.double(), want, atol=5e-5, rtol=2e-4)

@@ -301,6 +301,40 @@ def render_forward(grid, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
 
 
 @njit(cache=True, fastmath=False, inline="always")
+def _distortion_sums(s_f, r, cnt, step, te):
+    """Over ray ``r``'s stored samples (plus the leftover weight at ``te`` when finite):
+    ``(sum w, sum w t, sum_ij w_i w_j |t_i - t_j|, sum w^2 of the real samples)``."""
+    T = 1.0
+    w_sum = 0.0
+    wt_sum = 0.0
+    pairs = 0.0
+    sq = 0.0
+    for k in range(cnt):
+        t = s_f[k, r, 8]
+        e = math.exp(-s_f[k, r, 4] * step)
+        w = T * (1.0 - e)
+        T = T * e
+        pairs += 2.0 * w * (t * w_sum - wt_sum)
+        w_sum += w
+        wt_sum += w * t
+        sq += w * w
+    if math.isfinite(te):
+        pairs += 2.0 * T * (te * w_sum - wt_sum)
+        w_sum += T
+        wt_sum += T * te
+    return w_sum, wt_sum, pairs, sq
+
+
+@njit(parallel=True, cache=True, fastmath=False)
+def distortion_forward(s_f, counts, step, t_end, out):
+    """The distortion loss of each ray (see :func:`nerfkit.render.volrend.distortion`)
+    from the stored samples of :func:`render_forward`: ``out (n,)`` float32."""
+    for r in prange(counts.shape[0]):
+        _, _, pairs, sq = _distortion_sums(s_f, r, counts[r], step, t_end[r])
+        out[r] = pairs + step * sq / 3.0
+
+
+@njit(cache=True, fastmath=False, inline="always")
 def _trilinear_grad(v000, v001, v010, v011, v100, v101, v110, v111, fx, fy, fz):
     """Trilinear interpolation of 8 corner values ``v{z}{y}{x}`` at fractions ``fx, fy, fz``
     and its derivatives: ``(value, d/dfx, d/dfy, d/dfz)``."""
@@ -361,7 +395,7 @@ def _sample_point_grad(grid, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh,
 
 @njit(cache=True, parallel=True, fastmath=False)
 def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscale, rgb, depth, acc,
-                    g_rgb, g_depth, g_acc, grads, touched, ray_grads, g_o, g_d, g_sh):
+                    g_rgb, g_depth, g_acc, g_dist, t_end, grads, touched, ray_grads, g_o, g_d, g_sh):
     """Gradients of the loss w.r.t. the grid (added into per-lane buffers) and, with
     ``ray_grads``, w.r.t. the rays.
 
@@ -369,6 +403,9 @@ def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscal
     later samples: ``dC/dtau_k = T_{k+1} c_k - sum_{i>k} w_i c_i``,
     ``dD/dtau_k = T_{k+1} t_k - sum_{i>k} w_i t_i``, ``dA/dtau_k = T_{k+1} - sum_{i>k} w_i``
     and ``dC/dc_k = w_k``; the suffix sums are the totals minus running prefix sums.
+    The distortion loss ``L`` (:func:`distortion_forward`) enters the same way:
+    ``dL/dtau_k = T_{k+1} g_k - sum_{i>k} w_i g_i`` with ``g_i = dL/dw_i``, whose total
+    ``sum_i w_i g_i = 2 L_pairs + (2/3) step sum_i w_i^2`` a first pass over the ray gives.
 
     Lane ``l`` of ``L = grads.shape[0]`` handles a contiguous range of rays and adds only
     into ``grads[l]`` (N, C), so lanes never race and the result does not depend on
@@ -386,7 +423,9 @@ def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscal
         sh (n, K) float32; grid (N, C) float32: the forward's inputs (grid read only with
             ``ray_grads``); inv_voxel: 1 / voxel.
         rgb, depth, acc: the forward outputs (foreground colour, no background).
-        g_rgb (n, 3), g_depth (n,), g_acc (n,): upstream gradients.
+        g_rgb (n, 3), g_depth (n,), g_acc (n,), g_dist (n,): upstream gradients (of the
+            distortion loss for ``g_dist``; rays with 0 skip its passes).
+        t_end (n,) float64: where the distortion loss puts the leftover weight (inf: nowhere).
         g_o (n, 3), g_d (n, 3), g_sh (n, K) float64, zero on entry: the ray gradients
             (left untouched without ``ray_grads``).
     """
@@ -413,6 +452,16 @@ def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscal
             pd = 0.0
             pa = 0.0
             cnt = counts[r]
+            gl = g_dist[r]
+            w_tot = 0.0
+            wt_tot = 0.0
+            g_tot = 0.0
+            if gl != 0.0:
+                w_tot, wt_tot, pairs, sq = _distortion_sums(s_f, r, cnt, step, t_end[r])
+                g_tot = 2.0 * pairs + (2.0 / 3.0) * step * sq
+            w_pre = 0.0
+            wt_pre = 0.0
+            wg_pre = 0.0
             for k in range(cnt):
                 if k + 2 < cnt:
                     qb = s_idx[k + 2, r] & ROW_MASK
@@ -442,6 +491,14 @@ def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscal
                 dtau = (gr * (Tn * colr - (rgb[r, 0] - pr)) + gg * (Tn * colg - (rgb[r, 1] - pg))
                         + gb * (Tn * colb - (rgb[r, 2] - pb)) + gd * (Tn * t - (depth[r] - pd))
                         + ga * (Tn - (acc[r] - pa)))
+                if gl != 0.0:
+                    # dL/dw_k: |t_k - t_j| summed over earlier (w_pre) and later samples
+                    g_k = (2.0 * ((t * w_pre - wt_pre) + (wt_tot - wt_pre - w * t) - t * (w_tot - w_pre - w))
+                           + (2.0 / 3.0) * step * w)
+                    wg_pre += w * g_k
+                    dtau += gl * (Tn * g_k - (g_tot - wg_pre))
+                    w_pre += w
+                    wt_pre += w * t
                 graw = dtau * step * dscale * _softplus_grad(raw)
                 dzr = w * gr * colr * (1.0 - colr)
                 dzg = w * gg * colg * (1.0 - colg)
@@ -609,8 +666,10 @@ def warm_up() -> None:
     grads = np.zeros((2,) + grid.shape, np.float32)
     touched = np.zeros(rx * ry * rz, np.uint8)
     g_o, g_sh = np.zeros((1, 3)), np.zeros((1, K))
-    render_backward(s_idx, s_f, cnt, sh, grid, rx, ry, 1.0, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, grads, touched,
-                    True, g_o, g_o.copy(), g_sh)
+    g_dist, t_end = np.zeros(1, np.float32), np.full(1, np.inf)
+    distortion_forward(s_f, cnt, 0.5, t_end, g_dist)
+    render_backward(s_idx, s_f, cnt, sh, grid, rx, ry, 1.0, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, g_dist, t_end,
+                    grads, touched, True, g_o, g_o.copy(), g_sh)
     m = np.zeros_like(grid)
     rows = touched_rows(touched)
     adam_rows(grid, grads, rows, touched, m, m.copy(), np.ones(C, np.float32), 0.9, 0.99, 1e-15, 0.1, 0.01)

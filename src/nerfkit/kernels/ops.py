@@ -227,22 +227,25 @@ class _NumbaRender(torch.autograd.Function):
     computes only the gradients asked for."""
 
     @staticmethod
-    def forward(ctx, grid, rays_o, rays_d, sh, t0, t1, u, geom, spec, sink, nb):
+    def forward(ctx, grid, rays_o, rays_d, sh, t0, t1, u, t_end, geom, spec, sink, nb):
         lease = _lease()
         rgb, depth, acc, count, s_idx, s_f = _forward_numba(nb, grid, geom, spec, rays_o, rays_d, sh,
                                                             t0, t1, u, True, lease)
+        t_end = _np64(t_end)
+        dist = np.zeros(len(count), np.float32)
+        nb.distortion_forward(s_f, count, float(spec.step), t_end, dist)
         ctx.lease = lease
-        ctx.saved = (rgb, depth, acc, count, s_idx, s_f, _np32(sh), grid.detach().numpy())
+        ctx.saved = (rgb, depth, acc, count, s_idx, s_f, _np32(sh), grid.detach().numpy(), t_end)
         ctx.geom, ctx.spec, ctx.sink, ctx.nb = geom, spec, sink, nb
         ctx.ray_like = [torch.empty(0, dtype=x.dtype, device=x.device) for x in (rays_o, rays_d, sh)]
         ctx.n_samples = int(count.sum())
-        out = [torch.from_numpy(a) for a in (rgb, depth, acc, count)]
+        out = [torch.from_numpy(a) for a in (rgb, depth, acc, count, dist)]
         ctx.mark_non_differentiable(out[3])
         return tuple(out)
 
     @staticmethod
-    def backward(ctx, g_rgb, g_depth, g_acc, _g_count):
-        rgb, depth, acc, count, s_idx, s_f, sh, grid = ctx.saved
+    def backward(ctx, g_rgb, g_depth, g_acc, _g_count, g_dist):
+        rgb, depth, acc, count, s_idx, s_f, sh, grid, t_end = ctx.saved
         n, K = sh.shape
 
         def arr(g, shape):
@@ -259,7 +262,8 @@ class _NumbaRender(torch.autograd.Function):
         g_o, g_d, g_sh = np.zeros((m, 3)), np.zeros((m, 3)), np.zeros((m, K))
         nb.render_backward(s_idx, s_f, count, sh, grid, geom.res[0], geom.res[1], 1.0 / geom.voxel,
                            float(ctx.spec.step), float(ctx.spec.density_scale), rgb, depth, acc,
-                           arr(g_rgb, (n, 3)), arr(g_depth, (n,)), arr(g_acc, (n,)), grads, touched,
+                           arr(g_rgb, (n, 3)), arr(g_depth, (n,)), arr(g_acc, (n,)), arr(g_dist, (n,)), t_end,
+                           grads, touched,
                            ray_grads, g_o, g_d, g_sh)
         if need_grid:
             sink.dirty = True
@@ -267,19 +271,22 @@ class _NumbaRender(torch.autograd.Function):
         ctx.saved = None
         ray_out = [torch.from_numpy(g).to(like) if need else None
                    for g, like, need in zip((g_o, g_d, g_sh), ctx.ray_like, (need_o, need_d, need_sh))]
-        return (None, *ray_out) + (None,) * 7
+        return (None, *ray_out) + (None,) * 8
 
 
 @dataclass
 class GridRender:
     """Output of :func:`render_grid`: foreground colour (n, 3) (no background), expected
-    depth (n,), opacity (n,), samples per ray (n,) and the total number of samples."""
+    depth (n,), opacity (n,), samples per ray (n,), the total number of samples, and
+    (when training) each ray's distortion loss (n,)
+    (:func:`~nerfkit.render.volrend.distortion`)."""
 
     rgb: Tensor
     depth: Tensor
     acc: Tensor
     counts: Tensor
     n_samples: int
+    distortion: Tensor | None = None
 
 
 def render_grid(
@@ -294,6 +301,7 @@ def render_grid(
     sh_degree: int,
     sink: GradSink | None,
     backend: str,
+    t_end: Tensor | None = None,
 ) -> GridRender:
     """Render rays through the grid field, differentiable in whichever of ``grid``,
     ``rays_o`` and ``rays_d`` require grad.
@@ -309,6 +317,8 @@ def render_grid(
         sink: where the compiled backward puts the grid gradient (needed when the grid
             requires grad; may be None for a frozen grid).
         backend: ``"numba"`` or ``"torch"``.
+        t_end: (n,) where the distortion loss puts each ray's leftover weight (e.g. the
+            table behind the box; inf or None: nowhere).
     """
     sh = ref.sh_basis(rays_d.float(), sh_degree)
     nb = numba_kernels() if backend == "numba" else None
@@ -316,16 +326,21 @@ def render_grid(
         if torch.is_grad_enabled() and (grid.requires_grad or rays_o.requires_grad or rays_d.requires_grad):
             if grid.requires_grad and sink is None:
                 raise ValueError("render_grid: a GradSink is needed to train the grid on the compiled path")
-            rgb, depth, acc, counts = _NumbaRender.apply(grid, rays_o, rays_d, sh, t0, t1, u, geom, spec, sink, nb)
+            ends = t_end if t_end is not None else torch.full_like(t0, math.inf)
+            rgb, depth, acc, counts, dist = _NumbaRender.apply(grid, rays_o, rays_d, sh, t0, t1, u, ends, geom, spec,
+                                                               sink, nb)
         else:
             out = _forward_numba(nb, grid, geom, spec, rays_o, rays_d, sh, t0, t1, u, False, None)
             rgb, depth, acc, counts = (torch.from_numpy(a) for a in out[:4])
+            dist = None
         dev = rays_o.device
-        return GridRender(rgb.to(dev), depth.to(dev), acc.to(dev), counts.to(dev), int(counts.sum()))
-    return render_grid_torch(grid, geom, spec, rays_o, rays_d, t0, t1, u, sh)
+        return GridRender(rgb.to(dev), depth.to(dev), acc.to(dev), counts.to(dev), int(counts.sum()),
+                          None if dist is None else dist.to(dev))
+    return render_grid_torch(grid, geom, spec, rays_o, rays_d, t0, t1, u, sh, t_end)
 
 
-def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0, t1, u, sh) -> GridRender:
+def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0, t1, u, sh,
+                      t_end: Tensor | None = None) -> GridRender:
     """The pure-torch path of :func:`render_grid`: autograd gives the grid a dense grad and
     the rays (``rays_o``, ``rays_d``, ``sh``) their gradients with the sample ``t`` fixed."""
     from ..render.occupancy import OccupancyGrid
@@ -343,10 +358,10 @@ def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0,
     # compiled backward): rays get gradients only through the points o + t d and the SH basis
     samples = occ.sampling(rays_o, rays_d, 0.0, math.inf, spec.step, sigma_fn=sigma_fn, early_stop_eps=spec.eps,
                            u=u, t_bounds=(t0, t1))
-    rgb, depth, acc = ref.render_samples(grid, geom.res, lo, geom.voxel, rays_o, rays_d, sh.to(grid.dtype),
-                                         samples.t, samples.mask, spec.step, spec.density_scale)
+    rgb, depth, acc, dist = ref.render_samples(grid, geom.res, lo, geom.voxel, rays_o, rays_d, sh.to(grid.dtype),
+                                               samples.t, samples.mask, spec.step, spec.density_scale, t_end)
     counts = samples.mask.sum(1).int()
-    return GridRender(rgb, depth, acc, counts, int(counts.sum()))
+    return GridRender(rgb, depth, acc, counts, int(counts.sum()), dist)
 
 
 def cell_density_max(grid: Tensor, geom: GridGeom, density_scale: float) -> Tensor:

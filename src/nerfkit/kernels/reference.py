@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..render.volrend import composite, render_weights
+from ..render.volrend import composite, distortion, render_weights
 
 # Real spherical-harmonic constants (as in Plenoxels / instant-ngp).
 SH_C0 = 0.28209479177387814
@@ -148,7 +148,8 @@ def render_samples(
     mask: Tensor,
     step: float,
     density_scale: float,
-) -> tuple[Tensor, Tensor, Tensor]:
+    t_end: Tensor | None = None,
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Volume-render padded samples of the grid field (the reference for the fused kernel).
 
     Uses exactly :func:`~nerfkit.render.volrend.render_weights` and
@@ -159,9 +160,11 @@ def render_samples(
         grid: (N, C) vertex features; res, lo, voxel: the grid's geometry.
         rays_o, rays_d: (n_rays, 3); sh: (n_rays, K) SH basis of the ray directions.
         t: (n_rays, S) sample distances; mask: (n_rays, S) which samples are real.
+        t_end: optional (n_rays,) where the distortion loss puts the leftover weight.
 
     Returns:
-        ``(rgb (n_rays, 3) without background, depth (n_rays,), acc (n_rays,))``.
+        ``(rgb (n_rays, 3) without background, depth (n_rays,), acc (n_rays,),
+        distortion (n_rays,))``.
     """
     n_rays, S = t.shape
     ray_id = torch.arange(n_rays, device=t.device).unsqueeze(1).expand(n_rays, S)[mask]
@@ -173,7 +176,7 @@ def render_samples(
     rgbs = rgbs.masked_scatter(mask.unsqueeze(-1).expand(n_rays, S, 3), col)
     weights, _, _ = render_weights(sigmas, torch.full_like(sigmas, step))
     rgb, depth, acc = composite(weights, rgbs, t)
-    return rgb, depth, acc
+    return rgb, depth, acc, distortion(weights, t, step, t_end)
 
 
 def adam_rows(param: Tensor, g: Tensor, rows: Tensor, exp_avg: Tensor, exp_avg_sq: Tensor, lr: Tensor,

@@ -61,7 +61,9 @@ def capture_settings(cfg: TrainConfig, model_config, scene: Scene):
         model_config = replace(model_config, learn_background=True)
     if on and "table" in names:
         model_config = replace(model_config, table=scene.table is not None)
-    return cfg, model_config
+    unset = {k: v[0] if on else v[1] for k, v in getattr(model_config, "CAPTURE_DEFAULTS", {}).items()
+             if getattr(model_config, k) is None}
+    return cfg, replace(model_config, **unset)
 
 
 def resolved_config(cfg: TrainConfig, model_config) -> TrainConfig:
