@@ -79,3 +79,30 @@ def test_sparse_texture_lookup_matches_grid_sample_in_values_and_gradients():
     torch.testing.assert_close(sink.grad[0], ref_tex)
     torch.testing.assert_close(uv.grad, ref_uv)
     assert torch.equal(sink.touched.bool(), (ref_tex != 0).any(1))
+
+
+def test_table_coverage_shows_the_room_where_the_table_ends():
+    """Rays that hit the plane see ``cover * table + (1 - cover) * room``: opaque at
+    first, the room where the coverage texture has learned the table is not there."""
+    from nerfkit.data.synthetic import tabletop_scene
+    from nerfkit.models import SceneBounds
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    scene = tabletop_scene(n_train=2, n_val=0, size=16)
+    model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32,
+                                learn_background=True), SceneBounds.from_scene(scene))
+    with torch.no_grad():
+        model.table.fine.fill_(2.0)  # table colour sigmoid(2)
+        model.bg_coef.zero_()
+        model.bg_coef[:, 0] = -1.0  # room colour sigmoid(-1)
+    o = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])  # down onto the table; up, into the room
+    t = model.table.hit(o, d)
+    table, room = torch.sigmoid(torch.tensor(2.0)), torch.sigmoid(torch.tensor(-1.0))
+    cover0 = torch.sigmoid(torch.tensor(4.0))
+    out = model._background(o, d, t, None)
+    torch.testing.assert_close(out[0], (cover0 * table + (1 - cover0) * room).expand(3))
+    torch.testing.assert_close(out[1], room.expand(3))
+    with torch.no_grad():
+        model.table.cover.fill_(-30.0)  # no table anywhere
+    torch.testing.assert_close(model._background(o, d, t, None)[0], room.expand(3), atol=1e-6, rtol=0)

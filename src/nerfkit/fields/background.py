@@ -130,6 +130,10 @@ def sample_texture(tex: Tensor, side: int, uv: Tensor, sink=None) -> Tensor:
     return out[0, :, 0].t()
 
 
+# initial coverage logit of the table plane: opaque (0.98) everywhere
+COVER_INIT = 4.0
+
+
 class TablePlane(nn.Module):
     """An opaque textured plane: where rays stop and which colour they see there.
 
@@ -139,6 +143,11 @@ class TablePlane(nn.Module):
     Each texture is a (texels, 3) parameter (a row per texel, row-major), so a sparse
     optimizer can update only the texels a step's rays touched: a texel is seen by few
     rays, and dense Adam's momentum would keep moving it long after its one noisy hit.
+
+    A real table ends: beyond its edge the photos show the floor and the room, from each
+    view a different part of it. A third, single-channel texture (a quarter of the fine
+    one's size per side) holds the plane's *coverage* logit, opaque at first: where it
+    learns to be transparent, rays see the room instead (:meth:`coverage`).
 
     Args:
         plane: (4,) ``(n, d)``, unit normal toward the cameras.
@@ -166,10 +175,13 @@ class TablePlane(nn.Module):
         self.sizes = (int(resolution), max(int(resolution) // 16, 2))
         self.fine = nn.Parameter(torch.zeros(self.sizes[0] ** 2, 3))
         self.coarse = nn.Parameter(torch.zeros(self.sizes[1] ** 2, 3))
+        self.cover_size = max(int(resolution) // 4, 2)
+        self.cover = nn.Parameter(torch.full((self.cover_size ** 2, 1), COVER_INIT))
 
     def textures(self) -> list[tuple[nn.Parameter, int]]:
-        """``(parameter (side * side, 3), side)`` of the fine and the coarse texture."""
-        return [(self.fine, self.sizes[0]), (self.coarse, self.sizes[1])]
+        """``(parameter (side * side, C), side)`` of the fine and coarse colour textures
+        and the coverage texture."""
+        return [(self.fine, self.sizes[0]), (self.coarse, self.sizes[1]), (self.cover, self.cover_size)]
 
     def hit(self, origins: Tensor, dirs: Tensor) -> Tensor:
         """(n,) distance to the plane along each ray, ``inf`` for rays that miss it."""
@@ -187,4 +199,11 @@ class TablePlane(nn.Module):
         sinks = sinks or {}
         with torch.autocast(points.device.type, enabled=False):  # texel indices need float32
             uv = self.texture_coords(points.float())
-            return torch.sigmoid(sum(sample_texture(t, side, uv, sinks.get(t)) for t, side in self.textures()))
+            return torch.sigmoid(sum(sample_texture(t, side, uv, sinks.get(t)) for t, side in self.textures()[:2]))
+
+    def coverage(self, points: Tensor, sinks: dict | None = None) -> Tensor:
+        """(n, 3) points on the plane -> (n,) how opaque the plane is there, in (0, 1)."""
+        sinks = sinks or {}
+        with torch.autocast(points.device.type, enabled=False):
+            uv = self.texture_coords(points.float())
+            return torch.sigmoid(sample_texture(self.cover, self.cover_size, uv, sinks.get(self.cover))[:, 0])

@@ -232,7 +232,7 @@ class FastNeRF(NerfModel):
         """A one-lane gradient sink per table texture (its optimizer updates touched texels only)."""
         if self.table is None:
             return {}
-        return {p: GradSink(side * side, 3, device, lanes=1) for p, side in self.table.textures()}
+        return {p: GradSink(side * side, p.shape[1], device, lanes=1) for p, side in self.table.textures()}
 
     def _apply(self, fn, recurse=True):
         out = super()._apply(fn, recurse)
@@ -261,7 +261,8 @@ class FastNeRF(NerfModel):
             return bg.expand_as(d)
         on_table = o[hit] + d[hit] * t_table[hit].unsqueeze(-1)
         out = bg.expand_as(d).clone()
-        out[hit] = self.table.colour(on_table, self.table_sinks).to(out.dtype)
+        cover = self.table.coverage(on_table, self.table_sinks).to(out.dtype).unsqueeze(-1)
+        out[hit] = cover * self.table.colour(on_table, self.table_sinks).to(out.dtype) + (1.0 - cover) * out[hit]
         return out
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
