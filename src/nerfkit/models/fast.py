@@ -92,6 +92,9 @@ class FastConfig:
                                              "surface behind the box): it gathers each ray's weight onto one "
                                              "surface, against haze and floaters (default: "
                                              "0.01 on capture datasets, else 0)", min=0.0)
+    distortion_table: bool = option(False, "with --table, the distortion loss counts the table as the surface "
+                                    "behind each ray, so haze in front of the table costs by its distance to it "
+                                    "(clears haze, but a low object may be painted onto the table instead)")
     kernels: str = option("auto", "auto (compiled numba on the CPU when available), numba, or torch",
                           choices=["auto", "numba", "torch"])
 
@@ -276,7 +279,7 @@ class FastNeRF(NerfModel):
             t1 = torch.minimum(t1, t_table)
         u = torch.rand(n, device=o.device) if perturb else torch.full((n,), 0.5, device=o.device)
         out = render_grid(self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree,
-                          self.sink, self._backend(), t_end=t_table)
+                          self.sink, self._backend(), t_end=t_table if self.config.distortion_table else None)
         if perturb and self.training and self.config.shrink_box and self.stage == 0 and self.steps:
             self._remember_surface(o, d, out.depth.detach(), out.acc.detach())
         bg = self._background(o, d, t_table, background)
