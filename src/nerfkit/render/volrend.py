@@ -17,6 +17,17 @@ import torch
 from torch import Tensor
 
 
+def exclusive_cumsum(x: Tensor) -> Tensor:
+    """Sum of the earlier entries along the last axis: ``out[..., i] = sum_{j < i} x[..., j]``.
+
+    Shifts before summing, so a large entry never enters the sums in front of it:
+    ``cumsum(x) - x`` would cancel in float32 (x = [0.25, 0.25, 1e9] gives 0 instead of
+    0.5 at the last entry). Shape in = shape out, (..., n).
+    """
+    total = torch.cumsum(x, dim=-1)
+    return torch.cat([torch.zeros_like(total[..., :1]), total[..., :-1]], dim=-1)
+
+
 def render_weights(sigmas: Tensor, deltas: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """Compositing weights from densities.
 
@@ -33,8 +44,7 @@ def render_weights(sigmas: Tensor, deltas: Tensor) -> tuple[Tensor, Tensor, Tens
     """
     tau = sigmas * deltas  # optical thickness of each interval
     alphas = -torch.expm1(-tau)
-    # exclusive cumulative sum: thickness in front of each sample
-    accum = torch.cumsum(tau, dim=-1) - tau
+    accum = exclusive_cumsum(tau)  # thickness in front of each sample
     transmittance = torch.exp(-accum)
     weights = transmittance * alphas
     return weights, transmittance, alphas
