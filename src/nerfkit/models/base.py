@@ -96,6 +96,12 @@ class NerfModel(nn.Module):
     def __init__(self, bounds: SceneBounds):
         super().__init__()
         self.bounds = bounds
+        self.autocast_dtype: torch.dtype | None = None  # see set_precision
+
+    def set_precision(self, dtype: torch.dtype | None) -> None:
+        """The autocast dtype the command resolved from ``--precision`` (None: float32), for
+        networks a model runs outside the caller's autocast (e.g. an occupancy refresh)."""
+        self.autocast_dtype = dtype
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
         """Render rays (differentiable). ``background``: (3,) colour for empty space."""

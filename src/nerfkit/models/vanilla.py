@@ -30,6 +30,7 @@ from torch import Tensor, nn
 from ..cameras import Rays
 from ..config import option
 from ..fields.encoding import encoded_dim, positional_encoding
+from ..precision import autocast
 from ..render.sampling import intervals_from_t, sample_pdf, stratified_t
 from ..render.volrend import composite, render_weights
 from ..render.occupancy import OccupancyGrid
@@ -161,9 +162,7 @@ class VanillaNeRF(NerfModel):
     def before_step(self, step: int, progress: float) -> bool:
         cfg = self.cfg
         if self.grid is not None and step >= cfg.occupancy_warmup and step % cfg.occupancy_every == 0:
-            with torch.autocast(self.cell_sigma.device.type, dtype=torch.bfloat16,
-                                enabled=self.cell_sigma.device.type == "cpu"
-                                and torch.ops.mkldnn._is_mkldnn_bf16_supported()):
+            with autocast(self.cell_sigma.device, self.autocast_dtype):  # the precision the trainer resolved
                 self.update_occupancy()
         return False
 

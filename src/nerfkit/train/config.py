@@ -97,13 +97,8 @@ def resolve_device(name: str) -> torch.device:
 
 
 def resolve_autocast(precision: str, device: torch.device) -> torch.dtype | None:
-    """The autocast dtype for a precision setting, or None for plain fp32."""
-    if precision == "fp32":
-        return None
-    if device.type == "cuda":
-        supported = torch.cuda.is_bf16_supported()
-    else:
-        supported = torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported()
-    if precision == "bf16":
-        return torch.bfloat16
-    return torch.bfloat16 if supported else None
+    """The autocast dtype for a precision setting, or None for plain fp32
+    (:func:`nerfkit.precision.resolve_precision`: the one rule)."""
+    from ..precision import resolve_precision
+
+    return resolve_precision(precision, device)

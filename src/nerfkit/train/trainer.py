@@ -26,6 +26,7 @@ from ..io.atomic import TMP_MARK, write_image, write_json, write_text
 from ..io.lock import LOCK_FILE
 from ..models import SceneBounds, build_model
 from ..models.base import NerfModel, grads_finite
+from ..precision import autocast
 from ..render.renderer import render_image
 from ..viz.plots import image_grid, plot_curves
 from .checkpoint import (check_dataset, checkpoint_paths, dataset_fingerprint, load_latest_checkpoint, read_run,
@@ -91,6 +92,7 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.bounds = SceneBounds.from_scene(scene) if not resume else read_run(self.run_dir).bounds
         self.model: NerfModel = build_model(cfg.model, model_config, self.bounds).to(self.device)
+        self.model.set_precision(self.autocast)  # resolved once, above; the model uses it, never its own
         self.optimizer = self.model.make_optimizer(cfg.lr)
         self.rays = RaysData(scene.train, self.device, seed=cfg.seed)
         self.views: ViewCorrections | None = None
@@ -208,7 +210,7 @@ class Trainer:
         rays, views = batch.rays, self.views
         if views is not None and views.pose is not None and self.step >= self.cfg.pose_start:
             rays = views.pose(rays, batch.image_index)
-        with torch.autocast(self.device.type, dtype=self.autocast or torch.bfloat16, enabled=self.autocast is not None):
+        with autocast(self.device, self.autocast):
             out = self.model.render_rays(rays, self.background, perturb=True)
             if views is not None and views.exposure is not None:
                 out = replace(out, rgb=views.exposure(out.rgb.float(), batch.image_index))
