@@ -142,6 +142,17 @@ class NerfModel(nn.Module):
     def after_step(self, step: int) -> None:
         """Called after each optimizer step."""
 
+    def pack_state(self) -> tuple[str | None, dict]:
+        """What the final model file stores: ``(packing, tensors)``. The default is the plain
+        ``state_dict()`` (packing None); a model may store a compact form under a packing
+        name that :meth:`unpack_state` reads back."""
+        return None, self.state_dict()
+
+    def unpack_state(self, packing: str, state: dict) -> dict:
+        """The full ``state_dict`` from :meth:`pack_state`'s tensors (after
+        :meth:`load_extra_state`). Raises ValueError for a packing or tensors it cannot read."""
+        raise ValueError(f"unknown model packing {packing!r}")
+
     def extra_state(self) -> dict:
         """JSON-able state beyond tensors (e.g. current grid resolution), saved in checkpoints."""
         return {}

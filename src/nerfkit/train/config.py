@@ -38,7 +38,7 @@ class TrainConfig:
                               "grid (the final evaluation scores whole images); 0: the model's default (vanilla "
                               "4096, fast whole images)", min=0, max=MAX_BATCH_RAYS)
     checkpoint_seconds: float = option(60.0, "seconds of training between checkpoints", above=0)
-    keep_checkpoints: int = option(3, "how many recent checkpoints to keep", min=1)
+    keep_checkpoints: int = option(2, "how many recent resume checkpoints (with optimizer state) to keep", min=1)
     render_chunk: int = option(0, "rays rendered at once for full images; bounds memory (0: the model's default)",
                                min=0, max=MAX_BATCH_RAYS)
     allow_outside_paths: bool = option(False, "read dataset images that lie outside the dataset's folder "
