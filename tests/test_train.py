@@ -234,3 +234,20 @@ def test_periodic_validation_cost_is_bounded_and_the_final_one_is_whole(tmp_path
     trainer._record_eval()
     assert sum(r for r, _ in spent) == len(v) * v.width * v.height
     assert trainer.rows[-1]["pixels"] == v.width * v.height
+
+
+def test_a_run_ending_before_the_occupancy_warmup_measures_it_for_the_final_evaluation(tmp_path, sphere):
+    cfg = small_cfg(tmp_path, steps=50, eval_views=1)
+    trainer = Trainer(sphere, cfg, VanillaConfig(n_samples=16, width=16, depth=2, occupancy_res=16), quiet=True)
+    model = trainer.model
+    assert torch.isinf(model.cell_sigma).all()  # warm-up (200 steps) not reached
+    for _ in range(20):
+        trainer.train_step()
+    rng = torch.get_rng_state()
+    trainer.step = cfg.steps
+    trainer._record_eval()  # the final evaluation
+    assert torch.equal(torch.get_rng_state(), rng)  # training's random streams untouched
+    assert torch.isfinite(model.cell_sigma).all() and model.grid.occupied_fraction < 1.0
+    measured = model.cell_sigma.clone()
+    model.finish_training()  # once only
+    assert torch.equal(model.cell_sigma, measured)

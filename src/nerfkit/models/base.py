@@ -142,6 +142,10 @@ class NerfModel(nn.Module):
     def after_step(self, step: int) -> None:
         """Called after each optimizer step."""
 
+    def finish_training(self) -> None:
+        """Called once when training reaches its end, before the final evaluation and the
+        model file (e.g. to measure an occupancy grid that was never measured)."""
+
     def pack_state(self) -> tuple[str | None, dict]:
         """What the final model file stores: ``(packing, tensors)``. The default is the plain
         ``state_dict()`` (packing None); a model may store a compact form under a packing

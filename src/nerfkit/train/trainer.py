@@ -349,6 +349,8 @@ class Trainer:
         if any(r["split"] == "val" and r["step"] == self.step for r in self.rows):
             return
         n = None if self.done() else self.cfg.eval_views
+        if n is None:
+            self.model.finish_training()
         scored = self.evaluate(n)
         if scored is None:
             return
