@@ -263,9 +263,9 @@ class Trainer:
         validation image is scored whole.
         """
         val = self.scene.val
-        if not val.has_images:
-            return None
         n = len(val) if n_views is None else min(n_views, len(val))
+        if not val.has_images or n == 0:
+            return None
         stride = 1 if n_views is None else eval_stride(val.width, val.height, n, self.cfg.eval_pixels)
         scores = []
         for i in range(n):
