@@ -223,10 +223,11 @@ def load_latest_checkpoint(run_dir: Path, model: NerfModel, final_model: bool = 
             ckpt = _read_checkpoint(path, type(model).__name__)
             if path.name == MODEL_FILE and ckpt["step"] < newest:
                 continue  # training went on after model.pt was written (resumed, then killed)
+            if not isinstance(ckpt.get("model_extra"), str) or not isinstance(ckpt.get("model"), dict):
+                raise fail(path, "malformed checkpoint ('model' or 'model_extra' has the wrong type)")
             packing = ckpt.get("model_packing")
-            if not isinstance(ckpt.get("model_extra"), str) or not isinstance(ckpt.get("model"), dict) \
-                    or not (packing is None or isinstance(packing, str)):
-                raise fail(path, "malformed checkpoint ('model', 'model_extra' or 'model_packing' has the wrong type)")
+            if not (packing is None or isinstance(packing, str)):
+                raise fail(path, "malformed checkpoint ('model_packing' is not a name)")
             model.load_extra_state(json.loads(ckpt["model_extra"]))  # checks sizes before allocating
             state = ckpt["model"] if packing is None else model.unpack_state(packing, ckpt["model"])
             # weights must be finite; buffers may hold inf on purpose (e.g. "not measured yet"), never NaN
