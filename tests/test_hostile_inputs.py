@@ -291,6 +291,8 @@ def first_weight(ckpt: dict) -> str:
 @pytest.mark.parametrize("edit, message", [
     (lambda k: k.update(model_extra=5), "'model' or 'model_extra' has the wrong type"),
     (lambda k: k.update(model=[1, 2]), "'model' or 'model_extra' has the wrong type"),
+    (lambda k: k.update(model_packing=5), "'model_packing' is not a name"),
+    (lambda k: k.update(model_packing="zip-bomb-9"), "unknown model packing 'zip-bomb-9'"),
     (lambda k: k.update(step="x"), "checkpoint step is 'x'"),
     (lambda k: k.update(step=-5), "checkpoint step is -5"),
     (lambda k: k["model"].update({first_weight(k): k["model"][first_weight(k)] * float("nan")}),

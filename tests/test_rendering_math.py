@@ -5,11 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from nerfkit import pixel_to_camera, pixel_to_ray, positional_encoding, sample_along_rays, transform, volrend
 from nerfkit.cameras import image_rays, look_at, opengl_to_opencv, orbit_path
 from nerfkit.render.sampling import intervals_from_t, sample_pdf, stratified_t
-from nerfkit.render.volrend import composite, render_weights
+from nerfkit.render.volrend import composite, exclusive_cumsum, render_weights
 
 
 def random_c2w(gen: torch.Generator, n: int) -> torch.Tensor:
@@ -73,6 +75,44 @@ def test_weights_match_closed_form_for_constant_density():
     expected = torch.exp(-sigma * delta * i) * (1 - np.exp(-sigma * delta))
     assert torch.allclose(weights[0], expected)
     assert torch.allclose(weights.sum(), torch.tensor(1 - np.exp(-sigma * delta * n), dtype=torch.float64))
+
+
+def test_transmittance_float32_large_depth_after_small_ones():
+    # cumsum(tau) - tau cancels here in float32 (1e9 + 0.5 - 1e9 = 0, so T2 came out 1.0)
+    tau = torch.tensor([[0.25, 0.25, 1e9]], dtype=torch.float32)
+    weights, trans, _ = render_weights(tau, torch.tensor(1.0))
+    assert trans.dtype == torch.float32
+    expected = torch.exp(-torch.tensor([0.0, 0.25, 0.5], dtype=torch.float64))
+    assert torch.allclose(trans[0].double(), expected, rtol=1e-6, atol=0)
+    assert torch.isclose(weights[0, 2].double(), expected[2], rtol=1e-6)  # the wall takes all the light left
+    assert torch.isclose(weights.sum().double(), torch.tensor(1.0, dtype=torch.float64), rtol=1e-6)
+
+
+def test_exclusive_cumsum_shapes_and_values():
+    x = torch.tensor([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+    assert torch.equal(exclusive_cumsum(x), torch.tensor([[0.0, 1.0, 3.0], [0.0, 4.0, 9.0]]))
+    assert exclusive_cumsum(torch.zeros(4, 0)).shape == (4, 0)
+
+
+def _mixed_scale_taus():
+    # optical depths from 1e-6 to 1e9 (and exact zeros), in any order along a ray
+    depth = st.one_of(st.just(0.0), st.floats(-6.0, 9.0).map(lambda e: 10.0 ** e))
+    return st.lists(st.lists(depth, min_size=1, max_size=48), min_size=1, max_size=4).map(
+        lambda rows: [r + [0.0] * (48 - len(r)) for r in rows])
+
+
+@settings(max_examples=150, deadline=None)
+@given(rows=_mixed_scale_taus())
+def test_transmittance_float32_matches_float64_reference(rows):
+    tau32 = torch.tensor(rows, dtype=torch.float32)
+    weights, trans, alphas = render_weights(tau32, torch.tensor(1.0))
+    tau64 = tau32.double()  # the same numbers, summed in float64
+    before = torch.cumsum(tau64, -1) - tau64  # exact enough in float64 for these magnitudes
+    trans64 = torch.exp(-before)
+    w64 = trans64 * -torch.expm1(-tau64)
+    assert torch.allclose(trans.double(), trans64, rtol=1e-4, atol=1e-7)
+    assert torch.allclose(weights.double(), w64, rtol=1e-4, atol=1e-7)
+    assert torch.all(weights >= 0) and torch.all(weights.sum(-1) <= 1 + 1e-5)
 
 
 def test_transform_round_trips_through_inverse():

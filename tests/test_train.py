@@ -171,3 +171,83 @@ def test_progress_bar_in_a_log_file_redraws_rarely(tmp_path, sphere_npz):
     steps = json.loads((tmp_path / "run" / "metrics.json").read_text())["step"]
     assert steps > 20
     assert text.count("step/s") <= 4, text[-2000:]
+
+
+def test_strided_camera_sees_every_kth_pixel():
+    from nerfkit.cameras import image_rays, strided_camera
+
+    K = torch.tensor([[40.0, 0.3, 18.2], [0.0, 42.0, 11.7], [0.0, 0.0, 1.0]])
+    c2w = torch.eye(4)
+    c2w[:3, 3] = torch.tensor([0.1, -0.2, 3.0])
+    W, H = 37, 23
+    full = image_rays(K, c2w, W, H)
+    for s in (1, 2, 4, 7):
+        Ks, w, h = strided_camera(K, W, H, s)
+        sub = image_rays(Ks, c2w, w, h)
+        expect = full.directions.reshape(H, W, 3)[::s, ::s].reshape(-1, 3)
+        assert (w, h) == (len(range(0, W, s)), len(range(0, H, s)))
+        assert torch.allclose(sub.directions, expect, atol=1e-6)
+    Kn, _, _ = strided_camera(K.numpy(), W, H, 3)  # numpy in, numpy out, input untouched
+    assert isinstance(Kn, np.ndarray) and float(K[0, 0]) == 40.0
+
+
+@pytest.mark.parametrize("w,h,n,pixels", [(200, 200, 2, 4096), (37, 23, 3, 100), (32, 32, 1, 1 << 20), (5, 9, 4, 1)])
+def test_eval_stride_is_the_smallest_within_budget(w, h, n, pixels):
+    from nerfkit.train.config import eval_stride
+
+    s = eval_stride(w, h, n, pixels)
+    count = lambda k: n * -(-w // k) * -(-h // k)  # noqa: E731
+    assert count(s) <= pixels or s == max(w, h)  # one pixel per view at the least
+    assert s == 1 or count(s - 1) > pixels
+
+
+def test_periodic_validation_cost_is_bounded_and_the_final_one_is_whole(tmp_path, sphere):
+    cfg = small_cfg(tmp_path, steps=50, eval_views=2, eval_pixels=100)
+    trainer = Trainer(sphere, cfg, VanillaConfig(n_samples=16, width=16, depth=2, occupancy=False), quiet=True)
+    spent = []
+    render = trainer.model.render_rays
+
+    def counting(rays, background, perturb):
+        out = render(rays, background, perturb)
+        spent.append((len(rays), out.n_samples))
+        return out
+
+    trainer.model.render_rays = counting
+    trainer._record_eval()  # step 0: periodic
+    rays, samples = sum(r for r, _ in spent), sum(s for _, s in spent)
+    assert 0 < rays <= 100 and samples <= 100 * 16  # field evaluations bounded by eval_pixels x n_samples
+    periodic = trainer.rows[-1]
+    assert periodic["views"] == 2 and periodic["pixels"] * 2 == rays
+    # the score is the whole image's PSNR on that pixel subset: same pixels, same colours
+    from nerfkit.render.renderer import render_image
+    from nerfkit.train.config import eval_stride
+    from nerfkit.train.metrics import psnr
+
+    v = sphere.val
+    whole = [render_image(trainer.model, v.K[i], v.c2w[i], v.width, v.height, trainer.background).rgb for i in range(2)]
+    s = eval_stride(v.width, v.height, 2, 100)
+    assert len(range(0, v.width, s)) * len(range(0, v.height, s)) == periodic["pixels"]
+    expect = np.mean([psnr(whole[i][::s, ::s], v.images[i][::s, ::s] / 255.0) for i in range(2)])
+    assert abs(periodic["psnr"] - expect) < 1e-3
+    spent.clear()
+    trainer.step = cfg.steps  # done: the final evaluation scores every validation view whole
+    trainer._record_eval()
+    assert sum(r for r, _ in spent) == len(v) * v.width * v.height
+    assert trainer.rows[-1]["pixels"] == v.width * v.height
+
+
+def test_a_run_ending_before_the_occupancy_warmup_measures_it_for_the_final_evaluation(tmp_path, sphere):
+    cfg = small_cfg(tmp_path, steps=50, eval_views=1)
+    trainer = Trainer(sphere, cfg, VanillaConfig(n_samples=16, width=16, depth=2, occupancy_res=16), quiet=True)
+    model = trainer.model
+    assert torch.isinf(model.cell_sigma).all()  # warm-up (200 steps) not reached
+    for _ in range(20):
+        trainer.train_step()
+    rng = torch.get_rng_state()
+    trainer.step = cfg.steps
+    trainer._record_eval()  # the final evaluation
+    assert torch.equal(torch.get_rng_state(), rng)  # training's random streams untouched
+    assert torch.isfinite(model.cell_sigma).all() and model.grid.occupied_fraction < 1.0
+    measured = model.cell_sigma.clone()
+    model.finish_training()  # once only
+    assert torch.equal(model.cell_sigma, measured)

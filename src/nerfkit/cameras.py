@@ -131,6 +131,30 @@ def image_rays(K: Tensor, c2w: Tensor, width: int, height: int) -> Rays:
     return Rays(o, d)
 
 
+def strided_camera(K, width: int, height: int, stride: int):
+    """The camera whose pixels are every ``stride``-th pixel of ``(K, width, height)``.
+
+    Pixel ``(j, i)`` of the result sees exactly what pixel ``(stride j, stride i)`` of the
+    original sees (same ray through the same pixel centre), so an image rendered with it
+    equals ``full[::stride, ::stride]``.
+
+    Args:
+        K: (3, 3) intrinsics (numpy or torch); width, height: image size; stride >= 1.
+
+    Returns:
+        ``(K', ceil(width / stride), ceil(height / stride))``, K' of the same kind as K.
+    """
+    if stride < 1:
+        raise ValueError(f"stride must be >= 1, got {stride}")
+    Ks = K.clone() if isinstance(K, Tensor) else np.array(K, dtype=np.float64, copy=True)
+    # centre u' + 0.5 of the new pixel j must map to s j + 0.5: fx' = fx / s, cx' = (cx - 0.5) / s + 0.5
+    Ks[0, 0], Ks[1, 1] = K[0, 0] / stride, K[1, 1] / stride
+    Ks[0, 1] = K[0, 1] / stride
+    Ks[0, 2] = (K[0, 2] - 0.5) / stride + 0.5
+    Ks[1, 2] = (K[1, 2] - 0.5) / stride + 0.5
+    return Ks, -(-width // stride), -(-height // stride)
+
+
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
     """OpenCV camera-to-world (4, 4) at ``eye`` looking at ``target``; image-up is ``up``."""
     forward = target - eye

@@ -20,7 +20,6 @@ and ``sweep.json``.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import itertools
 import math
@@ -170,33 +169,21 @@ def resolve_device(name: str) -> "torch.device":
     return torch.device(name)
 
 
-def cpu_has_native_bf16() -> bool:
-    """True when the CPU advertises native bf16 dot products (Linux /proc/cpuinfo flags)."""
-    try:
-        flags = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return False
-    return "avx512_bf16" in flags or "amx_bf16" in flags
-
-
 def resolve_precision(name: str, device: torch.device) -> str:
-    """``auto`` -> ``bf16`` where it is native and fast (measured: benchmarks/fit_image.py), else ``fp32``."""
-    import torch
+    """``auto`` -> ``bf16`` where it is native and fast (measured: benchmarks/fit_image.py), else ``fp32``
+    (the one rule of :func:`nerfkit.precision.resolve_precision`)."""
+    from .precision import resolve_precision as resolve
 
-    if name != "auto":
-        return name
-    if device.type == "cuda":
-        return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
-    return "bf16" if cpu_has_native_bf16() else "fp32"
+    return "fp32" if resolve(name, device) is None else "bf16"
 
 
 def autocast(device: torch.device, precision: str):
-    """The autocast context for a precision (a no-op for fp32)."""
+    """The autocast context for a precision (disabled for fp32)."""
     import torch
 
-    if precision == "bf16":
-        return torch.autocast(device_type=device.type, dtype=torch.bfloat16)
-    return contextlib.nullcontext()
+    from .precision import autocast as precision_autocast
+
+    return precision_autocast(device, torch.bfloat16 if precision == "bf16" else None)
 
 
 def default_image_path() -> Path:

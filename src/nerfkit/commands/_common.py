@@ -88,4 +88,6 @@ def open_run(args: argparse.Namespace) -> OpenRun:
     device = resolve_device(args.device)
     model, info, step = load_run(args.run, device)
     chunk = args.chunk or getattr(info.train, "render_chunk", 0) or 8192
-    return OpenRun(model, info, step, device, chunk, resolve_autocast(info.train.precision, device))
+    dtype = resolve_autocast(info.train.precision, device)
+    model.set_precision(dtype)
+    return OpenRun(model, info, step, device, chunk, dtype)

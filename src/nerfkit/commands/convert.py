@@ -5,12 +5,14 @@ from __future__ import annotations
 import argparse
 
 MEMORY_HINT = "Use --size or --downscale to make the images smaller"
-HELP = "convert a dataset between formats (npz, Blender, transforms.json, COLMAP), optionally resized"
+HELP = "convert a dataset between formats (npz, Blender, transforms.json, COLMAP; LLFF in), optionally resized"
 
 EPILOG = """\
 inputs (file or folder): a course .npz; a Blender scene (transforms_train.json + RGBA PNGs);
 a nerfstudio/instant-ngp transforms.json; a COLMAP model (sparse/0 with cameras/images/points3D,
-binary or text) with its photos in images/ (or --images DIR), imported without re-running SfM.
+binary or text) with its photos in images/ (or --images DIR), imported without re-running SfM;
+an LLFF scene (poses_bounds.npy + images/; --downscale 4 or 8 reads images_4/images_8; every
+8th photo becomes the val and test views).
 
 outputs (by --to):
   out.npz            course layout: images_*, c2ws_*, focal, K, near, far

@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 # TrainConfig fields that --resume applies to the continued run (the others would change
 # what the run is, so they are refused): the stopping rule, where and how often to save.
 RESUME_APPLIES = ("steps", "minutes", "device", "checkpoint_seconds", "keep_checkpoints", "eval_every", "eval_views",
-                  "render_chunk")
+                  "eval_pixels", "render_chunk")
 
 
 def resume_changes(args: argparse.Namespace) -> dict:

@@ -5,6 +5,8 @@ Supported (file or folder):
 * the course npz (``*.npz``, or a folder holding exactly one ``.npz``);
 * Blender-style synthetic scenes (a folder with ``transforms_train.json``, or that file);
 * nerfstudio / instant-ngp ``transforms.json`` (the file, or a folder holding it);
+* LLFF forward-facing scenes (a folder with ``poses_bounds.npy`` and ``images/``, or that
+  file; it wins over a COLMAP model in the same folder, as the papers use its poses);
 * COLMAP models (a folder with ``cameras``/``images``/``points3D`` ``.bin`` or ``.txt``,
   or a project folder with ``sparse/0`` and ``images/``), without re-running SfM.
 
@@ -24,7 +26,8 @@ from .npz import load_npz
 from .scene import Scene, Views
 from .validate import MAX_PIXELS, check_scene
 
-FORMATS = "a course .npz, a Blender folder (transforms_train.json), a transforms.json, or a COLMAP model folder"
+FORMATS = ("a course .npz, a Blender folder (transforms_train.json), a transforms.json, an LLFF folder "
+           "(poses_bounds.npy), or a COLMAP model folder")
 
 
 def output_size(width: int, height: int, size: int | None = None, downscale: float | None = None) -> tuple[int, int]:
@@ -96,9 +99,10 @@ def resample_scene(scene: Scene, size: int | None = None, downscale: float | Non
 
 
 def detect_format(path: str | Path) -> str:
-    """'npz', 'blender', 'transforms' or 'colmap' for a dataset path; NerfkitError otherwise."""
+    """'npz', 'blender', 'transforms', 'llff' or 'colmap' for a dataset path; NerfkitError otherwise."""
     from .blender import blender_folder
     from .colmap import find_colmap_model
+    from .llff import llff_folder
 
     path = Path(path)
     try:
@@ -114,6 +118,8 @@ def detect_format(path: str | Path) -> str:
             return "blender"
         if path.suffix.lower() == ".json":
             return "transforms"
+        if llff_folder(path) is not None:
+            return "llff"
         if path.suffix.lower() in (".bin", ".txt") and find_colmap_model(path.parent) is not None:
             return "colmap"
         raise fail(path, "unrecognised dataset file", f"Expected {FORMATS}")
@@ -127,6 +133,8 @@ def detect_format(path: str | Path) -> str:
         return "blender"
     if (path / "transforms.json").is_file():
         return "transforms"
+    if llff_folder(path) is not None:
+        return "llff"
     if find_colmap_model(path) is not None:
         return "colmap"
     raise fail(path, "folder holds no dataset nerfkit recognises", f"Expected {FORMATS}")
@@ -161,6 +169,10 @@ def load_scene(
 
         scene = load_blender(path, background=background, size=size, downscale=downscale, allow_outside=allow_outside,
                              need=need)
+    elif fmt == "llff":
+        from .llff import load_llff
+
+        scene = load_llff(path, size=size, downscale=downscale, allow_outside=allow_outside)
     elif fmt == "colmap":
         from .colmap import load_colmap
 

@@ -96,6 +96,12 @@ class NerfModel(nn.Module):
     def __init__(self, bounds: SceneBounds):
         super().__init__()
         self.bounds = bounds
+        self.autocast_dtype: torch.dtype | None = None  # see set_precision
+
+    def set_precision(self, dtype: torch.dtype | None) -> None:
+        """The autocast dtype the command resolved from ``--precision`` (None: float32), for
+        networks a model runs outside the caller's autocast (e.g. an occupancy refresh)."""
+        self.autocast_dtype = dtype
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
         """Render rays (differentiable). ``background``: (3,) colour for empty space."""
@@ -135,6 +141,21 @@ class NerfModel(nn.Module):
 
     def after_step(self, step: int) -> None:
         """Called after each optimizer step."""
+
+    def finish_training(self) -> None:
+        """Called once when training reaches its end, before the final evaluation and the
+        model file (e.g. to measure an occupancy grid that was never measured)."""
+
+    def pack_state(self) -> tuple[str | None, dict]:
+        """What the final model file stores: ``(packing, tensors)``. The default is the plain
+        ``state_dict()`` (packing None); a model may store a compact form under a packing
+        name that :meth:`unpack_state` reads back."""
+        return None, self.state_dict()
+
+    def unpack_state(self, packing: str, state: dict) -> dict:
+        """The full ``state_dict`` from :meth:`pack_state`'s tensors (after
+        :meth:`load_extra_state`). Raises ValueError for a packing or tensors it cannot read."""
+        raise ValueError(f"unknown model packing {packing!r}")
 
     def extra_state(self) -> dict:
         """JSON-able state beyond tensors (e.g. current grid resolution), saved in checkpoints."""

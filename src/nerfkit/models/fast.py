@@ -49,6 +49,7 @@ from ..kernels import reference as ref
 from ..kernels.ops import GradSink, GridGeom, MarchSpec, cell_density_max, render_grid
 from ..kernels.optim import GridAdam
 from ..render.occupancy import OccupancyGrid, ray_aabb
+from .packing import pack_grid, unpack_grid, vertices_touching
 from .base import NerfModel, RenderOutput, SceneBounds
 
 
@@ -115,6 +116,13 @@ class FastConfig:
             raise fail("--upsample-steps", f"needs {len(sizes) - 1} increasing steps for {len(sizes)} resolutions")
         return sizes, steps
 
+
+# Model files store the grid sparsely (vertices of occupied cells) under this name, the
+# density channel in this dtype; the other vertices get raw density EMPTY_RAW
+# (softplus(-30) = 1e-13: no density).
+PACKING = "fast-sparse-grid-1"
+PACKED_DENSITY_DTYPE = torch.float16
+EMPTY_RAW = -30.0
 
 # Largest grid: each side and the vertex count (512^3 vertices of 4+ float32 channels: 2+ GB).
 MAX_GRID_SIDE = 4096
@@ -451,6 +459,22 @@ class FastNeRF(NerfModel):
         result = super().load_state_dict(state_dict, strict=strict, assign=assign)
         self._set_occupancy(self.occ_cells)
         return result
+
+    def pack_state(self) -> tuple[str | None, dict]:
+        """The grid's rows at corners of occupied cells only, in half precision
+        (:mod:`nerfkit.models.packing`); the rest of the state as it is."""
+        state = self.state_dict()
+        keep = vertices_touching(self.occ_cells)
+        packed = pack_grid(state.pop("grid"), keep, PACKED_DENSITY_DTYPE)
+        return PACKING, {**state, **{f"grid_packed.{k}": v for k, v in packed.items()}}
+
+    def unpack_state(self, packing: str, state: dict) -> dict:
+        if packing != PACKING:
+            raise ValueError(f"unknown model packing {packing!r} (this nerfkit reads {PACKING!r})")
+        state = dict(state)
+        packed = {k: state.pop(f"grid_packed.{k}", None) for k in ("mask", "density", "colour")}
+        state["grid"] = unpack_grid(packed, self.geom.n_vertices, self.n_channels, EMPTY_RAW)
+        return state
 
 
 @torch.no_grad()

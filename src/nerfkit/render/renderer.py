@@ -11,6 +11,7 @@ import torch
 from ..cameras import image_rays
 from ..data.scene import Views
 from ..models.base import NerfModel
+from ..precision import autocast
 
 
 @dataclass
@@ -46,7 +47,7 @@ def render_image(
     model.eval()
     try:
         for start in range(0, len(rays), chunk):
-            with torch.autocast(device.type, dtype=autocast_dtype or torch.bfloat16, enabled=autocast_dtype is not None):
+            with autocast(device, autocast_dtype):
                 out = model.render_rays(rays[start:start + chunk], background, perturb=False)
             rgb.append(out.rgb.float())
             depth.append(out.depth.float())

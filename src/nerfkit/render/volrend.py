@@ -17,6 +17,17 @@ import torch
 from torch import Tensor
 
 
+def exclusive_cumsum(x: Tensor) -> Tensor:
+    """Sum of the earlier entries along the last axis: ``out[..., i] = sum_{j < i} x[..., j]``.
+
+    Shifts before summing, so a large entry never enters the sums in front of it:
+    ``cumsum(x) - x`` would cancel in float32 (x = [0.25, 0.25, 1e9] gives 0 instead of
+    0.5 at the last entry). Shape in = shape out, (..., n).
+    """
+    total = torch.cumsum(x, dim=-1)
+    return torch.cat([torch.zeros_like(total[..., :1]), total[..., :-1]], dim=-1)
+
+
 def render_weights(sigmas: Tensor, deltas: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """Compositing weights from densities.
 
@@ -33,8 +44,7 @@ def render_weights(sigmas: Tensor, deltas: Tensor) -> tuple[Tensor, Tensor, Tens
     """
     tau = sigmas * deltas  # optical thickness of each interval
     alphas = -torch.expm1(-tau)
-    # exclusive cumulative sum: thickness in front of each sample
-    accum = torch.cumsum(tau, dim=-1) - tau
+    accum = exclusive_cumsum(tau)  # thickness in front of each sample
     transmittance = torch.exp(-accum)
     weights = transmittance * alphas
     return weights, transmittance, alphas
@@ -67,11 +77,6 @@ def composite(
     return rgb, depth, acc
 
 
-def _sum_before(x: Tensor) -> Tensor:
-    """Exclusive prefix sum along the last axis (shifted before summing, so no cancellation)."""
-    return torch.cumsum(torch.nn.functional.pad(x[..., :-1], (1, 0)), dim=-1)
-
-
 def distortion(weights: Tensor, t: Tensor, interval: Tensor | float, t_end: Tensor | None = None) -> Tensor:
     """mip-NeRF 360's distortion loss of each ray: small when its weight is compact.
 
@@ -94,8 +99,8 @@ def distortion(weights: Tensor, t: Tensor, interval: Tensor | float, t_end: Tens
         gives ``2 * 0.5 * 0.5 * 2 + 0.25 / 3``.
     """
     wt = weights * t
-    w_before = _sum_before(weights)
-    wt_before = _sum_before(wt)
+    w_before = exclusive_cumsum(weights)
+    wt_before = exclusive_cumsum(wt)
     loss = 2.0 * (weights * (t * w_before - wt_before)).sum(-1) + (weights ** 2 * interval).sum(-1) / 3.0
     if t_end is not None:
         rest = (1.0 - weights.sum(-1)).clamp(min=0.0)

@@ -3,7 +3,8 @@
 A run folder::
 
     RUN/config.json                 resolved train + model config, scene bounds, data path + fingerprint
-    RUN/model.pt                    the final model: parameters and buffers only (what eval/render use)
+    RUN/model.pt                    the final model: parameters and buffers only (what eval/render use),
+                                    compact where the model packs its state (fast: occupied vertices, fp16)
     RUN/checkpoints/step_00001234.pt   model, optimizer, RNG streams, metric rows (what --resume uses)
     RUN/.lock                       held by the one process training the run
     RUN/metrics.csv, metrics.json   one row per logged step (train) or evaluation (val)
@@ -145,7 +146,7 @@ def _model_payload(step: int, model: NerfModel) -> dict:
 
 
 def save_checkpoint(run_dir: Path, step: int, model: NerfModel, optimizer: torch.optim.Optimizer,
-                    extra: dict, keep: int = 3) -> Path:
+                    extra: dict, keep: int = 2) -> Path:
     """Write ``checkpoints/step_XXXXXXXX.pt`` atomically and prune old ones."""
     path = run_dir / "checkpoints" / f"step_{step:08d}.pt"
     with atomic_path(path) as tmp:
@@ -155,12 +156,19 @@ def save_checkpoint(run_dir: Path, step: int, model: NerfModel, optimizer: torch
     return path
 
 
-def save_model(run_dir: Path, step: int, model: NerfModel) -> Path:
+def save_model(run_dir: Path, step: int, model: NerfModel, compact: bool = True) -> Path:
     """Write ``RUN/model.pt`` atomically: the model's parameters, buffers and extra state at
-    ``step``, without the optimizer state (a third of a ``fast`` checkpoint's size)."""
+    ``step``, without the optimizer state. ``compact`` stores what the model's
+    :meth:`~nerfkit.models.base.NerfModel.pack_state` gives (``fast``: the occupied part of
+    the grid in half precision); else the plain state dict."""
     path = run_dir / MODEL_FILE
+    payload = _model_payload(step, model)
+    if compact:
+        packing, state = model.pack_state()
+        if packing is not None:
+            payload.update(model=state, model_packing=packing)
     with atomic_path(path) as tmp:
-        torch.save(_model_payload(step, model), tmp)
+        torch.save(payload, tmp)
     return path
 
 
@@ -217,15 +225,19 @@ def load_latest_checkpoint(run_dir: Path, model: NerfModel, final_model: bool = 
                 continue  # training went on after model.pt was written (resumed, then killed)
             if not isinstance(ckpt.get("model_extra"), str) or not isinstance(ckpt.get("model"), dict):
                 raise fail(path, "malformed checkpoint ('model' or 'model_extra' has the wrong type)")
+            packing = ckpt.get("model_packing")
+            if not (packing is None or isinstance(packing, str)):
+                raise fail(path, "malformed checkpoint ('model_packing' is not a name)")
+            model.load_extra_state(json.loads(ckpt["model_extra"]))  # checks sizes before allocating
+            state = ckpt["model"] if packing is None else model.unpack_state(packing, ckpt["model"])
             # weights must be finite; buffers may hold inf on purpose (e.g. "not measured yet"), never NaN
             params = {name for name, _ in model.named_parameters()}
-            floats = {name: t for name, t in ckpt["model"].items() if isinstance(t, torch.Tensor) and t.is_floating_point()}
+            floats = {name: t for name, t in state.items() if isinstance(t, torch.Tensor) and t.is_floating_point()}
             if not all(torch.isfinite(t).all() for name, t in floats.items() if name in params):
                 raise fail(path, "the model weights hold NaN or inf values")
             if any(torch.isnan(t).any() for t in floats.values()):
                 raise fail(path, "the model state holds NaN values")
-            model.load_extra_state(json.loads(ckpt["model_extra"]))
-            model.load_state_dict(ckpt["model"])
+            model.load_state_dict(state)
             for msg in errors:  # the newer checkpoints that were skipped
                 print(f"warning: {msg}; used the older {path.name}", file=sys.stderr)
             return ckpt, path

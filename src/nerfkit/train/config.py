@@ -34,8 +34,11 @@ class TrainConfig:
     background: str = option("black", "colour behind the object: black, white, or r,g,b in [0, 1]")
     eval_every: int = option(0, "steps between validation renders (0: about 10 over the run)", min=0)
     eval_views: int = option(2, "validation views rendered at each periodic evaluation", min=0)
+    eval_pixels: int = option(0, "pixels scored per periodic evaluation, every k-th pixel of each view on an even "
+                              "grid (the final evaluation scores whole images); 0: the model's default (vanilla "
+                              "4096, fast whole images)", min=0, max=MAX_BATCH_RAYS)
     checkpoint_seconds: float = option(60.0, "seconds of training between checkpoints", above=0)
-    keep_checkpoints: int = option(3, "how many recent checkpoints to keep", min=1)
+    keep_checkpoints: int = option(2, "how many recent resume checkpoints (with optimizer state) to keep", min=1)
     render_chunk: int = option(0, "rays rendered at once for full images; bounds memory (0: the model's default)",
                                min=0, max=MAX_BATCH_RAYS)
     allow_outside_paths: bool = option(False, "read dataset images that lie outside the dataset's folder "
@@ -60,6 +63,8 @@ class TrainConfig:
             raise fail("train", "no stopping rule", "Give --steps N or --minutes M (or both)")
         if self.batch_rays < 0 or self.lr < 0 or not 0 < self.lr_final_factor <= 1:
             raise fail("train", "--batch-rays and --lr must be >= 0 and --lr-final-factor in (0, 1]")
+        if not 0 <= self.eval_pixels <= MAX_BATCH_RAYS:
+            raise fail("train", f"--eval-pixels must be in 0..{MAX_BATCH_RAYS}")
         if self.render_chunk < 0 or self.eval_views < 0 or self.eval_every < 0 or self.keep_checkpoints < 1 \
                 or not self.checkpoint_seconds > 0:
             raise fail("train", "--render-chunk, --eval-views, --eval-every must be >= 0, --keep-checkpoints >= 1 "
@@ -68,6 +73,16 @@ class TrainConfig:
             raise fail("train", "--pose-lr, --exposure-lr and --pose-start must be >= 0")
         parse_background(self.background)
         return self
+
+
+def eval_stride(width: int, height: int, n_views: int, pixels: int) -> int:
+    """The smallest pixel stride s with ``n_views * ceil(width / s) * ceil(height / s) <= pixels``
+    (at least 1 pixel per view: s never exceeds the image's larger side)."""
+    side = max(width, height, 1)
+    for s in range(1, side + 1):
+        if n_views * -(-width // s) * -(-height // s) <= pixels:
+            return s
+    return side
 
 
 def parse_background(text: str) -> tuple[float, float, float]:
@@ -97,13 +112,8 @@ def resolve_device(name: str) -> torch.device:
 
 
 def resolve_autocast(precision: str, device: torch.device) -> torch.dtype | None:
-    """The autocast dtype for a precision setting, or None for plain fp32."""
-    if precision == "fp32":
-        return None
-    if device.type == "cuda":
-        supported = torch.cuda.is_bf16_supported()
-    else:
-        supported = torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported()
-    if precision == "bf16":
-        return torch.bfloat16
-    return torch.bfloat16 if supported else None
+    """The autocast dtype for a precision setting, or None for plain fp32
+    (:func:`nerfkit.precision.resolve_precision`: the one rule)."""
+    from ..precision import resolve_precision
+
+    return resolve_precision(precision, device)

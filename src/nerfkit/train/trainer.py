@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..cameras import strided_camera
 from ..data.rays import RaysData
 from ..data.scene import Scene
 from ..errors import fail
@@ -26,11 +27,12 @@ from ..io.atomic import TMP_MARK, write_image, write_json, write_text
 from ..io.lock import LOCK_FILE
 from ..models import SceneBounds, build_model
 from ..models.base import NerfModel, grads_finite
+from ..precision import autocast
 from ..render.renderer import render_image
 from ..viz.plots import image_grid, plot_curves
 from .checkpoint import (check_dataset, checkpoint_paths, dataset_fingerprint, load_latest_checkpoint, read_run,
                          run_lock, save_checkpoint, save_model, write_run_config)
-from .config import TrainConfig, parse_background, resolve_autocast, resolve_device
+from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
 from .metrics import psnr, psnr_from_mse
 from .view_corrections import ViewCorrections
 
@@ -68,13 +70,16 @@ def capture_settings(cfg: TrainConfig, model_config, scene: Scene):
 
 def resolved_config(cfg: TrainConfig, model_config) -> TrainConfig:
     """Fill the model-dependent defaults (batch size, learning rate)."""
-    defaults = {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 8192, **getattr(model_config, "TRAIN_DEFAULTS", {})}
+    defaults = {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 8192, "eval_pixels": MAX_BATCH_RAYS,
+                **getattr(model_config, "TRAIN_DEFAULTS", {})}
     if cfg.render_chunk == 0:
         cfg.render_chunk = int(defaults["render_chunk"])
     if cfg.batch_rays == 0:
         cfg.batch_rays = int(defaults["batch_rays"])
     if cfg.lr == 0:
         cfg.lr = float(defaults["lr"])
+    if cfg.eval_pixels == 0:
+        cfg.eval_pixels = int(defaults["eval_pixels"])
     return cfg
 
 
@@ -93,6 +98,7 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.bounds = SceneBounds.from_scene(scene) if not resume else read_run(self.run_dir).bounds
         self.model: NerfModel = build_model(cfg.model, model_config, self.bounds).to(self.device)
+        self.model.set_precision(self.autocast)  # resolved once, above; the model uses it, never its own
         self.optimizer = self.model.make_optimizer(cfg.lr)
         self.rays = RaysData(scene.train, self.device, seed=cfg.seed)
         self.views: ViewCorrections | None = None
@@ -210,7 +216,7 @@ class Trainer:
         rays, views = batch.rays, self.views
         if views is not None and views.pose is not None and self.step >= self.cfg.pose_start:
             rays = views.pose(rays, batch.image_index)
-        with torch.autocast(self.device.type, dtype=self.autocast or torch.bfloat16, enabled=self.autocast is not None):
+        with autocast(self.device, self.autocast):
             out = self.model.render_rays(rays, self.background, perturb=True)
             if views is not None and views.exposure is not None:
                 out = replace(out, rgb=views.exposure(out.rgb.float(), batch.image_index))
@@ -251,21 +257,27 @@ class Trainer:
             raise fail(self.run_dir, f"training diverged: {self.bad_steps} steps in a row had non-finite values", fix)
 
     # -- evaluation ------------------------------------------------------------------
-    def evaluate(self, n_views: int | None = None) -> float | None:
-        """Mean PSNR over the first ``n_views`` validation images (all when None)."""
+    def evaluate(self, n_views: int | None = None) -> tuple[float, int] | None:
+        """Mean PSNR over the first ``n_views`` validation images and the pixels scored per view.
+
+        With ``n_views`` (a periodic evaluation) every k-th pixel of each view is scored on
+        an even grid, k from ``--eval-pixels`` (:func:`eval_stride`); with None every
+        validation image is scored whole.
+        """
         val = self.scene.val
-        if not val.has_images:
-            return None
         n = len(val) if n_views is None else min(n_views, len(val))
+        if not val.has_images or n == 0:
+            return None
+        stride = 1 if n_views is None else eval_stride(val.width, val.height, n, self.cfg.eval_pixels)
         scores = []
         for i in range(n):
-            view = render_image(self.model, val.K[i], val.c2w[i], val.width, val.height, self.background,
-                                self.cfg.render_chunk, self.autocast)
-            target = val.images[i].astype(np.float32) / 255.0
+            K, w, h = strided_camera(val.K[i], val.width, val.height, stride)
+            view = render_image(self.model, K, val.c2w[i], w, h, self.background, self.cfg.render_chunk, self.autocast)
+            target = val.images[i][::stride, ::stride].astype(np.float32) / 255.0
             scores.append(psnr(view.rgb, target))
             if i == 0:
                 write_image(self.run_dir / "progress" / f"step_{self.step:08d}.png", view.rgb)
-        return float(np.mean(scores))
+        return float(np.mean(scores)), w * h
 
     # -- the loop ------------------------------------------------------------------
     def log(self, msg: str) -> None:
@@ -339,19 +351,33 @@ class Trainer:
         if any(r["split"] == "val" and r["step"] == self.step for r in self.rows):
             return
         n = None if self.done() else self.cfg.eval_views
-        val_psnr = self.evaluate(n)
-        if val_psnr is None:
+        if n is None:
+            self.model.finish_training()
+        scored = self.evaluate(n)
+        if scored is None:
             return
+        val_psnr, pixels = scored
+        full = pixels == self.scene.val.width * self.scene.val.height
         self.rows.append({"step": self.step, "seconds": round(self.train_seconds, 3), "split": "val",
-                          "loss": float("nan"), "psnr": val_psnr, "views": n or len(self.scene.val)})
-        self.log(f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {val_psnr:.2f} dB")
+                          "loss": float("nan"), "psnr": val_psnr, "views": n or len(self.scene.val),
+                          "pixels": pixels})
+        self.log(f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {val_psnr:.2f} dB"
+                 + ("" if full else f" ({pixels} pixels per view)"))
+
+    def _val_label(self, val: list[dict]) -> str:
+        """The validation curve's legend: whole images, or how many pixels periodic evaluations scored."""
+        full = self.scene.val.width * self.scene.val.height
+        sub = sorted({r["pixels"] for r in val if r.get("pixels", full) < full})
+        if not sub:
+            return "validation (full images)"
+        return f"validation ({'/'.join(map(str, sub))} px per view; final: full images)"
 
     def write_reports(self) -> None:
         """metrics.csv/json, PSNR and loss curves, and the progression figure."""
         write_json(self.run_dir / "metrics.json", {"rows": self.rows, "step": self.step,
                                                    "train_seconds": self.train_seconds})
         buf = io.StringIO()
-        keys = ["step", "seconds", "split", "loss", "psnr", "views"]
+        keys = ["step", "seconds", "split", "loss", "psnr", "views", "pixels"]
         writer = csv.DictWriter(buf, fieldnames=keys, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(self.rows)
@@ -366,7 +392,7 @@ class Trainer:
         plots = self.run_dir / "plots"
         plot_curves(plots / "psnr.png", {
             "train (batch)": ([r["seconds"] for r in train], [r["psnr"] for r in train]),
-            "validation (full images)": ([r["seconds"] for r in val], [r["psnr"] for r in val]),
+            self._val_label(val): ([r["seconds"] for r in val], [r["psnr"] for r in val]),
         }, "training seconds", "PSNR (dB)", f"{self.cfg.model}: PSNR")
         plot_curves(plots / "loss.png", {"train loss": ([r["step"] for r in train], [r["loss"] for r in train])},
                     "step", "MSE loss", f"{self.cfg.model}: training loss", logy=True)

@@ -1,0 +1,56 @@
+"""Numeric precision: decided once per command, then passed down as an autocast dtype.
+
+``--precision`` is ``auto``, ``fp32`` or ``bf16``. :func:`resolve_precision` turns it into
+the dtype handed to every place that runs a network (training steps, the vanilla model's
+occupancy refresh, rendering): ``torch.bfloat16`` or ``None`` for plain float32.
+:func:`autocast` is the one context those places enter.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+PRECISIONS = ("auto", "fp32", "bf16")
+
+
+def cpu_has_native_bf16() -> bool:
+    """True when the CPU does bf16 dot products natively.
+
+    Reads the Linux /proc/cpuinfo flags (``avx512_bf16`` or ``amx_bf16``); elsewhere asks
+    oneDNN (mkldnn) whether it has a bf16 path.
+    """
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    return "avx512_bf16" in flags or "amx_bf16" in flags
+
+
+def resolve_precision(name: str, device: torch.device) -> torch.dtype | None:
+    """``auto``/``fp32``/``bf16`` -> the autocast dtype (``None``: plain float32).
+
+    ``auto`` picks bf16 where the device has it natively (a CUDA GPU with bf16, or a CPU
+    with avx512_bf16/amx), else float32; ``fp32`` is always ``None``.
+    """
+    if name not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {name!r}")
+    if name == "fp32":
+        return None
+    if name == "bf16":
+        return torch.bfloat16
+    if device.type == "cuda":
+        return torch.bfloat16 if torch.cuda.is_bf16_supported() else None
+    return torch.bfloat16 if device.type == "cpu" and cpu_has_native_bf16() else None
+
+
+def autocast(device: torch.device | str, dtype: torch.dtype | None):
+    """The autocast context for a resolved precision: disabled (plain float32) for ``None``."""
+    device_type = device if isinstance(device, str) else device.type
+    if dtype is None:
+        return torch.autocast(device_type, enabled=False)
+    return torch.autocast(device_type, dtype=dtype)
+
+
+__all__ = ["PRECISIONS", "autocast", "cpu_has_native_bf16", "resolve_precision"]

@@ -1,0 +1,53 @@
+"""--precision is resolved once (nerfkit.precision) and every network runs in what it says."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from nerfkit.models.vanilla import VanillaConfig
+from nerfkit.precision import autocast, cpu_has_native_bf16, resolve_precision
+from nerfkit.train.config import TrainConfig, resolve_autocast
+from nerfkit.train.trainer import Trainer
+
+CPU = torch.device("cpu")
+
+
+def test_resolve_precision_rules():
+    assert resolve_precision("fp32", CPU) is None
+    assert resolve_precision("bf16", CPU) is torch.bfloat16
+    assert resolve_precision("auto", CPU) is (torch.bfloat16 if cpu_has_native_bf16() else None)
+    assert resolve_autocast("fp32", CPU) is None  # the trainer's name for the same rule
+    with pytest.raises(ValueError):
+        resolve_precision("fp16", CPU)
+
+
+def test_fp32_context_turns_an_outer_autocast_off():
+    a, b = torch.randn(4, 4), torch.randn(4, 4)
+    with autocast(CPU, torch.bfloat16):
+        assert (a @ b).dtype == torch.bfloat16
+        with autocast(CPU, None):
+            assert (a @ b).dtype == torch.float32
+
+
+def _activation_dtypes(tmp_path, sphere, precision: str) -> tuple[set, torch.Tensor]:
+    """Dtypes of the vanilla MLP's first hidden layer over one training step that also
+    refreshes the occupancy grid (step 0, warm-up 0), and the refreshed cell densities."""
+    cfg = TrainConfig(data="sphere", model="vanilla", out=str(tmp_path / precision), steps=1, batch_rays=32,
+                      lr=1e-3, precision=precision, eval_views=1, checkpoint_seconds=1e9)
+    mcfg = VanillaConfig(n_samples=8, width=16, depth=2, occupancy=True, occupancy_res=8, occupancy_warmup=0,
+                         occupancy_every=1)
+    trainer = Trainer(sphere, cfg, mcfg, quiet=True)
+    seen = []
+    trainer.model.coarse.layers[0].register_forward_hook(lambda m, i, out: seen.append((out.dtype, len(out))))
+    trainer.train_step()
+    return seen, trainer.model.cell_sigma
+
+
+@pytest.mark.parametrize("precision,dtype", [("fp32", torch.float32), ("bf16", torch.bfloat16)])
+def test_vanilla_runs_every_network_call_in_the_resolved_precision(tmp_path, sphere, precision, dtype):
+    seen, cell_sigma = _activation_dtypes(tmp_path, sphere, precision)
+    assert torch.isfinite(cell_sigma).all()  # the occupancy refresh ran ...
+    assert any(n == 8 ** 3 for _, n in seen)  # ... through the network, one point per cell
+    assert len(seen) >= 2  # and the training batch too
+    assert {d for d, _ in seen} == {dtype}  # fp32 means fp32 everywhere (the refresh used bf16 before)
