@@ -5,9 +5,10 @@ The reference is :func:`nerfkit.kernels.splat_reference.rasterize_reference`; th
 
 * :func:`bin_tiles`: per tile, the visible Gaussians in depth order (a bucket sort of
   the globally depth-sorted list, so each tile's list stays sorted).
-* :func:`rasterize_forward`: tiles in parallel; per tile the Gaussians' data is gathered
-  into contiguous arrays first, then each pixel composites front to back. Writes the
-  final transmittance and the end of the contributing list per pixel for the backward.
+* :func:`rasterize_forward`: tiles in parallel; per tile, Gaussians front to back each
+  update the open pixels of their footprint (the box where alpha can reach 1/255; a tile
+  is done when all its pixels are). Writes the final transmittance and the end of the
+  contributing list per pixel for the backward.
 * :func:`rasterize_backward`: back to front over the same lists (INRIA's recursion).
   Tiles are split into lanes (one per thread); each lane adds into its own gradient
   buffer, so no two threads write the same memory; the caller sums the lanes.
@@ -58,20 +59,34 @@ def bin_tiles(order, rects, n_tiles_x, n_tiles_y):
 
 
 @njit(cache=True, inline="always")
-def _gather(ids, start, end, means2d, conics, colors, opac, depths, buf):
-    """Copy the tile's Gaussians into ``buf`` (m, 10): mx, my, a, b, c, op, r, g, b, depth."""
-    for k in range(end - start):
-        g = ids[start + k]
-        buf[k, 0] = means2d[g, 0]
-        buf[k, 1] = means2d[g, 1]
-        buf[k, 2] = conics[g, 0]
-        buf[k, 3] = conics[g, 1]
-        buf[k, 4] = conics[g, 2]
-        buf[k, 5] = opac[g]
-        buf[k, 6] = colors[g, 0]
-        buf[k, 7] = colors[g, 1]
-        buf[k, 8] = colors[g, 2]
-        buf[k, 9] = depths[g]
+def _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1):
+    """Pixels ``[bx0, bx1) x [by0, by1)`` of the tile ``[x0, x1) x [y0, y1)`` where a Gaussian
+    can reach alpha >= 1/255: the bounding box of the ellipse ``op * exp(power) = 1/255``
+    (plus a pixel of margin), so skipping the pixels outside changes nothing."""
+    s = 2.0 * math.log(op / ALPHA_MIN)  # d^T Q d <= s where alpha >= ALPHA_MIN
+    det = ca * cc - cb * cb
+    if s <= 0.0 or det <= 0.0 or ca <= 0.0:
+        return x0, x0, y0, y0
+    rx = math.sqrt(s * cc / det) + 1.0
+    ry = math.sqrt(s * ca / det) + 1.0
+    bx0 = max(x0, int(math.ceil(mx - rx - 0.5)))
+    bx1 = min(x1, int(math.floor(mx + rx - 0.5)) + 1)
+    by0 = max(y0, int(math.ceil(my - ry - 0.5)))
+    by1 = min(y1, int(math.floor(my + ry - 0.5)) + 1)
+    if bx1 < bx0:
+        bx1 = bx0
+    if by1 < by0:
+        by1 = by0
+    return bx0, bx1, by0, by1
+
+
+@njit(cache=True, inline="always")
+def _power_floor(op):
+    """Below this power, ``op * exp(power) < 1/255`` for sure (a margin of 1e-3 keeps the
+    exact test, after exp, for the borderline pixels): those skip the exp."""
+    if op <= 0.0:
+        return math.inf
+    return math.log(ALPHA_MIN / op) - 1e-3
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -79,53 +94,65 @@ def rasterize_forward(offsets, ids, means2d, conics, colors, opac, depths, backg
                       n_tiles_x, out_rgb, out_depth, out_alpha, final_T, n_contrib):
     """Composite every pixel; outputs (H, W, 3) / (H, W) are written in place.
 
-    ``n_contrib[y, x]`` is the index into ``ids`` just past the last Gaussian that
-    contributed (the backward pass starts there)."""
+    Per tile, Gaussians in depth order each update only the pixels of their footprint
+    that are still open (per-pixel state in small arrays). ``n_contrib[y, x]`` is the index
+    into ``ids`` just past the last Gaussian that contributed (the backward starts there)."""
     n_tiles = offsets.shape[0] - 1
     for t in prange(n_tiles):
         start, end = offsets[t], offsets[t + 1]
         ty, tx = t // n_tiles_x, t % n_tiles_x
         x0, y0 = tx * TILE, ty * TILE
         x1, y1 = min(x0 + TILE, width), min(y0 + TILE, height)
-        m = end - start
-        buf = np.empty((max(m, 1), 10), means2d.dtype)
-        _gather(ids, start, end, means2d, conics, colors, opac, depths, buf)
-        for y in range(y0, y1):
-            py = y + 0.5
-            for x in range(x0, x1):
-                px = x + 0.5
-                T = 1.0
-                r = 0.0
-                g_ = 0.0
-                b_ = 0.0
-                d_ = 0.0
-                last = start
-                for k in range(m):
-                    dx = buf[k, 0] - px
-                    dy = buf[k, 1] - py
-                    power = -0.5 * (buf[k, 2] * dx * dx + buf[k, 4] * dy * dy) - buf[k, 3] * dx * dy
-                    if power > 0.0:
+        tw = x1 - x0
+        P = tw * (y1 - y0)
+        T = np.ones(P, means2d.dtype)
+        acc = np.zeros((P, 4), means2d.dtype)
+        last = np.full(P, start, np.int64)
+        done = np.zeros(P, np.bool_)
+        open_pixels = P
+        for k in range(start, end):
+            if open_pixels == 0:
+                break
+            g = ids[k]
+            mx, my = means2d[g, 0], means2d[g, 1]
+            ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
+            op = opac[g]
+            bx0, bx1, by0, by1 = _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1)
+            p_skip = _power_floor(op)
+            for y in range(by0, by1):
+                dy = my - (y + 0.5)
+                for x in range(bx0, bx1):
+                    p = (y - y0) * tw + (x - x0)
+                    if done[p]:
                         continue
-                    alpha = min(ALPHA_MAX, buf[k, 5] * math.exp(power))
+                    dx = mx - (x + 0.5)
+                    power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                    if power > 0.0 or power < p_skip:
+                        continue
+                    alpha = min(ALPHA_MAX, op * math.exp(power))
                     if alpha < ALPHA_MIN:
                         continue
-                    test_T = T * (1.0 - alpha)
+                    test_T = T[p] * (1.0 - alpha)
                     if test_T < T_MIN:
-                        break
-                    w = alpha * T
-                    r += w * buf[k, 6]
-                    g_ += w * buf[k, 7]
-                    b_ += w * buf[k, 8]
-                    d_ += w * buf[k, 9]
-                    T = test_T
-                    last = start + k + 1
-                out_rgb[y, x, 0] = r + T * background[y, x, 0]
-                out_rgb[y, x, 1] = g_ + T * background[y, x, 1]
-                out_rgb[y, x, 2] = b_ + T * background[y, x, 2]
-                out_depth[y, x] = d_
-                out_alpha[y, x] = 1.0 - T
-                final_T[y, x] = T
-                n_contrib[y, x] = last
+                        done[p] = True
+                        open_pixels -= 1
+                        continue
+                    w = alpha * T[p]
+                    acc[p, 0] += w * colors[g, 0]
+                    acc[p, 1] += w * colors[g, 1]
+                    acc[p, 2] += w * colors[g, 2]
+                    acc[p, 3] += w * depths[g]
+                    T[p] = test_T
+                    last[p] = k + 1
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                p = (y - y0) * tw + (x - x0)
+                for ch in range(3):
+                    out_rgb[y, x, ch] = acc[p, ch] + T[p] * background[y, x, ch]
+                out_depth[y, x] = acc[p, 3]
+                out_alpha[y, x] = 1.0 - T[p]
+                final_T[y, x] = T[p]
+                n_contrib[y, x] = last[p]
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -134,73 +161,107 @@ def rasterize_backward(offsets, ids, means2d, conics, colors, opac, depths, back
     """Gradients of a loss w.r.t. each Gaussian's 2D mean, conic, opacity and colour.
 
     ``grad_rgb`` (H, W, 3) is dL/d(out_rgb); ``grads`` (lanes, n, 9) zeroed, written in place
-    (lane ``l`` handles tiles ``l, l + lanes, ...``)."""
+    (lane ``l`` handles tiles ``l, l + lanes, ...``). Per tile, Gaussians back to front,
+    each visiting its footprint's pixels (INRIA's recursion, per-pixel state in arrays)."""
     n_tiles = offsets.shape[0] - 1
     lanes = grads.shape[0]
     for lane in prange(lanes):
         for t in range(lane, n_tiles, lanes):
             start, end = offsets[t], offsets[t + 1]
-            m = end - start
-            if m == 0:
+            if end == start:
                 continue
             ty, tx = t // n_tiles_x, t % n_tiles_x
             x0, y0 = tx * TILE, ty * TILE
             x1, y1 = min(x0 + TILE, width), min(y0 + TILE, height)
-            buf = np.empty((m, 10), means2d.dtype)
-            _gather(ids, start, end, means2d, conics, colors, opac, depths, buf)
-            acc = np.zeros((m, N_GRAD), means2d.dtype)
+            tw = x1 - x0
+            P = tw * (y1 - y0)
+            T = np.empty(P, means2d.dtype)
+            behind = np.zeros((P, 3), means2d.dtype)  # colour composited behind, per unit transmittance
+            last_alpha = np.zeros(P, means2d.dtype)
+            last_col = np.zeros((P, 3), means2d.dtype)
+            ncon = np.empty(P, np.int64)
+            gpix = np.empty((P, 4), means2d.dtype)  # dL/drgb and background . dL/drgb
+            k_end = start
             for y in range(y0, y1):
-                py = y + 0.5
                 for x in range(x0, x1):
-                    px = x + 0.5
-                    T_final = final_T[y, x]
-                    T = T_final
-                    gr, gg, gb = grad_rgb[y, x, 0], grad_rgb[y, x, 1], grad_rgb[y, x, 2]
-                    bg_dot = background[y, x, 0] * gr + background[y, x, 1] * gg + background[y, x, 2] * gb
-                    acc_r = 0.0
-                    acc_g = 0.0
-                    acc_b = 0.0
-                    last_alpha = 0.0
-                    last_r = 0.0
-                    last_g = 0.0
-                    last_b = 0.0
-                    for k in range(n_contrib[y, x] - start - 1, -1, -1):
-                        dx = buf[k, 0] - px
-                        dy = buf[k, 1] - py
-                        ca, cb, cc = buf[k, 2], buf[k, 3], buf[k, 4]
+                    p = (y - y0) * tw + (x - x0)
+                    T[p] = final_T[y, x]
+                    ncon[p] = n_contrib[y, x]
+                    k_end = max(k_end, ncon[p])
+                    for ch in range(3):
+                        gpix[p, ch] = grad_rgb[y, x, ch]
+                    gpix[p, 3] = (background[y, x, 0] * grad_rgb[y, x, 0] + background[y, x, 1] * grad_rgb[y, x, 1]
+                                  + background[y, x, 2] * grad_rgb[y, x, 2])
+            for k in range(k_end - 1, start - 1, -1):
+                g = ids[k]
+                mx, my = means2d[g, 0], means2d[g, 1]
+                ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
+                op = opac[g]
+                cr, cg, cbl = colors[g, 0], colors[g, 1], colors[g, 2]
+                bx0, bx1, by0, by1 = _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1)
+                p_skip = _power_floor(op)
+                d_mx = 0.0
+                d_my = 0.0
+                d_a = 0.0
+                d_b = 0.0
+                d_c = 0.0
+                d_op = 0.0
+                d_r = 0.0
+                d_g = 0.0
+                d_bl = 0.0
+                for y in range(by0, by1):
+                    dy = my - (y + 0.5)
+                    for x in range(bx0, bx1):
+                        p = (y - y0) * tw + (x - x0)
+                        if k >= ncon[p]:
+                            continue
+                        dx = mx - (x + 0.5)
                         power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-                        if power > 0.0:
+                        if power > 0.0 or power < p_skip:
                             continue
                         G = math.exp(power)
-                        raw = buf[k, 5] * G
+                        raw = op * G
                         alpha = min(ALPHA_MAX, raw)
                         if alpha < ALPHA_MIN:
                             continue
-                        T = T / (1.0 - alpha)
-                        w = alpha * T
-                        acc[k, G_R] += w * gr
-                        acc[k, G_G] += w * gg
-                        acc[k, G_BL] += w * gb
-                        acc_r = last_alpha * last_r + (1.0 - last_alpha) * acc_r
-                        acc_g = last_alpha * last_g + (1.0 - last_alpha) * acc_g
-                        acc_b = last_alpha * last_b + (1.0 - last_alpha) * acc_b
-                        last_alpha = alpha
-                        last_r, last_g, last_b = buf[k, 6], buf[k, 7], buf[k, 8]
-                        dl_dalpha = ((last_r - acc_r) * gr + (last_g - acc_g) * gg + (last_b - acc_b) * gb) * T
-                        dl_dalpha -= T_final / (1.0 - alpha) * bg_dot
+                        Tp = T[p] / (1.0 - alpha)
+                        T[p] = Tp
+                        w = alpha * Tp
+                        gr, gg, gb = gpix[p, 0], gpix[p, 1], gpix[p, 2]
+                        d_r += w * gr
+                        d_g += w * gg
+                        d_bl += w * gb
+                        la = last_alpha[p]
+                        br = la * last_col[p, 0] + (1.0 - la) * behind[p, 0]
+                        bg_ = la * last_col[p, 1] + (1.0 - la) * behind[p, 1]
+                        bb = la * last_col[p, 2] + (1.0 - la) * behind[p, 2]
+                        behind[p, 0] = br
+                        behind[p, 1] = bg_
+                        behind[p, 2] = bb
+                        last_alpha[p] = alpha
+                        last_col[p, 0] = cr
+                        last_col[p, 1] = cg
+                        last_col[p, 2] = cbl
+                        dl_dalpha = ((cr - br) * gr + (cg - bg_) * gg + (cbl - bb) * gb) * Tp
+                        dl_dalpha -= final_T[y, x] / (1.0 - alpha) * gpix[p, 3]
                         if raw > ALPHA_MAX:
                             continue  # alpha is clamped: no gradient to opacity, mean or conic
-                        acc[k, G_OP] += G * dl_dalpha
-                        dl_dpower = buf[k, 5] * G * dl_dalpha
-                        acc[k, G_MX] += dl_dpower * (-ca * dx - cb * dy)
-                        acc[k, G_MY] += dl_dpower * (-cc * dy - cb * dx)
-                        acc[k, G_A] += dl_dpower * (-0.5 * dx * dx)
-                        acc[k, G_B] += dl_dpower * (-dx * dy)
-                        acc[k, G_C] += dl_dpower * (-0.5 * dy * dy)
-            for k in range(m):
-                g = ids[start + k]
-                for j in range(N_GRAD):
-                    grads[lane, g, j] += acc[k, j]
+                        d_op += G * dl_dalpha
+                        dl_dpower = raw * dl_dalpha
+                        d_mx += dl_dpower * (-ca * dx - cb * dy)
+                        d_my += dl_dpower * (-cc * dy - cb * dx)
+                        d_a += dl_dpower * (-0.5 * dx * dx)
+                        d_b += dl_dpower * (-dx * dy)
+                        d_c += dl_dpower * (-0.5 * dy * dy)
+                grads[lane, g, G_MX] += d_mx
+                grads[lane, g, G_MY] += d_my
+                grads[lane, g, G_A] += d_a
+                grads[lane, g, G_B] += d_b
+                grads[lane, g, G_C] += d_c
+                grads[lane, g, G_OP] += d_op
+                grads[lane, g, G_R] += d_r
+                grads[lane, g, G_G] += d_g
+                grads[lane, g, G_BL] += d_bl
 
 
 def warm_up() -> None:

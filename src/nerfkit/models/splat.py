@@ -81,6 +81,9 @@ class SplatConfig:
     sh_lr: float = option(2.5e-3, "learning rate of the SH DC colour (higher degrees: /20) (x --lr)", min=0)
     learn_background: bool = option(False, "learn what rays see behind the Gaussians (a colour per direction) "
                                     "instead of the --background colour: for real photos")
+    torch_threads: int = option(1, "torch threads while training or rendering splats (0: leave as is): its "
+                                "operations are small and fastest on one thread; the rasterizer uses every core",
+                                min=0)
     kernels: str = option("auto", "auto (compiled numba on the CPU when available; gsplat on CUDA when "
                           "installed), numba, or torch", choices=["auto", "numba", "torch"])
 
@@ -178,6 +181,8 @@ class SplatModel(NerfModel):
         """Render one whole view: ``rgb`` (H, W, 3), ``depth`` (H, W) alpha-weighted depth
         sum, ``acc`` (H, W); differentiable in the Gaussians (colour only)."""
         device = self.means.device
+        if self.config.torch_threads and torch.get_num_threads() != self.config.torch_threads:
+            torch.set_num_threads(self.config.torch_threads)
         K = torch.as_tensor(np.asarray(K) if not isinstance(K, Tensor) else K, dtype=torch.float32).to(device)
         c2w = torch.as_tensor(np.asarray(c2w) if not isinstance(c2w, Tensor) else c2w,
                               dtype=torch.float32).to(device)
