@@ -170,6 +170,18 @@ class SplatModel(NerfModel):
         self._install(*(t.to(device) for t in initial_gaussians(pts, cols, self._volume_scale(volume, len(pts)),
                                                                  c.init_opacity)))
 
+    @torch.no_grad()
+    def set_gaussians(self, g) -> None:
+        """Install raw parameters from a :class:`~nerfkit.splat_files.Gaussians` (e.g. a
+        PLY read back); missing higher SH degrees are zero."""
+        n = len(g)
+        rest = torch.zeros(n, 15, 3)
+        rest[:, :g.sh_rest.shape[1]] = torch.as_tensor(g.sh_rest)
+        device = self.means.device
+        self._install(*(torch.as_tensor(np.asarray(t)).to(device) for t in (
+            g.means, g.log_scales, g.quats, g.opacity_logits, g.sh_dc, rest)))
+        self.active_degree = max(self.active_degree, g.sh_degree)
+
     # -- rendering -------------------------------------------------------------------
     def _background_image(self, K: Tensor, c2w: Tensor, width: int, height: int, background: Tensor) -> Tensor:
         if self.bg_coef is None:
