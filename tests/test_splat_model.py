@@ -198,3 +198,40 @@ def test_cli_eval_and_render_a_splat_run(trained, capsys, tmp_path):
     assert main(["render", str(trained.run_dir), "--path", "orbit", "--frames", "3", "--out",
                  str(tmp_path / "v")]) == 0
     assert (tmp_path / "v" / "depth.mp4").stat().st_size > 0
+
+
+def test_capture_mode_learns_the_background_and_exposure_without_pose(tmp_path, sphere):
+    trainer = Trainer(sphere, splat_cfg(tmp_path, steps=15, capture="on", eval_views=1),
+                      *_capture(sphere), quiet=True)
+    assert trainer.model.bg_coef is not None
+    assert trainer.views is not None and trainer.views.pose is None and trainer.views.exposure is not None
+    trainer.run()
+    assert float(trainer.model.bg_coef.detach().abs().max()) > 0
+    assert float(trainer.views.exposure.log_gain.detach().abs().max()) > 0
+
+
+def _capture(sphere):
+    from nerfkit.train.trainer import capture_settings
+
+    cfg, model_cfg = capture_settings(TrainConfig(model="splat", steps=15, capture="on"), SplatConfig(**SMALL), sphere)
+    return (model_cfg,)
+
+
+def test_live_viewer_draws_the_splats_and_renders_a_splat_run(trained, sphere, monkeypatch):
+    from nerfkit.train.checkpoint import load_run
+    from nerfkit.viz import live
+
+    watcher = live.RunWatcher(trained.run_dir, load_run)
+    viewer = live.LiveViewer(watcher, None, host="127.0.0.1", port=0, max_side=32, watch=True)
+    drawn = []
+    real = viewer.server.scene.add_gaussian_splats
+    monkeypatch.setattr(viewer.server.scene, "add_gaussian_splats",
+                        lambda name, **kw: drawn.append(kw) or real(name, **kw))
+    try:
+        viewer.step()  # loads the run and draws its Gaussians
+        assert len(drawn) == 1 and drawn[0]["centers"].shape == (watcher.current.model.n_gaussians, 3)
+        c2w = sphere.val.c2w[0]
+        img = viewer.render_for(live.matrix_to_quat(c2w[:3, :3]), c2w[:3, 3], np.radians(40), 1.0, 32, "RGB")
+        assert img.shape == (32, 32, 3) and img[12:20, 12:20].mean() > 40  # the sphere, not the black background
+    finally:
+        viewer.server.stop()
