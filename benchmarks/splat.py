@@ -107,7 +107,8 @@ def table(results: list[dict]) -> str:
             "CPU s / wall s | load avg |",
             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in results:
-        rows.append(f"| {r['model']} | {r['budget_s']:.0f} | {r['steps']} | {r['final_val_psnr']:.2f} | {r['fps']:.1f} | "
+        rows.append(f"| {r['model']} | {r['budget_s']:.0f} | {r['steps']} | {r['final_val_psnr']:.2f} | "
+                    f"{r['fps']:.1f} | "
                     f"{r.get('n_gaussians', '-')} | {r.get('ply_mb', float('nan')):.1f} | {r['peak_rss_mb']:.0f} | "
                     f"{r['train_cpu_s']:.0f} / {r['train_s']:.0f} | "
                     f"{r['loadavg_before'][0]:.1f}-{r['loadavg_after'][0]:.1f} |")

@@ -7,7 +7,7 @@ PLY). The model renders whole views (``whole_images``): the trainer draws one tr
 view per step and calls :meth:`SplatModel.render_view`, as do evaluation and videos.
 
 Training as 3DGS does it: L1 + D-SSIM, Adam with a learning rate per parameter
-(the means' scaled by the scene size and decaying 100x), adaptive density control
+(3DGS's, times ``--lr``; the means' scaled by the scene size and decaying 100x), adaptive density control
 (clone small / split large Gaussians whose view-space gradient is large, prune
 transparent and huge ones, periodic opacity reset), SH degree raised over time. The
 schedules are fractions of the run, so they follow ``--steps`` or ``--minutes``.
@@ -46,7 +46,9 @@ MAX_GAUSSIANS = 20_000_000
 class SplatConfig:
     """Options of the ``splat`` model."""
 
-    TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 1, "lr": 1.0, "render_chunk": 65536}
+    # --lr multiplies 3DGS's learning rates: runs of a few hundred to a few thousand steps
+    # converge faster with 8x larger steps (lego, 300 steps: 28.1 dB at 8x, 27.4 at 4x, 23.8 at 1x)
+    TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 1, "lr": 8.0, "render_chunk": 65536}
 
     sh_degree: int = option(3, "largest spherical-harmonic degree of the colour (0-3)", min=0, max=3)
     sh_up_every: float = option(0.05, "raise the SH degree by one each time this fraction of the run is done",
@@ -75,6 +77,8 @@ class SplatConfig:
     position_lr: float = option(1.6e-4, "learning rate of the means, times the scene size (x --lr)", min=0)
     position_lr_final: float = option(0.01, "the means' learning rate decays to this fraction of it", above=0,
                                       max=1)
+    lr_final: float = option(1.0, "every other learning rate decays to this fraction of it (1: constant, as 3DGS; "
+                             "lego, 300 steps: 28.1 dB constant, 27.1 decaying to 0.1)", above=0, max=1)
     scale_lr: float = option(5e-3, "learning rate of the log-scales (x --lr)", min=0)
     rotation_lr: float = option(1e-3, "learning rate of the quaternions (x --lr)", min=0)
     opacity_lr: float = option(5e-2, "learning rate of the opacity logits (x --lr)", min=0)
@@ -229,12 +233,16 @@ class SplatModel(NerfModel):
         groups = [
             {"params": [self.means], "lr": lr * c.position_lr * self.extent, "name": "means",
              "lr_final_factor": c.position_lr_final},
-            {"params": [self.log_scales], "lr": lr * c.scale_lr, "name": "log_scales", "lr_final_factor": 1.0},
-            {"params": [self.quats], "lr": lr * c.rotation_lr, "name": "quats", "lr_final_factor": 1.0},
+            {"params": [self.log_scales], "lr": lr * c.scale_lr, "name": "log_scales",
+             "lr_final_factor": c.lr_final},
+            {"params": [self.quats], "lr": lr * c.rotation_lr, "name": "quats",
+             "lr_final_factor": c.lr_final},
             {"params": [self.opacity_logits], "lr": lr * c.opacity_lr, "name": "opacity_logits",
-             "lr_final_factor": 1.0},
-            {"params": [self.sh_dc], "lr": lr * c.sh_lr, "name": "sh_dc", "lr_final_factor": 1.0},
-            {"params": [self.sh_rest], "lr": lr * c.sh_lr / 20, "name": "sh_rest", "lr_final_factor": 1.0},
+             "lr_final_factor": c.lr_final},
+            {"params": [self.sh_dc], "lr": lr * c.sh_lr, "name": "sh_dc",
+             "lr_final_factor": c.lr_final},
+            {"params": [self.sh_rest], "lr": lr * c.sh_lr / 20, "name": "sh_rest",
+             "lr_final_factor": c.lr_final},
         ]
         if self.bg_coef is not None:
             groups.append({"params": [self.bg_coef], "lr": lr * 1e-2, "name": "bg_coef"})
