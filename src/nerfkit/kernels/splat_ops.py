@@ -92,8 +92,8 @@ def resolve_backend(backend: str, device: torch.device) -> str:
 @dataclass
 class SplatRender:
     """One rendered view: ``rgb`` (H, W, 3), ``depth`` (H, W) alpha-weighted depth sum,
-    ``alpha`` (H, W); ``means2d`` (n, 2) (its ``.grad`` drives densification; None on
-    gsplat) and ``radii`` (n,) int pixels (0: not visible)."""
+    ``alpha`` (H, W); ``means2d`` (n, 2), or (1, n, 2) from gsplat (its ``.grad`` drives
+    densification) and ``radii`` (n,) int pixels (0: not visible)."""
 
     rgb: Tensor
     depth: Tensor
@@ -144,4 +144,7 @@ def _render_gsplat(means, log_scales, quats, opacity_logits, sh, sh_degree, w2c,
     alpha = alphas[0, ..., 0]
     rgb = colors[0, ..., :3] + (1 - alpha).unsqueeze(-1) * background
     depth = colors[0, ..., 3] * alpha  # expected depth x alpha, as the CPU path returns
-    return SplatRender(rgb, depth, alpha, None, meta["radii"][0].reshape(len(means), -1).amax(-1))
+    means2d = meta["means2d"]  # (1, n, 2) pixels: its gradient drives densification as on the CPU
+    if means2d.requires_grad:
+        means2d.retain_grad()
+    return SplatRender(rgb, depth, alpha, means2d, meta["radii"][0].reshape(len(means), -1).amax(-1))

@@ -279,7 +279,7 @@ class SplatModel(NerfModel):
     def _record_gradients(self, grad2d: Tensor, radii: Tensor, width: int, height: int) -> None:
         """Accumulate the view-space gradient norm of the visible Gaussians (in NDC units, as 3DGS)."""
         vis = radii > 0
-        g = grad2d[vis] * torch.tensor([0.5 * width, 0.5 * height], device=grad2d.device)
+        g = grad2d.reshape(-1, 2)[vis] * torch.tensor([0.5 * width, 0.5 * height], device=grad2d.device)
         self.grad_accum[vis] += g.norm(dim=-1)
         self.grad_count[vis] += 1
         self.max_radii[vis] = torch.maximum(self.max_radii[vis], radii[vis].float())
