@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         raise fail(args.run, f"is a {run_.info.train.model} run; --splat exports runs of --model splat")
     if (args.mesh) and hasattr(run_.model, "n_gaussians"):
         raise fail(args.run, "is a splat run: it has no density field to mesh", "Use --splat OUT.ply or --points")
-    guard_outputs([args.mesh, args.points, splat], [args.data or run_.info.train.data, args.run], args.force,
+    guard_outputs([args.mesh, args.points, splat], [args.data or run_.info.train.data], args.force,
                   "--mesh/--points/--splat")
     if splat:
         export_splat(run_, splat)
