@@ -20,7 +20,7 @@ SMALL = dict(init_points=1500, densify_every=20, max_gaussians=6000)
 
 
 def splat_cfg(tmp_path, name="run", **kw):
-    base = dict(data="sphere", model="splat", out=str(tmp_path / name), steps=200, seed=0, eval_views=1,
+    base = dict(data="sphere", model="splat", out=str(tmp_path / name), steps=120, seed=0, eval_views=1,
                 checkpoint_seconds=1e9)
     base.update(kw)
     return TrainConfig(**base)
@@ -28,7 +28,7 @@ def splat_cfg(tmp_path, name="run", **kw):
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory, sphere, sphere_npz):
-    """A splat run of 200 steps on the sphere scene (shared by the tests that only read it)."""
+    """A splat run of 120 steps on the sphere scene (shared by the tests that only read it)."""
     tmp = tmp_path_factory.mktemp("splat")
     result = train(sphere, splat_cfg(tmp, data=str(sphere_npz)), SplatConfig(**SMALL), quiet=True)
     return result
@@ -37,7 +37,7 @@ def trained(tmp_path_factory, sphere, sphere_npz):
 def test_training_rises_well_above_the_empty_render(trained, sphere):
     val = [r for r in trained.rows if r["split"] == "val"]
     empty = -10 * np.log10(np.mean((sphere.val.images.astype(np.float64) / 255) ** 2))
-    assert val[0]["step"] == 0 and val[-1]["step"] == 200
+    assert val[0]["step"] == 0 and val[-1]["step"] == 120
     assert val[-1]["psnr"] > empty + 8.0, (empty, val)
     assert val[-1]["psnr"] > val[0]["psnr"] + 5.0, val
 
@@ -91,14 +91,15 @@ def test_opacity_reset_caps_opacity(sphere):
 
 
 def test_resume_continues_exactly(tmp_path, sphere):
-    cfg = dict(steps=50, eval_every=25)
-    train(sphere, splat_cfg(tmp_path, "a", **cfg), SplatConfig(**SMALL), quiet=True)
-    first = Trainer(sphere, splat_cfg(tmp_path, "b", **cfg), SplatConfig(**SMALL), quiet=True).run(stop_after=30)
-    assert first.step == 30
+    cfg = dict(steps=30, eval_every=15)
+    model_cfg = SplatConfig(**{**SMALL, "densify_every": 5})  # density control before and after the stop
+    train(sphere, splat_cfg(tmp_path, "a", **cfg), model_cfg, quiet=True)
+    first = Trainer(sphere, splat_cfg(tmp_path, "b", **cfg), model_cfg, quiet=True).run(stop_after=12)
+    assert first.step == 12
     resumed = resume(tmp_path / "b", sphere, quiet=True)
-    assert resumed.step == 50
-    a = torch.load(tmp_path / "a" / "checkpoints" / "step_00000050.pt", weights_only=True)
-    b = torch.load(tmp_path / "b" / "checkpoints" / "step_00000050.pt", weights_only=True)
+    assert resumed.step == 30
+    a = torch.load(tmp_path / "a" / "checkpoints" / "step_00000030.pt", weights_only=True)
+    b = torch.load(tmp_path / "b" / "checkpoints" / "step_00000030.pt", weights_only=True)
     assert a["model_extra"] != '{"n_gaussians": 1500, "active_degree": 0, "n_resets": 0}'  # densified
     assert a["model_extra"] == b["model_extra"]
     for k in a["model"]:
