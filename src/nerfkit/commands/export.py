@@ -1,4 +1,5 @@
-"""`nerfkit export`: a trained run as a coloured mesh and/or point cloud (PLY)."""
+"""`nerfkit export`: a trained run as a coloured mesh and/or point cloud (PLY), or a splat
+run's Gaussians (3DGS PLY or .splat)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import argparse
 POINT_CHUNK = 65536
 
 MEMORY_HINT = "Lower --resolution or --chunk"
-HELP = "export a trained run as a coloured mesh (marching cubes) and/or a point cloud (PLY)"
+HELP = "export a trained run as a coloured mesh (marching cubes) and/or a point cloud (PLY), or Gaussian splats"
 
 EPILOG = """\
 mesh: the density is sampled on a RESOLUTION^3 grid over the scene box (a cube of half-size
@@ -17,11 +18,15 @@ iso-surface is extracted with marching cubes (closed where it meets the box), an
 are coloured by the field seen from outside along the normal.
 points: every --every-th training view is rendered; pixels with opacity > --acc-min are
 back-projected to their expected depth and coloured by the rendered colour.
+splat (runs of --model splat): the Gaussians as the standard 3DGS PLY (what the INRIA code,
+gsplat, SuperSplat and Brush read), or, for a name ending in .splat, the 32-byte-per-Gaussian
+format of web viewers (colour without view dependence).
 
 examples:
   nerfkit export runs/lego --mesh lego.ply
   nerfkit export runs/lego --mesh lego.ply --resolution 384 --threshold 40 --color-dirs 5
   nerfkit export runs/lego --points lego_points.ply --every 5 --stride 2
+  nerfkit export runs/lego_splat --splat lego.ply
 """
 
 
@@ -34,6 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("run", metavar="RUN", help="run folder written by `nerfkit train`")
     p.add_argument("--mesh", metavar="OUT.ply", help="write a vertex-coloured triangle mesh here")
     p.add_argument("--points", metavar="OUT.ply", help="write a coloured point cloud here")
+    p.add_argument("--splat", metavar="OUT.ply", help="(splat runs) write the Gaussians here: 3DGS PLY, or .splat")
     g = p.add_argument_group("mesh")
     g.add_argument("--resolution", type=number(int, 8, 1024), default=256, help="grid cells per side (default: 256)")
     g.add_argument("--threshold", type=number(float), default=25.0,
@@ -58,24 +64,46 @@ def run(args: argparse.Namespace) -> int:
 
     from ..errors import fail
 
-    if not args.mesh and not args.points:
-        raise fail("export", "nothing to export", "Pass --mesh OUT.ply and/or --points OUT.ply")
+    splat = getattr(args, "splat", None)
+    if not args.mesh and not args.points and not splat:
+        raise fail("export", "nothing to export", "Pass --mesh OUT.ply, --points OUT.ply or --splat OUT.ply")
     for flag, path in (("--mesh", args.mesh), ("--points", args.points)):
         if path and not path.lower().endswith(".ply"):
             raise fail(flag, f"'{path}' should end in .ply")
-    if args.mesh and args.points and Path(args.mesh).resolve() == Path(args.points).resolve():
-        raise fail("--mesh/--points", "name the same file")
+    if splat and not splat.lower().endswith((".ply", ".splat")):
+        raise fail("--splat", f"'{splat}' should end in .ply or .splat")
+    outs = [Path(p).resolve() for p in (args.mesh, args.points, splat) if p]
+    if len(set(outs)) < len(outs):
+        raise fail("--mesh/--points/--splat", "name the same file")
     from ..io.paths import guard_outputs
     from ._common import open_run
 
     run_ = open_run(args)
-    guard_outputs([args.mesh, args.points], [args.data or run_.info.train.data], args.force, "--mesh/--points")
+    if splat and not hasattr(run_.model, "n_gaussians"):
+        raise fail(args.run, f"is a {run_.info.train.model} run; --splat exports runs of --model splat")
+    if (args.mesh) and hasattr(run_.model, "n_gaussians"):
+        raise fail(args.run, "is a splat run: it has no density field to mesh", "Use --splat OUT.ply or --points")
+    guard_outputs([args.mesh, args.points, splat], [args.data or run_.info.train.data], args.force,
+                  "--mesh/--points/--splat")
+    if splat:
+        export_splat(run_, splat)
     center, radius = run_.info.bounds.center, run_.info.bounds.radius * args.box_scale
     if args.mesh:
         export_mesh(run_, center, radius, args)
     if args.points:
         export_points(run_, center, radius, args)
     return 0
+
+
+def export_splat(run_, path: str) -> None:
+    from ..splat_files import Gaussians, write_dot_splat, write_splat_ply
+
+    g = Gaussians.from_model(run_.model)
+    if path.lower().endswith(".splat"):
+        write_dot_splat(path, g)
+    else:
+        write_splat_ply(path, g)
+    print(f"{len(g)} Gaussians of step {run_.step} (SH degree {g.sh_degree}) -> {path}")
 
 
 def export_mesh(run_, center, radius: float, args) -> None:

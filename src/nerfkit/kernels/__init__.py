@@ -38,6 +38,31 @@ def numba_kernels():
     return _STATE["module"]
 
 
+_SPLAT: dict = {"tried": False, "module": None, "error": None}
+
+
+def splat_kernels():
+    """The compiled splat rasterizer :mod:`nerfkit.kernels.splat_numba`, or None (as
+    :func:`numba_kernels`: no numba, ``NERFKIT_NO_NUMBA=1``, or a compile failure)."""
+    if not _SPLAT["tried"]:
+        _SPLAT["tried"] = True
+        if os.environ.get("NERFKIT_NO_NUMBA", "") not in ("", "0"):
+            _SPLAT["error"] = "disabled by NERFKIT_NO_NUMBA"
+            return None
+        try:
+            from . import splat_numba
+
+            splat_numba.warm_up()
+        except Exception as e:  # ImportError, or a numba/LLVM failure: fall back to torch
+            _SPLAT["error"] = f"{type(e).__name__}: {e}"
+            if not isinstance(e, ImportError):
+                warnings.warn(f"nerfkit: compiled splat kernels unavailable ({_SPLAT['error']}); using the slower "
+                              "pure-torch path", RuntimeWarning, stacklevel=2)
+            return None
+        _SPLAT["module"] = splat_numba
+    return _SPLAT["module"]
+
+
 def kernel_status() -> dict:
     """``{"numba": bool, "warmup_seconds": float, "error": str | None}`` (loads the kernels)."""
     mod = numba_kernels()

@@ -2,6 +2,7 @@
 
 ``vanilla``: the course NeRF (8x256 MLP with positional encoding).
 ``fast``: grid-based field with empty-space skipping, practical on a CPU.
+``splat``: 3D Gaussian splatting, rasterized tile by tile (compiled kernels on a CPU).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from .base import NerfModel, RenderOutput, SceneBounds
 _REGISTRY = {
     "vanilla": ("nerfkit.models.vanilla", "VanillaNeRF", "VanillaConfig"),
     "fast": ("nerfkit.models.fast", "FastNeRF", "FastConfig"),
+    "splat": ("nerfkit.models.splat", "SplatModel", "SplatConfig"),
 }
 
 MODEL_NAMES = tuple(_REGISTRY)

@@ -38,8 +38,11 @@ def render_image(
     chunk: int = 16384,
     autocast_dtype: torch.dtype | None = None,
 ) -> RenderedView:
-    """Render one view, ``chunk`` rays at a time (peak memory ~ chunk x samples)."""
+    """Render one view, ``chunk`` rays at a time (peak memory ~ chunk x samples); models
+    that render whole views (``whole_images``, e.g. splat) render it at once."""
     device = background.device
+    if getattr(model, "whole_images", False):
+        return _render_whole(model, K, c2w, width, height, background)
     rays = image_rays(torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(c2w, dtype=torch.float32).to(device),
                       width, height)
     rgb, depth, acc = [], [], []
@@ -59,6 +62,18 @@ def render_image(
     depth_t = torch.cat(depth).reshape(height, width) / acc_t.clamp_min(1e-6)
     depth_t = torch.where(acc_t > 1e-3, depth_t, torch.zeros_like(depth_t))
     return RenderedView(rgb_t.cpu().numpy(), depth_t.cpu().numpy(), acc_t.cpu().numpy())
+
+
+def _render_whole(model, K, c2w, width: int, height: int, background: torch.Tensor) -> RenderedView:
+    was_training = model.training
+    model.eval()
+    try:
+        out = model.render_view(K, c2w, width, height, background)
+    finally:
+        model.train(was_training)
+    acc = out.acc.float()
+    depth = torch.where(acc > 1e-3, out.depth.float() / acc.clamp_min(1e-6), torch.zeros_like(acc))
+    return RenderedView(out.rgb.float().clamp(0, 1).cpu().numpy(), depth.cpu().numpy(), acc.cpu().numpy())
 
 
 def render_views(

@@ -99,12 +99,17 @@ class Trainer:
         self.bounds = SceneBounds.from_scene(scene) if not resume else read_run(self.run_dir).bounds
         self.model: NerfModel = build_model(cfg.model, model_config, self.bounds).to(self.device)
         self.model.set_precision(self.autocast)  # resolved once, above; the model uses it, never its own
+        # models that render whole views (splat) train on one view per step, without pose refinement
+        self.whole_images = bool(getattr(self.model, "whole_images", False))
+        if not resume and hasattr(self.model, "init_from_scene"):
+            self.model.init_from_scene(scene, self.background)
         self.optimizer = self.model.make_optimizer(cfg.lr)
         self.rays = RaysData(scene.train, self.device, seed=cfg.seed)
         self.views: ViewCorrections | None = None
         self.view_optimizer: torch.optim.Optimizer | None = None
-        if cfg.capture == "on" and (cfg.pose_lr > 0 or cfg.exposure_lr > 0):
-            self.views = ViewCorrections(len(scene.train), self.bounds.radius, cfg.pose_lr > 0,
+        pose = cfg.pose_lr > 0 and not self.whole_images
+        if cfg.capture == "on" and (pose or cfg.exposure_lr > 0):
+            self.views = ViewCorrections(len(scene.train), self.bounds.radius, pose,
                                          cfg.exposure_lr > 0).to(self.device)
             self.view_optimizer = torch.optim.Adam(self.views.param_groups(cfg.pose_lr, cfg.exposure_lr))
         self._remember_initial_lr()
@@ -189,9 +194,10 @@ class Trainer:
         return self.progress() >= 1.0
 
     def _set_lr(self) -> None:
-        factor = self.cfg.lr_final_factor ** self.progress()
+        """Exponential decay to ``lr_final_factor`` (a group's own, else the config's)."""
+        p = self.progress()
         for g in self._param_groups():
-            g["lr"] = g["initial_lr"] * factor
+            g["lr"] = g["initial_lr"] * g.get("lr_final_factor", self.cfg.lr_final_factor) ** p
 
     def _eval_due(self) -> bool:
         if self.cfg.eval_every:
@@ -212,15 +218,20 @@ class Trainer:
             self._remember_initial_lr()
             del state  # parameters were replaced: their Adam moments no longer apply
         self._set_lr()
-        batch = self.rays.sample(self.cfg.batch_rays)
-        rays, views = batch.rays, self.views
-        if views is not None and views.pose is not None and self.step >= self.cfg.pose_start:
-            rays = views.pose(rays, batch.image_index)
-        with autocast(self.device, self.autocast):
-            out = self.model.render_rays(rays, self.background, perturb=True)
-            if views is not None and views.exposure is not None:
-                out = replace(out, rgb=views.exposure(out.rgb.float(), batch.image_index))
-            loss = self.model.loss(out, batch.rgb)
+        views = self.views
+        if self.whole_images:
+            out, target = self._render_training_view()
+            loss = self.model.loss(out, target)
+        else:
+            batch = self.rays.sample(self.cfg.batch_rays)
+            rays, target = batch.rays, batch.rgb
+            if views is not None and views.pose is not None and self.step >= self.cfg.pose_start:
+                rays = views.pose(rays, batch.image_index)
+            with autocast(self.device, self.autocast):
+                out = self.model.render_rays(rays, self.background, perturb=True)
+                if views is not None and views.exposure is not None:
+                    out = replace(out, rgb=views.exposure(out.rgb.float(), batch.image_index))
+                loss = self.model.loss(out, batch.rgb)
         self._zero_grad()
         finite = bool(torch.isfinite(loss))
         if finite:
@@ -239,8 +250,19 @@ class Trainer:
         else:
             self.bad_steps = 0
         self.model.after_step(self.step)
-        mse = float(torch.mean((out.rgb.detach().float() - batch.rgb) ** 2))
+        mse = float(torch.mean((out.rgb.detach().float() - target) ** 2))
         return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples}
+
+    def _render_training_view(self):
+        """One random training view rendered whole (fp32): ``(out, target (H, W, 3))``."""
+        i = int(torch.randint(self.rays.n_images, (1,), generator=self.rays.generator))
+        h, w = self.rays.height, self.rays.width
+        target = self.rays.images[i].float() / 255.0
+        out = self.model.render_view(self.rays.K[i], self.rays.c2w[i], w, h, self.background)
+        if self.views is not None and self.views.exposure is not None:
+            index = torch.full((h * w,), i, dtype=torch.long, device=self.device)
+            out = replace(out, rgb=self.views.exposure(out.rgb.reshape(-1, 3), index).reshape(h, w, 3))
+        return out, target
 
     def _zero_grad(self) -> None:
         self.optimizer.zero_grad(set_to_none=True)

@@ -152,6 +152,10 @@ def render_camera(model, K: np.ndarray, c2w: np.ndarray, w: int, h: int, backgro
                   chunk: int = 4096, abort: Callable[[], bool] | None = None):
     """rgb (H, W, 3) float, depth (H, W) (expected depth / acc), acc (H, W); None if aborted."""
     device = background.device
+    if getattr(model, "whole_images", False):  # splats: one whole view at once
+        out = model.render_view(K, c2w, w, h, background)
+        a = out.acc.float().cpu().numpy()
+        return (out.rgb.float().clamp(0, 1).cpu().numpy(), out.depth.float().cpu().numpy() / np.maximum(a, 1e-6), a)
     rays = image_rays(torch.as_tensor(K), torch.as_tensor(c2w).to(device), w, h)
     rgb, depth, acc = [], [], []
     for s in range(0, len(rays), chunk):
@@ -199,12 +203,22 @@ class LiveViewer:
         self.frustums = gui.add_checkbox("Training cameras", initial_value=True)
         self.frustums.on_update(lambda _: self._set_frustums_visible(self.frustums.value))
         self._frustum_handles: list = []
+        self.splats = None  # viser's own Gaussian-splat node, for splat runs
         if scene is not None:
             self.server.scene.set_up_direction(tuple(float(u) for u in scene.up))
             self._add_training_cameras(scene)
         self.server.on_client_connect(self._on_connect)
 
     # -- scene
+
+    def _show_splats(self) -> None:
+        """A splat run's Gaussians, drawn by viser itself (replaced at each new checkpoint)."""
+        run = self.watcher.current
+        if run is None or not hasattr(run.model, "n_gaussians"):
+            return
+        from .splats import add_splats
+
+        self.splats = add_splats(self.server, run.model)
 
     def _add_training_cameras(self, scene) -> None:
         v = scene.train
@@ -270,6 +284,7 @@ class LiveViewer:
         if self.follow.value or self.watcher.current is None:
             if self.watcher.poll():
                 self.status.content = f"**{self.watcher.run_dir.name}**: {self.watcher.status}"
+                self._show_splats()
             elif self.watcher.current is None:
                 self.status.content = self.watcher.status
         sides = refinement_sides(self.preview, int(self.res.value))

@@ -1,0 +1,284 @@
+"""Compiled (numba) CPU rasterizer of projected 3D Gaussians; importing this needs numba.
+
+The reference is :func:`nerfkit.kernels.splat_reference.rasterize_reference`; the rules
+(tiles, depth order, alpha thresholds, early termination) are the same, see there.
+
+* :func:`bin_tiles`: per tile, the visible Gaussians in depth order (a bucket sort of
+  the globally depth-sorted list, so each tile's list stays sorted).
+* :func:`rasterize_forward`: tiles in parallel; per tile, Gaussians front to back each
+  update the open pixels of their footprint (the box where alpha can reach 1/255; a tile
+  is done when all its pixels are). Writes the final transmittance and the end of the
+  contributing list per pixel for the backward.
+* :func:`rasterize_backward`: back to front over the same lists (INRIA's recursion).
+  Tiles are split into lanes (one per thread); each lane adds into its own gradient
+  buffer, so no two threads write the same memory; the caller sums the lanes.
+
+Gradient channels per Gaussian (``G_*``): 2D mean x/y, conic a/b/c, opacity, r, g, b.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+TILE = 16
+ALPHA_MIN = 1.0 / 255.0
+ALPHA_MAX = 0.99
+T_MIN = 1e-4
+G_MX, G_MY, G_A, G_B, G_C, G_OP, G_R, G_G, G_BL = range(9)
+N_GRAD = 9
+
+
+@njit(cache=True)
+def bin_tiles(order, rects, n_tiles_x, n_tiles_y):
+    """``order`` (m,) Gaussian ids nearest first; ``rects`` (n, 4) int32 ``x0, x1, y0, y1``.
+
+    Returns ``(offsets (n_tiles + 1,) int64, ids (pairs,) int32)``: tile ``t`` (row-major)
+    holds ``ids[offsets[t]:offsets[t + 1]]``, in depth order.
+    """
+    n_tiles = n_tiles_x * n_tiles_y
+    counts = np.zeros(n_tiles + 1, np.int64)
+    for k in range(order.shape[0]):
+        g = order[k]
+        for ty in range(rects[g, 2], rects[g, 3]):
+            for tx in range(rects[g, 0], rects[g, 1]):
+                counts[ty * n_tiles_x + tx + 1] += 1
+    offsets = np.cumsum(counts)
+    fill = offsets[:-1].copy()
+    ids = np.empty(offsets[-1], np.int32)
+    for k in range(order.shape[0]):
+        g = order[k]
+        for ty in range(rects[g, 2], rects[g, 3]):
+            for tx in range(rects[g, 0], rects[g, 1]):
+                t = ty * n_tiles_x + tx
+                ids[fill[t]] = g
+                fill[t] += 1
+    return offsets, ids
+
+
+@njit(cache=True, inline="always")
+def _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1):
+    """Pixels ``[bx0, bx1) x [by0, by1)`` of the tile ``[x0, x1) x [y0, y1)`` where a Gaussian
+    can reach alpha >= 1/255: the bounding box of the ellipse ``op * exp(power) = 1/255``
+    (plus a pixel of margin), so skipping the pixels outside changes nothing."""
+    s = 2.0 * math.log(op / ALPHA_MIN)  # d^T Q d <= s where alpha >= ALPHA_MIN
+    det = ca * cc - cb * cb
+    if s <= 0.0 or det <= 0.0 or ca <= 0.0:
+        return x0, x0, y0, y0
+    rx = math.sqrt(s * cc / det) + 1.0
+    ry = math.sqrt(s * ca / det) + 1.0
+    bx0 = max(x0, int(math.ceil(mx - rx - 0.5)))
+    bx1 = min(x1, int(math.floor(mx + rx - 0.5)) + 1)
+    by0 = max(y0, int(math.ceil(my - ry - 0.5)))
+    by1 = min(y1, int(math.floor(my + ry - 0.5)) + 1)
+    if bx1 < bx0:
+        bx1 = bx0
+    if by1 < by0:
+        by1 = by0
+    return bx0, bx1, by0, by1
+
+
+@njit(cache=True, inline="always")
+def _power_floor(op):
+    """Below this power, ``op * exp(power) < 1/255`` for sure (a margin of 1e-3 keeps the
+    exact test, after exp, for the borderline pixels): those skip the exp."""
+    if op <= 0.0:
+        return math.inf
+    return math.log(ALPHA_MIN / op) - 1e-3
+
+
+@njit(parallel=True, cache=True, fastmath=False)
+def rasterize_forward(offsets, ids, means2d, conics, colors, opac, depths, background, width, height,
+                      n_tiles_x, out_rgb, out_depth, out_alpha, final_T, n_contrib):
+    """Composite every pixel; outputs (H, W, 3) / (H, W) are written in place.
+
+    Per tile, Gaussians in depth order each update only the pixels of their footprint
+    that are still open (per-pixel state in small arrays). ``n_contrib[y, x]`` is the index
+    into ``ids`` just past the last Gaussian that contributed (the backward starts there)."""
+    n_tiles = offsets.shape[0] - 1
+    for t in prange(n_tiles):
+        start, end = offsets[t], offsets[t + 1]
+        ty, tx = t // n_tiles_x, t % n_tiles_x
+        x0, y0 = tx * TILE, ty * TILE
+        x1, y1 = min(x0 + TILE, width), min(y0 + TILE, height)
+        tw = x1 - x0
+        P = tw * (y1 - y0)
+        T = np.ones(P, means2d.dtype)
+        acc = np.zeros((P, 4), means2d.dtype)
+        last = np.full(P, start, np.int64)
+        done = np.zeros(P, np.bool_)
+        open_pixels = P
+        for k in range(start, end):
+            if open_pixels == 0:
+                break
+            g = ids[k]
+            mx, my = means2d[g, 0], means2d[g, 1]
+            ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
+            op = opac[g]
+            bx0, bx1, by0, by1 = _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1)
+            p_skip = _power_floor(op)
+            for y in range(by0, by1):
+                dy = my - (y + 0.5)
+                for x in range(bx0, bx1):
+                    p = (y - y0) * tw + (x - x0)
+                    if done[p]:
+                        continue
+                    dx = mx - (x + 0.5)
+                    power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                    if power > 0.0 or power < p_skip:
+                        continue
+                    alpha = min(ALPHA_MAX, op * math.exp(power))
+                    if alpha < ALPHA_MIN:
+                        continue
+                    test_T = T[p] * (1.0 - alpha)
+                    if test_T < T_MIN:
+                        done[p] = True
+                        open_pixels -= 1
+                        continue
+                    w = alpha * T[p]
+                    acc[p, 0] += w * colors[g, 0]
+                    acc[p, 1] += w * colors[g, 1]
+                    acc[p, 2] += w * colors[g, 2]
+                    acc[p, 3] += w * depths[g]
+                    T[p] = test_T
+                    last[p] = k + 1
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                p = (y - y0) * tw + (x - x0)
+                for ch in range(3):
+                    out_rgb[y, x, ch] = acc[p, ch] + T[p] * background[y, x, ch]
+                out_depth[y, x] = acc[p, 3]
+                out_alpha[y, x] = 1.0 - T[p]
+                final_T[y, x] = T[p]
+                n_contrib[y, x] = last[p]
+
+
+@njit(parallel=True, cache=True, fastmath=False)
+def rasterize_backward(offsets, ids, means2d, conics, colors, opac, depths, background, width, height,
+                       n_tiles_x, final_T, n_contrib, grad_rgb, grads):
+    """Gradients of a loss w.r.t. each Gaussian's 2D mean, conic, opacity and colour.
+
+    ``grad_rgb`` (H, W, 3) is dL/d(out_rgb); ``grads`` (lanes, n, 9) zeroed, written in place
+    (lane ``l`` handles tiles ``l, l + lanes, ...``). Per tile, Gaussians back to front,
+    each visiting its footprint's pixels (INRIA's recursion, per-pixel state in arrays)."""
+    n_tiles = offsets.shape[0] - 1
+    lanes = grads.shape[0]
+    for lane in prange(lanes):
+        for t in range(lane, n_tiles, lanes):
+            start, end = offsets[t], offsets[t + 1]
+            if end == start:
+                continue
+            ty, tx = t // n_tiles_x, t % n_tiles_x
+            x0, y0 = tx * TILE, ty * TILE
+            x1, y1 = min(x0 + TILE, width), min(y0 + TILE, height)
+            tw = x1 - x0
+            P = tw * (y1 - y0)
+            T = np.empty(P, means2d.dtype)
+            behind = np.zeros((P, 3), means2d.dtype)  # colour composited behind, per unit transmittance
+            last_alpha = np.zeros(P, means2d.dtype)
+            last_col = np.zeros((P, 3), means2d.dtype)
+            ncon = np.empty(P, np.int64)
+            gpix = np.empty((P, 4), means2d.dtype)  # dL/drgb and background . dL/drgb
+            k_end = start
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    p = (y - y0) * tw + (x - x0)
+                    T[p] = final_T[y, x]
+                    ncon[p] = n_contrib[y, x]
+                    k_end = max(k_end, ncon[p])
+                    for ch in range(3):
+                        gpix[p, ch] = grad_rgb[y, x, ch]
+                    gpix[p, 3] = (background[y, x, 0] * grad_rgb[y, x, 0] + background[y, x, 1] * grad_rgb[y, x, 1]
+                                  + background[y, x, 2] * grad_rgb[y, x, 2])
+            for k in range(k_end - 1, start - 1, -1):
+                g = ids[k]
+                mx, my = means2d[g, 0], means2d[g, 1]
+                ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
+                op = opac[g]
+                cr, cg, cbl = colors[g, 0], colors[g, 1], colors[g, 2]
+                bx0, bx1, by0, by1 = _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1)
+                p_skip = _power_floor(op)
+                d_mx = 0.0
+                d_my = 0.0
+                d_a = 0.0
+                d_b = 0.0
+                d_c = 0.0
+                d_op = 0.0
+                d_r = 0.0
+                d_g = 0.0
+                d_bl = 0.0
+                for y in range(by0, by1):
+                    dy = my - (y + 0.5)
+                    for x in range(bx0, bx1):
+                        p = (y - y0) * tw + (x - x0)
+                        if k >= ncon[p]:
+                            continue
+                        dx = mx - (x + 0.5)
+                        power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                        if power > 0.0 or power < p_skip:
+                            continue
+                        G = math.exp(power)
+                        raw = op * G
+                        alpha = min(ALPHA_MAX, raw)
+                        if alpha < ALPHA_MIN:
+                            continue
+                        Tp = T[p] / (1.0 - alpha)
+                        T[p] = Tp
+                        w = alpha * Tp
+                        gr, gg, gb = gpix[p, 0], gpix[p, 1], gpix[p, 2]
+                        d_r += w * gr
+                        d_g += w * gg
+                        d_bl += w * gb
+                        la = last_alpha[p]
+                        br = la * last_col[p, 0] + (1.0 - la) * behind[p, 0]
+                        bg_ = la * last_col[p, 1] + (1.0 - la) * behind[p, 1]
+                        bb = la * last_col[p, 2] + (1.0 - la) * behind[p, 2]
+                        behind[p, 0] = br
+                        behind[p, 1] = bg_
+                        behind[p, 2] = bb
+                        last_alpha[p] = alpha
+                        last_col[p, 0] = cr
+                        last_col[p, 1] = cg
+                        last_col[p, 2] = cbl
+                        dl_dalpha = ((cr - br) * gr + (cg - bg_) * gg + (cbl - bb) * gb) * Tp
+                        dl_dalpha -= final_T[y, x] / (1.0 - alpha) * gpix[p, 3]
+                        if raw > ALPHA_MAX:
+                            continue  # alpha is clamped: no gradient to opacity, mean or conic
+                        d_op += G * dl_dalpha
+                        dl_dpower = raw * dl_dalpha
+                        d_mx += dl_dpower * (-ca * dx - cb * dy)
+                        d_my += dl_dpower * (-cc * dy - cb * dx)
+                        d_a += dl_dpower * (-0.5 * dx * dx)
+                        d_b += dl_dpower * (-dx * dy)
+                        d_c += dl_dpower * (-0.5 * dy * dy)
+                grads[lane, g, G_MX] += d_mx
+                grads[lane, g, G_MY] += d_my
+                grads[lane, g, G_A] += d_a
+                grads[lane, g, G_B] += d_b
+                grads[lane, g, G_C] += d_c
+                grads[lane, g, G_OP] += d_op
+                grads[lane, g, G_R] += d_r
+                grads[lane, g, G_G] += d_g
+                grads[lane, g, G_BL] += d_bl
+
+
+def warm_up() -> None:
+    """Compile (or load from the on-disk cache) the kernels for float32 and float64."""
+    for dt in (np.float32, np.float64):
+        n = 2
+        means2d = np.array([[4.0, 4.0], [6.0, 5.0]], dt)
+        conics = np.array([[0.5, 0.0, 0.5]] * n, dt)
+        colors = np.full((n, 3), 0.5, dt)
+        opac = np.full(n, 0.5, dt)
+        depths = np.array([1.0, 2.0], dt)
+        rects = np.array([[0, 1, 0, 1]] * n, np.int32)
+        offsets, ids = bin_tiles(np.arange(n, dtype=np.int64), rects, 1, 1)
+        H = W = 8
+        bg = np.zeros((H, W, 3), dt)
+        rgb, dep, alp, T = np.zeros((H, W, 3), dt), np.zeros((H, W), dt), np.zeros((H, W), dt), np.zeros((H, W), dt)
+        nc = np.zeros((H, W), np.int64)
+        rasterize_forward(offsets, ids, means2d, conics, colors, opac, depths, bg, W, H, 1, rgb, dep, alp, T, nc)
+        grads = np.zeros((2, n, N_GRAD), dt)
+        rasterize_backward(offsets, ids, means2d, conics, colors, opac, depths, bg, W, H, 1, T, nc, rgb, grads)

@@ -1,0 +1,150 @@
+"""Rendering 3D Gaussians on either path.
+
+Projection and SH colour are plain torch (autograd; cheap even for 10^5 Gaussians); the
+rasterizer, where the time goes, is :class:`RasterizeFunction` on the CPU: the compiled
+kernels of :mod:`nerfkit.kernels.splat_numba` forward and backward. Otherwise (CUDA
+tensors, no numba, or ``backend="torch"``) it is the reference
+:func:`~nerfkit.kernels.splat_reference.rasterize_reference` under autograd. On CUDA with
+``gsplat`` installed, :func:`render_gaussians` hands the whole pipeline to gsplat.
+
+Only the colour output carries gradients on the compiled path (depth and alpha are for
+display); ``tests/test_splat_kernels.py`` compares values and gradients of the two paths.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from . import splat_kernels
+from . import splat_reference as ref
+from .ops import default_lanes
+
+
+class RasterizeFunction(torch.autograd.Function):
+    """The compiled rasterizer as an autograd function (CPU tensors, float32 or float64)."""
+
+    @staticmethod
+    def forward(ctx, means2d, conics, colors, opacities, depths, background, rects, width, height):
+        nb = splat_kernels()
+        tw, th = -(-width // ref.TILE), -(-height // ref.TILE)
+        order = ref.depth_order(depths, rects)
+        offsets, ids = nb.bin_tiles(order.numpy().astype("int64"), rects.contiguous().numpy(), tw, th)
+        dt = means2d.dtype
+        arrays = [t.detach().contiguous() for t in (means2d, conics, colors, opacities, depths, background)]
+        rgb = torch.empty((height, width, 3), dtype=dt)
+        depth = torch.empty((height, width), dtype=dt)
+        alpha = torch.empty((height, width), dtype=dt)
+        final_T = torch.empty((height, width), dtype=dt)
+        n_contrib = torch.empty((height, width), dtype=torch.int64)
+        nb.rasterize_forward(offsets, ids, *(a.numpy() for a in arrays), width, height, tw, rgb.numpy(),
+                             depth.numpy(), alpha.numpy(), final_T.numpy(), n_contrib.numpy())
+        ctx.save_for_backward(*arrays, final_T, n_contrib)
+        ctx.bins = (offsets, ids)
+        ctx.size = (width, height, tw)
+        ctx.mark_non_differentiable(depth, alpha)
+        return rgb, depth, alpha
+
+    @staticmethod
+    def backward(ctx, grad_rgb, grad_depth, grad_alpha):
+        nb = splat_kernels()
+        means2d, conics, colors, opacities, depths, background, final_T, n_contrib = ctx.saved_tensors
+        width, height, tw = ctx.size
+        offsets, ids = ctx.bins
+        n = means2d.shape[0]
+        grads = torch.zeros((default_lanes(), n, nb.N_GRAD), dtype=means2d.dtype)
+        g_rgb = grad_rgb.contiguous().to(means2d.dtype)
+        nb.rasterize_backward(offsets, ids, means2d.numpy(), conics.numpy(), colors.numpy(), opacities.numpy(),
+                              depths.numpy(), background.numpy(), width, height, tw, final_T.numpy(),
+                              n_contrib.numpy(), g_rgb.numpy(), grads.numpy())
+        g = grads.sum(0)
+        g_bg = final_T.unsqueeze(-1) * g_rgb if ctx.needs_input_grad[5] else None
+        return g[:, 0:2], g[:, 2:5], g[:, 6:9], g[:, 5], None, g_bg, None, None, None
+
+
+def rasterize(means2d: Tensor, conics: Tensor, colors: Tensor, opacities: Tensor, depths: Tensor, rects: Tensor,
+              background: Tensor, width: int, height: int, backend: str = "auto") -> tuple[Tensor, Tensor, Tensor]:
+    """Composite projected Gaussians into ``(rgb (H, W, 3), depth (H, W), alpha (H, W))``.
+
+    Arguments as :func:`~nerfkit.kernels.splat_reference.rasterize_reference`; ``backend``:
+    ``auto`` (compiled on the CPU when available), ``numba`` or ``torch``.
+    """
+    if resolve_backend(backend, means2d.device) == "numba":
+        return RasterizeFunction.apply(means2d, conics, colors, opacities, depths, background, rects, width, height)
+    return ref.rasterize_reference(means2d, conics, colors, opacities, depths, rects, background, width, height)
+
+
+def resolve_backend(backend: str, device: torch.device) -> str:
+    """``numba`` or ``torch`` for a requested backend on a device."""
+    if backend == "torch" or device.type != "cpu":
+        return "torch"
+    if splat_kernels() is None:
+        if backend == "numba":
+            from ..errors import fail
+
+            raise fail("--kernels numba", "numba is not available", "pip install 'nerfkit[fast]' or use auto")
+        return "torch"
+    return "numba"
+
+
+@dataclass
+class SplatRender:
+    """One rendered view: ``rgb`` (H, W, 3), ``depth`` (H, W) alpha-weighted depth sum,
+    ``alpha`` (H, W); ``means2d`` (n, 2), or (1, n, 2) from gsplat (its ``.grad`` drives
+    densification) and ``radii`` (n,) int pixels (0: not visible)."""
+
+    rgb: Tensor
+    depth: Tensor
+    alpha: Tensor
+    means2d: Tensor | None
+    radii: Tensor
+
+
+def render_gaussians(means: Tensor, log_scales: Tensor, quats: Tensor, opacity_logits: Tensor, sh: Tensor,
+                     sh_degree: int, w2c: Tensor, K: Tensor, width: int, height: int, background: Tensor,
+                     near_plane: float, backend: str = "auto", track_means2d: bool = False) -> SplatRender:
+    """Render Gaussians (parameters as stored, see :mod:`splat_reference`) into one camera.
+
+    ``background`` is (H, W, 3). With ``track_means2d`` the 2D means keep their gradient.
+    """
+    if means.device.type == "cuda" and backend == "auto" and _gsplat() is not None:
+        return _render_gsplat(means, log_scales, quats, opacity_logits, sh, sh_degree, w2c, K, width, height,
+                              background, near_plane)
+    proj = ref.project_gaussians(means, ref.covariance_3d(log_scales, quats), w2c, K, width, height, near_plane)
+    means2d = proj["means2d"]
+    if track_means2d and means2d.requires_grad:
+        means2d.retain_grad()
+    cam = torch.linalg.inv(w2c.to(means))[:3, 3]
+    dirs = means.detach() - cam  # INRIA: colour directions carry no gradient to the means
+    dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    colors = ref.sh_to_rgb(sh, dirs, sh_degree)
+    rgb, depth, alpha = rasterize(means2d, proj["conics"], colors, torch.sigmoid(opacity_logits), proj["depths"],
+                                  proj["rects"], background, width, height, backend)
+    return SplatRender(rgb, depth, alpha, means2d, proj["radii"])
+
+
+def _gsplat():
+    try:
+        import gsplat
+
+        return gsplat
+    except ImportError:
+        return None
+
+
+def _render_gsplat(means, log_scales, quats, opacity_logits, sh, sh_degree, w2c, K, width, height, background,
+                   near_plane) -> SplatRender:  # pragma: no cover - needs CUDA
+    from gsplat import rasterization
+
+    colors, alphas, meta = rasterization(
+        means, quats, torch.exp(log_scales), torch.sigmoid(opacity_logits), sh, w2c[None].to(means),
+        K[None].to(means), width, height, near_plane=near_plane, sh_degree=sh_degree, render_mode="RGB+ED")
+    alpha = alphas[0, ..., 0]
+    rgb = colors[0, ..., :3] + (1 - alpha).unsqueeze(-1) * background
+    depth = colors[0, ..., 3] * alpha  # expected depth x alpha, as the CPU path returns
+    means2d = meta["means2d"]  # (1, n, 2) pixels: its gradient drives densification as on the CPU
+    if means2d.requires_grad:
+        means2d.retain_grad()
+    return SplatRender(rgb, depth, alpha, means2d, meta["radii"][0].reshape(len(means), -1).amax(-1))

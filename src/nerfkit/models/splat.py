@@ -1,0 +1,512 @@
+"""``splat``: 3D Gaussian splatting (Kerbl et al. 2023), trained and rendered on a CPU.
+
+The scene is a set of 3D Gaussians: mean, log-scale, rotation quaternion ``(w, x, y, z)``,
+opacity logit and spherical-harmonic colour up to degree 3 (INRIA's conventions, see
+:mod:`nerfkit.kernels.splat_reference`; ``nerfkit export --splat`` writes the standard
+PLY). The model renders whole views (``whole_images``): the trainer draws one training
+view per step and calls :meth:`SplatModel.render_view`, as do evaluation and videos.
+
+Training as 3DGS does it: L1 + D-SSIM, Adam with a learning rate per parameter
+(3DGS's, times ``--lr``; the means' scaled by the scene size and decaying 100x), adaptive density control
+(clone small / split large Gaussians whose view-space gradient is large, prune
+transparent and huge ones, periodic opacity reset), SH degree raised over time. The
+schedules are fractions of the run, so they follow ``--steps`` or ``--minutes``.
+
+Initialisation (:meth:`SplatModel.init_from_scene`): the visual hull of the training
+images when their background is the flat ``--background`` colour (the object's
+silhouettes carve a grid), else random points in the object's box plus the table plane
+of a tag capture, else random in the scene box.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from ..cameras import Rays, image_rays
+from ..config import option
+from ..errors import fail
+from ..fields.background import sh16
+from ..kernels import splat_reference as ref
+from ..kernels.splat_ops import render_gaussians, resolve_backend
+from .base import NerfModel, RenderOutput, SceneBounds
+
+PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
+# most Gaussians a checkpoint may ask to allocate
+MAX_GAUSSIANS = 20_000_000
+
+
+@dataclass
+class SplatConfig:
+    """Options of the ``splat`` model."""
+
+    # --lr multiplies 3DGS's learning rates: runs of a few hundred to a few thousand steps
+    # converge faster with 8x larger steps (lego, 300 steps: 28.1 dB at 8x, 27.4 at 4x, 23.8 at 1x)
+    TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 1, "lr": 8.0, "render_chunk": 65536}
+
+    sh_degree: int = option(3, "largest spherical-harmonic degree of the colour (0-3)", min=0, max=3)
+    sh_up_every: float = option(0.05, "raise the SH degree by one each time this fraction of the run is done",
+                                above=0, max=1)
+    init: str = option("auto", "initial Gaussians: auto (visual hull when the training images have a flat "
+                       "background, else random in the object box), hull, or random",
+                       choices=["auto", "hull", "random"])
+    init_points: int = option(30_000, "number of initial Gaussians", min=1, max=MAX_GAUSSIANS)
+    init_opacity: float = option(0.1, "opacity of the initial Gaussians", above=0, max=0.99)
+    max_gaussians: int = option(200_000, "densification stops adding Gaussians at this count", min=1,
+                                max=MAX_GAUSSIANS)
+    densify_every: int = option(100, "steps between densification / pruning rounds", min=1)
+    densify_from: float = option(0.02, "first densification, as a fraction of the run", min=0, max=1)
+    densify_until: float = option(0.5, "no densification (and no opacity reset) after this fraction of the run",
+                                  min=0, max=1)
+    densify_grad: float = option(2e-4, "clone/split Gaussians whose mean view-space gradient (NDC units, as "
+                                 "3DGS) exceeds this", above=0)
+    percent_dense: float = option(0.01, "Gaussians larger than this fraction of the scene size are split, "
+                                  "smaller ones cloned", above=0)
+    prune_opacity: float = option(0.005, "prune Gaussians less opaque than this", min=0, max=1)
+    prune_screen: float = option(0.15, "after the first opacity reset, prune Gaussians wider than this fraction "
+                                 "of the image (0: never)", min=0)
+    opacity_reset_every: float = option(0.2, "reset every opacity to at most 0.01 each time this fraction of the "
+                                        "run is done (while densifying; 0: never)", min=0, max=1)
+    ssim_weight: float = option(0.2, "weight of D-SSIM in the loss (the rest is L1)", min=0, max=1)
+    position_lr: float = option(1.6e-4, "learning rate of the means, times the scene size (x --lr)", min=0)
+    position_lr_final: float = option(0.01, "the means' learning rate decays to this fraction of it", above=0,
+                                      max=1)
+    lr_final: float = option(1.0, "every other learning rate decays to this fraction of it (1: constant, as 3DGS; "
+                             "lego, 300 steps: 28.1 dB constant, 27.1 decaying to 0.1)", above=0, max=1)
+    scale_lr: float = option(5e-3, "learning rate of the log-scales (x --lr)", min=0)
+    rotation_lr: float = option(1e-3, "learning rate of the quaternions (x --lr)", min=0)
+    opacity_lr: float = option(5e-2, "learning rate of the opacity logits (x --lr)", min=0)
+    sh_lr: float = option(2.5e-3, "learning rate of the SH DC colour (higher degrees: /20) (x --lr)", min=0)
+    learn_background: bool = option(False, "learn what rays see behind the Gaussians (a colour per direction) "
+                                    "instead of the --background colour: for real photos")
+    torch_threads: int = option(1, "torch threads while training or rendering splats (0: leave as is): its "
+                                "operations are small and fastest on one thread; the rasterizer uses every core",
+                                min=0)
+    kernels: str = option("auto", "auto (compiled numba on the CPU when available; gsplat on CUDA when "
+                          "installed), numba, or torch", choices=["auto", "numba", "torch"])
+
+    def validate(self) -> "SplatConfig":
+        if not 0 <= self.sh_degree <= 3:
+            raise fail("--sh-degree", f"must be 0 to 3 for splat, got {self.sh_degree}")
+        if self.densify_from > self.densify_until:
+            raise fail("--densify-from", "must not be after --densify-until")
+        return self
+
+
+class SplatModel(NerfModel):
+    """3D Gaussians rendered by tile rasterization (see the module docstring)."""
+
+    whole_images = True
+
+    def __init__(self, config: SplatConfig, bounds: SceneBounds):
+        super().__init__(bounds)
+        self.config = config.validate()
+        self.extent = 2.2 * float(bounds.radius)  # 3DGS's "cameras_extent" scales lrs and size thresholds
+        self.near_plane = 0.05 * float(bounds.near)
+        self.active_degree = 0
+        self.n_resets = 0
+        self.optimizer: torch.optim.Optimizer | None = None
+        self._progress = 0.0
+        self._last = None  # the last training render (its 2D means carry the densification gradient)
+        self._image_side = 0  # longest side of the training images (for the screen-size prune)
+        pts = random_in_ball(config.init_points, bounds.center, bounds.radius,
+                             torch.Generator().manual_seed(0))
+        self._install(*initial_gaussians(pts, torch.full_like(pts, 0.5), self._volume_scale(4 / 3 * math.pi *
+                                         bounds.radius ** 3, len(pts)), config.init_opacity))
+        if config.learn_background:
+            self.bg_coef = nn.Parameter(torch.zeros(3, 16))
+        else:
+            self.register_parameter("bg_coef", None)
+
+    # -- parameters ------------------------------------------------------------------
+    def _install(self, means, log_scales, quats, opacity_logits, sh_dc, sh_rest) -> None:
+        """Replace every Gaussian parameter (and reset the densification statistics)."""
+        for name, value in zip(PARAMS, (means, log_scales, quats, opacity_logits, sh_dc, sh_rest)):
+            setattr(self, name, nn.Parameter(value.detach().float().contiguous()))
+        n = means.shape[0]
+        device = means.device
+        self.register_buffer("grad_accum", torch.zeros(n, device=device))
+        self.register_buffer("grad_count", torch.zeros(n, device=device))
+        self.register_buffer("max_radii", torch.zeros(n, device=device))
+
+    @property
+    def n_gaussians(self) -> int:
+        return int(self.means.shape[0])
+
+    def _volume_scale(self, volume: float, n: int) -> float:
+        """Initial Gaussian size: the side of a cube holding ``volume / n``."""
+        return float((volume / max(n, 1)) ** (1 / 3))
+
+    def sh(self) -> Tensor:
+        """(n, 16, 3) all SH coefficients (DC first)."""
+        return torch.cat([self.sh_dc, self.sh_rest], 1)
+
+    @torch.no_grad()
+    def init_from_scene(self, scene, background) -> None:
+        """Place the initial Gaussians from the dataset (see the module docstring)."""
+        c = self.config
+        gen = torch.Generator().manual_seed(0)
+        center, radius = np.asarray(self.bounds.center, np.float64), float(self.bounds.radius)
+        mode = c.init
+        bg = np.asarray(background.detach().cpu().numpy() if isinstance(background, Tensor) else background)
+        if mode == "auto":
+            mode = "hull" if (not c.learn_background and flat_background(scene.train.images, bg)) else "random"
+        if mode == "hull":
+            hull = visual_hull(scene.train, bg, center, radius)
+            if hull is None:
+                raise fail(scene.source or "dataset", "the visual hull of the training images is empty",
+                           "Use --init random, or check --background matches the images' background")
+            pts, cols, volume = sample_hull(hull, c.init_points, gen)
+        else:
+            n_table = c.init_points // 4 if self.bounds.table is not None else 0
+            pts = random_in_ball(c.init_points - n_table, center, 0.7 * radius, gen)
+            if n_table:
+                pts = torch.cat([pts, random_on_plane(n_table, self.bounds.table, center, 1.5 * radius, gen)])
+            cols = torch.full_like(pts, 0.5)
+            volume = 4 / 3 * math.pi * (0.7 * radius) ** 3
+        device = self.means.device
+        self._install(*(t.to(device) for t in initial_gaussians(pts, cols, self._volume_scale(volume, len(pts)),
+                                                                 c.init_opacity)))
+
+    @torch.no_grad()
+    def set_gaussians(self, g) -> None:
+        """Install raw parameters from a :class:`~nerfkit.splat_files.Gaussians` (e.g. a
+        PLY read back); missing higher SH degrees are zero."""
+        n = len(g)
+        rest = torch.zeros(n, 15, 3)
+        rest[:, :g.sh_rest.shape[1]] = torch.as_tensor(g.sh_rest)
+        device = self.means.device
+        self._install(*(torch.as_tensor(np.asarray(t)).to(device) for t in (
+            g.means, g.log_scales, g.quats, g.opacity_logits, g.sh_dc, rest)))
+        self.active_degree = max(self.active_degree, g.sh_degree)
+
+    # -- rendering -------------------------------------------------------------------
+    def _background_image(self, K: Tensor, c2w: Tensor, width: int, height: int, background: Tensor) -> Tensor:
+        if self.bg_coef is None:
+            return background.to(self.means).reshape(1, 1, 3).expand(height, width, 3)
+        rays = image_rays(K, c2w, width, height)
+        return torch.sigmoid(sh16(rays.directions) @ self.bg_coef.t()).reshape(height, width, 3)
+
+    def render_view(self, K, c2w, width: int, height: int, background: Tensor) -> RenderOutput:
+        """Render one whole view: ``rgb`` (H, W, 3), ``depth`` (H, W) alpha-weighted depth
+        sum, ``acc`` (H, W); differentiable in the Gaussians (colour only)."""
+        device = self.means.device
+        if self.config.torch_threads and torch.get_num_threads() != self.config.torch_threads:
+            torch.set_num_threads(self.config.torch_threads)
+        K = torch.as_tensor(np.asarray(K) if not isinstance(K, Tensor) else K, dtype=torch.float32).to(device)
+        c2w = torch.as_tensor(np.asarray(c2w) if not isinstance(c2w, Tensor) else c2w,
+                              dtype=torch.float32).to(device)
+        w2c = torch.linalg.inv(c2w.double()).float()
+        bg = self._background_image(K, c2w, width, height, background)
+        out = render_gaussians(self.means, self.log_scales, self.quats, self.opacity_logits, self.sh(),
+                               self.active_degree, w2c, K, width, height, bg, self.near_plane,
+                               self.config.kernels, track_means2d=self.training and torch.is_grad_enabled())
+        if self.training and torch.is_grad_enabled():
+            self._last = (out, width, height)
+        return RenderOutput(out.rgb, out.depth, out.alpha, int((out.radii > 0).sum()))
+
+    def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
+        raise fail("splat", "renders whole views, not ray batches", "Use render_view (the trainer and "
+                   "render_image do)")
+
+    def query(self, points: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:
+        raise fail("splat", "has no density field to sample", "Export Gaussians with `nerfkit export RUN --splat "
+                   "out.ply`, or a point cloud with --points")
+
+    def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
+        """``(1 - w) L1 + w (1 - SSIM)`` over the image (H, W, 3)."""
+        l1 = torch.mean(torch.abs(out.rgb - target_rgb))
+        w = self.config.ssim_weight
+        if w == 0:
+            return l1
+        return (1 - w) * l1 + w * (1 - ssim(out.rgb, target_rgb))
+
+    # -- optimisation ----------------------------------------------------------------
+    def param_groups(self, lr: float) -> list[dict]:
+        c = self.config
+        groups = [
+            {"params": [self.means], "lr": lr * c.position_lr * self.extent, "name": "means",
+             "lr_final_factor": c.position_lr_final},
+            {"params": [self.log_scales], "lr": lr * c.scale_lr, "name": "log_scales",
+             "lr_final_factor": c.lr_final},
+            {"params": [self.quats], "lr": lr * c.rotation_lr, "name": "quats",
+             "lr_final_factor": c.lr_final},
+            {"params": [self.opacity_logits], "lr": lr * c.opacity_lr, "name": "opacity_logits",
+             "lr_final_factor": c.lr_final},
+            {"params": [self.sh_dc], "lr": lr * c.sh_lr, "name": "sh_dc",
+             "lr_final_factor": c.lr_final},
+            {"params": [self.sh_rest], "lr": lr * c.sh_lr / 20, "name": "sh_rest",
+             "lr_final_factor": c.lr_final},
+        ]
+        if self.bg_coef is not None:
+            groups.append({"params": [self.bg_coef], "lr": lr * 1e-2, "name": "bg_coef"})
+        return groups
+
+    def make_optimizer(self, lr: float) -> torch.optim.Optimizer:
+        # the model keeps it: densification edits the Adam moments in place
+        self.optimizer = torch.optim.Adam(self.param_groups(lr), eps=1e-15)
+        return self.optimizer
+
+    def before_step(self, step: int, progress: float) -> bool:
+        self._progress = progress
+        self.active_degree = min(self.config.sh_degree, int(progress / self.config.sh_up_every))
+        return False
+
+    @torch.no_grad()
+    def after_step(self, step: int) -> None:
+        c = self.config
+        done = step + 1
+        densifying = c.densify_from <= self._progress < c.densify_until
+        if self._last is not None:
+            out, width, height = self._last
+            self._last = None
+            if densifying and out.means2d is not None and out.means2d.grad is not None:
+                self._record_gradients(out.means2d.grad, out.radii, width, height)
+        if densifying and done % c.densify_every == 0:
+            self.densify_and_prune(self._image_side)
+        if c.opacity_reset_every > 0 and self._progress < c.densify_until:
+            resets = int(self._progress / c.opacity_reset_every)
+            if resets > self.n_resets:
+                self.n_resets = resets
+                self.reset_opacity()
+
+    def _record_gradients(self, grad2d: Tensor, radii: Tensor, width: int, height: int) -> None:
+        """Accumulate the view-space gradient norm of the visible Gaussians (in NDC units, as 3DGS)."""
+        vis = radii > 0
+        g = grad2d.reshape(-1, 2)[vis] * torch.tensor([0.5 * width, 0.5 * height], device=grad2d.device)
+        self.grad_accum[vis] += g.norm(dim=-1)
+        self.grad_count[vis] += 1
+        self.max_radii[vis] = torch.maximum(self.max_radii[vis], radii[vis].float())
+        self._image_side = max(width, height)
+
+    @torch.no_grad()
+    def densify_and_prune(self, image_side: int) -> None:
+        """One round of adaptive density control: clone, split, then prune."""
+        c = self.config
+        grads = self.grad_accum / self.grad_count.clamp_min(1)
+        big = torch.exp(self.log_scales).amax(1) > c.percent_dense * self.extent
+        want = grads >= c.densify_grad
+        room = c.max_gaussians - self.n_gaussians
+        clone, split = want & ~big, want & big
+        n_new = int(clone.sum()) + int(split.sum())
+        if room <= 0:
+            clone, split = torch.zeros_like(want), torch.zeros_like(want)
+        elif n_new > room:  # keep the largest gradients
+            keep = torch.zeros_like(want)
+            keep[torch.topk(torch.where(want, grads, torch.full_like(grads, -1.0)), room).indices] = True
+            clone, split = clone & keep, split & keep
+        n = self.n_gaussians
+        # clone: a copy in place; split: two samples from the Gaussian, 1.6x smaller, replacing it
+        new = {name: getattr(self, name).detach()[clone] for name in PARAMS}
+        idx = torch.nonzero(split).squeeze(1)
+        if len(idx):
+            scales = torch.exp(self.log_scales[idx]).repeat(2, 1)
+            R = ref.quat_to_rotmat(self.quats[idx]).repeat(2, 1, 1)
+            samples = (R @ (torch.randn_like(scales) * scales).unsqueeze(-1)).squeeze(-1)
+            split_new = {name: getattr(self, name).detach()[idx].repeat(2, *([1] * (getattr(self, name).dim() - 1)))
+                         for name in PARAMS}
+            split_new["means"] = split_new["means"] + samples
+            split_new["log_scales"] = torch.log(scales / 1.6)
+            new = {name: torch.cat([new[name], split_new[name]]) for name in PARAMS}
+        self._append(new)
+        # prune: the split originals, transparent ones, and (after a reset) huge ones
+        remove = torch.cat([split, torch.zeros(self.n_gaussians - n, dtype=torch.bool, device=split.device)])
+        remove |= torch.sigmoid(self.opacity_logits) < c.prune_opacity
+        if self.n_resets > 0:
+            remove |= torch.exp(self.log_scales).amax(1) > 0.1 * self.extent
+            if c.prune_screen > 0 and image_side > 0:
+                remove |= self.max_radii > c.prune_screen * image_side
+        if bool(remove.all()):
+            remove[torch.argmax(self.opacity_logits)] = False  # never prune the last one
+        self._keep(~remove)
+        self.grad_accum.zero_()
+        self.grad_count.zero_()
+        self.max_radii.zero_()
+
+    @torch.no_grad()
+    def reset_opacity(self) -> None:
+        """Opacity to at most 0.01 (3DGS): floaters must earn their opacity again."""
+        self.opacity_logits.clamp_(max=ref.logit(0.01))
+        if self.optimizer is not None:
+            state = self.optimizer.state.get(self.opacity_logits)
+            if state:
+                state["exp_avg"].zero_()
+                state["exp_avg_sq"].zero_()
+
+    def _edit_parameters(self, fn) -> None:
+        """Replace each Gaussian parameter ``p`` by ``fn(p, fill)`` (``fill`` the value of
+        new rows), carrying the Adam moments along (new rows start at zero)."""
+        for name in PARAMS:
+            old = getattr(self, name)
+            new = nn.Parameter(fn(old.detach(), name))
+            if self.optimizer is not None:
+                for group in self.optimizer.param_groups:
+                    if group["params"][0] is old:
+                        group["params"][0] = new
+                        state = self.optimizer.state.pop(old, None)
+                        if state:
+                            for key in ("exp_avg", "exp_avg_sq"):
+                                state[key] = fn(state[key], None)
+                            self.optimizer.state[new] = state
+            setattr(self, name, new)
+
+    def _append(self, new: dict) -> None:
+        m = new["means"].shape[0]
+        if m == 0:
+            return
+        self._edit_parameters(lambda t, name: torch.cat([t, new[name] if name else t.new_zeros((m, *t.shape[1:]))]))
+        for buf in ("grad_accum", "grad_count", "max_radii"):
+            setattr(self, buf, torch.cat([getattr(self, buf), getattr(self, buf).new_zeros(m)]))
+
+    def _keep(self, keep: Tensor) -> None:
+        if bool(keep.all()):
+            return
+        self._edit_parameters(lambda t, name: t[keep].contiguous())
+        for buf in ("grad_accum", "grad_count", "max_radii"):
+            setattr(self, buf, getattr(self, buf)[keep])
+
+    # -- checkpoints -----------------------------------------------------------------
+    def extra_state(self) -> dict:
+        return {"n_gaussians": self.n_gaussians, "active_degree": self.active_degree, "n_resets": self.n_resets}
+
+    def load_extra_state(self, state: dict) -> None:
+        n = state.get("n_gaussians")
+        if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_GAUSSIANS:
+            raise fail("checkpoint 'model_extra'", f"'n_gaussians' is {n!r}, expected 1 to {MAX_GAUSSIANS}",
+                       "The checkpoint is corrupt or not from nerfkit; delete it or re-train")
+        device = self.means.device
+        self._install(torch.zeros(n, 3, device=device), torch.zeros(n, 3, device=device),
+                      torch.zeros(n, 4, device=device), torch.zeros(n, device=device),
+                      torch.zeros(n, 1, 3, device=device), torch.zeros(n, 15, 3, device=device))
+        self.active_degree = int(state.get("active_degree", self.config.sh_degree))
+        self.n_resets = int(state.get("n_resets", 0))
+
+    def backend(self) -> str:
+        return resolve_backend(self.config.kernels, self.means.device)
+
+
+# -- initialisation -------------------------------------------------------------------
+def initial_gaussians(points: Tensor, colors: Tensor, scale: float, opacity: float) -> tuple[Tensor, ...]:
+    """Isotropic Gaussians at ``points`` (n, 3) with ``colors`` (n, 3) in [0, 1]:
+    ``(means, log_scales, quats, opacity_logits, sh_dc (n, 1, 3), sh_rest (n, 15, 3))``."""
+    n = points.shape[0]
+    quats = torch.zeros(n, 4)
+    quats[:, 0] = 1
+    return (points.float(), torch.full((n, 3), math.log(max(scale, 1e-8))), quats,
+            torch.full((n,), ref.logit(opacity)), ref.rgb_to_sh_dc(colors.float()).unsqueeze(1),
+            torch.zeros(n, 15, 3))
+
+
+def random_in_ball(n: int, center, radius: float, gen: torch.Generator) -> Tensor:
+    """``n`` points uniformly in a ball (n, 3)."""
+    d = torch.randn(n, 3, generator=gen)
+    d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    r = radius * torch.rand(n, 1, generator=gen) ** (1 / 3)
+    return torch.as_tensor(np.asarray(center, np.float32)) + d * r
+
+
+def random_on_plane(n: int, plane, center, radius: float, gen: torch.Generator) -> Tensor:
+    """``n`` points uniformly on the disc of ``radius`` of the plane ``(n, d)`` nearest ``center``."""
+    nrm = np.asarray(plane[:3], np.float64)
+    c = np.asarray(center, np.float64)
+    foot = c - (c @ nrm + float(plane[3])) * nrm
+    helper = np.array([1.0, 0, 0]) if abs(nrm[0]) < 0.9 else np.array([0, 1.0, 0])
+    a = np.cross(nrm, helper)
+    a /= np.linalg.norm(a)
+    b = np.cross(nrm, a)
+    r = radius * torch.rand(n, generator=gen).double().sqrt()
+    th = 2 * math.pi * torch.rand(n, generator=gen).double()
+    pts = torch.as_tensor(foot) + (r * th.cos()).unsqueeze(1) * torch.as_tensor(a) \
+        + (r * th.sin()).unsqueeze(1) * torch.as_tensor(b)
+    return pts.float()
+
+
+def flat_background(images: np.ndarray, bg: np.ndarray, tol: float = 0.05) -> bool:
+    """True when the image borders are mostly the colour ``bg`` (synthetic renders)."""
+    border = np.concatenate([images[:, 0], images[:, -1], images[:, :, 0], images[:, :, -1]], 1)
+    diff = np.abs(border.astype(np.float32) / 255.0 - bg.reshape(1, 1, 3)).max(-1)
+    return float(np.mean(diff < tol)) > 0.9
+
+
+def visual_hull(views, bg: np.ndarray, center: np.ndarray, radius: float, res: int = 64,
+                tol: float = 0.05) -> dict | None:
+    """Carve a ``res``^3 grid over the cube ``center +- radius`` with the views' silhouettes
+    (pixels differing from ``bg`` by more than ``tol``). A cell stays when every view that
+    sees its centre sees the object there. Returns ``{"points" (m, 3), "colors" (m, 3),
+    "cell": side}`` of the kept cells, or None when none is kept."""
+    ax = np.linspace(-radius, radius, res, endpoint=False) + radius / res
+    X, Y, Z = np.meshgrid(ax, ax, ax, indexing="ij")
+    pts = np.stack([X, Y, Z], -1).reshape(-1, 3) + center
+    keep = np.ones(len(pts), bool)
+    col_sum = np.zeros((len(pts), 3))
+    seen = np.zeros(len(pts))
+    for i in range(len(views)):
+        img = views.images[i].astype(np.float32) / 255.0
+        mask = np.abs(img - bg.reshape(1, 1, 3)).max(-1) > tol
+        mask = _dilate(mask)
+        w2c = np.linalg.inv(views.c2w[i].astype(np.float64))
+        pc = pts @ w2c[:3, :3].T + w2c[:3, 3]
+        z = pc[:, 2]
+        uv = pc @ views.K[i].astype(np.float64).T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, v = uv[:, 0] / z, uv[:, 1] / z
+        inside = (z > 0) & (u >= 0) & (u < views.width) & (v >= 0) & (v < views.height)
+        ui = np.clip(np.nan_to_num(u), 0, views.width - 1).astype(int)
+        vi = np.clip(np.nan_to_num(v), 0, views.height - 1).astype(int)
+        keep &= ~inside | mask[vi, ui]
+        col_sum[inside] += img[vi[inside], ui[inside]]
+        seen += inside
+    keep &= seen > 0
+    if not keep.any():
+        return None
+    return {"points": pts[keep], "colors": col_sum[keep] / seen[keep, None], "cell": 2 * radius / res}
+
+
+def _dilate(mask: np.ndarray) -> np.ndarray:
+    """A one-pixel dilation (silhouettes are conservative: keep thin parts)."""
+    out = mask.copy()
+    out[1:] |= mask[:-1]
+    out[:-1] |= mask[1:]
+    out[:, 1:] |= mask[:, :-1]
+    out[:, :-1] |= mask[:, 1:]
+    return out
+
+
+def sample_hull(hull: dict, n: int, gen: torch.Generator) -> tuple[Tensor, Tensor, float]:
+    """``n`` points uniformly in the kept cells, their colours, and the hull's volume."""
+    pts = torch.as_tensor(hull["points"], dtype=torch.float32)
+    cols = torch.as_tensor(hull["colors"], dtype=torch.float32)
+    cell = float(hull["cell"])
+    pick = torch.randint(0, len(pts), (n,), generator=gen)
+    jitter = (torch.rand(n, 3, generator=gen) - 0.5) * cell
+    return pts[pick] + jitter, cols[pick].clamp(0, 1), len(pts) * cell ** 3
+
+
+def ssim(img: Tensor, target: Tensor, window: int = 11, sigma: float = 1.5) -> Tensor:
+    """Mean SSIM of two (H, W, 3) images in [0, 1] (Gaussian window, separable, 'valid' area
+    as 'same' with zero padding, as 3DGS)."""
+    x = img.permute(2, 0, 1).unsqueeze(0)
+    y = target.permute(2, 0, 1).unsqueeze(0)
+    g = torch.exp(-((torch.arange(window, dtype=x.dtype, device=x.device) - window // 2) ** 2) / (2 * sigma ** 2))
+    g = g / g.sum()
+    C = x.shape[1]
+    kx = g.reshape(1, 1, 1, window).expand(C, 1, 1, window)
+    ky = g.reshape(1, 1, window, 1).expand(C, 1, window, 1)
+
+    def blur(t: Tensor) -> Tensor:
+        t = F.conv2d(t, kx, padding=(0, window // 2), groups=C)
+        return F.conv2d(t, ky, padding=(window // 2, 0), groups=C)
+
+    mu_x, mu_y = blur(x), blur(y)
+    sxx = blur(x * x) - mu_x * mu_x
+    syy = blur(y * y) - mu_y * mu_y
+    sxy = blur(x * y) - mu_x * mu_y
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    s = ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x * mu_x + mu_y * mu_y + c1) * (sxx + syy + c2))
+    return s.mean()

@@ -1,0 +1,238 @@
+"""The splat model: training on a tiny scene, density control, resume, export (3DGS PLY and
+.splat) read back, the viewer's arrays, and the commands on a splat run."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from nerfkit.cli import main
+from nerfkit.kernels import splat_reference as ref
+from nerfkit.models.base import SceneBounds
+from nerfkit.models.splat import SplatConfig, SplatModel, ssim
+from nerfkit.render.renderer import render_image
+from nerfkit.splat_files import Gaussians, ply_property_names, read_splat_ply
+from nerfkit.train.config import TrainConfig
+from nerfkit.train.trainer import Trainer, resume, train
+
+SMALL = dict(init_points=1500, densify_every=20, max_gaussians=6000)
+
+
+def splat_cfg(tmp_path, name="run", **kw):
+    base = dict(data="sphere", model="splat", out=str(tmp_path / name), steps=120, seed=0, eval_views=1,
+                checkpoint_seconds=1e9)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory, sphere, sphere_npz):
+    """A splat run of 120 steps on the sphere scene (shared by the tests that only read it)."""
+    tmp = tmp_path_factory.mktemp("splat")
+    result = train(sphere, splat_cfg(tmp, data=str(sphere_npz)), SplatConfig(**SMALL), quiet=True)
+    return result
+
+
+def test_training_rises_well_above_the_empty_render(trained, sphere):
+    val = [r for r in trained.rows if r["split"] == "val"]
+    empty = -10 * np.log10(np.mean((sphere.val.images.astype(np.float64) / 255) ** 2))
+    assert val[0]["step"] == 0 and val[-1]["step"] == 120
+    assert val[-1]["psnr"] > empty + 8.0, (empty, val)
+    assert val[-1]["psnr"] > val[0]["psnr"] + 5.0, val
+
+
+def test_ssim_is_one_for_equal_images_and_lower_for_noise():
+    g = torch.Generator().manual_seed(0)
+    img = torch.rand(24, 20, 3, generator=g)
+    assert float(ssim(img, img)) == pytest.approx(1.0, abs=1e-6)
+    assert float(ssim(img, (img + 0.3 * torch.randn(24, 20, 3, generator=g)).clamp(0, 1))) < 0.8
+
+
+def small_model(sphere, **kw) -> SplatModel:
+    torch.manual_seed(0)
+    return SplatModel(SplatConfig(**{**SMALL, **kw}), SceneBounds.from_scene(sphere))
+
+
+def test_density_control_clones_splits_prunes_and_keeps_adam_moments(sphere):
+    model = small_model(sphere, init_points=100)
+    opt = model.make_optimizer(1.0)
+    with torch.no_grad():
+        model.log_scales[:50] = np.log(1e-3)  # small: cloned
+        model.log_scales[50:] = np.log(0.5)  # large (> 1% of the scene): split
+        model.opacity_logits[90:] = ref.logit(0.001)  # transparent: pruned
+    model.means.sum().backward()
+    opt.step()
+    marker = opt.state[model.means]["exp_avg"].clone()
+    want = torch.zeros(100, dtype=torch.bool)
+    want[[0, 1, 2, 50, 51]] = True  # large view-space gradients
+    model.grad_accum[want] = 1.0
+    model.grad_count[:] = 1
+    model.densify_and_prune(32)
+    # 100 + 3 clones + 2 x 2 split samples - 2 split originals - 10 transparent
+    assert model.n_gaussians == 100 + 3 + 4 - 2 - 10
+    p = model.means
+    assert opt.param_groups[0]["params"][0] is p
+    state = opt.state[p]["exp_avg"]
+    assert state.shape == p.shape
+    torch.testing.assert_close(state[:50], marker[:50])  # survivors keep their moments (first 50 unmoved)
+    assert torch.all(state[-7:] == 0)  # new rows start at zero
+    assert all(getattr(model, n).shape[0] == model.n_gaussians for n in ("log_scales", "quats", "sh_rest",
+                                                                        "grad_accum", "max_radii"))
+    split_scales = torch.exp(model.log_scales[-4:])
+    torch.testing.assert_close(split_scales, torch.full_like(split_scales, 0.5 / 1.6))
+
+
+def test_opacity_reset_caps_opacity(sphere):
+    model = small_model(sphere, init_points=50, init_opacity=0.9)
+    model.make_optimizer(1.0)
+    model.reset_opacity()
+    assert float(torch.sigmoid(model.opacity_logits.detach()).max()) <= 0.01 + 1e-6
+
+
+def test_resume_continues_exactly(tmp_path, sphere):
+    cfg = dict(steps=30, eval_every=15)
+    model_cfg = SplatConfig(**{**SMALL, "densify_every": 5})  # density control before and after the stop
+    train(sphere, splat_cfg(tmp_path, "a", **cfg), model_cfg, quiet=True)
+    first = Trainer(sphere, splat_cfg(tmp_path, "b", **cfg), model_cfg, quiet=True).run(stop_after=12)
+    assert first.step == 12
+    resumed = resume(tmp_path / "b", sphere, quiet=True)
+    assert resumed.step == 30
+    a = torch.load(tmp_path / "a" / "checkpoints" / "step_00000030.pt", weights_only=True)
+    b = torch.load(tmp_path / "b" / "checkpoints" / "step_00000030.pt", weights_only=True)
+    assert a["model_extra"] != '{"n_gaussians": 1500, "active_degree": 0, "n_resets": 0}'  # densified
+    assert a["model_extra"] == b["model_extra"]
+    for k in a["model"]:
+        torch.testing.assert_close(a["model"][k], b["model"][k], rtol=1e-4, atol=1e-5)
+
+
+def test_export_ply_has_the_3dgs_layout_and_renders_identically(trained, sphere, tmp_path):
+    from plyfile import PlyData
+
+    from nerfkit.train.checkpoint import load_run
+
+    out = tmp_path / "g.ply"
+    assert main(["export", str(trained.run_dir), "--splat", str(out)]) == 0
+    model, info, _ = load_run(trained.run_dir)
+    ply = PlyData.read(str(out))
+    v = ply["vertex"]
+    assert [p.name for p in v.properties] == ply_property_names(15)
+    assert ply_property_names(15)[:9] == ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+    assert ply_property_names(15)[-8:] == ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2",
+                                           "rot_3"]
+    assert all(p.val_dtype in ("f4", "float32") for p in v.properties) and not ply.text
+    n = model.n_gaussians
+    assert len(v.data) == n
+    # raw values: log-scale, logit opacity, quaternion w first, DC = (rgb - 0.5) / C0, f_rest channel-major
+    np.testing.assert_array_equal(v["scale_1"], model.log_scales[:, 1].detach().numpy())
+    np.testing.assert_array_equal(v["opacity"], model.opacity_logits.detach().numpy())
+    np.testing.assert_array_equal(v["rot_0"], model.quats[:, 0].detach().numpy())
+    np.testing.assert_array_equal(v["f_dc_2"], model.sh_dc[:, 0, 2].detach().numpy())
+    np.testing.assert_array_equal(v["f_rest_15"], model.sh_rest[:, 0, 1].detach().numpy())  # green, degree 1
+    np.testing.assert_array_equal(v["f_rest_1"], model.sh_rest[:, 1, 0].detach().numpy())  # red, 2nd coefficient
+    # read back into a fresh model: the same image
+    fresh = SplatModel(info.model_config, info.bounds)
+    fresh.set_gaussians(read_splat_ply(out))
+    fresh.active_degree = model.active_degree
+    bg = torch.zeros(3)
+    a = render_image(model, sphere.val.K[0], sphere.val.c2w[0], 32, 32, bg)
+    b = render_image(fresh, sphere.val.K[0], sphere.val.c2w[0], 32, 32, bg)
+    np.testing.assert_array_equal(a.rgb, b.rgb)
+    assert float(a.acc.max()) > 0.9
+
+
+def test_dot_splat_is_32_bytes_a_gaussian(trained, tmp_path):
+    from nerfkit.train.checkpoint import load_run
+
+    out = tmp_path / "g.splat"
+    assert main(["export", str(trained.run_dir), "--splat", str(out)]) == 0
+    model = load_run(trained.run_dir)[0]
+    raw = out.read_bytes()
+    assert len(raw) == 32 * model.n_gaussians
+    rec = np.frombuffer(raw, dtype=[("pos", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
+    first = int(np.argmax(torch.exp(model.log_scales.sum(1)).detach().numpy()
+                          * torch.sigmoid(model.opacity_logits).detach().numpy()))
+    np.testing.assert_allclose(rec["pos"][0], model.means[first].detach().numpy())
+    np.testing.assert_allclose(rec["scale"][0], torch.exp(model.log_scales[first]).detach().numpy(), rtol=1e-6)
+
+
+def test_export_refuses_a_non_splat_target_and_existing_files(trained, tmp_path, capsys):
+    assert main(["export", str(trained.run_dir), "--splat", str(tmp_path / "g.txt")]) != 0
+    assert "should end in .ply or .splat" in capsys.readouterr().err
+    out = tmp_path / "g.ply"
+    out.write_text("mine")
+    assert main(["export", str(trained.run_dir), "--splat", str(out)]) != 0
+    assert "--force" in capsys.readouterr().err
+    assert out.read_text() == "mine"
+
+
+def test_viewer_arrays_match_scales_and_rotations(trained):
+    from nerfkit.train.checkpoint import load_run
+    from nerfkit.viz.splats import splat_arrays
+
+    model = load_run(trained.run_dir)[0]
+    arr = splat_arrays(Gaussians.from_model(model))
+    cov = arr["covariances"].astype(np.float64)
+    np.testing.assert_allclose(cov, cov.transpose(0, 2, 1), atol=1e-12)
+    eig = np.linalg.eigvalsh(cov)
+    want = np.sort(np.exp(2 * model.log_scales.detach().double().numpy()), axis=1)
+    np.testing.assert_allclose(eig, want, rtol=2e-3, atol=1e-9)
+    torch.testing.assert_close(torch.as_tensor(cov), ref.covariance_3d(model.log_scales.detach().double(),
+                                                                      model.quats.detach().double()),
+                               rtol=1e-5, atol=1e-9)
+    assert arr["opacities"].shape == (model.n_gaussians, 1) and arr["rgbs"].min() >= 0 and arr["rgbs"].max() <= 1
+
+
+def test_depth_of_the_sphere_lies_between_near_and_far(trained, sphere):
+    from nerfkit.train.checkpoint import load_run
+
+    model = load_run(trained.run_dir)[0]
+    view = render_image(model, sphere.val.K[0], sphere.val.c2w[0], 32, 32, torch.zeros(3))
+    hit = view.acc > 0.9
+    assert hit.sum() > 50
+    cam = np.linalg.norm(sphere.val.c2w[0][:3, 3])
+    assert np.all(view.depth[hit] > cam - 1.5) and np.all(view.depth[hit] < cam)  # the unit sphere's front
+
+
+def test_cli_eval_and_render_a_splat_run(trained, capsys, tmp_path):
+    assert main(["eval", str(trained.run_dir)]) == 0
+    assert main(["render", str(trained.run_dir), "--path", "orbit", "--frames", "3", "--out",
+                 str(tmp_path / "v")]) == 0
+    assert (tmp_path / "v" / "depth.mp4").stat().st_size > 0
+
+
+def test_capture_mode_learns_the_background_and_exposure_without_pose(tmp_path, sphere):
+    trainer = Trainer(sphere, splat_cfg(tmp_path, steps=15, capture="on", eval_views=1),
+                      *_capture(sphere), quiet=True)
+    assert trainer.model.bg_coef is not None
+    assert trainer.views is not None and trainer.views.pose is None and trainer.views.exposure is not None
+    trainer.run()
+    assert float(trainer.model.bg_coef.detach().abs().max()) > 0
+    assert float(trainer.views.exposure.log_gain.detach().abs().max()) > 0
+
+
+def _capture(sphere):
+    from nerfkit.train.trainer import capture_settings
+
+    cfg, model_cfg = capture_settings(TrainConfig(model="splat", steps=15, capture="on"), SplatConfig(**SMALL), sphere)
+    return (model_cfg,)
+
+
+def test_live_viewer_draws_the_splats_and_renders_a_splat_run(trained, sphere, monkeypatch):
+    from nerfkit.train.checkpoint import load_run
+    from nerfkit.viz import live
+
+    watcher = live.RunWatcher(trained.run_dir, load_run)
+    viewer = live.LiveViewer(watcher, None, host="127.0.0.1", port=0, max_side=32, watch=True)
+    drawn = []
+    real = viewer.server.scene.add_gaussian_splats
+    monkeypatch.setattr(viewer.server.scene, "add_gaussian_splats",
+                        lambda name, **kw: drawn.append(kw) or real(name, **kw))
+    try:
+        viewer.step()  # loads the run and draws its Gaussians
+        assert len(drawn) == 1 and drawn[0]["centers"].shape == (watcher.current.model.n_gaussians, 3)
+        c2w = sphere.val.c2w[0]
+        img = viewer.render_for(live.matrix_to_quat(c2w[:3, :3]), c2w[:3, 3], np.radians(40), 1.0, 32, "RGB")
+        assert img.shape == (32, 32, 3) and img[12:20, 12:20].mean() > 40  # the sphere, not the black background
+    finally:
+        viewer.server.stop()
