@@ -467,7 +467,7 @@ def test_compiled_distortion_matches_reference_values_and_gradients(sh_degree):
         sink = GradSink(geom.n_vertices, grid.shape[1]) if backend == "numba" else None
         gm = GridGeom(geom.lo.to(dt), geom.voxel, geom.res)
         out = render_grid(g, gm, spec, oo, dd, t0.to(dt), t1.to(dt), u.to(dt), sh_degree, sink, backend,
-                          t_end=t_end.to(dt))
+                          t_end=t_end.to(dt), distortion=True)
         w_rgb, _, w_a = (w.to(dt) for w in loss_weights(300))
         loss = 3.0 * out.distortion.sum()  # alone at degree 0, so that its gradient is checked by itself
         if sh_degree:

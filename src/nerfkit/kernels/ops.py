@@ -20,7 +20,7 @@ termination) and the same values; ``tests/test_kernels.py`` checks values and gr
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -227,13 +227,14 @@ class _NumbaRender(torch.autograd.Function):
     computes only the gradients asked for."""
 
     @staticmethod
-    def forward(ctx, grid, rays_o, rays_d, sh, t0, t1, u, t_end, geom, spec, sink, nb):
+    def forward(ctx, grid, rays_o, rays_d, sh, t0, t1, u, t_end, geom, spec, sink, nb, want_dist):
         lease = _lease()
         rgb, depth, acc, count, s_idx, s_f = _forward_numba(nb, grid, geom, spec, rays_o, rays_d, sh,
                                                             t0, t1, u, True, lease)
         t_end = _np64(t_end)
         dist = np.zeros(len(count), np.float32)
-        nb.distortion_forward(s_f, count, float(spec.step), t_end, dist)
+        if want_dist:  # an extra pass over the samples, only when a loss uses it
+            nb.distortion_forward(s_f, count, float(spec.step), t_end, dist)
         ctx.lease = lease
         ctx.saved = (rgb, depth, acc, count, s_idx, s_f, _np32(sh), grid.detach().numpy(), t_end)
         ctx.geom, ctx.spec, ctx.sink, ctx.nb = geom, spec, sink, nb
@@ -271,7 +272,7 @@ class _NumbaRender(torch.autograd.Function):
         ctx.saved = None
         ray_out = [torch.from_numpy(g).to(like) if need else None
                    for g, like, need in zip((g_o, g_d, g_sh), ctx.ray_like, (need_o, need_d, need_sh))]
-        return (None, *ray_out) + (None,) * 8
+        return (None, *ray_out) + (None,) * 9
 
 
 @dataclass
@@ -302,6 +303,7 @@ def render_grid(
     sink: GradSink | None,
     backend: str,
     t_end: Tensor | None = None,
+    distortion: bool = False,
 ) -> GridRender:
     """Render rays through the grid field, differentiable in whichever of ``grid``,
     ``rays_o`` and ``rays_d`` require grad.
@@ -319,6 +321,8 @@ def render_grid(
         backend: ``"numba"`` or ``"torch"``.
         t_end: (n,) where the distortion loss puts each ray's leftover weight (e.g. the
             table behind the box; inf or None: nowhere).
+        distortion: compute each ray's distortion loss (training only; the compiled path
+            skips that pass otherwise and returns no distortion).
     """
     sh = ref.sh_basis(rays_d.float(), sh_degree)
     nb = numba_kernels() if backend == "numba" else None
@@ -328,7 +332,8 @@ def render_grid(
                 raise ValueError("render_grid: a GradSink is needed to train the grid on the compiled path")
             ends = t_end if t_end is not None else torch.full_like(t0, math.inf)
             rgb, depth, acc, counts, dist = _NumbaRender.apply(grid, rays_o, rays_d, sh, t0, t1, u, ends, geom, spec,
-                                                               sink, nb)
+                                                               sink, nb, distortion)
+            dist = dist if distortion else None
         else:
             out = _forward_numba(nb, grid, geom, spec, rays_o, rays_d, sh, t0, t1, u, False, None)
             rgb, depth, acc, counts = (torch.from_numpy(a) for a in out[:4])
@@ -336,7 +341,8 @@ def render_grid(
         dev = rays_o.device
         return GridRender(rgb.to(dev), depth.to(dev), acc.to(dev), counts.to(dev), int(counts.sum()),
                           None if dist is None else dist.to(dev))
-    return render_grid_torch(grid, geom, spec, rays_o, rays_d, t0, t1, u, sh, t_end)
+    out = render_grid_torch(grid, geom, spec, rays_o, rays_d, t0, t1, u, sh, t_end)
+    return out if distortion else replace(out, distortion=None)
 
 
 def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0, t1, u, sh,

@@ -287,7 +287,8 @@ class FastNeRF(NerfModel):
             t1 = torch.minimum(t1, t_table)
         u = torch.rand(n, device=o.device) if perturb else torch.full((n,), 0.5, device=o.device)
         out = render_grid(self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree,
-                          self.sink, self._backend(), t_end=t_table if self.config.distortion_table else None)
+                          self.sink, self._backend(), t_end=t_table if self.config.distortion_table else None,
+                          distortion=bool(self.config.distortion_weight))
         if perturb and self.training and self.config.shrink_box and self.stage == 0 and self.steps:
             self._remember_surface(o, d, out.depth.detach(), out.acc.detach())
         bg = self._background(o, d, t_table, background)
