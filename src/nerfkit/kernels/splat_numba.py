@@ -59,6 +59,14 @@ def bin_tiles(order, rects, n_tiles_x, n_tiles_y):
 
 
 @njit(cache=True, inline="always")
+def _tile_box(t, n_tiles_x, width, height):
+    """Pixels ``[x0, x1) x [y0, y1)`` of tile ``t`` (row-major tiles of TILE x TILE,
+    clipped at the image's edge)."""
+    x0, y0 = (t % n_tiles_x) * TILE, (t // n_tiles_x) * TILE
+    return x0, min(x0 + TILE, width), y0, min(y0 + TILE, height)
+
+
+@njit(cache=True, inline="always")
 def _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1):
     """Pixels ``[bx0, bx1) x [by0, by1)`` of the tile ``[x0, x1) x [y0, y1)`` where a Gaussian
     can reach alpha >= 1/255: the bounding box of the ellipse ``op * exp(power) = 1/255``
@@ -100,9 +108,7 @@ def rasterize_forward(offsets, ids, means2d, conics, colors, opac, depths, backg
     n_tiles = offsets.shape[0] - 1
     for t in prange(n_tiles):
         start, end = offsets[t], offsets[t + 1]
-        ty, tx = t // n_tiles_x, t % n_tiles_x
-        x0, y0 = tx * TILE, ty * TILE
-        x1, y1 = min(x0 + TILE, width), min(y0 + TILE, height)
+        x0, x1, y0, y1 = _tile_box(t, n_tiles_x, width, height)
         tw = x1 - x0
         P = tw * (y1 - y0)
         T = np.ones(P, means2d.dtype)
@@ -170,9 +176,7 @@ def rasterize_backward(offsets, ids, means2d, conics, colors, opac, depths, back
             start, end = offsets[t], offsets[t + 1]
             if end == start:
                 continue
-            ty, tx = t // n_tiles_x, t % n_tiles_x
-            x0, y0 = tx * TILE, ty * TILE
-            x1, y1 = min(x0 + TILE, width), min(y0 + TILE, height)
+            x0, x1, y0, y1 = _tile_box(t, n_tiles_x, width, height)
             tw = x1 - x0
             P = tw * (y1 - y0)
             T = np.empty(P, means2d.dtype)
