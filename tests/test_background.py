@@ -3,9 +3,11 @@
 import math
 
 import numpy as np
+import pytest
 import torch
 
-from nerfkit.fields.background import TablePlane, contract_disc, plane_hit, sh16
+from nerfkit.fields.background import (RoomShells, TablePlane, composite_layers, contract_disc, plane_hit, sh16,
+                                       sphere_exit)
 
 
 def test_plane_hit_distances_front_side_only():
@@ -57,20 +59,21 @@ def test_sh16_is_a_basis_of_sixteen_independent_functions():
     assert np.isclose(float(B[:, 0].min()), 1.0)
 
 
-def test_sparse_texture_lookup_matches_grid_sample_in_values_and_gradients():
+@pytest.mark.parametrize("side", [9, (12, 5)])
+def test_sparse_texture_lookup_matches_grid_sample_in_values_and_gradients(side):
     from nerfkit.fields.background import sample_texture
     from nerfkit.kernels.ops import GradSink
 
     g = torch.Generator().manual_seed(0)
-    side = 9
-    tex = torch.randn(side * side, 3, generator=g, dtype=torch.float64, requires_grad=True)
+    n_texels = side * side if isinstance(side, int) else side[0] * side[1]
+    tex = torch.randn(n_texels, 3, generator=g, dtype=torch.float64, requires_grad=True)
     uv = (torch.rand(200, 2, generator=g, dtype=torch.float64) * 2.4 - 1.2).requires_grad_(True)  # some clamped
     w = torch.randn(200, 3, generator=g, dtype=torch.float64)
     ref = sample_texture(tex, side, uv)  # grid_sample
     (ref * w).sum().backward()
     ref_tex, ref_uv = tex.grad.clone(), uv.grad.clone()
     tex.grad, uv.grad = None, None
-    sink = GradSink(side * side, 3, lanes=1)
+    sink = GradSink(n_texels, 3, lanes=1)
     sink.grad = sink.grad.double()
     out = sample_texture(tex, side, uv, sink)
     (out * w).sum().backward()
@@ -90,9 +93,10 @@ def test_table_coverage_shows_the_room_where_the_table_ends():
 
     scene = tabletop_scene(n_train=2, n_val=0, size=16)
     model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32,
-                                learn_background=True), SceneBounds.from_scene(scene))
+                                learn_background=True, room_shells=2, room_resolution=16), SceneBounds.from_scene(scene))
     with torch.no_grad():
         model.table.fine.fill_(2.0)  # table colour sigmoid(2)
+        model.room.fine[:, 3] = -30.0  # room shells transparent
         model.bg_coef.zero_()
         model.bg_coef[:, 0] = -1.0  # room colour sigmoid(-1)
     o = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
@@ -106,3 +110,136 @@ def test_table_coverage_shows_the_room_where_the_table_ends():
     with torch.no_grad():
         model.table.cover.fill_(-30.0)  # no table anywhere
     torch.testing.assert_close(model._background(o, d, t, None)[0], room.expand(3), atol=1e-6, rtol=0)
+    with torch.no_grad():  # an opaque first room shell hides the colour per direction, not the table
+        model.table.cover.fill_(30.0)
+        model.room.fine[:, :3] = 1.0
+        model.room.fine[:, 3] = 30.0
+    out = model._background(o, d, t, None)
+    torch.testing.assert_close(out[0], table.expand(3))
+    torch.testing.assert_close(out[1], torch.sigmoid(torch.tensor(1.0)).expand(3))
+
+
+def test_sphere_exit_is_the_far_root_and_misses_are_infinite():
+    c = torch.tensor([1.0, 0.0, 0.0])
+    radii = torch.tensor([1.0, 2.0])
+    o = torch.tensor([[1.0, 0.0, 0.0], [1.0, 0.5, 0.0], [5.0, 0.0, 0.0], [5.0, 3.0, 0.0], [5.0, 0.0, 0.0]])
+    d = torch.tensor([[0.0, 0.0, 2.0], [1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    t = sphere_exit(o, d, c, radii)
+    torch.testing.assert_close(t[0], torch.tensor([0.5, 1.0]))  # from the centre, |d| = 2
+    torch.testing.assert_close(t[1], torch.tensor([math.sqrt(0.75), math.sqrt(3.75)]))
+    torch.testing.assert_close(t[2], torch.tensor([5.0, 6.0]))  # from outside: where it leaves
+    assert math.isinf(t[3, 0]) and math.isinf(t[3, 1])  # passes beside both spheres
+    assert bool(torch.isinf(t[4]).all())  # heading away: both spheres are behind it
+    p = o[1] + t[1, 1] * d[1]
+    assert abs(float((p - c).norm()) - 2.0) < 1e-6
+
+
+def test_layers_are_composited_nearest_first_whatever_their_order():
+    g = torch.Generator().manual_seed(1)
+    t = torch.tensor([[3.0, 1.0, math.inf], [0.5, 2.0, 1.0]])
+    rgb = torch.rand(2, 3, 3, generator=g)
+    alpha = torch.tensor([[0.5, 0.25, 0.0], [0.2, 0.9, 0.4]])
+    behind = torch.rand(2, 3, generator=g)
+    out = composite_layers(t, rgb, alpha, behind)
+    # ray 0: layer 1 (t=1) then layer 0 (t=3); the missing layer changes nothing
+    want0 = 0.25 * rgb[0, 1] + 0.75 * 0.5 * rgb[0, 0] + 0.75 * 0.5 * behind[0]
+    torch.testing.assert_close(out[0], want0)
+    perm = torch.tensor([2, 0, 1])
+    torch.testing.assert_close(composite_layers(t[:, perm], rgb[:, perm], alpha[:, perm], behind), out)
+    opaque = composite_layers(t, rgb, torch.ones_like(alpha), behind)
+    torch.testing.assert_close(opaque[1], rgb[1, 0])  # the nearest opaque layer hides the rest
+
+
+def test_room_shells_show_the_texel_a_ray_meets_with_parallax():
+    """A mark painted on the second shell is seen along the ray through it: straight out
+    from the centre, and from an off-centre camera along a different direction."""
+    room = RoomShells(center=torch.zeros(3), up=torch.tensor([0.0, 0.0, 1.0]), r0=1.0, n_shells=2, ratio=2.0,
+                      width=64)
+    w, h = room.sizes[0]
+    e1 = room.frame[:, 0]
+    with torch.no_grad():
+        room.fine[:, 3] = -30.0  # every shell transparent ...
+        fine = room.fine.view(2, h, w, 4)
+        fine[1, h // 2 - 1:h // 2 + 1, w // 2 - 1:w // 2 + 1] = torch.tensor([30.0, -30.0, -30.0, 30.0])  # ... but a red
+        # opaque mark on shell 1 at azimuth 0 (the e1 axis), elevation 0
+    o = torch.stack([torch.zeros(3), 0.5 * room.frame[:, 1]])  # the centre; off it, across e1
+    target = 2.0 * e1
+    d = target - o
+    t, rgb, alpha = room.layers(o, d)
+    assert t.shape == (2, 2) and bool(torch.isfinite(t).all())
+    torch.testing.assert_close(t[:, 1], torch.ones(2))  # both rays reach the mark at t = 1
+    assert bool((alpha[:, 1] > 0.99).all()) and bool((alpha[:, 0] < 1e-6).all())
+    assert bool((rgb[:, 1, 0] > 0.99).all()) and bool((rgb[:, 1, 1:] < 1e-6).all())
+    # the off-centre camera looking along e1 (not at the mark) misses it
+    with torch.no_grad():
+        _, _, alpha_e1 = room.layers(o[1:], e1[None])
+    assert float(alpha_e1[0, 1]) < 1e-6
+
+
+def test_capture_orbit_looks_at_the_trained_object_from_the_cameras_height():
+    """``render`` aims an orbit at the model's object (the median of its occupied cells),
+    not at the cameras' meeting point, at the training cameras' distance and height."""
+    from nerfkit.data.synthetic import tabletop_scene
+    from nerfkit.models import SceneBounds
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    scene = tabletop_scene(n_train=6, n_val=0, size=16)
+    model = FastNeRF(FastConfig(resolutions="16", upsample_steps=""), SceneBounds.from_scene(scene))
+    assert model.object_center() is None  # nothing learned yet
+    occ = torch.zeros_like(model.occ_cells)
+    occ[2:5, 5:8, 9:12] = 1  # (z, y, x) cells
+    occ[14, 14, 14] = 1  # one floater barely moves the median
+    model._set_occupancy(occ)
+    model.occ_active = True
+    aim = model.object_center()
+    want = model.geom.lo.numpy() + model.geom.voxel * np.array([10.5, 6.5, 3.5])  # the block's centre
+    np.testing.assert_allclose(aim, want, atol=1e-5)
+    views = scene.orbit(8, aim)
+    eyes = views.c2w[:, :3, 3]
+    to_aim = aim - eyes
+    cosines = np.einsum("ni,ni->n", views.c2w[:, :3, 2], to_aim / np.linalg.norm(to_aim, axis=1, keepdims=True))
+    np.testing.assert_allclose(cosines, 1.0, atol=1e-5)
+    heights = (scene.train.c2w[:, :3, 3] - aim) @ scene.up
+    np.testing.assert_allclose((eyes - aim) @ scene.up, heights.mean(), atol=1e-5)
+
+
+def test_a_glossy_table_mirrors_the_room():
+    """Where the table's glossiness is 1, a ray looking down at it sees the room along the
+    mirrored (upward) direction; where it is 0, the table's own colour."""
+    from nerfkit.data.synthetic import tabletop_scene
+    from nerfkit.models import SceneBounds
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    scene = tabletop_scene(n_train=2, n_val=0, size=16)
+    model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32,
+                                learn_background=True, table_gloss=True), SceneBounds.from_scene(scene))
+    with torch.no_grad():
+        model.table.fine.fill_(-2.0)
+        model.table.cover.fill_(30.0)
+        model.bg_coef.zero_()
+        model.bg_coef[:, 3] = 3.0  # the room: sigmoid(3 z), bright above, dark below
+        model.table.shine.fill_(30.0)
+    o = torch.tensor([[0.0, 0.0, 1.0], [0.3, 0.0, 1.0]])
+    d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.6, -0.8]])
+    t = model.table.hit(o, d)
+    out = model._background(o, d, t, None)
+    torch.testing.assert_close(out[0], torch.sigmoid(torch.tensor(3.0)).expand(3))
+    torch.testing.assert_close(out[1], torch.sigmoid(torch.tensor(3.0 * 0.8)).expand(3))  # mirrored z = +0.8
+    with torch.no_grad():
+        model.table.shine.fill_(-30.0)
+    torch.testing.assert_close(model._background(o, d, t, None), torch.sigmoid(torch.tensor(-2.0)).expand(2, 3))
+
+
+def test_room_shell_gradients_stay_finite_for_missing_tangent_and_polar_rays():
+    """Pose fitting differentiates the room through the rays: rays that miss a shell, graze
+    it, or point straight up through its centre must not turn the gradient into NaN."""
+    room = RoomShells(center=torch.zeros(3), up=torch.tensor([0.0, 0.0, 1.0]), r0=1.0, n_shells=2, ratio=2.0,
+                      width=16)
+    o = torch.tensor([[0.0, 0.0, 0.0], [3.0, 1.0, 0.0], [5.0, 5.0, 0.0], [0.0, 0.0, -0.5]], requires_grad=True)
+    d = torch.tensor([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], requires_grad=True)
+    t, rgb, alpha = room.layers(o, d)
+    assert bool(torch.isinf(t[2]).all())  # misses both
+    torch.testing.assert_close(t[1, 0], torch.tensor(math.inf))  # grazes the inner shell: no hit
+    loss = (rgb.sum(-1) * alpha).sum() + torch.where(torch.isfinite(t), t, 0.0).sum()
+    g_o, g_d = torch.autograd.grad(loss, (o, d))
+    assert bool(torch.isfinite(g_o).all()) and bool(torch.isfinite(g_d).all())

@@ -43,7 +43,8 @@ def run(args: argparse.Namespace) -> int:
     scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
     if args.path == "test" and len(scene.test) == 0:
         raise fail(scene.source, "has no test poses", "Use --path orbit")
-    views = scene.orbit(args.frames) if args.path == "orbit" else scene.render_path(args.frames)
+    aim = run_.model.object_center()  # an orbit looks at the trained object, not the cameras' meeting point
+    views = scene.orbit(args.frames, aim) if args.path == "orbit" else scene.render_path(args.frames, aim)
     paths = render_videos(run_.model, views, out, run_.background(args.background), scene.near, scene.far, args.fps,
                           run_.chunk, run_.autocast)
     print(f"rendered {len(views)} frames of step {run_.step} ({paths.seconds_per_frame:.2f} s/frame):")

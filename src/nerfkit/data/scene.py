@@ -86,23 +86,25 @@ class Scene:
     def splits(self) -> dict[str, Views]:
         return {"train": self.train, "val": self.val, "test": self.test}
 
-    def render_path(self, n_frames: int = 60) -> Views:
+    def render_path(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
         """Poses for a video: the test split when it is a pose-only path (as in the course
         files), else an orbit (a captured dataset's test split holds held-out photos)."""
         if len(self.test) > 0 and not self.test.has_images:
             return self.test
-        return self.orbit(n_frames)
+        return self.orbit(n_frames, aim)
 
-    def orbit(self, n_frames: int = 60) -> Views:
-        """A circle of cameras about ``up`` through ``center`` at the training cameras' mean
-        distance and elevation, with the first training camera's intrinsics."""
+    def orbit(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
+        """A circle of cameras about ``up`` looking at ``aim`` (default ``center``) at the
+        training cameras' mean distance and elevation from it, with the first training
+        camera's intrinsics."""
         if len(self.train) == 0:
             raise ValueError("cannot make an orbit without training cameras")
-        offsets = self.train.c2w[:, :3, 3] - self.center
+        center = self.center if aim is None else np.asarray(aim, np.float64).reshape(3)
+        offsets = self.train.c2w[:, :3, 3] - center
         height = float(np.mean(offsets @ self.up))
         radial = offsets - np.outer(offsets @ self.up, self.up)
         radius = float(np.mean(np.linalg.norm(radial, axis=1)))
-        c2w = orbit_path(self.center, self.up, radius, height, n_frames)
+        c2w = orbit_path(center, self.up, radius, height, n_frames)
         K = np.repeat(self.train.K[:1], n_frames, axis=0)
         return Views(c2w, K, self.train.width, self.train.height)
 

@@ -1,4 +1,4 @@
-"""What rays see beyond a model's box: the room (a colour per direction) and the table.
+"""What rays see beyond a model's box: the room and the table.
 
 A real capture shows an object standing on a table in a room. Inside its box a model
 represents the object with density; beyond the box the photos still show the table
@@ -6,17 +6,22 @@ represents the object with density; beyond the box the photos still show the tab
 with density makes haze and floaters; a flat colour makes dark surfaces see-through.
 
 * :func:`sh16`: the basis of a smooth colour per ray direction (real spherical harmonics
-  up to degree 3), for the far room.
+  up to degree 3), for what is farthest.
+* :class:`RoomShells`: the room as a few textured, semi-transparent spheres around the
+  cameras (a multi-sphere image), so that it shows parallax.
 * :class:`TablePlane`: an opaque textured plane (the tag's plane in a tag capture). Rays
   stop where they meet it; its texture lives on a 2D grid in *contracted* plane
   coordinates (mip-NeRF 360's contraction in 2D), so a finite texture covers the whole
-  infinite plane, finely near the object and ever more coarsely far from it.
+  infinite plane, finely near the object and ever more coarsely far from it. It may
+  also mirror the room (a glossy table).
+* :func:`composite_layers`: front-to-back compositing of these surfaces along each ray.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -61,27 +66,35 @@ def contract_disc(q: Tensor) -> Tensor:
     return torch.where(r <= 1.0, q, (2.0 - 1.0 / r) * q / r)
 
 
-def bilinear_taps(uv: Tensor, side: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def _wh(size) -> tuple[int, int]:
+    """A texture size given as ``side`` (square) or ``(width, height)`` -> (width, height)."""
+    return (int(size), int(size)) if isinstance(size, int) else (int(size[0]), int(size[1]))
+
+
+def bilinear_taps(uv: Tensor, size) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """The four texels under each texture coordinate, as ``grid_sample`` picks them
     (``align_corners=False``, ``padding_mode="border"``).
 
     Args:
-        uv: (n, 2) coordinates in [-1, 1] (x: column, y: row); side: texels per side.
+        uv: (n, 2) coordinates in [-1, 1] (x: column, y: row); size: texels per side, or
+            ``(width, height)``.
 
     Returns:
         ``rows (n, 4)`` texel rows (row-major) of the corners 00, 01 (x + 1), 10 (y + 1), 11;
         ``fx, fy (n,)`` the fractions between them; ``inside (n, 2)`` 1 where the coordinate
         is not clamped to the border (its derivative is 0 there).
     """
-    g = ((uv + 1.0) * side - 1.0) / 2.0  # texel coordinates, texel centres at integers
-    inside = ((g >= 0) & (g <= side - 1)).to(uv.dtype)
-    g = g.clamp(0, side - 1)
-    i = g.floor().clamp(max=max(side - 2, 0))
+    w, h = _wh(size)
+    dims = uv.new_tensor([w, h])
+    g = ((uv + 1.0) * dims - 1.0) / 2.0  # texel coordinates, texel centres at integers
+    inside = ((g >= 0) & (g <= dims - 1)).to(uv.dtype)
+    g = torch.minimum(g.clamp(min=0), dims - 1)
+    i = torch.minimum(g.floor(), (dims - 2).clamp(min=0))
     f = g - i
     i = i.long()
     x0, y0 = i[:, 0], i[:, 1]
-    x1, y1 = (x0 + 1).clamp(max=side - 1), (y0 + 1).clamp(max=side - 1)
-    rows = torch.stack([y0 * side + x0, y0 * side + x1, y1 * side + x0, y1 * side + x1], dim=1)
+    x1, y1 = (x0 + 1).clamp(max=w - 1), (y0 + 1).clamp(max=h - 1)
+    rows = torch.stack([y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1], dim=1)
     return rows, f[:, 0], f[:, 1], inside
 
 
@@ -90,18 +103,18 @@ class _SparseTexture(torch.autograd.Function):
     only, no dense ``.grad``); the coordinates get their ordinary gradient."""
 
     @staticmethod
-    def forward(ctx, tex, uv, side, sink):
-        rows, fx, fy, inside = bilinear_taps(uv.detach(), side)
+    def forward(ctx, tex, uv, size, sink):
+        rows, fx, fy, inside = bilinear_taps(uv.detach(), size)
         t = tex.detach()[rows]  # (n, 4, C)
         w = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], dim=1)
         ctx.save_for_backward(t, w, fx, fy, inside, rows)
-        ctx.side, ctx.sink = side, sink
+        ctx.dims, ctx.sink = _wh(size), sink
         return (w.unsqueeze(-1) * t).sum(1)
 
     @staticmethod
     def backward(ctx, g):
         t, w, fx, fy, inside, rows = ctx.saved_tensors
-        sink, side = ctx.sink, ctx.side
+        sink = ctx.sink
         if ctx.needs_input_grad[0]:
             contrib = (w.unsqueeze(-1) * g.unsqueeze(1)).reshape(-1, g.shape[1])
             flat = rows.reshape(-1)
@@ -113,18 +126,21 @@ class _SparseTexture(torch.autograd.Function):
             fx_, fy_ = fx.unsqueeze(-1), fy.unsqueeze(-1)
             dx = (1 - fy_) * (t[:, 1] - t[:, 0]) + fy_ * (t[:, 3] - t[:, 2])  # d value / d texel x
             dy = (1 - fx_) * (t[:, 2] - t[:, 0]) + fx_ * (t[:, 3] - t[:, 1])
-            g_uv = torch.stack([(g * dx).sum(-1), (g * dy).sum(-1)], dim=-1) * inside * (side / 2.0)
+            half = g.new_tensor(ctx.dims) / 2.0
+            g_uv = torch.stack([(g * dx).sum(-1), (g * dy).sum(-1)], dim=-1) * inside * half
         return None, g_uv, None, None
 
 
-def sample_texture(tex: Tensor, side: int, uv: Tensor, sink=None) -> Tensor:
-    """Bilinear lookup of a (side * side, C) row-major texture at (n, 2) coordinates in
+def sample_texture(tex: Tensor, size, uv: Tensor, sink=None) -> Tensor:
+    """Bilinear lookup of a (height * width, C) row-major texture at (n, 2) coordinates in
     [-1, 1] -> (n, C), exactly ``F.grid_sample(..., align_corners=False,
-    padding_mode="border")``. With a ``sink`` (:class:`~nerfkit.kernels.ops.GradSink`)
-    the texture's gradient is added there, sparsely, instead of into ``tex.grad``."""
+    padding_mode="border")``. ``size``: texels per side, or ``(width, height)``. With a
+    ``sink`` (:class:`~nerfkit.kernels.ops.GradSink`) the texture's gradient is added
+    there, sparsely, instead of into ``tex.grad``."""
     if sink is not None and tex.requires_grad and torch.is_grad_enabled():
-        return _SparseTexture.apply(tex, uv, side, sink)
-    img = tex.reshape(1, side, side, -1).permute(0, 3, 1, 2)
+        return _SparseTexture.apply(tex, uv, size, sink)
+    w, h = _wh(size)
+    img = tex.reshape(1, h, w, -1).permute(0, 3, 1, 2)
     out = F.grid_sample(img, uv.reshape(1, 1, -1, 2).to(img.dtype), mode="bilinear", padding_mode="border",
                         align_corners=False)
     return out[0, :, 0].t()
@@ -132,6 +148,8 @@ def sample_texture(tex: Tensor, side: int, uv: Tensor, sink=None) -> Tensor:
 
 # initial coverage logit of the table plane: opaque (0.98) everywhere
 COVER_INIT = 4.0
+# initial glossiness logit of a glossy table plane: a faint mirror (0.05) everywhere
+GLOSS_INIT = -3.0
 
 
 class TablePlane(nn.Module):
@@ -158,7 +176,7 @@ class TablePlane(nn.Module):
             ``radius``); the coarse texture has 1/16 as many per side.
     """
 
-    def __init__(self, plane, center, radius: float, resolution: int = 512):
+    def __init__(self, plane, center, radius: float, resolution: int = 512, gloss: bool = False):
         super().__init__()
         plane = torch.as_tensor(plane, dtype=torch.float32).reshape(4)
         n = plane[:3] / plane[:3].norm()
@@ -177,11 +195,16 @@ class TablePlane(nn.Module):
         self.coarse = nn.Parameter(torch.zeros(self.sizes[1] ** 2, 3))
         self.cover_size = max(int(resolution) // 4, 2)
         self.cover = nn.Parameter(torch.full((self.cover_size ** 2, 1), COVER_INIT))
+        if gloss:
+            self.shine = nn.Parameter(torch.full((self.cover_size ** 2, 1), GLOSS_INIT))
+        else:
+            self.register_parameter("shine", None)
 
     def textures(self) -> list[tuple[nn.Parameter, int]]:
-        """``(parameter (side * side, C), side)`` of the fine and coarse colour textures
-        and the coverage texture."""
-        return [(self.fine, self.sizes[0]), (self.coarse, self.sizes[1]), (self.cover, self.cover_size)]
+        """``(parameter (side * side, C), side)`` of the fine and coarse colour textures,
+        the coverage texture and the glossiness texture (if any)."""
+        out = [(self.fine, self.sizes[0]), (self.coarse, self.sizes[1]), (self.cover, self.cover_size)]
+        return out + ([(self.shine, self.cover_size)] if self.shine is not None else [])
 
     def hit(self, origins: Tensor, dirs: Tensor) -> Tensor:
         """(n,) distance to the plane along each ray, ``inf`` for rays that miss it."""
@@ -201,9 +224,134 @@ class TablePlane(nn.Module):
             uv = self.texture_coords(points.float())
             return torch.sigmoid(sum(sample_texture(t, side, uv, sinks.get(t)) for t, side in self.textures()[:2]))
 
-    def coverage(self, points: Tensor, sinks: dict | None = None) -> Tensor:
-        """(n, 3) points on the plane -> (n,) how opaque the plane is there, in (0, 1)."""
-        sinks = sinks or {}
+    def _scalar(self, tex: Tensor, points: Tensor, sinks: dict | None) -> Tensor:
         with torch.autocast(points.device.type, enabled=False):
             uv = self.texture_coords(points.float())
-            return torch.sigmoid(sample_texture(self.cover, self.cover_size, uv, sinks.get(self.cover))[:, 0])
+            return torch.sigmoid(sample_texture(tex, self.cover_size, uv, (sinks or {}).get(tex))[:, 0])
+
+    def coverage(self, points: Tensor, sinks: dict | None = None) -> Tensor:
+        """(n, 3) points on the plane -> (n,) how opaque the plane is there, in (0, 1)."""
+        return self._scalar(self.cover, points, sinks)
+
+    def gloss(self, points: Tensor, sinks: dict | None = None) -> Tensor:
+        """(n, 3) points on the plane -> (n,) how much of the mirrored room it shows, in (0, 1)."""
+        return self._scalar(self.shine, points, sinks)
+
+
+def sphere_exit(origins: Tensor, dirs: Tensor, center: Tensor, radii: Tensor) -> Tensor:
+    """Distance along each ray to where it leaves each sphere around ``center``.
+
+    Args:
+        origins, dirs: (n, 3) (directions need not be unit); center: (3,); radii: (k,).
+
+    Returns:
+        (n, k) the larger root of ``|o + t d - c| = r``; ``inf`` where the ray misses the
+        sphere or leaves it behind its origin. Example: from the centre along a unit
+        direction, ``t = r``.
+    """
+    oc = origins - center
+    a = (dirs * dirs).sum(-1, keepdim=True).clamp(min=1e-20)  # (n, 1)
+    b = (dirs * oc).sum(-1, keepdim=True)
+    c = (oc * oc).sum(-1, keepdim=True) - radii.to(oc) ** 2  # (n, k)
+    disc = b * b - a * c
+    meets = disc > 0
+    t = (-b + torch.where(meets, disc, 1.0).sqrt()) / a  # sqrt(0)'s infinite slope would make NaN gradients
+    return torch.where(meets & (t > 0), t, torch.full_like(t, math.inf))
+
+
+def composite_layers(t: Tensor, rgb: Tensor, alpha: Tensor, behind: Tensor) -> Tensor:
+    """Front-to-back alpha compositing of a few surfaces per ray, in order of distance.
+
+    Args:
+        t: (n, k) distance of each layer along the ray (``inf``: not on this ray, give it
+            alpha 0); rgb: (n, k, 3); alpha: (n, k) opacity in [0, 1]; behind: (n, 3) what
+            is seen through all of them.
+
+    Returns:
+        (n, 3) ``sum_j T_j alpha_j rgb_j + T_k behind`` over the layers sorted by ``t``,
+        with ``T_j = prod_{i<j} (1 - alpha_i)``.
+    """
+    order = torch.argsort(t, dim=1)
+    a = torch.gather(alpha, 1, order)
+    c = torch.gather(rgb, 1, order.unsqueeze(-1).expand_as(rgb))
+    keep = torch.cumprod(1.0 - a, dim=1)  # (n, k) transmittance after each layer
+    trans = torch.cat([torch.ones_like(keep[:, :1]), keep[:, :-1]], dim=1)
+    return ((trans * a).unsqueeze(-1) * c).sum(1) + keep[:, -1:] * behind
+
+
+# initial opacity logit of the room shells: sigmoid(-1) = 0.27 each
+SHELL_ALPHA_INIT = -1.0
+
+
+class RoomShells(nn.Module):
+    """The room around a capture as a few semi-transparent textured spheres (a multi-sphere
+    image, as NeRF++'s inverted-sphere background discretised): unlike a colour per
+    direction, a surface at the right shell moves against the object as the camera moves.
+
+    Shell ``k`` has radius ``r0 * ratio ** k`` around ``center``; every training camera is
+    inside the first one. Each shell holds an RGBA texture (logits; a fine and a coarse
+    grid summed, like :class:`TablePlane`) in equirectangular coordinates about ``up``:
+    x is the azimuth, y the elevation (top row up). All shells live in one tall texture
+    (shell ``k`` in rows ``k * height ...``), sampled sparsely.
+
+    Args:
+        center: (3,); up: (3,) world up; r0: radius of the first shell; n_shells; ratio;
+        width: texels around the fine texture (height ``width // 2``).
+    """
+
+    def __init__(self, center, up, r0: float, n_shells: int = 3, ratio: float = 2.5, width: int = 1024):
+        super().__init__()
+        up = torch.as_tensor(np.asarray(up, np.float32)).reshape(3)
+        up = up / up.norm()
+        helper = torch.tensor([1.0, 0.0, 0.0]) if abs(float(up[0])) < 0.9 else torch.tensor([0.0, 1.0, 0.0])
+        e1 = torch.linalg.cross(helper, up)
+        e1 = e1 / e1.norm()
+        e2 = torch.linalg.cross(up, e1)
+        self.register_buffer("center", torch.as_tensor(np.asarray(center, np.float32)).reshape(3))
+        self.register_buffer("frame", torch.stack([e1, e2, up], dim=1))  # (3, 3) world -> (x, y, up)
+        self.register_buffer("radii", float(r0) * float(ratio) ** torch.arange(int(n_shells), dtype=torch.float32))
+        self.n_shells = int(n_shells)
+        w = max(int(width) // 2 * 2, 4)
+        self.sizes = ((w, w // 2), (max(w // 16, 2), max(w // 32, 2)))  # fine, coarse (width, height)
+        self.fine = nn.Parameter(self._init(*self.sizes[0]))
+        self.coarse = nn.Parameter(torch.zeros(self.n_shells * self.sizes[1][0] * self.sizes[1][1], 4))
+
+    def _init(self, w: int, h: int) -> Tensor:
+        tex = torch.zeros(self.n_shells * w * h, 4)
+        tex[:, 3] = SHELL_ALPHA_INIT
+        return tex
+
+    def textures(self) -> list[tuple[nn.Parameter, tuple[int, int]]]:
+        """``(parameter (n_shells * height * width, 4), (width, height * n_shells))``."""
+        return [(p, (w, h * self.n_shells)) for p, (w, h) in zip((self.fine, self.coarse), self.sizes)]
+
+    def layers(self, origins: Tensor, dirs: Tensor, sinks: dict | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        """Where each ray leaves each shell and what it sees there.
+
+        Returns ``t (n, k)`` (``inf`` where a ray misses a shell), ``rgb (n, k, 3)`` and
+        ``alpha (n, k)`` (0 on missed shells).
+        """
+        sinks = sinks or {}
+        n, k = origins.shape[0], self.n_shells
+        with torch.autocast(origins.device.type, enabled=False):
+            o, d = origins.float(), dirs.float()
+            t = sphere_exit(o, d, self.center, self.radii)  # (n, k)
+            hit = torch.isfinite(t)
+            p = o.unsqueeze(1) + torch.where(hit, t, 0.0).unsqueeze(-1) * d.unsqueeze(1)  # (n, k, 3)
+            local = ((p - self.center) @ self.frame) / self.radii.view(1, k, 1)
+            # (the tiny offsets keep atan2's and asin's gradients finite at the poles)
+            on_axis = (local[..., 0].abs() + local[..., 1].abs()) < 1e-9
+            azimuth = torch.atan2(local[..., 1], local[..., 0] + on_axis * 1e-9) / math.pi  # (n, k) in [-1, 1]
+            elevation = torch.asin(local[..., 2].clamp(-1.0 + 1e-6, 1.0 - 1e-6)) / (0.5 * math.pi)
+            logits = 0.0
+            for tex, (w, h) in zip((self.fine, self.coarse), self.sizes):
+                # row within the shell's band, kept half a texel off its edges so that the
+                # bilinear taps never reach the next shell
+                row = ((1.0 - elevation) * 0.5 * h).clamp(0.5, h - 0.5)
+                shell = torch.arange(k, device=o.device).view(1, k)
+                y = (shell * h + row) / (k * h) * 2.0 - 1.0
+                uv = torch.stack([azimuth, y], dim=-1).reshape(-1, 2)
+                logits = logits + sample_texture(tex, (w, h * k), uv, sinks.get(tex)).reshape(n, k, 4)
+            rgb = torch.sigmoid(logits[..., :3])
+            alpha = torch.sigmoid(logits[..., 3]) * hit
+        return torch.where(hit, t, math.inf), rgb, alpha

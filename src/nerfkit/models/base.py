@@ -24,6 +24,7 @@ class SceneBounds:
         center: (3,) scene centre; radius: radius of a sphere holding the object.
         up: (3,) world up.
         table: (4,) plane ``(n, d)`` the object stands on (normal toward the cameras), or None.
+        camera_radius: distance of the farthest training camera from ``center`` (None: unknown).
     """
 
     near: float
@@ -32,6 +33,7 @@ class SceneBounds:
     radius: float
     up: np.ndarray
     table: np.ndarray | None = None
+    camera_radius: float | None = None
 
     @staticmethod
     def from_scene(scene) -> "SceneBounds":
@@ -42,19 +44,22 @@ class SceneBounds:
         radius = max(min(0.5 * (scene.far - scene.near), dist - scene.near), 1e-3)
         return SceneBounds(float(scene.near), float(scene.far), np.asarray(scene.center, np.float32),
                            float(radius), np.asarray(scene.up, np.float32),
-                           None if scene.table is None else np.asarray(scene.table, np.float32))
+                           None if scene.table is None else np.asarray(scene.table, np.float32),
+                           float(np.linalg.norm(c2w[:, :3, 3] - scene.center, axis=1).max()))
 
     def to_dict(self) -> dict:
         return {"near": self.near, "far": self.far, "center": [float(c) for c in self.center],
                 "radius": self.radius, "up": [float(u) for u in self.up],
-                "table": None if self.table is None else [float(v) for v in self.table]}
+                "table": None if self.table is None else [float(v) for v in self.table],
+                "camera_radius": self.camera_radius}
 
     @staticmethod
     def from_dict(d: dict) -> "SceneBounds":
         table = d.get("table")
         return SceneBounds(float(d["near"]), float(d["far"]), np.asarray(d["center"], np.float32),
                            float(d["radius"]), np.asarray(d["up"], np.float32),
-                           None if table is None else np.asarray(table, np.float32))
+                           None if table is None else np.asarray(table, np.float32),
+                           None if d.get("camera_radius") is None else float(d["camera_radius"]))
 
 
 def grads_finite(params) -> bool:
@@ -145,6 +150,11 @@ class NerfModel(nn.Module):
     def finish_training(self) -> None:
         """Called once when training reaches its end, before the final evaluation and the
         model file (e.g. to measure an occupancy grid that was never measured)."""
+
+    def object_center(self) -> np.ndarray | None:
+        """(3,) where the trained scene's content is (to aim an orbit at), or None when
+        the model cannot tell."""
+        return None
 
     def pack_state(self) -> tuple[str | None, dict]:
         """What the final model file stores: ``(packing, tensors)``. The default is the plain

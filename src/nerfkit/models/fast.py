@@ -21,8 +21,10 @@ Speed comes from counting samples, not steps:
   runs in pure torch.
 
 Outside the box rays see either the background colour the trainer passes, or (with
-``learn_background``) a learned colour per direction (spherical harmonics), for
-captures whose surroundings are not a flat colour. With ``table`` and a scene that
+``learn_background``) the room: a learned colour per direction (spherical harmonics)
+behind ``room_shells`` textured, semi-transparent spheres around the cameras
+(:class:`~nerfkit.fields.background.RoomShells`), for captures whose surroundings are
+not a flat colour. With ``table`` and a scene that
 has a table plane (a tag capture), rays stop at the table, which shows a learned
 texture (:class:`~nerfkit.fields.background.TablePlane`): the box then holds only the
 object, not the table around it.
@@ -43,7 +45,7 @@ from ..cameras import Rays
 from ..config import option
 from ..data.validate import short_repr
 from ..errors import fail
-from ..fields.background import TablePlane, sh16
+from ..fields.background import RoomShells, TablePlane, composite_layers, sh16
 from ..kernels import numba_kernels
 from ..kernels import reference as ref
 from ..kernels.ops import GradSink, GridGeom, MarchSpec, cell_density_max, render_grid
@@ -59,7 +61,7 @@ class FastConfig:
 
     TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 4096, "lr": 0.3, "render_chunk": 65536}
     # options left unset (None) take (the capture value, the other value) by the dataset
-    CAPTURE_DEFAULTS: ClassVar[dict] = {"distortion_weight": (0.01, 0.0)}
+    CAPTURE_DEFAULTS: ClassVar[dict] = {"distortion_weight": (0.01, 0.0), "room_shells": (3, 0)}
 
     resolutions: str = option("32,64,128,192", "grid sizes of the coarse-to-fine stages, as the side of a cube "
                               "with as many vertices (comma-separated)")
@@ -82,8 +84,18 @@ class FastConfig:
     learn_background: bool = option(False, "learn what rays see outside the box (a colour per direction) "
                                     "instead of the --background colour: for real photos, whose background is "
                                     "a room, not a flat colour")
+    room_shells: int | None = option(None, "with --learn-background: textured spheres around the cameras (each "
+                                     "--room-ratio times the last) that hold the room with its parallax, in front "
+                                     "of the colour per direction (default: 3 on capture datasets, else 0)",
+                                     min=0, max=16)
+    room_ratio: float = option(2.5, "radius of each room shell over the one inside it", above=1.0)
+    room_resolution: int = option(1024, "texels around each room shell (half as many from bottom to top)")
+    room_lr_ratio: float = option(1.0, "learning rate of the room shells relative to --lr")
     table: bool = option(False, "rays stop at the scene's table plane (a tag capture's tag plane), which shows a "
                          "learned texture: the box then holds only the object")
+    table_gloss: bool = option(False, "with --table: the table also mirrors the room (a learned glossiness per "
+                               "texel mixes its colour with the room seen along the reflected ray), for "
+                               "varnished or glass tables whose look changes with the view")
     table_resolution: int = option(1024, "texels per side of the table texture")
     table_lr_ratio: float = option(1.0, "learning rate of the table texture relative to --lr")
     opacity_weight: float = option(0.005, "with --table: weight of the mean opacity of the box in the loss, so that "
@@ -178,12 +190,20 @@ class FastNeRF(NerfModel):
             self.bg_coef = nn.Parameter(torch.zeros(3, 16))
         else:
             self.register_parameter("bg_coef", None)
+        self.room = None
+        if config.learn_background and config.room_shells:
+            if not 8 <= config.room_resolution <= MAX_GRID_SIDE:
+                raise fail("--room-resolution", f"{config.room_resolution} must be from 8 to {MAX_GRID_SIDE}")
+            reach = bounds.camera_radius if bounds.camera_radius is not None else bounds.far
+            self.room = RoomShells(bounds.center, bounds.up, 1.25 * max(reach, bounds.radius), config.room_shells,
+                                   config.room_ratio, config.room_resolution)
         self.table = None
         if config.table and bounds.table is not None:
             if not 2 <= config.table_resolution <= MAX_GRID_SIDE:
                 raise fail("--table-resolution", f"{config.table_resolution} must be from 2 to {MAX_GRID_SIDE}")
-            self.table = TablePlane(bounds.table, bounds.center, bounds.radius, config.table_resolution)
-        self.table_sinks = self._table_sinks(torch.device("cpu"))
+            self.table = TablePlane(bounds.table, bounds.center, bounds.radius, config.table_resolution,
+                                    gloss=config.table_gloss)
+        self.texture_sinks = self._texture_sinks(torch.device("cpu"))
         self.sink = GradSink(self.geom.n_vertices, self.n_channels)
         # where opaque training rays ended (ring buffer), to shrink the box at the first growth
         self.register_buffer("surface_pts", torch.zeros(1 << 16, 3))
@@ -239,11 +259,12 @@ class FastNeRF(NerfModel):
         return MarchSpec(self.occ_cells, self._coarse_u8, self.config.coarse_factor, self.step_size,
                          self.config.early_stop_eps, self.density_scale)
 
-    def _table_sinks(self, device) -> dict:
-        """A one-lane gradient sink per table texture (its optimizer updates touched texels only)."""
-        if self.table is None:
-            return {}
-        return {p: GradSink(side * side, p.shape[1], device, lanes=1) for p, side in self.table.textures()}
+    def _texture_sinks(self, device) -> dict:
+        """A one-lane gradient sink per table and room texture (its optimizer updates touched
+        texels only)."""
+        textures = [*(self.table.textures() if self.table is not None else []),
+                    *(self.room.textures() if self.room is not None else [])]
+        return {p: GradSink(p.shape[0], p.shape[1], device, lanes=1) for p, _ in textures}
 
     def _apply(self, fn, recurse=True):
         out = super()._apply(fn, recurse)
@@ -252,29 +273,42 @@ class FastNeRF(NerfModel):
             self.geom.lo = self.geom.lo.to(device)
             self._coarse_u8 = self._coarse_u8.to(device)
             self.sink = GradSink(self.geom.n_vertices, self.n_channels, device)
-            self.table_sinks = self._table_sinks(device)
+            self.texture_sinks = self._texture_sinks(device)
         return out
 
     # -- rendering -------------------------------------------------------------------
-    def _background(self, o: Tensor, d: Tensor, t_table: Tensor | None, background: Tensor | None) -> Tensor:
-        """(n, 3) colour behind the box: the table where rays meet it, else the room
-        (learned) or the flat ``background``."""
+    def _far(self, d: Tensor, background: Tensor | None) -> Tensor:
+        """(n, 3) what is seen infinitely far along ``d``: the learned colour per direction,
+        else the flat ``background``."""
         if self.bg_coef is not None:
-            bg = torch.sigmoid(sh16(d) @ self.bg_coef.t())
-        elif background is None:
-            bg = torch.zeros(3, device=d.device)
-        else:
-            bg = torch.as_tensor(background, dtype=torch.float32, device=d.device)
-        if t_table is None:
+            return torch.sigmoid(sh16(d) @ self.bg_coef.t())
+        if background is None:
+            return torch.zeros_like(d)
+        return torch.as_tensor(background, dtype=torch.float32, device=d.device).expand_as(d)
+
+    def _background(self, o: Tensor, d: Tensor, t_table: Tensor | None, background: Tensor | None) -> Tensor:
+        """(n, 3) colour behind the box: the table (where rays meet it) and the room shells,
+        composited in order of distance, in front of what is infinitely far (:meth:`_far`).
+        A glossy table mirrors the room: the reflected ray is traced through the shells."""
+        bg = self._far(d, background)
+        layers = [] if self.room is None else [self.room.layers(o, d, self.texture_sinks)]
+        if t_table is not None:
+            hit = torch.isfinite(t_table).nonzero()[:, 0]
+            on_table = o[hit] + d[hit] * t_table[hit].unsqueeze(-1)
+            seen = self.table.colour(on_table, self.texture_sinks)
+            if self.config.table_gloss and len(hit):
+                n = self.table.plane[:3].to(d)
+                mirrored = d[hit] - 2.0 * (d[hit] @ n).unsqueeze(-1) * n
+                reflected = self._background(on_table, mirrored, None, background)
+                gloss = self.table.gloss(on_table, self.texture_sinks).unsqueeze(-1)
+                seen = (1.0 - gloss) * seen + gloss * reflected
+            colour = torch.zeros_like(d).index_put((hit,), seen.to(d.dtype))
+            cover = d.new_zeros(len(d)).index_put((hit,), self.table.coverage(on_table, self.texture_sinks))
+            layers.append((t_table.unsqueeze(1), colour.unsqueeze(1), cover.unsqueeze(1)))
+        if not layers:
             return bg
-        hit = torch.isfinite(t_table)
-        if not hit.any():
-            return bg.expand_as(d)
-        on_table = o[hit] + d[hit] * t_table[hit].unsqueeze(-1)
-        out = bg.expand_as(d).clone()
-        cover = self.table.coverage(on_table, self.table_sinks).to(out.dtype).unsqueeze(-1)
-        out[hit] = cover * self.table.colour(on_table, self.table_sinks).to(out.dtype) + (1.0 - cover) * out[hit]
-        return out
+        t, rgb, alpha = (torch.cat(parts, dim=1) for parts in zip(*layers))
+        return composite_layers(t, rgb.to(bg.dtype), alpha.to(bg.dtype), bg)
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
         o = rays.origins.float()
@@ -328,10 +362,12 @@ class FastNeRF(NerfModel):
             groups.append({"params": [self.bg_coef], "lr": 0.1 * lr})
         if self.table is not None:
             groups.append({"params": list(self.table.parameters()), "lr": self.config.table_lr_ratio * lr})
+        if self.room is not None:
+            groups.append({"params": list(self.room.parameters()), "lr": self.config.room_lr_ratio * lr})
         return groups
 
     def make_optimizer(self, lr: float) -> torch.optim.Optimizer:
-        return GridAdam(self.param_groups(lr), sinks={self.grid: self.sink, **self.table_sinks},
+        return GridAdam(self.param_groups(lr), sinks={self.grid: self.sink, **self.texture_sinks},
                         eps=self.config.adam_eps)
 
     def before_step(self, step: int, progress: float) -> bool:
@@ -389,6 +425,17 @@ class FastNeRF(NerfModel):
         raw = self.grid.detach()[(base.unsqueeze(1) + offs).reshape(-1), 0].reshape(-1, 8).amax(1)
         alpha = -torch.expm1(-self.density_scale * F.softplus(raw) * self.step_size)
         return min(self.config.occ_alpha, float(alpha.mean()))
+
+    @torch.no_grad()
+    def object_center(self) -> np.ndarray | None:
+        """The per-axis median of the occupied cells' centres (robust to a few floaters)."""
+        if not self.occ_active:
+            return None
+        zyx = self.occ_cells.nonzero().double()
+        if len(zyx) == 0:
+            return None
+        cell = zyx.flip(1).median(dim=0).values + 0.5
+        return (self.geom.lo.double().cpu() + self.geom.voxel * cell.cpu()).numpy()
 
     @torch.no_grad()
     def _remember_surface(self, o: Tensor, d: Tensor, depth: Tensor, acc: Tensor) -> None:

@@ -139,6 +139,12 @@ class SplatModel(NerfModel):
     def n_gaussians(self) -> int:
         return int(self.means.shape[0])
 
+    @torch.no_grad()
+    def object_center(self) -> np.ndarray | None:
+        """The per-axis median of the mostly opaque Gaussians' means."""
+        solid = self.means[torch.sigmoid(self.opacity_logits.reshape(-1)) > 0.5]
+        return None if len(solid) == 0 else solid.double().median(dim=0).values.cpu().numpy()
+
     def _volume_scale(self, volume: float, n: int) -> float:
         """Initial Gaussian size: the side of a cube holding ``volume / n``."""
         return float((volume / max(n, 1)) ** (1 / 3))

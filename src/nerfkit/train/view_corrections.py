@@ -186,5 +186,6 @@ def fit_view(render_fn, rays: Rays, target: Tensor, scale: float, cfg: ViewFitCo
         loss = torch.mean((rgb - target[idx]) ** 2)
         opt.zero_grad(set_to_none=True)
         loss.backward()
-        opt.step()
+        if all(bool(torch.isfinite(p.grad).all()) for p in params if p.grad is not None):
+            opt.step()  # a step with a non-finite gradient is skipped, as in training
     return pose, exposure
