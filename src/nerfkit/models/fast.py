@@ -90,14 +90,15 @@ class FastConfig:
                                      min=0, max=16)
     room_ratio: float = option(2.5, "radius of each room shell over the one inside it", above=1.0)
     room_resolution: int = option(1024, "texels around each room shell (half as many from bottom to top)")
-    room_lr_ratio: float = option(1.0, "learning rate of the room shells relative to --lr")
+    room_lr_ratio: float = option(0.2, "learning rate of the room shells relative to --lr")
     table: bool = option(False, "rays stop at the scene's table plane (a tag capture's tag plane), which shows a "
                          "learned texture: the box then holds only the object")
     table_gloss: bool = option(False, "with --table: the table also mirrors the room (a learned glossiness per "
                                "texel mixes its colour with the room seen along the reflected ray), for "
                                "varnished or glass tables whose look changes with the view")
     table_resolution: int = option(1024, "texels per side of the table texture")
-    table_lr_ratio: float = option(1.0, "learning rate of the table texture relative to --lr")
+    table_lr_ratio: float = option(0.2, "learning rate of the table texture relative to --lr (a texel is seen by few "
+                                   "rays, and each sparse Adam step moves it by about the learning rate)")
     opacity_weight: float = option(0.005, "with --table: weight of the mean opacity of the box in the loss, so that "
                                    "what the table and the room explain is not copied into clouds of density")
     distortion_weight: float | None = option(None, "weight of mip-NeRF 360's distortion loss (per ray, distances in "
