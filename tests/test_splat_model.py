@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -236,3 +238,18 @@ def test_live_viewer_draws_the_splats_and_renders_a_splat_run(trained, sphere, m
         assert img.shape == (32, 32, 3) and img[12:20, 12:20].mean() > 40  # the sphere, not the black background
     finally:
         viewer.server.stop()
+
+
+def test_eval_of_a_capture_splat_run_scores_as_rendered_and_refuses_pose_fitting(tmp_path, sphere, sphere_npz,
+                                                                                    capsys):
+    """Splats render whole views, so held-out poses are not fitted: ``eval`` says so instead
+    of failing, and an explicit ``--fit-views`` gets a clear error."""
+    (model_cfg,) = _capture(sphere)
+    run = train(sphere, splat_cfg(tmp_path, data=str(sphere_npz), steps=15, capture="on"), model_cfg, quiet=True)
+    capsys.readouterr()
+    assert main(["eval", str(run.run_dir)]) == 0
+    assert "scored as rendered only" in capsys.readouterr().out
+    result = json.loads((run.run_dir / "eval_val.json").read_text())
+    assert result["psnr"] > 10 and "fitted" not in result
+    assert main(["eval", str(run.run_dir), "--fit-views", "5"]) != 0
+    assert "--fit-views" in capsys.readouterr().err

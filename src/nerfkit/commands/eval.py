@@ -58,8 +58,14 @@ def run(args: argparse.Namespace) -> int:
         raise fail(scene.source, f"the {args.split} split has no images to compare with",
                    "Choose a split with images (--split val)")
     steps = args.fit_views
+    whole = bool(getattr(run_.model, "whole_images", False))
+    if whole and steps:
+        raise fail("--fit-views", f"the {run_.info.train.model} model renders whole views, so a view's pose cannot be "
+                   "fitted ray batch by ray batch", "Leave out --fit-views")
     if steps is None:
-        steps = 100 if getattr(run_.info.train, "capture", "off") == "on" else 0
+        steps = 100 if getattr(run_.info.train, "capture", "off") == "on" and not whole else 0
+        if whole and getattr(run_.info.train, "capture", "off") == "on":
+            print(f"note: held-out views are scored as rendered only ({run_.info.train.model} cannot fit their poses)")
     fit = ViewFitConfig(steps=steps) if steps else None
     sheet: list = []
     result = {"split": args.split, "step": run_.step, "data": scene.source,
