@@ -177,23 +177,30 @@ def test_room_shells_show_the_texel_a_ray_meets_with_parallax():
 
 
 def test_capture_orbit_looks_at_the_trained_object_from_the_cameras_height():
-    """``render`` aims an orbit at the model's object (the median of its occupied cells),
-    not at the cameras' meeting point, at the training cameras' distance and height."""
+    """``render`` aims an orbit at the model's object (where its opaque rays stop; thin
+    haze does not count), not at the cameras' meeting point, at the training cameras'
+    distance and height."""
     from nerfkit.data.synthetic import tabletop_scene
     from nerfkit.models import SceneBounds
     from nerfkit.models.fast import FastConfig, FastNeRF
+    from nerfkit.render.renderer import object_aim
 
     scene = tabletop_scene(n_train=6, n_val=0, size=16)
-    model = FastNeRF(FastConfig(resolutions="16", upsample_steps=""), SceneBounds.from_scene(scene))
-    assert model.object_center() is None  # nothing learned yet
-    occ = torch.zeros_like(model.occ_cells)
-    occ[2:5, 5:8, 9:12] = 1  # (z, y, x) cells
-    occ[14, 14, 14] = 1  # one floater barely moves the median
-    model._set_occupancy(occ)
-    model.occ_active = True
-    aim = model.object_center()
-    want = model.geom.lo.numpy() + model.geom.voxel * np.array([10.5, 6.5, 3.5])  # the block's centre
-    np.testing.assert_allclose(aim, want, atol=1e-5)
+    model = FastNeRF(FastConfig(resolutions="24", upsample_steps="", table=True), SceneBounds.from_scene(scene))
+    black = torch.zeros(3)
+    assert object_aim(model, scene.train, scene.up, black) is None  # nothing opaque yet
+    g = model.geom
+    xyz = g.lo + g.voxel * torch.stack(torch.meshgrid(*[torch.arange(r, dtype=torch.float32) for r in g.res[::-1]],
+                                                      indexing="ij")[::-1], -1).reshape(-1, 3)
+    cube = torch.tensor([0.3, -0.2, 0.4])
+    with torch.no_grad():
+        model.grid[:, 0] = -30.0
+        model.grid[((xyz - cube).abs() < 0.25).all(1), 0] = 30.0  # an opaque cube of side 0.5 beside the centre
+        model.grid[((xyz - torch.tensor([-0.5, 0.5, 1.4])).abs() < 0.3).all(1), 0] = -4.0  # a faint haze above
+    model.refresh_occupancy()
+    aim = object_aim(model, scene.train, scene.up, black)
+    np.testing.assert_allclose(aim[:2], cube[:2].numpy(), atol=0.1)  # across: the cube's middle
+    assert 0.1 < aim[2] < 0.65  # along up: inside the cube, below its top face (0.65)
     views = scene.orbit(8, aim)
     eyes = views.c2w[:, :3, 3]
     to_aim = aim - eyes

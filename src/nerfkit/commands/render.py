@@ -32,6 +32,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..errors import fail
     from ..io.paths import guard_outputs
+    from ..render.renderer import object_aim
     from ..render.videos import VIDEO_FILES, render_videos
     from ..train.checkpoint import read_run
     from ._common import open_run, scene_for_run
@@ -43,7 +44,8 @@ def run(args: argparse.Namespace) -> int:
     scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
     if args.path == "test" and len(scene.test) == 0:
         raise fail(scene.source, "has no test poses", "Use --path orbit")
-    aim = run_.model.object_center()  # an orbit looks at the trained object, not the cameras' meeting point
+    # an orbit looks at the trained object, not at the point the cameras' axes meet
+    aim = object_aim(run_.model, scene.train, scene.up, run_.background(args.background), run_.chunk, run_.autocast)
     views = scene.orbit(args.frames, aim) if args.path == "orbit" else scene.render_path(args.frames, aim)
     paths = render_videos(run_.model, views, out, run_.background(args.background), scene.near, scene.far, args.fps,
                           run_.chunk, run_.autocast)

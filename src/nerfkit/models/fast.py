@@ -89,7 +89,8 @@ class FastConfig:
                                      "of the colour per direction (default: 3 on capture datasets, else 0)",
                                      min=0, max=16)
     room_ratio: float = option(2.5, "radius of each room shell over the one inside it", above=1.0)
-    room_resolution: int = option(1024, "texels around each room shell (half as many from bottom to top)")
+    room_resolution: int = option(1024, "texels around each room shell (half as many from bottom to top)", min=8,
+                                  max=4096)
     room_lr_ratio: float = option(0.2, "learning rate of the room shells relative to --lr")
     table: bool = option(False, "rays stop at the scene's table plane (a tag capture's tag plane), which shows a "
                          "learned texture: the box then holds only the object")
@@ -426,17 +427,6 @@ class FastNeRF(NerfModel):
         raw = self.grid.detach()[(base.unsqueeze(1) + offs).reshape(-1), 0].reshape(-1, 8).amax(1)
         alpha = -torch.expm1(-self.density_scale * F.softplus(raw) * self.step_size)
         return min(self.config.occ_alpha, float(alpha.mean()))
-
-    @torch.no_grad()
-    def object_center(self) -> np.ndarray | None:
-        """The per-axis median of the occupied cells' centres (robust to a few floaters)."""
-        if not self.occ_active:
-            return None
-        zyx = self.occ_cells.nonzero().double()
-        if len(zyx) == 0:
-            return None
-        cell = zyx.flip(1).median(dim=0).values + 0.5
-        return (self.geom.lo.double().cpu() + self.geom.voxel * cell.cpu()).numpy()
 
     @torch.no_grad()
     def _remember_surface(self, o: Tensor, d: Tensor, depth: Tensor, acc: Tensor) -> None:

@@ -64,6 +64,42 @@ def render_image(
     return RenderedView(rgb_t.cpu().numpy(), depth_t.cpu().numpy(), acc_t.cpu().numpy())
 
 
+@torch.no_grad()
+def object_aim(model: NerfModel, views: Views, up: np.ndarray, background: torch.Tensor, chunk: int = 16384,
+               autocast_dtype: torch.dtype | None = None, n_views: int = 16, width: int = 64,
+               min_points: int = 64) -> np.ndarray | None:
+    """(3,) where the trained object is, to aim an orbit at, from the points where the model
+    stops the rays of up to ``n_views`` training views (rendered ``width`` pixels wide;
+    rays with accumulated opacity above 0.5 only, so thin haze and what the table or room
+    explain do not count): across ``up`` their median, along ``up`` their lower quartile
+    (floaters gather high up, near the cameras, not under the object). None with fewer
+    than ``min_points`` such rays. Models that render whole views answer with their own
+    ``object_center()``."""
+    from ..data.load import scale_intrinsics
+
+    if getattr(model, "whole_images", False):
+        return model.object_center()
+    if len(views) == 0:
+        return None
+    h = max(round(views.height * width / views.width), 1)
+    points = []
+    for i in np.unique(np.linspace(0, len(views) - 1, min(n_views, len(views))).round().astype(int)):
+        K = scale_intrinsics(views.K[i], views.width, views.height, width, h)
+        view = render_image(model, K, views.c2w[i], width, h, background, chunk, autocast_dtype)
+        rays = image_rays(torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(views.c2w[i], dtype=torch.float32),
+                          width, h)
+        solid = torch.from_numpy(view.acc.reshape(-1) > 0.5)
+        depth = torch.from_numpy(view.depth.reshape(-1, 1))
+        points.append((rays.origins + rays.directions * depth)[solid])
+    pts = torch.cat(points).double()
+    if len(pts) < min_points:
+        return None
+    u = torch.as_tensor(np.asarray(up, np.float64) / np.linalg.norm(up))
+    height = pts @ u
+    across = (pts - height[:, None] * u).median(dim=0).values
+    return (across + torch.quantile(height, 0.25) * u).numpy()
+
+
 def _render_whole(model, K, c2w, width: int, height: int, background: torch.Tensor) -> RenderedView:
     was_training = model.training
     model.eval()
