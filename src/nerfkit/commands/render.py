@@ -44,9 +44,11 @@ def run(args: argparse.Namespace) -> int:
     scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
     if args.path == "test" and len(scene.test) == 0:
         raise fail(scene.source, "has no test poses", "Use --path orbit")
+    orbit = args.path == "orbit" or (args.path == "auto" and not scene.has_video_path)
     # an orbit looks at the trained object, not at the point the cameras' axes meet
-    aim = object_aim(run_.model, scene.train, scene.up, run_.background(args.background), run_.chunk, run_.autocast)
-    views = scene.orbit(args.frames, aim) if args.path == "orbit" else scene.render_path(args.frames, aim)
+    aim = object_aim(run_.model, scene.train, scene.up, run_.background(args.background), run_.chunk,
+                     run_.autocast) if orbit else None
+    views = scene.orbit(args.frames, aim) if orbit else scene.test
     paths = render_videos(run_.model, views, out, run_.background(args.background), scene.near, scene.far, args.fps,
                           run_.chunk, run_.autocast)
     print(f"rendered {len(views)} frames of step {run_.step} ({paths.seconds_per_frame:.2f} s/frame):")

@@ -86,12 +86,15 @@ class Scene:
     def splits(self) -> dict[str, Views]:
         return {"train": self.train, "val": self.val, "test": self.test}
 
+    @property
+    def has_video_path(self) -> bool:
+        """True when the test split is a pose-only camera path (as in the course files); a
+        captured dataset's test split holds held-out photos instead."""
+        return len(self.test) > 0 and not self.test.has_images
+
     def render_path(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
-        """Poses for a video: the test split when it is a pose-only path (as in the course
-        files), else an orbit (a captured dataset's test split holds held-out photos)."""
-        if len(self.test) > 0 and not self.test.has_images:
-            return self.test
-        return self.orbit(n_frames, aim)
+        """Poses for a video: the test split when it is a pose-only path, else an orbit."""
+        return self.test if self.has_video_path else self.orbit(n_frames, aim)
 
     def orbit(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
         """A circle of cameras about ``up`` looking at ``aim`` (default ``center``) at the
