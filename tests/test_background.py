@@ -250,3 +250,19 @@ def test_room_shell_gradients_stay_finite_for_missing_tangent_and_polar_rays():
     loss = (rgb.sum(-1) * alpha).sum() + torch.where(torch.isfinite(t), t, 0.0).sum()
     g_o, g_d = torch.autograd.grad(loss, (o, d))
     assert bool(torch.isfinite(g_o).all()) and bool(torch.isfinite(g_d).all())
+
+
+def test_videos_follow_a_pose_only_test_path_and_orbit_a_capture():
+    from dataclasses import replace
+
+    from nerfkit.data.scene import Views
+    from nerfkit.data.synthetic import tabletop_scene
+
+    capture = tabletop_scene(n_train=4, n_val=2, size=16)
+    assert not capture.has_video_path  # no test poses: an orbit
+    assert len(capture.render_path(5)) == 5
+    path = Views(capture.val.c2w, capture.val.K, 16, 16)  # poses without photos
+    course = replace(capture, test=path)
+    assert course.has_video_path and course.render_path(5) is path
+    with_photos = replace(capture, test=capture.val)  # held-out photos are not a video path
+    assert not with_photos.has_video_path and len(with_photos.render_path(3)) == 3
