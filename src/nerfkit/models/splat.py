@@ -58,7 +58,8 @@ class SplatConfig:
                        choices=["auto", "hull", "random"])
     init_points: int = option(30_000, "number of initial Gaussians", min=1, max=MAX_GAUSSIANS)
     init_opacity: float = option(0.1, "opacity of the initial Gaussians", above=0, max=0.99)
-    max_gaussians: int = option(200_000, "densification stops adding Gaussians at this count", min=1,
+    max_gaussians: int = option(40_000, "densification stops adding Gaussians at this count (lego, 10 minutes: "
+                                "40000 gave 33.1 dB at 28 fps, no cap 32.1 dB at 20 fps)", min=1,
                                 max=MAX_GAUSSIANS)
     densify_every: int = option(100, "steps between densification / pruning rounds", min=1)
     densify_from: float = option(0.02, "first densification, as a fraction of the run", min=0, max=1)
