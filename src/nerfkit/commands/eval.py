@@ -62,9 +62,10 @@ def run(args: argparse.Namespace) -> int:
     if whole and steps:
         raise fail("--fit-views", f"the {run_.info.train.model} model renders whole views, so a view's pose cannot be "
                    "fitted ray batch by ray batch", "Leave out --fit-views")
+    capture = getattr(run_.info.train, "capture", "off") == "on"
     if steps is None:
-        steps = 100 if getattr(run_.info.train, "capture", "off") == "on" and not whole else 0
-        if whole and getattr(run_.info.train, "capture", "off") == "on":
+        steps = 100 if capture and not whole else 0
+        if whole and capture:
             print(f"note: held-out views are scored as rendered only ({run_.info.train.model} cannot fit their poses)")
     fit = ViewFitConfig(steps=steps) if steps else None
     sheet: list = []

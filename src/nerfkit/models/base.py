@@ -38,14 +38,15 @@ class SceneBounds:
     @staticmethod
     def from_scene(scene) -> "SceneBounds":
         c2w = scene.train.c2w
-        dist = float(np.mean(np.linalg.norm(c2w[:, :3, 3] - scene.center, axis=1)))
+        dists = np.linalg.norm(c2w[:, :3, 3] - scene.center, axis=1)
+        dist = float(np.mean(dists))
         # The object lies between near and far of every camera; its radius is at most
         # half that depth range, and no larger than the camera distance minus near.
         radius = max(min(0.5 * (scene.far - scene.near), dist - scene.near), 1e-3)
         return SceneBounds(float(scene.near), float(scene.far), np.asarray(scene.center, np.float32),
                            float(radius), np.asarray(scene.up, np.float32),
                            None if scene.table is None else np.asarray(scene.table, np.float32),
-                           float(np.linalg.norm(c2w[:, :3, 3] - scene.center, axis=1).max()))
+                           float(dists.max()))
 
     def to_dict(self) -> dict:
         return {"near": self.near, "far": self.far, "center": [float(c) for c in self.center],
