@@ -402,6 +402,15 @@ def test_sfm_dataset_metric_from_tag(room, tmp_path):
     # up is +z out of the floor: camera heights above the tag (z = 0) are the true ~1.6 m
     np.testing.assert_allclose(c2w[:, 2, 3], ref[:, 2, 3], rtol=0.04)
     assert 0.3 < back.near < 1.5 and back.far > 2.5  # the box is 1.5-3 m from the cameras (bounds: capture.dataset)
+    # SfM's sparse points, in the same metric frame (origin at the tag's centre), lie on the
+    # room's walls and floor or on the box
+    p = back.points.astype(np.float64) + np.array([0.8 + TAG_SIZE / 2, -0.2 + TAG_SIZE / 2, 0.0])
+    assert len(p) > 200 and back.point_colors.shape == p.shape
+    q = np.abs(p - np.array([0.0, 0.0, 0.6])) - np.array([0.6, 0.6, 0.6])
+    to_box = np.abs(np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(1), 0))
+    to_room = np.abs(np.stack([3 - np.abs(p[:, 0]), 3 - np.abs(p[:, 1]), p[:, 2], 3 - p[:, 2]], 1)).min(1)
+    d = np.minimum(to_box, to_room)
+    assert np.median(d) < 0.01 and np.quantile(d, 0.9) < 0.03, np.quantile(d, [0.5, 0.9])  # 2 and 8 mm here
 
 
 def test_sfm_with_nothing_to_match_fails_cleanly(tmp_path):

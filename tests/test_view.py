@@ -90,6 +90,22 @@ def test_viser_server_shows_every_camera_and_the_rays():
         np.testing.assert_allclose(pos, scene.train.c2w[:, :3, 3], atol=1e-5)
         set_rays(server, scene, handles, 0, 8)
         assert handles["rays"] is None and handles["samples"] is None
+        assert handles["points"] is None  # this dataset has no sparse points
+    finally:
+        server.stop()
+
+
+def test_viser_server_shows_the_sparse_points_in_their_colours():
+    from nerfkit.viz.viewer import serve_dataset
+
+    scene = small_scene()
+    rng = np.random.default_rng(0)
+    scene.points = rng.normal(size=(40, 3)).astype(np.float32)
+    scene.point_colors = rng.integers(0, 256, (40, 3)).astype(np.uint8)
+    server, handles = serve_dataset(scene, host="127.0.0.1", port=free_port(), block=False)
+    try:
+        np.testing.assert_allclose(handles["points"].points, scene.points, rtol=2e-3)  # viser keeps float16
+        np.testing.assert_array_equal(handles["points"].colors, scene.point_colors)
     finally:
         server.stop()
 

@@ -16,6 +16,7 @@ This module is where OpenCV pixel coordinates become nerfkit's (+0.5).
 
 from __future__ import annotations
 
+import sys
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +27,7 @@ from ..config import load_json, option
 from ..data.npz import save_npz
 from ..data.nerfstudio import write_transforms_json
 from ..data.scene import Scene, Views, estimate_center
-from ..data.validate import MAX_SIDE, check_count, check_poses, check_scene, short_repr
+from ..data.validate import MAX_SIDE, check_count, check_points, check_poses, check_scene, short_repr
 from ..errors import advice, fail
 from ..io.atomic import write_json
 from ..io.paths import resolve_inside
@@ -37,7 +38,7 @@ from .undistort import make_undistorter, output_size, resize_K_nerfkit
 POSES_FILE = "poses.json"
 NPZ_FILE = "dataset.npz"
 # What build_dataset writes into its folder (checked with nerfkit.io.paths.guard_outputs).
-DATASET_OUTPUTS = (NPZ_FILE, "transforms.json", "images")
+DATASET_OUTPUTS = (NPZ_FILE, "transforms.json", "images", "sparse_pc.ply")
 
 
 @dataclass
@@ -52,6 +53,8 @@ class DatasetConfig:
     near: float | None = option(None, "near bound along rays (default: from the cameras and the tag size)")
     far: float | None = option(None, "far bound along rays (default: from the cameras and the tag size)")
     jpeg_quality: int = option(95, "JPEG quality of the written views")
+    points: bool = option(True, "triangulate sparse 3D points from the train views with the poses held (COLMAP's "
+                          "point triangulator; they initialise --model splat). Needs pycolmap")
 
 
 def split_indices(n: int, val_every: int, test_every: int) -> list[str]:
@@ -133,8 +136,13 @@ def _load_view(p: PosedPhoto, base: Camera, und, out_size: tuple[int, int]) -> n
 
 def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConfig, tag_size: float,
                   jobs: int = 2, progress: bool = True, extra: dict | None = None,
-                  up: np.ndarray | None = None, on_tag_plane: bool = True) -> tuple[Scene, dict]:
+                  up: np.ndarray | None = None, on_tag_plane: bool = True,
+                  points: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Scene, dict]:
     """Undistort, crop, resize and split ``posed`` photos, then write the dataset files.
+
+    ``points``: the scene's sparse points ``(xyz (m, 3), rgb (m, 3) uint8)`` when known
+    (structure-from-motion); else, with ``cfg.points``, they are triangulated from the
+    train views (:func:`nerfkit.sfm.triangulate.triangulate_views`).
 
     ``up`` is the scene's up direction (default +z: the tag-plane normal toward the cameras).
     ``on_tag_plane``: the world is the tag frame and the object stands on the tag's plane
@@ -203,6 +211,11 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
     table = np.array([0.0, 0.0, 1.0, 0.0], np.float32) if on_tag_plane else None
     scene = check_scene(Scene(views["train"], views["val"], views["test"], near, far, center.astype(np.float32), up,
                               source=str(out_dir), capture=True, table=table))
+    points_note = "from structure-from-motion"
+    if points is None and cfg.points:
+        points, points_note = _triangulate(scene.train, out_dir, progress)
+    if points is not None:
+        scene.points, scene.point_colors = check_points(points[0], points[1], str(out_dir))
     summary = {
         "views": {s: len(v) for s, v in scene.splits.items()},
         "size": list(out_size),
@@ -217,12 +230,28 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
         "undistorted": base.has_distortion,
         "crop": list(und.roi),
         "source_size": list(base_size),
+        "points": 0 if scene.points is None else len(scene.points), "points_from": points_note,
         "world": "tag frame: origin at the tag centre, x right and y up along the printed tag, z out of the tag "
                  "toward the cameras (= up); metres",
     }
     write_transforms_json(scene, out_dir, jpeg_quality=cfg.jpeg_quality, extra={**summary, **(extra or {})})
     save_npz(scene, out_dir / NPZ_FILE)
     return scene, summary
+
+
+def _triangulate(train: Views, out_dir: Path, progress: bool) -> tuple[tuple | None, str]:
+    """Sparse points of the train views, or None and why not."""
+    from ..errors import NerfkitError
+    from ..sfm.triangulate import triangulate_views
+
+    if progress:
+        print(f"triangulating sparse points from {len(train)} train views (pycolmap)...", file=sys.stderr, flush=True)
+    try:
+        pts = triangulate_views(train, out_dir)
+    except (NerfkitError, RuntimeError, ValueError) as e:  # no pycolmap, or COLMAP found no matches
+        return None, f"none ({e})"
+    return (pts.xyz, pts.rgb), (f"triangulated from {len(train)} train views with the poses held (median "
+                                f"reprojection error {float(np.median(pts.error)) if len(pts) else 0:.2f} px)")
 
 
 # ---------------------------------------------------------------- poses.json

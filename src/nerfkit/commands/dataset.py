@@ -50,7 +50,8 @@ def build_and_report(posed, out, cfg, tag_size: float, jobs: int, extra: dict | 
           f"{', undistorted and cropped' if s['undistorted'] else ''})")
     print(f"K: fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f} (pixel centres at +0.5)")
     print(f"near {s['near']:.4f}  far {s['far']:.4f}  centre {s['center']} ({s['center_from']})  up {s['up']}")
-    print(f"wrote {out}/{NPZ_FILE}, {out}/transforms.json and {out}/images/")
+    print(f"sparse points: {s['points']} ({s['points_from']})")
+    print(f"wrote {out}/{NPZ_FILE}, {out}/transforms.json{', sparse_pc.ply' if s['points'] else ''} and {out}/images/")
     return 0
 
 

@@ -33,7 +33,7 @@ from ..cameras import opencv_to_opengl, opengl_to_opencv
 from ..config import load_json
 from ..errors import fail
 from ..io.atomic import atomic_path, write_json
-from ..io.paths import safe_output_name
+from ..io.paths import resolve_inside, safe_output_name
 from .blender import focal_from_angle, frame_image_path
 from .scene import Scene, Views, estimate_center, estimate_up
 from .validate import (MAX_SIDE, check_count, check_fov, check_intrinsics, check_near_far, check_number, check_plane,
@@ -42,6 +42,7 @@ from .validate import (MAX_SIDE, check_count, check_fov, check_intrinsics, check
 SPLITS = ("train", "val", "test")
 DIST_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 KEEP_SUFFIXES = {".jpg", ".jpeg", ".png"}
+POINTS_FILE = "sparse_pc.ply"  # nerfstudio's name for the sparse points
 
 
 def image_file_name(name: str) -> str:
@@ -255,8 +256,26 @@ def load_transforms_json(path: str | Path, load_images: bool = True,
     _add_pose_only_splits(views, nk, where, need)
     center, up, near, far = _scene_bounds(nk, views["train"] if len(views["train"]) else views[need], where)
     table = check_plane(nk["table_plane"], where, "nerfkit.table_plane") if nk.get("table_plane") is not None else None
+    points, colors = _read_points(data, path.parent, where, allow_outside)
     return check_scene(Scene(views["train"], views["val"], views["test"], near, far, center, up, source=where,
-                             capture=nk.get("capture") is True, table=table), need=need)
+                             capture=nk.get("capture") is True, table=table, points=points, point_colors=colors),
+                       need=need)
+
+
+def _read_points(data: dict, folder: Path, where: str, allow_outside: bool) -> tuple[np.ndarray | None, ...]:
+    """The sparse points of nerfstudio's ``ply_file_path`` (e.g. ``sparse_pc.ply``), if any."""
+    rel = data.get("ply_file_path")
+    if rel is None:
+        return None, None
+    if not isinstance(rel, str):
+        raise fail(where, f"'ply_file_path' is {short_repr(rel)}, expected a file name")
+    from ..export import read_points_ply
+
+    path = resolve_inside(folder, rel, allow_outside, where)
+    if not path.is_file():
+        raise fail(where, f"'ply_file_path' names {rel[:200]!r}, which does not exist",
+                   "Remove the key or put the point cloud beside transforms.json")
+    return read_points_ply(path, f"{where} ply_file_path {rel[:200]}")
 
 
 def _save_image(path: Path, image: np.ndarray, jpeg_quality: int) -> None:
@@ -326,6 +345,11 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
     if poses_only:
         nk["poses_only"] = poses_only
     out["nerfkit"] = {**(extra or {}), **nk}  # the scene's own values win over extra's
+    if scene.points is not None:  # nerfstudio's key for the sparse points (3DGS initialisation)
+        from ..export import write_points_ply
+
+        out["ply_file_path"] = POINTS_FILE
+        write_points_ply(folder / POINTS_FILE, scene.points, scene.point_colors)
     path = folder / "transforms.json"
     write_json(path, out)
     return path

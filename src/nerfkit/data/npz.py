@@ -8,6 +8,7 @@ Keys (all arrays, no pickles)::
     focal ()     or  K (3, 3)                                  one is required
     near (), far (), images_test, names_train/val/test (str)   optional (nerfkit's)
     capture () (1: real photos), table_plane (4,) (nx, ny, nz, d)  optional (nerfkit's)
+    points_xyz (P, 3), points_rgb (P, 3) uint8 (sparse 3D points)  optional (nerfkit's)
 
 ``focal`` alone means ``fx = fy = focal``, ``cx = W / 2``, ``cy = H / 2``.
 """
@@ -157,8 +158,12 @@ def load_npz(path: str | Path, need: str = "train") -> Scene:
         up = check_vector3(arrays["up"], where, "up", unit=True)
     capture = bool(_scalar(arrays, "capture", where)) if "capture" in arrays else False
     table = check_plane(arrays["table_plane"], where, "table_plane") if "table_plane" in arrays else None
-    return check_scene(Scene(train, val, test, near, far, center, up, source=where, capture=capture, table=table),
-                       need=need)
+    points = arrays["points_xyz"] if "points_xyz" in arrays else None
+    colors = arrays["points_rgb"] if "points_rgb" in arrays else None
+    if colors is not None and points is None:
+        raise fail(where, "'points_rgb' is present but 'points_xyz' is missing")
+    return check_scene(Scene(train, val, test, near, far, center, up, source=where, capture=capture, table=table,
+                             points=points, point_colors=colors), need=need)
 
 
 def save_npz(scene: Scene, path: str | Path) -> None:
@@ -180,6 +185,10 @@ def save_npz(scene: Scene, path: str | Path) -> None:
         out["capture"] = np.uint8(1)
     if scene.table is not None:
         out["table_plane"] = np.asarray(scene.table, np.float32)
+    if scene.points is not None:
+        out["points_xyz"] = np.asarray(scene.points, np.float32)
+        out["points_rgb"] = (np.full(out["points_xyz"].shape, 128, np.uint8) if scene.point_colors is None
+                             else np.asarray(scene.point_colors, np.uint8))
     for split, v in scene.splits.items():
         if len(v) == 0 and split != "train":
             continue

@@ -69,6 +69,8 @@ class Scene:
             shots, poses from tags or SfM); training then picks its real-capture settings.
         table: (4,) plane ``(n, d)`` with ``n . x + d = 0`` on which the object stands, ``n``
             the unit normal toward the cameras, or None (e.g. the tag plane of a tag capture).
+        points: (m, 3) float32 sparse 3D points on the scene's surfaces (from
+            structure-from-motion or triangulation), or None; point_colors: (m, 3) uint8.
     """
 
     train: Views
@@ -81,6 +83,8 @@ class Scene:
     source: str = ""
     capture: bool = False
     table: np.ndarray | None = None
+    points: np.ndarray | None = None
+    point_colors: np.ndarray | None = None
 
     @property
     def splits(self) -> dict[str, Views]:

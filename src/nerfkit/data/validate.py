@@ -226,4 +226,24 @@ def check_scene(scene, where: str | None = None, need: str = "train"):
         raise fail(where, f"'up' {up.tolist()} is not a unit vector")
     if scene.table is not None:
         scene.table = check_plane(scene.table, where, "table_plane")
+    if scene.points is not None:
+        scene.points, scene.point_colors = check_points(scene.points, scene.point_colors, where)
     return scene
+
+
+def check_points(xyz, rgb, where: str, field: str = "points") -> tuple[np.ndarray, np.ndarray]:
+    """Sparse points ``xyz`` (m, 3) finite, and their colours ``rgb`` (m, 3) uint8 (None:
+    grey), as float32 and uint8 arrays."""
+    a = _array(xyz, where, field)
+    if a.dtype.kind not in "fiu" or a.ndim != 2 or a.shape[1] != 3:
+        raise fail(where, f"'{field}' must be (m, 3) numbers, got shape {a.shape} dtype {a.dtype}")
+    if not (np.isfinite(a).all() and (a.size == 0 or np.abs(a).max() <= MAX_COORD)):
+        raise fail(where, f"'{field}' holds non-finite or huge coordinates")
+    if rgb is None:
+        c = np.full(a.shape, 128, np.uint8)
+    else:
+        c = _array(rgb, where, f"{field} colours")
+        if c.shape != a.shape or c.dtype.kind not in "iu" or (c.size and (c.min() < 0 or c.max() > 255)):
+            raise fail(where, f"the colours of '{field}' must be {a.shape} integers in 0..255, "
+                              f"got shape {c.shape} dtype {c.dtype}")
+    return a.astype(np.float32), c.astype(np.uint8)

@@ -12,10 +12,12 @@ Training as 3DGS does it: L1 + D-SSIM, Adam with a learning rate per parameter
 transparent and huge ones, periodic opacity reset), SH degree raised over time. The
 schedules are fractions of the run, so they follow ``--steps`` or ``--minutes``.
 
-Initialisation (:meth:`SplatModel.init_from_scene`): the visual hull of the training
-images when their background is the flat ``--background`` colour (the object's
-silhouettes carve a grid), else random points in the object's box plus the table plane
-of a tag capture, else random in the scene box.
+Initialisation (:meth:`SplatModel.init_from_scene`): the dataset's sparse points when it
+has them (structure-from-motion's, or those `nerfkit poses` triangulates from a tag
+capture), each Gaussian as large as the distance to its neighbours (as 3DGS); else the
+visual hull of the training images when their background is the flat ``--background``
+colour (the object's silhouettes carve a grid); else random points in the object's box
+plus the table plane of a tag capture; else random in the scene box.
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ from .base import NerfModel, RenderOutput, SceneBounds
 PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
 # most Gaussians a checkpoint may ask to allocate
 MAX_GAUSSIANS = 20_000_000
+# --init auto starts from the dataset's sparse points when it has at least this many
+MIN_INIT_POINTS = 100
 
 
 @dataclass
@@ -53,9 +57,9 @@ class SplatConfig:
     sh_degree: int = option(3, "largest spherical-harmonic degree of the colour (0-3)", min=0, max=3)
     sh_up_every: float = option(0.05, "raise the SH degree by one each time this fraction of the run is done",
                                 above=0, max=1)
-    init: str = option("auto", "initial Gaussians: auto (visual hull when the training images have a flat "
-                       "background, else random in the object box), hull, or random",
-                       choices=["auto", "hull", "random"])
+    init: str = option("auto", "initial Gaussians: auto (the dataset's sparse points when it has some, else the "
+                       "visual hull when the training images have a flat background, else random in the object "
+                       "box), points, hull, or random", choices=["auto", "points", "hull", "random"])
     init_points: int = option(30_000, "number of initial Gaussians", min=1, max=MAX_GAUSSIANS)
     init_opacity: float = option(0.1, "opacity of the initial Gaussians", above=0, max=0.99)
     max_gaussians: int = option(40_000, "densification stops adding Gaussians at this count (lego, 10 minutes: "
@@ -155,16 +159,30 @@ class SplatModel(NerfModel):
         return torch.cat([self.sh_dc, self.sh_rest], 1)
 
     @torch.no_grad()
-    def init_from_scene(self, scene, background) -> None:
-        """Place the initial Gaussians from the dataset (see the module docstring)."""
+    def init_from_scene(self, scene, background) -> str:
+        """Place the initial Gaussians from the dataset (see the module docstring); says how."""
         c = self.config
         gen = torch.Generator().manual_seed(0)
         center, radius = np.asarray(self.bounds.center, np.float64), float(self.bounds.radius)
         mode = c.init
         bg = np.asarray(background.detach().cpu().numpy() if isinstance(background, Tensor) else background)
+        n_points = 0 if scene.points is None else len(scene.points)
         if mode == "auto":
-            mode = "hull" if (not c.learn_background and flat_background(scene.train.images, bg)) else "random"
-        if mode == "hull":
+            if n_points >= MIN_INIT_POINTS:
+                mode = "points"
+            elif not c.learn_background and flat_background(scene.train.images, bg):
+                mode = "hull"
+            else:
+                mode = "random"
+        scales = None
+        if mode == "points":
+            if n_points == 0:
+                raise fail(scene.source or "dataset", "has no sparse points to start from",
+                           "Use --init random, or build the dataset with its points (nerfkit poses --points)")
+            pts, cols = points_init(scene.points, scene.point_colors, c.init_points, gen)
+            scales = neighbour_scales(pts)
+            volume = 0.0
+        elif mode == "hull":
             hull = visual_hull(scene.train, bg, center, radius)
             if hull is None:
                 raise fail(scene.source or "dataset", "the visual hull of the training images is empty",
@@ -178,8 +196,11 @@ class SplatModel(NerfModel):
             cols = torch.full_like(pts, 0.5)
             volume = 4 / 3 * math.pi * (0.7 * radius) ** 3
         device = self.means.device
-        self._install(*(t.to(device) for t in initial_gaussians(pts, cols, self._volume_scale(volume, len(pts)),
-                                                                 c.init_opacity)))
+        scale = scales if scales is not None else self._volume_scale(volume, len(pts))
+        self._install(*(t.to(device) for t in initial_gaussians(pts, cols, scale, c.init_opacity)))
+        how = {"points": f"the dataset's {n_points} sparse points", "hull": "the training images' visual hull",
+               "random": "random points in the scene's box"}[mode]
+        return f"splat: {len(pts)} initial Gaussians from {how}"
 
     @torch.no_grad()
     def set_gaussians(self, g) -> None:
@@ -399,15 +420,47 @@ class SplatModel(NerfModel):
 
 
 # -- initialisation -------------------------------------------------------------------
-def initial_gaussians(points: Tensor, colors: Tensor, scale: float, opacity: float) -> tuple[Tensor, ...]:
-    """Isotropic Gaussians at ``points`` (n, 3) with ``colors`` (n, 3) in [0, 1]:
+def initial_gaussians(points: Tensor, colors: Tensor, scale: float | Tensor, opacity: float) -> tuple[Tensor, ...]:
+    """Isotropic Gaussians at ``points`` (n, 3) with ``colors`` (n, 3) in [0, 1] and one
+    ``scale`` or a scale per point (n,):
     ``(means, log_scales, quats, opacity_logits, sh_dc (n, 1, 3), sh_rest (n, 15, 3))``."""
     n = points.shape[0]
     quats = torch.zeros(n, 4)
     quats[:, 0] = 1
-    return (points.float(), torch.full((n, 3), math.log(max(scale, 1e-8))), quats,
+    log_scale = torch.as_tensor(scale, dtype=torch.float32).clamp_min(1e-8).log().reshape(-1, 1).expand(n, 3)
+    return (points.float(), log_scale.clone(), quats,
             torch.full((n,), ref.logit(opacity)), ref.rgb_to_sh_dc(colors.float()).unsqueeze(1),
             torch.zeros(n, 15, 3))
+
+
+def points_init(xyz: np.ndarray, rgb: np.ndarray | None, n: int, gen: torch.Generator) -> tuple[Tensor, Tensor]:
+    """Sparse points (m, 3) and colours (m, 3) uint8 as initial means and colours in [0, 1]:
+    all of them, or a random ``n`` of them when there are more."""
+    pts = torch.as_tensor(np.asarray(xyz, np.float32))
+    cols = (torch.full_like(pts, 0.5) if rgb is None
+            else torch.as_tensor(np.asarray(rgb, np.uint8)).float() / 255.0)
+    if len(pts) > n:
+        pick = torch.randperm(len(pts), generator=gen)[:n]
+        pts, cols = pts[pick], cols[pick]
+    return pts, cols
+
+
+def neighbour_scales(points: Tensor, k: int = 3, chunk: int = 1024) -> Tensor:
+    """Initial size (n,) of a Gaussian at each point, as 3DGS: the root mean square
+    distance to its ``k`` nearest other points (a lone point gets the median size)."""
+    n = len(points)
+    if n < 2:
+        return torch.full((n,), 0.01)
+    k = min(k, n - 1)
+    out = torch.empty(n)
+    p = points.double()
+    for i in range(0, n, chunk):
+        d2 = torch.cdist(p[i:i + chunk], p).square()
+        d2[torch.arange(len(d2)), torch.arange(i, i + len(d2))] = math.inf
+        out[i:i + chunk] = d2.topk(k, dim=1, largest=False).values.mean(1).sqrt().float()
+    good = out[torch.isfinite(out) & (out > 0)]
+    fill = float(good.median()) if len(good) else 0.01
+    return torch.where(torch.isfinite(out) & (out > 0), out, torch.full_like(out, fill))
 
 
 def random_in_ball(n: int, center, radius: float, gen: torch.Generator) -> Tensor:

@@ -92,6 +92,16 @@ def near_far_from_model(result: SfmResult) -> tuple[float, float] | None:
     return near_far_from_points(c2w, np.repeat(K[None], len(ims), 0), cam.width, cam.height, points)
 
 
+def model_points(result: SfmResult, max_error: float = 2.0, min_track: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """The reconstruction's sparse points (in its current frame) seen by ``min_track`` or
+    more photos with a mean reprojection error <= ``max_error`` px: ``xyz (m, 3)``,
+    ``rgb (m, 3) uint8``."""
+    pts = [p for p in result.reconstruction.points3D.values() if p.error <= max_error
+           and p.track.length() >= min_track]
+    return (np.array([p.xyz for p in pts], np.float32).reshape(-1, 3),
+            np.array([p.color for p in pts], np.uint8).reshape(-1, 3))
+
+
 def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | None" = None, jobs: int = 2,
                   progress: bool = True) -> Scene:
     """Write the dataset of an aligned SfM result with the tag path's dataset builder.
@@ -116,7 +126,8 @@ def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | 
     extra = {"world": result.report.frame, "poses": "structure-from-motion (COLMAP via pycolmap)",
              "sfm": {k: v for k, v in result.report.to_dict().items() if k not in ("registered",)}}
     scene, _ = capture_build_dataset(posed_photos(result), out_dir, cfg, tag_size, jobs=jobs, progress=progress,
-                                     extra=extra, on_tag_plane=result.tag_size is not None)
+                                     extra=extra, on_tag_plane=result.tag_size is not None,
+                                     points=model_points(result) if cfg.points else None)
     write_json(Path(out_dir) / REPORT_FILE, result.report.to_dict())
     return scene
 

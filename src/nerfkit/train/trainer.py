@@ -102,7 +102,9 @@ class Trainer:
         # models that render whole views (splat) train on one view per step, without pose refinement
         self.whole_images = bool(getattr(self.model, "whole_images", False))
         if not resume and hasattr(self.model, "init_from_scene"):
-            self.model.init_from_scene(scene, self.background)
+            note = self.model.init_from_scene(scene, self.background)
+            if note:
+                self.log(note)
         self.optimizer = self.model.make_optimizer(cfg.lr)
         self.rays = RaysData(scene.train, self.device, seed=cfg.seed)
         self.views: ViewCorrections | None = None

@@ -32,7 +32,7 @@ def populate(server, scene: Scene, n_rays: int = 0, n_samples: int = 32, tag_siz
     up = np.asarray(scene.up, np.float64)
     server.scene.set_up_direction(tuple(float(u) for u in up))
     scale = scene_scale(scene)
-    handles: dict = {"frustums": [], "rays": None, "samples": None}
+    handles: dict = {"frustums": [], "rays": None, "samples": None, "points": None}
     handles["axes"] = server.scene.add_frame("/world", axes_length=1.5 * tag_size if tag_size else 0.25 * scale,
                                              axes_radius=0.02 * (1.5 * tag_size if tag_size else 0.25 * scale))
     a, b = plane_basis(up)
@@ -48,6 +48,9 @@ def populate(server, scene: Scene, n_rays: int = 0, n_samples: int = 32, tag_siz
                                                       color=(20, 20, 20), side="double")
     handles["center"] = server.scene.add_icosphere("/center", radius=0.01 * scale, color=(220, 0, 220),
                                                    position=tuple(float(c) for c in scene.center))
+    if scene.points is not None and len(scene.points):  # the dataset's sparse points, in their colours
+        handles["points"] = server.scene.add_point_cloud("/sparse_points", scene.points.astype(np.float32),
+                                                         colors=scene.point_colors, point_size=0.004 * scale)
     for split, v in scene.splits.items():
         color = tuple(int(255 * c) for c in SPLIT_COLORS.get(split, (0, 0, 0)))
         for i in range(len(v)):
