@@ -130,6 +130,42 @@ def test_compiled_render_matches_reference_values_and_gradients(coarse_factor, s
     assert torch.equal(sink.touched.bool() | nonzero, sink.touched.bool())
 
 
+def test_near_damping_keeps_values_and_scales_gradients_by_distance_squared():
+    x = torch.tensor([2.0, -1.0, 3.0, 0.5], requires_grad=True)
+    t = torch.tensor([0.5, 1.0, 2.0, 4.0])
+    y = ref.near_damping(x, t, 2.0)
+    assert torch.equal(y, x)
+    y.sum().backward()
+    torch.testing.assert_close(x.grad, torch.tensor([0.0625, 0.25, 1.0, 1.0]))
+    assert ref.near_damping(x, t, 0.0) is x
+
+
+@needs_numba
+def test_compiled_near_damping_matches_reference_and_changes_only_gradients():
+    grid, geom = random_field(seed=7, sh_degree=1)
+    spec, _ = spec_for(grid, geom, coarse_factor=2)
+    o, d, t0, t1, u = random_rays(400, geom, seed=3)  # samples at t ~ 3 to 5
+    damped = MarchSpec(spec.occ, spec.coarse, spec.coarse_factor, spec.step, spec.eps, spec.density_scale,
+                       grad_near=4.5)
+    w_rgb, w_d, w_a = loss_weights(400)
+    grads, outs = [], []
+    for sp in (spec, damped):
+        g = grid.clone().requires_grad_()
+        sink = GradSink(geom.n_vertices, grid.shape[1])
+        out = render_grid(g, geom, sp, o, d, t0, t1, u, 1, sink, "numba")
+        ((out.rgb * w_rgb).sum() + (out.depth * w_d).sum() + (out.acc * w_a).sum()).backward()
+        grads.append(sink.grad.sum(0).double())
+        outs.append(out)
+    g_ref = grid.double().requires_grad_()
+    slow = render_grid(g_ref, as64(geom), damped, o.double(), d.double(), t0.double(), t1.double(), u.double(), 1,
+                       None, "torch")
+    ((slow.rgb * w_rgb.double()).sum() + (slow.depth * w_d.double()).sum() + (slow.acc * w_a.double()).sum()).backward()
+    assert torch.equal(outs[0].rgb, outs[1].rgb) and torch.equal(outs[0].depth, outs[1].depth)
+    torch.testing.assert_close(grads[1], g_ref.grad, atol=2e-5, rtol=1e-4)
+    # damped where samples were near the ray origins: smaller, never larger
+    assert grads[1].norm() < 0.9 * grads[0].norm()
+
+
 def loss_weights(n: int, seed: int = 2):
     """Random upstream gradients for (rgb (n, 3), depth (n,), acc (n,))."""
     gen = torch.Generator().manual_seed(seed)

@@ -395,7 +395,7 @@ def _sample_point_grad(grid, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh,
 
 @njit(cache=True, parallel=True, fastmath=False)
 def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscale, rgb, depth, acc,
-                    g_rgb, g_depth, g_acc, g_dist, t_end, grads, touched, ray_grads, g_o, g_d, g_sh):
+                    g_rgb, g_depth, g_acc, g_dist, t_end, grad_near, grads, touched, ray_grads, g_o, g_d, g_sh):
     """Gradients of the loss w.r.t. the grid (added into per-lane buffers) and, with
     ``ray_grads``, w.r.t. the rays.
 
@@ -426,6 +426,7 @@ def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscal
         g_rgb (n, 3), g_depth (n,), g_acc (n,), g_dist (n,): upstream gradients (of the
             distortion loss for ``g_dist``; rays with 0 skip its passes).
         t_end (n,) float64: where the distortion loss puts the leftover weight (inf: nowhere).
+        grad_near: distance below which sample gradients are damped (0: none).
         g_o (n, 3), g_d (n, 3), g_sh (n, K) float64, zero on entry: the ray gradients
             (left untouched without ``ray_grads``).
     """
@@ -499,10 +500,13 @@ def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscal
                     dtau += gl * (Tn * g_k - (g_tot - wg_pre))
                     w_pre += w
                     wt_pre += w * t
-                graw = dtau * step * dscale * _softplus_grad(raw)
-                dzr = w * gr * colr * (1.0 - colr)
-                dzg = w * gg * colg * (1.0 - colg)
-                dzb = w * gb * colb * (1.0 - colb)
+                near = 1.0
+                if t < grad_near:
+                    near = (t / grad_near) * (t / grad_near)
+                graw = dtau * step * dscale * _softplus_grad(raw) * near
+                dzr = w * gr * colr * (1.0 - colr) * near
+                dzg = w * gg * colg * (1.0 - colg) * near
+                dzb = w * gb * colb * (1.0 - colb) * near
                 T = Tn
                 bits = s_idx[k, r]
                 base = bits & ROW_MASK
@@ -669,7 +673,7 @@ def warm_up() -> None:
     g_dist, t_end = np.zeros(1, np.float32), np.full(1, np.inf)
     distortion_forward(s_f, cnt, 0.5, t_end, g_dist)
     render_backward(s_idx, s_f, cnt, sh, grid, rx, ry, 1.0, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, g_dist, t_end,
-                    grads, touched, True, g_o, g_o.copy(), g_sh)
+                    0.0, grads, touched, True, g_o, g_o.copy(), g_sh)
     m = np.zeros_like(grid)
     rows = touched_rows(touched)
     adam_rows(grid, grads, rows, touched, m, m.copy(), np.ones(C, np.float32), 0.9, 0.99, 1e-15, 0.1, 0.01)

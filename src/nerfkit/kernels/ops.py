@@ -171,6 +171,8 @@ class MarchSpec:
         coarse: occupancy max-pooled by ``coarse_factor`` (uint8), for skipping empty blocks.
         step: sample spacing (= interval length); eps: early-termination transmittance.
         density_scale: ``sigma = density_scale * softplus(raw)``.
+        grad_near: training only: gradients of samples nearer than this to the ray origin
+            are scaled by ``(t / grad_near)^2`` (0: none; see :func:`reference.near_damping`).
     """
 
     occ: Tensor
@@ -179,6 +181,7 @@ class MarchSpec:
     step: float
     eps: float
     density_scale: float
+    grad_near: float = 0.0
 
 
 # rays per work item of the compiled forward pass (dynamic scheduling)
@@ -264,7 +267,7 @@ class _NumbaRender(torch.autograd.Function):
         nb.render_backward(s_idx, s_f, count, sh, grid, geom.res[0], geom.res[1], 1.0 / geom.voxel,
                            float(ctx.spec.step), float(ctx.spec.density_scale), rgb, depth, acc,
                            arr(g_rgb, (n, 3)), arr(g_depth, (n,)), arr(g_acc, (n,)), arr(g_dist, (n,)), t_end,
-                           grads, touched,
+                           float(ctx.spec.grad_near), grads, touched,
                            ray_grads, g_o, g_d, g_sh)
         if need_grid:
             sink.dirty = True
@@ -365,7 +368,8 @@ def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0,
     samples = occ.sampling(rays_o, rays_d, 0.0, math.inf, spec.step, sigma_fn=sigma_fn, early_stop_eps=spec.eps,
                            u=u, t_bounds=(t0, t1))
     rgb, depth, acc, dist = ref.render_samples(grid, geom.res, lo, geom.voxel, rays_o, rays_d, sh.to(grid.dtype),
-                                               samples.t, samples.mask, spec.step, spec.density_scale, t_end)
+                                               samples.t, samples.mask, spec.step, spec.density_scale, t_end,
+                                               spec.grad_near)
     counts = samples.mask.sum(1).int()
     return GridRender(rgb, depth, acc, counts, int(counts.sum()), dist)
 

@@ -136,6 +136,16 @@ def decode(feat: Tensor, sh: Tensor, density_scale: float) -> tuple[Tensor, Tens
     return sigma, rgb
 
 
+def near_damping(x: Tensor, t: Tensor, grad_near: float) -> Tensor:
+    """``x`` unchanged, with its gradient scaled by ``min(1, (t / grad_near)^2)``
+    ("Floaters No More": damp updates just in front of the cameras). ``t`` broadcasts
+    against ``x``; ``grad_near <= 0`` returns ``x``."""
+    if grad_near <= 0:
+        return x
+    s = torch.clamp((t / grad_near) ** 2, max=1.0).to(x.dtype)
+    return x * s + (x * (1 - s)).detach()
+
+
 def render_samples(
     grid: Tensor,
     res: tuple[int, int, int],
@@ -149,6 +159,7 @@ def render_samples(
     step: float,
     density_scale: float,
     t_end: Tensor | None = None,
+    grad_near: float = 0.0,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Volume-render padded samples of the grid field (the reference for the fused kernel).
 
@@ -161,6 +172,7 @@ def render_samples(
         rays_o, rays_d: (n_rays, 3); sh: (n_rays, K) SH basis of the ray directions.
         t: (n_rays, S) sample distances; mask: (n_rays, S) which samples are real.
         t_end: optional (n_rays,) where the distortion loss puts the leftover weight.
+        grad_near: damp the gradients of samples nearer than this (:func:`near_damping`).
 
     Returns:
         ``(rgb (n_rays, 3) without background, depth (n_rays,), acc (n_rays,),
@@ -171,6 +183,8 @@ def render_samples(
     pts = rays_o[ray_id] + t[mask].unsqueeze(-1) * rays_d[ray_id]
     feat = grid_interp(grid, grid_coords(pts, lo, voxel), res)
     sig, col = decode(feat, sh[ray_id], density_scale)
+    sig = near_damping(sig, t[mask], grad_near)
+    col = near_damping(col, t[mask].unsqueeze(-1), grad_near)
     sigmas = torch.zeros((n_rays, S), dtype=sig.dtype, device=t.device).masked_scatter(mask, sig)
     rgbs = torch.zeros((n_rays, S, 3), dtype=col.dtype, device=t.device)
     rgbs = rgbs.masked_scatter(mask.unsqueeze(-1).expand(n_rays, S, 3), col)

@@ -110,6 +110,9 @@ class FastConfig:
     distortion_table: bool = option(False, "with --table, the distortion loss counts the table as the surface "
                                     "behind each ray, so haze in front of the table costs by its distance to it "
                                     "(clears haze, but a low object may be painted onto the table instead)")
+    near_grad: float = option(0.0, "damp the gradients of samples nearer to the camera than this fraction of the "
+                              "farthest camera's distance from the centre, by (distance / that)^2 (\"Floaters "
+                              "No More\"), against floaters in front of the cameras (0: off)", min=0.0, max=10.0)
     kernels: str = option("auto", "auto (compiled numba on the CPU when available), numba, or torch",
                           choices=["auto", "numba", "torch"])
 
@@ -258,8 +261,9 @@ class FastNeRF(NerfModel):
         return float(self.occ_cells.float().mean())
 
     def _spec(self) -> MarchSpec:
+        reach = self.bounds.camera_radius if self.bounds.camera_radius is not None else self.bounds.far
         return MarchSpec(self.occ_cells, self._coarse_u8, self.config.coarse_factor, self.step_size,
-                         self.config.early_stop_eps, self.density_scale)
+                         self.config.early_stop_eps, self.density_scale, self.config.near_grad * reach)
 
     def _texture_sinks(self, device) -> dict:
         """A one-lane gradient sink per table and room texture (its optimizer updates touched
