@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from nerfkit.data.npz import load_npz, save_npz
+from nerfkit.data.scene import Scene
 from nerfkit.data.synthetic import tabletop_scene
 from nerfkit.models.fast import FastConfig
 from nerfkit.train.config import TrainConfig
@@ -100,3 +101,40 @@ def test_capture_run_resumes_with_its_view_corrections(tmp_path, tabletop):
         torch.testing.assert_close(t.views.state_dict()[k], v)
     assert float(t.views.exposure.log_gain.detach().abs().max()) > 0  # something was learned and restored
     assert resume(tmp_path / "b", tabletop, quiet=True).step == 80
+
+
+def test_object_box_holds_the_points_above_the_table_down_to_the_table():
+    from nerfkit.models.base import SceneBounds, object_box_from_points
+
+    rng = np.random.default_rng(0)
+    table = np.array([0.0, 0.0, 1.0, 0.0])
+    floor = np.c_[rng.uniform(-1, 1, (2000, 2)), rng.normal(0, 1e-3, 2000)]  # texture on the table
+    obj = rng.uniform([0.1, 0.0, 0.02], [0.3, 0.1, 0.25], (200, 3))
+    far = np.c_[rng.uniform(3, 4, (50, 2)), rng.uniform(0.5, 1, 50)]  # the room, outside the sphere
+    lo, hi = object_box_from_points(np.concatenate([floor, obj, far]), table, np.zeros(3), 1.0)
+    assert np.all(lo <= [0.1, 0.0, 0.0]) and np.all(hi >= [0.3, 0.1, 0.25])  # the object and its foot
+    assert np.all(lo > [-0.05, -0.1, -0.1]) and np.all(hi < [0.4, 0.2, 0.35])  # not the table around it
+    assert object_box_from_points(np.concatenate([floor, obj[:20]]), table, np.zeros(3), 1.0) is None  # too few
+    b = SceneBounds(0.1, 3.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1.0], np.float32), table, 2.0, (lo, hi))
+    back = SceneBounds.from_dict(json.loads(json.dumps(b.to_dict())))
+    np.testing.assert_allclose(back.object_box[0], lo) and np.testing.assert_allclose(back.object_box[1], hi)
+
+
+def test_fast_model_starts_in_the_object_box_of_a_scene_with_points(tabletop):
+    from nerfkit.models.base import SceneBounds
+    from nerfkit.models.fast import FastNeRF
+
+    scene = tabletop
+    rng = np.random.default_rng(1)
+    pts = np.concatenate([rng.uniform([-0.5, -0.5, 0.3], [0.5, 0.5, 1.9], (100, 3)),  # the sphere on the table
+                          np.c_[rng.uniform(-2, 2, (300, 2)), np.zeros(300)]]).astype(np.float32)
+    with_points = Scene(scene.train, scene.val, scene.test, scene.near, scene.far, scene.center, scene.up,
+                        capture=True, table=scene.table, points=pts)
+    bounds = SceneBounds.from_scene(with_points)
+    assert bounds.object_box is not None
+    model = FastNeRF(FastConfig(), bounds)
+    lo, hi = model.geom.lo.numpy(), model.geom.hi.numpy()
+    assert np.all(lo <= bounds.object_box[0] + 1e-6) and np.all(hi >= bounds.object_box[1] - 1e-6)
+    assert np.all(hi - lo < 0.8 * 2 * bounds.radius)  # smaller than the bounding sphere's box
+    sphere = FastNeRF(FastConfig(object_box=False), bounds)
+    assert np.all(sphere.geom.hi.numpy() - sphere.geom.lo.numpy() > 0.95 * 2 * bounds.radius)

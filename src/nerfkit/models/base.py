@@ -25,6 +25,8 @@ class SceneBounds:
         up: (3,) world up.
         table: (4,) plane ``(n, d)`` the object stands on (normal toward the cameras), or None.
         camera_radius: distance of the farthest training camera from ``center`` (None: unknown).
+        object_box: ``(lo, hi)`` (3,) each, an axis-aligned box around the object from the
+            dataset's sparse points (:func:`object_box_from_points`), or None.
     """
 
     near: float
@@ -34,6 +36,7 @@ class SceneBounds:
     up: np.ndarray
     table: np.ndarray | None = None
     camera_radius: float | None = None
+    object_box: tuple[np.ndarray, np.ndarray] | None = None
 
     @staticmethod
     def from_scene(scene) -> "SceneBounds":
@@ -43,16 +46,20 @@ class SceneBounds:
         # The object lies between near and far of every camera; its radius is at most
         # half that depth range, and no larger than the camera distance minus near.
         radius = max(min(0.5 * (scene.far - scene.near), dist - scene.near), 1e-3)
+        box = None
+        if scene.points is not None and scene.table is not None:
+            box = object_box_from_points(scene.points, scene.table, scene.center, radius)
         return SceneBounds(float(scene.near), float(scene.far), np.asarray(scene.center, np.float32),
                            float(radius), np.asarray(scene.up, np.float32),
                            None if scene.table is None else np.asarray(scene.table, np.float32),
-                           float(dists.max()))
+                           float(dists.max()), box)
 
     def to_dict(self) -> dict:
         return {"near": self.near, "far": self.far, "center": [float(c) for c in self.center],
                 "radius": self.radius, "up": [float(u) for u in self.up],
                 "table": None if self.table is None else [float(v) for v in self.table],
-                "camera_radius": self.camera_radius}
+                "camera_radius": self.camera_radius,
+                "object_box": None if self.object_box is None else [[float(v) for v in b] for b in self.object_box]}
 
     @staticmethod
     def from_dict(d: dict) -> "SceneBounds":
@@ -60,7 +67,33 @@ class SceneBounds:
         return SceneBounds(float(d["near"]), float(d["far"]), np.asarray(d["center"], np.float32),
                            float(d["radius"]), np.asarray(d["up"], np.float32),
                            None if table is None else np.asarray(table, np.float32),
-                           None if d.get("camera_radius") is None else float(d["camera_radius"]))
+                           None if d.get("camera_radius") is None else float(d["camera_radius"]),
+                           None if d.get("object_box") is None else
+                           tuple(np.asarray(b, np.float32) for b in d["object_box"]))
+
+
+def object_box_from_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float,
+                           min_points: int = 30, lift: float = 0.03, pad: float = 0.15) -> tuple | None:
+    """An axis-aligned box ``(lo, hi)`` around an object standing on a table, from sparse
+    points (m, 3): those within ``radius`` of ``center`` and higher than ``lift x radius``
+    above the table (``table``: ``(n, d)``, points on it are texture, not object), with
+    their feet on the table, from the 2% to the 98% quantile per axis, padded by
+    ``pad`` of its size plus 5% of ``radius``; kept inside the sphere's box. None with
+    fewer than ``min_points`` object points (the sphere's box is used then).
+    """
+    p = np.asarray(points, np.float64)
+    n, d = np.asarray(table[:3], np.float64), float(table[3])
+    c = np.asarray(center, np.float64)
+    height = p @ n + d
+    obj = p[(np.linalg.norm(p - c, axis=1) < radius) & (height > lift * radius)]
+    if len(obj) < min_points:
+        return None
+    feet = obj - np.outer(obj @ n + d, n)
+    both = np.concatenate([obj, feet])
+    lo, hi = np.quantile(both, 0.02, axis=0), np.quantile(both, 0.98, axis=0)
+    margin = pad * (hi - lo) + 0.05 * radius
+    lo, hi = np.maximum(lo - margin, c - radius), np.minimum(hi + margin, c + radius)
+    return lo.astype(np.float32), hi.astype(np.float32)
 
 
 def grads_finite(params) -> bool:

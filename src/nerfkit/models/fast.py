@@ -110,6 +110,8 @@ class FastConfig:
     distortion_table: bool = option(False, "with --table, the distortion loss counts the table as the surface "
                                     "behind each ray, so haze in front of the table costs by its distance to it "
                                     "(clears haze, but a low object may be painted onto the table instead)")
+    object_box: bool = option(True, "start from the box around the object that the dataset's sparse points "
+                              "give (points above the table), when it has them, instead of the bounding sphere's")
     near_grad: float = option(0.0, "damp the gradients of samples nearer to the camera than this fraction of the "
                               "farthest camera's distance from the centre, by (distance / that)^2 (\"Floaters "
                               "No More\"), against floaters in front of the cameras (0: off)", min=0.0, max=10.0)
@@ -181,7 +183,10 @@ class FastNeRF(NerfModel):
         self.K = ref.sh_dim(config.sh_degree)
         self.n_channels = 1 + 3 * self.K
         c = np.asarray(bounds.center, np.float32)
-        lo, voxel, res = fit_grid(c - bounds.radius, c + bounds.radius, self.sizes[0])
+        box = (c - bounds.radius, c + bounds.radius)
+        if config.object_box and bounds.object_box is not None:
+            box = bounds.object_box
+        lo, voxel, res = fit_grid(box[0], box[1], self.sizes[0])
         # densities are in units of the first stage's voxel: sigma = softplus(raw) / voxel0
         self.density_scale = 1.0 / voxel
         self.stage = 0
