@@ -92,14 +92,13 @@ def near_far_from_model(result: SfmResult) -> tuple[float, float] | None:
     return near_far_from_points(c2w, np.repeat(K[None], len(ims), 0), cam.width, cam.height, points)
 
 
-def model_points(result: SfmResult, max_error: float = 2.0, min_track: int = 3) -> tuple[np.ndarray, np.ndarray]:
-    """The reconstruction's sparse points (in its current frame) seen by ``min_track`` or
-    more photos with a mean reprojection error <= ``max_error`` px: ``xyz (m, 3)``,
-    ``rgb (m, 3) uint8``."""
-    pts = [p for p in result.reconstruction.points3D.values() if p.error <= max_error
-           and p.track.length() >= min_track]
-    return (np.array([p.xyz for p in pts], np.float32).reshape(-1, 3),
-            np.array([p.color for p in pts], np.uint8).reshape(-1, 3))
+def model_points(result: SfmResult) -> tuple[np.ndarray, np.ndarray]:
+    """The reconstruction's well-seen sparse points (:func:`~nerfkit.sfm.triangulate.reconstruction_points`):
+    ``xyz (m, 3)``, ``rgb (m, 3) uint8``."""
+    from .triangulate import reconstruction_points
+
+    pts = reconstruction_points(result.reconstruction)
+    return pts.xyz, pts.rgb
 
 
 def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | None" = None, jobs: int = 2,

@@ -104,6 +104,12 @@ def triangulate_views(views: Views, work: str | Path | None = None, max_features
             rec = pycolmap.triangulate_points(rec, db_path, image_dir, tmp / "sparse", options=options)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    return reconstruction_points(rec, max_error, min_track)
+
+
+def reconstruction_points(rec, max_error: float = 2.0, min_track: int = 3) -> SparsePoints:
+    """The points of a pycolmap reconstruction (in its current frame) seen by
+    ``min_track`` or more images with a mean reprojection error <= ``max_error`` px."""
     pts = list(rec.points3D.values())
     xyz = np.array([p.xyz for p in pts], np.float64).reshape(-1, 3)
     rgb = np.array([p.color for p in pts], np.uint8).reshape(-1, 3)
