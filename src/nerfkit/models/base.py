@@ -38,6 +38,11 @@ class SceneBounds:
     camera_radius: float | None = None
     object_box: tuple[np.ndarray, np.ndarray] | None = None
 
+    @property
+    def reach(self) -> float:
+        """How far the cameras are from the centre: ``camera_radius``, else ``far``."""
+        return self.camera_radius if self.camera_radius is not None else self.far
+
     @staticmethod
     def from_scene(scene) -> "SceneBounds":
         c2w = scene.train.c2w
@@ -85,10 +90,11 @@ def object_box_from_points(points: np.ndarray, table: np.ndarray, center: np.nda
     n, d = np.asarray(table[:3], np.float64), float(table[3])
     c = np.asarray(center, np.float64)
     height = p @ n + d
-    obj = p[(np.linalg.norm(p - c, axis=1) < radius) & (height > lift * radius)]
+    keep = (np.linalg.norm(p - c, axis=1) < radius) & (height > lift * radius)
+    obj = p[keep]
     if len(obj) < min_points:
         return None
-    feet = obj - np.outer(obj @ n + d, n)
+    feet = obj - np.outer(height[keep], n)
     both = np.concatenate([obj, feet])
     lo, hi = np.quantile(both, 0.02, axis=0), np.quantile(both, 0.98, axis=0)
     margin = pad * (hi - lo) + 0.05 * radius

@@ -205,9 +205,8 @@ class FastNeRF(NerfModel):
         if config.learn_background and config.room_shells:
             if not 8 <= config.room_resolution <= MAX_GRID_SIDE:
                 raise fail("--room-resolution", f"{config.room_resolution} must be from 8 to {MAX_GRID_SIDE}")
-            reach = bounds.camera_radius if bounds.camera_radius is not None else bounds.far
-            self.room = RoomShells(bounds.center, bounds.up, 1.25 * max(reach, bounds.radius), config.room_shells,
-                                   config.room_ratio, config.room_resolution)
+            self.room = RoomShells(bounds.center, bounds.up, 1.25 * max(bounds.reach, bounds.radius),
+                                   config.room_shells, config.room_ratio, config.room_resolution)
         self.table = None
         if config.table and bounds.table is not None:
             if not 2 <= config.table_resolution <= MAX_GRID_SIDE:
@@ -267,9 +266,8 @@ class FastNeRF(NerfModel):
         return float(self.occ_cells.float().mean())
 
     def _spec(self) -> MarchSpec:
-        reach = self.bounds.camera_radius if self.bounds.camera_radius is not None else self.bounds.far
         return MarchSpec(self.occ_cells, self._coarse_u8, self.config.coarse_factor, self.step_size,
-                         self.config.early_stop_eps, self.density_scale, self.config.near_grad * reach)
+                         self.config.early_stop_eps, self.density_scale, self.config.near_grad * self.bounds.reach)
 
     def _texture_sinks(self, device) -> dict:
         """A one-lane gradient sink per table and room texture (its optimizer updates touched

@@ -174,29 +174,27 @@ class SplatModel(NerfModel):
                 mode = "hull"
             else:
                 mode = "random"
-        scales = None
         if mode == "points":
             if n_points == 0:
                 raise fail(scene.source or "dataset", "has no sparse points to start from",
                            "Use --init random, or build the dataset with its points (nerfkit poses --points)")
             pts, cols = points_init(scene.points, scene.point_colors, c.init_points, gen)
-            scales = neighbour_scales(pts)
-            volume = 0.0
+            scale = neighbour_scales(pts)
         elif mode == "hull":
             hull = visual_hull(scene.train, bg, center, radius)
             if hull is None:
                 raise fail(scene.source or "dataset", "the visual hull of the training images is empty",
                            "Use --init random, or check --background matches the images' background")
             pts, cols, volume = sample_hull(hull, c.init_points, gen)
+            scale = self._volume_scale(volume, len(pts))
         else:
             n_table = c.init_points // 4 if self.bounds.table is not None else 0
             pts = random_in_ball(c.init_points - n_table, center, 0.7 * radius, gen)
             if n_table:
                 pts = torch.cat([pts, random_on_plane(n_table, self.bounds.table, center, 1.5 * radius, gen)])
             cols = torch.full_like(pts, 0.5)
-            volume = 4 / 3 * math.pi * (0.7 * radius) ** 3
+            scale = self._volume_scale(4 / 3 * math.pi * (0.7 * radius) ** 3, len(pts))
         device = self.means.device
-        scale = scales if scales is not None else self._volume_scale(volume, len(pts))
         self._install(*(t.to(device) for t in initial_gaussians(pts, cols, scale, c.init_opacity)))
         how = {"points": f"the dataset's {n_points} sparse points", "hull": "the training images' visual hull",
                "random": "random points in the scene's box"}[mode]
