@@ -195,8 +195,9 @@ def test_capture_orbit_looks_at_the_trained_object_from_the_cameras_height():
     cube = torch.tensor([0.3, -0.2, 0.4])
     with torch.no_grad():
         model.grid[:, 0] = -30.0
-        model.grid[((xyz - cube).abs() < 0.25).all(1), 0] = 30.0  # an opaque cube of side 0.5 beside the centre
-        model.grid[((xyz - torch.tensor([-0.5, 0.5, 1.4])).abs() < 0.3).all(1), 0] = -4.0  # a faint haze above
+        rows = model.vertex_rows.long()  # each vertex's feature row
+        model.grid[rows[((xyz - cube).abs() < 0.25).all(1)], 0] = 30.0  # an opaque cube of side 0.5 beside the centre
+        model.grid[rows[((xyz - torch.tensor([-0.5, 0.5, 1.4])).abs() < 0.3).all(1)], 0] = -4.0  # a faint haze above
     model.refresh_occupancy()
     aim = object_aim(model, scene.train, scene.up, black)
     np.testing.assert_allclose(aim[:2], cube[:2].numpy(), atol=0.1)  # across: the cube's middle

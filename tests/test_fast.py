@@ -107,6 +107,28 @@ def test_growth_shrinks_the_box_around_the_object(scene, trained):
     assert 0.8 * 48 ** 3 < np.prod(trained.geom.res) < 1.3 * 48 ** 3
 
 
+def test_sparse_growth_stores_the_vertices_near_the_object_and_renders_as_well(scene):
+    """The same training with the 48^3 stage sparse: it stores a fraction of the vertices,
+    the rest share one empty row that training never changes, and the views score as the
+    dense grid's do."""
+    late = dict(resolutions="24,48", upsample_steps="70", sparse_margin=1)
+    dense = FastNeRF(FastConfig(**late), SceneBounds.from_scene(scene))
+    sparse = FastNeRF(FastConfig(**late, sparse_from=40), SceneBounds.from_scene(scene))
+    train_loop(dense, scene, 100)
+    train_loop(sparse, scene, 100)
+    assert sparse.geom.res == dense.geom.res and dense.stored_vertices == dense.geom.n_vertices
+    assert sparse.stored_vertices < 0.6 * sparse.geom.n_vertices
+    from nerfkit.models.fast import EMPTY_RAW
+    assert sparse.grid[0, 0] == EMPTY_RAW and torch.all(sparse.grid[0, 1:] == 0)  # the shared row is untouched
+    # every occupied cell has all its corners stored
+    from nerfkit.models.packing import vertices_touching
+    assert torch.all(sparse.vertex_rows[vertices_touching(sparse.occ_cells)] > 0)
+    assert abs(val_psnr(sparse, scene) - val_psnr(dense, scene)) < 0.5
+    # vertices without storage hold no density
+    empty = torch.nonzero(sparse.vertex_rows == 0)[:, 0]
+    assert float(sparse.density(sparse.geom.vertex_positions(empty)).detach().max()) < 1e-9
+
+
 def test_fit_grid_covers_the_box_with_cubic_voxels():
     lo, voxel, res = fit_grid(np.array([-1.0, -2.0, 0.0]), np.array([1.0, 2.0, 0.5]), 40)
     hi = lo + voxel * (np.array(res) - 1)
@@ -132,14 +154,14 @@ def test_checkpoint_round_trip_after_growth(scene, trained):
 def test_torch_path_trains_like_the_compiled_path(scene):
     """The pure-torch path (used on CUDA) follows the compiled one step for step,
     through occupancy refreshes and a growth of the grid."""
-    cfg = dict(resolutions="12,20", upsample_steps="6", occ_start=4, occ_every=4)
+    cfg = dict(resolutions="12,20", upsample_steps="6", occ_start=4, occ_every=4, sparse_from=16, sparse_margin=0)
     models = {}
     for kernels in ("numba", "torch"):
         model = FastNeRF(FastConfig(kernels=kernels, **cfg), SceneBounds.from_scene(scene))
         train_loop(model, scene, 10, batch=256)
         models[kernels] = model
     a, b = models["numba"], models["torch"]
-    assert a.geom.res == b.geom.res
+    assert a.geom.res == b.geom.res and a.stored_vertices == b.stored_vertices < a.geom.n_vertices  # sparse
     torch.testing.assert_close(a.grid.detach(), b.grid.detach(), atol=2e-4, rtol=1e-3)
     assert torch.equal(a.occ_cells, b.occ_cells)
 

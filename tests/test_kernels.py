@@ -74,6 +74,30 @@ def random_field(seed: int, res=(9, 7, 8), sh_degree: int = 1):
     return grid, geom
 
 
+def sparse_version(grid, geom, seed: int):
+    """The same field stored sparsely: vertices outside the balls share row 0 (raw -30,
+    no colour), the others have rows in a shuffled order. Returns ``(rows, geom with index,
+    the dense grid it stands for)``."""
+    stored = grid[:, 0] > -30.0
+    m = int(stored.sum())
+    order = torch.randperm(m, generator=torch.Generator().manual_seed(seed))
+    index = torch.zeros(geom.n_vertices, dtype=torch.int32)
+    index[stored] = (order + 1).int()
+    rows = torch.zeros(m + 1, grid.shape[1])
+    rows[0, 0] = -30.0
+    rows[order + 1] = grid[stored]
+    return rows, GridGeom(geom.lo, geom.voxel, geom.res, index), rows[index.long()]
+
+
+def test_sparse_interpolation_equals_the_dense_grid_it_stands_for():
+    grid, geom = random_field(seed=3)
+    rows, sparse, dense = sparse_version(grid, geom, seed=0)
+    assert 0 < int((sparse.index == 0).sum()) < geom.n_vertices  # some vertices without storage
+    pts = geom.lo + torch.rand(500, 3, generator=torch.Generator().manual_seed(1)) * (geom.hi - geom.lo)
+    g = ref.grid_coords(pts, geom.lo, geom.voxel)
+    torch.testing.assert_close(ref.grid_interp(rows, g, geom.res, sparse.index), ref.grid_interp(dense, g, geom.res))
+
+
 def spec_for(grid, geom, step=0.1, coarse_factor=1, alpha_thre=1e-6, eps=1e-4, density_scale=1.0):
     occ = OccupancyGrid(geom.lo, geom.voxel, geom.res)
     occ.set_from_cell_sigma(cell_density_max(grid, geom, density_scale), step, alpha_thre)
@@ -93,20 +117,23 @@ def random_rays(n: int, geom: GridGeom, seed: int):
 
 
 def as64(geom):
-    return GridGeom(geom.lo.double(), geom.voxel, geom.res)
+    return GridGeom(geom.lo.double(), geom.voxel, geom.res, geom.index)
 
 
 @needs_numba
 @pytest.mark.parametrize("coarse_factor", [1, 2, 4])
 @pytest.mark.parametrize("sh_degree", [0, 1, 2])
-def test_compiled_render_matches_reference_values_and_gradients(coarse_factor, sh_degree):
+@pytest.mark.parametrize("sparse", [False, True])
+def test_compiled_render_matches_reference_values_and_gradients(coarse_factor, sh_degree, sparse):
     grid, geom = random_field(seed=coarse_factor * 10 + sh_degree, sh_degree=sh_degree)
     spec, occ = spec_for(grid, geom, coarse_factor=coarse_factor)
+    if sparse:  # the same field through a shuffled row index (the reference gathers the same way)
+        grid, geom, _ = sparse_version(grid, geom, seed=sh_degree)
     assert 0.05 < occ.occupied_fraction < 0.8  # the test really skips cells
     o, d, t0, t1, u = random_rays(400, geom, seed=1)
 
     g_fast = grid.clone().requires_grad_()
-    sink = GradSink(geom.n_vertices, grid.shape[1])
+    sink = GradSink(grid.shape[0], grid.shape[1])
     fast = render_grid(g_fast, geom, spec, o, d, t0, t1, u, sh_degree, sink, "numba")
     g_ref = grid.double().requires_grad_()
     slow = render_grid(g_ref, as64(geom), spec, o.double(), d.double(), t0.double(), t1.double(), u.double(),
@@ -332,8 +359,11 @@ def test_opaque_spike_takes_all_weight_and_stops_the_ray():
 
 
 @needs_numba
-def test_occupancy_kernel_matches_reference():
+@pytest.mark.parametrize("sparse", [False, True])
+def test_occupancy_kernel_matches_reference(sparse):
     grid, geom = random_field(seed=7, res=(21, 13, 17))
+    if sparse:
+        grid, geom, _ = sparse_version(grid, geom, seed=1)
     step, dscale = 0.1, 2.0
     for alpha in (1e-3, 0.1, 0.5):
         occ = OccupancyGrid(geom.lo, geom.voxel, geom.res)
@@ -344,7 +374,7 @@ def test_occupancy_kernel_matches_reference():
         got = np.zeros((rz - 1, ry - 1, rx - 1), np.uint8)
         cf = 4
         coarse = np.zeros((-(-(rz - 1) // cf), -(-(ry - 1) // cf), -(-(rx - 1) // cf)), np.uint8)
-        numba_kernels().occupancy_from_grid(grid.numpy(), rx, ry, rz, raw_thr, got, coarse, cf)
+        numba_kernels().occupancy_from_grid(grid.numpy(), geom.vertex_index().numpy(), rx, ry, rz, raw_thr, got, coarse, cf)
         assert np.array_equal(got.astype(bool), occ.occ.numpy())
         assert np.array_equal(coarse.astype(bool), occ.coarse(cf).numpy())
 

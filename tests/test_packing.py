@@ -45,20 +45,22 @@ def test_pack_unpack_round_trip_and_size_checks():
     gen = torch.Generator().manual_seed(0)
     grid = torch.randn(37, 4, generator=gen) * 3
     keep = torch.rand(37, generator=gen) < 0.3
-    packed = pack_grid(grid, keep, torch.float32)
+    packed = pack_grid(grid[keep], keep, torch.float32)
     assert packed["mask"].shape == (5,) and packed["density"].dtype == torch.float32
-    back = unpack_grid(packed, 37, 4, fill=-30.0)
-    assert torch.equal(back[keep, 0], grid[keep, 0])  # density kept in float32 here
-    assert torch.allclose(back[keep, 1:], grid[keep, 1:], rtol=1e-3, atol=1e-3)  # colour in float16
-    assert torch.all(back[~keep, 0] == -30.0) and torch.all(back[~keep, 1:] == 0)
+    back_keep, back = unpack_grid(packed, 37, 4)
+    assert torch.equal(back_keep, keep)
+    assert torch.equal(back[:, 0], grid[keep, 0])  # density kept in float32 here
+    assert torch.allclose(back[:, 1:], grid[keep, 1:], rtol=1e-3, atol=1e-3)  # colour in float16
+    with pytest.raises(ValueError, match="rows"):
+        pack_grid(grid, keep)
     with pytest.raises(ValueError, match="mask"):
-        unpack_grid(packed, 45, 4, fill=0.0)  # 45 vertices need 6 mask bytes
+        unpack_grid(packed, 45, 4)  # 45 vertices need 6 mask bytes
     with pytest.raises(ValueError, match="past the last vertex"):
-        unpack_grid({**packed, "mask": packed["mask"] | 1}, 37, 4, fill=0.0)  # bits 37..39 are padding
+        unpack_grid({**packed, "mask": packed["mask"] | 1}, 37, 4)  # bits 37..39 are padding
     with pytest.raises(ValueError, match="density"):
-        unpack_grid({**packed, "density": packed["density"][:-1]}, 37, 4, fill=0.0)
+        unpack_grid({**packed, "density": packed["density"][:-1]}, 37, 4)
     with pytest.raises(ValueError, match="colour"):
-        unpack_grid({**packed, "colour": packed["colour"].float()}, 37, 4, fill=0.0)
+        unpack_grid({**packed, "colour": packed["colour"].float()}, 37, 4)
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +104,10 @@ def test_compact_model_file_renders_like_the_model(tmp_path, trained):
     compact = _reload(compact_dir, scene)
     dense = _reload(dense_dir, scene)
     assert torch.equal(compact.occ_cells, model.occ_cells) and compact.geom.res == model.geom.res
-    assert torch.all(compact.grid[~vertices_touching(model.occ_cells), 0] == EMPTY_RAW)
+    touching = vertices_touching(model.occ_cells)
+    assert torch.all(compact.vertex_rows[~touching] == 0) and torch.all(compact.vertex_rows[touching] > 0)
+    assert compact.stored_vertices == int(touching.sum()) < model.stored_vertices  # only what renders is kept
+    assert torch.all(compact.grid[0, 0] == EMPTY_RAW) and torch.all(compact.grid[0, 1:] == 0)
     v, bg = scene.val, torch.zeros(3)
     for i in range(len(v)):
         a = render_image(dense, v.K[i], v.c2w[i], v.width, v.height, bg).rgb

@@ -50,7 +50,8 @@ def _make_prefetch():
         def codegen(context, builder, signature, args):
             arrty = signature.args[0]
             ary = context.make_array(arrty)(context, builder, args[0])
-            ptr = cgutils.get_item_pointer(context, builder, arrty, ary, [args[1], args[2]], wraparound=False)
+            ij = [context.cast(builder, v, t, types.intp) for v, t in zip(args[1:], signature.args[1:])]
+            ptr = cgutils.get_item_pointer(context, builder, arrty, ary, ij, wraparound=False)
             i8p = ir.PointerType(ir.IntType(8))
             i32 = ir.IntType(32)
             fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
@@ -165,14 +166,16 @@ def _leap(k, ta, tb, ur, inv_step, ox, oy, oz, idx, idy, idz, x0, y0, z0, size):
 
 
 @njit(cache=True, parallel=True, fastmath=False)
-def render_forward(grid, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
+def render_forward(grid, vidx, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
                    rays_o, rays_d, sh, t0, t1, u, step, dscale, eps,
                    out_rgb, out_depth, out_acc, out_count,
                    store, s_idx, s_f):
     """March, shade and composite every ray (foreground only: no background term).
 
     Args:
-        grid: (N, C) float32 vertex features; rx, ry, rz: vertex counts.
+        grid: (M, C) float32 feature rows; vidx: (rx * ry * rz,) int32, the row of each
+            vertex (a sparse grid maps unallocated vertices to one row of no density);
+            rx, ry, rz: vertex counts.
         lo: (3,) float64 box corner; inv_voxel: 1 / voxel.
         occ: (rz-1, ry-1, rx-1) uint8 cell occupancy; coarse: occupancy max-pooled by cf.
         rays_o, rays_d: (n, 3) float64; sh: (n, K) float32 SH basis of the directions.
@@ -235,8 +238,8 @@ def render_forward(grid, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
                 qb = (jz * ry + jy) * rx + jx
                 for q in range(4):
                     qrow = qb + (q >> 1) * sxy + (q & 1) * rx
-                    prefetch(grid, qrow, 0)
-                    prefetch(grid, qrow + 1, C - 1)
+                    prefetch(grid, vidx[qrow], 0)
+                    prefetch(grid, vidx[qrow + 1], C - 1)
             if store and cnt >= cap:
                 break
             base = (iz * ry + iy) * rx + ix
@@ -251,7 +254,7 @@ def render_forward(grid, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
                     row0 = base + cz * sxy + cy * rx
                     for cx in range(2):
                         w = wzy * (fx if cx else 1.0 - fx)
-                        row = row0 + cx
+                        row = vidx[row0 + cx]
                         raw += w * grid[row, 0]
                         sr = 0.0
                         sg = 0.0
@@ -357,7 +360,7 @@ def _colour_dot(grid, row, j, K, dzr, dzg, dzb):
 
 
 @njit(cache=True, fastmath=False, inline="always")
-def _sample_point_grad(grid, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh, g_sh, r):
+def _sample_point_grad(grid, vidx, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh, g_sh, r):
     """Gradient of the loss w.r.t. one sample's (clamped) grid coordinates, and its
     share of ``dL/dsh`` added into ``g_sh[r]``; the caller applies the clamp's slope.
 
@@ -369,21 +372,21 @@ def _sample_point_grad(grid, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh,
         ``(dL/dgx, dL/dgy, dL/dgz)`` in grid units.
     """
     K = sh.shape[1]
-    r000 = base
-    r010 = base + rx
-    r100 = base + sxy
-    r110 = base + sxy + rx
-    _, ax, ay, az = _trilinear_grad(grid[r000, 0], grid[r000 + 1, 0], grid[r010, 0], grid[r010 + 1, 0],
-                                    grid[r100, 0], grid[r100 + 1, 0], grid[r110, 0], grid[r110 + 1, 0], fx, fy, fz)
+    r000, r001 = vidx[base], vidx[base + 1]
+    r010, r011 = vidx[base + rx], vidx[base + rx + 1]
+    r100, r101 = vidx[base + sxy], vidx[base + sxy + 1]
+    r110, r111 = vidx[base + sxy + rx], vidx[base + sxy + rx + 1]
+    _, ax, ay, az = _trilinear_grad(grid[r000, 0], grid[r001, 0], grid[r010, 0], grid[r011, 0],
+                                    grid[r100, 0], grid[r101, 0], grid[r110, 0], grid[r111, 0], fx, fy, fz)
     ax *= graw
     ay *= graw
     az *= graw
     for j in range(K):
         A, bx, by, bz = _trilinear_grad(
-            _colour_dot(grid, r000, j, K, dzr, dzg, dzb), _colour_dot(grid, r000 + 1, j, K, dzr, dzg, dzb),
-            _colour_dot(grid, r010, j, K, dzr, dzg, dzb), _colour_dot(grid, r010 + 1, j, K, dzr, dzg, dzb),
-            _colour_dot(grid, r100, j, K, dzr, dzg, dzb), _colour_dot(grid, r100 + 1, j, K, dzr, dzg, dzb),
-            _colour_dot(grid, r110, j, K, dzr, dzg, dzb), _colour_dot(grid, r110 + 1, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r000, j, K, dzr, dzg, dzb), _colour_dot(grid, r001, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r010, j, K, dzr, dzg, dzb), _colour_dot(grid, r011, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r100, j, K, dzr, dzg, dzb), _colour_dot(grid, r101, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r110, j, K, dzr, dzg, dzb), _colour_dot(grid, r111, j, K, dzr, dzg, dzb),
             fx, fy, fz)
         g_sh[r, j] += A
         shj = sh[r, j]
@@ -394,7 +397,7 @@ def _sample_point_grad(grid, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh,
 
 
 @njit(cache=True, parallel=True, fastmath=False)
-def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscale, rgb, depth, acc,
+def render_backward(s_idx, s_f, counts, sh, grid, vidx, rx, ry, inv_voxel, step, dscale, rgb, depth, acc,
                     g_rgb, g_depth, g_acc, g_dist, t_end, grad_near, grads, touched, ray_grads, g_o, g_d, g_sh):
     """Gradients of the loss w.r.t. the grid (added into per-lane buffers) and, with
     ``ray_grads``, w.r.t. the rays.
@@ -408,9 +411,9 @@ def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscal
     ``sum_i w_i g_i = 2 L_pairs + (2/3) step sum_i w_i^2`` a first pass over the ray gives.
 
     Lane ``l`` of ``L = grads.shape[0]`` handles a contiguous range of rays and adds only
-    into ``grads[l]`` (N, C), so lanes never race and the result does not depend on
-    thread scheduling; the optimizer sums the lanes. ``touched`` (N,) uint8 marks every
-    vertex of every sample (concurrent writes of the same value 1 are benign). ``grads``
+    into ``grads[l]`` (M, C), so lanes never race and the result does not depend on
+    thread scheduling; the optimizer sums the lanes. ``touched`` (M,) uint8 marks the row
+    of every vertex of every sample (concurrent writes of the same value 1 are benign). ``grads``
     of shape (L, 0, C) asks for no grid gradient.
 
     Ray gradients hold each sample's ``t`` fixed: the sample at ``x = o + t d`` gives
@@ -420,8 +423,8 @@ def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscal
 
     Args:
         s_idx (cap, n), s_f (cap, n, 9), counts (n,): records from :func:`render_forward`.
-        sh (n, K) float32; grid (N, C) float32: the forward's inputs (grid read only with
-            ``ray_grads``); inv_voxel: 1 / voxel.
+        sh (n, K) float32; grid (M, C) float32, vidx (N,) int32: the forward's inputs (grid
+            read only with ``ray_grads``); inv_voxel: 1 / voxel.
         rgb, depth, acc: the forward outputs (foreground colour, no background).
         g_rgb (n, 3), g_depth (n,), g_acc (n,), g_dist (n,): upstream gradients (of the
             distortion loss for ``g_dist``; rays with 0 skip its passes).
@@ -468,12 +471,13 @@ def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscal
                     qb = s_idx[k + 2, r] & ROW_MASK
                     for q in range(4):
                         qrow = qb + (q >> 1) * sxy + (q & 1) * rx
+                        qa, qc = vidx[qrow], vidx[qrow + 1]
                         if grid_grad:
-                            prefetch(grad, qrow, 0)
-                            prefetch(grad, qrow + 1, C - 1)
+                            prefetch(grad, qa, 0)
+                            prefetch(grad, qc, C - 1)
                         if ray_grads:
-                            prefetch(grid, qrow, 0)
-                            prefetch(grid, qrow + 1, C - 1)
+                            prefetch(grid, qa, 0)
+                            prefetch(grid, qc, C - 1)
                 raw = s_f[k, r, 3]
                 sigma = s_f[k, r, 4]
                 colr = s_f[k, r, 5]
@@ -514,7 +518,7 @@ def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscal
                 fy = s_f[k, r, 1]
                 fz = s_f[k, r, 2]
                 if ray_grads:
-                    ax, ay, az = _sample_point_grad(grid, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb,
+                    ax, ay, az = _sample_point_grad(grid, vidx, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb,
                                                     sh, g_sh, r)
                     ax *= inv_voxel * _edge_slope(bits, 0)
                     ay *= inv_voxel * _edge_slope(bits, 1)
@@ -540,7 +544,7 @@ def render_backward(s_idx, s_f, counts, sh, grid, rx, ry, inv_voxel, step, dscal
                         row0 = base + cz * sxy + cy * rx
                         for cx in range(2):
                             wc = np.float32(wzy * (fx if cx else 1.0 - fx))
-                            row = row0 + cx
+                            row = vidx[row0 + cx]
                             for c in range(1 + 3 * K):
                                 grad[row, c] += wc * gf[c]
                             touched[row] = 1
@@ -625,14 +629,15 @@ def clear_rows(grads, rows, touched):
 
 
 @njit(cache=True, parallel=True, fastmath=False)
-def occupancy_from_grid(grid, rx, ry, rz, raw_thr, occ, coarse, cf):
+def occupancy_from_grid(grid, vidx, rx, ry, rz, raw_thr, occ, coarse, cf):
     """Mark the cells whose largest corner raw density exceeds ``raw_thr``.
 
     Trilinear interpolation never exceeds a cell's largest corner and the density
     activation is increasing, so this bounds every sample in the cell.
 
     Args:
-        grid: (N, C) float32 (channel 0: raw density); rx, ry, rz: vertex counts.
+        grid: (M, C) float32 (channel 0: raw density); vidx: (rx * ry * rz,) int32 row of
+            each vertex; rx, ry, rz: vertex counts.
         occ: (rz-1, ry-1, rx-1) uint8 output.
         coarse: (ceil((rz-1)/cf), ...) uint8 output, zero on entry: 1 where any cell of the
             block is occupied.
@@ -642,10 +647,12 @@ def occupancy_from_grid(grid, rx, ry, rz, raw_thr, occ, coarse, cf):
         for y in range(ry - 1):
             b0 = (z * ry + y) * rx
             # largest of the four x-edges' left ends, carried along x
-            prev = max(max(grid[b0, 0], grid[b0 + rx, 0]), max(grid[b0 + sxy, 0], grid[b0 + sxy + rx, 0]))
+            prev = max(max(grid[vidx[b0], 0], grid[vidx[b0 + rx], 0]),
+                       max(grid[vidx[b0 + sxy], 0], grid[vidx[b0 + sxy + rx], 0]))
             for x in range(rx - 1):
                 b = b0 + x + 1
-                cur = max(max(grid[b, 0], grid[b + rx, 0]), max(grid[b + sxy, 0], grid[b + sxy + rx, 0]))
+                cur = max(max(grid[vidx[b], 0], grid[vidx[b + rx], 0]),
+                          max(grid[vidx[b + sxy], 0], grid[vidx[b + sxy + rx], 0]))
                 o = 1 if max(prev, cur) > raw_thr else 0
                 occ[z, y, x] = o
                 if o:
@@ -658,6 +665,7 @@ def warm_up() -> None:
     C, K = 13, 4
     rx = ry = rz = 3
     grid = np.zeros((rx * ry * rz, C), np.float32)
+    vidx = np.arange(rx * ry * rz, dtype=np.int32)
     occ = np.ones((2, 2, 2), np.uint8)
     o = np.zeros((1, 3))
     d = np.array([[1.0, 0.0, 0.0]])
@@ -665,17 +673,17 @@ def warm_up() -> None:
     t0, t1, u = np.zeros(1), np.ones(1), np.full(1, 0.5)
     rgb, dep, acc, cnt = np.zeros((1, 3), np.float32), np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32)
     s_idx, s_f = np.zeros((4, 1), np.int64), np.zeros((4, 1, N_FIELDS), np.float32)
-    render_forward(grid, rx, ry, rz, np.zeros(3), 1.0, occ, occ, 1, o, d, sh, t0, t1, u, 0.5, 1.0, 1e-4,
+    render_forward(grid, vidx, rx, ry, rz, np.zeros(3), 1.0, occ, occ, 1, o, d, sh, t0, t1, u, 0.5, 1.0, 1e-4,
                    rgb, dep, acc, cnt, True, s_idx, s_f)
     grads = np.zeros((2,) + grid.shape, np.float32)
     touched = np.zeros(rx * ry * rz, np.uint8)
     g_o, g_sh = np.zeros((1, 3)), np.zeros((1, K))
     g_dist, t_end = np.zeros(1, np.float32), np.full(1, np.inf)
     distortion_forward(s_f, cnt, 0.5, t_end, g_dist)
-    render_backward(s_idx, s_f, cnt, sh, grid, rx, ry, 1.0, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, g_dist, t_end,
+    render_backward(s_idx, s_f, cnt, sh, grid, vidx, rx, ry, 1.0, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, g_dist, t_end,
                     0.0, grads, touched, True, g_o, g_o.copy(), g_sh)
     m = np.zeros_like(grid)
     rows = touched_rows(touched)
     adam_rows(grid, grads, rows, touched, m, m.copy(), np.ones(C, np.float32), 0.9, 0.99, 1e-15, 0.1, 0.01)
     clear_rows(grads, touched_rows(touched), touched)
-    occupancy_from_grid(grid, rx, ry, rz, 0.0, occ, occ.copy(), 1)
+    occupancy_from_grid(grid, vidx, rx, ry, rz, 0.0, occ, occ.copy(), 1)

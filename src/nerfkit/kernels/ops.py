@@ -33,11 +33,22 @@ from . import reference as ref
 @dataclass
 class GridGeom:
     """Geometry of a vertex grid: box corner ``lo`` (3,), cubic ``voxel``, vertex counts
-    ``res = (rx, ry, rz)``; the box is ``[lo, lo + voxel * (res - 1)]``."""
+    ``res = (rx, ry, rz)``; the box is ``[lo, lo + voxel * (res - 1)]``.
+
+    ``index`` (rx * ry * rz,) int32, for a sparse grid: the feature row of each vertex
+    (vertices without storage share a row of no density); None: row = vertex number.
+    """
 
     lo: Tensor
     voxel: float
     res: tuple[int, int, int]
+    index: Tensor | None = None
+
+    def vertex_index(self) -> Tensor:
+        """(rx * ry * rz,) int32 row of each vertex (the identity for a dense grid)."""
+        if self.index is not None:
+            return self.index
+        return torch.arange(self.n_vertices, dtype=torch.int32, device=self.lo.device)
 
     @property
     def n_vertices(self) -> int:
@@ -67,14 +78,24 @@ class GradSink:
 
     Attributes:
         grad: (lanes, N, C) float32; touched: (N,) uint8; dirty: anything to consume.
+        frozen: the first ``frozen`` rows are constants (a sparse grid's empty row): the
+            optimizer drops their gradient (:meth:`drop_frozen`).
     """
 
-    def __init__(self, n_rows: int, n_channels: int, device: torch.device | str = "cpu", lanes: int | None = None):
+    def __init__(self, n_rows: int, n_channels: int, device: torch.device | str = "cpu", lanes: int | None = None,
+                 frozen: int = 0):
         if lanes is None:
             lanes = default_lanes() if torch.device(device).type == "cpu" else 1
         self.grad = torch.zeros((lanes, n_rows, n_channels), dtype=torch.float32, device=device)
         self.touched = torch.zeros(n_rows, dtype=torch.uint8, device=device)
         self.dirty = False
+        self.frozen = int(frozen)
+
+    def drop_frozen(self) -> None:
+        """Forget the gradient of the frozen rows."""
+        if self.frozen:
+            self.grad[:, :self.frozen] = 0.0
+            self.touched[:self.frozen] = 0
 
     @property
     def lanes(self) -> int:
@@ -196,6 +217,10 @@ def _np32(x: Tensor) -> np.ndarray:
     return np.ascontiguousarray(x.detach().to("cpu", torch.float32).numpy())
 
 
+def _vertex_rows(geom: GridGeom) -> np.ndarray:
+    return np.ascontiguousarray(geom.vertex_index().cpu().numpy().astype(np.int32, copy=False))
+
+
 def _forward_numba(nb, grid: Tensor, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, sh, t0, t1, u,
                    store: bool, lease: _Lease | None):
     n = rays_o.shape[0]
@@ -216,7 +241,7 @@ def _forward_numba(nb, grid: Tensor, geom: GridGeom, spec: MarchSpec, rays_o, ra
     # rays cost very different amounts: hand them out in small chunks, so that a thread
     # that finishes early (or a core the OS gives to another process) does not stall the rest
     with numba.parallel_chunksize(RAY_CHUNK):
-        nb.render_forward(grid.detach().numpy(), rx, ry, rz, _np64(geom.lo), 1.0 / geom.voxel,
+        nb.render_forward(grid.detach().numpy(), _vertex_rows(geom), rx, ry, rz, _np64(geom.lo), 1.0 / geom.voxel,
                           spec.occ.numpy(), spec.coarse.numpy(), int(spec.coarse_factor),
                           _np64(rays_o), _np64(rays_d), _np32(sh), t0n, t1n, _np64(u),
                           float(spec.step), float(spec.density_scale), float(spec.eps),
@@ -264,7 +289,7 @@ class _NumbaRender(torch.autograd.Function):
         ray_grads = need_o or need_d or need_sh
         m = n if ray_grads else 0
         g_o, g_d, g_sh = np.zeros((m, 3)), np.zeros((m, 3)), np.zeros((m, K))
-        nb.render_backward(s_idx, s_f, count, sh, grid, geom.res[0], geom.res[1], 1.0 / geom.voxel,
+        nb.render_backward(s_idx, s_f, count, sh, grid, _vertex_rows(geom), geom.res[0], geom.res[1], 1.0 / geom.voxel,
                            float(ctx.spec.step), float(ctx.spec.density_scale), rgb, depth, acc,
                            arr(g_rgb, (n, 3)), arr(g_depth, (n,)), arr(g_acc, (n,)), arr(g_dist, (n,)), t_end,
                            float(ctx.spec.grad_near), grads, touched,
@@ -360,7 +385,8 @@ def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0,
     lo = geom.lo.to(grid.device, dtype)
 
     def sigma_fn(points, _ray_indices):
-        raw = ref.grid_interp(grid.detach()[:, :1], ref.grid_coords(points, lo, geom.voxel), geom.res)[:, 0]
+        raw = ref.grid_interp(grid.detach()[:, :1], ref.grid_coords(points, lo, geom.voxel), geom.res,
+                              geom.index)[:, 0]
         return spec.density_scale * torch.nn.functional.softplus(raw)
 
     # sampling runs under no_grad, so the lattice t are constants (as in nerfacc and the
@@ -369,7 +395,7 @@ def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0,
                            u=u, t_bounds=(t0, t1))
     rgb, depth, acc, dist = ref.render_samples(grid, geom.res, lo, geom.voxel, rays_o, rays_d, sh.to(grid.dtype),
                                                samples.t, samples.mask, spec.step, spec.density_scale, t_end,
-                                               spec.grad_near)
+                                               spec.grad_near, geom.index)
     counts = samples.mask.sum(1).int()
     return GridRender(rgb, depth, acc, counts, int(counts.sum()), dist)
 
@@ -382,6 +408,9 @@ def cell_density_max(grid: Tensor, geom: GridGeom, density_scale: float) -> Tens
     sample in the cell.
     """
     rx, ry, rz = geom.res
-    raw = grid.detach()[:, 0].reshape(1, 1, rz, ry, rx)
+    raw = grid.detach()[:, 0]
+    if geom.index is not None:
+        raw = raw[geom.index.long()]
+    raw = raw.reshape(1, 1, rz, ry, rx)
     mx = torch.nn.functional.max_pool3d(raw, kernel_size=2, stride=1)[0, 0]
     return density_scale * torch.nn.functional.softplus(mx)

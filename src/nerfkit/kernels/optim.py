@@ -66,6 +66,7 @@ class GridAdam(torch.optim.Optimizer):
                 if p.grad is not None:
                     sink.add_dense(p.grad)
                     p.grad = None
+                sink.drop_frozen()
                 if not sink.dirty:
                     continue
                 state = self.state[p]

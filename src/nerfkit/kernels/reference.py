@@ -9,6 +9,11 @@ at ``lo + voxel * (ix, iy, iz)`` and its ``C`` feature channels are row
 ``(iz * ry + iy) * rx + ix`` of a flat ``(rx * ry * rz, C)`` tensor. Channel 0 is raw
 density, channels ``1 + c * K + j`` are the spherical-harmonic coefficient ``j`` of colour
 channel ``c`` (``K = (degree + 1) ** 2``).
+
+A *sparse* grid stores only some vertices: an ``index`` (rx * ry * rz,) int32 gives the
+feature row of each vertex, and every vertex without storage shares one row that
+holds no density (:mod:`nerfkit.models.fast` keeps it at row 0 and never updates it).
+With ``index=None`` the row of a vertex is its flat number.
 """
 
 from __future__ import annotations
@@ -100,19 +105,22 @@ def trilinear_corners(g: Tensor, res: tuple[int, int, int]) -> tuple[Tensor, Ten
     return torch.stack(idx, -1), torch.stack(w, -1)
 
 
-def grid_interp(grid: Tensor, g: Tensor, res: tuple[int, int, int]) -> Tensor:
+def grid_interp(grid: Tensor, g: Tensor, res: tuple[int, int, int], index: Tensor | None = None) -> Tensor:
     """Trilinear interpolation of a flat vertex grid (differentiable in ``grid``).
 
     Args:
-        grid: (rx * ry * rz, C) vertex features.
+        grid: (rx * ry * rz, C) vertex features, or (M, C) rows of a sparse grid.
         g: (n, 3) grid coordinates.
         res: ``(rx, ry, rz)``.
+        index: (rx * ry * rz,) the row of each vertex (sparse grids), or None.
 
     Returns:
         (n, C) interpolated features. Example: at an integer coordinate it returns that
         vertex's row exactly.
     """
     idx, w = trilinear_corners(g, res)
+    if index is not None:
+        idx = index[idx].long()
     return (grid[idx] * w.unsqueeze(-1)).sum(dim=1)
 
 
@@ -160,6 +168,7 @@ def render_samples(
     density_scale: float,
     t_end: Tensor | None = None,
     grad_near: float = 0.0,
+    index: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Volume-render padded samples of the grid field (the reference for the fused kernel).
 
@@ -168,7 +177,8 @@ def render_samples(
     sample; padding samples (``mask`` False) have zero density and zero weight.
 
     Args:
-        grid: (N, C) vertex features; res, lo, voxel: the grid's geometry.
+        grid: (N, C) vertex features; res, lo, voxel: the grid's geometry; index: the
+            row of each vertex of a sparse grid (:func:`grid_interp`).
         rays_o, rays_d: (n_rays, 3); sh: (n_rays, K) SH basis of the ray directions.
         t: (n_rays, S) sample distances; mask: (n_rays, S) which samples are real.
         t_end: optional (n_rays,) where the distortion loss puts the leftover weight.
@@ -181,7 +191,7 @@ def render_samples(
     n_rays, S = t.shape
     ray_id = torch.arange(n_rays, device=t.device).unsqueeze(1).expand(n_rays, S)[mask]
     pts = rays_o[ray_id] + t[mask].unsqueeze(-1) * rays_d[ray_id]
-    feat = grid_interp(grid, grid_coords(pts, lo, voxel), res)
+    feat = grid_interp(grid, grid_coords(pts, lo, voxel), res, index)
     sig, col = decode(feat, sh[ray_id], density_scale)
     sig = near_damping(sig, t[mask], grad_near)
     col = near_damping(col, t[mask].unsqueeze(-1), grad_near)

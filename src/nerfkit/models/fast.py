@@ -15,6 +15,11 @@ Speed comes from counting samples, not steps:
 * coarse-to-fine growth of the grid; at the first growth the box (at first the cube
   around the scene's bounding sphere from the cameras, which is loose) shrinks around
   where opaque training rays ended;
+* memory that follows the content (as Plenoxels): from ``--sparse-from`` vertices a side,
+  a grown grid stores feature rows only for the vertices near cells that were occupied
+  before the growth; an int32 index maps every vertex to its row, and vertices without
+  storage share row 0, which holds no density and is never updated. Adam's moments and
+  the gradient buffers have the size of the stored rows, not of the cube;
 * on the CPU one fused compiled kernel (numba, :mod:`nerfkit.kernels.grid_numba`) per
   ray, and Adam updating only the vertices a step touched
   (:class:`~nerfkit.kernels.optim.GridAdam`). On CUDA, or without numba, the same math
@@ -33,7 +38,7 @@ object, not the table around it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
@@ -116,6 +121,10 @@ class FastConfig:
     near_grad: float = option(0.0, "damp the gradients of samples nearer to the camera than this fraction of the "
                               "farthest camera's distance from the centre, by (distance / that)^2 (\"Floaters "
                               "No More\"), against floaters in front of the cameras (0: off)", min=0.0, max=10.0)
+    sparse_from: int = option(100, "grids with at least this many vertices a side store only the vertices near "
+                              "occupied cells (memory follows the content); smaller grids are stored whole", min=2)
+    sparse_margin: int = option(2, "cells of the grid before a growth kept around its occupied cells in the grown "
+                                "sparse grid (density can appear only where vertices are stored)", min=0, max=16)
     kernels: str = option("auto", "auto (compiled numba on the CPU when available), numba, or torch",
                           choices=["auto", "numba", "torch"])
 
@@ -192,10 +201,11 @@ class FastNeRF(NerfModel):
         self.density_scale = 1.0 / voxel
         self.stage = 0
         self.occ_active = False
-        self._set_geometry(lo, voxel, res)
+        n = res[0] * res[1] * res[2]
+        self._set_geometry(lo, voxel, res, torch.arange(1, n + 1, dtype=torch.int32))
         raw0 = self._raw_for_alpha(config.init_alpha, config.step_ratio * voxel)
-        grid = torch.zeros((self.geom.n_vertices, self.n_channels))
-        grid[:, 0] = raw0
+        grid = self._empty_rows(n + 1)
+        grid[1:, 0] = raw0
         self.grid = nn.Parameter(grid)
         if config.learn_background:
             self.bg_coef = nn.Parameter(torch.zeros(3, 16))
@@ -214,22 +224,39 @@ class FastNeRF(NerfModel):
             self.table = TablePlane(bounds.table, bounds.center, bounds.radius, config.table_resolution,
                                     gloss=config.table_gloss)
         self.texture_sinks = self._texture_sinks(torch.device("cpu"))
-        self.sink = GradSink(self.geom.n_vertices, self.n_channels)
+        self.sink = self._grid_sink(torch.device("cpu"))
         # where opaque training rays ended (ring buffer), to shrink the box at the first growth
         self.register_buffer("surface_pts", torch.zeros(1 << 16, 3))
         self.register_buffer("surface_count", torch.zeros((), dtype=torch.long))
 
     # -- geometry --------------------------------------------------------------------
-    def _set_geometry(self, lo, voxel: float, res: tuple[int, int, int]) -> None:
+    def _set_geometry(self, lo, voxel: float, res: tuple[int, int, int], index: Tensor) -> None:
+        """Install the grid's box, voxel and vertex counts, and ``index`` (N,) int32: the
+        feature row of each vertex (0: not stored)."""
         device = self.grid.device if hasattr(self, "grid") else torch.device("cpu")
+        self.register_buffer("vertex_rows", index.to(device=device, dtype=torch.int32).contiguous())
         self.geom = GridGeom(torch.as_tensor(np.asarray(lo), dtype=torch.float32, device=device), float(voxel),
-                             tuple(int(r) for r in res))
+                             tuple(int(r) for r in res), self.vertex_rows)
         self.step_size = self.config.step_ratio * self.geom.voxel
         rx, ry, rz = self.geom.res
         # the occupancy grid is saved with the model so that a resumed run samples exactly
         # as the uninterrupted one would
         self.register_buffer("occ_cells", torch.ones((rz - 1, ry - 1, rx - 1), dtype=torch.uint8, device=device))
         self._set_occupancy(self.occ_cells)
+
+    def _empty_rows(self, n: int, device=None) -> Tensor:
+        """(n, C) rows of no density and no colour (row 0 of the grid is one forever)."""
+        rows = torch.zeros((n, self.n_channels), device=device)
+        rows[:, 0] = EMPTY_RAW
+        return rows
+
+    def _grid_sink(self, device) -> GradSink:
+        return GradSink(self.grid.shape[0], self.n_channels, device, frozen=1)
+
+    @property
+    def stored_vertices(self) -> int:
+        """How many vertices have their own feature row."""
+        return self.grid.shape[0] - 1
 
     def _raw_for_alpha(self, alpha: float, step: float) -> float:
         sigma = -math.log1p(-alpha) / step
@@ -279,10 +306,11 @@ class FastNeRF(NerfModel):
     def _apply(self, fn, recurse=True):
         out = super()._apply(fn, recurse)
         device = self.grid.device
+        self.geom.index = self.vertex_rows
         if self.geom.lo.device != device:
             self.geom.lo = self.geom.lo.to(device)
             self._coarse_u8 = self._coarse_u8.to(device)
-            self.sink = GradSink(self.geom.n_vertices, self.n_channels, device)
+            self.sink = self._grid_sink(device)
             self.texture_sinks = self._texture_sinks(device)
         return out
 
@@ -345,14 +373,16 @@ class FastNeRF(NerfModel):
     def query(self, points: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:
         pts = points.float()
         inside = ((pts >= self.geom.lo) & (pts <= self.geom.hi)).all(-1)
-        feat = ref.grid_interp(self.grid, ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res)
+        feat = ref.grid_interp(self.grid, ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res,
+                               self.geom.index)
         sigma, rgb = ref.decode(feat, ref.sh_basis(directions.float(), self.config.sh_degree), self.density_scale)
         return sigma * inside, rgb
 
     def density(self, points: Tensor) -> Tensor:
         pts = points.float()
         inside = ((pts >= self.geom.lo) & (pts <= self.geom.hi)).all(-1)
-        raw = ref.grid_interp(self.grid[:, :1], ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res)
+        raw = ref.grid_interp(self.grid[:, :1], ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res,
+                              self.geom.index)
         return self.density_scale * F.softplus(raw[:, 0]) * inside
 
     def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
@@ -406,7 +436,7 @@ class FastNeRF(NerfModel):
             occ = torch.empty((rz - 1, ry - 1, rx - 1), dtype=torch.uint8)
             cf = max(self.config.coarse_factor, 1)
             coarse = torch.zeros((-(-(rz - 1) // cf), -(-(ry - 1) // cf), -(-(rx - 1) // cf)), dtype=torch.uint8)
-            nb.occupancy_from_grid(self.grid.detach().numpy(), rx, ry, rz, self._raw_threshold(thr), occ.numpy(),
+            nb.occupancy_from_grid(self.grid.detach().numpy(), self.vertex_rows.numpy(), rx, ry, rz, self._raw_threshold(thr), occ.numpy(),
                                    coarse.numpy(), cf)
             self._set_occupancy(occ, coarse)
             return
@@ -432,7 +462,8 @@ class FastNeRF(NerfModel):
         base = (z * ry + y) * rx + x
         offs = torch.tensor([dz * rx * ry + dy * rx + dx for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)],
                             device=self.grid.device)
-        raw = self.grid.detach()[(base.unsqueeze(1) + offs).reshape(-1), 0].reshape(-1, 8).amax(1)
+        rows = self.vertex_rows[(base.unsqueeze(1) + offs).reshape(-1)].long()
+        raw = self.grid.detach()[rows, 0].reshape(-1, 8).amax(1)
         alpha = -torch.expm1(-self.density_scale * F.softplus(raw) * self.step_size)
         return min(self.config.occ_alpha, float(alpha.mean()))
 
@@ -469,7 +500,8 @@ class FastNeRF(NerfModel):
 
     @torch.no_grad()
     def _grow(self, size: int, shrink: bool) -> None:
-        old_geom, old_grid = self.geom, self.grid.detach()
+        old_geom, old_grid = replace(self.geom), self.grid.detach()
+        old_occ = self.occ_cells if self.occ_active else None
         lo = old_geom.lo.cpu().numpy()
         hi = old_geom.hi.cpu().numpy()
         if shrink:
@@ -477,10 +509,19 @@ class FastNeRF(NerfModel):
             if box is not None:
                 lo, hi = box
         new_lo, voxel, res = fit_grid(lo, hi, size)
-        self._set_geometry(new_lo, voxel, res)
-        new = resample_grid(old_grid, old_geom, self.geom)
-        self.grid = nn.Parameter(new)
-        self.sink = GradSink(self.geom.n_vertices, self.n_channels, new.device)
+        device = old_grid.device
+        geom = GridGeom(torch.as_tensor(new_lo, device=device), float(voxel), res)
+        if old_occ is not None and min(res) >= self.config.sparse_from:
+            keep = vertices_touching(cells_near(old_occ, old_geom, geom, self.config.sparse_margin))
+        else:
+            keep = torch.ones(geom.n_vertices, dtype=torch.bool, device=device)
+        index = torch.zeros(geom.n_vertices, dtype=torch.int32, device=device)
+        index[keep] = torch.arange(1, int(keep.sum()) + 1, dtype=torch.int32, device=device)
+        self._set_geometry(new_lo, voxel, res, index)
+        rows = torch.cat([self._empty_rows(1, device),
+                          resample_grid(old_grid, old_geom, geom.vertex_positions(torch.nonzero(keep)[:, 0]))])
+        self.grid = nn.Parameter(rows)
+        self.sink = self._grid_sink(device)
         if self.occ_active:
             self.refresh_occupancy()
         else:
@@ -489,7 +530,8 @@ class FastNeRF(NerfModel):
     # -- checkpoints -----------------------------------------------------------------
     def extra_state(self) -> dict:
         return {"lo": [float(v) for v in self.geom.lo.cpu()], "voxel": self.geom.voxel, "res": list(self.geom.res),
-                "stage": self.stage, "occ_active": self.occ_active, "density_scale": self.density_scale}
+                "rows": int(self.grid.shape[0]), "stage": self.stage, "occ_active": self.occ_active,
+                "density_scale": self.density_scale}
 
     def load_extra_state(self, state: dict) -> None:
         device = self.grid.device
@@ -498,12 +540,24 @@ class FastNeRF(NerfModel):
         self.density_scale = float(state["density_scale"])
         self.stage = int(state["stage"])
         self.occ_active = bool(state["occ_active"])
-        self._set_geometry(np.asarray(state["lo"], np.float32), float(state["voxel"]), res)
-        self.grid = nn.Parameter(torch.zeros((self.geom.n_vertices, self.n_channels), device=device))
-        self.sink = GradSink(self.geom.n_vertices, self.n_channels, device)
+        n = res[0] * res[1] * res[2]
+        rows = state.get("rows", n + 1)
+        if not (isinstance(rows, int) and 1 <= rows <= n + 1):
+            raise fail("checkpoint 'model_extra'", f"'rows' is {short_repr(rows)}, expected 1 to {n + 1} for a "
+                       f"grid of {n} vertices", "The checkpoint is corrupt or not from nerfkit; delete it or re-train")
+        self._set_geometry(np.asarray(state["lo"], np.float32), float(state["voxel"]), res,
+                           torch.zeros(n, dtype=torch.int32))
+        self.grid = nn.Parameter(torch.zeros((rows, self.n_channels), device=device))
+        self.sink = self._grid_sink(device)
 
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        grid = state_dict.get("grid")
+        if isinstance(grid, Tensor) and grid.shape != self.grid.shape and grid.ndim == 2:
+            # a model file holds fewer rows than the run had (occupied vertices only)
+            self.grid = nn.Parameter(torch.zeros(grid.shape, device=self.grid.device))
+            self.sink = self._grid_sink(self.grid.device)
         result = super().load_state_dict(state_dict, strict=strict, assign=assign)
+        self.geom.index = self.vertex_rows
         self._set_occupancy(self.occ_cells)
         return result
 
@@ -511,8 +565,10 @@ class FastNeRF(NerfModel):
         """The grid's rows at corners of occupied cells only, in half precision
         (:mod:`nerfkit.models.packing`); the rest of the state as it is."""
         state = self.state_dict()
-        keep = vertices_touching(self.occ_cells)
-        packed = pack_grid(state.pop("grid"), keep, PACKED_DENSITY_DTYPE)
+        keep = vertices_touching(self.occ_cells) & (self.vertex_rows > 0)
+        rows = state.pop("grid")[self.vertex_rows[keep].long()]
+        state.pop("vertex_rows")
+        packed = pack_grid(rows, keep, PACKED_DENSITY_DTYPE)
         return PACKING, {**state, **{f"grid_packed.{k}": v for k, v in packed.items()}}
 
     def unpack_state(self, packing: str, state: dict) -> dict:
@@ -520,32 +576,41 @@ class FastNeRF(NerfModel):
             raise ValueError(f"unknown model packing {packing!r} (this nerfkit reads {PACKING!r})")
         state = dict(state)
         packed = {k: state.pop(f"grid_packed.{k}", None) for k in ("mask", "density", "colour")}
-        state["grid"] = unpack_grid(packed, self.geom.n_vertices, self.n_channels, EMPTY_RAW)
+        keep, rows = unpack_grid(packed, self.geom.n_vertices, self.n_channels)
+        index = torch.zeros(self.geom.n_vertices, dtype=torch.int32)
+        index[keep] = torch.arange(1, len(rows) + 1, dtype=torch.int32)
+        state["grid"] = torch.cat([self._empty_rows(1), rows])
+        state["vertex_rows"] = index
         return state
 
 
 @torch.no_grad()
-def resample_grid(grid: Tensor, old: GridGeom, new: GridGeom, slab: int = 16) -> Tensor:
-    """Trilinearly resample a vertex grid (N_old, C) onto another grid's vertices (N_new, C).
+def resample_grid(grid: Tensor, geom: GridGeom, points: Tensor, chunk: int = 1 << 18) -> Tensor:
+    """Trilinearly interpolate a (sparse or dense) vertex grid at ``points`` (m, 3): (m, C).
 
-    Vertices of the new grid outside the old box take the value at the nearest point
-    of the old box (coordinates are clamped), as :func:`reference.grid_interp` does.
+    Points outside the grid's box take the value at the nearest point of the box
+    (coordinates are clamped), as :func:`reference.grid_interp` does.
     """
-    rx, ry, rz = old.res
-    C = grid.shape[1]
-    vol = grid.reshape(rz, ry, rx, C).permute(3, 0, 1, 2).unsqueeze(0)  # (1, C, rz, ry, rx)
-    nx, ny, nz = new.res
-    dev, dt = grid.device, grid.dtype
-    span = old.voxel * torch.tensor([rx - 1, ry - 1, rz - 1], dtype=dt, device=dev)
-    lo_old, lo_new = old.lo.to(dev, dt), new.lo.to(dev, dt)
-    xs = lo_new[0] + new.voxel * torch.arange(nx, dtype=dt, device=dev)
-    ys = lo_new[1] + new.voxel * torch.arange(ny, dtype=dt, device=dev)
-    out = torch.empty((nz, ny, nx, C), dtype=dt, device=dev)
-    for z0 in range(0, nz, slab):
-        zs = lo_new[2] + new.voxel * torch.arange(z0, min(z0 + slab, nz), dtype=dt, device=dev)
-        Z, Y, X = torch.meshgrid(zs, ys, xs, indexing="ij")
-        pts = torch.stack([X, Y, Z], dim=-1)
-        norm = ((pts - lo_old) / span * 2 - 1).clamp(-1, 1)
-        vals = F.grid_sample(vol, norm.unsqueeze(0), mode="bilinear", padding_mode="border", align_corners=True)
-        out[z0:z0 + len(zs)] = vals[0].permute(1, 2, 3, 0)
-    return out.reshape(-1, C)
+    out = torch.empty((len(points), grid.shape[1]), dtype=grid.dtype, device=grid.device)
+    lo = geom.lo.to(points)
+    for i in range(0, len(points), chunk):
+        g = ref.grid_coords(points[i:i + chunk], lo, geom.voxel)
+        out[i:i + chunk] = ref.grid_interp(grid, g, geom.res, geom.index)
+    return out
+
+
+@torch.no_grad()
+def cells_near(occ: Tensor, old: GridGeom, new: GridGeom, margin: int) -> Tensor:
+    """Cells (rz-1, ry-1, rx-1) bool of the ``new`` grid whose centre lies within ``margin``
+    cells of an occupied cell ``occ`` of the ``old`` grid (centres outside the old box
+    take its nearest cell)."""
+    cells = occ.float()[None, None]
+    if margin:
+        cells = F.max_pool3d(cells, kernel_size=2 * margin + 1, stride=1, padding=margin)
+    cells = cells[0, 0] > 0
+    nx, ny, nz = (r - 1 for r in new.res)
+    dev = occ.device
+    axes = [(new.lo[a].to(dev) + new.voxel * (torch.arange(n, device=dev) + 0.5) - old.lo[a].to(dev)) / old.voxel
+            for a, n in enumerate((nx, ny, nz))]
+    ix, iy, iz = (torch.clamp(torch.floor(x), 0, r - 2).long() for x, r in zip(axes, old.res))
+    return cells[iz[:, None, None], iy[None, :, None], ix[None, None, :]]

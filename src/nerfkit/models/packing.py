@@ -3,8 +3,8 @@
 Rendering samples only occupied cells (the occupancy grid), and a sample there
 interpolates only the 8 corners of its cell. So the model file keeps the rows of the
 vertices that touch an occupied cell (a bitmask over all vertices says which), the
-density channel in float32 or float16 and the colour channels in float16; every other
-vertex is restored to ``fill`` (a density that rounds to zero, no colour).
+density channel in float32 or float16 and the colour channels in float16; the model
+maps every other vertex to a row of no density.
 """
 
 from __future__ import annotations
@@ -32,22 +32,25 @@ def vertices_touching(occ: Tensor) -> Tensor:
     return (F.max_pool3d(padded, kernel_size=2, stride=1)[0, 0] > 0).reshape(-1)
 
 
-def pack_grid(grid: Tensor, keep: Tensor, density_dtype: torch.dtype = torch.float16) -> dict[str, Tensor]:
-    """The rows of ``grid`` (N, C) where ``keep`` (N,) bool is set, as tensors to save.
+def pack_grid(rows: Tensor, keep: Tensor, density_dtype: torch.dtype = torch.float16) -> dict[str, Tensor]:
+    """The features ``rows`` (M, C) of the vertices where ``keep`` (N,) bool is set (in
+    vertex order), as tensors to save.
 
     Returns ``{"mask": (ceil(N / 8),) uint8 bits, "density": (M,) density_dtype,
-    "colour": (M, C - 1) float16}`` with ``M = keep.sum()``.
+    "colour": (M, C - 1) float16}``.
     """
-    rows = grid.detach()[keep.to(grid.device)].cpu()
+    if rows.shape[0] != int(keep.sum()):
+        raise ValueError(f"pack_grid: {rows.shape[0]} rows for {int(keep.sum())} kept vertices")
+    rows = rows.detach().cpu()
     rows = rows.clamp(-F16_MAX, F16_MAX)  # float16 overflows past this (such values are saturated anyway)
     bits = np.packbits(keep.cpu().numpy().astype(np.uint8))
     return {"mask": torch.from_numpy(bits), "density": rows[:, 0].to(density_dtype).contiguous(),
             "colour": rows[:, 1:].to(torch.float16).contiguous()}
 
 
-def unpack_grid(packed: dict, n_rows: int, n_channels: int, fill: float) -> Tensor:
-    """Inverse of :func:`pack_grid`: a float32 (n_rows, n_channels) grid; rows not kept get
-    ``fill`` in channel 0 and 0 elsewhere.
+def unpack_grid(packed: dict, n_rows: int, n_channels: int) -> tuple[Tensor, Tensor]:
+    """Inverse of :func:`pack_grid`: ``(keep (n_rows,) bool, rows (M, n_channels) float32)``,
+    the kept rows in order.
 
     Raises ValueError (one line) when the tensors do not fit a grid of that size; sizes
     are checked before the grid is allocated.
@@ -69,11 +72,7 @@ def unpack_grid(packed: dict, n_rows: int, n_channels: int, fill: float) -> Tens
     if colour.dtype != torch.float16 or colour.shape != (m, n_channels - 1):
         raise ValueError(f"compact grid: colour is {tuple(colour.shape)} {colour.dtype}, expected "
                          f"({m}, {n_channels - 1}) float16")
-    grid = torch.zeros((n_rows, n_channels))
-    grid[:, 0] = fill
-    grid[keep, 0] = density.float()
-    grid[keep, 1:] = colour.float()
-    return grid
+    return keep, torch.cat([density.float()[:, None], colour.float()], dim=1)
 
 
 __all__ = ["pack_grid", "unpack_grid", "vertices_touching"]
