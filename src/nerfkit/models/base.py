@@ -184,6 +184,10 @@ class NerfModel(nn.Module):
         parameters were replaced (the optimizer is then rebuilt)."""
         return False
 
+    def stage_note(self) -> str | None:
+        """A line for the training log after :meth:`before_step` replaced parameters."""
+        return None
+
     def after_step(self, step: int) -> None:
         """Called after each optimizer step."""
 

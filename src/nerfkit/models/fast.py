@@ -418,6 +418,13 @@ class FastNeRF(NerfModel):
             grew = True
         return grew
 
+    def stage_note(self) -> str | None:
+        rx, ry, rz = self.geom.res
+        n, m = self.geom.n_vertices, self.stored_vertices
+        mb = self.grid.numel() * 4 / 1e6
+        return (f"grid {rx}x{ry}x{rz} vertices, {m / 1e6:.2f} M of {n / 1e6:.2f} M stored ({100 * m / n:.0f}%, "
+                f"{mb:.0f} MB; {(2 + self.sink.lanes) * mb:.0f} MB more for Adam and gradients)")
+
     def after_step(self, step: int) -> None:
         done = step + 1
         c = self.config

@@ -219,6 +219,9 @@ class Trainer:
             self.optimizer = self.model.make_optimizer(self.cfg.lr)
             self._remember_initial_lr()
             del state  # parameters were replaced: their Adam moments no longer apply
+            note = self.model.stage_note()
+            if note:
+                self.log(f"step {self.step}: {note}")
         self._set_lr()
         views = self.views
         if self.whole_images:
