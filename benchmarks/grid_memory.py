@@ -51,8 +51,10 @@ def stored_vertices(run: Path) -> tuple[int, int]:
 def run_one(name: str, flags: str, args, out: Path) -> dict:
     run = out / name.replace(" ", "_")
     budget = ["--minutes", str(args.minutes)] if args.minutes else ["--steps", str(args.steps or 5000)]
+    if run.exists():
+        raise SystemExit(f"{run} exists: give a new OUT folder")
     cmd = [sys.executable, "-m", "nerfkit", "train", "--model", "fast", "--data", args.data, "--out", str(run),
-           "--force", *budget, *shlex.split(flags)]
+           *budget, *shlex.split(flags)]
     with open(out / f"{run.name}.log", "w") as log:
         child = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
         _, status, usage = os.wait4(child.pid, 0)  # this child's own peak RSS

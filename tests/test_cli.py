@@ -61,3 +61,11 @@ def test_every_model_flag_reaches_its_config():
         assert not train_fields & {f.name for f in dataclasses.fields(cls)}, name
     args = build_parser("train").parse_args(["train", "--learn-background"])
     assert dataclass_from_args(model_config_class("fast"), args).learn_background is True
+
+
+def test_python_dash_m_runs_the_same_command_line_with_its_exit_code(tmp_path):
+    ok = subprocess.run([sys.executable, "-m", "nerfkit", "--help"], capture_output=True, text=True)
+    assert ok.returncode == 0 and ok.stdout.startswith("usage: nerfkit")
+    bad = subprocess.run([sys.executable, "-m", "nerfkit", "eval", str(tmp_path / "missing"), "--split", "val"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "no such run folder" in bad.stderr
