@@ -70,7 +70,7 @@ class FastConfig:
 
     resolutions: str = option("32,64,128,192", "grid sizes of the coarse-to-fine stages, as the side of a cube "
                               "with as many vertices (comma-separated)")
-    upsample_steps: str = option("60,300,4000", "steps at which the grid grows to the next size (one fewer than "
+    upsample_steps: str = option("60,300,2000", "steps at which the grid grows to the next size (one fewer than "
                                  "--resolutions)")
     sh_degree: int = option(1, "spherical-harmonic degree of the view-dependent colour (0, 1 or 2)")
     step_ratio: float = option(0.5, "distance between samples along a ray, in voxels")
