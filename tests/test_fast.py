@@ -129,6 +129,15 @@ def test_sparse_growth_stores_the_vertices_near_the_object_and_renders_as_well(s
     assert float(sparse.density(sparse.geom.vertex_positions(empty)).detach().max()) < 1e-9
 
 
+def test_a_vertex_index_outside_the_grid_is_refused_before_the_kernels_see_it(scene, trained):
+    state = {k: v.clone() for k, v in trained.state_dict().items()}
+    state["vertex_rows"][7] = trained.grid.shape[0]  # one past the last row
+    fresh = FastNeRF(FastConfig(**SMALL), SceneBounds.from_scene(scene))
+    fresh.load_extra_state(trained.extra_state())
+    with pytest.raises(ValueError, match="outside the grid"):
+        fresh.load_state_dict(state)
+
+
 def test_fit_grid_covers_the_box_with_cubic_voxels():
     lo, voxel, res = fit_grid(np.array([-1.0, -2.0, 0.0]), np.array([1.0, 2.0, 0.5]), 40)
     hi = lo + voxel * (np.array(res) - 1)

@@ -443,8 +443,8 @@ class FastNeRF(NerfModel):
             occ = torch.empty((rz - 1, ry - 1, rx - 1), dtype=torch.uint8)
             cf = max(self.config.coarse_factor, 1)
             coarse = torch.zeros((-(-(rz - 1) // cf), -(-(ry - 1) // cf), -(-(rx - 1) // cf)), dtype=torch.uint8)
-            nb.occupancy_from_grid(self.grid.detach().numpy(), self.vertex_rows.numpy(), rx, ry, rz, self._raw_threshold(thr), occ.numpy(),
-                                   coarse.numpy(), cf)
+            nb.occupancy_from_grid(self.grid.detach().numpy(), self.vertex_rows.numpy(), rx, ry, rz,
+                                   self._raw_threshold(thr), occ.numpy(), coarse.numpy(), cf)
             self._set_occupancy(occ, coarse)
             return
         grid = self.occupancy
@@ -563,6 +563,12 @@ class FastNeRF(NerfModel):
             # a model file holds fewer rows than the run had (occupied vertices only)
             self.grid = nn.Parameter(torch.zeros(grid.shape, device=self.grid.device))
             self.sink = self._grid_sink(self.grid.device)
+        index = state_dict.get("vertex_rows")
+        if isinstance(index, Tensor) and index.numel() and not (0 <= int(index.min()) and
+                                                                 int(index.max()) < self.grid.shape[0]):
+            # the compiled kernels do not check bounds: a corrupt index must not reach them
+            raise ValueError(f"vertex_rows holds rows {int(index.min())}..{int(index.max())}, outside the grid's "
+                             f"{self.grid.shape[0]} rows")
         result = super().load_state_dict(state_dict, strict=strict, assign=assign)
         self.geom.index = self.vertex_rows
         self._set_occupancy(self.occ_cells)
