@@ -89,6 +89,35 @@ def sparse_version(grid, geom, seed: int):
     return rows, GridGeom(geom.lo, geom.voxel, geom.res, index), rows[index.long()]
 
 
+def stored_as(grid, geom, layout: str, seed: int):
+    """The field in one of the kernels' storage layouts: "dense" (row = vertex, no index),
+    "after_sentinel" (a dense grid behind an empty row 0, index = vertex + 1, as the fast
+    model's dense stages: the kernels compute rows instead of reading the index) or
+    "sparse" (:func:`sparse_version`, rows read through the index)."""
+    if layout == "dense":
+        return grid, geom
+    if layout == "after_sentinel":
+        rows = torch.cat([torch.full((1, grid.shape[1]), 0.0), grid])
+        rows[0, 0] = -30.0
+        index = torch.arange(1, geom.n_vertices + 1, dtype=torch.int32)
+        return rows, GridGeom(geom.lo, geom.voxel, geom.res, index)
+    rows, sparse, _ = sparse_version(grid, geom, seed)
+    return rows, sparse
+
+
+LAYOUTS = ["dense", "after_sentinel", "sparse"]
+
+
+def test_row_offset_is_found_for_dense_indices_and_follows_changes_to_the_index():
+    grid, geom = random_field(seed=3)
+    assert stored_as(grid, geom, "dense", 0)[1].row_offset() == 0
+    after = stored_as(grid, geom, "after_sentinel", 0)[1]
+    assert after.row_offset() == 1
+    after.index[5] = 0  # (in place: a cached answer must not survive it)
+    assert after.row_offset() == -1
+    assert stored_as(grid, geom, "sparse", 0)[1].row_offset() == -1
+
+
 def test_sparse_interpolation_equals_the_dense_grid_it_stands_for():
     grid, geom = random_field(seed=3)
     rows, sparse, dense = sparse_version(grid, geom, seed=0)
@@ -123,12 +152,12 @@ def as64(geom):
 @needs_numba
 @pytest.mark.parametrize("coarse_factor", [1, 2, 4])
 @pytest.mark.parametrize("sh_degree", [0, 1, 2])
-@pytest.mark.parametrize("sparse", [False, True])
-def test_compiled_render_matches_reference_values_and_gradients(coarse_factor, sh_degree, sparse):
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_compiled_render_matches_reference_values_and_gradients(coarse_factor, sh_degree, layout):
     grid, geom = random_field(seed=coarse_factor * 10 + sh_degree, sh_degree=sh_degree)
     spec, occ = spec_for(grid, geom, coarse_factor=coarse_factor)
-    if sparse:  # the same field through a shuffled row index (the reference gathers the same way)
-        grid, geom, _ = sparse_version(grid, geom, seed=sh_degree)
+    # the same field through a row index (the reference gathers the same way)
+    grid, geom = stored_as(grid, geom, layout, seed=sh_degree)
     assert 0.05 < occ.occupied_fraction < 0.8  # the test really skips cells
     o, d, t0, t1, u = random_rays(400, geom, seed=1)
 
@@ -359,11 +388,9 @@ def test_opaque_spike_takes_all_weight_and_stops_the_ray():
 
 
 @needs_numba
-@pytest.mark.parametrize("sparse", [False, True])
-def test_occupancy_kernel_matches_reference(sparse):
-    grid, geom = random_field(seed=7, res=(21, 13, 17))
-    if sparse:
-        grid, geom, _ = sparse_version(grid, geom, seed=1)
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_occupancy_kernel_matches_reference(layout):
+    grid, geom = stored_as(*random_field(seed=7, res=(21, 13, 17)), layout, seed=1)
     step, dscale = 0.1, 2.0
     for alpha in (1e-3, 0.1, 0.5):
         occ = OccupancyGrid(geom.lo, geom.voxel, geom.res)
@@ -374,7 +401,7 @@ def test_occupancy_kernel_matches_reference(sparse):
         got = np.zeros((rz - 1, ry - 1, rx - 1), np.uint8)
         cf = 4
         coarse = np.zeros((-(-(rz - 1) // cf), -(-(ry - 1) // cf), -(-(rx - 1) // cf)), np.uint8)
-        numba_kernels().occupancy_from_grid(grid.numpy(), geom.vertex_index().numpy(), rx, ry, rz, raw_thr, got, coarse, cf)
+        numba_kernels().occupancy_from_grid(grid.numpy(), geom.vertex_index().numpy(), geom.row_offset(), rx, ry, rz, raw_thr, got, coarse, cf)
         assert np.array_equal(got.astype(bool), occ.occ.numpy())
         assert np.array_equal(coarse.astype(bool), occ.coarse(cf).numpy())
 

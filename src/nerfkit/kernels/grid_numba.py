@@ -165,8 +165,17 @@ def _leap(k, ta, tb, ur, inv_step, ox, oy, oz, idx, idy, idz, x0, y0, z0, size):
     return max(k + 1, kn)
 
 
+@njit(cache=True, fastmath=False, inline="always")
+def _row(vidx, v, voff):
+    """Feature row of vertex ``v``: ``v + voff`` for a dense grid (``voff >= 0``, no lookup),
+    else ``vidx[v]``."""
+    if voff >= 0:
+        return v + voff
+    return vidx[v]
+
+
 @njit(cache=True, parallel=True, fastmath=False)
-def render_forward(grid, vidx, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
+def render_forward(grid, vidx, voff, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
                    rays_o, rays_d, sh, t0, t1, u, step, dscale, eps,
                    out_rgb, out_depth, out_acc, out_count,
                    store, s_idx, s_f):
@@ -175,6 +184,7 @@ def render_forward(grid, vidx, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
     Args:
         grid: (M, C) float32 feature rows; vidx: (rx * ry * rz,) int32, the row of each
             vertex (a sparse grid maps unallocated vertices to one row of no density);
+            voff: when >= 0, ``vidx[v] == v + voff`` for all v and is not read (dense grids);
             rx, ry, rz: vertex counts.
         lo: (3,) float64 box corner; inv_voxel: 1 / voxel.
         occ: (rz-1, ry-1, rx-1) uint8 cell occupancy; coarse: occupancy max-pooled by cf.
@@ -238,8 +248,8 @@ def render_forward(grid, vidx, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
                 qb = (jz * ry + jy) * rx + jx
                 for q in range(4):
                     qrow = qb + (q >> 1) * sxy + (q & 1) * rx
-                    prefetch(grid, vidx[qrow], 0)
-                    prefetch(grid, vidx[qrow + 1], C - 1)
+                    prefetch(grid, _row(vidx, qrow, voff), 0)
+                    prefetch(grid, _row(vidx, qrow + 1, voff), C - 1)
             if store and cnt >= cap:
                 break
             base = (iz * ry + iy) * rx + ix
@@ -254,7 +264,7 @@ def render_forward(grid, vidx, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
                     row0 = base + cz * sxy + cy * rx
                     for cx in range(2):
                         w = wzy * (fx if cx else 1.0 - fx)
-                        row = vidx[row0 + cx]
+                        row = _row(vidx, row0 + cx, voff)
                         raw += w * grid[row, 0]
                         sr = 0.0
                         sg = 0.0
@@ -360,7 +370,7 @@ def _colour_dot(grid, row, j, K, dzr, dzg, dzb):
 
 
 @njit(cache=True, fastmath=False, inline="always")
-def _sample_point_grad(grid, vidx, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh, g_sh, r):
+def _sample_point_grad(grid, vidx, voff, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh, g_sh, r):
     """Gradient of the loss w.r.t. one sample's (clamped) grid coordinates, and its
     share of ``dL/dsh`` added into ``g_sh[r]``; the caller applies the clamp's slope.
 
@@ -372,10 +382,10 @@ def _sample_point_grad(grid, vidx, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dz
         ``(dL/dgx, dL/dgy, dL/dgz)`` in grid units.
     """
     K = sh.shape[1]
-    r000, r001 = vidx[base], vidx[base + 1]
-    r010, r011 = vidx[base + rx], vidx[base + rx + 1]
-    r100, r101 = vidx[base + sxy], vidx[base + sxy + 1]
-    r110, r111 = vidx[base + sxy + rx], vidx[base + sxy + rx + 1]
+    r000, r001 = _row(vidx, base, voff), _row(vidx, base + 1, voff)
+    r010, r011 = _row(vidx, base + rx, voff), _row(vidx, base + rx + 1, voff)
+    r100, r101 = _row(vidx, base + sxy, voff), _row(vidx, base + sxy + 1, voff)
+    r110, r111 = _row(vidx, base + sxy + rx, voff), _row(vidx, base + sxy + rx + 1, voff)
     _, ax, ay, az = _trilinear_grad(grid[r000, 0], grid[r001, 0], grid[r010, 0], grid[r011, 0],
                                     grid[r100, 0], grid[r101, 0], grid[r110, 0], grid[r111, 0], fx, fy, fz)
     ax *= graw
@@ -397,7 +407,7 @@ def _sample_point_grad(grid, vidx, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dz
 
 
 @njit(cache=True, parallel=True, fastmath=False)
-def render_backward(s_idx, s_f, counts, sh, grid, vidx, rx, ry, inv_voxel, step, dscale, rgb, depth, acc,
+def render_backward(s_idx, s_f, counts, sh, grid, vidx, voff, rx, ry, inv_voxel, step, dscale, rgb, depth, acc,
                     g_rgb, g_depth, g_acc, g_dist, t_end, grad_near, grads, touched, ray_grads, g_o, g_d, g_sh):
     """Gradients of the loss w.r.t. the grid (added into per-lane buffers) and, with
     ``ray_grads``, w.r.t. the rays.
@@ -423,7 +433,7 @@ def render_backward(s_idx, s_f, counts, sh, grid, vidx, rx, ry, inv_voxel, step,
 
     Args:
         s_idx (cap, n), s_f (cap, n, 9), counts (n,): records from :func:`render_forward`.
-        sh (n, K) float32; grid (M, C) float32, vidx (N,) int32: the forward's inputs (grid
+        sh (n, K) float32; grid (M, C) float32, vidx (N,) int32, voff: the forward's inputs (grid
             read only with ``ray_grads``); inv_voxel: 1 / voxel.
         rgb, depth, acc: the forward outputs (foreground colour, no background).
         g_rgb (n, 3), g_depth (n,), g_acc (n,), g_dist (n,): upstream gradients (of the
@@ -471,7 +481,7 @@ def render_backward(s_idx, s_f, counts, sh, grid, vidx, rx, ry, inv_voxel, step,
                     qb = s_idx[k + 2, r] & ROW_MASK
                     for q in range(4):
                         qrow = qb + (q >> 1) * sxy + (q & 1) * rx
-                        qa, qc = vidx[qrow], vidx[qrow + 1]
+                        qa, qc = _row(vidx, qrow, voff), _row(vidx, qrow + 1, voff)
                         if grid_grad:
                             prefetch(grad, qa, 0)
                             prefetch(grad, qc, C - 1)
@@ -518,7 +528,7 @@ def render_backward(s_idx, s_f, counts, sh, grid, vidx, rx, ry, inv_voxel, step,
                 fy = s_f[k, r, 1]
                 fz = s_f[k, r, 2]
                 if ray_grads:
-                    ax, ay, az = _sample_point_grad(grid, vidx, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb,
+                    ax, ay, az = _sample_point_grad(grid, vidx, voff, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb,
                                                     sh, g_sh, r)
                     ax *= inv_voxel * _edge_slope(bits, 0)
                     ay *= inv_voxel * _edge_slope(bits, 1)
@@ -544,7 +554,7 @@ def render_backward(s_idx, s_f, counts, sh, grid, vidx, rx, ry, inv_voxel, step,
                         row0 = base + cz * sxy + cy * rx
                         for cx in range(2):
                             wc = np.float32(wzy * (fx if cx else 1.0 - fx))
-                            row = vidx[row0 + cx]
+                            row = _row(vidx, row0 + cx, voff)
                             for c in range(1 + 3 * K):
                                 grad[row, c] += wc * gf[c]
                             touched[row] = 1
@@ -629,7 +639,7 @@ def clear_rows(grads, rows, touched):
 
 
 @njit(cache=True, parallel=True, fastmath=False)
-def occupancy_from_grid(grid, vidx, rx, ry, rz, raw_thr, occ, coarse, cf):
+def occupancy_from_grid(grid, vidx, voff, rx, ry, rz, raw_thr, occ, coarse, cf):
     """Mark the cells whose largest corner raw density exceeds ``raw_thr``.
 
     Trilinear interpolation never exceeds a cell's largest corner and the density
@@ -637,7 +647,7 @@ def occupancy_from_grid(grid, vidx, rx, ry, rz, raw_thr, occ, coarse, cf):
 
     Args:
         grid: (M, C) float32 (channel 0: raw density); vidx: (rx * ry * rz,) int32 row of
-            each vertex; rx, ry, rz: vertex counts.
+            each vertex, voff: as in :func:`render_forward`; rx, ry, rz: vertex counts.
         occ: (rz-1, ry-1, rx-1) uint8 output.
         coarse: (ceil((rz-1)/cf), ...) uint8 output, zero on entry: 1 where any cell of the
             block is occupied.
@@ -647,12 +657,12 @@ def occupancy_from_grid(grid, vidx, rx, ry, rz, raw_thr, occ, coarse, cf):
         for y in range(ry - 1):
             b0 = (z * ry + y) * rx
             # largest of the four x-edges' left ends, carried along x
-            prev = max(max(grid[vidx[b0], 0], grid[vidx[b0 + rx], 0]),
-                       max(grid[vidx[b0 + sxy], 0], grid[vidx[b0 + sxy + rx], 0]))
+            prev = max(max(grid[_row(vidx, b0, voff), 0], grid[_row(vidx, b0 + rx, voff), 0]),
+                       max(grid[_row(vidx, b0 + sxy, voff), 0], grid[_row(vidx, b0 + sxy + rx, voff), 0]))
             for x in range(rx - 1):
                 b = b0 + x + 1
-                cur = max(max(grid[vidx[b], 0], grid[vidx[b + rx], 0]),
-                          max(grid[vidx[b + sxy], 0], grid[vidx[b + sxy + rx], 0]))
+                cur = max(max(grid[_row(vidx, b, voff), 0], grid[_row(vidx, b + rx, voff), 0]),
+                          max(grid[_row(vidx, b + sxy, voff), 0], grid[_row(vidx, b + sxy + rx, voff), 0]))
                 o = 1 if max(prev, cur) > raw_thr else 0
                 occ[z, y, x] = o
                 if o:
@@ -666,6 +676,7 @@ def warm_up() -> None:
     rx = ry = rz = 3
     grid = np.zeros((rx * ry * rz, C), np.float32)
     vidx = np.arange(rx * ry * rz, dtype=np.int32)
+    voff = -1  # (one compiled version serves both: voff is an int64 either way)
     occ = np.ones((2, 2, 2), np.uint8)
     o = np.zeros((1, 3))
     d = np.array([[1.0, 0.0, 0.0]])
@@ -673,17 +684,17 @@ def warm_up() -> None:
     t0, t1, u = np.zeros(1), np.ones(1), np.full(1, 0.5)
     rgb, dep, acc, cnt = np.zeros((1, 3), np.float32), np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32)
     s_idx, s_f = np.zeros((4, 1), np.int64), np.zeros((4, 1, N_FIELDS), np.float32)
-    render_forward(grid, vidx, rx, ry, rz, np.zeros(3), 1.0, occ, occ, 1, o, d, sh, t0, t1, u, 0.5, 1.0, 1e-4,
+    render_forward(grid, vidx, voff, rx, ry, rz, np.zeros(3), 1.0, occ, occ, 1, o, d, sh, t0, t1, u, 0.5, 1.0, 1e-4,
                    rgb, dep, acc, cnt, True, s_idx, s_f)
     grads = np.zeros((2,) + grid.shape, np.float32)
     touched = np.zeros(rx * ry * rz, np.uint8)
     g_o, g_sh = np.zeros((1, 3)), np.zeros((1, K))
     g_dist, t_end = np.zeros(1, np.float32), np.full(1, np.inf)
     distortion_forward(s_f, cnt, 0.5, t_end, g_dist)
-    render_backward(s_idx, s_f, cnt, sh, grid, vidx, rx, ry, 1.0, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, g_dist, t_end,
+    render_backward(s_idx, s_f, cnt, sh, grid, vidx, voff, rx, ry, 1.0, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, g_dist, t_end,
                     0.0, grads, touched, True, g_o, g_o.copy(), g_sh)
     m = np.zeros_like(grid)
     rows = touched_rows(touched)
     adam_rows(grid, grads, rows, touched, m, m.copy(), np.ones(C, np.float32), 0.9, 0.99, 1e-15, 0.1, 0.01)
     clear_rows(grads, touched_rows(touched), touched)
-    occupancy_from_grid(grid, vidx, rx, ry, rz, 0.0, occ, occ.copy(), 1)
+    occupancy_from_grid(grid, vidx, voff, rx, ry, rz, 0.0, occ, occ.copy(), 1)

@@ -20,7 +20,7 @@ termination) and the same values; ``tests/test_kernels.py`` checks values and gr
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -43,6 +43,22 @@ class GridGeom:
     voxel: float
     res: tuple[int, int, int]
     index: Tensor | None = None
+    _offset_key: tuple | None = field(default=None, repr=False, compare=False)
+    _offset: int = field(default=-1, repr=False, compare=False)
+
+    def row_offset(self) -> int:
+        """``c`` when every vertex ``v``'s row is ``v + c`` (a dense grid: the compiled
+        kernels then skip the lookup), else -1. Cached until the index changes."""
+        if self.index is None:
+            return 0
+        key = (id(self.index), self.index._version)
+        if key != self._offset_key:
+            first = int(self.index[0]) if self.index.numel() else 0
+            identity = torch.arange(first, first + self.index.numel(), dtype=self.index.dtype,
+                                    device=self.index.device)
+            self._offset = first if torch.equal(self.index, identity) else -1
+            self._offset_key = key
+        return self._offset
 
     def vertex_index(self) -> Tensor:
         """(rx * ry * rz,) int32 row of each vertex (the identity for a dense grid)."""
@@ -241,7 +257,7 @@ def _forward_numba(nb, grid: Tensor, geom: GridGeom, spec: MarchSpec, rays_o, ra
     # rays cost very different amounts: hand them out in small chunks, so that a thread
     # that finishes early (or a core the OS gives to another process) does not stall the rest
     with numba.parallel_chunksize(RAY_CHUNK):
-        nb.render_forward(grid.detach().numpy(), _vertex_rows(geom), rx, ry, rz, _np64(geom.lo), 1.0 / geom.voxel,
+        nb.render_forward(grid.detach().numpy(), _vertex_rows(geom), geom.row_offset(), rx, ry, rz, _np64(geom.lo), 1.0 / geom.voxel,
                           spec.occ.numpy(), spec.coarse.numpy(), int(spec.coarse_factor),
                           _np64(rays_o), _np64(rays_d), _np32(sh), t0n, t1n, _np64(u),
                           float(spec.step), float(spec.density_scale), float(spec.eps),
@@ -289,7 +305,7 @@ class _NumbaRender(torch.autograd.Function):
         ray_grads = need_o or need_d or need_sh
         m = n if ray_grads else 0
         g_o, g_d, g_sh = np.zeros((m, 3)), np.zeros((m, 3)), np.zeros((m, K))
-        nb.render_backward(s_idx, s_f, count, sh, grid, _vertex_rows(geom), geom.res[0], geom.res[1], 1.0 / geom.voxel,
+        nb.render_backward(s_idx, s_f, count, sh, grid, _vertex_rows(geom), geom.row_offset(), geom.res[0], geom.res[1], 1.0 / geom.voxel,
                            float(ctx.spec.step), float(ctx.spec.density_scale), rgb, depth, acc,
                            arr(g_rgb, (n, 3)), arr(g_depth, (n,)), arr(g_acc, (n,)), arr(g_dist, (n,)), t_end,
                            float(ctx.spec.grad_near), grads, touched,

@@ -443,7 +443,7 @@ class FastNeRF(NerfModel):
             occ = torch.empty((rz - 1, ry - 1, rx - 1), dtype=torch.uint8)
             cf = max(self.config.coarse_factor, 1)
             coarse = torch.zeros((-(-(rz - 1) // cf), -(-(ry - 1) // cf), -(-(rx - 1) // cf)), dtype=torch.uint8)
-            nb.occupancy_from_grid(self.grid.detach().numpy(), self.vertex_rows.numpy(), rx, ry, rz,
+            nb.occupancy_from_grid(self.grid.detach().numpy(), self.vertex_rows.numpy(), self.geom.row_offset(), rx, ry, rz,
                                    self._raw_threshold(thr), occ.numpy(), coarse.numpy(), cf)
             self._set_occupancy(occ, coarse)
             return
