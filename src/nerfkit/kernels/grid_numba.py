@@ -579,7 +579,8 @@ def touched_rows(touched):
 @njit(cache=True, parallel=True, fastmath=False)
 def adam_rows(param, grads, rows, touched, exp_avg, exp_avg_sq, lr, beta1, beta2, eps, bc1, bc2):
     """Adam on the given rows, with the gradient summed over lanes; then zero those
-    gradient rows and clear their ``touched`` flags.
+    gradient rows and clear their ``touched`` flags. float32 arithmetic, in torch.optim.Adam's
+    order: ``param -= (lr / bc1) * m / (sqrt(v) / sqrt(bc2) + eps)``.
 
     Args:
         param, exp_avg, exp_avg_sq: (N, C) float32; grads: (L, N, C); rows: (m,) int64
@@ -593,6 +594,15 @@ def adam_rows(param, grads, rows, touched, exp_avg, exp_avg_sq, lr, beta1, beta2
     C = param.shape[1]
     L = grads.shape[0]
     m_rows = rows.shape[0]
+    step = np.empty(C, np.float32)
+    for c in range(C):
+        step[c] = np.float32(lr[c] / bc1)
+    b1 = np.float32(beta1)
+    b2 = np.float32(beta2)
+    ob1 = np.float32(1.0 - beta1)
+    ob2 = np.float32(1.0 - beta2)
+    inv_sqrt_bc2 = np.float32(1.0 / math.sqrt(bc2))
+    eps32 = np.float32(eps)
     skipped = 0
     for j in prange(m_rows):
         if j + 8 < m_rows:  # the rows are scattered: start fetching a later one now
@@ -608,7 +618,7 @@ def adam_rows(param, grads, rows, touched, exp_avg, exp_avg_sq, lr, beta1, beta2
             g = grads[0, i, c]
             for lane in range(1, L):
                 g += grads[lane, i, c]
-            if not math.isfinite(g):
+            if not np.isfinite(g):
                 ok = 0
         for c in range(C):
             g = grads[0, i, c]
@@ -617,11 +627,11 @@ def adam_rows(param, grads, rows, touched, exp_avg, exp_avg_sq, lr, beta1, beta2
                 g += grads[lane, i, c]
                 grads[lane, i, c] = 0.0
             if ok:
-                m = beta1 * exp_avg[i, c] + (1.0 - beta1) * g
-                v = beta2 * exp_avg_sq[i, c] + (1.0 - beta2) * g * g
+                m = b1 * exp_avg[i, c] + ob1 * g
+                v = b2 * exp_avg_sq[i, c] + ob2 * (g * g)
                 exp_avg[i, c] = m
                 exp_avg_sq[i, c] = v
-                param[i, c] -= lr[c] * (m / bc1) / (math.sqrt(v / bc2) + eps)
+                param[i, c] -= step[c] * m / (np.sqrt(v) * inv_sqrt_bc2 + eps32)
         touched[i] = 0
         skipped += 1 - ok
     return skipped
