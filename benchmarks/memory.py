@@ -72,7 +72,7 @@ def case_render_vanilla(args) -> dict:
     import torch
 
     from nerfkit.models.vanilla import VanillaConfig, VanillaNeRF
-    from nerfkit.render.renderer import render_image
+    from nerfkit.output.images import render_image
 
     scene, bounds = _sphere_bounds()
     model = VanillaNeRF(VanillaConfig(n_samples=16, width=32, depth=2), bounds)
@@ -96,7 +96,7 @@ def case_render_fast(args) -> dict:
         from nerfkit.models.fast import FastConfig
     except ImportError as e:
         return {"skipped": f"nerfkit.models.fast does not import ({e})"}
-    from nerfkit.render.renderer import render_image
+    from nerfkit.output.images import render_image
     from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import Trainer, resolved_config
 

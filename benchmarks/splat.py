@@ -48,7 +48,7 @@ def worker(args) -> dict:
 
     from nerfkit.data.load import load_scene
     from nerfkit.models import model_config_class
-    from nerfkit.render.renderer import render_image
+    from nerfkit.output.images import render_image
     from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import Trainer, capture_settings, resolved_config
 

@@ -56,7 +56,7 @@ def worker(args) -> dict:
 
     from nerfkit.data.npz import load_npz
     from nerfkit.models import model_config_class
-    from nerfkit.render.renderer import render_image
+    from nerfkit.output.images import render_image
     from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import Trainer, resolved_config
 

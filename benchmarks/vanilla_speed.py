@@ -24,7 +24,7 @@ from nerfkit.data.npz import load_npz
 from nerfkit.data.rays import RaysData
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.vanilla import VanillaConfig, VanillaNeRF
-from nerfkit.render.renderer import render_image
+from nerfkit.output.images import render_image
 from nerfkit.train.checkpoint import load_run
 from nerfkit.train.metrics import psnr
 

@@ -183,7 +183,7 @@ def test_capture_orbit_looks_at_the_trained_object_from_the_cameras_height():
     from nerfkit.data.synthetic import tabletop_scene
     from nerfkit.models import SceneBounds
     from nerfkit.models.fast import FastConfig, FastNeRF
-    from nerfkit.render.renderer import object_aim
+    from nerfkit.output.images import object_aim
 
     scene = tabletop_scene(n_train=6, n_val=0, size=16)
     model = FastNeRF(FastConfig(resolutions="24", upsample_steps="", table=True), SceneBounds.from_scene(scene))

@@ -13,7 +13,7 @@ from nerfkit.kernels import numba_kernels
 from nerfkit.models import build_model
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.fast import FastConfig, FastNeRF, fit_grid
-from nerfkit.render.renderer import render_image
+from nerfkit.output.images import render_image
 
 # small stages so that a test trains in seconds: 24^3, then 48^3 at step 40
 SMALL = dict(resolutions="24,48", upsample_steps="40")

@@ -14,7 +14,7 @@ from nerfkit.errors import NerfkitError
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.fast import EMPTY_RAW, FastConfig, FastNeRF
 from nerfkit.models.packing import pack_grid, unpack_grid, vertices_touching
-from nerfkit.render.renderer import render_image
+from nerfkit.output.images import render_image
 from nerfkit.train.checkpoint import MODEL_FILE, load_latest_checkpoint, save_checkpoint, save_model
 
 

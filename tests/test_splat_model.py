@@ -13,7 +13,7 @@ from nerfkit.cli import main
 from nerfkit.kernels import splat_reference as ref
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.splat import SplatConfig, SplatModel, ssim
-from nerfkit.render.renderer import render_image
+from nerfkit.output.images import render_image
 from nerfkit.splat_files import Gaussians, ply_property_names, read_splat_ply
 from nerfkit.train.config import TrainConfig
 from nerfkit.train.trainer import Trainer, resume, train

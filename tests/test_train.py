@@ -130,7 +130,7 @@ def test_cli_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
 def test_vanilla_occupancy_skipping_keeps_the_image_and_saves_samples(tmp_path, sphere):
     cfg = VanillaConfig(n_samples=32, width=32, depth=4, occupancy=True, occupancy_warmup=100, occupancy_every=50)
     train(sphere, small_cfg(tmp_path, steps=300), cfg, quiet=True)
-    from nerfkit.render.renderer import render_image
+    from nerfkit.output.images import render_image
     from nerfkit.train.checkpoint import load_run
 
     model, _, _ = load_run(tmp_path / "run")
@@ -219,7 +219,7 @@ def test_periodic_validation_cost_is_bounded_and_the_final_one_is_whole(tmp_path
     periodic = trainer.rows[-1]
     assert periodic["views"] == 2 and periodic["pixels"] * 2 == rays
     # the score is the whole image's PSNR on that pixel subset: same pixels, same colours
-    from nerfkit.render.renderer import render_image
+    from nerfkit.output.images import render_image
     from nerfkit.train.config import eval_stride
     from nerfkit.train.metrics import psnr
 

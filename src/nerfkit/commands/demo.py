@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from ..data.npz import load_npz
     from ..io.atomic import write_json
     from ..models import model_config_class
-    from ..render.videos import render_videos
+    from ..output.videos import render_videos
     from ..train.config import TrainConfig
     from ..train.evaluate import evaluate_views
     from ..train.trainer import train

@@ -118,7 +118,7 @@ def export_mesh(run_, center, radius: float, args) -> None:
 
 def export_points(run_, center, radius: float, args) -> None:
     from ..export import crop_to_box, points_from_views, write_points_ply
-    from ..render.renderer import render_image
+    from ..output.images import render_image
     from ._common import scene_for_run
 
     scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)

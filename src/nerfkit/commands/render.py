@@ -32,8 +32,8 @@ def run(args: argparse.Namespace) -> int:
 
     from ..errors import fail
     from ..io.paths import guard_outputs
-    from ..render.renderer import object_aim
-    from ..render.videos import VIDEO_FILES, render_videos
+    from ..output.images import object_aim
+    from ..output.videos import VIDEO_FILES, render_videos
     from ..train.checkpoint import read_run
     from ._common import open_run, scene_for_run
 

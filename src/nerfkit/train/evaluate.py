@@ -14,7 +14,7 @@ import torch
 from ..cameras import image_rays
 from ..data.scene import Views
 from ..models.base import NerfModel
-from ..render.renderer import render_image
+from ..output.images import render_image
 from .metrics import psnr, ssim
 from .view_corrections import ViewFitConfig, fit_view
 

@@ -28,7 +28,7 @@ from ..io.lock import LOCK_FILE
 from ..models import SceneBounds, build_model
 from ..models.base import NerfModel, grads_finite
 from ..precision import autocast
-from ..render.renderer import render_image
+from ..output.images import render_image
 from ..viz.plots import image_grid, plot_curves
 from .checkpoint import (check_dataset, checkpoint_paths, dataset_fingerprint, load_latest_checkpoint, read_run,
                          run_lock, save_checkpoint, save_model, write_run_config)

@@ -10,7 +10,7 @@ import torch
 from ..data.scene import Views
 from ..models.base import NerfModel
 from ..viz.video import colorize_depth, to_uint8, write_video
-from .renderer import render_views
+from .images import render_views
 
 
 VIDEO_FILES = ("orbit.mp4", "orbit.gif", "depth.mp4")
