@@ -27,10 +27,11 @@ from nerfkit.models.vanilla import VanillaConfig, VanillaNeRF
 from nerfkit.output.images import render_image
 from nerfkit.train.checkpoint import load_run
 from nerfkit.train.metrics import psnr
+from nerfkit.train.optim import build_optimizer
 
 
 def step_times(model, rays, batch, autocast, repeats):
-    opt = model.make_optimizer(5e-4)
+    opt = build_optimizer(model, 5e-4)
     bg = torch.zeros(3)
     times = []
     for i in range(repeats + 1):

@@ -19,3 +19,31 @@ def sphere_npz(tmp_path_factory, sphere):
     path = tmp_path_factory.mktemp("data") / "sphere.npz"
     save_npz(sphere, path)
     return path
+
+
+def train_loop(model, scene, steps: int, batch: int = 1024, lr: float = 0.3, seed: int = 0,
+               background=(0.0, 0.0, 0.0)):
+    """The trainer's protocol, minimal: the model's schedules, the optimizer built from its
+    parameter groups (rebuilt when a job replaces parameters), a constant lr. Returns the
+    optimizer."""
+    import torch
+
+    from nerfkit.data.rays import RaysData
+    from nerfkit.models.base import StepState, run_schedules
+    from nerfkit.train.optim import build_optimizer
+
+    torch.manual_seed(seed)
+    rays = RaysData(scene.train, "cpu", seed=seed)
+    bg = torch.tensor(background)
+    opt = build_optimizer(model, lr)
+    schedules = model.schedules()
+    for step in range(steps):
+        if run_schedules(schedules, StepState(step, step / steps, opt), after_step=False)[0]:
+            opt = build_optimizer(model, lr)
+        batch_ = rays.sample(batch)
+        loss = model.loss(model.render_rays(batch_.rays, bg, perturb=True), batch_.rgb)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        run_schedules(schedules, StepState(step, step / steps, opt), after_step=True)
+    return opt

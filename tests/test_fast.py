@@ -14,6 +14,9 @@ from nerfkit.models import build_model
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.fast import FastConfig, FastNeRF, fit_grid
 from nerfkit.output.images import render_image
+from nerfkit.train.optim import build_optimizer
+
+from conftest import train_loop
 
 # small stages so that a test trains in seconds: 24^3, then 48^3 at step 40
 SMALL = dict(resolutions="24,48", upsample_steps="40")
@@ -21,26 +24,6 @@ SMALL = dict(resolutions="24,48", upsample_steps="40")
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return float(-10 * np.log10(np.mean((a - b) ** 2)))
-
-
-def train_loop(model: FastNeRF, scene, steps: int, batch: int = 1024, lr: float = 0.3, seed: int = 0,
-               background=(0.0, 0.0, 0.0)):
-    """The trainer's protocol, minimal: hooks, Adam from the model, a constant lr."""
-    torch.manual_seed(seed)
-    rays = RaysData(scene.train, "cpu", seed=seed)
-    bg = torch.tensor(background)
-    opt = model.make_optimizer(lr)
-    for step in range(steps):
-        if model.before_step(step, step / steps):
-            opt = model.make_optimizer(lr)
-        batch_ = rays.sample(batch)
-        out = model.render_rays(batch_.rays, bg, perturb=True)
-        loss = model.loss(out, batch_.rgb)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        model.after_step(step)
-    return opt
 
 
 def val_psnr(model, scene, background=(0.0, 0.0, 0.0)) -> float:
@@ -220,7 +203,7 @@ def test_a_non_finite_grid_gradient_is_refused_and_counted(scene, kernels):
     if kernels == "numba" and numba_kernels() is None:
         pytest.skip("numba is not installed")
     model = FastNeRF(FastConfig(kernels=kernels, **SMALL), SceneBounds.from_scene(scene))
-    opt = model.make_optimizer(0.1)
+    opt = build_optimizer(model, 0.1)
     batch = RaysData(scene.train, "cpu", seed=0).sample(256)
     model.render_rays(batch.rays, torch.zeros(3), perturb=True).rgb.sum().backward()
     before = model.grid.detach().clone()

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 import torch
 
-from nerfkit.data.rays import RaysData
 from nerfkit.data.synthetic import sphere_scene
 from nerfkit.errors import NerfkitError
 from nerfkit.models.base import SceneBounds
@@ -16,6 +15,8 @@ from nerfkit.models.fast import EMPTY_RAW, FastConfig, FastNeRF
 from nerfkit.models.packing import pack_grid, unpack_grid, vertices_touching
 from nerfkit.output.images import render_image
 from nerfkit.train.checkpoint import MODEL_FILE, load_latest_checkpoint, save_checkpoint, save_model
+
+from conftest import train_loop
 
 
 def touching_reference(occ: np.ndarray) -> np.ndarray:
@@ -67,18 +68,7 @@ def test_pack_unpack_round_trip_and_size_checks():
 def trained():
     scene = sphere_scene(n_train=20, n_val=2, size=32)
     model = FastNeRF(FastConfig(resolutions="24,48", upsample_steps="40"), SceneBounds.from_scene(scene))
-    torch.manual_seed(0)
-    rays = RaysData(scene.train, "cpu", seed=0)
-    opt = model.make_optimizer(0.3)
-    for step in range(80):
-        if model.before_step(step, step / 80):
-            opt = model.make_optimizer(0.3)
-        batch = rays.sample(1024)
-        loss = model.loss(model.render_rays(batch.rays, torch.zeros(3), perturb=True), batch.rgb)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        model.after_step(step)
+    opt = train_loop(model, scene, 80)
     return scene, model, opt
 
 

@@ -17,6 +17,7 @@ from nerfkit.output.images import render_image
 from nerfkit.splat_files import Gaussians, ply_property_names, read_splat_ply
 from nerfkit.train.config import TrainConfig
 from nerfkit.train.trainer import Trainer, resume, train
+from nerfkit.train.optim import build_optimizer
 
 SMALL = dict(init_points=1500, densify_every=20, max_gaussians=6000)
 
@@ -58,7 +59,7 @@ def small_model(sphere, **kw) -> SplatModel:
 
 def test_density_control_clones_splits_prunes_and_keeps_adam_moments(sphere):
     model = small_model(sphere, init_points=100)
-    opt = model.make_optimizer(1.0)
+    opt = build_optimizer(model, 1.0)
     with torch.no_grad():
         model.log_scales[:50] = np.log(1e-3)  # small: cloned
         model.log_scales[50:] = np.log(0.5)  # large (> 1% of the scene): split
@@ -70,7 +71,7 @@ def test_density_control_clones_splits_prunes_and_keeps_adam_moments(sphere):
     want[[0, 1, 2, 50, 51]] = True  # large view-space gradients
     model.grad_accum[want] = 1.0
     model.grad_count[:] = 1
-    model.densify_and_prune(32)
+    model.densify_and_prune(32, opt)
     # 100 + 3 clones + 2 x 2 split samples - 2 split originals - 10 transparent
     assert model.n_gaussians == 100 + 3 + 4 - 2 - 10
     p = model.means
@@ -87,8 +88,11 @@ def test_density_control_clones_splits_prunes_and_keeps_adam_moments(sphere):
 
 def test_opacity_reset_caps_opacity(sphere):
     model = small_model(sphere, init_points=50, init_opacity=0.9)
-    model.make_optimizer(1.0)
-    model.reset_opacity()
+    opt = build_optimizer(model, 1.0)
+    opt.state[model.opacity_logits] = {"exp_avg": torch.ones_like(model.opacity_logits),
+                                       "exp_avg_sq": torch.ones_like(model.opacity_logits)}
+    model.reset_opacity(opt)
+    assert not opt.state[model.opacity_logits]["exp_avg"].any()  # its moments start again
     assert float(torch.sigmoid(model.opacity_logits.detach()).max()) <= 0.01 + 1e-6
 
 

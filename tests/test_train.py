@@ -251,3 +251,17 @@ def test_a_run_ending_before_the_occupancy_warmup_measures_it_for_the_final_eval
     measured = model.cell_sigma.clone()
     model.finish_training()  # once only
     assert torch.equal(model.cell_sigma, measured)
+
+
+def test_schedules_run_in_their_phase_in_order_and_report_replaced_parameters():
+    from nerfkit.models.base import Schedule, StepState, run_schedules
+
+    ran = []
+    jobs = [Schedule("a", lambda s: s.step % 2 == 0, lambda s: ran.append(("a", s.step)) or "grew",
+                     replaces_parameters=True),
+            Schedule("b", lambda s: True, lambda s: ran.append(("b", s.step)), after_step=True),
+            Schedule("c", lambda s: s.progress > 0.5, lambda s: ran.append(("c", s.step)))]
+    assert run_schedules(jobs, StepState(0, 0.0), after_step=False) == (True, ["grew"])
+    assert run_schedules(jobs, StepState(0, 0.0), after_step=True) == (False, [])
+    assert run_schedules(jobs, StepState(1, 0.9), after_step=False) == (False, [])
+    assert ran == [("a", 0), ("b", 0), ("c", 1)]

@@ -7,6 +7,7 @@ hands a model a batch of :class:`~nerfkit.cameras.Rays` and gets a :class:`Rende
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 import torch
@@ -127,13 +128,57 @@ class RenderOutput:
     extras: dict[str, Tensor] = field(default_factory=dict)
 
 
+@dataclass
+class StepState:
+    """What a :class:`Schedule` sees: the training step (about to run, or just run),
+    progress in [0, 1] and the optimizer (a job that edits parameters keeps its moments
+    in step with them)."""
+
+    step: int
+    progress: float
+    optimizer: torch.optim.Optimizer | None = None
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """A job a model needs done during training, run by the trainer when ``due``: grid
+    growth, occupancy refreshes, densification (nerfacc's ``update_every_n_steps``).
+
+    Attributes:
+        name: for logs and errors.
+        due: ``StepState -> bool``.
+        run: ``StepState -> str | None`` (a line for the training log, or None).
+        after_step: run after the step's optimizer update (default: before its forward pass).
+        replaces_parameters: the job installs new parameter tensors; the trainer then
+            builds a new optimizer (their Adam moments start at zero).
+    """
+
+    name: str
+    due: Callable[[StepState], bool]
+    run: Callable[[StepState], str | None]
+    after_step: bool = False
+    replaces_parameters: bool = False
+
+
+def run_schedules(schedules: list[Schedule], state: StepState, after_step: bool) -> tuple[bool, list[str]]:
+    """Run the due jobs of one phase, in order: ``(whether parameters were replaced, log lines)``."""
+    replaced, notes = False, []
+    for job in schedules:
+        if job.after_step == after_step and job.due(state):
+            note = job.run(state)
+            replaced = replaced or job.replaces_parameters
+            if note:
+                notes.append(note)
+    return replaced, notes
+
+
 class NerfModel(nn.Module):
     """Base class of radiance-field models.
 
-    Subclasses implement :meth:`render_rays` and may override the hooks. The trainer:
-    ``model.before_step(step, progress)`` (True means the parameters were replaced, so
-    the optimizer is rebuilt), ``out = model.render_rays(...)``, ``loss = model.loss(out,
-    rgb)``, backward, optimizer step, ``model.after_step(step)``.
+    Subclasses implement :meth:`render_rays` and may override the hooks. Each training
+    step the trainer runs the due :meth:`schedules` jobs, ``out = model.render_rays(...)``,
+    ``loss = model.loss(out, rgb)``, backward, the optimizer step (an optimizer it builds
+    from :meth:`param_groups` and :meth:`grad_sinks`), then the due after-step jobs.
     A model's ``state_dict`` must be loadable into a freshly built model of the same
     config (models that grow their grids resize themselves in ``load_state_dict``).
     """
@@ -168,28 +213,23 @@ class NerfModel(nn.Module):
         return torch.mean((out.rgb - target_rgb) ** 2)
 
     def param_groups(self, lr: float) -> list[dict]:
-        """Optimizer parameter groups; ``lr`` is the configured base learning rate."""
+        """Optimizer parameter groups (with their own ``lr``, and ``eps`` where it differs
+        from Adam's); ``lr`` is the configured base learning rate."""
         return [{"params": [p for p in self.parameters() if p.requires_grad], "lr": lr}]
 
-    def make_optimizer(self, lr: float) -> torch.optim.Optimizer:
-        return torch.optim.Adam(self.param_groups(lr))
+    def grad_sinks(self) -> dict:
+        """``{parameter: GradSink}`` for parameters whose gradients the model gathers
+        outside ``.grad`` (sparse rows); the optimizer updates only their touched rows."""
+        return {}
+
+    def schedules(self) -> list[Schedule]:
+        """The jobs the trainer runs for this model during training."""
+        return []
 
     def gradients_finite(self) -> bool:
         """True when every gradient of the last backward pass is finite (checked before
         the optimizer step; models keeping gradients outside ``.grad`` check those too)."""
         return grads_finite(self.parameters())
-
-    def before_step(self, step: int, progress: float) -> bool:
-        """Called before each training step; ``progress`` in [0, 1]. Return True when
-        parameters were replaced (the optimizer is then rebuilt)."""
-        return False
-
-    def stage_note(self) -> str | None:
-        """A line for the training log after :meth:`before_step` replaced parameters."""
-        return None
-
-    def after_step(self, step: int) -> None:
-        """Called after each optimizer step."""
 
     def finish_training(self) -> None:
         """Called once when training reaches its end, before the final evaluation and the

@@ -54,10 +54,9 @@ from ..fields.background import RoomShells, TablePlane, composite_layers, sh16
 from ..kernels import numba_kernels
 from ..kernels import reference as ref
 from ..kernels.ops import GradSink, GridGeom, MarchSpec, cell_density_max, render_grid
-from ..kernels.optim import GridAdam
 from ..render.occupancy import OccupancyGrid, ray_aabb
 from .packing import pack_grid, unpack_grid, vertices_touching
-from .base import NerfModel, RenderOutput, SceneBounds
+from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState
 
 
 @dataclass
@@ -397,41 +396,50 @@ class FastNeRF(NerfModel):
     # -- optimisation ----------------------------------------------------------------
     def param_groups(self, lr: float) -> list[dict]:
         scale = [1.0] + [self.config.colour_lr_ratio] * (self.n_channels - 1)
-        groups = [{"params": [self.grid], "lr": lr, "channel_lr_scale": scale}]
+        eps = self.config.adam_eps
+        groups = [{"params": [self.grid], "lr": lr, "channel_lr_scale": scale, "eps": eps}]
         if self.bg_coef is not None:
-            groups.append({"params": [self.bg_coef], "lr": 0.1 * lr})
+            groups.append({"params": [self.bg_coef], "lr": 0.1 * lr, "eps": eps})
         if self.table is not None:
-            groups.append({"params": list(self.table.parameters()), "lr": self.config.table_lr_ratio * lr})
+            groups.append({"params": list(self.table.parameters()), "lr": self.config.table_lr_ratio * lr, "eps": eps})
         if self.room is not None:
-            groups.append({"params": list(self.room.parameters()), "lr": self.config.room_lr_ratio * lr})
+            groups.append({"params": list(self.room.parameters()), "lr": self.config.room_lr_ratio * lr, "eps": eps})
         return groups
 
-    def make_optimizer(self, lr: float) -> torch.optim.Optimizer:
-        return GridAdam(self.param_groups(lr), sinks={self.grid: self.sink, **self.texture_sinks},
-                        eps=self.config.adam_eps)
+    def grad_sinks(self) -> dict:
+        return {self.grid: self.sink, **self.texture_sinks}
 
-    def before_step(self, step: int, progress: float) -> bool:
-        grew = False
-        while self.stage < len(self.steps) and step >= self.steps[self.stage]:
+    def schedules(self) -> list[Schedule]:
+        """Coarse-to-fine growth (before a step; new grid parameters) and occupancy
+        refreshes (after a step: every ``occ_start`` steps until ``occ_warmup``, then every
+        ``occ_every``)."""
+        return [Schedule("grow", self._growth_due, self._grow_next, replaces_parameters=True),
+                Schedule("occupancy", self._occupancy_due, self._occupancy_job, after_step=True)]
+
+    def _growth_due(self, s: StepState) -> bool:
+        return self.stage < len(self.steps) and s.step >= self.steps[self.stage]
+
+    def _grow_next(self, s: StepState) -> str:
+        while self._growth_due(s):  # (a resumed run catches up on every stage it passed)
             self._grow(self.sizes[self.stage + 1], shrink=self.config.shrink_box and self.stage == 0)
             self.stage += 1
-            grew = True
-        return grew
+        return self.stage_note()
 
-    def stage_note(self) -> str | None:
+    def stage_note(self) -> str:
         rx, ry, rz = self.geom.res
         n, m = self.geom.n_vertices, self.stored_vertices
         mb = self.grid.numel() * 4 / 1e6
         return (f"grid {rx}x{ry}x{rz} vertices, {m / 1e6:.2f} M of {n / 1e6:.2f} M stored ({100 * m / n:.0f}%, "
                 f"{mb:.0f} MB; {(2 + self.sink.lanes) * mb:.0f} MB more for Adam and gradients)")
 
-    def after_step(self, step: int) -> None:
-        done = step + 1
-        c = self.config
+    def _occupancy_due(self, s: StepState) -> bool:
+        done, c = s.step + 1, self.config
         every = c.occ_start if done <= c.occ_warmup else c.occ_every
-        if done >= c.occ_start and done % max(every, 1) == 0:
-            self.occ_active = True
-            self.refresh_occupancy()
+        return done >= c.occ_start and done % max(every, 1) == 0
+
+    def _occupancy_job(self, s: StepState) -> None:
+        self.occ_active = True
+        self.refresh_occupancy()
 
     @torch.no_grad()
     def refresh_occupancy(self) -> None:

@@ -37,7 +37,7 @@ from ..errors import fail
 from ..fields.background import sh16
 from ..kernels import splat_reference as ref
 from ..kernels.splat_ops import render_gaussians, resolve_backend
-from .base import NerfModel, RenderOutput, SceneBounds
+from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState
 
 PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
 # most Gaussians a checkpoint may ask to allocate
@@ -116,7 +116,6 @@ class SplatModel(NerfModel):
         self.near_plane = 0.05 * float(bounds.near)
         self.active_degree = 0
         self.n_resets = 0
-        self.optimizer: torch.optim.Optimizer | None = None
         self._progress = 0.0
         self._last = None  # the last training render (its 2D means carry the densification gradient)
         self._image_side = 0  # longest side of the training images (for the screen-size prune)
@@ -272,22 +271,24 @@ class SplatModel(NerfModel):
         ]
         if self.bg_coef is not None:
             groups.append({"params": [self.bg_coef], "lr": lr * 1e-2, "name": "bg_coef"})
-        return groups
+        return [{**g, "eps": 1e-15} for g in groups]  # (3DGS's Adam epsilon)
 
-    def make_optimizer(self, lr: float) -> torch.optim.Optimizer:
-        # the model keeps it: densification edits the Adam moments in place
-        self.optimizer = torch.optim.Adam(self.param_groups(lr), eps=1e-15)
-        return self.optimizer
+    def schedules(self) -> list[Schedule]:
+        """Before each step: the SH degree for the progress. After each step: densification
+        and opacity resets (3DGS's adaptive density control); they edit the Gaussians and
+        carry the optimizer's moments along."""
+        always = lambda s: True  # noqa: E731
+        return [Schedule("sh degree", always, self._set_progress),
+                Schedule("density control", always, self._density_control, after_step=True)]
 
-    def before_step(self, step: int, progress: float) -> bool:
-        self._progress = progress
-        self.active_degree = min(self.config.sh_degree, int(progress / self.config.sh_up_every))
-        return False
+    def _set_progress(self, s: StepState) -> None:
+        self._progress = s.progress
+        self.active_degree = min(self.config.sh_degree, int(s.progress / self.config.sh_up_every))
 
     @torch.no_grad()
-    def after_step(self, step: int) -> None:
+    def _density_control(self, s: StepState) -> None:
         c = self.config
-        done = step + 1
+        done = s.step + 1
         densifying = c.densify_from <= self._progress < c.densify_until
         if self._last is not None:
             out, width, height = self._last
@@ -295,12 +296,12 @@ class SplatModel(NerfModel):
             if densifying and out.means2d is not None and out.means2d.grad is not None:
                 self._record_gradients(out.means2d.grad, out.radii, width, height)
         if densifying and done % c.densify_every == 0:
-            self.densify_and_prune(self._image_side)
+            self.densify_and_prune(self._image_side, s.optimizer)
         if c.opacity_reset_every > 0 and self._progress < c.densify_until:
             resets = int(self._progress / c.opacity_reset_every)
             if resets > self.n_resets:
                 self.n_resets = resets
-                self.reset_opacity()
+                self.reset_opacity(s.optimizer)
 
     def _record_gradients(self, grad2d: Tensor, radii: Tensor, width: int, height: int) -> None:
         """Accumulate the view-space gradient norm of the visible Gaussians (in NDC units, as 3DGS)."""
@@ -312,8 +313,9 @@ class SplatModel(NerfModel):
         self._image_side = max(width, height)
 
     @torch.no_grad()
-    def densify_and_prune(self, image_side: int) -> None:
-        """One round of adaptive density control: clone, split, then prune."""
+    def densify_and_prune(self, image_side: int, optimizer: torch.optim.Optimizer | None = None) -> None:
+        """One round of adaptive density control: clone, split, then prune (the Adam
+        moments of ``optimizer`` follow the Gaussians; new ones start at zero)."""
         c = self.config
         grads = self.grad_accum / self.grad_count.clamp_min(1)
         big = torch.exp(self.log_scales).amax(1) > c.percent_dense * self.extent
@@ -340,7 +342,7 @@ class SplatModel(NerfModel):
             split_new["means"] = split_new["means"] + samples
             split_new["log_scales"] = torch.log(scales / 1.6)
             new = {name: torch.cat([new[name], split_new[name]]) for name in PARAMS}
-        self._append(new)
+        self._append(new, optimizer)
         # prune: the split originals, transparent ones, and (after a reset) huge ones
         remove = torch.cat([split, torch.zeros(self.n_gaussians - n, dtype=torch.bool, device=split.device)])
         remove |= torch.sigmoid(self.opacity_logits) < c.prune_opacity
@@ -350,50 +352,52 @@ class SplatModel(NerfModel):
                 remove |= self.max_radii > c.prune_screen * image_side
         if bool(remove.all()):
             remove[torch.argmax(self.opacity_logits)] = False  # never prune the last one
-        self._keep(~remove)
+        self._keep(~remove, optimizer)
         self.grad_accum.zero_()
         self.grad_count.zero_()
         self.max_radii.zero_()
 
     @torch.no_grad()
-    def reset_opacity(self) -> None:
-        """Opacity to at most 0.01 (3DGS): floaters must earn their opacity again."""
+    def reset_opacity(self, optimizer: torch.optim.Optimizer | None = None) -> None:
+        """Opacity to at most 0.01 (3DGS): floaters must earn their opacity again (and
+        their Adam moments in ``optimizer`` start again at zero)."""
         self.opacity_logits.clamp_(max=ref.logit(0.01))
-        if self.optimizer is not None:
-            state = self.optimizer.state.get(self.opacity_logits)
+        if optimizer is not None:
+            state = optimizer.state.get(self.opacity_logits)
             if state:
                 state["exp_avg"].zero_()
                 state["exp_avg_sq"].zero_()
 
-    def _edit_parameters(self, fn) -> None:
+    def _edit_parameters(self, fn, optimizer: torch.optim.Optimizer | None) -> None:
         """Replace each Gaussian parameter ``p`` by ``fn(p, fill)`` (``fill`` the value of
         new rows), carrying the Adam moments along (new rows start at zero)."""
         for name in PARAMS:
             old = getattr(self, name)
             new = nn.Parameter(fn(old.detach(), name))
-            if self.optimizer is not None:
-                for group in self.optimizer.param_groups:
+            if optimizer is not None:
+                for group in optimizer.param_groups:
                     if group["params"][0] is old:
                         group["params"][0] = new
-                        state = self.optimizer.state.pop(old, None)
+                        state = optimizer.state.pop(old, None)
                         if state:
                             for key in ("exp_avg", "exp_avg_sq"):
                                 state[key] = fn(state[key], None)
-                            self.optimizer.state[new] = state
+                            optimizer.state[new] = state
             setattr(self, name, new)
 
-    def _append(self, new: dict) -> None:
+    def _append(self, new: dict, optimizer: torch.optim.Optimizer | None) -> None:
         m = new["means"].shape[0]
         if m == 0:
             return
-        self._edit_parameters(lambda t, name: torch.cat([t, new[name] if name else t.new_zeros((m, *t.shape[1:]))]))
+        self._edit_parameters(lambda t, name: torch.cat([t, new[name] if name else t.new_zeros((m, *t.shape[1:]))]),
+                              optimizer)
         for buf in ("grad_accum", "grad_count", "max_radii"):
             setattr(self, buf, torch.cat([getattr(self, buf), getattr(self, buf).new_zeros(m)]))
 
-    def _keep(self, keep: Tensor) -> None:
+    def _keep(self, keep: Tensor, optimizer: torch.optim.Optimizer | None) -> None:
         if bool(keep.all()):
             return
-        self._edit_parameters(lambda t, name: t[keep].contiguous())
+        self._edit_parameters(lambda t, name: t[keep].contiguous(), optimizer)
         for buf in ("grad_accum", "grad_count", "max_radii"):
             setattr(self, buf, getattr(self, buf)[keep])
 

@@ -34,7 +34,7 @@ from ..precision import autocast
 from ..render.sampling import intervals_from_t, sample_pdf, stratified_t
 from ..render.volrend import composite, render_weights
 from ..render.occupancy import OccupancyGrid
-from .base import NerfModel, RenderOutput, SceneBounds
+from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState
 
 # A cell stays occupied while alpha = 1 - exp(-sigma * sample spacing) exceeds this.
 OCCUPANCY_ALPHA = 0.01
@@ -161,12 +161,18 @@ class VanillaNeRF(NerfModel):
         self.cell_sigma.copy_(torch.maximum(old * OCCUPANCY_DECAY, sigma.float()))
         self._refresh_occ()
 
-    def before_step(self, step: int, progress: float) -> bool:
+    def schedules(self) -> list[Schedule]:
+        """Occupancy updates (before a step, every ``occupancy_every`` steps from
+        ``occupancy_warmup``), with ``--occupancy``."""
+        if self.grid is None:
+            return []
         cfg = self.cfg
-        if self.grid is not None and step >= cfg.occupancy_warmup and step % cfg.occupancy_every == 0:
-            with autocast(self.cell_sigma.device, self.autocast_dtype):  # the precision the trainer resolved
-                self.update_occupancy()
-        return False
+        return [Schedule("occupancy", lambda s: s.step >= cfg.occupancy_warmup and s.step % cfg.occupancy_every == 0,
+                         self._occupancy_job)]
+
+    def _occupancy_job(self, s: StepState) -> None:
+        with autocast(self.cell_sigma.device, self.autocast_dtype):  # the precision the trainer resolved
+            self.update_occupancy()
 
     def finish_training(self) -> None:
         """A run that ends before ``occupancy_warmup`` measures its occupancy grid once here,

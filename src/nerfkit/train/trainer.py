@@ -26,7 +26,7 @@ from ..errors import fail
 from ..io.atomic import TMP_MARK, write_image, write_json, write_text
 from ..io.lock import LOCK_FILE
 from ..models import SceneBounds, build_model
-from ..models.base import NerfModel, grads_finite
+from ..models.base import NerfModel, StepState, grads_finite, run_schedules
 from ..precision import autocast
 from ..output.images import render_image
 from ..viz.plots import image_grid, plot_curves
@@ -34,6 +34,7 @@ from .checkpoint import (check_dataset, checkpoint_paths, dataset_fingerprint, l
                          run_lock, save_checkpoint, save_model, write_run_config)
 from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
 from .metrics import psnr, psnr_from_mse
+from .optim import build_optimizer
 from .view_corrections import ViewCorrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
@@ -105,7 +106,8 @@ class Trainer:
             note = self.model.init_from_scene(scene, self.background)
             if note:
                 self.log(note)
-        self.optimizer = self.model.make_optimizer(cfg.lr)
+        self.optimizer = build_optimizer(self.model, cfg.lr)
+        self.schedules = self.model.schedules()
         self.rays = RaysData(scene.train, self.device, seed=cfg.seed)
         self.views: ViewCorrections | None = None
         self.view_optimizer: torch.optim.Optimizer | None = None
@@ -163,7 +165,7 @@ class Trainer:
             return
         ckpt, path = loaded
         self.model.to(self.device)
-        self.optimizer = self.model.make_optimizer(self.cfg.lr)
+        self.optimizer = build_optimizer(self.model, self.cfg.lr)
         self.optimizer.load_state_dict(ckpt["optimizer"])
         self._remember_initial_lr()
         self.step = int(ckpt["step"])
@@ -214,14 +216,13 @@ class Trainer:
 
     # -- one step ------------------------------------------------------------------
     def train_step(self) -> dict:
-        if self.model.before_step(self.step, self.progress()):
-            state = self.optimizer.state_dict()
-            self.optimizer = self.model.make_optimizer(self.cfg.lr)
+        state = StepState(self.step, self.progress(), self.optimizer)
+        replaced, notes = run_schedules(self.schedules, state, after_step=False)
+        if replaced:  # new parameter tensors: their Adam moments start at zero
+            self.optimizer = build_optimizer(self.model, self.cfg.lr)
             self._remember_initial_lr()
-            del state  # parameters were replaced: their Adam moments no longer apply
-            note = self.model.stage_note()
-            if note:
-                self.log(f"step {self.step}: {note}")
+        for note in notes:
+            self.log(f"step {self.step}: {note}")
         self._set_lr()
         views = self.views
         if self.whole_images:
@@ -254,7 +255,8 @@ class Trainer:
             self._bad_step(f"{skipped} grid rows had non-finite gradients and were not updated")
         else:
             self.bad_steps = 0
-        self.model.after_step(self.step)
+        for note in run_schedules(self.schedules, replace(state, optimizer=self.optimizer), after_step=True)[1]:
+            self.log(f"step {self.step}: {note}")
         mse = float(torch.mean((out.rgb.detach().float() - target) ** 2))
         return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples}
 

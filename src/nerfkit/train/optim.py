@@ -1,0 +1,19 @@
+"""The optimizer the trainer builds for a model, from the model's parameter groups."""
+
+from __future__ import annotations
+
+import torch
+
+from ..kernels.optim import GridAdam
+from ..models.base import NerfModel
+
+
+def build_optimizer(model: NerfModel, lr: float) -> torch.optim.Optimizer:
+    """Adam over ``model.param_groups(lr)``; when the model gathers some gradients in
+    GradSinks (:meth:`~nerfkit.models.base.NerfModel.grad_sinks`), :class:`GridAdam`,
+    which updates only the rows a step touched (dense parameters get ordinary Adam)."""
+    groups = model.param_groups(lr)
+    sinks = model.grad_sinks()
+    if sinks:
+        return GridAdam(groups, sinks=sinks)
+    return torch.optim.Adam(groups)
