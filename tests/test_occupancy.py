@@ -115,9 +115,12 @@ def test_early_termination_changes_the_image_by_less_than_eps():
 
 
 def test_coarse_occupancy_is_the_block_maximum():
-    occ = OccupancyGrid(torch.zeros(3), 1.0, (10, 8, 6))
     g = torch.Generator().manual_seed(0)
-    occ.occ = torch.rand(occ.occ.shape, generator=g) < 0.05
+    cells = (torch.rand((5, 7, 9), generator=g) < 0.05).to(torch.uint8)  # (the kernels' uint8 cells)
+    occ = OccupancyGrid(torch.zeros(3), 1.0, (10, 8, 6), occ=cells)
+    assert occ.occ.dtype == torch.bool and torch.equal(occ.occ, cells.bool())
+    with pytest.raises(ValueError, match="expected"):
+        OccupancyGrid(torch.zeros(3), 1.0, (10, 8, 7), occ=cells)
     c = occ.coarse(4)
     assert c.shape == (2, 2, 3)
     for z in range(2):

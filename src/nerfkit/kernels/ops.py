@@ -395,8 +395,7 @@ def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0,
     the rays (``rays_o``, ``rays_d``, ``sh``) their gradients with the sample ``t`` fixed."""
     from ..render.occupancy import OccupancyGrid
 
-    occ = OccupancyGrid(geom.lo, geom.voxel, geom.res, device=grid.device)
-    occ.occ = spec.occ.bool()
+    occ = OccupancyGrid(geom.lo, geom.voxel, geom.res, device=grid.device, occ=spec.occ)
     dtype = rays_o.dtype
     lo = geom.lo.to(grid.device, dtype)
 

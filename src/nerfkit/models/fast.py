@@ -275,17 +275,14 @@ class FastNeRF(NerfModel):
         """Install a cell occupancy (rz-1, ry-1, rx-1) uint8 (and its block max-pool)."""
         self.occ_cells = occ.to(torch.uint8).contiguous()
         if coarse is None:
-            grid = OccupancyGrid(self.geom.lo, self.geom.voxel, self.geom.res, device=occ.device)
-            grid.occ = self.occ_cells.bool()
+            grid = OccupancyGrid(self.geom.lo, self.geom.voxel, self.geom.res, occ.device, self.occ_cells)
             coarse = grid.coarse(self.config.coarse_factor)
         self._coarse_u8 = coarse.to(torch.uint8).contiguous()
 
     @property
     def occupancy(self) -> OccupancyGrid:
         """The current occupancy grid (a snapshot, for inspection and other samplers)."""
-        grid = OccupancyGrid(self.geom.lo, self.geom.voxel, self.geom.res, device=self.occ_cells.device)
-        grid.occ = self.occ_cells.bool()
-        return grid
+        return OccupancyGrid(self.geom.lo, self.geom.voxel, self.geom.res, self.occ_cells.device, self.occ_cells)
 
     @property
     def occupied_fraction(self) -> float:

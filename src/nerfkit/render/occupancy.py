@@ -117,19 +117,28 @@ class OccupancyGrid:
         lo: (3,) box corner; voxel: cell side; res: vertex counts ``(rx, ry, rz)``
             (cells ``res - 1`` per axis).
         device: where the grid lives.
+        occ: (rz - 1, ry - 1, rx - 1) the cells' occupancy to start from (any dtype, nonzero
+            = occupied); None: every cell occupied.
 
     Attributes:
-        occ: (rz - 1, ry - 1, rx - 1) bool, all True at first.
+        occ: (rz - 1, ry - 1, rx - 1) bool.
     """
 
-    def __init__(self, lo, voxel: float, res: tuple[int, int, int], device: torch.device | str = "cpu"):
+    def __init__(self, lo, voxel: float, res: tuple[int, int, int], device: torch.device | str = "cpu",
+                 occ: Tensor | None = None):
         self.lo = torch.as_tensor(lo, dtype=torch.float32, device=device).reshape(3)
         self.voxel = float(voxel)
         self.res = tuple(int(r) for r in res)
         if min(self.res) < 2:
             raise ValueError(f"occupancy grid needs at least 2 vertices per axis, got {self.res}")
         rx, ry, rz = self.res
-        self.occ = torch.ones((rz - 1, ry - 1, rx - 1), dtype=torch.bool, device=device)
+        shape = (rz - 1, ry - 1, rx - 1)
+        if occ is None:
+            self.occ = torch.ones(shape, dtype=torch.bool, device=device)
+        elif tuple(occ.shape) != shape:
+            raise ValueError(f"occupancy has shape {tuple(occ.shape)}, expected {shape} for {self.res} vertices")
+        else:
+            self.occ = occ.to(device=device, dtype=torch.bool)
 
     @property
     def hi(self) -> Tensor:
