@@ -155,3 +155,17 @@ def test_an_image_linking_outside_the_folder_is_refused(tmp_path):
     assert "outside the dataset folder" in _error(folder)
     scene = load_scene(folder, allow_outside=True)  # the user trusts it
     assert len(scene.train) == 7
+
+
+def test_an_llff_scene_trains_in_ndc_and_renders_a_spiral(scene_dir):
+    from nerfkit.cameras import mean_camera
+    from nerfkit.models.base import SceneBounds
+
+    folder, c2w, bounds = scene_dir
+    scene = load_llff(folder)
+    b = SceneBounds.from_scene(scene)
+    assert b.ndc is not None and np.isclose(b.ndc.near, scene.near)
+    ref = mean_camera(scene.train.c2w)
+    np.testing.assert_allclose(np.asarray(b.ndc.c2w), ref, atol=1e-6)
+    path = scene.render_path(8)
+    assert np.abs((path.c2w[:, :3, 3] - ref[:3, 3]) @ ref[:3, 2]).max() < 1e-5  # a spiral by the cameras

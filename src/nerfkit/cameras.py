@@ -192,3 +192,52 @@ def orbit_path(
         eye = center + radius * (np.cos(theta) * a + np.sin(theta) * b) + height * up
         poses.append(look_at(eye, center, up))
     return np.stack(poses).astype(np.float32)
+
+
+def forward_facing(c2w: np.ndarray, center: np.ndarray, max_angle_deg: float = 30.0,
+                   max_spread: float = 0.25) -> bool:
+    """True for an LLFF-style capture: every camera looks within ``max_angle_deg`` of the
+    cameras' mean viewing direction, and the cameras stand close together (each within
+    ``max_spread`` times the distance from their mean to ``center``, the scene's middle),
+    so that the NDC of their mean camera covers what they all see."""
+    c2w = np.asarray(c2w, np.float64)
+    z = c2w[:, :3, 2] / np.linalg.norm(c2w[:, :3, 2], axis=1, keepdims=True)
+    mean = z.mean(0)
+    if len(c2w) < 2 or np.linalg.norm(mean) < 1e-6:
+        return False
+    mean = mean / np.linalg.norm(mean)
+    eyes = c2w[:, :3, 3]
+    depth = float(np.linalg.norm(np.asarray(center, np.float64) - eyes.mean(0)))
+    spread = float(np.linalg.norm(eyes - eyes.mean(0), axis=1).max())
+    return bool((z @ mean).min() >= np.cos(np.deg2rad(max_angle_deg)) and spread <= max_spread * depth)
+
+
+def mean_camera(c2w: np.ndarray) -> np.ndarray:
+    """(4, 4) the average camera: mean centre, mean viewing direction, the mean down axis
+    made orthogonal to it (OpenCV axes)."""
+    c2w = np.asarray(c2w, np.float64)
+    z = c2w[:, :3, 2].mean(0)
+    z /= np.linalg.norm(z)
+    y = c2w[:, :3, 1].mean(0)
+    y -= (y @ z) * z
+    y /= np.linalg.norm(y)
+    out = np.eye(4)
+    out[:3, 0], out[:3, 1], out[:3, 2], out[:3, 3] = np.cross(y, z), y, z, c2w[:, :3, 3].mean(0)
+    return out
+
+
+def spiral_path(c2w: np.ndarray, focus_depth: float, n_frames: int) -> np.ndarray:
+    """A forward-facing capture's video path (LLFF's spiral): camera-to-world poses
+    (n_frames, 4, 4) circling the mean camera (:func:`mean_camera`) across its view, as far
+    out as the cameras spread (90th percentile per axis), all looking at the point
+    ``focus_depth`` ahead of it."""
+    ref = mean_camera(c2w)
+    right, down, forward, centre = ref[:3, 0], ref[:3, 1], ref[:3, 2], ref[:3, 3]
+    offsets = (np.asarray(c2w, np.float64)[:, :3, 3] - centre) @ ref[:3, :3]
+    rx, ry = np.percentile(np.abs(offsets[:, :2]), 90, axis=0)
+    target = centre + focus_depth * forward
+    poses = []
+    for theta in np.linspace(0.0, 2.0 * np.pi, n_frames, endpoint=False):
+        eye = centre + rx * np.cos(theta) * right + ry * np.sin(theta) * down
+        poses.append(look_at(eye, target, -down))
+    return np.stack(poses).astype(np.float32)

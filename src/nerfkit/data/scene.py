@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..cameras import orbit_path
+from ..cameras import forward_facing, mean_camera, orbit_path, spiral_path
 
 
 @dataclass
@@ -97,8 +97,22 @@ class Scene:
         return len(self.test) > 0 and not self.test.has_images
 
     def render_path(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
-        """Poses for a video: the test split when it is a pose-only path, else an orbit."""
-        return self.test if self.has_video_path else self.orbit(n_frames, aim)
+        """Poses for a video: the test split when it is a pose-only path, else a spiral for a
+        forward-facing scene (the cameras never saw its far side) or an orbit."""
+        if self.has_video_path:
+            return self.test
+        if forward_facing(self.train.c2w, self.center):
+            return self.spiral(n_frames, aim)
+        return self.orbit(n_frames, aim)
+
+    def spiral(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
+        """LLFF's spiral (:func:`~nerfkit.cameras.spiral_path`) looking at the depth of
+        ``aim`` (default ``center``), with the first training camera's intrinsics."""
+        ref = mean_camera(self.train.c2w)
+        focus = np.asarray(self.center if aim is None else aim, np.float64).reshape(3)
+        depth = max(float((focus - ref[:3, 3]) @ ref[:3, 2]), 1e-3)
+        c2w = spiral_path(self.train.c2w, depth, n_frames)
+        return Views(c2w, np.repeat(self.train.K[:1], n_frames, axis=0), self.train.width, self.train.height)
 
     def orbit(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
         """A circle of cameras about ``up`` looking at ``aim`` (default ``center``) at the

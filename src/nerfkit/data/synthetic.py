@@ -116,3 +116,53 @@ def tabletop_scene(n_train: int = 16, n_val: int = 2, size: int = 32, seed: int 
     return Scene(views(n_train, seed, gains), views(n_val, seed + 1, None), Views.empty(size, size),
                  near=1.0, far=8.0, center=target.astype(np.float32), up=np.array([0, 0, 1], np.float32),
                  source="synthetic:tabletop", capture=True, table=np.array([0, 0, 1, 0], np.float32))
+
+
+# forward_facing_scene's content: two spheres (centre, radius) and a backdrop plane y = BACKDROP_Y
+FORWARD_SPHERES = ((np.array([0.3, 3.0, 0.1]), 0.6), (np.array([-0.9, 6.0, 0.6]), 1.2))
+BACKDROP_Y = 15.0
+
+
+def render_forward(K: np.ndarray, c2w: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Exact render (H, W, 3) uint8 of :func:`forward_facing_scene`'s content: two textured
+    spheres in front of a textured backdrop plane far behind them."""
+    rays = image_rays(torch.from_numpy(K), torch.from_numpy(c2w).float(), width, height)
+    o, d = rays.origins.double().numpy(), rays.directions.double().numpy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_best = np.where(d[:, 1] > 1e-9, (BACKDROP_Y - o[:, 1]) / d[:, 1], np.inf)
+    p = o + np.where(np.isfinite(t_best), t_best, 0.0)[:, None] * d
+    img = np.stack([0.5 + 0.35 * np.sin(1.3 * p[:, 0]) * np.cos(1.1 * p[:, 2]),
+                    0.45 + 0.3 * np.sign(np.sin(0.9 * p[:, 0] + 0.7 * p[:, 2])),
+                    0.5 + 0.3 * np.cos(0.8 * p[:, 2])], axis=1)
+    img[~np.isfinite(t_best)] = 0.0
+    for centre, radius in FORWARD_SPHERES:
+        oc = o - centre
+        b = (oc * d).sum(1)
+        disc = b * b - ((oc * oc).sum(1) - radius ** 2)
+        t = np.where(disc > 0, -b - np.sqrt(np.maximum(disc, 0.0)), np.inf)
+        hit = (t > 0) & (t < t_best)
+        img[hit] = sphere_color((o[hit] + t[hit, None] * d[hit] - centre) / radius)
+        t_best = np.where(hit, t, t_best)
+    return (np.clip(img, 0, 1).reshape(height, width, 3) * 255 + 0.5).astype(np.uint8)
+
+
+def forward_facing_scene(n_train: int = 16, n_val: int = 2, size: int = 32, seed: int = 0) -> Scene:
+    """A small forward-facing dataset (as LLFF captures): cameras within +-0.4 of the
+    origin across the view, all looking along +y (world up +z) at two textured spheres 3
+    and 6 units away in front of a textured backdrop 15 units away."""
+    focal = 1.1 * size
+    K = intrinsics_matrix(focal, focal, size / 2, size / 2)
+
+    def views(n: int, s: int) -> Views:
+        if n == 0:
+            return Views.empty(size, size)
+        rng = np.random.default_rng(s)
+        eyes = np.stack([rng.uniform(-0.4, 0.4, n), np.zeros(n), rng.uniform(-0.4, 0.4, n)], 1)
+        targets = eyes + np.array([0.0, 10.0, 0.0]) + np.c_[rng.normal(0, 0.3, n), np.zeros(n), rng.normal(0, 0.3, n)]
+        c2w = np.stack([look_at(e, t, np.array([0.0, 0.0, 1.0])) for e, t in zip(eyes, targets)]).astype(np.float32)
+        images = np.stack([render_forward(K, c, size, size) for c in c2w])
+        return Views(c2w, np.repeat(K[None], n, 0), size, size, images, [f"forward_{s}_{i:03d}" for i in range(n)])
+
+    return Scene(views(n_train, seed), views(n_val, seed + 1), Views.empty(size, size), near=2.0, far=20.0,
+                 center=np.array([0.0, 6.0, 0.0], np.float32), up=np.array([0, 0, 1], np.float32),
+                 source="synthetic:forward")

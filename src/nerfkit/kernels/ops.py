@@ -348,6 +348,7 @@ def render_grid(
     backend: str,
     t_end: Tensor | None = None,
     distortion: bool = False,
+    view_dirs: Tensor | None = None,
 ) -> GridRender:
     """Render rays through the grid field, differentiable in whichever of ``grid``,
     ``rays_o`` and ``rays_d`` require grad.
@@ -367,8 +368,10 @@ def render_grid(
             table behind the box; inf or None: nowhere).
         distortion: compute each ray's distortion loss (training only; the compiled path
             skips that pass otherwise and returns no distortion).
+        view_dirs: (n, 3) the directions the colour depends on, when the rays are not in
+            world space (NDC rays); default ``rays_d``.
     """
-    sh = ref.sh_basis(rays_d.float(), sh_degree)
+    sh = ref.sh_basis((rays_d if view_dirs is None else view_dirs).float(), sh_degree)
     nb = numba_kernels() if backend == "numba" else None
     if nb is not None and grid.device.type == "cpu":
         if torch.is_grad_enabled() and (grid.requires_grad or rays_o.requires_grad or rays_d.requires_grad):

@@ -13,7 +13,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..cameras import Rays
+from ..cameras import Rays, forward_facing, mean_camera
+from ..render.ndc import NdcSpace
 
 
 @dataclass
@@ -28,6 +29,8 @@ class SceneBounds:
         camera_radius: distance of the farthest training camera from ``center`` (None: unknown).
         object_box: ``(lo, hi)`` (3,) each, an axis-aligned box around the object from the
             dataset's sparse points (:func:`object_box_from_points`), or None.
+        ndc: for a forward-facing scene (every camera looking about the same way, as LLFF
+            captures), the NDC of the mean camera from ``near`` to infinity; else None.
     """
 
     near: float
@@ -38,6 +41,7 @@ class SceneBounds:
     table: np.ndarray | None = None
     camera_radius: float | None = None
     object_box: tuple[np.ndarray, np.ndarray] | None = None
+    ndc: NdcSpace | None = None
 
     @property
     def reach(self) -> float:
@@ -55,17 +59,22 @@ class SceneBounds:
         box = None
         if scene.points is not None and scene.table is not None:
             box = object_box_from_points(scene.points, scene.table, scene.center, radius)
+        ndc = None
+        if not scene.capture and scene.table is None and forward_facing(c2w, scene.center):
+            ndc = NdcSpace.from_camera(mean_camera(c2w), scene.train.K.mean(0), scene.train.width,
+                                       scene.train.height, float(scene.near))
         return SceneBounds(float(scene.near), float(scene.far), np.asarray(scene.center, np.float32),
                            float(radius), np.asarray(scene.up, np.float32),
                            None if scene.table is None else np.asarray(scene.table, np.float32),
-                           float(dists.max()), box)
+                           float(dists.max()), box, ndc)
 
     def to_dict(self) -> dict:
         return {"near": self.near, "far": self.far, "center": [float(c) for c in self.center],
                 "radius": self.radius, "up": [float(u) for u in self.up],
                 "table": None if self.table is None else [float(v) for v in self.table],
                 "camera_radius": self.camera_radius,
-                "object_box": None if self.object_box is None else [[float(v) for v in b] for b in self.object_box]}
+                "object_box": None if self.object_box is None else [[float(v) for v in b] for b in self.object_box],
+                "ndc": None if self.ndc is None else self.ndc.to_dict()}
 
     @staticmethod
     def from_dict(d: dict) -> "SceneBounds":
@@ -75,7 +84,8 @@ class SceneBounds:
                            None if table is None else np.asarray(table, np.float32),
                            None if d.get("camera_radius") is None else float(d["camera_radius"]),
                            None if d.get("object_box") is None else
-                           tuple(np.asarray(b, np.float32) for b in d["object_box"]))
+                           tuple(np.asarray(b, np.float32) for b in d["object_box"]),
+                           None if d.get("ndc") is None else NdcSpace.from_dict(d["ndc"]))
 
 
 def object_box_from_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float,

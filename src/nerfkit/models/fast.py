@@ -115,6 +115,10 @@ class FastConfig:
     distortion_table: bool = option(False, "with --table, the distortion loss counts the table as the surface "
                                     "behind each ray, so haze in front of the table costs by its distance to it "
                                     "(clears haze, but a low object may be painted onto the table instead)")
+    space: str = option("auto", "where the grid lives: a box around the scene, or the normalised device "
+                        "coordinates of the mean camera (ndc: from the near plane to infinity, for forward-facing "
+                        "scenes such as LLFF captures); auto picks ndc when every camera looks about the same way",
+                        choices=["auto", "box", "ndc"])
     object_box: bool = option(True, "start from the box around the object that the dataset's sparse points "
                               "give (points above the table), when it has them, instead of the bounding sphere's")
     near_grad: float = option(0.0, "damp the gradients of samples nearer to the camera than this fraction of the "
@@ -151,6 +155,8 @@ class FastConfig:
 PACKING = "fast-sparse-grid-1"
 PACKED_DENSITY_DTYPE = torch.float16
 EMPTY_RAW = -30.0
+# half-width (X and Y) of the NDC box: other cameras see a little beyond the mean camera's frustum
+NDC_XY = 1.25
 
 # Largest grid: each side and the vertex count (512^3 vertices of 4+ float32 channels: 2+ GB).
 MAX_GRID_SIDE = 4096
@@ -191,9 +197,17 @@ class FastNeRF(NerfModel):
         self.sizes, self.steps = config.stages()
         self.K = ref.sh_dim(config.sh_degree)
         self.n_channels = 1 + 3 * self.K
+        self.ndc = None
+        if config.space == "ndc" or (config.space == "auto" and bounds.ndc is not None):
+            if bounds.ndc is None:
+                raise fail("--space ndc", "the scene is not forward-facing (its cameras look different ways)",
+                           "Use --space box (or auto)")
+            self.ndc = bounds.ndc
         c = np.asarray(bounds.center, np.float32)
         box = (c - bounds.radius, c + bounds.radius)
-        if config.object_box and bounds.object_box is not None:
+        if self.ndc is not None:
+            box = (np.array([-NDC_XY, -NDC_XY, -1.0], np.float32), np.array([NDC_XY, NDC_XY, 1.0], np.float32))
+        elif config.object_box and bounds.object_box is not None:
             box = bounds.object_box
         lo, voxel, res = fit_grid(box[0], box[1], self.sizes[0])
         # densities are in units of the first stage's voxel: sigma = softplus(raw) / voxel0
@@ -345,6 +359,8 @@ class FastNeRF(NerfModel):
         return composite_layers(t, rgb.to(bg.dtype), alpha.to(bg.dtype), bg)
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
+        if self.ndc is not None:
+            return self._render_ndc(rays, background, perturb)
         o = rays.origins.float()
         d = rays.directions.float()
         n = o.shape[0]
@@ -366,8 +382,34 @@ class FastNeRF(NerfModel):
             extras["distortion"] = out.distortion
         return RenderOutput(rgb, out.depth, out.acc, out.n_samples, extras)
 
+    def _render_ndc(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
+        """Rays through the grid in NDC (``s`` in [0, 1) from the near plane to infinity);
+        colour follows the world direction; depth is returned in world units."""
+        o_w, d_w = rays.origins.float(), rays.directions.float()
+        o, d, forward = self.ndc.rays(o_w, d_w)
+        t0, t1 = ray_aabb(o, d, self.geom.lo, self.geom.hi, 0.0, 1.0)
+        t1 = torch.where(forward, t1, t0)
+        u = torch.rand(o.shape[0], device=o.device) if perturb else torch.full((o.shape[0],), 0.5, device=o.device)
+        out = render_grid(self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree, self.sink,
+                          self._backend(), distortion=bool(self.config.distortion_weight), view_dirs=d_w)
+        if perturb and self.training and self.config.shrink_box and self.stage == 0 and self.steps:
+            self._remember_surface(o, d, out.depth.detach(), out.acc.detach())
+        acc = out.acc
+        s = out.depth / acc.clamp(min=1e-6)
+        depth = self.ndc.distance(o_w, d_w, s) * acc  # (expected depth: what was hit, times acc)
+        rgb = out.rgb + (1.0 - acc).unsqueeze(-1) * self._far(d_w, background)
+        extras = {"samples_per_ray": out.counts}
+        if out.distortion is not None:
+            extras["distortion"] = out.distortion
+        return RenderOutput(rgb, depth, acc, out.n_samples, extras)
+
+    def _grid_points(self, points: Tensor) -> Tensor:
+        """(n, 3) world points -> where they are in the grid's space (NDC or world)."""
+        return points.float() if self.ndc is None else self.ndc.points(points.float())
+
     def query(self, points: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:
-        pts = points.float()
+        """Density (per unit of the grid's space: NDC units for a forward-facing model) and colour."""
+        pts = self._grid_points(points)
         inside = ((pts >= self.geom.lo) & (pts <= self.geom.hi)).all(-1)
         feat = ref.grid_interp(self.grid, ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res,
                                self.geom.index)
@@ -375,7 +417,7 @@ class FastNeRF(NerfModel):
         return sigma * inside, rgb
 
     def density(self, points: Tensor) -> Tensor:
-        pts = points.float()
+        pts = self._grid_points(points)
         inside = ((pts >= self.geom.lo) & (pts <= self.geom.hi)).all(-1)
         raw = ref.grid_interp(self.grid[:, :1], ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res,
                               self.geom.index)

@@ -1,0 +1,120 @@
+"""Normalised device coordinates for forward-facing scenes (the NeRF paper's LLFF space).
+
+A forward-facing capture (every photo taken from about the same place, looking the same
+way) sees content from a near plane out to infinity. NDC maps the reference camera's
+frustum from depth ``near`` to infinity onto a cube: a point ``(x, y, z)`` of the reference
+camera (OpenCV axes: x right, y down, z forward) goes to
+
+    X = ax * x / z + bx,   Y = ay * y / z + by,   Z = 1 - 2 * near / z
+
+with ``ax = 2 fx / W``, ``bx = 2 cx / W - 1`` (and so for y): X and Y are the point's
+pixel coordinates in the reference image scaled to [-1, 1], and Z runs from -1 at the
+near plane to 1 at infinity, uniformly in disparity. Straight rays stay straight, so a
+grid over the NDC cube is sampled finely near the cameras and ever more coarsely far
+away, as the photos resolve it.
+
+A ray ``o + t d`` (its origin first moved to the near plane, ``z = near``) becomes
+``o' + s d'`` with ``s`` in [0, 1) (``s -> 1`` at infinity):
+
+    o' = (ax ox/oz + bx, ay oy/oz + by, 1 - 2 near / oz)
+    d' = (ax (dx/dz - ox/oz), ay (dy/dz - oy/oz), 2 near / oz)
+
+and ``t = s oz / (dz (1 - s))`` measured from the moved origin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+# rays whose direction makes less than this with the reference view's plane never get far
+# enough forward to be mapped (they are left empty)
+MIN_FORWARD = 1e-4
+
+
+@dataclass(frozen=True)
+class NdcSpace:
+    """The NDC of one reference camera.
+
+    Attributes:
+        c2w: (4, 4) the reference camera-to-world (OpenCV axes).
+        fx, fy, cx, cy, width, height: its intrinsics and image size.
+        near: depth (along the reference z) of the plane mapped to Z = -1.
+    """
+
+    c2w: tuple
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    near: float
+
+    @staticmethod
+    def from_camera(c2w: np.ndarray, K: np.ndarray, width: int, height: int, near: float) -> "NdcSpace":
+        c2w = np.asarray(c2w, np.float64).reshape(4, 4)
+        K = np.asarray(K, np.float64).reshape(3, 3)
+        return NdcSpace(tuple(map(tuple, c2w.tolist())), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
+                        float(K[1, 2]), int(width), int(height), float(near))
+
+    def to_dict(self) -> dict:
+        return {"c2w": [list(r) for r in self.c2w], "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
+                "width": self.width, "height": self.height, "near": self.near}
+
+    @staticmethod
+    def from_dict(d: dict) -> "NdcSpace":
+        return NdcSpace(tuple(tuple(float(v) for v in r) for r in d["c2w"]), float(d["fx"]), float(d["fy"]),
+                        float(d["cx"]), float(d["cy"]), int(d["width"]), int(d["height"]), float(d["near"]))
+
+    def _frame(self, like: Tensor) -> tuple[Tensor, Tensor]:
+        c2w = torch.tensor(self.c2w, dtype=like.dtype, device=like.device)
+        return c2w[:3, :3], c2w[:3, 3]  # rotation (columns: camera axes in world), centre
+
+    def _scale(self) -> tuple[float, float, float, float]:
+        return 2.0 * self.fx / self.width, 2.0 * self.fy / self.height, \
+            2.0 * self.cx / self.width - 1.0, 2.0 * self.cy / self.height - 1.0
+
+    def to_camera(self, points: Tensor) -> Tensor:
+        """(n, 3) world points -> (n, 3) in the reference camera's frame."""
+        R, c = self._frame(points)
+        return (points - c) @ R
+
+    def points(self, points: Tensor) -> Tensor:
+        """(n, 3) world points in front of the reference camera -> (n, 3) NDC points."""
+        p = self.to_camera(points)
+        ax, ay, bx, by = self._scale()
+        z = p[:, 2].clamp(min=1e-9)
+        return torch.stack([ax * p[:, 0] / z + bx, ay * p[:, 1] / z + by, 1.0 - 2.0 * self.near / z], dim=-1)
+
+    def rays(self, origins: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """World rays (n, 3) each -> ``(o', d', forward)``: NDC rays on which the scene from
+        the near plane to infinity is ``s`` in [0, 1), and (n,) bool, False for rays that
+        do not head forward of the reference view (their NDC ray is a dummy)."""
+        R, c = self._frame(origins)
+        o = (origins - c) @ R
+        d = dirs @ R
+        forward = d[:, 2] > MIN_FORWARD
+        dz = torch.where(forward, d[:, 2], torch.ones_like(d[:, 2]))
+        o = o + ((self.near - o[:, 2]) / dz).unsqueeze(-1) * d  # origin onto the near plane
+        oz = torch.full_like(dz, self.near)
+        ax, ay, bx, by = self._scale()
+        o_ndc = torch.stack([ax * o[:, 0] / oz + bx, ay * o[:, 1] / oz + by, 1.0 - 2.0 * self.near / oz], dim=-1)
+        d_ndc = torch.stack([ax * (d[:, 0] / dz - o[:, 0] / oz), ay * (d[:, 1] / dz - o[:, 1] / oz),
+                             2.0 * self.near / oz], dim=-1)
+        return o_ndc, d_ndc, forward
+
+    def distance(self, origins: Tensor, dirs: Tensor, s: Tensor) -> Tensor:
+        """(n,) distance along the world rays (from their origins, in units of ``|d|``) of
+        the points at NDC fraction ``s`` (n,) on their NDC rays (:meth:`rays`)."""
+        R, c = self._frame(origins)
+        o = (origins - c) @ R
+        d = dirs @ R
+        dz = d[:, 2].clamp(min=MIN_FORWARD)
+        shift = (self.near - o[:, 2]) / dz  # where the NDC ray starts
+        s = s.clamp(0.0, 1.0 - 1e-6)
+        return shift + s * self.near / (dz * (1.0 - s))
+

@@ -1,0 +1,101 @@
+"""Forward-facing scenes: NDC rays, the automatic choice of NDC, the spiral path, training."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from nerfkit.cameras import forward_facing, intrinsics_matrix, look_at, mean_camera
+from nerfkit.data.scene import Views
+from nerfkit.data.synthetic import forward_facing_scene, sphere_scene
+from nerfkit.models.base import SceneBounds
+from nerfkit.render.ndc import NdcSpace
+
+
+@pytest.fixture(scope="module")
+def space():
+    c2w = look_at(np.array([0.2, -0.1, 0.3]), np.array([0.5, 0.3, 5.0]), np.array([0.0, -1.0, 0.0]))
+    return NdcSpace.from_camera(c2w, intrinsics_matrix(50.0, 55.0, 33.0, 30.0), 64, 56, near=0.7)
+
+
+def random_rays(space, n=200, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    c2w = torch.tensor(space.c2w, dtype=torch.float64)
+    o = c2w[:3, 3] + 0.1 * torch.randn(n, 3, generator=g, dtype=torch.float64)
+    d = c2w[:3, 2] + 0.15 * torch.randn(n, 3, generator=g, dtype=torch.float64)
+    return o, d / d.norm(dim=1, keepdim=True)
+
+
+def test_ndc_maps_rays_to_straight_rays_from_the_near_plane_to_infinity(space):
+    o, d = random_rays(space)
+    on, dn, forward = space.rays(o, d)
+    assert forward.all()
+    torch.testing.assert_close(on[:, 2], torch.full_like(on[:, 2], -1.0))  # every ray starts on the near plane
+    for t in (2.0, 5.0, 40.0, 1e4):  # (all beyond the near plane)
+        p = space.points(o + t * d)
+        s = (p[:, 2] - on[:, 2]) / dn[:, 2]
+        torch.testing.assert_close(on + s.unsqueeze(-1) * dn, p)  # the world point lies on the NDC ray
+        assert bool(((s > 0) & (s < 1)).all())
+        torch.testing.assert_close(space.distance(o, d, s), torch.full_like(s, t), rtol=1e-6, atol=1e-6 * t)
+
+
+def test_ndc_x_and_y_are_the_reference_pixel_coordinates_scaled_to_one(space):
+    p_world = torch.tensor([[0.4, -0.2, 3.0], [-1.0, 0.5, 9.0]], dtype=torch.float64)
+    p = space.to_camera(p_world)
+    u = space.fx * p[:, 0] / p[:, 2] + space.cx
+    v = space.fy * p[:, 1] / p[:, 2] + space.cy
+    ndc = space.points(p_world)
+    torch.testing.assert_close(ndc[:, 0], 2 * u / space.width - 1)
+    torch.testing.assert_close(ndc[:, 1], 2 * v / space.height - 1)
+    torch.testing.assert_close(ndc[:, 2], 1 - 2 * space.near / p[:, 2])
+
+
+def test_backward_rays_are_flagged_and_the_space_round_trips(space):
+    o, d = random_rays(space, n=4)
+    _, _, forward = space.rays(o, -d)
+    assert not forward.any()
+    assert NdcSpace.from_dict(space.to_dict()) == space
+
+
+def test_forward_facing_scenes_get_ndc_and_a_spiral_others_do_not():
+    ff, sphere = forward_facing_scene(n_train=8, n_val=1, size=16), sphere_scene(n_train=20, size=16)
+    assert forward_facing(ff.train.c2w, ff.center) and not forward_facing(sphere.train.c2w, sphere.center)
+    assert SceneBounds.from_scene(ff).ndc is not None and SceneBounds.from_scene(sphere).ndc is None
+    path = ff.render_path(12)
+    eyes = path.c2w[:, :3, 3]
+    ref = mean_camera(ff.train.c2w)
+    assert np.abs((eyes - ref[:3, 3]) @ ref[:3, 2]).max() < 1e-5  # circles across the view, not around the scene
+    assert np.linalg.norm(eyes - ref[:3, 3], axis=1).max() <= np.linalg.norm(
+        ff.train.c2w[:, :3, 3] - ref[:3, 3], axis=1).max() + 1e-6  # within the cameras' spread
+    assert (path.c2w[:, :3, 2] @ ref[:3, 2]).min() > 0.9  # looking the way the photos did
+    no_path = replace(sphere, test=Views.empty(16, 16))  # (its test split is a pose-only path)
+    np.testing.assert_allclose(no_path.render_path(12).c2w, sphere.orbit(12).c2w)
+
+
+def test_fast_model_in_ndc_beats_the_box_on_a_forward_facing_scene(tmp_path):
+    """Content from 3 units to a backdrop 15 units away: a box around the scene's middle
+    cannot hold the backdrop; the NDC grid holds everything out to infinity."""
+    from nerfkit.models.fast import FastConfig
+    from nerfkit.train.config import TrainConfig
+    from nerfkit.train.trainer import train
+
+    scene = forward_facing_scene(n_train=24, n_val=3, size=40)
+    scores = {}
+    for space in ("auto", "box"):
+        cfg = TrainConfig(data="forward", out=str(tmp_path / space), steps=240, batch_rays=1024, seed=0,
+                          eval_views=3, checkpoint_seconds=1e9)
+        result = train(scene, cfg, FastConfig(resolutions="32,64", upsample_steps="80", space=space), quiet=True)
+        scores[space] = [r["psnr"] for r in result.rows if r["split"] == "val"][-1]
+    assert scores["auto"] > 23.0
+    assert scores["auto"] > scores["box"] + 2.0, scores
+
+
+def test_ndc_is_refused_for_a_scene_that_is_not_forward_facing():
+    from nerfkit.errors import NerfkitError
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    with pytest.raises(NerfkitError, match="not forward-facing"):
+        FastNeRF(FastConfig(space="ndc"), SceneBounds.from_scene(sphere_scene(n_train=20, size=16)))
