@@ -54,6 +54,13 @@ def test_auto_capture_settings_follow_the_dataset(tabletop):
     assert capture_settings(TrainConfig(), FastConfig(), tabletop)[1].distortion_weight == 0.01
     assert capture_settings(TrainConfig(capture="off"), FastConfig(), tabletop)[1].distortion_weight == 0.0
     assert capture_settings(TrainConfig(), FastConfig(distortion_weight=0.2), tabletop)[1].distortion_weight == 0.2
+    # ... and for forward-facing scenes (content at every depth), not for others
+    from nerfkit.data.synthetic import forward_facing_scene, sphere_scene
+
+    forward, sphere = forward_facing_scene(n_train=6, n_val=0, size=8), sphere_scene(n_train=6, size=8)
+    assert capture_settings(TrainConfig(), FastConfig(), forward)[1].distortion_weight == 0.01
+    assert capture_settings(TrainConfig(), FastConfig(), forward)[1].room_shells == 0
+    assert capture_settings(TrainConfig(), FastConfig(), sphere)[1].distortion_weight == 0.0
 
 
 def test_distortion_loss_enters_the_fast_model_loss_in_units_of_the_radius(tabletop):

@@ -37,18 +37,23 @@ class GridGeom:
 
     ``index`` (rx * ry * rz,) int32, for a sparse grid: the feature row of each vertex
     (vertices without storage share a row of no density); None: row = vertex number.
+    ``dense_offset``: see :meth:`row_offset`.
     """
 
     lo: Tensor
     voxel: float
     res: tuple[int, int, int]
     index: Tensor | None = None
+    dense_offset: int | None = field(default=None, compare=False)
     _offset_key: tuple | None = field(default=None, repr=False, compare=False)
     _offset: int = field(default=-1, repr=False, compare=False)
 
     def row_offset(self) -> int:
         """``c`` when every vertex ``v``'s row is ``v + c`` (a dense grid: the compiled
-        kernels then skip the lookup), else -1. Cached until the index changes."""
+        kernels then skip the lookup), else -1. ``dense_offset``, when the owner of the
+        index knows it; else found from the index and cached until the index changes."""
+        if self.dense_offset is not None:
+            return self.dense_offset
         if self.index is None:
             return 0
         key = (id(self.index), self.index._version)

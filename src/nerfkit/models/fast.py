@@ -25,6 +25,11 @@ Speed comes from counting samples, not steps:
   (:class:`~nerfkit.kernels.optim.GridAdam`). On CUDA, or without numba, the same math
   runs in pure torch.
 
+A forward-facing scene (``--space auto``/``ndc``: every camera looking about the same way,
+as LLFF captures) puts the grid in the normalised device coordinates of the mean camera
+(:mod:`nerfkit.render.ndc`), from the near plane to infinity: its rays are straight
+there, so the same kernels march them; colour still follows the world direction.
+
 Outside the box rays see either the background colour the trainer passes, or (with
 ``learn_background``) the room: a learned colour per direction (spherical harmonics)
 behind ``room_shells`` textured, semi-transparent spheres around the cameras
@@ -66,6 +71,8 @@ class FastConfig:
     TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 4096, "lr": 0.3, "render_chunk": 65536}
     # options left unset (None) take (the capture value, the other value) by the dataset
     CAPTURE_DEFAULTS: ClassVar[dict] = {"distortion_weight": (0.01, 0.0), "room_shells": (3, 0)}
+    # ... and on a forward-facing scene (content at every depth, as a capture's)
+    FORWARD_FACING_DEFAULTS: ClassVar[dict] = {"distortion_weight": 0.01}
 
     resolutions: str = option("32,64,128,192", "grid sizes of the coarse-to-fine stages, as the side of a cube "
                               "with as many vertices (comma-separated)")
@@ -111,7 +118,7 @@ class FastConfig:
                                              "units of the scene radius; with --table the table counts as the "
                                              "surface behind the box): it gathers each ray's weight onto one "
                                              "surface, against haze and floaters (default: "
-                                             "0.01 on capture datasets, else 0)", min=0.0)
+                                             "0.01 on capture and forward-facing datasets, else 0)", min=0.0)
     distortion_table: bool = option(False, "with --table, the distortion loss counts the table as the surface "
                                     "behind each ray, so haze in front of the table costs by its distance to it "
                                     "(clears haze, but a low object may be painted onto the table instead)")
@@ -248,14 +255,24 @@ class FastNeRF(NerfModel):
         feature row of each vertex (0: not stored)."""
         device = self.grid.device if hasattr(self, "grid") else torch.device("cpu")
         self.register_buffer("vertex_rows", index.to(device=device, dtype=torch.int32).contiguous())
-        self.geom = GridGeom(torch.as_tensor(np.asarray(lo), dtype=torch.float32, device=device), float(voxel),
-                             tuple(int(r) for r in res), self.vertex_rows)
-        self.step_size = self.config.step_ratio * self.geom.voxel
-        rx, ry, rz = self.geom.res
+        # (restored from extra_state, not the state dict: old checkpoints have no such entry)
+        self.register_buffer("grid_lo", torch.as_tensor(np.asarray(lo), dtype=torch.float32, device=device).reshape(3),
+                             persistent=False)
+        self.voxel = float(voxel)
+        self.res = tuple(int(r) for r in res)
+        self._row_offset = GridGeom(self.grid_lo, self.voxel, self.res, self.vertex_rows).row_offset()
+        self.step_size = self.config.step_ratio * self.voxel
+        rx, ry, rz = self.res
         # the occupancy grid is saved with the model so that a resumed run samples exactly
         # as the uninterrupted one would
         self.register_buffer("occ_cells", torch.ones((rz - 1, ry - 1, rx - 1), dtype=torch.uint8, device=device))
+        self.register_buffer("occ_coarse", torch.ones(1, dtype=torch.uint8, device=device), persistent=False)
         self._set_occupancy(self.occ_cells)
+
+    @property
+    def geom(self) -> GridGeom:
+        """The grid's geometry (box corner, voxel, vertex counts, vertex rows), on the grid's device."""
+        return GridGeom(self.grid_lo, self.voxel, self.res, self.vertex_rows, dense_offset=self._row_offset)
 
     def _empty_rows(self, n: int, device=None) -> Tensor:
         """(n, C) rows of no density and no colour (row 0 of the grid is one forever)."""
@@ -289,9 +306,9 @@ class FastNeRF(NerfModel):
         """Install a cell occupancy (rz-1, ry-1, rx-1) uint8 (and its block max-pool)."""
         self.occ_cells = occ.to(torch.uint8).contiguous()
         if coarse is None:
-            grid = OccupancyGrid(self.geom.lo, self.geom.voxel, self.geom.res, occ.device, self.occ_cells)
+            grid = OccupancyGrid(self.grid_lo, self.voxel, self.res, occ.device, self.occ_cells)
             coarse = grid.coarse(self.config.coarse_factor)
-        self._coarse_u8 = coarse.to(torch.uint8).contiguous()
+        self.occ_coarse = coarse.to(torch.uint8).contiguous()
 
     @property
     def occupancy(self) -> OccupancyGrid:
@@ -303,7 +320,7 @@ class FastNeRF(NerfModel):
         return float(self.occ_cells.float().mean())
 
     def _spec(self) -> MarchSpec:
-        return MarchSpec(self.occ_cells, self._coarse_u8, self.config.coarse_factor, self.step_size,
+        return MarchSpec(self.occ_cells, self.occ_coarse, self.config.coarse_factor, self.step_size,
                          self.config.early_stop_eps, self.density_scale, self.config.near_grad * self.bounds.reach)
 
     def _texture_sinks(self, device) -> dict:
@@ -313,16 +330,11 @@ class FastNeRF(NerfModel):
                     *(self.room.textures() if self.room is not None else [])]
         return {p: GradSink(p.shape[0], p.shape[1], device, lanes=1) for p, _ in textures}
 
-    def _apply(self, fn, recurse=True):
-        out = super()._apply(fn, recurse)
-        device = self.grid.device
-        self.geom.index = self.vertex_rows
-        if self.geom.lo.device != device:
-            self.geom.lo = self.geom.lo.to(device)
-            self._coarse_u8 = self._coarse_u8.to(device)
-            self.sink = self._grid_sink(device)
-            self.texture_sinks = self._texture_sinks(device)
-        return out
+    def _sinks_on_device(self) -> None:
+        """Gradient sinks live beside the grid: rebuilt (empty) after the model moved."""
+        if self.sink.grad.device != self.grid.device:
+            self.sink = self._grid_sink(self.grid.device)
+            self.texture_sinks = self._texture_sinks(self.grid.device)
 
     # -- rendering -------------------------------------------------------------------
     def _far(self, d: Tensor, background: Tensor | None) -> Tensor:
@@ -359,6 +371,7 @@ class FastNeRF(NerfModel):
         return composite_layers(t, rgb.to(bg.dtype), alpha.to(bg.dtype), bg)
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
+        self._sinks_on_device()
         if self.ndc is not None:
             return self._render_ndc(rays, background, perturb)
         o = rays.origins.float()
@@ -446,6 +459,7 @@ class FastNeRF(NerfModel):
         return groups
 
     def grad_sinks(self) -> dict:
+        self._sinks_on_device()
         return {self.grid: self.sink, **self.texture_sinks}
 
     def schedules(self) -> list[Schedule]:
@@ -617,7 +631,7 @@ class FastNeRF(NerfModel):
             raise ValueError(f"vertex_rows holds rows {int(index.min())}..{int(index.max())}, outside the grid's "
                              f"{self.grid.shape[0]} rows")
         result = super().load_state_dict(state_dict, strict=strict, assign=assign)
-        self.geom.index = self.vertex_rows
+        self._row_offset = GridGeom(self.grid_lo, self.voxel, self.res, self.vertex_rows).row_offset()
         self._set_occupancy(self.occ_cells)
         return result
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..cameras import strided_camera
+from ..cameras import forward_facing, strided_camera
 from ..data.rays import RaysData
 from ..data.scene import Scene
 from ..errors import fail
@@ -56,7 +56,9 @@ class TrainResult:
 
 def capture_settings(cfg: TrainConfig, model_config, scene: Scene):
     """Resolve ``--capture auto`` from the dataset; in capture mode, models that can
-    learn the room and the table behind the object do. Returns ``(cfg, model_config)``."""
+    learn the room and the table behind the object do. Options left unset take the
+    model's capture default, its forward-facing default on a forward-facing scene, else
+    its other default. Returns ``(cfg, model_config)``."""
     on = cfg.capture == "on" or (cfg.capture == "auto" and scene.capture)
     cfg = replace(cfg, capture="on" if on else "off")
     names = {f.name for f in fields(model_config)}
@@ -64,8 +66,12 @@ def capture_settings(cfg: TrainConfig, model_config, scene: Scene):
         model_config = replace(model_config, learn_background=True)
     if on and "table" in names:
         model_config = replace(model_config, table=scene.table is not None)
-    unset = {k: v[0] if on else v[1] for k, v in getattr(model_config, "CAPTURE_DEFAULTS", {}).items()
-             if getattr(model_config, k) is None}
+    forward = not on and len(scene.train) > 0 and forward_facing(scene.train.c2w, scene.center)
+    unset = {}
+    for k, (capture_value, other_value) in getattr(model_config, "CAPTURE_DEFAULTS", {}).items():
+        if getattr(model_config, k) is None:
+            forward_value = getattr(model_config, "FORWARD_FACING_DEFAULTS", {}).get(k, other_value)
+            unset[k] = capture_value if on else forward_value if forward else other_value
     return cfg, replace(model_config, **unset)
 
 
