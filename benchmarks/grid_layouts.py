@@ -19,16 +19,12 @@ Prints the median wall and process-CPU milliseconds per step and the ratios to `
 
 from __future__ import annotations
 
-import argparse
 import os
-import statistics
-import time
 
 import torch
 
-from nerfkit.kernels import numba_kernels
 from nerfkit.kernels.ops import GradSink, GridGeom
-from ray_grads import camera_rays, lego_like, model_spec, step
+from ray_grads import camera_rays, lego_like, model_spec, parse_args, print_medians, step, time_interleaved
 
 
 class LookupGeom(GridGeom):
@@ -60,39 +56,19 @@ def layouts(grid: torch.Tensor, geom: GridGeom) -> dict[str, tuple[torch.Tensor,
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--res", type=int, default=128)
-    ap.add_argument("--rays", type=int, default=4096)
-    ap.add_argument("--repeats", type=int, default=15)
-    ap.add_argument("--warmup", type=int, default=3)
-    ap.add_argument("--sh-degree", type=int, default=1)
-    args = ap.parse_args()
-    if numba_kernels() is None:
-        raise SystemExit("numba kernels unavailable")
-    torch.manual_seed(0)
+    args = parse_args(__doc__.splitlines()[0])
     grid, geom = lego_like(args.res, args.sh_degree)
     spec = model_spec(grid, geom)
     o, d = camera_rays(args.rays)
     cases = {name: (g.requires_grad_(), gm, GradSink(g.shape[0], g.shape[1]))
              for name, (g, gm) in layouts(grid, geom).items()}
-    wall = {m: [] for m in cases}
-    cpu = {m: [] for m in cases}
-    for rep in range(args.warmup + args.repeats):
-        for name, (g, gm, sink) in cases.items():
-            w0, c0 = time.perf_counter(), time.process_time()
-            step(g, gm, spec, o, d, args.sh_degree, "grid", sink)
-            if rep >= args.warmup:
-                wall[name].append(1e3 * (time.perf_counter() - w0))
-                cpu[name].append(1e3 * (time.process_time() - c0))
+    wall, cpu = time_interleaved({name: (lambda c=c: step(c[0], c[1], spec, o, d, args.sh_degree, "grid", c[2]))
+                                  for name, c in cases.items()}, args.warmup, args.repeats)
     sparse_rows = cases["sparse"][0].shape[0] - 1
     print(f"grid {args.res}^3, C={grid.shape[1]}, {args.rays} rays, sparse layout stores "
           f"{sparse_rows / geom.n_vertices:.1%} of the vertices, median of {args.repeats}, "
           f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
-    print(f"{'layout':<16} {'wall ms':>8} {'cpu ms':>8} {'wall ratio':>10} {'cpu ratio':>10}")
-    bw, bc = statistics.median(wall["dense"]), statistics.median(cpu["dense"])
-    for name in cases:
-        mw, mc = statistics.median(wall[name]), statistics.median(cpu[name])
-        print(f"{name:<16} {mw:8.1f} {mc:8.1f} {mw / bw:10.2f} {mc / bc:10.2f}")
+    print_medians("layout", wall, cpu, "dense")
 
 
 if __name__ == "__main__":

@@ -76,8 +76,9 @@ def step(grid, geom, spec, o, d, sh_degree: int, mode: str, sink: GradSink) -> N
     sink.clear()
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parse_args(description: str) -> argparse.Namespace:
+    """The options these kernel benchmarks share."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--rays", type=int, default=4096)
     ap.add_argument("--repeats", type=int, default=15)
@@ -87,21 +88,43 @@ def main() -> None:
     if numba_kernels() is None:
         raise SystemExit("numba kernels unavailable")
     torch.manual_seed(0)
+    return args
+
+
+def time_interleaved(cases: dict, warmup: int, repeats: int) -> tuple[dict, dict]:
+    """Run each ``{name: fn}`` once per round, ``warmup + repeats`` rounds; the wall and
+    process-CPU milliseconds of the last ``repeats`` rounds, per name."""
+    wall = {name: [] for name in cases}
+    cpu = {name: [] for name in cases}
+    for rep in range(warmup + repeats):
+        for name, fn in cases.items():
+            w0, c0 = time.perf_counter(), time.process_time()
+            fn()
+            if rep >= warmup:
+                wall[name].append(1e3 * (time.perf_counter() - w0))
+                cpu[name].append(1e3 * (time.process_time() - c0))
+    return wall, cpu
+
+
+def print_medians(label: str, wall: dict, cpu: dict, base: str) -> None:
+    """A table of the median wall and CPU milliseconds per name, and their ratios to ``base``."""
+    print(f"{label:<16} {'wall ms':>8} {'cpu ms':>8} {'wall ratio':>10} {'cpu ratio':>10}")
+    bw, bc = statistics.median(wall[base]), statistics.median(cpu[base])
+    for name in wall:
+        mw, mc = statistics.median(wall[name]), statistics.median(cpu[name])
+        print(f"{name:<16} {mw:8.1f} {mc:8.1f} {mw / bw:10.2f} {mc / bc:10.2f}")
+
+
+def main() -> None:
+    args = parse_args(__doc__.splitlines()[0])
     grid, geom = lego_like(args.res, args.sh_degree)
     grid.requires_grad_()
     spec = model_spec(grid, geom)
     o, d = camera_rays(args.rays)
     sink = GradSink(geom.n_vertices, grid.shape[1])
     modes = ["grid", "grid+rays", "rays"]
-    wall = {m: [] for m in modes}
-    cpu = {m: [] for m in modes}
-    for rep in range(args.warmup + args.repeats):
-        for m in modes:
-            w0, c0 = time.perf_counter(), time.process_time()
-            step(grid, geom, spec, o, d, args.sh_degree, m, sink)
-            if rep >= args.warmup:
-                wall[m].append(1e3 * (time.perf_counter() - w0))
-                cpu[m].append(1e3 * (time.process_time() - c0))
+    wall, cpu = time_interleaved({m: (lambda m=m: step(grid, geom, spec, o, d, args.sh_degree, m, sink))
+                                  for m in modes}, args.warmup, args.repeats)
     with torch.no_grad():
         t0, t1 = ray_aabb(o, d, geom.lo, geom.hi, 0.0, 10.0)
         n_samples = render_grid(grid, geom, spec, o, d, t0, t1, torch.full((args.rays,), 0.5), args.sh_degree,
@@ -109,11 +132,7 @@ def main() -> None:
     print(f"grid {args.res}^3, C={grid.shape[1]}, {args.rays} rays, ~{n_samples / args.rays:.1f} samples/ray, "
           f"occupied {float(spec.occ.float().mean()):.1%}, median of {args.repeats}, "
           f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
-    print(f"{'mode':<10} {'wall ms':>8} {'cpu ms':>8} {'wall ratio':>10} {'cpu ratio':>10}")
-    bw, bc = statistics.median(wall["grid"]), statistics.median(cpu["grid"])
-    for m in modes:
-        mw, mc = statistics.median(wall[m]), statistics.median(cpu[m])
-        print(f"{m:<10} {mw:8.1f} {mc:8.1f} {mw / bw:10.2f} {mc / bc:10.2f}")
+    print_medians("mode", wall, cpu, "grid")
 
 
 if __name__ == "__main__":
