@@ -701,7 +701,8 @@ def warm_up() -> None:
     g_o, g_sh = np.zeros((1, 3)), np.zeros((1, K))
     g_dist, t_end = np.zeros(1, np.float32), np.full(1, np.inf)
     distortion_forward(s_f, cnt, 0.5, t_end, g_dist)
-    render_backward(s_idx, s_f, cnt, sh, grid, vidx, voff, rx, ry, 1.0, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, g_dist, t_end,
+    render_backward(s_idx, s_f, cnt, sh, grid, vidx, voff, rx, ry, 1.0, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, g_dist,
+                    t_end,
                     0.0, grads, touched, True, g_o, g_o.copy(), g_sh)
     m = np.zeros_like(grid)
     rows = touched_rows(touched)

@@ -262,7 +262,8 @@ def _forward_numba(nb, grid: Tensor, geom: GridGeom, spec: MarchSpec, rays_o, ra
     # rays cost very different amounts: hand them out in small chunks, so that a thread
     # that finishes early (or a core the OS gives to another process) does not stall the rest
     with numba.parallel_chunksize(RAY_CHUNK):
-        nb.render_forward(grid.detach().numpy(), _vertex_rows(geom), geom.row_offset(), rx, ry, rz, _np64(geom.lo), 1.0 / geom.voxel,
+        nb.render_forward(grid.detach().numpy(), _vertex_rows(geom), geom.row_offset(), rx, ry, rz, _np64(geom.lo),
+                          1.0 / geom.voxel,
                           spec.occ.numpy(), spec.coarse.numpy(), int(spec.coarse_factor),
                           _np64(rays_o), _np64(rays_d), _np32(sh), t0n, t1n, _np64(u),
                           float(spec.step), float(spec.density_scale), float(spec.eps),
@@ -310,7 +311,8 @@ class _NumbaRender(torch.autograd.Function):
         ray_grads = need_o or need_d or need_sh
         m = n if ray_grads else 0
         g_o, g_d, g_sh = np.zeros((m, 3)), np.zeros((m, 3)), np.zeros((m, K))
-        nb.render_backward(s_idx, s_f, count, sh, grid, _vertex_rows(geom), geom.row_offset(), geom.res[0], geom.res[1], 1.0 / geom.voxel,
+        nb.render_backward(s_idx, s_f, count, sh, grid, _vertex_rows(geom), geom.row_offset(), geom.res[0], geom.res[1],
+                           1.0 / geom.voxel,
                            float(ctx.spec.step), float(ctx.spec.density_scale), rgb, depth, acc,
                            arr(g_rgb, (n, 3)), arr(g_depth, (n,)), arr(g_acc, (n,)), arr(g_dist, (n,)), t_end,
                            float(ctx.spec.grad_near), grads, touched,

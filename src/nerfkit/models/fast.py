@@ -313,7 +313,7 @@ class FastNeRF(NerfModel):
     @property
     def occupancy(self) -> OccupancyGrid:
         """The current occupancy grid (a snapshot, for inspection and other samplers)."""
-        return OccupancyGrid(self.geom.lo, self.geom.voxel, self.geom.res, self.occ_cells.device, self.occ_cells)
+        return OccupancyGrid(self.grid_lo, self.voxel, self.res, self.occ_cells.device, self.occ_cells)
 
     @property
     def occupied_fraction(self) -> float:
@@ -504,7 +504,7 @@ class FastNeRF(NerfModel):
             occ = torch.empty((rz - 1, ry - 1, rx - 1), dtype=torch.uint8)
             cf = max(self.config.coarse_factor, 1)
             coarse = torch.zeros((-(-(rz - 1) // cf), -(-(ry - 1) // cf), -(-(rx - 1) // cf)), dtype=torch.uint8)
-            nb.occupancy_from_grid(self.grid.detach().numpy(), self.vertex_rows.numpy(), self.geom.row_offset(), rx, ry, rz,
+            nb.occupancy_from_grid(self.grid.detach().numpy(), self.vertex_rows.numpy(), self._row_offset, rx, ry, rz,
                                    self._raw_threshold(thr), occ.numpy(), coarse.numpy(), cf)
             self._set_occupancy(occ, coarse)
             return
