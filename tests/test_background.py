@@ -208,7 +208,32 @@ def test_capture_orbit_looks_at_the_trained_object_from_the_cameras_height():
     cosines = np.einsum("ni,ni->n", views.c2w[:, :3, 2], to_aim / np.linalg.norm(to_aim, axis=1, keepdims=True))
     np.testing.assert_allclose(cosines, 1.0, atol=1e-5)
     heights = (scene.train.c2w[:, :3, 3] - aim) @ scene.up
-    np.testing.assert_allclose((eyes - aim) @ scene.up, heights.mean(), atol=1e-5)
+    orbit_heights = (eyes - aim) @ scene.up
+    assert heights.min() - 1e-5 <= orbit_heights.min() and orbit_heights.max() <= heights.max() + 1e-5
+
+
+def test_the_orbit_follows_the_cameras_height_and_distance_around_the_object():
+    """Photos taken from high up on one side and low down on the other: the orbit is high
+    and near where they looked down, low and far where they looked across."""
+    from nerfkit.cameras import intrinsics_matrix, look_at, orbit_axes
+    from nerfkit.data.scene import Scene, Views
+
+    up = np.array([0.0, 0.0, 1.0])
+    a, b = orbit_axes(up)
+    eyes = []
+    for azimuth, elevation, distance in [(0, 70, 3.0), (15, 70, 3.0), (-15, 70, 3.0),
+                                         (180, 20, 5.0), (165, 20, 5.0), (195, 20, 5.0)]:
+        az, el = np.deg2rad(azimuth), np.deg2rad(elevation)
+        eyes.append(distance * (np.cos(el) * (np.cos(az) * a + np.sin(az) * b) + np.sin(el) * up))
+    c2w = np.stack([look_at(e, np.zeros(3), up) for e in eyes]).astype(np.float32)
+    K = np.repeat(intrinsics_matrix(10.0, 10.0, 8.0, 8.0)[None], 6, 0)
+    scene = Scene(Views(c2w, K, 16, 16), Views.empty(16, 16), Views.empty(16, 16), near=1.0, far=8.0,
+                  center=np.zeros(3, np.float32), up=up.astype(np.float32))
+    path = scene.orbit(4).c2w[:, :3, 3]  # azimuths 0, 90, 180, 270
+    np.testing.assert_allclose(path[0] @ up, 3.0 * np.sin(np.deg2rad(70)), rtol=0.02)
+    np.testing.assert_allclose(path[2] @ up, 5.0 * np.sin(np.deg2rad(20)), rtol=0.02)
+    np.testing.assert_allclose(np.linalg.norm(path[2] - (path[2] @ up) * up), 5.0 * np.cos(np.deg2rad(20)), rtol=0.02)
+    assert path[2] @ up < path[1] @ up < path[0] @ up  # in between at 90 degrees
 
 
 def test_a_glossy_table_mirrors_the_room():

@@ -169,27 +169,37 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
     return c2w
 
 
-def orbit_path(
-    center: np.ndarray,
-    up: np.ndarray,
-    radius: float,
-    height: float,
-    n_frames: int,
-) -> np.ndarray:
-    """Camera-to-world poses (n_frames, 4, 4) circling ``center`` about the ``up`` axis.
-
-    Cameras sit ``height`` above the centre along ``up``, ``radius`` away from the axis,
-    and look at ``center``.
-    """
+def orbit_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors ``(a, b)`` across ``up``: an orbit's azimuth 0 is along ``a``, 90
+    degrees along ``b``."""
     up = np.asarray(up, dtype=np.float64)
     up = up / np.linalg.norm(up)
     helper = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     a = np.cross(up, helper)
     a /= np.linalg.norm(a)
-    b = np.cross(up, a)
+    return a, np.cross(up, a)
+
+
+def orbit_path(
+    center: np.ndarray,
+    up: np.ndarray,
+    radius: float | np.ndarray,
+    height: float | np.ndarray,
+    n_frames: int,
+) -> np.ndarray:
+    """Camera-to-world poses (n_frames, 4, 4) circling ``center`` about the ``up`` axis.
+
+    Cameras sit ``height`` above the centre along ``up``, ``radius`` away from the axis
+    (each a number, or one per frame), and look at ``center``.
+    """
+    up = np.asarray(up, dtype=np.float64)
+    up = up / np.linalg.norm(up)
+    a, b = orbit_axes(up)
+    thetas = np.linspace(0.0, 2.0 * np.pi, n_frames, endpoint=False)
+    radius, height = np.broadcast_to(radius, thetas.shape), np.broadcast_to(height, thetas.shape)
     poses = []
-    for theta in np.linspace(0.0, 2.0 * np.pi, n_frames, endpoint=False):
-        eye = center + radius * (np.cos(theta) * a + np.sin(theta) * b) + height * up
+    for theta, r, h in zip(thetas, radius, height):
+        eye = center + r * (np.cos(theta) * a + np.sin(theta) * b) + h * up
         poses.append(look_at(eye, center, up))
     return np.stack(poses).astype(np.float32)
 

@@ -11,7 +11,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..cameras import forward_facing, mean_camera, orbit_path, spiral_path
+from ..cameras import forward_facing, mean_camera, orbit_axes, orbit_path, spiral_path
+
+
+# how sharply an orbit follows the training cameras near each azimuth (von Mises
+# concentration: weights fall to 1/e at about 30 degrees)
+ORBIT_KAPPA = 4.0
 
 
 @dataclass
@@ -115,17 +120,24 @@ class Scene:
         return Views(c2w, np.repeat(self.train.K[:1], n_frames, axis=0), self.train.width, self.train.height)
 
     def orbit(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
-        """A circle of cameras about ``up`` looking at ``aim`` (default ``center``) at the
-        training cameras' mean distance and elevation from it, with the first training
-        camera's intrinsics."""
+        """A loop of cameras about ``up`` looking at ``aim`` (default ``center``), with the
+        first training camera's intrinsics. At each azimuth its height and distance from
+        the axis are those of the training cameras near that azimuth (a weighted mean,
+        weights ``exp(ORBIT_KAPPA (cos(angle between azimuths) - 1))``: about 30 degrees
+        wide), so the video stays where the photos were taken: higher where they looked
+        down more, and never far from them."""
         if len(self.train) == 0:
             raise ValueError("cannot make an orbit without training cameras")
         center = self.center if aim is None else np.asarray(aim, np.float64).reshape(3)
         offsets = self.train.c2w[:, :3, 3] - center
-        height = float(np.mean(offsets @ self.up))
-        radial = offsets - np.outer(offsets @ self.up, self.up)
-        radius = float(np.mean(np.linalg.norm(radial, axis=1)))
-        c2w = orbit_path(center, self.up, radius, height, n_frames)
+        heights = offsets @ self.up
+        radial = offsets - np.outer(heights, self.up)
+        a, b = orbit_axes(self.up)
+        azimuths = np.arctan2(radial @ b, radial @ a)
+        thetas = np.linspace(0.0, 2.0 * np.pi, n_frames, endpoint=False)
+        w = np.exp(ORBIT_KAPPA * (np.cos(thetas[:, None] - azimuths[None]) - 1.0))  # (n_frames, n_cameras)
+        w /= w.sum(1, keepdims=True)
+        c2w = orbit_path(center, self.up, w @ np.linalg.norm(radial, axis=1), w @ heights, n_frames)
         K = np.repeat(self.train.K[:1], n_frames, axis=0)
         return Views(c2w, K, self.train.width, self.train.height)
 
