@@ -101,6 +101,32 @@ def test_atomic_write_keeps_the_old_file_when_interrupted(tmp_path):
     assert list(tmp_path.iterdir()) == [target]  # no temporary left behind
 
 
+def test_a_full_disk_is_a_clear_error_and_the_old_file_stays(tmp_path, monkeypatch):
+    import errno
+    import shutil
+    from collections import namedtuple
+
+    target = tmp_path / "step_00000100.pt"
+    write_json(target, {"version": 1})
+    with pytest.raises(NerfkitError, match="disk is full.*--resume"):  # ENOSPC, whatever the free space says
+        with atomic_path(target) as tmp:
+            tmp.write_text("partial")
+            raise OSError(errno.ENOSPC, "No space left on device")
+    # torch.save reports a full disk as a RuntimeError about the zip writer's position
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda _: usage(10 << 30, (10 << 30) - (1 << 20), 1 << 20))
+    with pytest.raises(NerfkitError, match="disk is full"):
+        with atomic_path(target) as tmp:
+            torch.save({"x": torch.zeros(10)}, tmp)
+            raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 108156544 vs 108156436")
+    assert json.loads(target.read_text()) == {"version": 1}
+    assert list(tmp_path.iterdir()) == [target]  # no temporary left behind
+    monkeypatch.setattr(shutil, "disk_usage", lambda _: usage(10 << 30, 1 << 30, 9 << 30))
+    with pytest.raises(RuntimeError, match="unrelated"):  # with space to spare, other errors stay what they are
+        with atomic_path(target):
+            raise RuntimeError("unrelated")
+
+
 def test_sigkill_during_a_write_leaves_the_old_file_intact(tmp_path):
     target = tmp_path / "big.npz"
     np.savez(target, a=np.arange(10))

@@ -9,15 +9,22 @@ new file (0644 under the usual 022), not mkstemp's private 0600.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
 
+from ..errors import fail
+
 TMP_MARK = ".tmp."  # in the name of every temporary file atomic_path makes
+# a failed write with less free space than this beside the target is put down to a full disk
+# (writers such as torch.save report it as a RuntimeError, not ENOSPC)
+FULL_DISK_BYTES = 64 << 20
 
 
 @contextlib.contextmanager
@@ -40,9 +47,25 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
             os.fsync(f.fileno())
         os.replace(tmp_path, path)
         _fsync_dir(path.parent)
+    except (OSError, RuntimeError) as e:
+        tmp_path.unlink(missing_ok=True)
+        if _disk_full(e, path.parent):
+            raise fail(path, "could not be written: the disk is full",
+                       "Free some space and run the command again (a training run continues from its last "
+                       "checkpoint with nerfkit train --resume RUN)") from None
+        raise
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def _disk_full(error: BaseException, folder: Path) -> bool:
+    if isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    try:
+        return shutil.disk_usage(folder).free < FULL_DISK_BYTES
+    except OSError:
+        return False
 
 
 def stale_temporaries(folder: str | os.PathLike) -> list[Path]:
