@@ -83,38 +83,36 @@ class NdcSpace:
         R, c = self._frame(points)
         return (points - c) @ R
 
-    def points(self, points: Tensor) -> Tensor:
-        """(n, 3) world points in front of the reference camera -> (n, 3) NDC points."""
-        p = self.to_camera(points)
+    def _project(self, p: Tensor) -> Tensor:
+        """(n, 3) points of the reference camera's frame (z > 0) -> (n, 3) NDC points."""
         ax, ay, bx, by = self._scale()
         z = p[:, 2].clamp(min=1e-9)
         return torch.stack([ax * p[:, 0] / z + bx, ay * p[:, 1] / z + by, 1.0 - 2.0 * self.near / z], dim=-1)
+
+    def points(self, points: Tensor) -> Tensor:
+        """(n, 3) world points in front of the reference camera -> (n, 3) NDC points."""
+        return self._project(self.to_camera(points))
 
     def rays(self, origins: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """World rays (n, 3) each -> ``(o', d', forward)``: NDC rays on which the scene from
         the near plane to infinity is ``s`` in [0, 1), and (n,) bool, False for rays that
         do not head forward of the reference view (their NDC ray is a dummy)."""
-        R, c = self._frame(origins)
-        o = (origins - c) @ R
-        d = dirs @ R
+        o = self.to_camera(origins)
+        d = dirs @ self._frame(dirs)[0]
         forward = d[:, 2] > MIN_FORWARD
         dz = torch.where(forward, d[:, 2], torch.ones_like(d[:, 2]))
-        o = o + ((self.near - o[:, 2]) / dz).unsqueeze(-1) * d  # origin onto the near plane
-        oz = torch.full_like(dz, self.near)
-        ax, ay, bx, by = self._scale()
-        o_ndc = torch.stack([ax * o[:, 0] / oz + bx, ay * o[:, 1] / oz + by, 1.0 - 2.0 * self.near / oz], dim=-1)
-        d_ndc = torch.stack([ax * (d[:, 0] / dz - o[:, 0] / oz), ay * (d[:, 1] / dz - o[:, 1] / oz),
-                             2.0 * self.near / oz], dim=-1)
-        return o_ndc, d_ndc, forward
+        o = o + ((self.near - o[:, 2]) / dz).unsqueeze(-1) * d  # origin onto the near plane: oz = near
+        ax, ay, _, _ = self._scale()
+        d_ndc = torch.stack([ax * (d[:, 0] / dz - o[:, 0] / self.near), ay * (d[:, 1] / dz - o[:, 1] / self.near),
+                             torch.full_like(dz, 2.0)], dim=-1)  # (2 near / oz = 2)
+        return self._project(o), d_ndc, forward
 
     def distance(self, origins: Tensor, dirs: Tensor, s: Tensor) -> Tensor:
         """(n,) distance along the world rays (from their origins, in units of ``|d|``) of
         the points at NDC fraction ``s`` (n,) on their NDC rays (:meth:`rays`)."""
-        R, c = self._frame(origins)
-        o = (origins - c) @ R
-        d = dirs @ R
-        dz = d[:, 2].clamp(min=MIN_FORWARD)
-        shift = (self.near - o[:, 2]) / dz  # where the NDC ray starts
+        oz = self.to_camera(origins)[:, 2]
+        dz = (dirs @ self._frame(dirs)[0])[:, 2].clamp(min=MIN_FORWARD)
+        shift = (self.near - oz) / dz  # where the NDC ray starts
         s = s.clamp(0.0, 1.0 - 1e-6)
         return shift + s * self.near / (dz * (1.0 - s))
 
