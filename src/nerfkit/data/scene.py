@@ -101,12 +101,18 @@ class Scene:
         captured dataset's test split holds held-out photos instead."""
         return len(self.test) > 0 and not self.test.has_images
 
+    @property
+    def forward_facing(self) -> bool:
+        """Every training camera looks about the same way from about the same place (an
+        LLFF-style scene; :func:`~nerfkit.cameras.forward_facing`)."""
+        return len(self.train) > 0 and forward_facing(self.train.c2w, self.center)
+
     def render_path(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
         """Poses for a video: the test split when it is a pose-only path, else a spiral for a
         forward-facing scene (the cameras never saw its far side) or an orbit."""
         if self.has_video_path:
             return self.test
-        if forward_facing(self.train.c2w, self.center):
+        if self.forward_facing:
             return self.spiral(n_frames, aim)
         return self.orbit(n_frames, aim)
 

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..cameras import Rays, forward_facing, mean_camera
+from ..cameras import Rays, mean_camera
 from ..render.ndc import NdcSpace
 
 
@@ -60,7 +60,7 @@ class SceneBounds:
         if scene.points is not None and scene.table is not None:
             box = object_box_from_points(scene.points, scene.table, scene.center, radius)
         ndc = None
-        if not scene.capture and scene.table is None and forward_facing(c2w, scene.center):
+        if not scene.capture and scene.table is None and scene.forward_facing:
             ndc = NdcSpace.from_camera(mean_camera(c2w), scene.train.K.mean(0), scene.train.width,
                                        scene.train.height, float(scene.near))
         return SceneBounds(float(scene.near), float(scene.far), np.asarray(scene.center, np.float32),

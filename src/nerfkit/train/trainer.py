@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..cameras import forward_facing, strided_camera
+from ..cameras import strided_camera
 from ..data.rays import RaysData
 from ..data.scene import Scene
 from ..errors import fail
@@ -66,7 +66,7 @@ def capture_settings(cfg: TrainConfig, model_config, scene: Scene):
         model_config = replace(model_config, learn_background=True)
     if on and "table" in names:
         model_config = replace(model_config, table=scene.table is not None)
-    forward = not on and len(scene.train) > 0 and forward_facing(scene.train.c2w, scene.center)
+    forward = not on and scene.forward_facing
     unset = {}
     for k, (capture_value, other_value) in getattr(model_config, "CAPTURE_DEFAULTS", {}).items():
         if getattr(model_config, k) is None:
