@@ -215,11 +215,11 @@ def test_capture_orbit_looks_at_the_trained_object_from_the_cameras_height():
 def test_the_orbit_follows_the_cameras_height_and_distance_around_the_object():
     """Photos taken from high up on one side and low down on the other: the orbit is high
     and near where they looked down, low and far where they looked across."""
-    from nerfkit.cameras import intrinsics_matrix, look_at, orbit_axes
+    from nerfkit.cameras import axes_across, intrinsics_matrix, look_at
     from nerfkit.data.scene import Scene, Views
 
     up = np.array([0.0, 0.0, 1.0])
-    a, b = orbit_axes(up)
+    a, b = axes_across(up)
     eyes = []
     for azimuth, elevation, distance in [(0, 70, 3.0), (15, 70, 3.0), (-15, 70, 3.0),
                                          (180, 20, 5.0), (165, 20, 5.0), (195, 20, 5.0)]:

@@ -169,15 +169,16 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
     return c2w
 
 
-def orbit_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors ``(a, b)`` across ``up``: an orbit's azimuth 0 is along ``a``, 90
-    degrees along ``b``."""
-    up = np.asarray(up, dtype=np.float64)
-    up = up / np.linalg.norm(up)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    a = np.cross(up, helper)
+def axes_across(normal) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors ``(a, b)`` across ``normal`` (3,), with ``(a, b, normal)`` a
+    right-handed frame: an orbit about ``normal`` starts along ``a`` and passes ``b`` at 90
+    degrees; a plane with this normal is textured along ``a`` and ``b``."""
+    n = np.asarray(normal, dtype=np.float64).reshape(3)
+    n = n / np.linalg.norm(n)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    a = np.cross(n, helper)
     a /= np.linalg.norm(a)
-    return a, np.cross(up, a)
+    return a, np.cross(n, a)
 
 
 def orbit_path(
@@ -194,7 +195,7 @@ def orbit_path(
     """
     up = np.asarray(up, dtype=np.float64)
     up = up / np.linalg.norm(up)
-    a, b = orbit_axes(up)
+    a, b = axes_across(up)
     thetas = np.linspace(0.0, 2.0 * np.pi, n_frames, endpoint=False)
     radius, height = np.broadcast_to(radius, thetas.shape), np.broadcast_to(height, thetas.shape)
     poses = []

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..cameras import forward_facing, mean_camera, orbit_axes, orbit_path, spiral_path
+from ..cameras import axes_across, forward_facing, mean_camera, orbit_path, spiral_path
 
 
 # how sharply an orbit follows the training cameras near each azimuth (von Mises
@@ -138,7 +138,7 @@ class Scene:
         offsets = self.train.c2w[:, :3, 3] - center
         heights = offsets @ self.up
         radial = offsets - np.outer(heights, self.up)
-        a, b = orbit_axes(self.up)
+        a, b = axes_across(self.up)
         azimuths = np.arctan2(radial @ b, radial @ a)
         thetas = np.linspace(0.0, 2.0 * np.pi, n_frames, endpoint=False)
         w = np.exp(ORBIT_KAPPA * (np.cos(thetas[:, None] - azimuths[None]) - 1.0))  # (n_frames, n_cameras)

@@ -26,6 +26,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from ..cameras import axes_across
+
 
 def sh16(dirs: Tensor) -> Tensor:
     """(n, 3) unit directions -> (n, 16): the real spherical harmonics up to degree 3
@@ -54,15 +56,6 @@ def plane_hit(origins: Tensor, dirs: Tensor, plane: Tensor) -> Tensor:
     t = -height / speed.clamp(max=-1e-12)
     hits = (height > 0) & (speed < -1e-9)
     return torch.where(hits, t, torch.full_like(t, math.inf))
-
-
-def axes_across(normal: Tensor) -> tuple[Tensor, Tensor]:
-    """Two unit vectors ``(e1, e2)`` across a unit ``normal`` (3,), with ``(e1, e2, normal)``
-    a right-handed frame."""
-    helper = torch.tensor([1.0, 0.0, 0.0]) if abs(float(normal[0])) < 0.9 else torch.tensor([0.0, 1.0, 0.0])
-    e1 = torch.linalg.cross(normal, helper.to(normal))
-    e1 = e1 / e1.norm()
-    return e1, torch.linalg.cross(normal, e1)
 
 
 def contract_disc(q: Tensor) -> Tensor:
@@ -191,7 +184,7 @@ class TablePlane(nn.Module):
         n = plane[:3] / plane[:3].norm()
         c = torch.as_tensor(center, dtype=torch.float32).reshape(3)
         origin = c - (c @ n + plane[3]) * n
-        e1, e2 = axes_across(n)
+        e1, e2 = (torch.as_tensor(v, dtype=torch.float32) for v in axes_across(n.numpy()))
         self.register_buffer("plane", torch.cat([n, plane[3:]]))
         self.register_buffer("origin", origin)
         self.register_buffer("axes", torch.stack([e1, e2], dim=1))  # (3, 2)
@@ -309,7 +302,7 @@ class RoomShells(nn.Module):
         super().__init__()
         up = torch.as_tensor(np.asarray(up, np.float32)).reshape(3)
         up = up / up.norm()
-        e1, e2 = axes_across(up)
+        e1, e2 = (torch.as_tensor(v, dtype=torch.float32) for v in axes_across(up.numpy()))
         self.register_buffer("center", torch.as_tensor(np.asarray(center, np.float32)).reshape(3))
         self.register_buffer("frame", torch.stack([e1, e2, up], dim=1))  # (3, 3) world -> (x, y, up)
         self.register_buffer("radii", float(r0) * float(ratio) ** torch.arange(int(n_shells), dtype=torch.float32))

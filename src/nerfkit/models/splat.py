@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..cameras import Rays, image_rays
+from ..cameras import Rays, axes_across, image_rays
 from ..config import option
 from ..errors import fail
 from ..fields.background import sh16
@@ -478,10 +478,7 @@ def random_on_plane(n: int, plane, center, radius: float, gen: torch.Generator) 
     nrm = np.asarray(plane[:3], np.float64)
     c = np.asarray(center, np.float64)
     foot = c - (c @ nrm + float(plane[3])) * nrm
-    helper = np.array([1.0, 0, 0]) if abs(nrm[0]) < 0.9 else np.array([0, 1.0, 0])
-    a = np.cross(nrm, helper)
-    a /= np.linalg.norm(a)
-    b = np.cross(nrm, a)
+    a, b = axes_across(nrm)
     r = radius * torch.rand(n, generator=gen).double().sqrt()
     th = 2 * math.pi * torch.rand(n, generator=gen).double()
     pts = torch.as_tensor(foot) + (r * th.cos()).unsqueeze(1) * torch.as_tensor(a) \

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cameras import axes_across
 from ..data.scene import Scene, Views
 from ..io.atomic import atomic_path
 
@@ -34,15 +35,6 @@ def frustum_points(K: np.ndarray, c2w: np.ndarray, width: int, height: int, dept
     pc = np.column_stack([x, y, np.ones(4)]) * depth
     pw = pc @ c2w[:3, :3].T + c2w[:3, 3]
     return np.vstack([c2w[:3, 3], pw])
-
-
-def plane_basis(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors spanning the plane perpendicular to ``up`` (right-handed with it)."""
-    up = np.asarray(up, np.float64) / np.linalg.norm(up)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    a = helper - up * (helper @ up)
-    a /= np.linalg.norm(a)
-    return a, np.cross(up, a)
 
 
 @dataclass
@@ -82,7 +74,7 @@ def sample_rays(views: Views, near: float, far: float, n_rays: int, n_samples: i
 
 def _to_plot(up: np.ndarray) -> np.ndarray:
     """Rotation (3, 3) taking the scene's up to +z (matplotlib's vertical)."""
-    a, b = plane_basis(up)
+    a, b = axes_across(up)
     return np.stack([a, b, np.asarray(up, np.float64) / np.linalg.norm(up)])
 
 
@@ -105,7 +97,7 @@ def plot_scene(scene: Scene, path: str | Path, n_rays: int = 0, n_samples: int =
     everything = [T(scene.center)[None]]
 
     # Tag plane (through the world origin, perpendicular to up) and the tag itself.
-    a, b = plane_basis(scene.up)
+    a, b = axes_across(scene.up)
     half = 0.5 * scale
     quad = np.array([-a - b, a - b, a + b, -a + b]) * half
     ax.add_collection3d(Poly3DCollection([T(quad)], facecolor=(0.6, 0.6, 0.6, 0.18), edgecolor=(0.5, 0.5, 0.5, 0.4)))

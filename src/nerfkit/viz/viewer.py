@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..cameras import axes_across
 from ..data.scene import Scene
-from .scene_plot import SPLIT_COLORS, plane_basis, sample_rays, scene_scale
+from .scene_plot import SPLIT_COLORS, sample_rays, scene_scale
 
 
 def _wxyz(R: np.ndarray) -> np.ndarray:
@@ -35,7 +36,7 @@ def populate(server, scene: Scene, n_rays: int = 0, n_samples: int = 32, tag_siz
     handles: dict = {"frustums": [], "rays": None, "samples": None, "points": None}
     handles["axes"] = server.scene.add_frame("/world", axes_length=1.5 * tag_size if tag_size else 0.25 * scale,
                                              axes_radius=0.02 * (1.5 * tag_size if tag_size else 0.25 * scale))
-    a, b = plane_basis(up)
+    a, b = axes_across(up)
     R_plane = np.column_stack([a, b, up / np.linalg.norm(up)])
     handles["plane"] = server.scene.add_grid("/tag_plane", width=scale, height=scale, cell_size=scale / 10,
                                              section_size=scale / 2, plane="xy", wxyz=_wxyz(R_plane),
