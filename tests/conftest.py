@@ -41,9 +41,10 @@ def train_loop(model, scene, steps: int, batch: int = 1024, lr: float = 0.3, see
         if run_schedules(schedules, StepState(step, step / steps, opt), after_step=False)[0]:
             opt = build_optimizer(model, lr)
         batch_ = rays.sample(batch)
-        loss = model.loss(model.render_rays(batch_.rays, bg, perturb=True), batch_.rgb)
+        out = model.render_rays(batch_.rays, bg, perturb=True)
+        loss = model.loss(out, batch_.rgb)
         opt.zero_grad()
         loss.backward()
         opt.step()
-        run_schedules(schedules, StepState(step, step / steps, opt), after_step=True)
+        run_schedules(schedules, StepState(step, step / steps, opt, batch_.rays, out), after_step=True)
     return opt

@@ -81,6 +81,30 @@ def test_short_training_reconstructs_held_out_views(scene, trained):
     assert trained.occupied_fraction < 0.3
 
 
+def test_rendering_changes_nothing_in_the_model_and_a_schedule_remembers_surfaces(scene):
+    """``render_rays`` is pure (even in training, with perturbed samples); where opaque
+    rays ended is recorded by the after-step job, from the step's rays and output."""
+    from nerfkit.models.base import StepState, run_schedules
+
+    model = FastNeRF(FastConfig(**SMALL), SceneBounds.from_scene(scene))
+    train_loop(model, scene, 30)
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    batch = RaysData(scene.train, "cpu", seed=1).sample(1024)
+    out = model.render_rays(batch.rays, torch.zeros(3), perturb=True)
+    for k, v in model.state_dict().items():
+        assert torch.equal(v, before[k]), k
+    # the job stores the expected end points of the opaque rays: inside the unit sphere
+    n0 = int(model.surface_count)
+    opaque = out.acc > 0.5
+    run_schedules([j for j in model.schedules() if j.name == "remember surfaces"],
+                  StepState(30, 0.3, None, batch.rays, out), after_step=True)
+    assert int(model.surface_count) == n0 + int(opaque.sum()) > n0
+    new = model.surface_pts[n0:int(model.surface_count)]
+    o, d = batch.rays.origins[opaque], batch.rays.directions[opaque]
+    torch.testing.assert_close(new, o + d * (out.depth / out.acc)[opaque].unsqueeze(-1))
+    assert new.norm(dim=-1).max() < 1.1
+
+
 def test_growth_shrinks_the_box_around_the_object(scene, trained):
     lo, hi = trained.geom.lo.numpy(), trained.geom.hi.numpy()
     assert trained.geom.res == tuple(int(r) for r in trained.geom.res) and trained.stage == 1

@@ -142,11 +142,15 @@ class RenderOutput:
 class StepState:
     """What a :class:`Schedule` sees: the training step (about to run, or just run),
     progress in [0, 1] and the optimizer (a job that edits parameters keeps its moments
-    in step with them)."""
+    in step with them). After a step, also the step's rays (as rendered, after any pose
+    correction) and what the model rendered for them (None for whole-image steps), for
+    jobs that learn from the batch."""
 
     step: int
     progress: float
     optimizer: torch.optim.Optimizer | None = None
+    rays: Rays | None = None
+    out: RenderOutput | None = None
 
 
 @dataclass(frozen=True)

@@ -386,8 +386,6 @@ class FastNeRF(NerfModel):
         out = render_grid(self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree,
                           self.sink, self._backend(), t_end=t_table if self.config.distortion_table else None,
                           distortion=bool(self.config.distortion_weight))
-        if perturb and self.training and self.config.shrink_box and self.stage == 0 and self.steps:
-            self._remember_surface(o, d, out.depth.detach(), out.acc.detach())
         bg = self._background(o, d, t_table, background)
         rgb = out.rgb + (1.0 - out.acc).unsqueeze(-1) * bg
         extras = {"samples_per_ray": out.counts}
@@ -405,8 +403,6 @@ class FastNeRF(NerfModel):
         u = torch.rand(o.shape[0], device=o.device) if perturb else torch.full((o.shape[0],), 0.5, device=o.device)
         out = render_grid(self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree, self.sink,
                           self._backend(), distortion=bool(self.config.distortion_weight), view_dirs=d_w)
-        if perturb and self.training and self.config.shrink_box and self.stage == 0 and self.steps:
-            self._remember_surface(o, d, out.depth.detach(), out.acc.detach())
         acc = out.acc
         s = out.depth / acc.clamp(min=1e-6)
         depth = self.ndc.distance(o_w, d_w, s) * acc  # (expected depth: what was hit, times acc)
@@ -463,10 +459,12 @@ class FastNeRF(NerfModel):
         return {self.grid: self.sink, **self.texture_sinks}
 
     def schedules(self) -> list[Schedule]:
-        """Coarse-to-fine growth (before a step; new grid parameters) and occupancy
-        refreshes (after a step: every ``occ_start`` steps until ``occ_warmup``, then every
-        ``occ_every``)."""
+        """Coarse-to-fine growth (before a step; new grid parameters), and after a step:
+        where opaque rays ended (until the first growth, which shrinks the box around
+        them) and occupancy refreshes (every ``occ_start`` steps until ``occ_warmup``, then
+        every ``occ_every``)."""
         return [Schedule("grow", self._growth_due, self._grow_next, replaces_parameters=True),
+                Schedule("remember surfaces", self._surface_due, self._remember_surface, after_step=True),
                 Schedule("occupancy", self._occupancy_due, self._occupancy_job, after_step=True)]
 
     def _growth_due(self, s: StepState) -> bool:
@@ -535,13 +533,19 @@ class FastNeRF(NerfModel):
         alpha = -torch.expm1(-self.density_scale * F.softplus(raw) * self.step_size)
         return min(self.config.occ_alpha, float(alpha.mean()))
 
+    def _surface_due(self, s: StepState) -> bool:
+        return s.out is not None and self.config.shrink_box and self.stage == 0 and bool(self.steps)
+
     @torch.no_grad()
-    def _remember_surface(self, o: Tensor, d: Tensor, depth: Tensor, acc: Tensor) -> None:
-        """Keep (in a ring buffer) where opaque training rays end, for the box shrink."""
+    def _remember_surface(self, s: StepState) -> None:
+        """Keep (in a ring buffer) where the step's opaque rays ended, in the grid's space,
+        for the box shrink at the first growth."""
+        acc, depth = s.out.acc.detach().float(), s.out.depth.detach().float()
         hit = acc > 0.5
         if not hit.any():
             return
-        pts = (o[hit] + d[hit] * (depth[hit] / acc[hit]).unsqueeze(-1)).to(self.surface_pts)
+        o, d = s.rays.origins[hit].float(), s.rays.directions[hit].float()
+        pts = self._grid_points(o + d * (depth[hit] / acc[hit]).unsqueeze(-1)).to(self.surface_pts)
         cap = self.surface_pts.shape[0]
         pts = pts[-cap:]
         start = int(self.surface_count) % cap

@@ -231,6 +231,7 @@ class Trainer:
             self.log(f"step {self.step}: {note}")
         self._set_lr()
         views = self.views
+        rays = None
         if self.whole_images:
             out, target = self._render_training_view()
             loss = self.model.loss(out, target)
@@ -261,7 +262,8 @@ class Trainer:
             self._bad_step(f"{skipped} grid rows had non-finite gradients and were not updated")
         else:
             self.bad_steps = 0
-        for note in run_schedules(self.schedules, replace(state, optimizer=self.optimizer), after_step=True)[1]:
+        after = replace(state, optimizer=self.optimizer, rays=rays, out=out if rays is not None else None)
+        for note in run_schedules(self.schedules, after, after_step=True)[1]:
             self.log(f"step {self.step}: {note}")
         mse = float(torch.mean((out.rgb.detach().float() - target) ** 2))
         return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples}
