@@ -38,13 +38,15 @@ def train_loop(model, scene, steps: int, batch: int = 1024, lr: float = 0.3, see
     opt = build_optimizer(model, lr)
     schedules = model.schedules()
     for step in range(steps):
-        if run_schedules(schedules, StepState(step, step / steps, opt), after_step=False)[0]:
+        if run_schedules(schedules, StepState(step, step / steps, opt), phase="before_step")[0]:
             opt = build_optimizer(model, lr)
         batch_ = rays.sample(batch)
         out = model.render_rays(batch_.rays, bg, perturb=True)
         loss = model.loss(out, batch_.rgb)
         opt.zero_grad()
         loss.backward()
+        after = StepState(step, step / steps, opt, batch_.rays, out)
+        run_schedules(schedules, after, phase="gradients")
         opt.step()
-        run_schedules(schedules, StepState(step, step / steps, opt, batch_.rays, out), after_step=True)
+        run_schedules(schedules, after, phase="after_step")
     return opt

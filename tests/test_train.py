@@ -169,7 +169,7 @@ def test_progress_bar_in_a_log_file_redraws_rarely(tmp_path, sphere_npz):
     assert code == 0, log.read_text()[-2000:]
     text = log.read_text()
     steps = json.loads((tmp_path / "run" / "metrics.json").read_text())["step"]
-    assert steps > 20
+    assert steps > 8  # (redrawn every step, the log would hold more than 4 bars)
     assert text.count("step/s") <= 4, text[-2000:]
 
 
@@ -259,9 +259,9 @@ def test_schedules_run_in_their_phase_in_order_and_report_replaced_parameters():
     ran = []
     jobs = [Schedule("a", lambda s: s.step % 2 == 0, lambda s: ran.append(("a", s.step)) or "grew",
                      replaces_parameters=True),
-            Schedule("b", lambda s: True, lambda s: ran.append(("b", s.step)), after_step=True),
+            Schedule("b", lambda s: True, lambda s: ran.append(("b", s.step)), phase="after_step"),
             Schedule("c", lambda s: s.progress > 0.5, lambda s: ran.append(("c", s.step)))]
-    assert run_schedules(jobs, StepState(0, 0.0), after_step=False) == (True, ["grew"])
-    assert run_schedules(jobs, StepState(0, 0.0), after_step=True) == (False, [])
-    assert run_schedules(jobs, StepState(1, 0.9), after_step=False) == (False, [])
+    assert run_schedules(jobs, StepState(0, 0.0), phase="before_step") == (True, ["grew"])
+    assert run_schedules(jobs, StepState(0, 0.0), phase="after_step") == (False, [])
+    assert run_schedules(jobs, StepState(1, 0.9), phase="before_step") == (False, [])
     assert ran == [("a", 0), ("b", 0), ("c", 1)]

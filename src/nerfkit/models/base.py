@@ -153,6 +153,10 @@ class StepState:
     out: RenderOutput | None = None
 
 
+# when a schedule's job runs within a training step
+PHASES = ("before_step", "gradients", "after_step")
+
+
 @dataclass(frozen=True)
 class Schedule:
     """A job a model needs done during training, run by the trainer when ``due``: grid
@@ -162,7 +166,10 @@ class Schedule:
         name: for logs and errors.
         due: ``StepState -> bool``.
         run: ``StepState -> str | None`` (a line for the training log, or None).
-        after_step: run after the step's optimizer update (default: before its forward pass).
+        phase: ``before_step`` (before the forward pass), ``gradients`` (after the
+            backward pass, before the optimizer update: a job that adds gradients of its
+            own, as Plenoxels' in-place total variation) or ``after_step`` (after the
+            update).
         replaces_parameters: the job installs new parameter tensors; the trainer then
             builds a new optimizer (their Adam moments start at zero).
     """
@@ -170,15 +177,19 @@ class Schedule:
     name: str
     due: Callable[[StepState], bool]
     run: Callable[[StepState], str | None]
-    after_step: bool = False
+    phase: str = "before_step"
     replaces_parameters: bool = False
 
+    def __post_init__(self):
+        if self.phase not in PHASES:
+            raise ValueError(f"schedule {self.name!r}: phase {self.phase!r} is not one of {PHASES}")
 
-def run_schedules(schedules: list[Schedule], state: StepState, after_step: bool) -> tuple[bool, list[str]]:
+
+def run_schedules(schedules: list[Schedule], state: StepState, phase: str) -> tuple[bool, list[str]]:
     """Run the due jobs of one phase, in order: ``(whether parameters were replaced, log lines)``."""
     replaced, notes = False, []
     for job in schedules:
-        if job.after_step == after_step and job.due(state):
+        if job.phase == phase and job.due(state):
             note = job.run(state)
             replaced = replaced or job.replaces_parameters
             if note:

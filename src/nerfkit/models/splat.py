@@ -279,7 +279,7 @@ class SplatModel(NerfModel):
         carry the optimizer's moments along."""
         always = lambda s: True  # noqa: E731
         return [Schedule("sh degree", always, self._set_progress),
-                Schedule("density control", always, self._density_control, after_step=True)]
+                Schedule("density control", always, self._density_control, phase="after_step")]
 
     def _set_progress(self, s: StepState) -> None:
         self._progress = s.progress

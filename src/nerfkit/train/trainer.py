@@ -223,7 +223,7 @@ class Trainer:
     # -- one step ------------------------------------------------------------------
     def train_step(self) -> dict:
         state = StepState(self.step, self.progress(), self.optimizer)
-        replaced, notes = run_schedules(self.schedules, state, after_step=False)
+        replaced, notes = run_schedules(self.schedules, state, phase="before_step")
         if replaced:  # new parameter tensors: their Adam moments start at zero
             self.optimizer = build_optimizer(self.model, self.cfg.lr)
             self._remember_initial_lr()
@@ -254,6 +254,8 @@ class Trainer:
             self._zero_grad()
             self._bad_step("non-finite loss or gradient, step skipped")
             return {"loss": float("nan"), "psnr": float("nan"), "samples": 0}
+        after = replace(state, optimizer=self.optimizer, rays=rays, out=out if rays is not None else None)
+        run_schedules(self.schedules, after, phase="gradients")
         self.optimizer.step()
         if self.view_optimizer is not None:
             self.view_optimizer.step()
@@ -262,8 +264,7 @@ class Trainer:
             self._bad_step(f"{skipped} grid rows had non-finite gradients and were not updated")
         else:
             self.bad_steps = 0
-        after = replace(state, optimizer=self.optimizer, rays=rays, out=out if rays is not None else None)
-        for note in run_schedules(self.schedules, after, after_step=True)[1]:
+        for note in run_schedules(self.schedules, after, phase="after_step")[1]:
             self.log(f"step {self.step}: {note}")
         mse = float(torch.mean((out.rgb.detach().float() - target) ** 2))
         return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples}
