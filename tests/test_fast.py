@@ -97,7 +97,7 @@ def test_rendering_changes_nothing_in_the_model_and_a_schedule_remembers_surface
     n0 = int(model.surface_count)
     opaque = out.acc > 0.5
     run_schedules([j for j in model.schedules() if j.name == "remember surfaces"],
-                  StepState(30, 0.3, None, batch.rays, out), after_step=True)
+                  StepState(30, 0.3, None, batch.rays, out), phase="after_step")
     assert int(model.surface_count) == n0 + int(opaque.sum()) > n0
     new = model.surface_pts[n0:int(model.surface_count)]
     o, d = batch.rays.origins[opaque], batch.rays.directions[opaque]
@@ -246,3 +246,27 @@ def test_a_non_finite_grid_gradient_is_refused_and_counted(scene, kernels):
     model.render_rays(batch.rays, torch.zeros(3), perturb=True).rgb.sum().backward()
     opt.step()
     assert opt.nonfinite_rows == 0
+
+
+def density_variation(model) -> float:
+    """Mean over pairs of neighbouring stored vertices of the squared difference of raw density."""
+    rx, ry, rz = model.geom.res
+    rows = model.vertex_rows.long().reshape(rz, ry, rx)
+    raw = model.grid.detach()[:, 0]
+    total, pairs = 0.0, 0
+    for dim in range(3):
+        a, b = rows.narrow(dim, 0, rows.shape[dim] - 1), rows.narrow(dim, 1, rows.shape[dim] - 1)
+        both = (a > 0) & (b > 0)
+        total += float(((raw[a[both]] - raw[b[both]]) ** 2).sum())
+        pairs += int(both.sum())
+    return total / pairs
+
+
+def test_total_variation_smooths_the_density_and_keeps_the_views(scene, trained):
+    """The same training with ``--tv-weight``: the density varies clearly less between
+    neighbouring vertices, and the held-out views are still reconstructed."""
+    smooth = FastNeRF(FastConfig(**SMALL, tv_weight=1e-7), SceneBounds.from_scene(scene))
+    train_loop(smooth, scene, 100)
+    plain = density_variation(trained)
+    assert density_variation(smooth) < 0.5 * plain, (density_variation(smooth), plain)
+    assert val_psnr(smooth, scene) > 22.0

@@ -574,3 +574,45 @@ def test_compiled_distortion_matches_reference_values_and_gradients(sh_degree):
     torch.testing.assert_close(fast.distortion.double(), slow.distortion, atol=1e-6, rtol=1e-4)
     for got, want in zip(grads[0], grads[1]):
         torch.testing.assert_close(got.double(), want, atol=5e-5, rtol=2e-4)
+
+
+def test_total_variation_gradient_of_a_row_of_three_vertices():
+    """Values 0, 1, 3 along x: energy 0.5 * (1 + 4); gradient (0 - 1, (1 - 0) + (1 - 3), 3 - 1)."""
+    grid = torch.tensor([[-30.0], [0.0], [1.0], [3.0]])  # row 0: the empty row
+    index = torch.tensor([1, 2, 3], dtype=torch.int32)
+    g = ref.tv_grad(grid, index, (3, 1, 1), torch.tensor([2.0]))
+    torch.testing.assert_close(g, 2.0 * torch.tensor([[0.0], [-1.0], [-1.0], [2.0]]))
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+@pytest.mark.parametrize("layout", ["after_sentinel", "sparse"])
+def test_total_variation_goes_to_the_touched_rows_only_and_matches_the_reference(backend, layout):
+    """The compiled pass and the torch path add the reference gradient (autograd of the
+    energy) on the rows the rays touched, and nothing elsewhere."""
+    if backend == "numba" and numba_kernels() is None:
+        pytest.skip("numba not available")
+    from nerfkit.kernels.ops import add_grid_tv
+
+    grid, geom = stored_as(*random_field(seed=3, res=(9, 7, 8)), layout, seed=2)
+    weight = torch.tensor([0.5] + [0.05] * (grid.shape[1] - 1))
+    g = torch.Generator().manual_seed(0)
+    touched = torch.rand(grid.shape[0], generator=g) < 0.3
+    touched[0] = True  # the empty row is never regularised
+    photo = torch.randn(grid.shape, generator=g) * touched.unsqueeze(1)
+    expect = ref.tv_grad(grid, geom.vertex_index(), geom.res, weight)
+    sink = GradSink(grid.shape[0], grid.shape[1], lanes=2)
+    if backend == "numba":
+        sink.grad[1] = photo
+        sink.touched[:] = touched.to(torch.uint8)
+        param = grid
+    else:
+        param = grid.clone().requires_grad_(True)
+        param.grad = photo.clone()
+    n = add_grid_tv(param, geom, weight, sink, backend)
+    total = sink.grad.sum(0) if backend == "numba" else param.grad
+    rows = touched.clone()
+    rows[0] = False
+    assert n == int(rows.sum())
+    torch.testing.assert_close(total[rows], photo[rows] + expect[rows], rtol=1e-5, atol=1e-5)
+    assert torch.equal(total[~rows], photo[~rows])
+    assert torch.all(expect[0] == 0)  # the empty row is nobody's neighbour

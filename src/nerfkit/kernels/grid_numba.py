@@ -649,6 +649,44 @@ def clear_rows(grads, rows, touched):
 
 
 @njit(cache=True, parallel=True, fastmath=False)
+def tv_rows(grid, vidx, voff, row_vertex, rx, ry, rz, rows, weight, grad):
+    """Total variation on the given rows, added to their gradient: at row ``r`` (vertex
+    ``v``), ``sum_n weight[c] * (grid[r, c] - grid[n, c])`` over the stored vertices ``n``
+    next to ``v`` along x, y and z; that is, the gradient at ``r`` of
+    ``0.5 * sum over neighbour pairs of weight[c] * (difference)^2``. Vertices that are not
+    stored (row 0) are not neighbours.
+
+    Args:
+        grid: (M, C) float32; vidx, voff: as in :func:`render_forward`; row_vertex: (M,)
+            int64 vertex of each row of a sparse grid (unused when ``voff >= 0``); rx, ry,
+            rz: vertex counts; rows: (m,) int64 distinct rows; weight: (C,) float32;
+            grad: (M, C) float32, one lane of the gradient (each row is written once).
+    """
+    C = grid.shape[1]
+    sxy = rx * ry
+    for j in prange(rows.shape[0]):
+        r = rows[j]
+        v = r - voff if voff >= 0 else row_vertex[r]
+        x = v % rx
+        y = (v // rx) % ry
+        z = v // sxy
+        for k in range(6):
+            axis = k >> 1
+            sign = 1 if k & 1 else -1
+            coord = x if axis == 0 else (y if axis == 1 else z)
+            size = rx if axis == 0 else (ry if axis == 1 else rz)
+            if coord + sign < 0 or coord + sign >= size:
+                continue
+            stride = 1 if axis == 0 else (rx if axis == 1 else sxy)
+            n = _row(vidx, v + sign * stride, voff)
+            if n == 0:
+                continue
+            for c in range(C):
+                if weight[c] != 0.0:
+                    grad[r, c] += weight[c] * (grid[r, c] - grid[n, c])
+
+
+@njit(cache=True, parallel=True, fastmath=False)
 def occupancy_from_grid(grid, vidx, voff, rx, ry, rz, raw_thr, occ, coarse, cf):
     """Mark the cells whose largest corner raw density exceeds ``raw_thr``.
 
@@ -709,3 +747,5 @@ def warm_up() -> None:
     adam_rows(grid, grads, rows, touched, m, m.copy(), np.ones(C, np.float32), 0.9, 0.99, 1e-15, 0.1, 0.01)
     clear_rows(grads, touched_rows(touched), touched)
     occupancy_from_grid(grid, vidx, voff, rx, ry, rz, 0.0, occ, occ.copy(), 1)
+    tv_rows(grid, vidx, voff, np.arange(rx * ry * rz, dtype=np.int64), rx, ry, rz, np.arange(1, 3, dtype=np.int64),
+            np.ones(C, np.float32), grads[0])

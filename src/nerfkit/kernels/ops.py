@@ -425,6 +425,51 @@ def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0,
     return GridRender(rgb, depth, acc, counts, int(counts.sum()), dist)
 
 
+def row_vertices(geom: GridGeom, n_rows: int) -> Tensor:
+    """(n_rows,) int64 vertex of each feature row (row 0, the empty row: vertex 0)."""
+    index = geom.vertex_index().long()
+    out = torch.zeros(n_rows, dtype=torch.int64, device=index.device)
+    stored = torch.nonzero(index > 0)[:, 0]
+    out[index[stored]] = stored
+    return out
+
+
+def add_grid_tv(grid: Tensor, geom: GridGeom, weight: Tensor, sink: GradSink, backend: str,
+                row_vertex: Tensor | None = None) -> int:
+    """Add the total variation's gradient (:func:`reference.tv_grad`) on the rows that this
+    step's rays touched (their gradient is in ``sink``, or on the torch path in
+    ``grid.grad``). Only those rows: under Adam's per-row scaling a row that only the
+    regulariser moved would move at full speed whatever the weight.
+
+    Args:
+        grid: (M, C) with row 0 the empty row; weight: (C,) per channel; row_vertex: from
+            :func:`row_vertices` (needed by the compiled path for a sparse grid).
+
+    Returns:
+        how many rows were regularised.
+    """
+    nb = numba_kernels() if backend == "numba" and grid.device.type == "cpu" else None
+    if nb is not None:
+        rows = nb.touched_rows(sink.touched.numpy())
+        rows = rows[rows > 0]
+        off = geom.row_offset()
+        if off >= 0:  # a dense grid: the kernel computes each row's vertex
+            rv = torch.zeros(0, dtype=torch.int64)
+        else:
+            rv = row_vertex if row_vertex is not None else row_vertices(geom, grid.shape[0])
+        rx, ry, rz = geom.res
+        nb.tv_rows(grid.detach().numpy(), _vertex_rows(geom), off, rv.numpy(), rx, ry, rz, rows,
+                   _np32(weight), sink.grad[0].numpy())
+        return len(rows)
+    if grid.grad is None:
+        return 0
+    touched = grid.grad.ne(0).any(dim=1)
+    touched[0] = False
+    g = ref.tv_grad(grid, geom.vertex_index(), geom.res, weight.to(grid.device))
+    grid.grad[touched] += g[touched]
+    return int(touched.sum())
+
+
 def cell_density_max(grid: Tensor, geom: GridGeom, density_scale: float) -> Tensor:
     """An exact upper bound of the density inside each cell: (rz-1, ry-1, rx-1).
 

@@ -230,3 +230,26 @@ def adam_rows(param: Tensor, g: Tensor, rows: Tensor, exp_avg: Tensor, exp_avg_s
     denom = (v / bc2).sqrt_().add_(eps)
     param[rows] -= lr * (m / bc1) / denom
     return skipped
+
+
+def tv_grad(grid: Tensor, index: Tensor, res: tuple[int, int, int], weight: Tensor) -> Tensor:
+    """(M, C) gradient of the grid's total variation ``0.5 * sum over pairs of neighbour
+    vertices (along x, y and z, both stored) of weight[c] * (grid[a, c] - grid[b, c])^2``.
+
+    Args:
+        grid: (M, C); index: (N,) int feature row of each vertex (0: not stored; a dense
+            grid's is ``arange(N) + 1`` over a grid whose row 0 is unused); res: (rx, ry,
+            rz) vertex counts; weight: (C,).
+    """
+    rx, ry, rz = res
+    rows = index.long().reshape(rz, ry, rx)
+    g = grid.detach().clone().requires_grad_(True)
+    energy = g.new_zeros(())
+    for axis in range(3):  # pairs along x, y, z: the last tensor axis is x
+        dim = 2 - axis
+        a, b = rows.narrow(dim, 0, rows.shape[dim] - 1), rows.narrow(dim, 1, rows.shape[dim] - 1)
+        both = (a > 0) & (b > 0)
+        diff = g[a[both]] - g[b[both]]
+        energy = energy + 0.5 * (weight.to(g) * diff * diff).sum()
+    (grad,) = torch.autograd.grad(energy, g)
+    return grad

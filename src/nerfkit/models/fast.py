@@ -58,7 +58,7 @@ from ..errors import fail
 from ..fields.background import RoomShells, TablePlane, composite_layers, sh16
 from ..kernels import numba_kernels
 from ..kernels import reference as ref
-from ..kernels.ops import GradSink, GridGeom, MarchSpec, cell_density_max, render_grid
+from ..kernels.ops import GradSink, GridGeom, MarchSpec, add_grid_tv, cell_density_max, render_grid, row_vertices
 from ..render.occupancy import OccupancyGrid, ray_aabb
 from .packing import pack_grid, unpack_grid, vertices_touching
 from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState
@@ -119,6 +119,12 @@ class FastConfig:
                                              "surface behind the box): it gathers each ray's weight onto one "
                                              "surface, against haze and floaters (default: "
                                              "0.01 on capture and forward-facing datasets, else 0)", min=0.0)
+    tv_weight: float = option(0.0, "weight of the total variation of the grid's density (as Plenoxels), on the "
+                              "vertices this step's rays touched: pulls each toward its neighbours, against "
+                              "density that few rays pin down (floaters, edges painted above a surface); 0: off",
+                              min=0.0)
+    tv_colour: float = option(0.1, "with --tv-weight: the colour coefficients' total variation weight, relative to "
+                              "the density's", min=0.0)
     distortion_table: bool = option(False, "with --table, the distortion loss counts the table as the surface "
                                     "behind each ray, so haze in front of the table costs by its distance to it "
                                     "(clears haze, but a low object may be painted onto the table instead)")
@@ -459,13 +465,15 @@ class FastNeRF(NerfModel):
         return {self.grid: self.sink, **self.texture_sinks}
 
     def schedules(self) -> list[Schedule]:
-        """Coarse-to-fine growth (before a step; new grid parameters), and after a step:
+        """Coarse-to-fine growth (before a step; new grid parameters), the total variation
+        (with the step's gradients), and after a step:
         where opaque rays ended (until the first growth, which shrinks the box around
         them) and occupancy refreshes (every ``occ_start`` steps until ``occ_warmup``, then
         every ``occ_every``)."""
         return [Schedule("grow", self._growth_due, self._grow_next, replaces_parameters=True),
-                Schedule("remember surfaces", self._surface_due, self._remember_surface, after_step=True),
-                Schedule("occupancy", self._occupancy_due, self._occupancy_job, after_step=True)]
+                Schedule("total variation", lambda s: self.config.tv_weight > 0, self._add_tv, phase="gradients"),
+                Schedule("remember surfaces", self._surface_due, self._remember_surface, phase="after_step"),
+                Schedule("occupancy", self._occupancy_due, self._occupancy_job, phase="after_step")]
 
     def _growth_due(self, s: StepState) -> bool:
         return self.stage < len(self.steps) and s.step >= self.steps[self.stage]
@@ -532,6 +540,16 @@ class FastNeRF(NerfModel):
         raw = self.grid.detach()[rows, 0].reshape(-1, 8).amax(1)
         alpha = -torch.expm1(-self.density_scale * F.softplus(raw) * self.step_size)
         return min(self.config.occ_alpha, float(alpha.mean()))
+
+    def _add_tv(self, s: StepState) -> None:
+        """Add the grid's total variation gradient on the rows the step's rays touched."""
+        c = self.config
+        weight = torch.tensor([c.tv_weight] + [c.tv_weight * c.tv_colour] * (self.n_channels - 1))
+        key = (id(self.vertex_rows), self.vertex_rows._version, self.grid.shape[0])
+        if getattr(self, "_row_vertex_key", None) != key:
+            self._row_vertex = row_vertices(self.geom, self.grid.shape[0]) if self._row_offset < 0 else None
+            self._row_vertex_key = key
+        add_grid_tv(self.grid, self.geom, weight, self.sink, self._backend(), self._row_vertex)
 
     def _surface_due(self, s: StepState) -> bool:
         return s.out is not None and self.config.shrink_box and self.stage == 0 and bool(self.steps)
