@@ -129,13 +129,6 @@ class VanillaNeRF(NerfModel):
             # per-cell density estimate (inf: not measured yet, so occupied); saved in checkpoints
             self.register_buffer("cell_sigma", torch.full((r, r, r), float("inf")))
 
-    def _apply(self, fn, *args, **kwargs):
-        out = super()._apply(fn, *args, **kwargs)
-        if self.grid is not None:
-            self.grid.to(self.cell_sigma.device)
-            self._refresh_occ()
-        return out
-
     def _refresh_occ(self) -> None:
         spacing = (self.bounds.far - self.bounds.near) / self.cfg.n_samples
         self.grid.set_from_cell_sigma(self.cell_sigma, spacing, OCCUPANCY_ALPHA)

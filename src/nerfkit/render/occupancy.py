@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
-from torch import Tensor
+from torch import Tensor, nn
 
 from ..kernels.reference import cell_of, grid_coords
 from .volrend import render_weights
@@ -110,8 +110,9 @@ def lattice(t0: Tensor, t1: Tensor, u: Tensor, step: float) -> tuple[Tensor, Ten
     return t, t < t1.unsqueeze(1)
 
 
-class OccupancyGrid:
-    """A binary occupancy grid over the cells of a box.
+class OccupancyGrid(nn.Module):
+    """A binary occupancy grid over the cells of a box (nerfacc's estimator: a module whose
+    buffers follow its owner's device; they are derived state, so not saved).
 
     Args:
         lo: (3,) box corner; voxel: cell side; res: vertex counts ``(rx, ry, rz)``
@@ -126,7 +127,7 @@ class OccupancyGrid:
 
     def __init__(self, lo, voxel: float, res: tuple[int, int, int], device: torch.device | str = "cpu",
                  occ: Tensor | None = None):
-        self.lo = torch.as_tensor(lo, dtype=torch.float32, device=device).reshape(3)
+        super().__init__()
         self.voxel = float(voxel)
         self.res = tuple(int(r) for r in res)
         if min(self.res) < 2:
@@ -134,11 +135,11 @@ class OccupancyGrid:
         rx, ry, rz = self.res
         shape = (rz - 1, ry - 1, rx - 1)
         if occ is None:
-            self.occ = torch.ones(shape, dtype=torch.bool, device=device)
+            occ = torch.ones(shape, dtype=torch.bool, device=device)
         elif tuple(occ.shape) != shape:
             raise ValueError(f"occupancy has shape {tuple(occ.shape)}, expected {shape} for {self.res} vertices")
-        else:
-            self.occ = occ.to(device=device, dtype=torch.bool)
+        self.register_buffer("lo", torch.as_tensor(lo, dtype=torch.float32, device=device).reshape(3), persistent=False)
+        self.register_buffer("occ", occ.to(device=device, dtype=torch.bool), persistent=False)
 
     @property
     def hi(self) -> Tensor:
@@ -148,10 +149,6 @@ class OccupancyGrid:
     @property
     def occupied_fraction(self) -> float:
         return float(self.occ.float().mean())
-
-    def to(self, device) -> "OccupancyGrid":
-        self.lo, self.occ = self.lo.to(device), self.occ.to(device)
-        return self
 
     def set_from_cell_sigma(self, sigma_max: Tensor, step: float, alpha_thre: float) -> None:
         """Mark cells whose largest density gives ``alpha = 1 - exp(-sigma step) > alpha_thre``.
