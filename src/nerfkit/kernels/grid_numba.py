@@ -605,35 +605,35 @@ def adam_rows(param, grads, rows, touched, exp_avg, exp_avg_sq, lr, beta1, beta2
     eps32 = np.float32(eps)
     skipped = 0
     for j in prange(m_rows):
-        if j + 8 < m_rows:  # the rows are scattered: start fetching a later one now
+        if j + 8 < m_rows:  # the rows are scattered: start fetching a later one (both its ends) now
             q = rows[j + 8]
-            prefetch(param, q, 0)
-            prefetch(exp_avg, q, 0)
-            prefetch(exp_avg_sq, q, 0)
-            for lane in range(L):
-                prefetch(grads[lane], q, 0)
+            for col in (0, C - 1):
+                prefetch(param, q, col)
+                prefetch(exp_avg, q, col)
+                prefetch(exp_avg_sq, q, col)
+                for lane in range(L):
+                    prefetch(grads[lane], q, col)
         i = rows[j]
-        ok = 1
-        for c in range(C):  # a row with a non-finite gradient is skipped whole (and counted)
-            g = grads[0, i, c]
-            for lane in range(1, L):
-                g += grads[lane, i, c]
-            if not np.isfinite(g):
-                ok = 0
-        for c in range(C):
-            g = grads[0, i, c]
-            grads[0, i, c] = 0.0
-            for lane in range(1, L):
-                g += grads[lane, i, c]
-                grads[lane, i, c] = 0.0
-            if ok:
+        probe = np.float32(0.0)  # NaN if any gradient of the row is not finite
+        for lane in range(L):
+            for c in range(C):
+                probe += grads[lane, i, c] * np.float32(0.0)
+        if np.isfinite(probe):  # a row with a non-finite gradient is skipped whole (and counted)
+            for c in range(C):
+                g = grads[0, i, c]
+                for lane in range(1, L):
+                    g += grads[lane, i, c]
                 m = b1 * exp_avg[i, c] + ob1 * g
                 v = b2 * exp_avg_sq[i, c] + ob2 * (g * g)
                 exp_avg[i, c] = m
                 exp_avg_sq[i, c] = v
                 param[i, c] -= step[c] * m / (np.sqrt(v) * inv_sqrt_bc2 + eps32)
+        else:
+            skipped += 1
+        for lane in range(L):
+            for c in range(C):
+                grads[lane, i, c] = 0.0
         touched[i] = 0
-        skipped += 1 - ok
     return skipped
 
 
