@@ -40,6 +40,9 @@ def parse_args(argv=None):
                    help="validation views per evaluation on the curve (0: all for fast, 2 for vanilla)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-cold-compile", action="store_true", help="skip timing a cold numba compile")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a model or training option for every run (repeatable), "
+                        "e.g. --set upsample_steps=60,300,1000")
     # internal: one training run in this process
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--model", help=argparse.SUPPRESS)
@@ -71,6 +74,7 @@ def worker(args) -> dict:
     run_dir = Path(args.out)
     cfg = TrainConfig(data=args.data, model=args.model, out=str(run_dir), minutes=args.seconds / 60.0, seed=args.seed,
                       eval_views=args.eval_views or len(scene.val), checkpoint_seconds=1e9)
+    overrides(args.set, model_cfg, cfg)
     cfg = resolved_config(cfg.validate(), model_cfg)
 
     class TimedTrainer(Trainer):
@@ -120,6 +124,17 @@ def worker(args) -> dict:
         "model_config": {k: v for k, v in vars(model_cfg).items()}, "val_views": len(scene.val),
         "mean_val_psnr_check": float(np.mean([r["psnr"] for r in val[-1:]])) if val else None,
     }
+
+
+def overrides(pairs: list[str], model_cfg, train_cfg) -> None:
+    """Apply ``NAME=VALUE`` pairs to the model config (first) or the training config."""
+    for pair in pairs:
+        name, sep, value = pair.partition("=")
+        target = next((c for c in (model_cfg, train_cfg) if sep and hasattr(c, name)), None)
+        if target is None:
+            raise SystemExit(f"--set {pair}: expected NAME=VALUE with NAME an option of the model or of training")
+        old = getattr(target, name)
+        setattr(target, name, (value.lower() in ("1", "true", "yes")) if isinstance(old, bool) else type(old)(value))
 
 
 def cold_compile_seconds() -> float | None:
@@ -199,7 +214,7 @@ def main(argv=None) -> int:
             views = args.curve_views or (2 if model == "vanilla" else 0)
             cmd = [sys.executable, __file__, str(run), "--worker", "--model", model, "--seconds", str(budget),
                    "--data", args.data, "--seed", str(args.seed), "--eval-at", ",".join(map(str, eval_at)),
-                   "--eval-views", str(views)]
+                   "--eval-views", str(views)] + [f"--set={x}" for x in args.set]
             print(f"{model}: {budget:g} s ...", flush=True)
             subprocess.run(cmd, check=True)
             r = json.loads((run / "result.json").read_text())
