@@ -352,8 +352,8 @@ def test_sfm_normalised_dataset(room_sfm, tmp_path):
     result = copy.copy(result)
     result.reconstruction = pycolmap.Reconstruction(result.reconstruction)
     result.model_dir = tmp_path / "model"
-    frame = align_reconstruction(result, tag_size=None, progress=False)
-    assert "normalised" in frame and result.tag_size is None
+    frame = align_reconstruction(result, tag_size=None, progress=False, ground=False)
+    assert "normalised" in frame and result.tag_size is None and not result.on_ground
     names, c2w = reconstruction_c2w(result.reconstruction)
     assert np.linalg.norm(c2w[:, :3, 3], axis=1).mean() == pytest.approx(4.0, rel=1e-6)
     ref = np.stack([truth[n] for n in names])
@@ -375,6 +375,34 @@ def test_sfm_normalised_dataset(room_sfm, tmp_path):
     meta = json.loads((tmp_path / "ds" / "transforms.json").read_text())
     assert "normalised" in json.dumps(meta)
     assert load_scene(tmp_path / "ds").train.images.shape == scene.train.images.shape
+
+
+@pytest.mark.slow
+def test_sfm_without_tag_levels_the_scene_on_the_floor(room_sfm, tmp_path):
+    """No tag: the floor the box stands on is found in the sparse points and becomes z = 0,
+    and the dataset records it as the table, as a tag's plane would be."""
+    import copy
+
+    from nerfkit.capture.dataset import DatasetConfig
+    from nerfkit.data.scene import estimate_center
+    from nerfkit.sfm.colmap import reconstruction_c2w
+    from nerfkit.sfm.dataset import build_dataset
+
+    result, truth = room_sfm
+    result = copy.copy(result)
+    result.reconstruction = pycolmap.Reconstruction(result.reconstruction)
+    result.model_dir = tmp_path / "model"
+    frame = align_reconstruction(result, tag_size=None, progress=False)
+    assert "table plane" in frame and result.on_ground
+    assert result.report.ground["tilt_deg"] < 3.0
+    names, c2w = reconstruction_c2w(result.reconstruction)
+    ref = np.stack([truth[n] for n in names])
+    s = 4.0 / np.linalg.norm(ref[:, :3, 3] - estimate_center(ref), axis=1).mean()  # the normalised scale
+    np.testing.assert_allclose(c2w[:, 2, 3], s * ref[:, 2, 3], rtol=0.02)  # heights above the floor
+    scene = build_dataset(result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160),
+                          progress=False)
+    np.testing.assert_array_equal(scene.table, [0.0, 0.0, 1.0, 0.0])
+    assert load_scene(tmp_path / "ds").table is not None
 
 
 @pytest.mark.slow

@@ -21,7 +21,10 @@ Without --camera the EXIF focal length of the photos is used (no lens distortion
 
 With --method colmap, poses come from structure-from-motion (pycolmap) instead; a tag
 seen in the photos (give --tag-size) fixes the metric scale and up, otherwise the scene is
-centred and scaled to a mean camera distance of 4 and the report says so.
+centred and scaled to a mean camera distance of 4 and the report says so. Without a tag
+the table the object stands on is found in the SfM points (a plane facing up, under the
+point the cameras look at) and becomes z = 0, so training treats it as the tag's plane
+(--no-ground: keep the cameras' up and no table).
 
 examples:
   nerfkit poses object_photos/ --camera camera.json --tag-size 0.06 --out my_object/
@@ -43,6 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "for photos without tags (a tag, with --tag-size, then fixes scale and up)")
     p.add_argument("--matcher", choices=["auto", "exhaustive", "sequential"], default="auto",
                    help="SfM matching with --method colmap (auto: exhaustive up to 100 photos)")
+    p.add_argument("--no-ground", action="store_true",
+                   help="with --method colmap and no tag: do not look for the table plane in the SfM points")
     p.add_argument("--sfm-max-size", type=number(int, 64, 100_000), default=1000, help="longest side used for SfM features, px (default 1000)")
     p.add_argument("--camera", help="camera file from `nerfkit calibrate` (default: the photos' EXIF focal length)")
     p.add_argument("--focal-px", type=number(float, above=0), help="focal length in pixels, when there is no camera file or EXIF")
@@ -134,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
 
         _, report = sfm_dataset(args.photos, out, dcfg, matcher=args.matcher, max_image_size=args.sfm_max_size,
                                 tag_size=args.tag_size, tag_id=args.tag_id or 0, tag_dict=dictionary,
-                                jobs=args.jobs or default_jobs())
+                                jobs=args.jobs or default_jobs(), ground=not args.no_ground)
         print(report.summary())
         return 0
     layout = load_layout(args.layout, dictionary, args.tag_size) if args.layout else None

@@ -65,6 +65,7 @@ class SfmReport:
     seconds: dict[str, float] = field(default_factory=dict)
     frame: str = ""
     camera: dict = field(default_factory=dict)
+    ground: dict | None = None  # the table plane found in the points (no tag), see ground.py
 
     def summary(self) -> str:
         """A few lines for the terminal."""
@@ -83,7 +84,7 @@ class SfmReport:
         return {"n_photos": self.n_photos, "n_registered": len(self.registered), "registered": self.registered,
                 "unregistered": self.unregistered, "n_points": self.n_points,
                 "reprojection_error": self.reprojection_error, "n_models": self.n_models, "matcher": self.matcher,
-                "seconds": self.seconds, "frame": self.frame, "camera": self.camera}
+                "seconds": self.seconds, "frame": self.frame, "camera": self.camera, "ground": self.ground}
 
 
 @dataclass
@@ -95,6 +96,7 @@ class SfmResult:
     image_dir: Path  # the upright photos COLMAP used (the input folder, or upright copies)
     report: SfmReport
     tag_size: float | None = None  # set when the world frame is the tag's (metres)
+    on_ground: bool = False  # no tag, but z = 0 is the table plane found in the sparse points
 
 
 def _import_pycolmap():
@@ -512,6 +514,29 @@ def reconstruction_c2w(rec) -> tuple[list[str], np.ndarray]:
     return [im.name for im in ims], np.stack([image_c2w(im) for im in ims])
 
 
+def _level_on_ground(result: SfmResult, progress: bool) -> str:
+    """Find the table plane among the (normalised) reconstruction's points and make it
+    z = 0; what was done, for the frame description."""
+    from .ground import find_ground_plane, ground_similarity
+    from .triangulate import reconstruction_points
+
+    rec = result.reconstruction
+    _, c2w = reconstruction_c2w(rec)
+    origin, up = np.zeros(3), np.array([0.0, 0.0, 1.0])  # the normalised frame's look-at point and up
+    plane, why = find_ground_plane(reconstruction_points(rec).xyz, c2w[:, :3, 3], origin, up)
+    if plane is None:
+        _say(progress, f"sfm: no table plane found ({why}); the scene keeps the cameras' up and no table")
+        return f"no table plane found ({why})"
+    R, t = ground_similarity(plane, origin)
+    transform_reconstruction(rec, 1.0, R, t)
+    result.on_ground = True
+    result.report.ground = plane.to_dict()
+    note = (f"z = 0 on the table plane found in the sparse points ({plane.inliers} of {plane.candidates} "
+            f"points near the centre within {plane.tolerance:.3g}; {plane.tilt_deg:.1f} degrees from the cameras' up)")
+    _say(progress, f"sfm: {note}")
+    return note
+
+
 # --------------------------------------------------------------------------- tags
 
 
@@ -578,13 +603,15 @@ def tag_similarity(rec, image_dir: Path, tag_size: float, tag_id: int = 0, dicti
 
 def align_reconstruction(result: SfmResult, tag_size: float | None = None, tag_id: int = 0,
                          tag_dict: str = "DICT_4X4_50", target_distance: float = 4.0,
-                         progress: bool = True) -> str:
+                         progress: bool = True, ground: bool = True) -> str:
     """Move the reconstruction into nerfkit's world frame (in place; rewrites the model).
 
     With ``tag_size`` (metres) and the tag visible in >= 3 registered photos: the tag
     frame (metric, +z up out of the tag). Otherwise normalised (see
-    :func:`normalising_similarity`). Returns a one-line description, also stored in
-    ``result.report.frame``.
+    :func:`normalising_similarity`) and, with ``ground``, levelled on the table plane
+    found in the sparse points (:mod:`nerfkit.sfm.ground`: z = 0 on the table, the origin
+    under the look-at point; ``result.on_ground``). Returns a one-line description, also
+    stored in ``result.report.frame``.
     """
     rec = result.reconstruction
     frame = None
@@ -607,6 +634,8 @@ def align_reconstruction(result: SfmResult, tag_size: float | None = None, tag_i
                  f"cameras centred on the point they look at, "
                  f"up (perpendicular to the cameras' x axes) -> +z, mean camera distance {target_distance:g} "
                  f"(arbitrary units, not metric)")
+        if ground:
+            frame += "; " + _level_on_ground(result, progress)
     write_reconstruction(rec, result.model_dir)
     result.report.frame = frame
     return frame

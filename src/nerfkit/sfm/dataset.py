@@ -125,7 +125,7 @@ def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | 
     extra = {"world": result.report.frame, "poses": "structure-from-motion (COLMAP via pycolmap)",
              "sfm": {k: v for k, v in result.report.to_dict().items() if k not in ("registered",)}}
     scene, _ = capture_build_dataset(posed_photos(result), out_dir, cfg, tag_size, jobs=jobs, progress=progress,
-                                     extra=extra, on_tag_plane=result.tag_size is not None,
+                                     extra=extra, on_tag_plane=result.tag_size is not None or result.on_ground,
                                      points=model_points(result) if cfg.points else None)
     write_json(Path(out_dir) / REPORT_FILE, result.report.to_dict())
     return scene
@@ -146,17 +146,21 @@ def sfm_dataset(
     jobs: int = 2,
     progress: bool = True,
     verbose: bool = False,
+    ground: bool = True,
 ) -> tuple[Scene, SfmReport]:
     """Photos -> SfM -> world frame -> dataset in ``out_dir``.
 
     The world frame is the tag's (metres, +z up) when ``tag_size`` is given and tag
     ``tag_id`` is seen in at least 3 registered photos, else normalised (see
-    :func:`nerfkit.sfm.colmap.align_reconstruction`). ``cfg`` holds the dataset options
+    :func:`nerfkit.sfm.colmap.align_reconstruction`; without a tag and with ``ground``, the
+    table plane found in the sparse points becomes z = 0 and the dataset's table, as a tag's
+    would). ``cfg`` holds the dataset options
     (size, splits, near/far) shared with the tag path. COLMAP's files stay in
     ``out_dir/colmap`` (database and the aligned model ``sparse/0``).
     """
     result = run_sfm(image_dir, out_dir, matcher=matcher, max_image_size=max_image_size, camera_model=camera_model,
                      threads=threads, seed=seed, progress=progress, verbose=verbose)
-    align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=tag_dict, progress=progress)
+    align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=tag_dict, progress=progress,
+                         ground=ground)
     scene = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress)
     return scene, result.report

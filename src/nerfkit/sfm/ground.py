@@ -1,0 +1,131 @@
+"""The table under the object, found in structure-from-motion points.
+
+A tag gives a capture its table plane for free (z = 0 of the tag frame). Without a tag,
+the object still stands on something, and SfM triangulates that surface well: a table
+is textured, flat and in every photo. :func:`find_ground_plane` fits it by RANSAC among
+the sparse points near the point the cameras look at, keeping only planes that:
+
+* face the cameras' up within ``max_tilt_deg`` (walls and the object's sides do not),
+* have the cameras on their upper side (a ceiling does not),
+* pass close under the look-at point, within ``max_drop`` camera distances (the object
+  stands on it: a floor seen beyond a table's edge is too far down),
+* hold at least ``min_inlier_fraction`` of those points.
+
+The winning plane is refitted to its inliers (least squares). :func:`ground_similarity`
+then moves the world so that the plane is z = 0 with +z up and the origin under the
+look-at point, as the tag frame would: training then treats the scene as a tag capture
+(a textured table plane, a box from the points above it, the room around).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class GroundPlane:
+    """A plane ``normal . x + offset = 0``, unit ``normal`` toward the cameras.
+
+    Attributes:
+        inliers: points within the tolerance of the plane; candidates: points considered
+            (near the look-at point); tolerance: that distance, in world units.
+        tilt_deg: angle between ``normal`` and the cameras' up.
+    """
+
+    normal: np.ndarray
+    offset: float
+    inliers: int
+    candidates: int
+    tolerance: float
+    tilt_deg: float
+
+    def height(self, x: np.ndarray) -> np.ndarray:
+        """Signed distance of (..., 3) points above the plane."""
+        return np.asarray(x, np.float64) @ self.normal + self.offset
+
+    def to_dict(self) -> dict:
+        return {"normal": [round(float(v), 6) for v in self.normal], "offset": round(float(self.offset), 6),
+                "inliers": int(self.inliers), "candidates": int(self.candidates),
+                "tolerance": round(float(self.tolerance), 6), "tilt_deg": round(float(self.tilt_deg), 3)}
+
+
+def _refit(points: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares plane through ``points`` (m, 3), its normal on the side of ``normal``."""
+    mean = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - mean, full_matrices=False)
+    n = vt[2] if vt[2] @ normal >= 0 else -vt[2]
+    return n, float(-n @ mean)
+
+
+def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarray, up: np.ndarray,
+                      iterations: int = 1000, tolerance_fraction: float = 0.01, max_tilt_deg: float = 45.0,
+                      max_drop: float = 0.5, min_inlier_fraction: float = 0.05, min_points: int = 30,
+                      seed: int = 0) -> tuple[GroundPlane | None, str]:
+    """RANSAC for the surface the object stands on.
+
+    Args:
+        points: (m, 3) sparse points; cameras: (n, 3) camera centres; center: (3,) the
+            point the cameras look at; up: (3,) the cameras' up (unit).
+        tolerance_fraction: inlier distance as a fraction of the cameras' median distance
+            from ``center`` (1 cm for cameras 1 m away).
+        max_drop: how far below ``center`` the plane may pass, in camera distances.
+        min_inlier_fraction: of the points within 1.5 camera distances of ``center``.
+
+    Returns:
+        ``(plane, "")``, or ``(None, why not)`` when no plane qualifies.
+        Example: points on z = 0 with cameras above give normal (0, 0, 1), offset 0.
+    """
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    cameras = np.asarray(cameras, np.float64).reshape(-1, 3)
+    center = np.asarray(center, np.float64).reshape(3)
+    up = np.asarray(up, np.float64).reshape(3)
+    up = up / np.linalg.norm(up)
+    reach = float(np.median(np.linalg.norm(cameras - center, axis=1)))
+    near = points[np.linalg.norm(points - center, axis=1) < 1.5 * reach]
+    if len(near) < min_points:
+        return None, f"only {len(near)} sparse points near the centre (need {min_points})"
+    tol = tolerance_fraction * reach
+    cos_tilt = np.cos(np.radians(max_tilt_deg))
+    rng = np.random.default_rng(seed)
+    picks = rng.integers(0, len(near), size=(iterations, 3))
+    best_count, best = 0, None
+    for a, b, c in near[picks]:
+        n = np.cross(b - a, c - a)
+        norm = np.linalg.norm(n)
+        if norm < 1e-12:
+            continue
+        n = n / norm if n @ up >= 0 else -n / norm
+        if n @ up < cos_tilt:
+            continue
+        d = -float(n @ a)
+        if np.mean(cameras @ n + d > tol) < 0.9 or not -tol < center @ n + d < max_drop * reach:
+            continue
+        count = int(np.count_nonzero(np.abs(near @ n + d) < tol))
+        if count > best_count:
+            best_count, best = count, (n, d)
+    if best is None:
+        return None, (f"no plane within {max_tilt_deg:g} degrees of the cameras' up has the cameras above it "
+                      f"and passes under the point they look at")
+    n, d = best
+    for _ in range(2):  # refit to the inliers, then take the inliers of the refit
+        inl = np.abs(near @ n + d) < tol
+        n, d = _refit(near[inl], n)
+    count = int(np.count_nonzero(np.abs(near @ n + d) < tol))
+    if count < min_inlier_fraction * len(near):
+        return None, (f"the best plane holds {count} of {len(near)} sparse points near the centre "
+                      f"(need {min_inlier_fraction:.0%})")
+    tilt = float(np.degrees(np.arccos(np.clip(n @ up, -1.0, 1.0))))
+    return GroundPlane(n, d, count, len(near), tol, tilt), ""
+
+
+def ground_similarity(plane: GroundPlane, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, t)`` of ``x -> R x + t`` putting the plane at z = 0 (normal -> +z) and the
+    foot of ``center`` on it at the origin."""
+    from .colmap import rotation_between
+
+    center = np.asarray(center, np.float64).reshape(3)
+    R = rotation_between(plane.normal, np.array([0.0, 0.0, 1.0]))
+    foot = center - plane.height(center) * plane.normal
+    return R, -R @ foot
