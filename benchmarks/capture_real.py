@@ -13,6 +13,11 @@ sheet (validation photo beside render) is RUN/eval_val.png::
     python benchmarks/capture_real.py                       # both dev captures, 3 minutes each
     python benchmarks/capture_real.py --minutes 0           # calibration and poses only
     python benchmarks/capture_real.py --labubu /path/labubu --steve /path/steve --work /tmp/cr
+    python benchmarks/capture_real.py --sfm                 # also: poses from SfM, tags ignored
+
+With ``--sfm`` each capture is also posed by structure-from-motion as if it had no tag
+(``nerfkit poses --method colmap`` with the calibrated camera and no ``--tag-size``: the
+table plane comes from the SfM points) and trained the same way, as a second row.
 
 The capture folders default to ``../shared/data/captures/{labubu,steve}`` relative to the
 repository. Outputs go to --work (default /tmp/nerfkit_capture_real).
@@ -36,12 +41,13 @@ CAPTURES = {
 }
 
 
-def train_capture(name: str, out: Path, minutes: float, capture: str) -> dict:
-    """Train, evaluate and render one capture's dataset; the figures of the run."""
+def train_capture(name: str, out: Path, minutes: float, capture: str, poses: str = "poses") -> dict:
+    """Train, evaluate and render one capture's dataset (``out/poses/dataset.npz``); the
+    figures of the run."""
     from nerfkit.cli import main
 
-    run = out / f"run_{capture}"
-    if main(["train", "--data", str(out / "poses" / "dataset.npz"), "--out", str(run), "--minutes", str(minutes),
+    run = out / f"run_{capture}" if poses == "poses" else out / f"run_{poses}_{capture}"
+    if main(["train", "--data", str(out / poses / "dataset.npz"), "--out", str(run), "--minutes", str(minutes),
              "--capture", capture]) != 0:
         raise SystemExit(f"{name}: train failed")
     if main(["eval", str(run), "--split", "val"]) != 0:
@@ -83,10 +89,27 @@ def run_capture(name: str, folder: Path, work: Path, extra: list[str], dataset: 
     }
 
 
+def sfm_capture(name: str, folder: Path, work: Path) -> dict:
+    """Pose the capture's object photos by SfM, ignoring the tags (the camera file of the
+    tag run gives the intrinsics); the figures of the SfM report."""
+    from nerfkit.cli import main
+
+    out = work / name
+    t0 = time.perf_counter()
+    if main(["poses", str(folder / CAPTURES[name][1]), "--method", "colmap", "--camera", str(out / "camera.json"),
+             "--out", str(out / "sfm")]) != 0:
+        raise SystemExit(f"{name}: poses --method colmap failed")
+    rep = json.loads((out / "sfm" / "sfm_report.json").read_text())
+    return {"capture": f"{name} (SfM, no tag)", "registered": rep["n_registered"], "photos": rep["n_photos"],
+            "ground": rep.get("ground"), "sfm_s": time.perf_counter() - t0}
+
+
 def print_table(rows: list[dict]) -> None:
     from nerfkit.capture.report import table
 
     out = []
+    sfm = [r for r in rows if "registered" in r]
+    rows = [r for r in rows if "registered" not in r]
     for r in rows:
         k = r["dist"]
         exif = f"{r['fx']:.1f} / {r['exif_fx']:.1f} ({(r['fx'] / r['exif_fx'] - 1) * 100:+.1f}%)" if r["exif_fx"] \
@@ -102,7 +125,12 @@ def print_table(rows: list[dict]) -> None:
               f"{r['second_pass']} photos found by the second detection pass")
         for d in r["dropped"]:
             print(f"  dropped {d}")
-    trained = [r for r in rows if "steps" in r]
+    for r in sfm:
+        g = r["ground"]
+        print(f"\n{r['capture']}: {r['registered']} of {r['photos']} photos registered in {r['sfm_s']:.0f} s; "
+              + ("no table plane found" if g is None else
+                 f"table plane from {g['inliers']} of {g['candidates']} points, {g['tilt_deg']:.1f} deg from up"))
+    trained = [r for r in rows + sfm if "steps" in r]
     if trained:
         print()
         print(table([[r["capture"], r["capture_mode"], r["steps"], r["n_val"], f"{r['val_psnr']:.2f}",
@@ -122,6 +150,7 @@ def main() -> int:
     ap.add_argument("--dist-model", default="auto", help="passed to nerfkit calibrate (compare with e.g. k1k2p1p2)")
     ap.add_argument("--minutes", type=float, default=3.0, help="training minutes per capture (0: no training)")
     ap.add_argument("--capture", default="auto", choices=["auto", "on", "off"], help="passed to nerfkit train")
+    ap.add_argument("--sfm", action="store_true", help="also pose each capture by SfM without its tags, and train on that")
     args = ap.parse_args()
     rows = []
     for name in CAPTURES:
@@ -136,6 +165,12 @@ def main() -> int:
             row.update(capture_mode=args.capture,
                        **train_capture(name, args.work / name, args.minutes, args.capture))
         rows.append(row)
+        if args.sfm:
+            srow = sfm_capture(name, folder, args.work)
+            if args.minutes > 0:
+                srow.update(capture_mode=args.capture,
+                            **train_capture(name, args.work / name, args.minutes, args.capture, poses="sfm"))
+            rows.append(srow)
     print()
     print_table(rows)
     return 0 if rows else 1

@@ -5,10 +5,12 @@ the object still stands on something, and SfM triangulates that surface well: a 
 is textured, flat and in every photo. :func:`find_ground_plane` fits it by RANSAC among
 the sparse points near the point the cameras look at, keeping only planes that:
 
-* face the cameras' up within ``max_tilt_deg`` (walls and the object's sides do not),
+* face the cameras' up within ``max_tilt_deg`` (people hold phones level, so the up
+  from the cameras' x axes is good to a few degrees; walls and the object's sides fail),
 * have the cameras on their upper side (a ceiling does not),
-* pass close under the look-at point, within ``max_drop`` camera distances (the object
-  stands on it: a floor seen beyond a table's edge is too far down),
+* pass close under the look-at point: at most ``max_drop`` camera distances below it (the
+  object stands on it: a floor seen beyond a table's edge is too far down), and at most
+  0.1 above it (the cameras may aim at the object's foot, a little under the surface),
 * hold at least ``min_inlier_fraction`` of those points.
 
 The winning plane is refitted to its inliers (least squares). :func:`ground_similarity`
@@ -60,7 +62,7 @@ def _refit(points: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarray, up: np.ndarray,
-                      iterations: int = 1000, tolerance_fraction: float = 0.01, max_tilt_deg: float = 45.0,
+                      iterations: int = 1000, tolerance_fraction: float = 0.01, max_tilt_deg: float = 20.0,
                       max_drop: float = 0.5, min_inlier_fraction: float = 0.05, min_points: int = 30,
                       seed: int = 0) -> tuple[GroundPlane | None, str]:
     """RANSAC for the surface the object stands on.
@@ -100,7 +102,7 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
         if n @ up < cos_tilt:
             continue
         d = -float(n @ a)
-        if np.mean(cameras @ n + d > tol) < 0.9 or not -tol < center @ n + d < max_drop * reach:
+        if np.mean(cameras @ n + d > tol) < 0.9 or not -0.1 * reach < center @ n + d < max_drop * reach:
             continue
         count = int(np.count_nonzero(np.abs(near @ n + d) < tol))
         if count > best_count:
