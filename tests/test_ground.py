@@ -65,7 +65,7 @@ def test_no_plane_in_a_cloud_and_none_above_the_cameras():
     rng = np.random.default_rng(2)
     cams = np.stack([np.cos(np.arange(12)), np.sin(np.arange(12)), np.full(12, 0.5)], 1)
     cloud = rng.normal(0, 1.0, (3000, 3))
-    cloud = 0.4 * cloud / np.linalg.norm(cloud, axis=1, keepdims=True) * rng.random((3000, 1)) ** (1 / 3)  # a ball
+    cloud = 0.8 * cloud / np.linalg.norm(cloud, axis=1, keepdims=True) * rng.random((3000, 1)) ** (1 / 3)  # a ball
     plane, why = find_ground_plane(cloud, cams, np.zeros(3), up=np.array([0, 0, 1.0]))
     assert plane is None and "holds" in why
     ceiling = np.stack([rng.uniform(-1, 1, 300), rng.uniform(-1, 1, 300), np.full(300, 1.0)], 1)

@@ -61,8 +61,26 @@ def _refit(points: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, float]:
     return n, float(-n @ mean)
 
 
+def _triples(points: np.ndarray, k: int, radius: float, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``k`` random point triples (three (k, 3) arrays): half drawn from all points, half
+    a random point and two of its neighbours within ``radius``. A table may hold only a
+    few percent of the points (walls and the object have the rest); three points drawn
+    at random then rarely all lie on it, while three neighbours often do."""
+    m = len(points)
+    idx = rng.integers(0, m, size=(k, 3))
+    local = np.arange(k // 2, k)
+    for j0 in range(0, len(local), 512):
+        rows = local[j0:j0 + 512]
+        first = points[idx[rows, 0]]
+        close = np.linalg.norm(points[None, :, :] - first[:, None, :], axis=2) < radius  # (r, m)
+        keys = np.where(close, rng.random(close.shape), -1.0)
+        two = np.argsort(-keys, axis=1)[:, :2]  # two random neighbours (or any point if too few)
+        idx[rows, 1:] = two
+    return points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
+
+
 def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarray, up: np.ndarray,
-                      iterations: int = 1000, tolerance_fraction: float = 0.01, max_tilt_deg: float = 20.0,
+                      iterations: int = 2000, tolerance_fraction: float = 0.01, max_tilt_deg: float = 20.0,
                       max_drop: float = 0.5, min_inlier_fraction: float = 0.05, min_points: int = 30,
                       seed: int = 0) -> tuple[GroundPlane | None, str]:
     """RANSAC for the surface the object stands on.
@@ -90,26 +108,21 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
         return None, f"only {len(near)} sparse points near the centre (need {min_points})"
     tol = tolerance_fraction * reach
     cos_tilt = np.cos(np.radians(max_tilt_deg))
-    rng = np.random.default_rng(seed)
-    picks = rng.integers(0, len(near), size=(iterations, 3))
-    best_count, best = 0, None
-    for a, b, c in near[picks]:
-        n = np.cross(b - a, c - a)
-        norm = np.linalg.norm(n)
-        if norm < 1e-12:
-            continue
-        n = n / norm if n @ up >= 0 else -n / norm
-        if n @ up < cos_tilt:
-            continue
-        d = -float(n @ a)
-        if np.mean(cameras @ n + d > tol) < 0.9 or not -0.1 * reach < center @ n + d < max_drop * reach:
-            continue
-        count = int(np.count_nonzero(np.abs(near @ n + d) < tol))
-        if count > best_count:
-            best_count, best = count, (n, d)
-    if best is None:
+    a, b, c = _triples(near, iterations, 0.25 * reach, np.random.default_rng(seed))
+    n = np.cross(b - a, c - a)  # (k, 3) candidate normals
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.where(n @ up[:, None] >= 0, 1.0, -1.0) * n / np.maximum(norm, 1e-300)
+    d = -np.einsum("kj,kj->k", n, a)
+    drop = n @ center + d  # height of the look-at point above each plane
+    ok = (norm[:, 0] > 1e-12) & (n @ up >= cos_tilt) & (-0.1 * reach < drop) & (drop < max_drop * reach)
+    ok &= ((cameras @ n.T + d) > tol).mean(axis=0) >= 0.9
+    if not ok.any():
         return None, (f"no plane within {max_tilt_deg:g} degrees of the cameras' up has the cameras above it "
                       f"and passes under the point they look at")
+    n, d = n[ok], d[ok]
+    counts = np.concatenate([(np.abs(near @ n[i:i + 256].T + d[i:i + 256]) < tol).sum(axis=0)
+                             for i in range(0, len(n), 256)])
+    best = (n[counts.argmax()], float(d[counts.argmax()]))
     n, d = best
     for _ in range(2):  # refit to the inliers, then take the inliers of the refit
         inl = np.abs(near @ n + d) < tol
