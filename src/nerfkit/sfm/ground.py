@@ -122,8 +122,7 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
     n, d = n[ok], d[ok]
     counts = np.concatenate([(np.abs(near @ n[i:i + 256].T + d[i:i + 256]) < tol).sum(axis=0)
                              for i in range(0, len(n), 256)])
-    best = (n[counts.argmax()], float(d[counts.argmax()]))
-    n, d = best
+    n, d = n[counts.argmax()], float(d[counts.argmax()])
     for _ in range(2):  # refit to the inliers, then take the inliers of the refit
         inl = np.abs(near @ n + d) < tol
         n, d = _refit(near[inl], n)
