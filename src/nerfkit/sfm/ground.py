@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+POOL = 10_000
 
 @dataclass
 class GroundPlane:
@@ -69,8 +70,8 @@ def _triples(points: np.ndarray, k: int, radius: float, rng) -> tuple[np.ndarray
     m = len(points)
     idx = rng.integers(0, m, size=(k, 3))
     local = np.arange(k // 2, k)
-    for j0 in range(0, len(local), 512):
-        rows = local[j0:j0 + 512]
+    for j0 in range(0, len(local), 128):
+        rows = local[j0:j0 + 128]
         first = points[idx[rows, 0]]
         close = np.linalg.norm(points[None, :, :] - first[:, None, :], axis=2) < radius  # (r, m)
         keys = np.where(close, rng.random(close.shape), -1.0)
@@ -108,7 +109,10 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
         return None, f"only {len(near)} sparse points near the centre (need {min_points})"
     tol = tolerance_fraction * reach
     cos_tilt = np.cos(np.radians(max_tilt_deg))
-    a, b, c = _triples(near, iterations, 0.25 * reach, np.random.default_rng(seed))
+    rng = np.random.default_rng(seed)
+    # candidates are drawn and scored on at most POOL points (memory: a (chunk, pool) block)
+    pool = near if len(near) <= POOL else near[rng.choice(len(near), POOL, replace=False)]
+    a, b, c = _triples(pool, iterations, 0.25 * reach, rng)
     n = np.cross(b - a, c - a)  # (k, 3) candidate normals
     norm = np.linalg.norm(n, axis=1, keepdims=True)
     n = np.where(n @ up[:, None] >= 0, 1.0, -1.0) * n / np.maximum(norm, 1e-300)
@@ -120,8 +124,8 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
         return None, (f"no plane within {max_tilt_deg:g} degrees of the cameras' up has the cameras above it "
                       f"and passes under the point they look at")
     n, d = n[ok], d[ok]
-    counts = np.concatenate([(np.abs(near @ n[i:i + 256].T + d[i:i + 256]) < tol).sum(axis=0)
-                             for i in range(0, len(n), 256)])
+    counts = np.concatenate([(np.abs(pool @ n[i:i + 128].T + d[i:i + 128]) < tol).sum(axis=0)
+                             for i in range(0, len(n), 128)])
     n, d = n[counts.argmax()], float(d[counts.argmax()])
     for _ in range(2):  # refit to the inliers, then take the inliers of the refit
         inl = np.abs(near @ n + d) < tol
