@@ -129,6 +129,8 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
     n, d = n[counts.argmax()], float(d[counts.argmax()])
     for _ in range(2):  # refit to the inliers, then take the inliers of the refit
         inl = np.abs(near @ n + d) < tol
+        if np.count_nonzero(inl) < 3:  # too few to fit a plane to: keep the one we have
+            break
         n, d = _refit(near[inl], n)
     count = int(np.count_nonzero(np.abs(near @ n + d) < tol))
     if count < min_inlier_fraction * len(near):
