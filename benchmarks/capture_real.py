@@ -42,8 +42,8 @@ CAPTURES = {
 
 
 def train_capture(name: str, out: Path, minutes: float, capture: str, poses: str = "poses") -> dict:
-    """Train, evaluate and render one capture's dataset (``out/poses/dataset.npz``); the
-    figures of the run."""
+    """Train, evaluate and render one capture's dataset (``out/<poses>/dataset.npz``: the
+    tag run's, or ``sfm`` for the SfM run's); the figures of the run."""
     from nerfkit.cli import main
 
     run = out / f"run_{capture}" if poses == "poses" else out / f"run_{poses}_{capture}"
