@@ -236,31 +236,67 @@ def test_the_orbit_follows_the_cameras_height_and_distance_around_the_object():
     assert path[2] @ up < path[1] @ up < path[0] @ up  # in between at 90 degrees
 
 
-def test_a_glossy_table_mirrors_the_room():
-    """Where the table's glossiness is 1, a ray looking down at it sees the room along the
-    mirrored (upward) direction; where it is 0, the table's own colour."""
+def test_a_glossy_table_mirrors_its_surroundings():
+    """Where the table's glossiness is 1, a ray looking down at it sees its map of the
+    surroundings along the mirrored (upward) direction; where it is 0, its own colour."""
     from nerfkit.data.synthetic import tabletop_scene
+    from nerfkit.fields.background import ENV_SIZE
     from nerfkit.models import SceneBounds
     from nerfkit.models.fast import FastConfig, FastNeRF
 
     scene = tabletop_scene(n_train=2, n_val=0, size=16)
     model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32,
                                 learn_background=True, table_gloss=True), SceneBounds.from_scene(scene))
+    w, h = ENV_SIZE
+    rows = -1.0 + (2.0 * torch.arange(h) + 1.0) / h  # texel centres, zenith (top row) to horizon
     with torch.no_grad():
         model.table.fine.fill_(-2.0)
         model.table.cover.fill_(30.0)
-        model.bg_coef.zero_()
-        model.bg_coef[:, 3] = 3.0  # the room: sigmoid(3 z), bright above, dark below
+        model.table.env.view(h, w, 3)[:] = 3.0 * rows.view(h, 1, 1)  # logit 3 v: darker toward the zenith
         model.table.shine.fill_(30.0)
-    o = torch.tensor([[0.0, 0.0, 1.0], [0.3, 0.0, 1.0]])
-    d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.6, -0.8]])
+    o = torch.tensor([[0.0, 0.0, 1.0], [0.3, 0.0, 1.0], [0.3, 0.0, 1.0]])
+    d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.6, -0.8], [-0.6, 0.0, -0.8]])
     t = model.table.hit(o, d)
     out = model._background(o, d, t, None)
-    torch.testing.assert_close(out[0], torch.sigmoid(torch.tensor(3.0)).expand(3))
-    torch.testing.assert_close(out[1], torch.sigmoid(torch.tensor(3.0 * 0.8)).expand(3))  # mirrored z = +0.8
+    torch.testing.assert_close(out[0], torch.sigmoid(3.0 * rows[0]).expand(3))  # the zenith: the top row
+    v = 1.0 - 2.0 * math.asin(0.8) / (0.5 * math.pi)  # mirrored z = +0.8, whichever way around
+    torch.testing.assert_close(out[1:], torch.sigmoid(torch.tensor(3.0 * v)).expand(2, 3))
     with torch.no_grad():
         model.table.shine.fill_(-30.0)
-    torch.testing.assert_close(model._background(o, d, t, None), torch.sigmoid(torch.tensor(-2.0)).expand(2, 3))
+    torch.testing.assert_close(model._background(o, d, t, None), torch.sigmoid(torch.tensor(-2.0)).expand(3, 3))
+
+
+def test_the_floor_under_a_table_is_found_and_seen_beyond_the_table_edge():
+    """A tabletop capture whose sparse points show a floor 2 under the table: the bounds
+    record it, and a ray past the table's edge sees the floor's texture where it meets it."""
+    from dataclasses import replace
+
+    from nerfkit.data.synthetic import tabletop_scene
+    from nerfkit.models import SceneBounds
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    rng = np.random.default_rng(0)
+    table = np.concatenate([rng.uniform(-1, 1, (300, 2)), np.zeros((300, 1))], 1)
+    floor = np.concatenate([rng.uniform(-6, 6, (400, 2)), np.full((400, 1), -2.0)], 1)
+    scene = replace(tabletop_scene(n_train=4, n_val=0, size=16), points=np.concatenate([table, floor]).astype(np.float32))
+    bounds = SceneBounds.from_scene(scene)
+    np.testing.assert_allclose(bounds.floor, [0, 0, 1, 2.0], atol=1e-3)
+    assert SceneBounds.from_dict(bounds.to_dict()).floor == pytest.approx(bounds.floor)
+    config = FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32, learn_background=True,
+                        room_shells=0)
+    model = FastNeRF(config, bounds)
+    assert FastNeRF(replace(config, floor=False), bounds).floor is None
+    with torch.no_grad():
+        model.table.cover.fill_(-30.0)  # the table ends: nothing of it here
+        model.floor.cover.fill_(30.0)
+        model.floor.fine.view(32, 32, 3)[:, :16] = 3.0  # the floor: bright on the side of -e1, dark beyond
+        model.floor.fine.view(32, 32, 3)[:, 16:] = -3.0
+    e1 = model.floor.axes[:, 0]
+    o = torch.stack([torch.tensor([0.0, 0.0, 1.0]) - 2.0 * e1, torch.tensor([0.0, 0.0, 1.0]) + 2.0 * e1])
+    d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
+    out = model._background(o, d, model.table.hit(o, d), None)
+    assert bool((out[0] > 0.9).all()) and bool((out[1] < 0.1).all())
+    torch.testing.assert_close(model.floor.hit(o, d), torch.tensor([3.0, 3.0]))
 
 
 def test_room_shell_gradients_stay_finite_for_missing_tangent_and_polar_rays():

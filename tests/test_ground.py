@@ -94,3 +94,41 @@ def test_ground_similarity_levels_the_plane_under_the_centre():
     np.testing.assert_allclose(foot[:2], 0, atol=1e-9)
     assert foot[2] == pytest.approx(0.05, abs=0.003)  # the centre stays 5 cm above the table
     np.testing.assert_allclose(((cams + shift) @ R.T + t)[:, 2], 0.4, atol=0.005)
+
+
+def _with_floor(rng, drop=0.45, n_floor=600, tilt_deg=0.0, noise=0.01):
+    """The table scene (tilted by ``tilt_deg``) over a floor ``drop`` below it, which
+    stretches 2 m out in every direction (a carpet: rougher than the table)."""
+    pts, cams, center, R = _scene(rng, tilt_deg=tilt_deg, n_wall=100)
+    xy = rng.uniform(-2.0, 2.0, (n_floor, 2))
+    floor = np.concatenate([xy, rng.normal(-drop, noise, (n_floor, 1))], 1) @ R.T
+    return np.concatenate([pts, floor]), cams, center, R
+
+
+def test_finds_the_floor_under_a_table_and_none_without_one():
+    from nerfkit.sfm.ground import find_floor
+
+    rng = np.random.default_rng(3)
+    pts, cams, center, R = _with_floor(rng, tilt_deg=8.0)
+    table = np.array([*(R @ [0, 0, 1.0]), 0.0])
+    floor = find_floor(pts, table, cams, center)
+    assert floor is not None
+    assert np.degrees(np.arccos(floor.normal @ table[:3])) < 1.0
+    foot = center - (center @ table[:3]) * table[:3]
+    assert floor.height(foot) == pytest.approx(0.45, abs=0.01)  # the table's foot is 0.45 above it
+    assert floor.inliers >= 0.9 * 600
+    points_only_on_table, *_ = _scene(rng, n_wall=100)
+    assert find_floor(points_only_on_table, np.array([0, 0, 1.0, 0]), cams, center) is None
+
+
+def test_a_slope_or_a_shelf_just_under_the_table_is_not_the_floor():
+    from nerfkit.sfm.ground import find_floor
+
+    rng = np.random.default_rng(4)
+    pts, cams, center, _ = _scene(rng, n_wall=100)
+    table = np.array([0, 0, 1.0, 0])
+    xy = rng.uniform(-2.0, 2.0, (600, 2))
+    slope = np.concatenate([xy, (-0.6 + 0.4 * xy[:, :1])], 1)  # 22 degrees off the table's plane
+    assert find_floor(np.concatenate([pts, slope]), table, cams, center) is None
+    shelf = np.concatenate([xy, np.full((600, 1), -0.03)], 1)  # 3 cm under: the table's own thickness
+    assert find_floor(np.concatenate([pts, shelf]), table, cams, center) is None

@@ -31,6 +31,8 @@ class SceneBounds:
             dataset's sparse points (:func:`object_box_from_points`), or None.
         ndc: for a forward-facing scene (every camera looking about the same way, as LLFF
             captures), the NDC of the mean camera from ``near`` to infinity; else None.
+        floor: (4,) plane ``(n, d)`` of the floor seen beyond the table's edge (found in
+            the sparse points, :func:`~nerfkit.sfm.ground.find_floor`), or None.
     """
 
     near: float
@@ -42,6 +44,7 @@ class SceneBounds:
     camera_radius: float | None = None
     object_box: tuple[np.ndarray, np.ndarray] | None = None
     ndc: NdcSpace | None = None
+    floor: np.ndarray | None = None
 
     @property
     def reach(self) -> float:
@@ -56,9 +59,14 @@ class SceneBounds:
         # The object lies between near and far of every camera; its radius is at most
         # half that depth range, and no larger than the camera distance minus near.
         radius = max(min(0.5 * (scene.far - scene.near), dist - scene.near), 1e-3)
-        box = None
+        box = floor = None
         if scene.points is not None and scene.table is not None:
+            from ..sfm.ground import find_floor
+
             box = object_box_from_points(scene.points, scene.table, scene.center, radius)
+            plane = find_floor(scene.points, scene.table, c2w[:, :3, 3], scene.center)
+            if plane is not None:
+                floor = np.array([*plane.normal, plane.offset], np.float32)
         ndc = None
         if not scene.capture and scene.table is None and scene.forward_facing:
             ndc = NdcSpace.from_camera(mean_camera(c2w), scene.train.K.mean(0), scene.train.width,
@@ -66,7 +74,7 @@ class SceneBounds:
         return SceneBounds(float(scene.near), float(scene.far), np.asarray(scene.center, np.float32),
                            float(radius), np.asarray(scene.up, np.float32),
                            None if scene.table is None else np.asarray(scene.table, np.float32),
-                           float(dists.max()), box, ndc)
+                           float(dists.max()), box, ndc, floor)
 
     def to_dict(self) -> dict:
         return {"near": self.near, "far": self.far, "center": [float(c) for c in self.center],
@@ -74,7 +82,8 @@ class SceneBounds:
                 "table": None if self.table is None else [float(v) for v in self.table],
                 "camera_radius": self.camera_radius,
                 "object_box": None if self.object_box is None else [[float(v) for v in b] for b in self.object_box],
-                "ndc": None if self.ndc is None else self.ndc.to_dict()}
+                "ndc": None if self.ndc is None else self.ndc.to_dict(),
+                "floor": None if self.floor is None else [float(v) for v in self.floor]}
 
     @staticmethod
     def from_dict(d: dict) -> "SceneBounds":
@@ -85,7 +94,8 @@ class SceneBounds:
                            None if d.get("camera_radius") is None else float(d["camera_radius"]),
                            None if d.get("object_box") is None else
                            tuple(np.asarray(b, np.float32) for b in d["object_box"]),
-                           None if d.get("ndc") is None else NdcSpace.from_dict(d["ndc"]))
+                           None if d.get("ndc") is None else NdcSpace.from_dict(d["ndc"]),
+                           None if d.get("floor") is None else np.asarray(d["floor"], np.float32))
 
 
 def object_box_from_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float,

@@ -70,7 +70,8 @@ class FastConfig:
 
     TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 4096, "lr": 0.3, "render_chunk": 65536}
     # options left unset (None) take (the capture value, the other value) by the dataset
-    CAPTURE_DEFAULTS: ClassVar[dict] = {"distortion_weight": (0.01, 0.0), "room_shells": (3, 0)}
+    CAPTURE_DEFAULTS: ClassVar[dict] = {"distortion_weight": (0.01, 0.0), "room_shells": (3, 0),
+                                        "table_gloss": (True, False)}
     # ... and on a forward-facing scene (content at every depth, as a capture's)
     FORWARD_FACING_DEFAULTS: ClassVar[dict] = {"distortion_weight": 0.01}
 
@@ -105,9 +106,14 @@ class FastConfig:
     room_lr_ratio: float = option(0.2, "learning rate of the room shells relative to --lr")
     table: bool = option(False, "rays stop at the scene's table plane (a tag capture's tag plane), which shows a "
                          "learned texture: the box then holds only the object")
-    table_gloss: bool = option(False, "with --table: the table also mirrors the room (a learned glossiness per "
-                               "texel mixes its colour with the room seen along the reflected ray), for "
-                               "varnished or glass tables whose look changes with the view")
+    table_gloss: bool | None = option(None, "with --table: the table also mirrors its surroundings (a learned "
+                                      "glossiness per texel mixes its colour with a small learned map of what "
+                                      "lies along the reflected ray), for varnished tables and paper with a sheen, "
+                                      "whose look changes with the view (default: on for capture datasets; "
+                                      "steve +0.25 dB, labubu +0.4)")
+    floor: bool = option(True, "with --table and --learn-background: a second textured plane for the floor seen "
+                         "beyond the table's edge, when the dataset's sparse points show one (a plane parallel "
+                         "to the table, well under it)")
     table_resolution: int = option(512, "texels per side of the table texture (512: a texel about a pixel's "
                                    "footprint on the dev captures; steve 2000 steps: +0.4 dB over 1024)")
     table_lr_ratio: float = option(0.2, "learning rate of the table texture relative to --lr (a texel is seen by few "
@@ -250,6 +256,9 @@ class FastNeRF(NerfModel):
                 raise fail("--table-resolution", f"{config.table_resolution} must be from 2 to {MAX_GRID_SIDE}")
             self.table = TablePlane(bounds.table, bounds.center, bounds.radius, config.table_resolution,
                                     gloss=config.table_gloss)
+        self.floor = None
+        if config.floor and self.table is not None and config.learn_background and bounds.floor is not None:
+            self.floor = TablePlane(bounds.floor, bounds.center, bounds.reach, config.table_resolution)
         self.texture_sinks = self._texture_sinks(torch.device("cpu"))
         self.sink = self._grid_sink(torch.device("cpu"))
         # where opaque training rays ended (ring buffer), to shrink the box at the first growth
@@ -333,8 +342,7 @@ class FastNeRF(NerfModel):
     def _texture_sinks(self, device) -> dict:
         """A one-lane gradient sink per table and room texture (its optimizer updates touched
         texels only)."""
-        textures = [*(self.table.textures() if self.table is not None else []),
-                    *(self.room.textures() if self.room is not None else [])]
+        textures = [p for part in (self.table, self.floor, self.room) if part is not None for p in part.textures()]
         return {p: GradSink(p.shape[0], p.shape[1], device, lanes=1) for p, _ in textures}
 
     def _sinks_on_device(self) -> None:
@@ -354,28 +362,37 @@ class FastNeRF(NerfModel):
         return torch.as_tensor(background, dtype=torch.float32, device=d.device).expand_as(d)
 
     def _background(self, o: Tensor, d: Tensor, t_table: Tensor | None, background: Tensor | None) -> Tensor:
-        """(n, 3) colour behind the box: the table (where rays meet it) and the room shells,
-        composited in order of distance, in front of what is infinitely far (:meth:`_far`).
-        A glossy table mirrors the room: the reflected ray is traced through the shells."""
+        """(n, 3) colour behind the box: the table (where rays meet it), the floor and the
+        room shells, composited in order of distance, in front of what is infinitely far
+        (:meth:`_far`). A glossy table mirrors the room: the reflected ray is traced through
+        the shells."""
         bg = self._far(d, background)
         layers = [] if self.room is None else [self.room.layers(o, d, self.texture_sinks)]
         if t_table is not None:
-            hit = torch.isfinite(t_table).nonzero()[:, 0]
-            on_table = o[hit] + d[hit] * t_table[hit].unsqueeze(-1)
-            seen = self.table.colour(on_table, self.texture_sinks)
-            if self.config.table_gloss and len(hit):
-                n = self.table.plane[:3].to(d)
-                mirrored = d[hit] - 2.0 * (d[hit] @ n).unsqueeze(-1) * n
-                reflected = self._background(on_table, mirrored, None, background)
-                gloss = self.table.gloss(on_table, self.texture_sinks).unsqueeze(-1)
-                seen = (1.0 - gloss) * seen + gloss * reflected
-            colour = torch.zeros_like(d).index_put((hit,), seen.to(d.dtype))
-            cover = d.new_zeros(len(d)).index_put((hit,), self.table.coverage(on_table, self.texture_sinks))
-            layers.append((t_table.unsqueeze(1), colour.unsqueeze(1), cover.unsqueeze(1)))
+            layers.append(self._plane_layer(self.table, o, d, t_table, self.config.table_gloss))
+        if self.floor is not None:
+            layers.append(self._plane_layer(self.floor, o, d, self.floor.hit(o, d), False))
         if not layers:
             return bg
         t, rgb, alpha = (torch.cat(parts, dim=1) for parts in zip(*layers))
         return composite_layers(t, rgb.to(bg.dtype), alpha.to(bg.dtype), bg)
+
+    def _plane_layer(self, plane: TablePlane, o: Tensor, d: Tensor, t_hit: Tensor,
+                     gloss: bool) -> tuple[Tensor, Tensor, Tensor]:
+        """One textured plane as a compositing layer: ``t (n, 1)`` where each ray meets it
+        (``inf``: misses), ``rgb (n, 1, 3)`` and coverage ``(n, 1)``."""
+        hit = torch.isfinite(t_hit).nonzero()[:, 0]
+        on_plane = o[hit] + d[hit] * t_hit[hit].unsqueeze(-1)
+        seen = plane.colour(on_plane, self.texture_sinks)
+        if gloss and len(hit):
+            n = plane.plane[:3].to(d)
+            mirrored = d[hit] - 2.0 * (d[hit] @ n).unsqueeze(-1) * n
+            reflected = plane.reflection(mirrored)
+            shine = plane.gloss(on_plane, self.texture_sinks).unsqueeze(-1)
+            seen = (1.0 - shine) * seen + shine * reflected
+        colour = torch.zeros_like(d).index_put((hit,), seen.to(d.dtype))
+        cover = d.new_zeros(len(d)).index_put((hit,), plane.coverage(on_plane, self.texture_sinks))
+        return t_hit.unsqueeze(1), colour.unsqueeze(1), cover.unsqueeze(1)
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
         self._sinks_on_device()
@@ -457,6 +474,8 @@ class FastNeRF(NerfModel):
             groups.append({"params": [self.bg_coef], "lr": 0.1 * lr, "eps": eps})
         if self.table is not None:
             groups.append({"params": list(self.table.parameters()), "lr": self.config.table_lr_ratio * lr, "eps": eps})
+        if self.floor is not None:
+            groups.append({"params": list(self.floor.parameters()), "lr": self.config.table_lr_ratio * lr, "eps": eps})
         if self.room is not None:
             groups.append({"params": list(self.room.parameters()), "lr": self.config.room_lr_ratio * lr, "eps": eps})
         return groups

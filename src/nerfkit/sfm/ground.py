@@ -83,7 +83,7 @@ def _triples(points: np.ndarray, k: int, radius: float, rng) -> tuple[np.ndarray
 def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarray, up: np.ndarray,
                       iterations: int = 2000, tolerance_fraction: float = 0.01, max_tilt_deg: float = 20.0,
                       max_drop: float = 0.5, min_inlier_fraction: float = 0.05, min_points: int = 30,
-                      seed: int = 0) -> tuple[GroundPlane | None, str]:
+                      seed: int = 0, min_drop: float = -0.1, within: float = 1.5) -> tuple[GroundPlane | None, str]:
     """RANSAC for the surface the object stands on.
 
     Args:
@@ -91,8 +91,9 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
             point the cameras look at; up: (3,) the cameras' up (unit).
         tolerance_fraction: inlier distance as a fraction of the cameras' median distance
             from ``center`` (1 cm for cameras 1 m away).
-        max_drop: how far below ``center`` the plane may pass, in camera distances.
-        min_inlier_fraction: of the points within 1.5 camera distances of ``center``.
+        min_drop, max_drop: how far below ``center`` the plane must pass, in camera
+            distances (negative: above).
+        min_inlier_fraction: of the points within ``within`` camera distances of ``center``.
 
     Returns:
         ``(plane, "")``, or ``(None, why not)`` when no plane qualifies.
@@ -104,7 +105,7 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
     up = np.asarray(up, np.float64).reshape(3)
     up = up / np.linalg.norm(up)
     reach = float(np.median(np.linalg.norm(cameras - center, axis=1)))
-    near = points[np.linalg.norm(points - center, axis=1) < 1.5 * reach]
+    near = points[np.linalg.norm(points - center, axis=1) < within * reach]
     if len(near) < min_points:
         return None, f"only {len(near)} sparse points near the centre (need {min_points})"
     tol = tolerance_fraction * reach
@@ -118,7 +119,7 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
     n = np.where(n @ up[:, None] >= 0, 1.0, -1.0) * n / np.maximum(norm, 1e-300)
     d = -np.einsum("kj,kj->k", n, a)
     drop = n @ center + d  # height of the look-at point above each plane
-    ok = (norm[:, 0] > 1e-12) & (n @ up >= cos_tilt) & (-0.1 * reach < drop) & (drop < max_drop * reach)
+    ok = (norm[:, 0] > 1e-12) & (n @ up >= cos_tilt) & (min_drop * reach < drop) & (drop < max_drop * reach)
     ok &= ((cameras @ n.T + d) > tol).mean(axis=0) >= 0.9
     if not ok.any():
         return None, (f"no plane within {max_tilt_deg:g} degrees of the cameras' up has the cameras above it "
@@ -149,3 +150,34 @@ def ground_similarity(plane: GroundPlane, center: np.ndarray) -> tuple[np.ndarra
     R = rotation_between(plane.normal, np.array([0.0, 0.0, 1.0]))
     foot = center - plane.height(center) * plane.normal
     return R, -R @ foot
+
+
+def find_floor(points: np.ndarray, table: np.ndarray, cameras: np.ndarray, center: np.ndarray,
+               min_drop: float = 0.25, max_drop: float = 5.0, max_tilt_deg: float = 10.0,
+               min_fraction: float = 0.2, min_points: int = 50, tolerance_fraction: float = 0.03,
+               seed: int = 0) -> GroundPlane | None:
+    """The floor seen beyond a table's edge, in the sparse points: a plane within
+    ``max_tilt_deg`` of parallel to ``table`` (``(n, d)``, normal toward the cameras),
+    ``min_drop`` to ``max_drop`` camera distances under it, holding at least
+    ``min_fraction`` of the points more than ``min_drop / 2`` camera distances under
+    the table (and ``min_points``). None when there is no such plane (a table that
+    fills the photos, a capture on the floor itself).
+
+    Example: points on z = 0 (table) and z = -0.4 (floor), cameras 0.4 above: the floor
+    plane ``(0, 0, 1), 0.4``.
+    """
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    n, d = np.asarray(table[:3], np.float64), float(table[3])
+    n_len = np.linalg.norm(n)
+    n, d = n / n_len, d / n_len
+    center = np.asarray(center, np.float64).reshape(3)
+    reach = float(np.median(np.linalg.norm(np.asarray(cameras, np.float64).reshape(-1, 3) - center, axis=1)))
+    below = points[points @ n + d < -0.5 * min_drop * reach]
+    if len(below) < min_points:
+        return None
+    foot = center - (center @ n + d) * n  # the look-at point's foot on the table
+    plane, _ = find_ground_plane(below, cameras, foot, n, tolerance_fraction=tolerance_fraction,
+                                 max_tilt_deg=max_tilt_deg, min_drop=min_drop,
+                                 max_drop=max_drop, min_inlier_fraction=min_fraction, min_points=min_points,
+                                 seed=seed, within=np.inf)
+    return plane
