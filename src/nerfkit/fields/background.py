@@ -12,8 +12,9 @@ with density makes haze and floaters; a flat colour makes dark surfaces see-thro
 * :class:`TablePlane`: an opaque textured plane (the tag's plane in a tag capture). Rays
   stop where they meet it; its texture lives on a 2D grid in *contracted* plane
   coordinates (mip-NeRF 360's contraction in 2D), so a finite texture covers the whole
-  infinite plane, finely near the object and ever more coarsely far from it. It may
-  also mirror the room (a glossy table).
+  infinite plane, finely near the object and ever more coarsely far from it. A glossy
+  table also mirrors a small learned map of its surroundings; a floor under the table is
+  a second such plane.
 * :func:`composite_layers`: front-to-back compositing of these surfaces along each ray.
 """
 

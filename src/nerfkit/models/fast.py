@@ -364,8 +364,8 @@ class FastNeRF(NerfModel):
     def _background(self, o: Tensor, d: Tensor, t_table: Tensor | None, background: Tensor | None) -> Tensor:
         """(n, 3) colour behind the box: the table (where rays meet it), the floor and the
         room shells, composited in order of distance, in front of what is infinitely far
-        (:meth:`_far`). A glossy table mirrors the room: the reflected ray is traced through
-        the shells."""
+        (:meth:`_far`). A glossy table also shows its map of the surroundings along the
+        mirrored ray."""
         bg = self._far(d, background)
         layers = [] if self.room is None else [self.room.layers(o, d, self.texture_sinks)]
         if t_table is not None:
