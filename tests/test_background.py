@@ -60,27 +60,38 @@ def test_sh16_is_a_basis_of_sixteen_independent_functions():
 
 
 @pytest.mark.parametrize("side", [9, (12, 5)])
-def test_sparse_texture_lookup_matches_grid_sample_in_values_and_gradients(side):
-    from nerfkit.fields.background import sample_texture
+@pytest.mark.parametrize("compiled", [False, True], ids=["torch", "numba"])
+def test_sparse_texture_lookup_matches_grid_sample_in_values_and_gradients(side, compiled):
+    """The sparse lookup (torch in float64; the compiled kernels in float32 with two
+    gradient lanes) against ``F.grid_sample`` and its autograd."""
+    from nerfkit.fields.background import _compiled, sample_texture
     from nerfkit.kernels.ops import GradSink
 
+    dtype = torch.float32 if compiled else torch.float64
     g = torch.Generator().manual_seed(0)
     n_texels = side * side if isinstance(side, int) else side[0] * side[1]
-    tex = torch.randn(n_texels, 3, generator=g, dtype=torch.float64, requires_grad=True)
-    uv = (torch.rand(200, 2, generator=g, dtype=torch.float64) * 2.4 - 1.2).requires_grad_(True)  # some clamped
-    w = torch.randn(200, 3, generator=g, dtype=torch.float64)
+    tex = torch.randn(n_texels, 3, generator=g, dtype=dtype, requires_grad=True)
+    uv = (torch.rand(200, 2, generator=g, dtype=dtype) * 2.4 - 1.2).requires_grad_(True)  # some clamped
+    w = torch.randn(200, 3, generator=g, dtype=dtype)
     ref = sample_texture(tex, side, uv)  # grid_sample
     (ref * w).sum().backward()
     ref_tex, ref_uv = tex.grad.clone(), uv.grad.clone()
     tex.grad, uv.grad = None, None
-    sink = GradSink(n_texels, 3, lanes=1)
-    sink.grad = sink.grad.double()
+    sink = GradSink(n_texels, 3, lanes=2 if compiled else 1)
+    if compiled:
+        if _compiled(tex.detach(), sink) is None:
+            pytest.skip("numba is not available")
+    else:
+        sink.grad = sink.grad.double()
     out = sample_texture(tex, side, uv, sink)
     (out * w).sum().backward()
-    torch.testing.assert_close(out, ref)
+    tol = {"atol": 1e-5, "rtol": 1e-5} if compiled else {}
+    torch.testing.assert_close(out, ref, **tol)
     assert tex.grad is None  # the texture gradient went to the sink only
-    torch.testing.assert_close(sink.grad[0], ref_tex)
-    torch.testing.assert_close(uv.grad, ref_uv)
+    torch.testing.assert_close(sink.grad.sum(0), ref_tex, **tol)
+    if compiled:
+        assert (sink.grad[0] != 0).any() and (sink.grad[1] != 0).any()  # both lanes took a share
+    torch.testing.assert_close(uv.grad, ref_uv, **tol)
     assert torch.equal(sink.touched.bool(), (ref_tex != 0).any(1))
 
 

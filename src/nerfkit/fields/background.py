@@ -103,35 +103,72 @@ def bilinear_taps(uv: Tensor, size) -> tuple[Tensor, Tensor, Tensor, Tensor]:
 
 class _SparseTexture(torch.autograd.Function):
     """Bilinear texture lookup whose texture gradient goes into a GradSink (touched rows
-    only, no dense ``.grad``); the coordinates get their ordinary gradient."""
+    only, no dense ``.grad``); the coordinates get their ordinary gradient. On the CPU the
+    compiled kernels (:func:`~nerfkit.kernels.grid_numba.texture_forward`, ``texture_backward``)
+    do it in one pass each; the torch code here is their reference."""
 
     @staticmethod
     def forward(ctx, tex, uv, size, sink):
+        (w, h), texd = _wh(size), tex.detach()
+        ctx.dims, ctx.sink = (w, h), sink
+        nb = _compiled(texd, sink)
+        if nb is not None:
+            uv32 = uv.detach().float().contiguous()
+            n = uv32.shape[0]
+            rows = torch.empty((n, 4), dtype=torch.int64)
+            frac, inside = torch.empty((n, 2)), torch.empty((n, 2))
+            out = torch.empty((n, texd.shape[1]))
+            nb.texture_forward(texd.numpy(), uv32.numpy(), w, h, rows.numpy(), frac.numpy(), inside.numpy(), out.numpy())
+            ctx.save_for_backward(texd, rows, frac, inside)
+            ctx.compiled = nb
+            return out
         rows, fx, fy, inside = bilinear_taps(uv.detach(), size)
-        t = tex.detach()[rows]  # (n, 4, C)
-        w = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], dim=1)
-        ctx.save_for_backward(t, w, fx, fy, inside, rows)
-        ctx.dims, ctx.sink = _wh(size), sink
-        return (w.unsqueeze(-1) * t).sum(1)
+        ctx.save_for_backward(texd, rows, torch.stack([fx, fy], dim=-1), inside)
+        ctx.compiled = None
+        return (_tap_weights(fx, fy).unsqueeze(-1) * texd[rows]).sum(1)
 
     @staticmethod
     def backward(ctx, g):
-        t, w, fx, fy, inside, rows = ctx.saved_tensors
-        sink = ctx.sink
-        if ctx.needs_input_grad[0]:
-            contrib = (w.unsqueeze(-1) * g.unsqueeze(1)).reshape(-1, g.shape[1])
+        tex, rows, frac, inside = ctx.saved_tensors
+        sink, (w, h), nb = ctx.sink, ctx.dims, ctx.compiled
+        want_tex, want_uv = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
+        if nb is not None and want_tex:
+            g_uv = torch.zeros_like(frac)
+            nb.texture_backward(g.float().contiguous().numpy(), tex.numpy(), rows.numpy(), frac.numpy(), inside.numpy(),
+                                w, h, sink.grad.numpy(), sink.touched.numpy(), g_uv.numpy(), want_uv)
+            sink.dirty = True
+            return None, (g_uv.to(g.dtype) if want_uv else None), None, None
+        fx, fy = frac[:, 0], frac[:, 1]
+        t = tex[rows]  # (n, 4, C)
+        if want_tex:
+            contrib = (_tap_weights(fx, fy).unsqueeze(-1) * g.unsqueeze(1)).reshape(-1, g.shape[1])
             flat = rows.reshape(-1)
             sink.grad[0].index_add_(0, flat, contrib.to(sink.grad.dtype))
             sink.touched[flat] = 1
             sink.dirty = True
         g_uv = None
-        if ctx.needs_input_grad[1]:
+        if want_uv:
             fx_, fy_ = fx.unsqueeze(-1), fy.unsqueeze(-1)
             dx = (1 - fy_) * (t[:, 1] - t[:, 0]) + fy_ * (t[:, 3] - t[:, 2])  # d value / d texel x
             dy = (1 - fx_) * (t[:, 2] - t[:, 0]) + fx_ * (t[:, 3] - t[:, 1])
-            half = g.new_tensor(ctx.dims) / 2.0
+            half = g.new_tensor((w, h)) / 2.0
             g_uv = torch.stack([(g * dx).sum(-1), (g * dy).sum(-1)], dim=-1) * inside * half
         return None, g_uv, None, None
+
+
+def _tap_weights(fx: Tensor, fy: Tensor) -> Tensor:
+    """(n, 4) bilinear weights of the corners 00, 01, 10, 11 of :func:`bilinear_taps`."""
+    return torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], dim=1)
+
+
+def _compiled(tex: Tensor, sink):
+    """The compiled kernels for a float32 CPU texture and sink, else None (torch path)."""
+    if tex.device.type != "cpu" or tex.dtype != torch.float32 or sink.grad.device.type != "cpu" \
+            or not tex.is_contiguous():
+        return None
+    from ..kernels import numba_kernels
+
+    return numba_kernels()
 
 
 def sample_texture(tex: Tensor, size, uv: Tensor, sink=None) -> Tensor:
@@ -171,7 +208,7 @@ class TablePlane(nn.Module):
     A real table ends: beyond its edge the photos show the floor and the room, from each
     view a different part of it. A third, single-channel texture (a quarter of the fine
     one's size per side) holds the plane's *coverage* logit, opaque at first: where it
-    learns to be transparent, rays see the room instead (:meth:`coverage`).
+    learns to be transparent, rays see the room instead (:meth:`look`).
 
     Args:
         plane: (4,) ``(n, d)``, unit normal toward the cameras.
@@ -221,22 +258,26 @@ class TablePlane(nn.Module):
         q = (points - self.origin) @ self.axes / self.radius
         return 0.5 * contract_disc(q)
 
-    def colour(self, points: Tensor, sinks: dict | None = None) -> Tensor:
-        """(n, 3) points on the plane -> (n, 3) colours in (0, 1). ``sinks``: a GradSink
-        per texture parameter, to receive the texture gradients sparsely."""
+    def look(self, points: Tensor, sinks: dict | None = None, gloss: bool = False
+             ) -> tuple[Tensor, Tensor, Tensor | None]:
+        """(n, 3) points on the plane -> colour (n, 3), coverage (n,) and, with ``gloss``
+        (a glossy plane), glossiness (n,), all in (0, 1), from one set of texture
+        coordinates. ``sinks``: a GradSink per texture parameter, to receive the texture
+        gradients sparsely."""
         sinks = sinks or {}
         with torch.autocast(points.device.type, enabled=False):  # texel indices need float32
             uv = self.texture_coords(points.float())
-            return torch.sigmoid(sum(sample_texture(t, side, uv, sinks.get(t)) for t, side in self.textures()[:2]))
+            colour = torch.sigmoid(sum(sample_texture(t, side, uv, sinks.get(t)) for t, side in self.textures()[:2]))
+            cover = self._scalar(self.cover, uv, sinks)
+            shine = self._scalar(self.shine, uv, sinks) if gloss and self.shine is not None else None
+        return colour, cover, shine
 
-    def _scalar(self, tex: Tensor, points: Tensor, sinks: dict | None) -> Tensor:
-        with torch.autocast(points.device.type, enabled=False):
-            uv = self.texture_coords(points.float())
-            return torch.sigmoid(sample_texture(tex, self.cover_size, uv, (sinks or {}).get(tex))[:, 0])
+    def _scalar(self, tex: Tensor, uv: Tensor, sinks: dict) -> Tensor:
+        return torch.sigmoid(sample_texture(tex, self.cover_size, uv, sinks.get(tex))[:, 0])
 
-    def coverage(self, points: Tensor, sinks: dict | None = None) -> Tensor:
-        """(n, 3) points on the plane -> (n,) how opaque the plane is there, in (0, 1)."""
-        return self._scalar(self.cover, points, sinks)
+    def colour(self, points: Tensor, sinks: dict | None = None) -> Tensor:
+        """(n, 3) points on the plane -> (n, 3) colours in (0, 1)."""
+        return self.look(points, sinks)[0]
 
     def reflection(self, dirs: Tensor) -> Tensor:
         """(n, 3) reflected directions -> (n, 3) colour of the surroundings mirrored that
@@ -250,11 +291,6 @@ class TablePlane(nn.Module):
             azimuth = torch.atan2(local[:, 1], local[:, 0] + flat) / math.pi
             v = 1.0 - 2.0 * torch.asin(up) / (0.5 * math.pi)
             return torch.sigmoid(sample_texture(self.env, ENV_SIZE, torch.stack([azimuth, v], dim=-1)))
-
-    def gloss(self, points: Tensor, sinks: dict | None = None) -> Tensor:
-        """(n, 3) points on the plane -> (n,) how much of the mirrored room it shows, in (0, 1)."""
-        return self._scalar(self.shine, points, sinks)
-
 
 def sphere_exit(origins: Tensor, dirs: Tensor, center: Tensor, radii: Tensor) -> Tensor:
     """Distance along each ray to where it leaves each sphere around ``center``.

@@ -718,6 +718,78 @@ def occupancy_from_grid(grid, vidx, voff, rx, ry, rz, raw_thr, occ, coarse, cf):
                 prev = cur
 
 
+@njit(cache=True, fastmath=False, inline="always")
+def _texel_axis(u, n):
+    """One axis of ``grid_sample``'s bilinear taps (``align_corners=False``, border
+    padding): (first texel, second texel, fraction, 1 if not clamped) of coordinate ``u``
+    in [-1, 1] over ``n`` texels, in float32 as :func:`nerfkit.fields.background.bilinear_taps`."""
+    nf = np.float32(n)
+    g = ((u + np.float32(1.0)) * nf - np.float32(1.0)) / np.float32(2.0)
+    inside = np.float32(1.0) if (g >= np.float32(0.0) and g <= nf - np.float32(1.0)) else np.float32(0.0)
+    g = min(max(g, np.float32(0.0)), nf - np.float32(1.0))
+    i = min(np.floor(g), np.float32(max(n - 2, 0)))
+    i0 = int(i)
+    return i0, min(i0 + 1, n - 1), g - i, inside
+
+
+@njit(cache=True, parallel=True, fastmath=False)
+def texture_forward(tex, uv, w, h, rows, frac, inside, out):
+    """Bilinear lookup of a row-major (h * w, C) texture at (n, 2) coordinates ``uv`` in
+    [-1, 1] (x: column, y: row) into ``out`` (n, C), as ``F.grid_sample(align_corners=False,
+    padding_mode="border")``; records the taps for :func:`texture_backward`: ``rows`` (n, 4)
+    int64 (corners 00, 01, 10, 11), ``frac`` (n, 2) and ``inside`` (n, 2) float32."""
+    C = tex.shape[1]
+    for i in prange(uv.shape[0]):
+        x0, x1, fx, inx = _texel_axis(uv[i, 0], w)
+        y0, y1, fy, iny = _texel_axis(uv[i, 1], h)
+        r0, r1, r2, r3 = y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1
+        rows[i, 0], rows[i, 1], rows[i, 2], rows[i, 3] = r0, r1, r2, r3
+        frac[i, 0], frac[i, 1], inside[i, 0], inside[i, 1] = fx, fy, inx, iny
+        w0 = (np.float32(1.0) - fx) * (np.float32(1.0) - fy)
+        w1 = fx * (np.float32(1.0) - fy)
+        w2 = (np.float32(1.0) - fx) * fy
+        w3 = fx * fy
+        for c in range(C):
+            out[i, c] = w0 * tex[r0, c] + w1 * tex[r1, c] + w2 * tex[r2, c] + w3 * tex[r3, c]
+
+
+@njit(cache=True, parallel=True, fastmath=False)
+def texture_backward(g, tex, rows, frac, inside, w, h, grads, touched, g_uv, want_uv):
+    """Gradients of :func:`texture_forward`: the texture's added into ``grads`` (L, M, C)
+    (lane ``l`` takes a contiguous share of the lookups, as :func:`render_backward`), its
+    rows marked in ``touched``; with ``want_uv``, the coordinates' into ``g_uv`` (n, 2)
+    (0 where a coordinate was clamped to the border)."""
+    L = grads.shape[0]
+    n = g.shape[0]
+    C = g.shape[1]
+    hw = np.float32(w) / np.float32(2.0)
+    hh = np.float32(h) / np.float32(2.0)
+    for lane in prange(L):
+        for i in range(lane * n // L, (lane + 1) * n // L):
+            fx, fy = frac[i, 0], frac[i, 1]
+            gx, gy = np.float32(1.0) - fx, np.float32(1.0) - fy
+            r0, r1, r2, r3 = rows[i, 0], rows[i, 1], rows[i, 2], rows[i, 3]
+            dx = np.float32(0.0)
+            dy = np.float32(0.0)
+            for c in range(C):
+                gc = g[i, c]
+                grads[lane, r0, c] += gx * gy * gc
+                grads[lane, r1, c] += fx * gy * gc
+                grads[lane, r2, c] += gx * fy * gc
+                grads[lane, r3, c] += fx * fy * gc
+                if want_uv:
+                    t0, t1, t2, t3 = tex[r0, c], tex[r1, c], tex[r2, c], tex[r3, c]
+                    dx += gc * (gy * (t1 - t0) + fy * (t3 - t2))
+                    dy += gc * (gx * (t2 - t0) + fx * (t3 - t1))
+            touched[r0] = 1
+            touched[r1] = 1
+            touched[r2] = 1
+            touched[r3] = 1
+            if want_uv:
+                g_uv[i, 0] = dx * inside[i, 0] * hw
+                g_uv[i, 1] = dy * inside[i, 1] * hh
+
+
 def warm_up() -> None:
     """Compile (or load from the on-disk cache) every kernel on tiny inputs."""
     C, K = 13, 4
@@ -749,3 +821,8 @@ def warm_up() -> None:
     occupancy_from_grid(grid, vidx, voff, rx, ry, rz, 0.0, occ, occ.copy(), 1)
     tv_rows(grid, vidx, voff, np.arange(rx * ry * rz, dtype=np.int64), rx, ry, rz, np.arange(1, 3, dtype=np.int64),
             np.ones(C, np.float32), grads[0])
+    uv = np.zeros((2, 2), np.float32)
+    taps, frac, inside, out = np.zeros((2, 4), np.int64), np.zeros((2, 2), np.float32), np.zeros((2, 2), np.float32), \
+        np.zeros((2, C), np.float32)
+    texture_forward(grid, uv, 3, 9, taps, frac, inside, out)
+    texture_backward(out, grid, taps, frac, inside, 3, 9, grads, touched, uv, True)

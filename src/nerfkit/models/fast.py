@@ -383,15 +383,13 @@ class FastNeRF(NerfModel):
         (``inf``: misses), ``rgb (n, 1, 3)`` and coverage ``(n, 1)``."""
         hit = torch.isfinite(t_hit).nonzero()[:, 0]
         on_plane = o[hit] + d[hit] * t_hit[hit].unsqueeze(-1)
-        seen = plane.colour(on_plane, self.texture_sinks)
-        if gloss and len(hit):
+        seen, cover, shine = plane.look(on_plane, self.texture_sinks, gloss=gloss and len(hit) > 0)
+        if shine is not None:
             n = plane.plane[:3].to(d)
             mirrored = d[hit] - 2.0 * (d[hit] @ n).unsqueeze(-1) * n
-            reflected = plane.reflection(mirrored)
-            shine = plane.gloss(on_plane, self.texture_sinks).unsqueeze(-1)
-            seen = (1.0 - shine) * seen + shine * reflected
+            seen = (1.0 - shine.unsqueeze(-1)) * seen + shine.unsqueeze(-1) * plane.reflection(mirrored)
         colour = torch.zeros_like(d).index_put((hit,), seen.to(d.dtype))
-        cover = d.new_zeros(len(d)).index_put((hit,), plane.coverage(on_plane, self.texture_sinks))
+        cover = d.new_zeros(len(d)).index_put((hit,), cover.to(d.dtype))
         return t_hit.unsqueeze(1), colour.unsqueeze(1), cover.unsqueeze(1)
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
