@@ -756,38 +756,45 @@ def texture_forward(tex, uv, w, h, rows, frac, inside, out):
 @njit(cache=True, parallel=True, fastmath=False)
 def texture_backward(g, tex, rows, frac, inside, w, h, grads, touched, g_uv, want_uv):
     """Gradients of :func:`texture_forward`: the texture's added into ``grads`` (L, M, C)
-    (lane ``l`` takes a contiguous share of the lookups, as :func:`render_backward`), its
-    rows marked in ``touched``; with ``want_uv``, the coordinates' into ``g_uv`` (n, 2)
-    (0 where a coordinate was clamped to the border)."""
+    (lane ``l`` takes a contiguous share of the lookups, as :func:`render_backward`; one
+    lane scatters serially), its rows marked in ``touched``; with ``want_uv``, the
+    coordinates' into ``g_uv`` (n, 2) (0 where a coordinate was clamped to the border),
+    in parallel over the lookups."""
     L = grads.shape[0]
     n = g.shape[0]
     C = g.shape[1]
-    hw = np.float32(w) / np.float32(2.0)
-    hh = np.float32(h) / np.float32(2.0)
     for lane in prange(L):
         for i in range(lane * n // L, (lane + 1) * n // L):
             fx, fy = frac[i, 0], frac[i, 1]
             gx, gy = np.float32(1.0) - fx, np.float32(1.0) - fy
             r0, r1, r2, r3 = rows[i, 0], rows[i, 1], rows[i, 2], rows[i, 3]
-            dx = np.float32(0.0)
-            dy = np.float32(0.0)
             for c in range(C):
                 gc = g[i, c]
                 grads[lane, r0, c] += gx * gy * gc
                 grads[lane, r1, c] += fx * gy * gc
                 grads[lane, r2, c] += gx * fy * gc
                 grads[lane, r3, c] += fx * fy * gc
-                if want_uv:
-                    t0, t1, t2, t3 = tex[r0, c], tex[r1, c], tex[r2, c], tex[r3, c]
-                    dx += gc * (gy * (t1 - t0) + fy * (t3 - t2))
-                    dy += gc * (gx * (t2 - t0) + fx * (t3 - t1))
             touched[r0] = 1
             touched[r1] = 1
             touched[r2] = 1
             touched[r3] = 1
-            if want_uv:
-                g_uv[i, 0] = dx * inside[i, 0] * hw
-                g_uv[i, 1] = dy * inside[i, 1] * hh
+    if not want_uv:
+        return
+    hw = np.float32(w) / np.float32(2.0)
+    hh = np.float32(h) / np.float32(2.0)
+    for i in prange(n):
+        fx, fy = frac[i, 0], frac[i, 1]
+        gx, gy = np.float32(1.0) - fx, np.float32(1.0) - fy
+        r0, r1, r2, r3 = rows[i, 0], rows[i, 1], rows[i, 2], rows[i, 3]
+        dx = np.float32(0.0)
+        dy = np.float32(0.0)
+        for c in range(C):
+            gc = g[i, c]
+            t0, t1, t2, t3 = tex[r0, c], tex[r1, c], tex[r2, c], tex[r3, c]
+            dx += gc * (gy * (t1 - t0) + fy * (t3 - t2))
+            dy += gc * (gx * (t2 - t0) + fx * (t3 - t1))
+        g_uv[i, 0] = dx * inside[i, 0] * hw
+        g_uv[i, 1] = dy * inside[i, 1] * hh
 
 
 def warm_up() -> None:
