@@ -139,7 +139,6 @@ class _SparseTexture(torch.autograd.Function):
             sink.dirty = True
             return None, (g_uv.to(g.dtype) if want_uv else None), None, None
         fx, fy = frac[:, 0], frac[:, 1]
-        t = tex[rows]  # (n, 4, C)
         if want_tex:
             contrib = (_tap_weights(fx, fy).unsqueeze(-1) * g.unsqueeze(1)).reshape(-1, g.shape[1])
             flat = rows.reshape(-1)
@@ -148,6 +147,7 @@ class _SparseTexture(torch.autograd.Function):
             sink.dirty = True
         g_uv = None
         if want_uv:
+            t = tex[rows]  # (n, 4, C)
             fx_, fy_ = fx.unsqueeze(-1), fy.unsqueeze(-1)
             dx = (1 - fy_) * (t[:, 1] - t[:, 0]) + fy_ * (t[:, 3] - t[:, 2])  # d value / d texel x
             dy = (1 - fx_) * (t[:, 2] - t[:, 0]) + fx_ * (t[:, 3] - t[:, 1])
@@ -164,7 +164,7 @@ def _tap_weights(fx: Tensor, fy: Tensor) -> Tensor:
 def _compiled(tex: Tensor, sink):
     """The compiled kernels for a float32 CPU texture and sink, else None (torch path)."""
     if tex.device.type != "cpu" or tex.dtype != torch.float32 or sink.grad.device.type != "cpu" \
-            or not tex.is_contiguous():
+            or sink.grad.dtype != torch.float32 or not tex.is_contiguous():
         return None
     from ..kernels import numba_kernels
 
@@ -291,6 +291,7 @@ class TablePlane(nn.Module):
             azimuth = torch.atan2(local[:, 1], local[:, 0] + flat) / math.pi
             v = 1.0 - 2.0 * torch.asin(up) / (0.5 * math.pi)
             return torch.sigmoid(sample_texture(self.env, ENV_SIZE, torch.stack([azimuth, v], dim=-1)))
+
 
 def sphere_exit(origins: Tensor, dirs: Tensor, center: Tensor, radii: Tensor) -> Tensor:
     """Distance along each ray to where it leaves each sphere around ``center``.
