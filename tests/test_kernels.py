@@ -451,6 +451,19 @@ def test_grid_adam_with_every_row_touched_equals_torch_adam(backend, monkeypatch
     assert not sink.touched.any() and not sink.grad.any()  # consumed
 
 
+@needs_numba
+def test_touched_rows_lists_the_set_flags_in_order_like_flatnonzero():
+    """Eight flags at a time, any non-zero byte counting as set, and lengths that are not
+    a multiple of eight (a tail read one by one)."""
+    rng = np.random.default_rng(0)
+    for n in (0, 1, 7, 8, 9, 63, 64, 1001):
+        for p in (0.0, 0.02, 0.5, 1.0):
+            flags = (rng.random(n) < p).astype(np.uint8) * rng.integers(1, 256, n).astype(np.uint8)
+            got = numba_kernels().touched_rows(flags)
+            assert got.dtype == np.int64
+            np.testing.assert_array_equal(got, np.flatnonzero(flags))
+
+
 @pytest.mark.parametrize("backend", ["numba", "torch"])
 def test_grid_adam_updates_only_touched_rows_with_per_channel_lr(backend, monkeypatch):
     if backend == "numba" and numba_kernels() is None:

@@ -560,20 +560,45 @@ def render_backward(s_idx, s_f, counts, sh, grid, vidx, voff, rx, ry, inv_voxel,
                             touched[row] = 1
 
 
+@njit(cache=True, fastmath=False, inline="always")
+def _nonzero_bytes(w):
+    """How many of the 8 bytes of the uint64 ``w`` are not zero."""
+    x = w | (w >> np.uint64(4))
+    x |= x >> np.uint64(2)
+    x |= x >> np.uint64(1)
+    x &= np.uint64(0x0101010101010101)
+    return int((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
+
+
 @njit(cache=True)
 def touched_rows(touched):
-    """The rows (m,) int64 whose ``touched`` flag is set, in increasing order."""
+    """The rows (m,) int64 whose ``touched`` flag is set (not 0), in increasing order.
+
+    Reads the flags eight at a time and skips words of eight clear flags: a step touches
+    a few percent of a grid's rows, so most words are clear (``np.flatnonzero`` is the
+    reference)."""
+    n = touched.shape[0]
+    n8 = n // 8
+    words = touched[:n8 * 8].view(np.uint64)
     m = 0
-    for i in range(touched.shape[0]):
+    for k in range(n8):
+        if words[k] != 0:
+            m += _nonzero_bytes(words[k])
+    for i in range(n8 * 8, n):
         if touched[i]:
             m += 1
-    rows = np.empty(m, np.int64)
+    rows = np.empty(m + 8, np.int64)  # slack for the branch-free writes
     j = 0
-    for i in range(touched.shape[0]):
+    for k in range(n8):
+        if words[k] != 0:
+            for i in range(8 * k, 8 * k + 8):
+                rows[j] = i
+                j += touched[i] != 0
+    for i in range(n8 * 8, n):
         if touched[i]:
             rows[j] = i
             j += 1
-    return rows
+    return rows[:m]
 
 
 @njit(cache=True, parallel=True, fastmath=False)
