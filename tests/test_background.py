@@ -95,6 +95,28 @@ def test_sparse_texture_lookup_matches_grid_sample_in_values_and_gradients(side,
     assert torch.equal(sink.touched.bool(), (ref_tex != 0).any(1))
 
 
+def test_a_torch_model_looks_up_its_textures_in_torch(monkeypatch):
+    """``--kernels torch`` holds for the table and room textures too: with ``compiled``
+    off the lookup never asks for the compiled kernels, and gives the same values."""
+    import nerfkit.fields.background as background
+    from nerfkit.kernels.ops import GradSink
+
+    g = torch.Generator().manual_seed(1)
+    tex = torch.randn(64, 3, generator=g, requires_grad=True)
+    uv = torch.rand(50, 2, generator=g) * 2 - 1
+    ref = background.sample_texture(tex, 8, uv)
+
+    def refuse(*_):
+        raise AssertionError("the compiled kernels were asked for")
+
+    monkeypatch.setattr(background, "_compiled", refuse)
+    sink = GradSink(64, 3, lanes=1)
+    out = background.sample_texture(tex, 8, uv, sink, compiled=False)
+    out.sum().backward()
+    torch.testing.assert_close(out, ref)
+    assert sink.dirty and sink.touched.any()
+
+
 def test_table_coverage_shows_the_room_where_the_table_ends():
     """Rays that hit the plane see ``cover * table + (1 - cover) * room``: opaque at
     first, the room where the coverage texture has learned the table is not there."""

@@ -108,10 +108,10 @@ class _SparseTexture(torch.autograd.Function):
     do it in one pass each; the torch code here is their reference."""
 
     @staticmethod
-    def forward(ctx, tex, uv, size, sink):
+    def forward(ctx, tex, uv, size, sink, compiled):
         (w, h), texd = _wh(size), tex.detach()
         ctx.dims, ctx.sink = (w, h), sink
-        nb = _compiled(texd, sink)
+        nb = _compiled(texd, sink) if compiled else None
         if nb is not None:
             uv32 = uv.detach().float().contiguous()
             n = uv32.shape[0]
@@ -137,7 +137,7 @@ class _SparseTexture(torch.autograd.Function):
             nb.texture_backward(g.float().contiguous().numpy(), tex.numpy(), rows.numpy(), frac.numpy(), inside.numpy(),
                                 w, h, sink.grad.numpy(), sink.touched.numpy(), g_uv.numpy(), want_uv)
             sink.dirty = True
-            return None, (g_uv.to(g.dtype) if want_uv else None), None, None
+            return None, (g_uv.to(g.dtype) if want_uv else None), None, None, None
         fx, fy = frac[:, 0], frac[:, 1]
         if want_tex:
             contrib = (_tap_weights(fx, fy).unsqueeze(-1) * g.unsqueeze(1)).reshape(-1, g.shape[1])
@@ -153,7 +153,7 @@ class _SparseTexture(torch.autograd.Function):
             dy = (1 - fx_) * (t[:, 2] - t[:, 0]) + fx_ * (t[:, 3] - t[:, 1])
             half = g.new_tensor((w, h)) / 2.0
             g_uv = torch.stack([(g * dx).sum(-1), (g * dy).sum(-1)], dim=-1) * inside * half
-        return None, g_uv, None, None
+        return None, g_uv, None, None, None
 
 
 def _tap_weights(fx: Tensor, fy: Tensor) -> Tensor:
@@ -171,14 +171,15 @@ def _compiled(tex: Tensor, sink):
     return numba_kernels()
 
 
-def sample_texture(tex: Tensor, size, uv: Tensor, sink=None) -> Tensor:
+def sample_texture(tex: Tensor, size, uv: Tensor, sink=None, compiled: bool = True) -> Tensor:
     """Bilinear lookup of a (height * width, C) row-major texture at (n, 2) coordinates in
     [-1, 1] -> (n, C), exactly ``F.grid_sample(..., align_corners=False,
     padding_mode="border")``. ``size``: texels per side, or ``(width, height)``. With a
     ``sink`` (:class:`~nerfkit.kernels.ops.GradSink`) the texture's gradient is added
-    there, sparsely, instead of into ``tex.grad``."""
+    there, sparsely, instead of into ``tex.grad``: through the compiled kernels when
+    ``compiled`` and they can run (a float32 CPU texture and sink), else in torch."""
     if sink is not None and tex.requires_grad and torch.is_grad_enabled():
-        return _SparseTexture.apply(tex, uv, size, sink)
+        return _SparseTexture.apply(tex, uv, size, sink, compiled)
     w, h = _wh(size)
     img = tex.reshape(1, h, w, -1).permute(0, 3, 1, 2)
     out = F.grid_sample(img, uv.reshape(1, 1, -1, 2).to(img.dtype), mode="bilinear", padding_mode="border",
@@ -258,22 +259,23 @@ class TablePlane(nn.Module):
         q = (points - self.origin) @ self.axes / self.radius
         return 0.5 * contract_disc(q)
 
-    def look(self, points: Tensor, sinks: dict | None = None, gloss: bool = False
+    def look(self, points: Tensor, sinks: dict | None = None, gloss: bool = False, compiled: bool = True
              ) -> tuple[Tensor, Tensor, Tensor | None]:
         """(n, 3) points on the plane -> colour (n, 3), coverage (n,) and, with ``gloss``
         (a glossy plane), glossiness (n,), all in (0, 1), from one set of texture
         coordinates. ``sinks``: a GradSink per texture parameter, to receive the texture
-        gradients sparsely."""
+        gradients sparsely; ``compiled``: through the compiled kernels when they can run."""
         sinks = sinks or {}
         with torch.autocast(points.device.type, enabled=False):  # texel indices need float32
             uv = self.texture_coords(points.float())
-            colour = torch.sigmoid(sum(sample_texture(t, side, uv, sinks.get(t)) for t, side in self.textures()[:2]))
-            cover = self._scalar(self.cover, uv, sinks)
-            shine = self._scalar(self.shine, uv, sinks) if gloss and self.shine is not None else None
+            colour = torch.sigmoid(sum(sample_texture(t, side, uv, sinks.get(t), compiled)
+                                       for t, side in self.textures()[:2]))
+            cover = self._scalar(self.cover, uv, sinks, compiled)
+            shine = self._scalar(self.shine, uv, sinks, compiled) if gloss and self.shine is not None else None
         return colour, cover, shine
 
-    def _scalar(self, tex: Tensor, uv: Tensor, sinks: dict) -> Tensor:
-        return torch.sigmoid(sample_texture(tex, self.cover_size, uv, sinks.get(tex))[:, 0])
+    def _scalar(self, tex: Tensor, uv: Tensor, sinks: dict, compiled: bool) -> Tensor:
+        return torch.sigmoid(sample_texture(tex, self.cover_size, uv, sinks.get(tex), compiled)[:, 0])
 
     def colour(self, points: Tensor, sinks: dict | None = None) -> Tensor:
         """(n, 3) points on the plane -> (n, 3) colours in (0, 1)."""
@@ -377,11 +379,13 @@ class RoomShells(nn.Module):
         """``(parameter (n_shells * height * width, 4), (width, height * n_shells))``."""
         return [(p, (w, h * self.n_shells)) for p, (w, h) in zip((self.fine, self.coarse), self.sizes)]
 
-    def layers(self, origins: Tensor, dirs: Tensor, sinks: dict | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    def layers(self, origins: Tensor, dirs: Tensor, sinks: dict | None = None,
+               compiled: bool = True) -> tuple[Tensor, Tensor, Tensor]:
         """Where each ray leaves each shell and what it sees there.
 
         Returns ``t (n, k)`` (``inf`` where a ray misses a shell), ``rgb (n, k, 3)`` and
-        ``alpha (n, k)`` (0 on missed shells).
+        ``alpha (n, k)`` (0 on missed shells). ``sinks`` and ``compiled``: as in
+        :meth:`TablePlane.look`.
         """
         sinks = sinks or {}
         n, k = origins.shape[0], self.n_shells
@@ -403,7 +407,7 @@ class RoomShells(nn.Module):
                 shell = torch.arange(k, device=o.device).view(1, k)
                 y = (shell * h + row) / (k * h) * 2.0 - 1.0
                 uv = torch.stack([azimuth, y], dim=-1).reshape(-1, 2)
-                logits = logits + sample_texture(tex, (w, h * k), uv, sinks.get(tex)).reshape(n, k, 4)
+                logits = logits + sample_texture(tex, (w, h * k), uv, sinks.get(tex), compiled).reshape(n, k, 4)
             rgb = torch.sigmoid(logits[..., :3])
             alpha = torch.sigmoid(logits[..., 3]) * hit
         return torch.where(hit, t, math.inf), rgb, alpha

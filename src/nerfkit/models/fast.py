@@ -367,7 +367,7 @@ class FastNeRF(NerfModel):
         (:meth:`_far`). A glossy table also shows its map of the surroundings along the
         mirrored ray."""
         bg = self._far(d, background)
-        layers = [] if self.room is None else [self.room.layers(o, d, self.texture_sinks)]
+        layers = [] if self.room is None else [self.room.layers(o, d, self.texture_sinks, self._backend() == "numba")]
         if t_table is not None:
             layers.append(self._plane_layer(self.table, o, d, t_table, self.config.table_gloss))
         if self.floor is not None:
@@ -383,7 +383,8 @@ class FastNeRF(NerfModel):
         (``inf``: misses), ``rgb (n, 1, 3)`` and coverage ``(n, 1)``."""
         hit = torch.isfinite(t_hit).nonzero()[:, 0]
         on_plane = o[hit] + d[hit] * t_hit[hit].unsqueeze(-1)
-        seen, cover, shine = plane.look(on_plane, self.texture_sinks, gloss=gloss and len(hit) > 0)
+        seen, cover, shine = plane.look(on_plane, self.texture_sinks, gloss=gloss and len(hit) > 0,
+                                        compiled=self._backend() == "numba")
         if shine is not None:
             n = plane.plane[:3].to(d)
             mirrored = d[hit] - 2.0 * (d[hit] @ n).unsqueeze(-1) * n
