@@ -367,24 +367,24 @@ class FastNeRF(NerfModel):
         (:meth:`_far`). A glossy table also shows its map of the surroundings along the
         mirrored ray."""
         bg = self._far(d, background)
-        layers = [] if self.room is None else [self.room.layers(o, d, self.texture_sinks, self._backend() == "numba")]
+        compiled = self._backend() == "numba"  # the textures follow the grid's kernels
+        layers = [] if self.room is None else [self.room.layers(o, d, self.texture_sinks, compiled)]
         if t_table is not None:
-            layers.append(self._plane_layer(self.table, o, d, t_table, self.config.table_gloss))
+            layers.append(self._plane_layer(self.table, o, d, t_table, self.config.table_gloss, compiled))
         if self.floor is not None:
-            layers.append(self._plane_layer(self.floor, o, d, self.floor.hit(o, d), False))
+            layers.append(self._plane_layer(self.floor, o, d, self.floor.hit(o, d), False, compiled))
         if not layers:
             return bg
         t, rgb, alpha = (torch.cat(parts, dim=1) for parts in zip(*layers))
         return composite_layers(t, rgb.to(bg.dtype), alpha.to(bg.dtype), bg)
 
     def _plane_layer(self, plane: TablePlane, o: Tensor, d: Tensor, t_hit: Tensor,
-                     gloss: bool) -> tuple[Tensor, Tensor, Tensor]:
+                     gloss: bool, compiled: bool) -> tuple[Tensor, Tensor, Tensor]:
         """One textured plane as a compositing layer: ``t (n, 1)`` where each ray meets it
         (``inf``: misses), ``rgb (n, 1, 3)`` and coverage ``(n, 1)``."""
         hit = torch.isfinite(t_hit).nonzero()[:, 0]
         on_plane = o[hit] + d[hit] * t_hit[hit].unsqueeze(-1)
-        seen, cover, shine = plane.look(on_plane, self.texture_sinks, gloss=gloss and len(hit) > 0,
-                                        compiled=self._backend() == "numba")
+        seen, cover, shine = plane.look(on_plane, self.texture_sinks, gloss=gloss and len(hit) > 0, compiled=compiled)
         if shine is not None:
             n = plane.plane[:3].to(d)
             mirrored = d[hit] - 2.0 * (d[hit] @ n).unsqueeze(-1) * n
