@@ -136,6 +136,22 @@ def test_sparse_growth_stores_the_vertices_near_the_object_and_renders_as_well(s
     assert float(sparse.density(sparse.geom.vertex_positions(empty)).detach().max()) < 1e-9
 
 
+def test_a_growth_in_the_last_steps_of_a_run_is_skipped_and_caught_up_on_resume(scene):
+    """A growth due at step 40 runs when a fifth of the run is left, not when the run is
+    all but over (the finer grid would have no steps to recover); a resumed run with a
+    longer budget catches up on it."""
+    from nerfkit.models.base import StepState, run_schedules
+    jobs = lambda m: m.schedules()  # noqa: E731
+    for progress, grows in ((0.8, True), (0.9, True), (0.96, False), (1.0, False)):
+        model = FastNeRF(FastConfig(**SMALL), SceneBounds.from_scene(scene))
+        run_schedules(jobs(model), StepState(40, progress), phase="before_step")
+        assert model.stage == int(grows), progress
+    model = FastNeRF(FastConfig(**SMALL), SceneBounds.from_scene(scene))
+    run_schedules(jobs(model), StepState(40, 0.99), phase="before_step")
+    run_schedules(jobs(model), StepState(41, 0.5), phase="before_step")
+    assert model.stage == 1
+
+
 def test_a_vertex_index_outside_the_grid_is_refused_before_the_kernels_see_it(scene, trained):
     state = {k: v.clone() for k, v in trained.state_dict().items()}
     state["vertex_rows"][7] = trained.grid.shape[0]  # one past the last row
