@@ -152,6 +152,31 @@ def test_a_growth_in_the_last_steps_of_a_run_is_skipped_and_caught_up_on_resume(
     assert model.stage == 1
 
 
+def test_photos_with_finer_detail_get_a_fifth_grid_stage_unless_the_stages_are_given():
+    """An object scene photographed at 400x400 grows on to 256 vertices; at 200x200, on a
+    capture, on a forward-facing scene, or with the stages given, the stages are as set."""
+    from dataclasses import replace
+    from nerfkit.data.synthetic import forward_facing_scene, sphere_scene
+    from nerfkit.models.fast import BASE_STAGES, FINE_STAGES
+    from nerfkit.train.config import TrainConfig
+    from nerfkit.train.trainer import capture_settings
+
+    def sized(scene, size):
+        return replace(scene, train=replace(scene.train, width=size, height=size, images=None))
+
+    def stages(scene, model=FastConfig(), capture="auto"):
+        m = capture_settings(TrainConfig(capture=capture), model, scene)[1]
+        return m.resolutions, m.upsample_steps
+
+    sphere = sphere_scene(n_train=6, size=8)
+    assert stages(sized(sphere, 400)) == FINE_STAGES and FastConfig(*FINE_STAGES).stages()[0][-1] == 256
+    assert stages(sized(sphere, 200)) == BASE_STAGES
+    assert stages(sized(sphere, 400), capture="on") == BASE_STAGES
+    assert stages(sized(forward_facing_scene(n_train=6, n_val=0, size=8), 400)) == BASE_STAGES
+    assert stages(sized(sphere, 400), FastConfig(resolutions="16,32")) == ("16,32", None)
+    assert FastConfig(resolutions="16,32").stages() == ([16, 32], [60])  # unset steps: the base's
+
+
 def test_a_vertex_index_outside_the_grid_is_refused_before_the_kernels_see_it(scene, trained):
     state = {k: v.clone() for k, v in trained.state_dict().items()}
     state["vertex_rows"][7] = trained.grid.shape[0]  # one past the last row

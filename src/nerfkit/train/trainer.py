@@ -58,7 +58,8 @@ def capture_settings(cfg: TrainConfig, model_config, scene: Scene):
     """Resolve ``--capture auto`` from the dataset; in capture mode, models that can
     learn the room and the table behind the object do. Options left unset take the
     model's capture default, its forward-facing default on a forward-facing scene, else
-    its other default. Returns ``(cfg, model_config)``."""
+    its other default; a model's ``scene_defaults(scene, capture)`` fills other unset
+    options from the scene. Returns ``(cfg, model_config)``."""
     on = cfg.capture == "on" or (cfg.capture == "auto" and scene.capture)
     cfg = replace(cfg, capture="on" if on else "off")
     names = {f.name for f in fields(model_config)}
@@ -72,6 +73,8 @@ def capture_settings(cfg: TrainConfig, model_config, scene: Scene):
         if getattr(model_config, k) is None:
             forward_value = getattr(model_config, "FORWARD_FACING_DEFAULTS", {}).get(k, other_value)
             unset[k] = capture_value if on else forward_value if forward else other_value
+    if hasattr(model_config, "scene_defaults"):
+        unset.update(model_config.scene_defaults(scene, on))
     return cfg, replace(model_config, **unset)
 
 
