@@ -25,7 +25,10 @@ import subprocess
 import sys
 import tempfile
 import time
+import typing
 from pathlib import Path
+
+from nerfkit.config import base_type
 
 CURVE_TIMES = [2, 5, 10, 20, 30, 45, 60, 90, 120, 180, 240, 300, 420, 600, 900, 1200]
 
@@ -61,7 +64,7 @@ def worker(args) -> dict:
     from nerfkit.models import model_config_class
     from nerfkit.output.images import render_image
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, resolved_config
+    from nerfkit.train.trainer import Trainer, capture_settings, resolved_config
 
     warmup = None
     if args.model == "fast":
@@ -75,7 +78,8 @@ def worker(args) -> dict:
     cfg = TrainConfig(data=args.data, model=args.model, out=str(run_dir), minutes=args.seconds / 60.0, seed=args.seed,
                       eval_views=args.eval_views or len(scene.val), checkpoint_seconds=1e9)
     overrides(args.set, model_cfg, cfg)
-    cfg = resolved_config(cfg.validate(), model_cfg)
+    cfg, model_cfg = capture_settings(cfg.validate(), model_cfg, scene)  # the defaults `nerfkit train` picks
+    cfg = resolved_config(cfg, model_cfg)
 
     class TimedTrainer(Trainer):
         """Evaluates at the given training seconds; counts samples and CPU time."""
@@ -133,8 +137,8 @@ def overrides(pairs: list[str], model_cfg, train_cfg) -> None:
         target = next((c for c in (model_cfg, train_cfg) if sep and hasattr(c, name)), None)
         if target is None:
             raise SystemExit(f"--set {pair}: expected NAME=VALUE with NAME an option of the model or of training")
-        old = getattr(target, name)
-        setattr(target, name, (value.lower() in ("1", "true", "yes")) if isinstance(old, bool) else type(old)(value))
+        kind, _ = base_type(typing.get_type_hints(type(target))[name])  # X for X | None
+        setattr(target, name, (value.lower() in ("1", "true", "yes")) if kind is bool else kind(value))
 
 
 def cold_compile_seconds() -> float | None:

@@ -30,7 +30,7 @@ def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
-def _base_type(tp: Any) -> tuple[Any, bool]:
+def base_type(tp: Any) -> tuple[Any, bool]:
     """(type, optional) for ``X`` or ``X | None``."""
     if isinstance(tp, types.UnionType) or typing.get_origin(tp) is typing.Union:
         args = [a for a in typing.get_args(tp) if a is not type(None)]
@@ -78,7 +78,7 @@ def add_dataclass_args(parser: argparse.ArgumentParser, cls: type, group_title: 
     for f in dataclasses.fields(cls):
         if f.name in skip or f.metadata.get("cli") is False or _flag(f.name) in parser._option_string_actions:
             continue  # a flag shared by two configs is added once
-        tp, _ = _base_type(hints[f.name])
+        tp, _ = base_type(hints[f.name])
         default = f.default if f.default is not dataclasses.MISSING else None
         help_text = f.metadata.get("help", "").replace("%", "%%")  # argparse %-formats help
         if default is not None and default != "":
@@ -115,7 +115,7 @@ def dataclass_from_dict(cls: type[T], d: dict, where: str) -> T:
         raise fail(where, f"unknown config keys: {', '.join(sorted(map(repr, unknown)))}")
     out = {}
     for k, v in d.items():
-        tp, optional = _base_type(hints[k])
+        tp, optional = base_type(hints[k])
         if v is None and optional:
             out[k] = None
         elif tp is float and isinstance(v, (int, float)) and not isinstance(v, bool):
