@@ -169,7 +169,8 @@ def test_photos_with_finer_detail_get_a_fifth_grid_stage_unless_the_stages_are_g
         return m.resolutions, m.upsample_steps
 
     sphere = sphere_scene(n_train=6, size=8)
-    assert stages(sized(sphere, 400)) == FINE_STAGES and FastConfig(*FINE_STAGES).stages()[0][-1] == 256
+    assert stages(sized(sphere, 400)) == FINE_STAGES and FastConfig(resolutions=FINE_STAGES[0],
+                                                                       upsample_steps=FINE_STAGES[1]).stages()[0][-1] == 256
     assert stages(sized(sphere, 200)) == BASE_STAGES
     assert stages(sized(sphere, 400), capture="on") == BASE_STAGES
     assert stages(sized(forward_facing_scene(n_train=6, n_val=0, size=8), 400)) == BASE_STAGES

@@ -66,7 +66,7 @@ from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState
 
 # A growth dips the held-out score until the finer grid has trained for a while (lego,
 # 128 -> 192 at step 2000: 70 steps to be back level, +0.25 dB after 300, +0.45 after
-# 600); a growth later than this fraction of the run's steps from its end only costs.
+# 600): a growth with fewer steps left than this fraction of the steps done only costs.
 GROWTH_MIN_STEPS_LEFT = 0.05
 
 
