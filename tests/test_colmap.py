@@ -364,7 +364,7 @@ def test_sfm_normalised_dataset(room_sfm, tmp_path):
 
     assert np.abs(tilt(ref)).mean() > 15
     np.testing.assert_allclose(tilt(c2w), tilt(ref), atol=1.0)
-    scene = build_dataset(result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160),
+    scene, _ = build_dataset(result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160),
                           progress=False)
     assert len(scene.train) == 12 and scene.train.width == 160
     # near/far from the sparse points, scaled like the cameras (box ~1.4 m away, far walls 3-5 m)
@@ -399,7 +399,7 @@ def test_sfm_without_tag_levels_the_scene_on_the_floor(room_sfm, tmp_path):
     ref = np.stack([truth[n] for n in names])
     s = 4.0 / np.linalg.norm(ref[:, :3, 3] - estimate_center(ref), axis=1).mean()  # the normalised scale
     np.testing.assert_allclose(c2w[:, 2, 3], s * ref[:, 2, 3], rtol=0.02)  # heights above the floor
-    scene = build_dataset(result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160),
+    scene, _ = build_dataset(result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160),
                           progress=False)
     np.testing.assert_array_equal(scene.table, [0.0, 0.0, 1.0, 0.0])
     assert load_scene(tmp_path / "ds").table is not None

@@ -96,6 +96,7 @@ class SfmResult:
     image_dir: Path  # the upright photos COLMAP used (the input folder, or upright copies)
     report: SfmReport
     tag_size: float | None = None  # set when the world frame is the tag's (metres)
+    sources: dict[str, Path] = field(default_factory=dict)  # COLMAP image name -> the user's photo
     on_ground: bool = False  # no tag, but z = 0 is the table plane found in the sparse points
 
 
@@ -165,6 +166,15 @@ def photo_info(path: Path) -> PhotoInfo:
     return PhotoInfo(path, w, h, orientation, exif_focal_35mm(path))
 
 
+def colmap_name(photo: Path) -> str:
+    """The name COLMAP knows a photo by: its own, or with ``.jpg`` / ``.png`` added to a
+    format COLMAP cannot read (HEIC: JPEG copies; others: PNG)."""
+    suffix = photo.suffix.lower()
+    if suffix in COLMAP_SUFFIXES:
+        return photo.name
+    return photo.name + (".jpg" if suffix in (".heic", ".heif") else ".png")
+
+
 def prepare_photos(photos: list[Path], work: Path, progress: bool = True
                    ) -> tuple[Path, list[str], dict[str, str], PhotoInfo]:
     """Photos COLMAP can use as nerfkit sees them (upright), all of one size.
@@ -198,7 +208,7 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True
     names = []
     for i in kept:
         jpeg = i.path.suffix.lower() in (".jpg", ".jpeg", ".heic", ".heif")
-        name = i.path.name if i.path.suffix.lower() in COLMAP_SUFFIXES else i.path.name + (".jpg" if jpeg else ".png")
+        name = colmap_name(i.path)
         img = load_image_uint8(i.path)
         if jpeg:
             from PIL import Image
@@ -226,6 +236,8 @@ def run_sfm(
     seed: int = 0,
     progress: bool = True,
     verbose: bool = False,
+    camera=None,
+    refine_camera: bool = True,
 ) -> SfmResult:
     """Run SfM on the photos of ``image_dir``; write ``out_dir/colmap/{database.db,sparse/0}``.
 
@@ -236,6 +248,11 @@ def run_sfm(
             (poses and intrinsics are for the full-size photos).
         camera_model: COLMAP camera model; single_camera: one camera shared by all photos.
         threads: CPU threads (-1: all cores); seed: COLMAP's random seed (repeatable runs).
+        camera: a calibrated :class:`~nerfkit.capture.camera.Camera` (``nerfkit calibrate``)
+            that every photo starts from (``camera_model`` is then ignored); the photos must
+            have its aspect ratio. With ``refine_camera`` bundle adjustment refines its focal
+            length and radial distortion on these photos (the principal point stays:
+            COLMAP's default; see :func:`colmap_camera`), else it is held fixed.
     Returns:
         The largest reconstruction (COLMAP's frame; see :func:`align_reconstruction`).
     Raises:
@@ -256,6 +273,13 @@ def run_sfm(
     if len(names) < 3:
         raise fail(image_dir, f"only {len(names)} photos share one size; structure-from-motion needs at least 3",
                    "Take all photos held the same way (portrait or landscape)")
+    fixed = None
+    if camera is not None:
+        why = camera.compatible(first.width, first.height)
+        if why:
+            raise fail(image_dir, f"the photos do not fit the camera file: {why}",
+                       "Calibrate with photos from the same camera, held the same way")
+        fixed = colmap_camera(camera.scaled_to(first.width, first.height), refine=refine_camera)
     db_path = work / "database.db"
     device = pycolmap.Device.cpu
     seconds: dict[str, float] = {}
@@ -267,7 +291,9 @@ def run_sfm(
                        f"(longest side <= {max_image_size} px)...")
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = camera_model
-        if colmap_dir != image_dir and first.f35 and camera_model == "SIMPLE_RADIAL":
+        if fixed is not None:
+            reader.camera_model, reader.camera_params = fixed
+        elif colmap_dir != image_dir and first.f35 and camera_model == "SIMPLE_RADIAL":
             # The copies lost their EXIF; give COLMAP the focal length it would have read.
             from ..capture.camera import exif_fx
 
@@ -309,6 +335,12 @@ def run_sfm(
         options.num_threads = threads
         options.random_seed = seed
         options.min_model_size = 3
+        if fixed is not None and not refine_camera:
+            options.ba_refine_focal_length = False
+            options.ba_refine_principal_point = False
+            options.ba_refine_extra_params = False
+            options.mapper.abs_pose_refine_focal_length = False
+            options.mapper.abs_pose_refine_extra_params = False
         counter = {"n": 0}
 
         def on_image() -> None:
@@ -344,7 +376,34 @@ def run_sfm(
         shutil.rmtree(sub) if sub.is_dir() else sub.unlink()
     write_reconstruction(rec, model_dir)
     _say(progress, "sfm: " + report.summary().splitlines()[0])
-    return SfmResult(rec, model_dir, colmap_dir, report)
+    return SfmResult(rec, model_dir, colmap_dir, report, sources={colmap_name(p): p for p in photos})
+
+
+def colmap_camera(camera, refine: bool = False) -> tuple[str, str]:
+    """A capture :class:`~nerfkit.capture.camera.Camera` (OpenCV: pixel centres at
+    integers, k1 k2 p1 p2 k3) as COLMAP's ``(model name, params string)``.
+
+    Held fixed (``refine`` False): PINHOLE without distortion, OPENCV without k3, else
+    FULL_OPENCV (k4..k6 = 0); the inverse of :func:`nerfkit.sfm.dataset.opencv_camera`.
+    As a start for bundle adjustment (``refine``): the smallest model that holds the
+    camera and one radial term, so that few photos cannot fit spurious distortion (OPENCV
+    turned a 12-photo synthetic room's poses by a degree): SIMPLE_RADIAL (one focal
+    length, k1) or RADIAL (k1, k2) when fx and fy agree within 1% and there is no
+    tangential or k3 term, else as held fixed but never PINHOLE.
+    """
+    fx, fy = float(camera.K[0, 0]), float(camera.K[1, 1])
+    cx, cy = float(camera.K[0, 2]) + 0.5, float(camera.K[1, 2]) + 0.5  # COLMAP's pixel centres are at +0.5
+    k1, k2, p1, p2, k3 = (float(x) for x in camera.dist)
+    if refine and abs(fx - fy) <= 0.01 * fx and p1 == p2 == k3 == 0.0:
+        f = 0.5 * (fx + fy)
+        model, params = ("SIMPLE_RADIAL", [f, cx, cy, k1]) if k2 == 0.0 else ("RADIAL", [f, cx, cy, k1, k2])
+    elif not camera.has_distortion and not refine:
+        model, params = "PINHOLE", [fx, fy, cx, cy]
+    elif k3 == 0.0:
+        model, params = "OPENCV", [fx, fy, cx, cy, k1, k2, p1, p2]
+    else:
+        model, params = "FULL_OPENCV", [fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]
+    return model, ",".join(repr(p) for p in params)
 
 
 def registration_report(db_path: Path, names: list[str], rec, others: dict) -> dict[str, str]:
@@ -569,13 +628,16 @@ def triangulate(w2c: np.ndarray, rays: np.ndarray) -> np.ndarray:
 
 
 def tag_similarity(rec, image_dir: Path, tag_size: float, tag_id: int = 0, dictionary: str = "DICT_4X4_50",
-                   min_views: int = 3) -> tuple[tuple[float, np.ndarray, np.ndarray], dict] | None:
+                   min_views: int = 3, tag_corners: np.ndarray | None = None
+                   ) -> tuple[tuple[float, np.ndarray, np.ndarray], dict] | None:
     """(s, R, t) taking the reconstruction into the tag frame (metres, +z out of the tag),
     and facts about the fit; None when the tag is seen in fewer than ``min_views`` photos.
 
     The tag's corners are detected in every registered photo, undistorted with the
     photo's camera model, and triangulated; the triangulated square fixes scale
     (``tag_size`` = printed side length in metres), orientation and origin.
+    ``tag_corners``: (4, 3) where the tag's corners are in the wanted frame (OpenCV corner
+    order; a sheet layout's frame), instead of the tag's own frame.
     """
     from ..images import load_image_uint8
 
@@ -594,6 +656,8 @@ def tag_similarity(rec, image_dir: Path, tag_size: float, tag_id: int = 0, dicti
     # Tag frame (as OpenCV's ArUco pose): x along corner0->corner1, y along corner3->corner0, z out of the tag.
     half = tag_size / 2
     tag_pts = np.array([[-half, half, 0], [half, half, 0], [half, -half, 0], [-half, -half, 0]])
+    if tag_corners is not None:
+        tag_pts = np.asarray(tag_corners, np.float64).reshape(4, 3)
     s, R, t = umeyama(X, tag_pts)
     sides = np.linalg.norm(X - np.roll(X, -1, axis=0), axis=1) * s
     residual = float(np.abs(np.linalg.norm((s * X @ R.T + t) - tag_pts, axis=1)).max())
@@ -603,28 +667,31 @@ def tag_similarity(rec, image_dir: Path, tag_size: float, tag_id: int = 0, dicti
 
 def align_reconstruction(result: SfmResult, tag_size: float | None = None, tag_id: int = 0,
                          tag_dict: str = "DICT_4X4_50", target_distance: float = 4.0,
-                         progress: bool = True, ground: bool = True) -> str:
+                         progress: bool = True, ground: bool = True, tag_corners: np.ndarray | None = None) -> str:
     """Move the reconstruction into nerfkit's world frame (in place; rewrites the model).
 
     With ``tag_size`` (metres) and the tag visible in >= 3 registered photos: the tag
     frame (metric, +z up out of the tag). Otherwise normalised (see
     :func:`normalising_similarity`) and, with ``ground``, levelled on the table plane
     found in the sparse points (:mod:`nerfkit.sfm.ground`: z = 0 on the table, the origin
-    under the look-at point; ``result.on_ground``). Returns a one-line description, also
-    stored in ``result.report.frame``.
+    under the look-at point; ``result.on_ground``). ``tag_corners``: the tag's corners in a
+    sheet layout's frame, which then becomes the world (see :func:`tag_similarity`).
+    Returns a one-line description, also stored in ``result.report.frame``.
     """
     rec = result.reconstruction
     frame = None
     if tag_size is not None:
-        fit = tag_similarity(rec, result.image_dir, tag_size, tag_id, tag_dict)
+        fit = tag_similarity(rec, result.image_dir, tag_size, tag_id, tag_dict, tag_corners=tag_corners)
         if fit is None:
             _say(progress, f"sfm: tag {tag_id} seen in fewer than 3 registered photos; normalising the scene instead")
         else:
             (s, R, t), info = fit
             transform_reconstruction(rec, s, R, t)
             result.tag_size = tag_size
+            where = ("origin at the tag centre, +z up out of the tag" if tag_corners is None
+                     else "the sheet layout's frame, +z up out of the sheet")
             frame = (f"metric, from ArUco tag {tag_id} ({tag_size * 100:g} cm) seen in {info['views']} photos: "
-                     f"origin at the tag centre, +z up out of the tag, metres "
+                     f"{where}, metres "
                      f"(triangulated sides {', '.join(f'{x * 100:.2f}' for x in info['side_lengths_m'])} cm)")
     if frame is None:
         _, c2w = reconstruction_c2w(rec)

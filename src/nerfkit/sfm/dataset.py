@@ -49,6 +49,9 @@ def opencv_camera(camera) -> "Camera":
     elif name == "OPENCV":
         fx, fy, cx, cy, k1, k2, p1, p2 = p
         dist = [k1, k2, p1, p2, 0.0]
+    elif name == "FULL_OPENCV" and not any(p[9:]):  # k4..k6 = 0: OpenCV's 5 coefficients
+        fx, fy, cx, cy, k1, k2, p1, p2, k3 = p[:9]
+        dist = [k1, k2, p1, p2, k3]
     else:
         raise fail(f"camera model {name}", "cannot be written as an OpenCV k1 k2 p1 p2 k3 camera",
                    "Use --camera-model SIMPLE_RADIAL, RADIAL or OPENCV")
@@ -67,7 +70,8 @@ def posed_photos(result: SfmResult) -> list:
     out = []
     for i in rec.reg_image_ids():
         im = rec.images[i]
-        out.append(PosedPhoto(im.name, result.image_dir / im.name, image_c2w(im), image_error(rec, im),
+        photo = result.sources.get(im.name, result.image_dir / im.name)  # the user's photo, by its own name
+        out.append(PosedPhoto(photo.name, photo, image_c2w(im), image_error(rec, im),
                               cams[im.camera_id]))
     return sorted(out, key=lambda p: p.name)
 
@@ -102,11 +106,13 @@ def model_points(result: SfmResult) -> tuple[np.ndarray, np.ndarray]:
 
 
 def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | None" = None, jobs: int = 2,
-                  progress: bool = True) -> Scene:
+                  progress: bool = True, extra: dict | None = None) -> tuple[Scene, dict]:
     """Write the dataset of an aligned SfM result with the tag path's dataset builder.
 
     In the tag frame (``result.tag_size`` set) the builder's tag-based bounds are used;
     in a normalised frame near/far come from the sparse points (unless ``cfg`` sets them).
+    ``extra`` joins what the dataset records about itself. Returns the scene and the
+    builder's summary.
     """
     from dataclasses import replace
 
@@ -123,12 +129,12 @@ def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | 
         # Only sizes the object sphere in the summary once near/far are given.
         tag_size = 0.1 * float(np.mean([np.linalg.norm(p.c2w[:3, 3]) for p in posed_photos(result)]))
     extra = {"world": result.report.frame, "poses": "structure-from-motion (COLMAP via pycolmap)",
-             "sfm": {k: v for k, v in result.report.to_dict().items() if k not in ("registered",)}}
-    scene, _ = capture_build_dataset(posed_photos(result), out_dir, cfg, tag_size, jobs=jobs, progress=progress,
+             "sfm": {k: v for k, v in result.report.to_dict().items() if k not in ("registered",)}, **(extra or {})}
+    scene, summary = capture_build_dataset(posed_photos(result), out_dir, cfg, tag_size, jobs=jobs, progress=progress,
                                      extra=extra, on_tag_plane=result.tag_size is not None or result.on_ground,
                                      points=model_points(result) if cfg.points else None)
     write_json(Path(out_dir) / REPORT_FILE, result.report.to_dict())
-    return scene
+    return scene, summary
 
 
 def sfm_dataset(
@@ -147,6 +153,7 @@ def sfm_dataset(
     progress: bool = True,
     verbose: bool = False,
     ground: bool = True,
+    camera=None,
 ) -> tuple[Scene, SfmReport]:
     """Photos -> SfM -> world frame -> dataset in ``out_dir``.
 
@@ -156,11 +163,12 @@ def sfm_dataset(
     table plane found in the sparse points becomes z = 0 and the dataset's table, as a tag's
     would). ``cfg`` holds the dataset options
     (size, splits, near/far) shared with the tag path. COLMAP's files stay in
-    ``out_dir/colmap`` (database and the aligned model ``sparse/0``).
+    ``out_dir/colmap`` (database and the aligned model ``sparse/0``). ``camera``: a
+    calibrated camera held fixed (see :func:`~nerfkit.sfm.colmap.run_sfm`).
     """
     result = run_sfm(image_dir, out_dir, matcher=matcher, max_image_size=max_image_size, camera_model=camera_model,
-                     threads=threads, seed=seed, progress=progress, verbose=verbose)
+                     threads=threads, seed=seed, progress=progress, verbose=verbose, camera=camera)
     align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=tag_dict, progress=progress,
                          ground=ground)
-    scene = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress)
+    scene, _ = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress)
     return scene, result.report
