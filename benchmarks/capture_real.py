@@ -1,8 +1,10 @@
 """Real phone captures end to end: calibrate -> poses -> train -> eval -> render (no photos in the repository).
 
 Runs ``nerfkit calibrate`` on a capture's calibration folder, ``nerfkit poses`` on its
-object folder (building the dataset), ``nerfkit train`` for ``--minutes`` (the dataset
-records it is a capture, so training picks the capture settings unless ``--capture off``),
+object folder (building the dataset; with ``--method auto``, SfM poses in the tag's frame
+when they hold up, and the output says which poses the dataset got), ``nerfkit train``
+for ``--minutes`` (the dataset records it is a capture, so training picks the capture
+settings unless ``--capture off``),
 ``nerfkit eval --split val`` (scored as rendered, and after fitting each held-out view's
 pose and exposure with the scene frozen) and ``nerfkit render`` (orbit and depth videos).
 Prints one row per capture: photos, photos with a tag detected, photos posed, the
@@ -61,7 +63,8 @@ def train_capture(name: str, out: Path, minutes: float, capture: str, poses: str
             "sheet": str(run / "eval_val.png"), "run": str(run)}
 
 
-def run_capture(name: str, folder: Path, work: Path, extra: list[str], dataset: bool = False) -> dict:
+def run_capture(name: str, folder: Path, work: Path, extra: list[str], dataset: bool = False,
+                method: str = "auto") -> dict:
     from nerfkit.cli import main
 
     calib, obj, tag = CAPTURES[name]
@@ -72,8 +75,11 @@ def run_capture(name: str, folder: Path, work: Path, extra: list[str], dataset: 
         raise SystemExit(f"{name}: calibrate failed")
     t_cal = time.perf_counter() - t0
     if main(["poses", str(folder / obj), "--camera", str(cam), "--tag-size", str(tag), "--out", str(out / "poses"),
-             *([] if dataset else ["--no-dataset"])]) != 0:
+             "--method", method, *([] if dataset else ["--no-dataset"])]) != 0:
         raise SystemExit(f"{name}: poses failed")
+    choice = None
+    if dataset:
+        choice = json.loads((out / "poses" / "transforms.json").read_text())["nerfkit"].get("pose_choice")
     c = json.loads(cam.read_text())
     p = json.loads((out / "poses" / "poses.json").read_text())
     photos = p["photos"]
@@ -86,6 +92,7 @@ def run_capture(name: str, folder: Path, work: Path, extra: list[str], dataset: 
         "posed": sum(x["used"] for x in photos), "second_pass": sum(1 for x in photos if x.get("detection")),
         "calib_s": t_cal, "why": c["model_selection"]["why"],
         "dropped": [f"{x['file']}: {x['reason']}" for x in detected if not x["used"]],
+        "pose_choice": choice["why"] if choice else f"tag poses (--method {method})",
     }
 
 
@@ -125,6 +132,7 @@ def print_table(rows: list[dict]) -> None:
               f"{r['second_pass']} photos found by the second detection pass")
         for d in r["dropped"]:
             print(f"  dropped {d}")
+        print(f"  the dataset's poses: {r['pose_choice']}")
     for r in sfm:
         g = r["ground"]
         print(f"\n{r['capture']}: {r['registered']} of {r['photos']} photos registered in {r['sfm_s']:.0f} s; "
@@ -151,6 +159,8 @@ def main() -> int:
     ap.add_argument("--minutes", type=float, default=3.0, help="training minutes per capture (0: no training)")
     ap.add_argument("--capture", default="auto", choices=["auto", "on", "off"], help="passed to nerfkit train")
     ap.add_argument("--sfm", action="store_true", help="also pose each capture by SfM without its tags, and train on that")
+    ap.add_argument("--method", default="auto", choices=["auto", "tags"],
+                    help="nerfkit poses --method for the tag run (auto: SfM poses in the tag's frame when they hold up)")
     args = ap.parse_args()
     rows = []
     for name in CAPTURES:
@@ -160,7 +170,8 @@ def main() -> int:
         if not folder.is_dir():
             print(f"skipping {name}: no folder {folder}", file=sys.stderr)
             continue
-        row = run_capture(name, folder, args.work, ["--dist-model", args.dist_model], dataset=args.minutes > 0)
+        row = run_capture(name, folder, args.work, ["--dist-model", args.dist_model], dataset=args.minutes > 0,
+                          method=args.method)
         if args.minutes > 0:
             row.update(capture_mode=args.capture,
                        **train_capture(name, args.work / name, args.minutes, args.capture))

@@ -41,9 +41,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def build_and_report(posed, out, cfg, tag_size: float, jobs: int, extra: dict | None = None) -> int:
     """Build the dataset and print what was written."""
-    from ..capture.dataset import NPZ_FILE, build_dataset
+    from ..capture.dataset import build_dataset
 
-    scene, s = build_dataset(posed, out, cfg, tag_size, jobs=jobs, extra=extra)
+    _, s = build_dataset(posed, out, cfg, tag_size, jobs=jobs, extra=extra)
+    return report_dataset(s, out)
+
+
+def report_dataset(s: dict, out) -> int:
+    """Print what a dataset builder's summary ``s`` says was written to ``out``."""
+    from ..capture.dataset import NPZ_FILE
+
     K = s["K"]
     print(f"dataset: {s['views']['train']} train, {s['views']['val']} val, {s['views']['test']} test views of "
           f"{s['size'][0]}x{s['size'][1]} (from {s['source_size'][0]}x{s['source_size'][1]}"

@@ -14,12 +14,20 @@ the reason), then build the dataset (as `nerfkit dataset` does): undistort, crop
 split into train/val/test, estimate near/far, and write dataset.npz, transforms.json and
 the images into DATASET_DIR, plus poses.json with every photo's outcome.
 
+With --method auto (the default) the photos are then also posed by structure-from-motion
+(pycolmap), starting from the camera of --camera (bundle adjustment refines its focal
+length and distortion on these photos), and put in the tag's frame: features
+across all photos pin a pose far better than one small tag (labubu: +0.5 dB on held-out
+views). The dataset takes the SfM poses unless SfM registers fewer photos than the tags
+posed, misses the tag, or disagrees with the tags; the output says which and why
+(--method tags: tag poses only, as the course does).
+
 World frame: the tag's. Origin at the tag centre, x to the right and y up along the
 printed tag, z out of the tag toward the cameras; the scene's up is +z. Units: metres.
 
 Without --camera the EXIF focal length of the photos is used (no lens distortion).
 
-With --method colmap, poses come from structure-from-motion (pycolmap) instead; a tag
+With --method colmap, poses come from structure-from-motion (pycolmap) alone; a tag
 seen in the photos (give --tag-size) fixes the metric scale and up, otherwise the scene is
 centred and scaled to a mean camera distance of 4 and the report says so. Without a tag
 the table the object stands on is found in the SfM points (a plane facing up, under the
@@ -41,11 +49,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("poses", help=HELP, description=DESCRIPTION,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("photos", metavar="OBJECT_DIR", help="folder of photos of the object beside the tag")
-    p.add_argument("--method", choices=["tags", "colmap"], default="tags",
-                   help="tags: poses from the ArUco tag (default); colmap: structure-from-motion with pycolmap, "
-                        "for photos without tags (a tag, with --tag-size, then fixes scale and up)")
+    p.add_argument("--method", choices=["auto", "tags", "colmap"], default="auto",
+                   help="auto (default): tag poses, replaced by structure-from-motion poses in the tag's frame when "
+                        "SfM registers the photos and agrees with the tags; tags: poses from the ArUco tag only; "
+                        "colmap: structure-from-motion with pycolmap, for photos without tags (a tag, with "
+                        "--tag-size, then fixes scale and up)")
     p.add_argument("--matcher", choices=["auto", "exhaustive", "sequential"], default="auto",
-                   help="SfM matching with --method colmap (auto: exhaustive up to 100 photos)")
+                   help="SfM matching with --method auto or colmap (auto: exhaustive up to 100 photos)")
     p.add_argument("--no-ground", action="store_true",
                    help="with --method colmap and no tag: do not look for the table plane in the SfM points")
     p.add_argument("--sfm-max-size", type=number(int, 64, 100_000), default=1000, help="longest side used for SfM features, px (default 1000)")
@@ -121,10 +131,12 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise fail(out, "exists and is not a folder", "--out names the dataset folder to write")
     outputs = [POSES_FILE] + ([] if args.no_dataset else list(DATASET_OUTPUTS))
-    if args.method == "colmap":
+    if args.method == "colmap" or (args.method == "auto" and not args.no_dataset):
         from ..sfm.dataset import REPORT_FILE
 
-        outputs = [*DATASET_OUTPUTS, REPORT_FILE, "colmap"]
+        outputs = [*outputs, *DATASET_OUTPUTS, REPORT_FILE, "colmap"]
+        if args.method == "colmap":
+            outputs.remove(POSES_FILE)
     guard_outputs([out / name for name in outputs], [args.photos, args.camera, args.layout], args.force)
     camera = load_camera(args.camera) if args.camera else None
     dictionary = args.dict
@@ -139,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
 
         _, report = sfm_dataset(args.photos, out, dcfg, matcher=args.matcher, max_image_size=args.sfm_max_size,
                                 tag_size=args.tag_size, tag_id=args.tag_id or 0, tag_dict=dictionary,
-                                jobs=args.jobs or default_jobs(), ground=not args.no_ground)
+                                jobs=args.jobs or default_jobs(), ground=not args.no_ground, camera=camera)
         print(report.summary())
         return 0
     layout = load_layout(args.layout, dictionary, args.tag_size) if args.layout else None
@@ -192,6 +204,35 @@ def run(args: argparse.Namespace) -> int:
                    "Check --tag-size/--tag-id and that the tag is sharp and fully visible")
     if args.no_dataset:
         return 0
-    from .dataset import build_and_report
+    from .dataset import build_and_report, report_dataset
 
+    if args.method == "auto":
+        from ..sfm.tagged import choose_poses
+
+        ref = reference_tag(records, layout)
+        start = camera if (args.camera or args.focal_px) else None  # else SfM starts from the EXIF focal length
+        choice = choose_poses(args.photos, out, posed, start, ref, tag_size, dictionary,
+                              tag_corners=None if len(layout.tags) == 1 else layout.tags[ref],
+                              matcher=args.matcher, max_image_size=args.sfm_max_size)
+        print(choice.why)
+        if choice.result is not None:
+            from ..sfm.dataset import build_dataset
+
+            _, summary = build_dataset(choice.result, out, dcfg, jobs=args.jobs or default_jobs(),
+                                       extra={"notes": notes, "pose_choice": choice.to_dict()})
+            return report_dataset(summary, out)
+        from ..sfm.dataset import REPORT_FILE
+
+        (out / REPORT_FILE).unlink(missing_ok=True)  # an earlier --force run's SfM report would not hold
+        return build_and_report(posed, out, dcfg, tag_size, args.jobs or default_jobs(),
+                                {"notes": notes, "pose_choice": choice.to_dict()})
     return build_and_report(posed, out, dcfg, tag_size, args.jobs or default_jobs(), {"notes": notes})
+
+
+def reference_tag(records, layout) -> int:
+    """The layout's tag seen in the most photos (it fixes the SfM model's frame)."""
+    from collections import Counter
+
+    seen = Counter(int(i) for r in records if r.detection is not None for i in set(r.detection.ids)
+                   if int(i) in layout.tags)
+    return seen.most_common(1)[0][0] if seen else layout.ids[0]

@@ -1,0 +1,129 @@
+"""A tag capture posed by structure-from-motion, in the tag's frame (``nerfkit poses``' default).
+
+A tag pins a photo's pose only as well as its four corners allow: on the dev captures the
+tag is a few dozen pixels wide, and the tag poses differ from SfM's by a median 1.2
+degrees (labubu; 5 px at its photos' focal length). Bundle adjustment over thousands of
+features seen across all the photos pins them far better (labubu: held-out PSNR 24.15 ->
+24.6 dB, SSIM 0.78 -> 0.83; BENCHMARKS.md). So ``--method auto`` poses the photos by SfM
+starting from the calibrated camera, whose focal length and distortion bundle adjustment
+refines (a phone focused on a near object changes its focal length by a percent or so;
+holding the calibration fixed cost labubu 0.03 in SSIM). The tag's corners, triangulated
+from the SfM poses, then fix scale, up and origin. The tag poses are kept only when SfM
+falls short: fewer photos registered, the tag not seen, or poses that disagree with the
+tags' (:func:`choose_poses` says why).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import NerfkitError
+
+# SfM must register at least this share of the photos the tags posed.
+MIN_SHARE = 0.9
+# Tag and SfM poses of the same photos must agree to a median of this many degrees...
+MAX_ROTATION_DEG = 5.0
+# ... and of this share of the median camera distance from the world origin.
+MAX_SHIFT = 0.1
+
+
+@dataclass
+class PoseChoice:
+    """Which poses a tag capture's dataset gets.
+
+    Attributes:
+        result: the aligned SfM result to build the dataset from, or None: use the tag poses.
+        why: one line saying which and why.
+        agreement: tag poses against SfM poses over the photos both posed (median and max
+            rotation difference in degrees and centre distance in metres), or None.
+    """
+
+    result: object | None
+    why: str
+    agreement: dict | None = None
+
+    def to_dict(self) -> dict:
+        return {"poses": "sfm" if self.result is not None else "tags", "why": self.why, "agreement": self.agreement}
+
+
+def pose_agreement(tag_c2w: dict[str, np.ndarray], sfm_c2w: dict[str, np.ndarray]) -> dict | None:
+    """How far apart two sets of poses in one world frame are, over the photos in both.
+
+    Args:
+        tag_c2w, sfm_c2w: photo name -> (4, 4) camera-to-world.
+
+    Returns:
+        ``{"photos", "rot_deg_median", "rot_deg_max", "shift_median", "shift_max",
+        "distance_median"}`` (shifts: camera-centre distances; distance: cameras from the
+        origin), or None when no photo is in both.
+    """
+    names = sorted(set(tag_c2w) & set(sfm_c2w))
+    if not names:
+        return None
+    a = np.stack([tag_c2w[n] for n in names]).astype(np.float64)
+    b = np.stack([sfm_c2w[n] for n in names]).astype(np.float64)
+    rel = np.einsum("nji,njk->nik", a[:, :3, :3], b[:, :3, :3])
+    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    rot = np.degrees(np.arccos(cos))
+    shift = np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1)
+    return {"photos": len(names), "rot_deg_median": float(np.median(rot)), "rot_deg_max": float(rot.max()),
+            "shift_median": float(np.median(shift)), "shift_max": float(shift.max()),
+            "distance_median": float(np.median(np.linalg.norm(a[:, :3, 3], axis=1)))}
+
+
+def judge(n_tag_posed: int, n_registered: int, in_tag_frame: bool, agreement: dict | None) -> str | None:
+    """None when the SfM poses are to be used, else why not (one clause)."""
+    if not in_tag_frame:
+        return "the tag was found in fewer than 3 of the photos SfM registered, so SfM has no metric frame"
+    if n_registered < MIN_SHARE * n_tag_posed:
+        return f"SfM registered {n_registered} photos, the tags posed {n_tag_posed}"
+    if agreement is None:
+        return "SfM registered none of the photos the tags posed"
+    if agreement["rot_deg_median"] > MAX_ROTATION_DEG:
+        return f"SfM's poses turn a median {agreement['rot_deg_median']:.1f} degrees from the tags'"
+    if agreement["shift_median"] > MAX_SHIFT * agreement["distance_median"]:
+        return (f"SfM's cameras sit a median {agreement['shift_median'] * 100:.1f} cm from the tags' "
+                f"(cameras {agreement['distance_median'] * 100:.0f} cm away)")
+    return None
+
+
+def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, tag_id: int, tag_size: float,
+                 dictionary: str, tag_corners: np.ndarray | None = None, matcher: str = "auto",
+                 max_image_size: int = 1000, progress: bool = True) -> PoseChoice:
+    """Run SfM on a tag capture and decide whether its poses replace the tag poses.
+
+    Args:
+        photos: the capture's folder; out: the dataset folder (COLMAP's files go to
+            ``out/colmap``).
+        tag_posed: the tag path's ``PosedPhoto`` list (world: tag or sheet frame).
+        camera: a calibrated camera SfM starts from, or None (SfM estimates it from the
+            EXIF focal length).
+        tag_id, tag_size: the tag that fixes the frame; tag_corners: its (4, 3) corners in
+            a sheet layout's frame (None: the tag's own frame is the world).
+
+    Returns:
+        A :class:`PoseChoice`; SfM failing is a reason to keep the tag poses, not an error.
+    """
+    from .colmap import align_reconstruction, reconstruction_c2w, run_sfm
+
+    try:
+        result = run_sfm(photos, out, matcher=matcher, max_image_size=max_image_size, progress=progress,
+                         camera=camera)
+    except NerfkitError as e:  # no photos that match, pycolmap missing, ...
+        return PoseChoice(None, f"tag poses: structure-from-motion failed ({e})")
+    align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=dictionary, progress=progress,
+                         ground=False, tag_corners=tag_corners)
+    names, c2w = reconstruction_c2w(result.reconstruction)
+    names = [result.sources[n].name if n in result.sources else n for n in names]  # the photos' own names
+    agreement = pose_agreement({p.name: p.c2w for p in tag_posed}, dict(zip(names, c2w)))
+    reason = judge(len(tag_posed), len(names), result.tag_size is not None, agreement)
+    if reason is not None:
+        return PoseChoice(None, f"tag poses: {reason}", agreement)
+    why = (f"SfM poses in the tag's frame: {len(names)} photos registered (the tags posed {len(tag_posed)})")
+    if agreement is not None:
+        why += (f"; the tag poses differ from them by a median {agreement['rot_deg_median']:.2f} degrees and "
+                f"{agreement['shift_median'] * 1000:.1f} mm")
+    return PoseChoice(result, why, agreement)
