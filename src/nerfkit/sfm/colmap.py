@@ -273,13 +273,13 @@ def run_sfm(
     if len(names) < 3:
         raise fail(image_dir, f"only {len(names)} photos share one size; structure-from-motion needs at least 3",
                    "Take all photos held the same way (portrait or landscape)")
-    fixed = None
+    given = None  # (COLMAP model, params) of the camera file
     if camera is not None:
         why = camera.compatible(first.width, first.height)
         if why:
             raise fail(image_dir, f"the photos do not fit the camera file: {why}",
                        "Calibrate with photos from the same camera, held the same way")
-        fixed = colmap_camera(camera.scaled_to(first.width, first.height), refine=refine_camera)
+        given = colmap_camera(camera.scaled_to(first.width, first.height), refine=refine_camera)
     db_path = work / "database.db"
     device = pycolmap.Device.cpu
     seconds: dict[str, float] = {}
@@ -291,8 +291,8 @@ def run_sfm(
                        f"(longest side <= {max_image_size} px)...")
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = camera_model
-        if fixed is not None:
-            reader.camera_model, reader.camera_params = fixed
+        if given is not None:
+            reader.camera_model, reader.camera_params = given
         elif colmap_dir != image_dir and first.f35 and camera_model == "SIMPLE_RADIAL":
             # The copies lost their EXIF; give COLMAP the focal length it would have read.
             from ..capture.camera import exif_fx
@@ -335,7 +335,7 @@ def run_sfm(
         options.num_threads = threads
         options.random_seed = seed
         options.min_model_size = 3
-        if fixed is not None and not refine_camera:
+        if given is not None and not refine_camera:
             options.ba_refine_focal_length = False
             options.ba_refine_principal_point = False
             options.ba_refine_extra_params = False
@@ -489,6 +489,14 @@ def apply_similarity(c2w: np.ndarray, s: float, R: np.ndarray, t: np.ndarray) ->
     return out
 
 
+def rotation_angles_deg(c2w_a: np.ndarray, c2w_b: np.ndarray) -> np.ndarray:
+    """(n,) angle in degrees of the rotation between each pair of camera orientations
+    ``c2w_a[i]`` and ``c2w_b[i]`` ((n, 3 or 4, 3 or 4) each)."""
+    rel = np.swapaxes(c2w_a[:, :3, :3], 1, 2).astype(np.float64) @ c2w_b[:, :3, :3].astype(np.float64)
+    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)
+    return np.degrees(np.arccos(cos))
+
+
 def compare_poses(c2w_est: np.ndarray, c2w_ref: np.ndarray, with_scale: bool = True) -> dict:
     """Pose errors after the best similarity alignment of the camera centres.
 
@@ -497,9 +505,7 @@ def compare_poses(c2w_est: np.ndarray, c2w_ref: np.ndarray, with_scale: bool = T
     """
     s, R, t = umeyama(c2w_est[:, :3, 3], c2w_ref[:, :3, 3], with_scale)
     aligned = apply_similarity(c2w_est, s, R, t)
-    rel = np.swapaxes(aligned[:, :3, :3], 1, 2) @ c2w_ref[:, :3, :3].astype(np.float64)
-    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)
-    rot = np.degrees(np.arccos(cos))
+    rot = rotation_angles_deg(aligned, c2w_ref)
     pos = np.linalg.norm(aligned[:, :3, 3] - c2w_ref[:, :3, 3], axis=1)
     spread = float(np.sqrt(((c2w_ref[:, :3, 3] - c2w_ref[:, :3, 3].mean(0)) ** 2).sum(1).mean()))
     return {"n": int(len(rot)), "scale": s,

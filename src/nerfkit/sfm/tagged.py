@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NerfkitError
+from .colmap import rotation_angles_deg
 
 # SfM must register at least this share of the photos the tags posed.
 MIN_SHARE = 0.9
@@ -65,9 +66,7 @@ def pose_agreement(tag_c2w: dict[str, np.ndarray], sfm_c2w: dict[str, np.ndarray
         return None
     a = np.stack([tag_c2w[n] for n in names]).astype(np.float64)
     b = np.stack([sfm_c2w[n] for n in names]).astype(np.float64)
-    rel = np.einsum("nji,njk->nik", a[:, :3, :3], b[:, :3, :3])
-    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    rot = np.degrees(np.arccos(cos))
+    rot = rotation_angles_deg(a, b)
     shift = np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1)
     return {"photos": len(names), "rot_deg_median": float(np.median(rot)), "rot_deg_max": float(rot.max()),
             "shift_median": float(np.median(shift)), "shift_max": float(shift.max()),
