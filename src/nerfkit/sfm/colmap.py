@@ -99,6 +99,10 @@ class SfmResult:
     sources: dict[str, Path] = field(default_factory=dict)  # COLMAP image name -> the user's photo
     on_ground: bool = False  # no tag, but z = 0 is the table plane found in the sparse points
 
+    def photo(self, name: str) -> Path:
+        """The user's photo COLMAP knows as ``name`` (HEIC photos: their own name, not the copy's)."""
+        return self.sources.get(name, self.image_dir / name)
+
 
 def _import_pycolmap():
     try:

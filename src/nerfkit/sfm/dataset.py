@@ -70,7 +70,7 @@ def posed_photos(result: SfmResult) -> list:
     out = []
     for i in rec.reg_image_ids():
         im = rec.images[i]
-        photo = result.sources.get(im.name, result.image_dir / im.name)  # the user's photo, by its own name
+        photo = result.photo(im.name)
         out.append(PosedPhoto(photo.name, photo, image_c2w(im), image_error(rec, im),
                               cams[im.camera_id]))
     return sorted(out, key=lambda p: p.name)
@@ -164,7 +164,7 @@ def sfm_dataset(
     would). ``cfg`` holds the dataset options
     (size, splits, near/far) shared with the tag path. COLMAP's files stay in
     ``out_dir/colmap`` (database and the aligned model ``sparse/0``). ``camera``: a
-    calibrated camera held fixed (see :func:`~nerfkit.sfm.colmap.run_sfm`).
+    calibrated camera SfM starts from (see :func:`~nerfkit.sfm.colmap.run_sfm`).
     """
     result = run_sfm(image_dir, out_dir, matcher=matcher, max_image_size=max_image_size, camera_model=camera_model,
                      threads=threads, seed=seed, progress=progress, verbose=verbose, camera=camera)

@@ -4,7 +4,7 @@ A tag pins a photo's pose only as well as its four corners allow: on the dev cap
 tag is a few dozen pixels wide, and the tag poses differ from SfM's by a median 1.2
 degrees (labubu; 5 px at its photos' focal length). Bundle adjustment over thousands of
 features seen across all the photos pins them far better (labubu: held-out PSNR 24.15 ->
-24.6 dB, SSIM 0.78 -> 0.83; BENCHMARKS.md). So ``--method auto`` poses the photos by SfM
+24.8 dB, SSIM 0.78 -> 0.83; BENCHMARKS.md). So ``--method auto`` poses the photos by SfM
 starting from the calibrated camera, whose focal length and distortion bundle adjustment
 refines (a phone focused on a near object changes its focal length by a percent or so;
 holding the calibration fixed cost labubu 0.03 in SSIM). The tag's corners, triangulated
@@ -116,13 +116,12 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
     align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=dictionary, progress=progress,
                          ground=False, tag_corners=tag_corners)
     names, c2w = reconstruction_c2w(result.reconstruction)
-    names = [result.sources[n].name if n in result.sources else n for n in names]  # the photos' own names
+    names = [result.photo(n).name for n in names]
     agreement = pose_agreement({p.name: p.c2w for p in tag_posed}, dict(zip(names, c2w)))
     reason = judge(len(tag_posed), len(names), result.tag_size is not None, agreement)
     if reason is not None:
         return PoseChoice(None, f"tag poses: {reason}", agreement)
-    why = (f"SfM poses in the tag's frame: {len(names)} photos registered (the tags posed {len(tag_posed)})")
-    if agreement is not None:
-        why += (f"; the tag poses differ from them by a median {agreement['rot_deg_median']:.2f} degrees and "
-                f"{agreement['shift_median'] * 1000:.1f} mm")
+    why = (f"SfM poses in the tag's frame: {len(names)} photos registered (the tags posed {len(tag_posed)}); "
+           f"the tag poses differ from them by a median {agreement['rot_deg_median']:.2f} degrees and "
+           f"{agreement['shift_median'] * 1000:.1f} mm")  # judge() passes no SfM result without an agreement
     return PoseChoice(result, why, agreement)
