@@ -436,7 +436,7 @@ class Trainer:
             self._val_label(val): ([r["seconds"] for r in val], [r["psnr"] for r in val]),
         }, "training seconds", "PSNR (dB)", f"{self.cfg.model}: PSNR")
         plot_curves(plots / "loss.png", {"train loss": ([r["step"] for r in train], [r["loss"] for r in train])},
-                    "step", "MSE loss", f"{self.cfg.model}: training loss", logy=True)
+                    "step", "loss (photometric + regularisers)", f"{self.cfg.model}: training loss", logy=True)
         snaps = sorted((self.run_dir / "progress").glob("step_*.png"))
         if len(snaps) > 8:  # keep the first, the last and evenly spaced ones between
             snaps = [snaps[int(round(i))] for i in np.linspace(0, len(snaps) - 1, 8)]
