@@ -138,7 +138,7 @@ def rgb_loss(pred: Tensor, target: Tensor, kind: str = "mse") -> Tensor:
     360). Example: errors of 0.5 and 0.05 pull with forces 1.0 and 0.1 under mse, and
     both with about 1.0 under charbonnier.
     """
-    e2 = (pred.float() - target.float()) ** 2
+    e2 = (pred - target) ** 2
     if kind == "mse":
         return e2.mean()
     if kind == "charbonnier":

@@ -34,7 +34,7 @@ from ..precision import autocast
 from ..render.sampling import intervals_from_t, sample_pdf, stratified_t
 from ..render.volrend import composite, render_weights
 from ..render.occupancy import OccupancyGrid
-from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState
+from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState, rgb_loss
 
 # A cell stays occupied while alpha = 1 - exp(-sigma * sample spacing) exceeds this.
 OCCUPANCY_ALPHA = 0.01
@@ -219,7 +219,7 @@ class VanillaNeRF(NerfModel):
         return fine
 
     def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
-        loss = torch.mean((out.rgb - target_rgb) ** 2)
+        loss = rgb_loss(out.rgb, target_rgb)
         if "rgb_coarse" in out.extras:
-            loss = loss + torch.mean((out.extras["rgb_coarse"] - target_rgb) ** 2)
+            loss = loss + rgb_loss(out.extras["rgb_coarse"], target_rgb)
         return loss
