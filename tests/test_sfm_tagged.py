@@ -116,6 +116,26 @@ def test_auto_poses_a_tag_capture_by_sfm_in_the_tag_frame(room_photos, tmp_path)
         assert e["photos"] == 12, method
         assert e["rot_deg_max"] < limits[0] and e["shift_max"] < limits[1], (method, e)  # cameras are ~2 m away
 
+    # `nerfkit dataset` rebuilds a dataset with the poses `poses` gave it: SfM's here
+    names, sfm_c2w = _dataset_poses(tmp_path / "auto")
+    _, tag_c2w = _dataset_poses(tmp_path / "tags")
+    split = ["--val-every", "6", "--test-every", "0"]
+    assert main(["dataset", str(tmp_path / "auto"), "--max-side", "160", *split]) != 0  # exists: needs --force
+    assert main(["dataset", str(tmp_path / "auto"), "--max-side", "160", "--force", *split]) == 0
+    again = load_scene(tmp_path / "auto")
+    assert max(again.train.width, again.train.height) == 160
+    assert _dataset_poses(tmp_path / "auto")[0] == names
+    np.testing.assert_allclose(_dataset_poses(tmp_path / "auto")[1], sfm_c2w, atol=1e-5)
+    assert json.loads((tmp_path / "auto" / "transforms.json").read_text())["nerfkit"]["pose_choice"]["poses"] == "sfm"
+    # elsewhere, with the report copied beside it (its model found from there), then rebuilt from that copy
+    assert main(["dataset", str(tmp_path / "auto"), "--out", str(tmp_path / "copy"), *split]) == 0
+    assert main(["dataset", str(tmp_path / "copy"), "--out", str(tmp_path / "copy2"), *split]) == 0
+    np.testing.assert_allclose(_dataset_poses(tmp_path / "copy2")[1], sfm_c2w, atol=1e-5)
+    # the tag poses on request; they differ from SfM's
+    assert main(["dataset", str(tmp_path / "auto"), "--pose-source", "tags", "--out", str(tmp_path / "t"), *split]) == 0
+    np.testing.assert_allclose(_dataset_poses(tmp_path / "t")[1], tag_c2w, atol=1e-5)
+    assert not np.allclose(tag_c2w, sfm_c2w, atol=1e-4)
+
 
 @pytest.mark.slow
 def test_auto_keeps_the_tag_poses_and_says_why_when_sfm_fails(room_photos, tmp_path, monkeypatch, capsys):
@@ -133,3 +153,28 @@ def test_auto_keeps_the_tag_poses_and_says_why_when_sfm_fails(room_photos, tmp_p
     choice = json.loads((tmp_path / "ds" / "transforms.json").read_text())["nerfkit"]["pose_choice"]
     assert choice["poses"] == "tags" and "too few features" in choice["why"]
     assert not (tmp_path / "ds" / "sfm_report.json").exists()
+
+
+def test_rebuilding_from_sfm_says_what_is_missing(tmp_path, capsys):
+    from nerfkit.sfm.dataset import REPORT_FILE
+
+    def error(*extra):
+        assert main(["dataset", str(tmp_path), *extra]) != 0
+        return capsys.readouterr().err
+
+    assert "sfm_report.json: no such file" in error("--pose-source", "sfm")
+    assert "poses.json: no such file" in error()  # auto without an SfM report: the tag poses
+    report = {"n_photos": 3, "registered": ["a.jpg"], "unregistered": {}, "n_points": 10, "reprojection_error": 0.5,
+              "n_models": 1, "matcher": "exhaustive", "seconds": {}, "frame": "tag", "camera": {}, "ground": None}
+    (tmp_path / REPORT_FILE).write_text(json.dumps(report))
+    assert "records no SfM model" in error()  # auto: the report says SfM built this dataset
+    model = {"dir": "colmap/sparse/0", "photos_dir": str(tmp_path), "photos": {"a.jpg": "a.jpg"}, "tag_size": 0.05,
+             "on_ground": False}
+    (tmp_path / REPORT_FILE).write_text(json.dumps({**report, "model": model}))
+    assert "holds no COLMAP model" in error() and "--pose-source tags" in error()
+    (tmp_path / REPORT_FILE).write_text(json.dumps({**report, "model": {**model, "dir": "../elsewhere"}}))
+    assert "points outside the dataset folder" in error()
+    (tmp_path / REPORT_FILE).write_text(json.dumps({**report, "model": {**model, "tag_size": -1}}))
+    (tmp_path / "colmap" / "sparse" / "0").mkdir(parents=True)
+    (tmp_path / "colmap" / "sparse" / "0" / "images.txt").write_text("")
+    assert "model.tag_size is -1" in error()

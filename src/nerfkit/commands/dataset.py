@@ -15,7 +15,9 @@ split the views into train/val/test, estimate near/far from the cameras and the 
 and write images/, transforms.json (nerfstudio layout, OpenGL axes) and dataset.npz (the
 course layout plus K, near, far, center, up and each view's photo name).
 `nerfkit poses` runs this step itself; run it again with --force to change the size or
-the split in place.
+the split in place. It keeps the poses `nerfkit poses` gave the dataset: when those came
+from structure-from-motion (DATASET_DIR/sfm_report.json and colmap/sparse/0), the dataset
+is rebuilt from that model, else from the tag poses in poses.json (--pose-source chooses).
 
 example:
   nerfkit dataset my_object/ --max-side 800 --out my_object_800/
@@ -31,6 +33,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("poses", metavar="DATASET_DIR", help="folder with poses.json from `nerfkit poses` (or the file)")
     p.add_argument("--out", help="folder to write (default: the same folder)")
+    p.add_argument("--pose-source", choices=["auto", "tags", "sfm"], default="auto",
+                   help="auto (default): the structure-from-motion model when `nerfkit poses` built the dataset "
+                   "from one (the folder holds sfm_report.json), else the tag poses of poses.json")
     p.add_argument("--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel (default: up to 4 cores)")
     p.add_argument("--force", action="store_true", help="replace an existing dataset (dataset.npz, transforms.json, "
                    "images/) in the output folder")
@@ -71,17 +76,66 @@ def run(args: argparse.Namespace) -> int:
     from ..data.validate import check_number
     from ..errors import advice, fail
     from ..io.paths import guard_outputs
+    from ..sfm.dataset import REPORT_FILE
 
     cfg = dataclass_from_args(DatasetConfig, args)
-    posed, data = read_poses_json(args.poses, allow_outside=args.allow_outside_paths)
     src = Path(args.poses)
-    out = Path(args.out) if args.out else (src if src.is_dir() else src.parent)
+    folder = src if src.is_dir() else src.parent
+    out = Path(args.out) if args.out else folder
+    jobs = args.jobs or default_jobs()
+    source = args.pose_source
+    if source == "auto":
+        source = "sfm" if (folder / REPORT_FILE).is_file() else "tags"
+    if source == "sfm":
+        return rebuild_from_sfm(folder, out, cfg, jobs, args.force, args.allow_outside_paths)
+    posed, data = read_poses_json(args.poses, allow_outside=args.allow_outside_paths)
     guard_outputs([out / name for name in DATASET_OUTPUTS], [src / POSES_FILE if src.is_dir() else src,
                                                              *(p.path for p in posed)], args.force)
     with advice("Re-run nerfkit poses"):
         tag_size = check_number(data.get("tag_size"), args.poses, "tag_size", 0.0, expected="the tag size in metres")
-    missing = [p.name for p in posed if not Path(p.path).is_file()]
+    require_photos([p.path for p in posed])
+    return build_and_report(posed, out, cfg, float(tag_size), jobs, {"notes": data.get("notes", [])})
+
+
+def require_photos(paths) -> None:
+    """Refuse, naming one, when photos a dataset is built from are gone."""
+    from pathlib import Path
+
+    from ..errors import fail
+
+    missing = [Path(p) for p in paths if not Path(p).is_file()]
     if missing:
-        raise fail(posed[0].path.parent, f"{len(missing)} posed photos are missing (e.g. {missing[0]})",
+        raise fail(missing[0].parent, f"{len(missing)} posed photos are missing (e.g. {missing[0].name})",
                    "The photos moved; re-run nerfkit poses on their new folder")
-    return build_and_report(posed, out, cfg, float(tag_size), args.jobs or default_jobs(), {"notes": data.get("notes", [])})
+
+
+def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bool) -> int:
+    """The dataset from the structure-from-motion model `nerfkit poses` left in ``folder``.
+    Elsewhere (``out``), the model and its report are copied along, so that ``out`` is a
+    dataset folder of its own."""
+    import shutil
+
+    from ..capture.dataset import DATASET_OUTPUTS
+    from ..io.atomic import write_bytes
+    from ..io.paths import guard_outputs, resolved_path
+    from ..sfm.dataset import REPORT_FILE, build_dataset, load_sfm_result, posed_photos
+
+    result = load_sfm_result(folder, allow_outside=allow_outside)
+    in_place = resolved_path(out) == resolved_path(folder)
+    model_copy = out / "colmap" / "sparse" / "0"
+    outputs = [out / name for name in DATASET_OUTPUTS] + ([] if in_place else [out / REPORT_FILE, model_copy])
+    photos = [p.path for p in posed_photos(result)]
+    guard_outputs(outputs, [folder / REPORT_FILE, result.model_dir, *photos], force)
+    require_photos(photos)
+    print(f"poses: structure-from-motion, {len(photos)} photos ({result.model_dir}; --pose-source tags for the "
+          "tag poses)")
+    if not in_place:
+        if model_copy.exists():
+            shutil.rmtree(model_copy)
+        for f in sorted(result.model_dir.iterdir()):
+            if f.is_file():
+                write_bytes(model_copy / f.name, f.read_bytes())
+        result.model_dir = model_copy
+    _, summary = build_dataset(result, out, cfg, jobs=jobs, write_report=not in_place,
+                               extra={"pose_choice": {"poses": "sfm", "why": f"rebuilt from {result.model_dir}"}})
+    return report_dataset(summary, out)

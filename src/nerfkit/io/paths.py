@@ -22,7 +22,8 @@ from ..errors import fail
 OUTSIDE_FLAG = "--allow-outside-paths"
 
 
-def _resolve(path: str | os.PathLike) -> Path:
+def resolved_path(path: str | os.PathLike) -> Path:
+    """``path`` made absolute with links and ``..`` resolved; an unusable path is a NerfkitError."""
     try:
         return Path(path).resolve()
     except (OSError, ValueError, RuntimeError) as e:  # a NUL byte, a loop of links
@@ -31,7 +32,7 @@ def _resolve(path: str | os.PathLike) -> Path:
 
 def is_within(path: str | os.PathLike, folder: str | os.PathLike) -> bool:
     """True when ``path`` is ``folder`` or inside it, after resolving links and ``..``."""
-    return _resolve(path).is_relative_to(_resolve(folder))
+    return resolved_path(path).is_relative_to(resolved_path(folder))
 
 
 def resolve_inside(root: str | os.PathLike, name: str, allow_outside: bool = False, where: object = None) -> Path:
@@ -43,8 +44,8 @@ def resolve_inside(root: str | os.PathLike, name: str, allow_outside: bool = Fal
     name = str(name)
     if "\x00" in name:
         raise fail(where or root, f"file name {name[:100]!r} is not a usable path (it holds a NUL byte)")
-    path = _resolve(Path(root) / name)  # an absolute name replaces root
-    if not allow_outside and not path.is_relative_to(_resolve(root)):
+    path = resolved_path(Path(root) / name)  # an absolute name replaces root
+    if not allow_outside and not path.is_relative_to(resolved_path(root)):
         raise fail(where or root, f"file name {name[:200]!r} points outside the dataset folder {root}",
                    f"Keep a dataset's files inside its folder, or pass {OUTSIDE_FLAG} if you trust this dataset")
     return path
@@ -77,9 +78,9 @@ def guard_outputs(outputs, inputs, force: bool = False, flag: str = "--out") -> 
     outs = [Path(o) for o in outputs if o is not None]
     ins = [Path(i) for i in inputs if i is not None]
     for o in outs:
-        ro = _resolve(o)
+        ro = resolved_path(o)
         for i in ins:
-            ri = _resolve(i)
+            ri = resolved_path(i)
             if ro == ri:
                 raise fail(o, "is an input of this command", f"Choose another {flag}; nerfkit never writes its inputs")
             if ro.is_relative_to(ri):

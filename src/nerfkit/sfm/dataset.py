@@ -3,7 +3,9 @@
 :func:`sfm_dataset` is the whole ``nerfkit poses --method colmap`` pipeline: run SfM, fix
 the world frame (tag, or normalised), then hand the posed photos to
 :func:`nerfkit.capture.dataset.build_dataset` (undistort, crop, resize, split, near/far,
-``dataset.npz`` + ``transforms.json`` + ``images/``), plus ``sfm_report.json``.
+``dataset.npz`` + ``transforms.json`` + ``images/``), plus ``sfm_report.json``, which
+also records where the aligned model and the photos are, so that :func:`load_sfm_result`
+(``nerfkit dataset``) can rebuild the dataset from the same poses.
 """
 
 from __future__ import annotations
@@ -106,13 +108,14 @@ def model_points(result: SfmResult) -> tuple[np.ndarray, np.ndarray]:
 
 
 def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | None" = None, jobs: int = 2,
-                  progress: bool = True, extra: dict | None = None) -> tuple[Scene, dict]:
+                  progress: bool = True, extra: dict | None = None, write_report: bool = True) -> tuple[Scene, dict]:
     """Write the dataset of an aligned SfM result with the tag path's dataset builder.
 
     In the tag frame (``result.tag_size`` set) the builder's tag-based bounds are used;
     in a normalised frame near/far come from the sparse points (unless ``cfg`` sets them).
-    ``extra`` joins what the dataset records about itself. Returns the scene and the
-    builder's summary.
+    ``extra`` joins what the dataset records about itself. Writes ``sfm_report.json`` too
+    unless ``write_report`` is false (a rebuild in place keeps the one it read). Returns the
+    scene and the builder's summary.
     """
     from dataclasses import replace
 
@@ -133,8 +136,66 @@ def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | 
     scene, summary = capture_build_dataset(posed_photos(result), out_dir, cfg, tag_size, jobs=jobs, progress=progress,
                                      extra=extra, on_tag_plane=result.tag_size is not None or result.on_ground,
                                      points=model_points(result) if cfg.points else None)
-    write_json(Path(out_dir) / REPORT_FILE, result.report.to_dict())
+    if write_report:
+        write_json(Path(out_dir) / REPORT_FILE, {**result.report.to_dict(), "model": saved_model(result, out_dir)})
     return scene, summary
+
+
+def saved_model(result: SfmResult, out_dir: str | Path) -> dict:
+    """What :func:`load_sfm_result` needs besides the report: the aligned model's folder
+    (relative to ``out_dir`` when inside it), the photos' folder and each COLMAP image's
+    photo, the world frame's tag size (metres, or None) and whether z = 0 is the table."""
+    out = Path(out_dir).resolve()
+    model = result.model_dir.resolve()
+    folders = {p.parent.resolve() for p in result.sources.values()} or {result.image_dir.resolve()}
+    return {"dir": str(model.relative_to(out) if model.is_relative_to(out) else model),
+            "photos_dir": str(folders.pop()) if len(folders) == 1 else None,
+            "photos": {name: p.name for name, p in sorted(result.sources.items())},
+            "tag_size": result.tag_size, "on_ground": result.on_ground}
+
+
+def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResult:
+    """The aligned SfM result ``nerfkit poses`` left in a dataset folder (its
+    ``sfm_report.json`` and model), to rebuild the dataset from the same poses.
+
+    Each photo must lie in the recorded photo folder, and the model inside ``folder``
+    (``allow_outside``: anywhere).
+    """
+    from ..config import load_json
+    from ..errors import advice
+    from ..io.paths import resolve_inside
+    from .colmap import _import_pycolmap
+
+    folder = Path(folder)
+    path = folder / REPORT_FILE
+    redo = "Re-run nerfkit poses --force (or nerfkit dataset --pose-source tags)"
+    data = load_json(path, "no such file", "Run nerfkit poses first", redo)
+    model = data.get("model") if isinstance(data, dict) else None
+    if not isinstance(model, dict):
+        raise fail(path, "records no SfM model to rebuild the dataset from (an older nerfkit wrote it)", redo)
+    with advice(redo):
+        try:
+            model_dir = resolve_inside(folder, model["dir"], allow_outside, f"{path} model.dir")
+            if not (model_dir / "images.bin").is_file() and not (model_dir / "images.txt").is_file():
+                raise fail(model_dir, "holds no COLMAP model (the colmap folder was moved or deleted)")
+            photos_dir = Path(model["photos_dir"])
+            sources = {str(name): resolve_inside(photos_dir, file, allow_outside, f"{path} model.photos")
+                       for name, file in model["photos"].items()}
+            fields = ("n_photos", "registered", "unregistered", "n_points", "reprojection_error", "n_models",
+                      "matcher", "seconds", "frame", "camera", "ground")
+            report = SfmReport(**{k: data[k] for k in fields})
+            tag_size = model["tag_size"]
+            if tag_size is not None and not (isinstance(tag_size, (int, float)) and tag_size > 0):
+                raise fail(path, f"model.tag_size is {tag_size!r}, expected a length in metres or null")
+            on_ground = bool(model["on_ground"])
+        except (KeyError, TypeError, AttributeError) as e:
+            raise fail(path, f"malformed SfM report ({type(e).__name__}: {e})") from None
+    try:
+        rec = _import_pycolmap().Reconstruction(str(model_dir))
+    except Exception as e:  # pycolmap raises its own errors for unreadable models
+        raise fail(model_dir, f"cannot read the COLMAP model ({type(e).__name__}: {e})", redo) from None
+    return SfmResult(rec, model_dir, photos_dir, report, tag_size=None if tag_size is None else float(tag_size),
+                     sources=sources, on_ground=on_ground)
 
 
 def sfm_dataset(
