@@ -135,6 +135,10 @@ def test_auto_poses_a_tag_capture_by_sfm_in_the_tag_frame(room_photos, tmp_path)
     assert main(["dataset", str(tmp_path / "auto"), "--pose-source", "tags", "--out", str(tmp_path / "t"), *split]) == 0
     np.testing.assert_allclose(_dataset_poses(tmp_path / "t")[1], tag_c2w, atol=1e-5)
     assert not np.allclose(tag_c2w, sfm_c2w, atol=1e-4)
+    # in place: the dataset then records the tag poses, and the next rebuild keeps them
+    assert main(["dataset", str(tmp_path / "auto"), "--pose-source", "tags", "--force", *split]) == 0
+    assert main(["dataset", str(tmp_path / "auto"), "--force", *split]) == 0
+    np.testing.assert_allclose(_dataset_poses(tmp_path / "auto")[1], tag_c2w, atol=1e-5)
 
 
 @pytest.mark.slow
@@ -167,7 +171,7 @@ def test_rebuilding_from_sfm_says_what_is_missing(tmp_path, capsys):
     report = {"n_photos": 3, "registered": ["a.jpg"], "unregistered": {}, "n_points": 10, "reprojection_error": 0.5,
               "n_models": 1, "matcher": "exhaustive", "seconds": {}, "frame": "tag", "camera": {}, "ground": None}
     (tmp_path / REPORT_FILE).write_text(json.dumps(report))
-    assert "records no SfM model" in error()  # auto: the report says SfM built this dataset
+    assert "records no SfM model" in error()  # auto, no dataset yet: the report says SfM posed this folder
     model = {"dir": "colmap/sparse/0", "photos_dir": str(tmp_path), "photos": {"a.jpg": "a.jpg"}, "tag_size": 0.05,
              "on_ground": False}
     (tmp_path / REPORT_FILE).write_text(json.dumps({**report, "model": model}))

@@ -17,7 +17,8 @@ course layout plus K, near, far, center, up and each view's photo name).
 `nerfkit poses` runs this step itself; run it again with --force to change the size or
 the split in place. It keeps the poses `nerfkit poses` gave the dataset: when those came
 from structure-from-motion (DATASET_DIR/sfm_report.json and colmap/sparse/0), the dataset
-is rebuilt from that model, else from the tag poses in poses.json (--pose-source chooses).
+is rebuilt from that model, else from the tag poses in poses.json (transforms.json says
+which; --pose-source chooses).
 
 example:
   nerfkit dataset my_object/ --max-side 800 --out my_object_800/
@@ -34,8 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("poses", metavar="DATASET_DIR", help="folder with poses.json from `nerfkit poses` (or the file)")
     p.add_argument("--out", help="folder to write (default: the same folder)")
     p.add_argument("--pose-source", choices=["auto", "tags", "sfm"], default="auto",
-                   help="auto (default): the structure-from-motion model when `nerfkit poses` built the dataset "
-                   "from one (the folder holds sfm_report.json), else the tag poses of poses.json")
+                   help="auto (default): the poses the folder's dataset was built from (transforms.json says): "
+                   "the structure-from-motion model that `nerfkit poses` left (sfm_report.json, colmap/), or "
+                   "the tag poses of poses.json")
     p.add_argument("--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel (default: up to 4 cores)")
     p.add_argument("--force", action="store_true", help="replace an existing dataset (dataset.npz, transforms.json, "
                    "images/) in the output folder")
@@ -76,16 +78,13 @@ def run(args: argparse.Namespace) -> int:
     from ..data.validate import check_number
     from ..errors import advice, fail
     from ..io.paths import guard_outputs
-    from ..sfm.dataset import REPORT_FILE
 
     cfg = dataclass_from_args(DatasetConfig, args)
     src = Path(args.poses)
     folder = src if src.is_dir() else src.parent
     out = Path(args.out) if args.out else folder
     jobs = args.jobs or default_jobs()
-    source = args.pose_source
-    if source == "auto":
-        source = "sfm" if (folder / REPORT_FILE).is_file() else "tags"
+    source = recorded_pose_source(folder) if args.pose_source == "auto" else args.pose_source
     if source == "sfm":
         return rebuild_from_sfm(folder, out, cfg, jobs, args.force, args.allow_outside_paths)
     posed, data = read_poses_json(args.poses, allow_outside=args.allow_outside_paths)
@@ -94,7 +93,28 @@ def run(args: argparse.Namespace) -> int:
     with advice("Re-run nerfkit poses"):
         tag_size = check_number(data.get("tag_size"), args.poses, "tag_size", 0.0, expected="the tag size in metres")
     require_photos([p.path for p in posed])
-    return build_and_report(posed, out, cfg, float(tag_size), jobs, {"notes": data.get("notes", [])})
+    return build_and_report(posed, out, cfg, float(tag_size), jobs,
+                            {"notes": data.get("notes", []),
+                             "pose_choice": {"poses": "tags", "why": f"rebuilt from {folder / POSES_FILE}"}})
+
+
+def recorded_pose_source(folder) -> str:
+    """Which poses the dataset in ``folder`` was built from, as its transforms.json says:
+    "sfm" or "tags"; with no dataset there, "sfm" when `nerfkit poses` left an SfM report."""
+    import json
+
+    from ..sfm.dataset import REPORT_FILE
+
+    try:
+        meta = json.loads((folder / "transforms.json").read_text()).get("nerfkit")
+    except (OSError, ValueError, AttributeError):  # no dataset yet, or not one nerfkit wrote
+        meta = None
+    if isinstance(meta, dict):
+        choice = meta.get("pose_choice")
+        if isinstance(choice, dict) and choice.get("poses") in ("sfm", "tags"):
+            return choice["poses"]
+        return "sfm" if "sfm" in meta else "tags"
+    return "sfm" if (folder / REPORT_FILE).is_file() else "tags"
 
 
 def require_photos(paths) -> None:
