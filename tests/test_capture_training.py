@@ -180,3 +180,44 @@ def test_fast_model_starts_in_the_object_box_of_a_scene_with_points(tabletop):
     assert np.all(hi - lo < 0.8 * 2 * bounds.radius)  # smaller than the bounding sphere's box
     sphere = FastNeRF(FastConfig(object_box=False), bounds)
     assert np.all(sphere.geom.hi.numpy() - sphere.geom.lo.numpy() > 0.95 * 2 * bounds.radius)
+
+
+def test_a_run_from_before_colour_mixing_resumes_with_its_corrections(tmp_path, tabletop):
+    from nerfkit.io.atomic import atomic_path
+
+    c, m = capture_settings(cfg(tmp_path, "old", steps=80), SMALL, tabletop)
+    c = resolved_config(c, m)
+    assert c.colour_mix  # captures mix colours by default
+    Trainer(tabletop, c, m, quiet=True).run(stop_after=60)
+    path = sorted((tmp_path / "old" / "checkpoints").glob("*.pt"))[-1]
+    ckpt = torch.load(path, weights_only=False)
+    del ckpt["views"]["exposure.mix"]  # as an older nerfkit wrote it
+    with atomic_path(path) as tmp:
+        torch.save(ckpt, tmp)
+    t = Trainer(tabletop, c, m, resume=True, quiet=True)
+    torch.testing.assert_close(t.views.exposure.log_gain.detach(), ckpt["views"]["exposure.log_gain"])
+    assert float(t.views.exposure.mix.detach().abs().max()) == 0  # starts afresh
+    assert t.step == 60
+
+
+def test_eval_fits_a_held_out_photos_colour_transform(tmp_path, tabletop):
+    """Held-out "photos" that are the model's own renders recoloured by a known affine
+    transform: as rendered they score low; fitted, the transform is undone."""
+    from dataclasses import replace
+
+    from nerfkit.output.images import render_image
+    from nerfkit.train.evaluate import evaluate_views
+    from nerfkit.train.view_corrections import ViewFitConfig
+
+    t = Trainer(tabletop, cfg(tmp_path, "ev", steps=100), SMALL, quiet=True)
+    t.run()
+    val = tabletop.val
+    renders = np.stack([render_image(t.model, val.K[i], val.c2w[i], val.width, val.height, t.background).rgb
+                        for i in range(len(val))]).astype(np.float64)
+    M = np.array([[0.75, 0.15, 0.0], [0.0, 0.8, 0.15], [0.1, 0.0, 0.7]])
+    photos = replace(val, images=(np.clip(renders @ M.T + 0.06, 0, 1) * 255).round().astype(np.uint8))
+    scores = {mix: evaluate_views(t.model, photos, t.background, progress=False, scale=t.bounds.radius,
+                                  fit=ViewFitConfig(steps=10, colour_mix=mix)) for mix in (True, False)}
+    assert scores[True]["psnr"] < 30
+    assert scores[True]["fitted"]["psnr"] > 40  # undone, to the photos' 8-bit rounding
+    assert scores[False]["fitted"]["psnr"] < scores[True]["fitted"]["psnr"] - 5  # gains alone cannot mix colours

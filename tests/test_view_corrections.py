@@ -1,6 +1,7 @@
 """Per-view pose and exposure corrections: known perturbations and gains are recovered."""
 
 import numpy as np
+import pytest
 import torch
 
 from nerfkit.cameras import Rays, image_rays, intrinsics_matrix, look_at
@@ -116,3 +117,43 @@ def test_a_common_motion_of_every_view_is_no_correction():
         pose.translation[:] = torch.tensor([0.0, 0.2, 0.0])
     c2w = np.repeat(np.eye(4)[None], 3, 0)
     np.testing.assert_allclose(pose.corrected_c2w(c2w), c2w, atol=1e-7)
+
+
+def test_least_squares_colour_solves_a_known_transform_exactly():
+    from nerfkit.train.view_corrections import least_squares_colour
+
+    rng = np.random.default_rng(0)
+    rgb = rng.uniform(0.05, 0.9, (500, 3))
+    M = np.array([[0.9, 0.05, -0.02], [0.03, 1.1, 0.04], [-0.05, 0.02, 0.8]])
+    b = np.array([0.02, -0.01, 0.03])
+    matrix, offset = least_squares_colour(rgb, rgb @ M.T + b, mix=True)
+    np.testing.assert_allclose(matrix, M, atol=1e-10)
+    np.testing.assert_allclose(offset, b, atol=1e-10)
+    # the gain model: a diagonal matrix; exact for per-channel gains, the best diagonal otherwise
+    gains = np.diag([0.9, 1.1, 0.8])
+    matrix, offset = least_squares_colour(rgb, rgb @ gains + b, mix=False)
+    np.testing.assert_allclose(matrix, gains, atol=1e-10)
+    np.testing.assert_allclose(offset, b, atol=1e-10)
+    matrix, _ = least_squares_colour(rgb, rgb @ M.T + b, mix=False)
+    assert np.count_nonzero(matrix - np.diag(np.diag(matrix))) == 0
+    mse_diag = np.mean((rgb @ matrix.T + _ - (rgb @ M.T + b)) ** 2)
+    assert 0 < mse_diag < np.mean((rgb - (rgb @ M.T + b)) ** 2)
+
+
+def test_colour_mix_is_an_affine_transform_per_view_about_the_average():
+    exposure = ExposureCorrection(3, mix=True)
+    with torch.no_grad():
+        exposure.log_gain[:] = torch.tensor([[0.1, 0.0, -0.1], [0.0, 0.2, 0.0], [-0.1, -0.2, 0.1]])
+        exposure.mix[:] = torch.tensor([[0.02, 0.0, 0.01, 0.0, 0.0, -0.03], [0.0] * 6, [-0.02, 0.0, -0.01, 0.0, 0.0, 0.03]])
+        exposure.offset[:] = torch.tensor([[0.01, 0.0, 0.0], [0.0, 0.0, 0.0], [-0.01, 0.0, 0.0]])
+    rgb = torch.rand(9, 3)
+    view = torch.arange(9) % 3
+    with torch.no_grad():
+        M = exposure.matrices()
+        b = exposure.centred()[1]
+    expected = torch.einsum("nij,nj->ni", M[view], rgb) + b[view]
+    torch.testing.assert_close(exposure(rgb, view).detach(), expected)
+    # the mixing's mean over views is removed, as the gains' and offsets' are
+    off = M - torch.diag_embed(torch.diagonal(M, dim1=1, dim2=2))
+    torch.testing.assert_close(off.mean(0), torch.zeros(3, 3))
+    assert M[1, 0, 1] == 0 and M[0, 0, 1] == pytest.approx(0.02) and M[0, 2, 1] == pytest.approx(-0.03)

@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         steps = 100 if capture and not whole else 0
         if whole and capture:
             print(f"note: held-out views are scored as rendered only ({run_.info.train.model} cannot fit their poses)")
-    fit = ViewFitConfig(steps=steps) if steps else None
+    fit = ViewFitConfig(steps=steps, colour_mix=run_.info.train.colour_mix) if steps else None
     sheet: list = []
     result = {"split": args.split, "step": run_.step, "data": scene.source,
               **evaluate_views(run_.model, views, run_.background(), run_.chunk, run_.autocast, fit=fit,

@@ -51,6 +51,9 @@ class TrainConfig:
                              min=0)
     exposure_lr: float = option(2e-3, "with --capture: learning rate of the per-view exposure corrections (0: off)",
                                 min=0)
+    colour_mix: bool = option(True, "with --capture: the exposure correction is an affine colour transform per "
+                              "photo (each channel also takes some of the others), not only a gain and offset per "
+                              "channel")
 
     def validate(self) -> "TrainConfig":
         if not all(math.isfinite(v) for v in (self.minutes, self.lr, self.lr_final_factor, self.checkpoint_seconds)):

@@ -16,7 +16,7 @@ from ..data.scene import Views
 from ..models.base import NerfModel
 from ..output.images import render_image
 from .metrics import psnr, ssim
-from .view_corrections import ViewFitConfig, fit_view
+from .view_corrections import ViewFitConfig, fit_view, least_squares_colour
 
 
 def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: np.ndarray, background: torch.Tensor,
@@ -28,8 +28,8 @@ def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: n
         scale: the scene's length unit (the model's bounding radius).
 
     Returns:
-        ``(c2w, gain (3,), offset (3,))``: the corrected pose and the colour correction
-        ``rgb * gain + offset``.
+        ``(c2w, matrix (3, 3), offset (3,))``: the corrected pose and the colour correction
+        ``rgb @ matrix.T + offset``.
     """
     device = background.device
     h, w = image.shape[:2]
@@ -48,8 +48,9 @@ def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: n
         for p in frozen:
             p.requires_grad_(True)
         model.train(was_training)
-    gain, offset = (t[0].detach().cpu().numpy() for t in exposure.centred())
-    return pose.corrected_c2w(np.asarray(c2w)[None])[0], np.exp(gain), offset
+    with torch.no_grad():
+        matrix, offset = exposure.matrices()[0].cpu().numpy(), exposure.centred()[1][0].cpu().numpy()
+    return pose.corrected_c2w(np.asarray(c2w)[None])[0], matrix, offset
 
 
 def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chunk: int = 16384,
@@ -77,15 +78,18 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
                "psnr": round(psnr(view.rgb, target), 4), "ssim": round(ssim(view.rgb, target), 5)}
         rgb = None
         if fit is not None:
-            c2w, gain, offset = fit_held_out_view(model, views.K[i], views.c2w[i], views.images[i], background,
+            c2w, matrix, offset = fit_held_out_view(model, views.K[i], views.c2w[i], views.images[i], background,
                                                   scale, fit, seed=i)
             fitted = render_image(model, views.K[i], c2w, views.width, views.height, background, chunk, autocast_dtype)
-            rgb = np.clip(fitted.rgb * gain + offset, 0.0, 1.0)
+            # the colour correction at the fitted pose, solved exactly (the fit's steps only
+            # move it part of the way)
+            matrix, offset = least_squares_colour(fitted.rgb, target, fit.colour_mix)
+            rgb = np.clip(fitted.rgb @ matrix.T + offset, 0.0, 1.0)
             row.update(psnr_fitted=round(psnr(rgb, target), 4), ssim_fitted=round(ssim(rgb, target), 5),
                        fitted_rotation_deg=round(float(np.degrees(np.arccos(np.clip(
                            (np.trace(c2w[:3, :3] @ views.c2w[i][:3, :3].T) - 1) / 2, -1, 1)))), 4),
                        fitted_translation=round(float(np.linalg.norm(c2w[:3, 3] - views.c2w[i][:3, 3])), 6),
-                       fitted_gain=[round(float(g), 4) for g in gain])
+                       fitted_gain=[round(float(g), 4) for g in np.diag(matrix)])
         if sheet is not None and i in shown:
             sheet.append((views.images[i], view.rgb, rgb, row))
         per_image.append(row)
@@ -96,7 +100,9 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
     }
     if fit is not None:
         out["fitted"] = {
-            "what": f"each view's pose and exposure fitted to its photo first ({fit.steps} steps, scene frozen)",
+            "what": f"each view's pose fitted to its photo first ({fit.steps} steps, scene frozen), then its colour "
+                    f"correction ({'an affine colour transform' if fit.colour_mix else 'a gain and offset per channel'}"
+                    ", least squares)",
             "psnr": round(float(np.mean([p["psnr_fitted"] for p in per_image])), 4),
             "ssim": round(float(np.mean([p["ssim_fitted"] for p in per_image])), 5),
         }

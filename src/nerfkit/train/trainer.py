@@ -123,7 +123,7 @@ class Trainer:
         pose = cfg.pose_lr > 0 and not self.whole_images
         if cfg.capture == "on" and (pose or cfg.exposure_lr > 0):
             self.views = ViewCorrections(len(scene.train), self.bounds.radius, pose,
-                                         cfg.exposure_lr > 0).to(self.device)
+                                         cfg.exposure_lr > 0, cfg.colour_mix).to(self.device)
             self.view_optimizer = torch.optim.Adam(self.views.param_groups(cfg.pose_lr, cfg.exposure_lr))
         self._remember_initial_lr()
         self.step = 0
@@ -185,8 +185,13 @@ class Trainer:
             if "views" not in ckpt:
                 raise fail(path, "holds no per-view corrections, but this run trains them",
                            "The checkpoint is from another nerfkit; re-train")
-            self.views.load_state_dict(ckpt["views"])
-            self.view_optimizer.load_state_dict(ckpt["views_optimizer"])
+            missing = set(self.views.state_dict()) - set(ckpt["views"])
+            if not missing <= {"exposure.mix"}:
+                raise fail(path, f"holds other per-view corrections than this run trains ({sorted(missing)} missing)",
+                           "The checkpoint is from another nerfkit; re-train")
+            self.views.load_state_dict(ckpt["views"], strict=False)
+            if not missing:  # a run from before --colour-mix starts its mixing (and the views' Adam state) afresh
+                self.view_optimizer.load_state_dict(ckpt["views_optimizer"])
         torch.set_rng_state(ckpt["torch_rng"])
         self.rays.set_rng_state(ckpt["sampler_rng"])
         if "cuda_rng" in ckpt and self.device.type == "cuda":
@@ -426,7 +431,8 @@ class Trainer:
         if self.views is not None:
             write_json(self.run_dir / "view_corrections.json", {
                 "what": "per training view: pose correction (rotation in degrees, translation in scene units) "
-                        "and exposure gain relative to the average view",
+                        "and exposure gain relative to the average view (with colour mixing also the colour "
+                        "matrix: rendered rgb -> photo rgb, with the gains on its diagonal)",
                 "views": self.views.report(self.scene.train.names)})
         train = [r for r in self.rows if r["split"] == "train"]
         val = [r for r in self.rows if r["split"] == "val"]

@@ -93,24 +93,47 @@ class PoseCorrection(nn.Module):
 
 
 class ExposureCorrection(nn.Module):
-    """Per-view colour gain and offset, ``rgb * exp(g_i - mean g) + (b_i - mean b)``.
+    """Per-view colour correction, ``rgb * exp(g_i) + rgb @ m_i^T + b_i`` with the mean over
+    views of ``g``, ``m`` and ``b`` removed (the scene keeps the photos' average colour).
 
-    A single view (a held-out photo fitted alone) keeps its raw ``g`` and ``b``.
+    ``g`` (3,) is a gain per channel (exposure and white balance). With ``mix``, ``m``
+    (3, 3, zero diagonal) lets each channel take some of the others: with the gains, an
+    affine colour transform per photo, as Urban Radiance Fields' exposure compensation
+    (a phone's colour processing changes with the scene it sees). ``b`` (3,) is an offset.
+
+    A single view (a held-out photo fitted alone) keeps its raw ``g``, ``m`` and ``b``.
     """
 
-    def __init__(self, n_views: int):
+    def __init__(self, n_views: int, mix: bool = False):
         super().__init__()
         self.log_gain = nn.Parameter(torch.zeros(n_views, 3))
         self.offset = nn.Parameter(torch.zeros(n_views, 3))
+        self.mix = nn.Parameter(torch.zeros(n_views, 6)) if mix else None
 
     def centred(self) -> tuple[Tensor, Tensor]:
         """(n_views, 3) log gains and offsets with their mean over views removed."""
         return mean_removed(self.log_gain, self.offset)
 
+    def matrices(self) -> Tensor:
+        """(n_views, 3, 3) each view's colour matrix, ``diag(exp(g)) + m`` (mean removed)."""
+        g = self.centred()[0]
+        M = torch.diag_embed(torch.exp(g))
+        if self.mix is not None:
+            off = torch.zeros_like(M)
+            off[:, OFF_DIAGONAL[0], OFF_DIAGONAL[1]] = mean_removed(self.mix)[0]
+            M = M + off
+        return M
+
     def forward(self, rgb: Tensor, view: Tensor) -> Tensor:
         """(n_rays, 3) rendered colours of views ``view`` (n_rays,) -> corrected colours."""
         g, b = self.centred()
-        return rgb * torch.exp(g[view]) + b[view]
+        out = rgb * torch.exp(g[view]) + b[view]
+        if self.mix is not None:
+            m = mean_removed(self.mix)[0][view]  # (n_rays, 6), the off-diagonal entries
+            out = out + torch.stack([m[:, 0] * rgb[:, 1] + m[:, 1] * rgb[:, 2],
+                                     m[:, 2] * rgb[:, 0] + m[:, 3] * rgb[:, 2],
+                                     m[:, 4] * rgb[:, 0] + m[:, 5] * rgb[:, 1]], -1)
+        return out
 
     @torch.no_grad()
     def gains(self) -> np.ndarray:
@@ -118,13 +141,17 @@ class ExposureCorrection(nn.Module):
         return torch.exp(self.centred()[0]).cpu().numpy()
 
 
+# (rows, columns) of the off-diagonal entries of a 3x3 colour matrix, in ExposureCorrection.mix's order
+OFF_DIAGONAL = (torch.tensor([0, 0, 1, 1, 2, 2]), torch.tensor([1, 2, 0, 2, 0, 1]))
+
+
 class ViewCorrections(nn.Module):
     """The corrections of every training view, either part possibly off (None)."""
 
-    def __init__(self, n_views: int, scale: float, pose: bool, exposure: bool):
+    def __init__(self, n_views: int, scale: float, pose: bool, exposure: bool, colour_mix: bool = False):
         super().__init__()
         self.pose = PoseCorrection(n_views, scale) if pose else None
-        self.exposure = ExposureCorrection(n_views) if exposure else None
+        self.exposure = ExposureCorrection(n_views, colour_mix) if exposure else None
 
     def param_groups(self, pose_lr: float, exposure_lr: float) -> list[dict]:
         groups = []
@@ -136,7 +163,8 @@ class ViewCorrections(nn.Module):
 
     @torch.no_grad()
     def report(self, names: list[str] | None) -> list[dict]:
-        """Per view: name, pose correction (degrees, scene units) and exposure gains."""
+        """Per view: name, pose correction (degrees, scene units), exposure gains and, with
+        colour mixing, the colour matrix (rows: output channels)."""
         n = (self.pose.rotation if self.pose is not None else self.exposure.log_gain).shape[0]
         rows = [{"view": i, "name": names[i] if names else None} for i in range(n)]
         if self.pose is not None:
@@ -146,7 +174,34 @@ class ViewCorrections(nn.Module):
         if self.exposure is not None:
             for r, g in zip(rows, self.exposure.gains()):
                 r["gain_rgb"] = [round(float(v), 4) for v in g]
+            if self.exposure.mix is not None:
+                for r, M in zip(rows, self.exposure.matrices().cpu().numpy()):
+                    r["colour_matrix"] = [[round(float(v), 4) for v in row] for row in M]
         return rows
+
+
+def least_squares_colour(rgb: np.ndarray, target: np.ndarray, mix: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The colour correction of one view that best maps its render onto its photo (least
+    squares, so the lowest MSE): :class:`ExposureCorrection`'s model solved exactly.
+
+    Args:
+        rgb, target: (..., 3) rendered and photo colours of the same pixels.
+        mix: an affine colour transform (3x3 matrix and offset); else a gain and an offset
+            per channel.
+
+    Returns:
+        ``(matrix (3, 3), offset (3,))``; apply as ``rgb @ matrix.T + offset``.
+    """
+    X = np.asarray(rgb, np.float64).reshape(-1, 3)
+    Y = np.asarray(target, np.float64).reshape(-1, 3)
+    ones = np.ones((len(X), 1))
+    if mix:
+        coef, *_ = np.linalg.lstsq(np.concatenate([X, ones], 1), Y, rcond=None)  # (4, 3)
+        return coef[:3].T.copy(), coef[3].copy()
+    matrix, offset = np.zeros((3, 3)), np.zeros(3)
+    for c in range(3):
+        (matrix[c, c], offset[c]), *_ = np.linalg.lstsq(np.concatenate([X[:, c:c + 1], ones], 1), Y[:, c], rcond=None)
+    return matrix, offset
 
 
 @dataclass
@@ -157,6 +212,7 @@ class ViewFitConfig:
     rays: int = 4096
     lr: float = 2e-3
     exposure: bool = True
+    colour_mix: bool = False  # the exposure is an affine colour transform (as the run's, see ExposureCorrection)
 
 
 def fit_view(render_fn, rays: Rays, target: Tensor, scale: float, cfg: ViewFitConfig,
@@ -172,7 +228,7 @@ def fit_view(render_fn, rays: Rays, target: Tensor, scale: float, cfg: ViewFitCo
         the fitted single-view corrections (apply with view index 0).
     """
     pose = PoseCorrection(1, scale).to(target.device)
-    exposure = ExposureCorrection(1).to(target.device)
+    exposure = ExposureCorrection(1, cfg.colour_mix).to(target.device)
     params = list(pose.parameters()) + (list(exposure.parameters()) if cfg.exposure else [])
     opt = torch.optim.Adam(params, lr=cfg.lr)
     n = target.shape[0]
