@@ -2,8 +2,9 @@
 
 For real captures the held-out photos' poses and exposures carry the same small errors
 the training views had corrected; scoring them as given measures those errors as much as
-the scene. With ``fit`` each held-out view's pose and exposure are first fitted to its
-photo with the scene frozen (as BARF does), and both scores are reported.
+the scene. With ``fit`` each held-out view's pose is first fitted to its photo with the
+scene frozen (as BARF does) and its colour correction solved at that pose, and both
+scores are reported.
 """
 
 from __future__ import annotations
@@ -20,16 +21,17 @@ from .view_corrections import ViewFitConfig, fit_view, least_squares_colour
 
 
 def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: np.ndarray, background: torch.Tensor,
-                      scale: float, cfg: ViewFitConfig, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Fit one held-out view's pose and exposure to its photo, the model frozen.
+                      scale: float, cfg: ViewFitConfig, seed: int = 0) -> np.ndarray:
+    """Fit one held-out view's pose to its photo, the model frozen (its exposure is fitted
+    alongside, so that a colour change does not pull the pose; :func:`least_squares_colour`
+    then solves the colour at the fitted pose exactly).
 
     Args:
         K (3, 3), c2w (4, 4): the view's camera; image: (H, W, 3) uint8 photo.
         scale: the scene's length unit (the model's bounding radius).
 
     Returns:
-        ``(c2w, matrix (3, 3), offset (3,))``: the corrected pose and the colour correction
-        ``rgb @ matrix.T + offset``.
+        (4, 4) the corrected camera-to-world pose.
     """
     device = background.device
     h, w = image.shape[:2]
@@ -42,15 +44,13 @@ def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: n
     for p in frozen:
         p.requires_grad_(False)
     try:
-        pose, exposure = fit_view(lambda r: model.render_rays(r, background, perturb=False).rgb, rays, target, scale,
-                                  cfg, torch.Generator().manual_seed(seed))
+        pose, _ = fit_view(lambda r: model.render_rays(r, background, perturb=False).rgb, rays, target, scale, cfg,
+                           torch.Generator().manual_seed(seed))
     finally:
         for p in frozen:
             p.requires_grad_(True)
         model.train(was_training)
-    with torch.no_grad():
-        matrix, offset = exposure.matrices()[0].cpu().numpy(), exposure.centred()[1][0].cpu().numpy()
-    return pose.corrected_c2w(np.asarray(c2w)[None])[0], matrix, offset
+    return pose.corrected_c2w(np.asarray(c2w)[None])[0]
 
 
 def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chunk: int = 16384,
@@ -78,11 +78,10 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
                "psnr": round(psnr(view.rgb, target), 4), "ssim": round(ssim(view.rgb, target), 5)}
         rgb = None
         if fit is not None:
-            c2w, matrix, offset = fit_held_out_view(model, views.K[i], views.c2w[i], views.images[i], background,
-                                                  scale, fit, seed=i)
+            c2w = fit_held_out_view(model, views.K[i], views.c2w[i], views.images[i], background, scale, fit, seed=i)
             fitted = render_image(model, views.K[i], c2w, views.width, views.height, background, chunk, autocast_dtype)
-            # the colour correction at the fitted pose, solved exactly (the fit's steps only
-            # move it part of the way)
+            # the colour correction at the fitted pose, solved exactly (the fit's 100 steps
+            # only move it part of the way)
             matrix, offset = least_squares_colour(fitted.rgb, target, fit.colour_mix)
             rgb = np.clip(fitted.rgb @ matrix.T + offset, 0.0, 1.0)
             row.update(psnr_fitted=round(psnr(rgb, target), 4), ssim_fitted=round(ssim(rgb, target), 5),
