@@ -146,7 +146,7 @@ def print_table(rows: list[dict]) -> None:
                       "-" if r["fitted_psnr"] is None else f"{r['fitted_psnr']:.2f} / {r['fitted_ssim']:.3f}",
                       r["sheet"]] for r in trained],
                     ["capture", "--capture", "steps", "val views", "val PSNR", "val SSIM",
-                     "PSNR / SSIM, pose+exposure fitted", "contact sheet"], max_width=200))
+                     "PSNR / SSIM, pose+colour fitted", "contact sheet"], max_width=200))
 
 
 def main() -> int:

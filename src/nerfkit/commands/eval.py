@@ -19,13 +19,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_run_args(p)
     p.add_argument("--split", choices=["val", "test", "train"], default="val", help="which images (default: val)")
     p.add_argument("--fit-views", type=number(int, 0, 100_000), default=None, metavar="STEPS",
-                   help="also score each view after fitting its pose and exposure to its photo with the scene frozen, "
-                        "for this many steps (default: 100 for runs trained with --capture, else 0: off)")
+                   help="also score each view after fitting its pose to its photo with the scene frozen, for this "
+                        "many steps, and then its colour correction (least squares; the run's model: an affine "
+                        "colour transform, or a gain and offset per channel) (default: 100 for runs trained with "
+                        "--capture, else 0: off)")
     p.set_defaults(func=run)
 
 
 def write_contact_sheet(path, sheet: list, split: str) -> None:
-    """Photo beside render (and beside the render after fitting pose and exposure), a row per view."""
+    """Photo beside render (and beside the render after fitting pose and colour), a row per view."""
     from ..viz.plots import image_grid
 
     images, titles = [], []
@@ -35,7 +37,7 @@ def write_contact_sheet(path, sheet: list, split: str) -> None:
         titles += [f"{name[:28]}", f"render {row['psnr']:.1f} dB"]
         if fitted is not None:
             images.append(fitted)
-            titles.append(f"pose+exposure fitted {row['psnr_fitted']:.1f} dB")
+            titles.append(f"pose+colour fitted {row['psnr_fitted']:.1f} dB")
     if images:
         image_grid(path, images, titles, ncols=3 if sheet[0][2] is not None else 2,
                    suptitle=f"{split} photos and renders")
