@@ -439,6 +439,14 @@ def test_sfm_dataset_metric_from_tag(room, tmp_path):
     to_room = np.abs(np.stack([3 - np.abs(p[:, 0]), 3 - np.abs(p[:, 1]), p[:, 2], 3 - p[:, 2]], 1)).min(1)
     d = np.minimum(to_box, to_room)
     assert np.median(d) < 0.01 and np.quantile(d, 0.9) < 0.03, np.quantile(d, [0.5, 0.9])  # 2 and 8 mm here
+    # `nerfkit dataset` rebuilds it from the model (there is no poses.json): same poses, new size
+    from nerfkit.cli import main
+
+    assert main(["dataset", str(tmp_path / "ds"), "--max-side", "160", "--val-every", "6", "--test-every", "0",
+                 "--out", str(tmp_path / "small")]) == 0
+    small = load_scene(tmp_path / "small")
+    assert small.train.names + small.val.names == names and max(small.train.width, small.train.height) == 160
+    np.testing.assert_allclose(np.concatenate([small.train.c2w, small.val.c2w]), c2w, atol=1e-5)
 
 
 def test_sfm_with_nothing_to_match_fails_cleanly(tmp_path):
