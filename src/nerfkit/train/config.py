@@ -49,7 +49,7 @@ class TrainConfig:
     pose_lr: float = option(1e-3, "with --capture: learning rate of the per-view pose corrections (0: off)", min=0)
     pose_start: int = option(100, "with --capture: first step that corrects poses (the scene takes shape first)",
                              min=0)
-    exposure_lr: float = option(2e-3, "with --capture: learning rate of the per-view exposure corrections (0: off)",
+    exposure_lr: float = option(1e-2, "with --capture: learning rate of the per-view exposure corrections (0: off)",
                                 min=0)
     colour_mix: bool = option(True, "with --capture: the exposure correction is an affine colour transform per "
                               "photo (each channel also takes some of the others), not only a gain and offset per "
