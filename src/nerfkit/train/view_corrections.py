@@ -127,13 +127,9 @@ class ExposureCorrection(nn.Module):
     def forward(self, rgb: Tensor, view: Tensor) -> Tensor:
         """(n_rays, 3) rendered colours of views ``view`` (n_rays,) -> corrected colours."""
         g, b = self.centred()
-        out = rgb * torch.exp(g[view]) + b[view]
-        if self.mix is not None:
-            m = mean_removed(self.mix)[0][view]  # (n_rays, 6), the off-diagonal entries
-            out = out + torch.stack([m[:, 0] * rgb[:, 1] + m[:, 1] * rgb[:, 2],
-                                     m[:, 2] * rgb[:, 0] + m[:, 3] * rgb[:, 2],
-                                     m[:, 4] * rgb[:, 0] + m[:, 5] * rgb[:, 1]], -1)
-        return out
+        if self.mix is None:
+            return rgb * torch.exp(g[view]) + b[view]
+        return (self.matrices()[view] @ rgb.unsqueeze(-1)).squeeze(-1) + b[view]
 
     @torch.no_grad()
     def gains(self) -> np.ndarray:
