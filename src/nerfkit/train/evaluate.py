@@ -53,6 +53,10 @@ def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: n
     return pose.corrected_c2w(np.asarray(c2w)[None])[0]
 
 
+def _rounded(values) -> list[float]:
+    return [round(float(v), 4) for v in values]
+
+
 def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chunk: int = 16384,
                    autocast_dtype: torch.dtype | None = None, progress: bool = True,
                    fit: ViewFitConfig | None = None, scale: float = 1.0, sheet: list | None = None,
@@ -62,7 +66,9 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
     Returns ``{"psnr": mean, "ssim": mean, "n_images": N, "per_image": [{index, name,
     psnr, ssim}, ...]}``; with ``fit``, also ``"fitted": {"psnr", "ssim", ...}`` and per
     image ``psnr_fitted``, ``ssim_fitted``, after fitting each view's pose and exposure to
-    its photo (``scale``: the scene's length unit). Memory holds one image at a time, plus
+    its photo (``scale``: the scene's length unit), with the fitted colour correction:
+    ``fitted_gain`` (its gain on grey, per channel), ``fitted_offset`` and, with colour
+    mixing, ``fitted_colour_matrix`` (rows: output channels). Memory holds one image at a time, plus
     the images appended to ``sheet`` (``(photo, render, fitted render or None, row)`` of
     ``sheet_views`` views spread over the split), when a list is given.
     """
@@ -88,7 +94,9 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
                        fitted_rotation_deg=round(float(np.degrees(np.arccos(np.clip(
                            (np.trace(c2w[:3, :3] @ views.c2w[i][:3, :3].T) - 1) / 2, -1, 1)))), 4),
                        fitted_translation=round(float(np.linalg.norm(c2w[:3, 3] - views.c2w[i][:3, 3])), 6),
-                       fitted_gain=[round(float(g), 4) for g in np.diag(matrix)])
+                       fitted_gain=_rounded(matrix.sum(axis=1)), fitted_offset=_rounded(offset))
+            if fit.colour_mix:
+                row["fitted_colour_matrix"] = [_rounded(r) for r in matrix]
         if sheet is not None and i in shown:
             sheet.append((views.images[i], view.rgb, rgb, row))
         per_image.append(row)
