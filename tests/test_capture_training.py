@@ -198,6 +198,15 @@ def test_a_run_from_before_colour_mixing_resumes_with_its_corrections(tmp_path, 
     torch.testing.assert_close(t.views.exposure.log_gain.detach(), ckpt["views"]["exposure.log_gain"])
     assert float(t.views.exposure.mix.detach().abs().max()) == 0  # starts afresh
     assert t.step == 60
+    # a run from before the mixing penalty resumes without it (as it was trained)
+    from nerfkit.train.checkpoint import read_run
+
+    assert read_run(tmp_path / "old").train.colour_mix_weight == TrainConfig().colour_mix_weight > 0
+    config = tmp_path / "old" / "config.json"
+    d = json.loads(config.read_text())
+    del d["train"]["colour_mix_weight"]
+    config.write_text(json.dumps(d))
+    assert read_run(tmp_path / "old").train.colour_mix_weight == 0.0
 
 
 def test_eval_fits_a_held_out_photos_colour_transform(tmp_path, tabletop):

@@ -157,3 +157,50 @@ def test_colour_mix_is_an_affine_transform_per_view_about_the_average():
     off = M - torch.diag_embed(torch.diagonal(M, dim1=1, dim2=2))
     torch.testing.assert_close(off.mean(0), torch.zeros(3, 3))
     assert M[1, 0, 1] == 0 and M[0, 0, 1] == pytest.approx(0.02) and M[0, 2, 1] == pytest.approx(-0.03)
+
+
+def fit_colour_corrections(rgb, target, view, n_views, weight, steps=600):
+    """Fit an ExposureCorrection with colour mixing to fixed renders (the scene frozen)."""
+    exposure = ExposureCorrection(n_views, mix=True)
+    opt = torch.optim.Adam(exposure.parameters(), lr=1e-2)
+    for _ in range(steps):
+        loss = torch.mean((exposure(rgb, view) - target) ** 2) + weight * exposure.mix_penalty()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return exposure
+
+
+def test_the_mix_penalty_keeps_photos_of_grey_things_to_a_plain_gain():
+    # grey pixels constrain only each row's sum of a colour matrix: a brighter photo of a
+    # grey scene is as well explained by mixing in the other channels as by a gain
+    g = torch.Generator().manual_seed(0)
+    grey = torch.rand(600, 1, generator=g).expand(600, 3) * 0.8
+    gains = torch.tensor([[1.2, 1.1, 1.0], [0.8, 0.9, 1.0], [1.0, 1.1, 1.3], [1.05, 0.95, 0.8]])
+    view = torch.arange(600) % 4
+    target = grey * gains[view]
+    free = fit_colour_corrections(grey, target, view, 4, weight=0.0)
+    held = fit_colour_corrections(grey, target, view, 4, weight=0.1)
+    for exposure in (free, held):  # both explain the photos
+        with torch.no_grad():
+            assert float(torch.mean((exposure(grey, view) - target) ** 2)) < 1e-4  # 40 dB
+    with torch.no_grad():
+        M_free, M_held = free.matrices(), held.matrices()
+    off = lambda M: M - torch.diag_embed(torch.diagonal(M, dim1=1, dim2=2))  # noqa: E731
+    assert float(off(M_free).abs().max()) > 0.05  # without the penalty, mixing takes part of the gain
+    assert float(off(M_held).abs().max()) < 0.01  # with it, the matrices are the gains
+    expected = gains / gains.log().mean(0).exp()  # relative to the average view
+    np.testing.assert_allclose(torch.diagonal(M_held, dim1=1, dim2=2).numpy(), expected.numpy(), rtol=0.02)
+
+
+def test_the_mix_penalty_is_the_mean_squared_mixing_about_the_average():
+    exposure = ExposureCorrection(2, mix=True)
+    assert float(exposure.mix_penalty()) == 0.0
+    with torch.no_grad():
+        exposure.mix[0] = torch.tensor([0.1, 0.0, 0.0, 0.0, 0.0, 0.3])
+        exposure.mix[1] = torch.tensor([-0.1, 0.0, 0.0, 0.0, 0.0, -0.3])
+    assert float(exposure.mix_penalty()) == pytest.approx(0.1 ** 2 + 0.3 ** 2)
+    with torch.no_grad():
+        exposure.mix[:] = 0.2  # the same mixing in every view is the scene's colour, not a correction
+    assert float(exposure.mix_penalty()) == pytest.approx(0.0)
+    assert float(ExposureCorrection(2, mix=False).mix_penalty()) == 0.0

@@ -76,7 +76,8 @@ def read_run(run_dir: str | Path) -> RunInfo:
         if not isinstance(d.get(key), dict):
             raise fail(cfg_path, f"'{key}' is missing or not an object", "This is not a run's config.json")
     try:
-        train = dataclass_from_dict(TrainConfig, d["train"], str(cfg_path))
+        # a run from before the colour-mix penalty resumes as it was trained, without it
+        train = dataclass_from_dict(TrainConfig, {"colour_mix_weight": 0.0, **d["train"]}, str(cfg_path))
         if train.model not in MODEL_NAMES:
             raise fail(cfg_path, f"unknown model '{train.model}'", f"Expected one of {', '.join(MODEL_NAMES)}")
         model_config = dataclass_from_dict(model_config_class(train.model), d["model"], str(cfg_path))

@@ -54,6 +54,10 @@ class TrainConfig:
     colour_mix: bool = option(True, "with --capture: the exposure correction is an affine colour transform per "
                               "photo (each channel also takes some of the others), not only a gain and offset per "
                               "channel")
+    colour_mix_weight: float = option(0.01, "with --colour-mix: weight of a pull of each photo's colour mixing "
+                                      "towards none (the mean over photos of the squared off-diagonal entries): "
+                                      "grey things (a sheet, a dark table) pin only a photo's gains, and without it "
+                                      "the colours of what few photos see drift", min=0)
 
     def validate(self) -> "TrainConfig":
         if not all(math.isfinite(v) for v in (self.minutes, self.lr, self.lr_final_factor, self.checkpoint_seconds)):

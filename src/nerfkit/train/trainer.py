@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from ..cameras import strided_camera
 from ..data.rays import RaysData
@@ -242,7 +243,7 @@ class Trainer:
         rays = None
         if self.whole_images:
             out, target = self._render_training_view()
-            loss = self.model.loss(out, target)
+            loss = self.model.loss(out, target) + self._corrections_penalty()
         else:
             batch = self.rays.sample(self.cfg.batch_rays)
             rays, target = batch.rays, batch.rgb
@@ -252,7 +253,7 @@ class Trainer:
                 out = self.model.render_rays(rays, self.background, perturb=True)
                 if views is not None and views.exposure is not None:
                     out = replace(out, rgb=views.exposure(out.rgb.float(), batch.image_index))
-                loss = self.model.loss(out, batch.rgb)
+                loss = self.model.loss(out, batch.rgb) + self._corrections_penalty()
         self._zero_grad()
         finite = bool(torch.isfinite(loss))
         if finite:
@@ -276,6 +277,13 @@ class Trainer:
             self.log(f"step {self.step}: {note}")
         mse = float(torch.mean((out.rgb.detach().float() - target) ** 2))
         return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples}
+
+    def _corrections_penalty(self) -> Tensor | float:
+        """The per-view corrections' regulariser (the colour mixing's), 0 without them."""
+        exposure = self.views.exposure if self.views is not None else None
+        if exposure is None or exposure.mix is None or self.cfg.colour_mix_weight == 0:
+            return 0.0
+        return self.cfg.colour_mix_weight * exposure.mix_penalty()
 
     def _render_training_view(self):
         """One random training view rendered whole (fp32): ``(out, target (H, W, 3))``."""

@@ -8,8 +8,9 @@ floaters to make up for them. As in nerfstudio, each training view gets:
 * :class:`PoseCorrection`: a rigid motion about its camera centre (rotation vector and
   translation, zero at start), applied to the view's rays;
 * :class:`ExposureCorrection`: a per-channel gain and offset applied to the rendered colour,
-  ``rgb * exp(log_gain) + offset``, with the mean over views held at zero so that the
-  scene keeps the photos' average exposure (the scene is scored with no correction).
+  ``rgb * exp(log_gain) + offset`` (with colour mixing, an affine colour transform), with
+  the mean over views held at zero so that the scene keeps the photos' average exposure
+  (the scene is scored with no correction).
 
 To score held-out photos fairly, :func:`fit_view` fits the same corrections to one photo
 with the scene frozen (as BARF does) before its PSNR is measured.
@@ -130,6 +131,16 @@ class ExposureCorrection(nn.Module):
         if self.mix is None:
             return rgb * torch.exp(g[view]) + b[view]
         return (self.matrices()[view] @ rgb.unsqueeze(-1)).squeeze(-1) + b[view]
+
+    def mix_penalty(self) -> Tensor:
+        """Mean over views of ``|m_i|^2`` (squared Frobenius norm of the colour mixing, mean
+        removed); 0 without mixing. Grey pixels constrain only each row's sum of a colour
+        matrix, and a capture is mostly grey (sheet, tags, table): without this pull towards
+        no mixing, views that see little colour take wild matrices (off-diagonal entries
+        above 1 on steve) and the colours of what few photos see drift with them."""
+        if self.mix is None:
+            return self.log_gain.new_zeros(())
+        return mean_removed(self.mix)[0].square().sum(1).mean()
 
     @torch.no_grad()
     def gains(self) -> np.ndarray:
