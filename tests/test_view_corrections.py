@@ -140,6 +140,11 @@ def test_least_squares_colour_solves_a_known_transform_exactly():
     assert 0 < mse_diag < np.mean((rgb - (rgb @ M.T + b)) ** 2)
 
 
+def off_diagonal(M: torch.Tensor) -> torch.Tensor:
+    """(n, 3, 3) colour matrices with their diagonals zeroed."""
+    return M - torch.diag_embed(torch.diagonal(M, dim1=1, dim2=2))
+
+
 def test_colour_mix_is_an_affine_transform_per_view_about_the_average():
     exposure = ExposureCorrection(3, mix=True)
     with torch.no_grad():
@@ -154,8 +159,7 @@ def test_colour_mix_is_an_affine_transform_per_view_about_the_average():
     expected = torch.einsum("nij,nj->ni", M[view], rgb) + b[view]
     torch.testing.assert_close(exposure(rgb, view).detach(), expected)
     # the mixing's mean over views is removed, as the gains' and offsets' are
-    off = M - torch.diag_embed(torch.diagonal(M, dim1=1, dim2=2))
-    torch.testing.assert_close(off.mean(0), torch.zeros(3, 3))
+    torch.testing.assert_close(off_diagonal(M).mean(0), torch.zeros(3, 3))
     assert M[1, 0, 1] == 0 and M[0, 0, 1] == pytest.approx(0.02) and M[0, 2, 1] == pytest.approx(-0.03)
 
 
@@ -186,9 +190,8 @@ def test_the_mix_penalty_keeps_photos_of_grey_things_to_a_plain_gain():
             assert float(torch.mean((exposure(grey, view) - target) ** 2)) < 1e-4  # 40 dB
     with torch.no_grad():
         M_free, M_held = free.matrices(), held.matrices()
-    off = lambda M: M - torch.diag_embed(torch.diagonal(M, dim1=1, dim2=2))  # noqa: E731
-    assert float(off(M_free).abs().max()) > 0.05  # without the penalty, mixing takes part of the gain
-    assert float(off(M_held).abs().max()) < 0.01  # with it, the matrices are the gains
+    assert float(off_diagonal(M_free).abs().max()) > 0.05  # without the penalty, mixing takes part of the gain
+    assert float(off_diagonal(M_held).abs().max()) < 0.01  # with it, the matrices are the gains
     expected = gains / gains.log().mean(0).exp()  # relative to the average view
     np.testing.assert_allclose(torch.diagonal(M_held, dim1=1, dim2=2).numpy(), expected.numpy(), rtol=0.02)
 

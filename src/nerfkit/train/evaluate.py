@@ -17,7 +17,7 @@ from ..data.scene import Views
 from ..models.base import NerfModel
 from ..output.images import render_image
 from .metrics import psnr, ssim
-from .view_corrections import ViewFitConfig, fit_view, least_squares_colour
+from .view_corrections import ViewFitConfig, fit_view, least_squares_colour, rounded
 
 
 def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: np.ndarray, background: torch.Tensor,
@@ -51,10 +51,6 @@ def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: n
             p.requires_grad_(True)
         model.train(was_training)
     return pose.corrected_c2w(np.asarray(c2w)[None])[0]
-
-
-def _rounded(values) -> list[float]:
-    return [round(float(v), 4) for v in values]
 
 
 def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chunk: int = 16384,
@@ -94,9 +90,9 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
                        fitted_rotation_deg=round(float(np.degrees(np.arccos(np.clip(
                            (np.trace(c2w[:3, :3] @ views.c2w[i][:3, :3].T) - 1) / 2, -1, 1)))), 4),
                        fitted_translation=round(float(np.linalg.norm(c2w[:3, 3] - views.c2w[i][:3, 3])), 6),
-                       fitted_gain=_rounded(matrix.sum(axis=1)), fitted_offset=_rounded(offset))
+                       fitted_gain=rounded(matrix.sum(axis=1)), fitted_offset=rounded(offset))
             if fit.colour_mix:
-                row["fitted_colour_matrix"] = [_rounded(r) for r in matrix]
+                row["fitted_colour_matrix"] = [rounded(r) for r in matrix]
         if sheet is not None and i in shown:
             sheet.append((views.images[i], view.rgb, rgb, row))
         per_image.append(row)

@@ -281,9 +281,7 @@ class Trainer:
     def _corrections_penalty(self) -> Tensor | float:
         """The per-view corrections' regulariser (the colour mixing's), 0 without them."""
         exposure = self.views.exposure if self.views is not None else None
-        if exposure is None or exposure.mix is None or self.cfg.colour_mix_weight == 0:
-            return 0.0
-        return self.cfg.colour_mix_weight * exposure.mix_penalty()
+        return 0.0 if exposure is None else self.cfg.colour_mix_weight * exposure.mix_penalty()
 
     def _render_training_view(self):
         """One random training view rendered whole (fp32): ``(out, target (H, W, 3))``."""

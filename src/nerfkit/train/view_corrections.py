@@ -148,6 +148,11 @@ class ExposureCorrection(nn.Module):
         return torch.exp(self.centred()[0]).cpu().numpy()
 
 
+def rounded(values) -> list[float]:
+    """Numbers as floats rounded to 4 decimals, for the JSON reports."""
+    return [round(float(v), 4) for v in values]
+
+
 # (rows, columns) of the off-diagonal entries of a 3x3 colour matrix, in ExposureCorrection.mix's order
 OFF_DIAGONAL = (torch.tensor([0, 0, 1, 1, 2, 2]), torch.tensor([1, 2, 0, 2, 0, 1]))
 
@@ -180,10 +185,10 @@ class ViewCorrections(nn.Module):
                 r.update(rotation_deg=round(float(a), 4), translation=round(float(t), 6))
         if self.exposure is not None:
             for r, g in zip(rows, self.exposure.gains()):
-                r["gain_rgb"] = [round(float(v), 4) for v in g]
+                r["gain_rgb"] = rounded(g)
             if self.exposure.mix is not None:
                 for r, M in zip(rows, self.exposure.matrices().cpu().numpy()):
-                    r["colour_matrix"] = [[round(float(v), 4) for v in row] for row in M]
+                    r["colour_matrix"] = [rounded(row) for row in M]
         return rows
 
 
