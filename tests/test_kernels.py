@@ -534,27 +534,31 @@ def distortion_brute_force(w, t, interval, t_end=None):
 
 
 def test_distortion_matches_all_pairs_and_the_worked_examples():
-    from nerfkit.render.volrend import distortion, render_weights
+    from nerfkit.render.volrend import distortion, regular_ray_indices, render_weights
+
+    def dist(w, t, interval, ends=None):  # (n_rays, n_samples) in, as distortion_brute_force takes
+        rays = regular_ray_indices(*w.shape)
+        return distortion(w.reshape(-1), t.reshape(-1), interval, rays, w.shape[0], ends)
 
     gen = torch.Generator().manual_seed(5)
     sig = torch.rand(6, 9, generator=gen, dtype=torch.float64) * 3
     t = torch.cumsum(torch.full((6, 9), 0.2, dtype=torch.float64), 1) + torch.rand(6, 1, generator=gen)
-    w, _, _ = render_weights(sig, torch.tensor(0.2, dtype=torch.float64))
+    w = render_weights(sig.reshape(-1), torch.tensor(0.2, dtype=torch.float64), regular_ray_indices(6, 9))[0].view(6, 9)
     ends = torch.tensor([3.0, math.inf, 2.5, 4.0, math.inf, 3.3], dtype=torch.float64)
-    torch.testing.assert_close(distortion(w, t, 0.2), distortion_brute_force(w, t, 0.2))
-    torch.testing.assert_close(distortion(w, t, 0.2, ends), distortion_brute_force(w, t, 0.2, ends))
+    torch.testing.assert_close(dist(w, t, 0.2), distortion_brute_force(w, t, 0.2))
+    torch.testing.assert_close(dist(w, t, 0.2, ends), distortion_brute_force(w, t, 0.2, ends))
     # all weight in one sample: only its own interval term; half of it 2 further on a surface
     one = torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64)
     tt = torch.tensor([[0.5, 1.5, 2.5]], dtype=torch.float64)
-    assert float(distortion(one, tt, 1.0)) == pytest.approx(1 / 3)
+    assert float(dist(one, tt, 1.0)) == pytest.approx(1 / 3)
     half = one * 0.5
-    assert float(distortion(half, tt, 1.0, torch.tensor([3.5], dtype=torch.float64))) == pytest.approx(
+    assert float(dist(half, tt, 1.0, torch.tensor([3.5], dtype=torch.float64))) == pytest.approx(
         2 * 0.5 * 0.5 * 2 + 0.25 / 3)
     # haze spread in front of a surface costs more than the same weight next to it
     near = torch.tensor([[0.0, 0.0, 0.3]], dtype=torch.float64)
     far = torch.tensor([[0.3, 0.0, 0.0]], dtype=torch.float64)
     end = torch.tensor([2.6], dtype=torch.float64)
-    assert float(distortion(far, tt, 1.0, end)) > 5 * float(distortion(near, tt, 1.0, end))
+    assert float(dist(far, tt, 1.0, end)) > 5 * float(dist(near, tt, 1.0, end))
 
 
 @needs_numba

@@ -9,7 +9,7 @@ import torch
 from nerfkit.kernels import numba_kernels
 from nerfkit.kernels import reference as ref
 from nerfkit.kernels.ops import GridGeom, MarchSpec, cell_density_max, render_grid
-from nerfkit.render.occupancy import OccupancyGrid, compact, lattice, ray_aabb
+from nerfkit.render.occupancy import OccupancyGrid, RaySamples, lattice, ray_aabb
 from nerfkit.render.volrend import composite, render_weights
 
 
@@ -22,12 +22,15 @@ def test_ray_aabb_docstring_example_and_misses():
     assert (t0[2].item(), t1[2].item()) == pytest.approx((0.0, 1.0))  # starts inside: clipped at near
 
 
-def test_compact_keeps_order_and_pads():
-    t = torch.arange(12.0).reshape(3, 4)
-    mask = torch.tensor([[0, 1, 0, 1], [0, 0, 0, 0], [1, 1, 1, 0]], dtype=torch.bool)
-    out, m = compact(t, mask)
-    assert out.tolist() == [[1.0, 3.0, 0.0], [0.0, 0.0, 0.0], [8.0, 9.0, 10.0]]
-    assert m.tolist() == [[True, True, False], [False, False, False], [True, True, True]]
+def test_packed_samples_select_counts_and_points():
+    samples = RaySamples(torch.tensor([1.0, 2.0, 3.0, 0.5, 1.5]), torch.tensor([0, 0, 0, 2, 2]), 3, 0.25)
+    assert samples.counts().tolist() == [3, 0, 2]
+    kept = samples.select(torch.tensor([False, True, True, True, False]))
+    assert kept.t.tolist() == [2.0, 3.0, 0.5] and kept.ray_indices.tolist() == [0, 0, 2]
+    assert kept.counts().tolist() == [2, 0, 1] and kept.n_rays == 3
+    o = torch.tensor([[0.0, 0.0, 0.0], [9.0, 9.0, 9.0], [1.0, 0.0, 0.0]])
+    d = torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    assert kept.points(o, d).tolist() == [[0.0, 0.0, 2.0], [0.0, 0.0, 3.0], [1.0, 0.5, 0.0]]
 
 
 def test_lattice_is_regular_inside_the_segment():
@@ -60,13 +63,11 @@ def render_reference(grid, geom, occ: OccupancyGrid, rays_o, rays_d, step, use_o
                            early_stop_eps=eps, use_occupancy=use_occupancy)
     pts = samples.points(rays_o, rays_d)
     feat = ref.grid_interp(grid, ref.grid_coords(pts, lo, geom.voxel), geom.res)
-    sh = ref.sh_basis(rays_d[samples.ray_indices()], 0)
+    sh = ref.sh_basis(rays_d[samples.ray_indices], 0)
     sig, rgb = ref.decode(feat, sh, 5.0)
-    n, S = samples.mask.shape
-    sigmas = torch.zeros(n, S, dtype=sig.dtype).masked_scatter(samples.mask, sig)
-    rgbs = torch.zeros(n, S, 3, dtype=sig.dtype).masked_scatter(samples.mask.unsqueeze(-1).expand(n, S, 3), rgb)
-    w, _, _ = render_weights(sigmas, torch.full_like(sigmas, step))
-    colour, depth, acc = composite(w, rgbs, samples.t, background=torch.tensor([0.2, 0.3, 0.4], dtype=sig.dtype))
+    w, _, _ = render_weights(sig, step, samples.ray_indices)
+    colour, depth, acc = composite(w, rgb, samples.ray_indices, len(rays_o), samples.t,
+                                   background=torch.tensor([0.2, 0.3, 0.4], dtype=sig.dtype))
     return colour, depth, acc, samples
 
 
@@ -90,10 +91,8 @@ def test_skipping_gives_the_same_image_and_never_drops_occupied_samples(alpha_th
     skip = render_reference(grid, geom, occ, o, d, step, use_occupancy=True)
     assert skip[3].n_samples < 0.5 * full[3].n_samples
     # the skipped samples are exactly the ones in unoccupied cells
-    in_occupied = full[3].mask.clone()
-    in_occupied[full[3].mask] = occ.is_occupied(full[3].points(o, d))
-    wanted_t, wanted_mask = compact(full[3].t, in_occupied)
-    assert torch.equal(skip[3].mask, wanted_mask) and torch.equal(skip[3].t, wanted_t)
+    wanted = full[3].select(occ.is_occupied(full[3].points(o, d)))
+    assert torch.equal(skip[3].ray_indices, wanted.ray_indices) and torch.equal(skip[3].t, wanted.t)
     # and they carried (almost) no opacity: the images agree
     torch.testing.assert_close(skip[0], full[0], atol=1e-6, rtol=0)
     torch.testing.assert_close(skip[2], full[2], atol=1e-6, rtol=0)
@@ -148,5 +147,5 @@ def test_compiled_marcher_visits_exactly_the_reference_samples(coarse_factor):
     u = torch.rand(len(o), generator=torch.Generator().manual_seed(3), dtype=torch.float64)
     out = render_grid(grid, g32, spec, o.float(), d.float(), t0, t1, u, 0, None, "numba")
     samples = occ.sampling(o, d, 0.5, 10.0, step, u=u, t_bounds=(t0, t1))
-    assert torch.equal(out.counts.long(), samples.mask.sum(1))
+    assert torch.equal(out.counts.long(), samples.counts())
     assert out.n_samples > 1000

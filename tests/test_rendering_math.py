@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from nerfkit import pixel_to_camera, pixel_to_ray, positional_encoding, sample_along_rays, transform, volrend
 from nerfkit.cameras import image_rays, look_at, opengl_to_opencv, orbit_path
 from nerfkit.render.sampling import intervals_from_t, sample_pdf, stratified_t
-from nerfkit.render.volrend import composite, exclusive_cumsum, render_weights
+from nerfkit.render.volrend import composite, exclusive_cumsum, regular_ray_indices, render_weights
 
 
 def random_c2w(gen: torch.Generator, n: int) -> torch.Tensor:
@@ -21,6 +21,18 @@ def random_c2w(gen: torch.Generator, n: int) -> torch.Tensor:
     c2w[:, :3, :3] = q
     c2w[:, :3, 3] = torch.randn(n, 3, generator=gen, dtype=torch.float64) * 3
     return c2w
+
+
+def rows(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(n_rays, n_samples[, 3]) -> the packed values and their ray indices."""
+    n, s = x.shape[:2]
+    return x.reshape((n * s,) + tuple(x.shape[2:])), regular_ray_indices(n, s)
+
+
+def weights_of(sigmas: torch.Tensor, deltas) -> tuple[torch.Tensor, ...]:
+    """render_weights on (n_rays, n_samples) densities, results back in that shape."""
+    flat, rays = rows(sigmas)
+    return tuple(x.view(sigmas.shape) for x in render_weights(flat, deltas, rays))
 
 
 def test_volrend_matches_course_reference():
@@ -40,10 +52,11 @@ def test_huge_density_takes_all_weight():
     sigmas = torch.zeros(3, 16)
     sigmas[:, 5] = 1e10
     rgbs = torch.rand(3, 16, 3)
-    weights, trans, _ = render_weights(sigmas, torch.full_like(sigmas, 0.1))
+    weights, trans, _ = weights_of(sigmas, 0.1)
     assert torch.allclose(weights[:, 5], torch.ones(3))
     assert torch.all(weights[:, 6:] == 0)
-    rgb, _, acc = composite(weights, rgbs, background=torch.tensor([0.2, 0.3, 0.4]))
+    flat_rgbs, rays = rows(rgbs)
+    rgb, _, acc = composite(weights.reshape(-1), flat_rgbs, rays, 3, background=torch.tensor([0.2, 0.3, 0.4]))
     assert torch.allclose(rgb, rgbs[:, 5])
     assert torch.allclose(acc, torch.ones(3))
 
@@ -60,8 +73,9 @@ def test_zero_density_renders_background():
 def test_volrend_finite_values_and_gradients_across_density_scales(scale):
     sigmas = (torch.rand(5, 32, dtype=torch.float64) * scale).requires_grad_()
     rgbs = torch.rand(5, 32, 3, dtype=torch.float64, requires_grad=True)
-    weights, _, _ = render_weights(sigmas, torch.full_like(sigmas, 0.05))
-    rgb, _, acc = composite(weights, rgbs)
+    flat, rays = rows(sigmas)
+    weights, _, _ = render_weights(flat, 0.05, rays)
+    rgb, _, acc = composite(weights, rows(rgbs)[0], rays, 5)
     (rgb.sum() + acc.sum()).backward()
     assert torch.isfinite(rgb).all() and torch.isfinite(sigmas.grad).all() and torch.isfinite(rgbs.grad).all()
     assert torch.all(acc <= 1 + 1e-9) and torch.all(weights >= 0)
@@ -70,7 +84,7 @@ def test_volrend_finite_values_and_gradients_across_density_scales(scale):
 def test_weights_match_closed_form_for_constant_density():
     # constant sigma: T_i = exp(-sigma * delta * i), alpha = 1 - exp(-sigma * delta)
     sigma, delta, n = 0.7, 0.25, 10
-    weights, trans, alphas = render_weights(torch.full((1, n), sigma, dtype=torch.float64), torch.tensor(delta))
+    weights, trans, alphas = weights_of(torch.full((1, n), sigma, dtype=torch.float64), torch.tensor(delta))
     i = torch.arange(n, dtype=torch.float64)
     expected = torch.exp(-sigma * delta * i) * (1 - np.exp(-sigma * delta))
     assert torch.allclose(weights[0], expected)
@@ -80,7 +94,7 @@ def test_weights_match_closed_form_for_constant_density():
 def test_transmittance_float32_large_depth_after_small_ones():
     # cumsum(tau) - tau cancels here in float32 (1e9 + 0.5 - 1e9 = 0, so T2 came out 1.0)
     tau = torch.tensor([[0.25, 0.25, 1e9]], dtype=torch.float32)
-    weights, trans, _ = render_weights(tau, torch.tensor(1.0))
+    weights, trans, _ = weights_of(tau, torch.tensor(1.0))
     assert trans.dtype == torch.float32
     expected = torch.exp(-torch.tensor([0.0, 0.25, 0.5], dtype=torch.float64))
     assert torch.allclose(trans[0].double(), expected, rtol=1e-6, atol=0)
@@ -88,10 +102,47 @@ def test_transmittance_float32_large_depth_after_small_ones():
     assert torch.isclose(weights.sum().double(), torch.tensor(1.0, dtype=torch.float64), rtol=1e-6)
 
 
-def test_exclusive_cumsum_shapes_and_values():
-    x = torch.tensor([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
-    assert torch.equal(exclusive_cumsum(x), torch.tensor([[0.0, 1.0, 3.0], [0.0, 4.0, 9.0]]))
-    assert exclusive_cumsum(torch.zeros(4, 0)).shape == (4, 0)
+def test_exclusive_cumsum_restarts_at_each_ray():
+    x = torch.tensor([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    assert exclusive_cumsum(x, torch.tensor([0, 0, 0, 1, 1, 1])).tolist() == [0.0, 1.0, 3.0, 0.0, 4.0, 9.0]
+    assert exclusive_cumsum(x[:4], torch.tensor([0, 0, 3, 3])).tolist() == [0.0, 1.0, 0.0, 3.0]  # rays 1, 2 empty
+    assert exclusive_cumsum(x[:3], torch.tensor([0, 1, 2])).tolist() == [0.0, 0.0, 0.0]
+    assert exclusive_cumsum(torch.zeros(0), torch.zeros(0, dtype=torch.long)).shape == (0,)
+    assert regular_ray_indices(2, 3).tolist() == [0, 0, 0, 1, 1, 1]
+
+
+def test_transmittance_float32_after_an_opaque_ray_in_the_same_batch():
+    # the batch-wide sums must not let one ray's huge depth wash out the next ray's small ones
+    tau = torch.tensor([1e9, 5.0, 1e30, 0.25, 0.25, 1e9, 0.1], dtype=torch.float32)
+    rays = torch.tensor([0, 0, 1, 2, 2, 2, 4])
+    weights, trans, _ = render_weights(tau, 1.0, rays)
+    expected = torch.tensor([1.0, 0.0, 1.0, 1.0, np.exp(-0.25), np.exp(-0.5), 1.0])
+    assert torch.allclose(trans.double(), expected.double(), rtol=1e-6, atol=0)
+    acc = composite(weights, torch.ones(7, 3), rays, 5)[2]
+    assert torch.allclose(acc, torch.tensor([1.0, 1.0, 1.0, 0.0, 1 - np.exp(-0.1)], dtype=torch.float32))
+
+
+@settings(max_examples=60, deadline=None)
+@given(counts=st.lists(st.integers(0, 7), min_size=1, max_size=6), seed=st.integers(0, 2 ** 16))
+def test_packed_rendering_equals_rendering_each_ray_alone(counts, seed):
+    # any mix of ray lengths (empty rays too): each ray renders as if it were alone
+    gen = torch.Generator().manual_seed(seed)
+    m = sum(counts)
+    rays = torch.repeat_interleave(torch.arange(len(counts)), torch.tensor(counts, dtype=torch.long))
+    sig = torch.rand(m, generator=gen, dtype=torch.float64) * 4
+    rgbs = torch.rand(m, 3, generator=gen, dtype=torch.float64)
+    t = torch.rand(m, generator=gen, dtype=torch.float64)
+    w, _, _ = render_weights(sig, 0.3, rays)
+    rgb, depth, acc = composite(w, rgbs, rays, len(counts), t, background=0.5)
+    for r in range(len(counts)):
+        own = rays == r
+        w_r, _, _ = render_weights(sig[own], 0.3, torch.zeros(int(own.sum()), dtype=torch.long))
+        assert torch.allclose(w[own], w_r)
+        rgb_r, depth_r, acc_r = composite(w_r, rgbs[own], torch.zeros_like(rays[own]), 1, t[own], background=0.5)
+        assert torch.allclose(rgb[r], rgb_r[0]) and torch.allclose(depth[r], depth_r[0])
+        assert torch.allclose(acc[r], acc_r[0])
+        if counts[r] == 0:
+            assert float(acc[r]) == 0.0 and torch.allclose(rgb[r], torch.full((3,), 0.5, dtype=torch.float64))
 
 
 def _mixed_scale_taus():
@@ -105,7 +156,7 @@ def _mixed_scale_taus():
 @given(rows=_mixed_scale_taus())
 def test_transmittance_float32_matches_float64_reference(rows):
     tau32 = torch.tensor(rows, dtype=torch.float32)
-    weights, trans, alphas = render_weights(tau32, torch.tensor(1.0))
+    weights, trans, alphas = weights_of(tau32, torch.tensor(1.0))
     tau64 = tau32.double()  # the same numbers, summed in float64
     before = torch.cumsum(tau64, -1) - tau64  # exact enough in float64 for these magnitudes
     trans64 = torch.exp(-before)

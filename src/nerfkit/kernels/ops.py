@@ -419,9 +419,9 @@ def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0,
     samples = occ.sampling(rays_o, rays_d, 0.0, math.inf, spec.step, sigma_fn=sigma_fn, early_stop_eps=spec.eps,
                            u=u, t_bounds=(t0, t1))
     rgb, depth, acc, dist = ref.render_samples(grid, geom.res, lo, geom.voxel, rays_o, rays_d, sh.to(grid.dtype),
-                                               samples.t, samples.mask, spec.step, spec.density_scale, t_end,
-                                               spec.grad_near, geom.index)
-    counts = samples.mask.sum(1).int()
+                                               samples.t, samples.ray_indices, spec.step, spec.density_scale,
+                                               t_end, spec.grad_near, geom.index)
+    counts = samples.counts().int()
     return GridRender(rgb, depth, acc, counts, int(counts.sum()), dist)
 
 

@@ -163,24 +163,25 @@ def render_samples(
     rays_d: Tensor,
     sh: Tensor,
     t: Tensor,
-    mask: Tensor,
+    ray_indices: Tensor,
     step: float,
     density_scale: float,
     t_end: Tensor | None = None,
     grad_near: float = 0.0,
     index: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Volume-render padded samples of the grid field (the reference for the fused kernel).
+    """Volume-render packed samples of the grid field (the reference for the fused kernel).
 
     Uses exactly :func:`~nerfkit.render.volrend.render_weights` and
     :func:`~nerfkit.render.volrend.composite` with interval length ``step`` for every
-    sample; padding samples (``mask`` False) have zero density and zero weight.
+    sample.
 
     Args:
         grid: (N, C) vertex features; res, lo, voxel: the grid's geometry; index: the
             row of each vertex of a sparse grid (:func:`grid_interp`).
         rays_o, rays_d: (n_rays, 3); sh: (n_rays, K) SH basis of the ray directions.
-        t: (n_rays, S) sample distances; mask: (n_rays, S) which samples are real.
+        t: (n_samples,) sample distances; ray_indices: (n_samples,) their rays, in the
+            packed layout of :mod:`nerfkit.render.volrend`.
         t_end: optional (n_rays,) where the distortion loss puts the leftover weight.
         grad_near: damp the gradients of samples nearer than this (:func:`near_damping`).
 
@@ -188,19 +189,15 @@ def render_samples(
         ``(rgb (n_rays, 3) without background, depth (n_rays,), acc (n_rays,),
         distortion (n_rays,))``.
     """
-    n_rays, S = t.shape
-    ray_id = torch.arange(n_rays, device=t.device).unsqueeze(1).expand(n_rays, S)[mask]
-    pts = rays_o[ray_id] + t[mask].unsqueeze(-1) * rays_d[ray_id]
+    n_rays = rays_o.shape[0]
+    pts = rays_o[ray_indices] + t.unsqueeze(-1) * rays_d[ray_indices]
     feat = grid_interp(grid, grid_coords(pts, lo, voxel), res, index)
-    sig, col = decode(feat, sh[ray_id], density_scale)
-    sig = near_damping(sig, t[mask], grad_near)
-    col = near_damping(col, t[mask].unsqueeze(-1), grad_near)
-    sigmas = torch.zeros((n_rays, S), dtype=sig.dtype, device=t.device).masked_scatter(mask, sig)
-    rgbs = torch.zeros((n_rays, S, 3), dtype=col.dtype, device=t.device)
-    rgbs = rgbs.masked_scatter(mask.unsqueeze(-1).expand(n_rays, S, 3), col)
-    weights, _, _ = render_weights(sigmas, torch.full_like(sigmas, step))
-    rgb, depth, acc = composite(weights, rgbs, t)
-    return rgb, depth, acc, distortion(weights, t, step, t_end)
+    sigmas, rgbs = decode(feat, sh[ray_indices], density_scale)
+    sigmas = near_damping(sigmas, t, grad_near)
+    rgbs = near_damping(rgbs, t.unsqueeze(-1), grad_near)
+    weights, _, _ = render_weights(sigmas, step, ray_indices)
+    rgb, depth, acc = composite(weights, rgbs, ray_indices, n_rays, t.to(weights.dtype))
+    return rgb, depth, acc, distortion(weights, t.to(weights.dtype), step, ray_indices, n_rays, t_end)
 
 
 def adam_rows(param: Tensor, g: Tensor, rows: Tensor, exp_avg: Tensor, exp_avg_sq: Tensor, lr: Tensor,

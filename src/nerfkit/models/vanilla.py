@@ -32,7 +32,7 @@ from ..config import option
 from ..fields.encoding import encoded_dim, positional_encoding
 from ..precision import autocast
 from ..render.sampling import intervals_from_t, sample_pdf, stratified_t
-from ..render.volrend import composite, render_weights
+from ..render.volrend import composite, regular_ray_indices, render_weights
 from ..render.occupancy import OccupancyGrid
 from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState, rgb_loss
 
@@ -183,25 +183,24 @@ class VanillaNeRF(NerfModel):
         return net(points, directions)
 
     def _render(self, net: NeRFMLP, rays: Rays, t: Tensor, background: Tensor) -> tuple[RenderOutput, Tensor]:
+        """Render stratified samples ``t`` (n_rays, n_samples); also returns their weights
+        (n_rays, n_samples) for hierarchical sampling."""
         n_rays, n_samples = t.shape
-        pts = rays.origins[:, None, :] + t[..., None] * rays.directions[:, None, :]
-        dirs = rays.directions[:, None, :].expand(n_rays, n_samples, 3)
-        if self.grid is None:
-            sigma, rgb = net(pts.reshape(-1, 3), dirs.reshape(-1, 3))
-            sigma, rgb = sigma.view(n_rays, n_samples), rgb.view(n_rays, n_samples, 3)
-            evaluated = n_rays * n_samples
-        else:  # evaluate the network only where the grid says there may be matter
-            inside = ((pts >= self.grid.lo) & (pts <= self.grid.hi)).all(-1)
-            keep = inside.clone()
-            keep[inside] = self.grid.is_occupied(pts[inside])
-            s_k, rgb_k = net(pts[keep], dirs[keep])
-            sigma = torch.zeros((n_rays, n_samples), dtype=s_k.dtype, device=pts.device).masked_scatter(keep, s_k)
-            rgb = torch.zeros((n_rays, n_samples, 3), dtype=rgb_k.dtype, device=pts.device)
-            rgb = rgb.masked_scatter(keep[..., None].expand_as(rgb), rgb_k)
-            evaluated = int(keep.sum())
-        weights, _, _ = render_weights(sigma, intervals_from_t(t, self.bounds.far))
-        color, depth, acc = composite(weights, rgb, t, background)
-        return RenderOutput(color, depth, acc, evaluated), weights
+        ray_indices = regular_ray_indices(n_rays, n_samples, t.device)
+        t_flat = t.reshape(-1)
+        deltas = intervals_from_t(t, self.bounds.far).reshape(-1)
+        pts = rays.origins[ray_indices] + t_flat[:, None] * rays.directions[ray_indices]
+        if self.grid is not None:  # evaluate the network only where the grid says there may be matter
+            keep = ((pts >= self.grid.lo) & (pts <= self.grid.hi)).all(-1)
+            keep[keep.clone()] = self.grid.is_occupied(pts[keep])
+            kept = torch.nonzero(keep)[:, 0]  # the other samples are empty: they add no weight
+            ray_indices, t_flat, deltas, pts = ray_indices[kept], t_flat[kept], deltas[kept], pts[kept]
+        sigma, rgb = net(pts, rays.directions[ray_indices])
+        weights, _, _ = render_weights(sigma, deltas, ray_indices)
+        color, depth, acc = composite(weights, rgb, ray_indices, n_rays, t_flat, background)
+        full = weights.new_zeros(n_rays * n_samples)
+        full = full.index_copy(0, kept, weights) if self.grid is not None else weights
+        return RenderOutput(color, depth, acc, len(ray_indices)), full.view(n_rays, n_samples)
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
         n = len(rays)

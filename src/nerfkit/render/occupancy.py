@@ -51,54 +51,38 @@ def ray_aabb(rays_o: Tensor, rays_d: Tensor, lo: Tensor, hi: Tensor, near: float
     return t0, t1
 
 
-def compact(values: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
-    """Move each row's kept entries to its front, in order.
-
-    Args:
-        values: (n, L) (or (n, L, k)); mask: (n, L) bool.
-
-    Returns:
-        ``(values (n, S), mask (n, S))`` with ``S = max kept per row``; padding is 0.
-    """
-    n = mask.shape[0]
-    counts = mask.sum(dim=1)
-    S = int(counts.max()) if n else 0
-    out = torch.zeros((n, S) + values.shape[2:], dtype=values.dtype, device=values.device)
-    new_mask = torch.arange(S, device=mask.device).unsqueeze(0) < counts.unsqueeze(1)
-    if S:
-        pos = torch.cumsum(mask.long(), dim=1) - 1
-        rows = torch.arange(n, device=mask.device).unsqueeze(1).expand_as(mask)
-        out[rows[mask], pos[mask]] = values[mask]
-    return out, new_mask
-
-
 @dataclass
 class RaySamples:
-    """Padded samples along rays.
+    """Samples along rays in the packed layout (:mod:`nerfkit.render.volrend`).
 
     Attributes:
-        t: (n_rays, S) sample distances (padding: 0).
-        mask: (n_rays, S) which entries are real samples.
+        t: (n_samples,) sample distances, increasing along each ray.
+        ray_indices: (n_samples,) long, non-decreasing: the ray of each sample.
+        n_rays: rays in the batch (some may have no samples).
         step: interval length of every sample.
     """
 
     t: Tensor
-    mask: Tensor
+    ray_indices: Tensor
+    n_rays: int
     step: float
 
     @property
     def n_samples(self) -> int:
-        return int(self.mask.sum())
+        return int(self.t.shape[0])
 
-    def ray_indices(self) -> Tensor:
-        """(m,) ray index of each real sample (the packed layout, row-major)."""
-        n, S = self.mask.shape
-        return torch.arange(n, device=self.mask.device).unsqueeze(1).expand(n, S)[self.mask]
+    def counts(self) -> Tensor:
+        """(n_rays,) long: how many samples each ray has."""
+        return torch.bincount(self.ray_indices, minlength=self.n_rays)
 
     def points(self, rays_o: Tensor, rays_d: Tensor) -> Tensor:
-        """(m, 3) world points of the real samples, packed row-major."""
-        ri = self.ray_indices()
-        return rays_o[ri] + self.t[self.mask].unsqueeze(-1) * rays_d[ri]
+        """(n_samples, 3) world points ``o + t d`` of the samples."""
+        ri = self.ray_indices
+        return rays_o[ri] + self.t.unsqueeze(-1) * rays_d[ri]
+
+    def select(self, keep: Tensor) -> "RaySamples":
+        """The samples where ``keep`` (n_samples,) bool is set, in order."""
+        return RaySamples(self.t[keep], self.ray_indices[keep], self.n_rays, self.step)
 
 
 def lattice(t0: Tensor, t1: Tensor, u: Tensor, step: float) -> tuple[Tensor, Tensor]:
@@ -207,7 +191,7 @@ class OccupancyGrid(nn.Module):
             use_occupancy: False samples every lattice point (the reference for tests).
 
         Returns:
-            :class:`RaySamples`, samples in increasing ``t`` per ray.
+            :class:`RaySamples` (packed), samples in increasing ``t`` per ray.
         """
         n = rays_o.shape[0]
         t0, t1 = t_bounds if t_bounds is not None else self.ray_bounds(rays_o, rays_d, near, far)
@@ -215,19 +199,15 @@ class OccupancyGrid(nn.Module):
             u = (torch.rand(n, generator=generator, device=rays_o.device, dtype=rays_o.dtype) if perturb
                  else torch.full((n,), 0.5, device=rays_o.device, dtype=rays_o.dtype))
         t, valid = lattice(t0, t1, u, step)
-        if use_occupancy and valid.any():
-            pts = rays_o.unsqueeze(1) + t.unsqueeze(-1) * rays_d.unsqueeze(1)
-            occupied = self.is_occupied(pts[valid])
-            valid = valid.clone()
-            valid[valid.clone()] = occupied
-        t, mask = compact(t, valid)
-        if sigma_fn is not None and mask.any():
-            samples = RaySamples(t, mask, step)
-            sig = sigma_fn(samples.points(rays_o, rays_d), samples.ray_indices()).float()
-            sigmas = torch.zeros(mask.shape, dtype=sig.dtype, device=sig.device).masked_scatter(mask, sig)
-            _, trans, alphas = render_weights(sigmas, torch.full_like(sigmas, step))
-            keep = mask & (trans >= early_stop_eps)
+        rows = torch.arange(n, device=rays_o.device).unsqueeze(1).expand_as(valid)
+        samples = RaySamples(t[valid], rows[valid], n, step)  # row-major: rays in order, t increasing
+        if use_occupancy and samples.n_samples:
+            samples = samples.select(self.is_occupied(samples.points(rays_o, rays_d)))
+        if sigma_fn is not None and samples.n_samples:
+            sig = sigma_fn(samples.points(rays_o, rays_d), samples.ray_indices).float()
+            _, trans, alphas = render_weights(sig, step, samples.ray_indices)
+            keep = trans >= early_stop_eps
             if alpha_thre > 0:
                 keep &= alphas >= alpha_thre
-            t, mask = compact(t, keep)
-        return RaySamples(t, mask, step)
+            samples = samples.select(keep)
+        return samples
