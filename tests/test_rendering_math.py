@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from nerfkit import pixel_to_camera, pixel_to_ray, positional_encoding, sample_along_rays, transform, volrend
-from nerfkit.cameras import image_rays, look_at, opengl_to_opencv, orbit_path
+from nerfkit.cameras import image_rays, look_at, opengl_to_opencv, orbit_path, rotation_angles_deg
 from nerfkit.render.sampling import intervals_from_t, sample_pdf, stratified_t
 from nerfkit.render.volrend import composite, exclusive_cumsum, regular_ray_indices, render_weights
 
@@ -164,6 +164,20 @@ def test_transmittance_float32_matches_float64_reference(rows):
     assert torch.allclose(trans.double(), trans64, rtol=1e-4, atol=1e-7)
     assert torch.allclose(weights.double(), w64, rtol=1e-4, atol=1e-7)
     assert torch.all(weights >= 0) and torch.all(weights.sum(-1) <= 1 + 1e-5)
+
+
+def test_rotation_angle_between_camera_orientations():
+    gen = torch.Generator().manual_seed(3)
+    a = random_c2w(gen, 5).numpy()
+    angles = np.array([0.0, 1e-3, 30.0, 90.0, 179.0])
+    axes = np.random.default_rng(0).normal(size=(5, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    b = a.copy()
+    for i, (deg, k) in enumerate(zip(np.radians(angles), axes)):  # Rodrigues: a turn of deg about k
+        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        b[i, :3, :3] = a[i, :3, :3] @ (np.eye(3) + np.sin(deg) * K + (1 - np.cos(deg)) * K @ K)
+    np.testing.assert_allclose(rotation_angles_deg(a, b), angles, atol=2e-3)
+    np.testing.assert_allclose(rotation_angles_deg(b, a), angles, atol=2e-3)  # symmetric
 
 
 def test_transform_round_trips_through_inverse():

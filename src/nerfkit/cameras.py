@@ -155,6 +155,16 @@ def strided_camera(K, width: int, height: int, stride: int):
     return Ks, -(-width // stride), -(-height // stride)
 
 
+def rotation_angles_deg(c2w_a: np.ndarray, c2w_b: np.ndarray) -> np.ndarray:
+    """(n,) angle in degrees of the rotation between each pair of camera orientations
+    ``c2w_a[i]`` and ``c2w_b[i]`` ((n, 3 or 4, 3 or 4) each).
+
+    Example: the identity against a quarter turn about any axis gives 90."""
+    rel = np.swapaxes(c2w_a[:, :3, :3], 1, 2).astype(np.float64) @ c2w_b[:, :3, :3].astype(np.float64)
+    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)
+    return np.degrees(np.arccos(cos))
+
+
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
     """OpenCV camera-to-world (4, 4) at ``eye`` looking at ``target``; image-up is ``up``."""
     forward = target - eye

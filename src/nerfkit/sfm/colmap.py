@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
+from ..cameras import rotation_angles_deg
 from ..data.colmap import write_reconstruction
 from ..errors import fail
 from ..images import list_images
@@ -491,14 +492,6 @@ def apply_similarity(c2w: np.ndarray, s: float, R: np.ndarray, t: np.ndarray) ->
     out[:, :3, :3] = R @ out[:, :3, :3]
     out[:, :3, 3] = s * out[:, :3, 3] @ R.T + t
     return out
-
-
-def rotation_angles_deg(c2w_a: np.ndarray, c2w_b: np.ndarray) -> np.ndarray:
-    """(n,) angle in degrees of the rotation between each pair of camera orientations
-    ``c2w_a[i]`` and ``c2w_b[i]`` ((n, 3 or 4, 3 or 4) each)."""
-    rel = np.swapaxes(c2w_a[:, :3, :3], 1, 2).astype(np.float64) @ c2w_b[:, :3, :3].astype(np.float64)
-    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)
-    return np.degrees(np.arccos(cos))
 
 
 def compare_poses(c2w_est: np.ndarray, c2w_ref: np.ndarray, with_scale: bool = True) -> dict:

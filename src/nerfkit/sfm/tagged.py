@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cameras import rotation_angles_deg
 from ..errors import NerfkitError
-from .colmap import rotation_angles_deg
 
 # SfM must register at least this share of the photos the tags posed.
 MIN_SHARE = 0.9

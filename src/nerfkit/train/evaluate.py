@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..cameras import image_rays
+from ..cameras import image_rays, rotation_angles_deg
 from ..data.scene import Views
 from ..models.base import NerfModel
 from ..output.images import render_image
@@ -87,8 +87,7 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
             matrix, offset = least_squares_colour(fitted.rgb, target, fit.colour_mix)
             rgb = np.clip(fitted.rgb @ matrix.T + offset, 0.0, 1.0)
             row.update(psnr_fitted=round(psnr(rgb, target), 4), ssim_fitted=round(ssim(rgb, target), 5),
-                       fitted_rotation_deg=round(float(np.degrees(np.arccos(np.clip(
-                           (np.trace(c2w[:3, :3] @ views.c2w[i][:3, :3].T) - 1) / 2, -1, 1)))), 4),
+                       fitted_rotation_deg=round(float(rotation_angles_deg(c2w[None], views.c2w[i][None])[0]), 4),
                        fitted_translation=round(float(np.linalg.norm(c2w[:3, 3] - views.c2w[i][:3, 3])), 6),
                        fitted_gain=rounded(matrix.sum(axis=1)), fitted_offset=rounded(offset))
             if fit.colour_mix:
