@@ -233,5 +233,5 @@ def test_eval_fits_a_held_out_photos_colour_transform(tmp_path, tabletop):
     for row in scores[True]["per_image"]:  # the report shows the transform that was undone
         np.testing.assert_allclose(row["fitted_colour_matrix"], M, atol=0.02)
         np.testing.assert_allclose(row["fitted_offset"], [0.06] * 3, atol=0.01)
-        np.testing.assert_allclose(row["fitted_gain"], M.sum(1), atol=0.03)  # its gain on grey
+        np.testing.assert_allclose(row["fitted_grey_gain"], M.sum(1), atol=0.03)  # its gain on grey
     assert "fitted_colour_matrix" not in scores[False]["per_image"][0]

@@ -63,8 +63,9 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
     psnr, ssim}, ...]}``; with ``fit``, also ``"fitted": {"psnr", "ssim", ...}`` and per
     image ``psnr_fitted``, ``ssim_fitted``, after fitting each view's pose and exposure to
     its photo (``scale``: the scene's length unit), with the fitted colour correction:
-    ``fitted_gain`` (its gain on grey, per channel), ``fitted_offset`` and, with colour
-    mixing, ``fitted_colour_matrix`` (rows: output channels). Memory holds one image at a time, plus
+    ``fitted_grey_gain`` (per channel, the gain a grey input sees: the row sums of the
+    colour matrix), ``fitted_offset`` and, with colour mixing, ``fitted_colour_matrix``
+    (rows: output channels). Memory holds one image at a time, plus
     the images appended to ``sheet`` (``(photo, render, fitted render or None, row)`` of
     ``sheet_views`` views spread over the split), when a list is given.
     """
@@ -89,7 +90,7 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
             row.update(psnr_fitted=round(psnr(rgb, target), 4), ssim_fitted=round(ssim(rgb, target), 5),
                        fitted_rotation_deg=round(float(rotation_angles_deg(c2w[None], views.c2w[i][None])[0]), 4),
                        fitted_translation=round(float(np.linalg.norm(c2w[:3, 3] - views.c2w[i][:3, 3])), 6),
-                       fitted_gain=rounded(matrix.sum(axis=1)), fitted_offset=rounded(offset))
+                       fitted_grey_gain=rounded(matrix.sum(axis=1)), fitted_offset=rounded(offset))
             if fit.colour_mix:
                 row["fitted_colour_matrix"] = [rounded(r) for r in matrix]
         if sheet is not None and i in shown:

@@ -175,8 +175,9 @@ class ViewCorrections(nn.Module):
 
     @torch.no_grad()
     def report(self, names: list[str] | None) -> list[dict]:
-        """Per view: name, pose correction (degrees, scene units), exposure gains and, with
-        colour mixing, the colour matrix (rows: output channels)."""
+        """Per view: name, pose correction (degrees, scene units), ``gain_rgb`` (the
+        exposure gain of each channel, the colour matrix's diagonal) and, with colour
+        mixing, the colour matrix (rows: output channels)."""
         n = (self.pose.rotation if self.pose is not None else self.exposure.log_gain).shape[0]
         rows = [{"view": i, "name": names[i] if names else None} for i in range(n)]
         if self.pose is not None:
