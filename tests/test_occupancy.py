@@ -34,9 +34,11 @@ def test_packed_samples_select_counts_and_points():
 
 
 def test_lattice_is_regular_inside_the_segment():
-    t, valid = lattice(torch.tensor([1.0, 2.0]), torch.tensor([2.0, 2.1]), torch.tensor([0.5, 0.0]), 0.25)
-    assert t[0, valid[0]].tolist() == pytest.approx([1.125, 1.375, 1.625, 1.875])
-    assert t[1, valid[1]].tolist() == pytest.approx([2.0])
+    s = lattice(torch.tensor([1.0, 2.0, 3.0, 0.0]), torch.tensor([2.0, 2.1, 2.0, 0.2]),
+                torch.tensor([0.5, 0.0, 0.5, 0.9]), 0.25)
+    assert s.t.tolist() == pytest.approx([1.125, 1.375, 1.625, 1.875, 2.0])
+    assert s.ray_indices.tolist() == [0, 0, 0, 0, 1]  # ray 2 misses (t1 < t0); ray 3's only candidate is past t1
+    assert s.counts().tolist() == [4, 1, 0, 0] and s.step == 0.25
 
 
 def ball_field(res=(33, 33, 33), radius=0.6):

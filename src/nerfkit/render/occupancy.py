@@ -17,7 +17,6 @@ Cells: the box ``[lo, lo + voxel * (res - 1)]`` is cut into ``res - 1`` cubic ce
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -85,13 +84,25 @@ class RaySamples:
         return RaySamples(self.t[keep], self.ray_indices[keep], self.n_rays, self.step)
 
 
-def lattice(t0: Tensor, t1: Tensor, u: Tensor, step: float) -> tuple[Tensor, Tensor]:
-    """All lattice samples ``t0 + (k + u) step < t1``: ``(t (n, L), valid (n, L))``."""
+def lattice(t0: Tensor, t1: Tensor, u: Tensor, step: float) -> RaySamples:
+    """All lattice samples ``t0 + (k + u) step < t1`` (``k = 0, 1, ...``), packed.
+
+    Each ray gets ``ceil((t1 - t0) / step) + 1`` candidates (a bound on its count, so no
+    padding to the longest ray); the test ``t < t1`` on the computed ``t`` then decides,
+    exactly as the compiled marcher does.
+
+    Args:
+        t0, t1, u: (n,) segment ends and jitter in [0, 1); step: lattice spacing.
+    """
+    n = t0.shape[0]
     span = torch.clamp(t1 - t0, min=0.0)
-    L = int(math.ceil(float(span.max()) / step)) + 1 if t0.numel() else 0
-    k = torch.arange(L, dtype=t0.dtype, device=t0.device)
-    t = t0.unsqueeze(1) + (k.unsqueeze(0) + u.unsqueeze(1)) * step
-    return t, t < t1.unsqueeze(1)
+    bound = torch.where(t1 > t0, torch.ceil(span / step).long() + 1, torch.zeros_like(span, dtype=torch.long))
+    rays = torch.repeat_interleave(torch.arange(n, device=t0.device), bound)
+    first = torch.cumsum(bound, 0) - bound  # index of each ray's first candidate
+    k = torch.arange(rays.shape[0], device=t0.device) - first[rays]
+    t = t0[rays] + (k.to(t0.dtype) + u[rays]) * step
+    inside = t < t1[rays]
+    return RaySamples(t[inside], rays[inside], n, step)
 
 
 class OccupancyGrid(nn.Module):
@@ -198,9 +209,7 @@ class OccupancyGrid(nn.Module):
         if u is None:
             u = (torch.rand(n, generator=generator, device=rays_o.device, dtype=rays_o.dtype) if perturb
                  else torch.full((n,), 0.5, device=rays_o.device, dtype=rays_o.dtype))
-        t, valid = lattice(t0, t1, u, step)
-        rows = torch.arange(n, device=rays_o.device).unsqueeze(1).expand_as(valid)
-        samples = RaySamples(t[valid], rows[valid], n, step)  # row-major: rays in order, t increasing
+        samples = lattice(t0, t1, u, step)
         if use_occupancy and samples.n_samples:
             samples = samples.select(self.is_occupied(samples.points(rays_o, rays_d)))
         if sigma_fn is not None and samples.n_samples:
