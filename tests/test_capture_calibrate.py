@@ -237,3 +237,44 @@ def test_folds_keep_the_views_of_a_photo_together():
     assert sorted(j for f in folds for j in f) == list(range(15))
     for f in folds:
         assert len({views[j][0].split("#")[0] for j in f}) == 1
+
+
+def test_calibration_turns_photos_held_the_other_way(tmp_path, sheet):
+    # A phone held the other way stores the same sensor image and flags it (EXIF 6 or 8);
+    # upright, the photo is portrait. Turned back by its flag it joins the others.
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for i, (name, img) in enumerate(zip(sheet.names, sheet.images)):
+        if i in (1, 4):
+            S.write_photo(folder / name, np.rot90(img, -1), orientation=6)  # shown turned clockwise
+        elif i == 7:
+            S.write_photo(folder / name, np.rot90(img, 1), orientation=8)  # shown turned counter-clockwise
+        else:
+            S.write_photo(folder / name, img)
+    S.write_photo(folder / "zz_edited.jpg", np.ascontiguousarray(np.rot90(sheet.images[2], -1)))  # no flag
+    out = tmp_path / "camera.json"
+    assert main(["calibrate", str(folder), "--tag-size", str(TAG), "--out", str(out)]) == 0
+    cam = json.loads(out.read_text())
+    by_file = {im["file"]: im for im in cam["images"]}
+    for i, turned in ((1, 270), (4, 270), (7, 90)):
+        im = by_file[sheet.names[i]]
+        assert im["used"] and im["turned_deg"] == turned and im["size"] == [640, 480]
+        assert im["error_px"] < 0.5  # turned the right way: its corners fit the shared camera
+    assert "turned_deg" not in by_file[sheet.names[0]]
+    assert not by_file["zz_edited.jpg"]["used"] and "no EXIF orientation" in by_file["zz_edited.jpg"]["reason"]
+    assert cam["width"] == 640 and cam["height"] == 480
+    assert rel_errors(np.array(cam["K"]), sheet.K).max() < 0.01
+
+
+def test_a_detection_turns_with_its_photo():
+    img = np.zeros((4, 6), np.uint8)  # H 4, W 6
+    img[1, 5] = 1  # x 5, y 1
+    det = A.Detection(6, 4, np.array([3]), np.array([[[5.0, 1.0], [0.0, 0.0], [5.0, 3.0], [2.5, 1.5]]]))
+    for k in range(5):
+        t = det.turned(k)
+        turned = np.rot90(img, -k)  # clockwise
+        y, x = np.argwhere(turned == 1)[0]
+        assert (t.width, t.height) == (turned.shape[1], turned.shape[0])
+        assert t.corners[0, 0].tolist() == [x, y]  # the marked pixel moved with the image
+    np.testing.assert_allclose(det.turned(4).corners, det.corners)
+    np.testing.assert_allclose(det.turned(1).turned(3).corners, det.corners)

@@ -66,6 +66,24 @@ def exif_focal_35mm(path: str | Path) -> float | None:
         return None
 
 
+# EXIF Orientation -> clockwise quarter turns that make the stored pixels upright (the
+# mirrored orientations 2, 4, 5 and 7 are not turns)
+QUARTER_TURNS = {1: 0, 6: 1, 3: 2, 8: 3}
+
+
+def exif_orientation(path: str | Path) -> int:
+    """The EXIF Orientation tag of a photo (1, upright as stored, when it has none or
+    its EXIF is unreadable); reads the header only."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as img:
+            value = int(img.getexif().get(0x0112, 1) or 1)
+        return value if 1 <= value <= 8 else 1
+    except Exception:  # noqa: BLE001 - EXIF is optional metadata
+        return 1
+
+
 def _open_upright(path: Path):
     from PIL import ImageOps
 

@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NerfkitError, fail
-from ..images import exif_focal_35mm, list_images, load_image_uint8
+from ..images import QUARTER_TURNS, exif_focal_35mm, exif_orientation, list_images, load_image_uint8
 from ..io.atomic import write_json
 from .aruco import Detection, Layout, detect, detect_careful, make_detector, marker_bits, suggest_dictionaries
 
-CACHE_VERSION = 3
+CACHE_VERSION = 4
 
 
 @dataclass
@@ -38,6 +38,9 @@ class PhotoRecord:
         detection: tags found, or None when the photo could not be read.
         error: why the photo could not be read, or None.
         exif_f35: EXIF FocalLengthIn35mmFilm in mm, or None.
+        orientation: the EXIF Orientation tag (1: stored upright, 6 and 8: held the other way).
+        turns: clockwise quarter turns that brought the upright photo (and ``detection``)
+            into the frame of the other photos (:func:`group_by_size`); 0 for most.
         used: whether the stage using it (calibration, posing) kept it.
         reason: why it was skipped (empty when used).
         error_px: reprojection error (RMS, pixels) in the stage that used it.
@@ -49,6 +52,8 @@ class PhotoRecord:
     detection: Detection | None = None
     error: str | None = None
     exif_f35: float | None = None
+    orientation: int = 1
+    turns: int = 0
     used: bool = False
     reason: str = ""
     error_px: float | None = None
@@ -70,6 +75,8 @@ class PhotoRecord:
             d["sharpness"] = round(self.detection.sharpness, 2)
         if self.exif_f35:
             d["exif_focal_35mm"] = self.exif_f35
+        if self.turns:
+            d["turned_deg"] = 90 * self.turns  # clockwise, from upright into the other photos' frame
         d.update(self.info)
         return d
 
@@ -114,6 +121,7 @@ def _detect_one(path: Path, detector, detect_side: int, bits: int, dictionary: s
         entry["error"] = f"tag detection failed ({type(e).__name__}: {str(e).strip().splitlines()[-1][:120]})"
         return entry
     entry["exif_f35"] = _exif_f35(path)
+    entry["orientation"] = exif_orientation(path)
     return entry
 
 
@@ -196,6 +204,7 @@ def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = Non
         else:
             rec.detection = Detection.from_json(e["detection"])
             rec.exif_f35 = e.get("exif_f35")
+            rec.orientation = int(e.get("orientation", 1))
             if e.get("second_pass"):
                 _keep_known_ids(rec, known)
         records.append(rec)
@@ -242,11 +251,18 @@ def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str
                "Check that the tags are in focus, fully visible and not too small (at least ~30 px wide)")
 
 
-def group_by_size(records: list[PhotoRecord]) -> tuple[tuple[int, int] | None, list[PhotoRecord]]:
-    """Keep the most common image size; skip the other readable photos with a reason.
+def group_by_size(records: list[PhotoRecord], turn: bool = False
+                  ) -> tuple[tuple[int, int] | None, list[PhotoRecord]]:
+    """The photo size most detected photos share, and the photos of that size.
 
-    Returns the kept size and the kept records.
+    A photo of the transposed size was held the other way. With ``turn``, such a photo
+    whose EXIF orientation says how it was held is turned into the others' frame (its
+    detection with it; ``turns`` records how) and kept: its pixels are then the sensor's,
+    as the others', so one camera fits them all. Without ``turn``, or with no such EXIF
+    (a photo rotated in an editor), it is skipped with the reason.
     """
+    from collections import Counter
+
     sizes: dict[tuple[int, int], int] = {}
     for r in records:
         if r.detection is not None:
@@ -254,6 +270,8 @@ def group_by_size(records: list[PhotoRecord]) -> tuple[tuple[int, int] | None, l
     if not sizes:
         return None, []
     main = max(sizes, key=lambda s: (sizes[s], s[0] * s[1]))
+    held = Counter(QUARTER_TURNS.get(r.orientation) for r in records if r.detection is not None and r.size == main)
+    main_turns = held.most_common(1)[0][0]
     kept = []
     for r in records:
         if r.detection is None:
@@ -261,8 +279,16 @@ def group_by_size(records: list[PhotoRecord]) -> tuple[tuple[int, int] | None, l
         if r.size == main:
             kept.append(r)
         elif r.size == (main[1], main[0]):
+            own = QUARTER_TURNS.get(r.orientation)
+            if turn and main_turns is not None and own is not None and (main_turns - own) % 2:
+                r.turns = (main_turns - own) % 4
+                r.detection = r.detection.turned(r.turns)
+                kept.append(r)
+                continue
+            why = ("no EXIF orientation says which way it was turned (rotated in an editor?)" if turn else
+                   "photos held the other way need their own calibration")
             r.skip(f"{'portrait' if r.size[1] > r.size[0] else 'landscape'} {r.size[0]}x{r.size[1]} while most "
-                   f"photos are {main[0]}x{main[1]}: photos held the other way need their own calibration")
+                   f"photos are {main[0]}x{main[1]}: {why}")
         else:
             r.skip(f"size {r.size[0]}x{r.size[1]} differs from most photos ({main[0]}x{main[1]})")
     return main, kept

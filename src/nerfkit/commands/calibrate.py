@@ -97,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
     for r in records:
         if r.detection is not None and len(r.detection.ids) == 0:
             r.skip("no tags found" + blur_hint(records, r))
-    size, kept = group_by_size([r for r in records if r.detection is not None and (len(r.detection.ids) or charuco)])
+    size, kept = group_by_size([r for r in records if r.detection is not None and (len(r.detection.ids) or charuco)],
+                               turn=True)
     cal = calibrate_records(kept, size, tag_size, layout, cfg, args.dict)
     data = calibration_json(cal, records, args.dict, tag_size, str(Path(args.photos).resolve()))
     write_json(out, data)
