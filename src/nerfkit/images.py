@@ -71,17 +71,14 @@ def exif_focal_35mm(path: str | Path) -> float | None:
 QUARTER_TURNS = {1: 0, 6: 1, 3: 2, 8: 3}
 
 
-def exif_orientation(path: str | Path) -> int:
-    """The EXIF Orientation tag of a photo (1, upright as stored, when it has none or
-    its EXIF is unreadable); reads the header only."""
+def orientation_tag(img) -> int:
+    """The EXIF Orientation tag of an opened PIL image: 1 (stored upright) when it has
+    none, or when its EXIF is unreadable or out of range."""
     try:
-        from PIL import Image
-
-        with Image.open(path) as img:
-            value = int(img.getexif().get(0x0112, 1) or 1)
-        return value if 1 <= value <= 8 else 1
-    except Exception:  # noqa: BLE001 - EXIF is optional metadata
+        value = int(img.getexif().get(0x0112, 1) or 1)
+    except Exception:  # noqa: BLE001 - a broken EXIF block: treat as upright, as load_image does
         return 1
+    return value if 1 <= value <= 8 else 1
 
 
 def _open_upright(path: Path):

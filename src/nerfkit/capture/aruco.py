@@ -351,13 +351,12 @@ class Detection:
         """The same detection in the photo turned clockwise by ``quarter_turns`` x 90
         degrees (a W x H photo turned once is H x W; a pixel (x, y) moves to (H - 1 - y, x)).
         Each corner keeps its place in the tag's corner order."""
-        det = Detection(self.width, self.height, self.ids, np.asarray(self.corners, np.float64), self.sharpness,
-                        self.charuco_ids, None if self.charuco_corners is None else
-                        np.asarray(self.charuco_corners, np.float64))
+        det = self
         for _ in range(quarter_turns % 4):
             h = det.height
 
             def turn(p):
+                p = np.asarray(p, np.float64)
                 return np.stack([h - 1 - p[..., 1], p[..., 0]], axis=-1)
 
             det = Detection(det.height, det.width, det.ids, turn(det.corners), det.sharpness, det.charuco_ids,

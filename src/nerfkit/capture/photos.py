@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NerfkitError, fail
-from ..images import QUARTER_TURNS, exif_focal_35mm, exif_orientation, list_images, load_image_uint8
+from ..images import QUARTER_TURNS, exif_focal_35mm, list_images, load_image_uint8, orientation_tag
 from ..io.atomic import write_json
 from .aruco import Detection, Layout, detect, detect_careful, make_detector, marker_bits, suggest_dictionaries
 
@@ -120,13 +120,13 @@ def _detect_one(path: Path, detector, detect_side: int, bits: int, dictionary: s
     except Exception as e:  # noqa: BLE001 - one odd photo must not stop the run
         entry["error"] = f"tag detection failed ({type(e).__name__}: {str(e).strip().splitlines()[-1][:120]})"
         return entry
-    entry["exif_f35"] = _exif_f35(path)
-    entry["orientation"] = exif_orientation(path)
+    entry["exif_f35"], entry["orientation"] = _exif_header(path)
     return entry
 
 
-def _exif_f35(path: Path) -> float | None:
-    """EXIF FocalLengthIn35mmFilm without decoding the pixels again (falls back to
+def _exif_header(path: Path) -> tuple[float | None, int]:
+    """EXIF FocalLengthIn35mmFilm (or None) and Orientation (1 when absent) from one read
+    of the header, without decoding the pixels again (the focal length falls back to
     :func:`nerfkit.images.exif_focal_35mm`, which does)."""
     try:
         from PIL import Image
@@ -134,9 +134,9 @@ def _exif_f35(path: Path) -> float | None:
         with Image.open(path) as img:
             exif = img.getexif()
             value = exif.get_ifd(0x8769).get(0xA405) or exif.get(0xA405)
-            return float(value) if value else None
+            return (float(value) if value else None), orientation_tag(img)
     except Exception:  # noqa: BLE001 - EXIF is optional metadata
-        return exif_focal_35mm(path)
+        return exif_focal_35mm(path), 1
 
 
 def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = None, detect_side: int = 2000,

@@ -198,9 +198,9 @@ class VanillaNeRF(NerfModel):
         sigma, rgb = net(pts, rays.directions[ray_indices])
         weights, _, _ = render_weights(sigma, deltas, ray_indices)
         color, depth, acc = composite(weights, rgb, ray_indices, n_rays, t_flat, background)
-        full = weights.new_zeros(n_rays * n_samples)
-        full = full.index_copy(0, kept, weights) if self.grid is not None else weights
-        return RenderOutput(color, depth, acc, len(ray_indices)), full.view(n_rays, n_samples)
+        if self.grid is not None:  # the skipped samples' weights are 0
+            weights = weights.new_zeros(n_rays * n_samples).index_copy(0, kept, weights)
+        return RenderOutput(color, depth, acc, len(ray_indices)), weights.view(n_rays, n_samples)
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
         n = len(rays)

@@ -158,13 +158,10 @@ class PhotoInfo:
 
 def photo_info(path: Path) -> PhotoInfo:
     """Header facts of one photo (no pixel decoding, except for formats PIL must decode)."""
-    from ..images import _open, exif_focal_35mm
+    from ..images import _open, exif_focal_35mm, orientation_tag
 
     img = _open(path)
-    try:
-        orientation = int(img.getexif().get(0x0112, 1) or 1)
-    except Exception:  # noqa: BLE001 - broken EXIF: treat as upright, as load_image does
-        orientation = 1
+    orientation = orientation_tag(img)
     w, h = img.size
     if orientation in (5, 6, 7, 8):  # stored rotated by 90 degrees
         w, h = h, w
