@@ -398,7 +398,11 @@ def test_sfm_without_tag_levels_the_scene_on_the_floor(room_sfm, tmp_path):
     names, c2w = reconstruction_c2w(result.reconstruction)
     ref = np.stack([truth[n] for n in names])
     s = 4.0 / np.linalg.norm(ref[:, :3, 3] - estimate_center(ref), axis=1).mean()  # the normalised scale
-    np.testing.assert_allclose(c2w[:, 2, 3], s * ref[:, 2, 3], rtol=0.02)  # heights above the floor
+    # Heights above the floor, to within what SfM itself promises (see the test above: rotations
+    # within 1 degree, centres within 2%): 1 degree of tilt across the ring of cameras (~3.6 units
+    # from its axis) is 0.06, 2% of their 4-unit distance 0.08. Levelling on the box's top instead
+    # (2.1 units up) or a 5-degree tilt fails. COLMAP's result differs between CPUs: 1% here, 3% on CI.
+    np.testing.assert_allclose(c2w[:, 2, 3], s * ref[:, 2, 3], atol=0.14)
     scene, _ = build_dataset(result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160),
                           progress=False)
     np.testing.assert_array_equal(scene.table, [0.0, 0.0, 1.0, 0.0])
