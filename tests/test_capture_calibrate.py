@@ -262,7 +262,7 @@ def test_calibration_turns_photos_held_the_other_way(tmp_path, sheet):
         assert im["error_px"] < 0.5  # turned the right way: its corners fit the shared camera
     assert "turned_deg" not in by_file[sheet.names[0]]
     assert not by_file["zz_edited.jpg"]["used"] and "no EXIF orientation" in by_file["zz_edited.jpg"]["reason"]
-    assert cam["width"] == 640 and cam["height"] == 480
+    assert cam["width"] == 640 and cam["height"] == 480 and cam["sensor_turns"] == 0  # as the sensor stores
     assert rel_errors(np.array(cam["K"]), sheet.K).max() < 0.01
 
 

@@ -103,6 +103,82 @@ def test_poses_command_with_exif_rotated_photos_and_photos_without_tags(tmp_path
     assert "zz_broken.jpg" in text and "skipped" in text
 
 
+def _held_the_other_way(img, orientation):
+    """What a phone held the other way writes: the sensor's pixels (``img``) with EXIF 6 or 8
+    (upright: portrait). Returns the upright image for :func:`S.write_photo`."""
+    return np.ascontiguousarray(np.rot90(img, -1 if orientation == 6 else 1))
+
+
+def test_object_photos_held_the_other_way_are_turned_into_the_cameras_frame(tmp_path, obj):
+    """Photos from a phone held the other way (EXIF 6 or 8) are turned back, posed as the
+    truth, and enter the dataset as the sensor saw them; `nerfkit dataset` rebuilds the same.
+    A photo turned in an editor (no EXIF) cannot be turned back and says why."""
+    from nerfkit.data.load import load_scene
+
+    plain, mixed = tmp_path / "plain", tmp_path / "mixed"
+    plain.mkdir()
+    mixed.mkdir()
+    held = {obj.names[2]: 6, obj.names[5]: 8, obj.names[7]: 6}  # (the sphere hides the tag in 0 and 1)
+    for name, img in zip(obj.names, obj.images):
+        S.write_photo(plain / name, img)
+        if name in held:
+            S.write_photo(mixed / name, _held_the_other_way(img, held[name]), orientation=held[name])
+        else:
+            S.write_photo(mixed / name, img)
+    S.write_photo(mixed / "zz_edited.jpg", _held_the_other_way(obj.images[3], 6))  # no flag
+    cam = write_camera(tmp_path / "camera.json", obj)  # no sensor_turns: the photos' own frame
+    for folder in (plain, mixed):
+        assert main(["poses", str(folder), "--camera", str(cam), "--tag-size", str(TAG), "--out",
+                     str(tmp_path / f"ds_{folder.name}"), "--method", "tags", "--max-side", "320"]) == 0
+    photos = {p["file"]: p for p in json.loads((tmp_path / "ds_mixed" / "poses.json").read_text())["photos"]}
+    for name, truth in zip(obj.names, obj.c2w):
+        if name in held:
+            assert photos[name]["turned_deg"] == {6: 270, 8: 90}[held[name]] and photos[name]["size"] == [640, 480]
+            pos, ang = pose_error(np.array(photos[name]["c2w"]), truth)
+            assert pos < 0.003 and ang < 0.5, name
+    assert "no EXIF orientation says which way" in photos["zz_edited.jpg"]["reason"]
+    def views(folder):  # name -> (image, c2w) over every split
+        scene = load_scene(folder)
+        return {n: (im.astype(float), c) for v in scene.splits.values() if v is not None
+                for n, im, c in zip(v.names, v.images, v.c2w)}
+
+    a, b = views(tmp_path / "ds_plain"), views(tmp_path / "ds_mixed")
+    assert sorted(a) == sorted(b) and set(held) <= set(b)
+    for name in a:
+        np.testing.assert_allclose(b[name][1], a[name][1], atol=1e-4)
+    for name in held:
+        diff = np.abs(b[name][0] - a[name][0]).mean()
+        assert diff < 2.0, (name, diff)  # the same picture (JPEG aside); half a turn off would differ by ~40
+    assert main(["dataset", str(tmp_path / "ds_mixed"), "--max-side", "320", "--out", str(tmp_path / "again")]) == 0
+    again = views(tmp_path / "again")
+    for name in held:
+        np.testing.assert_array_equal(again[name][0], b[name][0])
+
+
+def test_a_capture_held_the_other_way_from_the_calibration_follows_the_camera_file(tmp_path, obj, capsys):
+    """Calibrated holding the phone one way, every object photo taken the other way: the
+    camera file's sensor_turns turns them all back. A camera file without it says what to do."""
+    folder = tmp_path / "object"
+    folder.mkdir()
+    for name, img in zip(obj.names, obj.images):
+        S.write_photo(folder / name, _held_the_other_way(img, 6), orientation=6)
+    data = json.loads(write_camera(tmp_path / "old.json", obj).read_text())
+    (tmp_path / "camera.json").write_text(json.dumps({**data, "sensor_turns": 0}))
+    assert main(["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", str(TAG),
+                 "--out", str(tmp_path / "ds"), "--no-dataset"]) == 0
+    photos = json.loads((tmp_path / "ds" / "poses.json").read_text())["photos"]
+    posed = [p for p in photos if p["used"]]
+    assert len(posed) >= 6 and all(p["turned_deg"] == 270 for p in posed)
+    for p in posed:
+        pos, ang = pose_error(np.array(p["c2w"]), obj.c2w[obj.names.index(p["file"])])
+        assert pos < 0.003 and ang < 0.5
+    assert main(["poses", str(folder), "--camera", str(tmp_path / "old.json"), "--tag-size", str(TAG),
+                 "--out", str(tmp_path / "ds_old"), "--no-dataset"]) == 2
+    assert "no photo could be posed" in capsys.readouterr().err
+    photos = json.loads((tmp_path / "ds_old" / "poses.json").read_text())["photos"]
+    assert all("re-run nerfkit calibrate" in p["reason"] for p in photos if not p["reason"].startswith("no tags"))
+
+
 def test_poses_start_from_the_exif_focal_length_without_a_camera_file(tmp_path):
     K = np.array([[540.0, 0, 319.5], [0, 540.0, 239.5], [0, 0, 1]])
     cap = S.make_object_capture(n=4, K=K, dist=np.zeros(5), seed=3, object_center=(0.14, 0.05, 0.045))

@@ -199,17 +199,37 @@ def test_prepare_photos_makes_upright_copies(tmp_path):
     Image.fromarray(upright[2]).save(tmp_path / "in" / "2.png")
     Image.fromarray(upright[2][:50]).save(tmp_path / "in" / "3.png")  # another size
     photos = sorted((tmp_path / "in").iterdir())
-    folder, names, skipped, first = prepare_photos(photos, tmp_path / "work", progress=False)
+    folder, names, skipped, first, turns = prepare_photos(photos, tmp_path / "work", progress=False)
     assert folder == tmp_path / "work" / "images" and names == ["0.jpg", "1.jpg", "2.png"]
-    assert list(skipped) == ["3.png"] and "40x50" in skipped["3.png"]
+    assert list(skipped) == ["3.png"] and "40x50" in skipped["3.png"] and turns == {}
     assert (first.width, first.height, first.orientation) == (40, 60, 6)
     for n in names:
         stored = np.asarray(Image.open(folder / n))  # what COLMAP reads: the raw pixels
         assert stored.shape == (60, 40, 3)
         diff = np.abs(stored.astype(float) - load_image_uint8(tmp_path / "in" / n).astype(float))
         assert diff.mean() < 3  # upright (a rotated copy would differ by ~85 on this noise)
+    # A photo held the other way (landscape upright, stored as the sensor like 0.jpg and 1.jpg)
+    # is turned into the others' frame: EXIF 6 says a quarter turn clockwise
+    wide = (rng.random((40, 60, 3)) * 255).astype(np.uint8)
+    Image.fromarray(wide).save(tmp_path / "in" / "4.png")
+    folder, names, skipped, first, turns = prepare_photos(sorted((tmp_path / "in").iterdir()), tmp_path / "work3",
+                                                          progress=False)
+    assert names == ["0.jpg", "1.jpg", "2.png", "4.png"] and turns == {"4.png": 1}
+    np.testing.assert_array_equal(np.asarray(Image.open(folder / "4.png")), np.rot90(wide, -1))
+    # With a landscape camera calibrated as the sensor stores (0 turns), its frame wins:
+    # 0.jpg and 1.jpg go back to their stored pixels; 2.png, portrait as stored, cannot.
+    from nerfkit.capture.camera import camera_from_focal
+
+    cam = camera_from_focal(50.0, 60, 40, "test")
+    cam.sensor_turns = 0
+    folder, names, skipped, first, turns = prepare_photos(sorted((tmp_path / "in").iterdir()), tmp_path / "work4",
+                                                          progress=False, camera=cam)
+    assert names == ["0.jpg", "1.jpg", "4.png"] and turns == {"0.jpg": 3, "1.jpg": 3}
+    assert (first.width, first.height) == (60, 40) and "no EXIF orientation" in skipped["2.png"]
+    stored = np.asarray(Image.open(tmp_path / "in" / "0.jpg"))
+    assert np.abs(np.asarray(Image.open(folder / "0.jpg")).astype(float) - stored).mean() < 3
     # all upright already: COLMAP reads the input folder itself
-    folder2, names2, _, _ = prepare_photos([photos[2], photos[2]], tmp_path / "work2", progress=False)
+    folder2, names2, _, _, _ = prepare_photos([photos[2], photos[2]], tmp_path / "work2", progress=False)
     assert folder2 == tmp_path / "in" and not (tmp_path / "work2").exists()
 
 
@@ -451,6 +471,45 @@ def test_sfm_dataset_metric_from_tag(room, tmp_path):
     small = load_scene(tmp_path / "small")
     assert small.train.names + small.val.names == names and max(small.train.width, small.train.height) == 160
     np.testing.assert_allclose(np.concatenate([small.train.c2w, small.val.c2w]), c2w, atol=1e-5)
+
+
+@pytest.mark.slow
+def test_sfm_turns_photos_held_the_other_way(room, tmp_path):
+    """Three photos stored as a phone held the other way stores them (the sensor's pixels,
+    EXIF 6: portrait upright) join the others turned back: registered, posed as the truth,
+    and loaded turned into the dataset, also when `nerfkit dataset` rebuilds it."""
+    from nerfkit.capture.dataset import DatasetConfig
+    from nerfkit.capture.synthetic import write_photo
+    from nerfkit.cli import main
+    from nerfkit.images import load_image_uint8
+    from nerfkit.sfm.dataset import load_sfm_result
+
+    folder, truth = room
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    held = {"img_02.png", "img_05.png", "img_09.png"}
+    for f in sorted(folder.iterdir()):
+        img = load_image_uint8(f)
+        if f.name in held:
+            write_photo(photos / f.name, np.ascontiguousarray(np.rot90(img, -1)), orientation=6)
+            assert load_image_uint8(photos / f.name).shape == (320, 240, 3)  # portrait, upright
+        else:
+            (photos / f.name).write_bytes(f.read_bytes())
+    scene, rep = sfm_dataset(photos, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0), matcher="exhaustive",
+                             tag_size=TAG_SIZE, progress=False)
+    assert sorted(rep.registered) == sorted(truth)
+    c2w = scene.train.c2w.astype(np.float64)
+    err = compare_poses(c2w, np.stack([truth[n] for n in scene.train.names]), with_scale=False)
+    assert err["rot_err_deg_max"] < 1.0 and err["pos_err_max"] < 0.1, err
+    result = load_sfm_result(tmp_path / "ds")
+    assert result.turns == {n: 3 for n in held}  # upright, then a quarter turn back
+    i = scene.train.names.index("img_05.png")
+    original = load_image_uint8(folder / "img_05.png").astype(np.float32) / 255
+    diff = np.abs(scene.train.images[i].astype(np.float32) / 255 - original).mean()
+    assert diff < 0.01  # turned the right way (half a turn off: 0.17)
+    assert main(["dataset", str(tmp_path / "ds"), "--val-every", "0", "--test-every", "0",
+                 "--out", str(tmp_path / "again")]) == 0
+    np.testing.assert_array_equal(load_scene(tmp_path / "again").train.images, scene.train.images)
 
 
 def test_sfm_with_nothing_to_match_fails_cleanly(tmp_path):

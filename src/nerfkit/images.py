@@ -71,6 +71,28 @@ def exif_focal_35mm(path: str | Path) -> float | None:
 QUARTER_TURNS = {1: 0, 6: 1, 3: 2, 8: 3}
 
 
+def common_frame(orientations, extra_turns=None) -> int | None:
+    """The frame most photos share: the most common clockwise quarter turns from the
+    sensor's pixels (the photos as stored) to upright, from their EXIF ``orientations``
+    (plus ``extra_turns`` already given to each). None when no orientation is a turn."""
+    from collections import Counter
+
+    extra = extra_turns if extra_turns is not None else [0] * len(orientations)
+    held = Counter((QUARTER_TURNS[o] + t) % 4 for o, t in zip(orientations, extra) if o in QUARTER_TURNS)
+    return held.most_common(1)[0][0] if held else None
+
+
+def turns_into_frame(orientation: int, frame: int | None) -> int | None:
+    """Clockwise quarter turns that take a photo held the other way (upright size the
+    frame's transposed; EXIF ``orientation``) from upright into ``frame`` (turns from the
+    sensor, :func:`common_frame`): its stored pixels are the sensor's, as the others'.
+    None when that is not so or EXIF cannot tell (no frame, a photo rotated in an editor)."""
+    own = QUARTER_TURNS.get(orientation)
+    if frame is None or own is None or not (frame - own) % 2:
+        return None
+    return (frame - own) % 4
+
+
 def orientation_tag(img) -> int:
     """The EXIF Orientation tag of an opened PIL image: 1 (stored upright) when it has
     none, or when its EXIF is unreadable or out of range."""

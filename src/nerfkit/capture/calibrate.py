@@ -36,7 +36,7 @@ from ..errors import NerfkitError, fail
 from .aruco import Layout, square_corners
 from .camera import FILM_DIAGONAL_MM, exif_fx
 from .distortion import distortion_check, fold_spread, frame_displacement, heldout_errors
-from .photos import PhotoRecord
+from .photos import PhotoRecord, frame_turns
 
 # Per-tag calibration: at most this many tag views (cost grows as views^3).
 MAX_TAG_VIEWS = 150
@@ -643,6 +643,7 @@ def calibration_json(cal: Calibration, records: list[PhotoRecord], dictionary: s
         "pixel_convention": "opencv: pixel centres at integer coordinates (nerfkit and nerfstudio use cx + 0.5, cy + 0.5)",
         "width": cal.width,
         "height": cal.height,
+        "sensor_turns": frame_turns([r for r in records if r.used]),
         "K": np.round(K, 6).tolist(),
         "fx": round(float(K[0, 0]), 4), "fy": round(float(K[1, 1]), 4),
         "cx": round(float(K[0, 2]), 4), "cy": round(float(K[1, 2]), 4),

@@ -6,6 +6,8 @@ The camera file (JSON, written by ``nerfkit calibrate``) holds, among other thin
     "K"                          3x3, OpenCV pixel convention (pixel centres at integers)
     "dist"                       [k1, k2, p1, p2, k3] (OpenCV order)
     "rms"                        RMS reprojection error in pixels
+    "sensor_turns"               clockwise quarter turns from the photos as stored (the
+                                 sensor's pixels) to the calibration's frame (EXIF orientation)
 
 nerfkit's own convention puts pixel centres at +0.5, so its ``cx, cy`` are the file's plus
 0.5 (:func:`nerfkit_K`). Nerfstudio and COLMAP use nerfkit's convention.
@@ -37,6 +39,10 @@ class Camera:
         source: where it came from (a file, or "EXIF ...").
         heldout_rms: the calibration's held-out reprojection error (px at this size), or
             None when unknown (EXIF focal length, old camera files).
+        sensor_turns: clockwise quarter turns from the photos as stored (the sensor's
+            pixels) to this camera's frame, from the EXIF orientation of the photos it was
+            fitted to (0: held as the sensor is); None when unknown. A photo held the other
+            way is turned into this frame by it.
     """
 
     K: np.ndarray
@@ -45,6 +51,7 @@ class Camera:
     height: int
     source: str = ""
     heldout_rms: float | None = None
+    sensor_turns: int | None = None
 
     @property
     def has_distortion(self) -> bool:
@@ -62,7 +69,7 @@ class Camera:
         K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
         K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
         held = None if self.heldout_rms is None else self.heldout_rms * float(np.sqrt(sx * sy))
-        return Camera(K, self.dist.copy(), width, height, self.source, held)
+        return Camera(K, self.dist.copy(), width, height, self.source, held, self.sensor_turns)
 
     def compatible(self, width: int, height: int) -> str | None:
         """None when photos of this size can use this camera (same size or same aspect
@@ -127,7 +134,9 @@ def camera_from_dict(data, where: str, source: str | None = None) -> Camera:
     dist = np.pad(dist[:5], (0, 5 - min(dist.size, 5)))
     held = data.get("heldout_rms")
     held = float(held) if isinstance(held, (int, float)) and not isinstance(held, bool) and 0 < held < 1e4 else None
-    return Camera(K, dist, width, height, str(where) if source is None else source, held)
+    turns = data.get("sensor_turns")
+    turns = turns if isinstance(turns, int) and not isinstance(turns, bool) and 0 <= turns < 4 else None
+    return Camera(K, dist, width, height, str(where) if source is None else source, held, turns)
 
 
 def load_camera(path: str | Path) -> Camera:

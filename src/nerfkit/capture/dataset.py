@@ -123,6 +123,8 @@ def _load_view(p: PosedPhoto, base: Camera, und, out_size: tuple[int, int]) -> n
     from ..images import load_image_uint8
 
     img = load_image_uint8(p.path)
+    if p.turns:  # held the other way: into the camera's frame, as it was posed
+        img = np.ascontiguousarray(np.rot90(img, -p.turns))
     if (img.shape[1], img.shape[0]) != (p.camera.width, p.camera.height):
         raise fail(p.path, f"is now {img.shape[1]}x{img.shape[0]}, but was {p.camera.width}x{p.camera.height} "
                            "when it was posed", "Re-run nerfkit poses")
@@ -268,9 +270,10 @@ def write_poses_json(path: str | Path, records, posed: list[PosedPhoto], camera:
         photos.append(d)
     write_json(path, {
         "format": "nerfkit-poses", "version": 1,
-        "pose_convention": "c2w: camera-to-world, OpenCV camera axes (+x right, +y down, +z forward)",
+        "pose_convention": "c2w: camera-to-world, OpenCV camera axes (+x right, +y down, +z forward) of the "
+                           "upright photo turned clockwise by turned_deg (photos held the other way)",
         "camera": {"K": camera.K.tolist(), "dist": camera.dist.tolist(), "width": camera.width,
-                   "height": camera.height, "source": camera.source},
+                   "height": camera.height, "sensor_turns": camera.sensor_turns, "source": camera.source},
         **meta,
         "photos_posed": len(posed),
         "photos_skipped": len(records) - len(posed),
@@ -317,4 +320,7 @@ def _posed_photo(d: dict, i: int, camera: Camera, photos_dir: Path, where: str, 
     if not isinstance(d["file"], str):
         raise fail(where, f"photos[{i}].file is {short_repr(d['file'])}, expected a file name")
     path = resolve_inside(photos_dir, d["file"], allow_outside, f"{where} photos[{i}].file")
-    return PosedPhoto(d["file"], path, c2w, float(d.get("error_px") or 0.0), cam)
+    turned = d.get("turned_deg", 0)
+    if turned not in (0, 90, 180, 270) or isinstance(turned, bool):
+        raise fail(where, f"photos[{i}].turned_deg is {short_repr(turned)}, expected 0, 90, 180 or 270")
+    return PosedPhoto(d["file"], path, c2w, float(d.get("error_px") or 0.0), cam, int(turned) // 90)

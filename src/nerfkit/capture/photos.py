@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NerfkitError, fail
-from ..images import QUARTER_TURNS, exif_focal_35mm, list_images, load_image_uint8, orientation_tag
+from ..images import (common_frame, exif_focal_35mm, list_images, load_image_uint8, orientation_tag,
+                      turns_into_frame)
 from ..io.atomic import write_json
 from .aruco import Detection, Layout, detect, detect_careful, make_detector, marker_bits, suggest_dictionaries
 
@@ -40,7 +41,7 @@ class PhotoRecord:
         exif_f35: EXIF FocalLengthIn35mmFilm in mm, or None.
         orientation: the EXIF Orientation tag (1: stored upright, 6 and 8: held the other way).
         turns: clockwise quarter turns that brought the upright photo (and ``detection``)
-            into the frame of the other photos (:func:`group_by_size`); 0 for most.
+            into the frame of the other photos or the camera (:func:`turn_into_frame`); 0 for most.
         used: whether the stage using it (calibration, posing) kept it.
         reason: why it was skipped (empty when used).
         error_px: reprojection error (RMS, pixels) in the stage that used it.
@@ -251,18 +252,37 @@ def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str
                "Check that the tags are in focus, fully visible and not too small (at least ~30 px wide)")
 
 
+def frame_turns(records: list[PhotoRecord], size: tuple[int, int] | None = None) -> int | None:
+    """The frame of ``records`` (those of ``size``; default all): clockwise quarter turns
+    from the sensor's pixels, counting those :func:`turn_into_frame` added
+    (:func:`~nerfkit.images.common_frame`)."""
+    chosen = [r for r in records if r.detection is not None and (size is None or r.size == tuple(size))]
+    return common_frame([r.orientation for r in chosen], [r.turns for r in chosen])
+
+
+def turn_into_frame(r: PhotoRecord, frame: int | None) -> str:
+    """Turn a photo held the other way (upright size transposed) into ``frame``
+    (:func:`~nerfkit.images.turns_into_frame`), detection included (``r.turns`` records
+    how). Returns "" when done, else why it cannot be."""
+    turns = turns_into_frame(r.orientation, frame)
+    if turns is None:
+        return ("no EXIF orientation says how the camera's photos were held" if frame is None else
+                "no EXIF orientation says which way it was turned (rotated in an editor?)")
+    r.turns = turns
+    r.detection = r.detection.turned(turns)
+    return ""
+
+
 def group_by_size(records: list[PhotoRecord], turn: bool = False
                   ) -> tuple[tuple[int, int] | None, list[PhotoRecord]]:
     """The photo size most detected photos share, and the photos of that size.
 
     A photo of the transposed size was held the other way. With ``turn``, such a photo
-    whose EXIF orientation says how it was held is turned into the others' frame (its
-    detection with it; ``turns`` records how) and kept: its pixels are then the sensor's,
-    as the others', so one camera fits them all. Without ``turn``, or with no such EXIF
-    (a photo rotated in an editor), it is skipped with the reason.
+    whose EXIF orientation says how it was held is turned into the others' frame
+    (:func:`turn_into_frame`) and kept: its pixels are then the sensor's, as the others',
+    so one camera fits them all. Without ``turn``, or with no such EXIF (a photo rotated
+    in an editor), it is skipped with the reason.
     """
-    from collections import Counter
-
     sizes: dict[tuple[int, int], int] = {}
     for r in records:
         if r.detection is not None:
@@ -270,8 +290,7 @@ def group_by_size(records: list[PhotoRecord], turn: bool = False
     if not sizes:
         return None, []
     main = max(sizes, key=lambda s: (sizes[s], s[0] * s[1]))
-    held = Counter(QUARTER_TURNS.get(r.orientation) for r in records if r.detection is not None and r.size == main)
-    main_turns = held.most_common(1)[0][0]
+    main_turns = frame_turns(records, main)
     kept = []
     for r in records:
         if r.detection is None:
@@ -279,14 +298,10 @@ def group_by_size(records: list[PhotoRecord], turn: bool = False
         if r.size == main:
             kept.append(r)
         elif r.size == (main[1], main[0]):
-            own = QUARTER_TURNS.get(r.orientation)
-            if turn and main_turns is not None and own is not None and (main_turns - own) % 2:
-                r.turns = (main_turns - own) % 4
-                r.detection = r.detection.turned(r.turns)
+            why = turn_into_frame(r, main_turns) if turn else "photos held the other way need their own calibration"
+            if not why:
                 kept.append(r)
                 continue
-            why = ("no EXIF orientation says which way it was turned (rotated in an editor?)" if turn else
-                   "photos held the other way need their own calibration")
             r.skip(f"{'portrait' if r.size[1] > r.size[0] else 'landscape'} {r.size[0]}x{r.size[1]} while most "
                    f"photos are {main[0]}x{main[1]}: {why}")
         else:

@@ -27,7 +27,7 @@ from ..config import option
 from ..errors import fail
 from .aruco import Detection, Layout, square_corners, tag_pose_in_layout
 from .camera import Camera, camera_from_focal, exif_fx
-from .photos import PhotoRecord, blur_hint
+from .photos import PhotoRecord, blur_hint, frame_turns, turn_into_frame
 
 UP = np.array([0.0, 0.0, 1.0], np.float32)
 # Automatic error limit: this many times the calibration's held-out error ...
@@ -60,6 +60,8 @@ class PosedPhoto:
         c2w: (4, 4) float64 camera-to-world, OpenCV axes, world = tag/layout frame.
         error_px: RMS reprojection error of the tag corners.
         camera: the camera of this photo's size (OpenCV convention).
+        turns: clockwise quarter turns that bring the upright photo into the camera's
+            frame (a photo held the other way); the pose is that of the turned photo.
     """
 
     name: str
@@ -67,6 +69,7 @@ class PosedPhoto:
     c2w: np.ndarray
     error_px: float
     camera: Camera
+    turns: int = 0
 
 
 def rt_to_c2w(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
@@ -234,14 +237,29 @@ def exif_camera(records: list[PhotoRecord]) -> tuple[Camera, str]:
 
 
 def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg: PoseConfig) -> list[PosedPhoto]:
-    """Pose every readable photo; marks each record used or skipped with the reason."""
+    """Pose every readable photo; marks each record used or skipped with the reason.
+
+    A photo held the other way (its upright size the camera's transposed) is turned into
+    the camera's frame (:func:`~.photos.turn_into_frame`): the frame the camera file
+    records, else the one most photos of the camera's shape were taken in.
+    """
     posed = []
     cams: dict[tuple[int, int], Camera] = {}
+    frame = camera.sensor_turns
+    if frame is None:
+        frame = frame_turns([r for r in records if r.detection is not None and not camera.compatible(*r.size)])
     for r in records:
         if r.detection is None:
             continue
         w, h = r.size
         why = camera.compatible(w, h)
+        if why and not camera.compatible(h, w):
+            not_turned = turn_into_frame(r, frame)
+            if not_turned and frame is None and camera.sensor_turns is None:
+                not_turned += " (re-run nerfkit calibrate: its camera files record it)"
+            why = (f"{'portrait' if h > w else 'landscape'} {w}x{h} while the camera is {camera.width}x"
+                   f"{camera.height}: {not_turned}") if not_turned else None
+            w, h = r.size
         if why:
             r.skip(why)
             continue
@@ -266,5 +284,5 @@ def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
             continue
         r.used = True
         r.reason = ""
-        posed.append(PosedPhoto(r.name, r.path, c2w, err, cam))
+        posed.append(PosedPhoto(r.name, r.path, c2w, err, cam, r.turns))
     return posed

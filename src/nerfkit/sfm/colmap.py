@@ -99,6 +99,7 @@ class SfmResult:
     tag_size: float | None = None  # set when the world frame is the tag's (metres)
     sources: dict[str, Path] = field(default_factory=dict)  # COLMAP image name -> the user's photo
     on_ground: bool = False  # no tag, but z = 0 is the table plane found in the sparse points
+    turns: dict[str, int] = field(default_factory=dict)  # COLMAP image name -> clockwise quarter turns from upright
 
     def photo(self, name: str) -> Path:
         """The user's photo COLMAP knows as ``name`` (HEIC photos: their own name, not the copy's)."""
@@ -177,34 +178,50 @@ def colmap_name(photo: Path) -> str:
     return photo.name + (".jpg" if suffix in (".heic", ".heif") else ".png")
 
 
-def prepare_photos(photos: list[Path], work: Path, progress: bool = True
-                   ) -> tuple[Path, list[str], dict[str, str], PhotoInfo]:
+def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera=None
+                   ) -> tuple[Path, list[str], dict[str, str], PhotoInfo, dict[str, int]]:
     """Photos COLMAP can use as nerfkit sees them (upright), all of one size.
 
     COLMAP ignores EXIF orientation and cannot read HEIC, while nerfkit loads photos
     upright. When a photo needs it, upright copies of all photos are written to
     ``work/images`` (JPEG inputs stay JPEG, quality 95; others become PNG).
-    Photos whose upright size differs from the most common one are left out (SfM
-    shares one camera).
+    SfM shares one camera, so all photos take the most common upright size, or that of
+    ``camera`` (a capture ``Camera``) when the most common is its transposed. A photo held
+    the other way is turned into that frame by its EXIF orientation
+    (:func:`nerfkit.images.turns_into_frame`); other sizes are left out.
 
     Returns (folder COLMAP reads, image names in it, left-out name -> reason, the
-    header of the first photo used).
+    header of the first photo used, with the shared size; COLMAP name -> clockwise
+    quarter turns of the photos turned).
     """
     from collections import Counter
+    from dataclasses import replace
 
-    from ..images import load_image_uint8
+    from ..images import common_frame, load_image_uint8, turns_into_frame
     from ..io.atomic import write_image
 
     infos = [photo_info(p) for p in photos]
     sizes = Counter((i.width, i.height) for i in infos)
     (W, H), _ = sizes.most_common(1)[0]
-    skipped = {i.path.name: f"{i.width}x{i.height} upright while most photos are {W}x{H} "
-                            f"(SfM shares one camera; take all photos held the same way)"
-               for i in infos if (i.width, i.height) != (W, H)}
-    kept = [i for i in infos if (i.width, i.height) == (W, H)]
-    needs_copy = any(i.orientation != 1 or i.path.suffix.lower() not in COLMAP_SUFFIXES for i in kept)
+    frame = common_frame([i.orientation for i in infos if (i.width, i.height) == (W, H)])
+    if camera is not None and camera.compatible(W, H) and not camera.compatible(H, W):
+        (W, H), frame = (H, W), camera.sensor_turns  # the camera's frame: the calibration's
+    kept, turns, skipped = [], {}, {}
+    for i in infos:
+        if (i.width, i.height) == (H, W) and turns_into_frame(i.orientation, frame) is not None:
+            turns[colmap_name(i.path)] = turns_into_frame(i.orientation, frame)
+        elif (i.width, i.height) != (W, H):
+            held = ", held the other way with no EXIF orientation to turn it by" if (i.width, i.height) == (H, W) else ""
+            skipped[i.path.name] = (f"{i.width}x{i.height} upright while most photos are {W}x{H}{held} "
+                                    f"(SfM shares one camera; take all photos held the same way)")
+            continue
+        kept.append(i)
+    if not kept:
+        return work, [], skipped, None, {}
+    first = replace(kept[0], width=W, height=H)
+    needs_copy = turns or any(i.orientation != 1 or i.path.suffix.lower() not in COLMAP_SUFFIXES for i in kept)
     if not needs_copy:
-        return kept[0].path.parent, [i.path.name for i in kept], skipped, kept[0]
+        return kept[0].path.parent, [i.path.name for i in kept], skipped, first, turns
     out = work / "images"
     _say(progress, f"sfm: writing upright copies of {len(kept)} photos for COLMAP (EXIF rotation or format)...")
     names = []
@@ -212,6 +229,8 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True
         jpeg = i.path.suffix.lower() in (".jpg", ".jpeg", ".heic", ".heif")
         name = colmap_name(i.path)
         img = load_image_uint8(i.path)
+        if name in turns:
+            img = np.ascontiguousarray(np.rot90(img, -turns[name]))
         if jpeg:
             from PIL import Image
 
@@ -222,7 +241,7 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True
         else:
             write_image(out / name, img)
         names.append(name)
-    return out, names, skipped, kept[0]
+    return out, names, skipped, first, turns
 
 
 def run_sfm(
@@ -271,7 +290,7 @@ def run_sfm(
     if work.exists():
         shutil.rmtree(work)
     (work / "sparse").mkdir(parents=True)
-    colmap_dir, names, left_out, first = prepare_photos(photos, work, progress)
+    colmap_dir, names, left_out, first, turns = prepare_photos(photos, work, progress, camera)
     if len(names) < 3:
         raise fail(image_dir, f"only {len(names)} photos share one size; structure-from-motion needs at least 3",
                    "Take all photos held the same way (portrait or landscape)")
@@ -378,7 +397,8 @@ def run_sfm(
         shutil.rmtree(sub) if sub.is_dir() else sub.unlink()
     write_reconstruction(rec, model_dir)
     _say(progress, "sfm: " + report.summary().splitlines()[0])
-    return SfmResult(rec, model_dir, colmap_dir, report, sources={colmap_name(p): p for p in photos})
+    return SfmResult(rec, model_dir, colmap_dir, report, sources={colmap_name(p): p for p in photos},
+                     turns=turns)
 
 
 def colmap_camera(camera, refine: bool = False) -> tuple[str, str]:

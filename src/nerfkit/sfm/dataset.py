@@ -74,7 +74,7 @@ def posed_photos(result: SfmResult) -> list:
         im = rec.images[i]
         photo = result.photo(im.name)
         out.append(PosedPhoto(photo.name, photo, image_c2w(im), image_error(rec, im),
-                              cams[im.camera_id]))
+                              cams[im.camera_id], result.turns.get(im.name, 0)))
     return sorted(out, key=lambda p: p.name)
 
 
@@ -144,13 +144,15 @@ def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | 
 def saved_model(result: SfmResult, out_dir: str | Path) -> dict:
     """What :func:`load_sfm_result` needs besides the report: the aligned model's folder
     (relative to ``out_dir`` when inside it), the photos' folder and each COLMAP image's
-    photo, the world frame's tag size (metres, or None) and whether z = 0 is the table."""
+    photo, the photos turned into the camera's frame, the world frame's tag size (metres, or
+    None) and whether z = 0 is the table."""
     out = Path(out_dir).resolve()
     model = result.model_dir.resolve()
     folders = {p.parent.resolve() for p in result.sources.values()} or {result.image_dir.resolve()}
     return {"dir": str(model.relative_to(out) if model.is_relative_to(out) else model),
             "photos_dir": str(folders.pop()) if len(folders) == 1 else None,
             "photos": {name: p.name for name, p in sorted(result.sources.items())},
+            "turned_deg": {name: 90 * t for name, t in sorted(result.turns.items())},
             "tag_size": result.tag_size, "on_ground": result.on_ground}
 
 
@@ -162,6 +164,7 @@ def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResul
     (``allow_outside``: anywhere).
     """
     from ..config import load_json
+    from ..data.validate import short_repr
     from ..errors import advice
     from ..io.paths import resolve_inside
     from .colmap import _import_pycolmap
@@ -188,6 +191,9 @@ def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResul
             if tag_size is not None and not (isinstance(tag_size, (int, float)) and tag_size > 0):
                 raise fail(path, f"model.tag_size is {tag_size!r}, expected a length in metres or null")
             on_ground = bool(model["on_ground"])
+            turned = model.get("turned_deg", {})
+            if not all(name in sources and deg in (90, 180, 270) for name, deg in turned.items()):
+                raise fail(path, f"model.turned_deg is {short_repr(turned)}, expected photo name -> 90, 180 or 270")
         except (KeyError, TypeError, AttributeError) as e:
             raise fail(path, f"malformed SfM report ({type(e).__name__}: {e})") from None
     try:
@@ -195,7 +201,7 @@ def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResul
     except Exception as e:  # pycolmap raises its own errors for unreadable models
         raise fail(model_dir, f"cannot read the COLMAP model ({type(e).__name__}: {e})", redo) from None
     return SfmResult(rec, model_dir, photos_dir, report, tag_size=None if tag_size is None else float(tag_size),
-                     sources=sources, on_ground=on_ground)
+                     sources=sources, on_ground=on_ground, turns={n: int(d) // 90 for n, d in turned.items()})
 
 
 def sfm_dataset(
