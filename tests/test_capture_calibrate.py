@@ -246,12 +246,13 @@ def test_calibration_turns_photos_held_the_other_way(tmp_path, sheet):
     folder.mkdir()
     for i, (name, img) in enumerate(zip(sheet.names, sheet.images)):
         if i in (1, 4):
-            S.write_photo(folder / name, np.rot90(img, -1), orientation=6)  # shown turned clockwise
+            S.write_photo(folder / name, np.rot90(img, -1), orientation=6, f35=26)  # shown turned clockwise
         elif i == 7:
-            S.write_photo(folder / name, np.rot90(img, 1), orientation=8)  # shown turned counter-clockwise
+            S.write_photo(folder / name, np.rot90(img, 1), orientation=8, f35=26)  # shown turned counter-clockwise
         else:
-            S.write_photo(folder / name, img)
+            S.write_photo(folder / name, img, f35=26)
     S.write_photo(folder / "zz_edited.jpg", np.ascontiguousarray(np.rot90(sheet.images[2], -1)))  # no flag
+    S.write_photo(folder / "zz_tele.jpg", sheet.images[3], f35=52)  # the 2x lens: another camera
     out = tmp_path / "camera.json"
     assert main(["calibrate", str(folder), "--tag-size", str(TAG), "--out", str(out)]) == 0
     cam = json.loads(out.read_text())
@@ -262,6 +263,8 @@ def test_calibration_turns_photos_held_the_other_way(tmp_path, sheet):
         assert im["error_px"] < 0.5  # turned the right way: its corners fit the shared camera
     assert "turned_deg" not in by_file[sheet.names[0]]
     assert not by_file["zz_edited.jpg"]["used"] and "no EXIF orientation" in by_file["zz_edited.jpg"]["reason"]
+    assert not by_file["zz_tele.jpg"]["used"] and "another lens or zoom" in by_file["zz_tele.jpg"]["reason"]
+    assert cam["sanity"]["exif_focal_35mm"] == 26
     assert cam["width"] == 640 and cam["height"] == 480 and cam["sensor_turns"] == 0  # as the sensor stores
     assert rel_errors(np.array(cam["K"]), sheet.K).max() < 0.01
 

@@ -287,6 +287,31 @@ def test_error_limit_follows_the_calibration_and_the_tag_size():
     assert error_limit(cam, 20.0, PoseConfig(max_error=2.5)) == (2.5, "--max-error")
 
 
+def test_a_photo_from_another_lens_is_skipped_with_the_reason(tmp_path, obj):
+    """A phone's 2x lens (EXIF 52 mm where the calibration's photos say 26 mm) has another
+    focal length and distortion: posing it with the calibrated camera would be wrong, so
+    it is skipped, saying why; a camera file from a 52 mm calibration takes it."""
+    folder = tmp_path / "object"
+    folder.mkdir()
+    for k, (name, img) in enumerate(zip(obj.names, obj.images)):
+        S.write_photo(folder / name, img, f35=52 if k == 5 else 26)
+    data = json.loads(write_camera(tmp_path / "plain.json", obj).read_text())
+    for f35 in (26, 52, 27):
+        (tmp_path / f"cam{f35}.json").write_text(json.dumps({**data, "sanity": {"exif_focal_35mm": f35}}))
+        assert main(["poses", str(folder), "--camera", str(tmp_path / f"cam{f35}.json"), "--tag-size", str(TAG),
+                     "--out", str(tmp_path / f"ds{f35}"), "--no-dataset"]) == 0
+    photos = {f35: {p["file"]: p for p in json.loads((tmp_path / f"ds{f35}" / "poses.json").read_text())["photos"]}
+              for f35 in (26, 52, 27)}
+    assert not photos[26][obj.names[5]]["used"] and "another lens or zoom" in photos[26][obj.names[5]]["reason"]
+    assert photos[26][obj.names[6]]["used"] and photos[27][obj.names[6]]["used"]  # 4% apart: the same lens
+    assert photos[52][obj.names[5]]["used"] and not photos[52][obj.names[6]]["used"]
+    # no focal length in the camera file: most photos' lens is the camera's
+    assert main(["poses", str(folder), "--camera", str(tmp_path / "plain.json"), "--tag-size", str(TAG),
+                 "--out", str(tmp_path / "ds"), "--no-dataset"]) == 0
+    plain = {p["file"]: p for p in json.loads((tmp_path / "ds" / "poses.json").read_text())["photos"]}
+    assert "another lens" in plain[obj.names[5]]["reason"] and plain[obj.names[6]]["used"]
+
+
 def test_a_tag_disagreeing_with_the_others_is_dropped_and_the_pose_kept():
     from nerfkit.capture.poses import solve_pose_robust
 

@@ -228,6 +228,14 @@ def test_prepare_photos_makes_upright_copies(tmp_path):
     assert (first.width, first.height) == (60, 40) and "no EXIF orientation" in skipped["2.png"]
     stored = np.asarray(Image.open(tmp_path / "in" / "0.jpg"))
     assert np.abs(np.asarray(Image.open(folder / "0.jpg")).astype(float) - stored).mean() < 3
+    # a photo from another lens (EXIF 52 mm among 26 mm ones) is left out
+    exif = Image.Exif()
+    exif.get_ifd(0x8769)[0xA405] = 52
+    Image.fromarray(upright[2]).save(tmp_path / "in" / "5.jpg", exif=exif.tobytes(), quality=95)
+    cam.exif_f35 = 26.0
+    _, names, skipped, _, _ = prepare_photos(sorted((tmp_path / "in").iterdir()), tmp_path / "work5",
+                                             progress=False, camera=cam)
+    assert "5.jpg" not in names and "another lens" in skipped["5.jpg"]
     # all upright already: COLMAP reads the input folder itself
     folder2, names2, _, _, _ = prepare_photos([photos[2], photos[2]], tmp_path / "work2", progress=False)
     assert folder2 == tmp_path / "in" and not (tmp_path / "work2").exists()

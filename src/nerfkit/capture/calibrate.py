@@ -613,9 +613,6 @@ def sanity_checks(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], rms: f
             warnings.append(f"fx={fx:.0f} px disagrees with the EXIF focal length ({f35:g} mm in 35 mm terms -> "
                             f"{efx:.0f} px, {(fx / efx - 1) * 100:+.0f}%). Check the photos come from one lens and "
                             "were not cropped or zoomed")
-        if len(set(exif_f35)) > 1:
-            warnings.append(f"photos report different focal lengths {sorted(set(exif_f35))} (zoom or lens switch); "
-                            "calibrate one lens at a time")
     else:
         out["exif_focal_35mm"] = None
     if rms > 1.0:

@@ -8,6 +8,7 @@ The camera file (JSON, written by ``nerfkit calibrate``) holds, among other thin
     "rms"                        RMS reprojection error in pixels
     "sensor_turns"               clockwise quarter turns from the photos as stored (the
                                  sensor's pixels) to the calibration's frame (EXIF orientation)
+    "sanity"/"exif_focal_35mm"   the photos' EXIF focal length (35 mm equivalent): which lens
 
 nerfkit's own convention puts pixel centres at +0.5, so its ``cx, cy`` are the file's plus
 0.5 (:func:`nerfkit_K`). Nerfstudio and COLMAP use nerfkit's convention.
@@ -26,6 +27,9 @@ from ..errors import advice, fail
 
 # Diagonal of a 36 x 24 mm film frame: fx ~= f35 * image_diagonal_px / 43.27.
 FILM_DIAGONAL_MM = 43.2666
+# Photos whose EXIF focal lengths (35 mm equivalent) differ by more than this share come
+# from another lens or zoom (phones: 13, 26, 52, 77 mm ...), not from the same camera.
+LENS_TOLERANCE = 0.05
 
 
 @dataclass
@@ -43,6 +47,8 @@ class Camera:
             pixels) to this camera's frame, from the EXIF orientation of the photos it was
             fitted to (0: held as the sensor is); None when unknown. A photo held the other
             way is turned into this frame by it.
+        exif_f35: the EXIF focal length (35 mm equivalent) of the photos it was fitted to,
+            or None: which lens (:func:`other_lens`).
     """
 
     K: np.ndarray
@@ -52,6 +58,7 @@ class Camera:
     source: str = ""
     heldout_rms: float | None = None
     sensor_turns: int | None = None
+    exif_f35: float | None = None
 
     @property
     def has_distortion(self) -> bool:
@@ -69,7 +76,7 @@ class Camera:
         K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
         K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
         held = None if self.heldout_rms is None else self.heldout_rms * float(np.sqrt(sx * sy))
-        return Camera(K, self.dist.copy(), width, height, self.source, held, self.sensor_turns)
+        return Camera(K, self.dist.copy(), width, height, self.source, held, self.sensor_turns, self.exif_f35)
 
     def compatible(self, width: int, height: int) -> str | None:
         """None when photos of this size can use this camera (same size or same aspect
@@ -98,6 +105,15 @@ def opencv_K(K_nk: np.ndarray) -> np.ndarray:
     K[0, 2] -= 0.5
     K[1, 2] -= 0.5
     return K
+
+
+def other_lens(f35: float | None, camera_f35: float | None) -> str:
+    """Why a photo with EXIF focal length ``f35`` (35 mm equivalent) cannot use a camera
+    whose photos had ``camera_f35``, or "" (the same lens, or either unknown)."""
+    if not f35 or not camera_f35 or abs(f35 / camera_f35 - 1) <= LENS_TOLERANCE:
+        return ""
+    return (f"taken at {f35:g} mm (EXIF, 35 mm equivalent) while the camera's photos were {camera_f35:g} mm: "
+            "another lens or zoom. Take every photo with one lens, or calibrate this one")
 
 
 def exif_fx(f35: float, width: int, height: int) -> float:
@@ -136,7 +152,9 @@ def camera_from_dict(data, where: str, source: str | None = None) -> Camera:
     held = float(held) if isinstance(held, (int, float)) and not isinstance(held, bool) and 0 < held < 1e4 else None
     turns = data.get("sensor_turns")
     turns = turns if isinstance(turns, int) and not isinstance(turns, bool) and 0 <= turns < 4 else None
-    return Camera(K, dist, width, height, str(where) if source is None else source, held, turns)
+    f35 = data.get("sanity", {}).get("exif_focal_35mm") if isinstance(data.get("sanity"), dict) else None
+    f35 = float(f35) if isinstance(f35, (int, float)) and not isinstance(f35, bool) and 0 < f35 < 1e4 else None
+    return Camera(K, dist, width, height, str(where) if source is None else source, held, turns, f35)
 
 
 def load_camera(path: str | Path) -> Camera:

@@ -273,6 +273,27 @@ def turn_into_frame(r: PhotoRecord, frame: int | None) -> str:
     return ""
 
 
+def keep_one_lens(records: list[PhotoRecord], lens: float | None = None) -> list[PhotoRecord]:
+    """The photos taken with one lens: EXIF focal length (35 mm equivalent) ``lens``,
+    default the most common. Photos of another lens or zoom are skipped with the reason
+    (:func:`~.camera.other_lens`); photos without the EXIF tag are kept."""
+    from collections import Counter
+
+    from .camera import other_lens
+
+    if lens is None:
+        lenses = Counter(r.exif_f35 for r in records if r.detection is not None and r.exif_f35)
+        lens = lenses.most_common(1)[0][0] if lenses else None
+    kept = []
+    for r in records:
+        why = other_lens(r.exif_f35, lens)
+        if why:
+            r.skip(why)
+        else:
+            kept.append(r)
+    return kept
+
+
 def group_by_size(records: list[PhotoRecord], turn: bool = False
                   ) -> tuple[tuple[int, int] | None, list[PhotoRecord]]:
     """The photo size most detected photos share, and the photos of that size.

@@ -27,7 +27,7 @@ from ..config import option
 from ..errors import fail
 from .aruco import Detection, Layout, square_corners, tag_pose_in_layout
 from .camera import Camera, camera_from_focal, exif_fx
-from .photos import PhotoRecord, blur_hint, frame_turns, turn_into_frame
+from .photos import PhotoRecord, blur_hint, frame_turns, keep_one_lens, turn_into_frame
 
 UP = np.array([0.0, 0.0, 1.0], np.float32)
 # Automatic error limit: this many times the calibration's held-out error ...
@@ -231,6 +231,7 @@ def exif_camera(records: list[PhotoRecord]) -> tuple[Camera, str]:
     f35, size = max(set(values), key=values.count)
     fx = exif_fx(f35, *size)
     cam = camera_from_focal(fx, size[0], size[1], f"EXIF FocalLengthIn35mmFilm {f35:g} mm")
+    cam.exif_f35 = f35
     note = (f"no --camera: using the EXIF focal length {f35:g} mm (35 mm equivalent) -> fx = fy = {fx:.1f} px at "
             f"{size[0]}x{size[1]}, principal point at the centre, no lens distortion. Calibrate for better poses")
     return cam, note
@@ -241,14 +242,16 @@ def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
 
     A photo held the other way (its upright size the camera's transposed) is turned into
     the camera's frame (:func:`~.photos.turn_into_frame`): the frame the camera file
-    records, else the one most photos of the camera's shape were taken in.
+    records, else the one most photos of the camera's shape were taken in. A photo whose
+    EXIF focal length says it was taken with another lens or zoom than the camera's (else
+    most photos') is skipped (:func:`~.photos.keep_one_lens`).
     """
     posed = []
     cams: dict[tuple[int, int], Camera] = {}
     frame = camera.sensor_turns
     if frame is None:
         frame = frame_turns([r for r in records if r.detection is not None and not camera.compatible(*r.size)])
-    for r in records:
+    for r in keep_one_lens(records, camera.exif_f35):
         if r.detection is None:
             continue
         w, h = r.size

@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..capture.aruco import get_dictionary, load_layout
     from ..capture.calibrate import CalibrateConfig, calibrate_records, calibration_json
-    from ..capture.photos import blur_hint, default_jobs, group_by_size, require_tags, scan_photos
+    from ..capture.photos import blur_hint, default_jobs, group_by_size, keep_one_lens, require_tags, scan_photos
     from ..capture.report import photo_summary
     from ..config import dataclass_from_args
     from ..errors import fail
@@ -97,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
     for r in records:
         if r.detection is not None and len(r.detection.ids) == 0:
             r.skip("no tags found" + blur_hint(records, r))
-    size, kept = group_by_size([r for r in records if r.detection is not None and (len(r.detection.ids) or charuco)],
+    size, kept = group_by_size(keep_one_lens([r for r in records
+                                              if r.detection is not None and (len(r.detection.ids) or charuco)]),
                                turn=True)
     cal = calibrate_records(kept, size, tag_size, layout, cfg, args.dict)
     data = calibration_json(cal, records, args.dict, tag_size, str(Path(args.photos).resolve()))

@@ -188,7 +188,8 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
     SfM shares one camera, so all photos take the most common upright size, or that of
     ``camera`` (a capture ``Camera``) when the most common is its transposed. A photo held
     the other way is turned into that frame by its EXIF orientation
-    (:func:`nerfkit.images.turns_into_frame`); other sizes are left out.
+    (:func:`nerfkit.images.turns_into_frame`); other sizes are left out, as are photos
+    whose EXIF focal length says another lens or zoom than the camera's (else most photos').
 
     Returns (folder COLMAP reads, image names in it, left-out name -> reason, the
     header of the first photo used, with the shared size; COLMAP name -> clockwise
@@ -197,6 +198,7 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
     from collections import Counter
     from dataclasses import replace
 
+    from ..capture.camera import other_lens
     from ..images import common_frame, load_image_uint8, turns_into_frame
     from ..io.atomic import write_image
 
@@ -206,8 +208,13 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
     frame = common_frame([i.orientation for i in infos if (i.width, i.height) == (W, H)])
     if camera is not None and camera.compatible(W, H) and not camera.compatible(H, W):
         (W, H), frame = (H, W), camera.sensor_turns  # the camera's frame: the calibration's
+    lenses = Counter(i.f35 for i in infos if i.f35)
+    lens = (camera.exif_f35 if camera is not None else None) or (lenses.most_common(1)[0][0] if lenses else None)
     kept, turns, skipped = [], {}, {}
     for i in infos:
+        if other_lens(i.f35, lens):
+            skipped[i.path.name] = other_lens(i.f35, lens) + " (SfM shares one camera)"
+            continue
         if (i.width, i.height) == (H, W) and turns_into_frame(i.orientation, frame) is not None:
             turns[colmap_name(i.path)] = turns_into_frame(i.orientation, frame)
         elif (i.width, i.height) != (W, H):
