@@ -60,6 +60,34 @@ def test_backward_rays_are_flagged_and_the_space_round_trips(space):
     assert NdcSpace.from_dict(space.to_dict()) == space
 
 
+def test_the_ndc_box_holds_every_pixel_of_cameras_turned_about_their_axis(space):
+    """Photos taken with the phone turned about its axis (a top-down sweep) see beyond the
+    reference frustum's corners: the fitted box holds every ray of every camera from the
+    near plane to infinity; cameras like the reference one keep the smallest box."""
+    from nerfkit.cameras import image_rays
+
+    ref = np.array(space.c2w)
+    K = np.array([[space.fx, 0, space.cx], [0, space.fy, space.cy], [0, 0, 1.0]])
+    assert space.fit_extent(ref[None], K[None], space.width, space.height).extent == pytest.approx(1.25)
+    turned = []
+    for deg in (0, 40, 90, 135):
+        a = np.radians(deg)
+        roll = np.eye(4)
+        roll[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+        turned.append(ref @ roll)
+    turned = np.stack(turned)
+    fitted = space.fit_extent(turned, np.repeat(K[None], 4, 0), space.width, space.height)
+    assert fitted.extent > 1.3 and NdcSpace.from_dict(fitted.to_dict()) == fitted
+    for c2w in turned:
+        rays = image_rays(torch.tensor(K, dtype=torch.float32), torch.tensor(c2w, dtype=torch.float32),
+                          space.width, space.height)
+        o, d, forward = fitted.rays(rays.origins.double(), rays.directions.double())
+        assert forward.all()
+        for s in (0.0, 0.5, 0.999):
+            assert float((o + s * d)[:, :2].abs().max()) <= fitted.extent
+    assert max(float((o + s * d)[:, :2].abs().max()) for s in (0.0, 0.999)) > 1.25  # the old box missed some
+
+
 def test_forward_facing_scenes_get_ndc_and_a_spiral_others_do_not():
     ff, sphere = forward_facing_scene(n_train=8, n_val=1, size=16), sphere_scene(n_train=20, size=16)
     assert forward_facing(ff.train.c2w, ff.center) and not forward_facing(sphere.train.c2w, sphere.center)

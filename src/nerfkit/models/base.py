@@ -71,6 +71,7 @@ class SceneBounds:
         if not scene.capture and scene.table is None and scene.forward_facing:
             ndc = NdcSpace.from_camera(mean_camera(c2w), scene.train.K.mean(0), scene.train.width,
                                        scene.train.height, float(scene.near))
+            ndc = ndc.fit_extent(c2w, scene.train.K, scene.train.width, scene.train.height)
         return SceneBounds(float(scene.near), float(scene.far), np.asarray(scene.center, np.float32),
                            float(radius), np.asarray(scene.up, np.float32),
                            None if scene.table is None else np.asarray(scene.table, np.float32),

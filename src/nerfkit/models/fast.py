@@ -216,8 +216,6 @@ class FastConfig:
 PACKING = "fast-sparse-grid-1"
 PACKED_DENSITY_DTYPE = torch.float16
 EMPTY_RAW = -30.0
-# half-width (X and Y) of the NDC box: other cameras see a little beyond the mean camera's frustum
-NDC_XY = 1.25
 
 # Largest grid: each side and the vertex count (512^3 vertices of 4+ float32 channels: 2+ GB).
 MAX_GRID_SIDE = 4096
@@ -267,7 +265,8 @@ class FastNeRF(NerfModel):
         c = np.asarray(bounds.center, np.float32)
         box = (c - bounds.radius, c + bounds.radius)
         if self.ndc is not None:
-            box = (np.array([-NDC_XY, -NDC_XY, -1.0], np.float32), np.array([NDC_XY, NDC_XY, 1.0], np.float32))
+            e = self.ndc.extent
+            box = (np.array([-e, -e, -1.0], np.float32), np.array([e, e, 1.0], np.float32))
         elif config.object_box and bounds.object_box is not None:
             box = bounds.object_box
         lo, voxel, res = fit_grid(box[0], box[1], self.sizes[0])

@@ -24,7 +24,7 @@ and ``t = s oz / (dz (1 - s))`` measured from the moved origin.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -33,6 +33,9 @@ from torch import Tensor
 # rays whose direction makes less than this with the reference view's plane never get far
 # enough forward to be mapped (they are left empty)
 MIN_FORWARD = 1e-4
+# smallest half-width (X and Y) of the NDC box: cameras beside the reference one see a
+# little beyond its frustum
+MIN_EXTENT = 1.25
 
 
 @dataclass(frozen=True)
@@ -43,6 +46,8 @@ class NdcSpace:
         c2w: (4, 4) the reference camera-to-world (OpenCV axes).
         fx, fy, cx, cy, width, height: its intrinsics and image size.
         near: depth (along the reference z) of the plane mapped to Z = -1.
+        extent: half-width of the NDC box in X and Y (:meth:`fit_extent`): other cameras
+            see beyond the reference camera's frustum (|X|, |Y| <= 1).
     """
 
     c2w: tuple
@@ -53,6 +58,7 @@ class NdcSpace:
     width: int
     height: int
     near: float
+    extent: float = MIN_EXTENT
 
     @staticmethod
     def from_camera(c2w: np.ndarray, K: np.ndarray, width: int, height: int, near: float) -> "NdcSpace":
@@ -61,14 +67,33 @@ class NdcSpace:
         return NdcSpace(tuple(map(tuple, c2w.tolist())), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
                         float(K[1, 2]), int(width), int(height), float(near))
 
+    def fit_extent(self, c2w: np.ndarray, K: np.ndarray, width: int, height: int) -> "NdcSpace":
+        """The same space with a box wide enough for every pixel of the cameras ``c2w``
+        (n, 4, 4) with intrinsics ``K`` (n, 3, 3) (a camera turned about its axis sees
+        beyond the reference frustum's corners): the largest |X| or |Y| their image
+        corners reach between the near plane and infinity, plus 5%, and at least
+        :data:`MIN_EXTENT`."""
+        from ..cameras import pixel_to_ray
+
+        corners = torch.tensor([[0.0, 0.0], [width, 0.0], [0.0, height], [width, height]], dtype=torch.float64)
+        n = len(c2w)
+        o, d = pixel_to_ray(torch.as_tensor(np.asarray(K), dtype=torch.float64).reshape(n, 1, 3, 3),
+                            torch.as_tensor(np.asarray(c2w), dtype=torch.float64).reshape(n, 1, 4, 4),
+                            corners.expand(n, 4, 2))
+        o_ndc, d_ndc, forward = self.rays(o.reshape(-1, 3), d.reshape(-1, 3))
+        ends = torch.cat([o_ndc[forward, :2], (o_ndc + d_ndc)[forward, :2]])  # s = 0 and s -> 1
+        reach = float(ends.abs().max()) if len(ends) else 0.0
+        return replace(self, extent=max(MIN_EXTENT, 1.05 * reach))
+
     def to_dict(self) -> dict:
         return {"c2w": [list(r) for r in self.c2w], "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
-                "width": self.width, "height": self.height, "near": self.near}
+                "width": self.width, "height": self.height, "near": self.near, "extent": self.extent}
 
     @staticmethod
     def from_dict(d: dict) -> "NdcSpace":
         return NdcSpace(tuple(tuple(float(v) for v in r) for r in d["c2w"]), float(d["fx"]), float(d["fy"]),
-                        float(d["cx"]), float(d["cy"]), int(d["width"]), int(d["height"]), float(d["near"]))
+                        float(d["cx"]), float(d["cy"]), int(d["width"]), int(d["height"]), float(d["near"]),
+                        float(d.get("extent", MIN_EXTENT)))
 
     def _frame(self, like: Tensor) -> tuple[Tensor, Tensor]:
         c2w = torch.tensor(self.c2w, dtype=like.dtype, device=like.device)
