@@ -256,6 +256,10 @@ def test_poses_builds_the_dataset_by_default_and_heic_photos_keep_their_name(tmp
     for k, (name, img) in enumerate(zip(obj.names, obj.images)):
         if k == 5:
             Image.fromarray(img).save(folder / "phone_shot.HEIC", quality=95)
+        elif k == 7:  # an iPhone held the other way: the sensor's pixels, EXIF 6 (pillow-heif decodes it upright)
+            exif = Image.Exif()
+            exif[0x0112] = 6
+            Image.fromarray(img).save(folder / "held.HEIC", quality=95, exif=exif.tobytes())
         else:
             S.write_photo(folder / name, img)
     out = tmp_path / "ds"
@@ -263,7 +267,9 @@ def test_poses_builds_the_dataset_by_default_and_heic_photos_keep_their_name(tmp
                  "--tag-size", str(TAG), "--out", str(out), "--max-side", "320"]) == 0
     scene = load_scene(out)  # the dataset folder holds one npz: dataset.npz
     names = [n for v in scene.splits.values() for n in (v.names or [])]
-    assert "phone_shot.HEIC" in names
+    assert "phone_shot.HEIC" in names and "held.HEIC" in names
+    held = next(p for p in json.loads((out / "poses.json").read_text())["photos"] if p["file"] == "held.HEIC")
+    assert held["turned_deg"] == 270 and pose_error(np.array(held["c2w"]), obj.c2w[7])[1] < 0.5
     assert (out / "images" / "phone_shot.HEIC.png").exists()
     tj = json.loads((out / "transforms.json").read_text())
     assert "images/phone_shot.HEIC.png" in [f["file_path"] for f in tj["frames"]]

@@ -95,9 +95,10 @@ def turns_into_frame(orientation: int, frame: int | None) -> int | None:
 
 def orientation_tag(img) -> int:
     """The EXIF Orientation tag of an opened PIL image: 1 (stored upright) when it has
-    none, or when its EXIF is unreadable or out of range."""
+    none, or when its EXIF is unreadable or out of range. HEIF photos (pillow-heif) are
+    decoded upright already, their tag reset to 1: the original tag is what they say."""
     try:
-        value = int(img.getexif().get(0x0112, 1) or 1)
+        value = int(img.info.get("original_orientation") or img.getexif().get(0x0112, 1) or 1)
     except Exception:  # noqa: BLE001 - a broken EXIF block: treat as upright, as load_image does
         return 1
     return value if 1 <= value <= 8 else 1

@@ -164,8 +164,8 @@ def photo_info(path: Path) -> PhotoInfo:
     img = _open(path)
     orientation = orientation_tag(img)
     w, h = img.size
-    if orientation in (5, 6, 7, 8):  # stored rotated by 90 degrees
-        w, h = h, w
+    if orientation in (5, 6, 7, 8) and "original_orientation" not in img.info:  # stored rotated by 90 degrees
+        w, h = h, w  # (HEIF photos are decoded upright)
     return PhotoInfo(path, w, h, orientation, exif_focal_35mm(path))
 
 
