@@ -26,7 +26,7 @@ from ..images import (common_frame, exif_focal_35mm, list_images, load_image_uin
 from ..io.atomic import write_json
 from .aruco import Detection, Layout, detect, detect_careful, make_detector, marker_bits, suggest_dictionaries
 
-CACHE_VERSION = 4
+CACHE_VERSION = 5  # 5: HEIF photos record the orientation pillow-heif applied
 
 
 @dataclass
