@@ -169,6 +169,7 @@ def test_a_capture_held_the_other_way_from_the_calibration_follows_the_camera_fi
     photos = json.loads((tmp_path / "ds" / "poses.json").read_text())["photos"]
     posed = [p for p in photos if p["used"]]
     assert len(posed) >= 6 and all(p["turned_deg"] == 270 for p in posed)
+    assert f"{len(posed)} photos held the other way turned back by their EXIF orientation" in capsys.readouterr().out
     for p in posed:
         pos, ang = pose_error(np.array(p["c2w"]), obj.c2w[obj.names.index(p["file"])])
         assert pos < 0.003 and ang < 0.5

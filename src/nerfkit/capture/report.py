@@ -42,6 +42,11 @@ def photo_summary(records: list[PhotoRecord], used_word: str = "used", full: boo
     if errs:
         lines.append(f"reprojection error of the photos {used_word} (RMS px): median {np.median(errs):.3f}, "
                      f"max {np.max(errs):.3f}")
+    turned = [r.name for r in used if r.turns]
+    if turned:
+        lines.append(f"{len(turned)} photo{'s' if len(turned) > 1 else ''} held the other way turned back by "
+                     f"{'their' if len(turned) > 1 else 'its'} EXIF orientation: {', '.join(turned[:5])}"
+                     + (", ..." if len(turned) > 5 else ""))
     if skipped:
         kinds = Counter(_reason_kind(r.reason) for r in skipped)
         lines.append("skipped: " + "; ".join(f"{n} x {k}" for k, n in kinds.most_common()))
