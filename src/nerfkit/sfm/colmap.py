@@ -207,7 +207,9 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
     (W, H), _ = sizes.most_common(1)[0]
     frame = common_frame([i.orientation for i in infos if (i.width, i.height) == (W, H)])
     if camera is not None and camera.compatible(W, H) and not camera.compatible(H, W):
-        (W, H), frame = (H, W), camera.sensor_turns  # the camera's frame: the calibration's
+        (W, H), frame = (H, W), None  # the camera's shape
+    if camera is not None and camera.sensor_turns is not None:
+        frame = camera.sensor_turns  # the calibration's frame, as the tag poses use
     lenses = Counter(i.f35 for i in infos if i.f35)
     lens = (camera.exif_f35 if camera is not None else None) or (lenses.most_common(1)[0][0] if lenses else None)
     kept, turns, skipped = [], {}, {}
