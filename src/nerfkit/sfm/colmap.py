@@ -220,9 +220,10 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
         if (i.width, i.height) == (H, W) and turns_into_frame(i.orientation, frame) is not None:
             turns[colmap_name(i.path)] = turns_into_frame(i.orientation, frame)
         elif (i.width, i.height) != (W, H):
-            held = ", held the other way with no EXIF orientation to turn it by" if (i.width, i.height) == (H, W) else ""
-            skipped[i.path.name] = (f"{i.width}x{i.height} upright while most photos are {W}x{H}{held} "
-                                    f"(SfM shares one camera; take all photos held the same way)")
+            why = ("held the other way, with no EXIF orientation to turn it by" if (i.width, i.height) == (H, W)
+                   else "resized or cropped")
+            skipped[i.path.name] = (f"{i.width}x{i.height} upright while most photos are {W}x{H}: {why} "
+                                    f"(SfM shares one camera)")
             continue
         kept.append(i)
     if not kept:
