@@ -107,6 +107,15 @@ def opencv_K(K_nk: np.ndarray) -> np.ndarray:
     return K
 
 
+def common_lens(f35s) -> float | None:
+    """The most common of the photos' EXIF focal lengths ``f35s`` (None or 0 for photos
+    without one), or None when none has one."""
+    from collections import Counter
+
+    lenses = Counter(f for f in f35s if f)
+    return lenses.most_common(1)[0][0] if lenses else None
+
+
 def other_lens(f35: float | None, camera_f35: float | None) -> str:
     """Why a photo with EXIF focal length ``f35`` (35 mm equivalent) cannot use a camera
     whose photos had ``camera_f35``, or "" (the same lens, or either unknown)."""

@@ -277,13 +277,10 @@ def keep_one_lens(records: list[PhotoRecord], lens: float | None = None) -> list
     """The photos taken with one lens: EXIF focal length (35 mm equivalent) ``lens``,
     default the most common. Photos of another lens or zoom are skipped with the reason
     (:func:`~.camera.other_lens`); photos without the EXIF tag are kept."""
-    from collections import Counter
-
-    from .camera import other_lens
+    from .camera import common_lens, other_lens
 
     if lens is None:
-        lenses = Counter(r.exif_f35 for r in records if r.detection is not None and r.exif_f35)
-        lens = lenses.most_common(1)[0][0] if lenses else None
+        lens = common_lens(r.exif_f35 for r in records if r.detection is not None)
     kept = []
     for r in records:
         why = other_lens(r.exif_f35, lens)

@@ -258,7 +258,7 @@ def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
         why = camera.compatible(w, h)
         if why and not camera.compatible(h, w):
             not_turned = turn_into_frame(r, frame)
-            if not_turned and frame is None and camera.sensor_turns is None:
+            if not_turned and frame is None:  # (so the camera does not record its frame either)
                 not_turned += " (re-run nerfkit calibrate: its camera files record it)"
             why = (f"{'portrait' if h > w else 'landscape'} {w}x{h} while the camera is {camera.width}x"
                    f"{camera.height}: {not_turned}") if not_turned else None

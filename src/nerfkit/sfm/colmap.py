@@ -198,7 +198,7 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
     from collections import Counter
     from dataclasses import replace
 
-    from ..capture.camera import other_lens
+    from ..capture.camera import common_lens, other_lens
     from ..images import common_frame, load_image_uint8, turns_into_frame
     from ..io.atomic import write_image
 
@@ -210,15 +210,14 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
         (W, H), frame = (H, W), None  # the camera's shape
     if camera is not None and camera.sensor_turns is not None:
         frame = camera.sensor_turns  # the calibration's frame, as the tag poses use
-    lenses = Counter(i.f35 for i in infos if i.f35)
-    lens = (camera.exif_f35 if camera is not None else None) or (lenses.most_common(1)[0][0] if lenses else None)
+    lens = (camera.exif_f35 if camera is not None else None) or common_lens(i.f35 for i in infos)
     kept, turns, skipped = [], {}, {}
     for i in infos:
-        if other_lens(i.f35, lens):
-            skipped[i.path.name] = other_lens(i.f35, lens) + " (SfM shares one camera)"
+        if why := other_lens(i.f35, lens):
+            skipped[i.path.name] = why + " (SfM shares one camera)"
             continue
-        if (i.width, i.height) == (H, W) and turns_into_frame(i.orientation, frame) is not None:
-            turns[colmap_name(i.path)] = turns_into_frame(i.orientation, frame)
+        if (i.width, i.height) == (H, W) and (turn := turns_into_frame(i.orientation, frame)) is not None:
+            turns[colmap_name(i.path)] = turn
         elif (i.width, i.height) != (W, H):
             why = ("held the other way, with no EXIF orientation to turn it by" if (i.width, i.height) == (H, W)
                    else "resized or cropped")
