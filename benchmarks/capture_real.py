@@ -16,6 +16,11 @@ sheet (validation photo beside render) is RUN/eval_val.png::
     python benchmarks/capture_real.py --minutes 0           # calibration and poses only
     python benchmarks/capture_real.py --labubu /path/labubu --steve /path/steve --work /tmp/cr
     python benchmarks/capture_real.py --sfm                 # also: poses from SfM, tags ignored
+    python benchmarks/capture_real.py --photos 30           # about 30 object photos per capture
+
+With ``--photos N`` only every k-th object photo (in name order, k = round(photos / N)) is
+used, copied into the work folder: a capture of the size users bring (30-50 photos) made
+from the dev captures (labubu 33 of 163, steve 28 of 56 for N = 30).
 
 With ``--sfm`` each capture is also posed by structure-from-motion as if it had no tag
 (``nerfkit poses --method colmap`` with the calibrated camera and no ``--tag-size``: the
@@ -29,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -63,18 +69,37 @@ def train_capture(name: str, out: Path, minutes: float, capture: str, poses: str
             "sheet": str(run / "eval_val.png"), "run": str(run)}
 
 
-def run_capture(name: str, folder: Path, work: Path, extra: list[str], dataset: bool = False,
+def object_photos(name: str, folder: Path, work: Path, about: int) -> Path:
+    """The capture's object folder, or (``about`` > 0) a copy of every k-th of its photos
+    in name order, k = round(photos / about), in ``work/<name>/photos_every_<k>``."""
+    src = folder / CAPTURES[name][1]
+    if about <= 0:
+        return src
+    from nerfkit.images import list_images
+
+    photos = list_images(src)
+    every = max(1, round(len(photos) / about))
+    dst = work / name / f"photos_every_{every}"
+    if dst.exists():
+        shutil.rmtree(dst)
+    dst.mkdir(parents=True)
+    for photo in photos[::every]:
+        shutil.copy2(photo, dst / photo.name)
+    return dst
+
+
+def run_capture(name: str, folder: Path, objects: Path, work: Path, extra: list[str], dataset: bool = False,
                 method: str = "auto") -> dict:
     from nerfkit.cli import main
 
-    calib, obj, tag = CAPTURES[name]
+    calib, _, tag = CAPTURES[name]
     out = work / name
     cam = out / "camera.json"
     t0 = time.perf_counter()
     if main(["calibrate", str(folder / calib), "--tag-size", str(tag), "--out", str(cam), *extra]) != 0:
         raise SystemExit(f"{name}: calibrate failed")
     t_cal = time.perf_counter() - t0
-    if main(["poses", str(folder / obj), "--camera", str(cam), "--tag-size", str(tag), "--out", str(out / "poses"),
+    if main(["poses", str(objects), "--camera", str(cam), "--tag-size", str(tag), "--out", str(out / "poses"),
              "--method", method, *([] if dataset else ["--no-dataset"])]) != 0:
         raise SystemExit(f"{name}: poses failed")
     choice = None
@@ -96,14 +121,14 @@ def run_capture(name: str, folder: Path, work: Path, extra: list[str], dataset: 
     }
 
 
-def sfm_capture(name: str, folder: Path, work: Path) -> dict:
+def sfm_capture(name: str, objects: Path, work: Path) -> dict:
     """Pose the capture's object photos by SfM, ignoring the tags (the camera file of the
     tag run gives the intrinsics); the figures of the SfM report."""
     from nerfkit.cli import main
 
     out = work / name
     t0 = time.perf_counter()
-    if main(["poses", str(folder / CAPTURES[name][1]), "--method", "colmap", "--camera", str(out / "camera.json"),
+    if main(["poses", str(objects), "--method", "colmap", "--camera", str(out / "camera.json"),
              "--out", str(out / "sfm")]) != 0:
         raise SystemExit(f"{name}: poses --method colmap failed")
     rep = json.loads((out / "sfm" / "sfm_report.json").read_text())
@@ -161,6 +186,8 @@ def main() -> int:
     ap.add_argument("--sfm", action="store_true", help="also pose each capture by SfM without its tags, and train on that")
     ap.add_argument("--method", default="auto", choices=["auto", "tags"],
                     help="nerfkit poses --method for the tag run (auto: SfM poses in the tag's frame when they hold up)")
+    ap.add_argument("--photos", type=int, default=0, metavar="N",
+                    help="use about N of each capture's object photos, evenly spaced (default 0: all)")
     args = ap.parse_args()
     rows = []
     for name in CAPTURES:
@@ -170,14 +197,15 @@ def main() -> int:
         if not folder.is_dir():
             print(f"skipping {name}: no folder {folder}", file=sys.stderr)
             continue
-        row = run_capture(name, folder, args.work, ["--dist-model", args.dist_model], dataset=args.minutes > 0,
+        objects = object_photos(name, folder, args.work, args.photos)
+        row = run_capture(name, folder, objects, args.work, ["--dist-model", args.dist_model], dataset=args.minutes > 0,
                           method=args.method)
         if args.minutes > 0:
             row.update(capture_mode=args.capture,
                        **train_capture(name, args.work / name, args.minutes, args.capture))
         rows.append(row)
         if args.sfm:
-            srow = sfm_capture(name, folder, args.work)
+            srow = sfm_capture(name, objects, args.work)
             if args.minutes > 0:
                 srow.update(capture_mode=args.capture,
                             **train_capture(name, args.work / name, args.minutes, args.capture, poses="sfm"))
