@@ -71,6 +71,11 @@ def exif_focal_35mm(path: str | Path) -> float | None:
 QUARTER_TURNS = {1: 0, 6: 1, 3: 2, 8: 3}
 
 
+def held_as(width: int, height: int) -> str:
+    """How a photo of this size was held, for messages: ``"portrait 3024x4032"``."""
+    return f"{'portrait' if height > width else 'landscape'} {width}x{height}"
+
+
 def common_frame(orientations, extra_turns=None) -> int | None:
     """The frame most photos share: the most common clockwise quarter turns from the
     sensor's pixels (the photos as stored) to upright, from their EXIF ``orientations``

@@ -24,6 +24,7 @@ import numpy as np
 from ..config import load_json
 from ..data.validate import MAX_SIDE, check_count, check_intrinsics, check_numbers, short_repr
 from ..errors import advice, fail
+from ..images import held_as
 
 # Diagonal of a 36 x 24 mm film frame: fx ~= f35 * image_diagonal_px / 43.27.
 FILM_DIAGONAL_MM = 43.2666
@@ -84,8 +85,8 @@ class Camera:
         if (width, height) == (self.width, self.height):
             return None
         if (width, height) == (self.height, self.width):
-            return (f"{'portrait' if height > width else 'landscape'} {width}x{height} but the camera was "
-                    f"calibrated on {self.width}x{self.height} photos: calibrate with photos held the same way")
+            return (f"{held_as(width, height)} but the camera was calibrated on {self.width}x{self.height} "
+                    "photos: calibrate with photos held the same way")
         if abs(width / height - self.width / self.height) < 0.005:
             return None
         return f"size {width}x{height} has a different aspect ratio from the camera's {self.width}x{self.height}"

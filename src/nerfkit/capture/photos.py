@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NerfkitError, fail
-from ..images import (common_frame, exif_focal_35mm, list_images, load_image_uint8, orientation_tag,
+from ..images import (common_frame, exif_focal_35mm, held_as, list_images, load_image_uint8, orientation_tag,
                       turns_into_frame)
 from ..io.atomic import write_json
 from .aruco import Detection, Layout, detect, detect_careful, make_detector, marker_bits, suggest_dictionaries
@@ -320,7 +320,7 @@ def group_by_size(records: list[PhotoRecord], turn: bool = False
             if not why:
                 kept.append(r)
                 continue
-            r.skip(f"{'portrait' if r.size[1] > r.size[0] else 'landscape'} {r.size[0]}x{r.size[1]} while most "
+            r.skip(f"{held_as(*r.size)} while most "
                    f"photos are {main[0]}x{main[1]}: {why}")
         else:
             r.skip(f"size {r.size[0]}x{r.size[1]} differs from most photos ({main[0]}x{main[1]})")

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..config import option
 from ..errors import fail
+from ..images import held_as
 from .aruco import Detection, Layout, square_corners, tag_pose_in_layout
 from .camera import Camera, camera_from_focal, exif_fx
 from .photos import PhotoRecord, blur_hint, frame_turns, keep_one_lens, turn_into_frame
@@ -260,8 +261,8 @@ def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
             not_turned = turn_into_frame(r, frame)
             if not_turned and frame is None:  # (so the camera does not record its frame either)
                 not_turned += " (re-run nerfkit calibrate: its camera files record it)"
-            why = (f"{'portrait' if h > w else 'landscape'} {w}x{h} while the camera is {camera.width}x"
-                   f"{camera.height}: {not_turned}") if not_turned else None
+            why = (f"{held_as(w, h)} while the camera is {camera.width}x{camera.height}: {not_turned}"
+                   if not_turned else None)
             w, h = r.size
         if why:
             r.skip(why)
