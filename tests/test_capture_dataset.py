@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from nerfkit.capture import aruco as A
 from nerfkit.capture import synthetic as S
 from nerfkit.capture.camera import Camera, nerfkit_K
-from nerfkit.capture.dataset import DatasetConfig, build_dataset, estimate_bounds, split_indices
+from nerfkit.capture.dataset import (FEW_TRAIN_VIEWS, DatasetConfig, build_dataset, estimate_bounds, few_views_note,
+                                     split_indices)
 from nerfkit.capture.poses import PosedPhoto
 from nerfkit.capture.undistort import make_undistorter
 from nerfkit.cli import main
@@ -46,6 +47,12 @@ def test_split_indices_partition_deterministically(n, val_every, test_every):
         assert "val" not in s
     if n >= 20 and val_every >= 2:
         assert s.count("val") == len(range(val_every // 2, n, val_every))
+
+
+def test_few_views_note_only_below_the_threshold():
+    assert few_views_note(FEW_TRAIN_VIEWS) is None and few_views_note(129) is None
+    note = few_views_note(20)
+    assert note is not None and "20 training photos" in note and "50-100" in note
 
 
 def project_pinhole_nerfkit(K_nk, c2w, X):

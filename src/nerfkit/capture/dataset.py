@@ -57,6 +57,19 @@ class DatasetConfig:
                           "point triangulator; they initialise --model splat). Needs pycolmap")
 
 
+FEW_TRAIN_VIEWS = 40  # below this many training photos a capture's held-out views suffer (BENCHMARKS.md)
+
+
+def few_views_note(n_train: int) -> str | None:
+    """A note for the user when a capture leaves fewer than ``FEW_TRAIN_VIEWS`` photos to
+    train on, else None."""
+    if n_train >= FEW_TRAIN_VIEWS:
+        return None
+    return (f"note: {n_train} training photos. A NeRF from this few blurs and blotches what only one or two "
+            "of them see (labubu: 21 dB on held-out photos from 33 photos, 23.7 from 163); 50-100 photos "
+            "around the object, at two or three heights, do better")
+
+
 def split_indices(n: int, val_every: int, test_every: int) -> list[str]:
     """Split name for each of ``n`` photos: val at i % val_every == val_every // 2, test at
     i % test_every == 0 (if not val), train otherwise; at least one train view is kept."""
