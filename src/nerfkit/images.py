@@ -109,6 +109,15 @@ def orientation_tag(img) -> int:
     return value if 1 <= value <= 8 else 1
 
 
+def upright_size(img, orientation: int) -> tuple[int, int]:
+    """(width, height) of an opened PIL image once turned upright by its EXIF
+    ``orientation`` (:func:`orientation_tag`); HEIF photos are decoded upright already."""
+    w, h = img.size
+    if orientation in (5, 6, 7, 8) and "original_orientation" not in img.info:  # stored rotated by 90 degrees
+        return h, w
+    return w, h
+
+
 def _open_upright(path: Path):
     from PIL import ImageOps
 

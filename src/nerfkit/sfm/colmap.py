@@ -159,14 +159,11 @@ class PhotoInfo:
 
 def photo_info(path: Path) -> PhotoInfo:
     """Header facts of one photo (no pixel decoding, except for formats PIL must decode)."""
-    from ..images import _open, exif_focal_35mm, orientation_tag
+    from ..images import _open, exif_focal_35mm, orientation_tag, upright_size
 
     img = _open(path)
     orientation = orientation_tag(img)
-    w, h = img.size
-    if orientation in (5, 6, 7, 8) and "original_orientation" not in img.info:  # stored rotated by 90 degrees
-        w, h = h, w  # (HEIF photos are decoded upright)
-    return PhotoInfo(path, w, h, orientation, exif_focal_35mm(path))
+    return PhotoInfo(path, *upright_size(img, orientation), orientation, exif_focal_35mm(path))
 
 
 def colmap_name(photo: Path) -> str:
