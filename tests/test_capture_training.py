@@ -68,6 +68,18 @@ def test_auto_capture_settings_follow_the_dataset(tabletop):
     assert capture_settings(TrainConfig(), FastConfig(rgb_loss="mse"), tabletop)[1].rgb_loss == "mse"
 
 
+def test_the_learning_rate_ends_lower_on_captures_for_the_fast_model_only(tabletop):
+    from nerfkit.models.vanilla import VanillaConfig
+
+    def final(train, model):
+        return resolved_config(*capture_settings(train, model, tabletop)).lr_final_factor
+
+    assert final(TrainConfig(), FastConfig()) == 0.02
+    assert final(TrainConfig(capture="off"), FastConfig()) == 0.1
+    assert final(TrainConfig(model="vanilla"), VanillaConfig()) == 0.1
+    assert final(TrainConfig(lr_final_factor=0.3), FastConfig()) == 0.3
+
+
 def test_rgb_losses_match_their_formulas():
     from nerfkit.models.base import CHARBONNIER_EPS, rgb_loss
 

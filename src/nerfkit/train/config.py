@@ -27,7 +27,9 @@ class TrainConfig:
     batch_rays: int = option(0, "rays per step (0: the model's default); lower it if memory runs out", min=0,
                              max=MAX_BATCH_RAYS)
     lr: float = option(0.0, "base learning rate (0: the model's default)", min=0)
-    lr_final_factor: float = option(0.1, "learning rate decays exponentially to lr x this at the end", above=0, max=1)
+    lr_final_factor: float = option(0.0, "learning rate decays exponentially to lr x this at the end (0: 0.1, or "
+                                    "0.02 for the fast model with --capture: a table texel is hit by few rays, and "
+                                    "the low final rate lets it settle on what the photos agree on)", min=0, max=1)
     seed: int = option(0, "random seed (rays, sampling, initialisation)", min=0)
     device: str = option("auto", "auto, cpu, cuda or cuda:N")
     precision: str = option("auto", "auto (bf16 where the hardware has it), fp32, or bf16", choices=["auto", "fp32", "bf16"])
@@ -68,8 +70,8 @@ class TrainConfig:
             raise fail("train", "--steps and --minutes must be >= 0")
         if self.steps == 0 and self.minutes == 0:
             raise fail("train", "no stopping rule", "Give --steps N or --minutes M (or both)")
-        if self.batch_rays < 0 or self.lr < 0 or not 0 < self.lr_final_factor <= 1:
-            raise fail("train", "--batch-rays and --lr must be >= 0 and --lr-final-factor in (0, 1]")
+        if self.batch_rays < 0 or self.lr < 0 or not 0 <= self.lr_final_factor <= 1:
+            raise fail("train", "--batch-rays and --lr must be >= 0 and --lr-final-factor in [0, 1]")
         if not 0 <= self.eval_pixels <= MAX_BATCH_RAYS:
             raise fail("train", f"--eval-pixels must be in 0..{MAX_BATCH_RAYS}")
         if self.render_chunk < 0 or self.eval_views < 0 or self.eval_every < 0 or self.keep_checkpoints < 1 \

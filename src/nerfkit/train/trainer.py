@@ -80,9 +80,10 @@ def capture_settings(cfg: TrainConfig, model_config, scene: Scene):
 
 
 def resolved_config(cfg: TrainConfig, model_config) -> TrainConfig:
-    """Fill the model-dependent defaults (batch size, learning rate)."""
+    """Fill the model-dependent defaults (batch size, learning rate and its final factor,
+    with ``--capture`` its own)."""
     defaults = {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 8192, "eval_pixels": MAX_BATCH_RAYS,
-                **getattr(model_config, "TRAIN_DEFAULTS", {})}
+                "lr_final_factor": 0.1, **getattr(model_config, "TRAIN_DEFAULTS", {})}
     if cfg.render_chunk == 0:
         cfg.render_chunk = int(defaults["render_chunk"])
     if cfg.batch_rays == 0:
@@ -91,6 +92,10 @@ def resolved_config(cfg: TrainConfig, model_config) -> TrainConfig:
         cfg.lr = float(defaults["lr"])
     if cfg.eval_pixels == 0:
         cfg.eval_pixels = int(defaults["eval_pixels"])
+    if cfg.lr_final_factor == 0:
+        key = "capture_lr_final_factor" if cfg.capture == "on" and "capture_lr_final_factor" in defaults \
+            else "lr_final_factor"
+        cfg.lr_final_factor = float(defaults[key])
     return cfg
 
 
