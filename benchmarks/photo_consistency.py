@@ -12,12 +12,15 @@ from the object's box, which may hide them) into every photo, and prints:
   photos by 3 pixels, so that pose and resampling errors at edges count less);
 * per held-out photo: the PSNR of its colours at the table points against the training
   photos' mean there (and with its per-channel gain fitted): what a diffuse table with
-  each point's mean colour would score on those pixels.
+  each point's mean colour would score on those pixels; with ``--run``, also what the run's
+  render scores on the same pixels (a learned table that scores below the plain mean has
+  fitted the training photos' differences instead of the table).
 
 Split the across-view figure by brightness to see what disagrees (paper, dark wood)::
 
     python benchmarks/photo_consistency.py /tmp/cr/steve/poses/dataset.npz
     python benchmarks/photo_consistency.py DATA.npz --extent 0.3 --split val
+    python benchmarks/photo_consistency.py DATA.npz --run RUN   # and the run's renders
 """
 
 from __future__ import annotations
@@ -100,6 +103,7 @@ def main() -> None:
                     help="half-width of the table square, in scene units (default: 1.4x the object radius)")
     ap.add_argument("--grid", type=int, default=241, help="points per side of the square (default 241)")
     ap.add_argument("--split", default="val", help="held-out split to score (default val)")
+    ap.add_argument("--run", help="a run trained on DATA: also score its renders of the held-out photos")
     args = ap.parse_args()
 
     scene = load_scene(args.data)
@@ -128,8 +132,10 @@ def main() -> None:
     held = scene.splits.get(args.split)
     if held is None or not held.has_images:
         return
-    print(f"\n| {args.split} photo | table points | PSNR against the mean colour | with its gain fitted |")
-    print("|---|---:|---:|---:|")
+    render = run_renderer(args.run) if args.run else None
+    extra = (" the run's render |", "---:|") if render else ("", "")
+    print(f"\n| {args.split} photo | table points | PSNR against the mean colour | with its gain fitted |{extra[0]}")
+    print(f"|---|---:|---:|---:|{extra[1]}")
     for i in range(len(held)):
         col, ok = sample_photo(held.images[i], held.K[i], held.c2w[i], pts, bounds.object_box)
         ok &= good
@@ -137,8 +143,29 @@ def main() -> None:
             continue
         gain = (col[ok] * mean[ok]).sum(0) / np.maximum((mean[ok] ** 2).sum(0), 1e-12)
         name = held.names[i] if held.names else str(i)
-        print(f"| {name} | {ok.sum()} | {psnr(((col[ok] - mean[ok]) ** 2).mean()):.2f} | "
-              f"{psnr(((col[ok] - gain * mean[ok]) ** 2).mean()):.2f} |")
+        row = (f"| {name} | {ok.sum()} | {psnr(((col[ok] - mean[ok]) ** 2).mean()):.2f} | "
+               f"{psnr(((col[ok] - gain * mean[ok]) ** 2).mean()):.2f} |")
+        if render:
+            rendered, _ = sample_photo(render(held, i), held.K[i], held.c2w[i], pts, bounds.object_box)
+            row += f" {psnr(((col[ok] - rendered[ok]) ** 2).mean()):.2f} |"
+        print(row)
+
+
+def run_renderer(run: str):
+    """``render(views, i) -> (H, W, 3) uint8``: the run's render of a view at its given pose."""
+    from types import SimpleNamespace
+
+    from nerfkit.commands._common import open_run
+    from nerfkit.output.images import render_image
+
+    opened = open_run(SimpleNamespace(run=run, device="auto", chunk=0))
+
+    def render(views, i: int) -> np.ndarray:
+        view = render_image(opened.model, views.K[i], views.c2w[i], views.width, views.height, opened.background(),
+                            opened.chunk, opened.autocast)
+        return (view.rgb * 255.0).round().astype(np.uint8)
+
+    return render
 
 
 if __name__ == "__main__":
