@@ -90,7 +90,7 @@ class FastConfig:
     """Options of the ``fast`` model."""
 
     # with --capture the learning rate ends lower: a table texel is hit by few rays a step,
-    # each from one photo (labubu, 20 training photos: +0.2-0.3 dB; lego 60 s: -0.3 dB)
+    # each from one photo (labubu, 20 training photos: +0.2-0.3 dB; lego 60 s: -0.5 dB)
     TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 4096, "lr": 0.3, "render_chunk": 65536,
                                       "capture_lr_final_factor": 0.02}
     # options left unset (None) take (the capture value, the other value) by the dataset
