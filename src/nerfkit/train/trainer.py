@@ -80,22 +80,16 @@ def capture_settings(cfg: TrainConfig, model_config, scene: Scene):
 
 
 def resolved_config(cfg: TrainConfig, model_config) -> TrainConfig:
-    """Fill the model-dependent defaults (batch size, learning rate and its final factor,
-    with ``--capture`` its own)."""
+    """Fill the options left at 0 with the model's defaults (batch size, learning rate and
+    its final factor, ...); with ``--capture`` a model's ``capture_<option>`` default, if it
+    has one, comes first."""
     defaults = {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 8192, "eval_pixels": MAX_BATCH_RAYS,
                 "lr_final_factor": 0.1, **getattr(model_config, "TRAIN_DEFAULTS", {})}
-    if cfg.render_chunk == 0:
-        cfg.render_chunk = int(defaults["render_chunk"])
-    if cfg.batch_rays == 0:
-        cfg.batch_rays = int(defaults["batch_rays"])
-    if cfg.lr == 0:
-        cfg.lr = float(defaults["lr"])
-    if cfg.eval_pixels == 0:
-        cfg.eval_pixels = int(defaults["eval_pixels"])
-    if cfg.lr_final_factor == 0:
-        key = "capture_lr_final_factor" if cfg.capture == "on" and "capture_lr_final_factor" in defaults \
-            else "lr_final_factor"
-        cfg.lr_final_factor = float(defaults[key])
+    capture = cfg.capture == "on"
+    for name, kind in (("render_chunk", int), ("batch_rays", int), ("lr", float), ("eval_pixels", int),
+                       ("lr_final_factor", float)):
+        if getattr(cfg, name) == 0:
+            setattr(cfg, name, kind(defaults.get(f"capture_{name}", defaults[name]) if capture else defaults[name]))
     return cfg
 
 
