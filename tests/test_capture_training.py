@@ -126,7 +126,7 @@ def test_distortion_loss_enters_the_fast_model_loss_in_units_of_the_radius(table
         out = model.render_rays(rays, torch.zeros(3), perturb=False)
         target = torch.full_like(out.rgb, 0.5)
         losses[w] = (float(model.loss(out, target).detach()), out)
-    dist = losses[0.5][1].extras["distortion"]
+    dist = losses[0.5][1].extras["distortion"].detach()
     assert float(dist.mean()) > 0  # a hazy initial field spreads its weight
     assert losses[0.5][0] - losses[0.0][0] == pytest.approx(0.5 / bounds.radius * float(dist.mean()), rel=1e-4)
 

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ import torch
 
 from nerfkit.cli import main
 from nerfkit.errors import NerfkitError
-from nerfkit.io.atomic import atomic_path, write_json
+from nerfkit.io.atomic import atomic_path, write_image, write_json
 from nerfkit.models.vanilla import VanillaConfig
 from nerfkit.train.checkpoint import load_run
 from nerfkit.train.config import TrainConfig
@@ -99,6 +100,16 @@ def test_atomic_write_keeps_the_old_file_when_interrupted(tmp_path):
             raise RuntimeError("crash between write and rename")
     assert json.loads(target.read_text()) == {"version": 1}
     assert list(tmp_path.iterdir()) == [target]  # no temporary left behind
+
+
+def test_a_diverged_render_is_written_black_where_it_is_not_a_number(tmp_path):
+    import imageio.v3 as iio
+
+    image = np.array([[[np.nan, np.inf, -np.inf], [0.5, 1.5, -0.5]]], np.float32)  # (1, 2, 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "invalid value encountered in cast"
+        write_image(tmp_path / "x.png", image)
+    assert iio.imread(tmp_path / "x.png").tolist() == [[[0, 255, 0], [128, 255, 0]]]
 
 
 def test_a_full_disk_is_a_clear_error_and_the_old_file_stays(tmp_path, monkeypatch):

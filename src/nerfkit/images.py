@@ -7,6 +7,7 @@ Every failure is a :class:`NerfkitError` naming the file.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +39,9 @@ def _open(path: Path):
     if is_dir:
         raise fail(path, "is a folder, expected an image file")
     try:
-        img = Image.open(path)
+        with warnings.catch_warnings():  # nerfkit says it itself, in one line, just below
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            img = Image.open(path)
         if img.width * img.height > MAX_IMAGE_PIXELS:  # PIL only warns below twice its limit
             raise fail(path, f"image is {img.width}x{img.height} ({img.width * img.height / 1e6:.0f} megapixels), "
                              f"more than nerfkit reads ({MAX_IMAGE_PIXELS / 1e6:.0f} megapixels)",
