@@ -17,6 +17,7 @@ import torch
 
 from nerfkit.cli import main
 from nerfkit.errors import NerfkitError
+from nerfkit.images import to_uint8
 from nerfkit.io.atomic import atomic_path, write_image, write_json
 from nerfkit.models.vanilla import VanillaConfig
 from nerfkit.train.checkpoint import load_run
@@ -109,7 +110,9 @@ def test_a_diverged_render_is_written_black_where_it_is_not_a_number(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no "invalid value encountered in cast"
         write_image(tmp_path / "x.png", image)
+        frame = to_uint8(image)  # what the videos' frames go through too
     assert iio.imread(tmp_path / "x.png").tolist() == [[[0, 255, 0], [128, 255, 0]]]
+    assert frame.tolist() == [[[0, 255, 0], [128, 255, 0]]]
 
 
 def test_a_full_disk_is_a_clear_error_and_the_old_file_stays(tmp_path, monkeypatch):

@@ -135,12 +135,13 @@ def write_npz(path: str | os.PathLike, **arrays: np.ndarray) -> None:
 
 
 def write_image(path: str | os.PathLike, image: np.ndarray) -> None:
-    """Write an image (float in [0, 1] or uint8, (H, W[, C])) as PNG/JPEG atomically; a
-    non-finite value (a diverged render) is written black (NaN, -inf) or white (+inf)."""
+    """Write an image (float in [0, 1] or uint8, (H, W[, C])) as PNG/JPEG atomically; floats
+    go through :func:`nerfkit.images.to_uint8`."""
     import imageio.v3 as iio
 
+    from ..images import to_uint8
+
     if image.dtype != np.uint8:
-        image = np.nan_to_num(np.asarray(image, np.float32), nan=0.0, posinf=1.0, neginf=0.0)
-        image = (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+        image = to_uint8(image)
     with atomic_path(path) as tmp:
         iio.imwrite(tmp, image, extension=Path(path).suffix)

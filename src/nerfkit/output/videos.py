@@ -8,8 +8,9 @@ from pathlib import Path
 import torch
 
 from ..data.scene import Views
+from ..images import to_uint8
 from ..models.base import NerfModel
-from ..viz.video import colorize_depth, to_uint8, write_video
+from ..viz.video import colorize_depth, write_video
 from .images import render_views
 
 

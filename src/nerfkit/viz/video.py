@@ -7,12 +7,8 @@ from typing import Iterable
 
 import numpy as np
 
+from ..images import to_uint8
 from ..io.atomic import atomic_path
-
-
-def to_uint8(image: np.ndarray) -> np.ndarray:
-    """Float [0, 1] (H, W, 3) -> uint8."""
-    return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
 def colorize_depth(depth: np.ndarray, acc: np.ndarray, near: float, far: float, cmap: str = "turbo") -> np.ndarray:
