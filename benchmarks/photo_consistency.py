@@ -156,6 +156,7 @@ def run_renderer(run: str):
     from types import SimpleNamespace
 
     from nerfkit.commands._common import open_run
+    from nerfkit.images import to_uint8
     from nerfkit.output.images import render_image
 
     opened = open_run(SimpleNamespace(run=run, device="auto", chunk=0))
@@ -163,7 +164,7 @@ def run_renderer(run: str):
     def render(views, i: int) -> np.ndarray:
         view = render_image(opened.model, views.K[i], views.c2w[i], views.width, views.height, opened.background(),
                             opened.chunk, opened.autocast)
-        return (view.rgb * 255.0).round().astype(np.uint8)
+        return to_uint8(view.rgb)
 
     return render
 

@@ -23,8 +23,9 @@ MAX_IMAGE_PIXELS = 250_000_000
 def to_uint8(image: np.ndarray) -> np.ndarray:
     """Float image in [0, 1] -> uint8, rounded; a non-finite value (a diverged render) is
     black (NaN, -inf) or white (+inf) instead of whatever casting NaN gives."""
-    image = np.nan_to_num(np.asarray(image, np.float32), nan=0.0, posinf=1.0, neginf=0.0)
+    image = np.nan_to_num(np.asarray(image), nan=0.0, posinf=1.0, neginf=0.0)
     return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
 
 def _open(path: Path):
     from PIL import Image, UnidentifiedImageError
