@@ -77,6 +77,17 @@ def blender_folder(folder: Path, file_paths: list[str], split="train", size=8) -
 # ============================================================================= paths: the one function
 
 
+def test_path_kind_names_what_is_there_and_refuses_unusable_paths(tmp_path):
+    from nerfkit.io.paths import path_kind
+
+    save_png(tmp_path / "a.png")
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    paths = (tmp_path / "a.png", tmp_path, tmp_path / "none", "/dev/null", "a\x00b", tmp_path / "loop" / "a")
+    assert [path_kind(p) for p in paths] == ["file", "dir", None, "other", None, None]
+    with pytest.raises(NerfkitError, match="not a usable path"):
+        path_kind("x" * 5000)  # a name too long for the file system
+
+
 def test_resolve_inside_refuses_what_leaves_the_root(tmp_path):
     from nerfkit.io.paths import resolve_inside, safe_output_name
 

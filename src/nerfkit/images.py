@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import fail
+from .io.paths import path_kind
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp", ".heic", ".heif"}
 # PIL refuses larger images as a "decompression bomb"; phone photos are ~12-50 MP.
@@ -38,13 +39,10 @@ def _open(path: Path):
             pillow_heif.register_heif_opener()
         except ImportError:
             raise fail(path, "HEIC photos need pillow-heif", "pip install pillow-heif, or export the photos as JPEG") from None
-    try:
-        exists, is_dir = path.exists(), path.is_dir()
-    except (OSError, ValueError) as e:  # a NUL byte, a name too long, a loop of links
-        raise fail(repr(str(path)[:200]), f"not a usable path ({type(e).__name__})") from None
-    if not exists:
+    kind = path_kind(path)
+    if kind is None:
         raise fail(path, "no such file", "Check the path")
-    if is_dir:
+    if kind == "dir":
         raise fail(path, "is a folder, expected an image file")
     try:
         with warnings.catch_warnings():  # nerfkit says it itself, in one line, just below

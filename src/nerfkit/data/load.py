@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import fail
+from ..io.paths import path_kind
 from .npz import load_npz
 from .scene import Scene, Views
 from .validate import MAX_PIXELS, check_scene
@@ -105,13 +106,10 @@ def detect_format(path: str | Path) -> str:
     from .llff import llff_folder
 
     path = Path(path)
-    try:
-        exists, is_file = path.exists(), path.is_file()
-    except (OSError, ValueError) as e:  # a NUL byte, a name too long, a loop of links
-        raise fail(repr(str(path)[:200]), f"not a usable path ({type(e).__name__})") from None
-    if not exists:
+    kind = path_kind(path)
+    if kind is None:
         raise fail(path, "no such file or folder", "Check the path")
-    if is_file:
+    if kind != "dir":
         if path.suffix.lower() == ".npz":
             return "npz"
         if blender_folder(path) is not None:

@@ -33,7 +33,7 @@ from ..cameras import opencv_to_opengl, opengl_to_opencv
 from ..config import load_json
 from ..errors import fail
 from ..io.atomic import atomic_path, write_json
-from ..io.paths import resolve_inside, safe_output_name
+from ..io.paths import path_kind, resolve_inside, safe_output_name
 from .blender import focal_from_angle, frame_image_path
 from .scene import Scene, Views, estimate_center, estimate_up
 from .validate import (MAX_SIDE, check_count, check_fov, check_intrinsics, check_near_far, check_number, check_plane,
@@ -221,11 +221,8 @@ def load_transforms_json(path: str | Path, load_images: bool = True,
     that must have frames.
     """
     path = Path(path)
-    try:
-        if path.is_dir():
-            path = path / "transforms.json"
-    except OSError as e:  # a name too long, a loop of links
-        raise fail(repr(str(path)[:200]), f"not a usable path ({type(e).__name__})") from None
+    if path_kind(path) == "dir":
+        path = path / "transforms.json"
     where = str(path)
     data = load_json(path, "no such file", "Expected a nerfstudio transforms.json", "The file may be truncated; re-export it")
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:

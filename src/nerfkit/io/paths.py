@@ -30,6 +30,19 @@ def resolved_path(path: str | os.PathLike) -> Path:
         raise fail(repr(str(path)[:200]), f"not a usable path ({type(e).__name__})") from None
 
 
+def path_kind(path: str | os.PathLike) -> str | None:
+    """``"file"``, ``"dir"``, ``"other"`` (a device, a socket) or None when nothing is at
+    ``path``; an unusable path (a NUL byte, a name too long, a loop of links) is a
+    NerfkitError."""
+    path = Path(path)
+    try:
+        if not path.exists():
+            return None
+        return "dir" if path.is_dir() else "file" if path.is_file() else "other"
+    except (OSError, ValueError) as e:
+        raise fail(repr(str(path)[:200]), f"not a usable path ({type(e).__name__})") from None
+
+
 def is_within(path: str | os.PathLike, folder: str | os.PathLike) -> bool:
     """True when ``path`` is ``folder`` or inside it, after resolving links and ``..``."""
     return resolved_path(path).is_relative_to(resolved_path(folder))

@@ -69,13 +69,7 @@ class GridAdam(torch.optim.Optimizer):
                 sink.drop_frozen()
                 if not sink.dirty:
                     continue
-                state = self.state[p]
-                if not state:
-                    state["step"] = torch.zeros((), dtype=torch.float32)
-                    state["exp_avg"] = torch.zeros_like(p)
-                    state["exp_avg_sq"] = torch.zeros_like(p)
-                state["step"] += 1
-                step = int(state["step"])
+                state, step = self._next_step(p)
                 scale = group.get("channel_lr_scale")
                 lr = torch.full((p.shape[1],), float(group["lr"]), dtype=torch.float32, device=p.device)
                 if scale is not None:
@@ -98,15 +92,19 @@ class GridAdam(torch.optim.Optimizer):
                 sink.dirty = False
         return loss
 
-    def _dense_step(self, p: Tensor, group: dict) -> None:
-        beta1, beta2 = group["betas"]
+    def _next_step(self, p: Tensor) -> tuple[dict, int]:
+        """``p``'s Adam state (moments at zero on its first step) and its step count, advanced by one."""
         state = self.state[p]
         if not state:
             state["step"] = torch.zeros((), dtype=torch.float32)
             state["exp_avg"] = torch.zeros_like(p)
             state["exp_avg_sq"] = torch.zeros_like(p)
         state["step"] += 1
-        step = int(state["step"])
+        return state, int(state["step"])
+
+    def _dense_step(self, p: Tensor, group: dict) -> None:
+        beta1, beta2 = group["betas"]
+        state, step = self._next_step(p)
         g = p.grad
         state["exp_avg"].mul_(beta1).add_(g, alpha=1 - beta1)
         state["exp_avg_sq"].mul_(beta2).addcmul_(g, g, value=1 - beta2)
