@@ -32,8 +32,8 @@ def resolved_path(path: str | os.PathLike) -> Path:
 
 def path_kind(path: str | os.PathLike) -> str | None:
     """``"file"``, ``"dir"``, ``"other"`` (a device, a socket) or None when nothing is at
-    ``path``; an unusable path (a NUL byte, a name too long, a loop of links) is a
-    NerfkitError."""
+    ``path`` (also for a name with a NUL byte, or behind a loop of links: Python's
+    ``exists()`` says False); a name the file system refuses (too long) is a NerfkitError."""
     path = Path(path)
     try:
         if not path.exists():
