@@ -20,7 +20,6 @@ IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp", ".h
 MAX_IMAGE_PIXELS = 250_000_000
 
 
-
 def to_uint8(image: np.ndarray) -> np.ndarray:
     """Float image in [0, 1] -> uint8, rounded; a non-finite value (a diverged render) is
     black (NaN, -inf) or white (+inf) instead of whatever casting NaN gives."""

@@ -17,9 +17,14 @@ import os
 import re
 from pathlib import Path
 
-from ..errors import fail
+from ..errors import NerfkitError, fail
 
 OUTSIDE_FLAG = "--allow-outside-paths"
+
+
+def _unusable(path, e: Exception) -> NerfkitError:
+    """The NerfkitError for a path the operating system refuses (``e``: why)."""
+    return fail(repr(str(path)[:200]), f"not a usable path ({type(e).__name__})")
 
 
 def resolved_path(path: str | os.PathLike) -> Path:
@@ -27,7 +32,7 @@ def resolved_path(path: str | os.PathLike) -> Path:
     try:
         return Path(path).resolve()
     except (OSError, ValueError, RuntimeError) as e:  # a NUL byte, a loop of links
-        raise fail(repr(str(path)[:200]), f"not a usable path ({type(e).__name__})") from None
+        raise _unusable(path, e) from None
 
 
 def path_kind(path: str | os.PathLike) -> str | None:
@@ -40,7 +45,7 @@ def path_kind(path: str | os.PathLike) -> str | None:
             return None
         return "dir" if path.is_dir() else "file" if path.is_file() else "other"
     except (OSError, ValueError) as e:
-        raise fail(repr(str(path)[:200]), f"not a usable path ({type(e).__name__})") from None
+        raise _unusable(path, e) from None
 
 
 def is_within(path: str | os.PathLike, folder: str | os.PathLike) -> bool:
