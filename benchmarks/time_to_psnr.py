@@ -85,6 +85,7 @@ def worker(args) -> dict:
         """Evaluates at the given training seconds; counts samples and CPU time."""
 
         samples = 0
+        rays_drawn = 0
         cpu_seconds = 0.0
         _next = 0
 
@@ -100,6 +101,7 @@ def worker(args) -> dict:
             stats = super().train_step()
             self.cpu_seconds += time.process_time() - c
             self.samples += int(stats["samples"])
+            self.rays_drawn += int(stats["rays"])
             return stats
 
     load_before = os.getloadavg()
@@ -124,7 +126,8 @@ def worker(args) -> dict:
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         "curve": [{"seconds": r["seconds"], "psnr": r["psnr"], "views": r.get("views")} for r in val],
         "kernels": warmup, "loadavg_before": load_before, "loadavg_after": os.getloadavg(),
-        "batch_rays": cfg.batch_rays, "precision": cfg.precision, "torch_threads": torch.get_num_threads(),
+        "batch_rays": cfg.batch_rays, "mean_rays_per_step": trainer.rays_drawn / max(result.step, 1),
+        "precision": cfg.precision, "torch_threads": torch.get_num_threads(),
         "model_config": {k: v for k, v in vars(model_cfg).items()}, "val_views": len(scene.val),
         "mean_val_psnr_check": float(np.mean([r["psnr"] for r in val[-1:]])) if val else None,
     }
@@ -154,10 +157,11 @@ def cold_compile_seconds() -> float | None:
 
 
 def write_table(results: list[dict], extra: dict, path: Path) -> None:
-    lines = ["| model | budget (s) | steps | val PSNR (dB) | train CPU s | Msamples/s | render s/frame | peak RSS (MB) |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| model | budget (s) | steps | rays / step | val PSNR (dB) | train CPU s | Msamples/s | render s/frame "
+             "| peak RSS (MB) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in results:
-        lines.append(f"| {r['model']} | {r['budget_s']:g} | {r['steps']} | {r['final_val_psnr']:.2f} | "
+        lines.append(f"| {r['model']} | {r['budget_s']:g} | {r['steps']} | {r.get('mean_rays_per_step', 0):.0f} | "
+                     f"{r['final_val_psnr']:.2f} | "
                      f"{r['train_cpu_s']:.0f} | {r['samples_per_s'] / 1e6:.2f} | {r['render_s_per_frame']:.3f} | "
                      f"{r['peak_rss_mb']:.0f} |")
     lines += ["", f"PSNR on all {results[0]['val_views']} held-out validation views, "
@@ -222,8 +226,8 @@ def main(argv=None) -> int:
             print(f"{model}: {budget:g} s ...", flush=True)
             subprocess.run(cmd, check=True)
             r = json.loads((run / "result.json").read_text())
-            print(f"  {r['steps']} steps, val PSNR {r['final_val_psnr']:.2f} dB, "
-                  f"{r['samples_per_s'] / 1e6:.2f} M samples/s, render {r['render_s_per_frame']:.3f} s/frame", flush=True)
+            print(f"  {r['steps']} steps ({r.get('mean_rays_per_step', 0):.0f} rays each), "
+                  f"val PSNR {r['final_val_psnr']:.2f} dB, {r['samples_per_s'] / 1e6:.2f} M samples/s, render {r['render_s_per_frame']:.3f} s/frame", flush=True)
             results.append(r)
     extra = {"load average (1, 5, 15 min) at the start of each run":
              sorted({tuple(round(x, 1) for x in r["loadavg_before"]) for r in results}),

@@ -262,6 +262,27 @@ def test_trainer_runs_fast_model_and_resumes_exactly(tmp_path, scene):
         torch.testing.assert_close(a["model"][k], b["model"][k], rtol=1e-4, atol=1e-5)
 
 
+def test_each_stage_trains_on_its_multiple_of_the_batch(tmp_path, scene):
+    from nerfkit.train.config import TrainConfig
+    from nerfkit.train.trainer import Trainer, resolved_config
+
+    cfg = FastConfig(resolutions="16,20,24", upsample_steps="10,20", stage_rays="1,3", occ_start=8, occ_every=8)
+    tc = resolved_config(TrainConfig(data="sphere", model="fast", out=str(tmp_path / "run"), steps=30,
+                                     batch_rays=64, seed=0, eval_views=1, checkpoint_seconds=1e9), cfg)
+    rows = Trainer(scene, tc, cfg, quiet=True).run().rows
+    # a row at step s holds step s - 1: the first stage's, then the second's, then the last factor again
+    assert [r["rays"] for r in rows if r["split"] == "train"] == [64, 192, 192]
+
+
+@pytest.mark.parametrize("text", ["0,1", "a", "", "1,,x", "1,1000"])
+def test_bad_stage_rays_are_refused_in_one_line(text):
+    from nerfkit.errors import NerfkitError
+
+    with pytest.raises(NerfkitError, match="--stage-rays") as e:
+        FastConfig(stage_rays=text).stage_ray_factors()
+    assert "\n" not in str(e.value)
+
+
 @pytest.mark.parametrize("kernels", ["numba", "torch"])
 def test_a_non_finite_grid_gradient_is_refused_and_counted(scene, kernels):
     # The compiled path keeps the grid gradient in a sink, not in .grad: the optimizer itself

@@ -285,6 +285,11 @@ class NerfModel(nn.Module):
         """The jobs the trainer runs for this model during training."""
         return []
 
+    def rays_per_step(self, batch_rays: int) -> int:
+        """Rays of the next training step, given ``--batch-rays`` (a model may take more as
+        it grows finer)."""
+        return batch_rays
+
     def gradients_finite(self) -> bool:
         """True when every gradient of the last backward pass is finite (checked before
         the optimizer step; models keeping gradients outside ``.grad`` check those too)."""

@@ -76,6 +76,8 @@ def growth_too_late(s: StepState) -> bool:
     return s.progress > 1.0 / (1.0 + GROWTH_MIN_STEPS_LEFT)
 
 
+MAX_STAGE_RAYS = 64  # --stage-rays: the largest multiple of --batch-rays
+
 # (resolutions, upsample steps) of the coarse-to-fine stages when the options are unset
 BASE_STAGES = ("32,64,128,192", "60,300,2000")
 # ... and for an object scene (not a capture, not forward-facing) whose photos have more
@@ -106,6 +108,10 @@ class FastConfig:
     upsample_steps: str | None = option(None, "steps at which the grid grows to the next size (one fewer than "
                                         "--resolutions; default: 60,300,2000, and 3500 with the fifth stage); a "
                                         "growth in the last 5% of the run is skipped")
+    stage_rays: str = option("1,1,2,4", "rays per training step at each stage, as multiples of --batch-rays "
+                             "(comma-separated; later stages take the last): a finer grid has more vertices to "
+                             "share each step's rays, and fewer, fuller steps beat more, noisier ones (lego "
+                             "200x200 after 300 s: 32.9 dB with 1,1,1,1, 33.3 with 1,1,2,4)")
     sh_degree: int = option(1, "spherical-harmonic degree of the view-dependent colour (0, 1 or 2)")
     step_ratio: float = option(0.5, "distance between samples along a ray, in voxels")
     init_alpha: float = option(1e-4, "opacity of one sample of the initial, near-empty density")
@@ -212,6 +218,17 @@ class FastConfig:
             raise fail("--upsample-steps", f"needs {len(sizes) - 1} increasing steps for {len(sizes)} resolutions")
         return sizes, steps
 
+    def stage_ray_factors(self) -> list[int]:
+        """``--stage-rays`` as integers >= 1, one per stage from the first."""
+        try:
+            factors = [int(f) for f in self.stage_rays.split(",") if f.strip()]
+        except ValueError:
+            factors = []
+        if not factors or min(factors) < 1 or max(factors) > MAX_STAGE_RAYS:
+            raise fail("--stage-rays", f"'{self.stage_rays}' should be comma-separated integers from 1 to "
+                       f"{MAX_STAGE_RAYS}, e.g. 1,1,2,4")
+        return factors
+
 
 # Model files store the grid sparsely (vertices of occupied cells) under this name, the
 # density channel in this dtype; the other vertices get raw density EMPTY_RAW
@@ -257,6 +274,7 @@ class FastNeRF(NerfModel):
         if config.sh_degree not in (0, 1, 2):
             raise fail("--sh-degree", f"must be 0, 1 or 2, got {config.sh_degree}")
         self.sizes, self.steps = config.stages()
+        self.ray_factors = config.stage_ray_factors()
         self.K = ref.sh_dim(config.sh_degree)
         self.n_channels = 1 + 3 * self.K
         self.ndc = None
@@ -536,6 +554,9 @@ class FastNeRF(NerfModel):
                 Schedule("total variation", lambda s: self.config.tv_weight > 0, self._add_tv, phase="gradients"),
                 Schedule("remember surfaces", self._surface_due, self._remember_surface, phase="after_step"),
                 Schedule("occupancy", self._occupancy_due, self._occupancy_job, phase="after_step")]
+
+    def rays_per_step(self, batch_rays: int) -> int:
+        return batch_rays * self.ray_factors[min(self.stage, len(self.ray_factors) - 1)]
 
     def _growth_due(self, s: StepState) -> bool:
         return self.stage < len(self.steps) and s.step >= self.steps[self.stage] and not growth_too_late(s)

@@ -244,7 +244,7 @@ class Trainer:
             out, target = self._render_training_view()
             loss = self.model.loss(out, target) + self._corrections_penalty()
         else:
-            batch = self.rays.sample(self.cfg.batch_rays)
+            batch = self.rays.sample(min(self.model.rays_per_step(self.cfg.batch_rays), MAX_BATCH_RAYS))
             rays, target = batch.rays, batch.rgb
             if views is not None and views.pose is not None and self.step >= self.cfg.pose_start:
                 rays = views.pose(rays, batch.image_index)
@@ -261,7 +261,7 @@ class Trainer:
         if not finite:
             self._zero_grad()
             self._bad_step("non-finite loss or gradient, step skipped")
-            return {"loss": float("nan"), "psnr": float("nan"), "samples": 0}
+            return {"loss": float("nan"), "psnr": float("nan"), "samples": 0, "rays": 0}
         after = replace(state, optimizer=self.optimizer, rays=rays, out=out if rays is not None else None)
         run_schedules(self.schedules, after, phase="gradients")
         self.optimizer.step()
@@ -275,7 +275,8 @@ class Trainer:
         for note in run_schedules(self.schedules, after, phase="after_step")[1]:
             self.log(f"step {self.step}: {note}")
         mse = float(torch.mean((out.rgb.detach().float() - target) ** 2))
-        return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples}
+        n_rays = target.numel() // 3  # (a whole view: its pixels)
+        return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples, "rays": n_rays}
 
     def _corrections_penalty(self) -> Tensor | float:
         """The per-view corrections' regulariser (the colour mixing's), 0 without them."""
@@ -372,10 +373,12 @@ class Trainer:
                     train_psnr.append(stats["psnr"])
                 if self.step % 10 == 0 or self.done():
                     self.rows.append({"step": self.step, "seconds": round(self.train_seconds, 3), "split": "train",
-                                      "loss": stats["loss"], "psnr": float(np.mean(train_psnr[-10:] or [float("nan")]))})
+                                      "loss": stats["loss"], "psnr": float(np.mean(train_psnr[-10:] or [float("nan")])),
+                                      "rays": stats["rays"]})
                 bar.update(1)
                 bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}",
-                                spr=f"{stats['samples'] / self.cfg.batch_rays:.0f}", refresh=False)
+                                rays=stats["rays"], spr=f"{stats['samples'] / max(stats['rays'], 1):.0f}",
+                                refresh=False)
                 if self.cfg.minutes and not total:
                     bar.set_description(f"train {self.cfg.model} {self.train_seconds:.0f}/{60 * self.cfg.minutes:.0f}s",
                                         refresh=False)  # redraws follow the bar's own interval
@@ -428,7 +431,7 @@ class Trainer:
         write_json(self.run_dir / "metrics.json", {"rows": self.rows, "step": self.step,
                                                    "train_seconds": self.train_seconds})
         buf = io.StringIO()
-        keys = ["step", "seconds", "split", "loss", "psnr", "views", "pixels"]
+        keys = ["step", "seconds", "split", "loss", "psnr", "views", "pixels", "rays"]
         writer = csv.DictWriter(buf, fieldnames=keys, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(self.rows)
