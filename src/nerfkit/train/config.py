@@ -24,8 +24,8 @@ class TrainConfig:
     out: str = option("runs/latest", "run folder for checkpoints, metrics, plots and videos", metavar="DIR")
     steps: int = option(0, "optimizer steps (0: run until --minutes is spent)", min=0)
     minutes: float = option(0.0, "training-time budget in minutes, evaluation excluded (0: no limit)", min=0)
-    batch_rays: int = option(0, "rays per step (0: the model's default); lower it if memory runs out", min=0,
-                             max=MAX_BATCH_RAYS)
+    batch_rays: int = option(0, "rays per step (0: the model's default; fast takes multiples of it at its finer "
+                             "stages, --stage-rays); lower it if memory runs out", min=0, max=MAX_BATCH_RAYS)
     lr: float = option(0.0, "base learning rate (0: the model's default)", min=0)
     lr_final_factor: float = option(0.0, "learning rate decays exponentially to lr x this at the end (0: 0.1, or "
                                     "0.02 for the fast model with --capture: a table texel is hit by few rays, and "
