@@ -227,7 +227,8 @@ def main(argv=None) -> int:
             subprocess.run(cmd, check=True)
             r = json.loads((run / "result.json").read_text())
             print(f"  {r['steps']} steps ({r.get('mean_rays_per_step', 0):.0f} rays each), "
-                  f"val PSNR {r['final_val_psnr']:.2f} dB, {r['samples_per_s'] / 1e6:.2f} M samples/s, render {r['render_s_per_frame']:.3f} s/frame", flush=True)
+                  f"val PSNR {r['final_val_psnr']:.2f} dB, {r['samples_per_s'] / 1e6:.2f} M samples/s, "
+                  f"render {r['render_s_per_frame']:.3f} s/frame", flush=True)
             results.append(r)
     extra = {"load average (1, 5, 15 min) at the start of each run":
              sorted({tuple(round(x, 1) for x in r["loadavg_before"]) for r in results}),

@@ -78,6 +78,12 @@ def growth_too_late(s: StepState) -> bool:
 
 MAX_STAGE_RAYS = 64  # --stage-rays: the largest multiple of --batch-rays
 
+
+def comma_ints(text: str) -> list[int]:
+    """``"32, 64,128"`` -> ``[32, 64, 128]`` (empty items skipped); ValueError for anything else."""
+    return [int(s) for s in text.split(",") if s.strip()]
+
+
 # (resolutions, upsample steps) of the coarse-to-fine stages when the options are unset
 BASE_STAGES = ("32,64,128,192", "60,300,2000")
 # ... and for an object scene (not a capture, not forward-facing) whose photos have more
@@ -204,8 +210,7 @@ class FastConfig:
         resolutions = BASE_STAGES[0] if self.resolutions is None else self.resolutions
         upsample_steps = BASE_STAGES[1] if self.upsample_steps is None else self.upsample_steps
         try:
-            sizes = [int(s) for s in resolutions.split(",") if s.strip()]
-            steps = [int(s) for s in upsample_steps.split(",") if s.strip()]
+            sizes, steps = comma_ints(resolutions), comma_ints(upsample_steps)
         except ValueError:
             raise fail("--resolutions/--upsample-steps", "expected comma-separated integers") from None
         if not sizes or min(sizes) < 4:
@@ -221,7 +226,7 @@ class FastConfig:
     def stage_ray_factors(self) -> list[int]:
         """``--stage-rays`` as integers >= 1, one per stage from the first."""
         try:
-            factors = [int(f) for f in self.stage_rays.split(",") if f.strip()]
+            factors = comma_ints(self.stage_rays)
         except ValueError:
             factors = []
         if not factors or min(factors) < 1 or max(factors) > MAX_STAGE_RAYS:
