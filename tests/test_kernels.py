@@ -406,6 +406,26 @@ def test_occupancy_kernel_matches_reference(layout):
         assert np.array_equal(coarse.astype(bool), occ.coarse(cf).numpy())
 
 
+@needs_numba
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_resample_kernel_matches_reference_inside_and_outside_the_box(layout):
+    from nerfkit.models.fast import resample_grid
+
+    grid, geom = stored_as(*random_field(seed=5, res=(9, 12, 7)), layout, seed=2)
+    g = torch.Generator().manual_seed(3)
+    span = geom.hi - geom.lo
+    inside = geom.lo + torch.rand(400, 3, generator=g) * span
+    outside = geom.lo - 0.5 * span + torch.rand(100, 3, generator=g) * 2 * span  # partly beyond every face
+    on_vertices = geom.vertex_positions(torch.arange(0, geom.n_vertices, 7))
+    pts = torch.cat([inside, outside, on_vertices])
+    want = resample_grid(grid, geom, pts, backend="torch")
+    got = resample_grid(grid, geom, pts, backend="numba")
+    torch.testing.assert_close(got, want, atol=2e-5, rtol=1e-5)
+    # at a vertex, the vertex's own row
+    rows = geom.vertex_index()[torch.arange(0, geom.n_vertices, 7)].long()
+    torch.testing.assert_close(got[500:], grid[rows], atol=2e-5, rtol=1e-5)
+
+
 def test_cell_density_max_bounds_every_point_in_the_cell():
     grid, geom = random_field(seed=8)
     smax = cell_density_max(grid, geom, 3.0)

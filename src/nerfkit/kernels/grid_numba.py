@@ -712,6 +712,36 @@ def tv_rows(grid, vidx, voff, row_vertex, rx, ry, rz, rows, weight, grad):
 
 
 @njit(cache=True, parallel=True, fastmath=False)
+def grid_interp_points(grid, vidx, voff, rx, ry, rz, lo, inv_voxel, points, out):
+    """Trilinear interpolation of a vertex grid at world points (``reference.grid_interp``;
+    coordinates outside the box are clamped to it).
+
+    Args:
+        grid: (M, C) float32; vidx, voff: as in :func:`render_forward`; rx, ry, rz: vertex
+            counts; lo: (3,) float64 box corner; inv_voxel: 1 / voxel.
+        points: (m, 3) float64 world points; out: (m, C) float32 output.
+    """
+    C = grid.shape[1]
+    sxy = rx * ry
+    for i in prange(points.shape[0]):
+        ix, fx = _cell((points[i, 0] - lo[0]) * inv_voxel, rx)
+        iy, fy = _cell((points[i, 1] - lo[1]) * inv_voxel, ry)
+        iz, fz = _cell((points[i, 2] - lo[2]) * inv_voxel, rz)
+        base = (iz * ry + iy) * rx + ix
+        for c in range(C):
+            out[i, c] = 0.0
+        for dz in range(2):
+            wz = fz if dz else 1.0 - fz
+            for dy in range(2):
+                wy = fy if dy else 1.0 - fy
+                for dx in range(2):
+                    w = np.float32(wz * wy * (fx if dx else 1.0 - fx))
+                    r = _row(vidx, base + dz * sxy + dy * rx + dx, voff)
+                    for c in range(C):
+                        out[i, c] += w * grid[r, c]
+
+
+@njit(cache=True, parallel=True, fastmath=False)
 def occupancy_from_grid(grid, vidx, voff, rx, ry, rz, raw_thr, occ, coarse, cf):
     """Mark the cells whose largest corner raw density exceeds ``raw_thr``.
 
@@ -851,6 +881,7 @@ def warm_up() -> None:
     adam_rows(grid, grads, rows, touched, m, m.copy(), np.ones(C, np.float32), 0.9, 0.99, 1e-15, 0.1, 0.01)
     clear_rows(grads, touched_rows(touched), touched)
     occupancy_from_grid(grid, vidx, voff, rx, ry, rz, 0.0, occ, occ.copy(), 1)
+    grid_interp_points(grid, vidx, voff, rx, ry, rz, np.zeros(3), 1.0, np.zeros((2, 3)), np.zeros((2, C), np.float32))
     tv_rows(grid, vidx, voff, np.arange(rx * ry * rz, dtype=np.int64), rx, ry, rz, np.arange(1, 3, dtype=np.int64),
             np.ones(C, np.float32), grads[0])
     uv = np.zeros((2, 2), np.float32)

@@ -697,7 +697,8 @@ class FastNeRF(NerfModel):
         index[keep] = torch.arange(1, int(keep.sum()) + 1, dtype=torch.int32, device=device)
         self._set_geometry(new_lo, voxel, res, index)
         rows = torch.cat([self._empty_rows(1, device),
-                          resample_grid(old_grid, old_geom, geom.vertex_positions(torch.nonzero(keep)[:, 0]))])
+                          resample_grid(old_grid, old_geom, geom.vertex_positions(torch.nonzero(keep)[:, 0]),
+                                        backend=self._backend())])
         self.grid = nn.Parameter(rows)
         self.sink = self._grid_sink(device)
         if self.occ_active:
@@ -769,12 +770,20 @@ class FastNeRF(NerfModel):
 
 
 @torch.no_grad()
-def resample_grid(grid: Tensor, geom: GridGeom, points: Tensor, chunk: int = 1 << 18) -> Tensor:
+def resample_grid(grid: Tensor, geom: GridGeom, points: Tensor, chunk: int = 1 << 18, backend: str = "torch") -> Tensor:
     """Trilinearly interpolate a (sparse or dense) vertex grid at ``points`` (m, 3): (m, C).
 
     Points outside the grid's box take the value at the nearest point of the box
-    (coordinates are clamped), as :func:`reference.grid_interp` does.
+    (coordinates are clamped), as :func:`reference.grid_interp` does. ``backend``
+    "numba": through the compiled kernel (a float32 CPU grid), else in torch.
     """
+    nb = numba_kernels() if backend == "numba" and grid.device.type == "cpu" and grid.dtype == torch.float32 else None
+    if nb is not None:
+        out = np.empty((len(points), grid.shape[1]), np.float32)
+        nb.grid_interp_points(grid.detach().contiguous().numpy(), geom.vertex_index().numpy(), geom.row_offset(),
+                              *geom.res, geom.lo.double().numpy(), 1.0 / geom.voxel,
+                              points.double().contiguous().numpy(), out)
+        return torch.from_numpy(out)
     out = torch.empty((len(points), grid.shape[1]), dtype=grid.dtype, device=grid.device)
     lo = geom.lo.to(points)
     for i in range(0, len(points), chunk):
