@@ -94,6 +94,28 @@ def add_dataclass_args(parser: argparse.ArgumentParser, cls: type, group_title: 
                                 **kw)
 
 
+NAMED_COLOURS = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0), "grey": (0.5, 0.5, 0.5), "gray": (0.5, 0.5, 0.5)}
+
+
+def parse_background(text: str) -> tuple[float, float, float]:
+    """A ``--background`` colour -> RGB floats in [0, 1]: ``black``, ``white``, ``grey``,
+    ``R,G,B`` with each value in [0, 1], or ``#rrggbb``. Example: ``"#ff0080"`` ->
+    ``(1.0, 0.0, 0.502)``."""
+    t = text.strip().lower()
+    if t in NAMED_COLOURS:
+        return NAMED_COLOURS[t]
+    try:
+        if t.startswith("#") and len(t) == 7:
+            return tuple(int(t[i:i + 2], 16) / 255.0 for i in (1, 3, 5))  # type: ignore[return-value]
+        parts = [float(v) for v in t.split(",")]
+        if len(parts) == 3 and all(0.0 <= v <= 1.0 for v in parts):
+            return tuple(parts)  # type: ignore[return-value]
+    except ValueError:
+        pass
+    raise fail("--background", f"'{text}' is not a colour", "Use black, white, grey, R,G,B with values in [0, 1] "
+               "(e.g. 1,0,0) or #rrggbb")
+
+
 def dataclass_from_args(cls: type[T], args: argparse.Namespace, base: T | None = None) -> T:
     """Build ``cls`` from parsed flags; unset flags keep ``base``'s (or the default) values."""
     values = dataclasses.asdict(base) if base is not None else {}

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .config import option
+from .config import option, parse_background
 from .errors import fail
 from .io.atomic import write_image, write_json
 from .viz.plots import image_grid, plot_curves
@@ -100,24 +100,6 @@ def validate_config(cfg: FitImageConfig) -> None:
         raise fail("--precision", f"unknown precision '{cfg.precision}'", "Use auto, bf16 or fp32")
     parse_steps(cfg.progress_steps)
     parse_background(cfg.background)
-
-
-def parse_background(text: str) -> tuple[float, float, float]:
-    """``white``/``black``/``grey``, ``R,G,B`` in [0, 1] or ``#rrggbb`` -> RGB floats in [0, 1]."""
-    named = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0), "grey": (0.5, 0.5, 0.5), "gray": (0.5, 0.5, 0.5)}
-    t = text.strip().lower()
-    if t in named:
-        return named[t]
-    try:
-        if t.startswith("#") and len(t) == 7:
-            return tuple(int(t[i:i + 2], 16) / 255.0 for i in (1, 3, 5))  # type: ignore[return-value]
-        parts = [float(p) for p in t.split(",")]
-        if len(parts) == 3 and all(0.0 <= p <= 1.0 for p in parts):
-            return tuple(parts)  # type: ignore[return-value]
-    except ValueError:
-        pass
-    raise fail("--background", f"cannot read colour '{text}'", "Use white, black, grey, R,G,B in 0-1 (e.g. 1,0,0) "
-               "or #rrggbb")
 
 
 def parse_steps(text: str) -> list[int]:

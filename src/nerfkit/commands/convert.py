@@ -41,29 +41,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                       help="resample so the longest image side is PX pixels (K follows)")
     size.add_argument("--downscale", type=number(float, above=0), metavar="F", help="divide the image size by F (K follows)")
     p.add_argument("--background", default="black",
-                   help="colour under transparent pixels of RGBA inputs: black, white or r,g,b in [0, 1] "
-                        "(default: black)")
+                   help="colour under transparent pixels of RGBA inputs: black, white, grey, r,g,b in [0, 1] "
+                        "or #rrggbb (default: black)")
     p.add_argument("--images", metavar="DIR", help="photo folder of a COLMAP model (default: the project's images/)")
     p.add_argument("--text", action="store_true", help="with --format colmap: write the text model instead of binary")
     p.add_argument("--force", action="store_true", help="replace an existing output (never an input)")
     add_outside_flag(p)
     p.set_defaults(func=run)
-
-
-def parse_color(text: str) -> tuple[float, float, float]:
-    """'black', 'white' or 'r,g,b' (each in [0, 1])."""
-    from ..errors import fail
-
-    named = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0)}
-    if text.strip().lower() in named:
-        return named[text.strip().lower()]
-    try:
-        rgb = tuple(float(x) for x in text.split(","))
-    except ValueError:
-        rgb = ()
-    if len(rgb) != 3 or not all(0.0 <= c <= 1.0 for c in rgb):
-        raise fail("--background", f"'{text}' is not a colour", "Use black, white, or r,g,b with values in [0, 1]")
-    return rgb  # type: ignore[return-value]
 
 
 def output_format(out: str, fmt: str) -> str:
@@ -75,6 +59,7 @@ def output_format(out: str, fmt: str) -> str:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from ..config import parse_background
     from ..data.load import detect_format, load_scene
     from ..errors import fail
     from ..io.paths import guard_outputs
@@ -88,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     src = Path(args.src)
     root = src if src.is_dir() or src.suffix.lower() == ".npz" else src.parent  # a json's images sit beside it
     guard_outputs(output_targets(out, fmt), [src, root, args.images], args.force, "--to")
-    background = parse_color(args.background)
+    background = parse_background(args.background)
     src_fmt = detect_format(args.src)
     if args.images and src_fmt == "colmap":
         from ..data.colmap import load_colmap

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..config import option
+from ..config import option, parse_background
 from ..errors import fail
 from ..models import MODEL_NAMES
 
@@ -33,7 +33,7 @@ class TrainConfig:
     seed: int = option(0, "random seed (rays, sampling, initialisation)", min=0)
     device: str = option("auto", "auto, cpu, cuda or cuda:N")
     precision: str = option("auto", "auto (bf16 where the hardware has it), fp32, or bf16", choices=["auto", "fp32", "bf16"])
-    background: str = option("black", "colour behind the object: black, white, or r,g,b in [0, 1]")
+    background: str = option("black", "colour behind the object: black, white, grey, r,g,b in [0, 1] or #rrggbb")
     eval_every: int = option(0, "steps between validation renders (0: about 10 over the run)", min=0)
     eval_views: int = option(2, "validation views rendered at each periodic evaluation", min=0)
     eval_pixels: int = option(0, "pixels scored per periodic evaluation, every k-th pixel of each view on an even "
@@ -94,18 +94,6 @@ def eval_stride(width: int, height: int, n_views: int, pixels: int) -> int:
     return side
 
 
-def parse_background(text: str) -> tuple[float, float, float]:
-    """'black' | 'white' | 'r,g,b' -> an RGB triple in [0, 1]."""
-    named = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0)}
-    if text in named:
-        return named[text]
-    try:
-        rgb = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        rgb = ()
-    if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
-        raise fail("--background", f"'{text}' is not a colour", "Use black, white, or r,g,b with values in [0, 1]")
-    return rgb  # type: ignore[return-value]
 
 
 def resolve_device(name: str) -> torch.device:
