@@ -520,6 +520,40 @@ def test_sfm_turns_photos_held_the_other_way(room, tmp_path):
     np.testing.assert_array_equal(load_scene(tmp_path / "again").train.images, scene.train.images)
 
 
+def test_sfm_on_one_thread_repeats_exactly(room, tmp_path):
+    folder, truth = room
+    runs = [run_sfm(folder, tmp_path / f"run{i}", matcher="exhaustive", threads=1, progress=False) for i in range(2)]
+    (a, b) = (r.reconstruction for r in runs)
+    assert a.num_reg_images() == b.num_reg_images() >= len(truth) - 1
+    assert a.num_points3D() == b.num_points3D()
+    poses = [{im.name: im.cam_from_world().matrix() for im in r.images.values()} for r in (a, b)]
+    assert poses[0].keys() == poses[1].keys()
+    for name, m in poses[0].items():
+        np.testing.assert_array_equal(m, poses[1][name])
+
+
+def test_poses_jobs_sets_the_sfm_threads(room, tmp_path, monkeypatch):
+    """`poses --jobs N` runs COLMAP on N threads (1: repeatable); without it, on all cores."""
+    folder, _ = room
+    threads = []
+
+    def fake_run_sfm(*args, **kwargs):
+        threads.append(kwargs["threads"])
+        raise NerfkitError("stopped here by the test")
+
+    monkeypatch.setattr("nerfkit.sfm.dataset.run_sfm", fake_run_sfm)
+    assert main(["poses", str(folder), "--method", "colmap", "--jobs", "1", "--out", str(tmp_path / "a")]) == 2
+    assert main(["poses", str(folder), "--method", "colmap", "--out", str(tmp_path / "b")]) == 2
+    assert threads == [1, -1]
+    # the tag path's SfM (`poses --method auto`) takes them the same way
+    from nerfkit.sfm.tagged import choose_poses
+
+    monkeypatch.setattr("nerfkit.sfm.colmap.run_sfm", fake_run_sfm)
+    choice = choose_poses(folder, tmp_path / "c", [], None, 0, TAG_SIZE, "DICT_4X4_50", threads=1)
+    assert choice.result is None and "stopped here by the test" in choice.why
+    assert threads == [1, -1, 1]
+
+
 def test_sfm_with_nothing_to_match_fails_cleanly(tmp_path):
     rng = np.random.default_rng(3)
     for i in range(3):

@@ -72,7 +72,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DATASET_DIR", help="dataset folder to write")
     p.add_argument("--no-dataset", action="store_true", help="only write poses.json (build later with `nerfkit dataset`)")
     p.add_argument("--detect-size", type=number(int, 64, 100_000), default=2000, help="tag detection size (long side, px; default 2000)")
-    p.add_argument("--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel (default: up to 4 cores)")
+    p.add_argument("--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel, and structure-from-motion's threads (default: up to 4 cores, "
+                   "SfM on all; SfM on several threads differs a little from run to run, --jobs 1 repeats exactly)")
     p.add_argument("--no-cache", action="store_true", help="ignore cached detections")
     p.add_argument("--all-photos", action="store_true", help="list every photo in the summary, not only skipped ones")
     p.add_argument("--force", action="store_true", help="replace the dataset files of an earlier run in --out")
@@ -152,7 +153,8 @@ def run(args: argparse.Namespace) -> int:
 
         _, report = sfm_dataset(args.photos, out, dcfg, matcher=args.matcher, max_image_size=args.sfm_max_size,
                                 tag_size=args.tag_size, tag_id=args.tag_id or 0, tag_dict=dictionary,
-                                jobs=args.jobs or default_jobs(), ground=not args.no_ground, camera=camera)
+                                threads=args.jobs or -1, jobs=args.jobs or default_jobs(), ground=not args.no_ground,
+                                camera=camera)
         print(report.summary())
         return 0
     layout = load_layout(args.layout, dictionary, args.tag_size) if args.layout else None
@@ -214,7 +216,7 @@ def run(args: argparse.Namespace) -> int:
         start = camera if (args.camera or args.focal_px) else None  # else SfM starts from the EXIF focal length
         choice = choose_poses(args.photos, out, posed, start, ref, tag_size, dictionary,
                               tag_corners=None if len(layout.tags) == 1 else layout.tags[ref],
-                              matcher=args.matcher, max_image_size=args.sfm_max_size)
+                              matcher=args.matcher, max_image_size=args.sfm_max_size, threads=args.jobs or -1)
         print(choice.why)
         if choice.result is not None:
             from ..sfm.dataset import build_dataset

@@ -274,7 +274,9 @@ def run_sfm(
         max_image_size: photos are downscaled to this longest side for features only
             (poses and intrinsics are for the full-size photos).
         camera_model: COLMAP camera model; single_camera: one camera shared by all photos.
-        threads: CPU threads (-1: all cores); seed: COLMAP's random seed (repeatable runs).
+        threads: CPU threads (-1: all cores); seed: COLMAP's random seed. Only a run on one
+            thread repeats exactly: on several, matching and mapping differ a little from run
+            to run (a photo more or less registered on a large capture).
         camera: a calibrated :class:`~nerfkit.capture.camera.Camera` (``nerfkit calibrate``)
             that every photo starts from (``camera_model`` is then ignored); the photos must
             have its aspect ratio. With ``refine_camera`` bundle adjustment refines its focal

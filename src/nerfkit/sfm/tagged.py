@@ -91,7 +91,7 @@ def judge(n_tag_posed: int, n_registered: int, in_tag_frame: bool, agreement: di
 
 def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, tag_id: int, tag_size: float,
                  dictionary: str, tag_corners: np.ndarray | None = None, matcher: str = "auto",
-                 max_image_size: int = 1000, progress: bool = True) -> PoseChoice:
+                 max_image_size: int = 1000, progress: bool = True, threads: int = -1) -> PoseChoice:
     """Run SfM on a tag capture and decide whether its poses replace the tag poses.
 
     Args:
@@ -102,6 +102,7 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
             EXIF focal length).
         tag_id, tag_size: the tag that fixes the frame; tag_corners: its (4, 3) corners in
             a sheet layout's frame (None: the tag's own frame is the world).
+        threads: COLMAP's threads (-1: all cores; 1: the same result every run).
 
     Returns:
         A :class:`PoseChoice`; SfM failing is a reason to keep the tag poses, not an error.
@@ -109,7 +110,7 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
     from .colmap import align_reconstruction, reconstruction_c2w, run_sfm
 
     try:
-        result = run_sfm(photos, out, matcher=matcher, max_image_size=max_image_size, progress=progress,
+        result = run_sfm(photos, out, matcher=matcher, max_image_size=max_image_size, progress=progress, threads=threads,
                          camera=camera)
     except NerfkitError as e:  # no photos that match, pycolmap missing, ...
         return PoseChoice(None, f"tag poses: structure-from-motion failed ({e})")
