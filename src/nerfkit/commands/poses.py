@@ -72,8 +72,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DATASET_DIR", help="dataset folder to write")
     p.add_argument("--no-dataset", action="store_true", help="only write poses.json (build later with `nerfkit dataset`)")
     p.add_argument("--detect-size", type=number(int, 64, 100_000), default=2000, help="tag detection size (long side, px; default 2000)")
-    p.add_argument("--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel, and structure-from-motion's threads (default: up to 4 cores, "
-                   "SfM on all; SfM on several threads differs a little from run to run, --jobs 1 repeats exactly)")
+    p.add_argument("--jobs", type=number(int, 0, 256), default=0,
+                   help="photos processed in parallel, and structure-from-motion's threads (default: up to 4 cores, "
+                        "SfM on all; SfM on several threads differs a little from run to run, --jobs 1 repeats "
+                        "exactly)")
     p.add_argument("--no-cache", action="store_true", help="ignore cached detections")
     p.add_argument("--all-photos", action="store_true", help="list every photo in the summary, not only skipped ones")
     p.add_argument("--force", action="store_true", help="replace the dataset files of an earlier run in --out")

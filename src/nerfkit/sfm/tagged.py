@@ -110,8 +110,8 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
     from .colmap import align_reconstruction, reconstruction_c2w, run_sfm
 
     try:
-        result = run_sfm(photos, out, matcher=matcher, max_image_size=max_image_size, progress=progress, threads=threads,
-                         camera=camera)
+        result = run_sfm(photos, out, matcher=matcher, max_image_size=max_image_size, progress=progress,
+                         threads=threads, camera=camera)
     except NerfkitError as e:  # no photos that match, pycolmap missing, ...
         return PoseChoice(None, f"tag poses: structure-from-motion failed ({e})")
     align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=dictionary, progress=progress,
