@@ -101,6 +101,18 @@ def test_forward_facing_scenes_get_ndc_and_a_spiral_others_do_not():
     assert (path.c2w[:, :3, 2] @ ref[:3, 2]).min() > 0.9  # looking the way the photos did
     no_path = replace(sphere, test=Views.empty(16, 16))  # (its test split is a pose-only path)
     np.testing.assert_allclose(no_path.render_path(12).c2w, sphere.orbit(12).c2w)
+    assert (ff.video_kind(), no_path.video_kind(), sphere.video_kind()) == ("spiral", "orbit", "test")
+
+
+def test_a_video_path_can_be_chosen_over_the_automatic_one():
+    ff = forward_facing_scene(n_train=8, n_val=1, size=16)
+    orbit = ff.render_path(12, kind="orbit").c2w
+    offsets = orbit[:, :3, 3] - ff.center
+    azimuths = np.unwrap(np.arctan2(offsets[:, 1], offsets[:, 0]))
+    np.testing.assert_allclose(np.abs(np.diff(azimuths)), 2 * np.pi / 12, rtol=1e-4)  # all the way round
+    np.testing.assert_allclose(ff.render_path(12, kind="spiral").c2w, ff.render_path(12).c2w)
+    with pytest.raises(ValueError, match="unknown camera path 'helix'"):
+        ff.render_path(12, kind="helix")
 
 
 def test_fast_model_in_ndc_beats_the_box_on_a_forward_facing_scene(tmp_path):

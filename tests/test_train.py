@@ -103,6 +103,9 @@ def test_cli_train_render_eval(tmp_path, sphere_npz, capsys):
     code = main(["train", "--data", str(sphere_npz), "--model", "vanilla", "--out", str(run), "--steps", "20",
                  "--batch-rays", "128", "--n-samples", "8", "--width", "16", "--depth", "2", "--lr", "2e-3"])
     assert code == 0
+    assert main(["render", str(run), "--path", "spiral", "--out", str(tmp_path / "spiral")]) == 2
+    assert "--path spiral: the training cameras do not all look the same way" in capsys.readouterr().err
+    assert not (tmp_path / "spiral").exists()
     assert main(["render", str(run), "--path", "orbit", "--frames", "4"]) == 0
     for name in ["orbit.mp4", "orbit.gif", "depth.mp4"]:
         assert (run / "videos" / name).stat().st_size > 0

@@ -13,12 +13,15 @@ MEMORY_HINT = "Lower --chunk (rays rendered at once)"
 def register(sub: argparse._SubParsersAction) -> None:
     from ..config import number
 
-    p = sub.add_parser("render", help=HELP, description=HELP + ". Uses the dataset's test poses when it has "
-                       "them, else an orbit around the object.")
+    p = sub.add_parser("render", help=HELP, description=HELP + ". Uses the dataset's test poses when they are "
+                       "a camera path (as in the course's lego file), else LLFF's spiral for a forward-facing "
+                       "capture, else an orbit around the object.")
     add_run_args(p)
-    p.add_argument("--path", choices=["auto", "test", "orbit"], default="auto",
-                   help="camera path: the dataset's test poses, a generated orbit, or auto (test if present)")
-    p.add_argument("--frames", type=number(int, 1, 100_000), default=60, help="frames of a generated orbit (default: 60)")
+    p.add_argument("--path", choices=["auto", "test", "orbit", "spiral"], default="auto",
+                   help="camera path: the dataset's test poses, an orbit around the object, a spiral across a "
+                   "forward-facing capture's view, or auto (chosen as described above)")
+    p.add_argument("--frames", type=number(int, 1, 100_000), default=60,
+                   help="frames of a generated orbit or spiral (default: 60)")
     p.add_argument("--fps", type=number(int, 1, 1000), default=30, help="frames per second (default: 30)")
     p.add_argument("--background", help="override the run's background colour (black, white, r,g,b)")
     p.add_argument("--out", help="output folder (default: RUN/videos)")
@@ -42,13 +45,16 @@ def run(args: argparse.Namespace) -> int:
     guard_outputs([out / name for name in VIDEO_FILES], [dataset], args.force or not args.out)
     run_ = open_run(args)
     scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
-    if args.path == "test" and len(scene.test) == 0:
+    kind = scene.video_kind(args.path)
+    if kind == "test" and len(scene.test) == 0:
         raise fail(scene.source, "has no test poses", "Use --path orbit")
-    orbit = args.path == "orbit" or (args.path == "auto" and not scene.has_video_path)
+    if kind == "spiral" and not scene.forward_facing:
+        raise fail("--path spiral", "the training cameras do not all look the same way from about the same "
+                   "place, so a spiral across their view would leave them", "Use --path orbit")
     # an orbit looks at the trained object, not at the point the cameras' axes meet
     aim = object_aim(run_.model, scene.train, scene.up, run_.background(args.background), run_.chunk,
-                     run_.autocast) if orbit else None
-    views = scene.orbit(args.frames, aim) if orbit else scene.test
+                     run_.autocast) if kind == "orbit" else None
+    views = scene.render_path(args.frames, aim, kind)
     paths = render_videos(run_.model, views, out, run_.background(args.background), scene.near, scene.far, args.fps,
                           run_.chunk, run_.autocast)
     print(f"rendered {len(views)} frames of step {run_.step} ({paths.seconds_per_frame:.2f} s/frame):")

@@ -18,6 +18,9 @@ from ..cameras import axes_across, forward_facing, mean_camera, orbit_path, spir
 # concentration: weights fall to 1/e at about 30 degrees)
 ORBIT_KAPPA = 4.0
 
+# the camera paths a video can take (:meth:`Scene.video_kind`)
+VIDEO_PATHS = ("test", "orbit", "spiral")
+
 
 @dataclass
 class Views:
@@ -107,14 +110,23 @@ class Scene:
         LLFF-style scene; :func:`~nerfkit.cameras.forward_facing`)."""
         return len(self.train) > 0 and forward_facing(self.train.c2w, self.center)
 
-    def render_path(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
-        """Poses for a video: the test split when it is a pose-only path, else a spiral for a
-        forward-facing scene (the cameras never saw its far side) or an orbit."""
-        if self.has_video_path:
+    def video_kind(self, kind: str = "auto") -> str:
+        """The camera path a video takes: ``kind`` itself ("test", "orbit" or "spiral"), or
+        for "auto" the test split when it is a pose-only path, else a spiral for a
+        forward-facing scene (the cameras never saw its far side), else an orbit."""
+        if kind == "auto":
+            return "test" if self.has_video_path else "spiral" if self.forward_facing else "orbit"
+        if kind not in VIDEO_PATHS:
+            raise ValueError(f"unknown camera path {kind!r}: expected auto or one of {', '.join(VIDEO_PATHS)}")
+        return kind
+
+    def render_path(self, n_frames: int = 60, aim: np.ndarray | None = None, kind: str = "auto") -> Views:
+        """Poses for a video along :meth:`video_kind`'s path; ``aim``: the point an orbit
+        circles or a spiral focuses on (default ``center``)."""
+        kind = self.video_kind(kind)
+        if kind == "test":
             return self.test
-        if self.forward_facing:
-            return self.spiral(n_frames, aim)
-        return self.orbit(n_frames, aim)
+        return self.spiral(n_frames, aim) if kind == "spiral" else self.orbit(n_frames, aim)
 
     def spiral(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
         """LLFF's spiral (:func:`~nerfkit.cameras.spiral_path`) looking at the depth of
