@@ -23,7 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=number(int, 1, 100_000), default=60,
                    help="frames of a generated orbit or spiral (default: 60)")
     p.add_argument("--fps", type=number(int, 1, 1000), default=30, help="frames per second (default: 30)")
-    p.add_argument("--background", help="override the run's background colour (black, white, r,g,b)")
+    p.add_argument("--background", help="override the run's background colour: black, white, grey, "
+                   "r,g,b in [0, 1] or #rrggbb")
     p.add_argument("--out", help="output folder (default: RUN/videos)")
     p.add_argument("--force", action="store_true", help="replace videos already in --out (RUN/videos is always "
                    "replaced: it belongs to the run)")
