@@ -240,3 +240,19 @@ def test_resample_scene_projects_consistently():
             uv1 = (v1.K[i] @ x[:3])[:2] / x[2]
             np.testing.assert_allclose(uv1, uv0 * 20 / 32, rtol=1e-5)
     assert resample_scene(scene) is scene
+
+
+def test_a_run_sees_rgba_images_on_its_own_background(tmp_path, capsys):
+    """`train --background white` on RGBA images composites them on white, and so does every
+    command that reads the run's dataset again (the run's fingerprint must match)."""
+    from nerfkit.commands._common import scene_for_run
+    from nerfkit.train.checkpoint import read_run
+
+    make_blender(tmp_path / "rgba", n=(3, 1, 1))
+    run = tmp_path / "run"
+    assert main(["train", "--data", str(tmp_path / "rgba"), "--out", str(run), "--steps", "2", "--batch-rays", "64",
+                 "--background", "white", "--model", "vanilla", "--n-samples", "4", "--width", "8", "--depth", "2",
+                 "--eval-views", "1"]) == 0
+    scene = scene_for_run(read_run(run), None)  # raises if training saw other pixels
+    assert (scene.train.images[:, :7] == 255).all()  # the transparent top rows
+    assert (scene_for_run(read_run(run), str(tmp_path / "rgba"), need="val").val.images[:, :7] == 255).all()
