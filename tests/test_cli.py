@@ -69,3 +69,29 @@ def test_python_dash_m_runs_the_same_command_line_with_its_exit_code(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "nerfkit", "eval", str(tmp_path / "missing"), "--split", "val"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "no such run folder" in bad.stderr
+
+
+def test_every_numeric_flag_has_a_range():
+    # A flag without one is only checked for being finite: `--step-ratio -1` once reached the
+    # model and died in a traceback. Flags whose every finite value is valid say so here.
+    import dataclasses
+    import typing
+
+    from nerfkit.capture.calibrate import CalibrateConfig
+    from nerfkit.capture.dataset import DatasetConfig
+    from nerfkit.capture.poses import PoseConfig
+    from nerfkit.config import base_type
+    from nerfkit.fit_image import FitImageConfig
+    from nerfkit.models import MODEL_NAMES, model_config_class
+    from nerfkit.train.config import TrainConfig
+
+    any_finite = {"density_bias_init"}
+    classes = [TrainConfig, CalibrateConfig, DatasetConfig, PoseConfig, FitImageConfig]
+    unbounded = []
+    for cls in classes + [model_config_class(name) for name in MODEL_NAMES]:
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            if base_type(hints[f.name])[0] in (int, float) and f.metadata.get("cli") is not False:
+                if f.name not in any_finite and not {"min", "max", "above"} & set(f.metadata):
+                    unbounded.append(f"{cls.__name__}.{f.name}")
+    assert unbounded == []

@@ -53,15 +53,15 @@ class CalibrateConfig:
     dist_model: str = option("auto", "distortion coefficients to estimate; auto: chosen by cross-validation over "
                              "photos (the simplest model that generalises and stays plausible out to the image "
                              "corners)", choices=["auto", *DIST_MODELS])
-    folds: int = option(5, "cross-validation folds over photos for --dist-model auto")
+    folds: int = option(5, "cross-validation folds over photos for --dist-model auto", min=2)
     select_tolerance: float = option(0.05, "auto picks the simplest model whose held-out error is within this "
-                                     "fraction of the best, or this many pixels, whichever is larger")
+                                     "fraction of the best, or this many pixels, whichever is larger", min=0)
     fix_aspect: bool = option(False, "force fx = fy (square pixels, true of phone cameras)")
     fix_principal_point: bool = option(False, "keep the principal point at the image centre")
     outlier_factor: float = option(3.0, "drop photos whose reprojection error exceeds this many times the median, "
-                                   "then recalibrate")
+                                   "then recalibrate", above=0)
     per_tag: bool = option(False, "treat each tag as its own planar target instead of estimating the sheet layout")
-    min_photos: int = option(5, "refuse to calibrate from fewer usable photos")
+    min_photos: int = option(5, "refuse to calibrate from fewer usable photos", min=3)
 
 
 @dataclass

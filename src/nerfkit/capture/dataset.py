@@ -45,14 +45,14 @@ DATASET_OUTPUTS = (NPZ_FILE, "transforms.json", "images", "sparse_pc.ply")
 class DatasetConfig:
     """Options of the dataset step (``nerfkit dataset``, and ``nerfkit poses``)."""
 
-    max_side: int = option(512, "downscale views so the longer side is at most this many pixels (0: keep size)")
-    val_every: int = option(10, "every Nth posed photo (in name order) goes to the val split (0: none)")
-    test_every: int = option(10, "every Nth posed photo goes to the test split, offset from val (0: none)")
+    max_side: int = option(512, "downscale views so the longer side is at most this many pixels (0: keep size)", min=0)
+    val_every: int = option(10, "every Nth posed photo (in name order) goes to the val split (0: none)", min=0)
+    test_every: int = option(10, "every Nth posed photo goes to the test split, offset from val (0: none)", min=0)
     center: str = option("", "object centre 'x,y,z' in the tag frame (metres); default: the point the cameras "
                          "look at", metavar="X,Y,Z")
-    near: float | None = option(None, "near bound along rays (default: from the cameras and the tag size)")
-    far: float | None = option(None, "far bound along rays (default: from the cameras and the tag size)")
-    jpeg_quality: int = option(95, "JPEG quality of the written views")
+    near: float | None = option(None, "near bound along rays (default: from the cameras and the tag size)", above=0)
+    far: float | None = option(None, "far bound along rays (default: from the cameras and the tag size)", above=0)
+    jpeg_quality: int = option(95, "JPEG quality of the written views", min=1, max=100)
     points: bool = option(True, "triangulate sparse 3D points from the train views with the poses held (COLMAP's "
                           "point triangulator; they initialise --model splat). Needs pycolmap")
 

@@ -47,9 +47,9 @@ class PoseConfig:
 
     max_error: float = option(0.0, "skip photos whose pose reprojection error (RMS, pixels) exceeds this; 0: "
                               "automatic, max(3 x the calibration's held-out error, 1 px, 2% of the tag's side "
-                              "in pixels)")
+                              "in pixels)", min=0)
     min_tag_px: float = option(16.0, "skip photos whose tag is smaller than this many pixels across "
-                               "(too small for a reliable pose)")
+                               "(too small for a reliable pose)", min=0)
 
 
 @dataclass

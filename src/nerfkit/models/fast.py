@@ -78,6 +78,10 @@ def growth_too_late(s: StepState) -> bool:
 
 MAX_STAGE_RAYS = 64  # --stage-rays: the largest multiple of --batch-rays
 
+# Largest grid: each side and the vertex count (512^3 vertices of 4+ float32 channels: 2+ GB).
+MAX_GRID_SIDE = 4096
+MAX_GRID_VERTICES = 512 ** 3
+
 
 def comma_ints(text: str) -> list[int]:
     """``"32, 64,128"`` -> ``[32, 64, 128]`` (empty items skipped); ValueError for anything else."""
@@ -118,20 +122,21 @@ class FastConfig:
                              "(comma-separated; later stages take the last): a finer grid has more vertices to "
                              "share each step's rays, and fewer, fuller steps beat more, noisier ones (lego "
                              "200x200 after 300 s: 32.9 dB with 1,1,1,1, 33.3 with 1,1,2,4)")
-    sh_degree: int = option(1, "spherical-harmonic degree of the view-dependent colour (0, 1 or 2)")
-    step_ratio: float = option(0.5, "distance between samples along a ray, in voxels")
-    init_alpha: float = option(1e-4, "opacity of one sample of the initial, near-empty density")
-    occ_alpha: float = option(1e-2, "cells whose largest sample opacity is below this are skipped")
-    occ_every: int = option(16, "steps between occupancy-grid refreshes")
-    occ_start: int = option(4, "first step with empty-space skipping (all cells are sampled before)")
+    sh_degree: int = option(1, "spherical-harmonic degree of the view-dependent colour (0, 1 or 2)", min=0, max=2)
+    step_ratio: float = option(0.5, "distance between samples along a ray, in voxels", above=0)
+    init_alpha: float = option(1e-4, "opacity of one sample of the initial, near-empty density", above=0, max=0.5)
+    occ_alpha: float = option(1e-2, "cells whose largest sample opacity is below this are skipped", above=0, max=0.5)
+    occ_every: int = option(16, "steps between occupancy-grid refreshes", min=1)
+    occ_start: int = option(4, "first step with empty-space skipping (all cells are sampled before)", min=1)
     occ_warmup: int = option(64, "until this step the occupancy is refreshed every --occ-start steps (carving "
-                             "empty space quickly while every step is still expensive)")
-    coarse_factor: int = option(8, "block size (in cells) of the coarse occupancy used to leap empty space")
-    early_stop_eps: float = option(1e-4, "stop a ray once its transmittance is below this")
-    colour_lr_ratio: float = option(1.0, "learning rate of the colour coefficients relative to --lr")
-    adam_eps: float = option(1e-15, "Adam epsilon")
+                             "empty space quickly while every step is still expensive)", min=0)
+    coarse_factor: int = option(8, "block size (in cells) of the coarse occupancy used to leap empty space",
+                                min=1, max=64)
+    early_stop_eps: float = option(1e-4, "stop a ray once its transmittance is below this", min=0, max=0.5)
+    colour_lr_ratio: float = option(1.0, "learning rate of the colour coefficients relative to --lr", min=0)
+    adam_eps: float = option(1e-15, "Adam epsilon", above=0)
     shrink_box: bool = option(True, "at the first growth, shrink the box around where opaque training rays end")
-    box_pad: int = option(3, "margin around the shrunken box, in voxels (plus 5% of its size)")
+    box_pad: int = option(3, "margin around the shrunken box, in voxels (plus 5% of its size)", min=0)
     learn_background: bool = option(False, "learn what rays see outside the box (a colour per direction) "
                                     "instead of the --background colour: for real photos, whose background is "
                                     "a room, not a flat colour")
@@ -142,7 +147,7 @@ class FastConfig:
     room_ratio: float = option(2.5, "radius of each room shell over the one inside it", above=1.0)
     room_resolution: int = option(1024, "texels around each room shell (half as many from bottom to top)", min=8,
                                   max=4096)
-    room_lr_ratio: float = option(0.2, "learning rate of the room shells relative to --lr")
+    room_lr_ratio: float = option(0.2, "learning rate of the room shells relative to --lr", min=0)
     table: bool = option(False, "rays stop at the scene's table plane (a tag capture's tag plane), which shows a "
                          "learned texture: the box then holds only the object")
     table_gloss: bool | None = option(None, "with --table: the table also mirrors its surroundings (a learned "
@@ -154,11 +159,12 @@ class FastConfig:
                          "beyond the table's edge, when the dataset's sparse points show one (a plane parallel "
                          "to the table, well under it)")
     table_resolution: int = option(512, "texels per side of the table texture (512: a texel about a pixel's "
-                                   "footprint on the dev captures; steve 2000 steps: +0.4 dB over 1024)")
+                                   "footprint on the dev captures; steve 2000 steps: +0.4 dB over 1024)",
+                                   min=2, max=MAX_GRID_SIDE)
     table_lr_ratio: float = option(0.2, "learning rate of the table texture relative to --lr (a texel is seen by few "
-                                   "rays, and each sparse Adam step moves it by about the learning rate)")
+                                   "rays, and each sparse Adam step moves it by about the learning rate)", min=0)
     opacity_weight: float = option(0.005, "with --table: weight of the mean opacity of the box in the loss, so that "
-                                   "what the table and the room explain is not copied into clouds of density")
+                                   "what the table and the room explain is not copied into clouds of density", min=0)
     distortion_weight: float | None = option(None, "weight of mip-NeRF 360's distortion loss (per ray, distances in "
                                              "units of the scene radius; with --table the table counts as the "
                                              "surface behind the box): it gathers each ray's weight onto one "
@@ -241,10 +247,6 @@ class FastConfig:
 PACKING = "fast-sparse-grid-1"
 PACKED_DENSITY_DTYPE = torch.float16
 EMPTY_RAW = -30.0
-
-# Largest grid: each side and the vertex count (512^3 vertices of 4+ float32 channels: 2+ GB).
-MAX_GRID_SIDE = 4096
-MAX_GRID_VERTICES = 512 ** 3
 
 
 def check_grid_res(res, where: str, field: str, fix: str) -> tuple[int, int, int]:

@@ -49,19 +49,19 @@ class VanillaConfig:
     # occupancy grid starts, two whole views with all 64 samples took about a minute
     TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 4096, "eval_pixels": 4096}
 
-    n_samples: int = option(64, "stratified samples per ray")
-    n_importance: int = option(0, "extra samples per ray from hierarchical (coarse-to-fine) sampling; 0 = off")
-    pos_freqs: int = option(10, "positional-encoding octaves L for positions")
-    dir_freqs: int = option(4, "positional-encoding octaves L for view directions")
-    width: int = option(256, "MLP width")
-    depth: int = option(8, "MLP layers before the density head")
+    n_samples: int = option(64, "stratified samples per ray", min=1)
+    n_importance: int = option(0, "extra samples per ray from hierarchical (coarse-to-fine) sampling; 0 = off", min=0)
+    pos_freqs: int = option(10, "positional-encoding octaves L for positions", min=0, max=32)
+    dir_freqs: int = option(4, "positional-encoding octaves L for view directions", min=0, max=32)
+    width: int = option(256, "MLP width", min=1, max=4096)
+    depth: int = option(8, "MLP layers before the density head", min=2, max=64)
     density_bias_init: float = option(0.1, "initial bias of the density head (0 = the course's init)")
     occupancy: bool = option(True, "skip samples in empty space (an occupancy grid refreshed from the MLP's "
                                     "density); the network and the sampling are the course's, only fewer samples "
                                     "are evaluated")
-    occupancy_res: int = option(64, "occupancy grid cells per axis")
-    occupancy_every: int = option(200, "steps between occupancy refreshes")
-    occupancy_warmup: int = option(200, "steps before the first refresh (every sample is evaluated until then)")
+    occupancy_res: int = option(64, "occupancy grid cells per axis", min=4, max=512)
+    occupancy_every: int = option(200, "steps between occupancy refreshes", min=1)
+    occupancy_warmup: int = option(200, "steps before the first refresh (every sample is evaluated until then)", min=0)
 
 
 def _validate(cfg: VanillaConfig) -> None:
