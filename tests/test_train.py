@@ -269,3 +269,21 @@ def test_schedules_run_in_their_phase_in_order_and_report_replaced_parameters():
     assert run_schedules(jobs, StepState(0, 0.0), phase="after_step") == (False, [])
     assert run_schedules(jobs, StepState(1, 0.9), phase="before_step") == (False, [])
     assert ran == [("a", 0), ("b", 0), ("c", 1)]
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (2, 5), (4, 9), (6, 8), (24, 32)])
+def test_ssim_scores_images_of_any_size(shape):
+    # scikit-image's 11-pixel window refused images under 7 pixels a side: `eval` died on them
+    from skimage.metrics import structural_similarity
+
+    from nerfkit.train.metrics import ssim
+
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0.2, 0.8, (*shape, 3))
+    noisy = np.clip(a + rng.normal(0, 0.2, a.shape), 0, 1)
+    assert ssim(a, a) == pytest.approx(1.0)
+    assert ssim(a, noisy) < 0.99
+    assert ssim(a, 1.0 - a) < ssim(a, noisy)  # inverted contrast scores worst
+    if min(shape) >= 11:  # the usual case is scikit-image's Gaussian-window SSIM itself
+        assert ssim(a, noisy) == pytest.approx(structural_similarity(
+            a, noisy, channel_axis=-1, data_range=1.0, gaussian_weights=True, sigma=1.5, use_sample_covariance=False))
