@@ -169,3 +169,20 @@ def test_an_llff_scene_trains_in_ndc_and_renders_a_spiral(scene_dir):
     np.testing.assert_allclose(np.asarray(b.ndc.c2w), ref, atol=1e-6)
     path = scene.render_path(8)
     assert np.abs((path.c2w[:, :3, 3] - ref[:3, 3]) @ ref[:3, 2]).max() < 1e-5  # a spiral by the cameras
+
+
+def test_a_run_trains_on_the_downscaled_folder_and_keeps_reading_it(scene_dir, tmp_path, capsys):
+    from nerfkit.cli import main
+    from nerfkit.commands._common import scene_for_run
+    from nerfkit.train.checkpoint import read_run
+
+    folder, _, _ = scene_dir
+    run = tmp_path / "run"
+    assert main(["train", "--data", str(folder), "--downscale", "4", "--out", str(run), "--steps", "2",
+                 "--model", "vanilla", "--batch-rays", "16", "--n-samples", "4", "--width", "8", "--depth", "2",
+                 "--eval-views", "1"]) == 0
+    scene = scene_for_run(read_run(run), None)  # raises if these are not the images the run trained on
+    assert (scene.train.width, scene.train.height) == (W // 4, H // 4)
+    assert main(["eval", str(run), "--split", "val"]) == 0
+    assert main(["view", str(run), "--downscale", "4"]) == 2
+    assert "--downscale: a trained run loads its dataset as it was trained" in capsys.readouterr().err

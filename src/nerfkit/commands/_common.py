@@ -48,16 +48,18 @@ def run_dataset_path(info) -> Path:
 
 def scene_for_run(info, data: str | None, need: str = "train", allow_outside: bool = False):
     """The run's dataset (checked against the run's fingerprint), or ``data`` when given;
-    transparent pixels composited on the run's background colour, as in training."""
+    loaded as in training: transparent pixels on the run's background colour, images
+    divided by the run's ``--downscale``."""
     from ..config import parse_background
     from ..data.load import load_scene
     from ..train.checkpoint import check_dataset
 
     background = parse_background(info.train.background)
+    downscale = getattr(info.train, "downscale", 0.0) or None
     if data:
-        return load_scene(data, background, need=need, allow_outside=allow_outside)
+        return load_scene(data, background, downscale=downscale, need=need, allow_outside=allow_outside)
     allow_outside = allow_outside or getattr(info.train, "allow_outside_paths", False)  # as the run was trained
-    scene = load_scene(run_dataset_path(info), background, allow_outside=allow_outside)
+    scene = load_scene(run_dataset_path(info), background, downscale=downscale, allow_outside=allow_outside)
     check_dataset(info, scene)
     return scene
 

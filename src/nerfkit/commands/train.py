@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         for k, v in changes.items():
             print(f"resuming with --{k.replace('_', '-')} {v} (was {getattr(info.train, k)})", file=sys.stderr)
         data = args.data or info.train.data
-        scene = load_scene(data, parse_background(info.train.background),
+        scene = load_scene(data, parse_background(info.train.background), downscale=info.train.downscale or None,
                            allow_outside=bool(args.allow_outside_paths or info.train.allow_outside_paths))
         result = resume(args.resume, scene, changes=changes)
     else:
@@ -99,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
         model_cfg = dataclass_from_args(classes[cfg.model], args)
         check_new_run_folder(Path(cfg.out))  # before loading the dataset: a refusal should be quick
         # RGBA images are composited on the colour the model renders behind the scene
-        scene = load_scene(cfg.data, parse_background(cfg.background), allow_outside=cfg.allow_outside_paths)
+        scene = load_scene(cfg.data, parse_background(cfg.background), downscale=cfg.downscale or None,
+                           allow_outside=cfg.allow_outside_paths)
         result = train(scene, cfg, model_cfg)
     summary = f"run: {result.run_dir}  steps: {result.step}  training time: {result.train_seconds:.0f} s"
     if result.final_val_psnr is not None:

@@ -34,6 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "only; 0.0.0.0 exposes the viewer to the network)")
     p.add_argument("--port", type=number(int, 1, 65535), default=8080, help="port (default: 8080)")
     p.add_argument("--force", action="store_true", help="replace an existing --png file")
+    p.add_argument("--downscale", type=number(float, above=0), help="divide the dataset's image size by this (an "
+                   "LLFF scene's 4 or 8 reads its images_4 or images_8)")
     add_outside_flag(p)
     p.set_defaults(func=run)
 
@@ -65,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
     if not 0 < args.port < 65536:
         raise fail("--port", f"{args.port} is not a port number")
     if is_run_folder(path):
+        if args.downscale:
+            raise fail("--downscale", "a trained run loads its dataset as it was trained", "Leave out --downscale")
         if args.png:
             raise fail(path, "--png draws datasets; this is a trained run", "Pass the run's dataset instead")
         try:
@@ -81,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         from ..io.paths import guard_outputs
 
         guard_outputs([args.png], [path], args.force, "--png")
-    scene = load_scene(path, allow_outside=args.allow_outside_paths)
+    scene = load_scene(path, downscale=args.downscale, allow_outside=args.allow_outside_paths)
     tag_size = dataset_tag_size(path)
     if args.png:
         from ..viz.scene_plot import plot_scene
