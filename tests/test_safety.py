@@ -581,3 +581,22 @@ def test_a_newer_checkpoint_wins_over_an_older_final_model(trained, tmp_path):
     ckpt["step"] = 9  # resumed, checkpointed at step 9, then killed before model.pt was rewritten
     torch.save(ckpt, run / "checkpoints" / "step_00000009.pt")
     assert load_run(run)[2] == 9
+
+
+@pytest.mark.parametrize("argv, fragments", [
+    (["view", "D", "--png", "folder.png", "--force"], ["folder.png: Is a directory", "name a file there instead"]),
+    (["convert", "D", "--to", "afile/x.npz"], ["afile: File exists", "is a file, not a folder"]),
+    (["render", "RUN", "--out", "v" * 300], ["File name too long", "Use a shorter name"]),
+])
+def test_a_path_the_system_refuses_is_one_line(trained, tmp_path, monkeypatch, capsys, argv, fragments):
+    """OSError from the system (a folder where a file goes, a file where a folder goes, a name too
+    long; permissions and full disks alike) is one line naming the path, exit code 2."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "folder.png").mkdir()
+    (tmp_path / "afile").write_text("mine")
+    run = copy_run(trained, tmp_path)
+    argv = [str(run) if a == "RUN" else str(trained / "a" / "data.npz") if a == "D" else a for a in argv]
+    assert main(argv) == 2
+    one_line(capsys, *fragments)
+    assert (tmp_path / "folder.png").is_dir() and (tmp_path / "afile").read_text() == "mine"
+    assert not [p for p in tmp_path.iterdir() if ".tmp" in p.name]  # no temporary file left behind

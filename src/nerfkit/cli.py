@@ -8,6 +8,7 @@ Each command module defines ``register(subparsers)``, which adds its parser and 
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import sys
 import traceback
@@ -82,6 +83,18 @@ def _version() -> str:
     return __version__
 
 
+OS_ERROR_HINTS = {
+    errno.EACCES: "Check its permissions, or choose another place to write",
+    errno.EPERM: "Check its permissions, or choose another place to write",
+    errno.EROFS: "The file system is read-only: choose another place to write",
+    errno.EISDIR: "It is a folder: name a file there instead",
+    errno.ENOTDIR: "A part of the path is a file, not a folder",
+    errno.EEXIST: "A part of the path is a file, not a folder",
+    errno.ENAMETOOLONG: "Use a shorter name",
+    errno.ENOSPC: "The disk is full: free some space",
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser(command_in(argv))
@@ -107,6 +120,13 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         hint = getattr(sys.modules[args.func.__module__], "MEMORY_HINT", "Use smaller inputs")
         print(f"nerfkit {args.command}: error: out of memory ({type(e).__name__}). {hint}", file=sys.stderr)
+        return 2
+    except OSError as e:  # the system refused a file: permissions, a folder where a file goes, a full disk
+        if args.verbose:
+            traceback.print_exc()
+        where = next((f for f in (e.filename2, e.filename) if f is not None), "a file")  # a rename's target first
+        hint = OS_ERROR_HINTS.get(e.errno, "Check the path and its permissions")
+        print(f"nerfkit {args.command}: error: {where}: {e.strerror or e}. {hint}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"nerfkit {args.command}: interrupted", file=sys.stderr)
