@@ -600,3 +600,26 @@ def test_a_path_the_system_refuses_is_one_line(trained, tmp_path, monkeypatch, c
     one_line(capsys, *fragments)
     assert (tmp_path / "folder.png").is_dir() and (tmp_path / "afile").read_text() == "mine"
     assert not [p for p in tmp_path.iterdir() if ".tmp" in p.name]  # no temporary file left behind
+
+
+def test_what_a_dataset_reads_beside_its_named_file_is_an_input_too(trained, tmp_path, monkeypatch, capsys):
+    """A COLMAP model's photos (the project's images/, found above the model) and the folder of
+    a dataset named by its transforms.json are inputs: no output may land in them, --force or not."""
+    pytest.importorskip("pycolmap")
+    monkeypatch.chdir(tmp_path)
+    data = str(trained / "a" / "data.npz")
+    assert main(["convert", data, "--to", "P", "--format", "colmap"]) == 0
+    assert main(["convert", data, "--to", "W"]) == 0  # transforms.json + images/
+    before = files_under(tmp_path)
+    for argv in (["convert", "P/sparse/0", "--to", "P/images/inside.npz"],
+                 ["convert", "P/sparse/0", "--to", "P", "--size", "8", "--force"],
+                 ["view", "W/transforms.json", "--png", "W/images/plot.png"],
+                 ["view", "W/transforms.json", "--png", "W/images/" + sorted(os.listdir("W/images"))[0], "--force"]):
+        assert main(argv) == 2, argv
+        one_line(capsys, "input")
+    assert files_under(tmp_path) == before
+    (tmp_path / "T").mkdir()
+    (tmp_path / "T" / "sparse_pc.ply").write_text("mine")  # nerfstudio's points file is an output of convert
+    assert main(["convert", data, "--to", "T"]) == 2
+    one_line(capsys, "sparse_pc.ply: already exists")
+    assert (tmp_path / "T" / "sparse_pc.ply").read_text() == "mine"

@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..config import parse_background
-    from ..data.load import detect_format, load_scene
+    from ..data.load import dataset_inputs, detect_format, load_scene
     from ..errors import fail
     from ..io.paths import guard_outputs
 
@@ -70,9 +70,7 @@ def run(args: argparse.Namespace) -> int:
         raise fail(out, "an npz output must end in .npz")
     if fmt != "npz" and out.suffix.lower() == ".npz":
         raise fail(out, f"--format {fmt} writes a folder, not an .npz file")
-    src = Path(args.src)
-    root = src if src.is_dir() or src.suffix.lower() == ".npz" else src.parent  # a json's images sit beside it
-    guard_outputs(output_targets(out, fmt), [src, root, args.images], args.force, "--to")
+    guard_outputs(output_targets(out, fmt), [*dataset_inputs(args.src), args.images], args.force, "--to")
     background = parse_background(args.background)
     src_fmt = detect_format(args.src)
     if args.images and src_fmt == "colmap":
@@ -102,7 +100,11 @@ def output_targets(out, fmt: str) -> list:
     out = Path(out)
     if fmt == "npz":
         return [out]
-    return [out / "sparse", out / "images"] if fmt == "colmap" else [out / "transforms.json", out / "images"]
+    if fmt == "colmap":
+        return [out / "sparse", out / "images"]
+    from ..data.nerfstudio import POINTS_FILE
+
+    return [out / "transforms.json", out / "images", out / POINTS_FILE]
 
 
 def write_scene_as(scene, out, fmt: str, text: bool = False) -> list:

@@ -75,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     outs = [Path(p).resolve() for p in (args.mesh, args.points, splat) if p]
     if len(set(outs)) < len(outs):
         raise fail("--mesh/--points/--splat", "name the same file")
+    from ..data.load import dataset_inputs
     from ..io.paths import guard_outputs
     from ._common import open_run
 
@@ -83,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         raise fail(args.run, f"is a {run_.info.train.model} run; --splat exports runs of --model splat")
     if (args.mesh) and hasattr(run_.model, "n_gaussians"):
         raise fail(args.run, "is a splat run: it has no density field to mesh", "Use --splat OUT.ply or --points")
-    guard_outputs([args.mesh, args.points, splat], [args.data or run_.info.train.data], args.force,
+    guard_outputs([args.mesh, args.points, splat], dataset_inputs(args.data or run_.info.train.data), args.force,
                   "--mesh/--points/--splat")
     if splat:
         export_splat(run_, splat)

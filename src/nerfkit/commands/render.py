@@ -34,6 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from ..data.load import dataset_inputs
     from ..errors import fail
     from ..io.paths import guard_outputs
     from ..output.images import object_aim
@@ -43,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.out) if args.out else Path(args.run) / "videos"
     dataset = args.data or read_run(args.run).train.data
-    guard_outputs([out / name for name in VIDEO_FILES], [dataset], args.force or not args.out)
+    guard_outputs([out / name for name in VIDEO_FILES], dataset_inputs(dataset), args.force or not args.out)
     run_ = open_run(args)
     scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
     kind = scene.video_kind(args.path)

@@ -79,12 +79,12 @@ def run(args: argparse.Namespace) -> int:
         serve_run(path, host=args.host, port=args.port)
         return 0
 
-    from ..data.load import load_scene
+    from ..data.load import dataset_inputs, load_scene
 
     if args.png:
         from ..io.paths import guard_outputs
 
-        guard_outputs([args.png], [path], args.force, "--png")
+        guard_outputs([args.png], dataset_inputs(path), args.force, "--png")
     scene = load_scene(path, downscale=args.downscale, allow_outside=args.allow_outside_paths)
     tag_size = dataset_tag_size(path)
     if args.png:

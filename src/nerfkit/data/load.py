@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import fail
+from ..errors import NerfkitError, fail
 from ..io.paths import path_kind
 from .npz import load_npz
 from .scene import Scene, Views
@@ -136,6 +136,27 @@ def detect_format(path: str | Path) -> str:
     if find_colmap_model(path) is not None:
         return "colmap"
     raise fail(path, "folder holds no dataset nerfkit recognises", f"Expected {FORMATS}")
+
+
+def dataset_inputs(path: str | Path) -> list[Path]:
+    """What reading the dataset at ``path`` reads, for the guard that never writes an input
+    (:func:`~nerfkit.io.paths.guard_outputs`): the path; the folder of a dataset named by one
+    of its files (a ``transforms.json`` or ``poses_bounds.npy`` with images beside it); and a
+    COLMAP model's photo folder (the project's ``images/``, found above the model)."""
+    path = Path(path)
+    out = [path]
+    if path.is_file() and path.suffix.lower() != ".npz":
+        out.append(path.parent)
+    try:
+        fmt = detect_format(path)
+    except NerfkitError:
+        return out
+    if fmt == "colmap":
+        from .colmap import find_image_dir
+
+        images = find_image_dir(path if path.is_dir() else path.parent)
+        out += [images] if images is not None else []
+    return out
 
 
 def load_scene(
