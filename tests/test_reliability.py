@@ -84,6 +84,8 @@ def test_ctrl_c_saves_a_checkpoint_and_exits_cleanly(tmp_path, sphere_npz):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     wait_for(lambda: (run / "progress").exists() and len(list((run / "progress").glob("*.png"))) >= 2, 120, proc)
     proc.send_signal(signal.SIGINT)
+    time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)  # pressed twice: the save must still finish (it once stopped half-way)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
     assert "--resume" in err and "Traceback" not in err

@@ -487,6 +487,31 @@ def test_divergence_before_any_checkpoint_does_not_advise_resuming(tmp_path, sph
     assert "No checkpoint was written yet" in str(e.value) and "--resume" not in str(e.value)
 
 
+def test_a_stop_signal_during_the_final_save_does_not_cut_it_short(tmp_path, sphere):
+    # Ctrl-C pressed twice: the second press used to land after the handlers were restored, in
+    # the middle of the save, and the run was left without its model.pt, metrics and plots.
+    from nerfkit.models.vanilla import VanillaConfig
+    from nerfkit.train.config import TrainConfig
+    from nerfkit.train.trainer import Trainer
+
+    cfg = TrainConfig(data="x", model="vanilla", out=str(tmp_path / "run"), steps=3, batch_rays=32, lr=1e-3,
+                      eval_views=1, eval_every=1000, checkpoint_seconds=1e9)
+    trainer = Trainer(sphere, cfg, VanillaConfig(n_samples=4, width=8, depth=2), quiet=True)
+    original = trainer.save
+
+    def save_interrupted():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            os.kill(os.getpid(), sig)
+        original()
+
+    trainer.save = save_interrupted
+    result = trainer.run()
+    assert result.step == 3 and result.interrupted
+    for name in ("model.pt", "metrics.json", "metrics.csv", "plots/psnr.png"):
+        assert (tmp_path / "run" / name).exists(), name
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored afterwards
+
+
 def test_running_out_of_memory_is_one_line_naming_the_option(tmp_path, capsys, sphere_npz, monkeypatch):
     from nerfkit.train import trainer as trainer_mod
 

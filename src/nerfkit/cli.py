@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import errno
 import importlib
+import signal
 import sys
 import traceback
 
@@ -106,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    previous = _sigterm_as_ctrl_c()
     try:
         return int(args.func(args) or 0)
     except NerfkitError as e:
@@ -131,6 +133,23 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"nerfkit {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _sigterm_as_ctrl_c():
+    """SIGTERM (kill, timeout, schedulers) stops a command as Ctrl-C does: ``train`` saves,
+    anything else ends with exit code 130. Returns the handler it replaced (None off the
+    main thread, where handlers cannot be set)."""
+    try:
+        return signal.signal(signal.SIGTERM, _interrupt)
+    except ValueError:
+        return None
 
 
 if __name__ == "__main__":

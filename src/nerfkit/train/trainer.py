@@ -355,51 +355,56 @@ class Trainer:
         bar = tqdm(total=total, initial=self.step, desc=f"train {self.cfg.model}", unit="step", dynamic_ncols=True,
                    disable=self.quiet, file=sys.stderr,
                    mininterval=1.0 if sys.stderr.isatty() else 30.0)  # sparse updates in log files
-        last_ckpt = time.perf_counter()
-        samples = 0
-        train_psnr = []
         try:
-            if self.step == 0:
-                self._record_eval()
-            while not self.done() and not interrupted and (stop_after is None or self.step < stop_after):
-                t0 = time.perf_counter()
-                stats = self.train_step()
-                if self.device.type == "cuda":
-                    torch.cuda.synchronize(self.device)
-                self.train_seconds += time.perf_counter() - t0
-                self.step += 1
-                samples += stats["samples"]
-                if math.isfinite(stats["psnr"]):
-                    train_psnr.append(stats["psnr"])
-                if self.step % 10 == 0 or self.done():
-                    self.rows.append({"step": self.step, "seconds": round(self.train_seconds, 3), "split": "train",
-                                      "loss": stats["loss"], "psnr": float(np.mean(train_psnr[-10:] or [float("nan")])),
-                                      "rays": stats["rays"]})
-                bar.update(1)
-                bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}",
-                                rays=stats["rays"], spr=f"{stats['samples'] / max(stats['rays'], 1):.0f}",
-                                refresh=False)
-                if self.cfg.minutes and not total:
-                    bar.set_description(f"train {self.cfg.model} {self.train_seconds:.0f}/{60 * self.cfg.minutes:.0f}s",
-                                        refresh=False)  # redraws follow the bar's own interval
-                if self._eval_due() or self.done():
-                    self._record_eval()
-                if time.perf_counter() - last_ckpt >= self.cfg.checkpoint_seconds:
-                    self.save()
-                    last_ckpt = time.perf_counter()
+            self._loop(bar, stop_after, lambda: interrupted)
+            # the handlers stay until all is saved: a second Ctrl-C must not cut the save short
+            self.save()
+            save_model(self.run_dir, self.step, self.model)
+            self.write_reports()
         finally:
             bar.close()
             for s, handler in previous.items():
                 signal.signal(s, handler)
-        self.save()
-        save_model(self.run_dir, self.step, self.model)
-        self.write_reports()
         if interrupted:
             self.log(f"interrupted: checkpoint saved at step {self.step}; continue with "
                      f"`nerfkit train --resume {self.run_dir}`")
         final = [r for r in self.rows if r["split"] == "val"]
         return TrainResult(self.run_dir, self.step, self.train_seconds,
                            final[-1]["psnr"] if final else None, interrupted, self.rows)
+
+    def _loop(self, bar, stop_after: int | None, interrupted) -> None:
+        """The training steps, with their metrics, evaluations and periodic checkpoints, until
+        the stopping rule, ``interrupted()`` or step ``stop_after``."""
+        total = self.cfg.steps if self.cfg.steps else None
+        last_ckpt = time.perf_counter()
+        train_psnr = []
+        if self.step == 0:
+            self._record_eval()
+        while not self.done() and not interrupted() and (stop_after is None or self.step < stop_after):
+            t0 = time.perf_counter()
+            stats = self.train_step()
+            if self.device.type == "cuda":
+                torch.cuda.synchronize(self.device)
+            self.train_seconds += time.perf_counter() - t0
+            self.step += 1
+            if math.isfinite(stats["psnr"]):
+                train_psnr.append(stats["psnr"])
+            if self.step % 10 == 0 or self.done():
+                self.rows.append({"step": self.step, "seconds": round(self.train_seconds, 3), "split": "train",
+                                  "loss": stats["loss"], "psnr": float(np.mean(train_psnr[-10:] or [float("nan")])),
+                                  "rays": stats["rays"]})
+            bar.update(1)
+            bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}",
+                            rays=stats["rays"], spr=f"{stats['samples'] / max(stats['rays'], 1):.0f}",
+                            refresh=False)
+            if self.cfg.minutes and not total:
+                bar.set_description(f"train {self.cfg.model} {self.train_seconds:.0f}/{60 * self.cfg.minutes:.0f}s",
+                                    refresh=False)  # redraws follow the bar's own interval
+            if self._eval_due() or self.done():
+                self._record_eval()
+            if time.perf_counter() - last_ckpt >= self.cfg.checkpoint_seconds:
+                self.save()
+                last_ckpt = time.perf_counter()
 
     def _record_eval(self) -> None:
         if any(r["split"] == "val" and r["step"] == self.step for r in self.rows):
