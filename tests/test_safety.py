@@ -439,6 +439,9 @@ TRAIN = ["train", "--data", "D", "--out", "O", "--steps", "1"]  # --steps: ends 
     ([*TRAIN, "--model", "vanilla", "--depth", "1"], "--depth: 1 is below the minimum 2"),
     (["calibrate", "D", "--folds", "1"], "--folds: 1 is below the minimum 2"),
     (["dataset", "D", "--jpeg-quality", "101"], "--jpeg-quality: 101 is above the maximum 100"),
+    ([*TRAIN, "--seed", "18446744073709551616"], "--seed: 18446744073709551616 is above the maximum 4294967295"),
+    ([*TRAIN, "--lr", "1e300"], "--lr: 1e300 is above the maximum 100"),
+    (["export", "RUN", "--points", "p.ply", "--stride", "9" * 20], "--stride: " + "9" * 20 + " is above the maximum 4096"),
     (["render", "RUN", "--fps", "0"], "--fps: 0 is below the minimum 1"),
     (["render", "RUN", "--fps", "-5"], "--fps: -5 is below the minimum 1"),
     (["render", "RUN", "--chunk", "-1"], "--chunk: -1 is below the minimum 0"),
@@ -648,3 +651,10 @@ def test_what_a_dataset_reads_beside_its_named_file_is_an_input_too(trained, tmp
     assert main(["convert", data, "--to", "T"]) == 2
     one_line(capsys, "sparse_pc.ply: already exists")
     assert (tmp_path / "T" / "sparse_pc.ply").read_text() == "mine"
+
+
+@pytest.mark.parametrize("device", ["meta", "mps"])
+def test_a_device_nerfkit_cannot_run_on_is_one_line(trained, tmp_path, capsys, device):
+    run = copy_run(trained, tmp_path)
+    assert main(["eval", str(run), "--device", device]) == 2
+    one_line(capsys, f"not on '{device}'", "Use auto, cpu, cuda or cuda:N")

@@ -19,6 +19,9 @@ from .errors import fail
 
 T = TypeVar("T")
 
+# the largest --seed: every random generator nerfkit seeds (numpy, torch) takes it
+MAX_SEED = 2 ** 32 - 1
+
 
 def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors argparse
     """A dataclass field with a default and a help line; ``min``, ``max`` (inclusive) and

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .config import option, parse_background
+from .config import MAX_SEED, option, parse_background
 from .errors import fail
 from .io.atomic import write_image, write_json
 from .viz.plots import image_grid, plot_curves
@@ -54,10 +54,10 @@ class FitImageConfig:
                     max=30)
     width: int = option(256, "hidden layer width", min=1)
     depth: int = option(3, "number of hidden Linear+ReLU layers", min=1)
-    lr: float = option(1e-2, "Adam learning rate", above=0)
-    batch: int = option(10_000, "random pixels per training step", min=1)
+    lr: float = option(1e-2, "Adam learning rate", above=0, max=100)
+    batch: int = option(10_000, "random pixels per training step", min=1, max=1 << 24)
     steps: int = option(2000, "training steps", min=0)
-    seed: int = option(0, "random seed (weights, pixel sampling, PSNR subset); same seed, same result", min=0)
+    seed: int = option(0, "random seed (weights, pixel sampling, PSNR subset); same seed, same result", min=0, max=MAX_SEED)
     device: str = option("auto", "auto = cuda when available, else cpu", choices=["auto", "cpu", "cuda"])
     precision: str = option("auto", "matmul precision: bf16 autocast or fp32; auto = bf16 on CPUs with native "
                             "bf16 (avx512_bf16/amx) and on CUDA GPUs that support it, else fp32",

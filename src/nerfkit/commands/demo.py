@@ -14,7 +14,7 @@ everything is. Defaults finish in a few minutes on a 2-core CPU.
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..config import number
+    from ..config import MAX_SEED, number
 
     p = sub.add_parser("demo", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--model", choices=["fast", "vanilla"], default="fast", help="which NeRF (default: fast)")
@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="training-time budget (default: 3 for fast, 8 for vanilla)")
     p.add_argument("--out", default="runs/demo", help="run folder; a fresh one is picked if it exists (default: runs/demo)")
     p.add_argument("--device", default="auto", help="auto, cpu, cuda (default: auto)")
-    p.add_argument("--seed", type=number(int, 0), default=0, help="random seed (default: 0)")
+    p.add_argument("--seed", type=number(int, 0, MAX_SEED), default=0, help="random seed (default: 0)")
     p.set_defaults(func=run)
 
 

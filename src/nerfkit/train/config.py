@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..config import option, parse_background
+from ..config import MAX_SEED, option, parse_background
 from ..errors import fail
 from ..models import MODEL_NAMES
 
@@ -28,11 +28,12 @@ class TrainConfig:
     minutes: float = option(0.0, "training-time budget in minutes, evaluation excluded (0: no limit)", min=0)
     batch_rays: int = option(0, "rays per step (0: the model's default; fast takes multiples of it at its finer "
                              "stages, --stage-rays); lower it if memory runs out", min=0, max=MAX_BATCH_RAYS)
-    lr: float = option(0.0, "base learning rate (0: the model's default)", min=0)
+    lr: float = option(0.0, "base learning rate (0: the model's default)", min=0, max=100)
     lr_final_factor: float = option(0.0, "learning rate decays exponentially to lr x this at the end (0: 0.1, or "
                                     "0.02 for the fast model with --capture: a table texel is hit by few rays, and "
                                     "the low final rate lets it settle on what the photos agree on)", min=0, max=1)
-    seed: int = option(0, "random seed (rays, sampling, initialisation)", min=0)
+    seed: int = option(0, "random seed (rays, sampling, initialisation)", min=0,
+                     max=MAX_SEED)
     device: str = option("auto", "auto, cpu, cuda or cuda:N")
     precision: str = option("auto", "auto (bf16 where the hardware has it), fp32, or bf16", choices=["auto", "fp32", "bf16"])
     background: str = option("black", "colour behind the object: black, white, grey, r,g,b in [0, 1] or #rrggbb")
@@ -105,6 +106,8 @@ def resolve_device(name: str) -> torch.device:
         device = torch.device(name)
     except RuntimeError:
         raise fail("--device", f"'{name}' is not a device", "Use auto, cpu, cuda or cuda:N") from None
+    if device.type not in ("cpu", "cuda"):
+        raise fail("--device", f"nerfkit runs on the CPU or on CUDA, not on '{name}'", "Use auto, cpu, cuda or cuda:N")
     if device.type == "cuda" and not torch.cuda.is_available():
         raise fail("--device", "CUDA was asked for but this PyTorch has no CUDA device", "Use --device cpu")
     return device
