@@ -384,13 +384,23 @@ def test_one_process_per_run_folder(trained, tmp_path, capsys, sphere_npz):
 
 def test_stale_temporaries_of_a_killed_run_are_removed_on_the_next_start(trained, tmp_path):
     run = copy_run(trained, tmp_path)
-    stale = [run / "checkpoints" / ".step_00000009.pt.tmp.k3j2.pt", run / ".metrics.json.tmp.abcd.json",
-             run / "plots" / ".psnr.png.tmp.zz.png"]
+    stale = [run / "checkpoints" / ".step_00000009.pt.tmp.k3j2x_0q.pt", run / ".metrics.json.tmp.abcd1234.json",
+             run / "plots" / ".psnr.png.tmp.zz9zz9zz.png"]
     for p in stale:
         p.write_bytes(b"half written")
+    mine = run / ".notes.tmp.txt"  # a user's file whose name only looks like one
+    mine.write_text("mine")
     assert main(["train", "--resume", str(run), "--steps", "7"]) == 0
     assert not any(p.exists() for p in stale)
-    assert not list(run.rglob("*.tmp.*"))
+    assert list(run.rglob("*.tmp.*")) == [mine] and mine.read_text() == "mine"
+
+
+def test_a_folder_holding_a_users_file_named_like_a_temporary_is_not_empty(tmp_path, capsys, sphere_npz):
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / ".notes.tmp.txt").write_text("mine")
+    assert main(["train", "--data", str(sphere_npz), "--out", str(tmp_path / "out"), "--steps", "2", *TINY]) == 2
+    one_line(capsys, "holds files that are not a nerfkit run")
+    assert (tmp_path / "out" / ".notes.tmp.txt").read_text() == "mine"
 
 
 @pytest.mark.slow

@@ -12,6 +12,7 @@ import contextlib
 import errno
 import json
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -68,10 +69,19 @@ def _disk_full(error: BaseException, folder: Path) -> bool:
         return False
 
 
+# ``.<name>.tmp.<mkstemp's 8 random characters><suffix>``: a user's ``.notes.tmp.txt`` is not one
+_TEMPORARY = re.compile(r"\..+" + re.escape(TMP_MARK) + r"[a-z0-9_]{8}")
+
+
+def is_temporary(name: str) -> bool:
+    """True for the name of a temporary file :func:`atomic_path` makes."""
+    return _TEMPORARY.match(name) is not None
+
+
 def stale_temporaries(folder: str | os.PathLike) -> list[Path]:
     """Temporary files :func:`atomic_path` left in ``folder`` (and below) when a process was
     killed mid-write (SIGKILL, power loss): ``.<name>.tmp.<random><suffix>``."""
-    return sorted(p for p in Path(folder).rglob(f".*{TMP_MARK}*") if p.is_file())
+    return sorted(p for p in Path(folder).rglob(f".*{TMP_MARK}*") if p.is_file() and is_temporary(p.name))
 
 
 def remove_stale_temporaries(folder: str | os.PathLike) -> int:

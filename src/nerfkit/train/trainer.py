@@ -24,7 +24,7 @@ from ..cameras import strided_camera
 from ..data.rays import RaysData
 from ..data.scene import Scene
 from ..errors import fail
-from ..io.atomic import TMP_MARK, write_image, write_json, write_text
+from ..io.atomic import is_temporary, write_image, write_json, write_text
 from ..io.lock import LOCK_FILE
 from ..models import SceneBounds, build_model
 from ..models.base import NerfModel, StepState, grads_finite, run_schedules
@@ -487,7 +487,7 @@ def check_new_run_folder(run_dir: Path) -> None:
         raise fail(run_dir, "already holds a run", "Continue it with --resume, or choose another --out")
     if run_dir.is_file():
         raise fail(run_dir, "is a file", "--out names the run folder to create")
-    if run_dir.is_dir() and any(p.name != LOCK_FILE and TMP_MARK not in p.name for p in run_dir.iterdir()):
+    if run_dir.is_dir() and any(p.name != LOCK_FILE and not is_temporary(p.name) for p in run_dir.iterdir()):
         raise fail(run_dir, "holds files that are not a nerfkit run", "Choose a new or empty --out")
 
 
