@@ -102,8 +102,10 @@ def output_targets(out, fmt: str) -> list:
         return [out]
     if fmt == "colmap":
         return [out / "sparse", out / "images"]
-    from ..data.nerfstudio import POINTS_FILE
-
+    try:
+        from ..data.nerfstudio import POINTS_FILE
+    except ImportError:  # (write_scene_as says so)
+        return [out / "transforms.json", out / "images"]
     return [out / "transforms.json", out / "images", out / POINTS_FILE]
 
 
