@@ -287,6 +287,18 @@ def test_cli_runs_and_sweeps(tmp_path, capsys):
     # The image may also follow --sweep's items.
     assert main(["fit-image", "--out", str(tmp_path / "sw"), *small, "--sweep", "L=0,2", str(img)]) == 0
     assert len(json.loads((tmp_path / "sw" / "sweep.json").read_text())["runs"]) == 2
+    # a sweep's run folders are outputs too: an earlier run there, or the image itself, is kept
+    assert main(["fit-image", str(img), "--out", str(tmp_path / "sw2" / "L2"), *small]) == 0
+    before = (tmp_path / "sw2" / "L2" / "final.png").read_bytes()
+    capsys.readouterr()
+    assert main(["fit-image", str(img), "--out", str(tmp_path / "sw2"), *small, "--sweep", "L=2"]) == 2
+    assert "L2/psnr.png: already exists" in capsys.readouterr().err
+    inside = tmp_path / "sw3" / "L2" / "final.png"
+    inside.parent.mkdir(parents=True)
+    inside.write_bytes(img.read_bytes())
+    assert main(["fit-image", str(inside), "--out", str(tmp_path / "sw3"), *small, "--sweep", "L=2", "--force"]) == 2
+    assert "is an input of this command" in capsys.readouterr().err
+    assert (tmp_path / "sw2" / "L2" / "final.png").read_bytes() == before and inside.read_bytes() == img.read_bytes()
 
 
 @pytest.mark.parametrize("content,expect", [(b"this is not an image", "not an image"), (b"", "not an image")])

@@ -668,3 +668,8 @@ def test_a_device_nerfkit_cannot_run_on_is_one_line(trained, tmp_path, capsys, d
     run = copy_run(trained, tmp_path)
     assert main(["eval", str(run), "--device", device]) == 2
     one_line(capsys, f"not on '{device}'", "Use auto, cpu, cuda or cuda:N")
+
+
+def test_an_empty_png_name_is_refused_not_taken_for_the_viewer(trained, capsys):
+    assert main(["view", str(trained / "a" / "data.npz"), "--png", ""]) == 2  # it once started the server
+    one_line(capsys, "--png: names no file")

@@ -457,6 +457,17 @@ def sweep_label(combo: dict) -> str:
     return " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in combo.items())
 
 
+def sweep_folder(out: str | Path, combo: dict) -> Path:
+    """The run folder of one sweep combination: ``{"L": 3, "width": 64}`` -> ``out/L3_width64``."""
+    return Path(out) / sweep_label(combo).replace(" ", "_").replace("=", "")
+
+
+def sweep_outputs(out: str | Path, combos: list[dict]) -> list[Path]:
+    """Every file a sweep writes: the summary files and each combination's run files."""
+    out = Path(out)
+    return [out / name for name in SWEEP_FILES] + [sweep_folder(out, c) / name for c in combos for name in RUN_FILES]
+
+
 def run_sweep(image: str | Path | None, out: str | Path, cfg: FitImageConfig, combos: list[dict],
               progress: bool = True) -> list[dict]:
     """Train one model per combination (each overriding ``cfg``); write each run folder and the summary.
@@ -474,7 +485,7 @@ def run_sweep(image: str | Path | None, out: str | Path, cfg: FitImageConfig, co
     entries: list[dict] = []
     for i, combo in enumerate(combos):
         label = sweep_label(combo)
-        folder = out / label.replace(" ", "_").replace("=", "")
+        folder = sweep_folder(out, combo)
         result = fit_image(target, dataclasses.replace(cfg, **combo), progress=progress,
                            desc=f"[{i + 1}/{len(combos)}] {label}")
         write_run(folder, result, target, path)

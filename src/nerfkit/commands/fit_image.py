@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..config import dataclass_from_args
     from ..errors import fail
-    from ..fit_image import RUN_FILES, SWEEP_FILES, FitImageConfig, default_image_path, parse_sweep, run_fit, run_sweep
+    from ..fit_image import RUN_FILES, FitImageConfig, default_image_path, parse_sweep, run_fit, run_sweep, sweep_outputs
     from ..io.paths import guard_outputs
 
     cfg = dataclass_from_args(FitImageConfig, args)
@@ -64,11 +64,12 @@ def run(args: argparse.Namespace) -> int:
         raise fail("--sweep", "no KEY=V1,V2 items", "Example: --sweep L=3,10 width=64,256")
     stem = Path(image).stem if image else default_image_path().stem
     out = Path(args.out) if args.out else Path("runs") / "fit-image" / (stem + ("-sweep" if sweep else ""))
-    guard_outputs([out / name for name in (SWEEP_FILES if sweep else RUN_FILES)], [image], args.force)
+    combos = parse_sweep(sweep) if sweep else None
+    outputs = sweep_outputs(out, combos) if combos else [out / name for name in RUN_FILES]
+    guard_outputs(outputs, [image], args.force)
     progress = not args.quiet
 
-    if sweep:
-        combos = parse_sweep(sweep)
+    if combos:
         entries = run_sweep(image, out, cfg, combos, progress=progress)
         for e in entries:
             print(f"{e['label']:30s} PSNR {e['final_psnr_db']:6.2f} dB  {e['steps_per_s']:6.1f} steps/s")

@@ -62,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import fail
 
     path = Path(args.path)
+    if args.png is not None and not args.png.strip():
+        raise fail("--png", "names no file", "Give the PNG's path, or leave out --png to open the viewer")
     if args.rays < 0 or args.samples < 1:
         raise fail("--rays/--samples", "need --rays >= 0 and --samples >= 1")
     if not 0 < args.port < 65536:
