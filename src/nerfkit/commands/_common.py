@@ -46,20 +46,25 @@ def run_dataset_path(info) -> Path:
     return path
 
 
-def scene_for_run(info, data: str | None, need: str = "train", allow_outside: bool = False):
-    """The run's dataset (checked against the run's fingerprint), or ``data`` when given;
-    loaded as in training: transparent pixels on the run's background colour, images
-    divided by the run's ``--downscale``."""
+def load_as_trained(train, path, need: str = "train", allow_outside: bool = False):
+    """The dataset at ``path`` loaded as a run with TrainConfig ``train`` sees it: transparent
+    pixels on its ``--background`` colour, images divided by its ``--downscale``."""
     from ..config import parse_background
     from ..data.load import load_scene
+
+    return load_scene(path, parse_background(train.background), downscale=train.downscale or None, need=need,
+                      allow_outside=allow_outside)
+
+
+def scene_for_run(info, data: str | None, need: str = "train", allow_outside: bool = False):
+    """The run's dataset (checked against the run's fingerprint), or ``data`` when given;
+    loaded as in training (:func:`load_as_trained`)."""
     from ..train.checkpoint import check_dataset
 
-    background = parse_background(info.train.background)
-    downscale = getattr(info.train, "downscale", 0.0) or None
     if data:
-        return load_scene(data, background, downscale=downscale, need=need, allow_outside=allow_outside)
+        return load_as_trained(info.train, data, need=need, allow_outside=allow_outside)
     allow_outside = allow_outside or getattr(info.train, "allow_outside_paths", False)  # as the run was trained
-    scene = load_scene(run_dataset_path(info), background, downscale=downscale, allow_outside=allow_outside)
+    scene = load_as_trained(info.train, run_dataset_path(info), allow_outside=allow_outside)
     check_dataset(info, scene)
     return scene
 

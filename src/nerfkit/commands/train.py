@@ -69,12 +69,11 @@ def resume_changes(args: argparse.Namespace) -> dict:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from ..config import parse_background
-    from ..data.load import load_scene
     from ..errors import fail
     from ..train.checkpoint import read_run
     from ..train.config import TrainConfig
     from ..train.trainer import check_new_run_folder, resume, train
+    from ._common import load_as_trained
 
     if args.resume:
         changes = resume_changes(args)
@@ -82,8 +81,8 @@ def run(args: argparse.Namespace) -> int:
         for k, v in changes.items():
             print(f"resuming with --{k.replace('_', '-')} {v} (was {getattr(info.train, k)})", file=sys.stderr)
         data = args.data or info.train.data
-        scene = load_scene(data, parse_background(info.train.background), downscale=info.train.downscale or None,
-                           allow_outside=bool(args.allow_outside_paths or info.train.allow_outside_paths))
+        scene = load_as_trained(info.train, data,
+                                allow_outside=bool(args.allow_outside_paths or info.train.allow_outside_paths))
         result = resume(args.resume, scene, changes=changes)
     else:
         cfg = dataclass_from_args(TrainConfig, args)
@@ -99,9 +98,7 @@ def run(args: argparse.Namespace) -> int:
         model_cfg = dataclass_from_args(classes[cfg.model], args)
         check_new_run_folder(Path(cfg.out))  # before loading the dataset: a refusal should be quick
         # RGBA images are composited on the colour the model renders behind the scene
-        scene = load_scene(cfg.data, parse_background(cfg.background), downscale=cfg.downscale or None,
-                           allow_outside=cfg.allow_outside_paths)
-        result = train(scene, cfg, model_cfg)
+        result = train(load_as_trained(cfg, cfg.data, allow_outside=cfg.allow_outside_paths), cfg, model_cfg)
     summary = f"run: {result.run_dir}  steps: {result.step}  training time: {result.train_seconds:.0f} s"
     if result.final_val_psnr is not None:
         summary += f"  val PSNR: {result.final_val_psnr:.2f} dB"
