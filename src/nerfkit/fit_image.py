@@ -57,7 +57,8 @@ class FitImageConfig:
     lr: float = option(1e-2, "Adam learning rate", above=0, max=100)
     batch: int = option(10_000, "random pixels per training step", min=1, max=1 << 24)
     steps: int = option(2000, "training steps", min=0)
-    seed: int = option(0, "random seed (weights, pixel sampling, PSNR subset); same seed, same result", min=0, max=MAX_SEED)
+    seed: int = option(0, "random seed (weights, pixel sampling, PSNR subset); same seed, same result", min=0,
+                       max=MAX_SEED)
     device: str = option("auto", "auto = cuda when available, else cpu", choices=["auto", "cpu", "cuda"])
     precision: str = option("auto", "matmul precision: bf16 autocast or fp32; auto = bf16 on CPUs with native "
                             "bf16 (avx512_bf16/amx) and on CUDA GPUs that support it, else fp32",

@@ -32,8 +32,7 @@ class TrainConfig:
     lr_final_factor: float = option(0.0, "learning rate decays exponentially to lr x this at the end (0: 0.1, or "
                                     "0.02 for the fast model with --capture: a table texel is hit by few rays, and "
                                     "the low final rate lets it settle on what the photos agree on)", min=0, max=1)
-    seed: int = option(0, "random seed (rays, sampling, initialisation)", min=0,
-                     max=MAX_SEED)
+    seed: int = option(0, "random seed (rays, sampling, initialisation)", min=0, max=MAX_SEED)
     device: str = option("auto", "auto, cpu, cuda or cuda:N")
     precision: str = option("auto", "auto (bf16 where the hardware has it), fp32, or bf16", choices=["auto", "fp32", "bf16"])
     background: str = option("black", "colour behind the object: black, white, grey, r,g,b in [0, 1] or #rrggbb")
@@ -95,8 +94,6 @@ def eval_stride(width: int, height: int, n_views: int, pixels: int) -> int:
         if n_views * -(-width // s) * -(-height // s) <= pixels:
             return s
     return side
-
-
 
 
 def resolve_device(name: str) -> torch.device:

@@ -375,7 +375,6 @@ class Trainer:
     def _loop(self, bar, stop_after: int | None, interrupted) -> None:
         """The training steps, with their metrics, evaluations and periodic checkpoints, until
         the stopping rule, ``interrupted()`` or step ``stop_after``."""
-        total = self.cfg.steps if self.cfg.steps else None
         last_ckpt = time.perf_counter()
         train_psnr = []
         if self.step == 0:
@@ -397,7 +396,7 @@ class Trainer:
             bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}",
                             rays=stats["rays"], spr=f"{stats['samples'] / max(stats['rays'], 1):.0f}",
                             refresh=False)
-            if self.cfg.minutes and not total:
+            if self.cfg.minutes and not self.cfg.steps:
                 bar.set_description(f"train {self.cfg.model} {self.train_seconds:.0f}/{60 * self.cfg.minutes:.0f}s",
                                     refresh=False)  # redraws follow the bar's own interval
             if self._eval_due() or self.done():
