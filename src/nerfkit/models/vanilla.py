@@ -49,8 +49,9 @@ class VanillaConfig:
     # occupancy grid starts, two whole views with all 64 samples took about a minute
     TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 4096, "eval_pixels": 4096}
 
-    n_samples: int = option(64, "stratified samples per ray", min=1)
-    n_importance: int = option(0, "extra samples per ray from hierarchical (coarse-to-fine) sampling; 0 = off", min=0)
+    n_samples: int = option(64, "stratified samples per ray", min=1, max=4096)
+    n_importance: int = option(0, "extra samples per ray from hierarchical (coarse-to-fine) sampling; 0 = off", min=0,
+                               max=4096)
     pos_freqs: int = option(10, "positional-encoding octaves L for positions", min=0, max=32)
     dir_freqs: int = option(4, "positional-encoding octaves L for view directions", min=0, max=32)
     width: int = option(256, "MLP width", min=1, max=4096)
