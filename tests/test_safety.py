@@ -321,6 +321,11 @@ def copy_run(trained: Path, tmp_path: Path) -> Path:
     return shutil.copytree(trained / "run", tmp_path / "run")
 
 
+def placed(argv: list[str], trained: Path, run: Path) -> list[str]:
+    """``argv`` with RUN as ``run`` and D as the trained run's dataset."""
+    return [str(run) if a == "RUN" else str(trained / "a" / "data.npz") if a == "D" else a for a in argv]
+
+
 def test_the_run_records_its_dataset_absolutely_and_eval_uses_it_from_anywhere(trained, tmp_path, monkeypatch,
                                                                                   capsys):
     from nerfkit.data.npz import save_npz
@@ -464,7 +469,7 @@ TRAIN = ["train", "--data", "D", "--out", "O", "--steps", "1"]  # --steps: ends 
 def test_numeric_options_are_checked_when_parsed(trained, tmp_path, monkeypatch, capsys, argv, fragment):
     monkeypatch.chdir(tmp_path)
     run = copy_run(trained, tmp_path)
-    argv = [str(run) if a == "RUN" else str(trained / "a" / "data.npz") if a == "D" else a for a in argv]
+    argv = placed(argv, trained, run)
     before = files_under(tmp_path)
     assert main(argv) == 2
     one_line(capsys, f"nerfkit {argv[0]}: error: argument {fragment}")
@@ -633,7 +638,7 @@ def test_a_path_the_system_refuses_is_one_line(trained, tmp_path, monkeypatch, c
     (tmp_path / "folder.png").mkdir()
     (tmp_path / "afile").write_text("mine")
     run = copy_run(trained, tmp_path)
-    argv = [str(run) if a == "RUN" else str(trained / "a" / "data.npz") if a == "D" else a for a in argv]
+    argv = placed(argv, trained, run)
     assert main(argv) == 2
     one_line(capsys, *fragments)
     assert (tmp_path / "folder.png").is_dir() and (tmp_path / "afile").read_text() == "mine"
