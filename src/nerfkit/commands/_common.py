@@ -52,7 +52,8 @@ def load_as_trained(train, path, need: str = "train", allow_outside: bool = Fals
     from ..config import parse_background
     from ..data.load import load_scene
 
-    return load_scene(path, parse_background(train.background), downscale=train.downscale or None, need=need,
+    downscale = getattr(train, "downscale", 0.0) or None  # (a config without the field: as stored)
+    return load_scene(path, parse_background(train.background), downscale=downscale, need=need,
                       allow_outside=allow_outside)
 
 
