@@ -266,14 +266,15 @@ def edited_run(tiny_run, tmp_path, edit_config=None, edit_checkpoint=None) -> Pa
     (lambda c: c.update(train=[]), "'train' is missing or not an object"),
     (lambda c: c.update(model=["width"]), "'model' is missing or not an object"),
     (lambda c: c["train"].update(model="nope"), "unknown model 'nope'"),
-    (lambda c: c["train"].update(lr=float("nan")), "'lr' is NaN"),
-    (lambda c: c["train"].update(lr_final_factor=5.0), "invalid TrainConfig settings"),
+    (lambda c: c["train"].update(lr=float("nan")), "--lr: 'nan' is not a finite number"),
+    (lambda c: c["train"].update(lr_final_factor=5.0), "--lr-final-factor: 5.0 is above the maximum 1"),
+    (lambda c: c["train"].update(steps=0, minutes=0.0), "invalid TrainConfig settings (train: no stopping rule"),
     (lambda c: c["bounds"].update(near=float("nan")), "near/far must be finite"),
     (lambda c: c["bounds"].update(near=7.0), "need 0 <= near < far"),
     (lambda c: c["bounds"].update(center=[1.0]), "'bounds.center' must be 3 numbers"),
     (lambda c: c["bounds"].update(up=[0, 0, 0]), "'bounds.up' is the zero vector"),
     (lambda c: c["bounds"].update(radius=-1), "'bounds.radius' is -1"),
-    (lambda c: c["model"].update(width=-1), "settings out of range"),
+    (lambda c: c["model"].update(width=-1), "--width: -1 is below the minimum 1"),
 ])
 def test_run_config_values_that_used_to_crash_or_load_as_garbage(tiny_run, tmp_path, edit, message):
     from nerfkit.train.checkpoint import load_run

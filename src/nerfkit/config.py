@@ -10,6 +10,7 @@ import argparse
 import dataclasses
 import json
 import math
+import numbers
 import types
 import typing
 from pathlib import Path
@@ -25,7 +26,8 @@ MAX_SEED = 2 ** 32 - 1
 
 def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors argparse
     """A dataclass field with a default and a help line; ``min``, ``max`` (inclusive) and
-    ``above`` (exclusive) bound a number's flag, checked when the command line is parsed."""
+    ``above`` (exclusive) bound a number's flag, checked when the command line is parsed
+    (:func:`number`) and for configs built otherwise (:func:`check_ranges`)."""
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})
 
 
@@ -41,6 +43,34 @@ def base_type(tp: Any) -> tuple[Any, bool]:
     return tp, False
 
 
+def range_problem(value: float, kind: type = float, min: float | None = None,  # noqa: A002 - reads like a range
+                  max: float | None = None, above: float | None = None, shown: str | None = None) -> str | None:
+    """What is wrong with a number and its bounds (``min``/``max`` inclusive, ``above``
+    exclusive; floats must be finite), or None: the one wording of the parser (:func:`number`)
+    and of :func:`check_ranges`. ``shown`` is the value as the user wrote it.
+    Example: ``range_problem(101, int, 1, 100)`` -> ``"101 is above the maximum 100 (allowed: 1 to 100)"``."""
+    shown = str(value) if shown is None else shown
+    if kind is float and not math.isfinite(value):
+        return f"'{shown}' is not a finite number"
+    if min is not None and value < min:
+        problem = f"{shown} is below the minimum {min}"
+    elif max is not None and value > max:
+        problem = f"{shown} is above the maximum {max}"
+    elif above is not None and not value > above:
+        problem = f"{shown} must be greater than {above}"
+    else:
+        return None
+    if max is not None and min is not None:
+        problem += f" (allowed: {min} to {max})"
+    elif max is not None and above is not None:
+        problem += f" (allowed: above {above}, up to {max})"
+    return problem
+
+
+def _not_a(kind: type, shown: str) -> str:
+    return f"'{shown}' is not {'a whole number' if kind is int else 'a number'}"
+
+
 def number(kind: type = float, min: float | None = None, max: float | None = None,  # noqa: A002 - reads like a range
            above: float | None = None) -> Any:
     """An argparse ``type`` for a finite ``kind`` (int or float) within [min, max] (or > above):
@@ -50,19 +80,34 @@ def number(kind: type = float, min: float | None = None, max: float | None = Non
         try:
             v = kind(text)
         except (TypeError, ValueError):
-            raise argparse.ArgumentTypeError(f"'{text}' is not {'a whole number' if kind is int else 'a number'}") from None
-        if kind is float and not math.isfinite(v):
-            raise argparse.ArgumentTypeError(f"'{text}' is not a finite number")
-        if min is not None and v < min:
-            raise argparse.ArgumentTypeError(f"{text} is below the minimum {min}")
-        if max is not None and v > max:
-            raise argparse.ArgumentTypeError(f"{text} is above the maximum {max}")
-        if above is not None and not v > above:
-            raise argparse.ArgumentTypeError(f"{text} must be greater than {above}")
+            raise argparse.ArgumentTypeError(_not_a(kind, text)) from None
+        problem = range_problem(v, kind, min, max, above, shown=text)
+        if problem:
+            raise argparse.ArgumentTypeError(problem)
         return v
 
     parse.__name__ = kind.__name__  # argparse names the type in its messages
     return parse
+
+
+def check_ranges(cfg: T, source: object = None) -> T:
+    """Check every int and float field of dataclass ``cfg`` as its flag is checked when the
+    command line is parsed (:func:`number`: finite, the field's ``min``/``max``/``above``),
+    for configs built in Python or read from JSON; returns ``cfg``. A bad value is a
+    NerfkitError naming ``source`` (when given) and the flag, e.g.
+    ``config.json: --lr: 200.0 is above the maximum 100 (allowed: 0 to 100)``."""
+    hints = typing.get_type_hints(type(cfg))
+    for f in dataclasses.fields(cfg):
+        kind, optional = base_type(hints[f.name])
+        value = getattr(cfg, f.name)
+        if kind not in (int, float) or (value is None and optional):
+            continue
+        numeric = isinstance(value, numbers.Integral if kind is int else numbers.Real) and not isinstance(value, bool)
+        problem = (range_problem(value, kind, f.metadata.get("min"), f.metadata.get("max"), f.metadata.get("above"))
+                   if numeric else _not_a(kind, str(value)))
+        if problem:
+            raise fail(_flag(f.name) if source is None else f"{source}: {_flag(f.name)}", problem)
+    return cfg
 
 
 def _field_type(tp: Any, meta: Any) -> Any:
@@ -71,6 +116,12 @@ def _field_type(tp: Any, meta: Any) -> Any:
     if tp in (int, float):
         return number(tp, meta.get("min"), meta.get("max"), meta.get("above"))
     return tp if tp is str else str
+
+
+def flag_type(cls: type, name: str) -> Any:
+    """The argparse type of field ``name``'s flag in dataclass ``cls`` (for numbers, with its bounds)."""
+    f = next(f for f in dataclasses.fields(cls) if f.name == name)
+    return _field_type(base_type(typing.get_type_hints(cls)[name])[0], f.metadata)
 
 
 def add_dataclass_args(parser: argparse.ArgumentParser, cls: type, group_title: str | None = None,
@@ -130,7 +181,8 @@ def dataclass_from_args(cls: type[T], args: argparse.Namespace, base: T | None =
 
 
 def dataclass_from_dict(cls: type[T], d: dict, where: str) -> T:
-    """Build ``cls`` from JSON data, refusing unknown keys and wrong types with a clear error."""
+    """Build ``cls`` from JSON data, refusing unknown keys, wrong types and numbers out of
+    their fields' range (:func:`check_ranges`) with a clear error."""
     if not isinstance(d, dict):
         raise fail(where, f"expected a JSON object of {cls.__name__} settings, got {type(d).__name__}")
     hints = typing.get_type_hints(cls)
@@ -144,18 +196,14 @@ def dataclass_from_dict(cls: type[T], d: dict, where: str) -> T:
         if v is None and optional:
             out[k] = None
         elif tp is float and isinstance(v, (int, float)) and not isinstance(v, bool):
-            if v != v:
-                raise fail(where, f"config key '{k}' is NaN, expected a number")
-            if not math.isfinite(v):
-                raise fail(where, f"config key '{k}' is {v}, expected a finite number")
-            out[k] = float(v)
+            out[k] = float(v)  # finite and in range: check_ranges below
         elif tp in (int, str, bool) and type(v) is tp:
             out[k] = v
         elif tp not in (int, float, str, bool):
             out[k] = v
         else:
             raise fail(where, f"config key '{k}' should be {tp.__name__}, got {type(v).__name__}")
-    return cls(**out)
+    return check_ranges(cls(**out), where)
 
 
 def load_json(path: str | Path, missing: str = "no such file", missing_fix: str | None = None,

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .config import MAX_SEED, option, parse_background
+from .config import MAX_SEED, check_ranges, option, parse_background
 from .errors import fail
 from .io.atomic import write_image, write_json
 from .viz.plots import image_grid, plot_curves
@@ -87,14 +87,7 @@ def psnr_from_mse(mse: float) -> float:
 
 def validate_config(cfg: FitImageConfig) -> None:
     """Raise a one-line NerfkitError for values that cannot train."""
-    checks = [("L", cfg.L >= 0, ">= 0"), ("width", cfg.width >= 1, ">= 1"), ("depth", cfg.depth >= 1, ">= 1"),
-              ("lr", cfg.lr > 0 and math.isfinite(cfg.lr), "a positive number"), ("batch", cfg.batch >= 1, ">= 1"),
-              ("steps", cfg.steps >= 0, ">= 0"), ("eval-every", cfg.eval_every >= 1, ">= 1"),
-              ("eval-pixels", cfg.eval_pixels >= 1, ">= 1"), ("chunk", cfg.chunk >= 1, ">= 1"),
-              ("preview-size", cfg.preview_size >= 8, ">= 8")]
-    for name, ok, want in checks:
-        if not ok:
-            raise fail(f"--{name}", f"got {getattr(cfg, name.replace('-', '_'))}", f"It must be {want}")
+    check_ranges(cfg)
     if cfg.device not in ("auto", "cpu", "cuda"):
         raise fail("--device", f"unknown device '{cfg.device}'", "Use auto, cpu or cuda")
     if cfg.precision not in ("auto", "bf16", "fp32"):

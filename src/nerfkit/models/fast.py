@@ -52,7 +52,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..cameras import Rays
-from ..config import option
+from ..config import check_ranges, option
 from ..data.validate import short_repr
 from ..errors import fail
 from ..fields.background import RoomShells, TablePlane, composite_layers, sh16
@@ -277,9 +277,7 @@ class FastNeRF(NerfModel):
 
     def __init__(self, config: FastConfig, bounds: SceneBounds):
         super().__init__(bounds)
-        self.config = config
-        if config.sh_degree not in (0, 1, 2):
-            raise fail("--sh-degree", f"must be 0, 1 or 2, got {config.sh_degree}")
+        self.config = check_ranges(config)
         self.sizes, self.steps = config.stages()
         self.ray_factors = config.stage_ray_factors()
         self.K = ref.sh_dim(config.sh_degree)
@@ -314,14 +312,10 @@ class FastNeRF(NerfModel):
             self.register_parameter("bg_coef", None)
         self.room = None
         if config.learn_background and config.room_shells:
-            if not 8 <= config.room_resolution <= MAX_GRID_SIDE:
-                raise fail("--room-resolution", f"{config.room_resolution} must be from 8 to {MAX_GRID_SIDE}")
             self.room = RoomShells(bounds.center, bounds.up, 1.25 * max(bounds.reach, bounds.radius),
                                    config.room_shells, config.room_ratio, config.room_resolution)
         self.table = None
         if config.table and bounds.table is not None:
-            if not 2 <= config.table_resolution <= MAX_GRID_SIDE:
-                raise fail("--table-resolution", f"{config.table_resolution} must be from 2 to {MAX_GRID_SIDE}")
             self.table = TablePlane(bounds.table, bounds.center, bounds.radius, config.table_resolution,
                                     gloss=config.table_gloss)
         self.floor = None

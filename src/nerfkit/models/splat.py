@@ -32,7 +32,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..cameras import Rays, axes_across, image_rays
-from ..config import option
+from ..config import check_ranges, option
 from ..errors import fail
 from ..fields.background import sh16
 from ..kernels import splat_reference as ref
@@ -97,8 +97,7 @@ class SplatConfig:
                           "installed), numba, or torch", choices=["auto", "numba", "torch"])
 
     def validate(self) -> "SplatConfig":
-        if not 0 <= self.sh_degree <= 3:
-            raise fail("--sh-degree", f"must be 0 to 3 for splat, got {self.sh_degree}")
+        check_ranges(self)
         if self.densify_from > self.densify_until:
             raise fail("--densify-from", "must not be after --densify-until")
         return self

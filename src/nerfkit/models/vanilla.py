@@ -28,7 +28,7 @@ import torch
 from torch import Tensor, nn
 
 from ..cameras import Rays
-from ..config import option
+from ..config import check_ranges, option
 from ..fields.encoding import encoded_dim, positional_encoding
 from ..precision import autocast
 from ..render.sampling import intervals_from_t, sample_pdf, stratified_t
@@ -63,16 +63,6 @@ class VanillaConfig:
     occupancy_res: int = option(64, "occupancy grid cells per axis", min=4, max=512)
     occupancy_every: int = option(200, "steps between occupancy refreshes", min=1)
     occupancy_warmup: int = option(200, "steps before the first refresh (every sample is evaluated until then)", min=0)
-
-
-def _validate(cfg: VanillaConfig) -> None:
-    from ..errors import fail
-
-    if not (1 <= cfg.n_samples <= 4096 and 0 <= cfg.n_importance <= 4096 and 2 <= cfg.depth <= 64
-            and 1 <= cfg.width <= 4096 and 0 <= cfg.pos_freqs <= 32 and 0 <= cfg.dir_freqs <= 32
-            and 4 <= cfg.occupancy_res <= 512 and cfg.occupancy_every >= 1 and cfg.occupancy_warmup >= 0):
-        raise fail("vanilla model", "settings out of range (need 1 <= n_samples, 2 <= depth <= 64, "
-                   "1 <= width <= 4096, 0 <= L <= 32, 4 <= occupancy_res <= 512)")
 
 
 class NeRFMLP(nn.Module):
@@ -118,7 +108,7 @@ class VanillaNeRF(NerfModel):
 
     def __init__(self, cfg: VanillaConfig, bounds: SceneBounds):
         super().__init__(bounds)
-        _validate(cfg)
+        check_ranges(cfg)
         self.cfg = cfg
         self.coarse = NeRFMLP(cfg)
         self.fine = NeRFMLP(cfg) if cfg.n_importance > 0 else None

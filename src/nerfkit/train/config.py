@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
 
-from ..config import MAX_SEED, option, parse_background
+from ..config import MAX_SEED, check_ranges, option, parse_background
 from ..errors import fail
 from ..models import MODEL_NAMES
 
@@ -64,24 +63,9 @@ class TrainConfig:
                                       "the colours of what few photos see drift", min=0)
 
     def validate(self) -> "TrainConfig":
-        if not all(math.isfinite(v) for v in (self.minutes, self.lr, self.lr_final_factor, self.checkpoint_seconds)):
-            raise fail("train", "--minutes, --lr, --lr-final-factor and --checkpoint-seconds must be finite numbers")
-        if not 0 <= self.batch_rays <= MAX_BATCH_RAYS or not 0 <= self.render_chunk <= MAX_BATCH_RAYS:
-            raise fail("train", f"--batch-rays and --render-chunk must be in 0..{MAX_BATCH_RAYS}")
-        if self.steps < 0 or self.minutes < 0:
-            raise fail("train", "--steps and --minutes must be >= 0")
+        check_ranges(self)
         if self.steps == 0 and self.minutes == 0:
             raise fail("train", "no stopping rule", "Give --steps N or --minutes M (or both)")
-        if self.batch_rays < 0 or self.lr < 0 or not 0 <= self.lr_final_factor <= 1:
-            raise fail("train", "--batch-rays and --lr must be >= 0 and --lr-final-factor in [0, 1]")
-        if not 0 <= self.eval_pixels <= MAX_BATCH_RAYS:
-            raise fail("train", f"--eval-pixels must be in 0..{MAX_BATCH_RAYS}")
-        if self.render_chunk < 0 or self.eval_views < 0 or self.eval_every < 0 or self.keep_checkpoints < 1 \
-                or not self.checkpoint_seconds > 0:
-            raise fail("train", "--render-chunk, --eval-views, --eval-every must be >= 0, --keep-checkpoints >= 1 "
-                       "and --checkpoint-seconds > 0")
-        if not (self.pose_lr >= 0 and self.exposure_lr >= 0 and self.pose_start >= 0):
-            raise fail("train", "--pose-lr, --exposure-lr and --pose-start must be >= 0")
         parse_background(self.background)
         return self
 

@@ -1,0 +1,148 @@
+"""Config bounds are declared once (``option(..., min=, max=, above=)``) and checked alike
+where a config comes from: the command line (``number``), Python, or a run's config.json
+(``check_ranges``)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import typing
+
+import numpy as np
+import pytest
+
+from nerfkit.config import base_type, check_ranges, dataclass_from_dict, flag_type
+from nerfkit.errors import NerfkitError
+
+
+def bounds():
+    from nerfkit.models.base import SceneBounds
+
+    return SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1], np.float32))
+
+
+def vanilla(**kw):
+    from nerfkit.models.vanilla import VanillaConfig, VanillaNeRF
+
+    return VanillaNeRF(VanillaConfig(**kw), bounds())
+
+
+def fast(**kw):
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    return FastNeRF(FastConfig(**kw), bounds())
+
+
+def splat(**kw):
+    from nerfkit.models.splat import SplatConfig
+
+    return SplatConfig(**kw).validate()
+
+
+def train(**kw):
+    from nerfkit.train.config import TrainConfig
+
+    return TrainConfig(steps=1, **kw).validate()
+
+
+def fit_image(**kw):
+    from nerfkit.fit_image import FitImageConfig, validate_config
+
+    return validate_config(FitImageConfig(**kw))
+
+
+@pytest.mark.parametrize("build, kw, message", [
+    (vanilla, {"width": 0}, "--width: 0 is below the minimum 1 (allowed: 1 to 4096)"),
+    (vanilla, {"n_samples": 5000}, "--n-samples: 5000 is above the maximum 4096 (allowed: 1 to 4096)"),
+    (vanilla, {"width": 64.0}, "--width: '64.0' is not a whole number"),
+    (vanilla, {"depth": True}, "--depth: 'True' is not a whole number"),
+    (fast, {"sh_degree": 3}, "--sh-degree: 3 is above the maximum 2 (allowed: 0 to 2)"),
+    (fast, {"step_ratio": -1.0}, "--step-ratio: -1.0 must be greater than 0"),
+    # no table in the scene: the texture size was only checked when a table was built
+    (fast, {"table_resolution": 1}, "--table-resolution: 1 is below the minimum 2 (allowed: 2 to 4096)"),
+    (splat, {"sh_degree": 4}, "--sh-degree: 4 is above the maximum 3 (allowed: 0 to 3)"),
+    (splat, {"init_opacity": 1.0}, "--init-opacity: 1.0 is above the maximum 0.99 (allowed: above 0, up to 0.99)"),
+    (train, {"lr": 200.0}, "--lr: 200.0 is above the maximum 100 (allowed: 0 to 100)"),
+    (train, {"minutes": float("nan")}, "--minutes: 'nan' is not a finite number"),
+    (train, {"checkpoint_seconds": 0.0}, "--checkpoint-seconds: 0.0 must be greater than 0"),
+    (train, {"seed": -1}, "--seed: -1 is below the minimum 0 (allowed: 0 to 4294967295)"),
+    (fit_image, {"L": 31}, "--L: 31 is above the maximum 30 (allowed: 0 to 30)"),
+    (fit_image, {"lr": float("inf")}, "--lr: 'inf' is not a finite number"),
+])
+def test_a_config_built_in_python_is_refused_naming_the_flag(build, kw, message):
+    with pytest.raises(NerfkitError) as e:
+        build(**kw)
+    assert str(e.value) == message
+
+
+def test_values_in_range_and_unset_options_pass():
+    from nerfkit.models.fast import FastConfig
+    from nerfkit.train.config import TrainConfig
+
+    cfg = FastConfig(sh_degree=0, room_shells=None, distortion_weight=None, step_ratio=1e-9)
+    assert check_ranges(cfg) is cfg
+    assert train(lr=100, lr_final_factor=1, seed=2 ** 32 - 1).lr == 100
+    with pytest.raises(NerfkitError, match="no stopping rule"):  # the rule across fields is kept
+        TrainConfig().validate()
+    with pytest.raises(NerfkitError, match="--densify-from: must not be after --densify-until"):
+        splat(densify_from=0.6, densify_until=0.5)
+
+
+def test_a_config_read_from_json_is_refused_naming_the_file_and_the_flag():
+    from nerfkit.models.vanilla import VanillaConfig
+
+    with pytest.raises(NerfkitError) as e:
+        dataclass_from_dict(VanillaConfig, {"n_samples": 64, "pos_freqs": 40}, "run/config.json")
+    assert str(e.value) == "run/config.json: --pos-freqs: 40 is above the maximum 32 (allowed: 0 to 32)"
+    assert dataclass_from_dict(VanillaConfig, {"pos_freqs": 32}, "run/config.json").pos_freqs == 32
+
+
+def config_classes():
+    from nerfkit.capture.calibrate import CalibrateConfig
+    from nerfkit.capture.dataset import DatasetConfig
+    from nerfkit.capture.poses import PoseConfig
+    from nerfkit.fit_image import FitImageConfig
+    from nerfkit.models import MODEL_NAMES, model_config_class
+    from nerfkit.train.config import TrainConfig
+
+    return [TrainConfig, CalibrateConfig, DatasetConfig, PoseConfig, FitImageConfig,
+            *(model_config_class(name) for name in MODEL_NAMES)]
+
+
+def out_of_range(kind: type, meta) -> int | float:
+    """A value just outside a field's bounds."""
+    if meta.get("min") is not None:
+        return kind(meta["min"] - 1)
+    if meta.get("above") is not None:
+        return kind(meta["above"])
+    return kind(meta["max"] + 1)
+
+
+def test_the_parser_and_check_ranges_word_every_bound_alike():
+    checked = 0
+    for cls in config_classes():
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            kind = base_type(hints[f.name])[0]
+            if kind not in (int, float) or not {"min", "max", "above"} & set(f.metadata):
+                continue
+            value = out_of_range(kind, f.metadata)
+            with pytest.raises(argparse.ArgumentTypeError) as parsed:
+                flag_type(cls, f.name)(str(value))
+            default = cls()  # every field has a default
+            with pytest.raises(NerfkitError) as checked_error:
+                check_ranges(dataclasses.replace(default, **{f.name: value}))
+            flag = "--" + f.name.replace("_", "-")
+            assert str(checked_error.value) == f"{flag}: {parsed.value}", cls.__name__
+            checked += 1
+    assert checked > 50  # every config's bounded fields were seen
+
+
+def test_the_command_line_and_a_config_built_in_python_give_the_same_line(capsys):
+    from nerfkit.cli import main
+
+    assert main(["train", "--data", "x.npz", "--steps", "1", "--lr", "200"]) == 2
+    err = capsys.readouterr().err.strip()
+    with pytest.raises(NerfkitError) as e:
+        train(lr=200)
+    assert err == f"nerfkit train: error: argument {e.value} (see nerfkit train --help)"
