@@ -311,6 +311,30 @@ def test_cli_non_image_file_exits_2_with_one_line(tmp_path, capsys, content, exp
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.parametrize("item, message", [
+    ("L=3,100", "--sweep L=3,100: 100 is above the maximum 30 (allowed: 0 to 30)"),
+    ("lr=0.01,inf", "--sweep lr=0.01,inf: 'inf' is not a finite number"),
+    ("batch=0,64", "--sweep batch=0,64: 0 is below the minimum 1 (allowed: 1 to 16777216)"),
+    ("depth=2,x", "--sweep depth=2,x: 'x' is not a whole number"),
+])
+def test_sweep_values_keep_the_bounds_of_their_flags(item, message):
+    with pytest.raises(NerfkitError) as e:
+        parse_sweep(["width=16,32", item])
+    assert str(e.value) == message
+
+
+def test_cli_sweep_out_of_bounds_is_refused_as_the_flag_is(tmp_path, capsys):
+    # --sweep L=100 once trained with 100 octaves, which --L 100 refuses
+    assert main(["fit-image", "--L", "100", "--out", str(tmp_path / "r"), "--quiet"]) == 2
+    flag_err = capsys.readouterr().err.strip()
+    assert main(["fit-image", "--sweep", "L=100", "--out", str(tmp_path / "r"), "--quiet"]) == 2
+    sweep_err = capsys.readouterr().err.strip()
+    problem = "100 is above the maximum 30 (allowed: 0 to 30)"
+    assert flag_err == f"nerfkit fit-image: error: argument --L: {problem} (see nerfkit fit-image --help)"
+    assert sweep_err == f"nerfkit fit-image: error: --sweep L=100: {problem}"
+    assert not (tmp_path / "r").exists()
+
+
 @pytest.mark.parametrize("argv,expect", [
     (["missing.jpg"], "no such file"),
     (["--width", "0"], "--width"),

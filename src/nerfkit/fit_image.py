@@ -20,6 +20,7 @@ and ``sweep.json``.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import itertools
 import math
@@ -31,7 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .config import MAX_SEED, check_ranges, option, parse_background
+from .config import MAX_SEED, check_ranges, flag_type, option, parse_background
 from .errors import fail
 from .io.atomic import write_image, write_json
 from .viz.plots import image_grid, plot_curves
@@ -111,9 +112,9 @@ def parse_sweep(tokens: list[str]) -> list[dict[str, int | float]]:
     """``["L=3,10", "width=64,256"]`` -> one dict per combination (the Cartesian product).
 
     Keys are config fields from ``SWEEPABLE`` (``-`` or ``_`` accepted); values are
-    comma-separated numbers. Combinations are ordered like nested loops, first key outermost.
+    comma-separated numbers, each within the bounds of the key's flag. Combinations are
+    ordered like nested loops, first key outermost.
     """
-    types = {f.name: f.type for f in dataclasses.fields(FitImageConfig)}
     axes: dict[str, list[int | float]] = {}
     for tok in tokens:
         key, sep, values = tok.partition("=")
@@ -124,11 +125,11 @@ def parse_sweep(tokens: list[str]) -> list[dict[str, int | float]]:
             raise fail("--sweep", f"cannot sweep '{key}'", f"Sweepable keys: {', '.join(SWEEPABLE)}")
         if key in axes:
             raise fail("--sweep", f"'{key}' is given twice", "List all its values once, comma-separated")
-        cast = float if types[key] in (float, "float") else int
+        parse = flag_type(FitImageConfig, key)  # the flag's own check: --sweep L=100 is refused as --L 100 is
         try:
-            axes[key] = [cast(v) for v in values.split(",") if v.strip()]
-        except ValueError:
-            raise fail("--sweep", f"'{tok}' has a value that is not a {cast.__name__}", "Use numbers, e.g. L=3,10") from None
+            axes[key] = [parse(v.strip()) for v in values.split(",") if v.strip()]
+        except argparse.ArgumentTypeError as e:
+            raise fail(f"--sweep {tok}", str(e)) from None
     if not axes:
         raise fail("--sweep", "no KEY=V1,V2 items", "Example: --sweep L=3,10 width=64,256")
     return [dict(zip(axes, combo)) for combo in itertools.product(*axes.values())]
