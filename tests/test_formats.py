@@ -203,9 +203,16 @@ def test_output_size_rules():
     assert output_size(400, 300, size=200) == (200, 150)
     assert output_size(400, 300, downscale=4) == (100, 75)
     assert output_size(286, 214, downscale=2) == (143, 107)
+    assert output_size(400, 300, downscale=1) == (400, 300)
     for kw in ({"size": 0}, {"downscale": 0}, {"downscale": -1}, {"size": 10, "downscale": 2}):
         with pytest.raises(NerfkitError):
             output_size(400, 300, **kw)
+    # a divisor of at least 1: it never enlarges (1e-300 asked for 1e302-pixel images)
+    for d, problem in ((0.5, "0.5 is below the minimum 1"), (1e-300, "1e-300 is below the minimum 1"),
+                       (float("nan"), "'nan' is not a finite number"), (float("inf"), "'inf' is not a finite number")):
+        with pytest.raises(NerfkitError) as e:
+            output_size(400, 300, downscale=d)
+        assert str(e.value).startswith(f"--downscale: {problem}. "), str(e.value)
 
 
 def test_scaled_K_matches_resampled_pixels():

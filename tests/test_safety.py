@@ -462,8 +462,9 @@ TRAIN = ["train", "--data", "D", "--out", "O", "--steps", "1"]  # --steps: ends 
     (["render", "RUN", "--chunk", "-1"], "--chunk: -1 is below the minimum 0"),
     (["eval", "RUN", "--chunk", "-1"], "--chunk: -1 is below the minimum 0"),
     (["export", "RUN", "--mesh", "m.ply", "--resolution", "nan"], "--resolution: 'nan' is not a whole number"),
-    (["convert", "D", "--to", "o.npz", "--downscale", "0"], "--downscale: 0 must be greater than 0"),
+    (["convert", "D", "--to", "o.npz", "--downscale", "0"], "--downscale: 0 is below the minimum 1"),
     (["view", "D", "--port", "70000"], "--port: 70000 is above the maximum 65535"),
+    (["view", "D", "--downscale", "1e-300"], "--downscale: 1e-300 is below the minimum 1"),
     (["fit-image", "--lr", "inf"], "--lr: 'inf' is not a finite number"),
 ])
 def test_numeric_options_are_checked_when_parsed(trained, tmp_path, monkeypatch, capsys, argv, fragment):
@@ -474,6 +475,16 @@ def test_numeric_options_are_checked_when_parsed(trained, tmp_path, monkeypatch,
     assert main(argv) == 2
     one_line(capsys, f"nerfkit {argv[0]}: error: argument {fragment}")
     assert files_under(tmp_path) == before  # nothing written: no run folder, no stub orbit.mp4
+
+
+@pytest.mark.parametrize("value", ["1e-300", "0.5"])
+def test_train_refuses_a_downscale_below_1_in_one_short_line(trained, tmp_path, monkeypatch, capsys, value):
+    # 1e-300 once asked for images of 2e302 pixels a side, printed in full, with advice about --size
+    monkeypatch.chdir(tmp_path)
+    assert main(placed([*TRAIN, "--downscale", value], trained, tmp_path)) == 2
+    line = one_line(capsys, f"nerfkit train: error: --downscale: {value} is below the minimum 1. It divides")
+    assert len(line) < 120 and "--size" not in line
+    assert files_under(tmp_path) == {}  # no run folder
 
 
 def test_demo_minutes_are_checked_when_parsed():

@@ -22,6 +22,8 @@ T = TypeVar("T")
 
 # the largest --seed: every random generator nerfkit seeds (numpy, torch) takes it
 MAX_SEED = 2 ** 32 - 1
+# the smallest --downscale: it divides the image size, so 1 keeps it (and less would enlarge it)
+MIN_DOWNSCALE = 1
 
 
 def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors argparse

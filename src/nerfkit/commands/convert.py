@@ -27,7 +27,7 @@ examples:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..config import number
+    from ..config import MIN_DOWNSCALE, number
     from ._common import add_outside_flag
 
     p = sub.add_parser("convert", help=HELP, description=HELP + ".", epilog=EPILOG,
@@ -39,7 +39,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     size = p.add_mutually_exclusive_group()
     size.add_argument("--size", type=number(int, 1, 100_000), metavar="PX",
                       help="resample so the longest image side is PX pixels (K follows)")
-    size.add_argument("--downscale", type=number(float, above=0), metavar="F", help="divide the image size by F (K follows)")
+    size.add_argument("--downscale", type=number(float, MIN_DOWNSCALE), metavar="F",
+                      help="divide the image size by F (K follows)")
     p.add_argument("--background", default="black",
                    help="colour under transparent pixels of RGBA inputs: black, white, grey, r,g,b in [0, 1] "
                         "or #rrggbb (default: black)")

@@ -21,7 +21,7 @@ examples:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..config import number
+    from ..config import MIN_DOWNSCALE, number
     from ._common import add_outside_flag
 
     p = sub.add_parser("view", help=HELP, description=DESCRIPTION,
@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "only; 0.0.0.0 exposes the viewer to the network)")
     p.add_argument("--port", type=number(int, 1, 65535), default=8080, help="port (default: 8080)")
     p.add_argument("--force", action="store_true", help="replace an existing --png file")
-    p.add_argument("--downscale", type=number(float, above=0), help="divide the dataset's image size by this (an "
+    p.add_argument("--downscale", type=number(float, MIN_DOWNSCALE), help="divide the dataset's image size by this (an "
                    "LLFF scene's 4 or 8 reads its images_4 or images_8)")
     add_outside_flag(p)
     p.set_defaults(func=run)

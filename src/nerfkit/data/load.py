@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import MIN_DOWNSCALE, range_problem
 from ..errors import NerfkitError, fail
 from ..io.paths import path_kind
 from .npz import load_npz
@@ -43,8 +44,9 @@ def output_size(width: int, height: int, size: int | None = None, downscale: flo
             raise fail("--size", f"{size} must be a positive number of pixels")
         s = size / max(width, height)
     elif downscale is not None:
-        if not downscale > 0:
-            raise fail("--downscale", f"{downscale} must be positive (2 halves the images)")
+        problem = range_problem(downscale, float, min=MIN_DOWNSCALE)
+        if problem:
+            raise fail("--downscale", problem, "It divides the image size: 2 halves the images")
         s = 1.0 / downscale
     else:
         return width, height
