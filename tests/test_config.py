@@ -11,7 +11,8 @@ import typing
 import numpy as np
 import pytest
 
-from nerfkit.config import base_type, check_ranges, dataclass_from_dict, flag_type
+from nerfkit.config import (add_alternative_dataclass_args, add_dataclass_args, base_type, check_ranges,
+                            dataclass_from_dict, flag_type, option, widest_bounds)
 from nerfkit.errors import NerfkitError
 
 
@@ -146,3 +147,57 @@ def test_the_command_line_and_a_config_built_in_python_give_the_same_line(capsys
     with pytest.raises(NerfkitError) as e:
         train(lr=200)
     assert err == f"nerfkit train: error: argument {e.value} (see nerfkit train --help)"
+
+
+@pytest.mark.parametrize("metas, widest", [
+    ([{"min": 0, "max": 2}, {"min": 0, "max": 3}], {"min": 0, "max": 3}),  # --sh-degree: fast and splat
+    ([{"min": 1}, {"min": -1, "max": 5}], {"min": -1}),  # no upper end where one has none
+    ([{"above": 0, "max": 1}, {"min": 0, "max": 0.5}], {"min": 0, "max": 1}),  # a tie: the inclusive end
+    ([{"above": 0}, {"above": -1}], {"above": -1}),
+    ([{"min": 0, "above": 1}, {"min": 2}], {"above": 1}),  # a field's lower end is the stricter of its two
+    ([{"max": 4}, {}], {}),
+])
+def test_widest_bounds_take_every_value_any_field_takes(metas, widest):
+    assert widest_bounds(metas) == widest
+
+
+@dataclasses.dataclass
+class _Low:
+    level: int = option(1, "level of low", min=0, max=2)
+    shared_text: bool = option(False, "the same help")
+
+
+@dataclasses.dataclass
+class _High:
+    level: int = option(3, "level of high", min=1, max=3)
+    shared_text: bool = option(False, "the same help")
+
+
+def test_a_shared_flag_takes_the_widest_bounds_and_each_ones_help():
+    parser = argparse.ArgumentParser()
+    add_alternative_dataclass_args(parser, {"low": _Low, "high": _High}, "config '{}'")
+    assert parser.parse_args(["--level", "3"]).level == 3
+    assert parser.parse_args(["--level", "0"]).level == 0
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--level", "4"])
+    help_text = parser.format_help()
+    assert "config 'low' and config 'high':" in help_text
+    assert "low: level of low (default: 1); high: level of high (default: 3)" in " ".join(help_text.split())
+    assert "the same help (default: False)" in " ".join(help_text.split())  # one help where they agree
+    with pytest.raises(NerfkitError) as e:  # the chosen config's own bounds
+        check_ranges(_Low(level=3), owner="the low config")
+    assert str(e.value) == "--level: 3 is above the maximum 2 (allowed: 0 to 2) for the low config"
+
+
+def test_configs_sharing_a_flag_must_agree_on_its_type_and_choices():
+    @dataclasses.dataclass
+    class Other:
+        level: float = option(0.5, "a float level")
+
+    with pytest.raises(TypeError, match="--level: low, other give it different types or choices"):
+        add_alternative_dataclass_args(argparse.ArgumentParser(), {"low": _Low, "other": Other}, "{}")
+    # separate configs' flags must not meet: the later one's bounds would be lost
+    parser = argparse.ArgumentParser()
+    add_dataclass_args(parser, _Low)
+    with pytest.raises(argparse.ArgumentError, match="conflicting option string: --level"):
+        add_dataclass_args(parser, _High)

@@ -92,12 +92,14 @@ def number(kind: type = float, min: float | None = None, max: float | None = Non
     return parse
 
 
-def check_ranges(cfg: T, source: object = None) -> T:
+def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
     """Check every int and float field of dataclass ``cfg`` as its flag is checked when the
     command line is parsed (:func:`number`: finite, the field's ``min``/``max``/``above``),
-    for configs built in Python or read from JSON; returns ``cfg``. A bad value is a
-    NerfkitError naming ``source`` (when given) and the flag, e.g.
-    ``config.json: --lr: 200.0 is above the maximum 100 (allowed: 0 to 100)``."""
+    for configs built in Python or read from JSON, and for a flag that configs share (parsed
+    within the widest of their bounds: :func:`add_alternative_dataclass_args`); returns ``cfg``.
+    A bad value is a NerfkitError naming ``source`` (when given), the flag and ``owner`` (when
+    given), e.g. ``config.json: --lr: 200.0 is above the maximum 100 (allowed: 0 to 100)`` or
+    ``--sh-degree: 3 is above the maximum 2 (allowed: 0 to 2) for the fast model``."""
     hints = typing.get_type_hints(type(cfg))
     for f in dataclasses.fields(cfg):
         kind, optional = base_type(hints[f.name])
@@ -108,6 +110,8 @@ def check_ranges(cfg: T, source: object = None) -> T:
         problem = (range_problem(value, kind, f.metadata.get("min"), f.metadata.get("max"), f.metadata.get("above"))
                    if numeric else _not_a(kind, str(value)))
         if problem:
+            if owner:
+                problem += f" for {owner}"
             raise fail(_flag(f.name) if source is None else f"{source}: {_flag(f.name)}", problem)
     return cfg
 
@@ -126,28 +130,89 @@ def flag_type(cls: type, name: str) -> Any:
     return _field_type(base_type(typing.get_type_hints(cls)[name])[0], f.metadata)
 
 
+def _help_line(f: dataclasses.Field) -> str:
+    default = f.default if f.default is not dataclasses.MISSING else None
+    if default is not None and default != "":
+        return f"{f.metadata.get('help', '')} (default: {default})"
+    return f.metadata.get("help", "")
+
+
+def _lower_bound(meta: Any) -> tuple[float, bool] | None:
+    """(value, exclusive) of a field's lower bound (the stricter of ``min`` and ``above``), or None."""
+    ends = [(meta[k], k == "above") for k in ("min", "above") if meta.get(k) is not None]
+    return max(ends, default=None)
+
+
+def widest_bounds(metas: list[Any]) -> dict[str, float]:
+    """The ``min``/``max``/``above`` bounds that take every value any of ``metas`` (fields'
+    metadata) takes: the lowest lower end (inclusive at a tie), the highest upper end, and no
+    end where one of them has none. Example: ``max=2`` and ``max=3`` (both ``min=0``) ->
+    ``{"min": 0, "max": 3}``."""
+    lows = [_lower_bound(m) for m in metas]
+    highs = [m.get("max") for m in metas]
+    out: dict[str, float] = {}
+    if None not in lows:
+        value, exclusive = min(lows)
+        out["above" if exclusive else "min"] = value
+    if None not in highs:
+        out["max"] = max(highs)
+    return out
+
+
+def _add_flag(target: Any, name: str, owners: list[tuple[str, Any, dataclasses.Field]]) -> None:
+    """Add field ``name``'s flag to ``target`` for the (owner, type, field) of every config that has it:
+    parsed within the widest of their bounds, its help each one's text and default."""
+    if len({tp for _, tp, _ in owners}) > 1 or len({str(f.metadata.get("choices")) for _, _, f in owners}) > 1:
+        raise TypeError(f"{_flag(name)}: {', '.join(o for o, _, _ in owners)} give it different types or choices")
+    _, tp, first = owners[0]
+    helps = [_help_line(f) for _, _, f in owners]
+    help_text = helps[0] if len(set(helps)) == 1 else "; ".join(f"{o}: {h}" for (o, _, _), h in zip(owners, helps))
+    help_text = help_text.replace("%", "%%")  # argparse %-formats help
+    kw: dict[str, Any] = {"dest": name, "default": None, "help": help_text}
+    if "choices" in first.metadata:
+        kw["choices"] = first.metadata["choices"]
+    if tp is bool:
+        target.add_argument(_flag(name), action=argparse.BooleanOptionalAction, **kw)
+    else:
+        metavar = first.metadata.get("metavar", tp.__name__.upper() if hasattr(tp, "__name__") else "X")
+        target.add_argument(_flag(name), type=_field_type(tp, widest_bounds([f.metadata for _, _, f in owners])),
+                            metavar=metavar, **kw)
+
+
+def _cli_fields(cls: type, skip: tuple[str, ...] = ()) -> list[tuple[Any, dataclasses.Field]]:
+    """(type, field) of each field of dataclass ``cls`` that has a flag."""
+    hints = typing.get_type_hints(cls)
+    return [(base_type(hints[f.name])[0], f) for f in dataclasses.fields(cls)
+            if f.name not in skip and f.metadata.get("cli") is not False]
+
+
 def add_dataclass_args(parser: argparse.ArgumentParser, cls: type, group_title: str | None = None,
                        skip: tuple[str, ...] = ()) -> None:
-    """Add one flag per field of dataclass ``cls`` (defaults left unset: None)."""
+    """Add one flag per field of dataclass ``cls`` (defaults left unset: None). A flag the parser
+    has already is refused (argparse's conflict error); alternative configs that share flags go
+    through :func:`add_alternative_dataclass_args`."""
     target = parser.add_argument_group(group_title) if group_title else parser
-    hints = typing.get_type_hints(cls)
-    for f in dataclasses.fields(cls):
-        if f.name in skip or f.metadata.get("cli") is False or _flag(f.name) in parser._option_string_actions:
-            continue  # a flag shared by two configs is added once
-        tp, _ = base_type(hints[f.name])
-        default = f.default if f.default is not dataclasses.MISSING else None
-        help_text = f.metadata.get("help", "").replace("%", "%%")  # argparse %-formats help
-        if default is not None and default != "":
-            help_text += f" (default: {default})"
-        kw: dict[str, Any] = {"dest": f.name, "default": None, "help": help_text}
-        if "choices" in f.metadata:
-            kw["choices"] = f.metadata["choices"]
-        if tp is bool:
-            target.add_argument(_flag(f.name), action=argparse.BooleanOptionalAction, **kw)
-        else:
-            target.add_argument(_flag(f.name), type=_field_type(tp, f.metadata),
-                                metavar=f.metadata.get("metavar", tp.__name__.upper() if hasattr(tp, "__name__") else "X"),
-                                **kw)
+    for tp, f in _cli_fields(cls, skip):
+        _add_flag(target, f.name, [(cls.__name__, tp, f)])
+
+
+def add_alternative_dataclass_args(parser: argparse.ArgumentParser, classes: dict[str, type], title: str) -> None:
+    """Add the flags of alternative dataclasses, of which one is used (a model's config, chosen by
+    ``--model``): a group each, titled ``title.format(name)``. A field that several have is one flag,
+    in a group of its own named after them all: parsed within the widest of their bounds
+    (:func:`widest_bounds`), with each one's help and default; :func:`check_ranges` then checks the
+    chosen config against its own bounds (e.g. ``--sh-degree``: 0 to 2 for the fast model, 0 to 3
+    for splat, so 0 to 3 when parsed)."""
+    owners: dict[str, list[tuple[str, Any, dataclasses.Field]]] = {}
+    for name, cls in classes.items():
+        for tp, f in _cli_fields(cls):
+            owners.setdefault(f.name, []).append((name, tp, f))
+    groups = {(name,): parser.add_argument_group(title.format(name)) for name in classes}
+    for field, its in owners.items():
+        names = tuple(name for name, _, _ in its)
+        if names not in groups:  # after the configs' own groups
+            groups[names] = parser.add_argument_group(" and ".join(title.format(name) for name in names))
+        _add_flag(groups[names], field, its)
 
 
 NAMED_COLOURS = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0), "grey": (0.5, 0.5, 0.5), "gray": (0.5, 0.5, 0.5)}

@@ -6,7 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from ..config import add_dataclass_args, dataclass_from_args
+from ..config import add_alternative_dataclass_args, add_dataclass_args, dataclass_from_args
 
 MEMORY_HINT = "Lower --batch-rays (rays per step) or --render-chunk (rays per rendered chunk)"
 HELP = "train a NeRF on a dataset (or --resume a run)"
@@ -38,8 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--resume", metavar="RUN", help="continue this run from its newest good checkpoint")
     add_dataclass_args(p, TrainConfig, "training")
-    for name, cls in _model_config_classes().items():
-        add_dataclass_args(p, cls, f"model '{name}'")
+    # a flag that models share (--sh-degree) takes the widest of their bounds; run() checks the chosen model's
+    add_alternative_dataclass_args(p, _model_config_classes(), "model '{}'")
     p.set_defaults(func=run)
 
 
@@ -70,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from ..errors import fail
+    from ..models import check_config
     from ..train.checkpoint import read_run
     from ..train.config import TrainConfig
     from ..train.trainer import check_new_run_folder, resume, train
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         if cfg.model not in classes:
             raise fail("--model", f"model '{cfg.model}' is not available in this installation",
                        f"Choose one of: {', '.join(classes)}")
-        model_cfg = dataclass_from_args(classes[cfg.model], args)
+        model_cfg = check_config(cfg.model, dataclass_from_args(classes[cfg.model], args))  # its own bounds
         check_new_run_folder(Path(cfg.out))  # before loading the dataset: a refusal should be quick
         # RGBA images are composited on the colour the model renders behind the scene
         result = train(load_as_trained(cfg, cfg.data, allow_outside=cfg.allow_outside_paths), cfg, model_cfg)

@@ -11,6 +11,7 @@ import importlib
 from dataclasses import asdict, fields
 from typing import Any
 
+from ..config import check_ranges
 from .base import NerfModel, RenderOutput, SceneBounds
 
 # name -> (module, model class, config dataclass)
@@ -28,6 +29,13 @@ def model_config_class(name: str):
     return getattr(importlib.import_module(module), cfg)
 
 
+def check_config(name: str, config: Any) -> Any:
+    """``config`` of model ``name`` checked against its own bounds (:func:`check_ranges`), naming the
+    model: `nerfkit train` parses a flag that models share within the widest of their bounds
+    (``--sh-degree 3`` is splat's limit; fast's is 2)."""
+    return check_ranges(config, owner=f"the {name} model")
+
+
 def build_model(name: str, config: Any, bounds: SceneBounds) -> NerfModel:
     module, cls, _ = _REGISTRY[name]
     return getattr(importlib.import_module(module), cls)(config, bounds)
@@ -39,5 +47,5 @@ def config_from_dict(name: str, d: dict):
     return cls(**{k: v for k, v in d.items() if k in known})
 
 
-__all__ = ["MODEL_NAMES", "NerfModel", "RenderOutput", "SceneBounds", "asdict", "build_model",
+__all__ = ["MODEL_NAMES", "NerfModel", "RenderOutput", "SceneBounds", "asdict", "build_model", "check_config",
            "config_from_dict", "model_config_class"]
