@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import subprocess
 import sys
 
@@ -95,3 +96,94 @@ def test_every_numeric_flag_has_a_range():
                 if f.name not in any_finite and not {"min", "max", "above"} & set(f.metadata):
                     unbounded.append(f"{cls.__name__}.{f.name}")
     assert unbounded == []
+
+
+def test_splat_takes_sh_degree_3_through_the_real_parser(tmp_path, capsys):
+    # --sh-degree is fast's (0 to 2) and splat's (0 to 3): the flag was parsed with fast's bounds only
+    from nerfkit.cli import build_parser
+    from nerfkit.config import dataclass_from_args
+    from nerfkit.models import check_config, model_config_class
+
+    args = build_parser("train").parse_args(["train", "--model", "splat", "--sh-degree", "3"])
+    assert check_config("splat", dataclass_from_args(model_config_class("splat"), args)).sh_degree == 3
+    missing = tmp_path / "missing.npz"
+    assert main(["train", "--model", "splat", "--sh-degree", "3", "--data", str(missing), "--steps", "1",
+                 "--out", str(tmp_path / "run")]) == 2
+    assert capsys.readouterr().err.strip() == f"nerfkit train: error: {missing}: no such file or folder. Check the path"
+
+
+@pytest.mark.parametrize("model", [[], ["--model", "fast"]])
+def test_the_fast_model_refuses_sh_degree_3_in_one_line_naming_itself(model, tmp_path, capsys):
+    assert main(["train", *model, "--sh-degree", "3", "--data", str(tmp_path / "missing.npz"), "--steps", "1",
+                 "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err == "nerfkit train: error: --sh-degree: 3 is above the maximum 2 (allowed: 0 to 2) for the fast model\n"
+    assert not (tmp_path / "run").exists()
+    # above every model's bound: refused when parsed
+    assert main(["train", "--model", "splat", "--sh-degree", "4", "--data", "x.npz", "--steps", "1"]) == 2
+    assert "argument --sh-degree: 4 is above the maximum 3 (allowed: 0 to 3)" in capsys.readouterr().err
+
+
+def test_a_flag_models_share_gives_each_models_help(capsys):
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "model 'fast' and model 'splat': --sh-degree INT fast: spherical-harmonic degree" in out
+    assert "(0, 1 or 2) (default: 1); splat: largest spherical-harmonic degree of the colour (0-3) (default: 3)" in out
+
+
+def _model_number_fields(model: str):
+    import dataclasses
+    import typing
+
+    from nerfkit.config import base_type
+    from nerfkit.models import model_config_class
+
+    cls = model_config_class(model)
+    hints = typing.get_type_hints(cls)
+    return [(f.name, base_type(hints[f.name])[0], f.metadata) for f in dataclasses.fields(cls)
+            if base_type(hints[f.name])[0] in (int, float) and f.metadata.get("cli") is not False]
+
+
+def _within(kind: type, meta):
+    """The values a field's own bounds take."""
+    from hypothesis import strategies as st
+
+    low, above, high = meta.get("min"), meta.get("above"), meta.get("max")
+    if kind is int:
+        if above is not None:
+            low = max(low, int(above) + 1) if low is not None else int(above) + 1  # the bounds here are whole
+        return st.integers(low, high)
+    exclusive = above is not None and (low is None or above >= low)
+    return st.floats(above if exclusive else low, high, exclude_min=exclusive, allow_nan=False, allow_infinity=False)
+
+
+@functools.cache
+def _train_parser():
+    from nerfkit.cli import build_parser
+
+    return build_parser("train")
+
+
+@pytest.mark.parametrize("model", ["vanilla", "fast", "splat"])
+def test_no_flag_is_narrower_than_a_models_own_bounds(model):
+    # Every value a model's config takes, the real `nerfkit train` parser takes for its flag: a flag
+    # several models share is parsed within the widest of their bounds (check_config then checks the model's).
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from nerfkit.models import MODEL_NAMES
+
+    assert model in MODEL_NAMES
+    fields = _model_number_fields(model)
+    assert fields
+
+    @settings(max_examples=40, deadline=None)
+    @given(st.tuples(*(_within(kind, meta) for _, kind, meta in fields)))
+    def parsed(values):
+        for (name, _, _), value in zip(fields, values):
+            flag = "--" + name.replace("_", "-")
+            # --flag=VALUE: argparse reads a lone -1e+16 as a flag
+            assert getattr(_train_parser().parse_args(["train", f"{flag}={value}"]), name) == value, flag
+
+    parsed()
