@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from .errors import fail
+from .io.paths import refuse_special_file
 
 T = TypeVar("T")
 
@@ -291,7 +292,7 @@ def load_json(path: str | Path, missing: str = "no such file", missing_fix: str 
     """Parse a JSON file; every failure is one NerfkitError naming the file (hints per caller)."""
     path = Path(path)
     try:
-        return json.loads(path.read_text())
+        return json.loads(refuse_special_file(path).read_text())
     except FileNotFoundError:
         raise fail(path, missing, missing_fix) from None
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
