@@ -187,3 +187,24 @@ def test_no_flag_is_narrower_than_a_models_own_bounds(model):
             assert getattr(_train_parser().parse_args(["train", f"{flag}={value}"]), name) == value, flag
 
     parsed()
+
+
+@pytest.mark.parametrize("flags, error", [
+    (["--model", "vanilla", "--sh-degree", "3"],
+     "--sh-degree: is a setting of the fast and splat models, not of vanilla. Leave it out, or train with "
+     "--model fast or --model splat"),
+    (["--model", "splat", "--width", "64"],
+     "--width: is a setting of the vanilla model, not of splat. Leave it out, or train with --model vanilla"),
+    (["--init-points", "500"],
+     "--init-points: is a setting of the splat model, not of fast (the default --model). Leave it out, or train "
+     "with --model splat"),
+    (["--model", "vanilla", "--no-learn-background"],
+     "--learn-background: is a setting of the fast and splat models, not of vanilla. Leave it out, or train with "
+     "--model fast or --model splat"),
+])
+def test_a_flag_of_another_model_is_refused_before_anything_is_read_or_written(flags, error, tmp_path, capsys):
+    # `--model vanilla --sh-degree 3` trained vanilla and dropped --sh-degree without a word
+    data = tmp_path / "missing.npz"  # the flag is refused first: the dataset is not looked at
+    assert main(["train", *flags, "--data", str(data), "--steps", "1", "--out", str(tmp_path / "run")]) == 2
+    assert capsys.readouterr().err == f"nerfkit train: error: {error}\n"
+    assert not (tmp_path / "run").exists()

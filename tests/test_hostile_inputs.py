@@ -9,11 +9,15 @@ atomic writes, crafted checkpoints and the non-finite guard in ``test_reliabilit
 from __future__ import annotations
 
 import ast
+import contextlib
+import importlib
 import inspect
 import io
 import json
+import os
 import re
 import shutil
+import signal
 import struct
 from pathlib import Path
 
@@ -411,6 +415,119 @@ def test_fast_grid_resolution_is_bounded_in_config_and_checkpoint():
             model.load_extra_state(state)
         one_line_error(e, "'res'", "model_extra")
         assert tuple(model.grid.shape) == shape  # refused before anything was replaced
+
+
+# ============================================================================= named pipes, devices, sockets
+
+
+@contextlib.contextmanager
+def within(seconds: int):
+    """Fail, instead of hanging, when the block takes longer than ``seconds``: opening a named
+    pipe nobody writes to blocks, and SIGALRM interrupts it."""
+    def stop(signum, frame):  # not an OSError, which readers turn into their own errors
+        pytest.fail(f"still blocked after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, stop)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _fifo(path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    os.mkfifo(path)
+    return path
+
+
+def _piped(reader: str, name: str):
+    """Read a named pipe ``name`` with ``reader`` ("module:function")."""
+    def read(t: Path):
+        module, function = reader.split(":")
+        return getattr(importlib.import_module(module), function)(_fifo(t / name))
+    return read
+
+
+def _npz_beside_a_piped_transforms_json(t: Path):
+    from nerfkit.commands.view import dataset_tag_size
+
+    np.savez(t / "scene.npz", **course_arrays())
+    _fifo(t / "transforms.json")
+    return dataset_tag_size(t / "scene.npz")
+
+
+def _colmap_with_piped_points(t: Path):
+    pytest.importorskip("pycolmap")
+    from nerfkit.data.load import load_scene
+
+    colmap_project(t)
+    (t / "sparse" / "0" / "points3D.txt").unlink()
+    _fifo(t / "sparse" / "0" / "points3D.txt")
+    return load_scene(t)
+
+
+def _blender_with_a_piped_image(t: Path):
+    from nerfkit.data.load import load_scene
+
+    make_blender(t)
+    (t / "train" / "r_1.png").unlink()
+    _fifo(t / "train" / "r_1.png")
+    return load_scene(t)
+
+
+@pytest.mark.parametrize("read, piped", [
+    (_piped("nerfkit.data.load:load_scene", "scene.npz"), "scene.npz"),
+    (_piped("nerfkit.data.npz:load_npz", "scene.npz"), "scene.npz"),
+    (_piped("nerfkit.images:load_image", "photo.jpg"), "photo.jpg"),
+    (_piped("nerfkit.config:load_json", "camera.json"), "camera.json"),
+    (_blender_with_a_piped_image, "r_1.png"),
+    (_colmap_with_piped_points, "points3D.txt"),
+    (_npz_beside_a_piped_transforms_json, "transforms.json"),
+], ids=["dataset", "npz", "image", "json", "image in a dataset", "colmap model file", "file beside a dataset"])
+def test_a_named_pipe_is_refused_without_opening_it(tmp_path, read, piped):
+    # opening a pipe nobody writes to blocked forever: `nerfkit train --data pipe.npz` never returned
+    with within(10), pytest.raises(NerfkitError) as e:
+        read(tmp_path)
+    one_line_error(e, piped, "is a named pipe, not a regular file", "nerfkit reads only regular files")
+
+
+def test_devices_and_sockets_are_refused_by_what_they_are(tmp_path):
+    import socket
+
+    from nerfkit.io.paths import refuse_special_file
+
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(str(tmp_path / "s.npz"))
+    (tmp_path / "zero.npz").symlink_to("/dev/zero")  # reading it never ends
+    try:
+        for path, what in ((tmp_path / "s.npz", "a socket"), (tmp_path / "zero.npz", "a character device")):
+            with pytest.raises(NerfkitError) as e:
+                refuse_special_file(path)
+            one_line_error(e, f"{path}: is {what}, not a regular file")
+    finally:
+        sock.close()
+    (tmp_path / "a.npz").write_bytes(b"x")
+    for path in (tmp_path / "a.npz", tmp_path, tmp_path / "none"):
+        assert refuse_special_file(path) == path  # a folder or nothing: the reader says what it expected
+
+
+def test_train_on_a_named_pipe_is_one_line_and_writes_nothing(tmp_path):
+    import subprocess
+    import sys
+
+    pipe = _fifo(tmp_path / "x.npz")
+    try:
+        proc = subprocess.run([sys.executable, "-m", "nerfkit", "train", "--data", str(pipe), "--out",
+                               str(tmp_path / "r"), "--steps", "1"], capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        pytest.fail("nerfkit train --data PIPE blocked")
+    assert proc.returncode == 2
+    assert proc.stderr == (f"nerfkit train: error: {pipe}: is a named pipe, not a regular file. nerfkit reads only "
+                           "regular files (a pipe or device could block or never end); save the data to a file and "
+                           "pass that\n")
+    assert not (tmp_path / "r").exists()
 
 
 # ============================================================================= exit codes through the CLI

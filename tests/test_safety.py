@@ -383,7 +383,7 @@ def test_one_process_per_run_folder(trained, tmp_path, capsys, sphere_npz):
         one_line(capsys, "in use by another nerfkit process", f"pid {os.getpid()}")
         assert main(["train", "--data", str(sphere_npz), "--out", str(new), "--steps", "2", *TINY]) == 2
         one_line(capsys, f"pid {os.getpid()}")
-        assert (run / ".lock").read_text().strip() == str(os.getpid())
+        assert (run / ".nerfkit.lock").read_text().strip() == str(os.getpid())
     assert main(["train", "--resume", str(run), "--steps", "7"]) == 0  # released
 
 
@@ -406,6 +406,30 @@ def test_a_folder_holding_a_users_file_named_like_a_temporary_is_not_empty(tmp_p
     assert main(["train", "--data", str(sphere_npz), "--out", str(tmp_path / "out"), "--steps", "2", *TINY]) == 2
     one_line(capsys, "holds files that are not a nerfkit run")
     assert (tmp_path / "out" / ".notes.tmp.txt").read_text() == "mine"
+
+
+def test_a_users_lock_file_in_an_empty_out_is_theirs_refused_and_never_truncated(tmp_path, capsys, sphere_npz):
+    # the run lock was RUN/.lock: a user's .lock there was taken for it, and truncated
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / ".lock").write_text("my notes")
+    assert main(["train", "--data", str(sphere_npz), "--out", str(out), "--steps", "2", *TINY]) == 2
+    one_line(capsys, f"{out}: holds files that are not a nerfkit run")
+    assert sorted(p.name for p in out.iterdir()) == [".lock"] and (out / ".lock").read_text() == "my notes"
+
+
+def test_a_run_of_an_earlier_version_with_its_dot_lock_still_resumes_evaluates_and_renders(trained, tmp_path, capsys):
+    run = copy_run(trained, tmp_path)
+    for lock in run.glob(".*lock"):
+        lock.unlink()
+    (run / ".lock").write_text("4242\n")  # as an earlier version left it (never read again)
+    assert main(["train", "--resume", str(run), "--steps", "7"]) == 0
+    assert main(["eval", str(run)]) == 0
+    assert main(["render", str(run), "--path", "orbit", "--frames", "2", "--out", str(tmp_path / "v")]) == 0
+    assert (run / ".lock").read_text() == "4242\n"
+    assert (run / ".nerfkit.lock").read_text() == ""  # the lock resume held, released
+    assert main(["train", "--data", str(trained / "a" / "data.npz"), "--out", str(run), "--steps", "2", *TINY]) == 2
+    one_line(capsys, "already holds a run")
 
 
 @pytest.mark.slow
@@ -433,7 +457,7 @@ def test_sigterm_saves_like_ctrl_c_and_the_run_is_locked_meanwhile(tmp_path, sph
     assert "--resume" in err and "Traceback" not in err
     ckpt = torch.load(sorted((run / "checkpoints").glob("*.pt"))[-1], weights_only=True)
     assert ckpt["step"] >= 20 and (run / "model.pt").exists()
-    assert (run / ".lock").read_text() == ""  # released
+    assert (run / ".nerfkit.lock").read_text() == ""  # released
 
 
 # ============================================================================= arguments and messages

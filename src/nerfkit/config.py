@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from .errors import fail
+from .io.paths import refuse_special_file
 
 T = TypeVar("T")
 
@@ -196,6 +197,23 @@ def add_dataclass_args(parser: argparse.ArgumentParser, cls: type, group_title: 
         _add_flag(target, f.name, [(cls.__name__, tp, f)])
 
 
+def _alternative_fields(classes: dict[str, type]) -> dict[str, list[tuple[str, Any, dataclasses.Field]]]:
+    """Field name -> (config name, type, field) of each of ``classes`` that has it as a flag."""
+    owners: dict[str, list[tuple[str, Any, dataclasses.Field]]] = {}
+    for name, cls in classes.items():
+        for tp, f in _cli_fields(cls):
+            owners.setdefault(f.name, []).append((name, tp, f))
+    return owners
+
+
+def foreign_flags(args: argparse.Namespace, classes: dict[str, type], chosen: str) -> list[tuple[str, list[str]]]:
+    """(flag, names of the configs that take it) for each flag of :func:`add_alternative_dataclass_args`
+    given in ``args`` that config ``chosen`` does not take (it would be ignored). Example: ``--sh-degree 3``
+    with the vanilla model chosen -> ``[("--sh-degree", ["fast", "splat"])]``."""
+    return [(_flag(field), [name for name, _, _ in its]) for field, its in _alternative_fields(classes).items()
+            if getattr(args, field, None) is not None and chosen not in [name for name, _, _ in its]]
+
+
 def add_alternative_dataclass_args(parser: argparse.ArgumentParser, classes: dict[str, type], title: str) -> None:
     """Add the flags of alternative dataclasses, of which one is used (a model's config, chosen by
     ``--model``): a group each, titled ``title.format(name)``. A field that several have is one flag,
@@ -203,12 +221,8 @@ def add_alternative_dataclass_args(parser: argparse.ArgumentParser, classes: dic
     (:func:`widest_bounds`), with each one's help and default; :func:`check_ranges` then checks the
     chosen config against its own bounds (e.g. ``--sh-degree``: 0 to 2 for the fast model, 0 to 3
     for splat, so 0 to 3 when parsed)."""
-    owners: dict[str, list[tuple[str, Any, dataclasses.Field]]] = {}
-    for name, cls in classes.items():
-        for tp, f in _cli_fields(cls):
-            owners.setdefault(f.name, []).append((name, tp, f))
     groups = {(name,): parser.add_argument_group(title.format(name)) for name in classes}
-    for field, its in owners.items():
+    for field, its in _alternative_fields(classes).items():
         names = tuple(name for name, _, _ in its)
         if names not in groups:  # after the configs' own groups
             groups[names] = parser.add_argument_group(" and ".join(title.format(name) for name in names))
@@ -278,7 +292,7 @@ def load_json(path: str | Path, missing: str = "no such file", missing_fix: str 
     """Parse a JSON file; every failure is one NerfkitError naming the file (hints per caller)."""
     path = Path(path)
     try:
-        return json.loads(path.read_text())
+        return json.loads(refuse_special_file(path).read_text())
     except FileNotFoundError:
         raise fail(path, missing, missing_fix) from None
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import fail
-from .io.paths import path_kind
+from .io.paths import path_kind, refuse_special_file
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp", ".heic", ".heif"}
 # PIL refuses larger images as a "decompression bomb"; phone photos are ~12-50 MP.
@@ -43,6 +43,7 @@ def _open(path: Path):
         raise fail(path, "no such file", "Check the path")
     if kind == "dir":
         raise fail(path, "is a folder, expected an image file")
+    refuse_special_file(path)
     try:
         with warnings.catch_warnings():  # nerfkit says it itself, in one line, just below
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)

@@ -24,6 +24,7 @@ from ..errors import NerfkitError, fail
 from ..images import (common_frame, exif_focal_35mm, held_as, list_images, load_image_uint8, orientation_tag,
                       turns_into_frame)
 from ..io.atomic import write_json
+from ..io.paths import refuse_special_file
 from .aruco import Detection, Layout, detect, detect_careful, make_detector, marker_bits, suggest_dictionaries
 
 CACHE_VERSION = 5  # 5: HEIF photos record the orientation pillow-heif applied
@@ -91,7 +92,7 @@ def _load_cache(cache_path: Path | None, settings: dict) -> dict:
     if cache_path is None or not cache_path.exists():
         return {}
     try:
-        data = json.loads(cache_path.read_text())
+        data = json.loads(refuse_special_file(cache_path).read_text())
     except (OSError, json.JSONDecodeError, UnicodeDecodeError):
         return {}  # a broken cache is only a lost speed-up
     if data.get("version") != CACHE_VERSION or data.get("settings") != settings:

@@ -106,10 +106,11 @@ def recorded_pose_source(folder) -> str:
     "sfm" or "tags"; with no dataset there, "sfm" when `nerfkit poses` left an SfM report."""
     import json
 
+    from ..io.paths import refuse_special_file
     from ..sfm.dataset import REPORT_FILE
 
     try:
-        meta = json.loads((folder / "transforms.json").read_text()).get("nerfkit")
+        meta = json.loads(refuse_special_file(folder / "transforms.json").read_text()).get("nerfkit")
     except (OSError, ValueError, AttributeError):  # no dataset yet, or not one nerfkit wrote
         meta = None
     if isinstance(meta, dict):

@@ -6,7 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from ..config import add_alternative_dataclass_args, add_dataclass_args, dataclass_from_args
+from ..config import add_alternative_dataclass_args, add_dataclass_args, dataclass_from_args, foreign_flags
 
 MEMORY_HINT = "Lower --batch-rays (rays per step) or --render-chunk (rays per rendered chunk)"
 HELP = "train a NeRF on a dataset (or --resume a run)"
@@ -66,6 +66,21 @@ def resume_changes(args: argparse.Namespace) -> dict:
     return {k: getattr(args, k) for k in RESUME_APPLIES if k in given}
 
 
+def refuse_other_models_flags(args: argparse.Namespace, classes: dict, model: str) -> None:
+    """Refuse a model flag that ``model`` does not take (training would ignore it), e.g.
+    ``--sh-degree: is a setting of the fast and splat models, not of vanilla``."""
+    from ..errors import fail
+
+    foreign = foreign_flags(args, classes, model)
+    if foreign:
+        flag, owners = foreign[0]
+        chosen = model if args.model else f"{model} (the default --model)"
+        which = (f"the {owners[0]} model" if len(owners) == 1
+                 else f"the {', '.join(owners[:-1])} and {owners[-1]} models")
+        raise fail(flag, f"is a setting of {which}, not of {chosen}",
+                   f"Leave it out, or train with --model {' or --model '.join(owners)}")
+
+
 def run(args: argparse.Namespace) -> int:
     import sys
 
@@ -96,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
         if cfg.model not in classes:
             raise fail("--model", f"model '{cfg.model}' is not available in this installation",
                        f"Choose one of: {', '.join(classes)}")
+        refuse_other_models_flags(args, classes, cfg.model)
         model_cfg = check_config(cfg.model, dataclass_from_args(classes[cfg.model], args))  # its own bounds
         check_new_run_folder(Path(cfg.out))  # before loading the dataset: a refusal should be quick
         # RGBA images are composited on the colour the model renders behind the scene

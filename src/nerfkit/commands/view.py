@@ -49,10 +49,12 @@ def dataset_tag_size(path: Path) -> float | None:
     """The tag size a capture dataset records (transforms.json beside it), if any."""
     import json
 
+    from ..io.paths import refuse_special_file
+
     folder = path if path.is_dir() else path.parent
     tj = folder / "transforms.json"
     try:
-        v = json.loads(tj.read_text()).get("nerfkit", {}).get("tag_size")
+        v = json.loads(refuse_special_file(tj).read_text()).get("nerfkit", {}).get("tag_size")
         return float(v) if isinstance(v, (int, float)) and v > 0 else None
     except (OSError, ValueError, AttributeError):
         return None

@@ -51,7 +51,8 @@ def frame_image_path(folder: Path, file_path: str, where: str, allow_outside: bo
     inside ``folder`` (see :func:`nerfkit.io.paths.resolve_inside`)."""
     try:
         for name in (file_path, *(file_path + s for s in (".png", ".PNG", *sorted(IMAGE_SUFFIXES)))):
-            if (Path(folder) / name).is_file():
+            found = Path(folder) / name
+            if found.exists() and not found.is_dir():  # a pipe too: its reader refuses it, by name
                 return resolve_inside(folder, name, allow_outside, where)
         resolve_inside(folder, file_path, allow_outside, where)  # outside is refused before "not found"
     except (OSError, ValueError) as e:  # a NUL byte, a name too long, a loop of links

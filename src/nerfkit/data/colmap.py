@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import fail
 from ..images import load_image_uint8
-from ..io.paths import resolve_inside, safe_output_name
+from ..io.paths import refuse_special_file, resolve_inside, safe_output_name
 from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
 from .validate import check_intrinsics, check_near_far, check_poses, check_scene
 
@@ -137,6 +137,8 @@ def read_model(model_dir: str | Path) -> "pycolmap.Reconstruction":
     pycolmap = _import_pycolmap(model_dir)
     if not is_model_dir(model_dir):
         raise fail(model_dir, "not a COLMAP model folder", "Expected cameras.bin/images.bin/points3D.bin (or .txt)")
+    for f in sorted([*model_dir.glob("*.bin"), *model_dir.glob("*.txt")]):  # what pycolmap and the precheck read
+        refuse_special_file(f)
     if any((model_dir / f"{n}.bin").is_file() for n in MODEL_FILES):
         _precheck_binary_model(model_dir)
     try:

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..config import MIN_DOWNSCALE, range_problem
 from ..errors import NerfkitError, fail
-from ..io.paths import path_kind
+from ..io.paths import path_kind, refuse_special_file
 from .npz import load_npz
 from .scene import Scene, Views
 from .validate import MAX_PIXELS, check_scene
@@ -108,7 +108,7 @@ def detect_format(path: str | Path) -> str:
     from .llff import llff_folder
 
     path = Path(path)
-    kind = path_kind(path)
+    kind = path_kind(refuse_special_file(path))
     if kind is None:
         raise fail(path, "no such file or folder", "Check the path")
     if kind != "dir":

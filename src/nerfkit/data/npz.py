@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import NerfkitError, fail
 from ..io.atomic import write_npz
+from ..io.paths import refuse_special_file
 from .scene import Scene, Views, estimate_center, estimate_up
 from .validate import (MAX_PIXELS, check_images, check_intrinsics, check_near_far, check_plane, check_poses,
                        check_scene, check_vector3, near_far_from_cameras)
@@ -36,6 +37,7 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
         raise fail(where, "no such file", "Check the path")
     if path.is_dir():
         raise fail(where, "is a folder, expected an .npz file")
+    refuse_special_file(path)
     try:
         zf = zipfile.ZipFile(path)
     except (zipfile.BadZipFile, OSError) as e:

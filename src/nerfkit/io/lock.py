@@ -1,9 +1,13 @@
-"""One process per run folder: an exclusive ``flock`` on ``RUN/.lock``.
+"""One process per run folder: an exclusive ``flock`` on ``RUN/.nerfkit.lock``.
 
 The lock file holds the pid of the process that has the lock, so the refusal can say
 which process is using the folder. The kernel drops the lock when the process ends, even
 on SIGKILL, so a crashed run never leaves its folder locked. The file itself stays (removing
 it would let two processes lock two different files of the same name).
+
+The name is nerfkit's own: a ``.lock`` of the user's in an empty ``--out`` is the user's
+file (the folder is refused, the file never opened). Runs made by earlier versions hold a
+``RUN/.lock``: it stays where it is, unused, and those runs resume, evaluate and render as before.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ from typing import Iterator
 
 from ..errors import fail
 
-LOCK_FILE = ".lock"
+LOCK_FILE = ".nerfkit.lock"
 
 
 @contextlib.contextmanager

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import re
+import stat
 from pathlib import Path
 
 from ..errors import NerfkitError, fail
@@ -46,6 +47,28 @@ def path_kind(path: str | os.PathLike) -> str | None:
         return "dir" if path.is_dir() else "file" if path.is_file() else "other"
     except (OSError, ValueError) as e:
         raise _unusable(path, e) from None
+
+
+_SPECIAL = ((stat.S_ISFIFO, "a named pipe"), (stat.S_ISCHR, "a character device"),
+            (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def refuse_special_file(path: str | os.PathLike) -> Path:
+    """``path``, refused without opening it when it is a named pipe, a device or a socket
+    (``path_kind`` ``"other"``): reading one blocks until someone writes to it (a pipe) or
+    never ends (``/dev/zero``). A file, a folder or nothing there passes: each reader says
+    what it expected. The one check before nerfkit reads a file a user names."""
+    path = Path(path)
+    if path_kind(path) == "other":
+        try:
+            mode = path.stat().st_mode
+        except OSError:  # gone since: the reader says so
+            return path
+        what = next((f"is {name}, not a regular file" for test, name in _SPECIAL if test(mode)), "is not a regular file")
+        raise fail(path, what,
+                   "nerfkit reads only regular files (a pipe or device could block or never end); save the data "
+                   "to a file and pass that")
+    return path
 
 
 def is_within(path: str | os.PathLike, folder: str | os.PathLike) -> bool:

@@ -6,7 +6,7 @@ A run folder::
     RUN/model.pt                    the final model: parameters and buffers only (what eval/render use),
                                     compact where the model packs its state (fast: occupied vertices, fp16)
     RUN/checkpoints/step_00001234.pt   model, optimizer, RNG streams, metric rows (what --resume uses)
-    RUN/.lock                       held by the one process training the run
+    RUN/.nerfkit.lock               held by the one process training the run (earlier versions: RUN/.lock)
     RUN/metrics.csv, metrics.json   one row per logged step (train) or evaluation (val)
     RUN/plots/, RUN/progress/, RUN/videos/
 
