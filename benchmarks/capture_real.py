@@ -66,6 +66,7 @@ def train_capture(name: str, out: Path, minutes: float, capture: str, poses: str
     m = json.loads((run / "metrics.json").read_text())
     return {"steps": m["step"], "val_psnr": e["psnr"], "val_ssim": e["ssim"], "n_val": e["n_images"],
             "fitted_psnr": e.get("fitted", {}).get("psnr"), "fitted_ssim": e.get("fitted", {}).get("ssim"),
+            "colour_psnr": e.get("colour_only", {}).get("psnr"),
             "sheet": str(run / "eval_val.png"), "run": str(run)}
 
 
@@ -167,11 +168,11 @@ def print_table(rows: list[dict]) -> None:
     if trained:
         print()
         print(table([[r["capture"], r["capture_mode"], r["steps"], r["n_val"], f"{r['val_psnr']:.2f}",
-                      f"{r['val_ssim']:.3f}",
+                      f"{r['val_ssim']:.3f}", "-" if r["colour_psnr"] is None else f"{r['colour_psnr']:.2f}",
                       "-" if r["fitted_psnr"] is None else f"{r['fitted_psnr']:.2f} / {r['fitted_ssim']:.3f}",
                       r["sheet"]] for r in trained],
                     ["capture", "--capture", "steps", "val views", "val PSNR", "val SSIM",
-                     "PSNR / SSIM, pose+colour fitted", "contact sheet"], max_width=200))
+                     "PSNR, colour fitted", "PSNR / SSIM, pose+colour fitted", "contact sheet"], max_width=200))
 
 
 def main() -> int:

@@ -241,6 +241,9 @@ def test_eval_fits_a_held_out_photos_colour_transform(tmp_path, tabletop):
                                   fit=ViewFitConfig(steps=10, colour_mix=mix)) for mix in (True, False)}
     assert scores[True]["psnr"] < 30
     assert scores[True]["fitted"]["psnr"] > 40  # undone, to the photos' 8-bit rounding
+    assert scores[True]["colour_only"]["psnr"] > 40  # the poses are right: the colour alone undoes it
+    for mix in (True, False):  # no correction is among the ones solved: never worse than as rendered
+        assert all(r["psnr_colour"] >= r["psnr"] for r in scores[mix]["per_image"])
     assert scores[False]["fitted"]["psnr"] < scores[True]["fitted"]["psnr"] - 5  # gains alone cannot mix colours
     for row in scores[True]["per_image"]:  # the report shows the transform that was undone
         np.testing.assert_allclose(row["fitted_colour_matrix"], M, atol=0.02)

@@ -4,7 +4,8 @@ For real captures the held-out photos' poses and exposures carry the same small 
 the training views had corrected; scoring them as given measures those errors as much as
 the scene. With ``fit`` each held-out view's pose is first fitted to its photo with the
 scene frozen (as BARF does) and its colour correction solved at that pose, and both
-scores are reported.
+scores are reported, with a third between them: the colour solved at the given pose
+(how much of the difference is the photo's exposure, how much its pose).
 """
 
 from __future__ import annotations
@@ -62,7 +63,9 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
     Returns ``{"psnr": mean, "ssim": mean, "n_images": N, "per_image": [{index, name,
     psnr, ssim}, ...]}``; with ``fit``, also ``"fitted": {"psnr", "ssim", ...}`` and per
     image ``psnr_fitted``, ``ssim_fitted``, after fitting each view's pose and exposure to
-    its photo (``scale``: the scene's length unit), with the fitted colour correction:
+    its photo (``scale``: the scene's length unit), and ``"colour_only"`` (per image
+    ``psnr_colour``, ``ssim_colour``): the colour correction solved at the given pose, with
+    the fitted colour correction:
     ``fitted_grey_gain`` (per channel, the gain a grey input sees: the row sums of the
     colour matrix), ``fitted_offset`` and, with colour mixing, ``fitted_colour_matrix``
     (rows: output channels). Memory holds one image at a time, plus
@@ -81,6 +84,9 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
                "psnr": round(psnr(view.rgb, target), 4), "ssim": round(ssim(view.rgb, target), 5)}
         rgb = None
         if fit is not None:
+            matrix, offset = least_squares_colour(view.rgb, target, fit.colour_mix)
+            recoloured = np.clip(view.rgb @ matrix.T + offset, 0.0, 1.0)
+            row.update(psnr_colour=round(psnr(recoloured, target), 4), ssim_colour=round(ssim(recoloured, target), 5))
             c2w = fit_held_out_view(model, views.K[i], views.c2w[i], views.images[i], background, scale, fit, seed=i)
             fitted = render_image(model, views.K[i], c2w, views.width, views.height, background, chunk, autocast_dtype)
             # the colour correction at the fitted pose, solved exactly (the fit's 100 steps
@@ -108,6 +114,11 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
                     ", least squares)",
             "psnr": round(float(np.mean([p["psnr_fitted"] for p in per_image])), 4),
             "ssim": round(float(np.mean([p["ssim_fitted"] for p in per_image])), 5),
+        }
+        out["colour_only"] = {
+            "what": "each view's colour correction solved at its given pose (no pose fit)",
+            "psnr": round(float(np.mean([p["psnr_colour"] for p in per_image])), 4),
+            "ssim": round(float(np.mean([p["ssim_colour"] for p in per_image])), 5),
         }
     out["per_image"] = per_image
     return out
