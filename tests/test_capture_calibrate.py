@@ -154,6 +154,19 @@ def test_calibrate_command_writes_camera_file_and_explains_skips(tmp_path, sheet
     assert cam2["target"].startswith("layout") and rel_errors(np.array(cam2["K"]), sheet.K).max() < 0.01
 
 
+@pytest.mark.parametrize("content", ['{"my": "notes"}', "not json at all"])
+def test_a_file_of_the_users_where_the_detection_cache_goes_is_left_alone(tmp_path, sheet, capsys, content):
+    folder = tmp_path / "photos"
+    sheet.write(folder)
+    out = tmp_path / "cam" / "camera.json"
+    mine = out.parent / "camera.detections.json"
+    mine.parent.mkdir()
+    mine.write_text(content)
+    assert main(["calibrate", str(folder), "--dict", "DICT_4X4_50", "--tag-size", str(TAG), "--out", str(out)]) == 0
+    assert mine.read_text() == content and json.loads(out.read_text())["rms"] < 0.5
+    assert "is not a nerfkit detection cache" in capsys.readouterr().err
+
+
 def test_charuco_board_calibration_uses_chessboard_corners():
     spec = {"board": "charuco", "squares_x": 5, "squares_y": 7, "square_length": 0.03, "marker_length": 0.022}
     layout = A.layout_from_json(spec, "charuco.json", "DICT_4X4_50")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
@@ -88,16 +89,23 @@ def _file_key(path: Path) -> list:
     return [st.st_size, st.st_mtime_ns]
 
 
-def _load_cache(cache_path: Path | None, settings: dict) -> dict:
+def _load_cache(cache_path: Path | None, settings: dict) -> tuple[dict, bool]:
+    """The cached entries for these settings, and whether the file may be written: a file
+    there that is not a detection cache (caches are written whole, so never half) is the
+    user's, and is left as it is."""
     if cache_path is None or not cache_path.exists():
-        return {}
+        return {}, cache_path is not None
     try:
         data = json.loads(refuse_special_file(cache_path).read_text())
     except (OSError, json.JSONDecodeError, UnicodeDecodeError):
-        return {}  # a broken cache is only a lost speed-up
+        data = None
+    if not isinstance(data, dict) or "version" not in data or "photos" not in data:
+        print(f"note: {cache_path} is not a nerfkit detection cache; it is left as it is, and detections "
+              "are not cached this time", file=sys.stderr)
+        return {}, False
     if data.get("version") != CACHE_VERSION or data.get("settings") != settings:
-        return {}
-    return data.get("photos", {}) if isinstance(data.get("photos"), dict) else {}
+        return {}, True  # another version's or other settings' cache: replaced
+    return (data["photos"] if isinstance(data["photos"], dict) else {}), True
 
 
 def _detect_one(path: Path, detector, detect_side: int, bits: int, dictionary: str = "") -> dict:
@@ -156,7 +164,9 @@ def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = Non
     settings = {"dictionary": dictionary, "detect_side": int(detect_side),
                 "charuco": layout.to_json() if charuco else None}
     cache_path = Path(cache_path) if cache_path else None
-    cache = _load_cache(cache_path, settings)
+    cache, writable = _load_cache(cache_path, settings)
+    if not writable:
+        cache_path = None
     entries: dict[str, dict] = {}
     todo = []
     for f in files:
