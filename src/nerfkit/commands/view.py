@@ -66,10 +66,6 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.path)
     if args.png is not None and not args.png.strip():
         raise fail("--png", "names no file", "Give the PNG's path, or leave out --png to open the viewer")
-    if args.rays < 0 or args.samples < 1:
-        raise fail("--rays/--samples", "need --rays >= 0 and --samples >= 1")
-    if not 0 < args.port < 65536:
-        raise fail("--port", f"{args.port} is not a port number")
     if is_run_folder(path):
         if args.downscale:
             raise fail("--downscale", "a trained run loads its dataset as it was trained", "Leave out --downscale")
