@@ -94,7 +94,7 @@ def test_a_config_read_from_json_is_refused_naming_the_file_and_the_flag():
 
     with pytest.raises(NerfkitError) as e:
         dataclass_from_dict(VanillaConfig, {"n_samples": 64, "pos_freqs": 40}, "run/config.json")
-    assert str(e.value) == "run/config.json: --pos-freqs: 40 is above the maximum 32 (allowed: 0 to 32)"
+    assert str(e.value) == "run/config.json: 'pos_freqs' (--pos-freqs): 40 is above the maximum 32 (allowed: 0 to 32)"
     assert dataclass_from_dict(VanillaConfig, {"pos_freqs": 32}, "run/config.json").pos_freqs == 32
 
 
@@ -110,13 +110,18 @@ def config_classes():
             *(model_config_class(name) for name in MODEL_NAMES)]
 
 
-def out_of_range(kind: type, meta) -> int | float:
-    """A value just outside a field's bounds."""
+def out_of_range(kind: type, meta) -> list:
+    """Values just outside a field's bounds, one per bounded end (never the value that switches
+    the option off)."""
+    step = 1 if kind is int else 0.5
+    ends = []
     if meta.get("min") is not None:
-        return kind(meta["min"] - 1)
-    if meta.get("above") is not None:
-        return kind(meta["above"])
-    return kind(meta["max"] + 1)
+        ends.append(kind(meta["min"] - step))
+    elif meta.get("above") is not None:
+        ends.append(kind(meta["above"]))
+    if meta.get("max") is not None:
+        ends.append(kind(meta["max"] + step))
+    return [v for v in ends if v != meta.get("off")]
 
 
 def test_the_parser_and_check_ranges_word_every_bound_alike():
@@ -127,16 +132,16 @@ def test_the_parser_and_check_ranges_word_every_bound_alike():
             kind = base_type(hints[f.name])[0]
             if kind not in (int, float) or not {"min", "max", "above"} & set(f.metadata):
                 continue
-            value = out_of_range(kind, f.metadata)
-            with pytest.raises(argparse.ArgumentTypeError) as parsed:
-                flag_type(cls, f.name)(str(value))
-            default = cls()  # every field has a default
-            with pytest.raises(NerfkitError) as checked_error:
-                check_ranges(dataclasses.replace(default, **{f.name: value}))
-            flag = "--" + f.name.replace("_", "-")
-            assert str(checked_error.value) == f"{flag}: {parsed.value}", cls.__name__
-            checked += 1
-    assert checked > 50  # every config's bounded fields were seen
+            for value in out_of_range(kind, f.metadata):
+                with pytest.raises(argparse.ArgumentTypeError) as parsed:
+                    flag_type(cls, f.name)(str(value))
+                default = cls()  # every field has a default
+                with pytest.raises(NerfkitError) as checked_error:
+                    check_ranges(dataclasses.replace(default, **{f.name: value}))
+                flag = "--" + f.name.replace("_", "-")
+                assert str(checked_error.value) == f"{flag}: {parsed.value}", cls.__name__
+                checked += 1
+    assert checked > 80  # both ends of every config's bounded fields were seen
 
 
 def test_the_command_line_and_a_config_built_in_python_give_the_same_line(capsys):
@@ -201,3 +206,16 @@ def test_configs_sharing_a_flag_must_agree_on_its_type_and_choices():
     add_dataclass_args(parser, _Low)
     with pytest.raises(argparse.ArgumentError, match="conflicting option string: --level"):
         add_dataclass_args(parser, _High)
+
+
+def test_an_off_value_is_allowed_beside_the_range():
+    """train --downscale: 0 keeps the images' size, 1 or more divides it; 0.5 is neither."""
+    from nerfkit.train.config import TrainConfig
+
+    parse = flag_type(TrainConfig, "downscale")
+    assert parse("0") == 0 and parse("1") == 1 and parse("4") == 4
+    with pytest.raises(argparse.ArgumentTypeError, match=r"^0.5 is below the minimum 1 \(or 0: off\)$"):
+        parse("0.5")
+    assert check_ranges(TrainConfig(steps=1, downscale=0.0)).downscale == 0
+    with pytest.raises(NerfkitError, match=r"^--downscale: 0.5 is below the minimum 1 \(or 0: off\)$"):
+        check_ranges(TrainConfig(steps=1, downscale=0.5))

@@ -270,15 +270,15 @@ def edited_run(tiny_run, tmp_path, edit_config=None, edit_checkpoint=None) -> Pa
     (lambda c: c.update(train=[]), "'train' is missing or not an object"),
     (lambda c: c.update(model=["width"]), "'model' is missing or not an object"),
     (lambda c: c["train"].update(model="nope"), "unknown model 'nope'"),
-    (lambda c: c["train"].update(lr=float("nan")), "--lr: 'nan' is not a finite number"),
-    (lambda c: c["train"].update(lr_final_factor=5.0), "--lr-final-factor: 5.0 is above the maximum 1"),
+    (lambda c: c["train"].update(lr=float("nan")), "'lr' (--lr): 'nan' is not a finite number"),
+    (lambda c: c["train"].update(lr_final_factor=5.0), "'lr_final_factor' (--lr-final-factor): 5.0 is above the maximum 1"),
     (lambda c: c["train"].update(steps=0, minutes=0.0), "invalid TrainConfig settings (train: no stopping rule"),
     (lambda c: c["bounds"].update(near=float("nan")), "near/far must be finite"),
     (lambda c: c["bounds"].update(near=7.0), "need 0 <= near < far"),
     (lambda c: c["bounds"].update(center=[1.0]), "'bounds.center' must be 3 numbers"),
     (lambda c: c["bounds"].update(up=[0, 0, 0]), "'bounds.up' is the zero vector"),
     (lambda c: c["bounds"].update(radius=-1), "'bounds.radius' is -1"),
-    (lambda c: c["model"].update(width=-1), "--width: -1 is below the minimum 1"),
+    (lambda c: c["model"].update(width=-1), "'width' (--width): -1 is below the minimum 1"),
 ])
 def test_run_config_values_that_used_to_crash_or_load_as_garbage(tiny_run, tmp_path, edit, message):
     from nerfkit.train.checkpoint import load_run
@@ -477,6 +477,28 @@ def _blender_with_a_piped_image(t: Path):
     return load_scene(t)
 
 
+def _llff_with_piped_poses(t: Path):
+    from nerfkit.data.load import load_scene
+
+    _fifo(t / "scene" / "poses_bounds.npy")
+    return load_scene(t / "scene")
+
+
+def _nerfstudio_with_a_piped_point_cloud(t: Path):
+    from nerfkit.data.load import load_scene
+
+    (t / "images").mkdir()
+    from PIL import Image
+
+    Image.fromarray(np.zeros((4, 6, 3), np.uint8)).save(t / "images" / "a.png")
+    frame = {"file_path": "images/a.png", "transform_matrix": np.eye(4).tolist()}
+    (t / "transforms.json").write_text(json.dumps({"fl_x": 5, "fl_y": 5, "cx": 3, "cy": 2, "w": 6, "h": 4,
+                                                   "ply_file_path": "points.ply", "frames": [frame],
+                                                   "nerfkit": {"near": 0.1, "far": 2.0}}))
+    _fifo(t / "points.ply")
+    return load_scene(t)
+
+
 @pytest.mark.parametrize("read, piped", [
     (_piped("nerfkit.data.load:load_scene", "scene.npz"), "scene.npz"),
     (_piped("nerfkit.data.npz:load_npz", "scene.npz"), "scene.npz"),
@@ -485,7 +507,10 @@ def _blender_with_a_piped_image(t: Path):
     (_blender_with_a_piped_image, "r_1.png"),
     (_colmap_with_piped_points, "points3D.txt"),
     (_npz_beside_a_piped_transforms_json, "transforms.json"),
-], ids=["dataset", "npz", "image", "json", "image in a dataset", "colmap model file", "file beside a dataset"])
+    (_llff_with_piped_poses, "poses_bounds.npy"),
+    (_nerfstudio_with_a_piped_point_cloud, "points.ply"),
+], ids=["dataset", "npz", "image", "json", "image in a dataset", "colmap model file", "file beside a dataset",
+        "llff poses", "nerfstudio point cloud"])
 def test_a_named_pipe_is_refused_without_opening_it(tmp_path, read, piped):
     # opening a pipe nobody writes to blocked forever: `nerfkit train --data pipe.npz` never returned
     with within(10), pytest.raises(NerfkitError) as e:

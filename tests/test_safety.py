@@ -506,7 +506,7 @@ def test_train_refuses_a_downscale_below_1_in_one_short_line(trained, tmp_path, 
     # 1e-300 once asked for images of 2e302 pixels a side, printed in full, with advice about --size
     monkeypatch.chdir(tmp_path)
     assert main(placed([*TRAIN, "--downscale", value], trained, tmp_path)) == 2
-    line = one_line(capsys, f"nerfkit train: error: --downscale: {value} is below the minimum 1. It divides")
+    line = one_line(capsys, f"--downscale: {value} is below the minimum 1 (or 0: off)")  # when parsed
     assert len(line) < 120 and "--size" not in line
     assert files_under(tmp_path) == {}  # no run folder
 

@@ -29,7 +29,8 @@ MIN_DOWNSCALE = 1
 
 def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors argparse
     """A dataclass field with a default and a help line; ``min``, ``max`` (inclusive) and
-    ``above`` (exclusive) bound a number's flag, checked when the command line is parsed
+    ``above`` (exclusive) bound a number's flag (``off``: a value allowed besides, that
+    switches the option off), checked when the command line is parsed
     (:func:`number`) and for configs built otherwise (:func:`check_ranges`)."""
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})
 
@@ -47,14 +48,18 @@ def base_type(tp: Any) -> tuple[Any, bool]:
 
 
 def range_problem(value: float, kind: type = float, min: float | None = None,  # noqa: A002 - reads like a range
-                  max: float | None = None, above: float | None = None, shown: str | None = None) -> str | None:
+                  max: float | None = None, above: float | None = None, shown: str | None = None,
+                  off: float | None = None) -> str | None:
     """What is wrong with a number and its bounds (``min``/``max`` inclusive, ``above``
-    exclusive; floats must be finite), or None: the one wording of the parser (:func:`number`)
-    and of :func:`check_ranges`. ``shown`` is the value as the user wrote it.
+    exclusive; floats must be finite; ``off``, a value that switches the option off, is
+    allowed besides), or None: the one wording of the parser (:func:`number`) and of
+    :func:`check_ranges`. ``shown`` is the value as the user wrote it.
     Example: ``range_problem(101, int, 1, 100)`` -> ``"101 is above the maximum 100 (allowed: 1 to 100)"``."""
     shown = str(value) if shown is None else shown
     if kind is float and not math.isfinite(value):
         return f"'{shown}' is not a finite number"
+    if off is not None and value == off:
+        return None
     if min is not None and value < min:
         problem = f"{shown} is below the minimum {min}"
     elif max is not None and value > max:
@@ -67,6 +72,8 @@ def range_problem(value: float, kind: type = float, min: float | None = None,  #
         problem += f" (allowed: {min} to {max})"
     elif max is not None and above is not None:
         problem += f" (allowed: above {above}, up to {max})"
+    if off is not None:
+        problem += f" (or {off}: off)"
     return problem
 
 
@@ -75,7 +82,7 @@ def _not_a(kind: type, shown: str) -> str:
 
 
 def number(kind: type = float, min: float | None = None, max: float | None = None,  # noqa: A002 - reads like a range
-           above: float | None = None) -> Any:
+           above: float | None = None, off: float | None = None) -> Any:
     """An argparse ``type`` for a finite ``kind`` (int or float) within [min, max] (or > above):
     ``--minutes nan``, ``--fps 0`` or ``--chunk -1`` are refused when the command line is parsed."""
 
@@ -84,7 +91,7 @@ def number(kind: type = float, min: float | None = None, max: float | None = Non
             v = kind(text)
         except (TypeError, ValueError):
             raise argparse.ArgumentTypeError(_not_a(kind, text)) from None
-        problem = range_problem(v, kind, min, max, above, shown=text)
+        problem = range_problem(v, kind, min, max, above, shown=text, off=off)
         if problem:
             raise argparse.ArgumentTypeError(problem)
         return v
@@ -99,7 +106,7 @@ def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
     for configs built in Python or read from JSON, and for a flag that configs share (parsed
     within the widest of their bounds: :func:`add_alternative_dataclass_args`); returns ``cfg``.
     A bad value is a NerfkitError naming ``source`` (when given), the flag and ``owner`` (when
-    given), e.g. ``config.json: --lr: 200.0 is above the maximum 100 (allowed: 0 to 100)`` or
+    given), e.g. ``config.json: 'lr' (--lr): 200.0 is above the maximum 100 (allowed: 0 to 100)`` or
     ``--sh-degree: 3 is above the maximum 2 (allowed: 0 to 2) for the fast model``."""
     hints = typing.get_type_hints(type(cfg))
     for f in dataclasses.fields(cfg):
@@ -108,12 +115,12 @@ def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
         if kind not in (int, float) or (value is None and optional):
             continue
         numeric = isinstance(value, numbers.Integral if kind is int else numbers.Real) and not isinstance(value, bool)
-        problem = (range_problem(value, kind, f.metadata.get("min"), f.metadata.get("max"), f.metadata.get("above"))
-                   if numeric else _not_a(kind, str(value)))
+        problem = (range_problem(value, kind, f.metadata.get("min"), f.metadata.get("max"), f.metadata.get("above"),
+                                 off=f.metadata.get("off")) if numeric else _not_a(kind, str(value)))
         if problem:
             if owner:
                 problem += f" for {owner}"
-            raise fail(_flag(f.name) if source is None else f"{source}: {_flag(f.name)}", problem)
+            raise fail(_flag(f.name) if source is None else f"{source}: '{f.name}' ({_flag(f.name)})", problem)
     return cfg
 
 
@@ -121,7 +128,7 @@ def _field_type(tp: Any, meta: Any) -> Any:
     """The argparse type of a field: numbers are checked (finite, and the field's
     ``min``/``max``/``above`` metadata); other types pass through."""
     if tp in (int, float):
-        return number(tp, meta.get("min"), meta.get("max"), meta.get("above"))
+        return number(tp, meta.get("min"), meta.get("max"), meta.get("above"), meta.get("off"))
     return tp if tp is str else str
 
 
@@ -147,11 +154,14 @@ def _lower_bound(meta: Any) -> tuple[float, bool] | None:
 def widest_bounds(metas: list[Any]) -> dict[str, float]:
     """The ``min``/``max``/``above`` bounds that take every value any of ``metas`` (fields'
     metadata) takes: the lowest lower end (inclusive at a tie), the highest upper end, and no
-    end where one of them has none. Example: ``max=2`` and ``max=3`` (both ``min=0``) ->
-    ``{"min": 0, "max": 3}``."""
+    end where one of them has none, and the ``off`` value any of them allows. Example:
+    ``max=2`` and ``max=3`` (both ``min=0``) -> ``{"min": 0, "max": 3}``."""
     lows = [_lower_bound(m) for m in metas]
     highs = [m.get("max") for m in metas]
-    out: dict[str, float] = {}
+    offs = {m["off"] for m in metas if m.get("off") is not None}
+    if len(offs) > 1:
+        raise TypeError(f"the fields switch off at different values: {sorted(offs)}")
+    out: dict[str, float] = {"off": offs.pop()} if offs else {}
     if None not in lows:
         value, exclusive = min(lows)
         out["above" if exclusive else "min"] = value

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import fail
 from ..images import IMAGE_SUFFIXES, load_image_uint8
-from ..io.paths import resolve_inside
+from ..io.paths import path_kind, refuse_special_file, resolve_inside
 from .scene import Scene, Views, estimate_up
 from .validate import MAX_COORD, MAX_PIXELS, check_intrinsics, check_near_far, check_poses
 
@@ -37,11 +37,11 @@ MAX_VIEWS = 100_000
 def llff_folder(path: str | Path) -> Path | None:
     """The dataset folder when ``path`` is an LLFF scene (the folder or its poses_bounds.npy)."""
     path = Path(path)
-    if path.is_file() and path.name == POSES_FILE:
-        return path.parent
-    if path.is_dir() and (path / POSES_FILE).is_file():
-        return path
-    return None
+    poses = path if path.name == POSES_FILE else path / POSES_FILE
+    if path_kind(poses) not in ("file", "other"):
+        return None
+    refuse_special_file(poses)  # a pipe named poses_bounds.npy: said so, never opened
+    return poses.parent
 
 
 def llff_to_opencv(poses: np.ndarray) -> np.ndarray:

@@ -33,7 +33,7 @@ from ..cameras import opencv_to_opengl, opengl_to_opencv
 from ..config import load_json
 from ..errors import fail
 from ..io.atomic import atomic_path, write_json
-from ..io.paths import path_kind, resolve_inside, safe_output_name
+from ..io.paths import path_kind, refuse_special_file, resolve_inside, safe_output_name
 from .blender import focal_from_angle, frame_image_path
 from .scene import Scene, Views, estimate_center, estimate_up
 from .validate import (MAX_SIDE, check_count, check_fov, check_intrinsics, check_near_far, check_number, check_plane,
@@ -268,7 +268,7 @@ def _read_points(data: dict, folder: Path, where: str, allow_outside: bool) -> t
         raise fail(where, f"'ply_file_path' is {short_repr(rel)}, expected a file name")
     from ..export import read_points_ply
 
-    path = resolve_inside(folder, rel, allow_outside, where)
+    path = refuse_special_file(resolve_inside(folder, rel, allow_outside, where))
     if not path.is_file():
         raise fail(where, f"'ply_file_path' names {rel[:200]!r}, which does not exist",
                    "Remove the key or put the point cloud beside transforms.json")

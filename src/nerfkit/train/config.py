@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..config import MAX_SEED, check_ranges, option, parse_background
+from ..config import MAX_SEED, MIN_DOWNSCALE, check_ranges, option, parse_background
 from ..errors import fail
 from ..models import MODEL_NAMES
 
@@ -21,7 +21,7 @@ class TrainConfig:
                        metavar="PATH")
     downscale: float = option(0.0, "divide the dataset's image size by this as it loads, K following (an LLFF "
                               "scene's 4 or 8 reads its images_4 or images_8); at least 1, or 0: the size it has",
-                              min=0)
+                              min=MIN_DOWNSCALE, off=0)
     model: str = option("fast", "which radiance field to train", choices=list(MODEL_NAMES))
     out: str = option("runs/latest", "run folder for checkpoints, metrics, plots and videos", metavar="DIR")
     steps: int = option(0, "optimizer steps (0: run until --minutes is spent)", min=0)
