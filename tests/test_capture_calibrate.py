@@ -154,7 +154,8 @@ def test_calibrate_command_writes_camera_file_and_explains_skips(tmp_path, sheet
     assert cam2["target"].startswith("layout") and rel_errors(np.array(cam2["K"]), sheet.K).max() < 0.01
 
 
-@pytest.mark.parametrize("content", ['{"my": "notes"}', "not json at all"])
+@pytest.mark.parametrize("content", ['{"my": "notes"}', "not json at all",
+                                     '{"format": "nerfkit-poses", "version": 1, "photos": []}'])
 def test_a_file_of_the_users_where_the_detection_cache_goes_is_left_alone(tmp_path, sheet, capsys, content):
     folder = tmp_path / "photos"
     sheet.write(folder)

@@ -99,13 +99,13 @@ def _load_cache(cache_path: Path | None, settings: dict) -> tuple[dict, bool]:
         data = json.loads(refuse_special_file(cache_path).read_text())
     except (OSError, json.JSONDecodeError, UnicodeDecodeError):
         data = None
-    if not isinstance(data, dict) or "version" not in data or "photos" not in data:
+    if not isinstance(data, dict) or not {"version", "settings"} <= set(data) or not isinstance(data.get("photos"), dict):
         print(f"note: {cache_path} is not a nerfkit detection cache; it is left as it is, and detections "
               "are not cached this time", file=sys.stderr)
         return {}, False
     if data.get("version") != CACHE_VERSION or data.get("settings") != settings:
         return {}, True  # another version's or other settings' cache: replaced
-    return (data["photos"] if isinstance(data["photos"], dict) else {}), True
+    return data["photos"], True
 
 
 def _detect_one(path: Path, detector, detect_side: int, bits: int, dictionary: str = "") -> dict:

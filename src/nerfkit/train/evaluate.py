@@ -63,12 +63,11 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
     Returns ``{"psnr": mean, "ssim": mean, "n_images": N, "per_image": [{index, name,
     psnr, ssim}, ...]}``; with ``fit``, also ``"fitted": {"psnr", "ssim", ...}`` and per
     image ``psnr_fitted``, ``ssim_fitted``, after fitting each view's pose and exposure to
-    its photo (``scale``: the scene's length unit), and ``"colour_only"`` (per image
-    ``psnr_colour``, ``ssim_colour``): the colour correction solved at the given pose, with
-    the fitted colour correction:
+    its photo (``scale``: the scene's length unit), with the fitted colour correction:
     ``fitted_grey_gain`` (per channel, the gain a grey input sees: the row sums of the
     colour matrix), ``fitted_offset`` and, with colour mixing, ``fitted_colour_matrix``
-    (rows: output channels). Memory holds one image at a time, plus
+    (rows: output channels); and ``"colour_only"`` (per image ``psnr_colour``, ``ssim_colour``):
+    the colour correction solved at the given pose, no pose fit. Memory holds one image at a time, plus
     the images appended to ``sheet`` (``(photo, render, fitted render or None, row)`` of
     ``sheet_views`` views spread over the split), when a list is given.
     """
