@@ -77,6 +77,11 @@ def range_problem(value: float, kind: type = float, min: float | None = None,  #
     return problem
 
 
+def range_of(meta: Any) -> dict[str, float | None]:
+    """A field's bounds from its metadata, as keyword arguments of :func:`range_problem` and :func:`number`."""
+    return {k: meta.get(k) for k in ("min", "max", "above", "off")}
+
+
 def _not_a(kind: type, shown: str) -> str:
     return f"'{shown}' is not {'a whole number' if kind is int else 'a number'}"
 
@@ -115,8 +120,7 @@ def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
         if kind not in (int, float) or (value is None and optional):
             continue
         numeric = isinstance(value, numbers.Integral if kind is int else numbers.Real) and not isinstance(value, bool)
-        problem = (range_problem(value, kind, f.metadata.get("min"), f.metadata.get("max"), f.metadata.get("above"),
-                                 off=f.metadata.get("off")) if numeric else _not_a(kind, str(value)))
+        problem = range_problem(value, kind, **range_of(f.metadata)) if numeric else _not_a(kind, str(value))
         if problem:
             if owner:
                 problem += f" for {owner}"
@@ -128,7 +132,7 @@ def _field_type(tp: Any, meta: Any) -> Any:
     """The argparse type of a field: numbers are checked (finite, and the field's
     ``min``/``max``/``above`` metadata); other types pass through."""
     if tp in (int, float):
-        return number(tp, meta.get("min"), meta.get("max"), meta.get("above"), meta.get("off"))
+        return number(tp, **range_of(meta))
     return tp if tp is str else str
 
 
