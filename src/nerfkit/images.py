@@ -43,7 +43,7 @@ def _open(path: Path):
         raise fail(path, "no such file", "Check the path")
     if kind == "dir":
         raise fail(path, "is a folder, expected an image file")
-    refuse_special_file(path)
+    refuse_special_file(path, kind)
     try:
         with warnings.catch_warnings():  # nerfkit says it itself, in one line, just below
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)

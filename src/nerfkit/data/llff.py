@@ -38,9 +38,10 @@ def llff_folder(path: str | Path) -> Path | None:
     """The dataset folder when ``path`` is an LLFF scene (the folder or its poses_bounds.npy)."""
     path = Path(path)
     poses = path if path.name == POSES_FILE else path / POSES_FILE
-    if path_kind(poses) not in ("file", "other"):
+    kind = path_kind(poses)
+    if kind not in ("file", "other"):
         return None
-    refuse_special_file(poses)  # a pipe named poses_bounds.npy: said so, never opened
+    refuse_special_file(poses, kind)  # a pipe named poses_bounds.npy: said so, never opened
     return poses.parent
 
 

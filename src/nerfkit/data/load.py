@@ -108,7 +108,8 @@ def detect_format(path: str | Path) -> str:
     from .llff import llff_folder
 
     path = Path(path)
-    kind = path_kind(refuse_special_file(path))
+    kind = path_kind(path)
+    refuse_special_file(path, kind)
     if kind is None:
         raise fail(path, "no such file or folder", "Check the path")
     if kind != "dir":

@@ -53,13 +53,14 @@ _SPECIAL = ((stat.S_ISFIFO, "a named pipe"), (stat.S_ISCHR, "a character device"
             (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
 
 
-def refuse_special_file(path: str | os.PathLike) -> Path:
+def refuse_special_file(path: str | os.PathLike, kind: str | None = None) -> Path:
     """``path``, refused without opening it when it is a named pipe, a device or a socket
-    (``path_kind`` ``"other"``): reading one blocks until someone writes to it (a pipe) or
-    never ends (``/dev/zero``). A file, a folder or nothing there passes: each reader says
-    what it expected. The one check before nerfkit reads a file a user names."""
+    (``path_kind`` ``"other"``; ``kind``: its :func:`path_kind`, when the caller has it):
+    reading one blocks until someone writes to it (a pipe) or never ends (``/dev/zero``). A
+    file, a folder or nothing there passes: each reader says what it expected. The one
+    check before nerfkit reads a file a user names."""
     path = Path(path)
-    if path_kind(path) == "other":
+    if (path_kind(path) if kind is None else kind) == "other":
         try:
             mode = path.stat().st_mode
         except OSError:  # gone since: the reader says so
