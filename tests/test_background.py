@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from nerfkit.fields.background import (RoomShells, TablePlane, composite_layers, contract_disc, plane_hit, sh16,
-                                       sphere_exit)
+from nerfkit.fields.background import (RoomShells, TablePlane, composite_layers, contract_disc, layers_depth, plane_hit,
+                                       sh16, sphere_exit)
 
 
 def test_plane_hit_distances_front_side_only():
@@ -137,19 +137,25 @@ def test_table_coverage_shows_the_room_where_the_table_ends():
     t = model.table.hit(o, d)
     table, room = torch.sigmoid(torch.tensor(2.0)), torch.sigmoid(torch.tensor(-1.0))
     cover0 = torch.sigmoid(torch.tensor(4.0))
-    out = model._background(o, d, t, None)
+    out = model._background(o, d, t, None)[0]
     torch.testing.assert_close(out[0], (cover0 * table + (1 - cover0) * room).expand(3))
     torch.testing.assert_close(out[1], room.expand(3))
     with torch.no_grad():
         model.table.cover.fill_(-30.0)  # no table anywhere
-    torch.testing.assert_close(model._background(o, d, t, None)[0], room.expand(3), atol=1e-6, rtol=0)
+    torch.testing.assert_close(model._background(o, d, t, None)[0][0], room.expand(3), atol=1e-6, rtol=0)
     with torch.no_grad():  # an opaque first room shell hides the colour per direction, not the table
         model.table.cover.fill_(30.0)
         model.room.fine[:, :3] = 1.0
         model.room.fine[:, 3] = 30.0
-    out = model._background(o, d, t, None)
+    out, depth = model._background(o, d, t, None)
     torch.testing.assert_close(out[0], table.expand(3))
     torch.testing.assert_close(out[1], torch.sigmoid(torch.tensor(1.0)).expand(3))
+    assert depth is None  # only rendering out of training asks for the layers' depth
+    model.eval()
+    depth, acc = model._background(o, d, t, None)[1]
+    first_shell = sphere_exit(o[1:], d[1:], model.room.center, model.room.radii[:1])[0, 0]
+    torch.testing.assert_close(depth / acc, torch.stack([t[0], first_shell]))  # the table, then the room
+    torch.testing.assert_close(acc, torch.ones(2))
 
 
 def test_sphere_exit_is_the_far_root_and_misses_are_infinite():
@@ -181,6 +187,22 @@ def test_layers_are_composited_nearest_first_whatever_their_order():
     torch.testing.assert_close(composite_layers(t[:, perm], rgb[:, perm], alpha[:, perm], behind), out)
     opaque = composite_layers(t, rgb, torch.ones_like(alpha), behind)
     torch.testing.assert_close(opaque[1], rgb[1, 0])  # the nearest opaque layer hides the rest
+
+
+def test_layers_depth_is_the_composited_distance_and_opacity():
+    t = torch.tensor([[3.0, 1.0, math.inf], [0.5, 2.0, 1.0], [math.inf, math.inf, math.inf]])
+    alpha = torch.tensor([[0.5, 0.25, 0.0], [0.2, 0.9, 0.4], [0.0, 0.0, 0.0]])
+    depth, acc = layers_depth(t, alpha)
+    # ray 0: t=1 with weight 0.25, then t=3 with 0.75 * 0.5; the missing layer (inf) adds nothing
+    torch.testing.assert_close(depth[0], torch.tensor(0.25 * 1.0 + 0.375 * 3.0))
+    torch.testing.assert_close(acc[0], torch.tensor(1.0 - 0.75 * 0.5))
+    # ray 1: t=0.5 (0.2), t=1 (0.8 * 0.4), t=2 (0.8 * 0.6 * 0.9)
+    torch.testing.assert_close(depth[1], torch.tensor(0.2 * 0.5 + 0.32 * 1.0 + 0.432 * 2.0))
+    torch.testing.assert_close(acc[1], torch.tensor(0.2 + 0.32 + 0.432))
+    assert float(depth[2]) == 0.0 and float(acc[2]) == 0.0  # a ray that meets nothing
+    # colouring each layer by its distance composites to the same expected distance
+    rgb = t.nan_to_num(posinf=0.0).unsqueeze(-1).expand(-1, -1, 3)
+    torch.testing.assert_close(composite_layers(t, rgb, alpha, torch.zeros(3, 3))[:, 0], depth)
 
 
 def test_room_shells_show_the_texel_a_ray_meets_with_parallax():
@@ -290,13 +312,13 @@ def test_a_glossy_table_mirrors_its_surroundings():
     o = torch.tensor([[0.0, 0.0, 1.0], [0.3, 0.0, 1.0], [0.3, 0.0, 1.0]])
     d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.6, -0.8], [-0.6, 0.0, -0.8]])
     t = model.table.hit(o, d)
-    out = model._background(o, d, t, None)
+    out = model._background(o, d, t, None)[0]
     torch.testing.assert_close(out[0], torch.sigmoid(3.0 * rows[0]).expand(3))  # the zenith: the top row
     v = 1.0 - 2.0 * math.asin(0.8) / (0.5 * math.pi)  # mirrored z = +0.8, whichever way around
     torch.testing.assert_close(out[1:], torch.sigmoid(torch.tensor(3.0 * v)).expand(2, 3))
     with torch.no_grad():
         model.table.shine.fill_(-30.0)
-    torch.testing.assert_close(model._background(o, d, t, None), torch.sigmoid(torch.tensor(-2.0)).expand(3, 3))
+    torch.testing.assert_close(model._background(o, d, t, None)[0], torch.sigmoid(torch.tensor(-2.0)).expand(3, 3))
 
 
 def test_the_floor_under_a_table_is_found_and_seen_beyond_the_table_edge():
@@ -327,7 +349,7 @@ def test_the_floor_under_a_table_is_found_and_seen_beyond_the_table_edge():
     e1 = model.floor.axes[:, 0]
     o = torch.stack([torch.tensor([0.0, 0.0, 1.0]) - 2.0 * e1, torch.tensor([0.0, 0.0, 1.0]) + 2.0 * e1])
     d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
-    out = model._background(o, d, model.table.hit(o, d), None)
+    out = model._background(o, d, model.table.hit(o, d), None)[0]
     assert bool((out[0] > 0.9).all()) and bool((out[1] < 0.1).all())
     torch.testing.assert_close(model.floor.hit(o, d), torch.tensor([3.0, 3.0]))
 
@@ -361,3 +383,33 @@ def test_videos_follow_a_pose_only_test_path_and_orbit_a_capture():
     assert course.has_video_path and course.render_path(5) is path
     with_photos = replace(capture, test=capture.val)  # held-out photos are not a video path
     assert not with_photos.has_video_path and len(with_photos.render_path(3)) == 3
+
+
+def test_a_rendered_view_gives_the_depth_of_the_table_beyond_an_empty_volume():
+    """``render_image``'s ``scene_depth`` covers what the volume's depth leaves out: with
+    no density in the box, the volume meets nothing and the table is met at the plane."""
+    from nerfkit.cameras import image_rays
+    from nerfkit.data.synthetic import tabletop_scene
+    from nerfkit.models import SceneBounds
+    from nerfkit.models.fast import FastConfig, FastNeRF
+    from nerfkit.output.images import render_image
+
+    scene = tabletop_scene(n_train=2, n_val=0, size=16)
+    model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32,
+                                room_shells=0), SceneBounds.from_scene(scene))
+    with torch.no_grad():
+        model.grid[:, 0] = -30.0  # no density anywhere
+        model.table.cover.fill_(30.0)  # an opaque table everywhere
+    views = scene.train
+    view = render_image(model, views.K[0], views.c2w[0], 16, 16, torch.zeros(3))
+    assert float(view.acc.max()) < 1e-3 and not view.depth.any()  # the volume: nothing
+    rays = image_rays(torch.as_tensor(views.K[0]), torch.as_tensor(views.c2w[0]), 16, 16)
+    t = model.table.hit(rays.origins, rays.directions).reshape(16, 16).numpy()
+    on_table = np.isfinite(t)
+    assert on_table.sum() > 100  # the cameras look down at the table
+    np.testing.assert_allclose(view.scene_depth[on_table], t[on_table], rtol=1e-4)
+    np.testing.assert_allclose(view.scene_acc[on_table], 1.0, atol=1e-6)
+    from nerfkit.viz.video import colorize_depth
+
+    np.testing.assert_allclose(view.depth_colours(1.0, 8.0),
+                               colorize_depth(view.scene_depth, view.scene_acc, 1.0, 8.0, unmet_is_far=True))

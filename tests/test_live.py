@@ -57,17 +57,6 @@ def test_refinement_sides():
     assert live.refinement_sides(64, 32) == [32]
 
 
-def test_depth_image_colours_and_mask():
-    depth = np.array([[2.0, 6.0, 4.0]])
-    acc = np.array([[1.0, 1.0, 0.0]])
-    img = live.depth_image(depth, acc, 2.0, 6.0)
-    from matplotlib import colormaps
-
-    np.testing.assert_allclose(img[0, 0], np.round(np.array(colormaps["turbo"](0.0)[:3]) * 255), atol=1)
-    np.testing.assert_allclose(img[0, 1], np.round(np.array(colormaps["turbo"](1.0)[:3]) * 255), atol=1)
-    assert (img[0, 2] == 0).all()
-
-
 def test_watcher_reloads_new_checkpoints_only(tmp_path):
     calls = []
 

@@ -15,7 +15,8 @@ with density makes haze and floaters; a flat colour makes dark surfaces see-thro
   infinite plane, finely near the object and ever more coarsely far from it. A glossy
   table also mirrors a small learned map of its surroundings; a floor under the table is
   a second such plane.
-* :func:`composite_layers`: front-to-back compositing of these surfaces along each ray.
+* :func:`composite_layers`: front-to-back compositing of these surfaces along each ray;
+  :func:`layers_depth`: their expected distance and opacity.
 """
 
 from __future__ import annotations
@@ -316,6 +317,26 @@ def sphere_exit(origins: Tensor, dirs: Tensor, center: Tensor, radii: Tensor) ->
     return torch.where(meets & (t > 0), t, torch.full_like(t, math.inf))
 
 
+def layer_weights(t: Tensor, alpha: Tensor) -> tuple[Tensor, Tensor]:
+    """Front-to-back compositing weights of a few surfaces per ray.
+
+    Args:
+        t: (n, k) distance of each layer along the ray (any order; ``inf``: not on this
+            ray, give it alpha 0); alpha: (n, k) opacity in [0, 1].
+
+    Returns:
+        (n, k) ``T_j alpha_j`` in the layers' given order, with ``T_j`` the product of
+        ``1 - alpha_i`` over the layers nearer than ``j``; and (n, 1) the transmittance
+        through all of them.
+    """
+    order = torch.argsort(t, dim=1)
+    a = torch.gather(alpha, 1, order)
+    keep = torch.cumprod(1.0 - a, dim=1)  # (n, k) transmittance after each layer
+    trans = torch.cat([torch.ones_like(keep[:, :1]), keep[:, :-1]], dim=1)
+    weights = torch.empty_like(a).scatter_(1, order, trans * a)
+    return weights, keep[:, -1:]
+
+
 def composite_layers(t: Tensor, rgb: Tensor, alpha: Tensor, behind: Tensor) -> Tensor:
     """Front-to-back alpha compositing of a few surfaces per ray, in order of distance.
 
@@ -328,12 +349,26 @@ def composite_layers(t: Tensor, rgb: Tensor, alpha: Tensor, behind: Tensor) -> T
         (n, 3) ``sum_j T_j alpha_j rgb_j + T_k behind`` over the layers sorted by ``t``,
         with ``T_j = prod_{i<j} (1 - alpha_i)``.
     """
-    order = torch.argsort(t, dim=1)
-    a = torch.gather(alpha, 1, order)
-    c = torch.gather(rgb, 1, order.unsqueeze(-1).expand_as(rgb))
-    keep = torch.cumprod(1.0 - a, dim=1)  # (n, k) transmittance after each layer
-    trans = torch.cat([torch.ones_like(keep[:, :1]), keep[:, :-1]], dim=1)
-    return ((trans * a).unsqueeze(-1) * c).sum(1) + keep[:, -1:] * behind
+    weights, through = layer_weights(t, alpha)
+    return (weights.unsqueeze(-1) * rgb).sum(1) + through * behind
+
+
+def layers_depth(t: Tensor, alpha: Tensor) -> tuple[Tensor, Tensor]:
+    """Expected distance and opacity of a few surfaces per ray (as :func:`composite_layers`).
+
+    Args:
+        t: (n, k) distance of each layer along the ray (``inf``: not on this ray); alpha:
+            (n, k) opacity in [0, 1].
+
+    Returns:
+        (n,) ``sum_j T_j alpha_j t_j`` (unnormalised, as a volume's expected depth: divide
+        by the opacity for the distance of what the ray met) and (n,) the opacity
+        ``1 - prod_j (1 - alpha_j)``.
+    """
+    weights, through = layer_weights(t, alpha)
+    met = weights > 0
+    depth = (weights * torch.where(met, t, torch.zeros_like(t))).sum(1)
+    return depth, 1.0 - through[:, 0]
 
 
 # initial opacity logit of the room shells: sigmoid(-1) = 0.27 each

@@ -163,6 +163,9 @@ class RenderOutput:
         acc: (n_rays,) opacity sum(w_i).
         n_samples: number of field evaluations spent (for throughput figures).
         extras: model-specific tensors the model's own loss uses (e.g. coarse rgb).
+        scene_depth, scene_acc: (n_rays,) as ``depth`` and ``acc`` but of everything the
+            rays meet, the surfaces a model draws behind its volume included (a capture's
+            table and room); None when it draws none (then ``depth`` and ``acc`` say it).
     """
 
     rgb: Tensor
@@ -170,6 +173,8 @@ class RenderOutput:
     acc: Tensor
     n_samples: int = 0
     extras: dict[str, Tensor] = field(default_factory=dict)
+    scene_depth: Tensor | None = None
+    scene_acc: Tensor | None = None
 
 
 @dataclass

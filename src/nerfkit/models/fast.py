@@ -55,7 +55,7 @@ from ..cameras import Rays
 from ..config import check_ranges, option
 from ..data.validate import short_repr
 from ..errors import fail
-from ..fields.background import RoomShells, TablePlane, composite_layers, sh16
+from ..fields.background import RoomShells, TablePlane, composite_layers, layers_depth, sh16
 from ..kernels import numba_kernels
 from ..kernels import reference as ref
 from ..kernels.ops import GradSink, GridGeom, MarchSpec, add_grid_tv, cell_density_max, render_grid, row_vertices
@@ -423,11 +423,13 @@ class FastNeRF(NerfModel):
             return torch.zeros_like(d)
         return torch.as_tensor(background, dtype=torch.float32, device=d.device).expand_as(d)
 
-    def _background(self, o: Tensor, d: Tensor, t_table: Tensor | None, background: Tensor | None) -> Tensor:
+    def _background(self, o: Tensor, d: Tensor, t_table: Tensor | None, background: Tensor | None
+                    ) -> tuple[Tensor, tuple[Tensor, Tensor] | None]:
         """(n, 3) colour behind the box: the table (where rays meet it), the floor and the
         room shells, composited in order of distance, in front of what is infinitely far
         (:meth:`_far`). A glossy table also shows its map of the surroundings along the
-        mirrored ray."""
+        mirrored ray. Out of training, also the layers' (n,) expected depth and opacity
+        (:func:`layers_depth`); else, or with no layers, None."""
         bg = self._far(d, background)
         compiled = self._backend() == "numba"  # the textures follow the grid's kernels
         layers = [] if self.room is None else [self.room.layers(o, d, self.texture_sinks, compiled)]
@@ -436,9 +438,11 @@ class FastNeRF(NerfModel):
         if self.floor is not None:
             layers.append(self._plane_layer(self.floor, o, d, self.floor.hit(o, d), False, compiled))
         if not layers:
-            return bg
+            return bg, None
         t, rgb, alpha = (torch.cat(parts, dim=1) for parts in zip(*layers))
-        return composite_layers(t, rgb.to(bg.dtype), alpha.to(bg.dtype), bg)
+        alpha = alpha.to(bg.dtype)
+        depth = None if self.training else layers_depth(t, alpha)
+        return composite_layers(t, rgb.to(bg.dtype), alpha, bg), depth
 
     def _plane_layer(self, plane: TablePlane, o: Tensor, d: Tensor, t_hit: Tensor,
                      gloss: bool, compiled: bool) -> tuple[Tensor, Tensor, Tensor]:
@@ -471,12 +475,17 @@ class FastNeRF(NerfModel):
         out = render_grid(self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree,
                           self.sink, self._backend(), t_end=t_table if self.config.distortion_table else None,
                           distortion=bool(self.config.distortion_weight))
-        bg = self._background(o, d, t_table, background)
-        rgb = out.rgb + (1.0 - out.acc).unsqueeze(-1) * bg
+        bg, behind = self._background(o, d, t_table, background)
+        through = 1.0 - out.acc
+        rgb = out.rgb + through.unsqueeze(-1) * bg
         extras = {"samples_per_ray": out.counts}
         if out.distortion is not None:
             extras["distortion"] = out.distortion
-        return RenderOutput(rgb, out.depth, out.acc, out.n_samples, extras)
+        result = RenderOutput(rgb, out.depth, out.acc, out.n_samples, extras)
+        if behind is not None:  # what the rays meet past the volume: the table, the room
+            result.scene_depth = out.depth + through * behind[0]
+            result.scene_acc = out.acc + through * behind[1]
+        return result
 
     def _render_ndc(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
         """Rays through the grid in NDC (``s`` in [0, 1) from the near plane to infinity);

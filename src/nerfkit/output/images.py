@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 import torch
@@ -19,12 +19,27 @@ class RenderedView:
     """One rendered image: rgb (H, W, 3) float32 in [0, 1], depth and acc (H, W).
 
     ``depth`` is the expected depth divided by the opacity (the depth of what the ray
-    hit); it is 0 where nothing was hit.
+    hit); it is 0 where nothing was hit. ``scene_depth`` and ``scene_acc`` are the same of
+    everything the rays meet, with the surfaces a model draws behind its volume (a
+    capture's table and room; see :class:`~nerfkit.models.base.RenderOutput`), or None.
     """
 
     rgb: np.ndarray
     depth: np.ndarray
     acc: np.ndarray
+    scene_depth: np.ndarray | None = None
+    scene_acc: np.ndarray | None = None
+
+    def depth_colours(self, near: float, far: float) -> np.ndarray:
+        """(H, W, 3) float depth of everything seen, coloured from ``near`` (warm) to
+        ``far`` (cool) (:func:`~nerfkit.viz.video.colorize_depth`): with surfaces behind
+        the volume (a capture's table and room), what the rays do not meet is infinitely
+        far; else it is empty (black)."""
+        from ..viz.video import colorize_depth
+
+        if self.scene_depth is None:
+            return colorize_depth(self.depth, self.acc, near, far)
+        return colorize_depth(self.scene_depth, self.scene_acc, near, far, unmet_is_far=True)
 
 
 @torch.no_grad()
@@ -37,31 +52,46 @@ def render_image(
     background: torch.Tensor,
     chunk: int = 16384,
     autocast_dtype: torch.dtype | None = None,
-) -> RenderedView:
+    abort: Callable[[], bool] | None = None,
+) -> RenderedView | None:
     """Render one view, ``chunk`` rays at a time (peak memory ~ chunk x samples); models
-    that render whole views (``whole_images``, e.g. splat) render it at once."""
+    that render whole views (``whole_images``, e.g. splat) render it at once. None when
+    ``abort()`` turns true between chunks (a viewer's camera moved on)."""
     device = background.device
     if getattr(model, "whole_images", False):
         return _render_whole(model, K, c2w, width, height, background)
     rays = image_rays(torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(c2w, dtype=torch.float32).to(device),
                       width, height)
-    rgb, depth, acc = [], [], []
+    rgb, depth, acc, scene_depth, scene_acc = [], [], [], [], []
     was_training = model.training
     model.eval()
     try:
         for start in range(0, len(rays), chunk):
+            if abort is not None and abort():
+                return None
             with autocast(device, autocast_dtype):
                 out = model.render_rays(rays[start:start + chunk], background, perturb=False)
             rgb.append(out.rgb.float())
             depth.append(out.depth.float())
             acc.append(out.acc.float())
+            if out.scene_depth is not None:
+                scene_depth.append(out.scene_depth.float())
+                scene_acc.append(out.scene_acc.float())
     finally:
         model.train(was_training)
     rgb_t = torch.cat(rgb).clamp(0, 1).reshape(height, width, 3)
-    acc_t = torch.cat(acc).reshape(height, width)
-    depth_t = torch.cat(depth).reshape(height, width) / acc_t.clamp_min(1e-6)
-    depth_t = torch.where(acc_t > 1e-3, depth_t, torch.zeros_like(depth_t))
-    return RenderedView(rgb_t.cpu().numpy(), depth_t.cpu().numpy(), acc_t.cpu().numpy())
+    view = RenderedView(rgb_t.cpu().numpy(), *_depth_image(torch.cat(depth), torch.cat(acc), width, height))
+    if scene_depth:
+        view.scene_depth, view.scene_acc = _depth_image(torch.cat(scene_depth), torch.cat(scene_acc), width, height)
+    return view
+
+
+def _depth_image(depth: torch.Tensor, acc: torch.Tensor, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) expected depth (unnormalised) and opacity -> (H, W) depth of what was hit (0
+    where nothing was) and (H, W) opacity."""
+    acc = acc.reshape(height, width)
+    depth = torch.where(acc > 1e-3, depth.reshape(height, width) / acc.clamp_min(1e-6), torch.zeros_like(acc))
+    return depth.cpu().numpy(), acc.cpu().numpy()
 
 
 @torch.no_grad()
@@ -107,9 +137,8 @@ def _render_whole(model, K, c2w, width: int, height: int, background: torch.Tens
         out = model.render_view(K, c2w, width, height, background)
     finally:
         model.train(was_training)
-    acc = out.acc.float()
-    depth = torch.where(acc > 1e-3, out.depth.float() / acc.clamp_min(1e-6), torch.zeros_like(acc))
-    return RenderedView(out.rgb.float().clamp(0, 1).cpu().numpy(), depth.cpu().numpy(), acc.cpu().numpy())
+    return RenderedView(out.rgb.float().clamp(0, 1).cpu().numpy(), *_depth_image(out.depth.float(), out.acc.float(),
+                                                                                  width, height))
 
 
 def render_views(

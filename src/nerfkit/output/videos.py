@@ -10,7 +10,7 @@ import torch
 from ..data.scene import Views
 from ..images import to_uint8
 from ..models.base import NerfModel
-from ..viz.video import colorize_depth, write_video
+from ..viz.video import write_video
 from .images import render_views
 
 
@@ -40,7 +40,8 @@ def render_videos(
     """Render ``views`` into ``out_dir/orbit.mp4``, ``orbit.gif`` and ``depth.mp4``.
 
     Frames are kept as uint8 (a 60-frame 800x800 orbit is ~115 MB); depth shares one
-    colour scale, ``near`` (warm) to ``far`` (cool), across all frames.
+    colour scale, ``near`` (warm) to ``far`` (cool), across all frames, and shows
+    everything the rays meet (a capture's table and room too, not only the object).
     """
     import time
 
@@ -51,7 +52,7 @@ def render_videos(
     for view in tqdm(render_views(model, views, background, chunk, autocast_dtype), total=len(views),
                      desc="render", unit="frame", disable=None if progress else True):
         rgb_frames.append(to_uint8(view.rgb))
-        depth_frames.append(to_uint8(colorize_depth(view.depth, view.acc, near, far)))
+        depth_frames.append(to_uint8(view.depth_colours(near, far)))
     per_frame = (time.perf_counter() - t0) / max(len(views), 1)
     out_dir = Path(out_dir)
     paths = VideoPaths(*(out_dir / name for name in VIDEO_FILES), per_frame)

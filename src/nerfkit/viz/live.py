@@ -22,8 +22,8 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ..cameras import image_rays
 from ..errors import NerfkitError, fail
+from ..images import to_uint8
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 PREVIEW_SIDE = 64
@@ -76,16 +76,6 @@ def refinement_sides(preview: int, max_side: int) -> list[int]:
     while sides[-1] < max_side:
         sides.append(min(2 * sides[-1], max_side))
     return sides
-
-
-def depth_image(depth: np.ndarray, acc: np.ndarray, near: float, far: float) -> np.ndarray:
-    """(H, W, 3) uint8 turbo colour map of depth in [near, far]; black where nothing was hit."""
-    from matplotlib import colormaps
-
-    t = np.clip((depth - near) / max(far - near, 1e-9), 0, 1)
-    rgb = colormaps["turbo"](t)[..., :3]
-    rgb[acc < 0.05] = 0
-    return (rgb * 255 + 0.5).astype(np.uint8)
 
 
 # --------------------------------------------------------------------------- model + checkpoints
@@ -150,24 +140,10 @@ class RunWatcher:
 @torch.no_grad()
 def render_camera(model, K: np.ndarray, c2w: np.ndarray, w: int, h: int, background: torch.Tensor,
                   chunk: int = 4096, abort: Callable[[], bool] | None = None):
-    """rgb (H, W, 3) float, depth (H, W) (expected depth / acc), acc (H, W); None if aborted."""
-    device = background.device
-    if getattr(model, "whole_images", False):  # splats: one whole view at once
-        out = model.render_view(K, c2w, w, h, background)
-        a = out.acc.float().cpu().numpy()
-        return (out.rgb.float().clamp(0, 1).cpu().numpy(), out.depth.float().cpu().numpy() / np.maximum(a, 1e-6), a)
-    rays = image_rays(torch.as_tensor(K), torch.as_tensor(c2w).to(device), w, h)
-    rgb, depth, acc = [], [], []
-    for s in range(0, len(rays), chunk):
-        if abort is not None and abort():
-            return None
-        out = model.render_rays(rays[s:s + chunk], background, perturb=False)
-        rgb.append(out.rgb.float().cpu())
-        depth.append(out.depth.float().cpu())
-        acc.append(out.acc.float().cpu())
-    a = torch.cat(acc).reshape(h, w).numpy()
-    d = torch.cat(depth).reshape(h, w).numpy() / np.maximum(a, 1e-6)
-    return torch.cat(rgb).clamp(0, 1).reshape(h, w, 3).numpy(), d, a
+    """The view of a camera (:class:`~nerfkit.output.images.RenderedView`), or None if aborted."""
+    from ..output.images import render_image
+
+    return render_image(model, K, c2w, w, h, background, chunk, abort=abort)
 
 
 @dataclass
@@ -273,11 +249,10 @@ class LiveViewer:
             out = render_camera(run.model, K, c2w, w, h, bg, self.chunk, abort)
         if out is None:
             return None
-        rgb, depth, acc = out
         if mode == "Depth":
             b = run.info.bounds
-            return depth_image(depth, acc, b.near, b.far)
-        return (rgb * 255 + 0.5).astype(np.uint8)
+            return to_uint8(out.depth_colours(b.near, b.far))
+        return to_uint8(out.rgb)
 
     def step(self) -> None:
         """One pass of the loop: poll checkpoints, then refine every client's image once."""

@@ -11,16 +11,24 @@ from ..images import to_uint8
 from ..io.atomic import atomic_path
 
 
-def colorize_depth(depth: np.ndarray, acc: np.ndarray, near: float, far: float, cmap: str = "turbo") -> np.ndarray:
-    """Colour-map depth (H, W) into (H, W, 3) float; near is warm, far is cool; empty is black.
+def colorize_depth(depth: np.ndarray, acc: np.ndarray, near: float, far: float, cmap: str = "turbo",
+                   unmet_is_far: bool = False) -> np.ndarray:
+    """Colour-map depth (H, W) into (H, W, 3) float; near is warm, far is cool.
 
-    The range is clipped to [near, far] so every frame of a video shares one scale.
+    The range is clipped to [near, far] so every frame of a video shares one scale. The
+    share ``1 - acc`` of a pixel that met nothing is black (empty), or with
+    ``unmet_is_far`` the far colour (a scene closed by its surroundings: what the rays do
+    not meet is infinitely far).
     """
     import matplotlib
 
+    colours = matplotlib.colormaps[cmap]
     norm = np.clip((depth - near) / max(far - near, 1e-8), 0.0, 1.0)
-    colored = matplotlib.colormaps[cmap](1.0 - norm)[..., :3]
-    return (colored * np.clip(acc, 0.0, 1.0)[..., None]).astype(np.float32)
+    met = np.clip(acc, 0.0, 1.0)[..., None]
+    out = colours(1.0 - norm)[..., :3] * met
+    if unmet_is_far:
+        out = out + (1.0 - met) * np.asarray(colours(0.0)[:3])
+    return out.astype(np.float32)
 
 
 def write_video(path: str | Path, frames: Iterable[np.ndarray], fps: int = 30) -> None:

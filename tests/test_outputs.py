@@ -1,0 +1,50 @@
+"""What a run shows its user: depth colours and image grids (contact sheets)."""
+
+import numpy as np
+
+
+def test_depth_colours_near_warm_far_cool_and_what_rays_do_not_meet():
+    from matplotlib import colormaps
+
+    from nerfkit.output.images import RenderedView
+    from nerfkit.viz.video import colorize_depth
+
+    warm, cool = (np.array(colormaps["turbo"](x)[:3]) for x in (1.0, 0.0))
+    depth = np.array([[2.0, 6.0, 4.0, 9.0]])
+    acc = np.array([[1.0, 1.0, 0.0, 0.5]])
+    img = colorize_depth(depth, acc, 2.0, 6.0)
+    np.testing.assert_allclose(img[0, 0], warm, atol=1e-6)
+    np.testing.assert_allclose(img[0, 1], cool, atol=1e-6)
+    assert (img[0, 2] == 0).all()  # met nothing: empty, black
+    np.testing.assert_allclose(img[0, 3], 0.5 * cool, atol=1e-6)  # beyond far: clipped, half met
+    # a scene closed by its surroundings: what the rays do not meet is infinitely far
+    closed = colorize_depth(depth, acc, 2.0, 6.0, unmet_is_far=True)
+    np.testing.assert_allclose(closed[0, 2], cool, atol=1e-6)
+    np.testing.assert_allclose(closed[0, 3], cool, atol=1e-6)
+    np.testing.assert_allclose(closed[0, :2], img[0, :2])
+    # a rendered view colours the depth of everything when the model drew surfaces behind its volume
+    view = RenderedView(np.zeros((1, 4, 3)), depth, acc)
+    np.testing.assert_allclose(view.depth_colours(2.0, 6.0), img)
+    view.scene_depth, view.scene_acc = np.full((1, 4), 2.0), np.ones((1, 4))
+    np.testing.assert_allclose(view.depth_colours(2.0, 6.0), np.broadcast_to(warm, (1, 4, 3)), atol=1e-6)
+
+
+def test_image_grid_tiles_follow_the_photos_shape_and_the_contact_sheet_their_size(tmp_path):
+    """Landscape photos get landscape tiles (not letterboxed in squares), and the contact
+    sheet shows each photo about as many pixels wide as it has, up to 640."""
+    import imageio.v3 as iio
+
+    from nerfkit.commands.eval import write_contact_sheet
+    from nerfkit.viz.plots import GRID_DPI, image_grid, native_tile_inches
+
+    wide, square = np.zeros((300, 400, 3)), np.zeros((400, 400, 3))
+    image_grid(tmp_path / "wide.png", [wide, wide], ["a", "b"], tile_inches=4.0)
+    image_grid(tmp_path / "square.png", [square, square], ["a", "b"], tile_inches=4.0)
+    (hw, ww), (hs, ws) = (iio.imread(tmp_path / f"{n}.png").shape[:2] for n in ("wide", "square"))
+    assert ww == ws and hs - hw == round(GRID_DPI * 4.0 * 0.25)  # a quarter of a tile less per row
+    assert native_tile_inches(np.zeros((384, 512, 3))) * GRID_DPI == 512
+    assert native_tile_inches(np.zeros((3000, 4000, 3))) * GRID_DPI == 640
+    photo = np.full((96, 128, 3), 0.5)
+    write_contact_sheet(tmp_path / "sheet.png", [(photo, photo, None, {"name": "a.jpg", "index": 0, "psnr": 20.0})],
+                        "val")
+    assert 2 * 128 <= iio.imread(tmp_path / "sheet.png").shape[1] <= 2 * 128 + 40
