@@ -27,8 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def write_contact_sheet(path, sheet: list, split: str) -> None:
-    """Photo beside render (and beside the render after fitting pose and colour), a row per view."""
-    from ..viz.plots import image_grid
+    """Photo beside render (and beside the render after fitting pose and colour), a row per view,
+    at the photos' own size (up to 640 pixels wide) so that sharpness can be judged."""
+    from ..viz.plots import image_grid, native_tile_inches
 
     images, titles = [], []
     for photo, render, fitted, row in sheet:
@@ -40,7 +41,7 @@ def write_contact_sheet(path, sheet: list, split: str) -> None:
             titles.append(f"pose+colour fitted {row['psnr_fitted']:.1f} dB")
     if images:
         image_grid(path, images, titles, ncols=3 if sheet[0][2] is not None else 2,
-                   suptitle=f"{split} photos and renders")
+                   suptitle=f"{split} photos and renders", tile_inches=native_tile_inches(images[0]))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -27,12 +27,13 @@ def plot_curves(
     title: str = "",
     logy: bool = False,
 ) -> None:
-    """Line plot of several named (x, y) series, written atomically to ``path`` (PNG)."""
+    """Line plot of several named (x, y) series, written atomically to ``path`` (PNG); a
+    series of one point is drawn as a dot."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=110)
     for label, (x, y) in series.items():
         if len(x):
-            ax.plot(np.asarray(x), np.asarray(y), label=label, linewidth=1.4)
+            ax.plot(np.asarray(x), np.asarray(y), label=label, linewidth=1.4, marker="o" if len(x) == 1 else None)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     if logy:
@@ -48,6 +49,16 @@ def plot_curves(
     plt.close(fig)
 
 
+# dots per inch of image_grid's figures
+GRID_DPI = 110
+
+
+def native_tile_inches(image: np.ndarray, most: int = 640) -> float:
+    """The tile width (inches, at ``GRID_DPI``) that shows ``image`` at its own pixel width,
+    up to ``most`` pixels: a contact sheet meant to judge sharpness should not shrink it."""
+    return min(image.shape[1], most) / GRID_DPI
+
+
 def image_grid(
     path: str | Path,
     images: Sequence[np.ndarray],
@@ -56,13 +67,20 @@ def image_grid(
     suptitle: str = "",
     tile_inches: float = 2.6,
 ) -> None:
-    """A labelled grid of images (float [0, 1] or uint8), written atomically as PNG."""
+    """A labelled grid of images (float [0, 1] or uint8), written atomically as PNG.
+
+    Each tile is ``tile_inches`` wide (at ``GRID_DPI`` dots per inch) and as tall as the
+    first image's aspect ratio makes it, so photos are not letterboxed in square tiles.
+    """
     plt = _pyplot()
     n = len(images)
     ncols = ncols or n
     nrows = (n + ncols - 1) // ncols
-    fig, axes = plt.subplots(nrows, ncols, figsize=(tile_inches * ncols, (tile_inches + 0.35) * nrows + 0.4), dpi=110,
-                             squeeze=False)
+    h, w = images[0].shape[:2]
+    tile_h = tile_inches * h / max(w, 1)
+    head = 0.45 if suptitle else 0.0  # inches kept for the title above the grid
+    fig_h = (tile_h + 0.3) * nrows + 0.1 + head
+    fig, axes = plt.subplots(nrows, ncols, figsize=(tile_inches * ncols + 0.2, fig_h), dpi=GRID_DPI, squeeze=False)
     for ax in axes.flat:
         ax.axis("off")
     for ax, img, title in zip(axes.flat, images, titles):
@@ -70,7 +88,7 @@ def image_grid(
         ax.set_title(title, fontsize=9)
     if suptitle:
         fig.suptitle(suptitle)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - head / fig_h))
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
     plt.close(fig)
