@@ -13,7 +13,7 @@ from nerfkit.cli import main
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.vanilla import VanillaConfig, VanillaNeRF
 from nerfkit.train.config import TrainConfig
-from nerfkit.train.trainer import Trainer, resume, train
+from nerfkit.train.trainer import Trainer, resume, train, validation_series
 
 SMALL = dict(n_samples=16, width=32, depth=4)
 
@@ -238,6 +238,23 @@ def test_periodic_validation_cost_is_bounded_and_the_final_one_is_whole(tmp_path
     trainer._record_eval()
     assert sum(r for r, _ in spent) == len(v) * v.width * v.height
     assert trainer.rows[-1]["pixels"] == v.width * v.height
+
+
+
+def test_the_psnr_plot_keeps_periodic_and_final_validation_apart():
+    """Periodic scores (the first views, a pixel subset) and final ones (every view, whole)
+    are different numbers; joined in one line, a run's last point looked like a collapse."""
+    rows = [{"seconds": 0.0, "psnr": 11.0, "views": 2, "pixels": 300},
+            {"seconds": 9.0, "psnr": 21.0, "views": 2, "pixels": 300},
+            {"seconds": 10.0, "psnr": 19.5, "views": 6, "pixels": 4096},
+            {"seconds": 20.0, "psnr": 21.5, "views": 2, "pixels": 300},  # resumed
+            {"seconds": 30.0, "psnr": 20.0, "views": 6, "pixels": 4096}]
+    curves = validation_series(rows, 6, 4096)
+    assert curves == {"validation, first 2 of 6 views, 300 px per view": ([0.0, 9.0, 20.0], [11.0, 21.0, 21.5]),
+                      "validation, all 6 views, whole images": ([10.0, 30.0], [19.5, 20.0])}
+    # every view scored whole at every evaluation: one curve
+    assert list(validation_series([{**r, "views": 6, "pixels": 4096} for r in rows], 6, 4096)) == [
+        "validation, all 6 views, whole images"]
 
 
 def test_a_run_ending_before_the_occupancy_warmup_measures_it_for_the_final_evaluation(tmp_path, sphere):

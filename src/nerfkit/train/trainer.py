@@ -93,6 +93,23 @@ def resolved_config(cfg: TrainConfig, model_config) -> TrainConfig:
     return cfg
 
 
+def validation_series(rows: list[dict], n_val: int, full: int) -> dict[str, tuple[list, list]]:
+    """Validation rows (``seconds``, ``psnr``, ``views``, ``pixels``) as curves of like
+    scores, keyed by a legend label: periodic evaluations (the first ``--eval-views`` of
+    ``n_val`` views, every k-th pixel) apart from the final ones (every view, all ``full``
+    pixels), so that a plot does not join scores of different views into one line."""
+    series: dict[str, tuple[list, list]] = {}
+    for r in rows:
+        views, pixels = r.get("views", n_val), r.get("pixels", full)
+        which = f"all {views}" if views >= n_val else f"first {views} of {n_val}"
+        label = (f"validation, {which} view{'s' * (n_val != 1)}, "
+                 f"{'whole images' if pixels >= full else f'{pixels} px per view'}")
+        xs, ys = series.setdefault(label, ([], []))
+        xs.append(r["seconds"])
+        ys.append(r["psnr"])
+    return series
+
+
 class Trainer:
     """Trains one model on one scene into one run folder (new, or resumed)."""
 
@@ -422,14 +439,6 @@ class Trainer:
         self.log(f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {val_psnr:.2f} dB"
                  + ("" if full else f" ({pixels} pixels per view)"))
 
-    def _val_label(self, val: list[dict]) -> str:
-        """The validation curve's legend: whole images, or how many pixels periodic evaluations scored."""
-        full = self.scene.val.width * self.scene.val.height
-        sub = sorted({r["pixels"] for r in val if r.get("pixels", full) < full})
-        if not sub:
-            return "validation (full images)"
-        return f"validation ({'/'.join(map(str, sub))} px per view; final: full images)"
-
     def write_reports(self) -> None:
         """metrics.csv/json, PSNR and loss curves, and the progression figure."""
         write_json(self.run_dir / "metrics.json", {"rows": self.rows, "step": self.step,
@@ -451,7 +460,7 @@ class Trainer:
         plots = self.run_dir / "plots"
         plot_curves(plots / "psnr.png", {
             "train (batch)": ([r["seconds"] for r in train], [r["psnr"] for r in train]),
-            self._val_label(val): ([r["seconds"] for r in val], [r["psnr"] for r in val]),
+            **validation_series(val, len(self.scene.val), self.scene.val.width * self.scene.val.height),
         }, "training seconds", "PSNR (dB)", f"{self.cfg.model}: PSNR")
         plot_curves(plots / "loss.png", {"train loss": ([r["step"] for r in train], [r["loss"] for r in train])},
                     "step", "loss (photometric + regularisers)", f"{self.cfg.model}: training loss", logy=True)
