@@ -22,7 +22,7 @@ from nerfkit.io.atomic import atomic_path, write_image, write_json
 from nerfkit.models.vanilla import VanillaConfig
 from nerfkit.train.checkpoint import load_run
 from nerfkit.train.config import TrainConfig
-from nerfkit.train.trainer import Trainer, train
+from nerfkit.train.trainer import train
 
 TINY = ["--model", "vanilla", "--n-samples", "8", "--width", "16", "--depth", "2", "--batch-rays", "128",
         "--lr", "3e-3", "--seed", "3", "--eval-every", "50", "--eval-views", "1"]

@@ -18,7 +18,6 @@ from nerfkit.viz.scene_plot import frustum_points, plot_scene, sample_rays
 
 
 def small_scene(n=6, w=40, h=30):
-    rng = np.random.default_rng(0)
     c2w, imgs = [], []
     for k in range(n):
         a = 2 * np.pi * k / n

@@ -482,8 +482,6 @@ def refine_corners_by_edges(gray: np.ndarray, corners: np.ndarray, marker_bits: 
     Halves the corner error of cornerSubPix on our synthetic photos (0.19 -> 0.08 px RMS)
     and removes its inward bias at blurred corners.
     """
-    import cv2
-
     c = np.asarray(corners, np.float64).copy()
     side = float(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean())
     reach = max(1.5, 0.45 * side / (marker_bits + 2))  # stay inside the black border

@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     from ..capture.photos import default_jobs
     from ..config import dataclass_from_args
     from ..data.validate import check_number
-    from ..errors import advice, fail
+    from ..errors import advice
     from ..io.paths import guard_outputs
 
     cfg = dataclass_from_args(DatasetConfig, args)
