@@ -3,14 +3,17 @@
 The core works on plain callables so it can be tested with analytic fields:
 
 * ``density_fn(points (n, 3) float32 tensor) -> (n,) density``
-* ``color_fn(points (n, 3), directions (n, 3)) -> (n, 3) colour in [0, 1]``
+* ``query_fn(points (n, 3), directions (n, 3)) -> ((n,) density, (n, 3) colour in [0, 1])``
 
 Mesh: the density is sampled on a grid over the scene box (a cube of half-size
 ``radius`` about ``center``), the box border is padded with empty space so the surface
 closes where it meets the box (the mesh is cropped to the box and watertight), marching
 cubes (scikit-image) extracts the ``threshold`` iso-surface, and each vertex is coloured
-by the field seen from outside, looking along the inward normal (optionally averaged over
-a small cone of directions).
+by what a ray looking at it along the inward normal sees (optionally averaged over a small
+cone of directions): the field volume-rendered along a short segment through the surface.
+The colour *at* the iso-surface would be the field's least constrained colour: training
+fits colours where rays stop, at higher density, so a learned field's colour at its thin
+edge is noise.
 
 Points: each training view's expected depth (depth / acc, the depth of what the ray hit)
 is back-projected where the opacity exceeds ``acc_min``.
@@ -29,7 +32,7 @@ from .errors import fail
 from .io.atomic import atomic_path
 
 DensityFn = Callable[[torch.Tensor], torch.Tensor]
-ColorFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+QueryFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 
 
 @dataclass
@@ -135,27 +138,50 @@ def cone_directions(normals: np.ndarray, n_dirs: int, half_angle_deg: float = 30
 
 
 @torch.no_grad()
-def vertex_colors(color_fn: ColorFn, vertices: np.ndarray, normals: np.ndarray, n_dirs: int = 1,
-                  chunk: int = 65536, device: str | torch.device = "cpu") -> np.ndarray:
-    """(V, 3) uint8 colours: ``color_fn`` at each vertex, averaged over :func:`cone_directions`."""
+def vertex_colors(query_fn: QueryFn, vertices: np.ndarray, normals: np.ndarray, n_dirs: int = 1, reach: float = 0.0,
+                  n_samples: int = 25, chunk: int = 65536, device: str | torch.device = "cpu") -> np.ndarray:
+    """(V, 3) uint8 colours: what a ray looking at each vertex along each of
+    :func:`cone_directions` sees, averaged over them.
+
+    Each ray is volume-rendered (:func:`~nerfkit.render.volrend.volrend`, ``n_samples``
+    samples) from ``reach`` outside the vertex to ``2 * reach`` inside, and its colour is
+    divided by its opacity; a ray that meets no density, or ``reach`` 0, takes the field's
+    colour at the vertex itself. ``reach`` is in the units ``query_fn``'s density is per.
+    """
+    from .render.volrend import volrend
+
     dirs = cone_directions(normals, n_dirs)
-    acc = np.zeros((len(vertices), 3), np.float64)
+    t = torch.linspace(-reach, 2.0 * reach, n_samples if reach > 0 else 1, dtype=torch.float32, device=device)
+    step = 3.0 * reach / max(n_samples - 1, 1)
+    per = max(1, chunk // len(t))
+    total = np.zeros((len(vertices), 3), np.float64)
     for d in dirs:
-        for s in range(0, len(vertices), chunk):
-            p = torch.as_tensor(vertices[s:s + chunk], dtype=torch.float32, device=device)
-            v = torch.as_tensor(d[s:s + chunk], dtype=torch.float32, device=device)
-            acc[s:s + chunk] += torch.as_tensor(color_fn(p, v)).float().cpu().numpy()
-    return (np.clip(acc / len(dirs), 0, 1) * 255 + 0.5).astype(np.uint8)
+        for s in range(0, len(vertices), per):
+            p = torch.as_tensor(vertices[s:s + per], dtype=torch.float32, device=device)
+            v = torch.as_tensor(d[s:s + per], dtype=torch.float32, device=device)
+            pts = p[:, None] + t[None, :, None] * v[:, None]  # (n, S, 3), outside to inside
+            sigma, rgb = query_fn(pts.reshape(-1, 3), v.repeat_interleave(len(t), 0))
+            sigma, rgb = sigma.float().reshape(len(p), -1), rgb.float().reshape(len(p), -1, 3)
+            at_vertex = rgb[:, int(t.abs().argmin())]
+            if reach > 0:
+                seen = volrend(sigma, rgb, step, 0.0)
+                acc = volrend(sigma, torch.ones_like(rgb), step, 0.0)[:, :1]
+                at_vertex = torch.where(acc > 1e-4, seen / acc.clamp_min(1e-4), at_vertex)
+            total[s:s + per] += at_vertex.clamp(0, 1).cpu().numpy()
+    return (np.clip(total / len(dirs), 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
 def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int = 256, threshold: float = 25.0,
-                 color_fn: ColorFn | None = None, n_dirs: int = 1, chunk: int = 65536,
-                 device: str | torch.device = "cpu", progress: bool = False) -> Mesh:
-    """Density grid -> marching cubes -> (optional) vertex colours. See the module docstring."""
+                 query_fn: QueryFn | None = None, n_dirs: int = 1, chunk: int = 65536,
+                 device: str | torch.device = "cpu", progress: bool = False, reach_voxels: float = 3.0) -> Mesh:
+    """Density grid -> marching cubes -> (optional) vertex colours, seen along rays that
+    reach ``reach_voxels`` grid spacings to either side of the surface (0: the field's
+    colour at the vertex). See the module docstring."""
     grid = sample_density_grid(density_fn, center, radius, resolution, chunk, device, progress)
     mesh = marching_cubes(grid, center, radius, threshold)
-    if color_fn is not None:
-        mesh.colors = vertex_colors(color_fn, mesh.vertices, mesh.normals, n_dirs, chunk, device)
+    if query_fn is not None:
+        reach = reach_voxels * 2.0 * radius / (resolution - 1)
+        mesh.colors = vertex_colors(query_fn, mesh.vertices, mesh.normals, n_dirs, reach, chunk=chunk, device=device)
     return mesh
 
 
@@ -249,17 +275,14 @@ def crop_to_box(points: np.ndarray, colors: np.ndarray, center, radius: float) -
 # --------------------------------------------------------------------------- trained models
 
 
-def model_fields(model) -> tuple[DensityFn, ColorFn]:
-    """``density_fn`` and ``color_fn`` of a :class:`~nerfkit.models.base.NerfModel` (its
-    ``density(points)`` and the colour half of ``query(points, dirs)``)."""
-    return model.density, lambda p, d: model.query(p, d)[1]
-
-
 def mesh_from_model(model, center, radius: float, resolution: int = 256, threshold: float = 25.0, n_dirs: int = 1,
                     chunk: int = 65536, device: str | torch.device = "cpu", progress: bool = True) -> Mesh:
-    """A coloured mesh of a trained model over the cube ``center +- radius``."""
-    density_fn, color_fn = model_fields(model)
-    return extract_mesh(density_fn, center, radius, resolution, threshold, color_fn, n_dirs, chunk, device, progress)
+    """A coloured mesh of a trained model (its ``density(points)`` and ``query(points,
+    dirs)``) over the cube ``center +- radius``. A forward-facing model's density is per
+    NDC unit, not per world unit, so its vertices take the field's colour where they are."""
+    reach = 0.0 if getattr(model, "ndc", None) is not None else 3.0
+    return extract_mesh(model.density, center, radius, resolution, threshold, model.query, n_dirs, chunk, device,
+                        progress, reach_voxels=reach)
 
 
 def points_from_views(render_fn: Callable, views, acc_min: float = 0.5, background=(0.0, 0.0, 0.0), stride: int = 1,
