@@ -66,7 +66,7 @@ def test_color_cone_average():
     np.testing.assert_allclose(dirs[0, 0], [0, 0, -1])
     np.testing.assert_allclose(dirs[1:, 0] @ [0, 0, -1], np.cos(np.radians(30)))
     # the centre plus 4 symmetric tilts: a direction-linear colour averages to mean z = -(1 + 4 cos 30) / 5
-    c = ex.vertex_colors(direction_field, np.zeros((1, 3), np.float32), np.array([[0, 0, 1.0]]), n_dirs=5)
+    c = ex.vertex_colors(sphere_density, direction_field, np.zeros((1, 3), np.float32), np.array([[0, 0, 1.0]]), n_dirs=5)
     assert abs(c[0, 2] / 255 - (1 - (1 + 4 * np.cos(np.radians(30))) / 5) / 2) < 0.003
     assert abs(c[0, 0] / 255 - 0.5) < 0.003 and abs(c[0, 1] / 255 - 0.5) < 0.003
 
@@ -89,11 +89,12 @@ def test_vertex_colours_are_what_a_ray_sees_not_the_noise_at_the_surface_edge():
     off = np.abs(mesh.colors.astype(int) - red).max(axis=1)
     # the few rays whose sample lands in the 1e-3 thick edge see some of its noise
     assert np.mean(off <= 3) > 0.8 and np.median(off) == 0 and np.quantile(off, 0.9) < 64
-    at_vertex = ex.vertex_colors(field, mesh.vertices, mesh.normals, reach=0.0)  # the colour where it is
+    at_vertex = ex.vertex_colors(hard_ball, field, mesh.vertices, mesh.normals, reach=0.0)  # the colour where it is
     assert np.mean(np.abs(at_vertex.astype(int) - red).max(axis=1) > 50) > 0.9
     # chunks of any size give the same colours
-    again = ex.vertex_colors(field, mesh.vertices[:50], mesh.normals[:50], reach=0.1, chunk=60)
-    np.testing.assert_array_equal(again, ex.vertex_colors(field, mesh.vertices[:50], mesh.normals[:50], reach=0.1))
+    again = ex.vertex_colors(hard_ball, field, mesh.vertices[:50], mesh.normals[:50], reach=0.1, chunk=60)
+    np.testing.assert_array_equal(again, ex.vertex_colors(hard_ball, field, mesh.vertices[:50], mesh.normals[:50],
+                                                         reach=0.1))
 
 
 def test_grid_orientation_and_chunking():

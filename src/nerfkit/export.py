@@ -138,50 +138,60 @@ def cone_directions(normals: np.ndarray, n_dirs: int, half_angle_deg: float = 30
 
 
 @torch.no_grad()
-def vertex_colors(query_fn: QueryFn, vertices: np.ndarray, normals: np.ndarray, n_dirs: int = 1, reach: float = 0.0,
-                  n_samples: int = 25, chunk: int = 65536, device: str | torch.device = "cpu") -> np.ndarray:
+def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray, normals: np.ndarray,
+                  n_dirs: int = 1, reach: float = 0.0, n_samples: int = 8, chunk: int = 65536,
+                  device: str | torch.device = "cpu", min_weight: float = 1e-4) -> np.ndarray:
     """(V, 3) uint8 colours: what a ray looking at each vertex along each of
     :func:`cone_directions` sees, averaged over them.
 
-    Each ray is volume-rendered (:func:`~nerfkit.render.volrend.volrend`, ``n_samples``
-    samples) from ``reach`` outside the vertex to ``2 * reach`` inside, and its colour is
-    divided by its opacity; a ray that meets no density, or ``reach`` 0, takes the field's
-    colour at the vertex itself. ``reach`` is in the units ``query_fn``'s density is per.
+    Each ray is volume-rendered (:func:`~nerfkit.render.volrend.render_weights`,
+    ``n_samples`` samples) from ``reach`` outside the vertex to ``2 * reach`` inside, and
+    its colour is divided by its opacity; the colour is queried only at samples weighing
+    at least ``min_weight``. A ray that meets no density, or ``reach`` 0, takes the
+    field's colour at the vertex itself. ``reach`` is in the units ``density_fn``'s
+    density is per.
     """
-    from .render.volrend import volrend
+    from .render.volrend import accumulate, regular_ray_indices, render_weights
 
     dirs = cone_directions(normals, n_dirs)
-    t = torch.linspace(-reach, 2.0 * reach, n_samples if reach > 0 else 1, dtype=torch.float32, device=device)
+    t = torch.linspace(-reach, 2.0 * reach, n_samples, dtype=torch.float32, device=device)
     step = 3.0 * reach / max(n_samples - 1, 1)
-    per = max(1, chunk // len(t))
+    per = max(1, chunk // n_samples)
     total = np.zeros((len(vertices), 3), np.float64)
     for d in dirs:
         for s in range(0, len(vertices), per):
             p = torch.as_tensor(vertices[s:s + per], dtype=torch.float32, device=device)
             v = torch.as_tensor(d[s:s + per], dtype=torch.float32, device=device)
-            pts = p[:, None] + t[None, :, None] * v[:, None]  # (n, S, 3), outside to inside
-            sigma, rgb = query_fn(pts.reshape(-1, 3), v.repeat_interleave(len(t), 0))
-            sigma, rgb = sigma.float().reshape(len(p), -1), rgb.float().reshape(len(p), -1, 3)
-            at_vertex = rgb[:, int(t.abs().argmin())]
+            n = len(p)
+            colour, acc = torch.zeros(n, 3, device=device), torch.zeros(n, 1, device=device)
             if reach > 0:
-                seen = volrend(sigma, rgb, step, 0.0)
-                acc = volrend(sigma, torch.ones_like(rgb), step, 0.0)[:, :1]
-                at_vertex = torch.where(acc > 1e-4, seen / acc.clamp_min(1e-4), at_vertex)
-            total[s:s + per] += at_vertex.clamp(0, 1).cpu().numpy()
+                pts = (p[:, None] + t[None, :, None] * v[:, None]).reshape(-1, 3)  # outside to inside
+                ray = regular_ray_indices(n, n_samples, device)
+                weights = render_weights(density_fn(pts).float(), step, ray)[0]
+                used = (weights >= min_weight).nonzero()[:, 0]
+                rgb = query_fn(pts[used], v[ray[used]])[1].float()
+                colour = accumulate(weights[used, None] * rgb, ray[used], n)
+                acc = accumulate(weights[used, None], ray[used], n)
+            missed = (acc[:, 0] < min_weight).nonzero()[:, 0]
+            colour = colour / acc.clamp_min(min_weight)
+            if len(missed):  # the field's own colour where the vertex is
+                colour[missed] = query_fn(p[missed], v[missed])[1].float()
+            total[s:s + per] += colour.clamp(0, 1).cpu().numpy()
     return (np.clip(total / len(dirs), 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
 def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int = 256, threshold: float = 25.0,
                  query_fn: QueryFn | None = None, n_dirs: int = 1, chunk: int = 65536,
-                 device: str | torch.device = "cpu", progress: bool = False, reach_voxels: float = 3.0) -> Mesh:
+                 device: str | torch.device = "cpu", progress: bool = False, reach_voxels: float = 2.0) -> Mesh:
     """Density grid -> marching cubes -> (optional) vertex colours, seen along rays that
-    reach ``reach_voxels`` grid spacings to either side of the surface (0: the field's
-    colour at the vertex). See the module docstring."""
+    start ``reach_voxels`` grid spacings outside the surface and end twice as far inside
+    (0: the field's colour at the vertex). See the module docstring."""
     grid = sample_density_grid(density_fn, center, radius, resolution, chunk, device, progress)
     mesh = marching_cubes(grid, center, radius, threshold)
     if query_fn is not None:
         reach = reach_voxels * 2.0 * radius / (resolution - 1)
-        mesh.colors = vertex_colors(query_fn, mesh.vertices, mesh.normals, n_dirs, reach, chunk=chunk, device=device)
+        mesh.colors = vertex_colors(density_fn, query_fn, mesh.vertices, mesh.normals, n_dirs, reach, chunk=chunk,
+                                    device=device)
     return mesh
 
 
@@ -280,7 +290,7 @@ def mesh_from_model(model, center, radius: float, resolution: int = 256, thresho
     """A coloured mesh of a trained model (its ``density(points)`` and ``query(points,
     dirs)``) over the cube ``center +- radius``. A forward-facing model's density is per
     NDC unit, not per world unit, so its vertices take the field's colour where they are."""
-    reach = 0.0 if getattr(model, "ndc", None) is not None else 3.0
+    reach = 0.0 if getattr(model, "ndc", None) is not None else 2.0
     return extract_mesh(model.density, center, radius, resolution, threshold, model.query, n_dirs, chunk, device,
                         progress, reach_voxels=reach)
 

@@ -15,8 +15,8 @@ EPILOG = """\
 mesh: the density is sampled on a RESOLUTION^3 grid over the scene box (a cube of half-size
 radius x --box-scale about the scene centre, from the run's scene bounds), the THRESHOLD
 iso-surface is extracted with marching cubes (closed where it meets the box), and each vertex
-is coloured by what a ray looking at it along the inward normal sees (the field rendered over
-three grid spacings to either side of the surface), not by the field's colour at the
+is coloured by what a ray looking at it along the inward normal sees (the field rendered
+from two grid spacings outside the surface to four inside), not by the field's colour at the
 iso-surface itself, which training leaves as noise.
 points: every --every-th training view is rendered; pixels with opacity > --acc-min are
 back-projected to their expected depth and coloured by the rendered colour.

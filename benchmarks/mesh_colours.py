@@ -1,0 +1,85 @@
+"""How well a mesh's vertex colours match the photos, for each way of colouring them.
+
+For a trained run, the mesh is extracted once (``nerfkit export``'s defaults: 256^3 grid,
+threshold 25) and coloured two ways:
+
+* ``at vertex``: the field's colour at the vertex (the iso-surface), seen along the normal;
+* ``ray seen``:  what a ray looking at the vertex along the inward normal sees (the field
+                 volume-rendered from two grid spacings outside the surface to four
+                 inside: ``export``'s way).
+
+Each vertex is projected into the run's validation views; where it is visible (its
+distance from the camera within 1% of the scene radius of the rendered depth, on a pixel
+with opacity above 0.9), its colour is compared with the photo's pixel. Prints PSNR over
+those (vertex, view) pairs and the seconds each colouring took::
+
+    python benchmarks/mesh_colours.py runs/demo
+    python benchmarks/mesh_colours.py /tmp/cr/steve/run_auto --views 6
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+
+def visible_pairs(vertices: np.ndarray, view, K: np.ndarray, c2w: np.ndarray, tol: float):
+    """(indices of the vertices visible in this view, their pixels (cols, rows))."""
+    w2c = np.linalg.inv(c2w)
+    X = vertices @ w2c[:3, :3].T + w2c[:3, 3]  # OpenCV camera: looks along +z
+    z = np.maximum(X[:, 2], 1e-9)
+    cols = np.floor(K[0, 0] * X[:, 0] / z + K[0, 2]).astype(int)
+    rows = np.floor(K[1, 1] * X[:, 1] / z + K[1, 2]).astype(int)
+    h, w = view.depth.shape
+    idx = np.where((X[:, 2] > 1e-6) & (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h))[0]
+    dist = np.linalg.norm(vertices[idx] - c2w[:3, 3], axis=1)
+    keep = (np.abs(dist - view.depth[rows[idx], cols[idx]]) < tol) & (view.acc[rows[idx], cols[idx]] > 0.9)
+    return idx[keep], cols[idx[keep]], rows[idx[keep]]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("run", help="a trained run folder (fast or vanilla)")
+    ap.add_argument("--views", type=int, default=10, help="validation views to score against (default: 10)")
+    ap.add_argument("--resolution", type=int, default=256)
+    ap.add_argument("--threshold", type=float, default=25.0)
+    args = ap.parse_args()
+
+    import torch
+
+    from nerfkit.commands._common import open_run, scene_for_run
+    from nerfkit.export import marching_cubes, sample_density_grid, vertex_colors
+    from nerfkit.output.images import render_image
+
+    run = open_run(argparse.Namespace(run=args.run, device="cpu", chunk=0))
+    model, bounds = run.model, run.info.bounds
+    grid = sample_density_grid(model.density, bounds.center, bounds.radius, args.resolution, 65536)
+    mesh = marching_cubes(grid, bounds.center, bounds.radius, args.threshold)
+    spacing = 2.0 * bounds.radius / (args.resolution - 1)
+    colourings = {}
+    with torch.no_grad():
+        for name, reach in (("at vertex", 0.0), ("ray seen", 2.0 * spacing)):
+            t0 = time.perf_counter()
+            colourings[name] = vertex_colors(model.density, model.query, mesh.vertices, mesh.normals, reach=reach)
+            colourings[name] = (colourings[name], time.perf_counter() - t0)
+    views = scene_for_run(run.info, None, need="val").splits["val"]
+    errors = {name: [] for name in colourings}
+    for i in range(min(args.views, len(views))):
+        view = render_image(model, views.K[i], views.c2w[i], views.width, views.height, run.background(), 65536,
+                            run.autocast)
+        idx, cols, rows = visible_pairs(mesh.vertices.astype(np.float64), view, views.K[i], views.c2w[i],
+                                        0.01 * bounds.radius)
+        photo = views.images[i][rows, cols] / 255.0
+        for name, (colours, _) in colourings.items():
+            errors[name].append(((colours[idx] / 255.0 - photo) ** 2).mean(1))
+    print(f"{args.run}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces")
+    print(f"{'vertex colour':<14} {'pairs':>7} {'PSNR':>6} {'seconds':>8}")
+    for name, (colours, seconds) in colourings.items():
+        e = np.concatenate(errors[name])
+        print(f"{name:<14} {len(e):>7} {-10 * np.log10(e.mean()):>6.2f} {seconds:>8.2f}")
+
+
+if __name__ == "__main__":
+    main()
