@@ -53,10 +53,11 @@ def plot_curves(
 GRID_DPI = 110
 
 
-def native_tile_inches(image: np.ndarray, most: int = 640) -> float:
+def native_tile_inches(image: np.ndarray, most: int = 640, least: int = 240) -> float:
     """The tile width (inches, at ``GRID_DPI``) that shows ``image`` at its own pixel width,
-    up to ``most`` pixels: a contact sheet meant to judge sharpness should not shrink it."""
-    return min(image.shape[1], most) / GRID_DPI
+    between ``least`` pixels (room for a tile's title) and ``most``: a contact sheet meant
+    to judge sharpness should not shrink it."""
+    return min(max(image.shape[1], least), most) / GRID_DPI
 
 
 def image_grid(
