@@ -62,7 +62,7 @@ def main() -> None:
     with torch.no_grad():
         for name, reach in (("at vertex", 0.0), ("ray seen", 2.0 * spacing)):
             t0 = time.perf_counter()
-            colourings[name] = vertex_colors(model.density, model.query, mesh.vertices, mesh.normals, reach=reach)
+            colourings[name] = vertex_colors(model.density, model.query, mesh.vertices, mesh.normals, reach)
             colourings[name] = (colourings[name], time.perf_counter() - t0)
     views = scene_for_run(run.info, None, need="val").splits["val"]
     errors = {name: [] for name in colourings}

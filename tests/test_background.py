@@ -413,3 +413,30 @@ def test_a_rendered_view_gives_the_depth_of_the_table_beyond_an_empty_volume():
 
     np.testing.assert_allclose(view.depth_colours(1.0, 8.0),
                                colorize_depth(view.scene_depth, view.scene_acc, 1.0, 8.0, unmet_is_far=True))
+    # a half-seen volume in front: its depth, then the table's for the light that passes it
+    with torch.no_grad():
+        model.grid[:, 0] = -1.5
+    model.eval()
+    with torch.no_grad():
+        out = model.render_rays(rays, torch.zeros(3), perturb=False)
+    t = torch.from_numpy(t.reshape(-1))
+    seen = torch.isfinite(t) & (out.acc > 0.05) & (out.acc < 0.95)
+    assert int(seen.sum()) > 50
+    torch.testing.assert_close(out.scene_depth[seen], (out.depth + (1 - out.acc) * t)[seen], rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(out.scene_acc[seen], torch.ones(int(seen.sum())), rtol=0, atol=1e-5)
+    model.train()
+    assert model.render_rays(rays, torch.zeros(3), perturb=False).scene_depth is None  # not while training
+
+
+def test_rendering_a_view_stops_when_asked_and_leaves_the_model_as_it_was():
+    from nerfkit.data.synthetic import tabletop_scene
+    from nerfkit.models import SceneBounds
+    from nerfkit.models.fast import FastConfig, FastNeRF
+    from nerfkit.output.images import render_image
+
+    scene = tabletop_scene(n_train=1, n_val=0, size=16)
+    model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", table=True), SceneBounds.from_scene(scene))
+    calls = []
+    view = render_image(model, scene.train.K[0], scene.train.c2w[0], 16, 16, torch.zeros(3), chunk=64,
+                        abort=lambda: calls.append(1) or len(calls) > 2)
+    assert view is None and len(calls) == 3 and model.training  # two chunks rendered, then stopped

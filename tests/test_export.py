@@ -66,7 +66,8 @@ def test_color_cone_average():
     np.testing.assert_allclose(dirs[0, 0], [0, 0, -1])
     np.testing.assert_allclose(dirs[1:, 0] @ [0, 0, -1], np.cos(np.radians(30)))
     # the centre plus 4 symmetric tilts: a direction-linear colour averages to mean z = -(1 + 4 cos 30) / 5
-    c = ex.vertex_colors(sphere_density, direction_field, np.zeros((1, 3), np.float32), np.array([[0, 0, 1.0]]), n_dirs=5)
+    c = ex.vertex_colors(sphere_density, direction_field, np.zeros((1, 3), np.float32), np.array([[0, 0, 1.0]]), 0.0,
+                         n_dirs=5)
     assert abs(c[0, 2] / 255 - (1 - (1 + 4 * np.cos(np.radians(30))) / 5) / 2) < 0.003
     assert abs(c[0, 0] / 255 - 0.5) < 0.003 and abs(c[0, 1] / 255 - 0.5) < 0.003
 

@@ -240,7 +240,6 @@ def test_periodic_validation_cost_is_bounded_and_the_final_one_is_whole(tmp_path
     assert trainer.rows[-1]["pixels"] == v.width * v.height
 
 
-
 def test_the_psnr_plot_keeps_periodic_and_final_validation_apart():
     """Periodic scores (the first views, a pixel subset) and final ones (every view, whole)
     are different numbers; joined in one line, a run's last point looked like a collapse."""
@@ -252,6 +251,10 @@ def test_the_psnr_plot_keeps_periodic_and_final_validation_apart():
     curves = validation_series(rows, 6, 4096)
     assert curves == {"validation, first 2 of 6 views, 300 px per view": ([0.0, 9.0, 20.0], [11.0, 21.0, 21.5]),
                       "validation, all 6 views, whole images": ([10.0, 30.0], [19.5, 20.0])}
+    # --eval-views above the split's size: both are every view, and a whole-image score is one curve
+    one = [{"seconds": 1.0, "psnr": 20.0, "views": 2, "pixels": 4096}, {"seconds": 2.0, "psnr": 21.0, "views": 1,
+                                                                       "pixels": 4096}]
+    assert validation_series(one, 1, 4096) == {"validation, all 1 view, whole images": ([1.0, 2.0], [20.0, 21.0])}
     # every view scored whole at every evaluation: one curve
     assert list(validation_series([{**r, "views": 6, "pixels": 4096} for r in rows], 6, 4096)) == [
         "validation, all 6 views, whole images"]

@@ -138,9 +138,9 @@ def cone_directions(normals: np.ndarray, n_dirs: int, half_angle_deg: float = 30
 
 
 @torch.no_grad()
-def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray, normals: np.ndarray,
-                  n_dirs: int = 1, reach: float = 0.0, n_samples: int = 8, chunk: int = 65536,
-                  device: str | torch.device = "cpu", min_weight: float = 1e-4) -> np.ndarray:
+def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray, normals: np.ndarray, reach: float,
+                  n_dirs: int = 1, n_samples: int = 8, chunk: int = 65536, device: str | torch.device = "cpu",
+                  min_weight: float = 1e-4, progress: bool = False) -> np.ndarray:
     """(V, 3) uint8 colours: what a ray looking at each vertex along each of
     :func:`cone_directions` sees, averaged over them.
 
@@ -149,8 +149,10 @@ def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray
     its colour is divided by its opacity; the colour is queried only at samples weighing
     at least ``min_weight``. A ray that meets no density, or ``reach`` 0, takes the
     field's colour at the vertex itself. ``reach`` is in the units ``density_fn``'s
-    density is per.
+    density is per. ``progress``: a progress bar over the chunks.
     """
+    from tqdm import tqdm
+
     from .render.volrend import accumulate, regular_ray_indices, render_weights
 
     dirs = cone_directions(normals, n_dirs)
@@ -158,6 +160,7 @@ def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray
     step = 3.0 * reach / max(n_samples - 1, 1)
     per = max(1, chunk // n_samples)
     total = np.zeros((len(vertices), 3), np.float64)
+    bar = tqdm(total=len(dirs) * len(vertices), desc="vertex colours", unit="vertex", disable=not progress)
     for d in dirs:
         for s in range(0, len(vertices), per):
             p = torch.as_tensor(vertices[s:s + per], dtype=torch.float32, device=device)
@@ -177,6 +180,8 @@ def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray
             if len(missed):  # the field's own colour where the vertex is
                 colour[missed] = query_fn(p[missed], v[missed])[1].float()
             total[s:s + per] += colour.clamp(0, 1).cpu().numpy()
+            bar.update(n)
+    bar.close()
     return (np.clip(total / len(dirs), 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
@@ -190,8 +195,8 @@ def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int =
     mesh = marching_cubes(grid, center, radius, threshold)
     if query_fn is not None:
         reach = reach_voxels * 2.0 * radius / (resolution - 1)
-        mesh.colors = vertex_colors(density_fn, query_fn, mesh.vertices, mesh.normals, n_dirs, reach, chunk=chunk,
-                                    device=device)
+        mesh.colors = vertex_colors(density_fn, query_fn, mesh.vertices, mesh.normals, reach, n_dirs, chunk=chunk,
+                                    device=device, progress=progress)
     return mesh
 
 

@@ -17,7 +17,8 @@ radius x --box-scale about the scene centre, from the run's scene bounds), the T
 iso-surface is extracted with marching cubes (closed where it meets the box), and each vertex
 is coloured by what a ray looking at it along the inward normal sees (the field rendered
 from two grid spacings outside the surface to four inside), not by the field's colour at the
-iso-surface itself, which training leaves as noise.
+iso-surface itself, which training leaves as noise (a forward-facing run in NDC, whose
+density is per NDC unit, takes the colour at the vertex).
 points: every --every-th training view is rendered; pixels with opacity > --acc-min are
 back-projected to their expected depth and coloured by the rendered colour.
 splat (runs of --model splat): the Gaussians as the standard 3DGS PLY (what the INRIA code,

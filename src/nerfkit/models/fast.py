@@ -441,7 +441,7 @@ class FastNeRF(NerfModel):
             return bg, None
         t, rgb, alpha = (torch.cat(parts, dim=1) for parts in zip(*layers))
         alpha = alpha.to(bg.dtype)
-        depth = None if self.training else layers_depth(t, alpha)
+        depth = None if self.training else layers_depth(t.float(), alpha.float())
         return composite_layers(t, rgb.to(bg.dtype), alpha, bg), depth
 
     def _plane_layer(self, plane: TablePlane, o: Tensor, d: Tensor, t_hit: Tensor,

@@ -41,7 +41,8 @@ def render_videos(
 
     Frames are kept as uint8 (a 60-frame 800x800 orbit is ~115 MB); depth shares one
     colour scale, ``near`` (warm) to ``far`` (cool), across all frames, and shows
-    everything the rays meet (a capture's table and room too, not only the object).
+    everything the rays meet (a capture's table too, not only the object; its room lies
+    beyond ``far`` and takes the far colour).
     """
     import time
 

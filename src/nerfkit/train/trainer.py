@@ -100,9 +100,9 @@ def validation_series(rows: list[dict], n_val: int, full: int) -> dict[str, tupl
     pixels), so that a plot does not join scores of different views into one line."""
     series: dict[str, tuple[list, list]] = {}
     for r in rows:
-        views, pixels = r.get("views", n_val), r.get("pixels", full)
+        views, pixels = min(r.get("views", n_val), n_val), r.get("pixels", full)  # older runs: views as asked
         which = f"all {views}" if views >= n_val else f"first {views} of {n_val}"
-        label = (f"validation, {which} view{'s' * (n_val != 1)}, "
+        label = (f"validation, {which} view{'s' * (views != 1 or views < n_val)}, "
                  f"{'whole images' if pixels >= full else f'{pixels} px per view'}")
         xs, ys = series.setdefault(label, ([], []))
         xs.append(r["seconds"])
@@ -434,7 +434,7 @@ class Trainer:
         val_psnr, pixels = scored
         full = pixels == self.scene.val.width * self.scene.val.height
         self.rows.append({"step": self.step, "seconds": round(self.train_seconds, 3), "split": "val",
-                          "loss": float("nan"), "psnr": val_psnr, "views": n or len(self.scene.val),
+                          "loss": float("nan"), "psnr": val_psnr, "views": min(n or len(self.scene.val), len(self.scene.val)),
                           "pixels": pixels})
         self.log(f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {val_psnr:.2f} dB"
                  + ("" if full else f" ({pixels} pixels per view)"))
