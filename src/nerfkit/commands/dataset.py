@@ -104,16 +104,11 @@ def run(args: argparse.Namespace) -> int:
 def recorded_pose_source(folder) -> str:
     """Which poses the dataset in ``folder`` was built from, as its transforms.json says:
     "sfm" or "tags"; with no dataset there, "sfm" when `nerfkit poses` left an SfM report."""
-    import json
-
-    from ..io.paths import refuse_special_file
+    from ..data.nerfstudio import nerfkit_block
     from ..sfm.dataset import REPORT_FILE
 
-    try:
-        meta = json.loads(refuse_special_file(folder / "transforms.json").read_text()).get("nerfkit")
-    except (OSError, ValueError, AttributeError):  # no dataset yet, or not one nerfkit wrote
-        meta = None
-    if isinstance(meta, dict):
+    meta = nerfkit_block(folder)  # None: no dataset yet, or not one nerfkit wrote
+    if meta is not None:
         choice = meta.get("pose_choice")
         if isinstance(choice, dict) and choice.get("poses") in ("sfm", "tags"):
             return choice["poses"]

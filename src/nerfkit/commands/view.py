@@ -47,17 +47,10 @@ def is_run_folder(path: Path) -> bool:
 
 def dataset_tag_size(path: Path) -> float | None:
     """The tag size a capture dataset records (transforms.json beside it), if any."""
-    import json
+    from ..data.nerfstudio import nerfkit_block
 
-    from ..io.paths import refuse_special_file
-
-    folder = path if path.is_dir() else path.parent
-    tj = folder / "transforms.json"
-    try:
-        v = json.loads(refuse_special_file(tj).read_text()).get("nerfkit", {}).get("tag_size")
-        return float(v) if isinstance(v, (int, float)) and v > 0 else None
-    except (OSError, ValueError, AttributeError):
-        return None
+    v = (nerfkit_block(path if path.is_dir() else path.parent) or {}).get("tag_size")
+    return float(v) if isinstance(v, (int, float)) and v > 0 else None
 
 
 def run(args: argparse.Namespace) -> int:

@@ -358,3 +358,16 @@ def is_transforms_json(path: str | Path) -> bool:
     return (path.is_file() and path.name.endswith(".json") and path.name.startswith("transforms")) or \
         (path.is_dir() and (path / "transforms.json").is_file())
 
+
+def nerfkit_block(folder: str | Path) -> dict | None:
+    """The ``nerfkit`` object of ``folder/transforms.json`` (what a dataset nerfkit built
+    records: capture, tag size, pose choice...), or None when there is no such file, it is
+    unreadable, or it has no such object (for hints: loading the dataset checks the file
+    properly). A pipe or device there is refused, as everywhere."""
+    import json
+
+    try:
+        meta = json.loads(refuse_special_file(Path(folder) / "transforms.json").read_text()).get("nerfkit")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return meta if isinstance(meta, dict) else None
