@@ -79,20 +79,16 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
         target = views.images[i].astype(np.float32) / 255.0
         view = render_image(model, views.K[i], views.c2w[i], views.width, views.height, background, chunk,
                             autocast_dtype)
-        row = {"index": i, "name": views.names[i] if views.names else None,
-               "psnr": round(psnr(view.rgb, target), 4), "ssim": round(ssim(view.rgb, target), 5)}
+        row = {"index": i, "name": views.names[i] if views.names else None, **_scores(view.rgb, target)}
         rgb = None
         if fit is not None:
-            matrix, offset = least_squares_colour(view.rgb, target, fit.colour_mix)
-            recoloured = np.clip(view.rgb @ matrix.T + offset, 0.0, 1.0)
-            row.update(psnr_colour=round(psnr(recoloured, target), 4), ssim_colour=round(ssim(recoloured, target), 5))
+            row.update(_scores(_recoloured(view.rgb, target, fit.colour_mix)[0], target, "_colour"))
             c2w = fit_held_out_view(model, views.K[i], views.c2w[i], views.images[i], background, scale, fit, seed=i)
             fitted = render_image(model, views.K[i], c2w, views.width, views.height, background, chunk, autocast_dtype)
             # the colour correction at the fitted pose, solved exactly (the fit's 100 steps
             # only move it part of the way)
-            matrix, offset = least_squares_colour(fitted.rgb, target, fit.colour_mix)
-            rgb = np.clip(fitted.rgb @ matrix.T + offset, 0.0, 1.0)
-            row.update(psnr_fitted=round(psnr(rgb, target), 4), ssim_fitted=round(ssim(rgb, target), 5),
+            rgb, matrix, offset = _recoloured(fitted.rgb, target, fit.colour_mix)
+            row.update(_scores(rgb, target, "_fitted"),
                        fitted_rotation_deg=round(float(rotation_angles_deg(c2w[None], views.c2w[i][None])[0]), 4),
                        fitted_translation=round(float(np.linalg.norm(c2w[:3, 3] - views.c2w[i][:3, 3])), 6),
                        fitted_grey_gain=rounded(matrix.sum(axis=1)), fitted_offset=rounded(offset))
@@ -101,23 +97,34 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
         if sheet is not None and i in shown:
             sheet.append((views.images[i], view.rgb, rgb, row))
         per_image.append(row)
-    out = {
-        "psnr": round(float(np.mean([p["psnr"] for p in per_image])), 4),
-        "ssim": round(float(np.mean([p["ssim"] for p in per_image])), 5),
-        "n_images": len(per_image),
-    }
+    out = {**_means(per_image), "n_images": len(per_image)}
     if fit is not None:
         out["fitted"] = {
             "what": f"each view's pose fitted to its photo first ({fit.steps} steps, scene frozen), then its colour "
                     f"correction ({'an affine colour transform' if fit.colour_mix else 'a gain and offset per channel'}"
                     ", least squares)",
-            "psnr": round(float(np.mean([p["psnr_fitted"] for p in per_image])), 4),
-            "ssim": round(float(np.mean([p["ssim_fitted"] for p in per_image])), 5),
+            **_means(per_image, "_fitted"),
         }
-        out["colour_only"] = {
-            "what": "each view's colour correction solved at its given pose (no pose fit)",
-            "psnr": round(float(np.mean([p["psnr_colour"] for p in per_image])), 4),
-            "ssim": round(float(np.mean([p["ssim_colour"] for p in per_image])), 5),
-        }
+        out["colour_only"] = {"what": "each view's colour correction solved at its given pose (no pose fit)",
+                              **_means(per_image, "_colour")}
     out["per_image"] = per_image
     return out
+
+
+def _recoloured(rgb: np.ndarray, target: np.ndarray, mix: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A render (H, W, 3) with the colour correction that maps it best onto ``target``
+    (:func:`least_squares_colour`), clipped to [0, 1]; and that correction's matrix and offset."""
+    matrix, offset = least_squares_colour(rgb, target, mix)
+    return np.clip(rgb @ matrix.T + offset, 0.0, 1.0), matrix, offset
+
+
+def _scores(rgb: np.ndarray, target: np.ndarray, suffix: str = "") -> dict:
+    """``{"psnr" + suffix, "ssim" + suffix}`` of one image, rounded as the report keeps them."""
+    return {f"psnr{suffix}": round(psnr(rgb, target), 4), f"ssim{suffix}": round(ssim(rgb, target), 5)}
+
+
+def _means(per_image: list[dict], suffix: str = "") -> dict:
+    """``{"psnr", "ssim"}``: the means over the images of their ``psnr`` + suffix and ``ssim`` + suffix."""
+    return {"psnr": round(float(np.mean([p[f"psnr{suffix}"] for p in per_image])), 4),
+            "ssim": round(float(np.mean([p[f"ssim{suffix}"] for p in per_image])), 5)}
+
