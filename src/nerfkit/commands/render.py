@@ -20,8 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--path", choices=["auto", "test", "orbit", "spiral"], default="auto",
                    help="camera path: the dataset's test poses, an orbit around the object, a spiral across a "
                    "forward-facing capture's view, or auto (chosen as described above)")
-    p.add_argument("--frames", type=number(int, 1, 100_000), default=60,
-                   help="frames of a generated orbit or spiral (default: 60)")
+    p.add_argument("--frames", type=number(int, 1, 100_000), default=None,
+                   help="frames of a generated orbit or spiral (default: 120, 4 s at 30 fps)")
     p.add_argument("--fps", type=number(int, 1, 1000), default=30, help="frames per second (default: 30)")
     p.add_argument("--background", help="override the run's background colour: black, white, grey, "
                    "r,g,b in [0, 1] or #rrggbb")
@@ -35,6 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..data.load import dataset_inputs
+    from ..data.scene import ORBIT_FRAMES
     from ..errors import fail
     from ..io.paths import guard_outputs
     from ..output.images import object_aim
@@ -56,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     # an orbit looks at the trained object, not at the point the cameras' axes meet
     aim = object_aim(run_.model, scene.train, scene.up, run_.background(args.background), run_.chunk,
                      run_.autocast) if kind == "orbit" else None
-    views = scene.render_path(args.frames, aim, kind)
+    views = scene.render_path(args.frames or ORBIT_FRAMES, aim, kind)
     paths = render_videos(run_.model, views, out, run_.background(args.background), scene.near, scene.far, args.fps,
                           run_.chunk, run_.autocast)
     print(f"rendered {len(views)} frames of step {run_.step} ({paths.seconds_per_frame:.2f} s/frame):")

@@ -13,6 +13,8 @@ import numpy as np
 
 from ..cameras import axes_across, forward_facing, mean_camera, orbit_path, spiral_path
 
+# frames of a generated orbit or spiral: 4 s at 30 fps
+ORBIT_FRAMES = 120
 
 # how sharply an orbit follows the training cameras near each azimuth (von Mises
 # concentration: weights fall to 1/e at about 30 degrees)
@@ -120,7 +122,7 @@ class Scene:
             raise ValueError(f"unknown camera path {kind!r}: expected auto or one of {', '.join(VIDEO_PATHS)}")
         return kind
 
-    def render_path(self, n_frames: int = 60, aim: np.ndarray | None = None, kind: str = "auto") -> Views:
+    def render_path(self, n_frames: int = ORBIT_FRAMES, aim: np.ndarray | None = None, kind: str = "auto") -> Views:
         """Poses for a video along :meth:`video_kind`'s path; ``aim``: the point an orbit
         circles or a spiral focuses on (default ``center``)."""
         kind = self.video_kind(kind)
@@ -128,7 +130,7 @@ class Scene:
             return self.test
         return self.spiral(n_frames, aim) if kind == "spiral" else self.orbit(n_frames, aim)
 
-    def spiral(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
+    def spiral(self, n_frames: int = ORBIT_FRAMES, aim: np.ndarray | None = None) -> Views:
         """LLFF's spiral (:func:`~nerfkit.cameras.spiral_path`) looking at the depth of
         ``aim`` (default ``center``), with the first training camera's intrinsics."""
         ref = mean_camera(self.train.c2w)
@@ -137,7 +139,7 @@ class Scene:
         c2w = spiral_path(self.train.c2w, depth, n_frames)
         return Views(c2w, np.repeat(self.train.K[:1], n_frames, axis=0), self.train.width, self.train.height)
 
-    def orbit(self, n_frames: int = 60, aim: np.ndarray | None = None) -> Views:
+    def orbit(self, n_frames: int = ORBIT_FRAMES, aim: np.ndarray | None = None) -> Views:
         """A loop of cameras about ``up`` looking at ``aim`` (default ``center``), with the
         first training camera's intrinsics. At each azimuth its height and distance from
         the axis are those of the training cameras near that azimuth (a weighted mean,
