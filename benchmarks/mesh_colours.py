@@ -1,12 +1,15 @@
 """How well a mesh's vertex colours match the photos, for each way of colouring them.
 
-For a trained run, the mesh is extracted once (``nerfkit export``'s defaults: 256^3 grid,
-threshold 25) and coloured two ways:
+For a trained run, the mesh is extracted once (``nerfkit export``'s defaults: 256^3 grid
+over a cube around the model's grid, threshold 25, a capture's table paint cleared up to
+5% of the object's height; ``--region scene`` meshes the scene's cube instead, as ``export``
+did before session 29) and coloured two ways:
 
 * ``at vertex``: the field's colour at the vertex (the iso-surface), seen along the normal;
 * ``ray seen``:  what a ray looking at the vertex along the inward normal sees (the field
-                 volume-rendered from two grid spacings outside the surface to four
-                 inside: ``export``'s way).
+                 volume-rendered from ``reach`` outside the surface to twice as far
+                 inside: ``export``'s way, with ``reach`` 2% of the scene's radius;
+                 ``--reach F ...`` scores other fractions too).
 
 Each vertex is projected into the run's validation views; where it is visible (its
 distance from the camera within 1% of the scene radius of the rendered depth, on a pixel
@@ -15,6 +18,7 @@ those (vertex, view) pairs and the seconds each colouring took::
 
     python benchmarks/mesh_colours.py runs/demo
     python benchmarks/mesh_colours.py /tmp/cr/steve/run_auto --views 6
+    python benchmarks/mesh_colours.py /tmp/cr/steve/run_auto --views 6 --region scene --table-cut -1
 """
 
 from __future__ import annotations
@@ -45,22 +49,33 @@ def main() -> None:
     ap.add_argument("--views", type=int, default=10, help="validation views to score against (default: 10)")
     ap.add_argument("--resolution", type=int, default=256)
     ap.add_argument("--threshold", type=float, default=25.0)
+    ap.add_argument("--region", choices=["model", "scene"], default="model",
+                    help="mesh the cube around the model's grid (export's way) or the scene's cube")
+    ap.add_argument("--table-cut", type=float, default=0.05,
+                    help="export's --table-cut; negative: leave a capture's table paint and what is under the table")
+    ap.add_argument("--reach", type=float, nargs="+", default=[],
+                    help="more colour ray reaches to score, as fractions of the scene's radius")
     args = ap.parse_args()
 
     import torch
 
     from nerfkit.commands._common import open_run, scene_for_run
-    from nerfkit.export import marching_cubes, sample_density_grid, vertex_colors
+    from nerfkit.export import COLOUR_REACH, extract_mesh, mesh_region, table_cut_height, vertex_colors
     from nerfkit.output.images import render_image
 
     run = open_run(argparse.Namespace(run=args.run, device="cpu", chunk=0))
     model, bounds = run.model, run.info.bounds
-    grid = sample_density_grid(model.density, bounds.center, bounds.radius, args.resolution, 65536)
-    mesh = marching_cubes(grid, bounds.center, bounds.radius, args.threshold)
-    spacing = 2.0 * bounds.radius / (args.resolution - 1)
+    center, radius = bounds.center, bounds.radius
+    if args.region == "model":
+        center, radius = mesh_region(model, center, radius)
+    table = model.table_plane() if args.table_cut >= 0 else None
+    cut = table_cut_height(model, args.table_cut) if table is not None else 0.0
+    mesh = extract_mesh(model.density, center, radius, args.resolution, args.threshold, table=table, table_cut=cut)
+    reaches = [("at vertex", 0.0), ("ray seen", COLOUR_REACH)] + [(f"reach {f:g}", f) for f in args.reach]
     colourings = {}
     with torch.no_grad():
-        for name, reach in (("at vertex", 0.0), ("ray seen", 2.0 * spacing)):
+        for name, fraction in reaches:
+            reach = fraction * bounds.radius
             t0 = time.perf_counter()
             colourings[name] = vertex_colors(model.density, model.query, mesh.vertices, mesh.normals, reach)
             colourings[name] = (colourings[name], time.perf_counter() - t0)
@@ -74,7 +89,9 @@ def main() -> None:
         photo = views.images[i][rows, cols] / 255.0
         for name, (colours, _) in colourings.items():
             errors[name].append(((colours[idx] / 255.0 - photo) ** 2).mean(1))
-    print(f"{args.run}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces")
+    cleared = f", table paint cleared up to {cut:.3g}" if table is not None else ""
+    print(f"{args.run}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces "
+          f"({args.region}'s cube, {2 * radius:.3g} wide{cleared})")
     print(f"{'vertex colour':<14} {'pairs':>7} {'PSNR':>6} {'seconds':>8}")
     for name, (colours, seconds) in colourings.items():
         e = np.concatenate(errors[name])

@@ -118,6 +118,53 @@ def test_threshold_outside_the_field_is_a_clear_error():
         ex.extract_mesh(sphere_density, CENTER, 1.0, resolution=16, threshold=0.0)
 
 
+# ----------------------------------------------------------------------------- a capture's table
+
+def figure_on_table(p: torch.Tensor) -> torch.Tensor:
+    """Density 100 inside: a post (radius 0.2 about the z axis) standing on the table z = 0
+    up to z = 0.6 and going on under it to z = -0.3 (never seen there), and a flat square
+    of paint 0.02 thick on the table at x, y in [0.5, 0.8]."""
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    post = (x * x + y * y < 0.04) & (z > -0.3) & (z < 0.6)
+    paint = (x > 0.5) & (x < 0.8) & (y > 0.5) & (y < 0.8) & (z > -0.05) & (z < 0.02)
+    return 100.0 * (post | paint).float()
+
+
+def test_table_paint_is_cleared_and_what_stands_on_the_table_keeps_its_base():
+    table = np.array([0.0, 0.0, 1.0, 0.0])
+    kept = ex.extract_mesh(figure_on_table, [0, 0, 0], 1.0, resolution=101, threshold=50.0)
+    assert (kept.vertices[:, 0] > 0.45).any() and kept.vertices[:, 2].min() < -0.25  # paint and the hidden part
+    mesh = ex.extract_mesh(figure_on_table, [0, 0, 0], 1.0, resolution=101, threshold=50.0, table=table,
+                           table_cut=0.05)
+    v = mesh.vertices
+    assert not (v[:, 0] > 0.3).any()  # the paint is gone ...
+    assert v[:, 2].min() > -0.02  # ... and so is everything under the table
+    base = v[v[:, 2] < 0.04]  # the post keeps its foot on the table, at its full radius
+    assert len(base) > 50
+    np.testing.assert_allclose(np.hypot(base[:, 0], base[:, 1]).max(), 0.2, atol=0.03)
+    assert ex.to_trimesh(mesh).is_watertight  # closed where it was cut
+    # with no height, only what is under the table goes
+    under = ex.clear_table_paint(ex.sample_density_grid(figure_on_table, [0, 0, 0], 1.0, 41), [0, 0, 0], 1.0,
+                                 table, 0.0, 50.0)
+    zs = ex.grid_axis(0.0, 1.0, 41)
+    assert under[:, :, zs < 0].max() == 0 and under[:, :, zs >= 0].max() == 100
+
+
+def test_the_mesh_covers_the_models_own_box_and_the_cut_is_a_fraction_of_its_height():
+    from types import SimpleNamespace
+
+    boxed = SimpleNamespace(density_box=lambda: (np.array([0.0, -1.0, -0.1]), np.array([0.2, 0.0, 0.5])),
+                            table_plane=lambda: np.array([0.0, 0.0, 1.0, 0.0]))
+    center, half = ex.mesh_region(boxed, np.zeros(3), 5.0, scale=1.5)
+    np.testing.assert_allclose(center, [0.1, -0.5, 0.2])
+    assert half == pytest.approx(0.75)  # the longest side, 1.0, over 2, times 1.5
+    assert ex.table_cut_height(boxed, 0.05) == pytest.approx(0.025)  # the box's top is 0.5 above the table
+    plain = SimpleNamespace(density_box=lambda: None, table_plane=lambda: None)
+    center, half = ex.mesh_region(plain, np.ones(3), 5.0)
+    np.testing.assert_allclose(center, 1.0)
+    assert half == 5.0 and ex.table_cut_height(plain, 0.05) == 0.0
+
+
 # ----------------------------------------------------------------------------- points
 
 

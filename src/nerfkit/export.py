@@ -84,6 +84,37 @@ def sample_density_grid(density_fn: DensityFn, center, radius: float, resolution
     return np.nan_to_num(grid, nan=0.0, posinf=np.finfo(np.float32).max, neginf=0.0)
 
 
+def clear_table_paint(grid: np.ndarray, center, radius: float, plane, height: float, threshold: float) -> np.ndarray:
+    """A density grid (as :func:`sample_density_grid`'s) with a capture's table paint cleared.
+
+    Training paints some of the table (a tag's black squares, the sheet's edge) into the
+    density just above it, where the photos disagree by a pixel or two. Cleared here:
+    everything under the plane (rays stop at the table, so it was never seen) and what lies
+    within ``height`` above it in the columns (along the grid axis nearest the plane's
+    normal, widened by two cells) where no density over ``threshold`` rises between
+    ``height`` and ``2 * height``. What stands on the table keeps its base.
+
+    Args:
+        plane: (4,) ``(n, d)``, unit normal ``n`` toward the cameras: height is ``n . x + d``.
+        height: world units; 0 clears only what is under the plane.
+    Returns:
+        A new (R, R, R) float32 grid.
+    """
+    from scipy import ndimage
+
+    res = grid.shape[0]
+    n, d = np.asarray(plane, np.float64)[:3], float(np.asarray(plane)[3])
+    xs, ys, zs = (grid_axis(np.asarray(center, np.float64)[a], radius, res) for a in range(3))
+    above = (n[0] * xs[:, None, None] + n[1] * ys[None, :, None] + n[2] * zs[None, None, :] + d).astype(np.float32)
+    clear = above < 0
+    if height > 0:
+        band = (above >= height) & (above < 2 * height) & (grid > threshold)
+        rising = band.any(axis=int(np.argmax(np.abs(n))), keepdims=True)
+        rising = ndimage.binary_dilation(rising, iterations=2)
+        clear |= (above < height) & ~rising
+    return np.where(clear, np.float32(0.0), grid).astype(np.float32)
+
+
 def marching_cubes(grid: np.ndarray, center, radius: float, threshold: float) -> Mesh:
     """The ``threshold`` iso-surface of a density grid over the cube ``center +- radius``.
 
@@ -187,14 +218,19 @@ def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray
 
 def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int = 256, threshold: float = 25.0,
                  query_fn: QueryFn | None = None, n_dirs: int = 1, chunk: int = 65536,
-                 device: str | torch.device = "cpu", progress: bool = False, reach_voxels: float = 2.0) -> Mesh:
-    """Density grid -> marching cubes -> (optional) vertex colours, seen along rays that
-    start ``reach_voxels`` grid spacings outside the surface and end twice as far inside
-    (0: the field's colour at the vertex). See the module docstring."""
+                 device: str | torch.device = "cpu", progress: bool = False, reach: float | None = None,
+                 table=None, table_cut: float = 0.0) -> Mesh:
+    """Density grid -> (with a ``table`` plane: :func:`clear_table_paint` up to
+    ``table_cut`` above it) -> marching cubes -> (optional) vertex colours, seen along rays
+    that start ``reach`` outside the surface and end twice as far inside (None: two grid
+    spacings; 0: the field's colour at the vertex). See the module docstring."""
     grid = sample_density_grid(density_fn, center, radius, resolution, chunk, device, progress)
+    if table is not None:
+        grid = clear_table_paint(grid, center, radius, table, table_cut, threshold)
     mesh = marching_cubes(grid, center, radius, threshold)
     if query_fn is not None:
-        reach = reach_voxels * 2.0 * radius / (resolution - 1)
+        if reach is None:
+            reach = 2.0 * 2.0 * radius / (resolution - 1)
         mesh.colors = vertex_colors(density_fn, query_fn, mesh.vertices, mesh.normals, reach, n_dirs, chunk=chunk,
                                     device=device, progress=progress)
     return mesh
@@ -290,14 +326,48 @@ def crop_to_box(points: np.ndarray, colors: np.ndarray, center, radius: float) -
 # --------------------------------------------------------------------------- trained models
 
 
-def mesh_from_model(model, center, radius: float, resolution: int = 256, threshold: float = 25.0, n_dirs: int = 1,
-                    chunk: int = 65536, device: str | torch.device = "cpu", progress: bool = True) -> Mesh:
+# how far outside a vertex its colour ray starts, as a fraction of the scene's radius: the
+# depth of a trained field's fuzzy surface (benchmarks/mesh_colours.py, session 29: lego,
+# steve and labubu score within 0.1-0.5 dB of their best reach, which spans 1.6-3.4%)
+COLOUR_REACH = 0.02
+
+
+def mesh_region(model, center, radius: float, scale: float = 1.0) -> tuple[np.ndarray, float]:
+    """The cube to mesh, ``(center (3,), half-size)``: around the model's density box when
+    it has one (a capture's object: the grid's cells then fall on the object, not on the
+    room around it), else the scene's cube ``center +- radius``; the half-size times ``scale``."""
+    box = model.density_box()
+    if box is not None:
+        lo, hi = (np.asarray(b, np.float64) for b in box)
+        center, radius = (lo + hi) / 2, float((hi - lo).max()) / 2
+    return np.asarray(center, np.float64).reshape(3), radius * scale
+
+
+def table_cut_height(model, fraction: float) -> float:
+    """``fraction`` of the height of the model's density box's top above its table plane
+    (world units; 0 without a table or a box)."""
+    plane, box = model.table_plane(), model.density_box()
+    if plane is None or box is None:
+        return 0.0
+    corners = np.array([[x, y, z] for x in (box[0][0], box[1][0]) for y in (box[0][1], box[1][1])
+                        for z in (box[0][2], box[1][2])], np.float64)
+    return fraction * max(float((corners @ plane[:3] + plane[3]).max()), 0.0)
+
+
+def mesh_from_model(model, center, radius: float, reach: float, resolution: int = 256, threshold: float = 25.0,
+                    n_dirs: int = 1, chunk: int = 65536, device: str | torch.device = "cpu", progress: bool = True,
+                    table_cut: float = 0.0) -> Mesh:
     """A coloured mesh of a trained model (its ``density(points)`` and ``query(points,
-    dirs)``) over the cube ``center +- radius``. A forward-facing model's density is per
+    dirs)``) over the cube ``center +- radius``, each vertex coloured along a ray from
+    ``reach`` outside it (world units; :data:`COLOUR_REACH` of the scene's radius suits a
+    trained field whatever the grid). A model with a table plane has its table paint
+    cleared (:func:`clear_table_paint`) up to ``table_cut`` (a fraction of its object's
+    height, :func:`table_cut_height`) above it. A forward-facing model's density is per
     NDC unit, not per world unit, so its vertices take the field's colour where they are."""
-    reach = 0.0 if getattr(model, "ndc", None) is not None else 2.0
+    if getattr(model, "ndc", None) is not None:
+        reach = 0.0
     return extract_mesh(model.density, center, radius, resolution, threshold, model.query, n_dirs, chunk, device,
-                        progress, reach_voxels=reach)
+                        progress, reach=reach, table=model.table_plane(), table_cut=table_cut_height(model, table_cut))
 
 
 def points_from_views(render_fn: Callable, views, acc_min: float = 0.5, background=(0.0, 0.0, 0.0), stride: int = 1,

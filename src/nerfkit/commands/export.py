@@ -12,11 +12,15 @@ MEMORY_HINT = "Lower --resolution or --chunk"
 HELP = "export a trained run as a coloured mesh (marching cubes) and/or a point cloud (PLY), or Gaussian splats"
 
 EPILOG = """\
-mesh: the density is sampled on a RESOLUTION^3 grid over the scene box (a cube of half-size
-radius x --box-scale about the scene centre, from the run's scene bounds), the THRESHOLD
-iso-surface is extracted with marching cubes (closed where it meets the box), and each vertex
+mesh: the density is sampled on a RESOLUTION^3 grid over a cube around the model's grid
+(a capture's box around the object; the scene's cube for a model without one), its
+half-size times --box-scale. A capture's table paint is cleared first: the density under
+the table, and the tags and sheet painted into density just above it (within --table-cut
+of the object's height, where nothing rises out of that slab); what stands on the table
+keeps its base. The THRESHOLD iso-surface is extracted with marching cubes (closed where
+it meets the box or the cut), and each vertex
 is coloured by what a ray looking at it along the inward normal sees (the field rendered
-from two grid spacings outside the surface to four inside), not by the field's colour at the
+from 2% of the scene's radius outside the surface to 4% inside), not by the field's colour at the
 iso-surface itself, which training leaves as noise (a forward-facing run in NDC, whose
 density is per NDC unit, takes the colour at the vertex).
 points: every --every-th training view is rendered; pixels with opacity > --acc-min are
@@ -48,7 +52,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--threshold", type=number(float), default=25.0,
                    help="density of the surface (default: 25; higher = tighter, fewer floaters)")
     g.add_argument("--box-scale", type=number(float, above=0), default=1.0,
-                   help="scale the scene box (half-size = scene radius x this; default: 1)")
+                   help="scale the cube meshed, and the scene box points are cropped to (default: 1)")
+    g.add_argument("--table-cut", type=number(float, 0, 1), default=0.05,
+                   help="(captures) clear density within this fraction of the object's height above the table, "
+                   "where nothing rises out of that slab: the tags and sheet painted into density "
+                   "(0: clear only under the table; default: 0.05)")
     g.add_argument("--color-dirs", type=number(int, 1, 64), default=1,
                    help="view directions averaged per vertex colour (1 = along the normal; default: 1)")
     g = p.add_argument_group("points")
@@ -91,11 +99,11 @@ def run(args: argparse.Namespace) -> int:
                   "--mesh/--points/--splat")
     if splat:
         export_splat(run_, splat)
-    center, radius = run_.info.bounds.center, run_.info.bounds.radius * args.box_scale
+    bounds = run_.info.bounds
     if args.mesh:
-        export_mesh(run_, center, radius, args)
+        export_mesh(run_, args)
     if args.points:
-        export_points(run_, center, radius, args)
+        export_points(run_, bounds.center, bounds.radius * args.box_scale, args)
     return 0
 
 
@@ -110,14 +118,20 @@ def export_splat(run_, path: str) -> None:
     print(f"{len(g)} Gaussians of step {run_.step} (SH degree {g.sh_degree}) -> {path}")
 
 
-def export_mesh(run_, center, radius: float, args) -> None:
-    from ..export import mesh_from_model, write_mesh_ply
+def export_mesh(run_, args) -> None:
+    from ..export import COLOUR_REACH, mesh_from_model, mesh_region, table_cut_height, write_mesh_ply
 
-    mesh = mesh_from_model(run_.model, center, radius, args.resolution, args.threshold, args.color_dirs,
-                           chunk=POINT_CHUNK, device=run_.device)
+    model, bounds = run_.model, run_.info.bounds
+    center, radius = mesh_region(model, bounds.center, bounds.radius, args.box_scale)
+    mesh = mesh_from_model(model, center, radius, COLOUR_REACH * bounds.radius, args.resolution, args.threshold,
+                           args.color_dirs, chunk=POINT_CHUNK, device=run_.device, table_cut=args.table_cut)
     write_mesh_ply(args.mesh, mesh)
+    cut = ""
+    if model.table_plane() is not None:
+        cut = f"; table paint cleared up to {table_cut_height(model, args.table_cut):.3g} above the table"
     print(f"mesh of step {run_.step}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces "
-          f"(threshold {args.threshold:g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide box) -> {args.mesh}")
+          f"(threshold {args.threshold:g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide cube{cut}) "
+          f"-> {args.mesh}")
 
 
 def export_points(run_, center, radius: float, args) -> None:

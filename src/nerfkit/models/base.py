@@ -310,6 +310,16 @@ class NerfModel(nn.Module):
         the model cannot tell."""
         return None
 
+    def density_box(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """World box ``(lo (3,), hi (3,))`` outside which the model holds no density, when
+        it is smaller than the scene's (a capture's box around the object); else None."""
+        return None
+
+    def table_plane(self) -> np.ndarray | None:
+        """(4,) ``(n, d)`` of the plane where rays stop (a capture's table; unit normal
+        ``n`` toward the cameras), or None."""
+        return None
+
     def pack_state(self) -> tuple[str | None, dict]:
         """What the final model file stores: ``(packing, tensors)``. The default is the plain
         ``state_dict()`` (packing None); a model may store a compact form under a packing

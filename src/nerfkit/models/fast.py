@@ -664,6 +664,16 @@ class FastNeRF(NerfModel):
         self.surface_pts[idx] = pts
         self.surface_count += len(pts)
 
+    def density_box(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The grid's box (the object's, for a capture; shrunk to the content after the
+        first growth), or None in NDC."""
+        if self.ndc is not None:
+            return None
+        return self.geom.lo.cpu().numpy(), self.geom.hi.cpu().numpy()
+
+    def table_plane(self) -> np.ndarray | None:
+        return None if self.table is None else self.table.plane.cpu().numpy()
+
     @torch.no_grad()
     def surface_box(self) -> tuple[np.ndarray, np.ndarray] | None:
         """A box (lo, hi) around where opaque training rays ended, or None with too few.
