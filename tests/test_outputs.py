@@ -46,6 +46,17 @@ def test_image_grid_tiles_follow_the_photos_shape_and_the_contact_sheet_their_si
     assert native_tile_inches(np.zeros((384, 512, 3))) * GRID_DPI == pytest.approx(512)
     assert native_tile_inches(np.zeros((3000, 4000, 3))) * GRID_DPI == pytest.approx(640)
     assert native_tile_inches(np.zeros((6, 8, 3))) * GRID_DPI == pytest.approx(240)  # room for the titles
+    # no title overprints a tile: every tile of a 2-row grid stays a whole red rectangle
+    from scipy import ndimage
+
+    red = np.zeros((384, 512, 3))
+    red[..., 0] = 1.0
+    image_grid(tmp_path / "rows.png", [red] * 8, [f"step {k}" for k in range(8)], ncols=5, suptitle="progress")
+    png = iio.imread(tmp_path / "rows.png")[..., :3].astype(int)
+    tiles, n = ndimage.label((png[..., 0] > 200) & (png[..., 1] < 60) & (png[..., 2] < 60))
+    assert n == 8
+    for box in ndimage.find_objects(tiles):
+        assert (tiles[box] > 0).all()  # a full rectangle: no text over it
     photo = np.full((240, 320, 3), 0.5)
     write_contact_sheet(tmp_path / "sheet.png", [(photo, photo, None, {"name": "a.jpg", "index": 0, "psnr": 20.0})],
                         "val")

@@ -72,6 +72,8 @@ def image_grid(
 
     Each tile is ``tile_inches`` wide (at ``GRID_DPI`` dots per inch) and as tall as the
     first image's aspect ratio makes it, so photos are not letterboxed in square tiles.
+    Tiles are placed by hand, each under a band of its own for its title (a layout
+    engine packed the rows so tightly that a title overprinted the image above it).
     """
     plt = _pyplot()
     n = len(images)
@@ -79,17 +81,21 @@ def image_grid(
     nrows = (n + ncols - 1) // ncols
     h, w = images[0].shape[:2]
     tile_h = tile_inches * h / max(w, 1)
-    head = 0.45 if suptitle else 0.0  # inches kept for the title above the grid
-    fig_h = (tile_h + 0.3) * nrows + 0.1 + head
-    fig, axes = plt.subplots(nrows, ncols, figsize=(tile_inches * ncols + 0.2, fig_h), dpi=GRID_DPI, squeeze=False)
-    for ax in axes.flat:
+    head = 0.45 if suptitle else 0.05  # inches kept for the title above the grid
+    band, gap = 0.25, 0.08  # inches: a tile's title band; the margin around and between tiles
+    fig_w = ncols * tile_inches + (ncols + 1) * gap
+    fig_h = head + nrows * (band + tile_h) + gap
+    fig = plt.figure(figsize=(fig_w, fig_h), dpi=GRID_DPI)
+    for k, (img, title) in enumerate(zip(images, titles)):
+        row, col = divmod(k, ncols)
+        left = gap + col * (tile_inches + gap)
+        bottom = fig_h - head - (row + 1) * (band + tile_h)
+        ax = fig.add_axes((left / fig_w, bottom / fig_h, tile_inches / fig_w, tile_h / fig_h))
         ax.axis("off")
-    for ax, img, title in zip(axes.flat, images, titles):
         ax.imshow(img, cmap="gray" if img.ndim == 2 else None)
-        ax.set_title(title, fontsize=9)
+        ax.set_title(title, fontsize=9, pad=3)
     if suptitle:
-        fig.suptitle(suptitle)
-    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - head / fig_h))
+        fig.suptitle(suptitle, y=1.0 - 0.1 / fig_h, va="top")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
     plt.close(fig)
