@@ -19,6 +19,7 @@ from .errors import NerfkitError, is_out_of_memory
 # In the order --help lists them.
 COMMANDS = [
     "demo",
+    "capture",
     "train",
     "render",
     "eval",
@@ -36,6 +37,8 @@ nerfkit: phone photos to neural radiance fields, practical on a CPU.
 
 typical flows:
   nerfkit demo                                  train on the bundled lego scene, write videos and plots
+  nerfkit capture photos/ --calib sheet/ --tag-size 0.06 --out my_object/
+                                                your phone photos -> dataset, NeRF, videos, mesh
   nerfkit train --data scene.npz --out runs/x   train a NeRF on a dataset
   nerfkit render runs/x                         orbit video + depth video of a trained run
   nerfkit eval runs/x --split val               PSNR/SSIM on held-out views, as JSON

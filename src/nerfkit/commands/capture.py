@@ -1,0 +1,193 @@
+"""`nerfkit capture`: phone photos to a trained NeRF in one command (calibrate, poses,
+train, eval, render, export), each step's output kept for the next run."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+HELP = "phone photos of a tag sheet and of an object -> dataset, NeRF, videos, mesh (every step, in one go)"
+
+DESCRIPTION = """\
+Run the whole capture flow into one folder, as the README's steps do one by one:
+
+  OUT/camera.json   nerfkit calibrate CALIB_DIR     (skipped with --camera)
+  OUT/dataset/      nerfkit poses OBJECT_DIR        (posed, undistorted, split; SfM poses in the tag's frame)
+  OUT/run/          nerfkit train --minutes 3       (capture settings: table, room, pose and colour refinement)
+                    nerfkit eval --split val        (run/eval_val.json and the contact sheet run/eval_val.png)
+                    nerfkit render                  (run/videos: orbit.mp4, orbit.gif, depth.mp4)
+  OUT/run/mesh.ply  nerfkit export --mesh           (the object, without the table)
+
+and print what came out: the calibration, the photos posed, the held-out scores, where
+the videos and plots are. Each step prints its own report as it goes.
+
+Run it again and the steps whose results are there are kept: a run cut short by Ctrl-C
+is resumed from its last checkpoint; the eval, videos and mesh are redone (they belong to
+the run). --force redoes every step; the new NeRF then goes to a fresh folder (run-2, ...)
+and the earlier one is kept.
+
+examples:
+  nerfkit capture object_photos/ --calib sheet_photos/ --tag-size 0.06 --out my_object/
+  nerfkit capture object_photos/ --camera camera.json --tag-size 0.10 --out my_object/ --minutes 5
+  nerfkit capture object_photos/ --calib sheet_photos/ --sheet-tag-size 0.03 --tag-size 0.12 --out my_object/
+"""
+
+CAMERA_FILE = "camera.json"
+DATASET_DIR = "dataset"
+RUN_DIR = "run"
+MESH_FILE = "mesh.ply"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from ..config import number
+
+    p = sub.add_parser("capture", help=HELP, description=DESCRIPTION,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("photos", metavar="OBJECT_DIR", help="folder of photos of the object beside the tag")
+    p.add_argument("--out", required=True, help="folder for everything the capture makes")
+    p.add_argument("--tag-size", type=number(float, above=0), required=True,
+                   help="side of the black square of the tag beside the object, in metres (e.g. 0.06)")
+    cam = p.add_mutually_exclusive_group()
+    cam.add_argument("--calib", metavar="CALIB_DIR", help="folder of photos of the printed tag sheet, to calibrate "
+                     "the camera from (without it or --camera: the photos' EXIF focal length, no distortion)")
+    cam.add_argument("--camera", help="a camera file from an earlier `nerfkit calibrate` of the same phone")
+    p.add_argument("--sheet-tag-size", type=number(float, above=0),
+                   help="side of a tag's black square on the calibration sheet (default: --tag-size)")
+    p.add_argument("--dict", default="DICT_4X4_50", help="ArUco dictionary of the tags (default: DICT_4X4_50)")
+    p.add_argument("--method", choices=["auto", "tags"], default="auto",
+                   help="poses: auto (default) takes structure-from-motion poses in the tag's frame when they hold "
+                   "up; tags: the tag's poses only, as the course does")
+    p.add_argument("--max-side", type=number(int, 0), default=512,
+                   help="the dataset's photos' longer side in pixels (default: 512)")
+    p.add_argument("--minutes", type=number(float, above=0), default=3.0, help="training time (default: 3)")
+    p.add_argument("--steps", type=number(int, 1), help="train this many steps instead of --minutes")
+    p.add_argument("--frames", type=number(int, 1, 100_000), help="frames of the orbit (default: render's, 120)")
+    p.add_argument("--no-mesh", action="store_true", help="skip the mesh")
+    p.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N (default: auto)")
+    p.add_argument("--force", action="store_true",
+                   help="redo every step (replacing the camera file and the dataset; the NeRF goes to a new folder)")
+    p.set_defaults(func=run)
+
+
+def _step(argv: list[str], needed: bool = True, quiet: bool = False) -> bool:
+    """Run one nerfkit command; whether it succeeded. The failure of a ``needed`` step
+    stops the capture (the command's own error is printed above). ``quiet``: its standard
+    output is not shown (eval's JSON, which its file keeps)."""
+    import contextlib
+    import io
+
+    from ..cli import main
+    from ..errors import fail
+
+    print(f"\n== nerfkit {' '.join(argv)}", flush=True)
+    with contextlib.redirect_stdout(io.StringIO()) if quiet else contextlib.nullcontext():
+        rc = main(argv)
+    if rc == 130:
+        raise KeyboardInterrupt
+    if rc != 0 and needed:
+        raise fail(f"nerfkit {argv[0]}", "failed (its error is above)",
+                   "Fix that and run the same `nerfkit capture` again: the steps already done are kept")
+    return rc == 0
+
+
+def _kept(what: str, path: Path) -> None:
+    print(f"\n== {what}: {path} is there from an earlier run, kept (--force redoes it)", flush=True)
+
+
+def _run_folder(out: Path, force: bool) -> tuple[Path, bool]:
+    """(the run folder, whether it holds a run to continue): OUT/run, or with ``force``
+    a fresh OUT/run-N when OUT/run holds a run (a finished NeRF is never overwritten)."""
+    run = out / RUN_DIR
+    if not force:
+        return run, (run / "config.json").exists()
+    k = 2
+    while (run / "config.json").exists():
+        run = out / f"{RUN_DIR}-{k}"
+        k += 1
+    return run, False
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import fail
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise fail(out, "exists and is not a folder", "--out names the folder the capture fills")
+    for folder, flag in ((args.photos, "OBJECT_DIR"), (args.calib, "--calib")):
+        if folder and not Path(folder).is_dir():
+            raise fail(folder, "is not a folder", f"{flag} names a folder of photos")
+    out.mkdir(parents=True, exist_ok=True)
+    force = ["--force"] if args.force else []
+
+    camera = Path(args.camera) if args.camera else None
+    if args.calib:
+        camera = out / CAMERA_FILE
+        if camera.exists() and not args.force:
+            _kept("calibration", camera)
+        else:
+            _step(["calibrate", args.calib, "--dict", args.dict, "--tag-size", str(args.sheet_tag_size or args.tag_size),
+                   "--out", str(camera), *force])
+
+    dataset = out / DATASET_DIR
+    if (dataset / "dataset.npz").exists() and not args.force:
+        _kept("dataset", dataset)
+    else:
+        _step(["poses", args.photos, "--tag-size", str(args.tag_size), "--dict", args.dict, "--out", str(dataset),
+               "--method", args.method, "--max-side", str(args.max_side), *force,
+               *(["--camera", str(camera)] if camera else [])])
+
+    run_dir, started = _run_folder(out, args.force)
+    if (run_dir / "model.pt").exists():
+        _kept("NeRF", run_dir)
+    elif started:
+        _step(["train", "--resume", str(run_dir)])
+    else:
+        budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
+        _step(["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget,
+               "--device", args.device])
+    _step(["eval", str(run_dir), "--split", "val", "--device", args.device], quiet=True)
+    _step(["render", str(run_dir), "--device", args.device, *(["--frames", str(args.frames)] if args.frames else [])])
+    mesh = None
+    if not args.no_mesh:  # a NeRF too faint to mesh is still a NeRF: the capture goes on
+        mesh = run_dir / MESH_FILE
+        if not _step(["export", str(run_dir), "--mesh", str(mesh), "--force", "--device", args.device], needed=False):
+            mesh = None
+    print()
+    print(summary(out, camera, dataset, run_dir, mesh))
+    return 0
+
+
+def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: Path | None) -> str:
+    """What the capture made, in a few lines: the calibration, the photos posed, the NeRF's
+    held-out scores and where the videos, plots and mesh are."""
+    import json
+
+    from ..data.nerfstudio import nerfkit_block
+
+    lines = [f"capture done: {out}"]
+    if camera is not None:
+        c = json.loads(camera.read_text())
+        held = c.get("heldout_rms")
+        lines.append(f"  camera    {camera}: distortion model {c.get('dist_model', '?')}"
+                     + (f", {held:.2f} px on held-out photos" if held is not None else f", RMS {c['rms']:.2f} px"))
+    else:
+        lines.append("  camera    the photos' EXIF focal length, no lens distortion")
+    photos = json.loads((dataset / "poses.json").read_text())["photos"]
+    found = sum(1 for p in photos if p.get("tags"))
+    posed = sum(1 for p in photos if p.get("used"))
+    nk = nerfkit_block(dataset) or {}
+    views = nk.get("views") or {}
+    choice = nk.get("pose_choice")
+    lines.append(f"  photos    {len(photos)}: the tag found in {found}, {posed} posed by it")
+    lines.append(f"  dataset   {dataset}: " + ", ".join(f"{n} {split}" for split, n in views.items())
+                 + (f"; {choice['why']}" if isinstance(choice, dict) and choice.get("why") else ""))
+    e = json.loads((run_dir / "eval_val.json").read_text())
+    m = json.loads((run_dir / "metrics.json").read_text())
+    fitted = e.get("fitted")
+    lines.append(f"  NeRF      {run_dir}: {m['step']} steps; plots in {run_dir / 'plots'}")
+    lines.append(f"  held out  {e['n_images']} val photos: {e['psnr']:.2f} dB / SSIM {e['ssim']:.3f} as rendered"
+                 + (f", {fitted['psnr']:.2f} dB with each photo's pose and colour fitted" if fitted else "")
+                 + f"; photo beside render: {run_dir / 'eval_val.png'}")
+    lines.append(f"  videos    {run_dir / 'videos'}: orbit.mp4, orbit.gif, depth.mp4")
+    lines.append(f"  mesh      {mesh}" if mesh is not None else "  mesh      no mesh (see above)")
+    return "\n".join(lines)

@@ -1,0 +1,68 @@
+"""`nerfkit capture`: the whole flow on a synthetic capture, kept and redone."""
+
+from __future__ import annotations
+
+import json
+
+import imageio.v3 as iio
+import numpy as np
+
+from nerfkit.capture import synthetic as S
+from nerfkit.cli import main
+
+
+def write_photos(folder, cap):
+    folder.mkdir()
+    for name, img in zip(cap.names, cap.images):
+        S.write_photo(folder / name, img)
+    return folder
+
+
+def test_capture_runs_every_step_keeps_them_and_force_trains_a_new_run(tmp_path, capsys):
+    sheet, obj = S.cached_capture("sheet", 12, 5), S.cached_capture("object", 10, 1)
+    calib, photos = write_photos(tmp_path / "sheet", sheet), write_photos(tmp_path / "object", obj)
+    out = tmp_path / "my_object"
+    argv = ["capture", str(photos), "--calib", str(calib), "--sheet-tag-size", "0.05", "--tag-size", "0.06",
+            "--out", str(out), "--method", "tags", "--max-side", "160", "--steps", "40", "--frames", "3"]
+    assert main(argv) == 0, capsys.readouterr().err
+    text = capsys.readouterr().out
+    camera = json.loads((out / "camera.json").read_text())
+    assert abs(camera["K"][0][0] / sheet.K[0, 0] - 1) < 0.03  # the camera, from the sheet's photos
+    photos_json = json.loads((out / "dataset" / "poses.json").read_text())["photos"]
+    found = [p for p in photos_json if p.get("tags")]
+    assert len(found) >= 7 and all(p["used"] for p in found)
+    for p in found:  # posed at the object tag's size: metres, as the truth
+        k = obj.names.index(p["file"])
+        assert np.linalg.norm(np.array(p["c2w"])[:3, 3] - obj.c2w[k][:3, 3]) < 0.005
+    run = out / "run"
+    assert json.loads((run / "metrics.json").read_text())["step"] == 40
+    scores = json.loads((run / "eval_val.json").read_text())
+    assert len(iio.imread(run / "videos" / "orbit.mp4")) == 3
+    assert (run / "eval_val.png").exists() and (run / "plots" / "psnr.png").exists()
+    # the summary says what came out, with the eval's own figures
+    assert "capture done" in text and f"{scores['psnr']:.2f} dB" in text and str(run / "videos") in text
+    assert (run / "mesh.ply").exists() or "no mesh" in text
+
+    # again: every step kept, the run not trained again
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert text.count("is there from an earlier run, kept") == 3
+    assert json.loads((run / "metrics.json").read_text())["step"] == 40
+
+    # --force: calibrated and posed again, and a new NeRF beside the first
+    assert main([*argv[:-4], "--steps", "20", "--frames", "2", "--force"]) == 0
+    assert json.loads((out / "run-2" / "metrics.json").read_text())["step"] == 20
+    assert json.loads((run / "metrics.json").read_text())["step"] == 40
+
+
+def test_capture_refuses_a_missing_folder_and_a_file_as_out(tmp_path, capsys):
+    photos = tmp_path / "object"
+    photos.mkdir()
+    assert main(["capture", str(tmp_path / "nowhere"), "--tag-size", "0.06", "--out", str(tmp_path / "o")]) == 2
+    assert "is not a folder" in capsys.readouterr().err
+    (tmp_path / "file").write_text("x")
+    assert main(["capture", str(photos), "--tag-size", "0.06", "--out", str(tmp_path / "file")]) == 2
+    assert "is not a folder" in capsys.readouterr().err
+    assert main(["capture", str(photos), "--tag-size", "0.06", "--out", str(tmp_path / "o"),
+                 "--calib", str(tmp_path / "nowhere")]) == 2
+    assert "--calib" in capsys.readouterr().err
