@@ -49,6 +49,12 @@ def test_capture_runs_every_step_keeps_them_and_force_trains_a_new_run(tmp_path,
     assert text.count("is there from an earlier run, kept") == 3
     assert json.loads((run / "metrics.json").read_text())["step"] == 40
 
+    # a run cut short (no model file yet) is resumed, not started again
+    (run / "model.pt").unlink()
+    assert main(argv) == 0
+    assert f"train --resume {run}" in capsys.readouterr().out
+    assert (run / "model.pt").exists() and json.loads((run / "metrics.json").read_text())["step"] == 40
+
     # --force: calibrated and posed again, and a new NeRF beside the first
     assert main([*argv[:-4], "--steps", "20", "--frames", "2", "--force"]) == 0
     assert json.loads((out / "run-2" / "metrics.json").read_text())["step"] == 20
