@@ -61,7 +61,7 @@ def test_capture_runs_every_step_keeps_them_and_force_trains_a_new_run(tmp_path,
     assert json.loads((run / "metrics.json").read_text())["step"] == 40
 
 
-def test_capture_refuses_a_missing_folder_and_a_file_as_out(tmp_path, capsys):
+def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_photos(tmp_path, capsys):
     photos = tmp_path / "object"
     photos.mkdir()
     assert main(["capture", str(tmp_path / "nowhere"), "--tag-size", "0.06", "--out", str(tmp_path / "o")]) == 2
@@ -72,3 +72,10 @@ def test_capture_refuses_a_missing_folder_and_a_file_as_out(tmp_path, capsys):
     assert main(["capture", str(photos), "--tag-size", "0.06", "--out", str(tmp_path / "o"),
                  "--calib", str(tmp_path / "nowhere")]) == 2
     assert "--calib" in capsys.readouterr().err
+    # nothing is written among the photos; the photos may sit in the capture's folder
+    assert main(["capture", str(photos), "--tag-size", "0.06", "--out", str(photos / "out")]) == 2
+    assert "inside the input" in capsys.readouterr().err and not (photos / "out").exists()
+    nested = tmp_path / "mine" / "photos"
+    nested.mkdir(parents=True)
+    assert main(["capture", str(nested), "--tag-size", "0.06", "--out", str(tmp_path / "mine")]) == 2
+    assert "holds no images" in capsys.readouterr().err  # it got as far as reading the (empty) folder

@@ -109,6 +109,7 @@ def _run_folder(out: Path, force: bool) -> tuple[Path, bool]:
 
 def run(args: argparse.Namespace) -> int:
     from ..errors import fail
+    from ..io.paths import guard_outputs
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -116,6 +117,9 @@ def run(args: argparse.Namespace) -> int:
     for folder, flag in ((args.photos, "OBJECT_DIR"), (args.calib, "--calib")):
         if folder and not Path(folder).is_dir():
             raise fail(folder, "is not a folder", f"{flag} names a folder of photos")
+    # the photos may sit in --out (my_object/photos, --out my_object), but nothing is written among them
+    ours = [out / DATASET_DIR, out / RUN_DIR] + ([out / CAMERA_FILE] if args.calib else [])
+    guard_outputs(ours, [args.photos, args.calib, args.camera], force=True)
     out.mkdir(parents=True, exist_ok=True)
     force = ["--force"] if args.force else []
 
