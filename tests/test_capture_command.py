@@ -18,14 +18,19 @@ def write_photos(folder, cap):
     return folder
 
 
-def test_capture_runs_every_step_keeps_them_and_force_trains_a_new_run(tmp_path, capsys):
+def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, capsys, monkeypatch):
+    from nerfkit.train import trainer
+
     sheet, obj = S.cached_capture("sheet", 12, 5), S.cached_capture("object", 10, 1)
     calib, photos = write_photos(tmp_path / "sheet", sheet), write_photos(tmp_path / "object", obj)
     out = tmp_path / "my_object"
     argv = ["capture", str(photos), "--calib", str(calib), "--sheet-tag-size", "0.05", "--tag-size", "0.06",
-            "--out", str(out), "--method", "tags", "--max-side", "160", "--steps", "40", "--frames", "3"]
-    assert main(argv) == 0, capsys.readouterr().err
+            "--out", str(out), "--method", "tags", "--max-side", "160", "--steps", "160", "--frames", "3"]
+    full_run = trainer.Trainer.run
+    monkeypatch.setattr(trainer.Trainer, "run", lambda self, stop_after=None: full_run(self, stop_after=40))
+    assert main(argv) == 0, capsys.readouterr().err  # training cut short at step 40 of 160
     text = capsys.readouterr().out
+    monkeypatch.setattr(trainer.Trainer, "run", full_run)
     camera = json.loads((out / "camera.json").read_text())
     assert abs(camera["K"][0][0] / sheet.K[0, 0] - 1) < 0.03  # the camera, from the sheet's photos
     photos_json = json.loads((out / "dataset" / "poses.json").read_text())["photos"]
@@ -35,30 +40,40 @@ def test_capture_runs_every_step_keeps_them_and_force_trains_a_new_run(tmp_path,
         k = obj.names.index(p["file"])
         assert np.linalg.norm(np.array(p["c2w"])[:3, 3] - obj.c2w[k][:3, 3]) < 0.005
     run = out / "run"
-    assert json.loads((run / "metrics.json").read_text())["step"] == 40
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["step"] == 40 and metrics["finished"] is False
     scores = json.loads((run / "eval_val.json").read_text())
     assert len(iio.imread(run / "videos" / "orbit.mp4")) == 3
     assert (run / "eval_val.png").exists() and (run / "plots" / "psnr.png").exists()
     # the summary says what came out, with the eval's own figures
     assert "capture done" in text and f"{scores['psnr']:.2f} dB" in text and str(run / "videos") in text
-    assert (run / "mesh.ply").exists() or "no mesh" in text
+    # a NeRF too faint to mesh (as at 40 steps here) is still a capture: the summary says so
+    assert (run / "mesh.ply").exists() == ("mesh      none" not in text)
+
+    # again: the run cut short goes on to its 160 steps; the camera and dataset are kept
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert f"train --resume {run}" in text and text.count("is there from an earlier run, kept") == 2
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["step"] == 160 and metrics["finished"] is True
+    assert (run / "mesh.ply").exists() and f"mesh      {run / 'mesh.ply'}" in text
 
     # again: every step kept, the run not trained again
     assert main(argv) == 0
-    text = capsys.readouterr().out
-    assert text.count("is there from an earlier run, kept") == 3
-    assert json.loads((run / "metrics.json").read_text())["step"] == 40
+    assert capsys.readouterr().out.count("is there from an earlier run, kept") == 3
+    assert json.loads((run / "metrics.json").read_text())["step"] == 160
 
-    # a run cut short (no model file yet) is resumed, not started again
-    (run / "model.pt").unlink()
-    assert main(argv) == 0
-    assert f"train --resume {run}" in capsys.readouterr().out
-    assert (run / "model.pt").exists() and json.loads((run / "metrics.json").read_text())["step"] == 40
+    # other inputs are refused, not mixed with the earlier results
+    other = [*argv]
+    other[other.index("--tag-size") + 1] = "0.07"
+    assert main(other) == 2
+    assert "tag_size: 0.06 then, 0.07 now" in capsys.readouterr().err
 
-    # --force: calibrated and posed again, and a new NeRF beside the first
+    # --force: calibrated, posed and trained again, in place
     assert main([*argv[:-4], "--steps", "20", "--frames", "2", "--force"]) == 0
-    assert json.loads((out / "run-2" / "metrics.json").read_text())["step"] == 20
-    assert json.loads((run / "metrics.json").read_text())["step"] == 40
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["step"] == 20 and metrics["finished"] is True
+    assert not (out / "run-2").exists()
 
 
 def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_photos(tmp_path, capsys):

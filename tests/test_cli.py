@@ -22,6 +22,14 @@ def test_every_subcommand_help_renders(command, capsys):
     assert "--" in out  # at least one option is described
 
 
+def test_render_help_states_the_orbit_frames_it_renders(capsys):
+    from nerfkit.data.scene import ORBIT_FRAMES
+
+    with pytest.raises(SystemExit):
+        main(["render", "--help"])
+    assert f"(default: {ORBIT_FRAMES}, {ORBIT_FRAMES / 30:g} s at 30 fps)" in " ".join(capsys.readouterr().out.split())
+
+
 def test_top_level_help_lists_every_command(capsys):
     with pytest.raises(SystemExit) as e:
         main(["--help"])

@@ -5,12 +5,14 @@ The core works on plain callables so it can be tested with analytic fields:
 * ``density_fn(points (n, 3) float32 tensor) -> (n,) density``
 * ``query_fn(points (n, 3), directions (n, 3)) -> ((n,) density, (n, 3) colour in [0, 1])``
 
-Mesh: the density is sampled on a grid over the scene box (a cube of half-size
-``radius`` about ``center``), the box border is padded with empty space so the surface
-closes where it meets the box (the mesh is cropped to the box and watertight), marching
-cubes (scikit-image) extracts the ``threshold`` iso-surface, and each vertex is coloured
-by what a ray looking at it along the inward normal sees (optionally averaged over a small
-cone of directions): the field volume-rendered along a short segment through the surface.
+Mesh: the density is sampled on a grid over a cube (of half-size ``radius`` about
+``center``: for a trained model, around its own box, :func:`mesh_region`), a capture's
+table paint is cleared (:func:`clear_table_paint`), the box border is padded with empty
+space so the surface closes where it meets the box (the mesh is cropped to the box and
+watertight), marching cubes (scikit-image) extracts the ``threshold`` iso-surface, and
+each vertex is coloured by what a ray looking at it along the inward normal sees
+(optionally averaged over a small cone of directions): the field volume-rendered along a
+short segment through the surface.
 The colour *at* the iso-surface would be the field's least constrained colour: training
 fits colours where rays stop, at higher density, so a learned field's colour at its thin
 edge is noise.
@@ -92,13 +94,15 @@ def clear_table_paint(grid: np.ndarray, center, radius: float, plane, height: fl
     everything under the plane (rays stop at the table, so it was never seen) and what lies
     within ``height`` above it in the columns (along the grid axis nearest the plane's
     normal, widened by two cells) where no density over ``threshold`` rises between
-    ``height`` and ``2 * height``. What stands on the table keeps its base.
+    ``height`` and ``2 * height``. What stands on the table keeps its base, as wide as the
+    object is just above the slab. A capture's table is the plane z = 0, so its columns
+    are the grid's; under a tilted plane they would lean by its tilt.
 
     Args:
         plane: (4,) ``(n, d)``, unit normal ``n`` toward the cameras: height is ``n . x + d``.
         height: world units; 0 clears only what is under the plane.
     Returns:
-        A new (R, R, R) float32 grid.
+        ``grid``, cleared in place.
     """
     from scipy import ndimage
 
@@ -112,7 +116,8 @@ def clear_table_paint(grid: np.ndarray, center, radius: float, plane, height: fl
         rising = band.any(axis=int(np.argmax(np.abs(n))), keepdims=True)
         rising = ndimage.binary_dilation(rising, iterations=2)
         clear |= (above < height) & ~rising
-    return np.where(clear, np.float32(0.0), grid).astype(np.float32)
+    grid[clear] = 0.0
+    return grid
 
 
 def marching_cubes(grid: np.ndarray, center, radius: float, threshold: float) -> Mesh:

@@ -12,19 +12,22 @@ DESCRIPTION = """\
 Run the whole capture flow into one folder, as the README's steps do one by one:
 
   OUT/camera.json   nerfkit calibrate CALIB_DIR     (skipped with --camera)
-  OUT/dataset/      nerfkit poses OBJECT_DIR        (posed, undistorted, split; SfM poses in the tag's frame)
+  OUT/dataset/      nerfkit poses OBJECT_DIR        (posed, undistorted, split; with --method auto,
+                                                     structure-from-motion poses in the tag's frame)
   OUT/run/          nerfkit train --minutes 3       (capture settings: table, room, pose and colour refinement)
                     nerfkit eval --split val        (run/eval_val.json and the contact sheet run/eval_val.png)
                     nerfkit render                  (run/videos: orbit.mp4, orbit.gif, depth.mp4)
   OUT/run/mesh.ply  nerfkit export --mesh           (the object, without the table)
 
 and print what came out: the calibration, the photos posed, the held-out scores, where
-the videos and plots are. Each step prints its own report as it goes.
+the videos and plots are. Each step prints its own report as it goes. OUT/capture.json
+records what the capture was made from.
 
-Run it again and the steps whose results are there are kept: a run cut short by Ctrl-C
-is resumed from its last checkpoint; the eval, videos and mesh are redone (they belong to
-the run). --force redoes every step; the new NeRF then goes to a fresh folder (run-2, ...)
-and the earlier one is kept.
+Run it again with the same inputs and the steps whose results are there are kept: a
+training run cut short (Ctrl-C, a crash) goes on from its last checkpoint; the eval, the
+videos and the mesh are redone (they belong to the run). Other inputs than the earlier
+run's are refused. --force redoes every step, replacing the camera file, the dataset and
+the NeRF.
 
 examples:
   nerfkit capture object_photos/ --calib sheet_photos/ --tag-size 0.06 --out my_object/
@@ -36,6 +39,7 @@ CAMERA_FILE = "camera.json"
 DATASET_DIR = "dataset"
 RUN_DIR = "run"
 MESH_FILE = "mesh.ply"
+RECORD_FILE = "capture.json"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -53,19 +57,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     cam.add_argument("--camera", help="a camera file from an earlier `nerfkit calibrate` of the same phone")
     p.add_argument("--sheet-tag-size", type=number(float, above=0),
                    help="side of a tag's black square on the calibration sheet (default: --tag-size)")
-    p.add_argument("--dict", default="DICT_4X4_50", help="ArUco dictionary of the tags (default: DICT_4X4_50)")
+    p.add_argument("--dict", help="ArUco dictionary of the tags (default: the camera file's, else DICT_4X4_50)")
     p.add_argument("--method", choices=["auto", "tags"], default="auto",
                    help="poses: auto (default) takes structure-from-motion poses in the tag's frame when they hold "
                    "up; tags: the tag's poses only, as the course does")
     p.add_argument("--max-side", type=number(int, 0), default=512,
-                   help="the dataset's photos' longer side in pixels (default: 512)")
+                   help="the dataset's photos' longer side in pixels (0: keep their size; default: 512)")
     p.add_argument("--minutes", type=number(float, above=0), default=3.0, help="training time (default: 3)")
     p.add_argument("--steps", type=number(int, 1), help="train this many steps instead of --minutes")
     p.add_argument("--frames", type=number(int, 1, 100_000), help="frames of the orbit (default: render's, 120)")
     p.add_argument("--no-mesh", action="store_true", help="skip the mesh")
     p.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N (default: auto)")
     p.add_argument("--force", action="store_true",
-                   help="redo every step (replacing the camera file and the dataset; the NeRF goes to a new folder)")
+                   help="redo every step, replacing the camera file, the dataset and the NeRF of an earlier run")
     p.set_defaults(func=run)
 
 
@@ -94,21 +98,67 @@ def _kept(what: str, path: Path) -> None:
     print(f"\n== {what}: {path} is there from an earlier run, kept (--force redoes it)", flush=True)
 
 
-def _run_folder(out: Path, force: bool) -> tuple[Path, bool]:
-    """(the run folder, whether it holds a run to continue): OUT/run, or with ``force``
-    a fresh OUT/run-N when OUT/run holds a run (a finished NeRF is never overwritten)."""
-    run = out / RUN_DIR
-    if not force:
-        return run, (run / "config.json").exists()
-    k = 2
-    while (run / "config.json").exists():
-        run = out / f"{RUN_DIR}-{k}"
-        k += 1
-    return run, False
+def _inputs(args: argparse.Namespace) -> dict:
+    """What a capture is made from: a later run must name the same to keep its results."""
+    def where(p):
+        return str(Path(p).resolve()) if p else None
+
+    return {"photos": where(args.photos), "calib": where(args.calib), "camera": where(args.camera),
+            "tag_size": args.tag_size, "sheet_tag_size": args.sheet_tag_size, "dict": args.dict,
+            "method": args.method, "max_side": args.max_side}
+
+
+def _same_inputs(out: Path, inputs: dict) -> None:
+    """Refuse to keep an earlier capture's results when it was made from other inputs."""
+    import json
+
+    from ..errors import fail
+
+    record = out / RECORD_FILE
+    if not record.exists():
+        return
+    try:
+        before = json.loads(record.read_text()).get("inputs", {})
+    except (OSError, ValueError, AttributeError):
+        before = {}
+    changed = [k for k, v in inputs.items() if before.get(k) != v]
+    if changed:
+        raise fail(out, "holds a capture made from other inputs (" + ", ".join(
+            f"{k}: {before.get(k)} then, {inputs[k]} now" for k in changed) + ")",
+            "Pass --force to redo it with these, or choose another --out")
+
+
+def _finished(run_dir: Path) -> bool:
+    """Whether ``run_dir`` holds a run that reached its stopping rule (a run cut short by
+    Ctrl-C has its model file too, but not ``finished`` in its metrics)."""
+    import json
+
+    if not (run_dir / "model.pt").exists():
+        return False
+    try:
+        return bool(json.loads((run_dir / "metrics.json").read_text()).get("finished", True))
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _replace_run(run_dir: Path) -> None:
+    """Remove an earlier run of this capture (``--force``); a folder that is not a nerfkit
+    run is refused, never removed."""
+    import shutil
+
+    from ..errors import fail
+
+    if not run_dir.exists():
+        return
+    if not (run_dir / "config.json").is_file():
+        raise fail(run_dir, "holds files that are not a nerfkit run", "Move them away, or choose another --out")
+    print(f"\n== --force: removing the earlier NeRF {run_dir}", flush=True)
+    shutil.rmtree(run_dir)
 
 
 def run(args: argparse.Namespace) -> int:
     from ..errors import fail
+    from ..io.atomic import write_json
     from ..io.paths import guard_outputs
 
     out = Path(args.out)
@@ -118,38 +168,44 @@ def run(args: argparse.Namespace) -> int:
         if folder and not Path(folder).is_dir():
             raise fail(folder, "is not a folder", f"{flag} names a folder of photos")
     # the photos may sit in --out (my_object/photos, --out my_object), but nothing is written among them
-    ours = [out / DATASET_DIR, out / RUN_DIR] + ([out / CAMERA_FILE] if args.calib else [])
+    ours = [out / DATASET_DIR, out / RUN_DIR, out / RECORD_FILE] + ([out / CAMERA_FILE] if args.calib else [])
     guard_outputs(ours, [args.photos, args.calib, args.camera], force=True)
+    inputs = _inputs(args)
+    if not args.force:
+        _same_inputs(out, inputs)
     out.mkdir(parents=True, exist_ok=True)
-    force = ["--force"] if args.force else []
+    write_json(out / RECORD_FILE, {"inputs": inputs})
+    dictionary = ["--dict", args.dict] if args.dict else []
 
     camera = Path(args.camera) if args.camera else None
     if args.calib:
         camera = out / CAMERA_FILE
         if camera.exists() and not args.force:
             _kept("calibration", camera)
-        else:
-            _step(["calibrate", args.calib, "--dict", args.dict, "--tag-size", str(args.sheet_tag_size or args.tag_size),
-                   "--out", str(camera), *force])
+        else:  # --force: a calibration cut short may have left its detections
+            _step(["calibrate", args.calib, *dictionary, "--tag-size", str(args.sheet_tag_size or args.tag_size),
+                   "--out", str(camera), "--force"])
 
     dataset = out / DATASET_DIR
     if (dataset / "dataset.npz").exists() and not args.force:
         _kept("dataset", dataset)
-    else:
-        _step(["poses", args.photos, "--tag-size", str(args.tag_size), "--dict", args.dict, "--out", str(dataset),
-               "--method", args.method, "--max-side", str(args.max_side), *force,
+    else:  # --force: the folder is the capture's, and poses cut short leaves poses.json
+        _step(["poses", args.photos, "--tag-size", str(args.tag_size), *dictionary, "--out", str(dataset),
+               "--method", args.method, "--max-side", str(args.max_side), "--force",
                *(["--camera", str(camera)] if camera else [])])
 
-    run_dir, started = _run_folder(out, args.force)
-    if (run_dir / "model.pt").exists():
+    run_dir = out / RUN_DIR
+    if args.force:
+        _replace_run(run_dir)
+    budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
+    if _finished(run_dir):
         _kept("NeRF", run_dir)
-    elif started:
-        _step(["train", "--resume", str(run_dir)])
+    elif (run_dir / "config.json").exists():
+        _step(["train", "--resume", str(run_dir), "--device", args.device])
     else:
-        budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
         _step(["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget,
                "--device", args.device])
-    _step(["eval", str(run_dir), "--split", "val", "--device", args.device], quiet=True)
+    evaluated = _step(["eval", str(run_dir), "--split", "val", "--device", args.device], needed=False, quiet=True)
     _step(["render", str(run_dir), "--device", args.device, *(["--frames", str(args.frames)] if args.frames else [])])
     mesh = None
     if not args.no_mesh:  # a NeRF too faint to mesh is still a NeRF: the capture goes on
@@ -157,23 +213,26 @@ def run(args: argparse.Namespace) -> int:
         if not _step(["export", str(run_dir), "--mesh", str(mesh), "--force", "--device", args.device], needed=False):
             mesh = None
     print()
-    print(summary(out, camera, dataset, run_dir, mesh))
+    print(summary(out, camera, dataset, run_dir, mesh, evaluated))
     return 0
 
 
-def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: Path | None) -> str:
+def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: Path | None,
+            evaluated: bool = True) -> str:
     """What the capture made, in a few lines: the calibration, the photos posed, the NeRF's
     held-out scores and where the videos, plots and mesh are."""
     import json
 
     from ..data.nerfstudio import nerfkit_block
+    from ..output.videos import VIDEO_FILES
 
     lines = [f"capture done: {out}"]
     if camera is not None:
         c = json.loads(camera.read_text())
-        held = c.get("heldout_rms")
-        lines.append(f"  camera    {camera}: distortion model {c.get('dist_model', '?')}"
-                     + (f", {held:.2f} px on held-out photos" if held is not None else f", RMS {c['rms']:.2f} px"))
+        held, rms = c.get("heldout_rms"), c.get("rms")
+        lines.append(f"  camera    {camera}: distortion model {c.get('dist_model', 'as given')}"
+                     + (f", {held:.2f} px on held-out photos" if held is not None else
+                        f", RMS {rms:.2f} px" if rms is not None else ""))
     else:
         lines.append("  camera    the photos' EXIF focal length, no lens distortion")
     photos = json.loads((dataset / "poses.json").read_text())["photos"]
@@ -185,13 +244,16 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
     lines.append(f"  photos    {len(photos)}: the tag found in {found}, {posed} posed by it")
     lines.append(f"  dataset   {dataset}: " + ", ".join(f"{n} {split}" for split, n in views.items())
                  + (f"; {choice['why']}" if isinstance(choice, dict) and choice.get("why") else ""))
-    e = json.loads((run_dir / "eval_val.json").read_text())
     m = json.loads((run_dir / "metrics.json").read_text())
-    fitted = e.get("fitted")
     lines.append(f"  NeRF      {run_dir}: {m['step']} steps; plots in {run_dir / 'plots'}")
-    lines.append(f"  held out  {e['n_images']} val photos: {e['psnr']:.2f} dB / SSIM {e['ssim']:.3f} as rendered"
-                 + (f", {fitted['psnr']:.2f} dB with each photo's pose and colour fitted" if fitted else "")
-                 + f"; photo beside render: {run_dir / 'eval_val.png'}")
-    lines.append(f"  videos    {run_dir / 'videos'}: orbit.mp4, orbit.gif, depth.mp4")
-    lines.append(f"  mesh      {mesh}" if mesh is not None else "  mesh      no mesh (see above)")
+    if evaluated:
+        e = json.loads((run_dir / "eval_val.json").read_text())
+        fitted = e.get("fitted")
+        lines.append(f"  held out  {e['n_images']} val photos: {e['psnr']:.2f} dB / SSIM {e['ssim']:.3f} as rendered"
+                     + (f", {fitted['psnr']:.2f} dB with each photo's pose and colour fitted" if fitted else "")
+                     + f"; photo beside render: {run_dir / 'eval_val.png'}")
+    else:
+        lines.append("  held out  not scored (the eval's error is above)")
+    lines.append(f"  videos    {run_dir / 'videos'}: " + ", ".join(VIDEO_FILES))
+    lines.append(f"  mesh      {mesh}" if mesh is not None else "  mesh      none (see above)")
     return "\n".join(lines)

@@ -311,8 +311,9 @@ class NerfModel(nn.Module):
         return None
 
     def density_box(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """World box ``(lo (3,), hi (3,))`` outside which the model holds no density, when
-        it is smaller than the scene's (a capture's box around the object); else None."""
+        """World box ``(lo (3,), hi (3,))`` outside which the model holds no density (a
+        grid's box: a capture's box around the object), or None when the model cannot tell
+        (its density may be anywhere in the scene, or it lives in another space, NDC)."""
         return None
 
     def table_plane(self) -> np.ndarray | None:

@@ -440,9 +440,10 @@ class Trainer:
                  + ("" if full else f" ({pixels} pixels per view)"))
 
     def write_reports(self) -> None:
-        """metrics.csv/json, PSNR and loss curves, and the progression figure."""
+        """metrics.csv/json (``finished``: the stopping rule was reached, not cut short),
+        PSNR and loss curves, and the progression figure."""
         write_json(self.run_dir / "metrics.json", {"rows": self.rows, "step": self.step,
-                                                   "train_seconds": self.train_seconds})
+                                                   "train_seconds": self.train_seconds, "finished": self.done()})
         buf = io.StringIO()
         keys = ["step", "seconds", "split", "loss", "psnr", "views", "pixels", "rays"]
         writer = csv.DictWriter(buf, fieldnames=keys, extrasaction="ignore")
