@@ -256,4 +256,5 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
         lines.append("  held out  not scored (the eval's error is above)")
     lines.append(f"  videos    {run_dir / 'videos'}: " + ", ".join(VIDEO_FILES))
     lines.append(f"  mesh      {mesh}" if mesh is not None else "  mesh      none (see above)")
+    lines.append(f"  look      nerfkit view {run_dir}   (the NeRF live in the browser, with the cameras)")
     return "\n".join(lines)
