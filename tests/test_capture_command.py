@@ -58,9 +58,9 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     assert metrics["step"] == 160 and metrics["finished"] is True
     assert (run / "mesh.ply").exists() and f"mesh      {run / 'mesh.ply'}" in text
 
-    # again: every step kept, the run not trained again
-    assert main(argv) == 0
-    assert capsys.readouterr().out.count("is there from an earlier run, kept") == 3
+    # again: every step kept, the run not trained again, its eval, videos and mesh not made again
+    assert main([*argv[:-2]]) == 0  # (--frames asks for the videos again)
+    assert capsys.readouterr().out.count("is there from an earlier run, kept") == 6
     assert json.loads((run / "metrics.json").read_text())["step"] == 160
 
     # other inputs are refused, not mixed with the earlier results

@@ -24,10 +24,10 @@ the videos and plots are. Each step prints its own report as it goes. OUT/captur
 records what the capture was made from.
 
 Run it again with the same inputs and the steps whose results are there are kept: a
-training run cut short (Ctrl-C, a crash) goes on from its last checkpoint; the eval, the
-videos and the mesh are redone (they belong to the run). Other inputs than the earlier
-run's are refused. --force redoes every step, replacing the camera file, the dataset and
-the NeRF.
+training run cut short (Ctrl-C, a crash) goes on from its last checkpoint, and the eval,
+videos and mesh are made again when they are older than the NeRF (--frames renders the
+videos again). Other inputs than the earlier run's are refused. --force redoes every step,
+replacing the camera file, the dataset and the NeRF.
 
 examples:
   nerfkit capture object_photos/ --calib sheet_photos/ --tag-size 0.06 --out my_object/
@@ -141,6 +141,12 @@ def _finished(run_dir: Path) -> bool:
         return False
 
 
+def _newer_than_model(path: Path, run_dir: Path) -> bool:
+    """Whether ``path`` was written after the run's model file, so it shows that model."""
+    model = run_dir / "model.pt"
+    return path.exists() and model.exists() and path.stat().st_mtime >= model.stat().st_mtime
+
+
 def _replace_run(run_dir: Path) -> None:
     """Remove an earlier run of this capture (``--force``); a folder that is not a nerfkit
     run is refused, never removed."""
@@ -160,6 +166,7 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import fail
     from ..io.atomic import write_json
     from ..io.paths import guard_outputs
+    from ..output.videos import VIDEO_FILES
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -205,12 +212,24 @@ def run(args: argparse.Namespace) -> int:
     else:
         _step(["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget,
                "--device", args.device])
-    evaluated = _step(["eval", str(run_dir), "--split", "val", "--device", args.device], needed=False, quiet=True)
-    _step(["render", str(run_dir), "--device", args.device, *(["--frames", str(args.frames)] if args.frames else [])])
+    # what shows the model as it is now is kept; the rest is made again (it belongs to the run)
+    evaluated = True
+    if _newer_than_model(run_dir / "eval_val.json", run_dir):
+        _kept("evaluation", run_dir / "eval_val.json")
+    else:
+        evaluated = _step(["eval", str(run_dir), "--split", "val", "--device", args.device], needed=False, quiet=True)
+    videos = run_dir / "videos"
+    if all(_newer_than_model(videos / name, run_dir) for name in VIDEO_FILES) and not args.frames:
+        _kept("videos", videos)
+    else:
+        _step(["render", str(run_dir), "--device", args.device, *(["--frames", str(args.frames)] if args.frames else [])])
     mesh = None
     if not args.no_mesh:  # a NeRF too faint to mesh is still a NeRF: the capture goes on
         mesh = run_dir / MESH_FILE
-        if not _step(["export", str(run_dir), "--mesh", str(mesh), "--force", "--device", args.device], needed=False):
+        if _newer_than_model(mesh, run_dir):
+            _kept("mesh", mesh)
+        elif not _step(["export", str(run_dir), "--mesh", str(mesh), "--force", "--device", args.device],
+                       needed=False):
             mesh = None
     print()
     print(summary(out, camera, dataset, run_dir, mesh, evaluated))
