@@ -47,6 +47,7 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     assert (run / "eval_val.png").exists() and (run / "plots" / "psnr.png").exists()
     # the summary says what came out, with the eval's own figures
     assert "capture done" in text and f"{scores['psnr']:.2f} dB" in text and str(run / "videos") in text
+    assert "training photos. A NeRF from this few" in text.split("capture done")[1]  # 6 of them: said again
     # a NeRF too faint to mesh (as at 40 steps here) is still a capture: the summary says so
     assert (run / "mesh.ply").exists() == ("mesh      none" not in text)
 

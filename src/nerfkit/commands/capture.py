@@ -242,6 +242,7 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
     held-out scores and where the videos, plots and mesh are."""
     import json
 
+    from ..capture.dataset import FEW_TRAIN_VIEWS, few_views_note
     from ..data.nerfstudio import nerfkit_block
     from ..output.videos import VIDEO_FILES
 
@@ -263,6 +264,9 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
     lines.append(f"  photos    {len(photos)}: the tag found in {found}, {posed} posed by it")
     lines.append(f"  dataset   {dataset}: " + ", ".join(f"{n} {split}" for split, n in views.items())
                  + (f"; {choice['why']}" if isinstance(choice, dict) and choice.get("why") else ""))
+    few = few_views_note(int(views.get("train", FEW_TRAIN_VIEWS)))
+    if few:
+        lines.append(f"            {few}")
     m = json.loads((run_dir / "metrics.json").read_text())
     lines.append(f"  NeRF      {run_dir}: {m['step']} steps; plots in {run_dir / 'plots'}")
     if evaluated:
