@@ -61,8 +61,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=["auto", "tags"], default="auto",
                    help="poses: auto (default) takes structure-from-motion poses in the tag's frame when they hold "
                    "up; tags: the tag's poses only, as the course does")
-    p.add_argument("--max-side", type=number(int, 0), default=512,
-                   help="the dataset's photos' longer side in pixels (0: keep their size; default: 512)")
+    p.add_argument("--max-side", type=number(int, 0),
+                   help="the dataset's photos' longer side in pixels (0: keep their size; default: poses', 512)")
     p.add_argument("--minutes", type=number(float, above=0), default=3.0, help="training time (default: 3)")
     p.add_argument("--steps", type=number(int, 1), help="train this many steps instead of --minutes")
     p.add_argument("--frames", type=number(int, 1, 100_000), help="frames of the orbit (default: render's, 120)")
@@ -198,8 +198,8 @@ def run(args: argparse.Namespace) -> int:
         _kept("dataset", dataset)
     else:  # --force: the folder is the capture's, and poses cut short leaves poses.json
         _step(["poses", args.photos, "--tag-size", str(args.tag_size), *dictionary, "--out", str(dataset),
-               "--method", args.method, "--max-side", str(args.max_side), "--force",
-               *(["--camera", str(camera)] if camera else [])])
+               "--method", args.method, "--force", *(["--camera", str(camera)] if camera else []),
+               *(["--max-side", str(args.max_side)] if args.max_side is not None else [])])
 
     run_dir = out / RUN_DIR
     if args.force:
