@@ -60,7 +60,8 @@ def main() -> None:
     import torch
 
     from nerfkit.commands._common import open_run, scene_for_run
-    from nerfkit.export import COLOUR_REACH, extract_mesh, mesh_region, table_cut_height, vertex_colors
+    from nerfkit.export import COLOUR_REACH, extract_mesh, mesh_region, vertex_colors
+    from nerfkit.tabletop import table_cut_height
     from nerfkit.output.images import render_image
 
     run = open_run(argparse.Namespace(run=args.run, device="cpu", chunk=0))

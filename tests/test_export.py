@@ -12,6 +12,7 @@ trimesh = pytest.importorskip("trimesh")
 pytest.importorskip("skimage")
 
 from nerfkit import export as ex  # noqa: E402
+from nerfkit import tabletop  # noqa: E402
 from nerfkit.cameras import Rays, image_rays  # noqa: E402
 from nerfkit.data.synthetic import sphere_color, sphere_scene  # noqa: E402
 from nerfkit.errors import NerfkitError  # noqa: E402
@@ -144,9 +145,9 @@ def test_table_paint_is_cleared_and_what_stands_on_the_table_keeps_its_base():
     np.testing.assert_allclose(np.hypot(base[:, 0], base[:, 1]).max(), 0.2, atol=0.03)
     assert ex.to_trimesh(mesh).is_watertight  # closed where it was cut
     # with no height, only what is under the table goes
-    under = ex.clear_table_paint(ex.sample_density_grid(figure_on_table, [0, 0, 0], 1.0, 41), [0, 0, 0], 1.0,
-                                 table, 0.0, 50.0)
     zs = ex.grid_axis(0.0, 1.0, 41)
+    under = tabletop.clear_table_paint(ex.sample_density_grid(figure_on_table, [0, 0, 0], 1.0, 41), [zs] * 3, table, 0.0,
+                                 50.0)
     assert under[:, :, zs < 0].max() == 0 and under[:, :, zs >= 0].max() == 100
 
 
@@ -158,11 +159,11 @@ def test_the_mesh_covers_the_models_own_box_and_the_cut_is_a_fraction_of_its_hei
     center, half = ex.mesh_region(boxed, np.zeros(3), 5.0, scale=1.5)
     np.testing.assert_allclose(center, [0.1, -0.5, 0.2])
     assert half == pytest.approx(0.75)  # the longest side, 1.0, over 2, times 1.5
-    assert ex.table_cut_height(boxed, 0.05) == pytest.approx(0.025)  # the box's top is 0.5 above the table
+    assert tabletop.table_cut_height(boxed, 0.05) == pytest.approx(0.025)  # the box's top is 0.5 above the table
     plain = SimpleNamespace(density_box=lambda: None, table_plane=lambda: None)
     center, half = ex.mesh_region(plain, np.ones(3), 5.0)
     np.testing.assert_allclose(center, 1.0)
-    assert half == 5.0 and ex.table_cut_height(plain, 0.05) == 0.0
+    assert half == 5.0 and tabletop.table_cut_height(plain, 0.05) == 0.0
 
 
 # ----------------------------------------------------------------------------- points

@@ -32,6 +32,7 @@ import torch
 
 from .errors import fail
 from .io.atomic import atomic_path
+from .tabletop import SURFACE_DENSITY, clear_table_paint, table_cut_height
 
 DensityFn = Callable[[torch.Tensor], torch.Tensor]
 QueryFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -84,40 +85,6 @@ def sample_density_grid(density_fn: DensityFn, center, radius: float, resolution
         vals = torch.cat(out).numpy().reshape(len(kz), resolution, resolution)
         grid[:, :, k0:k0 + len(kz)] = np.moveaxis(vals, 0, -1)
     return np.nan_to_num(grid, nan=0.0, posinf=np.finfo(np.float32).max, neginf=0.0)
-
-
-def clear_table_paint(grid: np.ndarray, center, radius: float, plane, height: float, threshold: float) -> np.ndarray:
-    """A density grid (as :func:`sample_density_grid`'s) with a capture's table paint cleared.
-
-    Training paints some of the table (a tag's black squares, the sheet's edge) into the
-    density just above it, where the photos disagree by a pixel or two. Cleared here:
-    everything under the plane (rays stop at the table, so it was never seen) and what lies
-    within ``height`` above it in the columns (along the grid axis nearest the plane's
-    normal, widened by two cells) where no density over ``threshold`` rises between
-    ``height`` and ``2 * height``. What stands on the table keeps its base, as wide as the
-    object is just above the slab. A capture's table is the plane z = 0, so its columns
-    are the grid's; under a tilted plane they would lean by its tilt.
-
-    Args:
-        plane: (4,) ``(n, d)``, unit normal ``n`` toward the cameras: height is ``n . x + d``.
-        height: world units; 0 clears only what is under the plane.
-    Returns:
-        ``grid``, cleared in place.
-    """
-    from scipy import ndimage
-
-    res = grid.shape[0]
-    n, d = np.asarray(plane, np.float64)[:3], float(np.asarray(plane)[3])
-    xs, ys, zs = (grid_axis(np.asarray(center, np.float64)[a], radius, res) for a in range(3))
-    above = (n[0] * xs[:, None, None] + n[1] * ys[None, :, None] + n[2] * zs[None, None, :] + d).astype(np.float32)
-    clear = above < 0
-    if height > 0:
-        band = (above >= height) & (above < 2 * height) & (grid > threshold)
-        rising = band.any(axis=int(np.argmax(np.abs(n))), keepdims=True)
-        rising = ndimage.binary_dilation(rising, iterations=2)
-        clear |= (above < height) & ~rising
-    grid[clear] = 0.0
-    return grid
 
 
 def marching_cubes(grid: np.ndarray, center, radius: float, threshold: float) -> Mesh:
@@ -231,7 +198,8 @@ def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int =
     spacings; 0: the field's colour at the vertex). See the module docstring."""
     grid = sample_density_grid(density_fn, center, radius, resolution, chunk, device, progress)
     if table is not None:
-        grid = clear_table_paint(grid, center, radius, table, table_cut, threshold)
+        axes = [grid_axis(c, radius, resolution) for c in np.asarray(center, np.float64).reshape(3)]
+        grid = clear_table_paint(grid, axes, table, table_cut, threshold)
     mesh = marching_cubes(grid, center, radius, threshold)
     if query_fn is not None:
         if reach is None:
@@ -348,18 +316,8 @@ def mesh_region(model, center, radius: float, scale: float = 1.0) -> tuple[np.nd
     return np.asarray(center, np.float64).reshape(3), radius * scale
 
 
-def table_cut_height(model, fraction: float) -> float:
-    """``fraction`` of the height of the model's density box's top above its table plane
-    (world units; 0 without a table or a box)."""
-    plane, box = model.table_plane(), model.density_box()
-    if plane is None or box is None:
-        return 0.0
-    corners = np.array([[x, y, z] for x in (box[0][0], box[1][0]) for y in (box[0][1], box[1][1])
-                        for z in (box[0][2], box[1][2])], np.float64)
-    return fraction * max(float((corners @ plane[:3] + plane[3]).max()), 0.0)
-
-
-def mesh_from_model(model, center, radius: float, reach: float, resolution: int = 256, threshold: float = 25.0,
+def mesh_from_model(model, center, radius: float, reach: float, resolution: int = 256,
+                    threshold: float = SURFACE_DENSITY,
                     n_dirs: int = 1, chunk: int = 65536, device: str | torch.device = "cpu", progress: bool = True,
                     table_cut: float = 0.0) -> Mesh:
     """A coloured mesh of a trained model (its ``density(points)`` and ``query(points,

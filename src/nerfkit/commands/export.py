@@ -39,6 +39,7 @@ examples:
 
 def register(sub: argparse._SubParsersAction) -> None:
     from ..config import number
+    from ..tabletop import SURFACE_DENSITY, TABLE_CUT
     from ._common import add_run_device_args
 
     p = sub.add_parser("export", help=HELP, description=HELP + ".", epilog=EPILOG,
@@ -49,11 +50,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--splat", metavar="OUT.ply", help="(splat runs) write the Gaussians here: 3DGS PLY, or .splat")
     g = p.add_argument_group("mesh")
     g.add_argument("--resolution", type=number(int, 8, 1024), default=256, help="grid cells per side (default: 256)")
-    g.add_argument("--threshold", type=number(float), default=25.0,
+    g.add_argument("--threshold", type=number(float), default=SURFACE_DENSITY,
                    help="density of the surface (default: 25; higher = tighter, fewer floaters)")
     g.add_argument("--box-scale", type=number(float, above=0), default=1.0,
                    help="scale the cube meshed, and the scene box points are cropped to (default: 1)")
-    g.add_argument("--table-cut", type=number(float, 0, 1), default=0.05,
+    g.add_argument("--table-cut", type=number(float, 0, 1), default=TABLE_CUT,
                    help="(captures) clear density within this fraction of the object's height above the table, "
                    "where nothing rises out of that slab: the tags and sheet painted into density "
                    "(0: clear only under the table; default: 0.05)")
@@ -119,7 +120,8 @@ def export_splat(run_, path: str) -> None:
 
 
 def export_mesh(run_, args) -> None:
-    from ..export import COLOUR_REACH, mesh_from_model, mesh_region, table_cut_height, write_mesh_ply
+    from ..export import COLOUR_REACH, mesh_from_model, mesh_region, write_mesh_ply
+    from ..tabletop import table_cut_height
 
     model, bounds = run_.model, run_.info.bounds
     center, radius = mesh_region(model, bounds.center, bounds.radius, args.box_scale)

@@ -1,0 +1,63 @@
+"""The object a capture's model holds, apart from its table.
+
+A capture's object stands on a table that the model draws as a textured plane; training
+also paints some of the table (a tag's black squares, the sheet's edge) into the density
+just above it. Meshes (``nerfkit export --mesh``) and object-only videos (``nerfkit render
+--object``) clear that paint. NumPy and SciPy only: the CLI reads the defaults at start-up.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# the density (per world unit) taken as a trained field's surface: the mesh's iso-level, and
+# what must rise out of the table's slab for a column to keep its base (clear_table_paint)
+SURFACE_DENSITY = 25.0
+# how high above a capture's table its paint is cleared, as a fraction of the object's height
+TABLE_CUT = 0.05
+
+
+def table_cut_height(model, fraction: float) -> float:
+    """``fraction`` of the height of the model's density box's top above its table plane
+    (world units; 0 without a table or a box)."""
+    plane, box = model.table_plane(), model.density_box()
+    if plane is None or box is None:
+        return 0.0
+    corners = np.array([[x, y, z] for x in (box[0][0], box[1][0]) for y in (box[0][1], box[1][1])
+                        for z in (box[0][2], box[1][2])], np.float64)
+    return fraction * max(float((corners @ plane[:3] + plane[3]).max()), 0.0)
+
+
+def clear_table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) -> np.ndarray:
+    """A density grid with a capture's table paint cleared.
+
+    Training paints some of the table (a tag's black squares, the sheet's edge) into the
+    density just above it, where the photos disagree by a pixel or two. Cleared here:
+    everything under the plane (rays stop at the table, so it was never seen) and what lies
+    within ``height`` above it in the columns (along the grid axis nearest the plane's
+    normal, widened by two cells) where no density over ``threshold`` rises between
+    ``height`` and ``2 * height``. What stands on the table keeps its base, as wide as the
+    object is just above the slab. A capture's table is the plane z = 0, so its columns
+    are the grid's; under a tilted plane they would lean by its tilt.
+
+    Args:
+        grid: (X, Y, Z) density at the points ``axes[0][i], axes[1][j], axes[2][k]``.
+        axes: the grid's x, y and z positions, (X,), (Y,) and (Z,).
+        plane: (4,) ``(n, d)``, unit normal ``n`` toward the cameras: height is ``n . x + d``.
+        height: world units; 0 clears only what is under the plane.
+    Returns:
+        ``grid``, cleared in place.
+    """
+    from scipy import ndimage
+
+    n, d = np.asarray(plane, np.float64)[:3], float(np.asarray(plane)[3])
+    xs, ys, zs = (np.asarray(a, np.float64) for a in axes)
+    above = (n[0] * xs[:, None, None] + n[1] * ys[None, :, None] + n[2] * zs[None, None, :] + d).astype(np.float32)
+    clear = above < 0
+    if height > 0:
+        band = (above >= height) & (above < 2 * height) & (grid > threshold)
+        rising = band.any(axis=int(np.argmax(np.abs(n))), keepdims=True)
+        rising = ndimage.binary_dilation(rising, iterations=2)
+        clear |= (above < height) & ~rising
+    grid[clear] = 0.0
+    return grid
