@@ -58,10 +58,12 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["step"] == 160 and metrics["finished"] is True
     assert (run / "mesh.ply").exists() and f"mesh      {run / 'mesh.ply'}" in text
+    assert len(iio.imread(run / "videos" / "object.mp4")) == 3  # the object alone, too
+    assert "the object alone: object.mp4, object.gif, object_depth.mp4" in text
 
     # again: every step kept, the run not trained again, its eval, videos and mesh not made again
     assert main([*argv[:-2]]) == 0  # (--frames asks for the videos again)
-    assert capsys.readouterr().out.count("is there from an earlier run, kept") == 6
+    assert capsys.readouterr().out.count("is there from an earlier run, kept") == 7
     assert json.loads((run / "metrics.json").read_text())["step"] == 160
 
     # other inputs are refused, not mixed with the earlier results

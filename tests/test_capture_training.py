@@ -250,3 +250,39 @@ def test_eval_fits_a_held_out_photos_colour_transform(tmp_path, tabletop):
         np.testing.assert_allclose(row["fitted_offset"], [0.06] * 3, atol=0.01)
         np.testing.assert_allclose(row["fitted_grey_gain"], M.sum(1), atol=0.03)  # its gain on grey
     assert "fitted_colour_matrix" not in scores[False]["per_image"][0]
+
+
+def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surroundings():
+    """A post standing on the table keeps its base; paint on the table and density under it
+    go; rays that met the table now meet nothing."""
+    from nerfkit.cameras import Rays
+    from nerfkit.models.base import SceneBounds
+    from nerfkit.models.fast import EMPTY_RAW, FastNeRF
+
+    bounds = SceneBounds(1.0, 8.0, np.array([0, 0, 0.5], np.float32), 1.0, np.array([0, 0, 1], np.float32),
+                         table=np.array([0, 0, 1, 0], np.float32), camera_radius=4.0)
+    model = FastNeRF(FastConfig(resolutions="21", upsample_steps="", table=True, table_resolution=32,
+                                learn_background=True, room_shells=2), bounds)
+    lo, v = model.grid_lo.numpy(), model.voxel
+    rx, ry, rz = model.res
+    z, y, x = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in ((2, rz), (1, ry), (0, rx))), indexing="ij")
+    post = (x ** 2 + y ** 2 < 0.2 ** 2) & (z < 1.2)  # from under the table up to 1.2
+    paint = (x > 0.5) & (x < 0.8) & (y > 0.5) & (y < 0.8) & (np.abs(z) < 0.04)
+    rows = model.vertex_rows.long().numpy().reshape(-1)
+    with torch.no_grad():
+        model.grid[:, 0] = EMPTY_RAW
+        model.grid[rows[(post | paint).reshape(-1)], 0] = 10.0
+    model.refresh_occupancy()
+    assert model.isolate_object(0.15, 25.0)  # (the cut spans the z = 0 and 0.1 layers of vertices)
+    assert model.table is None and model.room is None and model.bg_coef is None
+    kept = (model.grid[rows, 0] > 0).numpy().reshape(z.shape)
+    assert not (kept & paint).any() and not (kept & (z < 0)).any()  # paint and what is under the table: gone
+    np.testing.assert_array_equal(kept, post & (z >= 0))  # the post, with its base on the table
+    # a ray down through the paint meets nothing now: the background, exactly
+    rays = Rays(torch.tensor([[0.65, 0.65, 3.0], [0.0, 0.0, 3.0]]), torch.tensor([[0.0, 0.0, -1.0]] * 2))
+    model.eval()
+    with torch.no_grad():
+        out = model.render_rays(rays, torch.tensor([1.0, 0.5, 0.25]), perturb=False)
+    torch.testing.assert_close(out.rgb[0], torch.tensor([1.0, 0.5, 0.25]))
+    assert float(out.acc[1]) > 0.99 and out.scene_depth is None  # the post's top is still there
+    assert not model.isolate_object(0.15, 25.0)  # nothing left around it

@@ -61,3 +61,41 @@ def test_image_grid_tiles_follow_the_photos_shape_and_the_contact_sheet_their_si
     write_contact_sheet(tmp_path / "sheet.png", [(photo, photo, None, {"name": "a.jpg", "index": 0, "psnr": 20.0})],
                         "val")
     assert 2 * 320 <= iio.imread(tmp_path / "sheet.png").shape[1] <= 2 * 320 + 40
+
+
+def test_an_object_video_is_framed_on_the_object_with_its_own_depth_range():
+    """The unit sphere seen small and off-centre from cameras 6 away: after framing it
+    fills 80% of every frame's height, centred, and the depth range is the sphere's."""
+    import torch
+
+    from nerfkit.cameras import look_at
+    from nerfkit.data.scene import Views
+    from nerfkit.models.base import RenderOutput, SceneBounds
+    from nerfkit.output.images import frame_object, render_image
+    from test_export import SphereModel
+
+    model = SphereModel(SceneBounds(1.0, 20.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1], np.float32)))
+    w, h, f = 160, 120, 150.0
+    K = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1]], np.float32)
+    az = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    eyes = 6.0 * np.stack([np.cos(az), np.sin(az), np.full_like(az, 0.3)], 1)
+    # each camera looks 1.2 to the side of the sphere, so it sits off-centre in every view
+    c2w = np.stack([look_at(e, np.array([0.0, 0.0, 1.2]), np.array([0.0, 0.0, 1.0])) for e in eyes]).astype(np.float32)
+    views = Views(c2w, np.repeat(K[None], len(az), 0), w, h)
+    framing = frame_object(model, views, torch.zeros(3), width=80)
+    for i in (0, 3, 6):
+        view = render_image(model, framing.views.K[i], c2w[i], w, h, torch.zeros(3))
+        rows, cols = np.nonzero(view.acc > 0.5)
+        assert abs((rows.min() + rows.max() + 1) / 2 - h / 2) < 3 and abs((cols.min() + cols.max() + 1) / 2 - w / 2) < 3
+        assert abs((rows.max() + 1 - rows.min()) / h - 0.8) < 0.05
+    assert framing.zoom == pytest.approx(framing.views.K[0, 0, 0] / f) and framing.zoom > 1.5
+    # the distance along rays to the sphere's near side: from d - 1 (its front) to sqrt(d^2 - 1) (its rim)
+    d = float(np.linalg.norm(eyes[0]))
+    assert d - 1.1 < framing.near < d - 1.0 and abs(framing.far - np.sqrt(d * d - 1)) < 0.1
+
+    class Empty(SphereModel):
+        def render_rays(self, rays, background, perturb):
+            n = len(rays)
+            return RenderOutput(background.expand(n, 3), torch.zeros(n), torch.zeros(n))
+
+    assert frame_object(Empty(model.bounds), views, torch.zeros(3), width=40) is None  # nothing to frame

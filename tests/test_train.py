@@ -112,6 +112,11 @@ def test_cli_train_render_eval(tmp_path, sphere_npz, capsys):
     gif = iio.imread(run / "videos" / "orbit.gif")
     assert gif.shape == (4, 32, 32, 3)
     capsys.readouterr()
+    # the object alone: a model that draws nothing around its object is only framed
+    assert main(["render", str(run), "--object", "--frames", "4"]) == 0
+    assert "of the object (the model draws nothing around it to leave out)" in capsys.readouterr().out
+    assert iio.imread(run / "videos" / "object.gif").shape == (4, 32, 32, 3)
+    assert (run / "videos" / "object_depth.mp4").stat().st_size > 0
     assert main(["eval", str(run), "--split", "val"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_images"] == 2 and len(out["per_image"]) == 2

@@ -28,11 +28,11 @@ def table_cut_height(model, fraction: float) -> float:
     return fraction * max(float((corners @ plane[:3] + plane[3]).max()), 0.0)
 
 
-def clear_table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) -> np.ndarray:
-    """A density grid with a capture's table paint cleared.
+def table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) -> np.ndarray:
+    """Where a density grid holds a capture's table paint: (X, Y, Z) bool.
 
     Training paints some of the table (a tag's black squares, the sheet's edge) into the
-    density just above it, where the photos disagree by a pixel or two. Cleared here:
+    density just above it, where the photos disagree by a pixel or two. Counted as paint:
     everything under the plane (rays stop at the table, so it was never seen) and what lies
     within ``height`` above it in the columns (along the grid axis nearest the plane's
     normal, widened by two cells) where no density over ``threshold`` rises between
@@ -44,20 +44,23 @@ def clear_table_paint(grid: np.ndarray, axes, plane, height: float, threshold: f
         grid: (X, Y, Z) density at the points ``axes[0][i], axes[1][j], axes[2][k]``.
         axes: the grid's x, y and z positions, (X,), (Y,) and (Z,).
         plane: (4,) ``(n, d)``, unit normal ``n`` toward the cameras: height is ``n . x + d``.
-        height: world units; 0 clears only what is under the plane.
-    Returns:
-        ``grid``, cleared in place.
+        height: world units; 0 counts only what is under the plane.
     """
     from scipy import ndimage
 
     n, d = np.asarray(plane, np.float64)[:3], float(np.asarray(plane)[3])
     xs, ys, zs = (np.asarray(a, np.float64) for a in axes)
     above = (n[0] * xs[:, None, None] + n[1] * ys[None, :, None] + n[2] * zs[None, None, :] + d).astype(np.float32)
-    clear = above < 0
+    paint = above < 0
     if height > 0:
         band = (above >= height) & (above < 2 * height) & (grid > threshold)
         rising = band.any(axis=int(np.argmax(np.abs(n))), keepdims=True)
         rising = ndimage.binary_dilation(rising, iterations=2)
-        clear |= (above < height) & ~rising
-    grid[clear] = 0.0
+        paint |= (above < height) & ~rising
+    return paint
+
+
+def clear_table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) -> np.ndarray:
+    """``grid`` with its :func:`table_paint` set to zero density (in place; returned)."""
+    grid[table_paint(grid, axes, plane, height, threshold)] = 0.0
     return grid

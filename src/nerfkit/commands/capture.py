@@ -17,6 +17,8 @@ Run the whole capture flow into one folder, as the README's steps do one by one:
   OUT/run/          nerfkit train --minutes 3       (capture settings: table, room, pose and colour refinement)
                     nerfkit eval --split val        (run/eval_val.json and the contact sheet run/eval_val.png)
                     nerfkit render                  (run/videos: orbit.mp4, orbit.gif, depth.mp4)
+                    nerfkit render --object         (run/videos: object.mp4, object.gif, object_depth.mp4,
+                                                     the object alone on white)
   OUT/run/mesh.ply  nerfkit export --mesh           (the object, without the table)
 
 and print what came out: the calibration, the photos posed, the held-out scores, where
@@ -166,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import fail
     from ..io.atomic import write_json
     from ..io.paths import guard_outputs
-    from ..output.videos import VIDEO_FILES
+    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -219,10 +221,16 @@ def run(args: argparse.Namespace) -> int:
     else:
         evaluated = _step(["eval", str(run_dir), "--split", "val", "--device", args.device], needed=False, quiet=True)
     videos = run_dir / "videos"
+    frames = ["--frames", str(args.frames)] if args.frames else []
     if all(_newer_than_model(videos / name, run_dir) for name in VIDEO_FILES) and not args.frames:
         _kept("videos", videos)
     else:
-        _step(["render", str(run_dir), "--device", args.device, *(["--frames", str(args.frames)] if args.frames else [])])
+        _step(["render", str(run_dir), "--device", args.device, *frames])
+    # a NeRF with nothing solid to frame still has its scene videos: the capture goes on
+    if all(_newer_than_model(videos / name, run_dir) for name in OBJECT_VIDEO_FILES) and not args.frames:
+        _kept("videos of the object", videos)
+    else:
+        _step(["render", str(run_dir), "--object", "--device", args.device, *frames], needed=False)
     mesh = None
     if not args.no_mesh:  # a NeRF too faint to mesh is still a NeRF: the capture goes on
         mesh = run_dir / MESH_FILE
@@ -244,7 +252,7 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
 
     from ..capture.dataset import FEW_TRAIN_VIEWS, few_views_note
     from ..data.nerfstudio import nerfkit_block
-    from ..output.videos import VIDEO_FILES
+    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
 
     lines = [f"capture done: {out}"]
     if camera is not None:
@@ -277,7 +285,10 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
                      + f"; photo beside render: {run_dir / 'eval_val.png'}")
     else:
         lines.append("  held out  not scored (the eval's error is above)")
-    lines.append(f"  videos    {run_dir / 'videos'}: " + ", ".join(VIDEO_FILES))
+    videos = run_dir / "videos"
+    alone = [name for name in OBJECT_VIDEO_FILES if _newer_than_model(videos / name, run_dir)]
+    lines.append(f"  videos    {videos}: " + ", ".join(VIDEO_FILES)
+                 + ("; the object alone: " + ", ".join(alone) if alone else ""))
     lines.append(f"  mesh      {mesh}" if mesh is not None else "  mesh      none (see above)")
     lines.append(f"  look      nerfkit view {run_dir}   (the NeRF live in the browser, with the cameras)")
     return "\n".join(lines)

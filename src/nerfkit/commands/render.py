@@ -23,8 +23,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=number(int, 1, 100_000), default=None,
                    help="frames of a generated orbit or spiral (default: 120, 4 s at 30 fps)")
     p.add_argument("--fps", type=number(int, 1, 1000), default=30, help="frames per second (default: 30)")
-    p.add_argument("--background", help="override the run's background colour: black, white, grey, "
-                   "r,g,b in [0, 1] or #rrggbb")
+    p.add_argument("--object", action="store_true",
+                   help="render the object alone into object.mp4, object.gif and object_depth.mp4: a capture's "
+                   "table, floor and room left out, the table's paint cleared from the density (as export --mesh "
+                   "does), on white, zoomed and centred to fill the frame")
+    p.add_argument("--background", help="override the run's background colour (with --object: white): black, "
+                   "white, grey, r,g,b in [0, 1] or #rrggbb")
     p.add_argument("--out", help="output folder (default: RUN/videos)")
     p.add_argument("--force", action="store_true", help="replace videos already in --out (RUN/videos is always "
                    "replaced: it belongs to the run)")
@@ -38,15 +42,26 @@ def run(args: argparse.Namespace) -> int:
     from ..data.scene import ORBIT_FRAMES
     from ..errors import fail
     from ..io.paths import guard_outputs
-    from ..output.images import object_aim
-    from ..output.videos import VIDEO_FILES, render_videos
+    from ..output.images import frame_object, object_aim
+    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES, render_videos
+    from ..tabletop import SURFACE_DENSITY, TABLE_CUT, table_cut_height
     from ..train.checkpoint import read_run
     from ._common import open_run, scene_for_run
 
     out = Path(args.out) if args.out else Path(args.run) / "videos"
     dataset = args.data or read_run(args.run).train.data
-    guard_outputs([out / name for name in VIDEO_FILES], dataset_inputs(dataset), args.force or not args.out)
+    names = OBJECT_VIDEO_FILES if args.object else VIDEO_FILES
+    guard_outputs([out / name for name in names], dataset_inputs(dataset), args.force or not args.out)
     run_ = open_run(args)
+    background = run_.background(args.background or ("white" if args.object else None))
+    alone = ""
+    if args.object:
+        cut = table_cut_height(run_.model, TABLE_CUT)
+        if run_.model.isolate_object(cut, SURFACE_DENSITY):
+            alone = "the object alone (table, floor and room left out" + (
+                f"; table paint cleared up to {cut:.3g} above the table)" if cut > 0 else ")")
+        else:
+            alone = "the object (the model draws nothing around it to leave out)"
     scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
     kind = scene.video_kind(args.path)
     if kind == "test" and len(scene.test) == 0:
@@ -55,12 +70,20 @@ def run(args: argparse.Namespace) -> int:
         raise fail("--path spiral", "the training cameras do not all look the same way from about the same "
                    "place, so a spiral across their view would leave them", "Use --path orbit")
     # an orbit looks at the trained object, not at the point the cameras' axes meet
-    aim = object_aim(run_.model, scene.train, scene.up, run_.background(args.background), run_.chunk,
-                     run_.autocast) if kind == "orbit" else None
+    aim = object_aim(run_.model, scene.train, scene.up, background, run_.chunk, run_.autocast) if kind == "orbit" else None
     views = scene.render_path(args.frames or ORBIT_FRAMES, aim, kind)
-    paths = render_videos(run_.model, views, out, run_.background(args.background), scene.near, scene.far, args.fps,
-                          run_.chunk, run_.autocast)
-    print(f"rendered {len(views)} frames of step {run_.step} ({paths.seconds_per_frame:.2f} s/frame):")
+    near, far = scene.near, scene.far
+    if args.object:
+        framing = frame_object(run_.model, views, background, run_.chunk, run_.autocast)
+        if framing is None:
+            raise fail(args.run, "renders nothing solid along the video's path, so there is no object to frame",
+                       "Render the scene without --object, or train longer")
+        views, near, far = framing.views, framing.near, framing.far
+        alone += f", zoomed {framing.zoom:.2f}x"
+    paths = render_videos(run_.model, views, out, background, near, far, args.fps, run_.chunk, run_.autocast,
+                          names=names)
+    what = f" of {alone}" if alone else ""
+    print(f"rendered {len(views)} frames{what} at step {run_.step} ({paths.seconds_per_frame:.2f} s/frame):")
     for p in (paths.rgb_mp4, paths.rgb_gif, paths.depth_mp4):
         print(f"  {p}")
     return 0

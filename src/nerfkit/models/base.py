@@ -321,6 +321,14 @@ class NerfModel(nn.Module):
         ``n`` toward the cameras), or None."""
         return None
 
+    def isolate_object(self, cut: float, threshold: float) -> bool:
+        """Keep only the object, for a video of it alone: stop drawing what surrounds it (a
+        capture's table, floor, room and learned background) and clear the table's paint
+        from the density (:func:`~nerfkit.tabletop.table_paint`: up to ``cut`` world units
+        above the table; ``threshold``: the surface's density). Changes the model in place,
+        for rendering only. False when the model draws nothing around its object."""
+        return False
+
     def pack_state(self) -> tuple[str | None, dict]:
         """What the final model file stores: ``(packing, tensors)``. The default is the plain
         ``state_dict()`` (packing None); a model may store a compact form under a packing

@@ -60,6 +60,7 @@ from ..kernels import numba_kernels
 from ..kernels import reference as ref
 from ..kernels.ops import GradSink, GridGeom, MarchSpec, add_grid_tv, cell_density_max, render_grid, row_vertices
 from ..render.occupancy import OccupancyGrid, ray_aabb
+from ..tabletop import table_paint
 from .packing import pack_grid, unpack_grid, vertices_touching
 from .base import RGB_LOSSES, NerfModel, RenderOutput, SceneBounds, Schedule, StepState, rgb_loss
 
@@ -673,6 +674,24 @@ class FastNeRF(NerfModel):
 
     def table_plane(self) -> np.ndarray | None:
         return None if self.table is None else self.table.plane.cpu().numpy()
+
+    @torch.no_grad()
+    def isolate_object(self, cut: float, threshold: float) -> bool:
+        if self.ndc is not None or all(part is None for part in (self.table, self.floor, self.room, self.bg_coef)):
+            return False
+        if self.table is not None:
+            rx, ry, rz = self.res
+            lo = self.grid_lo.cpu().double().numpy()
+            axes = [lo[a] + self.voxel * np.arange(r) for a, r in enumerate(self.res)]
+            rows = self.vertex_rows.long().reshape(rz, ry, rx).permute(2, 1, 0)  # [x, y, z], as axes
+            sigma = (self.density_scale * F.softplus(self.grid[:, 0]))[rows]
+            paint = table_paint(sigma.cpu().numpy(), axes, self.table_plane(), cut, threshold)
+            cleared = rows[torch.from_numpy(paint).to(rows.device)]
+            self.grid[cleared[cleared > 0], 0] = EMPTY_RAW
+            self.refresh_occupancy()
+        self.table = self.floor = self.room = None
+        self.bg_coef = None
+        return True
 
     @torch.no_grad()
     def surface_box(self) -> tuple[np.ndarray, np.ndarray] | None:

@@ -130,6 +130,62 @@ def object_aim(model: NerfModel, views: Views, up: np.ndarray, background: torch
     return (across + torch.quantile(height, 0.25) * u).numpy()
 
 
+@dataclass
+class Framing:
+    """An object-only video's cameras: ``views`` zoomed ``zoom`` times and centred on the
+    object, and the depth range ``near``-``far`` its depth video is coloured over."""
+
+    views: Views
+    zoom: float
+    near: float
+    far: float
+
+
+def frame_object(model: NerfModel, views: Views, background: torch.Tensor, chunk: int = 16384,
+                 autocast_dtype: torch.dtype | None = None, fill: float = 0.8, n_probe: int = 12,
+                 width: int = 96, zoom_range: tuple[float, float] = (0.5, 4.0)) -> Framing | None:
+    """Frame what ``model`` holds (an object alone, :meth:`NerfModel.isolate_object`) in
+    every view of a path: one zoom and one shift of the principal point for the whole path
+    (so the object turns in place), chosen so the box around the object's pixels
+    (opacity > 0.5) in up to ``n_probe`` views (rendered ``width`` pixels wide) spans
+    ``fill`` of the frame, centred. The zoom stays within ``zoom_range``. The depth range
+    is that of those pixels (2% to 98%), widened by 5%. None when no view sees anything.
+    """
+    from ..data.load import scale_intrinsics
+
+    if len(views) == 0:
+        return None
+    h = max(round(views.height * width / views.width), 1)
+    sx, sy = views.width / width, views.height / h
+    lo, hi, depths = np.array([np.inf, np.inf]), np.array([-np.inf, -np.inf]), []
+    for i in np.unique(np.linspace(0, len(views) - 1, min(n_probe, len(views))).round().astype(int)):
+        K = scale_intrinsics(views.K[i], views.width, views.height, width, h)
+        view = render_image(model, K, views.c2w[i], width, h, background, chunk, autocast_dtype)
+        solid = view.acc > 0.5
+        if not solid.any():
+            continue
+        rows, cols = np.nonzero(solid)
+        # pixel edges in the full-size view (x right, y down), relative to its principal point
+        lo = np.minimum(lo, [cols.min() * sx - views.K[i][0, 2], rows.min() * sy - views.K[i][1, 2]])
+        hi = np.maximum(hi, [(cols.max() + 1) * sx - views.K[i][0, 2], (rows.max() + 1) * sy - views.K[i][1, 2]])
+        depths.append(view.depth[solid])
+    if not depths:
+        return None
+    zoom = fill * min(views.width / (hi[0] - lo[0]), views.height / (hi[1] - lo[1]))
+    zoom = float(np.clip(zoom, *zoom_range))
+    mid = (lo + hi) / 2
+    K = views.K.copy()
+    K[:, 0, 0] *= zoom
+    K[:, 1, 1] *= zoom
+    K[:, 0, 2] = views.width / 2 - zoom * mid[0]
+    K[:, 1, 2] = views.height / 2 - zoom * mid[1]
+    d = np.concatenate(depths)
+    near, far = np.quantile(d, 0.02), np.quantile(d, 0.98)
+    pad = 0.05 * max(far - near, 1e-6)
+    return Framing(Views(views.c2w, K.astype(views.K.dtype), views.width, views.height), zoom, float(near - pad),
+                   float(far + pad))
+
+
 def _render_whole(model, K, c2w, width: int, height: int, background: torch.Tensor) -> RenderedView:
     was_training = model.training
     model.eval()

@@ -15,6 +15,8 @@ from .images import render_views
 
 
 VIDEO_FILES = ("orbit.mp4", "orbit.gif", "depth.mp4")
+# the object alone (`nerfkit render --object`)
+OBJECT_VIDEO_FILES = ("object.mp4", "object.gif", "object_depth.mp4")
 
 
 @dataclass
@@ -36,8 +38,10 @@ def render_videos(
     chunk: int = 16384,
     autocast_dtype: torch.dtype | None = None,
     progress: bool = True,
+    names: tuple[str, str, str] = VIDEO_FILES,
 ) -> VideoPaths:
-    """Render ``views`` into ``out_dir/orbit.mp4``, ``orbit.gif`` and ``depth.mp4``.
+    """Render ``views`` into ``out_dir/orbit.mp4``, ``orbit.gif`` and ``depth.mp4`` (or
+    the three ``names``).
 
     Frames are kept as uint8 (a 60-frame 800x800 orbit is ~115 MB); depth shares one
     colour scale, ``near`` (warm) to ``far`` (cool), across all frames, and shows
@@ -56,7 +60,7 @@ def render_videos(
         depth_frames.append(to_uint8(view.depth_colours(near, far)))
     per_frame = (time.perf_counter() - t0) / max(len(views), 1)
     out_dir = Path(out_dir)
-    paths = VideoPaths(*(out_dir / name for name in VIDEO_FILES), per_frame)
+    paths = VideoPaths(*(out_dir / name for name in names), per_frame)
     write_video(paths.rgb_mp4, rgb_frames, fps)
     write_video(paths.rgb_gif, rgb_frames[:: max(1, len(rgb_frames) // 60)], min(fps, 20))
     write_video(paths.depth_mp4, depth_frames, fps)
