@@ -151,6 +151,26 @@ def test_table_paint_is_cleared_and_what_stands_on_the_table_keeps_its_base():
     assert under[:, :, zs < 0].max() == 0 and under[:, :, zs >= 0].max() == 100
 
 
+def test_paint_standing_up_off_the_table_apart_from_the_object_is_paint_a_second_object_is_not():
+    """A flake of paint lifted to 0.12 (its column rises out of the 0.05 slab) is cleared;
+    the post keeps its base, and a thin stick 0.4 tall standing apart is kept."""
+    def scene(p):
+        x, y, z = p[:, 0], p[:, 1], p[:, 2]
+        flake = (x > 0.5) & (x < 0.7) & (y > 0.5) & (y < 0.7) & (z > -0.02) & (z < 0.12)
+        stick = ((x + 0.6) ** 2 + (y + 0.6) ** 2 < 0.01) & (z > -0.02) & (z < 0.4)
+        return figure_on_table(p) + 100.0 * (flake | stick).float()
+
+    axis = ex.grid_axis(0.0, 1.0, 81)
+    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
+    grid = ex.sample_density_grid(scene, [0, 0, 0], 1.0, 81)
+    paint = tabletop.table_paint(grid, [axis] * 3, np.array([0.0, 0.0, 1.0, 0.0]), 0.05, 50.0)
+    kept = (grid > 50) & ~paint
+    assert not kept[(x > 0.45) & (y > 0.45)].any()  # the flake and the flat paint: gone
+    assert kept[(np.hypot(x, y) < 0.15) & (z >= 0) & (z < 0.03)].any()  # the post's foot: kept
+    assert kept[(np.hypot(x + 0.6, y + 0.6) < 0.05) & (z > 0.1) & (z < 0.38)].all()  # the stick rises above 0.15: kept
+    assert not kept[z < 0].any()
+
+
 def test_the_mesh_covers_the_models_own_box_and_the_cut_is_a_fraction_of_its_height():
     from types import SimpleNamespace
 

@@ -38,7 +38,9 @@ def table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) 
     normal, widened by two cells) where no density over ``threshold`` rises between
     ``height`` and ``2 * height``. What stands on the table keeps its base, as wide as the
     object is just above the slab. A capture's table is the plane z = 0, so its columns
-    are the grid's; under a tilted plane they would lean by its tilt.
+    are the grid's; under a tilted plane they would lean by its tilt. Paint that stands up
+    off the table counts too: pieces (over ``threshold``) apart from the object that never
+    rise ``3 * height`` above the table (:func:`_low_pieces`).
 
     Args:
         grid: (X, Y, Z) density at the points ``axes[0][i], axes[1][j], axes[2][k]``.
@@ -57,7 +59,26 @@ def table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) 
         rising = band.any(axis=int(np.argmax(np.abs(n))), keepdims=True)
         rising = ndimage.binary_dilation(rising, iterations=2)
         paint |= (above < height) & ~rising
+        paint |= _low_pieces(grid > threshold, paint, above, 3 * height)
     return paint
+
+
+def _low_pieces(solid: np.ndarray, paint: np.ndarray, above: np.ndarray, top: float) -> np.ndarray:
+    """Paint that stands up off the table: the pieces of ``solid & ~paint`` (26-connected)
+    apart from the largest one (the object) that never rise ``top`` above the table,
+    widened by two cells (their haze) short of a cell from the object. (X, Y, Z) bool."""
+    from scipy import ndimage
+
+    labels, count = ndimage.label(solid & ~paint, structure=np.ones((3, 3, 3), bool))
+    if count < 2:
+        return np.zeros_like(solid)
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    main = int(np.argmax(sizes))
+    low = np.asarray(ndimage.maximum(above, labels, np.arange(count + 1))) < top
+    low[0] = low[main] = False
+    pieces = ndimage.binary_dilation(low[labels], iterations=2)
+    return pieces & ~ndimage.binary_dilation(labels == main)
 
 
 def clear_table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) -> np.ndarray:
