@@ -56,29 +56,40 @@ def table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) 
     paint = above < 0
     if height > 0:
         band = (above >= height) & (above < 2 * height) & (grid > threshold)
-        rising = band.any(axis=int(np.argmax(np.abs(n))), keepdims=True)
-        rising = ndimage.binary_dilation(rising, iterations=2)
+        axis = int(np.argmax(np.abs(n)))
+        rising = ndimage.binary_dilation(band.any(axis=axis, keepdims=True), iterations=2)
         paint |= (above < height) & ~rising
-        paint |= _low_pieces(grid > threshold, paint, above, 3 * height)
+        paint |= _low_pieces(grid > threshold, paint, above, 3 * height, axis)
     return paint
 
 
-def _low_pieces(solid: np.ndarray, paint: np.ndarray, above: np.ndarray, top: float) -> np.ndarray:
+def _low_pieces(solid: np.ndarray, paint: np.ndarray, above: np.ndarray, top: float, axis: int) -> np.ndarray:
     """Paint that stands up off the table: the pieces of ``solid & ~paint`` (26-connected)
     apart from the largest one (the object) that never rise ``top`` above the table,
-    widened by two cells (their haze) short of a cell from the object. (X, Y, Z) bool."""
+    widened by two cells (their haze) short of a cell from the object. (X, Y, Z) bool.
+
+    Only the slab of layers along ``axis`` (the table's normal) that reach below ``top``,
+    and one layer more, is labelled: what reaches that layer rises higher."""
     from scipy import ndimage
 
-    labels, count = ndimage.label(solid & ~paint, structure=np.ones((3, 3, 3), bool))
+    out = np.zeros_like(solid)
+    reach = np.nonzero((above < top).any(axis=tuple(a for a in range(3) if a != axis)))[0]
+    if len(reach) == 0:
+        return out
+    slab = [slice(None)] * 3
+    slab[axis] = slice(int(reach[0]), min(int(reach[-1]) + 2, solid.shape[axis]))
+    slab = tuple(slab)
+    labels, count = ndimage.label(solid[slab] & ~paint[slab], structure=np.ones((3, 3, 3), bool))
     if count < 2:
-        return np.zeros_like(solid)
+        return out
     sizes = np.bincount(labels.ravel())
     sizes[0] = 0
     main = int(np.argmax(sizes))
-    low = np.asarray(ndimage.maximum(above, labels, np.arange(count + 1))) < top
+    low = np.asarray(ndimage.maximum(above[slab], labels, np.arange(count + 1))) < top
     low[0] = low[main] = False
     pieces = ndimage.binary_dilation(low[labels], iterations=2)
-    return pieces & ~ndimage.binary_dilation(labels == main)
+    out[slab] = pieces & ~ndimage.binary_dilation(labels == main)
+    return out
 
 
 def clear_table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) -> np.ndarray:
