@@ -15,11 +15,11 @@ EPILOG = """\
 mesh: the density is sampled on a RESOLUTION^3 grid over a cube around the model's grid
 (a capture's box around the object; the scene's cube for a model without one), its
 half-size times --box-scale. A capture's table paint is cleared first: the density under
-the table, and the tags and sheet painted into density just above it (within --table-cut
-of the object's height, where nothing rises out of that slab); what stands on the table
-keeps its base. The THRESHOLD iso-surface is extracted with marching cubes (closed where
-it meets the box or the cut), and each vertex
-is coloured by what a ray looking at it along the inward normal sees (the field rendered
+the table, the tags and sheet painted into density just above it (within --table-cut
+of the object's height, where nothing rises out of that slab), and pieces apart from the
+object that stand less than three times that high; what stands on the table keeps its
+base. The THRESHOLD iso-surface is extracted with marching cubes (closed where it meets
+the box or the cut), and each vertex is coloured by what a ray looking at it along the inward normal sees (the field rendered
 from 2% of the scene's radius outside the surface to 4% inside), not by the field's colour at the
 iso-surface itself, which training leaves as noise (a forward-facing run in NDC, whose
 density is per NDC unit, takes the colour at the vertex).
