@@ -63,7 +63,10 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
 
     # again: every step kept, the run not trained again, its eval, videos and mesh not made again
     assert main([*argv[:-2]]) == 0  # (--frames asks for the videos again)
-    assert capsys.readouterr().out.count("is there from an earlier run, kept") == 7
+    text = capsys.readouterr().out
+    assert text.count("is there from an earlier run, kept") == 7 and "trained for" not in text
+    assert main([*argv[:-4], "--steps", "200"]) == 0  # another budget: said, not trained again
+    assert "it was trained for 160 steps, not the 200 steps asked for now: --force" in capsys.readouterr().out
     assert json.loads((run / "metrics.json").read_text())["step"] == 160
 
     # other inputs are refused, not mixed with the earlier results
@@ -97,3 +100,7 @@ def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_pho
     nested.mkdir(parents=True)
     assert main(["capture", str(nested), "--tag-size", "0.06", "--out", str(tmp_path / "mine")]) == 2
     assert "holds no images" in capsys.readouterr().err  # it got as far as reading the (empty) folder
+    # a step's error, with its traceback under --verbose
+    assert main(["--verbose", "capture", str(nested), "--tag-size", "0.06", "--out", str(tmp_path / "mine")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("Traceback") == 2  # the step's own, and the capture's

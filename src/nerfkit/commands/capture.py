@@ -75,10 +75,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _step(argv: list[str], needed: bool = True, quiet: bool = False) -> bool:
+def _step(argv: list[str], needed: bool = True, quiet: bool = False, verbose: bool = False) -> bool:
     """Run one nerfkit command; whether it succeeded. The failure of a ``needed`` step
     stops the capture (the command's own error is printed above). ``quiet``: its standard
-    output is not shown (eval's JSON, which its file keeps)."""
+    output is not shown (eval's JSON, which its file keeps). ``verbose``: its errors come
+    with their tracebacks (``nerfkit --verbose capture``)."""
     import contextlib
     import io
 
@@ -87,7 +88,7 @@ def _step(argv: list[str], needed: bool = True, quiet: bool = False) -> bool:
 
     print(f"\n== nerfkit {' '.join(argv)}", flush=True)
     with contextlib.redirect_stdout(io.StringIO()) if quiet else contextlib.nullcontext():
-        rc = main(argv)
+        rc = main(["--verbose", *argv] if verbose else argv)
     if rc == 130:
         raise KeyboardInterrupt
     if rc != 0 and needed:
@@ -149,6 +150,23 @@ def _newer_than_model(path: Path, run_dir: Path) -> bool:
     return path.exists() and model.exists() and path.stat().st_mtime >= model.stat().st_mtime
 
 
+def _budget_note(run_dir: Path, args: argparse.Namespace) -> None:
+    """Say so when the kept NeRF was trained for another budget than the one asked for
+    (the budget is not an input of the capture: a finished run is not trained again)."""
+    import json
+
+    try:
+        train = json.loads((run_dir / "config.json").read_text())["train"]
+        then = (int(train["steps"]), float(train["minutes"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        return
+    now = (args.steps or 0, 0.0 if args.steps else args.minutes)
+    if then != now:
+        said = f"{then[0]} steps" if then[0] else f"{then[1]:g} minutes"
+        asked = f"{now[0]} steps" if now[0] else f"{now[1]:g} minutes"
+        print(f"   it was trained for {said}, not the {asked} asked for now: --force trains it again", flush=True)
+
+
 def _replace_run(run_dir: Path) -> None:
     """Remove an earlier run of this capture (``--force``); a folder that is not a nerfkit
     run is refused, never removed."""
@@ -165,11 +183,14 @@ def _replace_run(run_dir: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from functools import partial
+
     from ..errors import fail
     from ..io.atomic import write_json
     from ..io.paths import guard_outputs
     from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
 
+    step = partial(_step, verbose=bool(getattr(args, "verbose", False)))
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise fail(out, "exists and is not a folder", "--out names the folder the capture fills")
@@ -192,14 +213,14 @@ def run(args: argparse.Namespace) -> int:
         if camera.exists() and not args.force:
             _kept("calibration", camera)
         else:  # --force: a calibration cut short may have left its detections
-            _step(["calibrate", args.calib, *dictionary, "--tag-size", str(args.sheet_tag_size or args.tag_size),
+            step(["calibrate", args.calib, *dictionary, "--tag-size", str(args.sheet_tag_size or args.tag_size),
                    "--out", str(camera), "--force"])
 
     dataset = out / DATASET_DIR
     if (dataset / "dataset.npz").exists() and not args.force:
         _kept("dataset", dataset)
     else:  # --force: the folder is the capture's, and poses cut short leaves poses.json
-        _step(["poses", args.photos, "--tag-size", str(args.tag_size), *dictionary, "--out", str(dataset),
+        step(["poses", args.photos, "--tag-size", str(args.tag_size), *dictionary, "--out", str(dataset),
                "--method", args.method, "--force", *(["--camera", str(camera)] if camera else []),
                *(["--max-side", str(args.max_side)] if args.max_side is not None else [])])
 
@@ -209,34 +230,35 @@ def run(args: argparse.Namespace) -> int:
     budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
     if _finished(run_dir):
         _kept("NeRF", run_dir)
+        _budget_note(run_dir, args)
     elif (run_dir / "config.json").exists():
-        _step(["train", "--resume", str(run_dir), "--device", args.device])
+        step(["train", "--resume", str(run_dir), "--device", args.device])
     else:
-        _step(["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget,
+        step(["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget,
                "--device", args.device])
     # what shows the model as it is now is kept; the rest is made again (it belongs to the run)
     evaluated = True
     if _newer_than_model(run_dir / "eval_val.json", run_dir):
         _kept("evaluation", run_dir / "eval_val.json")
     else:
-        evaluated = _step(["eval", str(run_dir), "--split", "val", "--device", args.device], needed=False, quiet=True)
+        evaluated = step(["eval", str(run_dir), "--split", "val", "--device", args.device], needed=False, quiet=True)
     videos = run_dir / "videos"
     frames = ["--frames", str(args.frames)] if args.frames else []
     if all(_newer_than_model(videos / name, run_dir) for name in VIDEO_FILES) and not args.frames:
         _kept("videos", videos)
     else:
-        _step(["render", str(run_dir), "--device", args.device, *frames])
+        step(["render", str(run_dir), "--device", args.device, *frames])
     # a NeRF with nothing solid to frame still has its scene videos: the capture goes on
     if all(_newer_than_model(videos / name, run_dir) for name in OBJECT_VIDEO_FILES) and not args.frames:
         _kept("videos of the object", videos)
     else:
-        _step(["render", str(run_dir), "--object", "--device", args.device, *frames], needed=False)
+        step(["render", str(run_dir), "--object", "--device", args.device, *frames], needed=False)
     mesh = None
     if not args.no_mesh:  # a NeRF too faint to mesh is still a NeRF: the capture goes on
         mesh = run_dir / MESH_FILE
         if _newer_than_model(mesh, run_dir):
             _kept("mesh", mesh)
-        elif not _step(["export", str(run_dir), "--mesh", str(mesh), "--force", "--device", args.device],
+        elif not step(["export", str(run_dir), "--mesh", str(mesh), "--force", "--device", args.device],
                        needed=False):
             mesh = None
     print()
