@@ -115,22 +115,30 @@ def test_a_video_path_can_be_chosen_over_the_automatic_one():
         ff.render_path(12, kind="helix")
 
 
-def test_fast_model_in_ndc_beats_the_box_on_a_forward_facing_scene(tmp_path):
+def test_fast_model_in_ndc_beats_the_box_on_a_forward_facing_scene(tmp_path, capsys):
     """Content from 3 units to a backdrop 15 units away: a box around the scene's middle
     cannot hold the backdrop; the NDC grid holds everything out to infinity."""
     from nerfkit.models.fast import FastConfig
     from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import train
 
+    from nerfkit.cli import main
+    from nerfkit.data.npz import save_npz
+
     scene = forward_facing_scene(n_train=24, n_val=3, size=40)
+    save_npz(scene, tmp_path / "forward.npz")
     scores = {}
     for space in ("auto", "box"):
-        cfg = TrainConfig(data="forward", out=str(tmp_path / space), steps=240, batch_rays=1024, seed=0,
-                          eval_views=3, checkpoint_seconds=1e9)
+        cfg = TrainConfig(data=str(tmp_path / "forward.npz"), out=str(tmp_path / space), steps=240, batch_rays=1024,
+                          seed=0, eval_views=3, checkpoint_seconds=1e9)
         result = train(scene, cfg, FastConfig(resolutions="32,64", upsample_steps="80", space=space), quiet=True)
         scores[space] = [r["psnr"] for r in result.rows if r["split"] == "val"][-1]
     assert scores["auto"] > 23.0
     assert scores["auto"] > scores["box"] + 2.0, scores
+    # a forward-facing scene has no object standing apart for `render --object` to frame
+    assert main(["render", str(tmp_path / "auto"), "--object", "--frames", "2"]) == 2
+    assert "has no object standing apart to frame" in capsys.readouterr().err
+    assert not (tmp_path / "auto" / "videos" / "object.mp4").exists()
 
 
 def test_ndc_is_refused_for_a_scene_that_is_not_forward_facing():

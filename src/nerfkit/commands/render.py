@@ -69,6 +69,9 @@ def run(args: argparse.Namespace) -> int:
     if kind == "spiral" and not scene.forward_facing:
         raise fail("--path spiral", "the training cameras do not all look the same way from about the same "
                    "place, so a spiral across their view would leave them", "Use --path orbit")
+    if kind == "spiral" and args.object:
+        raise fail("--object", "a forward-facing scene, seen from one side along a spiral, has no object "
+                   "standing apart to frame", "Render it without --object")
     # an orbit looks at the trained object, not at the point the cameras' axes meet
     aim = object_aim(run_.model, scene.train, scene.up, background, run_.chunk, run_.autocast) if kind == "orbit" else None
     views = scene.render_path(args.frames or ORBIT_FRAMES, aim, kind)
