@@ -64,9 +64,9 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     # again: every step kept, the run not trained again, its eval, videos and mesh not made again
     assert main([*argv[:-2]]) == 0  # (--frames asks for the videos again)
     text = capsys.readouterr().out
-    assert text.count("is there from an earlier run, kept") == 7 and "trained for" not in text
+    assert text.count("is there from an earlier run, kept") == 7 and "its budget is" not in text
     assert main([*argv[:-4], "--steps", "200"]) == 0  # another budget: said, not trained again
-    assert "it was trained for 160 steps, not the 200 steps asked for now: --force" in capsys.readouterr().out
+    assert "its budget is 160 steps, not the 200 steps asked for now: --force" in capsys.readouterr().out
     assert json.loads((run / "metrics.json").read_text())["step"] == 160
 
     # other inputs are refused, not mixed with the earlier results

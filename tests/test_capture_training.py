@@ -259,12 +259,14 @@ def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surro
     from nerfkit.models.base import SceneBounds
     from nerfkit.models.fast import EMPTY_RAW, FastNeRF
 
+    box = (np.array([-1.0, -0.8, -0.5], np.float32), np.array([1.0, 0.9, 1.3], np.float32))  # not a cube
     bounds = SceneBounds(1.0, 8.0, np.array([0, 0, 0.5], np.float32), 1.0, np.array([0, 0, 1], np.float32),
-                         table=np.array([0, 0, 1, 0], np.float32), camera_radius=4.0)
+                         table=np.array([0, 0, 1, 0], np.float32), camera_radius=4.0, object_box=box)
     model = FastNeRF(FastConfig(resolutions="21", upsample_steps="", table=True, table_resolution=32,
                                 learn_background=True, room_shells=2), bounds)
     lo, v = model.grid_lo.numpy(), model.voxel
     rx, ry, rz = model.res
+    assert len({rx, ry, rz}) == 3  # an axis swap would show
     z, y, x = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in ((2, rz), (1, ry), (0, rx))), indexing="ij")
     post = (x ** 2 + y ** 2 < 0.2 ** 2) & (z < 1.2)  # from under the table up to 1.2
     paint = (x > 0.5) & (x < 0.8) & (y > 0.5) & (y < 0.8) & (np.abs(z) < 0.04)
@@ -273,7 +275,8 @@ def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surro
         model.grid[:, 0] = EMPTY_RAW
         model.grid[rows[(post | paint).reshape(-1)], 0] = 10.0
     model.refresh_occupancy()
-    assert model.isolate_object(0.15, 25.0)  # (the cut spans the z = 0 and 0.1 layers of vertices)
+    left_out = model.isolate_object(0.15, 25.0)  # (the cut spans the z = 0 and 0.1 layers of vertices)
+    assert left_out == ["table", "room", "background"]  # (no floor: the bounds have none)
     assert model.table is None and model.room is None and model.bg_coef is None
     kept = (model.grid[rows, 0] > 0).numpy().reshape(z.shape)
     assert not (kept & paint).any() and not (kept & (z < 0)).any()  # paint and what is under the table: gone
@@ -285,4 +288,6 @@ def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surro
         out = model.render_rays(rays, torch.tensor([1.0, 0.5, 0.25]), perturb=False)
     torch.testing.assert_close(out.rgb[0], torch.tensor([1.0, 0.5, 0.25]))
     assert float(out.acc[1]) > 0.99 and out.scene_depth is None  # the post's top is still there
-    assert not model.isolate_object(0.15, 25.0)  # nothing left around it
+    assert model.isolate_object(0.15, 25.0) == []  # nothing left around it
+    with pytest.raises(RuntimeError, match="neither trained nor saved"):
+        model.pack_state()

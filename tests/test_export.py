@@ -152,8 +152,9 @@ def test_table_paint_is_cleared_and_what_stands_on_the_table_keeps_its_base():
 
 
 def test_paint_standing_up_off_the_table_apart_from_the_object_is_paint_a_second_object_is_not():
-    """A flake of paint lifted to 0.12 (its column rises out of the 0.05 slab) is cleared;
-    the post keeps its base, and a thin stick 0.4 tall standing apart is kept."""
+    """A flake of paint up to 0.12 above the table (its column rises out of the 0.05 slab) is
+    cleared; the post keeps its base, and a thin stick 0.4 tall standing apart is kept,
+    whichever way the grid's axis runs against the table's normal."""
     def scene(p):
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         flake = (x > 0.5) & (x < 0.7) & (y > 0.5) & (y < 0.7) & (z > -0.02) & (z < 0.12)
@@ -164,6 +165,10 @@ def test_paint_standing_up_off_the_table_apart_from_the_object_is_paint_a_second
     x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
     grid = ex.sample_density_grid(scene, [0, 0, 0], 1.0, 81)
     paint = tabletop.table_paint(grid, [axis] * 3, np.array([0.0, 0.0, 1.0, 0.0]), 0.05, 50.0)
+    # the same scene upside down (z -> -z), its table's normal toward -z
+    flipped = tabletop.table_paint(grid[:, :, ::-1].copy(), [axis, axis, -axis[::-1]], np.array([0.0, 0.0, -1.0, 0.0]),
+                                   0.05, 50.0)
+    np.testing.assert_array_equal(flipped[:, :, ::-1], paint)
     kept = (grid > 50) & ~paint
     assert not kept[(x > 0.45) & (y > 0.45)].any()  # the flake and the flat paint: gone
     assert kept[(np.hypot(x, y) < 0.15) & (z >= 0) & (z < 0.03)].any()  # the post's foot: kept

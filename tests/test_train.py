@@ -114,7 +114,7 @@ def test_cli_train_render_eval(tmp_path, sphere_npz, capsys):
     capsys.readouterr()
     # the object alone: a model that draws nothing around its object is only framed
     assert main(["render", str(run), "--object", "--frames", "4"]) == 0
-    assert "of the object (the model draws nothing around it to leave out)" in capsys.readouterr().out
+    assert "of the object (the model draws nothing around it to leave out; zoomed" in capsys.readouterr().out
     assert iio.imread(run / "videos" / "object.gif").shape == (4, 32, 32, 3)
     assert (run / "videos" / "object_depth.mp4").stat().st_size > 0
     assert main(["eval", str(run), "--split", "val"]) == 0

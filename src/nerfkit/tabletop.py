@@ -69,7 +69,7 @@ def _low_pieces(solid: np.ndarray, paint: np.ndarray, above: np.ndarray, top: fl
     widened by two cells (their haze) short of a cell from the object. (X, Y, Z) bool.
 
     Only the slab of layers along ``axis`` (the table's normal) that reach below ``top``,
-    and one layer more, is labelled: what reaches that layer rises higher."""
+    and one layer more on either side, is labelled: what reaches those layers rises higher."""
     from scipy import ndimage
 
     out = np.zeros_like(solid)
@@ -77,7 +77,7 @@ def _low_pieces(solid: np.ndarray, paint: np.ndarray, above: np.ndarray, top: fl
     if len(reach) == 0:
         return out
     slab = [slice(None)] * 3
-    slab[axis] = slice(int(reach[0]), min(int(reach[-1]) + 2, solid.shape[axis]))
+    slab[axis] = slice(max(int(reach[0]) - 1, 0), min(int(reach[-1]) + 2, solid.shape[axis]))
     slab = tuple(slab)
     labels, count = ndimage.label(solid[slab] & ~paint[slab], structure=np.ones((3, 3, 3), bool))
     if count < 2:

@@ -151,20 +151,21 @@ def _newer_than_model(path: Path, run_dir: Path) -> bool:
 
 
 def _budget_note(run_dir: Path, args: argparse.Namespace) -> None:
-    """Say so when the kept NeRF was trained for another budget than the one asked for
-    (the budget is not an input of the capture: a finished run is not trained again)."""
+    """Say so when the kept NeRF has another training budget than the one asked for (the
+    budget is not an input of the capture: a run is finished, or resumed, with its own)."""
     import json
+
+    def budget(steps: int, minutes: float) -> str:
+        return f"{steps} steps" if steps else f"{minutes:g} minutes"
 
     try:
         train = json.loads((run_dir / "config.json").read_text())["train"]
-        then = (int(train["steps"]), float(train["minutes"]))
+        then = budget(int(train["steps"]), float(train["minutes"]))
     except (OSError, ValueError, KeyError, TypeError):
         return
-    now = (args.steps or 0, 0.0 if args.steps else args.minutes)
+    now = budget(args.steps or 0, args.minutes)
     if then != now:
-        said = f"{then[0]} steps" if then[0] else f"{then[1]:g} minutes"
-        asked = f"{now[0]} steps" if now[0] else f"{now[1]:g} minutes"
-        print(f"   it was trained for {said}, not the {asked} asked for now: --force trains it again", flush=True)
+        print(f"   its budget is {then}, not the {now} asked for now: --force trains it again with those", flush=True)
 
 
 def _replace_run(run_dir: Path) -> None:
@@ -232,6 +233,7 @@ def run(args: argparse.Namespace) -> int:
         _kept("NeRF", run_dir)
         _budget_note(run_dir, args)
     elif (run_dir / "config.json").exists():
+        _budget_note(run_dir, args)
         step(["train", "--resume", str(run_dir), "--device", args.device])
     else:
         step(["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget,
@@ -309,8 +311,8 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
         lines.append("  held out  not scored (the eval's error is above)")
     videos = run_dir / "videos"
     alone = [name for name in OBJECT_VIDEO_FILES if _newer_than_model(videos / name, run_dir)]
-    lines.append(f"  videos    {videos}: " + ", ".join(VIDEO_FILES)
-                 + ("; the object alone: " + ", ".join(alone) if alone else ""))
+    lines.append(f"  videos    {videos}: " + ", ".join(VIDEO_FILES) + "; the object alone: "
+                 + (", ".join(alone) if alone else "none (see above)"))
     lines.append(f"  mesh      {mesh}" if mesh is not None else "  mesh      none (see above)")
     lines.append(f"  look      nerfkit view {run_dir}   (the NeRF live in the browser, with the cameras)")
     return "\n".join(lines)

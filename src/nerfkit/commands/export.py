@@ -19,10 +19,11 @@ the table, the tags and sheet painted into density just above it (within --table
 of the object's height, where nothing rises out of that slab), and pieces apart from the
 object that stand less than three times that high; what stands on the table keeps its
 base. The THRESHOLD iso-surface is extracted with marching cubes (closed where it meets
-the box or the cut), and each vertex is coloured by what a ray looking at it along the inward normal sees (the field rendered
-from 2% of the scene's radius outside the surface to 4% inside), not by the field's colour at the
-iso-surface itself, which training leaves as noise (a forward-facing run in NDC, whose
-density is per NDC unit, takes the colour at the vertex).
+the box or the cut), and each vertex is coloured by what a ray looking at it along the
+inward normal sees (the field rendered from 2% of the scene's radius outside the surface
+to 4% inside), not by the field's colour at the iso-surface itself, which training
+leaves as noise (a forward-facing run in NDC, whose density is per NDC unit, takes the
+colour at the vertex).
 points: every --every-th training view is rendered; pixels with opacity > --acc-min are
 back-projected to their expected depth and coloured by the rendered colour.
 splat (runs of --model splat): the Gaussians as the standard 3DGS PLY (what the INRIA code,
@@ -51,13 +52,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     g = p.add_argument_group("mesh")
     g.add_argument("--resolution", type=number(int, 8, 1024), default=256, help="grid cells per side (default: 256)")
     g.add_argument("--threshold", type=number(float), default=SURFACE_DENSITY,
-                   help="density of the surface (default: 25; higher = tighter, fewer floaters)")
+                   help="density of the surface (default: %(default)g; higher = tighter, fewer floaters)")
     g.add_argument("--box-scale", type=number(float, above=0), default=1.0,
                    help="scale the cube meshed, and the scene box points are cropped to (default: 1)")
     g.add_argument("--table-cut", type=number(float, 0, 1), default=TABLE_CUT,
                    help="(captures) clear density within this fraction of the object's height above the table, "
-                   "where nothing rises out of that slab: the tags and sheet painted into density "
-                   "(0: clear only under the table; default: 0.05)")
+                   "where nothing rises out of that slab, and pieces apart from the object lower than three times "
+                   "that: the tags and sheet painted into density (0: clear only under the table; default: "
+                   "%(default)g)")
     g.add_argument("--color-dirs", type=number(int, 1, 64), default=1,
                    help="view directions averaged per vertex colour (1 = along the normal; default: 1)")
     g = p.add_argument_group("points")

@@ -53,15 +53,6 @@ def run(args: argparse.Namespace) -> int:
     names = OBJECT_VIDEO_FILES if args.object else VIDEO_FILES
     guard_outputs([out / name for name in names], dataset_inputs(dataset), args.force or not args.out)
     run_ = open_run(args)
-    background = run_.background(args.background or ("white" if args.object else None))
-    alone = ""
-    if args.object:
-        cut = table_cut_height(run_.model, TABLE_CUT)
-        if run_.model.isolate_object(cut, SURFACE_DENSITY):
-            alone = "the object alone (table, floor and room left out" + (
-                f"; table paint cleared up to {cut:.3g} above the table)" if cut > 0 else ")")
-        else:
-            alone = "the object (the model draws nothing around it to leave out)"
     scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
     kind = scene.video_kind(args.path)
     if kind == "test" and len(scene.test) == 0:
@@ -69,9 +60,20 @@ def run(args: argparse.Namespace) -> int:
     if kind == "spiral" and not scene.forward_facing:
         raise fail("--path spiral", "the training cameras do not all look the same way from about the same "
                    "place, so a spiral across their view would leave them", "Use --path orbit")
-    if kind == "spiral" and args.object:
-        raise fail("--object", "a forward-facing scene, seen from one side along a spiral, has no object "
-                   "standing apart to frame", "Render it without --object")
+    if args.object and (kind == "spiral" or getattr(run_.model, "ndc", None) is not None):
+        raise fail("--object", "a forward-facing scene, seen from one side and held in one volume out to "
+                   "infinity, has no object standing apart to frame", "Render it without --object")
+    background = run_.background(args.background or ("white" if args.object else None))
+    alone = ""
+    if args.object:
+        cut = table_cut_height(run_.model, TABLE_CUT)
+        left_out = run_.model.isolate_object(cut, SURFACE_DENSITY)
+        if not left_out:
+            alone = "the object (the model draws nothing around it to leave out"
+        else:
+            alone = f"the object alone ({_listed(left_out)} left out"
+            if "table" in left_out:
+                alone += f"; table paint cleared up to {cut:.3g} above the table"
     # an orbit looks at the trained object, not at the point the cameras' axes meet
     aim = object_aim(run_.model, scene.train, scene.up, background, run_.chunk, run_.autocast) if kind == "orbit" else None
     views = scene.render_path(args.frames or ORBIT_FRAMES, aim, kind)
@@ -82,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
             raise fail(args.run, "renders nothing solid along the video's path, so there is no object to frame",
                        "Render the scene without --object, or train longer")
         views, near, far = framing.views, framing.near, framing.far
-        alone += f", zoomed {framing.zoom:.2f}x"
+        alone += f"; zoomed {framing.zoom:.2f}x)"
     paths = render_videos(run_.model, views, out, background, near, far, args.fps, run_.chunk, run_.autocast,
                           names=names)
     what = f" of {alone}" if alone else ""
@@ -90,3 +92,8 @@ def run(args: argparse.Namespace) -> int:
     for p in (paths.rgb_mp4, paths.rgb_gif, paths.depth_mp4):
         print(f"  {p}")
     return 0
+
+
+def _listed(names: list[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``."""
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]

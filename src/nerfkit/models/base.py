@@ -321,13 +321,14 @@ class NerfModel(nn.Module):
         ``n`` toward the cameras), or None."""
         return None
 
-    def isolate_object(self, cut: float, threshold: float) -> bool:
+    def isolate_object(self, cut: float, threshold: float) -> list[str]:
         """Keep only the object, for a video of it alone: stop drawing what surrounds it (a
         capture's table, floor, room and learned background) and clear the table's paint
         from the density (:func:`~nerfkit.tabletop.table_paint`: up to ``cut`` world units
         above the table; ``threshold``: the surface's density). Changes the model in place,
-        for rendering only. False when the model draws nothing around its object."""
-        return False
+        for rendering only: it can then be neither trained nor saved. Returns the names of
+        the parts left out: none when the model draws nothing apart from its volume."""
+        return []
 
     def pack_state(self) -> tuple[str | None, dict]:
         """What the final model file stores: ``(packing, tensors)``. The default is the plain

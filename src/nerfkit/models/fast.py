@@ -284,6 +284,7 @@ class FastNeRF(NerfModel):
         self.K = ref.sh_dim(config.sh_degree)
         self.n_channels = 1 + 3 * self.K
         self.ndc = None
+        self.isolated = False  # (isolate_object)
         if config.space == "ndc" or (config.space == "auto" and bounds.ndc is not None):
             if bounds.ndc is None:
                 raise fail("--space ndc", "the scene is not forward-facing (its cameras look different ways)",
@@ -538,6 +539,7 @@ class FastNeRF(NerfModel):
 
     # -- optimisation ----------------------------------------------------------------
     def param_groups(self, lr: float) -> list[dict]:
+        self._not_isolated()
         scale = [1.0] + [self.config.colour_lr_ratio] * (self.n_channels - 1)
         eps = self.config.adam_eps
         groups = [{"params": [self.grid], "lr": lr, "channel_lr_scale": scale, "eps": eps}]
@@ -676,9 +678,12 @@ class FastNeRF(NerfModel):
         return None if self.table is None else self.table.plane.cpu().numpy()
 
     @torch.no_grad()
-    def isolate_object(self, cut: float, threshold: float) -> bool:
-        if self.ndc is not None or all(part is None for part in (self.table, self.floor, self.room, self.bg_coef)):
-            return False
+    def isolate_object(self, cut: float, threshold: float) -> list[str]:
+        parts = {"table": self.table, "floor": self.floor, "room": self.room, "background": self.bg_coef}
+        left_out = [name for name, part in parts.items() if part is not None]
+        if not left_out:
+            return []
+        self.isolated = True
         if self.table is not None:
             rx, ry, rz = self.res
             lo = self.grid_lo.cpu().double().numpy()
@@ -691,7 +696,11 @@ class FastNeRF(NerfModel):
             self.refresh_occupancy()
         self.table = self.floor = self.room = None
         self.bg_coef = None
-        return True
+        return left_out
+
+    def _not_isolated(self) -> None:
+        if self.isolated:
+            raise RuntimeError("a model isolated for an object-only render can be neither trained nor saved")
 
     @torch.no_grad()
     def surface_box(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -742,6 +751,7 @@ class FastNeRF(NerfModel):
 
     # -- checkpoints -----------------------------------------------------------------
     def extra_state(self) -> dict:
+        self._not_isolated()
         return {"lo": [float(v) for v in self.geom.lo.cpu()], "voxel": self.geom.voxel, "res": list(self.geom.res),
                 "rows": int(self.grid.shape[0]), "stage": self.stage, "occ_active": self.occ_active,
                 "density_scale": self.density_scale}
@@ -783,6 +793,7 @@ class FastNeRF(NerfModel):
     def pack_state(self) -> tuple[str | None, dict]:
         """The grid's rows at corners of occupied cells only, in half precision
         (:mod:`nerfkit.models.packing`); the rest of the state as it is."""
+        self._not_isolated()
         state = self.state_dict()
         keep = vertices_touching(self.occ_cells) & (self.vertex_rows > 0)
         rows = state.pop("grid")[self.vertex_rows[keep].long()]

@@ -95,6 +95,23 @@ def _depth_image(depth: torch.Tensor, acc: torch.Tensor, width: int, height: int
 
 
 @torch.no_grad()
+def probe_renders(model: NerfModel, views: Views, n_views: int, width: int, background: torch.Tensor,
+                  chunk: int = 16384, autocast_dtype: torch.dtype | None = None, zoom: float = 1.0
+                  ) -> Iterator[tuple[int, np.ndarray, RenderedView]]:
+    """Small renders of up to ``n_views`` views spread along ``views``: ``(index, K, view)``
+    with the intrinsics they were rendered with, ``width`` pixels wide (the height in
+    proportion) and the focal length times ``zoom`` about the principal point (below 1:
+    more of the scene than the view holds)."""
+    from ..data.load import scale_intrinsics
+
+    h = max(round(views.height * width / views.width), 1)
+    for i in np.unique(np.linspace(0, len(views) - 1, min(n_views, len(views))).round().astype(int)):
+        K = scale_intrinsics(views.K[i], views.width, views.height, width, h)
+        K[0, 0] *= zoom
+        K[1, 1] *= zoom
+        yield int(i), K, render_image(model, K, views.c2w[i], width, h, background, chunk, autocast_dtype)
+
+
 def object_aim(model: NerfModel, views: Views, up: np.ndarray, background: torch.Tensor, chunk: int = 16384,
                autocast_dtype: torch.dtype | None = None, n_views: int = 16, width: int = 64,
                min_points: int = 64) -> np.ndarray | None:
@@ -105,19 +122,16 @@ def object_aim(model: NerfModel, views: Views, up: np.ndarray, background: torch
     (floaters gather high up, near the cameras, not under the object). None with fewer
     than ``min_points`` such rays. Models that render whole views answer with their own
     ``object_center()``."""
-    from ..data.load import scale_intrinsics
 
     if getattr(model, "whole_images", False):
         return model.object_center()
     if len(views) == 0:
         return None
-    h = max(round(views.height * width / views.width), 1)
     points = []
-    for i in np.unique(np.linspace(0, len(views) - 1, min(n_views, len(views))).round().astype(int)):
-        K = scale_intrinsics(views.K[i], views.width, views.height, width, h)
-        view = render_image(model, K, views.c2w[i], width, h, background, chunk, autocast_dtype)
+    for i, K, view in probe_renders(model, views, n_views, width, background, chunk, autocast_dtype):
+        h, w = view.acc.shape
         rays = image_rays(torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(views.c2w[i], dtype=torch.float32),
-                          width, h)
+                          w, h)
         solid = torch.from_numpy(view.acc.reshape(-1) > 0.5)
         depth = torch.from_numpy(view.depth.reshape(-1, 1))
         points.append((rays.origins + rays.directions * depth)[solid])
@@ -143,31 +157,29 @@ class Framing:
 
 def frame_object(model: NerfModel, views: Views, background: torch.Tensor, chunk: int = 16384,
                  autocast_dtype: torch.dtype | None = None, fill: float = 0.8, n_probe: int = 12,
-                 width: int = 96, zoom_range: tuple[float, float] = (0.5, 4.0)) -> Framing | None:
+                 width: int = 128, zoom_range: tuple[float, float] = (0.5, 4.0)) -> Framing | None:
     """Frame what ``model`` holds (an object alone, :meth:`NerfModel.isolate_object`) in
     every view of a path: one zoom and one shift of the principal point for the whole path
     (so the object turns in place), chosen so the box around the object's pixels
-    (opacity > 0.5) in up to ``n_probe`` views (rendered ``width`` pixels wide) spans
-    ``fill`` of the frame, centred. The zoom stays within ``zoom_range``. The depth range
-    is that of those pixels (2% to 98%), widened by 5%. None when no view sees anything.
+    (opacity > 0.5) in up to ``n_probe`` views spans ``fill`` of the frame, centred. The
+    probes are rendered ``width`` pixels wide at ``zoom_range[0]`` times the focal length,
+    so an object that the path's own views cut off is measured whole. The zoom stays
+    within ``zoom_range``. The depth range is that of those pixels (2% to 98%), widened by
+    5%. None when no view sees anything.
     """
-    from ..data.load import scale_intrinsics
-
     if len(views) == 0:
         return None
-    h = max(round(views.height * width / views.width), 1)
-    sx, sy = views.width / width, views.height / h
+    wide = zoom_range[0]
     lo, hi, depths = np.array([np.inf, np.inf]), np.array([-np.inf, -np.inf]), []
-    for i in np.unique(np.linspace(0, len(views) - 1, min(n_probe, len(views))).round().astype(int)):
-        K = scale_intrinsics(views.K[i], views.width, views.height, width, h)
-        view = render_image(model, K, views.c2w[i], width, h, background, chunk, autocast_dtype)
+    for i, K, view in probe_renders(model, views, n_probe, width, background, chunk, autocast_dtype, wide):
         solid = view.acc > 0.5
         if not solid.any():
             continue
         rows, cols = np.nonzero(solid)
-        # pixel edges in the full-size view (x right, y down), relative to its principal point
-        lo = np.minimum(lo, [cols.min() * sx - views.K[i][0, 2], rows.min() * sy - views.K[i][1, 2]])
-        hi = np.maximum(hi, [(cols.max() + 1) * sx - views.K[i][0, 2], (rows.max() + 1) * sy - views.K[i][1, 2]])
+        # pixel edges (x right, y down) relative to the principal point, in the full-size view's pixels
+        scale = np.array([views.K[i][0, 0] / K[0, 0], views.K[i][1, 1] / K[1, 1]])
+        lo = np.minimum(lo, scale * [cols.min() - K[0, 2], rows.min() - K[1, 2]])
+        hi = np.maximum(hi, scale * [cols.max() + 1 - K[0, 2], rows.max() + 1 - K[1, 2]])
         depths.append(view.depth[solid])
     if not depths:
         return None
