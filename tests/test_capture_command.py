@@ -57,6 +57,7 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     assert f"train --resume {run}" in text and text.count("is there from an earlier run, kept") == 2
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["step"] == 160 and metrics["finished"] is True
+    assert [p.name for p in (run / "checkpoints").iterdir()] == ["step_00000160.pt"]  # one resume checkpoint
     assert (run / "mesh.ply").exists() and f"mesh      {run / 'mesh.ply'}" in text
     assert len(iio.imread(run / "videos" / "object.mp4")) == 3  # the object alone, too
     assert "the object alone: object.mp4, object.gif, object_depth.mp4" in text
