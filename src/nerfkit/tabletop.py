@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 # the density (per world unit) taken as a trained field's surface: the mesh's iso-level, and
-# what must rise out of the table's slab for a column to keep its base (clear_table_paint)
+# what must rise out of the table's slab for a column to keep its base (table_paint)
 SURFACE_DENSITY = 25.0
 # how high above a capture's table its paint is cleared, as a fraction of the object's height
 TABLE_CUT = 0.05
