@@ -120,6 +120,43 @@ def test_viewer_renders_the_model_from_the_browser_camera():
         viewer.server.stop()
 
 
+class SphereInRoom(SphereModel):
+    """The sphere in front of a grey room that :meth:`isolate_object` takes away."""
+
+    def __init__(self, bounds):
+        super().__init__(bounds)
+        self.room = True
+
+    def render_rays(self, rays, background, perturb):
+        grey = torch.tensor([0.5, 0.5, 0.5])
+        return super().render_rays(rays, grey if self.room else background, perturb)
+
+    def isolate_object(self, cut, threshold):
+        self.room = False
+        return ["room"]
+
+
+def test_the_viewer_shows_the_object_alone_on_white_without_touching_the_run():
+    bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
+    info = SimpleNamespace(bounds=bounds, train=SimpleNamespace(background="black"))
+    watcher = live.RunWatcher(".", lambda d: None)
+    watcher.current = live.LoadedRun(SphereInRoom(bounds), info, 5, None)
+    viewer = live.LiveViewer(watcher, None, host="127.0.0.1", port=0, max_side=32, watch=False)
+    try:
+        c2w = look_at(np.array([0.0, -4.0, 0.0]), np.zeros(3), np.array([0, 0, 1.0]))
+        q = live.matrix_to_quat(c2w[:3, :3])
+        whole = viewer.render_for(q, c2w[:3, 3], np.radians(40), 1.0, 32, "RGB")
+        alone = viewer.render_for(q, c2w[:3, 3], np.radians(40), 1.0, 32, "RGB", alone=True)
+        assert (whole[0, 0] == 128).all() and (alone[0, 0] == 255).all()  # the room, then white
+        np.testing.assert_array_equal(alone[12:20, 12:20], whole[12:20, 12:20])  # the same sphere
+        assert watcher.current.model.room  # the run's own model still has its room
+        copy = viewer._alone[1]
+        viewer.render_for(q, c2w[:3, 3], np.radians(40), 1.0, 32, "RGB", alone=True)
+        assert viewer._alone[1] is copy  # isolated once per checkpoint
+    finally:
+        viewer.server.stop()
+
+
 def test_progressive_refinement_for_a_resting_camera(monkeypatch):
     """Preview first; larger images only once the camera has rested; restart when it moves."""
     bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))

@@ -12,7 +12,9 @@ Shows each camera as a frustum textured with its image, the world axes, the tag 
 the scene centre; --rays N adds N random training rays with their samples between near
 and far (as training samples them). DATASET is anything `nerfkit train --data` reads.
 The server listens on 127.0.0.1 only, unless you pass --host explicitly.
-A run folder (from `nerfkit train`) opens the live viewer of the trained model instead.
+A run folder (from `nerfkit train`) opens the live viewer of the trained model instead:
+the NeRF rendered from the browser's camera, in colour or depth, the whole scene or (the
+"Object alone" switch) a capture's object without its table and room.
 
 examples:
   nerfkit view my_object/ --rays 50              then open http://127.0.0.1:8080

@@ -2,8 +2,9 @@
 
 ``serve_run(RUN)`` shows the training cameras (frustums with thumbnails) and renders the
 NeRF from the browser's camera: a small preview as soon as the camera moves, refined
-step by step up to ``max_side`` pixels once it stops. An RGB / depth toggle and a
-resolution slider sit in the side panel. With ``watch=True`` the newest checkpoint is
+step by step up to ``max_side`` pixels once it stops. An RGB / depth toggle, a
+resolution slider and an "Object alone" switch (a capture's object without its table and
+room, on white, as ``render --object`` shows it) sit in the side panel. With ``watch=True`` the newest checkpoint is
 re-loaded whenever training writes a new one (so it can attach to a run in progress).
 
 It listens on 127.0.0.1 unless another ``host`` is passed explicitly (the viewer has no
@@ -174,6 +175,9 @@ class LiveViewer:
         gui = self.server.gui
         self.mode = gui.add_dropdown("Show", ("RGB", "Depth"), initial_value="RGB")
         self.res = gui.add_slider("Max resolution", min=32, max=1024, step=32, initial_value=max_side)
+        self.alone = gui.add_checkbox("Object alone", initial_value=False,
+                                      hint="a capture's object without its table, floor and room, on white")
+        self._alone: tuple[LoadedRun, object] | None = None  # (the run, its isolated copy)
         self.follow = gui.add_checkbox("Follow training", initial_value=watch)
         self.status = gui.add_markdown("loading...")
         self.frustums = gui.add_checkbox("Training cameras", initial_value=True)
@@ -231,12 +235,29 @@ class LiveViewer:
     def _camera_key(self, client) -> tuple:
         cam = client.camera
         return (tuple(np.round(cam.wxyz, 5)), tuple(np.round(cam.position, 5)), round(float(cam.fov), 5),
-                round(float(cam.aspect), 4), self.mode.value, int(self.res.value),
+                round(float(cam.aspect), 4), self.mode.value, int(self.res.value), bool(self.alone.value),
                 None if self.watcher.current is None else self.watcher.current.step)
 
+    def _object_alone(self, run: LoadedRun):
+        """A copy of the run's model with only its object (:meth:`NerfModel.isolate_object`),
+        made once per loaded checkpoint; a forward-facing model in NDC has no object apart
+        and is shown whole."""
+        import copy
+
+        from ..tabletop import SURFACE_DENSITY, TABLE_CUT, table_cut_height
+
+        if getattr(run.model, "ndc", None) is not None:
+            return run.model
+        if self._alone is None or self._alone[0] is not run:
+            model = copy.deepcopy(run.model)
+            model.isolate_object(table_cut_height(model, TABLE_CUT), SURFACE_DENSITY)
+            self._alone = (run, model)
+        return self._alone[1]
+
     def render_for(self, wxyz, position, fov: float, aspect: float, side: int, mode: str,
-                   abort: Callable[[], bool] | None = None) -> np.ndarray | None:
-        """The image (H, W, 3) uint8 the viewer shows for a camera, or None (aborted / no model)."""
+                   abort: Callable[[], bool] | None = None, alone: bool = False) -> np.ndarray | None:
+        """The image (H, W, 3) uint8 the viewer shows for a camera, or None (aborted / no
+        model); ``alone``: the object alone, on white."""
         run = self.watcher.current
         if run is None:
             return None
@@ -244,9 +265,11 @@ class LiveViewer:
 
         K, c2w, w, h = viewer_camera(wxyz, position, fov, aspect, side)
         device = next(iter(run.model.parameters()), torch.zeros(0)).device
-        bg = torch.tensor(parse_background(run.info.train.background), dtype=torch.float32, device=device)
+        bg = torch.tensor(parse_background("white" if alone else run.info.train.background), dtype=torch.float32,
+                          device=device)
         with self._lock:
-            out = render_camera(run.model, K, c2w, w, h, bg, self.chunk, abort)
+            model = self._object_alone(run) if alone else run.model
+            out = render_camera(model, K, c2w, w, h, bg, self.chunk, abort)
         if out is None:
             return None
         if mode == "Depth":
@@ -276,7 +299,7 @@ class LiveViewer:
                 continue
             cam = client.camera
             img = self.render_for(cam.wxyz, cam.position, cam.fov, cam.aspect, sides[st.level], self.mode.value,
-                                  abort=lambda c=client, k=key: self._camera_key(c) != k)
+                                  abort=lambda c=client, k=key: self._camera_key(c) != k, alone=self.alone.value)
             if img is not None:
                 client.scene.set_background_image(img, format="jpeg", jpeg_quality=90)
                 st.level += 1
