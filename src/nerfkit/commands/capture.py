@@ -315,5 +315,6 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
     lines.append(f"  videos    {videos}: " + ", ".join(VIDEO_FILES) + "; the object alone: "
                  + (", ".join(alone) if alone else "none (see above)"))
     lines.append(f"  mesh      {mesh}" if mesh is not None else "  mesh      none (see above)")
-    lines.append(f"  look      nerfkit view {run_dir}   (the NeRF live in the browser, with the cameras)")
+    lines.append(f"  look      nerfkit view {run_dir}   (the NeRF live in the browser, with the cameras; "
+                 "\"Object alone\" hides the table and room)")
     return "\n".join(lines)
