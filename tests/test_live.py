@@ -51,6 +51,16 @@ def test_quaternion_round_trip():
         np.testing.assert_allclose(live.quat_to_matrix(live.matrix_to_quat(R)), R, atol=1e-9)
 
 
+def test_a_boxs_depth_range_runs_from_its_nearest_point_to_its_farthest_corner():
+    box = (np.array([-1.0, -1.0, 0.0]), np.array([1.0, 1.0, 2.0]))
+    c2w = np.eye(4)
+    c2w[:3, 3] = [0.0, -5.0, 1.0]  # facing the box's y = -1 face, 4 away
+    near, far = live.box_depth_range(box, c2w, 0.1, 100.0)
+    assert near == pytest.approx(4.0) and far == pytest.approx(np.sqrt(1 + 36 + 1))
+    assert live.box_depth_range(box, c2w, 4.5, 5.0) == (4.5, 5.0)  # within the scene's range
+    assert live.box_depth_range(None, c2w, 0.1, 100.0) == (0.1, 100.0)
+
+
 def test_refinement_sides():
     assert live.refinement_sides(64, 256) == [64, 128, 256]
     assert live.refinement_sides(64, 100) == [64, 100]

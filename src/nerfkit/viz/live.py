@@ -71,6 +71,20 @@ def viewer_camera(wxyz, position, fov: float, aspect: float, long_side: int) -> 
     return K, c2w, w, h
 
 
+def box_depth_range(box, c2w: np.ndarray, near: float, far: float) -> tuple[float, float]:
+    """The depths a box ``(lo (3,), hi (3,))`` spans seen from camera ``c2w``: from its
+    nearest point to its farthest corner, within ``near``-``far``; ``(near, far)`` without a
+    box."""
+    if box is None:
+        return near, far
+    lo, hi = (np.asarray(v, np.float64) for v in box)
+    eye = np.asarray(c2w, np.float64)[:3, 3]
+    nearest = float(np.linalg.norm(np.maximum(np.maximum(lo - eye, eye - hi), 0.0)))
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    farthest = float(np.linalg.norm(corners - eye, axis=1).max())
+    return max(near, nearest), min(far, farthest)
+
+
 def refinement_sides(preview: int, max_side: int) -> list[int]:
     """Long sides rendered one after another while the camera rests: preview, 2x, ..., max."""
     sides = [max(8, min(preview, max_side))]
@@ -274,7 +288,8 @@ class LiveViewer:
             return None
         if mode == "Depth":
             b = run.info.bounds
-            return to_uint8(out.depth_colours(b.near, b.far))
+            near, far = (b.near, b.far) if not alone else box_depth_range(model.density_box(), c2w, b.near, b.far)
+            return to_uint8(out.depth_colours(near, far))
         return to_uint8(out.rgb)
 
     def step(self) -> None:
