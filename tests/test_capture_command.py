@@ -61,6 +61,8 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     assert (run / "mesh.ply").exists() and f"mesh      {run / 'mesh.ply'}" in text
     assert len(iio.imread(run / "videos" / "object.mp4")) == 3  # the object alone, too
     assert "the object alone: object.mp4, object.gif, object_depth.mp4" in text
+    obj = json.loads((run / "eval_val.json").read_text())["object"]  # the object's own pixels, scored
+    assert f"the object's own pixels: {obj['psnr']:.2f} dB as rendered, {obj['psnr_fitted']:.2f} fitted" in text
 
     # again: every step kept, the run not trained again, its eval, videos and mesh not made again
     assert main([*argv[:-2]]) == 0  # (--frames asks for the videos again)

@@ -252,6 +252,42 @@ def test_eval_fits_a_held_out_photos_colour_transform(tmp_path, tabletop):
     assert "fitted_colour_matrix" not in scores[False]["per_image"][0]
 
 
+def test_eval_scores_the_objects_own_pixels(tmp_path, tabletop):
+    """Held-out "photos" that are the model's renders with either the object or the rest
+    changed: the object's score sees only the first."""
+    from dataclasses import replace
+
+    from nerfkit.output.images import render_image
+    from nerfkit.tabletop import object_alone
+    from nerfkit.train.evaluate import evaluate_views
+    from nerfkit.train.metrics import masked_psnr
+
+    t = Trainer(tabletop, *capture_settings(cfg(tmp_path, "ob", steps=100), SMALL, tabletop), quiet=True)
+    t.run()
+    alone, left_out = object_alone(t.model)
+    assert "table" in left_out and t.model.table is not None  # a copy: the run's model keeps its table
+    val = tabletop.val
+    renders = np.stack([render_image(t.model, val.K[i], val.c2w[i], val.width, val.height, t.background).rgb
+                        for i in range(len(val))])
+    solid = np.stack([render_image(alone, val.K[i], val.c2w[i], val.width, val.height, t.background).acc > 0.5
+                      for i in range(len(val))])
+    assert 0.02 < solid.mean() < 0.6  # the sphere, not the table
+    for inside in (True, False):
+        changed = np.where((solid == inside)[..., None], np.clip(renders + 0.2, 0, 1), renders)
+        photos = replace(val, images=(changed * 255).round().astype(np.uint8))
+        out = evaluate_views(t.model, photos, t.background, progress=False, alone=alone)
+        assert out["object"]["n_images"] == len(val)
+        if inside:
+            assert out["object"]["psnr"] < 20 < out["psnr"]  # ... the object is what changed
+        else:
+            assert out["object"]["psnr"] > 40 > 20 > out["psnr"]  # ... the object is untouched
+        row = out["per_image"][0]
+        assert row["object_share"] == pytest.approx(solid[0].mean(), abs=1e-5)
+    assert masked_psnr(np.zeros((2, 2, 3)), np.full((2, 2, 3), 0.1), np.array([[True, False], [False, False]])) \
+        == pytest.approx(20.0)
+    assert masked_psnr(np.zeros((2, 2, 3)), np.zeros((2, 2, 3)), np.zeros((2, 2), bool)) is None
+
+
 def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surroundings():
     """A post standing on the table keeps its base; paint on the table and density under it
     go; rays that met the table now meet nothing."""

@@ -96,3 +96,18 @@ def clear_table_paint(grid: np.ndarray, axes, plane, height: float, threshold: f
     """``grid`` with its :func:`table_paint` set to zero density (in place; returned)."""
     grid[table_paint(grid, axes, plane, height, threshold)] = 0.0
     return grid
+
+
+def object_alone(model) -> tuple[object, list[str]]:
+    """A copy of a trained ``model`` that draws its object alone (its
+    :meth:`~nerfkit.models.base.NerfModel.isolate_object`, with the table's paint cleared up
+    to :data:`TABLE_CUT` of the object's height), and the names of the parts it left out.
+    A model with nothing around its object, or a forward-facing one in NDC (whose one
+    volume holds everything), is returned as it is, with no names."""
+    import copy
+
+    if getattr(model, "ndc", None) is not None:
+        return model, []
+    alone = copy.deepcopy(model)
+    left_out = alone.isolate_object(table_cut_height(alone, TABLE_CUT), SURFACE_DENSITY)
+    return (alone, left_out) if left_out else (model, [])

@@ -308,6 +308,10 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
         lines.append(f"  held out  {e['n_images']} val photos: {e['psnr']:.2f} dB / SSIM {e['ssim']:.3f} as rendered"
                      + (f", {fitted['psnr']:.2f} dB with each photo's pose and colour fitted" if fitted else "")
                      + f"; photo beside render: {run_dir / 'eval_val.png'}")
+        obj = e.get("object") or {}
+        if obj.get("psnr") is not None:
+            lines.append(f"            the object's own pixels: {obj['psnr']:.2f} dB as rendered"
+                         + (f", {obj['psnr_fitted']:.2f} fitted" if obj.get("psnr_fitted") is not None else ""))
     else:
         lines.append("  held out  not scored (the eval's error is above)")
     videos = run_dir / "videos"

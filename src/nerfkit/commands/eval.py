@@ -50,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..errors import fail
     from ..io.atomic import write_json
+    from ..tabletop import object_alone
     from ..train.evaluate import evaluate_views
     from ..train.view_corrections import ViewFitConfig
     from ._common import open_run, scene_for_run
@@ -71,10 +72,11 @@ def run(args: argparse.Namespace) -> int:
         if whole and capture:
             print(f"note: held-out views are scored as rendered only ({run_.info.train.model} cannot fit their poses)")
     fit = ViewFitConfig(steps=steps, colour_mix=run_.info.train.colour_mix) if steps else None
+    alone, left_out = object_alone(run_.model) if capture and not whole else (None, [])
     sheet: list = []
     result = {"split": args.split, "step": run_.step, "data": scene.source,
               **evaluate_views(run_.model, views, run_.background(), run_.chunk, run_.autocast, fit=fit,
-                               scale=run_.info.bounds.radius, sheet=sheet)}
+                               scale=run_.info.bounds.radius, sheet=sheet, alone=alone if left_out else None)}
     write_json(Path(args.run) / f"eval_{args.split}.json", result)
     write_contact_sheet(Path(args.run) / f"eval_{args.split}.png", sheet, args.split)
     print(json.dumps(result, indent=2))

@@ -5,7 +5,9 @@ the training views had corrected; scoring them as given measures those errors as
 the scene. With ``fit`` each held-out view's pose is first fitted to its photo with the
 scene frozen (as BARF does) and its colour correction solved at that pose, and both
 scores are reported, with a third between them: the colour solved at the given pose
-(how much of the difference is the photo's exposure, how much its pose).
+(how much of the difference is the photo's exposure, how much its pose). With a model of
+the object alone (a capture's, :func:`~nerfkit.tabletop.object_alone`), the object's own
+pixels are scored too: a capture's score is mostly its table's.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from ..cameras import image_rays, rotation_angles_deg
 from ..data.scene import Views
 from ..models.base import NerfModel
 from ..output.images import render_image
-from .metrics import psnr, ssim
+from .metrics import masked_psnr, psnr, ssim
 from .view_corrections import ViewFitConfig, fit_view, least_squares_colour, rounded
 
 
@@ -57,7 +59,7 @@ def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: n
 def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chunk: int = 16384,
                    autocast_dtype: torch.dtype | None = None, progress: bool = True,
                    fit: ViewFitConfig | None = None, scale: float = 1.0, sheet: list | None = None,
-                   sheet_views: int = 6) -> dict:
+                   sheet_views: int = 6, alone: NerfModel | None = None) -> dict:
     """Render every view and compare with its image.
 
     Returns ``{"psnr": mean, "ssim": mean, "n_images": N, "per_image": [{index, name,
@@ -69,7 +71,11 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
     (rows: output channels); and ``"colour_only"`` (per image ``psnr_colour``, ``ssim_colour``):
     the colour correction solved at the given pose, no pose fit. Memory holds one image at a time, plus
     the images appended to ``sheet`` (``(photo, render, fitted render or None, row)`` of
-    ``sheet_views`` views spread over the split), when a list is given.
+    ``sheet_views`` views spread over the split), when a list is given. With ``alone`` (the
+    model's object alone), also ``"object"``: the PSNR over the pixels where ``alone``
+    renders opaque (opacity > 0.5) at the view's pose, as rendered and (with ``fit``) fitted,
+    averaged over the views that see the object (per image ``object_share``, the share of
+    its pixels, ``psnr_object`` and ``psnr_object_fitted``).
     """
     from tqdm import tqdm
 
@@ -94,6 +100,11 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
                        fitted_grey_gain=rounded(matrix.sum(axis=1)), fitted_offset=rounded(offset))
             if fit.colour_mix:
                 row["fitted_colour_matrix"] = [rounded(r) for r in matrix]
+        if alone is not None:
+            row.update(_object_scores(alone, views, i, view.rgb, target, background, chunk, autocast_dtype))
+            if fit is not None:
+                row.update(_object_scores(alone, views, i, rgb, target, background, chunk, autocast_dtype, c2w,
+                                          "_fitted"))
         if sheet is not None and i in shown:
             sheet.append((views.images[i], view.rgb, rgb, row))
         per_image.append(row)
@@ -107,7 +118,37 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
         }
         out["colour_only"] = {"what": "each view's colour correction solved at its given pose (no pose fit)",
                               **_means(per_image, "_colour")}
+    if alone is not None:
+        out["object"] = _object_means(per_image, fit is not None)
     out["per_image"] = per_image
+    return out
+
+
+def _object_scores(alone: NerfModel, views: Views, i: int, rgb: np.ndarray, target: np.ndarray,
+                   background: torch.Tensor, chunk: int, autocast_dtype, c2w: np.ndarray | None = None,
+                   suffix: str = "") -> dict:
+    """``{"object_share" (as rendered only), "psnr_object" + suffix}``: the share of view
+    ``i``'s pixels where the object alone is opaque at pose ``c2w`` (default: the view's),
+    and ``rgb``'s PSNR against ``target`` there (None where it has none)."""
+    pose = views.c2w[i] if c2w is None else c2w
+    solid = render_image(alone, views.K[i], pose, views.width, views.height, background, chunk,
+                         autocast_dtype).acc > 0.5
+    score = masked_psnr(rgb, target, solid)
+    row = {f"psnr_object{suffix}": None if score is None else round(score, 4)}
+    if not suffix:
+        row["object_share"] = round(float(solid.mean()), 5)
+    return row
+
+
+def _object_means(per_image: list[dict], fitted: bool) -> dict:
+    """The object's scores averaged over the images that see it."""
+    seen = [p for p in per_image if p["psnr_object"] is not None]
+    out = {"what": "PSNR over the pixels where the object alone (no table, floor or room) renders opaque",
+           "n_images": len(seen),
+           "psnr": round(float(np.mean([p["psnr_object"] for p in seen])), 4) if seen else None}
+    if fitted:
+        scores = [p["psnr_object_fitted"] for p in per_image if p.get("psnr_object_fitted") is not None]
+        out["psnr_fitted"] = round(float(np.mean(scores)), 4) if scores else None
     return out
 
 

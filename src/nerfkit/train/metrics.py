@@ -17,6 +17,15 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return psnr_from_mse(float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2)))
 
 
+def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
+    """PSNR (dB) of two (H, W, 3) float images in [0, 1] over the pixels where ``mask``
+    (H, W) is True; None when it holds none."""
+    if not np.any(mask):
+        return None
+    diff = np.asarray(a, np.float64)[mask] - np.asarray(b, np.float64)[mask]
+    return psnr_from_mse(float(np.mean(diff ** 2)))
+
+
 # scikit-image's Gaussian window of sigma 1.5, truncated at 3.5 sigma: 11 pixels a side
 SSIM_WINDOW = 11
 

@@ -253,19 +253,12 @@ class LiveViewer:
                 None if self.watcher.current is None else self.watcher.current.step)
 
     def _object_alone(self, run: LoadedRun):
-        """A copy of the run's model with only its object (:meth:`NerfModel.isolate_object`),
-        made once per loaded checkpoint; a forward-facing model in NDC has no object apart
-        and is shown whole."""
-        import copy
+        """The run's model with only its object (:func:`~nerfkit.tabletop.object_alone`),
+        made once per loaded checkpoint."""
+        from ..tabletop import object_alone
 
-        from ..tabletop import SURFACE_DENSITY, TABLE_CUT, table_cut_height
-
-        if getattr(run.model, "ndc", None) is not None:
-            return run.model
         if self._alone is None or self._alone[0] is not run:
-            model = copy.deepcopy(run.model)
-            model.isolate_object(table_cut_height(model, TABLE_CUT), SURFACE_DENSITY)
-            self._alone = (run, model)
+            self._alone = (run, object_alone(run.model)[0])
         return self._alone[1]
 
     def render_for(self, wxyz, position, fov: float, aspect: float, side: int, mode: str,
