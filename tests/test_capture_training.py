@@ -261,11 +261,13 @@ def test_eval_scores_the_objects_own_pixels(tmp_path, tabletop):
     from nerfkit.tabletop import object_alone
     from nerfkit.train.evaluate import evaluate_views
     from nerfkit.train.metrics import masked_psnr
+    from nerfkit.train.view_corrections import ViewFitConfig
 
     t = Trainer(tabletop, *capture_settings(cfg(tmp_path, "ob", steps=100), SMALL, tabletop), quiet=True)
     t.run()
-    alone, left_out = object_alone(t.model)
-    assert "table" in left_out and t.model.table is not None  # a copy: the run's model keeps its table
+    isolated = object_alone(t.model)
+    alone = isolated.model
+    assert "table" in isolated.left_out and t.model.table is not None  # a copy: the run's model keeps its table
     val = tabletop.val
     renders = np.stack([render_image(t.model, val.K[i], val.c2w[i], val.width, val.height, t.background).rgb
                         for i in range(len(val))])
@@ -275,10 +277,15 @@ def test_eval_scores_the_objects_own_pixels(tmp_path, tabletop):
     for inside in (True, False):
         changed = np.where((solid == inside)[..., None], np.clip(renders + 0.2, 0, 1), renders)
         photos = replace(val, images=(changed * 255).round().astype(np.uint8))
-        out = evaluate_views(t.model, photos, t.background, progress=False, alone=alone)
+        fit = ViewFitConfig(steps=5) if inside else None
+        out = evaluate_views(t.model, photos, t.background, progress=False, alone=alone, fit=fit,
+                             scale=t.bounds.radius)
         assert out["object"]["n_images"] == len(val)
         if inside:
             assert out["object"]["psnr"] < 20 < out["psnr"]  # ... the object is what changed
+            # fitted, the colour follows the table, which did not change: the object's error stays
+            assert out["object"]["n_images_fitted"] == len(val)
+            assert out["object"]["psnr_fitted"] < 20 < out["fitted"]["psnr"]
         else:
             assert out["object"]["psnr"] > 40 > 20 > out["psnr"]  # ... the object is untouched
         row = out["per_image"][0]

@@ -57,7 +57,9 @@ def test_a_boxs_depth_range_runs_from_its_nearest_point_to_its_farthest_corner()
     c2w[:3, 3] = [0.0, -5.0, 1.0]  # facing the box's y = -1 face, 4 away
     near, far = live.box_depth_range(box, c2w, 0.1, 100.0)
     assert near == pytest.approx(4.0) and far == pytest.approx(np.sqrt(1 + 36 + 1))
-    assert live.box_depth_range(box, c2w, 4.5, 5.0) == (4.5, 5.0)  # within the scene's range
+    assert live.box_depth_range(box, c2w, 4.5, 5.0) == (4.5, pytest.approx(np.sqrt(38)))  # no nearer than near
+    c2w[:3, 3] = [0.0, -20.0, 1.0]  # beyond the scene's far: still the box's own range
+    assert live.box_depth_range(box, c2w, 0.1, 6.0) == (pytest.approx(19.0), pytest.approx(np.sqrt(1 + 21 ** 2 + 1)))
     assert live.box_depth_range(None, c2w, 0.1, 100.0) == (0.1, 100.0)
 
 
@@ -162,7 +164,12 @@ def test_the_viewer_shows_the_object_alone_on_white_without_touching_the_run():
         assert watcher.current.model.room  # the run's own model still has its room
         copy = viewer._alone[1]
         viewer.render_for(q, c2w[:3, 3], np.radians(40), 1.0, 32, "RGB", alone=True)
-        assert viewer._alone[1] is copy  # isolated once per checkpoint
+        assert viewer._alone[1] is copy  # isolated once per checkpoint ...
+        depth = viewer.render_for(q, c2w[:3, 3], np.radians(40), 1.0, 32, "Depth", alone=True)
+        assert (depth[0, 0] == 0).all() and depth[16, 16].any()  # its depth: the sphere, nothing around it
+        watcher.current = live.LoadedRun(SphereInRoom(bounds), info, 6, None)  # ... a new checkpoint
+        viewer.render_for(q, c2w[:3, 3], np.radians(40), 1.0, 32, "RGB", alone=True)
+        assert viewer._alone[1] is not copy and viewer._alone[0] is watcher.current
     finally:
         viewer.server.stop()
 

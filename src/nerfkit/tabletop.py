@@ -8,6 +8,8 @@ just above it. Meshes (``nerfkit export --mesh``) and object-only videos (``nerf
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 # the density (per world unit) taken as a trained field's surface: the mesh's iso-level, and
@@ -98,16 +100,30 @@ def clear_table_paint(grid: np.ndarray, axes, plane, height: float, threshold: f
     return grid
 
 
-def object_alone(model) -> tuple[object, list[str]]:
-    """A copy of a trained ``model`` that draws its object alone (its
+@dataclass
+class ObjectAlone:
+    """A model that draws its object alone (:func:`object_alone`): ``model``, the names of
+    the parts it ``left_out`` (none: the model as it was), and the height ``cut`` above the
+    table up to which the table's paint was cleared (0 without a table)."""
+
+    model: object
+    left_out: list[str]
+    cut: float
+
+
+def object_alone(model, copy: bool = True) -> ObjectAlone:
+    """``model`` (a copy of it, unless ``copy`` is False) drawing its object alone: its
     :meth:`~nerfkit.models.base.NerfModel.isolate_object`, with the table's paint cleared up
-    to :data:`TABLE_CUT` of the object's height), and the names of the parts it left out.
-    A model with nothing around its object, or a forward-facing one in NDC (whose one
-    volume holds everything), is returned as it is, with no names."""
-    import copy
+    to :data:`TABLE_CUT` of the object's height. A model with nothing around its object, or
+    a forward-facing one in NDC (whose one volume holds everything), comes back as it is,
+    with nothing left out."""
+    import copy as copying
 
     if getattr(model, "ndc", None) is not None:
-        return model, []
-    alone = copy.deepcopy(model)
-    left_out = alone.isolate_object(table_cut_height(alone, TABLE_CUT), SURFACE_DENSITY)
-    return (alone, left_out) if left_out else (model, [])
+        return ObjectAlone(model, [], 0.0)
+    cut = table_cut_height(model, TABLE_CUT)
+    alone = copying.deepcopy(model) if copy else model
+    left_out = alone.isolate_object(cut, SURFACE_DENSITY)
+    if not left_out:
+        return ObjectAlone(model, [], 0.0)
+    return ObjectAlone(alone, left_out, cut if "table" in left_out else 0.0)

@@ -72,11 +72,12 @@ def run(args: argparse.Namespace) -> int:
         if whole and capture:
             print(f"note: held-out views are scored as rendered only ({run_.info.train.model} cannot fit their poses)")
     fit = ViewFitConfig(steps=steps, colour_mix=run_.info.train.colour_mix) if steps else None
-    alone, left_out = object_alone(run_.model) if capture and not whole else (None, [])
+    alone = object_alone(run_.model) if capture and not whole else None  # (a copy: memory for a second model)
     sheet: list = []
     result = {"split": args.split, "step": run_.step, "data": scene.source,
               **evaluate_views(run_.model, views, run_.background(), run_.chunk, run_.autocast, fit=fit,
-                               scale=run_.info.bounds.radius, sheet=sheet, alone=alone if left_out else None)}
+                               scale=run_.info.bounds.radius, sheet=sheet,
+                               alone=alone.model if alone is not None and alone.left_out else None)}
     write_json(Path(args.run) / f"eval_{args.split}.json", result)
     write_contact_sheet(Path(args.run) / f"eval_{args.split}.png", sheet, args.split)
     print(json.dumps(result, indent=2))

@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.paths import guard_outputs
     from ..output.images import frame_object, object_aim
     from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES, render_videos
-    from ..tabletop import SURFACE_DENSITY, TABLE_CUT, table_cut_height
+    from ..tabletop import object_alone
     from ..train.checkpoint import read_run
     from ._common import open_run, scene_for_run
 
@@ -65,15 +65,14 @@ def run(args: argparse.Namespace) -> int:
                    "infinity, has no object standing apart to frame", "Render it without --object")
     background = run_.background(args.background or ("white" if args.object else None))
     alone = ""
-    if args.object:
-        cut = table_cut_height(run_.model, TABLE_CUT)
-        left_out = run_.model.isolate_object(cut, SURFACE_DENSITY)
-        if not left_out:
+    if args.object:  # (in place: this model is only rendered)
+        isolated = object_alone(run_.model, copy=False)
+        if not isolated.left_out:
             alone = "the object (the model draws nothing around it to leave out"
         else:
-            alone = f"the object alone ({_listed(left_out)} left out"
-            if "table" in left_out:
-                alone += f"; table paint cleared up to {cut:.3g} above the table"
+            alone = f"the object alone ({_listed(isolated.left_out)} left out"
+            if isolated.cut > 0:
+                alone += f"; table paint cleared up to {isolated.cut:.3g} above the table"
     # an orbit looks at the trained object, not at the point the cameras' axes meet
     aim = object_aim(run_.model, scene.train, scene.up, background, run_.chunk, run_.autocast) if kind == "orbit" else None
     views = scene.render_path(args.frames or ORBIT_FRAMES, aim, kind)

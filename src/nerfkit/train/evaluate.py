@@ -72,10 +72,11 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
     the colour correction solved at the given pose, no pose fit. Memory holds one image at a time, plus
     the images appended to ``sheet`` (``(photo, render, fitted render or None, row)`` of
     ``sheet_views`` views spread over the split), when a list is given. With ``alone`` (the
-    model's object alone), also ``"object"``: the PSNR over the pixels where ``alone``
-    renders opaque (opacity > 0.5) at the view's pose, as rendered and (with ``fit``) fitted,
-    averaged over the views that see the object (per image ``object_share``, the share of
-    its pixels, ``psnr_object`` and ``psnr_object_fitted``).
+    model's object alone, a second model in memory), also ``"object"``: the PSNR over the
+    pixels where ``alone`` renders opaque (opacity > 0.5) at the view's pose, as rendered
+    and (with ``fit``, at the fitted pose) fitted, averaged over the views that see the
+    object (per image ``object_share``, the share of its pixels, ``psnr_object`` and
+    ``psnr_object_fitted``); it costs a render of the object alone per pose.
     """
     from tqdm import tqdm
 
@@ -141,14 +142,17 @@ def _object_scores(alone: NerfModel, views: Views, i: int, rgb: np.ndarray, targ
 
 
 def _object_means(per_image: list[dict], fitted: bool) -> dict:
-    """The object's scores averaged over the images that see it."""
-    seen = [p for p in per_image if p["psnr_object"] is not None]
+    """The object's scores, each averaged over the images that see the object at its pose
+    (``n_images``; fitted: ``n_images_fitted``)."""
+    def mean_of(key: str) -> tuple[float | None, int]:
+        scores = [p[key] for p in per_image if p.get(key) is not None]
+        return (round(float(np.mean(scores)), 4) if scores else None), len(scores)
+
+    psnr_, n = mean_of("psnr_object")
     out = {"what": "PSNR over the pixels where the object alone (no table, floor or room) renders opaque",
-           "n_images": len(seen),
-           "psnr": round(float(np.mean([p["psnr_object"] for p in seen])), 4) if seen else None}
+           "n_images": n, "psnr": psnr_}
     if fitted:
-        scores = [p["psnr_object_fitted"] for p in per_image if p.get("psnr_object_fitted") is not None]
-        out["psnr_fitted"] = round(float(np.mean(scores)), 4) if scores else None
+        out["psnr_fitted"], out["n_images_fitted"] = mean_of("psnr_object_fitted")
     return out
 
 

@@ -4,7 +4,7 @@
 NeRF from the browser's camera: a small preview as soon as the camera moves, refined
 step by step up to ``max_side`` pixels once it stops. An RGB / depth toggle, a
 resolution slider and an "Object alone" switch (a capture's object without its table and
-room, on white, as ``render --object`` shows it) sit in the side panel. With ``watch=True`` the newest checkpoint is
+room, on white) sit in the side panel. With ``watch=True`` the newest checkpoint is
 re-loaded whenever training writes a new one (so it can attach to a run in progress).
 
 It listens on 127.0.0.1 unless another ``host`` is passed explicitly (the viewer has no
@@ -73,16 +73,15 @@ def viewer_camera(wxyz, position, fov: float, aspect: float, long_side: int) -> 
 
 def box_depth_range(box, c2w: np.ndarray, near: float, far: float) -> tuple[float, float]:
     """The depths a box ``(lo (3,), hi (3,))`` spans seen from camera ``c2w``: from its
-    nearest point to its farthest corner, within ``near``-``far``; ``(near, far)`` without a
-    box."""
+    nearest point (no nearer than ``near``) to its farthest corner; ``(near, far)``
+    without a box."""
     if box is None:
         return near, far
     lo, hi = (np.asarray(v, np.float64) for v in box)
     eye = np.asarray(c2w, np.float64)[:3, 3]
-    nearest = float(np.linalg.norm(np.maximum(np.maximum(lo - eye, eye - hi), 0.0)))
+    nearest = max(near, float(np.linalg.norm(np.maximum(np.maximum(lo - eye, eye - hi), 0.0))))
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    farthest = float(np.linalg.norm(corners - eye, axis=1).max())
-    return max(near, nearest), min(far, farthest)
+    return nearest, max(float(np.linalg.norm(corners - eye, axis=1).max()), nearest + 1e-6)
 
 
 def refinement_sides(preview: int, max_side: int) -> list[int]:
@@ -258,7 +257,7 @@ class LiveViewer:
         from ..tabletop import object_alone
 
         if self._alone is None or self._alone[0] is not run:
-            self._alone = (run, object_alone(run.model)[0])
+            self._alone = (run, object_alone(run.model).model)
         return self._alone[1]
 
     def render_for(self, wxyz, position, fov: float, aspect: float, side: int, mode: str,
@@ -289,6 +288,8 @@ class LiveViewer:
         """One pass of the loop: poll checkpoints, then refine every client's image once."""
         if self.follow.value or self.watcher.current is None:
             if self.watcher.poll():
+                with self._lock:
+                    self._alone = None  # (the earlier checkpoint's copy: not kept in memory)
                 self.status.content = f"**{self.watcher.run_dir.name}**: {self.watcher.status}"
                 self._show_splats()
             elif self.watcher.current is None:
