@@ -44,14 +44,16 @@ def visible_pairs(vertices: np.ndarray, view, K: np.ndarray, c2w: np.ndarray, to
 
 
 def main() -> None:
+    from nerfkit.tabletop import SURFACE_DENSITY, TABLE_CUT
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("run", help="a trained run folder (fast or vanilla)")
     ap.add_argument("--views", type=int, default=10, help="validation views to score against (default: 10)")
     ap.add_argument("--resolution", type=int, default=256)
-    ap.add_argument("--threshold", type=float, default=25.0)
+    ap.add_argument("--threshold", type=float, default=SURFACE_DENSITY)
     ap.add_argument("--region", choices=["model", "scene"], default="model",
                     help="mesh the cube around the model's grid (export's way) or the scene's cube")
-    ap.add_argument("--table-cut", type=float, default=0.05,
+    ap.add_argument("--table-cut", type=float, default=TABLE_CUT,
                     help="export's --table-cut; negative: leave a capture's table paint and what is under the table")
     ap.add_argument("--reach", type=float, nargs="+", default=[],
                     help="more colour ray reaches to score, as fractions of the scene's radius")

@@ -32,7 +32,7 @@ import torch
 
 from .errors import fail
 from .io.atomic import atomic_path
-from .tabletop import SURFACE_DENSITY, clear_table_paint, table_cut_height
+from .tabletop import SURFACE_DENSITY, clear_table_paint
 
 DensityFn = Callable[[torch.Tensor], torch.Tensor]
 QueryFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -188,7 +188,8 @@ def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray
     return (np.clip(total / len(dirs), 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
-def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int = 256, threshold: float = 25.0,
+def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int = 256,
+                 threshold: float = SURFACE_DENSITY,
                  query_fn: QueryFn | None = None, n_dirs: int = 1, chunk: int = 65536,
                  device: str | torch.device = "cpu", progress: bool = False, reach: float | None = None,
                  table=None, table_cut: float = 0.0) -> Mesh:
@@ -324,13 +325,14 @@ def mesh_from_model(model, center, radius: float, reach: float, resolution: int 
     dirs)``) over the cube ``center +- radius``, each vertex coloured along a ray from
     ``reach`` outside it (world units; :data:`COLOUR_REACH` of the scene's radius suits a
     trained field whatever the grid). A model with a table plane has its table paint
-    cleared (:func:`clear_table_paint`) up to ``table_cut`` (a fraction of its object's
-    height, :func:`table_cut_height`) above it. A forward-facing model's density is per
-    NDC unit, not per world unit, so its vertices take the field's colour where they are."""
+    cleared (:func:`clear_table_paint`) up to ``table_cut`` above it (world units; as
+    ``export`` does, :func:`~nerfkit.tabletop.table_cut_height` of a fraction of the object's height). A
+    forward-facing model's density is per NDC unit, not per world unit, so its vertices
+    take the field's colour where they are."""
     if getattr(model, "ndc", None) is not None:
         reach = 0.0
     return extract_mesh(model.density, center, radius, resolution, threshold, model.query, n_dirs, chunk, device,
-                        progress, reach=reach, table=model.table_plane(), table_cut=table_cut_height(model, table_cut))
+                        progress, reach=reach, table=model.table_plane(), table_cut=table_cut)
 
 
 def points_from_views(render_fn: Callable, views, acc_min: float = 0.5, background=(0.0, 0.0, 0.0), stride: int = 1,

@@ -19,15 +19,19 @@ SURFACE_DENSITY = 25.0
 TABLE_CUT = 0.05
 
 
+def box_corners(box) -> np.ndarray:
+    """(8, 3) float64 corners of an axis-aligned box ``(lo (3,), hi (3,))``."""
+    lo, hi = (np.asarray(v, np.float64) for v in box)
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
+
 def table_cut_height(model, fraction: float) -> float:
     """``fraction`` of the height of the model's density box's top above its table plane
     (world units; 0 without a table or a box)."""
     plane, box = model.table_plane(), model.density_box()
     if plane is None or box is None:
         return 0.0
-    corners = np.array([[x, y, z] for x in (box[0][0], box[1][0]) for y in (box[0][1], box[1][1])
-                        for z in (box[0][2], box[1][2])], np.float64)
-    return fraction * max(float((corners @ plane[:3] + plane[3]).max()), 0.0)
+    return fraction * max(float((box_corners(box) @ plane[:3] + plane[3]).max()), 0.0)
 
 
 def table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) -> np.ndarray:

@@ -137,7 +137,9 @@ def _finished(run_dir: Path) -> bool:
     Ctrl-C has its model file too, but not ``finished`` in its metrics)."""
     import json
 
-    if not (run_dir / "model.pt").exists():
+    from ..train.checkpoint import MODEL_FILE
+
+    if not (run_dir / MODEL_FILE).exists():
         return False
     try:
         return bool(json.loads((run_dir / "metrics.json").read_text()).get("finished", True))
@@ -147,7 +149,9 @@ def _finished(run_dir: Path) -> bool:
 
 def _newer_than_model(path: Path, run_dir: Path) -> bool:
     """Whether ``path`` was written after the run's model file, so it shows that model."""
-    model = run_dir / "model.pt"
+    from ..train.checkpoint import MODEL_FILE
+
+    model = run_dir / MODEL_FILE
     return path.exists() and model.exists() and path.stat().st_mtime >= model.stat().st_mtime
 
 

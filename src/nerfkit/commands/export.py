@@ -127,12 +127,13 @@ def export_mesh(run_, args) -> None:
 
     model, bounds = run_.model, run_.info.bounds
     center, radius = mesh_region(model, bounds.center, bounds.radius, args.box_scale)
+    height = table_cut_height(model, args.table_cut)
     mesh = mesh_from_model(model, center, radius, COLOUR_REACH * bounds.radius, args.resolution, args.threshold,
-                           args.color_dirs, chunk=POINT_CHUNK, device=run_.device, table_cut=args.table_cut)
+                           args.color_dirs, chunk=POINT_CHUNK, device=run_.device, table_cut=height)
     write_mesh_ply(args.mesh, mesh)
     cut = ""
     if model.table_plane() is not None:
-        cut = f"; table paint cleared up to {table_cut_height(model, args.table_cut):.3g} above the table"
+        cut = f"; table paint cleared up to {height:.3g} above the table"
     print(f"mesh of step {run_.step}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces "
           f"(threshold {args.threshold:g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide cube{cut}) "
           f"-> {args.mesh}")

@@ -75,13 +75,14 @@ def box_depth_range(box, c2w: np.ndarray, near: float, far: float) -> tuple[floa
     """The depths a box ``(lo (3,), hi (3,))`` spans seen from camera ``c2w``: from its
     nearest point (no nearer than ``near``) to its farthest corner; ``(near, far)``
     without a box."""
+    from ..tabletop import box_corners
+
     if box is None:
         return near, far
     lo, hi = (np.asarray(v, np.float64) for v in box)
     eye = np.asarray(c2w, np.float64)[:3, 3]
     nearest = max(near, float(np.linalg.norm(np.maximum(np.maximum(lo - eye, eye - hi), 0.0))))
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    return nearest, max(float(np.linalg.norm(corners - eye, axis=1).max()), nearest + 1e-6)
+    return nearest, max(float(np.linalg.norm(box_corners(box) - eye, axis=1).max()), nearest + 1e-6)
 
 
 def refinement_sides(preview: int, max_side: int) -> list[int]:
