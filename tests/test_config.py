@@ -219,3 +219,18 @@ def test_an_off_value_is_allowed_beside_the_range():
     assert check_ranges(TrainConfig(steps=1, downscale=0.0)).downscale == 0
     with pytest.raises(NerfkitError, match=r"^--downscale: 0.5 is below the minimum 1 \(or 0: off\)$"):
         check_ranges(TrainConfig(steps=1, downscale=0.5))
+
+
+@pytest.mark.parametrize("command", [["calibrate", "calib/"], ["poses", "photos/", "--out", "o"],
+                                     ["capture", "photos/", "--out", "o"]])
+def test_a_tag_size_in_millimetres_is_refused_with_the_metres_it_meant(command, capsys):
+    from nerfkit.cli import main
+    from nerfkit.config import TAG_SIDE_MAX, tag_side
+
+    assert main([*command, "--tag-size", "60"]) == 2  # refused before any photo is read
+    err = capsys.readouterr().err
+    assert "60 mm is 0.06, 60 cm is 0.6" in err and f"nerfkit {command[0]} --help" in err
+    assert tag_side("0.06") == 0.06 and tag_side(str(TAG_SIDE_MAX)) == TAG_SIDE_MAX
+    for bad in ("0", "-0.06", "nan"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            tag_side(bad)

@@ -105,6 +105,22 @@ def number(kind: type = float, min: float | None = None, max: float | None = Non
     return parse
 
 
+# the longest side (metres) taken as a printed tag's: a larger --tag-size is a length in
+# other units (60 for a 60 mm tag), which would scale the scene a thousandfold
+TAG_SIDE_MAX = 2.0
+
+
+def tag_side(text: str) -> float:
+    """The argparse ``type`` of ``--tag-size``: a printed tag's side in metres, positive
+    and at most :data:`TAG_SIDE_MAX`; a larger number is refused with the metres it meant."""
+    value = number(float, above=0)(text)
+    if value > TAG_SIDE_MAX:
+        raise argparse.ArgumentTypeError(
+            f"{text} is not a printed tag's side in metres (at most {TAG_SIDE_MAX:g}): "
+            f"{text} mm is {value / 1000:g}, {text} cm is {value / 100:g}")
+    return value
+
+
 def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
     """Check every int and float field of dataclass ``cfg`` as its flag is checked when the
     command line is parsed (:func:`number`: finite, the field's ``min``/``max``/``above``),

@@ -26,13 +26,13 @@ example:
 
 def register(sub: argparse._SubParsersAction) -> None:
     from ..capture.calibrate import CalibrateConfig
-    from ..config import add_dataclass_args, number
+    from ..config import add_dataclass_args, number, tag_side
 
     p = sub.add_parser("calibrate", help=HELP, description=DESCRIPTION,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("photos", metavar="PHOTOS_DIR", help="folder of photos of the tag sheet")
     p.add_argument("--dict", default="DICT_4X4_50", help="ArUco dictionary of the tags (default: DICT_4X4_50)")
-    p.add_argument("--tag-size", type=number(float, above=0), help="side of one tag's black square in metres, e.g. 0.06 "
+    p.add_argument("--tag-size", type=tag_side, help="side of one tag's black square in metres, e.g. 0.06 "
                    "(needed unless the layout file gives sizes)")
     p.add_argument("--layout", help="sheet layout JSON (tag id -> corners/centre, or a GridBoard/ChArUco board)")
     p.add_argument("--out", default="camera.json", help="camera file to write (default: camera.json)")

@@ -46,19 +46,19 @@ RECORD_FILE = "capture.json"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..config import number
+    from ..config import number, tag_side
 
     p = sub.add_parser("capture", help=HELP, description=DESCRIPTION,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("photos", metavar="OBJECT_DIR", help="folder of photos of the object beside the tag")
     p.add_argument("--out", required=True, help="folder for everything the capture makes")
-    p.add_argument("--tag-size", type=number(float, above=0), required=True,
+    p.add_argument("--tag-size", type=tag_side, required=True,
                    help="side of the black square of the tag beside the object, in metres (e.g. 0.06)")
     cam = p.add_mutually_exclusive_group()
     cam.add_argument("--calib", metavar="CALIB_DIR", help="folder of photos of the printed tag sheet, to calibrate "
                      "the camera from (without it or --camera: the photos' EXIF focal length, no distortion)")
     cam.add_argument("--camera", help="a camera file from an earlier `nerfkit calibrate` of the same phone")
-    p.add_argument("--sheet-tag-size", type=number(float, above=0),
+    p.add_argument("--sheet-tag-size", type=tag_side,
                    help="side of a tag's black square on the calibration sheet (default: --tag-size)")
     p.add_argument("--dict", help="ArUco dictionary of the tags (default: the camera file's, else DICT_4X4_50)")
     p.add_argument("--method", choices=["auto", "tags"], default="auto",

@@ -45,7 +45,7 @@ examples:
 def register(sub: argparse._SubParsersAction) -> None:
     from ..capture.dataset import DatasetConfig
     from ..capture.poses import PoseConfig
-    from ..config import add_dataclass_args, number
+    from ..config import add_dataclass_args, number, tag_side
 
     p = sub.add_parser("poses", help=HELP, description=DESCRIPTION,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -62,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sfm-max-size", type=number(int, 64, 100_000), default=1000, help="longest side used for SfM features, px (default 1000)")
     p.add_argument("--camera", help="camera file from `nerfkit calibrate` (default: the photos' EXIF focal length)")
     p.add_argument("--focal-px", type=number(float, above=0), help="focal length in pixels, when there is no camera file or EXIF")
-    p.add_argument("--tag-size", type=number(float, above=0), help="side of the tag's black square in metres, e.g. 0.06")
+    p.add_argument("--tag-size", type=tag_side, help="side of the tag's black square in metres, e.g. 0.06")
     p.add_argument("--tag-id", type=number(int, 0), help="the tag that defines the world (default: the one seen most)")
     p.add_argument("--layout", help="layout JSON of several tags to use jointly (their frame is the world); by "
                    "default the camera file's layout (e.g. the one calibrate estimated) is used when the photos "
