@@ -358,3 +358,13 @@ def test_poses_use_the_camera_files_layout_when_photos_show_several_tags(tmp_pat
     assert main(["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", "0.05",
                  "--out", str(out), "--no-dataset", "--single-tag", "--force"]) == 0
     assert all(len(p["tags_used"]) == 1 for p in json.loads((out / "poses.json").read_text())["photos"] if p["used"])
+
+
+def test_skip_reasons_are_counted_by_kind_with_their_own_numbers():
+    from nerfkit.capture.report import reason_counts
+
+    reasons = ["bad fit: reprojection error 3.1 px > 2 px", "no tags found", "bad fit: reprojection error 9 px > 2 px",
+               "taken at 52 mm (the camera's photos at 26 mm)", "size 1024x768 has a different aspect ratio",
+               "size 800x500 has a different aspect ratio"]
+    assert reason_counts(reasons) == ("2 x bad fit; 2 x size 1024x768 has a different aspect ratio (or similar); "
+                                      "1 x no tags found; 1 x taken at 52 mm")

@@ -103,6 +103,18 @@ def test_unusable_image_paths_are_one_line_errors(tmp_path, name):
         one_line_error(e)
 
 
+def test_hidden_files_beside_photos_are_not_photos(tmp_path):
+    from nerfkit.images import list_images
+
+    for name in ("IMG_0001.JPG", "._IMG_0001.JPG", ".hidden.png", "notes.txt", "b.png"):
+        (tmp_path / name).write_bytes(b"x")
+    assert [p.name for p in list_images(tmp_path)] == ["IMG_0001.JPG", "b.png"]
+    (tmp_path / "IMG_0001.JPG").unlink()
+    (tmp_path / "b.png").unlink()
+    with pytest.raises(NerfkitError, match="holds no images"):
+        list_images(tmp_path)  # the macOS "._" files alone are no photos
+
+
 def test_uint8_loading_of_a_photo_makes_no_float_copy(tmp_path):
     """A 12-MP photo as float32 is ~150 MB; load_image_uint8 must not build one (nor three)."""
     import tracemalloc

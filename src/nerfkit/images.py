@@ -187,11 +187,14 @@ def load_image_uint8(path: str | Path, background: tuple[float, float, float] = 
 
 
 def list_images(folder: str | Path) -> list[Path]:
-    """Image files in a folder (not recursive), sorted by name; a clear error when there are none."""
+    """Image files in a folder (not recursive), sorted by name; a clear error when there are none.
+    Hidden files are not photos: macOS leaves ``._IMG_0001.JPG`` (its metadata) beside each photo
+    copied to a foreign disk."""
     folder = Path(folder)
     if not folder.is_dir():
         raise fail(folder, "no such folder" if not folder.exists() else "is not a folder")
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    files = sorted(p for p in folder.iterdir()
+                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
     if not files:
         raise fail(folder, "holds no images", f"Expected files ending in {', '.join(sorted(IMAGE_SUFFIXES))}")
     return files

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import re
-from collections import Counter
+import shutil
 
 import numpy as np
 
@@ -27,9 +27,20 @@ def table(rows: list[list[str]], headers: list[str], max_width: int = 90) -> str
 
 
 def _reason_kind(reason: str) -> str:
-    """Group similar reasons ('bad fit: reprojection error 3.1 px > 2 px' -> 'bad fit')."""
-    kind = reason.split(":")[0].split(" (")[0]
-    return re.sub(r"\d+(\.\d+)?", "N", kind)
+    """A reason's kind ('bad fit: reprojection error 3.1 px > 2 px' -> 'bad fit')."""
+    return reason.split(":")[0].split(" (")[0]
+
+
+def reason_counts(reasons: list[str]) -> str:
+    """The reasons photos were skipped, counted by kind, most common first; kinds that differ
+    only in their numbers count together, shown by the first one ('2 x taken at 52 mm (or
+    similar)')."""
+    groups: dict[str, list[str]] = {}
+    for reason in reasons:
+        kind = _reason_kind(reason)
+        groups.setdefault(re.sub(r"\d+(\.\d+)?", "N", kind), []).append(kind)
+    ranked = sorted(groups.values(), key=len, reverse=True)
+    return "; ".join(f"{len(g)} x {g[0]}" + (" (or similar)" if len(set(g)) > 1 else "") for g in ranked)
 
 
 def photo_summary(records: list[PhotoRecord], used_word: str = "used", full: bool = False) -> str:
@@ -48,8 +59,7 @@ def photo_summary(records: list[PhotoRecord], used_word: str = "used", full: boo
                      f"{'their' if len(turned) > 1 else 'its'} EXIF orientation: {', '.join(turned[:5])}"
                      + (", ..." if len(turned) > 5 else ""))
     if skipped:
-        kinds = Counter(_reason_kind(r.reason) for r in skipped)
-        lines.append("skipped: " + "; ".join(f"{n} x {k}" for k, n in kinds.most_common()))
+        lines.append("skipped: " + reason_counts([r.reason for r in skipped]))
     shown = records if full else skipped
     if shown:
         rows = []
@@ -58,5 +68,6 @@ def photo_summary(records: list[PhotoRecord], used_word: str = "used", full: boo
             err = "" if r.error_px is None else f"{r.error_px:.3f}"
             rows.append([r.name, used_word if r.used else "skipped", tags, err, r.reason])
         lines.append("")
-        lines.append(table(rows, ["photo", "status", "tags", "err px", "reason"]))
+        width = max(90, shutil.get_terminal_size((90, 24)).columns)
+        lines.append(table(rows, ["photo", "status", "tags", "err px", "reason"], max_width=width))
     return "\n".join(lines)

@@ -190,7 +190,8 @@ class LiveViewer:
         self.mode = gui.add_dropdown("Show", ("RGB", "Depth"), initial_value="RGB")
         self.res = gui.add_slider("Max resolution", min=32, max=1024, step=32, initial_value=max_side)
         self.alone = gui.add_checkbox("Object alone", initial_value=False,
-                                      hint="a capture's object without its table, floor and room, on white")
+                                      hint="a capture's object without its table, floor and room, on white "
+                                      "(a run that is not a capture has nothing to leave out: it is only put on white)")
         self._alone: tuple[LoadedRun, object] | None = None  # (the run, its isolated copy)
         self.follow = gui.add_checkbox("Follow training", initial_value=watch)
         self.status = gui.add_markdown("loading...")
