@@ -6,6 +6,7 @@ import json
 
 import imageio.v3 as iio
 import numpy as np
+import pytest
 
 from nerfkit.capture import synthetic as S
 from nerfkit.cli import main
@@ -84,6 +85,14 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     assert metrics["step"] == 20 and metrics["finished"] is True
     assert not (out / "run-2").exists()
 
+    # the summary repeats the calibration's warnings, and says why there is no mesh
+    from nerfkit.commands.capture import summary
+
+    camera["sanity"]["warnings"] = ["focal length is uncertain (+/-240.9 px); add photos from more varied angles"]
+    (tmp_path / "camera.json").write_text(json.dumps(camera))
+    text = summary(out, tmp_path / "camera.json", out / "dataset", run, None, mesh_skipped=True)
+    assert "WARNING: focal length is uncertain (+/-240.9 px)" in text and "mesh      not made (--no-mesh)" in text
+
 
 def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_photos(tmp_path, capsys):
     photos = tmp_path / "object"
@@ -104,6 +113,73 @@ def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_pho
     assert main(["capture", str(nested), "--tag-size", "0.06", "--out", str(tmp_path / "mine")]) == 2
     assert "holds no images" in capsys.readouterr().err  # it got as far as reading the (empty) folder
     # a step's error, with its traceback under --verbose
+    iio.imwrite(nested / "blank.png", np.full((48, 64, 3), 128, np.uint8))  # a photo without a tag
     assert main(["--verbose", "capture", str(nested), "--tag-size", "0.06", "--out", str(tmp_path / "mine")]) == 2
     err = capsys.readouterr().err
     assert err.count("Traceback") == 2  # the step's own, and the capture's
+
+
+def test_capture_refuses_before_any_step_what_a_later_step_would_trip_on(tmp_path, capsys):
+    photos = tmp_path / "object"
+    photos.mkdir()
+    iio.imwrite(photos / "a.png", np.full((48, 64, 3), 128, np.uint8))
+    out = tmp_path / "o"
+    base = ["capture", str(photos), "--tag-size", "0.06", "--out", str(out)]
+    assert main([*base, "--calib", str(photos)]) == 2  # the same folder for the sheet and the object
+    assert "is both the calibration folder and the object's" in capsys.readouterr().err
+    # a camera file in --out that no capture recorded is not taken for the capture's own
+    out.mkdir()
+    (out / "camera.json").write_text("{}")
+    sheet = tmp_path / "sheet"
+    sheet.mkdir()
+    assert main([*base, "--calib", str(sheet)]) == 2
+    assert "holds camera.json that no `nerfkit capture` recorded here" in capsys.readouterr().err
+    assert (out / "camera.json").read_text() == "{}" and not (out / "capture.json").exists()
+
+
+def test_a_rerun_keeps_results_only_while_what_they_were_made_from_holds(tmp_path):
+    import argparse
+
+    from nerfkit.commands.capture import _inputs, _same_inputs
+    from nerfkit.errors import NerfkitError
+
+    def inputs(photos, calib, **kw):
+        return _inputs(argparse.Namespace(**{"photos": str(photos), "calib": str(calib), "camera": None,
+                                             "tag_size": 0.06, "sheet_tag_size": None, "dict": None,
+                                             "method": "auto", "max_side": None, **kw}))
+
+    photos, sheet, out = (tmp_path / n for n in ("object", "sheet", "out"))
+    for folder in (photos, sheet, out):
+        folder.mkdir()
+    for i in range(3):
+        (photos / f"IMG_{i}.JPG").write_bytes(b"x" * (i + 1))
+        (sheet / f"S_{i}.JPG").write_bytes(b"y")
+    (photos / "._IMG_0.JPG").write_bytes(b"meta")  # hidden: not a photo
+    camera, made = out / "camera.json", [out / "dataset.npz", out / "config.json"]
+    first = inputs(photos, sheet)
+    assert first["photo_files"].startswith("3 photos (")
+    (out / "capture.json").write_text(json.dumps({"inputs": first}))
+
+    def check(now):
+        _same_inputs(out, now, camera, made)
+
+    (photos / "IMG_3.JPG").write_bytes(b"z")  # a photo added
+    added = inputs(photos, sheet)
+    assert added["photo_files"].startswith("4 photos (")
+    check(added)  # nothing made yet: any input may change
+    camera.write_text("{}")
+    check(added)  # the camera is made from the sheet alone: the object's photos may change
+    with pytest.raises(NerfkitError, match="calib_tag_size: 0.06 then, 0.07 now"):
+        check(inputs(photos, sheet, tag_size=0.07))  # the sheet's tags measured again: the camera would not hold
+    made[0].write_text("npz")
+    with pytest.raises(NerfkitError, match="photo_files: 3 photos .* then, 4 photos .* now"):
+        check(added)  # the dataset would not hold the photo added
+    (photos / "IMG_3.JPG").unlink()
+    (photos / "IMG_2.JPG").write_bytes(b"longer")  # a photo replaced by another of the same name
+    with pytest.raises(NerfkitError, match="photo_files"):
+        check(inputs(photos, sheet))
+    (photos / "IMG_2.JPG").write_bytes(b"x" * 3)
+    check(inputs(photos, sheet))  # as it was: kept
+    older = {k: v for k, v in first.items() if k not in ("photo_files", "calib_files", "calib_tag_size")}
+    (out / "capture.json").write_text(json.dumps({"inputs": older}))
+    check(added)  # what an older nerfkit did not record is not taken as changed

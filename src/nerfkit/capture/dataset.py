@@ -228,7 +228,7 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
     table = np.array([0.0, 0.0, 1.0, 0.0], np.float32) if on_tag_plane else None
     scene = check_scene(Scene(views["train"], views["val"], views["test"], near, far, center.astype(np.float32), up,
                               source=str(out_dir), capture=True, table=table))
-    points_note = "from structure-from-motion"
+    points_note = "from structure-from-motion" if points is not None else "none: --no-points"
     if points is None and cfg.points:
         points, points_note = _triangulate(scene.train, out_dir, progress)
     if points is not None:

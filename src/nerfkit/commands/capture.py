@@ -29,8 +29,9 @@ records what the capture was made from.
 Run it again with the same inputs and the steps whose results are there are kept: a
 training run cut short (Ctrl-C, a crash) goes on from its last checkpoint, and the eval,
 videos and mesh are made again when they are older than the NeRF (--frames renders the
-videos again). Other inputs than the earlier run's are refused. --force redoes every step,
-replacing the camera file, the dataset and the NeRF.
+videos again). Results made from other inputs are refused, never mixed with new ones (photos
+added, removed or replaced count too); a step that failed may be run again with its input
+mended. --force redoes every step, replacing the camera file, the dataset and the NeRF.
 
 examples:
   nerfkit capture object_photos/ --calib sheet_photos/ --tag-size 0.06 --out my_object/
@@ -102,30 +103,64 @@ def _kept(what: str, path: Path) -> None:
     print(f"\n== {what}: {path} is there from an earlier run, kept (--force redoes it)", flush=True)
 
 
+def _photo_files(folder) -> str | None:
+    """A folder's photos as the capture saw them: their count and a digest of their names
+    and sizes (photos added, removed or replaced change it)."""
+    import hashlib
+
+    from ..images import IMAGE_SUFFIXES
+
+    if not folder or not Path(folder).is_dir():
+        return None
+    files = sorted((p.name, p.stat().st_size) for p in Path(folder).iterdir()
+                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+    digest = hashlib.sha1("".join(f"{n}\0{size}\n" for n, size in files).encode()).hexdigest()[:10]
+    return f"{len(files)} photos ({digest})"
+
+
+# the inputs the camera file is made from; the dataset and the NeRF depend on every input
+CAMERA_INPUTS = ("calib", "calib_files", "calib_tag_size", "dict")
+
+
 def _inputs(args: argparse.Namespace) -> dict:
     """What a capture is made from: a later run must name the same to keep its results."""
     def where(p):
         return str(Path(p).resolve()) if p else None
 
-    return {"photos": where(args.photos), "calib": where(args.calib), "camera": where(args.camera),
-            "tag_size": args.tag_size, "sheet_tag_size": args.sheet_tag_size, "dict": args.dict,
+    return {"photos": where(args.photos), "photo_files": _photo_files(args.photos),
+            "calib": where(args.calib), "calib_files": _photo_files(args.calib), "camera": where(args.camera),
+            "tag_size": args.tag_size, "sheet_tag_size": args.sheet_tag_size,
+            "calib_tag_size": (args.sheet_tag_size or args.tag_size) if args.calib else None, "dict": args.dict,
             "method": args.method, "max_side": args.max_side}
 
 
-def _same_inputs(out: Path, inputs: dict) -> None:
-    """Refuse to keep an earlier capture's results when it was made from other inputs."""
+def _same_inputs(out: Path, inputs: dict, camera: Path | None, made: list[Path]) -> None:
+    """Refuse to keep an earlier capture's results when they were made from other inputs
+    (``camera``: the capture's camera file, made from CAMERA_INPUTS; ``made``: its dataset
+    and NeRF, made from all of them), or when ``out`` holds such results that no capture
+    recorded. Inputs whose results are not there yet (a step that failed) may change."""
     import json
 
     from ..errors import fail
 
     record = out / RECORD_FILE
+    there = [p for p in ([camera] if camera is not None else []) + made if p.exists()]
     if not record.exists():
+        if there:
+            raise fail(out, f"holds {', '.join(str(p.relative_to(out)) for p in there)} that no `nerfkit capture` "
+                       "recorded here", "Pass --force to replace them, or choose another --out")
         return
     try:
         before = json.loads(record.read_text()).get("inputs", {})
     except (OSError, ValueError, AttributeError):
         before = {}
-    changed = [k for k, v in inputs.items() if before.get(k) != v]
+    # (an input an older capture did not record is not taken as changed)
+    changed = [k for k, v in inputs.items() if k in before and before[k] != v]
+    kept = [p for p in made if p.exists()]
+    if camera is not None and camera.exists() and not kept:
+        changed = [k for k in changed if k in CAMERA_INPUTS]
+    elif not kept:
+        changed = []
     if changed:
         raise fail(out, "holds a capture made from other inputs (" + ", ".join(
             f"{k}: {before.get(k)} then, {inputs[k]} now" for k in changed) + ")",
@@ -192,9 +227,11 @@ def run(args: argparse.Namespace) -> int:
     from functools import partial
 
     from ..errors import fail
+    from ..images import list_images
     from ..io.atomic import write_json
     from ..io.paths import guard_outputs
     from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
+    from ..train.config import resolve_device
 
     step = partial(_step, verbose=bool(getattr(args, "verbose", False)))
     out = Path(args.out)
@@ -203,12 +240,19 @@ def run(args: argparse.Namespace) -> int:
     for folder, flag in ((args.photos, "OBJECT_DIR"), (args.calib, "--calib")):
         if folder and not Path(folder).is_dir():
             raise fail(folder, "is not a folder", f"{flag} names a folder of photos")
+    if args.calib and Path(args.calib).resolve() == Path(args.photos).resolve():
+        raise fail(args.calib, "is both the calibration folder and the object's",
+                   "--calib names the photos of the printed tag sheet, OBJECT_DIR those of the object beside its tag")
     # the photos may sit in --out (my_object/photos, --out my_object), but nothing is written among them
     ours = [out / DATASET_DIR, out / RUN_DIR, out / RECORD_FILE] + ([out / CAMERA_FILE] if args.calib else [])
     guard_outputs(ours, [args.photos, args.calib, args.camera], force=True)
+    # what would fail a later step is refused before the first one: a folder without photos, a missing GPU
+    list_images(args.photos)
+    resolve_device(args.device)
     inputs = _inputs(args)
     if not args.force:
-        _same_inputs(out, inputs)
+        _same_inputs(out, inputs, out / CAMERA_FILE if args.calib else None,
+                     [out / DATASET_DIR / "dataset.npz", out / RUN_DIR / "config.json"])
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / RECORD_FILE, {"inputs": inputs})
     dictionary = ["--dict", args.dict] if args.dict else []
@@ -269,14 +313,14 @@ def run(args: argparse.Namespace) -> int:
                        needed=False):
             mesh = None
     print()
-    print(summary(out, camera, dataset, run_dir, mesh, evaluated))
+    print(summary(out, camera, dataset, run_dir, mesh, evaluated, mesh_skipped=args.no_mesh))
     return 0
 
 
 def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: Path | None,
-            evaluated: bool = True) -> str:
-    """What the capture made, in a few lines: the calibration, the photos posed, the NeRF's
-    held-out scores and where the videos, plots and mesh are."""
+            evaluated: bool = True, mesh_skipped: bool = False) -> str:
+    """What the capture made, in a few lines: the calibration (and its warnings), the photos
+    posed, the NeRF's held-out scores and where the videos, plots and mesh are."""
     import json
 
     from ..capture.dataset import FEW_TRAIN_VIEWS, few_views_note
@@ -290,6 +334,9 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
         lines.append(f"  camera    {camera}: distortion model {c.get('dist_model', 'as given')}"
                      + (f", {held:.2f} px on held-out photos" if held is not None else
                         f", RMS {rms:.2f} px" if rms is not None else ""))
+        warnings = (c.get("sanity") or {}).get("warnings") or []
+        for w in warnings:
+            lines.append(f"            WARNING: {w}")
     else:
         lines.append("  camera    the photos' EXIF focal length, no lens distortion")
     photos = json.loads((dataset / "poses.json").read_text())["photos"]
@@ -322,7 +369,8 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
     alone = [name for name in OBJECT_VIDEO_FILES if _newer_than_model(videos / name, run_dir)]
     lines.append(f"  videos    {videos}: " + ", ".join(VIDEO_FILES) + "; the object alone: "
                  + (", ".join(alone) if alone else "none (see above)"))
-    lines.append(f"  mesh      {mesh}" if mesh is not None else "  mesh      none (see above)")
+    lines.append(f"  mesh      {mesh}" if mesh is not None else
+                 "  mesh      not made (--no-mesh)" if mesh_skipped else "  mesh      none (see above)")
     lines.append(f"  look      nerfkit view {run_dir}   (the NeRF live in the browser, with the cameras; "
                  "\"Object alone\" hides the table and room)")
     return "\n".join(lines)
