@@ -829,3 +829,31 @@ def test_view_command_passes_localhost_and_warns_for_other_hosts(tmp_path, monke
     assert main(["view", str(tmp_path / "d.npz"), "--host", "0.0.0.0"]) == 0
     assert calls == ["127.0.0.1", "0.0.0.0"]
     assert "warning: listening on 0.0.0.0" in capsys.readouterr().out
+
+
+def test_a_wrong_folder_points_to_the_right_one(tmp_path, capsys):
+    from nerfkit.cli import main
+
+    capture = tmp_path / "my_object"
+    (capture / "dataset").mkdir(parents=True)
+    (capture / "dataset" / "dataset.npz").write_bytes(b"")
+    (capture / "dataset" / "poses.json").write_text("{}")
+    (capture / "run").mkdir()
+    (capture / "run" / "config.json").write_text("{}")
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    (photos / "IMG_1.JPG").write_bytes(b"x")
+    cases = [
+        (["train", "--data", str(capture), "--steps", "1", "--out", str(tmp_path / "r")],
+         f"its dataset is {capture / 'dataset'}"),
+        (["train", "--data", str(capture / "dataset" / "poses.json"), "--steps", "1", "--out", str(tmp_path / "r")],
+         f"not the dataset. Give {capture / 'dataset' / 'dataset.npz'}"),
+        (["train", "--data", str(photos), "--steps", "1", "--out", str(tmp_path / "r")],
+         f"`nerfkit poses {photos} --out DATASET`"),
+        (["render", str(capture)], f"is a capture's folder, not a run. Its NeRF is {capture / 'run'}"),
+    ]
+    for argv, hint in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert hint in err and err.count("\n") == 1, err
+    assert not (tmp_path / "r").exists()

@@ -113,6 +113,8 @@ def detect_format(path: str | Path) -> str:
     if kind is None:
         raise fail(path, "no such file or folder", "Check the path")
     if kind != "dir":
+        if path.name == "poses.json" and (path.parent / "dataset.npz").is_file():
+            raise fail(path, "is the record of the photos' poses, not the dataset", f"Give {path.parent / 'dataset.npz'}")
         if path.suffix.lower() == ".npz":
             return "npz"
         if blender_folder(path) is not None:
@@ -138,7 +140,20 @@ def detect_format(path: str | Path) -> str:
         return "llff"
     if find_colmap_model(path) is not None:
         return "colmap"
-    raise fail(path, "folder holds no dataset nerfkit recognises", f"Expected {FORMATS}")
+    raise fail(path, "folder holds no dataset nerfkit recognises", _folder_hint(path) or f"Expected {FORMATS}")
+
+
+def _folder_hint(path: Path) -> str | None:
+    """What to give instead of a folder that holds no dataset: a capture's own dataset, or
+    how to make one from the photos it holds."""
+    from ..images import IMAGE_SUFFIXES
+
+    if (path / "dataset" / "dataset.npz").is_file():
+        return f"This is a capture's folder: its dataset is {path / 'dataset'}"
+    if any(p.suffix.lower() in IMAGE_SUFFIXES for p in path.iterdir() if p.is_file()):
+        return (f"It holds photos without poses: make a dataset of them with `nerfkit poses {path} --out DATASET` "
+                "(or the whole flow with `nerfkit capture`)")
+    return None
 
 
 def dataset_inputs(path: str | Path) -> list[Path]:

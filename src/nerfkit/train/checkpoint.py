@@ -68,6 +68,8 @@ def read_run(run_dir: str | Path) -> RunInfo:
     if not run_dir.is_dir():
         raise fail(run_dir, "no such run folder", "Give the --out folder of a `nerfkit train` run")
     if not cfg_path.exists():
+        if (run_dir / "run" / "config.json").is_file():
+            raise fail(run_dir, "is a capture's folder, not a run", f"Its NeRF is {run_dir / 'run'}")
         raise fail(cfg_path, "missing", "This folder is not a nerfkit run (train writes config.json first)")
     d = load_json(cfg_path)
     if not isinstance(d, dict):
