@@ -197,6 +197,10 @@ def run(args: argparse.Namespace) -> int:
             camera, note = exif_camera(records)
             notes.append(note)
     posed = pose_records(records, camera, layout, pcfg)
+    scaled = sorted({(p.camera.width, p.camera.height) for p in posed} - {(camera.width, camera.height)})
+    if scaled:
+        notes.append(f"the camera ({camera.width}x{camera.height}) is scaled to the photos' "
+                     + ", ".join(f"{w}x{h}" for w, h in scaled))
     meta = {"photos_dir": str(Path(args.photos).resolve()), "dictionary": dictionary, "tag_size": tag_size,
             "layout": layout.to_json(), "world": "tag frame: origin at the tag centre, x right and y up along the "
             "printed tag, z out of the tag toward the cameras (scene up); metres", "notes": notes,
