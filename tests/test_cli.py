@@ -216,3 +216,23 @@ def test_a_flag_of_another_model_is_refused_before_anything_is_read_or_written(f
     assert main(["train", *flags, "--data", str(data), "--steps", "1", "--out", str(tmp_path / "run")]) == 2
     assert capsys.readouterr().err == f"nerfkit train: error: {error}\n"
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("argv, error", [
+    (["capture", "photos/", "--tagsize", "0.06", "--out", "o"],  # argparse said: "required: --tag-size"
+     "nerfkit capture: error: unrecognized argument --tagsize: did you mean --tag-size? (see nerfkit capture --help)"),
+    (["--verbose", "train", "--data", "x.npz", "--stepz=3"],
+     "nerfkit train: error: unrecognized argument --stepz: did you mean --steps? (see nerfkit train --help)"),
+    (["render", "run", "--bogus", "1"], "nerfkit render: error: unrecognized argument --bogus (see nerfkit render --help)"),
+])
+def test_an_unknown_flag_is_named_by_its_command_with_the_nearest_one(argv, error, capsys):
+    assert main(argv) == 2
+    assert capsys.readouterr().err == error + "\n"
+
+
+def test_abbreviated_flags_and_values_after_a_double_dash_are_not_unknown(capsys):
+    from nerfkit.cli import build_parser, unknown_option
+
+    parser = build_parser("render")
+    assert unknown_option(parser, ["render", "run", "--fram", "3"]) is None  # argparse takes --frames
+    assert unknown_option(parser, ["render", "--", "--odd-run-name"]) is None

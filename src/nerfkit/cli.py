@@ -81,6 +81,30 @@ def command_in(argv: list[str]) -> str | None:
     return next((a for a in argv if not a.startswith("-")), None)
 
 
+def unknown_option(parser: argparse.ArgumentParser, argv: list[str]) -> str | None:
+    """The one-line error for the first ``--option`` after the command that the command does
+    not have (nor abbreviates), with the nearest one it has: argparse alone names a missing
+    required flag first (``--tagsize`` for ``--tag-size``) and points to the top-level help."""
+    import difflib
+
+    command = command_in(argv)
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if command is None or not subs or command not in subs[0].choices:
+        return None
+    sub = subs[0].choices[command]
+    known = [k for k in sub._option_string_actions if k.startswith("--")]
+    for token in argv[argv.index(command) + 1:]:
+        if token == "--":
+            break
+        name = token.split("=", 1)[0]
+        if not name.startswith("--") or any(k.startswith(name) for k in known):
+            continue
+        near = difflib.get_close_matches(name[2:], [k[2:] for k in known], n=1)
+        return (f"{sub.prog}: error: unrecognized argument {name}" + (f": did you mean --{near[0]}?" if near else "")
+                + f" (see {sub.prog} --help)")
+    return None
+
+
 def _version() -> str:
     from . import __version__
 
@@ -102,6 +126,10 @@ OS_ERROR_HINTS = {
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser(command_in(argv))
+    unknown = unknown_option(parser, argv)
+    if unknown:
+        print(unknown, file=sys.stderr)
+        return 2
     try:
         args = parser.parse_args(argv)
     except UsageError as e:
