@@ -381,14 +381,6 @@ def test_poses_use_the_camera_files_layout_when_photos_show_several_tags(tmp_pat
         assert p["used"] and len(p["tags_used"]) > 1, p
         pos, ang = pose_error(np.array(p["c2w"]), sheet.c2w[sheet.names.index(p["file"])])
         assert pos < 0.002 and ang < 0.3
-    assert poses["tag_size"] == pytest.approx(sheet.layout.tag_size) and not any("--tag-size" in n for n in poses["notes"])
-    # a --tag-size the layout's tags do not have: the layout sets the scale, and the note says so
-    assert main(["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", "0.06",
-                 "--out", str(out), "--no-dataset", "--force"]) == 0
-    again = json.loads((out / "poses.json").read_text())
-    assert again["tag_size"] == pytest.approx(sheet.layout.tag_size)
-    assert any("--tag-size 0.06 is not the side of the layout's tags" in n for n in again["notes"])
-    assert np.allclose([p["c2w"] for p in again["photos"]], [p["c2w"] for p in poses["photos"]])
     assert main(["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", "0.05",
                  "--out", str(out), "--no-dataset", "--single-tag", "--force"]) == 0
     assert all(len(p["tags_used"]) == 1 for p in json.loads((out / "poses.json").read_text())["photos"] if p["used"])

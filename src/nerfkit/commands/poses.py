@@ -182,11 +182,6 @@ def run(args: argparse.Namespace) -> int:
     elif args.tag_id is not None:
         notes.append("--tag-id is ignored with --layout: the layout's frame is the world")
     tag_size = args.tag_size or layout.tag_size
-    if len(layout.tags) > 1:  # the layout's tags set the scale
-        if abs(tag_size / layout.tag_size - 1) > 0.02:
-            notes.append(f"--tag-size {tag_size:g} is not the side of the layout's tags ({layout.tag_size:.4g} m): "
-                         "the layout sets the scale; check the tag sheet's printed size")
-        tag_size = layout.tag_size
 
     if camera is None:
         if args.focal_px:
