@@ -133,7 +133,7 @@ def test_capture_refuses_before_any_step_what_a_later_step_would_trip_on(tmp_pat
     sheet = tmp_path / "sheet"
     sheet.mkdir()
     assert main([*base, "--calib", str(sheet)]) == 2
-    assert "holds camera.json that no `nerfkit capture` recorded here" in capsys.readouterr().err
+    assert "holds camera.json that no `nerfkit capture` recorded in capture.json" in capsys.readouterr().err
     assert (out / "camera.json").read_text() == "{}" and not (out / "capture.json").exists()
 
 
@@ -144,7 +144,7 @@ def test_a_rerun_keeps_results_only_while_what_they_were_made_from_holds(tmp_pat
     from nerfkit.errors import NerfkitError
 
     def inputs(photos, calib, **kw):
-        return _inputs(argparse.Namespace(**{"photos": str(photos), "calib": str(calib), "camera": None,
+        return _inputs(argparse.Namespace(**{"photos": str(photos), "calib": calib and str(calib), "camera": None,
                                              "tag_size": 0.06, "sheet_tag_size": None, "dict": None,
                                              "method": "auto", "max_side": None, **kw}))
 
@@ -180,6 +180,21 @@ def test_a_rerun_keeps_results_only_while_what_they_were_made_from_holds(tmp_pat
         check(inputs(photos, sheet))
     (photos / "IMG_2.JPG").write_bytes(b"x" * 3)
     check(inputs(photos, sheet))  # as it was: kept
-    older = {k: v for k, v in first.items() if k not in ("photo_files", "calib_files", "calib_tag_size")}
+    older = {k: v for k, v in first.items() if k not in ("photo_files", "calib_files", "calib_tag_size", "camera_file")}
     (out / "capture.json").write_text(json.dumps({"inputs": older}))
-    check(added)  # what an older nerfkit did not record is not taken as changed
+    check(added)  # what an older nerfkit did not record is not taken as changed,
+    with pytest.raises(NerfkitError, match="calib_tag_size: 0.06 then, 0.07 now"):
+        check(inputs(photos, sheet, tag_size=0.07))  # but the sheet's tag size is worked out from what it did
+    for broken in ("{", "[]", '{"inputs": {}}'):  # a record that is no record keeps nothing
+        (out / "capture.json").write_text(broken)
+        with pytest.raises(NerfkitError, match="no `nerfkit capture` recorded"):
+            check(first)
+    # a camera file given with --camera, calibrated again in place: the dataset posed with it would not hold
+    given = tmp_path / "phone.json"
+    given.write_text('{"K": 1}')
+    mine = inputs(photos, None, camera=str(given))
+    (out / "capture.json").write_text(json.dumps({"inputs": mine}))
+    check(mine)
+    given.write_text('{"K": 2}')
+    with pytest.raises(NerfkitError, match="camera_file"):
+        check(inputs(photos, None, camera=str(given)))

@@ -319,30 +319,33 @@ def test_a_photo_from_another_lens_is_skipped_with_the_reason(tmp_path, obj):
     assert "another lens" in plain[obj.names[5]]["reason"] and plain[obj.names[6]]["used"]
 
 
-def test_a_photo_of_another_size_is_skipped_and_a_scaled_camera_is_said(tmp_path, obj):
-    """One camera, scaled, fits photos resized alike; a photo of another size (another
-    phone, an edited copy) is skipped with the reason, not posed with a camera that does not fit it."""
+def test_a_camera_calibrated_at_another_size_is_scaled_and_said(tmp_path, obj):
+    """One camera, scaled, fits photos resized alike (the note says it was scaled); a photo
+    cropped to another shape is skipped with the reason, not posed with a camera that does not fit it."""
     folder = tmp_path / "object"
     folder.mkdir()
     for k, (name, img) in enumerate(zip(obj.names, obj.images)):
-        if k == 3:  # a copy cropped to another size
+        if k == 3:  # a copy cropped to another shape
             img = np.ascontiguousarray(img[: img.shape[0] * 3 // 4])
         S.write_photo(folder / name, img)
     twice = {"K": (obj.K * [[2], [2], [1]]).tolist(), "dist": obj.dist.tolist(), "width": obj.width * 2,
              "height": obj.height * 2, "dictionary": "DICT_4X4_50"}  # calibrated on photos twice as large
     twice["K"][0][2], twice["K"][1][2] = obj.K[0, 2] * 2 + 0.5, obj.K[1, 2] * 2 + 0.5  # (pixel centres)
     (tmp_path / "camera.json").write_text(json.dumps(twice))
-    assert main(["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", str(TAG),
-                 "--out", str(tmp_path / "ds"), "--no-dataset"]) == 0
-    poses = json.loads((tmp_path / "ds" / "poses.json").read_text())
-    photos = {p["file"]: p for p in poses["photos"]}
-    assert not photos[obj.names[3]]["used"] and "differs from most photos" in photos[obj.names[3]]["reason"]
-    note = f"the camera ({obj.width * 2}x{obj.height * 2}) is scaled to the photos' {obj.width}x{obj.height}"
-    assert note in poses["notes"]
-    for name, p in photos.items():
-        if p["used"]:
-            pos, ang = pose_error(np.array(p["c2w"]), obj.c2w[obj.names.index(name)])
-            assert pos < 0.003 and ang < 0.5
+    for camera, scaled in ((tmp_path / "camera.json", True), (write_camera(tmp_path / "same.json", obj), False)):
+        out = tmp_path / f"ds_{camera.stem}"
+        assert main(["poses", str(folder), "--camera", str(camera), "--tag-size", str(TAG),
+                     "--out", str(out), "--no-dataset"]) == 0
+        poses = json.loads((out / "poses.json").read_text())
+        photos = {p["file"]: p for p in poses["photos"]}
+        assert not photos[obj.names[3]]["used"] and "aspect ratio" in photos[obj.names[3]]["reason"]
+        note = f"the camera ({obj.width * 2}x{obj.height * 2}) is scaled to the photos' {obj.width}x{obj.height}"
+        assert (note in poses["notes"]) == scaled and sum("is scaled" in n for n in poses["notes"]) == scaled
+        assert sum(p["used"] for p in photos.values()) >= 7
+        for name, p in photos.items():
+            if p["used"]:
+                pos, ang = pose_error(np.array(p["c2w"]), obj.c2w[obj.names.index(name)])
+                assert pos < 0.003 and ang < 0.5
 
 
 def test_a_tag_disagreeing_with_the_others_is_dropped_and_the_pose_kept():

@@ -224,6 +224,8 @@ def test_a_flag_of_another_model_is_refused_before_anything_is_read_or_written(f
     (["--verbose", "train", "--data", "x.npz", "--stepz=3"],
      "nerfkit train: error: unrecognized argument --stepz: did you mean --steps? (see nerfkit train --help)"),
     (["render", "run", "--bogus", "1"], "nerfkit render: error: unrecognized argument --bogus (see nerfkit render --help)"),
+    (["eval", "run", "--verbose"],
+     "nerfkit eval: error: --verbose goes before the command: nerfkit --verbose eval ... (see nerfkit --help)"),
 ])
 def test_an_unknown_flag_is_named_by_its_command_with_the_nearest_one(argv, error, capsys):
     assert main(argv) == 2

@@ -231,6 +231,10 @@ def test_a_tag_size_in_millimetres_is_refused_with_the_metres_it_meant(command, 
     err = capsys.readouterr().err
     assert "60 mm is 0.06, 60 cm is 0.6" in err and f"nerfkit {command[0]} --help" in err
     assert tag_side("0.06") == 0.06 and tag_side(str(TAG_SIDE_MAX)) == TAG_SIDE_MAX
+    for text, hint in (("1e3", ": 1e3 mm is 1"), ("5000", ")")):  # only the lengths it takes
+        with pytest.raises(argparse.ArgumentTypeError) as e:
+            tag_side(text)
+        assert str(e.value).endswith(hint) and "cm" not in str(e.value)
     for bad in ("0", "-0.06", "nan"):
         with pytest.raises(argparse.ArgumentTypeError):
             tag_side(bad)

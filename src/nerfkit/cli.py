@@ -99,6 +99,9 @@ def unknown_option(parser: argparse.ArgumentParser, argv: list[str]) -> str | No
         name = token.split("=", 1)[0]
         if not name.startswith("--") or any(k.startswith(name) for k in known):
             continue
+        if name in parser._option_string_actions:  # --verbose, --version: nerfkit's own
+            return (f"{sub.prog}: error: {name} goes before the command: nerfkit {name} {command} ... "
+                    f"(see nerfkit --help)")
         near = difflib.get_close_matches(name[2:], [k[2:] for k in known], n=1)
         return (f"{sub.prog}: error: unrecognized argument {name}" + (f": did you mean --{near[0]}?" if near else "")
                 + f" (see {sub.prog} --help)")

@@ -115,9 +115,10 @@ def tag_side(text: str) -> float:
     and at most :data:`TAG_SIDE_MAX`; a larger number is refused with the metres it meant."""
     value = number(float, above=0)(text)
     if value > TAG_SIDE_MAX:
-        raise argparse.ArgumentTypeError(
-            f"{text} is not a printed tag's side in metres (at most {TAG_SIDE_MAX:g}): "
-            f"{text} mm is {value / 1000:g}, {text} cm is {value / 100:g}")
+        meant = [f"{text} {unit} is {value / per:g}" for unit, per in (("mm", 1000), ("cm", 100))
+                 if value / per <= TAG_SIDE_MAX]
+        raise argparse.ArgumentTypeError(f"{text} is not a printed tag's side in metres (at most {TAG_SIDE_MAX:g})"
+                                         + (": " + ", ".join(meant) if meant else ""))
     return value
 
 

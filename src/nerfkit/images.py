@@ -186,15 +186,20 @@ def load_image_uint8(path: str | Path, background: tuple[float, float, float] = 
     return rgb.astype(np.uint8)
 
 
+def image_files(folder: str | Path) -> list[Path]:
+    """The image files in a folder (not recursive), sorted by name. Hidden files are not
+    photos: macOS leaves ``._IMG_0001.JPG`` (its metadata) beside each photo copied to a
+    foreign disk."""
+    return sorted(p for p in Path(folder).iterdir()
+                  if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+
+
 def list_images(folder: str | Path) -> list[Path]:
-    """Image files in a folder (not recursive), sorted by name; a clear error when there are none.
-    Hidden files are not photos: macOS leaves ``._IMG_0001.JPG`` (its metadata) beside each photo
-    copied to a foreign disk."""
+    """:func:`image_files` of a folder; a clear error when it is no folder or holds none."""
     folder = Path(folder)
     if not folder.is_dir():
         raise fail(folder, "no such folder" if not folder.exists() else "is not a folder")
-    files = sorted(p for p in folder.iterdir()
-                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+    files = image_files(folder)
     if not files:
         raise fail(folder, "holds no images", f"Expected files ending in {', '.join(sorted(IMAGE_SUFFIXES))}")
     return files

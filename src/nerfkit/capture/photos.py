@@ -302,28 +302,6 @@ def keep_one_lens(records: list[PhotoRecord], lens: float | None = None) -> list
     return kept
 
 
-def keep_one_size(records: list[PhotoRecord]) -> list[PhotoRecord]:
-    """The photos of the size most photos with tags share, either way round (a photo held
-    the other way is turned later). A photo of another size came from another camera or
-    was edited, and is skipped with the reason: one camera, scaled, would not fit it."""
-    counts: dict[tuple[int, int], int] = {}
-    for r in records:
-        if r.detection is not None:
-            key = (max(r.size), min(r.size))
-            counts[key] = counts.get(key, 0) + 1
-    if not counts:
-        return list(records)
-    main = max(counts, key=lambda k: (counts[k], k[0] * k[1]))
-    kept = []
-    for r in records:
-        if r.detection is not None and (max(r.size), min(r.size)) != main:
-            r.skip(f"size {r.size[0]}x{r.size[1]} differs from most photos ({main[0]}x{main[1]}): "
-                   "another camera, or an edited copy")
-        else:
-            kept.append(r)
-    return kept
-
-
 def group_by_size(records: list[PhotoRecord], turn: bool = False
                   ) -> tuple[tuple[int, int] | None, list[PhotoRecord]]:
     """The photo size most detected photos share, and the photos of that size.

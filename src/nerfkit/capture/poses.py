@@ -28,7 +28,7 @@ from ..errors import fail
 from ..images import held_as
 from .aruco import Detection, Layout, square_corners, tag_pose_in_layout
 from .camera import Camera, camera_from_focal, exif_fx
-from .photos import PhotoRecord, blur_hint, frame_turns, keep_one_lens, keep_one_size, turn_into_frame
+from .photos import PhotoRecord, blur_hint, frame_turns, keep_one_lens, turn_into_frame
 
 UP = np.array([0.0, 0.0, 1.0], np.float32)
 # Automatic error limit: this many times the calibration's held-out error ...
@@ -245,15 +245,15 @@ def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
     the camera's frame (:func:`~.photos.turn_into_frame`): the frame the camera file
     records, else the one most photos of the camera's shape were taken in. A photo whose
     EXIF focal length says it was taken with another lens or zoom than the camera's (else
-    most photos') is skipped (:func:`~.photos.keep_one_lens`), as is a photo of another size
-    than most (:func:`~.photos.keep_one_size`); the camera is scaled to the photos' size.
+    most photos') is skipped (:func:`~.photos.keep_one_lens`). The camera is scaled to each
+    photo's size (a photo resized alike).
     """
     posed = []
     cams: dict[tuple[int, int], Camera] = {}
     frame = camera.sensor_turns
     if frame is None:
         frame = frame_turns([r for r in records if r.detection is not None and not camera.compatible(*r.size)])
-    for r in keep_one_size(keep_one_lens(records, camera.exif_f35)):
+    for r in keep_one_lens(records, camera.exif_f35):
         if r.detection is None:
             continue
         w, h = r.size

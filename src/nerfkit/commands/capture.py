@@ -108,14 +108,22 @@ def _photo_files(folder) -> str | None:
     and sizes (photos added, removed or replaced change it)."""
     import hashlib
 
-    from ..images import IMAGE_SUFFIXES
+    from ..images import image_files
 
     if not folder or not Path(folder).is_dir():
         return None
-    files = sorted((p.name, p.stat().st_size) for p in Path(folder).iterdir()
-                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+    files = [(p.name, p.stat().st_size) for p in image_files(folder)]
     digest = hashlib.sha1("".join(f"{n}\0{size}\n" for n, size in files).encode()).hexdigest()[:10]
     return f"{len(files)} photos ({digest})"
+
+
+def _file_digest(path) -> str | None:
+    """A digest of a small file's contents (a camera file calibrated again changes it)."""
+    import hashlib
+
+    if not path or not Path(path).is_file():
+        return None
+    return hashlib.sha1(Path(path).read_bytes()).hexdigest()[:10]
 
 
 # the inputs the camera file is made from; the dataset and the NeRF depend on every input
@@ -129,6 +137,7 @@ def _inputs(args: argparse.Namespace) -> dict:
 
     return {"photos": where(args.photos), "photo_files": _photo_files(args.photos),
             "calib": where(args.calib), "calib_files": _photo_files(args.calib), "camera": where(args.camera),
+            "camera_file": _file_digest(args.camera),
             "tag_size": args.tag_size, "sheet_tag_size": args.sheet_tag_size,
             "calib_tag_size": (args.sheet_tag_size or args.tag_size) if args.calib else None, "dict": args.dict,
             "method": args.method, "max_side": args.max_side}
@@ -143,18 +152,20 @@ def _same_inputs(out: Path, inputs: dict, camera: Path | None, made: list[Path])
 
     from ..errors import fail
 
-    record = out / RECORD_FILE
     there = [p for p in ([camera] if camera is not None else []) + made if p.exists()]
-    if not record.exists():
+    try:
+        before = json.loads((out / RECORD_FILE).read_text()).get("inputs")
+    except (OSError, ValueError, AttributeError):
+        before = None
+    if not isinstance(before, dict) or "photos" not in before:  # missing, or not a record
         if there:
             raise fail(out, f"holds {', '.join(str(p.relative_to(out)) for p in there)} that no `nerfkit capture` "
-                       "recorded here", "Pass --force to replace them, or choose another --out")
+                       f"recorded in {RECORD_FILE}", "Pass --force to replace them, or choose another --out")
         return
-    try:
-        before = json.loads(record.read_text()).get("inputs", {})
-    except (OSError, ValueError, AttributeError):
-        before = {}
-    # (an input an older capture did not record is not taken as changed)
+    if "calib_tag_size" not in before:  # recorded by an older nerfkit
+        before["calib_tag_size"] = (before.get("sheet_tag_size") or before.get("tag_size")) if before.get("calib") \
+            else None
+    # (any other input an older capture did not record is not taken as changed)
     changed = [k for k, v in inputs.items() if k in before and before[k] != v]
     kept = [p for p in made if p.exists()]
     if camera is not None and camera.exists() and not kept:

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import fail
-from ..images import IMAGE_SUFFIXES, load_image_uint8
+from ..images import image_files, load_image_uint8
 from ..io.paths import path_kind, refuse_special_file, resolve_inside
 from .scene import Scene, Views, estimate_up
 from .validate import MAX_COORD, MAX_PIXELS, check_intrinsics, check_near_far, check_poses
@@ -153,7 +153,7 @@ def load_llff(
     img_dir, still = _image_folder(folder, downscale)
     if not img_dir.is_dir():
         raise fail(img_dir, "missing", f"An LLFF scene keeps its photos in images/ beside {POSES_FILE}")
-    files = sorted(p.name for p in img_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    files = [p.name for p in image_files(img_dir)]
     if len(files) != len(poses):
         raise fail(img_dir, f"holds {len(files)} images but {POSES_FILE} has {len(poses)} poses",
                    "Each photo needs one row of poses_bounds.npy, in name order")

@@ -146,11 +146,11 @@ def detect_format(path: str | Path) -> str:
 def _folder_hint(path: Path) -> str | None:
     """What to give instead of a folder that holds no dataset: a capture's own dataset, or
     how to make one from the photos it holds."""
-    from ..images import IMAGE_SUFFIXES
+    from ..images import image_files
 
     if (path / "dataset" / "dataset.npz").is_file():
         return f"This is a capture's folder: its dataset is {path / 'dataset'}"
-    if any(p.suffix.lower() in IMAGE_SUFFIXES for p in path.iterdir() if p.is_file()):
+    if image_files(path):
         return (f"It holds photos without poses: make a dataset of them with `nerfkit poses {path} --out DATASET` "
                 "(or the whole flow with `nerfkit capture`)")
     return None
