@@ -92,6 +92,15 @@ def test_per_tag_mode_and_known_layout_also_recover_intrinsics(sheet, records):
     assert rel_errors(known.K, sheet.K).max() < 0.01
 
 
+@pytest.mark.parametrize("n, per_tag", [(2, True), (4, False), (4, True)])
+def test_too_few_photos_are_counted_as_photos_in_every_mode(records, n, per_tag):
+    """Per tag, 2 photos are 10 tag views: the message counts photos, as it does in any mode."""
+    from nerfkit.errors import NerfkitError
+
+    with pytest.raises(NerfkitError, match=f"only {n} photos with tags found \\(need at least 5\\)"):
+        C.calibrate_records(fresh(records)[:n], SIZE, TAG, None, C.CalibrateConfig(per_tag=per_tag))
+
+
 def test_outlier_photo_is_dropped_and_the_camera_recalibrated(sheet, records):
     recs = fresh(records)
     bad = recs[3]

@@ -487,6 +487,9 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
             r.skip("no tags found" if layout is None or layout.charuco is None else "no ChArUco corners found")
         else:
             with_tags.append(r)
+    if len(with_tags) < cfg.min_photos:  # (before the fit, which counts tag views, not photos)
+        raise fail("calibration", f"only {len(with_tags)} photos with tags found (need at least {cfg.min_photos})",
+                   "Take 20-50 sharp photos of the tag sheet from varied angles and distances")
     by_name = {r.name: r for r in with_tags}
     ids_together = any(len(set(int(i) for i in r.detection.ids)) > 1 for r in with_tags)
 
