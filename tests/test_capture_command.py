@@ -80,18 +80,19 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     assert "tag_size: 0.06 then, 0.07 now" in capsys.readouterr().err
 
     # --force: calibrated, posed and trained again, in place
-    assert main([*argv[:-4], "--steps", "20", "--frames", "2", "--force"]) == 0
+    assert main([*argv[:-4], "--steps", "20", "--frames", "2", "--force", "--no-mesh"]) == 0
+    assert "mesh      not made (--no-mesh)" in capsys.readouterr().out
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["step"] == 20 and metrics["finished"] is True
     assert not (out / "run-2").exists()
 
-    # the summary repeats the calibration's warnings, and says why there is no mesh
+    # the summary repeats the calibration's warnings
     from nerfkit.commands.capture import summary
 
     camera["sanity"]["warnings"] = ["focal length is uncertain (+/-240.9 px); add photos from more varied angles"]
     (tmp_path / "camera.json").write_text(json.dumps(camera))
-    text = summary(out, tmp_path / "camera.json", out / "dataset", run, None, mesh_skipped=True)
-    assert "WARNING: focal length is uncertain (+/-240.9 px)" in text and "mesh      not made (--no-mesh)" in text
+    text = summary(out, tmp_path / "camera.json", out / "dataset", run, None)
+    assert "WARNING: focal length is uncertain (+/-240.9 px)" in text and "mesh      none (see above)" in text
 
 
 def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_photos(tmp_path, capsys):
