@@ -331,6 +331,9 @@ def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surro
         out = model.render_rays(rays, torch.tensor([1.0, 0.5, 0.25]), perturb=False)
     torch.testing.assert_close(out.rgb[0], torch.tensor([1.0, 0.5, 0.25]))
     assert float(out.acc[1]) > 0.99 and out.scene_depth is None  # the post's top is still there
-    assert model.isolate_object(0.15, 25.0) == []  # nothing left around it
+    assert model.isolate_object(0.15, 25.0) == [] and model.surroundings() == []  # nothing left around it
+    from nerfkit.tabletop import object_alone
+
+    assert object_alone(model).model is model  # nothing to leave out: not copied
     with pytest.raises(RuntimeError, match="neither trained nor saved"):
         model.pack_state()

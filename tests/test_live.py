@@ -143,6 +143,9 @@ class SphereInRoom(SphereModel):
         grey = torch.tensor([0.5, 0.5, 0.5])
         return super().render_rays(rays, grey if self.room else background, perturb)
 
+    def surroundings(self):
+        return ["room"] if self.room else []
+
     def isolate_object(self, cut, threshold):
         self.room = False
         return ["room"]

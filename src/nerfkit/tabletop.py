@@ -123,11 +123,9 @@ def object_alone(model, copy: bool = True) -> ObjectAlone:
     with nothing left out."""
     import copy as copying
 
-    if getattr(model, "ndc", None) is not None:
+    if getattr(model, "ndc", None) is not None or not model.surroundings():  # (not copied for nothing)
         return ObjectAlone(model, [], 0.0)
     cut = table_cut_height(model, TABLE_CUT)
     alone = copying.deepcopy(model) if copy else model
     left_out = alone.isolate_object(cut, SURFACE_DENSITY)
-    if not left_out:
-        return ObjectAlone(model, [], 0.0)
     return ObjectAlone(alone, left_out, cut if "table" in left_out else 0.0)

@@ -321,13 +321,19 @@ class NerfModel(nn.Module):
         ``n`` toward the cameras), or None."""
         return None
 
+    def surroundings(self) -> list[str]:
+        """The names of the parts the model draws around its object (a capture's table,
+        floor, room, learned background): what :meth:`isolate_object` would leave out."""
+        return []
+
     def isolate_object(self, cut: float, threshold: float) -> list[str]:
         """Keep only the object, for a video of it alone: stop drawing what surrounds it (a
         capture's table, floor, room and learned background) and clear the table's paint
         from the density (:func:`~nerfkit.tabletop.table_paint`: up to ``cut`` world units
         above the table; ``threshold``: the surface's density). Changes the model in place,
         for rendering only: it can then be neither trained nor saved. Returns the names of
-        the parts left out: none when the model draws nothing apart from its volume."""
+        the parts left out (:meth:`surroundings`): none when the model draws nothing apart
+        from its volume."""
         return []
 
     def pack_state(self) -> tuple[str | None, dict]:

@@ -677,10 +677,13 @@ class FastNeRF(NerfModel):
     def table_plane(self) -> np.ndarray | None:
         return None if self.table is None else self.table.plane.cpu().numpy()
 
+    def surroundings(self) -> list[str]:
+        parts = {"table": self.table, "floor": self.floor, "room": self.room, "background": self.bg_coef}
+        return [name for name, part in parts.items() if part is not None]
+
     @torch.no_grad()
     def isolate_object(self, cut: float, threshold: float) -> list[str]:
-        parts = {"table": self.table, "floor": self.floor, "room": self.room, "background": self.bg_coef}
-        left_out = [name for name, part in parts.items() if part is not None]
+        left_out = self.surroundings()
         if not left_out:
             return []
         self.isolated = True
