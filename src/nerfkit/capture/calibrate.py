@@ -487,9 +487,13 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
             r.skip("no tags found" if layout is None or layout.charuco is None else "no ChArUco corners found")
         else:
             with_tags.append(r)
-    if len(with_tags) < cfg.min_photos:  # (before the fit, which counts tag views, not photos)
-        raise fail("calibration", f"only {len(with_tags)} photos with tags found (need at least {cfg.min_photos})",
-                   "Take 20-50 sharp photos of the tag sheet from varied angles and distances")
+
+    def enough(photos: list[PhotoRecord], what: str) -> None:
+        if len(photos) < cfg.min_photos:
+            raise fail("calibration", f"only {len(photos)} {what} (need at least {cfg.min_photos})",
+                       "Take 20-50 sharp photos of the tag sheet from varied angles and distances")
+
+    enough(with_tags, "photos with tags found")  # (before the fit, which counts tag views, not photos)
     by_name = {r.name: r for r in with_tags}
     ids_together = any(len(set(int(i) for i in r.detection.ids)) > 1 for r in with_tags)
 
@@ -549,9 +553,7 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
             reasons = [v for k, v in fit.dropped.items() if photo_of(k) == r.name]
             r.skip(reasons[0] if reasons else "its tags were not among the tag views used")
     used = [r for r in with_tags if r.used]
-    if len(used) < cfg.min_photos:
-        raise fail("calibration", f"only {len(used)} usable photos (need at least {cfg.min_photos})",
-                   "Take 20-50 sharp photos of the tag sheet from varied angles and distances")
+    enough(used, "usable photos")
     coverage = corner_coverage(used, size)
     f35 = [r.exif_f35 for r in used if r.exif_f35]
     sanity = sanity_checks(fit.K, fit.dist, size, fit.rms, fit.std, f35, coverage, len(used))
