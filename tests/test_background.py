@@ -152,10 +152,13 @@ def test_table_coverage_shows_the_room_where_the_table_ends():
     torch.testing.assert_close(out[1], torch.sigmoid(torch.tensor(1.0)).expand(3))
     assert depth is None  # only rendering out of training asks for the layers' depth
     model.eval()
-    depth, acc = model._background(o, d, t, None)[1]
+    depth, met = model._background(o, d, t, None)[1]
     first_shell = sphere_exit(o[1:], d[1:], model.room.center, model.room.radii[:1])[0, 0]
-    torch.testing.assert_close(depth / acc, torch.stack([t[0], first_shell]))  # the table, then the room
-    torch.testing.assert_close(acc, torch.ones(2))
+    torch.testing.assert_close(depth, torch.stack([t[0], first_shell]))  # the table, then the room
+    torch.testing.assert_close(met, torch.ones(2))
+    with torch.no_grad():  # a see-through table is still where the ray meets a surface
+        model.table.cover.fill_(1.0)  # coverage 0.73
+    torch.testing.assert_close(model._background(o, d, t, None)[1][0], torch.stack([t[0], first_shell]))
 
 
 def test_sphere_exit_is_the_far_root_and_misses_are_infinite():
@@ -189,20 +192,19 @@ def test_layers_are_composited_nearest_first_whatever_their_order():
     torch.testing.assert_close(opaque[1], rgb[1, 0])  # the nearest opaque layer hides the rest
 
 
-def test_layers_depth_is_the_composited_distance_and_opacity():
-    t = torch.tensor([[3.0, 1.0, math.inf], [0.5, 2.0, 1.0], [math.inf, math.inf, math.inf]])
-    alpha = torch.tensor([[0.5, 0.25, 0.0], [0.2, 0.9, 0.4], [0.0, 0.0, 0.0]])
-    depth, acc = layers_depth(t, alpha)
-    # ray 0: t=1 with weight 0.25, then t=3 with 0.75 * 0.5; the missing layer (inf) adds nothing
-    torch.testing.assert_close(depth[0], torch.tensor(0.25 * 1.0 + 0.375 * 3.0))
-    torch.testing.assert_close(acc[0], torch.tensor(1.0 - 0.75 * 0.5))
-    # ray 1: t=0.5 (0.2), t=1 (0.8 * 0.4), t=2 (0.8 * 0.6 * 0.9)
-    torch.testing.assert_close(depth[1], torch.tensor(0.2 * 0.5 + 0.32 * 1.0 + 0.432 * 2.0))
-    torch.testing.assert_close(acc[1], torch.tensor(0.2 + 0.32 + 0.432))
-    assert float(depth[2]) == 0.0 and float(acc[2]) == 0.0  # a ray that meets nothing
-    # colouring each layer by its distance composites to the same expected distance
-    rgb = t.nan_to_num(posinf=0.0).unsqueeze(-1).expand(-1, -1, 3)
-    torch.testing.assert_close(composite_layers(t, rgb, alpha, torch.zeros(3, 3))[:, 0], depth)
+def test_layers_depth_is_the_surface_after_which_less_than_half_the_light_is_left():
+    inf = math.inf
+    t = torch.tensor([[1.0, 5.0], [3.0, 1.0], [inf, 2.0], [4.0, inf], [1.0, 2.0], [inf, inf]])
+    alpha = torch.tensor([[0.7, 0.3], [0.9, 0.25], [0.0, 0.6], [0.2, 0.0], [0.3, 0.3], [0.0, 0.0]])
+    depth, met = layers_depth(t, alpha)
+    # 0: a see-through table (0.7) is met at its distance, not mixed with the room's (5)
+    # 1: unsorted layers: 0.75 of the light left after t=1, 0.075 after t=3
+    # 2: the missing layer (inf) counts for nothing
+    # 3: 0.8 left after every layer: nothing met
+    # 4: 0.7 left after t=1, 0.49 after t=2
+    # 5: a ray that meets no layer
+    torch.testing.assert_close(met, torch.tensor([1.0, 1.0, 1.0, 0.0, 1.0, 0.0]))
+    torch.testing.assert_close(depth, torch.tensor([1.0, 3.0, 2.0, 0.0, 2.0, 0.0]))
 
 
 def test_room_shells_show_the_texel_a_ray_meets_with_parallax():

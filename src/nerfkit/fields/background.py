@@ -16,7 +16,7 @@ with density makes haze and floaters; a flat colour makes dark surfaces see-thro
   table also mirrors a small learned map of its surroundings; a floor under the table is
   a second such plane.
 * :func:`composite_layers`: front-to-back compositing of these surfaces along each ray;
-  :func:`layers_depth`: their expected distance and opacity.
+  :func:`layers_depth`: the distance of the surface a ray meets among them.
 """
 
 from __future__ import annotations
@@ -354,21 +354,29 @@ def composite_layers(t: Tensor, rgb: Tensor, alpha: Tensor, behind: Tensor) -> T
 
 
 def layers_depth(t: Tensor, alpha: Tensor) -> tuple[Tensor, Tensor]:
-    """Expected distance and opacity of a few surfaces per ray (as :func:`composite_layers`).
+    """The distance of the surface a ray meets among a few: the first one after which
+    less than half of the light is left (the median depth), not a blend of distances.
+
+    A capture's table lets some light through where it draws the room's reflection (its
+    coverage under 1); an expected depth there mixes the table's distance with the room's
+    beneath it, and the table's depth comes out speckled.
 
     Args:
-        t: (n, k) distance of each layer along the ray (``inf``: not on this ray); alpha:
-            (n, k) opacity in [0, 1].
+        t: (n, k) distance of each layer along the ray (any order; ``inf``: not on this
+            ray, give it alpha 0); alpha: (n, k) opacity in [0, 1].
 
     Returns:
-        (n,) ``sum_j T_j alpha_j t_j`` (unnormalised, as a volume's expected depth: divide
-        by the opacity for the distance of what the ray met) and (n,) the opacity
-        ``1 - prod_j (1 - alpha_j)``.
+        (n,) the distance times ``met`` and (n,) ``met`` in {0, 1} (as a volume's
+        unnormalised depth and opacity: divide by it for the distance); ``met`` is 0 where
+        more than half of the light passes every layer.
     """
-    weights, through = layer_weights(t, alpha)
-    met = weights > 0
-    depth = (weights * torch.where(met, t, torch.zeros_like(t))).sum(1)
-    return depth, 1.0 - through[:, 0]
+    order = torch.argsort(t, dim=1)
+    ts = torch.gather(t, 1, order)
+    left = torch.cumprod(1.0 - torch.gather(alpha, 1, order), dim=1)  # (n, k) after each layer
+    crossed = (left < 0.5) & torch.isfinite(ts)
+    met = crossed.any(dim=1)
+    first = torch.gather(ts, 1, crossed.int().argmax(dim=1, keepdim=True))[:, 0]
+    return torch.where(met, first, torch.zeros_like(first)), met.to(t.dtype)
 
 
 # initial opacity logit of the room shells: sigmoid(-1) = 0.27 each

@@ -430,8 +430,8 @@ class FastNeRF(NerfModel):
         """(n, 3) colour behind the box: the table (where rays meet it), the floor and the
         room shells, composited in order of distance, in front of what is infinitely far
         (:meth:`_far`). A glossy table also shows its map of the surroundings along the
-        mirrored ray. Out of training, also the layers' (n,) expected depth and opacity
-        (:func:`layers_depth`); else, or with no layers, None."""
+        mirrored ray. Out of training, also the (n,) distance of the layer each ray meets
+        and whether it meets one (:func:`layers_depth`); else, or with no layers, None."""
         bg = self._far(d, background)
         compiled = self._backend() == "numba"  # the textures follow the grid's kernels
         layers = [] if self.room is None else [self.room.layers(o, d, self.texture_sinks, compiled)]
