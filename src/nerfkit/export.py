@@ -74,7 +74,7 @@ def sample_density_grid(density_fn: DensityFn, center, radius: float, resolution
     if progress:
         from tqdm import tqdm
 
-        it = tqdm(it, desc="density grid", unit="slab", total=(resolution + slabs - 1) // slabs)
+        it = tqdm(it, desc="density grid", unit="slab", total=(resolution + slabs - 1) // slabs, disable=None)  # (none in a log)
     for k0 in it:
         kz = zs[k0:k0 + slabs]
         pts = np.concatenate([np.column_stack([plane, np.full(len(plane), z)]) for z in kz])
@@ -163,7 +163,7 @@ def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray
     step = 3.0 * reach / max(n_samples - 1, 1)
     per = max(1, chunk // n_samples)
     total = np.zeros((len(vertices), 3), np.float64)
-    bar = tqdm(total=len(dirs) * len(vertices), desc="vertex colours", unit="vertex", disable=not progress)
+    bar = tqdm(total=len(dirs) * len(vertices), desc="vertex colours", unit="vertex", disable=None if progress else True)
     for d in dirs:
         for s in range(0, len(vertices), per):
             p = torch.as_tensor(vertices[s:s + per], dtype=torch.float32, device=device)
@@ -349,7 +349,7 @@ def points_from_views(render_fn: Callable, views, acc_min: float = 0.5, backgrou
     if progress:
         from tqdm import tqdm
 
-        it = tqdm(it, desc="points", unit="view")
+        it = tqdm(it, desc="points", unit="view", disable=None)  # (none in a log)
     pts, cols = [], []
     for i in it:
         rgb, depth, acc = render_fn(views.K[i], views.c2w[i], views.width, views.height)
