@@ -146,6 +146,17 @@ def test_mixed_sizes_keep_the_main_group_and_explain_the_rest():
     assert "portrait 3024x4032" in recs[2].reason and "1920x1080" in recs[3].reason
 
 
+def test_the_common_size_does_not_depend_on_the_photos_order():
+    from nerfkit.images import common_size
+
+    assert common_size([]) is None
+    assert common_size([(640, 480), (1024, 768), (640, 480)]) == (640, 480)  # the most photos
+    for tie in ([(640, 480), (1024, 768)], [(1024, 768), (640, 480)]):
+        assert common_size(tie) == (1024, 768)  # a tie: the larger
+    for tie in ([(768, 1024), (1024, 768)], [(1024, 768), (768, 1024)]):
+        assert common_size(tie) == (1024, 768)  # as large: the wider
+
+
 def test_second_detection_pass_recovers_missed_tags_of_known_ids_only(tmp_path, monkeypatch):
     import cv2
 

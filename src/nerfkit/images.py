@@ -8,6 +8,7 @@ Every failure is a :class:`NerfkitError` naming the file.
 from __future__ import annotations
 
 import warnings
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -85,12 +86,17 @@ def held_as(width: int, height: int) -> str:
     return f"{'portrait' if height > width else 'landscape'} {width}x{height}"
 
 
+def common_size(sizes) -> tuple[int, int] | None:
+    """The (width, height) most of ``sizes`` share; a tie goes to the larger (more pixels,
+    then wider), so the choice never depends on the photos' order. None when empty."""
+    counts = Counter(tuple(s) for s in sizes)
+    return max(counts, key=lambda s: (counts[s], s[0] * s[1], s[0])) if counts else None
+
+
 def common_frame(orientations, extra_turns=None) -> int | None:
     """The frame most photos share: the most common clockwise quarter turns from the
     sensor's pixels (the photos as stored) to upright, from their EXIF ``orientations``
     (plus ``extra_turns`` already given to each). None when no orientation is a turn."""
-    from collections import Counter
-
     extra = extra_turns if extra_turns is not None else [0] * len(orientations)
     held = Counter((QUARTER_TURNS[o] + t) % 4 for o, t in zip(orientations, extra) if o in QUARTER_TURNS)
     return held.most_common(1)[0][0] if held else None

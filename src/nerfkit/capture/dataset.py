@@ -29,6 +29,7 @@ from ..data.nerfstudio import write_transforms_json
 from ..data.scene import Scene, Views, estimate_center
 from ..data.validate import MAX_SIDE, check_count, check_points, check_poses, check_scene, short_repr
 from ..errors import advice, fail
+from ..images import common_size
 from ..io.atomic import write_json
 from ..io.paths import resolve_inside
 from .camera import Camera, camera_from_dict, nerfkit_K
@@ -172,8 +173,7 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
         raise fail(out_dir, "no posed photos to build a dataset from")
     out_dir = Path(out_dir)
     posed = sorted(posed, key=lambda p: p.name)
-    sizes = [(p.camera.width, p.camera.height) for p in posed]
-    base_size = max(set(sizes), key=lambda s: (sizes.count(s), s[0] * s[1]))
+    base_size = common_size((p.camera.width, p.camera.height) for p in posed)
     base = next(p.camera for p in posed if (p.camera.width, p.camera.height) == base_size)
     und = make_undistorter(base)
     out_size = output_size(*und.size, cfg.max_side)

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NerfkitError, fail
-from ..images import (common_frame, exif_focal_35mm, held_as, list_images, load_image_uint8, orientation_tag,
-                      turns_into_frame)
+from ..images import (common_frame, common_size, exif_focal_35mm, held_as, list_images, load_image_uint8,
+                      orientation_tag, turns_into_frame)
 from ..io.atomic import write_json
 from ..io.paths import refuse_special_file
 from .aruco import Detection, Layout, detect, detect_careful, make_detector, marker_bits, suggest_dictionaries
@@ -312,13 +312,9 @@ def group_by_size(records: list[PhotoRecord], turn: bool = False
     so one camera fits them all. Without ``turn``, or with no such EXIF (a photo rotated
     in an editor), it is skipped with the reason.
     """
-    sizes: dict[tuple[int, int], int] = {}
-    for r in records:
-        if r.detection is not None:
-            sizes[r.size] = sizes.get(r.size, 0) + 1
-    if not sizes:
+    main = common_size(r.size for r in records if r.detection is not None)
+    if main is None:
         return None, []
-    main = max(sizes, key=lambda s: (sizes[s], s[0] * s[1]))
     main_turns = frame_turns(records, main)
     kept = []
     for r in records:

@@ -192,16 +192,14 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
     header of the first photo used, with the shared size; COLMAP name -> clockwise
     quarter turns of the photos turned).
     """
-    from collections import Counter
     from dataclasses import replace
 
     from ..capture.camera import common_lens, other_lens
-    from ..images import common_frame, load_image_uint8, turns_into_frame
+    from ..images import common_frame, common_size, load_image_uint8, turns_into_frame
     from ..io.atomic import write_image
 
     infos = [photo_info(p) for p in photos]
-    sizes = Counter((i.width, i.height) for i in infos)
-    (W, H), _ = sizes.most_common(1)[0]
+    W, H = common_size((i.width, i.height) for i in infos)
     frame = common_frame([i.orientation for i in infos if (i.width, i.height) == (W, H)])
     if camera is not None and camera.compatible(W, H) and not camera.compatible(H, W):
         (W, H), frame = (H, W), None  # the camera's shape
