@@ -97,8 +97,8 @@ def test_bounds_contain_the_object_from_every_camera(obj):
 def test_dataset_files_load_back_with_the_same_cameras(posed, obj, tmp_path):
     out = tmp_path / "ds"
     scene, summary = build_dataset(posed, out, DatasetConfig(max_side=400, val_every=4, test_every=5), TAG,
-                                   jobs=2, progress=False)
-    assert summary["views"] == {"train": 6, "val": 2, "test": 2}
+                                   jobs=2, progress=False, tags=obj.layout.corners())
+    assert summary["views"] == {"train": 6, "val": 2, "test": 2} and summary["tags_on_table"] == 1
     a = load_npz(out / "dataset.npz")
     b = load_transforms_json(out)
     for split in ("train", "val", "test"):
@@ -117,6 +117,7 @@ def test_dataset_files_load_back_with_the_same_cameras(posed, obj, tmp_path):
         assert (s.near, s.far) == pytest.approx((scene.near, scene.far), rel=1e-6)
         np.testing.assert_allclose(s.up, [0, 0, 1])
         np.testing.assert_allclose(s.center, scene.center, atol=1e-6)
+        np.testing.assert_allclose(s.tags, [obj.layout.tags[0]], atol=1e-6)  # the printed tag, on the table
     tj = json.loads((out / "transforms.json").read_text())
     assert all(f["file_path"] == f"images/{f['name']}" for f in tj["frames"])
     assert tj["nerfkit"]["tag_size"] == TAG
@@ -150,10 +151,12 @@ def test_center_override_and_dataset_command_rebuild(posed, tmp_path):
                                                     np.zeros((0, 4, 2))))
         r.used, r.error_px = True, 0.1
         recs.append(r)
+    layout = A.Layout.single(3, TAG)
     write_poses_json(out / "poses.json", recs, posed, posed[0].camera,
-                     {"photos_dir": str(posed[0].path.parent), "tag_size": TAG})
+                     {"photos_dir": str(posed[0].path.parent), "tag_size": TAG, "layout": layout.to_json()})
     assert main(["dataset", str(out), "--max-side", "320", "--center", "0.1,0.02,0.03", "--near", "0.05"]) == 0
     s = load_npz(out / "dataset.npz")
+    np.testing.assert_allclose(s.tags, layout.corners(), atol=1e-7)  # the recorded layout's tag
     np.testing.assert_allclose(s.center, [0.1, 0.02, 0.03], atol=1e-7)
     assert s.near == pytest.approx(0.05) and max(s.train.width, s.train.height) == 320
     assert main(["dataset", str(out), "--max-side", "160", "--out", str(tmp_path / "small")]) == 0

@@ -169,9 +169,12 @@ def test_object_box_holds_the_points_above_the_table_down_to_the_table():
     assert np.all(lo <= [0.1, 0.0, 0.0]) and np.all(hi >= [0.3, 0.1, 0.25])  # the object and its foot
     assert np.all(lo > [-0.05, -0.1, -0.1]) and np.all(hi < [0.4, 0.2, 0.35])  # not the table around it
     assert object_box_from_points(np.concatenate([floor, obj[:20]]), table, np.zeros(3), 1.0) is None  # too few
-    b = SceneBounds(0.1, 3.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1.0], np.float32), table, 2.0, (lo, hi))
+    tags = np.array([[[-0.03, -0.03, 0], [0.03, -0.03, 0], [0.03, 0.03, 0], [-0.03, 0.03, 0]]], np.float32)
+    b = SceneBounds(0.1, 3.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1.0], np.float32), table, 2.0, (lo, hi),
+                    tags=tags)
     back = SceneBounds.from_dict(json.loads(json.dumps(b.to_dict())))
     np.testing.assert_allclose(back.object_box[0], lo) and np.testing.assert_allclose(back.object_box[1], hi)
+    np.testing.assert_allclose(back.tags, tags)
 
 
 def test_fast_model_starts_in_the_object_box_of_a_scene_with_points(tabletop):

@@ -176,6 +176,35 @@ def test_paint_standing_up_off_the_table_apart_from_the_object_is_paint_a_second
     assert not kept[z < 0].any()
 
 
+def test_paint_on_a_printed_tag_joined_to_the_object_by_haze_is_cleared_a_foot_on_a_tag_is_not():
+    """A strip standing 0.12 up on a tag's edge, joined to the post by a low bridge of haze,
+    is the object's piece for the slab's test; over the printed tag it is paint. A second
+    post standing on a second tag (a diamond: turned 45 degrees) keeps its foot."""
+    def scene(p):
+        x, y, z = p[:, 0], p[:, 1], p[:, 2]
+        strip = (x > 0.3) & (x < 0.7) & (y > 0.3) & (y < 0.36) & (z > -0.02) & (z < 0.12)
+        along = (x - y).abs() < 0.06
+        bridge = along & (x + y > 0.2) & (x + y < 0.7) & (z > -0.02) & (z < 0.09)
+        post2 = ((x + 0.6) ** 2 + (y + 0.6) ** 2 < 0.01) & (z > -0.02) & (z < 0.5)
+        return figure_on_table(p) * ((x < 0.45) | (y < 0.45)).float() + 100.0 * (strip | bridge | post2).float()
+
+    square = np.array([[0.3, 0.3, 0.0], [0.7, 0.3, 0.0], [0.7, 0.7, 0.0], [0.3, 0.7, 0.0]])
+    diamond = np.array([[-0.6, -0.85, 0.0], [-0.35, -0.6, 0.0], [-0.6, -0.35, 0.0], [-0.85, -0.6, 0.0]])
+    axis = ex.grid_axis(0.0, 1.0, 81)
+    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
+    grid = ex.sample_density_grid(scene, [0, 0, 0], 1.0, 81)
+    table = np.array([0.0, 0.0, 1.0, 0.0])
+    strip = (x > 0.32) & (x < 0.68) & (y > 0.31) & (y < 0.35) & (z > 0.06) & (z < 0.11)
+    without = (grid > 50) & ~tabletop.table_paint(grid, [axis] * 3, table, 0.05, 50.0)
+    assert without[strip].all()  # joined to the post, it was kept
+    kept = (grid > 50) & ~tabletop.table_paint(grid, [axis] * 3, table, 0.05, 50.0, np.stack([square, diamond]))
+    assert not kept[strip].any()
+    assert kept[(np.hypot(x, y) < 0.15) & (z >= 0) & (z < 0.03)].any()  # the post's foot, beside the tag
+    foot = kept & (np.hypot(x + 0.6, y + 0.6) < 0.12) & (z >= 0) & (z < 0.1)
+    np.testing.assert_allclose(np.hypot(x[foot] + 0.6, y[foot] + 0.6).max(), 0.1, atol=0.03)  # at its full radius
+    assert kept[(np.hypot(x + 0.6, y + 0.6) < 0.08) & (z > 0.2) & (z < 0.48)].all()
+
+
 def test_the_mesh_covers_the_models_own_box_and_the_cut_is_a_fraction_of_its_height():
     from types import SimpleNamespace
 

@@ -84,6 +84,8 @@ def test_rays_data_uv_indexes_the_sampled_pixels(sphere):
     (lambda a: a.pop("c2ws_val"), "'images_val' is present but 'c2ws_val' is missing"),
     (lambda a: a.update(images_train=np.zeros((0, 8, 8, 3), np.uint8), c2ws_train=np.zeros((0, 4, 4))), "is empty"),
     (lambda a: a.update(K=np.array([[0.0, 0, 4], [0, 10, 4], [0, 0, 1]])), "zero or negative focal"),
+    (lambda a: a.update(tags=np.zeros((2, 3, 3))), "'tags' must be (n, 4, 3) numbers"),
+    (lambda a: a.update(tags=np.full((1, 4, 3), np.nan)), "'tags' holds non-finite"),
 ])
 def test_broken_files_give_one_clear_error(tmp_path, mutate, message):
     arrays = course_arrays()

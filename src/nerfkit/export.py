@@ -192,15 +192,15 @@ def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int =
                  threshold: float = SURFACE_DENSITY,
                  query_fn: QueryFn | None = None, n_dirs: int = 1, chunk: int = 65536,
                  device: str | torch.device = "cpu", progress: bool = False, reach: float | None = None,
-                 table=None, table_cut: float = 0.0) -> Mesh:
+                 table=None, table_cut: float = 0.0, tags=None) -> Mesh:
     """Density grid -> (with a ``table`` plane: :func:`clear_table_paint` up to
-    ``table_cut`` above it) -> marching cubes -> (optional) vertex colours, seen along rays
+    ``table_cut`` above it, over the printed ``tags`` on it higher) -> marching cubes -> (optional) vertex colours, seen along rays
     that start ``reach`` outside the surface and end twice as far inside (None: two grid
     spacings; 0: the field's colour at the vertex). See the module docstring."""
     grid = sample_density_grid(density_fn, center, radius, resolution, chunk, device, progress)
     if table is not None:
         axes = [grid_axis(c, radius, resolution) for c in np.asarray(center, np.float64).reshape(3)]
-        grid = clear_table_paint(grid, axes, table, table_cut, threshold)
+        grid = clear_table_paint(grid, axes, table, table_cut, threshold, tags)
     mesh = marching_cubes(grid, center, radius, threshold)
     if query_fn is not None:
         if reach is None:
@@ -332,7 +332,8 @@ def mesh_from_model(model, center, radius: float, reach: float, resolution: int 
     if getattr(model, "ndc", None) is not None:
         reach = 0.0
     return extract_mesh(model.density, center, radius, resolution, threshold, model.query, n_dirs, chunk, device,
-                        progress, reach=reach, table=model.table_plane(), table_cut=table_cut)
+                        progress, reach=reach, table=model.table_plane(), table_cut=table_cut,
+                        tags=model.table_tags())
 
 
 def points_from_views(render_fn: Callable, views, acc_min: float = 0.5, background=(0.0, 0.0, 0.0), stride: int = 1,

@@ -34,7 +34,7 @@ def table_cut_height(model, fraction: float) -> float:
     return fraction * max(float((box_corners(box) @ plane[:3] + plane[3]).max()), 0.0)
 
 
-def table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) -> np.ndarray:
+def table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float, tags=None) -> np.ndarray:
     """Where a density grid holds a capture's table paint: (X, Y, Z) bool.
 
     Training paints some of the table (a tag's black squares, the sheet's edge) into the
@@ -46,27 +46,55 @@ def table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) 
     object is just above the slab. A capture's table is the plane z = 0, so its columns
     are the grid's; under a tilted plane they would lean by its tilt. Paint that stands up
     off the table counts too: pieces (over ``threshold``) apart from the object that never
-    rise ``3 * height`` above the table (:func:`_low_pieces`).
+    rise ``3 * height`` above the table (:func:`_low_pieces`). Over a printed tag, which is
+    flat paper, the columns' test goes three times higher: what stays under ``3 * height``
+    in the columns over a tag where nothing rises between ``3 * height`` and ``6 * height``
+    is paint too, even when the fur's haze joins it to the object beside the tag. (An
+    object standing on a tag keeps its feet: their columns rise; a shoe wider than its leg
+    would lose what sticks out over the tag, up to ``3 * height``.)
 
     Args:
         grid: (X, Y, Z) density at the points ``axes[0][i], axes[1][j], axes[2][k]``.
         axes: the grid's x, y and z positions, (X,), (Y,) and (Z,).
         plane: (4,) ``(n, d)``, unit normal ``n`` toward the cameras: height is ``n . x + d``.
         height: world units; 0 counts only what is under the plane.
+        tags: (n, 4, 3) corners of the printed tags lying on the plane, or None.
     """
-    from scipy import ndimage
-
     n, d = np.asarray(plane, np.float64)[:3], float(np.asarray(plane)[3])
     xs, ys, zs = (np.asarray(a, np.float64) for a in axes)
     above = (n[0] * xs[:, None, None] + n[1] * ys[None, :, None] + n[2] * zs[None, None, :] + d).astype(np.float32)
     paint = above < 0
     if height > 0:
-        band = (above >= height) & (above < 2 * height) & (grid > threshold)
         axis = int(np.argmax(np.abs(n)))
-        rising = ndimage.binary_dilation(band.any(axis=axis, keepdims=True), iterations=2)
-        paint |= (above < height) & ~rising
+        paint |= (above < height) & ~_rising(grid > threshold, above, height, axis)
+        if tags is not None:
+            over = np.expand_dims(_over_tags(tags, [xs, ys, zs], axis), axis)
+            paint |= over & (above < 3 * height) & ~_rising(grid > threshold, above, 3 * height, axis)
         paint |= _low_pieces(grid > threshold, paint, above, 3 * height, axis)
     return paint
+
+
+def _rising(solid: np.ndarray, above: np.ndarray, height: float, axis: int) -> np.ndarray:
+    """The columns along ``axis`` (widened by two cells) with something ``solid`` between
+    ``height`` and ``2 * height`` above the table: (X, Y, Z) bool, 1 along ``axis``."""
+    from scipy import ndimage
+
+    band = (above >= height) & (above < 2 * height) & solid
+    return ndimage.binary_dilation(band.any(axis=axis, keepdims=True), iterations=2)
+
+
+def _over_tags(tags, axes, axis: int) -> np.ndarray:
+    """Which grid columns along ``axis`` stand over a printed tag: the tags' corners (n,
+    4, 3), seen down ``axis``, each a convex quadrilateral. Bool over the other two axes."""
+    u, v = (np.asarray(axes[a], np.float64) for a in range(3) if a != axis)
+    U, V = np.meshgrid(u, v, indexing="ij")
+    over = np.zeros(U.shape, bool)
+    for quad in np.asarray(tags, np.float64):
+        q = np.delete(quad, axis, axis=1)  # (4, 2)
+        e = np.roll(q, -1, axis=0) - q
+        cross = e[:, 0, None, None] * (V - q[:, 1, None, None]) - e[:, 1, None, None] * (U - q[:, 0, None, None])
+        over |= (cross >= 0).all(0) | (cross <= 0).all(0)
+    return over
 
 
 def _low_pieces(solid: np.ndarray, paint: np.ndarray, above: np.ndarray, top: float, axis: int) -> np.ndarray:
@@ -98,9 +126,9 @@ def _low_pieces(solid: np.ndarray, paint: np.ndarray, above: np.ndarray, top: fl
     return out
 
 
-def clear_table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float) -> np.ndarray:
+def clear_table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float, tags=None) -> np.ndarray:
     """``grid`` with its :func:`table_paint` set to zero density (in place; returned)."""
-    grid[table_paint(grid, axes, plane, height, threshold)] = 0.0
+    grid[table_paint(grid, axes, plane, height, threshold, tags)] = 0.0
     return grid
 
 

@@ -123,6 +123,10 @@ class Layout:
     def ids(self) -> list[int]:
         return sorted(self.tags)
 
+    def corners(self) -> np.ndarray:
+        """(n, 4, 3) float32 corners of every tag, by id: where the printed squares lie."""
+        return np.stack([self.tags[i] for i in self.ids]).astype(np.float32)
+
     @property
     def tag_size(self) -> float:
         """Mean side length of the tags."""

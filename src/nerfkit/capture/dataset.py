@@ -155,7 +155,8 @@ def _load_view(p: PosedPhoto, base: Camera, und, out_size: tuple[int, int]) -> n
 def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConfig, tag_size: float,
                   jobs: int = 2, progress: bool = True, extra: dict | None = None,
                   up: np.ndarray | None = None, on_tag_plane: bool = True,
-                  points: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Scene, dict]:
+                  points: tuple[np.ndarray, np.ndarray] | None = None,
+                  tags: np.ndarray | None = None) -> tuple[Scene, dict]:
     """Undistort, crop, resize and split ``posed`` photos, then write the dataset files.
 
     ``points``: the scene's sparse points ``(xyz (m, 3), rgb (m, 3) uint8)`` when known
@@ -163,6 +164,8 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
     train views (:func:`nerfkit.sfm.triangulate.triangulate_views`).
 
     ``up`` is the scene's up direction (default +z: the tag-plane normal toward the cameras).
+    ``tags``: (n, 4, 3) corners of the printed tags in the world (:meth:`Layout.corners`),
+    recorded with the table when the object stands on the tag's plane.
     ``on_tag_plane``: the world is the tag frame and the object stands on the tag's plane
     (z = 0), recorded as the scene's table. The scene is marked a real capture.
     Returns the Scene (nerfkit conventions) and a summary dict.
@@ -227,7 +230,8 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
     up = UP.copy() if up is None else (np.asarray(up, np.float64) / np.linalg.norm(up)).astype(np.float32)
     table = np.array([0.0, 0.0, 1.0, 0.0], np.float32) if on_tag_plane else None
     scene = check_scene(Scene(views["train"], views["val"], views["test"], near, far, center.astype(np.float32), up,
-                              source=str(out_dir), capture=True, table=table))
+                              source=str(out_dir), capture=True, table=table,
+                              tags=tags if on_tag_plane else None))
     points_note = "from structure-from-motion" if points is not None else "none: --no-points"
     if points is None and cfg.points:
         points, points_note = _triangulate(scene.train, out_dir, progress)
@@ -244,6 +248,7 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
         "tag_size": float(tag_size),
         "capture": True,
         "table_plane": None if table is None else table.tolist(),
+        "tags_on_table": 0 if scene.tags is None else len(scene.tags),
         "undistorted": base.has_distortion,
         "crop": list(und.roi),
         "source_size": list(base_size),
@@ -323,6 +328,24 @@ def read_poses_json(path: str | Path, allow_outside: bool = False) -> tuple[list
     if not posed:
         raise fail(path, "holds no posed photos", "Check the poses run's summary for why photos were skipped")
     return posed, data
+
+
+def recorded_tags(poses_meta) -> np.ndarray | None:
+    """The printed tags' corners (n, 4, 3) in the layout a poses.json records, or None when
+    it records none that can be read (a dataset rebuilt from it then goes without)."""
+    from ..errors import NerfkitError
+    from .aruco import layout_from_json
+
+    spec = poses_meta.get("layout") if isinstance(poses_meta, dict) else None
+    if not isinstance(spec, dict):
+        return None
+    size = poses_meta.get("tag_size")
+    try:
+        layout = layout_from_json(spec, POSES_FILE, str(poses_meta.get("dictionary", "DICT_4X4_50")),
+                                  float(size) if isinstance(size, (int, float)) else None)
+        return layout.corners()
+    except (NerfkitError, KeyError, TypeError, ValueError):
+        return None
 
 
 def _posed_photo(d: dict, i: int, camera: Camera, photos_dir: Path, where: str, allow_outside: bool = False) -> PosedPhoto:

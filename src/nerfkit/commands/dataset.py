@@ -46,11 +46,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def build_and_report(posed, out, cfg, tag_size: float, jobs: int, extra: dict | None = None) -> int:
+def build_and_report(posed, out, cfg, tag_size: float, jobs: int, extra: dict | None = None, tags=None) -> int:
     """Build the dataset and print what was written."""
     from ..capture.dataset import build_dataset
 
-    _, s = build_dataset(posed, out, cfg, tag_size, jobs=jobs, extra=extra)
+    _, s = build_dataset(posed, out, cfg, tag_size, jobs=jobs, extra=extra, tags=tags)
     return report_dataset(s, out)
 
 
@@ -75,7 +75,7 @@ def report_dataset(s: dict, out) -> int:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..capture.dataset import DATASET_OUTPUTS, POSES_FILE, DatasetConfig, read_poses_json
+    from ..capture.dataset import DATASET_OUTPUTS, POSES_FILE, DatasetConfig, read_poses_json, recorded_tags
     from ..capture.photos import default_jobs
     from ..config import dataclass_from_args
     from ..data.validate import check_number
@@ -98,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
     require_photos([p.path for p in posed])
     return build_and_report(posed, out, cfg, float(tag_size), jobs,
                             {"notes": data.get("notes", []),
-                             "pose_choice": {"poses": "tags", "why": f"rebuilt from {folder / POSES_FILE}"}})
+                             "pose_choice": {"poses": "tags", "why": f"rebuilt from {folder / POSES_FILE}"}},
+                            recorded_tags(data))
 
 
 def recorded_pose_source(folder) -> str:
@@ -134,7 +135,9 @@ def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bo
     dataset folder of its own."""
     import shutil
 
-    from ..capture.dataset import DATASET_OUTPUTS
+    from ..capture.dataset import DATASET_OUTPUTS, POSES_FILE, recorded_tags
+    from ..config import load_json
+    from ..errors import NerfkitError
     from ..io.atomic import write_bytes
     from ..io.paths import guard_outputs, resolved_path
     from ..sfm.dataset import REPORT_FILE, build_dataset, load_sfm_result, posed_photos
@@ -155,6 +158,12 @@ def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bo
             if f.is_file():
                 write_bytes(model_copy / f.name, f.read_bytes())
         result.model_dir = model_copy
-    _, summary = build_dataset(result, out, cfg, jobs=jobs, write_report=not in_place,
+    tags = None
+    if (folder / POSES_FILE).is_file():  # the tag frame's tags, as poses recorded them (if it still reads)
+        try:
+            tags = recorded_tags(load_json(folder / POSES_FILE))
+        except NerfkitError:
+            pass
+    _, summary = build_dataset(result, out, cfg, jobs=jobs, write_report=not in_place, tags=tags,
                                extra={"pose_choice": {"poses": "sfm", "why": f"rebuilt from {result.model_dir}"}})
     return report_dataset(summary, out)

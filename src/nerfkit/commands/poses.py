@@ -228,14 +228,15 @@ def run(args: argparse.Namespace) -> int:
             from ..sfm.dataset import build_dataset
 
             _, summary = build_dataset(choice.result, out, dcfg, jobs=args.jobs or default_jobs(),
-                                       extra={"notes": notes, "pose_choice": choice.to_dict()})
+                                       extra={"notes": notes, "pose_choice": choice.to_dict()}, tags=layout.corners())
             return report_dataset(summary, out)
         from ..sfm.dataset import REPORT_FILE
 
         (out / REPORT_FILE).unlink(missing_ok=True)  # an earlier --force run's SfM report would not hold
         return build_and_report(posed, out, dcfg, tag_size, args.jobs or default_jobs(),
-                                {"notes": notes, "pose_choice": choice.to_dict()})
-    return build_and_report(posed, out, dcfg, tag_size, args.jobs or default_jobs(), {"notes": notes})
+                                {"notes": notes, "pose_choice": choice.to_dict()}, layout.corners())
+    return build_and_report(posed, out, dcfg, tag_size, args.jobs or default_jobs(), {"notes": notes},
+                            layout.corners())
 
 
 def reference_tag(records, layout) -> int:

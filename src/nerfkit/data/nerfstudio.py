@@ -255,7 +255,8 @@ def load_transforms_json(path: str | Path, load_images: bool = True,
     table = check_plane(nk["table_plane"], where, "nerfkit.table_plane") if nk.get("table_plane") is not None else None
     points, colors = _read_points(data, path.parent, where, allow_outside)
     return check_scene(Scene(views["train"], views["val"], views["test"], near, far, center, up, source=where,
-                             capture=nk.get("capture") is True, table=table, points=points, point_colors=colors),
+                             capture=nk.get("capture") is True, table=table, points=points, point_colors=colors,
+                             tags=nk.get("tags")),
                        need=need)
 
 
@@ -339,6 +340,8 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
           "center": [float(c) for c in scene.center], "up": [float(u) for u in scene.up],
           "convention": "transform_matrix: camera-to-world, OpenGL camera axes; cx, cy: pixel centres at +0.5",
           "capture": bool(scene.capture), "table_plane": None if scene.table is None else [float(v) for v in scene.table]}
+    if scene.tags is not None:
+        nk["tags"] = np.round(np.asarray(scene.tags, np.float64), 7).tolist()
     if poses_only:
         nk["poses_only"] = poses_only
     out["nerfkit"] = {**(extra or {}), **nk}  # the scene's own values win over extra's

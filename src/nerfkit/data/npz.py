@@ -9,6 +9,7 @@ Keys (all arrays, no pickles)::
     near (), far (), images_test, names_train/val/test (str)   optional (nerfkit's)
     capture () (1: real photos), table_plane (4,) (nx, ny, nz, d)  optional (nerfkit's)
     points_xyz (P, 3), points_rgb (P, 3) uint8 (sparse 3D points)  optional (nerfkit's)
+    tags (n, 4, 3) (corners of the printed tags on the table)      optional (nerfkit's)
 
 ``focal`` alone means ``fx = fy = focal``, ``cx = W / 2``, ``cy = H / 2``.
 """
@@ -165,7 +166,7 @@ def load_npz(path: str | Path, need: str = "train") -> Scene:
     if colors is not None and points is None:
         raise fail(where, "'points_rgb' is present but 'points_xyz' is missing")
     return check_scene(Scene(train, val, test, near, far, center, up, source=where, capture=capture, table=table,
-                             points=points, point_colors=colors), need=need)
+                             points=points, point_colors=colors, tags=arrays.get("tags")), need=need)
 
 
 def save_npz(scene: Scene, path: str | Path) -> None:
@@ -191,6 +192,8 @@ def save_npz(scene: Scene, path: str | Path) -> None:
         out["points_xyz"] = np.asarray(scene.points, np.float32)
         out["points_rgb"] = (np.full(out["points_xyz"].shape, 128, np.uint8) if scene.point_colors is None
                              else np.asarray(scene.point_colors, np.uint8))
+    if scene.tags is not None:
+        out["tags"] = np.asarray(scene.tags, np.float32)
     for split, v in scene.splits.items():
         if len(v) == 0 and split != "train":
             continue

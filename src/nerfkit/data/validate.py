@@ -228,7 +228,20 @@ def check_scene(scene, where: str | None = None, need: str = "train"):
         scene.table = check_plane(scene.table, where, "table_plane")
     if scene.points is not None:
         scene.points, scene.point_colors = check_points(scene.points, scene.point_colors, where)
+    if scene.tags is not None:
+        scene.tags = check_tags(scene.tags, where)
     return scene
+
+
+def check_tags(v, where: str, field: str = "tags") -> np.ndarray:
+    """The printed tags' corners, (n, 4, 3) finite numbers with n >= 1, as float32."""
+    a = _array(v, where, field)
+    if a.dtype.kind not in "fiu" or a.ndim != 3 or a.shape[1:] != (4, 3) or len(a) == 0:
+        raise fail(where, f"'{field}' must be (n, 4, 3) numbers (each printed tag's corners), got shape {a.shape} "
+                          f"dtype {a.dtype}")
+    if not (np.isfinite(a).all() and np.abs(a).max() <= MAX_COORD):
+        raise fail(where, f"'{field}' holds non-finite or huge coordinates")
+    return a.astype(np.float32)
 
 
 def check_points(xyz, rgb, where: str, field: str = "points") -> tuple[np.ndarray, np.ndarray]:

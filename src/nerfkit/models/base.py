@@ -33,6 +33,7 @@ class SceneBounds:
             captures), the NDC of the mean camera from ``near`` to infinity; else None.
         floor: (4,) plane ``(n, d)`` of the floor seen beyond the table's edge (found in
             the sparse points, :func:`~nerfkit.sfm.ground.find_floor`), or None.
+        tags: (n, 4, 3) corners of the printed tags lying on the table, or None.
     """
 
     near: float
@@ -45,6 +46,7 @@ class SceneBounds:
     object_box: tuple[np.ndarray, np.ndarray] | None = None
     ndc: NdcSpace | None = None
     floor: np.ndarray | None = None
+    tags: np.ndarray | None = None
 
     @property
     def reach(self) -> float:
@@ -75,7 +77,8 @@ class SceneBounds:
         return SceneBounds(float(scene.near), float(scene.far), np.asarray(scene.center, np.float32),
                            float(radius), np.asarray(scene.up, np.float32),
                            None if scene.table is None else np.asarray(scene.table, np.float32),
-                           float(dists.max()), box, ndc, floor)
+                           float(dists.max()), box, ndc, floor,
+                           None if scene.tags is None else np.asarray(scene.tags, np.float32))
 
     def to_dict(self) -> dict:
         return {"near": self.near, "far": self.far, "center": [float(c) for c in self.center],
@@ -84,7 +87,8 @@ class SceneBounds:
                 "camera_radius": self.camera_radius,
                 "object_box": None if self.object_box is None else [[float(v) for v in b] for b in self.object_box],
                 "ndc": None if self.ndc is None else self.ndc.to_dict(),
-                "floor": None if self.floor is None else [float(v) for v in self.floor]}
+                "floor": None if self.floor is None else [float(v) for v in self.floor],
+                "tags": None if self.tags is None else np.asarray(self.tags, np.float64).round(7).tolist()}
 
     @staticmethod
     def from_dict(d: dict) -> "SceneBounds":
@@ -96,7 +100,8 @@ class SceneBounds:
                            None if d.get("object_box") is None else
                            tuple(np.asarray(b, np.float32) for b in d["object_box"]),
                            None if d.get("ndc") is None else NdcSpace.from_dict(d["ndc"]),
-                           None if d.get("floor") is None else np.asarray(d["floor"], np.float32))
+                           None if d.get("floor") is None else np.asarray(d["floor"], np.float32),
+                           None if d.get("tags") is None else np.asarray(d["tags"], np.float32))
 
 
 def object_box_from_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float,
@@ -321,6 +326,11 @@ class NerfModel(nn.Module):
         """(4,) ``(n, d)`` of the plane where rays stop (a capture's table; unit normal
         ``n`` toward the cameras), or None."""
         return None
+
+    def table_tags(self) -> np.ndarray | None:
+        """(n, 4, 3) corners of the printed tags lying on the table (a tag capture's), or
+        None (no table, or no tags recorded)."""
+        return None if self.table_plane() is None else self.bounds.tags
 
     def surroundings(self) -> list[str]:
         """The names of the parts the model draws around its object (a capture's table,

@@ -693,7 +693,7 @@ class FastNeRF(NerfModel):
             axes = [lo[a] + self.voxel * np.arange(r) for a, r in enumerate(self.res)]
             rows = self.vertex_rows.long().reshape(rz, ry, rx).permute(2, 1, 0)  # [x, y, z], as axes
             sigma = (self.density_scale * F.softplus(self.grid[:, 0]))[rows]
-            paint = table_paint(sigma.cpu().numpy(), axes, self.table_plane(), cut, threshold)
+            paint = table_paint(sigma.cpu().numpy(), axes, self.table_plane(), cut, threshold, self.table_tags())
             cleared = rows[torch.from_numpy(paint).to(rows.device)]
             self.grid[cleared[cleared > 0], 0] = EMPTY_RAW
             self.refresh_occupancy()

@@ -108,14 +108,16 @@ def model_points(result: SfmResult) -> tuple[np.ndarray, np.ndarray]:
 
 
 def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | None" = None, jobs: int = 2,
-                  progress: bool = True, extra: dict | None = None, write_report: bool = True) -> tuple[Scene, dict]:
+                  progress: bool = True, extra: dict | None = None, write_report: bool = True,
+                  tags: np.ndarray | None = None) -> tuple[Scene, dict]:
     """Write the dataset of an aligned SfM result with the tag path's dataset builder.
 
     In the tag frame (``result.tag_size`` set) the builder's tag-based bounds are used;
     in a normalised frame near/far come from the sparse points (unless ``cfg`` sets them).
     ``extra`` joins what the dataset records about itself. Writes ``sfm_report.json`` too
     unless ``write_report`` is false (a rebuild in place keeps the one it read). Returns the
-    scene and the builder's summary.
+    scene and the builder's summary. ``tags``: the printed tags' corners in the tag frame
+    (recorded only in it).
     """
     from dataclasses import replace
 
@@ -135,7 +137,8 @@ def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | 
              "sfm": {k: v for k, v in result.report.to_dict().items() if k not in ("registered",)}, **(extra or {})}
     scene, summary = capture_build_dataset(posed_photos(result), out_dir, cfg, tag_size, jobs=jobs, progress=progress,
                                      extra=extra, on_tag_plane=result.tag_size is not None or result.on_ground,
-                                     points=model_points(result) if cfg.points else None)
+                                     points=model_points(result) if cfg.points else None,
+                                     tags=tags if result.tag_size is not None else None)
     if write_report:
         write_json(Path(out_dir) / REPORT_FILE, {**result.report.to_dict(), "model": saved_model(result, out_dir)})
     return scene, summary

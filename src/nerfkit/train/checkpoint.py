@@ -129,9 +129,11 @@ def check_dataset(info: RunInfo, scene) -> None:
 def _check_bounds(b: SceneBounds, where: str) -> None:
     import numpy as np
 
-    from ..data.validate import check_near_far, check_vector3
+    from ..data.validate import check_near_far, check_tags, check_vector3
 
     check_near_far(b.near, b.far, where)
+    if b.tags is not None:
+        b.tags = check_tags(b.tags, where, "bounds.tags")
     b.center = check_vector3(b.center, where, "bounds.center")
     b.up = check_vector3(b.up, where, "bounds.up", unit=True)
     if not (np.isfinite(b.radius) and b.radius > 0):
