@@ -34,6 +34,14 @@ def table_cut_height(model, fraction: float) -> float:
     return fraction * max(float((box_corners(box) @ plane[:3] + plane[3]).max()), 0.0)
 
 
+def cleared_note(height: float, tags) -> str:
+    """What clearing the table's paint up to ``height`` does, for messages (``tags``: the
+    printed tags' corners, (n, 4, 3), or None)."""
+    which = "the printed tag" if tags is None or len(tags) == 1 else f"the {len(tags)} printed tags"
+    over = "" if tags is None else f", {3 * height:.3g} over {which}"
+    return f"table paint cleared up to {height:.3g} above the table{over}"
+
+
 def table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float, tags=None) -> np.ndarray:
     """Where a density grid holds a capture's table paint: (X, Y, Z) bool.
 

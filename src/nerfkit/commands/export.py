@@ -123,7 +123,7 @@ def export_splat(run_, path: str) -> None:
 
 def export_mesh(run_, args) -> None:
     from ..export import COLOUR_REACH, mesh_from_model, mesh_region, write_mesh_ply
-    from ..tabletop import table_cut_height
+    from ..tabletop import cleared_note, table_cut_height
 
     model, bounds = run_.model, run_.info.bounds
     center, radius = mesh_region(model, bounds.center, bounds.radius, args.box_scale)
@@ -133,7 +133,7 @@ def export_mesh(run_, args) -> None:
     write_mesh_ply(args.mesh, mesh)
     cut = ""
     if model.table_plane() is not None:
-        cut = f"; table paint cleared up to {height:.3g} above the table"
+        cut = f"; {cleared_note(height, model.table_tags())}"
     print(f"mesh of step {run_.step}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces "
           f"(threshold {args.threshold:g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide cube{cut}) "
           f"-> {args.mesh}")

@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.paths import guard_outputs
     from ..output.images import frame_object, object_aim
     from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES, render_videos
-    from ..tabletop import object_alone
+    from ..tabletop import cleared_note, object_alone
     from ..train.checkpoint import read_run
     from ._common import open_run, scene_for_run
 
@@ -66,13 +66,14 @@ def run(args: argparse.Namespace) -> int:
     background = run_.background(args.background or ("white" if args.object else None))
     alone = ""
     if args.object:  # (in place: this model is only rendered)
+        tags = run_.model.table_tags()
         isolated = object_alone(run_.model, copy=False)
         if not isolated.left_out:
             alone = "the object (the model draws nothing around it to leave out"
         else:
             alone = f"the object alone ({_listed(isolated.left_out)} left out"
             if isolated.cut > 0:
-                alone += f"; table paint cleared up to {isolated.cut:.3g} above the table"
+                alone += f"; {cleared_note(isolated.cut, tags)}"
     # an orbit looks at the trained object, not at the point the cameras' axes meet
     aim = object_aim(run_.model, scene.train, scene.up, background, run_.chunk, run_.autocast) if kind == "orbit" else None
     views = scene.render_path(args.frames or ORBIT_FRAMES, aim, kind)
