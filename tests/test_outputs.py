@@ -98,7 +98,17 @@ def test_an_object_video_is_framed_on_the_object_with_its_own_depth_range():
     assert rows.min() > 0 and cols.min() > 0 and rows.max() < h - 1 and cols.max() < w - 1
     # the distance along rays to the sphere's near side: from d - 1 (its front) to sqrt(d^2 - 1) (its rim)
     d = float(np.linalg.norm(eyes[0]))
-    assert d - 1.1 < framing.near < d - 1.0 and abs(framing.far - np.sqrt(d * d - 1)) < 0.1
+    assert (d - 1.1 < framing.near).all() and (framing.near < d - 1.0).all()
+    np.testing.assert_allclose(framing.far, np.sqrt(d * d - 1), atol=0.1)
+    # cameras 4.5 to 9 away: with the point they look at, each frame's range follows its camera,
+    # so the sphere's relief spans the same colours in every frame
+    far_eyes = eyes * np.linspace(0.75, 1.5, len(az))[:, None]
+    c2w_far = np.stack([look_at(e, np.zeros(3), np.array([0.0, 0.0, 1.0])) for e in far_eyes]).astype(np.float32)
+    framing = frame_object(model, Views(c2w_far, views.K, w, h), torch.zeros(3), n_probe=8, aim=np.zeros(3))
+    d = np.linalg.norm(far_eyes, axis=1)
+    assert ((d - 1.1 < framing.near) & (framing.near < d - 1.0)).all()  # the front, 1 nearer than the centre
+    np.testing.assert_allclose(framing.far - d, framing.far[0] - d[0], atol=1e-4)  # one range about each centre
+    assert -0.35 < framing.far[0] - d[0] < 0.0  # the rim, a little nearer than the centre
 
     class Empty(SphereModel):
         def render_rays(self, rays, background, perturb):

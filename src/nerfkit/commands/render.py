@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     views = scene.render_path(args.frames or ORBIT_FRAMES, aim, kind)
     near, far = scene.near, scene.far
     if args.object:
-        framing = frame_object(run_.model, views, background, run_.chunk, run_.autocast)
+        framing = frame_object(run_.model, views, background, run_.chunk, run_.autocast, aim=aim)
         if framing is None:
             raise fail(args.run, "renders nothing solid along the video's path, so there is no object to frame",
                        "Render the scene without --object, or train longer")

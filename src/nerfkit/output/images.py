@@ -147,17 +147,19 @@ def object_aim(model: NerfModel, views: Views, up: np.ndarray, background: torch
 @dataclass
 class Framing:
     """An object-only video's cameras: ``views`` zoomed ``zoom`` times and centred on the
-    object, and the depth range ``near``-``far`` its depth video is coloured over."""
+    object, and the depth range ``near``-``far`` (n_views,) each frame of its depth video is
+    coloured over."""
 
     views: Views
     zoom: float
-    near: float
-    far: float
+    near: np.ndarray
+    far: np.ndarray
 
 
 def frame_object(model: NerfModel, views: Views, background: torch.Tensor, chunk: int = 16384,
                  autocast_dtype: torch.dtype | None = None, fill: float = 0.8, n_probe: int = 12,
-                 width: int = 128, zoom_range: tuple[float, float] = (0.5, 4.0)) -> Framing | None:
+                 width: int = 128, zoom_range: tuple[float, float] = (0.5, 4.0),
+                 aim: np.ndarray | None = None) -> Framing | None:
     """Frame what ``model`` holds (an object alone, :meth:`NerfModel.isolate_object`) in
     every view of a path: one zoom and one shift of the principal point for the whole path
     (so the object turns in place), chosen so the box around the object's pixels
@@ -165,12 +167,16 @@ def frame_object(model: NerfModel, views: Views, background: torch.Tensor, chunk
     probes are rendered ``width`` pixels wide at ``zoom_range[0]`` times the focal length,
     so an object that the path's own views cut off is measured whole. The zoom stays
     within ``zoom_range``. The depth range is that of those pixels (2% to 98%), widened by
-    5%. None when no view sees anything.
+    5%; with ``aim`` (3,), the point the path looks at, it is their depth less the camera's
+    distance to ``aim``, added back per view: every frame shows the object's relief on the
+    same scale, however far its camera is. None when no view sees anything.
     """
     if len(views) == 0:
         return None
     wide = zoom_range[0]
     lo, hi, depths = np.array([np.inf, np.inf]), np.array([-np.inf, -np.inf]), []
+    offset = np.zeros(len(views)) if aim is None else np.linalg.norm(
+        views.c2w[:, :3, 3].astype(np.float64) - np.asarray(aim, np.float64).reshape(1, 3), axis=1)
     for i, K, view in probe_renders(model, views, n_probe, width, background, chunk, autocast_dtype, wide):
         solid = view.acc > 0.5
         if not solid.any():
@@ -180,7 +186,7 @@ def frame_object(model: NerfModel, views: Views, background: torch.Tensor, chunk
         scale = np.array([views.K[i][0, 0] / K[0, 0], views.K[i][1, 1] / K[1, 1]])
         lo = np.minimum(lo, scale * [cols.min() - K[0, 2], rows.min() - K[1, 2]])
         hi = np.maximum(hi, scale * [cols.max() + 1 - K[0, 2], rows.max() + 1 - K[1, 2]])
-        depths.append(view.depth[solid])
+        depths.append(view.depth[solid] - offset[i])
     if not depths:
         return None
     zoom = fill * min(views.width / (hi[0] - lo[0]), views.height / (hi[1] - lo[1]))
@@ -194,8 +200,8 @@ def frame_object(model: NerfModel, views: Views, background: torch.Tensor, chunk
     d = np.concatenate(depths)
     near, far = np.quantile(d, 0.02), np.quantile(d, 0.98)
     pad = 0.05 * max(far - near, 1e-6)
-    return Framing(Views(views.c2w, K.astype(views.K.dtype), views.width, views.height), zoom, float(near - pad),
-                   float(far + pad))
+    return Framing(Views(views.c2w, K.astype(views.K.dtype), views.width, views.height), zoom, offset + near - pad,
+                   offset + far + pad)
 
 
 def _render_whole(model, K, c2w, width: int, height: int, background: torch.Tensor) -> RenderedView:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from ..data.scene import Views
@@ -32,8 +33,8 @@ def render_videos(
     views: Views,
     out_dir: Path,
     background: torch.Tensor,
-    near: float,
-    far: float,
+    near: float | np.ndarray,
+    far: float | np.ndarray,
     fps: int = 30,
     chunk: int = 16384,
     autocast_dtype: torch.dtype | None = None,
@@ -43,8 +44,9 @@ def render_videos(
     """Render ``views`` into ``out_dir/orbit.mp4``, ``orbit.gif`` and ``depth.mp4`` (or
     the three ``names``).
 
-    Frames are kept as uint8 (a 60-frame 800x800 orbit is ~115 MB); depth shares one
-    colour scale, ``near`` (warm) to ``far`` (cool), across all frames, and shows
+    Frames are kept as uint8 (a 60-frame 800x800 orbit is ~115 MB). Depth is coloured from
+    ``near`` (warm) to ``far`` (cool), one scale for all frames or one per frame ((n,)
+    each: an object's relief, :func:`~nerfkit.output.images.frame_object`), and shows
     everything the rays meet (a capture's table too, not only the object; its room lies
     beyond ``far`` and takes the far colour).
     """
@@ -53,11 +55,12 @@ def render_videos(
     from tqdm import tqdm
 
     rgb_frames, depth_frames = [], []
+    nears, fars = (np.broadcast_to(np.asarray(v, np.float64), (len(views),)) for v in (near, far))
     t0 = time.perf_counter()
-    for view in tqdm(render_views(model, views, background, chunk, autocast_dtype), total=len(views),
-                     desc="render", unit="frame", disable=None if progress else True):
+    for i, view in enumerate(tqdm(render_views(model, views, background, chunk, autocast_dtype), total=len(views),
+                                  desc="render", unit="frame", disable=None if progress else True)):
         rgb_frames.append(to_uint8(view.rgb))
-        depth_frames.append(to_uint8(view.depth_colours(near, far)))
+        depth_frames.append(to_uint8(view.depth_colours(float(nears[i]), float(fars[i]))))
     per_frame = (time.perf_counter() - t0) / max(len(views), 1)
     out_dir = Path(out_dir)
     paths = VideoPaths(*(out_dir / name for name in names), per_frame)
