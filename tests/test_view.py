@@ -14,7 +14,7 @@ from nerfkit.cli import main
 from nerfkit.data.npz import save_npz
 from nerfkit.data.scene import Scene, Views
 from nerfkit.errors import NerfkitError
-from nerfkit.viz.scene_plot import frustum_points, plot_scene, sample_rays
+from nerfkit.viz.scene_plot import frustum_points, plot_scene, printed_tags, sample_rays
 
 
 def small_scene(n=6, w=40, h=30):
@@ -139,3 +139,23 @@ def test_view_of_a_run_folder_without_the_live_viewer_is_a_clear_error(tmp_path,
     args = build_parser().parse_args(["view", str(run_folder(tmp_path))])
     with pytest.raises(NerfkitError, match="live viewer .* is not available"):
         args.func(args)
+
+
+def test_the_viewer_draws_every_printed_tag_the_dataset_records():
+    from nerfkit.viz.viewer import serve_dataset
+
+    scene = small_scene()
+    one = printed_tags(scene, 0.06)  # no tags recorded: one of the given size at the origin
+    np.testing.assert_allclose(np.abs(one[0][:, :2]), 0.03) and np.testing.assert_allclose(one[0][:, 2], 0.0)
+    assert printed_tags(scene, None) is None
+    square = np.array([[-0.03, -0.03, 0], [0.03, -0.03, 0], [0.03, 0.03, 0], [-0.03, 0.03, 0]], np.float32)
+    scene.tags = np.stack([square, square + [0.1, 0, 0], square + [0, -0.1, 0]])
+    np.testing.assert_array_equal(printed_tags(scene, 0.06), scene.tags)  # a sheet's tags, wherever they are
+    server, handles = serve_dataset(scene, host="127.0.0.1", port=free_port(), tag_size=0.06, block=False)
+    try:
+        mesh = handles["tag"]
+        assert mesh.vertices.shape == (12, 3) and mesh.faces.shape == (6, 3)
+        np.testing.assert_allclose(mesh.vertices[4:8, :2], scene.tags[1][:, :2], atol=1e-6)
+        assert mesh.faces.max() == 11
+    finally:
+        server.stop()

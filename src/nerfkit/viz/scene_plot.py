@@ -26,6 +26,17 @@ def scene_scale(scene: Scene) -> float:
     return float(np.median(d)) if len(d) and np.median(d) > 0 else 1.0
 
 
+def printed_tags(scene: Scene, tag_size: float | None) -> np.ndarray | None:
+    """(n, 4, 3) the printed tags to draw: those the dataset records (every tag of a
+    sheet), else one of ``tag_size`` at the origin in the plane across ``up``, else None."""
+    if scene.tags is not None:
+        return np.asarray(scene.tags, np.float64)
+    if not tag_size:
+        return None
+    a, b = axes_across(scene.up)
+    return (np.array([-a - b, a - b, a + b, -a + b]) * tag_size / 2)[None]
+
+
 def frustum_points(K: np.ndarray, c2w: np.ndarray, width: int, height: int, depth: float) -> np.ndarray:
     """(5, 3) world points: the camera centre, then the image corners (top-left, top-right,
     bottom-right, bottom-left) on the plane ``depth`` in front of it (nerfkit pixels)."""
@@ -101,10 +112,9 @@ def plot_scene(scene: Scene, path: str | Path, n_rays: int = 0, n_samples: int =
     half = 0.5 * scale
     quad = np.array([-a - b, a - b, a + b, -a + b]) * half
     ax.add_collection3d(Poly3DCollection([T(quad)], facecolor=(0.6, 0.6, 0.6, 0.18), edgecolor=(0.5, 0.5, 0.5, 0.4)))
-    if tag_size:
-        s = tag_size / 2
-        ax.add_collection3d(Poly3DCollection([T(np.array([-a - b, a - b, a + b, -a + b]) * s)],
-                                             facecolor=(0, 0, 0, 0.85), edgecolor="k"))
+    tags = printed_tags(scene, tag_size)
+    if tags is not None:
+        ax.add_collection3d(Poly3DCollection([T(q) for q in tags], facecolor=(0, 0, 0, 0.85), edgecolor="k"))
     axis_len = 1.5 * tag_size if tag_size else 0.25 * scale
     for k, c in enumerate("rgb"):
         e = np.zeros(3)

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..cameras import axes_across
 from ..data.scene import Scene
-from .scene_plot import SPLIT_COLORS, sample_rays, scene_scale
+from .scene_plot import SPLIT_COLORS, printed_tags, sample_rays, scene_scale
 
 
 def _wxyz(R: np.ndarray) -> np.ndarray:
@@ -41,11 +41,11 @@ def populate(server, scene: Scene, n_rays: int = 0, n_samples: int = 32, tag_siz
     handles["plane"] = server.scene.add_grid("/tag_plane", width=scale, height=scale, cell_size=scale / 10,
                                              section_size=scale / 2, plane="xy", wxyz=_wxyz(R_plane),
                                              plane_color=(200, 200, 200), plane_opacity=0.25)
-    if tag_size:
-        s = tag_size / 2
-        verts = np.array([-a - b, a - b, a + b, -a + b]) * s + up * 1e-4
-        handles["tag"] = server.scene.add_mesh_simple("/tag", verts.astype(np.float32),
-                                                      np.array([[0, 1, 2], [0, 2, 3]], np.uint32),
+    tags = printed_tags(scene, tag_size)
+    if tags is not None:  # the printed tags, a hair above the plane
+        verts = (tags + up * 1e-4).reshape(-1, 3)
+        faces = (np.array([[0, 1, 2], [0, 2, 3]]) + 4 * np.arange(len(tags))[:, None, None]).reshape(-1, 3)
+        handles["tag"] = server.scene.add_mesh_simple("/tag", verts.astype(np.float32), faces.astype(np.uint32),
                                                       color=(20, 20, 20), side="double")
     handles["center"] = server.scene.add_icosphere("/center", radius=0.01 * scale, color=(220, 0, 220),
                                                    position=tuple(float(c) for c in scene.center))
