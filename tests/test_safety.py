@@ -370,7 +370,19 @@ def test_resume_applies_what_it_can_and_refuses_the_rest(trained, tmp_path, caps
     err = capsys.readouterr().err
     assert "resuming with --steps 8 (was 6)" in err and "resuming with --eval-views 2 (was 1)" in err
     cfg = json.loads((run / "config.json").read_text())["train"]
-    assert json.loads((run / "metrics.json").read_text())["step"] == 8 and cfg["steps"] == 6
+    assert json.loads((run / "metrics.json").read_text())["step"] == 8 and cfg["steps"] == 8  # what it went on with
+    assert main(["train", "--resume", str(run), "--steps", "5"]) == 0  # past it already: says so, trains nothing
+    assert "at step 8 the run is already past --steps 5: nothing more to train" in capsys.readouterr().err
+    assert json.loads((run / "metrics.json").read_text())["step"] == 8
+
+
+def test_a_trained_run_without_its_checkpoints_is_not_trained_over(trained, tmp_path, capsys):
+    run = copy_run(trained, tmp_path)
+    shutil.rmtree(run / "checkpoints")
+    before = (run / "model.pt").read_bytes()
+    assert main(["train", "--resume", str(run), "--steps", "8"]) == 2
+    one_line(capsys, "holds a trained model (model.pt) but no checkpoint to continue it from", "another --out")
+    assert (run / "model.pt").read_bytes() == before
 
 
 def test_one_process_per_run_folder(trained, tmp_path, capsys, sphere_npz):

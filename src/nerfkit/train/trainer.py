@@ -150,6 +150,8 @@ class Trainer:
         self._last_eval_tenth = 0
         if resume:
             self._resume()
+            # the run's config records the stopping rule (and the settings) it now goes on with
+            write_run_config(self.run_dir, cfg, model_config, self.bounds, read_run(self.run_dir).scene)
         else:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             write_run_config(self.run_dir, cfg, model_config, self.bounds, {
@@ -187,6 +189,9 @@ class Trainer:
     def _resume(self) -> None:
         loaded = load_latest_checkpoint(self.run_dir, self.model)
         if loaded is None:
+            if (self.run_dir / "model.pt").exists():  # trained, its checkpoints gone: never train over it
+                raise fail(self.run_dir, "holds a trained model (model.pt) but no checkpoint to continue it from",
+                           "Train a new run with another --out, or delete model.pt to start this run over")
             self.log(f"{self.run_dir}: no checkpoint yet, starting from step 0")
             return
         ckpt, path = loaded
@@ -515,7 +520,13 @@ def resume(run_dir: str | Path, scene: Scene, steps: int | None = None, minutes:
         for key, value in (changes or {}).items():
             setattr(cfg, key, value)
         cfg.out = str(run_dir)
-        return Trainer(scene, cfg.validate(), info.model_config, resume=True, quiet=quiet).run()
+        trainer = Trainer(scene, cfg.validate(), info.model_config, resume=True, quiet=quiet)
+        if trainer.done():
+            limit = (f"--steps {cfg.steps}" if cfg.steps and trainer.step >= cfg.steps
+                     else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.1f} trained)")
+            trainer.log(f"{run_dir}: at step {trainer.step} the run is already past {limit}: nothing more to train "
+                        "(give a larger --steps or --minutes to go on)")
+        return trainer.run()
 
 
 __all__ = ["TrainResult", "Trainer", "asdict", "resume", "train"]
