@@ -843,6 +843,11 @@ def test_a_wrong_folder_points_to_the_right_one(tmp_path, capsys):
     photos = tmp_path / "photos"
     photos.mkdir()
     (photos / "IMG_1.JPG").write_bytes(b"x")
+    run = tmp_path / "runs" / "mine"  # a trained run: its plots are not photos
+    (run / "plots").mkdir(parents=True)
+    (run / "plots" / "psnr.png").write_bytes(b"x")
+    (run / "model.pt").write_bytes(b"x")
+    (run / "config.json").write_text(json.dumps({"train": {"data": "/data/lego.npz"}}))
     cases = [
         (["train", "--data", str(capture), "--steps", "1", "--out", str(tmp_path / "r")],
          f"its dataset is {capture / 'dataset'}"),
@@ -851,6 +856,10 @@ def test_a_wrong_folder_points_to_the_right_one(tmp_path, capsys):
         (["train", "--data", str(photos), "--steps", "1", "--out", str(tmp_path / "r")],
          f"`nerfkit poses {photos} --out DATASET`"),
         (["render", str(capture)], f"is a capture's folder, not a run. Its NeRF is {capture / 'run'}"),
+        (["train", "--data", str(run), "--steps", "1", "--out", str(tmp_path / "r")],
+         f"a trained run's folder trained on /data/lego.npz: pass that dataset, or continue the run with "
+         f"`nerfkit train --resume {run}`"),
+        (["convert", str(run), "--to", str(tmp_path / "r")], "a trained run's folder"),
     ]
     for argv, hint in cases:
         assert main(argv) == 2, argv

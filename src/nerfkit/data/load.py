@@ -144,12 +144,22 @@ def detect_format(path: str | Path) -> str:
 
 
 def _folder_hint(path: Path) -> str | None:
-    """What to give instead of a folder that holds no dataset: a capture's own dataset, or
-    how to make one from the photos it holds."""
+    """What to give instead of a folder that holds no dataset: a capture's own dataset, a
+    run's dataset, or how to make one from the photos it holds."""
     from ..images import image_files
 
     if (path / "dataset" / "dataset.npz").is_file():
         return f"This is a capture's folder: its dataset is {path / 'dataset'}"
+    if (path / "config.json").is_file() and ((path / "model.pt").is_file() or (path / "checkpoints").is_dir()):
+        import json
+
+        try:
+            data = json.loads((path / "config.json").read_text())["train"]["data"]
+            where = f" trained on {data}"
+        except (OSError, ValueError, KeyError, TypeError):
+            where = ""
+        return (f"This is a trained run's folder{where}: pass that dataset, or continue the run with "
+                f"`nerfkit train --resume {path}`")
     if image_files(path):
         return (f"It holds photos without poses: make a dataset of them with `nerfkit poses {path} --out DATASET` "
                 "(or the whole flow with `nerfkit capture`)")
