@@ -213,6 +213,13 @@ def test_output_size_rules():
         with pytest.raises(NerfkitError) as e:
             output_size(400, 300, downscale=d)
         assert str(e.value).startswith(f"--downscale: {problem}. "), str(e.value)
+    # a view of a few pixels holds no scene: the largest divisor (or smallest size) that keeps 8
+    assert output_size(400, 300, downscale=37.5) == (11, 8)
+    for kw, hint in (({"downscale": 1000}, "Use --downscale 37.5 or less"), ({"size": 9}, "Use --size 11 or more")):
+        with pytest.raises(NerfkitError, match="too small to hold a scene") as e:
+            output_size(400, 300, **kw)
+        assert str(e.value).endswith(hint)
+    assert output_size(6, 4, downscale=2) == (3, 2)  # images already that small: as asked
 
 
 def test_scaled_K_matches_resampled_pixels():

@@ -16,6 +16,7 @@ scales ``K`` so that the cameras stay exact.
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -27,6 +28,9 @@ from ..io.paths import path_kind, refuse_special_file
 from .npz import load_npz
 from .scene import Scene, Views
 from .validate import MAX_PIXELS, check_scene
+
+# the smallest side resampled images may have: below it a view holds no scene to train or look at
+MIN_RESAMPLED_SIDE = 8
 
 FORMATS = ("a course .npz, a Blender folder (transforms_train.json), a transforms.json, an LLFF folder "
            "(poses_bounds.npy), or a COLMAP model folder")
@@ -50,7 +54,14 @@ def output_size(width: int, height: int, size: int | None = None, downscale: flo
         s = 1.0 / downscale
     else:
         return width, height
-    return max(1, round(width * s)), max(1, round(height * s))
+    new = max(1, round(width * s)), max(1, round(height * s))
+    if min(new) < MIN_RESAMPLED_SIDE <= min(width, height):
+        flag = "--size" if size is not None else "--downscale"
+        most = (f"--size {math.ceil(MIN_RESAMPLED_SIDE * max(width, height) / min(width, height))} or more"
+                if size is not None else f"--downscale {min(width, height) / MIN_RESAMPLED_SIDE:g} or less")
+        raise fail(flag, f"would resample the {width}x{height} images to {new[0]}x{new[1]}, too small to hold a "
+                         f"scene (at least {MIN_RESAMPLED_SIDE} pixels a side)", f"Use {most}")
+    return new
 
 
 def scale_intrinsics(K: np.ndarray, width: int, height: int, new_width: int, new_height: int) -> np.ndarray:
