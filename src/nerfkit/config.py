@@ -206,7 +206,8 @@ def _add_flag(target: Any, name: str, owners: list[tuple[str, Any, dataclasses.F
     if tp is bool:
         target.add_argument(_flag(name), action=argparse.BooleanOptionalAction, **kw)
     else:
-        metavar = first.metadata.get("metavar", tp.__name__.upper() if hasattr(tp, "__name__") else "X")
+        named = "{" + ",".join(map(str, kw["choices"])) + "}" if "choices" in kw else None  # the choices in --help
+        metavar = first.metadata.get("metavar", named or (tp.__name__.upper() if hasattr(tp, "__name__") else "X"))
         target.add_argument(_flag(name), type=_field_type(tp, widest_bounds([f.metadata for _, _, f in owners])),
                             metavar=metavar, **kw)
 

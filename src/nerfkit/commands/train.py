@@ -13,7 +13,7 @@ HELP = "train a NeRF on a dataset (or --resume a run)"
 EPILOG = """\
 examples:
   nerfkit train --data scene.npz --out runs/mine --minutes 5
-  nerfkit train --data src/nerfkit/assets/lego_200x200.npz --model vanilla --steps 20000 --out runs/vanilla
+  nerfkit train --data src/nerfkit/assets/lego_200x200.npz --model vanilla --steps 6000 --out runs/vanilla
   nerfkit train --resume runs/mine              continue after a crash or Ctrl-C
 The run folder gets config.json, checkpoints/, metrics.csv/json, plots/ and progress/.
 """
@@ -107,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
                        "src/nerfkit/assets/lego_200x200.npz, or run `nerfkit demo`)")
         if cfg.steps == 0 and cfg.minutes == 0:
             cfg = dataclasses.replace(cfg, minutes=5.0)
+            print("no --steps or --minutes: training for 5 minutes", file=sys.stderr)
         classes = _model_config_classes()
         if cfg.model not in classes:
             raise fail("--model", f"model '{cfg.model}' is not available in this installation",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-HELP = "view a dataset's cameras, rays and samples in the browser (viser) or as a PNG"
+HELP = "view a dataset's cameras, rays and samples, or a trained run live, in the browser (viser); or a dataset as a PNG"
 
 DESCRIPTION = """\
 Shows each camera as a frustum textured with its image, the world axes, the tag plane and

@@ -25,7 +25,8 @@ class TrainConfig:
     model: str = option("fast", "which radiance field to train", choices=list(MODEL_NAMES))
     out: str = option("runs/latest", "run folder for checkpoints, metrics, plots and videos", metavar="DIR")
     steps: int = option(0, "optimizer steps (0: run until --minutes is spent)", min=0)
-    minutes: float = option(0.0, "training-time budget in minutes, evaluation excluded (0: no limit)", min=0)
+    minutes: float = option(0.0, "training-time budget in minutes, evaluation excluded (0: no limit; with neither "
+                                 "--steps nor --minutes, 5)", min=0)
     batch_rays: int = option(0, "rays per step (0: the model's default; fast takes multiples of it at its finer "
                              "stages, --stage-rays); lower it if memory runs out", min=0, max=MAX_BATCH_RAYS)
     lr: float = option(0.0, "base learning rate (0: the model's default)", min=0, max=100)

@@ -360,6 +360,7 @@ def serve_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080, de
     port = viewer.server.get_port()  # viser moves to the next free port when this one is taken
     if host not in LOCAL_HOSTS:
         print(f"warning: listening on {host}: anyone who can reach port {port} can see this scene", file=sys.stderr)
-    print(f"nerfkit viewer of {run_dir} at http://{'localhost' if host in LOCAL_HOSTS else host}:{port} "
+    shown = "127.0.0.1" if host in ("127.0.0.1", "localhost") else f"[{host}]" if ":" in host else host
+    print(f"nerfkit viewer of {run_dir} at http://{shown}:{port} "
           f"(Ctrl-C to stop)", flush=True)
     viewer.serve_forever()
