@@ -866,3 +866,17 @@ def test_a_wrong_folder_points_to_the_right_one(tmp_path, capsys):
         err = capsys.readouterr().err
         assert hint in err and err.count("\n") == 1, err
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("flags", [["--device", "tpu"], ["--resolutions", "8,abc"], ["--stage-rays", "0"]])
+def test_a_training_refused_at_start_leaves_no_empty_run_folder(tmp_path, sphere_npz, capsys, flags):
+    from nerfkit.cli import main
+
+    out = tmp_path / "runs" / "new"
+    assert main(["train", "--data", str(sphere_npz), "--out", str(out), "--steps", "2", *flags]) == 2
+    assert flags[0] in capsys.readouterr().err
+    assert not out.exists()
+    kept = tmp_path / "mine"
+    kept.mkdir()  # a folder the user made is left as it was
+    assert main(["train", "--data", str(sphere_npz), "--out", str(kept), "--steps", "2", *flags]) == 2
+    assert kept.is_dir()

@@ -23,7 +23,7 @@ from torch import Tensor
 from ..cameras import strided_camera
 from ..data.rays import RaysData
 from ..data.scene import Scene
-from ..errors import fail
+from ..errors import NerfkitError, fail
 from ..io.atomic import is_temporary, write_image, write_json, write_text
 from ..io.lock import LOCK_FILE
 from ..models import SceneBounds, build_model
@@ -490,9 +490,16 @@ def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False) -> 
     cfg = resolved_config(cfg, model_config)
     if cfg.data:
         cfg.data = str(Path(cfg.data).resolve())  # eval and --resume must find it from any folder
-    with run_lock(run_dir):
-        check_new_run_folder(run_dir)  # again, holding the lock: another process may have just started
-        return Trainer(scene, cfg, model_config, quiet=quiet).run()
+    created = not run_dir.exists()
+    try:
+        with run_lock(run_dir):
+            check_new_run_folder(run_dir)  # again, holding the lock: another process may have just started
+            return Trainer(scene, cfg, model_config, quiet=quiet).run()
+    except NerfkitError:
+        if created and [p.name for p in run_dir.iterdir()] == [LOCK_FILE]:  # refused before writing anything
+            (run_dir / LOCK_FILE).unlink(missing_ok=True)  # (a bad --device or grid setting): no empty --out left
+            run_dir.rmdir()
+        raise
 
 
 def check_new_run_folder(run_dir: Path) -> None:
