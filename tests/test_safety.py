@@ -726,3 +726,12 @@ def test_a_device_nerfkit_cannot_run_on_is_one_line(trained, tmp_path, capsys, d
 def test_an_empty_png_name_is_refused_not_taken_for_the_viewer(trained, capsys):
     assert main(["view", str(trained / "a" / "data.npz"), "--png", ""]) == 2  # it once started the server
     one_line(capsys, "--png: names no file")
+
+
+def test_a_truncated_model_file_is_named_as_cut_short(trained, tmp_path, capsys):
+    run = copy_run(trained, tmp_path)
+    shutil.rmtree(run / "checkpoints")
+    data = (run / "model.pt").read_bytes()
+    (run / "model.pt").write_bytes(data[: len(data) // 2])
+    assert main(["eval", str(run)]) == 2
+    one_line(capsys, "model.pt: cannot load checkpoint: the file is cut short or damaged", "train it again")

@@ -197,7 +197,12 @@ def _read_checkpoint(path: Path, model_name: str) -> dict:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - truncated zip, unpickling refused, ...
-        raise fail(path, f"cannot load checkpoint ({type(e).__name__}: {str(e).splitlines()[0][:200]})") from None
+        text = " ".join(str(e).split())
+        if "central directory" in text or "zip archive" in text or "file is truncated" in text:
+            why = "the file is cut short or damaged (a copy or download that did not finish?)"
+        else:
+            why = f"{type(e).__name__}: {text[:160]}{'...' if len(text) > 160 else ''}"
+        raise fail(path, f"cannot load checkpoint: {why}") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise fail(path, "not a nerfkit checkpoint")
     if ckpt.get("version") != VERSION:
@@ -254,7 +259,8 @@ def load_latest_checkpoint(run_dir: Path, model: NerfModel, final_model: bool = 
                 msg = f"{path}: {type(e).__name__}: {msg}"
             errors.append(msg)  # reported once: as warnings if an older one loads, else in the error
     if paths:
-        raise fail(run_dir, "no checkpoint could be loaded: " + "; ".join(errors))
+        raise fail(run_dir, "no checkpoint could be loaded: " + "; ".join(errors),
+                   "Copy the run again from where it was made, or train it again")
     return None
 
 
