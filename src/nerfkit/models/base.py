@@ -307,6 +307,10 @@ class NerfModel(nn.Module):
         the optimizer step; models keeping gradients outside ``.grad`` check those too)."""
         return grads_finite(self.parameters())
 
+    def load_kernels(self) -> None:
+        """Load the compiled kernels the model runs on (compiling them the first time: tens
+        of seconds), before training's clock starts, so no step or time budget pays for it."""
+
     def finish_training(self) -> None:
         """Called once when training reaches its end, before the final evaluation and the
         model file (e.g. to measure an occupancy grid that was never measured)."""

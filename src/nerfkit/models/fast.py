@@ -373,6 +373,9 @@ class FastNeRF(NerfModel):
         x = sigma / self.density_scale
         return float(math.log(math.expm1(x))) if x < 20 else x
 
+    def load_kernels(self) -> None:
+        self._backend()
+
     def _backend(self) -> str:
         if self.config.kernels == "torch" or self.grid.device.type != "cpu":
             return "torch"

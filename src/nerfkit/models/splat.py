@@ -419,6 +419,9 @@ class SplatModel(NerfModel):
     def backend(self) -> str:
         return resolve_backend(self.config.kernels, self.means.device)
 
+    def load_kernels(self) -> None:
+        self.backend()
+
 
 # -- initialisation -------------------------------------------------------------------
 def initial_gaussians(points: Tensor, colors: Tensor, scale: float | Tensor, opacity: float) -> tuple[Tensor, ...]:
