@@ -860,6 +860,8 @@ def test_a_wrong_folder_points_to_the_right_one(tmp_path, capsys):
          f"a trained run's folder trained on /data/lego.npz: pass that dataset, or continue the run with "
          f"`nerfkit train --resume {run}`"),
         (["convert", str(run), "--to", str(tmp_path / "r")], "a trained run's folder"),
+        (["eval", str(capture / "dataset" / "dataset.npz")],
+         "is a file, not a run folder. Give the --out folder of a `nerfkit train` run (this looks like a dataset"),
     ]
     for argv, hint in cases:
         assert main(argv) == 2, argv

@@ -65,6 +65,10 @@ def write_run_config(run_dir: Path, train: TrainConfig, model_config: Any, bound
 def read_run(run_dir: str | Path) -> RunInfo:
     run_dir = Path(run_dir)
     cfg_path = run_dir / "config.json"
+    if run_dir.exists() and not run_dir.is_dir():
+        raise fail(run_dir, "is a file, not a run folder", "Give the --out folder of a `nerfkit train` run"
+                   + (" (this looks like a dataset: train on it with `nerfkit train --data`)"
+                      if run_dir.suffix.lower() in (".npz", ".json") else ""))
     if not run_dir.is_dir():
         raise fail(run_dir, "no such run folder", "Give the --out folder of a `nerfkit train` run")
     if not cfg_path.exists():
