@@ -186,3 +186,5 @@ def test_a_run_trains_on_the_downscaled_folder_and_keeps_reading_it(scene_dir, t
     assert main(["eval", str(run), "--split", "val"]) == 0
     assert main(["view", str(run), "--downscale", "4"]) == 2
     assert "--downscale: a trained run loads its dataset as it was trained" in capsys.readouterr().err
+    assert main(["view", str(run), "--rays", "10"]) == 2  # the live viewer draws no rays
+    assert "--rays: the live viewer of a trained run draws its cameras" in capsys.readouterr().err

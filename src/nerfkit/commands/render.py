@@ -21,7 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="camera path: the dataset's test poses, an orbit around the object, a spiral across a "
                    "forward-facing capture's view, or auto (chosen as described above)")
     p.add_argument("--frames", type=number(int, 1, 100_000), default=None,
-                   help="frames of a generated orbit or spiral (default: 120, 4 s at 30 fps)")
+                   help="frames of a generated orbit or spiral (default: 120, 4 s at 30 fps); the test path "
+                   "has the dataset's own poses")
     p.add_argument("--fps", type=number(int, 1, 1000), default=30, help="frames per second (default: 30)")
     p.add_argument("--object", action="store_true",
                    help="render the object alone into object.mp4, object.gif and object_depth.mp4: a capture's "
@@ -30,12 +31,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--background", help="override the run's background colour (with --object: white): black, "
                    "white, grey, r,g,b in [0, 1] or #rrggbb")
     p.add_argument("--out", help="output folder (default: RUN/videos)")
-    p.add_argument("--force", action="store_true", help="replace videos already in --out (RUN/videos is always "
-                   "replaced: it belongs to the run)")
+    p.add_argument("--force", action="store_true", help="replace videos already in --out (without --out, "
+                   "RUN/videos is replaced: it belongs to the run)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
     from pathlib import Path
 
     from ..data.load import dataset_inputs
@@ -57,6 +59,9 @@ def run(args: argparse.Namespace) -> int:
     kind = scene.video_kind(args.path)
     if kind == "test" and len(scene.test) == 0:
         raise fail(scene.source, "has no test poses", "Use --path orbit")
+    if kind == "test" and args.frames and args.frames != len(scene.test):
+        print(f"note: --frames sets the length of an orbit or spiral; the test path is the dataset's "
+              f"{len(scene.test)} poses (--path orbit for {args.frames} frames)", file=sys.stderr)
     if kind == "spiral" and not scene.forward_facing:
         raise fail("--path spiral", "the training cameras do not all look the same way from about the same "
                    "place, so a spiral across their view would leave them", "Use --path orbit")

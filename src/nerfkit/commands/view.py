@@ -64,6 +64,9 @@ def run(args: argparse.Namespace) -> int:
     if is_run_folder(path):
         if args.downscale:
             raise fail("--downscale", "a trained run loads its dataset as it was trained", "Leave out --downscale")
+        if args.rays:
+            raise fail("--rays", "the live viewer of a trained run draws its cameras and renders, not rays",
+                       "View the run's dataset for its rays: nerfkit view DATASET --rays N")
         if args.png:
             raise fail(path, "--png draws datasets; this is a trained run", "Pass the run's dataset instead")
         try:
