@@ -58,6 +58,7 @@ def output_format(out: str, fmt: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
     from pathlib import Path
 
     from ..config import parse_background
@@ -91,6 +92,12 @@ def run(args: argparse.Namespace) -> int:
           f"near={scene.near:.3g}, far={scene.far:.3g}")
     for p in written:
         print(f"  {p}")
+    if fmt == "colmap":
+        kept = sum(len(v) for v in scene.splits.values() if v.images is not None) or sum(n.values())
+        print(f"note: a COLMAP model keeps no splits: it holds {kept} views as one set (pose-only views left out), "
+              "and reading it back holds out nerfkit's own val views")
+    elif args.text:
+        print("note: --text is for --format colmap's model; ignored", file=sys.stderr)
     return 0
 
 
