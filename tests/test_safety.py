@@ -371,9 +371,10 @@ def test_resume_applies_what_it_can_and_refuses_the_rest(trained, tmp_path, caps
     assert "resuming with --steps 8 (was 6)" in err and "resuming with --eval-views 2 (was 1)" in err
     cfg = json.loads((run / "config.json").read_text())["train"]
     assert json.loads((run / "metrics.json").read_text())["step"] == 8 and cfg["steps"] == 8  # what it went on with
-    assert main(["train", "--resume", str(run), "--steps", "5"]) == 0  # past it already: says so, trains nothing
+    before = {p: p.read_bytes() for p in (run / "config.json", run / "metrics.json", run / "model.pt")}
+    assert main(["train", "--resume", str(run), "--steps", "5"]) == 0  # past it already: says so, changes nothing
     assert "at step 8 the run is already past --steps 5: nothing more to train" in capsys.readouterr().err
-    assert json.loads((run / "metrics.json").read_text())["step"] == 8
+    assert all(p.read_bytes() == b for p, b in before.items())
 
 
 def test_a_trained_run_without_its_checkpoints_is_not_trained_over(trained, tmp_path, capsys):
@@ -735,3 +736,13 @@ def test_a_truncated_model_file_is_named_as_cut_short(trained, tmp_path, capsys)
     (run / "model.pt").write_bytes(data[: len(data) // 2])
     assert main(["eval", str(run)]) == 2
     one_line(capsys, "model.pt: cannot load checkpoint: the file is cut short or damaged", "train it again")
+
+
+def test_a_run_killed_in_its_final_save_is_finished_by_resume(trained, tmp_path):
+    run = copy_run(trained, tmp_path)
+    metrics = json.loads((run / "metrics.json").read_text())
+    (run / "metrics.json").write_text(json.dumps({**metrics, "finished": False}))  # its reports never written
+    (run / "model.pt").unlink()
+    assert main(["train", "--resume", str(run)]) == 0
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["finished"] is True and metrics["step"] == 6 and (run / "model.pt").is_file()

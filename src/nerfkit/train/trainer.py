@@ -23,7 +23,7 @@ from torch import Tensor
 from ..cameras import strided_camera
 from ..data.rays import RaysData
 from ..data.scene import Scene
-from ..errors import NerfkitError, fail
+from ..errors import fail
 from ..io.atomic import is_temporary, write_image, write_json, write_text
 from ..io.lock import LOCK_FILE
 from ..models import SceneBounds, build_model
@@ -31,8 +31,8 @@ from ..models.base import NerfModel, StepState, grads_finite, run_schedules
 from ..precision import autocast
 from ..output.images import render_image
 from ..viz.plots import image_grid, plot_curves
-from .checkpoint import (check_dataset, checkpoint_paths, dataset_fingerprint, load_latest_checkpoint, read_run,
-                         run_lock, save_checkpoint, save_model, write_run_config)
+from .checkpoint import (MODEL_FILE, check_dataset, checkpoint_paths, dataset_fingerprint, load_latest_checkpoint,
+                         read_run, run_lock, save_checkpoint, save_model, write_run_config)
 from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
 from .metrics import psnr, psnr_from_mse
 from .optim import build_optimizer
@@ -150,8 +150,6 @@ class Trainer:
         self._last_eval_tenth = 0
         if resume:
             self._resume()
-            # the run's config records the stopping rule (and the settings) it now goes on with
-            write_run_config(self.run_dir, cfg, model_config, self.bounds, read_run(self.run_dir).scene)
         else:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             write_run_config(self.run_dir, cfg, model_config, self.bounds, {
@@ -395,6 +393,9 @@ class Trainer:
         if interrupted:
             self.log(f"interrupted: checkpoint saved at step {self.step}; continue with "
                      f"`nerfkit train --resume {self.run_dir}`")
+        return self.result(interrupted)
+
+    def result(self, interrupted: bool = False) -> TrainResult:
         final = [r for r in self.rows if r["split"] == "val"]
         return TrainResult(self.run_dir, self.step, self.train_seconds,
                            final[-1]["psnr"] if final else None, interrupted, self.rows)
@@ -495,16 +496,12 @@ def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False) -> 
     cfg = resolved_config(cfg, model_config)
     if cfg.data:
         cfg.data = str(Path(cfg.data).resolve())  # eval and --resume must find it from any folder
-    created = not run_dir.exists()
-    try:
-        with run_lock(run_dir):
-            check_new_run_folder(run_dir)  # again, holding the lock: another process may have just started
-            return Trainer(scene, cfg, model_config, quiet=quiet).run()
-    except NerfkitError:
-        if created and [p.name for p in run_dir.iterdir()] == [LOCK_FILE]:  # refused before writing anything
-            (run_dir / LOCK_FILE).unlink(missing_ok=True)  # (a bad --device or grid setting): no empty --out left
-            run_dir.rmdir()
-        raise
+    # what the trainer would refuse at start (the device, the grid's settings), before --out is made
+    resolve_autocast(cfg.precision, resolve_device(cfg.device))
+    build_model(cfg.model, model_config, SceneBounds.from_scene(scene))
+    with run_lock(run_dir):
+        check_new_run_folder(run_dir)  # again, holding the lock: another process may have just started
+        return Trainer(scene, cfg, model_config, quiet=quiet).run()
 
 
 def check_new_run_folder(run_dir: Path) -> None:
@@ -533,12 +530,26 @@ def resume(run_dir: str | Path, scene: Scene, steps: int | None = None, minutes:
             setattr(cfg, key, value)
         cfg.out = str(run_dir)
         trainer = Trainer(scene, cfg.validate(), info.model_config, resume=True, quiet=quiet)
-        if trainer.done():
+        if trainer.done() and _finished_at(Path(run_dir), trainer.step):  # changes nothing, config.json included
             limit = (f"--steps {cfg.steps}" if cfg.steps and trainer.step >= cfg.steps
                      else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.1f} trained)")
             trainer.log(f"{run_dir}: at step {trainer.step} the run is already past {limit}: nothing more to train "
                         "(give a larger --steps or --minutes to go on)")
+            return trainer.result()
+        # the run's config records the stopping rule (and the settings) it now goes on with
+        write_run_config(Path(run_dir), trainer.cfg, info.model_config, info.bounds, info.scene)
         return trainer.run()
+
+
+def _finished_at(run_dir: Path, step: int) -> bool:
+    """Whether the run's reports say it finished, scored and saved, at ``step`` (a run killed
+    during its final save is not: resuming it finishes it)."""
+    try:
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(metrics, dict) and metrics.get("finished") is True and metrics.get("step") == step \
+        and (run_dir / MODEL_FILE).is_file()
 
 
 __all__ = ["TrainResult", "Trainer", "asdict", "resume", "train"]
