@@ -479,6 +479,9 @@ def test_sfm_dataset_metric_from_tag(room, tmp_path):
     small = load_scene(tmp_path / "small")
     assert small.train.names + small.val.names == names and max(small.train.width, small.train.height) == 160
     np.testing.assert_allclose(np.concatenate([small.train.c2w, small.val.c2w]), c2w, atol=1e-5)
+    half = TAG_SIZE / 2  # the printed tag, at the origin of its frame, recorded by both
+    for s in (back, small):
+        np.testing.assert_allclose(np.abs(s.tags), [[[half, half, 0.0]] * 4], atol=1e-7)
 
 
 @pytest.mark.slow

@@ -131,6 +131,8 @@ def test_auto_poses_a_tag_capture_by_sfm_in_the_tag_frame(room_photos, tmp_path)
     assert main(["dataset", str(tmp_path / "auto"), "--out", str(tmp_path / "copy"), *split]) == 0
     assert main(["dataset", str(tmp_path / "copy"), "--out", str(tmp_path / "copy2"), *split]) == 0
     np.testing.assert_allclose(_dataset_poses(tmp_path / "copy2")[1], sfm_c2w, atol=1e-5)
+    for d in ("auto", "copy", "copy2"):  # the printed tag, recorded along
+        assert load_scene(tmp_path / d).tags.shape == (1, 4, 3)
     # the tag poses on request; they differ from SfM's
     assert main(["dataset", str(tmp_path / "auto"), "--pose-source", "tags", "--out", str(tmp_path / "t"), *split]) == 0
     np.testing.assert_allclose(_dataset_poses(tmp_path / "t")[1], tag_c2w, atol=1e-5)

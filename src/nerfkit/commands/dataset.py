@@ -135,8 +135,9 @@ def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bo
     dataset folder of its own."""
     import shutil
 
-    from ..capture.dataset import DATASET_OUTPUTS, POSES_FILE, recorded_tags
-    from ..config import load_json
+    from ..capture.dataset import DATASET_OUTPUTS
+    from ..data.nerfstudio import nerfkit_block
+    from ..data.validate import check_tags
     from ..errors import NerfkitError
     from ..io.atomic import write_bytes
     from ..io.paths import guard_outputs, resolved_path
@@ -159,9 +160,9 @@ def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bo
                 write_bytes(model_copy / f.name, f.read_bytes())
         result.model_dir = model_copy
     tags = None
-    if (folder / POSES_FILE).is_file():  # the tag frame's tags, as poses recorded them (if it still reads)
+    if result.tag_size is not None:  # the printed tags the dataset built from this model recorded, if they read
         try:
-            tags = recorded_tags(load_json(folder / POSES_FILE))
+            tags = check_tags((nerfkit_block(folder) or {}).get("tags"), str(folder / "transforms.json"))
         except NerfkitError:
             pass
     _, summary = build_dataset(result, out, cfg, jobs=jobs, write_report=not in_place, tags=tags,

@@ -240,5 +240,8 @@ def sfm_dataset(
                      threads=threads, seed=seed, progress=progress, verbose=verbose, camera=camera)
     align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=tag_dict, progress=progress,
                          ground=ground)
-    scene, _ = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress)
+    from ..capture.aruco import Layout
+
+    tags = Layout.single(tag_id, tag_size).corners() if result.tag_size is not None else None  # the tag at the origin
+    scene, _ = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress, tags=tags)
     return scene, result.report
