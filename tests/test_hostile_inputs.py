@@ -860,6 +860,7 @@ def test_a_wrong_folder_points_to_the_right_one(tmp_path, capsys):
          f"a trained run's folder trained on /data/lego.npz: pass that dataset, or continue the run with "
          f"`nerfkit train --resume {run}`"),
         (["convert", str(run), "--to", str(tmp_path / "r")], "a trained run's folder"),
+        (["eval", str(run / "model.pt")], f"is a file of a run, not the run. Give its folder: {run}"),
         (["eval", str(capture / "dataset" / "dataset.npz")],
          "is a file, not a run folder. Give the --out folder of a `nerfkit train` run (this looks like a dataset"),
     ]

@@ -84,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
     views = scene.render_path(args.frames or ORBIT_FRAMES, aim, kind)
     near, far = scene.near, scene.far
     if args.object:
-        framing = frame_object(run_.model, views, background, run_.chunk, run_.autocast, aim=aim)
+        looked_at = aim if aim is not None else scene.center  # (what the path's cameras look at)
+        framing = frame_object(run_.model, views, background, run_.chunk, run_.autocast, aim=looked_at)
         if framing is None:
             raise fail(args.run, "renders nothing solid along the video's path, so there is no object to frame",
                        "Render the scene without --object, or train longer")

@@ -15,7 +15,7 @@ def colorize_depth(depth: np.ndarray, acc: np.ndarray, near: float, far: float, 
                    unmet_is_far: bool = False) -> np.ndarray:
     """Colour-map depth (H, W) into (H, W, 3) float; near is warm, far is cool.
 
-    The range is clipped to [near, far] so every frame of a video shares one scale. The
+    The range is clipped to [near, far], a scale the caller keeps from frame to frame. The
     share ``1 - acc`` of a pixel that met nothing is black (empty), or with
     ``unmet_is_far`` the far colour (a scene closed by its surroundings: what the rays do
     not meet is infinitely far).
