@@ -52,6 +52,15 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     # a NeRF too faint to mesh (as at 40 steps here) is still a capture: the summary says so
     assert (run / "mesh.ply").exists() == ("mesh      none" not in text)
 
+    # a copy whose checkpoints are gone: its NeRF is kept as it is, never trained over from step 0
+    import shutil
+
+    cut = shutil.copytree(out, tmp_path / "cut")
+    shutil.rmtree(cut / "run" / "checkpoints")
+    assert main([*argv[:argv.index("--out") + 1], str(cut), *argv[argv.index("--out") + 2:]]) == 0
+    assert "it was cut short and has no checkpoint to go on from: --force" in capsys.readouterr().out
+    assert json.loads((cut / "run" / "metrics.json").read_text())["step"] == 40
+
     # again: the run cut short goes on to its 160 steps; the camera and dataset are kept
     assert main(argv) == 0
     text = capsys.readouterr().out

@@ -242,6 +242,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.atomic import write_json
     from ..io.paths import guard_outputs
     from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
+    from ..train.checkpoint import MODEL_FILE, checkpoint_paths
     from ..train.config import resolve_device
 
     step = partial(_step, verbose=bool(getattr(args, "verbose", False)))
@@ -292,6 +293,9 @@ def run(args: argparse.Namespace) -> int:
     if _finished(run_dir):
         _kept("NeRF", run_dir)
         _budget_note(run_dir, args)
+    elif (run_dir / MODEL_FILE).exists() and not checkpoint_paths(run_dir):  # cut short, nothing to go on from
+        _kept("NeRF", run_dir)
+        print("   it was cut short and has no checkpoint to go on from: --force trains it again", flush=True)
     elif (run_dir / "config.json").exists():
         _budget_note(run_dir, args)
         step(["train", "--resume", str(run_dir), "--device", args.device])
