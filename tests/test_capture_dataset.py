@@ -96,8 +96,9 @@ def test_bounds_contain_the_object_from_every_camera(obj):
 
 def test_dataset_files_load_back_with_the_same_cameras(posed, obj, tmp_path):
     out = tmp_path / "ds"
+    standing = obj.layout.corners()[0] @ np.array([[1.0, 0, 0], [0, 0, 1], [0, 1, 0]]) + [0.2, 0, 0.05]  # not on it
     scene, summary = build_dataset(posed, out, DatasetConfig(max_side=400, val_every=4, test_every=5), TAG,
-                                   jobs=2, progress=False, tags=obj.layout.corners())
+                                   jobs=2, progress=False, tags=np.stack([obj.layout.corners()[0], standing]))
     assert summary["views"] == {"train": 6, "val": 2, "test": 2} and summary["tags_on_table"] == 1
     a = load_npz(out / "dataset.npz")
     b = load_transforms_json(out)

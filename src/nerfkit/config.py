@@ -25,6 +25,8 @@ T = TypeVar("T")
 MAX_SEED = 2 ** 32 - 1
 # the smallest --downscale: it divides the image size, so 1 keeps it (and less would enlarge it)
 MIN_DOWNSCALE = 1
+# the smallest side resampled images may have: below it a view holds no scene to train or look at
+MIN_RESAMPLED_SIDE = 8
 
 
 def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors argparse

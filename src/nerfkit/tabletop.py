@@ -38,7 +38,7 @@ def cleared_note(height: float, tags) -> str:
     """What clearing the table's paint up to ``height`` does, for messages (``tags``: the
     printed tags' corners, (n, 4, 3), or None)."""
     which = "the printed tag" if tags is None or len(tags) == 1 else f"the {len(tags)} printed tags"
-    over = "" if tags is None else f", {3 * height:.3g} over {which}"
+    over = "" if tags is None or height <= 0 else f", {3 * height:.3g} over {which}"
     return f"table paint cleared up to {height:.3g} above the table{over}"
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import load_json, option
+from ..config import MIN_RESAMPLED_SIDE, load_json, option
 from ..data.npz import save_npz
 from ..data.nerfstudio import write_transforms_json
 from ..data.scene import Scene, Views, estimate_center
@@ -46,7 +46,8 @@ DATASET_OUTPUTS = (NPZ_FILE, "transforms.json", "images", "sparse_pc.ply")
 class DatasetConfig:
     """Options of the dataset step (``nerfkit dataset``, and ``nerfkit poses``)."""
 
-    max_side: int = option(512, "downscale views so the longer side is at most this many pixels (0: keep size)", min=0)
+    max_side: int = option(512, "downscale views so the longer side is at most this many pixels (0: keep size)",
+                           min=MIN_RESAMPLED_SIDE, off=0)
     val_every: int = option(10, "every Nth posed photo (in name order) goes to the val split (0: none)", min=0)
     test_every: int = option(10, "every Nth posed photo goes to the test split, offset from val (0: none)", min=0)
     center: str = option("", "object centre 'x,y,z' in the tag frame (metres); default: the point the cameras "
@@ -231,7 +232,7 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
     table = np.array([0.0, 0.0, 1.0, 0.0], np.float32) if on_tag_plane else None
     scene = check_scene(Scene(views["train"], views["val"], views["test"], near, far, center.astype(np.float32), up,
                               source=str(out_dir), capture=True, table=table,
-                              tags=tags if on_tag_plane else None))
+                              tags=_lying_flat(tags) if on_tag_plane else None))
     points_note = "from structure-from-motion" if points is not None else "none: --no-points"
     if points is None and cfg.points:
         points, points_note = _triangulate(scene.train, out_dir, progress)
@@ -259,6 +260,17 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
     write_transforms_json(scene, out_dir, jpeg_quality=cfg.jpeg_quality, extra={**summary, **(extra or {})})
     save_npz(scene, out_dir / NPZ_FILE)
     return scene, summary
+
+
+def _lying_flat(tags) -> np.ndarray | None:
+    """The tags (n, 4, 3) that lie on the table z = 0 (within 1% of their side): a layout
+    may place a tag elsewhere (a second sheet standing up), and it is no paper on the table."""
+    if tags is None:
+        return None
+    t = np.asarray(tags, np.float64)
+    side = np.linalg.norm(t - np.roll(t, -1, axis=1), axis=2).mean(1)
+    flat = np.abs(t[..., 2]).max(1) <= 0.01 * side
+    return t[flat].astype(np.float32) if flat.any() else None
 
 
 def _triangulate(train: Views, out_dir: Path, progress: bool) -> tuple[tuple | None, str]:

@@ -47,7 +47,7 @@ RECORD_FILE = "capture.json"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..config import number, tag_side
+    from ..config import MIN_RESAMPLED_SIDE, number, tag_side
 
     p = sub.add_parser("capture", help=HELP, description=DESCRIPTION,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -65,7 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=["auto", "tags"], default="auto",
                    help="poses: auto (default) takes structure-from-motion poses in the tag's frame when they hold "
                    "up; tags: the tag's poses only, as the course does")
-    p.add_argument("--max-side", type=number(int, 0),
+    p.add_argument("--max-side", type=number(int, MIN_RESAMPLED_SIDE, off=0),
                    help="the dataset's photos' longer side in pixels (0: keep their size; default: poses', 512)")
     p.add_argument("--minutes", type=number(float, above=0), default=3.0, help="training time (default: 3)")
     p.add_argument("--steps", type=number(int, 1), help="train this many steps instead of --minutes")

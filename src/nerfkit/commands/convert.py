@@ -94,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {p}")
     if fmt == "colmap":
         kept = sum(len(v) for v in scene.splits.values() if v.images is not None) or sum(n.values())
-        print(f"note: a COLMAP model keeps no splits: it holds {kept} views as one set (pose-only views left out), "
+        dropped = " (pose-only views left out)" if kept < sum(n.values()) else ""
+        print(f"note: a COLMAP model keeps no splits: it holds {kept} views as one set{dropped}, "
               "and reading it back holds out nerfkit's own val views")
     elif args.text:
         print("note: --text is for --format colmap's model; ignored", file=sys.stderr)

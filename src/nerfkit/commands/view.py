@@ -42,11 +42,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def is_run_folder(path: Path) -> bool:
-    return path.is_dir() and (path / "config.json").is_file() and \
-        ((path / "checkpoints").is_dir() or (path / "model.pt").is_file())
-
-
 def dataset_tag_size(path: Path) -> float | None:
     """The tag size a capture dataset records (transforms.json beside it), if any."""
     from ..data.nerfstudio import nerfkit_block
@@ -56,6 +51,7 @@ def dataset_tag_size(path: Path) -> float | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..data.load import is_run_folder
     from ..errors import fail
 
     path = Path(args.path)
@@ -91,15 +87,14 @@ def run(args: argparse.Namespace) -> int:
         plot_scene(scene, args.png, n_rays=args.rays, n_samples=args.samples, tag_size=tag_size)
         print(f"wrote {args.png}")
         return 0
-    from ..viz.viewer import serve_dataset, wait_until_interrupted
+    from ..viz.viewer import serve_dataset, viewer_url, wait_until_interrupted
 
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"warning: listening on {args.host}: anyone who can reach this machine can see the dataset")
     server, _ = serve_dataset(scene, host=args.host, port=args.port, n_rays=args.rays, n_samples=args.samples,
                               tag_size=tag_size, block=False)
-    shown = "127.0.0.1" if args.host in ("127.0.0.1", "localhost") else args.host
     print(f"{len(scene.train)} train, {len(scene.val)} val, {len(scene.test)} test cameras; near {scene.near:.4g}, "
           f"far {scene.far:.4g}")
-    print(f"viewer at http://{shown}:{server.get_port()} (Ctrl-C to stop)")
+    print(f"viewer at {viewer_url(args.host, server.get_port())} (Ctrl-C to stop)")
     wait_until_interrupted(server)
     return 0

@@ -22,15 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import MIN_DOWNSCALE, range_problem
+from ..config import MIN_DOWNSCALE, MIN_RESAMPLED_SIDE, range_problem
 from ..errors import NerfkitError, fail
 from ..io.paths import path_kind, refuse_special_file
 from .npz import load_npz
 from .scene import Scene, Views
 from .validate import MAX_PIXELS, check_scene
-
-# the smallest side resampled images may have: below it a view holds no scene to train or look at
-MIN_RESAMPLED_SIDE = 8
 
 FORMATS = ("a course .npz, a Blender folder (transforms_train.json), a transforms.json, an LLFF folder "
            "(poses_bounds.npy), or a COLMAP model folder")
@@ -154,6 +151,12 @@ def detect_format(path: str | Path) -> str:
     raise fail(path, "folder holds no dataset nerfkit recognises", _folder_hint(path) or f"Expected {FORMATS}")
 
 
+def is_run_folder(path: Path) -> bool:
+    """Whether ``path`` is a trained run's folder (its config.json, and checkpoints or model.pt)."""
+    return path.is_dir() and (path / "config.json").is_file() and \
+        ((path / "checkpoints").is_dir() or (path / "model.pt").is_file())
+
+
 def _folder_hint(path: Path) -> str | None:
     """What to give instead of a folder that holds no dataset: a capture's own dataset, a
     run's dataset, or how to make one from the photos it holds."""
@@ -161,14 +164,14 @@ def _folder_hint(path: Path) -> str | None:
 
     if (path / "dataset" / "dataset.npz").is_file():
         return f"This is a capture's folder: its dataset is {path / 'dataset'}"
-    if (path / "config.json").is_file() and ((path / "model.pt").is_file() or (path / "checkpoints").is_dir()):
+    if is_run_folder(path):
         import json
 
         try:
             data = json.loads((path / "config.json").read_text())["train"]["data"]
-            where = f" trained on {data}"
         except (OSError, ValueError, KeyError, TypeError):
-            where = ""
+            data = None
+        where = f" trained on {data}" if isinstance(data, str) and data else ""
         return (f"This is a trained run's folder{where}: pass that dataset, or continue the run with "
                 f"`nerfkit train --resume {path}`")
     if image_files(path):

@@ -360,7 +360,8 @@ def serve_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080, de
     port = viewer.server.get_port()  # viser moves to the next free port when this one is taken
     if host not in LOCAL_HOSTS:
         print(f"warning: listening on {host}: anyone who can reach port {port} can see this scene", file=sys.stderr)
-    shown = "127.0.0.1" if host in ("127.0.0.1", "localhost") else f"[{host}]" if ":" in host else host
-    print(f"nerfkit viewer of {run_dir} at http://{shown}:{port} "
+    from .viewer import viewer_url
+
+    print(f"nerfkit viewer of {run_dir} at {viewer_url(host, port)} "
           f"(Ctrl-C to stop)", flush=True)
     viewer.serve_forever()

@@ -14,6 +14,13 @@ from ..data.scene import Scene
 from .scene_plot import SPLIT_COLORS, printed_tags, sample_rays, scene_scale
 
 
+def viewer_url(address: str, port: int) -> str:
+    """The address to open in a browser for a viewer listening on ``address`` (an IPv6 one
+    in brackets; this machine's names as 127.0.0.1)."""
+    shown = "127.0.0.1" if address in ("127.0.0.1", "localhost") else f"[{address}]" if ":" in address else address
+    return f"http://{shown}:{port}"
+
+
 def _wxyz(R: np.ndarray) -> np.ndarray:
     import viser.transforms as vtf
 
