@@ -187,7 +187,7 @@ class Trainer:
     def _resume(self) -> None:
         loaded = load_latest_checkpoint(self.run_dir, self.model)
         if loaded is None:
-            if (self.run_dir / "model.pt").exists():  # trained, its checkpoints gone: never train over it
+            if (self.run_dir / MODEL_FILE).exists():  # trained, its checkpoints gone: never train over it
                 raise fail(self.run_dir, "holds a trained model (model.pt) but no checkpoint to continue it from",
                            "Train a new run with another --out, or delete model.pt to start this run over")
             self.log(f"{self.run_dir}: no checkpoint yet, starting from step 0")
