@@ -32,8 +32,10 @@ def model_config_class(name: str):
 def check_config(name: str, config: Any) -> Any:
     """``config`` of model ``name`` checked against its own bounds (:func:`check_ranges`), naming the
     model: `nerfkit train` parses a flag that models share within the widest of their bounds
-    (``--sh-degree 3`` is splat's limit; fast's is 2)."""
-    return check_ranges(config, owner=f"the {name} model")
+    (``--sh-degree 3`` is splat's limit; fast's is 2), then by its own ``validate`` where
+    it has one (fast's grid stages, splat's densification window)."""
+    config = check_ranges(config, owner=f"the {name} model")
+    return config.validate() if hasattr(config, "validate") else config
 
 
 def build_model(name: str, config: Any, bounds: SceneBounds) -> NerfModel:

@@ -212,6 +212,13 @@ class FastConfig:
         resolutions, steps = FINE_STAGES if fine else BASE_STAGES
         return {"resolutions": resolutions, "upsample_steps": steps}
 
+    def validate(self) -> "FastConfig":
+        """Its ranges, and the stages and ray factors its strings spell (refused as flags are)."""
+        check_ranges(self)
+        self.stages()
+        self.stage_ray_factors()
+        return self
+
     def stages(self) -> tuple[list[int], list[int]]:
         """``(sizes, steps)``: grid size of each stage and the steps at which stages start."""
         resolutions = BASE_STAGES[0] if self.resolutions is None else self.resolutions

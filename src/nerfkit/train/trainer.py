@@ -26,7 +26,7 @@ from ..data.scene import Scene
 from ..errors import fail
 from ..io.atomic import is_temporary, write_image, write_json, write_text
 from ..io.lock import LOCK_FILE
-from ..models import SceneBounds, build_model
+from ..models import SceneBounds, build_model, check_config
 from ..models.base import NerfModel, StepState, grads_finite, run_schedules
 from ..precision import autocast
 from ..output.images import render_image
@@ -496,9 +496,9 @@ def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False) -> 
     cfg = resolved_config(cfg, model_config)
     if cfg.data:
         cfg.data = str(Path(cfg.data).resolve())  # eval and --resume must find it from any folder
-    # what the trainer would refuse at start (the device, the grid's settings), before --out is made
+    # what the trainer would refuse at start (the device, the model's settings), before --out is made
     resolve_autocast(cfg.precision, resolve_device(cfg.device))
-    build_model(cfg.model, model_config, SceneBounds.from_scene(scene))
+    check_config(cfg.model, model_config)
     with run_lock(run_dir):
         check_new_run_folder(run_dir)  # again, holding the lock: another process may have just started
         return Trainer(scene, cfg, model_config, quiet=quiet).run()
