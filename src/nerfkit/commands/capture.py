@@ -103,27 +103,28 @@ def _kept(what: str, path: Path) -> None:
     print(f"\n== {what}: {path} is there from an earlier run, kept (--force redoes it)", flush=True)
 
 
+def _digest(data: bytes) -> str:
+    """A short digest of ``data``, to tell one input from another in capture.json."""
+    import hashlib
+
+    return hashlib.sha1(data).hexdigest()[:10]
+
+
 def _photo_files(folder) -> str | None:
     """A folder's photos as the capture saw them: their count and a digest of their names
     and sizes (photos added, removed or replaced change it)."""
-    import hashlib
-
     from ..images import image_files
 
     if not folder or not Path(folder).is_dir():
         return None
     files = [(p.name, p.stat().st_size) for p in image_files(folder)]
-    digest = hashlib.sha1("".join(f"{n}\0{size}\n" for n, size in files).encode()).hexdigest()[:10]
-    return f"{len(files)} photos ({digest})"
+    listing = "".join(f"{n}\0{size}\n" for n, size in files)
+    return f"{len(files)} photos ({_digest(listing.encode())})"
 
 
 def _file_digest(path) -> str | None:
     """A digest of a small file's contents (a camera file calibrated again changes it)."""
-    import hashlib
-
-    if not path or not Path(path).is_file():
-        return None
-    return hashlib.sha1(Path(path).read_bytes()).hexdigest()[:10]
+    return _digest(Path(path).read_bytes()) if path and Path(path).is_file() else None
 
 
 # the inputs the camera file is made from; the dataset and the NeRF depend on every input
