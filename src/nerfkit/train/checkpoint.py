@@ -66,7 +66,9 @@ def read_run(run_dir: str | Path) -> RunInfo:
     run_dir = Path(run_dir)
     cfg_path = run_dir / "config.json"
     if run_dir.exists() and not run_dir.is_dir():
-        if (run_dir.parent / "config.json").is_file():  # a file of a run (its config.json, model.pt, ...)
+        from ..data.load import is_run_folder
+
+        if is_run_folder(run_dir.parent):  # a file of a run (its config.json, model.pt, ...)
             raise fail(run_dir, "is a file of a run, not the run", f"Give its folder: {run_dir.parent}")
         raise fail(run_dir, "is a file, not a run folder", "Give the --out folder of a `nerfkit train` run"
                    + (" (this looks like a dataset: train on it with `nerfkit train --data`)"
