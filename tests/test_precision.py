@@ -22,6 +22,29 @@ def test_resolve_precision_rules():
         resolve_precision("fp16", CPU)
 
 
+@pytest.mark.parametrize("capability, expected", [((7, 5), None), ((8, 0), torch.bfloat16), ((9, 0), torch.bfloat16)])
+def test_auto_takes_bf16_only_on_gpus_that_have_it_natively(monkeypatch, capability, expected):
+    """A T4 (7.5) only emulates bf16 (``is_bf16_supported`` says yes there): fp32 on it."""
+    asked = []
+    monkeypatch.setattr(torch.cuda, "get_device_capability", lambda device=None: asked.append(device) or capability)
+    assert resolve_precision("auto", torch.device("cuda:1")) is expected
+    assert asked == [torch.device("cuda:1")]  # the GPU asked for, not the current one
+
+
+def test_a_gpu_this_machine_lacks_is_refused_and_the_one_asked_for_is_made_current(monkeypatch):
+    from nerfkit.errors import NerfkitError
+    from nerfkit.train.config import resolve_device
+
+    current = []
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
+    monkeypatch.setattr(torch.cuda, "set_device", current.append)
+    assert resolve_device("cuda:1") == torch.device("cuda:1") and current == [torch.device("cuda:1")]
+    assert resolve_device("cuda") == torch.device("cuda") and len(current) == 1
+    with pytest.raises(NerfkitError, match=r"GPU 2, but this machine has 2 \(cuda:0 to cuda:1\)"):
+        resolve_device("cuda:2")
+
+
 def test_fp32_context_turns_an_outer_autocast_off():
     a, b = torch.randn(4, 4), torch.randn(4, 4)
     with autocast(CPU, torch.bfloat16):

@@ -40,8 +40,8 @@ def resolve_precision(name: str, device: torch.device) -> torch.dtype | None:
         return None
     if name == "bf16":
         return torch.bfloat16
-    if device.type == "cuda":
-        return torch.bfloat16 if torch.cuda.is_bf16_supported() else None
+    if device.type == "cuda":  # native bf16 from Ampere (compute capability 8.0) on; older GPUs only emulate it
+        return torch.bfloat16 if torch.cuda.get_device_capability(device) >= (8, 0) else None
     return torch.bfloat16 if device.type == "cpu" and cpu_has_native_bf16() else None
 
 

@@ -140,7 +140,8 @@ def _render_gsplat(means, log_scales, quats, opacity_logits, sh, sh_degree, w2c,
 
     colors, alphas, meta = rasterization(
         means, quats, torch.exp(log_scales), torch.sigmoid(opacity_logits), sh, w2c[None].to(means),
-        K[None].to(means), width, height, near_plane=near_plane, sh_degree=sh_degree, render_mode="RGB+ED")
+        K[None].to(means), width, height, near_plane=near_plane, sh_degree=sh_degree, render_mode="RGB+ED",
+        packed=False)  # (C, N, ...) per-Gaussian outputs: the packed default gives (nnz, ...)
     alpha = alphas[0, ..., 0]
     rgb = colors[0, ..., :3] + (1 - alpha).unsqueeze(-1) * background
     depth = colors[0, ..., 3] * alpha  # expected depth x alpha, as the CPU path returns

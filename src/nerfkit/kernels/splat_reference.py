@@ -182,7 +182,7 @@ def rasterize_reference(means2d: Tensor, conics: Tensor, colors: Tensor, opaciti
             pix = torch.stack([xs.reshape(-1), ys.reshape(-1)], -1).to(colors.dtype) + 0.5  # (P, 2)
             bg = background[y0:y1, x0:x1].reshape(-1, 3)
             if len(ids) == 0:
-                c, d, a = bg, torch.zeros(len(pix), dtype=colors.dtype), torch.zeros(len(pix), dtype=colors.dtype)
+                c, d, a = bg, pix.new_zeros(len(pix)), pix.new_zeros(len(pix))
             else:
                 c, d, a = composite_pixels(pix, means2d[ids], conics[ids], colors[ids], opacities[ids], depths[ids], bg)
             rgb_row.append(c.reshape(y1 - y0, x1 - x0, 3))

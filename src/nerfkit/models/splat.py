@@ -221,7 +221,7 @@ class SplatModel(NerfModel):
         """Render one whole view: ``rgb`` (H, W, 3), ``depth`` (H, W) alpha-weighted depth
         sum, ``acc`` (H, W); differentiable in the Gaussians (colour only)."""
         device = self.means.device
-        if self.config.torch_threads and torch.get_num_threads() != self.config.torch_threads:
+        if device.type == "cpu" and self.config.torch_threads and torch.get_num_threads() != self.config.torch_threads:
             torch.set_num_threads(self.config.torch_threads)
         K = torch.as_tensor(np.asarray(K) if not isinstance(K, Tensor) else K, dtype=torch.float32).to(device)
         c2w = torch.as_tensor(np.asarray(c2w) if not isinstance(c2w, Tensor) else c2w,

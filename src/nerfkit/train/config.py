@@ -93,6 +93,12 @@ def resolve_device(name: str) -> torch.device:
         raise fail("--device", f"nerfkit runs on the CPU or on CUDA, not on '{name}'", "Use auto, cpu, cuda or cuda:N")
     if device.type == "cuda" and not torch.cuda.is_available():
         raise fail("--device", "CUDA was asked for but this PyTorch has no CUDA device", "Use --device cpu")
+    if device.type == "cuda" and device.index is not None:
+        count = torch.cuda.device_count()
+        if device.index >= count:
+            raise fail("--device", f"'{name}' asks for GPU {device.index}, but this machine has {count} "
+                       f"(cuda:0{f' to cuda:{count - 1}' if count > 1 else ''})", "Use --device cuda")
+        torch.cuda.set_device(device)  # what asks for "the current GPU" (bf16 support, gsplat) asks this one
     return device
 
 
