@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import imageio.v3 as iio
 import numpy as np
@@ -49,6 +50,9 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     # the summary says what came out, with the eval's own figures
     assert "capture done" in text and f"{scores['psnr']:.2f} dB" in text and str(run / "videos") in text
     assert "training photos. A NeRF from this few" in text.split("capture done")[1]  # 6 of them: said again
+    took = re.search(r"\n  time      (.*); (.*) in all\n", text)  # each step run now, in the order it ran
+    assert [part.rsplit(" ", 2)[0] for part in took[1].split(", ")] == [
+        "calibrate", "poses", "train", "eval", "render", "object", "export"]
     # a NeRF too faint to mesh (as at 40 steps here) is still a capture: the summary says so
     assert (run / "mesh.ply").exists() == ("mesh      none" not in text)
 
@@ -78,6 +82,7 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     assert main([*argv[:-2]]) == 0  # (--frames asks for the videos again)
     text = capsys.readouterr().out
     assert text.count("is there from an earlier run, kept") == 7 and "its budget is" not in text
+    assert "  time  " not in text  # nothing run now
     assert main([*argv[:-4], "--steps", "200"]) == 0  # another budget: said, not trained again
     assert "its budget is 160 steps, not the 200 steps asked for now: --force" in capsys.readouterr().out
     assert json.loads((run / "metrics.json").read_text())["step"] == 160

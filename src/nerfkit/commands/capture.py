@@ -77,20 +77,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _step(argv: list[str], needed: bool = True, quiet: bool = False, verbose: bool = False) -> bool:
+def _step(argv: list[str], needed: bool = True, quiet: bool = False, verbose: bool = False,
+          times: dict | None = None) -> bool:
     """Run one nerfkit command; whether it succeeded. The failure of a ``needed`` step
     stops the capture (the command's own error is printed above). ``quiet``: its standard
     output is not shown (eval's JSON, which its file keeps). ``verbose``: its errors come
-    with their tracebacks (``nerfkit --verbose capture``)."""
+    with their tracebacks (``nerfkit --verbose capture``). ``times`` gets the step's
+    seconds under its name (``render --object``: "object")."""
     import contextlib
     import io
+    import time
 
     from ..cli import main
     from ..errors import fail
 
     print(f"\n== nerfkit {' '.join(argv)}", flush=True)
+    start = time.perf_counter()
     with contextlib.redirect_stdout(io.StringIO()) if quiet else contextlib.nullcontext():
         rc = main(["--verbose", *argv] if verbose else argv)
+    if times is not None:
+        times["object" if "--object" in argv else argv[0]] = time.perf_counter() - start
     if rc == 130:
         raise KeyboardInterrupt
     if rc != 0 and needed:
@@ -246,7 +252,8 @@ def run(args: argparse.Namespace) -> int:
     from ..train.checkpoint import MODEL_FILE, checkpoint_paths
     from ..train.config import resolve_device
 
-    step = partial(_step, verbose=bool(getattr(args, "verbose", False)))
+    times: dict[str, float] = {}
+    step = partial(_step, verbose=bool(getattr(args, "verbose", False)), times=times)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise fail(out, "exists and is not a folder", "--out names the folder the capture fills")
@@ -329,14 +336,15 @@ def run(args: argparse.Namespace) -> int:
                        needed=False):
             mesh = None
     print()
-    print(summary(out, camera, dataset, run_dir, mesh, evaluated, mesh_skipped=args.no_mesh))
+    print(summary(out, camera, dataset, run_dir, mesh, evaluated, mesh_skipped=args.no_mesh, times=times))
     return 0
 
 
 def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: Path | None,
-            evaluated: bool = True, mesh_skipped: bool = False) -> str:
+            evaluated: bool = True, mesh_skipped: bool = False, times: dict | None = None) -> str:
     """What the capture made, in a few lines: the calibration (and its warnings), the photos
-    posed, the NeRF's held-out scores and where the videos, plots and mesh are."""
+    posed, the NeRF's held-out scores, where the videos, plots and mesh are, and the time
+    each step run now took (``times``, seconds by step)."""
     import json
 
     from ..capture.dataset import FEW_TRAIN_VIEWS, few_views_note
@@ -389,4 +397,11 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
                  "  mesh      not made (--no-mesh)" if mesh_skipped else "  mesh      none (see above)")
     lines.append(f"  look      nerfkit view {run_dir}   (the NeRF live in the browser, with the cameras; "
                  "\"Object alone\" hides the table and room)")
+    if times:
+        lines.append("  time      " + ", ".join(f"{name} {_duration(t)}" for name, t in times.items())
+                     + f"; {_duration(sum(times.values()))} in all")
     return "\n".join(lines)
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
