@@ -83,9 +83,18 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     text = capsys.readouterr().out
     assert text.count("is there from an earlier run, kept") == 7 and "its budget is" not in text
     assert "  time  " not in text  # nothing run now
-    assert main([*argv[:-4], "--steps", "200"]) == 0  # another budget: said, not trained again
-    assert "its budget is 160 steps, not the 200 steps asked for now: --force" in capsys.readouterr().out
+    assert main([*argv[:-4], "--steps", "100"]) == 0  # a smaller budget: said, not trained again
+    assert "its budget is 160 steps, not the 100 steps asked for now: --force" in capsys.readouterr().out
     assert json.loads((run / "metrics.json").read_text())["step"] == 160
+    assert main([*argv[:-4], "--minutes", "9"]) == 0  # minutes for a run by steps: the same
+    assert "its budget is 160 steps, not the 9 minutes asked for now: --force" in capsys.readouterr().out
+    assert main([*argv[:-4], "--steps", "180"]) == 0  # a larger one: trained on, and shown again
+    text, err = capsys.readouterr()
+    assert "its budget was 160 steps: training goes on to the 180 steps asked for now" in text
+    assert f"train --resume {run} --steps 180" in text and "resumed from step_00000160.pt" in err
+    assert json.loads((run / "metrics.json").read_text())["step"] == 180
+    assert json.loads((run / "config.json").read_text())["train"]["steps"] == 180
+    assert text.count("is there from an earlier run, kept") == 3  # camera, dataset, NeRF: the rest is new
 
     # other inputs are refused, not mixed with the earlier results
     other = [*argv]

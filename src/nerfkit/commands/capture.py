@@ -27,9 +27,9 @@ the videos and plots are. Each step prints its own report as it goes. OUT/captur
 records what the capture was made from.
 
 Run it again with the same inputs and the steps whose results are there are kept: a
-training run cut short (Ctrl-C, a crash) goes on from its last checkpoint, and the eval,
-videos and mesh are made again when they are older than the NeRF (--frames renders the
-videos again). Results made from other inputs are refused, never mixed with new ones (photos
+training run cut short (Ctrl-C, a crash) goes on from its last checkpoint, a larger
+--minutes (or --steps) trains the NeRF on from where it stopped, and the eval, videos and
+mesh are made again when they are older than the NeRF (--frames renders the videos again). Results made from other inputs are refused, never mixed with new ones (photos
 added, removed or replaced count too); a step that failed may be run again with its input
 mended. --force redoes every step, replacing the camera file, the dataset and the NeRF.
 
@@ -208,22 +208,37 @@ def _newer_than_model(path: Path, run_dir: Path) -> bool:
     return path.exists() and model.exists() and path.stat().st_mtime >= model.stat().st_mtime
 
 
-def _budget_note(run_dir: Path, args: argparse.Namespace) -> None:
-    """Say so when the kept NeRF has another training budget than the one asked for (the
-    budget is not an input of the capture: a run is finished, or resumed, with its own)."""
+def _budget(run_dir: Path) -> tuple[int, float] | None:
+    """The training budget a run was given: (steps, minutes), steps 0 when it ran by time."""
     import json
-
-    def budget(steps: int, minutes: float) -> str:
-        return f"{steps} steps" if steps else f"{minutes:g} minutes"
 
     try:
         train = json.loads((run_dir / "config.json").read_text())["train"]
-        then = budget(int(train["steps"]), float(train["minutes"]))
+        return int(train["steps"] or 0), float(train["minutes"])
     except (OSError, ValueError, KeyError, TypeError):
-        return
-    now = budget(args.steps or 0, args.minutes)
-    if then != now:
-        print(f"   its budget is {then}, not the {now} asked for now: --force trains it again with those", flush=True)
+        return None
+
+
+def _budget_text(steps: int, minutes: float) -> str:
+    return f"{steps} steps" if steps else f"{minutes:g} minutes"
+
+
+def _larger_budget(run_dir: Path, args: argparse.Namespace) -> bool:
+    """Whether the run is asked to train on to a larger budget (in its own unit, steps or
+    minutes), said so; another budget, which it cannot go on to, is said with what --force does."""
+    then = _budget(run_dir)
+    if then is None:
+        return False
+    now = (args.steps or 0, args.minutes)
+    if _budget_text(*then) == _budget_text(*now):
+        return False
+    if (then[0] > 0) == (now[0] > 0) and (now[0] > then[0] if now[0] else now[1] > then[1]):
+        print(f"   its budget was {_budget_text(*then)}: training goes on to the {_budget_text(*now)} asked for now",
+              flush=True)
+        return True
+    print(f"   its budget is {_budget_text(*then)}, not the {_budget_text(*now)} asked for now: "
+          "--force trains it again with those", flush=True)
+    return False
 
 
 def _replace_run(run_dir: Path) -> None:
@@ -300,13 +315,14 @@ def run(args: argparse.Namespace) -> int:
     budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
     if _finished(run_dir):
         _kept("NeRF", run_dir)
-        _budget_note(run_dir, args)
+        if checkpoint_paths(run_dir) and _larger_budget(run_dir, args):
+            step(["train", "--resume", str(run_dir), *budget, "--device", args.device])
     elif (run_dir / MODEL_FILE).exists() and not checkpoint_paths(run_dir):  # cut short, nothing to go on from
         _kept("NeRF", run_dir)
         print("   it was cut short and has no checkpoint to go on from: --force trains it again", flush=True)
-    elif (run_dir / "config.json").exists():
-        _budget_note(run_dir, args)
-        step(["train", "--resume", str(run_dir), "--device", args.device])
+    elif (run_dir / "config.json").exists():  # cut short: it goes on, to a larger budget if one is asked for
+        step(["train", "--resume", str(run_dir), *(budget if _larger_budget(run_dir, args) else []),
+              "--device", args.device])
     else:
         step(["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget,
                "--keep-checkpoints", "1", "--device", args.device])
