@@ -169,6 +169,13 @@ def test_object_box_holds_the_points_above_the_table_down_to_the_table():
     assert np.all(lo <= [0.1, 0.0, 0.0]) and np.all(hi >= [0.3, 0.1, 0.25])  # the object and its foot
     assert np.all(lo > [-0.05, -0.1, -0.1]) and np.all(hi < [0.4, 0.2, 0.35])  # not the table around it
     assert object_box_from_points(np.concatenate([floor, obj[:20]]), table, np.zeros(3), 1.0) is None  # too few
+    from nerfkit.capture.dataset import no_object_note
+    from nerfkit.models.base import object_points
+
+    above = object_points(np.concatenate([floor, obj, far]), table, np.zeros(3), 1.0)  # 3% of the radius up
+    assert len(above) == int((obj[:, 2] > 0.03).sum()) and np.isin(above, obj).all()
+    assert no_object_note(len(obj), 2250) is None and no_object_note(None, 2250) is None
+    assert "(only 20 of the 2020 rise above the tag's plane there)" in no_object_note(20, 2020)
     tags = np.array([[[-0.03, -0.03, 0], [0.03, -0.03, 0], [0.03, 0.03, 0], [-0.03, 0.03, 0]]], np.float32)
     b = SceneBounds(0.1, 3.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1.0], np.float32), table, 2.0, (lo, hi),
                     tags=tags)

@@ -32,6 +32,7 @@ from ..errors import advice, fail
 from ..images import common_size
 from ..io.atomic import write_json
 from ..io.paths import resolve_inside
+from ..models.base import object_points, sphere_radius
 from .camera import Camera, camera_from_dict, nerfkit_K
 from .poses import UP, PosedPhoto
 from .undistort import make_undistorter, output_size, resize_K_nerfkit
@@ -72,6 +73,19 @@ def few_views_note(n_train: int) -> str | None:
     return (f"note: {n_train} training photos. A NeRF from this few blurs and blotches what only one or two "
             "of them see (labubu: 21 dB on held-out photos with 20 training photos, 25.5 with 39); 50-100 photos "
             "around the object, at two or three heights, do better")
+
+
+def no_object_note(object_points: int | None, points: int) -> str | None:
+    """A note for the user when the sparse points show no object standing on the tag's
+    plane (``object_points`` of ``points``; None: not counted), else None."""
+    from ..models.base import MIN_OBJECT_POINTS
+
+    if object_points is None or not points or object_points >= MIN_OBJECT_POINTS:
+        return None
+    return (f"note: the sparse points show no object near the middle of the photos (only {object_points} of the "
+            f"{points} rise above the tag's plane there). If these photos show the printed sheet alone, give the "
+            "object's photos instead (calibrate takes the sheet's). An object with little texture gives few points: "
+            "then the NeRF starts from the whole region around the tag, not a box around the object")
 
 
 def split_indices(n: int, val_every: int, test_every: int) -> list[str]:
@@ -254,6 +268,8 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
         "crop": list(und.roi),
         "source_size": list(base_size),
         "points": 0 if scene.points is None else len(scene.points), "points_from": points_note,
+        "object_points": None if scene.points is None or table is None else
+        len(object_points(scene.points, table, scene.center, sphere_radius(scene))),
         "world": "tag frame: origin at the tag centre, x right and y up along the printed tag, z out of the tag "
                  "toward the cameras (= up); metres",
     }

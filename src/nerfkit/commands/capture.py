@@ -363,7 +363,7 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
     each step run now took (``times``, seconds by step)."""
     import json
 
-    from ..capture.dataset import FEW_TRAIN_VIEWS, few_views_note
+    from ..capture.dataset import FEW_TRAIN_VIEWS, few_views_note, no_object_note
     from ..data.nerfstudio import nerfkit_block
     from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
 
@@ -388,9 +388,10 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
     lines.append(f"  photos    {len(photos)}: the tag found in {found}, {posed} posed by it")
     lines.append(f"  dataset   {dataset}: " + ", ".join(f"{n} {split}" for split, n in views.items())
                  + (f"; {choice['why']}" if isinstance(choice, dict) and choice.get("why") else ""))
-    few = few_views_note(int(views.get("train", FEW_TRAIN_VIEWS)))
-    if few:
-        lines.append(f"            {few}")
+    for note in (few_views_note(int(views.get("train", FEW_TRAIN_VIEWS))),
+                 no_object_note(nk.get("object_points"), int(nk.get("points") or 0))):
+        if note:
+            lines.append(f"            {note}")
     m = json.loads((run_dir / "metrics.json").read_text())
     lines.append(f"  NeRF      {run_dir}: {m['step']} steps; plots in {run_dir / 'plots'}")
     if evaluated:

@@ -56,7 +56,7 @@ def build_and_report(posed, out, cfg, tag_size: float, jobs: int, extra: dict | 
 
 def report_dataset(s: dict, out) -> int:
     """Print what a dataset builder's summary ``s`` says was written to ``out``."""
-    from ..capture.dataset import NPZ_FILE, few_views_note
+    from ..capture.dataset import NPZ_FILE, few_views_note, no_object_note
 
     K = s["K"]
     print(f"dataset: {s['views']['train']} train, {s['views']['val']} val, {s['views']['test']} test views of "
@@ -68,6 +68,9 @@ def report_dataset(s: dict, out) -> int:
     print(f"K: fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f} (pixel centres at +0.5)")
     print(f"near {s['near']:.4f}  far {s['far']:.4f}  centre {s['center']} ({s['center_from']})  up {s['up']}")
     print(f"sparse points: {s['points']} ({s['points_from']})")
+    note = no_object_note(s.get("object_points"), s["points"])
+    if note:
+        print(note)
     print(f"wrote {out}/{NPZ_FILE}, {out}/transforms.json{', sparse_pc.ply' if s['points'] else ''} and {out}/images/")
     return 0
 

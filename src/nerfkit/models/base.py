@@ -57,10 +57,7 @@ class SceneBounds:
     def from_scene(scene) -> "SceneBounds":
         c2w = scene.train.c2w
         dists = np.linalg.norm(c2w[:, :3, 3] - scene.center, axis=1)
-        dist = float(np.mean(dists))
-        # The object lies between near and far of every camera; its radius is at most
-        # half that depth range, and no larger than the camera distance minus near.
-        radius = max(min(0.5 * (scene.far - scene.near), dist - scene.near), 1e-3)
+        radius = sphere_radius(scene)
         box = floor = None
         if scene.points is not None and scene.table is not None:
             from ..sfm.ground import find_floor
@@ -104,24 +101,43 @@ class SceneBounds:
                            None if d.get("tags") is None else np.asarray(d["tags"], np.float32))
 
 
-def object_box_from_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float,
-                           min_points: int = 30, lift: float = 0.03, pad: float = 0.15) -> tuple | None:
-    """An axis-aligned box ``(lo, hi)`` around an object standing on a table, from sparse
-    points (m, 3): those within ``radius`` of ``center`` and higher than ``lift x radius``
-    above the table (``table``: ``(n, d)``, points on it are texture, not object), with
-    their feet on the table, from the 2% to the 98% quantile per axis, padded by
-    ``pad`` of its size plus 5% of ``radius``; kept inside the sphere's box. None with
-    fewer than ``min_points`` object points (the sphere's box is used then).
-    """
+def sphere_radius(scene) -> float:
+    """Radius of a sphere about the scene's centre that holds the object: the object lies
+    between near and far of every camera, so it is at most half that depth range, and no
+    larger than the mean camera distance minus near."""
+    dist = float(np.mean(np.linalg.norm(scene.train.c2w[:, :3, 3] - scene.center, axis=1)))
+    return max(min(0.5 * (scene.far - scene.near), dist - scene.near), 1e-3)
+
+
+# fewer sparse points than this standing on a capture's table give no object box
+MIN_OBJECT_POINTS = 30
+
+
+def object_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float,
+                  lift: float = 0.03) -> np.ndarray:
+    """The sparse points (m, 3) of an object standing on a table: those within ``radius``
+    of ``center`` and higher than ``lift x radius`` above the table (``table``: ``(n, d)``;
+    points on it are texture, not object). (k, 3) float64."""
     p = np.asarray(points, np.float64)
     n, d = np.asarray(table[:3], np.float64), float(table[3])
-    c = np.asarray(center, np.float64)
     height = p @ n + d
-    keep = (np.linalg.norm(p - c, axis=1) < radius) & (height > lift * radius)
-    obj = p[keep]
+    return p[(np.linalg.norm(p - np.asarray(center, np.float64), axis=1) < radius) & (height > lift * radius)]
+
+
+def object_box_from_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float,
+                           min_points: int = MIN_OBJECT_POINTS, lift: float = 0.03, pad: float = 0.15) -> tuple | None:
+    """An axis-aligned box ``(lo, hi)`` around an object standing on a table, from its
+    sparse points (:func:`object_points`) with their feet on the table, from the 2% to the
+    98% quantile per axis, padded by ``pad`` of its size plus 5% of ``radius``; kept inside
+    the sphere's box. None with fewer than ``min_points`` object points (the sphere's box
+    is used then).
+    """
+    obj = object_points(points, table, center, radius, lift)
     if len(obj) < min_points:
         return None
-    feet = obj - np.outer(height[keep], n)
+    n, d = np.asarray(table[:3], np.float64), float(table[3])
+    c = np.asarray(center, np.float64)
+    feet = obj - np.outer(obj @ n + d, n)
     both = np.concatenate([obj, feet])
     lo, hi = np.quantile(both, 0.02, axis=0), np.quantile(both, 0.98, axis=0)
     margin = pad * (hi - lo) + 0.05 * radius
