@@ -180,7 +180,8 @@ def test_object_box_holds_the_points_above_the_table_down_to_the_table():
     b = SceneBounds(0.1, 3.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1.0], np.float32), table, 2.0, (lo, hi),
                     tags=tags)
     back = SceneBounds.from_dict(json.loads(json.dumps(b.to_dict())))
-    np.testing.assert_allclose(back.object_box[0], lo) and np.testing.assert_allclose(back.object_box[1], hi)
+    np.testing.assert_allclose(back.object_box[0], lo)
+    np.testing.assert_allclose(back.object_box[1], hi)
     np.testing.assert_allclose(back.tags, tags)
 
 

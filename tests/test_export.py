@@ -318,4 +318,4 @@ def test_export_command_writes_both_files(tmp_path, monkeypatch, capsys):
     assert "step 7" in out
     assert main(["export", str(tmp_path)]) == 2  # nothing asked for
     assert main(["export", str(tmp_path), "--mesh", str(tmp_path / "m.obj")]) == 2
-    json.dumps(bounds.to_dict())
+    assert SceneBounds.from_dict(json.loads(json.dumps(bounds.to_dict()))).to_dict() == bounds.to_dict()

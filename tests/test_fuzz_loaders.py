@@ -755,13 +755,20 @@ def test_colmap_text_models_load_valid_or_fail_cleanly(model):
 @given(data=st.data())
 def test_colmap_binary_models_fail_cleanly_when_corrupted(data):
     """Binary models are read in a memory-capped child first (see colmap._precheck_binary_model)."""
-    pytest.importorskip("pycolmap")
-    from nerfkit.data.colmap import read_model, write_colmap_model
+    pycolmap = pytest.importorskip("pycolmap")
+    from nerfkit.data.colmap import write_colmap_model
+    from nerfkit.data.load import load_scene
     from nerfkit.data.synthetic import sphere_scene
 
     with scratch() as d:
-        write_colmap_model(sphere_scene(n_train=3, n_val=1, size=8), d / "m")
-        files = sorted((d / "m").glob("*.bin"))
+        source = sphere_scene(n_train=3, n_val=1, size=8)
+        for v in source.splits.values():
+            v.names = [f"{n}.png" for n in v.names]
+        write_colmap_model(source, d / "sparse" / "0")
+        names = [im.name for im in pycolmap.Reconstruction(d / "sparse" / "0").images.values()]
+        write_images(d, [f"images/{name}" for name in names], size=(8, 8))
+        assert_valid_scene(load_scene(d))  # before the corruption, it loads
+        files = sorted((d / "sparse" / "0").glob("*.bin"))
         f = data.draw(st.sampled_from(files))
         raw = f.read_bytes()
         if data.draw(st.booleans()) and len(raw) >= 8:  # a header declaring a huge count
@@ -769,7 +776,9 @@ def test_colmap_binary_models_fail_cleanly_when_corrupted(data):
         else:
             raw = corrupt_bytes(raw, data.draw)
         f.write_bytes(raw)
-        attempt(read_model, d / "m")
+        scene = attempt(load_scene, d)
+    if scene is not None:  # what loads is a valid scene, never NaN rotations or a zero focal length
+        assert_valid_scene(scene)
 
 
 # ============================================================================= run config.json and checkpoints

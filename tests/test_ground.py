@@ -74,7 +74,9 @@ def test_no_plane_in_a_cloud_and_none_above_the_cameras():
     floor = ceiling - [0, 0, 2.0]  # 1 below the look-at point, cameras ~1.1 away: not what the object stands on
     plane, why = find_ground_plane(floor, cams, np.zeros(3), up=np.array([0, 0, 1.0]))
     assert plane is None and "under the point" in why
-    assert find_ground_plane(floor, cams, np.zeros(3), up=np.array([0, 0, 1.0]), max_drop=1.0)[0] is not None
+    found = find_ground_plane(floor, cams, np.zeros(3), up=np.array([0, 0, 1.0]), max_drop=1.0)[0]
+    np.testing.assert_allclose(found.normal, [0, 0, 1], atol=1e-6)  # the plane z = -1: n.x + d = 0
+    assert found.offset == pytest.approx(1.0, abs=1e-6)
     plane, why = find_ground_plane(cloud[:10], cams, np.zeros(3), up=np.array([0, 0, 1.0]))
     assert plane is None and "only 10" in why
 

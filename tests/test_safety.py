@@ -100,7 +100,8 @@ def test_resolve_inside_refuses_what_leaves_the_root(tmp_path):
     for name in ("../outside.png", str(tmp_path / "outside.png"), "link.png", "/etc/hostname"):
         with pytest.raises(NerfkitError, match="outside the dataset folder.*--allow-outside-paths"):
             resolve_inside(root, name)
-        resolve_inside(root, name, allow_outside=True)  # the user's explicit opt-in
+        target = name if Path(name).is_absolute() or name == "link.png" else root / name
+        assert resolve_inside(root, name, allow_outside=True) == (root / target).resolve()  # the user's opt-in
     assert [safe_output_name(n) for n in ("../../x.png", "/abs/keep.png", "a\\b.png", "..", "", "c\nd.png")] == \
         ["x.png", "keep.png", "b.png", "view", "view", "c_d.png"]
 
@@ -108,8 +109,11 @@ def test_resolve_inside_refuses_what_leaves_the_root(tmp_path):
 # ============================================================================= paths: readers
 
 
+OUTSIDE_COLOUR = (200, 100, 50)
+
+
 def _outside_image(tmp_path: Path) -> Path:
-    return save_png(tmp_path / "elsewhere" / "outside.png")
+    return save_png(tmp_path / "elsewhere" / "outside.png", color=(*OUTSIDE_COLOUR, 255))
 
 
 def _transforms_reading(tmp_path: Path, file_path: str) -> Path:
@@ -164,6 +168,9 @@ def test_dataset_readers_refuse_images_outside_the_dataset_unless_allowed(tmp_pa
     one_line(capsys, "outside the dataset folder", "--allow-outside-paths")
     assert not (tmp_path / "o.npz").exists()
     assert main(["convert", str(dataset), "--to", str(tmp_path / "o.npz"), "--allow-outside-paths"]) == 0
+    with np.load(tmp_path / "o.npz") as npz:  # the image outside was read, as the user allowed
+        views = [im for k in npz.files if k.startswith("images_") for im in npz[k]]
+    assert any((np.asarray(im)[..., :3] == OUTSIDE_COLOUR).all() for im in views)
 
 
 def test_poses_json_entries_must_be_photos_of_its_folder(tmp_path):

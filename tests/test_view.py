@@ -146,7 +146,8 @@ def test_the_viewer_draws_every_printed_tag_the_dataset_records():
 
     scene = small_scene()
     one = printed_tags(scene, 0.06)  # no tags recorded: one of the given size at the origin
-    np.testing.assert_allclose(np.abs(one[0][:, :2]), 0.03) and np.testing.assert_allclose(one[0][:, 2], 0.0)
+    np.testing.assert_allclose(np.abs(one[0][:, :2]), 0.03)
+    np.testing.assert_allclose(one[0][:, 2], 0.0)
     assert printed_tags(scene, None) is None
     square = np.array([[-0.03, -0.03, 0], [0.03, -0.03, 0], [0.03, 0.03, 0], [-0.03, 0.03, 0]], np.float32)
     scene.tags = np.stack([square, square + [0.1, 0, 0], square + [0, -0.1, 0]])
