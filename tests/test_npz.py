@@ -64,6 +64,8 @@ def test_rays_data_uv_indexes_the_sampled_pixels(sphere):
     assert np.allclose(K @ (d_cam / d_cam[2]), [u + 0.5, v + 0.5, 1], atol=1e-3)
     per_image = rays.sample_from_images(64, 4)
     assert len(torch.unique(per_image.image_index)) == 4
+    uneven = rays.sample_from_images(10, 3)  # as many rays as asked: 4, 3 and 3
+    assert sorted(torch.unique(uneven.image_index, return_counts=True)[1].tolist()) == [3, 3, 4]
 
 
 @pytest.mark.parametrize("mutate, message", [

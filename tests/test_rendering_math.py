@@ -198,6 +198,8 @@ def test_pixel_to_camera_projects_back():
     assert torch.allclose(x[:, 2], s)
     proj = (K @ x.T).T
     assert torch.allclose(proj[:, :2] / proj[:, 2:], uv)
+    with pytest.raises(ValueError, match=r"s has shape \(2, 1\).*shape \(2,\)"):
+        pixel_to_camera(K, uv, s[:, None])  # (2, 1) would broadcast to (2, 2, 3) points
 
 
 def test_principal_point_ray_is_camera_z_axis():
@@ -247,6 +249,8 @@ def test_sample_along_rays_points_lie_on_rays():
     pts, t = sample_along_rays(o, d, 2.0, 6.0, n_samples=16, perturb=True)
     assert pts.shape == (2, 16, 3) and t.shape == (2, 16)
     assert torch.allclose(pts, o[:, None] + t[..., None] * d[:, None])
+    with pytest.raises(ValueError, match=r"\(n_rays, 3\).*got \(3,\)"):
+        sample_along_rays(o[0], d[0])  # one ray: the message says to reshape it
 
 
 def test_intervals_reach_far():
@@ -284,3 +288,17 @@ def test_image_rays_row_major_pixel_centres():
     # pixel (col 4, row 3) -> uv (4.5, 3.5): x and y offsets of +0.5 / 50
     d = rays.directions[3 * 8 + 4]
     assert torch.allclose(d[:2] / d[2], torch.tensor([0.01, 0.01]), atol=1e-6)
+
+
+def test_the_readme_course_api_imports_and_every_api_name_resolves():
+    from pathlib import Path
+
+    import nerfkit
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = readme.split("## The course API")[1].split("```python")[1].split("```")[0]
+    names: dict = {}
+    exec(block, names)  # the README's own import lines
+    assert {"transform", "volrend", "RaysData", "NeRFMLP"} <= set(names)
+    for name in nerfkit.__all__:
+        assert getattr(nerfkit, name).__name__ == name

@@ -12,7 +12,10 @@ import importlib
 __version__ = "0.1.0"
 
 _API = {
+    "NeRFMLP": "nerfkit.models.vanilla",
     "Rays": "nerfkit.cameras",
+    "RaysData": "nerfkit.data.rays",
+    "VanillaConfig": "nerfkit.models.vanilla",
     "pixel_to_camera": "nerfkit.cameras",
     "pixel_to_ray": "nerfkit.cameras",
     "transform": "nerfkit.cameras",

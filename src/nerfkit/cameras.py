@@ -64,7 +64,8 @@ def pixel_to_camera(K: Tensor, uv: Tensor, s: Tensor | float) -> Tensor:
     Args:
         K: (..., 3, 3) or (3, 3) intrinsics.
         uv: (..., 2) pixel coordinates (x, y); pixel centres are at +0.5.
-        s: (...) or scalar depth along the camera's +z axis.
+        s: (...) or scalar depth along the camera's +z axis: one depth per pixel, not
+            (..., 1) (which would broadcast against the points' 3 coordinates).
 
     Returns:
         (..., 3) points ``s * K^-1 @ [u, v, 1]``.
@@ -76,6 +77,9 @@ def pixel_to_camera(K: Tensor, uv: Tensor, s: Tensor | float) -> Tensor:
     x = (uv[..., 0] - cx - skew * y) / fx
     xyz = torch.stack([x, y, torch.ones_like(x)], dim=-1)
     s = torch.as_tensor(s, dtype=xyz.dtype, device=xyz.device)
+    if s.ndim and torch.broadcast_shapes(s.shape, xyz.shape[:-1]) != xyz.shape[:-1]:
+        raise ValueError(f"pixel_to_camera: s has shape {tuple(s.shape)} for pixels of shape {tuple(uv.shape)}: give "
+                         f"one depth per pixel, shape {tuple(xyz.shape[:-1])}, or a scalar")
     return xyz * s.unsqueeze(-1) if s.ndim else xyz * s
 
 
@@ -110,7 +114,8 @@ def pixel_to_ray(K: Tensor, c2w: Tensor, uv: Tensor) -> tuple[Tensor, Tensor]:
         uv: (..., 2) pixel coordinates (x, y), pixel centres at +0.5.
 
     Returns:
-        ``(rays_o, rays_d)``, each (..., 3); ``rays_d`` has unit length.
+        ``(rays_o, rays_d)``, each (..., 3); ``rays_d`` has unit length. ``rays_o`` is the
+        camera centre broadcast over the pixels (a view: ``.clone()`` it to edit in place).
     """
     x_c = pixel_to_camera(K, uv, 1.0)
     rays_d = (c2w[..., :3, :3] @ x_c.unsqueeze(-1)).squeeze(-1)

@@ -71,9 +71,11 @@ class RaysData:
         return self._batch(flat // hw, flat % hw)
 
     def sample_from_images(self, n_rays: int, n_images: int) -> RayBatch:
-        """``n_rays`` rays from ``n_images`` random images (``n_rays // n_images`` each)."""
-        per = n_rays // n_images
+        """``n_rays`` rays from ``n_images`` random images (at most all of them): ``n_rays //
+        n_images`` each, one more from the first ``n_rays % n_images``."""
         imgs = torch.randperm(self.n_images, generator=self.generator)[:n_images]
+        per = torch.full((len(imgs),), n_rays // len(imgs), dtype=torch.long)
+        per[: n_rays % len(imgs)] += 1
         img = imgs.repeat_interleave(per)
         pix = torch.randint(0, self.height * self.width, (img.numel(),), generator=self.generator)
         return self._batch(img, pix)

@@ -25,7 +25,8 @@ def positional_encoding(x: Tensor, L: int) -> Tensor:
     Returns:
         (..., D * (1 + 2 L)); the features for each octave are [sin over D, cos over D].
 
-    Example: x = 0 gives [0, 0, 1, 0, 1, ...] (sin 0 = 0, cos 0 = 1).
+    Example: a 1-D x = 0 gives [0, 0, 1, 0, 1, ...] (sin 0 = 0, cos 0 = 1); a 3-D x = 0
+    gives [0, 0, 0, 0, 0, 0, 1, 1, 1, ...] (x, then sin over D, then cos over D).
     """
     if L == 0:
         return x

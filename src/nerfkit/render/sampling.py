@@ -56,12 +56,22 @@ def sample_along_rays(
     """The course's ray sampler: stratified points between near and far.
 
     Args:
-        rays_o, rays_d: (n_rays, 3) origins and unit directions.
+        rays_o, rays_d: (n_rays, 3) origins and unit directions (flatten a batch of
+            images' rays first: ``rays_o.reshape(-1, 3)``).
+        near, far: scalars, or (n_rays,) per ray.
+        n_samples: points per ray; bin i of ``[near, far]`` cut in ``n_samples`` equal bins
+            holds sample i.
+        perturb: a uniformly random point in each bin (training); False: each bin's
+            centre (evaluation, renders).
+        generator: the random source for ``perturb``.
 
     Returns:
         ``(points, t)``: (n_rays, n_samples, 3) world points and their (n_rays, n_samples)
-        distances along the rays.
+        distances along the rays, sorted.
     """
+    if rays_o.ndim != 2 or rays_o.shape[-1] != 3 or rays_d.shape != rays_o.shape:
+        raise ValueError(f"sample_along_rays takes (n_rays, 3) origins and directions, got {tuple(rays_o.shape)} "
+                         f"and {tuple(rays_d.shape)}: reshape them with .reshape(-1, 3)")
     t = stratified_t(near, far, rays_o.shape[0], n_samples, perturb, rays_o.device, generator)
     points = rays_o[:, None, :] + t[..., None] * rays_d[:, None, :]
     return points, t
