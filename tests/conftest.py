@@ -50,3 +50,31 @@ def train_loop(model, scene, steps: int, batch: int = 1024, lr: float = 0.3, see
         opt.step()
         run_schedules(schedules, after, phase="after_step")
     return opt
+
+
+def draw_dots(width: int, height: int, uv, sigma: float = 0.8):
+    """(height, width, 3) float image in [0, 1] of smooth dots centred at the pixel positions
+    ``uv`` (n, 2) (pixel centres at +0.5): each dot's centroid is its position."""
+    import numpy as np
+
+    img = np.zeros((height, width, 3))
+    rows, cols = np.mgrid[0:height, 0:width] + 0.5
+    for u, v in uv:
+        img += np.exp(-((cols - u) ** 2 + (rows - v) ** 2) / (2 * sigma ** 2))[..., None]
+    return np.clip(img, 0, 1)
+
+
+def dot_centroid_errors(image, expected_uv, margin: int = 4) -> list[float]:
+    """Pixel distance from each expected dot position (n, 2) to the brightness centroid of
+    ``image`` (H, W, 3) within 3 px of it; dots within ``margin`` px of the border are left out."""
+    import numpy as np
+
+    out = np.asarray(image, np.float64).mean(-1)
+    rows, cols = np.mgrid[0:out.shape[0], 0:out.shape[1]] + 0.5
+    errs = []
+    for u, v in expected_uv:
+        if u < margin or v < margin or u > out.shape[1] - margin or v > out.shape[0] - margin:
+            continue
+        wgt = out * ((np.abs(cols - u) < 3) & (np.abs(rows - v) < 3))
+        errs.append(float(np.hypot((wgt * cols).sum() / wgt.sum() - u, (wgt * rows).sum() / wgt.sum() - v)))
+    return errs
