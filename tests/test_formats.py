@@ -195,6 +195,27 @@ def test_npz_to_transforms_round_trip(tmp_path):
         np.testing.assert_array_equal(b.images, a.images)
 
 
+def test_convert_sets_the_depth_range(tmp_path, capsys):
+    """A depth range given on the command line replaces the dataset's, in both formats."""
+    scene = sphere_scene(n_train=4, n_val=2, size=16)
+    save_npz(scene, tmp_path / "s.npz")
+    assert (scene.near, scene.far) != (1.5, 7.0)
+    for out in ("c.npz", "c_ns"):
+        assert main(["convert", str(tmp_path / "s.npz"), "--to", str(tmp_path / out), "--near", "1.5", "--far", "7"]) == 0
+        back = load_scene(tmp_path / out)
+        assert (back.near, back.far) == (1.5, 7.0)
+        np.testing.assert_array_equal(back.train.images, scene.train.images)
+    assert main(["convert", str(tmp_path / "s.npz"), "--to", str(tmp_path / "n.npz"), "--near", "1"]) == 0
+    assert (load_scene(tmp_path / "n.npz").near, load_scene(tmp_path / "n.npz").far) == (1.0, scene.far)  # one end
+    capsys.readouterr()
+    assert main(["convert", str(tmp_path / "s.npz"), "--to", str(tmp_path / "bad.npz"), "--near", "7", "--far", "6"]) == 2
+    assert "near=7.0 and far=6.0: need 0 <= near < far" in capsys.readouterr().err
+    assert not (tmp_path / "bad.npz").exists()
+    assert main(["convert", str(tmp_path / "s.npz"), "--to", str(tmp_path / "cm"), "--format", "colmap",
+                 "--near", "2"]) == 2
+    assert "keeps no depth range" in capsys.readouterr().err
+
+
 # ----------------------------------------------------------------------------- resampling
 
 

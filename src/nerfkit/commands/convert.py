@@ -23,6 +23,7 @@ examples:
   nerfkit convert data/nerf_synthetic/lego --to lego_200.npz --size 200
   nerfkit convert lego_200.npz --to lego_ns/
   nerfkit convert my_colmap_project/ --to scene.npz --downscale 4
+  nerfkit convert lego_200.npz --to lego_course.npz --near 2 --far 6   (the course's depth range)
 """
 
 
@@ -44,6 +45,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--background", default="black",
                    help="colour under transparent pixels of RGBA inputs: black, white, grey, r,g,b in [0, 1] "
                         "or #rrggbb (default: black)")
+    p.add_argument("--near", type=number(float, 0.0), help="set the depth range's near end (world units; e.g. the "
+                   "course's 2 for lego, where nerfkit's rule from the cameras gives 2.02)")
+    p.add_argument("--far", type=number(float, above=0), help="set the depth range's far end (the course's 6 for lego)")
     p.add_argument("--images", metavar="DIR", help="photo folder of a COLMAP model (default: the project's images/)")
     p.add_argument("--text", action="store_true", help="with --format colmap: write the text model instead of binary")
     p.add_argument("--force", action="store_true", help="replace an existing output (never an input)")
@@ -72,6 +76,8 @@ def run(args: argparse.Namespace) -> int:
         raise fail(out, "an npz output must end in .npz")
     if fmt != "npz" and out.suffix.lower() == ".npz":
         raise fail(out, f"--format {fmt} writes a folder, not an .npz file")
+    if fmt == "colmap" and (args.near is not None or args.far is not None):
+        raise fail("--near/--far", "a COLMAP model keeps no depth range", "Write an npz or transforms.json instead")
     guard_outputs(output_targets(out, fmt), [*dataset_inputs(args.src), args.images], args.force, "--to")
     background = parse_background(args.background)
     src_fmt = detect_format(args.src)
@@ -85,6 +91,11 @@ def run(args: argparse.Namespace) -> int:
             raise fail("--images", f"only applies to COLMAP inputs; {args.src} is {src_fmt}")
         scene = load_scene(args.src, background=background, size=args.size, downscale=args.downscale,
                            allow_outside=args.allow_outside_paths)
+    if args.near is not None or args.far is not None:
+        from ..data.validate import check_near_far
+
+        scene.near, scene.far = check_near_far(scene.near if args.near is None else args.near,
+                                               scene.far if args.far is None else args.far, "--near/--far")
     written = write_scene_as(scene, out, fmt, text=args.text)
     n = {k: len(v) for k, v in scene.splits.items()}
     print(f"{args.src} ({src_fmt}) -> {out} ({fmt}): {n['train']} train, {n['val']} val, {n['test']} test views, "
