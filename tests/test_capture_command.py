@@ -90,6 +90,11 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     assert json.loads((run / "metrics.json").read_text())["step"] == 160
     assert main([*argv[:-4], "--minutes", "9"]) == 0  # minutes for a run by steps: the same
     assert "its budget is 160 steps, not the 9 minutes asked for now: --force" in capsys.readouterr().out
+    bare = shutil.copytree(out, tmp_path / "bare")  # finished, its checkpoint gone: nothing to go on from
+    shutil.rmtree(bare / "run" / "checkpoints")
+    assert main([*argv[:argv.index("--out") + 1], str(bare), *argv[argv.index("--out") + 2:-4], "--steps", "180"]) == 0
+    assert "(and no checkpoint is left to go on from): --force" in capsys.readouterr().out
+    assert json.loads((bare / "run" / "metrics.json").read_text())["step"] == 160
     assert main([*argv[:-4], "--steps", "180"]) == 0  # a larger one: trained on, and shown again
     text, err = capsys.readouterr()
     assert "its budget was 160 steps: training goes on to the 180 steps asked for now" in text

@@ -29,9 +29,9 @@ records what the capture was made from.
 Run it again with the same inputs and the steps whose results are there are kept: a
 training run cut short (Ctrl-C, a crash) goes on from its last checkpoint, a larger
 --minutes (or --steps) trains the NeRF on from where it stopped, and the eval, videos and
-mesh are made again when they are older than the NeRF (--frames renders the videos again). Results made from other inputs are refused, never mixed with new ones (photos
-added, removed or replaced count too); a step that failed may be run again with its input
-mended. --force redoes every step, replacing the camera file, the dataset and the NeRF.
+mesh are made again when they are older than the NeRF (--frames renders the videos again).
+Results made from other inputs are refused, never mixed with new ones (photos added,
+removed or replaced count too); a step that failed may be run again with its input mended. --force redoes every step, replacing the camera file, the dataset and the NeRF.
 
 examples:
   nerfkit capture object_photos/ --calib sheet_photos/ --tag-size 0.06 --out my_object/
@@ -224,20 +224,25 @@ def _budget_text(steps: int, minutes: float) -> str:
 
 
 def _larger_budget(run_dir: Path, args: argparse.Namespace) -> bool:
-    """Whether the run is asked to train on to a larger budget (in its own unit, steps or
-    minutes), said so; another budget, which it cannot go on to, is said with what --force does."""
+    """Whether the run is to train on to a larger budget asked for now (in its own unit,
+    steps or minutes, and from a checkpoint), said so; another budget, which it cannot go
+    on to, is said with what --force does."""
+    from ..train.checkpoint import checkpoint_paths
+
     then = _budget(run_dir)
     if then is None:
         return False
     now = (args.steps or 0, args.minutes)
     if _budget_text(*then) == _budget_text(*now):
         return False
-    if (then[0] > 0) == (now[0] > 0) and (now[0] > then[0] if now[0] else now[1] > then[1]):
+    larger = (then[0] > 0) == (now[0] > 0) and (now[0] > then[0] if now[0] else now[1] > then[1])
+    if larger and checkpoint_paths(run_dir):
         print(f"   its budget was {_budget_text(*then)}: training goes on to the {_budget_text(*now)} asked for now",
               flush=True)
         return True
-    print(f"   its budget is {_budget_text(*then)}, not the {_budget_text(*now)} asked for now: "
-          "--force trains it again with those", flush=True)
+    print(f"   its budget is {_budget_text(*then)}, not the {_budget_text(*now)} asked for now"
+          + (" (and no checkpoint is left to go on from)" if larger else "") + ": --force trains it again with those",
+          flush=True)
     return False
 
 
@@ -315,7 +320,7 @@ def run(args: argparse.Namespace) -> int:
     budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
     if _finished(run_dir):
         _kept("NeRF", run_dir)
-        if checkpoint_paths(run_dir) and _larger_budget(run_dir, args):
+        if _larger_budget(run_dir, args):
             step(["train", "--resume", str(run_dir), *budget, "--device", args.device])
     elif (run_dir / MODEL_FILE).exists() and not checkpoint_paths(run_dir):  # cut short, nothing to go on from
         _kept("NeRF", run_dir)
