@@ -56,6 +56,20 @@ def test_sampled_points_lie_on_their_rays_between_near_and_far():
     assert np.min(np.linalg.norm(rs.origins[:, None] - cams[None], axis=2), axis=1).max() < 1e-6
 
 
+def test_rays_of_one_view_start_at_its_camera_and_fill_its_image():
+    """The course's check that u and v are not swapped: every ray of view 2 projects back
+    into view 2's image, and they reach its four quarters."""
+    s = small_scene()
+    rs = sample_rays(s.train, s.near, s.far, 200, 8, seed=1, view=2)
+    np.testing.assert_allclose(rs.origins, np.broadcast_to(s.train.c2w[2, :3, 3], rs.origins.shape), atol=1e-6)
+    w2c = np.linalg.inv(s.train.c2w[2].astype(np.float64))
+    x = rs.points[:, 0] @ w2c[:3, :3].T + w2c[:3, 3]
+    uv = (x @ s.train.K[2].astype(np.float64).T)[:, :2] / x[:, 2:]
+    assert (uv >= 0).all() and (uv[:, 0] <= 40).all() and (uv[:, 1] <= 30).all()
+    quarters = {(u > 20, v > 15) for u, v in uv}
+    assert len(quarters) == 4
+
+
 def test_png_shows_cameras_in_split_colours(tmp_path):
     from PIL import Image
 
@@ -113,6 +127,9 @@ def test_view_command_writes_png_for_a_dataset(tmp_path, capsys):
     save_npz(small_scene(), tmp_path / "d.npz")
     assert main(["view", str(tmp_path / "d.npz"), "--rays", "5", "--png", str(tmp_path / "v.png")]) == 0
     assert (tmp_path / "v.png").stat().st_size > 10_000
+    assert main(["view", str(tmp_path / "d.npz"), "--rays-from", "3", "--png", str(tmp_path / "one.png")]) == 0
+    assert main(["view", str(tmp_path / "d.npz"), "--rays-from", "4", "--png", str(tmp_path / "x.png")]) == 2
+    assert "has 4 training views (0 to 3), not a view 4" in capsys.readouterr().err and not (tmp_path / "x.png").exists()
 
 
 def run_folder(tmp_path):

@@ -10,7 +10,8 @@ HELP = "view a dataset's cameras, rays and samples, or a trained run live, in th
 DESCRIPTION = """\
 Shows each camera as a frustum textured with its image, the world axes, the tag plane and
 the scene centre; --rays N adds N random training rays with their samples between near
-and far (as training samples them). DATASET is anything `nerfkit train --data` reads.
+and far (as training samples them); --rays-from V draws them from training view V only
+(100 of them unless --rays says). DATASET is anything `nerfkit train --data` reads.
 The server listens on 127.0.0.1 only, unless you pass --host explicitly.
 A run folder (from `nerfkit train`) opens the live viewer of the trained model instead:
 the NeRF rendered from the browser's camera, in colour or depth, the whole scene or (the
@@ -19,6 +20,7 @@ the NeRF rendered from the browser's camera, in colour or depth, the whole scene
 examples:
   nerfkit view my_object/ --rays 50              then open http://127.0.0.1:8080
   nerfkit view my_object/dataset.npz --rays 30 --png cameras.png
+  nerfkit view lego.npz --rays-from 0 --png rays.png   (the course's rays of one camera)
 """
 
 
@@ -30,7 +32,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("path", metavar="DATASET", help="dataset file or folder (or a run folder)")
     p.add_argument("--rays", type=number(int, 0, 100_000), default=0, help="training rays to draw with their samples (default: 0)")
-    p.add_argument("--samples", type=number(int, 1, 4096), default=32, help="samples per drawn ray (default: 32)")
+    p.add_argument("--samples", type=number(int, 1, 4096), default=64, help="samples per drawn ray (default: 64, as "
+                   "the course)")
+    p.add_argument("--rays-from", type=number(int, 0), metavar="N", help="draw the rays of training view N only (the "
+                   "course's check that u and v are not swapped: they fill that camera's frustum)")
     p.add_argument("--png", metavar="FILE", help="write a static PNG (matplotlib) instead of serving, then exit")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1, this machine "
                    "only; 0.0.0.0 exposes the viewer to the network)")
@@ -60,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     if is_run_folder(path):
         if args.downscale:
             raise fail("--downscale", "a trained run loads its dataset as it was trained", "Leave out --downscale")
-        if args.rays:
+        if args.rays or args.rays_from is not None:
             raise fail("--rays", "the live viewer of a trained run draws its cameras and renders, not rays",
                        "View the run's dataset for its rays: nerfkit view DATASET --rays N")
         if args.png:
@@ -81,18 +86,23 @@ def run(args: argparse.Namespace) -> int:
         guard_outputs([args.png], dataset_inputs(path), args.force, "--png")
     scene = load_scene(path, downscale=args.downscale, allow_outside=args.allow_outside_paths)
     tag_size = dataset_tag_size(path)
+    if args.rays_from is not None and args.rays_from >= len(scene.train):
+        raise fail("--rays-from", f"the dataset has {len(scene.train)} training views (0 to {len(scene.train) - 1}), "
+                   f"not a view {args.rays_from}", "Give a training view's number")
+    n_rays = args.rays or (100 if args.rays_from is not None else 0)  # the course draws 100 of one camera
     if args.png:
         from ..viz.scene_plot import plot_scene
 
-        plot_scene(scene, args.png, n_rays=args.rays, n_samples=args.samples, tag_size=tag_size)
+        plot_scene(scene, args.png, n_rays=n_rays, n_samples=args.samples, tag_size=tag_size,
+                   rays_from=args.rays_from)
         print(f"wrote {args.png}")
         return 0
     from ..viz.viewer import serve_dataset, viewer_url, wait_until_interrupted
 
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"warning: listening on {args.host}: anyone who can reach this machine can see the dataset")
-    server, _ = serve_dataset(scene, host=args.host, port=args.port, n_rays=args.rays, n_samples=args.samples,
-                              tag_size=tag_size, block=False)
+    server, _ = serve_dataset(scene, host=args.host, port=args.port, n_rays=n_rays, n_samples=args.samples,
+                              tag_size=tag_size, block=False, rays_from=args.rays_from)
     print(f"{len(scene.train)} train, {len(scene.val)} val, {len(scene.test)} test cameras; near {scene.near:.4g}, "
           f"far {scene.far:.4g}")
     print(f"viewer at {viewer_url(args.host, server.get_port())} (Ctrl-C to stop)")

@@ -64,8 +64,10 @@ class RaySamples:
     points: np.ndarray
 
 
-def sample_rays(views: Views, near: float, far: float, n_rays: int, n_samples: int = 32, seed: int = 0) -> RaySamples:
-    """``n_rays`` random pixels of random views, their rays and stratified samples."""
+def sample_rays(views: Views, near: float, far: float, n_rays: int, n_samples: int = 64, seed: int = 0,
+                view: int | None = None) -> RaySamples:
+    """``n_rays`` random pixels of random views (of view ``view`` only, when given: the
+    course's check that u and v are not swapped), their rays and stratified samples."""
     import torch
 
     from ..cameras import pixel_to_ray
@@ -73,7 +75,7 @@ def sample_rays(views: Views, near: float, far: float, n_rays: int, n_samples: i
 
     g = torch.Generator().manual_seed(seed)
     rng = np.random.default_rng(seed)
-    idx = rng.integers(0, len(views), n_rays)
+    idx = rng.integers(0, len(views), n_rays) if view is None else np.full(n_rays, view)
     uv = np.column_stack([rng.integers(0, views.width, n_rays), rng.integers(0, views.height, n_rays)]) + 0.5
     o, d = pixel_to_ray(torch.from_numpy(views.K[idx]).float(), torch.from_numpy(views.c2w[idx]).float(),
                         torch.from_numpy(uv).float())
@@ -89,11 +91,12 @@ def _to_plot(up: np.ndarray) -> np.ndarray:
     return np.stack([a, b, np.asarray(up, np.float64) / np.linalg.norm(up)])
 
 
-def plot_scene(scene: Scene, path: str | Path, n_rays: int = 0, n_samples: int = 32, tag_size: float | None = None,
-               max_cameras: int = 80, thumbnails: bool = True, seed: int = 0, title: str = "") -> None:
+def plot_scene(scene: Scene, path: str | Path, n_rays: int = 0, n_samples: int = 64, tag_size: float | None = None,
+               max_cameras: int = 80, thumbnails: bool = True, seed: int = 0, title: str = "",
+               rays_from: int | None = None) -> None:
     """Write a PNG of the scene's cameras (frustums with thumbnails of their images), the world
     axes, the tag plane (z = 0 of the world, perpendicular to up) and ``n_rays`` training rays
-    with their samples."""
+    (of training view ``rays_from`` only, when given) with their samples."""
     from .plots import _pyplot
 
     plt = _pyplot()
@@ -148,7 +151,7 @@ def plot_scene(scene: Scene, path: str | Path, n_rays: int = 0, n_samples: int =
 
     # Rays and their samples.
     if n_rays > 0 and len(scene.train):
-        rs = sample_rays(scene.train, scene.near, scene.far, n_rays, n_samples, seed)
+        rs = sample_rays(scene.train, scene.near, scene.far, n_rays, n_samples, seed, rays_from)
         cols = plt.get_cmap("tab10")(np.arange(n_rays) % 10)
         ax.add_collection3d(Line3DCollection([T(s) for s in rs.segments], colors=cols, linewidths=0.7, alpha=0.8))
         pts = T(rs.points.reshape(-1, 3))

@@ -34,8 +34,8 @@ def _thumbnail(image: np.ndarray, max_side: int) -> np.ndarray:
     return image if s >= 1 else cv2.resize(image, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
 
 
-def populate(server, scene: Scene, n_rays: int = 0, n_samples: int = 32, tag_size: float | None = None,
-             image_max_side: int = 256, seed: int = 0) -> dict:
+def populate(server, scene: Scene, n_rays: int = 0, n_samples: int = 64, tag_size: float | None = None,
+             image_max_side: int = 256, seed: int = 0, rays_from: int | None = None) -> dict:
     """Add the scene to a viser server; returns the handles by kind (for updates and tests)."""
     up = np.asarray(scene.up, np.float64)
     server.scene.set_up_direction(tuple(float(u) for u in up))
@@ -71,19 +71,21 @@ def populate(server, scene: Scene, n_rays: int = 0, n_samples: int = 32, tag_siz
                 aspect=v.width / v.height, scale=0.1 * scale, thickness=0.004 * scale, color=color, image=img,
                 wxyz=_wxyz(c2w[:3, :3]), position=tuple(c2w[:3, 3]))
             handles["frustums"].append(h)
-    set_rays(server, scene, handles, n_rays, n_samples, seed)
+    set_rays(server, scene, handles, n_rays, n_samples, seed, rays_from)
     return handles
 
 
-def set_rays(server, scene: Scene, handles: dict, n_rays: int, n_samples: int, seed: int = 0) -> None:
-    """Replace the shown rays and samples with ``n_rays`` new ones (0 removes them)."""
+def set_rays(server, scene: Scene, handles: dict, n_rays: int, n_samples: int, seed: int = 0,
+             rays_from: int | None = None) -> None:
+    """Replace the shown rays and samples with ``n_rays`` new ones (0 removes them), of
+    training view ``rays_from`` only when given."""
     for key in ("rays", "samples"):
         if handles.get(key) is not None:
             handles[key].remove()
             handles[key] = None
     if n_rays <= 0 or len(scene.train) == 0:
         return
-    rs = sample_rays(scene.train, scene.near, scene.far, n_rays, n_samples, seed)
+    rs = sample_rays(scene.train, scene.near, scene.far, n_rays, n_samples, seed, rays_from)
     rng = np.random.default_rng(seed)
     cols = rng.integers(60, 255, (n_rays, 3)).astype(np.uint8)
     scale = scene_scale(scene)
@@ -94,8 +96,8 @@ def set_rays(server, scene: Scene, handles: dict, n_rays: int, n_samples: int, s
                                                       point_size=0.006 * scale, precision="float32")
 
 
-def serve_dataset(scene: Scene, host: str = "127.0.0.1", port: int = 8080, n_rays: int = 0, n_samples: int = 32,
-                  tag_size: float | None = None, block: bool = True):
+def serve_dataset(scene: Scene, host: str = "127.0.0.1", port: int = 8080, n_rays: int = 0, n_samples: int = 64,
+                  tag_size: float | None = None, block: bool = True, rays_from: int | None = None):
     """Start a viser server showing ``scene``; with ``block`` wait until Ctrl-C, then stop.
 
     Returns ``(server, handles)`` (after stopping, when blocking). viser moves to the next
@@ -104,7 +106,7 @@ def serve_dataset(scene: Scene, host: str = "127.0.0.1", port: int = 8080, n_ray
     import viser
 
     server = viser.ViserServer(host=host, port=port, verbose=False)
-    handles = populate(server, scene, n_rays, n_samples, tag_size)
+    handles = populate(server, scene, n_rays, n_samples, tag_size, rays_from=rays_from)
     state = {"seed": 0}
     with server.gui.add_folder("rays"):
         n_in = server.gui.add_slider("rays", min=0, max=1000, step=10, initial_value=int(n_rays))
@@ -112,7 +114,7 @@ def serve_dataset(scene: Scene, host: str = "127.0.0.1", port: int = 8080, n_ray
         again = server.gui.add_button("new random rays")
 
     def refresh(_=None) -> None:
-        set_rays(server, scene, handles, int(n_in.value), int(s_in.value), state["seed"])
+        set_rays(server, scene, handles, int(n_in.value), int(s_in.value), state["seed"], rays_from)
 
     def reseed(_=None) -> None:
         state["seed"] += 1
