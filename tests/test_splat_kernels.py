@@ -195,3 +195,15 @@ def test_full_pipeline_gradients_agree_between_backends():
         grads[backend] = torch.autograd.grad(out.rgb.square().sum(), ps)
     for a, b in zip(grads["torch"], grads["numba"]):
         torch.testing.assert_close(b, a, rtol=1e-9, atol=1e-10)
+
+
+def test_gsplat_renders_on_cuda_only_when_installed_and_its_absence_is_said(monkeypatch):
+    from nerfkit.kernels import splat_ops
+
+    monkeypatch.setattr(splat_ops, "_gsplat", lambda: object())
+    assert splat_ops.uses_gsplat(torch.device("cuda"), "auto")
+    assert not splat_ops.uses_gsplat(torch.device("cuda"), "torch")  # asked for the reference
+    assert not splat_ops.uses_gsplat(torch.device("cpu"), "auto")
+    monkeypatch.setattr(splat_ops, "_gsplat", lambda: None)
+    with pytest.warns(RuntimeWarning, match="gsplat is not installed.*pip install gsplat"):
+        assert not splat_ops.uses_gsplat(torch.device("cuda"), "auto")

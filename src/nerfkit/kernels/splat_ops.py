@@ -109,7 +109,7 @@ def render_gaussians(means: Tensor, log_scales: Tensor, quats: Tensor, opacity_l
 
     ``background`` is (H, W, 3). With ``track_means2d`` the 2D means keep their gradient.
     """
-    if means.device.type == "cuda" and backend == "auto" and _gsplat() is not None:
+    if uses_gsplat(means.device, backend):
         return _render_gsplat(means, log_scales, quats, opacity_logits, sh, sh_degree, w2c, K, width, height,
                               background, near_plane)
     proj = ref.project_gaussians(means, ref.covariance_3d(log_scales, quats), w2c, K, width, height, near_plane)
@@ -132,6 +132,20 @@ def _gsplat():
         return gsplat
     except ImportError:
         return None
+
+
+def uses_gsplat(device: torch.device, backend: str) -> bool:
+    """Whether gsplat renders on ``device``: CUDA, ``backend`` auto and gsplat installed. On
+    CUDA without gsplat, warns (once) that the torch reference renders, tile by tile: slowly."""
+    if device.type != "cuda" or backend != "auto":
+        return False
+    if _gsplat() is None:
+        import warnings
+
+        warnings.warn("gsplat is not installed: splats render on CUDA with nerfkit's torch reference, one 16x16 "
+                      "tile at a time (slow); pip install gsplat", RuntimeWarning, stacklevel=3)
+        return False
+    return True
 
 
 def _render_gsplat(means, log_scales, quats, opacity_logits, sh, sh_degree, w2c, K, width, height, background,
