@@ -229,3 +229,20 @@ def test_a_rerun_keeps_results_only_while_what_they_were_made_from_holds(tmp_pat
     given.write_text('{"K": 2}')
     with pytest.raises(NerfkitError, match="camera_file"):
         check(inputs(photos, None, camera=str(given)))
+
+
+def test_a_run_cut_short_before_its_first_checkpoint_starts_again_with_the_budget_asked_for(tmp_path, capsys):
+    from argparse import Namespace
+
+    from nerfkit.commands.capture import _larger_budget
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"train": {"steps": 160, "minutes": 3.0}}))
+    asked = Namespace(steps=300, minutes=3.0)
+    assert _larger_budget(run, asked, need_checkpoint=False)  # it trains from step 0 anyway: with the new budget
+    assert "training goes on to the 300 steps" in capsys.readouterr().out
+    assert not _larger_budget(run, asked, need_checkpoint=True)  # a finished run needs its checkpoint
+    assert "(and no checkpoint is left to go on from): --force" in capsys.readouterr().out
+    assert not _larger_budget(run, Namespace(steps=None, minutes=9.0), need_checkpoint=False)  # the other unit
+    assert "its budget is 160 steps, not the 9 minutes" in capsys.readouterr().out

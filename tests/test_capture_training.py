@@ -173,9 +173,9 @@ def test_object_box_holds_the_points_above_the_table_down_to_the_table():
     from nerfkit.models.base import object_points
 
     above = object_points(np.concatenate([floor, obj, far]), table, np.zeros(3), 1.0)  # 3% of the radius up
-    assert len(above) == int((obj[:, 2] > 0.03).sum()) and np.isin(above, obj).all()
+    assert len(above) == int((obj[:, 2] > 0.03).sum()) and {tuple(r) for r in above} <= {tuple(r) for r in obj}
     assert no_object_note(len(obj), 2250) is None and no_object_note(None, 2250) is None
-    assert "(only 20 of the 2020 rise above the tag's plane there)" in no_object_note(20, 2020)
+    assert "(only 20 of the 2020 rise above the table's plane there)" in no_object_note(20, 2020)
     tags = np.array([[[-0.03, -0.03, 0], [0.03, -0.03, 0], [0.03, 0.03, 0], [-0.03, 0.03, 0]]], np.float32)
     b = SceneBounds(0.1, 3.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1.0], np.float32), table, 2.0, (lo, hi),
                     tags=tags)

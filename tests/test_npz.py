@@ -66,6 +66,9 @@ def test_rays_data_uv_indexes_the_sampled_pixels(sphere):
     assert len(torch.unique(per_image.image_index)) == 4
     uneven = rays.sample_from_images(10, 3)  # as many rays as asked: 4, 3 and 3
     assert sorted(torch.unique(uneven.image_index, return_counts=True)[1].tolist()) == [3, 3, 4]
+    assert len(rays.sample_from_images(7, 10 * rays.n_images).image_index) == 7  # more images asked than there are
+    with pytest.raises(ValueError, match="at least one image"):
+        rays.sample_from_images(7, 0)
 
 
 @pytest.mark.parametrize("mutate, message", [

@@ -200,6 +200,8 @@ def test_pixel_to_camera_projects_back():
     assert torch.allclose(proj[:, :2] / proj[:, 2:], uv)
     with pytest.raises(ValueError, match=r"s has shape \(2, 1\).*shape \(2,\)"):
         pixel_to_camera(K, uv, s[:, None])  # (2, 1) would broadcast to (2, 2, 3) points
+    with pytest.raises(ValueError, match=r"s has shape \(3,\)"):
+        pixel_to_camera(K, uv, torch.ones(3, dtype=torch.float64))  # not one per pixel
 
 
 def test_principal_point_ray_is_camera_z_axis():

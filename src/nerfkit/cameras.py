@@ -58,6 +58,13 @@ def transform(c2w: Tensor, x: Tensor) -> Tensor:
     return (R @ x.unsqueeze(-1)).squeeze(-1) + t
 
 
+def _broadcasts_to(shape: torch.Size, target: torch.Size) -> bool:
+    try:
+        return torch.broadcast_shapes(shape, target) == target
+    except RuntimeError:
+        return False
+
+
 def pixel_to_camera(K: Tensor, uv: Tensor, s: Tensor | float) -> Tensor:
     """Back-project pixels to camera-frame points at depth ``s`` (the z coordinate).
 
@@ -77,7 +84,7 @@ def pixel_to_camera(K: Tensor, uv: Tensor, s: Tensor | float) -> Tensor:
     x = (uv[..., 0] - cx - skew * y) / fx
     xyz = torch.stack([x, y, torch.ones_like(x)], dim=-1)
     s = torch.as_tensor(s, dtype=xyz.dtype, device=xyz.device)
-    if s.ndim and torch.broadcast_shapes(s.shape, xyz.shape[:-1]) != xyz.shape[:-1]:
+    if s.ndim and not _broadcasts_to(s.shape, xyz.shape[:-1]):
         raise ValueError(f"pixel_to_camera: s has shape {tuple(s.shape)} for pixels of shape {tuple(uv.shape)}: give "
                          f"one depth per pixel, shape {tuple(xyz.shape[:-1])}, or a scalar")
     return xyz * s.unsqueeze(-1) if s.ndim else xyz * s

@@ -32,7 +32,7 @@ from ..errors import advice, fail
 from ..images import common_size
 from ..io.atomic import write_json
 from ..io.paths import resolve_inside
-from ..models.base import object_points, sphere_radius
+from ..models.base import MIN_OBJECT_POINTS, object_points, sphere_radius
 from .camera import Camera, camera_from_dict, nerfkit_K
 from .poses import UP, PosedPhoto
 from .undistort import make_undistorter, output_size, resize_K_nerfkit
@@ -75,15 +75,13 @@ def few_views_note(n_train: int) -> str | None:
             "around the object, at two or three heights, do better")
 
 
-def no_object_note(object_points: int | None, points: int) -> str | None:
-    """A note for the user when the sparse points show no object standing on the tag's
-    plane (``object_points`` of ``points``; None: not counted), else None."""
-    from ..models.base import MIN_OBJECT_POINTS
-
-    if object_points is None or not points or object_points >= MIN_OBJECT_POINTS:
+def no_object_note(n_object: int | None, points: int) -> str | None:
+    """A note for the user when the sparse points show no object standing on the table
+    (``n_object`` of ``points`` above it; None: not counted), else None."""
+    if n_object is None or not points or n_object >= MIN_OBJECT_POINTS:
         return None
-    return (f"note: the sparse points show no object near the middle of the photos (only {object_points} of the "
-            f"{points} rise above the tag's plane there). If these photos show the printed sheet alone, give the "
+    return (f"note: the sparse points show no object near the middle of the photos (only {n_object} of the "
+            f"{points} rise above the table's plane there). If these photos show the printed sheet alone, give the "
             "object's photos instead (calibrate takes the sheet's). An object with little texture gives few points: "
             "then the NeRF starts from the whole region around the tag, not a box around the object")
 

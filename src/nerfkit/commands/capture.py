@@ -27,11 +27,13 @@ the videos and plots are. Each step prints its own report as it goes. OUT/captur
 records what the capture was made from.
 
 Run it again with the same inputs and the steps whose results are there are kept: a
-training run cut short (Ctrl-C, a crash) goes on from its last checkpoint, a larger
---minutes (or --steps) trains the NeRF on from where it stopped, and the eval, videos and
-mesh are made again when they are older than the NeRF (--frames renders the videos again).
+training run cut short (Ctrl-C, a crash) goes on from its last checkpoint; a larger
+--minutes (or --steps, the unit the NeRF was trained with) trains it on from its checkpoint,
+its learning rate back up to where the longer schedule has it; the eval, videos and mesh
+are made again when they are older than the NeRF (--frames renders the videos again).
 Results made from other inputs are refused, never mixed with new ones (photos added,
-removed or replaced count too); a step that failed may be run again with its input mended. --force redoes every step, replacing the camera file, the dataset and the NeRF.
+removed or replaced count too); a step that failed may be run again with its input mended.
+--force redoes every step, replacing the camera file, the dataset and the NeRF.
 
 examples:
   nerfkit capture object_photos/ --calib sheet_photos/ --tag-size 0.06 --out my_object/
@@ -223,10 +225,10 @@ def _budget_text(steps: int, minutes: float) -> str:
     return f"{steps} steps" if steps else f"{minutes:g} minutes"
 
 
-def _larger_budget(run_dir: Path, args: argparse.Namespace) -> bool:
+def _larger_budget(run_dir: Path, args: argparse.Namespace, need_checkpoint: bool) -> bool:
     """Whether the run is to train on to a larger budget asked for now (in its own unit,
-    steps or minutes, and from a checkpoint), said so; another budget, which it cannot go
-    on to, is said with what --force does."""
+    steps or minutes; from a checkpoint when ``need_checkpoint``: a finished run), said so;
+    another budget, which it cannot go on to, is said with what --force does."""
     from ..train.checkpoint import checkpoint_paths
 
     then = _budget(run_dir)
@@ -236,7 +238,7 @@ def _larger_budget(run_dir: Path, args: argparse.Namespace) -> bool:
     if _budget_text(*then) == _budget_text(*now):
         return False
     larger = (then[0] > 0) == (now[0] > 0) and (now[0] > then[0] if now[0] else now[1] > then[1])
-    if larger and checkpoint_paths(run_dir):
+    if larger and (checkpoint_paths(run_dir) or not need_checkpoint):
         print(f"   its budget was {_budget_text(*then)}: training goes on to the {_budget_text(*now)} asked for now",
               flush=True)
         return True
@@ -320,13 +322,13 @@ def run(args: argparse.Namespace) -> int:
     budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
     if _finished(run_dir):
         _kept("NeRF", run_dir)
-        if _larger_budget(run_dir, args):
+        if _larger_budget(run_dir, args, need_checkpoint=True):
             step(["train", "--resume", str(run_dir), *budget, "--device", args.device])
     elif (run_dir / MODEL_FILE).exists() and not checkpoint_paths(run_dir):  # cut short, nothing to go on from
         _kept("NeRF", run_dir)
         print("   it was cut short and has no checkpoint to go on from: --force trains it again", flush=True)
     elif (run_dir / "config.json").exists():  # cut short: it goes on, to a larger budget if one is asked for
-        step(["train", "--resume", str(run_dir), *(budget if _larger_budget(run_dir, args) else []),
+        step(["train", "--resume", str(run_dir), *(budget if _larger_budget(run_dir, args, False) else []),
               "--device", args.device])
     else:
         step(["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget,

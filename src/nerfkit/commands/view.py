@@ -31,7 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("view", help=HELP, description=DESCRIPTION,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("path", metavar="DATASET", help="dataset file or folder (or a run folder)")
-    p.add_argument("--rays", type=number(int, 0, 100_000), default=0, help="training rays to draw with their samples (default: 0)")
+    p.add_argument("--rays", type=number(int, 0, 100_000), help="training rays to draw with their samples (default: "
+                   "none; 100 with --rays-from)")
     p.add_argument("--samples", type=number(int, 1, 4096), default=64, help="samples per drawn ray (default: 64, as "
                    "the course)")
     p.add_argument("--rays-from", type=number(int, 0), metavar="N", help="draw the rays of training view N only (the "
@@ -66,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
         if args.downscale:
             raise fail("--downscale", "a trained run loads its dataset as it was trained", "Leave out --downscale")
         if args.rays or args.rays_from is not None:
-            raise fail("--rays", "the live viewer of a trained run draws its cameras and renders, not rays",
+            raise fail("--rays" if args.rays else "--rays-from",
+                       "the live viewer of a trained run draws its cameras and renders, not rays",
                        "View the run's dataset for its rays: nerfkit view DATASET --rays N")
         if args.png:
             raise fail(path, "--png draws datasets; this is a trained run", "Pass the run's dataset instead")
@@ -89,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     if args.rays_from is not None and args.rays_from >= len(scene.train):
         raise fail("--rays-from", f"the dataset has {len(scene.train)} training views (0 to {len(scene.train) - 1}), "
                    f"not a view {args.rays_from}", "Give a training view's number")
-    n_rays = args.rays or (100 if args.rays_from is not None else 0)  # the course draws 100 of one camera
+    n_rays = args.rays if args.rays is not None else 100 if args.rays_from is not None else 0  # the course: 100
     if args.png:
         from ..viz.scene_plot import plot_scene
 

@@ -71,8 +71,10 @@ class RaysData:
         return self._batch(flat // hw, flat % hw)
 
     def sample_from_images(self, n_rays: int, n_images: int) -> RayBatch:
-        """``n_rays`` rays from ``n_images`` random images (at most all of them): ``n_rays //
-        n_images`` each, one more from the first ``n_rays % n_images``."""
+        """``n_rays`` rays from ``m = min(n_images, all)`` random images: ``n_rays // m`` each,
+        one more from the first ``n_rays % m``."""
+        if n_images < 1:
+            raise ValueError(f"sample_from_images needs at least one image, got n_images={n_images}")
         imgs = torch.randperm(self.n_images, generator=self.generator)[:n_images]
         per = torch.full((len(imgs),), n_rays // len(imgs), dtype=torch.long)
         per[: n_rays % len(imgs)] += 1
