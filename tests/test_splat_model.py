@@ -13,6 +13,7 @@ from nerfkit.cli import main
 from nerfkit.kernels import splat_reference as ref
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.splat import SplatConfig, SplatModel, ssim
+from nerfkit.data.synthetic import sphere_scene
 from nerfkit.output.images import render_image
 from nerfkit.splat_files import Gaussians, ply_property_names, read_splat_ply
 from nerfkit.train.config import TrainConfig
@@ -214,13 +215,28 @@ def test_cli_eval_and_render_a_splat_run(trained, sphere, capsys, tmp_path):
     assert len(iio.imread(tmp_path / "v" / "depth.mp4")) == 3
 
 
-def test_capture_mode_learns_the_background_and_exposure_without_pose(tmp_path, sphere):
-    trainer = Trainer(sphere, splat_cfg(tmp_path, steps=15, capture="on", eval_views=1),
-                      *_capture(sphere), quiet=True)
+def test_capture_mode_learns_the_background_and_exposure_without_pose(tmp_path):
+    """A coloured backdrop behind the sphere: the learned background, which starts grey,
+    takes its colour where the cameras see it."""
+    colour = np.array([200, 60, 100], np.uint8)
+    grey = sphere_scene(n_train=12, n_val=2, size=32)
+    for split in (grey.train, grey.val):
+        split.images[(split.images == 0).all(-1)] = colour
+    trainer = Trainer(grey, splat_cfg(tmp_path, steps=150, capture="on", eval_views=1), *_capture(grey), quiet=True)
     assert trainer.model.bg_coef is not None
     assert trainer.views is not None and trainer.views.pose is None and trainer.views.exposure is not None
+    v = grey.val
+    with torch.no_grad():
+        before = trainer.model._background_image(torch.from_numpy(v.K[0]), torch.from_numpy(v.c2w[0]), 32, 32,
+                                                 torch.zeros(3))
     trainer.run()
-    assert float(trainer.model.bg_coef.detach().abs().max()) > 0
+    with torch.no_grad():
+        after = trainer.model._background_image(torch.from_numpy(v.K[0]), torch.from_numpy(v.c2w[0]), 32, 32,
+                                                torch.zeros(3))
+    backdrop = torch.from_numpy((v.images[0] == colour).all(-1))
+    target = torch.from_numpy(colour / 255.0).float()
+    assert (before[backdrop].mean(0) - target).abs().max() > 0.25  # the grey it starts from
+    torch.testing.assert_close(after[backdrop].mean(0), target, atol=0.05, rtol=0)
     assert float(trainer.views.exposure.log_gain.detach().abs().max()) > 0
 
 
