@@ -350,8 +350,8 @@ class FastNeRF(NerfModel):
         self._row_offset = GridGeom(self.grid_lo, self.voxel, self.res, self.vertex_rows).row_offset()
         self.step_size = self.config.step_ratio * self.voxel
         rx, ry, rz = self.res
-        # the occupancy grid is saved with the model so that a resumed run samples exactly
-        # as the uninterrupted one would
+        # the occupancy grid is saved with the model so that a resumed run samples as the
+        # uninterrupted one would
         self.register_buffer("occ_cells", torch.ones((rz - 1, ry - 1, rx - 1), dtype=torch.uint8, device=device))
         self.register_buffer("occ_coarse", torch.ones(1, dtype=torch.uint8, device=device), persistent=False)
         self._set_occupancy(self.occ_cells)
