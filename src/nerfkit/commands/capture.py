@@ -328,8 +328,8 @@ def run(args: argparse.Namespace) -> int:
         _kept("NeRF", run_dir)
         print("   it was cut short and has no checkpoint to go on from: --force trains it again", flush=True)
     elif (run_dir / "config.json").exists():  # cut short: it goes on, to a larger budget if one is asked for
-        step(["train", "--resume", str(run_dir), *(budget if _larger_budget(run_dir, args, False) else []),
-              "--device", args.device])
+        larger = _larger_budget(run_dir, args, need_checkpoint=False)
+        step(["train", "--resume", str(run_dir), *(budget if larger else []), "--device", args.device])
     else:
         step(["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget,
                "--keep-checkpoints", "1", "--device", args.device])

@@ -136,7 +136,8 @@ def _gsplat():
 
 def uses_gsplat(device: torch.device, backend: str) -> bool:
     """Whether gsplat renders on ``device``: CUDA, ``backend`` auto and gsplat installed. On
-    CUDA without gsplat, warns (once per process, Python's default) that the torch reference renders, tile by tile: slowly."""
+    CUDA without gsplat, warns (once per process, Python's default) that the torch reference
+    renders, tile by tile: slowly."""
     if device.type != "cuda" or backend != "auto":
         return False
     if _gsplat() is None:

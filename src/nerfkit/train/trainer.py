@@ -373,8 +373,9 @@ class Trainer:
             signal.signal(s, on_stop_signal)
         start = time.perf_counter()
         self.model.load_kernels()
-        if time.perf_counter() - start > 5.0:
-            self.log(f"compiled the kernels in {time.perf_counter() - start:.0f} s (once: later runs load them "
+        loading = time.perf_counter() - start
+        if loading > 5.0:
+            self.log(f"compiled the kernels in {loading:.0f} s (once: later runs load them "
                      "from numba's cache)")
         total = self.cfg.steps if self.cfg.steps else None
         bar = tqdm(total=total, initial=self.step, desc=f"train {self.cfg.model}", unit="step", dynamic_ncols=True,
