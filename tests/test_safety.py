@@ -295,6 +295,77 @@ def test_convert_to_its_own_source_is_refused_even_with_force(tmp_path, capsys):
     assert files_under(folder) == before
 
 
+def _sphere_npz(path: Path, n_train: int) -> Path:
+    from nerfkit.data.npz import save_npz
+    from nerfkit.data.synthetic import sphere_scene
+
+    save_npz(sphere_scene(n_train=n_train, n_val=1, size=8), path)
+    return path
+
+
+@pytest.mark.parametrize("fmt", ["transforms", "colmap"])
+def test_a_conversion_replaced_with_force_keeps_no_file_of_the_one_before(tmp_path, fmt):
+    """A smaller scene converted over a larger one leaves none of the larger one's images,
+    nor its text model beside the new binary one; the user's other files stay."""
+    pytest.importorskip("nerfkit.data.nerfstudio")
+    from nerfkit.data.load import load_scene
+
+    out = tmp_path / "out"
+    assert main(["convert", str(_sphere_npz(tmp_path / "big.npz", 5)), "--to", str(out), "--format", fmt,
+                 *(["--text"] if fmt == "colmap" else [])]) == 0
+    assert len(list((out / "images").iterdir())) == 6
+    (out / "notes.txt").write_text("mine")
+    assert main(["convert", str(_sphere_npz(tmp_path / "small.npz", 2)), "--to", str(out), "--format", fmt,
+                 "--force"]) == 0
+    assert len(list((out / "images").iterdir())) == 3
+    if fmt == "colmap":
+        assert {p.suffix for p in (out / "sparse" / "0").iterdir()} == {".bin"}  # no .txt left
+    assert sum(len(v) for v in load_scene(out).splits.values() if v.images is not None) == 3
+    assert (out / "notes.txt").read_text() == "mine"
+    assert not list(out.rglob("*.replaced"))
+
+
+def test_a_failed_replacement_puts_the_earlier_conversion_back(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("nerfkit.data.nerfstudio")
+    import nerfkit.data.nerfstudio as ns
+    from nerfkit.errors import fail
+
+    out = tmp_path / "out"
+    assert main(["convert", str(_sphere_npz(tmp_path / "big.npz", 5)), "--to", str(out)]) == 0
+    before = files_under(out)
+    calls = []
+
+    def disk_full_on_the_third(path, image, quality):
+        calls.append(path)
+        if len(calls) == 3:
+            raise fail(path, "could not be written: the disk is full")
+        save(path, image, quality)
+
+    save = ns._save_image
+    monkeypatch.setattr(ns, "_save_image", disk_full_on_the_third)
+    assert main(["convert", str(_sphere_npz(tmp_path / "small.npz", 2)), "--to", str(out), "--force"]) == 2
+    one_line(capsys, "the disk is full")
+    assert len(calls) == 3
+    assert files_under(out) == before
+
+
+def test_replacing_a_symlinked_output_folder_never_touches_its_target(tmp_path):
+    from nerfkit.io.atomic import replacing_folder
+
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "photo.png").write_bytes(b"theirs")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "images").symlink_to(theirs)
+    with replacing_folder(out / "images") as images:
+        images.mkdir()
+        (images / "new.png").write_bytes(b"ours")
+    assert not (out / "images").is_symlink()
+    assert files_under(out) == {out / "images" / "new.png": b"ours"}
+    assert files_under(theirs) == {theirs / "photo.png": b"theirs"}
+
+
 def test_train_refuses_a_folder_of_other_files(tmp_path, capsys, sphere_npz):
     out = tmp_path / "mine"
     out.mkdir()

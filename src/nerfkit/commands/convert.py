@@ -164,7 +164,7 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
     from ..data.colmap import write_colmap_model
     from ..errors import fail
     from ..images import IMAGE_SUFFIXES
-    from ..io.atomic import write_image
+    from ..io.atomic import replacing_folder, write_image
     from ..io.paths import safe_output_name
 
     out = Path(out)
@@ -178,12 +178,15 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
             if len(set(names)) < len(names) or seen & set(names):
                 raise fail(out, "two views would both be written as the same image file", "Give the views distinct names")
             seen |= set(names)
-            for name, im in zip(names, v.images):
-                write_image(out / "images" / name, im)
         splits[split] = replace(v, names=names)
     with_images = tuple(k for k, v in scene.splits.items() if v.images is not None and len(v))
     keep = with_images or tuple(scene.splits)
-    written.append(write_colmap_model(replace(scene, **splits), out / "sparse" / "0", text=text, splits=keep))
-    if any(v.images is not None for v in scene.splits.values()):
+    # both written afresh: an earlier conversion's extra images or text model do not stay
+    with replacing_folder(out / "images") as images, replacing_folder(out / "sparse" / "0") as model:
+        for split in with_images:
+            for name, im in zip(splits[split].names, scene.splits[split].images):
+                write_image(images / name, im)
+        written.append(write_colmap_model(replace(scene, **splits), model, text=text, splits=keep))
+    if with_images:
         written.append(out / "images")
     return written

@@ -32,7 +32,7 @@ import numpy as np
 from ..cameras import opencv_to_opengl, opengl_to_opencv
 from ..config import load_json
 from ..errors import fail
-from ..io.atomic import atomic_path, write_json
+from ..io.atomic import atomic_path, replacing_folder, write_json
 from ..io.paths import path_kind, refuse_special_file, resolve_inside, safe_output_name
 from .blender import focal_from_angle, frame_image_path
 from .scene import Scene, Views, estimate_center, estimate_up
@@ -288,16 +288,20 @@ def _save_image(path: Path, image: np.ndarray, jpeg_quality: int) -> None:
 
 def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool = True, jpeg_quality: int = 95,
                           image_dir: str = "images", extra: dict | None = None) -> Path:
-    """Write ``folder/transforms.json`` (and the views' images into ``folder/image_dir``).
+    """Write ``folder/transforms.json`` (and the views' images into ``folder/image_dir``, a
+    subfolder written afresh: an earlier one is replaced whole, not added to).
 
     Each view's file is named after ``Views.names`` (see :func:`image_file_name`), else
     ``<split>_<index>.png``. Splits without images are stored as poses only under
     ``nerfkit.poses_only``. Returns the path of transforms.json.
     """
     folder = Path(folder)
+    if write_images and Path(image_dir).name in ("", ".", ".."):
+        raise ValueError(f"image_dir must name a subfolder, not {image_dir!r}")
     frames, lists, poses_only = [], {s: [] for s in SPLITS}, {}
     Ks, sizes = [], []
     seen: set[str] = set()
+    to_write = []  # (view's split, index, file name)
     for split, v in scene.splits.items():
         if len(v) == 0:
             continue
@@ -311,8 +315,7 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
                 raise fail(folder, f"two views would both be written as '{fname}'", "Give the views distinct names")
             seen.add(fname)
             rel = f"{image_dir}/{fname}"
-            if write_images:
-                _save_image(folder / rel, v.images[i], jpeg_quality)
+            to_write.append((split, i, fname))
             frames.append({"file_path": rel, "transform_matrix": opencv_to_opengl(v.c2w[i].astype(np.float64)).tolist(),
                            "split": split, "name": name})
             lists[split].append(rel)
@@ -320,6 +323,10 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
             sizes.append((v.width, v.height))
     if not frames:
         raise fail(folder, "the scene has no views with images to write")
+    if write_images:
+        with replacing_folder(folder / image_dir) as images:
+            for split, i, fname in to_write:
+                _save_image(images / fname, scene.splits[split].images[i], jpeg_quality)
     shared = all(np.allclose(K, Ks[0], rtol=1e-6, atol=1e-6) for K in Ks) and len(set(sizes)) == 1
 
     def intr(K: np.ndarray, size: tuple[int, int]) -> dict:

@@ -93,6 +93,34 @@ def remove_stale_temporaries(folder: str | os.PathLike) -> int:
     return len(stale)
 
 
+@contextlib.contextmanager
+def replacing_folder(folder: str | os.PathLike) -> Iterator[Path]:
+    """Yield ``folder`` to be written afresh. An existing one is moved aside first and
+    deleted when the body succeeds, or put back when it fails: a replaced output keeps
+    no file of the one before it, and a failed write loses nothing.
+
+    Only for folders that are a command's own output, replaced under ``--force``.
+    """
+    folder = Path(folder)
+    old = folder.with_name(f".{folder.name}.replaced")
+    if old.is_symlink() or old.is_file():
+        old.unlink()
+    elif old.exists():  # left by a replacement that was killed
+        shutil.rmtree(old)
+    moved = folder.is_symlink() or folder.exists()
+    if moved:
+        folder.rename(old)
+    try:
+        yield folder
+    except BaseException:
+        if moved:
+            shutil.rmtree(folder, ignore_errors=True)
+            old.rename(folder)
+        raise
+    if moved:
+        old.unlink() if old.is_symlink() or old.is_file() else shutil.rmtree(old)
+
+
 def _umask() -> int:
     """The process umask, read without changing it where Linux allows (no race with threads)."""
     try:
