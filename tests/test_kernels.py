@@ -623,6 +623,43 @@ def test_total_variation_gradient_of_a_row_of_three_vertices():
     torch.testing.assert_close(g, 2.0 * torch.tensor([[0.0], [-1.0], [-1.0], [2.0]]))
 
 
+def test_total_variation_gradient_in_3d_matches_finite_differences_of_a_loop_energy():
+    """On a 4x3x2 grid with two vertices not stored: the reference gradient equals central
+    differences of the energy summed pair by pair in plain loops (x, y and z neighbours)."""
+    rx, ry, rz = 4, 3, 2
+    index = torch.arange(1, rx * ry * rz + 1, dtype=torch.int32)
+    index[[5, 17]] = 0  # not stored: no pair with them counts
+    g = torch.Generator().manual_seed(4)
+    grid = torch.randn(rx * ry * rz + 1, 2, generator=g, dtype=torch.float64)
+    weight = torch.tensor([2.0, 0.5], dtype=torch.float64)
+
+    def energy(values: np.ndarray) -> float:
+        e = 0.0
+        for z in range(rz):
+            for y in range(ry):
+                for x in range(rx):
+                    a = int(index[(z * ry + y) * rx + x])
+                    for dx, dy, dz in ((1, 0, 0), (0, 1, 0), (0, 0, 1)):
+                        if x + dx < rx and y + dy < ry and z + dz < rz:
+                            b = int(index[((z + dz) * ry + y + dy) * rx + x + dx])
+                            if a and b:
+                                e += 0.5 * float((weight.numpy() * (values[a] - values[b]) ** 2).sum())
+        return e
+
+    base, h = grid.numpy(), 1e-6
+    numeric = np.zeros_like(base)
+    for r in range(base.shape[0]):
+        for c in range(base.shape[1]):
+            up, down = base.copy(), base.copy()
+            up[r, c] += h
+            down[r, c] -= h
+            numeric[r, c] = (energy(up) - energy(down)) / (2 * h)
+    got = ref.tv_grad(grid, index, (rx, ry, rz), weight)
+    assert np.abs(numeric).max() > 1.0  # a gradient worth checking
+    np.testing.assert_allclose(got.numpy(), numeric, atol=1e-6)
+    assert torch.all(got[[0, 6, 18]] == 0)  # the empty row and the vertices not stored
+
+
 @pytest.mark.parametrize("backend", ["numba", "torch"])
 @pytest.mark.parametrize("layout", ["after_sentinel", "sparse"])
 def test_total_variation_goes_to_the_touched_rows_only_and_matches_the_reference(backend, layout):
