@@ -185,6 +185,23 @@ def test_object_box_holds_the_points_above_the_table_down_to_the_table():
     np.testing.assert_allclose(back.tags, tags)
 
 
+def test_object_box_keeps_a_thin_part_with_few_points_and_leaves_out_a_lone_stray_one():
+    """steve's case: a body of 300 points and a sword reaching out with 4 points at its tip
+    (1 in 150 of the points with their feet); one stray point farther out is left out."""
+    from nerfkit.models.base import object_box_from_points
+
+    rng = np.random.default_rng(1)
+    table = np.array([0.0, 0.0, 1.0, 0.0])
+    body = rng.uniform([0.0, 0.0, 0.02], [0.06, 0.09, 0.12], (300, 3))
+    tip = np.tile([-0.03, 0.05, 0.03], (4, 1)) + rng.normal(0, 1e-4, (4, 3))
+    stray = np.array([[0.0, -0.2, 0.05]])
+    lo, hi = object_box_from_points(np.concatenate([body, tip, stray]), table, np.zeros(3), 0.25)
+    assert lo[0] < -0.03  # the sword's tip is inside
+    assert lo[1] > -0.1  # the stray point is not
+    lo2, _ = object_box_from_points(np.concatenate([body, tip]), table, np.zeros(3), 0.25, quantile=0.02)
+    assert lo2[0] > -0.03  # (2% quantiles, the rule before, cut the tip off)
+
+
 def test_fast_model_starts_in_the_object_box_of_a_scene_with_points(tabletop):
     from nerfkit.models.base import SceneBounds
     from nerfkit.models.fast import FastNeRF
