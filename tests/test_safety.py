@@ -351,6 +351,10 @@ def test_a_failed_replacement_puts_the_earlier_conversion_back(tmp_path, monkeyp
     one_line(capsys, "the disk is full")
     assert len(calls) == 3
     assert files_under(out) == before
+    fresh = tmp_path / "fresh"  # a first conversion that fails leaves no half-written images
+    calls.clear()
+    assert main(["convert", str(tmp_path / "small.npz"), "--to", str(fresh)]) == 2
+    assert not (fresh / "images").exists()
 
 
 def test_replacing_a_symlinked_output_folder_never_touches_its_target(tmp_path):

@@ -97,7 +97,8 @@ def remove_stale_temporaries(folder: str | os.PathLike) -> int:
 def replacing_folder(folder: str | os.PathLike) -> Iterator[Path]:
     """Yield ``folder`` to be written afresh. An existing one is moved aside first and
     deleted when the body succeeds, or put back when it fails: a replaced output keeps
-    no file of the one before it, and a failed write loses nothing.
+    no file of the one before it, and a failed write leaves the folder as it was (the
+    earlier one, or none).
 
     Only for folders that are a command's own output, replaced under ``--force``.
     """
@@ -113,8 +114,8 @@ def replacing_folder(folder: str | os.PathLike) -> Iterator[Path]:
     try:
         yield folder
     except BaseException:
+        shutil.rmtree(folder, ignore_errors=True)
         if moved:
-            shutil.rmtree(folder, ignore_errors=True)
             old.rename(folder)
         raise
     if moved:
