@@ -263,7 +263,7 @@ def test_dataset_replaces_an_existing_dataset_only_with_force(tmp_path, capsys):
     assert main([*argv, "--max-side", "8"]) == 2
     one_line(capsys, "already exists", "--force")
     assert files_under(ds) == before
-    (ds / "images" / "IMG_dropped_since.jpg").write_bytes((ds / "images").iterdir().__next__().read_bytes())
+    (ds / "images" / "IMG_dropped_since.jpg").write_bytes(next((ds / "images").iterdir()).read_bytes())
     assert main([*argv, "--max-side", "8", "--force"]) == 0
     assert np.load(ds / "dataset.npz")["images_train"].shape[1:3] == (8, 8)
     # the images folder is the new dataset's alone: a photo of the one before does not stay
