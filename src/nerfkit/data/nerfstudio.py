@@ -301,7 +301,7 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
     frames, lists, poses_only = [], {s: [] for s in SPLITS}, {}
     Ks, sizes = [], []
     seen: set[str] = set()
-    to_write = []  # (view's split, index, file name)
+    to_write = []  # (file name, image)
     for split, v in scene.splits.items():
         if len(v) == 0:
             continue
@@ -315,7 +315,7 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
                 raise fail(folder, f"two views would both be written as '{fname}'", "Give the views distinct names")
             seen.add(fname)
             rel = f"{image_dir}/{fname}"
-            to_write.append((split, i, fname))
+            to_write.append((fname, v.images[i]))
             frames.append({"file_path": rel, "transform_matrix": opencv_to_opengl(v.c2w[i].astype(np.float64)).tolist(),
                            "split": split, "name": name})
             lists[split].append(rel)
@@ -325,8 +325,8 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
         raise fail(folder, "the scene has no views with images to write")
     if write_images:
         with replacing_folder(folder / image_dir) as images:
-            for split, i, fname in to_write:
-                _save_image(images / fname, scene.splits[split].images[i], jpeg_quality)
+            for fname, image in to_write:
+                _save_image(images / fname, image, jpeg_quality)
     shared = all(np.allclose(K, Ks[0], rtol=1e-6, atol=1e-6) for K in Ks) and len(set(sizes)) == 1
 
     def intr(K: np.ndarray, size: tuple[int, int]) -> dict:
