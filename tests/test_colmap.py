@@ -384,6 +384,14 @@ def test_sfm_normalised_dataset(room_sfm, tmp_path):
     scene, _ = build_dataset(result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160),
                           progress=False)
     assert len(scene.train) == 12 and scene.train.width == 160
+    # the photos that saw each sparse point: every one sees it in front of it, inside its image
+    pv = scene.point_views
+    assert pv is not None and len(pv) >= 3 * len(scene.points)
+    c2w, K = scene.train.c2w[pv[:, 1]].astype(np.float64), scene.train.K[0].astype(np.float64)
+    x = np.einsum("nji,nj->ni", c2w[:, :3, :3], scene.points[pv[:, 0]] - c2w[:, :3, 3])
+    uv = (x / x[:, 2:]) @ K.T
+    assert (x[:, 2] > 0).all() and (uv[:, 0] > -1).all() and (uv[:, 0] < scene.train.width + 1).all()
+    assert (uv[:, 1] > -1).all() and (uv[:, 1] < scene.train.height + 1).all()
     # near/far from the sparse points, scaled like the cameras (box ~1.4 m away, far walls 3-5 m)
     from nerfkit.data.scene import estimate_center
 

@@ -20,6 +20,7 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -36,6 +37,9 @@ from ..models.base import MIN_OBJECT_POINTS, object_points, sphere_radius
 from .camera import Camera, camera_from_dict, nerfkit_K
 from .poses import UP, PosedPhoto
 from .undistort import make_undistorter, output_size, resize_K_nerfkit
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..sfm.triangulate import SparsePoints
 
 POSES_FILE = "poses.json"
 NPZ_FILE = "dataset.npz"
@@ -168,13 +172,14 @@ def _load_view(p: PosedPhoto, base: Camera, und, out_size: tuple[int, int]) -> n
 def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConfig, tag_size: float,
                   jobs: int = 2, progress: bool = True, extra: dict | None = None,
                   up: np.ndarray | None = None, on_tag_plane: bool = True,
-                  points: tuple[np.ndarray, np.ndarray] | None = None,
+                  points: "SparsePoints | None" = None,
                   tags: np.ndarray | None = None) -> tuple[Scene, dict]:
     """Undistort, crop, resize and split ``posed`` photos, then write the dataset files.
 
-    ``points``: the scene's sparse points ``(xyz (m, 3), rgb (m, 3) uint8)`` when known
-    (structure-from-motion); else, with ``cfg.points``, they are triangulated from the
-    train views (:func:`nerfkit.sfm.triangulate.triangulate_views`).
+    ``points``: the scene's sparse points when known (structure-from-motion); else, with
+    ``cfg.points``, they are triangulated from the train views
+    (:func:`nerfkit.sfm.triangulate.triangulate_views`). The train views that see each
+    point become the scene's ``point_views``.
 
     ``up`` is the scene's up direction (default +z: the tag-plane normal toward the cameras).
     ``tags``: (n, 4, 3) corners of the printed tags in the world (:meth:`Layout.corners`),
@@ -249,7 +254,8 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
     if points is None and cfg.points:
         points, points_note = _triangulate(scene.train, out_dir, progress)
     if points is not None:
-        scene.points, scene.point_colors = check_points(points[0], points[1], str(out_dir))
+        scene.points, scene.point_colors = check_points(points.xyz, points.rgb, str(out_dir))
+        scene.point_views = point_views(points.seen_by, scene.train.names)
     summary = {
         "views": {s: len(v) for s, v in scene.splits.items()},
         "size": list(out_size),
@@ -287,7 +293,18 @@ def _lying_flat(tags) -> np.ndarray | None:
     return t[flat].astype(np.float32) if flat.any() else None
 
 
-def _triangulate(train: Views, out_dir: Path, progress: bool) -> tuple[tuple | None, str]:
+def point_views(seen_by: list | None, train_names: list[str] | None) -> np.ndarray | None:
+    """``(k, 2)`` int32 rows ``(point, train view)``: which of the train views see each
+    point, from ``seen_by`` (per point, the names of the photos that see it; None: not
+    known). Photos outside the train split are left out, so held-out photos teach nothing."""
+    if seen_by is None or not train_names:
+        return None
+    index = {n: i for i, n in enumerate(train_names)}
+    rows = [(p, index[n]) for p, names in enumerate(seen_by) for n in names if n in index]
+    return np.array(rows, np.int32).reshape(-1, 2)
+
+
+def _triangulate(train: Views, out_dir: Path, progress: bool) -> tuple["SparsePoints | None", str]:
     """Sparse points of the train views, or None and why not."""
     from ..errors import NerfkitError
     from ..sfm.triangulate import triangulate_views
@@ -298,7 +315,7 @@ def _triangulate(train: Views, out_dir: Path, progress: bool) -> tuple[tuple | N
         pts = triangulate_views(train, out_dir)
     except (NerfkitError, RuntimeError, ValueError) as e:  # no pycolmap, or COLMAP found no matches
         return None, f"none ({e})"
-    return (pts.xyz, pts.rgb), (f"triangulated from {len(train)} train views with the poses held (median "
+    return pts, (f"triangulated from {len(train)} train views with the poses held (median "
                                 f"reprojection error {float(np.median(pts.error)) if len(pts) else 0:.2f} px)")
 
 

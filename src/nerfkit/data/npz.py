@@ -9,6 +9,7 @@ Keys (all arrays, no pickles)::
     near (), far (), images_test, names_train/val/test (str)   optional (nerfkit's)
     capture () (1: real photos), table_plane (4,) (nx, ny, nz, d)  optional (nerfkit's)
     points_xyz (P, 3), points_rgb (P, 3) uint8 (sparse 3D points)  optional (nerfkit's)
+    points_train_views (k, 2) int (point, train view that saw it)  optional (nerfkit's)
     tags (n, 4, 3) (corners of the printed tags on the table)      optional (nerfkit's)
 
 ``focal`` alone means ``fx = fy = focal``, ``cx = W / 2``, ``cy = H / 2``.
@@ -165,8 +166,12 @@ def load_npz(path: str | Path, need: str = "train") -> Scene:
     colors = arrays["points_rgb"] if "points_rgb" in arrays else None
     if colors is not None and points is None:
         raise fail(where, "'points_rgb' is present but 'points_xyz' is missing")
+    seen = arrays.get("points_train_views")
+    if seen is not None and points is None:
+        raise fail(where, "'points_train_views' is present but 'points_xyz' is missing")
     return check_scene(Scene(train, val, test, near, far, center, up, source=where, capture=capture, table=table,
-                             points=points, point_colors=colors, tags=arrays.get("tags")), need=need)
+                             points=points, point_colors=colors, tags=arrays.get("tags"), point_views=seen),
+                       need=need)
 
 
 def save_npz(scene: Scene, path: str | Path) -> None:
@@ -192,6 +197,8 @@ def save_npz(scene: Scene, path: str | Path) -> None:
         out["points_xyz"] = np.asarray(scene.points, np.float32)
         out["points_rgb"] = (np.full(out["points_xyz"].shape, 128, np.uint8) if scene.point_colors is None
                              else np.asarray(scene.point_colors, np.uint8))
+        if scene.point_views is not None:
+            out["points_train_views"] = np.asarray(scene.point_views, np.int32)
     if scene.tags is not None:
         out["tags"] = np.asarray(scene.tags, np.float32)
     for split, v in scene.splits.items():

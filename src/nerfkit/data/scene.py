@@ -81,6 +81,8 @@ class Scene:
             the unit normal toward the cameras, or None (e.g. the tag plane of a tag capture).
         points: (m, 3) float32 sparse 3D points on the scene's surfaces (from
             structure-from-motion or triangulation), or None; point_colors: (m, 3) uint8.
+        point_views: (k, 2) int32 rows ``(point, train view)``: the train views that saw
+            each point (its feature track), or None (not known).
         tags: (n, 4, 3) float32 corners of the printed tags lying on the table (a tag
             capture's, in world units), or None.
     """
@@ -98,6 +100,7 @@ class Scene:
     points: np.ndarray | None = None
     point_colors: np.ndarray | None = None
     tags: np.ndarray | None = None
+    point_views: np.ndarray | None = None
 
     @property
     def splits(self) -> dict[str, Views]:

@@ -228,9 +228,25 @@ def check_scene(scene, where: str | None = None, need: str = "train"):
         scene.table = check_plane(scene.table, where, "table_plane")
     if scene.points is not None:
         scene.points, scene.point_colors = check_points(scene.points, scene.point_colors, where)
+    if scene.point_views is not None:
+        scene.point_views = check_point_views(scene.point_views, where, 0 if scene.points is None else
+                                              len(scene.points), len(scene.train))
     if scene.tags is not None:
         scene.tags = check_tags(scene.tags, where)
     return scene
+
+
+def check_point_views(v, where: str, n_points: int, n_train: int, field: str = "points_train_views") -> np.ndarray:
+    """Which train views saw which sparse point: (k, 2) integer rows ``(point, train view)``
+    within ``n_points`` and ``n_train``, as int32."""
+    a = _array(v, where, field)
+    if a.dtype.kind not in "iu" or a.ndim != 2 or a.shape[1] != 2:
+        raise fail(where, f"'{field}' must be (k, 2) integers (point, train view), got shape {a.shape} "
+                          f"dtype {a.dtype}")
+    if a.size and (a.min() < 0 or a[:, 0].max() >= n_points or a[:, 1].max() >= n_train):
+        raise fail(where, f"'{field}' names points or train views the dataset does not have ({n_points} points, "
+                          f"{n_train} train views)", "Write the dataset again (nerfkit poses or nerfkit dataset)")
+    return a.astype(np.int32)
 
 
 def check_tags(v, where: str, field: str = "tags") -> np.ndarray:

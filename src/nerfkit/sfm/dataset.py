@@ -22,6 +22,7 @@ from .colmap import SfmReport, SfmResult, align_reconstruction, run_sfm
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..capture.camera import Camera
+    from .triangulate import SparsePoints
     from ..capture.dataset import DatasetConfig
 
 REPORT_FILE = "sfm_report.json"
@@ -98,13 +99,12 @@ def near_far_from_model(result: SfmResult) -> tuple[float, float] | None:
     return near_far_from_points(c2w, np.repeat(K[None], len(ims), 0), cam.width, cam.height, points)
 
 
-def model_points(result: SfmResult) -> tuple[np.ndarray, np.ndarray]:
-    """The reconstruction's well-seen sparse points (:func:`~nerfkit.sfm.triangulate.reconstruction_points`):
-    ``xyz (m, 3)``, ``rgb (m, 3) uint8``."""
+def model_points(result: SfmResult) -> "SparsePoints":
+    """The reconstruction's well-seen sparse points (:func:`~nerfkit.sfm.triangulate.reconstruction_points`),
+    each with the photos that see it."""
     from .triangulate import reconstruction_points
 
-    pts = reconstruction_points(result.reconstruction)
-    return pts.xyz, pts.rgb
+    return reconstruction_points(result.reconstruction, photo_name=lambda n: result.photo(n).name)
 
 
 def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | None" = None, jobs: int = 2,
