@@ -162,6 +162,25 @@ def distortion(weights: Tensor, t: Tensor, interval: Tensor | float, ray_indices
     return loss
 
 
+def sight_line_loss(empty: Tensor, stopped: Tensor) -> Tensor:
+    """The loss of sight lines from cameras to sparse points they saw (DS-NeRF's idea, as
+    opacities): what lies before a point must be empty, and a point on a surface must
+    stop the ray.
+
+    Args:
+        empty: (n,) each line's opacity up to just before its point.
+        stopped: (m,) for the lines whose point must stop them (m <= n), the opacity up to
+            just past the point.
+
+    Returns:
+        scalar ``(sum(empty) + sum(1 - stopped)) / n``: 0 when every line is clear up to
+        its point and stopped there, 1 per line for a line wholly blocked in front or
+        wholly clear through its point.
+    """
+    n = max(len(empty), 1)
+    return (empty.float().sum() + (1.0 - stopped.float()).sum()) / n
+
+
 def volrend(sigmas: Tensor, rgbs: Tensor, step_size: Tensor | float, background: Tensor | float | None = None) -> Tensor:
     """The course's volume renderer, every ray with the same samples.
 

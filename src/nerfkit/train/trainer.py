@@ -36,6 +36,7 @@ from .checkpoint import (MODEL_FILE, check_dataset, checkpoint_paths, dataset_fi
 from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
 from .metrics import psnr, psnr_from_mse
 from .optim import build_optimizer
+from .sight_lines import SIGHT_LINES_PER_STEP, SightLines
 from .view_corrections import ViewCorrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
@@ -135,6 +136,13 @@ class Trainer:
         self.optimizer = build_optimizer(self.model, cfg.lr)
         self.schedules = self.model.schedules()
         self.rays = RaysData(scene.train, self.device, seed=cfg.seed)
+        # the sparse points' sight lines, when the dataset records who saw them and the model weighs them
+        sight = (getattr(model_config, "points_weight", None) or 0.0) > 0 and hasattr(self.model, "sight_loss")
+        self.sight = SightLines.from_scene(scene, self.device) if sight and not self.whole_images else None
+        self.sight_generator = torch.Generator().manual_seed(cfg.seed + 1)
+        if self.sight is not None and not resume:
+            self.log(f"sight lines: {len(self.sight)} from the train photos' cameras to the {len(scene.points)} "
+                     "sparse points (--points-weight)")
         self.views: ViewCorrections | None = None
         self.view_optimizer: torch.optim.Optimizer | None = None
         pose = cfg.pose_lr > 0 and not self.whole_images
@@ -171,7 +179,8 @@ class Trainer:
             g.setdefault("initial_lr", g["lr"])
 
     def _rng_state(self) -> dict:
-        state = {"torch_rng": torch.get_rng_state(), "sampler_rng": self.rays.rng_state()}
+        state = {"torch_rng": torch.get_rng_state(), "sampler_rng": self.rays.rng_state(),
+                 "sight_rng": self.sight_generator.get_state()}
         if self.device.type == "cuda":
             state["cuda_rng"] = torch.cuda.get_rng_state(self.device)
         return state
@@ -214,6 +223,8 @@ class Trainer:
                 self.view_optimizer.load_state_dict(ckpt["views_optimizer"])
         torch.set_rng_state(ckpt["torch_rng"])
         self.rays.set_rng_state(ckpt["sampler_rng"])
+        if "sight_rng" in ckpt:
+            self.sight_generator.set_state(ckpt["sight_rng"])
         if "cuda_rng" in ckpt and self.device.type == "cuda":
             torch.cuda.set_rng_state(ckpt["cuda_rng"], self.device)
         self.log(f"resumed from {path.name} (step {self.step}, {self.train_seconds:.0f} s trained)")
@@ -272,7 +283,7 @@ class Trainer:
                 out = self.model.render_rays(rays, self.background, perturb=True)
                 if views is not None and views.exposure is not None:
                     out = replace(out, rgb=views.exposure(out.rgb.float(), batch.image_index))
-                loss = self.model.loss(out, batch.rgb) + self._corrections_penalty()
+                loss = self.model.loss(out, batch.rgb) + self._corrections_penalty() + self._sight_term()
         self._zero_grad()
         finite = bool(torch.isfinite(loss))
         if finite:
@@ -297,6 +308,19 @@ class Trainer:
         mse = float(torch.mean((out.rgb.detach().float() - target) ** 2))
         n_rays = target.numel() // 3  # (a whole view: its pixels)
         return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples, "rays": n_rays}
+
+    def _sight_term(self) -> Tensor | float:
+        """The sparse points' sight lines in the loss (the model's ``sight_loss``), each
+        from its view's corrected camera; 0 without them."""
+        if self.sight is None:
+            return 0.0
+        rays, distance, view = self.sight.sample(SIGHT_LINES_PER_STEP, self.sight_generator)
+        views = self.views
+        if views is not None and views.pose is not None and self.step >= self.cfg.pose_start:
+            with torch.no_grad():  # the lines follow the poses; they do not move them
+                rays = views.pose(rays, view)
+        term = self.model.sight_loss(rays, distance)
+        return 0.0 if term is None else term
 
     def _corrections_penalty(self) -> Tensor | float:
         """The per-view corrections' regulariser (the colour mixing's), 0 without them."""
