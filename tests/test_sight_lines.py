@@ -184,7 +184,7 @@ def test_sight_lines_take_no_part_without_their_weight_and_weigh_in_proportion_t
     assert a > 0 and b == pytest.approx(2 * a, rel=1e-5)
 
 
-def test_a_capture_trains_with_its_sight_lines_and_resumes_their_draws(tmp_path, tabletop):
+def test_a_capture_trains_with_its_sight_lines_and_resumes_their_draws(tmp_path, tabletop, monkeypatch):
     from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import Trainer, capture_settings, resolved_config
 
@@ -202,6 +202,11 @@ def test_a_capture_trains_with_its_sight_lines_and_resumes_their_draws(tmp_path,
     assert m.points_weight == 0.02 and len(t.sight) == len(rows)  # a capture's default
     assert trainer("off", capture="off")[0].sight is None  # not a capture: no weight
     assert trainer("nopoints", data=tabletop)[0].sight is None  # a dataset that records no points
+    older = Scene(**{**tabletop.__dict__, "points": points})  # points, but not who saw them
+    notes = []
+    monkeypatch.setattr(Trainer, "log", lambda self, msg: notes.append(msg))
+    assert trainer("older", data=older)[0].sight is None
+    assert any("nerfkit dataset DATASET_DIR --force" in n for n in notes)
     t.run(stop_after=20)
     again, _ = trainer("on", resume=True)
     assert again.step == 20 and torch.equal(again.sight_generator.get_state(), t.sight_generator.get_state())

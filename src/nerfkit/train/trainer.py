@@ -143,6 +143,10 @@ class Trainer:
         if self.sight is not None and not resume:
             self.log(f"sight lines: {len(self.sight)} from the train photos' cameras to the {len(scene.points)} "
                      "sparse points (--points-weight)")
+        elif sight and scene.points is not None and scene.point_views is None and not resume:
+            self.log(f"note: {scene.source} has sparse points but does not record which photos saw them, so they "
+                     "are not used as sight lines (an older dataset, or not a dataset.npz): rebuild it with "
+                     "`nerfkit dataset DATASET_DIR --force`")
         self.views: ViewCorrections | None = None
         self.view_optimizer: torch.optim.Optimizer | None = None
         pose = cfg.pose_lr > 0 and not self.whole_images
