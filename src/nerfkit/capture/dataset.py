@@ -316,7 +316,7 @@ def _triangulate(train: Views, out_dir: Path, progress: bool) -> tuple["SparsePo
     except (NerfkitError, RuntimeError, ValueError) as e:  # no pycolmap, or COLMAP found no matches
         return None, f"none ({e})"
     return pts, (f"triangulated from {len(train)} train views with the poses held (median "
-                                f"reprojection error {float(np.median(pts.error)) if len(pts) else 0:.2f} px)")
+                 f"reprojection error {float(np.median(pts.error)) if len(pts) else 0:.2f} px)")
 
 
 # ---------------------------------------------------------------- poses.json

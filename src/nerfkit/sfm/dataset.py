@@ -22,8 +22,8 @@ from .colmap import SfmReport, SfmResult, align_reconstruction, run_sfm
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..capture.camera import Camera
-    from .triangulate import SparsePoints
     from ..capture.dataset import DatasetConfig
+    from .triangulate import SparsePoints
 
 REPORT_FILE = "sfm_report.json"
 

@@ -29,9 +29,9 @@ EXHAUSTIVE_MAX = 120
 @dataclass
 class SparsePoints:
     """Triangulated points: ``xyz`` (m, 3) float32 world coordinates, ``rgb`` (m, 3)
-    uint8 colours, ``error`` (m,) mean reprojection error in pixels, ``track`` (m,) how
-    many views see each point, ``seen_by``: the names of the photos that see each point
-    (its feature track), or None."""
+    uint8 colours, ``error`` (m,) mean reprojection error in pixels, ``track`` (m,) the
+    length of each point's feature track, ``seen_by``: the names of the photos in each
+    point's track (a photo may give a point two features), or None."""
 
     xyz: np.ndarray
     rgb: np.ndarray
