@@ -485,6 +485,17 @@ class FastNeRF(NerfModel):
         cover = d.new_zeros(len(d)).index_put((hit,), cover.to(d.dtype))
         return t_hit.unsqueeze(1), colour.unsqueeze(1), cover.unsqueeze(1)
 
+    def _volume_span(self, o: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
+        """``(t0, t1, t_table)`` (n,) each: where each ray enters and leaves the grid's box,
+        ending at the table if it meets it first (nothing behind the table is seen), and
+        where it meets the table (None without one)."""
+        t0, t1 = ray_aabb(o, d, self.geom.lo, self.geom.hi, self.bounds.near, self.bounds.far)
+        t_table = None
+        if self.table is not None:
+            t_table = self.table.hit(o, d)
+            t1 = torch.minimum(t1, t_table)
+        return t0, t1, t_table
+
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
         self._sinks_on_device()
         if self.ndc is not None:
@@ -492,11 +503,7 @@ class FastNeRF(NerfModel):
         o = rays.origins.float()
         d = rays.directions.float()
         n = o.shape[0]
-        t0, t1 = ray_aabb(o, d, self.geom.lo, self.geom.hi, self.bounds.near, self.bounds.far)
-        t_table = None
-        if self.table is not None:  # nothing behind the table is seen
-            t_table = self.table.hit(o, d)
-            t1 = torch.minimum(t1, t_table)
+        t0, t1, t_table = self._volume_span(o, d)
         u = torch.rand(n, device=o.device) if perturb else torch.full((n,), 0.5, device=o.device)
         out = render_grid(self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree,
                           self.sink, self._backend(), t_end=t_table if self.config.distortion_table else None,
@@ -584,12 +591,11 @@ class FastNeRF(NerfModel):
         if self.ndc is not None or len(distance) == 0:
             return None
         o, d = rays.origins.float(), rays.directions.float()
-        t0, t1 = ray_aabb(o, d, self.geom.lo, self.geom.hi, self.bounds.near, self.bounds.far)
+        t0, t1, _ = self._volume_span(o, d)
         margin = self.sight_margin()
         points = o + d * distance.unsqueeze(-1)
         solid = ((points >= self.geom.lo + margin) & (points <= self.geom.hi - margin)).all(-1)
         if self.table is not None:
-            t1 = torch.minimum(t1, self.table.hit(o, d))
             plane = self.table.plane.to(points)
             solid &= points @ plane[:3] + plane[3] > table_cut_height(self, TABLE_CUT)
         u = torch.rand(len(o), device=o.device)
