@@ -18,7 +18,7 @@ from nerfkit.models.base import SceneBounds
 from nerfkit.models.fast import FastConfig, FastNeRF
 from nerfkit.render.volrend import sight_line_loss
 from nerfkit.train.optim import build_optimizer
-from nerfkit.train.sight_lines import SightLines
+from nerfkit.train.sight_lines import SightLines, spread_lines
 
 KERNELS = ["torch", pytest.param("numba", marks=pytest.mark.skipif(numba_kernels() is None, reason="no numba"))]
 
@@ -114,6 +114,44 @@ def test_each_line_runs_from_its_camera_to_its_point(tabletop):
     torch.testing.assert_close(ends, torch.as_tensor(points[rows[:, 0]]), atol=1e-5, rtol=0)
     assert torch.equal(lines.views, torch.as_tensor(rows[:, 1], dtype=torch.long))
     assert SightLines.from_scene(tabletop) is None  # no points: no lines
+
+
+def test_spread_lines_aim_uniformly_over_a_disc_across_each_line_at_its_point():
+    g = torch.Generator().manual_seed(3)
+    n, radius = 20000, 0.05
+    origins = torch.randn(n, 3, generator=g, dtype=torch.float64)
+    directions = torch.nn.functional.normalize(torch.randn(n, 3, generator=g, dtype=torch.float64), dim=1)
+    distances = 0.5 + torch.rand(n, generator=g, dtype=torch.float64)
+    points = origins + directions * distances[:, None]
+    turned, reach = spread_lines(origins, directions, distances, radius, torch.Generator().manual_seed(4))
+    torch.testing.assert_close(turned.norm(dim=1), torch.ones(n, dtype=torch.float64))
+    offset = origins + turned * reach[:, None] - points
+    assert torch.all(offset.norm(dim=1) <= radius * (1 + 1e-9))  # within the disc
+    assert torch.allclose((offset * directions).sum(1), torch.zeros(n, dtype=torch.float64), atol=1e-12)  # across
+    # uniform over the disc: the share within r is (r / radius)^2; the sides have no favourite
+    for r in (0.3, 0.6, 0.9):
+        assert abs(float((offset.norm(dim=1) <= r * radius).double().mean()) - r * r) < 0.015
+    assert float(offset.mean(0).norm()) < 0.03 * radius
+    again, _ = spread_lines(origins, directions, distances, radius, torch.Generator().manual_seed(4))
+    assert torch.equal(again, turned)  # the generator alone decides the spots
+    same, length = spread_lines(origins, directions, distances, 0.0, torch.Generator())
+    torch.testing.assert_close(same, directions)
+    torch.testing.assert_close(length, distances)
+
+
+def test_drawn_lines_spread_about_their_points_from_their_cameras(tabletop):
+    points, rows = seen_sphere_points(tabletop)
+    lines = SightLines.from_scene(Scene(**{**tabletop.__dict__, "points": points, "point_views": rows}))
+    g = torch.Generator().manual_seed(0)
+    state = g.get_state()
+    rays, dist, views = lines.sample(500, g, spread=0.01)
+    g.set_state(state)
+    plain, plain_dist, plain_views = lines.sample(500, g)  # the same lines, aimed at their points
+    assert torch.equal(views, plain_views) and torch.equal(rays.origins, plain.origins)
+    aimed = plain.origins + plain.directions * plain_dist[:, None]
+    spots = rays.origins + rays.directions * dist[:, None]
+    apart = (spots - aimed).norm(dim=1)
+    assert float(apart.max()) <= 0.01 + 1e-6 and float(apart.mean()) > 0.004  # beside the point, within reach
 
 
 @pytest.mark.parametrize("kernels", KERNELS)

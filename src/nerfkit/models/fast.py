@@ -79,11 +79,15 @@ def growth_too_late(s: StepState) -> bool:
 
 
 # A sight line ends this far before its point and is stopped this far past it: SIGHT_MARGIN
-# scene radii (labubu: 2.3 mm, about 3 voxels of the finest grid), and at least SIGHT_VOXELS
+# scene radii (labubu: 2.3 mm, 2 voxels of the finest grid), and at least SIGHT_VOXELS
 # voxels of the grid (a vertex's density spreads over a voxel each way: at the coarse
 # stages a thinner margin would ask one vertex to be empty and solid at once).
 SIGHT_MARGIN = 0.01
 SIGHT_VOXELS = 2.0
+# Each drawn line aims within SIGHT_SPREAD margins of its point (labubu: 6 mm, about 5
+# pixels of its photos). Aimed at the point itself the lines made specks a voxel or two
+# wide, the fur between them thinner; 5 margins left labubu's object paler (BENCHMARKS.md).
+SIGHT_SPREAD = 2.5
 MAX_STAGE_RAYS = 64  # --stage-rays: the largest multiple of --batch-rays
 
 # Largest grid: each side and the vertex count (512^3 vertices of 4+ float32 channels: 2+ GB).
@@ -607,6 +611,11 @@ class FastNeRF(NerfModel):
     def sight_margin(self) -> float:
         """How far before its point a sight line must be empty, and past it stopped (world units)."""
         return max(SIGHT_MARGIN * self.bounds.radius, SIGHT_VOXELS * float(self.geom.voxel))
+
+    def sight_spread(self) -> float:
+        """How far beside its point a drawn sight line may aim (world units; see
+        :func:`~nerfkit.train.sight_lines.spread_lines`)."""
+        return SIGHT_SPREAD * self.sight_margin()
 
     def _opacity_between(self, o: Tensor, d: Tensor, t0: Tensor, t1: Tensor, u: Tensor) -> Tensor:
         """(n,) the grid's opacity along each ray from ``t0`` to ``t1`` (differentiable)."""

@@ -6,7 +6,10 @@ track). The ray from such a photo's camera to the point crosses empty space up t
 point, and a surface there stops it; DS-NeRF (Deng et al., CVPR 2022) supervises depth
 along such rays. Without them a capture's fur and fabric train half see-through, the table
 behind taking the rest of their colour, and the object alone renders pale and hazy.
-The model scores the lines (``sight_loss``); this module holds them and draws a batch.
+A line aimed at the point itself makes the surface solid only there (a speck a voxel or
+two wide), so each draw aims a little beside its point (:func:`spread_lines`): the surface
+a feature lies on goes on around it. The model scores the lines (``sight_loss``) and says
+how far to spread them (``sight_spread``); this module holds them and draws a batch.
 """
 
 from __future__ import annotations
@@ -58,7 +61,34 @@ class SightLines:
 
         return SightLines(kept(o), kept(d / np.maximum(dist, 1e-12)[:, None]), kept(dist), kept(view, torch.long))
 
-    def sample(self, n: int, generator: torch.Generator) -> tuple[Rays, Tensor, Tensor]:
-        """``n`` lines at random (with replacement): ``(rays, distances (n,), views (n,))``."""
+    def sample(self, n: int, generator: torch.Generator, spread: float = 0.0) -> tuple[Rays, Tensor, Tensor]:
+        """``n`` lines at random (with replacement), each aimed within ``spread`` (world
+        units) of its point (:func:`spread_lines`): ``(rays, distances (n,), views (n,))``."""
         idx = torch.randint(0, len(self), (n,), generator=generator).to(self.distances.device)
-        return Rays(self.origins[idx], self.directions[idx]), self.distances[idx], self.views[idx]
+        origins, directions, distances = self.origins[idx], self.directions[idx], self.distances[idx]
+        if spread > 0:
+            directions, distances = spread_lines(origins, directions, distances, spread, generator)
+        return Rays(origins, directions), distances, self.views[idx]
+
+
+def spread_lines(origins: Tensor, directions: Tensor, distances: Tensor, radius: float,
+                 generator: torch.Generator) -> tuple[Tensor, Tensor]:
+    """Lines turned to aim at a random spot within ``radius`` of their points, uniform over
+    the disc across each line through its point.
+
+    Args:
+        origins, directions: (n, 3), the directions unit; distances: (n,) to each point.
+        radius: the disc's radius (world units).
+        generator: a CPU generator for the spots (the draws resume exactly).
+
+    Returns:
+        ``(directions (n, 3) unit, distances (n,))`` from the same origins to the spots.
+    """
+    n = len(distances)
+    side = torch.randn(n, 3, generator=generator).to(directions)
+    side = side - (side * directions).sum(-1, keepdim=True) * directions  # across the line
+    side = side / side.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+    reach = radius * torch.rand(n, 1, generator=generator).to(directions).sqrt()  # uniform over the disc
+    to_spot = directions * distances.unsqueeze(-1) + side * reach
+    length = to_spot.norm(dim=-1)
+    return to_spot / length.unsqueeze(-1), length

@@ -318,7 +318,7 @@ class Trainer:
         from its view's corrected camera; 0 without them."""
         if self.sight is None:
             return 0.0
-        rays, distance, view = self.sight.sample(SIGHT_LINES_PER_STEP, self.sight_generator)
+        rays, distance, view = self.sight.sample(SIGHT_LINES_PER_STEP, self.sight_generator, self.model.sight_spread())
         views = self.views
         if views is not None and views.pose is not None and self.step >= self.cfg.pose_start:
             with torch.no_grad():  # the lines follow the poses; they do not move them
