@@ -54,6 +54,50 @@ def test_model_write_read_round_trip(tmp_path, text):
     _same_cameras(Views(c2w, K, 24, 24, None, names), back.train)
 
 
+def _with_points(scene, n=40, seed=0):
+    """``scene`` with ``n`` coloured points near its centre, each seen by 2-4 train views."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-0.5, 0.5, (n, 3)).astype(np.float32)
+    colours = rng.integers(0, 256, (n, 3), dtype=np.uint8)
+    rows = [(p, v) for p in range(n) for v in rng.choice(len(scene.train), rng.integers(2, 5), replace=False)]
+    return replace(scene, points=points, point_colors=colours, point_views=np.array(rows, np.int32))
+
+
+@pytest.mark.parametrize("text", [False, True])
+def test_sparse_points_and_who_saw_them_survive_a_colmap_model(tmp_path, text):
+    """Scene -> COLMAP model -> Scene: the points, their colours and the train views that saw
+    each one (as COLMAP tracks whose features are where the points project)."""
+    scene = _with_points(sphere_scene(n_train=6, n_val=2, size=24, n_test=1))
+    write_colmap_model(scene, tmp_path / "m", text=text)
+    rec = read_model(tmp_path / "m")
+    for pid, point in rec.points3D.items():
+        for e in point.track.elements:  # each feature is where COLMAP's own camera projects the point
+            image = rec.images[e.image_id]
+            np.testing.assert_allclose(image.points2D[e.point2D_idx].xy, image.project_point(point.xyz), atol=1e-6)
+            assert image.points2D[e.point2D_idx].point3D_id == pid
+    back = reconstruction_to_scene(rec, None, val_every=0)  # every view a train view, sorted by name
+
+    def seen(s):
+        key = {i: tuple(np.round(x, 5)) for i, x in enumerate(s.points)}
+        return {(key[p], s.train.names[v]) for p, v in s.point_views}, {key[i]: tuple(c) for i, c in enumerate(s.point_colors)}
+
+    assert seen(back) == seen(scene) and len(back.points) == len(scene.points)
+    again = reconstruction_to_scene(rec, None, val_every=2)  # a val view's sightings are not kept
+    assert {again.train.names[v] for _, v in again.point_views} <= set(again.train.names)
+    assert len(again.point_views) < len(back.point_views)
+
+
+def test_points_seen_once_are_not_kept(tmp_path):
+    scene = _with_points(sphere_scene(n_train=4, n_val=1, size=16, n_test=1), n=5)
+    scene.point_views = scene.point_views[scene.point_views[:, 0] != 3]  # point 3 seen by none
+    scene.point_views = np.concatenate([scene.point_views[scene.point_views[:, 0] != 4], [[4, 0]]]).astype(np.int32)
+    write_colmap_model(scene, tmp_path / "m")
+    back = reconstruction_to_scene(read_model(tmp_path / "m"), None, val_every=0)
+    assert len(back.points) == 3  # a point needs two views to be triangulated
+
+
 def test_colmap_project_round_trip_with_images(tmp_path):
     """Scene -> COLMAP project (sparse/0 + images/) -> load_scene: same cameras and pixels."""
     scene = sphere_scene(n_train=6, n_val=2, size=20, n_test=2)

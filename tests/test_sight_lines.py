@@ -8,9 +8,8 @@ import pytest
 import torch
 
 from nerfkit.cameras import Rays
-from nerfkit.capture.dataset import point_views
 from nerfkit.data.npz import load_npz, save_npz
-from nerfkit.data.scene import Scene
+from nerfkit.data.scene import Scene, point_views
 from nerfkit.data.synthetic import tabletop_scene
 from nerfkit.errors import NerfkitError
 from nerfkit.kernels import numba_kernels

@@ -27,7 +27,7 @@ import numpy as np
 from ..config import MIN_RESAMPLED_SIDE, load_json, option
 from ..data.npz import save_npz
 from ..data.nerfstudio import write_transforms_json
-from ..data.scene import Scene, Views, estimate_center
+from ..data.scene import Scene, Views, estimate_center, point_views
 from ..data.validate import MAX_SIDE, check_count, check_points, check_poses, check_scene, short_repr
 from ..errors import advice, fail
 from ..images import common_size
@@ -39,7 +39,7 @@ from .poses import UP, PosedPhoto
 from .undistort import make_undistorter, output_size, resize_K_nerfkit
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..sfm.triangulate import SparsePoints
+    from ..data.colmap import SparsePoints
 
 POSES_FILE = "poses.json"
 NPZ_FILE = "dataset.npz"
@@ -291,17 +291,6 @@ def _lying_flat(tags) -> np.ndarray | None:
     side = np.linalg.norm(t - np.roll(t, -1, axis=1), axis=2).mean(1)
     flat = np.abs(t[..., 2]).max(1) <= 0.01 * side
     return t[flat].astype(np.float32) if flat.any() else None
-
-
-def point_views(seen_by: list | None, train_names: list[str] | None) -> np.ndarray | None:
-    """``(k, 2)`` int32 rows ``(point, train view)``: which of the train views see each
-    point, from ``seen_by`` (per point, the names of the photos that see it; None: not
-    known). Photos outside the train split are left out, so held-out photos teach nothing."""
-    if seen_by is None or not train_names:
-        return None
-    index = {n: i for i, n in enumerate(train_names)}
-    rows = [(p, index[n]) for p, names in enumerate(seen_by) for n in names if n in index]
-    return np.array(rows, np.int32).reshape(-1, 2)
 
 
 def _triangulate(train: Views, out_dir: Path, progress: bool) -> tuple["SparsePoints | None", str]:

@@ -17,7 +17,8 @@ an LLFF scene (poses_bounds.npy + images/; --downscale 4 or 8 reads images_4/ima
 outputs (by --to):
   out.npz            course layout: images_*, c2ws_*, focal, K, near, far
   out_folder/        nerfstudio transforms.json + images/ (any folder name)
-  out_folder/ --format colmap   COLMAP project: sparse/0 (PINHOLE cameras) + images/
+  out_folder/ --format colmap   COLMAP project: sparse/0 (PINHOLE cameras; the sparse points, tracked
+                                in the train photos that saw them) + images/
 
 examples:
   nerfkit convert data/nerf_synthetic/lego --to lego_200.npz --size 200

@@ -9,15 +9,16 @@ own undistorter. Reading and writing go through pycolmap.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from ..errors import fail
 from ..images import load_image_uint8
 from ..io.paths import refuse_special_file, resolve_inside, safe_output_name
-from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up
+from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up, point_views
 from .validate import check_intrinsics, check_near_far, check_poses, check_scene
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -207,6 +208,42 @@ def split_every(n: int, val_every: int) -> tuple[np.ndarray, np.ndarray]:
     return np.setdiff1d(idx, val), val
 
 
+@dataclass
+class SparsePoints:
+    """Triangulated points: ``xyz`` (m, 3) float32 world coordinates, ``rgb`` (m, 3)
+    uint8 colours, ``error`` (m,) mean reprojection error in pixels, ``track`` (m,) the
+    length of each point's feature track, ``seen_by``: the names of the photos in each
+    point's track (a photo may give a point two features), or None."""
+
+    xyz: np.ndarray
+    rgb: np.ndarray
+    error: np.ndarray
+    track: np.ndarray
+    seen_by: list[tuple[str, ...]] | None = None
+
+    def __len__(self) -> int:
+        return len(self.xyz)
+
+
+def reconstruction_points(rec, max_error: float = 2.0, min_track: int = 3,
+                          photo_name: Callable[[str], str] | None = None) -> SparsePoints:
+    """The points of a pycolmap reconstruction (in its current frame) seen by
+    ``min_track`` or more images with a mean reprojection error <= ``max_error`` px, with
+    the photos that see each one (``photo_name``: COLMAP's image name -> the photo's name;
+    default the same)."""
+    pts = list(rec.points3D.values())
+    xyz = np.array([p.xyz for p in pts], np.float64).reshape(-1, 3)
+    rgb = np.array([p.color for p in pts], np.uint8).reshape(-1, 3)
+    err = np.array([p.error for p in pts], np.float64)
+    track = np.array([p.track.length() for p in pts], np.int64)
+    keep = (err <= max_error) & (track >= min_track) & np.isfinite(xyz).all(1)
+    image_name = {i: rec.images[i].name for i in rec.reg_image_ids()}
+    name = photo_name or (lambda n: n)
+    seen_by = [tuple(sorted({name(image_name[e.image_id]) for e in p.track.elements if e.image_id in image_name}))
+               for p, k in zip(pts, keep) if k]
+    return SparsePoints(xyz[keep].astype(np.float32), rgb[keep], err[keep].astype(np.float32), track[keep], seen_by)
+
+
 def reconstruction_to_scene(
     rec: "pycolmap.Reconstruction",
     image_dir: str | Path | None,
@@ -217,7 +254,8 @@ def reconstruction_to_scene(
     source: str = "",
     allow_outside: bool = False,
 ) -> Scene:
-    """A Scene from the registered images of a reconstruction (sorted by name).
+    """A Scene from the registered images of a reconstruction (sorted by name), with its
+    well-seen points (:func:`reconstruction_points`) and the train views that saw them.
 
     With ``image_dir`` the photos are loaded and undistorted; without it the scene has
     poses only (pinhole K of the undistorted cameras). All views must share one image
@@ -288,8 +326,12 @@ def reconstruction_to_scene(
     near, far = check_near_far(*nf, where)
     tr, va = split_every(len(names), val_every)
     all_views = Views(c2w, K, W, H, imgs, names)
-    return check_scene(Scene(all_views.subset(tr), all_views.subset(va), Views.empty(W, H), near, far, center, up,
-                             source=source), where)
+    train = all_views.subset(tr)
+    kept = reconstruction_points(rec, min_track=2)  # COLMAP triangulates from 2 views
+    known = len(kept) > 0
+    return check_scene(Scene(train, all_views.subset(va), Views.empty(W, H), near, far, center, up, source=source,
+                             points=kept.xyz if known else None, point_colors=kept.rgb if known else None,
+                             point_views=point_views(kept.seen_by, train.names) if known else None), where)
 
 
 def load_colmap(
@@ -321,16 +363,19 @@ def load_colmap(
                                    allow_outside=allow_outside)
 
 
-def scene_to_reconstruction(scene: Scene, splits: tuple[str, ...] = ("train", "val", "test"),
-                            points: np.ndarray | None = None) -> "pycolmap.Reconstruction":
+def scene_to_reconstruction(scene: Scene,
+                            splits: tuple[str, ...] = ("train", "val", "test")) -> "pycolmap.Reconstruction":
     """A pycolmap Reconstruction with one PINHOLE camera per distinct K and every view posed.
 
-    Image names are the views' names (``<split>_<index>.png`` when a split has none).
-    ``points`` (P, 3) optionally become 3D points (without tracks).
+    Image names are the views' names (``<split>_<index>.png`` when a split has none). The
+    scene's sparse points become 3D points with their colours, each with a track of the
+    train views that saw it (:attr:`Scene.point_views`; its features where it projects).
     """
     pycolmap = _import_pycolmap(scene.source or "scene")
     rec = pycolmap.Reconstruction()
     cam_ids: dict[tuple, int] = {}
+    seen = _projected_point_views(scene) if "train" in splits else {}
+    tracks: dict[int, list] = {}  # point -> its features (image, index in the image)
     image_id = 0
     for split in splits:
         v = scene.splits[split]
@@ -346,11 +391,32 @@ def scene_to_reconstruction(scene: Scene, splits: tuple[str, ...] = ("train", "v
             name = safe_output_name(v.names[i]) if v.names is not None else f"{split}_{i:04d}.png"
             w2c = np.linalg.inv(v.c2w[i].astype(np.float64))
             pose = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3])
-            rec.add_image_with_trivial_frame(pycolmap.Image(name=name, camera_id=cam_ids[key], image_id=image_id), pose)
-    if points is not None:
-        for p in np.asarray(points, np.float64).reshape(-1, 3):
-            rec.add_point3D(p, pycolmap.Track(), np.zeros(3, np.uint8))
+            features = seen.get(i, []) if split == "train" else []
+            image = pycolmap.Image(name=name, camera_id=cam_ids[key], image_id=image_id,
+                                   points2D=[pycolmap.Point2D(xy) for _, xy in features])
+            rec.add_image_with_trivial_frame(image, pose)
+            for k, (point, _) in enumerate(features):
+                tracks.setdefault(point, []).append(pycolmap.TrackElement(image_id, k))
+    if scene.points is not None:
+        colours = scene.point_colors if scene.point_colors is not None else np.full(scene.points.shape, 128, np.uint8)
+        for p, (xyz, rgb) in enumerate(zip(scene.points.astype(np.float64), colours.astype(np.uint8))):
+            rec.add_point3D(xyz, pycolmap.Track(tracks.get(p, [])), rgb)
     return rec
+
+
+def _projected_point_views(scene: Scene) -> dict[int, list]:
+    """Train view -> ``[(point, xy (2,) pixels), ...]``: where each point the view saw
+    (:attr:`Scene.point_views`) projects in it, for the points in front of it."""
+    if scene.points is None or scene.point_views is None:
+        return {}
+    out: dict[int, list] = {}
+    v = scene.train
+    for point, view in scene.point_views.astype(np.int64):
+        c2w = v.c2w[view].astype(np.float64)
+        x = (scene.points[point].astype(np.float64) - c2w[:3, 3]) @ c2w[:3, :3]  # camera frame
+        if x[2] > 0:
+            out.setdefault(int(view), []).append((int(point), (v.K[view].astype(np.float64) @ (x / x[2]))[:2]))
+    return out
 
 
 def write_reconstruction(rec: "pycolmap.Reconstruction", out_dir: str | Path, text: bool = False) -> Path:
@@ -374,5 +440,6 @@ def write_reconstruction(rec: "pycolmap.Reconstruction", out_dir: str | Path, te
 
 def write_colmap_model(scene: Scene, out_dir: str | Path, text: bool = False,
                        splits: tuple[str, ...] = ("train", "val", "test")) -> Path:
-    """Write the scene's cameras as a COLMAP model folder (PINHOLE cameras, no points)."""
+    """Write the scene's cameras and sparse points as a COLMAP model folder (PINHOLE
+    cameras; :func:`scene_to_reconstruction`)."""
     return write_reconstruction(scene_to_reconstruction(scene, splits), out_dir, text)

@@ -199,3 +199,14 @@ def estimate_near_far(c2w: np.ndarray, center: np.ndarray) -> tuple[float, float
     """
     dist = float(np.mean(np.linalg.norm(c2w[:, :3, 3] - center, axis=1)))
     return 0.5 * dist, 1.5 * dist
+
+
+def point_views(seen_by: list | None, train_names: list[str] | None) -> np.ndarray | None:
+    """``(k, 2)`` int32 rows ``(point, train view)``: which of the train views see each
+    point, from ``seen_by`` (per point, the names of the photos that see it; None: not
+    known). Photos outside the train split are left out, so held-out photos teach nothing."""
+    if seen_by is None or not train_names:
+        return None
+    index = {n: i for i, n in enumerate(train_names)}
+    rows = [(p, index[n]) for p, names in enumerate(seen_by) for n in names if n in index]
+    return np.array(rows, np.int32).reshape(-1, 2)

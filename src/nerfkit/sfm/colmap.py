@@ -603,7 +603,7 @@ def _level_on_ground(result: SfmResult, progress: bool) -> str:
     """Find the table plane among the (normalised) reconstruction's points and make it
     z = 0; what was done, for the frame description."""
     from .ground import find_ground_plane, ground_similarity
-    from .triangulate import reconstruction_points
+    from ..data.colmap import reconstruction_points
 
     rec = result.reconstruction
     _, c2w = reconstruction_c2w(rec)

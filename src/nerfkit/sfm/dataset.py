@@ -23,7 +23,7 @@ from .colmap import SfmReport, SfmResult, align_reconstruction, run_sfm
 if TYPE_CHECKING:  # pragma: no cover
     from ..capture.camera import Camera
     from ..capture.dataset import DatasetConfig
-    from .triangulate import SparsePoints
+    from ..data.colmap import SparsePoints
 
 REPORT_FILE = "sfm_report.json"
 
@@ -100,9 +100,9 @@ def near_far_from_model(result: SfmResult) -> tuple[float, float] | None:
 
 
 def model_points(result: SfmResult) -> "SparsePoints":
-    """The reconstruction's well-seen sparse points (:func:`~nerfkit.sfm.triangulate.reconstruction_points`),
+    """The reconstruction's well-seen sparse points (:func:`~nerfkit.data.colmap.reconstruction_points`),
     each with the photos that see it."""
-    from .triangulate import reconstruction_points
+    from ..data.colmap import reconstruction_points
 
     return reconstruction_points(result.reconstruction, photo_name=lambda n: result.photo(n).name)
 

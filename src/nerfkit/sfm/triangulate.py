@@ -13,34 +13,16 @@ from __future__ import annotations
 
 import shutil
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
+from ..data.colmap import SparsePoints, reconstruction_points
 from ..data.scene import Views
 from ..errors import fail
 from .colmap import _import_pycolmap, _quiet_colmap
 
 EXHAUSTIVE_MAX = 120
-
-
-@dataclass
-class SparsePoints:
-    """Triangulated points: ``xyz`` (m, 3) float32 world coordinates, ``rgb`` (m, 3)
-    uint8 colours, ``error`` (m,) mean reprojection error in pixels, ``track`` (m,) the
-    length of each point's feature track, ``seen_by``: the names of the photos in each
-    point's track (a photo may give a point two features), or None."""
-
-    xyz: np.ndarray
-    rgb: np.ndarray
-    error: np.ndarray
-    track: np.ndarray
-    seen_by: list[tuple[str, ...]] | None = None
-
-    def __len__(self) -> int:
-        return len(self.xyz)
 
 
 def camera_neighbours(c2w: np.ndarray, k: int) -> list[tuple[int, int]]:
@@ -109,25 +91,6 @@ def triangulate_views(views: Views, work: str | Path | None = None, max_features
         shutil.rmtree(tmp, ignore_errors=True)
     view_names = views.names or [str(i) for i in range(len(views))]
     return reconstruction_points(rec, max_error, min_track, dict(zip(names, view_names)).get)
-
-
-def reconstruction_points(rec, max_error: float = 2.0, min_track: int = 3,
-                          photo_name: Callable[[str], str] | None = None) -> SparsePoints:
-    """The points of a pycolmap reconstruction (in its current frame) seen by
-    ``min_track`` or more images with a mean reprojection error <= ``max_error`` px, with
-    the photos that see each one (``photo_name``: COLMAP's image name -> the photo's name;
-    default the same)."""
-    pts = list(rec.points3D.values())
-    xyz = np.array([p.xyz for p in pts], np.float64).reshape(-1, 3)
-    rgb = np.array([p.color for p in pts], np.uint8).reshape(-1, 3)
-    err = np.array([p.error for p in pts], np.float64)
-    track = np.array([p.track.length() for p in pts], np.int64)
-    keep = (err <= max_error) & (track >= min_track) & np.isfinite(xyz).all(1)
-    image_name = {i: rec.images[i].name for i in rec.reg_image_ids()}
-    name = photo_name or (lambda n: n)
-    seen_by = [tuple(sorted({name(image_name[e.image_id]) for e in p.track.elements if e.image_id in image_name}))
-               for p, k in zip(pts, keep) if k]
-    return SparsePoints(xyz[keep].astype(np.float32), rgb[keep], err[keep].astype(np.float32), track[keep], seen_by)
 
 
 def _extract(pycolmap, db_path: Path, image_dir: Path, names: list[str], views: Views, max_features: int,
