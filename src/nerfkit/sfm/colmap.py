@@ -602,8 +602,8 @@ def reconstruction_c2w(rec) -> tuple[list[str], np.ndarray]:
 def _level_on_ground(result: SfmResult, progress: bool) -> str:
     """Find the table plane among the (normalised) reconstruction's points and make it
     z = 0; what was done, for the frame description."""
-    from .ground import find_ground_plane, ground_similarity
     from ..data.colmap import reconstruction_points
+    from .ground import find_ground_plane, ground_similarity
 
     rec = result.reconstruction
     _, c2w = reconstruction_c2w(rec)
