@@ -81,7 +81,8 @@ def test_sparse_points_and_who_saw_them_survive_a_colmap_model(tmp_path, text):
 
     def seen(s):
         key = {i: tuple(np.round(x, 5)) for i, x in enumerate(s.points)}
-        return {(key[p], s.train.names[v]) for p, v in s.point_views}, {key[i]: tuple(c) for i, c in enumerate(s.point_colors)}
+        colours = {key[i]: tuple(c) for i, c in enumerate(s.point_colors)}
+        return {(key[p], s.train.names[v]) for p, v in s.point_views}, colours
 
     assert seen(back) == seen(scene) and len(back.points) == len(scene.points)
     again = reconstruction_to_scene(rec, None, val_every=2)  # a val view's sightings are not kept
