@@ -188,7 +188,7 @@ class FastConfig:
                                          "photo's camera to a point it saw is empty up to the point and, for a "
                                          "point on the object, stopped just past it (as DS-NeRF supervises depth), "
                                          "so fur and fabric train solid instead of half see-through (default: "
-                                         "0.02 on capture datasets, else 0; labubu's own pixels +0.9 dB)", min=0.0)
+                                         "0.02 on capture datasets, else 0; labubu's object pixels +1.7 dB)", min=0.0)
     rgb_loss: str | None = option(None, "photometric loss: mse, or charbonnier (sqrt(e^2 + 1e-6), as mip-NeRF "
                                   "360), which lets pixels no consistent scene explains (the photographer's "
                                   "shadow, a moving reflection) pull no harder than small errors (default: "
