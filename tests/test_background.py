@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from nerfkit.fields.background import (RoomShells, TablePlane, composite_layers, contract_disc, layers_depth, plane_hit,
-                                       sh16, sphere_exit)
+                                       sh16, sphere_exit, table_doubt)
 
 
 def test_plane_hit_distances_front_side_only():
@@ -137,9 +137,10 @@ def test_table_coverage_shows_the_room_where_the_table_ends():
     t = model.table.hit(o, d)
     table, room = torch.sigmoid(torch.tensor(2.0)), torch.sigmoid(torch.tensor(-1.0))
     cover0 = torch.sigmoid(torch.tensor(4.0))
-    out = model._background(o, d, t, None)[0]
+    out, _, clear = model._background(o, d, t, None)
     torch.testing.assert_close(out[0], (cover0 * table + (1 - cover0) * room).expand(3))
     torch.testing.assert_close(out[1], room.expand(3))
+    torch.testing.assert_close(clear, torch.stack([1 - cover0, torch.tensor(0.0)]))  # the up ray meets no table
     with torch.no_grad():
         model.table.cover.fill_(-30.0)  # no table anywhere
     torch.testing.assert_close(model._background(o, d, t, None)[0][0], room.expand(3), atol=1e-6, rtol=0)
@@ -147,7 +148,7 @@ def test_table_coverage_shows_the_room_where_the_table_ends():
         model.table.cover.fill_(30.0)
         model.room.fine[:, :3] = 1.0
         model.room.fine[:, 3] = 30.0
-    out, depth = model._background(o, d, t, None)
+    out, depth, _ = model._background(o, d, t, None)
     torch.testing.assert_close(out[0], table.expand(3))
     torch.testing.assert_close(out[1], torch.sigmoid(torch.tensor(1.0)).expand(3))
     assert depth is None  # only rendering out of training asks for the layers' depth
@@ -159,6 +160,59 @@ def test_table_coverage_shows_the_room_where_the_table_ends():
     with torch.no_grad():  # a see-through table is still where the ray meets a surface
         model.table.cover.fill_(1.0)  # coverage 0.73
     torch.testing.assert_close(model._background(o, d, t, None)[1][0], torch.stack([t[0], first_shell]))
+
+
+def test_table_doubt_is_zero_where_the_table_is_there_or_not_and_one_at_half():
+    c = torch.tensor([0.0, 0.25, 0.5, 0.75, 1.0])
+    torch.testing.assert_close(table_doubt(c), torch.tensor([0.0, 0.75, 1.0, 0.75, 0.0]))
+
+
+def test_the_table_cover_prior_costs_in_the_loss_from_its_start():
+    """``--table-cover-weight`` adds its weight times the mean, over the rays, of the doubt
+    about the table (:func:`table_doubt` of the light it lets through) where the light
+    reaches it, once the schedule has switched it on; its gradient pushes a mostly opaque
+    spot toward opaque and a mostly clear one toward clear."""
+    from dataclasses import replace
+
+    from nerfkit.cameras import Rays
+    from nerfkit.data.synthetic import tabletop_scene
+    from nerfkit.models import SceneBounds
+    from nerfkit.models.base import StepState
+    from nerfkit.models.fast import EMPTY_RAW, FastConfig, FastNeRF
+
+    scene = tabletop_scene(n_train=2, n_val=0, size=16)
+    bounds = SceneBounds.from_scene(scene)
+    config = FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32, learn_background=True,
+                        room_shells=0, opacity_weight=0.0, distortion_weight=0.0, table_cover_start=0.5)
+    weight = 0.5
+    plain, model = (FastNeRF(replace(config, table_cover_weight=w), bounds) for w in (0.0, weight))
+    assert "table_doubt" not in plain.render_rays(Rays(torch.zeros(1, 3), torch.ones(1, 3)), torch.zeros(3), False).extras
+    (switch,) = [s for s in model.schedules() if s.name == "table cover prior"]
+    for m in (plain, model):
+        with torch.no_grad():
+            m.grid[:, 0] = EMPTY_RAW  # an empty box: all light reaches the table
+        m.train()
+    o = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])  # onto the table; away from it
+    target = torch.full((2, 3), 0.5)
+    for cover_logit, sign in ((1.0, -1), (-1.0, 1)):  # mostly opaque: pushed up; mostly clear: down
+        for m in (plain, model):
+            with torch.no_grad():
+                m.table.cover.fill_(cover_logit)
+        outs = [m.render_rays(Rays(o, d), torch.zeros(3), perturb=False) for m in (plain, model)]
+        doubt = outs[1].extras["table_doubt"]
+        clear = 1 - torch.sigmoid(torch.tensor(cover_logit))
+        through = 1 - outs[1].acc.detach()
+        torch.testing.assert_close(doubt, torch.stack([through[0] * 4 * clear * (1 - clear), torch.tensor(0.0)]))
+        for progress, on in ((0.4, False), (0.6, True)):
+            switch.run(StepState(step=0, progress=progress, optimizer=None))
+            assert model.cover_prior_on is on
+            gap = model.loss(outs[1], target) - plain.loss(outs[0], target)
+            torch.testing.assert_close(gap, weight * doubt.mean() if on else torch.tensor(0.0))
+        sink = model.texture_sinks[model.table.cover]
+        sink.grad.zero_()
+        (weight * doubt.mean()).backward()
+        assert sink.dirty and sign * float(sink.grad.sum()) > 0  # descent moves the cover logit by -sign
 
 
 def test_sphere_exit_is_the_far_root_and_misses_are_infinite():

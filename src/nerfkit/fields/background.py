@@ -296,6 +296,13 @@ class TablePlane(nn.Module):
             return torch.sigmoid(sample_texture(self.env, ENV_SIZE, torch.stack([azimuth, v], dim=-1)))
 
 
+def table_doubt(clear: Tensor) -> Tensor:
+    """(n,) ``4 c (1 - c)`` of the share of light ``c`` (n,) a plane lets through: 0 where
+    it is surely there (opaque) or surely not (clear), 1 at half; a prior that a table is
+    there or not, not a see-through blend of itself and the room beneath."""
+    return 4.0 * clear * (1.0 - clear)
+
+
 def sphere_exit(origins: Tensor, dirs: Tensor, center: Tensor, radii: Tensor) -> Tensor:
     """Distance along each ray to where it leaves each sphere around ``center``.
 
