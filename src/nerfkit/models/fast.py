@@ -184,10 +184,11 @@ class FastConfig:
                                        "object on a plain table, whose table otherwise blends a little of the room "
                                        "into each photo in blotches: labubu's 30-photo capture +1.0 dB at 0.05. "
                                        "It costs where the photos show much floor past the table's edge (steve "
-                                       "-0.5 dB, -1.0 fitted) and on full captures (labubu -0.1); 0: off (the default)", min=0.0)
+                                       "-0.5 dB, -1.0 fitted) and on full captures (labubu -0.1); 0: off (the "
+                                       "default)", min=0.0)
     table_cover_start: float = option(0.0, "with --table-cover-weight: the share of the run after which the prior "
                                       "applies, so that the coverage first learns where the table ends (0.6: steve "
-                                      "and full captures within 0.1-0.2 dB, but labubu's 30 photos gain only 0.3)",
+                                      "within 0.1 dB, the full labubu capture -0.2, but its 30 photos gain only 0.3)",
                                       min=0.0, max=1.0)
     distortion_weight: float | None = option(None, "weight of mip-NeRF 360's distortion loss (per ray, distances in "
                                              "units of the scene radius; with --table the table counts as the "
@@ -665,8 +666,9 @@ class FastNeRF(NerfModel):
         return {self.grid: self.sink, **self.texture_sinks}
 
     def schedules(self) -> list[Schedule]:
-        """Coarse-to-fine growth (before a step; new grid parameters), the total variation
-        (with the step's gradients), and after a step:
+        """Coarse-to-fine growth and the table cover prior's switch (before a step; the
+        growth installs new grid parameters), the total variation (with the step's
+        gradients), and after a step:
         where opaque rays ended (until the first growth, which shrinks the box around
         them) and occupancy refreshes (every ``occ_start`` steps until ``occ_warmup``, then
         every ``occ_every``)."""
