@@ -53,6 +53,10 @@ def test_few_views_note_only_below_the_threshold():
     assert few_views_note(FEW_TRAIN_VIEWS) is None and few_views_note(129) is None
     note = few_views_note(20)
     assert note is not None and "20 training photos" in note and "50-100" in note
+    from dataclasses import fields
+
+    from nerfkit.models.fast import FastConfig
+    assert "--table-cover-weight" in note and "table_cover_weight" in {f.name for f in fields(FastConfig)}
 
 
 def project_pinhole_nerfkit(K_nk, c2w, X):
