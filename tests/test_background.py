@@ -126,7 +126,8 @@ def test_table_coverage_shows_the_room_where_the_table_ends():
 
     scene = tabletop_scene(n_train=2, n_val=0, size=16)
     model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32,
-                                learn_background=True, room_shells=2, room_resolution=16), SceneBounds.from_scene(scene))
+                                learn_background=True, room_shells=2, room_resolution=16, table_cover_weight=0.05),
+                     SceneBounds.from_scene(scene))
     with torch.no_grad():
         model.table.fine.fill_(2.0)  # table colour sigmoid(2)
         model.room.fine[:, 3] = -30.0  # room shells transparent
@@ -141,6 +142,9 @@ def test_table_coverage_shows_the_room_where_the_table_ends():
     torch.testing.assert_close(out[0], (cover0 * table + (1 - cover0) * room).expand(3))
     torch.testing.assert_close(out[1], room.expand(3))
     torch.testing.assert_close(clear, torch.stack([1 - cover0, torch.tensor(0.0)]))  # the up ray meets no table
+    model.config.table_cover_weight = 0.0
+    assert model._background(o, d, t, None)[2] is None  # not asked for: the cover prior is off
+    model.config.table_cover_weight = 0.05
     with torch.no_grad():
         model.table.cover.fill_(-30.0)  # no table anywhere
     torch.testing.assert_close(model._background(o, d, t, None)[0][0], room.expand(3), atol=1e-6, rtol=0)

@@ -473,15 +473,16 @@ class FastNeRF(NerfModel):
         (:meth:`_far`). A glossy table also shows its map of the surroundings along the
         mirrored ray. Out of training, also the (n,) distance of the layer each ray meets
         and whether it meets one (:func:`layers_depth`); else, or with no layers, None.
-        Last, the (n,) share of light the table lets through where a ray meets it (0 where
-        it misses; None without a table)."""
+        Last, for the table cover prior (in training, with its weight), the (n,) share of
+        light the table lets through where a ray meets it (0 where it misses); else None."""
         bg = self._far(d, background)
         compiled = self._backend() == "numba"  # the textures follow the grid's kernels
         layers = [] if self.room is None else [self.room.layers(o, d, self.texture_sinks, compiled)]
         clear = None
         if t_table is not None:
             layers.append(self._plane_layer(self.table, o, d, t_table, self.config.table_gloss, compiled))
-            clear = torch.isfinite(t_table) * (1.0 - layers[-1][2][:, 0])
+            if self.training and self.config.table_cover_weight > 0:  # for the cover prior
+                clear = torch.isfinite(t_table) * (1.0 - layers[-1][2][:, 0])
         if self.floor is not None:
             layers.append(self._plane_layer(self.floor, o, d, self.floor.hit(o, d), False, compiled))
         if not layers:
@@ -535,7 +536,7 @@ class FastNeRF(NerfModel):
         extras = {"samples_per_ray": out.counts}
         if out.distortion is not None:
             extras["distortion"] = out.distortion
-        if clear is not None and self.training and self.config.table_cover_weight > 0:
+        if clear is not None:
             extras["table_doubt"] = through.detach() * table_doubt(clear)
         result = RenderOutput(rgb, out.depth, out.acc, out.n_samples, extras)
         if behind is not None:  # what the rays meet past the volume: the table, the room
