@@ -143,6 +143,55 @@ def test_auto_poses_a_tag_capture_by_sfm_in_the_tag_frame(room_photos, tmp_path)
     np.testing.assert_allclose(_dataset_poses(tmp_path / "auto")[1], tag_c2w, atol=1e-5)
 
 
+def _deregister(rec, name: str) -> None:
+    """Take one photo out of a pycolmap reconstruction (pycolmap 4 registers frames, 3 images)."""
+    image = rec.find_image_with_name(name)
+    if hasattr(rec, "deregister_frame"):
+        rec.deregister_frame(image.frame_id)
+    else:  # pragma: no cover - pycolmap 3
+        rec.deregister_image(image.image_id)
+
+
+@pytest.mark.slow
+def test_a_photo_sfm_misses_keeps_its_tag_pose(room_photos, tmp_path, monkeypatch, capsys):
+    """SfM leaves one photo the tag posed unregistered: the dataset still has it, posed from
+    the tag with SfM's camera, and a rebuild from the SfM report keeps it."""
+    import nerfkit.sfm.colmap as colmap
+
+    folder, truth = room_photos
+    missed = sorted(truth)[3]
+    real = colmap.run_sfm
+
+    def misses_one(*args, **kwargs):
+        result = real(*args, **kwargs)
+        _deregister(result.reconstruction, missed)
+        return result
+
+    monkeypatch.setattr(colmap, "run_sfm", misses_one)
+    common = ["--focal-px", "260", "--tag-size", str(TAG_SIZE), "--val-every", "6", "--test-every", "0",
+              "--matcher", "exhaustive"]
+    assert main(["poses", str(folder), *common, "--out", str(tmp_path / "ds")]) == 0
+    assert f"the tag poses are kept for 1 photos SfM did not register (solved again with SfM's camera): {missed}" \
+        in capsys.readouterr().out
+    choice = json.loads((tmp_path / "ds" / "transforms.json").read_text())["nerfkit"]["pose_choice"]
+    assert choice["poses"] == "sfm" and choice["tag_posed"] == [missed]
+    names, c2w = _dataset_poses(tmp_path / "ds")
+    assert sorted(names) == sorted(truth)  # all 12, the missed one included
+    poses = dict(zip(names, c2w))
+    ref = truth[missed].copy()
+    ref[:3, 3] -= np.array([0.8 + TAG_SIZE / 2, -0.2 + TAG_SIZE / 2, 0.0])  # the tag's frame
+    e = pose_agreement({missed: poses[missed]}, {missed: ref})
+    assert e["rot_deg_max"] < 0.5 and e["shift_max"] < 0.03, e  # a tag pose, with SfM's camera (cameras ~2 m away)
+    saved = json.loads((tmp_path / "ds" / "sfm_report.json").read_text())["model"]["tag_posed"]
+    np.testing.assert_allclose(saved[missed]["c2w"], poses[missed], atol=1e-6)
+    # rebuilt from the report, the photo keeps its pose
+    assert main(["dataset", str(tmp_path / "ds"), "--out", str(tmp_path / "again"), "--val-every", "6",
+                 "--test-every", "0"]) == 0
+    names2, c2w2 = _dataset_poses(tmp_path / "again")
+    assert names2 == names
+    np.testing.assert_allclose(c2w2, c2w, atol=1e-5)
+
+
 @pytest.mark.slow
 def test_auto_keeps_the_tag_poses_and_says_why_when_sfm_fails(room_photos, tmp_path, monkeypatch, capsys):
     import nerfkit.sfm.colmap as colmap
@@ -184,3 +233,7 @@ def test_rebuilding_from_sfm_says_what_is_missing(tmp_path, capsys):
     (tmp_path / "colmap" / "sparse" / "0").mkdir(parents=True)
     (tmp_path / "colmap" / "sparse" / "0" / "images.txt").write_text("")
     assert "model.tag_size is -1" in error()
+    for bad in ({"b.jpg": {"c2w": np.eye(4).tolist(), "error_px": 0.1}}, {"a.jpg": {"c2w": [[1.0]], "error_px": 0.1}},
+                {"a.jpg": {"c2w": np.eye(4).tolist()}}, ["a.jpg"]):  # a photo not in the model, not 4x4, no error
+        (tmp_path / REPORT_FILE).write_text(json.dumps({**report, "model": {**model, "tag_posed": bad}}))
+        assert "model.tag_posed" in error()

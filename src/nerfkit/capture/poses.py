@@ -163,6 +163,13 @@ def error_limit(camera: Camera, side_px: float, cfg: PoseConfig) -> tuple[float,
     return parts[how], how
 
 
+def detection_limit(det: Detection, camera: Camera, layout: Layout, cfg: PoseConfig) -> tuple[float, str]:
+    """:func:`error_limit` for a photo's detection: by the largest of the layout's tags it shows."""
+    sides = [tag_side_px(det, int(t)) for t in set(int(i) for i in det.ids)
+             if int(t) in layout.tags and layout.charuco is None]
+    return error_limit(camera, max(sides, default=0.0), cfg)
+
+
 def tag_side_px(det: Detection, tag: int) -> float:
     c = det.corners[list(det.ids).index(tag)]
     return float(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean())
@@ -270,9 +277,7 @@ def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
             continue
         cam = cams.setdefault((w, h), camera.scaled_to(w, h))
         det = r.detection
-        sides = [tag_side_px(det, int(t)) for t in set(int(i) for i in det.ids)
-                 if int(t) in layout.tags and layout.charuco is None]
-        limit, how = error_limit(cam, max(sides, default=0.0), cfg)
+        limit, how = detection_limit(det, cam, layout, cfg)
         c2w, err, reason, info = solve_pose_robust(det, cam, layout, limit)
         r.info.update(info)
         if c2w is None:

@@ -222,7 +222,8 @@ def run(args: argparse.Namespace) -> int:
         start = camera if (args.camera or args.focal_px) else None  # else SfM starts from the EXIF focal length
         choice = choose_poses(args.photos, out, posed, start, ref, tag_size, dictionary,
                               tag_corners=None if len(layout.tags) == 1 else layout.tags[ref],
-                              matcher=args.matcher, max_image_size=args.sfm_max_size, threads=args.jobs or -1)
+                              matcher=args.matcher, max_image_size=args.sfm_max_size, threads=args.jobs or -1,
+                              records=records, layout=layout, pose_cfg=pcfg)
         print(choice.why)
         if choice.result is not None:
             from ..sfm.dataset import build_dataset

@@ -100,6 +100,8 @@ class SfmResult:
     sources: dict[str, Path] = field(default_factory=dict)  # COLMAP image name -> the user's photo
     on_ground: bool = False  # no tag, but z = 0 is the table plane found in the sparse points
     turns: dict[str, int] = field(default_factory=dict)  # COLMAP image name -> clockwise quarter turns from upright
+    # COLMAP image name -> (camera-to-world (4, 4), RMS px) of photos SfM missed that keep their tag poses
+    tag_posed: dict[str, tuple[np.ndarray, float]] = field(default_factory=dict)
 
     def photo(self, name: str) -> Path:
         """The user's photo COLMAP knows as ``name`` (HEIC photos: their own name, not the copy's)."""

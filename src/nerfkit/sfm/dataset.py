@@ -64,7 +64,8 @@ def opencv_camera(camera) -> "Camera":
 
 
 def posed_photos(result: SfmResult) -> list:
-    """The registered photos as the capture package's ``PosedPhoto`` (name order)."""
+    """The registered photos, and those that keep their tag poses (``result.tag_posed``,
+    with SfM's camera), as the capture package's ``PosedPhoto`` (name order)."""
     from ..capture.poses import PosedPhoto
     from ..data.colmap import image_c2w
 
@@ -76,6 +77,12 @@ def posed_photos(result: SfmResult) -> list:
         photo = result.photo(im.name)
         out.append(PosedPhoto(photo.name, photo, image_c2w(im), image_error(rec, im),
                               cams[im.camera_id], result.turns.get(im.name, 0)))
+    if result.tag_posed:
+        shared = out[0].camera  # SfM shares one camera among the photos
+        for name, (c2w, err) in result.tag_posed.items():
+            photo = result.photo(name)
+            out.append(PosedPhoto(photo.name, photo, np.asarray(c2w, np.float64), err, shared,
+                                  result.turns.get(name, 0)))
     return sorted(out, key=lambda p: p.name)
 
 
@@ -156,7 +163,9 @@ def saved_model(result: SfmResult, out_dir: str | Path) -> dict:
             "photos_dir": str(folders.pop()) if len(folders) == 1 else None,
             "photos": {name: p.name for name, p in sorted(result.sources.items())},
             "turned_deg": {name: 90 * t for name, t in sorted(result.turns.items())},
-            "tag_size": result.tag_size, "on_ground": result.on_ground}
+            "tag_size": result.tag_size, "on_ground": result.on_ground,
+            "tag_posed": {name: {"c2w": np.round(c2w, 9).tolist(), "error_px": round(err, 4)}
+                          for name, (c2w, err) in sorted(result.tag_posed.items())}}
 
 
 def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResult:
@@ -197,6 +206,7 @@ def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResul
             turned = model.get("turned_deg", {})
             if not all(name in sources and deg in (90, 180, 270) for name, deg in turned.items()):
                 raise fail(path, f"model.turned_deg is {short_repr(turned)}, expected photo name -> 90, 180 or 270")
+            tag_posed = _read_tag_posed(model.get("tag_posed", {}), sources, path)
         except (KeyError, TypeError, AttributeError) as e:
             raise fail(path, f"malformed SfM report ({type(e).__name__}: {e})") from None
     try:
@@ -204,7 +214,29 @@ def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResul
     except Exception as e:  # pycolmap raises its own errors for unreadable models
         raise fail(model_dir, f"cannot read the COLMAP model ({type(e).__name__}: {e})", redo) from None
     return SfmResult(rec, model_dir, photos_dir, report, tag_size=None if tag_size is None else float(tag_size),
-                     sources=sources, on_ground=on_ground, turns={n: int(d) // 90 for n, d in turned.items()})
+                     sources=sources, on_ground=on_ground, turns={n: int(d) // 90 for n, d in turned.items()},
+                     tag_posed=tag_posed)
+
+
+def _read_tag_posed(data, sources: dict, path: Path) -> dict[str, tuple[np.ndarray, float]]:
+    """``model.tag_posed`` of an SfM report (:func:`saved_model`), checked."""
+    from ..data.validate import short_repr
+
+    expected = "expected photo name (of model.photos) -> {c2w: a 4x4 camera-to-world, error_px}"
+    if not isinstance(data, dict):
+        raise fail(path, f"model.tag_posed is {short_repr(data)}, {expected}")
+    out = {}
+    for name, entry in data.items():
+        try:
+            c2w, err = np.array(entry["c2w"], np.float64), float(entry["error_px"])
+            ok = name in sources and c2w.shape == (4, 4) and np.isfinite(c2w).all() and \
+                np.allclose(c2w[3], [0, 0, 0, 1])
+        except (TypeError, ValueError, KeyError, IndexError):
+            ok = False
+        if not ok:
+            raise fail(path, f"model.tag_posed has {short_repr(name)}: {short_repr(entry)}, {expected}")
+        out[name] = (c2w, err)
+    return out
 
 
 def sfm_dataset(
