@@ -106,9 +106,10 @@ def calibration_figures(name: str, cam: Path, poses: Path) -> dict:
     c = json.loads(cam.read_text())
     photos = json.loads((poses / "poses.json").read_text())["photos"]
     detected = [x for x in photos if x.get("tags")]
-    choice = None
+    choice, views = None, None
     if (poses / "transforms.json").exists():
-        choice = json.loads((poses / "transforms.json").read_text())["nerfkit"].get("pose_choice")
+        block = json.loads((poses / "transforms.json").read_text())["nerfkit"]
+        choice, views = block.get("pose_choice"), sum(block["views"].values())
     return {
         "capture": name, "calib_photos": len(c["images"]), "calib_used": c["photos_used"],
         "model": c["dist_model"], "dist": c["dist"], "heldout": c.get("heldout_rms"), "rms": c["rms"],
@@ -117,6 +118,7 @@ def calibration_figures(name: str, cam: Path, poses: Path) -> dict:
         "why": c["model_selection"]["why"],
         "dropped": [f"{x['file']}: {x['reason']}" for x in detected if not x["used"]],
         "pose_choice": choice["why"] if choice else "the tag's",
+        "in_dataset": views, "tag_kept": len((choice or {}).get("tag_posed") or []),
     }
 
 
@@ -182,9 +184,10 @@ def print_table(rows: list[dict]) -> None:
         out.append([r["capture"], f"{r['calib_used']}/{r['calib_photos']}", r["photos"], r["detected"],
                     f"{r['posed']} ({r['posed'] / max(r['detected'], 1) * 100:.0f}%)", r["model"],
                     " ".join(f"{v:+.3f}" for v in k[:2]) + (f" p {k[2]:+.3f} {k[3]:+.3f}" if any(k[2:4]) else ""),
-                    f"{r['heldout']:.3f}", exif])
+                    f"{r['heldout']:.3f}", exif,
+                    "-" if r["in_dataset"] is None else f"{r['in_dataset']} ({r['tag_kept']} tag-posed beside SfM's)"])
     print(table(out, ["capture", "calib used", "photos", "tag found", "posed", "model", "k1 k2 (p1 p2)",
-                      "held-out px", "fx / EXIF fx"], max_width=160))
+                      "held-out px", "fx / EXIF fx", "in the dataset"], max_width=200))
     for r in rows:
         took = f"; calibration took {r['calib_s']:.1f} s" if "calib_s" in r else ""
         print(f"\n{r['capture']}: {r['why']}{took}; {r['second_pass']} photos found by the second detection pass")
