@@ -68,6 +68,32 @@ def test_auto_capture_settings_follow_the_dataset(tabletop):
     assert capture_settings(TrainConfig(), FastConfig(rgb_loss="mse"), tabletop)[1].rgb_loss == "mse"
 
 
+def test_the_table_cover_prior_is_on_for_few_photos_that_show_no_floor_past_the_table(tabletop):
+    from dataclasses import replace
+
+    from nerfkit.models.fast import TABLE_COVER_WEIGHT
+
+    rng = np.random.default_rng(0)
+    table = np.concatenate([rng.uniform(-1, 1, (300, 2)), np.zeros((300, 1))], 1)
+    floor = np.concatenate([rng.uniform(-6, 6, (400, 2)), np.full((400, 1), -2.0)], 1)  # 2 under the table
+    plain = replace(tabletop, points=table.astype(np.float32))
+    with_floor = replace(tabletop, points=np.concatenate([table, floor]).astype(np.float32))
+
+    def weight(scene, train=TrainConfig(), model=FastConfig()):
+        return capture_settings(train, model, scene)[1].table_cover_weight
+
+    assert TABLE_COVER_WEIGHT > 0
+    assert weight(plain) == TABLE_COVER_WEIGHT  # the table fills the photos: table or not
+    assert weight(with_floor) == 0.0  # the table must learn where it ends
+    assert weight(tabletop) == 0.0  # no sparse points: the floor is unknown
+    assert weight(plain, TrainConfig(capture="off")) == 0.0
+    many = replace(tabletop_scene(n_train=30, n_val=0, size=8), points=plain.points)
+    assert weight(many) == 0.0  # 30 training photos average the blotches out
+    assert weight(replace(many, train=many.train.subset(np.arange(29)))) == TABLE_COVER_WEIGHT
+    assert weight(with_floor, model=FastConfig(table_cover_weight=0.02)) == 0.02  # given: kept
+    assert weight(plain, model=FastConfig(table_cover_weight=0.0)) == 0.0
+
+
 def test_the_learning_rate_ends_lower_on_captures_for_the_fast_model_only(tabletop):
     from nerfkit.models.vanilla import VanillaConfig
 

@@ -109,6 +109,32 @@ FINE_STAGES = ("32,64,128,192,256", "60,300,2000,3500")
 FINE_STAGE_PIXELS = 100_000
 
 
+# weight of the table cover prior on few-photo captures that show no floor past the table's edge
+TABLE_COVER_WEIGHT = 0.05
+
+
+def table_cover_default(scene, capture: bool) -> float:
+    """``--table-cover-weight`` left unset: :data:`TABLE_COVER_WEIGHT` on a capture with a
+    table, fewer than :data:`~nerfkit.capture.dataset.FEW_TRAIN_VIEWS` training photos and
+    sparse points that show no floor under the table; else 0.
+
+    With few photos a table's coverage under 1 blends the room shells into it in blotches
+    that the photos cannot average out (labubu, 24 training photos: +0.6 dB on val and test
+    with the prior; 40: +0.1 val, -0.3 test; all 129: -0.1). Where a floor shows past the
+    table's edge (steve: a carpet 0.4 m down) the coverage must learn to turn clear there,
+    and the prior holds it opaque: the carpet is painted onto the table's plane (-0.5 dB).
+    Without sparse points the floor is unknown: off.
+    """
+    from ..capture.dataset import FEW_TRAIN_VIEWS
+
+    if not capture or scene.table is None or scene.points is None or not 0 < len(scene.train) < FEW_TRAIN_VIEWS:
+        return 0.0
+    from ..sfm.ground import find_floor
+
+    floor = find_floor(scene.points, scene.table, scene.train.c2w[:, :3, 3], scene.center)
+    return TABLE_COVER_WEIGHT if floor is None else 0.0
+
+
 @dataclass
 class FastConfig:
     """Options of the ``fast`` model."""
@@ -178,14 +204,16 @@ class FastConfig:
                                    "rays, and each sparse Adam step moves it by about the learning rate)", min=0)
     opacity_weight: float = option(0.005, "with --table: weight of the mean opacity of the box in the loss, so that "
                                    "what the table and the room explain is not copied into clouds of density", min=0)
-    table_cover_weight: float = option(0.0, "with --table: weight of a prior that each spot of the table plane is "
-                                       "table (opaque) or not (past the table's edge: clear), 4 c (1 - c) of the "
-                                       "light c it lets through, on the rays that reach it. For few photos of an "
-                                       "object on a plain table, whose table otherwise blends a little of the room "
-                                       "into each photo in blotches: labubu's 30-photo capture +1.0 dB at 0.05. "
-                                       "It costs where the photos show much floor past the table's edge (steve "
-                                       "-0.5 dB, -1.0 fitted) and on full captures (labubu -0.1); 0: off (the "
-                                       "default)", min=0.0)
+    table_cover_weight: float | None = option(None, "with --table: weight of a prior that each spot of the table "
+                                              "plane is table (opaque) or not (past the table's edge: clear), "
+                                              "4 c (1 - c) of the light c it lets through, on the rays that reach "
+                                              "it, against a table that blends a little of the room into each "
+                                              "photo in blotches (labubu, 24 training photos: +0.6 dB at 0.05). It "
+                                              "costs where the photos show a floor past the table's edge (steve "
+                                              "-0.5 dB) and gains nothing from 40 photos on. Default: "
+                                              f"{TABLE_COVER_WEIGHT:g} on captures with fewer than 30 training "
+                                              "photos whose sparse points show no floor under the table, else 0",
+                                              min=0.0)
     table_cover_start: float = option(0.0, "with --table-cover-weight: the share of the run after which the prior "
                                       "applies, so that the coverage first learns where the table ends (0.6: steve "
                                       "within 0.1 dB, the full labubu capture -0.2, but its 30 photos gain only 0.3)",
@@ -233,14 +261,18 @@ class FastConfig:
                           choices=["auto", "numba", "torch"])
 
     def scene_defaults(self, scene, capture: bool) -> dict:
-        """Values for the unset stage options that depend on the scene: the fifth stage
-        (:data:`FINE_STAGES`) for an object scene photographed at high resolution."""
+        """Values for the unset options that depend on the scene: the fifth stage
+        (:data:`FINE_STAGES`) for an object scene photographed at high resolution, and the
+        table cover prior (:func:`table_cover_default`)."""
+        out = {}
+        if self.table_cover_weight is None:
+            out["table_cover_weight"] = table_cover_default(scene, capture)
         if self.resolutions is not None or self.upsample_steps is not None:
-            return {}
+            return out
         fine = (not capture and not scene.forward_facing and len(scene.train) > 0
                 and scene.train.width * scene.train.height > FINE_STAGE_PIXELS)
         resolutions, steps = FINE_STAGES if fine else BASE_STAGES
-        return {"resolutions": resolutions, "upsample_steps": steps}
+        return {**out, "resolutions": resolutions, "upsample_steps": steps}
 
     def validate(self) -> "FastConfig":
         """Its ranges, and the stages and ray factors its strings spell (refused as flags are)."""
@@ -481,7 +513,7 @@ class FastNeRF(NerfModel):
         clear = None
         if t_table is not None:
             layers.append(self._plane_layer(self.table, o, d, t_table, self.config.table_gloss, compiled))
-            if self.training and self.config.table_cover_weight > 0:  # for the cover prior
+            if self.training and self.config.table_cover_weight:  # for the cover prior
                 clear = torch.isfinite(t_table) * (1.0 - layers[-1][2][:, 0])
         if self.floor is not None:
             layers.append(self._plane_layer(self.floor, o, d, self.floor.hit(o, d), False, compiled))
@@ -677,7 +709,7 @@ class FastNeRF(NerfModel):
                 Schedule("total variation", lambda s: self.config.tv_weight > 0, self._add_tv, phase="gradients"),
                 Schedule("remember surfaces", self._surface_due, self._remember_surface, phase="after_step"),
                 Schedule("occupancy", self._occupancy_due, self._occupancy_job, phase="after_step"),
-                Schedule("table cover prior", lambda s: self.config.table_cover_weight > 0, self._switch_cover_prior)]
+                Schedule("table cover prior", lambda s: bool(self.config.table_cover_weight), self._switch_cover_prior)]
 
     def _switch_cover_prior(self, s: StepState) -> None:
         """The table's cover prior applies from ``--table-cover-start`` of the run on."""
