@@ -143,6 +143,54 @@ def test_auto_poses_a_tag_capture_by_sfm_in_the_tag_frame(room_photos, tmp_path)
     np.testing.assert_allclose(_dataset_poses(tmp_path / "auto")[1], tag_c2w, atol=1e-5)
 
 
+def test_photos_sfm_missed_are_posed_from_the_tag_with_sfms_camera(tmp_path):
+    """``adopt_tag_poses`` on a stand-in for SfM's model: the photos it did not register
+    are solved again from their tag corners with its camera (the truth here, where the
+    calibration's focal length was 4% short), unless their size or turn is not SfM's."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from nerfkit.capture import aruco as A
+    from nerfkit.capture import synthetic as S
+    from nerfkit.capture.photos import PhotoRecord
+    from nerfkit.capture.poses import PoseConfig, PosedPhoto, solve_pose
+    from nerfkit.sfm.colmap import SfmResult
+    from nerfkit.sfm.tagged import adopt_tag_poses
+
+    cap = S.cached_capture("object", 10, 1)
+    layout, detector = A.Layout.single(0, 0.06), A.make_detector("DICT_4X4_50")
+    K, d = cap.K, cap.dist
+    colmap_cam = SimpleNamespace(model_name="OPENCV", width=cap.width, height=cap.height,  # pixel centres at +0.5
+                                 params=[K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5, *d[:4]])
+    short = Camera(np.diag([0.96, 0.96, 1.0]) @ K, d, cap.width, cap.height)  # the calibration's
+    records, posed, truth = [], [], {}
+    for name, img, c2w in zip(cap.names, cap.images, cap.c2w):
+        det = A.detect(img, detector)
+        pose = solve_pose(det, short, layout)[0]
+        if pose is None:  # the sphere hides the tag
+            continue
+        records.append(PhotoRecord(name, tmp_path / name, det))
+        posed.append(PosedPhoto(name, tmp_path / name, pose, 0.1, short))
+        truth[name] = c2w
+    assert len(posed) >= 6
+    first, turned, resized, *rest = [p.name for p in posed]  # SfM registered the first only
+    rec = SimpleNamespace(images={1: SimpleNamespace(name=first, camera_id=7)}, cameras={7: colmap_cam},
+                          reg_image_ids=lambda: [1])
+    result = SfmResult(rec, tmp_path, tmp_path, None, tag_size=0.06, turns={turned: 1})  # SfM's copy turned
+    posed[2] = replace(posed[2], camera=short.scaled_to(cap.width // 2, cap.height // 2))  # another size
+
+    adopted, left = adopt_tag_poses(result, posed, records, layout, PoseConfig())
+    assert adopted == rest and sorted(left) == sorted([turned, resized])
+    assert "turned 0 degrees for the tag, 90 for SfM" in left[turned]
+    assert "320x240, SfM's camera 640x480" in left[resized]
+    assert sorted(result.tag_posed) == sorted(rest)
+    for name in adopted:
+        c2w, err = result.tag_posed[name]
+        given = next(p.c2w for p in posed if p.name == name)
+        near, far = (np.linalg.norm(x[:3, 3] - truth[name][:3, 3]) for x in (c2w, given))
+        assert err < 0.5 and near < 0.003 and far > 3 * near, (name, near, far)
+
+
 def _deregister(rec, name: str) -> None:
     """Take one photo out of a pycolmap reconstruction (pycolmap 4 registers frames, 3 images)."""
     image = rec.find_image_with_name(name)
