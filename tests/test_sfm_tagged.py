@@ -219,7 +219,7 @@ def test_a_photo_sfm_misses_keeps_its_tag_pose(room_photos, tmp_path, monkeypatc
     common = ["--focal-px", "260", "--tag-size", str(TAG_SIZE), "--val-every", "6", "--test-every", "0",
               "--matcher", "exhaustive"]
     assert main(["poses", str(folder), *common, "--out", str(tmp_path / "ds")]) == 0
-    assert f"the tag poses are kept for 1 photos SfM did not register (solved again with SfM's camera): {missed}" \
+    assert f"the tag poses are kept for 1 photo SfM did not register (solved again with SfM's camera): {missed}" \
         in capsys.readouterr().out
     choice = json.loads((tmp_path / "ds" / "transforms.json").read_text())["nerfkit"]["pose_choice"]
     assert choice["poses"] == "sfm" and choice["tag_posed"] == [missed]

@@ -137,8 +137,8 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
     if records is not None:
         adopted, left = adopt_tag_poses(result, tag_posed, records, layout, pose_cfg)
         if adopted:
-            why += (f"; the tag poses are kept for {len(adopted)} photos SfM did not register (solved again with "
-                    f"SfM's camera): {', '.join(adopted)}")
+            why += (f"; the tag poses are kept for {len(adopted)} photo{'s' * (len(adopted) != 1)} SfM did not "
+                    f"register (solved again with SfM's camera): {', '.join(adopted)}")
         if left:
             why += "; not adopted: " + "; ".join(f"{n} ({r})" for n, r in left.items())
     return PoseChoice(result, why, agreement, adopted)
