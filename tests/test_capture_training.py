@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -347,6 +348,82 @@ def test_eval_scores_the_objects_own_pixels(tmp_path, tabletop):
     assert masked_psnr(np.zeros((2, 2, 3)), np.full((2, 2, 3), 0.1), np.array([[True, False], [False, False]])) \
         == pytest.approx(20.0)
     assert masked_psnr(np.zeros((2, 2, 3)), np.zeros((2, 2, 3)), np.zeros((2, 2), bool)) is None
+
+
+def test_the_largest_piece_reaches_a_face_other_pieces_do_not_count():
+    from nerfkit.tabletop import faces_reached
+
+    solid = np.zeros((20, 16, 12), bool)
+    solid[8:12, 6:10, 2:8] = True  # the object
+    assert faces_reached(solid) == []
+    solid[:8, 7:9, 5] = True  # a rod from it to the x- face: 2 columns of that face
+    assert faces_reached(solid) == [] and faces_reached(solid, min_columns=2) == [(0, 0)]
+    solid[:8, 7:9, 6] = True  # 4 columns
+    assert faces_reached(solid) == [(0, 0)]
+    solid[14:18, 14:16, 9:12] = True  # a floater at the y+ and z+ faces, apart from the object
+    assert faces_reached(solid) == [(0, 0)]
+    solid[11, 9:15, 5] = solid[11:16, 14, 5:10] = True  # joined now: the largest piece reaches them too
+    assert faces_reached(solid) == [(0, 0), (1, 1), (2, 1)]
+    assert faces_reached(np.zeros((4, 4, 4), bool)) == []
+
+
+def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_what_crossed():
+    """A sword held out of the box: the growth moves that face out by half the box (within
+    the scene's sphere), the sword's cross-section carries on into the new space, and a
+    floater at another face or the table's paint crossing a third moves nothing."""
+    from nerfkit.models.base import SceneBounds, StepState
+    from nerfkit.models.fast import BOX_FOLLOW, EMPTY_RAW, FastNeRF, resample_grid
+
+    box = (np.array([-1.0, -0.8, -0.5], np.float32), np.array([1.0, 0.9, 1.3], np.float32))
+
+    def model_with_sword(radius, follows=True):
+        bounds = SceneBounds(1.0, 8.0, np.array([0, 0, 0.5], np.float32), radius, np.array([0, 0, 1], np.float32),
+                             table=np.array([0, 0, 1, 0], np.float32), camera_radius=4.0, object_box=box)
+        model = FastNeRF(FastConfig(resolutions="31,31,41", upsample_steps="5,10", table=True, table_resolution=32,
+                                    box_follows=follows), bounds)
+        lo, v = model.grid_lo.numpy(), model.voxel
+        x, y, z = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in enumerate(model.res)), indexing="ij")
+        post = (x ** 2 + y ** 2 < 0.2 ** 2) & (z < 1.0)
+        sword = (x < 0) & (y ** 2 + (z - 0.6) ** 2 < 0.12 ** 2)  # to the x- face
+        floater = ((x - 0.6) ** 2 + (y - 0.9) ** 2 + (z - 0.8) ** 2) < 0.15 ** 2  # at the y+ face
+        paint = (x > 0.5) & (np.abs(z) < 0.04)  # on the table, to the x+ face
+        rows = model.vertex_rows.long().numpy().reshape(model.res[::-1]).transpose(2, 1, 0)
+        with torch.no_grad():
+            model.grid[:, 0] = EMPTY_RAW
+            model.grid[rows[post | sword | floater | paint], 0] = 10.0
+        return model
+
+    def grown(model, stage=1, progress=0.3):
+        model.stage = stage  # (the box follows from the second growth on, in the first half of the run)
+        notes = model._grow_next(StepState(step=5 if stage == 0 else 10, progress=progress))
+        lo = model.grid_lo.numpy().astype(np.float64)
+        return lo, lo + model.voxel * (np.array(model.res) - 1), notes
+
+    def moved_by(notes, face):
+        return float(re.search(rf"{face} by ([0-9.e-]+)", notes)[1])
+
+    def raw_density(model, points):
+        return resample_grid(model.grid, model.geom, torch.tensor(points, dtype=torch.float32))[:, 0].numpy()
+
+    model = model_with_sword(radius=5.0)
+    lo, hi, notes = grown(model)
+    size = box[1] - box[0]
+    np.testing.assert_allclose(lo[0], box[0][0] - BOX_FOLLOW * size[0], atol=model.voxel)
+    np.testing.assert_allclose([lo[1], lo[2]], box[0][1:], atol=model.voxel)
+    np.testing.assert_allclose(hi, box[1], atol=model.voxel)  # y+ (a floater) and x+ (paint): not moved
+    assert moved_by(notes, "x-") == pytest.approx(BOX_FOLLOW * size[0], abs=model.voxel)
+    assert "y+" not in notes and "x+" not in notes
+    raw = raw_density(model, [[-1.6, 0.0, 0.6], [-1.6, 0.5, 0.6], [-1.6, 0.0, 0.2]])
+    assert raw[0] > 5 and raw[1] < EMPTY_RAW + 1 and raw[2] < EMPTY_RAW + 1  # the sword goes on, nothing beside it
+
+    lo, _, notes = grown(model_with_sword(radius=1.4))  # the sphere reaches x = -1.4 only
+    np.testing.assert_allclose(lo[0], -1.4, atol=model.voxel)
+    assert moved_by(notes, "x-") == pytest.approx(0.4, abs=model.voxel)
+    for model, stage, progress in ((model_with_sword(radius=5.0, follows=False), 1, 0.3),
+                                   (model_with_sword(radius=5.0), 0, 0.3), (model_with_sword(radius=5.0), 1, 0.6)):
+        lo, hi, notes = grown(model, stage, progress)  # switched off; the first growth; late in the run
+        np.testing.assert_allclose(lo, box[0], atol=model.voxel)
+        assert "moved out" not in notes
 
 
 def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surroundings():

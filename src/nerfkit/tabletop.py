@@ -68,18 +68,25 @@ def table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float, 
         height: world units; 0 counts only what is under the plane.
         tags: (n, 4, 3) corners of the printed tags lying on the plane, or None.
     """
-    n, d = np.asarray(plane, np.float64)[:3], float(np.asarray(plane)[3])
-    xs, ys, zs = (np.asarray(a, np.float64) for a in axes)
-    above = (n[0] * xs[:, None, None] + n[1] * ys[None, :, None] + n[2] * zs[None, None, :] + d).astype(np.float32)
+    n = np.asarray(plane, np.float64)[:3]
+    above = heights(axes, plane)
     paint = above < 0
     if height > 0:
         axis = int(np.argmax(np.abs(n)))
         paint |= (above < height) & ~_rising(grid > threshold, above, height, axis)
         if tags is not None:
-            over = np.expand_dims(_over_tags(tags, [xs, ys, zs], axis), axis)
+            over = np.expand_dims(_over_tags(tags, axes, axis), axis)
             paint |= over & (above < 3 * height) & ~_rising(grid > threshold, above, 3 * height, axis)
         paint |= _low_pieces(grid > threshold, paint, above, 3 * height, axis)
     return paint
+
+
+def heights(axes, plane) -> np.ndarray:
+    """(X, Y, Z) float32 height above ``plane`` (``(n, d)``: ``n . x + d``) of the grid
+    points ``axes[0][i], axes[1][j], axes[2][k]``."""
+    n, d = np.asarray(plane, np.float64)[:3], float(np.asarray(plane)[3])
+    xs, ys, zs = (np.asarray(a, np.float64) for a in axes)
+    return (n[0] * xs[:, None, None] + n[1] * ys[None, :, None] + n[2] * zs[None, None, :] + d).astype(np.float32)
 
 
 def _rising(solid: np.ndarray, above: np.ndarray, height: float, axis: int) -> np.ndarray:
@@ -132,6 +139,35 @@ def _low_pieces(solid: np.ndarray, paint: np.ndarray, above: np.ndarray, top: fl
     pieces = ndimage.binary_dilation(low[labels], iterations=2)
     out[slab] = pieces & ~ndimage.binary_dilation(labels == main)
     return out
+
+
+def faces_reached(solid: np.ndarray, min_columns: int = 3) -> list[tuple[int, int]]:
+    """The faces of a grid's box that the object reaches: where its largest solid piece
+    (26-connected) fills at least ``min_columns`` vertices of the face's outer two layers,
+    seen along the face's axis. Other pieces (floaters, paint) do not count.
+
+    Args:
+        solid: (X, Y, Z) bool, the grid's solid vertices (the table's paint left out).
+
+    Returns:
+        ``(axis, side)`` pairs, ``side`` 0 for the face at the low end of ``axis``, 1 for
+        the high end, in axis order.
+    """
+    from scipy import ndimage
+
+    labels, count = ndimage.label(solid, structure=np.ones((3, 3, 3), bool))
+    if count == 0:
+        return []
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    main = labels == int(np.argmax(sizes))
+    faces = []
+    for axis in range(3):
+        n = main.shape[axis]
+        for side, layers in ((0, [0, 1]), (1, [n - 1, n - 2])):
+            if int(np.take(main, layers, axis=axis).any(axis=axis).sum()) >= min_columns:
+                faces.append((axis, side))
+    return faces
 
 
 def clear_table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float, tags=None) -> np.ndarray:

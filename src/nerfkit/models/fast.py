@@ -61,7 +61,7 @@ from ..kernels import reference as ref
 from ..kernels.ops import GradSink, GridGeom, MarchSpec, add_grid_tv, cell_density_max, render_grid, row_vertices
 from ..render.occupancy import OccupancyGrid, ray_aabb
 from ..render.volrend import sight_line_loss
-from ..tabletop import TABLE_CUT, table_cut_height, table_paint
+from ..tabletop import TABLE_CUT, faces_reached, heights, table_cut_height, table_paint
 from .packing import pack_grid, unpack_grid, vertices_touching
 from .base import RGB_LOSSES, NerfModel, RenderOutput, SceneBounds, Schedule, StepState, rgb_loss
 
@@ -107,6 +107,18 @@ BASE_STAGES = ("32,64,128,192", "60,300,2000")
 # -> 31.15 dB; lego 200x200 holds no detail finer than the 192 grid)
 FINE_STAGES = ("32,64,128,192,256", "60,300,2000,3500")
 FINE_STAGE_PIXELS = 100_000
+
+
+# A capture's box follows its object (--box-follows): at each growth after the first, each
+# face of the box that the object reaches (faces_reached) moves out by this share of the
+# box's size along its axis, within the scene's sphere. A vertex is solid for that when its
+# density makes a voxel of the grid this opaque (a scale-free test; steve's sword, 28
+# photos: the box from the sparse points, none on the sword, ended at its hilt).
+BOX_FOLLOW = 0.5
+BOX_FOLLOW_OPACITY = 0.02
+# ... at growths in the first half of the run only: what the new space starts with must
+# have the steps to be carved
+BOX_FOLLOW_UNTIL = 0.5
 
 
 # weight of the table cover prior on few-photo captures that show no floor past the table's edge
@@ -175,6 +187,10 @@ class FastConfig:
     colour_lr_ratio: float = option(1.0, "learning rate of the colour coefficients relative to --lr", min=0)
     adam_eps: float = option(1e-15, "Adam epsilon", above=0)
     shrink_box: bool = option(True, "at the first growth, shrink the box around where opaque training rays end")
+    box_follows: bool = option(True, "with --table: at each growth after the first in the first half of the run, "
+                               "move out each face of the box that the object reaches, by "
+                               f"{BOX_FOLLOW:g} of the box's size (a thin part the sparse points missed, such as "
+                               "a sword, is otherwise cut off at the box)")
     box_pad: int = option(3, "margin around the shrunken box, in voxels (plus 5% of its size)", min=0)
     learn_background: bool = option(False, "learn what rays see outside the box (a colour per direction) "
                                     "instead of the --background colour: for real photos, whose background is "
@@ -722,10 +738,14 @@ class FastNeRF(NerfModel):
         return self.stage < len(self.steps) and s.step >= self.steps[self.stage] and not growth_too_late(s)
 
     def _grow_next(self, s: StepState) -> str:
+        notes = []
         while self._growth_due(s):  # (a resumed run catches up on every stage it passed)
-            self._grow(self.sizes[self.stage + 1], shrink=self.config.shrink_box and self.stage == 0)
+            follow = (self.config.box_follows and self.stage > 0 and s.progress < BOX_FOLLOW_UNTIL
+                      and self.table is not None and self.ndc is None)
+            notes += self._grow(self.sizes[self.stage + 1], shrink=self.config.shrink_box and self.stage == 0,
+                                follow=follow)
             self.stage += 1
-        return self.stage_note()
+        return "; ".join([self.stage_note(), *notes])
 
     def stage_note(self) -> str:
         rx, ry, rz = self.geom.res
@@ -835,18 +855,25 @@ class FastNeRF(NerfModel):
             return []
         self.isolated = True
         if self.table is not None:
-            rx, ry, rz = self.res
-            lo = self.grid_lo.cpu().double().numpy()
-            axes = [lo[a] + self.voxel * np.arange(r) for a, r in enumerate(self.res)]
-            rows = self.vertex_rows.long().reshape(rz, ry, rx).permute(2, 1, 0)  # [x, y, z], as axes
-            sigma = (self.density_scale * F.softplus(self.grid[:, 0]))[rows]
-            paint = table_paint(sigma.cpu().numpy(), axes, self.table_plane(), cut, threshold, self.table_tags())
+            sigma, axes, rows = self._density_volume()
+            paint = table_paint(sigma, axes, self.table_plane(), cut, threshold, self.table_tags())
             cleared = rows[torch.from_numpy(paint).to(rows.device)]
             self.grid[cleared[cleared > 0], 0] = EMPTY_RAW
             self.refresh_occupancy()
         self.table = self.floor = self.room = None
         self.bg_coef = None
         return left_out
+
+    @torch.no_grad()
+    def _density_volume(self) -> tuple[np.ndarray, list[np.ndarray], Tensor]:
+        """The grid's density at its vertices as an (X, Y, Z) float32 array, the x, y and z
+        positions of the vertices ((X,), (Y,), (Z,) float64), and the (X, Y, Z) feature rows."""
+        rx, ry, rz = self.res
+        lo = self.grid_lo.cpu().double().numpy()
+        axes = [lo[a] + self.voxel * np.arange(r) for a, r in enumerate(self.res)]
+        rows = self.vertex_rows.long().reshape(rz, ry, rx).permute(2, 1, 0)  # [x, y, z], as axes
+        sigma = (self.density_scale * F.softplus(self.grid.detach()[:, 0]))[rows]
+        return sigma.cpu().numpy(), axes, rows
 
     def _not_isolated(self) -> None:
         if self.isolated:
@@ -870,15 +897,23 @@ class FastNeRF(NerfModel):
         return np.maximum(lo - pad, box_lo), np.minimum(hi + pad, box_hi)
 
     @torch.no_grad()
-    def _grow(self, size: int, shrink: bool) -> None:
+    def _grow(self, size: int, shrink: bool, follow: bool = False) -> list[str]:
+        """Resample the grid at about ``size ** 3`` vertices over its box, first shrunk around
+        where opaque rays ended (``shrink``) or moved out where the object reaches it
+        (``follow``, :meth:`_follow_object`). Returns notes on what the box did."""
         old_geom, old_grid = replace(self.geom), self.grid.detach()
         old_occ = self.occ_cells if self.occ_active else None
         lo = old_geom.lo.cpu().numpy()
         hi = old_geom.hi.cpu().numpy()
+        notes = []
         if shrink:
             box = self.surface_box()
             if box is not None:
                 lo, hi = box
+        if follow:
+            lo, hi, moved = self._follow_object(lo, hi)
+            if moved:
+                notes.append(f"the object reached the box at {', '.join(moved)}: moved out")
         new_lo, voxel, res = fit_grid(lo, hi, size)
         device = old_grid.device
         geom = GridGeom(torch.as_tensor(new_lo, device=device), float(voxel), res)
@@ -898,6 +933,32 @@ class FastNeRF(NerfModel):
             self.refresh_occupancy()
         else:
             self._set_occupancy(self.occ_cells.new_ones(self.occ_cells.shape))
+        return notes
+
+    def _follow_object(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """The box ``(lo, hi)`` with each face that the object reaches (:func:`faces_reached`:
+        its largest solid piece above the table's paint) moved out by :data:`BOX_FOLLOW` of
+        the box's size along that axis, within the scene's sphere; and the faces moved, as
+        "x-" or "z+" with the distance. The grid's resampling extends what crosses a face
+        outward (points outside the old box take its nearest value), so the object's
+        cross-section starts the new space and training carves it."""
+        sigma, axes, _ = self._density_volume()
+        solid = -np.expm1(-sigma * self.voxel) > BOX_FOLLOW_OPACITY
+        solid &= heights(axes, self.table_plane()) > table_cut_height(self, TABLE_CUT)
+        c, r = np.asarray(self.bounds.center, np.float64), float(self.bounds.radius)
+        lo, hi = np.array(lo, np.float64), np.array(hi, np.float64)
+        size = hi - lo
+        moved = []
+        for axis, side in faces_reached(solid):
+            if side == 0:
+                new = max(lo[axis] - BOX_FOLLOW * size[axis], c[axis] - r)
+                by, lo[axis] = lo[axis] - new, min(new, lo[axis])
+            else:
+                new = min(hi[axis] + BOX_FOLLOW * size[axis], c[axis] + r)
+                by, hi[axis] = new - hi[axis], max(new, hi[axis])
+            if by > 0:
+                moved.append(f"{'xyz'[axis]}{'-+'[side]} by {by:.3g}")
+        return lo.astype(np.float32), hi.astype(np.float32), moved
 
     # -- checkpoints -----------------------------------------------------------------
     def extra_state(self) -> dict:
