@@ -426,6 +426,28 @@ def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_wh
         assert "moved out" not in notes
 
 
+def test_specks_apart_from_the_object_go_a_second_object_and_the_objects_haze_stay():
+    from nerfkit.tabletop import specks
+
+    x, y, z = np.meshgrid(*(np.arange(40),) * 3, indexing="ij")
+    ball = lambda c, r: (x - c[0]) ** 2 + (y - c[1]) ** 2 + (z - c[2]) ** 2 <= r * r  # noqa: E731
+    grid = np.zeros((40, 40, 40))
+    grid[ball((12, 12, 12), 6)] = 100.0  # the object ...
+    grid[ball((12, 12, 12), 8) & ~ball((12, 12, 12), 6)] = 1.0  # ... its haze (two cells, under the threshold)
+    grid[ball((30, 30, 12), 3)] = 100.0  # a second object, 12% of the density of the first
+    grid[ball((30, 8, 30), 1)] = 100.0  # a speck: 7 cells, 0.6% of the first
+    haze = ball((30, 8, 30), 3) & ~ball((30, 8, 30), 1)
+    grid[haze] = 1.0  # ... with its haze
+    grid[2, 35, 2] = 1.0  # haze alone, far from everything
+    out = specks(grid, threshold=5.0)
+    assert out[ball((30, 8, 30), 1)].all() and out[haze].all() and out[2, 35, 2]  # the speck, its haze, stray haze
+    assert not out[ball((12, 12, 12), 8)].any() and not out[ball((30, 30, 12), 3)].any()
+    assert not out[ball((12, 12, 12), 8.5)].any()  # within the margin (3 cells) of the object
+    keep_all = specks(grid, threshold=5.0, keep_share=0.005)
+    assert not keep_all[ball((30, 8, 30), 1)].any()  # over 0.5%: a third object
+    assert not specks(np.zeros((4, 4, 4)), 1.0).any()
+
+
 def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surroundings():
     """A post standing on the table keeps its base; paint on the table and density under it
     go; rays that met the table now meet nothing."""
@@ -444,16 +466,19 @@ def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surro
     z, y, x = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in ((2, rz), (1, ry), (0, rx))), indexing="ij")
     post = (x ** 2 + y ** 2 < 0.2 ** 2) & (z < 1.2)  # from under the table up to 1.2
     paint = (x > 0.5) & (x < 0.8) & (y > 0.5) & (y < 0.8) & (np.abs(z) < 0.04)
+    speck = np.zeros_like(post)
+    speck[np.unravel_index(np.argmin((x + 0.6) ** 2 + (y + 0.5) ** 2 + (z - 0.9) ** 2), z.shape)] = True
     rows = model.vertex_rows.long().numpy().reshape(-1)
     with torch.no_grad():
         model.grid[:, 0] = EMPTY_RAW
-        model.grid[rows[(post | paint).reshape(-1)], 0] = 10.0
+        model.grid[rows[(post | paint | speck).reshape(-1)], 0] = 10.0
     model.refresh_occupancy()
     left_out = model.isolate_object(0.15, 25.0)  # (the cut spans the z = 0 and 0.1 layers of vertices)
     assert left_out == ["table", "room", "background"]  # (no floor: the bounds have none)
     assert model.table is None and model.room is None and model.bg_coef is None
     kept = (model.grid[rows, 0] > 0).numpy().reshape(z.shape)
     assert not (kept & paint).any() and not (kept & (z < 0)).any()  # paint and what is under the table: gone
+    assert not (kept & speck).any()  # and the speck floating apart from the post
     np.testing.assert_array_equal(kept, post & (z >= 0))  # the post, with its base on the table
     # a ray down through the paint meets nothing now: the background, exactly
     rays = Rays(torch.tensor([[0.65, 0.65, 3.0], [0.0, 0.0, 3.0]]), torch.tensor([[0.0, 0.0, -1.0]] * 2))

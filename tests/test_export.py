@@ -146,8 +146,8 @@ def test_table_paint_is_cleared_and_what_stands_on_the_table_keeps_its_base():
     assert ex.to_trimesh(mesh).is_watertight  # closed where it was cut
     # with no height, only what is under the table goes
     zs = ex.grid_axis(0.0, 1.0, 41)
-    under = tabletop.clear_table_paint(ex.sample_density_grid(figure_on_table, [0, 0, 0], 1.0, 41), [zs] * 3, table, 0.0,
-                                 50.0)
+    under = tabletop.clear_around_object(ex.sample_density_grid(figure_on_table, [0, 0, 0], 1.0, 41), [zs] * 3,
+                                         table, 0.0, 50.0)
     assert under[:, :, zs < 0].max() == 0 and under[:, :, zs >= 0].max() == 100
 
 

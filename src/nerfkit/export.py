@@ -7,7 +7,7 @@ The core works on plain callables so it can be tested with analytic fields:
 
 Mesh: the density is sampled on a grid over a cube (of half-size ``radius`` about
 ``center``: for a trained model, around its own box, :func:`mesh_region`), a capture's
-table paint is cleared (:func:`clear_table_paint`), the box border is padded with empty
+table paint and the specks apart from its object are cleared (:func:`clear_around_object`), the box border is padded with empty
 space so the surface closes where it meets the box (the mesh is cropped to the box and
 watertight), marching cubes (scikit-image) extracts the ``threshold`` iso-surface, and
 each vertex is coloured by what a ray looking at it along the inward normal sees
@@ -32,7 +32,7 @@ import torch
 
 from .errors import fail
 from .io.atomic import atomic_path
-from .tabletop import SURFACE_DENSITY, clear_table_paint
+from .tabletop import SURFACE_DENSITY, clear_around_object
 
 DensityFn = Callable[[torch.Tensor], torch.Tensor]
 QueryFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -193,14 +193,14 @@ def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int =
                  query_fn: QueryFn | None = None, n_dirs: int = 1, chunk: int = 65536,
                  device: str | torch.device = "cpu", progress: bool = False, reach: float | None = None,
                  table=None, table_cut: float = 0.0, tags=None) -> Mesh:
-    """Density grid -> (with a ``table`` plane: :func:`clear_table_paint` up to
+    """Density grid -> (with a ``table`` plane: :func:`clear_around_object`, the paint up to
     ``table_cut`` above it, over the printed ``tags`` on it higher) -> marching cubes -> (optional) vertex colours, seen along rays
     that start ``reach`` outside the surface and end twice as far inside (None: two grid
     spacings; 0: the field's colour at the vertex). See the module docstring."""
     grid = sample_density_grid(density_fn, center, radius, resolution, chunk, device, progress)
     if table is not None:
         axes = [grid_axis(c, radius, resolution) for c in np.asarray(center, np.float64).reshape(3)]
-        grid = clear_table_paint(grid, axes, table, table_cut, threshold, tags)
+        grid = clear_around_object(grid, axes, table, table_cut, threshold, tags)
     mesh = marching_cubes(grid, center, radius, threshold)
     if query_fn is not None:
         if reach is None:
@@ -325,7 +325,8 @@ def mesh_from_model(model, center, radius: float, reach: float, resolution: int 
     dirs)``) over the cube ``center +- radius``, each vertex coloured along a ray from
     ``reach`` outside it (world units; :data:`COLOUR_REACH` of the scene's radius suits a
     trained field whatever the grid). A model with a table plane has its table paint
-    cleared (:func:`clear_table_paint`) up to ``table_cut`` above it (world units; as
+    (up to ``table_cut`` above it) and the specks apart from its object cleared
+    (:func:`clear_around_object`) (world units; as
     ``export`` does, :func:`~nerfkit.tabletop.table_cut_height` of a fraction of the object's height). A
     forward-facing model's density is per NDC unit, not per world unit, so its vertices
     take the field's colour where they are."""

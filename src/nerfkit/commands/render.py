@@ -26,8 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fps", type=number(int, 1, 1000), default=30, help="frames per second (default: 30)")
     p.add_argument("--object", action="store_true",
                    help="render the object alone into object.mp4, object.gif and object_depth.mp4: a capture's "
-                   "table, floor and room left out, the table's paint cleared from the density (as export --mesh "
-                   "does), on white, zoomed and centred to fill the frame")
+                   "table, floor and room left out, the table's paint and the specks apart from the object "
+                   "cleared from the density (as export --mesh does), on white, zoomed and centred to fill the frame")
     p.add_argument("--background", help="override the run's background colour (with --object: white): black, "
                    "white, grey, r,g,b in [0, 1] or #rrggbb")
     p.add_argument("--out", help="output folder (default: RUN/videos)")

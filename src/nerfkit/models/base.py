@@ -367,8 +367,9 @@ class NerfModel(nn.Module):
     def isolate_object(self, cut: float, threshold: float) -> list[str]:
         """Keep only the object, for a video of it alone: stop drawing what surrounds it (a
         capture's table, floor, room and learned background) and clear the table's paint
-        from the density (:func:`~nerfkit.tabletop.table_paint`: up to ``cut`` world units
-        above the table; ``threshold``: the surface's density). Changes the model in place,
+        and the specks apart from the object from the density
+        (:func:`~nerfkit.tabletop.around_object`: paint up to ``cut`` world units above the
+        table; ``threshold``: the surface's density). Changes the model in place,
         for rendering only: it can then be neither trained nor saved. Returns the names of
         the parts left out (:meth:`surroundings`): none when the model draws nothing apart
         from its volume."""

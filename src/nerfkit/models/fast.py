@@ -61,7 +61,7 @@ from ..kernels import reference as ref
 from ..kernels.ops import GradSink, GridGeom, MarchSpec, add_grid_tv, cell_density_max, render_grid, row_vertices
 from ..render.occupancy import OccupancyGrid, ray_aabb
 from ..render.volrend import sight_line_loss
-from ..tabletop import TABLE_CUT, faces_reached, heights, table_cut_height, table_paint
+from ..tabletop import TABLE_CUT, around_object, faces_reached, heights, table_cut_height
 from .packing import pack_grid, unpack_grid, vertices_touching
 from .base import RGB_LOSSES, NerfModel, RenderOutput, SceneBounds, Schedule, StepState, rgb_loss
 
@@ -856,8 +856,8 @@ class FastNeRF(NerfModel):
         self.isolated = True
         if self.table is not None:
             sigma, axes, rows = self._density_volume()
-            paint = table_paint(sigma, axes, self.table_plane(), cut, threshold, self.table_tags())
-            cleared = rows[torch.from_numpy(paint).to(rows.device)]
+            around = around_object(sigma, axes, self.table_plane(), cut, threshold, self.table_tags())
+            cleared = rows[torch.from_numpy(around).to(rows.device)]
             self.grid[cleared[cleared > 0], 0] = EMPTY_RAW
             self.refresh_occupancy()
         self.table = self.floor = self.room = None
