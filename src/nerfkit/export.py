@@ -7,12 +7,12 @@ The core works on plain callables so it can be tested with analytic fields:
 
 Mesh: the density is sampled on a grid over a cube (of half-size ``radius`` about
 ``center``: for a trained model, around its own box, :func:`mesh_region`), a capture's
-table paint and the specks apart from its object are cleared (:func:`clear_around_object`), the box border is padded with empty
-space so the surface closes where it meets the box (the mesh is cropped to the box and
-watertight), marching cubes (scikit-image) extracts the ``threshold`` iso-surface, and
-each vertex is coloured by what a ray looking at it along the inward normal sees
-(optionally averaged over a small cone of directions): the field volume-rendered along a
-short segment through the surface.
+table paint and the specks apart from its object are cleared (:func:`clear_around_object`),
+the box border is padded with empty space so the surface closes where it meets the box
+(the mesh is cropped to the box and watertight), marching cubes (scikit-image) extracts the
+``threshold`` iso-surface, and each vertex is coloured by what a ray looking at it along
+the inward normal sees (optionally averaged over a small cone of directions): the field
+volume-rendered along a short segment through the surface.
 The colour *at* the iso-surface would be the field's least constrained colour: training
 fits colours where rays stop, at higher density, so a learned field's colour at its thin
 edge is noise.
