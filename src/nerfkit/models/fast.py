@@ -915,7 +915,7 @@ class FastNeRF(NerfModel):
         if follow:
             lo, hi, moved = self._follow_object(lo, hi)
             if moved:
-                notes.append(f"the object reached the box at {', '.join(moved)}: moved out")
+                notes.append(f"the box moved out where the object reached it: {', '.join(moved)}")
         new_lo, voxel, res = fit_grid(lo, hi, size)
         device = old_grid.device
         geom = GridGeom(torch.as_tensor(new_lo, device=device), float(voxel), res)
