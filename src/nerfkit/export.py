@@ -324,11 +324,10 @@ def mesh_from_model(model, center, radius: float, reach: float, resolution: int 
     """A coloured mesh of a trained model (its ``density(points)`` and ``query(points,
     dirs)``) over the cube ``center +- radius``, each vertex coloured along a ray from
     ``reach`` outside it (world units; :data:`COLOUR_REACH` of the scene's radius suits a
-    trained field whatever the grid). A model with a table plane has its table paint
-    (up to ``table_cut`` above it) and the specks apart from its object cleared
-    (:func:`clear_around_object`) (world units; as
-    ``export`` does, :func:`~nerfkit.tabletop.table_cut_height` of a fraction of the object's height). A
-    forward-facing model's density is per NDC unit, not per world unit, so its vertices
+    trained field whatever the grid). A model with a table plane has its table paint (up
+    to ``table_cut`` above it, in world units; ``export`` passes
+    :func:`~nerfkit.tabletop.table_cut_height` of a fraction of the object's height) and the
+    specks apart from its object cleared (:func:`clear_around_object`). A forward-facing model's density is per NDC unit, not per world unit, so its vertices
     take the field's colour where they are."""
     if getattr(model, "ndc", None) is not None:
         reach = 0.0

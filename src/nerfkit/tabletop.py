@@ -118,6 +118,17 @@ def _over_tags(tags, axes, axis: int) -> np.ndarray:
     return over
 
 
+def _pieces(solid: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """The 26-connected pieces of ``solid``: their labels (0: not solid), their count, and
+    the label of the largest (0 when there is none)."""
+    from scipy import ndimage
+
+    labels, count = ndimage.label(solid, structure=np.ones((3, 3, 3), bool))
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    return labels, count, int(np.argmax(sizes))
+
+
 def _low_pieces(solid: np.ndarray, paint: np.ndarray, above: np.ndarray, top: float, axis: int) -> np.ndarray:
     """Paint that stands up off the table: the pieces of ``solid & ~paint`` (26-connected)
     apart from the largest one (the object) that never rise ``top`` above the table,
@@ -134,12 +145,9 @@ def _low_pieces(solid: np.ndarray, paint: np.ndarray, above: np.ndarray, top: fl
     slab = [slice(None)] * 3
     slab[axis] = slice(max(int(reach[0]) - 1, 0), min(int(reach[-1]) + 2, solid.shape[axis]))
     slab = tuple(slab)
-    labels, count = ndimage.label(solid[slab] & ~paint[slab], structure=np.ones((3, 3, 3), bool))
+    labels, count, main = _pieces(solid[slab] & ~paint[slab])
     if count < 2:
         return out
-    sizes = np.bincount(labels.ravel())
-    sizes[0] = 0
-    main = int(np.argmax(sizes))
     low = np.asarray(ndimage.maximum(above[slab], labels, np.arange(count + 1))) < top
     low[0] = low[main] = False
     pieces = ndimage.binary_dilation(low[labels], iterations=2)
@@ -159,14 +167,10 @@ def faces_reached(solid: np.ndarray, min_columns: int = 3) -> list[tuple[int, in
         ``(axis, side)`` pairs, ``side`` 0 for the face at the low end of ``axis``, 1 for
         the high end, in axis order.
     """
-    from scipy import ndimage
-
-    labels, count = ndimage.label(solid, structure=np.ones((3, 3, 3), bool))
+    labels, count, largest = _pieces(solid)
     if count == 0:
         return []
-    sizes = np.bincount(labels.ravel())
-    sizes[0] = 0
-    main = labels == int(np.argmax(sizes))
+    main = labels == largest
     faces = []
     for axis in range(3):
         n = main.shape[axis]
@@ -192,7 +196,7 @@ def specks(grid: np.ndarray, threshold: float, keep_share: float = SPECK_SHARE,
     """
     from scipy import ndimage
 
-    labels, count = ndimage.label(grid > threshold, structure=np.ones((3, 3, 3), bool))
+    labels, count, _ = _pieces(grid > threshold)
     if count == 0:
         return np.zeros(grid.shape, bool)
     mass = np.asarray(ndimage.sum(grid, labels, np.arange(count + 1)))
