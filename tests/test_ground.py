@@ -134,3 +134,28 @@ def test_a_slope_or_a_shelf_just_under_the_table_is_not_the_floor():
     assert find_floor(np.concatenate([pts, slope]), table, cams, center) is None
     shelf = np.concatenate([xy, np.full((600, 1), -0.03)], 1)  # 3 cm under: the table's own thickness
     assert find_floor(np.concatenate([pts, shelf]), table, cams, center) is None
+
+
+def test_a_scene_finds_its_floor_once(monkeypatch):
+    """``Scene.floor`` is find_floor under the training cameras, searched once however often
+    it is asked (the model's bounds and the cover prior's default both ask)."""
+    import nerfkit.sfm.ground as ground
+    from nerfkit.data.scene import Scene, Views
+
+    rng = np.random.default_rng(5)
+    pts, cams, center, _ = _with_floor(rng)
+    c2w = np.repeat(np.eye(4, dtype=np.float32)[None], len(cams), 0)
+    c2w[:, :3, 3] = cams
+    views = Views(c2w, np.repeat(np.eye(3, dtype=np.float32)[None], len(cams), 0), 8, 8)
+    table = np.array([0, 0, 1.0, 0], np.float32)
+    scene = Scene(views, Views.empty(8, 8), Views.empty(8, 8), 0.1, 3.0, center=center, table=table,
+                  points=pts.astype(np.float32))
+    calls = []
+    find_floor = ground.find_floor
+    monkeypatch.setattr(ground, "find_floor", lambda *a, **k: calls.append(1) or find_floor(*a, **k))
+    floor = scene.floor()
+    assert floor is not None and floor.height(center - center[2] * table[:3]) == pytest.approx(0.45, abs=0.01)
+    assert scene.floor() is floor and len(calls) == 1
+    assert Scene(views, views, views, 0.1, 3.0, center=center, table=table).floor() is None  # no points
+    assert Scene(views, views, views, 0.1, 3.0, center=center, points=pts).floor() is None  # no table
+    assert len(calls) == 1

@@ -101,6 +101,21 @@ class Scene:
     point_colors: np.ndarray | None = None
     tags: np.ndarray | None = None
     point_views: np.ndarray | None = None
+    _floor: tuple = field(default=(), init=False, repr=False, compare=False)  # (floor(), once found)
+
+    def floor(self):
+        """The floor seen beyond the table's edge in the sparse points, as a
+        :class:`~nerfkit.sfm.ground.GroundPlane` (:func:`~nerfkit.sfm.ground.find_floor`
+        under the training cameras), or None (no table, no points, no such plane). Found
+        once, the first time it is asked."""
+        if not self._floor:
+            plane = None
+            if self.points is not None and self.table is not None and len(self.train):
+                from ..sfm.ground import find_floor
+
+                plane = find_floor(self.points, self.table, self.train.c2w[:, :3, 3], self.center)
+            self._floor = (plane,)
+        return self._floor[0]
 
     @property
     def splits(self) -> dict[str, Views]:

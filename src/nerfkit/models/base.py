@@ -60,10 +60,8 @@ class SceneBounds:
         radius = sphere_radius(scene)
         box = floor = None
         if scene.points is not None and scene.table is not None:
-            from ..sfm.ground import find_floor
-
             box = object_box_from_points(scene.points, scene.table, scene.center, radius)
-            plane = find_floor(scene.points, scene.table, c2w[:, :3, 3], scene.center)
+            plane = scene.floor()
             if plane is not None:
                 floor = np.array([*plane.normal, plane.offset], np.float32)
         ndc = None

@@ -143,10 +143,7 @@ def table_cover_default(scene, capture: bool) -> float:
 
     if not capture or scene.table is None or scene.points is None or not 0 < len(scene.train) < FEW_TRAIN_VIEWS:
         return 0.0
-    from ..sfm.ground import find_floor
-
-    floor = find_floor(scene.points, scene.table, scene.train.c2w[:, :3, 3], scene.center)
-    return TABLE_COVER_WEIGHT if floor is None else 0.0
+    return TABLE_COVER_WEIGHT if scene.floor() is None else 0.0
 
 
 @dataclass
