@@ -121,8 +121,12 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
 
     camera["sanity"]["warnings"] = ["focal length is uncertain (+/-240.9 px); add photos from more varied angles"]
     (tmp_path / "camera.json").write_text(json.dumps(camera))
+    assert metrics["notes"] == []  # the sphere lies within its box
+    metrics["notes"] = ["the object reaches the x- face of the model's box at the end of training"]
+    (run / "metrics.json").write_text(json.dumps(metrics))
     text = summary(out, tmp_path / "camera.json", out / "dataset", run, None)
     assert "WARNING: focal length is uncertain (+/-240.9 px)" in text and "mesh      none (see above)" in text
+    assert "\n            note: the object reaches the x- face" in text.split("  NeRF  ")[1]  # the trainer's notes
 
 
 def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_photos(tmp_path, capsys):

@@ -370,13 +370,14 @@ def test_the_largest_piece_reaches_a_face_other_pieces_do_not_count():
 def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_what_crossed():
     """A sword held out of the box: the growth moves that face out by half the box (within
     the scene's sphere), the sword's cross-section carries on into the new space, and a
-    floater at another face or the table's paint crossing a third moves nothing."""
+    floater at another face or the table's paint crossing a third moves nothing. At the end
+    of training a note names the face the object still reaches, and only that one."""
     from nerfkit.models.base import SceneBounds, StepState
     from nerfkit.models.fast import BOX_FOLLOW, EMPTY_RAW, FastNeRF, resample_grid
 
     box = (np.array([-1.0, -0.8, -0.5], np.float32), np.array([1.0, 0.9, 1.3], np.float32))
 
-    def model_with_sword(radius, follows=True):
+    def model_with_sword(radius, follows=True, held_out=True):
         bounds = SceneBounds(1.0, 8.0, np.array([0, 0, 0.5], np.float32), radius, np.array([0, 0, 1], np.float32),
                              table=np.array([0, 0, 1, 0], np.float32), camera_radius=4.0, object_box=box)
         model = FastNeRF(FastConfig(resolutions="31,31,41", upsample_steps="5,10", table=True, table_resolution=32,
@@ -384,7 +385,7 @@ def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_wh
         lo, v = model.grid_lo.numpy(), model.voxel
         x, y, z = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in enumerate(model.res)), indexing="ij")
         post = (x ** 2 + y ** 2 < 0.2 ** 2) & (z < 1.0)
-        sword = (x < 0) & (y ** 2 + (z - 0.6) ** 2 < 0.12 ** 2)  # to the x- face
+        sword = (x < 0) & (held_out | (x > -0.5)) & (y ** 2 + (z - 0.6) ** 2 < 0.12 ** 2)  # to the x- face
         floater = ((x - 0.6) ** 2 + (y - 0.9) ** 2 + (z - 0.8) ** 2) < 0.15 ** 2  # at the y+ face
         paint = (x > 0.5) & (np.abs(z) < 0.04)  # on the table, to the x+ face
         rows = model.vertex_rows.long().numpy().reshape(model.res[::-1]).transpose(2, 1, 0)
@@ -406,6 +407,9 @@ def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_wh
         return resample_grid(model.grid, model.geom, torch.tensor(points, dtype=torch.float32))[:, 0].numpy()
 
     model = model_with_sword(radius=5.0)
+    (note,) = model.finish_training()
+    assert re.search(r"reaches the x- face of", note) and "y+" not in note and "x+" not in note
+    assert model_with_sword(radius=5.0, held_out=False).finish_training() == []  # the sword within the box
     lo, hi, notes = grown(model)
     size = box[1] - box[0]
     np.testing.assert_allclose(lo[0], box[0][0] - BOX_FOLLOW * size[0], atol=model.voxel)

@@ -401,6 +401,7 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
             lines.append(f"            {note}")
     m = json.loads((run_dir / "metrics.json").read_text())
     lines.append(f"  NeRF      {run_dir}: {m['step']} steps; plots in {run_dir / 'plots'}")
+    lines += [f"            note: {note}" for note in m.get("notes") or []]
     if evaluated:
         e = json.loads((run_dir / "eval_val.json").read_text())
         fitted = e.get("fitted")

@@ -332,9 +332,11 @@ class NerfModel(nn.Module):
         """Load the compiled kernels the model runs on (compiling them the first time: tens
         of seconds), before training's clock starts, so no step or time budget pays for it."""
 
-    def finish_training(self) -> None:
+    def finish_training(self) -> list[str]:
         """Called once when training reaches its end, before the final evaluation and the
-        model file (e.g. to measure an occupancy grid that was never measured)."""
+        model file (e.g. to measure an occupancy grid that was never measured). Returns
+        notes for the user on the trained model (logged, and kept in ``metrics.json``)."""
+        return []
 
     def object_center(self) -> np.ndarray | None:
         """(3,) where the trained scene's content is (to aim an orbit at), or None when

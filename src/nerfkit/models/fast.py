@@ -941,14 +941,11 @@ class FastNeRF(NerfModel):
         "x-" or "z+" with the distance. The grid's resampling extends what crosses a face
         outward (points outside the old box take its nearest value), so the object's
         cross-section starts the new space and training carves it."""
-        sigma, axes, _ = self._density_volume()
-        solid = -np.expm1(-sigma * self.voxel) > BOX_FOLLOW_OPACITY
-        solid &= heights(axes, self.table_plane()) > table_cut_height(self, TABLE_CUT)
         c, r = np.asarray(self.bounds.center, np.float64), float(self.bounds.radius)
         lo, hi = np.array(lo, np.float64), np.array(hi, np.float64)
         size = hi - lo
         moved = []
-        for axis, side in faces_reached(solid):
+        for axis, side in self._faces_reached():
             if side == 0:
                 new = max(lo[axis] - BOX_FOLLOW * size[axis], c[axis] - r)
                 by, lo[axis] = lo[axis] - new, min(new, lo[axis])
@@ -958,6 +955,27 @@ class FastNeRF(NerfModel):
             if by > 0:
                 moved.append(f"{'xyz'[axis]}{'-+'[side]} by {by:.3g}")
         return lo.astype(np.float32), hi.astype(np.float32), moved
+
+    def _faces_reached(self) -> list[tuple[int, int]]:
+        """The faces of the grid's box that the object reaches (:func:`faces_reached` over
+        the vertices solid at :data:`BOX_FOLLOW_OPACITY`, above the table's paint)."""
+        sigma, axes, _ = self._density_volume()
+        solid = -np.expm1(-sigma * self.voxel) > BOX_FOLLOW_OPACITY
+        solid &= heights(axes, self.table_plane()) > table_cut_height(self, TABLE_CUT)
+        return faces_reached(solid)
+
+    def finish_training(self) -> list[str]:
+        """A note when the trained object reaches a face of a capture's box: what crosses
+        it is cut off (the box follows the object only in the first half of a run)."""
+        if self.table is None or self.ndc is not None or self.isolated:
+            return []
+        faces = [f"{'xyz'[axis]}{'-+'[side]}" for axis, side in self._faces_reached()]
+        if not faces:
+            return []
+        return [f"the object reaches the {', '.join(faces)} face{'s' if len(faces) > 1 else ''} of the model's box "
+                "at the end of training, so what reaches past it is cut off there. Look at the object video "
+                "(`nerfkit render RUN --object`); if the object is cut, train again with --no-object-box, which "
+                "starts from the scene's whole sphere instead of the box around the sparse points"]
 
     # -- checkpoints -----------------------------------------------------------------
     def extra_state(self) -> dict:

@@ -162,7 +162,7 @@ class VanillaNeRF(NerfModel):
         with autocast(self.cell_sigma.device, self.autocast_dtype):  # the precision the trainer resolved
             self.update_occupancy()
 
-    def finish_training(self) -> None:
+    def finish_training(self) -> list[str]:
         """A run that ends before ``occupancy_warmup`` measures its occupancy grid once here,
         so that the final evaluation, the renders and the saved model skip empty space
         (all 64 samples of 10 validation views took minutes). The RNG streams are left as
@@ -172,6 +172,7 @@ class VanillaNeRF(NerfModel):
             with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []), \
                     autocast(device, self.autocast_dtype):
                 self.update_occupancy()
+        return []
 
     def query(self, points: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:
         net = self.fine if self.fine is not None else self.coarse

@@ -7,7 +7,8 @@ A run folder::
                                     compact where the model packs its state (fast: occupied vertices, fp16)
     RUN/checkpoints/step_00001234.pt   model, optimizer, RNG streams, metric rows (what --resume uses)
     RUN/.nerfkit.lock               held by the one process training the run (earlier versions: RUN/.lock)
-    RUN/metrics.csv, metrics.json   one row per logged step (train) or evaluation (val)
+    RUN/metrics.csv, metrics.json   one row per logged step (train) or evaluation (val); the
+                                    model's notes at the end of training (metrics.json)
     RUN/plots/, RUN/progress/, RUN/videos/
 
 Checkpoints are written atomically and read with ``torch.load(weights_only=True)``,

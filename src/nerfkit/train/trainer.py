@@ -158,6 +158,7 @@ class Trainer:
         self.step = 0
         self.train_seconds = 0.0
         self.rows: list[dict] = []
+        self.notes: list[str] = []  # the model's notes at the end of training (metrics.json)
         self.bad_steps = 0
         self._last_eval_tenth = 0
         if resume:
@@ -467,7 +468,9 @@ class Trainer:
             return
         n = None if self.done() else self.cfg.eval_views
         if n is None:
-            self.model.finish_training()
+            self.notes = list(self.model.finish_training())
+            for note in self.notes:
+                self.log(f"note: {note}")
         scored = self.evaluate(n)
         if scored is None:
             return
@@ -483,7 +486,8 @@ class Trainer:
         """metrics.csv/json (``finished``: the stopping rule was reached, not cut short),
         PSNR and loss curves, and the progression figure."""
         write_json(self.run_dir / "metrics.json", {"rows": self.rows, "step": self.step,
-                                                   "train_seconds": self.train_seconds, "finished": self.done()})
+                                                   "train_seconds": self.train_seconds, "finished": self.done(),
+                                                   "notes": self.notes})
         buf = io.StringIO()
         keys = ["step", "seconds", "split", "loss", "psnr", "views", "pixels", "rays"]
         writer = csv.DictWriter(buf, fieldnames=keys, extrasaction="ignore")
