@@ -974,8 +974,8 @@ class FastNeRF(NerfModel):
             return []
         return [f"the object reaches the {', '.join(faces)} face{'s' if len(faces) > 1 else ''} of the model's box "
                 "at the end of training, so what reaches past it is cut off there. Look at the object video "
-                "(`nerfkit render RUN --object`); if the object is cut, train again with --no-object-box, which "
-                "starts from the scene's whole sphere instead of the box around the sparse points"]
+                "(`nerfkit render RUN --object`); if the object is cut, train again with --no-object-box: the box "
+                "then starts from the scene's whole sphere, not from the sparse points (room for floaters too)"]
 
     # -- checkpoints -----------------------------------------------------------------
     def extra_state(self) -> dict:
