@@ -72,6 +72,7 @@ def table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float, 
         axes: the grid's x, y and z positions, (X,), (Y,) and (Z,).
         plane: (4,) ``(n, d)``, unit normal ``n`` toward the cameras: height is ``n . x + d``.
         height: world units; 0 counts only what is under the plane.
+        threshold: the density that counts as rising out of the slab, and as part of a piece.
         tags: (n, 4, 3) corners of the printed tags lying on the plane, or None.
     """
     n = np.asarray(plane, np.float64)[:3]
@@ -193,6 +194,8 @@ def specks(grid: np.ndarray, threshold: float, keep_share: float = SPECK_SHARE,
         grid: (X, Y, Z) density, the table's paint already cleared.
         threshold: the density that counts as part of a piece (a haze level, below the
             surface's: a speck's haze joins it).
+        keep_share: a piece holding at least this share of the grid's density is kept.
+        margin: cells kept around the pieces kept.
     """
     from scipy import ndimage
 

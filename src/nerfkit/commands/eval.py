@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also score each view after fitting its pose to its photo with the scene frozen, for this "
                         "many steps, and then its colour correction (least squares; the run's model: an affine "
                         "colour transform, or a gain and offset per channel) (default: 100 for runs trained with "
-                        "--capture, else 0: off)")
+                        "--capture, else 0: off; 0 for models that render whole views, such as splat)")
     p.set_defaults(func=run)
 
 

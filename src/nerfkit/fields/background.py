@@ -219,6 +219,8 @@ class TablePlane(nn.Module):
             of the plane is contracted).
         resolution: texels per side of the fine texture (half of them cover the disc of
             ``radius``); the coarse texture has 1/16 as many per side.
+        gloss: also learn a glossiness per texel and a small map of the surroundings that
+            the table mirrors (``ENV_SIZE``).
     """
 
     def __init__(self, plane, center, radius: float, resolution: int = 512, gloss: bool = False):

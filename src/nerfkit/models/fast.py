@@ -12,9 +12,10 @@ Speed comes from counting samples, not steps:
 * an occupancy grid (:mod:`nerfkit.render.occupancy`) built from an exact upper bound
   of the density in each cell skips empty space; rays stop once their transmittance
   falls below ``early_stop_eps``;
-* coarse-to-fine growth of the grid; at the first growth the box (at first the cube
-  around the scene's bounding sphere from the cameras, which is loose) shrinks around
-  where opaque training rays ended;
+* coarse-to-fine growth of the grid; the box starts around the object (from the
+  dataset's sparse points above its table), else as the cube around the scene's bounding
+  sphere, which is loose; at the first growth it shrinks around where opaque training
+  rays ended, and a capture's box follows its object out at later growths;
 * memory that follows the content (as Plenoxels): from ``--sparse-from`` vertices a side,
   a grown grid stores feature rows only for the vertices near cells that were occupied
   before the growth; an int32 index maps every vertex to its row, and vertices without
@@ -167,7 +168,7 @@ class FastConfig:
                                      "such as lego at 400x400)")
     upsample_steps: str | None = option(None, "steps at which the grid grows to the next size (one fewer than "
                                         "--resolutions; default: 60,300,2000, and 3500 with the fifth stage); a "
-                                        "growth in the last 5% of the run is skipped")
+                                        "growth with fewer steps left than 5% of those done is skipped")
     stage_rays: str = option("1,1,2,4", "rays per training step at each stage, as multiples of --batch-rays "
                              "(comma-separated; later stages take the last): a finer grid has more vertices to "
                              "share each step's rays, and fewer, fuller steps beat more, noisier ones (lego "
@@ -514,7 +515,7 @@ class FastNeRF(NerfModel):
         return torch.as_tensor(background, dtype=torch.float32, device=d.device).expand_as(d)
 
     def _background(self, o: Tensor, d: Tensor, t_table: Tensor | None, background: Tensor | None
-                    ) -> tuple[Tensor, tuple[Tensor, Tensor] | None]:
+                    ) -> tuple[Tensor, tuple[Tensor, Tensor] | None, Tensor | None]:
         """(n, 3) colour behind the box: the table (where rays meet it), the floor and the
         room shells, composited in order of distance, in front of what is infinitely far
         (:meth:`_far`). A glossy table also shows its map of the surroundings along the

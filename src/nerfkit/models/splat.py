@@ -58,8 +58,9 @@ class SplatConfig:
     sh_up_every: float = option(0.05, "raise the SH degree by one each time this fraction of the run is done",
                                 above=0, max=1)
     init: str = option("auto", "initial Gaussians: auto (the dataset's sparse points when it has some, else the "
-                       "visual hull when the training images have a flat background, else random in the object "
-                       "box), points, hull, or random", choices=["auto", "points", "hull", "random"])
+                       "visual hull when the training images have a flat background, else random in a ball of "
+                       "0.7 times the scene's radius, a quarter on the table of a tag capture), points, hull, or random",
+                       choices=["auto", "points", "hull", "random"])
     init_points: int = option(30_000, "number of initial Gaussians", min=1, max=MAX_GAUSSIANS)
     init_opacity: float = option(0.1, "opacity of the initial Gaussians", above=0, max=0.99)
     max_gaussians: int = option(40_000, "densification stops adding Gaussians at this count (lego, 10 minutes: "
@@ -195,7 +196,7 @@ class SplatModel(NerfModel):
         device = self.means.device
         self._install(*(t.to(device) for t in initial_gaussians(pts, cols, scale, c.init_opacity)))
         how = {"points": f"the dataset's {n_points} sparse points", "hull": "the training images' visual hull",
-               "random": "random points in the scene's box"}[mode]
+               "random": "random points in the scene's sphere"}[mode]
         return f"splat: {len(pts)} initial Gaussians from {how}"
 
     @torch.no_grad()

@@ -13,7 +13,7 @@ import math
 import signal
 import sys
 import time
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -118,7 +118,7 @@ class Trainer:
         if not scene.train.has_images:
             raise fail(scene.source, "has no training images")
         cfg = resolved_config(cfg, model_config)
-        self.scene, self.cfg, self.model_config, self.quiet = scene, cfg, model_config, quiet
+        self.scene, self.cfg, self.quiet = scene, cfg, quiet
         self.run_dir = Path(cfg.out)
         self.device = resolve_device(cfg.device)
         self.autocast = resolve_autocast(cfg.precision, self.device)
@@ -483,8 +483,9 @@ class Trainer:
                  + ("" if full else f" ({pixels} pixels per view)"))
 
     def write_reports(self) -> None:
-        """metrics.csv/json (``finished``: the stopping rule was reached, not cut short),
-        PSNR and loss curves, and the progression figure."""
+        """metrics.csv/json (``finished``: the stopping rule was reached, not cut short;
+        ``notes``: the model's at the end), PSNR and loss curves, the progression figure, and
+        view_corrections.json when the run learns a correction per training view."""
         write_json(self.run_dir / "metrics.json", {"rows": self.rows, "step": self.step,
                                                    "train_seconds": self.train_seconds, "finished": self.done(),
                                                    "notes": self.notes})
@@ -585,4 +586,4 @@ def _finished_at(run_dir: Path, step: int) -> bool:
         and (run_dir / MODEL_FILE).is_file()
 
 
-__all__ = ["TrainResult", "Trainer", "asdict", "resume", "train"]
+__all__ = ["TrainResult", "Trainer", "resume", "train"]
