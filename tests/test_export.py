@@ -50,6 +50,30 @@ def test_sphere_mesh_is_closed_and_round(tmp_path):
     np.testing.assert_array_equal(np.asarray(back.visual.vertex_colors)[:, :3], mesh.colors)
 
 
+def test_the_default_surface_is_scale_free():
+    """The same fuzzy ball in units ten times smaller (its density ten times higher): the
+    default iso-level gives the same mesh ten times smaller, at the density that makes
+    1/256 of the cube 7% opaque. A fixed level (25) meshes one of them only."""
+    def ball(scale):
+        def density(p):
+            d = torch.linalg.norm(p / scale - torch.tensor(CENTER, dtype=p.dtype), dim=1)
+            return 20.0 * torch.sigmoid((R - d) / 0.05) / scale  # a soft edge 5 cm deep, in metres
+        return density
+
+    level = ex.surface_threshold(1.0)
+    assert 1 - np.exp(-level * 2.0 / ex.MESH_OPACITY_CELLS) == pytest.approx(ex.MESH_OPACITY)
+    assert ex.surface_threshold(0.1) == pytest.approx(10 * level)
+    big = ex.extract_mesh(ball(1.0), CENTER, 1.0, resolution=48, threshold=ex.surface_threshold(1.0))
+    small = ex.extract_mesh(ball(0.1), 0.1 * CENTER, 0.1, resolution=48, threshold=ex.surface_threshold(0.1))
+    assert len(big.faces) == len(small.faces) > 1000
+    np.testing.assert_allclose(small.vertices, 0.1 * big.vertices, atol=1e-5)
+    r = np.linalg.norm(big.vertices - CENTER, axis=1)
+    assert r.mean() == pytest.approx(R - 0.05 * np.log(level / (20.0 - level)), abs=0.003)  # where the density is 9.3
+    assert len(ex.extract_mesh(ball(0.1), 0.1 * CENTER, 0.1, resolution=16, threshold=tabletop.SURFACE_DENSITY).faces)
+    with pytest.raises(NerfkitError, match="does not cut the density"):  # 25: above the ball's 20
+        ex.extract_mesh(ball(1.0), CENTER, 1.0, resolution=16, threshold=tabletop.SURFACE_DENSITY)
+
+
 def test_surface_cut_by_the_box_is_closed_there():
     """A sphere larger than the box: the mesh is cropped to the box and still watertight."""
     mesh = ex.extract_mesh(sphere_density, CENTER, 0.5, resolution=40, threshold=50.0)

@@ -98,8 +98,7 @@ def marching_cubes(grid: np.ndarray, center, radius: float, threshold: float) ->
     lo, hi = float(grid.min()), float(grid.max())
     if not lo < threshold < hi or threshold <= 0:
         raise fail("--threshold", f"{threshold:g} does not cut the density field (it spans {lo:.3g} to {hi:.3g})",
-                   f"Pick a value between those (e.g. --threshold {0.5 * (max(lo, 0) + hi):.3g}); "
-                   f"well-trained NeRFs typically need 10-50")
+                   f"Pick a value between those (e.g. --threshold {0.5 * (max(lo, 0) + hi):.3g})")
     res = grid.shape[0]
     step = 2.0 * radius / (res - 1)
     padded = np.pad(grid, 1, mode="constant", constant_values=0.0)
@@ -300,6 +299,32 @@ def crop_to_box(points: np.ndarray, colors: np.ndarray, center, radius: float) -
 # --------------------------------------------------------------------------- trained models
 
 
+# The mesh's surface by default (surface_threshold): the density at which one 256th of the
+# meshed cube's width is this opaque. A density threshold in world units is not scale-free
+# (25 cut lego's base plate, which renders at a median density of 24 at the rendered depth,
+# and meshed steve at 250 in a haze well outside his silhouette); at 7% the mesh's silhouette
+# in the val views matches the NeRF's best of the levels tried on lego, steve and labubu
+# (benchmarks/mesh_colours.py: IoU 0.92, 0.95 and 0.97, against 0.68, 0.85 and 0.90 at 25).
+MESH_OPACITY = 0.07
+MESH_OPACITY_CELLS = 256
+
+
+def surface_threshold(radius: float) -> float:
+    """The default iso-level of a mesh over a cube of half-size ``radius`` (in the units the
+    density is per): the density at which a cell of ``2 radius / MESH_OPACITY_CELLS`` is
+    :data:`MESH_OPACITY` opaque. Scale-free: a scene ten times larger, with a tenth of the
+    density, gives the same mesh ten times larger. Example: lego's cube (half-size 1.64)
+    gives 5.7; steve's (7.6 cm) about 120."""
+    return -float(np.log1p(-MESH_OPACITY)) * MESH_OPACITY_CELLS / (2.0 * radius)
+
+
+def mesh_threshold(model, radius: float) -> float:
+    """The default iso-level of ``model``'s mesh over a cube of half-size ``radius``:
+    :func:`surface_threshold`, or for a forward-facing model in NDC (its density per NDC
+    unit, its cube in world units) :data:`~nerfkit.tabletop.SURFACE_DENSITY`."""
+    return SURFACE_DENSITY if getattr(model, "ndc", None) is not None else surface_threshold(radius)
+
+
 # how far outside a vertex its colour ray starts, as a fraction of the scene's radius: the
 # depth of a trained field's fuzzy surface (benchmarks/mesh_colours.py, session 29: lego,
 # steve and labubu score within 0.1-0.5 dB of their best reach, which spans 1.6-3.4%)
@@ -318,7 +343,7 @@ def mesh_region(model, center, radius: float, scale: float = 1.0) -> tuple[np.nd
 
 
 def mesh_from_model(model, center, radius: float, reach: float, resolution: int = 256,
-                    threshold: float = SURFACE_DENSITY,
+                    threshold: float | None = None,
                     n_dirs: int = 1, chunk: int = 65536, device: str | torch.device = "cpu", progress: bool = True,
                     table_cut: float = 0.0) -> Mesh:
     """A coloured mesh of a trained model (its ``density(points)`` and ``query(points,
@@ -327,8 +352,12 @@ def mesh_from_model(model, center, radius: float, reach: float, resolution: int 
     trained field whatever the grid). A model with a table plane has its table paint (up
     to ``table_cut`` above it, in world units; ``export`` passes
     :func:`~nerfkit.tabletop.table_cut_height` of a fraction of the object's height) and the
-    specks apart from its object cleared (:func:`clear_around_object`). A forward-facing model's density is per NDC unit, not per world unit, so its vertices
-    take the field's colour where they are."""
+    specks apart from its object cleared (:func:`clear_around_object`). ``threshold``: the
+    surface's density (None: :func:`mesh_threshold`). A forward-facing
+    model's density is per NDC unit, not per world unit, so its vertices take the field's
+    colour where they are."""
+    if threshold is None:
+        threshold = mesh_threshold(model, radius)
     if getattr(model, "ndc", None) is not None:
         reach = 0.0
     return extract_mesh(model.density, center, radius, resolution, threshold, model.query, n_dirs, chunk, device,

@@ -18,11 +18,11 @@ half-size times --box-scale. A capture's table paint is cleared first: the densi
 the table, the tags and sheet painted into density just above it (within --table-cut
 of the object's height, where nothing rises out of that slab), and pieces apart from the
 object that stand less than three times that high; what stands on the table keeps its
-base. The THRESHOLD iso-surface is extracted with marching cubes (closed where it meets
-the box or the cut), and each vertex is coloured by what a ray looking at it along the
-inward normal sees (the field rendered from 2% of the scene's radius outside the surface
-to 4% inside), not by the field's colour at the iso-surface itself, which training
-leaves as noise (a forward-facing run in NDC, whose density is per NDC unit, takes the
+base. The THRESHOLD iso-surface (scale-free by default, see --threshold) is extracted with
+marching cubes (closed where it meets the box or the cut), and each vertex is coloured
+by what a ray looking at it along the inward normal sees (the field rendered from 2% of
+the scene's radius outside the surface to 4% inside), not by the field's colour at the
+iso-surface itself, which training leaves as noise (a forward-facing run in NDC, whose density is per NDC unit, takes the
 colour at the vertex).
 points: every --every-th training view is rendered; pixels with opacity > --acc-min are
 back-projected to their expected depth and coloured by the rendered colour.
@@ -32,7 +32,7 @@ format of web viewers (colour without view dependence).
 
 examples:
   nerfkit export runs/lego --mesh lego.ply
-  nerfkit export runs/lego --mesh lego.ply --resolution 384 --threshold 40 --color-dirs 5
+  nerfkit export runs/lego --mesh lego.ply --resolution 384 --threshold 10 --color-dirs 5
   nerfkit export runs/lego --points lego_points.ply --every 5 --stride 2
   nerfkit export runs/lego_splat --splat lego.ply
 """
@@ -40,7 +40,7 @@ examples:
 
 def register(sub: argparse._SubParsersAction) -> None:
     from ..config import number
-    from ..tabletop import SURFACE_DENSITY, TABLE_CUT
+    from ..tabletop import TABLE_CUT
     from ._common import add_run_device_args
 
     p = sub.add_parser("export", help=HELP, description=HELP + ".", epilog=EPILOG,
@@ -51,8 +51,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--splat", metavar="OUT.ply", help="(splat runs) write the Gaussians here: 3DGS PLY, or .splat")
     g = p.add_argument_group("mesh")
     g.add_argument("--resolution", type=number(int, 8, 1024), default=256, help="grid cells per side (default: 256)")
-    g.add_argument("--threshold", type=number(float), default=SURFACE_DENSITY,
-                   help="density of the surface (default: %(default)g; higher = tighter, fewer floaters)")
+    g.add_argument("--threshold", type=number(float, above=0), default=None,
+                   help="density of the surface (default: the density at which 1/256 of the meshed cube's width "
+                   "is 7%% opaque, whatever the scene's units: lego's about 6, a 15-cm object's in metres about "
+                   "120; printed; higher = tighter, fewer floaters)")
     g.add_argument("--box-scale", type=number(float, above=0), default=1.0,
                    help="scale the cube meshed, and the scene box points are cropped to (default: 1)")
     g.add_argument("--table-cut", type=number(float, 0, 1), default=TABLE_CUT,
@@ -122,20 +124,21 @@ def export_splat(run_, path: str) -> None:
 
 
 def export_mesh(run_, args) -> None:
-    from ..export import COLOUR_REACH, mesh_from_model, mesh_region, write_mesh_ply
+    from ..export import COLOUR_REACH, mesh_from_model, mesh_region, mesh_threshold, write_mesh_ply
     from ..tabletop import cleared_note, table_cut_height
 
     model, bounds = run_.model, run_.info.bounds
     center, radius = mesh_region(model, bounds.center, bounds.radius, args.box_scale)
     height = table_cut_height(model, args.table_cut)
-    mesh = mesh_from_model(model, center, radius, COLOUR_REACH * bounds.radius, args.resolution, args.threshold,
+    threshold = args.threshold if args.threshold is not None else mesh_threshold(model, radius)
+    mesh = mesh_from_model(model, center, radius, COLOUR_REACH * bounds.radius, args.resolution, threshold,
                            args.color_dirs, chunk=POINT_CHUNK, device=run_.device, table_cut=height)
     write_mesh_ply(args.mesh, mesh)
     cut = ""
     if model.table_plane() is not None:
         cut = f"; {cleared_note(height, model.table_tags())}"
     print(f"mesh of step {run_.step}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces "
-          f"(threshold {args.threshold:g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide cube{cut}) "
+          f"(threshold {threshold:.3g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide cube{cut}) "
           f"-> {args.mesh}")
 
 
