@@ -22,8 +22,8 @@ base. The THRESHOLD iso-surface (scale-free by default, see --threshold) is extr
 marching cubes (closed where it meets the box or the cut), and each vertex is coloured
 by what a ray looking at it along the inward normal sees (the field rendered from 2% of
 the scene's radius outside the surface to 4% inside), not by the field's colour at the
-iso-surface itself, which training leaves as noise (a forward-facing run in NDC, whose density is per NDC unit, takes the
-colour at the vertex).
+iso-surface itself, which training leaves as noise (a forward-facing run in NDC, whose
+density is per NDC unit, takes the colour at the vertex).
 points: every --every-th training view is rendered; pixels with opacity > --acc-min are
 back-projected to their expected depth and coloured by the rendered colour.
 splat (runs of --model splat): the Gaussians as the standard 3DGS PLY (what the INRIA code,

@@ -269,8 +269,9 @@ class NerfModel(nn.Module):
 
     Subclasses implement :meth:`render_rays` and may override the hooks. Each training
     step the trainer runs the due :meth:`schedules` jobs, ``out = model.render_rays(...)``,
-    ``loss = model.loss(out, rgb)``, backward, the due gradient-phase jobs, the optimizer step (an optimizer it builds
-    from :meth:`param_groups` and :meth:`grad_sinks`), then the due after-step jobs.
+    ``loss = model.loss(out, rgb)``, backward, the due gradient-phase jobs, the optimizer
+    step (an optimizer it builds from :meth:`param_groups` and :meth:`grad_sinks`), then the
+    due after-step jobs.
     A model's ``state_dict`` must be loadable into a freshly built model of the same
     config (models that grow their grids resize themselves in ``load_state_dict``).
     """

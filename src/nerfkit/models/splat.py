@@ -59,7 +59,8 @@ class SplatConfig:
                                 above=0, max=1)
     init: str = option("auto", "initial Gaussians: auto (the dataset's sparse points when it has some, else the "
                        "visual hull when the training images have a flat background, else random in a ball of "
-                       "0.7 times the scene's radius, a quarter on the table of a tag capture), points, hull, or random",
+                       "0.7 times the scene's radius, a quarter on the table of a tag capture), points, hull, "
+                       "or random",
                        choices=["auto", "points", "hull", "random"])
     init_points: int = option(30_000, "number of initial Gaussians", min=1, max=MAX_GAUSSIANS)
     init_opacity: float = option(0.1, "opacity of the initial Gaussians", above=0, max=0.99)
