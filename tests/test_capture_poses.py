@@ -389,6 +389,41 @@ def test_poses_use_the_camera_files_layout_when_photos_show_several_tags(tmp_pat
     assert all(len(p["tags_used"]) == 1 for p in json.loads((out / "poses.json").read_text())["photos"] if p["used"])
 
 
+def test_poses_estimate_the_layout_from_photos_showing_several_tags_when_none_is_known(tmp_path):
+    """No layout given nor in the camera file, and most photos show several tags (an object
+    standing on the sheet): the layout is estimated from the photos, to a fraction of a
+    millimetre in the most-seen tag's frame, and each photo is posed on every tag it shows.
+    --single-tag poses from one tag."""
+    sheet = S.cached_capture("sheet", 12, 5)
+    folder = tmp_path / "object"
+    folder.mkdir()
+    for name, img in zip(sheet.names[:8], sheet.images[:8]):
+        S.write_photo(folder / name, img)
+    write_camera(tmp_path / "camera.json", sheet)  # no layout in it
+    out = tmp_path / "ds"
+    argv = ["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", "0.05", "--out", str(out),
+            "--no-dataset"]
+    assert main(argv) == 0
+    poses = json.loads((out / "poses.json").read_text())
+    assert any(n.startswith("estimated the layout of") for n in poses["notes"]), poses["notes"]
+    estimated = {int(k): np.array(v) for k, v in poses["layout"]["tags"].items()}
+    ref = min(estimated, key=lambda t: np.abs(estimated[t]).sum())  # the tag at the origin: the world
+    np.testing.assert_allclose(estimated[ref], A.square_corners(0.05), atol=1e-9)
+    to_ref = np.linalg.inv(A.tag_pose_in_layout(sheet.layout.tags[ref]))  # the sheet's frame -> the world
+    assert set(estimated) == set(sheet.layout.tags)
+    for tag, corners in estimated.items():
+        truth = sheet.layout.tags[tag] @ to_ref[:3, :3].T + to_ref[:3, 3]
+        assert np.abs(corners - truth).max() < 5e-4, tag  # half a millimetre
+    for p in poses["photos"]:
+        assert p["used"] and len(p["tags_used"]) > 1, p
+        pos, ang = pose_error(np.array(p["c2w"]), to_ref @ sheet.c2w[sheet.names.index(p["file"])])
+        assert pos < 0.002 and ang < 0.3
+    assert main([*argv, "--single-tag", "--force"]) == 0
+    poses = json.loads((out / "poses.json").read_text())
+    assert not any(n.startswith("estimated the layout") for n in poses["notes"])
+    assert all(len(p["tags_used"]) == 1 for p in poses["photos"] if p["used"])
+
+
 def test_skip_reasons_are_counted_by_kind_with_their_own_numbers():
     from nerfkit.capture.report import reason_counts
 

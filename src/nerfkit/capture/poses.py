@@ -228,6 +228,103 @@ def choose_tag(records: list[PhotoRecord]) -> tuple[int, str]:
     return best, note
 
 
+# An object standing on a sheet of several tags, with no layout given: the layout is estimated
+# from the object photos when at least this share of the photos with tags show two or more
+# (the tags around a figure's feet: each photo hides some of them) ...
+SEVERAL_TAGS_SHARE = 0.5
+# ... in this many rounds of posing the photos on it and placing each tag where they see it.
+LAYOUT_ROUNDS = 3
+
+
+def layout_from_photos(records: list[PhotoRecord], camera: Camera, tag_size: float,
+                       cfg: PoseConfig) -> tuple[Layout | None, str]:
+    """The layout of the tags the photos show together, estimated from the photos
+    themselves, and a note; ``(None, "")`` when fewer than :data:`SEVERAL_TAGS_SHARE` of the
+    photos with tags show two or more (one tag beside the object: nothing to place).
+
+    The tags start where their single-tag poses put them relative to the most-seen tag
+    (:func:`~.calibrate.initial_layout`, medians over the photos); then, for
+    :data:`LAYOUT_ROUNDS` rounds, the photos are posed on the layout (a tag that disagrees
+    is dropped, :func:`solve_pose_robust`) and every tag but the reference is placed where
+    their rays through its corners meet the sheet's plane (:func:`~.calibrate.refine_layout`).
+    A tag whose median reprojection error over the photos exceeds their median error limit
+    (a tag of another size, one not lying on the sheet's plane) is left out. The world is
+    the reference tag's frame, as with ``--tag-id``. Photos of another size than the
+    camera's are left out of the estimate."""
+    from .calibrate import initial_layout, refine_layout
+
+    size = (camera.width, camera.height)
+    with_tags = [r for r in records if r.detection is not None and len(r.detection.ids) and r.size == size]
+    several = [r for r in with_tags if len(set(int(i) for i in r.detection.ids)) >= 2]
+    if len(several) < 2 or len(several) < SEVERAL_TAGS_SHARE * len(with_tags):
+        return None, ""
+    layout, ref = initial_layout(several, camera.K, camera.dist, tag_size)
+    by_name = {r.name: r for r in several}
+    change = float("nan")
+    for _ in range(LAYOUT_ROUNDS):
+        if len(layout.tags) < 2:
+            return None, ""
+        posed = _posed_on(several, camera, layout, cfg)
+        if not posed:
+            return None, ""
+        new = refine_layout(by_name, _PosedFit.of(posed, camera), layout, ref, tag_size)
+        change = max(float(np.abs(new.tags[t] - layout.tags[t]).max()) for t in layout.tags)
+        layout = new
+    posed = _posed_on(several, camera, layout, cfg)
+    errors: dict[int, list[float]] = {}
+    for r, c2w, _ in posed:
+        shown = sorted(set(int(i) for i in r.detection.ids) & set(layout.tags))
+        for t, e in tag_errors(r.detection, c2w, camera, layout, shown).items():
+            errors.setdefault(t, []).append(e)
+    limit = float(np.median([lim for _, _, lim in posed])) if posed else 0.0
+    off = sorted(t for t, e in errors.items() if t != ref and np.median(e) > limit)
+    layout = Layout({t: c for t, c in layout.tags.items() if t not in off}, source="estimated from the photos")
+    if len(layout.tags) < 2:
+        return None, ""
+    missing = sorted({int(i) for r in with_tags for i in r.detection.ids} - set(layout.tags) - set(off))
+    note = (f"estimated the layout of {len(layout.tags)} tags from the photos ({len(several)} of "
+            f"{len(with_tags)} with tags show 2 or more; world: tag {ref}'s frame; last change "
+            f"{change * 1000:.2f} mm): each photo is posed on all the tags it shows. Pass --single-tag to "
+            "pose from one tag")
+    if off:
+        note += (f" (tags {off} fit the photos worse than {limit:.2f} px in the median and are left out: another "
+                 "size, or off the sheet's plane?)")
+    if missing:
+        note += f" (tags {missing} were never seen with the others and are left out)"
+    return layout, note
+
+
+def _posed_on(records: list[PhotoRecord], camera: Camera, layout: Layout,
+              cfg: PoseConfig) -> list[tuple[PhotoRecord, np.ndarray, float]]:
+    """``(record, c2w, error limit)`` of the photos :func:`solve_pose_robust` poses on ``layout``."""
+    out = []
+    for r in records:
+        limit = detection_limit(r.detection, camera, layout, cfg)[0]
+        c2w, _, _, _ = solve_pose_robust(r.detection, camera, layout, limit)
+        if c2w is not None:
+            out.append((r, c2w, limit))
+    return out
+
+
+@dataclass
+class _PosedFit:
+    """Posed photos in the shape :func:`~.calibrate.refine_layout` reads a calibration's fit."""
+
+    K: np.ndarray
+    dist: np.ndarray
+    keys: list
+    rvecs: list
+    tvecs: list
+
+    @staticmethod
+    def of(posed: list[tuple[PhotoRecord, np.ndarray, float]], camera: Camera) -> "_PosedFit":
+        import cv2
+
+        w2cs = [np.linalg.inv(c2w) for _, c2w, _ in posed]
+        return _PosedFit(camera.K, camera.dist, [r.name for r, _, _ in posed],
+                         [cv2.Rodrigues(w2c[:3, :3])[0] for w2c in w2cs], [w2c[:3, 3] for w2c in w2cs])
+
+
 def exif_camera(records: list[PhotoRecord]) -> tuple[Camera, str]:
     """A distortion-free camera from the photos' EXIF FocalLengthIn35mmFilm (most common
     value and size), or a NerfkitError when the photos carry none."""

@@ -9,10 +9,12 @@ HELP = "pose photos of an object beside an ArUco tag and build a NeRF dataset"
 
 DESCRIPTION = """\
 Give every photo a camera-to-world pose from the tag it shows (solvePnP: IPPE_SQUARE for
-one tag, or all tags of a --layout jointly), skip photos with no tag or a bad fit (with
-the reason), then build the dataset (as `nerfkit dataset` does): undistort, crop, resize,
-split into train/val/test, estimate near/far, and write dataset.npz, transforms.json and
-the images into DATASET_DIR, plus poses.json with every photo's outcome.
+one tag, or all tags of a layout jointly: --layout, else the camera file's, else, when
+most photos show several tags, one estimated from the photos themselves), skip photos
+with no tag or a bad fit (with the reason), then build the dataset (as `nerfkit dataset`
+does): undistort, crop, resize, split into train/val/test, estimate near/far, and write
+dataset.npz, transforms.json and the images into DATASET_DIR, plus poses.json with every
+photo's outcome.
 
 With --method auto (the default) the photos are then also posed by structure-from-motion
 (pycolmap), starting from the camera of --camera (bundle adjustment refines its focal
@@ -23,8 +25,9 @@ too. The dataset takes the SfM poses unless SfM registers fewer than 90% of the 
 the tags posed, misses the tag, or disagrees with the tags; the output says which and why
 (--method tags, or --no-dataset: tag poses only, as the course does).
 
-World frame: the tag's. Origin at the tag centre, x to the right and y up along the
-printed tag, z out of the tag toward the cameras; the scene's up is +z. Units: metres.
+World frame: the tag's (a layout's own; an estimated layout's most-seen tag's). Origin at
+the tag centre, x to the right and y up along the printed tag, z out of the tag toward the
+cameras; the scene's up is +z. Units: metres.
 
 Without --camera the EXIF focal length of the photos is used (no lens distortion).
 
@@ -67,7 +70,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--layout", help="layout JSON of several tags to use jointly (their frame is the world); by "
                    "default the camera file's layout (e.g. the one calibrate estimated) is used when the photos "
                    "show several of its tags")
-    p.add_argument("--single-tag", action="store_true", help="never use the camera file's layout automatically")
+    p.add_argument("--single-tag", action="store_true",
+                   help="pose from one tag: never use the camera file's layout or one estimated from the photos")
     p.add_argument("--dict", help="ArUco dictionary (default: the camera file's, else DICT_4X4_50)")
     p.add_argument("--out", required=True, metavar="DATASET_DIR", help="dataset folder to write")
     p.add_argument("--no-dataset", action="store_true", help="only write poses.json (build later with `nerfkit dataset`)")
@@ -123,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     from ..capture.camera import camera_from_focal, load_camera
     from ..capture.dataset import DATASET_OUTPUTS, POSES_FILE, DatasetConfig, write_poses_json
     from ..capture.photos import default_jobs, group_by_size, require_tags, scan_photos
-    from ..capture.poses import PoseConfig, choose_tag, exif_camera, pose_records
+    from ..capture.poses import PoseConfig, choose_tag, exif_camera, layout_from_photos, pose_records
     from ..capture.report import photo_summary
     from ..config import dataclass_from_args
     from ..errors import fail
@@ -173,6 +177,18 @@ def run(args: argparse.Namespace) -> int:
         layout, note = camera_layout(args.camera, dictionary, records)
         if note:
             notes.append(note)
+    if camera is None:
+        if args.focal_px:
+            size, _ = group_by_size(records)
+            camera = camera_from_focal(args.focal_px, size[0], size[1], f"--focal-px {args.focal_px:g}")
+            notes.append(f"no --camera: fx = fy = {args.focal_px:g} px, principal point at the centre, no distortion")
+        else:
+            camera, note = exif_camera(records)
+            notes.append(note)
+    if layout is None and args.tag_id is None and not args.single_tag:
+        layout, note = layout_from_photos(records, camera, args.tag_size, pcfg)
+        if note:
+            notes.append(note)
     if layout is None:
         tag_id = args.tag_id
         if tag_id is None:
@@ -183,14 +199,6 @@ def run(args: argparse.Namespace) -> int:
         notes.append("--tag-id is ignored with --layout: the layout's frame is the world")
     tag_size = args.tag_size or layout.tag_size
 
-    if camera is None:
-        if args.focal_px:
-            size, _ = group_by_size(records)
-            camera = camera_from_focal(args.focal_px, size[0], size[1], f"--focal-px {args.focal_px:g}")
-            notes.append(f"no --camera: fx = fy = {args.focal_px:g} px, principal point at the centre, no distortion")
-        else:
-            camera, note = exif_camera(records)
-            notes.append(note)
     posed = pose_records(records, camera, layout, pcfg)
     scaled = sorted({(p.camera.width, p.camera.height) for p in posed} - {(camera.width, camera.height)})
     if scaled:
