@@ -424,6 +424,37 @@ def test_poses_estimate_the_layout_from_photos_showing_several_tags_when_none_is
     assert all(len(p["tags_used"]) == 1 for p in poses["photos"] if p["used"])
 
 
+def test_an_estimated_layout_leaves_out_a_tag_of_another_size():
+    """Four tags on a plane, one of them printed 30% larger than --tag-size says: the
+    layout estimated from exact projections places the other three to a hundredth of a
+    millimetre and leaves the odd one out, saying so."""
+    from nerfkit.capture.photos import PhotoRecord
+    from nerfkit.capture.poses import PoseConfig, layout_from_photos
+
+    size = 0.05
+    centres = {0: (0.0, 0.0), 1: (0.09, 0.0), 2: (0.0, 0.09), 3: (0.09, 0.09)}
+    truth = {t: A.square_corners(size * (1.3 if t == 3 else 1.0)) + [x, y, 0.0] for t, (x, y) in centres.items()}
+    cam = camera_from_focal(800.0, 1024, 768, "test")
+    rng = np.random.default_rng(0)
+    records = []
+    for k in range(10):
+        eye = np.array([0.045, 0.045, 0.0]) + [rng.uniform(-0.15, 0.15), rng.uniform(-0.15, 0.15), 0.35]
+        z = np.array([0.045, 0.045, 0.0]) - eye
+        z /= np.linalg.norm(z)
+        x = np.cross([0.0, 1.0, 0.0], z)
+        x /= np.linalg.norm(x)
+        R = np.stack([x, np.cross(z, x), z])  # world -> camera rows
+        rvec, tvec = cv2.Rodrigues(R)[0], -R @ eye
+        corners = np.stack([cv2.projectPoints(truth[t], rvec, tvec, cam.K, cam.dist)[0].reshape(4, 2) for t in truth])
+        det = A.Detection(1024, 768, np.array(list(truth)), corners)
+        records.append(PhotoRecord(f"p{k}.jpg", None, det))
+    layout, note = layout_from_photos(records, cam, size, PoseConfig())
+    assert sorted(layout.tags) == [0, 1, 2] and "tags [3] fit the photos worse" in note, note
+    ref = min(layout.tags, key=lambda t: np.abs(layout.tags[t]).sum())
+    for t in layout.tags:
+        np.testing.assert_allclose(layout.tags[t] - layout.tags[ref], truth[t] - truth[ref], atol=1e-5)
+
+
 def test_skip_reasons_are_counted_by_kind_with_their_own_numbers():
     from nerfkit.capture.report import reason_counts
 
