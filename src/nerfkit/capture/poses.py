@@ -228,9 +228,9 @@ def choose_tag(records: list[PhotoRecord]) -> tuple[int, str]:
     return best, note
 
 
-# An object standing on a sheet of several tags, with no layout given: the layout is estimated
-# from the object photos when at least this share of the photos with tags show two or more
-# (the tags around a figure's feet: each photo hides some of them) ...
+# An object standing on a sheet of several tags: the camera file's layout is used, or with
+# none a layout is estimated from the object photos, when at least this share of the photos
+# with tags show two or more (the tags around a figure's feet: each photo hides some) ...
 SEVERAL_TAGS_SHARE = 0.5
 # ... in this many rounds of posing the photos on it and placing each tag where they see it.
 LAYOUT_ROUNDS = 3

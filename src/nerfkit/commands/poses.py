@@ -97,6 +97,7 @@ def camera_layout(camera_file: str, dictionary: str, records) -> tuple[object, s
     import numpy as np
 
     from ..capture.aruco import layout_from_json
+    from ..capture.poses import SEVERAL_TAGS_SHARE
     from ..errors import NerfkitError
 
     spec = json.loads(Path(camera_file).read_text()).get("layout")
@@ -111,7 +112,7 @@ def camera_layout(camera_file: str, dictionary: str, records) -> tuple[object, s
     counts = [len({int(i) for i in r.detection.ids} & set(layout.tags)) for r in records
               if r.detection is not None and len(r.detection.ids)]
     several = sum(c >= 2 for c in counts)
-    if not counts or several < 0.5 * len(counts):
+    if not counts or several < SEVERAL_TAGS_SHARE * len(counts):
         return None, ""
     return layout, (f"using the camera file's layout of {len(layout.tags)} tags (world: its frame, tag "
                     f"{min(layout.tags, key=lambda t: np.abs(layout.tags[t].mean(0)).sum())} at the origin): "
