@@ -69,7 +69,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tag-id", type=number(int, 0), help="the tag that defines the world (default: the one seen most)")
     p.add_argument("--layout", help="layout JSON of several tags to use jointly (their frame is the world); by "
                    "default the camera file's layout (e.g. the one calibrate estimated) is used when the photos "
-                   "show several of its tags")
+                   "show several of its tags, else, when they show several tags, one estimated from them")
     p.add_argument("--single-tag", action="store_true",
                    help="pose from one tag: never use the camera file's layout or one estimated from the photos")
     p.add_argument("--dict", help="ArUco dictionary (default: the camera file's, else DICT_4X4_50)")
