@@ -357,6 +357,12 @@ def initial_layout(records: list[PhotoRecord], K: np.ndarray, dist: np.ndarray, 
     return Layout(tags, source="estimated"), ref
 
 
+def layout_change(new: Layout, old: Layout) -> float:
+    """How far any corner of ``old``'s tags moved in ``new`` (world units, the largest
+    coordinate change)."""
+    return max(float(np.abs(new.tags[t] - old.tags[t]).max()) for t in old.tags)
+
+
 def refine_layout(records: dict[str, PhotoRecord], fit: Fit, layout: Layout, ref: int, tag_size: float) -> Layout:
     """Re-estimate every tag but ``ref``: back-project its corners onto the sheet plane of
     each calibrated photo, average, and fit a square of side ``tag_size``."""
@@ -456,7 +462,7 @@ def estimate_layout(with_tags: list[PhotoRecord], by_name: dict, size: tuple[int
         fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor,
                         None if fit is None else fit.K)
         new = refine_layout(by_name, fit, layout, ref, tag_size)
-        change = max(float(np.abs(new.tags[t] - layout.tags[t]).max()) for t in layout.tags)
+        change = layout_change(new, layout)
         layout = new
         if change < 5e-4 * tag_size:  # 0.03 mm for 6 cm tags
             break

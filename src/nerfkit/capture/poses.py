@@ -251,7 +251,7 @@ def layout_from_photos(records: list[PhotoRecord], camera: Camera, tag_size: flo
     (a tag of another size, one not lying on the sheet's plane) is left out. The world is
     the reference tag's frame, as with ``--tag-id``. Photos of another size than the
     camera's are left out of the estimate."""
-    from .calibrate import initial_layout, refine_layout
+    from .calibrate import initial_layout, layout_change, refine_layout
 
     size = (camera.width, camera.height)
     with_tags = [r for r in records if r.detection is not None and len(r.detection.ids) and r.size == size]
@@ -268,7 +268,7 @@ def layout_from_photos(records: list[PhotoRecord], camera: Camera, tag_size: flo
         if not posed:
             return None, ""
         new = refine_layout(by_name, _PosedFit.of(posed, camera), layout, ref, tag_size)
-        change = max(float(np.abs(new.tags[t] - layout.tags[t]).max()) for t in layout.tags)
+        change = layout_change(new, layout)
         layout = new
     posed = _posed_on(several, camera, layout, cfg)
     errors: dict[int, list[float]] = {}
