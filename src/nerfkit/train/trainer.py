@@ -476,11 +476,12 @@ class Trainer:
             return
         val_psnr, pixels = scored
         full = pixels == self.scene.val.width * self.scene.val.height
+        views = min(n or len(self.scene.val), len(self.scene.val))
         self.rows.append({"step": self.step, "seconds": round(self.train_seconds, 3), "split": "val",
-                          "loss": float("nan"), "psnr": val_psnr, "views": min(n or len(self.scene.val), len(self.scene.val)),
-                          "pixels": pixels})
-        self.log(f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {val_psnr:.2f} dB"
-                 + ("" if full else f" ({pixels} pixels per view)"))
+                          "loss": float("nan"), "psnr": val_psnr, "views": views, "pixels": pixels})
+        scope = f"all {views} views" if views == len(self.scene.val) else f"first {views} of {len(self.scene.val)} views"
+        self.log(f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {val_psnr:.2f} dB ({scope}"
+                 + ("" if full else f", {pixels} pixels each") + ")")
 
     def write_reports(self) -> None:
         """metrics.csv/json (``finished``: the stopping rule was reached, not cut short;
