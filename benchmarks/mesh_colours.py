@@ -10,18 +10,28 @@ validation view with where the NeRF's object (alone, for a capture) is more than
 opaque: the intersection over the union of the two. Holes in the mesh (a threshold too
 high) and a shell of haze around it (too low) both lower it.
 
-The mesh is coloured two ways:
+The mesh is coloured three ways:
 
-* ``at vertex``: the field's colour at the vertex (the iso-surface), seen along the normal;
-* ``ray seen``:  what a ray looking at the vertex along the inward normal sees (the field
-                 volume-rendered from ``reach`` outside the surface to twice as far
-                 inside: ``export``'s way, with ``reach`` 2% of the scene's radius;
-                 ``--reach F ...`` scores other fractions too).
+* ``at vertex``:    the field's colour at the vertex (the iso-surface), seen along the normal;
+* ``along normal``: what a ray looking at the vertex along the inward normal sees (the field
+                    volume-rendered from ``reach`` outside the surface to twice as far
+                    inside, ``reach`` 2% of the scene's radius; ``--reach F ...`` scores
+                    other fractions too): ``export --color-views 0``;
+* ``N views``:      the mean of the NeRF's renders (its object alone) at N training views
+                    that see the vertex, along the normal where none does: ``export``'s
+                    way, N = 32 (``--color-views N ...`` scores others).
 
-Each vertex is projected into the run's validation views; where it is visible (its
-distance from the camera within 1% of the scene radius of the rendered depth, on a pixel
-with opacity above 0.9), its colour is compared with the photo's pixel. Prints PSNR over
-those (vertex, view) pairs and the seconds each colouring took::
+Two scores against the run's validation photos:
+
+* ``pairs``: each vertex is projected into the views; where it is visible (its distance from
+  the camera within 1% of the scene radius of the rendered depth, on a pixel with opacity
+  above 0.9), its colour is compared with the photo's pixel: PSNR over those (vertex,
+  view) pairs;
+* ``drawn``: the mesh is drawn (each triangle filled with its vertices' mean colour, far to
+  near) and compared with the photo where it covers the NeRF's object more than 90% opaque,
+  PSNR per view, averaged; the NeRF's own render on the same pixels is printed beside.
+
+And the seconds each colouring took::
 
     python benchmarks/mesh_colours.py runs/demo
     python benchmarks/mesh_colours.py /tmp/cr/steve/run_auto --views 6
@@ -39,35 +49,50 @@ import numpy as np
 
 def visible_pairs(vertices: np.ndarray, view, K: np.ndarray, c2w: np.ndarray, tol: float):
     """(indices of the vertices visible in this view, their pixels (cols, rows))."""
-    w2c = np.linalg.inv(c2w)
-    X = vertices @ w2c[:3, :3].T + w2c[:3, 3]  # OpenCV camera: looks along +z
-    z = np.maximum(X[:, 2], 1e-9)
-    cols = np.floor(K[0, 0] * X[:, 0] / z + K[0, 2]).astype(int)
-    rows = np.floor(K[1, 1] * X[:, 1] / z + K[1, 2]).astype(int)
+    from nerfkit.cameras import project_points
+
+    uv, z = project_points(K, c2w, vertices)
+    cols, rows = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
     h, w = view.depth.shape
-    idx = np.where((X[:, 2] > 1e-6) & (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h))[0]
+    idx = np.where((z > 1e-6) & (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h))[0]
     dist = np.linalg.norm(vertices[idx] - c2w[:3, 3], axis=1)
     keep = (np.abs(dist - view.depth[rows[idx], cols[idx]]) < tol) & (view.acc[rows[idx], cols[idx]] > 0.9)
     return idx[keep], cols[idx[keep]], rows[idx[keep]]
 
 
-def silhouette(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, c2w: np.ndarray, width: int,
-               height: int) -> np.ndarray:
-    """(H, W) bool: the pixels whose centres the mesh's triangles in front of the camera cover."""
+def draw(vertices: np.ndarray, faces: np.ndarray, colours: dict, K: np.ndarray, c2w: np.ndarray, width: int,
+         height: int) -> tuple[dict, np.ndarray]:
+    """The mesh drawn in one view, each triangle in front of the camera filled with the mean
+    of its vertices' colours, far to near (painter's algorithm; triangles of a 256^3 mesh
+    are about a pixel): ``({name: (H, W, 3) uint8 image}, (H, W) bool covered)`` for each
+    colouring of ``colours`` (name -> (V, 3) uint8)."""
     import cv2
 
-    w2c = np.linalg.inv(c2w)
-    X = vertices @ w2c[:3, :3].T + w2c[:3, 3]
-    front = (X[faces][:, :, 2] > 1e-6).all(1)
-    uv = np.stack([K[0, 0] * X[:, 0] / X[:, 2] + K[0, 2], K[1, 1] * X[:, 1] / X[:, 2] + K[1, 2]], 1)
+    from nerfkit.cameras import project_points
+
+    uv, z = project_points(K, c2w, vertices)
+    front = np.nonzero((z[faces] > 1e-6).all(1))[0]
+    front = front[np.argsort(-z[faces[front]].mean(1))]
     tris = np.round((uv[faces[front]] - 0.5) * 16).astype(np.int32)  # pixel centres at +0.5; 4 bits of subpixel
     mask = np.zeros((height, width), np.uint8)
+    images = {}
+    for name, c in colours.items():
+        face_colours = c[faces[front]].astype(np.float64).mean(1).round().astype(int).tolist()
+        img = np.zeros((height, width, 3), np.uint8)
+        for tri, colour in zip(tris, face_colours):
+            cv2.fillConvexPoly(img, tri, colour, lineType=cv2.LINE_8, shift=4)
+        images[name] = img
     for tri in tris:
         cv2.fillConvexPoly(mask, tri, 1, lineType=cv2.LINE_8, shift=4)
-    return mask.astype(bool)
+    return images, mask.astype(bool)
+
+
+def psnr(squared_errors: np.ndarray) -> float:
+    return float(-10 * np.log10(max(squared_errors.mean(), 1e-10)))
 
 
 def main() -> None:
+    from nerfkit.export import COLOUR_VIEWS
     from nerfkit.tabletop import TABLE_CUT
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -81,12 +106,15 @@ def main() -> None:
                     help="export's --table-cut; negative: leave a capture's table paint and what is under the table")
     ap.add_argument("--reach", type=float, nargs="+", default=[],
                     help="more colour ray reaches to score, as fractions of the scene's radius")
+    ap.add_argument("--color-views", type=int, nargs="+", default=[COLOUR_VIEWS],
+                    help=f"training views to colour from (default: export's {COLOUR_VIEWS}; several: one colouring each)")
     args = ap.parse_args()
 
     import torch
 
     from nerfkit.commands._common import open_run, scene_for_run
-    from nerfkit.export import COLOUR_REACH, extract_mesh, mesh_region, mesh_threshold, vertex_colors
+    from nerfkit.export import (COLOUR_REACH, COLOUR_VIEW_TOL, ColourViews, extract_mesh, mesh_region, mesh_threshold,
+                                vertex_colors, view_colors)
     from nerfkit.tabletop import object_alone, table_cut_height
     from nerfkit.output.images import render_image
 
@@ -100,39 +128,62 @@ def main() -> None:
     threshold = args.threshold if args.threshold is not None else mesh_threshold(model, radius)
     mesh = extract_mesh(model.density, center, radius, args.resolution, threshold, table=table, table_cut=cut,
                         tags=model.table_tags())
-    reaches = [("at vertex", 0.0), ("ray seen", COLOUR_REACH)] + [(f"reach {f:g}", f) for f in args.reach]
+    scene = scene_for_run(run.info, None, need="val")
+    alone = object_alone(model).model
+    bg = run.background()
+
+    def render(m, K, c2w, w, h):
+        return render_image(m, K, c2w, w, h, bg, 65536, run.autocast)
+
+    def render_alone(K, c2w, w, h):
+        out = render(alone, K, c2w, w, h)
+        return out.rgb, out.depth, out.acc
+
+    reaches = [("at vertex", 0.0), ("along normal", COLOUR_REACH)] + [(f"reach {f:g}", f) for f in args.reach]
     colourings = {}
     with torch.no_grad():
         for name, fraction in reaches:
-            reach = fraction * bounds.radius
             t0 = time.perf_counter()
-            colourings[name] = vertex_colors(model.density, model.query, mesh.vertices, mesh.normals, reach)
-            colourings[name] = (colourings[name], time.perf_counter() - t0)
-    views = scene_for_run(run.info, None, need="val").splits["val"]
-    errors = {name: [] for name in colourings}
-    alone = object_alone(model).model
+            colours = vertex_colors(model.density, model.query, mesh.vertices, mesh.normals, fraction * bounds.radius)
+            colourings[name] = (colours, time.perf_counter() - t0)
+        for n in args.color_views:
+            t0 = time.perf_counter()
+            colours, seen = view_colors(render_alone, ColourViews.pick(scene.train, n), mesh.vertices, mesh.normals,
+                                        COLOUR_VIEW_TOL * bounds.radius, tuple(bg.tolist()))
+            colours[~seen] = colourings["along normal"][0][~seen]
+            colourings[f"{n} views"] = (colours, time.perf_counter() - t0 + colourings["along normal"][1])
+            print(f"{n} views: {seen.mean():.1%} of the vertices seen")
+    views = scene.splits["val"]
+    pair_errors = {name: [] for name in colourings}
+    drawn_errors = {name: [] for name in colourings}
+    nerf_errors = []
+    vertices = mesh.vertices.astype(np.float64)
     inter = union = 0
     for i in range(min(args.views, len(views))):
-        view = render_image(model, views.K[i], views.c2w[i], views.width, views.height, run.background(), 65536,
-                            run.autocast)
-        solid = render_image(alone, views.K[i], views.c2w[i], views.width, views.height, run.background(), 65536,
-                             run.autocast).acc > 0.5
-        covered = silhouette(mesh.vertices.astype(np.float64), mesh.faces, views.K[i], views.c2w[i], views.width,
-                             views.height)
+        K, c2w, w, h = views.K[i], views.c2w[i], views.width, views.height
+        with torch.no_grad():
+            view, obj = render(model, K, c2w, w, h), render(alone, K, c2w, w, h)
+        images, covered = draw(vertices, mesh.faces, {k: c for k, (c, _) in colourings.items()}, K, c2w, w, h)
+        solid = obj.acc > 0.5
         inter, union = inter + int((solid & covered).sum()), union + int((solid | covered).sum())
-        idx, cols, rows = visible_pairs(mesh.vertices.astype(np.float64), view, views.K[i], views.c2w[i],
-                                        0.01 * bounds.radius)
-        photo = views.images[i][rows, cols] / 255.0
+        photo = views.images[i] / 255.0
+        idx, cols, rows = visible_pairs(vertices, view, K, c2w, 0.01 * bounds.radius)
+        both = covered & (obj.acc > 0.9)
+        nerf_errors.append(psnr((view.rgb[both] - photo[both]) ** 2))
         for name, (colours, _) in colourings.items():
-            errors[name].append(((colours[idx] / 255.0 - photo) ** 2).mean(1))
+            pair_errors[name].append(((colours[idx] / 255.0 - photo[rows, cols]) ** 2).mean(1))
+            drawn_errors[name].append(psnr((images[name][both] / 255.0 - photo[both]) ** 2))
     cleared = f", table paint cleared up to {cut:.3g}" if table is not None else ""
     print(f"{args.run}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces at threshold {threshold:.3g} "
           f"({args.region}'s cube, {2 * radius:.3g} wide{cleared}); silhouette IoU with the NeRF's "
           f"{inter / max(union, 1):.3f}")
-    print(f"{'vertex colour':<14} {'pairs':>7} {'PSNR':>6} {'seconds':>8}")
+    print(f"drawn: PSNR against the photo where the mesh covers the NeRF's solid object, mean over "
+          f"{len(nerf_errors)} views; the NeRF's own render there: {np.mean(nerf_errors):.2f}")
+    print(f"{'vertex colour':<14} {'pairs':>7} {'PSNR':>6} {'drawn':>6} {'seconds':>8}")
     for name, (colours, seconds) in colourings.items():
-        e = np.concatenate(errors[name])
-        print(f"{name:<14} {len(e):>7} {-10 * np.log10(e.mean()):>6.2f} {seconds:>8.2f}")
+        e = np.concatenate(pair_errors[name])
+        print(f"{name:<14} {len(e):>7} {-10 * np.log10(e.mean()):>6.2f} {np.mean(drawn_errors[name]):>6.2f} "
+              f"{seconds:>8.2f}")
 
 
 if __name__ == "__main__":

@@ -292,6 +292,86 @@ def test_crop_to_box():
     assert len(p) == 2 and len(c) == 2
 
 
+def two_spheres_render(K, c2w, width, height):
+    """Exact render of a red ball (radius 0.5 at x = -1) and a blue one (at x = +1): rgb
+    (H, W, 3), depth along unit rays (H, W) and acc (H, W), on black."""
+    rays = image_rays(torch.from_numpy(np.asarray(K)), torch.from_numpy(np.asarray(c2w)).float(), width, height)
+    o, d = rays.origins.double().numpy(), rays.directions.double().numpy()
+    depth, rgb = np.full(len(o), np.inf), np.zeros((len(o), 3))
+    for centre, colour in (((-1.0, 0, 0), (1.0, 0, 0)), ((1.0, 0, 0), (0, 0, 1.0))):
+        oc = o - np.asarray(centre)
+        b = (oc * d).sum(1)
+        disc = b * b - ((oc * oc).sum(1) - 0.25)
+        t = np.where(disc > 0, -b - np.sqrt(np.maximum(disc, 0)), np.inf)
+        nearer = t < depth
+        depth[nearer], rgb[nearer] = t[nearer], colour
+    hit = np.isfinite(depth)
+    shape = (height, width)
+    return rgb.reshape(shape + (3,)), np.where(hit, depth, 0).reshape(shape), hit.astype(float).reshape(shape)
+
+
+def looking_at(eye) -> np.ndarray:
+    from nerfkit.cameras import look_at
+
+    return look_at(np.asarray(eye, np.float64), np.zeros(3), np.array([0.0, 0.0, 1.0]))
+
+
+def test_project_points_inverts_pixel_rays():
+    from nerfkit.cameras import pixel_to_ray, project_points
+
+    K = np.array([[50.0, 0.3, 31.5], [0, 55.0, 24.0], [0, 0, 1]])
+    c2w = looking_at([1.0, -4.0, 2.0])
+    uv = np.array([[0.5, 0.5], [10.25, 40.75], [63.9, 47.1]])
+    o, d = pixel_to_ray(torch.from_numpy(K).float(), torch.from_numpy(c2w).float(), torch.from_numpy(uv).float())
+    points = o.double().numpy() + np.array([1.0, 2.5, 7.0])[:, None] * d.double().numpy()
+    back, z = project_points(K, c2w, points)
+    np.testing.assert_allclose(back, uv, atol=1e-3)
+    assert (z > 0).all()
+    _, z_behind = project_points(K, c2w, 2 * c2w[:3, 3] - points)  # mirrored through the camera
+    assert (z_behind < 0).all()
+
+
+def test_view_colours_come_from_the_views_that_see_each_vertex():
+    """Ball vertices take their own ball's colour: the red ball hides the blue one from the
+    camera on the x axis (depth test), back faces take nothing from a view, and vertices
+    no camera sees are reported unseen."""
+    K = np.array([[120.0, 0, 64.0], [0, 120.0, 64.0], [0, 0, 1]])
+    eyes = [[-6.0, 0, 0], [0.0, -6.0, 0.5], [0.0, 0.5, 6.0]]  # along the balls' axis, beside, above
+    views = ex.ColourViews(np.stack([K] * 3), np.stack([looking_at(e) for e in eyes]), 128, 128)
+    rng = np.random.default_rng(0)
+    normals = rng.normal(size=(4000, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    centres = np.where(np.arange(4000)[:, None] < 2000, [[-1.0, 0, 0]], [[1.0, 0, 0]])
+    vertices = centres + 0.5 * normals
+    colours, seen = ex.view_colors(two_spheres_render, views, vertices, normals, tol=0.05)
+    red = np.arange(4000) < 2000
+    np.testing.assert_array_equal(colours[seen & red], [[255, 0, 0]] * int((seen & red).sum()))
+    np.testing.assert_array_equal(colours[seen & ~red], [[0, 0, 255]] * int((seen & ~red).sum()))
+    assert 0.4 < seen.mean() < 0.9
+    # facing down, away from the camera beside (-y) and from the one on the axis (-x): no view
+    assert not seen[(normals[:, 2] < -0.3) & (normals[:, 1] > 0.3) & (normals[:, 0] > 0)].any()
+    # from the axis alone: the red ball's near side, and nothing of the blue ball behind it
+    axis = ex.ColourViews(views.K[:1], views.c2w[:1], 128, 128)
+    _, seen = ex.view_colors(two_spheres_render, axis, vertices, normals, tol=0.05)
+    assert not seen[~red].any()
+    assert seen[red & (normals[:, 0] < -0.5)].mean() > 0.95 and not seen[red & (normals[:, 0] > 0)].any()
+
+
+def test_colour_views_are_spread_and_at_most_the_longest_side():
+    from nerfkit.data.scene import Views
+
+    n = 10
+    K = np.tile(np.array([[3000.0, 0, 2016.0], [0, 3000.0, 1512.0], [0, 0, 1]]), (n, 1, 1))
+    c2w = np.tile(np.eye(4), (n, 1, 1))
+    c2w[:, 0, 3] = np.arange(n)
+    views = Views(c2w, K, 4032, 3024)
+    picked = ex.ColourViews.pick(views, 4)
+    assert len(picked) == 4 and picked.c2w[:, 0, 3].tolist() == [0, 3, 6, 9]
+    assert (picked.width, picked.height) == (1008, 756)
+    assert picked.K[0, 0, 0] == pytest.approx(750.0)
+    assert len(ex.ColourViews.pick(views, 50)) == n
+
+
 # ----------------------------------------------------------------------------- the command
 
 
@@ -335,11 +415,21 @@ def test_export_command_writes_both_files(tmp_path, monkeypatch, capsys):
     mesh = trimesh.load(tmp_path / "m.ply", process=False)
     assert mesh.is_watertight
     assert np.linalg.norm(mesh.vertices, axis=1).mean() == pytest.approx(1.0, abs=0.01)
+    # coloured from the 4 training views (16 pixels wide) where they see the sphere, along the normal elsewhere
+    unit = mesh.vertices / np.linalg.norm(mesh.vertices, axis=1, keepdims=True)
+    error = np.abs(mesh.visual.vertex_colors[:, :3] / 255.0 - sphere_color(unit)).max(1)
+    assert np.median(error) < 0.01 and np.percentile(error, 90) < 0.1  # (the blue stripes' edges step)
     cloud = trimesh.load(tmp_path / "p.ply")
     assert len(cloud.vertices) > 100
     np.testing.assert_allclose(np.linalg.norm(cloud.vertices, axis=1), 1.0, atol=1e-4)
     out = capsys.readouterr().out
-    assert "step 7" in out
+    assert "step 7" in out and "coloured from 4 training views" in out
+    (tmp_path / "s.npz").rename(tmp_path / "moved.npz")  # the dataset gone: say so, and how to do without it
+    assert main(["export", str(tmp_path), "--mesh", str(tmp_path / "m2.ply"), "--resolution", "16"]) == 2
+    assert "--color-views 0" in capsys.readouterr().err and not (tmp_path / "m2.ply").exists()
+    assert main(["export", str(tmp_path), "--mesh", str(tmp_path / "m2.ply"), "--resolution", "16", "--threshold",
+                 "50", "--color-views", "0"]) == 0
+    assert "coloured along the normals" in capsys.readouterr().out
     assert main(["export", str(tmp_path)]) == 2  # nothing asked for
     assert main(["export", str(tmp_path), "--mesh", str(tmp_path / "m.obj")]) == 2
     assert SceneBounds.from_dict(json.loads(json.dumps(bounds.to_dict()))).to_dict() == bounds.to_dict()

@@ -143,6 +143,19 @@ def image_rays(K: Tensor, c2w: Tensor, width: int, height: int) -> Rays:
     return Rays(o, d)
 
 
+def project_points(K: np.ndarray, c2w: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World points (n, 3) -> their pixel coordinates ``uv`` (n, 2) (pixel ``(col, row)``
+    covers ``[col, col + 1) x [row, row + 1)``) and their depth ``z`` (n,) along the
+    camera's axis (in front of the camera where ``z > 0``; ``uv`` is meaningless elsewhere)."""
+    w2c = np.linalg.inv(np.asarray(c2w, np.float64))
+    x = np.asarray(points, np.float64) @ w2c[:3, :3].T + w2c[:3, 3]
+    z = x[:, 2]
+    xy = x[:, :2] / np.where(np.abs(z) > 1e-12, z, 1e-12)[:, None]
+    K = np.asarray(K, np.float64)
+    uv = xy @ K[:2, :2].T + K[:2, 2]
+    return uv, z
+
+
 def strided_camera(K, width: int, height: int, stride: int):
     """The camera whose pixels are every ``stride``-th pixel of ``(K, width, height)``.
 

@@ -9,10 +9,12 @@ Mesh: the density is sampled on a grid over a cube (of half-size ``radius`` abou
 ``center``: for a trained model, around its own box, :func:`mesh_region`), a capture's
 table paint and the specks apart from its object are cleared (:func:`clear_around_object`),
 the box border is padded with empty space so the surface closes where it meets the box
-(the mesh is cropped to the box and watertight), marching cubes (scikit-image) extracts the
-``threshold`` iso-surface, and each vertex is coloured by what a ray looking at it along
-the inward normal sees (optionally averaged over a small cone of directions): the field
-volume-rendered along a short segment through the surface.
+(the mesh is cropped to the box and watertight), and marching cubes (scikit-image) extracts
+the ``threshold`` iso-surface. A trained model's vertices take the mean of its renders at
+the training views that see them (:func:`view_colors`); a vertex no view sees (or any
+vertex, with no views) is coloured by what a ray looking at it along the inward normal
+sees (optionally averaged over a small cone of directions): the field volume-rendered
+along a short segment through the surface (:func:`vertex_colors`).
 The colour *at* the iso-surface would be the field's least constrained colour: training
 fits colours where rays stop, at higher density, so a learned field's colour at its thin
 edge is noise.
@@ -36,6 +38,21 @@ from .tabletop import SURFACE_DENSITY, clear_around_object
 
 DensityFn = Callable[[torch.Tensor], torch.Tensor]
 QueryFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
+
+
+# how far outside a vertex its colour ray starts, as a fraction of the scene's radius: the
+# depth of a trained field's fuzzy surface (benchmarks/mesh_colours.py, session 29: lego,
+# steve and labubu score within 0.1-0.5 dB of their best reach, which spans 1.6-3.4%)
+COLOUR_REACH = 0.02
+
+# a mesh's vertices are coloured from this many of the training views (evenly spread) ...
+COLOUR_VIEWS = 32
+# ... rendered with the longest side at most this many pixels ...
+COLOUR_VIEW_SIDE = 1024
+# ... where the vertex lies within this fraction of the scene's radius of the rendered depth
+# (a trained field's iso-surface lies 1-2.5% of it in front of the rendered depth;
+# benchmarks/mesh_colours.py, session 41)
+COLOUR_VIEW_TOL = 0.05
 
 
 @dataclass
@@ -187,6 +204,75 @@ def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray
     return (np.clip(total / len(dirs), 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
+@dataclass
+class ColourViews:
+    """The cameras a mesh's vertices are coloured from: intrinsics K (N, 3, 3),
+    camera-to-world c2w (N, 4, 4), and the image size they render at."""
+
+    K: np.ndarray
+    c2w: np.ndarray
+    width: int
+    height: int
+
+    @classmethod
+    def pick(cls, views, n: int, longest_side: int = COLOUR_VIEW_SIDE) -> "ColourViews":
+        """Up to ``n`` of ``views`` (a :class:`~nerfkit.data.scene.Views`), evenly spread over
+        them, at a resolution whose longest side is at most ``longest_side`` (every k-th pixel)."""
+        from .cameras import strided_camera
+
+        idx = np.unique(np.linspace(0, len(views) - 1, min(n, len(views))).round().astype(int))
+        stride = max(1, -(-max(views.width, views.height) // longest_side))
+        Ks = [strided_camera(np.asarray(views.K[i], np.float64), views.width, views.height, stride) for i in idx]
+        return cls(np.stack([k[0] for k in Ks]), np.asarray(views.c2w, np.float64)[idx], Ks[0][1], Ks[0][2])
+
+    def __len__(self) -> int:
+        return len(self.K)
+
+
+def view_colors(render_fn: Callable, views: ColourViews, vertices: np.ndarray, normals: np.ndarray, tol: float,
+                background=(0.0, 0.0, 0.0), progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex colours from rendered views: each vertex takes the mean, over the views
+    that see it, of the rendered colour of the pixel it falls in (the background removed
+    again, as in :func:`depth_to_points`).
+
+    A view sees a vertex when the vertex is in front of the camera and inside the image,
+    its outward normal faces the camera, the render is more than 90% opaque there, and
+    the vertex's distance from the camera is within ``tol`` of the rendered depth (a
+    mesh's iso-surface lies a little in front of where a fuzzy surface's colour is).
+
+    Args:
+        render_fn: ``(K, c2w, width, height) -> (rgb (H, W, 3), depth (H, W), acc (H, W))``,
+            ``depth`` along unit rays, divided by ``acc``.
+        vertices, normals: (V, 3) world points and their unit outward normals.
+    Returns:
+        colours (V, 3) uint8 (0 where no view sees the vertex) and seen (V,) bool.
+    """
+    from tqdm import tqdm
+
+    from .cameras import project_points
+
+    v = np.asarray(vertices, np.float64)
+    n = np.asarray(normals, np.float64)
+    total, count = np.zeros((len(v), 3)), np.zeros(len(v))
+    bg = np.asarray(background, np.float64).reshape(3)
+    for i in tqdm(range(len(views)), desc="vertex colours", unit="view", disable=None if progress else True):
+        rgb, depth, acc = (np.asarray(a) for a in render_fn(views.K[i], views.c2w[i], views.width, views.height))
+        uv, z = project_points(views.K[i], views.c2w[i], v)
+        idx = np.nonzero((z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < views.width) & (uv[:, 1] >= 0)
+                         & (uv[:, 1] < views.height))[0]
+        col, row = uv[idx, 0].astype(int), uv[idx, 1].astype(int)
+        to_camera = views.c2w[i][:3, 3] - v[idx]
+        dist = np.linalg.norm(to_camera, axis=1)
+        a = acc[row, col]
+        seen = ((n[idx] * to_camera).sum(1) > 0) & (a > 0.9) & (np.abs(dist - depth[row, col]) < tol)
+        idx, row, col, a = idx[seen], row[seen], col[seen], a[seen, None]
+        total[idx] += (rgb[row, col] - (1.0 - a) * bg) / a
+        count[idx] += 1
+    seen = count > 0
+    colours = total / np.maximum(count, 1)[:, None]
+    return (np.clip(colours, 0, 1) * 255 + 0.5).astype(np.uint8), seen
+
+
 def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int = 256,
                  threshold: float = SURFACE_DENSITY,
                  query_fn: QueryFn | None = None, n_dirs: int = 1, chunk: int = 65536,
@@ -326,10 +412,6 @@ def mesh_threshold(model, radius: float) -> float:
     return SURFACE_DENSITY if getattr(model, "ndc", None) is not None else surface_threshold(radius)
 
 
-# how far outside a vertex its colour ray starts, as a fraction of the scene's radius: the
-# depth of a trained field's fuzzy surface (benchmarks/mesh_colours.py, session 29: lego,
-# steve and labubu score within 0.1-0.5 dB of their best reach, which spans 1.6-3.4%)
-COLOUR_REACH = 0.02
 
 
 def mesh_region(model, center, radius: float, scale: float = 1.0) -> tuple[np.ndarray, float]:
@@ -343,27 +425,38 @@ def mesh_region(model, center, radius: float, scale: float = 1.0) -> tuple[np.nd
     return np.asarray(center, np.float64).reshape(3), radius * scale
 
 
-def mesh_from_model(model, center, radius: float, reach: float, resolution: int = 256,
-                    threshold: float | None = None,
-                    n_dirs: int = 1, chunk: int = 65536, device: str | torch.device = "cpu", progress: bool = True,
-                    table_cut: float = 0.0) -> Mesh:
+def mesh_from_model(model, center, radius: float, scene_radius: float, resolution: int = 256,
+                    threshold: float | None = None, n_dirs: int = 1, chunk: int = 65536,
+                    device: str | torch.device = "cpu", progress: bool = True, table_cut: float = 0.0,
+                    views: ColourViews | None = None, render_fn: Callable | None = None,
+                    background=(0.0, 0.0, 0.0)) -> Mesh:
     """A coloured mesh of a trained model (its ``density(points)`` and ``query(points,
-    dirs)``) over the cube ``center +- radius``, each vertex coloured along a ray from
-    ``reach`` outside it (world units; :data:`COLOUR_REACH` of the scene's radius suits a
-    trained field whatever the grid). A model with a table plane has its table paint (up
-    to ``table_cut`` above it, in world units; ``export`` passes
-    :func:`~nerfkit.tabletop.table_cut_height` of a fraction of the object's height) and the
-    specks apart from its object cleared (:func:`clear_around_object`). ``threshold``: the
-    surface's density (None: :func:`mesh_threshold`). A forward-facing
-    model's density is per NDC unit, not per world unit, so its vertices take the field's
-    colour where they are."""
+    dirs)``) over the cube ``center +- radius``.
+
+    Colours: with ``views`` and ``render_fn`` (:func:`view_colors`'s; a capture's object
+    alone, composited on ``background``), each vertex takes the mean of the renders at the
+    views that see it, within :data:`COLOUR_VIEW_TOL` of ``scene_radius`` of the rendered
+    depth. A vertex no view sees, or every vertex without ``views``, is coloured along a
+    ray from :data:`COLOUR_REACH` of ``scene_radius`` outside it (:func:`vertex_colors`,
+    whatever the grid). A forward-facing model's density is per NDC unit, not per world
+    unit, so its vertices take the field's colour where they are.
+
+    A model with a table plane has its table paint (up to ``table_cut`` above it, in world
+    units; ``export`` passes :func:`~nerfkit.tabletop.table_cut_height` of a fraction of
+    the object's height) and the specks apart from its object cleared
+    (:func:`clear_around_object`). ``threshold``: the surface's density (None:
+    :func:`mesh_threshold`). ``chunk``: points evaluated at once."""
     if threshold is None:
         threshold = mesh_threshold(model, radius)
-    if getattr(model, "ndc", None) is not None:
-        reach = 0.0
-    return extract_mesh(model.density, center, radius, resolution, threshold, model.query, n_dirs, chunk, device,
-                        progress, reach=reach, table=model.table_plane(), table_cut=table_cut,
-                        tags=model.table_tags())
+    ndc = getattr(model, "ndc", None) is not None
+    mesh = extract_mesh(model.density, center, radius, resolution, threshold, model.query, n_dirs, chunk, device,
+                        progress, reach=0.0 if ndc else COLOUR_REACH * scene_radius, table=model.table_plane(),
+                        table_cut=table_cut, tags=model.table_tags())
+    if views is not None and render_fn is not None and not ndc and len(mesh.vertices):
+        colours, seen = view_colors(render_fn, views, mesh.vertices, mesh.normals, COLOUR_VIEW_TOL * scene_radius,
+                                    background, progress)
+        mesh.colors[seen] = colours[seen]
+    return mesh
 
 
 def points_from_views(render_fn: Callable, views, acc_min: float = 0.5, background=(0.0, 0.0, 0.0), stride: int = 1,

@@ -19,11 +19,14 @@ the table, the tags and sheet painted into density just above it (within --table
 of the object's height, where nothing rises out of that slab), and pieces apart from the
 object that stand less than three times that high; what stands on the table keeps its
 base. The THRESHOLD iso-surface (scale-free by default, see --threshold) is extracted with
-marching cubes (closed where it meets the box or the cut), and each vertex is coloured
-by what a ray looking at it along the inward normal sees (the field rendered from 2% of
-the scene's radius outside the surface to 4% inside), not by the field's colour at the
-iso-surface itself, which training leaves as noise (a forward-facing run in NDC, whose
-density is per NDC unit, takes the colour at the vertex).
+marching cubes (closed where it meets the box or the cut). Each vertex takes the mean of
+the NeRF's renders of its object at the training views that see it (--color-views of them,
+evenly spread; seen: the normal faces the camera and the vertex lies within 5% of the
+scene's radius of the rendered depth). A vertex no view sees (or every vertex, with
+--color-views 0) is coloured by what a ray looking at it along the inward normal sees (the
+field rendered from 2% of the scene's radius outside the surface to 4% inside), not by
+the field's colour at the iso-surface itself, which training leaves as noise. A
+forward-facing run in NDC, whose density is per NDC unit, takes the colour at the vertex.
 points: every --every-th training view is rendered; pixels with opacity > --acc-min are
 back-projected to their expected depth and coloured by the rendered colour.
 splat (runs of --model splat): the Gaussians as the standard 3DGS PLY (what the INRIA code,
@@ -40,6 +43,7 @@ examples:
 
 def register(sub: argparse._SubParsersAction) -> None:
     from ..config import number
+    from ..export import COLOUR_VIEWS
     from ..tabletop import TABLE_CUT
     from ._common import add_run_device_args
 
@@ -62,10 +66,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "where nothing rises out of that slab, and pieces apart from the object lower than three times "
                    "that: the tags and sheet painted into density (0: clear only under the table; default: "
                    "%(default)g)")
+    g.add_argument("--color-views", type=number(int, 0, 10000), default=COLOUR_VIEWS,
+                   help="training views rendered for the vertex colours (0: colour along the normals only, "
+                   "without the dataset; default: %(default)s)")
     g.add_argument("--color-dirs", type=number(int, 1, 64), default=1,
-                   help="view directions averaged per vertex colour (1 = along the normal; default: 1)")
+                   help="directions averaged per colour of a vertex no view sees (1 = along the normal; default: 1)")
+    p.add_argument("--data", help="dataset whose training views the mesh's colours and the points come from "
+                   "(default: the run's)")
     g = p.add_argument_group("points")
-    g.add_argument("--data", help="dataset for the training views (default: the run's)")
     g.add_argument("--every", type=number(int, 1), default=1, help="use every N-th training view (default: 1)")
     g.add_argument("--stride", type=number(int, 1, 4096), default=1, help="use every N-th pixel in each direction (default: 1)")
     g.add_argument("--acc-min", type=number(float, 0, 0.999), default=0.5, help="keep pixels with opacity above this (default: 0.5)")
@@ -124,22 +132,41 @@ def export_splat(run_, path: str) -> None:
 
 
 def export_mesh(run_, args) -> None:
-    from ..export import COLOUR_REACH, mesh_from_model, mesh_region, mesh_threshold, write_mesh_ply
-    from ..tabletop import cleared_note, table_cut_height
+    from ..errors import advice
+    from ..export import ColourViews, mesh_from_model, mesh_region, mesh_threshold, write_mesh_ply
+    from ..output.images import render_image
+    from ..tabletop import cleared_note, object_alone, table_cut_height
+    from ._common import scene_for_run
 
     model, bounds = run_.model, run_.info.bounds
     center, radius = mesh_region(model, bounds.center, bounds.radius, args.box_scale)
     height = table_cut_height(model, args.table_cut)
     threshold = args.threshold if args.threshold is not None else mesh_threshold(model, radius)
-    mesh = mesh_from_model(model, center, radius, COLOUR_REACH * bounds.radius, args.resolution, threshold,
-                           args.color_dirs, chunk=POINT_CHUNK, device=run_.device, table_cut=height)
+    views, bg = None, run_.background()
+    ndc = getattr(model, "ndc", None) is not None  # (coloured at the vertices: see mesh_from_model)
+    if args.color_views > 0 and not ndc:
+        with advice("Or pass --color-views 0 to colour the mesh without the dataset"):
+            scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
+        views = ColourViews.pick(scene.train, args.color_views)
+    # a capture's table and room would show through its object's edges
+    alone = object_alone(model).model if views is not None else model
+
+    def render_fn(K, c2w, w, h):
+        out = render_image(alone, K, c2w, w, h, bg, run_.chunk, run_.autocast)
+        return out.rgb, out.depth, out.acc
+
+    mesh = mesh_from_model(model, center, radius, bounds.radius, args.resolution, threshold, args.color_dirs,
+                           chunk=POINT_CHUNK, device=run_.device, table_cut=height, views=views,
+                           render_fn=render_fn, background=tuple(bg.tolist()))
     write_mesh_ply(args.mesh, mesh)
     cut = ""
     if model.table_plane() is not None:
         cut = f"; {cleared_note(height, model.table_tags())}"
+    coloured = (f"coloured from {len(views)} training views" if views is not None else
+                "coloured at the vertices" if ndc else "coloured along the normals")
     print(f"mesh of step {run_.step}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces "
-          f"(threshold {threshold:.3g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide cube{cut}) "
-          f"-> {args.mesh}")
+          f"(threshold {threshold:.3g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide cube{cut}; "
+          f"{coloured}) -> {args.mesh}")
 
 
 def export_points(run_, center, radius: float, args) -> None:
