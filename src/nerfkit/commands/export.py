@@ -35,7 +35,7 @@ format of web viewers (colour without view dependence).
 
 examples:
   nerfkit export runs/lego --mesh lego.ply
-  nerfkit export runs/lego --mesh lego.ply --resolution 384 --threshold 10 --color-dirs 5
+  nerfkit export runs/lego --mesh lego.ply --resolution 384 --threshold 10 --color-views 100
   nerfkit export runs/lego --points lego_points.ply --every 5 --stride 2
   nerfkit export runs/lego_splat --splat lego.ply
 """
@@ -66,10 +66,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "where nothing rises out of that slab, and pieces apart from the object lower than three times "
                    "that: the tags and sheet painted into density (0: clear only under the table; default: "
                    "%(default)g)")
-    g.add_argument("--color-views", type=number(int, 0, 10000), default=COLOUR_VIEWS,
+    g.add_argument("--color-views", type=number(int, 0, 10000), default=COLOUR_VIEWS, metavar="N",
                    help="training views rendered for the vertex colours (0: colour along the normals only, "
                    "without the dataset; default: %(default)s)")
-    g.add_argument("--color-dirs", type=number(int, 1, 64), default=1,
+    g.add_argument("--color-dirs", type=number(int, 1, 64), default=1, metavar="N",
                    help="directions averaged per colour of a vertex no view sees (1 = along the normal; default: 1)")
     p.add_argument("--data", help="dataset whose training views the mesh's colours and the points come from "
                    "(default: the run's)")
