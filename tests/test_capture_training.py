@@ -452,19 +452,21 @@ def test_specks_apart_from_the_object_go_a_second_object_and_the_objects_haze_st
     assert not specks(np.zeros((4, 4, 4)), 1.0).any()
 
 
-def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surroundings():
-    """A post standing on the table keeps its base; paint on the table and density under it
-    go; rays that met the table now meet nothing."""
-    from nerfkit.cameras import Rays
+def post_on_table(scale: float = 1.0):
+    """A fast model holding a post standing on its table (z = 0) up to 1.2, a square of
+    paint on the table and a speck, all at raw density 10 (density softplus(10) / voxel:
+    about 100 per unit at ``scale`` 1); every length times ``scale``. Returns the model, the
+    vertices' z (in units of ``scale``) and the post, paint and speck masks, each (Z, Y, X)."""
     from nerfkit.models.base import SceneBounds
     from nerfkit.models.fast import EMPTY_RAW, FastNeRF
 
-    box = (np.array([-1.0, -0.8, -0.5], np.float32), np.array([1.0, 0.9, 1.3], np.float32))  # not a cube
-    bounds = SceneBounds(1.0, 8.0, np.array([0, 0, 0.5], np.float32), 1.0, np.array([0, 0, 1], np.float32),
-                         table=np.array([0, 0, 1, 0], np.float32), camera_radius=4.0, object_box=box)
+    box = (scale * np.array([-1.0, -0.8, -0.5], np.float32), scale * np.array([1.0, 0.9, 1.3], np.float32))
+    bounds = SceneBounds(scale, 8.0 * scale, scale * np.array([0, 0, 0.5], np.float32), scale,
+                         np.array([0, 0, 1], np.float32), table=np.array([0, 0, 1, 0], np.float32),
+                         camera_radius=4.0 * scale, object_box=box)  # (not a cube)
     model = FastNeRF(FastConfig(resolutions="21", upsample_steps="", table=True, table_resolution=32,
                                 learn_background=True, room_shells=2), bounds)
-    lo, v = model.grid_lo.numpy(), model.voxel
+    lo, v = model.grid_lo.numpy() / scale, model.voxel / scale
     rx, ry, rz = model.res
     assert len({rx, ry, rz}) == 3  # an axis swap would show
     z, y, x = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in ((2, rz), (1, ry), (0, rx))), indexing="ij")
@@ -477,10 +479,25 @@ def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surro
         model.grid[:, 0] = EMPTY_RAW
         model.grid[rows[(post | paint | speck).reshape(-1)], 0] = 10.0
     model.refresh_occupancy()
+    return model, z, post, paint, speck
+
+
+def kept_vertices(model, shape) -> np.ndarray:
+    """(Z, Y, X) bool: the grid vertices ``model`` still holds density at."""
+    rows = model.vertex_rows.long().numpy().reshape(-1)
+    return (model.grid[rows, 0] > 0).numpy().reshape(shape)
+
+
+def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surroundings():
+    """A post standing on the table keeps its base; paint on the table and density under it
+    go; rays that met the table now meet nothing."""
+    from nerfkit.cameras import Rays
+
+    model, z, post, paint, speck = post_on_table()
     left_out = model.isolate_object(0.15, 25.0)  # (the cut spans the z = 0 and 0.1 layers of vertices)
     assert left_out == ["table", "room", "background"]  # (no floor: the bounds have none)
     assert model.table is None and model.room is None and model.bg_coef is None
-    kept = (model.grid[rows, 0] > 0).numpy().reshape(z.shape)
+    kept = kept_vertices(model, z.shape)
     assert not (kept & paint).any() and not (kept & (z < 0)).any()  # paint and what is under the table: gone
     assert not (kept & speck).any()  # and the speck floating apart from the post
     np.testing.assert_array_equal(kept, post & (z >= 0))  # the post, with its base on the table
@@ -497,3 +514,21 @@ def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surro
     assert object_alone(model).model is model  # nothing to leave out: not copied
     with pytest.raises(RuntimeError, match="neither trained nor saved"):
         model.pack_state()
+
+
+def test_the_object_alone_is_the_same_in_a_scene_ten_times_larger():
+    """object_alone takes the surface's density from the object's box: a scene ten times
+    larger, whose density is ten times lower, keeps the same post with its base (at a fixed
+    25 per unit the larger post would be haze, and its base cleared as paint)."""
+    from nerfkit.tabletop import TABLE_CUT, box_surface_threshold, object_alone, table_cut_height
+
+    kept, thresholds = {}, {}
+    for scale in (1.0, 10.0):
+        model, z, post, paint, speck = post_on_table(scale)
+        kept[scale] = kept_vertices(object_alone(model).model, z.shape)
+        thresholds[scale] = box_surface_threshold(model)
+    np.testing.assert_array_equal(kept[1.0], post & (z >= 0))
+    np.testing.assert_array_equal(kept[10.0], kept[1.0])
+    assert thresholds[10.0] == pytest.approx(thresholds[1.0] / 10)
+    model.isolate_object(table_cut_height(model, TABLE_CUT), 25.0)  # the larger scene at a fixed level
+    assert not np.array_equal(kept_vertices(model, z.shape), kept[1.0])

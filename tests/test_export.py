@@ -61,7 +61,7 @@ def test_the_default_surface_is_scale_free():
         return density
 
     level = ex.surface_threshold(1.0)
-    assert 1 - np.exp(-level * 2.0 / ex.MESH_OPACITY_CELLS) == pytest.approx(ex.MESH_OPACITY)
+    assert 1 - np.exp(-level * 2.0 / tabletop.MESH_OPACITY_CELLS) == pytest.approx(tabletop.MESH_OPACITY)
     assert ex.surface_threshold(0.1) == pytest.approx(10 * level)
     big = ex.extract_mesh(ball(1.0), CENTER, 1.0, resolution=48, threshold=ex.surface_threshold(1.0))
     small = ex.extract_mesh(ball(0.1), 0.1 * CENTER, 0.1, resolution=48, threshold=ex.surface_threshold(0.1))

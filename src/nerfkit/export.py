@@ -34,7 +34,7 @@ import torch
 
 from .errors import fail
 from .io.atomic import atomic_path
-from .tabletop import SURFACE_DENSITY, clear_around_object
+from .tabletop import SURFACE_DENSITY, clear_around_object, surface_threshold
 
 DensityFn = Callable[[torch.Tensor], torch.Tensor]
 QueryFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -383,26 +383,6 @@ def crop_to_box(points: np.ndarray, colors: np.ndarray, center, radius: float) -
 
 
 # --------------------------------------------------------------------------- trained models
-
-
-# The mesh's surface by default (surface_threshold): the density at which one 256th of the
-# meshed cube's width is this opaque. A density threshold in world units is not scale-free:
-# 25 cut lego's base plate (its surfaces render at a median density of 24), and meshed steve
-# and labubu (surfaces at 250 and 700, in metres) in a haze around them. At 7% the mesh's
-# silhouette in the val views matches the NeRF's best of the levels tried on lego, steve and
-# labubu (benchmarks/mesh_colours.py's IoU: 0.89, 0.91 and 0.95, against 0.76, 0.81 and
-# 0.87 at 25; BENCHMARKS.md, session 40).
-MESH_OPACITY = 0.07
-MESH_OPACITY_CELLS = 256
-
-
-def surface_threshold(radius: float) -> float:
-    """The default iso-level of a mesh over a cube of half-size ``radius`` (in the units the
-    density is per): the density at which a cell of ``2 radius / MESH_OPACITY_CELLS`` is
-    :data:`MESH_OPACITY` opaque. Scale-free: a scene ten times larger, with a tenth of the
-    density, gives the same mesh ten times larger. Example: lego's cube (half-size 1.64)
-    gives 5.7; steve's (7.6 cm) about 120."""
-    return -float(np.log1p(-MESH_OPACITY)) * MESH_OPACITY_CELLS / (2.0 * radius)
 
 
 def mesh_threshold(model, radius: float) -> float:

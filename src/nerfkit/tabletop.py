@@ -13,9 +13,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# the density (per world unit) taken as a trained field's surface: the mesh's iso-level, and
-# what must rise out of the table's slab for a column to keep its base (table_paint)
+# a fixed surface density (per unit): the mesh of a forward-facing model in NDC, and the
+# object alone of a model without a box; captures take box_surface_threshold, scale-free
 SURFACE_DENSITY = 25.0
+# The mesh's surface by default (surface_threshold): the density at which one 256th of the
+# meshed cube's width is this opaque. A density threshold in world units is not scale-free:
+# 25 cut lego's base plate (its surfaces render at a median density of 24), and meshed steve
+# and labubu (surfaces at 250 and 700, in metres) in a haze around them. At 7% the mesh's
+# silhouette in the val views matches the NeRF's best of the levels tried on lego, steve and
+# labubu (benchmarks/mesh_colours.py's IoU: 0.89, 0.91 and 0.95, against 0.76, 0.81 and
+# 0.87 at 25; BENCHMARKS.md, session 40).
+MESH_OPACITY = 0.07
+MESH_OPACITY_CELLS = 256
+
+
+def surface_threshold(radius: float) -> float:
+    """The default iso-level of a mesh over a cube of half-size ``radius`` (in the units the
+    density is per): the density at which a cell of ``2 radius / MESH_OPACITY_CELLS`` is
+    :data:`MESH_OPACITY` opaque. Scale-free: a scene ten times larger, with a tenth of the
+    density, gives the same mesh ten times larger. Example: lego's cube (half-size 1.64)
+    gives 5.7; steve's (7.6 cm) about 120."""
+    return -float(np.log1p(-MESH_OPACITY)) * MESH_OPACITY_CELLS / (2.0 * radius)
+
+
 # how high above a capture's table its paint is cleared, as a fraction of the object's height
 TABLE_CUT = 0.05
 # Specks around the object alone (specks): a piece apart from the object holding less than
@@ -236,11 +256,22 @@ class ObjectAlone:
     cut: float
 
 
+def box_surface_threshold(model) -> float:
+    """The surface's density for ``model``'s object: :func:`surface_threshold` of its density
+    box (half its largest side; the mesh's default level), or :data:`SURFACE_DENSITY`
+    without a box."""
+    box = model.density_box()
+    if box is None:
+        return SURFACE_DENSITY
+    return surface_threshold(float((np.asarray(box[1], np.float64) - np.asarray(box[0], np.float64)).max()) / 2)
+
+
 def object_alone(model, copy: bool = True) -> ObjectAlone:
     """``model`` (a copy of it, unless ``copy`` is False) drawing its object alone: its
     :meth:`~nerfkit.models.base.NerfModel.isolate_object`, with the table's paint cleared up
     to :data:`TABLE_CUT` of the object's height and the specks apart from the object
-    cleared (:func:`around_object`). A model with nothing around its object, or
+    cleared (:func:`around_object`, at :func:`box_surface_threshold`: the mesh's surface,
+    whatever the scene's units). A model with nothing around its object, or
     a forward-facing one in NDC (whose one volume holds everything), comes back as it is,
     with nothing left out."""
     import copy as copying
@@ -249,5 +280,5 @@ def object_alone(model, copy: bool = True) -> ObjectAlone:
         return ObjectAlone(model, [], 0.0)
     cut = table_cut_height(model, TABLE_CUT)
     alone = copying.deepcopy(model) if copy else model
-    left_out = alone.isolate_object(cut, SURFACE_DENSITY)
+    left_out = alone.isolate_object(cut, box_surface_threshold(model))
     return ObjectAlone(alone, left_out, cut if "table" in left_out else 0.0)
