@@ -392,8 +392,6 @@ def mesh_threshold(model, radius: float) -> float:
     return SURFACE_DENSITY if getattr(model, "ndc", None) is not None else surface_threshold(radius)
 
 
-
-
 def mesh_region(model, center, radius: float, scale: float = 1.0) -> tuple[np.ndarray, float]:
     """The cube to mesh, ``(center (3,), half-size)``: around the model's density box when
     it has one (a capture's object: the grid's cells then fall on the object, not on the
