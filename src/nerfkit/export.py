@@ -427,13 +427,18 @@ def mesh_from_model(model, center, radius: float, scene_radius: float, resolutio
     if threshold is None:
         threshold = mesh_threshold(model, radius)
     ndc = getattr(model, "ndc", None) is not None
-    mesh = extract_mesh(model.density, center, radius, resolution, threshold, model.query, n_dirs, chunk, device,
-                        progress, reach=0.0 if ndc else COLOUR_REACH * scene_radius, table=model.table_plane(),
-                        table_cut=table_cut, tags=model.table_tags())
-    if views is not None and render_fn is not None and not ndc and len(mesh.vertices):
+    mesh = extract_mesh(model.density, center, radius, resolution, threshold, chunk=chunk, device=device,
+                        progress=progress, table=model.table_plane(), table_cut=table_cut, tags=model.table_tags())
+    colours, seen = np.zeros((len(mesh.vertices), 3), np.uint8), np.zeros(len(mesh.vertices), bool)
+    if views is not None and render_fn is not None and not ndc:
         colours, seen = view_colors(render_fn, views, mesh.vertices, mesh.normals, COLOUR_VIEW_TOL * scene_radius,
                                     background, progress)
-        mesh.colors[seen] = colours[seen]
+    if not seen.all():
+        rest = np.nonzero(~seen)[0]
+        colours[rest] = vertex_colors(model.density, model.query, mesh.vertices[rest], mesh.normals[rest],
+                                      0.0 if ndc else COLOUR_REACH * scene_radius, n_dirs, chunk=chunk, device=device,
+                                      progress=progress)
+    mesh.colors = colours
     return mesh
 
 
