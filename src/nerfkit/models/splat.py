@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..cameras import Rays, axes_across, image_rays
+from ..cameras import Rays, axes_across, image_rays, project_points
 from ..config import check_ranges, option
 from ..errors import fail
 from ..fields.background import sh16
@@ -513,15 +513,11 @@ def visual_hull(views, bg: np.ndarray, center: np.ndarray, radius: float, res: i
         img = views.images[i].astype(np.float32) / 255.0
         mask = np.abs(img - bg.reshape(1, 1, 3)).max(-1) > tol
         mask = _dilate(mask)
-        w2c = np.linalg.inv(views.c2w[i].astype(np.float64))
-        pc = pts @ w2c[:3, :3].T + w2c[:3, 3]
-        z = pc[:, 2]
-        uv = pc @ views.K[i].astype(np.float64).T
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u, v = uv[:, 0] / z, uv[:, 1] / z
+        uv, z = project_points(views.K[i], views.c2w[i], pts)
+        u, v = uv[:, 0], uv[:, 1]
         inside = (z > 0) & (u >= 0) & (u < views.width) & (v >= 0) & (v < views.height)
-        ui = np.clip(np.nan_to_num(u), 0, views.width - 1).astype(int)
-        vi = np.clip(np.nan_to_num(v), 0, views.height - 1).astype(int)
+        ui = np.clip(u, 0, views.width - 1).astype(int)
+        vi = np.clip(v, 0, views.height - 1).astype(int)
         keep &= ~inside | mask[vi, ui]
         col_sum[inside] += img[vi[inside], ui[inside]]
         seen += inside
