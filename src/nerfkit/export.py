@@ -34,7 +34,7 @@ import torch
 
 from .errors import fail
 from .io.atomic import atomic_path
-from .tabletop import SURFACE_DENSITY, clear_around_object, surface_threshold
+from .tabletop import SURFACE_DENSITY, box_radius, clear_around_object, surface_threshold
 
 DensityFn = Callable[[torch.Tensor], torch.Tensor]
 QueryFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -398,8 +398,7 @@ def mesh_region(model, center, radius: float, scale: float = 1.0) -> tuple[np.nd
     room around it), else the scene's cube ``center +- radius``; the half-size times ``scale``."""
     box = model.density_box()
     if box is not None:
-        lo, hi = (np.asarray(b, np.float64) for b in box)
-        center, radius = (lo + hi) / 2, float((hi - lo).max()) / 2
+        center, radius = (np.asarray(box[0], np.float64) + np.asarray(box[1], np.float64)) / 2, box_radius(box)
     return np.asarray(center, np.float64).reshape(3), radius * scale
 
 

@@ -45,6 +45,12 @@ SPECK_SHARE = 0.01
 SPECK_MARGIN = 3
 
 
+def box_radius(box) -> float:
+    """Half the largest side of an axis-aligned box ``(lo (3,), hi (3,))``."""
+    lo, hi = (np.asarray(v, np.float64) for v in box)
+    return float((hi - lo).max()) / 2
+
+
 def box_corners(box) -> np.ndarray:
     """(8, 3) float64 corners of an axis-aligned box ``(lo (3,), hi (3,))``."""
     lo, hi = (np.asarray(v, np.float64) for v in box)
@@ -263,7 +269,7 @@ def box_surface_threshold(model) -> float:
     box = model.density_box()
     if box is None:
         return SURFACE_DENSITY
-    return surface_threshold(float((np.asarray(box[1], np.float64) - np.asarray(box[0], np.float64)).max()) / 2)
+    return surface_threshold(box_radius(box))
 
 
 def object_alone(model, copy: bool = True) -> ObjectAlone:
