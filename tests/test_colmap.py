@@ -611,3 +611,59 @@ def test_sfm_with_nothing_to_match_fails_cleanly(tmp_path):
         run_sfm(tmp_path / "p", tmp_path / "out", progress=False)
     with pytest.raises(NerfkitError, match="--matcher"):
         run_sfm(tmp_path / "p", tmp_path / "out", progress=False, matcher="fast")
+
+
+def test_auto_matching_takes_the_guide_poses_when_they_cover_half_of_many_photos():
+    from nerfkit.sfm.colmap import SPATIAL_NEIGHBOURS, choose_matcher
+
+    many = 2 * SPATIAL_NEIGHBOURS + 1
+    assert choose_matcher("auto", many, many // 2 + 1) == "spatial"
+    assert choose_matcher("auto", many, many // 2 - 1) == "exhaustive"  # too few guided
+    assert choose_matcher("auto", many - 1, many - 1) == "exhaustive"  # few photos: every pair is cheap
+    assert choose_matcher("auto", 300, 100) == "sequential"
+    assert choose_matcher("auto", 300, 200) == "spatial"
+    assert choose_matcher("exhaustive", 300, 300) == "exhaustive"
+    with pytest.raises(NerfkitError, match="tag poses"):
+        choose_matcher("spatial", 50, 0)
+
+
+def test_spatial_pairs_join_ring_neighbours_and_photos_without_a_pose_by_name():
+    from nerfkit.sfm.colmap import spatial_pairs
+
+    n = 16  # a ring of cameras named in a shuffled order: name order is no guide to who sees what
+    slots = np.random.default_rng(0).permutation(n)
+    names = [f"p{i:02d}.jpg" for i in range(n + 1)]  # and p16, whose photo does not show the tag
+    eyes = np.stack([3 * np.cos(slots * 2 * np.pi / n), 3 * np.sin(slots * 2 * np.pi / n), np.ones(n)], 1)
+    guides = {name: look_at(e, np.zeros(3), np.array([0.0, 0, 1])) for name, e in zip(names, eyes)}
+    pairs = spatial_pairs(names, guides, k=2, overlap=1)
+    assert len(set(pairs)) == len(pairs) and all(names.index(a) < names.index(b) for a, b in pairs)
+    ring = [names[i] for i in np.argsort(slots)]  # each camera joins its two ring neighbours
+    ring_pairs = {tuple(sorted((ring[i], ring[(i + 1) % n]))) for i in range(n)}
+    by_name = {(names[i], names[i + 1]) for i in range(n)}
+    assert set(pairs) == ring_pairs | by_name
+    assert [p for p in pairs if "p16.jpg" in p] == [("p15.jpg", "p16.jpg")]
+
+
+@pytest.mark.slow
+def test_spatial_matching_matches_only_its_pairs_and_poses_as_exhaustive_does(room, room_sfm, tmp_path, monkeypatch):
+    import nerfkit.sfm.colmap as colmap
+    from nerfkit.sfm.colmap import reconstruction_c2w, spatial_pairs
+
+    folder, truth = room
+    monkeypatch.setattr(colmap, "SPATIAL_NEIGHBOURS", 3)
+    result = run_sfm(folder, tmp_path / "sfm", matcher="spatial", guides=truth, overlap=1, progress=False)
+    assert result.report.matcher == "spatial"
+    db = pycolmap.Database.open(str(result.model_dir.parent.parent / "database.db"))
+    try:
+        ids = {im.image_id: im.name for im in db.read_all_images()}
+        pair_ids, _ = db.read_two_view_geometries()
+    finally:
+        db.close()
+    matched = {tuple(sorted(ids[i] for i in pycolmap.pair_id_to_image_pair(p))) for p in pair_ids}
+    expected = {tuple(sorted(p)) for p in spatial_pairs(sorted(ids.values()), truth, 3, 1)}
+    n_all = len(ids) * (len(ids) - 1) // 2
+    assert matched <= expected and len(expected) < 0.6 * n_all  # fewer pairs than exhaustive's
+    assert sorted(result.report.registered) == sorted(room_sfm[0].report.registered) == sorted(truth)
+    names, c2w = reconstruction_c2w(result.reconstruction)
+    err = compare_poses(c2w, np.stack([truth[n] for n in names]))
+    assert err["rot_err_deg_max"] < 1.0 and err["pos_err_rel_median"] < 0.02, err

@@ -96,7 +96,7 @@ def _npz(scene: Scene, tmp_path) -> str:
 
 
 def test_camera_neighbours_join_each_camera_to_its_nearest():
-    from nerfkit.sfm.triangulate import camera_neighbours
+    from nerfkit.sfm.colmap import camera_neighbours
 
     n = 12
     ang = np.arange(n) * 2 * np.pi / n

@@ -217,8 +217,9 @@ def test_a_photo_sfm_misses_keeps_its_tag_pose(room_photos, tmp_path, monkeypatc
 
     monkeypatch.setattr(colmap, "run_sfm", misses_one)
     common = ["--focal-px", "260", "--tag-size", str(TAG_SIZE), "--val-every", "6", "--test-every", "0",
-              "--matcher", "exhaustive"]
+              "--matcher", "spatial"]  # pairs chosen by the tag poses
     assert main(["poses", str(folder), *common, "--out", str(tmp_path / "ds")]) == 0
+    assert json.loads((tmp_path / "ds" / "sfm_report.json").read_text())["matcher"] == "spatial"
     assert f"the tag poses are kept for 1 photo SfM did not register (solved again with SfM's camera): {missed}" \
         in capsys.readouterr().out
     choice = json.loads((tmp_path / "ds" / "transforms.json").read_text())["nerfkit"]["pose_choice"]

@@ -37,9 +37,14 @@ from ..images import list_images
 if TYPE_CHECKING:  # pragma: no cover
     import pycolmap
 
-MATCHERS = ("auto", "exhaustive", "sequential")
-# "auto" matches every pair up to this many photos, neighbours in name order beyond.
+MATCHERS = ("auto", "exhaustive", "sequential", "spatial")
+# Without poses to guide it, "auto" matches every pair up to this many photos, neighbours
+# in name order beyond.
 EXHAUSTIVE_MAX = 100
+# "spatial" matches each photo with a guide pose (a tag's) with this many others whose
+# poses see most alike, and every photo with its neighbours in name order. "auto" takes it
+# when guide poses cover half the photos and there are more than twice this many photos.
+SPATIAL_NEIGHBOURS = 20
 FEW_FEATURES = 100
 
 
@@ -52,7 +57,7 @@ class SfmReport:
         unregistered: name -> reason for the others;
         n_points: sparse 3D points; reprojection_error: mean, pixels;
         n_models: separate reconstructions found (only the largest is used);
-        matcher: "exhaustive" or "sequential"; seconds: stage -> wall time;
+        matcher: "exhaustive", "sequential" or "spatial"; seconds: stage -> wall time;
         frame: how the world frame was fixed (tag / normalised), human readable.
     """
 
@@ -136,12 +141,74 @@ def _say(progress: bool, msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
 
-def choose_matcher(matcher: str, n_photos: int) -> str:
+def choose_matcher(matcher: str, n_photos: int, n_guided: int = 0) -> str:
+    """The matcher to run on ``n_photos`` photos, ``n_guided`` of them with guide poses."""
     if matcher not in MATCHERS:
         raise fail("--matcher", f"'{matcher}' is not one of {', '.join(MATCHERS)}")
+    if matcher == "spatial" and not n_guided:
+        raise fail("--matcher", "spatial pairs the photos by their tag poses, and no photo has one",
+                   "Use it with --method auto on photos of a tag, or choose another matcher")
     if matcher == "auto":
+        if 2 * n_guided >= n_photos > 2 * SPATIAL_NEIGHBOURS:
+            return "spatial"
         return "exhaustive" if n_photos <= EXHAUSTIVE_MAX else "sequential"
     return matcher
+
+
+def camera_neighbours(c2w: np.ndarray, k: int) -> list[tuple[int, int]]:
+    """Pairs ``(i, j)``, ``i < j``, joining each camera to the ``k`` others that see most
+    alike: nearest in position, with the angle between optical axes as a tie-breaker
+    (distance in units of the median camera spacing plus the axes' angle in radians).
+
+    Args:
+        c2w: (n, 4, 4) camera-to-world (OpenCV axes); k: neighbours per camera.
+    """
+    n = len(c2w)
+    pos = c2w[:, :3, 3].astype(np.float64)
+    axis = c2w[:, :3, 2].astype(np.float64)
+    dist = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
+    spacing = float(np.median(np.sort(dist, axis=1)[:, 1])) if n > 1 else 1.0
+    angle = np.arccos(np.clip(axis @ axis.T, -1.0, 1.0))
+    cost = dist / max(spacing, 1e-12) + angle
+    np.fill_diagonal(cost, np.inf)
+    pairs = set()
+    for i in range(n):
+        for j in np.argsort(cost[i])[:min(k, n - 1)]:
+            pairs.add((min(i, int(j)), max(i, int(j))))
+    return sorted(pairs)
+
+
+def spatial_pairs(names: list[str], guides: dict[str, np.ndarray], k: int, overlap: int) -> list[tuple[str, str]]:
+    """The photo pairs "spatial" matching compares: each photo with a guide pose and the
+    ``k`` others whose guide poses see most alike (:func:`camera_neighbours`), and every
+    photo with the next ``overlap`` in ``names``' order (so a photo without a guide pose,
+    e.g. one that hides the tag, still meets the photos taken just before and after it).
+
+    Args:
+        names: the photos (COLMAP names, in name order); guides: name -> (4, 4)
+            camera-to-world, for some of them; k, overlap: neighbours per photo.
+    Returns:
+        Pairs of names, each pair once, ordered as in ``names``.
+    """
+    index = {n: i for i, n in enumerate(names)}
+    guided = [n for n in names if n in guides]
+    pairs = set()
+    if len(guided) > 1:
+        c2w = np.stack([np.asarray(guides[n], dtype=np.float64) for n in guided])
+        pairs |= {(index[guided[i]], index[guided[j]]) for i, j in camera_neighbours(c2w, k)}
+    pairs |= {(i, j) for i in range(len(names)) for j in range(i + 1, min(i + 1 + overlap, len(names)))}
+    return [(names[i], names[j]) for i, j in sorted(pairs)]
+
+
+def match_pairs(pycolmap, db_path: Path, pairs: list[tuple[str, str]], matching, verification=None) -> None:
+    """Match and verify the features of these photo pairs only (a pairs file beside the database)."""
+    pairs_file = db_path.parent / "pairs.txt"
+    pairs_file.write_text("".join(f"{a} {b}\n" for a, b in pairs))
+    pairing = pycolmap.ImportedPairingOptions()
+    pairing.match_list_path = str(pairs_file)
+    extra = {} if verification is None else {"verification_options": verification}
+    pycolmap.match_image_pairs(db_path, matching_options=matching, pairing_options=pairing,
+                               device=pycolmap.Device.cpu, **extra)
 
 
 # Formats COLMAP reads directly; others (HEIC, WebP, ...) are converted first.
@@ -265,12 +332,16 @@ def run_sfm(
     verbose: bool = False,
     camera=None,
     refine_camera: bool = True,
+    guides: dict[str, np.ndarray] | None = None,
 ) -> SfmResult:
     """Run SfM on the photos of ``image_dir``; write ``out_dir/colmap/{database.db,sparse/0}``.
 
     Args:
         matcher: "exhaustive" (all pairs), "sequential" (each photo with the next
-            ``overlap`` in name order) or "auto" (exhaustive up to 100 photos).
+            ``overlap`` in name order), "spatial" (by the ``guides`` poses, see
+            :func:`spatial_pairs`) or "auto" (spatial when guide poses cover half the photos
+            and there are more than ``2 * SPATIAL_NEIGHBOURS``, else exhaustive up to 100 photos,
+            else sequential).
         max_image_size: photos are downscaled to this longest side for features only
             (poses and intrinsics are for the full-size photos).
         camera_model: COLMAP camera model; single_camera: one camera shared by all photos.
@@ -282,6 +353,8 @@ def run_sfm(
             have its aspect ratio. With ``refine_camera`` bundle adjustment refines its focal
             length and radial distortion on these photos (the principal point stays:
             COLMAP's default; see :func:`colmap_camera`), else it is held fixed.
+        guides: COLMAP image name (:func:`colmap_name`) -> rough camera-to-world (4, 4)
+            from another source (the tag poses), to choose the pairs "spatial" matches.
     Returns:
         The largest reconstruction (COLMAP's frame; see :func:`align_reconstruction`).
     Raises:
@@ -290,7 +363,8 @@ def run_sfm(
     pycolmap = _import_pycolmap()
     image_dir = Path(image_dir)
     photos = list_images(image_dir)
-    matcher = choose_matcher(matcher, len(photos))
+    guides = guides or {}
+    matcher = choose_matcher(matcher, len(photos), sum(colmap_name(p) in guides for p in photos))
     if len(photos) < 3:
         raise fail(image_dir, f"holds {len(photos)} photos; structure-from-motion needs at least 3",
                    "Take 30-100 overlapping photos around the object")
@@ -342,13 +416,17 @@ def run_sfm(
         seconds["features"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        n_pairs = len(names) * (len(names) - 1) // 2 if matcher == "exhaustive" else len(names) * overlap
+        pairs = spatial_pairs(names, guides, SPATIAL_NEIGHBOURS, overlap) if matcher == "spatial" else []
+        n_pairs = {"exhaustive": len(names) * (len(names) - 1) // 2, "spatial": len(pairs)}.get(
+            matcher, len(names) * overlap)
         _say(progress, f"sfm: {matcher} matching (~{n_pairs} photo pairs)...")
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = threads
         verification = pycolmap.TwoViewGeometryOptions()
         verification.ransac.random_seed = seed
-        if matcher == "exhaustive":
+        if matcher == "spatial":
+            match_pairs(pycolmap, db_path, pairs, matching, verification)
+        elif matcher == "exhaustive":
             pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification,
                                       device=device)
         else:

@@ -115,11 +115,12 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
     Returns:
         A :class:`PoseChoice`; SfM failing is a reason to keep the tag poses, not an error.
     """
-    from .colmap import align_reconstruction, reconstruction_c2w, run_sfm
+    from .colmap import align_reconstruction, colmap_name, reconstruction_c2w, run_sfm
 
+    guides = {colmap_name(Path(p.path)): p.c2w for p in tag_posed}  # to choose the pairs SfM matches
     try:
         result = run_sfm(photos, out, matcher=matcher, max_image_size=max_image_size, progress=progress,
-                         threads=threads, camera=camera)
+                         threads=threads, camera=camera, guides=guides)
     except NerfkitError as e:  # no photos that match, pycolmap missing, ...
         return PoseChoice(None, f"tag poses: structure-from-motion failed ({e})")
     align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=dictionary, progress=progress,

@@ -20,32 +20,9 @@ import numpy as np
 from ..data.colmap import SparsePoints, reconstruction_points
 from ..data.scene import Views
 from ..errors import fail
-from .colmap import _import_pycolmap, _quiet_colmap
+from .colmap import _import_pycolmap, _quiet_colmap, camera_neighbours, match_pairs
 
 EXHAUSTIVE_MAX = 120
-
-
-def camera_neighbours(c2w: np.ndarray, k: int) -> list[tuple[int, int]]:
-    """Pairs ``(i, j)``, ``i < j``, joining each camera to the ``k`` others that see most
-    alike: nearest in position, with the angle between optical axes as a tie-breaker
-    (distance in units of the median camera spacing plus the axes' angle in radians).
-
-    Args:
-        c2w: (n, 4, 4) camera-to-world (OpenCV axes); k: neighbours per camera.
-    """
-    n = len(c2w)
-    pos = c2w[:, :3, 3].astype(np.float64)
-    axis = c2w[:, :3, 2].astype(np.float64)
-    dist = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
-    spacing = float(np.median(np.sort(dist, axis=1)[:, 1])) if n > 1 else 1.0
-    angle = np.arccos(np.clip(axis @ axis.T, -1.0, 1.0))
-    cost = dist / max(spacing, 1e-12) + angle
-    np.fill_diagonal(cost, np.inf)
-    pairs = set()
-    for i in range(n):
-        for j in np.argsort(cost[i])[:min(k, n - 1)]:
-            pairs.add((min(i, int(j)), max(i, int(j))))
-    return sorted(pairs)
 
 
 def triangulate_views(views: Views, work: str | Path | None = None, max_features: int = 4096,
@@ -82,7 +59,7 @@ def triangulate_views(views: Views, work: str | Path | None = None, max_features
         db_path = tmp / "database.db"
         with _quiet_colmap(verbose):
             _extract(pycolmap, db_path, image_dir, names, views, max_features, threads)
-            _match(pycolmap, db_path, tmp, names, views.c2w, neighbours, threads)
+            _match(pycolmap, db_path, names, views.c2w, neighbours, threads)
             rec = _posed_reconstruction(pycolmap, db_path, names, views.c2w)
             options = pycolmap.IncrementalPipelineOptions()
             options.num_threads = threads
@@ -108,19 +85,14 @@ def _extract(pycolmap, db_path: Path, image_dir: Path, names: list[str], views: 
                               reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
 
 
-def _match(pycolmap, db_path: Path, tmp: Path, names: list[str], c2w: np.ndarray, neighbours: int,
+def _match(pycolmap, db_path: Path, names: list[str], c2w: np.ndarray, neighbours: int,
            threads: int) -> None:
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = threads
     if len(names) <= EXHAUSTIVE_MAX:
         pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
         return
-    pairs_file = tmp / "pairs.txt"
-    pairs_file.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in camera_neighbours(c2w, neighbours)))
-    pairing = pycolmap.ImportedPairingOptions()
-    pairing.match_list_path = str(pairs_file)
-    pycolmap.match_image_pairs(db_path, matching_options=matching, pairing_options=pairing,
-                               device=pycolmap.Device.cpu)
+    match_pairs(pycolmap, db_path, [(names[i], names[j]) for i, j in camera_neighbours(c2w, neighbours)], matching)
 
 
 def _posed_reconstruction(pycolmap, db_path: Path, names: list[str], c2w: np.ndarray):
