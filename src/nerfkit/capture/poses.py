@@ -236,6 +236,19 @@ SEVERAL_TAGS_SHARE = 0.5
 LAYOUT_ROUNDS = 3
 
 
+def several_tags(records: list[PhotoRecord], tags: set[int] | None = None,
+                 size: tuple[int, int] | None = None) -> tuple[list[PhotoRecord], list[PhotoRecord], bool]:
+    """The photos that show two or more tags (of ``tags``; None: any), those that show a tag
+    at all, and whether the first are enough to pose on a layout of several tags: two
+    photos or more, and :data:`SEVERAL_TAGS_SHARE` of the second. Only photos of ``size``
+    (width, height) count, when given."""
+    with_tags = [r for r in records if r.detection is not None and len(r.detection.ids)
+                 and (size is None or r.size == size)]
+    several = [r for r in with_tags
+               if len({int(i) for i in r.detection.ids if tags is None or int(i) in tags}) >= 2]
+    return several, with_tags, len(several) >= 2 and len(several) >= SEVERAL_TAGS_SHARE * len(with_tags)
+
+
 def layout_from_photos(records: list[PhotoRecord], camera: Camera, tag_size: float,
                        cfg: PoseConfig) -> tuple[Layout | None, str]:
     """The layout of the tags the photos show together, estimated from the photos
@@ -253,10 +266,8 @@ def layout_from_photos(records: list[PhotoRecord], camera: Camera, tag_size: flo
     camera's are left out of the estimate."""
     from .calibrate import initial_layout, layout_change, refine_layout
 
-    size = (camera.width, camera.height)
-    with_tags = [r for r in records if r.detection is not None and len(r.detection.ids) and r.size == size]
-    several = [r for r in with_tags if len(set(int(i) for i in r.detection.ids)) >= 2]
-    if len(several) < 2 or len(several) < SEVERAL_TAGS_SHARE * len(with_tags):
+    several, with_tags, enough = several_tags(records, size=(camera.width, camera.height))
+    if not enough:
         return None, ""
     layout, ref = initial_layout(several, camera.K, camera.dist, tag_size)
     by_name = {r.name: r for r in several}

@@ -100,7 +100,7 @@ def camera_layout(camera_file: str, dictionary: str, records) -> tuple[object, s
     import numpy as np
 
     from ..capture.aruco import layout_from_json
-    from ..capture.poses import SEVERAL_TAGS_SHARE
+    from ..capture.poses import several_tags
     from ..errors import NerfkitError
 
     spec = json.loads(Path(camera_file).read_text()).get("layout")
@@ -112,14 +112,12 @@ def camera_layout(camera_file: str, dictionary: str, records) -> tuple[object, s
         return None, f"the camera file's layout is not usable ({e}); posing from one tag"
     if len(layout.tags) < 2 or layout.charuco is not None:
         return None, ""
-    counts = [len({int(i) for i in r.detection.ids} & set(layout.tags)) for r in records
-              if r.detection is not None and len(r.detection.ids)]
-    several = sum(c >= 2 for c in counts)
-    if not counts or several < SEVERAL_TAGS_SHARE * len(counts):
+    several, with_tags, enough = several_tags(records, set(layout.tags))
+    if not enough:
         return None, ""
     return layout, (f"using the camera file's layout of {len(layout.tags)} tags (world: its frame, tag "
                     f"{min(layout.tags, key=lambda t: np.abs(layout.tags[t].mean(0)).sum())} at the origin): "
-                    f"{several} of {len(counts)} photos with tags show 2 or more of them. Pass --single-tag "
+                    f"{len(several)} of {len(with_tags)} photos with tags show 2 or more of them. Pass --single-tag "
                     "to pose from one tag")
 
 
