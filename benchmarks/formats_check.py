@@ -7,8 +7,9 @@ Reads data only from the paths given on the command line (nothing is read otherw
         --lego-npz src/nerfkit/assets/lego_200x200.npz
 
     # SfM on phone photos: registration, timings; vs the tag poses of `nerfkit poses` if given
+    # (they also choose the pairs of --matcher spatial)
     python benchmarks/formats_check.py --sfm-photos /work/shared/data/captures/labubu/myscan_resized \\
-        --tag-size 0.06 --tag-poses /tmp/labubu_dataset --matcher sequential exhaustive
+        --tag-size 0.06 --tag-poses /tmp/labubu_dataset --matcher sequential exhaustive spatial
 
 Prints a JSON report (also written with --out). Timings depend on machine load.
 """
@@ -72,11 +73,13 @@ def read_tag_poses(path: str) -> dict[str, np.ndarray]:
 
 
 def sfm_check(photos: str, matcher: str, tag_size: float | None, tag_poses: str | None, max_image_size: int) -> dict:
-    from nerfkit.sfm.colmap import align_reconstruction, compare_poses, reconstruction_c2w, run_sfm
+    from nerfkit.sfm.colmap import align_reconstruction, colmap_name, compare_poses, reconstruction_c2w, run_sfm
 
+    tag = read_tag_poses(tag_poses) if tag_poses else {}
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        result = run_sfm(photos, tmp, matcher=matcher, max_image_size=max_image_size, progress=True)
+        result = run_sfm(photos, tmp, matcher=matcher, max_image_size=max_image_size, progress=True,
+                         guides={colmap_name(Path(n)): c for n, c in tag.items()})
         frame = align_reconstruction(result, tag_size=tag_size, progress=True)
         total = time.perf_counter() - t0
         rep = result.report
@@ -85,8 +88,7 @@ def sfm_check(photos: str, matcher: str, tag_size: float | None, tag_poses: str 
                "reprojection_error_px": round(rep.reprojection_error, 3), "models": rep.n_models,
                "seconds": rep.seconds, "seconds_total_with_alignment": round(total, 1), "camera": rep.camera,
                "frame": frame}
-        if tag_poses:
-            tag = read_tag_poses(tag_poses)
+        if tag:
             names, c2w = reconstruction_c2w(result.reconstruction)
             common = [i for i, n in enumerate(names) if n in tag]
             if len(common) >= 3:
@@ -111,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lego-blender", help="Blender-layout lego folder (transforms_*.json + PNGs)")
     ap.add_argument("--lego-npz", help="the course-layout lego npz to compare with")
     ap.add_argument("--sfm-photos", help="folder of photos to run SfM on")
-    ap.add_argument("--matcher", nargs="+", default=["auto"], help="matchers to try (auto, exhaustive, sequential)")
+    ap.add_argument("--matcher", nargs="+", default=["auto"], help="matchers to try (auto, exhaustive, sequential, spatial)")
     ap.add_argument("--max-image-size", type=int, default=1000)
     ap.add_argument("--tag-size", type=float, help="ArUco tag side in metres, to fix scale and up")
     ap.add_argument("--tag-poses", help="poses.json / dataset of `nerfkit poses` on the same photos, to compare with")

@@ -613,15 +613,14 @@ def test_sfm_with_nothing_to_match_fails_cleanly(tmp_path):
         run_sfm(tmp_path / "p", tmp_path / "out", progress=False, matcher="fast")
 
 
-def test_auto_matching_takes_the_guide_poses_when_they_cover_half_of_many_photos():
-    from nerfkit.sfm.colmap import SPATIAL_NEIGHBOURS, choose_matcher
+def test_auto_matching_takes_every_pair_of_few_photos_and_the_guide_poses_beyond():
+    from nerfkit.sfm.colmap import EXHAUSTIVE_MAX, choose_matcher
 
-    many = 2 * SPATIAL_NEIGHBOURS + 1
+    few, many = EXHAUSTIVE_MAX, EXHAUSTIVE_MAX + 1
+    assert choose_matcher("auto", few, few) == "exhaustive"  # the most exact, and cheap enough
     assert choose_matcher("auto", many, many // 2 + 1) == "spatial"
-    assert choose_matcher("auto", many, many // 2 - 1) == "exhaustive"  # too few guided
-    assert choose_matcher("auto", many - 1, many - 1) == "exhaustive"  # few photos: every pair is cheap
-    assert choose_matcher("auto", 300, 100) == "sequential"
-    assert choose_matcher("auto", 300, 200) == "spatial"
+    assert choose_matcher("auto", many, many // 2 - 1) == "sequential"  # too few photos with a guide pose
+    assert choose_matcher("spatial", 50, 30) == "spatial"
     assert choose_matcher("exhaustive", 300, 300) == "exhaustive"
     with pytest.raises(NerfkitError, match="tag poses"):
         choose_matcher("spatial", 50, 0)

@@ -61,8 +61,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--matcher", choices=["auto", "exhaustive", "sequential", "spatial"], default="auto",
                    help="the photo pairs SfM matches: exhaustive (every pair), sequential (each photo with the next "
                    "10 in name order) or spatial (--method auto: sequential's, and each photo with the 20 whose "
-                   "tag poses see most alike). auto (default): spatial when the tags pose half of more than 40 "
-                   "photos, else exhaustive up to 100 photos, else sequential")
+                   "tag poses see most alike; faster than exhaustive, a little less exact). auto (default): "
+                   "exhaustive up to 100 photos; beyond, spatial when the tags pose half of them, else sequential")
     p.add_argument("--no-ground", action="store_true",
                    help="with --method colmap and no tag: do not look for the table plane in the SfM points")
     p.add_argument("--sfm-max-size", type=number(int, 64, 100_000), default=1000, help="longest side used for SfM features, px (default 1000)")
