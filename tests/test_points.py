@@ -159,6 +159,21 @@ def test_triangulated_points_lie_on_the_photographed_plane_with_its_colours(tmp_
     assert list(tmp_path.iterdir()) == []  # COLMAP's scratch folder is gone
 
 
+def test_many_views_are_matched_with_their_neighbours_only(tmp_path, monkeypatch):
+    pytest.importorskip("pycolmap")
+    import nerfkit.sfm.colmap as colmap
+    import nerfkit.sfm.triangulate as triangulate
+
+    matched = []
+    real = colmap.match_pairs
+    monkeypatch.setattr(triangulate, "EXHAUSTIVE_MAX", 4)  # 8 views are "many"
+    monkeypatch.setattr(triangulate, "match_pairs", lambda *a: matched.extend(a[2]) or real(*a))
+    views, _ = _plane_views(8)
+    pts = triangulate.triangulate_views(views, tmp_path, neighbours=3)
+    assert 8 <= len(matched) < 8 * 7 // 2  # each view's 3 nearest, not every pair
+    assert len(pts) > 100 and np.median(np.abs(pts.xyz[:, 2])) < 0.005
+
+
 def test_neighbour_scales_on_a_lattice_are_the_spacing():
     from nerfkit.models.splat import neighbour_scales
 

@@ -201,15 +201,14 @@ def spatial_pairs(names: list[str], guides: dict[str, np.ndarray], k: int, overl
     return [(names[i], names[j]) for i, j in sorted(pairs)]
 
 
-def match_pairs(pycolmap, db_path: Path, pairs: list[tuple[str, str]], matching, verification=None) -> None:
+def match_pairs(pycolmap, db_path: Path, pairs: list[tuple[str, str]], matching, verification) -> None:
     """Match and verify the features of these photo pairs only (a pairs file beside the database)."""
     pairs_file = db_path.parent / "pairs.txt"
     pairs_file.write_text("".join(f"{a} {b}\n" for a, b in pairs))
     pairing = pycolmap.ImportedPairingOptions()
     pairing.match_list_path = str(pairs_file)
-    extra = {} if verification is None else {"verification_options": verification}
     pycolmap.match_image_pairs(db_path, matching_options=matching, pairing_options=pairing,
-                               device=pycolmap.Device.cpu, **extra)
+                               verification_options=verification, device=pycolmap.Device.cpu)
 
 
 # Formats COLMAP reads directly; others (HEIC, WebP, ...) are converted first.

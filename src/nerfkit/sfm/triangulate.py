@@ -92,7 +92,8 @@ def _match(pycolmap, db_path: Path, names: list[str], c2w: np.ndarray, neighbour
     if len(names) <= EXHAUSTIVE_MAX:
         pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
         return
-    match_pairs(pycolmap, db_path, [(names[i], names[j]) for i, j in camera_neighbours(c2w, neighbours)], matching)
+    match_pairs(pycolmap, db_path, [(names[i], names[j]) for i, j in camera_neighbours(c2w, neighbours)], matching,
+                pycolmap.TwoViewGeometryOptions())
 
 
 def _posed_reconstruction(pycolmap, db_path: Path, names: list[str], c2w: np.ndarray):
