@@ -89,6 +89,24 @@ def test_resume_continues_exactly(tmp_path, sphere):
     assert steps_a == steps_b  # no duplicated or missing rows
 
 
+def test_validation_marks_without_eval_every(tmp_path, sphere):
+    """Val renders at 1% and 3% of the run and at each tenth, by steps or by the time budget."""
+    by_steps = Trainer(sphere, small_cfg(tmp_path, "a", steps=200), VanillaConfig(**SMALL), quiet=True)
+    due = []
+    for step in range(1, 201):
+        by_steps.step = step
+        if by_steps._eval_due():
+            due.append(step)
+    assert due == [2, 6] + list(range(20, 201, 20))
+    by_time = Trainer(sphere, small_cfg(tmp_path, "b", steps=0, minutes=1.0), VanillaConfig(**SMALL), quiet=True)
+    due = []
+    for tick in range(1, 601):  # a tenth of a second a step
+        by_time.train_seconds = tick / 10
+        if by_time._eval_due():
+            due.append(tick)
+    assert due == [6, 18] + list(range(60, 601, 60))
+
+
 def test_refuses_to_overwrite_a_run(tmp_path, sphere):
     cfg = small_cfg(tmp_path, steps=2)
     train(sphere, cfg, VanillaConfig(**SMALL), quiet=True)

@@ -37,7 +37,8 @@ class TrainConfig:
     device: str = option("auto", "auto, cpu, cuda or cuda:N")
     precision: str = option("auto", "auto (bf16 where the hardware has it), fp32, or bf16", choices=["auto", "fp32", "bf16"])
     background: str = option("black", "colour behind the object: black, white, grey, r,g,b in [0, 1] or #rrggbb")
-    eval_every: int = option(0, "steps between validation renders (0: about 10 over the run)", min=0)
+    eval_every: int = option(0, "steps between validation renders (0: at each tenth of the run, and at 1% "
+                             "and 3% of it)", min=0)
     eval_views: int = option(2, "validation views rendered at each periodic evaluation", min=0)
     eval_pixels: int = option(0, "pixels scored per periodic evaluation, every k-th pixel of each view on an even "
                               "grid (the final evaluation scores whole images); 0: the model's default (vanilla "

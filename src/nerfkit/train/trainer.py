@@ -6,6 +6,7 @@ rays (see :mod:`nerfkit.models.base`) and keeps the run folder up to date.
 
 from __future__ import annotations
 
+import bisect
 import csv
 import io
 import json
@@ -41,6 +42,10 @@ from .view_corrections import ViewCorrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
+# the shares of a run (steps or minutes) at which it renders its val views without
+# --eval-every: each tenth, and twice before the first, where the held-out score climbs
+# fastest (steve's is near its last value by the first tenth)
+EVAL_MARKS = (0.01, 0.03) + tuple(k / 10 for k in range(1, 11))
 # Signals that stop training cleanly (finish the step, save, exit): Ctrl-C, and what
 # `kill`, `timeout`, schedulers and containers send.
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -160,7 +165,7 @@ class Trainer:
         self.rows: list[dict] = []
         self.notes: list[str] = []  # the model's notes at the end of training (metrics.json)
         self.bad_steps = 0
-        self._last_eval_tenth = 0
+        self._marks_passed = 0
         if resume:
             self._resume()
         else:
@@ -254,14 +259,12 @@ class Trainer:
             g["lr"] = g["initial_lr"] * g.get("lr_final_factor", self.cfg.lr_final_factor) ** p
 
     def _eval_due(self) -> bool:
+        """Without ``--eval-every``: each time the run passes one of :data:`EVAL_MARKS`."""
         if self.cfg.eval_every:
             return self.step % self.cfg.eval_every == 0
-        if self.cfg.steps:
-            return self.step % max(self.cfg.steps // 10, 1) == 0
-        # time budget: evaluate each time another tenth of it is spent
-        tenths = math.floor(10 * self.progress())
-        due = tenths > self._last_eval_tenth
-        self._last_eval_tenth = tenths
+        passed = bisect.bisect_right(EVAL_MARKS, self.progress() + 1e-9)
+        due = passed > self._marks_passed
+        self._marks_passed = passed
         return due
 
     # -- one step ------------------------------------------------------------------
