@@ -273,6 +273,12 @@ def test_prepare_photos_makes_upright_copies(tmp_path):
     # all upright already: COLMAP reads the input folder itself
     folder2, names2, _, _, _ = prepare_photos([photos[2], photos[2]], tmp_path / "work2", progress=False)
     assert folder2 == tmp_path / "in" and not (tmp_path / "work2").exists()
+    # a truncated photo is left out as unreadable (COLMAP would stop at it), the rest kept
+    (tmp_path / "in" / "6.png").write_bytes((tmp_path / "in" / "2.png").read_bytes()[:600])
+    folder3, names3, skipped3, _, _ = prepare_photos([photos[2], tmp_path / "in" / "6.png"], tmp_path / "work6",
+                                                     progress=False)
+    assert folder3 == tmp_path / "in" and names3 == ["2.png"]
+    assert skipped3["6.png"].startswith("unreadable: cannot decode image")
 
 
 def _noise_texture(rng, n=256):

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..cameras import rotation_angles_deg
 from ..data.colmap import write_reconstruction
-from ..errors import fail
+from ..errors import NerfkitError, fail
 from ..images import list_images
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -255,7 +255,8 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
     ``camera`` (a capture ``Camera``) when the most common is its transposed. A photo held
     the other way is turned into that frame by its EXIF orientation
     (:func:`nerfkit.images.turns_into_frame`); other sizes are left out, as are photos
-    whose EXIF focal length says another lens or zoom than the camera's (else most photos').
+    whose EXIF focal length says another lens or zoom than the camera's (else most photos'),
+    and photos nerfkit cannot decode (COLMAP would stop at them).
 
     Returns (folder COLMAP reads, image names in it, left-out name -> reason, the
     header of the first photo used, with the shared size; COLMAP name -> clockwise
@@ -267,7 +268,14 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
     from ..images import common_frame, common_size, load_image_uint8, turns_into_frame
     from ..io.atomic import write_image
 
-    infos = [photo_info(p) for p in photos]
+    infos, skipped = [], {}
+    for p in photos:
+        try:
+            infos.append(photo_info(p))
+        except NerfkitError as e:  # as the tag path records it
+            skipped[p.name] = "unreadable: " + str(e).split(": ", 1)[-1]
+    if not infos:
+        return work, [], skipped, None, {}
     W, H = common_size((i.width, i.height) for i in infos)
     frame = common_frame([i.orientation for i in infos if (i.width, i.height) == (W, H)])
     if camera is not None and camera.compatible(W, H) and not camera.compatible(H, W):
@@ -275,7 +283,7 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
     if camera is not None and camera.sensor_turns is not None:
         frame = camera.sensor_turns  # the calibration's frame, as the tag poses use
     lens = (camera.exif_f35 if camera is not None else None) or common_lens(i.f35 for i in infos)
-    kept, turns, skipped = [], {}, {}
+    kept, turns = [], {}
     for i in infos:
         if why := other_lens(i.f35, lens):
             skipped[i.path.name] = why + " (SfM shares one camera)"
@@ -373,6 +381,11 @@ def run_sfm(
     (work / "sparse").mkdir(parents=True)
     colmap_dir, names, left_out, first, turns = prepare_photos(photos, work, progress, camera)
     if len(names) < 3:
+        unreadable = sum(why.startswith("unreadable") for why in left_out.values())
+        if len(photos) - unreadable < 3:
+            raise fail(image_dir, f"{unreadable} of its {len(photos)} photos are unreadable, leaving "
+                       f"{len(photos) - unreadable}; structure-from-motion needs at least 3",
+                       "Replace the broken files (poses lists them)")
         raise fail(image_dir, f"only {len(names)} photos share one size; structure-from-motion needs at least 3",
                    "Take all photos held the same way (portrait or landscape)")
     given = None  # (COLMAP model, params) of the camera file
