@@ -424,7 +424,7 @@ def test_the_run_records_its_dataset_absolutely_and_eval_uses_it_from_anywhere(t
     save_npz(sphere_scene(n_train=4, n_val=2, size=16, seed=9), elsewhere / "data.npz")  # another data.npz
     monkeypatch.chdir(elsewhere)
     capsys.readouterr()
-    assert main(["eval", str(run)]) == 0
+    assert main(["eval", str(run), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["data"] == str(trained / "a" / "data.npz")
 
 
@@ -703,14 +703,20 @@ def test_eval_on_a_test_only_npz(trained, tmp_path, capsys):
     s = sphere_scene(n_train=2, n_val=1, size=32, seed=4)
     np.savez(tmp_path / "held_out.npz", images_test=s.train.images, c2ws_test=s.train.c2w,
              focal=np.float32(s.train.K[0, 0, 0]))
-    assert main(["eval", str(trained / "run"), "--data", str(tmp_path / "held_out.npz"), "--split", "test"]) == 0
+    assert main(["eval", str(trained / "run"), "--data", str(tmp_path / "held_out.npz"), "--split", "test",
+                 "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["split"] == "test" and len(result["per_image"]) == 2
+    # a split with no views (a capture of 3 photos has none to validate on) names one that has
+    np.savez(tmp_path / "no_val.npz", images_train=s.train.images, c2ws_train=s.train.c2w,
+             images_test=s.train.images, c2ws_test=s.train.c2w, focal=np.float32(s.train.K[0, 0, 0]))
+    assert main(["eval", str(trained / "run"), "--data", str(tmp_path / "no_val.npz")]) == 2
+    assert "no_val.npz: has no val views. Choose a split that has (--split test)" in capsys.readouterr().err
 
 
 def test_eval_on_a_blender_folder_with_only_test_views(trained, tmp_path, capsys):
     folder = blender_folder(tmp_path / "held_out", ["./test/r_0", "./test/r_1"], split="test", size=16)
-    assert main(["eval", str(trained / "run"), "--data", str(folder), "--split", "test"]) == 0
+    assert main(["eval", str(trained / "run"), "--data", str(folder), "--split", "test", "--json"]) == 0
     assert len(json.loads(capsys.readouterr().out)["per_image"]) == 2
     assert main(["eval", str(trained / "run"), "--data", str(folder), "--split", "val"]) == 2
     one_line(capsys, "has no transforms_val.json")
@@ -748,7 +754,7 @@ def test_the_run_keeps_a_compact_final_model_that_eval_uses(trained, tmp_path, c
     shutil.rmtree(run / "checkpoints")  # eval, render, export and view need only model.pt
     _, _, step = load_run(run)
     assert step == 6
-    assert main(["eval", str(run)]) == 0 and json.loads(capsys.readouterr().out)["step"] == 6
+    assert main(["eval", str(run), "--json"]) == 0 and json.loads(capsys.readouterr().out)["step"] == 6
 
 
 def test_a_newer_checkpoint_wins_over_an_older_final_model(trained, tmp_path):

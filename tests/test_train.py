@@ -135,12 +135,35 @@ def test_cli_train_render_eval(tmp_path, sphere_npz, capsys):
     assert "of the object (the model draws nothing around it to leave out; zoomed" in capsys.readouterr().out
     assert iio.imread(run / "videos" / "object.gif").shape == (4, 32, 32, 3)
     assert (run / "videos" / "object_depth.mp4").stat().st_size > 0
-    assert main(["eval", str(run), "--split", "val"]) == 0
+    assert main(["eval", str(run), "--split", "val", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_images"] == 2 and len(out["per_image"]) == 2
     assert np.isclose(out["psnr"], np.mean([p["psnr"] for p in out["per_image"]]), atol=1e-3)
     assert 0 < out["ssim"] <= 1
     assert json.loads((run / "eval_val.json").read_text())["psnr"] == out["psnr"]
+    assert main(["eval", str(run), "--split", "val"]) == 0  # the summary
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0] == f"val: 2 views at step 20: PSNR {out['psnr']:.2f} dB, SSIM {out['ssim']:.3f}"
+    assert printed[-1] == f"wrote {run / 'eval_val.json'} and {run / 'eval_val.png'} (photo beside render)"
+
+
+def test_eval_summary_lists_the_fitted_scores_and_the_extreme_views():
+    from nerfkit.commands.eval import LISTED_VIEWS, summary
+
+    views = [{"index": i, "name": f"IMG_{i}.jpg", "psnr": 20.0 + (i * 7) % 20, "ssim": 0.5, "psnr_fitted": 30.0}
+             for i in range(20)]
+    result = {"split": "val", "n_images": 20, "step": 9, "psnr": 25.0, "ssim": 0.7, "per_image": views,
+              "fitted": {"psnr": 27.5, "ssim": 0.75}, "colour_only": {"psnr": 26.0},
+              "object": {"psnr": 24.0, "psnr_fitted": 28.0}}
+    lines = summary(result).splitlines()
+    assert "fitted to its photo: 27.50 dB / 0.750 (its colour alone: 26.00 dB)" in lines[1]
+    assert lines[2] == "  the object's own pixels: 24.00 dB, 28.00 fitted"
+    listed = [float(line.split()[1]) for line in lines[4:]]
+    assert len(listed) == LISTED_VIEWS and listed == sorted(listed)
+    all_psnr = sorted(v["psnr"] for v in views)
+    assert listed == all_psnr[:LISTED_VIEWS // 2] + all_psnr[-(LISTED_VIEWS // 2):]
+    result["per_image"] = views[:3]  # few views: each, in the split's order
+    assert [line.split()[0] for line in summary(result).splitlines()[4:]] == ["IMG_0.jpg", "IMG_1.jpg", "IMG_2.jpg"]
 
 
 def test_cli_errors_are_one_line_with_exit_code_2(tmp_path, capsys):

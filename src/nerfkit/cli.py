@@ -41,7 +41,7 @@ typical flows:
                                                 your phone photos -> dataset, NeRF, videos, mesh
   nerfkit train --data scene.npz --out runs/x   train a NeRF on a dataset
   nerfkit render runs/x                         orbit video + depth video of a trained run
-  nerfkit eval runs/x --split val               PSNR/SSIM on held-out views, as JSON
+  nerfkit eval runs/x --split val               PSNR/SSIM on held-out views (and a JSON file)
   nerfkit fit-image photo.jpg                   the course warm-up: fit an MLP (x, y) -> RGB to one image
 """
 

@@ -79,15 +79,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _step(argv: list[str], needed: bool = True, quiet: bool = False, verbose: bool = False,
+def _step(argv: list[str], needed: bool = True, verbose: bool = False,
           times: dict | None = None) -> bool:
     """Run one nerfkit command; whether it succeeded. The failure of a ``needed`` step
-    stops the capture (the command's own error is printed above). ``quiet``: its standard
-    output is not shown (eval's JSON, which its file keeps). ``verbose``: its errors come
+    stops the capture (the command's own error is printed above). ``verbose``: its errors come
     with their tracebacks (``nerfkit --verbose capture``). ``times`` gets the step's
     seconds under its name (``render --object``: "object")."""
-    import contextlib
-    import io
     import time
 
     from ..cli import main
@@ -95,8 +92,7 @@ def _step(argv: list[str], needed: bool = True, quiet: bool = False, verbose: bo
 
     print(f"\n== nerfkit {' '.join(argv)}", flush=True)
     start = time.perf_counter()
-    with contextlib.redirect_stdout(io.StringIO()) if quiet else contextlib.nullcontext():
-        rc = main(["--verbose", *argv] if verbose else argv)
+    rc = main(["--verbose", *argv] if verbose else argv)
     if times is not None:
         times["object" if "--object" in argv else argv[0]] = time.perf_counter() - start
     if rc == 130:
@@ -338,7 +334,7 @@ def run(args: argparse.Namespace) -> int:
     if _newer_than_model(run_dir / "eval_val.json", run_dir):
         _kept("evaluation", run_dir / "eval_val.json")
     else:
-        evaluated = step(["eval", str(run_dir), "--split", "val", "--device", args.device], needed=False, quiet=True)
+        evaluated = step(["eval", str(run_dir), "--split", "val", "--device", args.device], needed=False)
     videos = run_dir / "videos"
     frames = ["--frames", str(args.frames)] if args.frames else []
     if all(_newer_than_model(videos / name, run_dir) for name in VIDEO_FILES) and not args.frames:

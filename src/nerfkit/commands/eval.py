@@ -1,4 +1,4 @@
-"""`nerfkit eval`: PSNR and SSIM of a trained run on a split, as JSON."""
+"""`nerfkit eval`: PSNR and SSIM of a trained run on a split, printed and written as JSON."""
 
 from __future__ import annotations
 
@@ -6,16 +6,16 @@ import argparse
 
 from ._common import add_run_args
 
-HELP = "evaluate a trained run on held-out images (prints JSON)"
+HELP = "evaluate a trained run on held-out images: PSNR and SSIM"
 MEMORY_HINT = "Lower --chunk (rays rendered at once)"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     from ..config import number
 
-    p = sub.add_parser("eval", help=HELP, description=HELP + ": mean psnr and ssim plus a per-image list; also "
-                       "written to RUN/eval_<split>.json, with a contact sheet (photos beside renders) in "
-                       "RUN/eval_<split>.png.")
+    p = sub.add_parser("eval", help=HELP, description=HELP + ". Prints the means and each view's scores, and "
+                       "writes them to RUN/eval_<split>.json (with each view's fitted pose and colour for a capture), "
+                       "with a contact sheet (photos beside renders) in RUN/eval_<split>.png.")
     add_run_args(p)
     p.add_argument("--split", choices=["val", "test", "train"], default="val", help="which images (default: val)")
     p.add_argument("--fit-views", type=number(int, 0, 100_000), default=None, metavar="STEPS",
@@ -23,6 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "many steps, and then its colour correction (least squares; the run's model: an affine "
                         "colour transform, or a gain and offset per channel) (default: 100 for runs trained with "
                         "--capture, else 0: off; 0 for models that render whole views, such as splat)")
+    p.add_argument("--json", action="store_true", help="print the JSON that RUN/eval_<split>.json holds instead of "
+                   "the summary (for scripts)")
     p.set_defaults(func=run)
 
 
@@ -59,8 +61,9 @@ def run(args: argparse.Namespace) -> int:
     scene = scene_for_run(run_.info, args.data, need=args.split, allow_outside=args.allow_outside_paths)
     views = scene.splits[args.split]
     if not views.has_images:
+        others = [split for split in ("val", "test", "train") if split != args.split and scene.splits[split].has_images]
         raise fail(scene.source, f"the {args.split} split has no images to compare with",
-                   "Choose a split with images (--split val)")
+                   f"Choose a split with images (--split {others[0]})" if others else None)
     steps = args.fit_views
     whole = bool(getattr(run_.model, "whole_images", False))
     if whole and steps:
@@ -78,7 +81,42 @@ def run(args: argparse.Namespace) -> int:
               **evaluate_views(run_.model, views, run_.background(), run_.chunk, run_.autocast, fit=fit,
                                scale=run_.info.bounds.radius, sheet=sheet,
                                alone=alone.model if alone is not None and alone.left_out else None)}
-    write_json(Path(args.run) / f"eval_{args.split}.json", result)
-    write_contact_sheet(Path(args.run) / f"eval_{args.split}.png", sheet, args.split)
-    print(json.dumps(result, indent=2))
+    json_path, sheet_path = Path(args.run) / f"eval_{args.split}.json", Path(args.run) / f"eval_{args.split}.png"
+    write_json(json_path, result)
+    write_contact_sheet(sheet_path, sheet, args.split)
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print(summary(result))
+        print(f"wrote {json_path}" + (f" and {sheet_path} (photo beside render)" if sheet else ""))
     return 0
+
+
+# views listed one by one up to this many; beyond, the lowest and highest few
+LISTED_VIEWS = 12
+
+
+def summary(result: dict) -> str:
+    """``nerfkit eval``'s printed report of its ``result`` (what eval_<split>.json holds)."""
+    lines = [f"{result['split']}: {result['n_images']} views at step {result['step']}: "
+             f"PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.3f}"]
+    fitted, colour, obj = result.get("fitted"), result.get("colour_only"), result.get("object")
+    if fitted:
+        lines.append(f"  with each view's pose and colour fitted to its photo: {fitted['psnr']:.2f} dB / "
+                     f"{fitted['ssim']:.3f}" + (f" (its colour alone: {colour['psnr']:.2f} dB)" if colour else ""))
+    if obj and obj.get("psnr") is not None:
+        lines.append(f"  the object's own pixels: {obj['psnr']:.2f} dB" +
+                     (f", {obj['psnr_fitted']:.2f} fitted" if obj.get("psnr_fitted") is not None else ""))
+    views = result.get("per_image", [])
+    shown = views if len(views) <= LISTED_VIEWS else sorted(views, key=lambda v: v["psnr"])
+    if len(views) > LISTED_VIEWS:
+        lines.append(f"  the {LISTED_VIEWS // 2} lowest and highest of {len(views)} views (PSNR dB, SSIM"
+                     + (", fitted PSNR):" if fitted else "):"))
+        shown = shown[:LISTED_VIEWS // 2] + shown[-(LISTED_VIEWS // 2):]
+    else:
+        lines.append("  per view (PSNR dB, SSIM" + (", fitted PSNR):" if fitted else "):"))
+    for v in shown:
+        name = v.get("name") or f"view {v['index']}"
+        lines.append(f"    {name[:32]:32s} {v['psnr']:6.2f}  {v['ssim']:.3f}"
+                     + (f"  {v['psnr_fitted']:6.2f}" if v.get("psnr_fitted") is not None else ""))
+    return "\n".join(lines)

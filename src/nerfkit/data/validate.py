@@ -200,7 +200,10 @@ def check_scene(scene, where: str | None = None, need: str = "train"):
     """
     where = str(where or scene.source or "dataset")
     if len(scene.splits[need]) == 0:
-        raise fail(where, "has no training views" if need == "train" else f"has no {need} views")
+        if need == "train":
+            raise fail(where, "has no training views")
+        others = [split for split in ("val", "test", "train") if split != need and scene.splits[split].has_images]
+        raise fail(where, f"has no {need} views", f"Choose a split that has (--split {others[0]})" if others else None)
     for split, v in scene.splits.items():
         n = len(v)
         if not (isinstance(v.width, (int, np.integer)) and isinstance(v.height, (int, np.integer))
