@@ -180,6 +180,10 @@ def test_convert_resize_and_refuses_overwrite(tmp_path, capsys):
     assert "already exists" in capsys.readouterr().err
     assert main(["convert", str(tmp_path / "b"), "--to", str(out), "--background", "pink", "--force"]) == 2
     assert main(["convert", str(tmp_path / "b"), "--to", str(tmp_path / "x.npz"), "--format", "colmap"]) == 2
+    capsys.readouterr()
+    assert main(["convert", str(tmp_path / "b"), "--to", str(tmp_path / "x.ply")]) == 2  # a file name, not a folder
+    assert "looks like a .ply file, but convert writes a .npz file or a folder" in capsys.readouterr().err
+    assert not (tmp_path / "x.ply").exists()
 
 
 def test_npz_to_transforms_round_trip(tmp_path):

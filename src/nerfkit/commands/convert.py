@@ -56,6 +56,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+# names that --to takes for a file of another kind, not a folder (`--to out.ply`)
+FILE_SUFFIXES = {".ply", ".json", ".obj", ".glb", ".splat", ".zip", ".tar", ".gz", ".mp4", ".gif", ".png", ".jpg",
+                 ".jpeg", ".txt", ".pt", ".pth", ".bin", ".db"}
+
+
 def output_format(out: str, fmt: str) -> str:
     if fmt != "auto":
         return fmt
@@ -77,6 +82,10 @@ def run(args: argparse.Namespace) -> int:
         raise fail(out, "an npz output must end in .npz")
     if fmt != "npz" and out.suffix.lower() == ".npz":
         raise fail(out, f"--format {fmt} writes a folder, not an .npz file")
+    if fmt != "npz" and out.suffix.lower() in FILE_SUFFIXES:
+        raise fail(out, f"looks like a {out.suffix} file, but convert writes a .npz file or a folder "
+                   f"({'COLMAP project' if fmt == 'colmap' else 'transforms.json and images/'})",
+                   "End --to in .npz, or give a folder name")
     if fmt == "colmap" and (args.near is not None or args.far is not None):
         raise fail("--near/--far", "a COLMAP model keeps no depth range", "Write an npz or transforms.json instead")
     guard_outputs(output_targets(out, fmt), [*dataset_inputs(args.src), args.images], args.force, "--to")
