@@ -11,8 +11,9 @@ DESCRIPTION = """\
 Build the dataset from DATASET_DIR/poses.json (written by `nerfkit poses`): undistort each
 photo (keeping the calibrated focal length, cropped to the largest rectangle of valid
 pixels, K updated), downscale it, split the views into train/val/test, estimate near/far
-from the cameras and the tag size, and write images/, transforms.json (nerfstudio layout, OpenGL axes) and dataset.npz (the
-course layout plus K, near, far, center, up and each view's photo name).
+from the cameras and the tag size, and write images/, transforms.json (nerfstudio layout,
+OpenGL axes) and dataset.npz (the course layout plus K, near, far, center, up and each
+view's photo name).
 `nerfkit poses` runs this step itself; run it again with --out to build another size or
 split (or with --force to rebuild it in place: runs trained on the old dataset then refuse
 the new one). It keeps the poses `nerfkit poses` gave the dataset: when those came
