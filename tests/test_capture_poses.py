@@ -463,3 +463,19 @@ def test_skip_reasons_are_counted_by_kind_with_their_own_numbers():
                "size 800x500 has a different aspect ratio"]
     assert reason_counts(reasons) == ("2 x bad fit; 2 x size 1024x768 has a different aspect ratio (or similar); "
                                       "1 x no tags found; 1 x taken at 52 mm")
+
+
+def test_the_reasons_table_wraps_a_long_reason_whole():
+    from nerfkit.capture.report import table
+
+    reason = ("unreadable: cannot decode image (image file is truncated (12 bytes not processed)). The file may be "
+              "truncated or corrupt")
+    text = table([["a.jpg", "skipped", "-", "", reason], ["bb.jpg", "used", "0", "0.5", "ok"]],
+                 ["photo", "status", "tags", "err px", "reason"], max_width=60)
+    lines = text.splitlines()
+    assert max(len(line) for line in lines) <= 60 and len(lines) > 4
+    start = lines[0].index("reason")
+    rows = lines[2:-1]  # a.jpg's lines: the reason column, word for word
+    assert " ".join(line[start:].strip() for line in rows) == reason
+    assert all(line[:start].strip() == "" for line in rows[1:])  # continued under its column
+    assert lines[-1].split() == ["bb.jpg", "used", "0", "0.5", "ok"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 import shutil
+import textwrap
 
 import numpy as np
 
@@ -11,16 +12,19 @@ from .photos import PhotoRecord
 
 
 def table(rows: list[list[str]], headers: list[str], max_width: int = 90) -> str:
-    """A fixed-width text table; the last column is cut to keep lines under ``max_width``."""
+    """A fixed-width text table; the last column wraps onto more lines to keep them under
+    ``max_width`` (a reason is never cut short)."""
     cols = [headers] + rows
     widths = [max(len(str(r[i])) for r in cols) for i in range(len(headers))]
     room = max(20, max_width - sum(widths[:-1]) - 2 * (len(widths) - 1))
     widths[-1] = min(widths[-1], room)
+    indent = " " * (sum(widths[:-1]) + 2 * (len(widths) - 1))
 
     def fmt(r: list) -> str:
         cells = [str(c) for c in r]
-        last = cells[-1] if len(cells[-1]) <= widths[-1] else cells[-1][: widths[-1] - 3] + "..."
-        return "  ".join([c.ljust(w) for c, w in zip(cells[:-1], widths[:-1])] + [last]).rstrip()
+        last = textwrap.wrap(cells[-1], widths[-1], break_on_hyphens=False) or [""]
+        first = "  ".join([c.ljust(w) for c, w in zip(cells[:-1], widths[:-1])] + [last[0]]).rstrip()
+        return "\n".join([first] + [indent + more for more in last[1:]])
 
     line = "  ".join("-" * w for w in widths)
     return "\n".join([fmt(headers), line] + [fmt(r) for r in rows])
