@@ -226,6 +226,11 @@ def test_a_flag_of_another_model_is_refused_before_anything_is_read_or_written(f
     (["render", "run", "--bogus", "1"], "nerfkit render: error: unrecognized argument --bogus (see nerfkit render --help)"),
     (["eval", "run", "--verbose"],
      "nerfkit eval: error: --verbose goes before the command: nerfkit --verbose eval ... (see nerfkit --help)"),
+    (["--verbose", "pose", "photos/"], "nerfkit: error: unknown command 'pose': did you mean poses? (see nerfkit --help)"),
+    (["photos/"], "nerfkit: error: unknown command 'photos/' (the commands: demo, capture, train, render, eval, "
+                  "fit-image, convert, export, calibrate, poses, dataset, view) (see nerfkit --help)"),
+    (["capture", "photos/", "--tag-size", "0.06", "--out", "o", "--minutes", "1", "--steps", "9"],
+     "nerfkit capture: error: argument --steps: not allowed with argument --minutes (see nerfkit capture --help)"),
 ])
 def test_an_unknown_flag_is_named_by_its_command_with_the_nearest_one(argv, error, capsys):
     assert main(argv) == 2

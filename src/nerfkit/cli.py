@@ -82,15 +82,20 @@ def command_in(argv: list[str]) -> str | None:
 
 
 def unknown_option(parser: argparse.ArgumentParser, argv: list[str]) -> str | None:
-    """The one-line error for the first ``--option`` after the command that the command does
-    not have (nor abbreviates), with the nearest one it has: argparse alone names a missing
+    """The one-line error for a command nerfkit does not have, with the nearest one it has,
+    or for the first ``--option`` after the command that the command does not have (nor
+    abbreviates), with the nearest one it has: argparse alone names a missing
     required flag first (``--tagsize`` for ``--tag-size``) and points to the top-level help."""
     import difflib
 
     command = command_in(argv)
     subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    if command is None or not subs or command not in subs[0].choices:
+    if command is None or not subs:
         return None
+    if command not in subs[0].choices:
+        near = difflib.get_close_matches(command, list(subs[0].choices), n=1)
+        return (f"nerfkit: error: unknown command '{command}'" + (f": did you mean {near[0]}?" if near else
+                f" (the commands: {', '.join(subs[0].choices)})") + " (see nerfkit --help)")
     sub = subs[0].choices[command]
     known = [k for k in sub._option_string_actions if k.startswith("--")]
     for token in argv[argv.index(command) + 1:]:

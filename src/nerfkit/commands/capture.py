@@ -69,8 +69,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "up; tags: the tag's poses only, as the course does")
     p.add_argument("--max-side", type=number(int, MIN_RESAMPLED_SIDE, off=0),
                    help="the dataset's photos' longer side in pixels (0: keep their size; default: poses', 512)")
-    p.add_argument("--minutes", type=number(float, above=0), default=3.0, help="training time (default: 3)")
-    p.add_argument("--steps", type=number(int, 1), help="train this many steps instead of --minutes")
+    budget = p.add_mutually_exclusive_group()
+    budget.add_argument("--minutes", type=number(float, above=0), default=3.0, help="training time (default: 3)")
+    budget.add_argument("--steps", type=number(int, 1), help="train this many steps instead of --minutes")
     p.add_argument("--frames", type=number(int, 1, 100_000), help="frames of the orbit (default: render's, 120)")
     p.add_argument("--no-mesh", action="store_true", help="skip the mesh")
     p.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N (default: auto)")
