@@ -26,6 +26,7 @@ COMMANDS = [
     "fit-image",
     "convert",
     "export",
+    "tags",
     "calibrate",
     "poses",
     "dataset",
@@ -37,6 +38,7 @@ nerfkit: phone photos to neural radiance fields, practical on a CPU.
 
 typical flows:
   nerfkit demo                                  train on the bundled lego scene, write videos and plots
+  nerfkit tags --out tags.pdf                   printable ArUco tags: a calibration sheet, a tag for the object
   nerfkit capture photos/ --calib sheet/ --tag-size 0.06 --out my_object/
                                                 your phone photos -> dataset, NeRF, videos, mesh
   nerfkit train --data scene.npz --out runs/x   train a NeRF on a dataset

@@ -1,0 +1,94 @@
+"""`nerfkit tags`: a printable PDF of ArUco tags for calibration and for the object."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "printable ArUco tags (PDF): a calibration sheet and a tag to lay beside the object"
+
+DESCRIPTION = """\
+Write a PDF to print at actual size: page 1 is a calibration sheet (as many tags of
+--tag-size as fit, ids from 0), page 2 one larger tag (--object-tag-size) to lay flat
+beside the object, its id the one after the sheet's. Each page has a 100 mm ruler to
+check that the printer kept the scale.
+
+Printed, measure a tag's black square (printers may scale a little) and give that side in
+metres to nerfkit. Then photograph the sheet 20-50 times from varied angles, and the object
+beside its tag (or standing on the sheet) 30-100 times all around, at two or three heights.
+
+example:
+  nerfkit tags --out tags.pdf
+  nerfkit calibrate sheet_photos/ --tag-size 0.05 --out camera.json
+  nerfkit capture object_photos/ --camera camera.json --tag-size 0.1 --out my_object/
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from ..capture.sheet import PAPERS
+    from ..config import number, tag_side
+
+    p = sub.add_parser("tags", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", default="tags.pdf", help="PDF to write (default: tags.pdf)")
+    p.add_argument("--paper", choices=sorted(PAPERS), default="a4", help="paper size (default: a4)")
+    p.add_argument("--dict", default="DICT_4X4_50", help="ArUco dictionary (default: DICT_4X4_50, nerfkit's)")
+    p.add_argument("--tag-size", type=tag_side, default=0.05,
+                   help="side of the sheet's tags' black squares in metres (default: 0.05)")
+    def object_side(text: str) -> float:
+        return 0.0 if number(float, 0.0)(text) == 0 else tag_side(text)
+
+    object_side.__name__ = "float"
+    p.add_argument("--object-tag-size", type=object_side, default=0.1,
+                   help="side of the tag beside the object in metres (default: 0.1; 0: no such page)")
+    p.add_argument("--force", action="store_true", help="replace an existing file")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..capture.aruco import get_dictionary
+    from ..capture.sheet import draw_page, largest_tag_mm, tag_area, tag_sheets
+    from ..errors import fail
+    from ..io.atomic import atomic_path
+    from ..io.paths import guard_outputs
+
+    out = Path(args.out)
+    if out.suffix.lower() != ".pdf":
+        raise fail("--out", f"'{out}' should end in .pdf")
+    cells = get_dictionary(args.dict).markerSize + 2
+    x0, y0, x1, y1 = tag_area(args.paper)
+    sheet_mm, object_mm = 1000 * args.tag_size, 1000 * (args.object_tag_size or 0)
+    if sheet_mm > min(x1 - x0, y1 - y0):
+        raise fail("--tag-size", f"a {sheet_mm:g} mm tag does not fit on {args.paper} paper",
+                   f"Use at most {min(x1 - x0, y1 - y0) / 1000:.3f}")
+    if object_mm > largest_tag_mm(args.paper, cells):
+        raise fail("--object-tag-size", f"a {object_mm:g} mm tag does not fit on {args.paper} paper with white "
+                   f"around it", f"Use at most {int(largest_tag_mm(args.paper, cells)) / 1000:.3f}")
+    guard_outputs([out], [], args.force)
+    pages = tag_sheets(args.paper, args.dict, sheet_mm, object_mm or None)
+    d = get_dictionary(args.dict)
+    from matplotlib.backends.backend_pdf import PdfPages
+
+    with atomic_path(out) as tmp:
+        with PdfPages(tmp, metadata={"Title": "nerfkit ArUco tags", "Creator": "nerfkit tags"}) as pdf:
+            for page in pages:
+                footer = (f"Print at actual size (100%, not \"fit to page\"): this line is {100} mm. Then measure a "
+                          f"tag's black square: {page.tag_mm:g} mm is --tag-size {page.tag_mm / 1000:g}")
+                pdf.savefig(draw_page(page, d, footer))
+    sheet = pages[0]
+    print(f"wrote {out} ({args.paper.upper() if args.paper == 'a4' else args.paper}, {len(pages)} "
+          f"page{'s' * (len(pages) > 1)}):")
+    print(f"  page 1: the calibration sheet, {len(sheet.ids)} tags of {sheet_mm:g} mm ({args.dict}, ids "
+          f"{sheet.ids[0]}-{sheet.ids[-1]})")
+    if len(pages) > 1:
+        print(f"  page 2: tag {pages[1].ids[0]} of {object_mm:g} mm, to lay flat beside the object")
+    print("Print at actual size (100%, not \"fit to page\"), check that the ruler measures 100 mm, and measure "
+          "a tag's black square. Then, with the sides you measured:")
+    if len(pages) > 1:
+        print(f"  nerfkit capture object_photos/ --calib sheet_photos/ --sheet-tag-size {args.tag_size:g} "
+              f"--tag-size {args.object_tag_size:g} --out my_object/")
+        print(f"  (the object standing on the sheet instead: --tag-size {args.tag_size:g}, no --sheet-tag-size)")
+    else:
+        print(f"  nerfkit capture object_photos/ --calib sheet_photos/ --tag-size {args.tag_size:g} --out my_object/"
+              "   (the object standing on the sheet)")
+    return 0

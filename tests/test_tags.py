@@ -1,0 +1,77 @@
+"""`nerfkit tags`: the printed sheet must be found by nerfkit's own detector at its stated size."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from nerfkit.cli import main
+
+DPI = 100  # px per inch of the raster the pages are checked on
+
+
+def raster(page, dictionary) -> np.ndarray:
+    """(H, W) uint8 grey of a page drawn at DPI (what a flat scan of the print would be)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from nerfkit.capture.sheet import draw_page
+
+    fig = draw_page(page, dictionary, "footer")
+    canvas = FigureCanvasAgg(fig)
+    fig.set_dpi(DPI)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., 0].copy()
+
+
+@pytest.mark.parametrize("paper, sheet_mm, object_mm", [("a4", 50.0, 100.0), ("letter", 30.0, 120.0)])
+def test_printed_tags_are_detected_with_their_ids_sides_and_places(paper, sheet_mm, object_mm):
+    from nerfkit.capture.aruco import detect, get_dictionary, make_detector
+    from nerfkit.capture.sheet import PAPERS, tag_sheets
+
+    d = get_dictionary("DICT_4X4_50")
+    pages = tag_sheets(paper, "DICT_4X4_50", sheet_mm, object_mm)
+    assert [len(p.ids) for p in pages][1:] == [1] and pages[1].ids == [pages[0].ids[-1] + 1]
+    assert pages[0].ids == list(range(len(pages[0].ids))) and len(pages[0].ids) >= 6
+    px_per_mm = DPI / 25.4
+    for page in pages:
+        image = raster(page, d)
+        w, h = PAPERS[paper]
+        assert np.abs(np.subtract(image.shape, (h * px_per_mm, w * px_per_mm))).max() < 1
+        found = detect(image, make_detector("DICT_4X4_50"), detect_side=4000)
+        assert sorted(found.ids.tolist()) == page.ids
+        for tag_id, corners in zip(found.ids, found.corners):
+            sides = np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)
+            np.testing.assert_allclose(sides, page.tag_mm * px_per_mm, atol=1.0)  # the stated side, to a pixel
+            centre = page.centres[page.ids.index(int(tag_id))]  # mm from the lower left -> pixels from the top
+            expected = np.array([centre[0], h - centre[1]]) * px_per_mm - 0.5
+            np.testing.assert_allclose(corners.mean(0), expected, atol=1.0)
+
+
+def test_the_largest_tags_fit_and_larger_ones_are_refused():
+    from nerfkit.capture.sheet import largest_tag_mm, tag_area
+
+    x0, y0, x1, y1 = tag_area("a4")
+    big = largest_tag_mm("a4", 6)
+    assert np.isclose(big * 8 / 6, min(x1 - x0, y1 - y0))  # a cell of white each side
+    assert main(["tags", "--out", "x.pdf", "--object-tag-size", f"{(big + 1) / 1000:.4f}"]) == 2
+
+
+def test_cli_writes_a_two_page_pdf_of_the_paper_size_and_refuses_to_replace_it(tmp_path, capsys):
+    out = tmp_path / "tags.pdf"
+    assert main(["tags", "--out", str(out), "--paper", "letter", "--tag-size", "0.04", "--object-tag-size",
+                 "0.12"]) == 0
+    text = capsys.readouterr().out
+    assert "--sheet-tag-size 0.04 --tag-size 0.12" in text and "page 2: tag " in text
+    pdf = out.read_bytes()
+    boxes = re.findall(rb"/MediaBox \[ *0 0 ([\d.]+) ([\d.]+) *\]", pdf)
+    assert len(boxes) == 2  # letter: 8.5 x 11 inches, in points
+    for w, h in boxes:
+        assert abs(float(w) - 612) < 0.5 and abs(float(h) - 792) < 0.5
+    assert main(["tags", "--out", str(out)]) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert main(["tags", "--out", str(tmp_path / "one.pdf"), "--object-tag-size", "0"]) == 0
+    assert len(re.findall(rb"/MediaBox", (tmp_path / "one.pdf").read_bytes())) == 1
+    assert main(["tags", "--out", str(tmp_path / "t.png")]) == 2
+    assert "should end in .pdf" in capsys.readouterr().err
