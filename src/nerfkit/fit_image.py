@@ -60,7 +60,7 @@ class FitImageConfig:
     steps: int = option(2000, "training steps", min=0)
     seed: int = option(0, "random seed (weights, pixel sampling, PSNR subset); same seed, same result", min=0,
                        max=MAX_SEED)
-    device: str = option("auto", "auto = cuda when available, else cpu", choices=["auto", "cpu", "cuda"])
+    device: str = option("auto", "auto (cuda when available, else cpu), cpu, cuda or cuda:N")
     precision: str = option("auto", "matmul precision: bf16 autocast or fp32; auto = bf16 on CPUs with native "
                             "bf16 (avx512_bf16/amx) and on CUDA GPUs that support it, else fp32",
                             choices=["auto", "bf16", "fp32"])
@@ -89,8 +89,6 @@ def psnr_from_mse(mse: float) -> float:
 def validate_config(cfg: FitImageConfig) -> None:
     """Raise a one-line NerfkitError for values that cannot train."""
     check_ranges(cfg)
-    if cfg.device not in ("auto", "cpu", "cuda"):
-        raise fail("--device", f"unknown device '{cfg.device}'", "Use auto, cpu or cuda")
     if cfg.precision not in ("auto", "bf16", "fp32"):
         raise fail("--precision", f"unknown precision '{cfg.precision}'", "Use auto, bf16 or fp32")
     parse_steps(cfg.progress_steps)
@@ -133,17 +131,6 @@ def parse_sweep(tokens: list[str]) -> list[dict[str, int | float]]:
     if not axes:
         raise fail("--sweep", "no KEY=V1,V2 items", "Example: --sweep L=3,10 width=64,256")
     return [dict(zip(axes, combo)) for combo in itertools.product(*axes.values())]
-
-
-def resolve_device(name: str) -> "torch.device":
-    """``auto`` -> cuda when available else cpu; ``cuda`` without a GPU is a user error."""
-    import torch
-
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise fail("--device cuda", "no CUDA GPU is available to PyTorch", "Use --device cpu (or auto)")
-    return torch.device(name)
 
 
 def resolve_precision(name: str, device: torch.device) -> str:
@@ -298,6 +285,8 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
         raise fail("image", f"expected an (H, W, 3) image, got shape {target.shape}")
     height, width = target.shape[:2]
     n_pix = height * width
+    from .train.config import resolve_device
+
     device = resolve_device(cfg.device)
     precision = resolve_precision(cfg.precision, device)
 

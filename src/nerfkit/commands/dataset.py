@@ -62,7 +62,7 @@ def report_dataset(s: dict, out) -> int:
     K = s["K"]
     print(f"dataset: {s['views']['train']} train, {s['views']['val']} val, {s['views']['test']} test views of "
           f"{s['size'][0]}x{s['size'][1]} (from {s['source_size'][0]}x{s['source_size'][1]}"
-          f"{', undistorted and cropped' if s['undistorted'] else ''})")
+          f"{', undistorted: the largest rectangle of valid pixels' if s['undistorted'] else ''})")
     note = few_views_note(s["views"]["train"])
     if note:
         print(note)
