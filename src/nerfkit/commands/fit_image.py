@@ -73,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
         entries = run_sweep(image, out, cfg, combos, progress=progress)
         for e in entries:
             print(f"{e['label']:30s} PSNR {e['final_psnr_db']:6.2f} dB  {e['steps_per_s']:6.1f} steps/s")
-        print(f"wrote {out}/sweep_grid.png, sweep_psnr.png, sweep.json and {len(entries)} run folders")
+        print(f"wrote {out}/sweep_grid.png, sweep_psnr.png, sweep.json and {len(entries)} "
+              f"run folder{'s' * (len(entries) != 1)}")
     else:
         r = run_fit(image, out, cfg, progress=progress)
         print(f"final PSNR {r.final_psnr:.2f} dB (every pixel, {r.width}x{r.height}) after {cfg.steps} steps; "
