@@ -18,20 +18,21 @@ def raster(page, dictionary) -> np.ndarray:
 
     from nerfkit.capture.sheet import draw_page
 
-    fig = draw_page(page, dictionary, "footer")
+    fig = draw_page(page, dictionary)
     canvas = FigureCanvasAgg(fig)
     fig.set_dpi(DPI)
     canvas.draw()
     return np.asarray(canvas.buffer_rgba())[..., 0].copy()
 
 
-@pytest.mark.parametrize("paper, sheet_mm, object_mm", [("a4", 50.0, 100.0), ("letter", 30.0, 120.0)])
-def test_printed_tags_are_detected_with_their_ids_sides_and_places(paper, sheet_mm, object_mm):
+@pytest.mark.parametrize("paper, name, sheet_mm, object_mm", [("a4", "DICT_4X4_50", 50.0, 100.0),
+                                                               ("letter", "DICT_5X5_100", 30.0, 120.0)])
+def test_printed_tags_are_detected_with_their_ids_sides_and_places(paper, name, sheet_mm, object_mm):
     from nerfkit.capture.aruco import detect, get_dictionary, make_detector
     from nerfkit.capture.sheet import PAPERS, tag_sheets
 
-    d = get_dictionary("DICT_4X4_50")
-    pages = tag_sheets(paper, "DICT_4X4_50", sheet_mm, object_mm)
+    d = get_dictionary(name)
+    pages = tag_sheets(paper, name, sheet_mm, object_mm)
     assert [len(p.ids) for p in pages][1:] == [1] and pages[1].ids == [pages[0].ids[-1] + 1]
     assert pages[0].ids == list(range(len(pages[0].ids))) and len(pages[0].ids) >= 6
     px_per_mm = DPI / 25.4
@@ -39,7 +40,7 @@ def test_printed_tags_are_detected_with_their_ids_sides_and_places(paper, sheet_
         image = raster(page, d)
         w, h = PAPERS[paper]
         assert np.abs(np.subtract(image.shape, (h * px_per_mm, w * px_per_mm))).max() < 1
-        found = detect(image, make_detector("DICT_4X4_50"), detect_side=4000)
+        found = detect(image, make_detector(name), detect_side=4000, marker_bits=d.markerSize)
         assert sorted(found.ids.tolist()) == page.ids
         for tag_id, corners in zip(found.ids, found.corners):
             sides = np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)

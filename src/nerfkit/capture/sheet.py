@@ -109,7 +109,7 @@ def cells_path(cells: np.ndarray, centre: np.ndarray, side: float):
     return Path(verts, codes)
 
 
-def draw_page(page: SheetPage, dictionary, footer: str):
+def draw_page(page: SheetPage, dictionary):
     """The page as a matplotlib Figure at the paper's size (1 unit = 1 mm)."""
     from matplotlib.figure import Figure
     from matplotlib.patches import PathPatch
@@ -134,7 +134,9 @@ def draw_page(page: SheetPage, dictionary, footer: str):
     for i in range(11):
         tick = 3.0 if i % 5 == 0 else 1.8
         ax.plot([x0 + 10 * i, x0 + 10 * i], [y, y + tick], color="black", linewidth=0.6)
-    ax.text(x0, y - 2, footer, ha="left", va="top", fontsize=7)
+    ax.text(x0, y - 2, f"Print at actual size (100%, not \"fit to page\"): this line is {RULER_LENGTH_MM:g} mm. Then "
+            f"measure a tag's black square: {page.tag_mm:g} mm is --tag-size {page.tag_mm / 1000:g}",
+            ha="left", va="top", fontsize=7)
     return fig
 
 

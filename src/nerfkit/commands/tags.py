@@ -55,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".pdf":
         raise fail("--out", f"'{out}' should end in .pdf")
-    cells = get_dictionary(args.dict).markerSize + 2
+    d = get_dictionary(args.dict)
+    cells = d.markerSize + 2
     x0, y0, x1, y1 = tag_area(args.paper)
     sheet_mm, object_mm = 1000 * args.tag_size, 1000 * (args.object_tag_size or 0)
     if sheet_mm > min(x1 - x0, y1 - y0):
@@ -66,15 +67,12 @@ def run(args: argparse.Namespace) -> int:
                    f"around it", f"Use at most {int(largest_tag_mm(args.paper, cells)) / 1000:.3f}")
     guard_outputs([out], [], args.force)
     pages = tag_sheets(args.paper, args.dict, sheet_mm, object_mm or None)
-    d = get_dictionary(args.dict)
     from matplotlib.backends.backend_pdf import PdfPages
 
     with atomic_path(out) as tmp:
         with PdfPages(tmp, metadata={"Title": "nerfkit ArUco tags", "Creator": "nerfkit tags"}) as pdf:
             for page in pages:
-                footer = (f"Print at actual size (100%, not \"fit to page\"): this line is {100} mm. Then measure a "
-                          f"tag's black square: {page.tag_mm:g} mm is --tag-size {page.tag_mm / 1000:g}")
-                pdf.savefig(draw_page(page, d, footer))
+                pdf.savefig(draw_page(page, d))
     sheet = pages[0]
     print(f"wrote {out} ({args.paper.upper() if args.paper == 'a4' else args.paper}, {len(pages)} "
           f"page{'s' * (len(pages) > 1)}):")
@@ -84,11 +82,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"  page 2: tag {pages[1].ids[0]} of {object_mm:g} mm, to lay flat beside the object")
     print("Print at actual size (100%, not \"fit to page\"), check that the ruler measures 100 mm, and measure "
           "a tag's black square. Then, with the sides you measured:")
+    other = "" if args.dict == "DICT_4X4_50" else f" --dict {args.dict}"
     if len(pages) > 1:
-        print(f"  nerfkit capture object_photos/ --calib sheet_photos/ --sheet-tag-size {args.tag_size:g} "
+        print(f"  nerfkit capture object_photos/ --calib sheet_photos/{other} --sheet-tag-size {args.tag_size:g} "
               f"--tag-size {args.object_tag_size:g} --out my_object/")
         print(f"  (the object standing on the sheet instead: --tag-size {args.tag_size:g}, no --sheet-tag-size)")
     else:
-        print(f"  nerfkit capture object_photos/ --calib sheet_photos/ --tag-size {args.tag_size:g} --out my_object/"
-              "   (the object standing on the sheet)")
+        print(f"  nerfkit capture object_photos/ --calib sheet_photos/{other} --tag-size {args.tag_size:g} "
+              "--out my_object/   (the object standing on the sheet)")
     return 0
