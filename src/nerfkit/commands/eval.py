@@ -61,9 +61,9 @@ def run(args: argparse.Namespace) -> int:
     scene = scene_for_run(run_.info, args.data, need=args.split, allow_outside=args.allow_outside_paths)
     views = scene.splits[args.split]
     if not views.has_images:
-        others = [split for split in ("val", "test", "train") if split != args.split and scene.splits[split].has_images]
+        other = scene.split_with_images(args.split)
         raise fail(scene.source, f"the {args.split} split has no images to compare with",
-                   f"Choose a split with images (--split {others[0]})" if others else None)
+                   f"Choose a split with images (--split {other})" if other else None)
     steps = args.fit_views
     whole = bool(getattr(run_.model, "whole_images", False))
     if whole and steps:

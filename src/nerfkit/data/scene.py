@@ -121,6 +121,10 @@ class Scene:
     def splits(self) -> dict[str, Views]:
         return {"train": self.train, "val": self.val, "test": self.test}
 
+    def split_with_images(self, besides: str) -> str | None:
+        """The first split other than ``besides`` that has images, held-out ones first."""
+        return next((s for s in ("val", "test", "train") if s != besides and self.splits[s].has_images), None)
+
     @property
     def has_video_path(self) -> bool:
         """True when the test split is a pose-only camera path (as in the course files); a

@@ -202,8 +202,8 @@ def check_scene(scene, where: str | None = None, need: str = "train"):
     if len(scene.splits[need]) == 0:
         if need == "train":
             raise fail(where, "has no training views")
-        others = [split for split in ("val", "test", "train") if split != need and scene.splits[split].has_images]
-        raise fail(where, f"has no {need} views", f"Choose a split that has (--split {others[0]})" if others else None)
+        other = scene.split_with_images(need)
+        raise fail(where, f"has no {need} views", f"Choose a split that has (--split {other})" if other else None)
     for split, v in scene.splits.items():
         n = len(v)
         if not (isinstance(v.width, (int, np.integer)) and isinstance(v.height, (int, np.integer))
