@@ -150,9 +150,9 @@ def test_cli_train_render_eval(tmp_path, sphere_npz, capsys):
 def test_eval_summary_lists_the_fitted_scores_and_the_extreme_views():
     from nerfkit.commands.eval import LISTED_VIEWS, summary
 
-    views = [{"index": i, "name": f"IMG_{i}.jpg", "psnr": 20.0 + (i * 7) % 20, "ssim": 0.5, "psnr_fitted": 30.0}
-             for i in range(20)]
-    result = {"split": "val", "n_images": 20, "step": 9, "psnr": 25.0, "ssim": 0.7, "per_image": views,
+    views = [{"index": i, "name": f"IMG_{i}.jpg", "psnr": 20.0 + (i * 7) % 31, "ssim": 0.5, "psnr_fitted": 30.0}
+             for i in range(31)]
+    result = {"split": "val", "n_images": 31, "step": 9, "psnr": 25.0, "ssim": 0.7, "per_image": views,
               "fitted": {"psnr": 27.5, "ssim": 0.75}, "colour_only": {"psnr": 26.0},
               "object": {"psnr": 24.0, "psnr_fitted": 28.0}}
     lines = summary(result).splitlines()

@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 # views listed one by one up to this many; beyond, the lowest and highest few
-LISTED_VIEWS = 12
+LISTED_VIEWS = 20
 
 
 def summary(result: dict) -> str:
