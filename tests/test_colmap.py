@@ -99,10 +99,11 @@ def test_points_seen_once_are_not_kept(tmp_path):
     assert len(back.points) == 3  # a point needs two views to be triangulated
 
 
-def test_colmap_project_round_trip_with_images(tmp_path):
+def test_colmap_project_round_trip_with_images(tmp_path, capsys):
     """Scene -> COLMAP project (sparse/0 + images/) -> load_scene: same cameras and pixels."""
     scene = sphere_scene(n_train=6, n_val=2, size=20, n_test=2)
     assert main(["convert", "--format", "colmap", "--to", str(tmp_path / "proj"), _npz(scene, tmp_path)]) == 0
+    assert "real photos of an object on a tag's table" not in capsys.readouterr().out  # not a capture
     assert detect_format(tmp_path / "proj") == "colmap"
     back = load_scene(tmp_path / "proj")
     assert load_scene(tmp_path / "proj" / "sparse" / "0" / "cameras.bin").train.names == back.train.names
@@ -116,6 +117,11 @@ def test_colmap_project_round_trip_with_images(tmp_path):
                     np.testing.assert_allclose(b.K[j], a.K[i], rtol=1e-5)
                     np.testing.assert_array_equal(b.images[j], a.images[i])
     assert (back.near, back.far) == pytest.approx((2.0, 6.0), rel=1e-4)  # 0.5x, 1.5x camera distance (no points)
+    scene.capture, scene.table = True, np.array([0, 0, 1, 0], np.float32)  # a capture's record is not kept: said
+    (tmp_path / "scene.npz").unlink()
+    assert main(["convert", "--format", "colmap", "--to", str(tmp_path / "proj2"), _npz(scene, tmp_path)]) == 0
+    assert "note: nor does it keep that these are real photos" in capsys.readouterr().out
+    assert not load_scene(tmp_path / "proj2").capture
 
 
 def _npz(scene, tmp_path):

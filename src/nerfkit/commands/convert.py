@@ -118,6 +118,10 @@ def run(args: argparse.Namespace) -> int:
         dropped = " (pose-only views left out)" if kept < sum(n.values()) else ""
         print(f"note: a COLMAP model keeps no splits: it holds {kept} views as one set{dropped}, "
               "and reading it back holds out nerfkit's own val views")
+        if scene.capture or scene.table is not None or scene.tags is not None:
+            print("note: nor does it keep that these are real photos of an object on a tag's table (the table "
+                  "plane, the printed tags, the depth range): read back, it trains as a plain scene. Keep the "
+                  "npz or transforms.json for nerfkit's capture settings")
     elif args.text:
         print("note: --text is for --format colmap's model; ignored", file=sys.stderr)
     return 0
