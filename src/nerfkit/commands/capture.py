@@ -46,6 +46,9 @@ DATASET_DIR = "dataset"
 RUN_DIR = "run"
 MESH_FILE = "mesh.ply"
 RECORD_FILE = "capture.json"
+# the summary's note on the phone's exposure when the held-out photos' colour alone, fitted,
+# gains this much (steve 2.0 dB, labubu 2.5: the phone's exposure and white balance, session 16)
+EXPOSURE_NOTE_DB = 1.0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -409,6 +412,11 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
         if obj.get("psnr") is not None:
             lines.append(f"            the object's own pixels: {obj['psnr']:.2f} dB as rendered"
                          + (f", {obj['psnr_fitted']:.2f} fitted" if obj.get("psnr_fitted") is not None else ""))
+        colour = e.get("colour_only")
+        if colour and colour["psnr"] - e["psnr"] >= EXPOSURE_NOTE_DB:
+            lines.append("            note: with only their colour fitted, the held-out photos score "
+                         f"{colour['psnr']:.2f} dB: mostly the phone changed its exposure or white balance between photos, which the scene "
+                         "cannot predict. Locking them while photographing (iPhone: AE/AF lock) should narrow that gap")
     else:
         lines.append("  held out  not scored (the eval's error is above)")
     videos = run_dir / "videos"
