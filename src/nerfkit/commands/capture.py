@@ -415,8 +415,9 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
         colour = e.get("colour_only")
         if colour and colour["psnr"] - e["psnr"] >= EXPOSURE_NOTE_DB:
             lines.append("            note: with only their colour fitted, the held-out photos score "
-                         f"{colour['psnr']:.2f} dB: mostly the phone changed its exposure or white balance between photos, which the scene "
-                         "cannot predict. Locking them while photographing (iPhone: AE/AF lock) should narrow that gap")
+                         f"{colour['psnr']:.2f} dB: mostly the phone changed its exposure or white balance between "
+                         "photos, which the scene cannot predict. Locking them while photographing (iPhone: AE/AF "
+                         "lock) should narrow that gap")
     else:
         lines.append("  held out  not scored (the eval's error is above)")
     videos = run_dir / "videos"
