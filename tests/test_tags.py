@@ -50,13 +50,21 @@ def test_printed_tags_are_detected_with_their_ids_sides_and_places(paper, name, 
             np.testing.assert_allclose(corners.mean(0), expected, atol=1.0)
 
 
-def test_the_largest_tags_fit_and_larger_ones_are_refused():
-    from nerfkit.capture.sheet import largest_tag_mm, tag_area
+def test_the_largest_tags_fit_and_larger_ones_are_refused(tmp_path, capsys):
+    from nerfkit.capture.sheet import grid_page, largest_sheet_tag_mm, largest_tag_mm, single_page, tag_area
 
     x0, y0, x1, y1 = tag_area("a4")
     big = largest_tag_mm("a4", 6)
     assert np.isclose(big * 8 / 6, min(x1 - x0, y1 - y0))  # a cell of white each side
-    assert main(["tags", "--out", "x.pdf", "--object-tag-size", f"{(big + 1) / 1000:.4f}"]) == 2
+    assert len(single_page("a4", big, 9, 6, "").ids) == 1
+    assert len(grid_page("a4", largest_sheet_tag_mm("a4"), 0, 50, "").ids) == 1
+    with pytest.raises(ValueError):
+        grid_page("a4", largest_sheet_tag_mm("a4") + 1, 0, 50, "")
+    assert main(["tags", "--out", str(tmp_path / "x.pdf"), "--object-tag-size", f"{(big + 1) / 1000:.4f}"]) == 2
+    assert f"Use at most {int(big) / 1000:.3f}" in capsys.readouterr().err
+    assert main(["tags", "--out", str(tmp_path / "x.pdf"), "--tag-size", "0.19"]) == 2
+    assert "--tag-size: a 190 mm tag does not fit on a4 paper. Use at most 0.186" in capsys.readouterr().err
+    assert not (tmp_path / "x.pdf").exists()
 
 
 def test_cli_writes_a_two_page_pdf_of_the_paper_size_and_refuses_to_replace_it(tmp_path, capsys):

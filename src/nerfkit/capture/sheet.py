@@ -1,4 +1,4 @@
-"""Printable ArUco tags: a calibration sheet and a tag to stand beside the object.
+"""Printable ArUco tags: a calibration sheet and a tag to lay beside the object.
 
 Pages are drawn in millimetres on the paper (origin at its lower left), each tag's black
 cells as one vector path, so a PDF printed at actual size gives tags of exactly the side
@@ -47,11 +47,16 @@ def tag_area(paper: str) -> tuple[float, float, float, float]:
     return MARGIN_MM, MARGIN_MM + RULER_MM, w - MARGIN_MM, h - MARGIN_MM - TITLE_MM
 
 
+def largest_sheet_tag_mm(paper: str) -> float:
+    """The largest side (mm) of a sheet's tags: one tag filling the tag area's short side."""
+    x0, y0, x1, y1 = tag_area(paper)
+    return min(x1 - x0, y1 - y0)
+
+
 def largest_tag_mm(paper: str, cells: int) -> float:
     """The largest side (mm) of a tag ``cells`` wide (border included) that one page
     holds, with a cell of white around it."""
-    x0, y0, x1, y1 = tag_area(paper)
-    return min(x1 - x0, y1 - y0) * cells / (cells + 2)
+    return largest_sheet_tag_mm(paper) * cells / (cells + 2)
 
 
 def grid_page(paper: str, tag_mm: float, first_id: int, max_tags: int, title: str, subtitle: str = "") -> SheetPage:
@@ -157,6 +162,6 @@ def tag_sheets(paper: str, dictionary_name: str, sheet_mm: float, object_mm: flo
         tag_id = sheet.ids[-1] + 1
         pages.append(single_page(paper, object_mm, tag_id, d.markerSize + 2,
                                  f"nerfkit object tag: {dictionary_name} tag {tag_id}, {object_mm:g} mm",
-                                 "Lay it flat beside the object and photograph both 30-100 times all around, at two "
+                                 "Lay it flat beside the object and photograph both 50-100 times all around, at two "
                                  "or three heights (nerfkit capture)"))
     return pages

@@ -14,7 +14,7 @@ check that the printer kept the scale.
 
 Printed, measure a tag's black square (printers may scale a little) and give that side in
 metres to nerfkit. Then photograph the sheet 20-50 times from varied angles, and the object
-beside its tag (or standing on the sheet) 30-100 times all around, at two or three heights.
+beside its tag (or standing on the sheet) 50-100 times all around, at two or three heights.
 
 example:
   nerfkit tags --out tags.pdf
@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..capture.aruco import get_dictionary
-    from ..capture.sheet import draw_page, largest_tag_mm, tag_area, tag_sheets
+    from ..capture.sheet import draw_page, largest_sheet_tag_mm, largest_tag_mm, tag_sheets
     from ..errors import fail
     from ..io.atomic import atomic_path
     from ..io.paths import guard_outputs
@@ -57,11 +57,10 @@ def run(args: argparse.Namespace) -> int:
         raise fail("--out", f"'{out}' should end in .pdf")
     d = get_dictionary(args.dict)
     cells = d.markerSize + 2
-    x0, y0, x1, y1 = tag_area(args.paper)
     sheet_mm, object_mm = 1000 * args.tag_size, 1000 * (args.object_tag_size or 0)
-    if sheet_mm > min(x1 - x0, y1 - y0):
+    if sheet_mm > largest_sheet_tag_mm(args.paper):
         raise fail("--tag-size", f"a {sheet_mm:g} mm tag does not fit on {args.paper} paper",
-                   f"Use at most {min(x1 - x0, y1 - y0) / 1000:.3f}")
+                   f"Use at most {int(largest_sheet_tag_mm(args.paper)) / 1000:.3f}")
     if object_mm > largest_tag_mm(args.paper, cells):
         raise fail("--object-tag-size", f"a {object_mm:g} mm tag does not fit on {args.paper} paper with white "
                    f"around it", f"Use at most {int(largest_tag_mm(args.paper, cells)) / 1000:.3f}")
