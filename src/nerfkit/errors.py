@@ -23,6 +23,12 @@ def fail(where: object, problem: str, fix: str | None = None) -> NerfkitError:
     return NerfkitError(msg.replace("\r", " ").replace("\n", " "))
 
 
+def problem_of(error: NerfkitError) -> str:
+    """What a :func:`fail` error says is wrong, without the ``<where>: `` it starts with
+    (a photo's error beside its name in a table of photos)."""
+    return str(error).split(": ", 1)[-1]
+
+
 @contextmanager
 def advice(fix: str) -> Iterator[None]:
     """Append ``fix`` to any NerfkitError raised inside: shared checks say what is wrong,

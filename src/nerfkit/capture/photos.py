@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import NerfkitError, fail
+from ..errors import NerfkitError, fail, problem_of
 from ..images import (common_frame, common_size, exif_focal_35mm, held_as, list_images, load_image_uint8,
                       orientation_tag, turns_into_frame)
 from ..io.atomic import write_json
@@ -115,7 +115,7 @@ def _detect_one(path: Path, detector, detect_side: int, bits: int, dictionary: s
     try:
         image = load_image_uint8(path)
     except NerfkitError as e:
-        entry["error"] = str(e).split(": ", 1)[-1]
+        entry["error"] = problem_of(e)
         return entry
     except MemoryError:
         entry["error"] = "out of memory while decoding"

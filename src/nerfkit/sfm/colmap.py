@@ -31,7 +31,7 @@ import numpy as np
 
 from ..cameras import rotation_angles_deg
 from ..data.colmap import write_reconstruction
-from ..errors import NerfkitError, fail
+from ..errors import NerfkitError, fail, problem_of
 from ..images import list_images
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -273,7 +273,7 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
         try:
             infos.append(photo_info(p))
         except NerfkitError as e:  # as the tag path records it
-            skipped[p.name] = "unreadable: " + str(e).split(": ", 1)[-1]
+            skipped[p.name] = "unreadable: " + problem_of(e)
     if not infos:
         return work, [], skipped, None, {}
     W, H = common_size((i.width, i.height) for i in infos)
