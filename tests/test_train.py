@@ -89,6 +89,17 @@ def test_resume_continues_exactly(tmp_path, sphere):
     assert steps_a == steps_b  # no duplicated or missing rows
 
 
+def test_resume_keeps_the_default_validation_marks(tmp_path, sphere):
+    """Resumed at step 60 of 120, a run validates at the steps a straight run does, no more."""
+    straight = train(sphere, small_cfg(tmp_path, "a", steps=120), VanillaConfig(**SMALL), quiet=True)
+    assert Trainer(sphere, small_cfg(tmp_path, "b", steps=120), VanillaConfig(**SMALL), quiet=True).run(
+        stop_after=60).step == 60
+    resumed = resume(tmp_path / "b", sphere, quiet=True)
+    val_steps = [r["step"] for r in straight.rows if r["split"] == "val"]
+    assert val_steps == [0, 2, 4] + list(range(12, 121, 12))
+    assert [r["step"] for r in resumed.rows if r["split"] == "val"] == val_steps
+
+
 def test_validation_marks_without_eval_every(tmp_path, sphere):
     """Val renders at 1% and 3% of the run and at each tenth, by steps or by the time budget."""
     by_steps = Trainer(sphere, small_cfg(tmp_path, "a", steps=200), VanillaConfig(**SMALL), quiet=True)

@@ -220,6 +220,7 @@ class Trainer:
         self.train_seconds = float(ckpt["train_seconds"])
         self.rows = json.loads(ckpt["rows"])
         self.bad_steps = int(ckpt.get("bad_steps", 0))
+        self._marks_passed = self._marks_reached()  # validated there before the stop
         if self.views is not None:
             if "views" not in ckpt:
                 raise fail(path, "holds no per-view corrections, but this run trains them",
@@ -262,10 +263,14 @@ class Trainer:
         """Without ``--eval-every``: each time the run passes one of :data:`EVAL_MARKS`."""
         if self.cfg.eval_every:
             return self.step % self.cfg.eval_every == 0
-        passed = bisect.bisect_right(EVAL_MARKS, self.progress() + 1e-9)
+        passed = self._marks_reached()
         due = passed > self._marks_passed
         self._marks_passed = passed
         return due
+
+    def _marks_reached(self) -> int:
+        """How many of :data:`EVAL_MARKS` the run's progress has reached."""
+        return bisect.bisect_right(EVAL_MARKS, self.progress() + 1e-9)
 
     # -- one step ------------------------------------------------------------------
     def train_step(self) -> dict:
