@@ -33,6 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dict", default="DICT_4X4_50", help="ArUco dictionary (default: DICT_4X4_50, nerfkit's)")
     p.add_argument("--tag-size", type=tag_side, default=0.05,
                    help="side of the sheet's tags' black squares in metres (default: 0.05)")
+
     def object_side(text: str) -> float:
         return 0.0 if number(float, 0.0)(text) == 0 else tag_side(text)
 
@@ -47,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..capture.aruco import get_dictionary
-    from ..capture.sheet import draw_page, largest_sheet_tag_mm, largest_tag_mm, tag_sheets
+    from ..capture.sheet import RULER_LENGTH_MM, draw_page, largest_sheet_tag_mm, largest_tag_mm, tag_sheets
     from ..errors import fail
     from ..io.atomic import atomic_path
     from ..io.paths import guard_outputs
@@ -79,8 +80,8 @@ def run(args: argparse.Namespace) -> int:
           f"{sheet.ids[0]}-{sheet.ids[-1]})")
     if len(pages) > 1:
         print(f"  page 2: tag {pages[1].ids[0]} of {object_mm:g} mm, to lay flat beside the object")
-    print("Print at actual size (100%, not \"fit to page\"), check that the ruler measures 100 mm, and measure "
-          "a tag's black square. Then, with the sides you measured:")
+    print(f"Print at actual size (100%, not \"fit to page\"), check that the ruler measures {RULER_LENGTH_MM:g} mm, "
+          "and measure a tag's black square. Then, with the sides you measured:")
     other = "" if args.dict == "DICT_4X4_50" else f" --dict {args.dict}"
     if len(pages) > 1:
         print(f"  nerfkit capture object_photos/ --calib sheet_photos/{other} --sheet-tag-size {args.tag_size:g} "
