@@ -132,13 +132,13 @@ def draw_page(page: SheetPage, dictionary):
                 color="0.45")
     ax.text(MARGIN_MM, h - MARGIN_MM, page.title, ha="left", va="top", fontsize=10)
     ax.text(MARGIN_MM, h - MARGIN_MM - 6, page.subtitle, ha="left", va="top", fontsize=8)
-    # the ruler: 100 mm with a tick each 10 mm, to check that the printer kept the scale
+    # the ruler, a tick each 10 mm (longer each 50), to check that the printer kept the scale
     y = MARGIN_MM + RULER_MM - 8
     x0 = MARGIN_MM
     ax.plot([x0, x0 + RULER_LENGTH_MM], [y, y], color="black", linewidth=0.8)
-    for i in range(11):
-        tick = 3.0 if i % 5 == 0 else 1.8
-        ax.plot([x0 + 10 * i, x0 + 10 * i], [y, y + tick], color="black", linewidth=0.6)
+    for mm in np.arange(0, RULER_LENGTH_MM + 1e-9, 10):
+        tick = 3.0 if mm % 50 == 0 else 1.8
+        ax.plot([x0 + mm, x0 + mm], [y, y + tick], color="black", linewidth=0.6)
     ax.text(x0, y - 2, f"Print at actual size (100%, not \"fit to page\"): this line is {RULER_LENGTH_MM:g} mm. Then "
             f"measure a tag's black square: {page.tag_mm:g} mm is --tag-size {page.tag_mm / 1000:g}",
             ha="left", va="top", fontsize=7)
@@ -147,7 +147,7 @@ def draw_page(page: SheetPage, dictionary):
 
 def tag_sheets(paper: str, dictionary_name: str, sheet_mm: float, object_mm: float | None) -> list[SheetPage]:
     """The calibration sheet (as many ``sheet_mm`` tags as fit, ids from 0) and, with
-    ``object_mm``, a page with one larger tag to stand beside the object, whose id follows
+    ``object_mm``, a page with one larger tag to lay beside the object, whose id follows
     the sheet's."""
     from .aruco import get_dictionary
 
