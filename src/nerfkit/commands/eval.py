@@ -108,13 +108,15 @@ def summary(result: dict) -> str:
         lines.append(f"  the object's own pixels: {obj['psnr']:.2f} dB" +
                      (f", {obj['psnr_fitted']:.2f} fitted" if obj.get("psnr_fitted") is not None else ""))
     views = result.get("per_image", [])
-    shown = views if len(views) <= LISTED_VIEWS else sorted(views, key=lambda v: v["psnr"])
+    columns = "(PSNR dB, SSIM" + (", fitted PSNR):" if fitted else "):")
     if len(views) > LISTED_VIEWS:
-        lines.append(f"  the {LISTED_VIEWS // 2} lowest and highest of {len(views)} views (PSNR dB, SSIM"
-                     + (", fitted PSNR):" if fitted else "):"))
-        shown = shown[:LISTED_VIEWS // 2] + shown[-(LISTED_VIEWS // 2):]
+        half = LISTED_VIEWS // 2
+        ranked = sorted(views, key=lambda v: v["psnr"])
+        shown = ranked[:half] + ranked[-half:]
+        lines.append(f"  the {half} lowest and highest of {len(views)} views {columns}")
     else:
-        lines.append("  per view (PSNR dB, SSIM" + (", fitted PSNR):" if fitted else "):"))
+        shown = views
+        lines.append(f"  per view {columns}")
     for v in shown:
         name = v.get("name") or f"view {v['index']}"
         lines.append(f"    {name[:32]:32s} {v['psnr']:6.2f}  {v['ssim']:.3f}"
