@@ -454,29 +454,46 @@ def _edge_points(gray: np.ndarray, p: np.ndarray, q: np.ndarray, outward: np.nda
     return np.asarray(out, np.float64).reshape(-1, 2)
 
 
-def _fit_edge_line(pts: np.ndarray, length: float, min_keep: float = 0.7) -> tuple[np.ndarray, np.ndarray] | None:
-    """(point, direction) of the straight line through edge points, refitted without
-    outliers; None when the edge is not straight enough to trust (fewer than ``min_keep``
-    of the points agree, or they scatter more than 0.2 px + 0.2% of the edge length: a
-    shadow or an object over part of the edge)."""
+def _fit_edge_line(pts: np.ndarray, length: float, min_keep: float = 0.5) -> tuple[np.ndarray, np.ndarray] | None:
+    """(point, direction) of the straight line through edge points (k, 2), ordered along
+    the edge, refitted without outliers; None when the edge is not straight enough to trust
+    (fewer than ``min_keep`` of the points agree, they span less than a quarter of the edge, or
+    they scatter more than 0.2 px + 0.2% of the edge length).
+
+    An object over one end of the edge bends that part: the fit starts from the whole edge
+    and from each end's 60%, and keeps the start most points agree with.
+    """
     import cv2
 
     if len(pts) < 6:
         return None
-    keep = np.ones(len(pts), bool)
-    for _ in range(3):
-        vx, vy, lx, ly = cv2.fitLine(pts[keep].astype(np.float32), cv2.DIST_L2, 0, 0.01, 0.01).ravel()
-        r = (pts[:, 0] - lx) * vy - (pts[:, 1] - ly) * vx  # signed distance to the line
-        sigma = 1.4826 * np.median(np.abs(r[keep]))
-        new = np.abs(r) < max(0.25, 3.0 * sigma)
-        if new.sum() < max(6, min_keep * len(pts)):
-            return None
-        if np.array_equal(new, keep):
-            break
-        keep = new
-    if np.sqrt(np.mean(r[keep] ** 2)) > 0.2 + 0.002 * length:
-        return None
-    return np.array([lx, ly], np.float64), np.array([vx, vy], np.float64)
+    k = len(pts)
+    enough, end = max(6, min_keep * k), max(6, int(0.6 * k))
+    best = None
+    for start in (slice(None), slice(0, end), slice(k - end, k)):
+        keep = np.zeros(k, bool)
+        keep[start] = True
+        for _ in range(4):
+            vx, vy, lx, ly = cv2.fitLine(pts[keep].astype(np.float32), cv2.DIST_L2, 0, 0.01, 0.01).ravel()
+            r = (pts[:, 0] - lx) * vy - (pts[:, 1] - ly) * vx  # signed distance to the line
+            sigma = 1.4826 * np.median(np.abs(r[keep]))
+            new = np.abs(r) < max(0.25, 3.0 * sigma)
+            if new.sum() < enough or np.array_equal(new, keep):
+                break
+            keep = new
+        if new.sum() < enough or (best is not None and keep.sum() <= best[0]):
+            continue
+        along = pts[keep] @ np.array([vx, vy])
+        if np.sqrt(np.mean(r[keep] ** 2)) > 0.2 + 0.002 * length or np.ptp(along) < 0.25 * length:
+            continue
+        best = (int(keep.sum()), np.array([lx, ly], np.float64), np.array([vx, vy], np.float64))
+    return None if best is None else (best[1], best[2])
+
+
+# How far (in modules, the tag's cells) the edge lines may move a detector's corner. An object
+# over a corner bends the detector's outline toward it by up to a module (labubu's toy: 0.5-1.0);
+# the lines, fitted to the visible part of each edge, put the corner back.
+MAX_CORNER_MOVE = 1.5
 
 
 def refine_corners_by_edges(gray: np.ndarray, corners: np.ndarray, marker_bits: int = 4, passes: int = 2) -> np.ndarray | None:
@@ -484,7 +501,9 @@ def refine_corners_by_edges(gray: np.ndarray, corners: np.ndarray, marker_bits: 
     them; None when an edge cannot be measured.
 
     Halves the corner error of cornerSubPix on our synthetic photos (0.19 -> 0.08 px RMS)
-    and removes its inward bias at blurred corners.
+    and removes its inward bias at blurred corners. Each line needs only part of its edge
+    (:func:`_fit_edge_line`), so a corner under the object is found where the visible
+    edges meet: on labubu the tags then pose all 140 photos they are seen in (133 before).
     """
     c = np.asarray(corners, np.float64).copy()
     side = float(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean())
@@ -520,7 +539,7 @@ def refine_corners_by_edges(gray: np.ndarray, corners: np.ndarray, marker_bits: 
                 return None
             new[k] = p1 + np.linalg.solve(M, p2 - p1)[0] * d1
         c = new
-    if np.abs(c - start).max() > max(2.0, 0.5 * side / (marker_bits + 2)):
+    if np.abs(c - start).max() > max(2.0, MAX_CORNER_MOVE * side / (marker_bits + 2)):
         return None  # the lines latched onto something else
     return c + (x0, y0)
 
