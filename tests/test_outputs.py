@@ -30,6 +30,24 @@ def test_depth_colours_near_warm_far_cool_and_what_rays_do_not_meet():
     np.testing.assert_allclose(view.depth_colours(2.0, 6.0), np.broadcast_to(warm, (1, 4, 3)), atol=1e-6)
 
 
+def test_depth_scale_bar_is_the_depth_colours_from_near_to_far():
+    from nerfkit.images import to_uint8
+    from nerfkit.viz.video import colorize_depth, depth_label, depth_scale
+
+    near, far, width = 0.2, 0.6, 320
+    strip = depth_scale(width, near, far, metres=True)
+    assert strip.shape[1:] == (width, 3) and strip.shape[0] >= 24
+    # column x of the bar is the colour of depth near + (far - near) x / (width - 1)
+    depths = near + (far - near) * np.linspace(0.0, 1.0, width)[None]
+    expected = to_uint8(colorize_depth(depths, np.ones_like(depths), near, far))[0]
+    assert np.abs(strip[2].astype(int) - expected).max() <= 1
+    # the labels sit below the bar, at both ends
+    text = strip[strip.shape[0] // 2 + 2:]
+    assert text[:, : width // 4].max() > 128 and text[:, -width // 4:].max() > 128
+    assert [depth_label(v, True) for v in (0.214, 0.05, 2.5)] == ["21 cm", "5.0 cm", "2.50 m"]
+    assert depth_label(3.14159, False) == "3.14"
+
+
 def test_image_grid_tiles_follow_the_photos_shape_and_the_contact_sheet_their_size(tmp_path):
     """Landscape photos get landscape tiles (not letterboxed in squares), and the contact
     sheet shows each photo about as many pixels wide as it has, up to 640."""

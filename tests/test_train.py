@@ -140,6 +140,9 @@ def test_cli_train_render_eval(tmp_path, sphere_npz, capsys):
         assert (run / "videos" / name).stat().st_size > 0
     gif = iio.imread(run / "videos" / "orbit.gif")
     assert gif.shape == (4, 32, 32, 3)
+    # each depth frame carries its scale below it: the bar starts warm (red) at its near end
+    depth = iio.imread(run / "videos" / "depth.mp4")
+    assert depth.shape[:3] == (4, 32 + 24, 32) and depth[0, 34, 0, 0] > 2 * depth[0, 34, 0, 2]
     capsys.readouterr()
     # the object alone: a model that draws nothing around its object is only framed
     assert main(["render", str(run), "--object", "--frames", "4"]) == 0

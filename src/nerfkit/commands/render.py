@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         views, near, far = framing.views, framing.near, framing.far
         alone += f"; zoomed {framing.zoom:.2f}x)"
     paths = render_videos(run_.model, views, out, background, near, far, args.fps, run_.chunk, run_.autocast,
-                          names=names)
+                          names=names, metres=scene.tags is not None)
     what = f" of {alone}" if alone else ""
     print(f"rendered {len(views)} frames{what} at step {run_.step} ({paths.seconds_per_frame:.2f} s/frame):")
     for p in (paths.rgb_mp4, paths.rgb_gif, paths.depth_mp4):

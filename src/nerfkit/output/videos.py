@@ -11,7 +11,7 @@ import torch
 from ..data.scene import Views
 from ..images import to_uint8
 from ..models.base import NerfModel
-from ..viz.video import write_video
+from ..viz.video import depth_scale, write_video
 from .images import render_views
 
 
@@ -40,6 +40,7 @@ def render_videos(
     autocast_dtype: torch.dtype | None = None,
     progress: bool = True,
     names: tuple[str, str, str] = VIDEO_FILES,
+    metres: bool = False,
 ) -> VideoPaths:
     """Render ``views`` into ``out_dir/orbit.mp4``, ``orbit.gif`` and ``depth.mp4`` (or
     the three ``names``).
@@ -48,7 +49,8 @@ def render_videos(
     ``near`` (warm) to ``far`` (cool), one scale for all frames or one per frame ((n,)
     each: an object's relief, :func:`~nerfkit.output.images.frame_object`), and shows
     everything the rays meet (a capture's table too, not only the object; its room lies
-    beyond ``far`` and takes the far colour).
+    beyond ``far`` and takes the far colour). Each depth frame has its scale under it
+    (:func:`~nerfkit.viz.video.depth_scale`; ``metres``: the world is metric, a tag capture's).
     """
     import time
 
@@ -60,7 +62,8 @@ def render_videos(
     for i, view in enumerate(tqdm(render_views(model, views, background, chunk, autocast_dtype), total=len(views),
                                   desc="render", unit="frame", disable=None if progress else True)):
         rgb_frames.append(to_uint8(view.rgb))
-        depth_frames.append(to_uint8(view.depth_colours(float(nears[i]), float(fars[i]))))
+        depth = to_uint8(view.depth_colours(float(nears[i]), float(fars[i])))
+        depth_frames.append(np.concatenate([depth, depth_scale(depth.shape[1], nears[i], fars[i], metres)]))
     per_frame = (time.perf_counter() - t0) / max(len(views), 1)
     out_dir = Path(out_dir)
     paths = VideoPaths(*(out_dir / name for name in names), per_frame)

@@ -31,6 +31,41 @@ def colorize_depth(depth: np.ndarray, acc: np.ndarray, near: float, far: float, 
     return out.astype(np.float32)
 
 
+def depth_label(value: float, metres: bool) -> str:
+    """A depth for a legend: centimetres or metres when the scene is metric, else the
+    scene's units (3 significant figures)."""
+    if not metres:
+        return f"{value:.3g}"
+    if abs(value) < 1.0:
+        return f"{100 * value:.0f} cm" if abs(value) >= 0.1 else f"{100 * value:.1f} cm"
+    return f"{value:.2f} m"
+
+
+def depth_scale(width: int, near: float, far: float, metres: bool, cmap: str = "turbo") -> np.ndarray:
+    """(h, width, 3) uint8 legend to put under a depth frame of :func:`colorize_depth`: the
+    colour bar from ``near`` (left, warm) to ``far`` (right, cool) over the strip's upper
+    half, the two depths written below its ends (``metres``: a tag capture's metric world;
+    else scene units, marked as such)."""
+    import cv2
+    import matplotlib
+
+    h = max(24, round(width / 16))
+    bar = max(6, h // 2 - 2)
+    strip = np.zeros((h, width, 3), np.uint8)
+    ramp = matplotlib.colormaps[cmap](1.0 - np.linspace(0.0, 1.0, width))[:, :3]
+    strip[1: 1 + bar] = to_uint8(ramp)[None]
+    scale = max(0.3, (h - bar - 4) / 30)
+    thick = 1 if scale < 0.8 else 2
+    left, right = f"near {depth_label(near, metres)}", f"far {depth_label(far, metres)}"
+    if not metres:
+        right += " (scene units)"
+    (rw, th), _ = cv2.getTextSize(right, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
+    y = min(h - 2, bar + 3 + th)
+    for text, x in ((left, 2), (right, max(2, width - rw - 2))):
+        cv2.putText(strip, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
+    return strip
+
+
 def write_video(path: str | Path, frames: Iterable[np.ndarray], fps: int = 30) -> None:
     """Write frames (uint8 (H, W, 3)) to MP4 (H.264) or GIF, chosen by the extension, atomically."""
     import imageio.v3 as iio
