@@ -73,6 +73,63 @@ def test_sfm_poses_are_used_only_when_they_hold_up():
     assert "4.0 cm" in judge(133, 162, True, {**good, "shift_median": 0.04})
 
 
+def _sheet_sightings(seed, outliers=0):
+    """A 6-tag sheet (5 cm tags, 2 columns) seen by 20 cameras 0.35 m away, in a frame
+    (SfM's) that is an arbitrary similarity of the sheet's; corners in normalised image
+    coordinates with 0.002 noise (1 px at f = 500). Returns the sightings, the layout and
+    the similarity (s, R, t) taking SfM's frame to the sheet's."""
+    from nerfkit.cameras import look_at
+    from nerfkit.capture.synthetic import tag_sheet
+
+    rng = np.random.default_rng(seed)
+    layout = tag_sheet(list(range(6)), 0.05, 2, 0.025)[1].tags
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    R = q * np.sign(np.linalg.det(q))
+    s, t = 2.3, rng.normal(size=3)
+    sightings = {tag: [] for tag in layout}
+    for k in range(20):
+        a, el = 2 * np.pi * k / 20, np.radians(rng.uniform(35, 70))
+        eye = 0.35 * np.array([np.cos(el) * np.cos(a), np.cos(el) * np.sin(a), np.sin(el)])
+        w2c = np.linalg.inv(look_at(eye, np.zeros(3), np.array([0, 0, 1.0])))[:3]  # sheet frame
+        w2c_sfm = np.hstack([w2c[:, :3] @ R, (w2c[:, :3] @ t + w2c[:, 3])[:, None] / s])  # x_sheet = s R x + t
+        for tag, corners in layout.items():
+            cam = corners @ w2c[:, :3].T + w2c[:, 3]
+            rays = cam[:, :2] / cam[:, 2:] + rng.normal(0, 0.002, (4, 2))
+            if tag == 0 and k < outliers:
+                rays[1] += [0.02, -0.015]  # a corner on the object's outline: 12 px off
+            sightings[tag].append((w2c_sfm, rays))
+    return sightings, layout, (s, R, t)
+
+
+def _tilt_deg(fit, truth):
+    """Angle between the fitted and the true sheet normal, in degrees."""
+    R, R0 = fit[1], truth[1]
+    return float(np.degrees(np.arccos(np.clip((R @ R0.T)[2, 2], -1.0, 1.0))))
+
+
+def test_every_tag_of_the_sheet_holds_the_frame_level_and_a_stray_corner_is_left_out():
+    from nerfkit.sfm.colmap import similarity_from_sightings
+
+    one, every = [], []
+    for seed in range(6):
+        sightings, layout, truth = _sheet_sightings(seed)
+        alone = similarity_from_sightings({0: sightings[0]}, {0: layout[0]}, 0)
+        fit = similarity_from_sightings(sightings, layout, 0)
+        assert fit[1]["tags"] == [0, 1, 2, 3, 4, 5] and alone[1]["tags"] == [0]
+        one.append(_tilt_deg(alone[0], truth))
+        every.append(_tilt_deg(fit[0], truth))
+        assert fit[0][0] == pytest.approx(truth[0], rel=0.01)  # metric: SfM's scale undone
+        origin = -(fit[0][1].T @ fit[0][2]) / fit[0][0]  # the sheet's origin, in SfM's frame
+        np.testing.assert_allclose(truth[0] * truth[1] @ origin + truth[2], 0.0, atol=0.001)
+    # the sheet's 20 cm hold the tilt several times better than one tag's 5 cm
+    assert np.mean(every) < 0.4 * np.mean(one) and max(every) < 0.15, (one, every)
+    # a corner found on an object's outline in 4 of 20 photos is left out of its triangulation
+    sightings, layout, truth = _sheet_sightings(0, outliers=4)
+    (s, R, t), info = similarity_from_sightings({0: sightings[0]}, {0: layout[0]}, 0)
+    assert info["corner_sightings_left_out"] >= 4 and info["fit_residual_m"] < 0.0005
+    assert _tilt_deg((s, R, t), truth) < 2 * one[0] + 0.05
+
+
 @pytest.fixture(scope="module")
 def room_photos(tmp_path_factory):
     folder = tmp_path_factory.mktemp("tagged_room") / "photos"

@@ -717,20 +717,20 @@ def _level_on_ground(result: SfmResult, progress: bool) -> str:
 # --------------------------------------------------------------------------- tags
 
 
-def detect_tag(image: np.ndarray, tag_id: int, dictionary: str = "DICT_4X4_50") -> np.ndarray | None:
-    """Corners (4, 2) of ArUco tag ``tag_id`` in an (H, W, 3) uint8 photo, or None.
+def detect_tags(image: np.ndarray, dictionary: str = "DICT_4X4_50") -> dict[int, np.ndarray]:
+    """Corners (4, 2) of every ArUco tag in an (H, W, 3) uint8 photo, by id.
 
-    Uses the capture package's detector (sub-pixel corners); corners come in OpenCV's
-    order (top-left, top-right, bottom-right, bottom-left of the printed tag) and are
-    returned in COLMAP's / nerfkit's pixel convention (pixel centres at +0.5).
+    Uses the capture package's detector (sub-pixel corners, found where the tag's edges
+    meet); corners come in OpenCV's order (top-left, top-right, bottom-right, bottom-left of
+    the printed tag) and in COLMAP's / nerfkit's pixel convention (pixel centres at +0.5).
     """
     from ..capture.aruco import detect, make_detector, marker_bits
 
     det = detect(image, make_detector(dictionary), marker_bits=marker_bits(dictionary))
-    hits = np.flatnonzero(det.ids == tag_id)
-    if hits.size == 0:
-        return None
-    return det.corners[hits[0]].astype(np.float64) + 0.5  # OpenCV centres at integers -> +0.5
+    found: dict[int, np.ndarray] = {}
+    for i, tag in enumerate(det.ids):
+        found.setdefault(int(tag), det.corners[i].astype(np.float64) + 0.5)  # OpenCV centres at integers -> +0.5
+    return found
 
 
 def triangulate(w2c: np.ndarray, rays: np.ndarray) -> np.ndarray:
@@ -745,47 +745,102 @@ def triangulate(w2c: np.ndarray, rays: np.ndarray) -> np.ndarray:
     return X[:3] / X[3]
 
 
+def triangulate_robust(w2c: np.ndarray, rays: np.ndarray, floor: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`triangulate` without the views that disagree: ``(X (3,), kept (n,) bool)``.
+
+    A view whose ray misses the point by more than 3 times the median miss (normalised
+    image units, at least ``floor``) is left out and the point triangulated again: a tag
+    corner under the object, found on the object's outline in a few photos, must not pull
+    the point off the tag.
+    """
+    kept = np.ones(len(rays), bool)
+    X = triangulate(w2c, rays)
+    for _ in range(3):
+        cam = w2c[:, :, :3] @ X + w2c[:, :, 3]  # (n, 3)
+        miss = np.linalg.norm(cam[:, :2] / np.maximum(cam[:, 2:], 1e-12) - rays, axis=1)
+        new = miss <= max(3.0 * float(np.median(miss)), floor)
+        if new.sum() < 2 or np.array_equal(new, kept):
+            break
+        kept = new
+        X = triangulate(w2c[kept], rays[kept])
+    return X, kept
+
+
 def tag_similarity(rec, image_dir: Path, tag_size: float, tag_id: int = 0, dictionary: str = "DICT_4X4_50",
-                   min_views: int = 3, tag_corners: np.ndarray | None = None
+                   min_views: int = 3, tag_corners: np.ndarray | None = None,
+                   layout_tags: dict[int, np.ndarray] | None = None
                    ) -> tuple[tuple[float, np.ndarray, np.ndarray], dict] | None:
     """(s, R, t) taking the reconstruction into the tag frame (metres, +z out of the tag),
-    and facts about the fit; None when the tag is seen in fewer than ``min_views`` photos.
+    and facts about the fit; None when tag ``tag_id`` is seen in fewer than ``min_views``
+    photos.
 
-    The tag's corners are detected in every registered photo, undistorted with the
-    photo's camera model, and triangulated; the triangulated square fixes scale
-    (``tag_size`` = printed side length in metres), orientation and origin.
-    ``tag_corners``: (4, 3) where the tag's corners are in the wanted frame (OpenCV corner
-    order; a sheet layout's frame), instead of the tag's own frame.
+    The tags' corners are detected in every registered photo, undistorted with the
+    photo's camera model, and triangulated (:func:`triangulate_robust`); the triangulated
+    corners fix scale (``tag_size`` = printed side length in metres), orientation and
+    origin. ``tag_corners``: (4, 3) where the tag's corners are in the wanted frame (OpenCV
+    corner order; a sheet layout's frame), instead of the tag's own frame.
+    ``layout_tags``: every tag of that layout by id ((4, 3) corners each): each one seen in
+    ``min_views`` photos joins the fit, which a sheet's width holds level far better than
+    one tag's side (steve: 6 tags over 20 cm against one of 5.5 cm).
     """
     from ..images import load_image_uint8
 
-    obs: list[tuple[np.ndarray, np.ndarray]] = []  # (w2c 3x4, normalised corners 4x2)
+    half = tag_size / 2
+    targets = {tag_id: np.array([[-half, half, 0], [half, half, 0], [half, -half, 0], [-half, -half, 0]])
+               if tag_corners is None else np.asarray(tag_corners, np.float64).reshape(4, 3)}
+    for tag, corners in (layout_tags or {}).items():
+        targets.setdefault(int(tag), np.asarray(corners, np.float64).reshape(4, 3))
+    obs: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {t: [] for t in targets}  # (w2c 3x4, corners 4x2)
     for i in rec.reg_image_ids():
         im = rec.images[i]
-        corners = detect_tag(load_image_uint8(image_dir / im.name), tag_id, dictionary)
-        if corners is None:
-            continue
+        found = detect_tags(load_image_uint8(image_dir / im.name), dictionary)
         cam = rec.cameras[im.camera_id]
-        obs.append((np.asarray(im.cam_from_world().matrix(), np.float64), np.asarray(cam.cam_from_img(corners))))
-    if len(obs) < min_views:
+        for tag in set(found) & set(targets):
+            obs[tag].append((np.asarray(im.cam_from_world().matrix(), np.float64),
+                             np.asarray(cam.cam_from_img(found[tag]))))
+    return similarity_from_sightings(obs, targets, tag_id, min_views)
+
+
+def similarity_from_sightings(sightings: dict[int, list[tuple[np.ndarray, np.ndarray]]],
+                              targets: dict[int, np.ndarray], tag_id: int, min_views: int = 3
+                              ) -> tuple[tuple[float, np.ndarray, np.ndarray], dict] | None:
+    """The similarity of :func:`tag_similarity` from the tags' sightings.
+
+    Args:
+        sightings: per tag id, ``(w2c (3, 4), corners (4, 2))`` of each photo that shows it,
+            corners in normalised image coordinates.
+        targets: per tag id, its (4, 3) corners in the wanted frame.
+        tag_id: the tag that must be seen in ``min_views`` photos; other tags join when
+            they are too.
+    """
+    if len(sightings.get(tag_id, [])) < min_views:
         return None
-    w2c = np.stack([o[0] for o in obs])
-    X = np.stack([triangulate(w2c, np.stack([o[1][k] for o in obs])) for k in range(4)])  # (4, 3) corners
-    # Tag frame (as OpenCV's ArUco pose): x along corner0->corner1, y along corner3->corner0, z out of the tag.
-    half = tag_size / 2
-    tag_pts = np.array([[-half, half, 0], [half, half, 0], [half, -half, 0], [-half, -half, 0]])
-    if tag_corners is not None:
-        tag_pts = np.asarray(tag_corners, np.float64).reshape(4, 3)
-    s, R, t = umeyama(X, tag_pts)
-    sides = np.linalg.norm(X - np.roll(X, -1, axis=0), axis=1) * s
-    residual = float(np.abs(np.linalg.norm((s * X @ R.T + t) - tag_pts, axis=1)).max())
-    info = {"views": len(obs), "side_lengths_m": [float(x) for x in sides], "fit_residual_m": residual}
+    X, target, used, kept = {}, [], [], []
+    for tag in sorted(targets, key=lambda t: (t != tag_id, t)):
+        seen = sightings.get(tag, [])
+        if len(seen) < min_views:
+            continue
+        w2c = np.stack([o[0] for o in seen])
+        for k in range(4):
+            X[tag, k], ok = triangulate_robust(w2c, np.stack([o[1][k] for o in seen]))
+            kept.append(ok)
+        target.append(targets[tag])
+        used.append(tag)
+    src, dst = np.stack([X[t, k] for t in used for k in range(4)]), np.concatenate(target)
+    s, R, t = umeyama(src, dst)
+    ref = np.stack([X[tag_id, k] for k in range(4)])
+    sides = np.linalg.norm(ref - np.roll(ref, -1, axis=0), axis=1) * s
+    residual = float(np.linalg.norm((s * src @ R.T + t) - dst, axis=1).max())
+    info = {"views": len(sightings[tag_id]), "tags": used, "side_lengths_m": [float(x) for x in sides],
+            "fit_residual_m": residual, "corner_sightings": int(sum(len(k) for k in kept)),
+            "corner_sightings_left_out": int(sum((~k).sum() for k in kept))}
     return (s, R, t), info
 
 
 def align_reconstruction(result: SfmResult, tag_size: float | None = None, tag_id: int = 0,
                          tag_dict: str = "DICT_4X4_50", target_distance: float = 4.0,
-                         progress: bool = True, ground: bool = True, tag_corners: np.ndarray | None = None) -> str:
+                         progress: bool = True, ground: bool = True, tag_corners: np.ndarray | None = None,
+                         layout_tags: dict[int, np.ndarray] | None = None) -> str:
     """Move the reconstruction into nerfkit's world frame (in place; rewrites the model).
 
     With ``tag_size`` (metres) and the tag visible in >= 3 registered photos: the tag
@@ -793,13 +848,15 @@ def align_reconstruction(result: SfmResult, tag_size: float | None = None, tag_i
     :func:`normalising_similarity`) and, with ``ground``, levelled on the table plane
     found in the sparse points (:mod:`nerfkit.sfm.ground`: z = 0 on the table, the origin
     under the look-at point; ``result.on_ground``). ``tag_corners``: the tag's corners in a
-    sheet layout's frame, which then becomes the world (see :func:`tag_similarity`).
+    sheet layout's frame, which then becomes the world, and ``layout_tags`` all of that
+    layout's tags, which join the fit (see :func:`tag_similarity`).
     Returns a one-line description, also stored in ``result.report.frame``.
     """
     rec = result.reconstruction
     frame = None
     if tag_size is not None:
-        fit = tag_similarity(rec, result.image_dir, tag_size, tag_id, tag_dict, tag_corners=tag_corners)
+        fit = tag_similarity(rec, result.image_dir, tag_size, tag_id, tag_dict, tag_corners=tag_corners,
+                             layout_tags=layout_tags)
         if fit is None:
             _say(progress, f"sfm: tag {tag_id} seen in fewer than 3 registered photos; normalising the scene instead")
         else:
@@ -808,7 +865,9 @@ def align_reconstruction(result: SfmResult, tag_size: float | None = None, tag_i
             result.tag_size = tag_size
             where = ("origin at the tag centre, +z up out of the tag" if tag_corners is None
                      else "the sheet layout's frame, +z up out of the sheet")
-            frame = (f"metric, from ArUco tag {tag_id} ({tag_size * 100:g} cm) seen in {info['views']} photos: "
+            others = len(info["tags"]) - 1
+            also = f" and {others} more tag{'s' * (others > 1)} of the sheet" if others else ""
+            frame = (f"metric, from ArUco tag {tag_id} ({tag_size * 100:g} cm) seen in {info['views']} photos{also}: "
                      f"{where}, metres "
                      f"(triangulated sides {', '.join(f'{x * 100:.2f}' for x in info['side_lengths_m'])} cm)")
     if frame is None:

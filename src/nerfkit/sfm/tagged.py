@@ -123,8 +123,9 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
                          threads=threads, camera=camera, guides=guides)
     except NerfkitError as e:  # no photos that match, pycolmap missing, ...
         return PoseChoice(None, f"tag poses: structure-from-motion failed ({e})")
+    several = layout is not None and tag_corners is not None and len(layout.tags) > 1
     align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=dictionary, progress=progress,
-                         ground=False, tag_corners=tag_corners)
+                         ground=False, tag_corners=tag_corners, layout_tags=layout.tags if several else None)
     names, c2w = reconstruction_c2w(result.reconstruction)
     names = [result.photo(n).name for n in names]
     agreement = pose_agreement({p.name: p.c2w for p in tag_posed}, dict(zip(names, c2w)))
