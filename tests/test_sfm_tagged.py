@@ -123,6 +123,12 @@ def test_every_tag_of_the_sheet_holds_the_frame_level_and_a_stray_corner_is_left
         np.testing.assert_allclose(truth[0] * truth[1] @ origin + truth[2], 0.0, atol=0.001)
     # the sheet's 20 cm hold the tilt several times better than one tag's 5 cm
     assert np.mean(every) < 0.4 * np.mean(one) and max(every) < 0.15, (one, every)
+    # a tag 1 cm away from where the layout puts it leaves the fit
+    sightings, layout, truth = _sheet_sightings(1)
+    moved = {**layout, 3: layout[3] + [0.01, 0.0, 0.0]}
+    fit = similarity_from_sightings(sightings, moved, 0)
+    assert fit[1]["tags"] == [0, 1, 2, 4, 5] and fit[1]["tags_off_layout"] == [3]
+    assert _tilt_deg(fit[0], truth) == pytest.approx(every[1], abs=0.05)
     # a corner found on an object's outline in 4 of 20 photos is left out of its triangulation
     sightings, layout, truth = _sheet_sightings(0, outliers=4)
     (s, R, t), info = similarity_from_sightings({0: sightings[0]}, {0: layout[0]}, 0)

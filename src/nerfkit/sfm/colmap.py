@@ -811,7 +811,8 @@ def similarity_from_sightings(sightings: dict[int, list[tuple[np.ndarray, np.nda
             corners in normalised image coordinates.
         targets: per tag id, its (4, 3) corners in the wanted frame.
         tag_id: the tag that must be seen in ``min_views`` photos; other tags join when
-            they are too.
+            they are too, and leave again when their corners fit more than 3 times the
+            median tag's miss and 2% of a side away from the layout's (a tag moved since).
     """
     if len(sightings.get(tag_id, [])) < min_views:
         return None
@@ -828,10 +829,20 @@ def similarity_from_sightings(sightings: dict[int, list[tuple[np.ndarray, np.nda
         used.append(tag)
     src, dst = np.stack([X[t, k] for t in used for k in range(4)]), np.concatenate(target)
     s, R, t = umeyama(src, dst)
+    # a tag that is not where the layout says (moved, or another print) leaves the fit
+    off = np.linalg.norm((s * src @ R.T + t) - dst, axis=1).reshape(-1, 4).max(1)
+    side = float(np.linalg.norm(targets[tag_id] - np.roll(targets[tag_id], -1, axis=0), axis=1).mean())
+    stray = (off > max(3.0 * float(np.median(off)), 0.02 * side)) & (np.array(used) != tag_id)
+    moved = [u for u, x in zip(used, stray) if x]
+    if moved:
+        used, target = [u for u, x in zip(used, stray) if not x], [g for g, x in zip(target, stray) if not x]
+        src, dst = np.stack([X[t, k] for t in used for k in range(4)]), np.concatenate(target)
+        s, R, t = umeyama(src, dst)
     ref = np.stack([X[tag_id, k] for k in range(4)])
     sides = np.linalg.norm(ref - np.roll(ref, -1, axis=0), axis=1) * s
     residual = float(np.linalg.norm((s * src @ R.T + t) - dst, axis=1).max())
-    info = {"views": len(sightings[tag_id]), "tags": used, "side_lengths_m": [float(x) for x in sides],
+    info = {"views": len(sightings[tag_id]), "tags": used, "tags_off_layout": moved,
+            "side_lengths_m": [float(x) for x in sides],
             "fit_residual_m": residual, "corner_sightings": int(sum(len(k) for k in kept)),
             "corner_sightings_left_out": int(sum((~k).sum() for k in kept))}
     return (s, R, t), info
@@ -867,6 +878,9 @@ def align_reconstruction(result: SfmResult, tag_size: float | None = None, tag_i
                      else "the sheet layout's frame, +z up out of the sheet")
             others = len(info["tags"]) - 1
             also = f" and {others} more tag{'s' * (others > 1)} of the sheet" if others else ""
+            if info["tags_off_layout"]:
+                also += (f" (left out, not where the layout puts them: tag "
+                         f"{', '.join(map(str, info['tags_off_layout']))})")
             frame = (f"metric, from ArUco tag {tag_id} ({tag_size * 100:g} cm) seen in {info['views']} photos{also}: "
                      f"{where}, metres "
                      f"(triangulated sides {', '.join(f'{x * 100:.2f}' for x in info['side_lengths_m'])} cm)")
