@@ -816,7 +816,7 @@ def similarity_from_sightings(sightings: dict[int, list[tuple[np.ndarray, np.nda
     """
     if len(sightings.get(tag_id, [])) < min_views:
         return None
-    X, target, used, kept = {}, [], [], []
+    X, used, kept = {}, [], []
     for tag in sorted(targets, key=lambda t: (t != tag_id, t)):
         seen = sightings.get(tag, [])
         if len(seen) < min_views:
@@ -825,9 +825,12 @@ def similarity_from_sightings(sightings: dict[int, list[tuple[np.ndarray, np.nda
         for k in range(4):
             X[tag, k], ok = triangulate_robust(w2c, np.stack([o[1][k] for o in seen]))
             kept.append(ok)
-        target.append(targets[tag])
         used.append(tag)
-    src, dst = np.stack([X[t, k] for t in used for k in range(4)]), np.concatenate(target)
+
+    def corners(tags: list[int]) -> tuple[np.ndarray, np.ndarray]:  # triangulated, and where the layout puts them
+        return np.stack([X[t, k] for t in tags for k in range(4)]), np.concatenate([targets[t] for t in tags])
+
+    src, dst = corners(used)
     s, R, t = umeyama(src, dst)
     # a tag that is not where the layout says (moved, or another print) leaves the fit
     off = np.linalg.norm((s * src @ R.T + t) - dst, axis=1).reshape(-1, 4).max(1)
@@ -835,10 +838,10 @@ def similarity_from_sightings(sightings: dict[int, list[tuple[np.ndarray, np.nda
     stray = (off > max(3.0 * float(np.median(off)), 0.02 * side)) & (np.array(used) != tag_id)
     moved = [u for u, x in zip(used, stray) if x]
     if moved:
-        used, target = [u for u, x in zip(used, stray) if not x], [g for g, x in zip(target, stray) if not x]
-        src, dst = np.stack([X[t, k] for t in used for k in range(4)]), np.concatenate(target)
+        used = [u for u in used if u not in moved]
+        src, dst = corners(used)
         s, R, t = umeyama(src, dst)
-    ref = np.stack([X[tag_id, k] for k in range(4)])
+    ref = corners([tag_id])[0]
     sides = np.linalg.norm(ref - np.roll(ref, -1, axis=0), axis=1) * s
     residual = float(np.linalg.norm((s * src @ R.T + t) - dst, axis=1).max())
     info = {"views": len(sightings[tag_id]), "tags": used, "tags_off_layout": moved,
