@@ -134,10 +134,30 @@ def test_the_fast_model_refuses_sh_degree_3_in_one_line_naming_itself(model, tmp
 
 def test_a_flag_models_share_gives_each_models_help(capsys):
     with pytest.raises(SystemExit):
-        main(["train", "--help"])
+        main(["train", "--model", "fast", "--help"])
     out = " ".join(capsys.readouterr().out.split())
     assert "model 'fast' and model 'splat': --sh-degree INT fast: spherical-harmonic degree" in out
     assert "(0, 1 or 2) (default: 1); splat: largest spherical-harmonic degree of the colour (0-3) (default: 3)" in out
+
+
+def test_train_help_shows_the_model_named_before_it(capsys):
+    # All three models' settings run to 400 lines: --help shows the training flags and how to
+    # see a model's; after --model M it adds M's groups (a shared flag's group too), no other's.
+    def help_of(*argv):
+        with pytest.raises(SystemExit) as e:
+            main(["train", *argv, "--help"])
+        assert e.value.code == 0
+        return capsys.readouterr().out
+
+    plain = help_of()
+    assert "--steps" in plain and "--n-samples" not in plain and "--resolutions" not in plain
+    assert "nerfkit train --model splat --help" in plain
+    vanilla = help_of("--model", "vanilla")
+    assert "model 'vanilla':" in vanilla and "--n-samples" in vanilla
+    assert "--resolutions" not in vanilla and "--sh-degree" not in vanilla and "--model splat --help" not in vanilla
+    splat = help_of("--model", "splat")
+    assert "--max-gaussians" in splat and "--sh-degree" in splat and "--n-samples" not in splat
+    assert help_of() == plain  # the parser is left as it was
 
 
 def _model_number_fields(model: str):

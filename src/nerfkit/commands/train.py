@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from pathlib import Path
 
 from ..config import add_alternative_dataclass_args, add_dataclass_args, dataclass_from_args, foreign_flags
@@ -17,6 +18,39 @@ examples:
   nerfkit train --resume runs/mine              continue after a crash or Ctrl-C
 The run folder gets config.json, checkpoints/, metrics.csv/json, plots/ and progress/.
 """
+USAGE = """nerfkit train --data PATH [--out DIR] [--model {vanilla,fast,splat}] [--steps INT | --minutes FLOAT] [options]
+       nerfkit train --resume RUN [--steps INT | --minutes FLOAT]"""
+MODEL_GROUP = "model '{}'"
+MODEL_BLURBS = {"fast": "the grid (the default model)", "vanilla": "the course's 8x256 MLP", "splat": "Gaussian splats"}
+
+
+class ModelHelp(argparse.Action):
+    """``-h/--help``: the training flags, and the settings of the model named by a ``--model``
+    before it; without one, how to see each model's (all of them run to 400 lines)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        parser._print_message(help_for_model(parser, getattr(namespace, "model", None)), sys.stdout)
+        parser.exit()
+
+
+def help_for_model(parser: argparse.ArgumentParser, model: str | None) -> str:
+    """``parser``'s help with only ``model``'s groups of model flags (none for None); the
+    others' titles then stand in the epilog as a line each."""
+    groups = parser._action_groups
+    mine = [g for g in groups if not (g.title or "").startswith("model '")
+            or (model is not None and MODEL_GROUP.format(model) in g.title)]
+    epilog = parser.epilog
+    if model is None:
+        epilog += "\neach model's own settings:\n" + "".join(
+            f"  {f'nerfkit train --model {m} --help':38s}{MODEL_BLURBS.get(m, '')}\n" for m in _model_config_classes())
+    parser._action_groups, parser.epilog = mine, epilog
+    try:
+        return parser.format_help()
+    finally:
+        parser._action_groups, parser.epilog = groups, EPILOG
 
 
 def _model_config_classes():
@@ -34,12 +68,14 @@ def _model_config_classes():
 def register(sub: argparse._SubParsersAction) -> None:
     from ..train.config import TrainConfig
 
-    p = sub.add_parser("train", help=HELP, description=HELP, epilog=EPILOG,
+    p = sub.add_parser("train", help=HELP, description=HELP, epilog=EPILOG, usage=USAGE, add_help=False,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("-h", "--help", action=ModelHelp,
+                   help="show the training flags and exit; after --model M, M's settings too")
     p.add_argument("--resume", metavar="RUN", help="continue this run from its newest good checkpoint")
     add_dataclass_args(p, TrainConfig, "training")
     # a flag that models share (--sh-degree) takes the widest of their bounds; run() checks the chosen model's
-    add_alternative_dataclass_args(p, _model_config_classes(), "model '{}'")
+    add_alternative_dataclass_args(p, _model_config_classes(), MODEL_GROUP)
     p.set_defaults(func=run)
 
 
@@ -82,8 +118,6 @@ def refuse_other_models_flags(args: argparse.Namespace, classes: dict, model: st
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
-
     from ..errors import fail
     from ..models import check_config
     from ..train.checkpoint import read_run
