@@ -73,7 +73,8 @@ def read_tag_poses(path: str) -> dict[str, np.ndarray]:
 
 
 def sfm_check(photos: str, matcher: str, tag_size: float | None, tag_poses: str | None, max_image_size: int) -> dict:
-    from nerfkit.sfm.colmap import align_reconstruction, colmap_name, compare_poses, reconstruction_c2w, run_sfm
+    from nerfkit.sfm.colmap import colmap_name, run_sfm
+    from nerfkit.sfm.frame import align_reconstruction, compare_poses, reconstruction_c2w
 
     tag = read_tag_poses(tag_poses) if tag_poses else {}
     with tempfile.TemporaryDirectory() as tmp:

@@ -20,8 +20,9 @@ from nerfkit.data.load import detect_format, load_scene  # noqa: E402
 from nerfkit.data.synthetic import sphere_scene  # noqa: E402
 from nerfkit.errors import NerfkitError  # noqa: E402
 from nerfkit.io.atomic import write_image  # noqa: E402
-from nerfkit.sfm.colmap import (align_reconstruction, apply_similarity, compare_poses,  # noqa: E402
-                                normalising_similarity, rotation_between, run_sfm, umeyama)
+from nerfkit.sfm.colmap import run_sfm  # noqa: E402
+from nerfkit.sfm.frame import (align_reconstruction, apply_similarity, compare_poses,  # noqa: E402
+                               normalising_similarity, rotation_between, umeyama)
 from nerfkit.sfm.dataset import sfm_dataset  # noqa: E402
 
 # ----------------------------------------------------------------------------- model I/O
@@ -400,7 +401,7 @@ def test_sfm_recovers_poses_and_explains_failures(room_sfm):
     assert "matched no other photo" in rep.unregistered["x_noise.png"]
     assert rep.reprojection_error < 1.0
     # poses after the best similarity: rotations within 1 degree, centres within 2% of the spread
-    from nerfkit.sfm.colmap import reconstruction_c2w
+    from nerfkit.sfm.frame import reconstruction_c2w
 
     names, c2w = reconstruction_c2w(result.reconstruction)
     err = compare_poses(c2w, np.stack([truth[n] for n in names]))
@@ -419,7 +420,7 @@ def test_sfm_normalised_dataset(room_sfm, tmp_path):
     import json
 
     from nerfkit.capture.dataset import DatasetConfig
-    from nerfkit.sfm.colmap import reconstruction_c2w
+    from nerfkit.sfm.frame import reconstruction_c2w
     from nerfkit.sfm.dataset import build_dataset
 
     result, truth = room_sfm
@@ -467,7 +468,7 @@ def test_sfm_without_tag_levels_the_scene_on_the_floor(room_sfm, tmp_path):
 
     from nerfkit.capture.dataset import DatasetConfig
     from nerfkit.data.scene import estimate_center
-    from nerfkit.sfm.colmap import reconstruction_c2w
+    from nerfkit.sfm.frame import reconstruction_c2w
     from nerfkit.sfm.dataset import build_dataset
 
     result, truth = room_sfm
@@ -658,7 +659,8 @@ def test_spatial_pairs_join_ring_neighbours_and_photos_without_a_pose_by_name():
 @pytest.mark.slow
 def test_spatial_matching_matches_only_its_pairs_and_poses_as_exhaustive_does(room, room_sfm, tmp_path, monkeypatch):
     import nerfkit.sfm.colmap as colmap
-    from nerfkit.sfm.colmap import reconstruction_c2w, spatial_pairs
+    from nerfkit.sfm.colmap import spatial_pairs
+    from nerfkit.sfm.frame import reconstruction_c2w
 
     folder, truth = room
     monkeypatch.setattr(colmap, "SPATIAL_NEIGHBOURS", 3)

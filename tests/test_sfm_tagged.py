@@ -108,7 +108,7 @@ def _tilt_deg(fit, truth):
 
 
 def test_every_tag_of_the_sheet_holds_the_frame_level_and_a_stray_corner_is_left_out():
-    from nerfkit.sfm.colmap import similarity_from_sightings
+    from nerfkit.sfm.frame import similarity_from_sightings
 
     one, every = [], []
     for seed in range(6):

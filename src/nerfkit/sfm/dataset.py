@@ -18,7 +18,8 @@ import numpy as np
 from ..data.scene import Scene
 from ..errors import fail
 from ..io.atomic import write_json
-from .colmap import SfmReport, SfmResult, align_reconstruction, run_sfm
+from .colmap import SfmReport, SfmResult, run_sfm
+from .frame import align_reconstruction
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..capture.camera import Camera
@@ -261,7 +262,7 @@ def sfm_dataset(
 
     The world frame is the tag's (metres, +z up) when ``tag_size`` is given and tag
     ``tag_id`` is seen in at least 3 registered photos, else normalised (see
-    :func:`nerfkit.sfm.colmap.align_reconstruction`; without a tag and with ``ground``, the
+    :func:`nerfkit.sfm.frame.align_reconstruction`; without a tag and with ``ground``, the
     table plane found in the sparse points becomes z = 0 and the dataset's table, as a tag's
     would). ``cfg`` holds the dataset options
     (size, splits, near/far) shared with the tag path. COLMAP's files stay in

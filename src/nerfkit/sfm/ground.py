@@ -144,7 +144,7 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
 def ground_similarity(plane: GroundPlane, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(R, t)`` of ``x -> R x + t`` putting the plane at z = 0 (normal -> +z) and the
     foot of ``center`` on it at the origin."""
-    from .colmap import rotation_between
+    from .frame import rotation_between
 
     center = np.asarray(center, np.float64).reshape(3)
     R = rotation_between(plane.normal, np.array([0.0, 0.0, 1.0]))

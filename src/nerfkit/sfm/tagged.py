@@ -115,7 +115,8 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
     Returns:
         A :class:`PoseChoice`; SfM failing is a reason to keep the tag poses, not an error.
     """
-    from .colmap import align_reconstruction, colmap_name, reconstruction_c2w, run_sfm
+    from .colmap import colmap_name, run_sfm
+    from .frame import align_reconstruction, reconstruction_c2w
 
     guides = {colmap_name(Path(p.path)): p.c2w for p in tag_posed}  # to choose the pairs SfM matches
     try:
