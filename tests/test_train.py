@@ -95,9 +95,10 @@ def test_resume_keeps_the_default_validation_marks(tmp_path, sphere):
     assert Trainer(sphere, small_cfg(tmp_path, "b", steps=120), VanillaConfig(**SMALL), quiet=True).run(
         stop_after=60).step == 60
     resumed = resume(tmp_path / "b", sphere, quiet=True)
-    val_steps = [r["step"] for r in straight.rows if r["split"] == "val"]
-    assert val_steps == [0, 2, 4] + list(range(12, 121, 12))
-    assert [r["step"] for r in resumed.rows if r["split"] == "val"] == val_steps
+    val_steps = [(r["step"], r["views"]) for r in straight.rows if r["split"] == "val"]
+    n_val = len(sphere.val)  # the last step twice: its periodic view again, then every view
+    assert val_steps == [(s, 1) for s in [0, 2, 4] + list(range(12, 121, 12))] + [(120, n_val)]
+    assert [(r["step"], r["views"]) for r in resumed.rows if r["split"] == "val"] == val_steps
 
 
 def test_validation_marks_without_eval_every(tmp_path, sphere):
@@ -298,6 +299,33 @@ def test_periodic_validation_cost_is_bounded_and_the_final_one_is_whole(tmp_path
     trainer._record_eval()
     assert sum(r for r, _ in spent) == len(v) * v.width * v.height
     assert trainer.rows[-1]["pixels"] == v.width * v.height
+
+
+def test_the_periodic_validation_curve_ends_with_the_final_score_of_its_views(tmp_path, sphere):
+    # Periodic evaluations of the first view, whole: at the end that view is scored again beside
+    # every view, so its curve reaches the last step (steve's ended 20 s early at 21.6 dB, above
+    # a lone final dot of 20.2 for all six views, and read as the score falling).
+    from nerfkit.output.images import render_image
+    from nerfkit.train.metrics import psnr
+
+    v = sphere.val
+    assert len(v) > 1
+    trainer = Trainer(sphere, small_cfg(tmp_path, steps=20, eval_views=1, eval_pixels=10 ** 7),
+                      VanillaConfig(n_samples=16, width=16, depth=2, occupancy=False), quiet=True)
+    result = trainer.run()
+    val = [r for r in result.rows if r["split"] == "val"]
+    first, every = val[-2], val[-1]
+    assert first["step"] == every["step"] == 20 and first["views"] == 1 and every["views"] == len(v)
+    assert first["pixels"] == every["pixels"] == v.width * v.height
+    assert result.final_val_psnr == every["psnr"]
+    scores = [psnr(render_image(trainer.model, v.K[i], v.c2w[i], v.width, v.height, trainer.background,
+                                autocast_dtype=trainer.autocast).rgb, v.images[i] / 255.0) for i in range(len(v))]
+    assert first["psnr"] == pytest.approx(scores[0], abs=1e-4)
+    assert every["psnr"] == pytest.approx(np.mean(scores), abs=1e-4)
+    curves = validation_series(val, len(v), v.width * v.height)
+    assert list(curves) == [f"validation, first 1 of {len(v)} views, whole images",
+                            f"validation, all {len(v)} views, whole images"]
+    assert curves[f"validation, first 1 of {len(v)} views, whole images"][0][-1] == first["seconds"]
 
 
 def test_the_psnr_plot_keeps_periodic_and_final_validation_apart():

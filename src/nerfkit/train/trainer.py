@@ -366,8 +366,8 @@ class Trainer:
             raise fail(self.run_dir, f"training diverged: {self.bad_steps} steps in a row had non-finite values", fix)
 
     # -- evaluation ------------------------------------------------------------------
-    def evaluate(self, n_views: int | None = None) -> tuple[float, int] | None:
-        """Mean PSNR over the first ``n_views`` validation images and the pixels scored per view.
+    def evaluate(self, n_views: int | None = None) -> tuple[list[float], int] | None:
+        """PSNR of each of the first ``n_views`` validation images and the pixels scored per view.
 
         With ``n_views`` (a periodic evaluation) every k-th pixel of each view is scored on
         an even grid, k from ``--eval-pixels`` (:func:`eval_stride`); with None every
@@ -386,7 +386,7 @@ class Trainer:
             scores.append(psnr(view.rgb, target))
             if i == 0:
                 write_image(self.run_dir / "progress" / f"step_{self.step:08d}.png", view.rgb)
-        return float(np.mean(scores)), w * h
+        return scores, w * h
 
     # -- the loop ------------------------------------------------------------------
     def log(self, msg: str) -> None:
@@ -482,14 +482,25 @@ class Trainer:
         scored = self.evaluate(n)
         if scored is None:
             return
-        val_psnr, pixels = scored
-        full = pixels == self.scene.val.width * self.scene.val.height
-        views = min(n or len(self.scene.val), len(self.scene.val))
+        scores, pixels = scored
+        val = self.scene.val
+        full = pixels == val.width * val.height
+        views = len(scores)
+        also = ""
+        periodic = min(self.cfg.eval_views, views)
+        if n is None and periodic < views and eval_stride(val.width, val.height, periodic, self.cfg.eval_pixels) == 1:
+            # the periodic evaluations' views, whole as they were: their curve ends here too, so
+            # that the final score over every view is not read as the curve falling
+            self._add_val_row(float(np.mean(scores[:periodic])), periodic, pixels)
+            also = f"; the first {periodic}, as evaluated during training: {self.rows[-1]['psnr']:.2f} dB"
+        self._add_val_row(float(np.mean(scores)), views, pixels)
+        scope = f"all {views} views" if views == len(val) else f"first {views} of {len(val)} views"
+        self.log(f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {self.rows[-1]['psnr']:.2f} dB ({scope}"
+                 + ("" if full else f", {pixels} pixels each") + also + ")")
+
+    def _add_val_row(self, psnr_db: float, views: int, pixels: int) -> None:
         self.rows.append({"step": self.step, "seconds": round(self.train_seconds, 3), "split": "val",
-                          "loss": float("nan"), "psnr": val_psnr, "views": views, "pixels": pixels})
-        scope = f"all {views} views" if views == len(self.scene.val) else f"first {views} of {len(self.scene.val)} views"
-        self.log(f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {val_psnr:.2f} dB ({scope}"
-                 + ("" if full else f", {pixels} pixels each") + ")")
+                          "loss": float("nan"), "psnr": psnr_db, "views": views, "pixels": pixels})
 
     def write_reports(self) -> None:
         """metrics.csv/json (``finished``: the stopping rule was reached, not cut short;
