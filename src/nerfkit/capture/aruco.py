@@ -138,6 +138,12 @@ class Layout:
         pts = np.concatenate(list(self.tags.values()))
         return bool(np.abs(pts[:, 2]).max() <= tol)
 
+    def flattened(self) -> "Layout":
+        """The same tags with every corner on the plane z = 0 (an estimated layout's heights
+        describe how the paper lay while it was photographed, not the printed sheet)."""
+        tags = {t: np.column_stack([c[:, :2], np.zeros(len(c))]) for t, c in self.tags.items()}
+        return Layout(tags, self.charuco, self.charuco_corners, self.spec, self.source)
+
     @staticmethod
     def single(tag_id: int, size: float) -> "Layout":
         """One tag whose frame is the sheet frame."""

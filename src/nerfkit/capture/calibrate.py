@@ -8,8 +8,12 @@ Three kinds of targets:
   its own planar target for a rough calibration; relative tag poses (IPPE) give a first
   layout (the tags share the sheet plane); then calibration and layout are refined in
   turn: calibrate with the layout, back-project every tag corner onto the sheet plane of
-  each photo, fit each tag's square to the averaged points, and repeat. Different tags
-  never share 3D corners (that mistake silently ruins a calibration);
+  each photo, fit each tag's square to the averaged points, and repeat. Printed paper is
+  not flat (ink cockles it; it lies on the table in gentle waves), so then each corner's
+  height above the sheet's plane is triangulated from every photo that sees it, in turns
+  with calibration (:func:`refine_heights`): on steve's sheet the corners lie up to 1.7 mm
+  off the plane, and held-out error falls from 0.96 to 0.55 px. Different tags never share
+  3D corners (that mistake silently ruins a calibration);
 * ``per_tag=True`` (or a single tag): every tag in every photo is its own planar view.
 
 The layout is estimated with a k1-only model and then frozen, so it cannot absorb the
@@ -357,6 +361,54 @@ def initial_layout(records: list[PhotoRecord], K: np.ndarray, dist: np.ndarray, 
     return Layout(tags, source="estimated"), ref
 
 
+# A corner's height is triangulated from at least this many photos (else it stays on the plane).
+HEIGHT_MIN_VIEWS = 3
+# Heights above this share of the tag side mean something else is wrong (a tag that moved
+# between photos, a wrong --tag-size): the layout then stays flat.
+MAX_HEIGHT_OF_SIDE = 0.1
+HEIGHT_ROUNDS = 4
+
+
+def refine_heights(records: dict[str, PhotoRecord], fit: Fit, layout: Layout) -> Layout:
+    """``layout`` with each corner's height (z) triangulated: the point nearest to the rays of
+    every calibrated photo that sees that corner (``fit``'s poses and camera), at least
+    :data:`HEIGHT_MIN_VIEWS` of them (else height 0). A corner keeps its place on the
+    printed sheet (x, y); the heights' best-fit plane is then taken out, so z = 0 stays the
+    sheet's own plane and the frame does not move."""
+    import cv2
+
+    rays: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray]]] = {}
+    for key, rvec, tvec in zip(fit.keys, fit.rvecs, fit.tvecs):
+        det = records[key].detection
+        R = cv2.Rodrigues(rvec)[0]
+        origin = -R.T @ np.ravel(tvec)  # camera centre in the sheet frame
+        ids = [int(i) for i in det.ids]
+        for i, tag in enumerate(ids):
+            if tag not in layout.tags or ids.count(tag) != 1:
+                continue
+            xy = cv2.undistortPoints(det.corners[i].reshape(-1, 1, 2), fit.K, fit.dist,
+                                     criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)).reshape(-1, 2)
+            d = (R.T @ np.column_stack([xy, np.ones(4)]).T).T
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            for k in range(4):
+                rays.setdefault((tag, k), []).append((origin, d[k]))
+    tags = {t: np.array(c, np.float64, copy=True) for t, c in layout.tags.items()}
+    for (tag, k), seen in rays.items():
+        if len(seen) < HEIGHT_MIN_VIEWS:
+            continue
+        A, b = np.zeros((3, 3)), np.zeros(3)
+        for o, d in seen:  # least squares: sum over rays of |(I - d d^T)(X - o)|^2
+            P = np.eye(3) - np.outer(d, d)
+            A += P
+            b += P @ o
+        tags[tag][k, 2] = np.linalg.solve(A, b)[2]
+    pts = np.concatenate(list(tags.values()))
+    plane = np.linalg.lstsq(np.column_stack([pts[:, :2], np.ones(len(pts))]), pts[:, 2], rcond=None)[0]
+    for t in tags:
+        tags[t][:, 2] -= tags[t][:, :2] @ plane[:2] + plane[2]
+    return Layout(tags, source="estimated")
+
+
 def layout_change(new: Layout, old: Layout) -> float:
     """How far any corner of ``old``'s tags moved in ``new`` (world units, the largest
     coordinate change)."""
@@ -444,10 +496,13 @@ def _layout_sheet_views(records: list[PhotoRecord], layout: Layout) -> list:
 
 
 def estimate_layout(with_tags: list[PhotoRecord], by_name: dict, size: tuple[int, int], tag_size: float,
-                    cfg: CalibrateConfig, notes: list[str]) -> Layout:
+                    cfg: CalibrateConfig, notes: list[str]) -> tuple[Layout, np.ndarray]:
     """The sheet layout from photos showing several tags: a first layout from relative tag
-    poses, then rounds of calibrate (with :data:`LAYOUT_MODEL`) + re-fit of the tags. The
-    result is frozen: the distortion model is chosen afterwards on this layout."""
+    poses, then rounds of calibrate (with :data:`LAYOUT_MODEL`) + re-fit of the tags on the
+    plane, then rounds of calibrate + the corners' heights (:func:`refine_heights`). The
+    result is frozen: the distortion model is chosen afterwards on this layout. Returns the
+    layout and the last round's camera matrix (a non-flat layout's calibration starts
+    from it)."""
     import cv2
 
     # Rough intrinsics from per-tag views (square pixels, centred principal point: robust).
@@ -467,12 +522,24 @@ def estimate_layout(with_tags: list[PhotoRecord], by_name: dict, size: tuple[int
         if change < 5e-4 * tag_size:  # 0.03 mm for 6 cm tags
             break
     notes.append(f"estimated the layout of {len(layout.tags)} tags (reference tag {ref}) in {it + 1} "
-                 f"rounds of calibrate ({LAYOUT_MODEL} distortion) + re-fit; last change {change * 1000:.3f} mm; "
-                 "then froze it to choose the distortion model")
+                 f"rounds of calibrate ({LAYOUT_MODEL} distortion) + re-fit; last change {change * 1000:.3f} mm")
+    flat, flat_rms = layout, fit.rms
+    for _ in range(HEIGHT_ROUNDS):
+        layout = refine_heights(by_name, fit, layout)
+        fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor, fit.K)
+    height = max(float(np.abs(c[:, 2]).max()) for c in layout.tags.values())
+    if height > MAX_HEIGHT_OF_SIDE * tag_size:
+        notes.append(f"the tags' corners came out up to {height * 1000:.1f} mm off the sheet's plane, more than a "
+                     f"paper sheet bends: kept the sheet flat (a tag moved between photos, or the --tag-size is wrong?)")
+        layout = flat
+    else:
+        notes.append(f"the sheet is not quite flat: its tags' corners lie up to {height * 1000:.2f} mm off its plane "
+                     f"(RMS {flat_rms:.3f} px flat, {fit.rms:.3f} px with the heights)")
+    notes.append("then froze the layout to choose the distortion model")
     missing = sorted({int(i) for r in with_tags for i in r.detection.ids} - set(layout.tags))
     if missing:
         notes.append(f"tags {missing} were never seen together with the others and were ignored")
-    return layout
+    return layout, fit.K
 
 
 def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_size: float,
@@ -525,8 +592,10 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
         layout = None
     else:
         target = "estimated layout"
-        layout = estimate_layout(with_tags, by_name, size, tag_size, cfg, notes)
+        layout, K_layout = estimate_layout(with_tags, by_name, size, tag_size, cfg, notes)
         views = _layout_sheet_views(with_tags, layout)
+        if not layout.is_planar():  # calibrateCamera can only initialise from planar targets
+            K0 = K_layout
     model = cfg.dist_model
     if model == "auto":
         # Outliers first (with the layout model), so they do not sway the choice.
@@ -664,7 +733,10 @@ def calibration_json(cal: Calibration, records: list[PhotoRecord], dictionary: s
         "target": cal.target,
         "dictionary": dictionary,
         "tag_size": tag_size,
-        "layout": None if cal.layout is None else cal.layout.to_json(),
+        # the printed sheet (what `poses` takes); the heights were the paper's while calibrating
+        "layout": None if cal.layout is None else cal.layout.flattened().to_json(),
+        "sheet_heights_m": None if cal.layout is None or cal.layout.is_planar() else
+        {str(t): np.round(c[:, 2], 7).tolist() for t, c in sorted(cal.layout.tags.items())},
         "sanity": cal.sanity,
         "notes": cal.notes,
         "photos_dir": photos_dir,

@@ -113,12 +113,14 @@ def fold_spread(displacements: list[np.ndarray]) -> float:
 
 
 def view_pose(obj: np.ndarray, img: np.ndarray, K: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(rvec, tvec) of a planar view: IPPE for one square, SQPnP for more points, then LM."""
+    """(rvec, tvec) of a view: IPPE for one flat square, SQPnP for more points (or a square
+    whose corners are not in one plane: a sheet's estimated heights), then LM."""
     import cv2
 
     obj = np.asarray(obj, np.float64).reshape(-1, 3)
     img = np.asarray(img, np.float64).reshape(-1, 2)
-    flag = cv2.SOLVEPNP_IPPE if len(obj) == 4 else cv2.SOLVEPNP_SQPNP
+    flat = not np.any(obj[:, 2])
+    flag = cv2.SOLVEPNP_IPPE if len(obj) == 4 and flat else cv2.SOLVEPNP_SQPNP
     try:
         ok, rv, tv = cv2.solvePnP(obj, img, K, dist, flags=flag)
         if not ok:

@@ -3,7 +3,8 @@
 Renders photos of ArUco tag sheets and of a textured object (a sphere) beside a tag,
 through a pinhole camera with OpenCV lens distortion, by casting a ray through every
 (super-sampled) pixel: the pixel is undistorted with ``cv2.undistortPoints``, its ray hit
-with the table plane ``z = 0`` (textures sampled with ``cv2.remap``) and the sphere.
+with the table plane ``z = 0`` (or a gently waved surface: :func:`cockle`; textures sampled
+with ``cv2.remap``) and the sphere.
 Tags come from ``cv2.aruco.generateImageMarker``.
 
 World frame: the table is ``z = 0`` and ``+z`` points up toward the cameras; tag frames
@@ -16,6 +17,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -55,6 +57,21 @@ class SynthScene:
     spheres: list[Sphere] = field(default_factory=list)
     table: np.ndarray | None = None  # (n, n, 3) uint8 tiling texture
     table_res: float = 0.002
+    height: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None  # z of the table and sheet at (x, y)
+
+
+def cockle(amplitude: float, wavelength: float = 0.08, seed: int = 0) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """The waves of a printed sheet lying on a table: ``z = amplitude * sin(...) * sin(...)``
+    over (x, y), crests ``wavelength`` metres apart, at random phases and a random angle."""
+    rng = np.random.default_rng(seed)
+    angle, px, py = rng.uniform(0, np.pi), rng.uniform(0, 2 * np.pi), rng.uniform(0, 2 * np.pi)
+    c, s_ = np.cos(angle), np.sin(angle)
+    k = 2 * np.pi / wavelength
+
+    def z(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return amplitude * np.sin(k * (c * x + s_ * y) + px) * np.sin(k * (-s_ * x + c * y) + py)
+
+    return z
 
 
 def table_texture(seed: int = 0, n: int = 256) -> np.ndarray:
@@ -164,9 +181,16 @@ def render(scene: SynthScene, rays_cam: np.ndarray, c2w: np.ndarray, supersample
     d = rays_cam @ R.T  # (Hs, Ws, 3), not normalised: plane/sphere hits use the same scale
     with np.errstate(divide="ignore", invalid="ignore"):
         s_plane = np.where(d[..., 2] < 0, -o[2] / d[..., 2], np.inf)
+    hit = np.isfinite(s_plane)
     X = o[0] + s_plane * d[..., 0]
     Y = o[1] + s_plane * d[..., 1]
-    hit = np.isfinite(s_plane)
+    if scene.height is not None:  # the waved surface: the fixed point of "hit the plane at the height below"
+        for _ in range(8):
+            with np.errstate(invalid="ignore"):
+                s_plane = np.where(hit, (scene.height(np.where(hit, X, 0.0), np.where(hit, Y, 0.0)) - o[2])
+                                   / d[..., 2], np.inf)
+            X = o[0] + s_plane * d[..., 0]
+            Y = o[1] + s_plane * d[..., 1]
     Xs, Ys = np.where(hit, X, 0.0), np.where(hit, Y, 0.0)
     img = np.empty((Hs, Ws, 3), np.uint8)
     table = scene.table if scene.table is not None else table_texture()
@@ -305,11 +329,12 @@ def make_calibration_capture(n: int = 16, size: tuple[int, int] = DEFAULT_SIZE, 
                              dist: np.ndarray = DEFAULT_DIST, ids: tuple[int, ...] = (0, 1, 2, 3, 4, 5),
                              tag_size: float = 0.05, cols: int = 2, gap: float = 0.025, seed: int = 0,
                              supersample: int = 2, dictionary: str = "DICT_4X4_50", noise: float = 1.0,
-                             prefix: str = "calib") -> SyntheticCapture:
-    """Photos of a sheet of tags (default: 6 tags, 2 columns, like the course's sheet)."""
+                             prefix: str = "calib", height=None) -> SyntheticCapture:
+    """Photos of a sheet of tags (default: 6 tags, 2 columns, like the course's sheet);
+    ``height``: the sheet's surface (:func:`cockle`), else flat."""
     rng = np.random.default_rng(seed)
     decal, layout = tag_sheet(list(ids), tag_size, cols, gap, dictionary=dictionary)
-    scene = SynthScene([decal], table=table_texture(seed))
+    scene = SynthScene([decal], table=table_texture(seed), height=height)
     extent = 0.5 * max(decal.texture.shape[:2]) * decal.res
     poses = sheet_views(n, np.asarray(K), size, extent, rng)
     rays = camera_rays(np.asarray(K), np.asarray(dist), size[0], size[1], supersample)
