@@ -31,7 +31,7 @@ focal length) and warns when they disagree.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -406,7 +406,7 @@ def refine_heights(records: dict[str, PhotoRecord], fit: Fit, layout: Layout) ->
     plane = np.linalg.lstsq(np.column_stack([pts[:, :2], np.ones(len(pts))]), pts[:, 2], rcond=None)[0]
     for t in tags:
         tags[t][:, 2] -= tags[t][:, :2] @ plane[:2] + plane[2]
-    return Layout(tags, source="estimated")
+    return replace(layout, tags=tags)
 
 
 def layout_change(new: Layout, old: Layout) -> float:
@@ -523,22 +523,33 @@ def estimate_layout(with_tags: list[PhotoRecord], by_name: dict, size: tuple[int
             break
     notes.append(f"estimated the layout of {len(layout.tags)} tags (reference tag {ref}) in {it + 1} "
                  f"rounds of calibrate ({LAYOUT_MODEL} distortion) + re-fit; last change {change * 1000:.3f} mm")
-    flat, flat_rms = layout, fit.rms
-    for _ in range(HEIGHT_ROUNDS):
-        layout = refine_heights(by_name, fit, layout)
-        fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor, fit.K)
-    height = max(float(np.abs(c[:, 2]).max()) for c in layout.tags.values())
-    if height > MAX_HEIGHT_OF_SIDE * tag_size:
-        notes.append(f"the tags' corners came out up to {height * 1000:.1f} mm off the sheet's plane, more than a "
-                     f"paper sheet bends: kept the sheet flat (a tag moved between photos, or the --tag-size is wrong?)")
-        layout = flat
-    else:
-        notes.append(f"the sheet is not quite flat: its tags' corners lie up to {height * 1000:.2f} mm off its plane "
-                     f"(RMS {flat_rms:.3f} px flat, {fit.rms:.3f} px with the heights)")
+    layout, K = measure_heights(with_tags, by_name, fit, layout, size, cfg, notes)
     notes.append("then froze the layout to choose the distortion model")
     missing = sorted({int(i) for r in with_tags for i in r.detection.ids} - set(layout.tags))
     if missing:
         notes.append(f"tags {missing} were never seen together with the others and were ignored")
+    return layout, K
+
+
+def measure_heights(with_tags: list[PhotoRecord], by_name: dict, fit: Fit, layout: Layout, size: tuple[int, int],
+                    cfg: CalibrateConfig, notes: list[str]) -> tuple[Layout, np.ndarray]:
+    """``layout`` with its corners' heights, from :data:`HEIGHT_ROUNDS` rounds of
+    :func:`refine_heights` and calibrate (:data:`LAYOUT_MODEL`), starting from ``fit`` (the
+    flat layout's); the flat layout when the heights come out larger than a sheet bends.
+    Returns the layout and the camera matrix its calibration starts from."""
+    flags = calib_flags(cfg, LAYOUT_MODEL)
+    flat, flat_fit = layout, fit
+    for _ in range(HEIGHT_ROUNDS):
+        layout = refine_heights(by_name, fit, layout)
+        fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor, fit.K)
+    height = max(float(np.abs(c[:, 2]).max()) for c in layout.tags.values())
+    if height > MAX_HEIGHT_OF_SIDE * flat.tag_size:
+        notes.append(f"the tags' corners came out up to {height * 1000:.1f} mm off the sheet's plane, more than a "
+                     f"paper sheet bends: kept the sheet flat (a tag moved between photos, or the tag size is wrong?)")
+        return flat, flat_fit.K
+    if HEIGHT_ROUNDS:
+        notes.append(f"the sheet is not quite flat: its tags' corners lie up to {height * 1000:.2f} mm off its plane "
+                     f"(RMS {flat_fit.rms:.3f} px flat, {fit.rms:.3f} px with the heights)")
     return layout, fit.K
 
 
@@ -579,7 +590,12 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
     if layout is not None:
         target = f"layout ({layout.source})"
         views = _views_for_layout(with_tags, layout, 6 if layout.charuco is not None else 4)
-        if not layout.is_planar():  # calibrateCamera can only initialise from planar targets
+        if layout.charuco is None and len(layout.tags) > 1 and layout.is_planar():  # the paper's heights
+            fit = fit_views(views, size, calib_flags(cfg, LAYOUT_MODEL), cfg.outlier_factor)
+            layout, K_layout = measure_heights(with_tags, by_name, fit, layout, size, cfg, notes)
+            if not layout.is_planar():
+                views, K0 = _layout_sheet_views(with_tags, layout), K_layout
+        elif not layout.is_planar():  # calibrateCamera can only initialise from planar targets
             fx0 = 1.2 * max(size)
             K0 = np.array([[fx0, 0, (size[0] - 1) / 2], [0, fx0, (size[1] - 1) / 2], [0, 0, 1]])
             notes.append("non-planar layout: started from fx = 1.2 x image width")
