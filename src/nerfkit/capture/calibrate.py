@@ -3,7 +3,8 @@
 Three kinds of targets:
 
 * a known layout (a layout file or an OpenCV GridBoard/ChArUco board): one view per photo
-  with every visible tag's corners at their true sheet positions;
+  with every visible tag's corners at their printed sheet positions (a sheet of several
+  tags also gets the paper's heights, as below);
 * several tags with an unknown layout: the layout is *estimated*. Each tag first serves as
   its own planar target for a rough calibration; relative tag poses (IPPE) give a first
   layout (the tags share the sheet plane); then calibration and layout are refined in
