@@ -389,6 +389,39 @@ def test_poses_use_the_camera_files_layout_when_photos_show_several_tags(tmp_pat
     assert all(len(p["tags_used"]) == 1 for p in json.loads((out / "poses.json").read_text())["photos"] if p["used"])
 
 
+def test_a_waved_sheet_under_the_object_is_posed_on_its_heights():
+    # The camera file keeps the printed, flat sheet; the paper under the object lies in waves
+    # of its own (up to 1.5 mm here). `poses` measures their heights from the photos first.
+    from nerfkit.capture.photos import PhotoRecord
+    from nerfkit.capture.poses import PoseConfig, sheet_heights
+
+    cap = S.make_calibration_capture(n=10, seed=6, height=S.cockle(0.0015, 0.2, seed=6))
+    cam = Camera(cap.K, cap.dist, cap.width, cap.height)
+    det = A.make_detector("DICT_4X4_50")
+    records = [PhotoRecord(n, None, A.detect(im, det)) for n, im in zip(cap.names, cap.images)]
+    layout, note = sheet_heights(records, cam, cap.layout, PoseConfig())
+    assert "off its plane in these photos" in note and not layout.is_planar()
+    ids = sorted(layout.tags)
+    xy = np.concatenate([layout.tags[t][:, :2] for t in ids])
+    assert np.array_equal(xy, np.concatenate([cap.layout.tags[t][:, :2] for t in ids]))  # printed places kept
+    truth = cap.scene.height(xy[:, 0], xy[:, 1])
+    est = np.concatenate([layout.tags[t][:, 2] for t in ids])
+    A_ = np.column_stack([xy, np.ones(len(xy))])
+    truth = truth - A_ @ np.linalg.lstsq(A_, truth, rcond=None)[0]  # both less their best-fit plane
+    assert np.abs(truth).max() > 0.001 and np.abs(est - truth).max() < 0.0004
+
+    def fit_errors(on):
+        return [solve_pose(r.detection, cam, on)[1] for r in records]
+
+    flat, waved = np.median(fit_errors(cap.layout)), np.median(fit_errors(layout))
+    assert waved < 0.7 * flat, (waved, flat)
+    # one tag, or a layout with heights already: as it is
+    single = A.Layout.single(0, 0.05)
+    lay, note = sheet_heights(records, cam, single, PoseConfig())
+    assert lay is single and note == ""
+    assert sheet_heights(records, cam, layout, PoseConfig())[0] is layout
+
+
 def test_poses_estimate_the_layout_from_photos_showing_several_tags_when_none_is_known(tmp_path):
     """No layout given nor in the camera file, and most photos show several tags (an object
     standing on the sheet): the layout is estimated from the photos, to a fraction of a

@@ -144,6 +144,13 @@ class Layout:
         tags = {t: np.column_stack([c[:, :2], np.zeros(len(c))]) for t, c in self.tags.items()}
         return Layout(tags, self.charuco, self.charuco_corners, self.spec, self.source)
 
+    def heights_json(self) -> dict | None:
+        """Each tag's corners' heights (metres) by id, for a report beside the flattened
+        layout; None for a flat layout."""
+        if self.is_planar():
+            return None
+        return {str(t): np.round(c[:, 2], 7).tolist() for t, c in sorted(self.tags.items())}
+
     @staticmethod
     def single(tag_id: int, size: float) -> "Layout":
         """One tag whose frame is the sheet frame."""

@@ -752,8 +752,7 @@ def calibration_json(cal: Calibration, records: list[PhotoRecord], dictionary: s
         "tag_size": tag_size,
         # the printed sheet (what `poses` takes); the heights were the paper's while calibrating
         "layout": None if cal.layout is None else cal.layout.flattened().to_json(),
-        "sheet_heights_m": None if cal.layout is None or cal.layout.is_planar() else
-        {str(t): np.round(c[:, 2], 7).tolist() for t, c in sorted(cal.layout.tags.items())},
+        "sheet_heights_m": None if cal.layout is None else cal.layout.heights_json(),
         "sanity": cal.sanity,
         "notes": cal.notes,
         "photos_dir": photos_dir,

@@ -305,6 +305,37 @@ def layout_from_photos(records: list[PhotoRecord], camera: Camera, tag_size: flo
     return layout, note
 
 
+def sheet_heights(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg: PoseConfig) -> tuple[Layout, str]:
+    """``layout`` with its corners' heights as the sheet lay for these photos, and a note.
+
+    A sheet of tags under the object is paper, not a plane, and it lies differently from
+    when the camera was calibrated (a camera file keeps the flat, printed layout): for
+    :data:`LAYOUT_ROUNDS` rounds the photos showing two or more of its tags are posed on it
+    and each corner's height is triangulated from them (:func:`~.calibrate.refine_heights`).
+    Heights above :data:`~.calibrate.MAX_HEIGHT_OF_SIDE` of the tag side leave the layout
+    flat. A ChArUco board, one tag, or too few photos showing several: the layout as it is."""
+    from .calibrate import MAX_HEIGHT_OF_SIDE, refine_heights
+
+    if layout.charuco is not None or len(layout.tags) < 2 or not layout.is_planar():
+        return layout, ""
+    several, _, enough = several_tags(records, set(layout.tags), size=(camera.width, camera.height))
+    if not enough:
+        return layout, ""
+    by_name = {r.name: r for r in several}
+    flat = layout
+    for _ in range(LAYOUT_ROUNDS):
+        posed = _posed_on(several, camera, layout, cfg)
+        if len(posed) < 2:
+            return flat, ""
+        layout = refine_heights(by_name, _PosedFit.of(posed, camera), layout)
+    height = max(float(np.abs(c[:, 2]).max()) for c in layout.tags.values())
+    if height > MAX_HEIGHT_OF_SIDE * flat.tag_size:
+        return flat, (f"the sheet's corners came out up to {height * 1000:.1f} mm off its plane, more than paper "
+                      "bends: posed on the flat sheet")
+    return layout, (f"the sheet lies up to {height * 1000:.2f} mm off its plane in these photos: posed on its "
+                    f"corners' heights, triangulated from the {len(several)} photos that show 2 or more of its tags")
+
+
 def _posed_on(records: list[PhotoRecord], camera: Camera, layout: Layout,
               cfg: PoseConfig) -> list[tuple[PhotoRecord, np.ndarray, float]]:
     """``(record, c2w, error limit)`` of the photos :func:`solve_pose_robust` poses on ``layout``."""

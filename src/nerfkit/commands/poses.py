@@ -129,7 +129,8 @@ def run(args: argparse.Namespace) -> int:
     from ..capture.camera import camera_from_focal, load_camera
     from ..capture.dataset import DATASET_OUTPUTS, POSES_FILE, DatasetConfig, write_poses_json
     from ..capture.photos import default_jobs, group_by_size, require_tags, scan_photos
-    from ..capture.poses import PoseConfig, choose_tag, exif_camera, layout_from_photos, pose_records
+    from ..capture.poses import (PoseConfig, choose_tag, exif_camera, layout_from_photos, pose_records,
+                                 sheet_heights)
     from ..capture.report import photo_summary
     from ..config import dataclass_from_args
     from ..errors import fail
@@ -200,6 +201,9 @@ def run(args: argparse.Namespace) -> int:
     elif args.tag_id is not None:
         notes.append("--tag-id is ignored with --layout: the layout's frame is the world")
     tag_size = args.tag_size or layout.tag_size
+    layout, note = sheet_heights(records, camera, layout, pcfg)
+    if note:
+        notes.append(note)
 
     posed = pose_records(records, camera, layout, pcfg)
     scaled = sorted({(p.camera.width, p.camera.height) for p in posed} - {(camera.width, camera.height)})
@@ -207,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
         notes.append(f"the camera ({camera.width}x{camera.height}) is scaled to the photos' "
                      + ", ".join(f"{w}x{h}" for w, h in scaled))
     meta = {"photos_dir": str(Path(args.photos).resolve()), "dictionary": dictionary, "tag_size": tag_size,
-            "layout": layout.to_json(), "world": "tag frame: origin at the tag centre, x right and y up along the "
+            "layout": layout.flattened().to_json(), "sheet_heights_m": layout.heights_json(), "world": "tag frame: origin at the tag centre, x right and y up along the "
             "printed tag, z out of the tag toward the cameras (scene up); metres", "notes": notes,
             "max_error_px": pcfg.max_error or "auto: max(3 x held-out error, 1 px, 2% of the tag side)"}
     out.mkdir(parents=True, exist_ok=True)
@@ -225,6 +229,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     from .dataset import build_and_report, report_dataset
 
+    printed = layout.flattened()  # the dataset's tags lie on the table plane (heights: the poses' alone)
+
     if args.method == "auto":
         from ..sfm.tagged import choose_poses
 
@@ -239,15 +245,15 @@ def run(args: argparse.Namespace) -> int:
             from ..sfm.dataset import build_dataset
 
             _, summary = build_dataset(choice.result, out, dcfg, jobs=args.jobs or default_jobs(),
-                                       extra={"notes": notes, "pose_choice": choice.to_dict()}, tags=layout.corners())
+                                       extra={"notes": notes, "pose_choice": choice.to_dict()}, tags=printed.corners())
             return report_dataset(summary, out)
         from ..sfm.dataset import REPORT_FILE
 
         (out / REPORT_FILE).unlink(missing_ok=True)  # an earlier --force run's SfM report would not hold
         return build_and_report(posed, out, dcfg, tag_size, args.jobs or default_jobs(),
-                                {"notes": notes, "pose_choice": choice.to_dict()}, layout.corners())
+                                {"notes": notes, "pose_choice": choice.to_dict()}, printed.corners())
     return build_and_report(posed, out, dcfg, tag_size, args.jobs or default_jobs(), {"notes": notes},
-                            layout.corners())
+                            printed.corners())
 
 
 def reference_tag(records, layout) -> int:
