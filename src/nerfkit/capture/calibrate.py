@@ -33,6 +33,7 @@ focal length) and warns when they disagree.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Iterator
 
 import numpy as np
 
@@ -376,23 +377,10 @@ def refine_heights(records: dict[str, PhotoRecord], fit: Fit, layout: Layout) ->
     :data:`HEIGHT_MIN_VIEWS` of them (else height 0). A corner keeps its place on the
     printed sheet (x, y); the heights' best-fit plane is then taken out, so z = 0 stays the
     sheet's own plane and the frame does not move."""
-    import cv2
-
     rays: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray]]] = {}
-    for key, rvec, tvec in zip(fit.keys, fit.rvecs, fit.tvecs):
-        det = records[key].detection
-        R = cv2.Rodrigues(rvec)[0]
-        origin = -R.T @ np.ravel(tvec)  # camera centre in the sheet frame
-        ids = [int(i) for i in det.ids]
-        for i, tag in enumerate(ids):
-            if tag not in layout.tags or ids.count(tag) != 1:
-                continue
-            xy = cv2.undistortPoints(det.corners[i].reshape(-1, 1, 2), fit.K, fit.dist,
-                                     criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)).reshape(-1, 2)
-            d = (R.T @ np.column_stack([xy, np.ones(4)]).T).T
-            d /= np.linalg.norm(d, axis=1, keepdims=True)
-            for k in range(4):
-                rays.setdefault((tag, k), []).append((origin, d[k]))
+    for tag, origin, d in corner_rays(records, fit, layout.tags):
+        for k in range(4):
+            rays.setdefault((tag, k), []).append((origin, d[k]))
     tags = {t: np.array(c, np.float64, copy=True) for t, c in layout.tags.items()}
     for (tag, k), seen in rays.items():
         if len(seen) < HEIGHT_MIN_VIEWS:
@@ -416,31 +404,37 @@ def layout_change(new: Layout, old: Layout) -> float:
     return max(float(np.abs(new.tags[t] - old.tags[t]).max()) for t in old.tags)
 
 
-def refine_layout(records: dict[str, PhotoRecord], fit: Fit, layout: Layout, ref: int, tag_size: float) -> Layout:
-    """Re-estimate every tag but ``ref``: back-project its corners onto the sheet plane of
-    each calibrated photo, average, and fit a square of side ``tag_size``."""
+def corner_rays(records: dict[str, PhotoRecord], fit: Fit, tags) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """Per photo of ``fit`` and per tag of ``tags`` it shows once: ``(tag, origin (3,),
+    directions (4, 3))``, the camera centre and the unit rays through the tag's corners,
+    in the sheet's frame (``fit``'s poses and camera)."""
     import cv2
 
-    acc: dict[int, list[np.ndarray]] = {t: [] for t in layout.tags if t != ref}
     for key, rvec, tvec in zip(fit.keys, fit.rvecs, fit.tvecs):
         det = records[key].detection
         R = cv2.Rodrigues(rvec)[0]
-        t = np.ravel(tvec)
-        origin = -R.T @ t  # camera centre in the sheet frame
-        ids = list(det.ids)
+        origin = -R.T @ np.ravel(tvec)  # camera centre in the sheet frame
+        ids = [int(i) for i in det.ids]
         for i, tag in enumerate(ids):
-            tag = int(tag)
-            if tag not in acc or ids.count(tag) != 1:
+            if tag not in tags or ids.count(tag) != 1:
                 continue
             xy = cv2.undistortPoints(det.corners[i].reshape(-1, 1, 2), fit.K, fit.dist,
                                      criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)).reshape(-1, 2)
-            d = (R.T @ np.column_stack([xy, np.ones(4)]).T).T  # ray directions in the sheet frame
-            if np.any(np.abs(d[:, 2]) < 1e-9):
-                continue
-            s = -origin[2] / d[:, 2]
-            if np.any(s <= 0):
-                continue
-            acc[tag].append(origin + s[:, None] * d)
+            d = (R.T @ np.column_stack([xy, np.ones(4)]).T).T
+            yield tag, origin, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def refine_layout(records: dict[str, PhotoRecord], fit: Fit, layout: Layout, ref: int, tag_size: float) -> Layout:
+    """Re-estimate every tag but ``ref``: back-project its corners onto the sheet plane of
+    each calibrated photo, average, and fit a square of side ``tag_size``."""
+    acc: dict[int, list[np.ndarray]] = {t: [] for t in layout.tags if t != ref}
+    for tag, origin, d in corner_rays(records, fit, acc):
+        if np.any(np.abs(d[:, 2]) < 1e-9):
+            continue
+        s = -origin[2] / d[:, 2]
+        if np.any(s <= 0):
+            continue
+        acc[tag].append(origin + s[:, None] * d)
     tags = {ref: layout.tags[ref]}
     for tag, pts in acc.items():
         tags[tag] = fit_square_2d(np.mean(pts, axis=0), tag_size) if pts else layout.tags[tag]
