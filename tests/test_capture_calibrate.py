@@ -302,6 +302,7 @@ def test_a_waved_sheets_heights_are_measured_and_its_photos_then_fit(monkeypatch
 def test_a_flat_sheet_stays_flat(sheet, records):
     cal = C.calibrate_records(fresh(records), SIZE, TAG, None, C.CalibrateConfig())
     assert max(np.abs(c[:, 2]).max() for c in cal.layout.tags.values()) < 0.0001  # 0.1 mm
+    assert any(n.startswith("the sheet lies flat") for n in cal.notes), cal.notes
 
 
 def test_folds_keep_the_views_of_a_photo_together():

@@ -369,6 +369,8 @@ HEIGHT_MIN_VIEWS = 3
 # between photos, a wrong --tag-size): the layout then stays flat.
 MAX_HEIGHT_OF_SIDE = 0.1
 HEIGHT_ROUNDS = 4
+# Heights within this share of the tag side are reported as a flat sheet (0.2 mm for 5 cm tags).
+FLAT_WITHIN = 0.004
 
 
 def refine_heights(records: dict[str, PhotoRecord], fit: Fit, layout: Layout) -> Layout:
@@ -543,7 +545,8 @@ def measure_heights(with_tags: list[PhotoRecord], by_name: dict, fit: Fit, layou
                      f"paper sheet bends: kept the sheet flat (a tag moved between photos, or the tag size is wrong?)")
         return flat, flat_fit.K
     if HEIGHT_ROUNDS:
-        notes.append(f"the sheet is not quite flat: its tags' corners lie up to {height * 1000:.2f} mm off its plane "
+        how = "lies flat" if height < FLAT_WITHIN * flat.tag_size else "is not quite flat"
+        notes.append(f"the sheet {how}: its tags' corners lie up to {height * 1000:.2f} mm off its plane "
                      f"(RMS {flat_fit.rms:.3f} px flat, {fit.rms:.3f} px with the heights)")
     return layout, fit.K
 
