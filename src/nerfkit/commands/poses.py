@@ -211,7 +211,8 @@ def run(args: argparse.Namespace) -> int:
         notes.append(f"the camera ({camera.width}x{camera.height}) is scaled to the photos' "
                      + ", ".join(f"{w}x{h}" for w, h in scaled))
     meta = {"photos_dir": str(Path(args.photos).resolve()), "dictionary": dictionary, "tag_size": tag_size,
-            "layout": layout.flattened().to_json(), "sheet_heights_m": layout.heights_json(), "world": "tag frame: origin at the tag centre, x right and y up along the "
+            "layout": layout.flattened().to_json(), "sheet_heights_m": layout.heights_json(),
+            "world": "tag frame: origin at the tag centre, x right and y up along the "
             "printed tag, z out of the tag toward the cameras (scene up); metres", "notes": notes,
             "max_error_px": pcfg.max_error or "auto: max(3 x held-out error, 1 px, 2% of the tag side)"}
     out.mkdir(parents=True, exist_ok=True)

@@ -37,8 +37,8 @@ class ModelHelp(argparse.Action):
 
 
 def help_for_model(parser: argparse.ArgumentParser, model: str | None) -> str:
-    """``parser``'s help with only ``model``'s groups of model flags (none for None); the
-    others' titles then stand in the epilog as a line each."""
+    """``parser``'s help with only ``model``'s groups of model flags; for None, none of them,
+    and the epilog names the command that shows each model's."""
     groups = parser._action_groups
     mine = [g for g in groups if not (g.title or "").startswith("model '")
             or (model is not None and MODEL_GROUP.format(model) in g.title)]
