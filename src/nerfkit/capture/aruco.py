@@ -26,7 +26,7 @@ is also a layout file (its ``"layout"`` entry, e.g. the layout it estimated).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -133,16 +133,18 @@ class Layout:
         sides = [np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean() for c in self.tags.values()]
         return float(np.mean(sides))
 
+    def max_height(self) -> float:
+        """The largest distance of a corner from the plane z = 0."""
+        return float(np.abs(np.concatenate(list(self.tags.values()))[:, 2]).max())
+
     def is_planar(self, tol: float = 1e-9) -> bool:
         """True when every corner lies in z = 0 (what calibrateCamera's initialisation needs)."""
-        pts = np.concatenate(list(self.tags.values()))
-        return bool(np.abs(pts[:, 2]).max() <= tol)
+        return self.max_height() <= tol
 
     def flattened(self) -> "Layout":
         """The same tags with every corner on the plane z = 0 (an estimated layout's heights
         describe how the paper lay while it was photographed, not the printed sheet)."""
-        tags = {t: np.column_stack([c[:, :2], np.zeros(len(c))]) for t, c in self.tags.items()}
-        return Layout(tags, self.charuco, self.charuco_corners, self.spec, self.source)
+        return replace(self, tags={t: np.column_stack([c[:, :2], np.zeros(len(c))]) for t, c in self.tags.items()})
 
     def heights_json(self) -> dict | None:
         """Each tag's corners' heights (metres) by id, for a report beside the flattened

@@ -539,7 +539,7 @@ def measure_heights(with_tags: list[PhotoRecord], by_name: dict, fit: Fit, layou
     for _ in range(HEIGHT_ROUNDS):
         layout = refine_heights(by_name, fit, layout)
         fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor, fit.K)
-    height = max(float(np.abs(c[:, 2]).max()) for c in layout.tags.values())
+    height = layout.max_height()
     if height > MAX_HEIGHT_OF_SIDE * flat.tag_size:
         notes.append(f"the tags' corners came out up to {height * 1000:.1f} mm off the sheet's plane, more than a "
                      f"paper sheet bends: kept the sheet flat (a tag moved between photos, or the tag size is wrong?)")

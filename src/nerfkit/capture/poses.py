@@ -328,7 +328,7 @@ def sheet_heights(records: list[PhotoRecord], camera: Camera, layout: Layout, cf
         if len(posed) < 2:
             return flat, ""
         layout = refine_heights(by_name, _PosedFit.of(posed, camera), layout)
-    height = max(float(np.abs(c[:, 2]).max()) for c in layout.tags.values())
+    height = layout.max_height()
     if height > MAX_HEIGHT_OF_SIDE * flat.tag_size:
         return flat, (f"the sheet's corners came out up to {height * 1000:.1f} mm off its plane, more than paper "
                       "bends: posed on the flat sheet")

@@ -204,6 +204,7 @@ def run(args: argparse.Namespace) -> int:
     layout, note = sheet_heights(records, camera, layout, pcfg)
     if note:
         notes.append(note)
+    printed = layout.flattened()  # what the files record and the dataset's tags (the heights: the poses' alone)
 
     posed = pose_records(records, camera, layout, pcfg)
     scaled = sorted({(p.camera.width, p.camera.height) for p in posed} - {(camera.width, camera.height)})
@@ -211,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
         notes.append(f"the camera ({camera.width}x{camera.height}) is scaled to the photos' "
                      + ", ".join(f"{w}x{h}" for w, h in scaled))
     meta = {"photos_dir": str(Path(args.photos).resolve()), "dictionary": dictionary, "tag_size": tag_size,
-            "layout": layout.flattened().to_json(), "sheet_heights_m": layout.heights_json(),
+            "layout": printed.to_json(), "sheet_heights_m": layout.heights_json(),
             "world": "tag frame: origin at the tag centre, x right and y up along the "
             "printed tag, z out of the tag toward the cameras (scene up); metres", "notes": notes,
             "max_error_px": pcfg.max_error or "auto: max(3 x held-out error, 1 px, 2% of the tag side)"}
@@ -229,8 +230,6 @@ def run(args: argparse.Namespace) -> int:
     if args.no_dataset:
         return 0
     from .dataset import build_and_report, report_dataset
-
-    printed = layout.flattened()  # the dataset's tags lie on the table plane (heights: the poses' alone)
 
     if args.method == "auto":
         from ..sfm.tagged import choose_poses
