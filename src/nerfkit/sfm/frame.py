@@ -169,16 +169,18 @@ def _level_on_ground(result: SfmResult, progress: bool) -> str:
 # --------------------------------------------------------------------------- tags
 
 
-def detect_tags(image: np.ndarray, dictionary: str = "DICT_4X4_50") -> dict[int, np.ndarray]:
+def detect_tags(image: np.ndarray, detector, bits: int) -> dict[int, np.ndarray]:
     """Corners (4, 2) of every ArUco tag in an (H, W, 3) uint8 photo, by id.
 
-    Uses the capture package's detector (sub-pixel corners, found where the tag's edges
-    meet); corners come in OpenCV's order (top-left, top-right, bottom-right, bottom-left of
-    the printed tag) and in COLMAP's / nerfkit's pixel convention (pixel centres at +0.5).
+    Uses the capture package's detection (``detector`` from
+    :func:`~nerfkit.capture.aruco.make_detector`, tags of ``bits`` x ``bits`` cells;
+    sub-pixel corners, found where the tag's edges meet); corners come in OpenCV's order
+    (top-left, top-right, bottom-right, bottom-left of the printed tag) and in COLMAP's /
+    nerfkit's pixel convention (pixel centres at +0.5).
     """
-    from ..capture.aruco import detect, make_detector, marker_bits
+    from ..capture.aruco import detect
 
-    det = detect(image, make_detector(dictionary), marker_bits=marker_bits(dictionary))
+    det = detect(image, detector, marker_bits=bits)
     found: dict[int, np.ndarray] = {}
     for i, tag in enumerate(det.ids):
         found.setdefault(int(tag), det.corners[i].astype(np.float64) + 0.5)  # OpenCV centres at integers -> +0.5
@@ -235,17 +237,18 @@ def tag_similarity(rec, image_dir: Path, tag_size: float, tag_id: int = 0, dicti
     ``min_views`` photos joins the fit, which a sheet's width holds level far better than
     one tag's side (steve: 6 tags over 20 cm against one of 5.5 cm).
     """
+    from ..capture.aruco import make_detector, marker_bits, square_corners
     from ..images import load_image_uint8
 
-    half = tag_size / 2
-    targets = {tag_id: np.array([[-half, half, 0], [half, half, 0], [half, -half, 0], [-half, -half, 0]])
-               if tag_corners is None else np.asarray(tag_corners, np.float64).reshape(4, 3)}
+    targets = {tag_id: square_corners(tag_size) if tag_corners is None
+               else np.asarray(tag_corners, np.float64).reshape(4, 3)}
     for tag, corners in (layout_tags or {}).items():
         targets.setdefault(int(tag), np.asarray(corners, np.float64).reshape(4, 3))
     obs: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {t: [] for t in targets}  # (w2c 3x4, corners 4x2)
+    detector, bits = make_detector(dictionary), marker_bits(dictionary)
     for i in rec.reg_image_ids():
         im = rec.images[i]
-        found = detect_tags(load_image_uint8(image_dir / im.name), dictionary)
+        found = detect_tags(load_image_uint8(image_dir / im.name), detector, bits)
         cam = rec.cameras[im.camera_id]
         for tag in set(found) & set(targets):
             obs[tag].append((np.asarray(im.cam_from_world().matrix(), np.float64),
