@@ -126,6 +126,12 @@ def test_dataset_files_load_back_with_the_same_cameras(posed, obj, tmp_path):
     tj = json.loads((out / "transforms.json").read_text())
     assert all(f["file_path"] == f"images/{f['name']}" for f in tj["frames"])
     assert tj["nerfkit"]["tag_size"] == TAG
+    # where the photos look from: the chart beside the files, and the widest gaps named by photo
+    cov = tj["nerfkit"]["coverage"]
+    assert cov == summary["coverage"] and (out / cov["plot"]).stat().st_size > 1000
+    assert set(cov["widest_gap"]["nearest_photos"]) <= set(obj.names)
+    assert set(cov["widest_gap_of_training_photos"]["nearest_photos"]) <= set(scene.train.names)
+    assert cov["widest_gap_of_training_photos"]["radius_deg"] >= cov["widest_gap"]["radius_deg"]
 
 
 def test_dataset_cameras_project_the_tag_onto_its_pixels(posed, obj, tmp_path):

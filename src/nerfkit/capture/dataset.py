@@ -7,6 +7,8 @@ Writes into the dataset folder:
 * ``transforms.json``: nerfstudio layout (see :mod:`nerfkit.data.nerfstudio`);
 * ``dataset.npz``: the course layout with ``K``, ``near``, ``far``, ``center``, ``up`` and
   ``names_*`` (each view's photo file name);
+* ``coverage.png``: where the photos look from, seen from above, with the widest gap among
+  them (:mod:`nerfkit.capture.coverage`; ``transforms.json`` keeps the figures);
 * ``poses.json`` (written by ``nerfkit poses``) is the input: every photo's pose or the
   reason it has none, the camera, and the tag settings, so ``nerfkit dataset`` can
   rebuild the dataset with other options without re-detecting.
@@ -43,8 +45,10 @@ if TYPE_CHECKING:  # pragma: no cover
 
 POSES_FILE = "poses.json"
 NPZ_FILE = "dataset.npz"
+# the chart of where the photos look from
+COVERAGE_PLOT = "coverage.png"
 # What build_dataset writes into its folder (checked with nerfkit.io.paths.guard_outputs).
-DATASET_OUTPUTS = (NPZ_FILE, "transforms.json", "images", "sparse_pc.ply")
+DATASET_OUTPUTS = (NPZ_FILE, "transforms.json", "images", "sparse_pc.ply", COVERAGE_PLOT)
 
 
 @dataclass
@@ -279,9 +283,26 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
         "world": "tag frame: origin at the tag centre, x right and y up along the printed tag, z out of the tag "
                  "toward the cameras (= up); metres",
     }
+    if len(scene.train):
+        summary["coverage"] = write_coverage(scene, out_dir / COVERAGE_PLOT)
     write_transforms_json(scene, out_dir, jpeg_quality=cfg.jpeg_quality, extra={**summary, **(extra or {})})
     save_npz(scene, out_dir / NPZ_FILE)
     return scene, summary
+
+
+def write_coverage(scene: Scene, plot_path: Path) -> dict:
+    """The coverage of ``scene``'s photos around its centre (:func:`~nerfkit.capture.coverage.measure_coverage`)
+    as JSON, with its chart written to ``plot_path``."""
+    from ..viz.plots import plot_coverage
+    from .coverage import cap_outline, measure_coverage
+
+    cov = measure_coverage({s: (v.c2w, v.names) for s, v in scene.splits.items()}, scene.center, scene.up)
+    gaps = {f"widest gap ({cov.capture.radius_deg:.0f} degrees)": cap_outline(cov.capture, scene.up)}
+    if cov.train.radius_deg > cov.capture.radius_deg:
+        gaps[f"widest gap of the train photos ({cov.train.radius_deg:.0f})"] = cap_outline(cov.train, scene.up)
+    plot_coverage(plot_path, cov.azimuth_elevation, gaps, "where the photos look from, seen from above\n"
+                  "(azimuth from the world's x axis, a tag's right; the centre looks straight down)")
+    return {**cov.as_json(), "plot": plot_path.name}
 
 
 def _lying_flat(tags) -> np.ndarray | None:

@@ -57,6 +57,7 @@ def build_and_report(posed, out, cfg, tag_size: float, jobs: int, extra: dict | 
 
 def report_dataset(s: dict, out) -> int:
     """Print what a dataset builder's summary ``s`` says was written to ``out``."""
+    from ..capture.coverage import coverage_notes
     from ..capture.dataset import NPZ_FILE, few_views_note, no_object_note
 
     K = s["K"]
@@ -72,7 +73,11 @@ def report_dataset(s: dict, out) -> int:
     note = no_object_note(s.get("object_points"), s["points"])
     if note:
         print(note)
-    print(f"wrote {out}/{NPZ_FILE}, {out}/transforms.json{', sparse_pc.ply' if s['points'] else ''} and {out}/images/")
+    if s.get("coverage"):
+        print("\n".join(coverage_notes(s["coverage"])))
+    plot = f", {s['coverage']['plot']}" if s.get("coverage") else ""
+    print(f"wrote {out}/{NPZ_FILE}, {out}/transforms.json{', sparse_pc.ply' if s['points'] else ''}{plot} and "
+          f"{out}/images/")
     return 0
 
 

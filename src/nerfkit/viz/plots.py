@@ -99,3 +99,34 @@ def image_grid(
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
     plt.close(fig)
+
+
+# marker colour of each split in plot_coverage
+SPLIT_COLOURS = {"train": "tab:blue", "val": "tab:orange", "test": "tab:green"}
+
+
+def plot_coverage(path: str | Path, where: dict[str, np.ndarray], gaps: dict[str, np.ndarray], title: str = "") -> None:
+    """Where the photos look from, seen from above: a polar chart with azimuth as the angle and
+    90 - elevation as the radius (the centre looks straight down). ``where``: split -> (n, 2)
+    azimuth and elevation of its photos, degrees; ``gaps``: label -> (m, 2) the outline of a gap,
+    drawn as a dashed line. Written atomically as PNG."""
+    plt = _pyplot()
+    fig = plt.figure(figsize=(5.2, 5.4), dpi=110)
+    ax = fig.add_subplot(projection="polar")
+    for split, ae in where.items():
+        if len(ae):
+            ax.scatter(np.radians(ae[:, 0]), 90.0 - ae[:, 1], s=18, label=f"{split} ({len(ae)})",
+                       color=SPLIT_COLOURS.get(split), zorder=3)
+    for (label, outline), colour in zip(gaps.items(), ["tab:red", "tab:purple"]):
+        ax.plot(np.radians(outline[:, 0]), 90.0 - outline[:, 1], "--", color=colour, linewidth=1.2, label=label)
+    ax.set_rlim(0, 90)
+    ax.set_rticks([30, 60, 90])
+    ax.set_yticklabels(["60\u00b0 up", "30\u00b0", "0\u00b0"], fontsize=7)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.06), ncol=3, fontsize=7, frameon=False)
+    if title:
+        ax.set_title(title, fontsize=9, pad=14)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
