@@ -72,7 +72,7 @@ def test_auto_capture_settings_follow_the_dataset(tabletop):
 def test_the_table_cover_prior_is_on_for_few_photos_that_show_no_floor_past_the_table(tabletop):
     from dataclasses import replace
 
-    from nerfkit.models.fast import TABLE_COVER_WEIGHT
+    from nerfkit.models.fast_config import TABLE_COVER_WEIGHT
 
     rng = np.random.default_rng(0)
     table = np.concatenate([rng.uniform(-1, 1, (300, 2)), np.zeros((300, 1))], 1)

@@ -156,7 +156,7 @@ def test_photos_with_finer_detail_get_a_fifth_grid_stage_unless_the_stages_are_g
     capture, on a forward-facing scene, or with the stages given, the stages are as set."""
     from dataclasses import replace
     from nerfkit.data.synthetic import forward_facing_scene, sphere_scene
-    from nerfkit.models.fast import BASE_STAGES, FINE_STAGES
+    from nerfkit.models.fast_config import BASE_STAGES, FINE_STAGES
     from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import capture_settings
 

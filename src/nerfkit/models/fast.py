@@ -44,8 +44,7 @@ object, not the table around it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from typing import ClassVar
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -53,7 +52,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..cameras import Rays
-from ..config import check_ranges, option
+from ..config import check_ranges
 from ..data.validate import short_repr
 from ..errors import fail
 from ..fields.background import RoomShells, TablePlane, composite_layers, layers_depth, sh16, table_doubt
@@ -64,7 +63,9 @@ from ..render.occupancy import OccupancyGrid, ray_aabb
 from ..render.volrend import sight_line_loss
 from ..tabletop import TABLE_CUT, around_object, faces_reached, heights, table_cut_height
 from .packing import pack_grid, unpack_grid, vertices_touching
-from .base import RGB_LOSSES, NerfModel, RenderOutput, SceneBounds, Schedule, StepState, rgb_loss
+from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState, rgb_loss
+from .fast_config import (BOX_FOLLOW, BOX_FOLLOW_OPACITY, BOX_FOLLOW_UNTIL, MAX_GRID_SIDE, MAX_GRID_VERTICES,
+                          FastConfig)
 
 
 # A growth dips the held-out score until the finer grid has trained for a while (lego,
@@ -89,243 +90,6 @@ SIGHT_VOXELS = 2.0
 # pixels of its photos). Aimed at the point itself the lines made specks a voxel or two
 # wide, the fur between them thinner; 5 margins left labubu's object paler (BENCHMARKS.md).
 SIGHT_SPREAD = 2.5
-MAX_STAGE_RAYS = 64  # --stage-rays: the largest multiple of --batch-rays
-
-# Largest grid: each side and the vertex count (512^3 vertices of 4+ float32 channels: 2+ GB).
-MAX_GRID_SIDE = 4096
-MAX_GRID_VERTICES = 512 ** 3
-
-
-def comma_ints(text: str) -> list[int]:
-    """``"32, 64,128"`` -> ``[32, 64, 128]`` (empty items skipped); ValueError for anything else."""
-    return [int(s) for s in text.split(",") if s.strip()]
-
-
-# (resolutions, upsample steps) of the coarse-to-fine stages when the options are unset
-BASE_STAGES = ("32,64,128,192", "60,300,2000")
-# ... and for an object scene (not a capture, not forward-facing) whose photos have more
-# pixels than this: one more stage, for the finer detail (lego 400x400, 5 minutes: 30.84
-# -> 31.15 dB; lego 200x200 holds no detail finer than the 192 grid)
-FINE_STAGES = ("32,64,128,192,256", "60,300,2000,3500")
-FINE_STAGE_PIXELS = 100_000
-
-
-# A capture's box follows its object (--box-follows): at each growth after the first, each
-# face of the box that the object reaches (faces_reached) moves out by this share of the
-# box's size along its axis, within the scene's sphere (steve, 28 photos: the box from the
-# sparse points, none on the sword, ended at its hilt). A vertex is solid for that when its
-# density makes a voxel of the grid this opaque (scale-free). At the growth at step 300 the
-# sword crosses the face at 10% (14 columns), labubu's haze (30 photos, which trained away
-# later) at 5% but not at 10%.
-BOX_FOLLOW = 0.5
-BOX_FOLLOW_OPACITY = 0.1
-# ... at growths in the first half of the run only: what the new space starts with must
-# have the steps to be carved
-BOX_FOLLOW_UNTIL = 0.5
-
-
-# weight of the table cover prior on few-photo captures that show no floor past the table's edge
-TABLE_COVER_WEIGHT = 0.05
-
-
-def table_cover_default(scene, capture: bool) -> float:
-    """``--table-cover-weight`` left unset: :data:`TABLE_COVER_WEIGHT` on a capture with a
-    table, fewer than :data:`~nerfkit.capture.dataset.FEW_TRAIN_VIEWS` training photos and
-    sparse points that show no floor under the table; else 0.
-
-    With few photos a table's coverage under 1 blends the room shells into it in blotches
-    that the photos cannot average out (labubu, 24 training photos: +0.6 dB on val and test
-    with the prior; 40: +0.1 val, -0.3 test; all 129: -0.1). Where a floor shows past the
-    table's edge (steve: a carpet 0.4 m down) the coverage must learn to turn clear there,
-    and the prior holds it opaque: the carpet is painted onto the table's plane (-0.5 dB).
-    Without sparse points the floor is unknown: off.
-    """
-    from ..capture.dataset import FEW_TRAIN_VIEWS
-
-    if not capture or scene.table is None or scene.points is None or not 0 < len(scene.train) < FEW_TRAIN_VIEWS:
-        return 0.0
-    return TABLE_COVER_WEIGHT if scene.floor() is None else 0.0
-
-
-@dataclass
-class FastConfig:
-    """Options of the ``fast`` model."""
-
-    # with --capture the learning rate ends lower: a table texel is hit by few rays a step,
-    # each from one photo (labubu, 20 training photos: +0.2-0.3 dB; lego 60 s: -0.5 dB)
-    TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 4096, "lr": 0.3, "render_chunk": 65536,
-                                      "capture_lr_final_factor": 0.02}
-    # options left unset (None) take (the capture value, the other value) by the dataset
-    CAPTURE_DEFAULTS: ClassVar[dict] = {"distortion_weight": (0.01, 0.0), "room_shells": (3, 0),
-                                        "table_gloss": (True, False), "rgb_loss": ("charbonnier", "mse"),
-                                        "points_weight": (0.02, 0.0)}
-    # ... and on a forward-facing scene (content at every depth, as a capture's)
-    FORWARD_FACING_DEFAULTS: ClassVar[dict] = {"distortion_weight": 0.01}
-
-    resolutions: str | None = option(None, "grid sizes of the coarse-to-fine stages, as the side of a cube with "
-                                     "as many vertices (comma-separated; default: 32,64,128,192, and a fifth stage "
-                                     f"of 256 for object scenes with photos over {FINE_STAGE_PIXELS // 1000}k pixels, "
-                                     "such as lego at 400x400)")
-    upsample_steps: str | None = option(None, "steps at which the grid grows to the next size (one fewer than "
-                                        "--resolutions; default: 60,300,2000, and 3500 with the fifth stage); a "
-                                        "growth with fewer steps left than 5% of those done is skipped")
-    stage_rays: str = option("1,1,2,4", "rays per training step at each stage, as multiples of --batch-rays "
-                             "(comma-separated; later stages take the last): a finer grid has more vertices to "
-                             "share each step's rays, and fewer, fuller steps beat more, noisier ones (lego "
-                             "200x200 after 300 s: 32.9 dB with 1,1,1,1, 33.3 with 1,1,2,4)")
-    sh_degree: int = option(1, "spherical-harmonic degree of the view-dependent colour (0, 1 or 2)", min=0, max=2)
-    step_ratio: float = option(0.5, "distance between samples along a ray, in voxels", above=0)
-    init_alpha: float = option(1e-4, "opacity of one sample of the initial, near-empty density", above=0, max=0.5)
-    occ_alpha: float = option(1e-2, "cells whose largest sample opacity is below this are skipped", above=0, max=0.5)
-    occ_every: int = option(16, "steps between occupancy-grid refreshes", min=1)
-    occ_start: int = option(4, "first step with empty-space skipping (all cells are sampled before)", min=1)
-    occ_warmup: int = option(64, "until this step the occupancy is refreshed every --occ-start steps (carving "
-                             "empty space quickly while every step is still expensive)", min=0)
-    coarse_factor: int = option(8, "block size (in cells) of the coarse occupancy used to leap empty space",
-                                min=1, max=64)
-    early_stop_eps: float = option(1e-4, "stop a ray once its transmittance is below this", min=0, max=0.5)
-    colour_lr_ratio: float = option(1.0, "learning rate of the colour coefficients relative to --lr", min=0)
-    adam_eps: float = option(1e-15, "Adam epsilon", above=0)
-    shrink_box: bool = option(True, "at the first growth, shrink the box around where opaque training rays end")
-    box_follows: bool = option(True, "with --table: at each growth after the first in the first half of the run, "
-                               "move out each face of the box that the object reaches, by "
-                               f"{BOX_FOLLOW:g} of the box's size (a thin part the sparse points missed, such as "
-                               "a sword, is otherwise cut off at the box)")
-    box_pad: int = option(3, "margin around the shrunken box, in voxels (plus 5% of its size)", min=0)
-    learn_background: bool = option(False, "learn what rays see outside the box (a colour per direction) "
-                                    "instead of the --background colour: for real photos, whose background is "
-                                    "a room, not a flat colour")
-    room_shells: int | None = option(None, "with --learn-background: textured spheres around the cameras (each "
-                                     "--room-ratio times the last) that hold the room with its parallax, in front "
-                                     "of the colour per direction (default: 3 on capture datasets, else 0)",
-                                     min=0, max=16)
-    room_ratio: float = option(2.5, "radius of each room shell over the one inside it", above=1.0)
-    room_resolution: int = option(1024, "texels around each room shell (half as many from bottom to top)", min=8,
-                                  max=4096)
-    room_lr_ratio: float = option(0.2, "learning rate of the room shells relative to --lr", min=0)
-    table: bool = option(False, "rays stop at the scene's table plane (a tag capture's tag plane), which shows a "
-                         "learned texture: the box then holds only the object")
-    table_gloss: bool | None = option(None, "with --table: the table also mirrors its surroundings (a learned "
-                                      "glossiness per texel mixes its colour with a small learned map of what "
-                                      "lies along the reflected ray), for varnished tables and paper with a sheen, "
-                                      "whose look changes with the view (default: on for capture datasets; "
-                                      "steve +0.25 dB, labubu +0.4)")
-    floor: bool = option(True, "with --table and --learn-background: a second textured plane for the floor seen "
-                         "beyond the table's edge, when the dataset's sparse points show one (a plane parallel "
-                         "to the table, well under it)")
-    table_resolution: int = option(512, "texels per side of the table texture (512: a texel about a pixel's "
-                                   "footprint on the dev captures; steve 2000 steps: +0.4 dB over 1024)",
-                                   min=2, max=MAX_GRID_SIDE)
-    table_lr_ratio: float = option(0.2, "learning rate of the table texture relative to --lr (a texel is seen by few "
-                                   "rays, and each sparse Adam step moves it by about the learning rate)", min=0)
-    opacity_weight: float = option(0.005, "with --table: weight of the mean opacity of the box in the loss, so that "
-                                   "what the table and the room explain is not copied into clouds of density", min=0)
-    table_cover_weight: float | None = option(None, "with --table: weight of a prior that each spot of the table "
-                                              "plane is table (opaque) or not (past the table's edge: clear), "
-                                              "4 c (1 - c) of the light c it lets through, on the rays that reach "
-                                              "it, against a table that blends a little of the room into each "
-                                              "photo in blotches (labubu, 24 training photos: +0.6 dB at 0.05). It "
-                                              "costs where the photos show a floor past the table's edge (steve "
-                                              "-0.5 dB) and gains nothing from 40 photos on. Default: "
-                                              f"{TABLE_COVER_WEIGHT:g} on captures with fewer than 30 training "
-                                              "photos whose sparse points show no floor under the table, else 0",
-                                              min=0.0)
-    table_cover_start: float = option(0.0, "with --table-cover-weight: the share of the run after which the prior "
-                                      "applies, so that the coverage first learns where the table ends (0.6: steve "
-                                      "within 0.1 dB, the full labubu capture -0.2, but its 30 photos gain only 0.3)",
-                                      min=0.0, max=1.0)
-    distortion_weight: float | None = option(None, "weight of mip-NeRF 360's distortion loss (per ray, distances in "
-                                             "units of the scene radius; with --table the table counts as the "
-                                             "surface behind the box): it gathers each ray's weight onto one "
-                                             "surface, against haze and floaters (default: "
-                                             "0.01 on capture and forward-facing datasets, else 0)", min=0.0)
-    points_weight: float | None = option(None, "weight of the sparse points' sight lines, when the dataset records "
-                                         "which train photos saw each point (nerfkit poses does): the ray from a "
-                                         "photo's camera to a point it saw is empty up to the point and, for a "
-                                         "point on the object, stopped just past it (as DS-NeRF supervises depth), "
-                                         "so fur and fabric train solid instead of half see-through (default: "
-                                         "0.02 on capture datasets, else 0; labubu's object pixels +1.7 dB)", min=0.0)
-    rgb_loss: str | None = option(None, "photometric loss: mse, or charbonnier (sqrt(e^2 + 1e-6), as mip-NeRF "
-                                  "360), which lets pixels no consistent scene explains (the photographer's "
-                                  "shadow, a moving reflection) pull no harder than small errors (default: "
-                                  "charbonnier on capture datasets, else mse; steve +0.3 dB, labubu +0.4, "
-                                  "lego -1.3)", choices=list(RGB_LOSSES))
-    tv_weight: float = option(0.0, "weight of the total variation of the grid's density (as Plenoxels), on the "
-                              "vertices this step's rays touched: pulls each toward its neighbours, against "
-                              "density that few rays pin down (floaters, edges painted above a surface); 0: off (the "
-                              "default: every weight tried, from 1e-8, cost PSNR on the dev captures)",
-                              min=0.0)
-    tv_colour: float = option(0.1, "with --tv-weight: the colour coefficients' total variation weight, relative to "
-                              "the density's", min=0.0)
-    distortion_table: bool = option(False, "with --table, the distortion loss counts the table as the surface "
-                                    "behind each ray, so haze in front of the table costs by its distance to it "
-                                    "(clears haze, but a low object may be painted onto the table instead)")
-    space: str = option("auto", "where the grid lives: a box around the scene, or the normalised device "
-                        "coordinates of the mean camera (ndc: from the near plane to infinity, for forward-facing "
-                        "scenes such as LLFF captures); auto picks ndc when every camera looks about the same way",
-                        choices=["auto", "box", "ndc"])
-    object_box: bool = option(True, "start from the box around the object that the dataset's sparse points "
-                              "give (points above the table), when it has them, instead of the bounding sphere's")
-    near_grad: float = option(0.0, "damp the gradients of samples nearer to the camera than this fraction of the "
-                              "farthest camera's distance from the centre, by (distance / that)^2 (\"Floaters "
-                              "No More\"), against floaters in front of the cameras (0: off)", min=0.0, max=10.0)
-    sparse_from: int = option(100, "grids with at least this many vertices a side store only the vertices near "
-                              "occupied cells (memory follows the content); smaller grids are stored whole", min=2)
-    sparse_margin: int = option(2, "cells of the grid before a growth kept around its occupied cells in the grown "
-                                "sparse grid (density can appear only where vertices are stored)", min=0, max=16)
-    kernels: str = option("auto", "auto (compiled numba on the CPU when available), numba, or torch",
-                          choices=["auto", "numba", "torch"])
-
-    def scene_defaults(self, scene, capture: bool) -> dict:
-        """Values for the unset options that depend on the scene: the fifth stage
-        (:data:`FINE_STAGES`) for an object scene photographed at high resolution, and the
-        table cover prior (:func:`table_cover_default`)."""
-        out = {}
-        if self.table_cover_weight is None:
-            out["table_cover_weight"] = table_cover_default(scene, capture)
-        if self.resolutions is not None or self.upsample_steps is not None:
-            return out
-        fine = (not capture and not scene.forward_facing and len(scene.train) > 0
-                and scene.train.width * scene.train.height > FINE_STAGE_PIXELS)
-        resolutions, steps = FINE_STAGES if fine else BASE_STAGES
-        return {**out, "resolutions": resolutions, "upsample_steps": steps}
-
-    def validate(self) -> "FastConfig":
-        """Its ranges, and the stages and ray factors its strings spell (refused as flags are)."""
-        check_ranges(self)
-        self.stages()
-        self.stage_ray_factors()
-        return self
-
-    def stages(self) -> tuple[list[int], list[int]]:
-        """``(sizes, steps)``: grid size of each stage and the steps at which stages start."""
-        resolutions = BASE_STAGES[0] if self.resolutions is None else self.resolutions
-        upsample_steps = BASE_STAGES[1] if self.upsample_steps is None else self.upsample_steps
-        try:
-            sizes, steps = comma_ints(resolutions), comma_ints(upsample_steps)
-        except ValueError:
-            raise fail("--resolutions/--upsample-steps", "expected comma-separated integers") from None
-        if not sizes or min(sizes) < 4:
-            raise fail("--resolutions", f"'{resolutions}' needs sizes >= 4")
-        if max(sizes) ** 3 > MAX_GRID_VERTICES:  # a size is the side of a cube of vertices
-            raise fail("--resolutions", f"'resolutions' is '{resolutions}': sizes above "
-                       f"{round(MAX_GRID_VERTICES ** (1 / 3))} make grids too large to allocate", "Use smaller sizes")
-        steps = steps[:len(sizes) - 1]
-        if len(steps) != len(sizes) - 1 or steps != sorted(steps):
-            raise fail("--upsample-steps", f"needs {len(sizes) - 1} increasing steps for {len(sizes)} resolutions")
-        return sizes, steps
-
-    def stage_ray_factors(self) -> list[int]:
-        """``--stage-rays`` as integers >= 1, one per stage from the first."""
-        try:
-            factors = comma_ints(self.stage_rays)
-        except ValueError:
-            factors = []
-        if not factors or min(factors) < 1 or max(factors) > MAX_STAGE_RAYS:
-            raise fail("--stage-rays", f"'{self.stage_rays}' should be comma-separated integers from 1 to "
-                       f"{MAX_STAGE_RAYS}, e.g. 1,1,2,4")
-        return factors
-
 
 # Model files store the grid sparsely (vertices of occupied cells) under this name, the
 # density channel in this dtype; the other vertices get raw density EMPTY_RAW
