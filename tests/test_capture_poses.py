@@ -512,3 +512,41 @@ def test_the_reasons_table_wraps_a_long_reason_whole():
     assert " ".join(line[start:].strip() for line in rows) == reason
     assert all(line[:start].strip() == "" for line in rows[1:])  # continued under its column
     assert lines[-1].split() == ["bb.jpg", "used", "0", "0.5", "ok"]
+
+
+def test_the_focal_length_is_refined_on_the_photos_tags_when_they_pin_it():
+    # A phone focused near has a longer focal length than when it photographed the sheet: a
+    # camera 4% short is fitted back to the photos' own, and the poses follow it.
+    from nerfkit.capture.photos import PhotoRecord
+    from nerfkit.capture.poses import PoseConfig, refine_focal
+
+    cap = S.cached_capture("sheet", 12, 5)
+    det = A.make_detector("DICT_4X4_50")
+    records = [PhotoRecord(n, None, A.detect(im, det)) for n, im in zip(cap.names, cap.images)]
+    def scaled_focal(factor):
+        K = cap.K.copy()
+        K[[0, 1], [0, 1]] *= factor
+        return Camera(K, cap.dist, cap.width, cap.height, "calibrated")
+
+    true, short = scaled_focal(1.0), scaled_focal(0.96)
+    cam, note = refine_focal(records, short, cap.layout, PoseConfig())
+    assert cam.K[0, 0] == pytest.approx(cap.K[0, 0], rel=0.004) and cam.K[1, 1] == pytest.approx(cap.K[1, 1], rel=0.004)
+    np.testing.assert_array_equal(cam.K[:2, 2], short.K[:2, 2])  # the principal point and distortion kept
+    np.testing.assert_array_equal(cam.dist, short.dist)
+    assert "want a focal length +4." in note and "posed with it" in note and "refined" in cam.source
+
+    def position_errors(camera):
+        return [pose_error(solve_pose(r.detection, camera, cap.layout)[0], truth)[0]
+                for r, truth in zip(records, cap.c2w)]
+
+    assert np.median(position_errors(cam)) < 0.3 * np.median(position_errors(short))
+    # the right focal length already: kept, and nothing said
+    cam, note = refine_focal(records, true, cap.layout, PoseConfig())
+    assert cam is true and note == ""
+    # 15% off is not the focus: kept, and said
+    far_off = scaled_focal(0.85)
+    cam, note = refine_focal(records, far_off, cap.layout, PoseConfig())
+    assert cam is far_off and "the camera's is kept" in note
+    # too few photos pin nothing
+    cam, note = refine_focal(records[:5], short, cap.layout, PoseConfig())
+    assert cam is short and note == ""

@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     from ..capture.dataset import DATASET_OUTPUTS, POSES_FILE, DatasetConfig, write_poses_json
     from ..capture.photos import default_jobs, group_by_size, require_tags, scan_photos
     from ..capture.poses import (PoseConfig, choose_tag, exif_camera, layout_from_photos, pose_records,
-                                 sheet_heights)
+                                 refine_focal, sheet_heights)
     from ..capture.report import photo_summary
     from ..config import dataclass_from_args
     from ..errors import fail
@@ -201,6 +201,10 @@ def run(args: argparse.Namespace) -> int:
     elif args.tag_id is not None:
         notes.append("--tag-id is ignored with --layout: the layout's frame is the world")
     tag_size = args.tag_size or layout.tag_size
+    if pcfg.refine_focal:
+        camera, note = refine_focal(records, camera, layout, pcfg)
+        if note:
+            notes.append(note)
     layout, note = sheet_heights(records, camera, layout, pcfg)
     if note:
         notes.append(note)
