@@ -407,8 +407,9 @@ def refine_focal(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
                      f"{camera.source}, focal length refined on these photos' tags", camera.heldout_rms,
                      camera.sensor_turns, camera.exif_f35)
     refined.K[:2, :2] *= 1.0 + change
-    return refined, (f"{said}: posed with it (a phone focused near has a longer focal length; "
-                     "--no-refine-focal keeps the camera's)")
+    why = ("a phone focused near has a longer focal length than when it photographed the sheet"
+           if camera.heldout_rms is not None else "a focal length not calibrated is approximate")
+    return refined, f"{said}: posed with it ({why}; --no-refine-focal keeps the camera's)"
 
 
 def _posed_on(records: list[PhotoRecord], camera: Camera, layout: Layout,
