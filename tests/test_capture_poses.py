@@ -550,3 +550,11 @@ def test_the_focal_length_is_refined_on_the_photos_tags_when_they_pin_it():
     # too few photos pin nothing
     cam, note = refine_focal(records[:5], short, cap.layout, PoseConfig())
     assert cam is short and note == ""
+    # ... nor do photos of another lens count: with 5 of the 12 taken at 2x, 7 are left
+    from dataclasses import replace
+
+    lenses = [replace(r, exif_f35=52.0 if i < 5 else 26.0) for i, r in enumerate(records)]
+    cam, note = refine_focal(lenses, replace(short, exif_f35=26.0), cap.layout, PoseConfig())
+    assert cam.K[0, 0] == short.K[0, 0] and note == ""
+    lenses = [replace(r, exif_f35=52.0 if i < 3 else 26.0) for i, r in enumerate(records)]  # 9 left: enough
+    assert refine_focal(lenses, replace(short, exif_f35=26.0), cap.layout, PoseConfig())[0].K[0, 0] != short.K[0, 0]

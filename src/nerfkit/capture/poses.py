@@ -27,7 +27,7 @@ from ..config import option
 from ..errors import fail
 from ..images import held_as
 from .aruco import Detection, Layout, square_corners, tag_pose_in_layout
-from .camera import Camera, camera_from_focal, exif_fx
+from .camera import Camera, camera_from_focal, common_lens, exif_fx, other_lens
 from .photos import PhotoRecord, blur_hint, frame_turns, keep_one_lens, turn_into_frame
 
 UP = np.array([0.0, 0.0, 1.0], np.float32)
@@ -342,7 +342,7 @@ def sheet_heights(records: list[PhotoRecord], camera: Camera, layout: Layout, cf
 # The focal length refined on the object photos' own tags (`refine_focal`): a phone focused
 # on a near object has a longer focal length than when it photographed the sheet (steve: the
 # tags of its object photos want +2.8%, SfM +4%; posed at the sheet's focal length its
-# triangulated points fit at 0.98 px, at the refined one 0.66). Enough photos ...
+# triangulated points fit at 0.98 px, at the refined one 0.67). Enough photos ...
 FOCAL_MIN_PHOTOS = 8
 # ... a change of more than this many standard errors of the estimate, and of this share at
 # least (less changes no pose that matters) ...
@@ -361,7 +361,8 @@ def refine_focal(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
 
     The photos the camera poses within their error limits give their tags' corners; one
     calibration over them (``cv2.calibrateCameraExtended``) frees the focal length alone: the
-    principal point, the aspect ratio and the lens distortion stay the calibration's. The new
+    principal point, the aspect ratio and the lens distortion stay the calibration's. Photos of
+    another lens or shape (which :func:`pose_records` skips) are left out. The new
     focal length is taken when at least :data:`FOCAL_MIN_PHOTOS` photos pin it to
     :data:`FOCAL_MAX_STD` and it moves by more than :data:`FOCAL_SIGNIFICANT` standard errors and
     :data:`FOCAL_MIN_CHANGE`, within :data:`FOCAL_MAX_CHANGE`. A ChArUco board: the camera as it is."""
@@ -369,9 +370,10 @@ def refine_focal(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
 
     if layout.charuco is not None:
         return camera, ""
+    lens = camera.exif_f35 or common_lens(r.exif_f35 for r in records if r.detection is not None)
     obj, img = [], []
-    for r in records:
-        if r.detection is None or camera.compatible(*r.size) is not None:
+    for r in records:  # the photos pose_records would pose: of this camera's lens and shape
+        if r.detection is None or other_lens(r.exif_f35, lens) or camera.compatible(*r.size) is not None:
             continue
         scale = camera.width / r.size[0]
         cam = camera if scale == 1 else camera.scaled_to(*r.size)
