@@ -16,6 +16,8 @@ import numpy as np
 WIDE_GAP_DEG = 30.0
 # held-out photos "open" a gap when the training photos' gap is this much wider than the capture's
 OPENED_BY_DEG = 5.0
+# directions of the search grid compared with every photo at once
+GRID_CHUNK = 4096
 
 
 @dataclass(frozen=True)
@@ -82,12 +84,15 @@ def widest_gap(directions: np.ndarray, names: list[str], up: np.ndarray, band: t
     if len(directions) == 0:
         raise ValueError("no photos to measure coverage from")
     grid = band_directions(up, band, step_deg)
-    angles = np.degrees(np.arccos(np.clip(grid @ np.asarray(directions, np.float64).T, -1.0, 1.0)))
-    nearest = angles.min(axis=1)
-    k = int(nearest.argmax())
+    dirs = np.asarray(directions, np.float64)
+    # the largest cosine to any photo is the nearest photo's; in chunks, so that thousands of
+    # photos need no (grid x photos) array
+    closest = np.concatenate([(grid[i:i + GRID_CHUNK] @ dirs.T).max(axis=1) for i in range(0, len(grid), GRID_CHUNK)])
+    k = int(closest.argmin())
     centre = grid[k]
-    order = np.argsort(angles[k])[:3]
-    return Gap(radius_deg=float(nearest[k]), direction=centre,
+    angles = np.degrees(np.arccos(np.clip(dirs @ centre, -1.0, 1.0)))
+    order = np.argsort(angles)[:3]
+    return Gap(radius_deg=float(angles[order[0]]), direction=centre,
                azimuth_deg=float(azimuths_deg(centre[None], up)[0]),
                elevation_deg=float(elevations_deg(centre[None], up)[0]),
                nearest=tuple(str(names[j]) for j in order))
@@ -162,7 +167,8 @@ def coverage_notes(coverage: dict) -> list[str]:
              "photo"]
     held = coverage["held_out_in_that_gap"]
     if held and t["radius_deg"] >= c["radius_deg"] + OPENED_BY_DEG:
-        names = " and ".join(f"{h['photo']} ({h['split']})" for h in held)
+        each = [f"{h['photo']} ({h['split']})" for h in held]
+        names = each[0] if len(each) == 1 else f"{', '.join(each[:-1])} and {each[-1]}"
         near = sorted(h["nearest_training_photo_deg"] for h in held)
         span = f"{near[0]:.0f}" if round(near[0]) == round(near[-1]) else f"{near[0]:.0f}-{near[-1]:.0f}"
         lines.append(f"  held out, {names} leave{'s' if len(held) == 1 else ''} the training photos' widest gap open: "
