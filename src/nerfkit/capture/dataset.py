@@ -299,7 +299,7 @@ def write_coverage(scene: Scene, plot_path: Path) -> dict:
     cov = measure_coverage({s: (v.c2w, v.names) for s, v in scene.splits.items()}, scene.center, scene.up)
     gaps = {f"widest gap ({cov.capture.radius_deg:.0f} degrees)": cap_outline(cov.capture, scene.up)}
     if cov.train.radius_deg > cov.capture.radius_deg:
-        gaps[f"widest gap of the train photos ({cov.train.radius_deg:.0f})"] = cap_outline(cov.train, scene.up)
+        gaps[f"widest gap of the training photos ({cov.train.radius_deg:.0f})"] = cap_outline(cov.train, scene.up)
     plot_coverage(plot_path, cov.azimuth_elevation, gaps, "where the photos look from, seen from above\n"
                   "(azimuth from the world's x axis, a tag's right; the centre looks straight down)")
     return {**cov.as_json(), "plot": plot_path.name}

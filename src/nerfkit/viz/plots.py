@@ -1,7 +1,8 @@
-"""Training plots as PNG files (matplotlib, headless)."""
+"""Plots as PNG files (matplotlib, headless): training curves, contact sheets, where the photos look from."""
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 from typing import Sequence
 
@@ -117,7 +118,7 @@ def plot_coverage(path: str | Path, where: dict[str, np.ndarray], gaps: dict[str
         if len(ae):
             ax.scatter(np.radians(ae[:, 0]), 90.0 - ae[:, 1], s=18, label=f"{split} ({len(ae)})",
                        color=SPLIT_COLOURS.get(split), zorder=3)
-    for (label, outline), colour in zip(gaps.items(), ["tab:red", "tab:purple"]):
+    for (label, outline), colour in zip(gaps.items(), itertools.cycle(["tab:red", "tab:purple"])):
         ax.plot(np.radians(outline[:, 0]), 90.0 - outline[:, 1], "--", color=colour, linewidth=1.2, label=label)
     ax.set_rlim(0, 90)
     ax.set_rticks([30, 60, 90])
