@@ -13,7 +13,8 @@ photo (keeping the calibrated focal length, cropped to the largest rectangle of 
 pixels, K updated), downscale it, split the views into train/val/test, estimate near/far
 from the cameras and the tag size, and write images/, transforms.json (nerfstudio layout,
 OpenGL axes) and dataset.npz (the course layout plus K, near, far, center, up and each
-view's photo name).
+view's photo name), and say how closely the photos surround the object: the widest gap
+among the view directions, charted in coverage.png.
 `nerfkit poses` runs this step itself; run it again with --out to build another size or
 split (or with --force to rebuild it in place: runs trained on the old dataset then refuse
 the new one). It keeps the poses `nerfkit poses` gave the dataset: when those came
@@ -41,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "the tag poses of poses.json")
     p.add_argument("--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel (default: up to 4 cores)")
     p.add_argument("--force", action="store_true", help="replace an existing dataset (dataset.npz, transforms.json, "
-                   "images/) in the output folder")
+                   "images/, coverage.png) in the output folder")
     add_outside_flag(p)
     add_dataclass_args(p, DatasetConfig, "dataset")
     p.set_defaults(func=run)

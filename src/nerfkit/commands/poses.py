@@ -10,11 +10,13 @@ HELP = "pose photos of an object beside an ArUco tag and build a NeRF dataset"
 DESCRIPTION = """\
 Give every photo a camera-to-world pose from the tag it shows (solvePnP: IPPE_SQUARE for
 one tag, or all tags of a layout jointly: --layout, else the camera file's, else, when
-most photos show several tags, one estimated from the photos themselves), skip photos
-with no tag or a bad fit (with the reason), then build the dataset (as `nerfkit dataset`
-does): undistort, crop, resize, split into train/val/test, estimate near/far, and write
-dataset.npz, transforms.json and the images into DATASET_DIR, plus poses.json with every
-photo's outcome.
+most photos show several tags, one estimated from the photos themselves), with the
+camera's focal length fitted to the photos' tags when they pin it (--no-refine-focal
+keeps it), skip photos with no tag or a bad fit (with the reason), then build the
+dataset (as `nerfkit dataset` does): undistort, crop, resize, split into train/val/test,
+estimate near/far, and write dataset.npz, transforms.json, the images and coverage.png
+(where the photos look from, and the widest gap among them) into DATASET_DIR, plus
+poses.json with every photo's outcome.
 
 With --method auto (the default) the photos are then also posed by structure-from-motion
 (pycolmap), starting from the camera of --camera (bundle adjustment refines its focal
