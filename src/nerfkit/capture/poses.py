@@ -381,11 +381,12 @@ def refine_focal(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
         c2w, err, _, info = solve_pose_robust(r.detection, cam, layout, limit)
         if c2w is None or err > limit:
             continue
-        ids = list(r.detection.ids)
-        used = info.get("tags_used", [])
-        obj.append(np.concatenate([layout.tags[t] for t in used]).astype(np.float32))
-        img.append(((np.concatenate([r.detection.corners[ids.index(t)] for t in used]) + 0.5) * scale - 0.5
-                    ).astype(np.float32))
+        det = r.detection
+        for tag in info.get("tags_dropped", {}):  # the tags the pose kept, as it matched them
+            det = without_tag(det, int(tag))
+        points, pixels, _ = layout.match(det)
+        obj.append(points)
+        img.append(((pixels + 0.5) * scale - 0.5).astype(np.float32))
     if len(obj) < FOCAL_MIN_PHOTOS:
         return camera, ""
     flags = (cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_FIX_ASPECT_RATIO
