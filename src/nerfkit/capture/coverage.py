@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..cameras import axes_across
+
 # a gap wider than this (its radius: from its centre to the nearest photo) is worth filling
 WIDE_GAP_DEG = 30.0
 # held-out photos "open" a gap when the training photos' gap is this much wider than the capture's
@@ -49,10 +51,8 @@ def up_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(up, e1, e2): the unit up vector and two unit axes across it, e1 along the world's +x
     projected (+y when up is along x) and e2 = up x e1 (counter-clockwise seen from above)."""
     u = np.asarray(up, np.float64) / np.linalg.norm(up)
-    ref = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = ref - (ref @ u) * u
-    e1 /= np.linalg.norm(e1)
-    return u, e1, np.cross(u, e1)
+    a, b = axes_across(u)  # the orbit's axes: b = u x a is minus +x projected, so e1 = -b and e2 = a
+    return u, -b, a
 
 
 def azimuths_deg(directions: np.ndarray, up: np.ndarray) -> np.ndarray:
