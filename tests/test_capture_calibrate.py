@@ -254,6 +254,30 @@ def test_explicit_model_is_kept_and_checked(lens_capture):
     assert "k1" in cal.selection["models"] and cal.dist[1] == 0
 
 
+@pytest.mark.parametrize("offset", [(0.0, 0.0), (9.0, -7.0)])
+def test_the_principal_point_is_centred_unless_fitting_it_holds_out_better(offset):
+    centre = np.array([(SMALL[0] - 1) / 2, (SMALL[1] - 1) / 2])
+    K = K_SMALL.copy()
+    K[:2, 2] = centre + offset
+    cap = S.make_calibration_capture(n=12, size=SMALL, K=K, dist=np.zeros(5), seed=5)
+    det = A.make_detector("DICT_4X4_50")
+    recs = [PhotoRecord(n, None, A.detect(im, det)) for n, im in zip(cap.names, cap.images)]
+    cal = C.calibrate_records(recs, SMALL, TAG, None, C.CalibrateConfig())
+    pp = cal.selection["principal_point"]
+    held = pp["heldout_rms"]
+    if offset == (0.0, 0.0):  # the truth: centred, within the margin of a fitted one
+        assert pp["chosen"] == "centre" and held["centre"] <= 1.05 * held["free"]
+        assert np.array_equal(cal.K[:2, 2], centre)
+    else:  # 11 px off: centring it costs clearly more than the margin
+        assert pp["chosen"] == "free" and held["centre"] > 1.5 * held["free"]
+        assert np.abs(cal.K[:2, 2] - K[:2, 2]).max() < 1.0
+    assert abs(cal.K[0, 0] / K[0, 0] - 1) < 0.01
+    # Either choice can be forced; the record says so.
+    forced = C.calibrate_records(fresh(recs), SMALL, TAG, None, C.CalibrateConfig(principal_point="centre"))
+    assert np.array_equal(forced.K[:2, 2], centre)
+    assert forced.selection["principal_point"] == {"chosen": "centre", "why": "given with --principal-point"}
+
+
 def test_a_waved_sheets_heights_are_measured_and_its_photos_then_fit(monkeypatch):
     # Printed paper lies in gentle waves (steve's sheet: corners up to 1.7 mm off its plane).
     # Flat, the layout cannot fit them, and the error of held-out photos (0.96 px on steve)

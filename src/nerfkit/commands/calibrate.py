@@ -59,6 +59,9 @@ def selection_table(sel: dict) -> str:
              ("chosen" if m == sel["chosen"] else "ok") if r.get("eligible") else (r.get("rejected") or "")]
             for m, r in sel["models"].items()]
     head = f"distortion model {sel['chosen']} ({sel['method']}): {sel['why']}"
+    pp = sel.get("principal_point")
+    if pp:
+        head = f"principal point {pp['why']}" + (f" (model {pp['model']})" if pp.get("model") else "") + "\n" + head
     return head + "\n" + table(rows, ["model", "held-out px", "fit px", "edge spread", "corner shift", "verdict"],
                                 max_width=130)
 
