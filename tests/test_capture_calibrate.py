@@ -254,24 +254,29 @@ def test_explicit_model_is_kept_and_checked(lens_capture):
     assert "k1" in cal.selection["models"] and cal.dist[1] == 0
 
 
-@pytest.mark.parametrize("offset", [(0.0, 0.0), (9.0, -7.0)])
-def test_the_principal_point_is_centred_unless_fitting_it_holds_out_better(offset):
+@pytest.mark.parametrize("offset, aspect", [((0.0, 0.0), 1.0), ((9.0, -7.0), 1.0), ((0.0, 0.0), 1.03)])
+def test_a_centred_principal_point_and_square_pixels_are_kept_unless_freeing_them_holds_out_better(offset, aspect):
     centre = np.array([(SMALL[0] - 1) / 2, (SMALL[1] - 1) / 2])
     K = K_SMALL.copy()
     K[:2, 2] = centre + offset
+    K[1, 1] = K[0, 0] * aspect
     cap = S.make_calibration_capture(n=12, size=SMALL, K=K, dist=np.zeros(5), seed=5)
     det = A.make_detector("DICT_4X4_50")
     recs = [PhotoRecord(n, None, A.detect(im, det)) for n, im in zip(cap.names, cap.images)]
     cal = C.calibrate_records(recs, SMALL, TAG, None, C.CalibrateConfig())
-    pp = cal.selection["principal_point"]
-    held = pp["heldout_rms"]
+    pp, px = cal.selection["principal_point"], cal.selection["aspect"]
     if offset == (0.0, 0.0):  # the truth: centred, within the margin of a fitted one
-        assert pp["chosen"] == "centre" and held["centre"] <= 1.05 * held["free"]
+        assert pp["chosen"] == "centre" and pp["heldout_rms"]["centre"] <= 1.05 * pp["heldout_rms"]["free"]
         assert np.array_equal(cal.K[:2, 2], centre)
     else:  # 11 px off: centring it costs clearly more than the margin
-        assert pp["chosen"] == "free" and held["centre"] > 1.5 * held["free"]
+        assert pp["chosen"] == "free" and pp["heldout_rms"]["centre"] > 1.5 * pp["heldout_rms"]["free"]
         assert np.abs(cal.K[:2, 2] - K[:2, 2]).max() < 1.0
-    assert abs(cal.K[0, 0] / K[0, 0] - 1) < 0.01
+    if aspect == 1.0:
+        assert px["chosen"] == "square" and cal.K[0, 0] == cal.K[1, 1]
+    else:  # pixels 3% taller than wide
+        assert px["chosen"] == "free" and px["heldout_rms"]["square"] > 1.5 * px["heldout_rms"]["free"]
+        assert abs(cal.K[1, 1] / cal.K[0, 0] - aspect) < 0.003
+    assert rel_errors(cal.K, K)[:2].max() < 0.01
     # Either choice can be forced; the record says so.
     forced = C.calibrate_records(fresh(recs), SMALL, TAG, None, C.CalibrateConfig(principal_point="centre"))
     assert np.array_equal(forced.K[:2, 2], centre)

@@ -23,8 +23,8 @@ k1k2p1p2, k1k2p1p2k3) is chosen by k-fold cross-validation over photos
 (:func:`select_dist_model`): the simplest model within a small margin of the best held-out
 error among the models that pass :func:`~.distortion.distortion_check` and whose prediction
 at the frame's edges is stable across folds. Before it, the principal point is chosen the
-same way (:func:`select_principal_point`): centred, unless fitting it holds out clearly
-better.
+same way (:func:`select_constraint`): centred, and then square pixels, unless freeing them
+holds out clearly better.
 
 Photos whose RMS error is far above the median are dropped and the camera recalibrated.
 Because a low RMS does not prove a good calibration, :func:`sanity_checks` compares the
@@ -52,7 +52,9 @@ DIST_MODELS = ("k1k2p1p2k3", "k1k2p1p2", "k1k2", "k1", "none")
 SIMPLEST_FIRST = tuple(reversed(DIST_MODELS))
 # The layout is estimated with this model, then frozen while the distortion model is chosen.
 LAYOUT_MODEL = "k1"
-PRINCIPAL_POINTS = ("auto", "centre", "free")
+# What phone cameras are like, kept unless freeing it holds out clearly better:
+# config field -> (the constrained value, the free value).
+CONSTRAINTS = {"principal_point": ("centre", "free"), "aspect": ("square", "free")}
 
 
 @dataclass
@@ -65,10 +67,13 @@ class CalibrateConfig:
     folds: int = option(5, "cross-validation folds over photos for --dist-model auto", min=2)
     select_tolerance: float = option(0.05, "auto picks the simplest model whose held-out error is within this "
                                      "fraction of the best, or this many pixels, whichever is larger", min=0)
-    fix_aspect: bool = option(False, "force fx = fy (square pixels, true of phone cameras)")
     principal_point: str = option("auto", "centre: keep the principal point at the image centre (phone lenses are "
                                   "nearly centred); free: fit it; auto: centred unless fitting it lowers the "
-                                  "held-out error by more than the fraction --select-tolerance", choices=list(PRINCIPAL_POINTS))
+                                  "held-out error by more than the fraction --select-tolerance",
+                                  choices=["auto", *CONSTRAINTS["principal_point"]])
+    aspect: str = option("auto", "square: fx = fy (phone pixels are square); free: fit both; auto: square unless "
+                         "fitting both lowers the held-out error by more than the fraction --select-tolerance",
+                         choices=["auto", *CONSTRAINTS["aspect"]])
     outlier_factor: float = option(3.0, "drop photos whose reprojection error exceeds this many times the median, "
                                    "then recalibrate", above=0)
     per_tag: bool = option(False, "treat each tag as its own planar target instead of estimating the sheet layout")
@@ -101,7 +106,8 @@ class Fit:
 
 def calib_flags(cfg: CalibrateConfig, model: str | None = None) -> int:
     """cv2.CALIB_* flags of a distortion model (default: the config's; "auto" is not a model).
-    The principal point is fixed only when the config says "centre"."""
+    The principal point and the aspect ratio are fixed only when the config says "centre"
+    and "square" (with a guess K0, at :func:`constrained_guess`'s values)."""
     import cv2
 
     flags = 0
@@ -116,20 +122,24 @@ def calib_flags(cfg: CalibrateConfig, model: str | None = None) -> int:
         flags |= cv2.CALIB_FIX_K2
     if model == "none":
         flags |= cv2.CALIB_FIX_K1
-    if cfg.fix_aspect:
+    if cfg.aspect == "square":
         flags |= cv2.CALIB_FIX_ASPECT_RATIO
     if cfg.principal_point == "centre":
         flags |= cv2.CALIB_FIX_PRINCIPAL_POINT
     return flags
 
 
-def at_centre(K0: np.ndarray | None, size: tuple[int, int]) -> np.ndarray | None:
-    """An initial K (3, 3) with its principal point moved to the image centre, ((w - 1) / 2,
-    (h - 1) / 2) (where calibrateCamera puts it without a guess); None stays None."""
+def constrained_guess(K0: np.ndarray | None, size: tuple[int, int], cfg: CalibrateConfig) -> np.ndarray | None:
+    """An initial K (3, 3) as the config's constraints want it: the principal point at the
+    image centre, ((w - 1) / 2, (h - 1) / 2) (where calibrateCamera puts it without a
+    guess), for "centre"; fy = fx for "square". None stays None."""
     if K0 is None:
         return None
     K0 = K0.copy()
-    K0[0, 2], K0[1, 2] = (size[0] - 1) / 2.0, (size[1] - 1) / 2.0
+    if cfg.principal_point == "centre":
+        K0[0, 2], K0[1, 2] = (size[0] - 1) / 2.0, (size[1] - 1) / 2.0
+    if cfg.aspect == "square":
+        K0[1, 1] = K0[0, 0]
     return K0
 
 
@@ -183,8 +193,11 @@ def fit_views(views: list[tuple[str, np.ndarray, np.ndarray]], size: tuple[int, 
         rounds.append(f"rms {rms:.3f} px with {len(views)} views; dropped {int(bad.sum())} outlier(s) "
                       f"above {thr:.2f} px and recalibrated")
         views = [v for v, b in zip(views, bad) if not b]
+    std = np.asarray(std_i, np.float64).ravel()[:4].copy()
+    if f & cv2.CALIB_FIX_ASPECT_RATIO:  # OpenCV fits fy and derives fx from it (reporting 0 for fx)
+        std[0] = std[1] * K[0, 0] / K[1, 1]
     return Fit(K, dist.ravel()[:5].astype(np.float64), float(rms), [v[0] for v in views], list(rvecs), list(tvecs),
-               {v[0]: float(e) for v, e in zip(views, errs)}, dropped, np.asarray(std_i).ravel()[:4], rounds)
+               {v[0]: float(e) for v, e in zip(views, errs)}, dropped, std, rounds)
 
 
 # ---------------------------------------------------------------- distortion model choice
@@ -265,36 +278,39 @@ def select_dist_model(views: list, size: tuple[int, int], cfg: CalibrateConfig, 
                     "chosen": chosen, "why": why, "models": rows}
 
 
-def select_principal_point(views: list, size: tuple[int, int], cfg: CalibrateConfig, model: str,
-                           photo_of=lambda key: key, K0: np.ndarray | None = None) -> tuple[str, dict]:
-    """Centre or fit the principal point, by k-fold cross-validation over photos with ``model``.
+def select_constraint(views: list, size: tuple[int, int], cfg: CalibrateConfig, name: str, model: str,
+                      photo_of=lambda key: key, K0: np.ndarray | None = None) -> tuple[str, dict]:
+    """Keep or free one of :data:`CONSTRAINTS` (the centred principal point, square pixels),
+    by k-fold cross-validation over photos with ``model``.
 
     A fitted principal point trades off against the focal length and the photos' tilts, and
-    phone lenses sit nearly on the sensor's centre; so it stays centred unless fitting it
-    lowers the held-out error by more than ``tol`` of the fitted one's error (a fraction
-    alone, unlike the models' margin: on exact synthetic corners a principal point 5 px off
-    holds out at 0.044 px fitted and 0.061 centred).
+    phone cameras have nearly centred lenses and square pixels; so a constraint is kept
+    unless freeing it lowers the held-out error by more than ``tol`` of the free one's error
+    (a fraction alone, unlike the models' margin: on exact synthetic corners a principal
+    point 5 px off holds out at 0.044 px fitted and 0.061 centred).
 
     Returns:
-        ("centre" or "free", record): per-choice held-out RMS, the model compared with, and
+        (the value chosen, record): per-value held-out RMS, the model compared with, and
         ``why`` in words.
     """
+    kept, free = CONSTRAINTS[name]
     folds = photo_folds(views, cfg.folds, photo_of)
-    held = {pp: cross_validate(views, size, calib_flags(replace(cfg, principal_point=pp), model), folds,
-                               at_centre(K0, size) if pp == "centre" else K0)[0]
-            for pp in ("centre", "free")}
-    tol = cfg.select_tolerance * held["free"]
-    chosen = "centre" if held["centre"] <= held["free"] + tol else "free"
-    if not np.isfinite(held["centre"]) and not np.isfinite(held["free"]):
-        chosen, why = "free", "neither choice could be cross-validated; fitted"
-    elif chosen == "centre":
-        why = (f"centred: held out at {held['centre']:.3f} px against {held['free']:.3f} px fitted, "
+    held = {}
+    for value in (kept, free):
+        c = replace(cfg, **{name: value})
+        held[value] = cross_validate(views, size, calib_flags(c, model), folds, constrained_guess(K0, size, c))[0]
+    tol = cfg.select_tolerance * held[free]
+    chosen = kept if held[kept] <= held[free] + tol else free
+    if not np.isfinite(held[kept]) and not np.isfinite(held[free]):
+        chosen, why = free, "neither choice could be cross-validated"
+    elif chosen == kept:
+        why = (f"held out at {held[kept]:.3f} px against {held[free]:.3f} px {free}, "
                f"within the {cfg.select_tolerance:.0%} margin")
     else:
-        why = (f"fitted: held out at {held['free']:.3f} px against {held['centre']:.3f} px centred, "
+        why = (f"held out at {held[free]:.3f} px against {held[kept]:.3f} px {kept}, "
                f"more than {cfg.select_tolerance:.0%} better")
     return chosen, {"method": f"{len(folds)}-fold cross-validation over photos", "model": model, "chosen": chosen,
-                    "why": why, "heldout_rms": {pp: round(e, 4) if np.isfinite(e) else None for pp, e in held.items()}}
+                    "why": why, "heldout_rms": {v: round(e, 4) if np.isfinite(e) else None for v, e in held.items()}}
 
 
 def explicit_model(views: list, size: tuple[int, int], cfg: CalibrateConfig, fit: Fit, photo_of=lambda key: key,
@@ -659,26 +675,26 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
         if not layout.is_planar():  # calibrateCamera can only initialise from planar targets
             K0 = K_layout
     model = cfg.dist_model
-    if cfg.principal_point == "centre":
-        K0 = at_centre(K0, size)
+    K0 = constrained_guess(K0, size, cfg)
     kept = views
-    if model == "auto" or cfg.principal_point == "auto":
+    auto = [name for name in CONSTRAINTS if getattr(cfg, name) == "auto"]
+    if model == "auto" or auto:
         # Outliers first (with the layout model), so they do not sway the choices.
         pre = fit_views(views, size, calib_flags(cfg, LAYOUT_MODEL), cfg.outlier_factor, K0)
         kept = [v for v in views if v[0] in set(pre.keys)]
-    pp_choice = {"chosen": cfg.principal_point, "why": "given with --principal-point"}
-    if cfg.principal_point == "auto":
-        pp, pp_choice = select_principal_point(kept, size, cfg, LAYOUT_MODEL if model == "auto" else model,
-                                               photo_of, K0)
-        cfg = replace(cfg, principal_point=pp)
-        if pp == "centre":
-            K0 = at_centre(K0, size)
+    choices = {name: {"chosen": getattr(cfg, name), "why": f"given with --{name.replace('_', '-')}"}
+               for name in CONSTRAINTS}
+    for name in auto:  # (in turn: the principal point with the aspect free, then the aspect)
+        value, choices[name] = select_constraint(kept, size, cfg, name, LAYOUT_MODEL if model == "auto" else model,
+                                                 photo_of, K0)
+        cfg = replace(cfg, **{name: value})
+        K0 = constrained_guess(K0, size, cfg)
     if model == "auto":
         model, selection = select_dist_model(kept, size, cfg, photo_of, K0)
     fit = fit_views(views, size, calib_flags(cfg, model), cfg.outlier_factor, K0)
     if cfg.dist_model != "auto":
         selection = explicit_model(views, size, cfg, fit, photo_of, K0)
-    selection["principal_point"] = pp_choice
+    selection.update(choices)
     if layout is not None and target == "estimated layout":
         for r in with_tags:
             if not any(int(i) in layout.tags for i in r.detection.ids):
@@ -751,7 +767,7 @@ def sanity_checks(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], rms: f
     if abs(fx / fy - 1) > 0.015:
         warnings.append(f"fx and fy differ by {abs(fx / fy - 1) * 100:.1f}% (fx={fx:.1f}, fy={fy:.1f}); phone pixels "
                         "are square, so the calibration is probably poorly constrained. Take more tilted photos, "
-                        "or re-run with --fix-aspect")
+                        "or re-run with --aspect square")
     if np.hypot(dx, dy) > 0.02 * diag:
         warnings.append(f"principal point is {np.hypot(dx, dy):.0f} px ({np.hypot(dx, dy) / diag * 100:.1f}% of the "
                         f"diagonal) from the image centre (dx={dx:.0f}, dy={dy:.0f}); phone lenses are nearly centred. "

@@ -59,9 +59,11 @@ def selection_table(sel: dict) -> str:
              ("chosen" if m == sel["chosen"] else "ok") if r.get("eligible") else (r.get("rejected") or "")]
             for m, r in sel["models"].items()]
     head = f"distortion model {sel['chosen']} ({sel['method']}): {sel['why']}"
-    pp = sel.get("principal_point")
-    if pp:
-        head = f"principal point {pp['why']}" + (f" (model {pp['model']})" if pp.get("model") else "") + "\n" + head
+    for name, what in (("aspect", "pixels"), ("principal_point", "principal point")):
+        c = sel.get(name)
+        if c:
+            head = (f"{what} {c['chosen']}: {c['why']}" + (f" (model {c['model']})" if c.get("model") else "")
+                    + "\n" + head)
     return head + "\n" + table(rows, ["model", "held-out px", "fit px", "edge spread", "corner shift", "verdict"],
                                 max_width=130)
 
