@@ -22,9 +22,9 @@ distortion model chosen afterwards (nor the reverse). The distortion model (none
 k1k2p1p2, k1k2p1p2k3) is chosen by k-fold cross-validation over photos
 (:func:`select_dist_model`): the simplest model within a small margin of the best held-out
 error among the models that pass :func:`~.distortion.distortion_check` and whose prediction
-at the frame's edges is stable across folds. Before it, the principal point is chosen the
-same way (:func:`select_constraint`): centred, and then square pixels, unless freeing them
-holds out clearly better.
+at the frame's edges is stable across folds. Before it, two things phone cameras have, a
+centred principal point and square pixels, are each kept the same way
+(:func:`select_constraint`), unless freeing it holds out clearly better.
 
 Photos whose RMS error is far above the median are dropped and the camera recalibrated.
 Because a low RMS does not prove a good calibration, :func:`sanity_checks` compares the
