@@ -150,8 +150,12 @@ def test_calibrate_command_writes_camera_file_and_explains_skips(tmp_path, sheet
     assert cam["layout"]["tags"] and cam["sanity"]["warnings"] == []
     assert cam["dist_model"] in C.DIST_MODELS and cam["heldout_rms"] < 0.5
     assert cam["model_selection"]["chosen"] == cam["dist_model"] and len(cam["model_selection"]["models"]) == 5
+    for name, choice in (("principal_point", "free"), ("aspect", "square")):  # (the sheet's truth: 5 px off)
+        c = cam["model_selection"][name]
+        assert c["chosen"] == choice and set(c["heldout_rms"]) == set(C.CONSTRAINTS[name])
     printed = capsys.readouterr().out
     assert "zz_corrupt.jpg" in printed and "RMS reprojection error" in printed and "held-out px" in printed
+    assert "principal point free: held out at" in printed and "pixels square: held out at" in printed
     # Second run reuses the detection cache: the cache file is there and results are identical.
     assert (out.parent / "camera.detections.json").exists()
     assert main(["calibrate", str(folder), "--tag-size", str(TAG), "--out", str(out), "--force"]) == 0
