@@ -65,8 +65,10 @@ class CalibrateConfig:
                              "photos (the simplest model that generalises and stays plausible out to the image "
                              "corners)", choices=["auto", *DIST_MODELS])
     folds: int = option(5, "cross-validation folds over photos for --dist-model auto", min=2)
-    select_tolerance: float = option(0.05, "auto picks the simplest model whose held-out error is within this "
-                                     "fraction of the best, or this many pixels, whichever is larger", min=0)
+    select_tolerance: float = option(0.05, "--dist-model auto picks the simplest model whose held-out error is "
+                                     "within this fraction of the best, or this many pixels, whichever is larger; "
+                                     "--principal-point and --aspect auto free a constraint only when that holds "
+                                     "out better by more than this fraction", min=0)
     principal_point: str = option("auto", "centre: keep the principal point at the image centre (phone lenses are "
                                   "nearly centred); free: fit it; auto: centred unless fitting it lowers the "
                                   "held-out error by more than the fraction --select-tolerance",
