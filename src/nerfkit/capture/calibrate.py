@@ -42,7 +42,7 @@ import numpy as np
 from ..config import option
 from ..errors import NerfkitError, fail
 from .aruco import Layout, square_corners
-from .camera import FILM_DIAGONAL_MM, exif_fx
+from .camera import FILM_DIAGONAL_MM, exif_fx, image_centre
 from .distortion import distortion_check, fold_spread, frame_displacement, heldout_errors
 from .photos import PhotoRecord, frame_turns
 
@@ -132,14 +132,13 @@ def calib_flags(cfg: CalibrateConfig, model: str | None = None) -> int:
 
 
 def constrained_guess(K0: np.ndarray | None, size: tuple[int, int], cfg: CalibrateConfig) -> np.ndarray | None:
-    """An initial K (3, 3) as the config's constraints want it: the principal point at the
-    image centre, ((w - 1) / 2, (h - 1) / 2) (where calibrateCamera puts it without a
-    guess), for "centre"; fy = fx for "square". None stays None."""
+    """An initial K (3, 3) as the config's constraints want it: the principal point at
+    :func:`~.camera.image_centre` for "centre"; fy = fx for "square". None stays None."""
     if K0 is None:
         return None
     K0 = K0.copy()
     if cfg.principal_point == "centre":
-        K0[0, 2], K0[1, 2] = (size[0] - 1) / 2.0, (size[1] - 1) / 2.0
+        K0[0, 2], K0[1, 2] = image_centre(*size)
     if cfg.aspect == "square":
         K0[1, 1] = K0[0, 0]
     return K0
@@ -661,7 +660,8 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
                 views, K0 = _layout_sheet_views(with_tags, layout), K_layout
         elif not layout.is_planar():  # calibrateCamera can only initialise from planar targets
             fx0 = 1.2 * max(size)
-            K0 = np.array([[fx0, 0, (size[0] - 1) / 2], [0, fx0, (size[1] - 1) / 2], [0, 0, 1]])
+            cx, cy = image_centre(*size)
+            K0 = np.array([[fx0, 0, cx], [0, fx0, cy], [0, 0, 1]])
             notes.append("non-planar layout: started from fx = 1.2 x image width")
     elif per_tag:
         target = "per-tag"
@@ -756,7 +756,7 @@ def sanity_checks(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], rms: f
     w, h = size
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     diag = float(np.hypot(w, h))
-    dx, dy = cx - (w - 1) / 2.0, cy - (h - 1) / 2.0
+    dx, dy = np.subtract((cx, cy), image_centre(w, h))
     out: dict = {
         "fx_fy_ratio": round(float(fx / fy), 5),
         "principal_point_offset_px": [round(float(dx), 2), round(float(dy), 2)],

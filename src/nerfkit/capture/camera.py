@@ -131,9 +131,16 @@ def exif_fx(f35: float, width: int, height: int) -> float:
     return float(f35) * float(np.hypot(width, height)) / FILM_DIAGONAL_MM
 
 
+def image_centre(width: int, height: int) -> tuple[float, float]:
+    """The image's centre in OpenCV's pixel convention (pixel centres at integers), where
+    calibrateCamera starts the principal point: ``((width - 1) / 2, (height - 1) / 2)``."""
+    return (width - 1) / 2.0, (height - 1) / 2.0
+
+
 def camera_from_focal(fx: float, width: int, height: int, source: str) -> Camera:
     """A distortion-free camera with square pixels and the principal point at the centre."""
-    K = np.array([[fx, 0, (width - 1) / 2.0], [0, fx, (height - 1) / 2.0], [0, 0, 1]], np.float64)
+    cx, cy = image_centre(width, height)
+    K = np.array([[fx, 0, cx], [0, fx, cy], [0, 0, 1]], np.float64)
     return Camera(K, np.zeros(5), width, height, source)
 
 

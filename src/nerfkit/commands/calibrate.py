@@ -58,13 +58,11 @@ def selection_table(sel: dict) -> str:
              px(r.get("check", {}).get("corner_displacement_px")),
              ("chosen" if m == sel["chosen"] else "ok") if r.get("eligible") else (r.get("rejected") or "")]
             for m, r in sel["models"].items()]
-    head = f"distortion model {sel['chosen']} ({sel['method']}): {sel['why']}"
-    for name, what in (("aspect", "pixels"), ("principal_point", "principal point")):
-        c = sel.get(name)
-        if c:
-            head = (f"{what} {c['chosen']}: {c['why']}" + (f" (model {c['model']})" if c.get("model") else "")
-                    + "\n" + head)
-    return head + "\n" + table(rows, ["model", "held-out px", "fit px", "edge spread", "corner shift", "verdict"],
+    heads = [f"{what} {c['chosen']}: {c['why']}" + (f" (model {c['model']})" if c.get("model") else "")
+             for name, what in (("principal_point", "principal point"), ("aspect", "pixels"))
+             if (c := sel.get(name))]
+    heads.append(f"distortion model {sel['chosen']} ({sel['method']}): {sel['why']}")
+    return "\n".join(heads) + "\n" + table(rows, ["model", "held-out px", "fit px", "edge spread", "corner shift", "verdict"],
                                 max_width=130)
 
 
