@@ -128,8 +128,15 @@ def test_sanity_checks_flag_implausible_phone_calibrations():
     bad = C.sanity_checks(K_bad, np.zeros(5), (w, h), 0.58, np.array([2.0, 2.0, 1.0, 1.0]), [f35 * 1.2], 1.0, 30)
     text = " ".join(bad["warnings"])
     assert "fx and fy differ by 3.8%" in text
-    assert "principal point is 130 px" in text
+    assert "principal point is 130 px" in text and "--principal-point centre" in text
     assert "EXIF focal length" in text
+    # Freed by the photos' held-out error, the advice says so instead of simply undoing it.
+    freed = {"principal_point": {"chosen": "free", "heldout_rms": {"centre": 0.5, "free": 0.1}},
+             "aspect": {"chosen": "free", "why": "given with --aspect"}}
+    text = " ".join(C.sanity_checks(K_bad, np.zeros(5), (w, h), 0.58, np.array([2.0, 2.0, 1.0, 1.0]), [f35], 1.0,
+                                    30, freed)["warnings"])
+    assert "The photos hold it there (0.100 px held out against 0.500 px with --principal-point centre)" in text
+    assert "re-run with --aspect square (or auto)" in text
 
 
 def test_calibrate_command_writes_camera_file_and_explains_skips(tmp_path, sheet, capsys):

@@ -723,13 +723,27 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
     enough(used, "usable photos")
     coverage = corner_coverage(used, size)
     f35 = [r.exif_f35 for r in used if r.exif_f35]
-    sanity = sanity_checks(fit.K, fit.dist, size, fit.rms, fit.std, f35, coverage, len(used))
+    sanity = sanity_checks(fit.K, fit.dist, size, fit.rms, fit.std, f35, coverage, len(used), choices)
     check = selection["models"][model]["check"]
     if not check["ok"]:
         sanity["warnings"].append(f"the {model} distortion model is implausible over the frame ({check['reason']}); "
                                   "use --dist-model auto")
     return Calibration(fit.K, fit.dist, fit.rms, size[0], size[1], target, layout, fit.std, notes, sanity,
                        model, selection)
+
+
+def constraint_advice(choices: dict | None, name: str, more_photos: str) -> str:
+    """What to do about a camera that breaks one of :data:`CONSTRAINTS`, by how it came free:
+    given free (try auto), or freed by the photos' held-out error (they want it: cropped or
+    edited photos do that; keep it unless the photos are straight from the phone)."""
+    kept = CONSTRAINTS[name][0]
+    flag = f"--{name.replace('_', '-')}"
+    held = (choices or {}).get(name, {}).get("heldout_rms")
+    if held and held.get(kept) is not None and held.get("free") is not None:
+        return (f"The photos hold it there ({held['free']:.3f} px held out against {held[kept]:.3f} px with {flag} "
+                f"{kept}): cropped or edited photos do that. If they come straight from the phone, "
+                f"{more_photos[0].lower() + more_photos[1:]}, or re-run with {flag} {kept}")
+    return f"{more_photos}, or re-run with {flag} {kept}" + (" (or auto)" if choices else "")
 
 
 def corner_coverage(records: list[PhotoRecord], size: tuple[int, int], cells: int = 3) -> float:
@@ -746,12 +760,14 @@ def corner_coverage(records: list[PhotoRecord], size: tuple[int, int], cells: in
 
 
 def sanity_checks(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], rms: float, std: np.ndarray,
-                  exif_f35: list[float], coverage: float, n_photos: int) -> dict:
+                  exif_f35: list[float], coverage: float, n_photos: int, choices: dict | None = None) -> dict:
     """Plausibility of a phone calibration; ``warnings`` lists each failed check in words.
 
     Checks: fx/fy (phone pixels are square), principal point offset from the image centre,
     agreement with the EXIF 35 mm-equivalent focal length, RMS, parameter uncertainty,
-    coverage of the image by tag corners, number of photos.
+    coverage of the image by tag corners, number of photos. ``choices`` (name -> record, as
+    :func:`select_constraint` returns) says how each of :data:`CONSTRAINTS` was decided, so
+    the advice fits: a constraint the photos freed by held-out error is not simply undone.
     """
     w, h = size
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
@@ -768,13 +784,13 @@ def sanity_checks(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], rms: f
     warnings: list[str] = []
     if abs(fx / fy - 1) > 0.015:
         warnings.append(f"fx and fy differ by {abs(fx / fy - 1) * 100:.1f}% (fx={fx:.1f}, fy={fy:.1f}); phone pixels "
-                        "are square, so the calibration is probably poorly constrained. Take more tilted photos, "
-                        "or re-run with --aspect square")
+                        "are square. " + constraint_advice(choices, "aspect", "The calibration is probably poorly "
+                                                           "constrained: take more tilted photos"))
     if np.hypot(dx, dy) > 0.02 * diag:
         warnings.append(f"principal point is {np.hypot(dx, dy):.0f} px ({np.hypot(dx, dy) / diag * 100:.1f}% of the "
                         f"diagonal) from the image centre (dx={dx:.0f}, dy={dy:.0f}); phone lenses are nearly centred. "
-                        "Take photos with the tags near the image edges and corners, or re-run with "
-                        "--principal-point centre")
+                        + constraint_advice(choices, "principal_point",
+                                            "Take photos with the tags near the image edges and corners"))
     if exif_f35:
         f35 = float(np.median(exif_f35))
         efx = exif_fx(f35, w, h)
