@@ -67,6 +67,9 @@ def test_auto_capture_settings_follow_the_dataset(tabletop):
     assert capture_settings(TrainConfig(), FastConfig(), tabletop)[1].rgb_loss == "charbonnier"
     assert capture_settings(TrainConfig(), FastConfig(), sphere)[1].rgb_loss == "mse"
     assert capture_settings(TrainConfig(), FastConfig(rgb_loss="mse"), tabletop)[1].rgb_loss == "mse"
+    # the view-dependent colour's total variation: captures only (lego's gloss is real and well seen)
+    assert capture_settings(TrainConfig(), FastConfig(), tabletop)[1].tv_view_weight == 1e-8
+    assert capture_settings(TrainConfig(), FastConfig(), sphere)[1].tv_view_weight == 0.0
 
 
 def test_the_table_cover_prior_is_on_for_few_photos_that_show_no_floor_past_the_table(tabletop):
@@ -274,6 +277,11 @@ def test_a_run_from_before_colour_mixing_resumes_with_its_corrections(tmp_path, 
     del d["train"]["colour_mix_weight"]
     config.write_text(json.dumps(d))
     assert read_run(tmp_path / "old").train.colour_mix_weight == 0.0
+    # ... and one from before the view-dependent colour's total variation, without that
+    assert read_run(tmp_path / "old").model_config.tv_view_weight == 1e-8
+    del d["model"]["tv_view_weight"]
+    config.write_text(json.dumps(d))
+    assert read_run(tmp_path / "old").model_config.tv_view_weight == 0.0
 
 
 def test_eval_fits_a_held_out_photos_colour_transform(tmp_path, tabletop):

@@ -310,11 +310,12 @@ def test_a_non_finite_grid_gradient_is_refused_and_counted(scene, kernels):
     assert opt.nonfinite_rows == 0
 
 
-def density_variation(model) -> float:
-    """Mean over pairs of neighbouring stored vertices of the squared difference of raw density."""
+def density_variation(model, channels=(0,)) -> float:
+    """Mean over pairs of neighbouring stored vertices of the squared difference of the
+    grid's ``channels`` (default: the raw density), summed over the channels."""
     rx, ry, rz = model.geom.res
     rows = model.vertex_rows.long().reshape(rz, ry, rx)
-    raw = model.grid.detach()[:, 0]
+    raw = model.grid.detach()[:, list(channels)]
     total, pairs = 0.0, 0
     for dim in range(3):
         a, b = rows.narrow(dim, 0, rows.shape[dim] - 1), rows.narrow(dim, 1, rows.shape[dim] - 1)
@@ -331,6 +332,30 @@ def test_total_variation_smooths_the_density_and_keeps_the_views(scene, trained)
     train_loop(smooth, scene, 100)
     plain = density_variation(trained)
     assert density_variation(smooth) < 0.5 * plain, (density_variation(smooth), plain)
+    assert val_psnr(smooth, scene) > 22.0
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2])
+def test_the_view_dependent_colours_total_variation_weighs_only_the_harmonics_above_degree_0(scene, degree):
+    m = FastNeRF(FastConfig(**SMALL, sh_degree=degree, tv_weight=2.0, tv_colour=0.5, tv_view_weight=3.0),
+                 SceneBounds.from_scene(scene))
+    K = (degree + 1) ** 2
+    expect = [2.0] + [1.0 + (3.0 if k > 0 else 0.0) for _ in range(3) for k in range(K)]
+    assert m.tv_weights().tolist() == expect
+    assert not FastNeRF(FastConfig(**SMALL), SceneBounds.from_scene(scene)).tv_weights().any()  # off by default
+
+
+def test_the_view_dependent_colours_total_variation_smooths_it_alone(scene, trained):
+    """With ``--tv-view-weight`` the view-dependent colour coefficients vary clearly less
+    between neighbouring vertices; the base colour (degree 0) is not pulled, and the views
+    are still reconstructed."""
+    smooth = FastNeRF(FastConfig(**SMALL, tv_view_weight=1e-6), SceneBounds.from_scene(scene))
+    train_loop(smooth, scene, 100)
+    K = smooth.K
+    view = [1 + c * K + k for c in range(3) for k in range(1, K)]
+    base = [1 + c * K for c in range(3)]
+    assert density_variation(smooth, view) < 0.5 * density_variation(trained, view)
+    assert density_variation(smooth, base) > 0.7 * density_variation(trained, base)
     assert val_psnr(smooth, scene) > 22.0
 
 

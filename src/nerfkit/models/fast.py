@@ -486,7 +486,7 @@ class FastNeRF(NerfModel):
         them) and occupancy refreshes (every ``occ_start`` steps until ``occ_warmup``, then
         every ``occ_every``)."""
         return [Schedule("grow", self._growth_due, self._grow_next, replaces_parameters=True),
-                Schedule("total variation", lambda s: self.config.tv_weight > 0, self._add_tv, phase="gradients"),
+                Schedule("total variation", lambda s: self.tv_weights().any(), self._add_tv, phase="gradients"),
                 Schedule("remember surfaces", self._surface_due, self._remember_surface, phase="after_step"),
                 Schedule("occupancy", self._occupancy_due, self._occupancy_job, phase="after_step"),
                 Schedule("table cover prior", lambda s: bool(self.config.table_cover_weight), self._switch_cover_prior)]
@@ -568,10 +568,21 @@ class FastNeRF(NerfModel):
         alpha = -torch.expm1(-self.density_scale * F.softplus(raw) * self.step_size)
         return min(self.config.occ_alpha, float(alpha.mean()))
 
+    def tv_weights(self) -> Tensor:
+        """(n_channels,) the total variation's weight on each grid channel: the density
+        ``tv_weight``, every colour coefficient ``tv_weight * tv_colour``, and the
+        coefficients above degree 0 (channel ``1 + K * colour + k``, k > 0) ``tv_view_weight``
+        more."""
+        c = self.config
+        weight = torch.full((self.n_channels,), c.tv_weight * c.tv_colour)
+        weight[0] = c.tv_weight
+        view = (torch.arange(self.n_channels) - 1) % self.K != 0  # (channel 1 + K * colour: degree 0)
+        weight[1:] += (c.tv_view_weight or 0.0) * view[1:]
+        return weight
+
     def _add_tv(self, s: StepState) -> None:
         """Add the grid's total variation gradient on the rows the step's rays touched."""
-        c = self.config
-        weight = torch.tensor([c.tv_weight] + [c.tv_weight * c.tv_colour] * (self.n_channels - 1))
+        weight = self.tv_weights()
         key = (id(self.vertex_rows), self.vertex_rows._version, self.grid.shape[0])
         if getattr(self, "_row_vertex_key", None) != key:
             self._row_vertex = row_vertices(self.geom, self.grid.shape[0]) if self._row_offset < 0 else None

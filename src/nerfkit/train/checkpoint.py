@@ -91,7 +91,9 @@ def read_run(run_dir: str | Path) -> RunInfo:
         train = dataclass_from_dict(TrainConfig, {"colour_mix_weight": 0.0, **d["train"]}, str(cfg_path))
         if train.model not in MODEL_NAMES:
             raise fail(cfg_path, f"unknown model '{train.model}'", f"Expected one of {', '.join(MODEL_NAMES)}")
-        model_config = dataclass_from_dict(model_config_class(train.model), d["model"], str(cfg_path))
+        # ... and a fast run from before the view-dependent colour's total variation, without it
+        old = {"tv_view_weight": 0.0} if train.model == "fast" else {}
+        model_config = dataclass_from_dict(model_config_class(train.model), {**old, **d["model"]}, str(cfg_path))
         bounds = SceneBounds.from_dict(d["bounds"])
     except (KeyError, TypeError, ValueError) as e:
         raise fail(cfg_path, f"malformed run config ({type(e).__name__}: {e})") from None
