@@ -37,7 +37,8 @@ def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors ar
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})
 
 
-def _flag(name: str) -> str:
+def flag_of(name: str) -> str:
+    """The command-line flag of config field ``name``: ``principal_point`` -> ``--principal-point``."""
     return "--" + name.replace("_", "-")
 
 
@@ -143,7 +144,7 @@ def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
         if problem:
             if owner:
                 problem += f" for {owner}"
-            raise fail(_flag(f.name) if source is None else f"{source}: '{f.name}' ({_flag(f.name)})", problem)
+            raise fail(flag_of(f.name) if source is None else f"{source}: '{f.name}' ({flag_of(f.name)})", problem)
     return cfg
 
 
@@ -197,7 +198,7 @@ def _add_flag(target: Any, name: str, owners: list[tuple[str, Any, dataclasses.F
     """Add field ``name``'s flag to ``target`` for the (owner, type, field) of every config that has it:
     parsed within the widest of their bounds, its help each one's text and default."""
     if len({tp for _, tp, _ in owners}) > 1 or len({str(f.metadata.get("choices")) for _, _, f in owners}) > 1:
-        raise TypeError(f"{_flag(name)}: {', '.join(o for o, _, _ in owners)} give it different types or choices")
+        raise TypeError(f"{flag_of(name)}: {', '.join(o for o, _, _ in owners)} give it different types or choices")
     _, tp, first = owners[0]
     helps = [_help_line(f) for _, _, f in owners]
     help_text = helps[0] if len(set(helps)) == 1 else "; ".join(f"{o}: {h}" for (o, _, _), h in zip(owners, helps))
@@ -206,11 +207,11 @@ def _add_flag(target: Any, name: str, owners: list[tuple[str, Any, dataclasses.F
     if "choices" in first.metadata:
         kw["choices"] = first.metadata["choices"]
     if tp is bool:
-        target.add_argument(_flag(name), action=argparse.BooleanOptionalAction, **kw)
+        target.add_argument(flag_of(name), action=argparse.BooleanOptionalAction, **kw)
     else:
         named = "{" + ",".join(map(str, kw["choices"])) + "}" if "choices" in kw else None  # the choices in --help
         metavar = first.metadata.get("metavar", named or (tp.__name__.upper() if hasattr(tp, "__name__") else "X"))
-        target.add_argument(_flag(name), type=_field_type(tp, widest_bounds([f.metadata for _, _, f in owners])),
+        target.add_argument(flag_of(name), type=_field_type(tp, widest_bounds([f.metadata for _, _, f in owners])),
                             metavar=metavar, **kw)
 
 
@@ -244,7 +245,7 @@ def foreign_flags(args: argparse.Namespace, classes: dict[str, type], chosen: st
     """(flag, names of the configs that take it) for each flag of :func:`add_alternative_dataclass_args`
     given in ``args`` that config ``chosen`` does not take (it would be ignored). Example: ``--sh-degree 3``
     with the vanilla model chosen -> ``[("--sh-degree", ["fast", "splat"])]``."""
-    return [(_flag(field), [name for name, _, _ in its]) for field, its in _alternative_fields(classes).items()
+    return [(flag_of(field), [name for name, _, _ in its]) for field, its in _alternative_fields(classes).items()
             if getattr(args, field, None) is not None and chosen not in [name for name, _, _ in its]]
 
 

@@ -39,7 +39,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..config import option
+from ..config import flag_of, option
 from ..errors import NerfkitError, fail
 from .aruco import Layout, square_corners
 from .camera import FILM_DIAGONAL_MM, exif_fx, image_centre
@@ -684,7 +684,7 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
         # Outliers first (with the layout model), so they do not sway the choices.
         pre = fit_views(views, size, calib_flags(cfg, LAYOUT_MODEL), cfg.outlier_factor, K0)
         kept = [v for v in views if v[0] in set(pre.keys)]
-    choices = {name: {"chosen": getattr(cfg, name), "why": f"given with --{name.replace('_', '-')}"}
+    choices = {name: {"chosen": getattr(cfg, name), "why": f"given with {flag_of(name)}"}
                for name in CONSTRAINTS}
     for name in auto:  # (in turn: the principal point with the aspect free, then the aspect)
         value, choices[name] = select_constraint(kept, size, cfg, name, LAYOUT_MODEL if model == "auto" else model,
@@ -737,7 +737,7 @@ def constraint_advice(choices: dict | None, name: str, more_photos: str) -> str:
     given free (try auto), or freed by the photos' held-out error (they want it: cropped or
     edited photos do that; keep it unless the photos are straight from the phone)."""
     kept = CONSTRAINTS[name][0]
-    flag = f"--{name.replace('_', '-')}"
+    flag = flag_of(name)
     held = (choices or {}).get(name, {}).get("heldout_rms")
     if held and held.get(kept) is not None and held.get("free") is not None:
         return (f"The photos hold it there ({held['free']:.3f} px held out against {held[kept]:.3f} px with {flag} "

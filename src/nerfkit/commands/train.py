@@ -7,7 +7,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from ..config import add_alternative_dataclass_args, add_dataclass_args, dataclass_from_args, foreign_flags
+from ..config import add_alternative_dataclass_args, add_dataclass_args, dataclass_from_args, flag_of, foreign_flags
 
 MEMORY_HINT = "Lower --batch-rays (rays per step) or --render-chunk (rays per rendered chunk)"
 HELP = "train a NeRF on a dataset (or --resume a run)"
@@ -95,10 +95,10 @@ def resume_changes(args: argparse.Namespace) -> dict:
         given |= {f.name for f in dataclasses.fields(cls) if getattr(args, f.name, None) is not None}
     refused = sorted(given - set(RESUME_APPLIES) - {"data", "allow_outside_paths"})
     if refused:
-        flags = ", ".join("--" + k.replace("_", "-") for k in refused)
+        flags = ", ".join(flag_of(k) for k in refused)
         raise fail("--resume", f"{flags} cannot change when a run continues (the run keeps its own settings)",
                    "Resume without them, or start a new run with another --out; --resume applies only "
-                   + ", ".join("--" + k.replace("_", "-") for k in RESUME_APPLIES))
+                   + ", ".join(flag_of(k) for k in RESUME_APPLIES))
     return {k: getattr(args, k) for k in RESUME_APPLIES if k in given}
 
 
@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
         changes = resume_changes(args)
         info = read_run(args.resume)
         for k, v in changes.items():
-            print(f"resuming with --{k.replace('_', '-')} {v} (was {getattr(info.train, k)})", file=sys.stderr)
+            print(f"resuming with {flag_of(k)} {v} (was {getattr(info.train, k)})", file=sys.stderr)
         data = args.data or info.train.data
         scene = load_as_trained(info.train, data,
                                 allow_outside=bool(args.allow_outside_paths or info.train.allow_outside_paths))
