@@ -9,7 +9,8 @@ command has no switch for (``--dist-model`` other than auto, ``--capture on|off`
 Prints one row per capture: photos, photos with a tag detected, photos posed, the
 distortion model chosen and its coefficients, the held-out reprojection error, fx against
 the EXIF focal length; then the training steps, the validation PSNR/SSIM as rendered and
-with each held-out photo's pose and colour fitted (the scene frozen), the same on the
+with each held-out photo's pose fitted (the scene frozen) and each half's colour solved on
+the other half (``nerfkit eval``), the same on the
 object's own pixels, and the whole command's time. The contact sheet (validation photo
 beside render) is RUN/eval_val.png, the videos are in RUN/videos::
 
@@ -213,7 +214,8 @@ def print_table(rows: list[dict]) -> None:
                       "-" if r["fitted_psnr"] is None else f"{r['fitted_psnr']:.2f} / {r['fitted_ssim']:.3f}",
                       pair(r["object_psnr"], r["object_fitted"]), took(r)] for r in trained],
                     ["capture", "--capture", "steps", "val views", "val PSNR", "val SSIM",
-                     "PSNR, colour fitted", "PSNR / SSIM, pose+colour fitted", "object's pixels (fitted)", "time"],
+                     "PSNR, colour (other half)", "PSNR / SSIM, pose + colour (other half)", "object's pixels (fitted)",
+                     "time"],
                     max_width=200))
         for r in trained:
             print(f"{r['capture']}: contact sheet {r['sheet']}, videos {Path(r['run']) / 'videos'}")

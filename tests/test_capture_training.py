@@ -286,7 +286,8 @@ def test_a_run_from_before_colour_mixing_resumes_with_its_corrections(tmp_path, 
 
 def test_eval_fits_a_held_out_photos_colour_transform(tmp_path, tabletop):
     """Held-out "photos" that are the model's own renders recoloured by a known affine
-    transform: as rendered they score low; fitted, the transform is undone."""
+    transform: as rendered they score low; fitted (each half on the other half), the
+    transform is undone."""
     from dataclasses import replace
 
     from nerfkit.output.images import render_image
@@ -305,14 +306,43 @@ def test_eval_fits_a_held_out_photos_colour_transform(tmp_path, tabletop):
     assert scores[True]["psnr"] < 30
     assert scores[True]["fitted"]["psnr"] > 40  # undone, to the photos' 8-bit rounding
     assert scores[True]["colour_only"]["psnr"] > 40  # the poses are right: the colour alone undoes it
-    for mix in (True, False):  # no correction is among the ones solved: never worse than as rendered
-        assert all(r["psnr_colour"] >= r["psnr"] for r in scores[mix]["per_image"])
     assert scores[False]["fitted"]["psnr"] < scores[True]["fitted"]["psnr"] - 5  # gains alone cannot mix colours
     for row in scores[True]["per_image"]:  # the report shows the transform that was undone
-        np.testing.assert_allclose(row["fitted_colour_matrix"], M, atol=0.02)
-        np.testing.assert_allclose(row["fitted_offset"], [0.06] * 3, atol=0.01)
+        np.testing.assert_allclose(row["fitted_colour_matrix"], M, atol=0.03)
+        np.testing.assert_allclose(row["fitted_offset"], [0.06] * 3, atol=0.015)
         np.testing.assert_allclose(row["fitted_grey_gain"], M.sum(1), atol=0.03)  # its gain on grey
     assert "fitted_colour_matrix" not in scores[False]["per_image"][0]
+
+
+def test_eval_fits_on_one_half_and_scores_the_other(tmp_path, tabletop):
+    """A "photo" darker on its left half only is not a change of exposure: a colour
+    correction solved on the pixels it is scored on would take it up; solved on the other
+    half, it cannot, and the score stays where the render puts it."""
+    from dataclasses import replace
+
+    from nerfkit.output.images import render_image
+    from nerfkit.train.evaluate import evaluate_views, photo_halves
+    from nerfkit.train.view_corrections import ViewFitConfig
+
+    t = Trainer(tabletop, cfg(tmp_path, "half", steps=100), SMALL, quiet=True)
+    t.run()
+    val = tabletop.val
+    renders = np.stack([render_image(t.model, val.K[i], val.c2w[i], val.width, val.height, t.background).rgb
+                        for i in range(len(val))]).astype(np.float64)
+    left, right = photo_halves(val.width)
+    assert (left.start, left.stop, right.start, right.stop) == (0, val.width // 2, val.width // 2, val.width)
+    for gain, local in ((0.75, True), (0.75, False)):
+        lit = renders.copy()
+        lit[:, :, left if local else slice(None)] *= gain
+        photos = replace(val, images=(np.clip(lit, 0, 1) * 255).round().astype(np.uint8))
+        out = evaluate_views(t.model, photos, t.background, progress=False, scale=t.bounds.radius,
+                             fit=ViewFitConfig(steps=10))
+        if local:  # each half gets the other half's gain: no better than as rendered
+            assert out["colour_only"]["psnr"] < out["psnr"] + 0.5 and out["fitted"]["psnr"] < out["psnr"] + 0.5
+            assert out["psnr"] < 30
+        else:  # one exposure for the whole photo: undone from either half
+            assert out["colour_only"]["psnr"] > 35 > 30 > out["psnr"]
+            assert out["fitted"]["psnr"] > out["psnr"] + 10  # (10 steps of pose fit on a 32x32 photo)
 
 
 def test_eval_scores_the_objects_own_pixels(tmp_path, tabletop):

@@ -171,7 +171,7 @@ def test_eval_summary_lists_the_fitted_scores_and_the_extreme_views():
               "fitted": {"psnr": 27.5, "ssim": 0.75}, "colour_only": {"psnr": 26.0},
               "object": {"psnr": 24.0, "psnr_fitted": 28.0}}
     lines = summary(result).splitlines()
-    assert "fitted to its photo: 27.50 dB / 0.750 (its colour alone: 26.00 dB)" in lines[1]
+    assert "and each half's colour solved on the other half: 27.50 dB / 0.750 (its colour alone: 26.00 dB)" in lines[1]
     assert lines[2] == "  the object's own pixels: 24.00 dB, 28.00 fitted"
     listed = [float(line.split()[1]) for line in lines[4:]]
     assert len(listed) == LISTED_VIEWS and listed == sorted(listed)

@@ -20,16 +20,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--split", choices=["val", "test", "train"], default="val", help="which images (default: val)")
     p.add_argument("--fit-views", type=number(int, 0, 100_000), default=None, metavar="STEPS",
                    help="also score each view after fitting its pose to its photo with the scene frozen, for this "
-                        "many steps, and then its colour correction (least squares; the run's model: an affine "
-                        "colour transform, or a gain and offset per channel) (default: 100 for runs trained with "
-                        "--capture, else 0: off; 0 for models that render whole views, such as splat)")
+                        "many steps, and then each half of the photo with a gain and offset per channel solved on "
+                        "the other half (least squares; NeRF-W's protocol, both ways) (default: 100 for runs "
+                        "trained with --capture, else 0: off; 0 for models that render whole views, such as splat)")
     p.add_argument("--json", action="store_true", help="print the JSON that RUN/eval_<split>.json holds instead of "
                    "the summary (for scripts)")
     p.set_defaults(func=run)
 
 
 def write_contact_sheet(path, sheet: list, split: str) -> None:
-    """Photo beside render (and beside the render after fitting pose and colour), a row per view,
+    """Photo beside render (and beside the render with its pose fitted and each half's colour
+    solved on the other half), a row per view,
     at the photos' own size (up to 640 pixels wide) so that sharpness can be judged."""
     from ..viz.plots import image_grid, native_tile_inches
 
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         steps = 100 if capture and not whole else 0
         if whole and capture:
             print(f"note: held-out views are scored as rendered only ({run_.info.train.model} cannot fit their poses)")
-    fit = ViewFitConfig(steps=steps, colour_mix=run_.info.train.colour_mix) if steps else None
+    fit = ViewFitConfig(steps=steps) if steps else None  # (a gain and offset per channel: see evaluate)
     alone = object_alone(run_.model) if capture and not whole else None  # (a copy: memory for a second model)
     sheet: list = []
     result = {"split": args.split, "step": run_.step, "data": scene.source,
@@ -102,7 +103,8 @@ def summary(result: dict) -> str:
              f"PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.3f}"]
     fitted, colour, obj = result.get("fitted"), result.get("colour_only"), result.get("object")
     if fitted:
-        lines.append(f"  with each view's pose and colour fitted to its photo: {fitted['psnr']:.2f} dB / "
+        lines.append(f"  with each view's pose fitted, and each half's colour solved on the other half: "
+                     f"{fitted['psnr']:.2f} dB / "
                      f"{fitted['ssim']:.3f}" + (f" (its colour alone: {colour['psnr']:.2f} dB)" if colour else ""))
     if obj and obj.get("psnr") is not None:
         lines.append(f"  the object's own pixels: {obj['psnr']:.2f} dB" +
