@@ -41,7 +41,7 @@ def write_contact_sheet(path, sheet: list, split: str) -> None:
         titles += [f"{name[:28]}", f"render {row['psnr']:.1f} dB"]
         if fitted is not None:
             images.append(fitted)
-            titles.append(f"pose+colour fitted {row['psnr_fitted']:.1f} dB")
+            titles.append(f"pose fitted, colour from the other half {row['psnr_fitted']:.1f} dB")
     if images:
         image_grid(path, images, titles, ncols=3 if sheet[0][2] is not None else 2,
                    suptitle=f"{split} photos and renders", tile_inches=native_tile_inches(images[0]))
