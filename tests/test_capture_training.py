@@ -342,7 +342,8 @@ def test_eval_fits_on_one_half_and_scores_the_other(tmp_path, tabletop):
             assert out["psnr"] < 30
         else:  # one exposure for the whole photo: undone from either half
             assert out["colour_only"]["psnr"] > 35 > 30 > out["psnr"]
-            assert out["fitted"]["psnr"] > out["psnr"] + 10  # (10 steps of pose fit on a 32x32 photo)
+            # (the pose fit's 10 steps, with the gain not yet found, move the pose a little on 32x32)
+            assert out["fitted"]["psnr"] > out["psnr"] + 10
 
 
 def test_eval_scores_the_objects_own_pixels(tmp_path, tabletop):
