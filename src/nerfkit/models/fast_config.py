@@ -181,7 +181,7 @@ class FastConfig:
                                           "rays touched: a few photos pin down each vertex's colour from a few "
                                           "directions only, and its view-dependent part is otherwise free to "
                                           "sparkle in new views (default: 1e-8 on capture datasets, else 0; "
-                                          "steve's figure +1.3-2.0 dB fitted, 22 photos +2-3 dB)", min=0.0)
+                                          "steve's figure +0.7-1.8 dB as rendered, 22 photos +2.8 dB)", min=0.0)
     distortion_table: bool = option(False, "with --table, the distortion loss counts the table as the surface "
                                     "behind each ray, so haze in front of the table costs by its distance to it "
                                     "(clears haze, but a low object may be painted onto the table instead)")
