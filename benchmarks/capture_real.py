@@ -8,7 +8,8 @@ command has no switch for (``--dist-model`` other than auto, ``--capture on|off`
 
 Prints one row per capture: photos, photos with a tag detected, photos posed, the
 distortion model chosen and its coefficients, the held-out reprojection error, fx against
-the EXIF focal length; then the training steps, the validation PSNR/SSIM as rendered and
+the EXIF focal length; then the training steps, how well the training photos agree on the
+table (``poses``' rough ceiling for held-out scores), the validation PSNR/SSIM as rendered and
 with each held-out photo's pose fitted (the scene frozen) and each half's colour solved on
 the other half (``nerfkit eval``), the same on the
 object's own pixels, and the whole command's time. The contact sheet (validation photo
@@ -107,10 +108,11 @@ def calibration_figures(name: str, cam: Path, poses: Path) -> dict:
     c = json.loads(cam.read_text())
     photos = json.loads((poses / "poses.json").read_text())["photos"]
     detected = [x for x in photos if x.get("tags")]
-    choice, views = None, None
+    choice, views, agree = None, None, None
     if (poses / "transforms.json").exists():
         block = json.loads((poses / "transforms.json").read_text())["nerfkit"]
         choice, views = block.get("pose_choice"), sum(block["views"].values())
+        agree = (block.get("agreement") or {}).get("psnr")
     return {
         "capture": name, "calib_photos": len(c["images"]), "calib_used": c["photos_used"],
         "model": c["dist_model"], "dist": c["dist"], "heldout": c.get("heldout_rms"), "rms": c["rms"],
@@ -119,7 +121,7 @@ def calibration_figures(name: str, cam: Path, poses: Path) -> dict:
         "why": c["model_selection"]["why"],
         "dropped": [f"{x['file']}: {x['reason']}" for x in detected if not x["used"]],
         "pose_choice": choice["why"] if choice else "the tag's",
-        "in_dataset": views, "tag_kept": len((choice or {}).get("tag_posed") or []),
+        "in_dataset": views, "tag_kept": len((choice or {}).get("tag_posed") or []), "agreement": agree,
     }
 
 
@@ -209,11 +211,12 @@ def print_table(rows: list[dict]) -> None:
             return f"{r['total_s'] / 60:.1f} min (capture)" if "total_s" in r else f"{r['train_s'] / 60:.1f} min (train on)"
 
         print()
-        print(table([[r["capture"], r["capture_mode"], r["steps"], r["n_val"], f"{r['val_psnr']:.2f}",
+        print(table([[r["capture"], r["capture_mode"], r["steps"], r["n_val"],
+                      "-" if r.get("agreement") is None else f"{r['agreement']:.2f}", f"{r['val_psnr']:.2f}",
                       f"{r['val_ssim']:.3f}", "-" if r["colour_psnr"] is None else f"{r['colour_psnr']:.2f}",
                       "-" if r["fitted_psnr"] is None else f"{r['fitted_psnr']:.2f} / {r['fitted_ssim']:.3f}",
                       pair(r["object_psnr"], r["object_fitted"]), took(r)] for r in trained],
-                    ["capture", "--capture", "steps", "val views", "val PSNR", "val SSIM",
+                    ["capture", "--capture", "steps", "val views", "photos agree (table)", "val PSNR", "val SSIM",
                      "PSNR, colour (other half)", "PSNR / SSIM, pose + colour (other half)", "object's pixels (fitted)",
                      "time"],
                     max_width=200))

@@ -27,70 +27,10 @@ from __future__ import annotations
 
 import argparse
 
-import cv2
 import numpy as np
 
-
-def table_points(center: np.ndarray, table: np.ndarray, extent: float, n: int, box) -> np.ndarray:
-    """(m, 3) points of an ``n x n`` grid on the table plane within ``extent`` of the
-    centre's foot, less those under the object's box (``(lo, hi)`` or None)."""
-    from nerfkit.cameras import axes_across
-
-    normal, d = np.asarray(table[:3], np.float64), float(table[3])
-    foot = center - (center @ normal + d) * normal
-    e1, e2 = axes_across(normal)
-    g = np.linspace(-extent, extent, n)
-    a, b = np.meshgrid(g, g)
-    p = foot + a.reshape(-1, 1) * e1 + b.reshape(-1, 1) * e2
-    if box is not None:
-        lo, hi = np.asarray(box[0]) - 0.01 * extent, np.asarray(box[1]) + 0.01 * extent
-        under = np.all((p[:, :2] > lo[:2]) & (p[:, :2] < hi[:2]), axis=1)
-        p = p[~under]
-    return p
-
-
-def sample_photo(image: np.ndarray, K: np.ndarray, c2w: np.ndarray, points: np.ndarray, box,
-                 blur: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Colours (m, 3) of ``points`` in one photo (bilinear) and where they are seen (m,)
-    (in front of the camera, inside the frame, the line of sight clear of the box)."""
-    w2c = np.linalg.inv(c2w)
-    pc = points @ w2c[:3, :3].T + w2c[:3, 3]
-    seen = pc[:, 2] > 1e-6
-    uv = pc[:, :2] / np.maximum(pc[:, 2:3], 1e-9) * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
-    h, w = image.shape[:2]
-    seen &= (uv[:, 0] > 1) & (uv[:, 0] < w - 2) & (uv[:, 1] > 1) & (uv[:, 1] < h - 2)
-    if box is not None:  # the object may stand in the way: sample the line of sight
-        lo, hi = np.asarray(box[0]), np.asarray(box[1])
-        for s in np.linspace(0.02, 0.98, 25):
-            q = c2w[:3, 3] + s * (points - c2w[:3, 3])
-            seen &= ~np.all((q > lo) & (q < hi), axis=1)
-    img = image.astype(np.float32) / 255.0
-    if blur > 0:
-        img = cv2.GaussianBlur(img, (0, 0), blur)
-    # pixel centres are at +0.5 (nerfkit's convention), at integers for OpenCV
-    maps = (uv - 0.5).astype(np.float32)
-    colours = np.empty((len(points), 3), np.float32)
-    for i in range(0, len(points), 30000):  # cv2.remap takes maps shorter than 32767
-        part = maps[i:i + 30000]
-        colours[i:i + 30000] = cv2.remap(img, part[:, :1].copy(), part[:, 1:].copy(), cv2.INTER_LINEAR,
-                                         borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
-    return colours, seen
-
-
-def psnr(mse: float) -> float:
-    return float(-10.0 * np.log10(max(mse, 1e-12)))
-
-
-def consistency(views, points: np.ndarray, box, blur: float = 0.0):
-    """Per point: mean colour (m, 3), number of photos seeing it (m,); and the squared
-    deviations (n, m) of each photo from that mean where seen (0 elsewhere)."""
-    cols, seen = zip(*(sample_photo(views.images[i], views.K[i], views.c2w[i], points, box, blur)
-                       for i in range(len(views))))
-    C, S = np.stack(cols), np.stack(seen).astype(np.float64)
-    count = S.sum(0)
-    mean = (C * S[..., None]).sum(0) / np.maximum(count, 1)[:, None]
-    dev = ((C - mean) ** 2).mean(-1) * S
-    return mean, count, dev, S
+from nerfkit.capture.agreement import EXTENT_RADII, MIN_PHOTOS, consistency, sample_photo, table_points
+from nerfkit.capture.agreement import psnr_of as psnr
 
 
 def main() -> None:
@@ -100,7 +40,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("data", help="a capture dataset (.npz with a table plane)")
     ap.add_argument("--extent", type=float, default=None,
-                    help="half-width of the table square, in scene units (default: 1.4x the object radius)")
+                    help="half-width of the table square, in scene units (default: the object radius times "
+                         f"{EXTENT_RADII}, as `poses` measures it)")
     ap.add_argument("--grid", type=int, default=241, help="points per side of the square (default 241)")
     ap.add_argument("--split", default="val", help="held-out split to score (default val)")
     ap.add_argument("--run", help="a run trained on DATA: also score its renders of the held-out photos")
@@ -110,12 +51,12 @@ def main() -> None:
     if scene.table is None:
         raise SystemExit(f"{args.data}: the dataset has no table plane (a tag capture's, or SfM's found table)")
     bounds = SceneBounds.from_scene(scene)
-    extent = args.extent or 1.4 * bounds.radius
+    extent = args.extent or EXTENT_RADII * bounds.radius
     pts = table_points(np.asarray(scene.center, np.float64), scene.table, extent, args.grid, bounds.object_box)
     train = scene.splits["train"]
     mean, count, dev, seen = consistency(train, pts, bounds.object_box)
-    good = count >= 3
-    print(f"{args.data}: {good.sum()} table points seen by >= 3 of {len(train)} training photos "
+    good = count >= MIN_PHOTOS
+    print(f"{args.data}: {good.sum()} table points seen by >= {MIN_PHOTOS} of {len(train)} training photos "
           f"(median {np.median(count[good]):.0f}), square of half-width {extent:.3f}")
     _, _, dev_b, seen_b = consistency(train, pts, bounds.object_box, blur=3.0)
     print(f"across the training photos: {psnr(dev[:, good].sum() / seen[:, good].sum()):.2f} dB "

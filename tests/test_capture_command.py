@@ -53,6 +53,8 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     # where the photos look from: said after posing and again in the summary, beside its chart
     assert text.count("coverage: the photos look from") == 2 and (out / "dataset" / "coverage.png").exists()
     assert f"(chart: {out / 'dataset' / 'coverage.png'})" in text.split("capture done")[1]
+    # how well the photos agree on the table: said after posing and again in the summary
+    assert text.count("agreement: the training photos show the table") == 2
     # the synthetic sphere's texture gives SfM no points (it starts from the whole region): said twice
     assert text.count("note: the sparse points show no object near the middle of the photos") == 2
     took = re.search(r"\n  time      (.*); (.*) in all\n", text)  # each step run now, in the order it ran

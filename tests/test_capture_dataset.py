@@ -13,7 +13,7 @@ from nerfkit.capture import aruco as A
 from nerfkit.capture import synthetic as S
 from nerfkit.capture.camera import Camera, nerfkit_K
 from nerfkit.capture.dataset import (FEW_TRAIN_VIEWS, DatasetConfig, build_dataset, estimate_bounds, few_views_note,
-                                     split_indices)
+                                     photo_agreement, split_indices)
 from nerfkit.capture.poses import PosedPhoto
 from nerfkit.capture.undistort import make_undistorter
 from nerfkit.cli import main
@@ -132,6 +132,10 @@ def test_dataset_files_load_back_with_the_same_cameras(posed, obj, tmp_path):
     assert set(cov["widest_gap"]["nearest_photos"]) <= set(obj.names)
     assert set(cov["widest_gap_of_training_photos"]["nearest_photos"]) <= set(scene.train.names)
     assert cov["widest_gap_of_training_photos"]["radius_deg"] >= cov["widest_gap"]["radius_deg"]
+    # how well the training photos agree on the table: measured on the dataset as written
+    agreement = tj["nerfkit"]["agreement"]
+    assert agreement == summary["agreement"] == photo_agreement(a).as_json()
+    assert agreement["photos_per_point"] >= 3 and 10 < agreement["psnr"] < 60
 
 
 def test_dataset_cameras_project_the_tag_onto_its_pixels(posed, obj, tmp_path):
@@ -151,7 +155,7 @@ def test_dataset_cameras_project_the_tag_onto_its_pixels(posed, obj, tmp_path):
     assert len(errs) >= 24 and np.sqrt(np.mean(errs ** 2)) < 0.3
 
 
-def test_center_override_and_dataset_command_rebuild(posed, tmp_path):
+def test_center_override_and_dataset_command_rebuild(posed, tmp_path, capsys):
     from nerfkit.capture.dataset import write_poses_json
     from nerfkit.capture.photos import PhotoRecord
 
@@ -166,6 +170,7 @@ def test_center_override_and_dataset_command_rebuild(posed, tmp_path):
     write_poses_json(out / "poses.json", recs, posed, posed[0].camera,
                      {"photos_dir": str(posed[0].path.parent), "tag_size": TAG, "layout": layout.to_json()})
     assert main(["dataset", str(out), "--max-side", "320", "--center", "0.1,0.02,0.03", "--near", "0.05"]) == 0
+    assert "agreement: the training photos show the table" in capsys.readouterr().out
     s = load_npz(out / "dataset.npz")
     np.testing.assert_allclose(s.tags, layout.corners(), atol=1e-7)  # the recorded layout's tag
     np.testing.assert_allclose(s.center, [0.1, 0.02, 0.03], atol=1e-7)

@@ -8,7 +8,8 @@ Writes into the dataset folder:
 * ``dataset.npz``: the course layout with ``K``, ``near``, ``far``, ``center``, ``up`` and
   ``names_*`` (each view's photo file name);
 * ``coverage.png``: where the photos look from, seen from above, with the widest gap among
-  them (:mod:`nerfkit.capture.coverage`; ``transforms.json`` keeps the figures);
+  them (:mod:`nerfkit.capture.coverage`; ``transforms.json`` keeps the figures, and how well
+  the photos agree on the table, :mod:`nerfkit.capture.agreement`);
 * ``poses.json`` (written by ``nerfkit poses``) is the input: every photo's pose or the
   reason it has none, the camera, and the tag settings, so ``nerfkit dataset`` can
   rebuild the dataset with other options without re-detecting.
@@ -285,6 +286,10 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
     }
     if len(scene.train):
         summary["coverage"] = write_coverage(scene, out_dir / COVERAGE_PLOT)
+    if table is not None:
+        agreement = photo_agreement(scene)
+        if agreement is not None:
+            summary["agreement"] = agreement.as_json()
     write_transforms_json(scene, out_dir, jpeg_quality=cfg.jpeg_quality, extra={**summary, **(extra or {})})
     save_npz(scene, out_dir / NPZ_FILE)
     return scene, summary
@@ -303,6 +308,17 @@ def write_coverage(scene: Scene, plot_path: Path) -> dict:
     plot_coverage(plot_path, cov.azimuth_elevation, gaps, "where the photos look from, seen from above\n"
                   "(azimuth from the world's x axis, a tag's right; the centre looks straight down)")
     return {**cov.as_json(), "plot": plot_path.name}
+
+
+def photo_agreement(scene: Scene):
+    """How well ``scene``'s training photos agree on its table around the object
+    (:func:`~nerfkit.capture.agreement.measure_agreement`, the object's box left out as the
+    model will find it), or None."""
+    from ..models.base import SceneBounds
+    from .agreement import measure_agreement
+
+    bounds = SceneBounds.from_scene(scene)
+    return measure_agreement(scene.train, scene.center, scene.table, bounds.radius, bounds.object_box)
 
 
 def _lying_flat(tags) -> np.ndarray | None:

@@ -370,6 +370,7 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
     each step run now took (``times``, seconds by step)."""
     import json
 
+    from ..capture.agreement import agreement_notes
     from ..capture.coverage import coverage_notes
     from ..capture.dataset import FEW_TRAIN_VIEWS, few_views_note, no_object_note
     from ..data.nerfstudio import nerfkit_block
@@ -404,6 +405,8 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
         notes = coverage_notes(nk["coverage"])
         notes[0] += f" (chart: {dataset / nk['coverage']['plot']})"
         lines += [f"            {note.strip()}" for note in notes]
+    if isinstance(nk.get("agreement"), dict):
+        lines += [f"            {note.strip()}" for note in agreement_notes(nk["agreement"])]
     m = json.loads((run_dir / "metrics.json").read_text())
     lines.append(f"  NeRF      {run_dir}: {m['step']} steps; plots in {run_dir / 'plots'}")
     lines += [f"            note: {note}" for note in m.get("notes") or []]

@@ -13,8 +13,9 @@ photo (keeping the calibrated focal length, cropped to the largest rectangle of 
 pixels, K updated), downscale it, split the views into train/val/test, estimate near/far
 from the cameras and the tag size, and write images/, transforms.json (nerfstudio layout,
 OpenGL axes) and dataset.npz (the course layout plus K, near, far, center, up and each
-view's photo name), and say how closely the photos surround the object: the widest gap
-among the view directions, charted in coverage.png.
+view's photo name), and say how closely the photos surround the object (the widest gap
+among the view directions, charted in coverage.png) and how well the training photos agree
+on the table around it (a rough ceiling for held-out scores).
 `nerfkit poses` runs this step itself; run it again with --out to build another size or
 split (or with --force to rebuild it in place: runs trained on the old dataset then refuse
 the new one). It keeps the poses `nerfkit poses` gave the dataset: when those came
@@ -58,6 +59,7 @@ def build_and_report(posed, out, cfg, tag_size: float, jobs: int, extra: dict | 
 
 def report_dataset(s: dict, out) -> int:
     """Print what a dataset builder's summary ``s`` says was written to ``out``."""
+    from ..capture.agreement import agreement_notes
     from ..capture.coverage import coverage_notes
     from ..capture.dataset import NPZ_FILE, few_views_note, no_object_note
 
@@ -76,6 +78,8 @@ def report_dataset(s: dict, out) -> int:
         print(note)
     if s.get("coverage"):
         print("\n".join(coverage_notes(s["coverage"])))
+    if s.get("agreement"):
+        print("\n".join(agreement_notes(s["agreement"])))
     plot = f", {s['coverage']['plot']}" if s.get("coverage") else ""
     print(f"wrote {out}/{NPZ_FILE}, {out}/transforms.json{', sparse_pc.ply' if s['points'] else ''}{plot} and "
           f"{out}/images/")

@@ -16,7 +16,8 @@ keeps it), skip photos with no tag or a bad fit (with the reason), then build th
 dataset (as `nerfkit dataset` does): undistort, crop, resize, split into train/val/test,
 estimate near/far, and write dataset.npz, transforms.json, the images and coverage.png
 (where the photos look from, and the widest gap among them) into DATASET_DIR, plus
-poses.json with every photo's outcome.
+poses.json with every photo's outcome. It also says how well the training photos agree on
+the table around the object (a rough ceiling for held-out scores).
 
 With --method auto (the default) the photos are then also posed by structure-from-motion
 (pycolmap), starting from the camera of --camera (bundle adjustment refines its focal
