@@ -43,6 +43,7 @@ from .undistort import make_undistorter, output_size, resize_K_nerfkit
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..data.colmap import SparsePoints
+    from .agreement import Agreement
 
 POSES_FILE = "poses.json"
 NPZ_FILE = "dataset.npz"
@@ -310,7 +311,7 @@ def write_coverage(scene: Scene, plot_path: Path) -> dict:
     return {**cov.as_json(), "plot": plot_path.name}
 
 
-def photo_agreement(scene: Scene):
+def photo_agreement(scene: Scene) -> "Agreement | None":
     """How well ``scene``'s training photos agree on its table around the object
     (:func:`~nerfkit.capture.agreement.measure_agreement`, the object's box left out as the
     model will find it), or None."""
