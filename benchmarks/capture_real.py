@@ -112,7 +112,7 @@ def calibration_figures(name: str, cam: Path, poses: Path) -> dict:
     if (poses / "transforms.json").exists():
         block = json.loads((poses / "transforms.json").read_text())["nerfkit"]
         choice, views = block.get("pose_choice"), sum(block["views"].values())
-        agree = (block.get("agreement") or {}).get("psnr")
+        agree = block.get("agreement") or None
     return {
         "capture": name, "calib_photos": len(c["images"]), "calib_used": c["photos_used"],
         "model": c["dist_model"], "dist": c["dist"], "heldout": c.get("heldout_rms"), "rms": c["rms"],
@@ -207,16 +207,21 @@ def print_table(rows: list[dict]) -> None:
         def pair(a, b):
             return "-" if a is None else f"{a:.2f}" + ("" if b is None else f" / {b:.2f}")
 
+        def agreed(a):
+            return "-" if a is None else f"{a['psnr']:.2f}" + (
+                f" ({a['psnr_exposure_evened']:.2f})" if a.get("psnr_exposure_evened") is not None else "")
+
         def took(r):
             return f"{r['total_s'] / 60:.1f} min (capture)" if "total_s" in r else f"{r['train_s'] / 60:.1f} min (train on)"
 
         print()
         print(table([[r["capture"], r["capture_mode"], r["steps"], r["n_val"],
-                      "-" if r.get("agreement") is None else f"{r['agreement']:.2f}", f"{r['val_psnr']:.2f}",
+                      agreed(r.get("agreement")), f"{r['val_psnr']:.2f}",
                       f"{r['val_ssim']:.3f}", "-" if r["colour_psnr"] is None else f"{r['colour_psnr']:.2f}",
                       "-" if r["fitted_psnr"] is None else f"{r['fitted_psnr']:.2f} / {r['fitted_ssim']:.3f}",
                       pair(r["object_psnr"], r["object_fitted"]), took(r)] for r in trained],
-                    ["capture", "--capture", "steps", "val views", "photos agree (table)", "val PSNR", "val SSIM",
+                    ["capture", "--capture", "steps", "val views", "photos agree on the table (exposure evened)",
+                     "val PSNR", "val SSIM",
                      "PSNR, colour (other half)", "PSNR / SSIM, pose + colour (other half)", "object's pixels (fitted)",
                      "time"],
                     max_width=200))
