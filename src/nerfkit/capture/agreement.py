@@ -180,13 +180,9 @@ def agreement_notes(agreement: dict) -> list[str]:
              "(each photo against the mean of those that see each spot): about as high as held-out photos can score"]
     if a >= AGREEMENT_NOTE_DB:
         return lines
-    evened = agreement.get("psnr_exposure_evened")
+    evened = agreement["psnr_exposure_evened"]
     low = f"  that is low (under {AGREEMENT_NOTE_DB:.0f} dB)"
-    if evened is None:  # (a dataset from before the exposure was evened out)
-        lines.append(f"{low}: the phone's exposure or white balance changed between photos, your shadow fell on the "
-                     "table, or the table mirrors a lamp. Lock exposure (iPhone: AE/AF lock), keep your shadow off the "
-                     "table and light it evenly")
-    elif evened >= AGREEMENT_NOTE_DB:
+    if evened >= AGREEMENT_NOTE_DB:
         lines.append(f"{low}, mostly the phone's exposure and white balance changing between photos: evened out, the "
                      f"photos agree to {evened:.1f} dB. Lock them while photographing (iPhone: AE/AF lock)")
     else:
