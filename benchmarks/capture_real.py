@@ -112,7 +112,7 @@ def calibration_figures(name: str, cam: Path, poses: Path) -> dict:
     if (poses / "transforms.json").exists():
         block = json.loads((poses / "transforms.json").read_text())["nerfkit"]
         choice, views = block.get("pose_choice"), sum(block["views"].values())
-        agree = block.get("agreement") or None
+        agree = block.get("agreement")
     return {
         "capture": name, "calib_photos": len(c["images"]), "calib_used": c["photos_used"],
         "model": c["dist_model"], "dist": c["dist"], "heldout": c.get("heldout_rms"), "rms": c["rms"],
@@ -208,8 +208,7 @@ def print_table(rows: list[dict]) -> None:
             return "-" if a is None else f"{a:.2f}" + ("" if b is None else f" / {b:.2f}")
 
         def agreed(a):
-            return "-" if a is None else f"{a['psnr']:.2f}" + (
-                f" ({a['psnr_exposure_evened']:.2f})" if a.get("psnr_exposure_evened") is not None else "")
+            return "-" if a is None else f"{a['psnr']:.2f} ({a['psnr_exposure_evened']:.2f})"
 
         def took(r):
             return f"{r['total_s'] / 60:.1f} min (capture)" if "total_s" in r else f"{r['train_s'] / 60:.1f} min (train on)"
