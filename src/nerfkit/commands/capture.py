@@ -425,9 +425,10 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
         if colour and colour["psnr"] - e["psnr"] >= EXPOSURE_NOTE_DB:
             lines.append("            note: with only their colour solved (each half's on the other half), the "
                          "held-out photos score "
-                         f"{colour['psnr']:.2f} dB: mostly the phone changed its exposure or white balance between "
-                         "photos, which the scene cannot predict. Locking them while photographing (iPhone: AE/AF "
-                         "lock) should narrow that gap")
+                         f"{colour['psnr']:.2f} dB: each photo's overall colour changed (the phone's exposure or "
+                         "white balance, or the light itself), which the scene cannot predict. Locking the exposure "
+                         "while photographing (iPhone: AE/AF lock) narrows the phone's part"
+                         + (" (the agreement above says how much)" if isinstance(nk.get("agreement"), dict) else ""))
     else:
         lines.append("  held out  not scored (the eval's error is above)")
     videos = run_dir / "videos"
