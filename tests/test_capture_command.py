@@ -138,7 +138,8 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
         scores["colour_only"]["psnr"] = scores["psnr"] + gain
         (run / "eval_val.json").write_text(json.dumps(scores))
         text = summary(out, tmp_path / "camera.json", out / "dataset", run, None)
-        assert ("the phone changed its exposure or white balance between photos" in text) == said
+        assert ("each photo's overall colour changed (the phone's exposure or white balance" in text) == said
+        assert ("(the agreement above says how much)" in text) == said  # the dataset measured it
 
 
 def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_photos(tmp_path, capsys):
