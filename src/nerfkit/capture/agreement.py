@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..cameras import axes_across
+from ..cameras import axes_across, project_points
 
 # below this agreement the photos cannot be matched to the 22 dB that a usable capture's
 # held-out views reach (issue 11's bar): the notes give advice (steve 19.9, labubu 23.9)
@@ -83,10 +83,8 @@ def sample_photo(image: np.ndarray, K: np.ndarray, c2w: np.ndarray, points: np.n
     of the camera, inside the frame, and the line of sight clear of the object's ``box``."""
     import cv2
 
-    w2c = np.linalg.inv(c2w)
-    pc = points @ w2c[:3, :3].T + w2c[:3, 3]
-    seen = pc[:, 2] > 1e-6
-    uv = pc[:, :2] / np.maximum(pc[:, 2:3], 1e-9) * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+    uv, z = project_points(K, c2w, points)
+    seen = z > 1e-6
     h, w = image.shape[:2]
     seen &= (uv[:, 0] > 1) & (uv[:, 0] < w - 2) & (uv[:, 1] > 1) & (uv[:, 1] < h - 2)
     if box is not None:  # the object may stand in the way: walk the line of sight
