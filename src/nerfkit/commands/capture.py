@@ -405,8 +405,9 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
         notes = coverage_notes(nk["coverage"])
         notes[0] += f" (chart: {dataset / nk['coverage']['plot']})"
         lines += [f"            {note.strip()}" for note in notes]
-    if isinstance(nk.get("agreement"), dict):
-        lines += [f"            {note.strip()}" for note in agreement_notes(nk["agreement"])]
+    agreement = nk.get("agreement") if isinstance(nk.get("agreement"), dict) else None
+    if agreement:
+        lines += [f"            {note.strip()}" for note in agreement_notes(agreement)]
     m = json.loads((run_dir / "metrics.json").read_text())
     lines.append(f"  NeRF      {run_dir}: {m['step']} steps; plots in {run_dir / 'plots'}")
     lines += [f"            note: {note}" for note in m.get("notes") or []]
@@ -428,7 +429,7 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
                          f"{colour['psnr']:.2f} dB: each photo's overall colour changed (the phone's exposure or "
                          "white balance, or the light itself), which the scene cannot predict. Locking the exposure "
                          "while photographing (iPhone: AE/AF lock) narrows the phone's part"
-                         + (" (the agreement above says how much)" if isinstance(nk.get("agreement"), dict) else ""))
+                         + (" (the agreement above says how much)" if agreement else ""))
     else:
         lines.append("  held out  not scored (the eval's error is above)")
     videos = run_dir / "videos"
