@@ -7,7 +7,7 @@ refinement (``--jobs`` threads), and calibrating with an estimated sheet layout;
 re-run that hits the detection cache. Prints timings and the calibration error against
 the true camera::
 
-    python benchmarks/capture.py                 # 50 photos, cached under /tmp/nerfkit_bench_capture
+    python benchmarks/capture.py                 # 50 photos, kept in --work for the next run
     python benchmarks/capture.py --n 20 --jobs 1,2
 
 Photos are rendered at half size and upscaled (rendering 12 MP directly takes minutes);

@@ -17,7 +17,7 @@ beside render) is RUN/eval_val.png, the videos are in RUN/videos::
 
     python benchmarks/capture_real.py                       # both dev captures, 3 minutes each
     python benchmarks/capture_real.py --minutes 0           # calibration and poses only
-    python benchmarks/capture_real.py --labubu /path/labubu --steve /path/steve --work /tmp/cr
+    python benchmarks/capture_real.py --labubu /path/labubu --steve /path/steve --work OUT
     python benchmarks/capture_real.py --sfm                 # also: poses from SfM, tags ignored
     python benchmarks/capture_real.py --photos 30           # about 30 object photos per capture
 
@@ -30,7 +30,7 @@ With ``--sfm`` each capture is also posed by structure-from-motion as if it had 
 table plane comes from the SfM points) and trained the same way, as a second row.
 
 The capture folders default to ``../shared/data/captures/{labubu,steve}`` relative to the
-repository. Outputs go to --work (default /tmp/nerfkit_capture_real).
+repository. Outputs go to --work (default: nerfkit_capture_real in the system's temporary folder).
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ Reads data only from the paths given on the command line (nothing is read otherw
     # SfM on phone photos: registration, timings; vs the tag poses of `nerfkit poses` if given
     # (they also choose the pairs of --matcher spatial)
     python benchmarks/formats_check.py --sfm-photos /work/shared/data/captures/labubu/myscan_resized \\
-        --tag-size 0.06 --tag-poses /tmp/labubu_dataset --matcher sequential exhaustive spatial
+        --tag-size 0.06 --tag-poses labubu_dataset/ --matcher sequential exhaustive spatial
 
 Prints a JSON report (also written with --out). Timings depend on machine load.
 """

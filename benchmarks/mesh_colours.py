@@ -3,7 +3,7 @@
 For a trained run, the mesh is extracted once (``nerfkit export``'s defaults: 256^3 grid
 over a cube around the model's grid, the scale-free threshold of ``export`` unless
 ``--threshold`` is given, a capture's table paint cleared up to 5% of the object's height;
-``--region scene`` meshes the scene's cube instead, as ``export`` did before session 29).
+``--region scene`` meshes the scene's cube instead, as ``export`` once did).
 
 Its silhouette (every triangle in front of the camera filled) is compared in each
 validation view with where the NeRF's object (alone, for a capture) is more than half
@@ -34,8 +34,8 @@ Two scores against the run's validation photos:
 And the seconds each colouring took::
 
     python benchmarks/mesh_colours.py runs/demo
-    python benchmarks/mesh_colours.py /tmp/cr/steve/run_auto --views 6
-    python benchmarks/mesh_colours.py /tmp/cr/steve/run_auto --views 6 --region scene --table-cut -1
+    python benchmarks/mesh_colours.py CAPTURES/steve/run --views 6     # a capture_real.py run
+    python benchmarks/mesh_colours.py CAPTURES/steve/run --views 6 --region scene --table-cut -1
     python benchmarks/mesh_colours.py runs/demo --threshold 25     # a fixed level instead
 """
 

@@ -18,7 +18,7 @@ from the object's box, which may hide them) into every photo, and prints:
 
 Split the across-view figure by brightness to see what disagrees (paper, dark wood)::
 
-    python benchmarks/photo_consistency.py /tmp/cr/steve/poses/dataset.npz
+    python benchmarks/photo_consistency.py CAPTURES/steve/dataset/dataset.npz   # a capture_real.py dataset
     python benchmarks/photo_consistency.py DATA.npz --extent 0.3 --split val
     python benchmarks/photo_consistency.py DATA.npz --run RUN   # and the run's renders
 """

@@ -6,7 +6,7 @@ One forward and backward pass of :func:`nerfkit.render.volrend.render_weights` a
 :func:`~nerfkit.render.volrend.composite` (colour and depth), on batches shaped like the
 course NeRF's (64 stratified samples per ray, every one evaluated, or the ~6% an
 occupancy grid keeps) and like a dense fine pass (192 per ray). The padded baseline is
-the session-17 code, kept here: (n_rays, n_samples) tensors, the kept samples scattered
+the code the packed layout replaced, kept here: (n_rays, n_samples) tensors, the kept samples scattered
 into zeros. Prints median wall and CPU milliseconds, interleaved round by round.
 """
 
