@@ -48,8 +48,13 @@ def command_names() -> list[str]:
     """The subcommands, in the order ``nerfkit --help`` lists them (walked from the parser)."""
     from nerfkit import cli
 
-    parser = cli.build_parser()
-    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    build = getattr(cli, "build_parser", None)
+    parser = build() if build is not None else None
+    subs = [
+        a
+        for a in getattr(parser, "_actions", [])
+        if isinstance(a, argparse._SubParsersAction)
+    ]
     return list(subs[0].choices) if subs else list(getattr(cli, "COMMANDS", []))
 
 
