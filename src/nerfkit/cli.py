@@ -20,6 +20,7 @@ from .errors import NerfkitError, is_out_of_memory
 COMMANDS = [
     "demo",
     "capture",
+    "frames",
     "train",
     "render",
     "eval",
