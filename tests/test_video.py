@@ -66,11 +66,17 @@ def write_mp4(path, frames, fps: int = FPS) -> None:
     writer.close()
 
 
-def with_rotation(src, dst, degrees: int) -> None:
+def with_rotation(src, dst, degrees: int, hevc: bool = False) -> None:
     """Copy ``src`` to ``dst`` with a display matrix turning it ``degrees`` anticlockwise
-    (as ffmpeg counts; an iPhone filmed upright records -90)."""
-    subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-display_rotation:v",
-                    str(degrees), "-i", str(src), "-c", "copy", str(dst)], check=True)
+    (as ffmpeg counts; an iPhone filmed upright records -90); with ``hevc``, re-encoded as
+    an iPhone does: 10-bit HEVC tagged hvc1."""
+    ffmpeg = [imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y"]
+    if hevc:  # (re-encoding would apply the rotation to the pixels: encode first, then tag)
+        hevc_copy = dst.with_name("hevc_" + dst.name)
+        subprocess.run([*ffmpeg, "-i", str(src), "-c:v", "libx265", "-pix_fmt", "yuv420p10le", "-tag:v", "hvc1",
+                        "-crf", "12", "-x265-params", "log-level=error", str(hevc_copy)], check=True)
+        src = hevc_copy
+    subprocess.run([*ffmpeg, "-display_rotation:v", str(degrees), "-i", str(src), "-c", "copy", str(dst)], check=True)
 
 
 BLUR = {10, 11, 12, 50, 51, 95}
@@ -150,14 +156,15 @@ def test_written_frames_are_the_chosen_ones(selection, clip):
     assert [f["frame"] for f in report["frames"]] == selection.frame_indices
 
 
-@pytest.mark.parametrize("degrees, clockwise", [(-90, 90), (90, 270)])
-def test_rotation_metadata_gives_upright_portrait_frames(tmp_path, degrees, clockwise):
+@pytest.mark.parametrize("degrees, clockwise, hevc", [(-90, 90, True), (90, 270, False)])
+def test_rotation_metadata_gives_upright_portrait_frames(tmp_path, degrees, clockwise, hevc):
     frames = render_frames(n=30)
     plain, rotated = tmp_path / "plain.mp4", tmp_path / "rotated.mov"
     write_mp4(plain, frames)
-    with_rotation(plain, rotated, degrees)
+    with_rotation(plain, rotated, degrees, hevc)
     info = probe_video(rotated)
     assert (info.width, info.height, info.rotation, info.portrait) == (120, 160, clockwise, True)
+    assert info.codec == ("hevc" if hevc else "h264")
     s = select_frames(rotated, tmp_path / "frames", target=10, progress=False)
     rgb = cv2.imread(str(s.paths[0]))[..., ::-1]
     assert rgb.shape == (160, 120, 3)
@@ -265,3 +272,27 @@ def test_still_camera_is_refused(tmp_path):
     write_mp4(still, render_frames(n=40, pause=set(range(1, 40))))
     with pytest.raises(NerfkitError, match="near-duplicates.*Move slowly around the object"):
         select_frames(still, tmp_path / "f", target=20, progress=False)
+
+
+def test_a_failed_write_leaves_the_earlier_frames(clip, tmp_path, monkeypatch):
+    from nerfkit.capture import video
+
+    out = tmp_path / "frames"
+    first = select_frames(clip[0], out, target=12, progress=False)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    real, calls = video._write_jpeg, []
+
+    def failing(path, rgb, quality=95):
+        calls.append(path)
+        if len(calls) == 3:
+            raise OSError(28, "No space left on device")
+        real(path, rgb, quality)
+
+    monkeypatch.setattr(video, "_write_jpeg", failing)
+    with pytest.raises(OSError):
+        select_frames(clip[0], out, target=30, force=True, progress=False)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before and len(before) == first.kept + 1
+    calls.clear()
+    with pytest.raises(OSError):
+        select_frames(clip[0], tmp_path / "new", target=30, progress=False)
+    assert not (tmp_path / "new").exists()

@@ -15,11 +15,14 @@ Neither pass holds more than one full-resolution frame in memory.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+import shutil
 import subprocess
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -216,7 +219,8 @@ def _ffmpeg_frames(path: Path, size: tuple[int, int], pix_fmt: str, filters: lis
            "-dn", "-fps_mode", "passthrough"]
     if filters:
         cmd += ["-vf", ",".join(filters)]
-    cmd += ["-f", "rawvideo", "-pix_fmt", pix_fmt, "-"]
+    # one frame queued for the pipe (ffmpeg's default of 8 holds 200 MB of 4K RGB while nerfkit writes a JPEG)
+    cmd += ["-thread_queue_size", "1", "-f", "rawvideo", "-pix_fmt", pix_fmt, "-"]
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log, bufsize=nbytes)
     stdout = proc.stdout
     assert stdout is not None
@@ -470,10 +474,6 @@ def select_frames(path: str | os.PathLike, out_dir: str | os.PathLike, target: i
     if len(kept) < min_frames:
         raise _too_few(path, n, len(kept), counts, min_frames)
     names = [FRAME_NAME.format(k + 1) for k in range(len(kept))]
-    extract_frames(path, info, kept.tolist(), out_dir, names, progress)
-    for p in earlier:  # an earlier selection's frames that this one did not replace
-        if p.name not in names and p.name != REPORT_NAME:
-            p.unlink(missing_ok=True)
     windows = windows_of(scores.times, target)
     sel = FrameSelection(
         source=str(path), out_dir=str(out_dir), info=info, target=target, read=n, files=names,
@@ -483,9 +483,35 @@ def select_frames(path: str | os.PathLike, out_dir: str | os.PathLike, target: i
         empty_windows=int(target - len(set(windows[kept].tolist()))),
         score_size=score_size(info.width, info.height, score_side),
         advice=[f"{c} frames {r}: {ADVICE[r]}" for r, c in counts.items() if r in ADVICE and c > n // 4])
-    sel.seconds = time.perf_counter() - start
-    write_json(out_dir / REPORT_NAME, sel.to_json())
+    with _frames_folder(out_dir, replace=bool(earlier)) as folder:
+        extract_frames(path, info, sel.frame_indices, folder, names, progress)
+        sel.seconds = time.perf_counter() - start
+        write_json(folder / REPORT_NAME, sel.to_json())
     return sel
+
+
+@contextlib.contextmanager
+def _frames_folder(out_dir: Path, replace: bool) -> Iterator[Path]:
+    """``out_dir`` to write a selection into. ``replace``: it holds only an earlier
+    selection, replaced as a whole when the body succeeds and kept when it fails; else
+    it is new or empty, and a failure removes what the body wrote there."""
+    from ..io.atomic import replacing_folder
+
+    if replace:
+        with replacing_folder(out_dir) as folder:
+            yield folder
+        return
+    existed = out_dir.exists()
+    try:
+        yield out_dir
+    except BaseException:
+        if existed:
+            for p in out_dir.iterdir():
+                if p.is_file() and (_FRAME_FILE.fullmatch(p.name) or p.name == REPORT_NAME):
+                    p.unlink()
+        else:
+            shutil.rmtree(out_dir, ignore_errors=True)
+        raise
 
 
 def _too_few(path: Path, read: int, kept: int, counts: dict[str, int], need: int):
