@@ -247,7 +247,7 @@ def test_a_flag_of_another_model_is_refused_before_anything_is_read_or_written(f
     (["eval", "run", "--verbose"],
      "nerfkit eval: error: --verbose goes before the command: nerfkit --verbose eval ... (see nerfkit --help)"),
     (["--verbose", "pose", "photos/"], "nerfkit: error: unknown command 'pose': did you mean poses? (see nerfkit --help)"),
-    (["photos/"], "nerfkit: error: unknown command 'photos/' (the commands: demo, capture, train, render, eval, "
+    (["photos/"], "nerfkit: error: unknown command 'photos/' (the commands: demo, capture, frames, train, render, eval, "
                   "fit-image, convert, export, tags, calibrate, poses, dataset, view) (see nerfkit --help)"),
     (["capture", "photos/", "--tag-size", "0.06", "--out", "o", "--minutes", "1", "--steps", "9"],
      "nerfkit capture: error: argument --steps: not allowed with argument --minutes (see nerfkit capture --help)"),
