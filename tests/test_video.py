@@ -22,6 +22,7 @@ from nerfkit.capture.video import (
     probe_video,
     select_expression,
     select_frames,
+    travel,
     windows_of,
 )
 from nerfkit.cli import main
@@ -296,3 +297,22 @@ def test_a_failed_write_leaves_the_earlier_frames(clip, tmp_path, monkeypatch):
     with pytest.raises(OSError):
         select_frames(clip[0], tmp_path / "new", target=30, progress=False)
     assert not (tmp_path / "new").exists()
+
+
+def test_spreading_by_motion_gives_the_pause_no_windows(clip, tmp_path):
+    by_time = select_frames(clip[0], tmp_path / "t", target=30, progress=False)
+    by_motion = select_frames(clip[0], tmp_path / "m", target=30, spread="motion", progress=False)
+    assert by_motion.spread == "motion" and by_motion.read == by_motion.kept + sum(by_motion.dropped.values())
+    assert len([i for i in by_motion.frame_indices if 59 <= i <= 79]) <= 1
+    assert by_motion.kept > by_time.kept and by_motion.kept >= 28  # the pause's windows go to the moving parts
+    assert not BLUR & set(by_motion.frame_indices)
+    position = [i - sum(p <= i for p in PAUSE) for i in by_motion.frame_indices]  # the camera's, in frames moved
+    assert np.diff([0, *position, 100]).max() <= 8
+
+
+def test_travel_adds_up_consecutive_motion():
+    img = cv2.GaussianBlur(np.random.default_rng(0).random((48, 200)).astype(np.float32) * 255, (0, 0), 3)
+    thumbs = np.stack([img[:, s:s + 64] for s in (0, 1, 2, 2, 2, 3)])  # one pixel a frame, a pause of two frames
+    t = travel(thumbs)
+    assert t[0] == 0 and t[3] == t[4] == t[2] and np.all(np.diff(t) >= 0)
+    assert t[-1] == pytest.approx(3.0, rel=0.5) and t[5] - t[4] == pytest.approx(t[1], rel=0.3)

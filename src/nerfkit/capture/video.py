@@ -40,6 +40,7 @@ BLUR_FLOOR = 8.0  # ... and any frame below this variance of the Laplacian (grey
 DARK_LEVEL = 12.0  # mean grey level (of 255) below which a frame is too dark
 DUPLICATE_MOTION = 0.2  # thumbnail pixels of apparent motion below which a frame repeats the last kept
 JPEG_QUALITY = 95
+SPREADS = ("time", "motion")  # what the windows are evenly spread in
 FRAME_NAME = "frame_{:05d}.jpg"
 REPORT_NAME = "frames.json"
 _FRAME_FILE = re.compile(r"frame_\d{5}\.jpg")
@@ -93,6 +94,7 @@ class FrameSelection:
     empty_windows: int  # windows with no frame kept
     seconds: float = 0.0
     score_size: tuple[int, int] = (0, 0)  # (width, height) of the scored grey frames
+    spread: str = "time"  # the windows are evenly spread in time or in camera travel ("motion")
     advice: list[str] = field(default_factory=list)
 
     @property
@@ -335,10 +337,27 @@ def windows_of(times: np.ndarray, target: int) -> np.ndarray:
     return np.minimum(np.floor((times - t0) / span * target + 1e-6).astype(np.int64), target - 1)
 
 
+def travel(thumbs: np.ndarray) -> np.ndarray:
+    """(n,) apparent camera travel from the first frame to each frame: the running sum of
+    the :func:`motion` between consecutive thumbnails (n, th, tw), in thumbnail pixels."""
+    steps = [motion(thumbs[i], thumbs[i + 1]) for i in range(len(thumbs) - 1)]
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def spread_axis(scores: ClipScores, spread: str) -> np.ndarray:
+    """(n,) where each frame lies along the clip for spreading the windows: its time
+    (``"time"``) or the camera's travel to it (``"motion"``: a pause takes no window)."""
+    if spread not in SPREADS:
+        raise fail("spread", f"'{spread}' is not one of {', '.join(SPREADS)}")
+    return scores.times if spread == "time" else travel(scores.thumbs)
+
+
 def choose_frames(scores: ClipScores, target: int, blur_ratio: float = BLUR_RATIO,
                   blur_floor: float = BLUR_FLOOR, dark_level: float = DARK_LEVEL,
-                  duplicate_motion: float = DUPLICATE_MOTION) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """The frames to keep: per time window, the sharpest usable frame that moved at least
+                  duplicate_motion: float = DUPLICATE_MOTION,
+                  spread: str = "time") -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The frames to keep: per window (``target`` windows evenly spread in time or in
+    camera travel, see :func:`spread_axis`), the sharpest usable frame that moved at least
     ``duplicate_motion`` thumbnail pixels from the frame kept before it.
 
     Returns (kept (k,) frame indices in clip order, reason (n,) str array: '' for a kept
@@ -354,7 +373,7 @@ def choose_frames(scores: ClipScores, target: int, blur_ratio: float = BLUR_RATI
     reason[dark] = DARK
     reason[blurred] = BLURRED
     usable = ~dark & ~blurred
-    window = windows_of(scores.times, target)
+    window = windows_of(spread_axis(scores, spread), target)
     kept: list[int] = []
     last = None
     for w in range(target):
@@ -446,7 +465,7 @@ def extract_frames(path: Path, info: VideoInfo, indices: list[int], out_dir: Pat
 def select_frames(path: str | os.PathLike, out_dir: str | os.PathLike, target: int = DEFAULT_TARGET, *,
                   force: bool = False, progress: bool = True, score_side: int = SCORE_SIDE,
                   blur_ratio: float = BLUR_RATIO, duplicate_motion: float = DUPLICATE_MOTION,
-                  min_frames: int = MIN_FRAMES) -> FrameSelection:
+                  min_frames: int = MIN_FRAMES, spread: str = "time") -> FrameSelection:
     """Choose about ``target`` frames of the clip at ``path`` (see the module's docstring) and
     write them to ``out_dir`` as frame_00001.jpg... (JPEG quality 95, full resolution,
     upright) with ``frames.json``, the report. ``out_dir`` is the frames' own folder: it
@@ -461,6 +480,8 @@ def select_frames(path: str | os.PathLike, out_dir: str | os.PathLike, target: i
     path, out_dir = Path(path), Path(out_dir)
     if target < min_frames:
         raise fail("target", f"{target} frames are too few to pose", f"Ask for at least {min_frames}")
+    if spread not in SPREADS:
+        raise fail("spread", f"'{spread}' is not one of {', '.join(SPREADS)}")
     info = probe_video(path)
     earlier = _check_out_dir(out_dir, path, force)
     scores = score_clip(path, info, score_side, progress)
@@ -469,19 +490,20 @@ def select_frames(path: str | os.PathLike, out_dir: str | os.PathLike, target: i
     if n < min_frames:
         raise fail(path, f"is too short: {n} frame{'s' * (n != 1)} ({secs})",
                    f"Film a longer clip (at least {min_frames} frames; 20-60 s around the object is typical)")
-    kept, reason, median, threshold = choose_frames(scores, target, blur_ratio, duplicate_motion=duplicate_motion)
+    kept, reason, median, threshold = choose_frames(scores, target, blur_ratio, duplicate_motion=duplicate_motion,
+                                                    spread=spread)
     counts = {r: int(np.sum(reason == r)) for r in REASONS}
     if len(kept) < min_frames:
         raise _too_few(path, n, len(kept), counts, min_frames)
     names = [FRAME_NAME.format(k + 1) for k in range(len(kept))]
-    windows = windows_of(scores.times, target)
+    windows = windows_of(spread_axis(scores, spread), target)
     sel = FrameSelection(
         source=str(path), out_dir=str(out_dir), info=info, target=target, read=n, files=names,
         frame_indices=kept.tolist(), timestamps=[float(scores.times[i]) for i in kept],
         sharpness=[float(scores.sharpness[i]) for i in kept],
         dropped={r: c for r, c in counts.items() if c}, median_sharpness=median, blur_threshold=threshold,
         empty_windows=int(target - len(set(windows[kept].tolist()))),
-        score_size=score_size(info.width, info.height, score_side),
+        score_size=score_size(info.width, info.height, score_side), spread=spread,
         advice=[f"{c} frames {r}: {ADVICE[r]}" for r, c in counts.items() if r in ADVICE and c > n // 4])
     with _frames_folder(out_dir, replace=bool(earlier)) as folder:
         extract_frames(path, info, sel.frame_indices, folder, names, progress)

@@ -28,6 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the frames (new, empty, or earlier frames)")
     p.add_argument("--frames", type=number(int, 10, 100_000), default=120, metavar="N",
                    help="frames to keep, at most (default: 120)")
+    p.add_argument("--spread", choices=["time", "motion"], default="time",
+                   help="spread the windows evenly in time, or in camera motion measured between frames (a pause "
+                        "then takes no window; default: time)")
     p.add_argument("--force", action="store_true", help="replace the frames an earlier run wrote in --out")
     p.set_defaults(func=run)
 
@@ -35,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..capture.video import select_frames
 
-    sel = select_frames(args.clip, args.out, args.frames, force=args.force)
+    sel = select_frames(args.clip, args.out, args.frames, force=args.force, spread=args.spread)
     print(report_lines(sel))
     return 0
 
@@ -51,7 +54,7 @@ def report_lines(sel) -> str:
     lines.append(f"  sharpness (variance of the Laplacian at {sel.score_size[0]}x{sel.score_size[1]}): median "
                  f"{sel.median_sharpness:.0f}, frames under {sel.blur_threshold:.0f} counted as blurred")
     if sel.empty_windows:
-        lines.append(f"  {sel.empty_windows} of the {sel.target} time windows gave no frame")
+        lines.append(f"  {sel.empty_windows} of the {sel.target} windows ({sel.spread}) gave no frame")
     lines += [f"  note: {a}" for a in sel.advice]
     lines.append(f"wrote {sel.kept} frames ({sel.files[0]} ... {sel.files[-1]}) and frames.json to {sel.out_dir} "
                  f"in {sel.seconds:.1f} s")
