@@ -6,11 +6,13 @@ HEVC and the usual containers, and turns frames upright by the clip's rotation m
 1. every frame, downscaled to a grey image of at most ``score_side`` pixels, is scored
    (sharpness: variance of the Laplacian; brightness; a small thumbnail to measure
    motion) and its timestamp kept: a few kilobytes a frame;
-2. :func:`choose_frames` splits the clip into ``target`` windows evenly spread in time,
-   keeps the sharpest usable frame of each window that moved from the frame kept before
-   it, and a second decode writes only those frames, at full resolution, as JPEG.
+2. :func:`choose_frames` splits the clip into ``target`` windows evenly spread in time
+   (or in camera travel), keeps the sharpest usable frame of each window that moved from
+   the frame kept before it, and a second decode writes only those frames, at full
+   resolution, as JPEG.
 
-Neither pass holds more than one full-resolution frame in memory.
+nerfkit holds at most one full-resolution frame; ffmpeg's decoder a few more (about
+400 MB in all for 4K, whatever the clip's length: benchmarks/video_frames.py).
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ MIN_FRAMES = 10  # fewer usable frames than this cannot be posed
 SCORE_SIDE = 720  # longest side (pixels) of the grey frames scored in the first pass
 THUMB_SIDE = 64  # longest side of the thumbnails compared for motion
 BLUR_RATIO = 0.35  # a frame below this fraction of the clip's median sharpness is blurred
-BLUR_FLOOR = 8.0  # ... and any frame below this variance of the Laplacian (grey levels^2)
+BLUR_FLOOR = 8.0  # ... and any frame below this variance of the Laplacian (grey levels^2, at the scoring size)
 DARK_LEVEL = 12.0  # mean grey level (of 255) below which a frame is too dark
 DUPLICATE_MOTION = 0.2  # thumbnail pixels of apparent motion below which a frame repeats the last kept
 JPEG_QUALITY = 95
@@ -129,7 +131,7 @@ def ffmpeg_exe() -> str:
 # ---------------------------------------------------------------------------------------------
 # probing
 
-_STILL_FORMATS = ("image2", "png_pipe", "jpeg_pipe", "webp_pipe", "bmp_pipe", "tiff_pipe", "gif", "apng")
+_STILL_FORMATS = ("image2", "png_pipe", "jpeg_pipe", "webp_pipe", "bmp_pipe", "tiff_pipe")
 
 
 def parse_header(text: str, path: str = "") -> VideoInfo:
