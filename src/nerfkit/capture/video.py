@@ -309,6 +309,10 @@ def score_clip(path: Path, info: VideoInfo, side: int = SCORE_SIDE, progress: bo
             bar.update()
         text = _log_text(log)
     if not sharp:
+        if re.search(r"Unrecognized option|Option not found|No such filter", text):
+            raise fail(ffmpeg_exe(), "this ffmpeg is too old to read video for nerfkit (it lacks -fps_mode or "
+                       "-thread_queue_size for outputs)", "Use ffmpeg 6 or newer: unset IMAGEIO_FFMPEG_EXE to use "
+                       "the one imageio-ffmpeg ships")
         last = [ln for ln in text.strip().splitlines() if ln.strip()][-1:] or ["no frames decoded"]
         raise fail(path, f"no frame could be decoded ({last[0].strip()[:200]})",
                    "The file may be damaged or cut short: copy the video again from the phone")
