@@ -19,10 +19,11 @@ from nerfkit.data.colmap import (load_colmap, read_model, reconstruction_to_scen
 from nerfkit.data.load import detect_format, load_scene  # noqa: E402
 from nerfkit.data.synthetic import sphere_scene  # noqa: E402
 from nerfkit.errors import NerfkitError  # noqa: E402
+from nerfkit.ground import rotation_between  # noqa: E402
 from nerfkit.io.atomic import write_image  # noqa: E402
 from nerfkit.sfm.colmap import run_sfm  # noqa: E402
 from nerfkit.sfm.frame import (align_reconstruction, apply_similarity, compare_poses,  # noqa: E402
-                               normalising_similarity, rotation_between, umeyama)
+                               normalising_similarity, umeyama)
 from nerfkit.sfm.dataset import sfm_dataset  # noqa: E402
 
 # ----------------------------------------------------------------------------- model I/O

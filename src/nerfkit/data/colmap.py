@@ -263,7 +263,7 @@ def reconstruction_to_scene(
     """
     import pycolmap
 
-    from .load import output_size, resize_image, scale_intrinsics
+    from .resample import output_size, resize_image, scale_intrinsics
 
     where = source or "COLMAP model"
     images = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)

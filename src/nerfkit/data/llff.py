@@ -143,7 +143,7 @@ def load_llff(
             ``downscale`` 4 or 8 reads ``images_4``/``images_8`` when they exist.
         allow_outside: accept image files that link outside the folder.
     """
-    from .load import output_size, resample_scene, resize_image, scale_intrinsics
+    from .resample import output_size, resample_scene, resize_image, scale_intrinsics
 
     output_size(1, 1, size, downscale)  # refuses both at once
     folder = llff_folder(path)

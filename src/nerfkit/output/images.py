@@ -102,7 +102,7 @@ def probe_renders(model: NerfModel, views: Views, n_views: int, width: int, back
     with the intrinsics they were rendered with, ``width`` pixels wide (the height in
     proportion) and the focal length times ``zoom`` about the principal point (below 1:
     more of the scene than the view holds)."""
-    from ..data.load import scale_intrinsics
+    from ..data.resample import scale_intrinsics
 
     h = max(round(views.height * width / views.width), 1)
     for i in np.unique(np.linspace(0, len(views) - 1, min(n_views, len(views))).round().astype(int)):
