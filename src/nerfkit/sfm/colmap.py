@@ -16,16 +16,16 @@ The output folder holds ``colmap/database.db`` and the aligned model ``colmap/sp
 
 from __future__ import annotations
 
-import contextlib
 import shutil
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..capture.points import camera_neighbours, match_pairs, quiet_colmap
 from ..data.colmap import write_reconstruction
 from ..errors import NerfkitError, fail, problem_of
 from ..images import list_images
@@ -119,20 +119,6 @@ def _import_pycolmap():
     return pycolmap
 
 
-@contextlib.contextmanager
-def _quiet_colmap(verbose: bool) -> Iterator[None]:
-    """Silence COLMAP's INFO/WARNING log lines unless ``verbose``."""
-    import pycolmap
-
-    old = pycolmap.logging.minloglevel
-    if not verbose:
-        pycolmap.logging.minloglevel = 2
-    try:
-        yield
-    finally:
-        pycolmap.logging.minloglevel = old
-
-
 def _say(progress: bool, msg: str) -> None:
     if progress:
         print(msg, file=sys.stderr, flush=True)
@@ -150,29 +136,6 @@ def choose_matcher(matcher: str, n_photos: int, n_guided: int = 0) -> str:
             return "exhaustive"
         return "spatial" if 2 * n_guided >= n_photos else "sequential"
     return matcher
-
-
-def camera_neighbours(c2w: np.ndarray, k: int) -> list[tuple[int, int]]:
-    """Pairs ``(i, j)``, ``i < j``, joining each camera to the ``k`` others that see most
-    alike: nearest in position, with the angle between optical axes as a tie-breaker
-    (distance in units of the median camera spacing plus the axes' angle in radians).
-
-    Args:
-        c2w: (n, 4, 4) camera-to-world (OpenCV axes); k: neighbours per camera.
-    """
-    n = len(c2w)
-    pos = c2w[:, :3, 3].astype(np.float64)
-    axis = c2w[:, :3, 2].astype(np.float64)
-    dist = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
-    spacing = float(np.median(np.sort(dist, axis=1)[:, 1])) if n > 1 else 1.0
-    angle = np.arccos(np.clip(axis @ axis.T, -1.0, 1.0))
-    cost = dist / max(spacing, 1e-12) + angle
-    np.fill_diagonal(cost, np.inf)
-    pairs = set()
-    for i in range(n):
-        for j in np.argsort(cost[i])[:min(k, n - 1)]:
-            pairs.add((min(i, int(j)), max(i, int(j))))
-    return sorted(pairs)
 
 
 def spatial_pairs(names: list[str], guides: dict[str, np.ndarray], k: int, overlap: int) -> list[tuple[str, str]]:
@@ -195,16 +158,6 @@ def spatial_pairs(names: list[str], guides: dict[str, np.ndarray], k: int, overl
         pairs |= {(index[guided[i]], index[guided[j]]) for i, j in camera_neighbours(c2w, k)}
     pairs |= {(i, j) for i in range(len(names)) for j in range(i + 1, min(i + 1 + overlap, len(names)))}
     return [(names[i], names[j]) for i, j in sorted(pairs)]
-
-
-def match_pairs(pycolmap, db_path: Path, pairs: list[tuple[str, str]], matching, verification) -> None:
-    """Match and verify the features of these photo pairs only (a pairs file beside the database)."""
-    pairs_file = db_path.parent / "pairs.txt"
-    pairs_file.write_text("".join(f"{a} {b}\n" for a, b in pairs))
-    pairing = pycolmap.ImportedPairingOptions()
-    pairing.match_list_path = str(pairs_file)
-    pycolmap.match_image_pairs(db_path, matching_options=matching, pairing_options=pairing,
-                               verification_options=verification, device=pycolmap.Device.cpu)
 
 
 # Formats COLMAP reads directly; others (HEIC, WebP, ...) are converted first.
@@ -396,7 +349,7 @@ def run_sfm(
     seconds: dict[str, float] = {}
     pycolmap.set_random_seed(seed)
 
-    with _quiet_colmap(verbose):
+    with quiet_colmap(verbose):
         t0 = time.perf_counter()
         _say(progress, f"sfm: extracting SIFT features from {len(names)} photos "
                        f"(longest side <= {max_image_size} px)...")
