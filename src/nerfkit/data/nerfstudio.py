@@ -35,6 +35,7 @@ from ..errors import fail
 from ..io.atomic import atomic_path, replacing_folder, write_json
 from ..io.paths import path_kind, refuse_special_file, resolve_inside, safe_output_name
 from .blender import focal_from_angle, frame_image_path
+from .ply import read_points_ply, write_points_ply
 from .scene import Scene, Views, estimate_center, estimate_up
 from .validate import (MAX_SIDE, check_count, check_fov, check_intrinsics, check_near_far, check_number, check_plane,
                        check_poses, check_scene, check_vector3, near_far_from_cameras, short_repr)
@@ -267,8 +268,6 @@ def _read_points(data: dict, folder: Path, where: str, allow_outside: bool) -> t
         return None, None
     if not isinstance(rel, str):
         raise fail(where, f"'ply_file_path' is {short_repr(rel)}, expected a file name")
-    from ..export import read_points_ply
-
     path = refuse_special_file(resolve_inside(folder, rel, allow_outside, where))
     if not path.is_file():
         raise fail(where, f"'ply_file_path' names {rel[:200]!r}, which does not exist",
@@ -353,8 +352,6 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
         nk["poses_only"] = poses_only
     out["nerfkit"] = {**(extra or {}), **nk}  # the scene's own values win over extra's
     if scene.points is not None:  # nerfstudio's key for the sparse points (3DGS initialisation)
-        from ..export import write_points_ply
-
         out["ply_file_path"] = POINTS_FILE
         write_points_ply(folder / POINTS_FILE, scene.points, scene.point_colors)
     path = folder / "transforms.json"
