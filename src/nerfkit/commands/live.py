@@ -1,4 +1,7 @@
-"""A live viewer of a trained (or training) run in the browser, with viser.
+"""A live viewer of a trained (or training) run in the browser, with viser (``nerfkit view RUN``).
+
+It sits with the commands, above training and rendering (it loads runs and renders them);
+:mod:`nerfkit.viz` below holds the figures and the dataset viewer it draws with.
 
 ``serve_run(RUN)`` shows the training cameras (frustums with thumbnails) and renders the
 NeRF from the browser's camera: a small preview as soon as the camera moves, refined
@@ -211,7 +214,7 @@ class LiveViewer:
         run = self.watcher.current
         if run is None or not hasattr(run.model, "n_gaussians"):
             return
-        from .splats import add_splats
+        from ..viz.splats import add_splats
 
         self.splats = add_splats(self.server, run.model)
 
@@ -340,9 +343,9 @@ def serve_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080, de
         max_side: longest side of the fully refined image (pixels).
         watch: re-load the newest checkpoint while training writes new ones.
     """
-    from ..commands._common import scene_for_run
     from ..train.checkpoint import load_run, read_run
     from ..train.config import resolve_device
+    from ._common import scene_for_run
 
     run_dir = Path(run_dir)
     info = read_run(run_dir)  # fails early, with one line, when RUN is not a run folder
@@ -360,7 +363,7 @@ def serve_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080, de
     port = viewer.server.get_port()  # viser moves to the next free port when this one is taken
     if host not in LOCAL_HOSTS:
         print(f"warning: listening on {host}: anyone who can reach port {port} can see this scene", file=sys.stderr)
-    from .viewer import viewer_url
+    from ..viz.viewer import viewer_url
 
     print(f"nerfkit viewer of {run_dir} at {viewer_url(host, port)} "
           f"(Ctrl-C to stop)", flush=True)
