@@ -184,8 +184,8 @@ def test_neighbour_scales_on_a_lattice_are_the_spacing():
 
 
 def test_splat_starts_from_the_dataset_points():
-    from nerfkit.models.splat import SplatConfig, SplatModel
     from nerfkit.models.base import SceneBounds
+    from nerfkit.models.splat import SplatConfig, SplatModel
 
     scene = _scene_with_points(m=300)
     model = SplatModel(SplatConfig(), SceneBounds.from_scene(scene))

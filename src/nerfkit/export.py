@@ -25,9 +25,9 @@ is back-projected where the opacity exceeds ``acc_min``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
@@ -93,7 +93,8 @@ def sample_density_grid(density_fn: DensityFn, center, radius: float, resolution
     if progress:
         from tqdm import tqdm
 
-        it = tqdm(it, desc="density grid", unit="slab", total=(resolution + slabs - 1) // slabs, disable=None)  # (none in a log)
+        # disable=None: no bar when the output is not a terminal (a log)
+        it = tqdm(it, desc="density grid", unit="slab", total=(resolution + slabs - 1) // slabs, disable=None)
     for k0 in it:
         kz = zs[k0:k0 + slabs]
         pts = np.concatenate([np.column_stack([plane, np.full(len(plane), z)]) for z in kz])
@@ -217,7 +218,7 @@ class ColourViews:
     height: int
 
     @classmethod
-    def pick(cls, views, n: int, longest_side: int = COLOUR_VIEW_SIDE) -> "ColourViews":
+    def pick(cls, views, n: int, longest_side: int = COLOUR_VIEW_SIDE) -> ColourViews:
         """Up to ``n`` of ``views`` (a :class:`~nerfkit.data.scene.Views`), evenly spread over
         them, at a resolution whose longest side is at most ``longest_side`` (every k-th pixel)."""
         from .cameras import strided_camera
@@ -281,9 +282,10 @@ def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int =
                  device: str | torch.device = "cpu", progress: bool = False, reach: float | None = None,
                  table=None, table_cut: float = 0.0, tags=None) -> Mesh:
     """Density grid -> (with a ``table`` plane: :func:`clear_around_object`, the paint up to
-    ``table_cut`` above it, over the printed ``tags`` on it higher) -> marching cubes -> (optional) vertex colours, seen along rays
-    that start ``reach`` outside the surface and end twice as far inside (None: two grid
-    spacings; 0: the field's colour at the vertex). See the module docstring."""
+    ``table_cut`` above it, over the printed ``tags`` on it higher) -> marching cubes ->
+    (optional) vertex colours, seen along rays that start ``reach`` outside the surface and
+    end twice as far inside (None: two grid spacings; 0: the field's colour at the vertex).
+    See the module docstring."""
     grid = sample_density_grid(density_fn, center, radius, resolution, chunk, device, progress)
     if table is not None:
         axes = [grid_axis(c, radius, resolution) for c in np.asarray(center, np.float64).reshape(3)]

@@ -141,7 +141,7 @@ class Layout:
         """True when every corner lies in z = 0 (what calibrateCamera's initialisation needs)."""
         return self.max_height() <= tol
 
-    def flattened(self) -> "Layout":
+    def flattened(self) -> Layout:
         """The same tags with every corner on the plane z = 0 (an estimated layout's heights
         describe how the paper lay while it was photographed, not the printed sheet)."""
         return replace(self, tags={t: np.column_stack([c[:, :2], np.zeros(len(c))]) for t, c in self.tags.items()})
@@ -154,13 +154,13 @@ class Layout:
         return {str(t): np.round(c[:, 2], 7).tolist() for t, c in sorted(self.tags.items())}
 
     @staticmethod
-    def single(tag_id: int, size: float) -> "Layout":
+    def single(tag_id: int, size: float) -> Layout:
         """One tag whose frame is the sheet frame."""
         return Layout({int(tag_id): square_corners(size)},
                       spec={"tag_size": size, "tags": {str(tag_id): {"center": [0, 0], "rotation_deg": 0}}},
                       source=f"tag {tag_id}")
 
-    def match(self, det: "Detection") -> tuple[np.ndarray, np.ndarray, list[int]]:
+    def match(self, det: Detection) -> tuple[np.ndarray, np.ndarray, list[int]]:
         """Object and image points of a detection's tags (or ChArUco corners) in this layout.
 
         Returns:
@@ -366,15 +366,13 @@ class Detection:
             d["charuco_corners"] = np.asarray(self.charuco_corners, np.float64).tolist()
         return d
 
-    def turned(self, quarter_turns: int) -> "Detection":
+    def turned(self, quarter_turns: int) -> Detection:
         """The same detection in the photo turned clockwise by ``quarter_turns`` x 90
         degrees (a W x H photo turned once is H x W; a pixel (x, y) moves to (H - 1 - y, x)).
         Each corner keeps its place in the tag's corner order."""
         det = self
         for _ in range(quarter_turns % 4):
-            h = det.height
-
-            def turn(p):
+            def turn(p, h=det.height):
                 p = np.asarray(p, np.float64)
                 return np.stack([h - 1 - p[..., 1], p[..., 0]], axis=-1)
 
@@ -383,7 +381,7 @@ class Detection:
         return det
 
     @staticmethod
-    def from_json(d: dict) -> "Detection":
+    def from_json(d: dict) -> Detection:
         ids = np.asarray(d["ids"], np.int64).reshape(-1)
         corners = np.asarray(d["corners"], np.float64).reshape(-1, 4, 2)
         if corners.shape[0] != ids.shape[0]:

@@ -15,9 +15,9 @@ frame). ``K`` is in OpenCV's pixel convention.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 

@@ -37,8 +37,20 @@ from ..io.paths import path_kind, refuse_special_file, resolve_inside, safe_outp
 from .blender import focal_from_angle, frame_image_path
 from .ply import read_points_ply, write_points_ply
 from .scene import Scene, Views, estimate_center, estimate_up
-from .validate import (MAX_SIDE, check_count, check_fov, check_intrinsics, check_near_far, check_number, check_plane,
-                       check_poses, check_scene, check_vector3, near_far_from_cameras, short_repr)
+from .validate import (
+    MAX_SIDE,
+    check_count,
+    check_fov,
+    check_intrinsics,
+    check_near_far,
+    check_number,
+    check_plane,
+    check_poses,
+    check_scene,
+    check_vector3,
+    near_far_from_cameras,
+    short_repr,
+)
 
 SPLITS = ("train", "val", "test")
 DIST_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")

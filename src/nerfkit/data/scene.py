@@ -51,7 +51,7 @@ class Views:
     def has_images(self) -> bool:
         return self.images is not None and len(self.images) > 0
 
-    def subset(self, idx) -> "Views":
+    def subset(self, idx) -> Views:
         idx = np.asarray(idx)
         return replace(
             self,
@@ -62,7 +62,7 @@ class Views:
         )
 
     @staticmethod
-    def empty(width: int, height: int) -> "Views":
+    def empty(width: int, height: int) -> Views:
         return Views(np.zeros((0, 4, 4), np.float32), np.zeros((0, 3, 3), np.float32), width, height)
 
 

@@ -14,7 +14,6 @@ from ..models.base import NerfModel
 from ..viz.video import depth_scale, write_video
 from .images import render_views
 
-
 VIDEO_FILES = ("orbit.mp4", "orbit.gif", "depth.mp4")
 # the object alone (`nerfkit render --object`)
 OBJECT_VIDEO_FILES = ("object.mp4", "object.gif", "object_depth.mp4")

@@ -94,7 +94,7 @@ class SfmReport:
 class SfmResult:
     """The largest reconstruction (in the final world frame), its folder, and the report."""
 
-    reconstruction: "pycolmap.Reconstruction"
+    reconstruction: pycolmap.Reconstruction
     model_dir: Path
     image_dir: Path  # the upright photos COLMAP used (the input folder, or upright copies)
     report: SfmReport
@@ -502,7 +502,7 @@ def registration_report(db_path: Path, names: list[str], rec, others: dict) -> d
                 partners[i] = partners.get(i, 0) + 1
     in_rec = set() if rec is None else {rec.images[i].name for i in rec.reg_image_ids()}
     in_other = {}
-    for k, m in others.items():
+    for m in others.values():
         for i in m.reg_image_ids():
             in_other[m.images[i].name] = m.num_reg_images()
     out = {}

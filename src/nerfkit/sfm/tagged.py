@@ -10,8 +10,8 @@ refines (a phone focused on a near object changes its focal length by a percent 
 holding the calibration fixed cost labubu 0.03 in SSIM). The tag's corners, triangulated
 from the SfM poses, then fix scale, up and origin (on a sheet, every tag of its layout).
 The tag poses are kept only when SfM falls short: fewer photos registered, the tag not
-seen, or poses that disagree with the tags' (:func:`choose_poses` says why). Photos the tags posed that SfM did not register
-join its photos with their tag poses (:func:`adopt_tag_poses`).
+seen, or poses that disagree with the tags' (:func:`choose_poses` says why). Photos the tags
+posed that SfM did not register join its photos with their tag poses (:func:`adopt_tag_poses`).
 """
 
 from __future__ import annotations
