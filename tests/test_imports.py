@@ -32,8 +32,10 @@ ROOT = "nerfkit"
 # name, and so adds no edge). Packages that share a layer may import each other in one
 # direction only (test_no_package_cycles). A new package or top-level module takes its place here.
 LAYERS: list[tuple[str, set[str]]] = [
-    ("foundations: errors, files, images, camera conventions, settings, plain geometry",
-     {"nerfkit", "errors", "precision", "io", "images", "cameras", "config", "ground", "tabletop", "splat_files"}),
+    (
+        "foundations: errors, files, images, camera conventions, settings, plain geometry",
+        {"nerfkit", "errors", "precision", "io", "images", "cameras", "config", "ground", "tabletop", "splat_files"},
+    ),
     ("datasets: the Scene type and its file formats", {"data"}),
     ("rendering maths: volume rendering, sampling, kernels, fields", {"render", "kernels", "fields"}),
     ("figures, videos and the dataset viewer", {"viz"}),
@@ -331,6 +333,8 @@ def test_layers(edges):
     for e in edges:
         a, b = package_of(e.src), package_of(e.dst)
         if a in rank and b in rank and rank[b] > rank[a]:
-            wrong.append(f"{e.src} ({LAYERS[rank[a]][0].split(':')[0]}) -> {e.dst} "
-                         f"({LAYERS[rank[b]][0].split(':')[0]}): {e.file}:{e.line}")
+            wrong.append(
+                f"{e.src} ({LAYERS[rank[a]][0].split(':')[0]}) -> {e.dst} "
+                f"({LAYERS[rank[b]][0].split(':')[0]}): {e.file}:{e.line}"
+            )
     assert not wrong, "a lower layer imports a higher one:\n" + "\n".join(sorted(set(wrong)))

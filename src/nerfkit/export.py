@@ -104,7 +104,7 @@ def sample_density_grid(density_fn: DensityFn, center, radius: float, resolution
             out.append(torch.as_tensor(density_fn(p)).float().reshape(-1).cpu())
         vals = torch.cat(out).numpy().reshape(len(kz), resolution, resolution)
         grid[:, :, k0:k0 + len(kz)] = np.moveaxis(vals, 0, -1)
-    return np.nan_to_num(grid, nan=0.0, posinf=np.finfo(np.float32).max, neginf=0.0)
+    return np.nan_to_num(grid, nan=0.0, posinf=float(np.finfo(np.float32).max), neginf=0.0)
 
 
 def marching_cubes(grid: np.ndarray, center, radius: float, threshold: float) -> Mesh:

@@ -184,7 +184,7 @@ def find_floor(points: np.ndarray, table: np.ndarray, cameras: np.ndarray, cente
     """
     points = np.asarray(points, np.float64).reshape(-1, 3)
     n, d = np.asarray(table[:3], np.float64), float(table[3])
-    n_len = np.linalg.norm(n)
+    n_len = float(np.linalg.norm(n))
     n, d = n / n_len, d / n_len
     center = np.asarray(center, np.float64).reshape(3)
     reach = float(np.median(np.linalg.norm(np.asarray(cameras, np.float64).reshape(-1, 3) - center, axis=1)))

@@ -51,6 +51,7 @@ def triangulate_views(views: Views, work: str | Path | None = None, max_features
 
     if not views.has_images or len(views) < 2:
         raise fail("triangulation", f"needs at least 2 views with images, got {len(views)}")
+    assert views.images is not None  # has_images
     if work is not None:
         Path(work).mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".triangulate-", dir=None if work is None else str(work)))
@@ -71,7 +72,7 @@ def triangulate_views(views: Views, work: str | Path | None = None, max_features
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     view_names = views.names or [str(i) for i in range(len(views))]
-    return reconstruction_points(rec, max_error, min_track, dict(zip(names, view_names)).get)
+    return reconstruction_points(rec, max_error, min_track, dict(zip(names, view_names)).__getitem__)
 
 
 def _extract(pycolmap, db_path: Path, image_dir: Path, names: list[str], views: Views, max_features: int,

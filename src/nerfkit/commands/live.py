@@ -22,12 +22,17 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from ..errors import NerfkitError, fail
 from ..images import to_uint8
+
+if TYPE_CHECKING:
+    from ..models.base import NerfModel
+    from ..train.checkpoint import RunInfo
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 PREVIEW_SIDE = 64
@@ -103,8 +108,8 @@ def refinement_sides(preview: int, max_side: int) -> list[int]:
 class LoadedRun:
     """What the viewer draws: the model, the run info, its step, and the checkpoint file."""
 
-    model: object
-    info: object
+    model: NerfModel
+    info: RunInfo
     step: int
     checkpoint: Path | None
 
@@ -203,7 +208,8 @@ class LiveViewer:
         self._frustum_handles: list = []
         self.splats = None  # viser's own Gaussian-splat node, for splat runs
         if scene is not None:
-            self.server.scene.set_up_direction(tuple(float(u) for u in scene.up))
+            up = np.asarray(scene.up, np.float64)
+            self.server.scene.set_up_direction((float(up[0]), float(up[1]), float(up[2])))
             self._add_training_cameras(scene)
         self.server.on_client_connect(self._on_connect)
 
@@ -312,8 +318,12 @@ class LiveViewer:
             if st.level >= len(sides) or (st.level > 0 and now - st.changed_at < SETTLE_SECONDS):
                 continue
             cam = client.camera
+
+            def moved(c=client, k=key) -> bool:
+                return self._camera_key(c) != k
+
             img = self.render_for(cam.wxyz, cam.position, cam.fov, cam.aspect, sides[st.level], self.mode.value,
-                                  abort=lambda c=client, k=key: self._camera_key(c) != k, alone=self.alone.value)
+                                  abort=moved, alone=self.alone.value)
             if img is not None:
                 client.scene.set_background_image(img, format="jpeg", jpeg_quality=90)
                 st.level += 1

@@ -105,6 +105,7 @@ def _read_split(folder: Path, split: str, background, out_size, with_images: boo
                 images.append(resize_image(img, *out_size(w, h)))
     c2w_gl = check_poses(np.stack(poses), where, "transform_matrix")
     c2w = opengl_to_opencv(c2w_gl.astype(np.float64)).astype(np.float32)
+    assert size is not None  # 'frames' is not empty
     w, h = size
     f = focal_from_angle(float(angle), w)
     K = check_intrinsics(np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1]]), where, "camera_angle_x", w, h)

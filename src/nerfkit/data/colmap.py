@@ -271,7 +271,7 @@ def reconstruction_to_scene(
     if not images:
         raise fail(where, "has no registered images", "Re-run SfM or check the model")
     names, c2ws, Ks, pixels = [], [], [], []
-    size_wh = None
+    size_wh: tuple[int, int] | None = None
     pinholes: dict[int, pycolmap.Camera] = {}
     for im in images:
         cam = rec.cameras[im.camera_id]
@@ -285,7 +285,7 @@ def reconstruction_to_scene(
                 raise fail(where, f"camera {im.camera_id} ({cam.model_name}) cannot be undistorted to a pinhole ({e})",
                            "Use a pinhole, radial or OpenCV camera model") from None
         pin = pinholes.get(im.camera_id)
-        if not (size_ok and pin.width > 0 and pin.height > 0):
+        if pin is None or not (size_ok and pin.width > 0 and pin.height > 0):
             raise fail(where, f"camera {im.camera_id} has image size {cam.width}x{cam.height}",
                        "The model's cameras.txt/bin is corrupt")
         K = check_intrinsics(camera_matrix(pin), where, f"camera {im.camera_id}", int(pin.width), int(pin.height))
@@ -313,6 +313,7 @@ def reconstruction_to_scene(
         except np.linalg.LinAlgError:  # a singular matrix from a zero quaternion
             raise fail(where, f"image {im.name!r} has a degenerate pose", "The model's images.txt/bin is corrupt") from None
         Ks.append(scale_intrinsics(K, *wh, *out_wh))
+    assert size_wh is not None  # images is not empty
     W, H = output_size(*size_wh, size, downscale)
     c2w = np.stack(c2ws).astype(np.float32)
     K = np.stack(Ks).astype(np.float32)

@@ -171,6 +171,7 @@ def load_llff(
         elif (w, h) != size_wh:
             raise fail(p, f"image is {w}x{h} but {files[0]} is {size_wh[0]}x{size_wh[1]}", "All photos must have one size")
         images.append(img)
+    assert size_wh is not None  # there is at least one photo: as many as poses
     w, h = size_wh
     if abs(w / h - w0 / h0) > 0.01 * w0 / h0:
         raise fail(img_dir, f"photos are {w}x{h} but {POSES_FILE} says {w0:g}x{h0:g} (another aspect ratio)",

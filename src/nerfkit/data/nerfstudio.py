@@ -91,9 +91,9 @@ def _undistort(image: np.ndarray, K: np.ndarray, dist: dict[str, float], where: 
     except cv2.error as e:
         raise fail(where, f"cannot undistort with k1 k2 p1 p2 k3 = {coeffs.tolist()} ({short_repr(str(e))})",
                    "Check the distortion coefficients") from None
-    newK = newK.astype(np.float64)
-    newK[:2, 2] += 0.5
-    return out, check_intrinsics(newK, where, "intrinsics after undistortion", w, h).astype(np.float64)
+    K_new = np.array(newK, dtype=np.float64)
+    K_new[:2, 2] += 0.5
+    return out, check_intrinsics(K_new, where, "intrinsics after undistortion", w, h).astype(np.float64)
 
 
 def _intrinsics(cam: dict, image_size: tuple[int, int] | None, where: str) -> tuple[np.ndarray, tuple[int, int]]:
@@ -309,7 +309,8 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
     folder = Path(folder)
     if write_images and Path(image_dir).name in ("", ".", ".."):
         raise ValueError(f"image_dir must name a subfolder, not {image_dir!r}")
-    frames, lists, poses_only = [], {s: [] for s in SPLITS}, {}
+    frames, poses_only = [], {}
+    lists: dict[str, list[str]] = {s: [] for s in SPLITS}
     Ks, sizes = [], []
     seen: set[str] = set()
     to_write = []  # (file name, image)
@@ -319,6 +320,7 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
         if not v.has_images:
             poses_only[split] = opencv_to_opengl(v.c2w.astype(np.float64)).tolist()
             continue
+        assert v.images is not None  # has_images
         for i in range(len(v)):
             name = v.names[i] if v.names is not None else f"{split}_{i:04d}.png"
             fname = image_file_name(name)

@@ -190,7 +190,7 @@ def save_npz(scene: Scene, path: str | Path) -> None:
         if len(v) and not np.allclose(v.K, K, rtol=1e-5, atol=1e-4):
             raise fail(path, f"the {split} views have intrinsics that differ from the first training view",
                        "The course npz holds one K; export to transforms.json instead, or resample the images")
-    out: dict[str, np.ndarray] = {
+    out: dict[str, np.ndarray | np.generic] = {
         "focal": np.float32(K[0, 0]),
         "K": K.astype(np.float32),
         "near": np.float32(scene.near),

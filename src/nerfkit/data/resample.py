@@ -88,5 +88,5 @@ def resample_scene(scene: Scene, size: int | None = None, downscale: float | Non
     """Every split resampled (see :func:`output_size`); poses, near/far unchanged."""
     if output_size(scene.train.width, scene.train.height, size, downscale) == (scene.train.width, scene.train.height):
         return scene
-    return replace(scene, **{name: resample_views(v, *output_size(v.width, v.height, size, downscale))
-                             for name, v in scene.splits.items()})
+    new = {name: resample_views(v, *output_size(v.width, v.height, size, downscale)) for name, v in scene.splits.items()}
+    return replace(scene, train=new["train"], val=new["val"], test=new["test"])

@@ -194,7 +194,7 @@ def colmap_name(photo: Path) -> str:
 
 
 def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera=None
-                   ) -> tuple[Path, list[str], dict[str, str], PhotoInfo, dict[str, int]]:
+                   ) -> tuple[Path, list[str], dict[str, str], PhotoInfo | None, dict[str, int]]:
     """Photos COLMAP can use as nerfkit sees them (upright), all of one size.
 
     COLMAP ignores EXIF orientation and cannot read HEIC, while nerfkit loads photos
@@ -225,7 +225,9 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
             skipped[p.name] = "unreadable: " + problem_of(e)
     if not infos:
         return work, [], skipped, None, {}
-    W, H = common_size((i.width, i.height) for i in infos)
+    size = common_size((i.width, i.height) for i in infos)
+    assert size is not None  # infos is not empty
+    W, H = size
     frame = common_frame([i.orientation for i in infos if (i.width, i.height) == (W, H)])
     if camera is not None and camera.compatible(W, H) and not camera.compatible(H, W):
         (W, H), frame = (H, W), None  # the camera's shape
@@ -337,6 +339,7 @@ def run_sfm(
                        "Replace the broken files (poses lists them)")
         raise fail(image_dir, f"only {len(names)} photos share one size; structure-from-motion needs at least 3",
                    "Take all photos held the same way (portrait or landscape)")
+    assert first is not None  # None only when no photo is kept
     given = None  # (COLMAP model, params) of the camera file
     if camera is not None:
         why = camera.compatible(first.width, first.height)
@@ -421,8 +424,8 @@ def run_sfm(
         seconds["mapping"] = time.perf_counter() - t0
 
     if not models:
-        report = {**registration_report(db_path, names, None, {}), **left_out}
-        reasons = "; ".join(sorted({r for r in report.values()}))[:300]
+        why_not = {**registration_report(db_path, names, None, {}), **left_out}
+        reasons = "; ".join(sorted(set(why_not.values())))[:300]
         raise fail(image_dir, f"structure-from-motion registered no photos ({reasons})",
                    "Take more overlapping photos of a textured scene, or use ArUco tags (--method tags)")
     best_key = max(models, key=lambda k: models[k].num_reg_images())
@@ -509,16 +512,16 @@ def registration_report(db_path: Path, names: list[str], rec, others: dict) -> d
     for name in names:
         if name in in_rec:
             continue
-        i = ids.get(name)
-        if i is None:
+        image_id = ids.get(name)
+        if image_id is None:
             out[name] = "could not be read by COLMAP"
         elif n_feat.get(name, 0) < FEW_FEATURES:
             out[name] = f"only {n_feat.get(name, 0)} features (blurred, dark or textureless?)"
-        elif partners.get(i, 0) == 0:
-            out[name] = (f"matched no other photo (best pair: {best.get(i, 0)} verified matches, "
+        elif partners.get(image_id, 0) == 0:
+            out[name] = (f"matched no other photo (best pair: {best.get(image_id, 0)} verified matches, "
                          f"needs {min_inliers}); too little overlap with the others?")
         elif name in in_other:
             out[name] = f"in a separate model of {in_other[name]} photos that did not connect to the main one"
         else:
-            out[name] = f"matched {partners[i]} photos but no pose could be estimated from them"
+            out[name] = f"matched {partners[image_id]} photos but no pose could be estimated from them"
     return out

@@ -275,6 +275,6 @@ def sfm_dataset(
                          ground=ground)
     from ..capture.aruco import Layout
 
-    tags = Layout.single(tag_id, tag_size).corners() if result.tag_size is not None else None  # the tag at the origin
+    tags = Layout.single(tag_id, result.tag_size).corners() if result.tag_size is not None else None  # the tag at the origin
     scene, _ = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress, tags=tags)
     return scene, result.report

@@ -133,9 +133,10 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
     reason = judge(len(tag_posed), len(names), result.tag_size is not None, agreement)
     if reason is not None:
         return PoseChoice(None, f"tag poses: {reason}", agreement)
+    assert agreement is not None  # judge() passes no SfM result without an agreement
     why = (f"SfM poses in the tag's frame: {len(names)} photos registered (the tags posed {len(tag_posed)}); "
            f"the tag poses differ from them by a median {agreement['rot_deg_median']:.2f} degrees and "
-           f"{agreement['shift_median'] * 1000:.1f} mm")  # judge() passes no SfM result without an agreement
+           f"{agreement['shift_median'] * 1000:.1f} mm")
     adopted: list[str] = []
     if records is not None:
         adopted, left = adopt_tag_poses(result, tag_posed, records, layout, pose_cfg)
