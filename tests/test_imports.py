@@ -40,7 +40,10 @@ LAYERS: list[tuple[str, set[str]]] = [
     ("rendering maths: volume rendering, sampling, kernels, fields", {"render", "kernels", "fields"}),
     ("figures, videos and the dataset viewer", {"viz"}),
     ("captures, structure from motion, models, mesh and point export", {"capture", "sfm", "models", "export"}),
-    ("what runs and products: rendered outputs, training, image fitting", {"output", "train", "fit_image"}),
+    (
+        "what models make and how they learn: rendered outputs, training, image fitting",
+        {"output", "train", "fit_image"},
+    ),
     ("the command line", {"commands", "cli", "__main__"}),
 ]
 
