@@ -1,6 +1,7 @@
 # nerfkit: the two commands of the README.
 #   make demo   set up .venv and run the main job on the bundled lego scene
 #   make test   set up .venv and run the test suite
+#   make lint   ruff (lint and format check) and mypy over the sources and tests
 # TORCH_SPEC picks the PyTorch build; the default is the CPU wheel these machines carry.
 # On a CUDA machine: make demo TORCH_SPEC="torch>=2.4"
 
@@ -9,7 +10,7 @@ VENV ?= .venv
 TORCH_SPEC ?= torch==2.13.0
 BIN = $(VENV)/bin
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test lint bench clean
 
 setup: $(VENV)/.installed
 
@@ -24,6 +25,11 @@ demo: setup
 
 test: setup
 	$(BIN)/python -m pytest
+
+lint: setup
+	$(BIN)/ruff check src tests
+	$(BIN)/ruff format --check src tests
+	$(BIN)/mypy src/nerfkit
 
 clean:
 	rm -rf $(VENV) runs

@@ -6,8 +6,14 @@ import numpy as np
 import pytest
 
 from nerfkit.capture import synthetic as S
-from nerfkit.capture.agreement import (AGREEMENT_NOTE_DB, agreement_notes, consistency, measure_agreement, psnr_of,
-                                       table_points)
+from nerfkit.capture.agreement import (
+    AGREEMENT_NOTE_DB,
+    agreement_notes,
+    consistency,
+    measure_agreement,
+    psnr_of,
+    table_points,
+)
 from nerfkit.capture.camera import nerfkit_K
 from nerfkit.data.scene import Views
 

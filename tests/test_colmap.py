@@ -14,16 +14,22 @@ pycolmap = pytest.importorskip("pycolmap")
 from conftest import dot_centroid_errors, draw_dots  # noqa: E402
 from nerfkit.cameras import intrinsics_matrix, look_at  # noqa: E402
 from nerfkit.cli import main  # noqa: E402
-from nerfkit.data.colmap import (load_colmap, read_model, reconstruction_to_scene,  # noqa: E402
-                                 split_every, write_colmap_model, write_reconstruction)
+from nerfkit.data.colmap import (  # noqa: E402
+    load_colmap,
+    read_model,
+    reconstruction_to_scene,
+    split_every,
+    write_colmap_model,
+    write_reconstruction,
+)
 from nerfkit.data.load import detect_format, load_scene  # noqa: E402
 from nerfkit.data.synthetic import sphere_scene  # noqa: E402
 from nerfkit.errors import NerfkitError  # noqa: E402
+from nerfkit.ground import rotation_between  # noqa: E402
 from nerfkit.io.atomic import write_image  # noqa: E402
 from nerfkit.sfm.colmap import run_sfm  # noqa: E402
-from nerfkit.sfm.frame import (align_reconstruction, apply_similarity, compare_poses,  # noqa: E402
-                               normalising_similarity, rotation_between, umeyama)
 from nerfkit.sfm.dataset import sfm_dataset  # noqa: E402
+from nerfkit.sfm.frame import align_reconstruction, apply_similarity, compare_poses, normalising_similarity, umeyama  # noqa: E402
 
 # ----------------------------------------------------------------------------- model I/O
 
@@ -420,8 +426,8 @@ def test_sfm_normalised_dataset(room_sfm, tmp_path):
     import json
 
     from nerfkit.capture.dataset import DatasetConfig
-    from nerfkit.sfm.frame import reconstruction_c2w
     from nerfkit.sfm.dataset import build_dataset
+    from nerfkit.sfm.frame import reconstruction_c2w
 
     result, truth = room_sfm
     result = copy.copy(result)
@@ -468,8 +474,8 @@ def test_sfm_without_tag_levels_the_scene_on_the_floor(room_sfm, tmp_path):
 
     from nerfkit.capture.dataset import DatasetConfig
     from nerfkit.data.scene import estimate_center
-    from nerfkit.sfm.frame import reconstruction_c2w
     from nerfkit.sfm.dataset import build_dataset
+    from nerfkit.sfm.frame import reconstruction_c2w
 
     result, truth = room_sfm
     result = copy.copy(result)

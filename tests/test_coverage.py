@@ -3,8 +3,15 @@
 import numpy as np
 import pytest
 
-from nerfkit.capture.coverage import (WIDE_GAP_DEG, azimuths_deg, cap_outline, coverage_notes, elevations_deg,
-                                      measure_coverage, widest_gap)
+from nerfkit.capture.coverage import (
+    WIDE_GAP_DEG,
+    azimuths_deg,
+    cap_outline,
+    coverage_notes,
+    elevations_deg,
+    measure_coverage,
+    widest_gap,
+)
 
 UP = np.array([0.0, 0.0, 1.0])
 

@@ -14,8 +14,9 @@ import pytest
 from nerfkit.cameras import intrinsics_matrix, look_at, opencv_to_opengl
 from nerfkit.cli import main
 from nerfkit.data.blender import focal_from_angle, load_blender
-from nerfkit.data.load import detect_format, load_scene, output_size, resample_scene, scale_intrinsics
+from nerfkit.data.load import detect_format, load_scene
 from nerfkit.data.npz import load_npz, save_npz
+from nerfkit.data.resample import output_size, resample_scene, scale_intrinsics
 from nerfkit.data.synthetic import render_sphere, sphere_cameras, sphere_scene
 from nerfkit.errors import NerfkitError
 from nerfkit.io.atomic import write_image

@@ -1,9 +1,9 @@
-"""The table plane found in sparse SfM points (nerfkit.sfm.ground)."""
+"""The table plane found in sparse SfM points (nerfkit.ground)."""
 
 import numpy as np
 import pytest
 
-from nerfkit.sfm.ground import find_ground_plane, ground_similarity
+from nerfkit.ground import find_ground_plane, ground_similarity
 
 
 def _rot_x(deg):
@@ -108,7 +108,7 @@ def _with_floor(rng, drop=0.45, n_floor=600, tilt_deg=0.0, noise=0.01):
 
 
 def test_finds_the_floor_under_a_table_and_none_without_one():
-    from nerfkit.sfm.ground import find_floor
+    from nerfkit.ground import find_floor
 
     rng = np.random.default_rng(3)
     pts, cams, center, R = _with_floor(rng, tilt_deg=8.0)
@@ -124,7 +124,7 @@ def test_finds_the_floor_under_a_table_and_none_without_one():
 
 
 def test_a_slope_or_a_shelf_just_under_the_table_is_not_the_floor():
-    from nerfkit.sfm.ground import find_floor
+    from nerfkit.ground import find_floor
 
     rng = np.random.default_rng(4)
     pts, cams, center, _ = _scene(rng, n_wall=100)
@@ -139,7 +139,7 @@ def test_a_slope_or_a_shelf_just_under_the_table_is_not_the_floor():
 def test_a_scene_finds_its_floor_once(monkeypatch):
     """``Scene.floor`` is find_floor under the training cameras, searched once however often
     it is asked (the model's bounds and the cover prior's default both ask)."""
-    import nerfkit.sfm.ground as ground
+    import nerfkit.data.scene as scene_module
     from nerfkit.data.scene import Scene, Views
 
     rng = np.random.default_rng(5)
@@ -151,8 +151,8 @@ def test_a_scene_finds_its_floor_once(monkeypatch):
     scene = Scene(views, Views.empty(8, 8), Views.empty(8, 8), 0.1, 3.0, center=center, table=table,
                   points=pts.astype(np.float32))
     calls = []
-    find_floor = ground.find_floor
-    monkeypatch.setattr(ground, "find_floor", lambda *a, **k: calls.append(1) or find_floor(*a, **k))
+    find_floor = scene_module.find_floor
+    monkeypatch.setattr(scene_module, "find_floor", lambda *a, **k: calls.append(1) or find_floor(*a, **k))
     floor = scene.floor()
     assert floor is not None and floor.height(center - center[2] * table[:3]) == pytest.approx(0.45, abs=0.01)
     assert scene.floor() is floor and len(calls) == 1

@@ -745,7 +745,7 @@ def test_every_serve_function_defaults_to_localhost():
 
     assert inspect.signature(serve_dataset).parameters["host"].default == "127.0.0.1"
     try:
-        from nerfkit.viz.live import LiveViewer, serve_run
+        from nerfkit.commands.live import LiveViewer, serve_run
     except ImportError:
         pass
     else:

@@ -11,10 +11,10 @@ import torch
 pytest.importorskip("viser")
 
 from nerfkit.cameras import look_at  # noqa: E402
+from nerfkit.commands import live  # noqa: E402
 from nerfkit.data.synthetic import sphere_color, sphere_scene  # noqa: E402
 from nerfkit.errors import NerfkitError  # noqa: E402
 from nerfkit.models.base import NerfModel, RenderOutput, SceneBounds  # noqa: E402
-from nerfkit.viz import live  # noqa: E402
 
 
 def _project(K, c2w, X):

@@ -106,7 +106,7 @@ def test_broken_files_give_one_clear_error(tmp_path, mutate, message):
 def test_pickled_object_array_is_refused_without_running_it(tmp_path):
     class Boom:
         def __reduce__(self):
-            return (exec, ("open('%s', 'w').write('pwned')" % (tmp_path / "pwned").as_posix(),))
+            return (exec, (f"open('{(tmp_path / 'pwned').as_posix()}', 'w').write('pwned')",))
 
     arrays = course_arrays()
     arrays["evil"] = np.array([Boom()], dtype=object)

@@ -96,7 +96,7 @@ def _npz(scene: Scene, tmp_path) -> str:
 
 
 def test_camera_neighbours_join_each_camera_to_its_nearest():
-    from nerfkit.sfm.colmap import camera_neighbours
+    from nerfkit.capture.points import camera_neighbours
 
     n = 12
     ang = np.arange(n) * 2 * np.pi / n
@@ -136,7 +136,7 @@ def _plane_views(n: int, size: tuple[int, int] = (200, 150), seed: int = 0) -> t
 
 def test_triangulated_points_lie_on_the_photographed_plane_with_its_colours(tmp_path):
     pytest.importorskip("pycolmap")
-    from nerfkit.sfm.triangulate import triangulate_views
+    from nerfkit.capture.points import triangulate_views
 
     views, tex = _plane_views(8)
     pts = triangulate_views(views, tmp_path)
@@ -161,11 +161,10 @@ def test_triangulated_points_lie_on_the_photographed_plane_with_its_colours(tmp_
 
 def test_many_views_are_matched_with_their_neighbours_only(tmp_path, monkeypatch):
     pytest.importorskip("pycolmap")
-    import nerfkit.sfm.colmap as colmap
-    import nerfkit.sfm.triangulate as triangulate
+    import nerfkit.capture.points as triangulate
 
     matched = []
-    real = colmap.match_pairs
+    real = triangulate.match_pairs
     monkeypatch.setattr(triangulate, "EXHAUSTIVE_MAX", 4)  # 8 views are "many"
     monkeypatch.setattr(triangulate, "match_pairs", lambda *a: matched.extend(a[2]) or real(*a))
     views, _ = _plane_views(8)
@@ -185,8 +184,8 @@ def test_neighbour_scales_on_a_lattice_are_the_spacing():
 
 
 def test_splat_starts_from_the_dataset_points():
-    from nerfkit.models.splat import SplatConfig, SplatModel
     from nerfkit.models.base import SceneBounds
+    from nerfkit.models.splat import SplatConfig, SplatModel
 
     scene = _scene_with_points(m=300)
     model = SplatModel(SplatConfig(), SceneBounds.from_scene(scene))

@@ -16,7 +16,6 @@ from nerfkit.errors import fail  # noqa: E402
 from nerfkit.sfm.colmap import colmap_camera  # noqa: E402
 from nerfkit.sfm.dataset import opencv_camera  # noqa: E402
 from nerfkit.sfm.tagged import judge, pose_agreement  # noqa: E402
-
 from test_colmap import ROOM_K, TAG_SIZE, make_room  # noqa: E402
 
 

@@ -249,7 +249,7 @@ def _capture(sphere):
 
 def test_live_viewer_draws_the_splats_and_renders_a_splat_run(trained, sphere, monkeypatch):
     from nerfkit.train.checkpoint import load_run
-    from nerfkit.viz import live
+    from nerfkit.commands import live
 
     watcher = live.RunWatcher(trained.run_dir, load_run)
     viewer = live.LiveViewer(watcher, None, host="127.0.0.1", port=0, max_side=32, watch=True)

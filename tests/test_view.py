@@ -141,9 +141,9 @@ def run_folder(tmp_path):
 
 def test_view_of_a_run_folder_calls_the_live_viewer(tmp_path, monkeypatch):
     calls = []
-    fake = types.ModuleType("nerfkit.viz.live")
+    fake = types.ModuleType("nerfkit.commands.live")
     fake.serve_run = lambda run_dir, host, port: calls.append((str(run_dir), host, port))
-    monkeypatch.setitem(sys.modules, "nerfkit.viz.live", fake)
+    monkeypatch.setitem(sys.modules, "nerfkit.commands.live", fake)
     run = run_folder(tmp_path)
     assert main(["view", str(run), "--port", "9123"]) == 0
     assert calls == [(str(run), "127.0.0.1", 9123)]
@@ -152,7 +152,7 @@ def test_view_of_a_run_folder_calls_the_live_viewer(tmp_path, monkeypatch):
 def test_view_of_a_run_folder_without_the_live_viewer_is_a_clear_error(tmp_path, monkeypatch):
     from nerfkit.cli import build_parser
 
-    monkeypatch.setitem(sys.modules, "nerfkit.viz.live", None)  # import fails
+    monkeypatch.setitem(sys.modules, "nerfkit.commands.live", None)  # import fails
     args = build_parser().parse_args(["view", str(run_folder(tmp_path))])
     with pytest.raises(NerfkitError, match="live viewer .* is not available"):
         args.func(args)

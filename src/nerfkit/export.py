@@ -25,13 +25,15 @@ is back-projected where the opacity exceeds ``acc_min``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
 
+from .data.ply import read_points_ply as read_points_ply  # re-exported: the point cloud's file format
+from .data.ply import write_points_ply as write_points_ply
 from .errors import fail
 from .io.atomic import atomic_path
 from .tabletop import SURFACE_DENSITY, box_radius, clear_around_object, surface_threshold
@@ -91,7 +93,8 @@ def sample_density_grid(density_fn: DensityFn, center, radius: float, resolution
     if progress:
         from tqdm import tqdm
 
-        it = tqdm(it, desc="density grid", unit="slab", total=(resolution + slabs - 1) // slabs, disable=None)  # (none in a log)
+        # disable=None: no bar when the output is not a terminal (a log)
+        it = tqdm(it, desc="density grid", unit="slab", total=(resolution + slabs - 1) // slabs, disable=None)
     for k0 in it:
         kz = zs[k0:k0 + slabs]
         pts = np.concatenate([np.column_stack([plane, np.full(len(plane), z)]) for z in kz])
@@ -101,7 +104,7 @@ def sample_density_grid(density_fn: DensityFn, center, radius: float, resolution
             out.append(torch.as_tensor(density_fn(p)).float().reshape(-1).cpu())
         vals = torch.cat(out).numpy().reshape(len(kz), resolution, resolution)
         grid[:, :, k0:k0 + len(kz)] = np.moveaxis(vals, 0, -1)
-    return np.nan_to_num(grid, nan=0.0, posinf=np.finfo(np.float32).max, neginf=0.0)
+    return np.nan_to_num(grid, nan=0.0, posinf=float(np.finfo(np.float32).max), neginf=0.0)
 
 
 def marching_cubes(grid: np.ndarray, center, radius: float, threshold: float) -> Mesh:
@@ -215,7 +218,7 @@ class ColourViews:
     height: int
 
     @classmethod
-    def pick(cls, views, n: int, longest_side: int = COLOUR_VIEW_SIDE) -> "ColourViews":
+    def pick(cls, views, n: int, longest_side: int = COLOUR_VIEW_SIDE) -> ColourViews:
         """Up to ``n`` of ``views`` (a :class:`~nerfkit.data.scene.Views`), evenly spread over
         them, at a resolution whose longest side is at most ``longest_side`` (every k-th pixel)."""
         from .cameras import strided_camera
@@ -279,9 +282,10 @@ def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int =
                  device: str | torch.device = "cpu", progress: bool = False, reach: float | None = None,
                  table=None, table_cut: float = 0.0, tags=None) -> Mesh:
     """Density grid -> (with a ``table`` plane: :func:`clear_around_object`, the paint up to
-    ``table_cut`` above it, over the printed ``tags`` on it higher) -> marching cubes -> (optional) vertex colours, seen along rays
-    that start ``reach`` outside the surface and end twice as far inside (None: two grid
-    spacings; 0: the field's colour at the vertex). See the module docstring."""
+    ``table_cut`` above it, over the printed ``tags`` on it higher) -> marching cubes ->
+    (optional) vertex colours, seen along rays that start ``reach`` outside the surface and
+    end twice as far inside (None: two grid spacings; 0: the field's colour at the vertex).
+    See the module docstring."""
     grid = sample_density_grid(density_fn, center, radius, resolution, chunk, device, progress)
     if table is not None:
         axes = [grid_axis(c, radius, resolution) for c in np.asarray(center, np.float64).reshape(3)]
@@ -310,42 +314,6 @@ def write_mesh_ply(path: str | Path, mesh: Mesh) -> None:
     """Write a binary PLY (vertices, faces, normals, vertex colours), atomically."""
     with atomic_path(path) as tmp:
         to_trimesh(mesh).export(tmp, file_type="ply")
-
-
-def write_points_ply(path: str | Path, points: np.ndarray, colors: np.ndarray | None = None) -> None:
-    """Write a point cloud (points (P, 3), colours (P, 3) uint8) as binary PLY with
-    ``x y z`` float32 and ``red green blue`` uchar (what nerfstudio and 3DGS read), atomically."""
-    from plyfile import PlyData, PlyElement
-
-    pts = np.asarray(points, np.float32).reshape(-1, 3)
-    fields = [("x", "f4"), ("y", "f4"), ("z", "f4")] + ([("red", "u1"), ("green", "u1"), ("blue", "u1")]
-                                                       if colors is not None else [])
-    rows = np.empty(len(pts), dtype=fields)
-    for i, k in enumerate("xyz"):
-        rows[k] = pts[:, i]
-    if colors is not None:
-        for i, k in enumerate(("red", "green", "blue")):
-            rows[k] = np.asarray(colors, np.uint8)[:, i]
-    with atomic_path(path) as tmp:
-        PlyData([PlyElement.describe(rows, "vertex")]).write(str(tmp))
-
-
-def read_points_ply(path: str | Path, where: object = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """Read a point cloud PLY's ``x, y, z`` (P, 3) float32 and, when present, its
-    ``red, green, blue`` (P, 3) uint8 (e.g. nerfstudio's ``sparse_pc.ply``)."""
-    try:
-        from plyfile import PlyData
-    except ImportError:
-        raise fail(where or path, "reading a PLY point cloud needs plyfile", "pip install plyfile") from None
-    try:
-        v = PlyData.read(str(path))["vertex"]
-        xyz = np.stack([np.asarray(v[k], np.float32) for k in ("x", "y", "z")], 1)
-        names = {p.name for p in v.properties}
-        rgb = (np.stack([np.asarray(v[k]) for k in ("red", "green", "blue")], 1).astype(np.uint8)
-               if {"red", "green", "blue"} <= names else None)
-    except (OSError, KeyError, ValueError, IndexError) as e:
-        raise fail(where or path, f"not a readable PLY point cloud with x, y, z ({type(e).__name__})") from None
-    return xyz, rgb
 
 
 def depth_to_points(rgb: np.ndarray, depth: np.ndarray, acc: np.ndarray, K: np.ndarray, c2w: np.ndarray,

@@ -51,7 +51,7 @@ class Gaussians:
         return int(round(np.sqrt(self.sh_rest.shape[1] + 1))) - 1
 
     @staticmethod
-    def from_model(model) -> "Gaussians":
+    def from_model(model) -> Gaussians:
         def a(t):
             return t.detach().cpu().float().numpy()
 

@@ -92,7 +92,7 @@ def sample_photo(image: np.ndarray, K: np.ndarray, c2w: np.ndarray, points: np.n
         for s in np.linspace(0.02, 0.98, 25):
             q = c2w[:3, 3] + s * (points - c2w[:3, 3])
             seen &= ~np.all((q > lo) & (q < hi), axis=1)
-    img = image.astype(np.float32) / 255.0
+    img: np.ndarray = image.astype(np.float32) / 255.0
     if blur > 0:
         img = cv2.GaussianBlur(img, (0, 0), blur)
     maps = (uv - 0.5).astype(np.float32)  # OpenCV's pixel centres are at integers

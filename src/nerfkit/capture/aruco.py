@@ -141,7 +141,7 @@ class Layout:
         """True when every corner lies in z = 0 (what calibrateCamera's initialisation needs)."""
         return self.max_height() <= tol
 
-    def flattened(self) -> "Layout":
+    def flattened(self) -> Layout:
         """The same tags with every corner on the plane z = 0 (an estimated layout's heights
         describe how the paper lay while it was photographed, not the printed sheet)."""
         return replace(self, tags={t: np.column_stack([c[:, :2], np.zeros(len(c))]) for t, c in self.tags.items()})
@@ -154,13 +154,13 @@ class Layout:
         return {str(t): np.round(c[:, 2], 7).tolist() for t, c in sorted(self.tags.items())}
 
     @staticmethod
-    def single(tag_id: int, size: float) -> "Layout":
+    def single(tag_id: int, size: float) -> Layout:
         """One tag whose frame is the sheet frame."""
         return Layout({int(tag_id): square_corners(size)},
                       spec={"tag_size": size, "tags": {str(tag_id): {"center": [0, 0], "rotation_deg": 0}}},
                       source=f"tag {tag_id}")
 
-    def match(self, det: "Detection") -> tuple[np.ndarray, np.ndarray, list[int]]:
+    def match(self, det: Detection) -> tuple[np.ndarray, np.ndarray, list[int]]:
         """Object and image points of a detection's tags (or ChArUco corners) in this layout.
 
         Returns:
@@ -170,6 +170,7 @@ class Layout:
         if self.charuco is not None:
             if det.charuco_ids is None or len(det.charuco_ids) == 0:
                 return np.zeros((0, 3), np.float32), np.zeros((0, 2), np.float32), []
+            assert self.charuco_corners is not None and det.charuco_corners is not None  # set with charuco
             obj = self.charuco_corners[det.charuco_ids]
             return obj.astype(np.float32), det.charuco_corners.astype(np.float32), [int(i) for i in det.charuco_ids]
         objs, imgs, used = [], [], []
@@ -283,6 +284,7 @@ def _board_layout(spec: dict, where: str, dictionary: str) -> Layout:
     tags = {int(i): _board_to_layout_axes(c, centre) for i, c in zip(ids, obj)}
     layout = Layout(tags, spec=dict(spec), source=f"{where} ({board} board)")
     if board == "charuco":
+        assert chessboard is not None
         layout.charuco = b
         layout.charuco_corners = _board_to_layout_axes(chessboard, centre)
     return layout
@@ -366,15 +368,13 @@ class Detection:
             d["charuco_corners"] = np.asarray(self.charuco_corners, np.float64).tolist()
         return d
 
-    def turned(self, quarter_turns: int) -> "Detection":
+    def turned(self, quarter_turns: int) -> Detection:
         """The same detection in the photo turned clockwise by ``quarter_turns`` x 90
         degrees (a W x H photo turned once is H x W; a pixel (x, y) moves to (H - 1 - y, x)).
         Each corner keeps its place in the tag's corner order."""
         det = self
         for _ in range(quarter_turns % 4):
-            h = det.height
-
-            def turn(p):
+            def turn(p, h=det.height):
                 p = np.asarray(p, np.float64)
                 return np.stack([h - 1 - p[..., 1], p[..., 0]], axis=-1)
 
@@ -383,7 +383,7 @@ class Detection:
         return det
 
     @staticmethod
-    def from_json(d: dict) -> "Detection":
+    def from_json(d: dict) -> Detection:
         ids = np.asarray(d["ids"], np.int64).reshape(-1)
         corners = np.asarray(d["corners"], np.float64).reshape(-1, 4, 2)
         if corners.shape[0] != ids.shape[0]:
@@ -596,6 +596,7 @@ def detect_careful(image: np.ndarray, dictionary: str, detect_side: int = 2000, 
             found = detect(gray, det, side, marker_bits, upscale=True, prepare=prepare)
             if len(found.ids):
                 return found
+    assert found is not None  # sides holds at least one size
     return found
 
 
@@ -645,17 +646,17 @@ def detect(image: np.ndarray, detector, detect_side: int = 2000, marker_bits: in
     if ids is None or len(ids) == 0:
         return Detection(w, h, np.zeros(0, np.int64), np.zeros((0, 4, 2)), sharpness(gray), charuco_ids, charuco_corners)
     ids = ids.ravel().astype(np.int64)
-    corners = up(np.asarray(corners, np.float64).reshape(-1, 4, 2))
+    quads = up(np.asarray(corners, np.float64).reshape(-1, 4, 2))
     for i in range(len(ids)):
-        refined = refine_corners_by_edges(gray, corners[i], marker_bits)
+        refined = refine_corners_by_edges(gray, quads[i], marker_bits)
         if refined is not None:
-            corners[i] = refined
+            quads[i] = refined
         elif s != 1:  # the detector refined at its scale only
-            side = float(np.linalg.norm(corners[i] - np.roll(corners[i], -1, axis=0), axis=1).mean())
+            side = float(np.linalg.norm(quads[i] - np.roll(quads[i], -1, axis=0), axis=1).mean())
             module = side / (marker_bits + 2)
             win = int(np.clip(round(0.4 * module), 2, 30))
-            corners[i] = _refine(gray, corners[i], win, max_shift=min(0.5 * module, 2.0 / s))
-    return Detection(w, h, ids, corners, sharpness(gray), charuco_ids, charuco_corners)
+            quads[i] = _refine(gray, quads[i], win, max_shift=min(0.5 * module, 2.0 / s))
+    return Detection(w, h, ids, quads, sharpness(gray), charuco_ids, charuco_corners)
 
 
 def _median_side(corners, scale: float) -> float:

@@ -186,7 +186,7 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
 
     ``points``: the scene's sparse points when known (structure-from-motion); else, with
     ``cfg.points``, they are triangulated from the train views
-    (:func:`nerfkit.sfm.triangulate.triangulate_views`). The train views that see each
+    (:func:`nerfkit.capture.points.triangulate_views`). The train views that see each
     point become the scene's ``point_views``.
 
     ``up`` is the scene's up direction (default +z: the tag-plane normal toward the cameras).
@@ -336,7 +336,7 @@ def _lying_flat(tags) -> np.ndarray | None:
 def _triangulate(train: Views, out_dir: Path, progress: bool) -> tuple["SparsePoints | None", str]:
     """Sparse points of the train views, or None and why not."""
     from ..errors import NerfkitError
-    from ..sfm.triangulate import triangulate_views
+    from .points import triangulate_views
 
     if progress:
         print(f"triangulating sparse points from {len(train)} train views (pycolmap)...", file=sys.stderr, flush=True)

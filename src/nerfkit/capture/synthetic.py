@@ -15,9 +15,10 @@ frame). ``K`` is in OpenCV's pixel convention.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any
 
 import numpy as np
 
@@ -204,7 +205,7 @@ def render(scene: SynthScene, rays_cam: np.ndarray, c2w: np.ndarray, supersample
         iy = ((dec.y1 - Ys) / dec.res - 0.5).astype(np.float32)
         cv2.remap(dec.texture, jx, iy, cv2.INTER_LINEAR, dst=img, borderMode=cv2.BORDER_TRANSPARENT)
     img[~hit] = (200, 210, 225)
-    out = img.astype(np.float64)
+    out: np.ndarray = img.astype(np.float64)
     depth = np.where(hit, s_plane, np.inf)
     light = np.array([0.3, -0.4, 0.87])
     for sp in scene.spheres:
@@ -317,7 +318,7 @@ def write_photo(path: str | Path, upright: np.ndarray, orientation: int = 1, qua
         exif[0x0112] = orientation
     if f35 is not None:
         exif.get_ifd(0x8769)[0xA405] = int(round(f35))
-    kwargs = {"exif": exif.tobytes()} if (orientation != 1 or f35 is not None) else {}
+    kwargs: dict[str, Any] = {"exif": exif.tobytes()} if (orientation != 1 or f35 is not None) else {}
     if path.suffix.lower() in (".jpg", ".jpeg"):
         img.save(path, quality=quality, **kwargs)
     else:

@@ -73,9 +73,9 @@ def run(args: argparse.Namespace) -> int:
         if args.png:
             raise fail(path, "--png draws datasets; this is a trained run", "Pass the run's dataset instead")
         try:
-            from ..viz.live import serve_run
+            from .live import serve_run
         except ImportError:
-            raise fail(path, "is a trained run, but the live viewer (nerfkit.viz.live) is not available in this build",
+            raise fail(path, "is a trained run, but the live viewer (nerfkit.commands.live) is not available in this build",
                        "View its dataset instead: nerfkit view DATASET") from None
         serve_run(path, host=args.host, port=args.port)
         return 0

@@ -65,7 +65,7 @@ def frame_image_path(folder: Path, file_path: str, where: str, allow_outside: bo
 
 def _read_split(folder: Path, split: str, background, out_size, with_images: bool, allow_outside: bool = False):
     """Cameras and images of one split; None when its json is absent."""
-    from .load import resize_image, scale_intrinsics
+    from .resample import resize_image, scale_intrinsics
 
     json_path = folder / f"transforms_{split}.json"
     if not json_path.is_file():
@@ -105,6 +105,7 @@ def _read_split(folder: Path, split: str, background, out_size, with_images: boo
                 images.append(resize_image(img, *out_size(w, h)))
     c2w_gl = check_poses(np.stack(poses), where, "transform_matrix")
     c2w = opengl_to_opencv(c2w_gl.astype(np.float64)).astype(np.float32)
+    assert size is not None  # 'frames' is not empty
     w, h = size
     f = focal_from_angle(float(angle), w)
     K = check_intrinsics(np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1]]), where, "camera_angle_x", w, h)
@@ -136,7 +137,7 @@ def load_blender(
         allow_outside: accept frame images outside the folder (see :mod:`nerfkit.io.paths`).
         need: the split that must be present (``train``; ``test`` for a folder of held-out views).
     """
-    from .load import output_size
+    from .resample import output_size
 
     folder = blender_folder(path)
     if folder is None:

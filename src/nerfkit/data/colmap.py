@@ -9,9 +9,10 @@ own undistorter. Reading and writing go through pycolmap.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -132,7 +133,7 @@ def _precheck_binary_model(model_dir: Path) -> None:
                    "The files may be truncated or corrupt, or declare more data than they hold")
 
 
-def read_model(model_dir: str | Path) -> "pycolmap.Reconstruction":
+def read_model(model_dir: str | Path) -> pycolmap.Reconstruction:
     """Read a COLMAP model folder (binary or text) with pycolmap; NerfkitError when it can't."""
     model_dir = Path(model_dir)
     pycolmap = _import_pycolmap(model_dir)
@@ -245,7 +246,7 @@ def reconstruction_points(rec, max_error: float = 2.0, min_track: int = 3,
 
 
 def reconstruction_to_scene(
-    rec: "pycolmap.Reconstruction",
+    rec: pycolmap.Reconstruction,
     image_dir: str | Path | None,
     background: tuple[float, float, float] = (0.0, 0.0, 0.0),
     val_every: int = 8,
@@ -263,15 +264,15 @@ def reconstruction_to_scene(
     """
     import pycolmap
 
-    from .load import output_size, resize_image, scale_intrinsics
+    from .resample import output_size, resize_image, scale_intrinsics
 
     where = source or "COLMAP model"
     images = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
     if not images:
         raise fail(where, "has no registered images", "Re-run SfM or check the model")
     names, c2ws, Ks, pixels = [], [], [], []
-    size_wh = None
-    pinholes: dict[int, "pycolmap.Camera"] = {}
+    size_wh: tuple[int, int] | None = None
+    pinholes: dict[int, pycolmap.Camera] = {}
     for im in images:
         cam = rec.cameras[im.camera_id]
         # before undistorting: pycolmap walks the image border, for ever on a 10^11-pixel-wide camera
@@ -284,7 +285,7 @@ def reconstruction_to_scene(
                 raise fail(where, f"camera {im.camera_id} ({cam.model_name}) cannot be undistorted to a pinhole ({e})",
                            "Use a pinhole, radial or OpenCV camera model") from None
         pin = pinholes.get(im.camera_id)
-        if not (size_ok and 0 < pin.width and 0 < pin.height):
+        if pin is None or not (size_ok and pin.width > 0 and pin.height > 0):
             raise fail(where, f"camera {im.camera_id} has image size {cam.width}x{cam.height}",
                        "The model's cameras.txt/bin is corrupt")
         K = check_intrinsics(camera_matrix(pin), where, f"camera {im.camera_id}", int(pin.width), int(pin.height))
@@ -312,6 +313,7 @@ def reconstruction_to_scene(
         except np.linalg.LinAlgError:  # a singular matrix from a zero quaternion
             raise fail(where, f"image {im.name!r} has a degenerate pose", "The model's images.txt/bin is corrupt") from None
         Ks.append(scale_intrinsics(K, *wh, *out_wh))
+    assert size_wh is not None  # images is not empty
     W, H = output_size(*size_wh, size, downscale)
     c2w = np.stack(c2ws).astype(np.float32)
     K = np.stack(Ks).astype(np.float32)
@@ -364,7 +366,7 @@ def load_colmap(
 
 
 def scene_to_reconstruction(scene: Scene,
-                            splits: tuple[str, ...] = ("train", "val", "test")) -> "pycolmap.Reconstruction":
+                            splits: tuple[str, ...] = ("train", "val", "test")) -> pycolmap.Reconstruction:
     """A pycolmap Reconstruction with one PINHOLE camera per distinct K and every view posed.
 
     Image names are the views' names (``<split>_<index>.png`` when a split has none). The
@@ -419,7 +421,7 @@ def _projected_point_views(scene: Scene) -> dict[int, list]:
     return out
 
 
-def write_reconstruction(rec: "pycolmap.Reconstruction", out_dir: str | Path, text: bool = False) -> Path:
+def write_reconstruction(rec: pycolmap.Reconstruction, out_dir: str | Path, text: bool = False) -> Path:
     """Write a pycolmap model folder (binary, or text with ``text=True``).
 
     pycolmap writes into a temporary folder; each file is then moved into place through

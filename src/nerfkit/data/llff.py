@@ -143,7 +143,7 @@ def load_llff(
             ``downscale`` 4 or 8 reads ``images_4``/``images_8`` when they exist.
         allow_outside: accept image files that link outside the folder.
     """
-    from .load import output_size, resample_scene, resize_image, scale_intrinsics
+    from .resample import output_size, resample_scene, resize_image, scale_intrinsics
 
     output_size(1, 1, size, downscale)  # refuses both at once
     folder = llff_folder(path)
@@ -171,6 +171,7 @@ def load_llff(
         elif (w, h) != size_wh:
             raise fail(p, f"image is {w}x{h} but {files[0]} is {size_wh[0]}x{size_wh[1]}", "All photos must have one size")
         images.append(img)
+    assert size_wh is not None  # there is at least one photo: as many as poses
     w, h = size_wh
     if abs(w / h - w0 / h0) > 0.01 * w0 / h0:
         raise fail(img_dir, f"photos are {w}x{h} but {POSES_FILE} says {w0:g}x{h0:g} (another aspect ratio)",

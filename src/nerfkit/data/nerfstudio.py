@@ -35,9 +35,22 @@ from ..errors import fail
 from ..io.atomic import atomic_path, replacing_folder, write_json
 from ..io.paths import path_kind, refuse_special_file, resolve_inside, safe_output_name
 from .blender import focal_from_angle, frame_image_path
+from .ply import read_points_ply, write_points_ply
 from .scene import Scene, Views, estimate_center, estimate_up
-from .validate import (MAX_SIDE, check_count, check_fov, check_intrinsics, check_near_far, check_number, check_plane,
-                       check_poses, check_scene, check_vector3, near_far_from_cameras, short_repr)
+from .validate import (
+    MAX_SIDE,
+    check_count,
+    check_fov,
+    check_intrinsics,
+    check_near_far,
+    check_number,
+    check_plane,
+    check_poses,
+    check_scene,
+    check_vector3,
+    near_far_from_cameras,
+    short_repr,
+)
 
 SPLITS = ("train", "val", "test")
 DIST_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
@@ -78,9 +91,9 @@ def _undistort(image: np.ndarray, K: np.ndarray, dist: dict[str, float], where: 
     except cv2.error as e:
         raise fail(where, f"cannot undistort with k1 k2 p1 p2 k3 = {coeffs.tolist()} ({short_repr(str(e))})",
                    "Check the distortion coefficients") from None
-    newK = newK.astype(np.float64)
-    newK[:2, 2] += 0.5
-    return out, check_intrinsics(newK, where, "intrinsics after undistortion", w, h).astype(np.float64)
+    K_new = np.array(newK, dtype=np.float64)
+    K_new[:2, 2] += 0.5
+    return out, check_intrinsics(K_new, where, "intrinsics after undistortion", w, h).astype(np.float64)
 
 
 def _intrinsics(cam: dict, image_size: tuple[int, int] | None, where: str) -> tuple[np.ndarray, tuple[int, int]]:
@@ -267,8 +280,6 @@ def _read_points(data: dict, folder: Path, where: str, allow_outside: bool) -> t
         return None, None
     if not isinstance(rel, str):
         raise fail(where, f"'ply_file_path' is {short_repr(rel)}, expected a file name")
-    from ..export import read_points_ply
-
     path = refuse_special_file(resolve_inside(folder, rel, allow_outside, where))
     if not path.is_file():
         raise fail(where, f"'ply_file_path' names {rel[:200]!r}, which does not exist",
@@ -298,7 +309,8 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
     folder = Path(folder)
     if write_images and Path(image_dir).name in ("", ".", ".."):
         raise ValueError(f"image_dir must name a subfolder, not {image_dir!r}")
-    frames, lists, poses_only = [], {s: [] for s in SPLITS}, {}
+    frames, poses_only = [], {}
+    lists: dict[str, list[str]] = {s: [] for s in SPLITS}
     Ks, sizes = [], []
     seen: set[str] = set()
     to_write = []  # (file name, image)
@@ -308,6 +320,7 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
         if not v.has_images:
             poses_only[split] = opencv_to_opengl(v.c2w.astype(np.float64)).tolist()
             continue
+        assert v.images is not None  # has_images
         for i in range(len(v)):
             name = v.names[i] if v.names is not None else f"{split}_{i:04d}.png"
             fname = image_file_name(name)
@@ -353,8 +366,6 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
         nk["poses_only"] = poses_only
     out["nerfkit"] = {**(extra or {}), **nk}  # the scene's own values win over extra's
     if scene.points is not None:  # nerfstudio's key for the sparse points (3DGS initialisation)
-        from ..export import write_points_ply
-
         out["ply_file_path"] = POINTS_FILE
         write_points_ply(folder / POINTS_FILE, scene.points, scene.point_colors)
     path = folder / "transforms.json"

@@ -26,8 +26,17 @@ from ..errors import NerfkitError, fail
 from ..io.atomic import write_npz
 from ..io.paths import refuse_special_file
 from .scene import Scene, Views, estimate_center, estimate_up
-from .validate import (MAX_PIXELS, check_images, check_intrinsics, check_near_far, check_plane, check_poses,
-                       check_scene, check_vector3, near_far_from_cameras)
+from .validate import (
+    MAX_PIXELS,
+    check_images,
+    check_intrinsics,
+    check_near_far,
+    check_plane,
+    check_poses,
+    check_scene,
+    check_vector3,
+    near_far_from_cameras,
+)
 
 SPLITS = ("train", "val", "test")
 
@@ -162,8 +171,8 @@ def load_npz(path: str | Path, need: str = "train") -> Scene:
         up = check_vector3(arrays["up"], where, "up", unit=True)
     capture = bool(_scalar(arrays, "capture", where)) if "capture" in arrays else False
     table = check_plane(arrays["table_plane"], where, "table_plane") if "table_plane" in arrays else None
-    points = arrays["points_xyz"] if "points_xyz" in arrays else None
-    colors = arrays["points_rgb"] if "points_rgb" in arrays else None
+    points = arrays.get("points_xyz")
+    colors = arrays.get("points_rgb")
     if colors is not None and points is None:
         raise fail(where, "'points_rgb' is present but 'points_xyz' is missing")
     seen = arrays.get("points_train_views")
@@ -181,7 +190,7 @@ def save_npz(scene: Scene, path: str | Path) -> None:
         if len(v) and not np.allclose(v.K, K, rtol=1e-5, atol=1e-4):
             raise fail(path, f"the {split} views have intrinsics that differ from the first training view",
                        "The course npz holds one K; export to transforms.json instead, or resample the images")
-    out: dict[str, np.ndarray] = {
+    out: dict[str, np.ndarray | np.generic] = {
         "focal": np.float32(K[0, 0]),
         "K": K.astype(np.float32),
         "near": np.float32(scene.near),

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..cameras import axes_across, forward_facing, mean_camera, orbit_path, spiral_path
+from ..ground import find_floor
 
 # frames of a generated orbit or spiral: 4 s at 30 fps
 ORBIT_FRAMES = 120
@@ -50,7 +51,7 @@ class Views:
     def has_images(self) -> bool:
         return self.images is not None and len(self.images) > 0
 
-    def subset(self, idx) -> "Views":
+    def subset(self, idx) -> Views:
         idx = np.asarray(idx)
         return replace(
             self,
@@ -61,7 +62,7 @@ class Views:
         )
 
     @staticmethod
-    def empty(width: int, height: int) -> "Views":
+    def empty(width: int, height: int) -> Views:
         return Views(np.zeros((0, 4, 4), np.float32), np.zeros((0, 3, 3), np.float32), width, height)
 
 
@@ -105,14 +106,12 @@ class Scene:
 
     def floor(self):
         """The floor seen beyond the table's edge in the sparse points, as a
-        :class:`~nerfkit.sfm.ground.GroundPlane` (:func:`~nerfkit.sfm.ground.find_floor`
+        :class:`~nerfkit.ground.GroundPlane` (:func:`~nerfkit.ground.find_floor`
         under the training cameras), or None (no table, no points, no such plane). Found
         once, the first time it is asked."""
         if not self._floor:
             plane = None
             if self.points is not None and self.table is not None and len(self.train):
-                from ..sfm.ground import find_floor
-
                 plane = find_floor(self.points, self.table, self.train.c2w[:, :3, 3], self.center)
             self._floor = (plane,)
         return self._floor[0]

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..errors import fail
 from .scene import estimate_near_far
@@ -68,7 +70,7 @@ def check_numbers(value, where: str, field: str) -> np.ndarray:
     return a
 
 
-def check_poses(c2w: np.ndarray, where: str, field: str, tol: float = 1e-3) -> np.ndarray:
+def check_poses(c2w: ArrayLike, where: str, field: str, tol: float = 1e-3) -> np.ndarray:
     """Validate (N, 4, 4) rigid camera-to-world matrices; return them as float32.
 
     Accepts (N, 3, 4) too and appends the [0, 0, 0, 1] row.
@@ -143,7 +145,8 @@ def check_images(images: np.ndarray, where: str, field: str) -> np.ndarray:
     raise fail(where, f"'{field}' has dtype {images.dtype}, expected uint8 (0-255) or float (0-1)")
 
 
-def check_near_far(near: float, far: float, where: str) -> tuple[float, float]:
+def check_near_far(near: Any, far: Any, where: str) -> tuple[float, float]:
+    """``near`` and ``far`` (numbers, or any JSON value to refuse) as finite floats, 0 <= near < far."""
     try:
         near, far = float(near), float(far)
     except (TypeError, ValueError, OverflowError):
@@ -212,7 +215,7 @@ def check_scene(scene, where: str | None = None, need: str = "train"):
         if n == 0:
             continue
         check_poses(v.c2w, where, f"{split} poses")
-        K = check_intrinsics(v.K, where, f"{split} intrinsics", v.width, v.height)
+        K = check_intrinsics(v.K, where, f"{split} intrinsics", int(v.width), int(v.height))
         if K.shape != (n, 3, 3):
             raise fail(where, f"the {split} split has {n} poses but intrinsics of shape {K.shape}")
         if v.images is not None and v.images.size > 0:

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Callable, Iterator
 
 import numpy as np
 import torch
@@ -37,7 +37,7 @@ class RenderedView:
         far; else it is empty (black)."""
         from ..viz.video import colorize_depth
 
-        if self.scene_depth is None:
+        if self.scene_depth is None or self.scene_acc is None:
             return colorize_depth(self.depth, self.acc, near, far)
         return colorize_depth(self.scene_depth, self.scene_acc, near, far, unmet_is_far=True)
 
@@ -74,7 +74,7 @@ def render_image(
             rgb.append(out.rgb.float())
             depth.append(out.depth.float())
             acc.append(out.acc.float())
-            if out.scene_depth is not None:
+            if out.scene_depth is not None and out.scene_acc is not None:
                 scene_depth.append(out.scene_depth.float())
                 scene_acc.append(out.scene_acc.float())
     finally:
@@ -102,14 +102,16 @@ def probe_renders(model: NerfModel, views: Views, n_views: int, width: int, back
     with the intrinsics they were rendered with, ``width`` pixels wide (the height in
     proportion) and the focal length times ``zoom`` about the principal point (below 1:
     more of the scene than the view holds)."""
-    from ..data.load import scale_intrinsics
+    from ..data.resample import scale_intrinsics
 
     h = max(round(views.height * width / views.width), 1)
     for i in np.unique(np.linspace(0, len(views) - 1, min(n_views, len(views))).round().astype(int)):
         K = scale_intrinsics(views.K[i], views.width, views.height, width, h)
         K[0, 0] *= zoom
         K[1, 1] *= zoom
-        yield int(i), K, render_image(model, K, views.c2w[i], width, h, background, chunk, autocast_dtype)
+        view = render_image(model, K, views.c2w[i], width, h, background, chunk, autocast_dtype)
+        assert view is not None  # None only when aborted
+        yield int(i), K, view
 
 
 def object_aim(model: NerfModel, views: Views, up: np.ndarray, background: torch.Tensor, chunk: int = 16384,
@@ -224,4 +226,6 @@ def render_views(
 ) -> Iterator[RenderedView]:
     """Render every view of a split, one at a time (a generator: memory holds one image)."""
     for i in range(len(views)):
-        yield render_image(model, views.K[i], views.c2w[i], views.width, views.height, background, chunk, autocast_dtype)
+        view = render_image(model, views.K[i], views.c2w[i], views.width, views.height, background, chunk, autocast_dtype)
+        assert view is not None  # None only when aborted
+        yield view

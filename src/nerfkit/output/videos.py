@@ -14,7 +14,6 @@ from ..models.base import NerfModel
 from ..viz.video import depth_scale, write_video
 from .images import render_views
 
-
 VIDEO_FILES = ("orbit.mp4", "orbit.gif", "depth.mp4")
 # the object alone (`nerfkit render --object`)
 OBJECT_VIDEO_FILES = ("object.mp4", "object.gif", "object_depth.mp4")
@@ -66,7 +65,8 @@ def render_videos(
         depth_frames.append(np.concatenate([depth, depth_scale(depth.shape[1], nears[i], fars[i], metres)]))
     per_frame = (time.perf_counter() - t0) / max(len(views), 1)
     out_dir = Path(out_dir)
-    paths = VideoPaths(*(out_dir / name for name in names), per_frame)
+    rgb_mp4, rgb_gif, depth_mp4 = (out_dir / name for name in names)
+    paths = VideoPaths(rgb_mp4, rgb_gif, depth_mp4, per_frame)
     write_video(paths.rgb_mp4, rgb_frames, fps)
     write_video(paths.rgb_gif, rgb_frames[:: max(1, len(rgb_frames) // 60)], min(fps, 20))
     write_video(paths.depth_mp4, depth_frames, fps)

@@ -16,16 +16,16 @@ The output folder holds ``colmap/database.db`` and the aligned model ``colmap/sp
 
 from __future__ import annotations
 
-import contextlib
 import shutil
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..capture.points import camera_neighbours, match_pairs, quiet_colmap
 from ..data.colmap import write_reconstruction
 from ..errors import NerfkitError, fail, problem_of
 from ..images import list_images
@@ -94,7 +94,7 @@ class SfmReport:
 class SfmResult:
     """The largest reconstruction (in the final world frame), its folder, and the report."""
 
-    reconstruction: "pycolmap.Reconstruction"
+    reconstruction: pycolmap.Reconstruction
     model_dir: Path
     image_dir: Path  # the upright photos COLMAP used (the input folder, or upright copies)
     report: SfmReport
@@ -119,20 +119,6 @@ def _import_pycolmap():
     return pycolmap
 
 
-@contextlib.contextmanager
-def _quiet_colmap(verbose: bool) -> Iterator[None]:
-    """Silence COLMAP's INFO/WARNING log lines unless ``verbose``."""
-    import pycolmap
-
-    old = pycolmap.logging.minloglevel
-    if not verbose:
-        pycolmap.logging.minloglevel = 2
-    try:
-        yield
-    finally:
-        pycolmap.logging.minloglevel = old
-
-
 def _say(progress: bool, msg: str) -> None:
     if progress:
         print(msg, file=sys.stderr, flush=True)
@@ -150,29 +136,6 @@ def choose_matcher(matcher: str, n_photos: int, n_guided: int = 0) -> str:
             return "exhaustive"
         return "spatial" if 2 * n_guided >= n_photos else "sequential"
     return matcher
-
-
-def camera_neighbours(c2w: np.ndarray, k: int) -> list[tuple[int, int]]:
-    """Pairs ``(i, j)``, ``i < j``, joining each camera to the ``k`` others that see most
-    alike: nearest in position, with the angle between optical axes as a tie-breaker
-    (distance in units of the median camera spacing plus the axes' angle in radians).
-
-    Args:
-        c2w: (n, 4, 4) camera-to-world (OpenCV axes); k: neighbours per camera.
-    """
-    n = len(c2w)
-    pos = c2w[:, :3, 3].astype(np.float64)
-    axis = c2w[:, :3, 2].astype(np.float64)
-    dist = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
-    spacing = float(np.median(np.sort(dist, axis=1)[:, 1])) if n > 1 else 1.0
-    angle = np.arccos(np.clip(axis @ axis.T, -1.0, 1.0))
-    cost = dist / max(spacing, 1e-12) + angle
-    np.fill_diagonal(cost, np.inf)
-    pairs = set()
-    for i in range(n):
-        for j in np.argsort(cost[i])[:min(k, n - 1)]:
-            pairs.add((min(i, int(j)), max(i, int(j))))
-    return sorted(pairs)
 
 
 def spatial_pairs(names: list[str], guides: dict[str, np.ndarray], k: int, overlap: int) -> list[tuple[str, str]]:
@@ -195,16 +158,6 @@ def spatial_pairs(names: list[str], guides: dict[str, np.ndarray], k: int, overl
         pairs |= {(index[guided[i]], index[guided[j]]) for i, j in camera_neighbours(c2w, k)}
     pairs |= {(i, j) for i in range(len(names)) for j in range(i + 1, min(i + 1 + overlap, len(names)))}
     return [(names[i], names[j]) for i, j in sorted(pairs)]
-
-
-def match_pairs(pycolmap, db_path: Path, pairs: list[tuple[str, str]], matching, verification) -> None:
-    """Match and verify the features of these photo pairs only (a pairs file beside the database)."""
-    pairs_file = db_path.parent / "pairs.txt"
-    pairs_file.write_text("".join(f"{a} {b}\n" for a, b in pairs))
-    pairing = pycolmap.ImportedPairingOptions()
-    pairing.match_list_path = str(pairs_file)
-    pycolmap.match_image_pairs(db_path, matching_options=matching, pairing_options=pairing,
-                               verification_options=verification, device=pycolmap.Device.cpu)
 
 
 # Formats COLMAP reads directly; others (HEIC, WebP, ...) are converted first.
@@ -241,7 +194,7 @@ def colmap_name(photo: Path) -> str:
 
 
 def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera=None
-                   ) -> tuple[Path, list[str], dict[str, str], PhotoInfo, dict[str, int]]:
+                   ) -> tuple[Path, list[str], dict[str, str], PhotoInfo | None, dict[str, int]]:
     """Photos COLMAP can use as nerfkit sees them (upright), all of one size.
 
     COLMAP ignores EXIF orientation and cannot read HEIC, while nerfkit loads photos
@@ -272,7 +225,9 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
             skipped[p.name] = "unreadable: " + problem_of(e)
     if not infos:
         return work, [], skipped, None, {}
-    W, H = common_size((i.width, i.height) for i in infos)
+    size = common_size((i.width, i.height) for i in infos)
+    assert size is not None  # infos is not empty
+    W, H = size
     frame = common_frame([i.orientation for i in infos if (i.width, i.height) == (W, H)])
     if camera is not None and camera.compatible(W, H) and not camera.compatible(H, W):
         (W, H), frame = (H, W), None  # the camera's shape
@@ -384,6 +339,7 @@ def run_sfm(
                        "Replace the broken files (poses lists them)")
         raise fail(image_dir, f"only {len(names)} photos share one size; structure-from-motion needs at least 3",
                    "Take all photos held the same way (portrait or landscape)")
+    assert first is not None  # None only when no photo is kept
     given = None  # (COLMAP model, params) of the camera file
     if camera is not None:
         why = camera.compatible(first.width, first.height)
@@ -396,7 +352,7 @@ def run_sfm(
     seconds: dict[str, float] = {}
     pycolmap.set_random_seed(seed)
 
-    with _quiet_colmap(verbose):
+    with quiet_colmap(verbose):
         t0 = time.perf_counter()
         _say(progress, f"sfm: extracting SIFT features from {len(names)} photos "
                        f"(longest side <= {max_image_size} px)...")
@@ -468,8 +424,8 @@ def run_sfm(
         seconds["mapping"] = time.perf_counter() - t0
 
     if not models:
-        report = {**registration_report(db_path, names, None, {}), **left_out}
-        reasons = "; ".join(sorted({r for r in report.values()}))[:300]
+        why_not = {**registration_report(db_path, names, None, {}), **left_out}
+        reasons = "; ".join(sorted(set(why_not.values())))[:300]
         raise fail(image_dir, f"structure-from-motion registered no photos ({reasons})",
                    "Take more overlapping photos of a textured scene, or use ArUco tags (--method tags)")
     best_key = max(models, key=lambda k: models[k].num_reg_images())
@@ -549,23 +505,23 @@ def registration_report(db_path: Path, names: list[str], rec, others: dict) -> d
                 partners[i] = partners.get(i, 0) + 1
     in_rec = set() if rec is None else {rec.images[i].name for i in rec.reg_image_ids()}
     in_other = {}
-    for k, m in others.items():
+    for m in others.values():
         for i in m.reg_image_ids():
             in_other[m.images[i].name] = m.num_reg_images()
     out = {}
     for name in names:
         if name in in_rec:
             continue
-        i = ids.get(name)
-        if i is None:
+        image_id = ids.get(name)
+        if image_id is None:
             out[name] = "could not be read by COLMAP"
         elif n_feat.get(name, 0) < FEW_FEATURES:
             out[name] = f"only {n_feat.get(name, 0)} features (blurred, dark or textureless?)"
-        elif partners.get(i, 0) == 0:
-            out[name] = (f"matched no other photo (best pair: {best.get(i, 0)} verified matches, "
+        elif partners.get(image_id, 0) == 0:
+            out[name] = (f"matched no other photo (best pair: {best.get(image_id, 0)} verified matches, "
                          f"needs {min_inliers}); too little overlap with the others?")
         elif name in in_other:
             out[name] = f"in a separate model of {in_other[name]} photos that did not connect to the main one"
         else:
-            out[name] = f"matched {partners[i]} photos but no pose could be estimated from them"
+            out[name] = f"matched {partners[image_id]} photos but no pose could be estimated from them"
     return out

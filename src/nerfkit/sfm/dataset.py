@@ -29,7 +29,7 @@ if TYPE_CHECKING:  # pragma: no cover
 REPORT_FILE = "sfm_report.json"
 
 
-def opencv_camera(camera) -> "Camera":
+def opencv_camera(camera) -> Camera:
     """A pycolmap camera as the capture package's OpenCV camera (K with pixel centres at
     integers, distortion k1 k2 p1 p2 k3). Raises NerfkitError for models OpenCV's
     5-coefficient model cannot express (fisheye, FULL_OPENCV, ...)."""
@@ -107,7 +107,7 @@ def near_far_from_model(result: SfmResult) -> tuple[float, float] | None:
     return near_far_from_points(c2w, np.repeat(K[None], len(ims), 0), cam.width, cam.height, points)
 
 
-def model_points(result: SfmResult) -> "SparsePoints":
+def model_points(result: SfmResult) -> SparsePoints:
     """The reconstruction's well-seen sparse points (:func:`~nerfkit.data.colmap.reconstruction_points`),
     each with the photos that see it."""
     from ..data.colmap import reconstruction_points
@@ -115,7 +115,7 @@ def model_points(result: SfmResult) -> "SparsePoints":
     return reconstruction_points(result.reconstruction, photo_name=lambda n: result.photo(n).name)
 
 
-def build_dataset(result: SfmResult, out_dir: str | Path, cfg: "DatasetConfig | None" = None, jobs: int = 2,
+def build_dataset(result: SfmResult, out_dir: str | Path, cfg: DatasetConfig | None = None, jobs: int = 2,
                   progress: bool = True, extra: dict | None = None, write_report: bool = True,
                   tags: np.ndarray | None = None) -> tuple[Scene, dict]:
     """Write the dataset of an aligned SfM result with the tag path's dataset builder.
@@ -243,7 +243,7 @@ def _read_tag_posed(data, sources: dict, path: Path) -> dict[str, tuple[np.ndarr
 def sfm_dataset(
     image_dir: str | Path,
     out_dir: str | Path,
-    cfg: "DatasetConfig | None" = None,
+    cfg: DatasetConfig | None = None,
     matcher: str = "auto",
     max_image_size: int = 1000,
     tag_size: float | None = None,
@@ -275,6 +275,6 @@ def sfm_dataset(
                          ground=ground)
     from ..capture.aruco import Layout
 
-    tags = Layout.single(tag_id, tag_size).corners() if result.tag_size is not None else None  # the tag at the origin
+    tags = Layout.single(tag_id, result.tag_size).corners() if result.tag_size is not None else None  # the tag at the origin
     scene, _ = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress, tags=tags)
     return scene, result.report

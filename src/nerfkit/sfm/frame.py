@@ -25,6 +25,7 @@ import numpy as np
 
 from ..cameras import rotation_angles_deg
 from ..data.colmap import write_reconstruction
+from ..ground import rotation_between
 from .colmap import _say
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -76,20 +77,6 @@ def compare_poses(c2w_est: np.ndarray, c2w_ref: np.ndarray, with_scale: bool = T
             "rot_err_deg_median": float(np.median(rot)), "rot_err_deg_max": float(rot.max()),
             "pos_err_median": float(np.median(pos)), "pos_err_max": float(pos.max()),
             "pos_err_rel_median": float(np.median(pos) / spread), "spread": spread}
-
-
-def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest rotation (3, 3) taking unit vector ``a`` to unit vector ``b``."""
-    a = a / np.linalg.norm(a)
-    b = b / np.linalg.norm(b)
-    v = np.cross(a, b)
-    c = float(a @ b)
-    if c < -1 + 1e-9:  # opposite: turn 180 degrees about any axis perpendicular to a
-        axis = np.cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0])
-        axis /= np.linalg.norm(axis)
-        return 2 * np.outer(axis, axis) - np.eye(3)
-    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    return np.eye(3) + vx + vx @ vx / (1 + c)
 
 
 def estimate_vertical(c2w: np.ndarray) -> np.ndarray:
@@ -147,7 +134,7 @@ def _level_on_ground(result: SfmResult, progress: bool) -> str:
     """Find the table plane among the (normalised) reconstruction's points and make it
     z = 0; what was done, for the frame description."""
     from ..data.colmap import reconstruction_points
-    from .ground import find_ground_plane, ground_similarity
+    from ..ground import find_ground_plane, ground_similarity
 
     rec = result.reconstruction
     _, c2w = reconstruction_c2w(rec)
@@ -315,7 +302,7 @@ def align_reconstruction(result: SfmResult, tag_size: float | None = None, tag_i
     With ``tag_size`` (metres) and the tag visible in >= 3 registered photos: the tag
     frame (metric, +z up out of the tag). Otherwise normalised (see
     :func:`normalising_similarity`) and, with ``ground``, levelled on the table plane
-    found in the sparse points (:mod:`nerfkit.sfm.ground`: z = 0 on the table, the origin
+    found in the sparse points (:mod:`nerfkit.ground`: z = 0 on the table, the origin
     under the look-at point; ``result.on_ground``). ``tag_corners``: the tag's corners in a
     sheet layout's frame, which then becomes the world, and ``layout_tags`` all of that
     layout's tags, which join the fit (see :func:`tag_similarity`).

@@ -10,8 +10,8 @@ refines (a phone focused on a near object changes its focal length by a percent 
 holding the calibration fixed cost labubu 0.03 in SSIM). The tag's corners, triangulated
 from the SfM poses, then fix scale, up and origin (on a sheet, every tag of its layout).
 The tag poses are kept only when SfM falls short: fewer photos registered, the tag not
-seen, or poses that disagree with the tags' (:func:`choose_poses` says why). Photos the tags posed that SfM did not register
-join its photos with their tag poses (:func:`adopt_tag_poses`).
+seen, or poses that disagree with the tags' (:func:`choose_poses` says why). Photos the tags
+posed that SfM did not register join its photos with their tag poses (:func:`adopt_tag_poses`).
 """
 
 from __future__ import annotations
@@ -133,9 +133,10 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
     reason = judge(len(tag_posed), len(names), result.tag_size is not None, agreement)
     if reason is not None:
         return PoseChoice(None, f"tag poses: {reason}", agreement)
+    assert agreement is not None  # judge() passes no SfM result without an agreement
     why = (f"SfM poses in the tag's frame: {len(names)} photos registered (the tags posed {len(tag_posed)}); "
            f"the tag poses differ from them by a median {agreement['rot_deg_median']:.2f} degrees and "
-           f"{agreement['shift_median'] * 1000:.1f} mm")  # judge() passes no SfM result without an agreement
+           f"{agreement['shift_median'] * 1000:.1f} mm")
     adopted: list[str] = []
     if records is not None:
         adopted, left = adopt_tag_poses(result, tag_posed, records, layout, pose_cfg)

@@ -80,9 +80,9 @@ def sample_rays(views: Views, near: float, far: float, n_rays: int, n_samples: i
     o, d = pixel_to_ray(torch.from_numpy(views.K[idx]).float(), torch.from_numpy(views.c2w[idx]).float(),
                         torch.from_numpy(uv).float())
     pts, _ = sample_along_rays(o, d, near, far, n_samples, perturb=True, generator=g)
-    o, d = o.numpy().astype(np.float64), d.numpy().astype(np.float64)
-    seg = np.stack([o + near * d, o + far * d], axis=1)
-    return RaySamples(o, d, seg, pts.numpy().astype(np.float64))
+    origins, dirs = o.numpy().astype(np.float64), d.numpy().astype(np.float64)
+    seg = np.stack([origins + near * dirs, origins + far * dirs], axis=1)
+    return RaySamples(origins, dirs, seg, pts.numpy().astype(np.float64))
 
 
 def _to_plot(up: np.ndarray) -> np.ndarray:

@@ -1,4 +1,7 @@
-"""The table under the object, found in structure-from-motion points.
+"""The table (and the floor) under the object, found in structure-from-motion points.
+
+Pure NumPy geometry, below the datasets (:meth:`nerfkit.data.Scene.floor` asks it) and
+structure from motion (:mod:`nerfkit.sfm.frame` levels a reconstruction with it).
 
 A tag gives a capture its table plane for free (z = 0 of the tag frame). Without a tag,
 the object still stands on something, and SfM triangulates that surface well: a table
@@ -26,6 +29,21 @@ from dataclasses import dataclass
 import numpy as np
 
 POOL = 10_000
+
+
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation (3, 3) taking unit vector ``a`` to unit vector ``b``."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(a @ b)
+    if c < -1 + 1e-9:  # opposite: turn 180 degrees about any axis perpendicular to a
+        axis = np.cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0])
+        axis /= np.linalg.norm(axis)
+        return 2 * np.outer(axis, axis) - np.eye(3)
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx / (1 + c)
+
 
 @dataclass
 class GroundPlane:
@@ -144,8 +162,6 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
 def ground_similarity(plane: GroundPlane, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(R, t)`` of ``x -> R x + t`` putting the plane at z = 0 (normal -> +z) and the
     foot of ``center`` on it at the origin."""
-    from .frame import rotation_between
-
     center = np.asarray(center, np.float64).reshape(3)
     R = rotation_between(plane.normal, np.array([0.0, 0.0, 1.0]))
     foot = center - plane.height(center) * plane.normal
@@ -168,7 +184,7 @@ def find_floor(points: np.ndarray, table: np.ndarray, cameras: np.ndarray, cente
     """
     points = np.asarray(points, np.float64).reshape(-1, 3)
     n, d = np.asarray(table[:3], np.float64), float(table[3])
-    n_len = np.linalg.norm(n)
+    n_len = float(np.linalg.norm(n))
     n, d = n / n_len, d / n_len
     center = np.asarray(center, np.float64).reshape(3)
     reach = float(np.median(np.linalg.norm(np.asarray(cameras, np.float64).reshape(-1, 3) - center, axis=1)))

@@ -1,5 +1,8 @@
 """Sparse 3D points from posed photos: COLMAP's point triangulator with the poses held.
 
+Also the COLMAP steps that use known (or guessed) poses, which structure from motion
+(:mod:`nerfkit.sfm.colmap`) shares: pairs of neighbouring cameras and matching only those.
+
 A tag capture has poses but no structure. Gaussian splatting starts best from points on
 the surfaces (3DGS initialises from the SfM points), so :func:`triangulate_views` runs
 what ``colmap point_triangulator`` does, through pycolmap: SIFT features on the
@@ -11,8 +14,10 @@ world frame with their colours and reprojection errors.
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +25,6 @@ import numpy as np
 from ..data.colmap import SparsePoints, reconstruction_points
 from ..data.scene import Views
 from ..errors import fail
-from .colmap import _import_pycolmap, _quiet_colmap, camera_neighbours, match_pairs
 
 EXHAUSTIVE_MAX = 120
 
@@ -47,6 +51,7 @@ def triangulate_views(views: Views, work: str | Path | None = None, max_features
 
     if not views.has_images or len(views) < 2:
         raise fail("triangulation", f"needs at least 2 views with images, got {len(views)}")
+    assert views.images is not None  # has_images
     if work is not None:
         Path(work).mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".triangulate-", dir=None if work is None else str(work)))
@@ -57,7 +62,7 @@ def triangulate_views(views: Views, work: str | Path | None = None, max_features
         for name, img in zip(names, views.images):
             cv2.imwrite(str(image_dir / name), np.ascontiguousarray(img[..., ::-1]))
         db_path = tmp / "database.db"
-        with _quiet_colmap(verbose):
+        with quiet_colmap(verbose):
             _extract(pycolmap, db_path, image_dir, names, views, max_features, threads)
             _match(pycolmap, db_path, names, views.c2w, neighbours, threads)
             rec = _posed_reconstruction(pycolmap, db_path, names, views.c2w)
@@ -67,7 +72,7 @@ def triangulate_views(views: Views, work: str | Path | None = None, max_features
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     view_names = views.names or [str(i) for i in range(len(views))]
-    return reconstruction_points(rec, max_error, min_track, dict(zip(names, view_names)).get)
+    return reconstruction_points(rec, max_error, min_track, dict(zip(names, view_names)).__getitem__)
 
 
 def _extract(pycolmap, db_path: Path, image_dir: Path, names: list[str], views: Views, max_features: int,
@@ -120,3 +125,59 @@ def _posed_reconstruction(pycolmap, db_path: Path, names: list[str], c2w: np.nda
     for f in frames:
         rec.register_frame(f.frame_id)
     return rec
+
+
+def _import_pycolmap():
+    try:
+        import pycolmap
+    except ImportError:
+        raise fail("poses --method colmap", "structure-from-motion needs pycolmap",
+                   "pip install 'nerfkit[sfm]'") from None
+    return pycolmap
+
+
+@contextlib.contextmanager
+def quiet_colmap(verbose: bool) -> Iterator[None]:
+    """Silence COLMAP's INFO/WARNING log lines unless ``verbose``."""
+    import pycolmap
+
+    old = pycolmap.logging.minloglevel
+    if not verbose:
+        pycolmap.logging.minloglevel = 2
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = old
+
+
+def camera_neighbours(c2w: np.ndarray, k: int) -> list[tuple[int, int]]:
+    """Pairs ``(i, j)``, ``i < j``, joining each camera to the ``k`` others that see most
+    alike: nearest in position, with the angle between optical axes as a tie-breaker
+    (distance in units of the median camera spacing plus the axes' angle in radians).
+
+    Args:
+        c2w: (n, 4, 4) camera-to-world (OpenCV axes); k: neighbours per camera.
+    """
+    n = len(c2w)
+    pos = c2w[:, :3, 3].astype(np.float64)
+    axis = c2w[:, :3, 2].astype(np.float64)
+    dist = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
+    spacing = float(np.median(np.sort(dist, axis=1)[:, 1])) if n > 1 else 1.0
+    angle = np.arccos(np.clip(axis @ axis.T, -1.0, 1.0))
+    cost = dist / max(spacing, 1e-12) + angle
+    np.fill_diagonal(cost, np.inf)
+    pairs = set()
+    for i in range(n):
+        for j in np.argsort(cost[i])[:min(k, n - 1)]:
+            pairs.add((min(i, int(j)), max(i, int(j))))
+    return sorted(pairs)
+
+
+def match_pairs(pycolmap, db_path: Path, pairs: list[tuple[str, str]], matching, verification) -> None:
+    """Match and verify the features of these photo pairs only (a pairs file beside the database)."""
+    pairs_file = db_path.parent / "pairs.txt"
+    pairs_file.write_text("".join(f"{a} {b}\n" for a, b in pairs))
+    pairing = pycolmap.ImportedPairingOptions()
+    pairing.match_list_path = str(pairs_file)
+    pycolmap.match_image_pairs(db_path, matching_options=matching, pairing_options=pairing,
+                               verification_options=verification, device=pycolmap.Device.cpu)

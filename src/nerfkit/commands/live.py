@@ -1,4 +1,7 @@
-"""A live viewer of a trained (or training) run in the browser, with viser.
+"""A live viewer of a trained (or training) run in the browser, with viser (``nerfkit view RUN``).
+
+It sits with the commands, above training and rendering (it loads runs and renders them);
+:mod:`nerfkit.viz` below holds the figures and the dataset viewer it draws with.
 
 ``serve_run(RUN)`` shows the training cameras (frustums with thumbnails) and renders the
 NeRF from the browser's camera: a small preview as soon as the camera moves, refined
@@ -16,15 +19,20 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from ..errors import NerfkitError, fail
 from ..images import to_uint8
+
+if TYPE_CHECKING:
+    from ..models.base import NerfModel
+    from ..train.checkpoint import RunInfo
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 PREVIEW_SIDE = 64
@@ -100,8 +108,8 @@ def refinement_sides(preview: int, max_side: int) -> list[int]:
 class LoadedRun:
     """What the viewer draws: the model, the run info, its step, and the checkpoint file."""
 
-    model: object
-    info: object
+    model: NerfModel
+    info: RunInfo
     step: int
     checkpoint: Path | None
 
@@ -200,7 +208,8 @@ class LiveViewer:
         self._frustum_handles: list = []
         self.splats = None  # viser's own Gaussian-splat node, for splat runs
         if scene is not None:
-            self.server.scene.set_up_direction(tuple(float(u) for u in scene.up))
+            up = np.asarray(scene.up, np.float64)
+            self.server.scene.set_up_direction((float(up[0]), float(up[1]), float(up[2])))
             self._add_training_cameras(scene)
         self.server.on_client_connect(self._on_connect)
 
@@ -211,7 +220,7 @@ class LiveViewer:
         run = self.watcher.current
         if run is None or not hasattr(run.model, "n_gaussians"):
             return
-        from .splats import add_splats
+        from ..viz.splats import add_splats
 
         self.splats = add_splats(self.server, run.model)
 
@@ -309,8 +318,12 @@ class LiveViewer:
             if st.level >= len(sides) or (st.level > 0 and now - st.changed_at < SETTLE_SECONDS):
                 continue
             cam = client.camera
+
+            def moved(c=client, k=key) -> bool:
+                return self._camera_key(c) != k
+
             img = self.render_for(cam.wxyz, cam.position, cam.fov, cam.aspect, sides[st.level], self.mode.value,
-                                  abort=lambda c=client, k=key: self._camera_key(c) != k, alone=self.alone.value)
+                                  abort=moved, alone=self.alone.value)
             if img is not None:
                 client.scene.set_background_image(img, format="jpeg", jpeg_quality=90)
                 st.level += 1
@@ -340,9 +353,9 @@ def serve_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080, de
         max_side: longest side of the fully refined image (pixels).
         watch: re-load the newest checkpoint while training writes new ones.
     """
-    from ..commands._common import scene_for_run
     from ..train.checkpoint import load_run, read_run
     from ..train.config import resolve_device
+    from ._common import scene_for_run
 
     run_dir = Path(run_dir)
     info = read_run(run_dir)  # fails early, with one line, when RUN is not a run folder
@@ -360,7 +373,7 @@ def serve_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080, de
     port = viewer.server.get_port()  # viser moves to the next free port when this one is taken
     if host not in LOCAL_HOSTS:
         print(f"warning: listening on {host}: anyone who can reach port {port} can see this scene", file=sys.stderr)
-    from .viewer import viewer_url
+    from ..viz.viewer import viewer_url
 
     print(f"nerfkit viewer of {run_dir} at {viewer_url(host, port)} "
           f"(Ctrl-C to stop)", flush=True)
