@@ -2,7 +2,7 @@
 
     python benchmarks/heldout.py --lego-blender DIR [--llff DIR] [--capture NAME=DATASET ...]
                                  [--scenes lego200,lego400,flower,NAME,...] [--models fast,splat]
-                                 [--seconds 60,300] [--out OUT]
+                                 [--seconds 60,300 | --steps 100,1000] [--out OUT]
 
 For each scene, model and budget B (seconds of training, evaluation excluded) one fresh run
 trains in this process as ``nerfkit train --minutes B/60`` would (the same defaults, chosen
@@ -27,8 +27,14 @@ By default every scene whose data is given runs. Reported per run: steps, traini
 mean PSNR and SSIM over the held-out views, render frames per second (those views, after one
 warm-up frame), and the size of the saved ``model.pt``. Prints one markdown table; with
 ``--out``, the run folders go to ``OUT/runs/`` and the table to ``OUT/table.md``,
-``OUT/results.csv`` and ``OUT/results.json`` (rewritten after every run). Without ``--out``
-the runs go to a temporary folder that is deleted at the end.
+``OUT/results.csv`` and ``OUT/results.json`` (rewritten after every run; the JSON also holds
+the SSIM beside each PSNR, the load average around each run, and splat's Gaussians).
+Without ``--out`` the runs go to a temporary folder that is deleted at the end. A run
+folder records the scene it was trained on, without its held-out views, so ``nerfkit eval``
+refuses to score it against the whole dataset: score it here.
+
+``--steps`` replaces the time budgets by step counts: a check of the protocol itself on a
+machine too busy for its seconds to mean anything (its figures are not the protocol's).
 """
 
 from __future__ import annotations
