@@ -43,8 +43,8 @@ QueryFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tenso
 
 
 # how far outside a vertex its colour ray starts, as a fraction of the scene's radius: the
-# depth of a trained field's fuzzy surface (benchmarks/mesh_colours.py, session 29: lego,
-# steve and labubu score within 0.1-0.5 dB of their best reach, which spans 1.6-3.4%)
+# depth of a trained field's fuzzy surface (benchmarks/mesh_colours.py: within 0.1-0.5 dB of
+# each scene's best reach, which spans 1.6-3.4% of the radius)
 COLOUR_REACH = 0.02
 
 # a mesh's vertices are coloured from this many of the training views (evenly spread) ...
@@ -53,7 +53,7 @@ COLOUR_VIEWS = 32
 COLOUR_VIEW_SIDE = 1024
 # ... where the vertex lies within this fraction of the scene's radius of the rendered depth
 # (a trained field's iso-surface lies 1-2.5% of it in front of the rendered depth;
-# benchmarks/mesh_colours.py, session 41)
+# benchmarks/mesh_colours.py)
 COLOUR_VIEW_TOL = 0.05
 
 

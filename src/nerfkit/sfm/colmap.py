@@ -39,8 +39,8 @@ MATCHERS = ("auto", "exhaustive", "sequential", "spatial")
 EXHAUSTIVE_MAX = 100
 # "spatial" matches each photo with a guide pose with this many others whose poses see most
 # alike, and every photo with its neighbours in name order (sequential's pairs and more).
-# On steve's 56 photos: 786 pairs instead of 1540, SfM 73 s instead of 95-124, and held-out
-# views 0.06 dB lower (fitted: 0.12) at the same step (BENCHMARKS.md, session 42).
+# On a 56-photo capture: about half the pairs of exhaustive matching, SfM about a third
+# faster, held-out views within 0.1 dB at the same step (benchmarks/capture_real.py --sfm).
 SPATIAL_NEIGHBOURS = 20
 FEW_FEATURES = 100
 
