@@ -48,22 +48,27 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def selection_table(sel: dict) -> str:
-    """How the distortion model was chosen: one row per model tried."""
+    """How the camera was chosen: one row per camera tried (distortion model / principal
+    point / aspect), or per model in camera files written before cameras were chosen whole."""
     from ..capture.report import table
 
     def px(v) -> str:
         return "-" if v is None else f"{v:.3f}"
 
-    rows = [[m, px(r.get("heldout_rms")), px(r.get("fit_rms")), px(r.get("frame_spread_px")),
-             px(r.get("check", {}).get("corner_displacement_px")),
-             ("chosen" if m == sel["chosen"] else "ok") if r.get("eligible") else (r.get("rejected") or "")]
-            for m, r in sel["models"].items()]
-    heads = [f"{what} {c['chosen']}: {c['why']}" + (f" (model {c['model']})" if c.get("model") else "")
-             for name, what in (("principal_point", "principal point"), ("aspect", "pixels"))
-             if (c := sel.get(name))]
+    cands = sel.get("candidates")
+    rows = [[r.get("name", m), px(r.get("heldout_rms")), px(r.get("edge_heldout_rms")), px(r.get("fit_rms")),
+             px(r.get("frame_spread_px")), px(r.get("edge_limit_px")),
+             px((r.get("check") or {}).get("corner_displacement_px")),
+             (r.get("verdict") or ("chosen" if r.get("name", m) == sel.get("camera", sel["chosen"]) else "ok"))
+             if r.get("eligible") else (r.get("rejected") or "")]
+            for m, r in (((r["name"], r) for r in cands) if cands else sel["models"].items())]
+    heads = [f"{what} {c['chosen']}: {c['why']}" for name, what in (("principal_point", "principal point"),
+                                                                      ("aspect", "pixels")) if (c := sel.get(name))]
     heads.append(f"distortion model {sel['chosen']} ({sel['method']}): {sel['why']}")
-    return "\n".join(heads) + "\n" + table(rows, ["model", "held-out px", "fit px", "edge spread", "corner shift", "verdict"],
-                                max_width=130)
+    if sel.get("camera_why") and sel["camera_why"] != sel["why"]:
+        heads.append(f"camera {sel['camera_why']}")
+    return "\n".join(heads) + "\n" + table(rows, ["camera", "held-out px", "at edges", "fit px", "edge spread",
+                                                   "spread limit", "corner shift", "verdict"], max_width=140)
 
 
 def run(args: argparse.Namespace) -> int:
