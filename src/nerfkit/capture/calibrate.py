@@ -281,14 +281,6 @@ def validate(views: list, size: tuple[int, int], flags: int, folds: list[list[in
                       float(np.sqrt(np.mean(at_edge))) if len(at_edge) else float("nan"), fold_spread(disps))
 
 
-def cross_validate(views: list, size: tuple[int, int], flags: int, folds: list[list[int]],
-                   K0: np.ndarray | None = None) -> tuple[float, float]:
-    """(held-out RMS px, spread px of the frame's undistortion across folds) of one camera
-    (:func:`validate`)."""
-    v = validate(views, size, flags, folds, K0)
-    return v.heldout, v.spread
-
-
 @dataclass(frozen=True)
 class Candidate:
     """One whole camera that :func:`select_camera` tries: a distortion model, the principal
@@ -397,7 +389,8 @@ def simplest(best: Candidate, held: dict, tol: float) -> tuple[Candidate, list[C
     simplify one choice at a time while the simpler camera holds out within :func:`margin`
     of ``best`` (the fewest parameters first). Returns the camera reached, the ones passed
     through and the margin of the last step."""
-    at, path, last = best, [], 0.0
+    at, last = best, 0.0
+    path: list[Candidate] = []
     while True:
         steps = [d for d in held if simpler_by_one(at, d) and held[d] <= held[best] + margin(at, d, held[best], tol)]
         if not steps:
@@ -827,18 +820,17 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
         if not layout.is_planar():  # calibrateCamera can only initialise from planar targets
             K0 = K_layout
     K0 = constrained_guess(K0, size, cfg)
-    kept, fit = views, None
+    kept, chosen_fit = views, None
     if "auto" in (cfg.dist_model, cfg.principal_point, cfg.aspect):
         # Outliers first (with the layout model), so they do not sway the choices.
         pre = fit_views(views, size, calib_flags(cfg, LAYOUT_MODEL), cfg.outlier_factor, K0)
         kept = [v for v in views if v[0] in set(pre.keys)]
     else:  # nothing to choose: cross-validated on the views the camera keeps
-        fit = fit_views(views, size, calib_flags(cfg), cfg.outlier_factor, K0)
-        kept = [v for v in views if v[0] in set(fit.keys)]
+        chosen_fit = fit_views(views, size, calib_flags(cfg), cfg.outlier_factor, K0)
+        kept = [v for v in views if v[0] in set(chosen_fit.keys)]
     camera, selection = select_camera(kept, size, cfg, photo_of, K0)
     cfg, model = camera.config(cfg), camera.model
-    if fit is None:
-        fit = fit_views(views, size, calib_flags(cfg), cfg.outlier_factor, constrained_guess(K0, size, cfg))
+    fit = chosen_fit or fit_views(views, size, calib_flags(cfg), cfg.outlier_factor, constrained_guess(K0, size, cfg))
     choices = {name: selection[name] for name in CONSTRAINTS}
     if layout is not None and target == "estimated layout":
         for r in with_tags:

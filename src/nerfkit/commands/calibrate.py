@@ -19,6 +19,12 @@ ChArUco description), or leave it out: nerfkit then estimates where the tags sit
 sheet (all tags on one flat sheet), and never treats different tags as the same points.
 Detections are cached beside the output, so re-running is quick.
 
+The camera is chosen whole by cross-validation over photos: every combination of a
+distortion model (none, k1, k1k2, k1k2p1p2, k1k2p1p2k3), a centred or fitted principal
+point and square or free pixels is fitted on its own; the camera file lists each one
+("model_selection" -> "candidates": held-out error, its error at the photos' edges, how
+much its folds disagree at the frame's edges, and the verdict) and the one chosen.
+
 example:
   nerfkit calibrate calib_photos/ --dict DICT_4X4_50 --tag-size 0.06 --out camera.json
 """
