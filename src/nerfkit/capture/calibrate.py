@@ -347,10 +347,10 @@ def _try_camera(cand: Candidate, views: list, size: tuple[int, int], cfg: Calibr
     if not np.isfinite(v.heldout):
         rejected = "could not be cross-validated"
     elif not rejected and not v.spread <= limit:
-        against = (f"{reference['dist_model']}'s held-out error at the photos' edges" if reference else "")
+        what = (f"the larger of its held-out error and {reference['dist_model']}'s held-out error at the photos' "
+                "edges" if reference else "its held-out error")
         rejected = (f"unstable at the frame's edges: undistortion there varies by {v.spread:.1f} px across folds "
-                    f"(> {limit:.1f} px: {EDGE_FACTOR:g} x the larger of its held-out error"
-                    + (f" and {against}" if against else "") + ", at least 1 px)")
+                    f"(> {limit:.1f} px: {EDGE_FACTOR:g} x {what}, at least 1 px)")
     K = full.K
     return {**row, "heldout_rms": _rounded(v.heldout), "edge_heldout_rms": _rounded(v.edge),
             "fit_rms": round(full.rms, 4), "frame_spread_px": _rounded(v.spread, 3),
@@ -442,9 +442,10 @@ def select_camera(views: list, size: tuple[int, int], cfg: CalibrateConfig, phot
                             f"the best; simplified to {chosen.name}" if c == best else
                             "within the margin of the best; simplified further" if c in steps else
                             f"eligible; {held[c] - held[best]:.3f} px above the best ({best.name})")
-    why = (f"{chosen.name}: lowest held-out error among the cameras passing the checks ({held[best]:.3f} px)"
+    passing = "passing the checks" if rows[best]["eligible"] else "tried (none passes the checks)"
+    why = (f"{chosen.name}: lowest held-out error among the cameras {passing} ({held[best]:.3f} px)"
            if chosen == best else
-           f"{chosen.name}: the simplest camera passing the checks with held-out error {held[chosen]:.3f} px, "
+           f"{chosen.name}: the simplest camera {passing} with held-out error {held[chosen]:.3f} px, "
            f"within {within:.3f} px of the best ({best.name}, "
            f"{held[best]:.3f} px)")
     method = f"{len(folds)}-fold cross-validation over photos"
