@@ -395,3 +395,106 @@ def test_a_detection_turns_with_its_photo():
         assert t.corners[0, 0].tolist() == [x, y]  # the marked pixel moved with the image
     np.testing.assert_allclose(det.turned(4).corners, det.corners)
     np.testing.assert_allclose(det.turned(1).turned(3).corners, det.corners)
+
+
+# ---------------------------------------------------------------- the whole camera chosen together (issue 63)
+
+CAMERAS = {f"{m}/{p}/{a}" for m in C.DIST_MODELS for p in C.CONSTRAINTS["principal_point"]
+           for a in C.CONSTRAINTS["aspect"]}
+
+
+def grid_views(K, dist, size, n, noise, reach, seed):
+    """``n`` views ``(name, obj (48, 3), img (48, 2))`` of a flat 8 x 6 grid of 2 cm pitch,
+    tilted up to 34 degrees, 0.35-0.5 m away, its centre aimed within ``reach`` of the
+    half-frame around the image centre; corners projected with ``K, dist`` plus Gaussian
+    noise of ``noise`` px. (Points, not photos: the edge rule's cases need noise and reach
+    set exactly.)"""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    gx, gy = np.meshgrid(np.arange(8) * 0.02 - 0.07, np.arange(6) * 0.02 - 0.05)
+    obj = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    w, h = size
+    views = []
+    while len(views) < n:
+        rvec = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(-np.pi, np.pi)])
+        aim = (w / 2 + rng.uniform(-1, 1) * reach * w / 2, h / 2 + rng.uniform(-1, 1) * reach * h / 2, 1.0)
+        tvec = np.linalg.solve(K, aim) * rng.uniform(0.35, 0.5)
+        img = cv2.projectPoints(obj, rvec, tvec, K, dist)[0].reshape(-1, 2)
+        if img.min() >= 0 and np.all(img <= [w - 1, h - 1]):
+            views.append((f"v{len(views):02d}", obj, img + rng.normal(0, noise, img.shape)))
+    return views
+
+
+def test_the_whole_camera_is_chosen_together_distortion_and_an_offset_principal_point():
+    # A lens with barrel distortion and its principal point 15 px off centre: the camera chosen
+    # must have both, each fitted with the other (not the principal point chosen under one
+    # model and kept with another).
+    K = K_SMALL.copy()
+    K[:2, 2] = np.array([(SMALL[0] - 1) / 2 + 12, (SMALL[1] - 1) / 2 - 9])
+    dist = np.array([-0.12, 0, 0, 0, 0])
+    cap = S.make_calibration_capture(n=14, size=SMALL, K=K, dist=dist, seed=6)
+    det = A.make_detector("DICT_4X4_50")
+    recs = [PhotoRecord(n, None, A.detect(im, det)) for n, im in zip(cap.names, cap.images)]
+    cal = C.calibrate_records(recs, SMALL, TAG, None, C.CalibrateConfig())
+    sel = cal.selection
+    by = {r["name"]: r for r in sel["candidates"]}
+    assert set(by) == CAMERAS  # every combination tried, each on its own
+    chosen = by[sel["camera"]]
+    assert chosen["chosen"] and sum(r["chosen"] for r in by.values()) == 1
+    assert sel["camera"] == f"{cal.dist_model}/free/square" and cal.dist_model in ("k1", "k1k2")
+    assert abs(cal.dist[0] - dist[0]) < 0.02
+    assert np.abs(cal.K[:2, 2] - K[:2, 2]).max() < 1.0 and cal.K[0, 0] == cal.K[1, 1]
+    assert rel_errors(cal.K, K).max() < 0.01
+    # The camera is that candidate's own fit, nothing carried over from another.
+    assert [chosen["fx"], chosen["cx"], chosen["cy"]] == pytest.approx([cal.K[0, 0], cal.K[0, 2], cal.K[1, 2]], abs=0.01)
+    # Held out near the corners' noise: as well as the best camera tried, and far better than
+    # without the distortion or without the offset.
+    best = min(r["heldout_rms"] for r in by.values() if r["eligible"])
+    assert chosen["heldout_rms"] <= 1.05 * best and chosen["heldout_rms"] < 0.1
+    assert by["none/free/square"]["heldout_rms"] > 5 * chosen["heldout_rms"]
+    assert by[f"{cal.dist_model}/centre/square"]["heldout_rms"] > 1.5 * chosen["heldout_rms"]
+    for r in by.values():  # every verdict in words
+        assert (r["rejected"] is None) == r["eligible"] and (r.get("verdict") if r["eligible"] else r["rejected"])
+    # The records of each choice hold the chosen camera against one change of it.
+    assert sel["principal_point"]["chosen"] == "free" and sel["aspect"]["chosen"] == "square"
+    assert sel["principal_point"]["heldout_rms"]["free"] == chosen["heldout_rms"]
+    assert sel["models"][cal.dist_model] is chosen and set(sel["models"]) == set(C.DIST_MODELS)
+
+
+SIZE_EDGE = (640, 480)
+K_EDGE = np.array([[520.0, 0, 319.5], [0, 520.0, 239.5], [0, 0, 1]])
+
+
+@pytest.mark.parametrize("k1, reach, seed, kept", [(-0.15, 0.35, 2, True), (-0.10, 0.30, 4, False)])
+def test_the_edge_rule_weighs_the_folds_disagreement_against_what_the_simpler_model_gets_wrong(k1, reach, seed,
+                                                                                              kept):
+    # The photos' corners stay near the centre, so the folds' k1 differ a little at the frame's
+    # edges: more than a fixed limit (1 px, twice k1's held-out error) allows. Where k1 holds
+    # out far better than none, that disagreement is smaller than what none gets wrong at the
+    # photos' edges, and k1 is kept; where k1 gains little, it is not.
+    views = grid_views(K_EDGE, np.array([k1, 0, 0, 0, 0]), SIZE_EDGE, 12, 0.3, reach, seed)
+    camera, sel = C.select_camera(views, SIZE_EDGE, C.CalibrateConfig(principal_point="centre", aspect="square"))
+    one, none = sel["models"]["k1"], sel["models"]["none"]
+    assert one["frame_spread_px"] > max(1.0, 2 * one["heldout_rms"])  # a fixed limit would reject it
+    assert one["edge_limit_px"] == pytest.approx(2 * none["edge_heldout_rms"], abs=2e-3)
+    assert one["edge_reference"] == "none/centre/square"
+    if kept:
+        assert none["heldout_rms"] > 1.25 * one["heldout_rms"]
+        assert one["eligible"] and camera == C.Candidate("k1", "centre", "square") and one["chosen"]
+        assert abs(one["dist"][0] - k1) < 0.03
+    else:
+        assert not one["eligible"] and "unstable at the frame's edges" in one["rejected"]
+        assert camera.model == "none"
+
+
+def test_without_distortion_the_simplest_camera_is_still_chosen():
+    # Square pixels, a centred principal point, no distortion: every richer camera holds out
+    # within the noise, and the simplest is chosen.
+    views = grid_views(K_EDGE, np.zeros(5), SIZE_EDGE, 12, 0.3, 0.6, 5)
+    camera, sel = C.select_camera(views, SIZE_EDGE, C.CalibrateConfig())
+    assert camera == C.Candidate("none", "centre", "square") and sel["camera"] == "none/centre/square"
+    assert {r["name"] for r in sel["candidates"]} == CAMERAS
+    held = [r["heldout_rms"] for r in sel["candidates"] if r["eligible"]]
+    assert sel["models"]["none"]["heldout_rms"] <= 1.05 * min(held)
+    assert sel["principal_point"]["chosen"] == "centre" and sel["aspect"]["chosen"] == "square"

@@ -18,13 +18,16 @@ Three kinds of targets:
 * ``per_tag=True`` (or a single tag): every tag in every photo is its own planar view.
 
 The layout is estimated with a k1-only model and then frozen, so it cannot absorb the
-distortion model chosen afterwards (nor the reverse). The distortion model (none, k1, k1k2,
-k1k2p1p2, k1k2p1p2k3) is chosen by k-fold cross-validation over photos
-(:func:`select_dist_model`): the simplest model within a small margin of the best held-out
-error among the models that pass :func:`~.distortion.distortion_check` and whose prediction
-at the frame's edges is stable across folds. Before it, two things phone cameras have, a
-centred principal point and square pixels, are each kept the same way
-(:func:`select_constraint`), unless freeing it holds out clearly better.
+camera chosen afterwards (nor the reverse). The camera is chosen whole by k-fold
+cross-validation over photos (:func:`select_camera`): every combination of a distortion
+model (none, k1, k1k2, k1k2p1p2, k1k2p1p2k3), the principal point (centred or fitted) and
+the aspect (square pixels or fx, fy fitted) is fitted and cross-validated on its own, so no
+parameter is kept from a camera that was then rejected. A camera is eligible when it passes
+:func:`~.distortion.distortion_check` and its folds agree at the frame's edges within what
+is at stake there (:func:`edge_limit`: twice the larger of its own held-out error and the
+simpler model's held-out error at the photos' edges). From the best eligible camera the
+choice is simplified (a simpler model, a centred principal point, square pixels: what
+phone cameras have) while the simpler camera holds out within a small margin of the best.
 
 Photos whose RMS error is far above the median are dropped and the camera recalibrated.
 Because a low RMS does not prove a good calibration, :func:`sanity_checks` compares the
@@ -50,6 +53,14 @@ from .photos import PhotoRecord, frame_turns
 MAX_TAG_VIEWS = 150
 DIST_MODELS = ("k1k2p1p2k3", "k1k2p1p2", "k1k2", "k1", "none")
 SIMPLEST_FIRST = tuple(reversed(DIST_MODELS))
+# Coefficients each model fits.
+DIST_PARAMS = {"none": 0, "k1": 1, "k1k2": 2, "k1k2p1p2": 4, "k1k2p1p2k3": 5}
+# The photos' edges: this outermost share of the tag corners (by distance from the image
+# centre), where a simpler model's held-out error is what a less stable one would correct.
+EDGE_SHARE = 0.1
+# A model is unstable at the frame's edges when its folds disagree there by more than this
+# many times the error at stake: its own held-out error, or the simpler model's at the edges.
+EDGE_FACTOR = 2.0
 # The layout is estimated with this model, then frozen while the distortion model is chosen.
 LAYOUT_MODEL = "k1"
 # What phone cameras are like, kept unless freeing it holds out clearly better:
@@ -64,17 +75,19 @@ class CalibrateConfig:
     dist_model: str = option("auto", "distortion coefficients to estimate; auto: chosen by cross-validation over "
                              "photos (the simplest model that generalises and stays plausible out to the image "
                              "corners)", choices=["auto", *DIST_MODELS])
-    folds: int = option(5, "cross-validation folds over photos for --dist-model auto", min=2)
-    select_tolerance: float = option(0.05, "--dist-model auto picks the simplest model whose held-out error is "
-                                     "within this fraction of the best, or this many pixels, whichever is larger; "
-                                     "--principal-point and --aspect auto free a constraint only when that holds "
-                                     "out better by more than this fraction", min=0)
+    folds: int = option(5, "cross-validation folds over photos for the auto choices", min=2)
+    select_tolerance: float = option(0.05, "the auto choices keep a simpler camera (a simpler distortion model, "
+                                     "a centred principal point, square pixels) when its held-out error is within "
+                                     "this fraction of the best camera's; a simpler distortion model also within "
+                                     "this many pixels", min=0)
     principal_point: str = option("auto", "centre: keep the principal point at the image centre (phone lenses are "
-                                  "nearly centred); free: fit it; auto: centred unless fitting it lowers the "
-                                  "held-out error by more than the fraction --select-tolerance",
+                                  "nearly centred); free: fit it; auto: chosen with the distortion model and the "
+                                  "aspect, centred unless fitting it lowers the held-out error by more than the "
+                                  "fraction --select-tolerance",
                                   choices=["auto", *CONSTRAINTS["principal_point"]])
-    aspect: str = option("auto", "square: fx = fy (phone pixels are square); free: fit both; auto: square unless "
-                         "fitting both lowers the held-out error by more than the fraction --select-tolerance",
+    aspect: str = option("auto", "square: fx = fy (phone pixels are square); free: fit both; auto: chosen with the "
+                         "distortion model and the principal point, square unless fitting both lowers the held-out "
+                         "error by more than the fraction --select-tolerance",
                          choices=["auto", *CONSTRAINTS["aspect"]])
     outlier_factor: float = option(3.0, "drop photos whose reprojection error exceeds this many times the median, "
                                    "then recalibrate", above=0)
@@ -146,7 +159,7 @@ def constrained_guess(K0: np.ndarray | None, size: tuple[int, int], cfg: Calibra
 
 def fit_views(views: list[tuple[str, np.ndarray, np.ndarray]], size: tuple[int, int], flags: int,
               outlier_factor: float = 3.0, K0: np.ndarray | None = None, min_views: int = 3,
-              floor_px: float = 0.5, max_rounds: int = 5) -> Fit:
+              floor_px: float = 0.5, max_rounds: int = 5, lean: bool = False) -> Fit:
     """calibrateCamera on named views, dropping outlier views and recalibrating.
 
     Args:
@@ -155,6 +168,8 @@ def fit_views(views: list[tuple[str, np.ndarray, np.ndarray]], size: tuple[int, 
         flags: cv2.CALIB_* flags; K0 (3, 3) turns on CALIB_USE_INTRINSIC_GUESS.
         outlier_factor: a view is an outlier when its RMS exceeds
             ``max(outlier_factor * median, median + floor_px)``.
+        lean: plain calibrateCamera (the same camera, about 3x faster): no per-view errors
+            (``errors`` stays empty), no standard deviations, no outlier rounds.
     """
     import cv2
 
@@ -177,6 +192,11 @@ def fit_views(views: list[tuple[str, np.ndarray, np.ndarray]], size: tuple[int, 
         if f & cv2.CALIB_FIX_ASPECT_RATIO and K0 is None:
             K_init = np.eye(3)  # aspect ratio fx/fy = 1 is then kept
         try:
+            if lean:
+                rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(objs, imgs, size, K_init, np.zeros(5), flags=f,
+                                                                 criteria=crit)
+                return Fit(K, dist.ravel()[:5].astype(np.float64), float(rms), [v[0] for v in views], list(rvecs),
+                           list(tvecs), {})
             rms, K, dist, rvecs, tvecs, std_i, _, per_view = cv2.calibrateCameraExtended(
                 objs, imgs, size, K_init, np.zeros(5), flags=f, criteria=crit)
         except cv2.error as e:
@@ -213,119 +233,243 @@ def photo_folds(views: list, n_folds: int, photo_of=lambda key: key) -> list[lis
     return [[j for j, v in enumerate(views) if fold_of[photo_of(v[0])] == f] for f in range(k)]
 
 
-def cross_validate(views: list, size: tuple[int, int], flags: int, folds: list[list[int]],
-                   K0: np.ndarray | None = None) -> tuple[float, float]:
-    """(held-out RMS px, spread px of the frame's undistortion across folds) of one model.
+def edge_radius(views: list, size: tuple[int, int], share: float | None = None) -> float:
+    """Distance (px) from the image centre beyond which lie the outermost ``share`` (default
+    :data:`EDGE_SHARE`) of the views' image points: the frame's edges as the photos show them."""
+    share = EDGE_SHARE if share is None else share
+    pts = np.concatenate([np.asarray(v[2], np.float64).reshape(-1, 2) for v in views])
+    return float(np.quantile(np.hypot(*(pts - image_centre(*size)).T), 1.0 - share))
 
-    Each fold calibrates on the other folds' views; every held-out view is then posed with
-    solvePnP using that fold's intrinsics and its points reprojected."""
-    sq, disps = [], []
+
+@dataclass
+class Validation:
+    """What k-fold cross-validation over photos says of one camera.
+
+    Attributes:
+        heldout: RMS (px) of every held-out point.
+        edge: RMS (px) of the held-out points at the photos' edges (beyond :func:`edge_radius`).
+        spread: spread (px) of the frame's undistortion across folds (:func:`~.distortion.fold_spread`).
+    """
+
+    heldout: float
+    edge: float
+    spread: float
+
+
+def validate(views: list, size: tuple[int, int], flags: int, folds: list[list[int]], K0: np.ndarray | None = None,
+             edge_px: float = float("inf")) -> Validation:
+    """Cross-validate one camera (``flags``): each fold calibrates on the other folds' views;
+    every held-out view is then posed with solvePnP using that fold's intrinsics and its
+    points reprojected. Points farther than ``edge_px`` from the image centre make the
+    edge error (nan when there are none)."""
+    sq, edge, disps = [], [], []
+    centre = image_centre(*size)
     for test in folds:
         held = set(test)
         try:
-            fit = fit_views([v for j, v in enumerate(views) if j not in held], size, flags, 0, K0)
+            fit = fit_views([v for j, v in enumerate(views) if j not in held], size, flags, 0, K0, lean=True)
         except NerfkitError:
-            return float("inf"), float("inf")
-        sq.append(heldout_errors([views[j] for j in test], fit.K, fit.dist))
+            return Validation(float("inf"), float("inf"), float("inf"))
+        tested = [views[j] for j in test]
+        e = heldout_errors(tested, fit.K, fit.dist)
+        r = np.concatenate([np.hypot(*(np.asarray(v[2], np.float64).reshape(-1, 2) - centre).T) for v in tested])
+        sq.append(e)
+        edge.append(e[r >= edge_px])
         disps.append(frame_displacement(fit.K, fit.dist, size))
-    return float(np.sqrt(np.mean(np.concatenate(sq)))), fold_spread(disps)
+    at_edge = np.concatenate(edge)
+    return Validation(float(np.sqrt(np.mean(np.concatenate(sq)))),
+                      float(np.sqrt(np.mean(at_edge))) if len(at_edge) else float("nan"), fold_spread(disps))
 
 
-def select_dist_model(views: list, size: tuple[int, int], cfg: CalibrateConfig, photo_of=lambda key: key,
-                      K0: np.ndarray | None = None) -> tuple[str, dict]:
-    """Choose the distortion model by k-fold cross-validation over photos.
+@dataclass(frozen=True)
+class Candidate:
+    """One whole camera that :func:`select_camera` tries: a distortion model, the principal
+    point ("centre" or "free") and the pixels' aspect ("square" or "free")."""
 
-    A model is eligible when its fit on all views passes :func:`distortion_check` and its
-    undistortion of the frame's corners and edge midpoints agrees across folds within
-    ``max(1 px, 2 x its held-out error)`` (otherwise the photos do not determine it at the
-    edges: it is extrapolation). The choice is the simplest eligible model whose held-out
-    error is within ``max(tol x best, tol px)`` of the best eligible one. "none" is always
-    eligible.
+    model: str
+    principal_point: str
+    aspect: str
+
+    @property
+    def name(self) -> str:
+        return f"{self.model}/{self.principal_point}/{self.aspect}"
+
+    @property
+    def params(self) -> int:
+        """How many parameters it fits beyond a centred, square camera's focal length."""
+        return DIST_PARAMS[self.model] + 2 * (self.principal_point == "free") + (self.aspect == "free")
+
+    def config(self, cfg: CalibrateConfig) -> CalibrateConfig:
+        return replace(cfg, dist_model=self.model, principal_point=self.principal_point, aspect=self.aspect)
+
+
+def candidates(cfg: CalibrateConfig) -> list[Candidate]:
+    """Every camera ``cfg`` leaves open ("auto": all values), simplest distortion model first
+    within each principal point and aspect."""
+    models = SIMPLEST_FIRST if cfg.dist_model == "auto" else (cfg.dist_model,)
+    pps = CONSTRAINTS["principal_point"] if cfg.principal_point == "auto" else (cfg.principal_point,)
+    aspects = CONSTRAINTS["aspect"] if cfg.aspect == "auto" else (cfg.aspect,)
+    return [Candidate(m, p, a) for p in pps for a in aspects for m in models]
+
+
+def edge_limit(held: float, reference: dict | None) -> float:
+    """How far (px) a camera's undistortion at the frame's edges may vary across folds:
+    :data:`EDGE_FACTOR` times the larger of its own held-out error and the held-out error at
+    the photos' edges of ``reference`` (the simpler model it would replace: what that one
+    gets wrong there, which a disagreement of the same size does not outweigh); at least
+    1 px."""
+    ref = reference["edge_heldout_rms"] if reference else None
+    return max(1.0, EDGE_FACTOR * held, EDGE_FACTOR * ref if ref is not None and np.isfinite(ref) else 0.0)
+
+
+def _rounded(x: float, nd: int = 4) -> float | None:
+    return round(float(x), nd) if np.isfinite(x) else None
+
+
+def _try_camera(cand: Candidate, views: list, size: tuple[int, int], cfg: CalibrateConfig, folds: list[list[int]],
+                K0: np.ndarray | None, edge_px: float, reference: dict | None) -> dict:
+    """The record of one candidate camera: fitted on all ``views`` and cross-validated on its
+    own, checked over the frame (:func:`~.distortion.distortion_check`) and for stability at
+    the frame's edges against ``reference`` (:func:`edge_limit`)."""
+    c = cand.config(cfg)
+    flags, K0c = calib_flags(c), constrained_guess(K0, size, c)
+    row: dict = {"name": cand.name, "dist_model": cand.model, "principal_point": cand.principal_point,
+                 "aspect": cand.aspect, "params": cand.params}
+    try:
+        full = fit_views(views, size, flags, 0, K0c, lean=True)
+    except NerfkitError as e:
+        return {**row, "heldout_rms": None, "edge_heldout_rms": None, "eligible": False,
+                "rejected": f"calibration failed ({e})", "check": {"ok": False, "reason": "calibration failed"}}
+    v = validate(views, size, flags, folds, K0c, edge_px)
+    check = distortion_check(full.K, full.dist, size)
+    limit = edge_limit(v.heldout, reference) if cand.model != "none" else float("inf")
+    rejected = "" if check["ok"] else check["reason"]
+    if not np.isfinite(v.heldout):
+        rejected = "could not be cross-validated"
+    elif not rejected and not v.spread <= limit:
+        what = (f"the larger of its held-out error and {reference['dist_model']}'s held-out error at the photos' "
+                "edges" if reference else "its held-out error")
+        rejected = (f"unstable at the frame's edges: undistortion there varies by {v.spread:.1f} px across folds "
+                    f"(> {limit:.1f} px: {EDGE_FACTOR:g} x {what}, at least 1 px)")
+    K = full.K
+    return {**row, "heldout_rms": _rounded(v.heldout), "edge_heldout_rms": _rounded(v.edge),
+            "fit_rms": round(full.rms, 4), "frame_spread_px": _rounded(v.spread, 3),
+            "edge_limit_px": _rounded(limit, 3),
+            "edge_reference": reference["name"] if reference and cand.model != "none" else None,
+            "check": check, "eligible": not rejected, "rejected": rejected or None,
+            "fx": round(float(K[0, 0]), 3), "fy": round(float(K[1, 1]), 3),
+            "cx": round(float(K[0, 2]), 3), "cy": round(float(K[1, 2]), 3),
+            "dist": [round(float(d), 6) for d in full.dist]}
+
+
+def margin(c: Candidate, d: Candidate, best_err: float, tol: float) -> float:
+    """How much worse (px) than the best camera (held-out error ``best_err``) the camera
+    ``d``, ``c`` made simpler, may hold out and still be preferred: ``tol x best_err``, or
+    ``tol`` px when larger and the step simplifies the distortion model (below a few
+    hundredths of a pixel distortion terms fit noise, while a principal point or aspect the
+    photos hold is measured by the fraction alone: on exact synthetic corners a principal
+    point 5 px off holds out at 0.044 px fitted and 0.061 centred)."""
+    m = tol * best_err
+    return max(m, tol) if DIST_PARAMS[d.model] < DIST_PARAMS[c.model] else m
+
+
+def simpler_by_one(c: Candidate, d: Candidate) -> bool:
+    """``d`` is ``c`` with one choice simpler: a simpler distortion model, the principal point
+    centred, or the pixels square (the rest the same)."""
+    same = [c.model == d.model, c.principal_point == d.principal_point, c.aspect == d.aspect]
+    if sum(same) != 2:
+        return False
+    return (DIST_PARAMS[d.model] < DIST_PARAMS[c.model] if not same[0] else
+            d.principal_point == CONSTRAINTS["principal_point"][0] if not same[1] else
+            d.aspect == CONSTRAINTS["aspect"][0])
+
+
+def simplest(best: Candidate, held: dict, tol: float) -> tuple[Candidate, list[Candidate], float]:
+    """From ``best`` (lowest held-out error among ``held``'s cameras, the eligible ones),
+    simplify one choice at a time while the simpler camera holds out within :func:`margin`
+    of ``best`` (the fewest parameters first). Returns the camera reached, the ones passed
+    through and the margin of the last step."""
+    at, last = best, 0.0
+    path: list[Candidate] = []
+    while True:
+        steps = [d for d in held if simpler_by_one(at, d) and held[d] <= held[best] + margin(at, d, held[best], tol)]
+        if not steps:
+            return at, path, last
+        path.append(at)
+        nxt = min(steps, key=lambda d: (d.params, held[d]))
+        at, last = nxt, margin(at, nxt, held[best], tol)
+
+
+def select_camera(views: list, size: tuple[int, int], cfg: CalibrateConfig, photo_of=lambda key: key,
+                  K0: np.ndarray | None = None) -> tuple[Candidate, dict]:
+    """Choose the whole camera (distortion model, principal point, aspect) by k-fold
+    cross-validation over photos, among the :func:`candidates` the config leaves open.
+
+    Each candidate is a full combination fitted and cross-validated on its own, so no
+    parameter is ever kept from a camera that was then rejected. A candidate is eligible when
+    its fit passes :func:`~.distortion.distortion_check` and its undistortion at the frame's
+    edges agrees across folds within :func:`edge_limit` of the simpler eligible model of the
+    same principal point and aspect ("none" always is). From the eligible camera with the
+    lowest held-out error, the choice is simplified one choice at a time while the simpler
+    camera holds out within :func:`margin` of that best one (:func:`simplest`). A model
+    given with --dist-model is never replaced, even when it fails the checks.
 
     Returns:
-        (model, selection): ``selection`` holds per-model held-out RMS, fit RMS, frame
-        spread, check result and coefficients, and ``why`` in words.
+        (the camera, selection): ``candidates`` holds every camera tried (held-out error,
+        edge error and spread, verdict), ``camera`` the chosen one's name; ``models``,
+        ``principal_point`` and ``aspect`` compare each choice with the others left as chosen.
     """
     folds = photo_folds(views, cfg.folds, photo_of)
-    rows: dict[str, dict] = {}
-    for model in SIMPLEST_FIRST:
-        flags = calib_flags(cfg, model)
-        try:
-            full = fit_views(views, size, flags, 0, K0)
-        except NerfkitError as e:
-            rows[model] = {"eligible": False, "rejected": f"calibration failed ({e})"}
+    edge_px = edge_radius(views, size)
+    rows: dict[Candidate, dict] = {}
+    for cand in candidates(cfg):
+        simpler = [r for c, r in rows.items() if (c.principal_point, c.aspect) == (cand.principal_point, cand.aspect)
+                   and r["eligible"]]
+        rows[cand] = _try_camera(cand, views, size, cfg, folds, K0, edge_px, simpler[-1] if simpler else None)
+    given = cfg.dist_model != "auto"
+    pool = [c for c, r in rows.items() if r["eligible"]] or (
+        [c for c, r in rows.items() if r["heldout_rms"] is not None] if given else [])
+    if not pool:
+        raise fail("calibration", "no camera model could be cross-validated on these photos",
+                   "Take more photos of the tag sheet from varied angles (tilted 20-60 degrees)")
+    held = {c: rows[c]["heldout_rms"] for c in pool}
+    best = min(pool, key=lambda c: (held[c], c.params))
+    chosen, steps, within = simplest(best, held, cfg.select_tolerance)
+    for c, r in rows.items():
+        r["chosen"] = c == chosen
+        if r["eligible"]:
+            r["verdict"] = ("chosen" if c == chosen else
+                            f"the best; simplified to {chosen.name}" if c == best else
+                            "within the margin of the best; simplified further" if c in steps else
+                            f"eligible; {held[c] - held[best]:.3f} px above the best ({best.name})")
+    passing = "passing the checks" if rows[best]["eligible"] else "tried (none passes the checks)"
+    why = (f"{chosen.name}: lowest held-out error among the cameras {passing} ({held[best]:.3f} px)"
+           if chosen == best else
+           f"{chosen.name}: the simplest camera {passing} with held-out error {held[chosen]:.3f} px, "
+           f"within {within:.3f} px of the best ({best.name}, "
+           f"{held[best]:.3f} px)")
+    method = f"{len(folds)}-fold cross-validation over photos"
+    selection: dict = {"method": "given with --dist-model" if given else method, "tolerance": cfg.select_tolerance,
+                       "chosen": chosen.model, "why": "given with --dist-model" if given else why,
+                       "camera": chosen.name, "camera_why": why, "edge_radius_px": round(edge_px, 2),
+                       "candidates": list(rows.values())}
+    # The chosen camera against each change of one of its choices.
+    selection["models"] = {c.model: rows[c] for c in rows
+                           if (c.principal_point, c.aspect) == (chosen.principal_point, chosen.aspect)}
+    def fmt(e: float | None) -> str:
+        return "-" if e is None else f"{e:.3f} px"
+
+    for name, values in CONSTRAINTS.items():
+        if getattr(cfg, name) != "auto":
+            selection[name] = {"chosen": getattr(cfg, name), "why": f"given with {flag_of(name)}"}
             continue
-        held, spread = cross_validate(views, size, flags, folds, K0)
-        check = distortion_check(full.K, full.dist, size)
-        limit = max(1.0, 2.0 * held)
-        rejected = "" if check["ok"] else check["reason"]
-        if not rejected and not spread <= limit:
-            rejected = (f"unstable at the frame's edges: undistortion there varies by {spread:.1f} px "
-                        f"across folds (> {limit:.1f} px)")
-        rows[model] = {"heldout_rms": round(held, 4), "fit_rms": round(full.rms, 4),
-                       "frame_spread_px": round(spread, 3) if np.isfinite(spread) else None,
-                       "check": check, "eligible": not rejected, "rejected": rejected or None,
-                       "fx": round(float(full.K[0, 0]), 3), "dist": [round(float(d), 6) for d in full.dist]}
-    eligible = [m for m in SIMPLEST_FIRST if rows[m]["eligible"]]
-    best = min(eligible, key=lambda m: rows[m]["heldout_rms"])
-    best_err = rows[best]["heldout_rms"]
-    tol = max(cfg.select_tolerance * best_err, cfg.select_tolerance)
-    chosen = next(m for m in eligible if rows[m]["heldout_rms"] <= best_err + tol)
-    why = (f"{chosen}: simplest model passing the checks with held-out error {rows[chosen]['heldout_rms']:.3f} px, "
-           f"within {tol:.3f} px of the best eligible ({best}, {best_err:.3f} px)")
-    if chosen == best:
-        why = f"{chosen}: lowest held-out error among the models passing the checks ({best_err:.3f} px)"
-    return chosen, {"method": f"{len(folds)}-fold cross-validation over photos", "tolerance": cfg.select_tolerance,
-                    "chosen": chosen, "why": why, "models": rows}
-
-
-def select_constraint(views: list, size: tuple[int, int], cfg: CalibrateConfig, name: str, model: str,
-                      photo_of=lambda key: key, K0: np.ndarray | None = None) -> tuple[str, dict]:
-    """Keep or free one of :data:`CONSTRAINTS` (the centred principal point, square pixels),
-    by k-fold cross-validation over photos with ``model``.
-
-    A fitted principal point trades off against the focal length and the photos' tilts, and
-    phone cameras have nearly centred lenses and square pixels; so a constraint is kept
-    unless freeing it lowers the held-out error by more than ``tol`` of the free one's error
-    (a fraction alone, unlike the models' margin: on exact synthetic corners a principal
-    point 5 px off holds out at 0.044 px fitted and 0.061 centred).
-
-    Returns:
-        (the value chosen, record): per-value held-out RMS, the model compared with, and
-        ``why`` in words.
-    """
-    kept, free = CONSTRAINTS[name]
-    folds = photo_folds(views, cfg.folds, photo_of)
-    held = {}
-    for value in (kept, free):
-        c = replace(cfg, **{name: value})
-        held[value] = cross_validate(views, size, calib_flags(c, model), folds, constrained_guess(K0, size, c))[0]
-    tol = cfg.select_tolerance * held[free]
-    chosen = kept if held[kept] <= held[free] + tol else free
-    if not np.isfinite(held[kept]) and not np.isfinite(held[free]):
-        chosen, why = free, "neither choice could be cross-validated"
-    elif chosen == kept:
-        why = (f"held out at {held[kept]:.3f} px against {held[free]:.3f} px {free}, "
-               f"within the {cfg.select_tolerance:.0%} margin")
-    else:
-        why = (f"held out at {held[free]:.3f} px against {held[kept]:.3f} px {kept}, "
-               f"more than {cfg.select_tolerance:.0%} better")
-    return chosen, {"method": f"{len(folds)}-fold cross-validation over photos", "model": model, "chosen": chosen,
-                    "why": why, "heldout_rms": {v: round(e, 4) if np.isfinite(e) else None for v, e in held.items()}}
-
-
-def explicit_model(views: list, size: tuple[int, int], cfg: CalibrateConfig, fit: Fit, photo_of=lambda key: key,
-                   K0: np.ndarray | None = None) -> dict:
-    """The selection record of the model given with --dist-model: checked over the frame and
-    cross-validated (its held-out error sets the pose error limit), but not replaced."""
-    model = cfg.dist_model
-    kept = [v for v in views if v[0] in set(fit.keys)]
-    held, spread = cross_validate(kept, size, calib_flags(cfg, model), photo_folds(kept, cfg.folds, photo_of), K0)
-    check = distortion_check(fit.K, fit.dist, size)
-    return {"method": "given with --dist-model", "chosen": model, "why": "given with --dist-model",
-            "models": {model: {"heldout_rms": round(held, 4), "fit_rms": round(fit.rms, 4),
-                               "frame_spread_px": round(spread, 3) if np.isfinite(spread) else None, "check": check,
-                               "eligible": check["ok"], "rejected": check["reason"] or None}}}
+        errs = {value: rows[replace(chosen, **{name: value})]["heldout_rms"] for value in values}
+        value = getattr(chosen, name)
+        other = next(v for v in values if v != value)
+        selection[name] = {"method": method, "model": chosen.model, "chosen": value, "heldout_rms": errs,
+                           "why": f"held out at {fmt(errs[value])} against {fmt(errs[other])} {other}, "
+                                  f"as part of the camera {chosen.name}"}
+    return chosen, selection
 
 
 # ---------------------------------------------------------------- layout estimation
@@ -522,8 +666,8 @@ class Calibration:
         std: standard deviations of fx, fy, cx, cy.
         notes: human-readable lines about what happened (outlier rounds, layout fit).
         sanity: from :func:`sanity_checks`.
-        dist_model: the distortion model used; selection: how it was chosen
-            (:func:`select_dist_model` or :func:`explicit_model`).
+        dist_model: the distortion model used; selection: how the camera was chosen
+            (:func:`select_camera`).
     """
 
     K: np.ndarray
@@ -676,27 +820,19 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
         views = _layout_sheet_views(with_tags, layout)
         if not layout.is_planar():  # calibrateCamera can only initialise from planar targets
             K0 = K_layout
-    model = cfg.dist_model
     K0 = constrained_guess(K0, size, cfg)
-    kept = views
-    auto = [name for name in CONSTRAINTS if getattr(cfg, name) == "auto"]
-    if model == "auto" or auto:
+    kept, chosen_fit = views, None
+    if "auto" in (cfg.dist_model, cfg.principal_point, cfg.aspect):
         # Outliers first (with the layout model), so they do not sway the choices.
         pre = fit_views(views, size, calib_flags(cfg, LAYOUT_MODEL), cfg.outlier_factor, K0)
         kept = [v for v in views if v[0] in set(pre.keys)]
-    choices = {name: {"chosen": getattr(cfg, name), "why": f"given with {flag_of(name)}"}
-               for name in CONSTRAINTS}
-    for name in auto:  # (in turn: the principal point with the aspect free, then the aspect)
-        value, choices[name] = select_constraint(kept, size, cfg, name, LAYOUT_MODEL if model == "auto" else model,
-                                                 photo_of, K0)
-        cfg = replace(cfg, **{name: value})
-        K0 = constrained_guess(K0, size, cfg)
-    if model == "auto":
-        model, selection = select_dist_model(kept, size, cfg, photo_of, K0)
-    fit = fit_views(views, size, calib_flags(cfg, model), cfg.outlier_factor, K0)
-    if cfg.dist_model != "auto":
-        selection = explicit_model(views, size, cfg, fit, photo_of, K0)
-    selection.update(choices)
+    else:  # nothing to choose: cross-validated on the views the camera keeps
+        chosen_fit = fit_views(views, size, calib_flags(cfg), cfg.outlier_factor, K0)
+        kept = [v for v in views if v[0] in set(chosen_fit.keys)]
+    camera, selection = select_camera(kept, size, cfg, photo_of, K0)
+    cfg, model = camera.config(cfg), camera.model
+    fit = chosen_fit or fit_views(views, size, calib_flags(cfg), cfg.outlier_factor, constrained_guess(K0, size, cfg))
+    choices = {name: selection[name] for name in CONSTRAINTS}
     if layout is not None and target == "estimated layout":
         for r in with_tags:
             if not any(int(i) in layout.tags for i in r.detection.ids):
@@ -766,7 +902,7 @@ def sanity_checks(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], rms: f
     Checks: fx/fy (phone pixels are square), principal point offset from the image centre,
     agreement with the EXIF 35 mm-equivalent focal length, RMS, parameter uncertainty,
     coverage of the image by tag corners, number of photos. ``choices`` (name -> record, as
-    :func:`select_constraint` returns) says how each of :data:`CONSTRAINTS` was decided, so
+    :func:`select_camera` records) says how each of :data:`CONSTRAINTS` was decided, so
     the advice fits: a constraint the photos freed by held-out error is not simply undone.
     """
     w, h = size

@@ -19,6 +19,12 @@ ChArUco description), or leave it out: nerfkit then estimates where the tags sit
 sheet (all tags on one flat sheet), and never treats different tags as the same points.
 Detections are cached beside the output, so re-running is quick.
 
+The camera is chosen whole by cross-validation over photos: every combination of a
+distortion model (none, k1, k1k2, k1k2p1p2, k1k2p1p2k3), a centred or fitted principal
+point and square or free pixels is fitted on its own; the camera file lists each one
+("model_selection" -> "candidates": held-out error, its error at the photos' edges, how
+much its folds disagree at the frame's edges, and the verdict) and the one chosen.
+
 example:
   nerfkit calibrate calib_photos/ --dict DICT_4X4_50 --tag-size 0.06 --out camera.json
 """
@@ -48,22 +54,27 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def selection_table(sel: dict) -> str:
-    """How the distortion model was chosen: one row per model tried."""
+    """How the camera was chosen: one row per camera tried (distortion model / principal
+    point / aspect), or per model in camera files written before cameras were chosen whole."""
     from ..capture.report import table
 
     def px(v) -> str:
         return "-" if v is None else f"{v:.3f}"
 
-    rows = [[m, px(r.get("heldout_rms")), px(r.get("fit_rms")), px(r.get("frame_spread_px")),
-             px(r.get("check", {}).get("corner_displacement_px")),
-             ("chosen" if m == sel["chosen"] else "ok") if r.get("eligible") else (r.get("rejected") or "")]
-            for m, r in sel["models"].items()]
-    heads = [f"{what} {c['chosen']}: {c['why']}" + (f" (model {c['model']})" if c.get("model") else "")
-             for name, what in (("principal_point", "principal point"), ("aspect", "pixels"))
-             if (c := sel.get(name))]
+    cands = sel.get("candidates")
+    rows = [[r.get("name", m), px(r.get("heldout_rms")), px(r.get("edge_heldout_rms")), px(r.get("fit_rms")),
+             px(r.get("frame_spread_px")), px(r.get("edge_limit_px")),
+             px((r.get("check") or {}).get("corner_displacement_px")),
+             (r.get("verdict") or ("chosen" if r.get("name", m) == sel.get("camera", sel["chosen"]) else "ok"))
+             if r.get("eligible") else (r.get("rejected") or "")]
+            for m, r in (((r["name"], r) for r in cands) if cands else sel["models"].items())]
+    heads = [f"{what} {c['chosen']}: {c['why']}" for name, what in (("principal_point", "principal point"),
+                                                                      ("aspect", "pixels")) if (c := sel.get(name))]
     heads.append(f"distortion model {sel['chosen']} ({sel['method']}): {sel['why']}")
-    return "\n".join(heads) + "\n" + table(rows, ["model", "held-out px", "fit px", "edge spread", "corner shift", "verdict"],
-                                max_width=130)
+    if sel.get("camera_why") and sel["camera_why"] != sel["why"]:
+        heads.append(f"camera {sel['camera_why']}")
+    return "\n".join(heads) + "\n" + table(rows, ["camera", "held-out px", "at edges", "fit px", "edge spread",
+                                                   "spread limit", "corner shift", "verdict"], max_width=140)
 
 
 def run(args: argparse.Namespace) -> int:
