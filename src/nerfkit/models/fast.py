@@ -9,7 +9,7 @@ volume-rendering math of :func:`~nerfkit.render.volrend.render_weights` /
 
 Speed comes from counting samples, not steps:
 
-* an occupancy grid (:mod:`nerfkit.render.occupancy`) built from an exact upper bound
+* an occupancy grid (:mod:`nerfkit.estimators.occupancy`) built from an exact upper bound
   of the density in each cell skips empty space; rays stop once their transmittance
   falls below ``early_stop_eps``;
 * coarse-to-fine growth of the grid; the box starts around the object (from the

@@ -1,4 +1,4 @@
-"""Empty-space skipping: a binary occupancy grid over a box, and ray marching through it.
+"""Empty-space skipping: ray marching through a binary occupancy grid over a box (pure functions).
 
 The estimator's contract is narrow (as in nerfacc): it never sees a model, only an
 optional ``sigma_fn(points (m, 3), ray_indices (m,)) -> (m,)`` used to stop rays early.
@@ -12,7 +12,8 @@ interval of length ``step``.
 
 Cells: the box ``[lo, lo + voxel * (res - 1)]`` is cut into ``res - 1`` cubic cells of side
 ``voxel`` per axis; a point's cell is ``floor((p - lo) / voxel)`` clamped into the box
-(:func:`nerfkit.kernels.reference.cell_of`), the same rule the fused kernels use.
+(:func:`nerfkit.render.box.cell_of`), the same rule the fused kernels use. The estimator that
+owns an occupancy grid and its refresh is :mod:`nerfkit.estimators.occupancy`.
 """
 
 from __future__ import annotations
