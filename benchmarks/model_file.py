@@ -43,7 +43,7 @@ def main() -> None:
     dtype = resolve_autocast(info.train.precision, torch.device("cpu"))
     out = {"run": args.run, "checkpoint": path.name, "grid_res": list(model.geom.res),
            "occupied_cells": model.occupied_fraction,
-           "kept_vertices": float(vertices_touching(model.occ_cells).float().mean())}
+           "kept_vertices": float(vertices_touching(model.estimator.occ).float().mean())}
     tmp = Path(tempfile.mkdtemp())
     try:
         import nerfkit.models.fast as fast

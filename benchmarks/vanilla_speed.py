@@ -87,7 +87,7 @@ def occupancy_table(run, scene, rays, batch, repeats):
         with torch.autocast("cpu", dtype=torch.bfloat16):
             for _ in range(3):  # a few refreshes: the running max settles
                 skip.update_occupancy()
-    occupied = skip.grid.occupied_fraction
+    occupied = skip.estimator.occupied_fraction
     print(f"\n# trained run {run} (step {step}), bf16, batch {batch}; occupancy grid {cfg.occupancy_res}^3, "
           f"{occupied:.1%} of cells occupied")
     print("| occupancy | samples evaluated per ray | s/step | render s/frame | val[0] PSNR |")

@@ -24,7 +24,7 @@ def sphere_npz(tmp_path_factory, sphere):
 def train_loop(model, scene, steps: int, batch: int = 1024, lr: float = 0.3, seed: int = 0,
                background=(0.0, 0.0, 0.0)):
     """The trainer's protocol, minimal: the model's schedules, the optimizer built from its
-    parameter groups (rebuilt when a job replaces parameters), a constant lr. Returns the
+    parameter groups (a job that replaces parameters swaps them into it), a constant lr. Returns the
     optimizer."""
     import torch
 
@@ -38,8 +38,7 @@ def train_loop(model, scene, steps: int, batch: int = 1024, lr: float = 0.3, see
     opt = build_optimizer(model, lr)
     schedules = model.schedules()
     for step in range(steps):
-        if run_schedules(schedules, StepState(step, step / steps, opt), phase="before_step")[0]:
-            opt = build_optimizer(model, lr)
+        run_schedules(schedules, StepState(step, step / steps, opt), phase="before_step")
         batch_ = rays.sample(batch)
         out = model.render_rays(batch_.rays, bg, perturb=True)
         loss = model.loss(out, batch_.rgb)

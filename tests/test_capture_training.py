@@ -188,7 +188,8 @@ def test_capture_run_resumes_with_its_view_corrections(tmp_path, tabletop):
 
 
 def test_object_box_holds_the_points_above_the_table_down_to_the_table():
-    from nerfkit.models.base import SceneBounds, object_box_from_points
+    from nerfkit.models.base import SceneBounds
+    from nerfkit.scene_extent import object_box_from_points
 
     rng = np.random.default_rng(0)
     table = np.array([0.0, 0.0, 1.0, 0.0])
@@ -200,7 +201,7 @@ def test_object_box_holds_the_points_above_the_table_down_to_the_table():
     assert np.all(lo > [-0.05, -0.1, -0.1]) and np.all(hi < [0.4, 0.2, 0.35])  # not the table around it
     assert object_box_from_points(np.concatenate([floor, obj[:20]]), table, np.zeros(3), 1.0) is None  # too few
     from nerfkit.capture.dataset import no_object_note
-    from nerfkit.models.base import object_points
+    from nerfkit.scene_extent import object_points
 
     above = object_points(np.concatenate([floor, obj, far]), table, np.zeros(3), 1.0)  # 3% of the radius up
     assert len(above) == int((obj[:, 2] > 0.03).sum()) and {tuple(r) for r in above} <= {tuple(r) for r in obj}
@@ -218,7 +219,7 @@ def test_object_box_holds_the_points_above_the_table_down_to_the_table():
 def test_object_box_keeps_a_thin_part_with_few_points_and_leaves_out_a_lone_stray_one():
     """steve's case: a body of 300 points and a sword reaching out with 4 points at its tip
     (1 in 150 of the points with their feet); one stray point farther out is left out."""
-    from nerfkit.models.base import object_box_from_points
+    from nerfkit.scene_extent import object_box_from_points
 
     rng = np.random.default_rng(1)
     table = np.array([0.0, 0.0, 1.0, 0.0])
@@ -421,7 +422,7 @@ def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_wh
                              table=np.array([0, 0, 1, 0], np.float32), camera_radius=4.0, object_box=box)
         model = FastNeRF(FastConfig(resolutions="31,31,41", upsample_steps="5,10", table=True, table_resolution=32,
                                     box_follows=follows), bounds)
-        lo, v = model.grid_lo.numpy(), model.voxel
+        lo, v = model.box.lo_array, model.voxel
         x, y, z = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in enumerate(model.res)), indexing="ij")
         post = (x ** 2 + y ** 2 < 0.2 ** 2) & (z < 1.0)
         sword = (x < 0) & (held_out | (x > -0.5)) & (y ** 2 + (z - 0.6) ** 2 < 0.12 ** 2)  # to the x- face
@@ -436,7 +437,7 @@ def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_wh
     def grown(model, stage=1, progress=0.3):
         model.stage = stage  # (the box follows from the second growth on, in the first half of the run)
         notes = model._grow_next(StepState(step=5 if stage == 0 else 10, progress=progress))
-        lo = model.grid_lo.numpy().astype(np.float64)
+        lo = model.box.lo_array.astype(np.float64)
         return lo, lo + model.voxel * (np.array(model.res) - 1), notes
 
     def moved_by(notes, face):
@@ -505,7 +506,7 @@ def post_on_table(scale: float = 1.0):
                          camera_radius=4.0 * scale, object_box=box)  # (not a cube)
     model = FastNeRF(FastConfig(resolutions="21", upsample_steps="", table=True, table_resolution=32,
                                 learn_background=True, room_shells=2), bounds)
-    lo, v = model.grid_lo.numpy() / scale, model.voxel / scale
+    lo, v = model.box.lo_array / scale, model.voxel / scale
     rx, ry, rz = model.res
     assert len({rx, ry, rz}) == 3  # an axis swap would show
     z, y, x = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in ((2, rz), (1, ry), (0, rx))), indexing="ij")

@@ -12,7 +12,8 @@ from nerfkit.data.synthetic import sphere_scene
 from nerfkit.kernels import numba_kernels
 from nerfkit.models import build_model
 from nerfkit.models.base import SceneBounds
-from nerfkit.models.fast import FastConfig, FastNeRF, fit_grid
+from nerfkit.models.fast import FastConfig, FastNeRF
+from nerfkit.render.box import GridBox
 from nerfkit.output.images import render_image
 from nerfkit.train.optim import build_optimizer
 
@@ -128,7 +129,7 @@ def test_sparse_growth_stores_the_vertices_near_the_object_and_renders_as_well(s
     assert sparse.grid[0, 0] == EMPTY_RAW and torch.all(sparse.grid[0, 1:] == 0)  # the shared row is untouched
     # every occupied cell has all its corners stored
     from nerfkit.models.packing import vertices_touching
-    assert torch.all(sparse.vertex_rows[vertices_touching(sparse.occ_cells)] > 0)
+    assert torch.all(sparse.vertex_rows[vertices_touching(sparse.estimator.occ)] > 0)
     assert abs(val_psnr(sparse, scene) - val_psnr(dense, scene)) < 0.5
     # vertices without storage hold no density
     empty = torch.nonzero(sparse.vertex_rows == 0)[:, 0]
@@ -187,8 +188,10 @@ def test_a_vertex_index_outside_the_grid_is_refused_before_the_kernels_see_it(sc
 
 
 def test_fit_grid_covers_the_box_with_cubic_voxels():
-    lo, voxel, res = fit_grid(np.array([-1.0, -2.0, 0.0]), np.array([1.0, 2.0, 0.5]), 40)
+    box = GridBox.fit(np.array([-1.0, -2.0, 0.0]), np.array([1.0, 2.0, 0.5]), 40)
+    lo, voxel, res = box.lo_array, box.voxel, box.res
     hi = lo + voxel * (np.array(res) - 1)
+    assert np.allclose(box.hi_array, hi) and box.cell_shape == (res[2] - 1, res[1] - 1, res[0] - 1)
     assert np.all(lo <= [-1.0, -2.0, 0.0]) and np.all(hi >= [1.0, 2.0, 0.5])
     assert 0.8 * 40 ** 3 < np.prod(res) < 1.3 * 40 ** 3
 
@@ -198,7 +201,7 @@ def test_checkpoint_round_trip_after_growth(scene, trained):
     fresh.load_extra_state(trained.extra_state())
     fresh.load_state_dict(trained.state_dict())
     assert fresh.geom.res == trained.geom.res
-    assert torch.equal(fresh.occ_cells, trained.occ_cells)
+    assert torch.equal(fresh.estimator.occ, trained.estimator.occ)
     d = torch.nn.functional.normalize(torch.randn(200, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
     rays = Rays(-4 * d, d)
     with torch.no_grad():
@@ -220,7 +223,7 @@ def test_torch_path_trains_like_the_compiled_path(scene):
     a, b = models["numba"], models["torch"]
     assert a.geom.res == b.geom.res and a.stored_vertices == b.stored_vertices < a.geom.n_vertices  # sparse
     torch.testing.assert_close(a.grid.detach(), b.grid.detach(), atol=2e-4, rtol=1e-3)
-    assert torch.equal(a.occ_cells, b.occ_cells)
+    assert torch.equal(a.estimator.occ, b.estimator.occ)
 
 
 def test_learned_background_recovers_a_grey_backdrop():

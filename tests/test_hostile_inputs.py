@@ -316,7 +316,8 @@ def first_weight(ckpt: dict) -> str:
      "weights hold NaN or inf"),
     (lambda k: k["model"].update({first_weight(k): k["model"][first_weight(k)] * float("inf")}),
      "weights hold NaN or inf"),
-    (lambda k: k["model"].update(cell_sigma=k["model"]["cell_sigma"] * float("nan")), "state holds NaN"),
+    (lambda k: k["model"].update({"estimator.cell_sigma": k["model"]["estimator.cell_sigma"] * float("nan")}),
+     "state holds NaN"),
     (lambda k: k["model"].update({first_weight(k): np.float32(0) + __import__("torch").zeros(1)}),
      "size mismatch"),
 ])

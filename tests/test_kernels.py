@@ -13,7 +13,8 @@ from nerfkit.kernels import numba_kernels
 from nerfkit.kernels import reference as ref
 from nerfkit.kernels.ops import GradSink, GridGeom, MarchSpec, cell_density_max, render_grid
 from nerfkit.kernels.optim import GridAdam
-from nerfkit.render.occupancy import OccupancyGrid, ray_aabb
+from nerfkit.estimators.occupancy import OccupancyEstimator, coarse_cells
+from nerfkit.render.box import ray_aabb
 
 needs_numba = pytest.mark.skipif(numba_kernels() is None, reason="numba not available")
 
@@ -128,9 +129,9 @@ def test_sparse_interpolation_equals_the_dense_grid_it_stands_for():
 
 
 def spec_for(grid, geom, step=0.1, coarse_factor=1, alpha_thre=1e-6, eps=1e-4, density_scale=1.0):
-    occ = OccupancyGrid(geom.lo, geom.voxel, geom.res)
+    occ = OccupancyEstimator(geom.box)
     occ.set_from_cell_sigma(cell_density_max(grid, geom, density_scale), step, alpha_thre)
-    coarse = occ.coarse(coarse_factor).to(torch.uint8).contiguous()
+    coarse = coarse_cells(occ.occ, coarse_factor).to(torch.uint8).contiguous()
     return MarchSpec(occ.occ.to(torch.uint8), coarse, coarse_factor, step, eps, density_scale), occ
 
 
@@ -393,7 +394,7 @@ def test_occupancy_kernel_matches_reference(layout):
     grid, geom = stored_as(*random_field(seed=7, res=(21, 13, 17)), layout, seed=1)
     step, dscale = 0.1, 2.0
     for alpha in (1e-3, 0.1, 0.5):
-        occ = OccupancyGrid(geom.lo, geom.voxel, geom.res)
+        occ = OccupancyEstimator(geom.box)
         occ.set_from_cell_sigma(cell_density_max(grid, geom, dscale), step, alpha)
         x = -math.log1p(-alpha) / (step * dscale)
         raw_thr = math.log(math.expm1(x))
@@ -403,7 +404,7 @@ def test_occupancy_kernel_matches_reference(layout):
         coarse = np.zeros((-(-(rz - 1) // cf), -(-(ry - 1) // cf), -(-(rx - 1) // cf)), np.uint8)
         numba_kernels().occupancy_from_grid(grid.numpy(), geom.vertex_index().numpy(), geom.row_offset(), rx, ry, rz, raw_thr, got, coarse, cf)
         assert np.array_equal(got.astype(bool), occ.occ.numpy())
-        assert np.array_equal(coarse.astype(bool), occ.coarse(cf).numpy())
+        assert np.array_equal(coarse.astype(bool), coarse_cells(occ.occ, cf).numpy())
 
 
 @needs_numba

@@ -9,7 +9,9 @@ import torch
 from nerfkit.kernels import numba_kernels
 from nerfkit.kernels import reference as ref
 from nerfkit.kernels.ops import GridGeom, MarchSpec, cell_density_max, render_grid
-from nerfkit.render.occupancy import OccupancyGrid, RaySamples, lattice, ray_aabb
+from nerfkit.estimators.occupancy import OccupancyEstimator, coarse_cells
+from nerfkit.render.box import GridBox, ray_aabb
+from nerfkit.render.occupancy import RaySamples, lattice
 from nerfkit.render.volrend import composite, render_weights
 
 
@@ -53,8 +55,8 @@ def ball_field(res=(33, 33, 33), radius=0.6):
     return grid, geom
 
 
-def render_reference(grid, geom, occ: OccupancyGrid, rays_o, rays_d, step, use_occupancy, eps=0.0):
-    """Render through OccupancyGrid.sampling + the reference field with render_weights/composite."""
+def render_reference(grid, geom, occ: OccupancyEstimator, rays_o, rays_d, step, use_occupancy, eps=0.0):
+    """Render through OccupancyEstimator.sampling + the reference field with render_weights/composite."""
     lo = geom.lo
 
     def sigma_fn(p, _ri):
@@ -85,7 +87,7 @@ def camera_rays(n=24, seed=0):
 def test_skipping_gives_the_same_image_and_never_drops_occupied_samples(alpha_thre):
     grid, geom = ball_field()
     step = 0.02
-    occ = OccupancyGrid(geom.lo, geom.voxel, geom.res)
+    occ = OccupancyEstimator(geom.box)
     occ.set_from_cell_sigma(cell_density_max(grid, geom, 5.0), step, alpha_thre)
     assert 0.05 < occ.occupied_fraction < 0.4  # most of the box is skipped
     o, d = camera_rays()
@@ -103,7 +105,7 @@ def test_skipping_gives_the_same_image_and_never_drops_occupied_samples(alpha_th
 def test_early_termination_changes_the_image_by_less_than_eps():
     grid, geom = ball_field()
     step = 0.02
-    occ = OccupancyGrid(geom.lo, geom.voxel, geom.res)
+    occ = OccupancyEstimator(geom.box)
     occ.set_from_cell_sigma(cell_density_max(grid, geom, 5.0), step, 1e-12)
     o, d = camera_rays(seed=1)
     eps = 1e-3
@@ -118,11 +120,13 @@ def test_early_termination_changes_the_image_by_less_than_eps():
 def test_coarse_occupancy_is_the_block_maximum():
     g = torch.Generator().manual_seed(0)
     cells = (torch.rand((5, 7, 9), generator=g) < 0.05).to(torch.uint8)  # (the kernels' uint8 cells)
-    occ = OccupancyGrid(torch.zeros(3), 1.0, (10, 8, 6), occ=cells)
-    assert occ.occ.dtype == torch.bool and torch.equal(occ.occ, cells.bool())
+    occ = OccupancyEstimator(GridBox((0, 0, 0), 1.0, (10, 8, 6)), coarse_factor=4)
+    occ.set_cells(cells)
+    assert occ.occ.dtype == torch.uint8 and torch.equal(occ.occ, cells)
     with pytest.raises(ValueError, match="expected"):
-        OccupancyGrid(torch.zeros(3), 1.0, (10, 8, 7), occ=cells)
-    c = occ.coarse(4)
+        OccupancyEstimator(GridBox((0, 0, 0), 1.0, (10, 8, 7))).set_cells(cells)
+    c = coarse_cells(occ.occ, 4)
+    assert torch.equal(occ.coarse, c.to(torch.uint8))
     assert c.shape == (2, 2, 3)
     for z in range(2):
         for y in range(2):
@@ -135,13 +139,13 @@ def test_coarse_occupancy_is_the_block_maximum():
 @pytest.mark.parametrize("coarse_factor", [1, 3, 8])
 def test_compiled_marcher_visits_exactly_the_reference_samples(coarse_factor):
     """The fused kernel leaps over empty cells and blocks; it must keep the same samples
-    as the plain lattice walk of OccupancyGrid.sampling (no early stop: eps = 0)."""
+    as the plain lattice walk of OccupancyEstimator.sampling (no early stop: eps = 0)."""
     grid, geom = ball_field(res=(41, 29, 35), radius=0.5)
     grid = grid.float()
     step = 0.013
-    occ = OccupancyGrid(geom.lo.float(), geom.voxel, geom.res)
+    occ = OccupancyEstimator(geom.box)
     occ.set_from_cell_sigma(cell_density_max(grid, geom, 5.0), step, 1e-6)
-    spec = MarchSpec(occ.occ.to(torch.uint8), occ.coarse(coarse_factor).to(torch.uint8).contiguous(),
+    spec = MarchSpec(occ.occ.to(torch.uint8), coarse_cells(occ.occ, coarse_factor).to(torch.uint8).contiguous(),
                      coarse_factor, step, 0.0, 5.0)
     o, d = camera_rays(n=30, seed=2)
     g32 = GridGeom(geom.lo.float(), geom.voxel, geom.res)

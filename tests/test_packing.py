@@ -86,15 +86,15 @@ def test_compact_model_file_renders_like_the_model(tmp_path, trained):
     dense_dir.mkdir(), compact_dir.mkdir()
     save_model(dense_dir, 80, model, compact=False)
     save_model(compact_dir, 80, model)
-    kept = float(vertices_touching(model.occ_cells).float().mean())
+    kept = float(vertices_touching(model.estimator.occ).float().mean())
     dense_size, compact_size = (dense_dir / MODEL_FILE).stat().st_size, (compact_dir / MODEL_FILE).stat().st_size
     grid_bytes = model.grid.numel() * 4
     # the grid shrinks to the kept fraction at 2 bytes a value (+ 1 bit a vertex); the rest is unchanged
     assert compact_size < dense_size - grid_bytes * (1 - kept / 2) + model.geom.n_vertices / 8 + 4096
     compact = _reload(compact_dir, scene)
     dense = _reload(dense_dir, scene)
-    assert torch.equal(compact.occ_cells, model.occ_cells) and compact.geom.res == model.geom.res
-    touching = vertices_touching(model.occ_cells)
+    assert torch.equal(compact.estimator.occ, model.estimator.occ) and compact.geom.res == model.geom.res
+    touching = vertices_touching(model.estimator.occ)
     assert torch.all(compact.vertex_rows[~touching] == 0) and torch.all(compact.vertex_rows[touching] > 0)
     assert compact.stored_vertices == int(touching.sum()) < model.stored_vertices  # only what renders is kept
     assert torch.all(compact.grid[0, 0] == EMPTY_RAW) and torch.all(compact.grid[0, 1:] == 0)

@@ -64,7 +64,7 @@ def _activation_dtypes(tmp_path, sphere, precision: str) -> tuple[set, torch.Ten
     seen = []
     trainer.model.coarse.layers[0].register_forward_hook(lambda m, i, out: seen.append((out.dtype, len(out))))
     trainer.train_step()
-    return seen, trainer.model.cell_sigma
+    return seen, trainer.model.estimator.cell_sigma
 
 
 @pytest.mark.parametrize("precision,dtype", [("fp32", torch.float32), ("bf16", torch.bfloat16)])

@@ -198,13 +198,13 @@ def test_vanilla_occupancy_skipping_keeps_the_image_and_saves_samples(tmp_path, 
     from nerfkit.train.checkpoint import load_run
 
     model, _, _ = load_run(tmp_path / "run")
-    assert 0.02 < model.grid.occupied_fraction < 0.5  # the sphere fills ~7% of its box
+    assert 0.02 < model.estimator.occupied_fraction < 0.5  # the sphere fills ~7% of its box
     v = sphere.val
     bg = torch.zeros(3)
     skipped = render_image(model, v.K[0], v.c2w[0], v.width, v.height, bg)
-    grid, model.grid = model.grid, None  # the same network, every sample evaluated
+    estimator, model.estimator = model.estimator, None  # the same network, every sample evaluated
     full = render_image(model, v.K[0], v.c2w[0], v.width, v.height, bg)
-    model.grid = grid
+    model.estimator = estimator
     # skipping drops only faint haze (alpha < 1% per sample): close images, no loss in accuracy
     from nerfkit.train.metrics import psnr
 
@@ -352,30 +352,29 @@ def test_a_run_ending_before_the_occupancy_warmup_measures_it_for_the_final_eval
     cfg = small_cfg(tmp_path, steps=50, eval_views=1)
     trainer = Trainer(sphere, cfg, VanillaConfig(n_samples=16, width=16, depth=2, occupancy_res=16), quiet=True)
     model = trainer.model
-    assert torch.isinf(model.cell_sigma).all()  # warm-up (200 steps) not reached
+    assert torch.isinf(model.estimator.cell_sigma).all()  # warm-up (200 steps) not reached
     for _ in range(20):
         trainer.train_step()
     rng = torch.get_rng_state()
     trainer.step = cfg.steps
     trainer._record_eval()  # the final evaluation
     assert torch.equal(torch.get_rng_state(), rng)  # training's random streams untouched
-    assert torch.isfinite(model.cell_sigma).all() and model.grid.occupied_fraction < 1.0
-    measured = model.cell_sigma.clone()
+    assert torch.isfinite(model.estimator.cell_sigma).all() and model.estimator.occupied_fraction < 1.0
+    measured = model.estimator.cell_sigma.clone()
     model.finish_training()  # once only
-    assert torch.equal(model.cell_sigma, measured)
+    assert torch.equal(model.estimator.cell_sigma, measured)
 
 
-def test_schedules_run_in_their_phase_in_order_and_report_replaced_parameters():
+def test_schedules_run_in_their_phase_in_order_and_report_their_notes():
     from nerfkit.models.base import Schedule, StepState, run_schedules
 
     ran = []
-    jobs = [Schedule("a", lambda s: s.step % 2 == 0, lambda s: ran.append(("a", s.step)) or "grew",
-                     replaces_parameters=True),
+    jobs = [Schedule("a", lambda s: s.step % 2 == 0, lambda s: ran.append(("a", s.step)) or "grew"),
             Schedule("b", lambda s: True, lambda s: ran.append(("b", s.step)), phase="after_step"),
             Schedule("c", lambda s: s.progress > 0.5, lambda s: ran.append(("c", s.step)))]
-    assert run_schedules(jobs, StepState(0, 0.0), phase="before_step") == (True, ["grew"])
-    assert run_schedules(jobs, StepState(0, 0.0), phase="after_step") == (False, [])
-    assert run_schedules(jobs, StepState(1, 0.9), phase="before_step") == (False, [])
+    assert run_schedules(jobs, StepState(0, 0.0), phase="before_step") == ["grew"]
+    assert run_schedules(jobs, StepState(0, 0.0), phase="after_step") == []
+    assert run_schedules(jobs, StepState(1, 0.9), phase="before_step") == []
     assert ran == [("a", 0), ("b", 0), ("c", 1)]
 
 

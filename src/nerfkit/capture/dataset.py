@@ -36,7 +36,7 @@ from ..errors import advice, fail
 from ..images import common_size
 from ..io.atomic import write_json
 from ..io.paths import resolve_inside
-from ..models.base import MIN_OBJECT_POINTS, object_points, sphere_radius
+from ..scene_extent import MIN_OBJECT_POINTS, object_points, sphere_radius
 from .camera import Camera, camera_from_dict, nerfkit_K
 from .poses import UP, PosedPhoto
 from .undistort import make_undistorter, output_size, resize_K_nerfkit

@@ -26,6 +26,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..render.box import GridBox
+from ..render.occupancy import occupied_samples
 from . import numba_kernels
 from . import reference as ref
 
@@ -70,6 +72,16 @@ class GridGeom:
         if self.index is not None:
             return self.index
         return torch.arange(self.n_vertices, dtype=torch.int32, device=self.lo.device)
+
+    @staticmethod
+    def of(box: GridBox, index: Tensor | None = None, device=None, dense_offset: int | None = None) -> "GridGeom":
+        """The layout of a grid over ``box`` (its corner as a float32 tensor on ``device``)."""
+        return GridGeom(box.lo_tensor(device), box.voxel, box.res, index, dense_offset=dense_offset)
+
+    @property
+    def box(self) -> GridBox:
+        """The grid's :class:`GridBox` (corner rounded to float32, as the occupancy reads it)."""
+        return GridBox(tuple(self.lo.detach().float().cpu().tolist()), self.voxel, self.res)
 
     @property
     def n_vertices(self) -> int:
@@ -403,9 +415,6 @@ def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0,
                       t_end: Tensor | None = None) -> GridRender:
     """The pure-torch path of :func:`render_grid`: autograd gives the grid a dense grad and
     the rays (``rays_o``, ``rays_d``, ``sh``) their gradients with the sample ``t`` fixed."""
-    from ..render.occupancy import OccupancyGrid
-
-    occ = OccupancyGrid(geom.lo, geom.voxel, geom.res, device=grid.device, occ=spec.occ)
     dtype = rays_o.dtype
     lo = geom.lo.to(grid.device, dtype)
 
@@ -416,8 +425,7 @@ def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0,
 
     # sampling runs under no_grad, so the lattice t are constants (as in nerfacc and the
     # compiled backward): rays get gradients only through the points o + t d and the SH basis
-    samples = occ.sampling(rays_o, rays_d, 0.0, math.inf, spec.step, sigma_fn=sigma_fn, early_stop_eps=spec.eps,
-                           u=u, t_bounds=(t0, t1))
+    samples = occupied_samples(spec.occ, geom.box, rays_o, rays_d, t0, t1, u, spec.step, sigma_fn, spec.eps)
     rgb, depth, acc, dist = ref.render_samples(grid, geom.res, lo, geom.voxel, rays_o, rays_d, sh.to(grid.dtype),
                                                samples.t, samples.ray_indices, spec.step, spec.density_scale,
                                                t_end, spec.grad_near, geom.index)

@@ -43,6 +43,12 @@ class GridAdam(torch.optim.Optimizer):
     def sink_of(self, p: Tensor) -> GradSink | None:
         return self._sinks.get(id(p))
 
+    def set_sink(self, old: Tensor, new: Tensor, sink: GradSink | None) -> None:
+        """``new`` replaces ``old``: it gathers its gradients in ``sink`` (None: in ``.grad``)."""
+        self._sinks.pop(id(old), None)
+        if sink is not None:
+            self._sinks[id(new)] = sink
+
     def zero_grad(self, set_to_none: bool = True) -> None:
         super().zero_grad(set_to_none=set_to_none)
         for sink in self._sinks.values():
@@ -110,3 +116,38 @@ class GridAdam(torch.optim.Optimizer):
         state["exp_avg_sq"].mul_(beta2).addcmul_(g, g, value=1 - beta2)
         denom = (state["exp_avg_sq"] / (1 - beta2 ** step)).sqrt_().add_(group["eps"])
         p.addcdiv_(state["exp_avg"], denom, value=-group["lr"] / (1 - beta1 ** step))
+
+
+def replace_param(optimizer: torch.optim.Optimizer, old: Tensor, new: Tensor, rows: Tensor | None = None,
+                  sink: GradSink | None = None) -> None:
+    """Put parameter ``new`` in the place of ``old`` in ``optimizer``, in place: every other
+    parameter keeps its Adam moments (and the groups their learning rates).
+
+    Args:
+        rows: (len(new),) long, for a parameter whose rows were edited (Gaussians added or
+            pruned): the row of ``old`` each row of ``new`` continues, whose moments it
+            takes; -1 for a new row (moments zero). None: ``new`` starts afresh (no state:
+            zero moments, step count 0), as a resampled grid does.
+        sink: the :class:`GradSink` ``new`` gathers its gradients in (a :class:`GridAdam`
+            parameter), or None.
+
+    Example: rows ``[0, 2, -1]`` keeps old rows 0 and 2 and appends one new row.
+    """
+    for group in optimizer.param_groups:
+        at = [i for i, p in enumerate(group["params"]) if p is old]
+        if at:
+            group["params"][at[0]] = new
+            break
+    else:
+        raise ValueError("replace_param: the parameter is not in the optimizer")
+    state = optimizer.state.pop(old, None)
+    if state and rows is not None:
+        src = rows >= 0
+        for key in ("exp_avg", "exp_avg_sq"):
+            moment = state[key]
+            carried = moment.new_zeros((len(rows), *moment.shape[1:]))
+            carried[src] = moment[rows[src]]
+            state[key] = carried
+        optimizer.state[new] = state
+    if isinstance(optimizer, GridAdam):
+        optimizer.set_sink(old, new, sink)

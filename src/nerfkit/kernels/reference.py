@@ -22,6 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from ..render.box import cell_of, grid_coords  # noqa: F401  (re-exported: the kernels' reference rules)
 from ..render.volrend import composite, distortion, render_weights
 
 # Real spherical-harmonic constants (as in Plenoxels / instant-ngp).
@@ -55,24 +56,6 @@ def sh_basis(dirs: Tensor, degree: int) -> Tensor:
         out += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2 * z * z - x * x - y * y),
                 SH_C2[3] * x * z, SH_C2[4] * (x * x - y * y)]
     return torch.stack(out, dim=-1)
-
-
-def grid_coords(points: Tensor, lo: Tensor, voxel: float) -> Tensor:
-    """World points (n, 3) -> continuous grid coordinates (n, 3): ``(p - lo) / voxel``."""
-    return (points - lo) / voxel
-
-
-def cell_of(g: Tensor, res: tuple[int, int, int]) -> Tensor:
-    """The cell (n, 3) long ``(ix, iy, iz)`` holding grid coordinates ``g`` (n, 3).
-
-    Coordinates are clamped into the box first, so every point has a cell in
-    ``[0, res - 2]`` per axis. The same rule picks the trilinear base vertex and the
-    occupancy cell, in both the reference and the compiled kernels.
-    """
-    hi = torch.tensor([r - 1 for r in res], dtype=g.dtype, device=g.device)
-    gc = torch.minimum(torch.clamp(g, min=0.0), hi)
-    i0 = torch.minimum(torch.floor(gc), hi - 1)
-    return i0.long()
 
 
 def trilinear_corners(g: Tensor, res: tuple[int, int, int]) -> tuple[Tensor, Tensor]:

@@ -15,6 +15,7 @@ from torch import Tensor, nn
 
 from ..cameras import Rays, mean_camera
 from ..render.ndc import NdcSpace
+from ..scene_extent import object_box_from_points, sphere_radius
 
 
 @dataclass
@@ -97,57 +98,6 @@ class SceneBounds:
                            None if d.get("ndc") is None else NdcSpace.from_dict(d["ndc"]),
                            None if d.get("floor") is None else np.asarray(d["floor"], np.float32),
                            None if d.get("tags") is None else np.asarray(d["tags"], np.float32))
-
-
-def sphere_radius(scene) -> float:
-    """Radius of a sphere about the scene's centre that holds the object: the object lies
-    between near and far of every camera, so it is at most half that depth range, and no
-    larger than the mean camera distance minus near."""
-    dist = float(np.mean(np.linalg.norm(scene.train.c2w[:, :3, 3] - scene.center, axis=1)))
-    return max(min(0.5 * (scene.far - scene.near), dist - scene.near), 1e-3)
-
-
-# fewer sparse points than this standing on a capture's table give no object box
-MIN_OBJECT_POINTS = 30
-
-
-def object_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float,
-                  lift: float = 0.03) -> np.ndarray:
-    """The sparse points (m, 3) of an object standing on a table: those within ``radius``
-    of ``center`` and higher than ``lift x radius`` above the table (``table``: ``(n, d)``;
-    points on it are texture, not object). (k, 3) float64."""
-    p = np.asarray(points, np.float64)
-    n, d = np.asarray(table[:3], np.float64), float(table[3])
-    height = p @ n + d
-    return p[(np.linalg.norm(p - np.asarray(center, np.float64), axis=1) < radius) & (height > lift * radius)]
-
-
-# the share of an object's sparse points (with their feet) an object box may leave out on
-# each side of each axis: a thin part has few points (steve's sword: 4 of 634), and 2%
-# cut it off; 0.5% keeps it (BENCHMARKS.md, session 34)
-OBJECT_BOX_QUANTILE = 0.005
-
-
-def object_box_from_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float,
-                           min_points: int = MIN_OBJECT_POINTS, lift: float = 0.03, pad: float = 0.15,
-                           quantile: float = OBJECT_BOX_QUANTILE) -> tuple | None:
-    """An axis-aligned box ``(lo, hi)`` around an object standing on a table, from its
-    sparse points (:func:`object_points`) with their feet on the table, from the
-    ``quantile`` to the ``1 - quantile`` quantile per axis, padded by ``pad`` of its size
-    plus 5% of ``radius``; kept inside the sphere's box. None with fewer than
-    ``min_points`` object points (the sphere's box is used then).
-    """
-    obj = object_points(points, table, center, radius, lift)
-    if len(obj) < min_points:
-        return None
-    n, d = np.asarray(table[:3], np.float64), float(table[3])
-    c = np.asarray(center, np.float64)
-    feet = obj - np.outer(obj @ n + d, n)
-    both = np.concatenate([obj, feet])
-    lo, hi = np.quantile(both, quantile, axis=0), np.quantile(both, 1 - quantile, axis=0)
-    margin = pad * (hi - lo) + 0.05 * radius
-    lo, hi = np.maximum(lo - margin, c - radius), np.minimum(hi + margin, c + radius)
-    return lo.astype(np.float32), hi.astype(np.float32)
 
 
 # Charbonnier's epsilon (mip-NeRF 360's): below ~1e-3 of a colour step the loss is quadratic
@@ -237,31 +187,31 @@ class Schedule:
             backward pass, before the optimizer update: a job that adds gradients of its
             own, as Plenoxels' in-place total variation) or ``after_step`` (after the
             update).
-        replaces_parameters: the job installs new parameter tensors; the trainer then
-            builds a new optimizer (their Adam moments start at zero).
+
+    A job that installs new parameter tensors swaps them into ``StepState.optimizer``
+    itself (:func:`~nerfkit.kernels.optim.replace_param`), so every other parameter keeps
+    its Adam moments.
     """
 
     name: str
     due: Callable[[StepState], bool]
     run: Callable[[StepState], str | None]
     phase: str = "before_step"
-    replaces_parameters: bool = False
 
     def __post_init__(self):
         if self.phase not in PHASES:
             raise ValueError(f"schedule {self.name!r}: phase {self.phase!r} is not one of {PHASES}")
 
 
-def run_schedules(schedules: list[Schedule], state: StepState, phase: str) -> tuple[bool, list[str]]:
-    """Run the due jobs of one phase, in order: ``(whether parameters were replaced, log lines)``."""
-    replaced, notes = False, []
+def run_schedules(schedules: list[Schedule], state: StepState, phase: str) -> list[str]:
+    """Run the due jobs of one phase, in order; returns their log lines."""
+    notes = []
     for job in schedules:
         if job.phase == phase and job.due(state):
             note = job.run(state)
-            replaced = replaced or job.replaces_parameters
             if note:
                 notes.append(note)
-    return replaced, notes
+    return notes
 
 
 class NerfModel(nn.Module):
@@ -275,6 +225,10 @@ class NerfModel(nn.Module):
     A model's ``state_dict`` must be loadable into a freshly built model of the same
     config (models that grow their grids resize themselves in ``load_state_dict``).
     """
+
+    # the model renders whole views (splat): the trainer draws one training view per step
+    # (no ray batches, no pose refinement, no sight lines)
+    whole_images: bool = False
 
     def __init__(self, bounds: SceneBounds):
         super().__init__()
@@ -304,6 +258,25 @@ class NerfModel(nn.Module):
     def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
         """Photometric MSE; models add their own terms (coarse network, regularisers)."""
         return rgb_loss(out.rgb, target_rgb)
+
+    def init_from_scene(self, scene, background: Tensor) -> str | None:
+        """Start a new run's parameters from the dataset (e.g. Gaussians at its sparse
+        points); returns a note for the training log, or None. Default: nothing to do."""
+        return None
+
+    @property
+    def uses_sight_lines(self) -> bool:
+        """Whether the model scores the sparse points' sight lines (:meth:`sight_loss`)."""
+        return False
+
+    def sight_loss(self, rays: Rays, distance: Tensor) -> Tensor | None:
+        """The loss of sight lines ``rays`` (unit directions) to points ``distance`` (n,)
+        along them, or None when the model takes none (the default)."""
+        return None
+
+    def sight_spread(self) -> float:
+        """How far beside its point a drawn sight line may aim (world units)."""
+        return 0.0
 
     def param_groups(self, lr: float) -> list[dict]:
         """Optimizer parameter groups (with their own ``lr``, and ``eps`` where it differs

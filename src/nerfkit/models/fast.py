@@ -9,7 +9,7 @@ volume-rendering math of :func:`~nerfkit.render.volrend.render_weights` /
 
 Speed comes from counting samples, not steps:
 
-* an occupancy grid (:mod:`nerfkit.render.occupancy`) built from an exact upper bound
+* an occupancy grid (:mod:`nerfkit.estimators.occupancy`) built from an exact upper bound
   of the density in each cell skips empty space; rays stop once their transmittance
   falls below ``early_stop_eps``;
 * coarse-to-fine growth of the grid; the box starts around the object (from the
@@ -58,8 +58,10 @@ from ..errors import fail
 from ..fields.background import RoomShells, TablePlane, composite_layers, layers_depth, sh16, table_doubt
 from ..kernels import numba_kernels
 from ..kernels import reference as ref
+from ..kernels.optim import replace_param
 from ..kernels.ops import GradSink, GridGeom, MarchSpec, add_grid_tv, cell_density_max, render_grid, row_vertices
-from ..render.occupancy import OccupancyGrid, ray_aabb
+from ..estimators.occupancy import OccupancyEstimator, RefreshRule
+from ..render.box import GridBox, ray_aabb
 from ..render.volrend import sight_line_loss
 from ..tabletop import TABLE_CUT, around_object, faces_reached, heights, table_cut_height
 from .packing import pack_grid, unpack_grid, vertices_touching
@@ -109,19 +111,6 @@ def check_grid_res(res, where: str, field: str, fix: str) -> tuple[int, int, int
     return int(res[0]), int(res[1]), int(res[2])
 
 
-def fit_grid(lo: np.ndarray, hi: np.ndarray, size: int) -> tuple[np.ndarray, float, tuple[int, int, int]]:
-    """A grid of about ``size ** 3`` vertices with cubic voxels covering the box ``[lo, hi]``.
-
-    Returns ``(lo, voxel, res)``; the grid is centred on the box and covers it.
-    """
-    ext = np.maximum(hi - lo, 1e-6)
-    voxel = float(np.cbrt(np.prod(ext)) / max(size - 1, 1))
-    res = np.maximum(np.ceil(ext / voxel - 1e-6).astype(int) + 1, 2)
-    center = 0.5 * (lo + hi)
-    new_lo = center - 0.5 * voxel * (res - 1)
-    return new_lo.astype(np.float32), voxel, (int(res[0]), int(res[1]), int(res[2]))
-
-
 class FastNeRF(NerfModel):
     """Grid field + occupancy grid + fused kernels (see the module docstring)."""
 
@@ -146,14 +135,18 @@ class FastNeRF(NerfModel):
             box = (np.array([-e, -e, -1.0], np.float32), np.array([e, e, 1.0], np.float32))
         elif config.object_box and bounds.object_box is not None:
             box = bounds.object_box
-        lo, voxel, res = fit_grid(box[0], box[1], self.sizes[0])
+        grid_box = GridBox.fit(box[0], box[1], self.sizes[0])
         # densities are in units of the first stage's voxel: sigma = softplus(raw) / voxel0
-        self.density_scale = 1.0 / voxel
+        self.density_scale = 1.0 / grid_box.voxel
         self.stage = 0
-        self.occ_active = False
-        n = res[0] * res[1] * res[2]
-        self._set_geometry(lo, voxel, res, torch.arange(1, n + 1, dtype=torch.int32))
-        raw0 = self._raw_for_alpha(config.init_alpha, config.step_ratio * voxel)
+        n = grid_box.n_vertices
+        # the occupancy grid (saved with the model, so that a resumed run samples as the
+        # uninterrupted one would), refreshed after every occ_start steps until occ_warmup,
+        # then every occ_every
+        self.estimator = OccupancyEstimator(grid_box, RefreshRule(config.occ_start, config.occ_every, config.occ_start,
+                                                                  config.occ_warmup), config.coarse_factor)
+        self._set_geometry(grid_box, torch.arange(1, n + 1, dtype=torch.int32))
+        raw0 = self._raw_for_alpha(config.init_alpha, config.step_ratio * grid_box.voxel)
         grid = self._empty_rows(n + 1)
         grid[1:, 0] = raw0
         self.grid = nn.Parameter(grid)
@@ -180,29 +173,29 @@ class FastNeRF(NerfModel):
         self.register_buffer("surface_count", torch.zeros((), dtype=torch.long))
 
     # -- geometry --------------------------------------------------------------------
-    def _set_geometry(self, lo, voxel: float, res: tuple[int, int, int], index: Tensor) -> None:
-        """Install the grid's box, voxel and vertex counts, and ``index`` (N,) int32: the
-        feature row of each vertex (0: not stored)."""
+    def _set_geometry(self, box: GridBox, index: Tensor) -> None:
+        """Install the grid's box and ``index`` (N,) int32: the feature row of each vertex
+        (0: not stored). The occupancy moves to the box with every cell occupied."""
         device = self.grid.device if hasattr(self, "grid") else torch.device("cpu")
         self.register_buffer("vertex_rows", index.to(device=device, dtype=torch.int32).contiguous())
-        # (restored from extra_state, not the state dict: old checkpoints have no such entry)
-        self.register_buffer("grid_lo", torch.as_tensor(np.asarray(lo), dtype=torch.float32, device=device).reshape(3),
-                             persistent=False)
-        self.voxel = float(voxel)
-        self.res = tuple(int(r) for r in res)
-        self._row_offset = GridGeom(self.grid_lo, self.voxel, self.res, self.vertex_rows).row_offset()
-        self.step_size = self.config.step_ratio * self.voxel
-        rx, ry, rz = self.res
-        # the occupancy grid is saved with the model so that a resumed run samples as the
-        # uninterrupted one would
-        self.register_buffer("occ_cells", torch.ones((rz - 1, ry - 1, rx - 1), dtype=torch.uint8, device=device))
-        self.register_buffer("occ_coarse", torch.ones(1, dtype=torch.uint8, device=device), persistent=False)
-        self._set_occupancy(self.occ_cells)
+        self.box = box
+        self.estimator.set_box(box)
+        self._row_offset = GridGeom(self.estimator.lo, box.voxel, box.res, self.vertex_rows).row_offset()
+        self.step_size = self.config.step_ratio * box.voxel
+
+    @property
+    def voxel(self) -> float:
+        return self.box.voxel
+
+    @property
+    def res(self) -> tuple[int, int, int]:
+        return self.box.res
 
     @property
     def geom(self) -> GridGeom:
-        """The grid's geometry (box corner, voxel, vertex counts, vertex rows), on the grid's device."""
-        return GridGeom(self.grid_lo, self.voxel, self.res, self.vertex_rows, dense_offset=self._row_offset)
+        """The grid's layout (its box's corner on the grid's device, vertex rows)."""
+        return GridGeom(self.estimator.lo, self.box.voxel, self.box.res, self.vertex_rows,
+                        dense_offset=self._row_offset)
 
     def _empty_rows(self, n: int, device=None) -> Tensor:
         """(n, C) rows of no density and no colour (row 0 of the grid is one forever)."""
@@ -235,26 +228,18 @@ class FastNeRF(NerfModel):
             return "torch"
         return "numba"
 
-    def _set_occupancy(self, occ: Tensor, coarse: Tensor | None = None) -> None:
-        """Install a cell occupancy (rz-1, ry-1, rx-1) uint8 (and its block max-pool)."""
-        self.occ_cells = occ.to(torch.uint8).contiguous()
-        if coarse is None:
-            grid = OccupancyGrid(self.grid_lo, self.voxel, self.res, occ.device, self.occ_cells)
-            coarse = grid.coarse(self.config.coarse_factor)
-        self.occ_coarse = coarse.to(torch.uint8).contiguous()
-
     @property
-    def occupancy(self) -> OccupancyGrid:
-        """The current occupancy grid (a snapshot, for inspection and other samplers)."""
-        return OccupancyGrid(self.grid_lo, self.voxel, self.res, self.occ_cells.device, self.occ_cells)
+    def occupancy(self) -> OccupancyEstimator:
+        """The occupancy estimator (for inspection and other samplers)."""
+        return self.estimator
 
     @property
     def occupied_fraction(self) -> float:
-        return float(self.occ_cells.float().mean())
+        return self.estimator.occupied_fraction
 
     def _spec(self) -> MarchSpec:
-        return MarchSpec(self.occ_cells, self.occ_coarse, self.config.coarse_factor, self.step_size,
-                         self.config.early_stop_eps, self.density_scale, self.config.near_grad * self.bounds.reach)
+        return self.estimator.march_spec(self.step_size, self.config.early_stop_eps, self.density_scale,
+                                         self.config.near_grad * self.bounds.reach)
 
     def _texture_sinks(self, device) -> dict:
         """A one-lane gradient sink per table and room texture (its optimizer updates touched
@@ -406,6 +391,10 @@ class FastNeRF(NerfModel):
             loss = loss + weight / self.bounds.radius * out.extras["distortion"].float().mean()
         return loss
 
+    @property
+    def uses_sight_lines(self) -> bool:
+        return (self.config.points_weight or 0.0) > 0
+
     def sight_loss(self, rays: Rays, distance: Tensor) -> Tensor | None:
         """The sparse points' sight lines in the loss: :func:`sight_line_loss` of
         :meth:`sight_opacities`, weighted by ``--points-weight``; None when it takes no
@@ -485,10 +474,10 @@ class FastNeRF(NerfModel):
         where opaque rays ended (until the first growth, which shrinks the box around
         them) and occupancy refreshes (every ``occ_start`` steps until ``occ_warmup``, then
         every ``occ_every``)."""
-        return [Schedule("grow", self._growth_due, self._grow_next, replaces_parameters=True),
+        return [Schedule("grow", self._growth_due, self._grow_next),
                 Schedule("total variation", lambda s: self.tv_weights().any(), self._add_tv, phase="gradients"),
                 Schedule("remember surfaces", self._surface_due, self._remember_surface, phase="after_step"),
-                Schedule("occupancy", self._occupancy_due, self._occupancy_job, phase="after_step"),
+                Schedule("occupancy", lambda s: True, self._occupancy_job, phase="after_step"),
                 Schedule("table cover prior", lambda s: bool(self.config.table_cover_weight), self._switch_cover_prior)]
 
     def _switch_cover_prior(self, s: StepState) -> None:
@@ -507,7 +496,7 @@ class FastNeRF(NerfModel):
             follow = (self.config.box_follows and self.stage > 0 and s.progress < BOX_FOLLOW_UNTIL
                       and self.table is not None and self.ndc is None)
             notes += self._grow(self.sizes[self.stage + 1], shrink=self.config.shrink_box and self.stage == 0,
-                                follow=follow)
+                                follow=follow, optimizer=s.optimizer)
             self.stage += 1
         return "; ".join([self.stage_note(), *notes])
 
@@ -518,14 +507,8 @@ class FastNeRF(NerfModel):
         return (f"grid {rx}x{ry}x{rz} vertices, {m / 1e6:.2f} M of {n / 1e6:.2f} M stored ({100 * m / n:.0f}%, "
                 f"{mb:.0f} MB; {(2 + self.sink.lanes) * mb:.0f} MB more for Adam and gradients)")
 
-    def _occupancy_due(self, s: StepState) -> bool:
-        done, c = s.step + 1, self.config
-        every = c.occ_start if done <= c.occ_warmup else c.occ_every
-        return done >= c.occ_start and done % max(every, 1) == 0
-
     def _occupancy_job(self, s: StepState) -> None:
-        self.occ_active = True
-        self.refresh_occupancy()
+        self.estimator.update_every_n_steps(s.step + 1, self.refresh_occupancy)
 
     @torch.no_grad()
     def refresh_occupancy(self) -> None:
@@ -539,11 +522,10 @@ class FastNeRF(NerfModel):
             coarse = torch.zeros((-(-(rz - 1) // cf), -(-(ry - 1) // cf), -(-(rx - 1) // cf)), dtype=torch.uint8)
             nb.occupancy_from_grid(self.grid.detach().numpy(), self.vertex_rows.numpy(), self._row_offset, rx, ry, rz,
                                    self._raw_threshold(thr), occ.numpy(), coarse.numpy(), cf)
-            self._set_occupancy(occ, coarse)
+            self.estimator.set_cells(occ, coarse)
             return
-        grid = self.occupancy
-        grid.set_from_cell_sigma(cell_density_max(self.grid, self.geom, self.density_scale), self.step_size, thr)
-        self._set_occupancy(grid.occ)
+        self.estimator.set_from_cell_sigma(cell_density_max(self.grid, self.geom, self.density_scale), self.step_size,
+                                           thr)
 
     def _raw_threshold(self, alpha: float) -> float:
         """The raw density above which one sample's opacity exceeds ``alpha``."""
@@ -644,7 +626,7 @@ class FastNeRF(NerfModel):
         """The grid's density at its vertices as an (X, Y, Z) float32 array, the x, y and z
         positions of the vertices ((X,), (Y,), (Z,) float64), and the (X, Y, Z) feature rows."""
         rx, ry, rz = self.res
-        lo = self.grid_lo.cpu().double().numpy()
+        lo = np.asarray(self.box.lo, np.float64)
         axes = [lo[a] + self.voxel * np.arange(r) for a, r in enumerate(self.res)]
         rows = self.vertex_rows.long().reshape(rz, ry, rx).permute(2, 1, 0)  # [x, y, z], as axes
         sigma = (self.density_scale * F.softplus(self.grid.detach()[:, 0]))[rows]
@@ -672,12 +654,15 @@ class FastNeRF(NerfModel):
         return np.maximum(lo - pad, box_lo), np.minimum(hi + pad, box_hi)
 
     @torch.no_grad()
-    def _grow(self, size: int, shrink: bool, follow: bool = False) -> list[str]:
+    def _grow(self, size: int, shrink: bool, follow: bool = False,
+              optimizer: torch.optim.Optimizer | None = None) -> list[str]:
         """Resample the grid at about ``size ** 3`` vertices over its box, first shrunk around
         where opaque rays ended (``shrink``) or moved out where the object reaches it
-        (``follow``, :meth:`_follow_object`). Returns notes on what the box did."""
+        (``follow``, :meth:`_follow_object`). The new grid takes the old one's place in
+        ``optimizer`` with fresh moments; every other parameter keeps its own. Returns notes
+        on what the box did."""
         old_geom, old_grid = replace(self.geom), self.grid.detach()
-        old_occ = self.occ_cells if self.occ_active else None
+        old_occ = self.estimator.occ if self.estimator.active else None
         lo = old_geom.lo.cpu().numpy()
         hi = old_geom.hi.cpu().numpy()
         notes = []
@@ -689,25 +674,25 @@ class FastNeRF(NerfModel):
             lo, hi, moved = self._follow_object(lo, hi)
             if moved:
                 notes.append(f"the box moved out where the object reached it: {', '.join(moved)}")
-        new_lo, voxel, res = fit_grid(lo, hi, size)
+        box = GridBox.fit(lo, hi, size)
         device = old_grid.device
-        geom = GridGeom(torch.as_tensor(new_lo, device=device), float(voxel), res)
-        if old_occ is not None and min(res) >= self.config.sparse_from:
+        geom = GridGeom.of(box, device=device)
+        if old_occ is not None and min(box.res) >= self.config.sparse_from:
             keep = vertices_touching(cells_near(old_occ, old_geom, geom, self.config.sparse_margin))
         else:
             keep = torch.ones(geom.n_vertices, dtype=torch.bool, device=device)
         index = torch.zeros(geom.n_vertices, dtype=torch.int32, device=device)
         index[keep] = torch.arange(1, int(keep.sum()) + 1, dtype=torch.int32, device=device)
-        self._set_geometry(new_lo, voxel, res, index)
+        self._set_geometry(box, index)
         rows = torch.cat([self._empty_rows(1, device),
                           resample_grid(old_grid, old_geom, geom.vertex_positions(torch.nonzero(keep)[:, 0]),
                                         backend=self._backend())])
-        self.grid = nn.Parameter(rows)
+        old_param, self.grid = self.grid, nn.Parameter(rows)
         self.sink = self._grid_sink(device)
-        if self.occ_active:
+        if optimizer is not None:
+            replace_param(optimizer, old_param, self.grid, sink=self.sink)
+        if self.estimator.active:
             self.refresh_occupancy()
-        else:
-            self._set_occupancy(self.occ_cells.new_ones(self.occ_cells.shape))
         return notes
 
     def _follow_object(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -757,7 +742,7 @@ class FastNeRF(NerfModel):
     def extra_state(self) -> dict:
         self._not_isolated()
         return {"lo": [float(v) for v in self.geom.lo.cpu()], "voxel": self.geom.voxel, "res": list(self.geom.res),
-                "rows": int(self.grid.shape[0]), "stage": self.stage, "occ_active": self.occ_active,
+                "rows": int(self.grid.shape[0]), "stage": self.stage, "occ_active": self.estimator.active,
                 "density_scale": self.density_scale}
 
     def load_extra_state(self, state: dict) -> None:
@@ -766,13 +751,13 @@ class FastNeRF(NerfModel):
                              "The checkpoint is corrupt or not from nerfkit; delete it or re-train")
         self.density_scale = float(state["density_scale"])
         self.stage = int(state["stage"])
-        self.occ_active = bool(state["occ_active"])
+        self.estimator.active = bool(state["occ_active"])
         n = res[0] * res[1] * res[2]
         rows = state.get("rows", n + 1)
         if not (isinstance(rows, int) and 1 <= rows <= n + 1):
             raise fail("checkpoint 'model_extra'", f"'rows' is {short_repr(rows)}, expected 1 to {n + 1} for a "
                        f"grid of {n} vertices", "The checkpoint is corrupt or not from nerfkit; delete it or re-train")
-        self._set_geometry(np.asarray(state["lo"], np.float32), float(state["voxel"]), res,
+        self._set_geometry(GridBox(np.asarray(state["lo"], np.float32), float(state["voxel"]), res),
                            torch.zeros(n, dtype=torch.int32))
         self.grid = nn.Parameter(torch.zeros((rows, self.n_channels), device=device))
         self.sink = self._grid_sink(device)
@@ -789,9 +774,11 @@ class FastNeRF(NerfModel):
             # the compiled kernels do not check bounds: a corrupt index must not reach them
             raise ValueError(f"vertex_rows holds rows {int(index.min())}..{int(index.max())}, outside the grid's "
                              f"{self.grid.shape[0]} rows")
+        if "occ_cells" in state_dict:  # a checkpoint from before the occupancy estimator
+            state_dict = {("estimator.occ" if k == "occ_cells" else k): v for k, v in state_dict.items()}
         result = super().load_state_dict(state_dict, strict=strict, assign=assign)
-        self._row_offset = GridGeom(self.grid_lo, self.voxel, self.res, self.vertex_rows).row_offset()
-        self._set_occupancy(self.occ_cells)
+        self._row_offset = GridGeom(self.estimator.lo, self.voxel, self.res, self.vertex_rows).row_offset()
+        self.estimator.set_cells(self.estimator.occ)
         return result
 
     def pack_state(self) -> tuple[str | None, dict]:
@@ -799,7 +786,7 @@ class FastNeRF(NerfModel):
         (:mod:`nerfkit.models.packing`); the rest of the state as it is."""
         self._not_isolated()
         state = self.state_dict()
-        keep = vertices_touching(self.occ_cells) & (self.vertex_rows > 0)
+        keep = vertices_touching(self.estimator.occ) & (self.vertex_rows > 0)
         rows = state.pop("grid")[self.vertex_rows[keep].long()]
         state.pop("vertex_rows")
         packed = pack_grid(rows, keep, PACKED_DENSITY_DTYPE)

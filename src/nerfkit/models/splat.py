@@ -36,6 +36,7 @@ from ..config import check_ranges, option
 from ..errors import fail
 from ..fields.background import sh16
 from ..kernels import splat_reference as ref
+from ..kernels.optim import replace_param
 from ..kernels.splat_ops import render_gaussians, resolve_backend
 from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState
 
@@ -369,36 +370,31 @@ class SplatModel(NerfModel):
                 state["exp_avg"].zero_()
                 state["exp_avg_sq"].zero_()
 
-    def _edit_parameters(self, fn, optimizer: torch.optim.Optimizer | None) -> None:
-        """Replace each Gaussian parameter ``p`` by ``fn(p, fill)`` (``fill`` the value of
-        new rows), carrying the Adam moments along (new rows start at zero)."""
+    def _edit_parameters(self, fn, rows: Tensor, optimizer: torch.optim.Optimizer | None) -> None:
+        """Replace each Gaussian parameter ``p`` by ``fn(p, name)``, whose row ``i`` continues
+        row ``rows[i]`` of ``p`` (-1: a new row), carrying the Adam moments along
+        (:func:`~nerfkit.kernels.optim.replace_param`: new rows start at zero)."""
         for name in PARAMS:
             old = getattr(self, name)
             new = nn.Parameter(fn(old.detach(), name))
             if optimizer is not None:
-                for group in optimizer.param_groups:
-                    if group["params"][0] is old:
-                        group["params"][0] = new
-                        state = optimizer.state.pop(old, None)
-                        if state:
-                            for key in ("exp_avg", "exp_avg_sq"):
-                                state[key] = fn(state[key], None)
-                            optimizer.state[new] = state
+                replace_param(optimizer, old, new, rows)
             setattr(self, name, new)
 
     def _append(self, new: dict, optimizer: torch.optim.Optimizer | None) -> None:
         m = new["means"].shape[0]
         if m == 0:
             return
-        self._edit_parameters(lambda t, name: torch.cat([t, new[name] if name else t.new_zeros((m, *t.shape[1:]))]),
-                              optimizer)
+        n = self.means.shape[0]
+        rows = torch.cat([torch.arange(n, device=self.means.device), torch.full((m,), -1, device=self.means.device)])
+        self._edit_parameters(lambda t, name: torch.cat([t, new[name]]), rows, optimizer)
         for buf in ("grad_accum", "grad_count", "max_radii"):
             setattr(self, buf, torch.cat([getattr(self, buf), getattr(self, buf).new_zeros(m)]))
 
     def _keep(self, keep: Tensor, optimizer: torch.optim.Optimizer | None) -> None:
         if bool(keep.all()):
             return
-        self._edit_parameters(lambda t, name: t[keep].contiguous(), optimizer)
+        self._edit_parameters(lambda t, name: t[keep].contiguous(), torch.nonzero(keep)[:, 0], optimizer)
         for buf in ("grad_accum", "grad_count", "max_radii"):
             setattr(self, buf, getattr(self, buf)[keep])
 

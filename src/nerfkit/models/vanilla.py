@@ -37,8 +37,9 @@ from ..fields.encoding import encoded_dim, positional_encoding
 from ..precision import autocast
 from ..render.sampling import intervals_from_t, sample_pdf, stratified_t
 from ..render.volrend import composite, regular_ray_indices, render_weights
-from ..render.occupancy import OccupancyGrid
-from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState, rgb_loss
+from ..estimators.occupancy import OccupancyEstimator, RefreshRule
+from ..render.box import GridBox
+from .base import NerfModel, RenderOutput, SceneBounds, Schedule, rgb_loss
 
 # A cell stays occupied while alpha = 1 - exp(-sigma * sample spacing) exceeds this.
 OCCUPANCY_ALPHA = 0.01
@@ -116,61 +117,55 @@ class VanillaNeRF(NerfModel):
         self.cfg = cfg
         self.coarse = NeRFMLP(cfg)
         self.fine = NeRFMLP(cfg) if cfg.n_importance > 0 else None
-        self.grid: OccupancyGrid | None = None
+        self.estimator: OccupancyEstimator | None = None
         if cfg.occupancy:
+            # refreshed before a step, every occupancy_every steps from occupancy_warmup; its
+            # per-cell density estimate (inf: not measured yet, so occupied) is saved in checkpoints
             r = cfg.occupancy_res
-            voxel = 2.0 * bounds.radius / r
-            self.grid = OccupancyGrid(torch.as_tensor(bounds.center) - bounds.radius, voxel, (r + 1,) * 3)
-            # per-cell density estimate (inf: not measured yet, so occupied); saved in checkpoints
-            self.register_buffer("cell_sigma", torch.full((r, r, r), float("inf")))
+            lo = torch.as_tensor(bounds.center) - bounds.radius
+            self.estimator = OccupancyEstimator(GridBox(lo.numpy(), 2.0 * bounds.radius / r, (r + 1,) * 3),
+                                                RefreshRule(cfg.occupancy_warmup, cfg.occupancy_every),
+                                                running_max=True)
 
-    def _refresh_occ(self) -> None:
-        spacing = (self.bounds.far - self.bounds.near) / self.cfg.n_samples
-        self.grid.set_from_cell_sigma(self.cell_sigma, spacing, OCCUPANCY_ALPHA)
+    def _spacing(self) -> float:
+        return (self.bounds.far - self.bounds.near) / self.cfg.n_samples
 
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        if "cell_sigma" in state_dict:  # a checkpoint from before the occupancy estimator
+            state_dict = {("estimator.cell_sigma" if k == "cell_sigma" else k): v for k, v in state_dict.items()}
         result = super().load_state_dict(state_dict, strict, assign)
-        if self.grid is not None:
-            self._refresh_occ()
+        if self.estimator is not None:
+            self.estimator.refresh_from_running_max(self._spacing(), OCCUPANCY_ALPHA)
         return result
 
     @torch.no_grad()
     def update_occupancy(self) -> None:
         """Re-measure each cell's density at a random point inside it (decayed running max)."""
-        r, device = self.cfg.occupancy_res, self.cell_sigma.device
-        idx = torch.stack(torch.meshgrid(*[torch.arange(r, device=device)] * 3, indexing="ij"), -1).reshape(-1, 3)
-        xyz = idx.flip(-1).float() + torch.rand(idx.shape, device=device)  # (z, y, x) index -> x, y, z
-        pts = self.grid.lo + xyz * self.grid.voxel
-        dirs = torch.zeros_like(pts)
-        dirs[:, 2] = 1.0
         net = self.fine if self.fine is not None else self.coarse
-        sigma = torch.cat([net(chunk, dirs[:len(chunk)])[0] for chunk in pts.split(65536)]).reshape(r, r, r)
-        old = torch.where(torch.isinf(self.cell_sigma), torch.zeros_like(sigma), self.cell_sigma)
-        self.cell_sigma.copy_(torch.maximum(old * OCCUPANCY_DECAY, sigma.float()))
-        self._refresh_occ()
+
+        def occ_eval_fn(pts: Tensor) -> Tensor:
+            dirs = torch.zeros_like(pts)
+            dirs[:, 2] = 1.0
+            return net(pts, dirs)[0]
+
+        with autocast(self.estimator.occ.device, self.autocast_dtype):  # the precision the trainer resolved
+            self.estimator.measure(occ_eval_fn, self._spacing(), OCCUPANCY_ALPHA, OCCUPANCY_DECAY)
 
     def schedules(self) -> list[Schedule]:
-        """Occupancy updates (before a step, every ``occupancy_every`` steps from
-        ``occupancy_warmup``), with ``--occupancy``."""
-        if self.grid is None:
+        """Occupancy updates, with ``--occupancy`` (the estimator decides when)."""
+        if self.estimator is None:
             return []
-        cfg = self.cfg
-        return [Schedule("occupancy", lambda s: s.step >= cfg.occupancy_warmup and s.step % cfg.occupancy_every == 0,
-                         self._occupancy_job)]
-
-    def _occupancy_job(self, s: StepState) -> None:
-        with autocast(self.cell_sigma.device, self.autocast_dtype):  # the precision the trainer resolved
-            self.update_occupancy()
+        return [Schedule("occupancy", lambda s: True,
+                         lambda s: self.estimator.update_every_n_steps(s.step, self.update_occupancy) and None)]
 
     def finish_training(self) -> list[str]:
         """A run that ends before ``occupancy_warmup`` measures its occupancy grid once here,
         so that the final evaluation, the renders and the saved model skip empty space
         (all 64 samples of 10 validation views took minutes). The RNG streams are left as
         they were."""
-        if self.grid is not None and torch.isinf(self.cell_sigma).any():
-            device = self.cell_sigma.device
-            with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []), \
-                    autocast(device, self.autocast_dtype):
+        if self.estimator is not None and not self.estimator.measured:
+            device = self.estimator.occ.device
+            with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
                 self.update_occupancy()
         return []
 
@@ -186,15 +181,16 @@ class VanillaNeRF(NerfModel):
         t_flat = t.reshape(-1)
         deltas = intervals_from_t(t, self.bounds.far).reshape(-1)
         pts = rays.origins[ray_indices] + t_flat[:, None] * rays.directions[ray_indices]
-        if self.grid is not None:  # evaluate the network only where the grid says there may be matter
-            keep = ((pts >= self.grid.lo) & (pts <= self.grid.hi)).all(-1)
-            keep[keep.clone()] = self.grid.is_occupied(pts[keep])
+        grid = self.estimator
+        if grid is not None:  # evaluate the network only where the grid says there may be matter
+            keep = ((pts >= grid.lo) & (pts <= grid.hi)).all(-1)
+            keep[keep.clone()] = grid.is_occupied(pts[keep])
             kept = torch.nonzero(keep)[:, 0]  # the other samples are empty: they add no weight
             ray_indices, t_flat, deltas, pts = ray_indices[kept], t_flat[kept], deltas[kept], pts[kept]
         sigma, rgb = net(pts, rays.directions[ray_indices])
         weights, _, _ = render_weights(sigma, deltas, ray_indices)
         color, depth, acc = composite(weights, rgb, ray_indices, n_rays, t_flat, background)
-        if self.grid is not None:  # the skipped samples' weights are 0
+        if grid is not None:  # the skipped samples' weights are 0
             weights = weights.new_zeros(n_rays * n_samples).index_copy(0, kept, weights)
         return RenderOutput(color, depth, acc, len(ray_indices)), weights.view(n_rays, n_samples)
 

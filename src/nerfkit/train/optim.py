@@ -1,10 +1,12 @@
-"""The optimizer the trainer builds for a model, from the model's parameter groups."""
+"""The optimizer the trainer builds for a model, from the model's parameter groups, and the
+one way a model swaps a parameter in it (:func:`replace_param`: a grid's growth, splat's
+densification and pruning), keeping the moments of everything else."""
 
 from __future__ import annotations
 
 import torch
 
-from ..kernels.optim import GridAdam
+from ..kernels.optim import GridAdam, replace_param
 from ..models.base import NerfModel
 
 
@@ -17,3 +19,6 @@ def build_optimizer(model: NerfModel, lr: float) -> torch.optim.Optimizer:
     if sinks:
         return GridAdam(groups, sinks=sinks)
     return torch.optim.Adam(groups)
+
+
+__all__ = ["build_optimizer", "replace_param"]

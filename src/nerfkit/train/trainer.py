@@ -133,8 +133,8 @@ class Trainer:
         self.model: NerfModel = build_model(cfg.model, model_config, self.bounds).to(self.device)
         self.model.set_precision(self.autocast)  # resolved once, above; the model uses it, never its own
         # models that render whole views (splat) train on one view per step, without pose refinement
-        self.whole_images = bool(getattr(self.model, "whole_images", False))
-        if not resume and hasattr(self.model, "init_from_scene"):
+        self.whole_images = self.model.whole_images
+        if not resume:
             note = self.model.init_from_scene(scene, self.background)
             if note:
                 self.log(note)
@@ -142,7 +142,7 @@ class Trainer:
         self.schedules = self.model.schedules()
         self.rays = RaysData(scene.train, self.device, seed=cfg.seed)
         # the sparse points' sight lines, when the dataset records who saw them and the model weighs them
-        sight = (getattr(model_config, "points_weight", None) or 0.0) > 0 and hasattr(self.model, "sight_loss")
+        sight = self.model.uses_sight_lines
         self.sight = SightLines.from_scene(scene, self.device) if sight and not self.whole_images else None
         self.sight_generator = torch.Generator().manual_seed(cfg.seed + 1)
         if self.sight is not None and not resume:
@@ -275,11 +275,8 @@ class Trainer:
     # -- one step ------------------------------------------------------------------
     def train_step(self) -> dict:
         state = StepState(self.step, self.progress(), self.optimizer)
-        replaced, notes = run_schedules(self.schedules, state, phase="before_step")
-        if replaced:  # new parameter tensors: their Adam moments start at zero
-            self.optimizer = build_optimizer(self.model, self.cfg.lr)
-            self._remember_initial_lr()
-        for note in notes:
+        # (a job that installs new parameters swaps them into the optimizer itself)
+        for note in run_schedules(self.schedules, state, phase="before_step"):
             self.log(f"step {self.step}: {note}")
         self._set_lr()
         views = self.views
@@ -316,7 +313,7 @@ class Trainer:
             self._bad_step(f"{skipped} grid rows had non-finite gradients and were not updated")
         else:
             self.bad_steps = 0
-        for note in run_schedules(self.schedules, after, phase="after_step")[1]:
+        for note in run_schedules(self.schedules, after, phase="after_step"):
             self.log(f"step {self.step}: {note}")
         mse = float(torch.mean((out.rgb.detach().float() - target) ** 2))
         n_rays = target.numel() // 3  # (a whole view: its pixels)
