@@ -154,13 +154,17 @@ class FastConfig:
                                   "shadow, a moving reflection) pull no harder than small errors (default: "
                                   "charbonnier on capture datasets, else mse: on a clean synthetic object mse "
                                   "scores higher)", choices=list(RGB_LOSSES))
+    # Retired flags (kept as settings, off, for older runs' config.json and Python callers; see
+    # BENCHMARKS.md "why the defaults are what they are"): --tv-weight and --tv-colour (every
+    # weight tried cost PSNR), --near-grad (no gain held up, and it did not remove haze),
+    # --distortion-table (it painted a low object onto the table).
     tv_weight: float = option(0.0, "weight of the total variation of the grid's density (as Plenoxels), on the "
                               "vertices this step's rays touched: pulls each toward its neighbours, against "
                               "density that few rays pin down (floaters, edges painted above a surface); 0: off (the "
                               "default: see BENCHMARKS.md)",
-                              min=0.0)
+                              min=0.0, cli=False)
     tv_colour: float = option(0.1, "with --tv-weight: the colour coefficients' total variation weight, relative to "
-                              "the density's", min=0.0)
+                              "the density's", min=0.0, cli=False)
     tv_view_weight: float = option(0.0, "weight of the total variation of the view-dependent colour alone "
                                           "(the spherical harmonics above degree 0), on the vertices each step's "
                                           "rays touched: a few photos pin down each vertex's colour from a few "
@@ -168,7 +172,7 @@ class FastConfig:
                                           "sparkle in new views (default: 1e-8 on capture datasets, else 0)", min=0.0)
     distortion_table: bool = option(False, "with --table, the distortion loss counts the table as the surface "
                                     "behind each ray, so haze in front of the table costs by its distance to it "
-                                    "(clears haze, but a low object may be painted onto the table instead)")
+                                    "(clears haze, but a low object may be painted onto the table instead)", cli=False)
     space: str = option("auto", "where the grid lives: a box around the scene, or the normalised device "
                         "coordinates of the mean camera (ndc: from the near plane to infinity, for forward-facing "
                         "scenes such as LLFF captures); auto picks ndc when every camera looks about the same way",
@@ -177,7 +181,7 @@ class FastConfig:
                               "give (points above the table), when it has them, instead of the bounding sphere's")
     near_grad: float = option(0.0, "damp the gradients of samples nearer to the camera than this fraction of the "
                               "farthest camera's distance from the centre, by (distance / that)^2 (\"Floaters "
-                              "No More\"), against floaters in front of the cameras (0: off)", min=0.0, max=10.0)
+                              "No More\"), against floaters in front of the cameras (0: off)", min=0.0, max=10.0, cli=False)
     sparse_from: int = option(100, "grids with at least this many vertices a side store only the vertices near "
                               "occupied cells (memory follows the content); smaller grids are stored whole", min=2)
     sparse_margin: int = option(2, "cells of the grid before a growth kept around its occupied cells in the grown "
