@@ -174,7 +174,7 @@ def test_photos_with_finer_detail_get_a_fifth_grid_stage_unless_the_stages_are_g
     assert stages(sized(sphere, 200)) == BASE_STAGES
     assert stages(sized(sphere, 400), capture="on") == BASE_STAGES
     assert stages(sized(forward_facing_scene(n_train=6, n_val=0, size=8), 400)) == BASE_STAGES
-    assert stages(sized(sphere, 400), FastConfig(resolutions="16,32")) == ("16,32", None)
+    assert stages(sized(sphere, 400), FastConfig(resolutions="16,32")) == ("16,32", BASE_STAGES[1])  # (the default, no unset sentinel)
     assert FastConfig(resolutions="16,32").stages() == ([16, 32], [60])  # unset steps: the base's
 
 

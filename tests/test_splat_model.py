@@ -17,7 +17,7 @@ from nerfkit.data.synthetic import sphere_scene
 from nerfkit.output.images import render_image
 from nerfkit.splat_files import Gaussians, ply_property_names, read_splat_ply
 from nerfkit.train.config import TrainConfig
-from nerfkit.train.trainer import Trainer, resume, train
+from nerfkit.train.trainer import Trainer, resolved_config, resume, train
 from nerfkit.train.optim import build_optimizer
 
 SMALL = dict(init_points=1500, densify_every=20, max_gaussians=6000)
@@ -27,7 +27,7 @@ def splat_cfg(tmp_path, name="run", **kw):
     base = dict(data="sphere", model="splat", out=str(tmp_path / name), steps=120, seed=0, eval_views=1,
                 checkpoint_seconds=1e9)
     base.update(kw)
-    return TrainConfig(**base)
+    return resolved_config(TrainConfig(**base), None)  # splat's training settings, as train() resolves them
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from nerfkit.cli import main
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.vanilla import VanillaConfig, VanillaNeRF
 from nerfkit.train.config import TrainConfig
-from nerfkit.train.trainer import Trainer, resume, train, validation_series
+from nerfkit.train.trainer import Trainer, resolved_config, resume, train, validation_series
 
 SMALL = dict(n_samples=16, width=32, depth=4)
 
@@ -22,7 +22,7 @@ def small_cfg(tmp_path, name="run", **kw):
     base = dict(data="sphere", model="vanilla", out=str(tmp_path / name), steps=300, batch_rays=256, lr=3e-3,
                 seed=0, eval_views=1, checkpoint_seconds=1e9)
     base.update(kw)
-    return TrainConfig(**base)
+    return resolved_config(TrainConfig(**base), None)  # the model's training settings, as train() resolves them
 
 
 def background_psnr(scene) -> float:

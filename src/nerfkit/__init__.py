@@ -1,6 +1,7 @@
 """nerfkit: phone photos to neural radiance fields, practical on a CPU.
 
-The course API lives here under its familiar names; see :mod:`nerfkit.cameras` for the
+The course API lives here under its familiar names, and the pipeline's
+(:mod:`nerfkit.api`: ``api.calibrate``, ``api.pose``, ``api.train``, ``api.render``, ...); see :mod:`nerfkit.cameras` for the
 one camera convention (OpenCV axes, pixel centres at +0.5). The names are imported on
 first use, so ``import nerfkit`` (and ``nerfkit --help``) does not pay for torch.
 """
@@ -22,6 +23,18 @@ _API = {
     "positional_encoding": "nerfkit.fields.encoding",
     "sample_along_rays": "nerfkit.render.sampling",
     "volrend": "nerfkit.render.volrend",
+    # the pipeline (nerfkit.api; its train, render and export share their names with the
+    # subpackages nerfkit.train, nerfkit.render and the module nerfkit.export: call them as api.train, ...)
+    "api": None,
+    "calibrate": "nerfkit.api",
+    "pose": "nerfkit.api",
+    "evaluate": "nerfkit.api",
+    "CalibrationResult": "nerfkit.api",
+    "PoseResult": "nerfkit.api",
+    "TrainResult": "nerfkit.api",
+    "RenderResult": "nerfkit.api",
+    "EvaluationResult": "nerfkit.api",
+    "ExportResult": "nerfkit.api",
 }
 
 __all__ = sorted(_API)
@@ -29,7 +42,9 @@ __all__ = sorted(_API)
 
 def __getattr__(name: str):
     if name in _API:
-        value = getattr(importlib.import_module(_API[name]), name)
+        module = _API[name]
+        value = importlib.import_module(f"nerfkit.{name}") if module is None else getattr(
+            importlib.import_module(module), name)
         globals()[name] = value
         return value
     raise AttributeError(f"module 'nerfkit' has no attribute {name!r}")

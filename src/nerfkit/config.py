@@ -224,12 +224,18 @@ def _cli_fields(cls: type, skip: tuple[str, ...] = ()) -> list[tuple[Any, datacl
 
 def add_dataclass_args(parser: argparse.ArgumentParser, cls: type, group_title: str | None = None,
                        skip: tuple[str, ...] = ()) -> None:
-    """Add one flag per field of dataclass ``cls`` (defaults left unset: None). A flag the parser
+    """Add one flag per field of dataclass ``cls`` (defaults left unset: None), in the argument
+    group its ``group`` metadata names (in the order they first appear), else in ``group_title``'s
+    (or the parser's own options when None). A flag the parser
     has already is refused (argparse's conflict error); alternative configs that share flags go
     through :func:`add_alternative_dataclass_args`."""
     target = parser.add_argument_group(group_title) if group_title else parser
+    groups: dict[str, Any] = {}
     for tp, f in _cli_fields(cls, skip):
-        _add_flag(target, f.name, [(cls.__name__, tp, f)])
+        group = f.metadata.get("group")
+        if group and group not in groups:
+            groups[group] = parser.add_argument_group(group)
+        _add_flag(groups[group] if group else target, f.name, [(cls.__name__, tp, f)])
 
 
 def _alternative_fields(classes: dict[str, type]) -> dict[str, list[tuple[str, Any, dataclasses.Field]]]:

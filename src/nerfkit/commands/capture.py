@@ -47,7 +47,7 @@ RUN_DIR = "run"
 MESH_FILE = "mesh.ply"
 RECORD_FILE = "capture.json"
 # the summary's note on the phone's exposure when the held-out photos' colour alone (each
-# half's solved on the other half) gains this much (steve 1.1 dB, labubu 1.5, session 49)
+# half's solved on the other half) gains this much (see BENCHMARKS.md)
 EXPOSURE_NOTE_DB = 0.75
 
 
@@ -83,28 +83,53 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _step(argv: list[str], needed: bool = True, verbose: bool = False,
-          times: dict | None = None) -> bool:
-    """Run one nerfkit command; whether it succeeded. The failure of a ``needed`` step
-    stops the capture (the command's own error is printed above). ``verbose``: its errors come
-    with their tracebacks (``nerfkit --verbose capture``). ``times`` gets the step's
-    seconds under its name (``render --object``: "object")."""
+def _step(argv: list[str], call, needed: bool = True, verbose: bool = False, times: dict | None = None) -> bool:
+    """Run one stage, ``call()`` (a :mod:`nerfkit.api` function), shown as the command
+    ``nerfkit ARGV`` that does the same; whether it succeeded. The failure of a ``needed``
+    stage stops the capture (its error is printed first, as the command prints it).
+    ``verbose``: its errors come with their tracebacks (``nerfkit --verbose capture``).
+    ``times`` gets the stage's seconds under its name (``render --object``: "object")."""
+    import sys
     import time
+    import traceback
 
-    from ..cli import main
-    from ..errors import fail
+    from ..cli import OS_ERROR_HINTS
+    from ..errors import NerfkitError, fail, is_out_of_memory
 
     print(f"\n== nerfkit {' '.join(argv)}", flush=True)
     start = time.perf_counter()
-    rc = main(["--verbose", *argv] if verbose else argv)
+    try:
+        call()
+        ok = True
+    except (NerfkitError, OSError, MemoryError, RuntimeError) as e:
+        if isinstance(e, (MemoryError, RuntimeError)) and not is_out_of_memory(e):
+            raise
+        if verbose:
+            traceback.print_exc()
+        if isinstance(e, OSError) and not isinstance(e, NerfkitError):
+            where = next((f for f in (e.filename2, e.filename) if f is not None), "a file")
+            message = f"{where}: {e.strerror or e}. {OS_ERROR_HINTS.get(e.errno, 'Check the path and its permissions')}"
+        elif isinstance(e, NerfkitError):
+            message = str(e)
+        else:
+            message = f"out of memory ({type(e).__name__})"
+        print(f"nerfkit {argv[0]}: error: {message}", file=sys.stderr)
+        ok = False
     if times is not None:
         times["object" if "--object" in argv else argv[0]] = time.perf_counter() - start
-    if rc == 130:
-        raise KeyboardInterrupt
-    if rc != 0 and needed:
+    if not ok and needed:
         raise fail(f"nerfkit {argv[0]}", "failed (its error is above)",
                    "Fix that and run the same `nerfkit capture` again: the steps already done are kept")
-    return rc == 0
+    return ok
+
+
+def _trained(result) -> None:
+    """A training stage's end: its summary line, as `nerfkit train` prints it; Ctrl-C stops the capture."""
+    from .train import summary_line
+
+    print(summary_line(result))
+    if result.interrupted:
+        raise KeyboardInterrupt
 
 
 def _kept(what: str, path: Path) -> None:
@@ -266,6 +291,7 @@ def _replace_run(run_dir: Path) -> None:
 def run(args: argparse.Namespace) -> int:
     from functools import partial
 
+    from .. import api
     from ..errors import fail
     from ..images import list_images
     from ..io.atomic import write_json
@@ -298,6 +324,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / RECORD_FILE, {"inputs": inputs})
     dictionary = ["--dict", args.dict] if args.dict else []
+    dict_option = {"dict": args.dict} if args.dict else {}
 
     camera = Path(args.camera) if args.camera else None
     if args.calib:
@@ -305,58 +332,67 @@ def run(args: argparse.Namespace) -> int:
         if camera.exists() and not args.force:
             _kept("calibration", camera)
         else:  # --force: a calibration cut short may have left its detections
-            step(["calibrate", args.calib, *dictionary, "--tag-size", str(args.sheet_tag_size or args.tag_size),
-                   "--out", str(camera), "--force"])
+            sheet_size = args.sheet_tag_size or args.tag_size
+            step(["calibrate", args.calib, *dictionary, "--tag-size", str(sheet_size), "--out", str(camera), "--force"],
+                 lambda: api.calibrate(args.calib, camera, tag_size=sheet_size, force=True, **dict_option))
 
     dataset = out / DATASET_DIR
     if (dataset / "dataset.npz").exists() and not args.force:
         _kept("dataset", dataset)
     else:  # --force: the folder is the capture's, and poses cut short leaves poses.json
         step(["poses", args.photos, "--tag-size", str(args.tag_size), *dictionary, "--out", str(dataset),
-               "--method", args.method, "--force", *(["--camera", str(camera)] if camera else []),
-               *(["--max-side", str(args.max_side)] if args.max_side is not None else [])])
+              "--method", args.method, "--force", *(["--camera", str(camera)] if camera else []),
+              *(["--max-side", str(args.max_side)] if args.max_side is not None else [])],
+             lambda: api.pose(args.photos, dataset, tag_size=args.tag_size, camera=camera, method=args.method,
+                              force=True, max_side=args.max_side, **dict_option))
 
     run_dir = out / RUN_DIR
     if args.force:
         _replace_run(run_dir)
     budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
+    budget_option = {"steps": args.steps} if args.steps else {"minutes": args.minutes}
     if _finished(run_dir):
         _kept("NeRF", run_dir)
         if _larger_budget(run_dir, args, need_checkpoint=True):
-            step(["train", "--resume", str(run_dir), *budget, "--device", args.device])
+            step(["train", "--resume", str(run_dir), *budget, "--device", args.device],
+                 lambda: _trained(api.resume(run_dir, device=args.device, **budget_option)))
     elif (run_dir / MODEL_FILE).exists() and not checkpoint_paths(run_dir):  # cut short, nothing to go on from
         _kept("NeRF", run_dir)
         print("   it was cut short and has no checkpoint to go on from: --force trains it again", flush=True)
     elif (run_dir / "config.json").exists():  # cut short: it goes on, to a larger budget if one is asked for
         larger = _larger_budget(run_dir, args, need_checkpoint=False)
-        step(["train", "--resume", str(run_dir), *(budget if larger else []), "--device", args.device])
+        step(["train", "--resume", str(run_dir), *(budget if larger else []), "--device", args.device],
+             lambda: _trained(api.resume(run_dir, device=args.device, **(budget_option if larger else {}))))
     else:
-        step(["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget,
-               "--keep-checkpoints", "1", "--device", args.device])
+        step(["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget, "--device", args.device],
+             lambda: _trained(api.train(dataset / "dataset.npz", run_dir, device=args.device, **budget_option)))
     # what shows the model as it is now is kept; the rest is made again (it belongs to the run)
     evaluated = True
     if _newer_than_model(run_dir / "eval_val.json", run_dir):
         _kept("evaluation", run_dir / "eval_val.json")
     else:
-        evaluated = step(["eval", str(run_dir), "--split", "val", "--device", args.device], needed=False)
+        evaluated = step(["eval", str(run_dir), "--split", "val", "--device", args.device],
+                         lambda: api.evaluate(run_dir, split="val", device=args.device), needed=False)
     videos = run_dir / "videos"
     frames = ["--frames", str(args.frames)] if args.frames else []
     if all(_newer_than_model(videos / name, run_dir) for name in VIDEO_FILES) and not args.frames:
         _kept("videos", videos)
     else:
-        step(["render", str(run_dir), "--device", args.device, *frames])
+        step(["render", str(run_dir), "--device", args.device, *frames],
+             lambda: api.render(run_dir, device=args.device, frames=args.frames))
     # a NeRF with nothing solid to frame still has its scene videos: the capture goes on
     if all(_newer_than_model(videos / name, run_dir) for name in OBJECT_VIDEO_FILES) and not args.frames:
         _kept("videos of the object", videos)
     else:
-        step(["render", str(run_dir), "--object", "--device", args.device, *frames], needed=False)
+        step(["render", str(run_dir), "--object", "--device", args.device, *frames],
+             lambda: api.render(run_dir, object=True, device=args.device, frames=args.frames), needed=False)
     mesh = None
     if not args.no_mesh:  # a NeRF too faint to mesh is still a NeRF: the capture goes on
         mesh = run_dir / MESH_FILE
         if _newer_than_model(mesh, run_dir):
             _kept("mesh", mesh)
         elif not step(["export", str(run_dir), "--mesh", str(mesh), "--force", "--device", args.device],
-                       needed=False):
+                      lambda: api.export(run_dir, mesh=mesh, force=True, device=args.device), needed=False):
             mesh = None
     print()
     print(summary(out, camera, dataset, run_dir, mesh, evaluated, mesh_skipped=args.no_mesh, times=times))

@@ -64,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     minutes = args.minutes if args.minutes is not None else (3.0 if args.model == "fast" else 8.0)
     cfg = TrainConfig(data=data, model=args.model, out=str(out), minutes=minutes, seed=args.seed, device=args.device)
     print(f"nerfkit demo: training '{args.model}' on lego for {minutes:g} min into {out}")
-    result = train(scene, cfg, model_config_class(args.model)())
+    result = train(scene, cfg, model_config_class(args.model)(),
+                   user_set={"data", "model", "out", "minutes", "seed", "device"})  # the rest: the preset's
 
     from ..train.checkpoint import load_run
     from ..train.config import parse_background, resolve_autocast, resolve_device

@@ -22,8 +22,8 @@ the table around the object (a rough ceiling for held-out scores).
 With --method auto (the default) the photos are then also posed by structure-from-motion
 (pycolmap), starting from the camera of --camera (bundle adjustment refines its focal
 length and radial distortion on these photos), and put in the tag's (or the layout's)
-frame: features across all photos pin a pose far better than one small tag (labubu:
-+0.6 dB and +0.05 SSIM on held-out views), and photos where no tag was found get poses
+frame: features across all photos pin a pose far better than one small tag (held-out
+views score higher: see BENCHMARKS.md), and photos where no tag was found get poses
 too. The dataset takes the SfM poses unless SfM registers fewer than 90% of the photos
 the tags posed, misses the tag, or disagrees with the tags; the output says which and why
 (--method tags, or --no-dataset: tag poses only, as the course does).

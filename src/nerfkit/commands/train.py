@@ -5,47 +5,56 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
-from pathlib import Path
 
-from ..config import add_alternative_dataclass_args, add_dataclass_args, dataclass_from_args, flag_of, foreign_flags
+from ..config import add_alternative_dataclass_args, add_dataclass_args, flag_of, foreign_flags
 
 MEMORY_HINT = "Lower --batch-rays (rays per step) or --render-chunk (rays per rendered chunk)"
 HELP = "train a NeRF on a dataset (or --resume a run)"
 EPILOG = """\
 examples:
   nerfkit train --data scene.npz --out runs/mine --minutes 5
-  nerfkit train --data src/nerfkit/assets/lego_200x200.npz --model vanilla --steps 6000 --out runs/vanilla
+  nerfkit train --config runs/mine/config.json --out runs/again    the same settings again
   nerfkit train --resume runs/mine              continue after a crash or Ctrl-C
-The run folder gets config.json, checkpoints/, metrics.csv/json, plots/ and progress/.
+A run folder holds config.json (every setting, as resolved), model.pt, metrics, plots and videos.
+Unless given, the dataset's kind (object, capture, forward-facing) picks settings (nerfkit.presets).
 """
 USAGE = """nerfkit train --data PATH [--out DIR] [--model {vanilla,fast,splat}] [--steps INT | --minutes FLOAT] [options]
+       nerfkit train --config RUN/config.json [--out DIR] [options]
        nerfkit train --resume RUN [--steps INT | --minutes FLOAT]"""
 MODEL_GROUP = "model '{}'"
 MODEL_BLURBS = {"fast": "the grid (the default model)", "vanilla": "the course's 8x256 MLP", "splat": "Gaussian splats"}
+# the TrainConfig group the short --help shows (with -h, --help-all, --resume and --config)
+FIRST_GROUP = "the options changed first"
 
 
 class ModelHelp(argparse.Action):
-    """``-h/--help``: the training flags, and the settings of the model named by a ``--model``
-    before it; without one, how to see each model's (all of them run to 400 lines)."""
+    """``-h/--help``: the options changed first, and where the rest are; after a ``--model M``,
+    every training option and M's settings. ``--help-all``: every option of every model."""
 
     def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
         super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
 
     def __call__(self, parser, namespace, values, option_string=None):
-        parser._print_message(help_for_model(parser, getattr(namespace, "model", None)), sys.stdout)
+        which = "all" if option_string == "--help-all" else getattr(namespace, "model", None)
+        parser._print_message(help_for_model(parser, which), sys.stdout)
         parser.exit()
 
 
 def help_for_model(parser: argparse.ArgumentParser, model: str | None) -> str:
-    """``parser``'s help with only ``model``'s groups of model flags; for None, none of them,
-    and the epilog names the command that shows each model's."""
+    """``parser``'s help: for None the short one (the parser's own options and the options
+    changed first, and the commands that show the rest); for a model name, every training
+    group and that model's groups of model flags; for "all", every group."""
     groups = parser._action_groups
-    mine = [g for g in groups if not (g.title or "").startswith("model '")
-            or (model is not None and MODEL_GROUP.format(model) in g.title)]
+    if model is None:
+        mine = [g for g in groups if g.title in ("options", FIRST_GROUP)]
+    else:
+        mine = [g for g in groups if not (g.title or "").startswith("model '") or model == "all"
+                or MODEL_GROUP.format(model) in g.title]
     epilog = parser.epilog
     if model is None:
-        epilog += "\neach model's own settings:\n" + "".join(
-            f"  {f'nerfkit train --model {m} --help':38s}{MODEL_BLURBS.get(m, '')}\n" for m in _model_config_classes())
+        epilog += "\nthe other options, by group (data, optimisation, evaluation, real captures, the model's):\n" + \
+            "".join(f"  {f'nerfkit train --model {m} --help':38s}{MODEL_BLURBS.get(m, '')}\n"
+                    for m in _model_config_classes()) + f"  {'nerfkit train --help-all':38s}every model's\n"
     parser._action_groups, parser.epilog = mine, epilog
     try:
         return parser.format_help()
@@ -71,8 +80,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("train", help=HELP, description=HELP, epilog=EPILOG, usage=USAGE, add_help=False,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-h", "--help", action=ModelHelp,
-                   help="show the training flags and exit; after --model M, M's settings too")
+                   help="show the options changed first and exit; after --model M, every option of M")
+    p.add_argument("--help-all", action=ModelHelp, help="show every option of every model and exit")
     p.add_argument("--resume", metavar="RUN", help="continue this run from its newest good checkpoint")
+    p.add_argument("--config", metavar="JSON", help="start from the settings of this run's config.json (a run "
+                   "folder names its own); options given beside it change them")
     add_dataclass_args(p, TrainConfig, "training")
     # a flag that models share (--sh-degree) takes the widest of their bounds; run() checks the chosen model's
     add_alternative_dataclass_args(p, _model_config_classes(), MODEL_GROUP)
@@ -117,15 +129,30 @@ def refuse_other_models_flags(args: argparse.Namespace, classes: dict, model: st
                    f"Leave it out, or train with --model {' or --model '.join(owners)}")
 
 
+def api_result(result):
+    """The trainer's result as the API's (:class:`nerfkit.api.TrainResult`)."""
+    from ..api import _train_result
+
+    return _train_result(result)
+
+
+def given_flags(args: argparse.Namespace, *classes: type) -> set[str]:
+    """The fields of ``classes`` whose flag the command line gave (the user's choices, which the
+    scene kind's preset never overrides)."""
+    return {f.name for cls in classes for f in dataclasses.fields(cls) if getattr(args, f.name, None) is not None}
+
+
 def run(args: argparse.Namespace) -> int:
     from ..errors import fail
-    from ..models import check_config
     from ..train.checkpoint import read_run
     from ..train.config import TrainConfig
-    from ..train.trainer import check_new_run_folder, resume, train
+    from ..train.trainer import resume
     from ._common import load_as_trained
 
     if args.resume:
+        if args.config:
+            raise fail("--config", "cannot be given with --resume (a run continues with its own settings)",
+                       "Resume without --config, or start a new run from it with --out")
         changes = resume_changes(args)
         info = read_run(args.resume)
         for k, v in changes.items():
@@ -133,26 +160,30 @@ def run(args: argparse.Namespace) -> int:
         data = args.data or info.train.data
         scene = load_as_trained(info.train, data,
                                 allow_outside=bool(args.allow_outside_paths or info.train.allow_outside_paths))
-        result = resume(args.resume, scene, changes=changes)
+        result = api_result(resume(args.resume, scene, changes=changes))
     else:
-        cfg = dataclass_from_args(TrainConfig, args)
-        if not cfg.data:
-            raise fail("train", "no dataset given", "Pass --data FILE (try the bundled "
-                       "src/nerfkit/assets/lego_200x200.npz, or run `nerfkit demo`)")
-        if cfg.steps == 0 and cfg.minutes == 0:
-            cfg = dataclasses.replace(cfg, minutes=5.0)
-            print("no --steps or --minutes: training for 5 minutes", file=sys.stderr)
+        from .. import api
+
         classes = _model_config_classes()
-        if cfg.model not in classes:
-            raise fail("--model", f"model '{cfg.model}' is not available in this installation",
+        model = args.model
+        if model is None and args.config:
+            from ..train.checkpoint import read_settings
+
+            model = read_settings(args.config)[0].model
+        model = model or TrainConfig().model
+        if model not in classes:
+            raise fail("--model", f"model '{model}' is not available in this installation",
                        f"Choose one of: {', '.join(classes)}")
-        refuse_other_models_flags(args, classes, cfg.model)
-        model_cfg = check_config(cfg.model, dataclass_from_args(classes[cfg.model], args))  # its own bounds
-        check_new_run_folder(Path(cfg.out))  # before loading the dataset: a refusal should be quick
-        # RGBA images are composited on the colour the model renders behind the scene
-        result = train(load_as_trained(cfg, cfg.data, allow_outside=cfg.allow_outside_paths), cfg, model_cfg)
-    summary = f"run: {result.run_dir}  steps: {result.step}  training time: {result.train_seconds:.0f} s"
-    if result.final_val_psnr is not None:
-        summary += f"  val PSNR: {result.final_val_psnr:.2f} dB"
-    print(summary)
+        refuse_other_models_flags(args, classes, model)
+        given = {name: getattr(args, name) for name in given_flags(args, TrainConfig, classes[model])}
+        result = api.train(config=args.config, **given)
+    print(summary_line(result))
     return 130 if result.interrupted else 0
+
+
+def summary_line(result) -> str:
+    """The line `nerfkit train` ends with, for a :class:`nerfkit.api.TrainResult`."""
+    summary = f"run: {result.run_dir}  steps: {result.steps}  training time: {result.train_seconds:.0f} s"
+    if result.val_psnr is not None:
+        summary += f"  val PSNR: {result.val_psnr:.2f} dB"
+    return summary

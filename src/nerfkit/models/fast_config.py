@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
-
 from ..config import check_ranges, option
 from ..errors import fail
 from .base import RGB_LOSSES
@@ -70,28 +68,17 @@ def table_cover_default(scene, capture: bool) -> float:
 class FastConfig:
     """Options of the ``fast`` model."""
 
-    # with --capture the learning rate ends lower: a table texel is hit by few rays a step,
-    # each from one photo (labubu, 20 training photos: +0.2-0.3 dB; lego 60 s: -0.5 dB)
-    TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 4096, "lr": 0.3, "render_chunk": 65536,
-                                      "capture_lr_final_factor": 0.02}
-    # options left unset (None) take (the capture value, the other value) by the dataset
-    CAPTURE_DEFAULTS: ClassVar[dict] = {"distortion_weight": (0.01, 0.0), "room_shells": (3, 0),
-                                        "table_gloss": (True, False), "rgb_loss": ("charbonnier", "mse"),
-                                        "points_weight": (0.02, 0.0), "tv_view_weight": (1e-8, 0.0)}
-    # ... and on a forward-facing scene (content at every depth, as a capture's)
-    FORWARD_FACING_DEFAULTS: ClassVar[dict] = {"distortion_weight": 0.01}
-
-    resolutions: str | None = option(None, "grid sizes of the coarse-to-fine stages, as the side of a cube with "
+    resolutions: str = option(BASE_STAGES[0], "grid sizes of the coarse-to-fine stages, as the side of a cube with "
                                      "as many vertices (comma-separated; default: 32,64,128,192, and a fifth stage "
                                      f"of 256 for object scenes with photos over {FINE_STAGE_PIXELS // 1000}k pixels, "
                                      "such as lego at 400x400)")
-    upsample_steps: str | None = option(None, "steps at which the grid grows to the next size (one fewer than "
+    upsample_steps: str = option(BASE_STAGES[1], "steps at which the grid grows to the next size (one fewer than "
                                         "--resolutions; default: 60,300,2000, and 3500 with the fifth stage); a "
                                         "growth with fewer steps left than 5% of those done is skipped")
     stage_rays: str = option("1,1,2,4", "rays per training step at each stage, as multiples of --batch-rays "
                              "(comma-separated; later stages take the last): a finer grid has more vertices to "
-                             "share each step's rays, and fewer, fuller steps beat more, noisier ones (lego "
-                             "200x200 after 300 s: 32.9 dB with 1,1,1,1, 33.3 with 1,1,2,4)")
+                             "share each step's rays, and fewer, fuller steps beat more, noisier ones (see "
+                             "BENCHMARKS.md)")
     sh_degree: int = option(1, "spherical-harmonic degree of the view-dependent colour (0, 1 or 2)", min=0, max=2)
     step_ratio: float = option(0.5, "distance between samples along a ray, in voxels", above=0)
     init_alpha: float = option(1e-4, "opacity of one sample of the initial, near-empty density", above=0, max=0.5)
@@ -114,7 +101,7 @@ class FastConfig:
     learn_background: bool = option(False, "learn what rays see outside the box (a colour per direction) "
                                     "instead of the --background colour: for real photos, whose background is "
                                     "a room, not a flat colour")
-    room_shells: int | None = option(None, "with --learn-background: textured spheres around the cameras (each "
+    room_shells: int = option(0, "with --learn-background: textured spheres around the cameras (each "
                                      "--room-ratio times the last) that hold the room with its parallax, in front "
                                      "of the colour per direction (default: 3 on capture datasets, else 0)",
                                      min=0, max=16)
@@ -124,67 +111,68 @@ class FastConfig:
     room_lr_ratio: float = option(0.2, "learning rate of the room shells relative to --lr", min=0)
     table: bool = option(False, "rays stop at the scene's table plane (a tag capture's tag plane), which shows a "
                          "learned texture: the box then holds only the object")
-    table_gloss: bool | None = option(None, "with --table: the table also mirrors its surroundings (a learned "
+    table_gloss: bool = option(False, "with --table: the table also mirrors its surroundings (a learned "
                                       "glossiness per texel mixes its colour with a small learned map of what "
                                       "lies along the reflected ray), for varnished tables and paper with a sheen, "
-                                      "whose look changes with the view (default: on for capture datasets; "
-                                      "steve +0.25 dB, labubu +0.4)")
+                                      "whose look changes with the view (default: on for capture datasets)")
     floor: bool = option(True, "with --table and --learn-background: a second textured plane for the floor seen "
                          "beyond the table's edge, when the dataset's sparse points show one (a plane parallel "
                          "to the table, well under it)")
     table_resolution: int = option(512, "texels per side of the table texture (512: a texel about a pixel's "
-                                   "footprint on the dev captures; steve 2000 steps: +0.4 dB over 1024)",
+                                   "footprint in photos of a table-top object taken from about half a metre)",
                                    min=2, max=MAX_GRID_SIDE)
     table_lr_ratio: float = option(0.2, "learning rate of the table texture relative to --lr (a texel is seen by few "
                                    "rays, and each sparse Adam step moves it by about the learning rate)", min=0)
     opacity_weight: float = option(0.005, "with --table: weight of the mean opacity of the box in the loss, so that "
                                    "what the table and the room explain is not copied into clouds of density", min=0)
-    table_cover_weight: float | None = option(None, "with --table: weight of a prior that each spot of the table "
+    table_cover_weight: float = option(0.0, "with --table: weight of a prior that each spot of the table "
                                               "plane is table (opaque) or not (past the table's edge: clear), "
                                               "4 c (1 - c) of the light c it lets through, on the rays that reach "
                                               "it, against a table that blends a little of the room into each "
-                                              "photo in blotches (labubu, 24 training photos: +0.6 dB at 0.05). It "
-                                              "costs where the photos show a floor past the table's edge (steve "
-                                              "-0.5 dB) and gains nothing from 40 photos on. Default: "
+                                              "photo in blotches when few photos see each spot. It holds the "
+                                              "plane opaque where the photos show a floor past the table's edge, "
+                                              "and many photos average the blotches out. Default: "
                                               f"{TABLE_COVER_WEIGHT:g} on captures with fewer than 30 training "
                                               "photos whose sparse points show no floor under the table, else 0",
                                               min=0.0)
     table_cover_start: float = option(0.0, "with --table-cover-weight: the share of the run after which the prior "
-                                      "applies, so that the coverage first learns where the table ends (0.6: steve "
-                                      "within 0.1 dB, the full labubu capture -0.2, but its 30 photos gain only 0.3)",
+                                      "applies, so that the coverage first learns where the table ends",
                                       min=0.0, max=1.0)
-    distortion_weight: float | None = option(None, "weight of mip-NeRF 360's distortion loss (per ray, distances in "
+    distortion_weight: float = option(0.0, "weight of mip-NeRF 360's distortion loss (per ray, distances in "
                                              "units of the scene radius; with --table the table counts as the "
                                              "surface behind the box): it gathers each ray's weight onto one "
                                              "surface, against haze and floaters (default: "
                                              "0.01 on capture and forward-facing datasets, else 0)", min=0.0)
-    points_weight: float | None = option(None, "weight of the sparse points' sight lines, when the dataset records "
+    points_weight: float = option(0.0, "weight of the sparse points' sight lines, when the dataset records "
                                          "which train photos saw each point (nerfkit poses does): the ray from a "
                                          "photo's camera to a point it saw is empty up to the point and, for a "
                                          "point on the object, stopped just past it (as DS-NeRF supervises depth), "
                                          "so fur and fabric train solid instead of half see-through (default: "
-                                         "0.02 on capture datasets, else 0; labubu's object pixels +1.7 dB)", min=0.0)
-    rgb_loss: str | None = option(None, "photometric loss: mse, or charbonnier (sqrt(e^2 + 1e-6), as mip-NeRF "
+                                         "0.02 on capture datasets, else 0)", min=0.0)
+    rgb_loss: str = option("mse", "photometric loss: mse, or charbonnier (sqrt(e^2 + 1e-6), as mip-NeRF "
                                   "360), which lets pixels no consistent scene explains (the photographer's "
                                   "shadow, a moving reflection) pull no harder than small errors (default: "
-                                  "charbonnier on capture datasets, else mse; steve +0.3 dB, labubu +0.4, "
-                                  "lego -1.3)", choices=list(RGB_LOSSES))
+                                  "charbonnier on capture datasets, else mse: on a clean synthetic object mse "
+                                  "scores higher)", choices=list(RGB_LOSSES))
+    # Retired flags (kept as settings, off, for older runs' config.json and Python callers; see
+    # BENCHMARKS.md "why the defaults are what they are"): --tv-weight and --tv-colour (every
+    # weight tried cost PSNR), --near-grad (no gain held up, and it did not remove haze),
+    # --distortion-table (it painted a low object onto the table).
     tv_weight: float = option(0.0, "weight of the total variation of the grid's density (as Plenoxels), on the "
                               "vertices this step's rays touched: pulls each toward its neighbours, against "
                               "density that few rays pin down (floaters, edges painted above a surface); 0: off (the "
-                              "default: every weight tried, from 1e-8, cost PSNR on the dev captures)",
-                              min=0.0)
+                              "default: see BENCHMARKS.md)",
+                              min=0.0, cli=False)
     tv_colour: float = option(0.1, "with --tv-weight: the colour coefficients' total variation weight, relative to "
-                              "the density's", min=0.0)
-    tv_view_weight: float | None = option(None, "weight of the total variation of the view-dependent colour alone "
+                              "the density's", min=0.0, cli=False)
+    tv_view_weight: float = option(0.0, "weight of the total variation of the view-dependent colour alone "
                                           "(the spherical harmonics above degree 0), on the vertices each step's "
                                           "rays touched: a few photos pin down each vertex's colour from a few "
                                           "directions only, and its view-dependent part is otherwise free to "
-                                          "sparkle in new views (default: 1e-8 on capture datasets, else 0; "
-                                          "steve's figure +0.7-1.8 dB as rendered, 22 photos +2.8 dB)", min=0.0)
+                                          "sparkle in new views (default: 1e-8 on capture datasets, else 0)", min=0.0)
     distortion_table: bool = option(False, "with --table, the distortion loss counts the table as the surface "
                                     "behind each ray, so haze in front of the table costs by its distance to it "
-                                    "(clears haze, but a low object may be painted onto the table instead)")
+                                    "(clears haze, but a low object may be painted onto the table instead)", cli=False)
     space: str = option("auto", "where the grid lives: a box around the scene, or the normalised device "
                         "coordinates of the mean camera (ndc: from the near plane to infinity, for forward-facing "
                         "scenes such as LLFF captures); auto picks ndc when every camera looks about the same way",
@@ -193,27 +181,13 @@ class FastConfig:
                               "give (points above the table), when it has them, instead of the bounding sphere's")
     near_grad: float = option(0.0, "damp the gradients of samples nearer to the camera than this fraction of the "
                               "farthest camera's distance from the centre, by (distance / that)^2 (\"Floaters "
-                              "No More\"), against floaters in front of the cameras (0: off)", min=0.0, max=10.0)
+                              "No More\"), against floaters in front of the cameras (0: off)", min=0.0, max=10.0, cli=False)
     sparse_from: int = option(100, "grids with at least this many vertices a side store only the vertices near "
                               "occupied cells (memory follows the content); smaller grids are stored whole", min=2)
     sparse_margin: int = option(2, "cells of the grid before a growth kept around its occupied cells in the grown "
                                 "sparse grid (density can appear only where vertices are stored)", min=0, max=16)
     kernels: str = option("auto", "auto (compiled numba on the CPU when available), numba, or torch",
                           choices=["auto", "numba", "torch"])
-
-    def scene_defaults(self, scene, capture: bool) -> dict:
-        """Values for the unset options that depend on the scene: the fifth stage
-        (:data:`FINE_STAGES`) for an object scene photographed at high resolution, and the
-        table cover prior (:func:`table_cover_default`)."""
-        out = {}
-        if self.table_cover_weight is None:
-            out["table_cover_weight"] = table_cover_default(scene, capture)
-        if self.resolutions is not None or self.upsample_steps is not None:
-            return out
-        fine = (not capture and not scene.forward_facing and len(scene.train) > 0
-                and scene.train.width * scene.train.height > FINE_STAGE_PIXELS)
-        resolutions, steps = FINE_STAGES if fine else BASE_STAGES
-        return {**out, "resolutions": resolutions, "upsample_steps": steps}
 
     def validate(self) -> "FastConfig":
         """Its ranges, and the stages and ray factors its strings spell (refused as flags are)."""

@@ -93,7 +93,9 @@ def read_run(run_dir: str | Path) -> RunInfo:
             raise fail(cfg_path, f"unknown model '{train.model}'", f"Expected one of {', '.join(MODEL_NAMES)}")
         # ... and a fast run from before the view-dependent colour's total variation, without it
         old = {"tv_view_weight": 0.0} if train.model == "fast" else {}
-        model_config = dataclass_from_dict(model_config_class(train.model), {**old, **d["model"]}, str(cfg_path))
+        model_class = model_config_class(train.model)
+        model_config = dataclass_from_dict(model_class, {**old, **unset_as_default(model_class, d["model"])},
+                                           str(cfg_path))
         bounds = SceneBounds.from_dict(d["bounds"])
     except (KeyError, TypeError, ValueError) as e:
         raise fail(cfg_path, f"malformed run config ({type(e).__name__}: {e})") from None
@@ -105,6 +107,40 @@ def read_run(run_dir: str | Path) -> RunInfo:
                 raise fail(cfg_path, f"invalid {type(cfg).__name__} settings ({e})") from None
     _check_bounds(bounds, str(cfg_path))
     return RunInfo(run_dir, train, model_config, bounds, d["scene"] if isinstance(d.get("scene"), dict) else {})
+
+
+def read_settings(path: str | Path) -> tuple[TrainConfig, Any, set[str]]:
+    """(TrainConfig, model config, names of the settings it records) of a run's config.json
+    (or of the run folder that holds it), for ``nerfkit train --config``: the new run starts
+    from these settings, each of them counting as given (the scene kind's preset changes none).
+    Its ``out`` is the old run's: a new run needs another --out."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "config.json"
+    d = load_json(path, missing_fix="Give a run's config.json (nerfkit train writes one into every run)")
+    if not isinstance(d, dict) or not isinstance(d.get("train"), dict) or not isinstance(d.get("model"), dict):
+        raise fail(path, "is not a run's config.json (it needs 'train' and 'model' objects)",
+                   "Give the config.json of a `nerfkit train` run")
+    train = dataclass_from_dict(TrainConfig, d["train"], str(path))
+    if train.model not in MODEL_NAMES:
+        raise fail(path, f"unknown model '{train.model}'", f"Expected one of {', '.join(MODEL_NAMES)}")
+    model_class = model_config_class(train.model)
+    model_config = dataclass_from_dict(model_class, unset_as_default(model_class, d["model"]), str(path))
+    return train, model_config, set(d["train"]) | set(d["model"])
+
+
+def unset_as_default(cls: type, values: Any) -> Any:
+    """A run's recorded model settings without the ones an older nerfkit left unset (null) where
+    a setting now always has a value (a grid's --upsample-steps when only --resolutions was given):
+    they take the default, as that version did."""
+    import typing
+
+    from ..config import base_type
+
+    if not isinstance(values, dict):
+        return values
+    hints = typing.get_type_hints(cls)
+    return {k: v for k, v in values.items() if not (v is None and k in hints and not base_type(hints[k])[1])}
 
 
 def dataset_fingerprint(scene) -> dict:
@@ -162,8 +198,9 @@ def _model_payload(step: int, model: NerfModel) -> dict:
 
 
 def save_checkpoint(run_dir: Path, step: int, model: NerfModel, optimizer: torch.optim.Optimizer,
-                    extra: dict, keep: int = 2) -> Path:
-    """Write ``checkpoints/step_XXXXXXXX.pt`` atomically and prune old ones."""
+                    extra: dict, keep: int = 1) -> Path:
+    """Write ``checkpoints/step_XXXXXXXX.pt`` atomically (a temporary file, renamed once complete),
+    then delete all but the ``keep`` newest: a crash at any point leaves a whole checkpoint."""
     path = run_dir / "checkpoints" / f"step_{step:08d}.pt"
     with atomic_path(path) as tmp:
         torch.save({**_model_payload(step, model), "optimizer": optimizer.state_dict(), **extra}, tmp)

@@ -14,13 +14,14 @@ import math
 import signal
 import sys
 import time
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from .. import presets
 from ..cameras import strided_camera
 from ..data.rays import RaysData
 from ..data.scene import Scene
@@ -61,42 +62,22 @@ class TrainResult:
     rows: list[dict] = field(default_factory=list)
 
 
-def capture_settings(cfg: TrainConfig, model_config, scene: Scene):
-    """Resolve ``--capture auto`` from the dataset; in capture mode, models that can
-    learn the room and the table behind the object do. Options left unset take the
-    model's capture default, its forward-facing default on a forward-facing scene, else
-    its other default; a model's ``scene_defaults(scene, capture)`` fills other unset
-    options from the scene. Returns ``(cfg, model_config)``."""
-    on = cfg.capture == "on" or (cfg.capture == "auto" and scene.capture)
-    cfg = replace(cfg, capture="on" if on else "off")
-    names = {f.name for f in fields(model_config)}
-    if on and "learn_background" in names:
-        model_config = replace(model_config, learn_background=True)
-    if on and "table" in names:
-        model_config = replace(model_config, table=scene.table is not None)
-    forward = not on and scene.forward_facing
-    unset = {}
-    for k, (capture_value, other_value) in getattr(model_config, "CAPTURE_DEFAULTS", {}).items():
-        if getattr(model_config, k) is None:
-            forward_value = getattr(model_config, "FORWARD_FACING_DEFAULTS", {}).get(k, other_value)
-            unset[k] = capture_value if on else forward_value if forward else other_value
-    if hasattr(model_config, "scene_defaults"):
-        unset.update(model_config.scene_defaults(scene, on))
-    return cfg, replace(model_config, **unset)
+def capture_settings(cfg: TrainConfig, model_config, scene: Scene, user_set=None):
+    """``(cfg, model_config)`` resolved for ``scene`` by :func:`nerfkit.presets.resolve` (for
+    callers that built the configs in Python: the options that differ from their defaults
+    count as given, unless ``user_set`` names them)."""
+    resolved = presets.resolve(cfg, model_config, scene, user_set)
+    return resolved.train, resolved.model
 
 
 def resolved_config(cfg: TrainConfig, model_config) -> TrainConfig:
-    """Fill the options left at 0 with the model's defaults (batch size, learning rate and
-    its final factor, ...); with ``--capture`` a model's ``capture_<option>`` default, if it
-    has one, comes first."""
-    defaults = {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 8192, "eval_pixels": MAX_BATCH_RAYS,
-                "lr_final_factor": 0.1, **getattr(model_config, "TRAIN_DEFAULTS", {})}
-    capture = cfg.capture == "on"
-    for name, kind in (("render_chunk", int), ("batch_rays", int), ("lr", float), ("eval_pixels", int),
-                       ("lr_final_factor", float)):
-        if getattr(cfg, name) == 0:
-            setattr(cfg, name, kind(defaults.get(f"capture_{name}", defaults[name]) if capture else defaults[name]))
-    return cfg
+    """``cfg`` with the training settings of its model (:data:`nerfkit.presets.MODEL_TRAINING`)
+    and, with ``--capture on``, a capture's, for the options left at their defaults: for callers
+    that build a Trainer without a scene's preset (:func:`capture_settings` does both)."""
+    kind = presets.CAPTURE if cfg.capture == "on" else presets.OBJECT
+    values, _ = presets.preset_values(kind, cfg.model)
+    given = presets.differing_fields(cfg)
+    return replace(cfg, **{k: v for k, v in values.items() if k not in given and k != "capture"})
 
 
 def validation_series(rows: list[dict], n_val: int, full: int) -> dict[str, tuple[list, list]]:
@@ -122,7 +103,6 @@ class Trainer:
     def __init__(self, scene: Scene, cfg: TrainConfig, model_config, resume: bool = False, quiet: bool = False):
         if not scene.train.has_images:
             raise fail(scene.source, "has no training images")
-        cfg = resolved_config(cfg, model_config)
         self.scene, self.cfg, self.quiet = scene, cfg, quiet
         self.run_dir = Path(cfg.out)
         self.device = resolve_device(cfg.device)
@@ -539,14 +519,16 @@ class Trainer:
                        suptitle="validation view 0 during training")
 
 
-def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False) -> TrainResult:
-    """Train a new run (``cfg.out`` is created; an existing run, or a folder of other files, is refused)."""
+def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False, user_set=None) -> TrainResult:
+    """Train a new run (``cfg.out`` is created; an existing run, or a folder of other files, is refused).
+    The options not in ``user_set`` (the names of those the user gave; None: those that differ
+    from their defaults) take the scene kind's settings (:func:`nerfkit.presets.resolve`)."""
     run_dir = Path(cfg.out)
     check_new_run_folder(run_dir)
-    cfg, model_config = capture_settings(cfg.validate(), model_config, scene)
-    cfg = resolved_config(cfg, model_config)
+    resolved = presets.resolve(cfg.validate(), model_config, scene, user_set)
+    cfg, model_config = resolved.train, resolved.model
     if cfg.data:
-        cfg.data = str(Path(cfg.data).resolve())  # eval and --resume must find it from any folder
+        cfg = replace(cfg, data=str(Path(cfg.data).resolve()))  # eval and --resume must find it from any folder
     # what the trainer would refuse at start (the device, the model's settings), before --out is made
     resolve_autocast(cfg.precision, resolve_device(cfg.device))
     check_config(cfg.model, model_config)

@@ -1,0 +1,132 @@
+"""Scene kinds and the settings each trains with: the one place where defaults depend on the scene.
+
+A dataset says what it is (:func:`scene_kind`): a synthetic ``object`` (lego), a
+``capture`` (real photos of an object on a table, posed from tags or SfM: ``nerfkit poses``
+records it), or ``forward-facing`` (every camera looks the same way, as LLFF's). Each kind
+has a table of the settings that differ from the dataclasses' own defaults
+(:data:`PRESETS`), and each model one of its training settings (:data:`MODEL_TRAINING`).
+:func:`resolve` applies them, once, to the options the user did not give: a given option
+always wins. The run's config.json records the kind (``preset``) and every resolved value.
+Why each default is what it is: BENCHMARKS.md ("why the defaults are what they are").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+OBJECT, CAPTURE, FORWARD_FACING = "object", "capture", "forward-facing"
+SCENE_KINDS = (OBJECT, CAPTURE, FORWARD_FACING)
+
+# Training settings (TrainConfig fields) of each model where they differ from TrainConfig's
+# defaults, which are the default model's (fast). vanilla renders small chunks (4096 rays x 64
+# samples x 256 floats is ~270 MB) and scores 4096 pixels per periodic evaluation (whole views
+# took a minute before its occupancy grid starts); splat trains on one whole view per step,
+# with 3DGS's rates times 8 (runs of a few hundred to a few thousand steps converge faster).
+MODEL_TRAINING: dict[str, dict[str, Any]] = {
+    "fast": {},
+    "vanilla": {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 4096, "eval_pixels": 4096},
+    "splat": {"batch_rays": 1, "lr": 8.0},
+}
+
+# Per scene kind and model: {"train": TrainConfig values, "model": model config values} that
+# differ from the defaults ("*": every model). A capture learns the room (a colour per
+# direction, and for fast textured room shells), a glossy table texture, a robust photometric
+# loss, the sparse points' sight lines and a small total variation of the view-dependent colour;
+# its learning rate ends lower (a table texel is hit by few rays a step). Captures and
+# forward-facing scenes (content at every depth) take the distortion loss.
+PRESETS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
+    OBJECT: {},
+    CAPTURE: {
+        "*": {"train": {"capture": "on"}},
+        "fast": {"train": {"lr_final_factor": 0.02},
+                 "model": {"learn_background": True, "distortion_weight": 0.01, "room_shells": 3,
+                           "table_gloss": True, "rgb_loss": "charbonnier", "points_weight": 0.02,
+                           "tv_view_weight": 1e-8}},
+        "splat": {"model": {"learn_background": True}},
+    },
+    FORWARD_FACING: {"fast": {"model": {"distortion_weight": 0.01}}},
+}
+
+
+@dataclass(frozen=True)
+class Resolved:
+    """A run's settings after :func:`resolve`: the training and model configs, and the scene kind."""
+
+    train: Any  # TrainConfig
+    model: Any  # the model's config
+    kind: str
+
+
+def scene_kind(scene, capture: str = "auto") -> str:
+    """What ``scene`` is, with ``--capture`` (auto: as the dataset records; on; off):
+    a capture, else forward-facing when every camera looks about the same way, else an object."""
+    if capture == "on" or (capture == "auto" and scene.capture):
+        return CAPTURE
+    return FORWARD_FACING if scene.forward_facing else OBJECT
+
+
+def preset_values(kind: str, model: str) -> tuple[dict, dict]:
+    """(TrainConfig values, model config values) of scene kind ``kind`` for ``model``: the
+    model's training table, then the kind's for every model, then the kind's for this model."""
+    table = PRESETS[kind]
+    train = {**MODEL_TRAINING.get(model, {}), **table.get("*", {}).get("train", {}),
+             **table.get(model, {}).get("train", {})}
+    model_values = {**table.get("*", {}).get("model", {}), **table.get(model, {}).get("model", {})}
+    return train, model_values
+
+
+def scene_values(kind: str, model_config: Any, scene, given: frozenset[str]) -> dict:
+    """The model settings that follow from the scene itself rather than its kind (fast only):
+    a capture's table plane and table cover prior (:func:`~nerfkit.models.fast_config.table_cover_default`),
+    and the fifth grid stage of an object photographed at high resolution (unless a stage option is given)."""
+    from .models.fast_config import BASE_STAGES, FINE_STAGE_PIXELS, FINE_STAGES, FastConfig, table_cover_default
+
+    if not isinstance(model_config, FastConfig):
+        return {}
+    out: dict[str, Any] = {"table_cover_weight": table_cover_default(scene, kind == CAPTURE)}
+    if kind == CAPTURE:
+        out["table"] = scene.table is not None
+    if not {"resolutions", "upsample_steps"} & given:
+        fine = (kind == OBJECT and len(scene.train) > 0
+                and scene.train.width * scene.train.height > FINE_STAGE_PIXELS)
+        out["resolutions"], out["upsample_steps"] = FINE_STAGES if fine else BASE_STAGES
+    return out
+
+
+def differing_fields(cfg: Any) -> frozenset[str]:
+    """The fields of dataclass ``cfg`` whose value is not the field's default: what a caller
+    that built ``cfg`` in Python evidently chose (used when it does not say what it gave)."""
+    out = set()
+    for f in dataclasses.fields(cfg):
+        default = f.default if f.default is not dataclasses.MISSING else (
+            f.default_factory() if f.default_factory is not dataclasses.MISSING else dataclasses.MISSING)
+        if getattr(cfg, f.name) != default:
+            out.add(f.name)
+    return frozenset(out)
+
+
+def resolve(train: Any, model_config: Any, scene, user_set: Iterable[str] | None = None) -> Resolved:
+    """The run's settings: every option of ``train`` (TrainConfig) and ``model_config`` that is
+    not in ``user_set`` (the names of the options the user gave; None: those that differ from
+    their defaults) takes the value of the scene's kind (:func:`scene_kind`, from ``train.capture``).
+    Pure: the arguments are not changed. Example: the fast model on a tag capture, nothing
+    given -> lr 0.3, lr_final_factor 0.02, capture "on", rgb_loss "charbonnier", ...; with
+    ``--rgb-loss mse`` given, rgb_loss stays "mse"."""
+    given = (differing_fields(train) | differing_fields(model_config)) if user_set is None else frozenset(user_set)
+    kind = scene_kind(scene, train.capture)
+    train_values, model_values = preset_values(kind, train.model)
+    model_values = {**model_values, **scene_values(kind, model_config, scene, given)}
+    train_values["capture"] = "on" if kind == CAPTURE else "off"  # what --capture auto resolved to
+    train_values["preset"] = kind
+    # the model's options that do not apply to it are not its
+    names = {f.name for f in dataclasses.fields(model_config)}
+    model_new = {k: v for k, v in model_values.items() if k in names and (k not in given or k == "table" and not v)}
+    train_new = {k: v for k, v in train_values.items() if k not in given or k in ("capture", "preset")}
+    return Resolved(dataclasses.replace(train, **train_new), dataclasses.replace(model_config, **model_new), kind)
+
+
+__all__ = ["CAPTURE", "FORWARD_FACING", "MODEL_TRAINING", "OBJECT", "PRESETS", "Resolved", "SCENE_KINDS",
+           "preset_values", "resolve", "scene_kind"]

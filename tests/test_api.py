@@ -1,0 +1,78 @@
+"""The pipeline from Python (nerfkit.api): typed results, and the same results as the commands."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+import nerfkit
+from nerfkit import api
+from nerfkit.capture import synthetic as S
+from nerfkit.cli import main
+from nerfkit.errors import NerfkitError
+
+
+def write_photos(folder, cap):
+    folder.mkdir()
+    for name, img in zip(cap.names, cap.images):
+        S.write_photo(folder / name, img)
+    return folder
+
+
+def test_calibrate_pose_train_render_from_python(tmp_path, capsys):
+    sheet, obj = S.cached_capture("sheet", 12, 5), S.cached_capture("object", 10, 1)
+    calib, photos = write_photos(tmp_path / "sheet", sheet), write_photos(tmp_path / "object", obj)
+
+    assert nerfkit.calibrate is api.calibrate and nerfkit.pose is api.pose
+    camera = nerfkit.calibrate(calib, tmp_path / "camera.json", tag_size=0.05)
+    assert isinstance(camera, api.CalibrationResult) and camera.camera_path.is_file()
+    assert camera.photos_used >= 8 and camera.rms_px < 1.0 and camera.model
+    assert abs(json.loads(camera.camera_path.read_text())["K"][0][0] / sheet.K[0, 0] - 1) < 0.03
+
+    posed = nerfkit.pose(photos, tmp_path / "dataset", tag_size=0.06, camera=camera.camera_path, method="tags",
+                         max_side=160)
+    assert isinstance(posed, api.PoseResult) and posed.dataset_path.is_file()
+    assert posed.total == len(obj.names) and 7 <= posed.posed <= posed.total
+
+    run = api.train(posed.dataset_path, tmp_path / "run", steps=120, quiet=True, resolutions="16,32",
+                        upsample_steps="40", device="cpu")
+    assert isinstance(run, api.TrainResult) and run.steps == 120 and not run.interrupted
+    assert run.preset == "capture"  # the dataset says it is a capture: its settings, unless given
+    settings = json.loads((run.run_dir / "config.json").read_text())
+    assert settings["model"]["resolutions"] == "16,32" and settings["model"]["rgb_loss"] == "charbonnier"
+    assert run.val_psnr is not None and run.val_psnr > 14.0
+    assert (run.run_dir / "model.pt").is_file()
+
+    videos = api.render(run.run_dir, frames=3, device="cpu")
+    assert [p.name for p in videos.videos] == ["orbit.mp4", "orbit.gif", "depth.mp4"]
+    scores = nerfkit.evaluate(run.run_dir, device="cpu")
+    assert scores.report_path.is_file() and scores.psnr == pytest.approx(run.val_psnr, abs=0.05)
+    capsys.readouterr()
+
+
+def test_the_command_and_the_api_train_the_same_run(tmp_path, sphere_npz, capsys):
+    tiny = {"n_samples": 4, "width": 8, "depth": 2, "eval_views": 1, "checkpoint_seconds": 1e9}
+    flags = [x for k, v in tiny.items() for x in (f"--{k.replace('_', '-')}", str(v))]
+    assert main(["train", "--data", str(sphere_npz), "--out", str(tmp_path / "cmd"), "--model", "vanilla",
+                 "--steps", "6", "--device", "cpu", *flags]) == 0
+    by_api = api.train(sphere_npz, tmp_path / "api", model="vanilla", steps=6, device="cpu", quiet=True, **tiny)
+    a = json.loads((tmp_path / "cmd" / "config.json").read_text())
+    b = json.loads((tmp_path / "api" / "config.json").read_text())
+    a["train"].pop("out"), b["train"].pop("out")
+    assert a["train"] == b["train"] and a["model"] == b["model"]
+    assert json.loads((tmp_path / "cmd" / "metrics.json").read_text())["step"] == by_api.steps == 6
+    assert f"val PSNR: {by_api.val_psnr:.2f} dB" in capsys.readouterr().out
+
+
+def test_the_api_checks_its_arguments_as_the_command_line_does(tmp_path):
+    with pytest.raises(TypeError, match="neither training nor the fast model has: bogus"):
+        api.train("x.npz", tmp_path / "r", bogus=1)
+    with pytest.raises(NerfkitError, match="--lr"):
+        api.train("x.npz", tmp_path / "r", lr=500.0)
+    with pytest.raises(NerfkitError, match="--fps"):
+        api.render(tmp_path, fps=0)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'colour'"):
+        api.render(tmp_path, colour="red")
+    with pytest.raises(NerfkitError, match="resume.*lr cannot change"):
+        api.resume(tmp_path, lr=0.1)
