@@ -154,10 +154,10 @@ def load_image(path: str | Path, background: tuple[float, float, float] = (0.0, 
     EXIF orientation is applied; greyscale is replicated to RGB; transparency is
     composited over ``background``; 16-bit images keep their precision.
     """
-    return _to_float(_open_upright(Path(path)), background)
+    return _to_float(_open_upright(Path(path)), background, path)
 
 
-def _to_float(img, background) -> np.ndarray:
+def _to_float(img, background, path) -> np.ndarray:
     mode = img.mode
     if mode in ("I;16", "I;16B", "I;16L", "I"):
         arr = np.asarray(img, dtype=np.float32)
@@ -165,8 +165,13 @@ def _to_float(img, background) -> np.ndarray:
         rgb = np.repeat((arr / scale)[..., None], 3, axis=2)
         return np.clip(rgb, 0.0, 1.0).astype(np.float32)
     if mode == "F":
-        arr = np.nan_to_num(np.asarray(img, dtype=np.float32), nan=0.0, posinf=1.0, neginf=0.0)
-        return np.repeat(np.clip(arr, 0, 1)[..., None], 3, axis=2)
+        arr = np.asarray(img, dtype=np.float32)
+        finite = arr[np.isfinite(arr)]
+        if finite.size and (finite.min() < 0.0 or finite.max() > 1.0):  # clipped, it would be another picture
+            raise fail(path, f"float pixels span [{finite.min():.4g}, {finite.max():.4g}], expected [0, 1]",
+                       "Save it with floats scaled to 0-1 (divide 0-255 values by 255), or as an 8- or 16-bit image")
+        arr = np.nan_to_num(arr, nan=0.0, posinf=1.0, neginf=0.0)  # a diverged render's NaN black, inf white
+        return np.repeat(arr[..., None], 3, axis=2)
     has_alpha = _has_alpha(img)
     img = img.convert("RGBA" if has_alpha else "RGB")
     arr = np.asarray(img, dtype=np.float32)
@@ -186,7 +191,7 @@ def load_image_uint8(path: str | Path, background: tuple[float, float, float] = 
     img = _open_upright(Path(path))
     if img.mode not in ("I;16", "I;16B", "I;16L", "I", "F") and not _has_alpha(img):
         return np.array(img if img.mode == "RGB" else img.convert("RGB"), dtype=np.uint8)
-    rgb = _to_float(img, background)
+    rgb = _to_float(img, background, path)
     rgb *= 255.0
     rgb += 0.5
     return rgb.astype(np.uint8)
