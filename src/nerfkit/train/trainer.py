@@ -407,7 +407,8 @@ class Trainer:
             interrupted = True
 
         for s in STOP_SIGNALS:
-            signal.signal(s, on_stop_signal)
+            if previous[s] is not signal.SIG_IGN:  # ignored by who started us (nohup, a script): it stays so
+                signal.signal(s, on_stop_signal)
         start = time.perf_counter()
         self.model.load_kernels()
         loading = time.perf_counter() - start
@@ -431,10 +432,15 @@ class Trainer:
         if interrupted:
             self.log(f"interrupted: checkpoint saved at step {self.step}; continue with "
                      f"`nerfkit train --resume {self.run_dir}`")
+            if self.result().final_val_psnr is None and len(self.scene.val):
+                self.log(f"the model saved at step {self.step} was not evaluated (no val PSNR is reported): "
+                         f"`nerfkit eval {self.run_dir}` scores it")
         return self.result(interrupted)
 
     def result(self, interrupted: bool = False) -> TrainResult:
-        final = [r for r in self.rows if r["split"] == "val"]
+        """The run so far; its val PSNR only from an evaluation of the current step (one of
+        an earlier step, before an interrupt, is not the saved model's)."""
+        final = [r for r in self.rows if r["split"] == "val" and r["step"] == self.step]
         return TrainResult(self.run_dir, self.step, self.train_seconds,
                            final[-1]["psnr"] if final else None, interrupted, self.rows)
 
