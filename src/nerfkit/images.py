@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import fail
-from .io.paths import path_kind, refuse_special_file
+from .io.paths import files_inside, path_kind, refuse_special_file
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp", ".heic", ".heif"}
 # PIL refuses larger images as a "decompression bomb"; phone photos are ~12-50 MP.
@@ -205,12 +205,17 @@ def image_files(folder: str | Path) -> list[Path]:
                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
 
 
-def list_images(folder: str | Path) -> list[Path]:
-    """:func:`image_files` of a folder; a clear error when it is no folder or holds none."""
+def list_images(folder: str | Path, allow_outside: bool = False) -> list[Path]:
+    """:func:`image_files` of a folder, for the commands that read them (``poses``,
+    ``calibrate``, ``capture``); a clear error when it is no folder or holds none, and for a
+    photo that is a symlink to a file outside the folder (:func:`~nerfkit.io.paths.files_inside`;
+    ``allow_outside``: read it)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise fail(folder, "no such folder" if not folder.exists() else "is not a folder")
     files = image_files(folder)
     if not files:
         raise fail(folder, "holds no images", f"Expected files ending in {', '.join(sorted(IMAGE_SUFFIXES))}")
-    return files
+    return files_inside(folder, files, allow_outside,
+                        "nerfkit reads only the photos inside the folder it is given: copy the photo into the "
+                        "folder instead of linking to it")

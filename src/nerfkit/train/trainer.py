@@ -552,6 +552,11 @@ def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False) -> 
     """Train a new run (``cfg.out`` is created; an existing run, or a folder of other files, is refused)."""
     run_dir = Path(cfg.out)
     check_new_run_folder(run_dir)
+    if cfg.data:
+        from ..data.load import dataset_inputs
+        from ..io.paths import guard_run_folder
+
+        guard_run_folder(run_dir, cfg.data, dataset_inputs(cfg.data))  # never among its data: eval would write there
     cfg, model_config = capture_settings(cfg.validate(), model_config, scene)
     cfg = resolved_config(cfg, model_config)
     if cfg.data:
