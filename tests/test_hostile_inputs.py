@@ -922,7 +922,7 @@ def _photos_with_a_link_outside(root: Path) -> tuple[Path, Path]:
 def test_a_photo_symlinked_to_a_file_outside_the_folder_is_never_read(tmp_path, capsys, monkeypatch, command):
     import nerfkit.capture.photos as photos_mod
 
-    photos, secret = _photos_with_a_link_outside(tmp_path)
+    photos, _ = _photos_with_a_link_outside(tmp_path)
     out = tmp_path / "out"
     read = []
     loader = photos_mod.load_image_uint8
@@ -1029,7 +1029,7 @@ def _run_cli(args, delay=None, sig=None, ignore_sigint=False, timeout=300):
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     proc = subprocess.Popen([sys.executable, "-m", "nerfkit", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, preexec_fn=ignore if ignore_sigint else None)
+                            text=True, preexec_fn=ignore if ignore_sigint else None)  # noqa: PLW1509
     try:
         if sig is not None:
             time.sleep(delay)
