@@ -135,7 +135,22 @@ OS_ERROR_HINTS = {
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; its exit code (0, 2 for an error, 130 when stopped by Ctrl-C or
+    SIGTERM, at any moment: from the first line here, before the heavy imports)."""
+    previous = _sigterm_as_ctrl_c()  # first: a signal during the imports below is one line too
     argv = sys.argv[1:] if argv is None else argv
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        command = command_in(argv)
+        print(f"nerfkit{' ' + command if command else ''}: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _main(argv: list[str]) -> int:
     parser = build_parser(command_in(argv))
     unknown = unknown_option(parser, argv)
     if unknown:
@@ -149,7 +164,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
-    previous = _sigterm_as_ctrl_c()
     try:
         return int(args.func(args) or 0)
     except NerfkitError as e:
@@ -172,12 +186,6 @@ def main(argv: list[str] | None = None) -> int:
         hint = OS_ERROR_HINTS.get(e.errno, "Check the path and its permissions")
         print(f"nerfkit {args.command}: error: {where}: {e.strerror or e}. {hint}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"nerfkit {args.command}: interrupted", file=sys.stderr)
-        return 130
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
 
 
 def _interrupt(signum, frame):
@@ -187,8 +195,12 @@ def _interrupt(signum, frame):
 def _sigterm_as_ctrl_c():
     """SIGTERM (kill, timeout, schedulers) stops a command as Ctrl-C does: ``train`` saves,
     anything else ends with exit code 130. Returns the handler it replaced (None off the
-    main thread, where handlers cannot be set)."""
+    main thread, where handlers cannot be set, and when SIGTERM is ignored: it stays so).
+    SIGINT keeps Python's own handler (KeyboardInterrupt), or stays ignored when the
+    process was started with it ignored (``nohup``, a script's background job)."""
     try:
+        if signal.getsignal(signal.SIGTERM) is signal.SIG_IGN:
+            return None
         return signal.signal(signal.SIGTERM, _interrupt)
     except ValueError:
         return None

@@ -24,6 +24,7 @@ import argparse
 import dataclasses
 import itertools
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from importlib import resources
@@ -45,6 +46,10 @@ if TYPE_CHECKING:  # torch is imported inside functions so the CLI can build its
 
 DEFAULT_IMAGE_NAME = "astronaut.jpg"
 SWEEPABLE = ("L", "width", "depth", "lr", "batch", "steps")
+# the largest MLP fit-image builds: far beyond what fitting one image needs (the course's
+# sweeps stay within width 512 and depth 8), and a bound before memory runs out
+MAX_WIDTH = 8192
+MAX_DEPTH = 64
 
 
 @dataclass
@@ -53,8 +58,8 @@ class FitImageConfig:
 
     L: int = option(10, "positional-encoding octaves; the MLP sees 2 * (1 + 2 L) inputs (42 at L = 10)", min=0,
                     max=30)
-    width: int = option(256, "hidden layer width", min=1)
-    depth: int = option(3, "number of hidden Linear+ReLU layers", min=1)
+    width: int = option(256, "hidden layer width", min=1, max=MAX_WIDTH)
+    depth: int = option(3, "number of hidden Linear+ReLU layers", min=1, max=MAX_DEPTH)
     lr: float = option(1e-2, "Adam learning rate", above=0, max=100)
     batch: int = option(10_000, "random pixels per training step", min=1, max=1 << 24)
     steps: int = option(2000, "training steps", min=0)
@@ -93,6 +98,51 @@ def validate_config(cfg: FitImageConfig) -> None:
         raise fail("--precision", f"unknown precision '{cfg.precision}'", "Use auto, bf16 or fp32")
     parse_steps(cfg.progress_steps)
     parse_background(cfg.background)
+
+
+def model_bytes(L: int, width: int, depth: int) -> int:
+    """Bytes an :class:`ImageField` takes to train: its float32 weights, their gradients and
+    Adam's two moments (4 copies)."""
+    inputs = 2 * (1 + 2 * L)  # the encoded (x, y)
+    weights = (inputs + 1) * width + (depth - 1) * (width + 1) * width + (width + 1) * 3
+    return 16 * weights
+
+
+def step_bytes(batch: int, width: int, depth: int) -> int:
+    """Rough bytes of one training step's activations: each hidden layer's output for
+    ``batch`` pixels, kept for the backward pass, and its gradient (float32)."""
+    return 8 * batch * width * depth
+
+
+def memory_bytes(device) -> int | None:
+    """The memory of ``device`` (a torch.device): the GPU's, or the machine's RAM; None when unknown."""
+    try:
+        if device.type == "cuda":
+            import torch
+
+            return int(torch.cuda.get_device_properties(device).total_memory)
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (AttributeError, ValueError, OSError, RuntimeError):
+        return None
+
+
+def check_memory(cfg: FitImageConfig, device) -> None:
+    """Refuse, naming the flag to lower, a model (``--width``, ``--depth``) or a training step
+    (``--batch``) that needs more memory than ``device`` has, before anything is built."""
+    have = memory_bytes(device)
+    if not have:
+        return
+    model = model_bytes(cfg.L, cfg.width, cfg.depth)
+    where = "the GPU's" if device.type == "cuda" else "this machine's"
+    if model > have:
+        raise fail("--width/--depth", f"a model of width {cfg.width} and depth {cfg.depth} needs about "
+                   f"{model / 1e9:.3g} GB to train (weights, gradients, Adam's state), more than {where} "
+                   f"{have / 1e9:.3g} GB of memory", "Lower --width or --depth (the defaults: 256 and 3)")
+    step = step_bytes(cfg.batch, cfg.width, cfg.depth)
+    if model + step > have:
+        raise fail("--batch", f"a step of {cfg.batch} pixels through width {cfg.width} and depth {cfg.depth} needs "
+                   f"about {(model + step) / 1e9:.3g} GB, more than {where} {have / 1e9:.3g} GB of memory",
+                   "Lower --batch (or --width)")
 
 
 def parse_steps(text: str) -> list[int]:
@@ -290,6 +340,7 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
     device = resolve_device(cfg.device)
     precision = resolve_precision(cfg.precision, device)
 
+    check_memory(cfg, device)
     torch.manual_seed(cfg.seed)
     model = ImageField(cfg.L, cfg.width, cfg.depth).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import fail
-from .io.paths import path_kind, refuse_special_file
+from .io.paths import files_inside, path_kind, refuse_special_file
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp", ".heic", ".heif"}
 # PIL refuses larger images as a "decompression bomb"; phone photos are ~12-50 MP.
@@ -154,10 +154,10 @@ def load_image(path: str | Path, background: tuple[float, float, float] = (0.0, 
     EXIF orientation is applied; greyscale is replicated to RGB; transparency is
     composited over ``background``; 16-bit images keep their precision.
     """
-    return _to_float(_open_upright(Path(path)), background)
+    return _to_float(_open_upright(Path(path)), background, path)
 
 
-def _to_float(img, background) -> np.ndarray:
+def _to_float(img, background, path) -> np.ndarray:
     mode = img.mode
     if mode in ("I;16", "I;16B", "I;16L", "I"):
         arr = np.asarray(img, dtype=np.float32)
@@ -165,8 +165,13 @@ def _to_float(img, background) -> np.ndarray:
         rgb = np.repeat((arr / scale)[..., None], 3, axis=2)
         return np.clip(rgb, 0.0, 1.0).astype(np.float32)
     if mode == "F":
-        arr = np.nan_to_num(np.asarray(img, dtype=np.float32), nan=0.0, posinf=1.0, neginf=0.0)
-        return np.repeat(np.clip(arr, 0, 1)[..., None], 3, axis=2)
+        arr = np.asarray(img, dtype=np.float32)
+        finite = arr[np.isfinite(arr)]
+        if finite.size and (finite.min() < 0.0 or finite.max() > 1.0):  # clipped, it would be another picture
+            raise fail(path, f"float pixels span [{finite.min():.4g}, {finite.max():.4g}], expected [0, 1]",
+                       "Save it with floats scaled to 0-1 (divide 0-255 values by 255), or as an 8- or 16-bit image")
+        arr = np.nan_to_num(arr, nan=0.0, posinf=1.0, neginf=0.0)  # a diverged render's NaN black, inf white
+        return np.repeat(arr[..., None], 3, axis=2)
     has_alpha = _has_alpha(img)
     img = img.convert("RGBA" if has_alpha else "RGB")
     arr = np.asarray(img, dtype=np.float32)
@@ -186,7 +191,7 @@ def load_image_uint8(path: str | Path, background: tuple[float, float, float] = 
     img = _open_upright(Path(path))
     if img.mode not in ("I;16", "I;16B", "I;16L", "I", "F") and not _has_alpha(img):
         return np.array(img if img.mode == "RGB" else img.convert("RGB"), dtype=np.uint8)
-    rgb = _to_float(img, background)
+    rgb = _to_float(img, background, path)
     rgb *= 255.0
     rgb += 0.5
     return rgb.astype(np.uint8)
@@ -200,12 +205,17 @@ def image_files(folder: str | Path) -> list[Path]:
                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
 
 
-def list_images(folder: str | Path) -> list[Path]:
-    """:func:`image_files` of a folder; a clear error when it is no folder or holds none."""
+def list_images(folder: str | Path, allow_outside: bool = False) -> list[Path]:
+    """:func:`image_files` of a folder, for the commands that read them (``poses``,
+    ``calibrate``, ``capture``); a clear error when it is no folder or holds none, and for a
+    photo that is a symlink to a file outside the folder (:func:`~nerfkit.io.paths.files_inside`;
+    ``allow_outside``: read it)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise fail(folder, "no such folder" if not folder.exists() else "is not a folder")
     files = image_files(folder)
     if not files:
         raise fail(folder, "holds no images", f"Expected files ending in {', '.join(sorted(IMAGE_SUFFIXES))}")
-    return files
+    return files_inside(folder, files, allow_outside,
+                        "nerfkit reads only the photos inside the folder it is given: copy the photo into the "
+                        "folder instead of linking to it")

@@ -46,14 +46,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--background", default="black",
                    help="colour under transparent pixels of RGBA inputs: black, white, grey, r,g,b in [0, 1] "
                         "or #rrggbb (default: black)")
-    p.add_argument("--near", type=number(float, 0.0), help="set the depth range's near end (world units; e.g. the "
-                   "course's 2 for lego, where nerfkit's rule from the cameras gives 2.02)")
-    p.add_argument("--far", type=number(float, above=0), help="set the depth range's far end (the course's 6 for lego)")
+    p.add_argument("--near", type=depth_bound(number(float, 0.0)), help="set the depth range's near end (world "
+                   "units; e.g. the course's 2 for lego, where nerfkit's rule from the cameras gives 2.02)")
+    p.add_argument("--far", type=depth_bound(number(float, above=0)),
+                   help="set the depth range's far end (the course's 6 for lego)")
     p.add_argument("--images", metavar="DIR", help="photo folder of a COLMAP model (default: the project's images/)")
     p.add_argument("--text", action="store_true", help="with --format colmap: write the text model instead of binary")
     p.add_argument("--force", action="store_true", help="replace an existing output (never an input)")
     add_outside_flag(p)
     p.set_defaults(func=run)
+
+
+# what a dataset file holds a depth bound in (float32): the largest finite value, and the
+# smallest positive one it keeps at full precision (a smaller one is rounded, or becomes 0)
+FLOAT32_MAX = 3.4028234663852886e38
+FLOAT32_TINY = 1.1754943508222875e-38
+
+
+def depth_bound(parse):
+    """``parse`` (an argparse ``type``), also refusing a depth a dataset file cannot hold as
+    float32: ``--far 1e308`` would be written as inf, ``--near 1e-320`` as 0."""
+
+    def checked(text: str) -> float:
+        value = parse(text)
+        if value > FLOAT32_MAX:
+            raise argparse.ArgumentTypeError(f"{text} is larger than a dataset file holds (float32: at most 3.4e38)")
+        if 0 < value < FLOAT32_TINY:
+            raise argparse.ArgumentTypeError(f"{text} is smaller than a dataset file holds (float32: 0 or at least "
+                                             "1.2e-38)")
+        return value
+
+    checked.__name__ = "float"  # argparse names the type in its messages
+    return checked
 
 
 # names that --to takes for a file of another kind, not a folder (`--to out.ply`)
@@ -106,6 +130,11 @@ def run(args: argparse.Namespace) -> int:
 
         scene.near, scene.far = check_near_far(scene.near if args.near is None else args.near,
                                                scene.far if args.far is None else args.far, "--near/--far")
+        import numpy as np
+
+        if not np.float32(scene.near) < np.float32(scene.far):  # as the file holds them
+            raise fail("--near/--far", f"near={scene.near:g} and far={scene.far:g} are one number in a dataset file "
+                       "(float32)", "Give a wider depth range")
     written = write_scene_as(scene, out, fmt, text=args.text)
     n = {k: len(v) for k, v in scene.splits.items()}
     print(f"{args.src} ({src_fmt}) -> {out} ({fmt}): {n['train']} train, {n['val']} val, {n['test']} test views, "

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-MEMORY_HINT = "Lower --batch and --chunk, or downscale the image"
+MEMORY_HINT = "Lower --batch and --chunk (pixels at once), --width and --depth (the model), or downscale the image"
 HELP = "fit a neural field (x, y) -> RGB to one image; PSNR curve, progression figure, sweeps"
 
 DESCRIPTION = """\

@@ -9,6 +9,7 @@ own undistorter. Reading and writing go through pycolmap.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -143,6 +144,7 @@ def read_model(model_dir: str | Path) -> pycolmap.Reconstruction:
         refuse_special_file(f)
     if any((model_dir / f"{n}.bin").is_file() for n in MODEL_FILES):
         _precheck_binary_model(model_dir)
+    check_text_quaternions(model_dir)
     try:
         return pycolmap.Reconstruction(str(model_dir))
     except Exception as e:  # noqa: BLE001 - pycolmap raises ValueError/RuntimeError on bad files
@@ -156,11 +158,60 @@ def camera_matrix(camera) -> np.ndarray:
     return np.asarray(camera.calibration_matrix(), np.float64)
 
 
+def quaternion_matrix(q: np.ndarray) -> np.ndarray:
+    """The rotation (3, 3) of a unit quaternion ``q`` (4,) in pycolmap's order (x, y, z, w)."""
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
 def image_c2w(image) -> np.ndarray:
-    """Camera-to-world (4, 4) float64 of a posed pycolmap image (OpenCV axes)."""
+    """Camera-to-world (4, 4) float64 of a posed pycolmap image (OpenCV axes). A rotation
+    quaternion of another length than 1 is normalised, as COLMAP does; a zero or non-finite
+    one (no rotation at all) is a ``np.linalg.LinAlgError``."""
+    pose = image.cam_from_world()
     w2c = np.eye(4)
-    w2c[:3] = np.asarray(image.cam_from_world().matrix(), np.float64)
+    w2c[:3] = np.asarray(pose.matrix(), np.float64)
+    q = np.asarray(pose.rotation.quat, np.float64)
+    norm = math.hypot(*q)
+    if not (math.isfinite(norm) and norm > 0):
+        raise np.linalg.LinAlgError(f"rotation quaternion {q.tolist()} of image {image.name!r} has no direction")
+    if abs(norm - 1.0) > 1e-9:  # pycolmap takes it as it is: a scaled, not a rigid, rotation
+        w2c[:3, :3] = quaternion_matrix(q / norm)
     return np.linalg.inv(w2c)
+
+
+def check_text_quaternions(model_dir: Path) -> None:
+    """Refuse a text model whose ``images.txt`` or ``frames.txt`` gives a rotation quaternion
+    (QW QX QY QZ) that is zero or not finite, naming the file and line: pycolmap would take a
+    zero one for no rotation at all. Lines it cannot read are left to pycolmap, which says so."""
+    # (file, first quaternion field, whether each record has a second line: images.txt's points)
+    for name, first, two_lines in (("images", 1, True), ("frames", 2, False)):
+        path = model_dir / f"{name}.txt"
+        if (model_dir / f"{name}.bin").exists() or not path.is_file():
+            continue
+        with open(path, encoding="utf-8", errors="replace") as f:
+            lines = iter(enumerate(f, 1))
+            for number, line in lines:
+                line = line.strip()
+                if not line or line.startswith("#"):
+                    continue
+                if two_lines:
+                    next(lines, None)  # the image's 2D points
+                fields = line.split()
+                try:
+                    q = [float(v) for v in fields[first:first + 4]]
+                except ValueError:
+                    continue
+                if len(q) < 4:
+                    continue
+                norm = math.hypot(*q)
+                if not math.isfinite(norm) or norm == 0:
+                    what = "zero: no rotation at all" if norm == 0 else "not finite"
+                    raise fail(f"{path}:{number}", f"{name[:-1]} {fields[0]} has the rotation quaternion "
+                               f"{' '.join(fields[first:first + 4])} (QW QX QY QZ), which is {what}",
+                               "The model is corrupt; export it from COLMAP again")
 
 
 def undistort(image: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
@@ -310,8 +361,9 @@ def reconstruction_to_scene(
         names.append(im.name)
         try:
             c2ws.append(check_poses(image_c2w(im)[None], where, f"pose of {im.name}")[0])
-        except np.linalg.LinAlgError:  # a singular matrix from a zero quaternion
-            raise fail(where, f"image {im.name!r} has a degenerate pose", "The model's images.txt/bin is corrupt") from None
+        except np.linalg.LinAlgError:  # a zero or non-finite quaternion, a singular matrix
+            raise fail(where, f"image {im.name!r} has a degenerate pose (its rotation quaternion is zero or not "
+                              "finite)", "The model's images.txt/bin is corrupt") from None
         Ks.append(scale_intrinsics(K, *wh, *out_wh))
     assert size_wh is not None  # images is not empty
     W, H = output_size(*size_wh, size, downscale)

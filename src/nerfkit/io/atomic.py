@@ -101,16 +101,17 @@ def replacing_folder(folder: str | os.PathLike) -> Iterator[Path]:
     no file of the one before it, and a failed write leaves the folder as it was (the
     earlier one, or none).
 
-    Only for folders that are a command's own output, replaced under ``--force``.
+    Only for folders that are a command's own output, replaced under ``--force``. The
+    earlier one waits in a folder of a fresh random name beside it (``.<name>.replaced.<random>``,
+    made here), so no folder of the user's is ever taken for it; a replacement killed
+    midway leaves that folder behind rather than guess which leftovers are nerfkit's.
     """
     folder = Path(folder)
-    old = folder.with_name(f".{folder.name}.replaced")
-    if old.is_symlink() or old.is_file():
-        old.unlink()
-    elif old.exists():  # left by a replacement that was killed
-        shutil.rmtree(old)
     moved = folder.is_symlink() or folder.exists()
+    aside = old = None
     if moved:
+        aside = Path(tempfile.mkdtemp(prefix=f".{folder.name}.replaced.", dir=folder.parent))
+        old = aside / folder.name
         folder.rename(old)
     try:
         yield folder
@@ -118,9 +119,11 @@ def replacing_folder(folder: str | os.PathLike) -> Iterator[Path]:
         shutil.rmtree(folder, ignore_errors=True)
         if moved:
             old.rename(folder)
+            aside.rmdir()
         raise
     if moved:
         old.unlink() if old.is_symlink() or old.is_file() else shutil.rmtree(old)
+        aside.rmdir()
 
 
 def _umask() -> int:

@@ -3,12 +3,14 @@
 * Readers resolve every name a dataset file gives (a frame's ``file_path``, a COLMAP
   image name, a ``poses.json`` entry) with :func:`resolve_inside`: the file must lie in
   the dataset's folder, symlinks included, unless the user passes
-  ``--allow-outside-paths``.
+  ``--allow-outside-paths``. The photos a folder lists are held to the same rule
+  (:func:`files_inside`): a symlink in the folder to a file elsewhere is outside it.
 * Writers name their files with :func:`safe_output_name`: a plain file name, so a
   crafted name never leaves the output folder.
 * Commands check their outputs with :func:`guard_outputs` before writing anything: an
   output is never an input or inside one (and never holds one), and an existing output
-  is replaced only with ``--force``.
+  is replaced only with ``--force``. A run is never written inside the folder of the
+  dataset it trains on (:func:`guard_run_folder`).
 """
 
 from __future__ import annotations
@@ -77,20 +79,37 @@ def is_within(path: str | os.PathLike, folder: str | os.PathLike) -> bool:
     return resolved_path(path).is_relative_to(resolved_path(folder))
 
 
-def resolve_inside(root: str | os.PathLike, name: str, allow_outside: bool = False, where: object = None) -> Path:
-    """``root / name`` resolved (links, ``..``); refused when it leaves ``root``.
+def resolve_inside(root: str | os.PathLike, name: str, allow_outside: bool = False, where: object = None,
+                   folder: str = "dataset", hint: str | None = None) -> Path:
+    """``root / name`` resolved (links, ``..``); refused when it leaves ``root``: the one
+    rule for every file a dataset or a photo folder names (a symlink in ``root`` to a file
+    elsewhere leaves it).
 
     An absolute ``name`` is taken as it is. With ``allow_outside`` any path is accepted
-    (the user trusts the dataset file).
+    (the user trusts the dataset file). ``folder`` names what ``root`` is in the message
+    (``"dataset"``, ``"photo"``); ``hint`` replaces the advice (for a command without
+    ``--allow-outside-paths``).
     """
     name = str(name)
     if "\x00" in name:
         raise fail(where or root, f"file name {name[:100]!r} is not a usable path (it holds a NUL byte)")
     path = resolved_path(Path(root) / name)  # an absolute name replaces root
     if not allow_outside and not path.is_relative_to(resolved_path(root)):
-        raise fail(where or root, f"file name {name[:200]!r} points outside the dataset folder {root}",
-                   f"Keep a dataset's files inside its folder, or pass {OUTSIDE_FLAG} if you trust this dataset")
+        link = f" (a symlink to {str(path)[:200]})" if Path(root, name).is_symlink() else ""
+        raise fail(where or root, f"file name {name[:200]!r}{link} points outside the {folder} folder {root}",
+                   hint or f"Keep a dataset's files inside its folder, or pass {OUTSIDE_FLAG} if you trust this "
+                           "dataset")
     return path
+
+
+def files_inside(folder: str | os.PathLike, files: list[Path], allow_outside: bool = False,
+                 hint: str | None = None) -> list[Path]:
+    """``files`` (the entries a listing of ``folder`` found), each refused by
+    :func:`resolve_inside` when it resolves outside ``folder``: a photo folder's symlink
+    to a file elsewhere is not read (``allow_outside``: it is)."""
+    for f in files:
+        resolve_inside(folder, f.name, allow_outside, f, folder="photo", hint=hint)
+    return files
 
 
 _UNSAFE = re.compile(r"[\x00-\x1f\x7f]")
@@ -134,3 +153,38 @@ def guard_outputs(outputs, inputs, force: bool = False, flag: str = "--out") -> 
         for o in outs:
             if _occupied(o):
                 raise fail(o, "already exists", f"Pass --force to replace it, or choose another {flag}")
+
+
+# what marks the folder of a dataset file as the dataset's own: what nerfkit's dataset
+# writers put beside the npz (`poses`, `dataset`, `capture`), and what other readers take
+DATASET_MARKS = ("images", "transforms.json", "poses.json", "transforms_train.json", "poses_bounds.npy")
+
+
+def dataset_folder(data: str | os.PathLike) -> Path | None:
+    """The folder a dataset at ``data`` lives in: ``data`` itself when it is a folder; the
+    folder of a dataset file whose images lie beside it (a ``transforms.json``), or that
+    holds the dataset's other parts (:data:`DATASET_MARKS`: ``ds/`` of ``ds/dataset.npz``
+    as ``nerfkit poses`` writes it); None for an npz alone among other files (a
+    ``scene.npz`` in a working folder, or nothing at ``data``)."""
+    path = Path(data)
+    kind = path_kind(path)
+    if kind is None:
+        return None
+    if kind == "dir":
+        return path
+    if path.suffix.lower() != ".npz":
+        return path.parent
+    return path.parent if any(path_kind(path.parent / m) is not None for m in DATASET_MARKS) else None
+
+
+def guard_run_folder(run_dir: str | os.PathLike, data: str | os.PathLike, inputs=()) -> None:
+    """Refuse to write a run (``train --out``) inside the folder of the dataset ``data``
+    (:func:`dataset_folder`), as ``eval`` and ``render`` would then write there too; and,
+    as :func:`guard_outputs` does, when it is one of ``inputs`` (what reading the dataset
+    reads), inside one or holds one. An existing run folder is the trainer's to check."""
+    folder = dataset_folder(data)
+    if folder is not None and is_within(run_dir, folder):
+        raise fail(run_dir, f"is inside {folder}, the folder of the dataset {data}",
+                   "Choose an --out outside the dataset's folder (e.g. runs/NAME): nerfkit never writes a run "
+                   "among the data it trains on")
+    guard_outputs([run_dir], [data, *inputs], force=True)

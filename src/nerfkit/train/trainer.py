@@ -23,11 +23,13 @@ from torch import Tensor
 
 from .. import presets
 from ..cameras import strided_camera
+from ..data.load import dataset_inputs
 from ..data.rays import RaysData
 from ..data.scene import Scene
 from ..errors import fail
 from ..io.atomic import is_temporary, write_image, write_json, write_text
 from ..io.lock import LOCK_FILE
+from ..io.paths import guard_run_folder
 from ..models import SceneBounds, build_model, check_config
 from ..models.base import NerfModel, StepState, grads_finite, run_schedules
 from ..precision import autocast
@@ -384,7 +386,8 @@ class Trainer:
             interrupted = True
 
         for s in STOP_SIGNALS:
-            signal.signal(s, on_stop_signal)
+            if previous[s] is not signal.SIG_IGN:  # ignored by who started us (nohup, a script): it stays so
+                signal.signal(s, on_stop_signal)
         start = time.perf_counter()
         self.model.load_kernels()
         loading = time.perf_counter() - start
@@ -408,10 +411,15 @@ class Trainer:
         if interrupted:
             self.log(f"interrupted: checkpoint saved at step {self.step}; continue with "
                      f"`nerfkit train --resume {self.run_dir}`")
+            if self.result().final_val_psnr is None and len(self.scene.val):
+                self.log(f"the model saved at step {self.step} was not evaluated (no val PSNR is reported): "
+                         f"`nerfkit eval {self.run_dir}` scores it")
         return self.result(interrupted)
 
     def result(self, interrupted: bool = False) -> TrainResult:
-        final = [r for r in self.rows if r["split"] == "val"]
+        """The run so far; its val PSNR only from an evaluation of the current step (one of
+        an earlier step, before an interrupt, is not the saved model's)."""
+        final = [r for r in self.rows if r["split"] == "val" and r["step"] == self.step]
         return TrainResult(self.run_dir, self.step, self.train_seconds,
                            final[-1]["psnr"] if final else None, interrupted, self.rows)
 
@@ -525,6 +533,8 @@ def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False, use
     from their defaults) take the scene kind's settings (:func:`nerfkit.presets.resolve`)."""
     run_dir = Path(cfg.out)
     check_new_run_folder(run_dir)
+    if cfg.data:
+        guard_run_folder(run_dir, cfg.data, dataset_inputs(cfg.data))  # never among its data: eval would write there
     resolved = presets.resolve(cfg.validate(), model_config, scene, user_set)
     cfg, model_config = resolved.train, resolved.model
     if cfg.data:
