@@ -217,7 +217,7 @@ def blender_views(folder: Path, split: str, width: int, height: int):
     from nerfkit.cameras import opengl_to_opencv
     from nerfkit.config import load_json
     from nerfkit.data.blender import focal_from_angle, frame_image_path
-    from nerfkit.data.load import scale_intrinsics
+    from nerfkit.data.resample import scale_intrinsics
     from nerfkit.data.scene import Views
     from nerfkit.data.validate import check_fov, check_poses
 

@@ -34,17 +34,19 @@ ROOT = "nerfkit"
 LAYERS: list[tuple[str, set[str]]] = [
     (
         "foundations: errors, files, images, camera conventions, settings, plain geometry",
-        {"nerfkit", "errors", "precision", "io", "images", "cameras", "config", "ground", "tabletop", "splat_files"},
+        {"nerfkit", "errors", "precision", "io", "images", "cameras", "config", "ground", "tabletop", "splat_files",
+         "scene_extent"},
     ),
     ("datasets: the Scene type and its file formats", {"data"}),
-    ("rendering maths: volume rendering, sampling, kernels, fields", {"render", "kernels", "fields"}),
+    ("rendering maths: volume rendering, sampling, kernels, fields, estimators",
+     {"render", "kernels", "fields", "estimators"}),
     ("figures, videos and the dataset viewer", {"viz"}),
     ("captures, structure from motion, models, mesh and point export", {"capture", "sfm", "models", "export"}),
     (
-        "what models make and how they learn: rendered outputs, training, image fitting",
-        {"output", "train", "fit_image"},
+        "what models make and how they learn: rendered outputs, scene presets, training, image fitting",
+        {"output", "presets", "train", "fit_image"},
     ),
-    ("the command line", {"commands", "cli", "__main__"}),
+    ("the command line and the Python API over it", {"commands", "cli", "__main__", "api"}),
 ]
 
 

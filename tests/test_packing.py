@@ -122,7 +122,7 @@ def test_resume_checkpoints_keep_optimizer_state_and_are_pruned(tmp_path, traine
     for step in (10, 20, 30):
         save_checkpoint(tmp_path, step, model, opt, {})
     kept = sorted(p.name for p in (tmp_path / "checkpoints").iterdir())
-    assert kept == ["step_00000020.pt", "step_00000030.pt"]  # the newest two (the default)
+    assert kept == ["step_00000030.pt"]  # only the newest (the default)
     ckpt = torch.load(tmp_path / "checkpoints" / kept[-1], weights_only=True)
     assert "model_packing" not in ckpt and ckpt["model"]["grid"].dtype == torch.float32  # full precision to resume
     assert ckpt["optimizer"]["state"]  # Adam moments

@@ -21,6 +21,10 @@ def sphere_radius(scene) -> float:
 # fewer sparse points than this standing on a capture's table give no object box
 MIN_OBJECT_POINTS = 30
 
+# below this many training photos a capture's held-out views suffer markedly (benchmarks/capture_real.py
+# --photos N); the capture summary warns, and the fast model's table cover prior applies
+FEW_TRAIN_VIEWS = 30
+
 
 def object_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float,
                   lift: float = 0.03) -> np.ndarray:

@@ -36,7 +36,7 @@ from ..errors import advice, fail
 from ..images import common_size
 from ..io.atomic import write_json
 from ..io.paths import resolve_inside
-from ..scene_extent import MIN_OBJECT_POINTS, object_points, sphere_radius
+from ..scene_extent import FEW_TRAIN_VIEWS, MIN_OBJECT_POINTS, object_box_from_points, object_points, sphere_radius
 from .camera import Camera, camera_from_dict, nerfkit_K
 from .poses import UP, PosedPhoto
 from .undistort import make_undistorter, output_size, resize_K_nerfkit
@@ -69,10 +69,6 @@ class DatasetConfig:
     points: bool = option(True, "triangulate sparse 3D points from the train views with the poses held (COLMAP's "
                           "point triangulator; they initialise --model splat). Needs pycolmap")
 
-
-# below this many training photos a capture's held-out views suffer (labubu: 21 dB from 20, 25.5 from 39;
-# BENCHMARKS.md, sessions 21 and 23)
-FEW_TRAIN_VIEWS = 30
 
 
 def few_views_note(n_train: int) -> str | None:
@@ -315,11 +311,12 @@ def photo_agreement(scene: Scene) -> "Agreement | None":
     """How well ``scene``'s training photos agree on its table around the object
     (:func:`~nerfkit.capture.agreement.measure_agreement`, the object's box left out as the
     model will find it), or None."""
-    from ..models.base import SceneBounds
     from .agreement import measure_agreement
 
-    bounds = SceneBounds.from_scene(scene)
-    return measure_agreement(scene.train, scene.center, scene.table, bounds.radius, bounds.object_box)
+    radius = sphere_radius(scene)  # the object's box as the model will find it (SceneBounds.from_scene)
+    box = (None if scene.points is None or scene.table is None
+           else object_box_from_points(scene.points, scene.table, scene.center, radius))
+    return measure_agreement(scene.train, scene.center, scene.table, radius, box)
 
 
 def _lying_flat(tags) -> np.ndarray | None:

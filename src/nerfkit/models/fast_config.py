@@ -47,7 +47,7 @@ TABLE_COVER_WEIGHT = 0.05
 
 def table_cover_default(scene, capture: bool) -> float:
     """``--table-cover-weight`` left unset: :data:`TABLE_COVER_WEIGHT` on a capture with a
-    table, fewer than :data:`~nerfkit.capture.dataset.FEW_TRAIN_VIEWS` training photos and
+    table, fewer than :data:`~nerfkit.scene_extent.FEW_TRAIN_VIEWS` training photos and
     sparse points that show no floor under the table; else 0.
 
     With few photos a table's coverage under 1 blends the room shells into it in blotches
@@ -57,7 +57,7 @@ def table_cover_default(scene, capture: bool) -> float:
     and the prior holds it opaque: the carpet is painted onto the table's plane (-0.5 dB).
     Without sparse points the floor is unknown: off.
     """
-    from ..capture.dataset import FEW_TRAIN_VIEWS
+    from ..scene_extent import FEW_TRAIN_VIEWS
 
     if not capture or scene.table is None or scene.points is None or not 0 < len(scene.train) < FEW_TRAIN_VIEWS:
         return 0.0
