@@ -26,7 +26,7 @@ from nerfkit.data.load import detect_format, load_scene  # noqa: E402
 from nerfkit.data.synthetic import sphere_scene  # noqa: E402
 from nerfkit.errors import NerfkitError  # noqa: E402
 from nerfkit.ground import rotation_between  # noqa: E402
-from nerfkit.io.atomic import write_image  # noqa: E402
+from nerfkit.images import write_image  # noqa: E402
 from nerfkit.sfm.colmap import run_sfm  # noqa: E402
 from nerfkit.sfm.dataset import sfm_dataset  # noqa: E402
 from nerfkit.sfm.frame import align_reconstruction, apply_similarity, compare_poses, normalising_similarity, umeyama  # noqa: E402

@@ -19,7 +19,7 @@ from nerfkit.data.npz import load_npz, save_npz
 from nerfkit.data.resample import output_size, resample_scene, scale_intrinsics
 from nerfkit.data.synthetic import render_sphere, sphere_cameras, sphere_scene
 from nerfkit.errors import NerfkitError
-from nerfkit.io.atomic import write_image
+from nerfkit.images import write_image
 
 ANGLE = 0.6911112070083618  # lego's camera_angle_x
 

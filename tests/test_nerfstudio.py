@@ -100,7 +100,7 @@ def test_distortion_is_removed_on_load_with_a_warning(tmp_path):
     import cv2
 
     from conftest import dot_centroid_errors, draw_dots
-    from nerfkit.io.atomic import write_image
+    from nerfkit.images import write_image
 
     W, H, f = 160, 120, 120.0
     gx, gy = np.meshgrid(np.linspace(-0.55, 0.55, 6), np.linspace(-0.4, 0.4, 5))  # dots >= 20 px apart

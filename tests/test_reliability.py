@@ -18,7 +18,8 @@ import torch
 from nerfkit.cli import main
 from nerfkit.errors import NerfkitError
 from nerfkit.images import to_uint8
-from nerfkit.io.atomic import atomic_path, write_image, write_json
+from nerfkit.images import write_image
+from nerfkit.io.atomic import atomic_path, write_json
 from nerfkit.models.vanilla import VanillaConfig
 from nerfkit.train.checkpoint import load_run
 from nerfkit.train.config import TrainConfig

@@ -35,7 +35,8 @@ import numpy as np
 
 from .config import MAX_SEED, check_ranges, flag_type, option, parse_background
 from .errors import fail
-from .io.atomic import write_image, write_json
+from .images import write_image
+from .io.atomic import write_json
 from .viz.plots import image_grid, plot_curves
 
 if TYPE_CHECKING:  # torch is imported inside functions so the CLI can build its parser quickly

@@ -7,6 +7,7 @@ Every failure is a :class:`NerfkitError` naming the file.
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections import Counter
 from pathlib import Path
@@ -14,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import fail
+from .io.atomic import atomic_path
 from .io.paths import files_inside, path_kind, refuse_special_file
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp", ".heic", ".heif"}
@@ -219,3 +221,14 @@ def list_images(folder: str | Path, allow_outside: bool = False) -> list[Path]:
     return files_inside(folder, files, allow_outside,
                         "nerfkit reads only the photos inside the folder it is given: copy the photo into the "
                         "folder instead of linking to it")
+
+
+def write_image(path: str | os.PathLike, image: np.ndarray) -> None:
+    """Write an image (float in [0, 1] or uint8, (H, W[, C])) as PNG/JPEG atomically; floats
+    go through :func:`to_uint8`."""
+    import imageio.v3 as iio
+
+    if image.dtype != np.uint8:
+        image = to_uint8(image)
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, image, extension=Path(path).suffix)

@@ -291,7 +291,7 @@ def _replace_run(run_dir: Path) -> None:
 def run(args: argparse.Namespace) -> int:
     from functools import partial
 
-    from .. import api
+    from . import pipeline as api
     from ..errors import fail
     from ..images import list_images
     from ..io.atomic import write_json

@@ -207,7 +207,8 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
     from ..data.colmap import write_colmap_model
     from ..errors import fail
     from ..images import IMAGE_SUFFIXES
-    from ..io.atomic import replacing_folder, write_image
+    from ..images import write_image
+    from ..io.atomic import replacing_folder
     from ..io.paths import safe_output_name
 
     out = Path(out)

@@ -7,6 +7,7 @@ import dataclasses
 import sys
 
 from ..config import add_alternative_dataclass_args, add_dataclass_args, flag_of, foreign_flags
+from .pipeline import RESUME_APPLIES
 
 MEMORY_HINT = "Lower --batch-rays (rays per step) or --render-chunk (rays per rendered chunk)"
 HELP = "train a NeRF on a dataset (or --resume a run)"
@@ -93,8 +94,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 # TrainConfig fields that --resume applies to the continued run (the others would change
 # what the run is, so they are refused): the stopping rule, where and how often to save.
-RESUME_APPLIES = ("steps", "minutes", "device", "checkpoint_seconds", "keep_checkpoints", "eval_every", "eval_views",
-                  "eval_pixels", "render_chunk")
 
 
 def resume_changes(args: argparse.Namespace) -> dict:
@@ -131,7 +130,7 @@ def refuse_other_models_flags(args: argparse.Namespace, classes: dict, model: st
 
 def api_result(result):
     """The trainer's result as the API's (:class:`nerfkit.api.TrainResult`)."""
-    from ..api import _train_result
+    from .pipeline import _train_result
 
     return _train_result(result)
 
@@ -162,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
                                 allow_outside=bool(args.allow_outside_paths or info.train.allow_outside_paths))
         result = api_result(resume(args.resume, scene, changes=changes))
     else:
-        from .. import api
+        from . import pipeline as api
 
         classes = _model_config_classes()
         model = args.model

@@ -175,16 +175,3 @@ def write_npz(path: str | os.PathLike, **arrays: np.ndarray | np.generic) -> Non
     """Write an uncompressed npz atomically (arrays must not be object arrays)."""
     with atomic_path(path, suffix=".npz") as tmp:
         np.savez(tmp, **arrays)  # type: ignore[arg-type]  # numpy's stub: a **kwds key might be allow_pickle
-
-
-def write_image(path: str | os.PathLike, image: np.ndarray) -> None:
-    """Write an image (float in [0, 1] or uint8, (H, W[, C])) as PNG/JPEG atomically; floats
-    go through :func:`nerfkit.images.to_uint8`."""
-    import imageio.v3 as iio
-
-    from ..images import to_uint8
-
-    if image.dtype != np.uint8:
-        image = to_uint8(image)
-    with atomic_path(path) as tmp:
-        iio.imwrite(tmp, image, extension=Path(path).suffix)

@@ -215,7 +215,7 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
 
     from ..capture.camera import common_lens, other_lens
     from ..images import common_frame, common_size, load_image_uint8, turns_into_frame
-    from ..io.atomic import write_image
+    from ..images import write_image
 
     infos, skipped = [], {}
     for p in photos:

@@ -27,7 +27,8 @@ from ..data.load import dataset_inputs
 from ..data.rays import RaysData
 from ..data.scene import Scene
 from ..errors import fail
-from ..io.atomic import is_temporary, write_image, write_json, write_text
+from ..images import write_image
+from ..io.atomic import is_temporary, write_json, write_text
 from ..io.lock import LOCK_FILE
 from ..io.paths import guard_run_folder
 from ..models import SceneBounds, build_model, check_config

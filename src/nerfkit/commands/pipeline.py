@@ -1,0 +1,301 @@
+"""The pipeline from Python (:mod:`nerfkit.api`): calibrate, pose, train, render, evaluate, export.
+
+Each function takes what its command takes, as keyword arguments named as the flags
+(``tag_size=0.06`` for ``--tag-size 0.06``), checks them as the command line is checked,
+and returns a typed result. The commands print what these do; ``nerfkit capture`` is
+these functions in a row. Example::
+
+    from nerfkit import api
+
+    camera = api.calibrate("sheet_photos/", "camera.json", tag_size=0.04)
+    poses = api.pose("object_photos/", "my_object/", tag_size=0.06, camera=camera.camera_path)
+    run = api.train(poses.dataset_path, "runs/my_object", minutes=3)
+    print(run.val_psnr, api.render(run.run_dir).videos)
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """A camera file written by :func:`calibrate`."""
+
+    camera_path: Path
+    heldout_px: float | None  # reprojection error (px) of the chosen lens model on held-out photos
+    model: str  # the lens distortion model chosen
+    rms_px: float  # reprojection error (px) on the photos it was fitted to
+    photos_used: int
+
+
+@dataclass(frozen=True)
+class PoseResult:
+    """A dataset written by :func:`pose`."""
+
+    dataset_path: Path | None  # dataset.npz (None with no_dataset=True)
+    posed: int  # photos with a pose in the dataset (or from the tags, without a dataset)
+    total: int  # photos in the folder
+    out: Path
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """A run trained by :func:`train`."""
+
+    run_dir: Path
+    steps: int
+    train_seconds: float
+    val_psnr: float | None  # the final validation PSNR (dB), all views, whole images
+    interrupted: bool
+    preset: str  # the scene kind whose settings it took (nerfkit.presets)
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    """Videos written by :func:`render`."""
+
+    videos: tuple[Path, ...]
+
+
+@dataclass(frozen=True)
+class EvaluationResult:
+    """Scores written by :func:`evaluate` (RUN/eval_<split>.json)."""
+
+    split: str
+    psnr: float
+    ssim: float
+    report_path: Path
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    """Files written by :func:`export`."""
+
+    files: tuple[Path, ...]
+
+
+# what ``nerfkit train --resume`` may change: the stopping rule and how the run is carried out
+RESUME_APPLIES = ("steps", "minutes", "device", "checkpoint_seconds", "keep_checkpoints", "eval_every", "eval_views",
+                  "eval_pixels", "render_chunk")
+
+
+def command_parser(command: str) -> argparse.ArgumentParser:
+    """The parser of ``nerfkit COMMAND`` (one of the commands the pipeline runs) on its own."""
+    from . import calibrate as calibrate_command
+    from . import eval as eval_command
+    from . import export as export_command
+    from . import poses as poses_command
+    from . import render as render_command
+
+    modules = {"calibrate": calibrate_command, "poses": poses_command, "render": render_command,
+               "eval": eval_command, "export": export_command}
+    sub = argparse.ArgumentParser(prog="nerfkit").add_subparsers(dest="command")
+    modules[command].register(sub)
+    return sub.choices[command]
+
+
+def command_arguments(command: str, **values: Any) -> argparse.Namespace:
+    """The parsed arguments ``nerfkit COMMAND`` would have for ``values`` (flag names with
+    ``_`` for ``-``; the rest take the command's defaults), each checked as the command line
+    checks it (numbers in range, choices). Unknown names are a TypeError, as for any function."""
+    from ..errors import fail
+
+    sub = command_parser(command)
+    actions = {a.dest: a for a in sub._actions if a.dest not in (argparse.SUPPRESS, "help")}
+    args = argparse.Namespace(command=command, verbose=bool(values.pop("verbose", False)), func=sub.get_default("func"))
+    for dest, action in actions.items():
+        setattr(args, dest, None if action.default is argparse.SUPPRESS else action.default)
+    for key, value in values.items():
+        if key not in actions:
+            raise TypeError(f"{command}() got an unexpected keyword argument {key!r}")
+        if value is None:  # not given: the command's default
+            continue
+        action = actions[key]
+        flag = action.option_strings[-1] if action.option_strings else key
+        if value is not None and action.type is not None and not isinstance(value, bool):
+            try:
+                value = action.type(str(value))
+            except (argparse.ArgumentTypeError, TypeError, ValueError) as e:
+                raise fail(flag, str(e)) from None
+        if isinstance(value, Path):
+            value = str(value)
+        if value is not None and action.choices is not None and value not in action.choices:
+            raise fail(flag, f"'{value}' is not one of {', '.join(map(str, action.choices))}")
+        setattr(args, key, value)
+    return args
+
+
+def _run(command: str, **values: Any) -> argparse.Namespace:
+    """Run ``nerfkit COMMAND``'s body on :func:`command_arguments`; the arguments it ran with."""
+    args = command_arguments(command, **values)
+    code = args.func(args)
+    if code == 130:
+        raise KeyboardInterrupt
+    return args
+
+
+def calibrate(photos: str | Path, out: str | Path, *, tag_size: float | None = None, **options: Any
+              ) -> CalibrationResult:
+    """Calibrate the camera from photos of the printed tag sheet (``nerfkit calibrate``);
+    ``options`` as its flags (``layout``, ``dict``, ``force``, ...)."""
+    args = _run("calibrate", photos=photos, out=out, tag_size=tag_size, **options)
+    path = Path(args.out)
+    path = path / "camera.json" if path.is_dir() else path
+    data = json.loads(path.read_text())
+    return CalibrationResult(path, data.get("heldout_rms"), str(data.get("dist_model")), float(data["rms"]),
+                             int(data.get("photos_used", 0)))
+
+
+def pose(photos: str | Path, out: str | Path, *, tag_size: float | None = None, camera: str | Path | None = None,
+         method: str = "auto", **options: Any) -> PoseResult:
+    """Pose the photos of an object beside a tag (or by SfM) and build its dataset
+    (``nerfkit poses``); ``options`` as its flags (``max_side``, ``layout``, ``force``, ...)."""
+    from ..capture.dataset import POSES_FILE
+
+    args = _run("poses", photos=photos, out=out, tag_size=tag_size, camera=camera, method=method, **options)
+    out = Path(args.out)
+    from ..images import list_images
+
+    total = len(list_images(args.photos))
+    dataset = out / "dataset.npz"
+    if args.no_dataset or not dataset.is_file():
+        posed = json.loads((out / POSES_FILE).read_text()).get("photos_posed", 0) if (out / POSES_FILE).is_file() \
+            else 0
+        return PoseResult(None, int(posed), total, out)
+    from ..data.npz import load_npz
+
+    scene = load_npz(dataset)
+    return PoseResult(dataset, sum(len(v) for v in scene.splits.values()), total, out)
+
+
+def train_settings(options: dict[str, Any], config: str | Path | None = None) -> tuple[Any, Any, set[str]]:
+    """(TrainConfig, model config, names given) for ``options`` (TrainConfig and model settings
+    by name), starting from a run's ``config`` (config.json or its run folder) when given: the
+    settings ``nerfkit train`` builds from its flags. A name neither config has is a TypeError."""
+    from ..config import check_ranges
+    from ..errors import fail
+    from ..models import MODEL_NAMES, model_config_class
+    from ..train.config import TrainConfig
+
+    if config is not None:
+        from ..train.checkpoint import read_settings
+
+        base, base_model, given = read_settings(config)
+    else:
+        base, base_model, given = TrainConfig(), None, set()
+    train_names = {f.name for f in dataclasses.fields(TrainConfig)}
+    cfg = check_ranges(dataclasses.replace(base, **{k: v for k, v in options.items() if k in train_names}))
+    if cfg.model not in MODEL_NAMES:
+        raise fail("--model", f"'{cfg.model}' is not a model", f"Choose one of: {', '.join(MODEL_NAMES)}")
+    model_class = model_config_class(cfg.model)
+    if base_model is not None and not isinstance(base_model, model_class):  # another model than the config's
+        given -= {f.name for f in dataclasses.fields(type(base_model))}
+        base_model = None
+    model_names = {f.name for f in dataclasses.fields(model_class)}
+    unknown = set(options) - train_names - model_names
+    if unknown:
+        raise TypeError(f"train() got settings that neither training nor the {cfg.model} model has: "
+                        f"{', '.join(sorted(unknown))}")
+    model_values = {k: v for k, v in options.items() if k in model_names}
+    model_cfg = dataclasses.replace(base_model, **model_values) if base_model is not None else model_class(
+        **model_values)
+    return cfg, model_cfg, given | set(options)
+
+
+def train(data: str | Path | None = None, out: str | Path | None = None, *, model: str | None = None, steps: int | None = None,
+          minutes: float | None = None, config: str | Path | None = None, quiet: bool = False, **options: Any
+          ) -> TrainResult:
+    """Train a new run on a dataset (``nerfkit train``): ``options`` are training and model
+    settings by name (``lr=0.1``, ``resolutions="32,64"``); the ones not given take the
+    dataset's kind's (:mod:`nerfkit.presets`). ``config``: start from a run's settings. With
+    neither ``steps`` nor ``minutes`` (nor a config's), it trains for 5 minutes."""
+    from ..models import check_config
+    from ..train.trainer import check_new_run_folder
+    from ..train.trainer import train as train_run
+    from ._common import load_as_trained
+    from ..errors import fail
+
+    given = {k: v for k, v in (("data", data), ("out", out), ("model", model), ("steps", steps),
+                               ("minutes", minutes)) if v is not None}
+    cfg, model_cfg, user_set = train_settings({**options, **{k: str(v) if k in ("data", "out") else v
+                                                             for k, v in given.items()}}, config)
+    if not cfg.data:
+        raise fail("train", "no dataset given", "Pass --data FILE (try the bundled "
+                   "src/nerfkit/assets/lego_200x200.npz, or run `nerfkit demo`)")
+    if cfg.steps == 0 and cfg.minutes == 0:
+        cfg = dataclasses.replace(cfg, minutes=5.0)
+        if not quiet:
+            import sys
+
+            print("no --steps or --minutes: training for 5 minutes", file=sys.stderr)
+    model_cfg = check_config(cfg.model, model_cfg)  # its own bounds
+    check_new_run_folder(Path(cfg.out))  # before loading the dataset: a refusal should be quick
+    # RGBA images are composited on the colour the model renders behind the scene
+    scene = load_as_trained(cfg, cfg.data, allow_outside=cfg.allow_outside_paths)
+    result = train_run(scene, cfg, model_cfg, quiet=quiet, user_set=user_set)
+    return _train_result(result)
+
+
+def _train_result(result) -> TrainResult:
+    from ..train.checkpoint import read_run
+
+    return TrainResult(Path(result.run_dir), result.step, result.train_seconds, result.final_val_psnr,
+                       result.interrupted, read_run(result.run_dir).train.preset)
+
+
+def resume(run: str | Path, *, steps: int | None = None, minutes: float | None = None, data: str | Path | None = None,
+           quiet: bool = False, **changes: Any) -> TrainResult:
+    """Continue a run from its newest good checkpoint (``nerfkit train --resume``), with a new
+    stopping rule or the settings ``nerfkit train --resume`` applies (``device``, ``eval_every``, ...)."""
+    from ._common import load_as_trained
+    from ..train.checkpoint import read_run
+    from ..train.trainer import resume as resume_run
+
+    from ..errors import fail
+
+    refused = sorted(set(changes) - set(RESUME_APPLIES))
+    if refused:
+        raise fail("resume", f"{', '.join(refused)} cannot change when a run continues (it keeps its own settings)",
+                   "Resume without them: it applies only " + ", ".join(RESUME_APPLIES))
+    info = read_run(run)
+    scene = load_as_trained(info.train, str(data or info.train.data), allow_outside=info.train.allow_outside_paths)
+    changes = {**changes, **{k: v for k, v in (("steps", steps), ("minutes", minutes)) if v is not None}}
+    return _train_result(resume_run(run, scene, quiet=quiet, changes=changes))
+
+
+def render(run: str | Path, *, out: str | Path | None = None, object: bool = False, **options: Any  # noqa: A002
+           ) -> RenderResult:
+    """Render a run's videos (``nerfkit render``): the orbit (or the dataset's path), its
+    depth, and with ``object=True`` the object alone; ``options`` as its flags (``frames``, ``fps``, ...)."""
+    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
+
+    args = _run("render", run=run, out=out, object=object, **options)
+    folder = Path(args.out) if args.out else Path(args.run) / "videos"
+    names = OBJECT_VIDEO_FILES if object else VIDEO_FILES
+    return RenderResult(tuple(folder / name for name in names if (folder / name).is_file()))
+
+
+def evaluate(run: str | Path, *, split: str = "val", **options: Any) -> EvaluationResult:
+    """Score a run on a split's held-out views (``nerfkit eval``), writing RUN/eval_<split>.json."""
+    args = _run("eval", run=run, split=split, **options)
+    path = Path(args.run) / f"eval_{args.split}.json"
+    data = json.loads(path.read_text())
+    return EvaluationResult(args.split, float(data["psnr"]), float(data["ssim"]), path)
+
+
+def export(run: str | Path, *, mesh: str | Path | None = None, points: str | Path | None = None,
+           splat: str | Path | None = None, **options: Any) -> ExportResult:
+    """Export a run as a mesh, a point cloud or (splat runs) Gaussians (``nerfkit export``)."""
+    _run("export", run=run, mesh=mesh, points=points, splat=splat, **options)
+    return ExportResult(tuple(Path(p) for p in (mesh, points, splat) if p is not None and Path(p).is_file()))
+
+
+__all__ = ["CalibrationResult", "EvaluationResult", "ExportResult", "PoseResult", "RenderResult", "TrainResult",
+           "calibrate", "command_arguments", "evaluate", "export", "pose", "render", "resume", "train",
+           "train_settings"]
