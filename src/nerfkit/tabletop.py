@@ -169,9 +169,9 @@ def _low_pieces(solid: np.ndarray, paint: np.ndarray, above: np.ndarray, top: fl
     reach = np.nonzero((above < top).any(axis=tuple(a for a in range(3) if a != axis)))[0]
     if len(reach) == 0:
         return out
-    slab = [slice(None)] * 3
-    slab[axis] = slice(max(int(reach[0]) - 1, 0), min(int(reach[-1]) + 2, solid.shape[axis]))
-    slab = tuple(slab)
+    cut = [slice(None)] * 3
+    cut[axis] = slice(max(int(reach[0]) - 1, 0), min(int(reach[-1]) + 2, solid.shape[axis]))
+    slab = tuple(cut)
     labels, count, main = _pieces(solid[slab] & ~paint[slab])
     if count < 2:
         return out

@@ -14,8 +14,8 @@ arrays the caller computed.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import torch
 import torch.nn.functional as F
@@ -69,6 +69,11 @@ class OccupancyEstimator(nn.Module):
         coarse: :func:`coarse_cells` of ``occ`` (uint8, derived, not saved).
         cell_sigma: (rz - 1, ry - 1, rx - 1) float32 (``running_max`` only).
     """
+
+    lo: Tensor
+    occ: Tensor
+    coarse: Tensor
+    cell_sigma: Tensor
 
     def __init__(self, box: GridBox, rule: RefreshRule | None = None, coarse_factor: int = 1,
                  running_max: bool = False, device: torch.device | str | None = None):

@@ -74,7 +74,7 @@ class GridGeom:
         return torch.arange(self.n_vertices, dtype=torch.int32, device=self.lo.device)
 
     @staticmethod
-    def of(box: GridBox, index: Tensor | None = None, device=None, dense_offset: int | None = None) -> "GridGeom":
+    def of(box: GridBox, index: Tensor | None = None, device=None, dense_offset: int | None = None) -> GridGeom:
         """The layout of a grid over ``box`` (its corner as a float32 tensor on ``device``)."""
         return GridGeom(box.lo_tensor(device), box.voxel, box.res, index, dense_offset=dense_offset)
 
@@ -193,7 +193,7 @@ class _Lease:
 
     def __init__(self, ws: _Workspace):
         ws.busy = True
-        self.ws = ws
+        self.ws: _Workspace | None = ws
 
     def release(self) -> None:
         if self.ws is not None:
@@ -266,6 +266,7 @@ def _forward_numba(nb, grid: Tensor, geom: GridGeom, spec: MarchSpec, rays_o, ra
     if store:
         span = np.clip(t1n - t0n, 0.0, None)
         cap = int(math.ceil(float(span.max()) / spec.step)) + 2 if n else 1
+        assert lease is not None and lease.ws is not None  # store=True comes with a live lease
         s_idx, s_f = lease.ws.views(cap, n)
     else:
         s_idx, s_f = np.zeros((0, n), np.int64), np.zeros((0, n, 9), np.float32)

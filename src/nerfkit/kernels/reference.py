@@ -180,11 +180,12 @@ def render_samples(
     rgbs = near_damping(rgbs, t.unsqueeze(-1), grad_near)
     weights, _, _ = render_weights(sigmas, step, ray_indices)
     rgb, depth, acc = composite(weights, rgbs, ray_indices, n_rays, t.to(weights.dtype))
+    assert depth is not None  # composite returns a depth when given t
     return rgb, depth, acc, distortion(weights, t.to(weights.dtype), step, ray_indices, n_rays, t_end)
 
 
 def adam_rows(param: Tensor, g: Tensor, rows: Tensor, exp_avg: Tensor, exp_avg_sq: Tensor, lr: Tensor,
-              beta1: float, beta2: float, eps: float, step: int) -> None:
+              beta1: float, beta2: float, eps: float, step: int) -> int:
     """Adam applied in place to the given rows only (lazy/sparse Adam).
 
     Args:

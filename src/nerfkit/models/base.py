@@ -6,8 +6,9 @@ hands a model a batch of :class:`~nerfkit.cameras.Rays` and gets a :class:`Rende
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import cast
 
 import numpy as np
 import torch
@@ -55,7 +56,7 @@ class SceneBounds:
         return self.camera_radius if self.camera_radius is not None else self.far
 
     @staticmethod
-    def from_scene(scene) -> "SceneBounds":
+    def from_scene(scene) -> SceneBounds:
         c2w = scene.train.c2w
         dists = np.linalg.norm(c2w[:, :3, 3] - scene.center, axis=1)
         radius = sphere_radius(scene)
@@ -87,14 +88,15 @@ class SceneBounds:
                 "tags": None if self.tags is None else np.asarray(self.tags, np.float64).round(7).tolist()}
 
     @staticmethod
-    def from_dict(d: dict) -> "SceneBounds":
+    def from_dict(d: dict) -> SceneBounds:
         table = d.get("table")
         return SceneBounds(float(d["near"]), float(d["far"]), np.asarray(d["center"], np.float32),
                            float(d["radius"]), np.asarray(d["up"], np.float32),
                            None if table is None else np.asarray(table, np.float32),
                            None if d.get("camera_radius") is None else float(d["camera_radius"]),
                            None if d.get("object_box") is None else
-                           tuple(np.asarray(b, np.float32) for b in d["object_box"]),
+                           cast(tuple[np.ndarray, np.ndarray],  # saved by to_dict as [lo, hi]
+                                tuple(np.asarray(b, np.float32) for b in d["object_box"])),
                            None if d.get("ndc") is None else NdcSpace.from_dict(d["ndc"]),
                            None if d.get("floor") is None else np.asarray(d["floor"], np.float32),
                            None if d.get("tags") is None else np.asarray(d["tags"], np.float32))

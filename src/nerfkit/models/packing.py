@@ -56,7 +56,7 @@ def unpack_grid(packed: dict, n_rows: int, n_channels: int) -> tuple[Tensor, Ten
     are checked before the grid is allocated.
     """
     mask, density, colour = (packed.get(k) for k in ("mask", "density", "colour"))
-    if not all(isinstance(t, Tensor) for t in (mask, density, colour)):
+    if not (isinstance(mask, Tensor) and isinstance(density, Tensor) and isinstance(colour, Tensor)):
         raise ValueError("compact grid: 'mask', 'density' or 'colour' is missing")
     n_bytes = -(-n_rows // 8)
     if mask.dtype != torch.uint8 or mask.shape != (n_bytes,):

@@ -37,7 +37,7 @@ from ..errors import fail
 from ..fields.background import sh16
 from ..kernels import splat_reference as ref
 from ..kernels.optim import replace_param
-from ..kernels.splat_ops import render_gaussians, resolve_backend
+from ..kernels.splat_ops import SplatRender, render_gaussians, resolve_backend
 from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState
 
 PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
@@ -99,7 +99,7 @@ class SplatConfig:
     kernels: str = option("auto", "auto (compiled numba on the CPU when available; gsplat on CUDA when "
                           "installed), numba, or torch", choices=["auto", "numba", "torch"])
 
-    def validate(self) -> "SplatConfig":
+    def validate(self) -> SplatConfig:
         check_ranges(self)
         if self.densify_from > self.densify_until:
             raise fail("--densify-from", "must not be after --densify-until")
@@ -111,6 +111,18 @@ class SplatModel(NerfModel):
 
     whole_images = True
 
+    # set by _install (parameters, then buffers registered with register_buffer)
+    means: nn.Parameter
+    log_scales: nn.Parameter
+    quats: nn.Parameter
+    opacity_logits: nn.Parameter
+    sh_dc: nn.Parameter
+    sh_rest: nn.Parameter
+    grad_accum: Tensor
+    grad_count: Tensor
+    max_radii: Tensor
+    bg_coef: nn.Parameter | None
+
     def __init__(self, config: SplatConfig, bounds: SceneBounds):
         super().__init__(bounds)
         self.config = config.validate()
@@ -119,7 +131,8 @@ class SplatModel(NerfModel):
         self.active_degree = 0
         self.n_resets = 0
         self._progress = 0.0
-        self._last = None  # the last training render (its 2D means carry the densification gradient)
+        # the last training render (its 2D means carry the densification gradient)
+        self._last: tuple[SplatRender, int, int] | None = None
         self._image_side = 0  # longest side of the training images (for the screen-size prune)
         pts = random_in_ball(config.init_points, bounds.center, bounds.radius,
                              torch.Generator().manual_seed(0))
@@ -166,6 +179,7 @@ class SplatModel(NerfModel):
         gen = torch.Generator().manual_seed(0)
         center, radius = np.asarray(self.bounds.center, np.float64), float(self.bounds.radius)
         mode = c.init
+        scale: Tensor | float
         bg = np.asarray(background.detach().cpu().numpy() if isinstance(background, Tensor) else background)
         n_points = 0 if scene.points is None else len(scene.points)
         if mode == "auto":

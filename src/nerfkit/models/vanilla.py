@@ -33,13 +33,13 @@ from torch import Tensor, nn
 
 from ..cameras import Rays
 from ..config import check_ranges, option
+from ..estimators.occupancy import OccupancyEstimator, RefreshRule
 from ..fields.encoding import encoded_dim, positional_encoding
 from ..precision import autocast
+from ..render.box import GridBox
 from ..render.sampling import intervals_from_t, sample_pdf, stratified_t
 from ..render.volrend import composite, regular_ray_indices, render_weights
-from ..estimators.occupancy import OccupancyEstimator, RefreshRule
-from ..render.box import GridBox
-from .base import NerfModel, RenderOutput, SceneBounds, Schedule, rgb_loss
+from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState, rgb_loss
 
 # A cell stays occupied while alpha = 1 - exp(-sigma * sample spacing) exceeds this.
 OCCUPANCY_ALPHA = 0.01
@@ -122,8 +122,9 @@ class VanillaNeRF(NerfModel):
             # refreshed before a step, every occupancy_every steps from occupancy_warmup; its
             # per-cell density estimate (inf: not measured yet, so occupied) is saved in checkpoints
             r = cfg.occupancy_res
-            lo = torch.as_tensor(bounds.center) - bounds.radius
-            self.estimator = OccupancyEstimator(GridBox(lo.numpy(), 2.0 * bounds.radius / r, (r + 1,) * 3),
+            lo_x, lo_y, lo_z = (torch.as_tensor(bounds.center) - bounds.radius).tolist()
+            box = GridBox((lo_x, lo_y, lo_z), 2.0 * bounds.radius / r, (r + 1, r + 1, r + 1))
+            self.estimator = OccupancyEstimator(box,
                                                 RefreshRule(cfg.occupancy_warmup, cfg.occupancy_every),
                                                 running_max=True)
 
@@ -148,6 +149,7 @@ class VanillaNeRF(NerfModel):
             dirs[:, 2] = 1.0
             return net(pts, dirs)[0]
 
+        assert self.estimator is not None  # only called with --occupancy
         with autocast(self.estimator.occ.device, self.autocast_dtype):  # the precision the trainer resolved
             self.estimator.measure(occ_eval_fn, self._spacing(), OCCUPANCY_ALPHA, OCCUPANCY_DECAY)
 
@@ -155,8 +157,12 @@ class VanillaNeRF(NerfModel):
         """Occupancy updates, with ``--occupancy`` (the estimator decides when)."""
         if self.estimator is None:
             return []
-        return [Schedule("occupancy", lambda s: True,
-                         lambda s: self.estimator.update_every_n_steps(s.step, self.update_occupancy) and None)]
+
+        def refresh(s: StepState) -> None:
+            assert self.estimator is not None
+            self.estimator.update_every_n_steps(s.step, self.update_occupancy)
+
+        return [Schedule("occupancy", lambda s: True, refresh)]
 
     def finish_training(self) -> list[str]:
         """A run that ends before ``occupancy_warmup`` measures its occupancy grid once here,
@@ -190,6 +196,7 @@ class VanillaNeRF(NerfModel):
         sigma, rgb = net(pts, rays.directions[ray_indices])
         weights, _, _ = render_weights(sigma, deltas, ray_indices)
         color, depth, acc = composite(weights, rgb, ray_indices, n_rays, t_flat, background)
+        assert depth is not None  # composite returns a depth when given t
         if grid is not None:  # the skipped samples' weights are 0
             weights = weights.new_zeros(n_rays * n_samples).index_copy(0, kept, weights)
         return RenderOutput(color, depth, acc, len(ray_indices)), weights.view(n_rays, n_samples)

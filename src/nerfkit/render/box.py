@@ -10,6 +10,7 @@ kernels use too.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import torch
@@ -36,7 +37,7 @@ class GridBox:
             raise ValueError(f"a grid box needs at least 2 vertices per axis, got {self.res}")
 
     @staticmethod
-    def fit(lo: np.ndarray, hi: np.ndarray, size: int) -> "GridBox":
+    def fit(lo: np.ndarray, hi: np.ndarray, size: int) -> GridBox:
         """A box of about ``size ** 3`` vertices with cubic voxels covering ``[lo, hi]``,
         centred on it (corner rounded to float32, as the grid stores it)."""
         ext = np.maximum(hi - lo, 1e-6)
@@ -44,7 +45,8 @@ class GridBox:
         res = np.maximum(np.ceil(ext / voxel - 1e-6).astype(int) + 1, 2)
         center = 0.5 * (lo + hi)
         new_lo = (center - 0.5 * voxel * (res - 1)).astype(np.float32)
-        return GridBox(tuple(new_lo), voxel, tuple(int(r) for r in res))
+        # res has one entry per axis of lo / hi (3; __post_init__ checks it)
+        return GridBox(tuple(new_lo), voxel, cast(tuple[int, int, int], tuple(int(r) for r in res)))
 
     def lo_tensor(self, device=None, dtype: torch.dtype = torch.float32) -> Tensor:
         """(3,) ``lo`` as a tensor."""
