@@ -1,6 +1,7 @@
 # nerfkit: the two commands of the README.
 #   make demo   set up .venv and run the main job on the bundled lego scene
-#   make test   set up .venv and run the test suite
+#   make test   set up .venv and run the test suite's fast lane (the tests not marked slow)
+#   make test-all   the whole suite, slow end-to-end tests included (what CI runs)
 #   make lint   ruff (lint and format check) and mypy over the sources and tests
 # TORCH_SPEC picks the PyTorch build; the default is the CPU wheel these machines carry.
 # On a CUDA machine: make demo TORCH_SPEC="torch>=2.4"
@@ -24,6 +25,12 @@ demo: setup
 	$(BIN)/nerfkit demo
 
 test: setup
+	$(BIN)/python -m pytest -m "not slow"
+
+test-slow: setup
+	$(BIN)/python -m pytest -m slow
+
+test-all: setup
 	$(BIN)/python -m pytest
 
 lint: setup

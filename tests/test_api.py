@@ -20,6 +20,7 @@ def write_photos(folder, cap):
     return folder
 
 
+@pytest.mark.slow
 def test_calibrate_pose_train_render_from_python(tmp_path, capsys):
     sheet, obj = S.cached_capture("sheet", 12, 5), S.cached_capture("object", 10, 1)
     calib, photos = write_photos(tmp_path / "sheet", sheet), write_photos(tmp_path / "object", obj)
@@ -51,6 +52,7 @@ def test_calibrate_pose_train_render_from_python(tmp_path, capsys):
     capsys.readouterr()
 
 
+@pytest.mark.slow
 def test_the_command_and_the_api_train_the_same_run(tmp_path, sphere_npz, capsys):
     tiny = {"n_samples": 4, "width": 8, "depth": 2, "eval_views": 1, "checkpoint_seconds": 1e9}
     flags = [x for k, v in tiny.items() for x in (f"--{k.replace('_', '-')}", str(v))]

@@ -35,6 +35,7 @@ def test_corners_are_sub_pixel_accurate_on_synthetic_photos():
         assert set(d.ids.tolist()) <= set(cap.layout.ids) and len(set(d.ids.tolist())) == len(d.ids)
 
 
+@pytest.mark.slow
 def test_downscaled_detection_is_refined_at_full_resolution():
     # A 1280x960 photo detected on a 500 px copy: corners must still be sub-pixel at full size.
     K = S.DEFAULT_K.copy()
@@ -48,6 +49,7 @@ def test_downscaled_detection_is_refined_at_full_resolution():
     assert np.sqrt(np.mean(errs ** 2)) < 0.25
 
 
+@pytest.mark.slow
 def test_a_corner_under_an_object_is_found_from_the_visible_edges():
     # A ball resting on a tag's corner hides it from every view above; the detector's outline
     # bends round the ball. The lines through the rest of the two edges meet at the true corner.
@@ -133,6 +135,7 @@ def test_dictionary_names():
         A.get_dictionary("DICT_9X9_7")
 
 
+@pytest.mark.slow
 def test_detection_cache_reuses_unchanged_photos(tmp_path, monkeypatch):
     cap = S.cached_capture("sheet", 12, 5)
     folder = tmp_path / "p"

@@ -45,6 +45,7 @@ def test_every_photo_shows_several_tags(records):
     assert np.mean([len(r.detection.ids) >= 4 for r in records]) > 0.7
 
 
+@pytest.mark.slow
 def test_sheet_without_layout_recovers_intrinsics_within_1_percent(sheet, records):
     cal = C.calibrate_records(fresh(records), SIZE, TAG, None, C.CalibrateConfig())
     assert cal.target == "estimated layout"
@@ -54,6 +55,7 @@ def test_sheet_without_layout_recovers_intrinsics_within_1_percent(sheet, record
     assert cal.sanity["warnings"] == []
 
 
+@pytest.mark.slow
 def test_estimated_layout_matches_the_printed_sheet(sheet, records):
     cal = C.calibrate_records(fresh(records), SIZE, TAG, None, C.CalibrateConfig())
     est = cal.layout.tags
@@ -83,6 +85,7 @@ def test_tag_views_never_share_3d_points_within_a_view(records):
         assert len({tuple(p) for p in np.round(obj, 9)}) == 4
 
 
+@pytest.mark.slow
 def test_per_tag_mode_and_known_layout_also_recover_intrinsics(sheet, records):
     per_tag = C.calibrate_records(fresh(records), SIZE, TAG, None, C.CalibrateConfig(per_tag=True))
     assert per_tag.target == "per-tag"
@@ -139,6 +142,7 @@ def test_sanity_checks_flag_implausible_phone_calibrations():
     assert "re-run with --aspect square (or auto)" in text
 
 
+@pytest.mark.slow
 def test_calibrate_command_writes_camera_file_and_explains_skips(tmp_path, sheet, capsys):
     folder = tmp_path / "photos"
     sheet.write(folder)
@@ -176,6 +180,7 @@ def test_calibrate_command_writes_camera_file_and_explains_skips(tmp_path, sheet
 
 @pytest.mark.parametrize("content", ['{"my": "notes"}', "not json at all",
                                      '{"format": "nerfkit-poses", "version": 1, "photos": []}'])
+@pytest.mark.slow
 def test_a_file_of_the_users_where_the_detection_cache_goes_is_left_alone(tmp_path, sheet, capsys, content):
     folder = tmp_path / "photos"
     sheet.write(folder)
@@ -188,6 +193,7 @@ def test_a_file_of_the_users_where_the_detection_cache_goes_is_left_alone(tmp_pa
     assert "is not a nerfkit detection cache" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_charuco_board_calibration_uses_chessboard_corners():
     spec = {"board": "charuco", "squares_x": 5, "squares_y": 7, "square_length": 0.03, "marker_length": 0.022}
     layout = A.layout_from_json(spec, "charuco.json", "DICT_4X4_50")
@@ -238,6 +244,7 @@ def lens_capture(request):
     return request.param, cap, [PhotoRecord(n, None, A.detect(im, det)) for n, im in zip(cap.names, cap.images)]
 
 
+@pytest.mark.slow
 def test_auto_distortion_model_generalises_on_synthetic_lenses(lens_capture):
     name, cap, recs = lens_capture
     cal = C.calibrate_records(fresh(recs), SMALL, TAG, None, C.CalibrateConfig())
@@ -265,6 +272,7 @@ def test_explicit_model_is_kept_and_checked(lens_capture):
     assert "k1" in cal.selection["models"] and cal.dist[1] == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("offset, aspect", [((0.0, 0.0), 1.0), ((9.0, -7.0), 1.0), ((0.0, 0.0), 1.03)])
 def test_a_centred_principal_point_and_square_pixels_are_kept_unless_freeing_them_holds_out_better(offset, aspect):
     centre = np.array([(SMALL[0] - 1) / 2, (SMALL[1] - 1) / 2])
@@ -294,6 +302,7 @@ def test_a_centred_principal_point_and_square_pixels_are_kept_unless_freeing_the
     assert forced.selection["principal_point"] == {"chosen": "centre", "why": "given with --principal-point"}
 
 
+@pytest.mark.slow
 def test_a_waved_sheets_heights_are_measured_and_its_photos_then_fit(monkeypatch):
     # Printed paper lies in gentle waves (steve's sheet: corners up to 1.7 mm off its plane).
     # Flat, the layout cannot fit them, and the error of held-out photos (0.96 px on steve)
@@ -353,6 +362,7 @@ def test_folds_keep_the_views_of_a_photo_together():
         assert len({views[j][0].split("#")[0] for j in f}) == 1
 
 
+@pytest.mark.slow
 def test_calibration_turns_photos_held_the_other_way(tmp_path, sheet):
     # A phone held the other way stores the same sensor image and flags it (EXIF 6 or 8);
     # upright, the photo is portrait. Turned back by its flag it joins the others.
@@ -426,6 +436,7 @@ def grid_views(K, dist, size, n, noise, reach, seed):
     return views
 
 
+@pytest.mark.slow
 def test_the_whole_camera_is_chosen_together_distortion_and_an_offset_principal_point():
     # A lens with barrel distortion and its principal point 15 px off centre: the camera chosen
     # must have both, each fitted with the other (not the principal point chosen under one

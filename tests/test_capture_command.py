@@ -20,6 +20,7 @@ def write_photos(folder, cap):
     return folder
 
 
+@pytest.mark.slow
 def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, capsys, monkeypatch):
     from nerfkit.train import trainer
 

@@ -98,6 +98,7 @@ def test_bounds_contain_the_object_from_every_camera(obj):
     assert far > (d_tag + TAG).max() and near < (d_tag - TAG).min()
 
 
+@pytest.mark.slow
 def test_dataset_files_load_back_with_the_same_cameras(posed, obj, tmp_path):
     out = tmp_path / "ds"
     standing = obj.layout.corners()[0] @ np.array([[1.0, 0, 0], [0, 0, 1], [0, 1, 0]]) + [0.2, 0, 0.05]  # not on it
@@ -138,6 +139,7 @@ def test_dataset_files_load_back_with_the_same_cameras(posed, obj, tmp_path):
     assert agreement["photos_per_point"] >= 3 and 10 < agreement["psnr"] < 60
 
 
+@pytest.mark.slow
 def test_dataset_cameras_project_the_tag_onto_its_pixels(posed, obj, tmp_path):
     # The whole chain (undistort, crop, resize, +0.5 convention): the npz's K and c2w must put
     # the tag's true corners where the tag is in the npz's own images.
@@ -155,6 +157,7 @@ def test_dataset_cameras_project_the_tag_onto_its_pixels(posed, obj, tmp_path):
     assert len(errs) >= 24 and np.sqrt(np.mean(errs ** 2)) < 0.3
 
 
+@pytest.mark.slow
 def test_center_override_and_dataset_command_rebuild(posed, tmp_path, capsys):
     from nerfkit.capture.dataset import write_poses_json
     from nerfkit.capture.photos import PhotoRecord

@@ -67,6 +67,7 @@ def test_layout_poses_use_all_tags_jointly():
     assert n_joint >= 4
 
 
+@pytest.mark.slow
 def test_poses_command_with_exif_rotated_photos_and_photos_without_tags(tmp_path, obj, capsys):
     folder = tmp_path / "object"
     folder.mkdir()
@@ -109,6 +110,7 @@ def _held_the_other_way(img, orientation):
     return np.ascontiguousarray(np.rot90(img, -1 if orientation == 6 else 1))
 
 
+@pytest.mark.slow
 def test_object_photos_held_the_other_way_are_turned_into_the_cameras_frame(tmp_path, obj):
     """Photos from a phone held the other way (EXIF 6 or 8) are turned back, posed as the
     truth, and enter the dataset as the sensor saw them; `nerfkit dataset` rebuilds the same.
@@ -155,6 +157,7 @@ def test_object_photos_held_the_other_way_are_turned_into_the_cameras_frame(tmp_
         np.testing.assert_array_equal(again[name][0], b[name][0])
 
 
+@pytest.mark.slow
 def test_a_capture_held_the_other_way_from_the_calibration_follows_the_camera_file(tmp_path, obj, capsys):
     """Calibrated holding the phone one way, every object photo taken the other way: the
     camera file's sensor_turns turns them all back. A camera file without it says what to do."""
@@ -199,6 +202,7 @@ def test_poses_start_from_the_exif_focal_length_without_a_camera_file(tmp_path):
         assert pos < 0.01 and ang < 1.0  # the EXIF focal length is ~1% off
 
 
+@pytest.mark.slow
 def test_no_camera_and_no_exif_is_a_clear_error(tmp_path, obj):
     folder = tmp_path / "object"
     obj.write(folder)
@@ -245,6 +249,7 @@ def test_camera_scaling_to_a_resized_photo_keeps_rays():
     assert "aspect ratio" in cam.compatible(3000, 3000)
 
 
+@pytest.mark.slow
 def test_poses_builds_the_dataset_by_default_and_heic_photos_keep_their_name(tmp_path, obj):
     from PIL import Image
 
@@ -294,6 +299,7 @@ def test_error_limit_follows_the_calibration_and_the_tag_size():
     assert error_limit(cam, 20.0, PoseConfig(max_error=2.5)) == (2.5, "--max-error")
 
 
+@pytest.mark.slow
 def test_a_photo_from_another_lens_is_skipped_with_the_reason(tmp_path, obj):
     """A phone's 2x lens (EXIF 52 mm where the calibration's photos say 26 mm) has another
     focal length and distortion: posing it with the calibrated camera would be wrong, so
@@ -319,6 +325,7 @@ def test_a_photo_from_another_lens_is_skipped_with_the_reason(tmp_path, obj):
     assert "another lens" in plain[obj.names[5]]["reason"] and plain[obj.names[6]]["used"]
 
 
+@pytest.mark.slow
 def test_a_camera_calibrated_at_another_size_is_scaled_and_said(tmp_path, obj):
     """One camera, scaled, fits photos resized alike (the note says it was scaled); a photo
     cropped to another shape is skipped with the reason, not posed with a camera that does not fit it."""
@@ -389,6 +396,7 @@ def test_poses_use_the_camera_files_layout_when_photos_show_several_tags(tmp_pat
     assert all(len(p["tags_used"]) == 1 for p in json.loads((out / "poses.json").read_text())["photos"] if p["used"])
 
 
+@pytest.mark.slow
 def test_a_waved_sheet_under_the_object_is_posed_on_its_heights():
     # The camera file keeps the printed, flat sheet; the paper under the object lies in waves
     # of its own (up to 1.5 mm here). `poses` measures their heights from the photos first.

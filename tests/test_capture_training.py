@@ -164,6 +164,7 @@ def test_distortion_loss_enters_the_fast_model_loss_in_units_of_the_radius(table
     assert losses[0.5][0] - losses[0.0][0] == pytest.approx(0.5 / bounds.radius * float(dist.mean()), rel=1e-4)
 
 
+@pytest.mark.slow
 def test_capture_training_recovers_exposure_and_beats_plain_training(tmp_path, tabletop):
     on = train(tabletop, cfg(tmp_path, "on"), SMALL, quiet=True, user_set=SMALL_GIVEN)
     off = train(tabletop, cfg(tmp_path, "off", capture="off"), SMALL, quiet=True, user_set=SMALL_GIVEN)
@@ -178,6 +179,7 @@ def test_capture_training_recovers_exposure_and_beats_plain_training(tmp_path, t
     assert np.mean(on_train) > np.mean(off_train) + 1.0
 
 
+@pytest.mark.slow
 def test_capture_run_resumes_with_its_view_corrections(tmp_path, tabletop):
     c, m = capture_settings(cfg(tmp_path, "b", steps=80), SMALL, tabletop, SMALL_GIVEN)
     c = resolved_config(c, m)
@@ -256,6 +258,7 @@ def test_fast_model_starts_in_the_object_box_of_a_scene_with_points(tabletop):
     assert np.all(sphere.geom.hi.numpy() - sphere.geom.lo.numpy() > 0.95 * 2 * bounds.radius)
 
 
+@pytest.mark.slow
 def test_a_run_from_before_colour_mixing_resumes_with_its_corrections(tmp_path, tabletop):
     from nerfkit.io.atomic import atomic_path
 
@@ -288,6 +291,7 @@ def test_a_run_from_before_colour_mixing_resumes_with_its_corrections(tmp_path, 
     assert read_run(tmp_path / "old").model_config.tv_view_weight == 0.0
 
 
+@pytest.mark.slow
 def test_eval_fits_a_held_out_photos_colour_transform(tmp_path, tabletop):
     """Held-out "photos" that are the model's own renders recoloured by a known affine
     transform: as rendered they score low; fitted (each half on the other half), the
@@ -318,6 +322,7 @@ def test_eval_fits_a_held_out_photos_colour_transform(tmp_path, tabletop):
     assert "fitted_colour_matrix" not in scores[False]["per_image"][0]
 
 
+@pytest.mark.slow
 def test_eval_fits_on_one_half_and_scores_the_other(tmp_path, tabletop):
     """A "photo" darker on its left half only is not a change of exposure: a colour
     correction solved on the pixels it is scored on would take it up; solved on the other
@@ -350,6 +355,7 @@ def test_eval_fits_on_one_half_and_scores_the_other(tmp_path, tabletop):
             assert out["fitted"]["psnr"] > out["psnr"] + 10
 
 
+@pytest.mark.slow
 def test_eval_scores_the_objects_own_pixels(tmp_path, tabletop):
     """Held-out "photos" that are the model's renders with either the object or the rest
     changed: the object's score sees only the first."""

@@ -21,6 +21,7 @@ def cfg(tmp_path, name, **kw):
                            TINY)
 
 
+@pytest.mark.slow
 def test_a_finished_run_keeps_its_model_and_one_checkpoint(tmp_path, sphere):
     result = train(sphere, cfg(tmp_path, "a"), TINY, quiet=True)
     run = tmp_path / "a"

@@ -72,6 +72,7 @@ def test_every_model_flag_reaches_its_config():
     assert dataclass_from_args(model_config_class("fast"), args).learn_background is True
 
 
+@pytest.mark.slow
 def test_python_dash_m_runs_the_same_command_line_with_its_exit_code(tmp_path):
     ok = subprocess.run([sys.executable, "-m", "nerfkit", "--help"], capture_output=True, text=True)
     assert ok.returncode == 0 and ok.stdout.startswith("usage: nerfkit")

@@ -584,6 +584,7 @@ def test_sfm_turns_photos_held_the_other_way(room, tmp_path):
     np.testing.assert_array_equal(load_scene(tmp_path / "again").train.images, scene.train.images)
 
 
+@pytest.mark.slow
 def test_sfm_on_one_thread_repeats_exactly(room, tmp_path):
     folder, truth = room
     runs = [run_sfm(folder, tmp_path / f"run{i}", matcher="exhaustive", threads=1, progress=False) for i in range(2)]

@@ -69,6 +69,7 @@ def test_render_rays_and_query_shapes(scene):
     torch.testing.assert_close(model.density(pts), sigma)
 
 
+@pytest.mark.slow
 def test_short_training_reconstructs_held_out_views(scene, trained):
     """100 steps of 1024 rays: a model that learned nothing scores ~10 dB (the mean colour
     scores 10.2 dB on these views); the fast model must clearly reconstruct the sphere."""
@@ -114,6 +115,7 @@ def test_growth_shrinks_the_box_around_the_object(scene, trained):
     assert 0.8 * 48 ** 3 < np.prod(trained.geom.res) < 1.3 * 48 ** 3
 
 
+@pytest.mark.slow
 def test_sparse_growth_stores_the_vertices_near_the_object_and_renders_as_well(scene):
     """The same training with the 48^3 stage sparse: it stores a fraction of the vertices,
     the rest share one empty row that training never changes, and the views score as the
@@ -243,6 +245,7 @@ def test_learned_background_recovers_a_grey_backdrop():
     assert val_psnr(model, grey) > 18.0
 
 
+@pytest.mark.slow
 def test_trainer_runs_fast_model_and_resumes_exactly(tmp_path, scene):
     from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import Trainer, resolved_config, resume
@@ -328,6 +331,7 @@ def density_variation(model, channels=(0,)) -> float:
     return total / pairs
 
 
+@pytest.mark.slow
 def test_total_variation_smooths_the_density_and_keeps_the_views(scene, trained):
     """The same training with ``--tv-weight``: the density varies clearly less between
     neighbouring vertices, and the held-out views are still reconstructed."""
@@ -348,6 +352,7 @@ def test_the_view_dependent_colours_total_variation_weighs_only_the_harmonics_ab
     assert not FastNeRF(FastConfig(**SMALL), SceneBounds.from_scene(scene)).tv_weights().any()  # off by default
 
 
+@pytest.mark.slow
 def test_the_view_dependent_colours_total_variation_smooths_it_alone(scene, trained):
     """With ``--tv-view-weight`` the view-dependent colour coefficients vary clearly less
     between neighbouring vertices; the base colour (degree 0) is not pulled, and the views
@@ -362,6 +367,7 @@ def test_the_view_dependent_colours_total_variation_smooths_it_alone(scene, trai
     assert val_psnr(smooth, scene) > 22.0
 
 
+@pytest.mark.slow
 def test_the_kernels_load_before_the_training_clock_starts(tmp_path, scene, monkeypatch, capsys):
     """A first run compiles the kernels (tens of seconds): that must not be spent from the
     time budget. Here loading them takes 6 s (the trainer says so from 5 s) and the budget

@@ -198,6 +198,7 @@ def test_run_writes_figures_metrics_and_config(tmp_path):
     assert config["L"] == 4 and config["width"] == 64 and config["image"].endswith("pattern.png")
 
 
+@pytest.mark.slow
 def test_sweep_writes_grid_curves_and_one_entry_per_combination(tmp_path):
     img = save_png(tmp_path / "pattern.png", smooth_image(16, 16))
     combos = parse_sweep(["L=0,4", "width=16,32"])
@@ -277,6 +278,7 @@ def test_default_image_is_shipped_small_and_licensed():
 # --- the command line -----------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_cli_runs_and_sweeps(tmp_path, capsys):
     img = save_png(tmp_path / "p.png", smooth_image(12, 12))
     small = ["--L", "2", "--width", "16", "--depth", "1", "--batch", "64", "--steps", "10", "--quiet",

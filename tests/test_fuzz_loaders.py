@@ -407,6 +407,7 @@ def dump_json(obj) -> str:
     return json.dumps(obj, allow_nan=True)
 
 
+@pytest.mark.slow
 @fuzz(150)
 @given(spec=camera_json())
 @example(spec={**GOOD_CAMERA, "width": float("inf")})  # found by the fuzz: OverflowError
@@ -681,6 +682,7 @@ def apply_blender_mutation(folder: Path, m) -> None:
 @fuzz(150)
 @given(mutations=st.lists(blender_mutation(), min_size=1, max_size=3),
        size=st.sampled_from([None, None, 4, 16]))
+@pytest.mark.slow
 def test_blender_folders_load_valid_or_fail_cleanly(mutations, size):
     from nerfkit.data.load import load_scene
 
@@ -751,6 +753,7 @@ def test_colmap_text_models_load_valid_or_fail_cleanly(model):
         assert_valid_scene(scene)
 
 
+@pytest.mark.slow
 @fuzz(8)
 @given(data=st.data())
 def test_colmap_binary_models_fail_cleanly_when_corrupted(data):
@@ -885,6 +888,7 @@ def checkpoint_mutation(draw):
     return kind, None, draw(st.one_of(json_value.map(json.dumps), st.text(max_size=10)))
 
 
+@pytest.mark.slow
 @fuzz(80)
 @given(mutations=st.lists(checkpoint_mutation(), min_size=1, max_size=3), corrupt=st.integers(0, 4), data=st.data())
 def test_checkpoints_load_finite_or_fail_cleanly(tiny_run, mutations, corrupt, data):

@@ -551,6 +551,7 @@ def test_devices_and_sockets_are_refused_by_what_they_are(tmp_path):
         assert refuse_special_file(path) == path  # a folder or nothing: the reader says what it expected
 
 
+@pytest.mark.slow
 def test_train_on_a_named_pipe_is_one_line_and_writes_nothing(tmp_path):
     import subprocess
     import sys

@@ -115,6 +115,7 @@ def test_a_video_path_can_be_chosen_over_the_automatic_one():
         ff.render_path(12, kind="helix")
 
 
+@pytest.mark.slow
 def test_fast_model_in_ndc_beats_the_box_on_a_forward_facing_scene(tmp_path, capsys):
     """Content from 3 units to a backdrop 15 units away: a box around the scene's middle
     cannot hold the backdrop; the NDC grid holds everything out to infinity."""

@@ -134,6 +134,7 @@ def _plane_views(n: int, size: tuple[int, int] = (200, 150), seed: int = 0) -> t
                  np.stack(images)), tex
 
 
+@pytest.mark.slow
 def test_triangulated_points_lie_on_the_photographed_plane_with_its_colours(tmp_path):
     pytest.importorskip("pycolmap")
     from nerfkit.capture.points import triangulate_views
@@ -159,6 +160,7 @@ def test_triangulated_points_lie_on_the_photographed_plane_with_its_colours(tmp_
     assert list(tmp_path.iterdir()) == []  # COLMAP's scratch folder is gone
 
 
+@pytest.mark.slow
 def test_many_views_are_matched_with_their_neighbours_only(tmp_path, monkeypatch):
     pytest.importorskip("pycolmap")
     import nerfkit.capture.points as triangulate

@@ -169,6 +169,7 @@ def _trained_run(tmp_path, sphere, steps=20, name="run"):
     return tmp_path / name
 
 
+@pytest.mark.slow
 def test_crafted_checkpoint_is_refused_without_running_code(tmp_path, sphere):
     run = _trained_run(tmp_path, sphere)
     good = sorted((run / "checkpoints").glob("*.pt"))[-1]
@@ -184,6 +185,7 @@ def test_crafted_checkpoint_is_refused_without_running_code(tmp_path, sphere):
     assert not marker.exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncate", "garbage", "wrong_version", "other_model"])
 def test_broken_newest_checkpoint_falls_back_to_previous(tmp_path, sphere, damage, capsys):
     run = _trained_run(tmp_path, sphere)

@@ -517,6 +517,7 @@ def test_a_users_lock_file_in_an_empty_out_is_theirs_refused_and_never_truncated
     assert sorted(p.name for p in out.iterdir()) == [".lock"] and (out / ".lock").read_text() == "my notes"
 
 
+@pytest.mark.slow
 def test_a_run_of_an_earlier_version_with_its_dot_lock_still_resumes_evaluates_and_renders(trained, tmp_path, capsys):
     run = copy_run(trained, tmp_path)
     for lock in run.glob(".*lock"):
@@ -830,6 +831,7 @@ def test_a_truncated_model_file_is_named_as_cut_short(trained, tmp_path, capsys)
     one_line(capsys, "model.pt: cannot load checkpoint: the file is cut short or damaged", "train it again")
 
 
+@pytest.mark.slow
 def test_a_run_killed_in_its_final_save_is_finished_by_resume(trained, tmp_path):
     run = copy_run(trained, tmp_path)
     metrics = json.loads((run / "metrics.json").read_text())

@@ -172,6 +172,7 @@ def test_the_opacity_between_two_distances_is_the_closed_form_in_uniform_density
     torch.testing.assert_close(acc, 1 - torch.exp(-sigma * (t1 - t0)), atol=0.02, rtol=0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kernels", KERNELS)
 def test_sight_lines_clear_a_fog_and_make_the_object_solid_but_not_the_table(tabletop, kernels):
     points, rows = seen_sphere_points(tabletop)

@@ -38,6 +38,7 @@ def trained(tmp_path_factory, sphere, sphere_npz):
     return result
 
 
+@pytest.mark.slow
 def test_training_rises_well_above_the_empty_render(trained, sphere):
     val = [r for r in trained.rows if r["split"] == "val"]
     empty = -10 * np.log10(np.mean((sphere.val.images.astype(np.float64) / 255) ** 2))
@@ -97,6 +98,7 @@ def test_opacity_reset_caps_opacity(sphere):
     assert float(torch.sigmoid(model.opacity_logits.detach()).max()) <= 0.01 + 1e-6
 
 
+@pytest.mark.slow
 def test_resume_continues_exactly(tmp_path, sphere):
     cfg = dict(steps=30, eval_every=15)
     model_cfg = SplatConfig(**{**SMALL, "densify_every": 5})  # density control before and after the stop
@@ -215,6 +217,7 @@ def test_cli_eval_and_render_a_splat_run(trained, sphere, capsys, tmp_path):
     assert len(iio.imread(tmp_path / "v" / "depth.mp4")) == 3
 
 
+@pytest.mark.slow
 def test_capture_mode_learns_the_background_and_exposure_without_pose(tmp_path):
     """A coloured backdrop behind the sphere: the learned background, which starts grey,
     takes its colour where the cameras see it."""
@@ -267,6 +270,7 @@ def test_live_viewer_draws_the_splats_and_renders_a_splat_run(trained, sphere, m
         viewer.server.stop()
 
 
+@pytest.mark.slow
 def test_eval_of_a_capture_splat_run_scores_as_rendered_and_refuses_pose_fitting(tmp_path, sphere, sphere_npz,
                                                                                     capsys):
     """Splats render whole views, so held-out poses are not fitted: ``eval`` says so instead

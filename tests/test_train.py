@@ -31,6 +31,7 @@ def background_psnr(scene) -> float:
     return -10 * np.log10(np.mean(img ** 2))
 
 
+@pytest.mark.slow
 def test_training_rises_well_above_the_empty_render(tmp_path, sphere):
     result = train(sphere, small_cfg(tmp_path), VanillaConfig(**SMALL), quiet=True)
     val = [r for r in result.rows if r["split"] == "val"]
@@ -65,6 +66,7 @@ def test_default_init_leaves_the_dead_zone(sphere):
                if "color" not in n and "feature" not in n)
 
 
+@pytest.mark.slow
 def test_hierarchical_sampling_trains(tmp_path, sphere):
     result = train(sphere, small_cfg(tmp_path, steps=250), VanillaConfig(n_samples=8, n_importance=8, width=32, depth=4),
                    quiet=True)
@@ -72,6 +74,7 @@ def test_hierarchical_sampling_trains(tmp_path, sphere):
     assert val[-1]["psnr"] > background_psnr(sphere) + 2.0
 
 
+@pytest.mark.slow
 def test_resume_continues_exactly(tmp_path, sphere):
     """Stopping at step 60 and resuming to 120 gives the same model as 120 steps straight."""
     straight = train(sphere, small_cfg(tmp_path, "a", steps=120, eval_every=60), VanillaConfig(**SMALL), quiet=True)
@@ -89,6 +92,7 @@ def test_resume_continues_exactly(tmp_path, sphere):
     assert steps_a == steps_b  # no duplicated or missing rows
 
 
+@pytest.mark.slow
 def test_resume_keeps_the_default_validation_marks(tmp_path, sphere):
     """Resumed at step 60 of 120, a run validates at the steps a straight run does, no more."""
     straight = train(sphere, small_cfg(tmp_path, "a", steps=120), VanillaConfig(**SMALL), quiet=True)
@@ -119,6 +123,7 @@ def test_validation_marks_without_eval_every(tmp_path, sphere):
     assert due == [6, 18] + list(range(60, 601, 60))
 
 
+@pytest.mark.slow
 def test_refuses_to_overwrite_a_run(tmp_path, sphere):
     cfg = small_cfg(tmp_path, steps=2)
     train(sphere, cfg, VanillaConfig(**SMALL), quiet=True)
@@ -128,6 +133,7 @@ def test_refuses_to_overwrite_a_run(tmp_path, sphere):
         train(sphere, cfg, VanillaConfig(**SMALL), quiet=True)
 
 
+@pytest.mark.slow
 def test_cli_train_render_eval(tmp_path, sphere_npz, capsys):
     run = tmp_path / "cli_run"
     code = main(["train", "--data", str(sphere_npz), "--model", "vanilla", "--out", str(run), "--steps", "20",
@@ -191,6 +197,7 @@ def test_cli_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
     assert main(["train", "--data", "x.npz", "--background", "purple", "--steps", "1"]) == 2
 
 
+@pytest.mark.slow
 def test_vanilla_occupancy_skipping_keeps_the_image_and_saves_samples(tmp_path, sphere):
     cfg = VanillaConfig(n_samples=32, width=32, depth=4, occupancy=True, occupancy_warmup=100, occupancy_every=50)
     train(sphere, small_cfg(tmp_path, steps=300), cfg, quiet=True)
@@ -218,6 +225,7 @@ def test_vanilla_occupancy_skipping_keeps_the_image_and_saves_samples(tmp_path, 
         assert model.render_rays(rays, bg, perturb=False).n_samples < 0.5 * len(rays) * 32
 
 
+@pytest.mark.slow
 def test_progress_bar_in_a_log_file_redraws_rarely(tmp_path, sphere_npz):
     # Not a terminal: the bar redraws every 30 s, not every step (a 5-minute run once wrote
     # thousands of redraws into its log). A 3-second run draws the start and the end only.
@@ -301,6 +309,7 @@ def test_periodic_validation_cost_is_bounded_and_the_final_one_is_whole(tmp_path
     assert trainer.rows[-1]["pixels"] == v.width * v.height
 
 
+@pytest.mark.slow
 def test_the_periodic_validation_curve_ends_with_the_final_score_of_its_views(tmp_path, sphere):
     # Periodic evaluations of the first view, whole: at the end that view is scored again beside
     # every view, so its curve reaches the last step (steve's ended 20 s early at 21.6 dB, above
@@ -348,6 +357,7 @@ def test_the_psnr_plot_keeps_periodic_and_final_validation_apart():
         "validation, all 6 views, whole images"]
 
 
+@pytest.mark.slow
 def test_a_run_ending_before_the_occupancy_warmup_measures_it_for_the_final_evaluation(tmp_path, sphere):
     cfg = small_cfg(tmp_path, steps=50, eval_views=1)
     trainer = Trainer(sphere, cfg, VanillaConfig(n_samples=16, width=16, depth=2, occupancy_res=16), quiet=True)

@@ -16,6 +16,7 @@ def settings(run) -> dict:
     return json.loads((run / "config.json").read_text())
 
 
+@pytest.mark.slow
 def test_a_config_file_reproduces_a_run_and_flags_beside_it_change_it(tmp_path, sphere_npz, capsys):
     first = tmp_path / "a"
     assert main(["train", "--data", str(sphere_npz), "--out", str(first), "--steps", "3", "--lr", "0.002",

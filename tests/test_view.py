@@ -123,6 +123,7 @@ def test_viser_server_shows_the_sparse_points_in_their_colours():
         server.stop()
 
 
+@pytest.mark.slow
 def test_view_command_writes_png_for_a_dataset(tmp_path, capsys):
     save_npz(small_scene(), tmp_path / "d.npz")
     assert main(["view", str(tmp_path / "d.npz"), "--rays", "5", "--png", str(tmp_path / "v.png")]) == 0

@@ -57,6 +57,7 @@ def test_corrected_c2w_matches_the_corrected_rays():
     assert torch.allclose(moved.directions, direct.directions, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_fit_view_recovers_a_known_pose_perturbation():
     table = textured_table()
     K, c2w = camera([0.3, -1.6, 1.4])
@@ -81,6 +82,7 @@ def test_fit_view_recovers_a_known_pose_perturbation():
     assert np.degrees(np.arccos(min(cos, 1.0))) < 0.2
 
 
+@pytest.mark.slow
 def test_exposure_correction_recovers_known_gains_while_the_scene_is_learned():
     truth = textured_table(seed=3)
     eyes = [[1.5 * np.cos(a), 1.5 * np.sin(a), 1.3] for a in np.linspace(0, 2 * np.pi, 6, endpoint=False)]
@@ -175,6 +177,7 @@ def fit_colour_corrections(rgb, target, view, n_views, weight, steps=600):
     return exposure
 
 
+@pytest.mark.slow
 def test_the_mix_penalty_keeps_photos_of_grey_things_to_a_plain_gain():
     # grey pixels constrain only each row's sum of a colour matrix: a brighter photo of a
     # grey scene is as well explained by mixing in the other channels as by a gain
