@@ -122,7 +122,7 @@ def _version() -> str:
     return __version__
 
 
-OS_ERROR_HINTS = {
+OS_ERROR_HINTS: dict[int | None, str] = {
     errno.EACCES: "Check its permissions, or choose another place to write",
     errno.EPERM: "Check its permissions, or choose another place to write",
     errno.EROFS: "The file system is read-only: choose another place to write",

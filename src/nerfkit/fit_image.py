@@ -26,6 +26,7 @@ import itertools
 import math
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -151,7 +152,8 @@ def parse_steps(text: str) -> list[int]:
     try:
         steps = sorted({int(s) for s in text.replace(" ", "").split(",") if s})
     except ValueError:
-        raise fail("--progress-steps", f"cannot read '{text}'", "Give whole step numbers like 0,50,100,200,500") from None
+        raise fail("--progress-steps", f"cannot read '{text}'",
+                   "Give whole step numbers like 0,50,100,200,500") from None
     if any(s < 0 for s in steps):
         raise fail("--progress-steps", f"negative step in '{text}'", "Steps count from 0")
     return steps
@@ -218,7 +220,8 @@ def downscale(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         return image
     from PIL import Image
 
-    chans = [np.asarray(Image.fromarray(np.ascontiguousarray(image[..., c])).resize((shape[1], shape[0]), Image.BOX))
+    chans = [np.asarray(Image.fromarray(np.ascontiguousarray(image[..., c])).resize((shape[1], shape[0]),
+                                                                                    Image.Resampling.BOX))
              for c in range(3)]
     return np.stack(chans, axis=-1).astype(np.float32)
 
@@ -306,7 +309,7 @@ class FitResult:
     steps_per_s: float
     train_seconds: float
     eval_seconds: float
-    model: "ImageField" = field(repr=False)
+    model: ImageField = field(repr=False)
 
     def metrics(self) -> dict:
         return {
@@ -377,7 +380,9 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
             # Progression image: full resolution (and its every-pixel PSNR) or a preview grid.
             img, mse = render_image(model, prev_h, prev_w, chunk=cfg.chunk, precision=precision,
                                     target=target if full_preview else None)
-            full_psnr = psnr_from_mse(mse) if full_preview else None
+            if full_preview:
+                assert mse is not None  # rendered against the target
+                full_psnr = psnr_from_mse(mse)
         if full_psnr is not None and eval_all:
             psnr = full_psnr  # same pixels as the curve's evaluation, no need to evaluate twice
         else:
@@ -419,6 +424,7 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
         final_image, final_psnr = progression[-1][1], progression[-1][2]
     else:
         final_image, mse = render_image(model, height, width, chunk=cfg.chunk, precision=precision, target=target)
+        assert mse is not None  # rendered against the target
         final_psnr = psnr_from_mse(mse)
     eval_seconds += time.perf_counter() - t0
     return FitResult(cfg, str(device), precision, height, width, final_image, final_psnr, curve_steps, curve_psnr,
@@ -552,7 +558,8 @@ def _write_sweep_summary(out: Path, done: list[_SweepRun], entries: list[dict], 
     titles = ["original"] + [f"{r.label}: {r.final_psnr:.2f} dB" for r in done]
     image_grid(out / "sweep_grid.png", images, titles, ncols=_grid_cols(len(images)),
                suptitle=f"{path.name}: final images (PSNR on every pixel)")
-    curves = {f"{r.label} ({r.final_psnr:.1f} dB)": (r.curve_steps, r.curve_psnr) for r in done}
+    curves: dict[str, tuple[Sequence[float], Sequence[float]]] = {
+        f"{r.label} ({r.final_psnr:.1f} dB)": (r.curve_steps, r.curve_psnr) for r in done}
     plot_curves(out / "sweep_psnr.png", curves, xlabel=f"step (evaluated every {eval_every} steps)",
                 ylabel="PSNR (dB)", title=_wrap(f"{path.name}: {done[0].eval_note}"))
     write_json(out / "sweep.json", {"image": str(path), "curve_note": done[0].eval_note, "runs": entries})

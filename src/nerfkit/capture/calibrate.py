@@ -37,8 +37,9 @@ focal length) and warns when they disagree.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
-from typing import Iterator
+from typing import Protocol
 
 import numpy as np
 
@@ -93,6 +94,17 @@ class CalibrateConfig:
                                    "then recalibrate", above=0)
     per_tag: bool = option(False, "treat each tag as its own planar target instead of estimating the sheet layout")
     min_photos: int = option(5, "refuse to calibrate from fewer usable photos", min=3)
+
+
+class PosedViews(Protocol):
+    """What :func:`corner_rays` reads of a fit: the camera and each named view's pose
+    (sheet -> camera). A :class:`Fit` is one; so are photos posed on a known camera."""
+
+    K: np.ndarray
+    dist: np.ndarray
+    keys: list[str]
+    rvecs: list[np.ndarray]
+    tvecs: list[np.ndarray]
 
 
 @dataclass
@@ -475,7 +487,8 @@ def select_camera(views: list, size: tuple[int, int], cfg: CalibrateConfig, phot
 # ---------------------------------------------------------------- layout estimation
 
 
-def tag_views(records: list[PhotoRecord], tag_size: float, max_views: int = 0) -> list[tuple[str, np.ndarray, np.ndarray]]:
+def tag_views(records: list[PhotoRecord], tag_size: float,
+              max_views: int = 0) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """Every tag of every photo as its own planar view named ``"<photo>#<id>"``.
 
     Each view holds one tag's 4 corners, so no two tags ever share 3D points. With
@@ -485,7 +498,7 @@ def tag_views(records: list[PhotoRecord], tag_size: float, max_views: int = 0) -
     sq = square_corners(tag_size)
     ranked: list[tuple[int, float, tuple]] = []
     for r in records:
-        det = r.detection
+        det = r.detected
         ids = list(det.ids)
         sides = np.linalg.norm(det.corners - np.roll(det.corners, -1, axis=1), axis=2).mean(1)
         order = [i for i in np.argsort(-sides) if ids.count(ids[i]) == 1]
@@ -534,11 +547,11 @@ def initial_layout(records: list[PhotoRecord], K: np.ndarray, dist: np.ndarray, 
     counts: dict[int, int] = {}
     poses: list[dict[int, np.ndarray]] = []
     for r in records:
-        ids = list(r.detection.ids)
+        ids = list(r.detected.ids)
         p = {}
         for i, t in enumerate(ids):
             if ids.count(t) == 1:
-                T = tag_pose(r.detection.corners[i], K, dist, tag_size)
+                T = tag_pose(r.detected.corners[i], K, dist, tag_size)
                 if T is not None:
                     p[int(t)] = T
                     counts[int(t)] = counts.get(int(t), 0) + 1
@@ -582,7 +595,7 @@ HEIGHT_ROUNDS = 4
 FLAT_WITHIN = 0.004
 
 
-def refine_heights(records: dict[str, PhotoRecord], fit: Fit, layout: Layout) -> Layout:
+def refine_heights(records: dict[str, PhotoRecord], fit: PosedViews, layout: Layout) -> Layout:
     """``layout`` with each corner's height (z) triangulated: the point nearest to the rays of
     every calibrated photo that sees that corner (``fit``'s poses and camera), at least
     :data:`HEIGHT_MIN_VIEWS` of them (else height 0). A corner keeps its place on the
@@ -615,14 +628,14 @@ def layout_change(new: Layout, old: Layout) -> float:
     return max(float(np.abs(new.tags[t] - old.tags[t]).max()) for t in old.tags)
 
 
-def corner_rays(records: dict[str, PhotoRecord], fit: Fit, tags) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+def corner_rays(records: dict[str, PhotoRecord], fit: PosedViews, tags) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """Per photo of ``fit`` and per tag of ``tags`` it shows once: ``(tag, origin (3,),
     directions (4, 3))``, the camera centre and the unit rays through the tag's corners,
     in the sheet's frame (``fit``'s poses and camera)."""
     import cv2
 
     for key, rvec, tvec in zip(fit.keys, fit.rvecs, fit.tvecs):
-        det = records[key].detection
+        det = records[key].detected
         R = cv2.Rodrigues(rvec)[0]
         origin = -R.T @ np.ravel(tvec)  # camera centre in the sheet frame
         ids = [int(i) for i in det.ids]
@@ -630,12 +643,14 @@ def corner_rays(records: dict[str, PhotoRecord], fit: Fit, tags) -> Iterator[tup
             if tag not in tags or ids.count(tag) != 1:
                 continue
             xy = cv2.undistortPoints(det.corners[i].reshape(-1, 1, 2), fit.K, fit.dist,
-                                     criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)).reshape(-1, 2)
+                                     criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)
+                                     ).reshape(-1, 2)
             d = (R.T @ np.column_stack([xy, np.ones(4)]).T).T
             yield tag, origin, d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def refine_layout(records: dict[str, PhotoRecord], fit: Fit, layout: Layout, ref: int, tag_size: float) -> Layout:
+def refine_layout(records: dict[str, PhotoRecord], fit: PosedViews, layout: Layout, ref: int,
+                  tag_size: float) -> Layout:
     """Re-estimate every tag but ``ref``: back-project its corners onto the sheet plane of
     each calibrated photo, average, and fit a square of side ``tag_size``."""
     acc: dict[int, list[np.ndarray]] = {t: [] for t in layout.tags if t != ref}
@@ -687,18 +702,18 @@ class Calibration:
 def _views_for_layout(records: list[PhotoRecord], layout: Layout, min_points: int) -> list:
     views = []
     for r in records:
-        obj, img, used = layout.match(r.detection)
+        obj, img, used = layout.match(r.detected)
         if len(obj) >= min_points:
             views.append((r.name, obj, img))
         else:
-            got = [int(i) for i in r.detection.ids]
+            got = [int(i) for i in r.detected.ids]
             r.skip("no tag of the layout found" if not got else
                    f"too few layout points ({len(obj)}; tags seen: {got})")
     return views
 
 
 def _layout_sheet_views(records: list[PhotoRecord], layout: Layout) -> list:
-    return [(r.name, *layout.match(r.detection)[:2]) for r in records if len(layout.match(r.detection)[0]) >= 4]
+    return [(r.name, *layout.match(r.detected)[:2]) for r in records if len(layout.match(r.detected)[0]) >= 4]
 
 
 def estimate_layout(with_tags: list[PhotoRecord], by_name: dict, size: tuple[int, int], tag_size: float,
@@ -719,7 +734,7 @@ def estimate_layout(with_tags: list[PhotoRecord], by_name: dict, size: tuple[int
     flags = calib_flags(cfg, LAYOUT_MODEL)
     fit = None
     change = float("nan")
-    for it in range(10):
+    for it in range(10):  # noqa: B007 (`it` counts the rounds run, after the loop)
         fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor,
                         None if fit is None else fit.K)
         new = refine_layout(by_name, fit, layout, ref, tag_size)
@@ -729,9 +744,10 @@ def estimate_layout(with_tags: list[PhotoRecord], by_name: dict, size: tuple[int
             break
     notes.append(f"estimated the layout of {len(layout.tags)} tags (reference tag {ref}) in {it + 1} "
                  f"rounds of calibrate ({LAYOUT_MODEL} distortion) + re-fit; last change {change * 1000:.3f} mm")
+    assert fit is not None  # the loop above runs at least once
     layout, K = measure_heights(with_tags, by_name, fit, layout, size, cfg, notes)
     notes.append("then froze the layout to choose the distortion model")
-    missing = sorted({int(i) for r in with_tags for i in r.detection.ids} - set(layout.tags))
+    missing = sorted({int(i) for r in with_tags for i in r.detected.ids} - set(layout.tags))
     if missing:
         notes.append(f"tags {missing} were never seen together with the others and were ignored")
     return layout, K
@@ -760,7 +776,7 @@ def measure_heights(with_tags: list[PhotoRecord], by_name: dict, fit: Fit, layou
     return layout, fit.K
 
 
-def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_size: float,
+def calibrate_records(records: list[PhotoRecord], size: tuple[int, int] | None, tag_size: float,
                       layout: Layout | None, cfg: CalibrateConfig, dictionary: str = "") -> Calibration:
     """Calibrate from detected photos of one size; marks each record used/skipped with a reason.
 
@@ -772,8 +788,8 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
     notes: list[str] = []
     with_tags = []
     for r in records:
-        ch = r.detection.charuco_ids
-        n = len(r.detection.ids) if layout is None or layout.charuco is None else (0 if ch is None else len(ch))
+        ch = r.detected.charuco_ids
+        n = len(r.detected.ids) if layout is None or layout.charuco is None else (0 if ch is None else len(ch))
         if n == 0:
             r.skip("no tags found" if layout is None or layout.charuco is None else "no ChArUco corners found")
         else:
@@ -785,8 +801,9 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
                        "Take 20-50 sharp photos of the tag sheet from varied angles and distances")
 
     enough(with_tags, "photos with tags found")  # (before the fit, which counts tag views, not photos)
+    assert size is not None  # None only with no photos (group_by_size), refused just above
     by_name = {r.name: r for r in with_tags}
-    ids_together = any(len(set(int(i) for i in r.detection.ids)) > 1 for r in with_tags)
+    ids_together = any(len(set(int(i) for i in r.detected.ids)) > 1 for r in with_tags)
 
     K0 = None
     per_tag = layout is None and (cfg.per_tag or not ids_together)
@@ -835,7 +852,7 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int], tag_siz
     choices = {name: selection[name] for name in CONSTRAINTS}
     if layout is not None and target == "estimated layout":
         for r in with_tags:
-            if not any(int(i) in layout.tags for i in r.detection.ids):
+            if not any(int(i) in layout.tags for i in r.detected.ids):
                 r.skip("none of its tags belong to the estimated layout")
     notes.extend(fit.rounds)
 
@@ -886,9 +903,9 @@ def corner_coverage(records: list[PhotoRecord], size: tuple[int, int], cells: in
     """Fraction of a cells x cells grid over the image that holds at least one used corner."""
     hit = np.zeros((cells, cells), bool)
     for r in records:
-        pts = r.detection.corners.reshape(-1, 2)
-        if r.detection.charuco_corners is not None:
-            pts = np.concatenate([pts, r.detection.charuco_corners])
+        pts = r.detected.corners.reshape(-1, 2)
+        if r.detected.charuco_corners is not None:
+            pts = np.concatenate([pts, r.detected.charuco_corners])
         ix = np.clip((pts[:, 0] / size[0] * cells).astype(int), 0, cells - 1)
         iy = np.clip((pts[:, 1] / size[1] * cells).astype(int), 0, cells - 1)
         hit[iy, ix] = True
@@ -961,7 +978,8 @@ def calibration_json(cal: Calibration, records: list[PhotoRecord], dictionary: s
     return {
         "format": "nerfkit-camera",
         "version": 1,
-        "pixel_convention": "opencv: pixel centres at integer coordinates (nerfkit and nerfstudio use cx + 0.5, cy + 0.5)",
+        "pixel_convention": "opencv: pixel centres at integer coordinates "
+                            "(nerfkit and nerfstudio use cx + 0.5, cy + 0.5)",
         "width": cal.width,
         "height": cal.height,
         "sensor_turns": frame_turns([r for r in records if r.used]),

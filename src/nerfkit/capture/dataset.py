@@ -28,8 +28,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..config import MIN_RESAMPLED_SIDE, load_json, option
-from ..data.npz import save_npz
 from ..data.nerfstudio import write_transforms_json
+from ..data.npz import save_npz
 from ..data.scene import Scene, Views, estimate_center, point_views
 from ..data.validate import MAX_SIDE, check_count, check_points, check_poses, check_scene, short_repr
 from ..errors import advice, fail
@@ -116,7 +116,7 @@ def parse_center(text: str) -> np.ndarray | None:
     try:
         c = np.array([float(v) for v in text.replace(" ", "").split(",")], np.float32)
     except ValueError:
-        c = np.zeros(0)
+        c = np.zeros(0, np.float32)
     if c.shape != (3,) or not np.isfinite(c).all():
         raise fail("--center", f"expected three numbers 'x,y,z', got '{text}'")
     return c
@@ -127,7 +127,8 @@ def plane_hit_distance(c2w: np.ndarray, K_nk: np.ndarray, size: tuple[int, int])
     a camera sees the plane z = 0, or inf when none of them hits it."""
     w, h = size
     uv = np.array([[0, 0], [w / 2, 0], [w, 0], [w, h / 2], [w, h], [w / 2, h], [0, h], [0, h / 2]], np.float64)
-    d_cam = np.column_stack([(uv[:, 0] - K_nk[0, 2]) / K_nk[0, 0], (uv[:, 1] - K_nk[1, 2]) / K_nk[1, 1], np.ones(len(uv))])
+    d_cam = np.column_stack([(uv[:, 0] - K_nk[0, 2]) / K_nk[0, 0], (uv[:, 1] - K_nk[1, 2]) / K_nk[1, 1],
+                             np.ones(len(uv))])
     d = d_cam @ c2w[:3, :3].T
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     o = c2w[:3, 3]
@@ -176,7 +177,7 @@ def _load_view(p: PosedPhoto, base: Camera, und, out_size: tuple[int, int]) -> n
 def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConfig, tag_size: float,
                   jobs: int = 2, progress: bool = True, extra: dict | None = None,
                   up: np.ndarray | None = None, on_tag_plane: bool = True,
-                  points: "SparsePoints | None" = None,
+                  points: SparsePoints | None = None,
                   tags: np.ndarray | None = None) -> tuple[Scene, dict]:
     """Undistort, crop, resize and split ``posed`` photos, then write the dataset files.
 
@@ -200,6 +201,7 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
     posed = sorted(posed, key=lambda p: p.name)
     base_size = common_size((p.camera.width, p.camera.height) for p in posed)
     base = next(p.camera for p in posed if (p.camera.width, p.camera.height) == base_size)
+    assert base_size is not None  # a camera of that size was found
     und = make_undistorter(base)
     out_size = output_size(*und.size, cfg.max_side)
     K = resize_K_nerfkit(nerfkit_K(und.K), und.size, out_size).astype(np.float32)
@@ -214,12 +216,12 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
     try:
         if jobs > 1:
             with ThreadPoolExecutor(jobs) as pool:
-                images = list(pool.map(work, posed))
+                loaded = list(pool.map(work, posed))
         else:
-            images = [work(p) for p in posed]
+            loaded = [work(p) for p in posed]
     finally:
         bar.close()
-    images = np.stack(images)
+    images = np.stack(loaded)
     c2w = np.stack([p.c2w for p in posed]).astype(np.float64)
     names = [p.name for p in posed]
 
@@ -298,7 +300,8 @@ def write_coverage(scene: Scene, plot_path: Path) -> dict:
     from ..viz.plots import plot_coverage
     from .coverage import cap_outline, measure_coverage
 
-    cov = measure_coverage({s: (v.c2w, v.names) for s, v in scene.splits.items()}, scene.center, scene.up)
+    # (an empty split has no names, and measure_coverage leaves it out)
+    cov = measure_coverage({s: (v.c2w, v.names or []) for s, v in scene.splits.items()}, scene.center, scene.up)
     gaps = {f"widest gap ({cov.capture.radius_deg:.0f} degrees)": cap_outline(cov.capture, scene.up)}
     if cov.train.radius_deg > cov.capture.radius_deg:
         gaps[f"widest gap of the training photos ({cov.train.radius_deg:.0f})"] = cap_outline(cov.train, scene.up)
@@ -307,15 +310,16 @@ def write_coverage(scene: Scene, plot_path: Path) -> dict:
     return {**cov.as_json(), "plot": plot_path.name}
 
 
-def photo_agreement(scene: Scene) -> "Agreement | None":
+def photo_agreement(scene: Scene) -> Agreement | None:
     """How well ``scene``'s training photos agree on its table around the object
     (:func:`~nerfkit.capture.agreement.measure_agreement`, the object's box left out as the
     model will find it), or None."""
     from .agreement import measure_agreement
 
+    if scene.table is None:  # no table to agree on (build_dataset asks only when there is one)
+        return None
     radius = sphere_radius(scene)  # the object's box as the model will find it (SceneBounds.from_scene)
-    box = (None if scene.points is None or scene.table is None
-           else object_box_from_points(scene.points, scene.table, scene.center, radius))
+    box = None if scene.points is None else object_box_from_points(scene.points, scene.table, scene.center, radius)
     return measure_agreement(scene.train, scene.center, scene.table, radius, box)
 
 
@@ -330,7 +334,7 @@ def _lying_flat(tags) -> np.ndarray | None:
     return t[flat].astype(np.float32) if flat.any() else None
 
 
-def _triangulate(train: Views, out_dir: Path, progress: bool) -> tuple["SparsePoints | None", str]:
+def _triangulate(train: Views, out_dir: Path, progress: bool) -> tuple[SparsePoints | None, str]:
     """Sparse points of the train views, or None and why not."""
     from ..errors import NerfkitError
     from .points import triangulate_views
@@ -377,7 +381,8 @@ def read_poses_json(path: str | Path, allow_outside: bool = False) -> tuple[list
     path = Path(path)
     if path.is_dir():
         path = path / POSES_FILE
-    data = load_json(path, "no such file", "Run nerfkit poses first; it writes poses.json into the dataset folder", "Re-run nerfkit poses")
+    data = load_json(path, "no such file", "Run nerfkit poses first; it writes poses.json into the dataset folder",
+                     "Re-run nerfkit poses")
     if not isinstance(data, dict) or data.get("format") != "nerfkit-poses":
         raise fail(path, "is not a poses.json written by nerfkit poses")
     with advice("Re-run nerfkit poses"):
@@ -417,7 +422,8 @@ def recorded_tags(poses_meta) -> np.ndarray | None:
         return None
 
 
-def _posed_photo(d: dict, i: int, camera: Camera, photos_dir: Path, where: str, allow_outside: bool = False) -> PosedPhoto:
+def _posed_photo(d: dict, i: int, camera: Camera, photos_dir: Path, where: str,
+                 allow_outside: bool = False) -> PosedPhoto:
     """One photo of poses.json with its checked pose and the camera of its size."""
     w, h = d["size"]
     w = check_count(w, where, f"photos[{i}].size", 1, MAX_SIDE)

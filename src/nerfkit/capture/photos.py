@@ -11,6 +11,7 @@ looks at new or changed photos.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sys
@@ -22,8 +23,16 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NerfkitError, fail, problem_of
-from ..images import (common_frame, common_size, exif_focal_35mm, held_as, list_images, load_image_uint8,
-                      orientation_tag, turns_into_frame)
+from ..images import (
+    common_frame,
+    common_size,
+    exif_focal_35mm,
+    held_as,
+    list_images,
+    load_image_uint8,
+    orientation_tag,
+    turns_into_frame,
+)
 from ..io.atomic import write_json
 from ..io.paths import refuse_special_file
 from .aruco import Detection, Layout, detect, detect_careful, make_detector, marker_bits, suggest_dictionaries
@@ -63,6 +72,18 @@ class PhotoRecord:
     info: dict = field(default_factory=dict)
 
     @property
+    def detected(self) -> Detection:
+        """``detection`` of a photo known to have been read (stages after detection
+        only see those)."""
+        assert self.detection is not None, f"{self.name} was not read"
+        return self.detection
+
+    @property
+    def detected_size(self) -> tuple[int, int]:
+        """``size`` of a photo known to have been read."""
+        return self.detected.width, self.detected.height
+
+    @property
     def size(self) -> tuple[int, int] | None:
         return None if self.detection is None else (self.detection.width, self.detection.height)
 
@@ -99,7 +120,8 @@ def _load_cache(cache_path: Path | None, settings: dict) -> tuple[dict, bool]:
         data = json.loads(refuse_special_file(cache_path).read_text())
     except (OSError, json.JSONDecodeError, UnicodeDecodeError):
         data = None
-    if not isinstance(data, dict) or not {"version", "settings"} <= set(data) or not isinstance(data.get("photos"), dict):
+    if (not isinstance(data, dict) or not {"version", "settings"} <= set(data)
+            or not isinstance(data.get("photos"), dict)):
         print(f"note: {cache_path} is not a nerfkit detection cache; it is left as it is, and detections "
               "are not cached this time", file=sys.stderr)
         return {}, False
@@ -162,7 +184,7 @@ def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = Non
     files = list_images(folder) if files is None else files
     charuco = layout is not None and layout.charuco is not None
     settings = {"dictionary": dictionary, "detect_side": int(detect_side),
-                "charuco": layout.to_json() if charuco else None}
+                "charuco": layout.to_json() if charuco and layout is not None else None}
     cache_path = Path(cache_path) if cache_path else None
     cache, writable = _load_cache(cache_path, settings)
     if not writable:
@@ -226,7 +248,8 @@ def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = Non
 def _keep_known_ids(rec: PhotoRecord, known: set[int]) -> None:
     """Drop second-pass tags whose id no first pass saw; note what the second pass found."""
     det = rec.detection
-    keep = np.array([int(i) in known for i in det.ids], bool)
+    assert det is not None  # only called for a photo just read
+    keep = np.array([int(i) in known for i in det.ids], np.bool_)
     dropped = sorted({int(i) for i in det.ids[~keep]})
     det.ids, det.corners = det.ids[keep], det.corners[keep]
     if len(det.ids):
@@ -242,23 +265,22 @@ def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str
         reasons = "; ".join(f"{r.name}: {r.error}" for r in records[:3])
         raise fail(folder, f"none of the {len(records)} photos could be read ({reasons})",
                    "Use JPEG, PNG or HEIC photos")
-    if any(len(r.detection.ids) or (r.detection.charuco_ids is not None and len(r.detection.charuco_ids))
-           for r in readable):
+    dets = [r.detection for r in readable if r.detection is not None]  # all of readable
+    if any(len(d.ids) or (d.charuco_ids is not None and len(d.charuco_ids)) for d in dets):
         return
     sample = readable[:: max(1, len(readable) // 5)][:5]
     images = []
     for r in sample:
-        try:
+        with contextlib.suppress(NerfkitError):
             images.append(load_image_uint8(r.path))
-        except NerfkitError:
-            pass
     found = suggest_dictionaries(images)
     if found:
         best = ", ".join(f"{name} (ids {', '.join(map(str, ids[:6]))})" for name, ids in found[:3])
         raise fail(folder, f"no {dictionary} tags found in any of {len(readable)} photos, but other dictionaries "
                            f"find tags: {best}", f"Re-run with --dict {found[0][0]}")
+    tried = ", ".join(n.replace("_1000", "_*") for n in ("DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X6_1000"))
     raise fail(folder, f"no {dictionary} tags found in any of {len(readable)} photos (also tried "
-                       f"{', '.join(n.replace('_1000', '_*') for n in ('DICT_4X4_1000', 'DICT_5X5_1000', 'DICT_6X6_1000'))}, "
+                       f"{tried}, "
                        "ArUco original and AprilTag dictionaries)",
                "Check that the tags are in focus, fully visible and not too small (at least ~30 px wide)")
 
@@ -280,6 +302,7 @@ def turn_into_frame(r: PhotoRecord, frame: int | None) -> str:
         return ("no EXIF orientation says how the camera's photos were held" if frame is None else
                 "no EXIF orientation says which way it was turned (rotated in an editor?)")
     r.turns = turns
+    assert r.detection is not None  # only photos that were read have a size to turn
     r.detection = r.detection.turned(turns)
     return ""
 
@@ -330,7 +353,7 @@ def group_by_size(records: list[PhotoRecord], turn: bool = False
             r.skip(f"{held_as(*r.size)} while most "
                    f"photos are {main[0]}x{main[1]}: {why}")
         else:
-            r.skip(f"size {r.size[0]}x{r.size[1]} differs from most photos ({main[0]}x{main[1]})")
+            r.skip(f"size {r.detection.width}x{r.detection.height} differs from most photos ({main[0]}x{main[1]})")
     return main, kept
 
 

@@ -20,6 +20,7 @@ tag's side in pixels)``, so large tags in big photos are not held to a small-pho
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -69,7 +70,7 @@ class PosedPhoto:
     """
 
     name: str
-    path: object
+    path: Path
     c2w: np.ndarray
     error_px: float
     camera: Camera
@@ -145,6 +146,7 @@ def solve_pose(det: Detection, camera: Camera, layout: Layout) -> tuple[np.ndarr
         err = reprojection_rms(obj, img, rv, tv, K, dist)
         if best is None or err < best[0]:
             best = (err, rv, tv)
+    assert best is not None  # candidates is not empty, and the first one is taken
     err, rv, tv = best
     if ambiguity is not None:
         info["pose_ambiguity"] = round(ambiguity, 2)
@@ -162,7 +164,7 @@ def error_limit(camera: Camera, side_px: float, cfg: PoseConfig) -> tuple[float,
     held = camera.heldout_rms if camera.heldout_rms is not None else DEFAULT_HELDOUT_PX
     parts = {f"{HELDOUT_FACTOR:g} x held-out {held:.2f} px": HELDOUT_FACTOR * held, "floor": FLOOR_PX,
              f"{FLOOR_OF_TAG_SIDE * 100:g}% of the tag side": FLOOR_OF_TAG_SIDE * side_px}
-    how = max(parts, key=parts.get)
+    how = max(parts, key=parts.__getitem__)
     return parts[how], how
 
 
@@ -201,7 +203,7 @@ def solve_pose_robust(det: Detection, camera: Camera, layout: Layout, limit: flo
     dropped: dict[int, float] = {}
     while c2w is not None and err > limit and len(info.get("tags_used", [])) > 1 and layout.charuco is None:
         errs = tag_errors(det, c2w, camera, layout, info["tags_used"])
-        worst = max(errs, key=errs.get)
+        worst = max(errs, key=errs.__getitem__)
         det = without_tag(det, worst)
         c2w2, err2, reason2, info2 = solve_pose(det, camera, layout)
         if c2w2 is None or err2 >= err:
@@ -248,7 +250,7 @@ def several_tags(records: list[PhotoRecord], tags: set[int] | None = None,
     with_tags = [r for r in records if r.detection is not None and len(r.detection.ids)
                  and (size is None or r.size == size)]
     several = [r for r in with_tags
-               if len({int(i) for i in r.detection.ids if tags is None or int(i) in tags}) >= 2]
+               if len({int(i) for i in r.detected.ids if tags is None or int(i) in tags}) >= 2]
     return several, with_tags, len(several) >= 2 and len(several) >= SEVERAL_TAGS_SHARE * len(with_tags)
 
 
@@ -287,15 +289,15 @@ def layout_from_photos(records: list[PhotoRecord], camera: Camera, tag_size: flo
     posed = _posed_on(several, camera, layout, cfg)
     errors: dict[int, list[float]] = {}
     for r, c2w, _ in posed:
-        shown = sorted(set(int(i) for i in r.detection.ids) & set(layout.tags))
-        for t, e in tag_errors(r.detection, c2w, camera, layout, shown).items():
+        shown = sorted(set(int(i) for i in r.detected.ids) & set(layout.tags))
+        for t, e in tag_errors(r.detected, c2w, camera, layout, shown).items():
             errors.setdefault(t, []).append(e)
     limit = float(np.median([lim for _, _, lim in posed])) if posed else 0.0
     off = sorted(t for t, e in errors.items() if t != ref and np.median(e) > limit)
     layout = Layout({t: c for t, c in layout.tags.items() if t not in off}, source="estimated from the photos")
     if len(layout.tags) < 2:
         return None, ""
-    missing = sorted({int(i) for r in with_tags for i in r.detection.ids} - set(layout.tags) - set(off))
+    missing = sorted({int(i) for r in with_tags for i in r.detected.ids} - set(layout.tags) - set(off))
     note = (f"estimated the layout of {len(layout.tags)} tags from the photos ({len(several)} of "
             f"{len(with_tags)} with tags show 2 or more; world: tag {ref}'s frame; last change "
             f"{change * 1000:.2f} mm): each photo is posed on all the tags it shows. Pass --single-tag to "
@@ -373,10 +375,10 @@ def refine_focal(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
     lens = camera.exif_f35 or common_lens(r.exif_f35 for r in records if r.detection is not None)
     obj, img = [], []
     for r in records:  # the photos pose_records would pose: of this camera's lens and shape
-        if r.detection is None or other_lens(r.exif_f35, lens) or camera.compatible(*r.size) is not None:
+        if r.detection is None or other_lens(r.exif_f35, lens) or camera.compatible(*r.detected_size) is not None:
             continue
-        scale = camera.width / r.size[0]
-        cam = camera if scale == 1 else camera.scaled_to(*r.size)
+        scale = camera.width / r.detected_size[0]
+        cam = camera if scale == 1 else camera.scaled_to(*r.detected_size)
         limit = detection_limit(r.detection, cam, layout, cfg)[0]
         c2w, err, _, info = solve_pose_robust(r.detection, cam, layout, limit)
         if c2w is None or err > limit:
@@ -420,8 +422,8 @@ def _posed_on(records: list[PhotoRecord], camera: Camera, layout: Layout,
     """``(record, c2w, error limit)`` of the photos :func:`solve_pose_robust` poses on ``layout``."""
     out = []
     for r in records:
-        limit = detection_limit(r.detection, camera, layout, cfg)[0]
-        c2w, _, _, _ = solve_pose_robust(r.detection, camera, layout, limit)
+        limit = detection_limit(r.detected, camera, layout, cfg)[0]
+        c2w, _, _, _ = solve_pose_robust(r.detected, camera, layout, limit)
         if c2w is not None:
             out.append((r, c2w, limit))
     return out
@@ -438,7 +440,7 @@ class _PosedFit:
     tvecs: list
 
     @staticmethod
-    def of(posed: list[tuple[PhotoRecord, np.ndarray, float]], camera: Camera) -> "_PosedFit":
+    def of(posed: list[tuple[PhotoRecord, np.ndarray, float]], camera: Camera) -> _PosedFit:
         import cv2
 
         w2cs = [np.linalg.inv(c2w) for _, c2w, _ in posed]
@@ -449,7 +451,7 @@ class _PosedFit:
 def exif_camera(records: list[PhotoRecord]) -> tuple[Camera, str]:
     """A distortion-free camera from the photos' EXIF FocalLengthIn35mmFilm (most common
     value and size), or a NerfkitError when the photos carry none."""
-    values = [(r.exif_f35, r.size) for r in records if r.exif_f35 and r.detection is not None]
+    values = [(r.exif_f35, r.detected_size) for r in records if r.exif_f35 and r.detection is not None]
     if not values:
         raise fail("poses", "no --camera given and the photos have no EXIF FocalLengthIn35mmFilm",
                     "Run nerfkit calibrate on photos of the tag sheet and pass --camera camera.json, "
@@ -477,11 +479,11 @@ def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
     cams: dict[tuple[int, int], Camera] = {}
     frame = camera.sensor_turns
     if frame is None:
-        frame = frame_turns([r for r in records if r.detection is not None and not camera.compatible(*r.size)])
+        frame = frame_turns([r for r in records if r.detection is not None and not camera.compatible(*r.detected_size)])
     for r in keep_one_lens(records, camera.exif_f35):
         if r.detection is None:
             continue
-        w, h = r.size
+        w, h = r.detected_size
         why = camera.compatible(w, h)
         if why and not camera.compatible(h, w):
             not_turned = turn_into_frame(r, frame)
@@ -489,7 +491,7 @@ def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
                 not_turned += " (re-run nerfkit calibrate: its camera files record it)"
             why = (f"{held_as(w, h)} while the camera is {camera.width}x{camera.height}: {not_turned}"
                    if not_turned else None)
-            w, h = r.size
+            w, h = r.detected_size
         if why:
             r.skip(why)
             continue

@@ -123,7 +123,7 @@ def is_video(path: str | os.PathLike) -> bool:
 
 
 def ffmpeg_exe() -> str:
-    import imageio_ffmpeg
+    import imageio_ffmpeg  # type: ignore[import-untyped]
 
     return imageio_ffmpeg.get_ffmpeg_exe()
 
@@ -323,10 +323,9 @@ def score_clip(path: Path, info: VideoInfo, side: int = SCORE_SIDE, progress: bo
     for m in _SHOWINFO.finditer(text):
         i = int(m.group(1))
         if i < n:
-            try:  # pts in time_base ticks is exact; pts_time is rounded to 6 digits
+            # pts in time_base ticks is exact; pts_time is rounded to 6 digits (NOPTS: ValueError, kept as is)
+            with contextlib.suppress(ValueError):
                 times[i] = int(m.group(2)) * tick if tick else float(m.group(3))
-            except ValueError:  # NOPTS
-                pass
     return ClipScores(times, np.asarray(sharp), np.asarray(bright), np.stack(thumbs))
 
 

@@ -45,7 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--detect-size", type=number(int, 64, 100_000), default=2000,
                    help="detect tags on a copy this many pixels on the long side, then refine corners at full "
                         "resolution (default: 2000)")
-    p.add_argument("--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel (default: up to 4 cores)")
+    p.add_argument("--jobs", type=number(int, 0, 256), default=0,
+                   help="photos processed in parallel (default: up to 4 cores)")
     p.add_argument("--no-cache", action="store_true", help="ignore cached detections")
     p.add_argument("--all-photos", action="store_true", help="list every photo in the summary, not only skipped ones")
     p.add_argument("--force", action="store_true", help="replace an existing camera file")
@@ -98,7 +99,11 @@ def run(args: argparse.Namespace) -> int:
     layout = load_layout(args.layout, args.dict, args.tag_size) if args.layout else None
     if layout is None and args.tag_size is None:
         raise fail("--tag-size", "is required without --layout", "Measure one tag's black square, e.g. --tag-size 0.06")
-    tag_size = args.tag_size or layout.tag_size
+    if args.tag_size:
+        tag_size = args.tag_size
+    else:
+        assert layout is not None  # checked above
+        tag_size = layout.tag_size
     out = Path(args.out)
     if out.is_dir():
         out = out / "camera.json"

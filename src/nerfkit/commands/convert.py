@@ -212,7 +212,8 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
     from ..io.paths import safe_output_name
 
     out = Path(out)
-    written, splits, seen = [], {}, set()
+    written, splits = [], {}
+    seen: set[str] = set()
     for split, v in scene.splits.items():
         names = [safe_output_name(n, f"{split}_{i:04d}") for i, n in enumerate(v.names)] if v.names else \
             [f"{split}_{i:04d}" for i in range(len(v))]
@@ -220,7 +221,8 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
         if v.images is not None:
             names = [str(Path(n).with_suffix(".png")) for n in names]  # pixels are written as PNG
             if len(set(names)) < len(names) or seen & set(names):
-                raise fail(out, "two views would both be written as the same image file", "Give the views distinct names")
+                raise fail(out, "two views would both be written as the same image file",
+                           "Give the views distinct names")
             seen |= set(names)
         splits[split] = replace(v, names=names)
     with_images = tuple(k for k, v in scene.splits.items() if v.images is not None and len(v))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 
 MEMORY_HINT = "Lower --max-side or --jobs"
 HELP = "undistort, resize and split posed photos into a NeRF dataset (npz + transforms.json)"
@@ -41,7 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="auto (default): the poses the folder's dataset was built from (transforms.json says): "
                    "the structure-from-motion model that `nerfkit poses` left (sfm_report.json, colmap/), or "
                    "the tag poses of poses.json")
-    p.add_argument("--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel (default: up to 4 cores)")
+    p.add_argument("--jobs", type=number(int, 0, 256), default=0,
+                   help="photos processed in parallel (default: up to 4 cores)")
     p.add_argument("--force", action="store_true", help="replace an existing dataset (dataset.npz, transforms.json, "
                    "images/, coverage.png) in the output folder")
     add_outside_flag(p)
@@ -175,10 +177,8 @@ def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bo
         result.model_dir = model_copy
     tags = None
     if result.tag_size is not None:  # the printed tags the dataset built from this model recorded, if they read
-        try:
+        with contextlib.suppress(NerfkitError):
             tags = check_tags((nerfkit_block(folder) or {}).get("tags"), str(folder / "transforms.json"))
-        except NerfkitError:
-            pass
     _, summary = build_dataset(result, out, cfg, jobs=jobs, write_report=not in_place, tags=tags,
                                extra={"pose_choice": {"poses": "sfm", "why": f"rebuilt from {result.model_dir}"}})
     return report_dataset(summary, out)

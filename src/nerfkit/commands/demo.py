@@ -20,7 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", choices=["fast", "vanilla"], default="fast", help="which NeRF (default: fast)")
     p.add_argument("--minutes", type=number(float, above=0), default=None,
                    help="training-time budget (default: 3 for fast, 8 for vanilla)")
-    p.add_argument("--out", default="runs/demo", help="run folder; a fresh one is picked if it exists (default: runs/demo)")
+    p.add_argument("--out", default="runs/demo",
+                   help="run folder; a fresh one is picked if it exists (default: runs/demo)")
     p.add_argument("--device", default="auto", help="auto, cpu, cuda (default: auto)")
     p.add_argument("--seed", type=number(int, 0, MAX_SEED), default=0, help="random seed (default: 0)")
     p.set_defaults(func=run)
@@ -77,8 +78,10 @@ def run(args: argparse.Namespace) -> int:
     views = scene.render_path()
     if args.model == "vanilla":  # the big MLP renders ~10 s per frame on a CPU: half the frames
         views = views.subset(range(0, len(views), 2))
-    videos = render_videos(model, views, out / "videos", bg, scene.near, scene.far, 30, info.train.render_chunk, autocast)
-    metrics = {"split": "val", "step": result.step, **evaluate_views(model, scene.val, bg, info.train.render_chunk, autocast)}
+    videos = render_videos(model, views, out / "videos", bg, scene.near, scene.far, 30, info.train.render_chunk,
+                           autocast)
+    metrics = {"split": "val", "step": result.step,
+               **evaluate_views(model, scene.val, bg, info.train.render_chunk, autocast)}
     write_json(out / "eval_val.json", metrics)
     summary = {
         "model": args.model,
@@ -92,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
     write_json(out / "summary.json", summary)
     print(json.dumps(summary, indent=2))
     print("outputs:")
-    for label, path in [("orbit video", videos.rgb_mp4), ("orbit GIF", videos.rgb_gif), ("depth video", videos.depth_mp4),
+    for label, path in [("orbit video", videos.rgb_mp4), ("orbit GIF", videos.rgb_gif),
+                        ("depth video", videos.depth_mp4),
                         ("PSNR curve", out / "plots" / "psnr.png"), ("loss curve", out / "plots" / "loss.png"),
                         ("progression", out / "plots" / "progress.png"), ("metrics", out / "metrics.csv"),
                         ("evaluation", out / "eval_val.json")]:

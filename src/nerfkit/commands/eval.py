@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING, cast
 
 from ._common import add_run_args
+
+if TYPE_CHECKING:
+    from ..models.base import NerfModel
 
 HELP = "evaluate a trained run on held-out images: PSNR and SSIM"
 MEMORY_HINT = "Lower --chunk (rays rendered at once)"
@@ -81,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     result = {"split": args.split, "step": run_.step, "data": scene.source,
               **evaluate_views(run_.model, views, run_.background(), run_.chunk, run_.autocast, fit=fit,
                                scale=run_.info.bounds.radius, sheet=sheet,
-                               alone=alone.model if alone is not None and alone.left_out else None)}
+                               alone=cast("NerfModel", alone.model) if alone is not None and alone.left_out else None)}
     json_path, sheet_path = Path(args.run) / f"eval_{args.split}.json", Path(args.run) / f"eval_{args.split}.png"
     write_json(json_path, result)
     write_contact_sheet(sheet_path, sheet, args.split)

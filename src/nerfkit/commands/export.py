@@ -75,8 +75,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "(default: the run's)")
     g = p.add_argument_group("points")
     g.add_argument("--every", type=number(int, 1), default=1, help="use every N-th training view (default: 1)")
-    g.add_argument("--stride", type=number(int, 1, 4096), default=1, help="use every N-th pixel in each direction (default: 1)")
-    g.add_argument("--acc-min", type=number(float, 0, 0.999), default=0.5, help="keep pixels with opacity above this (default: 0.5)")
+    g.add_argument("--stride", type=number(int, 1, 4096), default=1,
+                   help="use every N-th pixel in each direction (default: 1)")
+    g.add_argument("--acc-min", type=number(float, 0, 0.999), default=0.5,
+                   help="keep pixels with opacity above this (default: 0.5)")
     g.add_argument("--no-crop", action="store_true", help="keep points outside the scene box")
     p.add_argument("--force", action="store_true", help="replace existing output files")
     add_run_device_args(p)

@@ -51,7 +51,15 @@ def run(args: argparse.Namespace) -> int:
 
     from ..config import dataclass_from_args
     from ..errors import fail
-    from ..fit_image import RUN_FILES, FitImageConfig, default_image_path, parse_sweep, run_fit, run_sweep, sweep_outputs
+    from ..fit_image import (
+        RUN_FILES,
+        FitImageConfig,
+        default_image_path,
+        parse_sweep,
+        run_fit,
+        run_sweep,
+        sweep_outputs,
+    )
     from ..io.paths import guard_outputs
 
     cfg = dataclass_from_args(FitImageConfig, args)

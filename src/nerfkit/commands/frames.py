@@ -23,7 +23,8 @@ example:
 def register(sub: argparse._SubParsersAction) -> None:
     from ..config import number
 
-    p = sub.add_parser("frames", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = sub.add_parser("frames", help=HELP, description=DESCRIPTION,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("clip", metavar="CLIP", help="the video file (MP4, MOV, M4V; H.264 or HEVC)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the frames (new, empty, or earlier frames)")
     p.add_argument("--frames", type=number(int, 10, 10_000), default=120, metavar="N",

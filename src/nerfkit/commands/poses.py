@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING, cast
+
+if TYPE_CHECKING:
+    from ..capture.aruco import Layout
+    from ..sfm.colmap import SfmResult
 
 MEMORY_HINT = "Lower --max-side, --detect-size or --jobs"
 HELP = "pose photos of an object beside an ArUco tag and build a NeRF dataset"
@@ -68,9 +73,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "exhaustive up to 100 photos; beyond, spatial when the tags pose half of them, else sequential")
     p.add_argument("--no-ground", action="store_true",
                    help="with --method colmap and no tag: do not look for the table plane in the SfM points")
-    p.add_argument("--sfm-max-size", type=number(int, 64, 100_000), default=1000, help="longest side used for SfM features, px (default 1000)")
+    p.add_argument("--sfm-max-size", type=number(int, 64, 100_000), default=1000,
+                   help="longest side used for SfM features, px (default 1000)")
     p.add_argument("--camera", help="camera file from `nerfkit calibrate` (default: the photos' EXIF focal length)")
-    p.add_argument("--focal-px", type=number(float, above=0), help="focal length in pixels, when there is no camera file or EXIF")
+    p.add_argument("--focal-px", type=number(float, above=0),
+                   help="focal length in pixels, when there is no camera file or EXIF")
     p.add_argument("--tag-size", type=tag_side, help="side of the tag's black square in metres, e.g. 0.06")
     p.add_argument("--tag-id", type=number(int, 0), help="the tag that defines the world (default: the one seen most)")
     p.add_argument("--layout", help="layout JSON of several tags to use jointly (their frame is the world); by "
@@ -80,8 +87,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="pose from one tag: never use the camera file's layout or one estimated from the photos")
     p.add_argument("--dict", help="ArUco dictionary (default: the camera file's, else DICT_4X4_50)")
     p.add_argument("--out", required=True, metavar="DATASET_DIR", help="dataset folder to write")
-    p.add_argument("--no-dataset", action="store_true", help="only write poses.json (build later with `nerfkit dataset`)")
-    p.add_argument("--detect-size", type=number(int, 64, 100_000), default=2000, help="tag detection size (long side, px; default 2000)")
+    p.add_argument("--no-dataset", action="store_true",
+                   help="only write poses.json (build later with `nerfkit dataset`)")
+    p.add_argument("--detect-size", type=number(int, 64, 100_000), default=2000,
+                   help="tag detection size (long side, px; default 2000)")
     p.add_argument("--jobs", type=number(int, 0, 256), default=0,
                    help="photos processed in parallel, and structure-from-motion's threads (default: up to 4 cores, "
                         "SfM on all; SfM on several threads differs a little from run to run, --jobs 1 repeats "
@@ -94,7 +103,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def camera_layout(camera_file: str, dictionary: str, records) -> tuple[object, str]:
+def camera_layout(camera_file: str, dictionary: str, records) -> tuple[Layout | None, str]:
     """(the camera file's layout, a note) when most photos with tags show two or more of its
     tags; else (None, a note or "")."""
     import json
@@ -132,8 +141,15 @@ def run(args: argparse.Namespace) -> int:
     from ..capture.camera import camera_from_focal, load_camera
     from ..capture.dataset import DATASET_OUTPUTS, POSES_FILE, DatasetConfig, write_poses_json
     from ..capture.photos import default_jobs, group_by_size, require_tags, scan_photos
-    from ..capture.poses import (PoseConfig, choose_tag, exif_camera, layout_from_photos, pose_records,
-                                 refine_focal, sheet_heights)
+    from ..capture.poses import (
+        PoseConfig,
+        choose_tag,
+        exif_camera,
+        layout_from_photos,
+        pose_records,
+        refine_focal,
+        sheet_heights,
+    )
     from ..capture.report import photo_summary
     from ..config import dataclass_from_args
     from ..errors import fail
@@ -186,6 +202,7 @@ def run(args: argparse.Namespace) -> int:
     if camera is None:
         if args.focal_px:
             size, _ = group_by_size(records)
+            assert size is not None  # require_tags found readable photos
             camera = camera_from_focal(args.focal_px, size[0], size[1], f"--focal-px {args.focal_px:g}")
             notes.append(f"no --camera: fx = fy = {args.focal_px:g} px, principal point at the centre, no distortion")
         else:
@@ -251,7 +268,7 @@ def run(args: argparse.Namespace) -> int:
         if choice.result is not None:
             from ..sfm.dataset import build_dataset
 
-            _, summary = build_dataset(choice.result, out, dcfg, jobs=args.jobs or default_jobs(),
+            _, summary = build_dataset(cast("SfmResult", choice.result), out, dcfg, jobs=args.jobs or default_jobs(),
                                        extra={"notes": notes, "pose_choice": choice.to_dict()}, tags=printed.corners())
             return report_dataset(summary, out)
         from ..sfm.dataset import REPORT_FILE

@@ -80,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
             if isolated.cut > 0:
                 alone += f"; {cleared_note(isolated.cut, tags)}"
     # an orbit looks at the trained object, not at the point the cameras' axes meet
-    aim = object_aim(run_.model, scene.train, scene.up, background, run_.chunk, run_.autocast) if kind == "orbit" else None
+    aim = (object_aim(run_.model, scene.train, scene.up, background, run_.chunk, run_.autocast)
+           if kind == "orbit" else None)
     views = scene.render_path(args.frames or ORBIT_FRAMES, aim, kind)
     near, far = scene.near, scene.far
     if args.object:

@@ -69,10 +69,10 @@ def run(args: argparse.Namespace) -> int:
     pages = tag_sheets(args.paper, args.dict, sheet_mm, object_mm or None)
     from matplotlib.backends.backend_pdf import PdfPages
 
-    with atomic_path(out) as tmp:
-        with PdfPages(tmp, metadata={"Title": "nerfkit ArUco tags", "Creator": "nerfkit tags"}) as pdf:
-            for page in pages:
-                pdf.savefig(draw_page(page, d))
+    with (atomic_path(out) as tmp,
+          PdfPages(tmp, metadata={"Title": "nerfkit ArUco tags", "Creator": "nerfkit tags"}) as pdf):
+        for page in pages:
+            pdf.savefig(draw_page(page, d))
     sheet = pages[0]
     print(f"wrote {out} ({args.paper.upper() if args.paper == 'a4' else args.paper}, {len(pages)} "
           f"page{'s' * (len(pages) > 1)}):")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import sys
 
@@ -19,7 +20,8 @@ examples:
 A run folder holds config.json (every setting, as resolved), model.pt, metrics, plots and videos.
 Unless given, the dataset's kind (object, capture, forward-facing) picks settings (nerfkit.presets).
 """
-USAGE = """nerfkit train --data PATH [--out DIR] [--model {vanilla,fast,splat}] [--steps INT | --minutes FLOAT] [options]
+USAGE = """nerfkit train --data PATH [--out DIR] [--model {vanilla,fast,splat}] \
+[--steps INT | --minutes FLOAT] [options]
        nerfkit train --config RUN/config.json [--out DIR] [options]
        nerfkit train --resume RUN [--steps INT | --minutes FLOAT]"""
 MODEL_GROUP = "model '{}'"
@@ -50,9 +52,10 @@ def help_for_model(parser: argparse.ArgumentParser, model: str | None) -> str:
         mine = [g for g in groups if g.title in ("options", FIRST_GROUP)]
     else:
         mine = [g for g in groups if not (g.title or "").startswith("model '") or model == "all"
-                or MODEL_GROUP.format(model) in g.title]
+                or MODEL_GROUP.format(model) in (g.title or "")]
     epilog = parser.epilog
     if model is None:
+        assert epilog is not None  # the parser's own, EPILOG
         epilog += "\nthe other options, by group (data, optimisation, evaluation, real captures, the model's):\n" + \
             "".join(f"  {f'nerfkit train --model {m} --help':38s}{MODEL_BLURBS.get(m, '')}\n"
                     for m in _model_config_classes()) + f"  {'nerfkit train --help-all':38s}every model's\n"
@@ -68,10 +71,8 @@ def _model_config_classes():
 
     out = {}
     for name in MODEL_NAMES:
-        try:
+        with contextlib.suppress(ImportError):  # a model whose optional parts are missing
             out[name] = model_config_class(name)
-        except ImportError:  # a model whose optional parts are missing
-            pass
     return out
 
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-HELP = "view a dataset's cameras, rays and samples, or a trained run live, in the browser (viser); or a dataset as a PNG"
+HELP = ("view a dataset's cameras, rays and samples, or a trained run live, in the browser (viser); "
+        "or a dataset as a PNG")
 
 DESCRIPTION = """\
 Shows each camera as a frustum textured with its image, the world axes, the tag plane and
@@ -75,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             from .live import serve_run
         except ImportError:
-            raise fail(path, "is a trained run, but the live viewer (nerfkit.commands.live) is not available in this build",
+            raise fail(path, "is a trained run, but the live viewer (nerfkit.commands.live) is not available in "
+                             "this build",
                        "View its dataset instead: nerfkit view DATASET") from None
         serve_run(path, host=args.host, port=args.port)
         return 0

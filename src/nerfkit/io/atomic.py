@@ -108,7 +108,8 @@ def replacing_folder(folder: str | os.PathLike) -> Iterator[Path]:
     """
     folder = Path(folder)
     moved = folder.is_symlink() or folder.exists()
-    aside = old = None
+    aside: Path | None = None
+    old: Path | None = None
     if moved:
         aside = Path(tempfile.mkdtemp(prefix=f".{folder.name}.replaced.", dir=folder.parent))
         old = aside / folder.name
@@ -118,10 +119,12 @@ def replacing_folder(folder: str | os.PathLike) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(folder, ignore_errors=True)
         if moved:
+            assert old is not None and aside is not None  # both set above whenever moved
             old.rename(folder)
             aside.rmdir()
         raise
     if moved:
+        assert old is not None and aside is not None  # both set above whenever moved
         old.unlink() if old.is_symlink() or old.is_file() else shutil.rmtree(old)
         aside.rmdir()
 
