@@ -18,11 +18,10 @@ import numpy as np
 SURFACE_DENSITY = 25.0
 # The mesh's surface by default (surface_threshold): the density at which one 256th of the
 # meshed cube's width is this opaque. A density threshold in world units is not scale-free:
-# 25 cut lego's base plate (its surfaces render at a median density of 24), and meshed steve
-# and labubu (surfaces at 250 and 700, in metres) in a haze around them. At 7% the mesh's
-# silhouette in the val views matches the NeRF's best of the levels tried on lego, steve and
-# labubu (benchmarks/mesh_colours.py's IoU: 0.89, 0.91 and 0.95, against 0.76, 0.81 and
-# 0.87 at 25; BENCHMARKS.md, session 40).
+# a fixed 25 cut lego's base plate (its surfaces render at a median density of 24) and meshed
+# captures in metres in a haze around them. At 7% the mesh's silhouette in the val views
+# matches the NeRF's best of the levels tried (benchmarks/mesh_colours.py's silhouette IoU;
+# BENCHMARKS.md).
 MESH_OPACITY = 0.07
 MESH_OPACITY_CELLS = 256
 
