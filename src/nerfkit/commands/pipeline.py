@@ -118,9 +118,10 @@ def command_arguments(command: str, **values: Any) -> argparse.Namespace:
             continue
         action = actions[key]
         flag = action.option_strings[-1] if action.option_strings else key
-        if value is not None and action.type is not None and not isinstance(value, bool):
+        convert = action.type  # a flag's parser: a callable (argparse also allows a registered name)
+        if callable(convert) and not isinstance(value, bool):
             try:
-                value = action.type(str(value))
+                value = convert(str(value))
             except (argparse.ArgumentTypeError, TypeError, ValueError) as e:
                 raise fail(flag, str(e)) from None
         if isinstance(value, Path):
