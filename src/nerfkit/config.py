@@ -14,12 +14,15 @@ import numbers
 import types
 import typing
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from .errors import fail
 from .io.paths import refuse_special_file
 
-T = TypeVar("T")
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+T = TypeVar("T", bound="DataclassInstance")
 
 # the largest --seed: every random generator nerfkit seeds (numpy, torch) takes it
 MAX_SEED = 2 ** 32 - 1
@@ -140,7 +143,9 @@ def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
         if kind not in (int, float) or (value is None and optional):
             continue
         numeric = isinstance(value, numbers.Integral if kind is int else numbers.Real) and not isinstance(value, bool)
-        problem = range_problem(value, kind, **range_of(f.metadata)) if numeric else _not_a(kind, str(value))
+        bounds = range_of(f.metadata)
+        problem = (range_problem(value, kind, min=bounds["min"], max=bounds["max"], above=bounds["above"],
+                                 off=bounds["off"]) if numeric else _not_a(kind, str(value)))
         if problem:
             if owner:
                 problem += f" for {owner}"
@@ -186,8 +191,9 @@ def widest_bounds(metas: list[Any]) -> dict[str, float]:
     if len(offs) > 1:
         raise TypeError(f"the fields switch off at different values: {sorted(offs)}")
     out: dict[str, float] = {"off": offs.pop()} if offs else {}
-    if None not in lows:
-        value, exclusive = min(lows)
+    known = [low for low in lows if low is not None]
+    if len(known) == len(lows):
+        value, exclusive = min(known)
         out["above" if exclusive else "min"] = value
     if None not in highs:
         out["max"] = max(highs)
@@ -262,7 +268,8 @@ def add_alternative_dataclass_args(parser: argparse.ArgumentParser, classes: dic
     (:func:`widest_bounds`), with each one's help and default; :func:`check_ranges` then checks the
     chosen config against its own bounds (e.g. ``--sh-degree``: 0 to 2 for the fast model, 0 to 3
     for splat, so 0 to 3 when parsed)."""
-    groups = {(name,): parser.add_argument_group(title.format(name)) for name in classes}
+    groups: dict[tuple[str, ...], argparse._ArgumentGroup] = {
+        (name,): parser.add_argument_group(title.format(name)) for name in classes}
     for field, its in _alternative_fields(classes).items():
         names = tuple(name for name, _, _ in its)
         if names not in groups:  # after the configs' own groups
@@ -312,16 +319,14 @@ def dataclass_from_dict(cls: type[T], d: dict, where: str) -> T:
     unknown = set(d) - names
     if unknown:
         raise fail(where, f"unknown config keys: {', '.join(sorted(map(repr, unknown)))}")
-    out = {}
+    out: dict[str, Any] = {}
     for k, v in d.items():
         tp, optional = base_type(hints[k])
         if v is None and optional:
             out[k] = None
         elif tp is float and isinstance(v, (int, float)) and not isinstance(v, bool):
             out[k] = float(v)  # finite and in range: check_ranges below
-        elif tp in (int, str, bool) and type(v) is tp:
-            out[k] = v
-        elif tp not in (int, float, str, bool):
+        elif (tp in (int, str, bool) and type(v) is tp) or tp not in (int, float, str, bool):
             out[k] = v
         else:
             raise fail(where, f"config key '{k}' should be {tp.__name__}, got {type(v).__name__}")

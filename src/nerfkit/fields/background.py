@@ -22,6 +22,7 @@ with density makes haze and floaters; a flat colour makes dark surfaces see-thro
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import numpy as np
 import torch
@@ -119,7 +120,8 @@ class _SparseTexture(torch.autograd.Function):
             rows = torch.empty((n, 4), dtype=torch.int64)
             frac, inside = torch.empty((n, 2)), torch.empty((n, 2))
             out = torch.empty((n, texd.shape[1]))
-            nb.texture_forward(texd.numpy(), uv32.numpy(), w, h, rows.numpy(), frac.numpy(), inside.numpy(), out.numpy())
+            nb.texture_forward(texd.numpy(), uv32.numpy(), w, h, rows.numpy(), frac.numpy(), inside.numpy(),
+                               out.numpy())
             ctx.save_for_backward(texd, rows, frac, inside)
             ctx.compiled = nb
             return out
@@ -223,6 +225,10 @@ class TablePlane(nn.Module):
             the table mirrors (``ENV_SIZE``).
     """
 
+    plane: Tensor
+    origin: Tensor
+    axes: Tensor
+
     def __init__(self, plane, center, radius: float, resolution: int = 512, gloss: bool = False):
         super().__init__()
         plane = torch.as_tensor(plane, dtype=torch.float32).reshape(4)
@@ -271,8 +277,8 @@ class TablePlane(nn.Module):
         sinks = sinks or {}
         with torch.autocast(points.device.type, enabled=False):  # texel indices need float32
             uv = self.texture_coords(points.float())
-            colour = torch.sigmoid(sum(sample_texture(t, side, uv, sinks.get(t), compiled)
-                                       for t, side in self.textures()[:2]))
+            colour = torch.sigmoid(cast(Tensor, sum(sample_texture(t, side, uv, sinks.get(t), compiled)
+                                                    for t, side in self.textures()[:2])))
             cover = self._scalar(self.cover, uv, sinks, compiled)
             shine = self._scalar(self.shine, uv, sinks, compiled) if gloss and self.shine is not None else None
         return colour, cover, shine
@@ -408,6 +414,10 @@ class RoomShells(nn.Module):
         width: texels around the fine texture (height ``width // 2``).
     """
 
+    center: Tensor
+    frame: Tensor
+    radii: Tensor
+
     def __init__(self, center, up, r0: float, n_shells: int = 3, ratio: float = 2.5, width: int = 1024):
         super().__init__()
         up = torch.as_tensor(np.asarray(up, np.float32)).reshape(3)
@@ -451,7 +461,7 @@ class RoomShells(nn.Module):
             on_axis = (local[..., 0].abs() + local[..., 1].abs()) < 1e-9
             azimuth = torch.atan2(local[..., 1], local[..., 0] + on_axis * 1e-9) / math.pi  # (n, k) in [-1, 1]
             elevation = torch.asin(local[..., 2].clamp(-1.0 + 1e-6, 1.0 - 1e-6)) / (0.5 * math.pi)
-            logits = 0.0
+            logits: Tensor | float = 0.0
             for tex, (w, h) in zip((self.fine, self.coarse), self.sizes):
                 # row within the shell's band, kept half a texel off its edges so that the
                 # bilinear taps never reach the next shell
@@ -460,6 +470,7 @@ class RoomShells(nn.Module):
                 y = (shell * h + row) / (k * h) * 2.0 - 1.0
                 uv = torch.stack([azimuth, y], dim=-1).reshape(-1, 2)
                 logits = logits + sample_texture(tex, (w, h * k), uv, sinks.get(tex), compiled).reshape(n, k, 4)
+            assert isinstance(logits, Tensor)  # (two textures, always)
             rgb = torch.sigmoid(logits[..., :3])
             alpha = torch.sigmoid(logits[..., 3]) * hit
         return torch.where(hit, t, math.inf), rgb, alpha

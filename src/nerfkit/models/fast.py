@@ -55,20 +55,18 @@ from ..cameras import Rays
 from ..config import check_ranges
 from ..data.validate import short_repr
 from ..errors import fail
+from ..estimators.occupancy import OccupancyEstimator, RefreshRule
 from ..fields.background import RoomShells, TablePlane, composite_layers, layers_depth, sh16, table_doubt
 from ..kernels import numba_kernels
 from ..kernels import reference as ref
-from ..kernels.optim import replace_param
 from ..kernels.ops import GradSink, GridGeom, MarchSpec, add_grid_tv, cell_density_max, render_grid, row_vertices
-from ..estimators.occupancy import OccupancyEstimator, RefreshRule
+from ..kernels.optim import replace_param
 from ..render.box import GridBox, ray_aabb
 from ..render.volrend import sight_line_loss
 from ..tabletop import TABLE_CUT, around_object, faces_reached, heights, table_cut_height
-from .packing import pack_grid, unpack_grid, vertices_touching
 from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState, rgb_loss
-from .fast_config import (BOX_FOLLOW, BOX_FOLLOW_OPACITY, BOX_FOLLOW_UNTIL, MAX_GRID_SIDE, MAX_GRID_VERTICES,
-                          FastConfig)
-
+from .fast_config import BOX_FOLLOW, BOX_FOLLOW_OPACITY, BOX_FOLLOW_UNTIL, MAX_GRID_SIDE, MAX_GRID_VERTICES, FastConfig
+from .packing import pack_grid, unpack_grid, vertices_touching
 
 # A growth dips the held-out score until the finer grid has trained for a while (lego,
 # 128 -> 192 at step 2000: 70 steps to be back level, +0.25 dB after 300, +0.45 after
@@ -113,6 +111,11 @@ def check_grid_res(res, where: str, field: str, fix: str) -> tuple[int, int, int
 
 class FastNeRF(NerfModel):
     """Grid field + occupancy grid + fused kernels (see the module docstring)."""
+
+    vertex_rows: Tensor
+    surface_pts: Tensor
+    surface_count: Tensor
+    bg_coef: nn.Parameter | None
 
     def __init__(self, config: FastConfig, bounds: SceneBounds):
         super().__init__(bounds)
@@ -277,6 +280,7 @@ class FastNeRF(NerfModel):
         layers = [] if self.room is None else [self.room.layers(o, d, self.texture_sinks, compiled)]
         clear = None
         if t_table is not None:
+            assert self.table is not None  # (t_table comes from the table)
             layers.append(self._plane_layer(self.table, o, d, t_table, self.config.table_gloss, compiled))
             if self.training and self.config.table_cover_weight:  # for the cover prior
                 clear = torch.isfinite(t_table) * (1.0 - layers[-1][2][:, 0])
@@ -344,8 +348,10 @@ class FastNeRF(NerfModel):
     def _render_ndc(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
         """Rays through the grid in NDC (``s`` in [0, 1) from the near plane to infinity);
         colour follows the world direction; depth is returned in world units."""
+        ndc = self.ndc
+        assert ndc is not None  # (only called in NDC)
         o_w, d_w = rays.origins.float(), rays.directions.float()
-        o, d, forward = self.ndc.rays(o_w, d_w)
+        o, d, forward = ndc.rays(o_w, d_w)
         t0, t1 = ray_aabb(o, d, self.geom.lo, self.geom.hi, 0.0, 1.0)
         t1 = torch.where(forward, t1, t0)
         u = torch.rand(o.shape[0], device=o.device) if perturb else torch.full((o.shape[0],), 0.5, device=o.device)
@@ -353,7 +359,7 @@ class FastNeRF(NerfModel):
                           self._backend(), distortion=bool(self.config.distortion_weight), view_dirs=d_w)
         acc = out.acc
         s = out.depth / acc.clamp(min=1e-6)
-        depth = self.ndc.distance(o_w, d_w, s) * acc  # (expected depth: what was hit, times acc)
+        depth = ndc.distance(o_w, d_w, s) * acc  # (expected depth: what was hit, times acc)
         rgb = out.rgb + (1.0 - acc).unsqueeze(-1) * self._far(d_w, background)
         extras = {"samples_per_ray": out.counts}
         if out.distortion is not None:
@@ -475,7 +481,7 @@ class FastNeRF(NerfModel):
         them) and occupancy refreshes (every ``occ_start`` steps until ``occ_warmup``, then
         every ``occ_every``)."""
         return [Schedule("grow", self._growth_due, self._grow_next),
-                Schedule("total variation", lambda s: self.tv_weights().any(), self._add_tv, phase="gradients"),
+                Schedule("total variation", lambda s: bool(self.tv_weights().any()), self._add_tv, phase="gradients"),
                 Schedule("remember surfaces", self._surface_due, self._remember_surface, phase="after_step"),
                 Schedule("occupancy", lambda s: True, self._occupancy_job, phase="after_step"),
                 Schedule("table cover prior", lambda s: bool(self.config.table_cover_weight), self._switch_cover_prior)]
@@ -578,6 +584,7 @@ class FastNeRF(NerfModel):
     def _remember_surface(self, s: StepState) -> None:
         """Keep (in a ring buffer) where the step's opaque rays ended, in the grid's space,
         for the box shrink at the first growth."""
+        assert s.out is not None and s.rays is not None  # (due only with a step's output)
         acc, depth = s.out.acc.detach().float(), s.out.depth.detach().float()
         hit = acc > 0.5
         if not hit.any():
@@ -667,9 +674,9 @@ class FastNeRF(NerfModel):
         hi = old_geom.hi.cpu().numpy()
         notes = []
         if shrink:
-            box = self.surface_box()
-            if box is not None:
-                lo, hi = box
+            surface = self.surface_box()
+            if surface is not None:
+                lo, hi = surface
         if follow:
             lo, hi, moved = self._follow_object(lo, hi)
             if moved:
@@ -757,7 +764,10 @@ class FastNeRF(NerfModel):
         if not (isinstance(rows, int) and 1 <= rows <= n + 1):
             raise fail("checkpoint 'model_extra'", f"'rows' is {short_repr(rows)}, expected 1 to {n + 1} for a "
                        f"grid of {n} vertices", "The checkpoint is corrupt or not from nerfkit; delete it or re-train")
-        self._set_geometry(GridBox(np.asarray(state["lo"], np.float32), float(state["voxel"]), res),
+        lo = np.asarray(state["lo"], np.float32)
+        voxel = float(state["voxel"])
+        lo3 = lo.reshape(3).tolist()
+        self._set_geometry(GridBox((lo3[0], lo3[1], lo3[2]), voxel, res),
                            torch.zeros(n, dtype=torch.int32))
         self.grid = nn.Parameter(torch.zeros((rows, self.n_channels), device=device))
         self.sink = self._grid_sink(device)
@@ -769,7 +779,7 @@ class FastNeRF(NerfModel):
             self.grid = nn.Parameter(torch.zeros(grid.shape, device=self.grid.device))
             self.sink = self._grid_sink(self.grid.device)
         index = state_dict.get("vertex_rows")
-        if isinstance(index, Tensor) and index.numel() and not (0 <= int(index.min()) and
+        if isinstance(index, Tensor) and index.numel() and not (int(index.min()) >= 0 and
                                                                  int(index.max()) < self.grid.shape[0]):
             # the compiled kernels do not check bounds: a corrupt index must not reach them
             raise ValueError(f"vertex_rows holds rows {int(index.min())}..{int(index.max())}, outside the grid's "
@@ -815,11 +825,11 @@ def resample_grid(grid: Tensor, geom: GridGeom, points: Tensor, chunk: int = 1 <
     """
     nb = numba_kernels() if backend == "numba" and grid.device.type == "cpu" and grid.dtype == torch.float32 else None
     if nb is not None:
-        out = np.empty((len(points), grid.shape[1]), np.float32)
+        values = np.empty((len(points), grid.shape[1]), np.float32)
         nb.grid_interp_points(grid.detach().contiguous().numpy(), geom.vertex_index().numpy(), geom.row_offset(),
                               *geom.res, geom.lo.double().numpy(), 1.0 / geom.voxel,
-                              points.double().contiguous().numpy(), out)
-        return torch.from_numpy(out)
+                              points.double().contiguous().numpy(), values)
+        return torch.from_numpy(values)
     out = torch.empty((len(points), grid.shape[1]), dtype=grid.dtype, device=grid.device)
     lo = geom.lo.to(points)
     for i in range(0, len(points), chunk):

@@ -51,7 +51,8 @@ class RunInfo:
     scene: dict = field(default_factory=dict)  # what config.json says about the dataset (fingerprint, ...)
 
 
-def write_run_config(run_dir: Path, train: TrainConfig, model_config: Any, bounds: SceneBounds, scene_info: dict) -> None:
+def write_run_config(run_dir: Path, train: TrainConfig, model_config: Any, bounds: SceneBounds,
+                     scene_info: dict) -> None:
     from .. import __version__
 
     write_json(run_dir / "config.json", {
@@ -275,7 +276,7 @@ def load_latest_checkpoint(run_dir: Path, model: NerfModel, final_model: bool = 
     if final_model and (run_dir / MODEL_FILE).is_file():
         paths = [run_dir / MODEL_FILE, *paths]
     newest = max((_checkpoint_step(p) for p in checkpoint_paths(run_dir)), default=-1)
-    errors = []
+    errors: list[str] = []
     for path in paths:
         try:
             ckpt = _read_checkpoint(path, type(model).__name__)

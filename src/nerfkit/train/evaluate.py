@@ -94,15 +94,19 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
     per_image = []
     shown = set(np.linspace(0, len(views) - 1, min(sheet_views, len(views))).round().astype(int).tolist())
     for i in tqdm(range(len(views)), desc="eval", unit="view", disable=None if progress else True):
-        target = views.images[i].astype(np.float32) / 255.0
+        images = views.images
+        assert images is not None  # (held-out views have photos)
+        target = images[i].astype(np.float32) / 255.0
         view = render_image(model, views.K[i], views.c2w[i], views.width, views.height, background, chunk,
                             autocast_dtype)
+        assert view is not None  # (None only when aborted; no abort here)
         row = {"index": i, "name": views.names[i] if views.names else None, **_scores(view.rgb, target)}
         rgb = None
         if fit is not None:
             row.update(_scores(_cross_recoloured(view.rgb, target, fit.colour_mix)[0], target, "_colour"))
-            c2w = fit_held_out_view(model, views.K[i], views.c2w[i], views.images[i], background, scale, fit, seed=i)
+            c2w = fit_held_out_view(model, views.K[i], views.c2w[i], images[i], background, scale, fit, seed=i)
             fitted = render_image(model, views.K[i], c2w, views.width, views.height, background, chunk, autocast_dtype)
+            assert fitted is not None
             rgb, matrix, offset = _cross_recoloured(fitted.rgb, target, fit.colour_mix)
             row.update(_scores(rgb, target, "_fitted"),
                        fitted_rotation_deg=round(float(rotation_angles_deg(c2w[None], views.c2w[i][None])[0]), 4),
@@ -113,10 +117,11 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
         if alone is not None:
             row.update(_object_scores(alone, views, i, view.rgb, target, background, chunk, autocast_dtype))
             if fit is not None:
+                assert rgb is not None  # (set by the fit above)
                 row.update(_object_scores(alone, views, i, rgb, target, background, chunk, autocast_dtype, c2w,
                                           "_fitted"))
         if sheet is not None and i in shown:
-            sheet.append((views.images[i], view.rgb, rgb, row))
+            sheet.append((images[i], view.rgb, rgb, row))
         per_image.append(row)
     out = {**_means(per_image), "n_images": len(per_image)}
     if fit is not None:
@@ -143,8 +148,9 @@ def _object_scores(alone: NerfModel, views: Views, i: int, rgb: np.ndarray, targ
     ``i``'s pixels where the object alone is opaque at pose ``c2w`` (default: the view's),
     and ``rgb``'s PSNR against ``target`` there (None where it has none)."""
     pose = views.c2w[i] if c2w is None else c2w
-    solid = render_image(alone, views.K[i], pose, views.width, views.height, background, chunk,
-                         autocast_dtype).acc > 0.5
+    view = render_image(alone, views.K[i], pose, views.width, views.height, background, chunk, autocast_dtype)
+    assert view is not None  # (None only when aborted; no abort here)
+    solid = view.acc > 0.5
     score = masked_psnr(rgb, target, solid)
     row = {f"psnr_object{suffix}": None if score is None else round(score, 4)}
     if not suffix:

@@ -33,11 +33,21 @@ from ..io.lock import LOCK_FILE
 from ..io.paths import guard_run_folder
 from ..models import SceneBounds, build_model, check_config
 from ..models.base import NerfModel, StepState, grads_finite, run_schedules
-from ..precision import autocast
 from ..output.images import render_image
+from ..precision import autocast
 from ..viz.plots import image_grid, plot_curves
-from .checkpoint import (MODEL_FILE, check_dataset, checkpoint_paths, dataset_fingerprint, load_latest_checkpoint,
-                         read_run, run_lock, save_checkpoint, save_model, write_run_config)
+from .checkpoint import (
+    MODEL_FILE,
+    check_dataset,
+    checkpoint_paths,
+    dataset_fingerprint,
+    load_latest_checkpoint,
+    read_run,
+    run_lock,
+    save_checkpoint,
+    save_model,
+    write_run_config,
+)
 from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
 from .metrics import psnr, psnr_from_mse
 from .optim import build_optimizer
@@ -129,6 +139,7 @@ class Trainer:
         self.sight = SightLines.from_scene(scene, self.device) if sight and not self.whole_images else None
         self.sight_generator = torch.Generator().manual_seed(cfg.seed + 1)
         if self.sight is not None and not resume:
+            assert scene.points is not None  # (sight lines come from the sparse points)
             self.log(f"sight lines: {len(self.sight)} from the train photos' cameras to the {len(scene.points)} "
                      "sparse points (--points-weight)")
         elif sight and scene.points is not None and scene.point_views is None and not resume:
@@ -182,6 +193,7 @@ class Trainer:
         extra = {**self._rng_state(), "train_seconds": self.train_seconds, "rows": json.dumps(self.rows),
                  "bad_steps": self.bad_steps}
         if self.views is not None:
+            assert self.view_optimizer is not None  # (built with the views)
             extra["views"] = self.views.state_dict()
             extra["views_optimizer"] = self.view_optimizer.state_dict()
         return save_checkpoint(self.run_dir, self.step, self.model, self.optimizer, extra, self.cfg.keep_checkpoints)
@@ -214,6 +226,7 @@ class Trainer:
                            "The checkpoint is from another nerfkit; re-train")
             self.views.load_state_dict(ckpt["views"], strict=False)
             if not missing:  # a run from before --colour-mix starts its mixing (and the views' Adam state) afresh
+                assert self.view_optimizer is not None  # (built with the views)
                 self.view_optimizer.load_state_dict(ckpt["views_optimizer"])
         torch.set_rng_state(ckpt["torch_rng"])
         self.rays.set_rng_state(ckpt["sampler_rng"])
@@ -341,7 +354,8 @@ class Trainer:
         self.bad_steps += 1
         self.log(f"step {self.step}: {what} ({self.bad_steps} in a row)")
         if self.bad_steps >= MAX_BAD_STEPS:
-            fix = ("The last good checkpoint is kept; lower --lr and resume with --resume" if checkpoint_paths(self.run_dir)
+            fix = ("The last good checkpoint is kept; lower --lr and resume with --resume"
+                   if checkpoint_paths(self.run_dir)
                    else "No checkpoint was written yet; start again with a lower --lr into a new --out")
             raise fail(self.run_dir, f"training diverged: {self.bad_steps} steps in a row had non-finite values", fix)
 
@@ -357,12 +371,15 @@ class Trainer:
         n = len(val) if n_views is None else min(n_views, len(val))
         if not val.has_images or n == 0:
             return None
+        images = val.images
+        assert images is not None  # (has_images)
         stride = 1 if n_views is None else eval_stride(val.width, val.height, n, self.cfg.eval_pixels)
         scores = []
         for i in range(n):
             K, w, h = strided_camera(val.K[i], val.width, val.height, stride)
             view = render_image(self.model, K, val.c2w[i], w, h, self.background, self.cfg.render_chunk, self.autocast)
-            target = val.images[i][::stride, ::stride].astype(np.float32) / 255.0
+            assert view is not None  # (None only when aborted; no abort here)
+            target = images[i][::stride, ::stride].astype(np.float32) / 255.0
             scores.append(psnr(view.rgb, target))
             if i == 0:
                 write_image(self.run_dir / "progress" / f"step_{self.step:08d}.png", view.rgb)
@@ -522,7 +539,9 @@ class Trainer:
         if snaps and self.scene.val.has_images:
             import imageio.v3 as iio
 
-            images = [iio.imread(p) for p in snaps] + [self.scene.val.images[0]]
+            val_images = self.scene.val.images
+            assert val_images is not None  # (has_images)
+            images = [iio.imread(p) for p in snaps] + [val_images[0]]
             titles = [f"step {int(p.stem.split('_')[1])}" for p in snaps] + ["ground truth"]
             image_grid(plots / "progress.png", images, titles, ncols=min(len(images), 5),
                        suptitle="validation view 0 during training")

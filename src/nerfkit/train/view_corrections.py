@@ -19,6 +19,7 @@ with the scene frozen (as BARF does) before its PSNR is measured.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -66,7 +67,8 @@ class PoseCorrection(nn.Module):
 
     def centred(self) -> tuple[Tensor, Tensor]:
         """(n_views, 3) rotation vectors and translations, mean removed (one view: as is)."""
-        return mean_removed(self.rotation, self.translation)
+        rotation, translation = mean_removed(self.rotation, self.translation)
+        return rotation, translation
 
     def forward(self, rays: Rays, view: Tensor) -> Rays:
         """Rays (n_rays) of views ``view`` (n_rays,) -> the corrected rays."""
@@ -113,7 +115,8 @@ class ExposureCorrection(nn.Module):
 
     def centred(self) -> tuple[Tensor, Tensor]:
         """(n_views, 3) log gains and offsets with their mean over views removed."""
-        return mean_removed(self.log_gain, self.offset)
+        log_gain, offset = mean_removed(self.log_gain, self.offset)
+        return log_gain, offset
 
     def matrices(self) -> Tensor:
         """(n_views, 3, 3) each view's colour matrix, ``diag(exp(g)) + m`` (mean removed)."""
@@ -178,8 +181,12 @@ class ViewCorrections(nn.Module):
         """Per view: name, pose correction (degrees, scene units), ``gain_rgb`` (the
         exposure gain of each channel, the colour matrix's diagonal) and, with colour
         mixing, the colour matrix (rows: output channels)."""
-        n = (self.pose.rotation if self.pose is not None else self.exposure.log_gain).shape[0]
-        rows = [{"view": i, "name": names[i] if names else None} for i in range(n)]
+        if self.pose is not None:
+            n = self.pose.rotation.shape[0]
+        else:
+            assert self.exposure is not None  # (a ViewCorrections corrects something)
+            n = self.exposure.log_gain.shape[0]
+        rows: list[dict[str, Any]] = [{"view": i, "name": names[i] if names else None} for i in range(n)]
         if self.pose is not None:
             deg, dist = self.pose.magnitudes()
             for r, a, t in zip(rows, deg, dist):
