@@ -38,8 +38,8 @@ def object_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, rad
 
 
 # the share of an object's sparse points (with their feet) an object box may leave out on
-# each side of each axis: a thin part has few points (steve's sword: 4 of 634), and 2%
-# cut it off; 0.5% keeps it
+# each side of each axis: a thin part of the object has few points (a handful of hundreds),
+# and 2% cuts it off; 0.5% keeps it (object box row in BENCHMARKS.md)
 OBJECT_BOX_QUANTILE = 0.005
 
 

@@ -31,7 +31,7 @@ def surface_threshold(radius: float) -> float:
     density is per): the density at which a cell of ``2 radius / MESH_OPACITY_CELLS`` is
     :data:`MESH_OPACITY` opaque. Scale-free: a scene ten times larger, with a tenth of the
     density, gives the same mesh ten times larger. Example: lego's cube (half-size 1.64)
-    gives 5.7; steve's (7.6 cm) about 120."""
+    gives 5.7; a tabletop object's cube of half-size 7.6 cm about 120."""
     return -float(np.log1p(-MESH_OPACITY)) * MESH_OPACITY_CELLS / (2.0 * radius)
 
 
@@ -39,7 +39,8 @@ def surface_threshold(radius: float) -> float:
 TABLE_CUT = 0.05
 # Specks around the object alone (specks): a piece apart from the object holding less than
 # this share of the box's density is cleared, with what lies SPECK_MARGIN cells beyond the
-# pieces kept (labubu, 30 photos: pieces apart from the toy hold 0.4% or less each)
+# pieces kept (stray pieces apart from the object each hold well under this share:
+# benchmarks/capture_real.py --photos 30 renders the object alone)
 SPECK_SHARE = 0.01
 SPECK_MARGIN = 3
 

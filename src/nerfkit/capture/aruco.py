@@ -506,7 +506,7 @@ def _fit_edge_line(pts: np.ndarray, length: float, min_keep: float = 0.5) -> tup
 
 
 # How far (in modules, the tag's cells) the edge lines may move a detector's corner. An object
-# over a corner bends the detector's outline toward it by up to a module (labubu's toy: 0.5-1.0);
+# over a corner bends the detector's outline toward it by up to a module;
 # the lines, fitted to the visible part of each edge, put the corner back.
 MAX_CORNER_MOVE = 1.5
 
@@ -518,7 +518,8 @@ def refine_corners_by_edges(gray: np.ndarray, corners: np.ndarray, marker_bits: 
     Halves the corner error of cornerSubPix on our synthetic photos (0.19 -> 0.08 px RMS)
     and removes its inward bias at blurred corners. Each line needs only part of its edge
     (:func:`_fit_edge_line`), so a corner under the object is found where the visible
-    edges meet: on labubu the tags then pose all 140 photos they are seen in (133 before).
+    edges meet, and a photo whose tag the object partly hides is still posed by it
+    (benchmarks/capture_real.py counts the photos posed).
     """
     c = np.asarray(corners, np.float64).copy()
     side = float(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean())

@@ -12,8 +12,9 @@ Three kinds of targets:
   each photo, fit each tag's square to the averaged points, and repeat. Printed paper is
   not flat (ink cockles it; it lies on the table in gentle waves), so then each corner's
   height above the sheet's plane is triangulated from every photo that sees it, in turns
-  with calibration (:func:`refine_heights`): on steve's sheet the corners lie up to 1.7 mm
-  off the plane, and held-out error falls from 0.96 to 0.54 px. Different tags never share
+  with calibration (:func:`refine_heights`): a printed sheet's corners can lie a millimetre
+  or more off its plane, and fitting their heights lowers the held-out reprojection error
+  (benchmarks/capture_real.py; figures in BENCHMARKS.md). Different tags never share
   3D corners (that mistake silently ruins a calibration);
 * ``per_tag=True`` (or a single tag): every tag in every photo is its own planar view.
 

@@ -77,10 +77,10 @@ def few_views_note(n_train: int) -> str | None:
     if n_train >= FEW_TRAIN_VIEWS:
         return None
     return (f"note: {n_train} training photos. A NeRF from this few blurs and blotches what only one or two "
-            "of them see (labubu: 21 dB on held-out photos with 20 training photos, 25.5 with 39); 50-100 photos "
-            "around the object, at two or three heights, do better. Where no floor shows past the table's edge, "
-            "`nerfkit train` holds the table to \"table or not\", which clears part of its blotches (labubu +0.6 dB; "
-            "--table-cover-weight)")
+            "of them see (with 20 training photos a capture's held-out views lose several dB against 40); 50-100 "
+            "photos around the object, at two or three heights, do better. Where no floor shows past the table's "
+            "edge, `nerfkit train` holds the table to \"table or not\", which clears part of its blotches "
+            "(--table-cover-weight)")
 
 
 def no_object_note(n_object: int | None, points: int) -> str | None:

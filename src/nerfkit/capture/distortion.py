@@ -3,7 +3,7 @@
 Calibration photos rarely put tag corners near the image corners (on the two real phone
 captures we checked, over 90% of the corners lie within 40% of the half-diagonal of the
 centre). A polynomial fitted there says little about the frame's edges: a positive k1 with
-a negative k2 (the pattern reported in issue 11) fits the centre and then turns around,
+a negative k2 fits the centre and then turns around,
 bending the edges by tens or hundreds of pixels. These checks look at the model where the
 photos will be used: out to the image corners.
 
@@ -26,7 +26,7 @@ import numpy as np
 # rectilinear lenses OpenCV's 5-coefficient model is meant for (phone main cameras deliver
 # lens-corrected JPEGs with ~1%; uncorrected wide webcams and action cameras in "linear"
 # mode reach ~10%), while a polynomial turning around just outside the data exceeds it
-# (the 12 MP fit of issue 11, k1 = 0.24, k2 = -0.90, moves the corners by ~13% of the
+# (a 12 MP phone fit with k1 = 0.24, k2 = -0.90 moves the corners by ~13% of the
 # diagonal and is not even monotonic there).
 MAX_DISPLACEMENT_OF_DIAGONAL = 0.10
 

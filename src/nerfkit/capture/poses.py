@@ -342,9 +342,9 @@ def sheet_heights(records: list[PhotoRecord], camera: Camera, layout: Layout, cf
 
 
 # The focal length refined on the object photos' own tags (`refine_focal`): a phone focused
-# on a near object has a longer focal length than when it photographed the sheet (steve: the
-# tags of its object photos want +2.8%, SfM +4%; posed at the sheet's focal length its
-# triangulated points fit at 0.98 px, at the refined one 0.67). Enough photos ...
+# on a near object has a longer focal length than when it photographed the sheet (a few
+# percent), and at the refined one the triangulated points fit the photos more closely than at
+# the sheet's (`nerfkit poses --method tags`; figures in BENCHMARKS.md). Enough photos ...
 FOCAL_MIN_PHOTOS = 8
 # ... a change of more than this many standard errors of the estimate, and of this share at
 # least (less changes no pose that matters) ...

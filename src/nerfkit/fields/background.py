@@ -195,7 +195,8 @@ COVER_INIT = 4.0
 # initial glossiness logit of a glossy table plane: a faint mirror (0.05) everywhere
 GLOSS_INIT = -3.0
 # texels of a glossy plane's mirrored surroundings (around, zenith to horizon): the
-# sheen of a varnished table is blurry (steve, 2000 steps: 32x8 and 64x16 alike, 128x32 -0.2 dB)
+# sheen of a varnished table is blurry, so a coarse map does as well as finer ones and the
+# finest tried did worse (`--table-gloss` in BENCHMARKS.md)
 ENV_SIZE = (32, 8)
 
 

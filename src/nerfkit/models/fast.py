@@ -81,14 +81,14 @@ def growth_too_late(s: StepState) -> bool:
 
 
 # A sight line ends this far before its point and is stopped this far past it: SIGHT_MARGIN
-# scene radii (labubu: 2.3 mm, 2 voxels of the finest grid), and at least SIGHT_VOXELS
+# scene radii (a voxel or two of the finest grid), and at least SIGHT_VOXELS
 # voxels of the grid (a vertex's density spreads over a voxel each way: at the coarse
 # stages a thinner margin would ask one vertex to be empty and solid at once).
 SIGHT_MARGIN = 0.01
 SIGHT_VOXELS = 2.0
-# Each drawn line aims within SIGHT_SPREAD margins of its point (labubu: 6 mm, about 5
-# pixels of its photos). Aimed at the point itself the lines made specks a voxel or two
-# wide, the fur between them thinner; 5 margins left labubu's object paler (BENCHMARKS.md).
+# Each drawn line aims within SIGHT_SPREAD margins of its point (a few pixels of a capture's
+# photos). Aimed at the point itself the lines made specks a voxel or two wide, the fur
+# between them thinner; 5 margins left the object paler (`--points-weight` in BENCHMARKS.md).
 SIGHT_SPREAD = 2.5
 
 # Model files store the grid sparsely (vertices of occupied cells) under this name, the

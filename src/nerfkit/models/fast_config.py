@@ -29,11 +29,11 @@ FINE_STAGE_PIXELS = 100_000
 
 # A capture's box follows its object (--box-follows): at each growth after the first, each
 # face of the box that the object reaches (faces_reached) moves out by this share of the
-# box's size along its axis, within the scene's sphere (steve, 28 photos: the box from the
-# sparse points, none on the sword, ended at its hilt). A vertex is solid for that when its
-# density makes a voxel of the grid this opaque (scale-free). At the growth at step 300 the
-# sword crosses the face at 10% (14 columns), labubu's haze (30 photos, which trained away
-# later) at 5% but not at 10%.
+# box's size along its axis, within the scene's sphere (a thin part of the object with no
+# sparse points on it lies outside a box made from the points). A vertex is solid for that when
+# its density makes a voxel of the grid this opaque (scale-free). At an early growth a thin
+# part crossing a face already reaches 10%, while haze that later training clears reaches 5%
+# but not 10% (benchmarks/capture_real.py --photos 30).
 BOX_FOLLOW = 0.5
 BOX_FOLLOW_OPACITY = 0.1
 # ... at growths in the first half of the run only: what the new space starts with must
@@ -51,10 +51,11 @@ def table_cover_default(scene, capture: bool) -> float:
     sparse points that show no floor under the table; else 0.
 
     With few photos a table's coverage under 1 blends the room shells into it in blotches
-    that the photos cannot average out (labubu, 24 training photos: +0.6 dB on val and test
-    with the prior; 40: +0.1 val, -0.3 test; all 129: -0.1). Where a floor shows past the
-    table's edge (steve: a carpet 0.4 m down) the coverage must learn to turn clear there,
-    and the prior holds it opaque: the carpet is painted onto the table's plane (-0.5 dB).
+    that the photos cannot average out: the prior helps a capture of a couple of dozen
+    training photos, not one of 40 or more (`--table-cover-weight` in BENCHMARKS.md). Where a
+    floor shows past the table's edge (a carpet below it, say) the coverage must learn to turn
+    clear there, and the prior holds it opaque: the floor is painted onto the table's plane,
+    which lowers the held-out score.
     Without sparse points the floor is unknown: off.
     """
     from ..scene_extent import FEW_TRAIN_VIEWS

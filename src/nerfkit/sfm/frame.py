@@ -222,7 +222,7 @@ def tag_similarity(rec, image_dir: Path, tag_size: float, tag_id: int = 0, dicti
     corner order; a sheet layout's frame), instead of the tag's own frame.
     ``layout_tags``: every tag of that layout by id ((4, 3) corners each): each one seen in
     ``min_views`` photos joins the fit, which a sheet's width holds level far better than
-    one tag's side (steve: 6 tags over 20 cm against one of 5.5 cm).
+    one tag's side (the tags of a sheet span several times one tag's width; BENCHMARKS.md).
     """
     from ..capture.aruco import make_detector, marker_bits, square_corners
     from ..images import load_image_uint8

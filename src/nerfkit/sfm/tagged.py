@@ -1,13 +1,13 @@
 """A tag capture posed by structure-from-motion, in the tag's frame (``nerfkit poses``' default).
 
-A tag pins a photo's pose only as well as its four corners allow: on the dev captures the
-tag is a few dozen pixels wide, and the tag poses differ from SfM's by a median 1.2
-degrees (labubu; 5 px at its photos' focal length). Bundle adjustment over thousands of
-features seen across all the photos pins them far better (labubu: held-out PSNR 24.15 ->
-24.8 dB, SSIM 0.78 -> 0.83; BENCHMARKS.md). So ``--method auto`` poses the photos by SfM
+A tag pins a photo's pose only as well as its four corners allow: in a phone capture the
+tag is often a few dozen pixels wide, and the tag poses can differ from SfM's by about a
+degree (several pixels at a phone's focal length). Bundle adjustment over thousands of
+features seen across all the photos pins them far better (held-out PSNR and SSIM rise:
+``poses --method auto`` in BENCHMARKS.md). So ``--method auto`` poses the photos by SfM
 starting from the calibrated camera, whose focal length and distortion bundle adjustment
 refines (a phone focused on a near object changes its focal length by a percent or so;
-holding the calibration fixed cost labubu 0.03 in SSIM). The tag's corners, triangulated
+holding the calibration fixed lowers the held-out SSIM). The tag's corners, triangulated
 from the SfM poses, then fix scale, up and origin (on a sheet, every tag of its layout).
 The tag poses are kept only when SfM falls short: fewer photos registered, the tag not
 seen, or poses that disagree with the tags' (:func:`choose_poses` says why). Photos the tags
@@ -151,12 +151,12 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
 def adopt_tag_poses(result, tag_posed: list, records: list, layout, cfg) -> tuple[list[str], dict[str, str]]:
     """Give the photos the tags posed but SfM did not register their tag poses, in ``result``.
 
-    With few photos SfM can miss a stretch of the orbit that the tag still poses (labubu's
-    33-photo stand-in: 5 of 27; held-out views there scored 13.2 and 17.2 dB without them,
-    16.9 and 22.7 with).
+    With few photos SfM can miss a stretch of the orbit that the tag still poses; the
+    held-out views there then score several dB better with those photos adopted
+    (benchmarks/capture_real.py --photos 30).
     Every photo of the dataset is undistorted with SfM's refined camera, so each pose is
-    solved again from the photo's tag corners with that camera (labubu: half the distance
-    to SfM's poses of the same photos than with the calibration's). A photo whose fit then
+    solved again from the photo's tag corners with that camera, which brings it closer to
+    SfM's poses of the same photos than the calibration's camera does. A photo whose fit then
     exceeds its error limit, or whose size or quarter turn differs from SfM's copy of it,
     is left out.
 

@@ -6,9 +6,10 @@ the scene. With ``fit`` each held-out view's pose is first fitted to its photo w
 scene frozen (as BARF does); then each half of the photo (left, right) is scored with
 the colour correction solved on the other half, as NeRF-W scores its test photos (both
 ways here). A colour correction solved on the pixels it is scored on would also take up
-the render's own errors there: solved on the whole of steve's val photos, an affine
-transform gains 2.1 dB, but only 0.3 on the half it was not solved on, and a gain and
-offset per channel 1.1. A third score lies between: the colour alone, at the given pose
+the render's own errors there: solved on the whole of a val photo, an affine transform
+gains several times what it gains on the half it was not solved on, and a gain and offset
+per channel lies between (``eval``'s fitted score in BENCHMARKS.md). A third score lies
+between: the colour alone, at the given pose
 (how much of the difference is the photo's exposure, how much its pose). With a model of
 the object alone (a capture's, :func:`~nerfkit.tabletop.object_alone`), the object's own
 pixels are scored too: a capture's score is mostly its table's.

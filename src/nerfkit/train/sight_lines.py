@@ -23,7 +23,7 @@ from torch import Tensor
 from ..cameras import Rays
 from ..data.scene import Scene
 
-# Sight lines drawn per training step (labubu: 13.6k lines in all, steve 51k).
+# Sight lines drawn per training step (a capture has tens of thousands of lines in all).
 SIGHT_LINES_PER_STEP = 1024
 
 

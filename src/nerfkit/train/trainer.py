@@ -58,7 +58,8 @@ from .view_corrections import ViewCorrections
 MAX_BAD_STEPS = 20
 # the shares of a run (steps or minutes) at which it renders its val views without
 # --eval-every: each tenth, and twice before the first, where the held-out score climbs
-# fastest (steve's is near its last value by the first tenth)
+# fastest (on a real capture it is near its last value by the first tenth:
+# benchmarks/capture_real.py)
 EVAL_MARKS = (0.01, 0.03) + tuple(k / 10 for k in range(1, 11))
 # Signals that stop training cleanly (finish the step, save, exit): Ctrl-C, and what
 # `kill`, `timeout`, schedulers and containers send.

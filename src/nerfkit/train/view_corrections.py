@@ -140,7 +140,8 @@ class ExposureCorrection(nn.Module):
         removed); 0 without mixing. Grey pixels constrain only each row's sum of a colour
         matrix, and a capture is mostly grey (sheet, tags, table): without this pull towards
         no mixing, views that see little colour take wild matrices (off-diagonal entries
-        above 1 on steve) and the colours of what few photos see drift with them."""
+        above 1; ``--colour-mix`` in BENCHMARKS.md) and the colours of what few photos see
+        drift with them."""
         if self.mix is None:
             return self.log_gain.new_zeros(())
         return mean_removed(self.mix)[0].square().sum(1).mean()
