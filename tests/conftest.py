@@ -21,8 +21,7 @@ def sphere_npz(tmp_path_factory, sphere):
     return path
 
 
-def train_loop(model, scene, steps: int, batch: int = 1024, lr: float = 0.3, seed: int = 0,
-               background=(0.0, 0.0, 0.0)):
+def train_loop(model, scene, steps: int, batch: int = 1024, lr: float = 0.3, seed: int = 0, background=(0.0, 0.0, 0.0)):
     """The trainer's protocol, minimal: the model's schedules, the optimizer built from its
     parameter groups (a job that replaces parameters swaps them into it), a constant lr. Returns the
     optimizer."""
@@ -59,7 +58,7 @@ def draw_dots(width: int, height: int, uv, sigma: float = 0.8):
     img = np.zeros((height, width, 3))
     rows, cols = np.mgrid[0:height, 0:width] + 0.5
     for u, v in uv:
-        img += np.exp(-((cols - u) ** 2 + (rows - v) ** 2) / (2 * sigma ** 2))[..., None]
+        img += np.exp(-((cols - u) ** 2 + (rows - v) ** 2) / (2 * sigma**2))[..., None]
     return np.clip(img, 0, 1)
 
 
@@ -69,7 +68,7 @@ def dot_centroid_errors(image, expected_uv, margin: int = 4) -> list[float]:
     import numpy as np
 
     out = np.asarray(image, np.float64).mean(-1)
-    rows, cols = np.mgrid[0:out.shape[0], 0:out.shape[1]] + 0.5
+    rows, cols = np.mgrid[0 : out.shape[0], 0 : out.shape[1]] + 0.5
     errs = []
     for u, v in expected_uv:
         if u < margin or v < margin or u > out.shape[1] - margin or v > out.shape[0] - margin:

@@ -37,8 +37,14 @@ def photos(spheres=(), n: int = 6, seed: int = 3) -> tuple[np.ndarray, np.ndarra
 
 def views_of(images: np.ndarray, c2w: np.ndarray, K: np.ndarray | None = None) -> Views:
     K = nerfkit_K(K_CV) if K is None else K
-    return Views(c2w.astype(np.float32), np.repeat(K[None], len(c2w), 0).astype(np.float32), SIZE[0], SIZE[1],
-                 images, [f"p{i}.png" for i in range(len(c2w))])
+    return Views(
+        c2w.astype(np.float32),
+        np.repeat(K[None], len(c2w), 0).astype(np.float32),
+        SIZE[0],
+        SIZE[1],
+        images,
+        [f"p{i}.png" for i in range(len(c2w))],
+    )
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +92,7 @@ def test_a_shadow_is_not_taken_for_the_exposure(table_only):
     shaded = images.copy()
     h, w = shaded.shape[1:3]
     for i in (0, 3):  # two photos with a dark patch over the middle of the table
-        shaded[i, h // 3: 2 * h // 3, w // 4: 3 * w // 4] //= 2
+        shaded[i, h // 3 : 2 * h // 3, w // 4 : 3 * w // 4] //= 2
     got = measure_agreement(views_of(shaded, c2w), CENTER, TABLE, RADIUS)
     same = measure_agreement(views_of(images, c2w), CENTER, TABLE, RADIUS)
     # a gain per photo takes back little of what the shadows cost (the gains above: all of it)

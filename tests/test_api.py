@@ -31,13 +31,21 @@ def test_calibrate_pose_train_render_from_python(tmp_path, capsys):
     assert camera.photos_used >= 8 and camera.rms_px < 1.0 and camera.model
     assert abs(json.loads(camera.camera_path.read_text())["K"][0][0] / sheet.K[0, 0] - 1) < 0.03
 
-    posed = nerfkit.pose(photos, tmp_path / "dataset", tag_size=0.06, camera=camera.camera_path, method="tags",
-                         max_side=160)
+    posed = nerfkit.pose(
+        photos, tmp_path / "dataset", tag_size=0.06, camera=camera.camera_path, method="tags", max_side=160
+    )
     assert isinstance(posed, api.PoseResult) and posed.dataset_path.is_file()
     assert posed.total == len(obj.names) and 7 <= posed.posed <= posed.total
 
-    run = api.train(posed.dataset_path, tmp_path / "run", steps=120, quiet=True, resolutions="16,32",
-                        upsample_steps="40", device="cpu")
+    run = api.train(
+        posed.dataset_path,
+        tmp_path / "run",
+        steps=120,
+        quiet=True,
+        resolutions="16,32",
+        upsample_steps="40",
+        device="cpu",
+    )
     assert isinstance(run, api.TrainResult) and run.steps == 120 and not run.interrupted
     assert run.preset == "capture"  # the dataset says it is a capture: its settings, unless given
     settings = json.loads((run.run_dir / "config.json").read_text())
@@ -56,8 +64,25 @@ def test_calibrate_pose_train_render_from_python(tmp_path, capsys):
 def test_the_command_and_the_api_train_the_same_run(tmp_path, sphere_npz, capsys):
     tiny = {"n_samples": 4, "width": 8, "depth": 2, "eval_views": 1, "checkpoint_seconds": 1e9}
     flags = [x for k, v in tiny.items() for x in (f"--{k.replace('_', '-')}", str(v))]
-    assert main(["train", "--data", str(sphere_npz), "--out", str(tmp_path / "cmd"), "--model", "vanilla",
-                 "--steps", "6", "--device", "cpu", *flags]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--data",
+                str(sphere_npz),
+                "--out",
+                str(tmp_path / "cmd"),
+                "--model",
+                "vanilla",
+                "--steps",
+                "6",
+                "--device",
+                "cpu",
+                *flags,
+            ]
+        )
+        == 0
+    )
     by_api = api.train(sphere_npz, tmp_path / "api", model="vanilla", steps=6, device="cpu", quiet=True, **tiny)
     a = json.loads((tmp_path / "cmd" / "config.json").read_text())
     b = json.loads((tmp_path / "api" / "config.json").read_text())

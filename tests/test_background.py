@@ -6,8 +6,17 @@ import numpy as np
 import pytest
 import torch
 
-from nerfkit.fields.background import (RoomShells, TablePlane, composite_layers, contract_disc, layers_depth, plane_hit,
-                                       sh16, sphere_exit, table_doubt)
+from nerfkit.fields.background import (
+    RoomShells,
+    TablePlane,
+    composite_layers,
+    contract_disc,
+    layers_depth,
+    plane_hit,
+    sh16,
+    sphere_exit,
+    table_doubt,
+)
 
 
 def test_plane_hit_distances_front_side_only():
@@ -125,9 +134,19 @@ def test_table_coverage_shows_the_room_where_the_table_ends():
     from nerfkit.models.fast import FastConfig, FastNeRF
 
     scene = tabletop_scene(n_train=2, n_val=0, size=16)
-    model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32,
-                                learn_background=True, room_shells=2, room_resolution=16, table_cover_weight=0.05),
-                     SceneBounds.from_scene(scene))
+    model = FastNeRF(
+        FastConfig(
+            resolutions="8",
+            upsample_steps="",
+            table=True,
+            table_resolution=32,
+            learn_background=True,
+            room_shells=2,
+            room_resolution=16,
+            table_cover_weight=0.05,
+        ),
+        SceneBounds.from_scene(scene),
+    )
     with torch.no_grad():
         model.table.fine.fill_(2.0)  # table colour sigmoid(2)
         model.room.fine[:, 3] = -30.0  # room shells transparent
@@ -186,8 +205,17 @@ def test_the_table_cover_prior_costs_in_the_loss_from_its_start():
 
     scene = tabletop_scene(n_train=2, n_val=0, size=16)
     bounds = SceneBounds.from_scene(scene)
-    config = FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32, learn_background=True,
-                        room_shells=0, opacity_weight=0.0, distortion_weight=0.0, table_cover_start=0.5)
+    config = FastConfig(
+        resolutions="8",
+        upsample_steps="",
+        table=True,
+        table_resolution=32,
+        learn_background=True,
+        room_shells=0,
+        opacity_weight=0.0,
+        distortion_weight=0.0,
+        table_cover_start=0.5,
+    )
     weight = 0.5
     plain, model = (FastNeRF(replace(config, table_cover_weight=w), bounds) for w in (0.0, weight))
     off = plain.render_rays(Rays(torch.zeros(1, 3), torch.ones(1, 3)), torch.zeros(3), perturb=False)
@@ -269,14 +297,15 @@ def test_layers_depth_is_the_surface_after_which_less_than_half_the_light_is_lef
 def test_room_shells_show_the_texel_a_ray_meets_with_parallax():
     """A mark painted on the second shell is seen along the ray through it: straight out
     from the centre, and from an off-centre camera along a different direction."""
-    room = RoomShells(center=torch.zeros(3), up=torch.tensor([0.0, 0.0, 1.0]), r0=1.0, n_shells=2, ratio=2.0,
-                      width=64)
+    room = RoomShells(center=torch.zeros(3), up=torch.tensor([0.0, 0.0, 1.0]), r0=1.0, n_shells=2, ratio=2.0, width=64)
     w, h = room.sizes[0]
     e1 = room.frame[:, 0]
     with torch.no_grad():
         room.fine[:, 3] = -30.0  # every shell transparent ...
         fine = room.fine.view(2, h, w, 4)
-        fine[1, h // 2 - 1:h // 2 + 1, w // 2 - 1:w // 2 + 1] = torch.tensor([30.0, -30.0, -30.0, 30.0])  # ... but a red
+        fine[1, h // 2 - 1 : h // 2 + 1, w // 2 - 1 : w // 2 + 1] = torch.tensor(
+            [30.0, -30.0, -30.0, 30.0]
+        )  # ... but a red
         # opaque mark on shell 1 at azimuth 0 (the e1 axis), elevation 0
     o = torch.stack([torch.zeros(3), 0.5 * room.frame[:, 1]])  # the centre; off it, across e1
     target = 2.0 * e1
@@ -306,8 +335,9 @@ def test_capture_orbit_looks_at_the_trained_object_from_the_cameras_height():
     black = torch.zeros(3)
     assert object_aim(model, scene.train, scene.up, black) is None  # nothing opaque yet
     g = model.geom
-    xyz = g.lo + g.voxel * torch.stack(torch.meshgrid(*[torch.arange(r, dtype=torch.float32) for r in g.res[::-1]],
-                                                      indexing="ij")[::-1], -1).reshape(-1, 3)
+    xyz = g.lo + g.voxel * torch.stack(
+        torch.meshgrid(*[torch.arange(r, dtype=torch.float32) for r in g.res[::-1]], indexing="ij")[::-1], -1
+    ).reshape(-1, 3)
     cube = torch.tensor([0.3, -0.2, 0.4])
     with torch.no_grad():
         model.grid[:, 0] = -30.0
@@ -337,14 +367,27 @@ def test_the_orbit_follows_the_cameras_height_and_distance_around_the_object():
     up = np.array([0.0, 0.0, 1.0])
     a, b = axes_across(up)
     eyes = []
-    for azimuth, elevation, distance in [(0, 70, 3.0), (15, 70, 3.0), (-15, 70, 3.0),
-                                         (180, 20, 5.0), (165, 20, 5.0), (195, 20, 5.0)]:
+    for azimuth, elevation, distance in [
+        (0, 70, 3.0),
+        (15, 70, 3.0),
+        (-15, 70, 3.0),
+        (180, 20, 5.0),
+        (165, 20, 5.0),
+        (195, 20, 5.0),
+    ]:
         az, el = np.deg2rad(azimuth), np.deg2rad(elevation)
         eyes.append(distance * (np.cos(el) * (np.cos(az) * a + np.sin(az) * b) + np.sin(el) * up))
     c2w = np.stack([look_at(e, np.zeros(3), up) for e in eyes]).astype(np.float32)
     K = np.repeat(intrinsics_matrix(10.0, 10.0, 8.0, 8.0)[None], 6, 0)
-    scene = Scene(Views(c2w, K, 16, 16), Views.empty(16, 16), Views.empty(16, 16), near=1.0, far=8.0,
-                  center=np.zeros(3, np.float32), up=up.astype(np.float32))
+    scene = Scene(
+        Views(c2w, K, 16, 16),
+        Views.empty(16, 16),
+        Views.empty(16, 16),
+        near=1.0,
+        far=8.0,
+        center=np.zeros(3, np.float32),
+        up=up.astype(np.float32),
+    )
     path = scene.orbit(4).c2w[:, :3, 3]  # azimuths 0, 90, 180, 270
     np.testing.assert_allclose(path[0] @ up, 3.0 * np.sin(np.deg2rad(70)), rtol=0.02)
     np.testing.assert_allclose(path[2] @ up, 5.0 * np.sin(np.deg2rad(20)), rtol=0.02)
@@ -361,8 +404,12 @@ def test_a_glossy_table_mirrors_its_surroundings():
     from nerfkit.models.fast import FastConfig, FastNeRF
 
     scene = tabletop_scene(n_train=2, n_val=0, size=16)
-    model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32,
-                                learn_background=True, table_gloss=True), SceneBounds.from_scene(scene))
+    model = FastNeRF(
+        FastConfig(
+            resolutions="8", upsample_steps="", table=True, table_resolution=32, learn_background=True, table_gloss=True
+        ),
+        SceneBounds.from_scene(scene),
+    )
     w, h = ENV_SIZE
     rows = -1.0 + (2.0 * torch.arange(h) + 1.0) / h  # texel centres, zenith (top row) to horizon
     with torch.no_grad():
@@ -394,12 +441,15 @@ def test_the_floor_under_a_table_is_found_and_seen_beyond_the_table_edge():
     rng = np.random.default_rng(0)
     table = np.concatenate([rng.uniform(-1, 1, (300, 2)), np.zeros((300, 1))], 1)
     floor = np.concatenate([rng.uniform(-6, 6, (400, 2)), np.full((400, 1), -2.0)], 1)
-    scene = replace(tabletop_scene(n_train=4, n_val=0, size=16), points=np.concatenate([table, floor]).astype(np.float32))
+    scene = replace(
+        tabletop_scene(n_train=4, n_val=0, size=16), points=np.concatenate([table, floor]).astype(np.float32)
+    )
     bounds = SceneBounds.from_scene(scene)
     np.testing.assert_allclose(bounds.floor, [0, 0, 1, 2.0], atol=1e-3)
     assert SceneBounds.from_dict(bounds.to_dict()).floor == pytest.approx(bounds.floor)
-    config = FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32, learn_background=True,
-                        room_shells=0)
+    config = FastConfig(
+        resolutions="8", upsample_steps="", table=True, table_resolution=32, learn_background=True, room_shells=0
+    )
     model = FastNeRF(config, bounds)
     assert FastNeRF(replace(config, floor=False), bounds).floor is None
     with torch.no_grad():
@@ -418,8 +468,7 @@ def test_the_floor_under_a_table_is_found_and_seen_beyond_the_table_edge():
 def test_room_shell_gradients_stay_finite_for_missing_tangent_and_polar_rays():
     """Pose fitting differentiates the room through the rays: rays that miss a shell, graze
     it, or point straight up through its centre must not turn the gradient into NaN."""
-    room = RoomShells(center=torch.zeros(3), up=torch.tensor([0.0, 0.0, 1.0]), r0=1.0, n_shells=2, ratio=2.0,
-                      width=16)
+    room = RoomShells(center=torch.zeros(3), up=torch.tensor([0.0, 0.0, 1.0]), r0=1.0, n_shells=2, ratio=2.0, width=16)
     o = torch.tensor([[0.0, 0.0, 0.0], [3.0, 1.0, 0.0], [5.0, 5.0, 0.0], [0.0, 0.0, -0.5]], requires_grad=True)
     d = torch.tensor([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], requires_grad=True)
     t, rgb, alpha = room.layers(o, d)
@@ -456,8 +505,10 @@ def test_a_rendered_view_gives_the_depth_of_the_table_beyond_an_empty_volume():
     from nerfkit.output.images import render_image
 
     scene = tabletop_scene(n_train=2, n_val=0, size=16)
-    model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32,
-                                room_shells=0), SceneBounds.from_scene(scene))
+    model = FastNeRF(
+        FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32, room_shells=0),
+        SceneBounds.from_scene(scene),
+    )
     with torch.no_grad():
         model.grid[:, 0] = -30.0  # no density anywhere
         model.table.cover.fill_(30.0)  # an opaque table everywhere
@@ -472,8 +523,9 @@ def test_a_rendered_view_gives_the_depth_of_the_table_beyond_an_empty_volume():
     np.testing.assert_allclose(view.scene_acc[on_table], 1.0, atol=1e-6)
     from nerfkit.viz.video import colorize_depth
 
-    np.testing.assert_allclose(view.depth_colours(1.0, 8.0),
-                               colorize_depth(view.scene_depth, view.scene_acc, 1.0, 8.0, unmet_is_far=True))
+    np.testing.assert_allclose(
+        view.depth_colours(1.0, 8.0), colorize_depth(view.scene_depth, view.scene_acc, 1.0, 8.0, unmet_is_far=True)
+    )
     # a half-seen volume in front: its depth, then the table's for the light that passes it
     with torch.no_grad():
         model.grid[:, 0] = -1.5
@@ -498,6 +550,14 @@ def test_rendering_a_view_stops_when_asked_and_leaves_the_model_as_it_was():
     scene = tabletop_scene(n_train=1, n_val=0, size=16)
     model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", table=True), SceneBounds.from_scene(scene))
     calls = []
-    view = render_image(model, scene.train.K[0], scene.train.c2w[0], 16, 16, torch.zeros(3), chunk=64,
-                        abort=lambda: calls.append(1) or len(calls) > 2)
+    view = render_image(
+        model,
+        scene.train.K[0],
+        scene.train.c2w[0],
+        16,
+        16,
+        torch.zeros(3),
+        chunk=64,
+        abort=lambda: calls.append(1) or len(calls) > 2,
+    )
     assert view is None and len(calls) == 3 and model.training  # two chunks rendered, then stopped

@@ -18,7 +18,9 @@ from nerfkit.data.blender import load_blender
 from nerfkit.data.scene import Scene, Views
 from nerfkit.errors import NerfkitError
 
-_spec = importlib.util.spec_from_file_location("heldout", Path(__file__).resolve().parents[1] / "benchmarks" / "heldout.py")
+_spec = importlib.util.spec_from_file_location(
+    "heldout", Path(__file__).resolve().parents[1] / "benchmarks" / "heldout.py"
+)
 heldout = importlib.util.module_from_spec(_spec)
 sys.modules.setdefault("heldout", heldout)  # dataclasses look their module up
 _spec.loader.exec_module(heldout)
@@ -59,7 +61,9 @@ def _blender_folder(folder: Path, n: int = 3, size: int = 32) -> None:
         m = np.eye(4)
         m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, np.cross(back, right), back, eye
         frames.append({"file_path": f"./val/r_{i}", "transform_matrix": m.tolist()})
-        Image.fromarray(rng.integers(0, 256, (size, size, 4), dtype=np.uint8), "RGBA").save(folder / "val" / f"r_{i}.png")
+        Image.fromarray(rng.integers(0, 256, (size, size, 4), dtype=np.uint8), "RGBA").save(
+            folder / "val" / f"r_{i}.png"
+        )
     (folder / "transforms_val.json").write_text(json.dumps({"camera_angle_x": 0.69, "frames": frames}))
     # a train split for nerfkit's loader, the same views
     (folder / "transforms_train.json").write_text(json.dumps({"camera_angle_x": 0.69, "frames": frames}))
@@ -92,8 +96,13 @@ def test_blender_views_refuse_a_folder_without_the_split(tmp_path):
 
 def test_training_gets_no_heldout_view():
     def views(n, images=True):
-        return Views(np.tile(np.eye(4, dtype=np.float32), (n, 1, 1)), np.tile(np.eye(3, dtype=np.float32), (n, 1, 1)),
-                     6, 5, np.zeros((n, 5, 6, 3), np.uint8) if images else None)
+        return Views(
+            np.tile(np.eye(4, dtype=np.float32), (n, 1, 1)),
+            np.tile(np.eye(3, dtype=np.float32), (n, 1, 1)),
+            6,
+            5,
+            np.zeros((n, 5, 6, 3), np.uint8) if images else None,
+        )
 
     scene = Scene(views(4), views(2), views(3, images=False), 1.0, 5.0)
     train = heldout.without_heldout(scene)
@@ -126,8 +135,16 @@ def test_options():
 
 
 def test_table_shows_the_npz_val_figure_only_where_there_is_one():
-    row = {"scene": "flower", "model": "fast", "budget": "5 s", "steps": 9, "psnr": 12.345, "ssim": 0.4,
-           "fps": 2.0, "model_mb": 1.5}
+    row = {
+        "scene": "flower",
+        "model": "fast",
+        "budget": "5 s",
+        "steps": 9,
+        "psnr": 12.345,
+        "ssim": 0.4,
+        "fps": 2.0,
+        "model_mb": 1.5,
+    }
     text = heldout.markdown_table([{**row, "scene": "lego200", "psnr_npz_val": 13.0}, row])
     lines = text.splitlines()
     assert lines[2].endswith("| 12.35 | 0.400 | 2.0 | 1.50 | 13.00 |")

@@ -29,7 +29,7 @@ def test_corners_are_sub_pixel_accurate_on_synthetic_photos():
     dets = [A.detect(im, det) for im in cap.images]
     errs = corner_errors(cap, dets)
     assert len(errs) >= 4 * 40
-    assert np.sqrt(np.mean(errs ** 2)) < 0.15 and errs.max() < 0.8
+    assert np.sqrt(np.mean(errs**2)) < 0.15 and errs.max() < 0.8
     # Every detected id is one of the sheet's, and each appears at most once per photo.
     for d in dets:
         assert set(d.ids.tolist()) <= set(cap.layout.ids) and len(set(d.ids.tolist())) == len(d.ids)
@@ -46,7 +46,7 @@ def test_downscaled_detection_is_refined_at_full_resolution():
     small = [A.detect(im, det, detect_side=500) for im in cap.images]
     errs = corner_errors(cap, small)
     assert len(errs) >= 16
-    assert np.sqrt(np.mean(errs ** 2)) < 0.25
+    assert np.sqrt(np.mean(errs**2)) < 0.25
 
 
 @pytest.mark.slow
@@ -72,8 +72,13 @@ def test_a_corner_under_an_object_is_found_from_the_visible_edges():
 
 
 def test_layout_file_forms(tmp_path):
-    spec = {"tag_size": 0.04, "tags": {"3": {"center": [0.1, 0.2], "rotation_deg": 90},
-                                       "7": [[0, 0.02, 0], [0.02, 0.02, 0], [0.02, 0, 0], [0, 0, 0]]}}
+    spec = {
+        "tag_size": 0.04,
+        "tags": {
+            "3": {"center": [0.1, 0.2], "rotation_deg": 90},
+            "7": [[0, 0.02, 0], [0.02, 0.02, 0], [0.02, 0, 0], [0, 0, 0]],
+        },
+    }
     f = tmp_path / "layout.json"
     f.write_text(json.dumps(spec))
     lay = A.load_layout(f, "DICT_4X4_50")
@@ -87,13 +92,19 @@ def test_layout_file_forms(tmp_path):
 
 
 def test_grid_board_layout_is_in_nerfkit_axes():
-    spec = {"board": "grid", "markers_x": 2, "markers_y": 3, "marker_length": 0.06, "marker_separation": 0.02,
-            "first_id": 10}
+    spec = {
+        "board": "grid",
+        "markers_x": 2,
+        "markers_y": 3,
+        "marker_length": 0.06,
+        "marker_separation": 0.02,
+        "first_id": 10,
+    }
     lay = A.layout_from_json(spec, "board.json", "DICT_4X4_50")
     assert lay.ids == list(range(10, 16))
     centres = {t: c.mean(0) for t, c in lay.tags.items()}
-    assert centres[11][0] - centres[10][0] == pytest.approx(0.08)   # +x to the right
-    assert centres[10][1] - centres[12][1] == pytest.approx(0.08)   # the first row is at the top: +y up
+    assert centres[11][0] - centres[10][0] == pytest.approx(0.08)  # +x to the right
+    assert centres[10][1] - centres[12][1] == pytest.approx(0.08)  # the first row is at the top: +y up
     np.testing.assert_allclose(np.mean(list(centres.values()), axis=0), 0, atol=1e-6)  # centred
     c = lay.tags[10]  # top-left, top-right, bottom-right, bottom-left as printed
     assert c[1][0] > c[0][0] and c[3][1] < c[0][1]
@@ -106,14 +117,17 @@ def test_charuco_layout_has_chessboard_corners():
     assert np.abs(lay.charuco_corners[:, 2]).max() == 0
 
 
-@pytest.mark.parametrize("spec, message", [
-    ({"tags": {}}, "non-empty"),
-    ({"tags": {"a": [[0, 0, 0]] * 4}}, "not an integer"),
-    ({"tags": {"1": [[0, 0, 0], [1, 0, 0], [1, 3, 0], [0, 1, 0]]}}, "not a square"),
-    ({"tags": {"1": {"center": [0, 0]}}}, "needs \"center\" and a size"),
-    ({"board": "hexagon"}, "unknown board type"),
-    ({"board": "grid", "markers_x": 2}, "missing the key"),
-])
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ({"tags": {}}, "non-empty"),
+        ({"tags": {"a": [[0, 0, 0]] * 4}}, "not an integer"),
+        ({"tags": {"1": [[0, 0, 0], [1, 0, 0], [1, 3, 0], [0, 1, 0]]}}, "not a square"),
+        ({"tags": {"1": {"center": [0, 0]}}}, 'needs "center" and a size'),
+        ({"board": "hexagon"}, "unknown board type"),
+        ({"board": "grid", "markers_x": 2}, "missing the key"),
+    ],
+)
 def test_bad_layouts_are_one_line_errors(spec, message):
     with pytest.raises(NerfkitError, match=message) as e:
         A.layout_from_json(spec, "layout.json", "DICT_4X4_50")

@@ -36,8 +36,9 @@ def fresh(records):
 
 
 def rel_errors(K, K_true):
-    return np.abs([K[0, 0] / K_true[0, 0] - 1, K[1, 1] / K_true[1, 1] - 1,
-                   K[0, 2] / K_true[0, 2] - 1, K[1, 2] / K_true[1, 2] - 1])
+    return np.abs(
+        [K[0, 0] / K_true[0, 0] - 1, K[1, 1] / K_true[1, 1] - 1, K[0, 2] / K_true[0, 2] - 1, K[1, 2] / K_true[1, 2] - 1]
+    )
 
 
 def test_every_photo_shows_several_tags(records):
@@ -71,8 +72,7 @@ def test_naive_shared_corners_would_ruin_calibration(sheet, records):
     # Negative control: giving every tag the same 3D corners (the common mistake) is far off,
     # so the test above is sensitive to the problem it guards against.
     sq = A.square_corners(TAG)
-    views = [(r.name, np.concatenate([sq] * len(r.detection.ids)), r.detection.corners.reshape(-1, 2))
-             for r in records]
+    views = [(r.name, np.concatenate([sq] * len(r.detection.ids)), r.detection.corners.reshape(-1, 2)) for r in records]
     fit = C.fit_views(views, SIZE, C.calib_flags(C.CalibrateConfig(), "k1k2p1p2"), outlier_factor=0)
     assert fit.rms > 10 or rel_errors(fit.K, sheet.K).max() > 0.02
 
@@ -80,7 +80,7 @@ def test_naive_shared_corners_would_ruin_calibration(sheet, records):
 def test_tag_views_never_share_3d_points_within_a_view(records):
     views = C.tag_views(records, TAG)
     assert len(views) == sum(len(r.detection.ids) for r in records)
-    for name, obj, img in views:
+    for _name, obj, img in views:
         assert obj.shape == (4, 3) and img.shape == (4, 2)
         assert len({tuple(p) for p in np.round(obj, 9)}) == 4
 
@@ -108,8 +108,12 @@ def test_outlier_photo_is_dropped_and_the_camera_recalibrated(sheet, records):
     recs = fresh(records)
     bad = recs[3]
     rng = np.random.default_rng(0)
-    bad.detection = A.Detection(bad.detection.width, bad.detection.height, bad.detection.ids,
-                                bad.detection.corners + rng.normal(0, 3.0, bad.detection.corners.shape))
+    bad.detection = A.Detection(
+        bad.detection.width,
+        bad.detection.height,
+        bad.detection.ids,
+        bad.detection.corners + rng.normal(0, 3.0, bad.detection.corners.shape),
+    )
     cal = C.calibrate_records(recs, SIZE, TAG, sheet.layout, C.CalibrateConfig())
     assert not bad.used and bad.reason.startswith("outlier")
     assert any("dropped 1 outlier" in n for n in cal.notes)
@@ -134,10 +138,15 @@ def test_sanity_checks_flag_implausible_phone_calibrations():
     assert "principal point is 130 px" in text and "--principal-point centre" in text
     assert "EXIF focal length" in text
     # Freed by the photos' held-out error, the advice says so instead of simply undoing it.
-    freed = {"principal_point": {"chosen": "free", "heldout_rms": {"centre": 0.5, "free": 0.1}},
-             "aspect": {"chosen": "free", "why": "given with --aspect"}}
-    text = " ".join(C.sanity_checks(K_bad, np.zeros(5), (w, h), 0.58, np.array([2.0, 2.0, 1.0, 1.0]), [f35], 1.0,
-                                    30, freed)["warnings"])
+    freed = {
+        "principal_point": {"chosen": "free", "heldout_rms": {"centre": 0.5, "free": 0.1}},
+        "aspect": {"chosen": "free", "why": "given with --aspect"},
+    }
+    text = " ".join(
+        C.sanity_checks(K_bad, np.zeros(5), (w, h), 0.58, np.array([2.0, 2.0, 1.0, 1.0]), [f35], 1.0, 30, freed)[
+            "warnings"
+        ]
+    )
     assert "The photos hold it there (0.100 px held out against 0.500 px with --principal-point centre)" in text
     assert "re-run with --aspect square (or auto)" in text
 
@@ -178,8 +187,9 @@ def test_calibrate_command_writes_camera_file_and_explains_skips(tmp_path, sheet
     assert cam2["target"].startswith("layout") and rel_errors(np.array(cam2["K"]), sheet.K).max() < 0.01
 
 
-@pytest.mark.parametrize("content", ['{"my": "notes"}', "not json at all",
-                                     '{"format": "nerfkit-poses", "version": 1, "photos": []}'])
+@pytest.mark.parametrize(
+    "content", ['{"my": "notes"}', "not json at all", '{"format": "nerfkit-poses", "version": 1, "photos": []}']
+)
 @pytest.mark.slow
 def test_a_file_of_the_users_where_the_detection_cache_goes_is_left_alone(tmp_path, sheet, capsys, content):
     folder = tmp_path / "photos"
@@ -209,7 +219,7 @@ def test_charuco_board_calibration_uses_chessboard_corners():
         errs.append(np.linalg.norm(d.charuco_corners - truth, axis=1))
         recs.append(PhotoRecord(f"c{k}.jpg", None, d))
     errs = np.concatenate(errs)
-    assert len(errs) >= 8 * 15 and np.sqrt(np.mean(errs ** 2)) < 0.15
+    assert len(errs) >= 8 * 15 and np.sqrt(np.mean(errs**2)) < 0.15
     cal = C.calibrate_records(recs, SIZE, 0.022, layout, C.CalibrateConfig())
     assert "charuco" in cal.target
     assert rel_errors(cal.K, S.DEFAULT_K).max() < 0.01
@@ -219,7 +229,11 @@ def test_charuco_board_calibration_uses_chessboard_corners():
 
 K_SMALL = np.array([[270.0, 0, 161.2], [0, 270.0, 118.4], [0, 0, 1]])
 SMALL = (320, 240)
-LENSES = {"zero": np.zeros(5), "mild": np.array([-0.05, 0.0, 0, 0, 0]), "strong barrel": np.array([-0.2, 0.03, 0, 0, 0])}
+LENSES = {
+    "zero": np.zeros(5),
+    "mild": np.array([-0.05, 0.0, 0, 0, 0]),
+    "strong barrel": np.array([-0.2, 0.03, 0, 0, 0]),
+}
 
 
 def test_distortion_check_accepts_real_lenses_and_rejects_turning_polynomials():
@@ -339,7 +353,7 @@ def test_a_waved_sheets_heights_are_measured_and_its_photos_then_fit(monkeypatch
     assert err < 0.0004, err
     held, held_flat = held_out(cal), held_out(flat)
     assert held < 0.7 * held_flat, (held, held_flat)  # measured 0.57 against 1.01 px (the rest: the tags' own
-    assert rel_errors(cal.K, cap.K).max() < 0.01      # bending, which their corners' straight edges miss)
+    assert rel_errors(cal.K, cap.K).max() < 0.01  # bending, which their corners' straight edges miss)
     assert any("not quite flat" in n for n in cal.notes)
     # The camera file keeps the printed sheet for `poses` (the paper lies otherwise next time)
     # and the heights beside it.
@@ -409,8 +423,9 @@ def test_a_detection_turns_with_its_photo():
 
 # ---------------------------------------------------------------- the whole camera chosen together (issue 63)
 
-CAMERAS = {f"{m}/{p}/{a}" for m in C.DIST_MODELS for p in C.CONSTRAINTS["principal_point"]
-           for a in C.CONSTRAINTS["aspect"]}
+CAMERAS = {
+    f"{m}/{p}/{a}" for m in C.DIST_MODELS for p in C.CONSTRAINTS["principal_point"] for a in C.CONSTRAINTS["aspect"]
+}
 
 
 def grid_views(K, dist, size, n, noise, reach, seed):
@@ -458,7 +473,9 @@ def test_the_whole_camera_is_chosen_together_distortion_and_an_offset_principal_
     assert np.abs(cal.K[:2, 2] - K[:2, 2]).max() < 1.0 and cal.K[0, 0] == cal.K[1, 1]
     assert rel_errors(cal.K, K).max() < 0.01
     # The camera is that candidate's own fit, nothing carried over from another.
-    assert [chosen["fx"], chosen["cx"], chosen["cy"]] == pytest.approx([cal.K[0, 0], cal.K[0, 2], cal.K[1, 2]], abs=0.01)
+    assert [chosen["fx"], chosen["cx"], chosen["cy"]] == pytest.approx(
+        [cal.K[0, 0], cal.K[0, 2], cal.K[1, 2]], abs=0.01
+    )
     # Held out near the corners' noise: as well as the best camera tried, and far better than
     # without the distortion or without the offset.
     best = min(r["heldout_rms"] for r in by.values() if r["eligible"])
@@ -478,8 +495,7 @@ K_EDGE = np.array([[520.0, 0, 319.5], [0, 520.0, 239.5], [0, 0, 1]])
 
 
 @pytest.mark.parametrize("k1, reach, seed, kept", [(-0.15, 0.35, 2, True), (-0.10, 0.30, 4, False)])
-def test_the_edge_rule_weighs_the_folds_disagreement_against_what_the_simpler_model_gets_wrong(k1, reach, seed,
-                                                                                              kept):
+def test_the_edge_rule_weighs_the_folds_disagreement_against_what_the_simpler_model_gets_wrong(k1, reach, seed, kept):
     # The photos' corners stay near the centre, so the folds' k1 differ a little at the frame's
     # edges: more than a fixed limit (1 px, twice k1's held-out error) allows. Where k1 holds
     # out far better than none, that disagreement is smaller than what none gets wrong at the

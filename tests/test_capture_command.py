@@ -27,8 +27,26 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     sheet, obj = S.cached_capture("sheet", 12, 5), S.cached_capture("object", 10, 1)
     calib, photos = write_photos(tmp_path / "sheet", sheet), write_photos(tmp_path / "object", obj)
     out = tmp_path / "my_object"
-    argv = ["capture", str(photos), "--calib", str(calib), "--sheet-tag-size", "0.05", "--tag-size", "0.06",
-            "--out", str(out), "--method", "tags", "--max-side", "160", "--steps", "160", "--frames", "3"]
+    argv = [
+        "capture",
+        str(photos),
+        "--calib",
+        str(calib),
+        "--sheet-tag-size",
+        "0.05",
+        "--tag-size",
+        "0.06",
+        "--out",
+        str(out),
+        "--method",
+        "tags",
+        "--max-side",
+        "160",
+        "--steps",
+        "160",
+        "--frames",
+        "3",
+    ]
     full_run = trainer.Trainer.run
     monkeypatch.setattr(trainer.Trainer, "run", lambda self, stop_after=None: full_run(self, stop_after=40))
     assert main(argv) == 0, capsys.readouterr().err  # training cut short at step 40 of 160
@@ -60,7 +78,14 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     assert text.count("note: the sparse points show no object near the middle of the photos") == 2
     took = re.search(r"\n  time      (.*); (.*) in all\n", text)  # each step run now, in the order it ran
     assert [part.rsplit(" ", 2)[0] for part in took[1].split(", ")] == [
-        "calibrate", "poses", "train", "eval", "render", "object", "export"]
+        "calibrate",
+        "poses",
+        "train",
+        "eval",
+        "render",
+        "object",
+        "export",
+    ]
     # a NeRF too faint to mesh (as at 40 steps here) is still a capture: the summary says so
     assert (run / "mesh.ply").exists() == ("mesh      none" not in text)
 
@@ -69,7 +94,7 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
 
     cut = shutil.copytree(out, tmp_path / "cut")
     shutil.rmtree(cut / "run" / "checkpoints")
-    assert main([*argv[:argv.index("--out") + 1], str(cut), *argv[argv.index("--out") + 2:]]) == 0
+    assert main([*argv[: argv.index("--out") + 1], str(cut), *argv[argv.index("--out") + 2 :]]) == 0
     assert "it was cut short and has no checkpoint to go on from: --force" in capsys.readouterr().out
     assert json.loads((cut / "run" / "metrics.json").read_text())["step"] == 40
 
@@ -98,7 +123,9 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     assert "its budget is 160 steps, not the 9 minutes asked for now: --force" in capsys.readouterr().out
     bare = shutil.copytree(out, tmp_path / "bare")  # finished, its checkpoint gone: nothing to go on from
     shutil.rmtree(bare / "run" / "checkpoints")
-    assert main([*argv[:argv.index("--out") + 1], str(bare), *argv[argv.index("--out") + 2:-4], "--steps", "180"]) == 0
+    assert (
+        main([*argv[: argv.index("--out") + 1], str(bare), *argv[argv.index("--out") + 2 : -4], "--steps", "180"]) == 0
+    )
     assert "(and no checkpoint is left to go on from): --force" in capsys.readouterr().out
     assert json.loads((bare / "run" / "metrics.json").read_text())["step"] == 160
     assert main([*argv[:-4], "--steps", "180"]) == 0  # a larger one: trained on, and shown again
@@ -151,8 +178,21 @@ def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_pho
     (tmp_path / "file").write_text("x")
     assert main(["capture", str(photos), "--tag-size", "0.06", "--out", str(tmp_path / "file")]) == 2
     assert "is not a folder" in capsys.readouterr().err
-    assert main(["capture", str(photos), "--tag-size", "0.06", "--out", str(tmp_path / "o"),
-                 "--calib", str(tmp_path / "nowhere")]) == 2
+    assert (
+        main(
+            [
+                "capture",
+                str(photos),
+                "--tag-size",
+                "0.06",
+                "--out",
+                str(tmp_path / "o"),
+                "--calib",
+                str(tmp_path / "nowhere"),
+            ]
+        )
+        == 2
+    )
     assert "--calib" in capsys.readouterr().err
     # nothing is written among the photos; the photos may sit in the capture's folder
     assert main(["capture", str(photos), "--tag-size", "0.06", "--out", str(photos / "out")]) == 2
@@ -193,9 +233,21 @@ def test_a_rerun_keeps_results_only_while_what_they_were_made_from_holds(tmp_pat
     from nerfkit.errors import NerfkitError
 
     def inputs(photos, calib, **kw):
-        return _inputs(argparse.Namespace(**{"photos": str(photos), "calib": calib and str(calib), "camera": None,
-                                             "tag_size": 0.06, "sheet_tag_size": None, "dict": None,
-                                             "method": "auto", "max_side": None, **kw}))
+        return _inputs(
+            argparse.Namespace(
+                **{
+                    "photos": str(photos),
+                    "calib": calib and str(calib),
+                    "camera": None,
+                    "tag_size": 0.06,
+                    "sheet_tag_size": None,
+                    "dict": None,
+                    "method": "auto",
+                    "max_side": None,
+                    **kw,
+                }
+            )
+        )
 
     photos, sheet, out = (tmp_path / n for n in ("object", "sheet", "out"))
     for folder in (photos, sheet, out):

@@ -12,8 +12,15 @@ from hypothesis import strategies as st
 from nerfkit.capture import aruco as A
 from nerfkit.capture import synthetic as S
 from nerfkit.capture.camera import Camera, nerfkit_K
-from nerfkit.capture.dataset import (FEW_TRAIN_VIEWS, DatasetConfig, build_dataset, estimate_bounds, few_views_note,
-                                     photo_agreement, split_indices)
+from nerfkit.capture.dataset import (
+    FEW_TRAIN_VIEWS,
+    DatasetConfig,
+    build_dataset,
+    estimate_bounds,
+    few_views_note,
+    photo_agreement,
+    split_indices,
+)
 from nerfkit.capture.poses import PosedPhoto
 from nerfkit.capture.undistort import make_undistorter
 from nerfkit.cli import main
@@ -56,6 +63,7 @@ def test_few_views_note_only_below_the_threshold():
     from dataclasses import fields
 
     from nerfkit.models.fast import FastConfig
+
     assert "--table-cover-weight" in note and "table_cover_weight" in {f.name for f in fields(FastConfig)}
 
 
@@ -83,7 +91,7 @@ def test_undistorted_views_are_exact_pinhole_images(obj):
             truth = project_pinhole_nerfkit(nerfkit_K(und.K), c2w, obj.layout.tags[0]) - 0.5  # to OpenCV pixels
             errs.append(np.linalg.norm(d.corners[0] - truth, axis=1))
     errs = np.concatenate(errs)
-    assert len(errs) >= 24 and np.sqrt(np.mean(errs ** 2)) < 0.2
+    assert len(errs) >= 24 and np.sqrt(np.mean(errs**2)) < 0.2
 
 
 def test_bounds_contain_the_object_from_every_camera(obj):
@@ -102,8 +110,15 @@ def test_bounds_contain_the_object_from_every_camera(obj):
 def test_dataset_files_load_back_with_the_same_cameras(posed, obj, tmp_path):
     out = tmp_path / "ds"
     standing = obj.layout.corners()[0] @ np.array([[1.0, 0, 0], [0, 0, 1], [0, 1, 0]]) + [0.2, 0, 0.05]  # not on it
-    scene, summary = build_dataset(posed, out, DatasetConfig(max_side=400, val_every=4, test_every=5), TAG,
-                                   jobs=2, progress=False, tags=np.stack([obj.layout.corners()[0], standing]))
+    scene, summary = build_dataset(
+        posed,
+        out,
+        DatasetConfig(max_side=400, val_every=4, test_every=5),
+        TAG,
+        jobs=2,
+        progress=False,
+        tags=np.stack([obj.layout.corners()[0], standing]),
+    )
     assert summary["views"] == {"train": 6, "val": 2, "test": 2} and summary["tags_on_table"] == 1
     a = load_npz(out / "dataset.npz")
     b = load_transforms_json(out)
@@ -143,8 +158,9 @@ def test_dataset_files_load_back_with_the_same_cameras(posed, obj, tmp_path):
 def test_dataset_cameras_project_the_tag_onto_its_pixels(posed, obj, tmp_path):
     # The whole chain (undistort, crop, resize, +0.5 convention): the npz's K and c2w must put
     # the tag's true corners where the tag is in the npz's own images.
-    scene, _ = build_dataset(posed, tmp_path / "ds", DatasetConfig(max_side=480, val_every=0, test_every=0), TAG,
-                             jobs=1, progress=False)
+    scene, _ = build_dataset(
+        posed, tmp_path / "ds", DatasetConfig(max_side=480, val_every=0, test_every=0), TAG, jobs=1, progress=False
+    )
     s = load_npz(tmp_path / "ds" / "dataset.npz")
     det = A.make_detector("DICT_4X4_50")
     errs = []
@@ -154,7 +170,7 @@ def test_dataset_cameras_project_the_tag_onto_its_pixels(posed, obj, tmp_path):
             truth = project_pinhole_nerfkit(K, c2w.astype(np.float64), obj.layout.tags[0]) - 0.5
             errs.append(np.linalg.norm(d.corners[0] - truth, axis=1))
     errs = np.concatenate(errs)
-    assert len(errs) >= 24 and np.sqrt(np.mean(errs ** 2)) < 0.3
+    assert len(errs) >= 24 and np.sqrt(np.mean(errs**2)) < 0.3
 
 
 @pytest.mark.slow
@@ -165,13 +181,19 @@ def test_center_override_and_dataset_command_rebuild(posed, tmp_path, capsys):
     out = tmp_path / "ds"
     recs = []
     for p in posed:
-        r = PhotoRecord(p.name, p.path, A.Detection(p.camera.width, p.camera.height, np.zeros(0, np.int64),
-                                                    np.zeros((0, 4, 2))))
+        r = PhotoRecord(
+            p.name, p.path, A.Detection(p.camera.width, p.camera.height, np.zeros(0, np.int64), np.zeros((0, 4, 2)))
+        )
         r.used, r.error_px = True, 0.1
         recs.append(r)
     layout = A.Layout.single(3, TAG)
-    write_poses_json(out / "poses.json", recs, posed, posed[0].camera,
-                     {"photos_dir": str(posed[0].path.parent), "tag_size": TAG, "layout": layout.to_json()})
+    write_poses_json(
+        out / "poses.json",
+        recs,
+        posed,
+        posed[0].camera,
+        {"photos_dir": str(posed[0].path.parent), "tag_size": TAG, "layout": layout.to_json()},
+    )
     assert main(["dataset", str(out), "--max-side", "320", "--center", "0.1,0.02,0.03", "--near", "0.05"]) == 0
     assert "agreement: the training photos show the table" in capsys.readouterr().out
     s = load_npz(out / "dataset.npz")

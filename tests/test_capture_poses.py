@@ -31,8 +31,17 @@ def pose_error(c2w, truth):
 
 
 def write_camera(path, cap):
-    path.write_text(json.dumps({"K": cap.K.tolist(), "dist": cap.dist.tolist(), "width": cap.width,
-                                "height": cap.height, "dictionary": "DICT_4X4_50"}))
+    path.write_text(
+        json.dumps(
+            {
+                "K": cap.K.tolist(),
+                "dist": cap.dist.tolist(),
+                "width": cap.width,
+                "height": cap.height,
+                "dictionary": "DICT_4X4_50",
+            }
+        )
+    )
     return path
 
 
@@ -80,8 +89,12 @@ def test_poses_command_with_exif_rotated_photos_and_photos_without_tags(tmp_path
     (folder / "zz_broken.jpg").write_bytes(b"garbage")
     cam_file = write_camera(tmp_path / "camera.json", obj)
     out = tmp_path / "ds"
-    assert main(["poses", str(folder), "--camera", str(cam_file), "--tag-size", str(TAG), "--out", str(out),
-                 "--no-dataset"]) == 0
+    assert (
+        main(
+            ["poses", str(folder), "--camera", str(cam_file), "--tag-size", str(TAG), "--out", str(out), "--no-dataset"]
+        )
+        == 0
+    )
     poses = json.loads((out / "poses.json").read_text())
     photos = {p["file"]: p for p in poses["photos"]}
     n_posed = 0
@@ -130,8 +143,25 @@ def test_object_photos_held_the_other_way_are_turned_into_the_cameras_frame(tmp_
     S.write_photo(mixed / "zz_edited.jpg", _held_the_other_way(obj.images[3], 6))  # no flag
     cam = write_camera(tmp_path / "camera.json", obj)  # no sensor_turns: the photos' own frame
     for folder in (plain, mixed):
-        assert main(["poses", str(folder), "--camera", str(cam), "--tag-size", str(TAG), "--out",
-                     str(tmp_path / f"ds_{folder.name}"), "--method", "tags", "--max-side", "320"]) == 0
+        assert (
+            main(
+                [
+                    "poses",
+                    str(folder),
+                    "--camera",
+                    str(cam),
+                    "--tag-size",
+                    str(TAG),
+                    "--out",
+                    str(tmp_path / f"ds_{folder.name}"),
+                    "--method",
+                    "tags",
+                    "--max-side",
+                    "320",
+                ]
+            )
+            == 0
+        )
     photos = {p["file"]: p for p in json.loads((tmp_path / "ds_mixed" / "poses.json").read_text())["photos"]}
     for name, truth in zip(obj.names, obj.c2w):
         if name in held:
@@ -139,10 +169,15 @@ def test_object_photos_held_the_other_way_are_turned_into_the_cameras_frame(tmp_
             pos, ang = pose_error(np.array(photos[name]["c2w"]), truth)
             assert pos < 0.003 and ang < 0.5, name
     assert "no EXIF orientation says which way" in photos["zz_edited.jpg"]["reason"]
+
     def views(folder):  # name -> (image, c2w) over every split
         scene = load_scene(folder)
-        return {n: (im.astype(float), c) for v in scene.splits.values() if v is not None
-                for n, im, c in zip(v.names, v.images, v.c2w)}
+        return {
+            n: (im.astype(float), c)
+            for v in scene.splits.values()
+            if v is not None
+            for n, im, c in zip(v.names, v.images, v.c2w)
+        }
 
     a, b = views(tmp_path / "ds_plain"), views(tmp_path / "ds_mixed")
     assert sorted(a) == sorted(b) and set(held) <= set(b)
@@ -167,8 +202,22 @@ def test_a_capture_held_the_other_way_from_the_calibration_follows_the_camera_fi
         S.write_photo(folder / name, _held_the_other_way(img, 6), orientation=6)
     data = json.loads(write_camera(tmp_path / "old.json", obj).read_text())
     (tmp_path / "camera.json").write_text(json.dumps({**data, "sensor_turns": 0}))
-    assert main(["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", str(TAG),
-                 "--out", str(tmp_path / "ds"), "--no-dataset"]) == 0
+    assert (
+        main(
+            [
+                "poses",
+                str(folder),
+                "--camera",
+                str(tmp_path / "camera.json"),
+                "--tag-size",
+                str(TAG),
+                "--out",
+                str(tmp_path / "ds"),
+                "--no-dataset",
+            ]
+        )
+        == 0
+    )
     photos = json.loads((tmp_path / "ds" / "poses.json").read_text())["photos"]
     posed = [p for p in photos if p["used"]]
     assert len(posed) >= 6 and all(p["turned_deg"] == 270 for p in posed)
@@ -176,8 +225,22 @@ def test_a_capture_held_the_other_way_from_the_calibration_follows_the_camera_fi
     for p in posed:
         pos, ang = pose_error(np.array(p["c2w"]), obj.c2w[obj.names.index(p["file"])])
         assert pos < 0.003 and ang < 0.5
-    assert main(["poses", str(folder), "--camera", str(tmp_path / "old.json"), "--tag-size", str(TAG),
-                 "--out", str(tmp_path / "ds_old"), "--no-dataset"]) == 2
+    assert (
+        main(
+            [
+                "poses",
+                str(folder),
+                "--camera",
+                str(tmp_path / "old.json"),
+                "--tag-size",
+                str(TAG),
+                "--out",
+                str(tmp_path / "ds_old"),
+                "--no-dataset",
+            ]
+        )
+        == 2
+    )
     assert "no photo could be posed" in capsys.readouterr().err
     photos = json.loads((tmp_path / "ds_old" / "poses.json").read_text())["photos"]
     assert all("re-run nerfkit calibrate" in p["reason"] for p in photos if not p["reason"].startswith("no tags"))
@@ -269,8 +332,23 @@ def test_poses_builds_the_dataset_by_default_and_heic_photos_keep_their_name(tmp
         else:
             S.write_photo(folder / name, img)
     out = tmp_path / "ds"
-    assert main(["poses", str(folder), "--camera", str(write_camera(tmp_path / "camera.json", obj)),
-                 "--tag-size", str(TAG), "--out", str(out), "--max-side", "320"]) == 0
+    assert (
+        main(
+            [
+                "poses",
+                str(folder),
+                "--camera",
+                str(write_camera(tmp_path / "camera.json", obj)),
+                "--tag-size",
+                str(TAG),
+                "--out",
+                str(out),
+                "--max-side",
+                "320",
+            ]
+        )
+        == 0
+    )
     scene = load_scene(out)  # the dataset folder holds one npz: dataset.npz
     names = [n for v in scene.splits.values() for n in (v.names or [])]
     assert "phone_shot.HEIC" in names and "held.HEIC" in names
@@ -311,16 +389,46 @@ def test_a_photo_from_another_lens_is_skipped_with_the_reason(tmp_path, obj):
     data = json.loads(write_camera(tmp_path / "plain.json", obj).read_text())
     for f35 in (26, 52, 27):
         (tmp_path / f"cam{f35}.json").write_text(json.dumps({**data, "sanity": {"exif_focal_35mm": f35}}))
-        assert main(["poses", str(folder), "--camera", str(tmp_path / f"cam{f35}.json"), "--tag-size", str(TAG),
-                     "--out", str(tmp_path / f"ds{f35}"), "--no-dataset"]) == 0
-    photos = {f35: {p["file"]: p for p in json.loads((tmp_path / f"ds{f35}" / "poses.json").read_text())["photos"]}
-              for f35 in (26, 52, 27)}
+        assert (
+            main(
+                [
+                    "poses",
+                    str(folder),
+                    "--camera",
+                    str(tmp_path / f"cam{f35}.json"),
+                    "--tag-size",
+                    str(TAG),
+                    "--out",
+                    str(tmp_path / f"ds{f35}"),
+                    "--no-dataset",
+                ]
+            )
+            == 0
+        )
+    photos = {
+        f35: {p["file"]: p for p in json.loads((tmp_path / f"ds{f35}" / "poses.json").read_text())["photos"]}
+        for f35 in (26, 52, 27)
+    }
     assert not photos[26][obj.names[5]]["used"] and "another lens or zoom" in photos[26][obj.names[5]]["reason"]
     assert photos[26][obj.names[6]]["used"] and photos[27][obj.names[6]]["used"]  # 4% apart: the same lens
     assert photos[52][obj.names[5]]["used"] and not photos[52][obj.names[6]]["used"]
     # no focal length in the camera file: most photos' lens is the camera's
-    assert main(["poses", str(folder), "--camera", str(tmp_path / "plain.json"), "--tag-size", str(TAG),
-                 "--out", str(tmp_path / "ds"), "--no-dataset"]) == 0
+    assert (
+        main(
+            [
+                "poses",
+                str(folder),
+                "--camera",
+                str(tmp_path / "plain.json"),
+                "--tag-size",
+                str(TAG),
+                "--out",
+                str(tmp_path / "ds"),
+                "--no-dataset",
+            ]
+        )
+        == 0
+    )
     plain = {p["file"]: p for p in json.loads((tmp_path / "ds" / "poses.json").read_text())["photos"]}
     assert "another lens" in plain[obj.names[5]]["reason"] and plain[obj.names[6]]["used"]
 
@@ -335,14 +443,33 @@ def test_a_camera_calibrated_at_another_size_is_scaled_and_said(tmp_path, obj):
         if k == 3:  # a copy cropped to another shape
             img = np.ascontiguousarray(img[: img.shape[0] * 3 // 4])
         S.write_photo(folder / name, img)
-    twice = {"K": (obj.K * [[2], [2], [1]]).tolist(), "dist": obj.dist.tolist(), "width": obj.width * 2,
-             "height": obj.height * 2, "dictionary": "DICT_4X4_50"}  # calibrated on photos twice as large
+    twice = {
+        "K": (obj.K * [[2], [2], [1]]).tolist(),
+        "dist": obj.dist.tolist(),
+        "width": obj.width * 2,
+        "height": obj.height * 2,
+        "dictionary": "DICT_4X4_50",
+    }  # calibrated on photos twice as large
     twice["K"][0][2], twice["K"][1][2] = obj.K[0, 2] * 2 + 0.5, obj.K[1, 2] * 2 + 0.5  # (pixel centres)
     (tmp_path / "camera.json").write_text(json.dumps(twice))
     for camera, scaled in ((tmp_path / "camera.json", True), (write_camera(tmp_path / "same.json", obj), False)):
         out = tmp_path / f"ds_{camera.stem}"
-        assert main(["poses", str(folder), "--camera", str(camera), "--tag-size", str(TAG),
-                     "--out", str(out), "--no-dataset"]) == 0
+        assert (
+            main(
+                [
+                    "poses",
+                    str(folder),
+                    "--camera",
+                    str(camera),
+                    "--tag-size",
+                    str(TAG),
+                    "--out",
+                    str(out),
+                    "--no-dataset",
+                ]
+            )
+            == 0
+        )
         poses = json.loads((out / "poses.json").read_text())
         photos = {p["file"]: p for p in poses["photos"]}
         assert not photos[obj.names[3]]["used"] and "aspect ratio" in photos[obj.names[3]]["reason"]
@@ -383,16 +510,46 @@ def test_poses_use_the_camera_files_layout_when_photos_show_several_tags(tmp_pat
     cam["heldout_rms"] = 0.1
     (tmp_path / "camera.json").write_text(json.dumps(cam))
     out = tmp_path / "ds"
-    assert main(["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", "0.05",
-                 "--out", str(out), "--no-dataset"]) == 0
+    assert (
+        main(
+            [
+                "poses",
+                str(folder),
+                "--camera",
+                str(tmp_path / "camera.json"),
+                "--tag-size",
+                "0.05",
+                "--out",
+                str(out),
+                "--no-dataset",
+            ]
+        )
+        == 0
+    )
     poses = json.loads((out / "poses.json").read_text())
     assert any("camera file's layout" in n for n in poses["notes"])
     for p in poses["photos"]:
         assert p["used"] and len(p["tags_used"]) > 1, p
         pos, ang = pose_error(np.array(p["c2w"]), sheet.c2w[sheet.names.index(p["file"])])
         assert pos < 0.002 and ang < 0.3
-    assert main(["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", "0.05",
-                 "--out", str(out), "--no-dataset", "--single-tag", "--force"]) == 0
+    assert (
+        main(
+            [
+                "poses",
+                str(folder),
+                "--camera",
+                str(tmp_path / "camera.json"),
+                "--tag-size",
+                "0.05",
+                "--out",
+                str(out),
+                "--no-dataset",
+                "--single-tag",
+                "--force",
+            ]
+        )
+        == 0
+    )
     assert all(len(p["tags_used"]) == 1 for p in json.loads((out / "poses.json").read_text())["photos"] if p["used"])
 
 
@@ -442,8 +599,17 @@ def test_poses_estimate_the_layout_from_photos_showing_several_tags_when_none_is
         S.write_photo(folder / name, img)
     write_camera(tmp_path / "camera.json", sheet)  # no layout in it
     out = tmp_path / "ds"
-    argv = ["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", "0.05", "--out", str(out),
-            "--no-dataset"]
+    argv = [
+        "poses",
+        str(folder),
+        "--camera",
+        str(tmp_path / "camera.json"),
+        "--tag-size",
+        "0.05",
+        "--out",
+        str(out),
+        "--no-dataset",
+    ]
     assert main(argv) == 0
     poses = json.loads((out / "poses.json").read_text())
     assert any(n.startswith("estimated the layout of") for n in poses["notes"]), poses["notes"]
@@ -499,20 +665,32 @@ def test_an_estimated_layout_leaves_out_a_tag_of_another_size():
 def test_skip_reasons_are_counted_by_kind_with_their_own_numbers():
     from nerfkit.capture.report import reason_counts
 
-    reasons = ["bad fit: reprojection error 3.1 px > 2 px", "no tags found", "bad fit: reprojection error 9 px > 2 px",
-               "taken at 52 mm (the camera's photos at 26 mm)", "size 1024x768 has a different aspect ratio",
-               "size 800x500 has a different aspect ratio"]
-    assert reason_counts(reasons) == ("2 x bad fit; 2 x size 1024x768 has a different aspect ratio (or similar); "
-                                      "1 x no tags found; 1 x taken at 52 mm")
+    reasons = [
+        "bad fit: reprojection error 3.1 px > 2 px",
+        "no tags found",
+        "bad fit: reprojection error 9 px > 2 px",
+        "taken at 52 mm (the camera's photos at 26 mm)",
+        "size 1024x768 has a different aspect ratio",
+        "size 800x500 has a different aspect ratio",
+    ]
+    assert reason_counts(reasons) == (
+        "2 x bad fit; 2 x size 1024x768 has a different aspect ratio (or similar); "
+        "1 x no tags found; 1 x taken at 52 mm"
+    )
 
 
 def test_the_reasons_table_wraps_a_long_reason_whole():
     from nerfkit.capture.report import table
 
-    reason = ("unreadable: cannot decode image (image file is truncated (12 bytes not processed)). The file may be "
-              "truncated or corrupt")
-    text = table([["a.jpg", "skipped", "-", "", reason], ["bb.jpg", "used", "0", "0.5", "ok"]],
-                 ["photo", "status", "tags", "err px", "reason"], max_width=60)
+    reason = (
+        "unreadable: cannot decode image (image file is truncated (12 bytes not processed)). The file may be "
+        "truncated or corrupt"
+    )
+    text = table(
+        [["a.jpg", "skipped", "-", "", reason], ["bb.jpg", "used", "0", "0.5", "ok"]],
+        ["photo", "status", "tags", "err px", "reason"],
+        max_width=60,
+    )
     lines = text.splitlines()
     assert max(len(line) for line in lines) <= 60 and len(lines) > 4
     start = lines[0].index("reason")
@@ -531,6 +709,7 @@ def test_the_focal_length_is_refined_on_the_photos_tags_when_they_pin_it():
     cap = S.cached_capture("sheet", 12, 5)
     det = A.make_detector("DICT_4X4_50")
     records = [PhotoRecord(n, None, A.detect(im, det)) for n, im in zip(cap.names, cap.images)]
+
     def scaled_focal(factor):
         K = cap.K.copy()
         K[[0, 1], [0, 1]] *= factor
@@ -544,8 +723,9 @@ def test_the_focal_length_is_refined_on_the_photos_tags_when_they_pin_it():
     assert "want a focal length +4." in note and "posed with it" in note and "refined" in cam.source
 
     def position_errors(camera):
-        return [pose_error(solve_pose(r.detection, camera, cap.layout)[0], truth)[0]
-                for r, truth in zip(records, cap.c2w)]
+        return [
+            pose_error(solve_pose(r.detection, camera, cap.layout)[0], truth)[0] for r, truth in zip(records, cap.c2w)
+        ]
 
     assert np.median(position_errors(cam)) < 0.3 * np.median(position_errors(short))
     # the right focal length already: kept, and nothing said

@@ -21,11 +21,22 @@ GAINS = np.array([1.0, 1.25, 0.8, 1.1, 0.9, 1.2, 0.85, 1.15, 1.0, 0.95, 1.3, 0.7
 # (distortion loss off: on these 16-24 grids it blurs the exposure recovery this file checks)
 # The tabletop's sky is one flat colour: no room shells, which could give each view's
 # patch of sky that view's exposure and so take a share of the gains to be recovered.
-SMALL = FastConfig(resolutions="16,24", upsample_steps="40", occ_start=8, table_resolution=64, distortion_weight=0.0,
-                   room_shells=0)
+SMALL = FastConfig(
+    resolutions="16,24", upsample_steps="40", occ_start=8, table_resolution=64, distortion_weight=0.0, room_shells=0
+)
 # the options SMALL gives (those at their default value too): the capture's preset keeps them
-SMALL_GIVEN = {"resolutions", "upsample_steps", "occ_start", "table_resolution", "distortion_weight", "room_shells",
-               "batch_rays", "seed", "pose_start", "exposure_lr"}
+SMALL_GIVEN = {
+    "resolutions",
+    "upsample_steps",
+    "occ_start",
+    "table_resolution",
+    "distortion_weight",
+    "room_shells",
+    "batch_rays",
+    "seed",
+    "pose_start",
+    "exposure_lr",
+}
 
 
 @pytest.fixture(scope="module")
@@ -34,8 +45,17 @@ def tabletop():
 
 
 def cfg(tmp_path, name, **kw):
-    base = dict(data="tabletop", out=str(tmp_path / name), steps=300, batch_rays=1024, seed=0, eval_views=1,
-                checkpoint_seconds=1e9, pose_start=50, exposure_lr=3e-2)
+    base = dict(
+        data="tabletop",
+        out=str(tmp_path / name),
+        steps=300,
+        batch_rays=1024,
+        seed=0,
+        eval_views=1,
+        checkpoint_seconds=1e9,
+        pose_start=50,
+        exposure_lr=3e-2,
+    )
     base.update(kw)
     return TrainConfig(**base)
 
@@ -118,7 +138,7 @@ def test_rgb_losses_match_their_formulas():
 
     pred, target = torch.tensor([[0.5, 0.2, 0.0]]), torch.tensor([[0.0, 0.2, 0.1]])
     assert float(rgb_loss(pred, target)) == pytest.approx((0.25 + 0 + 0.01) / 3)
-    want = (math.sqrt(0.25 + CHARBONNIER_EPS ** 2) + CHARBONNIER_EPS + math.sqrt(0.01 + CHARBONNIER_EPS ** 2)) / 3
+    want = (math.sqrt(0.25 + CHARBONNIER_EPS**2) + CHARBONNIER_EPS + math.sqrt(0.01 + CHARBONNIER_EPS**2)) / 3
     assert float(rgb_loss(pred, target, "charbonnier")) == pytest.approx(want, rel=1e-6)
     with pytest.raises(ValueError, match="charbonnier"):
         rgb_loss(pred, target, "l3")
@@ -152,10 +172,23 @@ def test_distortion_loss_enters_the_fast_model_loss_in_units_of_the_radius(table
     bounds = SceneBounds.from_scene(tabletop)
     losses = {}
     for w in (0.0, 0.5):
-        model = FastNeRF(FastConfig(resolutions="16", upsample_steps="", table=True, table_resolution=16,
-                                    distortion_weight=w, init_alpha=0.2), bounds)
-        rays = image_rays(torch.as_tensor(tabletop.train.K[0]).float(), torch.as_tensor(tabletop.train.c2w[0]).float(),
-                          tabletop.train.width, tabletop.train.height)
+        model = FastNeRF(
+            FastConfig(
+                resolutions="16",
+                upsample_steps="",
+                table=True,
+                table_resolution=16,
+                distortion_weight=w,
+                init_alpha=0.2,
+            ),
+            bounds,
+        )
+        rays = image_rays(
+            torch.as_tensor(tabletop.train.K[0]).float(),
+            torch.as_tensor(tabletop.train.c2w[0]).float(),
+            tabletop.train.width,
+            tabletop.train.height,
+        )
         out = model.render_rays(rays, torch.zeros(3), perturb=False)
         target = torch.full_like(out.rgb, 0.5)
         losses[w] = (float(model.loss(out, target).detach()), out)
@@ -213,8 +246,9 @@ def test_object_box_holds_the_points_above_the_table_down_to_the_table():
     assert no_object_note(len(obj), 2250) is None and no_object_note(None, 2250) is None
     assert "(only 20 of the 2020 rise above the table's plane there)" in no_object_note(20, 2020)
     tags = np.array([[[-0.03, -0.03, 0], [0.03, -0.03, 0], [0.03, 0.03, 0], [-0.03, 0.03, 0]]], np.float32)
-    b = SceneBounds(0.1, 3.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1.0], np.float32), table, 2.0, (lo, hi),
-                    tags=tags)
+    b = SceneBounds(
+        0.1, 3.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1.0], np.float32), table, 2.0, (lo, hi), tags=tags
+    )
     back = SceneBounds.from_dict(json.loads(json.dumps(b.to_dict())))
     np.testing.assert_allclose(back.object_box[0], lo)
     np.testing.assert_allclose(back.object_box[1], hi)
@@ -244,10 +278,24 @@ def test_fast_model_starts_in_the_object_box_of_a_scene_with_points(tabletop):
 
     scene = tabletop
     rng = np.random.default_rng(1)
-    pts = np.concatenate([rng.uniform([-0.5, -0.5, 0.3], [0.5, 0.5, 1.9], (100, 3)),  # the sphere on the table
-                          np.c_[rng.uniform(-2, 2, (300, 2)), np.zeros(300)]]).astype(np.float32)
-    with_points = Scene(scene.train, scene.val, scene.test, scene.near, scene.far, scene.center, scene.up,
-                        capture=True, table=scene.table, points=pts)
+    pts = np.concatenate(
+        [
+            rng.uniform([-0.5, -0.5, 0.3], [0.5, 0.5, 1.9], (100, 3)),  # the sphere on the table
+            np.c_[rng.uniform(-2, 2, (300, 2)), np.zeros(300)],
+        ]
+    ).astype(np.float32)
+    with_points = Scene(
+        scene.train,
+        scene.val,
+        scene.test,
+        scene.near,
+        scene.far,
+        scene.center,
+        scene.up,
+        capture=True,
+        table=scene.table,
+        points=pts,
+    )
     bounds = SceneBounds.from_scene(with_points)
     assert bounds.object_box is not None
     model = FastNeRF(FastConfig(), bounds)
@@ -305,12 +353,22 @@ def test_eval_fits_a_held_out_photos_colour_transform(tmp_path, tabletop):
     t = Trainer(tabletop, cfg(tmp_path, "ev", steps=100), SMALL, quiet=True)
     t.run()
     val = tabletop.val
-    renders = np.stack([render_image(t.model, val.K[i], val.c2w[i], val.width, val.height, t.background).rgb
-                        for i in range(len(val))]).astype(np.float64)
+    renders = np.stack(
+        [render_image(t.model, val.K[i], val.c2w[i], val.width, val.height, t.background).rgb for i in range(len(val))]
+    ).astype(np.float64)
     M = np.array([[0.75, 0.15, 0.0], [0.0, 0.8, 0.15], [0.1, 0.0, 0.7]])
     photos = replace(val, images=(np.clip(renders @ M.T + 0.06, 0, 1) * 255).round().astype(np.uint8))
-    scores = {mix: evaluate_views(t.model, photos, t.background, progress=False, scale=t.bounds.radius,
-                                  fit=ViewFitConfig(steps=10, colour_mix=mix)) for mix in (True, False)}
+    scores = {
+        mix: evaluate_views(
+            t.model,
+            photos,
+            t.background,
+            progress=False,
+            scale=t.bounds.radius,
+            fit=ViewFitConfig(steps=10, colour_mix=mix),
+        )
+        for mix in (True, False)
+    }
     assert scores[True]["psnr"] < 30
     assert scores[True]["fitted"]["psnr"] > 40  # undone, to the photos' 8-bit rounding
     assert scores[True]["colour_only"]["psnr"] > 40  # the poses are right: the colour alone undoes it
@@ -336,16 +394,18 @@ def test_eval_fits_on_one_half_and_scores_the_other(tmp_path, tabletop):
     t = Trainer(tabletop, cfg(tmp_path, "half", steps=100), SMALL, quiet=True)
     t.run()
     val = tabletop.val
-    renders = np.stack([render_image(t.model, val.K[i], val.c2w[i], val.width, val.height, t.background).rgb
-                        for i in range(len(val))]).astype(np.float64)
+    renders = np.stack(
+        [render_image(t.model, val.K[i], val.c2w[i], val.width, val.height, t.background).rgb for i in range(len(val))]
+    ).astype(np.float64)
     left, right = photo_halves(val.width)
     assert (left.start, left.stop, right.start, right.stop) == (0, val.width // 2, val.width // 2, val.width)
     for gain, local in ((0.75, True), (0.75, False)):
         lit = renders.copy()
         lit[:, :, left if local else slice(None)] *= gain
         photos = replace(val, images=(np.clip(lit, 0, 1) * 255).round().astype(np.uint8))
-        out = evaluate_views(t.model, photos, t.background, progress=False, scale=t.bounds.radius,
-                             fit=ViewFitConfig(steps=10))
+        out = evaluate_views(
+            t.model, photos, t.background, progress=False, scale=t.bounds.radius, fit=ViewFitConfig(steps=10)
+        )
         if local:  # each half gets the other half's gain: no better than as rendered
             assert out["colour_only"]["psnr"] < out["psnr"] + 0.5 and out["fitted"]["psnr"] < out["psnr"] + 0.5
             assert out["psnr"] < 30
@@ -373,17 +433,21 @@ def test_eval_scores_the_objects_own_pixels(tmp_path, tabletop):
     alone = isolated.model
     assert "table" in isolated.left_out and t.model.table is not None  # a copy: the run's model keeps its table
     val = tabletop.val
-    renders = np.stack([render_image(t.model, val.K[i], val.c2w[i], val.width, val.height, t.background).rgb
-                        for i in range(len(val))])
-    solid = np.stack([render_image(alone, val.K[i], val.c2w[i], val.width, val.height, t.background).acc > 0.5
-                      for i in range(len(val))])
+    renders = np.stack(
+        [render_image(t.model, val.K[i], val.c2w[i], val.width, val.height, t.background).rgb for i in range(len(val))]
+    )
+    solid = np.stack(
+        [
+            render_image(alone, val.K[i], val.c2w[i], val.width, val.height, t.background).acc > 0.5
+            for i in range(len(val))
+        ]
+    )
     assert 0.02 < solid.mean() < 0.6  # the sphere, not the table
     for inside in (True, False):
         changed = np.where((solid == inside)[..., None], np.clip(renders + 0.2, 0, 1), renders)
         photos = replace(val, images=(changed * 255).round().astype(np.uint8))
         fit = ViewFitConfig(steps=5) if inside else None
-        out = evaluate_views(t.model, photos, t.background, progress=False, alone=alone, fit=fit,
-                             scale=t.bounds.radius)
+        out = evaluate_views(t.model, photos, t.background, progress=False, alone=alone, fit=fit, scale=t.bounds.radius)
         assert out["object"]["n_images"] == len(val)
         if inside:
             assert out["object"]["psnr"] < 20 < out["psnr"]  # ... the object is what changed
@@ -394,8 +458,9 @@ def test_eval_scores_the_objects_own_pixels(tmp_path, tabletop):
             assert out["object"]["psnr"] > 40 > 20 > out["psnr"]  # ... the object is untouched
         row = out["per_image"][0]
         assert row["object_share"] == pytest.approx(solid[0].mean(), abs=1e-5)
-    assert masked_psnr(np.zeros((2, 2, 3)), np.full((2, 2, 3), 0.1), np.array([[True, False], [False, False]])) \
-        == pytest.approx(20.0)
+    assert masked_psnr(
+        np.zeros((2, 2, 3)), np.full((2, 2, 3), 0.1), np.array([[True, False], [False, False]])
+    ) == pytest.approx(20.0)
     assert masked_psnr(np.zeros((2, 2, 3)), np.zeros((2, 2, 3)), np.zeros((2, 2), bool)) is None
 
 
@@ -427,15 +492,27 @@ def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_wh
     box = (np.array([-1.0, -0.8, -0.5], np.float32), np.array([1.0, 0.9, 1.3], np.float32))
 
     def model_with_sword(radius, follows=True, held_out=True):
-        bounds = SceneBounds(1.0, 8.0, np.array([0, 0, 0.5], np.float32), radius, np.array([0, 0, 1], np.float32),
-                             table=np.array([0, 0, 1, 0], np.float32), camera_radius=4.0, object_box=box)
-        model = FastNeRF(FastConfig(resolutions="31,31,41", upsample_steps="5,10", table=True, table_resolution=32,
-                                    box_follows=follows), bounds)
+        bounds = SceneBounds(
+            1.0,
+            8.0,
+            np.array([0, 0, 0.5], np.float32),
+            radius,
+            np.array([0, 0, 1], np.float32),
+            table=np.array([0, 0, 1, 0], np.float32),
+            camera_radius=4.0,
+            object_box=box,
+        )
+        model = FastNeRF(
+            FastConfig(
+                resolutions="31,31,41", upsample_steps="5,10", table=True, table_resolution=32, box_follows=follows
+            ),
+            bounds,
+        )
         lo, v = model.box.lo_array, model.voxel
         x, y, z = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in enumerate(model.res)), indexing="ij")
-        post = (x ** 2 + y ** 2 < 0.2 ** 2) & (z < 1.0)
-        sword = (x < 0) & (held_out | (x > -0.5)) & (y ** 2 + (z - 0.6) ** 2 < 0.12 ** 2)  # to the x- face
-        floater = ((x - 0.6) ** 2 + (y - 0.9) ** 2 + (z - 0.8) ** 2) < 0.15 ** 2  # at the y+ face
+        post = (x**2 + y**2 < 0.2**2) & (z < 1.0)
+        sword = (x < 0) & (held_out | (x > -0.5)) & (y**2 + (z - 0.6) ** 2 < 0.12**2)  # to the x- face
+        floater = ((x - 0.6) ** 2 + (y - 0.9) ** 2 + (z - 0.8) ** 2) < 0.15**2  # at the y+ face
         paint = (x > 0.5) & (np.abs(z) < 0.04)  # on the table, to the x+ face
         rows = model.vertex_rows.long().numpy().reshape(model.res[::-1]).transpose(2, 1, 0)
         with torch.no_grad():
@@ -472,8 +549,11 @@ def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_wh
     lo, _, notes = grown(model_with_sword(radius=1.4))  # the sphere reaches x = -1.4 only
     np.testing.assert_allclose(lo[0], -1.4, atol=model.voxel)
     assert moved_by(notes, "x-") == pytest.approx(0.4, abs=model.voxel)
-    for model, stage, progress in ((model_with_sword(radius=5.0, follows=False), 1, 0.3),
-                                   (model_with_sword(radius=5.0), 0, 0.3), (model_with_sword(radius=5.0), 1, 0.6)):
+    for model, stage, progress in (
+        (model_with_sword(radius=5.0, follows=False), 1, 0.3),
+        (model_with_sword(radius=5.0), 0, 0.3),
+        (model_with_sword(radius=5.0), 1, 0.6),
+    ):
         lo, hi, notes = grown(model, stage, progress)  # switched off; the first growth; late in the run
         np.testing.assert_allclose(lo, box[0], atol=model.voxel)
         assert "moved out" not in notes
@@ -510,16 +590,27 @@ def post_on_table(scale: float = 1.0):
     from nerfkit.models.fast import EMPTY_RAW, FastNeRF
 
     box = (scale * np.array([-1.0, -0.8, -0.5], np.float32), scale * np.array([1.0, 0.9, 1.3], np.float32))
-    bounds = SceneBounds(scale, 8.0 * scale, scale * np.array([0, 0, 0.5], np.float32), scale,
-                         np.array([0, 0, 1], np.float32), table=np.array([0, 0, 1, 0], np.float32),
-                         camera_radius=4.0 * scale, object_box=box)  # (not a cube)
-    model = FastNeRF(FastConfig(resolutions="21", upsample_steps="", table=True, table_resolution=32,
-                                learn_background=True, room_shells=2), bounds)
+    bounds = SceneBounds(
+        scale,
+        8.0 * scale,
+        scale * np.array([0, 0, 0.5], np.float32),
+        scale,
+        np.array([0, 0, 1], np.float32),
+        table=np.array([0, 0, 1, 0], np.float32),
+        camera_radius=4.0 * scale,
+        object_box=box,
+    )  # (not a cube)
+    model = FastNeRF(
+        FastConfig(
+            resolutions="21", upsample_steps="", table=True, table_resolution=32, learn_background=True, room_shells=2
+        ),
+        bounds,
+    )
     lo, v = model.box.lo_array / scale, model.voxel / scale
     rx, ry, rz = model.res
     assert len({rx, ry, rz}) == 3  # an axis swap would show
     z, y, x = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in ((2, rz), (1, ry), (0, rx))), indexing="ij")
-    post = (x ** 2 + y ** 2 < 0.2 ** 2) & (z < 1.2)  # from under the table up to 1.2
+    post = (x**2 + y**2 < 0.2**2) & (z < 1.2)  # from under the table up to 1.2
     paint = (x > 0.5) & (x < 0.8) & (y > 0.5) & (y < 0.8) & (np.abs(z) < 0.04)
     speck = np.zeros_like(post)
     speck[np.unravel_index(np.argmin((x + 0.6) ** 2 + (y + 0.5) ** 2 + (z - 0.9) ** 2), z.shape)] = True

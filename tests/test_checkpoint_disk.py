@@ -16,9 +16,20 @@ TINY = VanillaConfig(n_samples=4, width=8, depth=2, occupancy=False)
 
 def cfg(tmp_path, name, **kw):
     # a checkpoint at every step's check: several are written during the run
-    return resolved_config(TrainConfig(data="sphere", model="vanilla", out=str(tmp_path / name), steps=12,
-                                       batch_rays=64, eval_views=1, eval_every=1000, checkpoint_seconds=1e-9, **kw),
-                           TINY)
+    return resolved_config(
+        TrainConfig(
+            data="sphere",
+            model="vanilla",
+            out=str(tmp_path / name),
+            steps=12,
+            batch_rays=64,
+            eval_views=1,
+            eval_every=1000,
+            checkpoint_seconds=1e-9,
+            **kw,
+        ),
+        TINY,
+    )
 
 
 @pytest.mark.slow

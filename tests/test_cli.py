@@ -41,8 +41,10 @@ def test_top_level_help_lists_every_command(capsys):
 
 def test_top_level_help_does_not_import_torch():
     # Registering `train` imports torch for its model flags; `nerfkit --help` must not pay that.
-    code = ("import sys\nfrom nerfkit.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
-            "print('torch' in sys.modules)")
+    code = (
+        "import sys\nfrom nerfkit.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+        "print('torch' in sys.modules)"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == "False"
 
@@ -76,8 +78,11 @@ def test_every_model_flag_reaches_its_config():
 def test_python_dash_m_runs_the_same_command_line_with_its_exit_code(tmp_path):
     ok = subprocess.run([sys.executable, "-m", "nerfkit", "--help"], capture_output=True, text=True)
     assert ok.returncode == 0 and ok.stdout.startswith("usage: nerfkit")
-    bad = subprocess.run([sys.executable, "-m", "nerfkit", "eval", str(tmp_path / "missing"), "--split", "val"],
-                         capture_output=True, text=True)
+    bad = subprocess.run(
+        [sys.executable, "-m", "nerfkit", "eval", str(tmp_path / "missing"), "--split", "val"],
+        capture_output=True,
+        text=True,
+    )
     assert bad.returncode == 2 and "no such run folder" in bad.stderr
 
 
@@ -101,9 +106,9 @@ def test_every_numeric_flag_has_a_range():
     for cls in classes + [model_config_class(name) for name in MODEL_NAMES]:
         hints = typing.get_type_hints(cls)
         for f in dataclasses.fields(cls):
-            if base_type(hints[f.name])[0] in (int, float) and f.metadata.get("cli") is not False:
-                if f.name not in any_finite and not {"min", "max", "above"} & set(f.metadata):
-                    unbounded.append(f"{cls.__name__}.{f.name}")
+            numeric = base_type(hints[f.name])[0] in (int, float) and f.metadata.get("cli") is not False
+            if numeric and f.name not in any_finite and not {"min", "max", "above"} & set(f.metadata):
+                unbounded.append(f"{cls.__name__}.{f.name}")
     assert unbounded == []
 
 
@@ -116,15 +121,46 @@ def test_splat_takes_sh_degree_3_through_the_real_parser(tmp_path, capsys):
     args = build_parser("train").parse_args(["train", "--model", "splat", "--sh-degree", "3"])
     assert check_config("splat", dataclass_from_args(model_config_class("splat"), args)).sh_degree == 3
     missing = tmp_path / "missing.npz"
-    assert main(["train", "--model", "splat", "--sh-degree", "3", "--data", str(missing), "--steps", "1",
-                 "--out", str(tmp_path / "run")]) == 2
+    assert (
+        main(
+            [
+                "train",
+                "--model",
+                "splat",
+                "--sh-degree",
+                "3",
+                "--data",
+                str(missing),
+                "--steps",
+                "1",
+                "--out",
+                str(tmp_path / "run"),
+            ]
+        )
+        == 2
+    )
     assert capsys.readouterr().err.strip() == f"nerfkit train: error: {missing}: no such file or folder. Check the path"
 
 
 @pytest.mark.parametrize("model", [[], ["--model", "fast"]])
 def test_the_fast_model_refuses_sh_degree_3_in_one_line_naming_itself(model, tmp_path, capsys):
-    assert main(["train", *model, "--sh-degree", "3", "--data", str(tmp_path / "missing.npz"), "--steps", "1",
-                 "--out", str(tmp_path / "run")]) == 2
+    assert (
+        main(
+            [
+                "train",
+                *model,
+                "--sh-degree",
+                "3",
+                "--data",
+                str(tmp_path / "missing.npz"),
+                "--steps",
+                "1",
+                "--out",
+                str(tmp_path / "run"),
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert err == "nerfkit train: error: --sh-degree: 3 is above the maximum 2 (allowed: 0 to 2) for the fast model\n"
     assert not (tmp_path / "run").exists()
@@ -170,8 +206,11 @@ def _model_number_fields(model: str):
 
     cls = model_config_class(model)
     hints = typing.get_type_hints(cls)
-    return [(f.name, base_type(hints[f.name])[0], f.metadata) for f in dataclasses.fields(cls)
-            if base_type(hints[f.name])[0] in (int, float) and f.metadata.get("cli") is not False]
+    return [
+        (f.name, base_type(hints[f.name])[0], f.metadata)
+        for f in dataclasses.fields(cls)
+        if base_type(hints[f.name])[0] in (int, float) and f.metadata.get("cli") is not False
+    ]
 
 
 def _within(kind: type, meta):
@@ -218,19 +257,30 @@ def test_no_flag_is_narrower_than_a_models_own_bounds(model):
     parsed()
 
 
-@pytest.mark.parametrize("flags, error", [
-    (["--model", "vanilla", "--sh-degree", "3"],
-     "--sh-degree: is a setting of the fast and splat models, not of vanilla. Leave it out, or train with "
-     "--model fast or --model splat"),
-    (["--model", "splat", "--width", "64"],
-     "--width: is a setting of the vanilla model, not of splat. Leave it out, or train with --model vanilla"),
-    (["--init-points", "500"],
-     "--init-points: is a setting of the splat model, not of fast (the default --model). Leave it out, or train "
-     "with --model splat"),
-    (["--model", "vanilla", "--no-learn-background"],
-     "--learn-background: is a setting of the fast and splat models, not of vanilla. Leave it out, or train with "
-     "--model fast or --model splat"),
-])
+@pytest.mark.parametrize(
+    "flags, error",
+    [
+        (
+            ["--model", "vanilla", "--sh-degree", "3"],
+            "--sh-degree: is a setting of the fast and splat models, not of vanilla. Leave it out, or train with "
+            "--model fast or --model splat",
+        ),
+        (
+            ["--model", "splat", "--width", "64"],
+            "--width: is a setting of the vanilla model, not of splat. Leave it out, or train with --model vanilla",
+        ),
+        (
+            ["--init-points", "500"],
+            "--init-points: is a setting of the splat model, not of fast (the default --model). Leave it out, or train "
+            "with --model splat",
+        ),
+        (
+            ["--model", "vanilla", "--no-learn-background"],
+            "--learn-background: is a setting of the fast and splat models, not of vanilla. "
+            "Leave it out, or train with --model fast or --model splat",
+        ),
+    ],
+)
 def test_a_flag_of_another_model_is_refused_before_anything_is_read_or_written(flags, error, tmp_path, capsys):
     # `--model vanilla --sh-degree 3` trained vanilla and dropped --sh-degree without a word
     data = tmp_path / "missing.npz"  # the flag is refused first: the dataset is not looked at
@@ -239,20 +289,42 @@ def test_a_flag_of_another_model_is_refused_before_anything_is_read_or_written(f
     assert not (tmp_path / "run").exists()
 
 
-@pytest.mark.parametrize("argv, error", [
-    (["capture", "photos/", "--tagsize", "0.06", "--out", "o"],  # argparse said: "required: --tag-size"
-     "nerfkit capture: error: unrecognized argument --tagsize: did you mean --tag-size? (see nerfkit capture --help)"),
-    (["--verbose", "train", "--data", "x.npz", "--stepz=3"],
-     "nerfkit train: error: unrecognized argument --stepz: did you mean --steps? (see nerfkit train --help)"),
-    (["render", "run", "--bogus", "1"], "nerfkit render: error: unrecognized argument --bogus (see nerfkit render --help)"),
-    (["eval", "run", "--verbose"],
-     "nerfkit eval: error: --verbose goes before the command: nerfkit --verbose eval ... (see nerfkit --help)"),
-    (["--verbose", "pose", "photos/"], "nerfkit: error: unknown command 'pose': did you mean poses? (see nerfkit --help)"),
-    (["photos/"], "nerfkit: error: unknown command 'photos/' (the commands: demo, capture, frames, train, render, eval, "
-                  "fit-image, convert, export, tags, calibrate, poses, dataset, view) (see nerfkit --help)"),
-    (["capture", "photos/", "--tag-size", "0.06", "--out", "o", "--minutes", "1", "--steps", "9"],
-     "nerfkit capture: error: argument --steps: not allowed with argument --minutes (see nerfkit capture --help)"),
-])
+@pytest.mark.parametrize(
+    "argv, error",
+    [
+        (
+            ["capture", "photos/", "--tagsize", "0.06", "--out", "o"],  # argparse said: "required: --tag-size"
+            "nerfkit capture: error: unrecognized argument --tagsize: did you mean --tag-size? (see nerfkit "
+            "capture --help)",
+        ),
+        (
+            ["--verbose", "train", "--data", "x.npz", "--stepz=3"],
+            "nerfkit train: error: unrecognized argument --stepz: did you mean --steps? (see nerfkit train --help)",
+        ),
+        (
+            ["render", "run", "--bogus", "1"],
+            "nerfkit render: error: unrecognized argument --bogus (see nerfkit render --help)",
+        ),
+        (
+            ["eval", "run", "--verbose"],
+            "nerfkit eval: error: --verbose goes before the command: nerfkit --verbose eval ... (see nerfkit --help)",
+        ),
+        (
+            ["--verbose", "pose", "photos/"],
+            "nerfkit: error: unknown command 'pose': did you mean poses? (see nerfkit --help)",
+        ),
+        (
+            ["photos/"],
+            "nerfkit: error: unknown command 'photos/' (the commands: demo, capture, frames, train, render, eval, "
+            "fit-image, convert, export, tags, calibrate, poses, dataset, view) (see nerfkit --help)",
+        ),
+        (
+            ["capture", "photos/", "--tag-size", "0.06", "--out", "o", "--minutes", "1", "--steps", "9"],
+            "nerfkit capture: error: argument --steps: not allowed with argument --minutes (see nerfkit capture "
+            "--help)",
+        ),
+    ],
+)
 def test_an_unknown_flag_is_named_by_its_command_with_the_nearest_one(argv, error, capsys):
     assert main(argv) == 2
     assert capsys.readouterr().err == error + "\n"

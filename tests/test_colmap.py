@@ -158,8 +158,10 @@ def test_distorted_model_is_undistorted(tmp_path):
     write_image(tmp_path / "images" / "a.png", draw_dots(W, H, uv))
     c2w = look_at(np.array([0.5, -2.0, 0.3]), np.zeros(3), np.array([0, 0, 1.0]))
     w2c = np.linalg.inv(c2w)
-    rec.add_image_with_trivial_frame(pycolmap.Image(name="a.png", camera_id=1, image_id=1),
-                                     pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3]))
+    rec.add_image_with_trivial_frame(
+        pycolmap.Image(name="a.png", camera_id=1, image_id=1),
+        pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3]),
+    )
     for X in pts_cam @ c2w[:3, :3].T + c2w[:3, 3]:  # the points give near/far
         rec.add_point3D(X, pycolmap.Track(), np.zeros(3, np.uint8))
     write_reconstruction(rec, tmp_path / "sparse" / "0")
@@ -202,8 +204,12 @@ def test_umeyama_recovers_similarity():
 
 
 def test_compare_poses_invariant_to_similarity():
-    c2w = np.stack([look_at(np.array([3 * np.cos(a), 3 * np.sin(a), 1.0]), np.zeros(3), np.array([0, 0, 1.0]))
-                    for a in np.linspace(0, 2, 8)])
+    c2w = np.stack(
+        [
+            look_at(np.array([3 * np.cos(a), 3 * np.sin(a), 1.0]), np.zeros(3), np.array([0, 0, 1.0]))
+            for a in np.linspace(0, 2, 8)
+        ]
+    )
     R = rotation_between(np.array([0, 0, 1.0]), np.array([0.3, -1.0, 0.2]))
     moved = apply_similarity(c2w, 0.37, R, np.array([5.0, 1, -2]))
     err = compare_poses(moved, c2w)
@@ -217,8 +223,10 @@ def test_normalising_similarity():
     """Cameras around (5, -3, 2) with up = -y world, 10 units away -> centred, +z up, distance 4."""
     up = np.array([0, -1.0, 0])
     centre = np.array([5.0, -3, 2])
-    eyes = [centre + 10 * np.array([np.cos(a), -0.5, np.sin(a)]) / np.linalg.norm([np.cos(a), -0.5, np.sin(a)])
-            for a in np.linspace(0, 2 * np.pi, 9)[:-1]]
+    eyes = [
+        centre + 10 * np.array([np.cos(a), -0.5, np.sin(a)]) / np.linalg.norm([np.cos(a), -0.5, np.sin(a)])
+        for a in np.linspace(0, 2 * np.pi, 9)[:-1]
+    ]
     c2w = np.stack([look_at(e, centre, up) for e in eyes])
     out = apply_similarity(c2w, *normalising_similarity(c2w, 4.0))
     np.testing.assert_allclose(np.linalg.norm(out[:, :3, 3], axis=1), 4.0, rtol=1e-6)
@@ -259,8 +267,9 @@ def test_prepare_photos_makes_upright_copies(tmp_path):
     # is turned into the others' frame: EXIF 6 says a quarter turn clockwise
     wide = (rng.random((40, 60, 3)) * 255).astype(np.uint8)
     Image.fromarray(wide).save(tmp_path / "in" / "4.png")
-    folder, names, skipped, first, turns = prepare_photos(sorted((tmp_path / "in").iterdir()), tmp_path / "work3",
-                                                          progress=False)
+    folder, names, skipped, first, turns = prepare_photos(
+        sorted((tmp_path / "in").iterdir()), tmp_path / "work3", progress=False
+    )
     assert names == ["0.jpg", "1.jpg", "2.png", "4.png"] and turns == {"4.png": 1}
     np.testing.assert_array_equal(np.asarray(Image.open(folder / "4.png")), np.rot90(wide, -1))
     # With a landscape camera calibrated as the sensor stores (0 turns), its frame wins:
@@ -269,8 +278,9 @@ def test_prepare_photos_makes_upright_copies(tmp_path):
 
     cam = camera_from_focal(50.0, 60, 40, "test")
     cam.sensor_turns = 0
-    folder, names, skipped, first, turns = prepare_photos(sorted((tmp_path / "in").iterdir()), tmp_path / "work4",
-                                                          progress=False, camera=cam)
+    folder, names, skipped, first, turns = prepare_photos(
+        sorted((tmp_path / "in").iterdir()), tmp_path / "work4", progress=False, camera=cam
+    )
     assert names == ["0.jpg", "1.jpg", "4.png"] and turns == {"0.jpg": 3, "1.jpg": 3}
     assert (first.width, first.height) == (60, 40) and "no EXIF orientation" in skipped["2.png"]
     stored = np.asarray(Image.open(tmp_path / "in" / "0.jpg"))
@@ -280,16 +290,18 @@ def test_prepare_photos_makes_upright_copies(tmp_path):
     exif.get_ifd(0x8769)[0xA405] = 52
     Image.fromarray(upright[2]).save(tmp_path / "in" / "5.jpg", exif=exif.tobytes(), quality=95)
     cam.exif_f35 = 26.0
-    _, names, skipped, _, _ = prepare_photos(sorted((tmp_path / "in").iterdir()), tmp_path / "work5",
-                                             progress=False, camera=cam)
+    _, names, skipped, _, _ = prepare_photos(
+        sorted((tmp_path / "in").iterdir()), tmp_path / "work5", progress=False, camera=cam
+    )
     assert "5.jpg" not in names and "another lens" in skipped["5.jpg"]
     # all upright already: COLMAP reads the input folder itself
     folder2, names2, _, _, _ = prepare_photos([photos[2], photos[2]], tmp_path / "work2", progress=False)
     assert folder2 == tmp_path / "in" and not (tmp_path / "work2").exists()
     # a truncated photo is left out as unreadable (COLMAP would stop at it), the rest kept
     (tmp_path / "in" / "6.png").write_bytes((tmp_path / "in" / "2.png").read_bytes()[:600])
-    folder3, names3, skipped3, _, _ = prepare_photos([photos[2], tmp_path / "in" / "6.png"], tmp_path / "work6",
-                                                     progress=False)
+    folder3, names3, skipped3, _, _ = prepare_photos(
+        [photos[2], tmp_path / "in" / "6.png"], tmp_path / "work6", progress=False
+    )
     assert folder3 == tmp_path / "in" and names3 == ["2.png"]
     assert skipped3["6.png"].startswith("unreadable: cannot decode image")
 
@@ -316,7 +328,7 @@ def _tag_image(tag_id=0):
 def render_room(K, c2w, width, height, textures, tag, ss=2):
     """Ray-cast (H, W, 3) uint8: the inside of the room [-3,3]^2 x [0,3], a box [-0.6,0.6]^2 x
     [0,1.2], and ``tag = (image, x0, y0, side)`` on the floor z = 0 (readable from above)."""
-    rows, cols = np.mgrid[0:height * ss, 0:width * ss]
+    rows, cols = np.mgrid[0 : height * ss, 0 : width * ss]
     uv1 = np.stack([(cols + 0.5) / ss, (rows + 0.5) / ss, np.ones(cols.shape)], -1).reshape(-1, 3)
     d = uv1 @ np.linalg.inv(K).T @ c2w[:3, :3].T
     o = c2w[:3, 3]
@@ -346,8 +358,12 @@ def render_room(K, c2w, width, height, textures, tag, ss=2):
     x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
     fx, fy = x - x0, y - y0
     T = textures
-    val = (T[face, y0, x0] * (1 - fx) * (1 - fy) + T[face, y0, x0 + 1] * fx * (1 - fy)
-           + T[face, y0 + 1, x0] * (1 - fx) * fy + T[face, y0 + 1, x0 + 1] * fx * fy)
+    val = (
+        T[face, y0, x0] * (1 - fx) * (1 - fy)
+        + T[face, y0, x0 + 1] * fx * (1 - fy)
+        + T[face, y0 + 1, x0] * (1 - fx) * fy
+        + T[face, y0 + 1, x0 + 1] * fx * fy
+    )
     tint = np.array([[0.9, 0.6, 0.5], [0.5, 0.8, 0.6], [0.6, 0.6, 0.9], [0.8, 0.8, 0.5]])[face % 4]
     timg, tx, ty, side = tag
     floor = ~box & (axis == 2) & (p[:, 2] < 1.5)
@@ -438,6 +454,7 @@ def test_sfm_normalised_dataset(room_sfm, tmp_path):
     names, c2w = reconstruction_c2w(result.reconstruction)
     assert np.linalg.norm(c2w[:, :3, 3], axis=1).mean() == pytest.approx(4.0, rel=1e-6)
     ref = np.stack([truth[n] for n in names])
+
     # Up is the true vertical although every camera looks ~25 degrees down: the cameras'
     # elevation angles (their tilt against +z) are the true ones.
     def tilt(c):
@@ -445,8 +462,9 @@ def test_sfm_normalised_dataset(room_sfm, tmp_path):
 
     assert np.abs(tilt(ref)).mean() > 15
     np.testing.assert_allclose(tilt(c2w), tilt(ref), atol=1.0)
-    scene, _ = build_dataset(result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160),
-                          progress=False)
+    scene, _ = build_dataset(
+        result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160), progress=False
+    )
     assert len(scene.train) == 12 and scene.train.width == 160
     # the photos that saw each sparse point: every one sees it in front of it, inside its image
     pv = scene.point_views
@@ -492,8 +510,9 @@ def test_sfm_without_tag_levels_the_scene_on_the_floor(room_sfm, tmp_path):
     # from its axis) is 0.06, 2% of their 4-unit distance 0.08. Levelling on the box's top instead
     # (2.1 units up) or a 5-degree tilt fails. COLMAP's result differs between CPUs: 1% here, 3% on CI.
     np.testing.assert_allclose(c2w[:, 2, 3], s * ref[:, 2, 3], atol=0.14)
-    scene, _ = build_dataset(result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160),
-                          progress=False)
+    scene, _ = build_dataset(
+        result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160), progress=False
+    )
     np.testing.assert_array_equal(scene.table, [0.0, 0.0, 1.0, 0.0])
     assert load_scene(tmp_path / "ds").table is not None
 
@@ -504,8 +523,14 @@ def test_sfm_dataset_metric_from_tag(room, tmp_path):
     folder, truth = room
     from nerfkit.capture.dataset import DatasetConfig
 
-    scene, rep = sfm_dataset(folder, tmp_path / "ds", DatasetConfig(val_every=6, test_every=0), matcher="exhaustive",
-                             tag_size=TAG_SIZE, progress=False)
+    scene, rep = sfm_dataset(
+        folder,
+        tmp_path / "ds",
+        DatasetConfig(val_every=6, test_every=0),
+        matcher="exhaustive",
+        tag_size=TAG_SIZE,
+        progress=False,
+    )
     assert "metric" in rep.frame
     back = load_scene(tmp_path / "ds")  # the written dataset
     assert len(back.train) + len(back.val) == 12 and len(back.val) == 2
@@ -535,8 +560,23 @@ def test_sfm_dataset_metric_from_tag(room, tmp_path):
     # `nerfkit dataset` rebuilds it from the model (there is no poses.json): same poses, new size
     from nerfkit.cli import main
 
-    assert main(["dataset", str(tmp_path / "ds"), "--max-side", "160", "--val-every", "6", "--test-every", "0",
-                 "--out", str(tmp_path / "small")]) == 0
+    assert (
+        main(
+            [
+                "dataset",
+                str(tmp_path / "ds"),
+                "--max-side",
+                "160",
+                "--val-every",
+                "6",
+                "--test-every",
+                "0",
+                "--out",
+                str(tmp_path / "small"),
+            ]
+        )
+        == 0
+    )
     small = load_scene(tmp_path / "small")
     assert small.train.names + small.val.names == names and max(small.train.width, small.train.height) == 160
     np.testing.assert_allclose(np.concatenate([small.train.c2w, small.val.c2w]), c2w, atol=1e-5)
@@ -567,8 +607,14 @@ def test_sfm_turns_photos_held_the_other_way(room, tmp_path):
             assert load_image_uint8(photos / f.name).shape == (320, 240, 3)  # portrait, upright
         else:
             (photos / f.name).write_bytes(f.read_bytes())
-    scene, rep = sfm_dataset(photos, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0), matcher="exhaustive",
-                             tag_size=TAG_SIZE, progress=False)
+    scene, rep = sfm_dataset(
+        photos,
+        tmp_path / "ds",
+        DatasetConfig(val_every=0, test_every=0),
+        matcher="exhaustive",
+        tag_size=TAG_SIZE,
+        progress=False,
+    )
     assert sorted(rep.registered) == sorted(truth)
     c2w = scene.train.c2w.astype(np.float64)
     err = compare_poses(c2w, np.stack([truth[n] for n in scene.train.names]), with_scale=False)
@@ -579,8 +625,12 @@ def test_sfm_turns_photos_held_the_other_way(room, tmp_path):
     original = load_image_uint8(folder / "img_05.png").astype(np.float32) / 255
     diff = np.abs(scene.train.images[i].astype(np.float32) / 255 - original).mean()
     assert diff < 0.01  # turned the right way (half a turn off: 0.17)
-    assert main(["dataset", str(tmp_path / "ds"), "--val-every", "0", "--test-every", "0",
-                 "--out", str(tmp_path / "again")]) == 0
+    assert (
+        main(
+            ["dataset", str(tmp_path / "ds"), "--val-every", "0", "--test-every", "0", "--out", str(tmp_path / "again")]
+        )
+        == 0
+    )
     np.testing.assert_array_equal(load_scene(tmp_path / "again").train.images, scene.train.images)
 
 

@@ -11,8 +11,16 @@ import typing
 import numpy as np
 import pytest
 
-from nerfkit.config import (add_alternative_dataclass_args, add_dataclass_args, base_type, check_ranges,
-                            dataclass_from_dict, flag_type, option, widest_bounds)
+from nerfkit.config import (
+    add_alternative_dataclass_args,
+    add_dataclass_args,
+    base_type,
+    check_ranges,
+    dataclass_from_dict,
+    flag_type,
+    option,
+    widest_bounds,
+)
 from nerfkit.errors import NerfkitError
 
 
@@ -52,24 +60,27 @@ def fit_image(**kw):
     return validate_config(FitImageConfig(**kw))
 
 
-@pytest.mark.parametrize("build, kw, message", [
-    (vanilla, {"width": 0}, "--width: 0 is below the minimum 1 (allowed: 1 to 4096)"),
-    (vanilla, {"n_samples": 5000}, "--n-samples: 5000 is above the maximum 4096 (allowed: 1 to 4096)"),
-    (vanilla, {"width": 64.0}, "--width: '64.0' is not a whole number"),
-    (vanilla, {"depth": True}, "--depth: 'True' is not a whole number"),
-    (fast, {"sh_degree": 3}, "--sh-degree: 3 is above the maximum 2 (allowed: 0 to 2)"),
-    (fast, {"step_ratio": -1.0}, "--step-ratio: -1.0 must be greater than 0"),
-    # no table in the scene: the texture size was only checked when a table was built
-    (fast, {"table_resolution": 1}, "--table-resolution: 1 is below the minimum 2 (allowed: 2 to 4096)"),
-    (splat, {"sh_degree": 4}, "--sh-degree: 4 is above the maximum 3 (allowed: 0 to 3)"),
-    (splat, {"init_opacity": 1.0}, "--init-opacity: 1.0 is above the maximum 0.99 (allowed: above 0, up to 0.99)"),
-    (train, {"lr": 200.0}, "--lr: 200.0 is above the maximum 100 (allowed: 0 to 100)"),
-    (train, {"minutes": float("nan")}, "--minutes: 'nan' is not a finite number"),
-    (train, {"checkpoint_seconds": 0.0}, "--checkpoint-seconds: 0.0 must be greater than 0"),
-    (train, {"seed": -1}, "--seed: -1 is below the minimum 0 (allowed: 0 to 4294967295)"),
-    (fit_image, {"L": 31}, "--L: 31 is above the maximum 30 (allowed: 0 to 30)"),
-    (fit_image, {"lr": float("inf")}, "--lr: 'inf' is not a finite number"),
-])
+@pytest.mark.parametrize(
+    "build, kw, message",
+    [
+        (vanilla, {"width": 0}, "--width: 0 is below the minimum 1 (allowed: 1 to 4096)"),
+        (vanilla, {"n_samples": 5000}, "--n-samples: 5000 is above the maximum 4096 (allowed: 1 to 4096)"),
+        (vanilla, {"width": 64.0}, "--width: '64.0' is not a whole number"),
+        (vanilla, {"depth": True}, "--depth: 'True' is not a whole number"),
+        (fast, {"sh_degree": 3}, "--sh-degree: 3 is above the maximum 2 (allowed: 0 to 2)"),
+        (fast, {"step_ratio": -1.0}, "--step-ratio: -1.0 must be greater than 0"),
+        # no table in the scene: the texture size was only checked when a table was built
+        (fast, {"table_resolution": 1}, "--table-resolution: 1 is below the minimum 2 (allowed: 2 to 4096)"),
+        (splat, {"sh_degree": 4}, "--sh-degree: 4 is above the maximum 3 (allowed: 0 to 3)"),
+        (splat, {"init_opacity": 1.0}, "--init-opacity: 1.0 is above the maximum 0.99 (allowed: above 0, up to 0.99)"),
+        (train, {"lr": 200.0}, "--lr: 200.0 is above the maximum 100 (allowed: 0 to 100)"),
+        (train, {"minutes": float("nan")}, "--minutes: 'nan' is not a finite number"),
+        (train, {"checkpoint_seconds": 0.0}, "--checkpoint-seconds: 0.0 must be greater than 0"),
+        (train, {"seed": -1}, "--seed: -1 is below the minimum 0 (allowed: 0 to 4294967295)"),
+        (fit_image, {"L": 31}, "--L: 31 is above the maximum 30 (allowed: 0 to 30)"),
+        (fit_image, {"lr": float("inf")}, "--lr: 'inf' is not a finite number"),
+    ],
+)
 def test_a_config_built_in_python_is_refused_naming_the_flag(build, kw, message):
     with pytest.raises(NerfkitError) as e:
         build(**kw)
@@ -82,7 +93,7 @@ def test_values_in_range_pass():
 
     cfg = FastConfig(sh_degree=0, room_shells=0, distortion_weight=0.0, step_ratio=1e-9)  # (no unset sentinels now)
     assert check_ranges(cfg) is cfg
-    assert train(lr=100, lr_final_factor=1, seed=2 ** 32 - 1).lr == 100
+    assert train(lr=100, lr_final_factor=1, seed=2**32 - 1).lr == 100
     with pytest.raises(NerfkitError, match="no stopping rule"):  # the rule across fields is kept
         TrainConfig().validate()
     with pytest.raises(NerfkitError, match="--densify-from: must not be after --densify-until"):
@@ -106,8 +117,14 @@ def config_classes():
     from nerfkit.models import MODEL_NAMES, model_config_class
     from nerfkit.train.config import TrainConfig
 
-    return [TrainConfig, CalibrateConfig, DatasetConfig, PoseConfig, FitImageConfig,
-            *(model_config_class(name) for name in MODEL_NAMES)]
+    return [
+        TrainConfig,
+        CalibrateConfig,
+        DatasetConfig,
+        PoseConfig,
+        FitImageConfig,
+        *(model_config_class(name) for name in MODEL_NAMES),
+    ]
 
 
 def out_of_range(kind: type, meta) -> list:
@@ -154,14 +171,17 @@ def test_the_command_line_and_a_config_built_in_python_give_the_same_line(capsys
     assert err == f"nerfkit train: error: argument {e.value} (see nerfkit train --help)"
 
 
-@pytest.mark.parametrize("metas, widest", [
-    ([{"min": 0, "max": 2}, {"min": 0, "max": 3}], {"min": 0, "max": 3}),  # --sh-degree: fast and splat
-    ([{"min": 1}, {"min": -1, "max": 5}], {"min": -1}),  # no upper end where one has none
-    ([{"above": 0, "max": 1}, {"min": 0, "max": 0.5}], {"min": 0, "max": 1}),  # a tie: the inclusive end
-    ([{"above": 0}, {"above": -1}], {"above": -1}),
-    ([{"min": 0, "above": 1}, {"min": 2}], {"above": 1}),  # a field's lower end is the stricter of its two
-    ([{"max": 4}, {}], {}),
-])
+@pytest.mark.parametrize(
+    "metas, widest",
+    [
+        ([{"min": 0, "max": 2}, {"min": 0, "max": 3}], {"min": 0, "max": 3}),  # --sh-degree: fast and splat
+        ([{"min": 1}, {"min": -1, "max": 5}], {"min": -1}),  # no upper end where one has none
+        ([{"above": 0, "max": 1}, {"min": 0, "max": 0.5}], {"min": 0, "max": 1}),  # a tie: the inclusive end
+        ([{"above": 0}, {"above": -1}], {"above": -1}),
+        ([{"min": 0, "above": 1}, {"min": 2}], {"above": 1}),  # a field's lower end is the stricter of its two
+        ([{"max": 4}, {}], {}),
+    ],
+)
 def test_widest_bounds_take_every_value_any_field_takes(metas, widest):
     assert widest_bounds(metas) == widest
 
@@ -221,8 +241,9 @@ def test_an_off_value_is_allowed_beside_the_range():
         check_ranges(TrainConfig(steps=1, downscale=0.5))
 
 
-@pytest.mark.parametrize("command", [["calibrate", "calib/"], ["poses", "photos/", "--out", "o"],
-                                     ["capture", "photos/", "--out", "o"]])
+@pytest.mark.parametrize(
+    "command", [["calibrate", "calib/"], ["poses", "photos/", "--out", "o"], ["capture", "photos/", "--out", "o"]]
+)
 def test_a_tag_size_in_millimetres_is_refused_with_the_metres_it_meant(command, capsys):
     from nerfkit.cli import main
     from nerfkit.config import TAG_SIDE_MAX, tag_side

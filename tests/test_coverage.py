@@ -31,7 +31,7 @@ def angle_on_ring(step_deg: float, elevation_deg: float) -> float:
 
 
 def test_azimuth_and_elevation_follow_the_documented_axes():
-    d = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [-1.0, 0, 0], [0.5, 0, 0.5 * 3 ** 0.5]])
+    d = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [-1.0, 0, 0], [0.5, 0, 0.5 * 3**0.5]])
     np.testing.assert_allclose(elevations_deg(d, UP), [0, 0, 90, 0, 60], atol=1e-9)
     np.testing.assert_allclose(azimuths_deg(d[[0, 1, 3]], UP), [0, 90, 180], atol=1e-9)
     # another up: elevation is measured from the plane across it
@@ -72,9 +72,13 @@ def test_a_held_out_photo_that_was_the_only_one_there_is_named():
     low, high = ring(az, 30.0), ring(az + 15, 60.0)
     names = [f"low{a}" for a in az]
     val = [3]  # low90
-    splits = {"train": (np.concatenate([np.delete(low, val, 0), high]),
-                        [n for i, n in enumerate(names) if i not in val] + [f"high{a + 15}" for a in az]),
-              "val": (low[val], [names[i] for i in val])}
+    splits = {
+        "train": (
+            np.concatenate([np.delete(low, val, 0), high]),
+            [n for i, n in enumerate(names) if i not in val] + [f"high{a + 15}" for a in az],
+        ),
+        "val": (low[val], [names[i] for i in val]),
+    }
     cov = measure_coverage(splits, np.zeros(3), UP)
     assert cov.band == pytest.approx((30.0, 60.0))
     assert cov.train.radius_deg > cov.capture.radius_deg + 5

@@ -45,7 +45,7 @@ def test_sphere_mesh_is_closed_and_round(tmp_path):
     ex.write_mesh_ply(path, mesh)
     back = trimesh.load(path, process=False)
     assert back.is_watertight and back.is_winding_consistent
-    assert back.volume == pytest.approx(4 / 3 * np.pi * R ** 3, rel=0.01)  # positive: faces wind outward
+    assert back.volume == pytest.approx(4 / 3 * np.pi * R**3, rel=0.01)  # positive: faces wind outward
     assert len(back.vertices) == len(mesh.vertices) and len(back.faces) == len(mesh.faces)
     np.testing.assert_array_equal(np.asarray(back.visual.vertex_colors)[:, :3], mesh.colors)
 
@@ -54,10 +54,12 @@ def test_the_default_surface_is_scale_free():
     """The same fuzzy ball in units ten times smaller (its density ten times higher): the
     default iso-level gives the same mesh ten times smaller, at the density that makes
     1/256 of the cube 7% opaque. A fixed level (25) meshes one of them only."""
+
     def ball(scale):
         def density(p):
             d = torch.linalg.norm(p / scale - torch.tensor(CENTER, dtype=p.dtype), dim=1)
             return 20.0 * torch.sigmoid((R - d) / 0.05) / scale  # a soft edge 5 cm deep, in metres
+
         return density
 
     level = ex.surface_threshold(1.0)
@@ -91,8 +93,9 @@ def test_color_cone_average():
     np.testing.assert_allclose(dirs[0, 0], [0, 0, -1])
     np.testing.assert_allclose(dirs[1:, 0] @ [0, 0, -1], np.cos(np.radians(30)))
     # the centre plus 4 symmetric tilts: a direction-linear colour averages to mean z = -(1 + 4 cos 30) / 5
-    c = ex.vertex_colors(sphere_density, direction_field, np.zeros((1, 3), np.float32), np.array([[0, 0, 1.0]]), 0.0,
-                         n_dirs=5)
+    c = ex.vertex_colors(
+        sphere_density, direction_field, np.zeros((1, 3), np.float32), np.array([[0, 0, 1.0]]), 0.0, n_dirs=5
+    )
     assert abs(c[0, 2] / 255 - (1 - (1 + 4 * np.cos(np.radians(30))) / 5) / 2) < 0.003
     assert abs(c[0, 0] / 255 - 0.5) < 0.003 and abs(c[0, 1] / 255 - 0.5) < 0.003
 
@@ -101,13 +104,15 @@ def test_vertex_colours_are_what_a_ray_sees_not_the_noise_at_the_surface_edge():
     """A learned field's colour is fitted where rays stop, not in the thin low-density
     edge where the iso-surface lies: there it is noise. A ray looking at the vertex sees
     the surface's colour."""
+
     def hard_ball(p):
         return torch.clamp(1e5 * (R - torch.linalg.norm(p - torch.tensor(CENTER, dtype=p.dtype), dim=1)), min=0.0)
 
     def field(p, d):
         inside = (R - torch.linalg.norm(p - torch.tensor(CENTER, dtype=p.dtype), dim=1)) > 1e-3
-        noise = torch.frac(torch.sin(p @ torch.tensor([12.9898, 78.233, 37.719]))[:, None]
-                           * torch.tensor([43758.5, 22578.1, 19642.3])).abs()  # a colour per point, any chunk
+        noise = torch.frac(
+            torch.sin(p @ torch.tensor([12.9898, 78.233, 37.719]))[:, None] * torch.tensor([43758.5, 22578.1, 19642.3])
+        ).abs()  # a colour per point, any chunk
         return hard_ball(p), torch.where(inside[:, None], torch.tensor([1.0, 0.0, 0.0]), noise)
 
     mesh = ex.extract_mesh(hard_ball, CENTER, 1.0, resolution=48, threshold=50.0, query_fn=field)
@@ -119,12 +124,14 @@ def test_vertex_colours_are_what_a_ray_sees_not_the_noise_at_the_surface_edge():
     assert np.mean(np.abs(at_vertex.astype(int) - red).max(axis=1) > 50) > 0.9
     # chunks of any size give the same colours
     again = ex.vertex_colors(hard_ball, field, mesh.vertices[:50], mesh.normals[:50], reach=0.1, chunk=60)
-    np.testing.assert_array_equal(again, ex.vertex_colors(hard_ball, field, mesh.vertices[:50], mesh.normals[:50],
-                                                         reach=0.1))
+    np.testing.assert_array_equal(
+        again, ex.vertex_colors(hard_ball, field, mesh.vertices[:50], mesh.normals[:50], reach=0.1)
+    )
 
 
 def test_grid_orientation_and_chunking():
     """grid[i, j, k] is the field at (x_i, y_j, z_k), whatever the chunk size."""
+
     def fn(p):
         return p[:, 0] + 10 * p[:, 1] + 100 * p[:, 2]
 
@@ -145,6 +152,7 @@ def test_threshold_outside_the_field_is_a_clear_error():
 
 # ----------------------------------------------------------------------------- a capture's table
 
+
 def figure_on_table(p: torch.Tensor) -> torch.Tensor:
     """Density 100 inside: a post (radius 0.2 about the z axis) standing on the table z = 0
     up to z = 0.6 and going on under it to z = -0.3 (never seen there), and a flat square
@@ -159,8 +167,7 @@ def test_table_paint_is_cleared_and_what_stands_on_the_table_keeps_its_base():
     table = np.array([0.0, 0.0, 1.0, 0.0])
     kept = ex.extract_mesh(figure_on_table, [0, 0, 0], 1.0, resolution=101, threshold=50.0)
     assert (kept.vertices[:, 0] > 0.45).any() and kept.vertices[:, 2].min() < -0.25  # paint and the hidden part
-    mesh = ex.extract_mesh(figure_on_table, [0, 0, 0], 1.0, resolution=101, threshold=50.0, table=table,
-                           table_cut=0.05)
+    mesh = ex.extract_mesh(figure_on_table, [0, 0, 0], 1.0, resolution=101, threshold=50.0, table=table, table_cut=0.05)
     v = mesh.vertices
     assert not (v[:, 0] > 0.3).any()  # the paint is gone ...
     assert v[:, 2].min() > -0.02  # ... and so is everything under the table
@@ -170,8 +177,9 @@ def test_table_paint_is_cleared_and_what_stands_on_the_table_keeps_its_base():
     assert ex.to_trimesh(mesh).is_watertight  # closed where it was cut
     # with no height, only what is under the table goes
     zs = ex.grid_axis(0.0, 1.0, 41)
-    under = tabletop.clear_around_object(ex.sample_density_grid(figure_on_table, [0, 0, 0], 1.0, 41), [zs] * 3,
-                                         table, 0.0, 50.0)
+    under = tabletop.clear_around_object(
+        ex.sample_density_grid(figure_on_table, [0, 0, 0], 1.0, 41), [zs] * 3, table, 0.0, 50.0
+    )
     assert under[:, :, zs < 0].max() == 0 and under[:, :, zs >= 0].max() == 100
 
 
@@ -179,6 +187,7 @@ def test_paint_standing_up_off_the_table_apart_from_the_object_is_paint_a_second
     """A flake of paint up to 0.12 above the table (its column rises out of the 0.05 slab) is
     cleared; the post keeps its base, and a thin stick 0.4 tall standing apart is kept,
     whichever way the grid's axis runs against the table's normal."""
+
     def scene(p):
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         flake = (x > 0.5) & (x < 0.7) & (y > 0.5) & (y < 0.7) & (z > -0.02) & (z < 0.12)
@@ -190,8 +199,9 @@ def test_paint_standing_up_off_the_table_apart_from_the_object_is_paint_a_second
     grid = ex.sample_density_grid(scene, [0, 0, 0], 1.0, 81)
     paint = tabletop.table_paint(grid, [axis] * 3, np.array([0.0, 0.0, 1.0, 0.0]), 0.05, 50.0)
     # the same scene upside down (z -> -z), its table's normal toward -z
-    flipped = tabletop.table_paint(grid[:, :, ::-1].copy(), [axis, axis, -axis[::-1]], np.array([0.0, 0.0, -1.0, 0.0]),
-                                   0.05, 50.0)
+    flipped = tabletop.table_paint(
+        grid[:, :, ::-1].copy(), [axis, axis, -axis[::-1]], np.array([0.0, 0.0, -1.0, 0.0]), 0.05, 50.0
+    )
     np.testing.assert_array_equal(flipped[:, :, ::-1], paint)
     kept = (grid > 50) & ~paint
     assert not kept[(x > 0.45) & (y > 0.45)].any()  # the flake and the flat paint: gone
@@ -204,6 +214,7 @@ def test_paint_on_a_printed_tag_joined_to_the_object_by_haze_is_cleared_a_foot_o
     """A strip standing 0.12 up on a tag's edge, joined to the post by a low bridge of haze,
     is the object's piece for the slab's test; over the printed tag it is paint. A second
     post standing on a second tag (a diamond: turned 45 degrees) keeps its foot."""
+
     def scene(p):
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         strip = (x > 0.3) & (x < 0.7) & (y > 0.3) & (y < 0.36) & (z > -0.02) & (z < 0.12)
@@ -232,8 +243,10 @@ def test_paint_on_a_printed_tag_joined_to_the_object_by_haze_is_cleared_a_foot_o
 def test_the_mesh_covers_the_models_own_box_and_the_cut_is_a_fraction_of_its_height():
     from types import SimpleNamespace
 
-    boxed = SimpleNamespace(density_box=lambda: (np.array([0.0, -1.0, -0.1]), np.array([0.2, 0.0, 0.5])),
-                            table_plane=lambda: np.array([0.0, 0.0, 1.0, 0.0]))
+    boxed = SimpleNamespace(
+        density_box=lambda: (np.array([0.0, -1.0, -0.1]), np.array([0.2, 0.0, 0.5])),
+        table_plane=lambda: np.array([0.0, 0.0, 1.0, 0.0]),
+    )
     center, half = ex.mesh_region(boxed, np.zeros(3), 5.0, scale=1.5)
     np.testing.assert_allclose(center, [0.1, -0.5, 0.2])
     assert half == pytest.approx(0.75)  # the longest side, 1.0, over 2, times 1.5
@@ -405,12 +418,28 @@ def test_export_command_writes_both_files(tmp_path, monkeypatch, capsys):
     scene = sphere_scene(n_train=4, n_val=1, size=16)
     save_npz(scene, tmp_path / "s.npz")
     bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
-    info = SimpleNamespace(bounds=bounds, run_dir=tmp_path, scene={},
-                           train=SimpleNamespace(data=str(tmp_path / "s.npz"), background="black"))
+    info = SimpleNamespace(
+        bounds=bounds,
+        run_dir=tmp_path,
+        scene={},
+        train=SimpleNamespace(data=str(tmp_path / "s.npz"), background="black"),
+    )
     opened = _common.OpenRun(SphereModel(bounds), info, 7, torch.device("cpu"), 8192, None)
     monkeypatch.setattr(_common, "open_run", lambda args: opened)
-    rc = main(["export", str(tmp_path), "--mesh", str(tmp_path / "m.ply"), "--points", str(tmp_path / "p.ply"),
-               "--resolution", "48", "--threshold", "50"])
+    rc = main(
+        [
+            "export",
+            str(tmp_path),
+            "--mesh",
+            str(tmp_path / "m.ply"),
+            "--points",
+            str(tmp_path / "p.ply"),
+            "--resolution",
+            "48",
+            "--threshold",
+            "50",
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     mesh = trimesh.load(tmp_path / "m.ply", process=False)
     assert mesh.is_watertight
@@ -427,8 +456,23 @@ def test_export_command_writes_both_files(tmp_path, monkeypatch, capsys):
     (tmp_path / "s.npz").rename(tmp_path / "moved.npz")  # the dataset gone: say so, and how to do without it
     assert main(["export", str(tmp_path), "--mesh", str(tmp_path / "m2.ply"), "--resolution", "16"]) == 2
     assert "--color-views 0" in capsys.readouterr().err and not (tmp_path / "m2.ply").exists()
-    assert main(["export", str(tmp_path), "--mesh", str(tmp_path / "m2.ply"), "--resolution", "16", "--threshold",
-                 "50", "--color-views", "0"]) == 0
+    assert (
+        main(
+            [
+                "export",
+                str(tmp_path),
+                "--mesh",
+                str(tmp_path / "m2.ply"),
+                "--resolution",
+                "16",
+                "--threshold",
+                "50",
+                "--color-views",
+                "0",
+            ]
+        )
+        == 0
+    )
     assert "coloured along the normals" in capsys.readouterr().out
     assert main(["export", str(tmp_path)]) == 2  # nothing asked for
     assert main(["export", str(tmp_path), "--mesh", str(tmp_path / "m.obj")]) == 2

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import train_loop
 from nerfkit.cameras import Rays
 from nerfkit.data.rays import RaysData
 from nerfkit.data.synthetic import sphere_scene
@@ -13,11 +14,9 @@ from nerfkit.kernels import numba_kernels
 from nerfkit.models import build_model
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.fast import FastConfig, FastNeRF
-from nerfkit.render.box import GridBox
 from nerfkit.output.images import render_image
+from nerfkit.render.box import GridBox
 from nerfkit.train.optim import build_optimizer
-
-from conftest import train_loop
 
 # small stages so that a test trains in seconds: 24^3, then 48^3 at step 40
 SMALL = dict(resolutions="24,48", upsample_steps="40")
@@ -97,10 +96,13 @@ def test_rendering_changes_nothing_in_the_model_and_a_schedule_remembers_surface
     # the job stores the expected end points of the opaque rays: inside the unit sphere
     n0 = int(model.surface_count)
     opaque = out.acc > 0.5
-    run_schedules([j for j in model.schedules() if j.name == "remember surfaces"],
-                  StepState(30, 0.3, None, batch.rays, out), phase="after_step")
+    run_schedules(
+        [j for j in model.schedules() if j.name == "remember surfaces"],
+        StepState(30, 0.3, None, batch.rays, out),
+        phase="after_step",
+    )
     assert int(model.surface_count) == n0 + int(opaque.sum()) > n0
-    new = model.surface_pts[n0:int(model.surface_count)]
+    new = model.surface_pts[n0 : int(model.surface_count)]
     o, d = batch.rays.origins[opaque], batch.rays.directions[opaque]
     torch.testing.assert_close(new, o + d * (out.depth / out.acc)[opaque].unsqueeze(-1))
     assert new.norm(dim=-1).max() < 1.1
@@ -112,7 +114,7 @@ def test_growth_shrinks_the_box_around_the_object(scene, trained):
     assert np.all(lo <= -0.95) and np.all(hi >= 0.95)  # the unit sphere is inside
     assert np.all(hi - lo < 3.2)  # the scene bounds' box was [-2, 2]^3
     # the grid holds about 48^3 vertices with cubic voxels
-    assert 0.8 * 48 ** 3 < np.prod(trained.geom.res) < 1.3 * 48 ** 3
+    assert 0.8 * 48**3 < np.prod(trained.geom.res) < 1.3 * 48**3
 
 
 @pytest.mark.slow
@@ -128,9 +130,11 @@ def test_sparse_growth_stores_the_vertices_near_the_object_and_renders_as_well(s
     assert sparse.geom.res == dense.geom.res and dense.stored_vertices == dense.geom.n_vertices
     assert sparse.stored_vertices < 0.6 * sparse.geom.n_vertices
     from nerfkit.models.fast import EMPTY_RAW
+
     assert sparse.grid[0, 0] == EMPTY_RAW and torch.all(sparse.grid[0, 1:] == 0)  # the shared row is untouched
     # every occupied cell has all its corners stored
     from nerfkit.models.packing import vertices_touching
+
     assert torch.all(sparse.vertex_rows[vertices_touching(sparse.estimator.occ)] > 0)
     assert abs(val_psnr(sparse, scene) - val_psnr(dense, scene)) < 0.5
     # vertices without storage hold no density
@@ -143,6 +147,7 @@ def test_a_growth_in_the_last_steps_of_a_run_is_skipped_and_caught_up_on_resume(
     all but over (the finer grid would have no steps to recover); a resumed run with a
     longer budget catches up on it."""
     from nerfkit.models.base import StepState, run_schedules
+
     jobs = lambda m: m.schedules()  # noqa: E731
     for progress, grows in ((0.8, True), (0.9, True), (0.96, False), (1.0, False)):
         model = FastNeRF(FastConfig(**SMALL), SceneBounds.from_scene(scene))
@@ -158,6 +163,7 @@ def test_photos_with_finer_detail_get_a_fifth_grid_stage_unless_the_stages_are_g
     """An object scene photographed at 400x400 grows on to 256 vertices; at 200x200, on a
     capture, on a forward-facing scene, or with the stages given, the stages are as set."""
     from dataclasses import replace
+
     from nerfkit.data.synthetic import forward_facing_scene, sphere_scene
     from nerfkit.models.fast_config import BASE_STAGES, FINE_STAGES
     from nerfkit.train.config import TrainConfig
@@ -171,12 +177,17 @@ def test_photos_with_finer_detail_get_a_fifth_grid_stage_unless_the_stages_are_g
         return m.resolutions, m.upsample_steps
 
     sphere = sphere_scene(n_train=6, size=8)
-    assert stages(sized(sphere, 400)) == FINE_STAGES and FastConfig(resolutions=FINE_STAGES[0],
-                                                                       upsample_steps=FINE_STAGES[1]).stages()[0][-1] == 256
+    assert (
+        stages(sized(sphere, 400)) == FINE_STAGES
+        and FastConfig(resolutions=FINE_STAGES[0], upsample_steps=FINE_STAGES[1]).stages()[0][-1] == 256
+    )
     assert stages(sized(sphere, 200)) == BASE_STAGES
     assert stages(sized(sphere, 400), capture="on") == BASE_STAGES
     assert stages(sized(forward_facing_scene(n_train=6, n_val=0, size=8), 400)) == BASE_STAGES
-    assert stages(sized(sphere, 400), FastConfig(resolutions="16,32")) == ("16,32", BASE_STAGES[1])  # (the default, no unset sentinel)
+    assert stages(sized(sphere, 400), FastConfig(resolutions="16,32")) == (
+        "16,32",
+        BASE_STAGES[1],
+    )  # (the default, no unset sentinel)
     assert FastConfig(resolutions="16,32").stages() == ([16, 32], [60])  # unset steps: the base's
 
 
@@ -195,7 +206,7 @@ def test_fit_grid_covers_the_box_with_cubic_voxels():
     hi = lo + voxel * (np.array(res) - 1)
     assert np.allclose(box.hi_array, hi) and box.cell_shape == (res[2] - 1, res[1] - 1, res[0] - 1)
     assert np.all(lo <= [-1.0, -2.0, 0.0]) and np.all(hi >= [1.0, 2.0, 0.5])
-    assert 0.8 * 40 ** 3 < np.prod(res) < 1.3 * 40 ** 3
+    assert 0.8 * 40**3 < np.prod(res) < 1.3 * 40**3
 
 
 def test_checkpoint_round_trip_after_growth(scene, trained):
@@ -253,8 +264,19 @@ def test_trainer_runs_fast_model_and_resumes_exactly(tmp_path, scene):
     cfg = FastConfig(resolutions="16,24", upsample_steps="20", occ_start=8, occ_every=8)
 
     def tc(name):
-        return resolved_config(TrainConfig(data="sphere", model="fast", out=str(tmp_path / name), steps=40,
-                                           batch_rays=256, seed=0, eval_views=1, checkpoint_seconds=1e9), cfg)
+        return resolved_config(
+            TrainConfig(
+                data="sphere",
+                model="fast",
+                out=str(tmp_path / name),
+                steps=40,
+                batch_rays=256,
+                seed=0,
+                eval_views=1,
+                checkpoint_seconds=1e9,
+            ),
+            cfg,
+        )
 
     Trainer(scene, tc("a"), cfg, quiet=True).run()
     first = Trainer(scene, tc("b"), cfg, quiet=True).run(stop_after=25)  # after the growth
@@ -272,8 +294,19 @@ def test_each_stage_trains_on_its_multiple_of_the_batch(tmp_path, scene):
     from nerfkit.train.trainer import Trainer, resolved_config
 
     cfg = FastConfig(resolutions="16,20,24", upsample_steps="10,20", stage_rays="1,3", occ_start=8, occ_every=8)
-    tc = resolved_config(TrainConfig(data="sphere", model="fast", out=str(tmp_path / "run"), steps=30,
-                                     batch_rays=64, seed=0, eval_views=1, checkpoint_seconds=1e9), cfg)
+    tc = resolved_config(
+        TrainConfig(
+            data="sphere",
+            model="fast",
+            out=str(tmp_path / "run"),
+            steps=30,
+            batch_rays=64,
+            seed=0,
+            eval_views=1,
+            checkpoint_seconds=1e9,
+        ),
+        cfg,
+    )
     rows = Trainer(scene, tc, cfg, quiet=True).run().rows
     # a row at step s holds step s - 1: the first stage's, then the second's, then the last factor again
     assert [r["rays"] for r in rows if r["split"] == "train"] == [64, 192, 192]
@@ -344,8 +377,10 @@ def test_total_variation_smooths_the_density_and_keeps_the_views(scene, trained)
 
 @pytest.mark.parametrize("degree", [0, 1, 2])
 def test_the_view_dependent_colours_total_variation_weighs_only_the_harmonics_above_degree_0(scene, degree):
-    m = FastNeRF(FastConfig(**SMALL, sh_degree=degree, tv_weight=2.0, tv_colour=0.5, tv_view_weight=3.0),
-                 SceneBounds.from_scene(scene))
+    m = FastNeRF(
+        FastConfig(**SMALL, sh_degree=degree, tv_weight=2.0, tv_colour=0.5, tv_view_weight=3.0),
+        SceneBounds.from_scene(scene),
+    )
     K = (degree + 1) ** 2
     expect = [2.0] + [1.0 + (3.0 if k > 0 else 0.0) for _ in range(3) for k in range(K)]
     assert m.tv_weights().tolist() == expect
@@ -380,8 +415,19 @@ def test_the_kernels_load_before_the_training_clock_starts(tmp_path, scene, monk
     loads = []
     monkeypatch.setattr(FastNeRF, "load_kernels", lambda self: (loads.append(1), time.sleep(6.0)))
     cfg = FastConfig(resolutions="16", upsample_steps="", occ_start=8, occ_every=8)
-    tc = resolved_config(TrainConfig(data="sphere", model="fast", out=str(tmp_path / "run"), minutes=0.02,
-                                     batch_rays=64, seed=0, eval_views=1, checkpoint_seconds=1e9), cfg)
+    tc = resolved_config(
+        TrainConfig(
+            data="sphere",
+            model="fast",
+            out=str(tmp_path / "run"),
+            minutes=0.02,
+            batch_rays=64,
+            seed=0,
+            eval_views=1,
+            checkpoint_seconds=1e9,
+        ),
+        cfg,
+    )
     result = Trainer(scene, tc, cfg).run()
     assert loads == [1] and 1.2 <= result.train_seconds < 6.0 and result.step > 0
     assert "compiled the kernels in 6 s" in capsys.readouterr().err

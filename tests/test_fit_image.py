@@ -29,6 +29,7 @@ from nerfkit.fit_image import (
     run_sweep,
 )
 
+
 @pytest.fixture(autouse=True, scope="module")
 def one_thread():
     """Tiny models gain nothing from threads, and on a busy machine OpenMP threads waiting
@@ -40,8 +41,9 @@ def one_thread():
 
 
 # A small, fast configuration for tests (the defaults are the course's).
-TINY = FitImageConfig(L=4, width=64, depth=2, batch=512, steps=250, eval_every=50, progress_steps="0,50",
-                      precision="fp32", device="cpu")
+TINY = FitImageConfig(
+    L=4, width=64, depth=2, batch=512, steps=250, eval_every=50, progress_steps="0,50", precision="fp32", device="cpu"
+)
 
 
 def smooth_image(h: int = 32, w: int = 32) -> np.ndarray:
@@ -102,8 +104,7 @@ def test_output_is_float32_under_bf16_autocast():
 def test_pixel_coordinates_are_pixel_centres():
     xy = pixel_xy(torch.tensor([0, 1, 4, 11]), height=3, width=4)
     # index 11 = row 2, col 3 -> ((3 + 0.5) / 4, (2 + 0.5) / 3)
-    np.testing.assert_allclose(xy.numpy(), [[0.125, 1 / 6], [0.375, 1 / 6], [0.125, 0.5], [0.875, 2.5 / 3]],
-                               rtol=1e-6)
+    np.testing.assert_allclose(xy.numpy(), [[0.125, 1 / 6], [0.375, 1 / 6], [0.125, 0.5], [0.875, 2.5 / 3]], rtol=1e-6)
     np.testing.assert_array_equal(grid_xy(torch.arange(3), 3, 4).numpy(), pixel_xy(torch.arange(12), 3, 4).numpy())
 
 
@@ -220,7 +221,11 @@ def test_sweep_writes_grid_curves_and_one_entry_per_combination(tmp_path):
 
 def test_parse_sweep_and_background():
     assert parse_sweep(["L=3,10", "lr=1e-2,0.001"]) == [
-        {"L": 3, "lr": 0.01}, {"L": 3, "lr": 0.001}, {"L": 10, "lr": 0.01}, {"L": 10, "lr": 0.001}]
+        {"L": 3, "lr": 0.01},
+        {"L": 3, "lr": 0.001},
+        {"L": 10, "lr": 0.01},
+        {"L": 10, "lr": 0.001},
+    ]
     for bad in (["seed=1,2"], ["L"], ["L=a"], ["L=1", "L=2"], []):
         with pytest.raises(NerfkitError):
             parse_sweep(bad)
@@ -281,8 +286,21 @@ def test_default_image_is_shipped_small_and_licensed():
 @pytest.mark.slow
 def test_cli_runs_and_sweeps(tmp_path, capsys):
     img = save_png(tmp_path / "p.png", smooth_image(12, 12))
-    small = ["--L", "2", "--width", "16", "--depth", "1", "--batch", "64", "--steps", "10", "--quiet",
-             "--precision", "fp32"]
+    small = [
+        "--L",
+        "2",
+        "--width",
+        "16",
+        "--depth",
+        "1",
+        "--batch",
+        "64",
+        "--steps",
+        "10",
+        "--quiet",
+        "--precision",
+        "fp32",
+    ]
     assert main(["fit-image", str(img), "--out", str(tmp_path / "one"), *small]) == 0
     assert (tmp_path / "one" / "metrics.json").is_file()
     assert "final PSNR" in capsys.readouterr().out
@@ -313,12 +331,15 @@ def test_cli_non_image_file_exits_2_with_one_line(tmp_path, capsys, content, exp
     assert not (tmp_path / "r").exists()
 
 
-@pytest.mark.parametrize("item, message", [
-    ("L=3,100", "--sweep L=3,100: 100 is above the maximum 30 (allowed: 0 to 30)"),
-    ("lr=0.01,inf", "--sweep lr=0.01,inf: 'inf' is not a finite number"),
-    ("batch=0,64", "--sweep batch=0,64: 0 is below the minimum 1 (allowed: 1 to 16777216)"),
-    ("depth=2,x", "--sweep depth=2,x: 'x' is not a whole number"),
-])
+@pytest.mark.parametrize(
+    "item, message",
+    [
+        ("L=3,100", "--sweep L=3,100: 100 is above the maximum 30 (allowed: 0 to 30)"),
+        ("lr=0.01,inf", "--sweep lr=0.01,inf: 'inf' is not a finite number"),
+        ("batch=0,64", "--sweep batch=0,64: 0 is below the minimum 1 (allowed: 1 to 16777216)"),
+        ("depth=2,x", "--sweep depth=2,x: 'x' is not a whole number"),
+    ],
+)
 def test_sweep_values_keep_the_bounds_of_their_flags(item, message):
     with pytest.raises(NerfkitError) as e:
         parse_sweep(["width=16,32", item])
@@ -337,14 +358,17 @@ def test_cli_sweep_out_of_bounds_is_refused_as_the_flag_is(tmp_path, capsys):
     assert not (tmp_path / "r").exists()
 
 
-@pytest.mark.parametrize("argv,expect", [
-    (["missing.jpg"], "no such file"),
-    (["--width", "0"], "--width"),
-    (["--lr", "-1"], "--lr"),
-    (["--progress-steps", "a,b"], "--progress-steps"),
-    (["--background", "sky"], "--background"),
-    (["--sweep", "seed=1,2"], "cannot sweep"),
-])
+@pytest.mark.parametrize(
+    "argv,expect",
+    [
+        (["missing.jpg"], "no such file"),
+        (["--width", "0"], "--width"),
+        (["--lr", "-1"], "--lr"),
+        (["--progress-steps", "a,b"], "--progress-steps"),
+        (["--background", "sky"], "--background"),
+        (["--sweep", "seed=1,2"], "cannot sweep"),
+    ],
+)
 def test_cli_bad_input_exits_2(tmp_path, capsys, argv, expect):
     argv = [a.replace("missing.jpg", str(tmp_path / "missing.jpg")) for a in argv]
     assert main(["fit-image", *argv, "--out", str(tmp_path / "r"), "--quiet"]) == 2

@@ -29,7 +29,7 @@ def _rgba(rng, w, h):
     img = rng.integers(0, 256, (h, w, 4), dtype=np.uint8)
     img[..., 3] = 255
     img[: h // 4, :, 3] = 0  # top quarter transparent
-    img[h // 4: h // 2, :, 3] = 128  # half transparent band
+    img[h // 4 : h // 2, :, 3] = 128  # half transparent band
     return img
 
 
@@ -45,8 +45,13 @@ def make_blender(folder, n=(3, 2, 2), size=(40, 30), seed=0):
             img = _rgba(rng, w, h)
             write_image(folder / split / f"r_{i}.png", img)
             images.append(img)
-            frames.append({"file_path": f"./{split}/r_{i}", "rotation": 0.0,
-                           "transform_matrix": opencv_to_opengl(c2w_cv[i]).tolist()})
+            frames.append(
+                {
+                    "file_path": f"./{split}/r_{i}",
+                    "rotation": 0.0,
+                    "transform_matrix": opencv_to_opengl(c2w_cv[i]).tolist(),
+                }
+            )
         (folder / f"transforms_{split}.json").write_text(json.dumps({"camera_angle_x": ANGLE, "frames": frames}))
         truth[split] = (c2w_cv, np.stack(images))
     return truth
@@ -107,14 +112,17 @@ def test_blender_resize_scales_K(tmp_path):
     assert np.abs(half.train.images - blocks).max() <= 1.0
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda d: d.pop("camera_angle_x"), "camera_angle_x"),
-    (lambda d: d["frames"][1].pop("transform_matrix"), "frames[1]"),
-    (lambda d: d["frames"][0].update(transform_matrix=[[1, 0], [0, 1]]), "shape"),
-    (lambda d: d["frames"][0].update(transform_matrix=np.diag([2.0, 2, 2, 1]).tolist()), "not rigid"),
-    (lambda d: d["frames"][0].update(file_path="./train/missing"), "not found"),
-    (lambda d: d.update(frames=[]), "empty"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda d: d.pop("camera_angle_x"), "camera_angle_x"),
+        (lambda d: d["frames"][1].pop("transform_matrix"), "frames[1]"),
+        (lambda d: d["frames"][0].update(transform_matrix=[[1, 0], [0, 1]]), "shape"),
+        (lambda d: d["frames"][0].update(transform_matrix=np.diag([2.0, 2, 2, 1]).tolist()), "not rigid"),
+        (lambda d: d["frames"][0].update(file_path="./train/missing"), "not found"),
+        (lambda d: d.update(frames=[]), "empty"),
+    ],
+)
 def test_blender_bad_input_is_one_line(tmp_path, edit, message):
     make_blender(tmp_path)
     p = tmp_path / "transforms_train.json"
@@ -206,18 +214,24 @@ def test_convert_sets_the_depth_range(tmp_path, capsys):
     save_npz(scene, tmp_path / "s.npz")
     assert (scene.near, scene.far) != (1.5, 7.0)
     for out in ("c.npz", "c_ns"):
-        assert main(["convert", str(tmp_path / "s.npz"), "--to", str(tmp_path / out), "--near", "1.5", "--far", "7"]) == 0
+        assert (
+            main(["convert", str(tmp_path / "s.npz"), "--to", str(tmp_path / out), "--near", "1.5", "--far", "7"]) == 0
+        )
         back = load_scene(tmp_path / out)
         assert (back.near, back.far) == (1.5, 7.0)
         np.testing.assert_array_equal(back.train.images, scene.train.images)
     assert main(["convert", str(tmp_path / "s.npz"), "--to", str(tmp_path / "n.npz"), "--near", "1"]) == 0
     assert (load_scene(tmp_path / "n.npz").near, load_scene(tmp_path / "n.npz").far) == (1.0, scene.far)  # one end
     capsys.readouterr()
-    assert main(["convert", str(tmp_path / "s.npz"), "--to", str(tmp_path / "bad.npz"), "--near", "7", "--far", "6"]) == 2
+    assert (
+        main(["convert", str(tmp_path / "s.npz"), "--to", str(tmp_path / "bad.npz"), "--near", "7", "--far", "6"]) == 2
+    )
     assert "near=7.0 and far=6.0: need 0 <= near < far" in capsys.readouterr().err
     assert not (tmp_path / "bad.npz").exists()
-    assert main(["convert", str(tmp_path / "s.npz"), "--to", str(tmp_path / "cm"), "--format", "colmap",
-                 "--near", "2"]) == 2
+    assert (
+        main(["convert", str(tmp_path / "s.npz"), "--to", str(tmp_path / "cm"), "--format", "colmap", "--near", "2"])
+        == 2
+    )
     assert "keeps no depth range" in capsys.readouterr().err
 
 
@@ -234,8 +248,12 @@ def test_output_size_rules():
         with pytest.raises(NerfkitError):
             output_size(400, 300, **kw)
     # a divisor of at least 1: it never enlarges (1e-300 asked for 1e302-pixel images)
-    for d, problem in ((0.5, "0.5 is below the minimum 1"), (1e-300, "1e-300 is below the minimum 1"),
-                       (float("nan"), "'nan' is not a finite number"), (float("inf"), "'inf' is not a finite number")):
+    for d, problem in (
+        (0.5, "0.5 is below the minimum 1"),
+        (1e-300, "1e-300 is below the minimum 1"),
+        (float("nan"), "'nan' is not a finite number"),
+        (float("inf"), "'inf' is not a finite number"),
+    ):
         with pytest.raises(NerfkitError) as e:
             output_size(400, 300, downscale=d)
         assert str(e.value).startswith(f"--downscale: {problem}. "), str(e.value)
@@ -290,9 +308,34 @@ def test_a_run_sees_rgba_images_on_its_own_background(tmp_path, capsys):
 
     make_blender(tmp_path / "rgba", n=(3, 1, 1))
     run = tmp_path / "run"
-    assert main(["train", "--data", str(tmp_path / "rgba"), "--out", str(run), "--steps", "2", "--batch-rays", "64",
-                 "--background", "white", "--model", "vanilla", "--n-samples", "4", "--width", "8", "--depth", "2",
-                 "--eval-views", "1"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--data",
+                str(tmp_path / "rgba"),
+                "--out",
+                str(run),
+                "--steps",
+                "2",
+                "--batch-rays",
+                "64",
+                "--background",
+                "white",
+                "--model",
+                "vanilla",
+                "--n-samples",
+                "4",
+                "--width",
+                "8",
+                "--depth",
+                "2",
+                "--eval-views",
+                "1",
+            ]
+        )
+        == 0
+    )
     scene = scene_for_run(read_run(run), None)  # raises if training saw other pixels
     assert (scene.train.images[:, :7] == 255).all()  # the transparent top rows
     assert (scene_for_run(read_run(run), str(tmp_path / "rgba"), need="val").val.images[:, :7] == 255).all()

@@ -43,8 +43,14 @@ RANDOM = os.environ.get("NERFKIT_FUZZ_RANDOM", "") not in ("", "0")
 
 def fuzz(n: int):
     """Hypothesis settings for one loader: n examples (times NERFKIT_FUZZ_SCALE), no deadline."""
-    return settings(max_examples=max(1, int(n * SCALE)), deadline=None, derandomize=not RANDOM, database=None,
-                    suppress_health_check=list(HealthCheck), print_blob=True)
+    return settings(
+        max_examples=max(1, int(n * SCALE)),
+        deadline=None,
+        derandomize=not RANDOM,
+        database=None,
+        suppress_health_check=list(HealthCheck),
+        print_blob=True,
+    )
 
 
 @contextmanager
@@ -113,16 +119,40 @@ def assert_valid_scene(scene) -> None:
 
 # ----------------------------------------------------------------------------- shared strategies
 
-SPECIAL_FLOATS = [0.0, -0.0, 1.0, -1.0, 0.5, 2.0, 255.0, 256.0, -1e-30, 1e-30, 1e15, 1e30, 1e300, -1e300,
-                  float("nan"), float("inf"), float("-inf"), 3.141592653589793]
+SPECIAL_FLOATS = [
+    0.0,
+    -0.0,
+    1.0,
+    -1.0,
+    0.5,
+    2.0,
+    255.0,
+    256.0,
+    -1e-30,
+    1e-30,
+    1e15,
+    1e30,
+    1e300,
+    -1e300,
+    float("nan"),
+    float("inf"),
+    float("-inf"),
+    3.141592653589793,
+]
 special = st.sampled_from(SPECIAL_FLOATS)
 small_float = st.floats(-10, 10, allow_nan=False)
 any_float = st.one_of(special, st.floats(allow_nan=True, allow_infinity=True), small_float)
-json_scalar = st.one_of(st.none(), st.booleans(), st.integers(-(10**20), 10**20), st.sampled_from([0, -1, 1, 3, 4]),
-                        any_float, st.text(max_size=6))
-json_value = st.recursive(json_scalar, lambda c: st.lists(c, max_size=5) | st.dictionaries(st.text(max_size=4), c,
-                                                                                              max_size=4),
-                          max_leaves=16)
+json_scalar = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(10**20), 10**20),
+    st.sampled_from([0, -1, 1, 3, 4]),
+    any_float,
+    st.text(max_size=6),
+)
+json_value = st.recursive(
+    json_scalar, lambda c: st.lists(c, max_size=5) | st.dictionaries(st.text(max_size=4), c, max_size=4), max_leaves=16
+)
 
 
 def number_matrix(rows: int, cols: int):
@@ -136,9 +166,13 @@ def rigid_pose(quat, t):
     q = np.asarray(quat, np.float64)
     n = np.linalg.norm(q)
     w, x, y, z = q / n if n > 1e-9 else (1.0, 0.0, 0.0, 0.0)
-    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    R = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     m = np.eye(4)
     m[:3, :3], m[:3, 3] = R, t
     return m
@@ -165,7 +199,7 @@ def corrupt_bytes(data: bytes, draw) -> bytes:
     elif kind == "insert":
         b[i:i] = draw(st.binary(min_size=1, max_size=16))
     elif kind == "delete":
-        del b[i:i + draw(st.integers(1, 16))]
+        del b[i : i + draw(st.integers(1, 16))]
     else:
         b[i:] = bytes(len(b) - i)
     return bytes(b)
@@ -173,10 +207,35 @@ def corrupt_bytes(data: bytes, draw) -> bytes:
 
 # ============================================================================= course npz
 
-NPZ_KEYS = ["images_train", "c2ws_train", "images_val", "c2ws_val", "c2ws_test", "focal", "K", "near", "far",
-            "center", "up", "names_train", "names_val", "extra"]
-DTYPES = [np.uint8, np.int16, np.int64, np.uint64, np.float16, np.float32, np.float64, np.bool_, np.complex64,
-          np.dtype("<U3"), np.dtype("S2")]
+NPZ_KEYS = [
+    "images_train",
+    "c2ws_train",
+    "images_val",
+    "c2ws_val",
+    "c2ws_test",
+    "focal",
+    "K",
+    "near",
+    "far",
+    "center",
+    "up",
+    "names_train",
+    "names_val",
+    "extra",
+]
+DTYPES = [
+    np.uint8,
+    np.int16,
+    np.int64,
+    np.uint64,
+    np.float16,
+    np.float32,
+    np.float64,
+    np.bool_,
+    np.complex64,
+    np.dtype("<U3"),
+    np.dtype("S2"),
+]
 
 
 def course_arrays(n=3, size=6):
@@ -193,37 +252,59 @@ def course_arrays(n=3, size=6):
     }
 
 
-weird_arrays = hnp.arrays(dtype=st.sampled_from(DTYPES),
-                          shape=hnp.array_shapes(min_dims=0, max_dims=5, min_side=0, max_side=4))
+weird_arrays = hnp.arrays(
+    dtype=st.sampled_from(DTYPES), shape=hnp.array_shapes(min_dims=0, max_dims=5, min_side=0, max_side=4)
+)
 
 
 @st.composite
 def npz_mutation(draw):
     """One change to a valid course npz."""
-    kind = draw(st.sampled_from(["drop", "replace", "poke", "scale", "poses", "near_far", "focal", "K", "vector",
-                                 "float_images", "shaped"]))
+    kind = draw(
+        st.sampled_from(
+            ["drop", "replace", "poke", "scale", "poses", "near_far", "focal", "K", "vector", "float_images", "shaped"]
+        )
+    )
     key = draw(st.sampled_from(NPZ_KEYS))
     if kind in ("drop", "replace"):
         return kind, key, draw(weird_arrays) if kind == "replace" else None
     if kind == "poke":
         return kind, key, (draw(st.integers(0, 10**6)), draw(special))
     if kind == "scale":
-        return kind, draw(st.sampled_from(["c2ws_train", "c2ws_val", "c2ws_test"])), (
-            draw(st.integers(0, 2)), draw(st.sampled_from([0.0, -1.0, 0.5, 1.01, 2.0, 1e-8])))
+        return (
+            kind,
+            draw(st.sampled_from(["c2ws_train", "c2ws_val", "c2ws_test"])),
+            (draw(st.integers(0, 2)), draw(st.sampled_from([0.0, -1.0, 0.5, 1.01, 2.0, 1e-8]))),
+        )
     if kind == "poses":  # rigid poses anywhere: does the scene estimation cope?
         n = draw(st.integers(1, 3))
-        return kind, draw(st.sampled_from(["c2ws_train", "c2ws_val", "c2ws_test"])), draw(
-            st.lists(random_pose, min_size=n, max_size=n))
+        return (
+            kind,
+            draw(st.sampled_from(["c2ws_train", "c2ws_val", "c2ws_test"])),
+            draw(st.lists(random_pose, min_size=n, max_size=n)),
+        )
     if kind == "near_far":
         return kind, None, (draw(st.one_of(special, small_float)), draw(st.one_of(special, small_float)))
     if kind == "focal":
         return kind, None, draw(st.one_of(special, small_float))
     if kind == "K":
-        return kind, None, draw(hnp.arrays(np.float64, st.sampled_from([(3, 3), (3, 3, 3), (2, 3, 3), (1, 3, 3)]),
-                                           elements=st.one_of(special, small_float)))
+        return (
+            kind,
+            None,
+            draw(
+                hnp.arrays(
+                    np.float64,
+                    st.sampled_from([(3, 3), (3, 3, 3), (2, 3, 3), (1, 3, 3)]),
+                    elements=st.one_of(special, small_float),
+                )
+            ),
+        )
     if kind == "vector":
-        return kind, draw(st.sampled_from(["center", "up"])), draw(
-            hnp.arrays(np.float64, st.integers(0, 4), elements=st.one_of(special, small_float)))
+        return (
+            kind,
+            draw(st.sampled_from(["center", "up"])),
+            draw(hnp.arrays(np.float64, st.integers(0, 4), elements=st.one_of(special, small_float))),
+        )
     if kind == "float_images":
         return kind, draw(st.sampled_from(["images_train", "images_val"])), draw(st.one_of(special, small_float))
     # "shaped": right shape, random (often non-finite) contents
@@ -378,8 +459,13 @@ def test_random_bytes_are_not_images(data, suffix):
 
 # ============================================================================= camera files
 
-GOOD_CAMERA = {"K": [[1000.0, 0, 640], [0, 1000.0, 480], [0, 0, 1]], "dist": [0.01, -0.02, 0, 0, 0],
-               "width": 1280, "height": 960, "rms": 0.3}
+GOOD_CAMERA = {
+    "K": [[1000.0, 0, 640], [0, 1000.0, 480], [0, 0, 1]],
+    "dist": [0.01, -0.02, 0, 0, 0],
+    "width": 1280,
+    "height": 960,
+    "rms": 0.3,
+}
 
 
 @st.composite
@@ -441,19 +527,31 @@ def layout_json(draw):
     count = st.one_of(st.sampled_from([-1, 0, 1, 2, 3, 5, 10**12]), any_float, json_scalar)
     length = st.one_of(st.sampled_from([0.04, 0.01, 0.0, -0.02]), any_float, json_scalar)
     if kind == "grid":
-        spec = {"board": "grid", "markers_x": draw(count), "markers_y": draw(count), "marker_length": draw(length),
-                "marker_separation": draw(length)}
+        spec = {
+            "board": "grid",
+            "markers_x": draw(count),
+            "markers_y": draw(count),
+            "marker_length": draw(length),
+            "marker_separation": draw(length),
+        }
     elif kind == "charuco":
-        spec = {"board": "charuco", "squares_x": draw(count), "squares_y": draw(count), "square_length": draw(length),
-                "marker_length": draw(length)}
+        spec = {
+            "board": "charuco",
+            "squares_x": draw(count),
+            "squares_y": draw(count),
+            "square_length": draw(length),
+            "marker_length": draw(length),
+        }
     else:
         tags = {}
         for _ in range(draw(st.integers(0, 3))):
             tag_id = draw(st.one_of(st.integers(-3, 60).map(str), st.text(max_size=3)))
             if draw(st.booleans()):
-                value = {"center": draw(st.one_of(st.lists(any_float, max_size=4), json_value)),
-                         "size": draw(st.one_of(length, st.just(0.05))),
-                         "rotation_deg": draw(st.one_of(st.just(0), any_float, json_scalar))}
+                value = {
+                    "center": draw(st.one_of(st.lists(any_float, max_size=4), json_value)),
+                    "size": draw(st.one_of(length, st.just(0.05))),
+                    "rotation_deg": draw(st.one_of(st.just(0), any_float, json_scalar)),
+                }
                 if draw(st.booleans()):
                     value.pop(draw(st.sampled_from(sorted(value))))
             else:
@@ -496,8 +594,26 @@ def test_layout_files_load_valid_or_fail_cleanly(spec):
 # ============================================================================= transforms.json
 
 FRAME_KEYS = ["file_path", "transform_matrix", "split", "fl_x", "w", "h", "name", "camera_angle_x"]
-TOP_KEYS = ["fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "k1", "k2", "k3", "k4", "p1", "p2",
-            "camera_model", "frames", "train_filenames", "val_filenames", "nerfkit"]
+TOP_KEYS = [
+    "fl_x",
+    "fl_y",
+    "cx",
+    "cy",
+    "w",
+    "h",
+    "camera_angle_x",
+    "k1",
+    "k2",
+    "k3",
+    "k4",
+    "p1",
+    "p2",
+    "camera_model",
+    "frames",
+    "train_filenames",
+    "val_filenames",
+    "nerfkit",
+]
 NK_KEYS = ["near", "far", "center", "up", "poses_only"]
 
 
@@ -506,10 +622,24 @@ def good_transforms(n=3):
     from nerfkit.data.synthetic import sphere_cameras
 
     c2w = sphere_cameras(n, seed=1).astype(np.float64)
-    return {"camera_model": "OPENCV", "fl_x": 12.0, "fl_y": 12.0, "cx": 4.0, "cy": 3.0, "w": 8, "h": 6,
-            "frames": [{"file_path": f"images/{i}.png", "transform_matrix": opencv_to_opengl(c2w[i]).tolist(),
-                        "split": "train" if i else "val"} for i in range(n)],
-            "nerfkit": {"near": 2.0, "far": 6.0, "center": [0, 0, 0], "up": [0, 0, 1]}}
+    return {
+        "camera_model": "OPENCV",
+        "fl_x": 12.0,
+        "fl_y": 12.0,
+        "cx": 4.0,
+        "cy": 3.0,
+        "w": 8,
+        "h": 6,
+        "frames": [
+            {
+                "file_path": f"images/{i}.png",
+                "transform_matrix": opencv_to_opengl(c2w[i]).tolist(),
+                "split": "train" if i else "val",
+            }
+            for i in range(n)
+        ],
+        "nerfkit": {"near": 2.0, "far": 6.0, "center": [0, 0, 0], "up": [0, 0, 1]},
+    }
 
 
 def write_images(folder: Path, names, size=(8, 6), seed=0):
@@ -528,14 +658,24 @@ def transforms_mutation(draw):
     if where == "whole":
         return where, None, draw(json_value)
     if where == "pose":
-        return where, draw(st.integers(0, 2)), draw(st.one_of(random_pose.map(lambda m: m.tolist()),
-                                                               number_matrix(4, 4), number_matrix(3, 4)))
+        return (
+            where,
+            draw(st.integers(0, 2)),
+            draw(st.one_of(random_pose.map(lambda m: m.tolist()), number_matrix(4, 4), number_matrix(3, 4))),
+        )
     if where == "image":
         return where, draw(st.integers(0, 2)), draw(st.sampled_from(["truncate", "text", "size", "delete"]))
     keys = {"top": TOP_KEYS, "frame": FRAME_KEYS, "nerfkit": NK_KEYS}[where]
     key = draw(st.sampled_from(keys))
-    value = draw(st.one_of(json_value, any_float, st.just("__drop__"),
-                           st.lists(any_float, min_size=3, max_size=3), st.sampled_from(["train", "val", "test"])))
+    value = draw(
+        st.one_of(
+            json_value,
+            any_float,
+            st.just("__drop__"),
+            st.lists(any_float, min_size=3, max_size=3),
+            st.sampled_from(["train", "val", "test"]),
+        )
+    )
     return where, (key, draw(st.integers(0, 2))), value
 
 
@@ -603,8 +743,9 @@ def make_blender(folder: Path, angle=0.69):
     for split, n in (("train", 3), ("val", 1)):
         c2w = sphere_cameras(n, seed=len(split)).astype(np.float64)
         write_images(folder, [f"{split}/r_{i}.png" for i in range(n)], seed=n)
-        frames = [{"file_path": f"./{split}/r_{i}", "transform_matrix": opencv_to_opengl(c2w[i]).tolist()}
-                  for i in range(n)]
+        frames = [
+            {"file_path": f"./{split}/r_{i}", "transform_matrix": opencv_to_opengl(c2w[i]).tolist()} for i in range(n)
+        ]
         (folder / f"transforms_{split}.json").write_text(json.dumps({"camera_angle_x": angle, "frames": frames}))
 
 
@@ -615,12 +756,26 @@ def blender_mutation(draw):
     if kind == "angle":
         return split, kind, draw(st.one_of(any_float, json_scalar, st.floats(0.01, 3.1)))
     if kind == "pose":
-        return split, kind, draw(st.one_of(random_pose.map(lambda m: m.tolist()), number_matrix(4, 4),
-                                           number_matrix(3, 4)))
+        return (
+            split,
+            kind,
+            draw(st.one_of(random_pose.map(lambda m: m.tolist()), number_matrix(4, 4), number_matrix(3, 4))),
+        )
     if kind == "frame_key":
-        return split, kind, (draw(st.sampled_from(["file_path", "transform_matrix"])),
-                             draw(st.one_of(json_value, st.just("__drop__"),
-                                            st.sampled_from(["./train/r_9", "", "/", "a\x00b", "x" * 300, "\n"]))))
+        return (
+            split,
+            kind,
+            (
+                draw(st.sampled_from(["file_path", "transform_matrix"])),
+                draw(
+                    st.one_of(
+                        json_value,
+                        st.just("__drop__"),
+                        st.sampled_from(["./train/r_9", "", "/", "a\x00b", "x" * 300, "\n"]),
+                    )
+                ),
+            ),
+        )
     if kind == "frames":
         return split, kind, draw(json_value)
     if kind == "image":
@@ -680,8 +835,7 @@ def apply_blender_mutation(folder: Path, m) -> None:
 
 
 @fuzz(150)
-@given(mutations=st.lists(blender_mutation(), min_size=1, max_size=3),
-       size=st.sampled_from([None, None, 4, 16]))
+@given(mutations=st.lists(blender_mutation(), min_size=1, max_size=3), size=st.sampled_from([None, None, 4, 16]))
 @pytest.mark.slow
 def test_blender_folders_load_valid_or_fail_cleanly(mutations, size):
     from nerfkit.data.load import load_scene
@@ -697,10 +851,20 @@ def test_blender_folders_load_valid_or_fail_cleanly(mutations, size):
 
 # ============================================================================= COLMAP models
 
-CAMERA_MODELS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8,
-                 "OPENCV_FISHEYE": 8, "FOV": 5, "FOO": 4}
-colmap_number = st.one_of(st.sampled_from(["0", "-1", "nan", "inf", "1e300", "-20", "abc", "1e-30"]),
-                          st.floats(-50, 50, allow_nan=False).map(repr))
+CAMERA_MODELS = {
+    "SIMPLE_PINHOLE": 3,
+    "PINHOLE": 4,
+    "SIMPLE_RADIAL": 4,
+    "RADIAL": 5,
+    "OPENCV": 8,
+    "OPENCV_FISHEYE": 8,
+    "FOV": 5,
+    "FOO": 4,
+}
+colmap_number = st.one_of(
+    st.sampled_from(["0", "-1", "nan", "inf", "1e300", "-20", "abc", "1e-30"]),
+    st.floats(-50, 50, allow_nan=False).map(repr),
+)
 
 
 @st.composite
@@ -709,10 +873,14 @@ def colmap_text_model(draw):
     model = draw(st.sampled_from(["PINHOLE"] * 8 + sorted(CAMERA_MODELS)))
     n_params = CAMERA_MODELS[model] + draw(st.sampled_from([0] * 8 + [-1, 1]))
     base = {"SIMPLE_PINHOLE": [20, 8, 6], "PINHOLE": [20, 20, 8, 6]}.get(model, [20, 20, 8, 6, 0, 0, 0, 0, 0])
-    params = [str(base[i]) if i < len(base) and draw(st.integers(0, 12)) else draw(colmap_number)
-              for i in range(max(n_params, 0))]
-    width, height = (draw(st.sampled_from(["16"] * 12 + ["0", "-16", "99999999999", "17"])),
-                     draw(st.sampled_from(["12"] * 12 + ["0", "12.5"])))
+    params = [
+        str(base[i]) if i < len(base) and draw(st.integers(0, 12)) else draw(colmap_number)
+        for i in range(max(n_params, 0))
+    ]
+    width, height = (
+        draw(st.sampled_from(["16"] * 12 + ["0", "-16", "99999999999", "17"])),
+        draw(st.sampled_from(["12"] * 12 + ["0", "12.5"])),
+    )
     cams = f"# camera\n1 {model} {width} {height} {' '.join(params)}\n"
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
     lines = []
@@ -727,8 +895,10 @@ def colmap_text_model(draw):
         cam_id = draw(st.sampled_from(["1"] * 15 + ["2"]))
         name = draw(st.sampled_from([f"{i}.png"] * 15 + ["missing.png", "../0.png"]))
         lines.append(f"{i + 1} {' '.join(q)} {' '.join(t)} {cam_id} {name}\n\n")
-    pts = "".join(f"{j + 1} {' '.join(repr(float(v)) for v in rng.normal(size=3) * 0.4)} 128 128 128 0.5\n"
-                  for j in range(draw(st.sampled_from([0, 30]))))
+    pts = "".join(
+        f"{j + 1} {' '.join(repr(float(v)) for v in rng.normal(size=3) * 0.4)} 128 128 128 0.5\n"
+        for j in range(draw(st.sampled_from([0, 30])))
+    )
     if draw(st.integers(0, 5)) == 0:
         pts += f"999 {draw(colmap_number)} 0 0 1 2 3 0.5\n"
     return cams, "".join(lines), pts
@@ -796,10 +966,21 @@ def tiny_run(tmp_path_factory):
     from nerfkit.train.trainer import train
 
     out = tmp_path_factory.mktemp("fuzz") / "run"
-    train(sphere_scene(n_train=4, n_val=1, size=8),
-          TrainConfig(data="x", model="vanilla", out=str(out), steps=3, batch_rays=16, lr=1e-3, eval_views=1,
-                      checkpoint_seconds=1e9),
-          VanillaConfig(n_samples=4, width=8, depth=2), quiet=True)
+    train(
+        sphere_scene(n_train=4, n_val=1, size=8),
+        TrainConfig(
+            data="x",
+            model="vanilla",
+            out=str(out),
+            steps=3,
+            batch_rays=16,
+            lr=1e-3,
+            eval_views=1,
+            checkpoint_seconds=1e9,
+        ),
+        VanillaConfig(n_samples=4, width=8, depth=2),
+        quiet=True,
+    )
     return out
 
 
@@ -811,17 +992,41 @@ def copy_run(run: Path, dest: Path) -> Path:
 @st.composite
 def config_mutation(draw):
     section = draw(st.sampled_from(["train", "model", "bounds", "top", "whole"]))
-    keys = {"train": ["model", "steps", "minutes", "batch_rays", "lr", "lr_final_factor", "background", "render_chunk",
-                      "device", "precision", "unknown_key"],
-            "model": ["n_samples", "n_importance", "pos_freqs", "dir_freqs", "width", "depth", "density_bias_init",
-                      "unknown_key"],
-            "bounds": ["near", "far", "center", "radius", "up"],
-            "top": ["train", "model", "bounds", "scene"],
-            "whole": [None]}[section]
+    keys = {
+        "train": [
+            "model",
+            "steps",
+            "minutes",
+            "batch_rays",
+            "lr",
+            "lr_final_factor",
+            "background",
+            "render_chunk",
+            "device",
+            "precision",
+            "unknown_key",
+        ],
+        "model": [
+            "n_samples",
+            "n_importance",
+            "pos_freqs",
+            "dir_freqs",
+            "width",
+            "depth",
+            "density_bias_init",
+            "unknown_key",
+        ],
+        "bounds": ["near", "far", "center", "radius", "up"],
+        "top": ["train", "model", "bounds", "scene"],
+        "whole": [None],
+    }[section]
     key = draw(st.sampled_from(keys))
     # model sizes stay small: a crafted config.json can still ask for a huge model (see the report)
-    value = draw(st.one_of(json_value, any_float, st.just("__drop__"), st.integers(-3, 64),
-                           st.lists(any_float, min_size=3, max_size=3)))
+    value = draw(
+        st.one_of(
+            json_value, any_float, st.just("__drop__"), st.integers(-3, 64), st.lists(any_float, min_size=3, max_size=3)
+        )
+    )
     if section == "model" and isinstance(value, int) and not isinstance(value, bool) and abs(value) > 256:
         value = 256
     return section, key, value
@@ -875,12 +1080,37 @@ def checkpoint_mutation(draw):
         lambda shape, dtype, fill: torch.full(shape, fill, dtype=torch.float32).to(dtype),
         st.lists(st.integers(0, 4), max_size=3).map(tuple),
         st.sampled_from([torch.float32, torch.float64, torch.int64, torch.bool, torch.float16]),
-        st.sampled_from([0.0, 1.0, float("nan"), float("inf"), -1e30]))
-    plain = st.one_of(st.none(), st.integers(-5, 10**6), st.text(max_size=8), any_float,
-                      st.lists(st.integers(), max_size=3), st.dictionaries(st.text(max_size=3), st.integers(), max_size=2), tensors)
+        st.sampled_from([0.0, 1.0, float("nan"), float("inf"), -1e30]),
+    )
+    plain = st.one_of(
+        st.none(),
+        st.integers(-5, 10**6),
+        st.text(max_size=8),
+        any_float,
+        st.lists(st.integers(), max_size=3),
+        st.dictionaries(st.text(max_size=3), st.integers(), max_size=2),
+        tensors,
+    )
     if kind == "top":
-        return kind, draw(st.sampled_from(["format", "version", "model_name", "step", "model", "model_extra",
-                                           "optimizer", "train_seconds", "rows"])), draw(plain)
+        return (
+            kind,
+            draw(
+                st.sampled_from(
+                    [
+                        "format",
+                        "version",
+                        "model_name",
+                        "step",
+                        "model",
+                        "model_extra",
+                        "optimizer",
+                        "train_seconds",
+                        "rows",
+                    ]
+                )
+            ),
+            draw(plain),
+        )
     if kind == "drop":
         return kind, draw(st.sampled_from(["format", "version", "model_name", "step", "model", "model_extra"])), None
     if kind == "tensor":

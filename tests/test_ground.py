@@ -148,8 +148,9 @@ def test_a_scene_finds_its_floor_once(monkeypatch):
     c2w[:, :3, 3] = cams
     views = Views(c2w, np.repeat(np.eye(3, dtype=np.float32)[None], len(cams), 0), 8, 8)
     table = np.array([0, 0, 1.0, 0], np.float32)
-    scene = Scene(views, Views.empty(8, 8), Views.empty(8, 8), 0.1, 3.0, center=center, table=table,
-                  points=pts.astype(np.float32))
+    scene = Scene(
+        views, Views.empty(8, 8), Views.empty(8, 8), 0.1, 3.0, center=center, table=table, points=pts.astype(np.float32)
+    )
     calls = []
     find_floor = scene_module.find_floor
     monkeypatch.setattr(scene_module, "find_floor", lambda *a, **k: calls.append(1) or find_floor(*a, **k))

@@ -46,21 +46,27 @@ def course_arrays(n=3, size=6):
     rng = np.random.default_rng(0)
     c2w = np.tile(np.eye(4, dtype=np.float32), (n, 1, 1))
     c2w[:, :3, 3] = rng.normal(size=(n, 3)) * 0.3 + [0, 0, 4]
-    return {"images_train": rng.integers(0, 255, (n, size, size, 3), dtype=np.uint8), "c2ws_train": c2w,
-            "focal": np.float32(10.0)}
+    return {
+        "images_train": rng.integers(0, 255, (n, size, size, 3), dtype=np.uint8),
+        "c2ws_train": c2w,
+        "focal": np.float32(10.0),
+    }
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda a: a.update(center=np.zeros(2)), "'center' must be 3 numbers"),
-    (lambda a: a.update(center=np.array(["a", "b", "c"])), "'center' must be 3 numbers"),
-    (lambda a: a.update(center=np.array([np.nan, 0, 0])), "'center' is [nan"),
-    (lambda a: a.update(up=np.zeros(3)), "'up' is the zero vector"),
-    (lambda a: a.update(up=np.array([np.inf, 0, 0])), "'up' is [inf"),
-    (lambda a: a.update(focal=np.float64(1e300)), "'focal' has NaN or inf values"),
-    (lambda a: a["c2ws_train"].__setitem__((0, 0, 3), 1e30), "'c2ws_train'[0] has NaN or inf values"),
-    (lambda a: a.update(c2ws_train=np.repeat(a["c2ws_train"][:1], 3, 0)), "cannot estimate near/far"),
-    (lambda a: a.update(K=np.array([[1e300, 0, 3], [0, 1e300, 3], [0, 0, 1]])), "'K' has NaN or inf values"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda a: a.update(center=np.zeros(2)), "'center' must be 3 numbers"),
+        (lambda a: a.update(center=np.array(["a", "b", "c"])), "'center' must be 3 numbers"),
+        (lambda a: a.update(center=np.array([np.nan, 0, 0])), "'center' is [nan"),
+        (lambda a: a.update(up=np.zeros(3)), "'up' is the zero vector"),
+        (lambda a: a.update(up=np.array([np.inf, 0, 0])), "'up' is [inf"),
+        (lambda a: a.update(focal=np.float64(1e300)), "'focal' has NaN or inf values"),
+        (lambda a: a["c2ws_train"].__setitem__((0, 0, 3), 1e30), "'c2ws_train'[0] has NaN or inf values"),
+        (lambda a: a.update(c2ws_train=np.repeat(a["c2ws_train"][:1], 3, 0)), "cannot estimate near/far"),
+        (lambda a: a.update(K=np.array([[1e300, 0, 3], [0, 1e300, 3], [0, 0, 1]])), "'K' has NaN or inf values"),
+    ],
+)
 def test_npz_values_that_used_to_crash_or_load_as_garbage(tmp_path, edit, message):
     from nerfkit.data.npz import load_npz
 
@@ -151,14 +157,17 @@ def make_blender(folder: Path, angle=0.69, n=3):
     (folder / "transforms_train.json").write_text(json.dumps({"camera_angle_x": angle, "frames": frames}))
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda d: d.update(camera_angle_x=True), "'camera_angle_x' is True"),
-    (lambda d: d.update(camera_angle_x=1e-300), "'camera_angle_x' has NaN or inf values"),
-    (lambda d: d["frames"][0]["transform_matrix"][0].__setitem__(3, 1e300), "has NaN or inf values"),
-    (lambda d: d["frames"][0].update(file_path="a\x00b"), "is not a usable path"),
-    (lambda d: d["frames"][0].update(file_path="x" * 5000), "is not a usable path"),
-    (lambda d: d["frames"][0].update(file_path="line\nbreak"), "not found"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda d: d.update(camera_angle_x=True), "'camera_angle_x' is True"),
+        (lambda d: d.update(camera_angle_x=1e-300), "'camera_angle_x' has NaN or inf values"),
+        (lambda d: d["frames"][0]["transform_matrix"][0].__setitem__(3, 1e300), "has NaN or inf values"),
+        (lambda d: d["frames"][0].update(file_path="a\x00b"), "is not a usable path"),
+        (lambda d: d["frames"][0].update(file_path="x" * 5000), "is not a usable path"),
+        (lambda d: d["frames"][0].update(file_path="line\nbreak"), "not found"),
+    ],
+)
 def test_blender_values_that_used_to_crash_or_load_as_garbage(tmp_path, edit, message):
     from nerfkit.data.load import load_scene
 
@@ -190,14 +199,17 @@ def colmap_project(folder: Path, cams="1 PINHOLE 16 12 20 20 8 6\n", pose="1 0 0
     return folder
 
 
-@pytest.mark.parametrize("kw, message", [
-    ({"cams": "1 PINHOLE 16 12 0 0 8 6\n"}, "zero or negative focal"),
-    ({"cams": "1 PINHOLE 16 12 -20 -20 8 6\n"}, "zero or negative focal"),
-    ({"cams": "1 PINHOLE 0 12 20 20 8 6\n"}, "has image size 0x12"),
-    ({"pose": "1 0 0 0 1e300 0 4"}, "has NaN or inf values"),
-    ({"pose": "0 0 0 0 {x} 0 4"}, "which is zero: no rotation at all"),  # (one of norm 0.5 is normalised)
-    ({"cams": "1 PINHOLE 16 12 nan 20 8 6\n"}, "cannot read the COLMAP model"),
-])
+@pytest.mark.parametrize(
+    "kw, message",
+    [
+        ({"cams": "1 PINHOLE 16 12 0 0 8 6\n"}, "zero or negative focal"),
+        ({"cams": "1 PINHOLE 16 12 -20 -20 8 6\n"}, "zero or negative focal"),
+        ({"cams": "1 PINHOLE 0 12 20 20 8 6\n"}, "has image size 0x12"),
+        ({"pose": "1 0 0 0 1e300 0 4"}, "has NaN or inf values"),
+        ({"pose": "0 0 0 0 {x} 0 4"}, "which is zero: no rotation at all"),  # (one of norm 0.5 is normalised)
+        ({"cams": "1 PINHOLE 16 12 nan 20 8 6\n"}, "cannot read the COLMAP model"),
+    ],
+)
 def test_colmap_values_that_used_to_load_as_garbage(tmp_path, kw, message):
     pytest.importorskip("pycolmap")
     from nerfkit.data.load import load_scene
@@ -234,7 +246,7 @@ def test_colmap_binary_nested_count_is_read_in_a_memory_capped_child(tmp_path):
     m = _binary_model(tmp_path / "m")
     b = bytearray((m / "images.bin").read_bytes())
     off = b.index(b"\x00", 8 + 4 + 32 + 24 + 4) + 1  # after the first image's name
-    b[off:off + 8] = struct.pack("<Q", 10**15)
+    b[off : off + 8] = struct.pack("<Q", 10**15)
     (m / "images.bin").write_bytes(bytes(b))
     with pytest.raises(NerfkitError) as e:
         read_model(m)
@@ -255,9 +267,21 @@ def tiny_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("hostile")
     scene = sphere_scene(n_train=4, n_val=1, size=8)
     save_npz(scene, root / "data.npz")
-    train(scene, TrainConfig(data=str(root / "data.npz"), model="vanilla", out=str(root / "run"), steps=3,
-                             batch_rays=16, lr=1e-3, eval_views=1, checkpoint_seconds=1e9),
-          VanillaConfig(n_samples=4, width=8, depth=2), quiet=True)
+    train(
+        scene,
+        TrainConfig(
+            data=str(root / "data.npz"),
+            model="vanilla",
+            out=str(root / "run"),
+            steps=3,
+            batch_rays=16,
+            lr=1e-3,
+            eval_views=1,
+            checkpoint_seconds=1e9,
+        ),
+        VanillaConfig(n_samples=4, width=8, depth=2),
+        quiet=True,
+    )
     return root / "run"
 
 
@@ -277,21 +301,27 @@ def edited_run(tiny_run, tmp_path, edit_config=None, edit_checkpoint=None) -> Pa
     return run
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda c: [c], "expected a JSON object, got list"),
-    (lambda c: c.update(train=[]), "'train' is missing or not an object"),
-    (lambda c: c.update(model=["width"]), "'model' is missing or not an object"),
-    (lambda c: c["train"].update(model="nope"), "unknown model 'nope'"),
-    (lambda c: c["train"].update(lr=float("nan")), "'lr' (--lr): 'nan' is not a finite number"),
-    (lambda c: c["train"].update(lr_final_factor=5.0), "'lr_final_factor' (--lr-final-factor): 5.0 is above the maximum 1"),
-    (lambda c: c["train"].update(steps=0, minutes=0.0), "invalid TrainConfig settings (train: no stopping rule"),
-    (lambda c: c["bounds"].update(near=float("nan")), "near/far must be finite"),
-    (lambda c: c["bounds"].update(near=7.0), "need 0 <= near < far"),
-    (lambda c: c["bounds"].update(center=[1.0]), "'bounds.center' must be 3 numbers"),
-    (lambda c: c["bounds"].update(up=[0, 0, 0]), "'bounds.up' is the zero vector"),
-    (lambda c: c["bounds"].update(radius=-1), "'bounds.radius' is -1"),
-    (lambda c: c["model"].update(width=-1), "'width' (--width): -1 is below the minimum 1"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda c: [c], "expected a JSON object, got list"),
+        (lambda c: c.update(train=[]), "'train' is missing or not an object"),
+        (lambda c: c.update(model=["width"]), "'model' is missing or not an object"),
+        (lambda c: c["train"].update(model="nope"), "unknown model 'nope'"),
+        (lambda c: c["train"].update(lr=float("nan")), "'lr' (--lr): 'nan' is not a finite number"),
+        (
+            lambda c: c["train"].update(lr_final_factor=5.0),
+            "'lr_final_factor' (--lr-final-factor): 5.0 is above the maximum 1",
+        ),
+        (lambda c: c["train"].update(steps=0, minutes=0.0), "invalid TrainConfig settings (train: no stopping rule"),
+        (lambda c: c["bounds"].update(near=float("nan")), "near/far must be finite"),
+        (lambda c: c["bounds"].update(near=7.0), "need 0 <= near < far"),
+        (lambda c: c["bounds"].update(center=[1.0]), "'bounds.center' must be 3 numbers"),
+        (lambda c: c["bounds"].update(up=[0, 0, 0]), "'bounds.up' is the zero vector"),
+        (lambda c: c["bounds"].update(radius=-1), "'bounds.radius' is -1"),
+        (lambda c: c["model"].update(width=-1), "'width' (--width): -1 is below the minimum 1"),
+    ],
+)
 def test_run_config_values_that_used_to_crash_or_load_as_garbage(tiny_run, tmp_path, edit, message):
     from nerfkit.train.checkpoint import load_run
 
@@ -305,22 +335,30 @@ def first_weight(ckpt: dict) -> str:
     return next(name for name in ckpt["model"] if name.endswith(".weight"))
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda k: k.update(model_extra=5), "'model' or 'model_extra' has the wrong type"),
-    (lambda k: k.update(model=[1, 2]), "'model' or 'model_extra' has the wrong type"),
-    (lambda k: k.update(model_packing=5), "'model_packing' is not a name"),
-    (lambda k: k.update(model_packing="zip-bomb-9"), "unknown model packing 'zip-bomb-9'"),
-    (lambda k: k.update(step="x"), "checkpoint step is 'x'"),
-    (lambda k: k.update(step=-5), "checkpoint step is -5"),
-    (lambda k: k["model"].update({first_weight(k): k["model"][first_weight(k)] * float("nan")}),
-     "weights hold NaN or inf"),
-    (lambda k: k["model"].update({first_weight(k): k["model"][first_weight(k)] * float("inf")}),
-     "weights hold NaN or inf"),
-    (lambda k: k["model"].update({"estimator.cell_sigma": k["model"]["estimator.cell_sigma"] * float("nan")}),
-     "state holds NaN"),
-    (lambda k: k["model"].update({first_weight(k): np.float32(0) + __import__("torch").zeros(1)}),
-     "size mismatch"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda k: k.update(model_extra=5), "'model' or 'model_extra' has the wrong type"),
+        (lambda k: k.update(model=[1, 2]), "'model' or 'model_extra' has the wrong type"),
+        (lambda k: k.update(model_packing=5), "'model_packing' is not a name"),
+        (lambda k: k.update(model_packing="zip-bomb-9"), "unknown model packing 'zip-bomb-9'"),
+        (lambda k: k.update(step="x"), "checkpoint step is 'x'"),
+        (lambda k: k.update(step=-5), "checkpoint step is -5"),
+        (
+            lambda k: k["model"].update({first_weight(k): k["model"][first_weight(k)] * float("nan")}),
+            "weights hold NaN or inf",
+        ),
+        (
+            lambda k: k["model"].update({first_weight(k): k["model"][first_weight(k)] * float("inf")}),
+            "weights hold NaN or inf",
+        ),
+        (
+            lambda k: k["model"].update({"estimator.cell_sigma": k["model"]["estimator.cell_sigma"] * float("nan")}),
+            "state holds NaN",
+        ),
+        (lambda k: k["model"].update({first_weight(k): np.float32(0) + __import__("torch").zeros(1)}), "size mismatch"),
+    ],
+)
 def test_checkpoint_values_that_used_to_crash_or_load_as_garbage(tiny_run, tmp_path, capsys, edit, message):
     from nerfkit.train.checkpoint import load_run
 
@@ -333,10 +371,13 @@ def test_checkpoint_values_that_used_to_crash_or_load_as_garbage(tiny_run, tmp_p
 # ============================================================================= files owned by the capture work
 
 
-@pytest.mark.parametrize("text", [
-    '{"K": [[1000, 0, 640], [0, 1000, 480], [0, 0, 1]], "dist": [0, 0, 0, 0, 0], "width": Infinity, "height": 960}',
-    "DIRECTORY",
-])
+@pytest.mark.parametrize(
+    "text",
+    [
+        '{"K": [[1000, 0, 640], [0, 1000, 480], [0, 0, 1]], "dist": [0, 0, 0, 0, 0], "width": Infinity, "height": 960}',
+        "DIRECTORY",
+    ],
+)
 def test_camera_file_crashes(tmp_path, text):
     from nerfkit.capture.camera import load_camera
 
@@ -350,20 +391,29 @@ def test_camera_file_crashes(tmp_path, text):
     one_line_error(e)
 
 
-@pytest.mark.parametrize("spec", [
-    {"tags": {"0": {"center": "ab", "size": 0.05}}},
-    {"tags": {"0": {"center": [0, 0], "size": "big"}}},
-    {"tags": {"0": {"center": [0, 0], "size": 0.05, "rotation_deg": "x"}}},
-    {"tags": {"0": [[0, 0, 0], [1, 0]]}},
-    {"tags": {"0": {"center": [0, 0], "size": float("inf")}}},
-    {"tag_size": "x", "tags": {"0": {"center": [0, 0]}}},
-    {"board": "grid", "markers_x": -2, "markers_y": 2, "marker_length": 0.04, "marker_separation": 0.01},
-    {"board": "grid", "markers_x": 10**6, "markers_y": 10**6, "marker_length": 0.04, "marker_separation": 0.01},
-    {"board": "grid", "markers_x": float("inf"), "markers_y": 2, "marker_length": 0.04, "marker_separation": 0.01},
-    {"board": "grid", "dictionary": ["x"], "markers_x": 2, "markers_y": 2, "marker_length": 0.04,
-     "marker_separation": 0.01},
-    {"board": "charuco", "squares_x": 5, "squares_y": 5, "square_length": 0.01, "marker_length": 0.04},
-])
+@pytest.mark.parametrize(
+    "spec",
+    [
+        {"tags": {"0": {"center": "ab", "size": 0.05}}},
+        {"tags": {"0": {"center": [0, 0], "size": "big"}}},
+        {"tags": {"0": {"center": [0, 0], "size": 0.05, "rotation_deg": "x"}}},
+        {"tags": {"0": [[0, 0, 0], [1, 0]]}},
+        {"tags": {"0": {"center": [0, 0], "size": float("inf")}}},
+        {"tag_size": "x", "tags": {"0": {"center": [0, 0]}}},
+        {"board": "grid", "markers_x": -2, "markers_y": 2, "marker_length": 0.04, "marker_separation": 0.01},
+        {"board": "grid", "markers_x": 10**6, "markers_y": 10**6, "marker_length": 0.04, "marker_separation": 0.01},
+        {"board": "grid", "markers_x": float("inf"), "markers_y": 2, "marker_length": 0.04, "marker_separation": 0.01},
+        {
+            "board": "grid",
+            "dictionary": ["x"],
+            "markers_x": 2,
+            "markers_y": 2,
+            "marker_length": 0.04,
+            "marker_separation": 0.01,
+        },
+        {"board": "charuco", "squares_x": 5, "squares_y": 5, "square_length": 0.01, "marker_length": 0.04},
+    ],
+)
 def test_layout_file_crashes(tmp_path, spec):
     from nerfkit.capture.aruco import load_layout
 
@@ -379,14 +429,17 @@ def test_layout_file_crashes(tmp_path, spec):
     assert np.isfinite(layout.tag_size) and layout.tag_size > 0
 
 
-@pytest.mark.parametrize("edit", [
-    lambda d: d.update(w=0),
-    lambda d: (d.pop("fl_x"), d.pop("fl_y"), d.update(camera_angle_x=0)),
-    lambda d: d.update(nerfkit={"center": [1, 2]}),
-    lambda d: d.update(nerfkit={"near": "a", "far": 2}),
-    lambda d: d.update(nerfkit={"poses_only": [1, 2]}),
-    lambda d: d.update(nerfkit={"poses_only": {"test": "abc"}}),
-])
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda d: d.update(w=0),
+        lambda d: (d.pop("fl_x"), d.pop("fl_y"), d.update(camera_angle_x=0)),
+        lambda d: d.update(nerfkit={"center": [1, 2]}),
+        lambda d: d.update(nerfkit={"near": "a", "far": 2}),
+        lambda d: d.update(nerfkit={"poses_only": [1, 2]}),
+        lambda d: d.update(nerfkit={"poses_only": {"test": "abc"}}),
+    ],
+)
 def test_transforms_json_crashes(tmp_path, edit):
     from PIL import Image
 
@@ -437,6 +490,7 @@ def test_fast_grid_resolution_is_bounded_in_config_and_checkpoint():
 def within(seconds: int):
     """Fail, instead of hanging, when the block takes longer than ``seconds``: opening a named
     pipe nobody writes to blocks, and SIGALRM interrupts it."""
+
     def stop(signum, frame):  # not an OSError, which readers turn into their own errors
         pytest.fail(f"still blocked after {seconds} s")
 
@@ -457,9 +511,11 @@ def _fifo(path: Path) -> Path:
 
 def _piped(reader: str, name: str):
     """Read a named pipe ``name`` with ``reader`` ("module:function")."""
+
     def read(t: Path):
         module, function = reader.split(":")
         return getattr(importlib.import_module(module), function)(_fifo(t / name))
+
     return read
 
 
@@ -505,25 +561,50 @@ def _nerfstudio_with_a_piped_point_cloud(t: Path):
 
     Image.fromarray(np.zeros((4, 6, 3), np.uint8)).save(t / "images" / "a.png")
     frame = {"file_path": "images/a.png", "transform_matrix": np.eye(4).tolist()}
-    (t / "transforms.json").write_text(json.dumps({"fl_x": 5, "fl_y": 5, "cx": 3, "cy": 2, "w": 6, "h": 4,
-                                                   "ply_file_path": "points.ply", "frames": [frame],
-                                                   "nerfkit": {"near": 0.1, "far": 2.0}}))
+    (t / "transforms.json").write_text(
+        json.dumps(
+            {
+                "fl_x": 5,
+                "fl_y": 5,
+                "cx": 3,
+                "cy": 2,
+                "w": 6,
+                "h": 4,
+                "ply_file_path": "points.ply",
+                "frames": [frame],
+                "nerfkit": {"near": 0.1, "far": 2.0},
+            }
+        )
+    )
     _fifo(t / "points.ply")
     return load_scene(t)
 
 
-@pytest.mark.parametrize("read, piped", [
-    (_piped("nerfkit.data.load:load_scene", "scene.npz"), "scene.npz"),
-    (_piped("nerfkit.data.npz:load_npz", "scene.npz"), "scene.npz"),
-    (_piped("nerfkit.images:load_image", "photo.jpg"), "photo.jpg"),
-    (_piped("nerfkit.config:load_json", "camera.json"), "camera.json"),
-    (_blender_with_a_piped_image, "r_1.png"),
-    (_colmap_with_piped_points, "points3D.txt"),
-    (_npz_beside_a_piped_transforms_json, "transforms.json"),
-    (_llff_with_piped_poses, "poses_bounds.npy"),
-    (_nerfstudio_with_a_piped_point_cloud, "points.ply"),
-], ids=["dataset", "npz", "image", "json", "image in a dataset", "colmap model file", "file beside a dataset",
-        "llff poses", "nerfstudio point cloud"])
+@pytest.mark.parametrize(
+    "read, piped",
+    [
+        (_piped("nerfkit.data.load:load_scene", "scene.npz"), "scene.npz"),
+        (_piped("nerfkit.data.npz:load_npz", "scene.npz"), "scene.npz"),
+        (_piped("nerfkit.images:load_image", "photo.jpg"), "photo.jpg"),
+        (_piped("nerfkit.config:load_json", "camera.json"), "camera.json"),
+        (_blender_with_a_piped_image, "r_1.png"),
+        (_colmap_with_piped_points, "points3D.txt"),
+        (_npz_beside_a_piped_transforms_json, "transforms.json"),
+        (_llff_with_piped_poses, "poses_bounds.npy"),
+        (_nerfstudio_with_a_piped_point_cloud, "points.ply"),
+    ],
+    ids=[
+        "dataset",
+        "npz",
+        "image",
+        "json",
+        "image in a dataset",
+        "colmap model file",
+        "file beside a dataset",
+        "llff poses",
+        "nerfstudio point cloud",
+    ],
+)
 def test_a_named_pipe_is_refused_without_opening_it(tmp_path, read, piped):
     # opening a pipe nobody writes to blocked forever: `nerfkit train --data pipe.npz` never returned
     with within(10), pytest.raises(NerfkitError) as e:
@@ -558,14 +639,31 @@ def test_train_on_a_named_pipe_is_one_line_and_writes_nothing(tmp_path):
 
     pipe = _fifo(tmp_path / "x.npz")
     try:
-        proc = subprocess.run([sys.executable, "-m", "nerfkit", "train", "--data", str(pipe), "--out",
-                               str(tmp_path / "r"), "--steps", "1"], capture_output=True, text=True, timeout=120)
+        proc = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "nerfkit",
+                "train",
+                "--data",
+                str(pipe),
+                "--out",
+                str(tmp_path / "r"),
+                "--steps",
+                "1",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
     except subprocess.TimeoutExpired:
         pytest.fail("nerfkit train --data PIPE blocked")
     assert proc.returncode == 2
-    assert proc.stderr == (f"nerfkit train: error: {pipe}: is a named pipe, not a regular file. nerfkit reads only "
-                           "regular files (a pipe or device could block or never end); save the data to a file and "
-                           "pass that\n")
+    assert proc.stderr == (
+        f"nerfkit train: error: {pipe}: is a named pipe, not a regular file. nerfkit reads only "
+        "regular files (a pipe or device could block or never end); save the data to a file and "
+        "pass that\n"
+    )
     assert not (tmp_path / "r").exists()
 
 
@@ -621,12 +719,38 @@ def _broken_inputs(root: Path, run: Path) -> dict[str, Path]:
 
 
 CASES = [
-    ("train --data truncated", lambda b, t: ["train", "--data", str(b["truncated_npz"]), "--out", str(t / "r"),
-                                             "--steps", "1", "--model", "vanilla"]),
-    ("train --data non-rigid", lambda b, t: ["train", "--data", str(b["nonrigid_npz"]), "--out", str(t / "r"),
-                                             "--steps", "1", "--model", "vanilla"]),
-    ("train --data missing", lambda b, t: ["train", "--data", str(t / "nope.npz"), "--out", str(t / "r"),
-                                           "--steps", "1"]),
+    (
+        "train --data truncated",
+        lambda b, t: [
+            "train",
+            "--data",
+            str(b["truncated_npz"]),
+            "--out",
+            str(t / "r"),
+            "--steps",
+            "1",
+            "--model",
+            "vanilla",
+        ],
+    ),
+    (
+        "train --data non-rigid",
+        lambda b, t: [
+            "train",
+            "--data",
+            str(b["nonrigid_npz"]),
+            "--out",
+            str(t / "r"),
+            "--steps",
+            "1",
+            "--model",
+            "vanilla",
+        ],
+    ),
+    (
+        "train --data missing",
+        lambda b, t: ["train", "--data", str(t / "nope.npz"), "--out", str(t / "r"), "--steps", "1"],
+    ),
     ("train --resume broken", lambda b, t: ["train", "--resume", str(b["broken_run"])]),
     ("eval broken run", lambda b, t: ["eval", str(b["broken_run"])]),
     ("eval --data broken", lambda b, t: ["eval", str(b["run"]), "--data", str(b["nonrigid_npz"])]),
@@ -636,28 +760,81 @@ CASES = [
     ("convert truncated", lambda b, t: ["convert", str(b["truncated_npz"]), "--to", str(t / "o.npz")]),
     ("convert non-rigid", lambda b, t: ["convert", str(b["nonrigid_npz"]), "--to", str(t / "o")]),
     ("export broken run", lambda b, t: ["export", str(b["broken_run"]), "--mesh", str(t / "m.ply")]),
-    ("fit-image truncated", lambda b, t: ["fit-image", str(b["truncated_jpg"]), "--out", str(t / "f"),
-                                          "--steps", "1", "--quiet"]),
+    (
+        "fit-image truncated",
+        lambda b, t: ["fit-image", str(b["truncated_jpg"]), "--out", str(t / "f"), "--steps", "1", "--quiet"],
+    ),
     ("fit-image missing", lambda b, t: ["fit-image", str(t / "none.jpg"), "--out", str(t / "f"), "--quiet"]),
-    ("calibrate unreadable photos", lambda b, t: ["calibrate", str(b["photos"]), "--tag-size", "0.05", "--out",
-                                                  str(t / "cam.json"), "--no-cache", "--jobs", "1"]),
-    ("calibrate bad layout", lambda b, t: ["calibrate", str(b["photos"]), "--layout", str(b["layout"]), "--out",
-                                           str(t / "cam.json")]),
-    ("poses bad camera", lambda b, t: ["poses", str(b["photos"]), "--camera", str(b["camera"]), "--tag-size",
-                                       "0.05", "--out", str(t / "ds")]),
-    ("poses unreadable photos", lambda b, t: ["poses", str(b["photos"]), "--tag-size", "0.05", "--focal-px", "50",
-                                              "--out", str(t / "ds"), "--no-cache", "--jobs", "1"]),
+    (
+        "calibrate unreadable photos",
+        lambda b, t: [
+            "calibrate",
+            str(b["photos"]),
+            "--tag-size",
+            "0.05",
+            "--out",
+            str(t / "cam.json"),
+            "--no-cache",
+            "--jobs",
+            "1",
+        ],
+    ),
+    (
+        "calibrate bad layout",
+        lambda b, t: ["calibrate", str(b["photos"]), "--layout", str(b["layout"]), "--out", str(t / "cam.json")],
+    ),
+    (
+        "poses bad camera",
+        lambda b, t: [
+            "poses",
+            str(b["photos"]),
+            "--camera",
+            str(b["camera"]),
+            "--tag-size",
+            "0.05",
+            "--out",
+            str(t / "ds"),
+        ],
+    ),
+    (
+        "poses unreadable photos",
+        lambda b, t: [
+            "poses",
+            str(b["photos"]),
+            "--tag-size",
+            "0.05",
+            "--focal-px",
+            "50",
+            "--out",
+            str(t / "ds"),
+            "--no-cache",
+            "--jobs",
+            "1",
+        ],
+    ),
     ("dataset broken poses.json", lambda b, t: ["dataset", str(b["poses_json"]), "--out", str(t / "ds")]),
     ("view --png truncated", lambda b, t: ["view", str(b["truncated_npz"]), "--png", str(t / "v.png")]),
     ("view --png non-rigid", lambda b, t: ["view", str(b["nonrigid_npz"]), "--png", str(t / "v.png")]),
     # issue 12: paths outside the dataset, outputs onto inputs, numbers checked when parsed
-    ("train --data outside paths", lambda b, t: ["train", "--data", str(b["outside_paths"]), "--out", str(t / "r"),
-                                                 "--steps", "1"]),
+    (
+        "train --data outside paths",
+        lambda b, t: ["train", "--data", str(b["outside_paths"]), "--out", str(t / "r"), "--steps", "1"],
+    ),
     ("convert outside paths", lambda b, t: ["convert", str(b["outside_paths"]), "--to", str(t / "o.npz")]),
-    ("convert onto its source", lambda b, t: ["convert", str(b["outside_paths"] / "transforms.json"), "--to",
-                                              str(b["outside_paths"]), "--force"]),
-    ("train --minutes nan", lambda b, t: ["train", "--data", str(b["nonrigid_npz"]), "--out", str(t / "r"),
-                                          "--minutes", "nan"]),
+    (
+        "convert onto its source",
+        lambda b, t: [
+            "convert",
+            str(b["outside_paths"] / "transforms.json"),
+            "--to",
+            str(b["outside_paths"]),
+            "--force",
+        ],
+    ),
+    (
+        "train --minutes nan",
+        lambda b, t: ["train", "--data", str(b["nonrigid_npz"]), "--out", str(t / "r"), "--minutes", "nan"],
+    ),
     ("train --lr inf", lambda b, t: ["train", "--data", str(b["nonrigid_npz"]), "--out", str(t / "r"), "--lr", "inf"]),
     ("train --resume --lr", lambda b, t: ["train", "--resume", str(b["run"]), "--lr", "1"]),
     ("render --fps 0", lambda b, t: ["render", str(b["run"]), "--fps", "0", "--out", str(t / "v")]),
@@ -733,9 +910,14 @@ def test_every_serve_function_defaults_to_localhost():
     for pkg in (nerfkit.viz, nerfkit.commands):
         for mod in pkgutil.iter_modules(pkg.__path__):
             module = importlib.import_module(f"{pkg.__name__}.{mod.name}")
-            for name, obj in vars(module).items():
-                funcs = [obj] if inspect.isfunction(obj) else \
-                    [m for m in vars(obj).values() if inspect.isfunction(m)] if inspect.isclass(obj) else []
+            for obj in vars(module).values():
+                funcs = (
+                    [obj]
+                    if inspect.isfunction(obj)
+                    else [m for m in vars(obj).values() if inspect.isfunction(m)]
+                    if inspect.isclass(obj)
+                    else []
+                )
                 for f in funcs:
                     if getattr(f, "__module__", None) != module.__name__:
                         continue
@@ -766,8 +948,9 @@ def test_every_viser_server_is_given_a_host_explicitly():
                 name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
                 if name == "ViserServer":
                     calls += 1
-                    assert any(k.arg == "host" for k in node.keywords), \
+                    assert any(k.arg == "host" for k in node.keywords), (
                         f"{path}:{node.lineno} relies on viser's default host 0.0.0.0"
+                    )
     assert calls >= 1
 
 
@@ -851,20 +1034,30 @@ def test_a_wrong_folder_points_to_the_right_one(tmp_path, capsys):
     (run / "model.pt").write_bytes(b"x")
     (run / "config.json").write_text(json.dumps({"train": {"data": "/data/lego.npz"}}))
     cases = [
-        (["train", "--data", str(capture), "--steps", "1", "--out", str(tmp_path / "r")],
-         f"its dataset is {capture / 'dataset'}"),
-        (["train", "--data", str(capture / "dataset" / "poses.json"), "--steps", "1", "--out", str(tmp_path / "r")],
-         f"not the dataset. Give {capture / 'dataset' / 'dataset.npz'}"),
-        (["train", "--data", str(photos), "--steps", "1", "--out", str(tmp_path / "r")],
-         f"`nerfkit poses {photos} --out DATASET`"),
+        (
+            ["train", "--data", str(capture), "--steps", "1", "--out", str(tmp_path / "r")],
+            f"its dataset is {capture / 'dataset'}",
+        ),
+        (
+            ["train", "--data", str(capture / "dataset" / "poses.json"), "--steps", "1", "--out", str(tmp_path / "r")],
+            f"not the dataset. Give {capture / 'dataset' / 'dataset.npz'}",
+        ),
+        (
+            ["train", "--data", str(photos), "--steps", "1", "--out", str(tmp_path / "r")],
+            f"`nerfkit poses {photos} --out DATASET`",
+        ),
         (["render", str(capture)], f"is a capture's folder, not a run. Its NeRF is {capture / 'run'}"),
-        (["train", "--data", str(run), "--steps", "1", "--out", str(tmp_path / "r")],
-         f"a trained run's folder trained on /data/lego.npz: pass that dataset, or continue the run with "
-         f"`nerfkit train --resume {run}`"),
+        (
+            ["train", "--data", str(run), "--steps", "1", "--out", str(tmp_path / "r")],
+            f"a trained run's folder trained on /data/lego.npz: pass that dataset, or continue the run with "
+            f"`nerfkit train --resume {run}`",
+        ),
         (["convert", str(run), "--to", str(tmp_path / "r")], "a trained run's folder"),
         (["eval", str(run / "model.pt")], f"is a file of a run, not the run. Give its folder: {run}"),
-        (["eval", str(capture / "dataset" / "dataset.npz")],
-         "is a file, not a run folder. Give the --out folder of a `nerfkit train` run (this looks like a dataset"),
+        (
+            ["eval", str(capture / "dataset" / "dataset.npz")],
+            "is a file, not a run folder. Give the --out folder of a `nerfkit train` run (this looks like a dataset",
+        ),
     ]
     for argv, hint in cases:
         assert main(argv) == 2, argv
@@ -915,12 +1108,16 @@ def _photos_with_a_link_outside(root: Path) -> tuple[Path, Path]:
     return photos, private / "secret.png"
 
 
-@pytest.mark.parametrize("command", [
-    ["poses", "PHOTOS", "--focal-px", "500", "--tag-size", "0.05", "--method", "tags", "--out", "OUT"],
-    ["poses", "PHOTOS", "--method", "colmap", "--out", "OUT"],
-    ["calibrate", "PHOTOS", "--tag-size", "0.05", "--out", "OUT/camera.json"],
-    ["capture", "PHOTOS", "--tag-size", "0.05", "--out", "OUT"],
-], ids=["poses-tags", "poses-colmap", "calibrate", "capture"])
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["poses", "PHOTOS", "--focal-px", "500", "--tag-size", "0.05", "--method", "tags", "--out", "OUT"],
+        ["poses", "PHOTOS", "--method", "colmap", "--out", "OUT"],
+        ["calibrate", "PHOTOS", "--tag-size", "0.05", "--out", "OUT/camera.json"],
+        ["capture", "PHOTOS", "--tag-size", "0.05", "--out", "OUT"],
+    ],
+    ids=["poses-tags", "poses-colmap", "calibrate", "capture"],
+)
 def test_a_photo_symlinked_to_a_file_outside_the_folder_is_never_read(tmp_path, capsys, monkeypatch, command):
     import nerfkit.capture.photos as photos_mod
 
@@ -962,15 +1159,32 @@ def _dataset_folder(root: Path) -> Path:
     return ds
 
 
-TRAIN_TINY = ["--steps", "2", "--model", "vanilla", "--n-samples", "4", "--width", "8", "--depth", "2",
-              "--batch-rays", "16", "--eval-views", "1"]
+TRAIN_TINY = [
+    "--steps",
+    "2",
+    "--model",
+    "vanilla",
+    "--n-samples",
+    "4",
+    "--width",
+    "8",
+    "--depth",
+    "2",
+    "--batch-rays",
+    "16",
+    "--eval-views",
+    "1",
+]
 
 
-@pytest.mark.parametrize("data, out", [
-    ("ds/scene.npz", "ds/run"),
-    ("ds/scene.npz", "ds/images/run"),
-    ("ds", "ds/run"),
-])
+@pytest.mark.parametrize(
+    "data, out",
+    [
+        ("ds/scene.npz", "ds/run"),
+        ("ds/scene.npz", "ds/images/run"),
+        ("ds", "ds/run"),
+    ],
+)
 def test_a_run_is_never_written_inside_its_datasets_folder(tmp_path, capsys, data, out):
     ds = _dataset_folder(tmp_path)
     before = {p: p.stat().st_mtime_ns for p in ds.rglob("*")}
@@ -999,12 +1213,15 @@ def test_which_folder_is_a_datasets_own(tmp_path):
         guard_run_folder(work, work / "scene.npz")  # (a run there could replace it)
 
 
-@pytest.mark.parametrize("flags, message", [
-    (["--far", "1e308"], "1e308 is larger than a dataset file holds"),
-    (["--far", "1e39"], "1e39 is larger than a dataset file holds"),
-    (["--near", "1e-320", "--far", "6"], "1e-320 is smaller than a dataset file holds"),
-    (["--near", "1", "--far", "1.00000001"], "are one number in a dataset file"),
-])
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--far", "1e308"], "1e308 is larger than a dataset file holds"),
+        (["--far", "1e39"], "1e39 is larger than a dataset file holds"),
+        (["--near", "1e-320", "--far", "6"], "1e-320 is smaller than a dataset file holds"),
+        (["--near", "1", "--far", "1.00000001"], "are one number in a dataset file"),
+    ],
+)
 def test_convert_near_far_must_survive_the_files_float32(tmp_path, capsys, flags, message):
     from nerfkit.data.npz import save_npz
     from nerfkit.data.synthetic import sphere_scene
@@ -1030,8 +1247,13 @@ def _run_cli(args, delay=None, sig=None, ignore_sigint=False, timeout=300):
     def ignore():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
-    proc = subprocess.Popen([sys.executable, "-m", "nerfkit", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, preexec_fn=ignore if ignore_sigint else None)  # noqa: PLW1509
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "nerfkit", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=ignore if ignore_sigint else None,
+    )  # noqa: PLW1509
     try:
         if sig is not None:
             time.sleep(delay)
@@ -1050,8 +1272,11 @@ def _run_cli(args, delay=None, sig=None, ignore_sigint=False, timeout=300):
 def test_a_stop_signal_during_start_up_is_one_line_and_exit_130(tmp_path, sphere_npz, sig):
     # 1 s in, torch is still being imported (it takes 1.5 s or more): a KeyboardInterrupt
     # traceback and death by the signal before; now one line, exit 130, from any moment on
-    code, err = _run_cli(["train", "--data", str(sphere_npz), "--out", str(tmp_path / "run"), "--steps", "100000",
-                          *TRAIN_TINY[2:]], delay=1.0, sig=sig)
+    code, err = _run_cli(
+        ["train", "--data", str(sphere_npz), "--out", str(tmp_path / "run"), "--steps", "100000", *TRAIN_TINY[2:]],
+        delay=1.0,
+        sig=sig,
+    )
     assert code == 130, err
     assert "Traceback" not in err and "interrupted" in err, err
 
@@ -1060,8 +1285,12 @@ def test_a_stop_signal_during_start_up_is_one_line_and_exit_130(tmp_path, sphere
 def test_a_sigint_ignored_by_the_parent_stays_ignored(tmp_path, sphere_npz):
     # nohup, or a script's background job: SIGINT is ignored, and training must not take it back
     run = tmp_path / "run"
-    code, err = _run_cli(["train", "--data", str(sphere_npz), "--out", str(run), "--steps", "30",
-                          *TRAIN_TINY[2:]], delay=0.3, sig=signal.SIGINT, ignore_sigint=True)
+    code, err = _run_cli(
+        ["train", "--data", str(sphere_npz), "--out", str(run), "--steps", "30", *TRAIN_TINY[2:]],
+        delay=0.3,
+        sig=signal.SIGINT,
+        ignore_sigint=True,
+    )
     assert code == 0, err
     assert "interrupted" not in err and "Traceback" not in err
     assert json.loads((run / "metrics.json").read_text())["finished"] and (run / "model.pt").exists()
@@ -1085,8 +1314,9 @@ def test_an_interrupted_run_reports_no_psnr_of_an_earlier_step(tmp_path, sphere_
     monkeypatch.setattr(trainer_mod.Trainer, "train_step", stopped_every_5)
     run = tmp_path / "run"
     flags = ["--eval-every", "100000", "--checkpoint-seconds", "100000"]
-    assert main(["train", "--data", str(sphere_npz), "--out", str(run), *TRAIN_TINY[2:], "--steps", "1000",
-                 *flags]) == 130
+    assert (
+        main(["train", "--data", str(sphere_npz), "--out", str(run), *TRAIN_TINY[2:], "--steps", "1000", *flags]) == 130
+    )
     out, err = capsys.readouterr()
     assert "steps: 5" in out and "val PSNR" not in out, out
     assert "was not evaluated" in err and f"nerfkit eval {run}" in err
@@ -1097,12 +1327,15 @@ def test_an_interrupted_run_reports_no_psnr_of_an_earlier_step(tmp_path, sphere_
     assert "steps: 10" in out and "val PSNR" not in out, out
 
 
-@pytest.mark.parametrize("quaternion, message", [
-    ("0 0 0 0", "which is zero: no rotation at all"),
-    ("0 0 0 0.0", "which is zero"),
-    ("nan 0 0 1", "which is not finite"),
-    ("1e400 0 0 0", "which is not finite"),
-])
+@pytest.mark.parametrize(
+    "quaternion, message",
+    [
+        ("0 0 0 0", "which is zero: no rotation at all"),
+        ("0 0 0 0.0", "which is zero"),
+        ("nan 0 0 1", "which is not finite"),
+        ("1e400 0 0 0", "which is not finite"),
+    ],
+)
 def test_a_colmap_text_quaternion_without_a_direction_is_refused_with_its_line(tmp_path, quaternion, message):
     from nerfkit.data.load import load_scene
 
@@ -1164,11 +1397,14 @@ def test_a_float_tiff_of_0_to_255_is_refused_not_clipped_to_a_silhouette(tmp_pat
     np.testing.assert_allclose(load_image(tmp_path / "g.tif")[..., 0], values / 255.0, atol=1e-7)
 
 
-@pytest.mark.parametrize("flags, message", [
-    (["--depth", "100000000"], "--depth: 100000000 is above the maximum 64"),
-    (["--width", "2000000000"], "--width: 2000000000 is above the maximum 8192"),
-    (["--sweep", "depth=2,1000"], "1000 is above the maximum 64"),
-])
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--depth", "100000000"], "--depth: 100000000 is above the maximum 64"),
+        (["--width", "2000000000"], "--width: 2000000000 is above the maximum 8192"),
+        (["--sweep", "depth=2,1000"], "1000 is above the maximum 64"),
+    ],
+)
 def test_fit_image_model_size_is_bounded(tmp_path, capsys, flags, message):
     assert main(["fit-image", "--out", str(tmp_path / "fit"), "--steps", "1", *flags]) == 2
     _err_line(capsys, message)
@@ -1190,8 +1426,10 @@ def test_fit_image_memory_messages_name_the_flag_that_matters(tmp_path, capsys, 
     monkeypatch.setattr(fit_mod, "memory_bytes", lambda device: None)  # unknown: PyTorch's own failure, then
 
     def no_memory(self, *a, **k):
-        raise RuntimeError("[enforce fail at alloc_cpu.cpp:127] DefaultCPUAllocator: can't allocate memory: you "
-                           "tried to allocate 274877906944 bytes. Error code 12")
+        raise RuntimeError(
+            "[enforce fail at alloc_cpu.cpp:127] DefaultCPUAllocator: can't allocate memory: you "
+            "tried to allocate 274877906944 bytes. Error code 12"
+        )
 
     monkeypatch.setattr(field_mod.ImageField, "__init__", no_memory)
     assert main(["fit-image", "--out", str(out), "--steps", "1", "--width", "8192"]) == 2

@@ -34,12 +34,25 @@ ROOT = "nerfkit"
 LAYERS: list[tuple[str, set[str]]] = [
     (
         "foundations: errors, files, images, camera conventions, settings, plain geometry",
-        {"nerfkit", "errors", "precision", "io", "images", "cameras", "config", "ground", "tabletop", "splat_files",
-         "scene_extent"},
+        {
+            "nerfkit",
+            "errors",
+            "precision",
+            "io",
+            "images",
+            "cameras",
+            "config",
+            "ground",
+            "tabletop",
+            "splat_files",
+            "scene_extent",
+        },
     ),
     ("datasets: the Scene type and its file formats", {"data"}),
-    ("rendering maths: volume rendering, sampling, kernels, fields, estimators",
-     {"render", "kernels", "fields", "estimators"}),
+    (
+        "rendering maths: volume rendering, sampling, kernels, fields, estimators",
+        {"render", "kernels", "fields", "estimators"},
+    ),
     ("figures, videos and the dataset viewer", {"viz"}),
     ("captures, structure from motion, models, mesh and point export", {"capture", "sfm", "models", "export"}),
     (

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import torch
 
+from nerfkit.estimators.occupancy import OccupancyEstimator, coarse_cells
 from nerfkit.kernels import numba_kernels
 from nerfkit.kernels import reference as ref
 from nerfkit.kernels.ops import GradSink, GridGeom, MarchSpec, cell_density_max, render_grid
 from nerfkit.kernels.optim import GridAdam
-from nerfkit.estimators.occupancy import OccupancyEstimator, coarse_cells
 from nerfkit.render.box import ray_aabb
 
 needs_numba = pytest.mark.skipif(numba_kernels() is None, reason="numba not available")
@@ -22,7 +22,7 @@ needs_numba = pytest.mark.skipif(numba_kernels() is None, reason="numba not avai
 def fibonacci_sphere(n: int) -> torch.Tensor:
     i = torch.arange(n, dtype=torch.float64) + 0.5
     z = 1 - 2 * i / n
-    phi = math.pi * (1 + 5 ** 0.5) * i
+    phi = math.pi * (1 + 5**0.5) * i
     r = torch.sqrt(1 - z * z)
     return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
 
@@ -166,8 +166,9 @@ def test_compiled_render_matches_reference_values_and_gradients(coarse_factor, s
     sink = GradSink(grid.shape[0], grid.shape[1])
     fast = render_grid(g_fast, geom, spec, o, d, t0, t1, u, sh_degree, sink, "numba")
     g_ref = grid.double().requires_grad_()
-    slow = render_grid(g_ref, as64(geom), spec, o.double(), d.double(), t0.double(), t1.double(), u.double(),
-                       sh_degree, None, "torch")
+    slow = render_grid(
+        g_ref, as64(geom), spec, o.double(), d.double(), t0.double(), t1.double(), u.double(), sh_degree, None, "torch"
+    )
 
     assert torch.equal(fast.counts.long(), slow.counts.long())  # the very same samples
     assert fast.n_samples > 300
@@ -176,8 +177,11 @@ def test_compiled_render_matches_reference_values_and_gradients(coarse_factor, s
     torch.testing.assert_close(fast.acc.double(), slow.acc, atol=1e-6, rtol=1e-5)
 
     gen = torch.Generator().manual_seed(2)
-    w_rgb, w_d, w_a = (torch.randn(400, 3, generator=gen), torch.randn(400, generator=gen),
-                       torch.randn(400, generator=gen))
+    w_rgb, w_d, w_a = (
+        torch.randn(400, 3, generator=gen),
+        torch.randn(400, generator=gen),
+        torch.randn(400, generator=gen),
+    )
     ((fast.rgb * w_rgb).sum() + (fast.depth * w_d).sum() + (fast.acc * w_a).sum()).backward()
     ((slow.rgb * w_rgb.double()).sum() + (slow.depth * w_d.double()).sum() + (slow.acc * w_a.double()).sum()).backward()
     assert g_fast.grad is None  # the compiled path routes the gradient into the sink
@@ -202,8 +206,9 @@ def test_compiled_near_damping_matches_reference_and_changes_only_gradients():
     grid, geom = random_field(seed=7, sh_degree=1)
     spec, _ = spec_for(grid, geom, coarse_factor=2)
     o, d, t0, t1, u = random_rays(400, geom, seed=3)  # samples at t ~ 3 to 5
-    damped = MarchSpec(spec.occ, spec.coarse, spec.coarse_factor, spec.step, spec.eps, spec.density_scale,
-                       grad_near=4.5)
+    damped = MarchSpec(
+        spec.occ, spec.coarse, spec.coarse_factor, spec.step, spec.eps, spec.density_scale, grad_near=4.5
+    )
     w_rgb, w_d, w_a = loss_weights(400)
     grads, outs = [], []
     for sp in (spec, damped):
@@ -214,8 +219,9 @@ def test_compiled_near_damping_matches_reference_and_changes_only_gradients():
         grads.append(sink.grad.sum(0).double())
         outs.append(out)
     g_ref = grid.double().requires_grad_()
-    slow = render_grid(g_ref, as64(geom), damped, o.double(), d.double(), t0.double(), t1.double(), u.double(), 1,
-                       None, "torch")
+    slow = render_grid(
+        g_ref, as64(geom), damped, o.double(), d.double(), t0.double(), t1.double(), u.double(), 1, None, "torch"
+    )
     ((slow.rgb * w_rgb.double()).sum() + (slow.depth * w_d.double()).sum() + (slow.acc * w_a.double()).sum()).backward()
     assert torch.equal(outs[0].rgb, outs[1].rgb) and torch.equal(outs[0].depth, outs[1].depth)
     torch.testing.assert_close(grads[1], g_ref.grad, atol=2e-5, rtol=1e-4)
@@ -360,8 +366,9 @@ def test_compiled_render_without_grad_matches_training_pass():
     o, d, t0, t1, u = random_rays(300, geom, seed=3)
     with torch.no_grad():
         a = render_grid(grid, geom, spec, o, d, t0, t1, u, 1, None, "numba")
-    b = render_grid(grid.clone().requires_grad_(), geom, spec, o, d, t0, t1, u, 1,
-                    GradSink(geom.n_vertices, grid.shape[1]), "numba")
+    b = render_grid(
+        grid.clone().requires_grad_(), geom, spec, o, d, t0, t1, u, 1, GradSink(geom.n_vertices, grid.shape[1]), "numba"
+    )
     assert torch.equal(a.counts, b.counts) and torch.equal(a.acc, b.acc.detach())
     # rendering skips the colour of samples of weight < 1e-7 (each changes a channel by < 1e-7)
     torch.testing.assert_close(a.rgb, b.rgb.detach(), atol=1e-6, rtol=0)
@@ -402,7 +409,9 @@ def test_occupancy_kernel_matches_reference(layout):
         got = np.zeros((rz - 1, ry - 1, rx - 1), np.uint8)
         cf = 4
         coarse = np.zeros((-(-(rz - 1) // cf), -(-(ry - 1) // cf), -(-(rx - 1) // cf)), np.uint8)
-        numba_kernels().occupancy_from_grid(grid.numpy(), geom.vertex_index().numpy(), geom.row_offset(), rx, ry, rz, raw_thr, got, coarse, cf)
+        numba_kernels().occupancy_from_grid(
+            grid.numpy(), geom.vertex_index().numpy(), geom.row_offset(), rx, ry, rz, raw_thr, got, coarse, cf
+        )
         assert np.array_equal(got.astype(bool), occ.occ.numpy())
         assert np.array_equal(coarse.astype(bool), coarse_cells(occ.occ, cf).numpy())
 
@@ -521,8 +530,7 @@ def test_grid_adam_state_dict_round_trip_resumes_identically():
     def make(p):
         prm = torch.nn.Parameter(p.clone())
         sink = GradSink(*p.shape, lanes=1)
-        return prm, sink, GridAdam([{"params": [prm], "lr": 0.1, "channel_lr_scale": [1, 2, 3, 4]}],
-                                   sinks={prm: sink})
+        return prm, sink, GridAdam([{"params": [prm], "lr": 0.1, "channel_lr_scale": [1, 2, 3, 4]}], sinks={prm: sink})
 
     def step(prm, opt, g):
         prm.grad = g.clone()
@@ -576,7 +584,8 @@ def test_distortion_matches_all_pairs_and_the_worked_examples():
     assert float(dist(one, tt, 1.0)) == pytest.approx(1 / 3)
     half = one * 0.5
     assert float(dist(half, tt, 1.0, torch.tensor([3.5], dtype=torch.float64))) == pytest.approx(
-        2 * 0.5 * 0.5 * 2 + 0.25 / 3)
+        2 * 0.5 * 0.5 * 2 + 0.25 / 3
+    )
     # haze spread in front of a surface costs more than the same weight next to it
     near = torch.tensor([[0.0, 0.0, 0.3]], dtype=torch.float64)
     far = torch.tensor([[0.3, 0.0, 0.0]], dtype=torch.float64)
@@ -599,8 +608,21 @@ def test_compiled_distortion_matches_reference_values_and_gradients(sh_degree):
         oo, dd = o.to(dt).clone().requires_grad_(), d.to(dt).clone().requires_grad_()
         sink = GradSink(geom.n_vertices, grid.shape[1]) if backend == "numba" else None
         gm = GridGeom(geom.lo.to(dt), geom.voxel, geom.res)
-        out = render_grid(g, gm, spec, oo, dd, t0.to(dt), t1.to(dt), u.to(dt), sh_degree, sink, backend,
-                          t_end=t_end.to(dt), distortion=True)
+        out = render_grid(
+            g,
+            gm,
+            spec,
+            oo,
+            dd,
+            t0.to(dt),
+            t1.to(dt),
+            u.to(dt),
+            sh_degree,
+            sink,
+            backend,
+            t_end=t_end.to(dt),
+            distortion=True,
+        )
         w_rgb, _, w_a = (w.to(dt) for w in loss_weights(300))
         loss = 3.0 * out.distortion.sum()  # alone at degree 0, so that its gradient is checked by itself
         if sh_degree:

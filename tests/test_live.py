@@ -59,7 +59,7 @@ def test_a_boxs_depth_range_runs_from_its_nearest_point_to_its_farthest_corner()
     assert near == pytest.approx(4.0) and far == pytest.approx(np.sqrt(1 + 36 + 1))
     assert live.box_depth_range(box, c2w, 4.5, 5.0) == (4.5, pytest.approx(np.sqrt(38)))  # no nearer than near
     c2w[:3, 3] = [0.0, -20.0, 1.0]  # beyond the scene's far: still the box's own range
-    assert live.box_depth_range(box, c2w, 0.1, 6.0) == (pytest.approx(19.0), pytest.approx(np.sqrt(1 + 21 ** 2 + 1)))
+    assert live.box_depth_range(box, c2w, 0.1, 6.0) == (pytest.approx(19.0), pytest.approx(np.sqrt(1 + 21**2 + 1)))
     assert live.box_depth_range(None, c2w, 0.1, 100.0) == (0.1, 100.0)
 
 
@@ -111,8 +111,9 @@ def test_viewer_renders_the_model_from_the_browser_camera():
     info = SimpleNamespace(bounds=bounds, train=SimpleNamespace(background="white"))
     watcher = live.RunWatcher(".", lambda d: None)
     watcher.current = live.LoadedRun(SphereModel(bounds), info, 5, None)
-    viewer = live.LiveViewer(watcher, sphere_scene(n_train=3, n_val=1, size=16), host="127.0.0.1", port=0,
-                             max_side=64, watch=False)
+    viewer = live.LiveViewer(
+        watcher, sphere_scene(n_train=3, n_val=1, size=16), host="127.0.0.1", port=0, max_side=64, watch=False
+    )
     try:
         assert viewer.server.get_host() == "127.0.0.1"
         assert len(viewer._frustum_handles) == 3
@@ -121,8 +122,9 @@ def test_viewer_renders_the_model_from_the_browser_camera():
         img = viewer.render_for(q, c2w[:3, 3], np.radians(40), 1.0, 32, "RGB")
         assert img.shape == (32, 32, 3)
         hit = np.array([0.0, -1.0, 0.0])  # the centre ray hits the sphere here
-        np.testing.assert_allclose(img[15:17, 15:17].reshape(-1, 3).mean(0) / 255, sphere_color(hit[None])[0],
-                                   atol=0.05)
+        np.testing.assert_allclose(
+            img[15:17, 15:17].reshape(-1, 3).mean(0) / 255, sphere_color(hit[None])[0], atol=0.05
+        )
         assert (img[0, 0] == 255).all()  # the white background in a corner
         depth = viewer.render_for(q, c2w[:3, 3], np.radians(40), 1.0, 32, "Depth")
         assert (depth[0, 0] == 0).all() and depth[16, 16].any()
@@ -188,8 +190,9 @@ def test_progressive_refinement_for_a_resting_camera(monkeypatch):
         c2w = look_at(np.array([0.0, -4.0, 1.0]), np.zeros(3), np.array([0, 0, 1.0]))
         sent = []
         camera = SimpleNamespace(wxyz=live.matrix_to_quat(c2w[:3, :3]), position=c2w[:3, 3], fov=0.7, aspect=2.0)
-        client = SimpleNamespace(camera=camera, scene=SimpleNamespace(
-            set_background_image=lambda img, **kw: sent.append(img.shape)))
+        client = SimpleNamespace(
+            camera=camera, scene=SimpleNamespace(set_background_image=lambda img, **kw: sent.append(img.shape))
+        )
         monkeypatch.setattr(viewer.server, "get_clients", lambda: {1: client})
         clock = [100.0]
         monkeypatch.setattr(live.time, "monotonic", lambda: clock[0])

@@ -52,8 +52,14 @@ def test_llff_axes_match_the_nerf_papers_conversion():
     # NeRF's load_llff turns [down, right, back] into OpenGL [right, up, back]; nerfkit goes on to OpenCV
     rng = np.random.default_rng(1)
     q, _ = np.linalg.qr(rng.normal(size=(5, 3, 3)))
-    poses = np.concatenate([q * np.sign(np.linalg.det(q))[:, None, None], rng.normal(size=(5, 3, 1)),
-                            np.tile([[H], [W], [FOCAL]], (5, 1, 1))], axis=2)
+    poses = np.concatenate(
+        [
+            q * np.sign(np.linalg.det(q))[:, None, None],
+            rng.normal(size=(5, 3, 1)),
+            np.tile([[H], [W], [FOCAL]], (5, 1, 1)),
+        ],
+        axis=2,
+    )
     gl = np.concatenate([poses[:, :, 1:2], -poses[:, :, 0:1], poses[:, :, 2:4]], axis=2)
     gl44 = np.concatenate([gl, np.tile([[[0, 0, 0, 1.0]]], (5, 1, 1))], axis=1)
     assert np.allclose(llff_to_opencv(poses), opengl_to_opencv(gl44))
@@ -178,9 +184,34 @@ def test_a_run_trains_on_the_downscaled_folder_and_keeps_reading_it(scene_dir, t
 
     folder, _, _ = scene_dir
     run = tmp_path / "run"
-    assert main(["train", "--data", str(folder), "--downscale", "4", "--out", str(run), "--steps", "2",
-                 "--model", "vanilla", "--batch-rays", "16", "--n-samples", "4", "--width", "8", "--depth", "2",
-                 "--eval-views", "1"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--data",
+                str(folder),
+                "--downscale",
+                "4",
+                "--out",
+                str(run),
+                "--steps",
+                "2",
+                "--model",
+                "vanilla",
+                "--batch-rays",
+                "16",
+                "--n-samples",
+                "4",
+                "--width",
+                "8",
+                "--depth",
+                "2",
+                "--eval-views",
+                "1",
+            ]
+        )
+        == 0
+    )
     scene = scene_for_run(read_run(run), None)  # raises if these are not the images the run trained on
     assert (scene.train.width, scene.train.height) == (W // 4, H // 4)
     assert main(["eval", str(run), "--split", "val"]) == 0

@@ -79,8 +79,9 @@ def test_the_ndc_box_holds_every_pixel_of_cameras_turned_about_their_axis(space)
     fitted = space.fit_extent(turned, np.repeat(K[None], 4, 0), space.width, space.height)
     assert fitted.extent > 1.3 and NdcSpace.from_dict(fitted.to_dict()) == fitted
     for c2w in turned:
-        rays = image_rays(torch.tensor(K, dtype=torch.float32), torch.tensor(c2w, dtype=torch.float32),
-                          space.width, space.height)
+        rays = image_rays(
+            torch.tensor(K, dtype=torch.float32), torch.tensor(c2w, dtype=torch.float32), space.width, space.height
+        )
         o, d, forward = fitted.rays(rays.origins.double(), rays.directions.double())
         assert forward.all()
         for s in (0.0, 0.5, 0.999):
@@ -96,8 +97,10 @@ def test_forward_facing_scenes_get_ndc_and_a_spiral_others_do_not():
     eyes = path.c2w[:, :3, 3]
     ref = mean_camera(ff.train.c2w)
     assert np.abs((eyes - ref[:3, 3]) @ ref[:3, 2]).max() < 1e-5  # circles across the view, not around the scene
-    assert np.linalg.norm(eyes - ref[:3, 3], axis=1).max() <= np.linalg.norm(
-        ff.train.c2w[:, :3, 3] - ref[:3, 3], axis=1).max() + 1e-6  # within the cameras' spread
+    assert (
+        np.linalg.norm(eyes - ref[:3, 3], axis=1).max()
+        <= np.linalg.norm(ff.train.c2w[:, :3, 3] - ref[:3, 3], axis=1).max() + 1e-6
+    )  # within the cameras' spread
     assert (path.c2w[:, :3, 2] @ ref[:3, 2]).min() > 0.9  # looking the way the photos did
     no_path = replace(sphere, test=Views.empty(16, 16))  # (its test split is a pose-only path)
     np.testing.assert_allclose(no_path.render_path(12).c2w, sphere.orbit(12).c2w)
@@ -119,19 +122,25 @@ def test_a_video_path_can_be_chosen_over_the_automatic_one():
 def test_fast_model_in_ndc_beats_the_box_on_a_forward_facing_scene(tmp_path, capsys):
     """Content from 3 units to a backdrop 15 units away: a box around the scene's middle
     cannot hold the backdrop; the NDC grid holds everything out to infinity."""
+    from nerfkit.cli import main
+    from nerfkit.data.npz import save_npz
     from nerfkit.models.fast import FastConfig
     from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import train
-
-    from nerfkit.cli import main
-    from nerfkit.data.npz import save_npz
 
     scene = forward_facing_scene(n_train=24, n_val=3, size=40)
     save_npz(scene, tmp_path / "forward.npz")
     scores = {}
     for space in ("auto", "box"):
-        cfg = TrainConfig(data=str(tmp_path / "forward.npz"), out=str(tmp_path / space), steps=240, batch_rays=1024,
-                          seed=0, eval_views=3, checkpoint_seconds=1e9)
+        cfg = TrainConfig(
+            data=str(tmp_path / "forward.npz"),
+            out=str(tmp_path / space),
+            steps=240,
+            batch_rays=1024,
+            seed=0,
+            eval_views=3,
+            checkpoint_seconds=1e9,
+        )
         result = train(scene, cfg, FastConfig(resolutions="32,64", upsample_steps="80", space=space), quiet=True)
         scores[space] = [r["psnr"] for r in result.rows if r["split"] == "val"][-1]
     assert scores["auto"] > 23.0

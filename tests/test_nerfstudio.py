@@ -16,8 +16,9 @@ from nerfkit.errors import NerfkitError
 
 def random_views(n, w=32, h=24, seed=0, names=None, K=None):
     rng = np.random.default_rng(seed)
-    c2w = np.stack([look_at(rng.normal(0, 1, 3) * 2 + np.array([0, 0, 3.0]), np.zeros(3), np.array([0, 0, 1.0]))
-                    for _ in range(n)]).astype(np.float32)
+    c2w = np.stack(
+        [look_at(rng.normal(0, 1, 3) * 2 + np.array([0, 0, 3.0]), np.zeros(3), np.array([0, 0, 1.0])) for _ in range(n)]
+    ).astype(np.float32)
     K = np.array([[30.0, 0, 16.5], [0, 31.0, 11.25], [0, 0, 1]], np.float32) if K is None else K
     images = rng.integers(0, 256, (n, h, w, 3), dtype=np.uint8)
     return Views(c2w, np.repeat(K[None], n, 0), w, h, images, names)
@@ -27,8 +28,9 @@ def make_scene(**kw):
     train = random_views(5, names=[f"IMG_{i}.png" for i in range(5)], seed=1)
     val = random_views(2, names=["v0.png", "v1.HEIC"], seed=2)
     test = Views.empty(32, 24)
-    return Scene(train, val, test, 0.5, 4.5, np.array([0.1, 0.2, 0.3], np.float32), np.array([0, 0, 1], np.float32),
-                 **kw)
+    return Scene(
+        train, val, test, 0.5, 4.5, np.array([0.1, 0.2, 0.3], np.float32), np.array([0, 0, 1], np.float32), **kw
+    )
 
 
 def test_round_trip_keeps_cameras_images_names_and_bounds(tmp_path):
@@ -56,13 +58,21 @@ def test_transform_matrix_uses_opengl_axes(tmp_path):
     from PIL import Image
 
     Image.fromarray(img).save(tmp_path / "a.png")
-    (tmp_path / "transforms.json").write_text(json.dumps({
-        "fl_x": 10.0, "w": 10, "h": 8, "nerfkit": {"near": 0.5, "far": 3.0},  # one camera: no depth range to estimate
-        "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}]}))
+    (tmp_path / "transforms.json").write_text(
+        json.dumps(
+            {
+                "fl_x": 10.0,
+                "w": 10,
+                "h": 8,
+                "nerfkit": {"near": 0.5, "far": 3.0},  # one camera: no depth range to estimate
+                "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}],
+            }
+        )
+    )
     s = load_transforms_json(tmp_path)
     R = s.train.c2w[0, :3, :3]
-    np.testing.assert_allclose(R[:, 2], [0, 0, -1])   # OpenCV forward = world -z
-    np.testing.assert_allclose(R[:, 1], [0, -1, 0])   # OpenCV down = world -y
+    np.testing.assert_allclose(R[:, 2], [0, 0, -1])  # OpenCV forward = world -z
+    np.testing.assert_allclose(R[:, 1], [0, -1, 0])  # OpenCV down = world -y
     np.testing.assert_allclose(s.train.K[0], [[10, 0, 5], [0, 10, 4], [0, 0, 1]])  # cx, cy default to the centre
     data = json.loads(write_transforms_json(s, tmp_path / "out").read_text())
     np.testing.assert_allclose(data["frames"][0]["transform_matrix"], np.eye(4), atol=1e-7)
@@ -85,9 +95,18 @@ def test_nerfstudio_filename_lists_and_camera_angle(tmp_path):
     for i in range(4):
         Image.fromarray(np.full((6, 8, 3), i * 40, np.uint8)).save(tmp_path / f"f{i}.png")
         frames.append({"file_path": f"f{i}", "transform_matrix": np.eye(4).tolist()})  # no extension
-    (tmp_path / "transforms.json").write_text(json.dumps({
-        "camera_angle_x": 2 * np.arctan(4 / 10.0), "frames": frames, "nerfkit": {"near": 0.5, "far": 3.0},
-        "train_filenames": ["f0", "f1"], "val_filenames": ["f2"], "test_filenames": ["f3"]}))
+    (tmp_path / "transforms.json").write_text(
+        json.dumps(
+            {
+                "camera_angle_x": 2 * np.arctan(4 / 10.0),
+                "frames": frames,
+                "nerfkit": {"near": 0.5, "far": 3.0},
+                "train_filenames": ["f0", "f1"],
+                "val_filenames": ["f2"],
+                "test_filenames": ["f3"],
+            }
+        )
+    )
     s = load_transforms_json(tmp_path / "transforms.json")
     assert (len(s.train), len(s.val), len(s.test)) == (2, 1, 1)
     assert s.train.K[0, 0, 0] == pytest.approx(10.0)
@@ -109,10 +128,24 @@ def test_distortion_is_removed_on_load_with_a_warning(tmp_path):
     dist = np.array([-0.2, 0.0, 0.0, 0.0, 0.0])
     uv = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), K_cv, dist)[0].reshape(-1, 2) + 0.5
     write_image(tmp_path / "a.png", draw_dots(W, H, uv))
-    (tmp_path / "transforms.json").write_text(json.dumps({
-        "fl_x": f, "fl_y": f, "cx": W / 2, "cy": H / 2, "w": W, "h": H, "k1": -0.2, "k2": 0.0,
-        "p1": 0.0, "p2": 0.0, "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}],
-        "nerfkit": {"near": 0.5, "far": 3.0}}))
+    (tmp_path / "transforms.json").write_text(
+        json.dumps(
+            {
+                "fl_x": f,
+                "fl_y": f,
+                "cx": W / 2,
+                "cy": H / 2,
+                "w": W,
+                "h": H,
+                "k1": -0.2,
+                "k2": 0.0,
+                "p1": 0.0,
+                "p2": 0.0,
+                "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}],
+                "nerfkit": {"near": 0.5, "far": 3.0},
+            }
+        )
+    )
     with pytest.warns(UserWarning, match="undistorted them on load"):
         s = load_transforms_json(tmp_path)
     K = s.train.K[0].astype(np.float64)
@@ -121,17 +154,31 @@ def test_distortion_is_removed_on_load_with_a_warning(tmp_path):
     assert np.abs(uv - (pts @ np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1]]).T)[:, :2]).max() > 3
 
 
-@pytest.mark.parametrize("content, message", [
-    ("{not json", "not valid JSON"),
-    (json.dumps({"frames": []}), "non-empty \"frames\""),
-    (json.dumps({"camera_model": "OPENCV_FISHEYE", "frames": [{}]}), "OPENCV_FISHEYE is not supported"),
-    (json.dumps({"fl_x": 5, "frames": [{"file_path": "missing.png", "transform_matrix": np.eye(4).tolist()}]}),
-     "not found"),
-    (json.dumps({"fl_x": 5, "frames": [{"file_path": "a.png", "transform_matrix": (2 * np.eye(4)).tolist()}]}),
-     "not rigid|last row"),
-    (json.dumps({"fl_x": 5, "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist(),
-                                        "split": "holdout"}]}), "split 'holdout'"),
-])
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("{not json", "not valid JSON"),
+        (json.dumps({"frames": []}), 'non-empty "frames"'),
+        (json.dumps({"camera_model": "OPENCV_FISHEYE", "frames": [{}]}), "OPENCV_FISHEYE is not supported"),
+        (
+            json.dumps({"fl_x": 5, "frames": [{"file_path": "missing.png", "transform_matrix": np.eye(4).tolist()}]}),
+            "not found",
+        ),
+        (
+            json.dumps({"fl_x": 5, "frames": [{"file_path": "a.png", "transform_matrix": (2 * np.eye(4)).tolist()}]}),
+            "not rigid|last row",
+        ),
+        (
+            json.dumps(
+                {
+                    "fl_x": 5,
+                    "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist(), "split": "holdout"}],
+                }
+            ),
+            "split 'holdout'",
+        ),
+    ],
+)
 def test_bad_transforms_are_one_line_errors(tmp_path, content, message):
     from PIL import Image
 

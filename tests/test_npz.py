@@ -71,27 +71,30 @@ def test_rays_data_uv_indexes_the_sampled_pixels(sphere):
         rays.sample_from_images(7, 0)
 
 
-@pytest.mark.parametrize("mutate, message", [
-    (lambda a: a.pop("c2ws_train"), "missing key 'c2ws_train'"),
-    (lambda a: a.pop("focal"), "missing 'focal'"),
-    (lambda a: a.update(c2ws_train=a["c2ws_train"][:3]), "has 4 images but 'c2ws_train' has 3 poses"),
-    (lambda a: a.update(images_train=a["images_train"][..., :2]), "expected (N, H, W, 3)"),
-    (lambda a: a.update(images_train=a["images_train"].astype(np.float32)), "expected [0, 1]"),
-    (lambda a: a.update(images_train=a["images_train"].astype(np.int64)), "dtype int64"),
-    (lambda a: a.update(focal=np.float32(-3)), "must be positive"),
-    (lambda a: a.update(focal=np.float32(np.nan)), "'focal' is nan"),
-    (lambda a: a["c2ws_train"].__setitem__((1, 0, 0), np.inf), "'c2ws_train'[1] has NaN or inf"),
-    (lambda a: a["c2ws_train"].__setitem__((2, slice(0, 3), 0), 2.0), "'c2ws_train'[2] rotation is not rigid"),
-    (lambda a: a["c2ws_train"].__setitem__((0, 3, 0), 1.0), "last row"),
-    (lambda a: a.update(near=np.float32(5), far=np.float32(2)), "need 0 <= near < far"),
-    (lambda a: a.update(near=np.float32(1)), "only one of 'near' and 'far'"),
-    (lambda a: a.update(images_val=a["images_val"][:, :4]), "images are 8x4"),
-    (lambda a: a.pop("c2ws_val"), "'images_val' is present but 'c2ws_val' is missing"),
-    (lambda a: a.update(images_train=np.zeros((0, 8, 8, 3), np.uint8), c2ws_train=np.zeros((0, 4, 4))), "is empty"),
-    (lambda a: a.update(K=np.array([[0.0, 0, 4], [0, 10, 4], [0, 0, 1]])), "zero or negative focal"),
-    (lambda a: a.update(tags=np.zeros((2, 3, 3))), "'tags' must be (n, 4, 3) numbers"),
-    (lambda a: a.update(tags=np.full((1, 4, 3), np.nan)), "'tags' holds non-finite"),
-])
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda a: a.pop("c2ws_train"), "missing key 'c2ws_train'"),
+        (lambda a: a.pop("focal"), "missing 'focal'"),
+        (lambda a: a.update(c2ws_train=a["c2ws_train"][:3]), "has 4 images but 'c2ws_train' has 3 poses"),
+        (lambda a: a.update(images_train=a["images_train"][..., :2]), "expected (N, H, W, 3)"),
+        (lambda a: a.update(images_train=a["images_train"].astype(np.float32)), "expected [0, 1]"),
+        (lambda a: a.update(images_train=a["images_train"].astype(np.int64)), "dtype int64"),
+        (lambda a: a.update(focal=np.float32(-3)), "must be positive"),
+        (lambda a: a.update(focal=np.float32(np.nan)), "'focal' is nan"),
+        (lambda a: a["c2ws_train"].__setitem__((1, 0, 0), np.inf), "'c2ws_train'[1] has NaN or inf"),
+        (lambda a: a["c2ws_train"].__setitem__((2, slice(0, 3), 0), 2.0), "'c2ws_train'[2] rotation is not rigid"),
+        (lambda a: a["c2ws_train"].__setitem__((0, 3, 0), 1.0), "last row"),
+        (lambda a: a.update(near=np.float32(5), far=np.float32(2)), "need 0 <= near < far"),
+        (lambda a: a.update(near=np.float32(1)), "only one of 'near' and 'far'"),
+        (lambda a: a.update(images_val=a["images_val"][:, :4]), "images are 8x4"),
+        (lambda a: a.pop("c2ws_val"), "'images_val' is present but 'c2ws_val' is missing"),
+        (lambda a: a.update(images_train=np.zeros((0, 8, 8, 3), np.uint8), c2ws_train=np.zeros((0, 4, 4))), "is empty"),
+        (lambda a: a.update(K=np.array([[0.0, 0, 4], [0, 10, 4], [0, 0, 1]])), "zero or negative focal"),
+        (lambda a: a.update(tags=np.zeros((2, 3, 3))), "'tags' must be (n, 4, 3) numbers"),
+        (lambda a: a.update(tags=np.full((1, 4, 3), np.nan)), "'tags' holds non-finite"),
+    ],
+)
 def test_broken_files_give_one_clear_error(tmp_path, mutate, message):
     arrays = course_arrays()
     mutate(arrays)

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-
 import pytest
 import torch
 
+from nerfkit.estimators.occupancy import OccupancyEstimator, coarse_cells
 from nerfkit.kernels import numba_kernels
 from nerfkit.kernels import reference as ref
 from nerfkit.kernels.ops import GridGeom, MarchSpec, cell_density_max, render_grid
-from nerfkit.estimators.occupancy import OccupancyEstimator, coarse_cells
 from nerfkit.render.box import GridBox, ray_aabb
 from nerfkit.render.occupancy import RaySamples, lattice
 from nerfkit.render.volrend import composite, render_weights
@@ -36,8 +35,9 @@ def test_packed_samples_select_counts_and_points():
 
 
 def test_lattice_is_regular_inside_the_segment():
-    s = lattice(torch.tensor([1.0, 2.0, 3.0, 0.0]), torch.tensor([2.0, 2.1, 2.0, 0.2]),
-                torch.tensor([0.5, 0.0, 0.5, 0.9]), 0.25)
+    s = lattice(
+        torch.tensor([1.0, 2.0, 3.0, 0.0]), torch.tensor([2.0, 2.1, 2.0, 0.2]), torch.tensor([0.5, 0.0, 0.5, 0.9]), 0.25
+    )
     assert s.t.tolist() == pytest.approx([1.125, 1.375, 1.625, 1.875, 2.0])
     assert s.ray_indices.tolist() == [0, 0, 0, 0, 1]  # ray 2 misses (t1 < t0); ray 3's only candidate is past t1
     assert s.counts().tolist() == [4, 1, 0, 0] and s.step == 0.25
@@ -60,18 +60,28 @@ def render_reference(grid, geom, occ: OccupancyEstimator, rays_o, rays_d, step, 
     lo = geom.lo
 
     def sigma_fn(p, _ri):
-        return 5.0 * torch.nn.functional.softplus(ref.grid_interp(grid[:, :1], ref.grid_coords(p, lo, geom.voxel),
-                                                                  geom.res)[:, 0])
+        return 5.0 * torch.nn.functional.softplus(
+            ref.grid_interp(grid[:, :1], ref.grid_coords(p, lo, geom.voxel), geom.res)[:, 0]
+        )
 
-    samples = occ.sampling(rays_o, rays_d, 0.5, 10.0, step, sigma_fn=sigma_fn if eps > 0 else None,
-                           early_stop_eps=eps, use_occupancy=use_occupancy)
+    samples = occ.sampling(
+        rays_o,
+        rays_d,
+        0.5,
+        10.0,
+        step,
+        sigma_fn=sigma_fn if eps > 0 else None,
+        early_stop_eps=eps,
+        use_occupancy=use_occupancy,
+    )
     pts = samples.points(rays_o, rays_d)
     feat = ref.grid_interp(grid, ref.grid_coords(pts, lo, geom.voxel), geom.res)
     sh = ref.sh_basis(rays_d[samples.ray_indices], 0)
     sig, rgb = ref.decode(feat, sh, 5.0)
     w, _, _ = render_weights(sig, step, samples.ray_indices)
-    colour, depth, acc = composite(w, rgb, samples.ray_indices, len(rays_o), samples.t,
-                                   background=torch.tensor([0.2, 0.3, 0.4], dtype=sig.dtype))
+    colour, depth, acc = composite(
+        w, rgb, samples.ray_indices, len(rays_o), samples.t, background=torch.tensor([0.2, 0.3, 0.4], dtype=sig.dtype)
+    )
     return colour, depth, acc, samples
 
 
@@ -131,7 +141,7 @@ def test_coarse_occupancy_is_the_block_maximum():
     for z in range(2):
         for y in range(2):
             for x in range(3):
-                block = occ.occ[4 * z:4 * z + 4, 4 * y:4 * y + 4, 4 * x:4 * x + 4]
+                block = occ.occ[4 * z : 4 * z + 4, 4 * y : 4 * y + 4, 4 * x : 4 * x + 4]
                 assert bool(c[z, y, x]) == bool(block.any())
 
 
@@ -145,8 +155,14 @@ def test_compiled_marcher_visits_exactly_the_reference_samples(coarse_factor):
     step = 0.013
     occ = OccupancyEstimator(geom.box)
     occ.set_from_cell_sigma(cell_density_max(grid, geom, 5.0), step, 1e-6)
-    spec = MarchSpec(occ.occ.to(torch.uint8), coarse_cells(occ.occ, coarse_factor).to(torch.uint8).contiguous(),
-                     coarse_factor, step, 0.0, 5.0)
+    spec = MarchSpec(
+        occ.occ.to(torch.uint8),
+        coarse_cells(occ.occ, coarse_factor).to(torch.uint8).contiguous(),
+        coarse_factor,
+        step,
+        0.0,
+        5.0,
+    )
     o, d = camera_rays(n=30, seed=2)
     g32 = GridGeom(geom.lo.float(), geom.voxel, geom.res)
     t0, t1 = ray_aabb(o, d, geom.lo, geom.hi, 0.5, 10.0)

@@ -42,8 +42,8 @@ def test_depth_scale_bar_is_the_depth_colours_from_near_to_far():
     expected = to_uint8(colorize_depth(depths, np.ones_like(depths), near, far))[0]
     assert np.abs(strip[2].astype(int) - expected).max() <= 1
     # the labels sit below the bar, at both ends
-    text = strip[strip.shape[0] // 2 + 2:]
-    assert text[:, : width // 4].max() > 128 and text[:, -width // 4:].max() > 128
+    text = strip[strip.shape[0] // 2 + 2 :]
+    assert text[:, : width // 4].max() > 128 and text[:, -width // 4 :].max() > 128
     assert [depth_label(v, True) for v in (0.214, 0.05, 2.5)] == ["21 cm", "5.0 cm", "2.50 m"]
     assert depth_label(3.14159, False) == "3.14"
 
@@ -76,8 +76,9 @@ def test_image_grid_tiles_follow_the_photos_shape_and_the_contact_sheet_their_si
     for box in ndimage.find_objects(tiles):
         assert (tiles[box] > 0).all()  # a full rectangle: no text over it
     photo = np.full((240, 320, 3), 0.5)
-    write_contact_sheet(tmp_path / "sheet.png", [(photo, photo, None, {"name": "a.jpg", "index": 0, "psnr": 20.0})],
-                        "val")
+    write_contact_sheet(
+        tmp_path / "sheet.png", [(photo, photo, None, {"name": "a.jpg", "index": 0, "psnr": 20.0})], "val"
+    )
     assert 2 * 320 <= iio.imread(tmp_path / "sheet.png").shape[1] <= 2 * 320 + 40
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import train_loop
 from nerfkit.data.synthetic import sphere_scene
 from nerfkit.errors import NerfkitError
 from nerfkit.models.base import SceneBounds
@@ -15,8 +16,6 @@ from nerfkit.models.fast import EMPTY_RAW, FastConfig, FastNeRF
 from nerfkit.models.packing import pack_grid, unpack_grid, vertices_touching
 from nerfkit.output.images import render_image
 from nerfkit.train.checkpoint import MODEL_FILE, load_latest_checkpoint, save_checkpoint, save_model
-
-from conftest import train_loop
 
 
 def touching_reference(occ: np.ndarray) -> np.ndarray:

@@ -71,12 +71,15 @@ def test_ply_file_path_outside_the_dataset_is_refused(tmp_path):
             load_transforms_json(path)
 
 
-@pytest.mark.parametrize("xyz, rgb, why", [
-    (np.array([[0.0, np.nan, 0.0]]), None, "non-finite"),
-    (np.zeros((3, 2)), None, r"\(m, 3\)"),
-    (np.zeros((3, 3)), np.zeros((2, 3), np.uint8), "colours"),
-    (np.zeros((3, 3)), np.full((3, 3), 300), "colours"),
-])
+@pytest.mark.parametrize(
+    "xyz, rgb, why",
+    [
+        (np.array([[0.0, np.nan, 0.0]]), None, "non-finite"),
+        (np.zeros((3, 2)), None, r"\(m, 3\)"),
+        (np.zeros((3, 3)), np.zeros((2, 3), np.uint8), "colours"),
+        (np.zeros((3, 3)), np.full((3, 3), 300), "colours"),
+    ],
+)
 def test_bad_points_get_a_clear_error(tmp_path, xyz, rgb, why):
     scene = _scene_with_points()
     arrays = dict(np.load(_npz(scene, tmp_path)))
@@ -113,8 +116,7 @@ def _plane_views(n: int, size: tuple[int, int] = (200, 150), seed: int = 0) -> t
     import cv2
 
     rng = np.random.default_rng(seed)
-    tex = cv2.resize(rng.integers(0, 256, (48, 48, 3)).astype(np.uint8), (512, 512),
-                     interpolation=cv2.INTER_NEAREST)
+    tex = cv2.resize(rng.integers(0, 256, (48, 48, 3)).astype(np.uint8), (512, 512), interpolation=cv2.INTER_NEAREST)
     tex = cv2.GaussianBlur(tex, (5, 5), 1.0)
     w, h = size
     K = intrinsics_matrix(180.0, 180.0, w / 2, h / 2)
@@ -130,8 +132,9 @@ def _plane_views(n: int, size: tuple[int, int] = (200, 150), seed: int = 0) -> t
         mx, my = ((x + 1) / 2 * 512 - 0.5).astype(np.float32), ((1 - (y + 1) / 2) * 512 - 0.5).astype(np.float32)
         images.append(cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0))
         c2ws.append(c2w)
-    return Views(np.stack(c2ws).astype(np.float32), np.repeat(K[None], n, 0).astype(np.float32), w, h,
-                 np.stack(images)), tex
+    return Views(
+        np.stack(c2ws).astype(np.float32), np.repeat(K[None], n, 0).astype(np.float32), w, h, np.stack(images)
+    ), tex
 
 
 @pytest.mark.slow

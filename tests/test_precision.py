@@ -56,10 +56,20 @@ def test_fp32_context_turns_an_outer_autocast_off():
 def _activation_dtypes(tmp_path, sphere, precision: str) -> tuple[set, torch.Tensor]:
     """Dtypes of the vanilla MLP's first hidden layer over one training step that also
     refreshes the occupancy grid (step 0, warm-up 0), and the refreshed cell densities."""
-    cfg = TrainConfig(data="sphere", model="vanilla", out=str(tmp_path / precision), steps=1, batch_rays=32,
-                      lr=1e-3, precision=precision, eval_views=1, checkpoint_seconds=1e9)
-    mcfg = VanillaConfig(n_samples=8, width=16, depth=2, occupancy=True, occupancy_res=8, occupancy_warmup=0,
-                         occupancy_every=1)
+    cfg = TrainConfig(
+        data="sphere",
+        model="vanilla",
+        out=str(tmp_path / precision),
+        steps=1,
+        batch_rays=32,
+        lr=1e-3,
+        precision=precision,
+        eval_views=1,
+        checkpoint_seconds=1e9,
+    )
+    mcfg = VanillaConfig(
+        n_samples=8, width=16, depth=2, occupancy=True, occupancy_res=8, occupancy_warmup=0, occupancy_every=1
+    )
     trainer = Trainer(sphere, cfg, mcfg, quiet=True)
     seen = []
     trainer.model.coarse.layers[0].register_forward_hook(lambda m, i, out: seen.append((out.dtype, len(out))))
@@ -71,6 +81,6 @@ def _activation_dtypes(tmp_path, sphere, precision: str) -> tuple[set, torch.Ten
 def test_vanilla_runs_every_network_call_in_the_resolved_precision(tmp_path, sphere, precision, dtype):
     seen, cell_sigma = _activation_dtypes(tmp_path, sphere, precision)
     assert torch.isfinite(cell_sigma).all()  # the occupancy refresh ran ...
-    assert any(n == 8 ** 3 for _, n in seen)  # ... through the network, one point per cell
+    assert any(n == 8**3 for _, n in seen)  # ... through the network, one point per cell
     assert len(seen) >= 2  # and the training batch too
     assert {d for d, _ in seen} == {dtype}  # fp32 means fp32 everywhere (the refresh used bf16 before)

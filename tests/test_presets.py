@@ -38,10 +38,13 @@ def reference_scenes() -> dict:
     rng = np.random.default_rng(0)
     table = np.concatenate([rng.uniform(-1, 1, (300, 2)), np.zeros((300, 1))], 1).astype(np.float32)
     tabletop = tabletop_scene(n_train=12, n_val=2, size=32)
-    return {"lego": load_npz(ASSETS / "lego_200x200.npz"), "tabletop": tabletop,
-            "tabletop_points": replace(tabletop, points=table),
-            "forward": forward_facing_scene(n_train=6, n_val=0, size=8),
-            "object_400": sized(sphere_scene(n_train=6, size=8), 400)}
+    return {
+        "lego": load_npz(ASSETS / "lego_200x200.npz"),
+        "tabletop": tabletop,
+        "tabletop_points": replace(tabletop, points=table),
+        "forward": forward_facing_scene(n_train=6, n_val=0, size=8),
+        "object_400": sized(sphere_scene(n_train=6, size=8), 400),
+    }
 
 
 @pytest.fixture(scope="module")
@@ -59,24 +62,37 @@ def test_the_resolved_settings_of_each_scene_kind_are_those_kept_from_before(sce
         got_model = asdict(r.model)
         assert got_train == {**want["train"], **CHANGED}, name
         assert got_model == {k: v for k, v in want["model"].items() if k not in RETIRED}, name
-        assert r.train.preset == r.kind == {"lego": "object", "object_400": "object", "forward": "forward-facing"}.get(
-            name, "capture")
+        assert (
+            r.train.preset
+            == r.kind
+            == {"lego": "object", "object_400": "object", "forward": "forward-facing"}.get(name, "capture")
+        )
 
 
 def test_given_options_always_win_and_resolve_changes_nothing_it_is_given(scenes):
     cap = scenes["tabletop_points"]
-    train, model = TrainConfig(steps=10, lr_final_factor=0.1), FastConfig(rgb_loss="mse", room_shells=0,
-                                                                          table_cover_weight=0.0)
+    train, model = (
+        TrainConfig(steps=10, lr_final_factor=0.1),
+        FastConfig(rgb_loss="mse", room_shells=0, table_cover_weight=0.0),
+    )
     before = (asdict(train), asdict(model))
     r = presets.resolve(train, model, cap, {"lr_final_factor", "rgb_loss", "room_shells", "table_cover_weight"})
     assert (asdict(train), asdict(model)) == before  # pure
     assert (r.train.lr_final_factor, r.model.rgb_loss, r.model.room_shells, r.model.table_cover_weight) == (
-        0.1, "mse", 0, 0.0)
+        0.1,
+        "mse",
+        0,
+        0.0,
+    )
     assert (r.model.distortion_weight, r.model.points_weight, r.train.capture) == (0.01, 0.02, "on")  # not given
     # nothing given: the capture's
     r = presets.resolve(train, model, cap, set())
     assert (r.train.lr_final_factor, r.model.rgb_loss, r.model.room_shells, r.model.table_cover_weight) == (
-        0.02, "charbonnier", 3, 0.05)
+        0.02,
+        "charbonnier",
+        3,
+        0.05,
+    )
     # vanilla's own training settings, unless given
     from nerfkit.models.vanilla import VanillaConfig
 

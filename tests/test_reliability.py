@@ -17,16 +17,33 @@ import torch
 
 from nerfkit.cli import main
 from nerfkit.errors import NerfkitError
-from nerfkit.images import to_uint8
-from nerfkit.images import write_image
+from nerfkit.images import to_uint8, write_image
 from nerfkit.io.atomic import atomic_path, write_json
 from nerfkit.models.vanilla import VanillaConfig
 from nerfkit.train.checkpoint import load_run
 from nerfkit.train.config import TrainConfig
 from nerfkit.train.trainer import train
 
-TINY = ["--model", "vanilla", "--n-samples", "8", "--width", "16", "--depth", "2", "--batch-rays", "128",
-        "--lr", "3e-3", "--seed", "3", "--eval-every", "50", "--eval-views", "1"]
+TINY = [
+    "--model",
+    "vanilla",
+    "--n-samples",
+    "8",
+    "--width",
+    "16",
+    "--depth",
+    "2",
+    "--batch-rays",
+    "128",
+    "--lr",
+    "3e-3",
+    "--seed",
+    "3",
+    "--eval-every",
+    "50",
+    "--eval-views",
+    "1",
+]
 
 
 def cli(*args: str) -> list[str]:
@@ -56,11 +73,26 @@ def test_sigkill_then_resume_matches_an_uninterrupted_run(tmp_path, sphere_npz):
     assert main(["train", "--data", str(sphere_npz), "--out", str(reference), "--steps", steps, *TINY]) == 0
 
     run = tmp_path / "killed"
-    proc = subprocess.Popen(cli("train", "--data", str(sphere_npz), "--out", str(run), "--steps", steps,
-                                "--checkpoint-seconds", "0.3", *TINY),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    wait_for(lambda: any((run / "checkpoints").glob("step_*.pt")) if (run / "checkpoints").exists() else False,
-             120, proc)
+    proc = subprocess.Popen(
+        cli(
+            "train",
+            "--data",
+            str(sphere_npz),
+            "--out",
+            str(run),
+            "--steps",
+            steps,
+            "--checkpoint-seconds",
+            "0.3",
+            *TINY,
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    wait_for(
+        lambda: any((run / "checkpoints").glob("step_*.pt")) if (run / "checkpoints").exists() else False, 120, proc
+    )
     time.sleep(0.2)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
@@ -81,8 +113,12 @@ def test_sigkill_then_resume_matches_an_uninterrupted_run(tmp_path, sphere_npz):
 @pytest.mark.slow
 def test_ctrl_c_saves_a_checkpoint_and_exits_cleanly(tmp_path, sphere_npz):
     run = tmp_path / "interrupted"
-    proc = subprocess.Popen(cli("train", "--data", str(sphere_npz), "--out", str(run), "--steps", "100000", *TINY),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        cli("train", "--data", str(sphere_npz), "--out", str(run), "--steps", "100000", *TINY),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     wait_for(lambda: (run / "progress").exists() and len(list((run / "progress").glob("*.png"))) >= 2, 120, proc)
     proc.send_signal(signal.SIGINT)
     time.sleep(0.05)
@@ -98,10 +134,9 @@ def test_ctrl_c_saves_a_checkpoint_and_exits_cleanly(tmp_path, sphere_npz):
 def test_atomic_write_keeps_the_old_file_when_interrupted(tmp_path):
     target = tmp_path / "out.json"
     write_json(target, {"version": 1})
-    with pytest.raises(RuntimeError):
-        with atomic_path(target) as tmp:
-            tmp.write_text('{"version": 2, "trunc')
-            raise RuntimeError("crash between write and rename")
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        tmp.write_text('{"version": 2, "trunc')
+        raise RuntimeError("crash between write and rename")
     assert json.loads(target.read_text()) == {"version": 1}
     assert list(tmp_path.iterdir()) == [target]  # no temporary left behind
 
@@ -125,23 +160,22 @@ def test_a_full_disk_is_a_clear_error_and_the_old_file_stays(tmp_path, monkeypat
 
     target = tmp_path / "step_00000100.pt"
     write_json(target, {"version": 1})
-    with pytest.raises(NerfkitError, match="disk is full.*--resume"):  # ENOSPC, whatever the free space says
-        with atomic_path(target) as tmp:
-            tmp.write_text("partial")
-            raise OSError(errno.ENOSPC, "No space left on device")
+    # ENOSPC, whatever the free space says
+    with pytest.raises(NerfkitError, match="disk is full.*--resume"), atomic_path(target) as tmp:
+        tmp.write_text("partial")
+        raise OSError(errno.ENOSPC, "No space left on device")
     # torch.save reports a full disk as a RuntimeError about the zip writer's position
     usage = namedtuple("usage", "total used free")
     monkeypatch.setattr(shutil, "disk_usage", lambda _: usage(10 << 30, (10 << 30) - (1 << 20), 1 << 20))
-    with pytest.raises(NerfkitError, match="disk is full"):
-        with atomic_path(target) as tmp:
-            torch.save({"x": torch.zeros(10)}, tmp)
-            raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 108156544 vs 108156436")
+    with pytest.raises(NerfkitError, match="disk is full"), atomic_path(target) as tmp:
+        torch.save({"x": torch.zeros(10)}, tmp)
+        raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 108156544 vs 108156436")
     assert json.loads(target.read_text()) == {"version": 1}
     assert list(tmp_path.iterdir()) == [target]  # no temporary left behind
     monkeypatch.setattr(shutil, "disk_usage", lambda _: usage(10 << 30, 1 << 30, 9 << 30))
-    with pytest.raises(RuntimeError, match="unrelated"):  # with space to spare, other errors stay what they are
-        with atomic_path(target):
-            raise RuntimeError("unrelated")
+    # with space to spare, other errors stay what they are
+    with pytest.raises(RuntimeError, match="unrelated"), atomic_path(target):
+        raise RuntimeError("unrelated")
 
 
 def test_sigkill_during_a_write_leaves_the_old_file_intact(tmp_path):
@@ -163,8 +197,16 @@ def test_sigkill_during_a_write_leaves_the_old_file_intact(tmp_path):
 
 
 def _trained_run(tmp_path, sphere, steps=20, name="run"):
-    cfg = TrainConfig(data="x", model="vanilla", out=str(tmp_path / name), steps=steps, batch_rays=64, lr=1e-3,
-                      eval_views=1, checkpoint_seconds=1e9)
+    cfg = TrainConfig(
+        data="x",
+        model="vanilla",
+        out=str(tmp_path / name),
+        steps=steps,
+        batch_rays=64,
+        lr=1e-3,
+        eval_views=1,
+        checkpoint_seconds=1e9,
+    )
     train(sphere, cfg, VanillaConfig(n_samples=8, width=16, depth=2), quiet=True)
     return tmp_path / name
 
@@ -213,8 +255,9 @@ def test_non_finite_steps_are_skipped_then_the_run_stops_with_checkpoint_intact(
     before = torch.load(sorted((run / "checkpoints").glob("*.pt"))[-1], weights_only=True)
     from nerfkit.train import trainer as trainer_mod
 
-    trainer = trainer_mod.Trainer(sphere, trainer_mod.read_run(run).train, VanillaConfig(n_samples=8, width=16, depth=2),
-                                  resume=True, quiet=True)
+    trainer = trainer_mod.Trainer(
+        sphere, trainer_mod.read_run(run).train, VanillaConfig(n_samples=8, width=16, depth=2), resume=True, quiet=True
+    )
     trainer.cfg.steps = 100
     original = trainer.model.render_rays
     calls = {"n": 0}

@@ -41,10 +41,20 @@ def test_volrend_matches_course_reference():
     rgbs = torch.rand((10, 64, 3))
     step_size = (6.0 - 2.0) / 64
     rendered = volrend(sigmas, rgbs, step_size)
-    expected = torch.tensor([
-        [0.5006, 0.3728, 0.4728], [0.4322, 0.3559, 0.4134], [0.4027, 0.4394, 0.4610], [0.4514, 0.3829, 0.4196],
-        [0.4002, 0.4599, 0.4103], [0.4471, 0.4044, 0.4069], [0.4285, 0.4072, 0.3777], [0.4152, 0.4190, 0.4361],
-        [0.4051, 0.3651, 0.3969], [0.3253, 0.3587, 0.4215]])
+    expected = torch.tensor(
+        [
+            [0.5006, 0.3728, 0.4728],
+            [0.4322, 0.3559, 0.4134],
+            [0.4027, 0.4394, 0.4610],
+            [0.4514, 0.3829, 0.4196],
+            [0.4002, 0.4599, 0.4103],
+            [0.4471, 0.4044, 0.4069],
+            [0.4285, 0.4072, 0.3777],
+            [0.4152, 0.4190, 0.4361],
+            [0.4051, 0.3651, 0.3969],
+            [0.3253, 0.3587, 0.4215],
+        ]
+    )
     assert torch.allclose(rendered, expected, rtol=1e-4, atol=1e-4)
 
 
@@ -123,7 +133,7 @@ def test_transmittance_float32_after_an_opaque_ray_in_the_same_batch():
 
 
 @settings(max_examples=60, deadline=None)
-@given(counts=st.lists(st.integers(0, 7), min_size=1, max_size=6), seed=st.integers(0, 2 ** 16))
+@given(counts=st.lists(st.integers(0, 7), min_size=1, max_size=6), seed=st.integers(0, 2**16))
 def test_packed_rendering_equals_rendering_each_ray_alone(counts, seed):
     # any mix of ray lengths (empty rays too): each ray renders as if it were alone
     gen = torch.Generator().manual_seed(seed)
@@ -147,9 +157,10 @@ def test_packed_rendering_equals_rendering_each_ray_alone(counts, seed):
 
 def _mixed_scale_taus():
     # optical depths from 1e-6 to 1e9 (and exact zeros), in any order along a ray
-    depth = st.one_of(st.just(0.0), st.floats(-6.0, 9.0).map(lambda e: 10.0 ** e))
+    depth = st.one_of(st.just(0.0), st.floats(-6.0, 9.0).map(lambda e: 10.0**e))
     return st.lists(st.lists(depth, min_size=1, max_size=48), min_size=1, max_size=4).map(
-        lambda rows: [r + [0.0] * (48 - len(r)) for r in rows])
+        lambda rows: [r + [0.0] * (48 - len(r)) for r in rows]
+    )
 
 
 @settings(max_examples=150, deadline=None)
@@ -279,8 +290,8 @@ def test_positional_encoding_values_and_dims():
     x = torch.tensor([[0.25, -0.5, 1.0]])
     e = positional_encoding(x, 4)
     assert e.shape == (1, 27)
-    assert torch.allclose(e[0, 3 + 6 * 2:3 + 6 * 2 + 3], torch.sin(4 * torch.pi * x[0]), atol=1e-6)
-    assert torch.allclose(e[0, 3 + 6 * 2 + 3:3 + 6 * 3], torch.cos(4 * torch.pi * x[0]), atol=1e-6)
+    assert torch.allclose(e[0, 3 + 6 * 2 : 3 + 6 * 2 + 3], torch.sin(4 * torch.pi * x[0]), atol=1e-6)
+    assert torch.allclose(e[0, 3 + 6 * 2 + 3 : 3 + 6 * 3], torch.cos(4 * torch.pi * x[0]), atol=1e-6)
 
 
 def test_image_rays_row_major_pixel_centres():

@@ -26,8 +26,24 @@ from PIL import Image
 from nerfkit.cli import main
 from nerfkit.errors import NerfkitError
 
-TINY = ["--model", "vanilla", "--n-samples", "8", "--width", "16", "--depth", "2", "--batch-rays", "64",
-        "--lr", "3e-3", "--seed", "3", "--eval-views", "1"]
+TINY = [
+    "--model",
+    "vanilla",
+    "--n-samples",
+    "8",
+    "--width",
+    "16",
+    "--depth",
+    "2",
+    "--batch-rays",
+    "64",
+    "--lr",
+    "3e-3",
+    "--seed",
+    "3",
+    "--eval-views",
+    "1",
+]
 
 
 def one_line(capsys, *fragments) -> str:
@@ -49,8 +65,13 @@ def sphere_arrays(n_train=3, size=8, seed=0) -> dict:
     from nerfkit.data.synthetic import sphere_scene
 
     s = sphere_scene(n_train=n_train, n_val=1, size=size, seed=seed)
-    return {"images_train": s.train.images, "c2ws_train": s.train.c2w, "images_val": s.val.images,
-            "c2ws_val": s.val.c2w, "focal": np.float32(s.train.K[0, 0, 0])}
+    return {
+        "images_train": s.train.images,
+        "c2ws_train": s.train.c2w,
+        "images_val": s.val.images,
+        "c2ws_val": s.val.c2w,
+        "focal": np.float32(s.train.K[0, 0, 0]),
+    }
 
 
 def save_png(path: Path, mode="RGB", size=(8, 8), color=(10, 20, 30, 128)) -> Path:
@@ -102,8 +123,14 @@ def test_resolve_inside_refuses_what_leaves_the_root(tmp_path):
             resolve_inside(root, name)
         target = name if Path(name).is_absolute() or name == "link.png" else root / name
         assert resolve_inside(root, name, allow_outside=True) == (root / target).resolve()  # the user's opt-in
-    assert [safe_output_name(n) for n in ("../../x.png", "/abs/keep.png", "a\\b.png", "..", "", "c\nd.png")] == \
-        ["x.png", "keep.png", "b.png", "view", "view", "c_d.png"]
+    assert [safe_output_name(n) for n in ("../../x.png", "/abs/keep.png", "a\\b.png", "..", "", "c\nd.png")] == [
+        "x.png",
+        "keep.png",
+        "b.png",
+        "view",
+        "view",
+        "c_d.png",
+    ]
 
 
 # ============================================================================= paths: readers
@@ -149,14 +176,18 @@ def _symlink_reading(tmp_path: Path, target: str) -> Path:
     return folder
 
 
-@pytest.mark.parametrize("make", [
-    lambda t, o: blender_folder(t / "lego", [str(o.with_suffix("")), "./train/r_1", "./train/r_2"]),  # absolute
-    lambda t, o: blender_folder(t / "lego", ["../elsewhere/outside", "./train/r_1", "./train/r_2"]),
-    lambda t, o: _symlink_reading(t, str(o)),
-    lambda t, o: _transforms_reading(t, "../elsewhere/outside.png"),
-    lambda t, o: _transforms_reading(t, str(o)),
-    lambda t, o: _colmap_reading(t, "../../elsewhere/outside.png"),
-], ids=["blender absolute", "blender ../", "blender symlink", "transforms ../", "transforms absolute", "colmap ../"])
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda t, o: blender_folder(t / "lego", [str(o.with_suffix("")), "./train/r_1", "./train/r_2"]),  # absolute
+        lambda t, o: blender_folder(t / "lego", ["../elsewhere/outside", "./train/r_1", "./train/r_2"]),
+        lambda t, o: _symlink_reading(t, str(o)),
+        lambda t, o: _transforms_reading(t, "../elsewhere/outside.png"),
+        lambda t, o: _transforms_reading(t, str(o)),
+        lambda t, o: _colmap_reading(t, "../../elsewhere/outside.png"),
+    ],
+    ids=["blender absolute", "blender ../", "blender symlink", "transforms ../", "transforms absolute", "colmap ../"],
+)
 def test_dataset_readers_refuse_images_outside_the_dataset_unless_allowed(tmp_path, capsys, make):
     from nerfkit.data.load import load_scene
 
@@ -248,9 +279,18 @@ def posed_capture(root: Path, n=8, size=32) -> Path:
         entries.append({"file": f"p{i}.png", "used": True, "size": [size, size], "c2w": s.train.c2w[i].tolist()})
     ds = root / "ds"
     ds.mkdir()
-    (ds / "poses.json").write_text(json.dumps({
-        "format": "nerfkit-poses", "version": 1, "photos_dir": str(photos), "tag_size": 1.0, "photos": entries,
-        "camera": {"K": K.tolist(), "dist": [0, 0, 0, 0, 0], "width": size, "height": size, "source": "test"}}))
+    (ds / "poses.json").write_text(
+        json.dumps(
+            {
+                "format": "nerfkit-poses",
+                "version": 1,
+                "photos_dir": str(photos),
+                "tag_size": 1.0,
+                "photos": entries,
+                "camera": {"K": K.tolist(), "dist": [0, 0, 0, 0, 0], "width": size, "height": size, "source": "test"},
+            }
+        )
+    )
     return ds
 
 
@@ -282,8 +322,24 @@ def test_dataset_and_poses_never_write_into_the_photo_folder(tmp_path, capsys):
     before = files_under(project)
     assert main(["dataset", str(ds), "--out", str(project), "--jobs", "1"]) == 2
     one_line(capsys, "holds the input")
-    assert main(["poses", str(project / "images"), "--out", str(project), "--tag-size", "0.05", "--focal-px", "40",
-                 "--jobs", "1", "--force"]) == 2
+    assert (
+        main(
+            [
+                "poses",
+                str(project / "images"),
+                "--out",
+                str(project),
+                "--tag-size",
+                "0.05",
+                "--focal-px",
+                "40",
+                "--jobs",
+                "1",
+                "--force",
+            ]
+        )
+        == 2
+    )
     one_line(capsys, "is an input", "never writes its inputs")
     assert files_under(project) == before
 
@@ -315,12 +371,26 @@ def test_a_conversion_replaced_with_force_keeps_no_file_of_the_one_before(tmp_pa
     from nerfkit.data.load import load_scene
 
     out = tmp_path / "out"
-    assert main(["convert", str(_sphere_npz(tmp_path / "big.npz", 5)), "--to", str(out), "--format", fmt,
-                 *(["--text"] if fmt == "colmap" else [])]) == 0
+    assert (
+        main(
+            [
+                "convert",
+                str(_sphere_npz(tmp_path / "big.npz", 5)),
+                "--to",
+                str(out),
+                "--format",
+                fmt,
+                *(["--text"] if fmt == "colmap" else []),
+            ]
+        )
+        == 0
+    )
     assert len(list((out / "images").iterdir())) == 6
     (out / "notes.txt").write_text("mine")
-    assert main(["convert", str(_sphere_npz(tmp_path / "small.npz", 2)), "--to", str(out), "--format", fmt,
-                 "--force"]) == 0
+    assert (
+        main(["convert", str(_sphere_npz(tmp_path / "small.npz", 2)), "--to", str(out), "--format", fmt, "--force"])
+        == 0
+    )
     assert len(list((out / "images").iterdir())) == 3
     if fmt == "colmap":
         assert {p.suffix for p in (out / "sparse" / "0").iterdir()} == {".bin"}  # no .txt left
@@ -412,8 +482,7 @@ def placed(argv: list[str], trained: Path, run: Path) -> list[str]:
     return [str(run) if a == "RUN" else str(trained / "a" / "data.npz") if a == "D" else a for a in argv]
 
 
-def test_the_run_records_its_dataset_absolutely_and_eval_uses_it_from_anywhere(trained, tmp_path, monkeypatch,
-                                                                                  capsys):
+def test_the_run_records_its_dataset_absolutely_and_eval_uses_it_from_anywhere(trained, tmp_path, monkeypatch, capsys):
     from nerfkit.data.npz import save_npz
     from nerfkit.data.synthetic import sphere_scene
 
@@ -488,8 +557,11 @@ def test_one_process_per_run_folder(trained, tmp_path, capsys, sphere_npz):
 
 def test_stale_temporaries_of_a_killed_run_are_removed_on_the_next_start(trained, tmp_path):
     run = copy_run(trained, tmp_path)
-    stale = [run / "checkpoints" / ".step_00000009.pt.tmp.k3j2x_0q.pt", run / ".metrics.json.tmp.abcd1234.json",
-             run / "plots" / ".psnr.png.tmp.zz9zz9zz.png"]
+    stale = [
+        run / "checkpoints" / ".step_00000009.pt.tmp.k3j2x_0q.pt",
+        run / ".metrics.json.tmp.abcd1234.json",
+        run / "plots" / ".psnr.png.tmp.zz9zz9zz.png",
+    ]
     for p in stale:
         p.write_bytes(b"half written")
     mine = run / ".notes.tmp.txt"  # a user's file whose name only looks like one
@@ -535,9 +607,28 @@ def test_a_run_of_an_earlier_version_with_its_dot_lock_still_resumes_evaluates_a
 @pytest.mark.slow
 def test_sigterm_saves_like_ctrl_c_and_the_run_is_locked_meanwhile(tmp_path, sphere_npz, capsys):
     run = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "nerfkit.cli", "train", "--data", str(sphere_npz), "--out",
-                             str(run), "--steps", "100000", "--checkpoint-seconds", "100000", *TINY,
-                             "--eval-every", "20"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "nerfkit.cli",
+            "train",
+            "--data",
+            str(sphere_npz),
+            "--out",
+            str(run),
+            "--steps",
+            "100000",
+            "--checkpoint-seconds",
+            "100000",
+            *TINY,
+            "--eval-every",
+            "20",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         for _ in range(2400):  # up to 2 minutes on a loaded machine
             if (run / "progress").exists() and len(list((run / "progress").glob("*.png"))) >= 2:
@@ -566,31 +657,37 @@ def test_sigterm_saves_like_ctrl_c_and_the_run_is_locked_meanwhile(tmp_path, sph
 TRAIN = ["train", "--data", "D", "--out", "O", "--steps", "1"]  # --steps: ends at once where nan is accepted
 
 
-@pytest.mark.parametrize("argv, fragment", [
-    ([*TRAIN, "--minutes", "nan"], "--minutes: 'nan' is not a finite number"),
-    ([*TRAIN, "--minutes", "-1"], "--minutes: -1 is below the minimum 0"),
-    ([*TRAIN, "--lr", "nan"], "--lr: 'nan' is not a finite number"),
-    ([*TRAIN, "--lr", "inf"], "--lr: 'inf' is not a finite number"),
-    ([*TRAIN, "--batch-rays", "100000000"], "--batch-rays: 100000000 is above"),
-    ([*TRAIN, "--checkpoint-seconds", "0"], "--checkpoint-seconds: 0 must be greater"),
-    ([*TRAIN, "--step-ratio", "-1"], "--step-ratio: -1 must be greater than 0"),
-    ([*TRAIN, "--sh-degree", "4"], "--sh-degree: 4 is above the maximum 3"),  # fast 2, splat 3
-    ([*TRAIN, "--model", "vanilla", "--depth", "1"], "--depth: 1 is below the minimum 2"),
-    (["calibrate", "D", "--folds", "1"], "--folds: 1 is below the minimum 2"),
-    (["dataset", "D", "--jpeg-quality", "101"], "--jpeg-quality: 101 is above the maximum 100"),
-    ([*TRAIN, "--seed", "18446744073709551616"], "--seed: 18446744073709551616 is above the maximum 4294967295"),
-    ([*TRAIN, "--lr", "1e300"], "--lr: 1e300 is above the maximum 100"),
-    (["export", "RUN", "--points", "p.ply", "--stride", "9" * 20], "--stride: " + "9" * 20 + " is above the maximum 4096"),
-    (["render", "RUN", "--fps", "0"], "--fps: 0 is below the minimum 1"),
-    (["render", "RUN", "--fps", "-5"], "--fps: -5 is below the minimum 1"),
-    (["render", "RUN", "--chunk", "-1"], "--chunk: -1 is below the minimum 0"),
-    (["eval", "RUN", "--chunk", "-1"], "--chunk: -1 is below the minimum 0"),
-    (["export", "RUN", "--mesh", "m.ply", "--resolution", "nan"], "--resolution: 'nan' is not a whole number"),
-    (["convert", "D", "--to", "o.npz", "--downscale", "0"], "--downscale: 0 is below the minimum 1"),
-    (["view", "D", "--port", "70000"], "--port: 70000 is above the maximum 65535"),
-    (["view", "D", "--downscale", "1e-300"], "--downscale: 1e-300 is below the minimum 1"),
-    (["fit-image", "--lr", "inf"], "--lr: 'inf' is not a finite number"),
-])
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [
+        ([*TRAIN, "--minutes", "nan"], "--minutes: 'nan' is not a finite number"),
+        ([*TRAIN, "--minutes", "-1"], "--minutes: -1 is below the minimum 0"),
+        ([*TRAIN, "--lr", "nan"], "--lr: 'nan' is not a finite number"),
+        ([*TRAIN, "--lr", "inf"], "--lr: 'inf' is not a finite number"),
+        ([*TRAIN, "--batch-rays", "100000000"], "--batch-rays: 100000000 is above"),
+        ([*TRAIN, "--checkpoint-seconds", "0"], "--checkpoint-seconds: 0 must be greater"),
+        ([*TRAIN, "--step-ratio", "-1"], "--step-ratio: -1 must be greater than 0"),
+        ([*TRAIN, "--sh-degree", "4"], "--sh-degree: 4 is above the maximum 3"),  # fast 2, splat 3
+        ([*TRAIN, "--model", "vanilla", "--depth", "1"], "--depth: 1 is below the minimum 2"),
+        (["calibrate", "D", "--folds", "1"], "--folds: 1 is below the minimum 2"),
+        (["dataset", "D", "--jpeg-quality", "101"], "--jpeg-quality: 101 is above the maximum 100"),
+        ([*TRAIN, "--seed", "18446744073709551616"], "--seed: 18446744073709551616 is above the maximum 4294967295"),
+        ([*TRAIN, "--lr", "1e300"], "--lr: 1e300 is above the maximum 100"),
+        (
+            ["export", "RUN", "--points", "p.ply", "--stride", "9" * 20],
+            "--stride: " + "9" * 20 + " is above the maximum 4096",
+        ),
+        (["render", "RUN", "--fps", "0"], "--fps: 0 is below the minimum 1"),
+        (["render", "RUN", "--fps", "-5"], "--fps: -5 is below the minimum 1"),
+        (["render", "RUN", "--chunk", "-1"], "--chunk: -1 is below the minimum 0"),
+        (["eval", "RUN", "--chunk", "-1"], "--chunk: -1 is below the minimum 0"),
+        (["export", "RUN", "--mesh", "m.ply", "--resolution", "nan"], "--resolution: 'nan' is not a whole number"),
+        (["convert", "D", "--to", "o.npz", "--downscale", "0"], "--downscale: 0 is below the minimum 1"),
+        (["view", "D", "--port", "70000"], "--port: 70000 is above the maximum 65535"),
+        (["view", "D", "--downscale", "1e-300"], "--downscale: 1e-300 is below the minimum 1"),
+        (["fit-image", "--lr", "inf"], "--lr: 'inf' is not a finite number"),
+    ],
+)
 def test_numeric_options_are_checked_when_parsed(trained, tmp_path, monkeypatch, capsys, argv, fragment):
     monkeypatch.chdir(tmp_path)
     run = copy_run(trained, tmp_path)
@@ -624,8 +721,17 @@ def test_divergence_before_any_checkpoint_does_not_advise_resuming(tmp_path, sph
     from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import Trainer
 
-    cfg = TrainConfig(data="x", model="vanilla", out=str(tmp_path / "run"), steps=100, batch_rays=32, lr=1e-3,
-                      eval_views=1, eval_every=1000, checkpoint_seconds=1e9)
+    cfg = TrainConfig(
+        data="x",
+        model="vanilla",
+        out=str(tmp_path / "run"),
+        steps=100,
+        batch_rays=32,
+        lr=1e-3,
+        eval_views=1,
+        eval_every=1000,
+        checkpoint_seconds=1e9,
+    )
     trainer = Trainer(sphere, cfg, VanillaConfig(n_samples=4, width=8, depth=2), quiet=True)
     original = trainer.model.render_rays
 
@@ -647,8 +753,17 @@ def test_a_stop_signal_during_the_final_save_does_not_cut_it_short(tmp_path, sph
     from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import Trainer
 
-    cfg = TrainConfig(data="x", model="vanilla", out=str(tmp_path / "run"), steps=3, batch_rays=32, lr=1e-3,
-                      eval_views=1, eval_every=1000, checkpoint_seconds=1e9)
+    cfg = TrainConfig(
+        data="x",
+        model="vanilla",
+        out=str(tmp_path / "run"),
+        steps=3,
+        batch_rays=32,
+        lr=1e-3,
+        eval_views=1,
+        eval_every=1000,
+        checkpoint_seconds=1e9,
+    )
     trainer = Trainer(sphere, cfg, VanillaConfig(n_samples=4, width=8, depth=2), quiet=True)
     original = trainer.save
 
@@ -670,8 +785,10 @@ def test_running_out_of_memory_is_one_line_naming_the_option(tmp_path, capsys, s
     from nerfkit.train import trainer as trainer_mod
 
     def no_memory(self):
-        raise RuntimeError("[enforce fail at alloc_cpu.cpp:127] err == 0. DefaultCPUAllocator: can't allocate "
-                           "memory: you tried to allocate 100000000000000 bytes. Error code 12")
+        raise RuntimeError(
+            "[enforce fail at alloc_cpu.cpp:127] err == 0. DefaultCPUAllocator: can't allocate "
+            "memory: you tried to allocate 100000000000000 bytes. Error code 12"
+        )
 
     monkeypatch.setattr(trainer_mod.Trainer, "train_step", no_memory)
     assert main(["train", "--data", str(sphere_npz), "--out", str(tmp_path / "r"), "--steps", "5", *TINY]) == 2
@@ -680,12 +797,14 @@ def test_running_out_of_memory_is_one_line_naming_the_option(tmp_path, capsys, s
 
 def huge_png(path: Path, width: int, height: int) -> Path:
     """A PNG whose header declares width x height (its pixel data is a stub)."""
+
     def chunk(kind: bytes, data: bytes) -> bytes:
         return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
 
     ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 2, 0, 0, 0])
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\x00" * 64))
-                     + chunk(b"IEND", b""))
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\x00" * 64)) + chunk(b"IEND", b"")
+    )
     return path
 
 
@@ -702,15 +821,26 @@ def test_eval_on_a_test_only_npz(trained, tmp_path, capsys):
     from nerfkit.data.synthetic import sphere_scene
 
     s = sphere_scene(n_train=2, n_val=1, size=32, seed=4)
-    np.savez(tmp_path / "held_out.npz", images_test=s.train.images, c2ws_test=s.train.c2w,
-             focal=np.float32(s.train.K[0, 0, 0]))
-    assert main(["eval", str(trained / "run"), "--data", str(tmp_path / "held_out.npz"), "--split", "test",
-                 "--json"]) == 0
+    np.savez(
+        tmp_path / "held_out.npz",
+        images_test=s.train.images,
+        c2ws_test=s.train.c2w,
+        focal=np.float32(s.train.K[0, 0, 0]),
+    )
+    assert (
+        main(["eval", str(trained / "run"), "--data", str(tmp_path / "held_out.npz"), "--split", "test", "--json"]) == 0
+    )
     result = json.loads(capsys.readouterr().out)
     assert result["split"] == "test" and len(result["per_image"]) == 2
     # a split with no views (a capture of 3 photos has none to validate on) names one that has
-    np.savez(tmp_path / "no_val.npz", images_train=s.train.images, c2ws_train=s.train.c2w,
-             images_test=s.train.images, c2ws_test=s.train.c2w, focal=np.float32(s.train.K[0, 0, 0]))
+    np.savez(
+        tmp_path / "no_val.npz",
+        images_train=s.train.images,
+        c2ws_train=s.train.c2w,
+        images_test=s.train.images,
+        c2ws_test=s.train.c2w,
+        focal=np.float32(s.train.K[0, 0, 0]),
+    )
     assert main(["eval", str(trained / "run"), "--data", str(tmp_path / "no_val.npz")]) == 2
     assert "no_val.npz: has no val views. Choose a split that has (--split test)" in capsys.readouterr().err
 
@@ -768,11 +898,14 @@ def test_a_newer_checkpoint_wins_over_an_older_final_model(trained, tmp_path):
     assert load_run(run)[2] == 9
 
 
-@pytest.mark.parametrize("argv, fragments", [
-    (["view", "D", "--png", "folder.png", "--force"], ["folder.png: Is a directory", "name a file there instead"]),
-    (["convert", "D", "--to", "afile/x.npz"], ["afile: File exists", "is a file, not a folder"]),
-    (["render", "RUN", "--out", "v" * 300], ["File name too long", "Use a shorter name"]),
-])
+@pytest.mark.parametrize(
+    "argv, fragments",
+    [
+        (["view", "D", "--png", "folder.png", "--force"], ["folder.png: Is a directory", "name a file there instead"]),
+        (["convert", "D", "--to", "afile/x.npz"], ["afile: File exists", "is a file, not a folder"]),
+        (["render", "RUN", "--out", "v" * 300], ["File name too long", "Use a shorter name"]),
+    ],
+)
 def test_a_path_the_system_refuses_is_one_line(trained, tmp_path, monkeypatch, capsys, argv, fragments):
     """OSError from the system (a folder where a file goes, a file where a folder goes, a name too
     long; permissions and full disks alike) is one line naming the path, exit code 2."""
@@ -796,10 +929,12 @@ def test_what_a_dataset_reads_beside_its_named_file_is_an_input_too(trained, tmp
     assert main(["convert", data, "--to", "P", "--format", "colmap"]) == 0
     assert main(["convert", data, "--to", "W"]) == 0  # transforms.json + images/
     before = files_under(tmp_path)
-    for argv in (["convert", "P/sparse/0", "--to", "P/images/inside.npz"],
-                 ["convert", "P/sparse/0", "--to", "P", "--size", "8", "--force"],
-                 ["view", "W/transforms.json", "--png", "W/images/plot.png"],
-                 ["view", "W/transforms.json", "--png", "W/images/" + sorted(os.listdir("W/images"))[0], "--force"]):
+    for argv in (
+        ["convert", "P/sparse/0", "--to", "P/images/inside.npz"],
+        ["convert", "P/sparse/0", "--to", "P", "--size", "8", "--force"],
+        ["view", "W/transforms.json", "--png", "W/images/plot.png"],
+        ["view", "W/transforms.json", "--png", "W/images/" + sorted(os.listdir("W/images"))[0], "--force"],
+    ):
         assert main(argv) == 2, argv
         one_line(capsys, "input")
     assert files_under(tmp_path) == before

@@ -19,12 +19,19 @@ from nerfkit.sfm.tagged import judge, pose_agreement  # noqa: E402
 from test_colmap import ROOM_K, TAG_SIZE, make_room  # noqa: E402
 
 
-@pytest.mark.parametrize("dist, fy, refine, model", [
-    ([0, 0, 0, 0, 0], 998.0, False, "PINHOLE"), ([0.1, -0.2, 0.003, -0.002, 0], 998.0, False, "OPENCV"),
-    ([0.1, -0.2, 0.003, -0.002, 0.05], 998.0, False, "FULL_OPENCV"),
-    # a start for bundle adjustment: the smallest model with a radial term
-    ([0, 0, 0, 0, 0], 1000.5, True, "SIMPLE_RADIAL"), ([0.1, -0.2, 0, 0, 0], 1000.5, True, "RADIAL"),
-    ([0, 0, 0, 0, 0], 980.0, True, "OPENCV"), ([0.1, -0.2, 0.003, -0.002, 0], 1000.5, True, "OPENCV")])
+@pytest.mark.parametrize(
+    "dist, fy, refine, model",
+    [
+        ([0, 0, 0, 0, 0], 998.0, False, "PINHOLE"),
+        ([0.1, -0.2, 0.003, -0.002, 0], 998.0, False, "OPENCV"),
+        ([0.1, -0.2, 0.003, -0.002, 0.05], 998.0, False, "FULL_OPENCV"),
+        # a start for bundle adjustment: the smallest model with a radial term
+        ([0, 0, 0, 0, 0], 1000.5, True, "SIMPLE_RADIAL"),
+        ([0.1, -0.2, 0, 0, 0], 1000.5, True, "RADIAL"),
+        ([0, 0, 0, 0, 0], 980.0, True, "OPENCV"),
+        ([0.1, -0.2, 0.003, -0.002, 0], 1000.5, True, "OPENCV"),
+    ],
+)
 def test_a_calibrated_camera_round_trips_through_colmap(dist, fy, refine, model):
     K = np.array([[1000.5, 0.0, 639.25], [0.0, fy, 478.5], [0.0, 0.0, 1.0]])
     cam = Camera(K, np.asarray(dist, np.float64), 1280, 960, "test")
@@ -61,8 +68,14 @@ def test_pose_agreement_measures_turns_and_shifts_over_shared_photos():
 
 
 def test_sfm_poses_are_used_only_when_they_hold_up():
-    good = {"photos": 50, "rot_deg_median": 1.2, "rot_deg_max": 8.0, "shift_median": 0.006, "shift_max": 0.05,
-            "distance_median": 0.3}
+    good = {
+        "photos": 50,
+        "rot_deg_median": 1.2,
+        "rot_deg_max": 8.0,
+        "shift_median": 0.006,
+        "shift_max": 0.05,
+        "distance_median": 0.3,
+    }
     assert judge(133, 162, True, good) is None
     assert judge(133, 120, True, good) is None  # 90% of the tag-posed photos is enough
     assert "registered 100" in judge(133, 100, True, good)
@@ -152,8 +165,18 @@ def test_auto_poses_a_tag_capture_by_sfm_in_the_tag_frame(room_photos, tmp_path)
     """The room: SfM starting from the given focal length, in the tag's metric frame (the
     poses are compared with the truth without any alignment)."""
     folder, truth = room_photos
-    common = ["--focal-px", "260", "--tag-size", str(TAG_SIZE), "--val-every", "6", "--test-every", "0",
-              "--matcher", "exhaustive"]
+    common = [
+        "--focal-px",
+        "260",
+        "--tag-size",
+        str(TAG_SIZE),
+        "--val-every",
+        "6",
+        "--test-every",
+        "0",
+        "--matcher",
+        "exhaustive",
+    ]
     assert main(["poses", str(folder), *common, "--out", str(tmp_path / "auto")]) == 0
     assert main(["poses", str(folder), *common, "--method", "tags", "--out", str(tmp_path / "tags")]) == 0
     info = json.loads((tmp_path / "auto" / "transforms.json").read_text())
@@ -222,8 +245,12 @@ def test_photos_sfm_missed_are_posed_from_the_tag_with_sfms_camera(tmp_path):
     cap = S.cached_capture("object", 10, 1)
     layout, detector = A.Layout.single(0, 0.06), A.make_detector("DICT_4X4_50")
     K, d = cap.K, cap.dist
-    colmap_cam = SimpleNamespace(model_name="OPENCV", width=cap.width, height=cap.height,  # pixel centres at +0.5
-                                 params=[K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5, *d[:4]])
+    colmap_cam = SimpleNamespace(
+        model_name="OPENCV",
+        width=cap.width,
+        height=cap.height,  # pixel centres at +0.5
+        params=[K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5, *d[:4]],
+    )
     short = Camera(np.diag([0.96, 0.96, 1.0]) @ K, d, cap.width, cap.height)  # the calibration's
     records, posed, truth = [], [], {}
     for name, img, c2w in zip(cap.names, cap.images, cap.c2w):
@@ -236,8 +263,9 @@ def test_photos_sfm_missed_are_posed_from_the_tag_with_sfms_camera(tmp_path):
         truth[name] = c2w
     assert len(posed) >= 6
     first, turned, resized, *rest = [p.name for p in posed]  # SfM registered the first only
-    rec = SimpleNamespace(images={1: SimpleNamespace(name=first, camera_id=7)}, cameras={7: colmap_cam},
-                          reg_image_ids=lambda: [1])
+    rec = SimpleNamespace(
+        images={1: SimpleNamespace(name=first, camera_id=7)}, cameras={7: colmap_cam}, reg_image_ids=lambda: [1]
+    )
     result = SfmResult(rec, tmp_path, tmp_path, None, tag_size=0.06, turns={turned: 1})  # SfM's copy turned
     posed[2] = replace(posed[2], camera=short.scaled_to(cap.width // 2, cap.height // 2))  # another size
 
@@ -278,12 +306,24 @@ def test_a_photo_sfm_misses_keeps_its_tag_pose(room_photos, tmp_path, monkeypatc
         return result
 
     monkeypatch.setattr(colmap, "run_sfm", misses_one)
-    common = ["--focal-px", "260", "--tag-size", str(TAG_SIZE), "--val-every", "6", "--test-every", "0",
-              "--matcher", "spatial"]  # pairs chosen by the tag poses
+    common = [
+        "--focal-px",
+        "260",
+        "--tag-size",
+        str(TAG_SIZE),
+        "--val-every",
+        "6",
+        "--test-every",
+        "0",
+        "--matcher",
+        "spatial",
+    ]  # pairs chosen by the tag poses
     assert main(["poses", str(folder), *common, "--out", str(tmp_path / "ds")]) == 0
     assert json.loads((tmp_path / "ds" / "sfm_report.json").read_text())["matcher"] == "spatial"
-    assert f"the tag poses are kept for 1 photo SfM did not register (solved again with SfM's camera): {missed}" \
+    assert (
+        f"the tag poses are kept for 1 photo SfM did not register (solved again with SfM's camera): {missed}"
         in capsys.readouterr().out
+    )
     choice = json.loads((tmp_path / "ds" / "transforms.json").read_text())["nerfkit"]["pose_choice"]
     assert choice["poses"] == "sfm" and choice["tag_posed"] == [missed]
     names, c2w = _dataset_poses(tmp_path / "ds")
@@ -296,8 +336,12 @@ def test_a_photo_sfm_misses_keeps_its_tag_pose(room_photos, tmp_path, monkeypatc
     saved = json.loads((tmp_path / "ds" / "sfm_report.json").read_text())["model"]["tag_posed"]
     np.testing.assert_allclose(saved[missed]["c2w"], poses[missed], atol=1e-6)
     # rebuilt from the report, the photo keeps its pose
-    assert main(["dataset", str(tmp_path / "ds"), "--out", str(tmp_path / "again"), "--val-every", "6",
-                 "--test-every", "0"]) == 0
+    assert (
+        main(
+            ["dataset", str(tmp_path / "ds"), "--out", str(tmp_path / "again"), "--val-every", "6", "--test-every", "0"]
+        )
+        == 0
+    )
     names2, c2w2 = _dataset_poses(tmp_path / "again")
     assert names2 == names
     np.testing.assert_allclose(c2w2, c2w, atol=1e-5)
@@ -312,8 +356,10 @@ def test_auto_keeps_the_tag_poses_and_says_why_when_sfm_fails(room_photos, tmp_p
 
     monkeypatch.setattr(colmap, "run_sfm", broken)
     folder, _ = room_photos
-    assert main(["poses", str(folder), "--focal-px", "260", "--tag-size", str(TAG_SIZE), "--out",
-                 str(tmp_path / "ds")]) == 0
+    assert (
+        main(["poses", str(folder), "--focal-px", "260", "--tag-size", str(TAG_SIZE), "--out", str(tmp_path / "ds")])
+        == 0
+    )
     out = capsys.readouterr().out
     assert "tag poses: structure-from-motion failed" in out and "too few features" in out
     choice = json.loads((tmp_path / "ds" / "transforms.json").read_text())["nerfkit"]["pose_choice"]
@@ -330,12 +376,28 @@ def test_rebuilding_from_sfm_says_what_is_missing(tmp_path, capsys):
 
     assert "sfm_report.json: no such file" in error("--pose-source", "sfm")
     assert "poses.json: no such file" in error()  # auto without an SfM report: the tag poses
-    report = {"n_photos": 3, "registered": ["a.jpg"], "unregistered": {}, "n_points": 10, "reprojection_error": 0.5,
-              "n_models": 1, "matcher": "exhaustive", "seconds": {}, "frame": "tag", "camera": {}, "ground": None}
+    report = {
+        "n_photos": 3,
+        "registered": ["a.jpg"],
+        "unregistered": {},
+        "n_points": 10,
+        "reprojection_error": 0.5,
+        "n_models": 1,
+        "matcher": "exhaustive",
+        "seconds": {},
+        "frame": "tag",
+        "camera": {},
+        "ground": None,
+    }
     (tmp_path / REPORT_FILE).write_text(json.dumps(report))
     assert "records no SfM model" in error()  # auto, no dataset yet: the report says SfM posed this folder
-    model = {"dir": "colmap/sparse/0", "photos_dir": str(tmp_path), "photos": {"a.jpg": "a.jpg"}, "tag_size": 0.05,
-             "on_ground": False}
+    model = {
+        "dir": "colmap/sparse/0",
+        "photos_dir": str(tmp_path),
+        "photos": {"a.jpg": "a.jpg"},
+        "tag_size": 0.05,
+        "on_ground": False,
+    }
     (tmp_path / REPORT_FILE).write_text(json.dumps({**report, "model": model}))
     assert "holds no COLMAP model" in error() and "--pose-source tags" in error()
     (tmp_path / REPORT_FILE).write_text(json.dumps({**report, "model": {**model, "dir": "../elsewhere"}}))
@@ -344,7 +406,11 @@ def test_rebuilding_from_sfm_says_what_is_missing(tmp_path, capsys):
     (tmp_path / "colmap" / "sparse" / "0").mkdir(parents=True)
     (tmp_path / "colmap" / "sparse" / "0" / "images.txt").write_text("")
     assert "model.tag_size is -1" in error()
-    for bad in ({"b.jpg": {"c2w": np.eye(4).tolist(), "error_px": 0.1}}, {"a.jpg": {"c2w": [[1.0]], "error_px": 0.1}},
-                {"a.jpg": {"c2w": np.eye(4).tolist()}}, ["a.jpg"]):  # a photo not in the model, not 4x4, no error
+    for bad in (
+        {"b.jpg": {"c2w": np.eye(4).tolist(), "error_px": 0.1}},
+        {"a.jpg": {"c2w": [[1.0]], "error_px": 0.1}},
+        {"a.jpg": {"c2w": np.eye(4).tolist()}},
+        ["a.jpg"],
+    ):  # a photo not in the model, not 4x4, no error
         (tmp_path / REPORT_FILE).write_text(json.dumps({**report, "model": {**model, "tag_posed": bad}}))
         assert "model.tag_posed" in error()

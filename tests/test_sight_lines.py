@@ -78,13 +78,16 @@ def test_npz_round_trip_keeps_who_saw_each_point(tmp_path, tabletop):
     assert back.point_views.dtype == np.int32
 
 
-@pytest.mark.parametrize("bad, why", [
-    (np.array([[0, 99]]), "train views the dataset does not have"),
-    (np.array([[10 ** 6, 0]]), "points or train views the dataset does not have"),
-    (np.array([[-1, 0]]), "does not have"),
-    (np.array([[0.0, 1.0]]), "must be (k, 2) integers"),
-    (np.array([0, 1, 2]), "must be (k, 2) integers"),
-])
+@pytest.mark.parametrize(
+    "bad, why",
+    [
+        (np.array([[0, 99]]), "train views the dataset does not have"),
+        (np.array([[10**6, 0]]), "points or train views the dataset does not have"),
+        (np.array([[-1, 0]]), "does not have"),
+        (np.array([[0.0, 1.0]]), "must be (k, 2) integers"),
+        (np.array([0, 1, 2]), "must be (k, 2) integers"),
+    ],
+)
 def test_bad_point_views_get_a_clear_error(tmp_path, tabletop, bad, why):
     points, rows = seen_sphere_points(tabletop)
     save_npz(Scene(**{**tabletop.__dict__, "points": points, "point_views": rows}), tmp_path / "s.npz")
@@ -178,8 +181,12 @@ def test_sight_lines_clear_a_fog_and_make_the_object_solid_but_not_the_table(tab
     points, rows = seen_sphere_points(tabletop)
     scene = Scene(**{**tabletop.__dict__, "points": points, "point_views": rows})
     bounds = SceneBounds.from_scene(scene)
-    model = FastNeRF(FastConfig(resolutions="32", upsample_steps="", table=True, points_weight=1.0, init_alpha=0.03,
-                                kernels=kernels), bounds)
+    model = FastNeRF(
+        FastConfig(
+            resolutions="32", upsample_steps="", table=True, points_weight=1.0, init_alpha=0.03, kernels=kernels
+        ),
+        bounds,
+    )
     lines = SightLines.from_scene(scene)
     every = Rays(lines.origins, lines.directions), lines.distances  # in the order of ``rows``
     on_sphere = torch.as_tensor(points[rows[:, 0], 2] > 0.3)
@@ -211,10 +218,14 @@ def test_sight_lines_take_no_part_without_their_weight_and_weigh_in_proportion_t
     batch, distance, _ = lines.sample(64, torch.Generator().manual_seed(0))
     off = FastNeRF(FastConfig(resolutions="16", upsample_steps="", points_weight=0.0), SceneBounds.from_scene(scene))
     assert off.sight_loss(batch, distance) is None
-    on = FastNeRF(FastConfig(resolutions="16", upsample_steps="", points_weight=0.5, init_alpha=0.02),
-                  SceneBounds.from_scene(scene))
-    full = FastNeRF(FastConfig(resolutions="16", upsample_steps="", points_weight=1.0, init_alpha=0.02),
-                    SceneBounds.from_scene(scene))
+    on = FastNeRF(
+        FastConfig(resolutions="16", upsample_steps="", points_weight=0.5, init_alpha=0.02),
+        SceneBounds.from_scene(scene),
+    )
+    full = FastNeRF(
+        FastConfig(resolutions="16", upsample_steps="", points_weight=1.0, init_alpha=0.02),
+        SceneBounds.from_scene(scene),
+    )
     torch.manual_seed(0)
     a = float(on.sight_loss(batch, distance).detach())
     torch.manual_seed(0)
@@ -231,8 +242,16 @@ def test_a_capture_trains_with_its_sight_lines_and_resumes_their_draws(tmp_path,
     small = FastConfig(resolutions="16", upsample_steps="", room_shells=0, table_resolution=32)
 
     def trainer(name, resume=False, data=scene, **kw):
-        base = TrainConfig(data="tabletop", out=str(tmp_path / name), steps=30, batch_rays=256, seed=0,
-                           eval_views=1, checkpoint_seconds=1e9, **kw)
+        base = TrainConfig(
+            data="tabletop",
+            out=str(tmp_path / name),
+            steps=30,
+            batch_rays=256,
+            seed=0,
+            eval_views=1,
+            checkpoint_seconds=1e9,
+            **kw,
+        )
         c, m = capture_settings(base, small, data)
         return Trainer(data, resolved_config(c, m), m, resume=resume, quiet=True), m
 

@@ -99,8 +99,17 @@ def test_one_opaque_gaussian_composites_analytically():
     rects = torch.tensor([[0, 1, 0, 1]], dtype=torch.int32)
     bg = torch.zeros(H, W, 3, dtype=torch.float64)
     bg[..., 2] = 1.0
-    rgb, depth, alpha = ref.rasterize_reference(means2d, conics, colors, torch.tensor([0.6], dtype=torch.float64),
-                                                torch.tensor([2.0], dtype=torch.float64), rects, bg, W, H)
+    rgb, depth, alpha = ref.rasterize_reference(
+        means2d,
+        conics,
+        colors,
+        torch.tensor([0.6], dtype=torch.float64),
+        torch.tensor([2.0], dtype=torch.float64),
+        rects,
+        bg,
+        W,
+        H,
+    )
     torch.testing.assert_close(rgb[8, 8], torch.tensor([0.6, 0.0, 0.4], dtype=torch.float64))
     torch.testing.assert_close(depth[8, 8], torch.tensor(1.2, dtype=torch.float64))
     a = 0.6 * math.exp(-0.5 * 0.5 * 1)  # one pixel to the right

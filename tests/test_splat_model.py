@@ -10,22 +10,23 @@ import pytest
 import torch
 
 from nerfkit.cli import main
+from nerfkit.data.synthetic import sphere_scene
 from nerfkit.kernels import splat_reference as ref
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.splat import SplatConfig, SplatModel, ssim
-from nerfkit.data.synthetic import sphere_scene
 from nerfkit.output.images import render_image
 from nerfkit.splat_files import Gaussians, ply_property_names, read_splat_ply
 from nerfkit.train.config import TrainConfig
-from nerfkit.train.trainer import Trainer, resolved_config, resume, train
 from nerfkit.train.optim import build_optimizer
+from nerfkit.train.trainer import Trainer, resolved_config, resume, train
 
 SMALL = dict(init_points=1500, densify_every=20, max_gaussians=6000)
 
 
 def splat_cfg(tmp_path, name="run", **kw):
-    base = dict(data="sphere", model="splat", out=str(tmp_path / name), steps=120, seed=0, eval_views=1,
-                checkpoint_seconds=1e9)
+    base = dict(
+        data="sphere", model="splat", out=str(tmp_path / name), steps=120, seed=0, eval_views=1, checkpoint_seconds=1e9
+    )
     base.update(kw)
     return resolved_config(TrainConfig(**base), None)  # splat's training settings, as train() resolves them
 
@@ -82,8 +83,10 @@ def test_density_control_clones_splits_prunes_and_keeps_adam_moments(sphere):
     assert state.shape == p.shape
     torch.testing.assert_close(state[:50], marker[:50])  # survivors keep their moments (first 50 unmoved)
     assert torch.all(state[-7:] == 0)  # new rows start at zero
-    assert all(getattr(model, n).shape[0] == model.n_gaussians for n in ("log_scales", "quats", "sh_rest",
-                                                                        "grad_accum", "max_radii"))
+    assert all(
+        getattr(model, n).shape[0] == model.n_gaussians
+        for n in ("log_scales", "quats", "sh_rest", "grad_accum", "max_radii")
+    )
     split_scales = torch.exp(model.log_scales[-4:])
     torch.testing.assert_close(split_scales, torch.full_like(split_scales, 0.5 / 1.6))
 
@@ -91,8 +94,10 @@ def test_density_control_clones_splits_prunes_and_keeps_adam_moments(sphere):
 def test_opacity_reset_caps_opacity(sphere):
     model = small_model(sphere, init_points=50, init_opacity=0.9)
     opt = build_optimizer(model, 1.0)
-    opt.state[model.opacity_logits] = {"exp_avg": torch.ones_like(model.opacity_logits),
-                                       "exp_avg_sq": torch.ones_like(model.opacity_logits)}
+    opt.state[model.opacity_logits] = {
+        "exp_avg": torch.ones_like(model.opacity_logits),
+        "exp_avg_sq": torch.ones_like(model.opacity_logits),
+    }
     model.reset_opacity(opt)
     assert not opt.state[model.opacity_logits]["exp_avg"].any()  # its moments start again
     assert float(torch.sigmoid(model.opacity_logits.detach()).max()) <= 0.01 + 1e-6
@@ -127,8 +132,16 @@ def test_export_ply_has_the_3dgs_layout_and_renders_identically(trained, sphere,
     v = ply["vertex"]
     assert [p.name for p in v.properties] == ply_property_names(15)
     assert ply_property_names(15)[:9] == ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-    assert ply_property_names(15)[-8:] == ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2",
-                                           "rot_3"]
+    assert ply_property_names(15)[-8:] == [
+        "opacity",
+        "scale_0",
+        "scale_1",
+        "scale_2",
+        "rot_0",
+        "rot_1",
+        "rot_2",
+        "rot_3",
+    ]
     assert all(p.val_dtype in ("f4", "float32") for p in v.properties) and not ply.text
     n = model.n_gaussians
     assert len(v.data) == n
@@ -159,8 +172,11 @@ def test_dot_splat_is_32_bytes_a_gaussian(trained, tmp_path):
     raw = out.read_bytes()
     assert len(raw) == 32 * model.n_gaussians
     rec = np.frombuffer(raw, dtype=[("pos", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
-    first = int(np.argmax(torch.exp(model.log_scales.sum(1)).detach().numpy()
-                          * torch.sigmoid(model.opacity_logits).detach().numpy()))
+    first = int(
+        np.argmax(
+            torch.exp(model.log_scales.sum(1)).detach().numpy() * torch.sigmoid(model.opacity_logits).detach().numpy()
+        )
+    )
     np.testing.assert_allclose(rec["pos"][0], model.means[first].detach().numpy())
     np.testing.assert_allclose(rec["scale"][0], torch.exp(model.log_scales[first]).detach().numpy(), rtol=1e-6)
 
@@ -186,9 +202,12 @@ def test_viewer_arrays_match_scales_and_rotations(trained):
     eig = np.linalg.eigvalsh(cov)
     want = np.sort(np.exp(2 * model.log_scales.detach().double().numpy()), axis=1)
     np.testing.assert_allclose(eig, want, rtol=2e-3, atol=1e-9)
-    torch.testing.assert_close(torch.as_tensor(cov), ref.covariance_3d(model.log_scales.detach().double(),
-                                                                      model.quats.detach().double()),
-                               rtol=1e-5, atol=1e-9)
+    torch.testing.assert_close(
+        torch.as_tensor(cov),
+        ref.covariance_3d(model.log_scales.detach().double(), model.quats.detach().double()),
+        rtol=1e-5,
+        atol=1e-9,
+    )
     assert arr["opacities"].shape == (model.n_gaussians, 1) and arr["rgbs"].min() >= 0 and arr["rgbs"].max() <= 1
 
 
@@ -210,8 +229,7 @@ def test_cli_eval_and_render_a_splat_run(trained, sphere, capsys, tmp_path):
     scores = json.loads((trained.run_dir / "eval_val.json").read_text())
     empty = -10 * np.log10(np.mean((sphere.val.images.astype(np.float64) / 255) ** 2))
     assert scores["n_images"] == 2 and scores["psnr"] > empty + 8.0  # both val views, as training scored one
-    assert main(["render", str(trained.run_dir), "--path", "orbit", "--frames", "3", "--out",
-                 str(tmp_path / "v")]) == 0
+    assert main(["render", str(trained.run_dir), "--path", "orbit", "--frames", "3", "--out", str(tmp_path / "v")]) == 0
     frames = iio.imread(tmp_path / "v" / "orbit.mp4")
     assert frames.shape[0] == 3 and frames.std() > 5  # the sphere, not a blank frame
     assert len(iio.imread(tmp_path / "v" / "depth.mp4")) == 3
@@ -230,12 +248,14 @@ def test_capture_mode_learns_the_background_and_exposure_without_pose(tmp_path):
     assert trainer.views is not None and trainer.views.pose is None and trainer.views.exposure is not None
     v = grey.val
     with torch.no_grad():
-        before = trainer.model._background_image(torch.from_numpy(v.K[0]), torch.from_numpy(v.c2w[0]), 32, 32,
-                                                 torch.zeros(3))
+        before = trainer.model._background_image(
+            torch.from_numpy(v.K[0]), torch.from_numpy(v.c2w[0]), 32, 32, torch.zeros(3)
+        )
     trainer.run()
     with torch.no_grad():
-        after = trainer.model._background_image(torch.from_numpy(v.K[0]), torch.from_numpy(v.c2w[0]), 32, 32,
-                                                torch.zeros(3))
+        after = trainer.model._background_image(
+            torch.from_numpy(v.K[0]), torch.from_numpy(v.c2w[0]), 32, 32, torch.zeros(3)
+        )
     backdrop = torch.from_numpy((v.images[0] == colour).all(-1))
     target = torch.from_numpy(colour / 255.0).float()
     assert (before[backdrop].mean(0) - target).abs().max() > 0.25  # the grey it starts from
@@ -251,15 +271,16 @@ def _capture(sphere):
 
 
 def test_live_viewer_draws_the_splats_and_renders_a_splat_run(trained, sphere, monkeypatch):
-    from nerfkit.train.checkpoint import load_run
     from nerfkit.commands import live
+    from nerfkit.train.checkpoint import load_run
 
     watcher = live.RunWatcher(trained.run_dir, load_run)
     viewer = live.LiveViewer(watcher, None, host="127.0.0.1", port=0, max_side=32, watch=True)
     drawn = []
     real = viewer.server.scene.add_gaussian_splats
-    monkeypatch.setattr(viewer.server.scene, "add_gaussian_splats",
-                        lambda name, **kw: drawn.append(kw) or real(name, **kw))
+    monkeypatch.setattr(
+        viewer.server.scene, "add_gaussian_splats", lambda name, **kw: drawn.append(kw) or real(name, **kw)
+    )
     try:
         viewer.step()  # loads the run and draws its Gaussians
         assert len(drawn) == 1 and drawn[0]["centers"].shape == (watcher.current.model.n_gaussians, 3)
@@ -271,8 +292,7 @@ def test_live_viewer_draws_the_splats_and_renders_a_splat_run(trained, sphere, m
 
 
 @pytest.mark.slow
-def test_eval_of_a_capture_splat_run_scores_as_rendered_and_refuses_pose_fitting(tmp_path, sphere, sphere_npz,
-                                                                                    capsys):
+def test_eval_of_a_capture_splat_run_scores_as_rendered_and_refuses_pose_fitting(tmp_path, sphere, sphere_npz, capsys):
     """Splats render whole views, so held-out poses are not fitted: ``eval`` says so instead
     of failing, and an explicit ``--fit-views`` gets a clear error."""
     (model_cfg,) = _capture(sphere)

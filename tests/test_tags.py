@@ -25,8 +25,9 @@ def raster(page, dictionary) -> np.ndarray:
     return np.asarray(canvas.buffer_rgba())[..., 0].copy()
 
 
-@pytest.mark.parametrize("paper, name, sheet_mm, object_mm", [("a4", "DICT_4X4_50", 50.0, 100.0),
-                                                               ("letter", "DICT_5X5_100", 30.0, 120.0)])
+@pytest.mark.parametrize(
+    "paper, name, sheet_mm, object_mm", [("a4", "DICT_4X4_50", 50.0, 100.0), ("letter", "DICT_5X5_100", 30.0, 120.0)]
+)
 def test_printed_tags_are_detected_with_their_ids_sides_and_places(paper, name, sheet_mm, object_mm):
     from nerfkit.capture.aruco import detect, get_dictionary, make_detector
     from nerfkit.capture.sheet import PAPERS, tag_sheets
@@ -69,8 +70,9 @@ def test_the_largest_tags_fit_and_larger_ones_are_refused(tmp_path, capsys):
 
 def test_cli_writes_a_two_page_pdf_of_the_paper_size_and_refuses_to_replace_it(tmp_path, capsys):
     out = tmp_path / "tags.pdf"
-    assert main(["tags", "--out", str(out), "--paper", "letter", "--tag-size", "0.04", "--object-tag-size",
-                 "0.12"]) == 0
+    assert (
+        main(["tags", "--out", str(out), "--paper", "letter", "--tag-size", "0.04", "--object-tag-size", "0.12"]) == 0
+    )
     text = capsys.readouterr().out
     assert "--sheet-tag-size 0.04 --tag-size 0.12" in text and "page 2: tag " in text
     pdf = out.read_bytes()

@@ -19,8 +19,17 @@ SMALL = dict(n_samples=16, width=32, depth=4)
 
 
 def small_cfg(tmp_path, name="run", **kw):
-    base = dict(data="sphere", model="vanilla", out=str(tmp_path / name), steps=300, batch_rays=256, lr=3e-3,
-                seed=0, eval_views=1, checkpoint_seconds=1e9)
+    base = dict(
+        data="sphere",
+        model="vanilla",
+        out=str(tmp_path / name),
+        steps=300,
+        batch_rays=256,
+        lr=3e-3,
+        seed=0,
+        eval_views=1,
+        checkpoint_seconds=1e9,
+    )
     base.update(kw)
     return resolved_config(TrainConfig(**base), None)  # the model's training settings, as train() resolves them
 
@@ -28,7 +37,7 @@ def small_cfg(tmp_path, name="run", **kw):
 def background_psnr(scene) -> float:
     """PSNR of rendering nothing but the black background on the validation views."""
     img = scene.val.images.astype(np.float64) / 255
-    return -10 * np.log10(np.mean(img ** 2))
+    return -10 * np.log10(np.mean(img**2))
 
 
 @pytest.mark.slow
@@ -62,14 +71,21 @@ def test_default_init_leaves_the_dead_zone(sphere):
     sigma_dead, _ = dead.query(pts, dirs)
     sigma_dead.sum().backward()
     assert torch.all(sigma_dead == 0)
-    assert all(p.grad is None or torch.all(p.grad == 0) for n, p in dead.coarse.named_parameters()
-               if "color" not in n and "feature" not in n)
+    assert all(
+        p.grad is None or torch.all(p.grad == 0)
+        for n, p in dead.coarse.named_parameters()
+        if "color" not in n and "feature" not in n
+    )
 
 
 @pytest.mark.slow
 def test_hierarchical_sampling_trains(tmp_path, sphere):
-    result = train(sphere, small_cfg(tmp_path, steps=250), VanillaConfig(n_samples=8, n_importance=8, width=32, depth=4),
-                   quiet=True)
+    result = train(
+        sphere,
+        small_cfg(tmp_path, steps=250),
+        VanillaConfig(n_samples=8, n_importance=8, width=32, depth=4),
+        quiet=True,
+    )
     val = [r for r in result.rows if r["split"] == "val"]
     assert val[-1]["psnr"] > background_psnr(sphere) + 2.0
 
@@ -96,8 +112,10 @@ def test_resume_continues_exactly(tmp_path, sphere):
 def test_resume_keeps_the_default_validation_marks(tmp_path, sphere):
     """Resumed at step 60 of 120, a run validates at the steps a straight run does, no more."""
     straight = train(sphere, small_cfg(tmp_path, "a", steps=120), VanillaConfig(**SMALL), quiet=True)
-    assert Trainer(sphere, small_cfg(tmp_path, "b", steps=120), VanillaConfig(**SMALL), quiet=True).run(
-        stop_after=60).step == 60
+    assert (
+        Trainer(sphere, small_cfg(tmp_path, "b", steps=120), VanillaConfig(**SMALL), quiet=True).run(stop_after=60).step
+        == 60
+    )
     resumed = resume(tmp_path / "b", sphere, quiet=True)
     val_steps = [(r["step"], r["views"]) for r in straight.rows if r["split"] == "val"]
     n_val = len(sphere.val)  # the last step twice: its periodic view again, then every view
@@ -136,8 +154,29 @@ def test_refuses_to_overwrite_a_run(tmp_path, sphere):
 @pytest.mark.slow
 def test_cli_train_render_eval(tmp_path, sphere_npz, capsys):
     run = tmp_path / "cli_run"
-    code = main(["train", "--data", str(sphere_npz), "--model", "vanilla", "--out", str(run), "--steps", "20",
-                 "--batch-rays", "128", "--n-samples", "8", "--width", "16", "--depth", "2", "--lr", "2e-3"])
+    code = main(
+        [
+            "train",
+            "--data",
+            str(sphere_npz),
+            "--model",
+            "vanilla",
+            "--out",
+            str(run),
+            "--steps",
+            "20",
+            "--batch-rays",
+            "128",
+            "--n-samples",
+            "8",
+            "--width",
+            "16",
+            "--depth",
+            "2",
+            "--lr",
+            "2e-3",
+        ]
+    )
     assert code == 0
     assert main(["render", str(run), "--path", "spiral", "--out", str(tmp_path / "spiral")]) == 2
     assert "--path spiral: the training cameras do not all look the same way" in capsys.readouterr().err
@@ -171,18 +210,28 @@ def test_cli_train_render_eval(tmp_path, sphere_npz, capsys):
 def test_eval_summary_lists_the_fitted_scores_and_the_extreme_views():
     from nerfkit.commands.eval import LISTED_VIEWS, summary
 
-    views = [{"index": i, "name": f"IMG_{i}.jpg", "psnr": 20.0 + (i * 7) % 31, "ssim": 0.5, "psnr_fitted": 30.0}
-             for i in range(31)]
-    result = {"split": "val", "n_images": 31, "step": 9, "psnr": 25.0, "ssim": 0.7, "per_image": views,
-              "fitted": {"psnr": 27.5, "ssim": 0.75}, "colour_only": {"psnr": 26.0},
-              "object": {"psnr": 24.0, "psnr_fitted": 28.0}}
+    views = [
+        {"index": i, "name": f"IMG_{i}.jpg", "psnr": 20.0 + (i * 7) % 31, "ssim": 0.5, "psnr_fitted": 30.0}
+        for i in range(31)
+    ]
+    result = {
+        "split": "val",
+        "n_images": 31,
+        "step": 9,
+        "psnr": 25.0,
+        "ssim": 0.7,
+        "per_image": views,
+        "fitted": {"psnr": 27.5, "ssim": 0.75},
+        "colour_only": {"psnr": 26.0},
+        "object": {"psnr": 24.0, "psnr_fitted": 28.0},
+    }
     lines = summary(result).splitlines()
     assert "and each half's colour solved on the other half: 27.50 dB / 0.750 (its colour alone: 26.00 dB)" in lines[1]
     assert lines[2] == "  the object's own pixels: 24.00 dB, 28.00 fitted"
     listed = [float(line.split()[1]) for line in lines[4:]]
     assert len(listed) == LISTED_VIEWS and listed == sorted(listed)
     all_psnr = sorted(v["psnr"] for v in views)
-    assert listed == all_psnr[:LISTED_VIEWS // 2] + all_psnr[-(LISTED_VIEWS // 2):]
+    assert listed == all_psnr[: LISTED_VIEWS // 2] + all_psnr[-(LISTED_VIEWS // 2) :]
     result["per_image"] = views[:3]  # few views: each, in the split's order
     assert [line.split()[0] for line in summary(result).splitlines()[4:]] == ["IMG_0.jpg", "IMG_1.jpg", "IMG_2.jpg"]
 
@@ -234,10 +283,36 @@ def test_progress_bar_in_a_log_file_redraws_rarely(tmp_path, sphere_npz):
 
     log = tmp_path / "train.log"
     with open(log, "w") as f:
-        code = subprocess.run([sys.executable, "-m", "nerfkit.cli", "train", "--data", str(sphere_npz),
-                               "--model", "vanilla", "--out", str(tmp_path / "run"), "--minutes", "0.05",
-                               "--batch-rays", "64", "--n-samples", "8", "--width", "16", "--depth", "2",
-                               "--eval-views", "1", "--eval-every", "1000000"], stderr=f, stdout=f).returncode
+        code = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "nerfkit.cli",
+                "train",
+                "--data",
+                str(sphere_npz),
+                "--model",
+                "vanilla",
+                "--out",
+                str(tmp_path / "run"),
+                "--minutes",
+                "0.05",
+                "--batch-rays",
+                "64",
+                "--n-samples",
+                "8",
+                "--width",
+                "16",
+                "--depth",
+                "2",
+                "--eval-views",
+                "1",
+                "--eval-every",
+                "1000000",
+            ],
+            stderr=f,
+            stdout=f,
+        ).returncode
     assert code == 0, log.read_text()[-2000:]
     text = log.read_text()
     steps = json.loads((tmp_path / "run" / "metrics.json").read_text())["step"]
@@ -296,8 +371,12 @@ def test_periodic_validation_cost_is_bounded_and_the_final_one_is_whole(tmp_path
     from nerfkit.train.metrics import psnr
 
     v = sphere.val
-    whole = [render_image(trainer.model, v.K[i], v.c2w[i], v.width, v.height, trainer.background,
-                          autocast_dtype=trainer.autocast).rgb for i in range(2)]  # bf16 where the CPU has it
+    whole = [
+        render_image(
+            trainer.model, v.K[i], v.c2w[i], v.width, v.height, trainer.background, autocast_dtype=trainer.autocast
+        ).rgb
+        for i in range(2)
+    ]  # bf16 where the CPU has it
     s = eval_stride(v.width, v.height, 2, 100)
     assert len(range(0, v.width, s)) * len(range(0, v.height, s)) == periodic["pixels"]
     expect = np.mean([psnr(whole[i][::s, ::s], v.images[i][::s, ::s] / 255.0) for i in range(2)])
@@ -319,42 +398,62 @@ def test_the_periodic_validation_curve_ends_with_the_final_score_of_its_views(tm
 
     v = sphere.val
     assert len(v) > 1
-    trainer = Trainer(sphere, small_cfg(tmp_path, steps=20, eval_views=1, eval_pixels=10 ** 7),
-                      VanillaConfig(n_samples=16, width=16, depth=2, occupancy=False), quiet=True)
+    trainer = Trainer(
+        sphere,
+        small_cfg(tmp_path, steps=20, eval_views=1, eval_pixels=10**7),
+        VanillaConfig(n_samples=16, width=16, depth=2, occupancy=False),
+        quiet=True,
+    )
     result = trainer.run()
     val = [r for r in result.rows if r["split"] == "val"]
     first, every = val[-2], val[-1]
     assert first["step"] == every["step"] == 20 and first["views"] == 1 and every["views"] == len(v)
     assert first["pixels"] == every["pixels"] == v.width * v.height
     assert result.final_val_psnr == every["psnr"]
-    scores = [psnr(render_image(trainer.model, v.K[i], v.c2w[i], v.width, v.height, trainer.background,
-                                autocast_dtype=trainer.autocast).rgb, v.images[i] / 255.0) for i in range(len(v))]
+    scores = [
+        psnr(
+            render_image(
+                trainer.model, v.K[i], v.c2w[i], v.width, v.height, trainer.background, autocast_dtype=trainer.autocast
+            ).rgb,
+            v.images[i] / 255.0,
+        )
+        for i in range(len(v))
+    ]
     assert first["psnr"] == pytest.approx(scores[0], abs=1e-4)
     assert every["psnr"] == pytest.approx(np.mean(scores), abs=1e-4)
     curves = validation_series(val, len(v), v.width * v.height)
-    assert list(curves) == [f"validation, first 1 of {len(v)} views, whole images",
-                            f"validation, all {len(v)} views, whole images"]
+    assert list(curves) == [
+        f"validation, first 1 of {len(v)} views, whole images",
+        f"validation, all {len(v)} views, whole images",
+    ]
     assert curves[f"validation, first 1 of {len(v)} views, whole images"][0][-1] == first["seconds"]
 
 
 def test_the_psnr_plot_keeps_periodic_and_final_validation_apart():
     """Periodic scores (the first views, a pixel subset) and final ones (every view, whole)
     are different numbers; joined in one line, a run's last point looked like a collapse."""
-    rows = [{"seconds": 0.0, "psnr": 11.0, "views": 2, "pixels": 300},
-            {"seconds": 9.0, "psnr": 21.0, "views": 2, "pixels": 300},
-            {"seconds": 10.0, "psnr": 19.5, "views": 6, "pixels": 4096},
-            {"seconds": 20.0, "psnr": 21.5, "views": 2, "pixels": 300},  # resumed
-            {"seconds": 30.0, "psnr": 20.0, "views": 6, "pixels": 4096}]
+    rows = [
+        {"seconds": 0.0, "psnr": 11.0, "views": 2, "pixels": 300},
+        {"seconds": 9.0, "psnr": 21.0, "views": 2, "pixels": 300},
+        {"seconds": 10.0, "psnr": 19.5, "views": 6, "pixels": 4096},
+        {"seconds": 20.0, "psnr": 21.5, "views": 2, "pixels": 300},  # resumed
+        {"seconds": 30.0, "psnr": 20.0, "views": 6, "pixels": 4096},
+    ]
     curves = validation_series(rows, 6, 4096)
-    assert curves == {"validation, first 2 of 6 views, 300 px per view": ([0.0, 9.0, 20.0], [11.0, 21.0, 21.5]),
-                      "validation, all 6 views, whole images": ([10.0, 30.0], [19.5, 20.0])}
+    assert curves == {
+        "validation, first 2 of 6 views, 300 px per view": ([0.0, 9.0, 20.0], [11.0, 21.0, 21.5]),
+        "validation, all 6 views, whole images": ([10.0, 30.0], [19.5, 20.0]),
+    }
     # --eval-views above the split's size: both are every view, and a whole-image score is one curve
-    one = [{"seconds": 1.0, "psnr": 20.0, "views": 2, "pixels": 4096}, {"seconds": 2.0, "psnr": 21.0, "views": 1,
-                                                                       "pixels": 4096}]
+    one = [
+        {"seconds": 1.0, "psnr": 20.0, "views": 2, "pixels": 4096},
+        {"seconds": 2.0, "psnr": 21.0, "views": 1, "pixels": 4096},
+    ]
     assert validation_series(one, 1, 4096) == {"validation, all 1 view, whole images": ([1.0, 2.0], [20.0, 21.0])}
     # every view scored whole at every evaluation: one curve
     assert list(validation_series([{**r, "views": 6, "pixels": 4096} for r in rows], 6, 4096)) == [
-        "validation, all 6 views, whole images"]
+        "validation, all 6 views, whole images"
+    ]
 
 
 @pytest.mark.slow
@@ -379,9 +478,11 @@ def test_schedules_run_in_their_phase_in_order_and_report_their_notes():
     from nerfkit.models.base import Schedule, StepState, run_schedules
 
     ran = []
-    jobs = [Schedule("a", lambda s: s.step % 2 == 0, lambda s: ran.append(("a", s.step)) or "grew"),
-            Schedule("b", lambda s: True, lambda s: ran.append(("b", s.step)), phase="after_step"),
-            Schedule("c", lambda s: s.progress > 0.5, lambda s: ran.append(("c", s.step)))]
+    jobs = [
+        Schedule("a", lambda s: s.step % 2 == 0, lambda s: ran.append(("a", s.step)) or "grew"),
+        Schedule("b", lambda s: True, lambda s: ran.append(("b", s.step)), phase="after_step"),
+        Schedule("c", lambda s: s.progress > 0.5, lambda s: ran.append(("c", s.step))),
+    ]
     assert run_schedules(jobs, StepState(0, 0.0), phase="before_step") == ["grew"]
     assert run_schedules(jobs, StepState(0, 0.0), phase="after_step") == []
     assert run_schedules(jobs, StepState(1, 0.9), phase="before_step") == []
@@ -402,5 +503,8 @@ def test_ssim_scores_images_of_any_size(shape):
     assert ssim(a, noisy) < 0.99
     assert ssim(a, 1.0 - a) < ssim(a, noisy)  # inverted contrast scores worst
     if min(shape) >= 11:  # the usual case is scikit-image's Gaussian-window SSIM itself
-        assert ssim(a, noisy) == pytest.approx(structural_similarity(
-            a, noisy, channel_axis=-1, data_range=1.0, gaussian_weights=True, sigma=1.5, use_sample_covariance=False))
+        assert ssim(a, noisy) == pytest.approx(
+            structural_similarity(
+                a, noisy, channel_axis=-1, data_range=1.0, gaussian_weights=True, sigma=1.5, use_sample_covariance=False
+            )
+        )

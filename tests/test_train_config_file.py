@@ -8,8 +8,20 @@ import pytest
 
 from nerfkit.cli import main
 
-TINY = ["--model", "vanilla", "--n-samples", "4", "--width", "8", "--depth", "2", "--eval-views", "1",
-        "--checkpoint-seconds", "1e9"]
+TINY = [
+    "--model",
+    "vanilla",
+    "--n-samples",
+    "4",
+    "--width",
+    "8",
+    "--depth",
+    "2",
+    "--eval-views",
+    "1",
+    "--checkpoint-seconds",
+    "1e9",
+]
 
 
 def settings(run) -> dict:
@@ -19,8 +31,25 @@ def settings(run) -> dict:
 @pytest.mark.slow
 def test_a_config_file_reproduces_a_run_and_flags_beside_it_change_it(tmp_path, sphere_npz, capsys):
     first = tmp_path / "a"
-    assert main(["train", "--data", str(sphere_npz), "--out", str(first), "--steps", "3", "--lr", "0.002",
-                 "--device", "cpu", *TINY]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--data",
+                str(sphere_npz),
+                "--out",
+                str(first),
+                "--steps",
+                "3",
+                "--lr",
+                "0.002",
+                "--device",
+                "cpu",
+                *TINY,
+            ]
+        )
+        == 0
+    )
     again = tmp_path / "b"
     assert main(["train", "--config", str(first / "config.json"), "--out", str(again), "--device", "cpu"]) == 0
     a, b = settings(first), settings(again)
@@ -29,8 +58,12 @@ def test_a_config_file_reproduces_a_run_and_flags_beside_it_change_it(tmp_path, 
     assert a["train"]["preset"] == "object" and a["train"]["lr"] == 0.002 and a["train"]["render_chunk"] == 4096
     # a flag beside it wins; a run folder names its own config.json
     changed = tmp_path / "c"
-    assert main(["train", "--config", str(first), "--out", str(changed), "--steps", "2", "--depth", "3",
-                 "--device", "cpu"]) == 0
+    assert (
+        main(
+            ["train", "--config", str(first), "--out", str(changed), "--steps", "2", "--depth", "3", "--device", "cpu"]
+        )
+        == 0
+    )
     c = settings(changed)
     assert (c["train"]["steps"], c["model"]["depth"], c["train"]["lr"]) == (2, 3, 0.002)
     capsys.readouterr()
@@ -55,8 +88,15 @@ def test_the_short_help_fits_a_screen_and_the_full_one_has_every_group(argv, lin
     assert len(out.splitlines()) <= lines
     assert "--data" in out and "--config" in out and "--help-all" in out
     if argv:
-        for group in ("data:", "optimisation:", "evaluation and checkpoints:", "real captures:", "model 'fast':",
-                      "model 'splat':", "model 'vanilla':"):
+        for group in (
+            "data:",
+            "optimisation:",
+            "evaluation and checkpoints:",
+            "real captures:",
+            "model 'fast':",
+            "model 'splat':",
+            "model 'vanilla':",
+        ):
             assert group in out
     else:
         assert "--lr " not in out and "--resolutions" not in out

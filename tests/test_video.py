@@ -52,15 +52,23 @@ def render_frames(n: int = 120, size=(160, 120), blur=(), pause=(), sigma: float
         k += i not in pause
         x = int(k * (tex.shape[1] - w - 2) / n)
         y = int(h + 0.5 * h * np.sin(2 * np.pi * k / n))
-        f = tex[y:y + h, x:x + w].copy()
+        f = tex[y : y + h, x : x + w].copy()
         frames.append(cv2.GaussianBlur(f, (0, 0), sigma) if i in blur else f)
     return frames
 
 
 def write_mp4(path, frames, fps: int = FPS) -> None:
     h, w = frames[0].shape[:2]
-    writer = imageio_ffmpeg.write_frames(str(path), (w, h), fps=fps, codec="libx264", pix_fmt_out="yuv420p",
-                                         macro_block_size=8, output_params=["-crf", "16"], ffmpeg_log_level="error")
+    writer = imageio_ffmpeg.write_frames(
+        str(path),
+        (w, h),
+        fps=fps,
+        codec="libx264",
+        pix_fmt_out="yuv420p",
+        macro_block_size=8,
+        output_params=["-crf", "16"],
+        ffmpeg_log_level="error",
+    )
     writer.send(None)
     for f in frames:
         writer.send(np.ascontiguousarray(f))
@@ -74,8 +82,25 @@ def with_rotation(src, dst, degrees: int, hevc: bool = False) -> None:
     ffmpeg = [imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y"]
     if hevc:  # (re-encoding would apply the rotation to the pixels: encode first, then tag)
         hevc_copy = dst.with_name("hevc_" + dst.name)
-        subprocess.run([*ffmpeg, "-i", str(src), "-c:v", "libx265", "-pix_fmt", "yuv420p10le", "-tag:v", "hvc1",
-                        "-crf", "12", "-x265-params", "log-level=error", str(hevc_copy)], check=True)
+        subprocess.run(
+            [
+                *ffmpeg,
+                "-i",
+                str(src),
+                "-c:v",
+                "libx265",
+                "-pix_fmt",
+                "yuv420p10le",
+                "-tag:v",
+                "hvc1",
+                "-crf",
+                "12",
+                "-x265-params",
+                "log-level=error",
+                str(hevc_copy),
+            ],
+            check=True,
+        )
         src = hevc_copy
     subprocess.run([*ffmpeg, "-display_rotation:v", str(degrees), "-i", str(src), "-c", "copy", str(dst)], check=True)
 
@@ -175,12 +200,16 @@ def test_rotation_metadata_gives_upright_portrait_frames(tmp_path, degrees, cloc
 
 
 def test_parse_header_old_and_new_rotation_tags():
-    stream = ("  Stream #0:0[0x1](und): Video: hevc (Main 10) (hvc1 / 0x31637668), yuv420p10le(tv, bt2020nc), "
-              "3840x2160, 40000 kb/s, 29.97 fps, 29.97 tbr, 600 tbn (default)\n")
+    stream = (
+        "  Stream #0:0[0x1](und): Video: hevc (Main 10) (hvc1 / 0x31637668), yuv420p10le(tv, bt2020nc), "
+        "3840x2160, 40000 kb/s, 29.97 fps, 29.97 tbr, 600 tbn (default)\n"
+    )
     head = "Input #0, mov,mp4,m4a,3gp,3g2,mj2, from 'IMG_0001.MOV':\n  Duration: 00:01:00.05, start: 0.0\n" + stream
     new = parse_header(head + "    Side data:\n      displaymatrix: rotation of -90.00 degrees\n")
     old = parse_header(head + "    Metadata:\n      rotate          : 90\n")
-    none = parse_header(head + "  Stream #0:1: Audio: aac\n    Side data:\n      displaymatrix: rotation of -90.00 degrees\n")
+    none = parse_header(
+        head + "  Stream #0:1: Audio: aac\n    Side data:\n      displaymatrix: rotation of -90.00 degrees\n"
+    )
     for info in (new, old):
         assert (info.width, info.height, info.rotation, info.codec) == (2160, 3840, 90, "hevc")
         assert info.fps == pytest.approx(29.97) and info.frames == round(60.05 * 29.97)
@@ -312,7 +341,7 @@ def test_spreading_by_motion_gives_the_pause_no_windows(clip, tmp_path):
 
 def test_travel_adds_up_consecutive_motion():
     img = cv2.GaussianBlur(np.random.default_rng(0).random((48, 200)).astype(np.float32) * 255, (0, 0), 3)
-    thumbs = np.stack([img[:, s:s + 64] for s in (0, 1, 2, 2, 2, 3)])  # one pixel a frame, a pause of two frames
+    thumbs = np.stack([img[:, s : s + 64] for s in (0, 1, 2, 2, 2, 3)])  # one pixel a frame, a pause of two frames
     t = travel(thumbs)
     assert t[0] == 0 and t[3] == t[4] == t[2] and np.all(np.diff(t) >= 0)
     assert t[-1] == pytest.approx(3.0, rel=0.5) and t[5] - t[4] == pytest.approx(t[1], rel=0.3)

@@ -25,10 +25,19 @@ def small_scene(n=6, w=40, h=30):
         c2w.append(look_at(eye, np.zeros(3), np.array([0, 0, 1.0])))
         imgs.append(np.full((h, w, 3), (40 * k) % 255, np.uint8))
     K = np.array([[35.0, 0, 20.0], [0, 35.0, 15.0], [0, 0, 1]], np.float32)
-    views = Views(np.array(c2w, np.float32), np.repeat(K[None], n, 0), w, h, np.array(imgs),
-                  [f"IMG_{k}.JPG" for k in range(n)])
-    return Scene(views.subset(np.arange(n - 2)), views.subset([n - 2]), views.subset([n - 1]), 0.2, 0.7,
-                 np.zeros(3, np.float32), np.array([0, 0, 1], np.float32), source="test")
+    views = Views(
+        np.array(c2w, np.float32), np.repeat(K[None], n, 0), w, h, np.array(imgs), [f"IMG_{k}.JPG" for k in range(n)]
+    )
+    return Scene(
+        views.subset(np.arange(n - 2)),
+        views.subset([n - 2]),
+        views.subset([n - 1]),
+        0.2,
+        0.7,
+        np.zeros(3, np.float32),
+        np.array([0, 0, 1], np.float32),
+        source="test",
+    )
 
 
 def test_frustum_corners_project_back_to_the_image_corners():
@@ -93,8 +102,9 @@ def test_viser_server_shows_every_camera_and_the_rays():
     from nerfkit.viz.viewer import serve_dataset, set_rays
 
     scene = small_scene()
-    server, handles = serve_dataset(scene, host="127.0.0.1", port=free_port(), n_rays=12, n_samples=8,
-                                    tag_size=0.06, block=False)
+    server, handles = serve_dataset(
+        scene, host="127.0.0.1", port=free_port(), n_rays=12, n_samples=8, tag_size=0.06, block=False
+    )
     try:
         assert server.get_host() == "127.0.0.1"
         assert len(handles["frustums"]) == len(scene.train) + len(scene.val) + len(scene.test)
@@ -130,7 +140,9 @@ def test_view_command_writes_png_for_a_dataset(tmp_path, capsys):
     assert (tmp_path / "v.png").stat().st_size > 10_000
     assert main(["view", str(tmp_path / "d.npz"), "--rays-from", "3", "--png", str(tmp_path / "one.png")]) == 0
     assert main(["view", str(tmp_path / "d.npz"), "--rays-from", "4", "--png", str(tmp_path / "x.png")]) == 2
-    assert "has 4 training views (0 to 3), not a view 4" in capsys.readouterr().err and not (tmp_path / "x.png").exists()
+    assert (
+        "has 4 training views (0 to 3), not a view 4" in capsys.readouterr().err and not (tmp_path / "x.png").exists()
+    )
 
 
 def run_folder(tmp_path):

@@ -6,7 +6,7 @@ import torch
 
 from nerfkit.cameras import Rays, image_rays, intrinsics_matrix, look_at
 from nerfkit.fields.background import TablePlane
-from nerfkit.train.view_corrections import (ExposureCorrection, PoseCorrection, ViewFitConfig, fit_view, so3_exp)
+from nerfkit.train.view_corrections import ExposureCorrection, PoseCorrection, ViewFitConfig, fit_view, so3_exp
 
 
 def textured_table(seed: int = 0) -> TablePlane:
@@ -70,9 +70,14 @@ def test_fit_view_recovers_a_known_pose_perturbation():
     wrong = torch.as_tensor(truth.corrected_c2w(c2w.numpy()[None])[0])
     rays = image_rays(K, wrong, 48, 48)
     before = float(torch.mean((render_table(table, rays) - target) ** 2))
-    pose, _ = fit_view(lambda r: render_table(table, r), rays, target, scale=1.0,
-                       cfg=ViewFitConfig(steps=300, rays=2304, lr=3e-3, exposure=False),
-                       generator=torch.Generator().manual_seed(0))
+    pose, _ = fit_view(
+        lambda r: render_table(table, r),
+        rays,
+        target,
+        scale=1.0,
+        cfg=ViewFitConfig(steps=300, rays=2304, lr=3e-3, exposure=False),
+        generator=torch.Generator().manual_seed(0),
+    )
     fixed = torch.as_tensor(pose.corrected_c2w(wrong.numpy()[None])[0])
     after = float(torch.mean((render_table(table, image_rays(K, fixed, 48, 48)) - target) ** 2))
     assert after < 0.05 * before
@@ -86,8 +91,9 @@ def test_fit_view_recovers_a_known_pose_perturbation():
 def test_exposure_correction_recovers_known_gains_while_the_scene_is_learned():
     truth = textured_table(seed=3)
     eyes = [[1.5 * np.cos(a), 1.5 * np.sin(a), 1.3] for a in np.linspace(0, 2 * np.pi, 6, endpoint=False)]
-    gains = torch.tensor([[1.0, 1.0, 1.0], [1.3, 1.25, 1.2], [0.8, 0.85, 0.9],
-                          [1.1, 1.0, 0.9], [0.9, 1.0, 1.1], [1.2, 1.2, 1.2]])
+    gains = torch.tensor(
+        [[1.0, 1.0, 1.0], [1.3, 1.25, 1.2], [0.8, 0.85, 0.9], [1.1, 1.0, 0.9], [0.9, 1.0, 1.1], [1.2, 1.2, 1.2]]
+    )
     rays, targets, views = [], [], []
     for i, eye in enumerate(eyes):
         K, c2w = camera(eye)
@@ -101,8 +107,7 @@ def test_exposure_correction_recovers_known_gains_while_the_scene_is_learned():
     exposure = ExposureCorrection(len(eyes))
     with torch.no_grad():
         exposure.offset.requires_grad_(False)  # gains only: an offset could trade against dark texels
-    opt = torch.optim.Adam([{"params": scene.parameters(), "lr": 0.05},
-                            {"params": [exposure.log_gain], "lr": 0.01}])
+    opt = torch.optim.Adam([{"params": scene.parameters(), "lr": 0.05}, {"params": [exposure.log_gain], "lr": 0.01}])
     for _ in range(400):
         loss = torch.mean((exposure(render_table(scene, rays), view) - target) ** 2)
         opt.zero_grad()
@@ -151,7 +156,9 @@ def test_colour_mix_is_an_affine_transform_per_view_about_the_average():
     exposure = ExposureCorrection(3, mix=True)
     with torch.no_grad():
         exposure.log_gain[:] = torch.tensor([[0.1, 0.0, -0.1], [0.0, 0.2, 0.0], [-0.1, -0.2, 0.1]])
-        exposure.mix[:] = torch.tensor([[0.02, 0.0, 0.01, 0.0, 0.0, -0.03], [0.0] * 6, [-0.02, 0.0, -0.01, 0.0, 0.0, 0.03]])
+        exposure.mix[:] = torch.tensor(
+            [[0.02, 0.0, 0.01, 0.0, 0.0, -0.03], [0.0] * 6, [-0.02, 0.0, -0.01, 0.0, 0.0, 0.03]]
+        )
         exposure.offset[:] = torch.tensor([[0.01, 0.0, 0.0], [0.0, 0.0, 0.0], [-0.01, 0.0, 0.0]])
     rgb = torch.rand(9, 3)
     view = torch.arange(9) % 3
@@ -205,7 +212,7 @@ def test_the_mix_penalty_is_the_mean_squared_mixing_about_the_average():
     with torch.no_grad():
         exposure.mix[0] = torch.tensor([0.1, 0.0, 0.0, 0.0, 0.0, 0.3])
         exposure.mix[1] = torch.tensor([-0.1, 0.0, 0.0, 0.0, 0.0, -0.3])
-    assert float(exposure.mix_penalty().detach()) == pytest.approx(0.1 ** 2 + 0.3 ** 2)
+    assert float(exposure.mix_penalty().detach()) == pytest.approx(0.1**2 + 0.3**2)
     with torch.no_grad():
         exposure.mix[:] = 0.2  # the same mixing in every view is the scene's colour, not a correction
     assert float(exposure.mix_penalty().detach()) == pytest.approx(0.0)

@@ -1,8 +1,8 @@
 """nerfkit: phone photos to neural radiance fields, practical on a CPU.
 
 The course API lives here under its familiar names, and the pipeline's
-(:mod:`nerfkit.api`: ``api.calibrate``, ``api.pose``, ``api.train``, ``api.render``, ...); see :mod:`nerfkit.cameras` for the
-one camera convention (OpenCV axes, pixel centres at +0.5). The names are imported on
+(:mod:`nerfkit.api`: ``api.calibrate``, ``api.pose``, ``api.train``, ``api.render``, ...);
+see :mod:`nerfkit.cameras` for the one camera convention (OpenCV axes, pixel centres at +0.5). The names are imported on
 first use, so ``import nerfkit`` (and ``nerfkit --help``) does not pay for torch.
 """
 
@@ -43,8 +43,11 @@ __all__ = sorted(_API)
 def __getattr__(name: str):
     if name in _API:
         module = _API[name]
-        value = importlib.import_module(f"nerfkit.{name}") if module is None else getattr(
-            importlib.import_module(module), name)
+        value = (
+            importlib.import_module(f"nerfkit.{name}")
+            if module is None
+            else getattr(importlib.import_module(module), name)
+        )
         globals()[name] = value
         return value
     raise AttributeError(f"module 'nerfkit' has no attribute {name!r}")

@@ -35,6 +35,20 @@ from .commands.pipeline import (
     train_settings,
 )
 
-__all__ = ["CalibrationResult", "EvaluationResult", "ExportResult", "PoseResult", "RenderResult", "TrainResult",
-           "calibrate", "command_arguments", "evaluate", "export", "pose", "render", "resume", "train",
-           "train_settings"]
+__all__ = [
+    "CalibrationResult",
+    "EvaluationResult",
+    "ExportResult",
+    "PoseResult",
+    "RenderResult",
+    "TrainResult",
+    "calibrate",
+    "command_arguments",
+    "evaluate",
+    "export",
+    "pose",
+    "render",
+    "resume",
+    "train",
+    "train_settings",
+]

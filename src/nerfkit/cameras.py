@@ -85,8 +85,10 @@ def pixel_to_camera(K: Tensor, uv: Tensor, s: Tensor | float) -> Tensor:
     xyz = torch.stack([x, y, torch.ones_like(x)], dim=-1)
     s = torch.as_tensor(s, dtype=xyz.dtype, device=xyz.device)
     if s.ndim and not _broadcasts_to(s.shape, xyz.shape[:-1]):
-        raise ValueError(f"pixel_to_camera: s has shape {tuple(s.shape)} for pixels of shape {tuple(uv.shape)}: give "
-                         f"one depth per pixel, shape {tuple(xyz.shape[:-1])}, or a scalar")
+        raise ValueError(
+            f"pixel_to_camera: s has shape {tuple(s.shape)} for pixels of shape {tuple(uv.shape)}: give "
+            f"one depth per pixel, shape {tuple(xyz.shape[:-1])}, or a scalar"
+        )
     return xyz * s.unsqueeze(-1) if s.ndim else xyz * s
 
 
@@ -240,8 +242,7 @@ def orbit_path(
     return np.stack(poses).astype(np.float32)
 
 
-def forward_facing(c2w: np.ndarray, center: np.ndarray, max_angle_deg: float = 30.0,
-                   max_spread: float = 0.25) -> bool:
+def forward_facing(c2w: np.ndarray, center: np.ndarray, max_angle_deg: float = 30.0, max_spread: float = 0.25) -> bool:
     """True for an LLFF-style capture: every camera looks within ``max_angle_deg`` of the
     cameras' mean viewing direction, and the cameras stand close together (each within
     ``max_spread`` times the distance from their mean to ``center``, the scene's middle),

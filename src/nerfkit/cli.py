@@ -65,8 +65,7 @@ def build_parser(only: str | None = "") -> argparse.ArgumentParser:
     """The full parser; with ``only`` a command name (or None for no command), the other
     commands get a one-line stub, which is all the top-level ``--help`` shows. Registering
     ``train`` imports torch (its model flags), so ``nerfkit --help`` skips it."""
-    parser = Parser(prog="nerfkit", description=DESCRIPTION,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = Parser(prog="nerfkit", description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--verbose", action="store_true", help="show full tracebacks on errors")
     parser.add_argument("--version", action="version", version=f"nerfkit {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -97,22 +96,29 @@ def unknown_option(parser: argparse.ArgumentParser, argv: list[str]) -> str | No
         return None
     if command not in subs[0].choices:
         near = difflib.get_close_matches(command, list(subs[0].choices), n=1)
-        return (f"nerfkit: error: unknown command '{command}'" + (f": did you mean {near[0]}?" if near else
-                f" (the commands: {', '.join(subs[0].choices)})") + " (see nerfkit --help)")
+        return (
+            f"nerfkit: error: unknown command '{command}'"
+            + (f": did you mean {near[0]}?" if near else f" (the commands: {', '.join(subs[0].choices)})")
+            + " (see nerfkit --help)"
+        )
     sub = subs[0].choices[command]
     known = [k for k in sub._option_string_actions if k.startswith("--")]
-    for token in argv[argv.index(command) + 1:]:
+    for token in argv[argv.index(command) + 1 :]:
         if token == "--":
             break
         name = token.split("=", 1)[0]
         if not name.startswith("--") or any(k.startswith(name) for k in known):
             continue
         if name in parser._option_string_actions:  # --verbose, --version: nerfkit's own
-            return (f"{sub.prog}: error: {name} goes before the command: nerfkit {name} {command} ... "
-                    f"(see nerfkit --help)")
+            return (
+                f"{sub.prog}: error: {name} goes before the command: nerfkit {name} {command} ... (see nerfkit --help)"
+            )
         near = difflib.get_close_matches(name[2:], [k[2:] for k in known], n=1)
-        return (f"{sub.prog}: error: unrecognized argument {name}" + (f": did you mean --{near[0]}?" if near else "")
-                + f" (see {sub.prog} --help)")
+        return (
+            f"{sub.prog}: error: unrecognized argument {name}"
+            + (f": did you mean --{near[0]}?" if near else "")
+            + f" (see {sub.prog} --help)"
+        )
     return None
 
 

@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 T = TypeVar("T", bound="DataclassInstance")
 
 # the largest --seed: every random generator nerfkit seeds (numpy, torch) takes it
-MAX_SEED = 2 ** 32 - 1
+MAX_SEED = 2**32 - 1
 # the smallest --downscale: it divides the image size, so 1 keeps it (and less would enlarge it)
 MIN_DOWNSCALE = 1
 # the smallest side resampled images may have: below it a view holds no scene to train or look at
@@ -53,9 +53,15 @@ def base_type(tp: Any) -> tuple[Any, bool]:
     return tp, False
 
 
-def range_problem(value: float, kind: type = float, min: float | None = None,  # noqa: A002 - reads like a range
-                  max: float | None = None, above: float | None = None, shown: str | None = None,
-                  off: float | None = None) -> str | None:
+def range_problem(
+    value: float,
+    kind: type = float,
+    min: float | None = None,  # noqa: A002 - reads like a range
+    max: float | None = None,
+    above: float | None = None,
+    shown: str | None = None,
+    off: float | None = None,
+) -> str | None:
     """What is wrong with a number and its bounds (``min``/``max`` inclusive, ``above``
     exclusive; floats must be finite; ``off``, a value that switches the option off, is
     allowed besides), or None: the one wording of the parser (:func:`number`) and of
@@ -92,8 +98,13 @@ def _not_a(kind: type, shown: str) -> str:
     return f"'{shown}' is not {'a whole number' if kind is int else 'a number'}"
 
 
-def number(kind: type = float, min: float | None = None, max: float | None = None,  # noqa: A002 - reads like a range
-           above: float | None = None, off: float | None = None) -> Any:
+def number(
+    kind: type = float,
+    min: float | None = None,
+    max: float | None = None,  # noqa: A002 - reads like a range
+    above: float | None = None,
+    off: float | None = None,
+) -> Any:
     """An argparse ``type`` for a finite ``kind`` (int or float) within [min, max] (or > above):
     ``--minutes nan``, ``--fps 0`` or ``--chunk -1`` are refused when the command line is parsed."""
 
@@ -121,10 +132,15 @@ def tag_side(text: str) -> float:
     and at most :data:`TAG_SIDE_MAX`; a larger number is refused with the metres it meant."""
     value = number(float, above=0)(text)
     if value > TAG_SIDE_MAX:
-        meant = [f"{text} {unit} is {value / per:g}" for unit, per in (("mm", 1000), ("cm", 100))
-                 if value / per <= TAG_SIDE_MAX]
-        raise argparse.ArgumentTypeError(f"{text} is not a printed tag's side in metres (at most {TAG_SIDE_MAX:g})"
-                                         + (": " + ", ".join(meant) if meant else ""))
+        meant = [
+            f"{text} {unit} is {value / per:g}"
+            for unit, per in (("mm", 1000), ("cm", 100))
+            if value / per <= TAG_SIDE_MAX
+        ]
+        raise argparse.ArgumentTypeError(
+            f"{text} is not a printed tag's side in metres (at most {TAG_SIDE_MAX:g})"
+            + (": " + ", ".join(meant) if meant else "")
+        )
     return value
 
 
@@ -144,8 +160,11 @@ def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
             continue
         numeric = isinstance(value, numbers.Integral if kind is int else numbers.Real) and not isinstance(value, bool)
         bounds = range_of(f.metadata)
-        problem = (range_problem(value, kind, min=bounds["min"], max=bounds["max"], above=bounds["above"],
-                                 off=bounds["off"]) if numeric else _not_a(kind, str(value)))
+        problem = (
+            range_problem(value, kind, min=bounds["min"], max=bounds["max"], above=bounds["above"], off=bounds["off"])
+            if numeric
+            else _not_a(kind, str(value))
+        )
         if problem:
             if owner:
                 problem += f" for {owner}"
@@ -217,19 +236,27 @@ def _add_flag(target: Any, name: str, owners: list[tuple[str, Any, dataclasses.F
     else:
         named = "{" + ",".join(map(str, kw["choices"])) + "}" if "choices" in kw else None  # the choices in --help
         metavar = first.metadata.get("metavar", named or (tp.__name__.upper() if hasattr(tp, "__name__") else "X"))
-        target.add_argument(flag_of(name), type=_field_type(tp, widest_bounds([f.metadata for _, _, f in owners])),
-                            metavar=metavar, **kw)
+        target.add_argument(
+            flag_of(name),
+            type=_field_type(tp, widest_bounds([f.metadata for _, _, f in owners])),
+            metavar=metavar,
+            **kw,
+        )
 
 
 def _cli_fields(cls: type, skip: tuple[str, ...] = ()) -> list[tuple[Any, dataclasses.Field]]:
     """(type, field) of each field of dataclass ``cls`` that has a flag."""
     hints = typing.get_type_hints(cls)
-    return [(base_type(hints[f.name])[0], f) for f in dataclasses.fields(cls)
-            if f.name not in skip and f.metadata.get("cli") is not False]
+    return [
+        (base_type(hints[f.name])[0], f)
+        for f in dataclasses.fields(cls)
+        if f.name not in skip and f.metadata.get("cli") is not False
+    ]
 
 
-def add_dataclass_args(parser: argparse.ArgumentParser, cls: type, group_title: str | None = None,
-                       skip: tuple[str, ...] = ()) -> None:
+def add_dataclass_args(
+    parser: argparse.ArgumentParser, cls: type, group_title: str | None = None, skip: tuple[str, ...] = ()
+) -> None:
     """Add one flag per field of dataclass ``cls`` (defaults left unset: None), in the argument
     group its ``group`` metadata names (in the order they first appear), else in ``group_title``'s
     (or the parser's own options when None). A flag the parser
@@ -257,8 +284,11 @@ def foreign_flags(args: argparse.Namespace, classes: dict[str, type], chosen: st
     """(flag, names of the configs that take it) for each flag of :func:`add_alternative_dataclass_args`
     given in ``args`` that config ``chosen`` does not take (it would be ignored). Example: ``--sh-degree 3``
     with the vanilla model chosen -> ``[("--sh-degree", ["fast", "splat"])]``."""
-    return [(flag_of(field), [name for name, _, _ in its]) for field, its in _alternative_fields(classes).items()
-            if getattr(args, field, None) is not None and chosen not in [name for name, _, _ in its]]
+    return [
+        (flag_of(field), [name for name, _, _ in its])
+        for field, its in _alternative_fields(classes).items()
+        if getattr(args, field, None) is not None and chosen not in [name for name, _, _ in its]
+    ]
 
 
 def add_alternative_dataclass_args(parser: argparse.ArgumentParser, classes: dict[str, type], title: str) -> None:
@@ -269,7 +299,8 @@ def add_alternative_dataclass_args(parser: argparse.ArgumentParser, classes: dic
     chosen config against its own bounds (e.g. ``--sh-degree``: 0 to 2 for the fast model, 0 to 3
     for splat, so 0 to 3 when parsed)."""
     groups: dict[tuple[str, ...], argparse._ArgumentGroup] = {
-        (name,): parser.add_argument_group(title.format(name)) for name in classes}
+        (name,): parser.add_argument_group(title.format(name)) for name in classes
+    }
     for field, its in _alternative_fields(classes).items():
         names = tuple(name for name, _, _ in its)
         if names not in groups:  # after the configs' own groups
@@ -289,14 +320,17 @@ def parse_background(text: str) -> tuple[float, float, float]:
         return NAMED_COLOURS[t]
     try:
         if t.startswith("#") and len(t) == 7:
-            return tuple(int(t[i:i + 2], 16) / 255.0 for i in (1, 3, 5))  # type: ignore[return-value]
+            return tuple(int(t[i : i + 2], 16) / 255.0 for i in (1, 3, 5))  # type: ignore[return-value]
         parts = [float(v) for v in t.split(",")]
         if len(parts) == 3 and all(0.0 <= v <= 1.0 for v in parts):
             return tuple(parts)  # type: ignore[return-value]
     except ValueError:
         pass
-    raise fail("--background", f"'{text}' is not a colour", "Use black, white, grey, R,G,B with values in [0, 1] "
-               "(e.g. 1,0,0) or #rrggbb")
+    raise fail(
+        "--background",
+        f"'{text}' is not a colour",
+        "Use black, white, grey, R,G,B with values in [0, 1] (e.g. 1,0,0) or #rrggbb",
+    )
 
 
 def dataclass_from_args(cls: type[T], args: argparse.Namespace, base: T | None = None) -> T:
@@ -333,8 +367,12 @@ def dataclass_from_dict(cls: type[T], d: dict, where: str) -> T:
     return check_ranges(cls(**out), where)
 
 
-def load_json(path: str | Path, missing: str = "no such file", missing_fix: str | None = None,
-              invalid_fix: str = "The file may be truncated; re-create it") -> Any:
+def load_json(
+    path: str | Path,
+    missing: str = "no such file",
+    missing_fix: str | None = None,
+    invalid_fix: str = "The file may be truncated; re-create it",
+) -> Any:
     """Parse a JSON file; every failure is one NerfkitError naming the file (hints per caller)."""
     path = Path(path)
     try:

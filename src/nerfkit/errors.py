@@ -44,4 +44,6 @@ def is_out_of_memory(e: BaseException) -> bool:
     if isinstance(e, MemoryError):
         return True
     text = str(e).lower()
-    return isinstance(e, RuntimeError) and any(s in text for s in ("out of memory", "can't allocate memory", "not enough memory"))
+    return isinstance(e, RuntimeError) and any(
+        s in text for s in ("out of memory", "can't allocate memory", "not enough memory")
+    )

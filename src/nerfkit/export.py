@@ -74,8 +74,15 @@ def grid_axis(center: float, radius: float, resolution: int) -> np.ndarray:
 
 
 @torch.no_grad()
-def sample_density_grid(density_fn: DensityFn, center, radius: float, resolution: int,
-                        chunk: int = 65536, device: str | torch.device = "cpu", progress: bool = False) -> np.ndarray:
+def sample_density_grid(
+    density_fn: DensityFn,
+    center,
+    radius: float,
+    resolution: int,
+    chunk: int = 65536,
+    device: str | torch.device = "cpu",
+    progress: bool = False,
+) -> np.ndarray:
     """Density on a ``resolution``^3 grid over the cube ``center +- radius``.
 
     Returns (R, R, R) float32 indexed [i, j, k] <-> (x_i, y_j, z_k). Points are evaluated
@@ -96,14 +103,14 @@ def sample_density_grid(density_fn: DensityFn, center, radius: float, resolution
         # disable=None: no bar when the output is not a terminal (a log)
         it = tqdm(it, desc="density grid", unit="slab", total=(resolution + slabs - 1) // slabs, disable=None)
     for k0 in it:
-        kz = zs[k0:k0 + slabs]
+        kz = zs[k0 : k0 + slabs]
         pts = np.concatenate([np.column_stack([plane, np.full(len(plane), z)]) for z in kz])
         out = []
         for s in range(0, len(pts), chunk):
-            p = torch.as_tensor(pts[s:s + chunk], dtype=torch.float32, device=device)
+            p = torch.as_tensor(pts[s : s + chunk], dtype=torch.float32, device=device)
             out.append(torch.as_tensor(density_fn(p)).float().reshape(-1).cpu())
         vals = torch.cat(out).numpy().reshape(len(kz), resolution, resolution)
-        grid[:, :, k0:k0 + len(kz)] = np.moveaxis(vals, 0, -1)
+        grid[:, :, k0 : k0 + len(kz)] = np.moveaxis(vals, 0, -1)
     return np.nan_to_num(grid, nan=0.0, posinf=float(np.finfo(np.float32).max), neginf=0.0)
 
 
@@ -117,14 +124,18 @@ def marching_cubes(grid: np.ndarray, center, radius: float, threshold: float) ->
 
     lo, hi = float(grid.min()), float(grid.max())
     if not lo < threshold < hi or threshold <= 0:
-        raise fail("--threshold", f"{threshold:g} does not cut the density field (it spans {lo:.3g} to {hi:.3g})",
-                   f"Pick a value between those (e.g. --threshold {0.5 * (max(lo, 0) + hi):.3g})")
+        raise fail(
+            "--threshold",
+            f"{threshold:g} does not cut the density field (it spans {lo:.3g} to {hi:.3g})",
+            f"Pick a value between those (e.g. --threshold {0.5 * (max(lo, 0) + hi):.3g})",
+        )
     res = grid.shape[0]
     step = 2.0 * radius / (res - 1)
     padded = np.pad(grid, 1, mode="constant", constant_values=0.0)
     # 'descent': density is higher inside, so triangles face outward.
-    verts, faces, normals, _ = sk_marching_cubes(padded, level=threshold, spacing=(step,) * 3,
-                                                 gradient_direction="descent", allow_degenerate=False)
+    verts, faces, normals, _ = sk_marching_cubes(
+        padded, level=threshold, spacing=(step,) * 3, gradient_direction="descent", allow_degenerate=False
+    )
     origin = np.asarray(center, np.float64).reshape(3) - radius - step  # the pad adds one cell
     verts = verts + origin
     # Padding can put vertices just outside the box; crop them onto it.
@@ -160,9 +171,19 @@ def cone_directions(normals: np.ndarray, n_dirs: int, half_angle_deg: float = 30
 
 
 @torch.no_grad()
-def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray, normals: np.ndarray, reach: float,
-                  n_dirs: int = 1, n_samples: int = 8, chunk: int = 65536, device: str | torch.device = "cpu",
-                  min_weight: float = 1e-4, progress: bool = False) -> np.ndarray:
+def vertex_colors(
+    density_fn: DensityFn,
+    query_fn: QueryFn,
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    reach: float,
+    n_dirs: int = 1,
+    n_samples: int = 8,
+    chunk: int = 65536,
+    device: str | torch.device = "cpu",
+    min_weight: float = 1e-4,
+    progress: bool = False,
+) -> np.ndarray:
     """(V, 3) uint8 colours: what a ray looking at each vertex along each of
     :func:`cone_directions` sees, averaged over them.
 
@@ -182,11 +203,13 @@ def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray
     step = 3.0 * reach / max(n_samples - 1, 1)
     per = max(1, chunk // n_samples)
     total = np.zeros((len(vertices), 3), np.float64)
-    bar = tqdm(total=len(dirs) * len(vertices), desc="vertex colours", unit="vertex", disable=None if progress else True)
+    bar = tqdm(
+        total=len(dirs) * len(vertices), desc="vertex colours", unit="vertex", disable=None if progress else True
+    )
     for d in dirs:
         for s in range(0, len(vertices), per):
-            p = torch.as_tensor(vertices[s:s + per], dtype=torch.float32, device=device)
-            v = torch.as_tensor(d[s:s + per], dtype=torch.float32, device=device)
+            p = torch.as_tensor(vertices[s : s + per], dtype=torch.float32, device=device)
+            v = torch.as_tensor(d[s : s + per], dtype=torch.float32, device=device)
             n = len(p)
             colour, acc = torch.zeros(n, 3, device=device), torch.zeros(n, 1, device=device)
             if reach > 0:
@@ -201,7 +224,7 @@ def vertex_colors(density_fn: DensityFn, query_fn: QueryFn, vertices: np.ndarray
             colour = colour / acc.clamp_min(min_weight)
             if len(missed):  # the field's own colour where the vertex is
                 colour[missed] = query_fn(p[missed], v[missed])[1].float()
-            total[s:s + per] += colour.clamp(0, 1).cpu().numpy()
+            total[s : s + per] += colour.clamp(0, 1).cpu().numpy()
             bar.update(n)
     bar.close()
     return (np.clip(total / len(dirs), 0, 1) * 255 + 0.5).astype(np.uint8)
@@ -232,8 +255,15 @@ class ColourViews:
         return len(self.K)
 
 
-def view_colors(render_fn: Callable, views: ColourViews, vertices: np.ndarray, normals: np.ndarray, tol: float,
-                background=(0.0, 0.0, 0.0), progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def view_colors(
+    render_fn: Callable,
+    views: ColourViews,
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    tol: float,
+    background=(0.0, 0.0, 0.0),
+    progress: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
     """Vertex colours from rendered views: each vertex takes the mean, over the views
     that see it, of the rendered colour of the pixel it falls in (the background removed
     again, as in :func:`depth_to_points`).
@@ -261,8 +291,9 @@ def view_colors(render_fn: Callable, views: ColourViews, vertices: np.ndarray, n
     for i in tqdm(range(len(views)), desc="vertex colours", unit="view", disable=None if progress else True):
         rgb, depth, acc = (np.asarray(a) for a in render_fn(views.K[i], views.c2w[i], views.width, views.height))
         uv, z = project_points(views.K[i], views.c2w[i], v)
-        idx = np.nonzero((z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < views.width) & (uv[:, 1] >= 0)
-                         & (uv[:, 1] < views.height))[0]
+        idx = np.nonzero(
+            (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < views.width) & (uv[:, 1] >= 0) & (uv[:, 1] < views.height)
+        )[0]
         col, row = uv[idx, 0].astype(int), uv[idx, 1].astype(int)
         to_camera = views.c2w[i][:3, 3] - v[idx]
         dist = np.linalg.norm(to_camera, axis=1)
@@ -276,11 +307,22 @@ def view_colors(render_fn: Callable, views: ColourViews, vertices: np.ndarray, n
     return (np.clip(colours, 0, 1) * 255 + 0.5).astype(np.uint8), seen
 
 
-def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int = 256,
-                 threshold: float = SURFACE_DENSITY,
-                 query_fn: QueryFn | None = None, n_dirs: int = 1, chunk: int = 65536,
-                 device: str | torch.device = "cpu", progress: bool = False, reach: float | None = None,
-                 table=None, table_cut: float = 0.0, tags=None) -> Mesh:
+def extract_mesh(
+    density_fn: DensityFn,
+    center,
+    radius: float,
+    resolution: int = 256,
+    threshold: float = SURFACE_DENSITY,
+    query_fn: QueryFn | None = None,
+    n_dirs: int = 1,
+    chunk: int = 65536,
+    device: str | torch.device = "cpu",
+    progress: bool = False,
+    reach: float | None = None,
+    table=None,
+    table_cut: float = 0.0,
+    tags=None,
+) -> Mesh:
     """Density grid -> (with a ``table`` plane: :func:`clear_around_object`, the paint up to
     ``table_cut`` above it, over the printed ``tags`` on it higher) -> marching cubes ->
     (optional) vertex colours, seen along rays that start ``reach`` outside the surface and
@@ -294,8 +336,17 @@ def extract_mesh(density_fn: DensityFn, center, radius: float, resolution: int =
     if query_fn is not None:
         if reach is None:
             reach = 2.0 * 2.0 * radius / (resolution - 1)
-        mesh.colors = vertex_colors(density_fn, query_fn, mesh.vertices, mesh.normals, reach, n_dirs, chunk=chunk,
-                                    device=device, progress=progress)
+        mesh.colors = vertex_colors(
+            density_fn,
+            query_fn,
+            mesh.vertices,
+            mesh.normals,
+            reach,
+            n_dirs,
+            chunk=chunk,
+            device=device,
+            progress=progress,
+        )
     return mesh
 
 
@@ -306,8 +357,9 @@ def to_trimesh(mesh: Mesh):
     colors = None
     if mesh.colors is not None:
         colors = np.concatenate([mesh.colors, np.full((len(mesh.colors), 1), 255, np.uint8)], 1)
-    return trimesh.Trimesh(vertices=mesh.vertices, faces=mesh.faces, vertex_normals=mesh.normals,
-                           vertex_colors=colors, process=False)
+    return trimesh.Trimesh(
+        vertices=mesh.vertices, faces=mesh.faces, vertex_normals=mesh.normals, vertex_colors=colors, process=False
+    )
 
 
 def write_mesh_ply(path: str | Path, mesh: Mesh) -> None:
@@ -316,8 +368,16 @@ def write_mesh_ply(path: str | Path, mesh: Mesh) -> None:
         to_trimesh(mesh).export(tmp, file_type="ply")
 
 
-def depth_to_points(rgb: np.ndarray, depth: np.ndarray, acc: np.ndarray, K: np.ndarray, c2w: np.ndarray,
-                    acc_min: float = 0.5, background=(0.0, 0.0, 0.0), stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def depth_to_points(
+    rgb: np.ndarray,
+    depth: np.ndarray,
+    acc: np.ndarray,
+    K: np.ndarray,
+    c2w: np.ndarray,
+    acc_min: float = 0.5,
+    background=(0.0, 0.0, 0.0),
+    stride: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
     """Back-project one rendered view into world points.
 
     Args:
@@ -370,11 +430,22 @@ def mesh_region(model, center, radius: float, scale: float = 1.0) -> tuple[np.nd
     return np.asarray(center, np.float64).reshape(3), radius * scale
 
 
-def mesh_from_model(model, center, radius: float, scene_radius: float, resolution: int = 256,
-                    threshold: float | None = None, n_dirs: int = 1, chunk: int = 65536,
-                    device: str | torch.device = "cpu", progress: bool = True, table_cut: float = 0.0,
-                    views: ColourViews | None = None, render_fn: Callable | None = None,
-                    background=(0.0, 0.0, 0.0)) -> Mesh:
+def mesh_from_model(
+    model,
+    center,
+    radius: float,
+    scene_radius: float,
+    resolution: int = 256,
+    threshold: float | None = None,
+    n_dirs: int = 1,
+    chunk: int = 65536,
+    device: str | torch.device = "cpu",
+    progress: bool = True,
+    table_cut: float = 0.0,
+    views: ColourViews | None = None,
+    render_fn: Callable | None = None,
+    background=(0.0, 0.0, 0.0),
+) -> Mesh:
     """A coloured mesh of a trained model (its ``density(points)`` and ``query(points,
     dirs)``) over the cube ``center +- radius``.
 
@@ -394,23 +465,44 @@ def mesh_from_model(model, center, radius: float, scene_radius: float, resolutio
     if threshold is None:
         threshold = mesh_threshold(model, radius)
     ndc = getattr(model, "ndc", None) is not None
-    mesh = extract_mesh(model.density, center, radius, resolution, threshold, chunk=chunk, device=device,
-                        progress=progress, table=model.table_plane(), table_cut=table_cut, tags=model.table_tags())
+    mesh = extract_mesh(
+        model.density,
+        center,
+        radius,
+        resolution,
+        threshold,
+        chunk=chunk,
+        device=device,
+        progress=progress,
+        table=model.table_plane(),
+        table_cut=table_cut,
+        tags=model.table_tags(),
+    )
     colours, seen = np.zeros((len(mesh.vertices), 3), np.uint8), np.zeros(len(mesh.vertices), bool)
     if views is not None and render_fn is not None and not ndc:
-        colours, seen = view_colors(render_fn, views, mesh.vertices, mesh.normals, COLOUR_VIEW_TOL * scene_radius,
-                                    background, progress)
+        colours, seen = view_colors(
+            render_fn, views, mesh.vertices, mesh.normals, COLOUR_VIEW_TOL * scene_radius, background, progress
+        )
     if not seen.all():
         rest = np.nonzero(~seen)[0]
-        colours[rest] = vertex_colors(model.density, model.query, mesh.vertices[rest], mesh.normals[rest],
-                                      0.0 if ndc else COLOUR_REACH * scene_radius, n_dirs, chunk=chunk, device=device,
-                                      progress=progress)
+        colours[rest] = vertex_colors(
+            model.density,
+            model.query,
+            mesh.vertices[rest],
+            mesh.normals[rest],
+            0.0 if ndc else COLOUR_REACH * scene_radius,
+            n_dirs,
+            chunk=chunk,
+            device=device,
+            progress=progress,
+        )
     mesh.colors = colours
     return mesh
 
 
-def points_from_views(render_fn: Callable, views, acc_min: float = 0.5, background=(0.0, 0.0, 0.0), stride: int = 1,
-                      progress: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def points_from_views(
+    render_fn: Callable, views, acc_min: float = 0.5, background=(0.0, 0.0, 0.0), stride: int = 1, progress: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """A coloured point cloud from rendered views.
 
     Args:
@@ -427,8 +519,9 @@ def points_from_views(render_fn: Callable, views, acc_min: float = 0.5, backgrou
     pts, cols = [], []
     for i in it:
         rgb, depth, acc = render_fn(views.K[i], views.c2w[i], views.width, views.height)
-        p, c = depth_to_points(np.asarray(rgb), np.asarray(depth), np.asarray(acc), views.K[i], views.c2w[i],
-                               acc_min, background, stride)
+        p, c = depth_to_points(
+            np.asarray(rgb), np.asarray(depth), np.asarray(acc), views.K[i], views.c2w[i], acc_min, background, stride
+        )
         pts.append(p)
         cols.append(c)
     if not pts:

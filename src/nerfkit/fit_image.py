@@ -58,30 +58,46 @@ MAX_DEPTH = 64
 class FitImageConfig:
     """Hyperparameters of ``nerfkit fit-image`` (each is a flag of the same name)."""
 
-    L: int = option(10, "positional-encoding octaves; the MLP sees 2 * (1 + 2 L) inputs (42 at L = 10)", min=0,
-                    max=30)
+    L: int = option(10, "positional-encoding octaves; the MLP sees 2 * (1 + 2 L) inputs (42 at L = 10)", min=0, max=30)
     width: int = option(256, "hidden layer width", min=1, max=MAX_WIDTH)
     depth: int = option(3, "number of hidden Linear+ReLU layers", min=1, max=MAX_DEPTH)
     lr: float = option(1e-2, "Adam learning rate", above=0, max=100)
     batch: int = option(10_000, "random pixels per training step", min=1, max=1 << 24)
     steps: int = option(2000, "training steps", min=0)
-    seed: int = option(0, "random seed (weights, pixel sampling, PSNR subset); same seed, same result", min=0,
-                       max=MAX_SEED)
+    seed: int = option(
+        0, "random seed (weights, pixel sampling, PSNR subset); same seed, same result", min=0, max=MAX_SEED
+    )
     device: str = option("auto", "auto (cuda when available, else cpu), cpu, cuda or cuda:N")
-    precision: str = option("auto", "matmul precision: bf16 autocast or fp32; auto = bf16 on CPUs with native "
-                            "bf16 (avx512_bf16/amx) and on CUDA GPUs that support it, else fp32",
-                            choices=["auto", "bf16", "fp32"])
-    eval_every: int = option(50, "evaluate PSNR for the curve every N steps and at the progression steps (one "
-                             "evaluation of a 512x512 image costs about as much as 9 training steps)", min=1)
-    eval_pixels: int = option(262_144, "the curve's PSNR uses the full image up to this many pixels, else a "
-                              "fixed random subset of this size (the final PSNR always uses every pixel)", min=1)
-    progress_steps: str = option("0,50,100,200,500", "steps shown in the progression figure, comma-separated "
-                                 "(the final step is always added)", metavar="LIST")
-    background: str = option("white", "colour behind transparent pixels: white, black, grey, R,G,B in 0-1, "
-                             "or #rrggbb", metavar="COLOUR")
+    precision: str = option(
+        "auto",
+        "matmul precision: bf16 autocast or fp32; auto = bf16 on CPUs with native "
+        "bf16 (avx512_bf16/amx) and on CUDA GPUs that support it, else fp32",
+        choices=["auto", "bf16", "fp32"],
+    )
+    eval_every: int = option(
+        50,
+        "evaluate PSNR for the curve every N steps and at the progression steps (one "
+        "evaluation of a 512x512 image costs about as much as 9 training steps)",
+        min=1,
+    )
+    eval_pixels: int = option(
+        262_144,
+        "the curve's PSNR uses the full image up to this many pixels, else a "
+        "fixed random subset of this size (the final PSNR always uses every pixel)",
+        min=1,
+    )
+    progress_steps: str = option(
+        "0,50,100,200,500",
+        "steps shown in the progression figure, comma-separated (the final step is always added)",
+        metavar="LIST",
+    )
+    background: str = option(
+        "white", "colour behind transparent pixels: white, black, grey, R,G,B in 0-1, or #rrggbb", metavar="COLOUR"
+    )
     chunk: int = option(65_536, "pixels per forward pass when rendering whole images (bounds memory)", min=1)
-    preview_size: int = option(1024, "figures show images at full resolution up to this long side, larger "
-                               "images on a downscaled grid", min=8)
+    preview_size: int = option(
+        1024, "figures show images at full resolution up to this long side, larger images on a downscaled grid", min=8
+    )
 
 
 # ---------------------------------------------------------------------------------------
@@ -137,14 +153,21 @@ def check_memory(cfg: FitImageConfig, device) -> None:
     model = model_bytes(cfg.L, cfg.width, cfg.depth)
     where = "the GPU's" if device.type == "cuda" else "this machine's"
     if model > have:
-        raise fail("--width/--depth", f"a model of width {cfg.width} and depth {cfg.depth} needs about "
-                   f"{model / 1e9:.3g} GB to train (weights, gradients, Adam's state), more than {where} "
-                   f"{have / 1e9:.3g} GB of memory", "Lower --width or --depth (the defaults: 256 and 3)")
+        raise fail(
+            "--width/--depth",
+            f"a model of width {cfg.width} and depth {cfg.depth} needs about "
+            f"{model / 1e9:.3g} GB to train (weights, gradients, Adam's state), more than {where} "
+            f"{have / 1e9:.3g} GB of memory",
+            "Lower --width or --depth (the defaults: 256 and 3)",
+        )
     step = step_bytes(cfg.batch, cfg.width, cfg.depth)
     if model + step > have:
-        raise fail("--batch", f"a step of {cfg.batch} pixels through width {cfg.width} and depth {cfg.depth} needs "
-                   f"about {(model + step) / 1e9:.3g} GB, more than {where} {have / 1e9:.3g} GB of memory",
-                   "Lower --batch (or --width)")
+        raise fail(
+            "--batch",
+            f"a step of {cfg.batch} pixels through width {cfg.width} and depth {cfg.depth} needs "
+            f"about {(model + step) / 1e9:.3g} GB, more than {where} {have / 1e9:.3g} GB of memory",
+            "Lower --batch (or --width)",
+        )
 
 
 def parse_steps(text: str) -> list[int]:
@@ -152,8 +175,9 @@ def parse_steps(text: str) -> list[int]:
     try:
         steps = sorted({int(s) for s in text.replace(" ", "").split(",") if s})
     except ValueError:
-        raise fail("--progress-steps", f"cannot read '{text}'",
-                   "Give whole step numbers like 0,50,100,200,500") from None
+        raise fail(
+            "--progress-steps", f"cannot read '{text}'", "Give whole step numbers like 0,50,100,200,500"
+        ) from None
     if any(s < 0 for s in steps):
         raise fail("--progress-steps", f"negative step in '{text}'", "Steps count from 0")
     return steps
@@ -220,9 +244,12 @@ def downscale(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         return image
     from PIL import Image
 
-    chans = [np.asarray(Image.fromarray(np.ascontiguousarray(image[..., c])).resize((shape[1], shape[0]),
-                                                                                    Image.Resampling.BOX))
-             for c in range(3)]
+    chans = [
+        np.asarray(
+            Image.fromarray(np.ascontiguousarray(image[..., c])).resize((shape[1], shape[0]), Image.Resampling.BOX)
+        )
+        for c in range(3)
+    ]
     return np.stack(chans, axis=-1).astype(np.float32)
 
 
@@ -230,8 +257,15 @@ def downscale(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 # Rendering and evaluation (chunked, memory bounded)
 
 
-def render_image(model: ImageField, height: int, width: int, *, chunk: int = 65_536, precision: str = "fp32",
-                 target: np.ndarray | None = None) -> tuple[np.ndarray, float | None]:
+def render_image(
+    model: ImageField,
+    height: int,
+    width: int,
+    *,
+    chunk: int = 65_536,
+    precision: str = "fp32",
+    target: np.ndarray | None = None,
+) -> tuple[np.ndarray, float | None]:
     """Render the field on a (height, width) pixel-centre grid, a few rows at a time.
 
     Args:
@@ -254,15 +288,16 @@ def render_image(model: ImageField, height: int, width: int, *, chunk: int = 65_
         with torch.inference_mode(), autocast(device, precision):
             rgb = model(grid_xy(rows, height, width))
         block = rgb.float().cpu().numpy().reshape(len(rows), width, 3)
-        out[r0:r0 + len(rows)] = block
+        out[r0 : r0 + len(rows)] = block
         if target is not None:
-            sse += float(np.sum((block.astype(np.float64) - target[r0:r0 + len(rows)]) ** 2))
+            sse += float(np.sum((block.astype(np.float64) - target[r0 : r0 + len(rows)]) ** 2))
     mse = sse / (height * width * 3) if target is not None else None
     return out, mse
 
 
-def eval_mse(model: ImageField, colors: Tensor, index: Tensor, height: int, width: int, *, chunk: int,
-             precision: str) -> float:
+def eval_mse(
+    model: ImageField, colors: Tensor, index: Tensor, height: int, width: int, *, chunk: int, precision: str
+) -> float:
     """MSE of the field at flat pixel ``index`` (M,) against ``colors`` (M, 3) (same device)."""
     import torch
 
@@ -271,10 +306,10 @@ def eval_mse(model: ImageField, colors: Tensor, index: Tensor, height: int, widt
     device = colors.device
     sse = 0.0
     for s in range(0, len(index), chunk):
-        idx = index[s:s + chunk]
+        idx = index[s : s + chunk]
         with torch.inference_mode(), autocast(device, precision):
             rgb = model(pixel_xy(idx, height, width))
-            sse += float(torch.sum((rgb.float() - colors[s:s + chunk]) ** 2, dtype=torch.float64))
+            sse += float(torch.sum((rgb.float() - colors[s : s + chunk]) ** 2, dtype=torch.float64))
     return sse / (len(index) * 3)
 
 
@@ -315,10 +350,14 @@ class FitResult:
         return {
             "final_psnr_db": self.final_psnr,
             "final_psnr_note": "on every pixel of the full-resolution image",
-            "image_height": self.height, "image_width": self.width,
-            "steps": self.config.steps, "steps_per_s": self.steps_per_s,
-            "train_seconds": self.train_seconds, "eval_seconds": self.eval_seconds,
-            "device": self.device, "precision": self.precision,
+            "image_height": self.height,
+            "image_width": self.width,
+            "steps": self.config.steps,
+            "steps_per_s": self.steps_per_s,
+            "train_seconds": self.train_seconds,
+            "eval_seconds": self.eval_seconds,
+            "device": self.device,
+            "precision": self.precision,
             "curve": {"note": self.eval_note, "step": self.curve_steps, "psnr_db": self.curve_psnr},
             "progression": [{"step": s, "psnr_db": p} for s, _, p in self.progression],
         }
@@ -359,8 +398,7 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
     else:
         rng = np.random.default_rng(cfg.seed)
         eval_index = torch.from_numpy(np.sort(rng.choice(n_pix, cfg.eval_pixels, replace=False))).to(device)
-        eval_note = (f"PSNR on a fixed random subset of {cfg.eval_pixels:,} of the {n_pix:,} pixels "
-                     f"({width}x{height})")
+        eval_note = f"PSNR on a fixed random subset of {cfg.eval_pixels:,} of the {n_pix:,} pixels ({width}x{height})"
     eval_colors = colors[eval_index]
     shot_steps = set(s for s in parse_steps(cfg.progress_steps) if s < cfg.steps) | {cfg.steps}
     prev_h, prev_w = preview_shape(height, width, cfg.preview_size)
@@ -378,16 +416,18 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
         full_psnr = None
         if step in shot_steps:
             # Progression image: full resolution (and its every-pixel PSNR) or a preview grid.
-            img, mse = render_image(model, prev_h, prev_w, chunk=cfg.chunk, precision=precision,
-                                    target=target if full_preview else None)
+            img, mse = render_image(
+                model, prev_h, prev_w, chunk=cfg.chunk, precision=precision, target=target if full_preview else None
+            )
             if full_preview:
                 assert mse is not None  # rendered against the target
                 full_psnr = psnr_from_mse(mse)
         if full_psnr is not None and eval_all:
             psnr = full_psnr  # same pixels as the curve's evaluation, no need to evaluate twice
         else:
-            psnr = psnr_from_mse(eval_mse(model, eval_colors, eval_index, height, width, chunk=cfg.chunk,
-                                          precision=precision))
+            psnr = psnr_from_mse(
+                eval_mse(model, eval_colors, eval_index, height, width, chunk=cfg.chunk, precision=precision)
+            )
         if step in shot_steps:
             progression.append((step, img, psnr if full_psnr is None else full_psnr))
         model.train()
@@ -427,9 +467,23 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
         assert mse is not None  # rendered against the target
         final_psnr = psnr_from_mse(mse)
     eval_seconds += time.perf_counter() - t0
-    return FitResult(cfg, str(device), precision, height, width, final_image, final_psnr, curve_steps, curve_psnr,
-                     progression, eval_note, cfg.steps / train_seconds if train_seconds > 0 else 0.0, train_seconds,
-                     eval_seconds, model)
+    return FitResult(
+        cfg,
+        str(device),
+        precision,
+        height,
+        width,
+        final_image,
+        final_psnr,
+        curve_steps,
+        curve_psnr,
+        progression,
+        eval_note,
+        cfg.steps / train_seconds if train_seconds > 0 else 0.0,
+        train_seconds,
+        eval_seconds,
+        model,
+    )
 
 
 # ---------------------------------------------------------------------------------------
@@ -453,21 +507,38 @@ def write_run(out: str | Path, result: FitResult, target: np.ndarray, image_path
     """Write the PSNR curve, progression figure, final image, metrics and config into ``out``."""
     out = Path(out)
     cfg = result.config
-    plot_curves(out / "psnr.png", {"PSNR": (result.curve_steps, result.curve_psnr)},
-                xlabel=f"step (evaluated every {cfg.eval_every} steps and at the progression steps)",
-                ylabel="PSNR (dB)", title=_wrap(f"{image_path.name}: {result.eval_note}"))
+    plot_curves(
+        out / "psnr.png",
+        {"PSNR": (result.curve_steps, result.curve_psnr)},
+        xlabel=f"step (evaluated every {cfg.eval_every} steps and at the progression steps)",
+        ylabel="PSNR (dB)",
+        title=_wrap(f"{image_path.name}: {result.eval_note}"),
+    )
     shape = result.progression[-1][1].shape[:2]
     shown = downscale(target, shape)
     size_note = "" if shape == target.shape[:2] else f" (shown at {shape[1]}x{shape[0]})"
     images = [shown] + [img for _, img, _ in result.progression]
     titles = [f"original {result.width}x{result.height}{size_note}"] + [
-        f"step {s}: {p:.2f} dB" for s, _, p in result.progression]
-    image_grid(out / "progression.png", images, titles, ncols=_grid_cols(len(images)),
-               suptitle=f"L={cfg.L} width={cfg.width} depth={cfg.depth}: final {result.final_psnr:.2f} dB")
+        f"step {s}: {p:.2f} dB" for s, _, p in result.progression
+    ]
+    image_grid(
+        out / "progression.png",
+        images,
+        titles,
+        ncols=_grid_cols(len(images)),
+        suptitle=f"L={cfg.L} width={cfg.width} depth={cfg.depth}: final {result.final_psnr:.2f} dB",
+    )
     write_image(out / "final.png", result.final_image)
     write_json(out / "metrics.json", result.metrics())
-    write_json(out / "config.json", {"image": str(image_path), **dataclasses.asdict(cfg),
-                                     "resolved_device": result.device, "resolved_precision": result.precision})
+    write_json(
+        out / "config.json",
+        {
+            "image": str(image_path),
+            **dataclasses.asdict(cfg),
+            "resolved_device": result.device,
+            "resolved_precision": result.precision,
+        },
+    )
 
 
 def _grid_cols(n: int, max_cols: int = 7) -> int:
@@ -510,8 +581,9 @@ def sweep_outputs(out: str | Path, combos: list[dict]) -> list[Path]:
     return [out / name for name in SWEEP_FILES] + [sweep_folder(out, c) / name for c in combos for name in RUN_FILES]
 
 
-def run_sweep(image: str | Path | None, out: str | Path, cfg: FitImageConfig, combos: list[dict],
-              progress: bool = True) -> list[dict]:
+def run_sweep(
+    image: str | Path | None, out: str | Path, cfg: FitImageConfig, combos: list[dict], progress: bool = True
+) -> list[dict]:
     """Train one model per combination (each overriding ``cfg``); write each run folder and the summary.
 
     Writes ``out/<label>/`` per run, ``out/sweep_grid.png``, ``out/sweep_psnr.png`` and
@@ -528,14 +600,30 @@ def run_sweep(image: str | Path | None, out: str | Path, cfg: FitImageConfig, co
     for i, combo in enumerate(combos):
         label = sweep_label(combo)
         folder = sweep_folder(out, combo)
-        result = fit_image(target, dataclasses.replace(cfg, **combo), progress=progress,
-                           desc=f"[{i + 1}/{len(combos)}] {label}")
+        result = fit_image(
+            target, dataclasses.replace(cfg, **combo), progress=progress, desc=f"[{i + 1}/{len(combos)}] {label}"
+        )
         write_run(folder, result, target, path)
         # Keep only the preview-size final image, so a sweep over a big photo stays small in memory.
-        done.append(_SweepRun(label, result.final_psnr, result.curve_steps, result.curve_psnr,
-                              result.progression[-1][1], result.eval_note))
-        entries.append({**combo, "label": label, "final_psnr_db": result.final_psnr,
-                        "steps_per_s": result.steps_per_s, "folder": folder.name})
+        done.append(
+            _SweepRun(
+                label,
+                result.final_psnr,
+                result.curve_steps,
+                result.curve_psnr,
+                result.progression[-1][1],
+                result.eval_note,
+            )
+        )
+        entries.append(
+            {
+                **combo,
+                "label": label,
+                "final_psnr_db": result.final_psnr,
+                "steps_per_s": result.steps_per_s,
+                "folder": folder.name,
+            }
+        )
         del result
         # Rewritten after every run, so an interrupted sweep keeps what finished.
         _write_sweep_summary(out, done, entries, path, target, cfg.eval_every)
@@ -552,14 +640,26 @@ class _SweepRun:
     eval_note: str
 
 
-def _write_sweep_summary(out: Path, done: list[_SweepRun], entries: list[dict], path: Path, target: np.ndarray,
-                         eval_every: int) -> None:
+def _write_sweep_summary(
+    out: Path, done: list[_SweepRun], entries: list[dict], path: Path, target: np.ndarray, eval_every: int
+) -> None:
     images = [downscale(target, done[0].preview.shape[:2])] + [r.preview for r in done]
     titles = ["original"] + [f"{r.label}: {r.final_psnr:.2f} dB" for r in done]
-    image_grid(out / "sweep_grid.png", images, titles, ncols=_grid_cols(len(images)),
-               suptitle=f"{path.name}: final images (PSNR on every pixel)")
+    image_grid(
+        out / "sweep_grid.png",
+        images,
+        titles,
+        ncols=_grid_cols(len(images)),
+        suptitle=f"{path.name}: final images (PSNR on every pixel)",
+    )
     curves: dict[str, tuple[Sequence[float], Sequence[float]]] = {
-        f"{r.label} ({r.final_psnr:.1f} dB)": (r.curve_steps, r.curve_psnr) for r in done}
-    plot_curves(out / "sweep_psnr.png", curves, xlabel=f"step (evaluated every {eval_every} steps)",
-                ylabel="PSNR (dB)", title=_wrap(f"{path.name}: {done[0].eval_note}"))
+        f"{r.label} ({r.final_psnr:.1f} dB)": (r.curve_steps, r.curve_psnr) for r in done
+    }
+    plot_curves(
+        out / "sweep_psnr.png",
+        curves,
+        xlabel=f"step (evaluated every {eval_every} steps)",
+        ylabel="PSNR (dB)",
+        title=_wrap(f"{path.name}: {done[0].eval_note}"),
+    )
     write_json(out / "sweep.json", {"image": str(path), "curve_note": done[0].eval_note, "runs": entries})

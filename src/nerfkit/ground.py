@@ -67,9 +67,14 @@ class GroundPlane:
         return np.asarray(x, np.float64) @ self.normal + self.offset
 
     def to_dict(self) -> dict:
-        return {"normal": [round(float(v), 6) for v in self.normal], "offset": round(float(self.offset), 6),
-                "inliers": int(self.inliers), "candidates": int(self.candidates),
-                "tolerance": round(float(self.tolerance), 6), "tilt_deg": round(float(self.tilt_deg), 3)}
+        return {
+            "normal": [round(float(v), 6) for v in self.normal],
+            "offset": round(float(self.offset), 6),
+            "inliers": int(self.inliers),
+            "candidates": int(self.candidates),
+            "tolerance": round(float(self.tolerance), 6),
+            "tilt_deg": round(float(self.tilt_deg), 3),
+        }
 
 
 def _refit(points: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, float]:
@@ -89,7 +94,7 @@ def _triples(points: np.ndarray, k: int, radius: float, rng) -> tuple[np.ndarray
     idx = rng.integers(0, m, size=(k, 3))
     local = np.arange(k // 2, k)
     for j0 in range(0, len(local), 128):
-        rows = local[j0:j0 + 128]
+        rows = local[j0 : j0 + 128]
         first = points[idx[rows, 0]]
         close = np.linalg.norm(points[None, :, :] - first[:, None, :], axis=2) < radius  # (r, m)
         keys = np.where(close, rng.random(close.shape), -1.0)
@@ -98,10 +103,21 @@ def _triples(points: np.ndarray, k: int, radius: float, rng) -> tuple[np.ndarray
     return points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
 
 
-def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarray, up: np.ndarray,
-                      iterations: int = 2000, tolerance_fraction: float = 0.01, max_tilt_deg: float = 20.0,
-                      max_drop: float = 0.5, min_inlier_fraction: float = 0.05, min_points: int = 30,
-                      seed: int = 0, min_drop: float = -0.1, within: float = 1.5) -> tuple[GroundPlane | None, str]:
+def find_ground_plane(
+    points: np.ndarray,
+    cameras: np.ndarray,
+    center: np.ndarray,
+    up: np.ndarray,
+    iterations: int = 2000,
+    tolerance_fraction: float = 0.01,
+    max_tilt_deg: float = 20.0,
+    max_drop: float = 0.5,
+    min_inlier_fraction: float = 0.05,
+    min_points: int = 30,
+    seed: int = 0,
+    min_drop: float = -0.1,
+    within: float = 1.5,
+) -> tuple[GroundPlane | None, str]:
     """RANSAC for the surface the object stands on.
 
     Args:
@@ -140,11 +156,14 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
     ok = (norm[:, 0] > 1e-12) & (n @ up >= cos_tilt) & (min_drop * reach < drop) & (drop < max_drop * reach)
     ok &= ((cameras @ n.T + d) > tol).mean(axis=0) >= 0.9
     if not ok.any():
-        return None, (f"no plane within {max_tilt_deg:g} degrees of the cameras' up has the cameras above it "
-                      f"and passes under the point they look at")
+        return None, (
+            f"no plane within {max_tilt_deg:g} degrees of the cameras' up has the cameras above it "
+            f"and passes under the point they look at"
+        )
     n, d = n[ok], d[ok]
-    counts = np.concatenate([(np.abs(pool @ n[i:i + 128].T + d[i:i + 128]) < tol).sum(axis=0)
-                             for i in range(0, len(n), 128)])
+    counts = np.concatenate(
+        [(np.abs(pool @ n[i : i + 128].T + d[i : i + 128]) < tol).sum(axis=0) for i in range(0, len(n), 128)]
+    )
     n, d = n[counts.argmax()], float(d[counts.argmax()])
     for _ in range(2):  # refit to the inliers, then take the inliers of the refit
         inl = np.abs(near @ n + d) < tol
@@ -153,8 +172,10 @@ def find_ground_plane(points: np.ndarray, cameras: np.ndarray, center: np.ndarra
         n, d = _refit(near[inl], n)
     count = int(np.count_nonzero(np.abs(near @ n + d) < tol))
     if count < min_inlier_fraction * len(near):
-        return None, (f"the best plane holds {count} of {len(near)} sparse points near the centre "
-                      f"(need {min_inlier_fraction:.0%})")
+        return None, (
+            f"the best plane holds {count} of {len(near)} sparse points near the centre "
+            f"(need {min_inlier_fraction:.0%})"
+        )
     tilt = float(np.degrees(np.arccos(np.clip(n @ up, -1.0, 1.0))))
     return GroundPlane(n, d, count, len(near), tol, tilt), ""
 
@@ -168,10 +189,19 @@ def ground_similarity(plane: GroundPlane, center: np.ndarray) -> tuple[np.ndarra
     return R, -R @ foot
 
 
-def find_floor(points: np.ndarray, table: np.ndarray, cameras: np.ndarray, center: np.ndarray,
-               min_drop: float = 0.25, max_drop: float = 5.0, max_tilt_deg: float = 10.0,
-               min_fraction: float = 0.2, min_points: int = 50, tolerance_fraction: float = 0.03,
-               seed: int = 0) -> GroundPlane | None:
+def find_floor(
+    points: np.ndarray,
+    table: np.ndarray,
+    cameras: np.ndarray,
+    center: np.ndarray,
+    min_drop: float = 0.25,
+    max_drop: float = 5.0,
+    max_tilt_deg: float = 10.0,
+    min_fraction: float = 0.2,
+    min_points: int = 50,
+    tolerance_fraction: float = 0.03,
+    seed: int = 0,
+) -> GroundPlane | None:
     """The floor seen beyond a table's edge, in the sparse points: a plane within
     ``max_tilt_deg`` of parallel to ``table`` (``(n, d)``, normal toward the cameras),
     ``min_drop`` to ``max_drop`` camera distances under it, holding at least
@@ -192,8 +222,18 @@ def find_floor(points: np.ndarray, table: np.ndarray, cameras: np.ndarray, cente
     if len(below) < min_points:
         return None
     foot = center - (center @ n + d) * n  # the look-at point's foot on the table
-    plane, _ = find_ground_plane(below, cameras, foot, n, tolerance_fraction=tolerance_fraction,
-                                 max_tilt_deg=max_tilt_deg, min_drop=min_drop,
-                                 max_drop=max_drop, min_inlier_fraction=min_fraction, min_points=min_points,
-                                 seed=seed, within=np.inf)
+    plane, _ = find_ground_plane(
+        below,
+        cameras,
+        foot,
+        n,
+        tolerance_fraction=tolerance_fraction,
+        max_tilt_deg=max_tilt_deg,
+        min_drop=min_drop,
+        max_drop=max_drop,
+        min_inlier_fraction=min_fraction,
+        min_points=min_points,
+        seed=seed,
+        within=np.inf,
+    )
     return plane

@@ -7,6 +7,7 @@ Every failure is a :class:`NerfkitError` naming the file.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import warnings
 from collections import Counter
@@ -40,7 +41,9 @@ def _open(path: Path):
 
             pillow_heif.register_heif_opener()
         except ImportError:
-            raise fail(path, "HEIC photos need pillow-heif", "pip install pillow-heif, or export the photos as JPEG") from None
+            raise fail(
+                path, "HEIC photos need pillow-heif", "pip install pillow-heif, or export the photos as JPEG"
+            ) from None
     kind = path_kind(path)
     if kind is None:
         raise fail(path, "no such file", "Check the path")
@@ -52,9 +55,12 @@ def _open(path: Path):
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             img = Image.open(path)
         if img.width * img.height > MAX_IMAGE_PIXELS:  # PIL only warns below twice its limit
-            raise fail(path, f"image is {img.width}x{img.height} ({img.width * img.height / 1e6:.0f} megapixels), "
-                             f"more than nerfkit reads ({MAX_IMAGE_PIXELS / 1e6:.0f} megapixels)",
-                       "Downscale it first")
+            raise fail(
+                path,
+                f"image is {img.width}x{img.height} ({img.width * img.height / 1e6:.0f} megapixels), "
+                f"more than nerfkit reads ({MAX_IMAGE_PIXELS / 1e6:.0f} megapixels)",
+                "Downscale it first",
+            )
         img.load()
     except UnidentifiedImageError:
         raise fail(path, "not an image nerfkit can read", "Use JPEG, PNG, TIFF, WebP or HEIC") from None
@@ -139,10 +145,8 @@ def _open_upright(path: Path):
     from PIL import ImageOps
 
     img = _open(path)
-    try:
+    with contextlib.suppress(Exception):  # a broken EXIF block should not stop us
         img = ImageOps.exif_transpose(img)
-    except Exception:  # noqa: BLE001 - a broken EXIF block should not stop us
-        pass
     return img
 
 
@@ -170,8 +174,11 @@ def _to_float(img, background, path) -> np.ndarray:
         arr = np.asarray(img, dtype=np.float32)
         finite = arr[np.isfinite(arr)]
         if finite.size and (finite.min() < 0.0 or finite.max() > 1.0):  # clipped, it would be another picture
-            raise fail(path, f"float pixels span [{finite.min():.4g}, {finite.max():.4g}], expected [0, 1]",
-                       "Save it with floats scaled to 0-1 (divide 0-255 values by 255), or as an 8- or 16-bit image")
+            raise fail(
+                path,
+                f"float pixels span [{finite.min():.4g}, {finite.max():.4g}], expected [0, 1]",
+                "Save it with floats scaled to 0-1 (divide 0-255 values by 255), or as an 8- or 16-bit image",
+            )
         arr = np.nan_to_num(arr, nan=0.0, posinf=1.0, neginf=0.0)  # a diverged render's NaN black, inf white
         return np.repeat(arr[..., None], 3, axis=2)
     has_alpha = _has_alpha(img)
@@ -203,8 +210,11 @@ def image_files(folder: str | Path) -> list[Path]:
     """The image files in a folder (not recursive), sorted by name. Hidden files are not
     photos: macOS leaves ``._IMG_0001.JPG`` (its metadata) beside each photo copied to a
     foreign disk."""
-    return sorted(p for p in Path(folder).iterdir()
-                  if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+    return sorted(
+        p
+        for p in Path(folder).iterdir()
+        if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".")
+    )
 
 
 def list_images(folder: str | Path, allow_outside: bool = False) -> list[Path]:
@@ -218,9 +228,13 @@ def list_images(folder: str | Path, allow_outside: bool = False) -> list[Path]:
     files = image_files(folder)
     if not files:
         raise fail(folder, "holds no images", f"Expected files ending in {', '.join(sorted(IMAGE_SUFFIXES))}")
-    return files_inside(folder, files, allow_outside,
-                        "nerfkit reads only the photos inside the folder it is given: copy the photo into the "
-                        "folder instead of linking to it")
+    return files_inside(
+        folder,
+        files,
+        allow_outside,
+        "nerfkit reads only the photos inside the folder it is given: copy the photo into the "
+        "folder instead of linking to it",
+    )
 
 
 def write_image(path: str | os.PathLike, image: np.ndarray) -> None:

@@ -41,10 +41,18 @@ PRESETS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     OBJECT: {},
     CAPTURE: {
         "*": {"train": {"capture": "on"}},
-        "fast": {"train": {"lr_final_factor": 0.02},
-                 "model": {"learn_background": True, "distortion_weight": 0.01, "room_shells": 3,
-                           "table_gloss": True, "rgb_loss": "charbonnier", "points_weight": 0.02,
-                           "tv_view_weight": 1e-8}},
+        "fast": {
+            "train": {"lr_final_factor": 0.02},
+            "model": {
+                "learn_background": True,
+                "distortion_weight": 0.01,
+                "room_shells": 3,
+                "table_gloss": True,
+                "rgb_loss": "charbonnier",
+                "points_weight": 0.02,
+                "tv_view_weight": 1e-8,
+            },
+        },
         "splat": {"model": {"learn_background": True}},
     },
     FORWARD_FACING: {"fast": {"model": {"distortion_weight": 0.01}}},
@@ -72,8 +80,11 @@ def preset_values(kind: str, model: str) -> tuple[dict, dict]:
     """(TrainConfig values, model config values) of scene kind ``kind`` for ``model``: the
     model's training table, then the kind's for every model, then the kind's for this model."""
     table = PRESETS[kind]
-    train = {**MODEL_TRAINING.get(model, {}), **table.get("*", {}).get("train", {}),
-             **table.get(model, {}).get("train", {})}
+    train = {
+        **MODEL_TRAINING.get(model, {}),
+        **table.get("*", {}).get("train", {}),
+        **table.get(model, {}).get("train", {}),
+    }
     model_values = {**table.get("*", {}).get("model", {}), **table.get(model, {}).get("model", {})}
     return train, model_values
 
@@ -90,8 +101,7 @@ def scene_values(kind: str, model_config: Any, scene, given: frozenset[str]) -> 
     if kind == CAPTURE:
         out["table"] = scene.table is not None
     if not {"resolutions", "upsample_steps"} & given:
-        fine = (kind == OBJECT and len(scene.train) > 0
-                and scene.train.width * scene.train.height > FINE_STAGE_PIXELS)
+        fine = kind == OBJECT and len(scene.train) > 0 and scene.train.width * scene.train.height > FINE_STAGE_PIXELS
         out["resolutions"], out["upsample_steps"] = FINE_STAGES if fine else BASE_STAGES
     return out
 
@@ -101,8 +111,11 @@ def differing_fields(cfg: Any) -> frozenset[str]:
     that built ``cfg`` in Python evidently chose (used when it does not say what it gave)."""
     out = set()
     for f in dataclasses.fields(cfg):
-        default = f.default if f.default is not dataclasses.MISSING else (
-            f.default_factory() if f.default_factory is not dataclasses.MISSING else dataclasses.MISSING)
+        default = (
+            f.default
+            if f.default is not dataclasses.MISSING
+            else (f.default_factory() if f.default_factory is not dataclasses.MISSING else dataclasses.MISSING)
+        )
         if getattr(cfg, f.name) != default:
             out.add(f.name)
     return frozenset(out)
@@ -128,5 +141,15 @@ def resolve(train: Any, model_config: Any, scene, user_set: Iterable[str] | None
     return Resolved(dataclasses.replace(train, **train_new), dataclasses.replace(model_config, **model_new), kind)
 
 
-__all__ = ["CAPTURE", "FORWARD_FACING", "MODEL_TRAINING", "OBJECT", "PRESETS", "Resolved", "SCENE_KINDS",
-           "preset_values", "resolve", "scene_kind"]
+__all__ = [
+    "CAPTURE",
+    "FORWARD_FACING",
+    "MODEL_TRAINING",
+    "OBJECT",
+    "PRESETS",
+    "Resolved",
+    "SCENE_KINDS",
+    "preset_values",
+    "resolve",
+    "scene_kind",
+]

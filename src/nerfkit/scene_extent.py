@@ -26,8 +26,9 @@ MIN_OBJECT_POINTS = 30
 FEW_TRAIN_VIEWS = 30
 
 
-def object_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float,
-                  lift: float = 0.03) -> np.ndarray:
+def object_points(
+    points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float, lift: float = 0.03
+) -> np.ndarray:
     """The sparse points (m, 3) of an object standing on a table: those within ``radius``
     of ``center`` and higher than ``lift x radius`` above the table (``table``: ``(n, d)``;
     points on it are texture, not object). (k, 3) float64."""
@@ -43,9 +44,16 @@ def object_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, rad
 OBJECT_BOX_QUANTILE = 0.005
 
 
-def object_box_from_points(points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float,
-                           min_points: int = MIN_OBJECT_POINTS, lift: float = 0.03, pad: float = 0.15,
-                           quantile: float = OBJECT_BOX_QUANTILE) -> tuple | None:
+def object_box_from_points(
+    points: np.ndarray,
+    table: np.ndarray,
+    center: np.ndarray,
+    radius: float,
+    min_points: int = MIN_OBJECT_POINTS,
+    lift: float = 0.03,
+    pad: float = 0.15,
+    quantile: float = OBJECT_BOX_QUANTILE,
+) -> tuple | None:
     """An axis-aligned box ``(lo, hi)`` around an object standing on a table, from its
     sparse points (:func:`object_points`) with their feet on the table, from the
     ``quantile`` to the ``1 - quantile`` quantile per axis, padded by ``pad`` of its size

@@ -55,15 +55,24 @@ class Gaussians:
         def a(t):
             return t.detach().cpu().float().numpy()
 
-        return Gaussians(a(model.means), a(model.log_scales), a(model.quats), a(model.opacity_logits),
-                         a(model.sh_dc), a(model.sh_rest))
+        return Gaussians(
+            a(model.means),
+            a(model.log_scales),
+            a(model.quats),
+            a(model.opacity_logits),
+            a(model.sh_dc),
+            a(model.sh_rest),
+        )
 
 
 def ply_property_names(n_rest: int) -> list[str]:
     """The 3DGS PLY vertex properties, in order, for ``n_rest`` higher SH coefficients per channel."""
-    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-            + [f"f_rest_{i}" for i in range(3 * n_rest)] + ["opacity", "scale_0", "scale_1", "scale_2"]
-            + ["rot_0", "rot_1", "rot_2", "rot_3"])
+    return (
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        + [f"f_rest_{i}" for i in range(3 * n_rest)]
+        + ["opacity", "scale_0", "scale_1", "scale_2"]
+        + ["rot_0", "rot_1", "rot_2", "rot_3"]
+    )
 
 
 def write_splat_ply(path: str | Path, g: Gaussians) -> None:
@@ -72,11 +81,18 @@ def write_splat_ply(path: str | Path, g: Gaussians) -> None:
 
     n, n_rest = len(g), g.sh_rest.shape[1]
     names = ply_property_names(n_rest)
-    data = np.concatenate([
-        g.means, np.zeros((n, 3), np.float32), g.sh_dc.reshape(n, 3),
-        g.sh_rest.transpose(0, 2, 1).reshape(n, 3 * n_rest),  # channel-major, as INRIA
-        g.opacity_logits.reshape(n, 1), g.log_scales, g.quats,
-    ], axis=1).astype(np.float32)
+    data = np.concatenate(
+        [
+            g.means,
+            np.zeros((n, 3), np.float32),
+            g.sh_dc.reshape(n, 3),
+            g.sh_rest.transpose(0, 2, 1).reshape(n, 3 * n_rest),  # channel-major, as INRIA
+            g.opacity_logits.reshape(n, 1),
+            g.log_scales,
+            g.quats,
+        ],
+        axis=1,
+    ).astype(np.float32)
     vertex = np.empty(n, dtype=[(name, "f4") for name in names])
     for i, name in enumerate(names):
         vertex[name] = data[:, i]
@@ -108,9 +124,14 @@ def read_splat_ply(path: str | Path) -> Gaussians:
     n = len(v.data)
     rest = n_rest3 // 3
     f_rest = col(*[f"f_rest_{i}" for i in range(n_rest3)]) if rest else np.zeros((n, 0), np.float32)
-    return Gaussians(col("x", "y", "z"), col("scale_0", "scale_1", "scale_2"), col("rot_0", "rot_1", "rot_2", "rot_3"),
-                     np.asarray(v["opacity"], np.float32), col("f_dc_0", "f_dc_1", "f_dc_2").reshape(n, 1, 3),
-                     f_rest.reshape(n, 3, rest).transpose(0, 2, 1).copy())
+    return Gaussians(
+        col("x", "y", "z"),
+        col("scale_0", "scale_1", "scale_2"),
+        col("rot_0", "rot_1", "rot_2", "rot_3"),
+        np.asarray(v["opacity"], np.float32),
+        col("f_dc_0", "f_dc_1", "f_dc_2").reshape(n, 1, 3),
+        f_rest.reshape(n, 3, rest).transpose(0, 2, 1).copy(),
+    )
 
 
 def write_dot_splat(path: str | Path, g: Gaussians) -> None:

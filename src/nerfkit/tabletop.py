@@ -207,8 +207,9 @@ def faces_reached(solid: np.ndarray, min_columns: int = 3) -> list[tuple[int, in
     return faces
 
 
-def specks(grid: np.ndarray, threshold: float, keep_share: float = SPECK_SHARE,
-           margin: int = SPECK_MARGIN) -> np.ndarray:
+def specks(
+    grid: np.ndarray, threshold: float, keep_share: float = SPECK_SHARE, margin: int = SPECK_MARGIN
+) -> np.ndarray:
     """What floats apart from the object: (X, Y, Z) bool.
 
     The pieces of ``grid > threshold`` (26-connected) are the object (the one holding the

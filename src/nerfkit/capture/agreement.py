@@ -51,12 +51,16 @@ class Agreement:
     half_width: float
 
     def as_json(self) -> dict:
-        return {"psnr": round(self.psnr, 2), "psnr_exposure_evened": round(self.psnr_exposure_evened, 2),
-                "points": self.points, "photos_per_point": self.photos_per_point,
-                "half_width": round(self.half_width, 4),
-                "what": "each training photo's RMS colour difference, over the table points it sees, from the mean "
-                        "colour of the photos that see each point (a static scene scores about this on held-out "
-                        "photos); evened: the same with a gain per photo and channel solved to agree best"}
+        return {
+            "psnr": round(self.psnr, 2),
+            "psnr_exposure_evened": round(self.psnr_exposure_evened, 2),
+            "points": self.points,
+            "photos_per_point": self.photos_per_point,
+            "half_width": round(self.half_width, 4),
+            "what": "each training photo's RMS colour difference, over the table points it sees, from the mean "
+            "colour of the photos that see each point (a static scene scores about this on held-out "
+            "photos); evened: the same with a gain per photo and channel solved to agree best",
+        }
 
 
 def table_points(center: np.ndarray, table: np.ndarray, extent: float, n: int, box=None) -> np.ndarray:
@@ -76,8 +80,9 @@ def table_points(center: np.ndarray, table: np.ndarray, extent: float, n: int, b
     return p
 
 
-def sample_photo(image: np.ndarray, K: np.ndarray, c2w: np.ndarray, points: np.ndarray, box=None,
-                 blur: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def sample_photo(
+    image: np.ndarray, K: np.ndarray, c2w: np.ndarray, points: np.ndarray, box=None, blur: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Colours (m, 3) in [0, 1] of world ``points`` (m, 3) in one photo (bilinear; ``K``
     in nerfkit's convention, pixel centres at +0.5) and where they are seen (m,): in front
     of the camera, inside the frame, and the line of sight clear of the object's ``box``."""
@@ -98,17 +103,19 @@ def sample_photo(image: np.ndarray, K: np.ndarray, c2w: np.ndarray, points: np.n
     maps = (uv - 0.5).astype(np.float32)  # OpenCV's pixel centres are at integers
     colours = np.empty((len(points), 3), np.float32)
     for i in range(0, len(points), REMAP_CHUNK):
-        part = maps[i:i + REMAP_CHUNK]
-        colours[i:i + REMAP_CHUNK] = cv2.remap(img, part[:, :1].copy(), part[:, 1:].copy(), cv2.INTER_LINEAR,
-                                               borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
+        part = maps[i : i + REMAP_CHUNK]
+        colours[i : i + REMAP_CHUNK] = cv2.remap(
+            img, part[:, :1].copy(), part[:, 1:].copy(), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+        ).reshape(-1, 3)
     return colours, seen
 
 
 def samples(views, points: np.ndarray, box=None, blur: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Colours (n, m, 3) of ``points`` (m, 3) in each of ``views``' n photos and where each
     photo sees them (n, m) as 0/1 (:func:`sample_photo`)."""
-    cols, seen = zip(*(sample_photo(views.images[i], views.K[i], views.c2w[i], points, box, blur)
-                       for i in range(len(views))))
+    cols, seen = zip(
+        *(sample_photo(views.images[i], views.K[i], views.c2w[i], points, box, blur) for i in range(len(views)))
+    )
     return np.stack(cols), np.stack(seen).astype(np.float32)
 
 
@@ -121,8 +128,9 @@ def deviations(C: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
     return mean, count, ((C - mean) ** 2).mean(-1) * S
 
 
-def consistency(views, points: np.ndarray, box=None, blur: float = 0.0
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def consistency(
+    views, points: np.ndarray, box=None, blur: float = 0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Of ``points`` (m, 3) in ``views``' photos: the mean colour (m, 3) over the photos
     that see each point, their number (m,), each photo's squared deviation from that mean
     (n, m; mean over channels, 0 where unseen) and where each is seen (n, m) as 0/1."""
@@ -148,8 +156,9 @@ def psnr_of(mse: float) -> float:
     return float(-10.0 * np.log10(max(mse, 1e-12)))
 
 
-def measure_agreement(views, center: np.ndarray, table: np.ndarray, radius: float, box=None,
-                      grid: int = 201) -> Agreement | None:
+def measure_agreement(
+    views, center: np.ndarray, table: np.ndarray, radius: float, box=None, grid: int = 201
+) -> Agreement | None:
     """:class:`Agreement` of ``views`` (the training photos) on the ``table`` plane around
     the object (``center``, ``radius``: the square reaches :data:`EXTENT_RADII` radii;
     ``box``: the object's, whose points and lines of sight are left out), or None when no
@@ -165,8 +174,9 @@ def measure_agreement(views, center: np.ndarray, table: np.ndarray, radius: floa
     C, S = C[:, good], S[:, good]
     _, count, dev = deviations(C, S)
     evened = deviations(C * even_exposures(C, S)[:, None], S)[2]
-    return Agreement(psnr_of(dev.sum() / S.sum()), psnr_of(evened.sum() / S.sum()), int(good.sum()),
-                     float(np.median(count)), extent)
+    return Agreement(
+        psnr_of(dev.sum() / S.sum()), psnr_of(evened.sum() / S.sum()), int(good.sum()), float(np.median(count)), extent
+    )
 
 
 def agreement_notes(agreement: dict) -> list[str]:
@@ -174,18 +184,24 @@ def agreement_notes(agreement: dict) -> list[str]:
     on the table, and, when too little for a good held-out score, what to change: the
     exposure, when evening it out would make them agree well enough, else the light."""
     a = agreement["psnr"]
-    lines = [f"agreement: the training photos show the table around the object in the same colours to {a:.1f} dB "
-             "(each photo against the mean of those that see each spot): about as high as held-out photos can score"]
+    lines = [
+        f"agreement: the training photos show the table around the object in the same colours to {a:.1f} dB "
+        "(each photo against the mean of those that see each spot): about as high as held-out photos can score"
+    ]
     if a >= AGREEMENT_NOTE_DB:
         return lines
     evened = agreement["psnr_exposure_evened"]
     low = f"  that is low (under {AGREEMENT_NOTE_DB:.0f} dB)"
     if evened >= AGREEMENT_NOTE_DB:
-        lines.append(f"{low}, mostly the phone's exposure and white balance changing between photos: evened out, the "
-                     f"photos agree to {evened:.1f} dB. Lock them while photographing (iPhone: AE/AF lock)")
+        lines.append(
+            f"{low}, mostly the phone's exposure and white balance changing between photos: evened out, the "
+            f"photos agree to {evened:.1f} dB. Lock them while photographing (iPhone: AE/AF lock)"
+        )
     else:
-        lock = (" Locking the exposure (iPhone: AE/AF lock) helps too" if evened - a >= EXPOSURE_SHARE_DB else "")
-        lines.append(f"{low}, and not only from the phone's exposure (evened out, the photos agree to {evened:.1f} dB): "
-                     "the light on the table changes between photos: your shadow falls on it, or a glossy table "
-                     f"mirrors a lamp or window. Keep your shadow off the table and light it evenly.{lock}")
+        lock = " Locking the exposure (iPhone: AE/AF lock) helps too" if evened - a >= EXPOSURE_SHARE_DB else ""
+        lines.append(
+            f"{low}, and not only from the phone's exposure (evened out, the photos agree to {evened:.1f} dB): "
+            "the light on the table changes between photos: your shadow falls on it, or a glossy table "
+            f"mirrors a lamp or window. Keep your shadow off the table and light it evenly.{lock}"
+        )
     return lines

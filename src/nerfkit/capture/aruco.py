@@ -38,8 +38,14 @@ from ..errors import advice, fail
 # Dictionaries tried when no tag is found, to suggest the right --dict. The _1000
 # dictionaries contain the _50/_100/_250 ones as prefixes, so they find any id.
 SEARCH_DICTIONARIES = [
-    "DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X6_1000", "DICT_7X7_1000",
-    "DICT_ARUCO_ORIGINAL", "DICT_APRILTAG_36h11", "DICT_APRILTAG_25h9", "DICT_APRILTAG_16h5",
+    "DICT_4X4_1000",
+    "DICT_5X5_1000",
+    "DICT_6X6_1000",
+    "DICT_7X7_1000",
+    "DICT_ARUCO_ORIGINAL",
+    "DICT_APRILTAG_36h11",
+    "DICT_APRILTAG_25h9",
+    "DICT_APRILTAG_16h5",
     "DICT_ARUCO_MIP_36h12",
 ]
 
@@ -64,8 +70,11 @@ def get_dictionary(name: str, where: str = "--dict"):
     key = key if key.startswith("DICT_") else "DICT_" + key
     match = [n for n in dictionary_names() if n.upper() == key]
     if not match:
-        raise fail(where, f"unknown ArUco dictionary {short_repr(name)}",
-                   "Use one of DICT_4X4_50, DICT_5X5_100, DICT_6X6_250, DICT_APRILTAG_36h11, ...")
+        raise fail(
+            where,
+            f"unknown ArUco dictionary {short_repr(name)}",
+            "Use one of DICT_4X4_50, DICT_5X5_100, DICT_6X6_250, DICT_APRILTAG_36h11, ...",
+        )
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, match[0]))
 
 
@@ -156,9 +165,11 @@ class Layout:
     @staticmethod
     def single(tag_id: int, size: float) -> Layout:
         """One tag whose frame is the sheet frame."""
-        return Layout({int(tag_id): square_corners(size)},
-                      spec={"tag_size": size, "tags": {str(tag_id): {"center": [0, 0], "rotation_deg": 0}}},
-                      source=f"tag {tag_id}")
+        return Layout(
+            {int(tag_id): square_corners(size)},
+            spec={"tag_size": size, "tags": {str(tag_id): {"center": [0, 0], "rotation_deg": 0}}},
+            source=f"tag {tag_id}",
+        )
 
     def match(self, det: Detection) -> tuple[np.ndarray, np.ndarray, list[int]]:
         """Object and image points of a detection's tags (or ChArUco corners) in this layout.
@@ -203,8 +214,11 @@ def layout_from_json(spec: dict, where: str, dictionary: str, tag_size: float | 
         raise fail(where, "a layout must be a JSON object")
     if "layout" in spec:  # a camera file
         if not isinstance(spec["layout"], dict):
-            raise fail(where, "this camera file holds no layout (it was calibrated with each tag on its own)",
-                       "Pass a layout file, or calibrate again without --per-tag")
+            raise fail(
+                where,
+                "this camera file holds no layout (it was calibrated with each tag on its own)",
+                "Pass a layout file, or calibrate again without --per-tag",
+            )
         return layout_from_json(spec["layout"], where, dictionary, tag_size)
     if spec.get("board") is not None:
         layout = _board_layout(spec, where, dictionary)
@@ -218,15 +232,18 @@ def layout_from_json(spec: dict, where: str, dictionary: str, tag_size: float | 
 def _check_square(tag_id: int, corners: np.ndarray, where: str) -> None:
     sides = np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)
     if not sides.min() > 0 or sides.max() / sides.min() > 1.05:
-        raise fail(where, f"tag {tag_id}'s corners are not a square (sides {np.round(sides, 4).tolist()})",
-                   "List corners in OpenCV order: top-left, top-right, bottom-right, bottom-left")
+        raise fail(
+            where,
+            f"tag {tag_id}'s corners are not a square (sides {np.round(sides, 4).tolist()})",
+            "List corners in OpenCV order: top-left, top-right, bottom-right, bottom-left",
+        )
 
 
 def _tags_from_spec(spec: dict, where: str, tag_size: float | None) -> dict[int, np.ndarray]:
     """Tag id -> (4, 3) corners of a ``{"tags": ...}`` layout."""
     tags_spec = spec.get("tags")
     if not isinstance(tags_spec, dict) or not tags_spec:
-        raise fail(where, "a layout needs a non-empty \"tags\" object (tag id -> corners or centre) or a \"board\"")
+        raise fail(where, 'a layout needs a non-empty "tags" object (tag id -> corners or centre) or a "board"')
     if "tag_size" in spec:
         check_number(spec["tag_size"], where, "tag_size", 0.0, expected=POSITIVE_LENGTH)
     default_size = spec.get("tag_size", tag_size)
@@ -251,7 +268,7 @@ def _tag_corners(key: str, value, default_size, where: str) -> np.ndarray:
         return corners
     size = value.get("size", default_size)
     if size is None or "center" not in value:
-        raise fail(where, f"tag {key} needs \"center\" and a size (\"size\", top-level \"tag_size\" or --tag-size)")
+        raise fail(where, f'tag {key} needs "center" and a size ("size", top-level "tag_size" or --tag-size)')
     size = check_number(size, where, f"tags.{key}.size", 0.0, expected=POSITIVE_LENGTH)
     c = check_numbers(value["center"], where, f"tags.{key}.center").ravel()
     if c.size not in (2, 3):
@@ -267,7 +284,7 @@ def _board_layout(spec: dict, where: str, dictionary: str) -> Layout:
 
     board = spec["board"]
     if board not in ("grid", "charuco"):
-        raise fail(where, f"unknown board type {short_repr(board)}", "Use \"grid\" or \"charuco\"")
+        raise fail(where, f"unknown board type {short_repr(board)}", 'Use "grid" or "charuco"')
     d = get_dictionary(spec.get("dictionary", dictionary), where)
     try:
         b, centre = _grid_board(spec, where, d) if board == "grid" else _charuco_board(spec, where, d)
@@ -310,8 +327,14 @@ def _charuco_board(spec: dict, where: str, d):
     sx = check_count(spec["squares_x"], where, "squares_x", 2, MAX_BOARD_SIDE)
     sy = check_count(spec["squares_y"], where, "squares_y", 2, MAX_BOARD_SIDE)
     square = check_number(spec["square_length"], where, "square_length", 0.0, expected=POSITIVE_LENGTH)
-    marker = check_number(spec["marker_length"], where, "marker_length", 0.0, square,
-                          f"a positive length in metres, smaller than square_length {square:g}")
+    marker = check_number(
+        spec["marker_length"],
+        where,
+        "marker_length",
+        0.0,
+        square,
+        f"a positive length in metres, smaller than square_length {square:g}",
+    )
     legacy = spec.get("legacy", False)
     if not isinstance(legacy, bool):
         raise fail(where, f"'legacy' is {short_repr(legacy)}, expected true or false")
@@ -325,8 +348,11 @@ def _check_ids_fit(first: int, count: int, d, where: str) -> None:
     """The board's tag ids first .. first + count - 1 must exist in the dictionary ``d``."""
     size = len(d.bytesList)
     if first + count > size:
-        raise fail(where, f"the board needs tag ids {first} to {first + count - 1}, but its dictionary holds "
-                          f"ids 0 to {size - 1}", "Use a smaller board, a lower first_id or a larger dictionary")
+        raise fail(
+            where,
+            f"the board needs tag ids {first} to {first + count - 1}, but its dictionary holds ids 0 to {size - 1}",
+            "Use a smaller board, a lower first_id or a larger dictionary",
+        )
 
 
 def load_layout(path: str | Path, dictionary: str, tag_size: float | None = None) -> Layout:
@@ -361,8 +387,13 @@ class Detection:
 
     def to_json(self) -> dict:
         # Corners unrounded (float64 round-trips exactly through JSON): a cached re-run gives the same calibration.
-        d = {"width": self.width, "height": self.height, "ids": [int(i) for i in self.ids],
-             "corners": np.asarray(self.corners, np.float64).tolist(), "sharpness": float(self.sharpness)}
+        d = {
+            "width": self.width,
+            "height": self.height,
+            "ids": [int(i) for i in self.ids],
+            "corners": np.asarray(self.corners, np.float64).tolist(),
+            "sharpness": float(self.sharpness),
+        }
         if self.charuco_ids is not None:
             d["charuco_ids"] = [int(i) for i in self.charuco_ids]
             d["charuco_corners"] = np.asarray(self.charuco_corners, np.float64).tolist()
@@ -374,12 +405,20 @@ class Detection:
         Each corner keeps its place in the tag's corner order."""
         det = self
         for _ in range(quarter_turns % 4):
+
             def turn(p, h=det.height):
                 p = np.asarray(p, np.float64)
                 return np.stack([h - 1 - p[..., 1], p[..., 0]], axis=-1)
 
-            det = Detection(det.height, det.width, det.ids, turn(det.corners), det.sharpness, det.charuco_ids,
-                            None if det.charuco_corners is None else turn(det.charuco_corners))
+            det = Detection(
+                det.height,
+                det.width,
+                det.ids,
+                turn(det.corners),
+                det.sharpness,
+                det.charuco_ids,
+                None if det.charuco_corners is None else turn(det.charuco_corners),
+            )
         return det
 
     @staticmethod
@@ -429,7 +468,7 @@ def _refine(gray: np.ndarray, pts: np.ndarray, win: int, max_shift: float) -> np
 
     h, w = gray.shape
     p = pts.reshape(-1, 1, 2).astype(np.float32).copy()
-    inside = ((p[:, 0, 0] > win + 1) & (p[:, 0, 0] < w - win - 2) & (p[:, 0, 1] > win + 1) & (p[:, 0, 1] < h - win - 2))
+    inside = (p[:, 0, 0] > win + 1) & (p[:, 0, 0] < w - win - 2) & (p[:, 0, 1] > win + 1) & (p[:, 0, 1] < h - win - 2)
     if not inside.any():
         return pts
     q = p[inside].copy()
@@ -440,8 +479,14 @@ def _refine(gray: np.ndarray, pts: np.ndarray, win: int, max_shift: float) -> np
     return p.reshape(pts.shape).astype(np.float64)
 
 
-def _edge_points(gray: np.ndarray, p: np.ndarray, q: np.ndarray, outward: np.ndarray, reach: float,
-                 frac: tuple[float, float] = (0.15, 0.85)) -> np.ndarray:
+def _edge_points(
+    gray: np.ndarray,
+    p: np.ndarray,
+    q: np.ndarray,
+    outward: np.ndarray,
+    reach: float,
+    frac: tuple[float, float] = (0.15, 0.85),
+) -> np.ndarray:
     """Sub-pixel points (k, 2) on the straight edge from ``p`` to ``q`` of a dark tag on white
     paper: along each of up to 60 normals, where the intensity crosses halfway between the
     dark inside and the bright outside (unbiased by symmetric blur)."""
@@ -453,8 +498,13 @@ def _edge_points(gray: np.ndarray, p: np.ndarray, q: np.ndarray, outward: np.nda
     base = p[None] + np.linspace(*frac, m)[:, None] * length * t[None]  # (m, 2)
     offs = np.arange(-reach, reach + 1e-9, 0.25)
     pts = base[:, None, :] + offs[None, :, None] * outward[None, None, :]  # (m, o, 2)
-    prof = cv2.remap(gray, pts[..., 0].astype(np.float32), pts[..., 1].astype(np.float32), cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE)
+    prof = cv2.remap(
+        gray,
+        pts[..., 0].astype(np.float32),
+        pts[..., 1].astype(np.float32),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    )
     q4 = max(1, len(offs) // 4)
     lo, hi = prof[:, :q4].mean(1), prof[:, -q4:].mean(1)
     out = []
@@ -511,7 +561,9 @@ def _fit_edge_line(pts: np.ndarray, length: float, min_keep: float = 0.5) -> tup
 MAX_CORNER_MOVE = 1.5
 
 
-def refine_corners_by_edges(gray: np.ndarray, corners: np.ndarray, marker_bits: int = 4, passes: int = 2) -> np.ndarray | None:
+def refine_corners_by_edges(
+    gray: np.ndarray, corners: np.ndarray, marker_bits: int = 4, passes: int = 2
+) -> np.ndarray | None:
     """Refine a tag's 4 corners (4, 2) by fitting lines to its 4 outer edges and intersecting
     them; None when an edge cannot be measured.
 
@@ -530,7 +582,7 @@ def refine_corners_by_edges(gray: np.ndarray, corners: np.ndarray, marker_bits: 
     x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w - 1), min(y1, h - 1)
     if x1 - x0 < 4 or y1 - y0 < 4:
         return None
-    crop = gray[y0: y1 + 1, x0: x1 + 1].astype(np.float32)
+    crop = gray[y0 : y1 + 1, x0 : x1 + 1].astype(np.float32)
     c -= (x0, y0)
     start = c.copy()
     for _ in range(passes):
@@ -601,8 +653,9 @@ def detect_careful(image: np.ndarray, dictionary: str, detect_side: int = 2000, 
     return found
 
 
-def detect(image: np.ndarray, detector, detect_side: int = 2000, marker_bits: int = 4, upscale: bool = False,
-           prepare=None) -> Detection:
+def detect(
+    image: np.ndarray, detector, detect_side: int = 2000, marker_bits: int = 4, upscale: bool = False, prepare=None
+) -> Detection:
     """Find tags in an upright photo: detect on a copy at most ``detect_side`` pixels on its
     long side, then refine every corner on the full-resolution image, by fitting lines to
     the tag's edges (:func:`refine_corners_by_edges`), else with cornerSubPix.
@@ -622,8 +675,15 @@ def detect(image: np.ndarray, detector, detect_side: int = 2000, marker_bits: in
     gray = to_gray(image)
     h, w = gray.shape
     s = detect_side / max(h, w) if upscale else min(1.0, detect_side / max(h, w))
-    small = gray if s == 1 else cv2.resize(gray, (max(1, round(w * s)), max(1, round(h * s))),
-                                           interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_CUBIC)
+    small = (
+        gray
+        if s == 1
+        else cv2.resize(
+            gray,
+            (max(1, round(w * s)), max(1, round(h * s))),
+            interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_CUBIC,
+        )
+    )
     if prepare is not None:
         small = prepare(small)
     sx, sy = small.shape[1] / w, small.shape[0] / h
@@ -645,7 +705,9 @@ def detect(image: np.ndarray, detector, detect_side: int = 2000, marker_bits: in
     else:
         corners, ids, _ = detector.detectMarkers(small)
     if ids is None or len(ids) == 0:
-        return Detection(w, h, np.zeros(0, np.int64), np.zeros((0, 4, 2)), sharpness(gray), charuco_ids, charuco_corners)
+        return Detection(
+            w, h, np.zeros(0, np.int64), np.zeros((0, 4, 2)), sharpness(gray), charuco_ids, charuco_corners
+        )
     ids = ids.ravel().astype(np.int64)
     quads = up(np.asarray(corners, np.float64).reshape(-1, 4, 2))
     for i in range(len(ids)):

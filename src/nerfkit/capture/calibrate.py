@@ -74,25 +74,40 @@ CONSTRAINTS = {"principal_point": ("centre", "free"), "aspect": ("square", "free
 class CalibrateConfig:
     """Calibration options (each becomes a ``nerfkit calibrate`` flag)."""
 
-    dist_model: str = option("auto", "distortion coefficients to estimate; auto: chosen by cross-validation over "
-                             "photos (the simplest model that generalises and stays plausible out to the image "
-                             "corners)", choices=["auto", *DIST_MODELS])
+    dist_model: str = option(
+        "auto",
+        "distortion coefficients to estimate; auto: chosen by cross-validation over "
+        "photos (the simplest model that generalises and stays plausible out to the image "
+        "corners)",
+        choices=["auto", *DIST_MODELS],
+    )
     folds: int = option(5, "cross-validation folds over photos for the auto choices", min=2)
-    select_tolerance: float = option(0.05, "the auto choices keep a simpler camera (a simpler distortion model, "
-                                     "a centred principal point, square pixels) when its held-out error is within "
-                                     "this fraction of the best camera's; a simpler distortion model also within "
-                                     "this many pixels", min=0)
-    principal_point: str = option("auto", "centre: keep the principal point at the image centre (phone lenses are "
-                                  "nearly centred); free: fit it; auto: chosen with the distortion model and the "
-                                  "aspect, centred unless fitting it lowers the held-out error by more than the "
-                                  "fraction --select-tolerance",
-                                  choices=["auto", *CONSTRAINTS["principal_point"]])
-    aspect: str = option("auto", "square: fx = fy (phone pixels are square); free: fit both; auto: chosen with the "
-                         "distortion model and the principal point, square unless fitting both lowers the held-out "
-                         "error by more than the fraction --select-tolerance",
-                         choices=["auto", *CONSTRAINTS["aspect"]])
-    outlier_factor: float = option(3.0, "drop photos whose reprojection error exceeds this many times the median, "
-                                   "then recalibrate", above=0)
+    select_tolerance: float = option(
+        0.05,
+        "the auto choices keep a simpler camera (a simpler distortion model, "
+        "a centred principal point, square pixels) when its held-out error is within "
+        "this fraction of the best camera's; a simpler distortion model also within "
+        "this many pixels",
+        min=0,
+    )
+    principal_point: str = option(
+        "auto",
+        "centre: keep the principal point at the image centre (phone lenses are "
+        "nearly centred); free: fit it; auto: chosen with the distortion model and the "
+        "aspect, centred unless fitting it lowers the held-out error by more than the "
+        "fraction --select-tolerance",
+        choices=["auto", *CONSTRAINTS["principal_point"]],
+    )
+    aspect: str = option(
+        "auto",
+        "square: fx = fy (phone pixels are square); free: fit both; auto: chosen with the "
+        "distortion model and the principal point, square unless fitting both lowers the held-out "
+        "error by more than the fraction --select-tolerance",
+        choices=["auto", *CONSTRAINTS["aspect"]],
+    )
+    outlier_factor: float = option(
+        3.0, "drop photos whose reprojection error exceeds this many times the median, then recalibrate", above=0
+    )
     per_tag: bool = option(False, "treat each tag as its own planar target instead of estimating the sheet layout")
     min_photos: int = option(5, "refuse to calibrate from fewer usable photos", min=3)
 
@@ -170,9 +185,17 @@ def constrained_guess(K0: np.ndarray | None, size: tuple[int, int], cfg: Calibra
     return K0
 
 
-def fit_views(views: list[tuple[str, np.ndarray, np.ndarray]], size: tuple[int, int], flags: int,
-              outlier_factor: float = 3.0, K0: np.ndarray | None = None, min_views: int = 3,
-              floor_px: float = 0.5, max_rounds: int = 5, lean: bool = False) -> Fit:
+def fit_views(
+    views: list[tuple[str, np.ndarray, np.ndarray]],
+    size: tuple[int, int],
+    flags: int,
+    outlier_factor: float = 3.0,
+    K0: np.ndarray | None = None,
+    min_views: int = 3,
+    floor_px: float = 0.5,
+    max_rounds: int = 5,
+    lean: bool = False,
+) -> Fit:
     """calibrateCamera on named views, dropping outlier views and recalibrating.
 
     Args:
@@ -192,8 +215,11 @@ def fit_views(views: list[tuple[str, np.ndarray, np.ndarray]], size: tuple[int, 
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-10)
     for _ in range(max_rounds + 1):
         if len(views) < min_views:
-            raise fail("calibration", f"only {len(views)} usable views (need at least {min_views})",
-                       "Take more photos of the tag sheet from different angles")
+            raise fail(
+                "calibration",
+                f"only {len(views)} usable views (need at least {min_views})",
+                "Take more photos of the tag sheet from different angles",
+            )
         objs = [v[1].astype(np.float32) for v in views]
         imgs = [v[2].astype(np.float32).reshape(-1, 1, 2) for v in views]
         f = flags
@@ -206,15 +232,27 @@ def fit_views(views: list[tuple[str, np.ndarray, np.ndarray]], size: tuple[int, 
             K_init = np.eye(3)  # aspect ratio fx/fy = 1 is then kept
         try:
             if lean:
-                rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(objs, imgs, size, K_init, np.zeros(5), flags=f,
-                                                                 criteria=crit)
-                return Fit(K, dist.ravel()[:5].astype(np.float64), float(rms), [v[0] for v in views], list(rvecs),
-                           list(tvecs), {})
+                rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+                    objs, imgs, size, K_init, np.zeros(5), flags=f, criteria=crit
+                )
+                return Fit(
+                    K,
+                    dist.ravel()[:5].astype(np.float64),
+                    float(rms),
+                    [v[0] for v in views],
+                    list(rvecs),
+                    list(tvecs),
+                    {},
+                )
             rms, K, dist, rvecs, tvecs, std_i, _, per_view = cv2.calibrateCameraExtended(
-                objs, imgs, size, K_init, np.zeros(5), flags=f, criteria=crit)
+                objs, imgs, size, K_init, np.zeros(5), flags=f, criteria=crit
+            )
         except cv2.error as e:
-            raise fail("calibration", f"OpenCV could not calibrate ({str(e).strip().splitlines()[-1]})",
-                       "Take photos from more varied angles (tilted 20-60 degrees, not only head-on)") from None
+            raise fail(
+                "calibration",
+                f"OpenCV could not calibrate ({str(e).strip().splitlines()[-1]})",
+                "Take photos from more varied angles (tilted 20-60 degrees, not only head-on)",
+            ) from None
         errs = per_view.ravel()
         med = float(np.median(errs))
         thr = max(outlier_factor * med, med + floor_px)
@@ -222,16 +260,30 @@ def fit_views(views: list[tuple[str, np.ndarray, np.ndarray]], size: tuple[int, 
         if not bad.any() or outlier_factor <= 0:
             break
         for i in np.flatnonzero(bad):
-            dropped[views[i][0]] = f"outlier: reprojection error {errs[i]:.2f} px > {thr:.2f} px " \
-                                   f"({outlier_factor:g} x median {med:.2f} px)"
-        rounds.append(f"rms {rms:.3f} px with {len(views)} views; dropped {int(bad.sum())} outlier(s) "
-                      f"above {thr:.2f} px and recalibrated")
+            dropped[views[i][0]] = (
+                f"outlier: reprojection error {errs[i]:.2f} px > {thr:.2f} px "
+                f"({outlier_factor:g} x median {med:.2f} px)"
+            )
+        rounds.append(
+            f"rms {rms:.3f} px with {len(views)} views; dropped {int(bad.sum())} outlier(s) "
+            f"above {thr:.2f} px and recalibrated"
+        )
         views = [v for v, b in zip(views, bad) if not b]
     std = np.asarray(std_i, np.float64).ravel()[:4].copy()
     if f & cv2.CALIB_FIX_ASPECT_RATIO:  # OpenCV fits fy and derives fx from it (reporting 0 for fx)
         std[0] = std[1] * K[0, 0] / K[1, 1]
-    return Fit(K, dist.ravel()[:5].astype(np.float64), float(rms), [v[0] for v in views], list(rvecs), list(tvecs),
-               {v[0]: float(e) for v, e in zip(views, errs)}, dropped, std, rounds)
+    return Fit(
+        K,
+        dist.ravel()[:5].astype(np.float64),
+        float(rms),
+        [v[0] for v in views],
+        list(rvecs),
+        list(tvecs),
+        {v[0]: float(e) for v, e in zip(views, errs)},
+        dropped,
+        std,
+        rounds,
+    )
 
 
 # ---------------------------------------------------------------- distortion model choice
@@ -269,8 +321,14 @@ class Validation:
     spread: float
 
 
-def validate(views: list, size: tuple[int, int], flags: int, folds: list[list[int]], K0: np.ndarray | None = None,
-             edge_px: float = float("inf")) -> Validation:
+def validate(
+    views: list,
+    size: tuple[int, int],
+    flags: int,
+    folds: list[list[int]],
+    K0: np.ndarray | None = None,
+    edge_px: float = float("inf"),
+) -> Validation:
     """Cross-validate one camera (``flags``): each fold calibrates on the other folds' views;
     every held-out view is then posed with solvePnP using that fold's intrinsics and its
     points reprojected. Points farther than ``edge_px`` from the image centre make the
@@ -290,8 +348,11 @@ def validate(views: list, size: tuple[int, int], flags: int, folds: list[list[in
         edge.append(e[r >= edge_px])
         disps.append(frame_displacement(fit.K, fit.dist, size))
     at_edge = np.concatenate(edge)
-    return Validation(float(np.sqrt(np.mean(np.concatenate(sq)))),
-                      float(np.sqrt(np.mean(at_edge))) if len(at_edge) else float("nan"), fold_spread(disps))
+    return Validation(
+        float(np.sqrt(np.mean(np.concatenate(sq)))),
+        float(np.sqrt(np.mean(at_edge))) if len(at_edge) else float("nan"),
+        fold_spread(disps),
+    )
 
 
 @dataclass(frozen=True)
@@ -339,20 +400,39 @@ def _rounded(x: float, nd: int = 4) -> float | None:
     return round(float(x), nd) if np.isfinite(x) else None
 
 
-def _try_camera(cand: Candidate, views: list, size: tuple[int, int], cfg: CalibrateConfig, folds: list[list[int]],
-                K0: np.ndarray | None, edge_px: float, reference: dict | None) -> dict:
+def _try_camera(
+    cand: Candidate,
+    views: list,
+    size: tuple[int, int],
+    cfg: CalibrateConfig,
+    folds: list[list[int]],
+    K0: np.ndarray | None,
+    edge_px: float,
+    reference: dict | None,
+) -> dict:
     """The record of one candidate camera: fitted on all ``views`` and cross-validated on its
     own, checked over the frame (:func:`~.distortion.distortion_check`) and for stability at
     the frame's edges against ``reference`` (:func:`edge_limit`)."""
     c = cand.config(cfg)
     flags, K0c = calib_flags(c), constrained_guess(K0, size, c)
-    row: dict = {"name": cand.name, "dist_model": cand.model, "principal_point": cand.principal_point,
-                 "aspect": cand.aspect, "params": cand.params}
+    row: dict = {
+        "name": cand.name,
+        "dist_model": cand.model,
+        "principal_point": cand.principal_point,
+        "aspect": cand.aspect,
+        "params": cand.params,
+    }
     try:
         full = fit_views(views, size, flags, 0, K0c, lean=True)
     except NerfkitError as e:
-        return {**row, "heldout_rms": None, "edge_heldout_rms": None, "eligible": False,
-                "rejected": f"calibration failed ({e})", "check": {"ok": False, "reason": "calibration failed"}}
+        return {
+            **row,
+            "heldout_rms": None,
+            "edge_heldout_rms": None,
+            "eligible": False,
+            "rejected": f"calibration failed ({e})",
+            "check": {"ok": False, "reason": "calibration failed"},
+        }
     v = validate(views, size, flags, folds, K0c, edge_px)
     check = distortion_check(full.K, full.dist, size)
     limit = edge_limit(v.heldout, reference) if cand.model != "none" else float("inf")
@@ -360,19 +440,33 @@ def _try_camera(cand: Candidate, views: list, size: tuple[int, int], cfg: Calibr
     if not np.isfinite(v.heldout):
         rejected = "could not be cross-validated"
     elif not rejected and not v.spread <= limit:
-        what = (f"the larger of its held-out error and {reference['dist_model']}'s held-out error at the photos' "
-                "edges" if reference else "its held-out error")
-        rejected = (f"unstable at the frame's edges: undistortion there varies by {v.spread:.1f} px across folds "
-                    f"(> {limit:.1f} px: {EDGE_FACTOR:g} x {what}, at least 1 px)")
+        what = (
+            f"the larger of its held-out error and {reference['dist_model']}'s held-out error at the photos' edges"
+            if reference
+            else "its held-out error"
+        )
+        rejected = (
+            f"unstable at the frame's edges: undistortion there varies by {v.spread:.1f} px across folds "
+            f"(> {limit:.1f} px: {EDGE_FACTOR:g} x {what}, at least 1 px)"
+        )
     K = full.K
-    return {**row, "heldout_rms": _rounded(v.heldout), "edge_heldout_rms": _rounded(v.edge),
-            "fit_rms": round(full.rms, 4), "frame_spread_px": _rounded(v.spread, 3),
-            "edge_limit_px": _rounded(limit, 3),
-            "edge_reference": reference["name"] if reference and cand.model != "none" else None,
-            "check": check, "eligible": not rejected, "rejected": rejected or None,
-            "fx": round(float(K[0, 0]), 3), "fy": round(float(K[1, 1]), 3),
-            "cx": round(float(K[0, 2]), 3), "cy": round(float(K[1, 2]), 3),
-            "dist": [round(float(d), 6) for d in full.dist]}
+    return {
+        **row,
+        "heldout_rms": _rounded(v.heldout),
+        "edge_heldout_rms": _rounded(v.edge),
+        "fit_rms": round(full.rms, 4),
+        "frame_spread_px": _rounded(v.spread, 3),
+        "edge_limit_px": _rounded(limit, 3),
+        "edge_reference": reference["name"] if reference and cand.model != "none" else None,
+        "check": check,
+        "eligible": not rejected,
+        "rejected": rejected or None,
+        "fx": round(float(K[0, 0]), 3),
+        "fy": round(float(K[1, 1]), 3),
+        "cx": round(float(K[0, 2]), 3),
+        "cy": round(float(K[1, 2]), 3),
+        "dist": [round(float(d), 6) for d in full.dist],
+    }
 
 
 def margin(c: Candidate, d: Candidate, best_err: float, tol: float) -> float:
@@ -392,9 +486,13 @@ def simpler_by_one(c: Candidate, d: Candidate) -> bool:
     same = [c.model == d.model, c.principal_point == d.principal_point, c.aspect == d.aspect]
     if sum(same) != 2:
         return False
-    return (DIST_PARAMS[d.model] < DIST_PARAMS[c.model] if not same[0] else
-            d.principal_point == CONSTRAINTS["principal_point"][0] if not same[1] else
-            d.aspect == CONSTRAINTS["aspect"][0])
+    return (
+        DIST_PARAMS[d.model] < DIST_PARAMS[c.model]
+        if not same[0]
+        else d.principal_point == CONSTRAINTS["principal_point"][0]
+        if not same[1]
+        else d.aspect == CONSTRAINTS["aspect"][0]
+    )
 
 
 def simplest(best: Candidate, held: dict, tol: float) -> tuple[Candidate, list[Candidate], float]:
@@ -413,8 +511,9 @@ def simplest(best: Candidate, held: dict, tol: float) -> tuple[Candidate, list[C
         at, last = nxt, margin(at, nxt, held[best], tol)
 
 
-def select_camera(views: list, size: tuple[int, int], cfg: CalibrateConfig, photo_of=lambda key: key,
-                  K0: np.ndarray | None = None) -> tuple[Candidate, dict]:
+def select_camera(
+    views: list, size: tuple[int, int], cfg: CalibrateConfig, photo_of=lambda key: key, K0: np.ndarray | None = None
+) -> tuple[Candidate, dict]:
     """Choose the whole camera (distortion model, principal point, aspect) by k-fold
     cross-validation over photos, among the :func:`candidates` the config leaves open.
 
@@ -436,39 +535,61 @@ def select_camera(views: list, size: tuple[int, int], cfg: CalibrateConfig, phot
     edge_px = edge_radius(views, size)
     rows: dict[Candidate, dict] = {}
     for cand in candidates(cfg):
-        simpler = [r for c, r in rows.items() if (c.principal_point, c.aspect) == (cand.principal_point, cand.aspect)
-                   and r["eligible"]]
+        simpler = [
+            r
+            for c, r in rows.items()
+            if (c.principal_point, c.aspect) == (cand.principal_point, cand.aspect) and r["eligible"]
+        ]
         rows[cand] = _try_camera(cand, views, size, cfg, folds, K0, edge_px, simpler[-1] if simpler else None)
     given = cfg.dist_model != "auto"
     pool = [c for c, r in rows.items() if r["eligible"]] or (
-        [c for c, r in rows.items() if r["heldout_rms"] is not None] if given else [])
+        [c for c, r in rows.items() if r["heldout_rms"] is not None] if given else []
+    )
     if not pool:
-        raise fail("calibration", "no camera model could be cross-validated on these photos",
-                   "Take more photos of the tag sheet from varied angles (tilted 20-60 degrees)")
+        raise fail(
+            "calibration",
+            "no camera model could be cross-validated on these photos",
+            "Take more photos of the tag sheet from varied angles (tilted 20-60 degrees)",
+        )
     held = {c: rows[c]["heldout_rms"] for c in pool}
     best = min(pool, key=lambda c: (held[c], c.params))
     chosen, steps, within = simplest(best, held, cfg.select_tolerance)
     for c, r in rows.items():
         r["chosen"] = c == chosen
         if r["eligible"]:
-            r["verdict"] = ("chosen" if c == chosen else
-                            f"the best; simplified to {chosen.name}" if c == best else
-                            "within the margin of the best; simplified further" if c in steps else
-                            f"eligible; {held[c] - held[best]:.3f} px above the best ({best.name})")
+            r["verdict"] = (
+                "chosen"
+                if c == chosen
+                else f"the best; simplified to {chosen.name}"
+                if c == best
+                else "within the margin of the best; simplified further"
+                if c in steps
+                else f"eligible; {held[c] - held[best]:.3f} px above the best ({best.name})"
+            )
     passing = "passing the checks" if rows[best]["eligible"] else "tried (none passes the checks)"
-    why = (f"{chosen.name}: lowest held-out error among the cameras {passing} ({held[best]:.3f} px)"
-           if chosen == best else
-           f"{chosen.name}: the simplest camera {passing} with held-out error {held[chosen]:.3f} px, "
-           f"within {within:.3f} px of the best ({best.name}, "
-           f"{held[best]:.3f} px)")
+    why = (
+        f"{chosen.name}: lowest held-out error among the cameras {passing} ({held[best]:.3f} px)"
+        if chosen == best
+        else f"{chosen.name}: the simplest camera {passing} with held-out error {held[chosen]:.3f} px, "
+        f"within {within:.3f} px of the best ({best.name}, "
+        f"{held[best]:.3f} px)"
+    )
     method = f"{len(folds)}-fold cross-validation over photos"
-    selection: dict = {"method": "given with --dist-model" if given else method, "tolerance": cfg.select_tolerance,
-                       "chosen": chosen.model, "why": "given with --dist-model" if given else why,
-                       "camera": chosen.name, "camera_why": why, "edge_radius_px": round(edge_px, 2),
-                       "candidates": list(rows.values())}
+    selection: dict = {
+        "method": "given with --dist-model" if given else method,
+        "tolerance": cfg.select_tolerance,
+        "chosen": chosen.model,
+        "why": "given with --dist-model" if given else why,
+        "camera": chosen.name,
+        "camera_why": why,
+        "edge_radius_px": round(edge_px, 2),
+        "candidates": list(rows.values()),
+    }
     # The chosen camera against each change of one of its choices.
-    selection["models"] = {c.model: rows[c] for c in rows
-                           if (c.principal_point, c.aspect) == (chosen.principal_point, chosen.aspect)}
+    selection["models"] = {
+        c.model: rows[c] for c in rows if (c.principal_point, c.aspect) == (chosen.principal_point, chosen.aspect)
+    }
+
     def fmt(e: float | None) -> str:
         return "-" if e is None else f"{e:.3f} px"
 
@@ -479,17 +600,23 @@ def select_camera(views: list, size: tuple[int, int], cfg: CalibrateConfig, phot
         errs = {value: rows[replace(chosen, **{name: value})]["heldout_rms"] for value in values}
         value = getattr(chosen, name)
         other = next(v for v in values if v != value)
-        selection[name] = {"method": method, "model": chosen.model, "chosen": value, "heldout_rms": errs,
-                           "why": f"held out at {fmt(errs[value])} against {fmt(errs[other])} {other}, "
-                                  f"as part of the camera {chosen.name}"}
+        selection[name] = {
+            "method": method,
+            "model": chosen.model,
+            "chosen": value,
+            "heldout_rms": errs,
+            "why": f"held out at {fmt(errs[value])} against {fmt(errs[other])} {other}, "
+            f"as part of the camera {chosen.name}",
+        }
     return chosen, selection
 
 
 # ---------------------------------------------------------------- layout estimation
 
 
-def tag_views(records: list[PhotoRecord], tag_size: float,
-              max_views: int = 0) -> list[tuple[str, np.ndarray, np.ndarray]]:
+def tag_views(
+    records: list[PhotoRecord], tag_size: float, max_views: int = 0
+) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """Every tag of every photo as its own planar view named ``"<photo>#<id>"``.
 
     Each view holds one tag's 4 corners, so no two tags ever share 3D points. With
@@ -514,8 +641,9 @@ def tag_pose(corners: np.ndarray, K: np.ndarray, dist: np.ndarray, tag_size: flo
     """(4, 4) tag-to-camera transform of one detected tag (IPPE_SQUARE, lower-error solution)."""
     import cv2
 
-    ok, rvecs, tvecs, errs = cv2.solvePnPGeneric(square_corners(tag_size), corners.reshape(-1, 1, 2), K, dist,
-                                                 flags=cv2.SOLVEPNP_IPPE_SQUARE)
+    ok, rvecs, tvecs, errs = cv2.solvePnPGeneric(
+        square_corners(tag_size), corners.reshape(-1, 1, 2), K, dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
+    )
     if not ok:
         return None
     best = int(np.argmin(np.ravel(errs)))
@@ -643,15 +771,19 @@ def corner_rays(records: dict[str, PhotoRecord], fit: PosedViews, tags) -> Itera
         for i, tag in enumerate(ids):
             if tag not in tags or ids.count(tag) != 1:
                 continue
-            xy = cv2.undistortPoints(det.corners[i].reshape(-1, 1, 2), fit.K, fit.dist,
-                                     criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)
-                                     ).reshape(-1, 2)
+            xy = cv2.undistortPoints(
+                det.corners[i].reshape(-1, 1, 2),
+                fit.K,
+                fit.dist,
+                criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10),
+            ).reshape(-1, 2)
             d = (R.T @ np.column_stack([xy, np.ones(4)]).T).T
             yield tag, origin, d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def refine_layout(records: dict[str, PhotoRecord], fit: PosedViews, layout: Layout, ref: int,
-                  tag_size: float) -> Layout:
+def refine_layout(
+    records: dict[str, PhotoRecord], fit: PosedViews, layout: Layout, ref: int, tag_size: float
+) -> Layout:
     """Re-estimate every tag but ``ref``: back-project its corners onto the sheet plane of
     each calibrated photo, average, and fit a square of side ``tag_size``."""
     acc: dict[int, list[np.ndarray]] = {t: [] for t in layout.tags if t != ref}
@@ -708,8 +840,7 @@ def _views_for_layout(records: list[PhotoRecord], layout: Layout, min_points: in
             views.append((r.name, obj, img))
         else:
             got = [int(i) for i in r.detected.ids]
-            r.skip("no tag of the layout found" if not got else
-                   f"too few layout points ({len(obj)}; tags seen: {got})")
+            r.skip("no tag of the layout found" if not got else f"too few layout points ({len(obj)}; tags seen: {got})")
     return views
 
 
@@ -717,8 +848,14 @@ def _layout_sheet_views(records: list[PhotoRecord], layout: Layout) -> list:
     return [(r.name, *layout.match(r.detected)[:2]) for r in records if len(layout.match(r.detected)[0]) >= 4]
 
 
-def estimate_layout(with_tags: list[PhotoRecord], by_name: dict, size: tuple[int, int], tag_size: float,
-                    cfg: CalibrateConfig, notes: list[str]) -> tuple[Layout, np.ndarray]:
+def estimate_layout(
+    with_tags: list[PhotoRecord],
+    by_name: dict,
+    size: tuple[int, int],
+    tag_size: float,
+    cfg: CalibrateConfig,
+    notes: list[str],
+) -> tuple[Layout, np.ndarray]:
     """The sheet layout from photos showing several tags: a first layout from relative tag
     poses, then rounds of calibrate (with :data:`LAYOUT_MODEL`) + re-fit of the tags on the
     plane, then rounds of calibrate + the corners' heights (:func:`refine_heights`). The
@@ -728,23 +865,31 @@ def estimate_layout(with_tags: list[PhotoRecord], by_name: dict, size: tuple[int
     import cv2
 
     # Rough intrinsics from per-tag views (square pixels, centred principal point: robust).
-    rough_flags = (cv2.CALIB_FIX_ASPECT_RATIO | cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_ZERO_TANGENT_DIST
-                   | cv2.CALIB_FIX_K3 | cv2.CALIB_FIX_K2)
+    rough_flags = (
+        cv2.CALIB_FIX_ASPECT_RATIO
+        | cv2.CALIB_FIX_PRINCIPAL_POINT
+        | cv2.CALIB_ZERO_TANGENT_DIST
+        | cv2.CALIB_FIX_K3
+        | cv2.CALIB_FIX_K2
+    )
     rough = fit_views(tag_views(with_tags, tag_size, max_views=60), size, rough_flags, cfg.outlier_factor)
     layout, ref = initial_layout(with_tags, rough.K, rough.dist, tag_size)
     flags = calib_flags(cfg, LAYOUT_MODEL)
     fit = None
     change = float("nan")
     for it in range(10):  # noqa: B007 (`it` counts the rounds run, after the loop)
-        fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor,
-                        None if fit is None else fit.K)
+        fit = fit_views(
+            _layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor, None if fit is None else fit.K
+        )
         new = refine_layout(by_name, fit, layout, ref, tag_size)
         change = layout_change(new, layout)
         layout = new
         if change < 5e-4 * tag_size:  # 0.03 mm for 6 cm tags
             break
-    notes.append(f"estimated the layout of {len(layout.tags)} tags (reference tag {ref}) in {it + 1} "
-                 f"rounds of calibrate ({LAYOUT_MODEL} distortion) + re-fit; last change {change * 1000:.3f} mm")
+    notes.append(
+        f"estimated the layout of {len(layout.tags)} tags (reference tag {ref}) in {it + 1} "
+        f"rounds of calibrate ({LAYOUT_MODEL} distortion) + re-fit; last change {change * 1000:.3f} mm"
+    )
     assert fit is not None  # the loop above runs at least once
     layout, K = measure_heights(with_tags, by_name, fit, layout, size, cfg, notes)
     notes.append("then froze the layout to choose the distortion model")
@@ -754,8 +899,15 @@ def estimate_layout(with_tags: list[PhotoRecord], by_name: dict, size: tuple[int
     return layout, K
 
 
-def measure_heights(with_tags: list[PhotoRecord], by_name: dict, fit: Fit, layout: Layout, size: tuple[int, int],
-                    cfg: CalibrateConfig, notes: list[str]) -> tuple[Layout, np.ndarray]:
+def measure_heights(
+    with_tags: list[PhotoRecord],
+    by_name: dict,
+    fit: Fit,
+    layout: Layout,
+    size: tuple[int, int],
+    cfg: CalibrateConfig,
+    notes: list[str],
+) -> tuple[Layout, np.ndarray]:
     """``layout`` with its corners' heights, from :data:`HEIGHT_ROUNDS` rounds of
     :func:`refine_heights` and calibrate (:data:`LAYOUT_MODEL`), starting from ``fit`` (the
     flat layout's); the flat layout when the heights come out larger than a sheet bends.
@@ -767,18 +919,28 @@ def measure_heights(with_tags: list[PhotoRecord], by_name: dict, fit: Fit, layou
         fit = fit_views(_layout_sheet_views(with_tags, layout), size, flags, cfg.outlier_factor, fit.K)
     height = layout.max_height()
     if height > MAX_HEIGHT_OF_SIDE * flat.tag_size:
-        notes.append(f"the tags' corners came out up to {height * 1000:.1f} mm off the sheet's plane, more than a "
-                     f"paper sheet bends: kept the sheet flat (a tag moved between photos, or the tag size is wrong?)")
+        notes.append(
+            f"the tags' corners came out up to {height * 1000:.1f} mm off the sheet's plane, more than a "
+            f"paper sheet bends: kept the sheet flat (a tag moved between photos, or the tag size is wrong?)"
+        )
         return flat, flat_fit.K
     if HEIGHT_ROUNDS:
         how = "lies flat" if height < FLAT_WITHIN * flat.tag_size else "is not quite flat"
-        notes.append(f"the sheet {how}: its tags' corners lie up to {height * 1000:.2f} mm off its plane "
-                     f"(RMS {flat_fit.rms:.3f} px flat, {fit.rms:.3f} px with the heights)")
+        notes.append(
+            f"the sheet {how}: its tags' corners lie up to {height * 1000:.2f} mm off its plane "
+            f"(RMS {flat_fit.rms:.3f} px flat, {fit.rms:.3f} px with the heights)"
+        )
     return layout, fit.K
 
 
-def calibrate_records(records: list[PhotoRecord], size: tuple[int, int] | None, tag_size: float,
-                      layout: Layout | None, cfg: CalibrateConfig, dictionary: str = "") -> Calibration:
+def calibrate_records(
+    records: list[PhotoRecord],
+    size: tuple[int, int] | None,
+    tag_size: float,
+    layout: Layout | None,
+    cfg: CalibrateConfig,
+    dictionary: str = "",
+) -> Calibration:
     """Calibrate from detected photos of one size; marks each record used/skipped with a reason.
 
     Args:
@@ -798,8 +960,11 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int] | None, 
 
     def enough(photos: list[PhotoRecord], what: str) -> None:
         if len(photos) < cfg.min_photos:
-            raise fail("calibration", f"only {len(photos)} {what} (need at least {cfg.min_photos})",
-                       "Take 20-50 sharp photos of the tag sheet from varied angles and distances")
+            raise fail(
+                "calibration",
+                f"only {len(photos)} {what} (need at least {cfg.min_photos})",
+                "Take 20-50 sharp photos of the tag sheet from varied angles and distances",
+            )
 
     enough(with_tags, "photos with tags found")  # (before the fit, which counts tag views, not photos)
     assert size is not None  # None only with no photos (group_by_size), refused just above
@@ -828,9 +993,12 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int] | None, 
     elif per_tag:
         target = "per-tag"
         views = tag_views(with_tags, tag_size, max_views=MAX_TAG_VIEWS)
-        notes.append(f"each tag is its own planar target ({len(views)} tag views"
-                     + (f", the largest {MAX_TAG_VIEWS}" if len(views) == MAX_TAG_VIEWS else "") + ")" +
-                     ("" if ids_together else ": no photo shows two different tags"))
+        notes.append(
+            f"each tag is its own planar target ({len(views)} tag views"
+            + (f", the largest {MAX_TAG_VIEWS}" if len(views) == MAX_TAG_VIEWS else "")
+            + ")"
+            + ("" if ids_together else ": no photo shows two different tags")
+        )
         layout = None
     else:
         target = "estimated layout"
@@ -880,10 +1048,12 @@ def calibrate_records(records: list[PhotoRecord], size: tuple[int, int] | None, 
     sanity = sanity_checks(fit.K, fit.dist, size, fit.rms, fit.std, f35, coverage, len(used), choices)
     check = selection["models"][model]["check"]
     if not check["ok"]:
-        sanity["warnings"].append(f"the {model} distortion model is implausible over the frame ({check['reason']}); "
-                                  "use --dist-model auto")
-    return Calibration(fit.K, fit.dist, fit.rms, size[0], size[1], target, layout, fit.std, notes, sanity,
-                       model, selection)
+        sanity["warnings"].append(
+            f"the {model} distortion model is implausible over the frame ({check['reason']}); use --dist-model auto"
+        )
+    return Calibration(
+        fit.K, fit.dist, fit.rms, size[0], size[1], target, layout, fit.std, notes, sanity, model, selection
+    )
 
 
 def constraint_advice(choices: dict | None, name: str, more_photos: str) -> str:
@@ -894,9 +1064,11 @@ def constraint_advice(choices: dict | None, name: str, more_photos: str) -> str:
     flag = flag_of(name)
     held = (choices or {}).get(name, {}).get("heldout_rms")
     if held and held.get(kept) is not None and held.get("free") is not None:
-        return (f"The photos hold it there ({held['free']:.3f} px held out against {held[kept]:.3f} px with {flag} "
-                f"{kept}): cropped or edited photos do that. If they come straight from the phone, "
-                f"{more_photos[0].lower() + more_photos[1:]}, or re-run with {flag} {kept}")
+        return (
+            f"The photos hold it there ({held['free']:.3f} px held out against {held[kept]:.3f} px with {flag} "
+            f"{kept}): cropped or edited photos do that. If they come straight from the phone, "
+            f"{more_photos[0].lower() + more_photos[1:]}, or re-run with {flag} {kept}"
+        )
     return f"{more_photos}, or re-run with {flag} {kept}" + (" (or auto)" if choices else "")
 
 
@@ -913,8 +1085,17 @@ def corner_coverage(records: list[PhotoRecord], size: tuple[int, int], cells: in
     return float(hit.mean())
 
 
-def sanity_checks(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], rms: float, std: np.ndarray,
-                  exif_f35: list[float], coverage: float, n_photos: int, choices: dict | None = None) -> dict:
+def sanity_checks(
+    K: np.ndarray,
+    dist: np.ndarray,
+    size: tuple[int, int],
+    rms: float,
+    std: np.ndarray,
+    exif_f35: list[float],
+    coverage: float,
+    n_photos: int,
+    choices: dict | None = None,
+) -> dict:
     """Plausibility of a phone calibration; ``warnings`` lists each failed check in words.
 
     Checks: fx/fy (phone pixels are square), principal point offset from the image centre,
@@ -937,14 +1118,21 @@ def sanity_checks(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], rms: f
     }
     warnings: list[str] = []
     if abs(fx / fy - 1) > 0.015:
-        warnings.append(f"fx and fy differ by {abs(fx / fy - 1) * 100:.1f}% (fx={fx:.1f}, fy={fy:.1f}); phone pixels "
-                        "are square. " + constraint_advice(choices, "aspect", "The calibration is probably poorly "
-                                                           "constrained: take more tilted photos"))
+        warnings.append(
+            f"fx and fy differ by {abs(fx / fy - 1) * 100:.1f}% (fx={fx:.1f}, fy={fy:.1f}); phone pixels "
+            "are square. "
+            + constraint_advice(
+                choices, "aspect", "The calibration is probably poorly constrained: take more tilted photos"
+            )
+        )
     if np.hypot(dx, dy) > 0.02 * diag:
-        warnings.append(f"principal point is {np.hypot(dx, dy):.0f} px ({np.hypot(dx, dy) / diag * 100:.1f}% of the "
-                        f"diagonal) from the image centre (dx={dx:.0f}, dy={dy:.0f}); phone lenses are nearly centred. "
-                        + constraint_advice(choices, "principal_point",
-                                            "Take photos with the tags near the image edges and corners"))
+        warnings.append(
+            f"principal point is {np.hypot(dx, dy):.0f} px ({np.hypot(dx, dy) / diag * 100:.1f}% of the "
+            f"diagonal) from the image centre (dx={dx:.0f}, dy={dy:.0f}); phone lenses are nearly centred. "
+            + constraint_advice(
+                choices, "principal_point", "Take photos with the tags near the image edges and corners"
+            )
+        )
     if exif_f35:
         f35 = float(np.median(exif_f35))
         efx = exif_fx(f35, w, h)
@@ -952,19 +1140,25 @@ def sanity_checks(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], rms: f
         out["exif_fx"] = round(efx, 2)
         out["fx_over_exif_fx"] = round(float(fx / efx), 4)
         if abs(fx / efx - 1) > 0.07:
-            warnings.append(f"fx={fx:.0f} px disagrees with the EXIF focal length ({f35:g} mm in 35 mm terms -> "
-                            f"{efx:.0f} px, {(fx / efx - 1) * 100:+.0f}%). Check the photos come from one lens and "
-                            "were not cropped or zoomed")
+            warnings.append(
+                f"fx={fx:.0f} px disagrees with the EXIF focal length ({f35:g} mm in 35 mm terms -> "
+                f"{efx:.0f} px, {(fx / efx - 1) * 100:+.0f}%). Check the photos come from one lens and "
+                "were not cropped or zoomed"
+            )
     else:
         out["exif_focal_35mm"] = None
     if rms > 1.0:
-        warnings.append(f"RMS reprojection error {rms:.2f} px is high (expect well under 1 px): blurred photos, "
-                        "a bent sheet or a wrong layout")
+        warnings.append(
+            f"RMS reprojection error {rms:.2f} px is high (expect well under 1 px): blurred photos, "
+            "a bent sheet or a wrong layout"
+        )
     if std[0] > 0.01 * fx or std[1] > 0.01 * fy:
         warnings.append(f"focal length is uncertain (+/-{std[0]:.1f} px); add photos from more varied angles")
     if coverage < 0.67:
-        warnings.append(f"tag corners cover only {coverage * 100:.0f}% of a 3x3 grid over the image; lens distortion "
-                        "near the edges is extrapolated. Add photos with the tags near the edges and corners")
+        warnings.append(
+            f"tag corners cover only {coverage * 100:.0f}% of a 3x3 grid over the image; lens distortion "
+            "near the edges is extrapolated. Add photos with the tags near the edges and corners"
+        )
     if n_photos < 10:
         warnings.append(f"only {n_photos} photos used; 20-50 give a steadier calibration")
     out["warnings"] = warnings
@@ -972,21 +1166,24 @@ def sanity_checks(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], rms: f
     return out
 
 
-def calibration_json(cal: Calibration, records: list[PhotoRecord], dictionary: str, tag_size: float | None,
-                     photos_dir: str) -> dict:
+def calibration_json(
+    cal: Calibration, records: list[PhotoRecord], dictionary: str, tag_size: float | None, photos_dir: str
+) -> dict:
     """The camera file's content."""
     K = cal.K
     return {
         "format": "nerfkit-camera",
         "version": 1,
         "pixel_convention": "opencv: pixel centres at integer coordinates "
-                            "(nerfkit and nerfstudio use cx + 0.5, cy + 0.5)",
+        "(nerfkit and nerfstudio use cx + 0.5, cy + 0.5)",
         "width": cal.width,
         "height": cal.height,
         "sensor_turns": frame_turns([r for r in records if r.used]),
         "K": np.round(K, 6).tolist(),
-        "fx": round(float(K[0, 0]), 4), "fy": round(float(K[1, 1]), 4),
-        "cx": round(float(K[0, 2]), 4), "cy": round(float(K[1, 2]), 4),
+        "fx": round(float(K[0, 0]), 4),
+        "fy": round(float(K[1, 1]), 4),
+        "cx": round(float(K[0, 2]), 4),
+        "cy": round(float(K[1, 2]), 4),
         "dist": [round(float(d), 8) for d in cal.dist],
         "dist_names": ["k1", "k2", "p1", "p2", "k3"],
         "rms": round(float(cal.rms), 5),

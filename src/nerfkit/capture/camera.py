@@ -65,7 +65,7 @@ class Camera:
     def has_distortion(self) -> bool:
         return bool(np.any(np.abs(self.dist) > 0))
 
-    def scaled_to(self, width: int, height: int) -> "Camera":
+    def scaled_to(self, width: int, height: int) -> Camera:
         """The same camera for photos resized to ``width x height`` (same aspect ratio).
 
         Scaling happens in continuous coordinates: ``fx' = fx s``, ``cx' = (cx + 0.5) s - 0.5``.
@@ -85,8 +85,10 @@ class Camera:
         if (width, height) == (self.width, self.height):
             return None
         if (width, height) == (self.height, self.width):
-            return (f"{held_as(width, height)} but the camera was calibrated on {self.width}x{self.height} "
-                    "photos: calibrate with photos held the same way")
+            return (
+                f"{held_as(width, height)} but the camera was calibrated on {self.width}x{self.height} "
+                "photos: calibrate with photos held the same way"
+            )
         if abs(width / height - self.width / self.height) < 0.005:
             return None
         return f"size {width}x{height} has a different aspect ratio from the camera's {self.width}x{self.height}"
@@ -122,8 +124,10 @@ def other_lens(f35: float | None, camera_f35: float | None) -> str:
     whose photos had ``camera_f35``, or "" (the same lens, or either unknown)."""
     if not f35 or not camera_f35 or abs(f35 / camera_f35 - 1) <= LENS_TOLERANCE:
         return ""
-    return (f"taken at {f35:g} mm (EXIF, 35 mm equivalent) while the camera's photos were {camera_f35:g} mm: "
-            "another lens or zoom. Take every photo with one lens, or calibrate this one")
+    return (
+        f"taken at {f35:g} mm (EXIF, 35 mm equivalent) while the camera's photos were {camera_f35:g} mm: "
+        "another lens or zoom. Take every photo with one lens, or calibrate this one"
+    )
 
 
 def exif_fx(f35: float, width: int, height: int) -> float:
@@ -177,6 +181,11 @@ def camera_from_dict(data, where: str, source: str | None = None) -> Camera:
 def load_camera(path: str | Path) -> Camera:
     """Read a camera file written by ``nerfkit calibrate`` (or the same keys by hand)."""
     path = Path(path)
-    data = load_json(path, "no such camera file", "Run nerfkit calibrate first, or omit --camera to use the EXIF focal length", "Re-run nerfkit calibrate")
+    data = load_json(
+        path,
+        "no such camera file",
+        "Run nerfkit calibrate first, or omit --camera to use the EXIF focal length",
+        "Re-run nerfkit calibrate",
+    )
     with advice("Re-run nerfkit calibrate, or fix the file by hand"):
         return camera_from_dict(data, str(path))

@@ -74,8 +74,9 @@ def band_directions(up: np.ndarray, band: tuple[float, float], step_deg: float =
     return (np.cos(el)[..., None] * flat + np.sin(el)[..., None] * u).reshape(-1, 3)
 
 
-def widest_gap(directions: np.ndarray, names: list[str], up: np.ndarray, band: tuple[float, float],
-               step_deg: float = 1.0) -> Gap:
+def widest_gap(
+    directions: np.ndarray, names: list[str], up: np.ndarray, band: tuple[float, float], step_deg: float = 1.0
+) -> Gap:
     """The widest cap of view directions, centred within the elevations ``band`` (lo, hi degrees),
     that holds none of ``directions`` (n, 3) (unit vectors of the photos called ``names``).
 
@@ -87,15 +88,18 @@ def widest_gap(directions: np.ndarray, names: list[str], up: np.ndarray, band: t
     dirs = np.asarray(directions, np.float64)
     # the largest cosine to any photo is the nearest photo's; in chunks, so that thousands of
     # photos need no (grid x photos) array
-    closest = np.concatenate([(grid[i:i + GRID_CHUNK] @ dirs.T).max(axis=1) for i in range(0, len(grid), GRID_CHUNK)])
+    closest = np.concatenate([(grid[i : i + GRID_CHUNK] @ dirs.T).max(axis=1) for i in range(0, len(grid), GRID_CHUNK)])
     k = int(closest.argmin())
     centre = grid[k]
     angles = np.degrees(np.arccos(np.clip(dirs @ centre, -1.0, 1.0)))
     order = np.argsort(angles)[:3]
-    return Gap(radius_deg=float(angles[order[0]]), direction=centre,
-               azimuth_deg=float(azimuths_deg(centre[None], up)[0]),
-               elevation_deg=float(elevations_deg(centre[None], up)[0]),
-               nearest=tuple(str(names[j]) for j in order))
+    return Gap(
+        radius_deg=float(angles[order[0]]),
+        direction=centre,
+        azimuth_deg=float(azimuths_deg(centre[None], up)[0]),
+        elevation_deg=float(elevations_deg(centre[None], up)[0]),
+        nearest=tuple(str(names[j]) for j in order),
+    )
 
 
 @dataclass(frozen=True)
@@ -113,17 +117,24 @@ class Coverage:
 
     def as_json(self) -> dict:
         def gap(g: Gap) -> dict:
-            return {"radius_deg": round(g.radius_deg, 1), "azimuth_deg": round(g.azimuth_deg, 1),
-                    "elevation_deg": round(g.elevation_deg, 1), "nearest_photos": list(g.nearest)}
+            return {
+                "radius_deg": round(g.radius_deg, 1),
+                "azimuth_deg": round(g.azimuth_deg, 1),
+                "elevation_deg": round(g.elevation_deg, 1),
+                "nearest_photos": list(g.nearest),
+            }
 
-        return {"elevations_deg": [round(self.band[0], 1), round(self.band[1], 1)],
-                "widest_gap": gap(self.capture), "widest_gap_of_training_photos": gap(self.train),
-                "held_out_in_that_gap": [{"photo": n, "split": s, "nearest_training_photo_deg": round(a, 1)}
-                                         for n, s, a in self.held_out_in_gap]}
+        return {
+            "elevations_deg": [round(self.band[0], 1), round(self.band[1], 1)],
+            "widest_gap": gap(self.capture),
+            "widest_gap_of_training_photos": gap(self.train),
+            "held_out_in_that_gap": [
+                {"photo": n, "split": s, "nearest_training_photo_deg": round(a, 1)} for n, s, a in self.held_out_in_gap
+            ],
+        }
 
 
-def measure_coverage(splits: dict[str, tuple[np.ndarray, list[str]]], center: np.ndarray, up: np.ndarray
-                     ) -> Coverage:
+def measure_coverage(splits: dict[str, tuple[np.ndarray, list[str]]], center: np.ndarray, up: np.ndarray) -> Coverage:
     """Coverage of the photos of ``splits`` (split name -> (c2w (n, 4, 4), names)) around
     ``center``, with ``up`` the scene's up. Needs at least one training photo."""
     dirs = {s: view_directions(c2w, center) for s, (c2w, _) in splits.items() if len(c2w)}
@@ -162,21 +173,27 @@ def coverage_notes(coverage: dict) -> list[str]:
     object, whether held-out photos left a gap open, and where a photo would fill a wide gap."""
     lo, hi = coverage["elevations_deg"]
     c, t = coverage["widest_gap"], coverage["widest_gap_of_training_photos"]
-    lines = [f"coverage: the photos look from {lo:.0f}-{hi:.0f} degrees above the table; every direction there "
-             f"is within {c['radius_deg']:.0f} degrees of a photo, and within {t['radius_deg']:.0f} of a training "
-             "photo"]
+    lines = [
+        f"coverage: the photos look from {lo:.0f}-{hi:.0f} degrees above the table; every direction there "
+        f"is within {c['radius_deg']:.0f} degrees of a photo, and within {t['radius_deg']:.0f} of a training "
+        "photo"
+    ]
     held = coverage["held_out_in_that_gap"]
     if held and t["radius_deg"] >= c["radius_deg"] + OPENED_BY_DEG:
         each = [f"{h['photo']} ({h['split']})" for h in held]
         names = each[0] if len(each) == 1 else f"{', '.join(each[:-1])} and {each[-1]}"
         near = sorted(h["nearest_training_photo_deg"] for h in held)
         span = f"{near[0]:.0f}" if round(near[0]) == round(near[-1]) else f"{near[0]:.0f}-{near[-1]:.0f}"
-        lines.append(f"  held out, {names} leave{'s' if len(held) == 1 else ''} the training photos' widest gap open: "
-                     f"{t['elevation_deg']:.0f} degrees up, azimuth {t['azimuth_deg']:.0f} (nearest training photos "
-                     f"{', '.join(t['nearest_photos'][:2])}; {span} degrees from the held-out "
-                     f"{'one' if len(held) == 1 else 'ones'})")
+        lines.append(
+            f"  held out, {names} leave{'s' if len(held) == 1 else ''} the training photos' widest gap open: "
+            f"{t['elevation_deg']:.0f} degrees up, azimuth {t['azimuth_deg']:.0f} (nearest training photos "
+            f"{', '.join(t['nearest_photos'][:2])}; {span} degrees from the held-out "
+            f"{'one' if len(held) == 1 else 'ones'})"
+        )
     if c["radius_deg"] > WIDE_GAP_DEG:
-        lines.append(f"  no photo looks from within {c['radius_deg']:.0f} degrees of {c['elevation_deg']:.0f} degrees "
-                     f"up, azimuth {c['azimuth_deg']:.0f} (nearest photos: {', '.join(c['nearest_photos'][:2])}): "
-                     "views from there will blur; photos from there would fill the gap")
+        lines.append(
+            f"  no photo looks from within {c['radius_deg']:.0f} degrees of {c['elevation_deg']:.0f} degrees "
+            f"up, azimuth {c['azimuth_deg']:.0f} (nearest photos: {', '.join(c['nearest_photos'][:2])}): "
+            "views from there will blur; photos from there would fill the gap"
+        )
     return lines

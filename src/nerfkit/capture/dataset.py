@@ -57,18 +57,25 @@ DATASET_OUTPUTS = (NPZ_FILE, "transforms.json", "images", "sparse_pc.ply", COVER
 class DatasetConfig:
     """Options of the dataset step (``nerfkit dataset``, and ``nerfkit poses``)."""
 
-    max_side: int = option(512, "downscale views so the longer side is at most this many pixels (0: keep size)",
-                           min=MIN_RESAMPLED_SIDE, off=0)
+    max_side: int = option(
+        512,
+        "downscale views so the longer side is at most this many pixels (0: keep size)",
+        min=MIN_RESAMPLED_SIDE,
+        off=0,
+    )
     val_every: int = option(10, "every Nth posed photo (in name order) goes to the val split (0: none)", min=0)
     test_every: int = option(10, "every Nth posed photo goes to the test split, offset from val (0: none)", min=0)
-    center: str = option("", "object centre 'x,y,z' in the tag frame (metres); default: the point the cameras "
-                         "look at", metavar="X,Y,Z")
+    center: str = option(
+        "", "object centre 'x,y,z' in the tag frame (metres); default: the point the cameras look at", metavar="X,Y,Z"
+    )
     near: float | None = option(None, "near bound along rays (default: from the cameras and the tag size)", above=0)
     far: float | None = option(None, "far bound along rays (default: from the cameras and the tag size)", above=0)
     jpeg_quality: int = option(95, "JPEG quality of the written views", min=1, max=100)
-    points: bool = option(True, "triangulate sparse 3D points from the train views with the poses held (COLMAP's "
-                          "point triangulator; they initialise --model splat). Needs pycolmap")
-
+    points: bool = option(
+        True,
+        "triangulate sparse 3D points from the train views with the poses held (COLMAP's "
+        "point triangulator; they initialise --model splat). Needs pycolmap",
+    )
 
 
 def few_views_note(n_train: int) -> str | None:
@@ -76,11 +83,13 @@ def few_views_note(n_train: int) -> str | None:
     train on, else None."""
     if n_train >= FEW_TRAIN_VIEWS:
         return None
-    return (f"note: {n_train} training photos. A NeRF from this few blurs and blotches what only one or two "
-            "of them see (with 20 training photos a capture's held-out views lose several dB against 40); 50-100 "
-            "photos around the object, at two or three heights, do better. Where no floor shows past the table's "
-            "edge, `nerfkit train` holds the table to \"table or not\", which clears part of its blotches "
-            "(--table-cover-weight)")
+    return (
+        f"note: {n_train} training photos. A NeRF from this few blurs and blotches what only one or two "
+        "of them see (with 20 training photos a capture's held-out views lose several dB against 40); 50-100 "
+        "photos around the object, at two or three heights, do better. Where no floor shows past the table's "
+        'edge, `nerfkit train` holds the table to "table or not", which clears part of its blotches '
+        "(--table-cover-weight)"
+    )
 
 
 def no_object_note(n_object: int | None, points: int) -> str | None:
@@ -88,10 +97,12 @@ def no_object_note(n_object: int | None, points: int) -> str | None:
     (``n_object`` of ``points`` above it; None: not counted), else None."""
     if n_object is None or not points or n_object >= MIN_OBJECT_POINTS:
         return None
-    return (f"note: the sparse points show no object near the middle of the photos (only {n_object} of the "
-            f"{points} rise above the table's plane there). If these photos show the printed sheet alone, give the "
-            "object's photos instead (calibrate takes the sheet's). An object with little texture gives few points: "
-            "then the NeRF starts from the whole region around the tag, not a box around the object")
+    return (
+        f"note: the sparse points show no object near the middle of the photos (only {n_object} of the "
+        f"{points} rise above the table's plane there). If these photos show the printed sheet alone, give the "
+        "object's photos instead (calibrate takes the sheet's). An object with little texture gives few points: "
+        "then the NeRF starts from the whole region around the tag, not a box around the object"
+    )
 
 
 def split_indices(n: int, val_every: int, test_every: int) -> list[str]:
@@ -127,8 +138,9 @@ def plane_hit_distance(c2w: np.ndarray, K_nk: np.ndarray, size: tuple[int, int])
     a camera sees the plane z = 0, or inf when none of them hits it."""
     w, h = size
     uv = np.array([[0, 0], [w / 2, 0], [w, 0], [w, h / 2], [w, h], [w / 2, h], [0, h], [0, h / 2]], np.float64)
-    d_cam = np.column_stack([(uv[:, 0] - K_nk[0, 2]) / K_nk[0, 0], (uv[:, 1] - K_nk[1, 2]) / K_nk[1, 1],
-                             np.ones(len(uv))])
+    d_cam = np.column_stack(
+        [(uv[:, 0] - K_nk[0, 2]) / K_nk[0, 0], (uv[:, 1] - K_nk[1, 2]) / K_nk[1, 1], np.ones(len(uv))]
+    )
     d = d_cam @ c2w[:3, :3].T
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     o = c2w[:3, 3]
@@ -137,8 +149,9 @@ def plane_hit_distance(c2w: np.ndarray, K_nk: np.ndarray, size: tuple[int, int])
     return float(t.min())
 
 
-def estimate_bounds(c2w: np.ndarray, center: np.ndarray, tag_size: float, K_nk: np.ndarray,
-                    size: tuple[int, int]) -> tuple[float, float, float]:
+def estimate_bounds(
+    c2w: np.ndarray, center: np.ndarray, tag_size: float, K_nk: np.ndarray, size: tuple[int, int]
+) -> tuple[float, float, float]:
     """near, far and the object radius from the cameras and the tag scale.
 
     The object is taken to lie within a sphere about ``center`` of radius
@@ -164,8 +177,11 @@ def _load_view(p: PosedPhoto, base: Camera, und, out_size: tuple[int, int]) -> n
     if p.turns:  # held the other way: into the camera's frame, as it was posed
         img = np.ascontiguousarray(np.rot90(img, -p.turns))
     if (img.shape[1], img.shape[0]) != (p.camera.width, p.camera.height):
-        raise fail(p.path, f"is now {img.shape[1]}x{img.shape[0]}, but was {p.camera.width}x{p.camera.height} "
-                           "when it was posed", "Re-run nerfkit poses")
+        raise fail(
+            p.path,
+            f"is now {img.shape[1]}x{img.shape[0]}, but was {p.camera.width}x{p.camera.height} when it was posed",
+            "Re-run nerfkit poses",
+        )
     if (img.shape[1], img.shape[0]) != (base.width, base.height):
         img = cv2.resize(img, (base.width, base.height), interpolation=cv2.INTER_AREA)
     img = und(img)
@@ -174,11 +190,19 @@ def _load_view(p: PosedPhoto, base: Camera, und, out_size: tuple[int, int]) -> n
     return img
 
 
-def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConfig, tag_size: float,
-                  jobs: int = 2, progress: bool = True, extra: dict | None = None,
-                  up: np.ndarray | None = None, on_tag_plane: bool = True,
-                  points: SparsePoints | None = None,
-                  tags: np.ndarray | None = None) -> tuple[Scene, dict]:
+def build_dataset(
+    posed: list[PosedPhoto],
+    out_dir: str | Path,
+    cfg: DatasetConfig,
+    tag_size: float,
+    jobs: int = 2,
+    progress: bool = True,
+    extra: dict | None = None,
+    up: np.ndarray | None = None,
+    on_tag_plane: bool = True,
+    points: SparsePoints | None = None,
+    tags: np.ndarray | None = None,
+) -> tuple[Scene, dict]:
     """Undistort, crop, resize and split ``posed`` photos, then write the dataset files.
 
     ``points``: the scene's sparse points when known (structure-from-motion); else, with
@@ -247,15 +271,33 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
     for s in ("train", "val", "test"):
         idx = [i for i, x in enumerate(split) if x == s]
         if idx:
-            views[s] = Views(c2w[idx].astype(np.float32), np.repeat(K[None], len(idx), 0), out_size[0], out_size[1],
-                             images[idx], [names[i] for i in idx])
+            views[s] = Views(
+                c2w[idx].astype(np.float32),
+                np.repeat(K[None], len(idx), 0),
+                out_size[0],
+                out_size[1],
+                images[idx],
+                [names[i] for i in idx],
+            )
         else:
             views[s] = Views.empty(out_size[0], out_size[1])
     up = UP.copy() if up is None else (np.asarray(up, np.float64) / np.linalg.norm(up)).astype(np.float32)
     table = np.array([0.0, 0.0, 1.0, 0.0], np.float32) if on_tag_plane else None
-    scene = check_scene(Scene(views["train"], views["val"], views["test"], near, far, center.astype(np.float32), up,
-                              source=str(out_dir), capture=True, table=table,
-                              tags=_lying_flat(tags) if on_tag_plane else None))
+    scene = check_scene(
+        Scene(
+            views["train"],
+            views["val"],
+            views["test"],
+            near,
+            far,
+            center.astype(np.float32),
+            up,
+            source=str(out_dir),
+            capture=True,
+            table=table,
+            tags=_lying_flat(tags) if on_tag_plane else None,
+        )
+    )
     points_note = "from structure-from-motion" if points is not None else "none: --no-points"
     if points is None and cfg.points:
         points, points_note = _triangulate(scene.train, out_dir, progress)
@@ -266,8 +308,10 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
         "views": {s: len(v) for s, v in scene.splits.items()},
         "size": list(out_size),
         "K": np.round(K.astype(np.float64), 4).tolist(),
-        "near": round(near, 5), "far": round(far, 5),
-        "center": np.round(center, 5).tolist(), "center_from": center_note,
+        "near": round(near, 5),
+        "far": round(far, 5),
+        "center": np.round(center, 5).tolist(),
+        "center_from": center_note,
         "object_radius": round(radius, 5),
         "up": [float(u) for u in up],
         "tag_size": float(tag_size),
@@ -277,11 +321,13 @@ def build_dataset(posed: list[PosedPhoto], out_dir: str | Path, cfg: DatasetConf
         "undistorted": base.has_distortion,
         "crop": list(und.roi),
         "source_size": list(base_size),
-        "points": 0 if scene.points is None else len(scene.points), "points_from": points_note,
-        "object_points": None if scene.points is None or table is None else
-        len(object_points(scene.points, table, scene.center, sphere_radius(scene))),
+        "points": 0 if scene.points is None else len(scene.points),
+        "points_from": points_note,
+        "object_points": None
+        if scene.points is None or table is None
+        else len(object_points(scene.points, table, scene.center, sphere_radius(scene))),
         "world": "tag frame: origin at the tag centre, x right and y up along the printed tag, z out of the tag "
-                 "toward the cameras (= up); metres",
+        "toward the cameras (= up); metres",
     }
     if len(scene.train):
         summary["coverage"] = write_coverage(scene, out_dir / COVERAGE_PLOT)
@@ -305,8 +351,13 @@ def write_coverage(scene: Scene, plot_path: Path) -> dict:
     gaps = {f"widest gap ({cov.capture.radius_deg:.0f} degrees)": cap_outline(cov.capture, scene.up)}
     if cov.train.radius_deg > cov.capture.radius_deg:
         gaps[f"widest gap of the training photos ({cov.train.radius_deg:.0f})"] = cap_outline(cov.train, scene.up)
-    plot_coverage(plot_path, cov.azimuth_elevation, gaps, "where the photos look from, seen from above\n"
-                  "(azimuth from the world's x axis, a tag's right; the centre looks straight down)")
+    plot_coverage(
+        plot_path,
+        cov.azimuth_elevation,
+        gaps,
+        "where the photos look from, seen from above\n"
+        "(azimuth from the world's x axis, a tag's right; the centre looks straight down)",
+    )
     return {**cov.as_json(), "plot": plot_path.name}
 
 
@@ -345,8 +396,10 @@ def _triangulate(train: Views, out_dir: Path, progress: bool) -> tuple[SparsePoi
         pts = triangulate_views(train, out_dir)
     except (NerfkitError, RuntimeError, ValueError) as e:  # no pycolmap, or COLMAP found no matches
         return None, f"none ({e})"
-    return pts, (f"triangulated from {len(train)} train views with the poses held (median "
-                 f"reprojection error {float(np.median(pts.error)) if len(pts) else 0:.2f} px)")
+    return pts, (
+        f"triangulated from {len(train)} train views with the poses held (median "
+        f"reprojection error {float(np.median(pts.error)) if len(pts) else 0:.2f} px)"
+    )
 
 
 # ---------------------------------------------------------------- poses.json
@@ -361,17 +414,27 @@ def write_poses_json(path: str | Path, records, posed: list[PosedPhoto], camera:
         if r.name in by_name:
             d["c2w"] = np.round(by_name[r.name].c2w, 8).tolist()
         photos.append(d)
-    write_json(path, {
-        "format": "nerfkit-poses", "version": 1,
-        "pose_convention": "c2w: camera-to-world, OpenCV camera axes (+x right, +y down, +z forward) of the "
-                           "upright photo turned clockwise by turned_deg (photos held the other way)",
-        "camera": {"K": camera.K.tolist(), "dist": camera.dist.tolist(), "width": camera.width,
-                   "height": camera.height, "sensor_turns": camera.sensor_turns, "source": camera.source},
-        **meta,
-        "photos_posed": len(posed),
-        "photos_skipped": len(records) - len(posed),
-        "photos": photos,
-    })
+    write_json(
+        path,
+        {
+            "format": "nerfkit-poses",
+            "version": 1,
+            "pose_convention": "c2w: camera-to-world, OpenCV camera axes (+x right, +y down, +z forward) of the "
+            "upright photo turned clockwise by turned_deg (photos held the other way)",
+            "camera": {
+                "K": camera.K.tolist(),
+                "dist": camera.dist.tolist(),
+                "width": camera.width,
+                "height": camera.height,
+                "sensor_turns": camera.sensor_turns,
+                "source": camera.source,
+            },
+            **meta,
+            "photos_posed": len(posed),
+            "photos_skipped": len(records) - len(posed),
+            "photos": photos,
+        },
+    )
 
 
 def read_poses_json(path: str | Path, allow_outside: bool = False) -> tuple[list[PosedPhoto], dict]:
@@ -381,8 +444,12 @@ def read_poses_json(path: str | Path, allow_outside: bool = False) -> tuple[list
     path = Path(path)
     if path.is_dir():
         path = path / POSES_FILE
-    data = load_json(path, "no such file", "Run nerfkit poses first; it writes poses.json into the dataset folder",
-                     "Re-run nerfkit poses")
+    data = load_json(
+        path,
+        "no such file",
+        "Run nerfkit poses first; it writes poses.json into the dataset folder",
+        "Re-run nerfkit poses",
+    )
     if not isinstance(data, dict) or data.get("format") != "nerfkit-poses":
         raise fail(path, "is not a poses.json written by nerfkit poses")
     with advice("Re-run nerfkit poses"):
@@ -395,8 +462,11 @@ def read_poses_json(path: str | Path, allow_outside: bool = False) -> tuple[list
             photos = data["photos"]
             if not isinstance(photos, list) or not all(isinstance(d, dict) for d in photos):
                 raise fail(path, "'photos' must be a list of objects")
-            posed = [_posed_photo(d, i, camera, photos_dir, str(path), allow_outside)
-                     for i, d in enumerate(photos) if "c2w" in d]
+            posed = [
+                _posed_photo(d, i, camera, photos_dir, str(path), allow_outside)
+                for i, d in enumerate(photos)
+                if "c2w" in d
+            ]
         except (KeyError, TypeError, ValueError, OverflowError) as e:
             raise fail(path, f"malformed poses.json ({type(e).__name__}: {short_repr(str(e))})") from None
     if not posed:
@@ -415,15 +485,20 @@ def recorded_tags(poses_meta) -> np.ndarray | None:
         return None
     size = poses_meta.get("tag_size")
     try:
-        layout = layout_from_json(spec, POSES_FILE, str(poses_meta.get("dictionary", "DICT_4X4_50")),
-                                  float(size) if isinstance(size, (int, float)) else None)
+        layout = layout_from_json(
+            spec,
+            POSES_FILE,
+            str(poses_meta.get("dictionary", "DICT_4X4_50")),
+            float(size) if isinstance(size, (int, float)) else None,
+        )
         return layout.corners()
     except (NerfkitError, KeyError, TypeError, ValueError):
         return None
 
 
-def _posed_photo(d: dict, i: int, camera: Camera, photos_dir: Path, where: str,
-                 allow_outside: bool = False) -> PosedPhoto:
+def _posed_photo(
+    d: dict, i: int, camera: Camera, photos_dir: Path, where: str, allow_outside: bool = False
+) -> PosedPhoto:
     """One photo of poses.json with its checked pose and the camera of its size."""
     w, h = d["size"]
     w = check_count(w, where, f"photos[{i}].size", 1, MAX_SIDE)

@@ -39,8 +39,9 @@ def corner_radius(K: np.ndarray, size: tuple[int, int]) -> float:
     return float(np.max(np.hypot((u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1])))
 
 
-def distortion_check(K: np.ndarray, dist: np.ndarray, size: tuple[int, int],
-                     max_of_diagonal: float = MAX_DISPLACEMENT_OF_DIAGONAL) -> dict:
+def distortion_check(
+    K: np.ndarray, dist: np.ndarray, size: tuple[int, int], max_of_diagonal: float = MAX_DISPLACEMENT_OF_DIAGONAL
+) -> dict:
     """Check the radial mapping out to the image corners.
 
     Samples ``rd(r) = r (1 + k1 r^2 + k2 r^4 + k3 r^6)`` for undistorted radii ``r`` from 0 and
@@ -58,29 +59,39 @@ def distortion_check(K: np.ndarray, dist: np.ndarray, size: tuple[int, int],
     limit = max_of_diagonal * float(np.hypot(*size))
     r = np.linspace(0.0, 4.0 * rc, 8001)
     r2 = r * r
-    rd = r * (1 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3)
-    slope = 1 + 3 * k1 * r2 + 5 * k2 * r2 ** 2 + 7 * k3 * r2 ** 3
+    rd = r * (1 + k1 * r2 + k2 * r2**2 + k3 * r2**3)
+    slope = 1 + 3 * k1 * r2 + 5 * k2 * r2**2 + 7 * k3 * r2**3
     turn = np.flatnonzero(slope <= 0)
     end = int(turn[0]) if len(turn) else len(r)
     reach = np.flatnonzero(rd[:end] >= rc)
-    out = {"ok": False, "monotonic": bool(len(reach)), "corner_displacement_px": None,
-           "limit_px": round(limit, 2), "reason": ""}
+    out = {
+        "ok": False,
+        "monotonic": bool(len(reach)),
+        "corner_displacement_px": None,
+        "limit_px": round(limit, 2),
+        "reason": "",
+    }
     if not len(reach):
         top = float(rd[:end].max()) if end else 0.0
-        out["reason"] = (f"not monotonic: the radial mapping turns back at radius {top:.2f}, inside the frame "
-                         f"(corner radius {rc:.2f})")
+        out["reason"] = (
+            f"not monotonic: the radial mapping turns back at radius {top:.2f}, inside the frame "
+            f"(corner radius {rc:.2f})"
+        )
         return out
     i = int(reach[0])
-    ru = float(np.interp(rc, rd[max(i - 1, 0): i + 1], r[max(i - 1, 0): i + 1])) if i else 0.0
+    ru = float(np.interp(rc, rd[max(i - 1, 0) : i + 1], r[max(i - 1, 0) : i + 1])) if i else 0.0
     f = float(K[0, 0])
     x = y = rc / np.sqrt(2)  # tangential terms at a diagonal corner of that radius, both signs
-    tang = max(np.hypot(2 * p1 * x * y * s + p2 * (rc ** 2 + 2 * x * x), p1 * (rc ** 2 + 2 * y * y) + 2 * p2 * x * y * s)
-               for s in (1, -1))
+    tang = max(
+        np.hypot(2 * p1 * x * y * s + p2 * (rc**2 + 2 * x * x), p1 * (rc**2 + 2 * y * y) + 2 * p2 * x * y * s)
+        for s in (1, -1)
+    )
     disp = f * (abs(ru - rc) + tang)
     out["corner_displacement_px"] = round(disp, 2)
     if disp > limit:
-        out["reason"] = (f"moves the image corners by {disp:.0f} px (> {max_of_diagonal * 100:g}% of the diagonal, "
-                         f"{limit:.0f} px)")
+        out["reason"] = (
+            f"moves the image corners by {disp:.0f} px (> {max_of_diagonal * 100:g}% of the diagonal, {limit:.0f} px)"
+        )
         return out
     out["ok"] = True
     return out
@@ -99,8 +110,13 @@ def frame_displacement(K: np.ndarray, dist: np.ndarray, size: tuple[int, int]) -
     pts = frame_points(size)
     if not np.any(dist):
         return np.zeros_like(pts)
-    und = cv2.undistortPoints(pts.reshape(-1, 1, 2), K, np.asarray(dist, np.float64), P=K,
-                              criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12))
+    und = cv2.undistortPoints(
+        pts.reshape(-1, 1, 2),
+        K,
+        np.asarray(dist, np.float64),
+        P=K,
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12),
+    )
     return und.reshape(-1, 2) - pts
 
 
@@ -112,7 +128,9 @@ def fold_spread(displacements: list[np.ndarray]) -> float:
     return float(np.sqrt(np.mean(np.sum((D - D.mean(0)) ** 2, axis=2), axis=0)).max())
 
 
-def view_pose(obj: np.ndarray, img: np.ndarray, K: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+def view_pose(
+    obj: np.ndarray, img: np.ndarray, K: np.ndarray, dist: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
     """(rvec, tvec) of a view: IPPE for one flat square, SQPnP for more points (or a square
     whose corners are not in one plane: a sheet's estimated heights), then LM."""
     import cv2

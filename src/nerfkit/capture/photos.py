@@ -91,8 +91,12 @@ class PhotoRecord:
         self.used, self.reason = False, reason
 
     def summary(self) -> dict:
-        d = {"file": self.name, "used": self.used, "reason": self.reason or None,
-             "error_px": None if self.error_px is None else round(float(self.error_px), 4)}
+        d = {
+            "file": self.name,
+            "used": self.used,
+            "reason": self.reason or None,
+            "error_px": None if self.error_px is None else round(float(self.error_px), 4),
+        }
         if self.detection is not None:
             d["size"] = [self.detection.width, self.detection.height]
             d["tags"] = [int(i) for i in self.detection.ids]
@@ -120,10 +124,16 @@ def _load_cache(cache_path: Path | None, settings: dict) -> tuple[dict, bool]:
         data = json.loads(refuse_special_file(cache_path).read_text())
     except (OSError, json.JSONDecodeError, UnicodeDecodeError):
         data = None
-    if (not isinstance(data, dict) or not {"version", "settings"} <= set(data)
-            or not isinstance(data.get("photos"), dict)):
-        print(f"note: {cache_path} is not a nerfkit detection cache; it is left as it is, and detections "
-              "are not cached this time", file=sys.stderr)
+    if (
+        not isinstance(data, dict)
+        or not {"version", "settings"} <= set(data)
+        or not isinstance(data.get("photos"), dict)
+    ):
+        print(
+            f"note: {cache_path} is not a nerfkit detection cache; it is left as it is, and detections "
+            "are not cached this time",
+            file=sys.stderr,
+        )
         return {}, False
     if data.get("version") != CACHE_VERSION or data.get("settings") != settings:
         return {}, True  # another version's or other settings' cache: replaced
@@ -171,9 +181,16 @@ def _exif_header(path: Path) -> tuple[float | None, int]:
         return exif_focal_35mm(path), 1
 
 
-def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = None, detect_side: int = 2000,
-                cache_path: str | Path | None = None, jobs: int = 2, progress: bool = True,
-                files: list[Path] | None = None) -> list[PhotoRecord]:
+def scan_photos(
+    folder: str | Path,
+    dictionary: str,
+    layout: Layout | None = None,
+    detect_side: int = 2000,
+    cache_path: str | Path | None = None,
+    jobs: int = 2,
+    progress: bool = True,
+    files: list[Path] | None = None,
+) -> list[PhotoRecord]:
     """Detect tags in every photo of ``folder`` (sorted by name), reusing the cache.
 
     Unreadable photos come back skipped with the reason; :func:`require_tags` checks that
@@ -183,8 +200,11 @@ def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = Non
 
     files = list_images(folder) if files is None else files
     charuco = layout is not None and layout.charuco is not None
-    settings = {"dictionary": dictionary, "detect_side": int(detect_side),
-                "charuco": layout.to_json() if charuco and layout is not None else None}
+    settings = {
+        "dictionary": dictionary,
+        "detect_side": int(detect_side),
+        "charuco": layout.to_json() if charuco and layout is not None else None,
+    }
     cache_path = Path(cache_path) if cache_path else None
     cache, writable = _load_cache(cache_path, settings)
     if not writable:
@@ -200,8 +220,10 @@ def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = Non
 
     def save() -> None:
         if cache_path is not None:
-            write_json(cache_path, {"version": CACHE_VERSION, "settings": settings,
-                                    "photos": {k: entries[k] for k in sorted(entries)}})
+            write_json(
+                cache_path,
+                {"version": CACHE_VERSION, "settings": settings, "photos": {k: entries[k] for k in sorted(entries)}},
+            )
 
     if todo:
         bits = marker_bits(dictionary)
@@ -212,8 +234,13 @@ def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = Non
                 local.detector = make_detector(dictionary, layout if charuco else None)
             return _detect_one(f, local.detector, detect_side, bits, "" if charuco else dictionary)
 
-        bar = tqdm(total=len(todo), desc=f"detecting tags ({len(files) - len(todo)} cached)", unit="photo",
-                   disable=None if progress else True, leave=False)
+        bar = tqdm(
+            total=len(todo),
+            desc=f"detecting tags ({len(files) - len(todo)} cached)",
+            unit="photo",
+            disable=None if progress else True,
+            leave=False,
+        )
         pool = ThreadPoolExecutor(max(1, jobs))
         try:
             futures = {pool.submit(work, f): f for f in todo}
@@ -226,8 +253,9 @@ def scan_photos(folder: str | Path, dictionary: str, layout: Layout | None = Non
             pool.shutdown(wait=True, cancel_futures=True)
             bar.close()
             save()
-    known = {int(i) for e in entries.values() if "detection" in e and not e.get("second_pass")
-             for i in e["detection"]["ids"]} | set(layout.ids if layout is not None else [])
+    known = {
+        int(i) for e in entries.values() if "detection" in e and not e.get("second_pass") for i in e["detection"]["ids"]
+    } | set(layout.ids if layout is not None else [])
     records = []
     for f in files:
         e = entries[f.name]
@@ -263,8 +291,9 @@ def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str
     readable = [r for r in records if r.detection is not None]
     if not readable:
         reasons = "; ".join(f"{r.name}: {r.error}" for r in records[:3])
-        raise fail(folder, f"none of the {len(records)} photos could be read ({reasons})",
-                   "Use JPEG, PNG or HEIC photos")
+        raise fail(
+            folder, f"none of the {len(records)} photos could be read ({reasons})", "Use JPEG, PNG or HEIC photos"
+        )
     dets = [r.detection for r in readable if r.detection is not None]  # all of readable
     if any(len(d.ids) or (d.charuco_ids is not None and len(d.charuco_ids)) for d in dets):
         return
@@ -276,13 +305,19 @@ def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str
     found = suggest_dictionaries(images)
     if found:
         best = ", ".join(f"{name} (ids {', '.join(map(str, ids[:6]))})" for name, ids in found[:3])
-        raise fail(folder, f"no {dictionary} tags found in any of {len(readable)} photos, but other dictionaries "
-                           f"find tags: {best}", f"Re-run with --dict {found[0][0]}")
+        raise fail(
+            folder,
+            f"no {dictionary} tags found in any of {len(readable)} photos, but other dictionaries find tags: {best}",
+            f"Re-run with --dict {found[0][0]}",
+        )
     tried = ", ".join(n.replace("_1000", "_*") for n in ("DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X6_1000"))
-    raise fail(folder, f"no {dictionary} tags found in any of {len(readable)} photos (also tried "
-                       f"{tried}, "
-                       "ArUco original and AprilTag dictionaries)",
-               "Check that the tags are in focus, fully visible and not too small (at least ~30 px wide)")
+    raise fail(
+        folder,
+        f"no {dictionary} tags found in any of {len(readable)} photos (also tried "
+        f"{tried}, "
+        "ArUco original and AprilTag dictionaries)",
+        "Check that the tags are in focus, fully visible and not too small (at least ~30 px wide)",
+    )
 
 
 def frame_turns(records: list[PhotoRecord], size: tuple[int, int] | None = None) -> int | None:
@@ -299,8 +334,11 @@ def turn_into_frame(r: PhotoRecord, frame: int | None) -> str:
     how). Returns "" when done, else why it cannot be."""
     turns = turns_into_frame(r.orientation, frame)
     if turns is None:
-        return ("no EXIF orientation says how the camera's photos were held" if frame is None else
-                "no EXIF orientation says which way it was turned (rotated in an editor?)")
+        return (
+            "no EXIF orientation says how the camera's photos were held"
+            if frame is None
+            else "no EXIF orientation says which way it was turned (rotated in an editor?)"
+        )
     r.turns = turns
     assert r.detection is not None  # only photos that were read have a size to turn
     r.detection = r.detection.turned(turns)
@@ -325,8 +363,7 @@ def keep_one_lens(records: list[PhotoRecord], lens: float | None = None) -> list
     return kept
 
 
-def group_by_size(records: list[PhotoRecord], turn: bool = False
-                  ) -> tuple[tuple[int, int] | None, list[PhotoRecord]]:
+def group_by_size(records: list[PhotoRecord], turn: bool = False) -> tuple[tuple[int, int] | None, list[PhotoRecord]]:
     """The photo size most detected photos share, and the photos of that size.
 
     A photo of the transposed size was held the other way. With ``turn``, such a photo
@@ -350,8 +387,7 @@ def group_by_size(records: list[PhotoRecord], turn: bool = False
             if not why:
                 kept.append(r)
                 continue
-            r.skip(f"{held_as(*r.size)} while most "
-                   f"photos are {main[0]}x{main[1]}: {why}")
+            r.skip(f"{held_as(*r.size)} while most photos are {main[0]}x{main[1]}: {why}")
         else:
             r.skip(f"size {r.detection.width}x{r.detection.height} differs from most photos ({main[0]}x{main[1]})")
     return main, kept

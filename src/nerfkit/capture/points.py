@@ -29,9 +29,16 @@ from ..errors import fail
 EXHAUSTIVE_MAX = 120
 
 
-def triangulate_views(views: Views, work: str | Path | None = None, max_features: int = 4096,
-                      neighbours: int = 20, max_error: float = 2.0, min_track: int = 3,
-                      threads: int = -1, verbose: bool = False) -> SparsePoints:
+def triangulate_views(
+    views: Views,
+    work: str | Path | None = None,
+    max_features: int = 4096,
+    neighbours: int = 20,
+    max_error: float = 2.0,
+    min_track: int = 3,
+    threads: int = -1,
+    verbose: bool = False,
+) -> SparsePoints:
     """Triangulate sparse points from posed views with their images (e.g. a dataset's
     train split: undistorted, pinhole, nerfkit's conventions).
 
@@ -75,8 +82,9 @@ def triangulate_views(views: Views, work: str | Path | None = None, max_features
     return reconstruction_points(rec, max_error, min_track, dict(zip(names, view_names)).__getitem__)
 
 
-def _extract(pycolmap, db_path: Path, image_dir: Path, names: list[str], views: Views, max_features: int,
-             threads: int) -> None:
+def _extract(
+    pycolmap, db_path: Path, image_dir: Path, names: list[str], views: Views, max_features: int, threads: int
+) -> None:
     K = views.K[0].astype(np.float64)
     if not np.allclose(views.K, K, rtol=1e-5, atol=1e-4):
         raise fail("triangulation", "the views have different intrinsics; one shared camera is needed")
@@ -86,19 +94,30 @@ def _extract(pycolmap, db_path: Path, image_dir: Path, names: list[str], views: 
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = threads
     extraction.sift.max_num_features = max_features
-    pycolmap.extract_features(db_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
-                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+    pycolmap.extract_features(
+        db_path,
+        image_dir,
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
 
 
-def _match(pycolmap, db_path: Path, names: list[str], c2w: np.ndarray, neighbours: int,
-           threads: int) -> None:
+def _match(pycolmap, db_path: Path, names: list[str], c2w: np.ndarray, neighbours: int, threads: int) -> None:
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = threads
     if len(names) <= EXHAUSTIVE_MAX:
         pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
         return
-    match_pairs(pycolmap, db_path, [(names[i], names[j]) for i, j in camera_neighbours(c2w, neighbours)], matching,
-                pycolmap.TwoViewGeometryOptions())
+    match_pairs(
+        pycolmap,
+        db_path,
+        [(names[i], names[j]) for i, j in camera_neighbours(c2w, neighbours)],
+        matching,
+        pycolmap.TwoViewGeometryOptions(),
+    )
 
 
 def _posed_reconstruction(pycolmap, db_path: Path, names: list[str], c2w: np.ndarray):
@@ -107,8 +126,12 @@ def _posed_reconstruction(pycolmap, db_path: Path, names: list[str], c2w: np.nda
     rec = pycolmap.Reconstruction()
     index = {n: i for i, n in enumerate(names)}
     with pycolmap.Database.open(db_path) as db:
-        cams, rigs, frames, images = db.read_all_cameras(), db.read_all_rigs(), db.read_all_frames(), \
-            db.read_all_images()
+        cams, rigs, frames, images = (
+            db.read_all_cameras(),
+            db.read_all_rigs(),
+            db.read_all_frames(),
+            db.read_all_images(),
+        )
     for c in cams:
         rec.add_camera(c)
     for r in rigs:
@@ -131,8 +154,9 @@ def _import_pycolmap():
     try:
         import pycolmap
     except ImportError:
-        raise fail("poses --method colmap", "structure-from-motion needs pycolmap",
-                   "pip install 'nerfkit[sfm]'") from None
+        raise fail(
+            "poses --method colmap", "structure-from-motion needs pycolmap", "pip install 'nerfkit[sfm]'"
+        ) from None
     return pycolmap
 
 
@@ -168,7 +192,7 @@ def camera_neighbours(c2w: np.ndarray, k: int) -> list[tuple[int, int]]:
     np.fill_diagonal(cost, np.inf)
     pairs = set()
     for i in range(n):
-        for j in np.argsort(cost[i])[:min(k, n - 1)]:
+        for j in np.argsort(cost[i])[: min(k, n - 1)]:
             pairs.add((min(i, int(j)), max(i, int(j))))
     return sorted(pairs)
 
@@ -179,5 +203,10 @@ def match_pairs(pycolmap, db_path: Path, pairs: list[tuple[str, str]], matching,
     pairs_file.write_text("".join(f"{a} {b}\n" for a, b in pairs))
     pairing = pycolmap.ImportedPairingOptions()
     pairing.match_list_path = str(pairs_file)
-    pycolmap.match_image_pairs(db_path, matching_options=matching, pairing_options=pairing,
-                               verification_options=verification, device=pycolmap.Device.cpu)
+    pycolmap.match_image_pairs(
+        db_path,
+        matching_options=matching,
+        pairing_options=pairing,
+        verification_options=verification,
+        device=pycolmap.Device.cpu,
+    )

@@ -46,14 +46,22 @@ FLOOR_OF_TAG_SIDE = 0.02
 class PoseConfig:
     """Options of ``nerfkit poses``."""
 
-    max_error: float = option(0.0, "skip photos whose pose reprojection error (RMS, pixels) exceeds this; 0: "
-                              "automatic, max(3 x the calibration's held-out error, 1 px, 2% of the tag's side "
-                              "in pixels)", min=0)
-    min_tag_px: float = option(16.0, "skip photos whose tag is smaller than this many pixels across "
-                               "(too small for a reliable pose)", min=0)
-    refine_focal: bool = option(True, "fit the focal length to the tags of these photos when they pin it (the "
-                                "principal point, aspect ratio and distortion stay the camera's): a phone focused "
-                                "on a near object has a longer focal length than when it photographed the sheet")
+    max_error: float = option(
+        0.0,
+        "skip photos whose pose reprojection error (RMS, pixels) exceeds this; 0: "
+        "automatic, max(3 x the calibration's held-out error, 1 px, 2% of the tag's side "
+        "in pixels)",
+        min=0,
+    )
+    min_tag_px: float = option(
+        16.0, "skip photos whose tag is smaller than this many pixels across (too small for a reliable pose)", min=0
+    )
+    refine_focal: bool = option(
+        True,
+        "fit the focal length to the tags of these photos when they pin it (the "
+        "principal point, aspect ratio and distortion stay the camera's): a phone focused "
+        "on a near object has a longer focal length than when it photographed the sheet",
+    )
 
 
 @dataclass
@@ -118,8 +126,9 @@ def solve_pose(det: Detection, camera: Camera, layout: Layout) -> tuple[np.ndarr
     for tag in used if layout.charuco is None else []:
         i = list(det.ids).index(tag)
         side = float(np.linalg.norm(layout.tags[tag] - np.roll(layout.tags[tag], -1, axis=0), axis=1).mean())
-        ok, rvecs, tvecs, errs = cv2.solvePnPGeneric(square_corners(side), det.corners[i].reshape(-1, 1, 2),
-                                                     K, dist, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+        ok, rvecs, tvecs, errs = cv2.solvePnPGeneric(
+            square_corners(side), det.corners[i].reshape(-1, 1, 2), K, dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
+        )
         if not ok:
             continue
         errs = np.ravel(errs)
@@ -162,16 +171,22 @@ def error_limit(camera: Camera, side_px: float, cfg: PoseConfig) -> tuple[float,
     if cfg.max_error > 0:
         return cfg.max_error, "--max-error"
     held = camera.heldout_rms if camera.heldout_rms is not None else DEFAULT_HELDOUT_PX
-    parts = {f"{HELDOUT_FACTOR:g} x held-out {held:.2f} px": HELDOUT_FACTOR * held, "floor": FLOOR_PX,
-             f"{FLOOR_OF_TAG_SIDE * 100:g}% of the tag side": FLOOR_OF_TAG_SIDE * side_px}
+    parts = {
+        f"{HELDOUT_FACTOR:g} x held-out {held:.2f} px": HELDOUT_FACTOR * held,
+        "floor": FLOOR_PX,
+        f"{FLOOR_OF_TAG_SIDE * 100:g}% of the tag side": FLOOR_OF_TAG_SIDE * side_px,
+    }
     how = max(parts, key=parts.__getitem__)
     return parts[how], how
 
 
 def detection_limit(det: Detection, camera: Camera, layout: Layout, cfg: PoseConfig) -> tuple[float, str]:
     """:func:`error_limit` for a photo's detection: by the largest of the layout's tags it shows."""
-    sides = [tag_side_px(det, int(t)) for t in set(int(i) for i in det.ids)
-             if int(t) in layout.tags and layout.charuco is None]
+    sides = [
+        tag_side_px(det, int(t))
+        for t in set(int(i) for i in det.ids)
+        if int(t) in layout.tags and layout.charuco is None
+    ]
     return error_limit(camera, max(sides, default=0.0), cfg)
 
 
@@ -187,8 +202,10 @@ def tag_errors(det: Detection, c2w: np.ndarray, camera: Camera, layout: Layout, 
     w2c = np.linalg.inv(c2w)
     rvec = cv2.Rodrigues(w2c[:3, :3])[0]
     ids = list(det.ids)
-    return {t: reprojection_rms(layout.tags[t], det.corners[ids.index(t)], rvec, w2c[:3, 3], camera.K, camera.dist)
-            for t in used}
+    return {
+        t: reprojection_rms(layout.tags[t], det.corners[ids.index(t)], rvec, w2c[:3, 3], camera.K, camera.dist)
+        for t in used
+    }
 
 
 def without_tag(det: Detection, tag: int) -> Detection:
@@ -228,8 +245,10 @@ def choose_tag(records: list[PhotoRecord]) -> tuple[int, str]:
     note = f"using tag {best} (seen in {counts[best]} photos)"
     others = {t: c for t, c in counts.items() if t != best}
     if others:
-        note += (f"; also seen: {', '.join(f'{t} ({c})' for t, c in sorted(others.items()))}. Pass --tag-id to "
-                 "choose another, or --layout to use several tags together")
+        note += (
+            f"; also seen: {', '.join(f'{t} ({c})' for t, c in sorted(others.items()))}. Pass --tag-id to "
+            "choose another, or --layout to use several tags together"
+        )
     return best, note
 
 
@@ -241,21 +260,23 @@ SEVERAL_TAGS_SHARE = 0.5
 LAYOUT_ROUNDS = 3
 
 
-def several_tags(records: list[PhotoRecord], tags: set[int] | None = None,
-                 size: tuple[int, int] | None = None) -> tuple[list[PhotoRecord], list[PhotoRecord], bool]:
+def several_tags(
+    records: list[PhotoRecord], tags: set[int] | None = None, size: tuple[int, int] | None = None
+) -> tuple[list[PhotoRecord], list[PhotoRecord], bool]:
     """The photos that show two or more tags (of ``tags``; None: any), those that show a tag
     at all, and whether the first are enough to pose on a layout of several tags: two
     photos or more, and :data:`SEVERAL_TAGS_SHARE` of the second. Only photos of ``size``
     (width, height) count, when given."""
-    with_tags = [r for r in records if r.detection is not None and len(r.detection.ids)
-                 and (size is None or r.size == size)]
-    several = [r for r in with_tags
-               if len({int(i) for i in r.detected.ids if tags is None or int(i) in tags}) >= 2]
+    with_tags = [
+        r for r in records if r.detection is not None and len(r.detection.ids) and (size is None or r.size == size)
+    ]
+    several = [r for r in with_tags if len({int(i) for i in r.detected.ids if tags is None or int(i) in tags}) >= 2]
     return several, with_tags, len(several) >= 2 and len(several) >= SEVERAL_TAGS_SHARE * len(with_tags)
 
 
-def layout_from_photos(records: list[PhotoRecord], camera: Camera, tag_size: float,
-                       cfg: PoseConfig) -> tuple[Layout | None, str]:
+def layout_from_photos(
+    records: list[PhotoRecord], camera: Camera, tag_size: float, cfg: PoseConfig
+) -> tuple[Layout | None, str]:
     """The layout of the tags the photos show together, estimated from the photos
     themselves, and a note; ``(None, "")`` when fewer than :data:`SEVERAL_TAGS_SHARE` of the
     photos with tags show two or more (one tag beside the object: nothing to place).
@@ -298,13 +319,17 @@ def layout_from_photos(records: list[PhotoRecord], camera: Camera, tag_size: flo
     if len(layout.tags) < 2:
         return None, ""
     missing = sorted({int(i) for r in with_tags for i in r.detected.ids} - set(layout.tags) - set(off))
-    note = (f"estimated the layout of {len(layout.tags)} tags from the photos ({len(several)} of "
-            f"{len(with_tags)} with tags show 2 or more; world: tag {ref}'s frame; last change "
-            f"{change * 1000:.2f} mm): each photo is posed on all the tags it shows. Pass --single-tag to "
-            "pose from one tag")
+    note = (
+        f"estimated the layout of {len(layout.tags)} tags from the photos ({len(several)} of "
+        f"{len(with_tags)} with tags show 2 or more; world: tag {ref}'s frame; last change "
+        f"{change * 1000:.2f} mm): each photo is posed on all the tags it shows. Pass --single-tag to "
+        "pose from one tag"
+    )
     if off:
-        note += (f" (tags {off} fit the photos worse than {limit:.2f} px in the median and are left out: another "
-                 "size, or off the sheet's plane?)")
+        note += (
+            f" (tags {off} fit the photos worse than {limit:.2f} px in the median and are left out: another "
+            "size, or off the sheet's plane?)"
+        )
     if missing:
         note += f" (tags {missing} were never seen with the others and are left out)"
     return layout, note
@@ -335,10 +360,14 @@ def sheet_heights(records: list[PhotoRecord], camera: Camera, layout: Layout, cf
         layout = refine_heights(by_name, _PosedFit.of(posed, camera), layout)
     height = layout.max_height()
     if height > MAX_HEIGHT_OF_SIDE * flat.tag_size:
-        return flat, (f"the sheet's corners came out up to {height * 1000:.1f} mm off its plane, more than paper "
-                      "bends: posed on the flat sheet")
-    return layout, (f"the sheet lies up to {height * 1000:.2f} mm off its plane in these photos: posed on its "
-                    f"corners' heights, triangulated from the {len(several)} photos that show 2 or more of its tags")
+        return flat, (
+            f"the sheet's corners came out up to {height * 1000:.1f} mm off its plane, more than paper "
+            "bends: posed on the flat sheet"
+        )
+    return layout, (
+        f"the sheet lies up to {height * 1000:.2f} mm off its plane in these photos: posed on its "
+        f"corners' heights, triangulated from the {len(several)} photos that show 2 or more of its tags"
+    )
 
 
 # The focal length refined on the object photos' own tags (`refine_focal`): a phone focused
@@ -391,34 +420,57 @@ def refine_focal(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
         img.append(((pixels + 0.5) * scale - 0.5).astype(np.float32))
     if len(obj) < FOCAL_MIN_PHOTOS:
         return camera, ""
-    flags = (cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_FIX_ASPECT_RATIO
-             | cv2.CALIB_FIX_TANGENT_DIST | cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3)
+    flags = (
+        cv2.CALIB_USE_INTRINSIC_GUESS
+        | cv2.CALIB_FIX_PRINCIPAL_POINT
+        | cv2.CALIB_FIX_ASPECT_RATIO
+        | cv2.CALIB_FIX_TANGENT_DIST
+        | cv2.CALIB_FIX_K1
+        | cv2.CALIB_FIX_K2
+        | cv2.CALIB_FIX_K3
+    )
     try:
-        _, K, _, _, _, std, _, _ = cv2.calibrateCameraExtended(obj, img, (camera.width, camera.height),
-                                                               camera.K.copy(), camera.dist.copy(), flags=flags)
+        _, K, _, _, _, std, _, _ = cv2.calibrateCameraExtended(
+            obj, img, (camera.width, camera.height), camera.K.copy(), camera.dist.copy(), flags=flags
+        )
     except cv2.error:
         return camera, ""
     # the aspect ratio fixed, fy is the free parameter and fx follows it
     change, spread = float(K[1, 1] / camera.K[1, 1]) - 1.0, float(std.ravel()[1] / K[1, 1])
     f0, f = float(camera.K[0, 0]), float(camera.K[0, 0]) * (1.0 + change)
-    said = (f"the tags of {len(obj)} photos want a focal length {change * 100:+.1f}% off the camera's "
-            f"({f0:.1f} -> {f:.1f} px, +/- {spread * 100:.2f}%)")
+    said = (
+        f"the tags of {len(obj)} photos want a focal length {change * 100:+.1f}% off the camera's "
+        f"({f0:.1f} -> {f:.1f} px, +/- {spread * 100:.2f}%)"
+    )
     if not np.isfinite(f) or spread > FOCAL_MAX_STD or abs(change) <= max(FOCAL_SIGNIFICANT * spread, FOCAL_MIN_CHANGE):
         return camera, ""
     if abs(change) > FOCAL_MAX_CHANGE:
-        return camera, (f"{said}: more than a phone's focus moves it, so the camera's is kept (another lens or "
-                        "zoom? the right --tag-size?)")
-    refined = Camera(camera.K.copy(), camera.dist.copy(), camera.width, camera.height,
-                     f"{camera.source}, focal length refined on these photos' tags", camera.heldout_rms,
-                     camera.sensor_turns, camera.exif_f35)
+        return camera, (
+            f"{said}: more than a phone's focus moves it, so the camera's is kept (another lens or "
+            "zoom? the right --tag-size?)"
+        )
+    refined = Camera(
+        camera.K.copy(),
+        camera.dist.copy(),
+        camera.width,
+        camera.height,
+        f"{camera.source}, focal length refined on these photos' tags",
+        camera.heldout_rms,
+        camera.sensor_turns,
+        camera.exif_f35,
+    )
     refined.K[:2, :2] *= 1.0 + change
-    why = ("a phone focused near has a longer focal length than when it photographed the sheet"
-           if camera.heldout_rms is not None else "a focal length not calibrated is approximate")
+    why = (
+        "a phone focused near has a longer focal length than when it photographed the sheet"
+        if camera.heldout_rms is not None
+        else "a focal length not calibrated is approximate"
+    )
     return refined, f"{said}: posed with it ({why}; --no-refine-focal keeps the camera's)"
 
 
-def _posed_on(records: list[PhotoRecord], camera: Camera, layout: Layout,
-              cfg: PoseConfig) -> list[tuple[PhotoRecord, np.ndarray, float]]:
+def _posed_on(
+    records: list[PhotoRecord], camera: Camera, layout: Layout, cfg: PoseConfig
+) -> list[tuple[PhotoRecord, np.ndarray, float]]:
     """``(record, c2w, error limit)`` of the photos :func:`solve_pose_robust` poses on ``layout``."""
     out = []
     for r in records:
@@ -444,8 +496,13 @@ class _PosedFit:
         import cv2
 
         w2cs = [np.linalg.inv(c2w) for _, c2w, _ in posed]
-        return _PosedFit(camera.K, camera.dist, [r.name for r, _, _ in posed],
-                         [cv2.Rodrigues(w2c[:3, :3])[0] for w2c in w2cs], [w2c[:3, 3] for w2c in w2cs])
+        return _PosedFit(
+            camera.K,
+            camera.dist,
+            [r.name for r, _, _ in posed],
+            [cv2.Rodrigues(w2c[:3, :3])[0] for w2c in w2cs],
+            [w2c[:3, 3] for w2c in w2cs],
+        )
 
 
 def exif_camera(records: list[PhotoRecord]) -> tuple[Camera, str]:
@@ -453,15 +510,20 @@ def exif_camera(records: list[PhotoRecord]) -> tuple[Camera, str]:
     value and size), or a NerfkitError when the photos carry none."""
     values = [(r.exif_f35, r.detected_size) for r in records if r.exif_f35 and r.detection is not None]
     if not values:
-        raise fail("poses", "no --camera given and the photos have no EXIF FocalLengthIn35mmFilm",
-                    "Run nerfkit calibrate on photos of the tag sheet and pass --camera camera.json, "
-                    "or give the focal length with --focal-px")
+        raise fail(
+            "poses",
+            "no --camera given and the photos have no EXIF FocalLengthIn35mmFilm",
+            "Run nerfkit calibrate on photos of the tag sheet and pass --camera camera.json, "
+            "or give the focal length with --focal-px",
+        )
     f35, size = max(set(values), key=values.count)
     fx = exif_fx(f35, *size)
     cam = camera_from_focal(fx, size[0], size[1], f"EXIF FocalLengthIn35mmFilm {f35:g} mm")
     cam.exif_f35 = f35
-    note = (f"no --camera: using the EXIF focal length {f35:g} mm (35 mm equivalent) -> fx = fy = {fx:.1f} px at "
-            f"{size[0]}x{size[1]}, principal point at the centre, no lens distortion. Calibrate for better poses")
+    note = (
+        f"no --camera: using the EXIF focal length {f35:g} mm (35 mm equivalent) -> fx = fy = {fx:.1f} px at "
+        f"{size[0]}x{size[1]}, principal point at the centre, no lens distortion. Calibrate for better poses"
+    )
     return cam, note
 
 
@@ -489,8 +551,11 @@ def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
             not_turned = turn_into_frame(r, frame)
             if not_turned and frame is None:  # (so the camera does not record its frame either)
                 not_turned += " (re-run nerfkit calibrate: its camera files record it)"
-            why = (f"{held_as(w, h)} while the camera is {camera.width}x{camera.height}: {not_turned}"
-                   if not_turned else None)
+            why = (
+                f"{held_as(w, h)} while the camera is {camera.width}x{camera.height}: {not_turned}"
+                if not_turned
+                else None
+            )
             w, h = r.detected_size
         if why:
             r.skip(why)

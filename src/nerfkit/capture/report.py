@@ -55,20 +55,28 @@ def photo_summary(records: list[PhotoRecord], used_word: str = "used", full: boo
     lines = [f"{len(records)} photos: {len(used)} {used_word}, {len(skipped)} skipped"]
     errs = [r.error_px for r in used if r.error_px is not None]
     if errs:
-        lines.append(f"reprojection error of the photos {used_word} (RMS px): median {np.median(errs):.3f}, "
-                     f"max {np.max(errs):.3f}")
+        lines.append(
+            f"reprojection error of the photos {used_word} (RMS px): median {np.median(errs):.3f}, "
+            f"max {np.max(errs):.3f}"
+        )
     turned = [r.name for r in used if r.turns]
     if turned:
-        lines.append(f"{len(turned)} photo{'s' if len(turned) > 1 else ''} held the other way turned back by "
-                     f"{'their' if len(turned) > 1 else 'its'} EXIF orientation: {', '.join(turned[:5])}"
-                     + (", ..." if len(turned) > 5 else ""))
+        lines.append(
+            f"{len(turned)} photo{'s' if len(turned) > 1 else ''} held the other way turned back by "
+            f"{'their' if len(turned) > 1 else 'its'} EXIF orientation: {', '.join(turned[:5])}"
+            + (", ..." if len(turned) > 5 else "")
+        )
     if skipped:
         lines.append("skipped: " + reason_counts([r.reason for r in skipped]))
     shown = records if full else skipped
     if shown:
         rows = []
         for r in shown:
-            tags = "-" if r.detection is None else (",".join(map(str, sorted(set(int(i) for i in r.detection.ids)))) or "none")
+            tags = (
+                "-"
+                if r.detection is None
+                else (",".join(map(str, sorted(set(int(i) for i in r.detection.ids)))) or "none")
+            )
             err = "" if r.error_px is None else f"{r.error_px:.3f}"
             rows.append([r.name, used_word if r.used else "skipped", tags, err, r.reason])
         lines.append("")

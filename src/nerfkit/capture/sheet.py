@@ -72,8 +72,9 @@ def grid_page(paper: str, tag_mm: float, first_id: int, max_tags: int, title: st
     rows = min(rows, -(-max_tags // cols))
     n = min(cols * rows, max_tags)
     cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
-    centres = [(cx + (c - (cols - 1) / 2) * pitch, cy - (r - (rows - 1) / 2) * pitch)
-               for r in range(rows) for c in range(cols)][:n]
+    centres = [
+        (cx + (c - (cols - 1) / 2) * pitch, cy - (r - (rows - 1) / 2) * pitch) for r in range(rows) for c in range(cols)
+    ][:n]
     return SheetPage(paper, tag_mm, list(range(first_id, first_id + n)), np.array(centres), title, subtitle)
 
 
@@ -126,10 +127,17 @@ def draw_page(page: SheetPage, dictionary):
     ax.set_ylim(0, h)
     ax.set_axis_off()
     for tag_id, centre in zip(page.ids, page.centres):
-        ax.add_patch(PathPatch(cells_path(tag_cells(dictionary, tag_id), centre, page.tag_mm), facecolor="black",
-                               edgecolor="none", antialiased=False))
-        ax.text(centre[0], centre[1] - page.tag_mm / 2 - 1.5, f"{tag_id}", ha="center", va="top", fontsize=6,
-                color="0.45")
+        ax.add_patch(
+            PathPatch(
+                cells_path(tag_cells(dictionary, tag_id), centre, page.tag_mm),
+                facecolor="black",
+                edgecolor="none",
+                antialiased=False,
+            )
+        )
+        ax.text(
+            centre[0], centre[1] - page.tag_mm / 2 - 1.5, f"{tag_id}", ha="center", va="top", fontsize=6, color="0.45"
+        )
     ax.text(MARGIN_MM, h - MARGIN_MM, page.title, ha="left", va="top", fontsize=10)
     ax.text(MARGIN_MM, h - MARGIN_MM - 6, page.subtitle, ha="left", va="top", fontsize=8)
     # the ruler, a tick each 10 mm (longer each 50), to check that the printer kept the scale
@@ -139,9 +147,15 @@ def draw_page(page: SheetPage, dictionary):
     for mm in np.arange(0, RULER_LENGTH_MM + 1e-9, 10):
         tick = 3.0 if mm % 50 == 0 else 1.8
         ax.plot([x0 + mm, x0 + mm], [y, y + tick], color="black", linewidth=0.6)
-    ax.text(x0, y - 2, f"Print at actual size (100%, not \"fit to page\"): this line is {RULER_LENGTH_MM:g} mm. Then "
-            f"measure a tag's black square: {page.tag_mm:g} mm is --tag-size {page.tag_mm / 1000:g}",
-            ha="left", va="top", fontsize=7)
+    ax.text(
+        x0,
+        y - 2,
+        f'Print at actual size (100%, not "fit to page"): this line is {RULER_LENGTH_MM:g} mm. Then '
+        f"measure a tag's black square: {page.tag_mm:g} mm is --tag-size {page.tag_mm / 1000:g}",
+        ha="left",
+        va="top",
+        fontsize=7,
+    )
     return fig
 
 
@@ -153,15 +167,27 @@ def tag_sheets(paper: str, dictionary_name: str, sheet_mm: float, object_mm: flo
 
     d = get_dictionary(dictionary_name)
     n_ids = len(d.bytesList)
-    sheet = grid_page(paper, sheet_mm, 0, n_ids - (1 if object_mm else 0),
-                      f"nerfkit calibration sheet: {dictionary_name}, {sheet_mm:g} mm tags",
-                      "Lay it flat and photograph it 20-50 times from varied angles, the sheet in every part of "
-                      "the frame (nerfkit calibrate)")
+    sheet = grid_page(
+        paper,
+        sheet_mm,
+        0,
+        n_ids - (1 if object_mm else 0),
+        f"nerfkit calibration sheet: {dictionary_name}, {sheet_mm:g} mm tags",
+        "Lay it flat and photograph it 20-50 times from varied angles, the sheet in every part of "
+        "the frame (nerfkit calibrate)",
+    )
     pages = [sheet]
     if object_mm:
         tag_id = sheet.ids[-1] + 1
-        pages.append(single_page(paper, object_mm, tag_id, d.markerSize + 2,
-                                 f"nerfkit object tag: {dictionary_name} tag {tag_id}, {object_mm:g} mm",
-                                 "Lay it flat beside the object and photograph both 50-100 times all around, at two "
-                                 "or three heights (nerfkit capture)"))
+        pages.append(
+            single_page(
+                paper,
+                object_mm,
+                tag_id,
+                d.markerSize + 2,
+                f"nerfkit object tag: {dictionary_name} tag {tag_id}, {object_mm:g} mm",
+                "Lay it flat beside the object and photograph both 50-100 times all around, at two "
+                "or three heights (nerfkit capture)",
+            )
+        )
     return pages

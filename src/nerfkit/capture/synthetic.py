@@ -85,15 +85,22 @@ def table_texture(seed: int = 0, n: int = 256) -> np.ndarray:
         small = rng.standard_normal((scale, scale)).astype(np.float32)
         big = cv2.resize(np.pad(small, 1, mode="wrap"), None, fx=n / scale, fy=n / scale, interpolation=cv2.INTER_CUBIC)
         off = int(round(n / scale))
-        noise += amp * big[off: off + n, off: off + n]
+        noise += amp * big[off : off + n, off : off + n]
     noise = (noise - noise.mean()) / (noise.std() + 1e-6)
     base = np.array([150.0, 140.0, 125.0])
     return np.clip(base + 18.0 * noise[..., None], 0, 255).astype(np.uint8)
 
 
-def tag_sheet(ids: list[int], tag_size: float = 0.06, cols: int = 2, gap: float = 0.02, margin: float = 0.02,
-              dictionary: str = "DICT_4X4_50", texels_per_module: int = 16,
-              center: tuple[float, float] = (0.0, 0.0)) -> tuple[Decal, Layout]:
+def tag_sheet(
+    ids: list[int],
+    tag_size: float = 0.06,
+    cols: int = 2,
+    gap: float = 0.02,
+    margin: float = 0.02,
+    dictionary: str = "DICT_4X4_50",
+    texels_per_module: int = 16,
+    center: tuple[float, float] = (0.0, 0.0),
+) -> tuple[Decal, Layout]:
     """A white sheet with tags in a grid, and its true layout.
 
     Tags are placed at whole texels so their corners are exact. With one tag and the default
@@ -118,10 +125,11 @@ def tag_sheet(ids: list[int], tag_size: float = 0.06, cols: int = 2, gap: float 
         j0 = margin_px + c * (side_px + gap_px)
         i0 = margin_px + r * (side_px + gap_px)
         marker = cv2.aruco.generateImageMarker(d, int(tag_id), side_px, borderBits=1)
-        tex[i0: i0 + side_px, j0: j0 + side_px] = np.where(marker[..., None] > 127, 245, 20)
+        tex[i0 : i0 + side_px, j0 : j0 + side_px] = np.where(marker[..., None] > 127, 245, 20)
         left, top = x0 + j0 * res, y1 - i0 * res
-        tags[int(tag_id)] = np.array([[left, top, 0], [left + tag_size, top, 0],
-                                      [left + tag_size, top - tag_size, 0], [left, top - tag_size, 0]])
+        tags[int(tag_id)] = np.array(
+            [[left, top, 0], [left + tag_size, top, 0], [left + tag_size, top - tag_size, 0], [left, top - tag_size, 0]]
+        )
     return Decal(tex, x0, y1, res), Layout(tags, source="synthetic")
 
 
@@ -156,14 +164,22 @@ def _sphere_color(n: np.ndarray) -> np.ndarray:
     """Colourful checker in longitude/latitude on unit normals (..., 3) -> (..., 3) float."""
     lon = np.arctan2(n[..., 1], n[..., 0])
     lat = np.arcsin(np.clip(n[..., 2], -1, 1))
-    palette = np.array([[220, 60, 50], [240, 200, 60], [60, 160, 80], [50, 90, 200], [230, 230, 230], [120, 60, 160]],
-                       np.float64)
+    palette = np.array(
+        [[220, 60, 50], [240, 200, 60], [60, 160, 80], [50, 90, 200], [230, 230, 230], [120, 60, 160]], np.float64
+    )
     idx = (np.floor(lon / np.pi * 6).astype(int) + 2 * np.floor(lat / np.pi * 6).astype(int)) % len(palette)
     return palette[idx]
 
 
-def render(scene: SynthScene, rays_cam: np.ndarray, c2w: np.ndarray, supersample: int = 2, blur: float = 0.0,
-           noise: float = 0.0, rng: np.random.Generator | None = None) -> np.ndarray:
+def render(
+    scene: SynthScene,
+    rays_cam: np.ndarray,
+    c2w: np.ndarray,
+    supersample: int = 2,
+    blur: float = 0.0,
+    noise: float = 0.0,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
     """Render one view.
 
     Args:
@@ -188,8 +204,9 @@ def render(scene: SynthScene, rays_cam: np.ndarray, c2w: np.ndarray, supersample
     if scene.height is not None:  # the waved surface: the fixed point of "hit the plane at the height below"
         for _ in range(8):
             with np.errstate(invalid="ignore"):
-                s_plane = np.where(hit, (scene.height(np.where(hit, X, 0.0), np.where(hit, Y, 0.0)) - o[2])
-                                   / d[..., 2], np.inf)
+                s_plane = np.where(
+                    hit, (scene.height(np.where(hit, X, 0.0), np.where(hit, Y, 0.0)) - o[2]) / d[..., 2], np.inf
+                )
             X = o[0] + s_plane * d[..., 0]
             Y = o[1] + s_plane * d[..., 1]
     Xs, Ys = np.where(hit, X, 0.0), np.where(hit, Y, 0.0)
@@ -198,8 +215,9 @@ def render(scene: SynthScene, rays_cam: np.ndarray, c2w: np.ndarray, supersample
     n = table.shape[0]
     mx = (Xs / scene.table_res) % n
     my = (-Ys / scene.table_res) % n
-    img[:] = cv2.remap(table, mx.astype(np.float32), my.astype(np.float32), cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_WRAP)
+    img[:] = cv2.remap(
+        table, mx.astype(np.float32), my.astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP
+    )
     for dec in scene.decals:
         jx = ((Xs - dec.x0) / dec.res - 0.5).astype(np.float32)
         iy = ((dec.y1 - Ys) / dec.res - 0.5).astype(np.float32)
@@ -212,7 +230,7 @@ def render(scene: SynthScene, rays_cam: np.ndarray, c2w: np.ndarray, supersample
         oc = o - sp.center
         a = np.sum(d * d, -1)
         b = 2 * (d @ oc)
-        c = oc @ oc - sp.radius ** 2
+        c = oc @ oc - sp.radius**2
         disc = b * b - 4 * a * c
         with np.errstate(invalid="ignore"):
             s = (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a)
@@ -240,8 +258,14 @@ def _with_roll(c2w: np.ndarray, roll: float) -> np.ndarray:
     return out
 
 
-def sheet_views(n: int, K: np.ndarray, size: tuple[int, int], extent: float, rng: np.random.Generator,
-                center: np.ndarray | None = None) -> np.ndarray:
+def sheet_views(
+    n: int,
+    K: np.ndarray,
+    size: tuple[int, int],
+    extent: float,
+    rng: np.random.Generator,
+    center: np.ndarray | None = None,
+) -> np.ndarray:
     """(n, 4, 4) varied calibration viewpoints of a sheet of half-size ``extent`` metres:
     elevations 35-75 degrees, any azimuth and roll, the sheet filling 45-95% of the width."""
     center = np.zeros(3) if center is None else np.asarray(center, float)
@@ -257,8 +281,14 @@ def sheet_views(n: int, K: np.ndarray, size: tuple[int, int], extent: float, rng
     return np.stack(poses)
 
 
-def orbit_views(n: int, target: np.ndarray, rng: np.random.Generator, distance=(0.3, 0.42),
-                elevation_deg=(25, 60), roll_deg: float = 8.0) -> np.ndarray:
+def orbit_views(
+    n: int,
+    target: np.ndarray,
+    rng: np.random.Generator,
+    distance=(0.3, 0.42),
+    elevation_deg=(25, 60),
+    roll_deg: float = 8.0,
+) -> np.ndarray:
     """(n, 4, 4) cameras around ``target`` (evenly spread azimuths with jitter), looking at it."""
     poses = []
     for k in range(n):
@@ -267,7 +297,9 @@ def orbit_views(n: int, target: np.ndarray, rng: np.random.Generator, distance=(
         dist = rng.uniform(*distance)
         eye = target + dist * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         aim = target + np.append(rng.normal(0, 0.01, 2), 0.0)
-        poses.append(_with_roll(look_at(eye, aim, np.array([0.0, 0.0, 1.0])), np.deg2rad(rng.uniform(-roll_deg, roll_deg))))
+        poses.append(
+            _with_roll(look_at(eye, aim, np.array([0.0, 0.0, 1.0])), np.deg2rad(rng.uniform(-roll_deg, roll_deg)))
+        )
     return np.stack(poses)
 
 
@@ -301,8 +333,9 @@ class SyntheticCapture:
         return [write_photo(folder / n, img, quality=quality, f35=f35) for n, img in zip(self.names, self.images)]
 
 
-def write_photo(path: str | Path, upright: np.ndarray, orientation: int = 1, quality: int = 95,
-                f35: float | None = None) -> Path:
+def write_photo(
+    path: str | Path, upright: np.ndarray, orientation: int = 1, quality: int = 95, f35: float | None = None
+) -> Path:
     """Write a photo whose *displayed* (EXIF-applied) image is ``upright``.
 
     ``orientation`` is the EXIF Orientation tag (1, 3, 6 or 8); the stored pixels are rotated
@@ -326,11 +359,22 @@ def write_photo(path: str | Path, upright: np.ndarray, orientation: int = 1, qua
     return path
 
 
-def make_calibration_capture(n: int = 16, size: tuple[int, int] = DEFAULT_SIZE, K: np.ndarray = DEFAULT_K,
-                             dist: np.ndarray = DEFAULT_DIST, ids: tuple[int, ...] = (0, 1, 2, 3, 4, 5),
-                             tag_size: float = 0.05, cols: int = 2, gap: float = 0.025, seed: int = 0,
-                             supersample: int = 2, dictionary: str = "DICT_4X4_50", noise: float = 1.0,
-                             prefix: str = "calib", height=None) -> SyntheticCapture:
+def make_calibration_capture(
+    n: int = 16,
+    size: tuple[int, int] = DEFAULT_SIZE,
+    K: np.ndarray = DEFAULT_K,
+    dist: np.ndarray = DEFAULT_DIST,
+    ids: tuple[int, ...] = (0, 1, 2, 3, 4, 5),
+    tag_size: float = 0.05,
+    cols: int = 2,
+    gap: float = 0.025,
+    seed: int = 0,
+    supersample: int = 2,
+    dictionary: str = "DICT_4X4_50",
+    noise: float = 1.0,
+    prefix: str = "calib",
+    height=None,
+) -> SyntheticCapture:
     """Photos of a sheet of tags (default: 6 tags, 2 columns, like the course's sheet);
     ``height``: the sheet's surface (:func:`cockle`), else flat."""
     rng = np.random.default_rng(seed)
@@ -341,15 +385,27 @@ def make_calibration_capture(n: int = 16, size: tuple[int, int] = DEFAULT_SIZE, 
     rays = camera_rays(np.asarray(K), np.asarray(dist), size[0], size[1], supersample)
     images = [render(scene, rays, p, supersample, noise=noise, rng=rng) for p in poses]
     names = [f"{prefix}_{i:03d}.jpg" for i in range(n)]
-    return SyntheticCapture(images, poses, names, np.asarray(K, float), np.asarray(dist, float), size[0], size[1],
-                            layout, scene)
+    return SyntheticCapture(
+        images, poses, names, np.asarray(K, float), np.asarray(dist, float), size[0], size[1], layout, scene
+    )
 
 
-def make_object_capture(n: int = 12, size: tuple[int, int] = DEFAULT_SIZE, K: np.ndarray = DEFAULT_K,
-                        dist: np.ndarray = DEFAULT_DIST, tag_id: int = 0, tag_size: float = 0.06,
-                        object_center: tuple[float, float, float] = (0.11, 0.03, 0.045), object_radius: float = 0.045,
-                        seed: int = 1, supersample: int = 2, dictionary: str = "DICT_4X4_50", noise: float = 1.0,
-                        distance=(0.32, 0.42), prefix: str = "obj") -> SyntheticCapture:
+def make_object_capture(
+    n: int = 12,
+    size: tuple[int, int] = DEFAULT_SIZE,
+    K: np.ndarray = DEFAULT_K,
+    dist: np.ndarray = DEFAULT_DIST,
+    tag_id: int = 0,
+    tag_size: float = 0.06,
+    object_center: tuple[float, float, float] = (0.11, 0.03, 0.045),
+    object_radius: float = 0.045,
+    seed: int = 1,
+    supersample: int = 2,
+    dictionary: str = "DICT_4X4_50",
+    noise: float = 1.0,
+    distance=(0.32, 0.42),
+    prefix: str = "obj",
+) -> SyntheticCapture:
     """Photos of a textured sphere resting beside one tag (whose frame is the world frame),
     taken from a ring of viewpoints looking between the tag and the object."""
     rng = np.random.default_rng(seed)
@@ -361,8 +417,9 @@ def make_object_capture(n: int = 12, size: tuple[int, int] = DEFAULT_SIZE, K: np
     rays = camera_rays(np.asarray(K), np.asarray(dist), size[0], size[1], supersample)
     images = [render(scene, rays, p, supersample, noise=noise, rng=rng) for p in poses]
     names = [f"{prefix}_{i:03d}.jpg" for i in range(n)]
-    return SyntheticCapture(images, poses, names, np.asarray(K, float), np.asarray(dist, float), size[0], size[1],
-                            layout, scene)
+    return SyntheticCapture(
+        images, poses, names, np.asarray(K, float), np.asarray(dist, float), size[0], size[1], layout, scene
+    )
 
 
 def project(K: np.ndarray, dist: np.ndarray, c2w: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -40,7 +40,9 @@ class Undistorter:
         import cv2
 
         if image.shape[:2] != (self.camera.height, self.camera.width):
-            raise ValueError(f"image is {image.shape[1]}x{image.shape[0]}, camera is {self.camera.width}x{self.camera.height}")
+            raise ValueError(
+                f"image is {image.shape[1]}x{image.shape[0]}, camera is {self.camera.width}x{self.camera.height}"
+            )
         if self.maps is None:
             return image
         return cv2.remap(image, *self.maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -62,10 +64,16 @@ def valid_rectangle(camera: Camera, K_new: np.ndarray, samples: int = 200) -> tu
         "bottom": np.column_stack([x0 + t * (x1 - x0), np.full(samples, y1)]),
     }
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
-    out = {k: cv2.undistortPoints(v.reshape(-1, 1, 2), camera.K, camera.dist, P=K_new, criteria=crit).reshape(-1, 2)
-           for k, v in borders.items()}
-    return (float(out["left"][:, 0].max()), float(out["top"][:, 1].max()),
-            float(out["right"][:, 0].min()), float(out["bottom"][:, 1].min()))
+    out = {
+        k: cv2.undistortPoints(v.reshape(-1, 1, 2), camera.K, camera.dist, P=K_new, criteria=crit).reshape(-1, 2)
+        for k, v in borders.items()
+    }
+    return (
+        float(out["left"][:, 0].max()),
+        float(out["top"][:, 1].max()),
+        float(out["right"][:, 0].min()),
+        float(out["bottom"][:, 1].min()),
+    )
 
 
 def make_undistorter(camera: Camera) -> Undistorter:
@@ -89,11 +97,17 @@ def make_undistorter(camera: Camera) -> Undistorter:
     x1, y1 = int(np.floor(right - 0.5)), int(np.floor(bottom - 0.5))
     rw, rh = x1 - x0 + 1, y1 - y0 + 1
     if rw > 2 * w or rh > 2 * h:
-        raise fail(camera.source or "camera", f"undistortion would stretch {w}x{h} photos to {rw}x{rh}",
-                   "The distortion coefficients look wrong; re-calibrate (try --dist-model k1k2)")
+        raise fail(
+            camera.source or "camera",
+            f"undistortion would stretch {w}x{h} photos to {rw}x{rh}",
+            "The distortion coefficients look wrong; re-calibrate (try --dist-model k1k2)",
+        )
     if rw < 0.3 * w or rh < 0.3 * h:
-        raise fail(camera.source or "camera", f"undistortion leaves only a {max(rw, 0)}x{max(rh, 0)} valid region of {w}x{h}",
-                   "The distortion coefficients look wrong; re-calibrate (try --dist-model k1k2)")
+        raise fail(
+            camera.source or "camera",
+            f"undistortion leaves only a {max(rw, 0)}x{max(rh, 0)} valid region of {w}x{h}",
+            "The distortion coefficients look wrong; re-calibrate (try --dist-model k1k2)",
+        )
     K = camera.K.astype(np.float64).copy()
     K[0, 2] -= x0
     K[1, 2] -= y0

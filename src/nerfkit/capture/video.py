@@ -110,8 +110,10 @@ class FrameSelection:
     def to_json(self) -> dict:
         d = asdict(self)
         d["kept"] = self.kept
-        d["frames"] = [{"file": f, "frame": i, "time": round(t, 4), "sharpness": round(s, 2)}
-                       for f, i, t, s in zip(self.files, self.frame_indices, self.timestamps, self.sharpness)]
+        d["frames"] = [
+            {"file": f, "frame": i, "time": round(t, 4), "sharpness": round(s, 2)}
+            for f, i, t, s in zip(self.files, self.frame_indices, self.timestamps, self.sharpness)
+        ]
         for k in ("files", "frame_indices", "timestamps", "sharpness"):
             del d[k]
         return d
@@ -157,8 +159,9 @@ def parse_header(text: str, path: str = "") -> VideoInfo:
     duration = int(dur.group(1)) * 3600 + int(dur.group(2)) * 60 + float(dur.group(3)) if dur else 0.0
     # the stream's block (its lines up to the next stream) holds its side data
     block = text.split(line, 1)[1].split("Stream #", 1)[0]
-    rot = re.search(r"display ?matrix: rotation of (-?[\d.]+) degrees", block, re.IGNORECASE) or \
-        re.search(r"rotate\s*:\s*(-?\d+)", block)
+    rot = re.search(r"display ?matrix: rotation of (-?[\d.]+) degrees", block, re.IGNORECASE) or re.search(
+        r"rotate\s*:\s*(-?\d+)", block
+    )
     anticlockwise = float(rot.group(1)) if rot else 0.0
     if rot and "rotate" in rot.group(0):  # the old tag counts clockwise
         anticlockwise = -anticlockwise
@@ -191,12 +194,31 @@ def probe_video(path: str | os.PathLike, count: bool = False) -> VideoInfo:
     text = r.stderr.decode("utf-8", "replace")
     if "Input #0" not in text:
         why = text.strip().splitlines()[-1] if text.strip() else "ffmpeg could not open it"
-        raise fail(path, f"is not a video ffmpeg can read ({why.split(': ')[-1]})",
-                   "Pass a video file (MP4, MOV, M4V), copied whole from the phone")
+        raise fail(
+            path,
+            f"is not a video ffmpeg can read ({why.split(': ')[-1]})",
+            "Pass a video file (MP4, MOV, M4V), copied whole from the phone",
+        )
     info = parse_header(text, str(path))
     if count:
-        r = subprocess.run([ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", str(path), "-map", "0:v:0", "-c", "copy",
-                            "-f", "null", "-"], capture_output=True, check=False)
+        r = subprocess.run(
+            [
+                ffmpeg_exe(),
+                "-hide_banner",
+                "-nostdin",
+                "-i",
+                str(path),
+                "-map",
+                "0:v:0",
+                "-c",
+                "copy",
+                "-f",
+                "null",
+                "-",
+            ],
+            capture_output=True,
+            check=False,
+        )
         frames = re.findall(r"frame=\s*(\d+)", r.stderr.decode("utf-8", "replace"))
         if frames:
             info.frames, info.exact = int(frames[-1]), True
@@ -205,6 +227,7 @@ def probe_video(path: str | os.PathLike, count: bool = False) -> VideoInfo:
 
 # ---------------------------------------------------------------------------------------------
 # decoding
+
 
 def score_size(width: int, height: int, side: int = SCORE_SIDE) -> tuple[int, int]:
     """(w, h) of a frame scaled so its longest side is at most ``side`` (never up), even."""
@@ -219,8 +242,21 @@ def _ffmpeg_frames(path: Path, size: tuple[int, int], pix_fmt: str, filters: lis
     w, h = size
     channels = 3 if pix_fmt == "rgb24" else 1
     nbytes = w * h * channels
-    cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-nostats", "-i", str(path), "-map", "0:v:0", "-an", "-sn",
-           "-dn", "-fps_mode", "passthrough"]
+    cmd = [
+        ffmpeg_exe(),
+        "-hide_banner",
+        "-nostdin",
+        "-nostats",
+        "-i",
+        str(path),
+        "-map",
+        "0:v:0",
+        "-an",
+        "-sn",
+        "-dn",
+        "-fps_mode",
+        "passthrough",
+    ]
     if filters:
         cmd += ["-vf", ",".join(filters)]
     # one frame queued for the pipe (ffmpeg's default of 8 holds 200 MB of 4K RGB while nerfkit writes a JPEG)
@@ -299,8 +335,10 @@ def score_clip(path: Path, info: VideoInfo, side: int = SCORE_SIDE, progress: bo
     size = score_size(info.width, info.height, side)
     sharp, bright, thumbs = [], [], []
     filters = ["showinfo=checksum=0", f"scale={size[0]}:{size[1]}:flags=area"]
-    with tempfile.TemporaryFile() as log, tqdm(total=info.frames or None, desc="reading frames", unit="frame",
-                                               disable=None if progress else True) as bar:
+    with (
+        tempfile.TemporaryFile() as log,
+        tqdm(total=info.frames or None, desc="reading frames", unit="frame", disable=None if progress else True) as bar,
+    ):
         for grey in _ffmpeg_frames(path, size, "gray", filters, log):
             s, b, t = frame_scores(grey)
             sharp.append(s)
@@ -310,12 +348,18 @@ def score_clip(path: Path, info: VideoInfo, side: int = SCORE_SIDE, progress: bo
         text = _log_text(log)
     if not sharp:
         if re.search(r"Unrecognized option|Option not found|No such filter", text):
-            raise fail(ffmpeg_exe(), "this ffmpeg is too old to read video for nerfkit (it lacks -fps_mode or "
-                       "-thread_queue_size for outputs)", "Use ffmpeg 6 or newer: unset IMAGEIO_FFMPEG_EXE to use "
-                       "the one imageio-ffmpeg ships")
+            raise fail(
+                ffmpeg_exe(),
+                "this ffmpeg is too old to read video for nerfkit (it lacks -fps_mode or "
+                "-thread_queue_size for outputs)",
+                "Use ffmpeg 6 or newer: unset IMAGEIO_FFMPEG_EXE to use the one imageio-ffmpeg ships",
+            )
         last = [ln for ln in text.strip().splitlines() if ln.strip()][-1:] or ["no frames decoded"]
-        raise fail(path, f"no frame could be decoded ({last[0].strip()[:200]})",
-                   "The file may be damaged or cut short: copy the video again from the phone")
+        raise fail(
+            path,
+            f"no frame could be decoded ({last[0].strip()[:200]})",
+            "The file may be damaged or cut short: copy the video again from the phone",
+        )
     n = len(sharp)
     times = np.arange(n, dtype=np.float64) / (info.fps or 30.0)  # when the log gives no time
     base = re.search(r"config in time_base: (\d+)/(\d+)", text)
@@ -331,6 +375,7 @@ def score_clip(path: Path, info: VideoInfo, side: int = SCORE_SIDE, progress: bo
 
 # ---------------------------------------------------------------------------------------------
 # choosing
+
 
 def windows_of(times: np.ndarray, target: int) -> np.ndarray:
     """(n,) window index (0..target-1) of each frame time (n,), for ``target`` windows of
@@ -358,10 +403,15 @@ def spread_axis(scores: ClipScores, spread: str) -> np.ndarray:
     return scores.times if spread == "time" else travel(scores.thumbs)
 
 
-def choose_frames(scores: ClipScores, target: int, blur_ratio: float = BLUR_RATIO,
-                  blur_floor: float = BLUR_FLOOR, dark_level: float = DARK_LEVEL,
-                  duplicate_motion: float = DUPLICATE_MOTION,
-                  spread: str = "time") -> tuple[np.ndarray, np.ndarray, float, float]:
+def choose_frames(
+    scores: ClipScores,
+    target: int,
+    blur_ratio: float = BLUR_RATIO,
+    blur_floor: float = BLUR_FLOOR,
+    dark_level: float = DARK_LEVEL,
+    duplicate_motion: float = DUPLICATE_MOTION,
+    spread: str = "time",
+) -> tuple[np.ndarray, np.ndarray, float, float]:
     """The frames to keep: per window (``target`` windows evenly spread in time or in
     camera travel, see :func:`spread_axis`), the sharpest usable frame that moved at least
     ``duplicate_motion`` thumbnail pixels from the frame kept before it.
@@ -400,6 +450,7 @@ def choose_frames(scores: ClipScores, target: int, blur_ratio: float = BLUR_RATI
 # ---------------------------------------------------------------------------------------------
 # writing
 
+
 def _check_out_dir(out_dir: Path, source: Path, force: bool) -> list[Path]:
     """Refuse an out_dir that is the clip, holds it, or holds files other than earlier frames
     (and those without ``force``). Returns the earlier frames' files (to be replaced)."""
@@ -415,11 +466,17 @@ def _check_out_dir(out_dir: Path, source: Path, force: bool) -> list[Path]:
     ours: list[Path] = []
     other: list[Path] = []
     for p in out_dir.iterdir():
-        (ours if (_FRAME_FILE.fullmatch(p.name) or p.name == REPORT_NAME or is_temporary(p.name)) and p.is_file()
-         else other).append(p)
+        (
+            ours
+            if (_FRAME_FILE.fullmatch(p.name) or p.name == REPORT_NAME or is_temporary(p.name)) and p.is_file()
+            else other
+        ).append(p)
     if other:
-        raise fail(out_dir, f"holds other files than frames (e.g. {min(other).name})",
-                   "Choose a new or empty folder for the frames")
+        raise fail(
+            out_dir,
+            f"holds other files than frames (e.g. {min(other).name})",
+            "Choose a new or empty folder for the frames",
+        )
     if ours and not force:
         raise fail(out_dir, "already holds frames", "Pass --force to replace them, or choose another folder")
     return ours
@@ -444,8 +501,9 @@ def select_expression(indices: list[int]) -> str:
     return f"({select_expression(indices[:half])})+({select_expression(indices[half:])})"
 
 
-def extract_frames(path: Path, info: VideoInfo, indices: list[int], out_dir: Path, names: list[str],
-                   progress: bool = True) -> None:
+def extract_frames(
+    path: Path, info: VideoInfo, indices: list[int], out_dir: Path, names: list[str], progress: bool = True
+) -> None:
     """Second pass: write frames ``indices`` (clip order) of the clip at full resolution as
     JPEG files ``names`` in ``out_dir``."""
     from tqdm import tqdm
@@ -455,8 +513,10 @@ def extract_frames(path: Path, info: VideoInfo, indices: list[int], out_dir: Pat
     expr = select_expression(indices)
     out_dir.mkdir(parents=True, exist_ok=True)
     done = 0
-    with tempfile.TemporaryFile() as log, tqdm(total=len(indices), desc="writing frames", unit="frame",
-                                               disable=None if progress else True) as bar:
+    with (
+        tempfile.TemporaryFile() as log,
+        tqdm(total=len(indices), desc="writing frames", unit="frame", disable=None if progress else True) as bar,
+    ):
         for rgb in _ffmpeg_frames(path, (info.width, info.height), "rgb24", [f"select='{expr}'"], log):
             _write_jpeg(out_dir / names[done], rgb)
             done += 1
@@ -464,14 +524,26 @@ def extract_frames(path: Path, info: VideoInfo, indices: list[int], out_dir: Pat
             if done == len(indices):
                 break
         if done < len(indices):
-            raise fail(path, f"gave {done} of the {len(indices)} chosen frames on the second read "
-                       f"({_log_text(log).strip()[-200:]})", "The file may be damaged: copy it again from the phone")
+            raise fail(
+                path,
+                f"gave {done} of the {len(indices)} chosen frames on the second read ({_log_text(log).strip()[-200:]})",
+                "The file may be damaged: copy it again from the phone",
+            )
 
 
-def select_frames(path: str | os.PathLike, out_dir: str | os.PathLike, target: int = DEFAULT_TARGET, *,
-                  force: bool = False, progress: bool = True, score_side: int = SCORE_SIDE,
-                  blur_ratio: float = BLUR_RATIO, duplicate_motion: float = DUPLICATE_MOTION,
-                  min_frames: int = MIN_FRAMES, spread: str = "time") -> FrameSelection:
+def select_frames(
+    path: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    target: int = DEFAULT_TARGET,
+    *,
+    force: bool = False,
+    progress: bool = True,
+    score_side: int = SCORE_SIDE,
+    blur_ratio: float = BLUR_RATIO,
+    duplicate_motion: float = DUPLICATE_MOTION,
+    min_frames: int = MIN_FRAMES,
+    spread: str = "time",
+) -> FrameSelection:
     """Choose about ``target`` frames of the clip at ``path`` (see the module's docstring) and
     write them to ``out_dir`` as frame_00001.jpg... (JPEG quality 95, full resolution,
     upright) with ``frames.json``, the report. ``out_dir`` is the frames' own folder: it
@@ -494,23 +566,37 @@ def select_frames(path: str | os.PathLike, out_dir: str | os.PathLike, target: i
     n = len(scores.sharpness)
     secs = f"{float(scores.times.max() - scores.times.min()):.1f} s" if n > 1 else "a single frame"
     if n < min_frames:
-        raise fail(path, f"is too short: {n} frame{'s' * (n != 1)} ({secs})",
-                   f"Film a longer clip (at least {min_frames} frames; 20-60 s around the object is typical)")
-    kept, reason, median, threshold = choose_frames(scores, target, blur_ratio, duplicate_motion=duplicate_motion,
-                                                    spread=spread)
+        raise fail(
+            path,
+            f"is too short: {n} frame{'s' * (n != 1)} ({secs})",
+            f"Film a longer clip (at least {min_frames} frames; 20-60 s around the object is typical)",
+        )
+    kept, reason, median, threshold = choose_frames(
+        scores, target, blur_ratio, duplicate_motion=duplicate_motion, spread=spread
+    )
     counts = {r: int(np.sum(reason == r)) for r in REASONS}
     if len(kept) < min_frames:
         raise _too_few(path, n, len(kept), counts, min_frames)
     names = [FRAME_NAME.format(k + 1) for k in range(len(kept))]
     windows = windows_of(spread_axis(scores, spread), target)
     sel = FrameSelection(
-        source=str(path), out_dir=str(out_dir), info=info, target=target, read=n, files=names,
-        frame_indices=kept.tolist(), timestamps=[float(scores.times[i]) for i in kept],
+        source=str(path),
+        out_dir=str(out_dir),
+        info=info,
+        target=target,
+        read=n,
+        files=names,
+        frame_indices=kept.tolist(),
+        timestamps=[float(scores.times[i]) for i in kept],
         sharpness=[float(scores.sharpness[i]) for i in kept],
-        dropped={r: c for r, c in counts.items() if c}, median_sharpness=median, blur_threshold=threshold,
+        dropped={r: c for r, c in counts.items() if c},
+        median_sharpness=median,
+        blur_threshold=threshold,
         empty_windows=int(target - len(set(windows[kept].tolist()))),
-        score_size=score_size(info.width, info.height, score_side), spread=spread,
-        advice=[f"{c} frames {r}: {ADVICE[r]}" for r, c in counts.items() if r in ADVICE and c > n // 4])
+        score_size=score_size(info.width, info.height, score_side),
+        spread=spread,
+        advice=[f"{c} frames {r}: {ADVICE[r]}" for r, c in counts.items() if r in ADVICE and c > n // 4],
+    )
     with _frames_folder(out_dir, replace=bool(earlier)) as folder:
         extract_frames(path, info, sel.frame_indices, folder, names, progress)
         sel.seconds = time.perf_counter() - start
@@ -551,7 +637,9 @@ def _too_few(path: Path, read: int, kept: int, counts: dict[str, int], need: int
         head = f"every one of its {read} frames is {what}"
     else:
         head = f"only {kept} of its {read} frames are worth keeping ({counts[worst]} {what})"
-    fix = {DARK: "Film with more light",
-           BLURRED: "Film slower, with more light, and hold the phone steadier (or film a longer clip)",
-           DUPLICATE: "Move slowly around the object while filming (or film a longer clip)"}[worst]
+    fix = {
+        DARK: "Film with more light",
+        BLURRED: "Film slower, with more light, and hold the phone steadier (or film a longer clip)",
+        DUPLICATE: "Move slowly around the object while filming (or film a longer clip)",
+    }[worst]
     return fail(path, f"{head}; at least {need} are needed", fix)

@@ -20,8 +20,12 @@ def add_run_device_args(p: argparse.ArgumentParser) -> None:
     from ..train.config import MAX_BATCH_RAYS
 
     p.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N (default: auto)")
-    p.add_argument("--chunk", type=number(int, 0, MAX_BATCH_RAYS), default=0,
-                   help="rays rendered at once; lower it if memory runs out (default: the run's render chunk)")
+    p.add_argument(
+        "--chunk",
+        type=number(int, 0, MAX_BATCH_RAYS),
+        default=0,
+        help="rays rendered at once; lower it if memory runs out (default: the run's render chunk)",
+    )
     add_outside_flag(p)
 
 
@@ -29,8 +33,11 @@ def add_outside_flag(p: argparse.ArgumentParser) -> None:
     """``--allow-outside-paths``: the opt-in to read dataset files outside the dataset folder."""
     from ..io.paths import OUTSIDE_FLAG
 
-    p.add_argument(OUTSIDE_FLAG, action="store_true",
-                   help="read dataset images that lie outside the dataset's folder (only for a dataset you trust)")
+    p.add_argument(
+        OUTSIDE_FLAG,
+        action="store_true",
+        help="read dataset images that lie outside the dataset's folder (only for a dataset you trust)",
+    )
 
 
 def run_dataset_path(info) -> Path:
@@ -53,8 +60,9 @@ def load_as_trained(train, path, need: str = "train", allow_outside: bool = Fals
     from ..data.load import load_scene
 
     downscale = getattr(train, "downscale", 0.0) or None  # (a config without the field: as stored)
-    return load_scene(path, parse_background(train.background), downscale=downscale, need=need,
-                      allow_outside=allow_outside)
+    return load_scene(
+        path, parse_background(train.background), downscale=downscale, need=need, allow_outside=allow_outside
+    )
 
 
 def scene_for_run(info, data: str | None, need: str = "train", allow_outside: bool = False):
@@ -87,8 +95,9 @@ class OpenRun:
 
         from ..train.config import parse_background
 
-        return torch.tensor(parse_background(override or self.info.train.background), dtype=torch.float32,
-                            device=self.device)
+        return torch.tensor(
+            parse_background(override or self.info.train.background), dtype=torch.float32, device=self.device
+        )
 
 
 def open_run(args: argparse.Namespace) -> OpenRun:

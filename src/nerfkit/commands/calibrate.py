@@ -34,19 +34,28 @@ def register(sub: argparse._SubParsersAction) -> None:
     from ..capture.calibrate import CalibrateConfig
     from ..config import add_dataclass_args, number, tag_side
 
-    p = sub.add_parser("calibrate", help=HELP, description=DESCRIPTION,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = sub.add_parser(
+        "calibrate", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("photos", metavar="PHOTOS_DIR", help="folder of photos of the tag sheet")
     p.add_argument("--dict", default="DICT_4X4_50", help="ArUco dictionary of the tags (default: DICT_4X4_50)")
-    p.add_argument("--tag-size", type=tag_side, help="side of one tag's black square in metres, e.g. 0.06 "
-                   "(needed unless the layout file gives sizes)")
+    p.add_argument(
+        "--tag-size",
+        type=tag_side,
+        help="side of one tag's black square in metres, e.g. 0.06 (needed unless the layout file gives sizes)",
+    )
     p.add_argument("--layout", help="sheet layout JSON (tag id -> corners/centre, or a GridBoard/ChArUco board)")
     p.add_argument("--out", default="camera.json", help="camera file to write (default: camera.json)")
-    p.add_argument("--detect-size", type=number(int, 64, 100_000), default=2000,
-                   help="detect tags on a copy this many pixels on the long side, then refine corners at full "
-                        "resolution (default: 2000)")
-    p.add_argument("--jobs", type=number(int, 0, 256), default=0,
-                   help="photos processed in parallel (default: up to 4 cores)")
+    p.add_argument(
+        "--detect-size",
+        type=number(int, 64, 100_000),
+        default=2000,
+        help="detect tags on a copy this many pixels on the long side, then refine corners at full "
+        "resolution (default: 2000)",
+    )
+    p.add_argument(
+        "--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel (default: up to 4 cores)"
+    )
     p.add_argument("--no-cache", action="store_true", help="ignore cached detections")
     p.add_argument("--all-photos", action="store_true", help="list every photo in the summary, not only skipped ones")
     p.add_argument("--force", action="store_true", help="replace an existing camera file")
@@ -63,19 +72,38 @@ def selection_table(sel: dict) -> str:
         return "-" if v is None else f"{v:.3f}"
 
     cands = sel.get("candidates")
-    rows = [[r.get("name", m), px(r.get("heldout_rms")), px(r.get("edge_heldout_rms")), px(r.get("fit_rms")),
-             px(r.get("frame_spread_px")), px(r.get("edge_limit_px")),
-             px((r.get("check") or {}).get("corner_displacement_px")),
-             (r.get("verdict") or ("chosen" if r.get("name", m) == sel.get("camera", sel["chosen"]) else "ok"))
-             if r.get("eligible") else (r.get("rejected") or "")]
-            for m, r in (((r["name"], r) for r in cands) if cands else sel["models"].items())]
-    heads = [f"{what} {c['chosen']}: {c['why']}" for name, what in (("principal_point", "principal point"),
-                                                                      ("aspect", "pixels")) if (c := sel.get(name))]
+    rows = [
+        [
+            r.get("name", m),
+            px(r.get("heldout_rms")),
+            px(r.get("edge_heldout_rms")),
+            px(r.get("fit_rms")),
+            px(r.get("frame_spread_px")),
+            px(r.get("edge_limit_px")),
+            px((r.get("check") or {}).get("corner_displacement_px")),
+            (r.get("verdict") or ("chosen" if r.get("name", m) == sel.get("camera", sel["chosen"]) else "ok"))
+            if r.get("eligible")
+            else (r.get("rejected") or ""),
+        ]
+        for m, r in (((r["name"], r) for r in cands) if cands else sel["models"].items())
+    ]
+    heads = [
+        f"{what} {c['chosen']}: {c['why']}"
+        for name, what in (("principal_point", "principal point"), ("aspect", "pixels"))
+        if (c := sel.get(name))
+    ]
     heads.append(f"distortion model {sel['chosen']} ({sel['method']}): {sel['why']}")
     if sel.get("camera_why") and sel["camera_why"] != sel["why"]:
         heads.append(f"camera {sel['camera_why']}")
-    return "\n".join(heads) + "\n" + table(rows, ["camera", "held-out px", "at edges", "fit px", "edge spread",
-                                                   "spread limit", "corner shift", "verdict"], max_width=140)
+    return (
+        "\n".join(heads)
+        + "\n"
+        + table(
+            rows,
+            ["camera", "held-out px", "at edges", "fit px", "edge spread", "spread limit", "corner shift", "verdict"],
+            max_width=140,
+        )
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -116,9 +144,9 @@ def run(args: argparse.Namespace) -> int:
     for r in records:
         if r.detection is not None and len(r.detection.ids) == 0:
             r.skip("no tags found" + blur_hint(records, r))
-    size, kept = group_by_size(keep_one_lens([r for r in records
-                                              if r.detection is not None and (len(r.detection.ids) or charuco)]),
-                               turn=True)
+    size, kept = group_by_size(
+        keep_one_lens([r for r in records if r.detection is not None and (len(r.detection.ids) or charuco)]), turn=True
+    )
     cal = calibrate_records(kept, size, tag_size, layout, cfg, args.dict)
     data = calibration_json(cal, records, args.dict, tag_size, str(Path(args.photos).resolve()))
     write_json(out, data)
@@ -130,19 +158,24 @@ def run(args: argparse.Namespace) -> int:
     for note in cal.notes:
         print(f"  {note}")
     if cal.layout is not None and cal.target == "estimated layout":
-        centres = ", ".join(f"{t}: ({c.mean(0)[0] * 100:.1f}, {c.mean(0)[1] * 100:.1f})"
-                            for t, c in sorted(cal.layout.tags.items()))
+        centres = ", ".join(
+            f"{t}: ({c.mean(0)[0] * 100:.1f}, {c.mean(0)[1] * 100:.1f})" for t, c in sorted(cal.layout.tags.items())
+        )
         print(f"  tag centres (cm): {centres}")
     std = cal.std
     print(f"image size {cal.width}x{cal.height}; RMS reprojection error {cal.rms:.3f} px")
-    print(f"fx {K[0, 0]:.2f} (+/-{std[0]:.2f})  fy {K[1, 1]:.2f} (+/-{std[1]:.2f})  "
-          f"cx {K[0, 2]:.2f} (+/-{std[2]:.2f})  cy {K[1, 2]:.2f} (+/-{std[3]:.2f})")
+    print(
+        f"fx {K[0, 0]:.2f} (+/-{std[0]:.2f})  fy {K[1, 1]:.2f} (+/-{std[1]:.2f})  "
+        f"cx {K[0, 2]:.2f} (+/-{std[2]:.2f})  cy {K[1, 2]:.2f} (+/-{std[3]:.2f})"
+    )
     print("dist k1 k2 p1 p2 k3: " + " ".join(f"{v:.5f}" for v in d))
     print(selection_table(cal.selection))
     s = cal.sanity
     exif = f", fx / EXIF fx {s['fx_over_exif_fx']:.3f}" if s.get("exif_focal_35mm") else ", no EXIF focal length"
-    print(f"checks: fx/fy {s['fx_fy_ratio']:.4f}, principal point {np.hypot(*s['principal_point_offset_px']):.1f} px "
-          f"from centre{exif}, corner coverage {s['corner_coverage'] * 100:.0f}%")
+    print(
+        f"checks: fx/fy {s['fx_fy_ratio']:.4f}, principal point {np.hypot(*s['principal_point_offset_px']):.1f} px "
+        f"from centre{exif}, corner coverage {s['corner_coverage'] * 100:.0f}%"
+    )
     for w in s["warnings"]:
         print(f"WARNING: {w}")
     if not s["warnings"]:

@@ -54,32 +54,54 @@ EXPOSURE_NOTE_DB = 0.75
 def register(sub: argparse._SubParsersAction) -> None:
     from ..config import MIN_RESAMPLED_SIDE, number, tag_side
 
-    p = sub.add_parser("capture", help=HELP, description=DESCRIPTION,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = sub.add_parser(
+        "capture", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("photos", metavar="OBJECT_DIR", help="folder of photos of the object beside the tag")
     p.add_argument("--out", required=True, help="folder for everything the capture makes")
-    p.add_argument("--tag-size", type=tag_side, required=True,
-                   help="side of the black square of the tag beside the object, in metres (e.g. 0.06)")
+    p.add_argument(
+        "--tag-size",
+        type=tag_side,
+        required=True,
+        help="side of the black square of the tag beside the object, in metres (e.g. 0.06)",
+    )
     cam = p.add_mutually_exclusive_group()
-    cam.add_argument("--calib", metavar="CALIB_DIR", help="folder of photos of the printed tag sheet, to calibrate "
-                     "the camera from (without it or --camera: the photos' EXIF focal length, no distortion)")
+    cam.add_argument(
+        "--calib",
+        metavar="CALIB_DIR",
+        help="folder of photos of the printed tag sheet, to calibrate "
+        "the camera from (without it or --camera: the photos' EXIF focal length, no distortion)",
+    )
     cam.add_argument("--camera", help="a camera file from an earlier `nerfkit calibrate` of the same phone")
-    p.add_argument("--sheet-tag-size", type=tag_side,
-                   help="side of a tag's black square on the calibration sheet (default: --tag-size)")
+    p.add_argument(
+        "--sheet-tag-size",
+        type=tag_side,
+        help="side of a tag's black square on the calibration sheet (default: --tag-size)",
+    )
     p.add_argument("--dict", help="ArUco dictionary of the tags (default: the camera file's, else DICT_4X4_50)")
-    p.add_argument("--method", choices=["auto", "tags"], default="auto",
-                   help="poses: auto (default) takes structure-from-motion poses in the tag's frame when they hold "
-                   "up; tags: the tag's poses only, as the course does")
-    p.add_argument("--max-side", type=number(int, MIN_RESAMPLED_SIDE, off=0),
-                   help="the dataset's photos' longer side in pixels (0: keep their size; default: poses', 512)")
+    p.add_argument(
+        "--method",
+        choices=["auto", "tags"],
+        default="auto",
+        help="poses: auto (default) takes structure-from-motion poses in the tag's frame when they hold "
+        "up; tags: the tag's poses only, as the course does",
+    )
+    p.add_argument(
+        "--max-side",
+        type=number(int, MIN_RESAMPLED_SIDE, off=0),
+        help="the dataset's photos' longer side in pixels (0: keep their size; default: poses', 512)",
+    )
     budget = p.add_mutually_exclusive_group()
     budget.add_argument("--minutes", type=number(float, above=0), default=3.0, help="training time (default: 3)")
     budget.add_argument("--steps", type=number(int, 1), help="train this many steps instead of --minutes")
     p.add_argument("--frames", type=number(int, 1, 100_000), help="frames of the orbit (default: render's, 120)")
     p.add_argument("--no-mesh", action="store_true", help="skip the mesh")
     p.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N (default: auto)")
-    p.add_argument("--force", action="store_true",
-                   help="redo every step, replacing the camera file, the dataset and the NeRF of an earlier run")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="redo every step, replacing the camera file, the dataset and the NeRF of an earlier run",
+    )
     p.set_defaults(func=run)
 
 
@@ -118,8 +140,11 @@ def _step(argv: list[str], call, needed: bool = True, verbose: bool = False, tim
     if times is not None:
         times["object" if "--object" in argv else argv[0]] = time.perf_counter() - start
     if not ok and needed:
-        raise fail(f"nerfkit {argv[0]}", "failed (its error is above)",
-                   "Fix that and run the same `nerfkit capture` again: the steps already done are kept")
+        raise fail(
+            f"nerfkit {argv[0]}",
+            "failed (its error is above)",
+            "Fix that and run the same `nerfkit capture` again: the steps already done are kept",
+        )
     return ok
 
 
@@ -166,15 +191,24 @@ CAMERA_INPUTS = ("calib", "calib_files", "calib_tag_size", "dict")
 
 def _inputs(args: argparse.Namespace) -> dict:
     """What a capture is made from: a later run must name the same to keep its results."""
+
     def where(p):
         return str(Path(p).resolve()) if p else None
 
-    return {"photos": where(args.photos), "photo_files": _photo_files(args.photos),
-            "calib": where(args.calib), "calib_files": _photo_files(args.calib), "camera": where(args.camera),
-            "camera_file": _file_digest(args.camera),
-            "tag_size": args.tag_size, "sheet_tag_size": args.sheet_tag_size,
-            "calib_tag_size": (args.sheet_tag_size or args.tag_size) if args.calib else None, "dict": args.dict,
-            "method": args.method, "max_side": args.max_side}
+    return {
+        "photos": where(args.photos),
+        "photo_files": _photo_files(args.photos),
+        "calib": where(args.calib),
+        "calib_files": _photo_files(args.calib),
+        "camera": where(args.camera),
+        "camera_file": _file_digest(args.camera),
+        "tag_size": args.tag_size,
+        "sheet_tag_size": args.sheet_tag_size,
+        "calib_tag_size": (args.sheet_tag_size or args.tag_size) if args.calib else None,
+        "dict": args.dict,
+        "method": args.method,
+        "max_side": args.max_side,
+    }
 
 
 def _same_inputs(out: Path, inputs: dict, camera: Path | None, made: list[Path]) -> None:
@@ -193,12 +227,17 @@ def _same_inputs(out: Path, inputs: dict, camera: Path | None, made: list[Path])
         before = None
     if not isinstance(before, dict) or "photos" not in before:  # missing, or not a record
         if there:
-            raise fail(out, f"holds {', '.join(str(p.relative_to(out)) for p in there)} that no `nerfkit capture` "
-                       f"recorded in {RECORD_FILE}", "Pass --force to replace them, or choose another --out")
+            raise fail(
+                out,
+                f"holds {', '.join(str(p.relative_to(out)) for p in there)} that no `nerfkit capture` "
+                f"recorded in {RECORD_FILE}",
+                "Pass --force to replace them, or choose another --out",
+            )
         return
     if "calib_tag_size" not in before:  # recorded by an older nerfkit
-        before["calib_tag_size"] = (before.get("sheet_tag_size") or before.get("tag_size")) if before.get("calib") \
-            else None
+        before["calib_tag_size"] = (
+            (before.get("sheet_tag_size") or before.get("tag_size")) if before.get("calib") else None
+        )
     # (any other input an older capture did not record is not taken as changed)
     changed = [k for k, v in inputs.items() if k in before and before[k] != v]
     kept = [p for p in made if p.exists()]
@@ -207,9 +246,13 @@ def _same_inputs(out: Path, inputs: dict, camera: Path | None, made: list[Path])
     elif not kept:
         changed = []
     if changed:
-        raise fail(out, "holds a capture made from other inputs (" + ", ".join(
-            f"{k}: {before.get(k)} then, {inputs[k]} now" for k in changed) + ")",
-            "Pass --force to redo it with these, or choose another --out")
+        raise fail(
+            out,
+            "holds a capture made from other inputs ("
+            + ", ".join(f"{k}: {before.get(k)} then, {inputs[k]} now" for k in changed)
+            + ")",
+            "Pass --force to redo it with these, or choose another --out",
+        )
 
 
 def _finished(run_dir: Path) -> bool:
@@ -264,12 +307,17 @@ def _larger_budget(run_dir: Path, args: argparse.Namespace, need_checkpoint: boo
         return False
     larger = (then[0] > 0) == (now[0] > 0) and (now[0] > then[0] if now[0] else now[1] > then[1])
     if larger and (checkpoint_paths(run_dir) or not need_checkpoint):
-        print(f"   its budget was {_budget_text(*then)}: training goes on to the {_budget_text(*now)} asked for now",
-              flush=True)
+        print(
+            f"   its budget was {_budget_text(*then)}: training goes on to the {_budget_text(*now)} asked for now",
+            flush=True,
+        )
         return True
-    print(f"   its budget is {_budget_text(*then)}, not the {_budget_text(*now)} asked for now"
-          + (" (and no checkpoint is left to go on from)" if larger else "") + ": --force trains it again with those",
-          flush=True)
+    print(
+        f"   its budget is {_budget_text(*then)}, not the {_budget_text(*now)} asked for now"
+        + (" (and no checkpoint is left to go on from)" if larger else "")
+        + ": --force trains it again with those",
+        flush=True,
+    )
     return False
 
 
@@ -291,7 +339,6 @@ def _replace_run(run_dir: Path) -> None:
 def run(args: argparse.Namespace) -> int:
     from functools import partial
 
-    from . import pipeline as api
     from ..errors import fail
     from ..images import list_images
     from ..io.atomic import write_json
@@ -299,6 +346,7 @@ def run(args: argparse.Namespace) -> int:
     from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
     from ..train.checkpoint import MODEL_FILE, checkpoint_paths
     from ..train.config import resolve_device
+    from . import pipeline as api
 
     times: dict[str, float] = {}
     step = partial(_step, verbose=bool(getattr(args, "verbose", False)), times=times)
@@ -309,8 +357,11 @@ def run(args: argparse.Namespace) -> int:
         if folder and not Path(folder).is_dir():
             raise fail(folder, "is not a folder", f"{flag} names a folder of photos")
     if args.calib and Path(args.calib).resolve() == Path(args.photos).resolve():
-        raise fail(args.calib, "is both the calibration folder and the object's",
-                   "--calib names the photos of the printed tag sheet, OBJECT_DIR those of the object beside its tag")
+        raise fail(
+            args.calib,
+            "is both the calibration folder and the object's",
+            "--calib names the photos of the printed tag sheet, OBJECT_DIR those of the object beside its tag",
+        )
     # the photos may sit in --out (my_object/photos, --out my_object), but nothing is written among them
     ours = [out / DATASET_DIR, out / RUN_DIR, out / RECORD_FILE] + ([out / CAMERA_FILE] if args.calib else [])
     guard_outputs(ours, [args.photos, args.calib, args.camera], force=True)
@@ -319,8 +370,12 @@ def run(args: argparse.Namespace) -> int:
     resolve_device(args.device)
     inputs = _inputs(args)
     if not args.force:
-        _same_inputs(out, inputs, out / CAMERA_FILE if args.calib else None,
-                     [out / DATASET_DIR / "dataset.npz", out / RUN_DIR / "config.json"])
+        _same_inputs(
+            out,
+            inputs,
+            out / CAMERA_FILE if args.calib else None,
+            [out / DATASET_DIR / "dataset.npz", out / RUN_DIR / "config.json"],
+        )
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / RECORD_FILE, {"inputs": inputs})
     dictionary = ["--dict", args.dict] if args.dict else []
@@ -333,18 +388,41 @@ def run(args: argparse.Namespace) -> int:
             _kept("calibration", camera)
         else:  # --force: a calibration cut short may have left its detections
             sheet_size = args.sheet_tag_size or args.tag_size
-            step(["calibrate", args.calib, *dictionary, "--tag-size", str(sheet_size), "--out", str(camera), "--force"],
-                 lambda: api.calibrate(args.calib, camera, tag_size=sheet_size, force=True, **dict_option))
+            step(
+                ["calibrate", args.calib, *dictionary, "--tag-size", str(sheet_size), "--out", str(camera), "--force"],
+                lambda: api.calibrate(args.calib, camera, tag_size=sheet_size, force=True, **dict_option),
+            )
 
     dataset = out / DATASET_DIR
     if (dataset / "dataset.npz").exists() and not args.force:
         _kept("dataset", dataset)
     else:  # --force: the folder is the capture's, and poses cut short leaves poses.json
-        step(["poses", args.photos, "--tag-size", str(args.tag_size), *dictionary, "--out", str(dataset),
-              "--method", args.method, "--force", *(["--camera", str(camera)] if camera else []),
-              *(["--max-side", str(args.max_side)] if args.max_side is not None else [])],
-             lambda: api.pose(args.photos, dataset, tag_size=args.tag_size, camera=camera, method=args.method,
-                              force=True, max_side=args.max_side, **dict_option))
+        step(
+            [
+                "poses",
+                args.photos,
+                "--tag-size",
+                str(args.tag_size),
+                *dictionary,
+                "--out",
+                str(dataset),
+                "--method",
+                args.method,
+                "--force",
+                *(["--camera", str(camera)] if camera else []),
+                *(["--max-side", str(args.max_side)] if args.max_side is not None else []),
+            ],
+            lambda: api.pose(
+                args.photos,
+                dataset,
+                tag_size=args.tag_size,
+                camera=camera,
+                method=args.method,
+                force=True,
+                max_side=args.max_side,
+                **dict_option,
+            ),
+        )
 
     run_dir = out / RUN_DIR
     if args.force:
@@ -354,53 +432,78 @@ def run(args: argparse.Namespace) -> int:
     if _finished(run_dir):
         _kept("NeRF", run_dir)
         if _larger_budget(run_dir, args, need_checkpoint=True):
-            step(["train", "--resume", str(run_dir), *budget, "--device", args.device],
-                 lambda: _trained(api.resume(run_dir, device=args.device, **budget_option)))
+            step(
+                ["train", "--resume", str(run_dir), *budget, "--device", args.device],
+                lambda: _trained(api.resume(run_dir, device=args.device, **budget_option)),
+            )
     elif (run_dir / MODEL_FILE).exists() and not checkpoint_paths(run_dir):  # cut short, nothing to go on from
         _kept("NeRF", run_dir)
         print("   it was cut short and has no checkpoint to go on from: --force trains it again", flush=True)
     elif (run_dir / "config.json").exists():  # cut short: it goes on, to a larger budget if one is asked for
         larger = _larger_budget(run_dir, args, need_checkpoint=False)
-        step(["train", "--resume", str(run_dir), *(budget if larger else []), "--device", args.device],
-             lambda: _trained(api.resume(run_dir, device=args.device, **(budget_option if larger else {}))))
+        step(
+            ["train", "--resume", str(run_dir), *(budget if larger else []), "--device", args.device],
+            lambda: _trained(api.resume(run_dir, device=args.device, **(budget_option if larger else {}))),
+        )
     else:
-        step(["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget, "--device", args.device],
-             lambda: _trained(api.train(dataset / "dataset.npz", run_dir, device=args.device, **budget_option)))
+        step(
+            ["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget, "--device", args.device],
+            lambda: _trained(api.train(dataset / "dataset.npz", run_dir, device=args.device, **budget_option)),
+        )
     # what shows the model as it is now is kept; the rest is made again (it belongs to the run)
     evaluated = True
     if _newer_than_model(run_dir / "eval_val.json", run_dir):
         _kept("evaluation", run_dir / "eval_val.json")
     else:
-        evaluated = step(["eval", str(run_dir), "--split", "val", "--device", args.device],
-                         lambda: api.evaluate(run_dir, split="val", device=args.device), needed=False)
+        evaluated = step(
+            ["eval", str(run_dir), "--split", "val", "--device", args.device],
+            lambda: api.evaluate(run_dir, split="val", device=args.device),
+            needed=False,
+        )
     videos = run_dir / "videos"
     frames = ["--frames", str(args.frames)] if args.frames else []
     if all(_newer_than_model(videos / name, run_dir) for name in VIDEO_FILES) and not args.frames:
         _kept("videos", videos)
     else:
-        step(["render", str(run_dir), "--device", args.device, *frames],
-             lambda: api.render(run_dir, device=args.device, frames=args.frames))
+        step(
+            ["render", str(run_dir), "--device", args.device, *frames],
+            lambda: api.render(run_dir, device=args.device, frames=args.frames),
+        )
     # a NeRF with nothing solid to frame still has its scene videos: the capture goes on
     if all(_newer_than_model(videos / name, run_dir) for name in OBJECT_VIDEO_FILES) and not args.frames:
         _kept("videos of the object", videos)
     else:
-        step(["render", str(run_dir), "--object", "--device", args.device, *frames],
-             lambda: api.render(run_dir, object=True, device=args.device, frames=args.frames), needed=False)
+        step(
+            ["render", str(run_dir), "--object", "--device", args.device, *frames],
+            lambda: api.render(run_dir, object=True, device=args.device, frames=args.frames),
+            needed=False,
+        )
     mesh = None
     if not args.no_mesh:  # a NeRF too faint to mesh is still a NeRF: the capture goes on
         mesh = run_dir / MESH_FILE
         if _newer_than_model(mesh, run_dir):
             _kept("mesh", mesh)
-        elif not step(["export", str(run_dir), "--mesh", str(mesh), "--force", "--device", args.device],
-                      lambda: api.export(run_dir, mesh=mesh, force=True, device=args.device), needed=False):
+        elif not step(
+            ["export", str(run_dir), "--mesh", str(mesh), "--force", "--device", args.device],
+            lambda: api.export(run_dir, mesh=mesh, force=True, device=args.device),
+            needed=False,
+        ):
             mesh = None
     print()
     print(summary(out, camera, dataset, run_dir, mesh, evaluated, mesh_skipped=args.no_mesh, times=times))
     return 0
 
 
-def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: Path | None,
-            evaluated: bool = True, mesh_skipped: bool = False, times: dict | None = None) -> str:
+def summary(
+    out: Path,
+    camera: Path | None,
+    dataset: Path,
+    run_dir: Path,
+    mesh: Path | None,
+    evaluated: bool = True,
+    mesh_skipped: bool = False,
+    times: dict | None = None,
+) -> str:
     """What the capture made, in a few lines: the calibration (and its warnings), the photos
     posed, the NeRF's held-out scores, where the videos, plots and mesh are, and the time
     each step run now took (``times``, seconds by step)."""
@@ -416,9 +519,16 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
     if camera is not None:
         c = json.loads(camera.read_text())
         held, rms = c.get("heldout_rms"), c.get("rms")
-        lines.append(f"  camera    {camera}: distortion model {c.get('dist_model', 'as given')}"
-                     + (f", {held:.2f} px on held-out photos" if held is not None else
-                        f", RMS {rms:.2f} px" if rms is not None else ""))
+        lines.append(
+            f"  camera    {camera}: distortion model {c.get('dist_model', 'as given')}"
+            + (
+                f", {held:.2f} px on held-out photos"
+                if held is not None
+                else f", RMS {rms:.2f} px"
+                if rms is not None
+                else ""
+            )
+        )
         warnings = (c.get("sanity") or {}).get("warnings") or []
         for w in warnings:
             lines.append(f"            WARNING: {w}")
@@ -431,10 +541,15 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
     views = nk.get("views") or {}
     choice = nk.get("pose_choice")
     lines.append(f"  photos    {len(photos)}: the tag found in {found}, {posed} posed by it")
-    lines.append(f"  dataset   {dataset}: " + ", ".join(f"{n} {split}" for split, n in views.items())
-                 + (f"; {choice['why']}" if isinstance(choice, dict) and choice.get("why") else ""))
-    for note in (few_views_note(int(views.get("train", FEW_TRAIN_VIEWS))),
-                 no_object_note(nk.get("object_points"), int(nk.get("points") or 0))):
+    lines.append(
+        f"  dataset   {dataset}: "
+        + ", ".join(f"{n} {split}" for split, n in views.items())
+        + (f"; {choice['why']}" if isinstance(choice, dict) and choice.get("why") else "")
+    )
+    for note in (
+        few_views_note(int(views.get("train", FEW_TRAIN_VIEWS))),
+        no_object_note(nk.get("object_points"), int(nk.get("points") or 0)),
+    ):
         if note:
             lines.append(f"            {note}")
     if isinstance(nk.get("coverage"), dict):
@@ -450,35 +565,59 @@ def summary(out: Path, camera: Path | None, dataset: Path, run_dir: Path, mesh: 
     if evaluated:
         e = json.loads((run_dir / "eval_val.json").read_text())
         fitted = e.get("fitted")
-        lines.append(f"  held out  {e['n_images']} val photos: {e['psnr']:.2f} dB / SSIM {e['ssim']:.3f} as rendered"
-                     + (f", {fitted['psnr']:.2f} dB with each photo's pose fitted and each half's colour solved on the "
-                        "other half" if fitted else "")
-                     + f"; photo beside render: {run_dir / 'eval_val.png'}")
+        lines.append(
+            f"  held out  {e['n_images']} val photos: {e['psnr']:.2f} dB / SSIM {e['ssim']:.3f} as rendered"
+            + (
+                f", {fitted['psnr']:.2f} dB with each photo's pose fitted and each half's colour solved on the "
+                "other half"
+                if fitted
+                else ""
+            )
+            + f"; photo beside render: {run_dir / 'eval_val.png'}"
+        )
         obj = e.get("object") or {}
         if obj.get("psnr") is not None:
-            lines.append(f"            the object's own pixels: {obj['psnr']:.2f} dB as rendered"
-                         + (f", {obj['psnr_fitted']:.2f} fitted" if obj.get("psnr_fitted") is not None else ""))
+            lines.append(
+                f"            the object's own pixels: {obj['psnr']:.2f} dB as rendered"
+                + (f", {obj['psnr_fitted']:.2f} fitted" if obj.get("psnr_fitted") is not None else "")
+            )
         colour = e.get("colour_only")
         if colour and colour["psnr"] - e["psnr"] >= EXPOSURE_NOTE_DB:
-            lines.append("            note: with only their colour solved (each half's on the other half), the "
-                         "held-out photos score "
-                         f"{colour['psnr']:.2f} dB: each photo's overall colour changed (the phone's exposure or "
-                         "white balance, or the light itself), which the scene cannot predict. Locking the exposure "
-                         "while photographing (iPhone: AE/AF lock) narrows the phone's part"
-                         + (" (the agreement above says how much)" if agreement else ""))
+            lines.append(
+                "            note: with only their colour solved (each half's on the other half), the "
+                "held-out photos score "
+                f"{colour['psnr']:.2f} dB: each photo's overall colour changed (the phone's exposure or "
+                "white balance, or the light itself), which the scene cannot predict. Locking the exposure "
+                "while photographing (iPhone: AE/AF lock) narrows the phone's part"
+                + (" (the agreement above says how much)" if agreement else "")
+            )
     else:
         lines.append("  held out  not scored (the eval's error is above)")
     videos = run_dir / "videos"
     alone = [name for name in OBJECT_VIDEO_FILES if _newer_than_model(videos / name, run_dir)]
-    lines.append(f"  videos    {videos}: " + ", ".join(VIDEO_FILES) + "; the object alone: "
-                 + (", ".join(alone) if alone else "none (see above)"))
-    lines.append(f"  mesh      {mesh}" if mesh is not None else
-                 "  mesh      not made (--no-mesh)" if mesh_skipped else "  mesh      none (see above)")
-    lines.append(f"  look      nerfkit view {run_dir}   (the NeRF live in the browser, with the cameras; "
-                 "\"Object alone\" hides the table and room)")
+    lines.append(
+        f"  videos    {videos}: "
+        + ", ".join(VIDEO_FILES)
+        + "; the object alone: "
+        + (", ".join(alone) if alone else "none (see above)")
+    )
+    lines.append(
+        f"  mesh      {mesh}"
+        if mesh is not None
+        else "  mesh      not made (--no-mesh)"
+        if mesh_skipped
+        else "  mesh      none (see above)"
+    )
+    lines.append(
+        f"  look      nerfkit view {run_dir}   (the NeRF live in the browser, with the cameras; "
+        '"Object alone" hides the table and room)'
+    )
     if times:
-        lines.append("  time      " + ", ".join(f"{name} {_duration(t)}" for name, t in times.items())
-                     + f"; {_duration(sum(times.values()))} in all")
+        lines.append(
+            "  time      "
+            + ", ".join(f"{name} {_duration(t)}" for name, t in times.items())
+            + f"; {_duration(sum(times.values()))} in all"
+        )
     return "\n".join(lines)
 
 

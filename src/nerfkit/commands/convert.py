@@ -32,24 +32,48 @@ def register(sub: argparse._SubParsersAction) -> None:
     from ..config import MIN_DOWNSCALE, number
     from ._common import add_outside_flag
 
-    p = sub.add_parser("convert", help=HELP, description=HELP + ".", epilog=EPILOG,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = sub.add_parser(
+        "convert",
+        help=HELP,
+        description=HELP + ".",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("src", metavar="SRC", help="dataset file or folder")
     p.add_argument("--to", required=True, metavar="OUT", help="output: a .npz file or a folder (see below)")
-    p.add_argument("--format", choices=["auto", "npz", "transforms", "colmap"], default="auto",
-                   help="output format; auto: npz for *.npz, else transforms.json (default: auto)")
+    p.add_argument(
+        "--format",
+        choices=["auto", "npz", "transforms", "colmap"],
+        default="auto",
+        help="output format; auto: npz for *.npz, else transforms.json (default: auto)",
+    )
     size = p.add_mutually_exclusive_group()
-    size.add_argument("--size", type=number(int, 1, 100_000), metavar="PX",
-                      help="resample so the longest image side is PX pixels (K follows)")
-    size.add_argument("--downscale", type=number(float, MIN_DOWNSCALE), metavar="F",
-                      help="divide the image size by F (K follows)")
-    p.add_argument("--background", default="black",
-                   help="colour under transparent pixels of RGBA inputs: black, white, grey, r,g,b in [0, 1] "
-                        "or #rrggbb (default: black)")
-    p.add_argument("--near", type=depth_bound(number(float, 0.0)), help="set the depth range's near end (world "
-                   "units; e.g. the course's 2 for lego, where nerfkit's rule from the cameras gives 2.02)")
-    p.add_argument("--far", type=depth_bound(number(float, above=0)),
-                   help="set the depth range's far end (the course's 6 for lego)")
+    size.add_argument(
+        "--size",
+        type=number(int, 1, 100_000),
+        metavar="PX",
+        help="resample so the longest image side is PX pixels (K follows)",
+    )
+    size.add_argument(
+        "--downscale", type=number(float, MIN_DOWNSCALE), metavar="F", help="divide the image size by F (K follows)"
+    )
+    p.add_argument(
+        "--background",
+        default="black",
+        help="colour under transparent pixels of RGBA inputs: black, white, grey, r,g,b in [0, 1] "
+        "or #rrggbb (default: black)",
+    )
+    p.add_argument(
+        "--near",
+        type=depth_bound(number(float, 0.0)),
+        help="set the depth range's near end (world "
+        "units; e.g. the course's 2 for lego, where nerfkit's rule from the cameras gives 2.02)",
+    )
+    p.add_argument(
+        "--far",
+        type=depth_bound(number(float, above=0)),
+        help="set the depth range's far end (the course's 6 for lego)",
+    )
     p.add_argument("--images", metavar="DIR", help="photo folder of a COLMAP model (default: the project's images/)")
     p.add_argument("--text", action="store_true", help="with --format colmap: write the text model instead of binary")
     p.add_argument("--force", action="store_true", help="replace an existing output (never an input)")
@@ -72,8 +96,9 @@ def depth_bound(parse):
         if value > FLOAT32_MAX:
             raise argparse.ArgumentTypeError(f"{text} is larger than a dataset file holds (float32: at most 3.4e38)")
         if 0 < value < FLOAT32_TINY:
-            raise argparse.ArgumentTypeError(f"{text} is smaller than a dataset file holds (float32: 0 or at least "
-                                             "1.2e-38)")
+            raise argparse.ArgumentTypeError(
+                f"{text} is smaller than a dataset file holds (float32: 0 or at least 1.2e-38)"
+            )
         return value
 
     checked.__name__ = "float"  # argparse names the type in its messages
@@ -81,8 +106,26 @@ def depth_bound(parse):
 
 
 # names that --to takes for a file of another kind, not a folder (`--to out.ply`)
-FILE_SUFFIXES = {".ply", ".json", ".obj", ".glb", ".splat", ".zip", ".tar", ".gz", ".mp4", ".gif", ".png", ".jpg",
-                 ".jpeg", ".txt", ".pt", ".pth", ".bin", ".db"}
+FILE_SUFFIXES = {
+    ".ply",
+    ".json",
+    ".obj",
+    ".glb",
+    ".splat",
+    ".zip",
+    ".tar",
+    ".gz",
+    ".mp4",
+    ".gif",
+    ".png",
+    ".jpg",
+    ".jpeg",
+    ".txt",
+    ".pt",
+    ".pth",
+    ".bin",
+    ".db",
+}
 
 
 def output_format(out: str, fmt: str) -> str:
@@ -107,9 +150,12 @@ def run(args: argparse.Namespace) -> int:
     if fmt != "npz" and out.suffix.lower() == ".npz":
         raise fail(out, f"--format {fmt} writes a folder, not an .npz file")
     if fmt != "npz" and out.suffix.lower() in FILE_SUFFIXES:
-        raise fail(out, f"looks like a {out.suffix} file, but convert writes a .npz file or a folder "
-                   f"({'COLMAP project' if fmt == 'colmap' else 'transforms.json and images/'})",
-                   "End --to in .npz, or give a folder name")
+        raise fail(
+            out,
+            f"looks like a {out.suffix} file, but convert writes a .npz file or a folder "
+            f"({'COLMAP project' if fmt == 'colmap' else 'transforms.json and images/'})",
+            "End --to in .npz, or give a folder name",
+        )
     if fmt == "colmap" and (args.near is not None or args.far is not None):
         raise fail("--near/--far", "a COLMAP model keeps no depth range", "Write an npz or transforms.json instead")
     guard_outputs(output_targets(out, fmt), [*dataset_inputs(args.src), args.images], args.force, "--to")
@@ -118,39 +164,60 @@ def run(args: argparse.Namespace) -> int:
     if args.images and src_fmt == "colmap":
         from ..data.colmap import load_colmap
 
-        scene = load_colmap(args.src, images=args.images, background=background, size=args.size,
-                            downscale=args.downscale, allow_outside=args.allow_outside_paths)
+        scene = load_colmap(
+            args.src,
+            images=args.images,
+            background=background,
+            size=args.size,
+            downscale=args.downscale,
+            allow_outside=args.allow_outside_paths,
+        )
     else:
         if args.images:
             raise fail("--images", f"only applies to COLMAP inputs; {args.src} is {src_fmt}")
-        scene = load_scene(args.src, background=background, size=args.size, downscale=args.downscale,
-                           allow_outside=args.allow_outside_paths)
+        scene = load_scene(
+            args.src,
+            background=background,
+            size=args.size,
+            downscale=args.downscale,
+            allow_outside=args.allow_outside_paths,
+        )
     if args.near is not None or args.far is not None:
         from ..data.validate import check_near_far
 
-        scene.near, scene.far = check_near_far(scene.near if args.near is None else args.near,
-                                               scene.far if args.far is None else args.far, "--near/--far")
+        scene.near, scene.far = check_near_far(
+            scene.near if args.near is None else args.near, scene.far if args.far is None else args.far, "--near/--far"
+        )
         import numpy as np
 
         if not np.float32(scene.near) < np.float32(scene.far):  # as the file holds them
-            raise fail("--near/--far", f"near={scene.near:g} and far={scene.far:g} are one number in a dataset file "
-                       "(float32)", "Give a wider depth range")
+            raise fail(
+                "--near/--far",
+                f"near={scene.near:g} and far={scene.far:g} are one number in a dataset file (float32)",
+                "Give a wider depth range",
+            )
     written = write_scene_as(scene, out, fmt, text=args.text)
     n = {k: len(v) for k, v in scene.splits.items()}
-    print(f"{args.src} ({src_fmt}) -> {out} ({fmt}): {n['train']} train, {n['val']} val, {n['test']} test views, "
-          f"{scene.train.width}x{scene.train.height}, fx={scene.train.K[0, 0, 0]:.2f}, "
-          f"near={scene.near:.3g}, far={scene.far:.3g}")
+    print(
+        f"{args.src} ({src_fmt}) -> {out} ({fmt}): {n['train']} train, {n['val']} val, {n['test']} test views, "
+        f"{scene.train.width}x{scene.train.height}, fx={scene.train.K[0, 0, 0]:.2f}, "
+        f"near={scene.near:.3g}, far={scene.far:.3g}"
+    )
     for p in written:
         print(f"  {p}")
     if fmt == "colmap":
         kept = sum(len(v) for v in scene.splits.values() if v.images is not None) or sum(n.values())
         dropped = " (pose-only views left out)" if kept < sum(n.values()) else ""
-        print(f"note: a COLMAP model keeps no splits: it holds {kept} views as one set{dropped}, "
-              "and reading it back holds out nerfkit's own val views")
+        print(
+            f"note: a COLMAP model keeps no splits: it holds {kept} views as one set{dropped}, "
+            "and reading it back holds out nerfkit's own val views"
+        )
         if scene.capture or scene.table is not None or scene.tags is not None:
-            print("note: nor does it keep that these are real photos of an object on a tag's table (the table "
-                  "plane, the printed tags, the depth range): read back, it trains as a plain scene. Keep the "
-                  "npz or transforms.json for nerfkit's capture settings")
+            print(
+                "note: nor does it keep that these are real photos of an object on a tag's table (the table "
+                "plane, the printed tags, the depth range): read back, it trains as a plain scene. Keep the "
+                "npz or transforms.json for nerfkit's capture settings"
+            )
     elif args.text:
         print("note: --text is for --format colmap's model; ignored", file=sys.stderr)
     return 0
@@ -189,8 +256,11 @@ def write_scene_as(scene, out, fmt: str, text: bool = False) -> list:
     try:
         from ..data.nerfstudio import write_transforms_json
     except ImportError:
-        raise fail(out, "transforms.json output needs nerfkit.data.nerfstudio, which this build lacks",
-                   "Convert to .npz instead") from None
+        raise fail(
+            out,
+            "transforms.json output needs nerfkit.data.nerfstudio, which this build lacks",
+            "Convert to .npz instead",
+        ) from None
     write_transforms_json(scene, out)
     return [out / "transforms.json"]
 
@@ -206,8 +276,7 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
 
     from ..data.colmap import write_colmap_model
     from ..errors import fail
-    from ..images import IMAGE_SUFFIXES
-    from ..images import write_image
+    from ..images import IMAGE_SUFFIXES, write_image
     from ..io.atomic import replacing_folder
     from ..io.paths import safe_output_name
 
@@ -215,14 +284,18 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
     written, splits = [], {}
     seen: set[str] = set()
     for split, v in scene.splits.items():
-        names = [safe_output_name(n, f"{split}_{i:04d}") for i, n in enumerate(v.names)] if v.names else \
-            [f"{split}_{i:04d}" for i in range(len(v))]
+        names = (
+            [safe_output_name(n, f"{split}_{i:04d}") for i, n in enumerate(v.names)]
+            if v.names
+            else [f"{split}_{i:04d}" for i in range(len(v))]
+        )
         names = [n if Path(n).suffix.lower() in IMAGE_SUFFIXES else n + ".png" for n in names]
         if v.images is not None:
             names = [str(Path(n).with_suffix(".png")) for n in names]  # pixels are written as PNG
             if len(set(names)) < len(names) or seen & set(names):
-                raise fail(out, "two views would both be written as the same image file",
-                           "Give the views distinct names")
+                raise fail(
+                    out, "two views would both be written as the same image file", "Give the views distinct names"
+                )
             seen |= set(names)
         splits[split] = replace(v, names=names)
     with_images = tuple(k for k, v in scene.splits.items() if v.images is not None and len(v))

@@ -34,18 +34,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     from ..config import add_dataclass_args, number
     from ._common import add_outside_flag
 
-    p = sub.add_parser("dataset", help=HELP, description=DESCRIPTION,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = sub.add_parser(
+        "dataset", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("poses", metavar="DATASET_DIR", help="folder with poses.json from `nerfkit poses` (or the file)")
     p.add_argument("--out", help="folder to write (default: the same folder)")
-    p.add_argument("--pose-source", choices=["auto", "tags", "sfm"], default="auto",
-                   help="auto (default): the poses the folder's dataset was built from (transforms.json says): "
-                   "the structure-from-motion model that `nerfkit poses` left (sfm_report.json, colmap/), or "
-                   "the tag poses of poses.json")
-    p.add_argument("--jobs", type=number(int, 0, 256), default=0,
-                   help="photos processed in parallel (default: up to 4 cores)")
-    p.add_argument("--force", action="store_true", help="replace an existing dataset (dataset.npz, transforms.json, "
-                   "images/, coverage.png) in the output folder")
+    p.add_argument(
+        "--pose-source",
+        choices=["auto", "tags", "sfm"],
+        default="auto",
+        help="auto (default): the poses the folder's dataset was built from (transforms.json says): "
+        "the structure-from-motion model that `nerfkit poses` left (sfm_report.json, colmap/), or "
+        "the tag poses of poses.json",
+    )
+    p.add_argument(
+        "--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel (default: up to 4 cores)"
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing dataset (dataset.npz, transforms.json, images/, coverage.png) in the output folder",
+    )
     add_outside_flag(p)
     add_dataclass_args(p, DatasetConfig, "dataset")
     p.set_defaults(func=run)
@@ -66,9 +75,11 @@ def report_dataset(s: dict, out) -> int:
     from ..capture.dataset import NPZ_FILE, few_views_note, no_object_note
 
     K = s["K"]
-    print(f"dataset: {s['views']['train']} train, {s['views']['val']} val, {s['views']['test']} test views of "
-          f"{s['size'][0]}x{s['size'][1]} (from {s['source_size'][0]}x{s['source_size'][1]}"
-          f"{', undistorted: the largest rectangle of valid pixels' if s['undistorted'] else ''})")
+    print(
+        f"dataset: {s['views']['train']} train, {s['views']['val']} val, {s['views']['test']} test views of "
+        f"{s['size'][0]}x{s['size'][1]} (from {s['source_size'][0]}x{s['source_size'][1]}"
+        f"{', undistorted: the largest rectangle of valid pixels' if s['undistorted'] else ''})"
+    )
     note = few_views_note(s["views"]["train"])
     if note:
         print(note)
@@ -83,8 +94,10 @@ def report_dataset(s: dict, out) -> int:
     if s.get("agreement"):
         print("\n".join(agreement_notes(s["agreement"])))
     plot = f", {s['coverage']['plot']}" if s.get("coverage") else ""
-    print(f"wrote {out}/{NPZ_FILE}, {out}/transforms.json{', sparse_pc.ply' if s['points'] else ''}{plot} and "
-          f"{out}/images/")
+    print(
+        f"wrote {out}/{NPZ_FILE}, {out}/transforms.json{', sparse_pc.ply' if s['points'] else ''}{plot} and "
+        f"{out}/images/"
+    )
     return 0
 
 
@@ -107,15 +120,26 @@ def run(args: argparse.Namespace) -> int:
     if source == "sfm":
         return rebuild_from_sfm(folder, out, cfg, jobs, args.force, args.allow_outside_paths)
     posed, data = read_poses_json(args.poses, allow_outside=args.allow_outside_paths)
-    guard_outputs([out / name for name in DATASET_OUTPUTS], [src / POSES_FILE if src.is_dir() else src,
-                                                             *(p.path for p in posed)], args.force)
+    guard_outputs(
+        [out / name for name in DATASET_OUTPUTS],
+        [src / POSES_FILE if src.is_dir() else src, *(p.path for p in posed)],
+        args.force,
+    )
     with advice("Re-run nerfkit poses"):
         tag_size = check_number(data.get("tag_size"), args.poses, "tag_size", 0.0, expected="the tag size in metres")
     require_photos([p.path for p in posed])
-    return build_and_report(posed, out, cfg, float(tag_size), jobs,
-                            {"notes": data.get("notes", []),
-                             "pose_choice": {"poses": "tags", "why": f"rebuilt from {folder / POSES_FILE}"}},
-                            recorded_tags(data))
+    return build_and_report(
+        posed,
+        out,
+        cfg,
+        float(tag_size),
+        jobs,
+        {
+            "notes": data.get("notes", []),
+            "pose_choice": {"poses": "tags", "why": f"rebuilt from {folder / POSES_FILE}"},
+        },
+        recorded_tags(data),
+    )
 
 
 def recorded_pose_source(folder) -> str:
@@ -141,8 +165,11 @@ def require_photos(paths) -> None:
 
     missing = [Path(p) for p in paths if not Path(p).is_file()]
     if missing:
-        raise fail(missing[0].parent, f"{len(missing)} posed photos are missing (e.g. {missing[0].name})",
-                   "The photos moved; re-run nerfkit poses on their new folder")
+        raise fail(
+            missing[0].parent,
+            f"{len(missing)} posed photos are missing (e.g. {missing[0].name})",
+            "The photos moved; re-run nerfkit poses on their new folder",
+        )
 
 
 def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bool) -> int:
@@ -166,8 +193,9 @@ def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bo
     photos = [p.path for p in posed_photos(result)]
     guard_outputs(outputs, [folder / REPORT_FILE, result.model_dir, *photos], force)
     require_photos(photos)
-    print(f"poses: structure-from-motion, {len(photos)} photos ({result.model_dir}; --pose-source tags for the "
-          "tag poses)")
+    print(
+        f"poses: structure-from-motion, {len(photos)} photos ({result.model_dir}; --pose-source tags for the tag poses)"
+    )
     if not in_place:
         if model_copy.exists():
             shutil.rmtree(model_copy)
@@ -179,6 +207,13 @@ def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bo
     if result.tag_size is not None:  # the printed tags the dataset built from this model recorded, if they read
         with contextlib.suppress(NerfkitError):
             tags = check_tags((nerfkit_block(folder) or {}).get("tags"), str(folder / "transforms.json"))
-    _, summary = build_dataset(result, out, cfg, jobs=jobs, write_report=not in_place, tags=tags,
-                               extra={"pose_choice": {"poses": "sfm", "why": f"rebuilt from {result.model_dir}"}})
+    _, summary = build_dataset(
+        result,
+        out,
+        cfg,
+        jobs=jobs,
+        write_report=not in_place,
+        tags=tags,
+        extra={"pose_choice": {"poses": "sfm", "why": f"rebuilt from {result.model_dir}"}},
+    )
     return report_dataset(summary, out)

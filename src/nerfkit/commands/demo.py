@@ -18,10 +18,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("demo", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--model", choices=["fast", "vanilla"], default="fast", help="which NeRF (default: fast)")
-    p.add_argument("--minutes", type=number(float, above=0), default=None,
-                   help="training-time budget (default: 3 for fast, 8 for vanilla)")
-    p.add_argument("--out", default="runs/demo",
-                   help="run folder; a fresh one is picked if it exists (default: runs/demo)")
+    p.add_argument(
+        "--minutes",
+        type=number(float, above=0),
+        default=None,
+        help="training-time budget (default: 3 for fast, 8 for vanilla)",
+    )
+    p.add_argument(
+        "--out", default="runs/demo", help="run folder; a fresh one is picked if it exists (default: runs/demo)"
+    )
     p.add_argument("--device", default="auto", help="auto, cpu, cuda (default: auto)")
     p.add_argument("--seed", type=number(int, 0, MAX_SEED), default=0, help="random seed (default: 0)")
     p.set_defaults(func=run)
@@ -65,8 +70,9 @@ def run(args: argparse.Namespace) -> int:
     minutes = args.minutes if args.minutes is not None else (3.0 if args.model == "fast" else 8.0)
     cfg = TrainConfig(data=data, model=args.model, out=str(out), minutes=minutes, seed=args.seed, device=args.device)
     print(f"nerfkit demo: training '{args.model}' on lego for {minutes:g} min into {out}")
-    result = train(scene, cfg, model_config_class(args.model)(),
-                   user_set={"data", "model", "out", "minutes", "seed", "device"})  # the rest: the preset's
+    result = train(
+        scene, cfg, model_config_class(args.model)(), user_set={"data", "model", "out", "minutes", "seed", "device"}
+    )  # the rest: the preset's
 
     from ..train.checkpoint import load_run
     from ..train.config import parse_background, resolve_autocast, resolve_device
@@ -78,10 +84,14 @@ def run(args: argparse.Namespace) -> int:
     views = scene.render_path()
     if args.model == "vanilla":  # the big MLP renders ~10 s per frame on a CPU: half the frames
         views = views.subset(range(0, len(views), 2))
-    videos = render_videos(model, views, out / "videos", bg, scene.near, scene.far, 30, info.train.render_chunk,
-                           autocast)
-    metrics = {"split": "val", "step": result.step,
-               **evaluate_views(model, scene.val, bg, info.train.render_chunk, autocast)}
+    videos = render_videos(
+        model, views, out / "videos", bg, scene.near, scene.far, 30, info.train.render_chunk, autocast
+    )
+    metrics = {
+        "split": "val",
+        "step": result.step,
+        **evaluate_views(model, scene.val, bg, info.train.render_chunk, autocast),
+    }
     write_json(out / "eval_val.json", metrics)
     summary = {
         "model": args.model,
@@ -95,10 +105,15 @@ def run(args: argparse.Namespace) -> int:
     write_json(out / "summary.json", summary)
     print(json.dumps(summary, indent=2))
     print("outputs:")
-    for label, path in [("orbit video", videos.rgb_mp4), ("orbit GIF", videos.rgb_gif),
-                        ("depth video", videos.depth_mp4),
-                        ("PSNR curve", out / "plots" / "psnr.png"), ("loss curve", out / "plots" / "loss.png"),
-                        ("progression", out / "plots" / "progress.png"), ("metrics", out / "metrics.csv"),
-                        ("evaluation", out / "eval_val.json")]:
+    for label, path in [
+        ("orbit video", videos.rgb_mp4),
+        ("orbit GIF", videos.rgb_gif),
+        ("depth video", videos.depth_mp4),
+        ("PSNR curve", out / "plots" / "psnr.png"),
+        ("loss curve", out / "plots" / "loss.png"),
+        ("progression", out / "plots" / "progress.png"),
+        ("metrics", out / "metrics.csv"),
+        ("evaluation", out / "eval_val.json"),
+    ]:
         print(f"  {label:12s} {path}")
     return 0

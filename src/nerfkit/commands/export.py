@@ -47,38 +47,67 @@ def register(sub: argparse._SubParsersAction) -> None:
     from ..tabletop import TABLE_CUT
     from ._common import add_run_device_args
 
-    p = sub.add_parser("export", help=HELP, description=HELP + ".", epilog=EPILOG,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = sub.add_parser(
+        "export", help=HELP, description=HELP + ".", epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("run", metavar="RUN", help="run folder written by `nerfkit train`")
     p.add_argument("--mesh", metavar="OUT.ply", help="write a vertex-coloured triangle mesh here")
     p.add_argument("--points", metavar="OUT.ply", help="write a coloured point cloud here")
     p.add_argument("--splat", metavar="OUT.ply", help="(splat runs) write the Gaussians here: 3DGS PLY, or .splat")
     g = p.add_argument_group("mesh")
     g.add_argument("--resolution", type=number(int, 8, 1024), default=256, help="grid cells per side (default: 256)")
-    g.add_argument("--threshold", type=number(float, above=0), default=None,
-                   help="density of the surface (default: the density at which 1/256 of the meshed cube's width "
-                   "is 7%% opaque, whatever the scene's units: lego's about 6, a 15-cm object's in metres about "
-                   "120; printed; higher = tighter, fewer floaters)")
-    g.add_argument("--box-scale", type=number(float, above=0), default=1.0,
-                   help="scale the cube meshed, and the scene box points are cropped to (default: 1)")
-    g.add_argument("--table-cut", type=number(float, 0, 1), default=TABLE_CUT,
-                   help="(captures) clear density within this fraction of the object's height above the table, "
-                   "where nothing rises out of that slab, and pieces apart from the object lower than three times "
-                   "that: the tags and sheet painted into density (0: clear only under the table; default: "
-                   "%(default)g)")
-    g.add_argument("--color-views", type=number(int, 0, 10000), default=COLOUR_VIEWS, metavar="N",
-                   help="training views rendered for the vertex colours (0: colour along the normals only, "
-                   "without the dataset; default: %(default)s)")
-    g.add_argument("--color-dirs", type=number(int, 1, 64), default=1, metavar="N",
-                   help="directions averaged per colour of a vertex no view sees (1 = along the normal; default: 1)")
-    p.add_argument("--data", help="dataset whose training views the mesh's colours and the points come from "
-                   "(default: the run's)")
+    g.add_argument(
+        "--threshold",
+        type=number(float, above=0),
+        default=None,
+        help="density of the surface (default: the density at which 1/256 of the meshed cube's width "
+        "is 7%% opaque, whatever the scene's units: lego's about 6, a 15-cm object's in metres about "
+        "120; printed; higher = tighter, fewer floaters)",
+    )
+    g.add_argument(
+        "--box-scale",
+        type=number(float, above=0),
+        default=1.0,
+        help="scale the cube meshed, and the scene box points are cropped to (default: 1)",
+    )
+    g.add_argument(
+        "--table-cut",
+        type=number(float, 0, 1),
+        default=TABLE_CUT,
+        help="(captures) clear density within this fraction of the object's height above the table, "
+        "where nothing rises out of that slab, and pieces apart from the object lower than three times "
+        "that: the tags and sheet painted into density (0: clear only under the table; default: "
+        "%(default)g)",
+    )
+    g.add_argument(
+        "--color-views",
+        type=number(int, 0, 10000),
+        default=COLOUR_VIEWS,
+        metavar="N",
+        help="training views rendered for the vertex colours (0: colour along the normals only, "
+        "without the dataset; default: %(default)s)",
+    )
+    g.add_argument(
+        "--color-dirs",
+        type=number(int, 1, 64),
+        default=1,
+        metavar="N",
+        help="directions averaged per colour of a vertex no view sees (1 = along the normal; default: 1)",
+    )
+    p.add_argument(
+        "--data", help="dataset whose training views the mesh's colours and the points come from (default: the run's)"
+    )
     g = p.add_argument_group("points")
     g.add_argument("--every", type=number(int, 1), default=1, help="use every N-th training view (default: 1)")
-    g.add_argument("--stride", type=number(int, 1, 4096), default=1,
-                   help="use every N-th pixel in each direction (default: 1)")
-    g.add_argument("--acc-min", type=number(float, 0, 0.999), default=0.5,
-                   help="keep pixels with opacity above this (default: 0.5)")
+    g.add_argument(
+        "--stride", type=number(int, 1, 4096), default=1, help="use every N-th pixel in each direction (default: 1)"
+    )
+    g.add_argument(
+        "--acc-min",
+        type=number(float, 0, 0.999),
+        default=0.5,
+        help="keep pixels with opacity above this (default: 0.5)",
+    )
     g.add_argument("--no-crop", action="store_true", help="keep points outside the scene box")
     p.add_argument("--force", action="store_true", help="replace existing output files")
     add_run_device_args(p)
@@ -110,8 +139,12 @@ def run(args: argparse.Namespace) -> int:
         raise fail(args.run, f"is a {run_.info.train.model} run; --splat exports runs of --model splat")
     if (args.mesh) and hasattr(run_.model, "n_gaussians"):
         raise fail(args.run, "is a splat run: it has no density field to mesh", "Use --splat OUT.ply or --points")
-    guard_outputs([args.mesh, args.points, splat], dataset_inputs(args.data or run_.info.train.data), args.force,
-                  "--mesh/--points/--splat")
+    guard_outputs(
+        [args.mesh, args.points, splat],
+        dataset_inputs(args.data or run_.info.train.data),
+        args.force,
+        "--mesh/--points/--splat",
+    )
     if splat:
         export_splat(run_, splat)
     bounds = run_.info.bounds
@@ -157,18 +190,37 @@ def export_mesh(run_, args) -> None:
         out = render_image(alone, K, c2w, w, h, bg, run_.chunk, run_.autocast)
         return out.rgb, out.depth, out.acc
 
-    mesh = mesh_from_model(model, center, radius, bounds.radius, args.resolution, threshold, args.color_dirs,
-                           chunk=POINT_CHUNK, device=run_.device, table_cut=height, views=views,
-                           render_fn=render_fn, background=tuple(bg.tolist()))
+    mesh = mesh_from_model(
+        model,
+        center,
+        radius,
+        bounds.radius,
+        args.resolution,
+        threshold,
+        args.color_dirs,
+        chunk=POINT_CHUNK,
+        device=run_.device,
+        table_cut=height,
+        views=views,
+        render_fn=render_fn,
+        background=tuple(bg.tolist()),
+    )
     write_mesh_ply(args.mesh, mesh)
     cut = ""
     if model.table_plane() is not None:
         cut = f"; {cleared_note(height, model.table_tags())}"
-    coloured = (f"coloured from {len(views)} training views" if views is not None else
-                "coloured at the vertices" if ndc else "coloured along the normals")
-    print(f"mesh of step {run_.step}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces "
-          f"(threshold {threshold:.3g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide cube{cut}; "
-          f"{coloured}) -> {args.mesh}")
+    coloured = (
+        f"coloured from {len(views)} training views"
+        if views is not None
+        else "coloured at the vertices"
+        if ndc
+        else "coloured along the normals"
+    )
+    print(
+        f"mesh of step {run_.step}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces "
+        f"(threshold {threshold:.3g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide cube{cut}; "
+        f"{coloured}) -> {args.mesh}"
+    )
 
 
 def export_points(run_, center, radius: float, args) -> None:
@@ -189,5 +241,7 @@ def export_points(run_, center, radius: float, args) -> None:
     if not args.no_crop:
         pts, cols = crop_to_box(pts, cols, center, radius)
     write_points_ply(args.points, pts, cols)
-    print(f"point cloud of step {run_.step}: {len(pts)} points from {len(views)} views "
-          f"({n_all - len(pts)} outside the scene box dropped) -> {args.points}")
+    print(
+        f"point cloud of step {run_.step}: {len(pts)} points from {len(views)} views "
+        f"({n_all - len(pts)} outside the scene box dropped) -> {args.points}"
+    )

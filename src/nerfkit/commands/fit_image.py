@@ -33,13 +33,19 @@ def register(subparsers) -> None:
     from ..config import add_dataclass_args
     from ..fit_image import FitImageConfig
 
-    p = subparsers.add_parser("fit-image", help=HELP, description=DESCRIPTION,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = subparsers.add_parser(
+        "fit-image", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("image", nargs="?", default=None, help="image file (default: the bundled astronaut photo)")
     p.add_argument("--out", default=None, help="run folder (default: runs/fit-image/<image name>[-sweep])")
-    p.add_argument("--sweep", nargs="+", default=None, metavar="KEY=V1,V2",
-                   help="train one model per combination, e.g. --sweep L=3,10 width=64,256 "
-                        "(keys: L, width, depth, lr, batch, steps)")
+    p.add_argument(
+        "--sweep",
+        nargs="+",
+        default=None,
+        metavar="KEY=V1,V2",
+        help="train one model per combination, e.g. --sweep L=3,10 width=64,256 "
+        "(keys: L, width, depth, lr, batch, steps)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--force", action="store_true", help="replace the results of an earlier fit in --out")
     add_dataclass_args(p, FitImageConfig, group_title="model and training")
@@ -81,13 +87,17 @@ def run(args: argparse.Namespace) -> int:
         entries = run_sweep(image, out, cfg, combos, progress=progress)
         for e in entries:
             print(f"{e['label']:30s} PSNR {e['final_psnr_db']:6.2f} dB  {e['steps_per_s']:6.1f} steps/s")
-        print(f"wrote {out}/sweep_grid.png, sweep_psnr.png, sweep.json and {len(entries)} "
-              f"run folder{'s' * (len(entries) != 1)}")
+        print(
+            f"wrote {out}/sweep_grid.png, sweep_psnr.png, sweep.json and {len(entries)} "
+            f"run folder{'s' * (len(entries) != 1)}"
+        )
     else:
         r = run_fit(image, out, cfg, progress=progress)
-        print(f"final PSNR {r.final_psnr:.2f} dB (every pixel, {r.width}x{r.height}) after {cfg.steps} steps; "
-              f"{r.steps_per_s:.1f} steps/s on {r.device} ({r.precision}), "
-              f"{r.train_seconds:.1f} s training + {r.eval_seconds:.1f} s evaluation")
+        print(
+            f"final PSNR {r.final_psnr:.2f} dB (every pixel, {r.width}x{r.height}) after {cfg.steps} steps; "
+            f"{r.steps_per_s:.1f} steps/s on {r.device} ({r.precision}), "
+            f"{r.train_seconds:.1f} s training + {r.eval_seconds:.1f} s evaluation"
+        )
         print(f"curve: {r.eval_note}, every {cfg.eval_every} steps")
         print(f"wrote {out}/psnr.png, progression.png, final.png, metrics.json, config.json")
     return 0

@@ -23,15 +23,25 @@ example:
 def register(sub: argparse._SubParsersAction) -> None:
     from ..config import number
 
-    p = sub.add_parser("frames", help=HELP, description=DESCRIPTION,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = sub.add_parser(
+        "frames", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("clip", metavar="CLIP", help="the video file (MP4, MOV, M4V; H.264 or HEVC)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the frames (new, empty, or earlier frames)")
-    p.add_argument("--frames", type=number(int, 10, 10_000), default=120, metavar="N",
-                   help="frames to keep, at most (default: 120)")
-    p.add_argument("--spread", choices=["time", "motion"], default="time",
-                   help="spread the windows evenly in time, or in camera motion measured between frames (a pause "
-                        "then takes no window; default: time)")
+    p.add_argument(
+        "--frames",
+        type=number(int, 10, 10_000),
+        default=120,
+        metavar="N",
+        help="frames to keep, at most (default: 120)",
+    )
+    p.add_argument(
+        "--spread",
+        choices=["time", "motion"],
+        default="time",
+        help="spread the windows evenly in time, or in camera motion measured between frames (a pause "
+        "then takes no window; default: time)",
+    )
     p.add_argument("--force", action="store_true", help="replace the frames an earlier run wrote in --out")
     p.set_defaults(func=run)
 
@@ -48,15 +58,21 @@ def report_lines(sel) -> str:
     """The report of a :class:`~nerfkit.capture.video.FrameSelection`, a few lines of text."""
     info = sel.info
     rot = f", turned {info.rotation} degrees upright" if info.rotation else ""
-    lines = [f"{sel.source}: {info.width}x{info.height} {info.codec}{rot}, {info.duration:.1f} s at {info.fps:g} fps",
-             f"  read {sel.read} frames, kept {sel.kept} (asked for {sel.target}), dropped {sel.read - sel.kept}"
-             + (":" if sel.dropped else "")]
+    lines = [
+        f"{sel.source}: {info.width}x{info.height} {info.codec}{rot}, {info.duration:.1f} s at {info.fps:g} fps",
+        f"  read {sel.read} frames, kept {sel.kept} (asked for {sel.target}), dropped {sel.read - sel.kept}"
+        + (":" if sel.dropped else ""),
+    ]
     lines += [f"    {n:5d} {reason}" for reason, n in sel.dropped.items()]
-    lines.append(f"  sharpness (variance of the Laplacian at {sel.score_size[0]}x{sel.score_size[1]}): median "
-                 f"{sel.median_sharpness:.0f}, frames under {sel.blur_threshold:.0f} counted as blurred")
+    lines.append(
+        f"  sharpness (variance of the Laplacian at {sel.score_size[0]}x{sel.score_size[1]}): median "
+        f"{sel.median_sharpness:.0f}, frames under {sel.blur_threshold:.0f} counted as blurred"
+    )
     if sel.empty_windows:
         lines.append(f"  {sel.empty_windows} of the {sel.target} windows ({sel.spread}) gave no frame")
     lines += [f"  note: {a}" for a in sel.advice]
-    lines.append(f"wrote {sel.kept} frames ({sel.files[0]} ... {sel.files[-1]}) and frames.json to {sel.out_dir} "
-                 f"in {sel.seconds:.1f} s")
+    lines.append(
+        f"wrote {sel.kept} frames ({sel.files[0]} ... {sel.files[-1]}) and frames.json to {sel.out_dir} "
+        f"in {sel.seconds:.1f} s"
+    )
     return "\n".join(lines)

@@ -161,8 +161,16 @@ class RunWatcher:
 
 
 @torch.no_grad()
-def render_camera(model, K: np.ndarray, c2w: np.ndarray, w: int, h: int, background: torch.Tensor,
-                  chunk: int = 4096, abort: Callable[[], bool] | None = None):
+def render_camera(
+    model,
+    K: np.ndarray,
+    c2w: np.ndarray,
+    w: int,
+    h: int,
+    background: torch.Tensor,
+    chunk: int = 4096,
+    abort: Callable[[], bool] | None = None,
+):
     """The view of a camera (:class:`~nerfkit.output.images.RenderedView`), or None if aborted."""
     from ..output.images import render_image
 
@@ -180,8 +188,17 @@ class _ClientState:
 class LiveViewer:
     """The viser server, its panel, and the render loop (see the module docstring)."""
 
-    def __init__(self, watcher: RunWatcher, scene=None, host: str = "127.0.0.1", port: int = 8080,
-                 max_side: int = 256, preview: int = PREVIEW_SIDE, chunk: int = 4096, watch: bool = True):
+    def __init__(
+        self,
+        watcher: RunWatcher,
+        scene=None,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        max_side: int = 256,
+        preview: int = PREVIEW_SIDE,
+        chunk: int = 4096,
+        watch: bool = True,
+    ):
         import viser
 
         self.watcher = watcher
@@ -197,9 +214,12 @@ class LiveViewer:
         gui = self.server.gui
         self.mode = gui.add_dropdown("Show", ("RGB", "Depth"), initial_value="RGB")
         self.res = gui.add_slider("Max resolution", min=32, max=1024, step=32, initial_value=max_side)
-        self.alone = gui.add_checkbox("Object alone", initial_value=False,
-                                      hint="a capture's object without its table, floor and room, on white "
-                                      "(a run that is not a capture has nothing to leave out: it is only put on white)")
+        self.alone = gui.add_checkbox(
+            "Object alone",
+            initial_value=False,
+            hint="a capture's object without its table, floor and room, on white "
+            "(a run that is not a capture has nothing to leave out: it is only put on white)",
+        )
         self._alone: tuple[LoadedRun, object] | None = None  # (the run, its isolated copy)
         self.follow = gui.add_checkbox("Follow training", initial_value=watch)
         self.status = gui.add_markdown("loading...")
@@ -237,11 +257,19 @@ class LiveViewer:
                 s = max(1, max(v.width, v.height) // 64)
                 thumb = v.images[i, ::s, ::s]
             name = v.names[i] if v.names else f"{i:04d}"
-            self._frustum_handles.append(self.server.scene.add_camera_frustum(
-                f"/train/{i:04d}_{Path(name).stem}", fov=float(2 * np.arctan(0.5 * v.height / fy)),
-                aspect=v.width / v.height, scale=0.08 * spread, image=thumb, format="jpeg",
-                wxyz=matrix_to_quat(v.c2w[i, :3, :3]), position=v.c2w[i, :3, 3].astype(np.float64),
-                color=(40, 120, 220)))
+            self._frustum_handles.append(
+                self.server.scene.add_camera_frustum(
+                    f"/train/{i:04d}_{Path(name).stem}",
+                    fov=float(2 * np.arctan(0.5 * v.height / fy)),
+                    aspect=v.width / v.height,
+                    scale=0.08 * spread,
+                    image=thumb,
+                    format="jpeg",
+                    wxyz=matrix_to_quat(v.c2w[i, :3, :3]),
+                    position=v.c2w[i, :3, 3].astype(np.float64),
+                    color=(40, 120, 220),
+                )
+            )
 
     def _set_frustums_visible(self, visible: bool) -> None:
         for h in self._frustum_handles:
@@ -258,9 +286,16 @@ class LiveViewer:
 
     def _camera_key(self, client) -> tuple:
         cam = client.camera
-        return (tuple(np.round(cam.wxyz, 5)), tuple(np.round(cam.position, 5)), round(float(cam.fov), 5),
-                round(float(cam.aspect), 4), self.mode.value, int(self.res.value), bool(self.alone.value),
-                None if self.watcher.current is None else self.watcher.current.step)
+        return (
+            tuple(np.round(cam.wxyz, 5)),
+            tuple(np.round(cam.position, 5)),
+            round(float(cam.fov), 5),
+            round(float(cam.aspect), 4),
+            self.mode.value,
+            int(self.res.value),
+            bool(self.alone.value),
+            None if self.watcher.current is None else self.watcher.current.step,
+        )
 
     def _object_alone(self, run: LoadedRun):
         """The run's model with only its object (:func:`~nerfkit.tabletop.object_alone`),
@@ -271,8 +306,17 @@ class LiveViewer:
             self._alone = (run, object_alone(run.model).model)
         return self._alone[1]
 
-    def render_for(self, wxyz, position, fov: float, aspect: float, side: int, mode: str,
-                   abort: Callable[[], bool] | None = None, alone: bool = False) -> np.ndarray | None:
+    def render_for(
+        self,
+        wxyz,
+        position,
+        fov: float,
+        aspect: float,
+        side: int,
+        mode: str,
+        abort: Callable[[], bool] | None = None,
+        alone: bool = False,
+    ) -> np.ndarray | None:
         """The image (H, W, 3) uint8 the viewer shows for a camera, or None (aborted / no
         model); ``alone``: the object alone, on white."""
         run = self.watcher.current
@@ -282,8 +326,9 @@ class LiveViewer:
 
         K, c2w, w, h = viewer_camera(wxyz, position, fov, aspect, side)
         device = next(iter(run.model.parameters()), torch.zeros(0)).device
-        bg = torch.tensor(parse_background("white" if alone else run.info.train.background), dtype=torch.float32,
-                          device=device)
+        bg = torch.tensor(
+            parse_background("white" if alone else run.info.train.background), dtype=torch.float32, device=device
+        )
         with self._lock:
             model = self._object_alone(run) if alone else run.model
             out = render_camera(model, K, c2w, w, h, bg, self.chunk, abort)
@@ -322,8 +367,16 @@ class LiveViewer:
             def moved(c=client, k=key) -> bool:
                 return self._camera_key(c) != k
 
-            img = self.render_for(cam.wxyz, cam.position, cam.fov, cam.aspect, sides[st.level], self.mode.value,
-                                  abort=moved, alone=self.alone.value)
+            img = self.render_for(
+                cam.wxyz,
+                cam.position,
+                cam.fov,
+                cam.aspect,
+                sides[st.level],
+                self.mode.value,
+                abort=moved,
+                alone=self.alone.value,
+            )
             if img is not None:
                 client.scene.set_background_image(img, format="jpeg", jpeg_quality=90)
                 st.level += 1
@@ -342,8 +395,16 @@ class LiveViewer:
         self._stop.set()
 
 
-def serve_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080, device: str = "auto",
-              data: str | None = None, max_side: int = 256, watch: bool = True, chunk: int = 4096) -> None:
+def serve_run(
+    run_dir: str | Path,
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    device: str = "auto",
+    data: str | None = None,
+    max_side: int = 256,
+    watch: bool = True,
+    chunk: int = 4096,
+) -> None:
     """Serve a live viewer of ``run_dir`` until interrupted (Ctrl-C).
 
     Args:
@@ -375,6 +436,5 @@ def serve_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080, de
         print(f"warning: listening on {host}: anyone who can reach port {port} can see this scene", file=sys.stderr)
     from ..viz.viewer import viewer_url
 
-    print(f"nerfkit viewer of {run_dir} at {viewer_url(host, port)} "
-          f"(Ctrl-C to stop)", flush=True)
+    print(f"nerfkit viewer of {run_dir} at {viewer_url(host, port)} (Ctrl-C to stop)", flush=True)
     viewer.serve_forever()

@@ -81,8 +81,17 @@ class ExportResult:
 
 
 # what ``nerfkit train --resume`` may change: the stopping rule and how the run is carried out
-RESUME_APPLIES = ("steps", "minutes", "device", "checkpoint_seconds", "keep_checkpoints", "eval_every", "eval_views",
-                  "eval_pixels", "render_chunk")
+RESUME_APPLIES = (
+    "steps",
+    "minutes",
+    "device",
+    "checkpoint_seconds",
+    "keep_checkpoints",
+    "eval_every",
+    "eval_views",
+    "eval_pixels",
+    "render_chunk",
+)
 
 
 def command_parser(command: str) -> argparse.ArgumentParser:
@@ -93,8 +102,13 @@ def command_parser(command: str) -> argparse.ArgumentParser:
     from . import poses as poses_command
     from . import render as render_command
 
-    modules = {"calibrate": calibrate_command, "poses": poses_command, "render": render_command,
-               "eval": eval_command, "export": export_command}
+    modules = {
+        "calibrate": calibrate_command,
+        "poses": poses_command,
+        "render": render_command,
+        "eval": eval_command,
+        "export": export_command,
+    }
     sub = argparse.ArgumentParser(prog="nerfkit").add_subparsers(dest="command")
     modules[command].register(sub)
     return sub.choices[command]
@@ -141,20 +155,29 @@ def _run(command: str, **values: Any) -> argparse.Namespace:
     return args
 
 
-def calibrate(photos: str | Path, out: str | Path, *, tag_size: float | None = None, **options: Any
-              ) -> CalibrationResult:
+def calibrate(
+    photos: str | Path, out: str | Path, *, tag_size: float | None = None, **options: Any
+) -> CalibrationResult:
     """Calibrate the camera from photos of the printed tag sheet (``nerfkit calibrate``);
     ``options`` as its flags (``layout``, ``dict``, ``force``, ...)."""
     args = _run("calibrate", photos=photos, out=out, tag_size=tag_size, **options)
     path = Path(args.out)
     path = path / "camera.json" if path.is_dir() else path
     data = json.loads(path.read_text())
-    return CalibrationResult(path, data.get("heldout_rms"), str(data.get("dist_model")), float(data["rms"]),
-                             int(data.get("photos_used", 0)))
+    return CalibrationResult(
+        path, data.get("heldout_rms"), str(data.get("dist_model")), float(data["rms"]), int(data.get("photos_used", 0))
+    )
 
 
-def pose(photos: str | Path, out: str | Path, *, tag_size: float | None = None, camera: str | Path | None = None,
-         method: str = "auto", **options: Any) -> PoseResult:
+def pose(
+    photos: str | Path,
+    out: str | Path,
+    *,
+    tag_size: float | None = None,
+    camera: str | Path | None = None,
+    method: str = "auto",
+    **options: Any,
+) -> PoseResult:
     """Pose the photos of an object beside a tag (or by SfM) and build its dataset
     (``nerfkit poses``); ``options`` as its flags (``max_side``, ``layout``, ``force``, ...)."""
     from ..capture.dataset import POSES_FILE
@@ -166,8 +189,7 @@ def pose(photos: str | Path, out: str | Path, *, tag_size: float | None = None, 
     total = len(list_images(args.photos))
     dataset = out / "dataset.npz"
     if args.no_dataset or not dataset.is_file():
-        posed = json.loads((out / POSES_FILE).read_text()).get("photos_posed", 0) if (out / POSES_FILE).is_file() \
-            else 0
+        posed = json.loads((out / POSES_FILE).read_text()).get("photos_posed", 0) if (out / POSES_FILE).is_file() else 0
         return PoseResult(None, int(posed), total, out)
     from ..data.npz import load_npz
 
@@ -201,34 +223,51 @@ def train_settings(options: dict[str, Any], config: str | Path | None = None) ->
     model_names = {f.name for f in dataclasses.fields(model_class)}
     unknown = set(options) - train_names - model_names
     if unknown:
-        raise TypeError(f"train() got settings that neither training nor the {cfg.model} model has: "
-                        f"{', '.join(sorted(unknown))}")
+        raise TypeError(
+            f"train() got settings that neither training nor the {cfg.model} model has: {', '.join(sorted(unknown))}"
+        )
     model_values = {k: v for k, v in options.items() if k in model_names}
-    model_cfg = dataclasses.replace(base_model, **model_values) if base_model is not None else model_class(
-        **model_values)
+    model_cfg = (
+        dataclasses.replace(base_model, **model_values) if base_model is not None else model_class(**model_values)
+    )
     return cfg, model_cfg, given | set(options)
 
 
-def train(data: str | Path | None = None, out: str | Path | None = None, *, model: str | None = None, steps: int | None = None,
-          minutes: float | None = None, config: str | Path | None = None, quiet: bool = False, **options: Any
-          ) -> TrainResult:
+def train(
+    data: str | Path | None = None,
+    out: str | Path | None = None,
+    *,
+    model: str | None = None,
+    steps: int | None = None,
+    minutes: float | None = None,
+    config: str | Path | None = None,
+    quiet: bool = False,
+    **options: Any,
+) -> TrainResult:
     """Train a new run on a dataset (``nerfkit train``): ``options`` are training and model
     settings by name (``lr=0.1``, ``resolutions="32,64"``); the ones not given take the
     dataset's kind's (:mod:`nerfkit.presets`). ``config``: start from a run's settings. With
     neither ``steps`` nor ``minutes`` (nor a config's), it trains for 5 minutes."""
+    from ..errors import fail
     from ..models import check_config
     from ..train.trainer import check_new_run_folder
     from ..train.trainer import train as train_run
     from ._common import load_as_trained
-    from ..errors import fail
 
-    given = {k: v for k, v in (("data", data), ("out", out), ("model", model), ("steps", steps),
-                               ("minutes", minutes)) if v is not None}
-    cfg, model_cfg, user_set = train_settings({**options, **{k: str(v) if k in ("data", "out") else v
-                                                             for k, v in given.items()}}, config)
+    given = {
+        k: v
+        for k, v in (("data", data), ("out", out), ("model", model), ("steps", steps), ("minutes", minutes))
+        if v is not None
+    }
+    cfg, model_cfg, user_set = train_settings(
+        {**options, **{k: str(v) if k in ("data", "out") else v for k, v in given.items()}}, config
+    )
     if not cfg.data:
-        raise fail("train", "no dataset given", "Pass --data FILE (try the bundled "
-                   "src/nerfkit/assets/lego_200x200.npz, or run `nerfkit demo`)")
+        raise fail(
+            "train",
+            "no dataset given",
+            "Pass --data FILE (try the bundled src/nerfkit/assets/lego_200x200.npz, or run `nerfkit demo`)",
+        )
     if cfg.steps == 0 and cfg.minutes == 0:
         cfg = dataclasses.replace(cfg, minutes=5.0)
         if not quiet:
@@ -246,32 +285,52 @@ def train(data: str | Path | None = None, out: str | Path | None = None, *, mode
 def _train_result(result) -> TrainResult:
     from ..train.checkpoint import read_run
 
-    return TrainResult(Path(result.run_dir), result.step, result.train_seconds, result.final_val_psnr,
-                       result.interrupted, read_run(result.run_dir).train.preset)
+    return TrainResult(
+        Path(result.run_dir),
+        result.step,
+        result.train_seconds,
+        result.final_val_psnr,
+        result.interrupted,
+        read_run(result.run_dir).train.preset,
+    )
 
 
-def resume(run: str | Path, *, steps: int | None = None, minutes: float | None = None, data: str | Path | None = None,
-           quiet: bool = False, **changes: Any) -> TrainResult:
+def resume(
+    run: str | Path,
+    *,
+    steps: int | None = None,
+    minutes: float | None = None,
+    data: str | Path | None = None,
+    quiet: bool = False,
+    **changes: Any,
+) -> TrainResult:
     """Continue a run from its newest good checkpoint (``nerfkit train --resume``), with a new
     stopping rule or the settings ``nerfkit train --resume`` applies (``device``, ``eval_every``, ...)."""
-    from ._common import load_as_trained
+    from ..errors import fail
     from ..train.checkpoint import read_run
     from ..train.trainer import resume as resume_run
-
-    from ..errors import fail
+    from ._common import load_as_trained
 
     refused = sorted(set(changes) - set(RESUME_APPLIES))
     if refused:
-        raise fail("resume", f"{', '.join(refused)} cannot change when a run continues (it keeps its own settings)",
-                   "Resume without them: it applies only " + ", ".join(RESUME_APPLIES))
+        raise fail(
+            "resume",
+            f"{', '.join(refused)} cannot change when a run continues (it keeps its own settings)",
+            "Resume without them: it applies only " + ", ".join(RESUME_APPLIES),
+        )
     info = read_run(run)
     scene = load_as_trained(info.train, str(data or info.train.data), allow_outside=info.train.allow_outside_paths)
     changes = {**changes, **{k: v for k, v in (("steps", steps), ("minutes", minutes)) if v is not None}}
     return _train_result(resume_run(run, scene, quiet=quiet, changes=changes))
 
 
-def render(run: str | Path, *, out: str | Path | None = None, object: bool = False, **options: Any  # noqa: A002
-           ) -> RenderResult:
+def render(
+    run: str | Path,
+    *,
+    out: str | Path | None = None,
+    object: bool = False,
+    **options: Any,  # noqa: A002
+) -> RenderResult:
     """Render a run's videos (``nerfkit render``): the orbit (or the dataset's path), its
     depth, and with ``object=True`` the object alone; ``options`` as its flags (``frames``, ``fps``, ...)."""
     from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
@@ -290,13 +349,33 @@ def evaluate(run: str | Path, *, split: str = "val", **options: Any) -> Evaluati
     return EvaluationResult(args.split, float(data["psnr"]), float(data["ssim"]), path)
 
 
-def export(run: str | Path, *, mesh: str | Path | None = None, points: str | Path | None = None,
-           splat: str | Path | None = None, **options: Any) -> ExportResult:
+def export(
+    run: str | Path,
+    *,
+    mesh: str | Path | None = None,
+    points: str | Path | None = None,
+    splat: str | Path | None = None,
+    **options: Any,
+) -> ExportResult:
     """Export a run as a mesh, a point cloud or (splat runs) Gaussians (``nerfkit export``)."""
     _run("export", run=run, mesh=mesh, points=points, splat=splat, **options)
     return ExportResult(tuple(Path(p) for p in (mesh, points, splat) if p is not None and Path(p).is_file()))
 
 
-__all__ = ["CalibrationResult", "EvaluationResult", "ExportResult", "PoseResult", "RenderResult", "TrainResult",
-           "calibrate", "command_arguments", "evaluate", "export", "pose", "render", "resume", "train",
-           "train_settings"]
+__all__ = [
+    "CalibrationResult",
+    "EvaluationResult",
+    "ExportResult",
+    "PoseResult",
+    "RenderResult",
+    "TrainResult",
+    "calibrate",
+    "command_arguments",
+    "evaluate",
+    "export",
+    "pose",
+    "render",
+    "resume",
+    "train",
+    "train_settings",
+]

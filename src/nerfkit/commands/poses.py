@@ -58,43 +58,75 @@ def register(sub: argparse._SubParsersAction) -> None:
     from ..capture.poses import PoseConfig
     from ..config import add_dataclass_args, number, tag_side
 
-    p = sub.add_parser("poses", help=HELP, description=DESCRIPTION,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = sub.add_parser(
+        "poses", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("photos", metavar="OBJECT_DIR", help="folder of photos of the object beside the tag")
-    p.add_argument("--method", choices=["auto", "tags", "colmap"], default="auto",
-                   help="auto (default): tag poses, replaced by structure-from-motion poses in the tag's frame when "
-                        "SfM registers the photos and agrees with the tags; tags: poses from the ArUco tag only; "
-                        "colmap: structure-from-motion with pycolmap, for photos without tags (a tag, with "
-                        "--tag-size, then fixes scale and up)")
-    p.add_argument("--matcher", choices=["auto", "exhaustive", "sequential", "spatial"], default="auto",
-                   help="the photo pairs SfM matches: exhaustive (every pair), sequential (each photo with the next "
-                   "10 in name order) or spatial (--method auto: sequential's, and each photo with the 20 whose "
-                   "tag poses see most alike; faster than exhaustive, a little less exact). auto (default): "
-                   "exhaustive up to 100 photos; beyond, spatial when the tags pose half of them, else sequential")
-    p.add_argument("--no-ground", action="store_true",
-                   help="with --method colmap and no tag: do not look for the table plane in the SfM points")
-    p.add_argument("--sfm-max-size", type=number(int, 64, 100_000), default=1000,
-                   help="longest side used for SfM features, px (default 1000)")
+    p.add_argument(
+        "--method",
+        choices=["auto", "tags", "colmap"],
+        default="auto",
+        help="auto (default): tag poses, replaced by structure-from-motion poses in the tag's frame when "
+        "SfM registers the photos and agrees with the tags; tags: poses from the ArUco tag only; "
+        "colmap: structure-from-motion with pycolmap, for photos without tags (a tag, with "
+        "--tag-size, then fixes scale and up)",
+    )
+    p.add_argument(
+        "--matcher",
+        choices=["auto", "exhaustive", "sequential", "spatial"],
+        default="auto",
+        help="the photo pairs SfM matches: exhaustive (every pair), sequential (each photo with the next "
+        "10 in name order) or spatial (--method auto: sequential's, and each photo with the 20 whose "
+        "tag poses see most alike; faster than exhaustive, a little less exact). auto (default): "
+        "exhaustive up to 100 photos; beyond, spatial when the tags pose half of them, else sequential",
+    )
+    p.add_argument(
+        "--no-ground",
+        action="store_true",
+        help="with --method colmap and no tag: do not look for the table plane in the SfM points",
+    )
+    p.add_argument(
+        "--sfm-max-size",
+        type=number(int, 64, 100_000),
+        default=1000,
+        help="longest side used for SfM features, px (default 1000)",
+    )
     p.add_argument("--camera", help="camera file from `nerfkit calibrate` (default: the photos' EXIF focal length)")
-    p.add_argument("--focal-px", type=number(float, above=0),
-                   help="focal length in pixels, when there is no camera file or EXIF")
+    p.add_argument(
+        "--focal-px", type=number(float, above=0), help="focal length in pixels, when there is no camera file or EXIF"
+    )
     p.add_argument("--tag-size", type=tag_side, help="side of the tag's black square in metres, e.g. 0.06")
     p.add_argument("--tag-id", type=number(int, 0), help="the tag that defines the world (default: the one seen most)")
-    p.add_argument("--layout", help="layout JSON of several tags to use jointly (their frame is the world); by "
-                   "default the camera file's layout (e.g. the one calibrate estimated) is used when the photos "
-                   "show several of its tags, else, when they show several tags, one estimated from them")
-    p.add_argument("--single-tag", action="store_true",
-                   help="pose from one tag: never use the camera file's layout or one estimated from the photos")
+    p.add_argument(
+        "--layout",
+        help="layout JSON of several tags to use jointly (their frame is the world); by "
+        "default the camera file's layout (e.g. the one calibrate estimated) is used when the photos "
+        "show several of its tags, else, when they show several tags, one estimated from them",
+    )
+    p.add_argument(
+        "--single-tag",
+        action="store_true",
+        help="pose from one tag: never use the camera file's layout or one estimated from the photos",
+    )
     p.add_argument("--dict", help="ArUco dictionary (default: the camera file's, else DICT_4X4_50)")
     p.add_argument("--out", required=True, metavar="DATASET_DIR", help="dataset folder to write")
-    p.add_argument("--no-dataset", action="store_true",
-                   help="only write poses.json (build later with `nerfkit dataset`)")
-    p.add_argument("--detect-size", type=number(int, 64, 100_000), default=2000,
-                   help="tag detection size (long side, px; default 2000)")
-    p.add_argument("--jobs", type=number(int, 0, 256), default=0,
-                   help="photos processed in parallel, and structure-from-motion's threads (default: up to 4 cores, "
-                        "SfM on all; SfM on several threads differs a little from run to run, --jobs 1 repeats "
-                        "exactly)")
+    p.add_argument(
+        "--no-dataset", action="store_true", help="only write poses.json (build later with `nerfkit dataset`)"
+    )
+    p.add_argument(
+        "--detect-size",
+        type=number(int, 64, 100_000),
+        default=2000,
+        help="tag detection size (long side, px; default 2000)",
+    )
+    p.add_argument(
+        "--jobs",
+        type=number(int, 0, 256),
+        default=0,
+        help="photos processed in parallel, and structure-from-motion's threads (default: up to 4 cores, "
+        "SfM on all; SfM on several threads differs a little from run to run, --jobs 1 repeats "
+        "exactly)",
+    )
     p.add_argument("--no-cache", action="store_true", help="ignore cached detections")
     p.add_argument("--all-photos", action="store_true", help="list every photo in the summary, not only skipped ones")
     p.add_argument("--force", action="store_true", help="replace the dataset files of an earlier run in --out")
@@ -127,10 +159,12 @@ def camera_layout(camera_file: str, dictionary: str, records) -> tuple[Layout | 
     several, with_tags, enough = several_tags(records, set(layout.tags))
     if not enough:
         return None, ""
-    return layout, (f"using the camera file's layout of {len(layout.tags)} tags (world: its frame, tag "
-                    f"{min(layout.tags, key=lambda t: np.abs(layout.tags[t].mean(0)).sum())} at the origin): "
-                    f"{len(several)} of {len(with_tags)} photos with tags show 2 or more of them. Pass --single-tag "
-                    "to pose from one tag")
+    return layout, (
+        f"using the camera file's layout of {len(layout.tags)} tags (world: its frame, tag "
+        f"{min(layout.tags, key=lambda t: np.abs(layout.tags[t].mean(0)).sum())} at the origin): "
+        f"{len(several)} of {len(with_tags)} photos with tags show 2 or more of them. Pass --single-tag "
+        "to pose from one tag"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -179,10 +213,20 @@ def run(args: argparse.Namespace) -> int:
     if args.method == "colmap":
         from ..sfm import sfm_dataset
 
-        _, report = sfm_dataset(args.photos, out, dcfg, matcher=args.matcher, max_image_size=args.sfm_max_size,
-                                tag_size=args.tag_size, tag_id=args.tag_id or 0, tag_dict=dictionary,
-                                threads=args.jobs or -1, jobs=args.jobs or default_jobs(), ground=not args.no_ground,
-                                camera=camera)
+        _, report = sfm_dataset(
+            args.photos,
+            out,
+            dcfg,
+            matcher=args.matcher,
+            max_image_size=args.sfm_max_size,
+            tag_size=args.tag_size,
+            tag_id=args.tag_id or 0,
+            tag_dict=dictionary,
+            threads=args.jobs or -1,
+            jobs=args.jobs or default_jobs(),
+            ground=not args.no_ground,
+            camera=camera,
+        )
         print(report.summary())
         return 0
     layout = load_layout(args.layout, dictionary, args.tag_size) if args.layout else None
@@ -233,13 +277,21 @@ def run(args: argparse.Namespace) -> int:
     posed = pose_records(records, camera, layout, pcfg)
     scaled = sorted({(p.camera.width, p.camera.height) for p in posed} - {(camera.width, camera.height)})
     if scaled:
-        notes.append(f"the camera ({camera.width}x{camera.height}) is scaled to the photos' "
-                     + ", ".join(f"{w}x{h}" for w, h in scaled))
-    meta = {"photos_dir": str(Path(args.photos).resolve()), "dictionary": dictionary, "tag_size": tag_size,
-            "layout": printed.to_json(), "sheet_heights_m": layout.heights_json(),
-            "world": "tag frame: origin at the tag centre, x right and y up along the "
-            "printed tag, z out of the tag toward the cameras (scene up); metres", "notes": notes,
-            "max_error_px": pcfg.max_error or "auto: max(3 x held-out error, 1 px, 2% of the tag side)"}
+        notes.append(
+            f"the camera ({camera.width}x{camera.height}) is scaled to the photos' "
+            + ", ".join(f"{w}x{h}" for w, h in scaled)
+        )
+    meta = {
+        "photos_dir": str(Path(args.photos).resolve()),
+        "dictionary": dictionary,
+        "tag_size": tag_size,
+        "layout": printed.to_json(),
+        "sheet_heights_m": layout.heights_json(),
+        "world": "tag frame: origin at the tag centre, x right and y up along the "
+        "printed tag, z out of the tag toward the cameras (scene up); metres",
+        "notes": notes,
+        "max_error_px": pcfg.max_error or "auto: max(3 x held-out error, 1 px, 2% of the tag side)",
+    }
     out.mkdir(parents=True, exist_ok=True)
     write_poses_json(out / POSES_FILE, records, posed, camera, meta)
 
@@ -249,8 +301,11 @@ def run(args: argparse.Namespace) -> int:
     print(photo_summary(records, "posed", full=args.all_photos))
     print(f"wrote {out / POSES_FILE}")
     if not posed:
-        raise fail(args.photos, "no photo could be posed (see the table above)",
-                   "Check --tag-size/--tag-id and that the tag is sharp and fully visible")
+        raise fail(
+            args.photos,
+            "no photo could be posed (see the table above)",
+            "Check --tag-size/--tag-id and that the tag is sharp and fully visible",
+        )
     if args.no_dataset:
         return 0
     from .dataset import build_and_report, report_dataset
@@ -260,30 +315,57 @@ def run(args: argparse.Namespace) -> int:
 
         ref = reference_tag(records, layout)
         start = camera if (args.camera or args.focal_px) else None  # else SfM starts from the EXIF focal length
-        choice = choose_poses(args.photos, out, posed, start, ref, tag_size, dictionary,
-                              tag_corners=None if len(layout.tags) == 1 else layout.tags[ref],
-                              matcher=args.matcher, max_image_size=args.sfm_max_size, threads=args.jobs or -1,
-                              records=records, layout=layout, pose_cfg=pcfg)
+        choice = choose_poses(
+            args.photos,
+            out,
+            posed,
+            start,
+            ref,
+            tag_size,
+            dictionary,
+            tag_corners=None if len(layout.tags) == 1 else layout.tags[ref],
+            matcher=args.matcher,
+            max_image_size=args.sfm_max_size,
+            threads=args.jobs or -1,
+            records=records,
+            layout=layout,
+            pose_cfg=pcfg,
+        )
         print(choice.why)
         if choice.result is not None:
             from ..sfm.dataset import build_dataset
 
-            _, summary = build_dataset(cast("SfmResult", choice.result), out, dcfg, jobs=args.jobs or default_jobs(),
-                                       extra={"notes": notes, "pose_choice": choice.to_dict()}, tags=printed.corners())
+            _, summary = build_dataset(
+                cast("SfmResult", choice.result),
+                out,
+                dcfg,
+                jobs=args.jobs or default_jobs(),
+                extra={"notes": notes, "pose_choice": choice.to_dict()},
+                tags=printed.corners(),
+            )
             return report_dataset(summary, out)
         from ..sfm.dataset import REPORT_FILE
 
         (out / REPORT_FILE).unlink(missing_ok=True)  # an earlier --force run's SfM report would not hold
-        return build_and_report(posed, out, dcfg, tag_size, args.jobs or default_jobs(),
-                                {"notes": notes, "pose_choice": choice.to_dict()}, printed.corners())
-    return build_and_report(posed, out, dcfg, tag_size, args.jobs or default_jobs(), {"notes": notes},
-                            printed.corners())
+        return build_and_report(
+            posed,
+            out,
+            dcfg,
+            tag_size,
+            args.jobs or default_jobs(),
+            {"notes": notes, "pose_choice": choice.to_dict()},
+            printed.corners(),
+        )
+    return build_and_report(
+        posed, out, dcfg, tag_size, args.jobs or default_jobs(), {"notes": notes}, printed.corners()
+    )
 
 
 def reference_tag(records, layout) -> int:
     """The layout's tag seen in the most photos (it fixes the SfM model's frame)."""
     from collections import Counter
 
-    seen = Counter(int(i) for r in records if r.detection is not None for i in set(r.detection.ids)
-                   if int(i) in layout.tags)
+    seen = Counter(
+        int(i) for r in records if r.detection is not None for i in set(r.detection.ids) if int(i) in layout.tags
+    )
     return seen.most_common(1)[0][0] if seen else layout.ids[0]

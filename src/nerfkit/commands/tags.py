@@ -31,15 +31,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="tags.pdf", help="PDF to write (default: tags.pdf)")
     p.add_argument("--paper", choices=sorted(PAPERS), default="a4", help="paper size (default: a4)")
     p.add_argument("--dict", default="DICT_4X4_50", help="ArUco dictionary (default: DICT_4X4_50, nerfkit's)")
-    p.add_argument("--tag-size", type=tag_side, default=0.05,
-                   help="side of the sheet's tags' black squares in metres (default: 0.05)")
+    p.add_argument(
+        "--tag-size",
+        type=tag_side,
+        default=0.05,
+        help="side of the sheet's tags' black squares in metres (default: 0.05)",
+    )
 
     def object_side(text: str) -> float:
         return 0.0 if number(float, 0.0)(text) == 0 else tag_side(text)
 
     object_side.__name__ = "float"
-    p.add_argument("--object-tag-size", type=object_side, default=0.1,
-                   help="side of the tag beside the object in metres (default: 0.1; 0: no such page)")
+    p.add_argument(
+        "--object-tag-size",
+        type=object_side,
+        default=0.1,
+        help="side of the tag beside the object in metres (default: 0.1; 0: no such page)",
+    )
     p.add_argument("--force", action="store_true", help="replace an existing file")
     p.set_defaults(func=run)
 
@@ -60,34 +68,52 @@ def run(args: argparse.Namespace) -> int:
     cells = d.markerSize + 2
     sheet_mm, object_mm = 1000 * args.tag_size, 1000 * (args.object_tag_size or 0)
     if sheet_mm > largest_sheet_tag_mm(args.paper):
-        raise fail("--tag-size", f"a {sheet_mm:g} mm tag does not fit on {args.paper} paper",
-                   f"Use at most {int(largest_sheet_tag_mm(args.paper)) / 1000:.3f}")
+        raise fail(
+            "--tag-size",
+            f"a {sheet_mm:g} mm tag does not fit on {args.paper} paper",
+            f"Use at most {int(largest_sheet_tag_mm(args.paper)) / 1000:.3f}",
+        )
     if object_mm > largest_tag_mm(args.paper, cells):
-        raise fail("--object-tag-size", f"a {object_mm:g} mm tag does not fit on {args.paper} paper with white "
-                   f"around it", f"Use at most {int(largest_tag_mm(args.paper, cells)) / 1000:.3f}")
+        raise fail(
+            "--object-tag-size",
+            f"a {object_mm:g} mm tag does not fit on {args.paper} paper with white around it",
+            f"Use at most {int(largest_tag_mm(args.paper, cells)) / 1000:.3f}",
+        )
     guard_outputs([out], [], args.force)
     pages = tag_sheets(args.paper, args.dict, sheet_mm, object_mm or None)
     from matplotlib.backends.backend_pdf import PdfPages
 
-    with (atomic_path(out) as tmp,
-          PdfPages(tmp, metadata={"Title": "nerfkit ArUco tags", "Creator": "nerfkit tags"}) as pdf):
+    with (
+        atomic_path(out) as tmp,
+        PdfPages(tmp, metadata={"Title": "nerfkit ArUco tags", "Creator": "nerfkit tags"}) as pdf,
+    ):
         for page in pages:
             pdf.savefig(draw_page(page, d))
     sheet = pages[0]
-    print(f"wrote {out} ({args.paper.upper() if args.paper == 'a4' else args.paper}, {len(pages)} "
-          f"page{'s' * (len(pages) > 1)}):")
-    print(f"  page 1: the calibration sheet, {len(sheet.ids)} tags of {sheet_mm:g} mm ({args.dict}, ids "
-          f"{sheet.ids[0]}-{sheet.ids[-1]})")
+    print(
+        f"wrote {out} ({args.paper.upper() if args.paper == 'a4' else args.paper}, {len(pages)} "
+        f"page{'s' * (len(pages) > 1)}):"
+    )
+    print(
+        f"  page 1: the calibration sheet, {len(sheet.ids)} tags of {sheet_mm:g} mm ({args.dict}, ids "
+        f"{sheet.ids[0]}-{sheet.ids[-1]})"
+    )
     if len(pages) > 1:
         print(f"  page 2: tag {pages[1].ids[0]} of {object_mm:g} mm, to lay flat beside the object")
-    print(f"Print at actual size (100%, not \"fit to page\"), check that the ruler measures {RULER_LENGTH_MM:g} mm, "
-          "and measure a tag's black square. Then, with the sides you measured:")
+    print(
+        f'Print at actual size (100%, not "fit to page"), check that the ruler measures {RULER_LENGTH_MM:g} mm, '
+        "and measure a tag's black square. Then, with the sides you measured:"
+    )
     other = "" if args.dict == "DICT_4X4_50" else f" --dict {args.dict}"
     if len(pages) > 1:
-        print(f"  nerfkit capture object_photos/ --calib sheet_photos/{other} --sheet-tag-size {args.tag_size:g} "
-              f"--tag-size {args.object_tag_size:g} --out my_object/")
+        print(
+            f"  nerfkit capture object_photos/ --calib sheet_photos/{other} --sheet-tag-size {args.tag_size:g} "
+            f"--tag-size {args.object_tag_size:g} --out my_object/"
+        )
         print(f"  (the object standing on the sheet instead: --tag-size {args.tag_size:g}, no --sheet-tag-size)")
     else:
-        print(f"  nerfkit capture object_photos/ --calib sheet_photos/{other} --tag-size {args.tag_size:g} "
-              "--out my_object/   (the object standing on the sheet)")
+        print(
+            f"  nerfkit capture object_photos/ --calib sheet_photos/{other} --tag-size {args.tag_size:g} "
+            "--out my_object/   (the object standing on the sheet)"
+        )
     return 0

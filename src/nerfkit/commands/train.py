@@ -51,14 +51,24 @@ def help_for_model(parser: argparse.ArgumentParser, model: str | None) -> str:
     if model is None:
         mine = [g for g in groups if g.title in ("options", FIRST_GROUP)]
     else:
-        mine = [g for g in groups if not (g.title or "").startswith("model '") or model == "all"
-                or MODEL_GROUP.format(model) in (g.title or "")]
+        mine = [
+            g
+            for g in groups
+            if not (g.title or "").startswith("model '")
+            or model == "all"
+            or MODEL_GROUP.format(model) in (g.title or "")
+        ]
     epilog = parser.epilog
     if model is None:
         assert epilog is not None  # the parser's own, EPILOG
-        epilog += "\nthe other options, by group (data, optimisation, evaluation, real captures, the model's):\n" + \
-            "".join(f"  {f'nerfkit train --model {m} --help':38s}{MODEL_BLURBS.get(m, '')}\n"
-                    for m in _model_config_classes()) + f"  {'nerfkit train --help-all':38s}every model's\n"
+        epilog += (
+            "\nthe other options, by group (data, optimisation, evaluation, real captures, the model's):\n"
+            + "".join(
+                f"  {f'nerfkit train --model {m} --help':38s}{MODEL_BLURBS.get(m, '')}\n"
+                for m in _model_config_classes()
+            )
+            + f"  {'nerfkit train --help-all':38s}every model's\n"
+        )
     parser._action_groups, parser.epilog = mine, epilog
     try:
         return parser.format_help()
@@ -79,14 +89,29 @@ def _model_config_classes():
 def register(sub: argparse._SubParsersAction) -> None:
     from ..train.config import TrainConfig
 
-    p = sub.add_parser("train", help=HELP, description=HELP, epilog=EPILOG, usage=USAGE, add_help=False,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("-h", "--help", action=ModelHelp,
-                   help="show the options changed first and exit; after --model M, every option of M")
+    p = sub.add_parser(
+        "train",
+        help=HELP,
+        description=HELP,
+        epilog=EPILOG,
+        usage=USAGE,
+        add_help=False,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "-h",
+        "--help",
+        action=ModelHelp,
+        help="show the options changed first and exit; after --model M, every option of M",
+    )
     p.add_argument("--help-all", action=ModelHelp, help="show every option of every model and exit")
     p.add_argument("--resume", metavar="RUN", help="continue this run from its newest good checkpoint")
-    p.add_argument("--config", metavar="JSON", help="start from the settings of this run's config.json (a run "
-                   "folder names its own); options given beside it change them")
+    p.add_argument(
+        "--config",
+        metavar="JSON",
+        help="start from the settings of this run's config.json (a run "
+        "folder names its own); options given beside it change them",
+    )
     add_dataclass_args(p, TrainConfig, "training")
     # a flag that models share (--sh-degree) takes the widest of their bounds; run() checks the chosen model's
     add_alternative_dataclass_args(p, _model_config_classes(), MODEL_GROUP)
@@ -108,9 +133,12 @@ def resume_changes(args: argparse.Namespace) -> dict:
     refused = sorted(given - set(RESUME_APPLIES) - {"data", "allow_outside_paths"})
     if refused:
         flags = ", ".join(flag_of(k) for k in refused)
-        raise fail("--resume", f"{flags} cannot change when a run continues (the run keeps its own settings)",
-                   "Resume without them, or start a new run with another --out; --resume applies only "
-                   + ", ".join(flag_of(k) for k in RESUME_APPLIES))
+        raise fail(
+            "--resume",
+            f"{flags} cannot change when a run continues (the run keeps its own settings)",
+            "Resume without them, or start a new run with another --out; --resume applies only "
+            + ", ".join(flag_of(k) for k in RESUME_APPLIES),
+        )
     return {k: getattr(args, k) for k in RESUME_APPLIES if k in given}
 
 
@@ -123,10 +151,14 @@ def refuse_other_models_flags(args: argparse.Namespace, classes: dict, model: st
     if foreign:
         flag, owners = foreign[0]
         chosen = model if args.model else f"{model} (the default --model)"
-        which = (f"the {owners[0]} model" if len(owners) == 1
-                 else f"the {', '.join(owners[:-1])} and {owners[-1]} models")
-        raise fail(flag, f"is a setting of {which}, not of {chosen}",
-                   f"Leave it out, or train with --model {' or --model '.join(owners)}")
+        which = (
+            f"the {owners[0]} model" if len(owners) == 1 else f"the {', '.join(owners[:-1])} and {owners[-1]} models"
+        )
+        raise fail(
+            flag,
+            f"is a setting of {which}, not of {chosen}",
+            f"Leave it out, or train with --model {' or --model '.join(owners)}",
+        )
 
 
 def api_result(result):
@@ -151,15 +183,19 @@ def run(args: argparse.Namespace) -> int:
 
     if args.resume:
         if args.config:
-            raise fail("--config", "cannot be given with --resume (a run continues with its own settings)",
-                       "Resume without --config, or start a new run from it with --out")
+            raise fail(
+                "--config",
+                "cannot be given with --resume (a run continues with its own settings)",
+                "Resume without --config, or start a new run from it with --out",
+            )
         changes = resume_changes(args)
         info = read_run(args.resume)
         for k, v in changes.items():
             print(f"resuming with {flag_of(k)} {v} (was {getattr(info.train, k)})", file=sys.stderr)
         data = args.data or info.train.data
-        scene = load_as_trained(info.train, data,
-                                allow_outside=bool(args.allow_outside_paths or info.train.allow_outside_paths))
+        scene = load_as_trained(
+            info.train, data, allow_outside=bool(args.allow_outside_paths or info.train.allow_outside_paths)
+        )
         result = api_result(resume(args.resume, scene, changes=changes))
     else:
         from . import pipeline as api
@@ -172,8 +208,11 @@ def run(args: argparse.Namespace) -> int:
             model = read_settings(args.config)[0].model
         model = model or TrainConfig().model
         if model not in classes:
-            raise fail("--model", f"model '{model}' is not available in this installation",
-                       f"Choose one of: {', '.join(classes)}")
+            raise fail(
+                "--model",
+                f"model '{model}' is not available in this installation",
+                f"Choose one of: {', '.join(classes)}",
+            )
         refuse_other_models_flags(args, classes, model)
         given = {name: getattr(args, name) for name in given_flags(args, TrainConfig, classes[model])}
         result = api.train(config=args.config, **given)

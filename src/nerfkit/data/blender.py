@@ -56,11 +56,17 @@ def frame_image_path(folder: Path, file_path: str, where: str, allow_outside: bo
                 return resolve_inside(folder, name, allow_outside, where)
         resolve_inside(folder, file_path, allow_outside, where)  # outside is refused before "not found"
     except (OSError, ValueError) as e:  # a NUL byte, a name too long, a loop of links
-        raise fail(where, f"frame image {file_path[:100]!r} is not a usable path ({type(e).__name__}: {e})",
-                   "Check the frames' file_path entries") from None
+        raise fail(
+            where,
+            f"frame image {file_path[:100]!r} is not a usable path ({type(e).__name__}: {e})",
+            "Check the frames' file_path entries",
+        ) from None
     looked = Path(file_path).name[:200] + ".png"
-    raise fail(where, f"frame image {file_path[:200]!r} not found (looked for {looked!r} beside the json)",
-               "Check the frames' file_path entries and that the images were copied")
+    raise fail(
+        where,
+        f"frame image {file_path[:200]!r} not found (looked for {looked!r} beside the json)",
+        "Check the frames' file_path entries and that the images were copied",
+    )
 
 
 def _read_split(folder: Path, split: str, background, out_size, with_images: bool, allow_outside: bool = False):
@@ -99,8 +105,11 @@ def _read_split(folder: Path, split: str, background, out_size, with_images: boo
             if size is None:
                 size = (w, h)
             elif (w, h) != size:
-                raise fail(img_path, f"image is {w}x{h} but the split's first image is {size[0]}x{size[1]}",
-                           "All images of a Blender dataset must have one size")
+                raise fail(
+                    img_path,
+                    f"image is {w}x{h} but the split's first image is {size[0]}x{size[1]}",
+                    "All images of a Blender dataset must have one size",
+                )
             if with_images:
                 images.append(resize_image(img, *out_size(w, h)))
     c2w_gl = check_poses(np.stack(poses), where, "transform_matrix")
@@ -146,8 +155,17 @@ def load_blender(
     def out_size(w: int, h: int) -> tuple[int, int]:
         return output_size(w, h, size, downscale)
 
-    splits = {s: _read_split(folder, s, background, out_size, with_images=(s != "test" or test_images or s == need),
-                             allow_outside=allow_outside) for s in SPLITS}
+    splits = {
+        s: _read_split(
+            folder,
+            s,
+            background,
+            out_size,
+            with_images=(s != "test" or test_images or s == need),
+            allow_outside=allow_outside,
+        )
+        for s in SPLITS
+    }
     if splits[need] is None:
         raise fail(folder, f"has no transforms_{need}.json", "A Blender dataset needs the split being read")
     ref = splits[need]
@@ -155,8 +173,10 @@ def load_blender(
     train, val, test = (splits[s] or empty for s in SPLITS)
     for s, v in (("train", train), ("val", val), ("test", test)):
         if len(v) and (v.width, v.height) != (ref.width, ref.height):
-            raise fail(folder / f"transforms_{s}.json", f"{s} images are {v.width}x{v.height} but {need} images are "
-                                                       f"{ref.width}x{ref.height}")
+            raise fail(
+                folder / f"transforms_{s}.json",
+                f"{s} images are {v.width}x{v.height} but {need} images are {ref.width}x{ref.height}",
+            )
     ref = ref if not len(train) else train
     center = estimate_center(ref.c2w)
     up = estimate_up(ref.c2w)

@@ -40,8 +40,9 @@ def _import_pycolmap(where: object):
 
 def is_model_dir(folder: Path) -> bool:
     """True when ``folder`` holds a COLMAP model (cameras and images, .bin or .txt)."""
-    return folder.is_dir() and any(all((folder / f"{n}{ext}").is_file() for n in MODEL_FILES)
-                                   for ext in (".bin", ".txt"))
+    return folder.is_dir() and any(
+        all((folder / f"{n}{ext}").is_file() for n in MODEL_FILES) for ext in (".bin", ".txt")
+    )
 
 
 def find_colmap_model(path: str | Path) -> Path | None:
@@ -97,9 +98,16 @@ def _precheck_binary_model(model_dir: Path) -> None:
         # Every binary model file starts with a uint64 record count; a record takes >= 8 bytes.
         if len(head) < 8 or struct.unpack("<Q", head)[0] > (n - 8) // 8:
             count = struct.unpack("<Q", head)[0] if len(head) == 8 else None
-            raise fail(f, "cannot read the COLMAP model: " + (f"the file declares {count} records but holds {n} bytes"
-                                                               if count is not None else "the file is truncated"),
-                       "The model is truncated or corrupt; re-export it from COLMAP")
+            raise fail(
+                f,
+                "cannot read the COLMAP model: "
+                + (
+                    f"the file declares {count} records but holds {n} bytes"
+                    if count is not None
+                    else "the file is truncated"
+                ),
+                "The model is truncated or corrupt; re-export it from COLMAP",
+            )
     try:
         import resource
     except ImportError:  # pragma: no cover - Windows
@@ -117,11 +125,19 @@ def _precheck_binary_model(model_dir: Path) -> None:
         resource.setrlimit(resource.RLIMIT_CPU, (cpu_seconds, cpu_seconds + 5))
 
     try:
-        proc = subprocess.run([sys.executable, "-c", _PRECHECK, str(model_dir)], preexec_fn=cap_child,
-                              capture_output=True, text=True, timeout=10 * cpu_seconds + 60)
+        proc = subprocess.run(
+            [sys.executable, "-c", _PRECHECK, str(model_dir)],
+            preexec_fn=cap_child,
+            capture_output=True,
+            text=True,
+            timeout=10 * cpu_seconds + 60,
+        )
     except subprocess.TimeoutExpired:
-        raise fail(model_dir, "cannot read the COLMAP model: reading it did not finish",
-                   "The files may be truncated or corrupt") from None
+        raise fail(
+            model_dir,
+            "cannot read the COLMAP model: reading it did not finish",
+            "The files may be truncated or corrupt",
+        ) from None
     if proc.returncode != 0:
         lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
         if proc.returncode > 0 and lines:
@@ -130,8 +146,11 @@ def _precheck_binary_model(model_dir: Path) -> None:
             reason = f"pycolmap was still reading after {cpu_seconds} s of CPU time"
         else:
             reason = f"pycolmap crashed, exit code {proc.returncode}"
-        raise fail(model_dir, f"cannot read the COLMAP model ({reason})",
-                   "The files may be truncated or corrupt, or declare more data than they hold")
+        raise fail(
+            model_dir,
+            f"cannot read the COLMAP model ({reason})",
+            "The files may be truncated or corrupt, or declare more data than they hold",
+        )
 
 
 def read_model(model_dir: str | Path) -> pycolmap.Reconstruction:
@@ -149,8 +168,9 @@ def read_model(model_dir: str | Path) -> pycolmap.Reconstruction:
         return pycolmap.Reconstruction(str(model_dir))
     except Exception as e:  # noqa: BLE001 - pycolmap raises ValueError/RuntimeError on bad files
         reason = " ".join(str(e).split())[:300]  # pycolmap's messages can span lines
-        raise fail(model_dir, f"cannot read the COLMAP model ({reason})",
-                   "The files may be truncated or corrupt") from None
+        raise fail(
+            model_dir, f"cannot read the COLMAP model ({reason})", "The files may be truncated or corrupt"
+        ) from None
 
 
 def camera_matrix(camera) -> np.ndarray:
@@ -161,9 +181,13 @@ def camera_matrix(camera) -> np.ndarray:
 def quaternion_matrix(q: np.ndarray) -> np.ndarray:
     """The rotation (3, 3) of a unit quaternion ``q`` (4,) in pycolmap's order (x, y, z, w)."""
     x, y, z, w = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def image_c2w(image) -> np.ndarray:
@@ -201,7 +225,7 @@ def check_text_quaternions(model_dir: Path) -> None:
                     next(lines, None)  # the image's 2D points
                 fields = line.split()
                 try:
-                    q = [float(v) for v in fields[first:first + 4]]
+                    q = [float(v) for v in fields[first : first + 4]]
                 except ValueError:
                     continue
                 if len(q) < 4:
@@ -209,9 +233,12 @@ def check_text_quaternions(model_dir: Path) -> None:
                 norm = math.hypot(*q)
                 if not math.isfinite(norm) or norm == 0:
                     what = "zero: no rotation at all" if norm == 0 else "not finite"
-                    raise fail(f"{path}:{number}", f"{name[:-1]} {fields[0]} has the rotation quaternion "
-                               f"{' '.join(fields[first:first + 4])} (QW QX QY QZ), which is {what}",
-                               "The model is corrupt; export it from COLMAP again")
+                    raise fail(
+                        f"{path}:{number}",
+                        f"{name[:-1]} {fields[0]} has the rotation quaternion "
+                        f"{' '.join(fields[first : first + 4])} (QW QX QY QZ), which is {what}",
+                        "The model is corrupt; export it from COLMAP again",
+                    )
 
 
 def undistort(image: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
@@ -224,13 +251,22 @@ def undistort(image: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
 
     if camera.model_name in PINHOLE_MODELS:
         return image, camera_matrix(camera)
-    bitmap, pinhole = pycolmap.undistort_image(pycolmap.UndistortCameraOptions(),
-                                               pycolmap.Bitmap.from_array(np.ascontiguousarray(image)), camera)
+    bitmap, pinhole = pycolmap.undistort_image(
+        pycolmap.UndistortCameraOptions(), pycolmap.Bitmap.from_array(np.ascontiguousarray(image)), camera
+    )
     return np.asarray(bitmap.to_array()).reshape(pinhole.height, pinhole.width, 3), camera_matrix(pinhole)
 
 
-def near_far_from_points(c2w: np.ndarray, K: np.ndarray, width: int, height: int, points: np.ndarray,
-                         lo: float = 1.0, hi: float = 99.0, margin: float = 0.1) -> tuple[float, float] | None:
+def near_far_from_points(
+    c2w: np.ndarray,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    points: np.ndarray,
+    lo: float = 1.0,
+    hi: float = 99.0,
+    margin: float = 0.1,
+) -> tuple[float, float] | None:
     """Depth range of 3D points (P, 3) seen by cameras c2w (N, 4, 4) with intrinsics K (N, 3, 3).
 
     Per camera, the depths of the points inside its image; over all cameras the ``lo``-th
@@ -277,8 +313,9 @@ class SparsePoints:
         return len(self.xyz)
 
 
-def reconstruction_points(rec, max_error: float = 2.0, min_track: int = 3,
-                          photo_name: Callable[[str], str] | None = None) -> SparsePoints:
+def reconstruction_points(
+    rec, max_error: float = 2.0, min_track: int = 3, photo_name: Callable[[str], str] | None = None
+) -> SparsePoints:
     """The points of a pycolmap reconstruction (in its current frame) seen by
     ``min_track`` or more images with a mean reprojection error <= ``max_error`` px, with
     the photos that see each one (``photo_name``: COLMAP's image name -> the photo's name;
@@ -291,8 +328,11 @@ def reconstruction_points(rec, max_error: float = 2.0, min_track: int = 3,
     keep = (err <= max_error) & (track >= min_track) & np.isfinite(xyz).all(1)
     image_name = {i: rec.images[i].name for i in rec.reg_image_ids()}
     name = photo_name or (lambda n: n)
-    seen_by = [tuple(sorted({name(image_name[e.image_id]) for e in p.track.elements if e.image_id in image_name}))
-               for p, k in zip(pts, keep) if k]
+    seen_by = [
+        tuple(sorted({name(image_name[e.image_id]) for e in p.track.elements if e.image_id in image_name}))
+        for p, k in zip(pts, keep)
+        if k
+    ]
     return SparsePoints(xyz[keep].astype(np.float32), rgb[keep], err[keep].astype(np.float32), track[keep], seen_by)
 
 
@@ -330,31 +370,45 @@ def reconstruction_to_scene(
         size_ok = 0 < cam.width <= 1_000_000 and 0 < cam.height <= 1_000_000
         if size_ok and im.camera_id not in pinholes:
             try:
-                pinholes[im.camera_id] = (cam if cam.model_name in PINHOLE_MODELS
-                                          else pycolmap.undistort_camera(pycolmap.UndistortCameraOptions(), cam))
+                pinholes[im.camera_id] = (
+                    cam
+                    if cam.model_name in PINHOLE_MODELS
+                    else pycolmap.undistort_camera(pycolmap.UndistortCameraOptions(), cam)
+                )
             except Exception as e:  # noqa: BLE001 - e.g. equirectangular cameras
-                raise fail(where, f"camera {im.camera_id} ({cam.model_name}) cannot be undistorted to a pinhole ({e})",
-                           "Use a pinhole, radial or OpenCV camera model") from None
+                raise fail(
+                    where,
+                    f"camera {im.camera_id} ({cam.model_name}) cannot be undistorted to a pinhole ({e})",
+                    "Use a pinhole, radial or OpenCV camera model",
+                ) from None
         pin = pinholes.get(im.camera_id)
         if pin is None or not (size_ok and pin.width > 0 and pin.height > 0):
-            raise fail(where, f"camera {im.camera_id} has image size {cam.width}x{cam.height}",
-                       "The model's cameras.txt/bin is corrupt")
+            raise fail(
+                where,
+                f"camera {im.camera_id} has image size {cam.width}x{cam.height}",
+                "The model's cameras.txt/bin is corrupt",
+            )
         K = check_intrinsics(camera_matrix(pin), where, f"camera {im.camera_id}", int(pin.width), int(pin.height))
         if image_dir is not None:
             photo_path = resolve_inside(image_dir, im.name, allow_outside, where)
             photo = load_image_uint8(photo_path, background)
             if photo.shape[:2] != (cam.height, cam.width):
-                raise fail(photo_path,
-                           f"photo is {photo.shape[1]}x{photo.shape[0]} but the model's camera "
-                           f"{im.camera_id} is {cam.width}x{cam.height}",
-                           "Pass the photos the model was made from (not resized)")
+                raise fail(
+                    photo_path,
+                    f"photo is {photo.shape[1]}x{photo.shape[0]} but the model's camera "
+                    f"{im.camera_id} is {cam.width}x{cam.height}",
+                    "Pass the photos the model was made from (not resized)",
+                )
             photo, K = undistort(photo, cam)
         wh = (int(pin.width), int(pin.height))
         if size_wh is None:
             size_wh = wh
         elif wh != size_wh:
-            raise fail(where, f"images have different sizes after undistortion ({size_wh} and {wh} for {im.name})",
-                       "nerfkit needs one image size per dataset; use a single camera")
+            raise fail(
+                where,
+                f"images have different sizes after undistortion ({size_wh} and {wh} for {im.name})",
+                "nerfkit needs one image size per dataset; use a single camera",
+            )
         out_wh = output_size(*wh, size, downscale)
         if image_dir is not None:
             pixels.append(resize_image(photo, *out_wh))
@@ -362,8 +416,11 @@ def reconstruction_to_scene(
         try:
             c2ws.append(check_poses(image_c2w(im)[None], where, f"pose of {im.name}")[0])
         except np.linalg.LinAlgError:  # a zero or non-finite quaternion, a singular matrix
-            raise fail(where, f"image {im.name!r} has a degenerate pose (its rotation quaternion is zero or not "
-                              "finite)", "The model's images.txt/bin is corrupt") from None
+            raise fail(
+                where,
+                f"image {im.name!r} has a degenerate pose (its rotation quaternion is zero or not finite)",
+                "The model's images.txt/bin is corrupt",
+            ) from None
         Ks.append(scale_intrinsics(K, *wh, *out_wh))
     assert size_wh is not None  # images is not empty
     W, H = output_size(*size_wh, size, downscale)
@@ -375,17 +432,33 @@ def reconstruction_to_scene(
     up = estimate_up(c2w)
     nf = near_far_from_points(c2w, K, W, H, points) or estimate_near_far(c2w, center)
     if nf[1] <= 0:
-        raise fail(where, "cannot tell the depth range: too few 3D points, and the cameras share no look-at point",
-                   "Use a model with its points3D")
+        raise fail(
+            where,
+            "cannot tell the depth range: too few 3D points, and the cameras share no look-at point",
+            "Use a model with its points3D",
+        )
     near, far = check_near_far(*nf, where)
     tr, va = split_every(len(names), val_every)
     all_views = Views(c2w, K, W, H, imgs, names)
     train = all_views.subset(tr)
     kept = reconstruction_points(rec, min_track=2)  # COLMAP triangulates from 2 views
     known = len(kept) > 0
-    return check_scene(Scene(train, all_views.subset(va), Views.empty(W, H), near, far, center, up, source=source,
-                             points=kept.xyz if known else None, point_colors=kept.rgb if known else None,
-                             point_views=point_views(kept.seen_by, train.names) if known else None), where)
+    return check_scene(
+        Scene(
+            train,
+            all_views.subset(va),
+            Views.empty(W, H),
+            near,
+            far,
+            center,
+            up,
+            source=source,
+            points=kept.xyz if known else None,
+            point_colors=kept.rgb if known else None,
+            point_views=point_views(kept.seen_by, train.names) if known else None,
+        ),
+        where,
+    )
 
 
 def load_colmap(
@@ -408,17 +481,22 @@ def load_colmap(
         raise fail(path, "no COLMAP model found", "Expected cameras/images/points3D .bin or .txt here or in sparse/0")
     image_dir = Path(images) if images is not None else find_image_dir(model_dir)
     if image_dir is None:
-        raise fail(model_dir, "found the COLMAP model but not its photos",
-                   "Put them in an images/ folder of the project, or convert with --images DIR")
+        raise fail(
+            model_dir,
+            "found the COLMAP model but not its photos",
+            "Put them in an images/ folder of the project, or convert with --images DIR",
+        )
     if not image_dir.is_dir():
         raise fail(image_dir, "no such image folder")
     rec = read_model(model_dir)
-    return reconstruction_to_scene(rec, image_dir, background, val_every, size, downscale, source=str(model_dir),
-                                   allow_outside=allow_outside)
+    return reconstruction_to_scene(
+        rec, image_dir, background, val_every, size, downscale, source=str(model_dir), allow_outside=allow_outside
+    )
 
 
-def scene_to_reconstruction(scene: Scene,
-                            splits: tuple[str, ...] = ("train", "val", "test")) -> pycolmap.Reconstruction:
+def scene_to_reconstruction(
+    scene: Scene, splits: tuple[str, ...] = ("train", "val", "test")
+) -> pycolmap.Reconstruction:
     """A pycolmap Reconstruction with one PINHOLE camera per distinct K and every view posed.
 
     Image names are the views' names (``<split>_<index>.png`` when a split has none). The
@@ -446,8 +524,12 @@ def scene_to_reconstruction(scene: Scene,
             w2c = np.linalg.inv(v.c2w[i].astype(np.float64))
             pose = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3])
             features = seen.get(i, []) if split == "train" else []
-            image = pycolmap.Image(name=name, camera_id=cam_ids[key], image_id=image_id,
-                                   points2D=[pycolmap.Point2D(xy) for _, xy in features])
+            image = pycolmap.Image(
+                name=name,
+                camera_id=cam_ids[key],
+                image_id=image_id,
+                points2D=[pycolmap.Point2D(xy) for _, xy in features],
+            )
             rec.add_image_with_trivial_frame(image, pose)
             for k, (point, _) in enumerate(features):
                 tracks.setdefault(point, []).append(pycolmap.TrackElement(image_id, k))
@@ -492,8 +574,9 @@ def write_reconstruction(rec: pycolmap.Reconstruction, out_dir: str | Path, text
     return out_dir
 
 
-def write_colmap_model(scene: Scene, out_dir: str | Path, text: bool = False,
-                       splits: tuple[str, ...] = ("train", "val", "test")) -> Path:
+def write_colmap_model(
+    scene: Scene, out_dir: str | Path, text: bool = False, splits: tuple[str, ...] = ("train", "val", "test")
+) -> Path:
     """Write the scene's cameras and sparse points as a COLMAP model folder (PINHOLE
     cameras; :func:`scene_to_reconstruction`)."""
     return write_reconstruction(scene_to_reconstruction(scene, splits), out_dir, text)

@@ -94,19 +94,31 @@ def read_poses_bounds(path: Path) -> tuple[np.ndarray, np.ndarray]:
     try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as e:
-        raise fail(where, f"cannot read it as a .npy array ({type(e).__name__}: {str(e)[:120]})",
-                   "Expected LLFF's poses_bounds.npy: an (N, 17) float array") from None
+        raise fail(
+            where,
+            f"cannot read it as a .npy array ({type(e).__name__}: {str(e)[:120]})",
+            "Expected LLFF's poses_bounds.npy: an (N, 17) float array",
+        ) from None
     if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "fiu":
-        raise fail(where, f"has dtype {getattr(arr, 'dtype', type(arr).__name__)}, expected numbers",
-                   "Expected LLFF's poses_bounds.npy: an (N, 17) float array")
+        raise fail(
+            where,
+            f"has dtype {getattr(arr, 'dtype', type(arr).__name__)}, expected numbers",
+            "Expected LLFF's poses_bounds.npy: an (N, 17) float array",
+        )
     if arr.ndim != 2 or arr.shape[1] != 17 or not 1 <= arr.shape[0] <= MAX_VIEWS:
-        raise fail(where, f"has shape {arr.shape}, expected (N, 17): a 3x5 pose and 2 bounds per image",
-                   "Is this LLFF's poses_bounds.npy?")
+        raise fail(
+            where,
+            f"has shape {arr.shape}, expected (N, 17): a 3x5 pose and 2 bounds per image",
+            "Is this LLFF's poses_bounds.npy?",
+        )
     arr = arr.astype(np.float64)
     bad = ~(np.isfinite(arr) & (np.abs(arr) <= MAX_COORD)).all(axis=1)
     if bad.any():
-        raise fail(where, f"row {int(np.argmax(bad))} has NaN or inf values (or values beyond {MAX_COORD:g})",
-                   "Remove or re-estimate that image's pose")
+        raise fail(
+            where,
+            f"row {int(np.argmax(bad))} has NaN or inf values (or values beyond {MAX_COORD:g})",
+            "Remove or re-estimate that image's pose",
+        )
     poses, bounds = arr[:, :15].reshape(-1, 3, 5), arr[:, 15:]
     hwf = poses[:, :, 4]
     if (hwf <= 0).any():
@@ -155,8 +167,11 @@ def load_llff(
         raise fail(img_dir, "missing", f"An LLFF scene keeps its photos in images/ beside {POSES_FILE}")
     files = [p.name for p in image_files(img_dir)]
     if len(files) != len(poses):
-        raise fail(img_dir, f"holds {len(files)} images but {POSES_FILE} has {len(poses)} poses",
-                   "Each photo needs one row of poses_bounds.npy, in name order")
+        raise fail(
+            img_dir,
+            f"holds {len(files)} images but {POSES_FILE} has {len(poses)} poses",
+            "Each photo needs one row of poses_bounds.npy, in name order",
+        )
     h0, w0, _ = poses[0, :, 4]
     images, size_wh = [], None
     for name in files:
@@ -166,16 +181,24 @@ def load_llff(
         if size_wh is None:
             size_wh = (w, h)
             if len(files) * w * h > MAX_PIXELS:
-                raise fail(img_dir, f"{len(files)} photos of {w}x{h} exceed {MAX_PIXELS:.2g} pixels",
-                           "Use a downscaled folder (images_4, images_8) with --downscale 4 or 8")
+                raise fail(
+                    img_dir,
+                    f"{len(files)} photos of {w}x{h} exceed {MAX_PIXELS:.2g} pixels",
+                    "Use a downscaled folder (images_4, images_8) with --downscale 4 or 8",
+                )
         elif (w, h) != size_wh:
-            raise fail(p, f"image is {w}x{h} but {files[0]} is {size_wh[0]}x{size_wh[1]}", "All photos must have one size")
+            raise fail(
+                p, f"image is {w}x{h} but {files[0]} is {size_wh[0]}x{size_wh[1]}", "All photos must have one size"
+            )
         images.append(img)
     assert size_wh is not None  # there is at least one photo: as many as poses
     w, h = size_wh
     if abs(w / h - w0 / h0) > 0.01 * w0 / h0:
-        raise fail(img_dir, f"photos are {w}x{h} but {POSES_FILE} says {w0:g}x{h0:g} (another aspect ratio)",
-                   "Use the photos the poses were computed for")
+        raise fail(
+            img_dir,
+            f"photos are {w}x{h} but {POSES_FILE} says {w0:g}x{h0:g} (another aspect ratio)",
+            "Use the photos the poses were computed for",
+        )
     f = poses[:, 2, 4] * (w / w0)  # the focal in pixels of the photos at hand
     K = np.zeros((len(f), 3, 3))
     K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = f, f, w / 2, h / 2, 1.0
@@ -190,10 +213,18 @@ def load_llff(
     near, far = check_near_far(0.9 * bounds[:, 0].min(), bounds[:, 1].max(), str(folder / POSES_FILE))
     center = forward_facing_center(c2w, near, far)
     held_out = views.subset(held) if len(held) else Views.empty(ow, oh)
-    scene = Scene(views.subset(train_idx), held_out, held_out, near, far, center, estimate_up(c2w),
-                  source=str(folder))
+    scene = Scene(views.subset(train_idx), held_out, held_out, near, far, center, estimate_up(c2w), source=str(folder))
     return resample_scene(scene, size, None)
 
 
-__all__ = ["HOLDOUT_EVERY", "POSES_FILE", "forward_facing_center", "holdout_indices", "llff_folder", "llff_to_opencv",
-           "load_llff", "opencv_to_llff", "read_poses_bounds"]
+__all__ = [
+    "HOLDOUT_EVERY",
+    "POSES_FILE",
+    "forward_facing_center",
+    "holdout_indices",
+    "llff_folder",
+    "llff_to_opencv",
+    "load_llff",
+    "opencv_to_llff",
+    "read_poses_bounds",
+]

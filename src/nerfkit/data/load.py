@@ -24,8 +24,10 @@ from .resample import resample_scene
 from .scene import Scene
 from .validate import check_scene
 
-FORMATS = ("a course .npz, a Blender folder (transforms_train.json), a transforms.json, an LLFF folder "
-           "(poses_bounds.npy), or a COLMAP model folder")
+FORMATS = (
+    "a course .npz, a Blender folder (transforms_train.json), a transforms.json, an LLFF folder "
+    "(poses_bounds.npy), or a COLMAP model folder"
+)
 
 
 def detect_format(path: str | Path) -> str:
@@ -41,7 +43,9 @@ def detect_format(path: str | Path) -> str:
         raise fail(path, "no such file or folder", "Check the path")
     if kind != "dir":
         if path.name == "poses.json" and (path.parent / "dataset.npz").is_file():
-            raise fail(path, "is the record of the photos' poses, not the dataset", f"Give {path.parent / 'dataset.npz'}")
+            raise fail(
+                path, "is the record of the photos' poses, not the dataset", f"Give {path.parent / 'dataset.npz'}"
+            )
         if path.suffix.lower() == ".npz":
             return "npz"
         if blender_folder(path) is not None:
@@ -57,8 +61,9 @@ def detect_format(path: str | Path) -> str:
     if len(npzs) == 1:
         return "npz"
     if len(npzs) > 1:
-        raise fail(path, f"holds {len(npzs)} .npz files ({', '.join(p.name for p in npzs[:4])})",
-                   "Pass the one you mean")
+        raise fail(
+            path, f"holds {len(npzs)} .npz files ({', '.join(p.name for p in npzs[:4])})", "Pass the one you mean"
+        )
     if blender_folder(path) is not None:
         return "blender"
     if (path / "transforms.json").is_file():
@@ -72,8 +77,11 @@ def detect_format(path: str | Path) -> str:
 
 def is_run_folder(path: Path) -> bool:
     """Whether ``path`` is a trained run's folder (its config.json, and checkpoints or model.pt)."""
-    return path.is_dir() and (path / "config.json").is_file() and \
-        ((path / "checkpoints").is_dir() or (path / "model.pt").is_file())
+    return (
+        path.is_dir()
+        and (path / "config.json").is_file()
+        and ((path / "checkpoints").is_dir() or (path / "model.pt").is_file())
+    )
 
 
 def _folder_hint(path: Path) -> str | None:
@@ -91,11 +99,15 @@ def _folder_hint(path: Path) -> str | None:
         except (OSError, ValueError, KeyError, TypeError):
             data = None
         where = f" trained on {data}" if isinstance(data, str) and data else ""
-        return (f"This is a trained run's folder{where}: pass that dataset, or continue the run with "
-                f"`nerfkit train --resume {path}`")
+        return (
+            f"This is a trained run's folder{where}: pass that dataset, or continue the run with "
+            f"`nerfkit train --resume {path}`"
+        )
     if image_files(path):
-        return (f"It holds photos without poses: make a dataset of them with `nerfkit poses {path} --out DATASET` "
-                "(or the whole flow with `nerfkit capture`)")
+        return (
+            f"It holds photos without poses: make a dataset of them with `nerfkit poses {path} --out DATASET` "
+            "(or the whole flow with `nerfkit capture`)"
+        )
     return None
 
 
@@ -147,8 +159,9 @@ def load_scene(
     elif fmt == "blender":
         from .blender import load_blender
 
-        scene = load_blender(path, background=background, size=size, downscale=downscale, allow_outside=allow_outside,
-                             need=need)
+        scene = load_blender(
+            path, background=background, size=size, downscale=downscale, allow_outside=allow_outside, need=need
+        )
     elif fmt == "llff":
         from .llff import load_llff
 
@@ -167,6 +180,9 @@ def _load_transforms(path: Path, background, allow_outside: bool, need: str) -> 
     try:
         from .nerfstudio import load_transforms_json
     except ImportError:
-        raise fail(path, "transforms.json support (nerfkit.data.nerfstudio) is not installed in this build",
-                   "Convert the dataset to a course .npz first") from None
+        raise fail(
+            path,
+            "transforms.json support (nerfkit.data.nerfstudio) is not installed in this build",
+            "Convert the dataset to a course .npz first",
+        ) from None
     return load_transforms_json(path, background=background, allow_outside=allow_outside, need=need)

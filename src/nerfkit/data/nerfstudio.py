@@ -89,8 +89,11 @@ def _undistort(image: np.ndarray, K: np.ndarray, dist: dict[str, float], where: 
         newK, _ = cv2.getOptimalNewCameraMatrix(K_cv, coeffs, (w, h), 0.0, (w, h))
         out = cv2.undistort(image, K_cv, coeffs, None, newK)
     except cv2.error as e:
-        raise fail(where, f"cannot undistort with k1 k2 p1 p2 k3 = {coeffs.tolist()} ({short_repr(str(e))})",
-                   "Check the distortion coefficients") from None
+        raise fail(
+            where,
+            f"cannot undistort with k1 k2 p1 p2 k3 = {coeffs.tolist()} ({short_repr(str(e))})",
+            "Check the distortion coefficients",
+        ) from None
     K_new = np.array(newK, dtype=np.float64)
     K_new[:2, 2] += 0.5
     return out, check_intrinsics(K_new, where, "intrinsics after undistortion", w, h).astype(np.float64)
@@ -102,14 +105,14 @@ def _intrinsics(cam: dict, image_size: tuple[int, int] | None, where: str) -> tu
     size = image_size
     if size is None:
         if w is None or h is None:
-            raise fail(where, "needs \"w\" and \"h\" when images are not loaded")
+            raise fail(where, 'needs "w" and "h" when images are not loaded')
         size = (w, h)
     w = size[0] if w is None else w
     h = size[1] if h is None else h
     fx = _number(cam, "fl_x", where)
     if fx is None:
         if cam.get("camera_angle_x") is None:
-            raise fail(where, "no focal length: expected \"fl_x\" (or \"camera_angle_x\")")
+            raise fail(where, 'no focal length: expected "fl_x" (or "camera_angle_x")')
         fx = focal_from_angle(check_fov(cam["camera_angle_x"], where), w)
     fy = _number(cam, "fl_y", where, fx)
     cx = _number(cam, "cx", where, w / 2.0)
@@ -137,18 +140,28 @@ def _frame_split(fr: dict, by_list: dict[str, str], where: str) -> str | None:
     return split
 
 
-def _read_frame(fr, data: dict, folder: Path, by_list: dict[str, str], where: str, load_images: bool,
-                background, allow_outside: bool = False) -> tuple[str, tuple, bool] | None:
+def _read_frame(
+    fr,
+    data: dict,
+    folder: Path,
+    by_list: dict[str, str],
+    where: str,
+    load_images: bool,
+    background,
+    allow_outside: bool = False,
+) -> tuple[str, tuple, bool] | None:
     """(split, (c2w, K, size, image, name), undistorted) of one frame; None when no split lists it."""
     from ..images import load_image_uint8
 
     if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
-        raise fail(where, "each frame needs \"file_path\" and \"transform_matrix\"")
+        raise fail(where, 'each frame needs "file_path" and "transform_matrix"')
     split = _frame_split(fr, by_list, where)
     if split is None:
         return None
     c2w = opengl_to_opencv(check_poses([fr["transform_matrix"]], where, "transform_matrix")[0].astype(np.float64))
-    cam = {key: fr.get(key, data.get(key)) for key in ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", *DIST_KEYS)}
+    cam = {
+        key: fr.get(key, data.get(key)) for key in ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", *DIST_KEYS)
+    }
     fp = str(fr["file_path"])
     image = load_image_uint8(frame_image_path(folder, fp, where, allow_outside), background) if load_images else None
     K, size = _intrinsics(cam, None if image is None else (image.shape[1], image.shape[0]), where)
@@ -183,16 +196,27 @@ def _stack_views(per_split: dict[str, list], where: str, load_images: bool, need
             continue
         sizes = sorted({it[2] for it in items})
         if len(sizes) > 1:
-            raise fail(where, f"the {split} frames have different image sizes {sizes}",
-                       "nerfkit needs one image size per split; resize the images to one size")
+            raise fail(
+                where,
+                f"the {split} frames have different image sizes {sizes}",
+                "nerfkit needs one image size per split; resize the images to one size",
+            )
         w, h = sizes[0]
         images = np.stack([it[3] for it in items]) if load_images else None
-        views[split] = Views(np.stack([it[0] for it in items]).astype(np.float32),
-                             np.stack([it[1] for it in items]).astype(np.float32), w, h, images,
-                             [it[4] for it in items])
+        views[split] = Views(
+            np.stack([it[0] for it in items]).astype(np.float32),
+            np.stack([it[1] for it in items]).astype(np.float32),
+            w,
+            h,
+            images,
+            [it[4] for it in items],
+        )
     if need not in views:
-        raise fail(where, f"has no {'training' if need == 'train' else need} frames",
-                   f"Mark some frames \"split\": \"{need}\" or list them in {need}_filenames")
+        raise fail(
+            where,
+            f"has no {'training' if need == 'train' else need} frames",
+            f'Mark some frames "split": "{need}" or list them in {need}_filenames',
+        )
     ref = views[need]
     for split in SPLITS:
         views.setdefault(split, Views.empty(ref.width, ref.height))
@@ -203,14 +227,18 @@ def _add_pose_only_splits(views: dict[str, Views], nk: dict, where: str, need: s
     """Fill empty splits from ``nerfkit.poses_only`` (render paths: poses without images)."""
     poses_only = nk.get("poses_only") or {}
     if not isinstance(poses_only, dict):
-        raise fail(where, f"'nerfkit.poses_only' is {short_repr(poses_only)}, expected an object: split -> "
-                          "list of 4x4 matrices", "Fix or re-export the file")
+        raise fail(
+            where,
+            f"'nerfkit.poses_only' is {short_repr(poses_only)}, expected an object: split -> list of 4x4 matrices",
+            "Fix or re-export the file",
+        )
     train = views[need]  # the K and size of the views with images
     for split, mats in poses_only.items():
         if split in SPLITS and len(views[split]) == 0 and mats:
             c2w = opengl_to_opencv(check_poses(mats, where, f"nerfkit.poses_only.{split}").astype(np.float64))
-            views[split] = Views(c2w.astype(np.float32), np.repeat(train.K[:1], len(c2w), axis=0), train.width,
-                                 train.height)
+            views[split] = Views(
+                c2w.astype(np.float32), np.repeat(train.K[:1], len(c2w), axis=0), train.width, train.height
+            )
 
 
 def _scene_bounds(nk: dict, train: Views, where: str) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -224,9 +252,13 @@ def _scene_bounds(nk: dict, train: Views, where: str) -> tuple[np.ndarray, np.nd
     return center.astype(np.float32), up.astype(np.float32), near, far
 
 
-def load_transforms_json(path: str | Path, load_images: bool = True,
-                         background: tuple[float, float, float] = (0.0, 0.0, 0.0), allow_outside: bool = False,
-                         need: str = "train") -> Scene:
+def load_transforms_json(
+    path: str | Path,
+    load_images: bool = True,
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    allow_outside: bool = False,
+    need: str = "train",
+) -> Scene:
     """Read a nerfstudio-style transforms.json (or a folder holding one) into a Scene.
 
     ``background`` (RGB in [0, 1]) goes under transparent pixels of RGBA images; images
@@ -237,13 +269,18 @@ def load_transforms_json(path: str | Path, load_images: bool = True,
     if path_kind(path) == "dir":
         path = path / "transforms.json"
     where = str(path)
-    data = load_json(path, "no such file", "Expected a nerfstudio transforms.json", "The file may be truncated; re-export it")
+    data = load_json(
+        path, "no such file", "Expected a nerfstudio transforms.json", "The file may be truncated; re-export it"
+    )
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
-        raise fail(where, "expected an object with a non-empty \"frames\" list")
+        raise fail(where, 'expected an object with a non-empty "frames" list')
     model = str(data.get("camera_model", "OPENCV")).upper()
     if model not in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
-        raise fail(where, f"camera_model {model[:40]} is not supported",
-                   "Undistort the images first (e.g. with nerfstudio's ns-process-data) and use OPENCV/PINHOLE")
+        raise fail(
+            where,
+            f"camera_model {model[:40]} is not supported",
+            "Undistort the images first (e.g. with nerfstudio's ns-process-data) and use OPENCV/PINHOLE",
+        )
     nk = data.get("nerfkit") or {}
     if not isinstance(nk, dict):
         raise fail(where, f"'nerfkit' is {short_repr(nk)}, expected an object", "Fix or re-export the file")
@@ -252,25 +289,43 @@ def load_transforms_json(path: str | Path, load_images: bool = True,
     per_split: dict[str, list] = {s: [] for s in SPLITS}
     undistorted = 0
     for k, fr in enumerate(data["frames"]):
-        frame = _read_frame(fr, data, path.parent, by_list, f"{where} frames[{k}]", load_images, background,
-                            allow_outside)
+        frame = _read_frame(
+            fr, data, path.parent, by_list, f"{where} frames[{k}]", load_images, background, allow_outside
+        )
         if frame is not None:
             split, item, was_distorted = frame
             per_split[split].append(item)
             undistorted += was_distorted
     if undistorted:
-        warnings.warn(f"{where}: {undistorted} frames have lens distortion (k1 k2 p1 p2 ...); nerfkit undistorted "
-                      "them on load (pinhole K updated). Undistort once beforehand to avoid this each time", stacklevel=2)
+        warnings.warn(
+            f"{where}: {undistorted} frames have lens distortion (k1 k2 p1 p2 ...); nerfkit undistorted "
+            "them on load (pinhole K updated). Undistort once beforehand to avoid this each time",
+            stacklevel=2,
+        )
 
     views = _stack_views(per_split, where, load_images, need)
     _add_pose_only_splits(views, nk, where, need)
     center, up, near, far = _scene_bounds(nk, views["train"] if len(views["train"]) else views[need], where)
     table = check_plane(nk["table_plane"], where, "nerfkit.table_plane") if nk.get("table_plane") is not None else None
     points, colors = _read_points(data, path.parent, where, allow_outside)
-    return check_scene(Scene(views["train"], views["val"], views["test"], near, far, center, up, source=where,
-                             capture=nk.get("capture") is True, table=table, points=points, point_colors=colors,
-                             tags=nk.get("tags")),
-                       need=need)
+    return check_scene(
+        Scene(
+            views["train"],
+            views["val"],
+            views["test"],
+            near,
+            far,
+            center,
+            up,
+            source=where,
+            capture=nk.get("capture") is True,
+            table=table,
+            points=points,
+            point_colors=colors,
+            tags=nk.get("tags"),
+        ),
+        need=need,
+    )
 
 
 def _read_points(data: dict, folder: Path, where: str, allow_outside: bool) -> tuple[np.ndarray | None, ...]:
@@ -282,8 +337,11 @@ def _read_points(data: dict, folder: Path, where: str, allow_outside: bool) -> t
         raise fail(where, f"'ply_file_path' is {short_repr(rel)}, expected a file name")
     path = refuse_special_file(resolve_inside(folder, rel, allow_outside, where))
     if not path.is_file():
-        raise fail(where, f"'ply_file_path' names {rel[:200]!r}, which does not exist",
-                   "Remove the key or put the point cloud beside transforms.json")
+        raise fail(
+            where,
+            f"'ply_file_path' names {rel[:200]!r}, which does not exist",
+            "Remove the key or put the point cloud beside transforms.json",
+        )
     return read_points_ply(path, f"{where} ply_file_path {rel[:200]}")
 
 
@@ -297,8 +355,14 @@ def _save_image(path: Path, image: np.ndarray, jpeg_quality: int) -> None:
             Image.fromarray(image).save(tmp, format="PNG")
 
 
-def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool = True, jpeg_quality: int = 95,
-                          image_dir: str = "images", extra: dict | None = None) -> Path:
+def write_transforms_json(
+    scene: Scene,
+    folder: str | Path,
+    write_images: bool = True,
+    jpeg_quality: int = 95,
+    image_dir: str = "images",
+    extra: dict | None = None,
+) -> Path:
     """Write ``folder/transforms.json`` (and the views' images into ``folder/image_dir``, a
     subfolder written afresh: an earlier one is replaced whole, not added to).
 
@@ -329,8 +393,14 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
             seen.add(fname)
             rel = f"{image_dir}/{fname}"
             to_write.append((fname, v.images[i]))
-            frames.append({"file_path": rel, "transform_matrix": opencv_to_opengl(v.c2w[i].astype(np.float64)).tolist(),
-                           "split": split, "name": name})
+            frames.append(
+                {
+                    "file_path": rel,
+                    "transform_matrix": opencv_to_opengl(v.c2w[i].astype(np.float64)).tolist(),
+                    "split": split,
+                    "name": name,
+                }
+            )
             lists[split].append(rel)
             Ks.append(v.K[i].astype(np.float64))
             sizes.append((v.width, v.height))
@@ -343,8 +413,14 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
     shared = all(np.allclose(K, Ks[0], rtol=1e-6, atol=1e-6) for K in Ks) and len(set(sizes)) == 1
 
     def intr(K: np.ndarray, size: tuple[int, int]) -> dict:
-        return {"fl_x": float(K[0, 0]), "fl_y": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
-                "w": int(size[0]), "h": int(size[1])}
+        return {
+            "fl_x": float(K[0, 0]),
+            "fl_y": float(K[1, 1]),
+            "cx": float(K[0, 2]),
+            "cy": float(K[1, 2]),
+            "w": int(size[0]),
+            "h": int(size[1]),
+        }
 
     out: dict = {"camera_model": "OPENCV"}
     if shared:
@@ -356,10 +432,15 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
     out["frames"] = frames
     for s in SPLITS:
         out[f"{s}_filenames"] = lists[s]
-    nk = {"near": float(scene.near), "far": float(scene.far),
-          "center": [float(c) for c in scene.center], "up": [float(u) for u in scene.up],
-          "convention": "transform_matrix: camera-to-world, OpenGL camera axes; cx, cy: pixel centres at +0.5",
-          "capture": bool(scene.capture), "table_plane": None if scene.table is None else [float(v) for v in scene.table]}
+    nk = {
+        "near": float(scene.near),
+        "far": float(scene.far),
+        "center": [float(c) for c in scene.center],
+        "up": [float(u) for u in scene.up],
+        "convention": "transform_matrix: camera-to-world, OpenGL camera axes; cx, cy: pixel centres at +0.5",
+        "capture": bool(scene.capture),
+        "table_plane": None if scene.table is None else [float(v) for v in scene.table],
+    }
     if scene.tags is not None:
         nk["tags"] = np.round(np.asarray(scene.tags, np.float64), 7).tolist()
     if poses_only:
@@ -376,8 +457,9 @@ def write_transforms_json(scene: Scene, folder: str | Path, write_images: bool =
 def is_transforms_json(path: str | Path) -> bool:
     """True for a transforms.json file or a folder holding one (cheap check for loaders)."""
     path = Path(path)
-    return (path.is_file() and path.name.endswith(".json") and path.name.startswith("transforms")) or \
-        (path.is_dir() and (path / "transforms.json").is_file())
+    return (path.is_file() and path.name.endswith(".json") and path.name.startswith("transforms")) or (
+        path.is_dir() and (path / "transforms.json").is_file()
+    )
 
 
 def nerfkit_block(folder: str | Path) -> dict | None:

@@ -62,23 +62,35 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
             try:
                 with zf.open(info) as f:
                     version = np.lib.format.read_magic(f)
-                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                                   else np.lib.format.read_array_header_2_0)
+                    read_header = (
+                        np.lib.format.read_array_header_1_0
+                        if version == (1, 0)
+                        else np.lib.format.read_array_header_2_0
+                    )
                     shape, _, dtype = read_header(f)
                     if dtype.hasobject:
-                        raise fail(where, f"'{key}' is an object array (pickled data)",
-                                   "nerfkit never loads pickles; store plain numeric or string arrays")
+                        raise fail(
+                            where,
+                            f"'{key}' is an object array (pickled data)",
+                            "nerfkit never loads pickles; store plain numeric or string arrays",
+                        )
                     n_bytes = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
                     if n_bytes > info.file_size or n_bytes > MAX_PIXELS * 3:
-                        raise fail(where, f"'{key}' declares shape {shape} ({n_bytes} bytes) but holds {info.file_size} bytes",
-                                   "The file is truncated or corrupt; re-export it")
+                        raise fail(
+                            where,
+                            f"'{key}' declares shape {shape} ({n_bytes} bytes) but holds {info.file_size} bytes",
+                            "The file is truncated or corrupt; re-export it",
+                        )
                 with zf.open(info) as f:
                     arrays[key] = np.lib.format.read_array(f, allow_pickle=False)
             except NerfkitError:
                 raise
             except Exception as e:  # corrupt member: zlib, header, or short read
-                raise fail(where, f"cannot read array '{key}' ({type(e).__name__}: {e})",
-                           "The file is truncated or corrupt; re-export it") from None
+                raise fail(
+                    where,
+                    f"cannot read array '{key}' ({type(e).__name__}: {e})",
+                    "The file is truncated or corrupt; re-export it",
+                ) from None
     if not arrays:
         raise fail(where, "holds no arrays", "Expected the course layout: images_train, c2ws_train, focal, ...")
     return arrays
@@ -116,8 +128,11 @@ def load_npz(path: str | Path, need: str = "train") -> Scene:
     base = "train" if need == "train" or "c2ws_train" in arrays else need
     for key in (f"images_{base}", f"c2ws_{base}"):
         if key not in arrays:
-            raise fail(where, f"missing key '{key}' (found: {', '.join(sorted(arrays))})",
-                       "Expected the course layout: images_train, c2ws_train, images_val, c2ws_val, c2ws_test, focal")
+            raise fail(
+                where,
+                f"missing key '{key}' (found: {', '.join(sorted(arrays))})",
+                "Expected the course layout: images_train, c2ws_train, images_val, c2ws_val, c2ws_test, focal",
+            )
     train_images = check_images(arrays[f"images_{base}"], where, f"images_{base}")
     n, h, w, _ = train_images.shape
     if n * h * w > MAX_PIXELS:
@@ -146,8 +161,10 @@ def load_npz(path: str | Path, need: str = "train") -> Scene:
             if images.shape[0] != c2w.shape[0]:
                 raise fail(where, f"'{img_key}' has {images.shape[0]} images but '{pose_key}' has {c2w.shape[0]} poses")
             if images.shape[1:3] != (h, w):
-                raise fail(where, f"'{img_key}' images are {images.shape[2]}x{images.shape[1]}, "
-                                  f"but training images are {w}x{h}")
+                raise fail(
+                    where,
+                    f"'{img_key}' images are {images.shape[2]}x{images.shape[1]}, but training images are {w}x{h}",
+                )
         Ks = np.broadcast_to(K, (c2w.shape[0], 3, 3)).astype(np.float32).copy() if K.ndim == 2 else K
         if Ks.shape[0] != c2w.shape[0]:
             raise fail(where, f"'K' has {Ks.shape[0]} matrices but '{pose_key}' has {c2w.shape[0]} poses")
@@ -178,9 +195,25 @@ def load_npz(path: str | Path, need: str = "train") -> Scene:
     seen = arrays.get("points_train_views")
     if seen is not None and points is None:
         raise fail(where, "'points_train_views' is present but 'points_xyz' is missing")
-    return check_scene(Scene(train, val, test, near, far, center, up, source=where, capture=capture, table=table,
-                             points=points, point_colors=colors, tags=arrays.get("tags"), point_views=seen),
-                       need=need)
+    return check_scene(
+        Scene(
+            train,
+            val,
+            test,
+            near,
+            far,
+            center,
+            up,
+            source=where,
+            capture=capture,
+            table=table,
+            points=points,
+            point_colors=colors,
+            tags=arrays.get("tags"),
+            point_views=seen,
+        ),
+        need=need,
+    )
 
 
 def save_npz(scene: Scene, path: str | Path) -> None:
@@ -188,8 +221,11 @@ def save_npz(scene: Scene, path: str | Path) -> None:
     K = scene.train.K[0]
     for split, v in scene.splits.items():
         if len(v) and not np.allclose(v.K, K, rtol=1e-5, atol=1e-4):
-            raise fail(path, f"the {split} views have intrinsics that differ from the first training view",
-                       "The course npz holds one K; export to transforms.json instead, or resample the images")
+            raise fail(
+                path,
+                f"the {split} views have intrinsics that differ from the first training view",
+                "The course npz holds one K; export to transforms.json instead, or resample the images",
+            )
     out: dict[str, np.ndarray | np.generic] = {
         "focal": np.float32(K[0, 0]),
         "K": K.astype(np.float32),
@@ -204,8 +240,11 @@ def save_npz(scene: Scene, path: str | Path) -> None:
         out["table_plane"] = np.asarray(scene.table, np.float32)
     if scene.points is not None:
         out["points_xyz"] = np.asarray(scene.points, np.float32)
-        out["points_rgb"] = (np.full(out["points_xyz"].shape, 128, np.uint8) if scene.point_colors is None
-                             else np.asarray(scene.point_colors, np.uint8))
+        out["points_rgb"] = (
+            np.full(out["points_xyz"].shape, 128, np.uint8)
+            if scene.point_colors is None
+            else np.asarray(scene.point_colors, np.uint8)
+        )
         if scene.point_views is not None:
             out["points_train_views"] = np.asarray(scene.point_views, np.int32)
     if scene.tags is not None:

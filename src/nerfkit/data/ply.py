@@ -19,8 +19,9 @@ def write_points_ply(path: str | Path, points: np.ndarray, colors: np.ndarray | 
     from plyfile import PlyData, PlyElement
 
     pts = np.asarray(points, np.float32).reshape(-1, 3)
-    fields = [("x", "f4"), ("y", "f4"), ("z", "f4")] + ([("red", "u1"), ("green", "u1"), ("blue", "u1")]
-                                                       if colors is not None else [])
+    fields = [("x", "f4"), ("y", "f4"), ("z", "f4")] + (
+        [("red", "u1"), ("green", "u1"), ("blue", "u1")] if colors is not None else []
+    )
     rows = np.empty(len(pts), dtype=fields)
     for i, k in enumerate("xyz"):
         rows[k] = pts[:, i]
@@ -42,8 +43,11 @@ def read_points_ply(path: str | Path, where: object = None) -> tuple[np.ndarray,
         v = PlyData.read(str(path))["vertex"]
         xyz = np.stack([np.asarray(v[k], np.float32) for k in ("x", "y", "z")], 1)
         names = {p.name for p in v.properties}
-        rgb = (np.stack([np.asarray(v[k]) for k in ("red", "green", "blue")], 1).astype(np.uint8)
-               if {"red", "green", "blue"} <= names else None)
+        rgb = (
+            np.stack([np.asarray(v[k]) for k in ("red", "green", "blue")], 1).astype(np.uint8)
+            if {"red", "green", "blue"} <= names
+            else None
+        )
     except (OSError, KeyError, ValueError, IndexError) as e:
         raise fail(where or path, f"not a readable PLY point cloud with x, y, z ({type(e).__name__})") from None
     return xyz, rgb

@@ -37,10 +37,17 @@ def output_size(width: int, height: int, size: int | None = None, downscale: flo
     new = max(1, round(width * s)), max(1, round(height * s))
     if min(new) < MIN_RESAMPLED_SIDE <= min(width, height):
         flag = "--size" if size is not None else "--downscale"
-        most = (f"--size {math.ceil(MIN_RESAMPLED_SIDE * max(width, height) / min(width, height))} or more"
-                if size is not None else f"--downscale {min(width, height) / MIN_RESAMPLED_SIDE:g} or less")
-        raise fail(flag, f"would resample the {width}x{height} images to {new[0]}x{new[1]}, too small to hold a "
-                         f"scene (at least {MIN_RESAMPLED_SIDE} pixels a side)", f"Use {most}")
+        most = (
+            f"--size {math.ceil(MIN_RESAMPLED_SIDE * max(width, height) / min(width, height))} or more"
+            if size is not None
+            else f"--downscale {min(width, height) / MIN_RESAMPLED_SIDE:g} or less"
+        )
+        raise fail(
+            flag,
+            f"would resample the {width}x{height} images to {new[0]}x{new[1]}, too small to hold a "
+            f"scene (at least {MIN_RESAMPLED_SIDE} pixels a side)",
+            f"Use {most}",
+        )
     return new
 
 
@@ -74,12 +81,18 @@ def resample_views(views: Views, new_width: int, new_height: int) -> Views:
     if (new_width, new_height) == (views.width, views.height):
         return views
     if views.images is not None and len(views.images) * new_width * new_height > MAX_PIXELS:
-        raise fail(f"{new_width}x{new_height}", f"resampling {len(views.images)} images to this size needs more than "
-                   f"{MAX_PIXELS:.2g} pixels", "Choose a smaller --size")
+        raise fail(
+            f"{new_width}x{new_height}",
+            f"resampling {len(views.images)} images to this size needs more than {MAX_PIXELS:.2g} pixels",
+            "Choose a smaller --size",
+        )
     images = None
     if views.images is not None:
-        images = (np.stack([resize_image(im, new_width, new_height) for im in views.images])
-                  if len(views.images) else np.zeros((0, new_height, new_width, 3), np.uint8))
+        images = (
+            np.stack([resize_image(im, new_width, new_height) for im in views.images])
+            if len(views.images)
+            else np.zeros((0, new_height, new_width, 3), np.uint8)
+        )
     K = scale_intrinsics(views.K, views.width, views.height, new_width, new_height)
     return replace(views, K=K, width=new_width, height=new_height, images=images)
 
@@ -88,5 +101,7 @@ def resample_scene(scene: Scene, size: int | None = None, downscale: float | Non
     """Every split resampled (see :func:`output_size`); poses, near/far unchanged."""
     if output_size(scene.train.width, scene.train.height, size, downscale) == (scene.train.width, scene.train.height):
         return scene
-    new = {name: resample_views(v, *output_size(v.width, v.height, size, downscale)) for name, v in scene.splits.items()}
+    new = {
+        name: resample_views(v, *output_size(v.width, v.height, size, downscale)) for name, v in scene.splits.items()
+    }
     return replace(scene, train=new["train"], val=new["val"], test=new["test"])

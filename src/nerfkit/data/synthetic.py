@@ -17,11 +17,14 @@ from .scene import Scene, Views
 def sphere_color(points: np.ndarray) -> np.ndarray:
     """Colour (n, 3) in [0, 1] of the sphere's surface at unit-sphere points (n, 3)."""
     p = points
-    return np.stack([
-        0.5 + 0.4 * np.sin(3.0 * p[:, 0] + 1.0),
-        0.5 + 0.4 * np.sin(3.0 * p[:, 1] + 2.0),
-        0.5 + 0.4 * np.sign(np.sin(4.0 * p[:, 2])),
-    ], axis=1)
+    return np.stack(
+        [
+            0.5 + 0.4 * np.sin(3.0 * p[:, 0] + 1.0),
+            0.5 + 0.4 * np.sin(3.0 * p[:, 1] + 2.0),
+            0.5 + 0.4 * np.sign(np.sin(4.0 * p[:, 2])),
+        ],
+        axis=1,
+    )
 
 
 def render_sphere(K: np.ndarray, c2w: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -40,7 +43,9 @@ def render_sphere(K: np.ndarray, c2w: np.ndarray, width: int, height: int) -> np
     return (img.reshape(height, width, 3) * 255 + 0.5).astype(np.uint8)
 
 
-def sphere_cameras(n: int, distance: float = 4.0, seed: int = 0, elevation: tuple[float, float] = (10.0, 60.0)) -> np.ndarray:
+def sphere_cameras(
+    n: int, distance: float = 4.0, seed: int = 0, elevation: tuple[float, float] = (10.0, 60.0)
+) -> np.ndarray:
     """n camera-to-world poses (n, 4, 4) on a sphere around the origin, looking at it."""
     rng = np.random.default_rng(seed)
     az = rng.uniform(0, 2 * np.pi, n)
@@ -60,9 +65,16 @@ def sphere_scene(n_train: int = 20, n_val: int = 3, size: int = 32, n_test: int 
         images = np.stack([render_sphere(K, c, size, size) for c in c2w]) if with_images and n else None
         return Views(c2w, Ks, size, size, images, [f"sphere_{s}_{i:03d}" for i in range(n)])
 
-    return Scene(views(n_train, seed), views(n_val, seed + 1), views(n_test, seed + 2, with_images=False),
-                 near=2.0, far=6.0, center=np.zeros(3, np.float32), up=np.array([0, 0, 1], np.float32),
-                 source="synthetic:sphere")
+    return Scene(
+        views(n_train, seed),
+        views(n_val, seed + 1),
+        views(n_test, seed + 2, with_images=False),
+        near=2.0,
+        far=6.0,
+        center=np.zeros(3, np.float32),
+        up=np.array([0, 0, 1], np.float32),
+        source="synthetic:sphere",
+    )
 
 
 def table_color(points: np.ndarray) -> np.ndarray:
@@ -92,8 +104,9 @@ def render_tabletop(K: np.ndarray, c2w: np.ndarray, width: int, height: int, gai
     return (np.clip(img * gain, 0, 1).reshape(height, width, 3) * 255 + 0.5).astype(np.uint8)
 
 
-def tabletop_scene(n_train: int = 16, n_val: int = 2, size: int = 32, seed: int = 0,
-                   gains: np.ndarray | None = None) -> Scene:
+def tabletop_scene(
+    n_train: int = 16, n_val: int = 2, size: int = 32, seed: int = 0, gains: np.ndarray | None = None
+) -> Scene:
     """A small real-capture-like dataset: a textured sphere on a textured table, cameras
     circling it from above, photos with per-view exposure ``gains`` (n_train,) if given.
     Marked a capture with the table plane z = 0."""
@@ -109,13 +122,23 @@ def tabletop_scene(n_train: int = 16, n_val: int = 2, size: int = 32, seed: int 
         el = np.deg2rad(rng.uniform(20.0, 50.0, n))
         eyes = target + 4.0 * np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], 1)
         c2w = np.stack([look_at(e, target, np.array([0.0, 0.0, 1.0])) for e in eyes]).astype(np.float32)
-        images = np.stack([render_tabletop(K, c, size, size, 1.0 if g is None else float(g[i]))
-                           for i, c in enumerate(c2w)])
+        images = np.stack(
+            [render_tabletop(K, c, size, size, 1.0 if g is None else float(g[i])) for i, c in enumerate(c2w)]
+        )
         return Views(c2w, np.repeat(K[None], n, 0), size, size, images, [f"tabletop_{s}_{i:03d}" for i in range(n)])
 
-    return Scene(views(n_train, seed, gains), views(n_val, seed + 1, None), Views.empty(size, size),
-                 near=1.0, far=8.0, center=target.astype(np.float32), up=np.array([0, 0, 1], np.float32),
-                 source="synthetic:tabletop", capture=True, table=np.array([0, 0, 1, 0], np.float32))
+    return Scene(
+        views(n_train, seed, gains),
+        views(n_val, seed + 1, None),
+        Views.empty(size, size),
+        near=1.0,
+        far=8.0,
+        center=target.astype(np.float32),
+        up=np.array([0, 0, 1], np.float32),
+        source="synthetic:tabletop",
+        capture=True,
+        table=np.array([0, 0, 1, 0], np.float32),
+    )
 
 
 # forward_facing_scene's content: two spheres (centre, radius) and a backdrop plane y = BACKDROP_Y
@@ -131,14 +154,19 @@ def render_forward(K: np.ndarray, c2w: np.ndarray, width: int, height: int) -> n
     with np.errstate(divide="ignore", invalid="ignore"):
         t_best = np.where(d[:, 1] > 1e-9, (BACKDROP_Y - o[:, 1]) / d[:, 1], np.inf)
     p = o + np.where(np.isfinite(t_best), t_best, 0.0)[:, None] * d
-    img = np.stack([0.5 + 0.35 * np.sin(1.3 * p[:, 0]) * np.cos(1.1 * p[:, 2]),
-                    0.45 + 0.3 * np.sign(np.sin(0.9 * p[:, 0] + 0.7 * p[:, 2])),
-                    0.5 + 0.3 * np.cos(0.8 * p[:, 2])], axis=1)
+    img = np.stack(
+        [
+            0.5 + 0.35 * np.sin(1.3 * p[:, 0]) * np.cos(1.1 * p[:, 2]),
+            0.45 + 0.3 * np.sign(np.sin(0.9 * p[:, 0] + 0.7 * p[:, 2])),
+            0.5 + 0.3 * np.cos(0.8 * p[:, 2]),
+        ],
+        axis=1,
+    )
     img[~np.isfinite(t_best)] = 0.0
     for centre, radius in FORWARD_SPHERES:
         oc = o - centre
         b = (oc * d).sum(1)
-        disc = b * b - ((oc * oc).sum(1) - radius ** 2)
+        disc = b * b - ((oc * oc).sum(1) - radius**2)
         t = np.where(disc > 0, -b - np.sqrt(np.maximum(disc, 0.0)), np.inf)
         hit = (t > 0) & (t < t_best)
         img[hit] = sphere_color((o[hit] + t[hit, None] * d[hit] - centre) / radius)
@@ -163,6 +191,13 @@ def forward_facing_scene(n_train: int = 16, n_val: int = 2, size: int = 32, seed
         images = np.stack([render_forward(K, c, size, size) for c in c2w])
         return Views(c2w, np.repeat(K[None], n, 0), size, size, images, [f"forward_{s}_{i:03d}" for i in range(n)])
 
-    return Scene(views(n_train, seed), views(n_val, seed + 1), Views.empty(size, size), near=2.0, far=20.0,
-                 center=np.array([0.0, 6.0, 0.0], np.float32), up=np.array([0, 0, 1], np.float32),
-                 source="synthetic:forward")
+    return Scene(
+        views(n_train, seed),
+        views(n_val, seed + 1),
+        Views.empty(size, size),
+        near=2.0,
+        far=20.0,
+        center=np.array([0.0, 6.0, 0.0], np.float32),
+        up=np.array([0, 0, 1], np.float32),
+        source="synthetic:forward",
+    )

@@ -37,11 +37,21 @@ def _is_number(value) -> bool:
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
 
 
-def check_number(value, where: str, field: str, above: float | None = None, below: float | None = None,
-                 expected: str = "a finite number") -> float:
+def check_number(
+    value,
+    where: str,
+    field: str,
+    above: float | None = None,
+    below: float | None = None,
+    expected: str = "a finite number",
+) -> float:
     """A finite number (not a bool, nor a string), strictly between ``above`` and ``below`` when given."""
-    ok = (_is_number(value) and abs(value) <= MAX_COORD and (above is None or value > above)
-          and (below is None or value < below))
+    ok = (
+        _is_number(value)
+        and abs(value) <= MAX_COORD
+        and (above is None or value > above)
+        and (below is None or value < below)
+    )
     if not ok:
         raise fail(where, f"'{field}' is {short_repr(value)}, expected {expected}")
     return float(value)
@@ -87,8 +97,11 @@ def check_poses(c2w: ArrayLike, where: str, field: str, tol: float = 1e-3) -> np
     # Finite in float64 but beyond float32 (e.g. 1e300) would turn into inf when stored.
     bad = ~(np.isfinite(c2w) & (np.abs(c2w) <= MAX_COORD)).all(axis=(1, 2))
     if bad.any():
-        raise fail(where, f"'{field}'[{int(np.argmax(bad))}] has NaN or inf values (or values beyond {MAX_COORD:g})",
-                   "Remove or re-estimate that pose")
+        raise fail(
+            where,
+            f"'{field}'[{int(np.argmax(bad))}] has NaN or inf values (or values beyond {MAX_COORD:g})",
+            "Remove or re-estimate that pose",
+        )
     if not np.allclose(c2w[:, 3], [0, 0, 0, 1], atol=tol):
         i = int(np.argmax(~np.isclose(c2w[:, 3], [0, 0, 0, 1], atol=tol).all(axis=1)))
         raise fail(where, f"'{field}'[{i}] last row is {c2w[i, 3].tolist()}, expected [0, 0, 0, 1]")
@@ -116,7 +129,11 @@ def check_intrinsics(K: np.ndarray, where: str, field: str, width: int, height: 
     Ks = K.reshape(-1, 3, 3)
     if (Ks[:, 0, 0] <= 0).any() or (Ks[:, 1, 1] <= 0).any():
         raise fail(where, f"'{field}' has a zero or negative focal length", "fx and fy must be positive pixels")
-    if not np.allclose(Ks[:, 2], [0, 0, 1]) or not np.allclose(Ks[:, 1, 0], 0) or not np.allclose(Ks[:, 0, 1], 0, atol=1e-3 * Ks[:, 0, 0].max()):
+    if (
+        not np.allclose(Ks[:, 2], [0, 0, 1])
+        or not np.allclose(Ks[:, 1, 0], 0)
+        or not np.allclose(Ks[:, 0, 1], 0, atol=1e-3 * Ks[:, 0, 0].max())
+    ):
         raise fail(where, f"'{field}' is not of the form [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
     return K.astype(np.float32)
 
@@ -139,8 +156,11 @@ def check_images(images: np.ndarray, where: str, field: str) -> np.ndarray:
             raise fail(where, f"'{field}' has NaN or inf pixels")
         lo, hi = float(images.min()), float(images.max())
         if lo < 0.0 or hi > 1.0:
-            raise fail(where, f"'{field}' float pixels span [{lo:.3g}, {hi:.3g}], expected [0, 1]",
-                       "Store images as uint8 0-255 or float 0-1")
+            raise fail(
+                where,
+                f"'{field}' float pixels span [{lo:.3g}, {hi:.3g}], expected [0, 1]",
+                "Store images as uint8 0-255 or float 0-1",
+            )
         return (images * 255.0 + 0.5).astype(np.uint8)
     raise fail(where, f"'{field}' has dtype {images.dtype}, expected uint8 (0-255) or float (0-1)")
 
@@ -162,8 +182,11 @@ def near_far_from_cameras(c2w: np.ndarray, center: np.ndarray, where: str, fix: 
     """:func:`~nerfkit.data.scene.estimate_near_far`, refused when the cameras give no depth range."""
     near, far = estimate_near_far(c2w, center)
     if not (np.isfinite(near) and np.isfinite(far) and 0 <= near < far):
-        raise fail(where, f"cannot estimate near/far from the cameras (got {near:.3g}, {far:.3g}: do they all "
-                          "sit at one spot?)", fix)
+        raise fail(
+            where,
+            f"cannot estimate near/far from the cameras (got {near:.3g}, {far:.3g}: do they all sit at one spot?)",
+            fix,
+        )
     return near, far
 
 
@@ -209,8 +232,12 @@ def check_scene(scene, where: str | None = None, need: str = "train"):
         raise fail(where, f"has no {need} views", f"Choose a split that has (--split {other})" if other else None)
     for split, v in scene.splits.items():
         n = len(v)
-        if not (isinstance(v.width, (int, np.integer)) and isinstance(v.height, (int, np.integer))
-                and v.width > 0 and v.height > 0):
+        if not (
+            isinstance(v.width, (int, np.integer))
+            and isinstance(v.height, (int, np.integer))
+            and v.width > 0
+            and v.height > 0
+        ):
             raise fail(where, f"the {split} views have image size {v.width}x{v.height}, expected positive pixels")
         if n == 0:
             continue
@@ -221,8 +248,10 @@ def check_scene(scene, where: str | None = None, need: str = "train"):
         if v.images is not None and v.images.size > 0:
             im = v.images
             if im.dtype != np.uint8 or im.shape != (n, v.height, v.width, 3):
-                raise fail(where, f"the {split} images are {im.shape} {im.dtype}, expected ({n}, {v.height}, "
-                                  f"{v.width}, 3) uint8")
+                raise fail(
+                    where,
+                    f"the {split} images are {im.shape} {im.dtype}, expected ({n}, {v.height}, {v.width}, 3) uint8",
+                )
         if v.names is not None and len(v.names) != n:
             raise fail(where, f"the {split} split has {n} views but {len(v.names)} names")
     check_near_far(scene.near, scene.far, where)
@@ -235,8 +264,9 @@ def check_scene(scene, where: str | None = None, need: str = "train"):
     if scene.points is not None:
         scene.points, scene.point_colors = check_points(scene.points, scene.point_colors, where)
     if scene.point_views is not None:
-        scene.point_views = check_point_views(scene.point_views, where, 0 if scene.points is None else
-                                              len(scene.points), len(scene.train))
+        scene.point_views = check_point_views(
+            scene.point_views, where, 0 if scene.points is None else len(scene.points), len(scene.train)
+        )
     if scene.tags is not None:
         scene.tags = check_tags(scene.tags, where)
     return scene
@@ -247,11 +277,14 @@ def check_point_views(v, where: str, n_points: int, n_train: int, field: str = "
     within ``n_points`` and ``n_train``, as int32."""
     a = _array(v, where, field)
     if a.dtype.kind not in "iu" or a.ndim != 2 or a.shape[1] != 2:
-        raise fail(where, f"'{field}' must be (k, 2) integers (point, train view), got shape {a.shape} "
-                          f"dtype {a.dtype}")
+        raise fail(where, f"'{field}' must be (k, 2) integers (point, train view), got shape {a.shape} dtype {a.dtype}")
     if a.size and (a.min() < 0 or a[:, 0].max() >= n_points or a[:, 1].max() >= n_train):
-        raise fail(where, f"'{field}' names points or train views the dataset does not have ({n_points} points, "
-                          f"{n_train} train views)", "Write the dataset again (nerfkit poses or nerfkit dataset)")
+        raise fail(
+            where,
+            f"'{field}' names points or train views the dataset does not have ({n_points} points, "
+            f"{n_train} train views)",
+            "Write the dataset again (nerfkit poses or nerfkit dataset)",
+        )
     return a.astype(np.int32)
 
 
@@ -259,8 +292,10 @@ def check_tags(v, where: str, field: str = "tags") -> np.ndarray:
     """The printed tags' corners, (n, 4, 3) finite numbers with n >= 1, as float32."""
     a = _array(v, where, field)
     if a.dtype.kind not in "fiu" or a.ndim != 3 or a.shape[1:] != (4, 3) or len(a) == 0:
-        raise fail(where, f"'{field}' must be (n, 4, 3) numbers (each printed tag's corners), got shape {a.shape} "
-                          f"dtype {a.dtype}")
+        raise fail(
+            where,
+            f"'{field}' must be (n, 4, 3) numbers (each printed tag's corners), got shape {a.shape} dtype {a.dtype}",
+        )
     if not (np.isfinite(a).all() and np.abs(a).max() <= MAX_COORD):
         raise fail(where, f"'{field}' holds non-finite or huge coordinates")
     return a.astype(np.float32)
@@ -279,6 +314,8 @@ def check_points(xyz, rgb, where: str, field: str = "points") -> tuple[np.ndarra
     else:
         c = _array(rgb, where, f"{field} colours")
         if c.shape != a.shape or c.dtype.kind not in "iu" or (c.size and (c.min() < 0 or c.max() > 255)):
-            raise fail(where, f"the colours of '{field}' must be {a.shape} integers in 0..255, "
-                              f"got shape {c.shape} dtype {c.dtype}")
+            raise fail(
+                where,
+                f"the colours of '{field}' must be {a.shape} integers in 0..255, got shape {c.shape} dtype {c.dtype}",
+            )
     return a.astype(np.float32), c.astype(np.uint8)

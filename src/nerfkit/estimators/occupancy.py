@@ -75,8 +75,14 @@ class OccupancyEstimator(nn.Module):
     coarse: Tensor
     cell_sigma: Tensor
 
-    def __init__(self, box: GridBox, rule: RefreshRule | None = None, coarse_factor: int = 1,
-                 running_max: bool = False, device: torch.device | str | None = None):
+    def __init__(
+        self,
+        box: GridBox,
+        rule: RefreshRule | None = None,
+        coarse_factor: int = 1,
+        running_max: bool = False,
+        device: torch.device | str | None = None,
+    ):
         super().__init__()
         self.rule = rule
         self.coarse_factor = int(coarse_factor)
@@ -84,8 +90,9 @@ class OccupancyEstimator(nn.Module):
         self.active = False  # whether a refresh ran (before it, every cell is occupied)
         self.box = box
         self.register_buffer("lo", box.lo_tensor(device), persistent=False)
-        self.register_buffer("occ", torch.ones(box.cell_shape, dtype=torch.uint8, device=device),
-                             persistent=not running_max)
+        self.register_buffer(
+            "occ", torch.ones(box.cell_shape, dtype=torch.uint8, device=device), persistent=not running_max
+        )
         self.register_buffer("coarse", torch.ones(1, dtype=torch.uint8, device=device), persistent=False)
         if running_max:
             self.register_buffer("cell_sigma", torch.full(box.cell_shape, float("inf"), device=device))
@@ -127,8 +134,9 @@ class OccupancyEstimator(nn.Module):
         """Install a cell occupancy (rz - 1, ry - 1, rx - 1) (nonzero = occupied), and its
         block max-pool when the caller computed it."""
         if tuple(occ.shape) != self.box.cell_shape:
-            raise ValueError(f"occupancy has shape {tuple(occ.shape)}, expected {self.box.cell_shape} for "
-                             f"{self.box.res} vertices")
+            raise ValueError(
+                f"occupancy has shape {tuple(occ.shape)}, expected {self.box.cell_shape} for {self.box.res} vertices"
+            )
         self.occ = occ.to(torch.uint8).contiguous()
         if coarse is None:
             coarse = coarse_cells(self.occ, self.coarse_factor)
@@ -145,15 +153,23 @@ class OccupancyEstimator(nn.Module):
         self.set_cells((-torch.expm1(-sigma_max * step)) > alpha_thre)
 
     @torch.no_grad()
-    def measure(self, occ_eval_fn: Callable[[Tensor], Tensor], step: float, alpha_thre: float,
-                decay: float, chunk: int = 65536) -> None:
+    def measure(
+        self, occ_eval_fn: Callable[[Tensor], Tensor], step: float, alpha_thre: float, decay: float, chunk: int = 65536
+    ) -> None:
         """Re-measure each cell's density at a random point inside it, as a running maximum
         decayed by ``decay`` per refresh (instant-ngp), then threshold it
         (:meth:`set_from_cell_sigma`). ``occ_eval_fn``: (m, 3) points -> (m,) density."""
         cz, cy, cx = self.box.cell_shape
         device = self.cell_sigma.device
-        idx = torch.stack(torch.meshgrid(torch.arange(cz, device=device), torch.arange(cy, device=device),
-                                         torch.arange(cx, device=device), indexing="ij"), -1).reshape(-1, 3)
+        idx = torch.stack(
+            torch.meshgrid(
+                torch.arange(cz, device=device),
+                torch.arange(cy, device=device),
+                torch.arange(cx, device=device),
+                indexing="ij",
+            ),
+            -1,
+        ).reshape(-1, 3)
         xyz = idx.flip(-1).float() + torch.rand(idx.shape, device=device)  # (z, y, x) index -> x, y, z
         pts = self.lo + xyz * self.box.voxel
         sigma = torch.cat([occ_eval_fn(part) for part in pts.split(chunk)]).reshape(cz, cy, cx)
@@ -175,10 +191,22 @@ class OccupancyEstimator(nn.Module):
         return ray_aabb(rays_o, rays_d, self.lo.to(rays_o.dtype), self.hi.to(rays_o.dtype), near, far)
 
     @torch.no_grad()
-    def sampling(self, rays_o: Tensor, rays_d: Tensor, near: float, far: float, step: float, sigma_fn=None,
-                 perturb: bool = False, early_stop_eps: float = 1e-4, alpha_thre: float = 0.0,
-                 u: Tensor | None = None, t_bounds: tuple[Tensor, Tensor] | None = None,
-                 use_occupancy: bool = True, generator: torch.Generator | None = None) -> RaySamples:
+    def sampling(
+        self,
+        rays_o: Tensor,
+        rays_d: Tensor,
+        near: float,
+        far: float,
+        step: float,
+        sigma_fn=None,
+        perturb: bool = False,
+        early_stop_eps: float = 1e-4,
+        alpha_thre: float = 0.0,
+        u: Tensor | None = None,
+        t_bounds: tuple[Tensor, Tensor] | None = None,
+        use_occupancy: bool = True,
+        generator: torch.Generator | None = None,
+    ) -> RaySamples:
         """Samples along rays that skip empty cells (and, with ``sigma_fn``, stop early):
         :func:`~nerfkit.render.occupancy.occupied_samples` over ``[t0, t1)`` (default
         :meth:`ray_bounds`), the jitter ``u`` random with ``perturb`` else 0.5;
@@ -186,10 +214,24 @@ class OccupancyEstimator(nn.Module):
         n = rays_o.shape[0]
         t0, t1 = t_bounds if t_bounds is not None else self.ray_bounds(rays_o, rays_d, near, far)
         if u is None:
-            u = (torch.rand(n, generator=generator, device=rays_o.device, dtype=rays_o.dtype) if perturb
-                 else torch.full((n,), 0.5, device=rays_o.device, dtype=rays_o.dtype))
-        return occupied_samples(self.occ if use_occupancy else None, self.box, rays_o, rays_d, t0, t1, u, step,
-                                sigma_fn, early_stop_eps, alpha_thre)
+            u = (
+                torch.rand(n, generator=generator, device=rays_o.device, dtype=rays_o.dtype)
+                if perturb
+                else torch.full((n,), 0.5, device=rays_o.device, dtype=rays_o.dtype)
+            )
+        return occupied_samples(
+            self.occ if use_occupancy else None,
+            self.box,
+            rays_o,
+            rays_d,
+            t0,
+            t1,
+            u,
+            step,
+            sigma_fn,
+            early_stop_eps,
+            alpha_thre,
+        )
 
     def march_spec(self, step: float, eps: float, density_scale: float, grad_near: float = 0.0) -> MarchSpec:
         """What the compiled marcher needs besides the rays and the field."""

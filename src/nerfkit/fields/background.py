@@ -37,9 +37,27 @@ def sh16(dirs: Tensor) -> Tensor:
     (unnormalised), a smooth basis for a colour per direction."""
     x, y, z = dirs[:, 0], dirs[:, 1], dirs[:, 2]
     one = torch.ones_like(x)
-    return torch.stack([one, x, y, z, x * y, y * z, x * z, x * x - y * y, 3 * z * z - 1,
-                        x * (x * x - 3 * y * y), y * (3 * x * x - y * y), z * (x * x - y * y), x * y * z,
-                        x * (5 * z * z - 1), y * (5 * z * z - 1), z * (5 * z * z - 3)], dim=-1)
+    return torch.stack(
+        [
+            one,
+            x,
+            y,
+            z,
+            x * y,
+            y * z,
+            x * z,
+            x * x - y * y,
+            3 * z * z - 1,
+            x * (x * x - 3 * y * y),
+            y * (3 * x * x - y * y),
+            z * (x * x - y * y),
+            x * y * z,
+            x * (5 * z * z - 1),
+            y * (5 * z * z - 1),
+            z * (5 * z * z - 3),
+        ],
+        dim=-1,
+    )
 
 
 def plane_hit(origins: Tensor, dirs: Tensor, plane: Tensor) -> Tensor:
@@ -120,8 +138,9 @@ class _SparseTexture(torch.autograd.Function):
             rows = torch.empty((n, 4), dtype=torch.int64)
             frac, inside = torch.empty((n, 2)), torch.empty((n, 2))
             out = torch.empty((n, texd.shape[1]))
-            nb.texture_forward(texd.numpy(), uv32.numpy(), w, h, rows.numpy(), frac.numpy(), inside.numpy(),
-                               out.numpy())
+            nb.texture_forward(
+                texd.numpy(), uv32.numpy(), w, h, rows.numpy(), frac.numpy(), inside.numpy(), out.numpy()
+            )
             ctx.save_for_backward(texd, rows, frac, inside)
             ctx.compiled = nb
             return out
@@ -137,8 +156,19 @@ class _SparseTexture(torch.autograd.Function):
         want_tex, want_uv = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
         if nb is not None and want_tex:
             g_uv = torch.zeros_like(frac)
-            nb.texture_backward(g.float().contiguous().numpy(), tex.numpy(), rows.numpy(), frac.numpy(), inside.numpy(),
-                                w, h, sink.grad.numpy(), sink.touched.numpy(), g_uv.numpy(), want_uv)
+            nb.texture_backward(
+                g.float().contiguous().numpy(),
+                tex.numpy(),
+                rows.numpy(),
+                frac.numpy(),
+                inside.numpy(),
+                w,
+                h,
+                sink.grad.numpy(),
+                sink.touched.numpy(),
+                g_uv.numpy(),
+                want_uv,
+            )
             sink.dirty = True
             return None, (g_uv.to(g.dtype) if want_uv else None), None, None, None
         fx, fy = frac[:, 0], frac[:, 1]
@@ -166,8 +196,13 @@ def _tap_weights(fx: Tensor, fy: Tensor) -> Tensor:
 
 def _compiled(tex: Tensor, sink):
     """The compiled kernels for a float32 CPU texture and sink, else None (torch path)."""
-    if tex.device.type != "cpu" or tex.dtype != torch.float32 or sink.grad.device.type != "cpu" \
-            or sink.grad.dtype != torch.float32 or not tex.is_contiguous():
+    if (
+        tex.device.type != "cpu"
+        or tex.dtype != torch.float32
+        or sink.grad.device.type != "cpu"
+        or sink.grad.dtype != torch.float32
+        or not tex.is_contiguous()
+    ):
         return None
     from ..kernels import numba_kernels
 
@@ -185,8 +220,9 @@ def sample_texture(tex: Tensor, size, uv: Tensor, sink=None, compiled: bool = Tr
         return _SparseTexture.apply(tex, uv, size, sink, compiled)
     w, h = _wh(size)
     img = tex.reshape(1, h, w, -1).permute(0, 3, 1, 2)
-    out = F.grid_sample(img, uv.reshape(1, 1, -1, 2).to(img.dtype), mode="bilinear", padding_mode="border",
-                        align_corners=False)
+    out = F.grid_sample(
+        img, uv.reshape(1, 1, -1, 2).to(img.dtype), mode="bilinear", padding_mode="border", align_corners=False
+    )
     return out[0, :, 0].t()
 
 
@@ -245,9 +281,9 @@ class TablePlane(nn.Module):
         self.fine = nn.Parameter(torch.zeros(self.sizes[0] ** 2, 3))
         self.coarse = nn.Parameter(torch.zeros(self.sizes[1] ** 2, 3))
         self.cover_size = max(int(resolution) // 4, 2)
-        self.cover = nn.Parameter(torch.full((self.cover_size ** 2, 1), COVER_INIT))
+        self.cover = nn.Parameter(torch.full((self.cover_size**2, 1), COVER_INIT))
         if gloss:
-            self.shine = nn.Parameter(torch.full((self.cover_size ** 2, 1), GLOSS_INIT))
+            self.shine = nn.Parameter(torch.full((self.cover_size**2, 1), GLOSS_INIT))
             self.env = nn.Parameter(torch.zeros(ENV_SIZE[0] * ENV_SIZE[1], 3))
         else:
             self.register_parameter("shine", None)
@@ -269,8 +305,9 @@ class TablePlane(nn.Module):
         q = (points - self.origin) @ self.axes / self.radius
         return 0.5 * contract_disc(q)
 
-    def look(self, points: Tensor, sinks: dict | None = None, gloss: bool = False, compiled: bool = True
-             ) -> tuple[Tensor, Tensor, Tensor | None]:
+    def look(
+        self, points: Tensor, sinks: dict | None = None, gloss: bool = False, compiled: bool = True
+    ) -> tuple[Tensor, Tensor, Tensor | None]:
         """(n, 3) points on the plane -> colour (n, 3), coverage (n,) and, with ``gloss``
         (a glossy plane), glossiness (n,), all in (0, 1), from one set of texture
         coordinates. ``sinks``: a GradSink per texture parameter, to receive the texture
@@ -278,8 +315,11 @@ class TablePlane(nn.Module):
         sinks = sinks or {}
         with torch.autocast(points.device.type, enabled=False):  # texel indices need float32
             uv = self.texture_coords(points.float())
-            colour = torch.sigmoid(cast(Tensor, sum(sample_texture(t, side, uv, sinks.get(t), compiled)
-                                                    for t, side in self.textures()[:2])))
+            colour = torch.sigmoid(
+                cast(
+                    Tensor, sum(sample_texture(t, side, uv, sinks.get(t), compiled) for t, side in self.textures()[:2])
+                )
+            )
             cover = self._scalar(self.cover, uv, sinks, compiled)
             shine = self._scalar(self.shine, uv, sinks, compiled) if gloss and self.shine is not None else None
         return colour, cover, shine
@@ -442,8 +482,9 @@ class RoomShells(nn.Module):
         """``(parameter (n_shells * height * width, 4), (width, height * n_shells))``."""
         return [(p, (w, h * self.n_shells)) for p, (w, h) in zip((self.fine, self.coarse), self.sizes)]
 
-    def layers(self, origins: Tensor, dirs: Tensor, sinks: dict | None = None,
-               compiled: bool = True) -> tuple[Tensor, Tensor, Tensor]:
+    def layers(
+        self, origins: Tensor, dirs: Tensor, sinks: dict | None = None, compiled: bool = True
+    ) -> tuple[Tensor, Tensor, Tensor]:
         """Where each ray leaves each shell and what it sees there.
 
         Returns ``t (n, k)`` (``inf`` where a ray misses a shell), ``rgb (n, k, 3)`` and

@@ -38,8 +38,9 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TMP_MARK}", suffix=path.suffix if suffix is None else suffix,
-                               dir=path.parent)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.name}{TMP_MARK}", suffix=path.suffix if suffix is None else suffix, dir=path.parent
+    )
     os.close(fd)
     tmp_path = Path(tmp)
     try:
@@ -52,9 +53,12 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     except (OSError, RuntimeError) as e:
         tmp_path.unlink(missing_ok=True)
         if _disk_full(e, path.parent):
-            raise fail(path, "could not be written: the disk is full",
-                       "Free some space and run the command again (a training run continues from its last "
-                       "checkpoint with nerfkit train --resume RUN)") from None
+            raise fail(
+                path,
+                "could not be written: the disk is full",
+                "Free some space and run the command again (a training run continues from its last "
+                "checkpoint with nerfkit train --resume RUN)",
+            ) from None
         raise
     finally:
         if tmp_path.exists():

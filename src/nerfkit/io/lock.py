@@ -34,8 +34,11 @@ def folder_lock(folder: str | os.PathLike) -> Iterator[Path]:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             other = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "unknown"
-            raise fail(folder, f"is in use by another nerfkit process (pid {other})",
-                       "Wait for it to finish or stop it; two processes must never write one run") from None
+            raise fail(
+                folder,
+                f"is in use by another nerfkit process (pid {other})",
+                "Wait for it to finish or stop it; two processes must never write one run",
+            ) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         try:

@@ -51,8 +51,12 @@ def path_kind(path: str | os.PathLike) -> str | None:
         raise _unusable(path, e) from None
 
 
-_SPECIAL = ((stat.S_ISFIFO, "a named pipe"), (stat.S_ISCHR, "a character device"),
-            (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+_SPECIAL = (
+    (stat.S_ISFIFO, "a named pipe"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
 
 
 def refuse_special_file(path: str | os.PathLike, kind: str | None = None) -> Path:
@@ -67,10 +71,15 @@ def refuse_special_file(path: str | os.PathLike, kind: str | None = None) -> Pat
             mode = path.stat().st_mode
         except OSError:  # gone since: the reader says so
             return path
-        what = next((f"is {name}, not a regular file" for test, name in _SPECIAL if test(mode)), "is not a regular file")
-        raise fail(path, what,
-                   "nerfkit reads only regular files (a pipe or device could block or never end); save the data "
-                   "to a file and pass that")
+        what = next(
+            (f"is {name}, not a regular file" for test, name in _SPECIAL if test(mode)), "is not a regular file"
+        )
+        raise fail(
+            path,
+            what,
+            "nerfkit reads only regular files (a pipe or device could block or never end); save the data "
+            "to a file and pass that",
+        )
     return path
 
 
@@ -79,8 +88,14 @@ def is_within(path: str | os.PathLike, folder: str | os.PathLike) -> bool:
     return resolved_path(path).is_relative_to(resolved_path(folder))
 
 
-def resolve_inside(root: str | os.PathLike, name: str, allow_outside: bool = False, where: object = None,
-                   folder: str = "dataset", hint: str | None = None) -> Path:
+def resolve_inside(
+    root: str | os.PathLike,
+    name: str,
+    allow_outside: bool = False,
+    where: object = None,
+    folder: str = "dataset",
+    hint: str | None = None,
+) -> Path:
     """``root / name`` resolved (links, ``..``); refused when it leaves ``root``: the one
     rule for every file a dataset or a photo folder names (a symlink in ``root`` to a file
     elsewhere leaves it).
@@ -96,14 +111,17 @@ def resolve_inside(root: str | os.PathLike, name: str, allow_outside: bool = Fal
     path = resolved_path(Path(root) / name)  # an absolute name replaces root
     if not allow_outside and not path.is_relative_to(resolved_path(root)):
         link = f" (a symlink to {str(path)[:200]})" if Path(root, name).is_symlink() else ""
-        raise fail(where or root, f"file name {name[:200]!r}{link} points outside the {folder} folder {root}",
-                   hint or f"Keep a dataset's files inside its folder, or pass {OUTSIDE_FLAG} if you trust this "
-                           "dataset")
+        raise fail(
+            where or root,
+            f"file name {name[:200]!r}{link} points outside the {folder} folder {root}",
+            hint or f"Keep a dataset's files inside its folder, or pass {OUTSIDE_FLAG} if you trust this dataset",
+        )
     return path
 
 
-def files_inside(folder: str | os.PathLike, files: list[Path], allow_outside: bool = False,
-                 hint: str | None = None) -> list[Path]:
+def files_inside(
+    folder: str | os.PathLike, files: list[Path], allow_outside: bool = False, hint: str | None = None
+) -> list[Path]:
     """``files`` (the entries a listing of ``folder`` found), each refused by
     :func:`resolve_inside` when it resolves outside ``folder``: a photo folder's symlink
     to a file elsewhere is not read (``allow_outside``: it is)."""
@@ -145,8 +163,11 @@ def guard_outputs(outputs, inputs, force: bool = False, flag: str = "--out") -> 
             if ro == ri:
                 raise fail(o, "is an input of this command", f"Choose another {flag}; nerfkit never writes its inputs")
             if ro.is_relative_to(ri):
-                raise fail(o, f"is inside the input {i}", f"Choose an {flag} outside the inputs; nerfkit never writes "
-                                                          "into them")
+                raise fail(
+                    o,
+                    f"is inside the input {i}",
+                    f"Choose an {flag} outside the inputs; nerfkit never writes into them",
+                )
             if ri.is_relative_to(ro):
                 raise fail(o, f"holds the input {i}", f"Choose another {flag}; writing it could replace the input")
     if not force:
@@ -184,7 +205,10 @@ def guard_run_folder(run_dir: str | os.PathLike, data: str | os.PathLike, inputs
     reads), inside one or holds one. An existing run folder is the trainer's to check."""
     folder = dataset_folder(data)
     if folder is not None and is_within(run_dir, folder):
-        raise fail(run_dir, f"is inside {folder}, the folder of the dataset {data}",
-                   "Choose an --out outside the dataset's folder (e.g. runs/NAME): nerfkit never writes a run "
-                   "among the data it trains on")
+        raise fail(
+            run_dir,
+            f"is inside {folder}, the folder of the dataset {data}",
+            "Choose an --out outside the dataset's folder (e.g. runs/NAME): nerfkit never writes a run "
+            "among the data it trains on",
+        )
     guard_outputs([run_dir], [data, *inputs], force=True)

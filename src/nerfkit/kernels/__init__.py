@@ -32,8 +32,11 @@ def _load(state: dict, name: str, what: str):
         except Exception as e:  # ImportError, or a numba/LLVM failure: fall back to torch
             state["error"] = f"{type(e).__name__}: {e}"
             if not isinstance(e, ImportError):
-                warnings.warn(f"nerfkit: compiled {what} unavailable ({state['error']}); using the slower "
-                              "pure-torch path", RuntimeWarning, stacklevel=2)
+                warnings.warn(
+                    f"nerfkit: compiled {what} unavailable ({state['error']}); using the slower pure-torch path",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
             return None
         state["module"] = module
         state["seconds"] = time.perf_counter() - start

@@ -54,8 +54,9 @@ def _make_prefetch():
             ptr = cgutils.get_item_pointer(context, builder, arrty, ary, ij, wraparound=False)
             i8p = ir.PointerType(ir.IntType(8))
             i32 = ir.IntType(32)
-            fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
-                                                name)
+            fn = cgutils.get_or_insert_function(
+                builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), name
+            )
             builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
             return context.get_dummy_value()
 
@@ -175,10 +176,35 @@ def _row(vidx, v, voff):
 
 
 @njit(cache=True, parallel=True, fastmath=False)
-def render_forward(grid, vidx, voff, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
-                   rays_o, rays_d, sh, t0, t1, u, step, dscale, eps,
-                   out_rgb, out_depth, out_acc, out_count,
-                   store, s_idx, s_f):
+def render_forward(
+    grid,
+    vidx,
+    voff,
+    rx,
+    ry,
+    rz,
+    lo,
+    inv_voxel,
+    occ,
+    coarse,
+    cf,
+    rays_o,
+    rays_d,
+    sh,
+    t0,
+    t1,
+    u,
+    step,
+    dscale,
+    eps,
+    out_rgb,
+    out_depth,
+    out_acc,
+    out_count,
+    store,
+    s_idx,
+    s_f,
+):
     """March, shade and composite every ray (foreground only: no background term).
 
     Args:
@@ -224,7 +250,7 @@ def render_forward(grid, vidx, voff, rx, ry, rz, lo, inv_voxel, occ, coarse, cf,
         k = 0
         while True:
             t = ta + (k + ur) * step
-            if t >= tb or T < eps:
+            if t >= tb or eps > T:
                 break
             gx = ox + t * dx
             gy = oy + t * dy
@@ -359,8 +385,7 @@ def _trilinear_grad(v000, v001, v010, v011, v100, v101, v110, v111, fx, fy, fz):
     b1 = e10 + fy * (e11 - e10)
     d0 = (v001 - v000) + fy * ((v011 - v010) - (v001 - v000))
     d1 = (v101 - v100) + fy * ((v111 - v110) - (v101 - v100))
-    return (b0 + fz * (b1 - b0), d0 + fz * (d1 - d0),
-            (e01 - e00) + fz * ((e11 - e10) - (e01 - e00)), b1 - b0)
+    return (b0 + fz * (b1 - b0), d0 + fz * (d1 - d0), (e01 - e00) + fz * ((e11 - e10) - (e01 - e00)), b1 - b0)
 
 
 @njit(cache=True, fastmath=False, inline="always")
@@ -386,18 +411,36 @@ def _sample_point_grad(grid, vidx, voff, base, sxy, rx, fx, fy, fz, graw, dzr, d
     r010, r011 = _row(vidx, base + rx, voff), _row(vidx, base + rx + 1, voff)
     r100, r101 = _row(vidx, base + sxy, voff), _row(vidx, base + sxy + 1, voff)
     r110, r111 = _row(vidx, base + sxy + rx, voff), _row(vidx, base + sxy + rx + 1, voff)
-    _, ax, ay, az = _trilinear_grad(grid[r000, 0], grid[r001, 0], grid[r010, 0], grid[r011, 0],
-                                    grid[r100, 0], grid[r101, 0], grid[r110, 0], grid[r111, 0], fx, fy, fz)
+    _, ax, ay, az = _trilinear_grad(
+        grid[r000, 0],
+        grid[r001, 0],
+        grid[r010, 0],
+        grid[r011, 0],
+        grid[r100, 0],
+        grid[r101, 0],
+        grid[r110, 0],
+        grid[r111, 0],
+        fx,
+        fy,
+        fz,
+    )
     ax *= graw
     ay *= graw
     az *= graw
     for j in range(K):
         A, bx, by, bz = _trilinear_grad(
-            _colour_dot(grid, r000, j, K, dzr, dzg, dzb), _colour_dot(grid, r001, j, K, dzr, dzg, dzb),
-            _colour_dot(grid, r010, j, K, dzr, dzg, dzb), _colour_dot(grid, r011, j, K, dzr, dzg, dzb),
-            _colour_dot(grid, r100, j, K, dzr, dzg, dzb), _colour_dot(grid, r101, j, K, dzr, dzg, dzb),
-            _colour_dot(grid, r110, j, K, dzr, dzg, dzb), _colour_dot(grid, r111, j, K, dzr, dzg, dzb),
-            fx, fy, fz)
+            _colour_dot(grid, r000, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r001, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r010, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r011, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r100, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r101, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r110, j, K, dzr, dzg, dzb),
+            _colour_dot(grid, r111, j, K, dzr, dzg, dzb),
+            fx,
+            fy,
+            fz,
+        )
         g_sh[r, j] += A
         shj = sh[r, j]
         ax += shj * bx
@@ -407,8 +450,35 @@ def _sample_point_grad(grid, vidx, voff, base, sxy, rx, fx, fy, fz, graw, dzr, d
 
 
 @njit(cache=True, parallel=True, fastmath=False)
-def render_backward(s_idx, s_f, counts, sh, grid, vidx, voff, rx, ry, inv_voxel, step, dscale, rgb, depth, acc,
-                    g_rgb, g_depth, g_acc, g_dist, t_end, grad_near, grads, touched, ray_grads, g_o, g_d, g_sh):
+def render_backward(
+    s_idx,
+    s_f,
+    counts,
+    sh,
+    grid,
+    vidx,
+    voff,
+    rx,
+    ry,
+    inv_voxel,
+    step,
+    dscale,
+    rgb,
+    depth,
+    acc,
+    g_rgb,
+    g_depth,
+    g_acc,
+    g_dist,
+    t_end,
+    grad_near,
+    grads,
+    touched,
+    ray_grads,
+    g_o,
+    g_d,
+    g_sh,
+):
     """Gradients of the loss w.r.t. the grid (added into per-lane buffers) and, with
     ``ray_grads``, w.r.t. the rays.
 
@@ -503,13 +573,19 @@ def render_backward(s_idx, s_f, counts, sh, grid, vidx, voff, rx, ry, inv_voxel,
                 pb += w * colb
                 pd += w * t
                 pa += w
-                dtau = (gr * (Tn * colr - (rgb[r, 0] - pr)) + gg * (Tn * colg - (rgb[r, 1] - pg))
-                        + gb * (Tn * colb - (rgb[r, 2] - pb)) + gd * (Tn * t - (depth[r] - pd))
-                        + ga * (Tn - (acc[r] - pa)))
+                dtau = (
+                    gr * (Tn * colr - (rgb[r, 0] - pr))
+                    + gg * (Tn * colg - (rgb[r, 1] - pg))
+                    + gb * (Tn * colb - (rgb[r, 2] - pb))
+                    + gd * (Tn * t - (depth[r] - pd))
+                    + ga * (Tn - (acc[r] - pa))
+                )
                 if gl != 0.0:
                     # dL/dw_k: |t_k - t_j| summed over earlier (w_pre) and later samples
-                    g_k = (2.0 * ((t * w_pre - wt_pre) + (wt_tot - wt_pre - w * t) - t * (w_tot - w_pre - w))
-                           + (2.0 / 3.0) * step * w)
+                    g_k = (
+                        2.0 * ((t * w_pre - wt_pre) + (wt_tot - wt_pre - w * t) - t * (w_tot - w_pre - w))
+                        + (2.0 / 3.0) * step * w
+                    )
                     wg_pre += w * g_k
                     dtau += gl * (Tn * g_k - (g_tot - wg_pre))
                     w_pre += w
@@ -528,8 +604,9 @@ def render_backward(s_idx, s_f, counts, sh, grid, vidx, voff, rx, ry, inv_voxel,
                 fy = s_f[k, r, 1]
                 fz = s_f[k, r, 2]
                 if ray_grads:
-                    ax, ay, az = _sample_point_grad(grid, vidx, voff, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb,
-                                                    sh, g_sh, r)
+                    ax, ay, az = _sample_point_grad(
+                        grid, vidx, voff, base, sxy, rx, fx, fy, fz, graw, dzr, dzg, dzb, sh, g_sh, r
+                    )
                     ax *= inv_voxel * _edge_slope(bits, 0)
                     ay *= inv_voxel * _edge_slope(bits, 1)
                     az *= inv_voxel * _edge_slope(bits, 2)
@@ -579,7 +656,7 @@ def touched_rows(touched):
     reference)."""
     n = touched.shape[0]
     n8 = n // 8
-    words = touched[:n8 * 8].view(np.uint64)
+    words = touched[: n8 * 8].view(np.uint64)
     m = 0
     for k in range(n8):
         if words[k] != 0:
@@ -760,12 +837,16 @@ def occupancy_from_grid(grid, vidx, voff, rx, ry, rz, raw_thr, occ, coarse, cf):
         for y in range(ry - 1):
             b0 = (z * ry + y) * rx
             # largest of the four x-edges' left ends, carried along x
-            prev = max(max(grid[_row(vidx, b0, voff), 0], grid[_row(vidx, b0 + rx, voff), 0]),
-                       max(grid[_row(vidx, b0 + sxy, voff), 0], grid[_row(vidx, b0 + sxy + rx, voff), 0]))
+            prev = max(
+                max(grid[_row(vidx, b0, voff), 0], grid[_row(vidx, b0 + rx, voff), 0]),
+                max(grid[_row(vidx, b0 + sxy, voff), 0], grid[_row(vidx, b0 + sxy + rx, voff), 0]),
+            )
             for x in range(rx - 1):
                 b = b0 + x + 1
-                cur = max(max(grid[_row(vidx, b, voff), 0], grid[_row(vidx, b + rx, voff), 0]),
-                          max(grid[_row(vidx, b + sxy, voff), 0], grid[_row(vidx, b + sxy + rx, voff), 0]))
+                cur = max(
+                    max(grid[_row(vidx, b, voff), 0], grid[_row(vidx, b + rx, voff), 0]),
+                    max(grid[_row(vidx, b + sxy, voff), 0], grid[_row(vidx, b + sxy + rx, voff), 0]),
+                )
                 o = 1 if max(prev, cur) > raw_thr else 0
                 occ[z, y, x] = o
                 if o:
@@ -864,28 +945,100 @@ def warm_up() -> None:
     d = np.array([[1.0, 0.0, 0.0]])
     sh = np.ones((1, K), np.float32)
     t0, t1, u = np.zeros(1), np.ones(1), np.full(1, 0.5)
-    rgb, dep, acc, cnt = np.zeros((1, 3), np.float32), np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32)
+    rgb, dep, acc, cnt = (
+        np.zeros((1, 3), np.float32),
+        np.zeros(1, np.float32),
+        np.zeros(1, np.float32),
+        np.zeros(1, np.int32),
+    )
     s_idx, s_f = np.zeros((4, 1), np.int64), np.zeros((4, 1, N_FIELDS), np.float32)
-    render_forward(grid, vidx, voff, rx, ry, rz, np.zeros(3), 1.0, occ, occ, 1, o, d, sh, t0, t1, u, 0.5, 1.0, 1e-4,
-                   rgb, dep, acc, cnt, True, s_idx, s_f)
+    render_forward(
+        grid,
+        vidx,
+        voff,
+        rx,
+        ry,
+        rz,
+        np.zeros(3),
+        1.0,
+        occ,
+        occ,
+        1,
+        o,
+        d,
+        sh,
+        t0,
+        t1,
+        u,
+        0.5,
+        1.0,
+        1e-4,
+        rgb,
+        dep,
+        acc,
+        cnt,
+        True,
+        s_idx,
+        s_f,
+    )
     grads = np.zeros((2,) + grid.shape, np.float32)
     touched = np.zeros(rx * ry * rz, np.uint8)
     g_o, g_sh = np.zeros((1, 3)), np.zeros((1, K))
     g_dist, t_end = np.zeros(1, np.float32), np.full(1, np.inf)
     distortion_forward(s_f, cnt, 0.5, t_end, g_dist)
-    render_backward(s_idx, s_f, cnt, sh, grid, vidx, voff, rx, ry, 1.0, 0.5, 1.0, rgb, dep, acc, rgb, dep, acc, g_dist,
-                    t_end,
-                    0.0, grads, touched, True, g_o, g_o.copy(), g_sh)
+    render_backward(
+        s_idx,
+        s_f,
+        cnt,
+        sh,
+        grid,
+        vidx,
+        voff,
+        rx,
+        ry,
+        1.0,
+        0.5,
+        1.0,
+        rgb,
+        dep,
+        acc,
+        rgb,
+        dep,
+        acc,
+        g_dist,
+        t_end,
+        0.0,
+        grads,
+        touched,
+        True,
+        g_o,
+        g_o.copy(),
+        g_sh,
+    )
     m = np.zeros_like(grid)
     rows = touched_rows(touched)
     adam_rows(grid, grads, rows, touched, m, m.copy(), np.ones(C, np.float32), 0.9, 0.99, 1e-15, 0.1, 0.01)
     clear_rows(grads, touched_rows(touched), touched)
     occupancy_from_grid(grid, vidx, voff, rx, ry, rz, 0.0, occ, occ.copy(), 1)
     grid_interp_points(grid, vidx, voff, rx, ry, rz, np.zeros(3), 1.0, np.zeros((2, 3)), np.zeros((2, C), np.float32))
-    tv_rows(grid, vidx, voff, np.arange(rx * ry * rz, dtype=np.int64), rx, ry, rz, np.arange(1, 3, dtype=np.int64),
-            np.ones(C, np.float32), grads[0])
+    tv_rows(
+        grid,
+        vidx,
+        voff,
+        np.arange(rx * ry * rz, dtype=np.int64),
+        rx,
+        ry,
+        rz,
+        np.arange(1, 3, dtype=np.int64),
+        np.ones(C, np.float32),
+        grads[0],
+    )
     uv = np.zeros((2, 2), np.float32)
-    taps, frac, inside, out = np.zeros((2, 4), np.int64), np.zeros((2, 2), np.float32), np.zeros((2, 2), np.float32), \
-        np.zeros((2, C), np.float32)
+    taps, frac, inside, out = (
+        np.zeros((2, 4), np.int64),
+        np.zeros((2, 2), np.float32),
+        np.zeros((2, 2), np.float32),
+        np.zeros((2, C), np.float32),
+    )
     texture_forward(grid, uv, 3, 9, taps, frac, inside, out)
     texture_backward(out, grid, taps, frac, inside, 3, 9, grads, touched, uv, True)

@@ -61,8 +61,7 @@ class GridGeom:
         key = (id(self.index), self.index._version)
         if key != self._offset_key:
             first = int(self.index[0]) if self.index.numel() else 0
-            identity = torch.arange(first, first + self.index.numel(), dtype=self.index.dtype,
-                                    device=self.index.device)
+            identity = torch.arange(first, first + self.index.numel(), dtype=self.index.dtype, device=self.index.device)
             self._offset = first if torch.equal(self.index, identity) else -1
             self._offset_key = key
         return self._offset
@@ -90,8 +89,9 @@ class GridGeom:
 
     @property
     def hi(self) -> Tensor:
-        return self.lo + self.voxel * torch.tensor([r - 1 for r in self.res], dtype=self.lo.dtype,
-                                                   device=self.lo.device)
+        return self.lo + self.voxel * torch.tensor(
+            [r - 1 for r in self.res], dtype=self.lo.dtype, device=self.lo.device
+        )
 
     def vertex_positions(self, rows: Tensor | None = None) -> Tensor:
         """World positions (m, 3) of the given flat vertex rows (default: all)."""
@@ -115,8 +115,14 @@ class GradSink:
             optimizer drops their gradient (:meth:`drop_frozen`).
     """
 
-    def __init__(self, n_rows: int, n_channels: int, device: torch.device | str = "cpu", lanes: int | None = None,
-                 frozen: int = 0):
+    def __init__(
+        self,
+        n_rows: int,
+        n_channels: int,
+        device: torch.device | str = "cpu",
+        lanes: int | None = None,
+        frozen: int = 0,
+    ):
         if lanes is None:
             lanes = default_lanes() if torch.device(device).type == "cpu" else 1
         self.grad = torch.zeros((lanes, n_rows, n_channels), dtype=torch.float32, device=device)
@@ -127,8 +133,8 @@ class GradSink:
     def drop_frozen(self) -> None:
         """Forget the gradient of the frozen rows."""
         if self.frozen:
-            self.grad[:, :self.frozen] = 0.0
-            self.touched[:self.frozen] = 0
+            self.grad[:, : self.frozen] = 0.0
+            self.touched[: self.frozen] = 0
 
     @property
     def lanes(self) -> int:
@@ -185,7 +191,7 @@ class _Workspace:
             size = int(need * 1.25) + 1024
             self.idx = np.empty(size, np.int64)
             self.f = np.empty(size * N_FIELDS, np.float32)
-        return self.idx[:need].reshape(cap, n), self.f[:need * N_FIELDS].reshape(cap, n, N_FIELDS)
+        return self.idx[:need].reshape(cap, n), self.f[: need * N_FIELDS].reshape(cap, n, N_FIELDS)
 
 
 class _Lease:
@@ -254,8 +260,9 @@ def _vertex_rows(geom: GridGeom) -> np.ndarray:
     return np.ascontiguousarray(geom.vertex_index().cpu().numpy().astype(np.int32, copy=False))
 
 
-def _forward_numba(nb, grid: Tensor, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, sh, t0, t1, u,
-                   store: bool, lease: _Lease | None):
+def _forward_numba(
+    nb, grid: Tensor, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, sh, t0, t1, u, store: bool, lease: _Lease | None
+):
     n = rays_o.shape[0]
     rx, ry, rz = geom.res
     rgb = np.zeros((n, 3), np.float32)
@@ -275,12 +282,35 @@ def _forward_numba(nb, grid: Tensor, geom: GridGeom, spec: MarchSpec, rays_o, ra
     # rays cost very different amounts: hand them out in small chunks, so that a thread
     # that finishes early (or a core the OS gives to another process) does not stall the rest
     with numba.parallel_chunksize(RAY_CHUNK):
-        nb.render_forward(grid.detach().numpy(), _vertex_rows(geom), geom.row_offset(), rx, ry, rz, _np64(geom.lo),
-                          1.0 / geom.voxel,
-                          spec.occ.numpy(), spec.coarse.numpy(), int(spec.coarse_factor),
-                          _np64(rays_o), _np64(rays_d), _np32(sh), t0n, t1n, _np64(u),
-                          float(spec.step), float(spec.density_scale), float(spec.eps),
-                          rgb, depth, acc, count, store, s_idx, s_f)
+        nb.render_forward(
+            grid.detach().numpy(),
+            _vertex_rows(geom),
+            geom.row_offset(),
+            rx,
+            ry,
+            rz,
+            _np64(geom.lo),
+            1.0 / geom.voxel,
+            spec.occ.numpy(),
+            spec.coarse.numpy(),
+            int(spec.coarse_factor),
+            _np64(rays_o),
+            _np64(rays_d),
+            _np32(sh),
+            t0n,
+            t1n,
+            _np64(u),
+            float(spec.step),
+            float(spec.density_scale),
+            float(spec.eps),
+            rgb,
+            depth,
+            acc,
+            count,
+            store,
+            s_idx,
+            s_f,
+        )
     return rgb, depth, acc, count, s_idx, s_f
 
 
@@ -292,8 +322,9 @@ class _NumbaRender(torch.autograd.Function):
     @staticmethod
     def forward(ctx, grid, rays_o, rays_d, sh, t0, t1, u, t_end, geom, spec, sink, nb, want_dist):
         lease = _lease()
-        rgb, depth, acc, count, s_idx, s_f = _forward_numba(nb, grid, geom, spec, rays_o, rays_d, sh,
-                                                            t0, t1, u, True, lease)
+        rgb, depth, acc, count, s_idx, s_f = _forward_numba(
+            nb, grid, geom, spec, rays_o, rays_d, sh, t0, t1, u, True, lease
+        )
         t_end = _np64(t_end)
         dist = np.zeros(len(count), np.float32)
         if want_dist:  # an extra pass over the samples, only when a loss uses it
@@ -324,18 +355,43 @@ class _NumbaRender(torch.autograd.Function):
         ray_grads = need_o or need_d or need_sh
         m = n if ray_grads else 0
         g_o, g_d, g_sh = np.zeros((m, 3)), np.zeros((m, 3)), np.zeros((m, K))
-        nb.render_backward(s_idx, s_f, count, sh, grid, _vertex_rows(geom), geom.row_offset(), geom.res[0], geom.res[1],
-                           1.0 / geom.voxel,
-                           float(ctx.spec.step), float(ctx.spec.density_scale), rgb, depth, acc,
-                           arr(g_rgb, (n, 3)), arr(g_depth, (n,)), arr(g_acc, (n,)), arr(g_dist, (n,)), t_end,
-                           float(ctx.spec.grad_near), grads, touched,
-                           ray_grads, g_o, g_d, g_sh)
+        nb.render_backward(
+            s_idx,
+            s_f,
+            count,
+            sh,
+            grid,
+            _vertex_rows(geom),
+            geom.row_offset(),
+            geom.res[0],
+            geom.res[1],
+            1.0 / geom.voxel,
+            float(ctx.spec.step),
+            float(ctx.spec.density_scale),
+            rgb,
+            depth,
+            acc,
+            arr(g_rgb, (n, 3)),
+            arr(g_depth, (n,)),
+            arr(g_acc, (n,)),
+            arr(g_dist, (n,)),
+            t_end,
+            float(ctx.spec.grad_near),
+            grads,
+            touched,
+            ray_grads,
+            g_o,
+            g_d,
+            g_sh,
+        )
         if need_grid:
             sink.dirty = True
         ctx.lease.release()
         ctx.saved = None
-        ray_out = [torch.from_numpy(g).to(like) if need else None
-                   for g, like, need in zip((g_o, g_d, g_sh), ctx.ray_like, (need_o, need_d, need_sh))]
+        ray_out = [
+            torch.from_numpy(g).to(like) if need else None
+            for g, like, need in zip((g_o, g_d, g_sh), ctx.ray_like, (need_o, need_d, need_sh))
+        ]
         return (None, *ray_out) + (None,) * 9
 
 
@@ -398,38 +454,58 @@ def render_grid(
             if grid.requires_grad and sink is None:
                 raise ValueError("render_grid: a GradSink is needed to train the grid on the compiled path")
             ends = t_end if t_end is not None else torch.full_like(t0, math.inf)
-            rgb, depth, acc, counts, dist = _NumbaRender.apply(grid, rays_o, rays_d, sh, t0, t1, u, ends, geom, spec,
-                                                               sink, nb, distortion)
+            rgb, depth, acc, counts, dist = _NumbaRender.apply(
+                grid, rays_o, rays_d, sh, t0, t1, u, ends, geom, spec, sink, nb, distortion
+            )
             dist = dist if distortion else None
         else:
             out = _forward_numba(nb, grid, geom, spec, rays_o, rays_d, sh, t0, t1, u, False, None)
             rgb, depth, acc, counts = (torch.from_numpy(a) for a in out[:4])
             dist = None
         dev = rays_o.device
-        return GridRender(rgb.to(dev), depth.to(dev), acc.to(dev), counts.to(dev), int(counts.sum()),
-                          None if dist is None else dist.to(dev))
+        return GridRender(
+            rgb.to(dev),
+            depth.to(dev),
+            acc.to(dev),
+            counts.to(dev),
+            int(counts.sum()),
+            None if dist is None else dist.to(dev),
+        )
     out = render_grid_torch(grid, geom, spec, rays_o, rays_d, t0, t1, u, sh, t_end)
     return out if distortion else replace(out, distortion=None)
 
 
-def render_grid_torch(grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0, t1, u, sh,
-                      t_end: Tensor | None = None) -> GridRender:
+def render_grid_torch(
+    grid, geom: GridGeom, spec: MarchSpec, rays_o, rays_d, t0, t1, u, sh, t_end: Tensor | None = None
+) -> GridRender:
     """The pure-torch path of :func:`render_grid`: autograd gives the grid a dense grad and
     the rays (``rays_o``, ``rays_d``, ``sh``) their gradients with the sample ``t`` fixed."""
     dtype = rays_o.dtype
     lo = geom.lo.to(grid.device, dtype)
 
     def sigma_fn(points, _ray_indices):
-        raw = ref.grid_interp(grid.detach()[:, :1], ref.grid_coords(points, lo, geom.voxel), geom.res,
-                              geom.index)[:, 0]
+        raw = ref.grid_interp(grid.detach()[:, :1], ref.grid_coords(points, lo, geom.voxel), geom.res, geom.index)[:, 0]
         return spec.density_scale * torch.nn.functional.softplus(raw)
 
     # sampling runs under no_grad, so the lattice t are constants (as in nerfacc and the
     # compiled backward): rays get gradients only through the points o + t d and the SH basis
     samples = occupied_samples(spec.occ, geom.box, rays_o, rays_d, t0, t1, u, spec.step, sigma_fn, spec.eps)
-    rgb, depth, acc, dist = ref.render_samples(grid, geom.res, lo, geom.voxel, rays_o, rays_d, sh.to(grid.dtype),
-                                               samples.t, samples.ray_indices, spec.step, spec.density_scale,
-                                               t_end, spec.grad_near, geom.index)
+    rgb, depth, acc, dist = ref.render_samples(
+        grid,
+        geom.res,
+        lo,
+        geom.voxel,
+        rays_o,
+        rays_d,
+        sh.to(grid.dtype),
+        samples.t,
+        samples.ray_indices,
+        spec.step,
+        spec.density_scale,
+        t_end,
+        spec.grad_near,
+        geom.index,
+    )
     counts = samples.counts().int()
     return GridRender(rgb, depth, acc, counts, int(counts.sum()), dist)
 
@@ -443,8 +519,9 @@ def row_vertices(geom: GridGeom, n_rows: int) -> Tensor:
     return out
 
 
-def add_grid_tv(grid: Tensor, geom: GridGeom, weight: Tensor, sink: GradSink, backend: str,
-                row_vertex: Tensor | None = None) -> int:
+def add_grid_tv(
+    grid: Tensor, geom: GridGeom, weight: Tensor, sink: GradSink, backend: str, row_vertex: Tensor | None = None
+) -> int:
     """Add the total variation's gradient (:func:`reference.tv_grad`) on the rows that this
     step's rays touched (their gradient is in ``sink``, or on the torch path in
     ``grid.grad``). Only those rows: under Adam's per-row scaling a row that only the
@@ -467,8 +544,18 @@ def add_grid_tv(grid: Tensor, geom: GridGeom, weight: Tensor, sink: GradSink, ba
         else:
             rv = row_vertex if row_vertex is not None else row_vertices(geom, grid.shape[0])
         rx, ry, rz = geom.res
-        nb.tv_rows(grid.detach().numpy(), _vertex_rows(geom), off, rv.numpy(), rx, ry, rz, rows,
-                   _np32(weight), sink.grad[0].numpy())
+        nb.tv_rows(
+            grid.detach().numpy(),
+            _vertex_rows(geom),
+            off,
+            rv.numpy(),
+            rx,
+            ry,
+            rz,
+            rows,
+            _np32(weight),
+            sink.grad[0].numpy(),
+        )
         return len(rows)
     if grid.grad is None:
         return 0

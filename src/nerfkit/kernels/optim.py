@@ -86,13 +86,34 @@ class GridAdam(torch.optim.Optimizer):
 
                     touched = sink.touched.numpy()
                     with numba.parallel_chunksize(4096):
-                        self.nonfinite_rows += nb.adam_rows(p.data.numpy(), sink.grad.numpy(), nb.touched_rows(touched), touched,
-                                     state["exp_avg"].numpy(), state["exp_avg_sq"].numpy(), lr.numpy(),
-                                     beta1, beta2, group["eps"], 1 - beta1 ** step, 1 - beta2 ** step)
+                        self.nonfinite_rows += nb.adam_rows(
+                            p.data.numpy(),
+                            sink.grad.numpy(),
+                            nb.touched_rows(touched),
+                            touched,
+                            state["exp_avg"].numpy(),
+                            state["exp_avg_sq"].numpy(),
+                            lr.numpy(),
+                            beta1,
+                            beta2,
+                            group["eps"],
+                            1 - beta1**step,
+                            1 - beta2**step,
+                        )
                 else:
                     rows = sink.touched_rows()
-                    self.nonfinite_rows += ref.adam_rows(p.data, sink.total(rows), rows, state["exp_avg"], state["exp_avg_sq"], lr,
-                                  beta1, beta2, group["eps"], step)
+                    self.nonfinite_rows += ref.adam_rows(
+                        p.data,
+                        sink.total(rows),
+                        rows,
+                        state["exp_avg"],
+                        state["exp_avg_sq"],
+                        lr,
+                        beta1,
+                        beta2,
+                        group["eps"],
+                        step,
+                    )
                     sink.grad[:, rows] = 0.0
                     sink.touched.zero_()
                 sink.dirty = False
@@ -114,12 +135,13 @@ class GridAdam(torch.optim.Optimizer):
         g = p.grad
         state["exp_avg"].mul_(beta1).add_(g, alpha=1 - beta1)
         state["exp_avg_sq"].mul_(beta2).addcmul_(g, g, value=1 - beta2)
-        denom = (state["exp_avg_sq"] / (1 - beta2 ** step)).sqrt_().add_(group["eps"])
-        p.addcdiv_(state["exp_avg"], denom, value=-group["lr"] / (1 - beta1 ** step))
+        denom = (state["exp_avg_sq"] / (1 - beta2**step)).sqrt_().add_(group["eps"])
+        p.addcdiv_(state["exp_avg"], denom, value=-group["lr"] / (1 - beta1**step))
 
 
-def replace_param(optimizer: torch.optim.Optimizer, old: Tensor, new: Tensor, rows: Tensor | None = None,
-                  sink: GradSink | None = None) -> None:
+def replace_param(
+    optimizer: torch.optim.Optimizer, old: Tensor, new: Tensor, rows: Tensor | None = None, sink: GradSink | None = None
+) -> None:
     """Put parameter ``new`` in the place of ``old`` in ``optimizer``, in place: every other
     parameter keeps its Adam moments (and the groups their learning rates).
 

@@ -53,8 +53,13 @@ def sh_basis(dirs: Tensor, degree: int) -> Tensor:
     if degree >= 1:
         out += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
     if degree >= 2:
-        out += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2 * z * z - x * x - y * y),
-                SH_C2[3] * x * z, SH_C2[4] * (x * x - y * y)]
+        out += [
+            SH_C2[0] * x * y,
+            SH_C2[1] * y * z,
+            SH_C2[2] * (2 * z * z - x * x - y * y),
+            SH_C2[3] * x * z,
+            SH_C2[4] * (x * x - y * y),
+        ]
     return torch.stack(out, dim=-1)
 
 
@@ -122,7 +127,7 @@ def decode(feat: Tensor, sh: Tensor, density_scale: float) -> tuple[Tensor, Tens
     """
     n, K = sh.shape
     sigma = density_scale * F.softplus(feat[:, 0])
-    coef = feat[:, 1:1 + 3 * K].reshape(n, 3, K)
+    coef = feat[:, 1 : 1 + 3 * K].reshape(n, 3, K)
     rgb = torch.sigmoid((coef * sh.unsqueeze(1)).sum(-1))
     return sigma, rgb
 
@@ -184,8 +189,18 @@ def render_samples(
     return rgb, depth, acc, distortion(weights, t.to(weights.dtype), step, ray_indices, n_rays, t_end)
 
 
-def adam_rows(param: Tensor, g: Tensor, rows: Tensor, exp_avg: Tensor, exp_avg_sq: Tensor, lr: Tensor,
-              beta1: float, beta2: float, eps: float, step: int) -> int:
+def adam_rows(
+    param: Tensor,
+    g: Tensor,
+    rows: Tensor,
+    exp_avg: Tensor,
+    exp_avg_sq: Tensor,
+    lr: Tensor,
+    beta1: float,
+    beta2: float,
+    eps: float,
+    step: int,
+) -> int:
     """Adam applied in place to the given rows only (lazy/sparse Adam).
 
     Args:
@@ -206,8 +221,8 @@ def adam_rows(param: Tensor, g: Tensor, rows: Tensor, exp_avg: Tensor, exp_avg_s
     v = exp_avg_sq[rows].mul_(beta2).addcmul_(g, g, value=1 - beta2)
     exp_avg[rows] = m
     exp_avg_sq[rows] = v
-    bc1 = 1 - beta1 ** step
-    bc2 = 1 - beta2 ** step
+    bc1 = 1 - beta1**step
+    bc2 = 1 - beta2**step
     denom = (v / bc2).sqrt_().add_(eps)
     param[rows] -= lr * (m / bc1) / denom
     return skipped

@@ -98,8 +98,24 @@ def _power_floor(op):
 
 
 @njit(parallel=True, cache=True, fastmath=False)
-def rasterize_forward(offsets, ids, means2d, conics, colors, opac, depths, background, width, height,
-                      n_tiles_x, out_rgb, out_depth, out_alpha, final_T, n_contrib):
+def rasterize_forward(
+    offsets,
+    ids,
+    means2d,
+    conics,
+    colors,
+    opac,
+    depths,
+    background,
+    width,
+    height,
+    n_tiles_x,
+    out_rgb,
+    out_depth,
+    out_alpha,
+    final_T,
+    n_contrib,
+):
     """Composite every pixel; outputs (H, W, 3) / (H, W) are written in place.
 
     Per tile, Gaussians in depth order each update only the pixels of their footprint
@@ -162,8 +178,23 @@ def rasterize_forward(offsets, ids, means2d, conics, colors, opac, depths, backg
 
 
 @njit(parallel=True, cache=True, fastmath=False)
-def rasterize_backward(offsets, ids, means2d, conics, colors, opac, depths, background, width, height,
-                       n_tiles_x, final_T, n_contrib, grad_rgb, grads):
+def rasterize_backward(
+    offsets,
+    ids,
+    means2d,
+    conics,
+    colors,
+    opac,
+    depths,
+    background,
+    width,
+    height,
+    n_tiles_x,
+    final_T,
+    n_contrib,
+    grad_rgb,
+    grads,
+):
     """Gradients of a loss w.r.t. each Gaussian's 2D mean, conic, opacity and colour.
 
     ``grad_rgb`` (H, W, 3) is dL/d(out_rgb); ``grads`` (lanes, n, 9) zeroed, written in place
@@ -194,8 +225,11 @@ def rasterize_backward(offsets, ids, means2d, conics, colors, opac, depths, back
                     k_end = max(k_end, ncon[p])
                     for ch in range(3):
                         gpix[p, ch] = grad_rgb[y, x, ch]
-                    gpix[p, 3] = (background[y, x, 0] * grad_rgb[y, x, 0] + background[y, x, 1] * grad_rgb[y, x, 1]
-                                  + background[y, x, 2] * grad_rgb[y, x, 2])
+                    gpix[p, 3] = (
+                        background[y, x, 0] * grad_rgb[y, x, 0]
+                        + background[y, x, 1] * grad_rgb[y, x, 1]
+                        + background[y, x, 2] * grad_rgb[y, x, 2]
+                    )
             for k in range(k_end - 1, start - 1, -1):
                 g = ids[k]
                 mx, my = means2d[g, 0], means2d[g, 1]

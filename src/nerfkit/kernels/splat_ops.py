@@ -39,8 +39,19 @@ class RasterizeFunction(torch.autograd.Function):
         alpha = torch.empty((height, width), dtype=dt)
         final_T = torch.empty((height, width), dtype=dt)
         n_contrib = torch.empty((height, width), dtype=torch.int64)
-        nb.rasterize_forward(offsets, ids, *(a.numpy() for a in arrays), width, height, tw, rgb.numpy(),
-                             depth.numpy(), alpha.numpy(), final_T.numpy(), n_contrib.numpy())
+        nb.rasterize_forward(
+            offsets,
+            ids,
+            *(a.numpy() for a in arrays),
+            width,
+            height,
+            tw,
+            rgb.numpy(),
+            depth.numpy(),
+            alpha.numpy(),
+            final_T.numpy(),
+            n_contrib.numpy(),
+        )
         ctx.save_for_backward(*arrays, final_T, n_contrib)
         ctx.bins = (offsets, ids)
         ctx.size = (width, height, tw)
@@ -56,16 +67,40 @@ class RasterizeFunction(torch.autograd.Function):
         n = means2d.shape[0]
         grads = torch.zeros((default_lanes(), n, nb.N_GRAD), dtype=means2d.dtype)
         g_rgb = grad_rgb.contiguous().to(means2d.dtype)
-        nb.rasterize_backward(offsets, ids, means2d.numpy(), conics.numpy(), colors.numpy(), opacities.numpy(),
-                              depths.numpy(), background.numpy(), width, height, tw, final_T.numpy(),
-                              n_contrib.numpy(), g_rgb.numpy(), grads.numpy())
+        nb.rasterize_backward(
+            offsets,
+            ids,
+            means2d.numpy(),
+            conics.numpy(),
+            colors.numpy(),
+            opacities.numpy(),
+            depths.numpy(),
+            background.numpy(),
+            width,
+            height,
+            tw,
+            final_T.numpy(),
+            n_contrib.numpy(),
+            g_rgb.numpy(),
+            grads.numpy(),
+        )
         g = grads.sum(0)
         g_bg = final_T.unsqueeze(-1) * g_rgb if ctx.needs_input_grad[5] else None
         return g[:, 0:2], g[:, 2:5], g[:, 6:9], g[:, 5], None, g_bg, None, None, None
 
 
-def rasterize(means2d: Tensor, conics: Tensor, colors: Tensor, opacities: Tensor, depths: Tensor, rects: Tensor,
-              background: Tensor, width: int, height: int, backend: str = "auto") -> tuple[Tensor, Tensor, Tensor]:
+def rasterize(
+    means2d: Tensor,
+    conics: Tensor,
+    colors: Tensor,
+    opacities: Tensor,
+    depths: Tensor,
+    rects: Tensor,
+    background: Tensor,
+    width: int,
+    height: int,
+    backend: str = "auto",
+) -> tuple[Tensor, Tensor, Tensor]:
     """Composite projected Gaussians into ``(rgb (H, W, 3), depth (H, W), alpha (H, W))``.
 
     Arguments as :func:`~nerfkit.kernels.splat_reference.rasterize_reference`; ``backend``:
@@ -102,16 +137,30 @@ class SplatRender:
     radii: Tensor
 
 
-def render_gaussians(means: Tensor, log_scales: Tensor, quats: Tensor, opacity_logits: Tensor, sh: Tensor,
-                     sh_degree: int, w2c: Tensor, K: Tensor, width: int, height: int, background: Tensor,
-                     near_plane: float, backend: str = "auto", track_means2d: bool = False) -> SplatRender:
+def render_gaussians(
+    means: Tensor,
+    log_scales: Tensor,
+    quats: Tensor,
+    opacity_logits: Tensor,
+    sh: Tensor,
+    sh_degree: int,
+    w2c: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+    background: Tensor,
+    near_plane: float,
+    backend: str = "auto",
+    track_means2d: bool = False,
+) -> SplatRender:
     """Render Gaussians (parameters as stored, see :mod:`splat_reference`) into one camera.
 
     ``background`` is (H, W, 3). With ``track_means2d`` the 2D means keep their gradient.
     """
     if uses_gsplat(means.device, backend):
-        return _render_gsplat(means, log_scales, quats, opacity_logits, sh, sh_degree, w2c, K, width, height,
-                              background, near_plane)
+        return _render_gsplat(
+            means, log_scales, quats, opacity_logits, sh, sh_degree, w2c, K, width, height, background, near_plane
+        )
     proj = ref.project_gaussians(means, ref.covariance_3d(log_scales, quats), w2c, K, width, height, near_plane)
     means2d = proj["means2d"]
     if track_means2d and means2d.requires_grad:
@@ -120,8 +169,18 @@ def render_gaussians(means: Tensor, log_scales: Tensor, quats: Tensor, opacity_l
     dirs = means.detach() - cam  # INRIA: colour directions carry no gradient to the means
     dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     colors = ref.sh_to_rgb(sh, dirs, sh_degree)
-    rgb, depth, alpha = rasterize(means2d, proj["conics"], colors, torch.sigmoid(opacity_logits), proj["depths"],
-                                  proj["rects"], background, width, height, backend)
+    rgb, depth, alpha = rasterize(
+        means2d,
+        proj["conics"],
+        colors,
+        torch.sigmoid(opacity_logits),
+        proj["depths"],
+        proj["rects"],
+        background,
+        width,
+        height,
+        backend,
+    )
     return SplatRender(rgb, depth, alpha, means2d, proj["radii"])
 
 
@@ -143,20 +202,36 @@ def uses_gsplat(device: torch.device, backend: str) -> bool:
     if _gsplat() is None:
         import warnings
 
-        warnings.warn("gsplat is not installed: splats render on CUDA with nerfkit's torch reference, one 16x16 "
-                      "tile at a time (slow); pip install gsplat", RuntimeWarning, stacklevel=3)
+        warnings.warn(
+            "gsplat is not installed: splats render on CUDA with nerfkit's torch reference, one 16x16 "
+            "tile at a time (slow); pip install gsplat",
+            RuntimeWarning,
+            stacklevel=3,
+        )
         return False
     return True
 
 
-def _render_gsplat(means, log_scales, quats, opacity_logits, sh, sh_degree, w2c, K, width, height, background,
-                   near_plane) -> SplatRender:  # pragma: no cover - needs CUDA
+def _render_gsplat(
+    means, log_scales, quats, opacity_logits, sh, sh_degree, w2c, K, width, height, background, near_plane
+) -> SplatRender:  # pragma: no cover - needs CUDA
     from gsplat import rasterization
 
     colors, alphas, meta = rasterization(
-        means, quats, torch.exp(log_scales), torch.sigmoid(opacity_logits), sh, w2c[None].to(means),
-        K[None].to(means), width, height, near_plane=near_plane, sh_degree=sh_degree, render_mode="RGB+ED",
-        packed=False)  # (C, N, ...) per-Gaussian outputs: the packed default gives (nnz, ...)
+        means,
+        quats,
+        torch.exp(log_scales),
+        torch.sigmoid(opacity_logits),
+        sh,
+        w2c[None].to(means),
+        K[None].to(means),
+        width,
+        height,
+        near_plane=near_plane,
+        sh_degree=sh_degree,
+        render_mode="RGB+ED",
+        packed=False,
+    )  # (C, N, ...) per-Gaussian outputs: the packed default gives (nnz, ...)
     alpha = alphas[0, ..., 0]
     rgb = colors[0, ..., :3] + (1 - alpha).unsqueeze(-1) * background
     depth = colors[0, ..., 3] * alpha  # expected depth x alpha, as the CPU path returns

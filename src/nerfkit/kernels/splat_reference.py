@@ -35,8 +35,15 @@ FOV_CLIP = 1.3
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
 SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,
-         1.445305721320277, -0.5900435899266435)
+SH_C3 = (
+    -0.5900435899266435,
+    2.890611442640554,
+    -0.4570457994644658,
+    0.3731763325901154,
+    -0.4570457994644658,
+    1.445305721320277,
+    -0.5900435899266435,
+)
 
 
 def sh_coeffs(degree: int) -> int:
@@ -61,15 +68,25 @@ def sh_to_rgb(coeffs: Tensor, dirs: Tensor, degree: int) -> Tensor:
         out = out - SH_C1 * y * coeffs[:, 1] + SH_C1 * z * coeffs[:, 2] - SH_C1 * x * coeffs[:, 3]
     if degree > 1:
         xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
-        out = (out + SH_C2[0] * xy * coeffs[:, 4] + SH_C2[1] * yz * coeffs[:, 5]
-               + SH_C2[2] * (2 * zz - xx - yy) * coeffs[:, 6] + SH_C2[3] * xz * coeffs[:, 7]
-               + SH_C2[4] * (xx - yy) * coeffs[:, 8])
+        out = (
+            out
+            + SH_C2[0] * xy * coeffs[:, 4]
+            + SH_C2[1] * yz * coeffs[:, 5]
+            + SH_C2[2] * (2 * zz - xx - yy) * coeffs[:, 6]
+            + SH_C2[3] * xz * coeffs[:, 7]
+            + SH_C2[4] * (xx - yy) * coeffs[:, 8]
+        )
         if degree > 2:
-            out = (out + SH_C3[0] * y * (3 * xx - yy) * coeffs[:, 9] + SH_C3[1] * xy * z * coeffs[:, 10]
-                   + SH_C3[2] * y * (4 * zz - xx - yy) * coeffs[:, 11]
-                   + SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy) * coeffs[:, 12]
-                   + SH_C3[4] * x * (4 * zz - xx - yy) * coeffs[:, 13] + SH_C3[5] * z * (xx - yy) * coeffs[:, 14]
-                   + SH_C3[6] * x * (xx - 3 * yy) * coeffs[:, 15])
+            out = (
+                out
+                + SH_C3[0] * y * (3 * xx - yy) * coeffs[:, 9]
+                + SH_C3[1] * xy * z * coeffs[:, 10]
+                + SH_C3[2] * y * (4 * zz - xx - yy) * coeffs[:, 11]
+                + SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy) * coeffs[:, 12]
+                + SH_C3[4] * x * (4 * zz - xx - yy) * coeffs[:, 13]
+                + SH_C3[5] * z * (xx - yy) * coeffs[:, 14]
+                + SH_C3[6] * x * (xx - 3 * yy) * coeffs[:, 15]
+            )
     return torch.clamp_min(out + 0.5, 0.0)
 
 
@@ -77,11 +94,20 @@ def quat_to_rotmat(q: Tensor) -> Tensor:
     """(n, 4) quaternions ``(w, x, y, z)`` (any length) -> (n, 3, 3) rotation matrices."""
     q = q / q.norm(dim=-1, keepdim=True)
     w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(-1, 3, 3)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        ],
+        -1,
+    ).reshape(-1, 3, 3)
 
 
 def covariance_3d(log_scales: Tensor, quats: Tensor) -> Tensor:
@@ -90,8 +116,9 @@ def covariance_3d(log_scales: Tensor, quats: Tensor) -> Tensor:
     return M @ M.transpose(-1, -2)
 
 
-def project_gaussians(means: Tensor, cov3d: Tensor, w2c: Tensor, K: Tensor, width: int, height: int,
-                      near_plane: float) -> dict:
+def project_gaussians(
+    means: Tensor, cov3d: Tensor, w2c: Tensor, K: Tensor, width: int, height: int, near_plane: float
+) -> dict:
     """EWA projection of Gaussians into one camera (OpenCV axes).
 
     Args:
@@ -114,8 +141,9 @@ def project_gaussians(means: Tensor, cov3d: Tensor, w2c: Tensor, K: Tensor, widt
     txc = (tx / tzc).clamp(-limx, limx) * tzc
     tyc = (ty / tzc).clamp(-limy, limy) * tzc
     zero = torch.zeros_like(tz)
-    J = torch.stack([fx / tzc, zero, -fx * txc / (tzc * tzc),
-                     zero, fy / tzc, -fy * tyc / (tzc * tzc)], -1).reshape(-1, 2, 3)
+    J = torch.stack([fx / tzc, zero, -fx * txc / (tzc * tzc), zero, fy / tzc, -fy * tyc / (tzc * tzc)], -1).reshape(
+        -1, 2, 3
+    )
     T = J @ R
     cov2d = T @ cov3d @ T.transpose(-1, -2)
     a = cov2d[:, 0, 0] + DILATION
@@ -151,8 +179,17 @@ def depth_order(depths: Tensor, rects: Tensor) -> Tensor:
     return idx[order]
 
 
-def rasterize_reference(means2d: Tensor, conics: Tensor, colors: Tensor, opacities: Tensor, depths: Tensor,
-                        rects: Tensor, background: Tensor, width: int, height: int) -> tuple[Tensor, Tensor, Tensor]:
+def rasterize_reference(
+    means2d: Tensor,
+    conics: Tensor,
+    colors: Tensor,
+    opacities: Tensor,
+    depths: Tensor,
+    rects: Tensor,
+    background: Tensor,
+    width: int,
+    height: int,
+) -> tuple[Tensor, Tensor, Tensor]:
     """Front-to-back alpha compositing of projected Gaussians, tile by tile (autograd).
 
     Args:
@@ -177,8 +214,9 @@ def rasterize_reference(means2d: Tensor, conics: Tensor, colors: Tensor, opaciti
             x0, y0 = tx * TILE, ty * TILE
             x1, y1 = min(x0 + TILE, width), min(y0 + TILE, height)
             ids = order[(r[:, 0] <= tx) & (tx < r[:, 1]) & (r[:, 2] <= ty) & (ty < r[:, 3])]
-            ys, xs = torch.meshgrid(torch.arange(y0, y1, device=colors.device),
-                                    torch.arange(x0, x1, device=colors.device), indexing="ij")
+            ys, xs = torch.meshgrid(
+                torch.arange(y0, y1, device=colors.device), torch.arange(x0, x1, device=colors.device), indexing="ij"
+            )
             pix = torch.stack([xs.reshape(-1), ys.reshape(-1)], -1).to(colors.dtype) + 0.5  # (P, 2)
             bg = background[y0:y1, x0:x1].reshape(-1, 3)
             if len(ids) == 0:
@@ -196,8 +234,9 @@ def rasterize_reference(means2d: Tensor, conics: Tensor, colors: Tensor, opaciti
     return rgb, depth, alpha_out
 
 
-def composite_pixels(pix: Tensor, means2d: Tensor, conics: Tensor, colors: Tensor, opacities: Tensor,
-                     depths: Tensor, bg: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def composite_pixels(
+    pix: Tensor, means2d: Tensor, conics: Tensor, colors: Tensor, opacities: Tensor, depths: Tensor, bg: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
     """Composite ``m`` Gaussians (already in depth order) over ``P`` pixels ``pix`` (P, 2).
 
     Returns ``(rgb (P, 3), depth (P,), alpha (P,))``. See the module docstring for the rules.
@@ -217,17 +256,37 @@ def composite_pixels(pix: Tensor, means2d: Tensor, conics: Tensor, colors: Tenso
     return rgb, w @ depths, 1 - T_final
 
 
-def render_reference(means: Tensor, log_scales: Tensor, quats: Tensor, opacity_logits: Tensor, sh: Tensor,
-                     sh_degree: int, w2c: Tensor, K: Tensor, width: int, height: int, background: Tensor,
-                     near_plane: float = 0.01) -> tuple[Tensor, Tensor, Tensor]:
+def render_reference(
+    means: Tensor,
+    log_scales: Tensor,
+    quats: Tensor,
+    opacity_logits: Tensor,
+    sh: Tensor,
+    sh_degree: int,
+    w2c: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+    background: Tensor,
+    near_plane: float = 0.01,
+) -> tuple[Tensor, Tensor, Tensor]:
     """The whole pipeline in torch: Gaussians (n, ...) -> (rgb (H, W, 3), depth (H, W), alpha (H, W))."""
     proj = project_gaussians(means, covariance_3d(log_scales, quats), w2c, K, width, height, near_plane)
     cam = torch.linalg.inv(w2c.to(means))[:3, 3]
     dirs = means - cam
     dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     colors = sh_to_rgb(sh, dirs, sh_degree)
-    return rasterize_reference(proj["means2d"], proj["conics"], colors, torch.sigmoid(opacity_logits),
-                               proj["depths"], proj["rects"], background, width, height)
+    return rasterize_reference(
+        proj["means2d"],
+        proj["conics"],
+        colors,
+        torch.sigmoid(opacity_logits),
+        proj["depths"],
+        proj["rects"],
+        background,
+        width,
+        height,
+    )
 
 
 def logit(p: float) -> float:

@@ -49,5 +49,14 @@ def config_from_dict(name: str, d: dict):
     return cls(**{k: v for k, v in d.items() if k in known})
 
 
-__all__ = ["MODEL_NAMES", "NerfModel", "RenderOutput", "SceneBounds", "asdict", "build_model", "check_config",
-           "config_from_dict", "model_config_class"]
+__all__ = [
+    "MODEL_NAMES",
+    "NerfModel",
+    "RenderOutput",
+    "SceneBounds",
+    "asdict",
+    "build_model",
+    "check_config",
+    "config_from_dict",
+    "model_config_class",
+]

@@ -68,38 +68,60 @@ class SceneBounds:
                 floor = np.array([*plane.normal, plane.offset], np.float32)
         ndc = None
         if not scene.capture and scene.table is None and scene.forward_facing:
-            ndc = NdcSpace.from_camera(mean_camera(c2w), scene.train.K.mean(0), scene.train.width,
-                                       scene.train.height, float(scene.near))
+            ndc = NdcSpace.from_camera(
+                mean_camera(c2w), scene.train.K.mean(0), scene.train.width, scene.train.height, float(scene.near)
+            )
             ndc = ndc.fit_extent(c2w, scene.train.K, scene.train.width, scene.train.height)
-        return SceneBounds(float(scene.near), float(scene.far), np.asarray(scene.center, np.float32),
-                           float(radius), np.asarray(scene.up, np.float32),
-                           None if scene.table is None else np.asarray(scene.table, np.float32),
-                           float(dists.max()), box, ndc, floor,
-                           None if scene.tags is None else np.asarray(scene.tags, np.float32))
+        return SceneBounds(
+            float(scene.near),
+            float(scene.far),
+            np.asarray(scene.center, np.float32),
+            float(radius),
+            np.asarray(scene.up, np.float32),
+            None if scene.table is None else np.asarray(scene.table, np.float32),
+            float(dists.max()),
+            box,
+            ndc,
+            floor,
+            None if scene.tags is None else np.asarray(scene.tags, np.float32),
+        )
 
     def to_dict(self) -> dict:
-        return {"near": self.near, "far": self.far, "center": [float(c) for c in self.center],
-                "radius": self.radius, "up": [float(u) for u in self.up],
-                "table": None if self.table is None else [float(v) for v in self.table],
-                "camera_radius": self.camera_radius,
-                "object_box": None if self.object_box is None else [[float(v) for v in b] for b in self.object_box],
-                "ndc": None if self.ndc is None else self.ndc.to_dict(),
-                "floor": None if self.floor is None else [float(v) for v in self.floor],
-                "tags": None if self.tags is None else np.asarray(self.tags, np.float64).round(7).tolist()}
+        return {
+            "near": self.near,
+            "far": self.far,
+            "center": [float(c) for c in self.center],
+            "radius": self.radius,
+            "up": [float(u) for u in self.up],
+            "table": None if self.table is None else [float(v) for v in self.table],
+            "camera_radius": self.camera_radius,
+            "object_box": None if self.object_box is None else [[float(v) for v in b] for b in self.object_box],
+            "ndc": None if self.ndc is None else self.ndc.to_dict(),
+            "floor": None if self.floor is None else [float(v) for v in self.floor],
+            "tags": None if self.tags is None else np.asarray(self.tags, np.float64).round(7).tolist(),
+        }
 
     @staticmethod
     def from_dict(d: dict) -> SceneBounds:
         table = d.get("table")
-        return SceneBounds(float(d["near"]), float(d["far"]), np.asarray(d["center"], np.float32),
-                           float(d["radius"]), np.asarray(d["up"], np.float32),
-                           None if table is None else np.asarray(table, np.float32),
-                           None if d.get("camera_radius") is None else float(d["camera_radius"]),
-                           None if d.get("object_box") is None else
-                           cast(tuple[np.ndarray, np.ndarray],  # saved by to_dict as [lo, hi]
-                                tuple(np.asarray(b, np.float32) for b in d["object_box"])),
-                           None if d.get("ndc") is None else NdcSpace.from_dict(d["ndc"]),
-                           None if d.get("floor") is None else np.asarray(d["floor"], np.float32),
-                           None if d.get("tags") is None else np.asarray(d["tags"], np.float32))
+        return SceneBounds(
+            float(d["near"]),
+            float(d["far"]),
+            np.asarray(d["center"], np.float32),
+            float(d["radius"]),
+            np.asarray(d["up"], np.float32),
+            None if table is None else np.asarray(table, np.float32),
+            None if d.get("camera_radius") is None else float(d["camera_radius"]),
+            None
+            if d.get("object_box") is None
+            else cast(
+                tuple[np.ndarray, np.ndarray],  # saved by to_dict as [lo, hi]
+                tuple(np.asarray(b, np.float32) for b in d["object_box"]),
+            ),
+            None if d.get("ndc") is None else NdcSpace.from_dict(d["ndc"]),
+            None if d.get("floor") is None else np.asarray(d["floor"], np.float32),
+            None if d.get("tags") is None else np.asarray(d["tags"], np.float32),
+        )
 
 
 # Charbonnier's epsilon (mip-NeRF 360's): below ~1e-3 of a colour step the loss is quadratic
@@ -121,7 +143,7 @@ def rgb_loss(pred: Tensor, target: Tensor, kind: str = "mse") -> Tensor:
     if kind == "mse":
         return e2.mean()
     if kind == "charbonnier":
-        return torch.sqrt(e2 + CHARBONNIER_EPS ** 2).mean()
+        return torch.sqrt(e2 + CHARBONNIER_EPS**2).mean()
     raise ValueError(f"unknown photometric loss {kind!r} (one of {', '.join(RGB_LOSSES)})")
 
 

@@ -101,11 +101,18 @@ EMPTY_RAW = -30.0
 
 def check_grid_res(res, where: str, field: str, fix: str) -> tuple[int, int, int]:
     """A grid resolution (x, y, z vertex counts) small enough to allocate, as ints."""
-    ok = (isinstance(res, (list, tuple)) and len(res) == 3
-          and all(isinstance(r, int) and not isinstance(r, bool) and 2 <= r <= MAX_GRID_SIDE for r in res))
+    ok = (
+        isinstance(res, (list, tuple))
+        and len(res) == 3
+        and all(isinstance(r, int) and not isinstance(r, bool) and 2 <= r <= MAX_GRID_SIDE for r in res)
+    )
     if not ok or math.prod(res) > MAX_GRID_VERTICES:
-        raise fail(where, f"'{field}' is {short_repr(res)}, expected 3 vertex counts from 2 to {MAX_GRID_SIDE}, "
-                          f"at most 512^3 vertices in all", fix)
+        raise fail(
+            where,
+            f"'{field}' is {short_repr(res)}, expected 3 vertex counts from 2 to {MAX_GRID_SIDE}, "
+            f"at most 512^3 vertices in all",
+            fix,
+        )
     return int(res[0]), int(res[1]), int(res[2])
 
 
@@ -128,8 +135,11 @@ class FastNeRF(NerfModel):
         self.isolated = False  # (isolate_object)
         if config.space == "ndc" or (config.space == "auto" and bounds.ndc is not None):
             if bounds.ndc is None:
-                raise fail("--space ndc", "the scene is not forward-facing (its cameras look different ways)",
-                           "Use --space box (or auto)")
+                raise fail(
+                    "--space ndc",
+                    "the scene is not forward-facing (its cameras look different ways)",
+                    "Use --space box (or auto)",
+                )
             self.ndc = bounds.ndc
         c = np.asarray(bounds.center, np.float32)
         box = (c - bounds.radius, c + bounds.radius)
@@ -146,8 +156,11 @@ class FastNeRF(NerfModel):
         # the occupancy grid (saved with the model, so that a resumed run samples as the
         # uninterrupted one would), refreshed after every occ_start steps until occ_warmup,
         # then every occ_every
-        self.estimator = OccupancyEstimator(grid_box, RefreshRule(config.occ_start, config.occ_every, config.occ_start,
-                                                                  config.occ_warmup), config.coarse_factor)
+        self.estimator = OccupancyEstimator(
+            grid_box,
+            RefreshRule(config.occ_start, config.occ_every, config.occ_start, config.occ_warmup),
+            config.coarse_factor,
+        )
         self._set_geometry(grid_box, torch.arange(1, n + 1, dtype=torch.int32))
         raw0 = self._raw_for_alpha(config.init_alpha, config.step_ratio * grid_box.voxel)
         grid = self._empty_rows(n + 1)
@@ -159,13 +172,20 @@ class FastNeRF(NerfModel):
             self.register_parameter("bg_coef", None)
         self.room = None
         if config.learn_background and config.room_shells:
-            self.room = RoomShells(bounds.center, bounds.up, 1.25 * max(bounds.reach, bounds.radius),
-                                   config.room_shells, config.room_ratio, config.room_resolution)
+            self.room = RoomShells(
+                bounds.center,
+                bounds.up,
+                1.25 * max(bounds.reach, bounds.radius),
+                config.room_shells,
+                config.room_ratio,
+                config.room_resolution,
+            )
         self.table = None
         self.cover_prior_on = False  # set by the "table cover prior" schedule
         if config.table and bounds.table is not None:
-            self.table = TablePlane(bounds.table, bounds.center, bounds.radius, config.table_resolution,
-                                    gloss=config.table_gloss)
+            self.table = TablePlane(
+                bounds.table, bounds.center, bounds.radius, config.table_resolution, gloss=config.table_gloss
+            )
         self.floor = None
         if config.floor and self.table is not None and config.learn_background and bounds.floor is not None:
             self.floor = TablePlane(bounds.floor, bounds.center, bounds.reach, config.table_resolution)
@@ -197,8 +217,9 @@ class FastNeRF(NerfModel):
     @property
     def geom(self) -> GridGeom:
         """The grid's layout (its box's corner on the grid's device, vertex rows)."""
-        return GridGeom(self.estimator.lo, self.box.voxel, self.box.res, self.vertex_rows,
-                        dense_offset=self._row_offset)
+        return GridGeom(
+            self.estimator.lo, self.box.voxel, self.box.res, self.vertex_rows, dense_offset=self._row_offset
+        )
 
     def _empty_rows(self, n: int, device=None) -> Tensor:
         """(n, C) rows of no density and no colour (row 0 of the grid is one forever)."""
@@ -241,8 +262,9 @@ class FastNeRF(NerfModel):
         return self.estimator.occupied_fraction
 
     def _spec(self) -> MarchSpec:
-        return self.estimator.march_spec(self.step_size, self.config.early_stop_eps, self.density_scale,
-                                         self.config.near_grad * self.bounds.reach)
+        return self.estimator.march_spec(
+            self.step_size, self.config.early_stop_eps, self.density_scale, self.config.near_grad * self.bounds.reach
+        )
 
     def _texture_sinks(self, device) -> dict:
         """A one-lane gradient sink per table and room texture (its optimizer updates touched
@@ -266,8 +288,9 @@ class FastNeRF(NerfModel):
             return torch.zeros_like(d)
         return torch.as_tensor(background, dtype=torch.float32, device=d.device).expand_as(d)
 
-    def _background(self, o: Tensor, d: Tensor, t_table: Tensor | None, background: Tensor | None
-                    ) -> tuple[Tensor, tuple[Tensor, Tensor] | None, Tensor | None]:
+    def _background(
+        self, o: Tensor, d: Tensor, t_table: Tensor | None, background: Tensor | None
+    ) -> tuple[Tensor, tuple[Tensor, Tensor] | None, Tensor | None]:
         """(n, 3) colour behind the box: the table (where rays meet it), the floor and the
         room shells, composited in order of distance, in front of what is infinitely far
         (:meth:`_far`). A glossy table also shows its map of the surroundings along the
@@ -293,8 +316,9 @@ class FastNeRF(NerfModel):
         depth = None if self.training else layers_depth(t.float(), alpha.float())
         return composite_layers(t, rgb.to(bg.dtype), alpha, bg), depth, clear
 
-    def _plane_layer(self, plane: TablePlane, o: Tensor, d: Tensor, t_hit: Tensor,
-                     gloss: bool, compiled: bool) -> tuple[Tensor, Tensor, Tensor]:
+    def _plane_layer(
+        self, plane: TablePlane, o: Tensor, d: Tensor, t_hit: Tensor, gloss: bool, compiled: bool
+    ) -> tuple[Tensor, Tensor, Tensor]:
         """One textured plane as a compositing layer: ``t (n, 1)`` where each ray meets it
         (``inf``: misses), ``rgb (n, 1, 3)`` and coverage ``(n, 1)``."""
         hit = torch.isfinite(t_hit).nonzero()[:, 0]
@@ -328,9 +352,21 @@ class FastNeRF(NerfModel):
         n = o.shape[0]
         t0, t1, t_table = self._volume_span(o, d)
         u = torch.rand(n, device=o.device) if perturb else torch.full((n,), 0.5, device=o.device)
-        out = render_grid(self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree,
-                          self.sink, self._backend(), t_end=t_table if self.config.distortion_table else None,
-                          distortion=bool(self.config.distortion_weight))
+        out = render_grid(
+            self.grid,
+            self.geom,
+            self._spec(),
+            o,
+            d,
+            t0,
+            t1,
+            u,
+            self.config.sh_degree,
+            self.sink,
+            self._backend(),
+            t_end=t_table if self.config.distortion_table else None,
+            distortion=bool(self.config.distortion_weight),
+        )
         bg, behind, clear = self._background(o, d, t_table, background)
         through = 1.0 - out.acc
         rgb = out.rgb + through.unsqueeze(-1) * bg
@@ -355,8 +391,21 @@ class FastNeRF(NerfModel):
         t0, t1 = ray_aabb(o, d, self.geom.lo, self.geom.hi, 0.0, 1.0)
         t1 = torch.where(forward, t1, t0)
         u = torch.rand(o.shape[0], device=o.device) if perturb else torch.full((o.shape[0],), 0.5, device=o.device)
-        out = render_grid(self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree, self.sink,
-                          self._backend(), distortion=bool(self.config.distortion_weight), view_dirs=d_w)
+        out = render_grid(
+            self.grid,
+            self.geom,
+            self._spec(),
+            o,
+            d,
+            t0,
+            t1,
+            u,
+            self.config.sh_degree,
+            self.sink,
+            self._backend(),
+            distortion=bool(self.config.distortion_weight),
+            view_dirs=d_w,
+        )
         acc = out.acc
         s = out.depth / acc.clamp(min=1e-6)
         depth = ndc.distance(o_w, d_w, s) * acc  # (expected depth: what was hit, times acc)
@@ -374,16 +423,18 @@ class FastNeRF(NerfModel):
         """Density (per unit of the grid's space: NDC units for a forward-facing model) and colour."""
         pts = self._grid_points(points)
         inside = ((pts >= self.geom.lo) & (pts <= self.geom.hi)).all(-1)
-        feat = ref.grid_interp(self.grid, ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res,
-                               self.geom.index)
+        feat = ref.grid_interp(
+            self.grid, ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res, self.geom.index
+        )
         sigma, rgb = ref.decode(feat, ref.sh_basis(directions.float(), self.config.sh_degree), self.density_scale)
         return sigma * inside, rgb
 
     def density(self, points: Tensor) -> Tensor:
         pts = self._grid_points(points)
         inside = ((pts >= self.geom.lo) & (pts <= self.geom.hi)).all(-1)
-        raw = ref.grid_interp(self.grid[:, :1], ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res,
-                              self.geom.index)
+        raw = ref.grid_interp(
+            self.grid[:, :1], ref.grid_coords(pts, self.geom.lo, self.geom.voxel), self.geom.res, self.geom.index
+        )
         return self.density_scale * F.softplus(raw[:, 0]) * inside
 
     def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
@@ -450,8 +501,9 @@ class FastNeRF(NerfModel):
         """(n,) the grid's opacity along each ray from ``t0`` to ``t1`` (differentiable)."""
         if len(o) == 0:
             return o.new_zeros(0)
-        return render_grid(self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree, self.sink,
-                           self._backend()).acc
+        return render_grid(
+            self.grid, self.geom, self._spec(), o, d, t0, t1, u, self.config.sh_degree, self.sink, self._backend()
+        ).acc
 
     # -- optimisation ----------------------------------------------------------------
     def param_groups(self, lr: float) -> list[dict]:
@@ -480,11 +532,13 @@ class FastNeRF(NerfModel):
         where opaque rays ended (until the first growth, which shrinks the box around
         them) and occupancy refreshes (every ``occ_start`` steps until ``occ_warmup``, then
         every ``occ_every``)."""
-        return [Schedule("grow", self._growth_due, self._grow_next),
-                Schedule("total variation", lambda s: bool(self.tv_weights().any()), self._add_tv, phase="gradients"),
-                Schedule("remember surfaces", self._surface_due, self._remember_surface, phase="after_step"),
-                Schedule("occupancy", lambda s: True, self._occupancy_job, phase="after_step"),
-                Schedule("table cover prior", lambda s: bool(self.config.table_cover_weight), self._switch_cover_prior)]
+        return [
+            Schedule("grow", self._growth_due, self._grow_next),
+            Schedule("total variation", lambda s: bool(self.tv_weights().any()), self._add_tv, phase="gradients"),
+            Schedule("remember surfaces", self._surface_due, self._remember_surface, phase="after_step"),
+            Schedule("occupancy", lambda s: True, self._occupancy_job, phase="after_step"),
+            Schedule("table cover prior", lambda s: bool(self.config.table_cover_weight), self._switch_cover_prior),
+        ]
 
     def _switch_cover_prior(self, s: StepState) -> None:
         """The table's cover prior applies from ``--table-cover-start`` of the run on."""
@@ -499,10 +553,19 @@ class FastNeRF(NerfModel):
     def _grow_next(self, s: StepState) -> str:
         notes = []
         while self._growth_due(s):  # (a resumed run catches up on every stage it passed)
-            follow = (self.config.box_follows and self.stage > 0 and s.progress < BOX_FOLLOW_UNTIL
-                      and self.table is not None and self.ndc is None)
-            notes += self._grow(self.sizes[self.stage + 1], shrink=self.config.shrink_box and self.stage == 0,
-                                follow=follow, optimizer=s.optimizer)
+            follow = (
+                self.config.box_follows
+                and self.stage > 0
+                and s.progress < BOX_FOLLOW_UNTIL
+                and self.table is not None
+                and self.ndc is None
+            )
+            notes += self._grow(
+                self.sizes[self.stage + 1],
+                shrink=self.config.shrink_box and self.stage == 0,
+                follow=follow,
+                optimizer=s.optimizer,
+            )
             self.stage += 1
         return "; ".join([self.stage_note(), *notes])
 
@@ -510,8 +573,10 @@ class FastNeRF(NerfModel):
         rx, ry, rz = self.geom.res
         n, m = self.geom.n_vertices, self.stored_vertices
         mb = self.grid.numel() * 4 / 1e6
-        return (f"grid {rx}x{ry}x{rz} vertices, {m / 1e6:.2f} M of {n / 1e6:.2f} M stored ({100 * m / n:.0f}%, "
-                f"{mb:.0f} MB; {(2 + self.sink.lanes) * mb:.0f} MB more for Adam and gradients)")
+        return (
+            f"grid {rx}x{ry}x{rz} vertices, {m / 1e6:.2f} M of {n / 1e6:.2f} M stored ({100 * m / n:.0f}%, "
+            f"{mb:.0f} MB; {(2 + self.sink.lanes) * mb:.0f} MB more for Adam and gradients)"
+        )
 
     def _occupancy_job(self, s: StepState) -> None:
         self.estimator.update_every_n_steps(s.step + 1, self.refresh_occupancy)
@@ -526,12 +591,23 @@ class FastNeRF(NerfModel):
             occ = torch.empty((rz - 1, ry - 1, rx - 1), dtype=torch.uint8)
             cf = max(self.config.coarse_factor, 1)
             coarse = torch.zeros((-(-(rz - 1) // cf), -(-(ry - 1) // cf), -(-(rx - 1) // cf)), dtype=torch.uint8)
-            nb.occupancy_from_grid(self.grid.detach().numpy(), self.vertex_rows.numpy(), self._row_offset, rx, ry, rz,
-                                   self._raw_threshold(thr), occ.numpy(), coarse.numpy(), cf)
+            nb.occupancy_from_grid(
+                self.grid.detach().numpy(),
+                self.vertex_rows.numpy(),
+                self._row_offset,
+                rx,
+                ry,
+                rz,
+                self._raw_threshold(thr),
+                occ.numpy(),
+                coarse.numpy(),
+                cf,
+            )
             self.estimator.set_cells(occ, coarse)
             return
-        self.estimator.set_from_cell_sigma(cell_density_max(self.grid, self.geom, self.density_scale), self.step_size,
-                                           thr)
+        self.estimator.set_from_cell_sigma(
+            cell_density_max(self.grid, self.geom, self.density_scale), self.step_size, thr
+        )
 
     def _raw_threshold(self, alpha: float) -> float:
         """The raw density above which one sample's opacity exceeds ``alpha``."""
@@ -549,8 +625,9 @@ class FastNeRF(NerfModel):
         cells = torch.randint(0, n_cells, (min(n_probe, n_cells),), generator=gen).to(self.grid.device)
         x, y, z = cells % (rx - 1), (cells // (rx - 1)) % (ry - 1), cells // ((rx - 1) * (ry - 1))
         base = (z * ry + y) * rx + x
-        offs = torch.tensor([dz * rx * ry + dy * rx + dx for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)],
-                            device=self.grid.device)
+        offs = torch.tensor(
+            [dz * rx * ry + dy * rx + dx for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)], device=self.grid.device
+        )
         rows = self.vertex_rows[(base.unsqueeze(1) + offs).reshape(-1)].long()
         raw = self.grid.detach()[rows, 0].reshape(-1, 8).amax(1)
         alpha = -torch.expm1(-self.density_scale * F.softplus(raw) * self.step_size)
@@ -661,8 +738,9 @@ class FastNeRF(NerfModel):
         return np.maximum(lo - pad, box_lo), np.minimum(hi + pad, box_hi)
 
     @torch.no_grad()
-    def _grow(self, size: int, shrink: bool, follow: bool = False,
-              optimizer: torch.optim.Optimizer | None = None) -> list[str]:
+    def _grow(
+        self, size: int, shrink: bool, follow: bool = False, optimizer: torch.optim.Optimizer | None = None
+    ) -> list[str]:
         """Resample the grid at about ``size ** 3`` vertices over its box, first shrunk around
         where opaque rays ended (``shrink``) or moved out where the object reaches it
         (``follow``, :meth:`_follow_object`). The new grid takes the old one's place in
@@ -691,9 +769,14 @@ class FastNeRF(NerfModel):
         index = torch.zeros(geom.n_vertices, dtype=torch.int32, device=device)
         index[keep] = torch.arange(1, int(keep.sum()) + 1, dtype=torch.int32, device=device)
         self._set_geometry(box, index)
-        rows = torch.cat([self._empty_rows(1, device),
-                          resample_grid(old_grid, old_geom, geom.vertex_positions(torch.nonzero(keep)[:, 0]),
-                                        backend=self._backend())])
+        rows = torch.cat(
+            [
+                self._empty_rows(1, device),
+                resample_grid(
+                    old_grid, old_geom, geom.vertex_positions(torch.nonzero(keep)[:, 0]), backend=self._backend()
+                ),
+            ]
+        )
         old_param, self.grid = self.grid, nn.Parameter(rows)
         self.sink = self._grid_sink(device)
         if optimizer is not None:
@@ -740,35 +823,49 @@ class FastNeRF(NerfModel):
         faces = [f"{'xyz'[axis]}{'-+'[side]}" for axis, side in self._faces_reached()]
         if not faces:
             return []
-        return [f"the object reaches the {', '.join(faces)} face{'s' if len(faces) > 1 else ''} of the model's box "
-                "at the end of training, so what reaches past it is cut off there. Look at the object video "
-                "(`nerfkit render RUN --object`); if the object is cut, train again with --no-object-box: the box "
-                "then starts from the scene's whole sphere, not from the sparse points (room for floaters too)"]
+        return [
+            f"the object reaches the {', '.join(faces)} face{'s' if len(faces) > 1 else ''} of the model's box "
+            "at the end of training, so what reaches past it is cut off there. Look at the object video "
+            "(`nerfkit render RUN --object`); if the object is cut, train again with --no-object-box: the box "
+            "then starts from the scene's whole sphere, not from the sparse points (room for floaters too)"
+        ]
 
     # -- checkpoints -----------------------------------------------------------------
     def extra_state(self) -> dict:
         self._not_isolated()
-        return {"lo": [float(v) for v in self.geom.lo.cpu()], "voxel": self.geom.voxel, "res": list(self.geom.res),
-                "rows": int(self.grid.shape[0]), "stage": self.stage, "occ_active": self.estimator.active,
-                "density_scale": self.density_scale}
+        return {
+            "lo": [float(v) for v in self.geom.lo.cpu()],
+            "voxel": self.geom.voxel,
+            "res": list(self.geom.res),
+            "rows": int(self.grid.shape[0]),
+            "stage": self.stage,
+            "occ_active": self.estimator.active,
+            "density_scale": self.density_scale,
+        }
 
     def load_extra_state(self, state: dict) -> None:
         device = self.grid.device
-        res = check_grid_res(state["res"], "checkpoint 'model_extra'", "res",  # checked before allocating
-                             "The checkpoint is corrupt or not from nerfkit; delete it or re-train")
+        res = check_grid_res(
+            state["res"],
+            "checkpoint 'model_extra'",
+            "res",  # checked before allocating
+            "The checkpoint is corrupt or not from nerfkit; delete it or re-train",
+        )
         self.density_scale = float(state["density_scale"])
         self.stage = int(state["stage"])
         self.estimator.active = bool(state["occ_active"])
         n = res[0] * res[1] * res[2]
         rows = state.get("rows", n + 1)
         if not (isinstance(rows, int) and 1 <= rows <= n + 1):
-            raise fail("checkpoint 'model_extra'", f"'rows' is {short_repr(rows)}, expected 1 to {n + 1} for a "
-                       f"grid of {n} vertices", "The checkpoint is corrupt or not from nerfkit; delete it or re-train")
+            raise fail(
+                "checkpoint 'model_extra'",
+                f"'rows' is {short_repr(rows)}, expected 1 to {n + 1} for a grid of {n} vertices",
+                "The checkpoint is corrupt or not from nerfkit; delete it or re-train",
+            )
         lo = np.asarray(state["lo"], np.float32)
         voxel = float(state["voxel"])
         lo3 = lo.reshape(3).tolist()
-        self._set_geometry(GridBox((lo3[0], lo3[1], lo3[2]), voxel, res),
-                           torch.zeros(n, dtype=torch.int32))
+        self._set_geometry(GridBox((lo3[0], lo3[1], lo3[2]), voxel, res), torch.zeros(n, dtype=torch.int32))
         self.grid = nn.Parameter(torch.zeros((rows, self.n_channels), device=device))
         self.sink = self._grid_sink(device)
 
@@ -779,11 +876,16 @@ class FastNeRF(NerfModel):
             self.grid = nn.Parameter(torch.zeros(grid.shape, device=self.grid.device))
             self.sink = self._grid_sink(self.grid.device)
         index = state_dict.get("vertex_rows")
-        if isinstance(index, Tensor) and index.numel() and not (int(index.min()) >= 0 and
-                                                                 int(index.max()) < self.grid.shape[0]):
+        if (
+            isinstance(index, Tensor)
+            and index.numel()
+            and not (int(index.min()) >= 0 and int(index.max()) < self.grid.shape[0])
+        ):
             # the compiled kernels do not check bounds: a corrupt index must not reach them
-            raise ValueError(f"vertex_rows holds rows {int(index.min())}..{int(index.max())}, outside the grid's "
-                             f"{self.grid.shape[0]} rows")
+            raise ValueError(
+                f"vertex_rows holds rows {int(index.min())}..{int(index.max())}, outside the grid's "
+                f"{self.grid.shape[0]} rows"
+            )
         if "occ_cells" in state_dict:  # a checkpoint from before the occupancy estimator
             state_dict = {("estimator.occ" if k == "occ_cells" else k): v for k, v in state_dict.items()}
         result = super().load_state_dict(state_dict, strict=strict, assign=assign)
@@ -826,15 +928,22 @@ def resample_grid(grid: Tensor, geom: GridGeom, points: Tensor, chunk: int = 1 <
     nb = numba_kernels() if backend == "numba" and grid.device.type == "cpu" and grid.dtype == torch.float32 else None
     if nb is not None:
         values = np.empty((len(points), grid.shape[1]), np.float32)
-        nb.grid_interp_points(grid.detach().contiguous().numpy(), geom.vertex_index().numpy(), geom.row_offset(),
-                              *geom.res, geom.lo.double().numpy(), 1.0 / geom.voxel,
-                              points.double().contiguous().numpy(), values)
+        nb.grid_interp_points(
+            grid.detach().contiguous().numpy(),
+            geom.vertex_index().numpy(),
+            geom.row_offset(),
+            *geom.res,
+            geom.lo.double().numpy(),
+            1.0 / geom.voxel,
+            points.double().contiguous().numpy(),
+            values,
+        )
         return torch.from_numpy(values)
     out = torch.empty((len(points), grid.shape[1]), dtype=grid.dtype, device=grid.device)
     lo = geom.lo.to(points)
     for i in range(0, len(points), chunk):
-        g = ref.grid_coords(points[i:i + chunk], lo, geom.voxel)
-        out[i:i + chunk] = ref.grid_interp(grid, g, geom.res, geom.index)
+        g = ref.grid_coords(points[i : i + chunk], lo, geom.voxel)
+        out[i : i + chunk] = ref.grid_interp(grid, g, geom.res, geom.index)
     return out
 
 
@@ -849,7 +958,9 @@ def cells_near(occ: Tensor, old: GridGeom, new: GridGeom, margin: int) -> Tensor
     cells = cells[0, 0] > 0
     nx, ny, nz = (r - 1 for r in new.res)
     dev = occ.device
-    axes = [(new.lo[a].to(dev) + new.voxel * (torch.arange(n, device=dev) + 0.5) - old.lo[a].to(dev)) / old.voxel
-            for a, n in enumerate((nx, ny, nz))]
+    axes = [
+        (new.lo[a].to(dev) + new.voxel * (torch.arange(n, device=dev) + 0.5) - old.lo[a].to(dev)) / old.voxel
+        for a, n in enumerate((nx, ny, nz))
+    ]
     ix, iy, iz = (torch.clamp(torch.floor(x), 0, r - 2).long() for x, r in zip(axes, old.res))
     return cells[iz[:, None, None], iy[None, :, None], ix[None, None, :]]

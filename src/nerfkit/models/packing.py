@@ -44,8 +44,11 @@ def pack_grid(rows: Tensor, keep: Tensor, density_dtype: torch.dtype = torch.flo
     rows = rows.detach().cpu()
     rows = rows.clamp(-F16_MAX, F16_MAX)  # float16 overflows past this (such values are saturated anyway)
     bits = np.packbits(keep.cpu().numpy().astype(np.uint8))
-    return {"mask": torch.from_numpy(bits), "density": rows[:, 0].to(density_dtype).contiguous(),
-            "colour": rows[:, 1:].to(torch.float16).contiguous()}
+    return {
+        "mask": torch.from_numpy(bits),
+        "density": rows[:, 0].to(density_dtype).contiguous(),
+        "colour": rows[:, 1:].to(torch.float16).contiguous(),
+    }
 
 
 def unpack_grid(packed: dict, n_rows: int, n_channels: int) -> tuple[Tensor, Tensor]:
@@ -60,18 +63,21 @@ def unpack_grid(packed: dict, n_rows: int, n_channels: int) -> tuple[Tensor, Ten
         raise ValueError("compact grid: 'mask', 'density' or 'colour' is missing")
     n_bytes = -(-n_rows // 8)
     if mask.dtype != torch.uint8 or mask.shape != (n_bytes,):
-        raise ValueError(f"compact grid: mask is {tuple(mask.shape)} {mask.dtype}, expected ({n_bytes},) uint8 "
-                         f"for {n_rows} vertices")
+        raise ValueError(
+            f"compact grid: mask is {tuple(mask.shape)} {mask.dtype}, expected ({n_bytes},) uint8 for {n_rows} vertices"
+        )
     keep = torch.from_numpy(np.unpackbits(mask.numpy(), count=n_rows).astype(bool))
     if bool(np.unpackbits(mask.numpy())[n_rows:].any()):
         raise ValueError("compact grid: mask has bits set past the last vertex")
     m = int(keep.sum())
     if density.dtype not in (torch.float16, torch.float32) or density.shape != (m,):
-        raise ValueError(f"compact grid: density is {tuple(density.shape)} {density.dtype}, expected ({m},) "
-                         f"float16 or float32")
+        raise ValueError(
+            f"compact grid: density is {tuple(density.shape)} {density.dtype}, expected ({m},) float16 or float32"
+        )
     if colour.dtype != torch.float16 or colour.shape != (m, n_channels - 1):
-        raise ValueError(f"compact grid: colour is {tuple(colour.shape)} {colour.dtype}, expected "
-                         f"({m}, {n_channels - 1}) float16")
+        raise ValueError(
+            f"compact grid: colour is {tuple(colour.shape)} {colour.dtype}, expected ({m}, {n_channels - 1}) float16"
+        )
     return keep, torch.cat([density.float()[:, None], colour.float()], dim=1)
 
 

@@ -56,48 +56,77 @@ class SplatConfig:
     TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 1, "lr": 8.0, "render_chunk": 65536}
 
     sh_degree: int = option(3, "largest spherical-harmonic degree of the colour (0-3)", min=0, max=3)
-    sh_up_every: float = option(0.05, "raise the SH degree by one each time this fraction of the run is done",
-                                above=0, max=1)
-    init: str = option("auto", "initial Gaussians: auto (the dataset's sparse points when it has some, else the "
-                       "visual hull when the training images have a flat background, else random in a ball of "
-                       "0.7 times the scene's radius, a quarter on the table of a tag capture), points, hull, "
-                       "or random",
-                       choices=["auto", "points", "hull", "random"])
+    sh_up_every: float = option(
+        0.05, "raise the SH degree by one each time this fraction of the run is done", above=0, max=1
+    )
+    init: str = option(
+        "auto",
+        "initial Gaussians: auto (the dataset's sparse points when it has some, else the "
+        "visual hull when the training images have a flat background, else random in a ball of "
+        "0.7 times the scene's radius, a quarter on the table of a tag capture), points, hull, "
+        "or random",
+        choices=["auto", "points", "hull", "random"],
+    )
     init_points: int = option(30_000, "number of initial Gaussians", min=1, max=MAX_GAUSSIANS)
     init_opacity: float = option(0.1, "opacity of the initial Gaussians", above=0, max=0.99)
-    max_gaussians: int = option(40_000, "densification stops adding Gaussians at this count (lego, 10 minutes: "
-                                "40000 gave 33.1 dB at 28 fps, no cap 32.1 dB at 20 fps)", min=1,
-                                max=MAX_GAUSSIANS)
+    max_gaussians: int = option(
+        40_000,
+        "densification stops adding Gaussians at this count (lego, 10 minutes: "
+        "40000 gave 33.1 dB at 28 fps, no cap 32.1 dB at 20 fps)",
+        min=1,
+        max=MAX_GAUSSIANS,
+    )
     densify_every: int = option(100, "steps between densification / pruning rounds", min=1)
     densify_from: float = option(0.02, "first densification, as a fraction of the run", min=0, max=1)
-    densify_until: float = option(0.5, "no densification (and no opacity reset) after this fraction of the run",
-                                  min=0, max=1)
-    densify_grad: float = option(2e-4, "clone/split Gaussians whose mean view-space gradient (NDC units, as "
-                                 "3DGS) exceeds this", above=0)
-    percent_dense: float = option(0.01, "Gaussians larger than this fraction of the scene size are split, "
-                                  "smaller ones cloned", above=0)
+    densify_until: float = option(
+        0.5, "no densification (and no opacity reset) after this fraction of the run", min=0, max=1
+    )
+    densify_grad: float = option(
+        2e-4, "clone/split Gaussians whose mean view-space gradient (NDC units, as 3DGS) exceeds this", above=0
+    )
+    percent_dense: float = option(
+        0.01, "Gaussians larger than this fraction of the scene size are split, smaller ones cloned", above=0
+    )
     prune_opacity: float = option(0.005, "prune Gaussians less opaque than this", min=0, max=1)
-    prune_screen: float = option(0.15, "after the first opacity reset, prune Gaussians wider than this fraction "
-                                 "of the image (0: never)", min=0)
-    opacity_reset_every: float = option(0.2, "reset every opacity to at most 0.01 each time this fraction of the "
-                                        "run is done (while densifying; 0: never)", min=0, max=1)
+    prune_screen: float = option(
+        0.15, "after the first opacity reset, prune Gaussians wider than this fraction of the image (0: never)", min=0
+    )
+    opacity_reset_every: float = option(
+        0.2,
+        "reset every opacity to at most 0.01 each time this fraction of the run is done (while densifying; 0: never)",
+        min=0,
+        max=1,
+    )
     ssim_weight: float = option(0.2, "weight of D-SSIM in the loss (the rest is L1)", min=0, max=1)
     position_lr: float = option(1.6e-4, "learning rate of the means, times the scene size (x --lr)", min=0)
-    position_lr_final: float = option(0.01, "the means' learning rate decays to this fraction of it", above=0,
-                                      max=1)
-    lr_final: float = option(1.0, "every other learning rate decays to this fraction of it (1: constant, as 3DGS; "
-                             "lego, 300 steps: 28.1 dB constant, 27.1 decaying to 0.1)", above=0, max=1)
+    position_lr_final: float = option(0.01, "the means' learning rate decays to this fraction of it", above=0, max=1)
+    lr_final: float = option(
+        1.0,
+        "every other learning rate decays to this fraction of it (1: constant, as 3DGS; "
+        "lego, 300 steps: 28.1 dB constant, 27.1 decaying to 0.1)",
+        above=0,
+        max=1,
+    )
     scale_lr: float = option(5e-3, "learning rate of the log-scales (x --lr)", min=0)
     rotation_lr: float = option(1e-3, "learning rate of the quaternions (x --lr)", min=0)
     opacity_lr: float = option(5e-2, "learning rate of the opacity logits (x --lr)", min=0)
     sh_lr: float = option(2.5e-3, "learning rate of the SH DC colour (higher degrees: /20) (x --lr)", min=0)
-    learn_background: bool = option(False, "learn what rays see behind the Gaussians (a colour per direction) "
-                                    "instead of the --background colour: for real photos")
-    torch_threads: int = option(1, "torch threads while training or rendering splats (0: leave as is): its "
-                                "operations are small and fastest on one thread; the rasterizer uses every core",
-                                min=0)
-    kernels: str = option("auto", "auto (compiled numba on the CPU when available; gsplat on CUDA when "
-                          "installed), numba, or torch", choices=["auto", "numba", "torch"])
+    learn_background: bool = option(
+        False,
+        "learn what rays see behind the Gaussians (a colour per direction) "
+        "instead of the --background colour: for real photos",
+    )
+    torch_threads: int = option(
+        1,
+        "torch threads while training or rendering splats (0: leave as is): its "
+        "operations are small and fastest on one thread; the rasterizer uses every core",
+        min=0,
+    )
+    kernels: str = option(
+        "auto",
+        "auto (compiled numba on the CPU when available; gsplat on CUDA when installed), numba, or torch",
+        choices=["auto", "numba", "torch"],
+    )
 
     def validate(self) -> SplatConfig:
         check_ranges(self)
@@ -134,10 +163,15 @@ class SplatModel(NerfModel):
         # the last training render (its 2D means carry the densification gradient)
         self._last: tuple[SplatRender, int, int] | None = None
         self._image_side = 0  # longest side of the training images (for the screen-size prune)
-        pts = random_in_ball(config.init_points, bounds.center, bounds.radius,
-                             torch.Generator().manual_seed(0))
-        self._install(*initial_gaussians(pts, torch.full_like(pts, 0.5), self._volume_scale(4 / 3 * math.pi *
-                                         bounds.radius ** 3, len(pts)), config.init_opacity))
+        pts = random_in_ball(config.init_points, bounds.center, bounds.radius, torch.Generator().manual_seed(0))
+        self._install(
+            *initial_gaussians(
+                pts,
+                torch.full_like(pts, 0.5),
+                self._volume_scale(4 / 3 * math.pi * bounds.radius**3, len(pts)),
+                config.init_opacity,
+            )
+        )
         if config.learn_background:
             self.bg_coef = nn.Parameter(torch.zeros(3, 16))
         else:
@@ -191,15 +225,21 @@ class SplatModel(NerfModel):
                 mode = "random"
         if mode == "points":
             if n_points == 0:
-                raise fail(scene.source or "dataset", "has no sparse points to start from",
-                           "Use --init random, or build the dataset with its points (nerfkit poses --points)")
+                raise fail(
+                    scene.source or "dataset",
+                    "has no sparse points to start from",
+                    "Use --init random, or build the dataset with its points (nerfkit poses --points)",
+                )
             pts, cols = points_init(scene.points, scene.point_colors, c.init_points, gen)
             scale = neighbour_scales(pts)
         elif mode == "hull":
             hull = visual_hull(scene.train, bg, center, radius)
             if hull is None:
-                raise fail(scene.source or "dataset", "the visual hull of the training images is empty",
-                           "Use --init random, or check --background matches the images' background")
+                raise fail(
+                    scene.source or "dataset",
+                    "the visual hull of the training images is empty",
+                    "Use --init random, or check --background matches the images' background",
+                )
             pts, cols, volume = sample_hull(hull, c.init_points, gen)
             scale = self._volume_scale(volume, len(pts))
         else:
@@ -211,8 +251,11 @@ class SplatModel(NerfModel):
             scale = self._volume_scale(4 / 3 * math.pi * (0.7 * radius) ** 3, len(pts))
         device = self.means.device
         self._install(*(t.to(device) for t in initial_gaussians(pts, cols, scale, c.init_opacity)))
-        how = {"points": f"the dataset's {n_points} sparse points", "hull": "the training images' visual hull",
-               "random": "random points in the scene's sphere"}[mode]
+        how = {
+            "points": f"the dataset's {n_points} sparse points",
+            "hull": "the training images' visual hull",
+            "random": "random points in the scene's sphere",
+        }[mode]
         return f"splat: {len(pts)} initial Gaussians from {how}"
 
     @torch.no_grad()
@@ -221,10 +264,14 @@ class SplatModel(NerfModel):
         PLY read back); missing higher SH degrees are zero."""
         n = len(g)
         rest = torch.zeros(n, 15, 3)
-        rest[:, :g.sh_rest.shape[1]] = torch.as_tensor(g.sh_rest)
+        rest[:, : g.sh_rest.shape[1]] = torch.as_tensor(g.sh_rest)
         device = self.means.device
-        self._install(*(torch.as_tensor(np.asarray(t)).to(device) for t in (
-            g.means, g.log_scales, g.quats, g.opacity_logits, g.sh_dc, rest)))
+        self._install(
+            *(
+                torch.as_tensor(np.asarray(t)).to(device)
+                for t in (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh_dc, rest)
+            )
+        )
         self.active_degree = max(self.active_degree, g.sh_degree)
 
     # -- rendering -------------------------------------------------------------------
@@ -241,24 +288,38 @@ class SplatModel(NerfModel):
         if device.type == "cpu" and self.config.torch_threads and torch.get_num_threads() != self.config.torch_threads:
             torch.set_num_threads(self.config.torch_threads)
         K = torch.as_tensor(np.asarray(K) if not isinstance(K, Tensor) else K, dtype=torch.float32).to(device)
-        c2w = torch.as_tensor(np.asarray(c2w) if not isinstance(c2w, Tensor) else c2w,
-                              dtype=torch.float32).to(device)
+        c2w = torch.as_tensor(np.asarray(c2w) if not isinstance(c2w, Tensor) else c2w, dtype=torch.float32).to(device)
         w2c = torch.linalg.inv(c2w.double()).float()
         bg = self._background_image(K, c2w, width, height, background)
-        out = render_gaussians(self.means, self.log_scales, self.quats, self.opacity_logits, self.sh(),
-                               self.active_degree, w2c, K, width, height, bg, self.near_plane,
-                               self.config.kernels, track_means2d=self.training and torch.is_grad_enabled())
+        out = render_gaussians(
+            self.means,
+            self.log_scales,
+            self.quats,
+            self.opacity_logits,
+            self.sh(),
+            self.active_degree,
+            w2c,
+            K,
+            width,
+            height,
+            bg,
+            self.near_plane,
+            self.config.kernels,
+            track_means2d=self.training and torch.is_grad_enabled(),
+        )
         if self.training and torch.is_grad_enabled():
             self._last = (out, width, height)
         return RenderOutput(out.rgb, out.depth, out.alpha, int((out.radii > 0).sum()))
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
-        raise fail("splat", "renders whole views, not ray batches", "Use render_view (the trainer and "
-                   "render_image do)")
+        raise fail("splat", "renders whole views, not ray batches", "Use render_view (the trainer and render_image do)")
 
     def query(self, points: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:
-        raise fail("splat", "has no density field to sample", "Export Gaussians with `nerfkit export RUN --splat "
-                   "out.ply`, or a point cloud with --points")
+        raise fail(
+            "splat",
+            "has no density field to sample",
+            "Export Gaussians with `nerfkit export RUN --splat out.ply`, or a point cloud with --points",
+        )
 
     def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
         """``(1 - w) L1 + w (1 - SSIM)`` over the image (H, W, 3)."""
@@ -272,18 +333,22 @@ class SplatModel(NerfModel):
     def param_groups(self, lr: float) -> list[dict]:
         c = self.config
         groups = [
-            {"params": [self.means], "lr": lr * c.position_lr * self.extent, "name": "means",
-             "lr_final_factor": c.position_lr_final},
-            {"params": [self.log_scales], "lr": lr * c.scale_lr, "name": "log_scales",
-             "lr_final_factor": c.lr_final},
-            {"params": [self.quats], "lr": lr * c.rotation_lr, "name": "quats",
-             "lr_final_factor": c.lr_final},
-            {"params": [self.opacity_logits], "lr": lr * c.opacity_lr, "name": "opacity_logits",
-             "lr_final_factor": c.lr_final},
-            {"params": [self.sh_dc], "lr": lr * c.sh_lr, "name": "sh_dc",
-             "lr_final_factor": c.lr_final},
-            {"params": [self.sh_rest], "lr": lr * c.sh_lr / 20, "name": "sh_rest",
-             "lr_final_factor": c.lr_final},
+            {
+                "params": [self.means],
+                "lr": lr * c.position_lr * self.extent,
+                "name": "means",
+                "lr_final_factor": c.position_lr_final,
+            },
+            {"params": [self.log_scales], "lr": lr * c.scale_lr, "name": "log_scales", "lr_final_factor": c.lr_final},
+            {"params": [self.quats], "lr": lr * c.rotation_lr, "name": "quats", "lr_final_factor": c.lr_final},
+            {
+                "params": [self.opacity_logits],
+                "lr": lr * c.opacity_lr,
+                "name": "opacity_logits",
+                "lr_final_factor": c.lr_final,
+            },
+            {"params": [self.sh_dc], "lr": lr * c.sh_lr, "name": "sh_dc", "lr_final_factor": c.lr_final},
+            {"params": [self.sh_rest], "lr": lr * c.sh_lr / 20, "name": "sh_rest", "lr_final_factor": c.lr_final},
         ]
         if self.bg_coef is not None:
             groups.append({"params": [self.bg_coef], "lr": lr * 1e-2, "name": "bg_coef"})
@@ -294,8 +359,10 @@ class SplatModel(NerfModel):
         and opacity resets (3DGS's adaptive density control); they edit the Gaussians and
         carry the optimizer's moments along."""
         always = lambda s: True  # noqa: E731
-        return [Schedule("sh degree", always, self._set_progress),
-                Schedule("density control", always, self._density_control, phase="after_step")]
+        return [
+            Schedule("sh degree", always, self._set_progress),
+            Schedule("density control", always, self._density_control, phase="after_step"),
+        ]
 
     def _set_progress(self, s: StepState) -> None:
         self._progress = s.progress
@@ -353,8 +420,10 @@ class SplatModel(NerfModel):
             scales = torch.exp(self.log_scales[idx]).repeat(2, 1)
             R = ref.quat_to_rotmat(self.quats[idx]).repeat(2, 1, 1)
             samples = (R @ (torch.randn_like(scales) * scales).unsqueeze(-1)).squeeze(-1)
-            split_new = {name: getattr(self, name).detach()[idx].repeat(2, *([1] * (getattr(self, name).dim() - 1)))
-                         for name in PARAMS}
+            split_new = {
+                name: getattr(self, name).detach()[idx].repeat(2, *([1] * (getattr(self, name).dim() - 1)))
+                for name in PARAMS
+            }
             split_new["means"] = split_new["means"] + samples
             split_new["log_scales"] = torch.log(scales / 1.6)
             new = {name: torch.cat([new[name], split_new[name]]) for name in PARAMS}
@@ -419,12 +488,20 @@ class SplatModel(NerfModel):
     def load_extra_state(self, state: dict) -> None:
         n = state.get("n_gaussians")
         if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_GAUSSIANS:
-            raise fail("checkpoint 'model_extra'", f"'n_gaussians' is {n!r}, expected 1 to {MAX_GAUSSIANS}",
-                       "The checkpoint is corrupt or not from nerfkit; delete it or re-train")
+            raise fail(
+                "checkpoint 'model_extra'",
+                f"'n_gaussians' is {n!r}, expected 1 to {MAX_GAUSSIANS}",
+                "The checkpoint is corrupt or not from nerfkit; delete it or re-train",
+            )
         device = self.means.device
-        self._install(torch.zeros(n, 3, device=device), torch.zeros(n, 3, device=device),
-                      torch.zeros(n, 4, device=device), torch.zeros(n, device=device),
-                      torch.zeros(n, 1, 3, device=device), torch.zeros(n, 15, 3, device=device))
+        self._install(
+            torch.zeros(n, 3, device=device),
+            torch.zeros(n, 3, device=device),
+            torch.zeros(n, 4, device=device),
+            torch.zeros(n, device=device),
+            torch.zeros(n, 1, 3, device=device),
+            torch.zeros(n, 15, 3, device=device),
+        )
         self.active_degree = int(state.get("active_degree", self.config.sh_degree))
         self.n_resets = int(state.get("n_resets", 0))
 
@@ -444,17 +521,21 @@ def initial_gaussians(points: Tensor, colors: Tensor, scale: float | Tensor, opa
     quats = torch.zeros(n, 4)
     quats[:, 0] = 1
     log_scale = torch.as_tensor(scale, dtype=torch.float32).clamp_min(1e-8).log().reshape(-1, 1).expand(n, 3)
-    return (points.float(), log_scale.clone(), quats,
-            torch.full((n,), ref.logit(opacity)), ref.rgb_to_sh_dc(colors.float()).unsqueeze(1),
-            torch.zeros(n, 15, 3))
+    return (
+        points.float(),
+        log_scale.clone(),
+        quats,
+        torch.full((n,), ref.logit(opacity)),
+        ref.rgb_to_sh_dc(colors.float()).unsqueeze(1),
+        torch.zeros(n, 15, 3),
+    )
 
 
 def points_init(xyz: np.ndarray, rgb: np.ndarray | None, n: int, gen: torch.Generator) -> tuple[Tensor, Tensor]:
     """Sparse points (m, 3) and colours (m, 3) uint8 as initial means and colours in [0, 1]:
     all of them, or a random ``n`` of them when there are more."""
     pts = torch.as_tensor(np.asarray(xyz, np.float32))
-    cols = (torch.full_like(pts, 0.5) if rgb is None
-            else torch.as_tensor(np.asarray(rgb, np.uint8)).float() / 255.0)
+    cols = torch.full_like(pts, 0.5) if rgb is None else torch.as_tensor(np.asarray(rgb, np.uint8)).float() / 255.0
     if len(pts) > n:
         pick = torch.randperm(len(pts), generator=gen)[:n]
         pts, cols = pts[pick], cols[pick]
@@ -471,9 +552,9 @@ def neighbour_scales(points: Tensor, k: int = 3, chunk: int = 1024) -> Tensor:
     out = torch.empty(n)
     p = points.double()
     for i in range(0, n, chunk):
-        d2 = torch.cdist(p[i:i + chunk], p).square()
+        d2 = torch.cdist(p[i : i + chunk], p).square()
         d2[torch.arange(len(d2)), torch.arange(i, i + len(d2))] = math.inf
-        out[i:i + chunk] = d2.topk(k, dim=1, largest=False).values.mean(1).sqrt().float()
+        out[i : i + chunk] = d2.topk(k, dim=1, largest=False).values.mean(1).sqrt().float()
     good = out[torch.isfinite(out) & (out > 0)]
     fill = float(good.median()) if len(good) else 0.01
     return torch.where(torch.isfinite(out) & (out > 0), out, torch.full_like(out, fill))
@@ -495,8 +576,11 @@ def random_on_plane(n: int, plane, center, radius: float, gen: torch.Generator) 
     a, b = axes_across(nrm)
     r = radius * torch.rand(n, generator=gen).double().sqrt()
     th = 2 * math.pi * torch.rand(n, generator=gen).double()
-    pts = torch.as_tensor(foot) + (r * th.cos()).unsqueeze(1) * torch.as_tensor(a) \
+    pts = (
+        torch.as_tensor(foot)
+        + (r * th.cos()).unsqueeze(1) * torch.as_tensor(a)
         + (r * th.sin()).unsqueeze(1) * torch.as_tensor(b)
+    )
     return pts.float()
 
 
@@ -507,8 +591,9 @@ def flat_background(images: np.ndarray, bg: np.ndarray, tol: float = 0.05) -> bo
     return float(np.mean(diff < tol)) > 0.9
 
 
-def visual_hull(views, bg: np.ndarray, center: np.ndarray, radius: float, res: int = 64,
-                tol: float = 0.05) -> dict | None:
+def visual_hull(
+    views, bg: np.ndarray, center: np.ndarray, radius: float, res: int = 64, tol: float = 0.05
+) -> dict | None:
     """Carve a ``res``^3 grid over the cube ``center +- radius`` with the views' silhouettes
     (pixels differing from ``bg`` by more than ``tol``). A cell stays when every view that
     sees its centre sees the object there. Returns ``{"points" (m, 3), "colors" (m, 3),
@@ -554,7 +639,7 @@ def sample_hull(hull: dict, n: int, gen: torch.Generator) -> tuple[Tensor, Tenso
     cell = float(hull["cell"])
     pick = torch.randint(0, len(pts), (n,), generator=gen)
     jitter = (torch.rand(n, 3, generator=gen) - 0.5) * cell
-    return pts[pick] + jitter, cols[pick].clamp(0, 1), len(pts) * cell ** 3
+    return pts[pick] + jitter, cols[pick].clamp(0, 1), len(pts) * cell**3
 
 
 def ssim(img: Tensor, target: Tensor, window: int = 11, sigma: float = 1.5) -> Tensor:
@@ -562,7 +647,7 @@ def ssim(img: Tensor, target: Tensor, window: int = 11, sigma: float = 1.5) -> T
     as 'same' with zero padding, as 3DGS)."""
     x = img.permute(2, 0, 1).unsqueeze(0)
     y = target.permute(2, 0, 1).unsqueeze(0)
-    g = torch.exp(-((torch.arange(window, dtype=x.dtype, device=x.device) - window // 2) ** 2) / (2 * sigma ** 2))
+    g = torch.exp(-((torch.arange(window, dtype=x.dtype, device=x.device) - window // 2) ** 2) / (2 * sigma**2))
     g = g / g.sum()
     C = x.shape[1]
     kx = g.reshape(1, 1, 1, window).expand(C, 1, 1, window)
@@ -576,6 +661,6 @@ def ssim(img: Tensor, target: Tensor, window: int = 11, sigma: float = 1.5) -> T
     sxx = blur(x * x) - mu_x * mu_x
     syy = blur(y * y) - mu_y * mu_y
     sxy = blur(x * y) - mu_x * mu_y
-    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    c1, c2 = 0.01**2, 0.03**2
     s = ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x * mu_x + mu_y * mu_y + c1) * (sxx + syy + c2))
     return s.mean()

@@ -55,16 +55,20 @@ class VanillaConfig:
     TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 4096, "eval_pixels": 4096}
 
     n_samples: int = option(64, "stratified samples per ray", min=1, max=4096)
-    n_importance: int = option(0, "extra samples per ray from hierarchical (coarse-to-fine) sampling; 0 = off", min=0,
-                               max=4096)
+    n_importance: int = option(
+        0, "extra samples per ray from hierarchical (coarse-to-fine) sampling; 0 = off", min=0, max=4096
+    )
     pos_freqs: int = option(10, "positional-encoding octaves L for positions", min=0, max=32)
     dir_freqs: int = option(4, "positional-encoding octaves L for view directions", min=0, max=32)
     width: int = option(256, "MLP width", min=1, max=4096)
     depth: int = option(8, "MLP layers before the density head", min=2, max=64)
     density_bias_init: float = option(0.1, "initial bias of the density head (0 = the course's init)")
-    occupancy: bool = option(True, "skip samples in empty space (an occupancy grid refreshed from the MLP's "
-                                    "density); the network and the sampling are the course's, only fewer samples "
-                                    "are evaluated")
+    occupancy: bool = option(
+        True,
+        "skip samples in empty space (an occupancy grid refreshed from the MLP's "
+        "density); the network and the sampling are the course's, only fewer samples "
+        "are evaluated",
+    )
     occupancy_res: int = option(64, "occupancy grid cells per axis", min=4, max=512)
     occupancy_every: int = option(200, "steps between occupancy refreshes", min=1)
     occupancy_warmup: int = option(200, "steps before the first refresh (every sample is evaluated until then)", min=0)
@@ -124,9 +128,9 @@ class VanillaNeRF(NerfModel):
             r = cfg.occupancy_res
             lo_x, lo_y, lo_z = (torch.as_tensor(bounds.center) - bounds.radius).tolist()
             box = GridBox((lo_x, lo_y, lo_z), 2.0 * bounds.radius / r, (r + 1, r + 1, r + 1))
-            self.estimator = OccupancyEstimator(box,
-                                                RefreshRule(cfg.occupancy_warmup, cfg.occupancy_every),
-                                                running_max=True)
+            self.estimator = OccupancyEstimator(
+                box, RefreshRule(cfg.occupancy_warmup, cfg.occupancy_every), running_max=True
+            )
 
     def _spacing(self) -> float:
         return (self.bounds.far - self.bounds.near) / self.cfg.n_samples

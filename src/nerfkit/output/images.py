@@ -60,8 +60,9 @@ def render_image(
     device = background.device
     if getattr(model, "whole_images", False):
         return _render_whole(model, K, c2w, width, height, background)
-    rays = image_rays(torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(c2w, dtype=torch.float32).to(device),
-                      width, height)
+    rays = image_rays(
+        torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(c2w, dtype=torch.float32).to(device), width, height
+    )
     rgb, depth, acc, scene_depth, scene_acc = [], [], [], [], []
     was_training = model.training
     model.eval()
@@ -70,7 +71,7 @@ def render_image(
             if abort is not None and abort():
                 return None
             with autocast(device, autocast_dtype):
-                out = model.render_rays(rays[start:start + chunk], background, perturb=False)
+                out = model.render_rays(rays[start : start + chunk], background, perturb=False)
             rgb.append(out.rgb.float())
             depth.append(out.depth.float())
             acc.append(out.acc.float())
@@ -95,9 +96,16 @@ def _depth_image(depth: torch.Tensor, acc: torch.Tensor, width: int, height: int
 
 
 @torch.no_grad()
-def probe_renders(model: NerfModel, views: Views, n_views: int, width: int, background: torch.Tensor,
-                  chunk: int = 16384, autocast_dtype: torch.dtype | None = None, zoom: float = 1.0
-                  ) -> Iterator[tuple[int, np.ndarray, RenderedView]]:
+def probe_renders(
+    model: NerfModel,
+    views: Views,
+    n_views: int,
+    width: int,
+    background: torch.Tensor,
+    chunk: int = 16384,
+    autocast_dtype: torch.dtype | None = None,
+    zoom: float = 1.0,
+) -> Iterator[tuple[int, np.ndarray, RenderedView]]:
     """Small renders of up to ``n_views`` views spread along ``views``: ``(index, K, view)``
     with the intrinsics they were rendered with, ``width`` pixels wide (the height in
     proportion) and the focal length times ``zoom`` about the principal point (below 1:
@@ -114,9 +122,17 @@ def probe_renders(model: NerfModel, views: Views, n_views: int, width: int, back
         yield int(i), K, view
 
 
-def object_aim(model: NerfModel, views: Views, up: np.ndarray, background: torch.Tensor, chunk: int = 16384,
-               autocast_dtype: torch.dtype | None = None, n_views: int = 16, width: int = 64,
-               min_points: int = 64) -> np.ndarray | None:
+def object_aim(
+    model: NerfModel,
+    views: Views,
+    up: np.ndarray,
+    background: torch.Tensor,
+    chunk: int = 16384,
+    autocast_dtype: torch.dtype | None = None,
+    n_views: int = 16,
+    width: int = 64,
+    min_points: int = 64,
+) -> np.ndarray | None:
     """(3,) where the trained object is, to aim an orbit at, from the points where the model
     stops the rays of up to ``n_views`` training views (rendered ``width`` pixels wide;
     rays with accumulated opacity above 0.5 only, so thin haze and what the table or room
@@ -132,8 +148,9 @@ def object_aim(model: NerfModel, views: Views, up: np.ndarray, background: torch
     points = []
     for i, K, view in probe_renders(model, views, n_views, width, background, chunk, autocast_dtype):
         h, w = view.acc.shape
-        rays = image_rays(torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(views.c2w[i], dtype=torch.float32),
-                          w, h)
+        rays = image_rays(
+            torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(views.c2w[i], dtype=torch.float32), w, h
+        )
         solid = torch.from_numpy(view.acc.reshape(-1) > 0.5)
         depth = torch.from_numpy(view.depth.reshape(-1, 1))
         points.append((rays.origins + rays.directions * depth)[solid])
@@ -158,10 +175,18 @@ class Framing:
     far: np.ndarray
 
 
-def frame_object(model: NerfModel, views: Views, background: torch.Tensor, chunk: int = 16384,
-                 autocast_dtype: torch.dtype | None = None, fill: float = 0.8, n_probe: int = 12,
-                 width: int = 128, zoom_range: tuple[float, float] = (0.5, 4.0),
-                 aim: np.ndarray | None = None) -> Framing | None:
+def frame_object(
+    model: NerfModel,
+    views: Views,
+    background: torch.Tensor,
+    chunk: int = 16384,
+    autocast_dtype: torch.dtype | None = None,
+    fill: float = 0.8,
+    n_probe: int = 12,
+    width: int = 128,
+    zoom_range: tuple[float, float] = (0.5, 4.0),
+    aim: np.ndarray | None = None,
+) -> Framing | None:
     """Frame what ``model`` holds (an object alone, :meth:`NerfModel.isolate_object`) in
     every view of a path: one zoom and one shift of the principal point for the whole path
     (so the object turns in place), chosen so the box around the object's pixels
@@ -177,8 +202,11 @@ def frame_object(model: NerfModel, views: Views, background: torch.Tensor, chunk
         return None
     wide = zoom_range[0]
     lo, hi, depths = np.array([np.inf, np.inf]), np.array([-np.inf, -np.inf]), []
-    offset = np.zeros(len(views)) if aim is None else np.linalg.norm(
-        views.c2w[:, :3, 3].astype(np.float64) - np.asarray(aim, np.float64).reshape(1, 3), axis=1)
+    offset = (
+        np.zeros(len(views))
+        if aim is None
+        else np.linalg.norm(views.c2w[:, :3, 3].astype(np.float64) - np.asarray(aim, np.float64).reshape(1, 3), axis=1)
+    )
     for i, K, view in probe_renders(model, views, n_probe, width, background, chunk, autocast_dtype, wide):
         solid = view.acc > 0.5
         if not solid.any():
@@ -202,8 +230,12 @@ def frame_object(model: NerfModel, views: Views, background: torch.Tensor, chunk
     d = np.concatenate(depths)
     near, far = np.quantile(d, 0.02), np.quantile(d, 0.98)
     pad = 0.05 * max(far - near, 1e-6)
-    return Framing(Views(views.c2w, K.astype(views.K.dtype), views.width, views.height), zoom, offset + near - pad,
-                   offset + far + pad)
+    return Framing(
+        Views(views.c2w, K.astype(views.K.dtype), views.width, views.height),
+        zoom,
+        offset + near - pad,
+        offset + far + pad,
+    )
 
 
 def _render_whole(model, K, c2w, width: int, height: int, background: torch.Tensor) -> RenderedView:
@@ -213,8 +245,9 @@ def _render_whole(model, K, c2w, width: int, height: int, background: torch.Tens
         out = model.render_view(K, c2w, width, height, background)
     finally:
         model.train(was_training)
-    return RenderedView(out.rgb.float().clamp(0, 1).cpu().numpy(), *_depth_image(out.depth.float(), out.acc.float(),
-                                                                                  width, height))
+    return RenderedView(
+        out.rgb.float().clamp(0, 1).cpu().numpy(), *_depth_image(out.depth.float(), out.acc.float(), width, height)
+    )
 
 
 def render_views(
@@ -226,6 +259,8 @@ def render_views(
 ) -> Iterator[RenderedView]:
     """Render every view of a split, one at a time (a generator: memory holds one image)."""
     for i in range(len(views)):
-        view = render_image(model, views.K[i], views.c2w[i], views.width, views.height, background, chunk, autocast_dtype)
+        view = render_image(
+            model, views.K[i], views.c2w[i], views.width, views.height, background, chunk, autocast_dtype
+        )
         assert view is not None  # None only when aborted
         yield view

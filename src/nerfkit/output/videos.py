@@ -58,8 +58,15 @@ def render_videos(
     rgb_frames, depth_frames = [], []
     nears, fars = (np.broadcast_to(np.asarray(v, np.float64), (len(views),)) for v in (near, far))
     t0 = time.perf_counter()
-    for i, view in enumerate(tqdm(render_views(model, views, background, chunk, autocast_dtype), total=len(views),
-                                  desc="render", unit="frame", disable=None if progress else True)):
+    for i, view in enumerate(
+        tqdm(
+            render_views(model, views, background, chunk, autocast_dtype),
+            total=len(views),
+            desc="render",
+            unit="frame",
+            disable=None if progress else True,
+        )
+    ):
         rgb_frames.append(to_uint8(view.rgb))
         depth = to_uint8(view.depth_colours(float(nears[i]), float(fars[i])))
         depth_frames.append(np.concatenate([depth, depth_scale(depth.shape[1], nears[i], fars[i], metres)]))

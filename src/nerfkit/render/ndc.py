@@ -61,13 +61,21 @@ class NdcSpace:
     extent: float = MIN_EXTENT
 
     @staticmethod
-    def from_camera(c2w: np.ndarray, K: np.ndarray, width: int, height: int, near: float) -> "NdcSpace":
+    def from_camera(c2w: np.ndarray, K: np.ndarray, width: int, height: int, near: float) -> NdcSpace:
         c2w = np.asarray(c2w, np.float64).reshape(4, 4)
         K = np.asarray(K, np.float64).reshape(3, 3)
-        return NdcSpace(tuple(map(tuple, c2w.tolist())), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
-                        float(K[1, 2]), int(width), int(height), float(near))
+        return NdcSpace(
+            tuple(map(tuple, c2w.tolist())),
+            float(K[0, 0]),
+            float(K[1, 1]),
+            float(K[0, 2]),
+            float(K[1, 2]),
+            int(width),
+            int(height),
+            float(near),
+        )
 
-    def fit_extent(self, c2w: np.ndarray, K: np.ndarray, width: int, height: int) -> "NdcSpace":
+    def fit_extent(self, c2w: np.ndarray, K: np.ndarray, width: int, height: int) -> NdcSpace:
         """The same space with a box wide enough for every pixel of the cameras ``c2w``
         (n, 4, 4) with intrinsics ``K`` (n, 3, 3) (a camera turned about its axis sees
         beyond the reference frustum's corners): the largest |X| or |Y| their image
@@ -77,31 +85,54 @@ class NdcSpace:
 
         corners = torch.tensor([[0.0, 0.0], [width, 0.0], [0.0, height], [width, height]], dtype=torch.float64)
         n = len(c2w)
-        o, d = pixel_to_ray(torch.as_tensor(np.asarray(K), dtype=torch.float64).reshape(n, 1, 3, 3),
-                            torch.as_tensor(np.asarray(c2w), dtype=torch.float64).reshape(n, 1, 4, 4),
-                            corners.expand(n, 4, 2))
+        o, d = pixel_to_ray(
+            torch.as_tensor(np.asarray(K), dtype=torch.float64).reshape(n, 1, 3, 3),
+            torch.as_tensor(np.asarray(c2w), dtype=torch.float64).reshape(n, 1, 4, 4),
+            corners.expand(n, 4, 2),
+        )
         o_ndc, d_ndc, forward = self.rays(o.reshape(-1, 3), d.reshape(-1, 3))
         ends = torch.cat([o_ndc[forward, :2], (o_ndc + d_ndc)[forward, :2]])  # s = 0 and s -> 1
         reach = float(ends.abs().max()) if len(ends) else 0.0
         return replace(self, extent=max(MIN_EXTENT, 1.05 * reach))
 
     def to_dict(self) -> dict:
-        return {"c2w": [list(r) for r in self.c2w], "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
-                "width": self.width, "height": self.height, "near": self.near, "extent": self.extent}
+        return {
+            "c2w": [list(r) for r in self.c2w],
+            "fx": self.fx,
+            "fy": self.fy,
+            "cx": self.cx,
+            "cy": self.cy,
+            "width": self.width,
+            "height": self.height,
+            "near": self.near,
+            "extent": self.extent,
+        }
 
     @staticmethod
-    def from_dict(d: dict) -> "NdcSpace":
-        return NdcSpace(tuple(tuple(float(v) for v in r) for r in d["c2w"]), float(d["fx"]), float(d["fy"]),
-                        float(d["cx"]), float(d["cy"]), int(d["width"]), int(d["height"]), float(d["near"]),
-                        float(d.get("extent", MIN_EXTENT)))
+    def from_dict(d: dict) -> NdcSpace:
+        return NdcSpace(
+            tuple(tuple(float(v) for v in r) for r in d["c2w"]),
+            float(d["fx"]),
+            float(d["fy"]),
+            float(d["cx"]),
+            float(d["cy"]),
+            int(d["width"]),
+            int(d["height"]),
+            float(d["near"]),
+            float(d.get("extent", MIN_EXTENT)),
+        )
 
     def _frame(self, like: Tensor) -> tuple[Tensor, Tensor]:
         c2w = torch.tensor(self.c2w, dtype=like.dtype, device=like.device)
         return c2w[:3, :3], c2w[:3, 3]  # rotation (columns: camera axes in world), centre
 
     def _scale(self) -> tuple[float, float, float, float]:
-        return 2.0 * self.fx / self.width, 2.0 * self.fy / self.height, \
-            2.0 * self.cx / self.width - 1.0, 2.0 * self.cy / self.height - 1.0
+        return (
+            2.0 * self.fx / self.width,
+            2.0 * self.fy / self.height,
+            2.0 * self.cx / self.width - 1.0,
+            2.0 * self.cy / self.height - 1.0,
+        )
 
     def to_camera(self, points: Tensor) -> Tensor:
         """(n, 3) world points -> (n, 3) in the reference camera's frame."""
@@ -128,8 +159,14 @@ class NdcSpace:
         dz = torch.where(forward, d[:, 2], torch.ones_like(d[:, 2]))
         o = o + ((self.near - o[:, 2]) / dz).unsqueeze(-1) * d  # origin onto the near plane: oz = near
         ax, ay, _, _ = self._scale()
-        d_ndc = torch.stack([ax * (d[:, 0] / dz - o[:, 0] / self.near), ay * (d[:, 1] / dz - o[:, 1] / self.near),
-                             torch.full_like(dz, 2.0)], dim=-1)  # (2 near / oz = 2)
+        d_ndc = torch.stack(
+            [
+                ax * (d[:, 0] / dz - o[:, 0] / self.near),
+                ay * (d[:, 1] / dz - o[:, 1] / self.near),
+                torch.full_like(dz, 2.0),
+            ],
+            dim=-1,
+        )  # (2 near / oz = 2)
         return self._project(o), d_ndc, forward
 
     def distance(self, origins: Tensor, dirs: Tensor, s: Tensor) -> Tensor:
@@ -140,4 +177,3 @@ class NdcSpace:
         shift = (self.near - oz) / dz  # where the NDC ray starts
         s = s.clamp(0.0, 1.0 - 1e-6)
         return shift + s * self.near / (dz * (1.0 - s))
-

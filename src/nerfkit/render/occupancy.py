@@ -56,7 +56,7 @@ class RaySamples:
         ri = self.ray_indices
         return rays_o[ri] + self.t.unsqueeze(-1) * rays_d[ri]
 
-    def select(self, keep: Tensor) -> "RaySamples":
+    def select(self, keep: Tensor) -> RaySamples:
         """The samples where ``keep`` (n_samples,) bool is set, in order."""
         return RaySamples(self.t[keep], self.ray_indices[keep], self.n_rays, self.step)
 

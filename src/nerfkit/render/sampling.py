@@ -70,8 +70,10 @@ def sample_along_rays(
         distances along the rays, sorted.
     """
     if rays_o.ndim != 2 or rays_o.shape[-1] != 3 or rays_d.shape != rays_o.shape:
-        raise ValueError(f"sample_along_rays takes (n_rays, 3) origins and directions, got {tuple(rays_o.shape)} "
-                         f"and {tuple(rays_d.shape)}: reshape them with .reshape(-1, 3)")
+        raise ValueError(
+            f"sample_along_rays takes (n_rays, 3) origins and directions, got {tuple(rays_o.shape)} "
+            f"and {tuple(rays_d.shape)}: reshape them with .reshape(-1, 3)"
+        )
     t = stratified_t(near, far, rays_o.shape[0], n_samples, perturb, rays_o.device, generator)
     points = rays_o[:, None, :] + t[..., None] * rays_d[:, None, :]
     return points, t

@@ -124,8 +124,9 @@ def composite(
     return rgb, depth, acc
 
 
-def distortion(weights: Tensor, t: Tensor, interval: Tensor | float, ray_indices: Tensor, n_rays: int,
-               t_end: Tensor | None = None) -> Tensor:
+def distortion(
+    weights: Tensor, t: Tensor, interval: Tensor | float, ray_indices: Tensor, n_rays: int, t_end: Tensor | None = None
+) -> Tensor:
     """mip-NeRF 360's distortion loss of each ray: small when its weight is compact.
 
     ``L = sum_ij w_i w_j |t_i - t_j| + (1/3) sum_i w_i^2 delta_i`` over the samples, in
@@ -150,7 +151,7 @@ def distortion(weights: Tensor, t: Tensor, interval: Tensor | float, ray_indices
     wt = weights * t
     w_before = exclusive_cumsum(weights, ray_indices)
     wt_before = exclusive_cumsum(wt, ray_indices)
-    per_sample = 2.0 * weights * (t * w_before - wt_before) + weights ** 2 * interval / 3.0
+    per_sample = 2.0 * weights * (t * w_before - wt_before) + weights**2 * interval / 3.0
     loss = accumulate(per_sample, ray_indices, n_rays)
     if t_end is not None:
         w_sum = accumulate(weights, ray_indices, n_rays)
@@ -181,7 +182,9 @@ def sight_line_loss(empty: Tensor, stopped: Tensor) -> Tensor:
     return (empty.float().sum() + (1.0 - stopped.float()).sum()) / n
 
 
-def volrend(sigmas: Tensor, rgbs: Tensor, step_size: Tensor | float, background: Tensor | float | None = None) -> Tensor:
+def volrend(
+    sigmas: Tensor, rgbs: Tensor, step_size: Tensor | float, background: Tensor | float | None = None
+) -> Tensor:
     """The course's volume renderer, every ray with the same samples.
 
     Args:

@@ -72,9 +72,11 @@ class SfmReport:
 
     def summary(self) -> str:
         """A few lines for the terminal."""
-        lines = [f"registered {len(self.registered)} of {self.n_photos} photos "
-                 f"({self.n_points} points, mean reprojection error {self.reprojection_error:.2f} px, "
-                 f"{self.matcher} matching, {sum(self.seconds.values()):.0f} s)"]
+        lines = [
+            f"registered {len(self.registered)} of {self.n_photos} photos "
+            f"({self.n_points} points, mean reprojection error {self.reprojection_error:.2f} px, "
+            f"{self.matcher} matching, {sum(self.seconds.values()):.0f} s)"
+        ]
         if self.n_models > 1:
             lines.append(f"  SfM found {self.n_models} separate models; using the largest")
         for name, why in sorted(self.unregistered.items()):
@@ -84,10 +86,20 @@ class SfmReport:
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        return {"n_photos": self.n_photos, "n_registered": len(self.registered), "registered": self.registered,
-                "unregistered": self.unregistered, "n_points": self.n_points,
-                "reprojection_error": self.reprojection_error, "n_models": self.n_models, "matcher": self.matcher,
-                "seconds": self.seconds, "frame": self.frame, "camera": self.camera, "ground": self.ground}
+        return {
+            "n_photos": self.n_photos,
+            "n_registered": len(self.registered),
+            "registered": self.registered,
+            "unregistered": self.unregistered,
+            "n_points": self.n_points,
+            "reprojection_error": self.reprojection_error,
+            "n_models": self.n_models,
+            "matcher": self.matcher,
+            "seconds": self.seconds,
+            "frame": self.frame,
+            "camera": self.camera,
+            "ground": self.ground,
+        }
 
 
 @dataclass
@@ -114,8 +126,9 @@ def _import_pycolmap():
     try:
         import pycolmap
     except ImportError:
-        raise fail("poses --method colmap", "structure-from-motion needs pycolmap",
-                   "pip install 'nerfkit[sfm]'") from None
+        raise fail(
+            "poses --method colmap", "structure-from-motion needs pycolmap", "pip install 'nerfkit[sfm]'"
+        ) from None
     return pycolmap
 
 
@@ -129,8 +142,11 @@ def choose_matcher(matcher: str, n_photos: int, n_guided: int = 0) -> str:
     if matcher not in MATCHERS:
         raise fail("--matcher", f"'{matcher}' is not one of {', '.join(MATCHERS)}")
     if matcher == "spatial" and not n_guided:
-        raise fail("--matcher", "spatial pairs the photos by their tag poses, and no photo has one",
-                   "Use it with --method auto on photos of a tag, or choose another matcher")
+        raise fail(
+            "--matcher",
+            "spatial pairs the photos by their tag poses, and no photo has one",
+            "Use it with --method auto on photos of a tag, or choose another matcher",
+        )
     if matcher == "auto":
         if n_photos <= EXHAUSTIVE_MAX:
             return "exhaustive"
@@ -193,8 +209,9 @@ def colmap_name(photo: Path) -> str:
     return photo.name + (".jpg" if suffix in (".heic", ".heif") else ".png")
 
 
-def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera=None
-                   ) -> tuple[Path, list[str], dict[str, str], PhotoInfo | None, dict[str, int]]:
+def prepare_photos(
+    photos: list[Path], work: Path, progress: bool = True, camera=None
+) -> tuple[Path, list[str], dict[str, str], PhotoInfo | None, dict[str, int]]:
     """Photos COLMAP can use as nerfkit sees them (upright), all of one size.
 
     COLMAP ignores EXIF orientation and cannot read HEIC, while nerfkit loads photos
@@ -214,8 +231,7 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
     from dataclasses import replace
 
     from ..capture.camera import common_lens, other_lens
-    from ..images import common_frame, common_size, load_image_uint8, turns_into_frame
-    from ..images import write_image
+    from ..images import common_frame, common_size, load_image_uint8, turns_into_frame, write_image
 
     infos, skipped = [], {}
     for p in photos:
@@ -242,10 +258,14 @@ def prepare_photos(photos: list[Path], work: Path, progress: bool = True, camera
         if (i.width, i.height) == (H, W) and (turn := turns_into_frame(i.orientation, frame)) is not None:
             turns[colmap_name(i.path)] = turn
         elif (i.width, i.height) != (W, H):
-            why = ("held the other way, with no EXIF orientation to turn it by" if (i.width, i.height) == (H, W)
-                   else "resized or cropped")
-            skipped[i.path.name] = (f"{i.width}x{i.height} upright while most photos are {W}x{H}: {why} "
-                                    f"(SfM shares one camera)")
+            why = (
+                "held the other way, with no EXIF orientation to turn it by"
+                if (i.width, i.height) == (H, W)
+                else "resized or cropped"
+            )
+            skipped[i.path.name] = (
+                f"{i.width}x{i.height} upright while most photos are {W}x{H}: {why} (SfM shares one camera)"
+            )
             continue
         kept.append(i)
     if not kept:
@@ -324,8 +344,11 @@ def run_sfm(
     guides = guides or {}
     matcher = choose_matcher(matcher, len(photos), sum(colmap_name(p) in guides for p in photos))
     if len(photos) < 3:
-        raise fail(image_dir, f"holds {len(photos)} photos; structure-from-motion needs at least 3",
-                   "Take 30-100 overlapping photos around the object")
+        raise fail(
+            image_dir,
+            f"holds {len(photos)} photos; structure-from-motion needs at least 3",
+            "Take 30-100 overlapping photos around the object",
+        )
     work = Path(out_dir) / "colmap"
     if work.exists():
         shutil.rmtree(work)
@@ -334,18 +357,27 @@ def run_sfm(
     if len(names) < 3:
         unreadable = sum(why.startswith("unreadable") for why in left_out.values())
         if len(photos) - unreadable < 3:
-            raise fail(image_dir, f"{unreadable} of its {len(photos)} photos are unreadable, leaving "
-                       f"{len(photos) - unreadable}; structure-from-motion needs at least 3",
-                       "Replace the broken files (poses lists them)")
-        raise fail(image_dir, f"only {len(names)} photos share one size; structure-from-motion needs at least 3",
-                   "Take all photos held the same way (portrait or landscape)")
+            raise fail(
+                image_dir,
+                f"{unreadable} of its {len(photos)} photos are unreadable, leaving "
+                f"{len(photos) - unreadable}; structure-from-motion needs at least 3",
+                "Replace the broken files (poses lists them)",
+            )
+        raise fail(
+            image_dir,
+            f"only {len(names)} photos share one size; structure-from-motion needs at least 3",
+            "Take all photos held the same way (portrait or landscape)",
+        )
     assert first is not None  # None only when no photo is kept
     given = None  # (COLMAP model, params) of the camera file
     if camera is not None:
         why = camera.compatible(first.width, first.height)
         if why:
-            raise fail(image_dir, f"the photos do not fit the camera file: {why}",
-                       "Calibrate with photos from the same camera, held the same way")
+            raise fail(
+                image_dir,
+                f"the photos do not fit the camera file: {why}",
+                "Calibrate with photos from the same camera, held the same way",
+            )
         given = colmap_camera(camera.scaled_to(first.width, first.height), refine=refine_camera)
     db_path = work / "database.db"
     device = pycolmap.Device.cpu
@@ -354,8 +386,9 @@ def run_sfm(
 
     with quiet_colmap(verbose):
         t0 = time.perf_counter()
-        _say(progress, f"sfm: extracting SIFT features from {len(names)} photos "
-                       f"(longest side <= {max_image_size} px)...")
+        _say(
+            progress, f"sfm: extracting SIFT features from {len(names)} photos (longest side <= {max_image_size} px)..."
+        )
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = camera_model
         if given is not None:
@@ -371,10 +404,15 @@ def run_sfm(
         extraction.num_threads = threads
         extraction.sift.max_num_features = max_features
         try:
-            pycolmap.extract_features(db_path, colmap_dir, image_names=names,
-                                      camera_mode=(pycolmap.CameraMode.SINGLE if single_camera
-                                                   else pycolmap.CameraMode.AUTO),
-                                      reader_options=reader, extraction_options=extraction, device=device)
+            pycolmap.extract_features(
+                db_path,
+                colmap_dir,
+                image_names=names,
+                camera_mode=(pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.AUTO),
+                reader_options=reader,
+                extraction_options=extraction,
+                device=device,
+            )
         except Exception as e:  # noqa: BLE001 - e.g. an unknown camera model name
             raise fail(image_dir, f"feature extraction failed ({e})", "Check --camera-model and the photos") from None
         seconds["features"] = time.perf_counter() - t0
@@ -382,7 +420,8 @@ def run_sfm(
         t0 = time.perf_counter()
         pairs = spatial_pairs(names, guides, SPATIAL_NEIGHBOURS, overlap) if matcher == "spatial" else []
         n_pairs = {"exhaustive": len(names) * (len(names) - 1) // 2, "spatial": len(pairs)}.get(
-            matcher, len(names) * overlap)
+            matcher, len(names) * overlap
+        )
         _say(progress, f"sfm: {matcher} matching (~{n_pairs} photo pairs)...")
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = threads
@@ -391,13 +430,19 @@ def run_sfm(
         if matcher == "spatial":
             match_pairs(pycolmap, db_path, pairs, matching, verification)
         elif matcher == "exhaustive":
-            pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification,
-                                      device=device)
+            pycolmap.match_exhaustive(
+                db_path, matching_options=matching, verification_options=verification, device=device
+            )
         else:
             pairing = pycolmap.SequentialPairingOptions()
             pairing.overlap = overlap
-            pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
-                                      verification_options=verification, device=device)
+            pycolmap.match_sequential(
+                db_path,
+                matching_options=matching,
+                pairing_options=pairing,
+                verification_options=verification,
+                device=device,
+            )
         seconds["matching"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -419,27 +464,42 @@ def run_sfm(
             if progress and (counter["n"] % 10 == 0):
                 print(f"sfm:   {counter['n'] + 2} photos registered", file=sys.stderr, flush=True)
 
-        models = pycolmap.incremental_mapping(db_path, colmap_dir, work / "sparse", options=options,
-                                              next_image_callback=on_image)
+        models = pycolmap.incremental_mapping(
+            db_path, colmap_dir, work / "sparse", options=options, next_image_callback=on_image
+        )
         seconds["mapping"] = time.perf_counter() - t0
 
     if not models:
         why_not = {**registration_report(db_path, names, None, {}), **left_out}
         reasons = "; ".join(sorted(set(why_not.values())))[:300]
-        raise fail(image_dir, f"structure-from-motion registered no photos ({reasons})",
-                   "Take more overlapping photos of a textured scene, or use ArUco tags (--method tags)")
+        raise fail(
+            image_dir,
+            f"structure-from-motion registered no photos ({reasons})",
+            "Take more overlapping photos of a textured scene, or use ArUco tags (--method tags)",
+        )
     best_key = max(models, key=lambda k: models[k].num_reg_images())
     rec = models[best_key]
-    unregistered = {**registration_report(db_path, names, rec, {k: m for k, m in models.items() if k != best_key}),
-                    **left_out}
+    unregistered = {
+        **registration_report(db_path, names, rec, {k: m for k, m in models.items() if k != best_key}),
+        **left_out,
+    }
     registered = sorted(rec.images[i].name for i in rec.reg_image_ids())
     cam = next(iter(rec.cameras.values()))
     report = SfmReport(
-        n_photos=len(photos), registered=registered, unregistered=unregistered, n_points=rec.num_points3D(),
-        reprojection_error=float(rec.compute_mean_reprojection_error()), n_models=len(models), matcher=matcher,
+        n_photos=len(photos),
+        registered=registered,
+        unregistered=unregistered,
+        n_points=rec.num_points3D(),
+        reprojection_error=float(rec.compute_mean_reprojection_error()),
+        n_models=len(models),
+        matcher=matcher,
         seconds={k: round(v, 2) for k, v in seconds.items()},
-        camera={"model": cam.model_name, "width": cam.width, "height": cam.height,
-                "params": [float(p) for p in cam.params]},
+        camera={
+            "model": cam.model_name,
+            "width": cam.width,
+            "height": cam.height,
+            "params": [float(p) for p in cam.params],
+        },
     )
     # Keep one model: the largest, as sparse/0.
     model_dir = work / "sparse" / "0"
@@ -447,8 +507,7 @@ def run_sfm(
         shutil.rmtree(sub) if sub.is_dir() else sub.unlink()
     write_reconstruction(rec, model_dir)
     _say(progress, "sfm: " + report.summary().splitlines()[0])
-    return SfmResult(rec, model_dir, colmap_dir, report, sources={colmap_name(p): p for p in photos},
-                     turns=turns)
+    return SfmResult(rec, model_dir, colmap_dir, report, sources={colmap_name(p): p for p in photos}, turns=turns)
 
 
 def colmap_camera(camera, refine: bool = False) -> tuple[str, str]:
@@ -518,8 +577,10 @@ def registration_report(db_path: Path, names: list[str], rec, others: dict) -> d
         elif n_feat.get(name, 0) < FEW_FEATURES:
             out[name] = f"only {n_feat.get(name, 0)} features (blurred, dark or textureless?)"
         elif partners.get(image_id, 0) == 0:
-            out[name] = (f"matched no other photo (best pair: {best.get(image_id, 0)} verified matches, "
-                         f"needs {min_inliers}); too little overlap with the others?")
+            out[name] = (
+                f"matched no other photo (best pair: {best.get(image_id, 0)} verified matches, "
+                f"needs {min_inliers}); too little overlap with the others?"
+            )
         elif name in in_other:
             out[name] = f"in a separate model of {in_other[name]} photos that did not connect to the main one"
         else:

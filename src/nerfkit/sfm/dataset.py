@@ -57,8 +57,11 @@ def opencv_camera(camera) -> Camera:
         fx, fy, cx, cy, k1, k2, p1, p2, k3 = p[:9]
         dist = [k1, k2, p1, p2, k3]
     else:
-        raise fail(f"camera model {name}", "cannot be written as an OpenCV k1 k2 p1 p2 k3 camera",
-                   "Use --camera-model SIMPLE_RADIAL, RADIAL or OPENCV")
+        raise fail(
+            f"camera model {name}",
+            "cannot be written as an OpenCV k1 k2 p1 p2 k3 camera",
+            "Use --camera-model SIMPLE_RADIAL, RADIAL or OPENCV",
+        )
     # COLMAP puts pixel centres at +0.5, OpenCV at integers.
     K = np.array([[fx, 0.0, cx - 0.5], [0.0, fy, cy - 0.5], [0.0, 0.0, 1.0]])
     return Camera(K, np.asarray(dist, np.float64), int(camera.width), int(camera.height), f"COLMAP {name} (SfM)")
@@ -76,14 +79,18 @@ def posed_photos(result: SfmResult) -> list:
     for i in rec.reg_image_ids():
         im = rec.images[i]
         photo = result.photo(im.name)
-        out.append(PosedPhoto(photo.name, photo, image_c2w(im), image_error(rec, im),
-                              cams[im.camera_id], result.turns.get(im.name, 0)))
+        out.append(
+            PosedPhoto(
+                photo.name, photo, image_c2w(im), image_error(rec, im), cams[im.camera_id], result.turns.get(im.name, 0)
+            )
+        )
     if result.tag_posed:
         shared = out[0].camera  # SfM shares one camera among the photos
         for name, (c2w, err) in result.tag_posed.items():
             photo = result.photo(name)
-            out.append(PosedPhoto(photo.name, photo, np.asarray(c2w, np.float64), err, shared,
-                                  result.turns.get(name, 0)))
+            out.append(
+                PosedPhoto(photo.name, photo, np.asarray(c2w, np.float64), err, shared, result.turns.get(name, 0))
+            )
     return sorted(out, key=lambda p: p.name)
 
 
@@ -115,9 +122,16 @@ def model_points(result: SfmResult) -> SparsePoints:
     return reconstruction_points(result.reconstruction, photo_name=lambda n: result.photo(n).name)
 
 
-def build_dataset(result: SfmResult, out_dir: str | Path, cfg: DatasetConfig | None = None, jobs: int = 2,
-                  progress: bool = True, extra: dict | None = None, write_report: bool = True,
-                  tags: np.ndarray | None = None) -> tuple[Scene, dict]:
+def build_dataset(
+    result: SfmResult,
+    out_dir: str | Path,
+    cfg: DatasetConfig | None = None,
+    jobs: int = 2,
+    progress: bool = True,
+    extra: dict | None = None,
+    write_report: bool = True,
+    tags: np.ndarray | None = None,
+) -> tuple[Scene, dict]:
     """Write the dataset of an aligned SfM result with the tag path's dataset builder.
 
     In the tag frame (``result.tag_size`` set) the builder's tag-based bounds are used;
@@ -137,16 +151,29 @@ def build_dataset(result: SfmResult, out_dir: str | Path, cfg: DatasetConfig | N
     if tag_size is None:
         nf = near_far_from_model(result)
         if nf is not None:
-            cfg = replace(cfg, near=cfg.near if cfg.near is not None else nf[0],
-                          far=cfg.far if cfg.far is not None else nf[1])
+            cfg = replace(
+                cfg, near=cfg.near if cfg.near is not None else nf[0], far=cfg.far if cfg.far is not None else nf[1]
+            )
         # Only sizes the object sphere in the summary once near/far are given.
         tag_size = 0.1 * float(np.mean([np.linalg.norm(p.c2w[:3, 3]) for p in posed_photos(result)]))
-    extra = {"world": result.report.frame, "poses": "structure-from-motion (COLMAP via pycolmap)",
-             "sfm": {k: v for k, v in result.report.to_dict().items() if k not in ("registered",)}, **(extra or {})}
-    scene, summary = capture_build_dataset(posed_photos(result), out_dir, cfg, tag_size, jobs=jobs, progress=progress,
-                                     extra=extra, on_tag_plane=result.tag_size is not None or result.on_ground,
-                                     points=model_points(result) if cfg.points else None,
-                                     tags=tags if result.tag_size is not None else None)
+    extra = {
+        "world": result.report.frame,
+        "poses": "structure-from-motion (COLMAP via pycolmap)",
+        "sfm": {k: v for k, v in result.report.to_dict().items() if k not in ("registered",)},
+        **(extra or {}),
+    }
+    scene, summary = capture_build_dataset(
+        posed_photos(result),
+        out_dir,
+        cfg,
+        tag_size,
+        jobs=jobs,
+        progress=progress,
+        extra=extra,
+        on_tag_plane=result.tag_size is not None or result.on_ground,
+        points=model_points(result) if cfg.points else None,
+        tags=tags if result.tag_size is not None else None,
+    )
     if write_report:
         write_json(Path(out_dir) / REPORT_FILE, {**result.report.to_dict(), "model": saved_model(result, out_dir)})
     return scene, summary
@@ -160,13 +187,18 @@ def saved_model(result: SfmResult, out_dir: str | Path) -> dict:
     out = Path(out_dir).resolve()
     model = result.model_dir.resolve()
     folders = {p.parent.resolve() for p in result.sources.values()} or {result.image_dir.resolve()}
-    return {"dir": str(model.relative_to(out) if model.is_relative_to(out) else model),
-            "photos_dir": str(folders.pop()) if len(folders) == 1 else None,
-            "photos": {name: p.name for name, p in sorted(result.sources.items())},
-            "turned_deg": {name: 90 * t for name, t in sorted(result.turns.items())},
-            "tag_size": result.tag_size, "on_ground": result.on_ground,
-            "tag_posed": {name: {"c2w": np.round(c2w, 9).tolist(), "error_px": round(err, 4)}
-                          for name, (c2w, err) in sorted(result.tag_posed.items())}}
+    return {
+        "dir": str(model.relative_to(out) if model.is_relative_to(out) else model),
+        "photos_dir": str(folders.pop()) if len(folders) == 1 else None,
+        "photos": {name: p.name for name, p in sorted(result.sources.items())},
+        "turned_deg": {name: 90 * t for name, t in sorted(result.turns.items())},
+        "tag_size": result.tag_size,
+        "on_ground": result.on_ground,
+        "tag_posed": {
+            name: {"c2w": np.round(c2w, 9).tolist(), "error_px": round(err, 4)}
+            for name, (c2w, err) in sorted(result.tag_posed.items())
+        },
+    }
 
 
 def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResult:
@@ -195,10 +227,23 @@ def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResul
             if not (model_dir / "images.bin").is_file() and not (model_dir / "images.txt").is_file():
                 raise fail(model_dir, "holds no COLMAP model (the colmap folder was moved or deleted)")
             photos_dir = Path(model["photos_dir"])
-            sources = {str(name): resolve_inside(photos_dir, file, allow_outside, f"{path} model.photos")
-                       for name, file in model["photos"].items()}
-            fields = ("n_photos", "registered", "unregistered", "n_points", "reprojection_error", "n_models",
-                      "matcher", "seconds", "frame", "camera", "ground")
+            sources = {
+                str(name): resolve_inside(photos_dir, file, allow_outside, f"{path} model.photos")
+                for name, file in model["photos"].items()
+            }
+            fields = (
+                "n_photos",
+                "registered",
+                "unregistered",
+                "n_points",
+                "reprojection_error",
+                "n_models",
+                "matcher",
+                "seconds",
+                "frame",
+                "camera",
+                "ground",
+            )
             report = SfmReport(**{k: data[k] for k in fields})
             tag_size = model["tag_size"]
             if tag_size is not None and not (isinstance(tag_size, (int, float)) and tag_size > 0):
@@ -214,9 +259,17 @@ def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResul
         rec = _import_pycolmap().Reconstruction(str(model_dir))
     except Exception as e:  # pycolmap raises its own errors for unreadable models
         raise fail(model_dir, f"cannot read the COLMAP model ({type(e).__name__}: {e})", redo) from None
-    return SfmResult(rec, model_dir, photos_dir, report, tag_size=None if tag_size is None else float(tag_size),
-                     sources=sources, on_ground=on_ground, turns={n: int(d) // 90 for n, d in turned.items()},
-                     tag_posed=tag_posed)
+    return SfmResult(
+        rec,
+        model_dir,
+        photos_dir,
+        report,
+        tag_size=None if tag_size is None else float(tag_size),
+        sources=sources,
+        on_ground=on_ground,
+        turns={n: int(d) // 90 for n, d in turned.items()},
+        tag_posed=tag_posed,
+    )
 
 
 def _read_tag_posed(data, sources: dict, path: Path) -> dict[str, tuple[np.ndarray, float]]:
@@ -230,8 +283,9 @@ def _read_tag_posed(data, sources: dict, path: Path) -> dict[str, tuple[np.ndarr
     for name, entry in data.items():
         try:
             c2w, err = np.array(entry["c2w"], np.float64), float(entry["error_px"])
-            ok = name in sources and c2w.shape == (4, 4) and np.isfinite(c2w).all() and \
-                np.allclose(c2w[3], [0, 0, 0, 1])
+            ok = (
+                name in sources and c2w.shape == (4, 4) and np.isfinite(c2w).all() and np.allclose(c2w[3], [0, 0, 0, 1])
+            )
         except (TypeError, ValueError, KeyError, IndexError):
             ok = False
         if not ok:
@@ -269,12 +323,23 @@ def sfm_dataset(
     ``out_dir/colmap`` (database and the aligned model ``sparse/0``). ``camera``: a
     calibrated camera SfM starts from (see :func:`~nerfkit.sfm.colmap.run_sfm`).
     """
-    result = run_sfm(image_dir, out_dir, matcher=matcher, max_image_size=max_image_size, camera_model=camera_model,
-                     threads=threads, seed=seed, progress=progress, verbose=verbose, camera=camera)
-    align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=tag_dict, progress=progress,
-                         ground=ground)
+    result = run_sfm(
+        image_dir,
+        out_dir,
+        matcher=matcher,
+        max_image_size=max_image_size,
+        camera_model=camera_model,
+        threads=threads,
+        seed=seed,
+        progress=progress,
+        verbose=verbose,
+        camera=camera,
+    )
+    align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=tag_dict, progress=progress, ground=ground)
     from ..capture.aruco import Layout
 
-    tags = Layout.single(tag_id, result.tag_size).corners() if result.tag_size is not None else None  # the tag at the origin
+    tags = (
+        Layout.single(tag_id, result.tag_size).corners() if result.tag_size is not None else None
+    )  # the tag at the origin
     scene, _ = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress, tags=tags)
     return scene, result.report

@@ -31,6 +31,7 @@ from .colmap import _say
 if TYPE_CHECKING:  # pragma: no cover
     from .colmap import SfmResult
 
+
 def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
     """Least-squares similarity ``dst ~ s * R @ src + t`` (Umeyama 1991).
 
@@ -47,7 +48,7 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> tuple[
     if np.linalg.det(U) * np.linalg.det(Vt) < 0:
         D[2, 2] = -1.0
     R = U @ D @ Vt
-    var_s = (xs ** 2).sum() / len(src)
+    var_s = (xs**2).sum() / len(src)
     s = float(np.trace(np.diag(S) @ D) / var_s) if with_scale else 1.0
     t = mu_d - s * R @ mu_s
     return s, R, t
@@ -73,10 +74,16 @@ def compare_poses(c2w_est: np.ndarray, c2w_ref: np.ndarray, with_scale: bool = T
     rot = rotation_angles_deg(aligned, c2w_ref)
     pos = np.linalg.norm(aligned[:, :3, 3] - c2w_ref[:, :3, 3], axis=1)
     spread = float(np.sqrt(((c2w_ref[:, :3, 3] - c2w_ref[:, :3, 3].mean(0)) ** 2).sum(1).mean()))
-    return {"n": int(len(rot)), "scale": s,
-            "rot_err_deg_median": float(np.median(rot)), "rot_err_deg_max": float(rot.max()),
-            "pos_err_median": float(np.median(pos)), "pos_err_max": float(pos.max()),
-            "pos_err_rel_median": float(np.median(pos) / spread), "spread": spread}
+    return {
+        "n": int(len(rot)),
+        "scale": s,
+        "rot_err_deg_median": float(np.median(rot)),
+        "rot_err_deg_max": float(rot.max()),
+        "pos_err_median": float(np.median(pos)),
+        "pos_err_max": float(pos.max()),
+        "pos_err_rel_median": float(np.median(pos) / spread),
+        "spread": spread,
+    }
 
 
 def estimate_vertical(c2w: np.ndarray) -> np.ndarray:
@@ -147,8 +154,10 @@ def _level_on_ground(result: SfmResult, progress: bool) -> str:
     transform_reconstruction(rec, 1.0, R, t)
     result.on_ground = True
     result.report.ground = plane.to_dict()
-    note = (f"z = 0 on the table plane found in the sparse points ({plane.inliers} of {plane.candidates} "
-            f"points near the centre within {plane.tolerance:.3g}; {plane.tilt_deg:.1f} degrees from the cameras' up)")
+    note = (
+        f"z = 0 on the table plane found in the sparse points ({plane.inliers} of {plane.candidates} "
+        f"points near the centre within {plane.tolerance:.3g}; {plane.tilt_deg:.1f} degrees from the cameras' up)"
+    )
     _say(progress, f"sfm: {note}")
     return note
 
@@ -207,10 +216,16 @@ def triangulate_robust(w2c: np.ndarray, rays: np.ndarray, floor: float = 1e-4) -
     return X, kept
 
 
-def tag_similarity(rec, image_dir: Path, tag_size: float, tag_id: int = 0, dictionary: str = "DICT_4X4_50",
-                   min_views: int = 3, tag_corners: np.ndarray | None = None,
-                   layout_tags: dict[int, np.ndarray] | None = None
-                   ) -> tuple[tuple[float, np.ndarray, np.ndarray], dict] | None:
+def tag_similarity(
+    rec,
+    image_dir: Path,
+    tag_size: float,
+    tag_id: int = 0,
+    dictionary: str = "DICT_4X4_50",
+    min_views: int = 3,
+    tag_corners: np.ndarray | None = None,
+    layout_tags: dict[int, np.ndarray] | None = None,
+) -> tuple[tuple[float, np.ndarray, np.ndarray], dict] | None:
     """(s, R, t) taking the reconstruction into the tag frame (metres, +z out of the tag),
     and facts about the fit; None when tag ``tag_id`` is seen in fewer than ``min_views``
     photos.
@@ -227,8 +242,9 @@ def tag_similarity(rec, image_dir: Path, tag_size: float, tag_id: int = 0, dicti
     from ..capture.aruco import make_detector, marker_bits, square_corners
     from ..images import load_image_uint8
 
-    targets = {tag_id: square_corners(tag_size) if tag_corners is None
-               else np.asarray(tag_corners, np.float64).reshape(4, 3)}
+    targets = {
+        tag_id: square_corners(tag_size) if tag_corners is None else np.asarray(tag_corners, np.float64).reshape(4, 3)
+    }
     for tag, corners in (layout_tags or {}).items():
         targets.setdefault(int(tag), np.asarray(corners, np.float64).reshape(4, 3))
     obs: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {t: [] for t in targets}  # (w2c 3x4, corners 4x2)
@@ -238,14 +254,18 @@ def tag_similarity(rec, image_dir: Path, tag_size: float, tag_id: int = 0, dicti
         found = detect_tags(load_image_uint8(image_dir / im.name), detector, bits)
         cam = rec.cameras[im.camera_id]
         for tag in set(found) & set(targets):
-            obs[tag].append((np.asarray(im.cam_from_world().matrix(), np.float64),
-                             np.asarray(cam.cam_from_img(found[tag]))))
+            obs[tag].append(
+                (np.asarray(im.cam_from_world().matrix(), np.float64), np.asarray(cam.cam_from_img(found[tag])))
+            )
     return similarity_from_sightings(obs, targets, tag_id, min_views)
 
 
-def similarity_from_sightings(sightings: dict[int, list[tuple[np.ndarray, np.ndarray]]],
-                              targets: dict[int, np.ndarray], tag_id: int, min_views: int = 3
-                              ) -> tuple[tuple[float, np.ndarray, np.ndarray], dict] | None:
+def similarity_from_sightings(
+    sightings: dict[int, list[tuple[np.ndarray, np.ndarray]]],
+    targets: dict[int, np.ndarray],
+    tag_id: int,
+    min_views: int = 3,
+) -> tuple[tuple[float, np.ndarray, np.ndarray], dict] | None:
     """The similarity of :func:`tag_similarity` from the tags' sightings.
 
     Args:
@@ -286,17 +306,29 @@ def similarity_from_sightings(sightings: dict[int, list[tuple[np.ndarray, np.nda
     ref = corners([tag_id])[0]
     sides = np.linalg.norm(ref - np.roll(ref, -1, axis=0), axis=1) * s
     residual = float(np.linalg.norm((s * src @ R.T + t) - dst, axis=1).max())
-    info = {"views": len(sightings[tag_id]), "tags": used, "tags_off_layout": moved,
-            "side_lengths_m": [float(x) for x in sides],
-            "fit_residual_m": residual, "corner_sightings": int(sum(len(k) for k in kept)),
-            "corner_sightings_left_out": int(sum((~k).sum() for k in kept))}
+    info = {
+        "views": len(sightings[tag_id]),
+        "tags": used,
+        "tags_off_layout": moved,
+        "side_lengths_m": [float(x) for x in sides],
+        "fit_residual_m": residual,
+        "corner_sightings": int(sum(len(k) for k in kept)),
+        "corner_sightings_left_out": int(sum((~k).sum() for k in kept)),
+    }
     return (s, R, t), info
 
 
-def align_reconstruction(result: SfmResult, tag_size: float | None = None, tag_id: int = 0,
-                         tag_dict: str = "DICT_4X4_50", target_distance: float = 4.0,
-                         progress: bool = True, ground: bool = True, tag_corners: np.ndarray | None = None,
-                         layout_tags: dict[int, np.ndarray] | None = None) -> str:
+def align_reconstruction(
+    result: SfmResult,
+    tag_size: float | None = None,
+    tag_id: int = 0,
+    tag_dict: str = "DICT_4X4_50",
+    target_distance: float = 4.0,
+    progress: bool = True,
+    ground: bool = True,
+    tag_corners: np.ndarray | None = None,
+    layout_tags: dict[int, np.ndarray] | None = None,
+) -> str:
     """Move the reconstruction into nerfkit's world frame (in place; rewrites the model).
 
     With ``tag_size`` (metres) and the tag visible in >= 3 registered photos: the tag
@@ -311,32 +343,41 @@ def align_reconstruction(result: SfmResult, tag_size: float | None = None, tag_i
     rec = result.reconstruction
     frame = None
     if tag_size is not None:
-        fit = tag_similarity(rec, result.image_dir, tag_size, tag_id, tag_dict, tag_corners=tag_corners,
-                             layout_tags=layout_tags)
+        fit = tag_similarity(
+            rec, result.image_dir, tag_size, tag_id, tag_dict, tag_corners=tag_corners, layout_tags=layout_tags
+        )
         if fit is None:
             _say(progress, f"sfm: tag {tag_id} seen in fewer than 3 registered photos; normalising the scene instead")
         else:
             (s, R, t), info = fit
             transform_reconstruction(rec, s, R, t)
             result.tag_size = tag_size
-            where = ("origin at the tag centre, +z up out of the tag" if tag_corners is None
-                     else "the sheet layout's frame, +z up out of the sheet")
+            where = (
+                "origin at the tag centre, +z up out of the tag"
+                if tag_corners is None
+                else "the sheet layout's frame, +z up out of the sheet"
+            )
             others = len(info["tags"]) - 1
             also = f" and {others} more tag{'s' * (others > 1)} of the sheet" if others else ""
             if info["tags_off_layout"]:
-                also += (f" (left out, not where the layout puts them: tag "
-                         f"{', '.join(map(str, info['tags_off_layout']))})")
-            frame = (f"metric, from ArUco tag {tag_id} ({tag_size * 100:g} cm) seen in {info['views']} photos{also}: "
-                     f"{where}, metres "
-                     f"(triangulated sides {', '.join(f'{x * 100:.2f}' for x in info['side_lengths_m'])} cm)")
+                also += (
+                    f" (left out, not where the layout puts them: tag {', '.join(map(str, info['tags_off_layout']))})"
+                )
+            frame = (
+                f"metric, from ArUco tag {tag_id} ({tag_size * 100:g} cm) seen in {info['views']} photos{also}: "
+                f"{where}, metres "
+                f"(triangulated sides {', '.join(f'{x * 100:.2f}' for x in info['side_lengths_m'])} cm)"
+            )
     if frame is None:
         _, c2w = reconstruction_c2w(rec)
         s, R, t = normalising_similarity(c2w, target_distance)
         transform_reconstruction(rec, s, R, t)
-        frame = (f"normalised (no tag{'' if tag_size is None else ' found'}): "
-                 f"cameras centred on the point they look at, "
-                 f"up (perpendicular to the cameras' x axes) -> +z, mean camera distance {target_distance:g} "
-                 f"(arbitrary units, not metric)")
+        frame = (
+            f"normalised (no tag{'' if tag_size is None else ' found'}): "
+            f"cameras centred on the point they look at, "
+            f"up (perpendicular to the cameras' x axes) -> +z, mean camera distance {target_distance:g} "
+            f"(arbitrary units, not metric)"
+        )
         if ground:
             frame += "; " + _level_on_ground(result, progress)
     write_reconstruction(rec, result.model_dir)

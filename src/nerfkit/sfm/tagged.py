@@ -50,8 +50,12 @@ class PoseChoice:
     adopted: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        return {"poses": "sfm" if self.result is not None else "tags", "why": self.why, "agreement": self.agreement,
-                "tag_posed": self.adopted}
+        return {
+            "poses": "sfm" if self.result is not None else "tags",
+            "why": self.why,
+            "agreement": self.agreement,
+            "tag_posed": self.adopted,
+        }
 
 
 def pose_agreement(tag_c2w: dict[str, np.ndarray], sfm_c2w: dict[str, np.ndarray]) -> dict | None:
@@ -72,9 +76,14 @@ def pose_agreement(tag_c2w: dict[str, np.ndarray], sfm_c2w: dict[str, np.ndarray
     b = np.stack([sfm_c2w[n] for n in names]).astype(np.float64)
     rot = rotation_angles_deg(a, b)
     shift = np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1)
-    return {"photos": len(names), "rot_deg_median": float(np.median(rot)), "rot_deg_max": float(rot.max()),
-            "shift_median": float(np.median(shift)), "shift_max": float(shift.max()),
-            "distance_median": float(np.median(np.linalg.norm(a[:, :3, 3], axis=1)))}
+    return {
+        "photos": len(names),
+        "rot_deg_median": float(np.median(rot)),
+        "rot_deg_max": float(rot.max()),
+        "shift_median": float(np.median(shift)),
+        "shift_max": float(shift.max()),
+        "distance_median": float(np.median(np.linalg.norm(a[:, :3, 3], axis=1))),
+    }
 
 
 def judge(n_tag_posed: int, n_registered: int, in_tag_frame: bool, agreement: dict | None) -> str | None:
@@ -88,15 +97,30 @@ def judge(n_tag_posed: int, n_registered: int, in_tag_frame: bool, agreement: di
     if agreement["rot_deg_median"] > MAX_ROTATION_DEG:
         return f"SfM's poses turn a median {agreement['rot_deg_median']:.1f} degrees from the tags'"
     if agreement["shift_median"] > MAX_SHIFT * agreement["distance_median"]:
-        return (f"SfM's cameras sit a median {agreement['shift_median'] * 100:.1f} cm from the tags' "
-                f"(cameras {agreement['distance_median'] * 100:.0f} cm away)")
+        return (
+            f"SfM's cameras sit a median {agreement['shift_median'] * 100:.1f} cm from the tags' "
+            f"(cameras {agreement['distance_median'] * 100:.0f} cm away)"
+        )
     return None
 
 
-def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, tag_id: int, tag_size: float,
-                 dictionary: str, tag_corners: np.ndarray | None = None, matcher: str = "auto",
-                 max_image_size: int = 1000, progress: bool = True, threads: int = -1, records: list | None = None,
-                 layout=None, pose_cfg=None) -> PoseChoice:
+def choose_poses(
+    photos: str | Path,
+    out: str | Path,
+    tag_posed: list,
+    camera,
+    tag_id: int,
+    tag_size: float,
+    dictionary: str,
+    tag_corners: np.ndarray | None = None,
+    matcher: str = "auto",
+    max_image_size: int = 1000,
+    progress: bool = True,
+    threads: int = -1,
+    records: list | None = None,
+    layout=None,
+    pose_cfg=None,
+) -> PoseChoice:
     """Run SfM on a tag capture and decide whether its poses replace the tag poses.
 
     Args:
@@ -120,13 +144,29 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
 
     guides = {colmap_name(Path(p.path)): p.c2w for p in tag_posed}  # to choose the pairs SfM matches
     try:
-        result = run_sfm(photos, out, matcher=matcher, max_image_size=max_image_size, progress=progress,
-                         threads=threads, camera=camera, guides=guides)
+        result = run_sfm(
+            photos,
+            out,
+            matcher=matcher,
+            max_image_size=max_image_size,
+            progress=progress,
+            threads=threads,
+            camera=camera,
+            guides=guides,
+        )
     except NerfkitError as e:  # no photos that match, pycolmap missing, ...
         return PoseChoice(None, f"tag poses: structure-from-motion failed ({e})")
     several = layout is not None and tag_corners is not None and len(layout.tags) > 1
-    align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=dictionary, progress=progress,
-                         ground=False, tag_corners=tag_corners, layout_tags=layout.tags if several else None)
+    align_reconstruction(
+        result,
+        tag_size=tag_size,
+        tag_id=tag_id,
+        tag_dict=dictionary,
+        progress=progress,
+        ground=False,
+        tag_corners=tag_corners,
+        layout_tags=layout.tags if several else None,
+    )
     names, c2w = reconstruction_c2w(result.reconstruction)
     names = [result.photo(n).name for n in names]
     agreement = pose_agreement({p.name: p.c2w for p in tag_posed}, dict(zip(names, c2w)))
@@ -134,15 +174,19 @@ def choose_poses(photos: str | Path, out: str | Path, tag_posed: list, camera, t
     if reason is not None:
         return PoseChoice(None, f"tag poses: {reason}", agreement)
     assert agreement is not None  # judge() passes no SfM result without an agreement
-    why = (f"SfM poses in the tag's frame: {len(names)} photos registered (the tags posed {len(tag_posed)}); "
-           f"the tag poses differ from them by a median {agreement['rot_deg_median']:.2f} degrees and "
-           f"{agreement['shift_median'] * 1000:.1f} mm")
+    why = (
+        f"SfM poses in the tag's frame: {len(names)} photos registered (the tags posed {len(tag_posed)}); "
+        f"the tag poses differ from them by a median {agreement['rot_deg_median']:.2f} degrees and "
+        f"{agreement['shift_median'] * 1000:.1f} mm"
+    )
     adopted: list[str] = []
     if records is not None:
         adopted, left = adopt_tag_poses(result, tag_posed, records, layout, pose_cfg)
         if adopted:
-            why += (f"; the tag poses are kept for {len(adopted)} photo{'s' * (len(adopted) != 1)} SfM did not "
-                    f"register (solved again with SfM's camera): {', '.join(adopted)}")
+            why += (
+                f"; the tag poses are kept for {len(adopted)} photo{'s' * (len(adopted) != 1)} SfM did not "
+                f"register (solved again with SfM's camera): {', '.join(adopted)}"
+            )
         if left:
             why += "; not adopted: " + "; ".join(f"{n} ({r})" for n, r in left.items())
     return PoseChoice(result, why, agreement, adopted)

@@ -51,17 +51,21 @@ class RunInfo:
     scene: dict = field(default_factory=dict)  # what config.json says about the dataset (fingerprint, ...)
 
 
-def write_run_config(run_dir: Path, train: TrainConfig, model_config: Any, bounds: SceneBounds,
-                     scene_info: dict) -> None:
+def write_run_config(
+    run_dir: Path, train: TrainConfig, model_config: Any, bounds: SceneBounds, scene_info: dict
+) -> None:
     from .. import __version__
 
-    write_json(run_dir / "config.json", {
-        "nerfkit_version": __version__,
-        "train": asdict(train),
-        "model": asdict(model_config),
-        "bounds": bounds.to_dict(),
-        "scene": scene_info,
-    })
+    write_json(
+        run_dir / "config.json",
+        {
+            "nerfkit_version": __version__,
+            "train": asdict(train),
+            "model": asdict(model_config),
+            "bounds": bounds.to_dict(),
+            "scene": scene_info,
+        },
+    )
 
 
 def read_run(run_dir: str | Path) -> RunInfo:
@@ -72,9 +76,16 @@ def read_run(run_dir: str | Path) -> RunInfo:
 
         if is_run_folder(run_dir.parent):  # a file of a run (its config.json, model.pt, ...)
             raise fail(run_dir, "is a file of a run, not the run", f"Give its folder: {run_dir.parent}")
-        raise fail(run_dir, "is a file, not a run folder", "Give the --out folder of a `nerfkit train` run"
-                   + (" (this looks like a dataset: train on it with `nerfkit train --data`)"
-                      if run_dir.suffix.lower() in (".npz", ".json") else ""))
+        raise fail(
+            run_dir,
+            "is a file, not a run folder",
+            "Give the --out folder of a `nerfkit train` run"
+            + (
+                " (this looks like a dataset: train on it with `nerfkit train --data`)"
+                if run_dir.suffix.lower() in (".npz", ".json")
+                else ""
+            ),
+        )
     if not run_dir.is_dir():
         raise fail(run_dir, "no such run folder", "Give the --out folder of a `nerfkit train` run")
     if not cfg_path.exists():
@@ -95,8 +106,9 @@ def read_run(run_dir: str | Path) -> RunInfo:
         # ... and a fast run from before the view-dependent colour's total variation, without it
         old = {"tv_view_weight": 0.0} if train.model == "fast" else {}
         model_class = model_config_class(train.model)
-        model_config = dataclass_from_dict(model_class, {**old, **unset_as_default(model_class, d["model"])},
-                                           str(cfg_path))
+        model_config = dataclass_from_dict(
+            model_class, {**old, **unset_as_default(model_class, d["model"])}, str(cfg_path)
+        )
         bounds = SceneBounds.from_dict(d["bounds"])
     except (KeyError, TypeError, ValueError) as e:
         raise fail(cfg_path, f"malformed run config ({type(e).__name__}: {e})") from None
@@ -120,8 +132,11 @@ def read_settings(path: str | Path) -> tuple[TrainConfig, Any, set[str]]:
         path = path / "config.json"
     d = load_json(path, missing_fix="Give a run's config.json (nerfkit train writes one into every run)")
     if not isinstance(d, dict) or not isinstance(d.get("train"), dict) or not isinstance(d.get("model"), dict):
-        raise fail(path, "is not a run's config.json (it needs 'train' and 'model' objects)",
-                   "Give the config.json of a `nerfkit train` run")
+        raise fail(
+            path,
+            "is not a run's config.json (it needs 'train' and 'model' objects)",
+            "Give the config.json of a `nerfkit train` run",
+        )
     train = dataclass_from_dict(TrainConfig, d["train"], str(path))
     if train.model not in MODEL_NAMES:
         raise fail(path, f"unknown model '{train.model}'", f"Expected one of {', '.join(MODEL_NAMES)}")
@@ -155,8 +170,12 @@ def dataset_fingerprint(scene) -> dict:
     for v in scene.splits.values():
         poses.update(np.ascontiguousarray(v.c2w, np.float32).tobytes())
     images = hashlib.sha256(np.ascontiguousarray(scene.train.images).tobytes()) if scene.train.has_images else None
-    return {"views": [len(v) for v in scene.splits.values()], "image_size": [scene.train.width, scene.train.height],
-            "poses_sha256": poses.hexdigest(), "train_images_sha256": images.hexdigest() if images else None}
+    return {
+        "views": [len(v) for v in scene.splits.values()],
+        "image_size": [scene.train.width, scene.train.height],
+        "poses_sha256": poses.hexdigest(),
+        "train_images_sha256": images.hexdigest() if images else None,
+    }
 
 
 def check_dataset(info: RunInfo, scene) -> None:
@@ -168,10 +187,12 @@ def check_dataset(info: RunInfo, scene) -> None:
     now = dataset_fingerprint(scene)
     differ = [k for k in now if stored.get(k) != now[k]]
     if differ:
-        raise fail(scene.source or info.train.data, f"is not the dataset run {info.run_dir} was trained on "
-                   f"({', '.join(k.replace('_sha256', '') for k in differ)} differ)",
-                   "Pass --data with the run's own dataset; a dataset changed in place cannot continue or score "
-                   "this run")
+        raise fail(
+            scene.source or info.train.data,
+            f"is not the dataset run {info.run_dir} was trained on "
+            f"({', '.join(k.replace('_sha256', '') for k in differ)} differ)",
+            "Pass --data with the run's own dataset; a dataset changed in place cannot continue or score this run",
+        )
 
 
 def _check_bounds(b: SceneBounds, where: str) -> None:
@@ -194,12 +215,19 @@ def checkpoint_paths(run_dir: Path) -> list[Path]:
 
 
 def _model_payload(step: int, model: NerfModel) -> dict:
-    return {"format": FORMAT, "version": VERSION, "model_name": type(model).__name__, "step": step,
-            "model": model.state_dict(), "model_extra": json.dumps(model.extra_state())}
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "model_name": type(model).__name__,
+        "step": step,
+        "model": model.state_dict(),
+        "model_extra": json.dumps(model.extra_state()),
+    }
 
 
-def save_checkpoint(run_dir: Path, step: int, model: NerfModel, optimizer: torch.optim.Optimizer,
-                    extra: dict, keep: int = 1) -> Path:
+def save_checkpoint(
+    run_dir: Path, step: int, model: NerfModel, optimizer: torch.optim.Optimizer, extra: dict, keep: int = 1
+) -> Path:
     """Write ``checkpoints/step_XXXXXXXX.pt`` atomically (a temporary file, renamed once complete),
     then delete all but the ``keep`` newest: a crash at any point leaves a whole checkpoint."""
     path = run_dir / "checkpoints" / f"step_{step:08d}.pt"
@@ -300,16 +328,28 @@ def load_latest_checkpoint(run_dir: Path, model: NerfModel, final_model: bool = 
             for msg in errors:  # the newer checkpoints that were skipped
                 print(f"warning: {msg}; used the older {path.name}", file=sys.stderr)
             return ckpt, path
-        except (NerfkitError, RuntimeError, KeyError, ValueError, TypeError, IndexError, AttributeError,
-                OverflowError, MemoryError) as e:
+        except (
+            NerfkitError,
+            RuntimeError,
+            KeyError,
+            ValueError,
+            TypeError,
+            IndexError,
+            AttributeError,
+            OverflowError,
+            MemoryError,
+        ) as e:
             # one line: load_state_dict lists every mismatched tensor on its own line
             msg = " ".join(str(e).split())[:300]
             if not isinstance(e, NerfkitError):
                 msg = f"{path}: {type(e).__name__}: {msg}"
             errors.append(msg)  # reported once: as warnings if an older one loads, else in the error
     if paths:
-        raise fail(run_dir, "no checkpoint could be loaded: " + "; ".join(errors),
-                   "Copy the run again from where it was made, or train it again")
+        raise fail(
+            run_dir,
+            "no checkpoint could be loaded: " + "; ".join(errors),
+            "Copy the run again from where it was made, or train it again",
+        )
     return None
 
 
@@ -321,8 +361,11 @@ def load_run(run_dir: str | Path, device: torch.device | str = "cpu") -> tuple[N
     except NerfkitError as e:
         raise fail(info.run_dir / "config.json", str(e)) from None
     except (RuntimeError, ValueError, TypeError, OverflowError, MemoryError) as e:  # e.g. a negative width
-        raise fail(info.run_dir / "config.json", f"its model settings do not build a model "
-                   f"({type(e).__name__}: {str(e).splitlines()[0][:200] if str(e) else ''})") from None
+        raise fail(
+            info.run_dir / "config.json",
+            f"its model settings do not build a model "
+            f"({type(e).__name__}: {str(e).splitlines()[0][:200] if str(e) else ''})",
+        ) from None
     loaded = load_latest_checkpoint(info.run_dir, model, final_model=True)
     if loaded is None:
         raise fail(info.run_dir, "has no checkpoint yet", "Wait for training to write one, or train longer")
@@ -330,5 +373,17 @@ def load_run(run_dir: str | Path, device: torch.device | str = "cpu") -> tuple[N
     return model, info, int(loaded[0]["step"])
 
 
-__all__ = ["MODEL_FILE", "RunInfo", "check_dataset", "dataset_fingerprint", "load_latest_checkpoint", "load_run",
-           "read_run", "run_lock", "save_checkpoint", "save_model", "write_run_config", "config_from_dict"]
+__all__ = [
+    "MODEL_FILE",
+    "RunInfo",
+    "check_dataset",
+    "dataset_fingerprint",
+    "load_latest_checkpoint",
+    "load_run",
+    "read_run",
+    "run_lock",
+    "save_checkpoint",
+    "save_model",
+    "write_run_config",
+    "config_from_dict",
+]

@@ -28,8 +28,16 @@ from .metrics import masked_psnr, psnr, ssim
 from .view_corrections import ViewFitConfig, fit_view, least_squares_colour, rounded
 
 
-def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: np.ndarray, background: torch.Tensor,
-                      scale: float, cfg: ViewFitConfig, seed: int = 0) -> np.ndarray:
+def fit_held_out_view(
+    model: NerfModel,
+    K: np.ndarray,
+    c2w: np.ndarray,
+    image: np.ndarray,
+    background: torch.Tensor,
+    scale: float,
+    cfg: ViewFitConfig,
+    seed: int = 0,
+) -> np.ndarray:
     """Fit one held-out view's pose to its photo, the model frozen (its exposure is fitted
     alongside, so that a colour change does not pull the pose; :func:`least_squares_colour`
     then solves the colour at the fitted pose exactly).
@@ -43,8 +51,9 @@ def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: n
     """
     device = background.device
     h, w = image.shape[:2]
-    rays = image_rays(torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(c2w, dtype=torch.float32).to(device),
-                      w, h)
+    rays = image_rays(
+        torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(c2w, dtype=torch.float32).to(device), w, h
+    )
     target = torch.from_numpy(image.reshape(-1, 3).astype(np.float32) / 255.0).to(device)
     frozen = [p for p in model.parameters() if p.requires_grad]
     was_training = model.training
@@ -52,8 +61,14 @@ def fit_held_out_view(model: NerfModel, K: np.ndarray, c2w: np.ndarray, image: n
     for p in frozen:
         p.requires_grad_(False)
     try:
-        pose, _ = fit_view(lambda r: model.render_rays(r, background, perturb=False).rgb, rays, target, scale, cfg,
-                           torch.Generator().manual_seed(seed))
+        pose, _ = fit_view(
+            lambda r: model.render_rays(r, background, perturb=False).rgb,
+            rays,
+            target,
+            scale,
+            cfg,
+            torch.Generator().manual_seed(seed),
+        )
     finally:
         for p in frozen:
             p.requires_grad_(True)
@@ -66,10 +81,19 @@ def photo_halves(width: int) -> tuple[slice, slice]:
     return slice(0, width // 2), slice(width // 2, width)
 
 
-def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chunk: int = 16384,
-                   autocast_dtype: torch.dtype | None = None, progress: bool = True,
-                   fit: ViewFitConfig | None = None, scale: float = 1.0, sheet: list | None = None,
-                   sheet_views: int = 6, alone: NerfModel | None = None) -> dict:
+def evaluate_views(
+    model: NerfModel,
+    views: Views,
+    background: torch.Tensor,
+    chunk: int = 16384,
+    autocast_dtype: torch.dtype | None = None,
+    progress: bool = True,
+    fit: ViewFitConfig | None = None,
+    scale: float = 1.0,
+    sheet: list | None = None,
+    sheet_views: int = 6,
+    alone: NerfModel | None = None,
+) -> dict:
     """Render every view and compare with its image.
 
     Returns ``{"psnr": mean, "ssim": mean, "n_images": N, "per_image": [{index, name,
@@ -98,8 +122,9 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
         images = views.images
         assert images is not None  # (held-out views have photos)
         target = images[i].astype(np.float32) / 255.0
-        view = render_image(model, views.K[i], views.c2w[i], views.width, views.height, background, chunk,
-                            autocast_dtype)
+        view = render_image(
+            model, views.K[i], views.c2w[i], views.width, views.height, background, chunk, autocast_dtype
+        )
         assert view is not None  # (None only when aborted; no abort here)
         row = {"index": i, "name": views.names[i] if views.names else None, **_scores(view.rgb, target)}
         rgb = None
@@ -109,18 +134,22 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
             fitted = render_image(model, views.K[i], c2w, views.width, views.height, background, chunk, autocast_dtype)
             assert fitted is not None
             rgb, matrix, offset = _cross_recoloured(fitted.rgb, target, fit.colour_mix)
-            row.update(_scores(rgb, target, "_fitted"),
-                       fitted_rotation_deg=round(float(rotation_angles_deg(c2w[None], views.c2w[i][None])[0]), 4),
-                       fitted_translation=round(float(np.linalg.norm(c2w[:3, 3] - views.c2w[i][:3, 3])), 6),
-                       fitted_grey_gain=rounded(matrix.sum(axis=1)), fitted_offset=rounded(offset))
+            row.update(
+                _scores(rgb, target, "_fitted"),
+                fitted_rotation_deg=round(float(rotation_angles_deg(c2w[None], views.c2w[i][None])[0]), 4),
+                fitted_translation=round(float(np.linalg.norm(c2w[:3, 3] - views.c2w[i][:3, 3])), 6),
+                fitted_grey_gain=rounded(matrix.sum(axis=1)),
+                fitted_offset=rounded(offset),
+            )
             if fit.colour_mix:
                 row["fitted_colour_matrix"] = [rounded(r) for r in matrix]
         if alone is not None:
             row.update(_object_scores(alone, views, i, view.rgb, target, background, chunk, autocast_dtype))
             if fit is not None:
                 assert rgb is not None  # (set by the fit above)
-                row.update(_object_scores(alone, views, i, rgb, target, background, chunk, autocast_dtype, c2w,
-                                          "_fitted"))
+                row.update(
+                    _object_scores(alone, views, i, rgb, target, background, chunk, autocast_dtype, c2w, "_fitted")
+                )
         if sheet is not None and i in shown:
             sheet.append((images[i], view.rgb, rgb, row))
         per_image.append(row)
@@ -129,22 +158,33 @@ def evaluate_views(model: NerfModel, views: Views, background: torch.Tensor, chu
         model_name = "an affine colour transform" if fit.colour_mix else "a gain and offset per channel"
         out["fitted"] = {
             "what": f"each view's pose fitted to its photo first ({fit.steps} steps, scene frozen), then each half "
-                    f"of the photo (left, right) scored with the colour correction ({model_name}, least squares) "
-                    "solved on the other half at that pose (NeRF-W's protocol, both ways)",
+            f"of the photo (left, right) scored with the colour correction ({model_name}, least squares) "
+            "solved on the other half at that pose (NeRF-W's protocol, both ways)",
             **_means(per_image, "_fitted"),
         }
-        out["colour_only"] = {"what": f"each half of the photo scored with the colour correction ({model_name}) "
-                                      "solved on the other half at the view's given pose (no pose fit)",
-                              **_means(per_image, "_colour")}
+        out["colour_only"] = {
+            "what": f"each half of the photo scored with the colour correction ({model_name}) "
+            "solved on the other half at the view's given pose (no pose fit)",
+            **_means(per_image, "_colour"),
+        }
     if alone is not None:
         out["object"] = _object_means(per_image, fit is not None)
     out["per_image"] = per_image
     return out
 
 
-def _object_scores(alone: NerfModel, views: Views, i: int, rgb: np.ndarray, target: np.ndarray,
-                   background: torch.Tensor, chunk: int, autocast_dtype, c2w: np.ndarray | None = None,
-                   suffix: str = "") -> dict:
+def _object_scores(
+    alone: NerfModel,
+    views: Views,
+    i: int,
+    rgb: np.ndarray,
+    target: np.ndarray,
+    background: torch.Tensor,
+    chunk: int,
+    autocast_dtype,
+    c2w: np.ndarray | None = None,
+    suffix: str = "",
+) -> dict:
     """``{"object_share" (as rendered only), "psnr_object" + suffix}``: the share of view
     ``i``'s pixels where the object alone is opaque at pose ``c2w`` (default: the view's),
     and ``rgb``'s PSNR against ``target`` there (None where it has none)."""
@@ -162,13 +202,17 @@ def _object_scores(alone: NerfModel, views: Views, i: int, rgb: np.ndarray, targ
 def _object_means(per_image: list[dict], fitted: bool) -> dict:
     """The object's scores, each averaged over the images that see the object at its pose
     (``n_images``; fitted: ``n_images_fitted``)."""
+
     def mean_of(key: str) -> tuple[float | None, int]:
         scores = [p[key] for p in per_image if p.get(key) is not None]
         return (round(float(np.mean(scores)), 4) if scores else None), len(scores)
 
     psnr_, n = mean_of("psnr_object")
-    out = {"what": "PSNR over the pixels where the object alone (no table, floor or room) renders opaque",
-           "n_images": n, "psnr": psnr_}
+    out = {
+        "what": "PSNR over the pixels where the object alone (no table, floor or room) renders opaque",
+        "n_images": n,
+        "psnr": psnr_,
+    }
     if fitted:
         out["psnr_fitted"], out["n_images_fitted"] = mean_of("psnr_object_fitted")
     return out
@@ -195,6 +239,7 @@ def _scores(rgb: np.ndarray, target: np.ndarray, suffix: str = "") -> dict:
 
 def _means(per_image: list[dict], suffix: str = "") -> dict:
     """``{"psnr", "ssim"}``: the means over the images of their ``psnr`` + suffix and ``ssim`` + suffix."""
-    return {"psnr": round(float(np.mean([p[f"psnr{suffix}"] for p in per_image])), 4),
-            "ssim": round(float(np.mean([p[f"ssim{suffix}"] for p in per_image])), 5)}
-
+    return {
+        "psnr": round(float(np.mean([p[f"psnr{suffix}"] for p in per_image])), 4),
+        "ssim": round(float(np.mean([p[f"ssim{suffix}"] for p in per_image])), 5),
+    }

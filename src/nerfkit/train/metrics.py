@@ -23,7 +23,7 @@ def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
     if not np.any(mask):
         return None
     diff = np.asarray(a, np.float64)[mask] - np.asarray(b, np.float64)[mask]
-    return psnr_from_mse(float(np.mean(diff ** 2)))
+    return psnr_from_mse(float(np.mean(diff**2)))
 
 
 # scikit-image's Gaussian window of sigma 1.5, truncated at 3.5 sigma: 11 pixels a side
@@ -40,13 +40,19 @@ def ssim(a: np.ndarray, b: np.ndarray) -> float:
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     side = min(a.shape[:2])
     if side >= SSIM_WINDOW:
-        return float(structural_similarity(a, b, channel_axis=-1, data_range=1.0, gaussian_weights=True, sigma=1.5,
-                                           use_sample_covariance=False))
+        return float(
+            structural_similarity(
+                a, b, channel_axis=-1, data_range=1.0, gaussian_weights=True, sigma=1.5, use_sample_covariance=False
+            )
+        )
     if side >= 3:
-        return float(structural_similarity(a, b, channel_axis=-1, data_range=1.0, win_size=side - 1 + side % 2,
-                                           use_sample_covariance=False))
-    c1, c2 = 0.01 ** 2, 0.03 ** 2
+        return float(
+            structural_similarity(
+                a, b, channel_axis=-1, data_range=1.0, win_size=side - 1 + side % 2, use_sample_covariance=False
+            )
+        )
+    c1, c2 = 0.01**2, 0.03**2
     mu_a, mu_b = a.mean((0, 1)), b.mean((0, 1))
     cov = ((a - mu_a) * (b - mu_b)).mean((0, 1))
-    s = (2 * mu_a * mu_b + c1) * (2 * cov + c2) / ((mu_a ** 2 + mu_b ** 2 + c1) * (a.var((0, 1)) + b.var((0, 1)) + c2))
+    s = (2 * mu_a * mu_b + c1) * (2 * cov + c2) / ((mu_a**2 + mu_b**2 + c1) * (a.var((0, 1)) + b.var((0, 1)) + c2))
     return float(s.mean())

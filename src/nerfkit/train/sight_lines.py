@@ -46,7 +46,7 @@ class SightLines:
         return len(self.distances)
 
     @staticmethod
-    def from_scene(scene: Scene, device: torch.device | str = "cpu") -> "SightLines | None":
+    def from_scene(scene: Scene, device: torch.device | str = "cpu") -> SightLines | None:
         """The scene's lines (:attr:`Scene.point_views`), or None when it records none."""
         if scene.points is None or scene.point_views is None or len(scene.point_views) == 0:
             return None
@@ -71,8 +71,9 @@ class SightLines:
         return Rays(origins, directions), distances, self.views[idx]
 
 
-def spread_lines(origins: Tensor, directions: Tensor, distances: Tensor, radius: float,
-                 generator: torch.Generator) -> tuple[Tensor, Tensor]:
+def spread_lines(
+    origins: Tensor, directions: Tensor, distances: Tensor, radius: float, generator: torch.Generator
+) -> tuple[Tensor, Tensor]:
     """Lines turned to aim at a random spot within ``radius`` of their points, uniform over
     the disc across each line through its point.
 

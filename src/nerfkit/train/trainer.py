@@ -103,8 +103,10 @@ def validation_series(rows: list[dict], n_val: int, full: int) -> dict[str, tupl
     for r in rows:
         views, pixels = min(r.get("views", n_val), n_val), r.get("pixels", full)  # older runs: views as asked
         which = f"all {views}" if views >= n_val else f"first {views} of {n_val}"
-        label = (f"validation, {which} view{'s' * (views != 1 or views < n_val)}, "
-                 f"{'whole images' if pixels >= full else f'{pixels} px per view'}")
+        label = (
+            f"validation, {which} view{'s' * (views != 1 or views < n_val)}, "
+            f"{'whole images' if pixels >= full else f'{pixels} px per view'}"
+        )
         xs, ys = series.setdefault(label, ([], []))
         xs.append(r["seconds"])
         ys.append(r["psnr"])
@@ -141,18 +143,23 @@ class Trainer:
         self.sight_generator = torch.Generator().manual_seed(cfg.seed + 1)
         if self.sight is not None and not resume:
             assert scene.points is not None  # (sight lines come from the sparse points)
-            self.log(f"sight lines: {len(self.sight)} from the train photos' cameras to the {len(scene.points)} "
-                     "sparse points (--points-weight)")
+            self.log(
+                f"sight lines: {len(self.sight)} from the train photos' cameras to the {len(scene.points)} "
+                "sparse points (--points-weight)"
+            )
         elif sight and scene.points is not None and scene.point_views is None and not resume:
-            self.log(f"note: {scene.source} has sparse points but does not record which photos saw them, so they "
-                     "are not used as sight lines (an older dataset, or not a dataset.npz): rebuild it with "
-                     "`nerfkit dataset DATASET_DIR --force`")
+            self.log(
+                f"note: {scene.source} has sparse points but does not record which photos saw them, so they "
+                "are not used as sight lines (an older dataset, or not a dataset.npz): rebuild it with "
+                "`nerfkit dataset DATASET_DIR --force`"
+            )
         self.views: ViewCorrections | None = None
         self.view_optimizer: torch.optim.Optimizer | None = None
         pose = cfg.pose_lr > 0 and not self.whole_images
         if cfg.capture == "on" and (pose or cfg.exposure_lr > 0):
-            self.views = ViewCorrections(len(scene.train), self.bounds.radius, pose,
-                                         cfg.exposure_lr > 0, cfg.colour_mix).to(self.device)
+            self.views = ViewCorrections(
+                len(scene.train), self.bounds.radius, pose, cfg.exposure_lr > 0, cfg.colour_mix
+            ).to(self.device)
             self.view_optimizer = torch.optim.Adam(self.views.param_groups(cfg.pose_lr, cfg.exposure_lr))
         self._remember_initial_lr()
         self.step = 0
@@ -165,11 +172,23 @@ class Trainer:
             self._resume()
         else:
             self.run_dir.mkdir(parents=True, exist_ok=True)
-            write_run_config(self.run_dir, cfg, model_config, self.bounds, {
-                "source": scene.source, "width": scene.train.width, "height": scene.train.height,
-                "n_train": len(scene.train), "n_val": len(scene.val), "n_test": len(scene.test),
-                "near": scene.near, "far": scene.far, "fingerprint": dataset_fingerprint(scene),
-            })
+            write_run_config(
+                self.run_dir,
+                cfg,
+                model_config,
+                self.bounds,
+                {
+                    "source": scene.source,
+                    "width": scene.train.width,
+                    "height": scene.train.height,
+                    "n_train": len(scene.train),
+                    "n_val": len(scene.val),
+                    "n_test": len(scene.test),
+                    "near": scene.near,
+                    "far": scene.far,
+                    "fingerprint": dataset_fingerprint(scene),
+                },
+            )
 
     # -- state ---------------------------------------------------------------------
     def _param_groups(self) -> list[dict]:
@@ -184,15 +203,22 @@ class Trainer:
             g.setdefault("initial_lr", g["lr"])
 
     def _rng_state(self) -> dict:
-        state = {"torch_rng": torch.get_rng_state(), "sampler_rng": self.rays.rng_state(),
-                 "sight_rng": self.sight_generator.get_state()}
+        state = {
+            "torch_rng": torch.get_rng_state(),
+            "sampler_rng": self.rays.rng_state(),
+            "sight_rng": self.sight_generator.get_state(),
+        }
         if self.device.type == "cuda":
             state["cuda_rng"] = torch.cuda.get_rng_state(self.device)
         return state
 
     def save(self) -> Path:
-        extra = {**self._rng_state(), "train_seconds": self.train_seconds, "rows": json.dumps(self.rows),
-                 "bad_steps": self.bad_steps}
+        extra = {
+            **self._rng_state(),
+            "train_seconds": self.train_seconds,
+            "rows": json.dumps(self.rows),
+            "bad_steps": self.bad_steps,
+        }
         if self.views is not None:
             assert self.view_optimizer is not None  # (built with the views)
             extra["views"] = self.views.state_dict()
@@ -203,8 +229,11 @@ class Trainer:
         loaded = load_latest_checkpoint(self.run_dir, self.model)
         if loaded is None:
             if (self.run_dir / MODEL_FILE).exists():  # trained, its checkpoints gone: never train over it
-                raise fail(self.run_dir, "holds a trained model (model.pt) but no checkpoint to continue it from",
-                           "Train a new run with another --out, or delete model.pt to start this run over")
+                raise fail(
+                    self.run_dir,
+                    "holds a trained model (model.pt) but no checkpoint to continue it from",
+                    "Train a new run with another --out, or delete model.pt to start this run over",
+                )
             self.log(f"{self.run_dir}: no checkpoint yet, starting from step 0")
             return
         ckpt, path = loaded
@@ -219,12 +248,18 @@ class Trainer:
         self._marks_passed = self._marks_reached()  # validated there before the stop
         if self.views is not None:
             if "views" not in ckpt:
-                raise fail(path, "holds no per-view corrections, but this run trains them",
-                           "The checkpoint is from another nerfkit; re-train")
+                raise fail(
+                    path,
+                    "holds no per-view corrections, but this run trains them",
+                    "The checkpoint is from another nerfkit; re-train",
+                )
             missing = set(self.views.state_dict()) - set(ckpt["views"])
             if not missing <= {"exposure.mix"}:
-                raise fail(path, f"holds other per-view corrections than this run trains ({sorted(missing)} missing)",
-                           "The checkpoint is from another nerfkit; re-train")
+                raise fail(
+                    path,
+                    f"holds other per-view corrections than this run trains ({sorted(missing)} missing)",
+                    "The checkpoint is from another nerfkit; re-train",
+                )
             self.views.load_state_dict(ckpt["views"], strict=False)
             if not missing:  # a run from before --colour-mix starts its mixing (and the views' Adam state) afresh
                 assert self.view_optimizer is not None  # (built with the views)
@@ -355,9 +390,11 @@ class Trainer:
         self.bad_steps += 1
         self.log(f"step {self.step}: {what} ({self.bad_steps} in a row)")
         if self.bad_steps >= MAX_BAD_STEPS:
-            fix = ("The last good checkpoint is kept; lower --lr and resume with --resume"
-                   if checkpoint_paths(self.run_dir)
-                   else "No checkpoint was written yet; start again with a lower --lr into a new --out")
+            fix = (
+                "The last good checkpoint is kept; lower --lr and resume with --resume"
+                if checkpoint_paths(self.run_dir)
+                else "No checkpoint was written yet; start again with a lower --lr into a new --out"
+            )
             raise fail(self.run_dir, f"training diverged: {self.bad_steps} steps in a row had non-finite values", fix)
 
     # -- evaluation ------------------------------------------------------------------
@@ -411,12 +448,18 @@ class Trainer:
         self.model.load_kernels()
         loading = time.perf_counter() - start
         if loading > 5.0:
-            self.log(f"compiled the kernels in {loading:.0f} s (once: later runs load them "
-                     "from numba's cache)")
+            self.log(f"compiled the kernels in {loading:.0f} s (once: later runs load them from numba's cache)")
         total = self.cfg.steps if self.cfg.steps else None
-        bar = tqdm(total=total, initial=self.step, desc=f"train {self.cfg.model}", unit="step", dynamic_ncols=True,
-                   disable=self.quiet, file=sys.stderr,
-                   mininterval=1.0 if sys.stderr.isatty() else 30.0)  # sparse updates in log files
+        bar = tqdm(
+            total=total,
+            initial=self.step,
+            desc=f"train {self.cfg.model}",
+            unit="step",
+            dynamic_ncols=True,
+            disable=self.quiet,
+            file=sys.stderr,
+            mininterval=1.0 if sys.stderr.isatty() else 30.0,
+        )  # sparse updates in log files
         try:
             self._loop(bar, stop_after, lambda: interrupted)
             # the handlers stay until all is saved: a second Ctrl-C must not cut the save short
@@ -428,19 +471,24 @@ class Trainer:
             for s, handler in previous.items():
                 signal.signal(s, handler)
         if interrupted:
-            self.log(f"interrupted: checkpoint saved at step {self.step}; continue with "
-                     f"`nerfkit train --resume {self.run_dir}`")
+            self.log(
+                f"interrupted: checkpoint saved at step {self.step}; continue with "
+                f"`nerfkit train --resume {self.run_dir}`"
+            )
             if self.result().final_val_psnr is None and len(self.scene.val):
-                self.log(f"the model saved at step {self.step} was not evaluated (no val PSNR is reported): "
-                         f"`nerfkit eval {self.run_dir}` scores it")
+                self.log(
+                    f"the model saved at step {self.step} was not evaluated (no val PSNR is reported): "
+                    f"`nerfkit eval {self.run_dir}` scores it"
+                )
         return self.result(interrupted)
 
     def result(self, interrupted: bool = False) -> TrainResult:
         """The run so far; its val PSNR only from an evaluation of the current step (one of
         an earlier step, before an interrupt, is not the saved model's)."""
         final = [r for r in self.rows if r["split"] == "val" and r["step"] == self.step]
-        return TrainResult(self.run_dir, self.step, self.train_seconds,
-                           final[-1]["psnr"] if final else None, interrupted, self.rows)
+        return TrainResult(
+            self.run_dir, self.step, self.train_seconds, final[-1]["psnr"] if final else None, interrupted, self.rows
+        )
 
     def _loop(self, bar, stop_after: int | None, interrupted) -> None:
         """The training steps, with their metrics, evaluations and periodic checkpoints, until
@@ -459,16 +507,28 @@ class Trainer:
             if math.isfinite(stats["psnr"]):
                 train_psnr.append(stats["psnr"])
             if self.step % 10 == 0 or self.done():
-                self.rows.append({"step": self.step, "seconds": round(self.train_seconds, 3), "split": "train",
-                                  "loss": stats["loss"], "psnr": float(np.mean(train_psnr[-10:] or [float("nan")])),
-                                  "rays": stats["rays"]})
+                self.rows.append(
+                    {
+                        "step": self.step,
+                        "seconds": round(self.train_seconds, 3),
+                        "split": "train",
+                        "loss": stats["loss"],
+                        "psnr": float(np.mean(train_psnr[-10:] or [float("nan")])),
+                        "rays": stats["rays"],
+                    }
+                )
             bar.update(1)
-            bar.set_postfix(loss=f"{stats['loss']:.4f}", psnr=f"{stats['psnr']:.2f}",
-                            rays=stats["rays"], spr=f"{stats['samples'] / max(stats['rays'], 1):.0f}",
-                            refresh=False)
+            bar.set_postfix(
+                loss=f"{stats['loss']:.4f}",
+                psnr=f"{stats['psnr']:.2f}",
+                rays=stats["rays"],
+                spr=f"{stats['samples'] / max(stats['rays'], 1):.0f}",
+                refresh=False,
+            )
             if self.cfg.minutes and not self.cfg.steps:
-                bar.set_description(f"train {self.cfg.model} {self.train_seconds:.0f}/{60 * self.cfg.minutes:.0f}s",
-                                    refresh=False)  # redraws follow the bar's own interval
+                bar.set_description(
+                    f"train {self.cfg.model} {self.train_seconds:.0f}/{60 * self.cfg.minutes:.0f}s", refresh=False
+                )  # redraws follow the bar's own interval
             if self._eval_due() or self.done():
                 self._record_eval()
             if time.perf_counter() - last_ckpt >= self.cfg.checkpoint_seconds:
@@ -499,20 +559,40 @@ class Trainer:
             also = f"; the first {periodic}, as evaluated during training: {self.rows[-1]['psnr']:.2f} dB"
         self._add_val_row(float(np.mean(scores)), views, pixels)
         scope = f"all {views} views" if views == len(val) else f"first {views} of {len(val)} views"
-        self.log(f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {self.rows[-1]['psnr']:.2f} dB ({scope}"
-                 + ("" if full else f", {pixels} pixels each") + also + ")")
+        self.log(
+            f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {self.rows[-1]['psnr']:.2f} dB ({scope}"
+            + ("" if full else f", {pixels} pixels each")
+            + also
+            + ")"
+        )
 
     def _add_val_row(self, psnr_db: float, views: int, pixels: int) -> None:
-        self.rows.append({"step": self.step, "seconds": round(self.train_seconds, 3), "split": "val",
-                          "loss": float("nan"), "psnr": psnr_db, "views": views, "pixels": pixels})
+        self.rows.append(
+            {
+                "step": self.step,
+                "seconds": round(self.train_seconds, 3),
+                "split": "val",
+                "loss": float("nan"),
+                "psnr": psnr_db,
+                "views": views,
+                "pixels": pixels,
+            }
+        )
 
     def write_reports(self) -> None:
         """metrics.csv/json (``finished``: the stopping rule was reached, not cut short;
         ``notes``: the model's at the end), PSNR and loss curves, the progression figure, and
         view_corrections.json when the run learns a correction per training view."""
-        write_json(self.run_dir / "metrics.json", {"rows": self.rows, "step": self.step,
-                                                   "train_seconds": self.train_seconds, "finished": self.done(),
-                                                   "notes": self.notes})
+        write_json(
+            self.run_dir / "metrics.json",
+            {
+                "rows": self.rows,
+                "step": self.step,
+                "train_seconds": self.train_seconds,
+                "finished": self.done(),
+                "notes": self.notes,
+            },
+        )
         buf = io.StringIO()
         keys = ["step", "seconds", "split", "loss", "psnr", "views", "pixels", "rays"]
         writer = csv.DictWriter(buf, fieldnames=keys, extrasaction="ignore")
@@ -520,20 +600,36 @@ class Trainer:
         writer.writerows(self.rows)
         write_text(self.run_dir / "metrics.csv", buf.getvalue())
         if self.views is not None:
-            write_json(self.run_dir / "view_corrections.json", {
-                "what": "per training view: pose correction (rotation in degrees, translation in scene units) "
-                        "and exposure gain relative to the average view (with colour mixing also the colour "
-                        "matrix: rendered rgb -> photo rgb, with the gains on its diagonal)",
-                "views": self.views.report(self.scene.train.names)})
+            write_json(
+                self.run_dir / "view_corrections.json",
+                {
+                    "what": "per training view: pose correction (rotation in degrees, translation in scene units) "
+                    "and exposure gain relative to the average view (with colour mixing also the colour "
+                    "matrix: rendered rgb -> photo rgb, with the gains on its diagonal)",
+                    "views": self.views.report(self.scene.train.names),
+                },
+            )
         train = [r for r in self.rows if r["split"] == "train"]
         val = [r for r in self.rows if r["split"] == "val"]
         plots = self.run_dir / "plots"
-        plot_curves(plots / "psnr.png", {
-            "train (batch)": ([r["seconds"] for r in train], [r["psnr"] for r in train]),
-            **validation_series(val, len(self.scene.val), self.scene.val.width * self.scene.val.height),
-        }, "training seconds", "PSNR (dB)", f"{self.cfg.model}: PSNR")
-        plot_curves(plots / "loss.png", {"train loss": ([r["step"] for r in train], [r["loss"] for r in train])},
-                    "step", "loss (photometric + regularisers)", f"{self.cfg.model}: training loss", logy=True)
+        plot_curves(
+            plots / "psnr.png",
+            {
+                "train (batch)": ([r["seconds"] for r in train], [r["psnr"] for r in train]),
+                **validation_series(val, len(self.scene.val), self.scene.val.width * self.scene.val.height),
+            },
+            "training seconds",
+            "PSNR (dB)",
+            f"{self.cfg.model}: PSNR",
+        )
+        plot_curves(
+            plots / "loss.png",
+            {"train loss": ([r["step"] for r in train], [r["loss"] for r in train])},
+            "step",
+            "loss (photometric + regularisers)",
+            f"{self.cfg.model}: training loss",
+            logy=True,
+        )
         snaps = sorted((self.run_dir / "progress").glob("step_*.png"))
         if len(snaps) > 8:  # keep the first, the last and evenly spaced ones between
             snaps = [snaps[int(round(i))] for i in np.linspace(0, len(snaps) - 1, 8)]
@@ -544,8 +640,13 @@ class Trainer:
             assert val_images is not None  # (has_images)
             images = [iio.imread(p) for p in snaps] + [val_images[0]]
             titles = [f"step {int(p.stem.split('_')[1])}" for p in snaps] + ["ground truth"]
-            image_grid(plots / "progress.png", images, titles, ncols=min(len(images), 5),
-                       suptitle="validation view 0 during training")
+            image_grid(
+                plots / "progress.png",
+                images,
+                titles,
+                ncols=min(len(images), 5),
+                suptitle="validation view 0 during training",
+            )
 
 
 def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False, user_set=None) -> TrainResult:
@@ -578,8 +679,14 @@ def check_new_run_folder(run_dir: Path) -> None:
         raise fail(run_dir, "holds files that are not a nerfkit run", "Choose a new or empty --out")
 
 
-def resume(run_dir: str | Path, scene: Scene, steps: int | None = None, minutes: float | None = None,
-           quiet: bool = False, changes: dict | None = None) -> TrainResult:
+def resume(
+    run_dir: str | Path,
+    scene: Scene,
+    steps: int | None = None,
+    minutes: float | None = None,
+    quiet: bool = False,
+    changes: dict | None = None,
+) -> TrainResult:
     """Continue a run from its newest good checkpoint (optionally with a new stopping rule,
     and the TrainConfig fields in ``changes``) on the dataset it was trained on."""
     with run_lock(run_dir):
@@ -595,10 +702,15 @@ def resume(run_dir: str | Path, scene: Scene, steps: int | None = None, minutes:
         cfg.out = str(run_dir)
         trainer = Trainer(scene, cfg.validate(), info.model_config, resume=True, quiet=quiet)
         if trainer.done() and _finished_at(Path(run_dir), trainer.step):  # changes nothing, config.json included
-            limit = (f"--steps {cfg.steps}" if cfg.steps and trainer.step >= cfg.steps
-                     else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.1f} trained)")
-            trainer.log(f"{run_dir}: at step {trainer.step} the run is already past {limit}: nothing more to train "
-                        "(give a larger --steps or --minutes to go on)")
+            limit = (
+                f"--steps {cfg.steps}"
+                if cfg.steps and trainer.step >= cfg.steps
+                else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.1f} trained)"
+            )
+            trainer.log(
+                f"{run_dir}: at step {trainer.step} the run is already past {limit}: nothing more to train "
+                "(give a larger --steps or --minutes to go on)"
+            )
             return trainer.result()
         # the run's config records the stopping rule (and the settings) it now goes on with
         write_run_config(Path(run_dir), trainer.cfg, info.model_config, info.bounds, info.scene)
@@ -612,8 +724,12 @@ def _finished_at(run_dir: Path, step: int) -> bool:
         metrics = json.loads((run_dir / "metrics.json").read_text())
     except (OSError, ValueError):
         return False
-    return isinstance(metrics, dict) and metrics.get("finished") is True and metrics.get("step") == step \
+    return (
+        isinstance(metrics, dict)
+        and metrics.get("finished") is True
+        and metrics.get("step") == step
         and (run_dir / MODEL_FILE).is_file()
+    )
 
 
 __all__ = ["TrainResult", "Trainer", "resume", "train"]

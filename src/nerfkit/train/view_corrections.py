@@ -31,9 +31,14 @@ from ..cameras import Rays
 def skew(v: Tensor) -> Tensor:
     """(n, 3) vectors -> (n, 3, 3) cross-product matrices ``[v]_x``."""
     z = torch.zeros_like(v[:, 0])
-    return torch.stack([torch.stack([z, -v[:, 2], v[:, 1]], -1),
-                        torch.stack([v[:, 2], z, -v[:, 0]], -1),
-                        torch.stack([-v[:, 1], v[:, 0], z], -1)], dim=1)
+    return torch.stack(
+        [
+            torch.stack([z, -v[:, 2], v[:, 1]], -1),
+            torch.stack([v[:, 2], z, -v[:, 0]], -1),
+            torch.stack([-v[:, 1], v[:, 0], z], -1),
+        ],
+        dim=1,
+    )
 
 
 def so3_exp(w: Tensor) -> Tensor:
@@ -221,7 +226,7 @@ def least_squares_colour(rgb: np.ndarray, target: np.ndarray, mix: bool = False)
         return coef[:3].T.copy(), coef[3].copy()
     matrix, offset = np.zeros((3, 3)), np.zeros(3)
     for c in range(3):
-        (matrix[c, c], offset[c]), *_ = np.linalg.lstsq(np.concatenate([X[:, c:c + 1], ones], 1), Y[:, c], rcond=None)
+        (matrix[c, c], offset[c]), *_ = np.linalg.lstsq(np.concatenate([X[:, c : c + 1], ones], 1), Y[:, c], rcond=None)
     return matrix, offset
 
 
@@ -236,8 +241,9 @@ class ViewFitConfig:
     colour_mix: bool = False  # the exposure is an affine colour transform (as the run's, see ExposureCorrection)
 
 
-def fit_view(render_fn, rays: Rays, target: Tensor, scale: float, cfg: ViewFitConfig,
-             generator: torch.Generator | None = None) -> tuple[PoseCorrection, ExposureCorrection]:
+def fit_view(
+    render_fn, rays: Rays, target: Tensor, scale: float, cfg: ViewFitConfig, generator: torch.Generator | None = None
+) -> tuple[PoseCorrection, ExposureCorrection]:
     """Fit a pose correction (and exposure) of one view to its photo, the scene frozen.
 
     Args:

@@ -116,8 +116,14 @@ def plot_coverage(path: str | Path, where: dict[str, np.ndarray], gaps: dict[str
     ax = fig.add_subplot(projection="polar")
     for split, ae in where.items():
         if len(ae):
-            ax.scatter(np.radians(ae[:, 0]), 90.0 - ae[:, 1], s=18, label=f"{split} ({len(ae)})",
-                       color=SPLIT_COLOURS.get(split), zorder=3)
+            ax.scatter(
+                np.radians(ae[:, 0]),
+                90.0 - ae[:, 1],
+                s=18,
+                label=f"{split} ({len(ae)})",
+                color=SPLIT_COLOURS.get(split),
+                zorder=3,
+            )
     for (label, outline), colour in zip(gaps.items(), itertools.cycle(["tab:red", "tab:purple"])):
         ax.plot(np.radians(outline[:, 0]), 90.0 - outline[:, 1], "--", color=colour, linewidth=1.2, label=label)
     ax.set_rlim(0, 90)

@@ -64,8 +64,9 @@ class RaySamples:
     points: np.ndarray
 
 
-def sample_rays(views: Views, near: float, far: float, n_rays: int, n_samples: int = 64, seed: int = 0,
-                view: int | None = None) -> RaySamples:
+def sample_rays(
+    views: Views, near: float, far: float, n_rays: int, n_samples: int = 64, seed: int = 0, view: int | None = None
+) -> RaySamples:
     """``n_rays`` random pixels of random views (of view ``view`` only, when given: the
     course's check that u and v are not swapped), their rays and stratified samples."""
     import torch
@@ -77,8 +78,9 @@ def sample_rays(views: Views, near: float, far: float, n_rays: int, n_samples: i
     rng = np.random.default_rng(seed)
     idx = rng.integers(0, len(views), n_rays) if view is None else np.full(n_rays, view)
     uv = np.column_stack([rng.integers(0, views.width, n_rays), rng.integers(0, views.height, n_rays)]) + 0.5
-    o, d = pixel_to_ray(torch.from_numpy(views.K[idx]).float(), torch.from_numpy(views.c2w[idx]).float(),
-                        torch.from_numpy(uv).float())
+    o, d = pixel_to_ray(
+        torch.from_numpy(views.K[idx]).float(), torch.from_numpy(views.c2w[idx]).float(), torch.from_numpy(uv).float()
+    )
     pts, _ = sample_along_rays(o, d, near, far, n_samples, perturb=True, generator=g)
     origins, dirs = o.numpy().astype(np.float64), d.numpy().astype(np.float64)
     seg = np.stack([origins + near * dirs, origins + far * dirs], axis=1)
@@ -91,9 +93,18 @@ def _to_plot(up: np.ndarray) -> np.ndarray:
     return np.stack([a, b, np.asarray(up, np.float64) / np.linalg.norm(up)])
 
 
-def plot_scene(scene: Scene, path: str | Path, n_rays: int = 0, n_samples: int = 64, tag_size: float | None = None,
-               max_cameras: int = 80, thumbnails: bool = True, seed: int = 0, title: str = "",
-               rays_from: int | None = None) -> None:
+def plot_scene(
+    scene: Scene,
+    path: str | Path,
+    n_rays: int = 0,
+    n_samples: int = 64,
+    tag_size: float | None = None,
+    max_cameras: int = 80,
+    thumbnails: bool = True,
+    seed: int = 0,
+    title: str = "",
+    rays_from: int | None = None,
+) -> None:
     """Write a PNG of the scene's cameras (frustums with thumbnails of their images), the world
     axes, the tag plane (z = 0 of the world, perpendicular to up) and ``n_rays`` training rays
     (of training view ``rays_from`` only, when given) with their samples."""
@@ -144,10 +155,20 @@ def plot_scene(scene: Scene, path: str | Path, n_rays: int = 0, n_samples: int =
                 s_ = np.linspace(0, 1, gw + 1)[None, :, None]
                 t_ = np.linspace(0, 1, gh + 1)[:, None, None]
                 grid = (1 - t_) * ((1 - s_) * f[1] + s_ * f[2]) + t_ * ((1 - s_) * f[4] + s_ * f[3])
-                ax.plot_surface(grid[..., 0], grid[..., 1], grid[..., 2], facecolors=th, shade=False,
-                                rstride=1, cstride=1, linewidth=0, antialiased=False)
-        ax.add_collection3d(Line3DCollection(lines, colors=[SPLIT_COLORS.get(split, "k")], linewidths=0.8,
-                                             label=f"{split} ({len(v)})"))
+                ax.plot_surface(
+                    grid[..., 0],
+                    grid[..., 1],
+                    grid[..., 2],
+                    facecolors=th,
+                    shade=False,
+                    rstride=1,
+                    cstride=1,
+                    linewidth=0,
+                    antialiased=False,
+                )
+        ax.add_collection3d(
+            Line3DCollection(lines, colors=[SPLIT_COLORS.get(split, "k")], linewidths=0.8, label=f"{split} ({len(v)})")
+        )
 
     # Rays and their samples.
     if n_rays > 0 and len(scene.train):
@@ -171,8 +192,12 @@ def plot_scene(scene: Scene, path: str | Path, n_rays: int = 0, n_samples: int =
     ax.set_ylabel("y")
     ax.set_zlabel("up")
     ax.legend(loc="upper left", fontsize=8)
-    ax.set_title(title or f"{Path(scene.source).name or 'scene'}: near {scene.near:.3g}, far {scene.far:.3g}"
-                 + (f", {n_rays} rays x {n_samples} samples" if n_rays else ""), fontsize=10)
+    ax.set_title(
+        title
+        or f"{Path(scene.source).name or 'scene'}: near {scene.near:.3g}, far {scene.far:.3g}"
+        + (f", {n_rays} rays x {n_samples} samples" if n_rays else ""),
+        fontsize=10,
+    )
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")

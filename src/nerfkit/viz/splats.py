@@ -13,14 +13,27 @@ def splat_arrays(g: Gaussians) -> dict:
     q = g.quats.astype(np.float64)
     q = q / np.linalg.norm(q, axis=1, keepdims=True).clip(1e-12)
     w, x, y, z = q.T
-    R = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                  2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                  2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], 1).reshape(-1, 3, 3)
+    R = np.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        ],
+        1,
+    ).reshape(-1, 3, 3)
     M = R * np.exp(g.log_scales.astype(np.float64))[:, None, :]
-    return {"centers": g.means.astype(np.float32),
-            "covariances": (M @ M.transpose(0, 2, 1)).astype(np.float32),
-            "rgbs": np.clip(0.5 + SH_C0 * g.sh_dc.reshape(-1, 3), 0, 1).astype(np.float32),
-            "opacities": (1 / (1 + np.exp(-g.opacity_logits.astype(np.float64)))).reshape(-1, 1).astype(np.float32)}
+    return {
+        "centers": g.means.astype(np.float32),
+        "covariances": (M @ M.transpose(0, 2, 1)).astype(np.float32),
+        "rgbs": np.clip(0.5 + SH_C0 * g.sh_dc.reshape(-1, 3), 0, 1).astype(np.float32),
+        "opacities": (1 / (1 + np.exp(-g.opacity_logits.astype(np.float64)))).reshape(-1, 1).astype(np.float32),
+    }
 
 
 def add_splats(server, model, name: str = "/splats"):

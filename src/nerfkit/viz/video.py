@@ -11,8 +11,9 @@ from ..images import to_uint8
 from ..io.atomic import atomic_path
 
 
-def colorize_depth(depth: np.ndarray, acc: np.ndarray, near: float, far: float, cmap: str = "turbo",
-                   unmet_is_far: bool = False) -> np.ndarray:
+def colorize_depth(
+    depth: np.ndarray, acc: np.ndarray, near: float, far: float, cmap: str = "turbo", unmet_is_far: bool = False
+) -> np.ndarray:
     """Colour-map depth (H, W) into (H, W, 3) float; near is warm, far is cool.
 
     The range is clipped to [near, far], a scale the caller keeps from frame to frame. The
@@ -53,7 +54,7 @@ def depth_scale(width: int, near: float, far: float, metres: bool, cmap: str = "
     bar = max(6, h // 2 - 2)
     strip = np.zeros((h, width, 3), np.uint8)
     ramp = matplotlib.colormaps[cmap](1.0 - np.linspace(0.0, 1.0, width))[:, :3]
-    strip[1: 1 + bar] = to_uint8(ramp)[None]
+    strip[1 : 1 + bar] = to_uint8(ramp)[None]
     scale = max(0.3, (h - bar - 4) / 30)
     thick = 1 if scale < 0.8 else 2
     left, right = f"near {depth_label(near, metres)}", f"far {depth_label(far, metres)}"
@@ -83,5 +84,14 @@ def write_video(path: str | Path, frames: Iterable[np.ndarray], fps: int = 30) -
             ph, pw = h % 2, w % 2
             if ph or pw:
                 frames = [np.pad(f, ((0, ph), (0, pw), (0, 0)), mode="edge") for f in frames]
-            iio.imwrite(tmp, np.stack(frames), extension=".mp4", plugin="FFMPEG", fps=fps,
-                        codec="libx264", quality=8, macro_block_size=1, ffmpeg_log_level="error")
+            iio.imwrite(
+                tmp,
+                np.stack(frames),
+                extension=".mp4",
+                plugin="FFMPEG",
+                fps=fps,
+                codec="libx264",
+                quality=8,
+                macro_block_size=1,
+                ffmpeg_log_level="error",
+            )

@@ -34,31 +34,53 @@ def _thumbnail(image: np.ndarray, max_side: int) -> np.ndarray:
     return image if s >= 1 else cv2.resize(image, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
 
 
-def populate(server, scene: Scene, n_rays: int = 0, n_samples: int = 64, tag_size: float | None = None,
-             image_max_side: int = 256, seed: int = 0, rays_from: int | None = None) -> dict:
+def populate(
+    server,
+    scene: Scene,
+    n_rays: int = 0,
+    n_samples: int = 64,
+    tag_size: float | None = None,
+    image_max_side: int = 256,
+    seed: int = 0,
+    rays_from: int | None = None,
+) -> dict:
     """Add the scene to a viser server; returns the handles by kind (for updates and tests)."""
     up = np.asarray(scene.up, np.float64)
     server.scene.set_up_direction(tuple(float(u) for u in up))
     scale = scene_scale(scene)
     handles: dict = {"frustums": [], "rays": None, "samples": None, "points": None}
-    handles["axes"] = server.scene.add_frame("/world", axes_length=1.5 * tag_size if tag_size else 0.25 * scale,
-                                             axes_radius=0.02 * (1.5 * tag_size if tag_size else 0.25 * scale))
+    handles["axes"] = server.scene.add_frame(
+        "/world",
+        axes_length=1.5 * tag_size if tag_size else 0.25 * scale,
+        axes_radius=0.02 * (1.5 * tag_size if tag_size else 0.25 * scale),
+    )
     a, b = axes_across(up)
     R_plane = np.column_stack([a, b, up / np.linalg.norm(up)])
-    handles["plane"] = server.scene.add_grid("/tag_plane", width=scale, height=scale, cell_size=scale / 10,
-                                             section_size=scale / 2, plane="xy", wxyz=_wxyz(R_plane),
-                                             plane_color=(200, 200, 200), plane_opacity=0.25)
+    handles["plane"] = server.scene.add_grid(
+        "/tag_plane",
+        width=scale,
+        height=scale,
+        cell_size=scale / 10,
+        section_size=scale / 2,
+        plane="xy",
+        wxyz=_wxyz(R_plane),
+        plane_color=(200, 200, 200),
+        plane_opacity=0.25,
+    )
     tags = printed_tags(scene, tag_size)
     if tags is not None:  # the printed tags, a hair above the plane
         verts = (tags + up * 1e-4).reshape(-1, 3)
         faces = (np.array([[0, 1, 2], [0, 2, 3]]) + 4 * np.arange(len(tags))[:, None, None]).reshape(-1, 3)
-        handles["tag"] = server.scene.add_mesh_simple("/tag", verts.astype(np.float32), faces.astype(np.uint32),
-                                                      color=(20, 20, 20), side="double")
-    handles["center"] = server.scene.add_icosphere("/center", radius=0.01 * scale, color=(220, 0, 220),
-                                                   position=tuple(float(c) for c in scene.center))
+        handles["tag"] = server.scene.add_mesh_simple(
+            "/tag", verts.astype(np.float32), faces.astype(np.uint32), color=(20, 20, 20), side="double"
+        )
+    handles["center"] = server.scene.add_icosphere(
+        "/center", radius=0.01 * scale, color=(220, 0, 220), position=tuple(float(c) for c in scene.center)
+    )
     if scene.points is not None and len(scene.points):  # the dataset's sparse points, in their colours
-        handles["points"] = server.scene.add_point_cloud("/sparse_points", scene.points.astype(np.float32),
-                                                         colors=scene.point_colors, point_size=0.004 * scale)
+        handles["points"] = server.scene.add_point_cloud(
+            "/sparse_points", scene.points.astype(np.float32), colors=scene.point_colors, point_size=0.004 * scale
+        )
     for split, v in scene.splits.items():
         color = tuple(int(255 * c) for c in SPLIT_COLORS.get(split, (0, 0, 0)))
         for i in range(len(v)):
@@ -67,16 +89,24 @@ def populate(server, scene: Scene, n_rays: int = 0, n_samples: int = 64, tag_siz
             img = None if v.images is None else _thumbnail(v.images[i], image_max_side)
             name = v.names[i] if v.names is not None else f"{i:04d}"
             h = server.scene.add_camera_frustum(
-                f"/cameras/{split}/{name}", fov=float(2 * np.arctan2(v.height / 2, K[1, 1])),
-                aspect=v.width / v.height, scale=0.1 * scale, thickness=0.004 * scale, color=color, image=img,
-                wxyz=_wxyz(c2w[:3, :3]), position=tuple(c2w[:3, 3]))
+                f"/cameras/{split}/{name}",
+                fov=float(2 * np.arctan2(v.height / 2, K[1, 1])),
+                aspect=v.width / v.height,
+                scale=0.1 * scale,
+                thickness=0.004 * scale,
+                color=color,
+                image=img,
+                wxyz=_wxyz(c2w[:3, :3]),
+                position=tuple(c2w[:3, 3]),
+            )
             handles["frustums"].append(h)
     set_rays(server, scene, handles, n_rays, n_samples, seed, rays_from)
     return handles
 
 
-def set_rays(server, scene: Scene, handles: dict, n_rays: int, n_samples: int, seed: int = 0,
-             rays_from: int | None = None) -> None:
+def set_rays(
+    server, scene: Scene, handles: dict, n_rays: int, n_samples: int, seed: int = 0, rays_from: int | None = None
+) -> None:
     """Replace the shown rays and samples with ``n_rays`` new ones (0 removes them), of
     training view ``rays_from`` only when given."""
     for key in ("rays", "samples"):
@@ -89,15 +119,28 @@ def set_rays(server, scene: Scene, handles: dict, n_rays: int, n_samples: int, s
     rng = np.random.default_rng(seed)
     cols = rng.integers(60, 255, (n_rays, 3)).astype(np.uint8)
     scale = scene_scale(scene)
-    handles["rays"] = server.scene.add_line_segments("/rays/lines", rs.segments.astype(np.float32),
-                                                     np.repeat(cols[:, None], 2, axis=1), thickness=0.002 * scale)
-    handles["samples"] = server.scene.add_point_cloud("/rays/samples", rs.points.reshape(-1, 3).astype(np.float32),
-                                                      np.repeat(cols, rs.points.shape[1], axis=0),
-                                                      point_size=0.006 * scale, precision="float32")
+    handles["rays"] = server.scene.add_line_segments(
+        "/rays/lines", rs.segments.astype(np.float32), np.repeat(cols[:, None], 2, axis=1), thickness=0.002 * scale
+    )
+    handles["samples"] = server.scene.add_point_cloud(
+        "/rays/samples",
+        rs.points.reshape(-1, 3).astype(np.float32),
+        np.repeat(cols, rs.points.shape[1], axis=0),
+        point_size=0.006 * scale,
+        precision="float32",
+    )
 
 
-def serve_dataset(scene: Scene, host: str = "127.0.0.1", port: int = 8080, n_rays: int = 0, n_samples: int = 64,
-                  tag_size: float | None = None, block: bool = True, rays_from: int | None = None):
+def serve_dataset(
+    scene: Scene,
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    n_rays: int = 0,
+    n_samples: int = 64,
+    tag_size: float | None = None,
+    block: bool = True,
+    rays_from: int | None = None,
+):
     """Start a viser server showing ``scene``; with ``block`` wait until Ctrl-C, then stop.
 
     Returns ``(server, handles)`` (after stopping, when blocking). viser moves to the next
