@@ -17,38 +17,7 @@ their checks with; this module is their public name.
 
 from __future__ import annotations
 
-from .commands.pipeline import (
-    CalibrationResult,
-    EvaluationResult,
-    ExportResult,
-    PoseResult,
-    RenderResult,
-    TrainResult,
-    calibrate,
-    command_arguments,
-    evaluate,
-    export,
-    pose,
-    render,
-    resume,
-    train,
-    train_settings,
-)
+from .commands import pipeline as _pipeline
+from .commands.pipeline import *  # noqa: F403 - this module is the pipeline's public name
 
-__all__ = [
-    "CalibrationResult",
-    "EvaluationResult",
-    "ExportResult",
-    "PoseResult",
-    "RenderResult",
-    "TrainResult",
-    "calibrate",
-    "command_arguments",
-    "evaluate",
-    "export",
-    "pose",
-    "render",
-    "resume",
-    "train",
-    "train_settings",
-]
+__all__ = _pipeline.__all__
