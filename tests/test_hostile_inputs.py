@@ -26,6 +26,7 @@ import pytest
 
 from nerfkit.cli import build_parser, main
 from nerfkit.errors import NerfkitError
+from test_safety import one_line
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "nerfkit"
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
@@ -1083,16 +1084,6 @@ def test_a_training_refused_at_start_leaves_no_empty_run_folder(tmp_path, sphere
 # ============================================================================= issue 66: the last holes
 
 
-def _err_line(capsys, *fragments) -> str:
-    """The one error line a command printed; nothing else on stderr may be a traceback."""
-    text = capsys.readouterr().err
-    err = [ln.rsplit("\r", 1)[-1] for ln in text.splitlines() if "error:" in ln]
-    assert len(err) == 1 and "Traceback" not in text, text
-    for f in fragments:
-        assert f in err[0], (f, err[0])
-    return err[0]
-
-
 def _photos_with_a_link_outside(root: Path) -> tuple[Path, Path]:
     """``photos/`` holding a photo, a symlink to it (inside) and ``photo.png``, a symlink to
     ``private/secret.png`` (outside); returns (photos, secret)."""
@@ -1128,7 +1119,7 @@ def test_a_photo_symlinked_to_a_file_outside_the_folder_is_never_read(tmp_path, 
     monkeypatch.setattr(photos_mod, "load_image_uint8", lambda p, *a, **k: read.append(Path(p)) or loader(p, *a, **k))
     argv = [str(photos) if a == "PHOTOS" else a.replace("OUT", str(out)) for a in command]
     assert main(argv) == 2
-    _err_line(capsys, "photo.png", "outside the photo folder", "copy the photo into the folder")
+    one_line(capsys, "photo.png", "outside the photo folder", "copy the photo into the folder")
     assert not read and not out.exists()  # refused before any photo is read or anything written
 
 
@@ -1189,7 +1180,7 @@ def test_a_run_is_never_written_inside_its_datasets_folder(tmp_path, capsys, dat
     ds = _dataset_folder(tmp_path)
     before = {p: p.stat().st_mtime_ns for p in ds.rglob("*")}
     assert main(["train", "--data", str(tmp_path / data), "--out", str(tmp_path / out), *TRAIN_TINY]) == 2
-    _err_line(capsys, "the folder of the dataset", "Choose an --out outside")
+    one_line(capsys, "the folder of the dataset", "Choose an --out outside")
     assert {p: p.stat().st_mtime_ns for p in ds.rglob("*")} == before  # nothing written, not even a lock
 
 
@@ -1230,7 +1221,7 @@ def test_convert_near_far_must_survive_the_files_float32(tmp_path, capsys, flags
     save_npz(sphere_scene(n_train=3, n_val=1, size=8), src)
     out = tmp_path / "out.npz"
     assert main(["convert", str(src), "--to", str(out), *flags]) == 2
-    _err_line(capsys, message)
+    one_line(capsys, message)
     assert not out.exists()
     assert main(["convert", str(src), "--to", str(out), "--near", "0", "--far", "3e38"]) == 0  # the largest it holds
     with np.load(out) as z:
@@ -1391,7 +1382,7 @@ def test_a_float_tiff_of_0_to_255_is_refused_not_clipped_to_a_silhouette(tmp_pat
             load(tmp_path / "f.tif")
         one_line_error(e, "f.tif", "float pixels span [0, 255], expected [0, 1]", "divide 0-255 values by 255")
     assert main(["fit-image", str(tmp_path / "f.tif"), "--out", str(tmp_path / "fit"), "--steps", "1"]) == 2
-    _err_line(capsys, "expected [0, 1]")
+    one_line(capsys, "expected [0, 1]")
     assert not (tmp_path / "fit").exists()
     Image.fromarray(values / 255.0).save(tmp_path / "g.tif")  # the same picture in 0-1 loads as it is
     np.testing.assert_allclose(load_image(tmp_path / "g.tif")[..., 0], values / 255.0, atol=1e-7)
@@ -1407,7 +1398,7 @@ def test_a_float_tiff_of_0_to_255_is_refused_not_clipped_to_a_silhouette(tmp_pat
 )
 def test_fit_image_model_size_is_bounded(tmp_path, capsys, flags, message):
     assert main(["fit-image", "--out", str(tmp_path / "fit"), "--steps", "1", *flags]) == 2
-    _err_line(capsys, message)
+    one_line(capsys, message)
     assert not (tmp_path / "fit").exists()
 
 
@@ -1419,9 +1410,9 @@ def test_fit_image_memory_messages_name_the_flag_that_matters(tmp_path, capsys, 
     monkeypatch.setattr(fit_mod, "memory_bytes", lambda device: 1 << 30)  # a 1 GB machine
     assert fit_mod.model_bytes(10, 256, 3) == 16 * (43 * 256 + 2 * 257 * 256 + 257 * 3)
     assert main(["fit-image", "--out", str(out), "--steps", "1", "--width", "8192", "--depth", "4"]) == 2
-    _err_line(capsys, "--width/--depth", "more than this machine's 1.07 GB", "Lower --width or --depth")
+    one_line(capsys, "--width/--depth", "more than this machine's 1.07 GB", "Lower --width or --depth")
     assert main(["fit-image", "--out", str(out), "--steps", "1", "--batch", "16000000"]) == 2
-    _err_line(capsys, "--batch", "Lower --batch")
+    one_line(capsys, "--batch", "Lower --batch")
     assert not out.exists()
     monkeypatch.setattr(fit_mod, "memory_bytes", lambda device: None)  # unknown: PyTorch's own failure, then
 
@@ -1433,7 +1424,7 @@ def test_fit_image_memory_messages_name_the_flag_that_matters(tmp_path, capsys, 
 
     monkeypatch.setattr(field_mod.ImageField, "__init__", no_memory)
     assert main(["fit-image", "--out", str(out), "--steps", "1", "--width", "8192"]) == 2
-    _err_line(capsys, "out of memory", "--width and --depth")
+    one_line(capsys, "out of memory", "--width and --depth")
 
 
 def test_convert_force_never_takes_a_users_folder_for_its_leftover(tmp_path):
