@@ -339,14 +339,13 @@ def train_and_score(bench: BenchScene, model_name: str, seconds: float | None, s
     from nerfkit.models import check_config, model_config_class
     from nerfkit.train.checkpoint import MODEL_FILE
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, capture_settings, resolved_config
+    from nerfkit.train.trainer import Trainer, capture_settings
 
     scene = bench.train
     cfg = TrainConfig(data=scene.source, model=model_name, out=str(run_dir), seed=seed,
                       minutes=0.0 if seconds is None else seconds / 60.0, steps=steps or 0,
                       checkpoint_seconds=1e9)
     cfg, model_cfg = capture_settings(cfg.validate(), model_config_class(model_name)(), scene)
-    cfg = resolved_config(cfg, model_cfg)
     check_config(model_name, model_cfg)
     load_before = os.getloadavg()
     trainer = Trainer(scene, cfg, model_cfg, quiet=True)

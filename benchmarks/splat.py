@@ -50,14 +50,13 @@ def worker(args) -> dict:
     from nerfkit.models import model_config_class
     from nerfkit.output.images import render_image
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, capture_settings, resolved_config
+    from nerfkit.train.trainer import Trainer, capture_settings
 
     scene = load_scene(args.data)
     model_cfg = model_config_class(args.model)()
     cfg = TrainConfig(data=args.data, model=args.model, out=args.run, minutes=args.seconds / 60.0, seed=args.seed,
                       checkpoint_seconds=1e9)
     cfg, model_cfg = capture_settings(cfg.validate(), model_cfg, scene)
-    cfg = resolved_config(cfg, model_cfg)
 
     class TimedTrainer(Trainer):
         cpu_seconds = 0.0

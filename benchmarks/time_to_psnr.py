@@ -64,7 +64,7 @@ def worker(args) -> dict:
     from nerfkit.models import model_config_class
     from nerfkit.output.images import render_image
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, capture_settings, resolved_config
+    from nerfkit.train.trainer import Trainer, capture_settings
 
     warmup = None
     if args.model == "fast":
@@ -79,7 +79,6 @@ def worker(args) -> dict:
                       eval_views=args.eval_views or len(scene.val), checkpoint_seconds=1e9)
     overrides(args.set, model_cfg, cfg)
     cfg, model_cfg = capture_settings(cfg.validate(), model_cfg, scene)  # the defaults `nerfkit train` picks
-    cfg = resolved_config(cfg, model_cfg)
 
     class TimedTrainer(Trainer):
         """Evaluates at the given training seconds; counts samples and CPU time."""
