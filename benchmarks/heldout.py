@@ -33,6 +33,11 @@ Without ``--out`` the runs go to a temporary folder that is deleted at the end. 
 folder records the scene it was trained on, without its held-out views, so ``nerfkit eval``
 refuses to score it against the whole dataset: score it here.
 
+``--variant NAME:FIELD=VALUE[,FIELD=VALUE...]`` (repeatable) adds runs of a model with some
+settings changed (``fast+tv:tv_weight=1e-4``): FIELD is a model config or a training config
+field, VALUE a Python literal. The default runs appear beside it in the same table, so a
+candidate default is judged on every scene in one run.
+
 ``--steps`` replaces the time budgets by step counts: a check of the protocol itself on a
 machine too busy for its seconds to mean anything (its figures are not the protocol's).
 """
@@ -49,7 +54,7 @@ import shutil
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -331,8 +336,43 @@ def score_views(model, views, background, chunk: int, autocast) -> dict:
     return {"psnr": float(np.mean(p)), "ssim": float(np.mean(s)), "n": len(views), "fps": len(views) / seconds}
 
 
+def parse_variant(text: str) -> tuple[str, str, dict]:
+    """``"NAME:FIELD=VALUE,..."`` -> (label, base model, {field: value}); NAME is
+    ``MODEL+SUFFIX`` (``fast+tv``) and each VALUE a Python literal."""
+    import ast
+
+    label, sep, body = text.partition(":")
+    base = label.split("+")[0]
+    if not sep or not label or not body:
+        raise fail("--variant", f"{text!r} is not NAME:FIELD=VALUE[,FIELD=VALUE...]", "e.g. fast+tv:tv_weight=1e-4")
+    changes = {}
+    for item in body.split(","):
+        field, eq, value = item.partition("=")
+        if not eq:
+            raise fail("--variant", f"{item!r} in {text!r} is not FIELD=VALUE")
+        try:
+            changes[field.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            changes[field.strip()] = value.strip()
+    return label, base, changes
+
+
+def apply_changes(cfg, model_cfg, changes: dict, label: str):
+    """(cfg, model_cfg) with ``changes`` applied to whichever config has each field."""
+    names_model = {f.name for f in fields(model_cfg)}
+    names_train = {f.name for f in fields(cfg)}
+    for key, value in changes.items():
+        if key in names_model:
+            model_cfg = replace(model_cfg, **{key: value})
+        elif key in names_train:
+            cfg = replace(cfg, **{key: value})
+        else:
+            raise fail("--variant", f"{label}: no setting named {key!r} in the model or training config")
+    return cfg, model_cfg
+
+
 def train_and_score(bench: BenchScene, model_name: str, seconds: float | None, steps: int | None, run_dir: Path,
-                    seed: int) -> dict:
+                    seed: int, changes: dict | None = None, label: str | None = None) -> dict:
     """Train ``model_name`` on ``bench.train`` for ``seconds`` of training (or ``steps``)
     into ``run_dir`` with the defaults ``nerfkit train`` picks, then score the held-out
     views; the run's figures."""
@@ -346,13 +386,14 @@ def train_and_score(bench: BenchScene, model_name: str, seconds: float | None, s
                       minutes=0.0 if seconds is None else seconds / 60.0, steps=steps or 0,
                       checkpoint_seconds=1e9)
     cfg, model_cfg = capture_settings(cfg.validate(), model_config_class(model_name)(), scene)
+    cfg, model_cfg = apply_changes(cfg, model_cfg, changes or {}, label or model_name)
     check_config(model_name, model_cfg)
     load_before = os.getloadavg()
     trainer = Trainer(scene, cfg, model_cfg, quiet=True)
     result = trainer.run()
     load_after = os.getloadavg()
     main = score_views(trainer.model, bench.heldout, trainer.background, cfg.render_chunk, trainer.autocast)
-    row = {"scene": bench.name, "model": model_name, "budget": budget_label(seconds, steps),
+    row = {"scene": bench.name, "model": label or model_name, "budget": budget_label(seconds, steps),
            "budget_s": seconds, "budget_steps": steps, "steps": result.step,
            "train_s": round(result.train_seconds, 2), "psnr": main["psnr"], "ssim": main["ssim"], "fps": main["fps"],
            "model_mb": (run_dir / MODEL_FILE).stat().st_size / 1e6, "n_heldout": main["n"],
@@ -383,6 +424,8 @@ def parse_args(argv=None):
     p.add_argument("--seconds", default="60,300", help="training budgets in seconds, comma-separated")
     p.add_argument("--steps", help="training budgets in steps instead, comma-separated (a check of the protocol on "
                                    "a busy machine, where seconds buy few steps)")
+    p.add_argument("--variant", action="append", default=[], metavar="NAME:FIELD=VALUE,...",
+                   help="also run model NAME's prefix (fast+tv -> fast) with these settings changed (repeatable)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, help="folder for the runs, table.md, results.csv and results.json")
     return p.parse_args(argv)
@@ -403,6 +446,10 @@ def run(args) -> int:
         budgets = [(b, None) for b in sorted(parse_list(args.seconds, float, "--seconds"))]
         if any(not (b > 0 and math.isfinite(b)) for b, _ in budgets):
             raise fail("--seconds", f"{args.seconds!r}: budgets must be positive seconds")
+    runs = [(m, m, {}) for m in models] + [parse_variant(v) for v in args.variant]
+    for label, base, _ in runs:
+        if base not in MODEL_NAMES:
+            raise fail("--variant", f"{label}: unknown model {base!r}", f"Choose from {', '.join(MODEL_NAMES)}")
     captures = parse_captures(args.capture)
     have = {"lego200": args.lego_blender is not None, "lego400": args.lego_blender is not None,
             "flower": args.llff is not None}
@@ -435,22 +482,22 @@ def run(args) -> int:
         for seconds, steps in budgets:
             budget = budget_label(seconds, steps)
             for bench in scenes:
-                for model in models:
-                    run_dir = out / "runs" / f"{bench.name}_{model}_{budget.replace(' ', '')}"
+                for label, model, changes in runs:
+                    run_dir = out / "runs" / f"{bench.name}_{label}_{budget.replace(' ', '')}"
                     if run_dir.exists():  # this benchmark's own earlier run: redone
                         shutil.rmtree(run_dir)
-                    row = train_and_score(bench, model, seconds, steps, run_dir, args.seed)
+                    row = train_and_score(bench, model, seconds, steps, run_dir, args.seed, changes, label)
                     results.append(row)
                     gc.collect()
                     extra = (f" (npz's 10 val: {row['psnr_npz_val']:.2f})" if "psnr_npz_val" in row else "")
-                    print(f"{bench.name} {model} {budget}: {row['steps']} steps, PSNR {row['psnr']:.2f} dB"
+                    print(f"{bench.name} {label} {budget}: {row['steps']} steps, PSNR {row['psnr']:.2f} dB"
                           f"{extra}, SSIM {row['ssim']:.3f}, {row['fps']:.1f} fps, {row['model_mb']:.2f} MB",
                           flush=True)
                     if temp is None:
                         write_outputs(out, results, scenes, notes)
         order = {b.name: i for i, b in enumerate(scenes)}
         results.sort(key=lambda r: (order[r["scene"]], r["budget_steps"] or 0, r["budget_s"] or 0,
-                                    models.index(r["model"])))
+                                    [lb for lb, _, _ in runs].index(r["model"])))
         if temp is None:
             write_outputs(out, results, scenes, notes)
         print()

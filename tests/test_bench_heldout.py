@@ -149,3 +149,20 @@ def test_table_shows_the_npz_val_figure_only_where_there_is_one():
     lines = text.splitlines()
     assert lines[2].endswith("| 12.35 | 0.400 | 2.0 | 1.50 | 13.00 |")
     assert lines[3].endswith("| 1.50 | - |")
+
+
+def test_a_variant_changes_the_named_settings_in_whichever_config_has_them():
+    from nerfkit.models.fast_config import FastConfig
+    from nerfkit.train.config import TrainConfig
+
+    label, base, changes = heldout.parse_variant("fast+tv:tv_weight=1e-4,lr=0.02,rgb_loss=charbonnier")
+    assert (label, base) == ("fast+tv", "fast")
+    assert changes == {"tv_weight": 1e-4, "lr": 0.02, "rgb_loss": "charbonnier"}
+    cfg, model_cfg = heldout.apply_changes(TrainConfig(), FastConfig(), changes, label)
+    assert (model_cfg.tv_weight, model_cfg.rgb_loss, cfg.lr) == (1e-4, "charbonnier", 0.02)
+    assert TrainConfig().lr != 0.02 and FastConfig().tv_weight != 1e-4
+    with pytest.raises(NerfkitError, match="no setting named 'nope'"):
+        heldout.apply_changes(TrainConfig(), FastConfig(), {"nope": 1}, label)
+    for bad in ("fast", "fast+x:", "fast+x:tv_weight"):
+        with pytest.raises(NerfkitError):
+            heldout.parse_variant(bad)
