@@ -24,14 +24,15 @@ $(VENV)/.installed: pyproject.toml
 demo: setup
 	$(BIN)/nerfkit demo
 
+# -n auto: one pytest-xdist worker per core (tests/conftest.py gives each one torch thread)
 test: setup
-	$(BIN)/python -m pytest -m "not slow"
+	$(BIN)/python -m pytest -m "not slow" -n auto
 
 test-slow: setup
-	$(BIN)/python -m pytest -m slow
+	$(BIN)/python -m pytest -m slow -n auto
 
 test-all: setup
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto
 
 lint: setup
 	$(BIN)/ruff check src tests
