@@ -256,3 +256,11 @@ def test_a_clip_too_short_or_too_blurred_stops_at_the_frames_saying_what_to_do(t
     err = capsys.readouterr().err
     assert "nerfkit frames: error:" in err and said in err and fix in err
     assert not (tmp_path / "out" / "dataset").exists()
+
+
+def test_the_summary_names_the_scene_structure_from_motion_found():
+    from nerfkit.commands.capture import scene_kind_text
+
+    assert "an object on a table" in scene_kind_text({"frame": "normalised (no tag): ...", "ground": {"tilt_deg": 1}})
+    assert "no table found" in scene_kind_text({"frame": "normalised (no tag): ...", "ground": None})
+    assert "in metres" in scene_kind_text({"frame": "metric, from ArUco tag 0 (6 cm) ...", "ground": None})

@@ -886,7 +886,9 @@ def summary(
 
 def scene_kind_text(sfm: dict) -> str:
     """What structure-from-motion found the scene to be, from its report: an object on a
-    table (the plane found in its points), or a scene without one."""
+    table (the plane found in its points, or the tag's), or a scene without one."""
+    if str(sfm.get("frame", "")).startswith("metric"):
+        return "an object beside its tag: the tag's plane is the table, z = 0, in metres"
     if sfm.get("ground"):
         return (
             "an object on a table: the table found in the sparse points is z = 0 (scale arbitrary: "
