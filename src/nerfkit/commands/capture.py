@@ -1,30 +1,50 @@
-"""`nerfkit capture`: phone photos to a trained NeRF in one command (calibrate, poses,
-train, eval, render, export), each step's output kept for the next run."""
+"""`nerfkit capture`: a phone video or photos to a trained NeRF and/or Gaussian splat in one
+command (frames, calibrate, poses, train, eval, render, export), each step's output kept for
+the next run."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
-HELP = "phone photos of a tag sheet and of an object -> dataset, NeRF, videos, mesh (every step, in one go)"
+HELP = "a phone video or photos of an object -> poses, NeRF and/or Gaussian splat, videos, mesh (in one go)"
 
 DESCRIPTION = """\
 Run the whole capture flow into one folder, as the README's steps do one by one:
 
-  OUT/camera.json   nerfkit calibrate CALIB_DIR     (skipped with --camera)
-  OUT/dataset/      nerfkit poses OBJECT_DIR        (posed, undistorted, split; with --method auto,
-                                                     structure-from-motion poses in the tag's frame)
-  OUT/run/          nerfkit train --minutes 3       (capture settings: table, room, pose and colour refinement;
-                                                     one resume checkpoint kept, not two: 0.4 GB less)
+  OUT/frames/       nerfkit frames CLIP             (a video: sharp frames spread along it, --clip-frames)
+  OUT/camera.json   nerfkit calibrate CALIB_DIR     (only with --calib; --camera gives one)
+  OUT/dataset/      nerfkit poses OBJECT_DIR        (posed, undistorted, split; see "poses" below)
+  OUT/run/          nerfkit train --minutes 3       (--model fast, the default: capture settings: table,
+                                                     room, pose and colour refinement; one resume
+                                                     checkpoint kept, not two: 0.4 GB less)
                     nerfkit eval --split val        (run/eval_val.json and the contact sheet run/eval_val.png)
                     nerfkit render                  (run/videos: orbit.mp4, orbit.gif, depth.mp4)
                     nerfkit render --object         (run/videos: object.mp4, object.gif, object_depth.mp4,
                                                      the object alone on white)
   OUT/run/mesh.ply  nerfkit export --mesh           (the object, without the table)
+  OUT/splat_run/    nerfkit train --model splat     (--model splat or both: 3D Gaussians from the SfM
+                                                     points, then its eval and orbit video)
+  OUT/splat.ply     nerfkit export --splat          (the standard 3DGS PLY: SuperSplat, Brush, Polycam,
+                                                     Postshot, nerfstudio; and OUT/splat.splat for
+                                                     antimatter15-style web viewers)
+  OUT/splat_object.ply                              (the Gaussians in the object's box: the object alone)
 
-and print what came out: the calibration, the photos posed, the held-out scores, where
-the videos and plots are. Each step prints its own report as it goes. OUT/capture.json
-records what the capture was made from.
+poses: without --tag-size the photos (or frames) are posed by structure-from-motion
+(pycolmap): focal length and radial distortion are refined on the photos themselves, and
+the table (or ground) the object stands on is found in the sparse points and becomes
+z = 0; when none is found the scene keeps the cameras' up and trains without a table.
+The scale is then arbitrary (mean camera distance 4). With --tag-size and a tag beside
+the object, the tag fixes metric scale and up: photos are posed from the tag and by
+structure-from-motion in its frame (--method auto), or from the tag alone (--method
+tags, as the course does); a video's frames, which carry no focal length, are posed by
+structure-from-motion with the tag fixing scale and up. Calibration (--calib or --camera)
+is optional in every route.
+
+Each step prints its own report and progress as it goes, and the capture ends with a
+summary: the frames used, the photos posed, each model's held-out scores and the files
+made. OUT/capture.json records what the capture was made from.
 
 Run it again with the same inputs and the steps whose results are there are kept: a
 training run cut short (Ctrl-C, a crash) goes on from its last checkpoint; a larger
@@ -33,9 +53,12 @@ its learning rate back up to where the longer schedule has it; the eval, videos 
 are made again when they are older than the NeRF (--frames renders the videos again).
 Results made from other inputs are refused, never mixed with new ones (photos added,
 removed or replaced count too); a step that failed may be run again with its input mended.
---force redoes every step, replacing the camera file, the dataset and the NeRF.
+--force redoes every step, replacing the frames, the camera file, the dataset and the runs.
 
 examples:
+  nerfkit capture clip.mp4 --out my_object/
+  nerfkit capture clip.mov --out my_object/ --model both --minutes 5
+  nerfkit capture object_photos/ --out my_object/ --model splat
   nerfkit capture object_photos/ --calib sheet_photos/ --tag-size 0.06 --out my_object/
   nerfkit capture object_photos/ --camera camera.json --tag-size 0.10 --out my_object/ --minutes 5
   nerfkit capture object_photos/ --calib sheet_photos/ --sheet-tag-size 0.03 --tag-size 0.12 --out my_object/
@@ -44,6 +67,15 @@ examples:
 CAMERA_FILE = "camera.json"
 DATASET_DIR = "dataset"
 RUN_DIR = "run"
+FRAMES_DIR = "frames"
+SPLAT_RUN_DIR = "splat_run"
+SPLAT_FILES = ("splat.ply", "splat.splat")
+OBJECT_SPLAT_FILE = "splat_object.ply"
+MODELS = ("fast", "splat", "both")
+# fewer photos (or frames) registered by structure-from-motion than this share of them, or
+# than MIN_POSED, stop the capture: the rest would train on a part of the object
+MIN_POSED_SHARE = 0.5
+MIN_POSED = 10
 MESH_FILE = "mesh.ply"
 RECORD_FILE = "capture.json"
 # the summary's note on the phone's exposure when the held-out photos' colour alone (each
@@ -52,18 +84,23 @@ EXPOSURE_NOTE_DB = 0.75
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from ..capture.video import DEFAULT_TARGET
     from ..config import MIN_RESAMPLED_SIDE, number, tag_side
 
     p = sub.add_parser(
         "capture", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    p.add_argument("photos", metavar="OBJECT_DIR", help="folder of photos of the object beside the tag")
+    p.add_argument(
+        "photos",
+        metavar="OBJECT_DIR|CLIP",
+        help="folder of photos of the object, or a video filmed slowly around it (MP4, MOV, M4V; H.264 or HEVC)",
+    )
     p.add_argument("--out", required=True, help="folder for everything the capture makes")
     p.add_argument(
         "--tag-size",
         type=tag_side,
-        required=True,
-        help="side of the black square of the tag beside the object, in metres (e.g. 0.06)",
+        help="side of the black square of the tag beside the object, in metres (e.g. 0.06): the tag then "
+        "fixes scale and up (default: no tag; structure-from-motion poses, the table found in its points)",
     )
     cam = p.add_mutually_exclusive_group()
     cam.add_argument(
@@ -76,15 +113,32 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--sheet-tag-size",
         type=tag_side,
-        help="side of a tag's black square on the calibration sheet (default: --tag-size)",
+        help="side of a tag's black square on the calibration sheet (default: --tag-size; needed with --calib "
+        "when there is no --tag-size)",
     )
     p.add_argument("--dict", help="ArUco dictionary of the tags (default: the camera file's, else DICT_4X4_50)")
     p.add_argument(
         "--method",
-        choices=["auto", "tags"],
+        choices=["auto", "tags", "colmap"],
         default="auto",
-        help="poses: auto (default) takes structure-from-motion poses in the tag's frame when they hold "
-        "up; tags: the tag's poses only, as the course does",
+        help="poses: auto (default): without --tag-size, structure-from-motion; with it, structure-from-motion "
+        "poses in the tag's frame when they hold up; tags: the tag's poses only, as the course does; colmap: "
+        "structure-from-motion alone (a tag, with --tag-size, fixes scale and up)",
+    )
+    p.add_argument(
+        "--clip-frames",
+        type=number(int, 10, 10_000),
+        default=DEFAULT_TARGET,
+        metavar="N",
+        help=f"a video: frames to keep from it, at most (default: {DEFAULT_TARGET}; see `nerfkit frames`)",
+    )
+    p.add_argument(
+        "--model",
+        choices=MODELS,
+        default="fast",
+        help="what to train: fast (default), the NeRF, with the videos and mesh; splat, 3D Gaussians "
+        "written as OUT/splat.ply and OUT/splat.splat, and the object alone as OUT/splat_object.ply; "
+        "both (each trains for --minutes)",
     )
     p.add_argument(
         "--max-side",
@@ -92,25 +146,29 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="the dataset's photos' longer side in pixels (0: keep their size; default: poses', 512)",
     )
     budget = p.add_mutually_exclusive_group()
-    budget.add_argument("--minutes", type=number(float, above=0), default=3.0, help="training time (default: 3)")
+    budget.add_argument(
+        "--minutes", type=number(float, above=0), default=3.0, help="training time of each model (default: 3)"
+    )
     budget.add_argument("--steps", type=number(int, 1), help="train this many steps instead of --minutes")
     p.add_argument("--frames", type=number(int, 1, 100_000), help="frames of the orbit (default: render's, 120)")
-    p.add_argument("--no-mesh", action="store_true", help="skip the mesh")
+    p.add_argument("--no-mesh", action="store_true", help="skip the NeRF's mesh")
     p.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N (default: auto)")
     p.add_argument(
         "--force",
         action="store_true",
-        help="redo every step, replacing the camera file, the dataset and the NeRF of an earlier run",
+        help="redo every step, replacing the frames, the camera file, the dataset and the runs of an earlier capture",
     )
     p.set_defaults(func=run)
 
 
-def _step(argv: list[str], call, needed: bool = True, verbose: bool = False, times: dict | None = None) -> bool:
+def _step(
+    argv: list[str], call, needed: bool = True, verbose: bool = False, times: dict | None = None, prefix: str = ""
+) -> bool:
     """Run one stage, ``call()`` (a :mod:`nerfkit.api` function), shown as the command
     ``nerfkit ARGV`` that does the same; whether it succeeded. The failure of a ``needed``
     stage stops the capture (its error is printed first, as the command prints it).
     ``verbose``: its errors come with their tracebacks (``nerfkit --verbose capture``).
-    ``times`` gets the stage's seconds under its name (``render --object``: "object")."""
+    ``times`` gets the stage's seconds under its name (``render --object``: "object"), after ``prefix``."""
     import sys
     import time
     import traceback
@@ -138,7 +196,7 @@ def _step(argv: list[str], call, needed: bool = True, verbose: bool = False, tim
         print(f"nerfkit {argv[0]}: error: {message}", file=sys.stderr)
         ok = False
     if times is not None:
-        times["object" if "--object" in argv else argv[0]] = time.perf_counter() - start
+        times[prefix + ("object" if "--object" in argv else argv[0])] = time.perf_counter() - start
     if not ok and needed:
         raise fail(
             f"nerfkit {argv[0]}",
@@ -180,6 +238,15 @@ def _photo_files(folder) -> str | None:
     return f"{len(files)} photos ({_digest(listing.encode())})"
 
 
+def _clip_file(path) -> str | None:
+    """A video as the capture saw it: its name, size and a digest of both (another clip, or
+    the same one edited, changes it)."""
+    if not path or not Path(path).is_file():
+        return None
+    size = Path(path).stat().st_size
+    return f"{Path(path).name}, {size} bytes ({_digest(f'{Path(path).name}{chr(0)}{size}'.encode())})"
+
+
 def _file_digest(path) -> str | None:
     """A digest of a small file's contents (a camera file calibrated again changes it)."""
     return _digest(Path(path).read_bytes()) if path and Path(path).is_file() else None
@@ -195,9 +262,13 @@ def _inputs(args: argparse.Namespace) -> dict:
     def where(p):
         return str(Path(p).resolve()) if p else None
 
+    from ..capture.video import is_video
+
+    video = is_video(args.photos)
     return {
         "photos": where(args.photos),
-        "photo_files": _photo_files(args.photos),
+        "photo_files": _clip_file(args.photos) if video else _photo_files(args.photos),
+        **({"clip_frames": args.clip_frames} if video else {}),
         "calib": where(args.calib),
         "calib_files": _photo_files(args.calib),
         "camera": where(args.camera),
@@ -336,108 +407,108 @@ def _replace_run(run_dir: Path) -> None:
     shutil.rmtree(run_dir)
 
 
-def run(args: argparse.Namespace) -> int:
-    from functools import partial
+def _route(args: argparse.Namespace, video: bool) -> str:
+    """How the photos are posed (``nerfkit poses --method``): structure-from-motion alone
+    ("colmap") without a tag, or for a video's frames (they carry no focal length for the
+    tags to start from) unless a camera is given; else the --method asked for."""
+    if args.tag_size is None or args.method == "colmap":
+        return "colmap"
+    if video and not (args.calib or args.camera) and args.method == "auto":
+        return "colmap"
+    return args.method
+
+
+def _check_arguments(args: argparse.Namespace, video: bool) -> None:
+    """Refuse what no route can do, before any step."""
+    from ..errors import fail
+
+    if args.tag_size is None and args.method == "tags":
+        raise fail(
+            "--method tags",
+            "poses from the tag need the tag's size",
+            "Measure the tag's black square and pass --tag-size (e.g. 0.06), or leave --method out to pose "
+            "by structure-from-motion",
+        )
+    if args.calib and not (args.sheet_tag_size or args.tag_size):
+        raise fail(
+            "--calib",
+            "calibrating needs the size of the sheet's tags",
+            "Pass --sheet-tag-size (the side of a tag's black square on the sheet, in metres)",
+        )
+    if not video and Path(args.photos).is_file():
+        from ..capture.video import VIDEO_SUFFIXES
+
+        raise fail(
+            args.photos,
+            "is a file, not a folder of photos or a video",
+            f"Pass a folder of photos, or a video ({', '.join(VIDEO_SUFFIXES)})",
+        )
+
+
+def _frames_there(frames_dir: Path, clip: str, target: int) -> bool:
+    """Whether ``frames_dir`` holds the frames an earlier capture chose from ``clip`` with ``target``."""
+    import json
+
+    from ..capture.video import REPORT_NAME
+
+    try:
+        report = json.loads((frames_dir / REPORT_NAME).read_text())
+        return (
+            Path(report["source"]).resolve() == Path(clip).resolve()
+            and int(report["target"]) == target
+            and all((frames_dir / f["file"]).is_file() for f in report["frames"])
+        )
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+
+
+def _check_posed(dataset: Path, what: str) -> None:
+    """Stop the capture when structure-from-motion posed too few of the photos (``what``:
+    "frames" or "photos"): a NeRF of part of them would not show the object."""
+    import json
 
     from ..errors import fail
-    from ..images import list_images
-    from ..io.atomic import write_json
-    from ..io.paths import guard_outputs
-    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
+    from ..sfm.dataset import REPORT_FILE
+
+    try:
+        report = json.loads((dataset / REPORT_FILE).read_text())
+        n, posed = int(report["n_photos"]), int(report["n_registered"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return
+    if posed >= MIN_POSED and posed >= MIN_POSED_SHARE * n:
+        return
+    need = max(MIN_POSED, round(MIN_POSED_SHARE * n))
+    raise fail(
+        dataset,
+        f"structure-from-motion posed only {posed} of the {n} {what} (at least {need} are needed; the "
+        "reasons are listed above)",
+        "Film (or photograph) again moving slowly all the way around the object, keeping it sharp and in view, "
+        "with some texture around it (a patterned cloth or newspaper under it helps)"
+        + ("; or keep more frames of the clip with --clip-frames" if what == "frames" else "")
+        + "; then run the capture again with --force",
+    )
+
+
+def _train_run(run_dir: Path, dataset: Path, args: argparse.Namespace, step, model: str) -> None:
+    """Train ``model`` into ``run_dir`` on the dataset, or keep the run there, going on
+    from its checkpoint when it was cut short or a larger budget is asked for."""
     from ..train.checkpoint import MODEL_FILE, checkpoint_paths
-    from ..train.config import resolve_device
     from . import pipeline as api
 
-    times: dict[str, float] = {}
-    step = partial(_step, verbose=bool(getattr(args, "verbose", False)), times=times)
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise fail(out, "exists and is not a folder", "--out names the folder the capture fills")
-    for folder, flag in ((args.photos, "OBJECT_DIR"), (args.calib, "--calib")):
-        if folder and not Path(folder).is_dir():
-            raise fail(folder, "is not a folder", f"{flag} names a folder of photos")
-    if args.calib and Path(args.calib).resolve() == Path(args.photos).resolve():
-        raise fail(
-            args.calib,
-            "is both the calibration folder and the object's",
-            "--calib names the photos of the printed tag sheet, OBJECT_DIR those of the object beside its tag",
-        )
-    # the photos may sit in --out (my_object/photos, --out my_object), but nothing is written among them
-    ours = [out / DATASET_DIR, out / RUN_DIR, out / RECORD_FILE] + ([out / CAMERA_FILE] if args.calib else [])
-    guard_outputs(ours, [args.photos, args.calib, args.camera], force=True)
-    # what would fail a later step is refused before the first one: a folder without photos, a missing GPU
-    list_images(args.photos)
-    resolve_device(args.device)
-    inputs = _inputs(args)
-    if not args.force:
-        _same_inputs(
-            out,
-            inputs,
-            out / CAMERA_FILE if args.calib else None,
-            [out / DATASET_DIR / "dataset.npz", out / RUN_DIR / "config.json"],
-        )
-    out.mkdir(parents=True, exist_ok=True)
-    write_json(out / RECORD_FILE, {"inputs": inputs})
-    dictionary = ["--dict", args.dict] if args.dict else []
-    dict_option = {"dict": args.dict} if args.dict else {}
-
-    camera = Path(args.camera) if args.camera else None
-    if args.calib:
-        camera = out / CAMERA_FILE
-        if camera.exists() and not args.force:
-            _kept("calibration", camera)
-        else:  # --force: a calibration cut short may have left its detections
-            sheet_size = args.sheet_tag_size or args.tag_size
-            step(
-                ["calibrate", args.calib, *dictionary, "--tag-size", str(sheet_size), "--out", str(camera), "--force"],
-                lambda: api.calibrate(args.calib, camera, tag_size=sheet_size, force=True, **dict_option),
-            )
-
-    dataset = out / DATASET_DIR
-    if (dataset / "dataset.npz").exists() and not args.force:
-        _kept("dataset", dataset)
-    else:  # --force: the folder is the capture's, and poses cut short leaves poses.json
-        step(
-            [
-                "poses",
-                args.photos,
-                "--tag-size",
-                str(args.tag_size),
-                *dictionary,
-                "--out",
-                str(dataset),
-                "--method",
-                args.method,
-                "--force",
-                *(["--camera", str(camera)] if camera else []),
-                *(["--max-side", str(args.max_side)] if args.max_side is not None else []),
-            ],
-            lambda: api.pose(
-                args.photos,
-                dataset,
-                tag_size=args.tag_size,
-                camera=camera,
-                method=args.method,
-                force=True,
-                max_side=args.max_side,
-                **dict_option,
-            ),
-        )
-
-    run_dir = out / RUN_DIR
-    if args.force:
-        _replace_run(run_dir)
     budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
     budget_option = {"steps": args.steps} if args.steps else {"minutes": args.minutes}
+    label = "NeRF" if model == "fast" else "splat"
+    model_flag = [] if model == "fast" else ["--model", model]
+    model_option: dict[str, Any] = {} if model == "fast" else {"model": model}
     if _finished(run_dir):
-        _kept("NeRF", run_dir)
+        _kept(label, run_dir)
         if _larger_budget(run_dir, args, need_checkpoint=True):
             step(
                 ["train", "--resume", str(run_dir), *budget, "--device", args.device],
                 lambda: _trained(api.resume(run_dir, device=args.device, **budget_option)),
             )
     elif (run_dir / MODEL_FILE).exists() and not checkpoint_paths(run_dir):  # cut short, nothing to go on from
-        _kept("NeRF", run_dir)
+        _kept(label, run_dir)
         print("   it was cut short and has no checkpoint to go on from: --force trains it again", flush=True)
     elif (run_dir / "config.json").exists():  # cut short: it goes on, to a larger budget if one is asked for
         larger = _larger_budget(run_dir, args, need_checkpoint=False)
@@ -447,19 +518,45 @@ def run(args: argparse.Namespace) -> int:
         )
     else:
         step(
-            ["train", "--data", str(dataset / "dataset.npz"), "--out", str(run_dir), *budget, "--device", args.device],
-            lambda: _trained(api.train(dataset / "dataset.npz", run_dir, device=args.device, **budget_option)),
+            [
+                "train",
+                "--data",
+                str(dataset / "dataset.npz"),
+                *model_flag,
+                "--out",
+                str(run_dir),
+                *budget,
+                "--device",
+                args.device,
+            ],
+            lambda: _trained(
+                api.train(dataset / "dataset.npz", run_dir, device=args.device, **model_option, **budget_option)
+            ),
         )
-    # what shows the model as it is now is kept; the rest is made again (it belongs to the run)
-    evaluated = True
+
+
+def _evaluated(run_dir: Path, args: argparse.Namespace, step) -> bool:
+    """Score the run on the held-out photos (kept when newer than its model); whether it is scored."""
+    from . import pipeline as api
+
     if _newer_than_model(run_dir / "eval_val.json", run_dir):
         _kept("evaluation", run_dir / "eval_val.json")
-    else:
-        evaluated = step(
-            ["eval", str(run_dir), "--split", "val", "--device", args.device],
-            lambda: api.evaluate(run_dir, split="val", device=args.device),
-            needed=False,
-        )
+        return True
+    return step(
+        ["eval", str(run_dir), "--split", "val", "--device", args.device],
+        lambda: api.evaluate(run_dir, split="val", device=args.device),
+        needed=False,
+    )
+
+
+def _fast_outputs(run_dir: Path, args: argparse.Namespace, step) -> tuple[bool, Path | None]:
+    """The NeRF's eval, videos (the scene's and the object's alone) and mesh, each kept when
+    newer than the model; (whether it is scored, the mesh or None)."""
+    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
+    from . import pipeline as api
+
+    # what shows the model as it is now is kept; the rest is made again (it belongs to the run)
+    evaluated = _evaluated(run_dir, args, step)
     videos = run_dir / "videos"
     frames = ["--frames", str(args.frames)] if args.frames else []
     if all(_newer_than_model(videos / name, run_dir) for name in VIDEO_FILES) and not args.frames:
@@ -489,8 +586,194 @@ def run(args: argparse.Namespace) -> int:
             needed=False,
         ):
             mesh = None
+    return evaluated, mesh
+
+
+def _splat_outputs(out: Path, run_dir: Path, args: argparse.Namespace, step) -> dict:
+    """The splat's eval and orbit video (in its run folder), and its Gaussians as
+    OUT/splat.ply, OUT/splat.splat and the object alone, OUT/splat_object.ply; what was
+    made, for the summary."""
+    from ..capture.splats import object_box, write_object_splat
+    from ..output.videos import VIDEO_FILES
+    from ..train.checkpoint import read_run
+    from . import pipeline as api
+
+    evaluated = _evaluated(run_dir, args, step)
+    videos = run_dir / "videos"
+    frames = ["--frames", str(args.frames)] if args.frames else []
+    if all(_newer_than_model(videos / name, run_dir) for name in VIDEO_FILES) and not args.frames:
+        _kept("videos of the splat", videos)
+    else:
+        step(
+            ["render", str(run_dir), "--device", args.device, *frames],
+            lambda: api.render(run_dir, device=args.device, frames=args.frames),
+            needed=False,
+        )
+    files = [out / name for name in SPLAT_FILES]
+    for path in files:
+        if _newer_than_model(path, run_dir):
+            _kept("splat file", path)
+        else:
+            step(
+                ["export", str(run_dir), "--splat", str(path), "--force", "--device", args.device],
+                lambda path=path: api.export(run_dir, splat=path, force=True, device=args.device),
+            )
+    alone = out / OBJECT_SPLAT_FILE
+    lo, hi, how = object_box(read_run(run_dir).bounds)
+    if _newer_than_model(alone, run_dir):
+        _kept("the object's splat", alone)
+        kept = None
+    else:
+        print(f"\n== the object alone: the Gaussians in {how} -> {alone}", flush=True)
+        kept = write_object_splat(files[0], alone, (lo, hi))
+        print(f"{kept[0]} of {kept[1]} Gaussians -> {alone}", flush=True)
+    return {"run_dir": run_dir, "evaluated": evaluated, "files": [*files, alone], "object": how, "kept": kept}
+
+
+def run(args: argparse.Namespace) -> int:
+    from functools import partial
+
+    from ..capture.video import is_video, probe_video
+    from ..errors import fail
+    from ..images import list_images
+    from ..io.atomic import write_json
+    from ..io.paths import guard_outputs
+    from ..train.config import resolve_device
+    from . import pipeline as api
+
+    times: dict[str, float] = {}
+    step = partial(_step, verbose=bool(getattr(args, "verbose", False)), times=times)
+    out = Path(args.out)
+    video = is_video(args.photos)
+    _check_arguments(args, video)
+    if out.exists() and not out.is_dir():
+        raise fail(out, "exists and is not a folder", "--out names the folder the capture fills")
+    for folder, flag in (((None if video else args.photos), "OBJECT_DIR"), (args.calib, "--calib")):
+        if folder and not Path(folder).is_dir():
+            raise fail(folder, "is not a folder", f"{flag} names a folder of photos")
+    if args.calib and Path(args.calib).resolve() == Path(args.photos).resolve():
+        raise fail(
+            args.calib,
+            "is both the calibration folder and the object's",
+            "--calib names the photos of the printed tag sheet, OBJECT_DIR those of the object beside its tag",
+        )
+    models = ["fast", "splat"] if args.model == "both" else [args.model]
+    # the photos may sit in --out (my_object/photos, --out my_object), but nothing is written among them
+    ours = [out / DATASET_DIR, out / RECORD_FILE] + ([out / CAMERA_FILE] if args.calib else [])
+    ours += [out / FRAMES_DIR] if video else []
+    ours += [out / RUN_DIR] if "fast" in models else []
+    ours += [out / SPLAT_RUN_DIR, *(out / n for n in SPLAT_FILES), out / OBJECT_SPLAT_FILE] if "splat" in models else []
+    guard_outputs(ours, [args.photos, args.calib, args.camera], force=True)
+    # what would fail a later step is refused before the first one: a folder without photos,
+    # a file that is no video, a missing GPU
+    if video:
+        probe_video(args.photos)
+    else:
+        list_images(args.photos)
+    resolve_device(args.device)
+    route = _route(args, video)
+    inputs = _inputs(args)
+    if not args.force:
+        _same_inputs(
+            out,
+            inputs,
+            out / CAMERA_FILE if args.calib else None,
+            [out / DATASET_DIR / "dataset.npz", out / RUN_DIR / "config.json", out / SPLAT_RUN_DIR / "config.json"],
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / RECORD_FILE, {"inputs": inputs})
+    dictionary = ["--dict", args.dict] if args.dict else []
+    dict_option = {"dict": args.dict} if args.dict else {}
+
+    photos = args.photos
+    if video:  # the frames are the photos of every later step
+        from ..capture.video import select_frames
+        from .frames import report_lines
+
+        photos = str(out / FRAMES_DIR)
+        if _frames_there(out / FRAMES_DIR, args.photos, args.clip_frames) and not args.force:
+            _kept("frames", out / FRAMES_DIR)
+        else:  # the folder is the capture's: earlier frames are replaced
+            step(
+                ["frames", args.photos, "--out", photos, "--frames", str(args.clip_frames), "--force"],
+                lambda: print(report_lines(select_frames(args.photos, photos, args.clip_frames, force=True))),
+            )
+
+    camera = Path(args.camera) if args.camera else None
+    if args.calib:
+        camera = out / CAMERA_FILE
+        if camera.exists() and not args.force:
+            _kept("calibration", camera)
+        else:  # --force: a calibration cut short may have left its detections
+            sheet_size = args.sheet_tag_size or args.tag_size
+            step(
+                ["calibrate", args.calib, *dictionary, "--tag-size", str(sheet_size), "--out", str(camera), "--force"],
+                lambda: api.calibrate(args.calib, camera, tag_size=sheet_size, force=True, **dict_option),
+            )
+
+    dataset = out / DATASET_DIR
+    if (dataset / "dataset.npz").exists() and not args.force:
+        _kept("dataset", dataset)
+    else:  # --force: the folder is the capture's, and poses cut short leaves poses.json
+        step(
+            [
+                "poses",
+                photos,
+                *(["--tag-size", str(args.tag_size)] if args.tag_size is not None else []),
+                *dictionary,
+                "--out",
+                str(dataset),
+                "--method",
+                route,
+                "--force",
+                *(["--camera", str(camera)] if camera else []),
+                *(["--max-side", str(args.max_side)] if args.max_side is not None else []),
+            ],
+            lambda: api.pose(
+                photos,
+                dataset,
+                tag_size=args.tag_size,
+                camera=camera,
+                method=route,
+                force=True,
+                max_side=args.max_side,
+                **dict_option,
+            ),
+        )
+    if route == "colmap":
+        _check_posed(dataset, "frames" if video else "photos")
+
+    run_dir = mesh = None
+    evaluated = False
+    if "fast" in models:
+        run_dir = out / RUN_DIR
+        if args.force:
+            _replace_run(run_dir)
+        _train_run(run_dir, dataset, args, step, "fast")
+        evaluated, mesh = _fast_outputs(run_dir, args, step)
+    splat = None
+    if "splat" in models:
+        splat_run = out / SPLAT_RUN_DIR
+        if args.force:
+            _replace_run(splat_run)
+        splat_step = partial(step, prefix="splat ")
+        _train_run(splat_run, dataset, args, splat_step, "splat")
+        splat = _splat_outputs(out, splat_run, args, splat_step)
     print()
-    print(summary(out, camera, dataset, run_dir, mesh, evaluated, mesh_skipped=args.no_mesh, times=times))
+    print(
+        summary(
+            out,
+            camera,
+            dataset,
+            run_dir,
+            mesh,
+            evaluated,
+            mesh_skipped=args.no_mesh,
+            times=times,
+            splat=splat,
+            frames=out / FRAMES_DIR if video else None,
+        )
+    )
     return 0
 
 
@@ -498,24 +781,38 @@ def summary(
     out: Path,
     camera: Path | None,
     dataset: Path,
-    run_dir: Path,
+    run_dir: Path | None,
     mesh: Path | None,
     evaluated: bool = True,
     mesh_skipped: bool = False,
     times: dict | None = None,
+    splat: dict | None = None,
+    frames: Path | None = None,
 ) -> str:
-    """What the capture made, in a few lines: the calibration (and its warnings), the photos
-    posed, the NeRF's held-out scores, where the videos, plots and mesh are, and the time
-    each step run now took (``times``, seconds by step)."""
+    """What the capture made, in a few lines: the frames chosen from a video (``frames``,
+    their folder), the calibration (and its warnings), the photos posed, the NeRF's
+    (``run_dir``, None when none was trained) and the splat's (``splat``, as
+    :func:`_splat_outputs` gives it) held-out scores, where the videos, plots, mesh and
+    splat files are, a table of the results, and the time each step run now took
+    (``times``, seconds by step)."""
     import json
 
     from ..capture.agreement import agreement_notes
     from ..capture.coverage import coverage_notes
     from ..capture.dataset import FEW_TRAIN_VIEWS, few_views_note, no_object_note
     from ..data.nerfstudio import nerfkit_block
-    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
+    from ..sfm.dataset import REPORT_FILE
 
     lines = [f"capture done: {out}"]
+    if frames is not None and (frames / "frames.json").is_file():
+        f = json.loads((frames / "frames.json").read_text())
+        dropped = ", ".join(f"{n} {why}" for why, n in (f.get("dropped") or {}).items())
+        lines.append(
+            f"  frames    {f['source']}: read {f['read']}, kept {f['kept']} in {frames}"
+            + (f" (dropped: {dropped})" if dropped else "")
+        )
+    sfm = json.loads((dataset / REPORT_FILE).read_text()) if (dataset / REPORT_FILE).is_file() else None
+    tagless = not (dataset / "poses.json").is_file()  # posed by structure-from-motion alone
     if camera is not None:
         c = json.loads(camera.read_text())
         held, rms = c.get("heldout_rms"), c.get("rms")
@@ -532,15 +829,29 @@ def summary(
         warnings = (c.get("sanity") or {}).get("warnings") or []
         for w in warnings:
             lines.append(f"            WARNING: {w}")
+    elif tagless and sfm is not None:
+        cam = sfm.get("camera") or {}
+        params = cam.get("params") or [0.0]
+        lines.append(
+            f"  camera    solved by structure-from-motion from the photos themselves: {cam.get('model')}, "
+            f"focal {params[0]:.1f} px at {cam.get('width')}x{cam.get('height')}"
+        )
     else:
         lines.append("  camera    the photos' EXIF focal length, no lens distortion")
-    photos = json.loads((dataset / "poses.json").read_text())["photos"]
-    found = sum(1 for p in photos if p.get("tags"))
-    posed = sum(1 for p in photos if p.get("used"))
     nk = nerfkit_block(dataset) or {}
     views = nk.get("views") or {}
     choice = nk.get("pose_choice")
-    lines.append(f"  photos    {len(photos)}: the tag found in {found}, {posed} posed by it")
+    if tagless and sfm is not None:
+        n_photos, posed = int(sfm["n_photos"]), int(sfm["n_registered"])
+        lines.append(
+            f"  photos    {n_photos}: {posed} posed by structure-from-motion ({100 * posed / max(n_photos, 1):.0f}%)"
+        )
+        lines.append(f"  scene     {scene_kind_text(sfm)}")
+    else:
+        photos = json.loads((dataset / "poses.json").read_text())["photos"]
+        found = sum(1 for p in photos if p.get("tags"))
+        posed = sum(1 for p in photos if p.get("used"))
+        lines.append(f"  photos    {len(photos)}: the tag found in {found}, {posed} posed by it")
     lines.append(
         f"  dataset   {dataset}: "
         + ", ".join(f"{n} {split}" for split, n in views.items())
@@ -559,6 +870,43 @@ def summary(
     agreement = nk.get("agreement") if isinstance(nk.get("agreement"), dict) else None
     if agreement:
         lines += [f"            {note.strip()}" for note in agreement_notes(agreement)]
+    if run_dir is not None:
+        lines += _nerf_lines(run_dir, mesh, evaluated, mesh_skipped, agreement is not None)
+    if splat is not None:
+        lines += _splat_lines(splat)
+    lines += _results_table(run_dir, mesh, evaluated, splat)
+    if times:
+        lines.append(
+            "  time      "
+            + ", ".join(f"{name} {_duration(t)}" for name, t in times.items())
+            + f"; {_duration(sum(times.values()))} in all"
+        )
+    return "\n".join(lines)
+
+
+def scene_kind_text(sfm: dict) -> str:
+    """What structure-from-motion found the scene to be, from its report: an object on a
+    table (the plane found in its points, or the tag's), or a scene without one."""
+    if str(sfm.get("frame", "")).startswith("metric"):
+        return "an object beside its tag: the tag's plane is the table, z = 0, in metres"
+    if sfm.get("ground"):
+        return (
+            "an object on a table: the table found in the sparse points is z = 0 (scale arbitrary: "
+            "pass --tag-size with a tag beside the object for metres)"
+        )
+    return (
+        "no table found in the sparse points: trained as a scene without a table, up from the cameras "
+        "(the object's videos and mesh may then hold its surroundings)"
+    )
+
+
+def _nerf_lines(run_dir: Path, mesh: Path | None, evaluated: bool, mesh_skipped: bool, agreement: bool) -> list[str]:
+    """The summary's lines on the NeRF: its steps and notes, held-out scores, videos, mesh."""
+    import json
+
+    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
+
+    lines = []
     m = json.loads((run_dir / "metrics.json").read_text())
     lines.append(f"  NeRF      {run_dir}: {m['step']} steps; plots in {run_dir / 'plots'}")
     lines += [f"            note: {note}" for note in m.get("notes") or []]
@@ -612,13 +960,55 @@ def summary(
         f"  look      nerfkit view {run_dir}   (the NeRF live in the browser, with the cameras; "
         '"Object alone" hides the table and room)'
     )
-    if times:
+    return lines
+
+
+def _splat_lines(splat: dict) -> list[str]:
+    """The summary's lines on the Gaussian splat: its run, held-out scores and files, and what opens them."""
+    import json
+
+    from ..capture.splats import DOT_SPLAT_VIEWERS, PLY_VIEWERS
+
+    run_dir = splat["run_dir"]
+    m = json.loads((run_dir / "metrics.json").read_text())
+    lines = [f"  splat     {run_dir}: {m['step']} steps; plots in {run_dir / 'plots'}"]
+    if splat["evaluated"]:
+        e = json.loads((run_dir / "eval_val.json").read_text())
         lines.append(
-            "  time      "
-            + ", ".join(f"{name} {_duration(t)}" for name, t in times.items())
-            + f"; {_duration(sum(times.values()))} in all"
+            f"  held out  {e['n_images']} val photos: {e['psnr']:.2f} dB / SSIM {e['ssim']:.3f} as rendered; "
+            f"photo beside render: {run_dir / 'eval_val.png'}"
         )
-    return "\n".join(lines)
+    else:
+        lines.append("  held out  not scored (the eval's error is above)")
+    ply, dot, alone = splat["files"]
+    lines.append(f"  files     {ply}: the 3DGS PLY, opened by {PLY_VIEWERS}")
+    lines.append(f"            {dot}: the same for {DOT_SPLAT_VIEWERS}")
+    kept = splat.get("kept")
+    lines.append(
+        f"            {alone}: the object alone, the Gaussians in {splat['object']}"
+        + (f" ({kept[0]} of {kept[1]})" if kept else "")
+    )
+    return lines
+
+
+def _results_table(run_dir: Path | None, mesh: Path | None, evaluated: bool, splat: dict | None) -> list[str]:
+    """A small table, one row per model trained: steps, held-out PSNR and SSIM, the main file."""
+    import json
+
+    rows = []
+    for name, folder, scored, main in (
+        ("NeRF", run_dir, evaluated, mesh or (run_dir / "videos" / "orbit.mp4" if run_dir else None)),
+        ("splat", splat["run_dir"] if splat else None, bool(splat and splat["evaluated"]), splat and splat["files"][0]),
+    ):
+        if folder is None:
+            continue
+        steps = json.loads((folder / "metrics.json").read_text())["step"]
+        e = json.loads((folder / "eval_val.json").read_text()) if scored else None
+        psnr, ssim = (f"{e['psnr']:.2f} dB", f"{e['ssim']:.3f}") if e else ("-", "-")
+        rows.append(f"            {name:<6} {steps:>7} {psnr:>10} {ssim:>6}  {main}")
+    if not rows:
+        return []
+    return [f"  results   {'model':<6} {'steps':>7} {'held out':>10} {'SSIM':>6}  file", *rows]
 
 
 def _duration(seconds: float) -> str:
