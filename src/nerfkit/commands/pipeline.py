@@ -1,9 +1,10 @@
 """The pipeline from Python (:mod:`nerfkit.api`): calibrate, pose, train, render, evaluate, export.
 
-Each function takes what its command takes, as keyword arguments named as the flags
-(``tag_size=0.06`` for ``--tag-size 0.06``), checks them as the command line is checked,
-and returns a typed result. The commands print what these do; ``nerfkit capture`` is
-these functions in a row. Example::
+Each function takes typed keyword arguments named as the flags of its command
+(``tag_size=0.06`` for ``--tag-size 0.06``; a ``--no-X`` flag is ``X=False``), checks them as
+the command line is checked, does the work, prints the report the command prints (unless
+``quiet``) and returns a typed result. The commands parse their command line into these
+calls; ``nerfkit capture`` is these functions in a row. Example::
 
     from nerfkit import api
 
@@ -18,9 +19,22 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal, TypeVar, get_args
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+
+# the choices of the commands' flags of the same names
+PoseMethod = Literal["auto", "tags", "colmap"]
+Matcher = Literal["auto", "exhaustive", "sequential", "spatial"]
+VideoPath = Literal["auto", "test", "orbit", "spiral"]
+Split = Literal["val", "test", "train"]
+
+T = TypeVar("T", bound="DataclassInstance")
 
 
 @dataclass(frozen=True)
@@ -38,7 +52,7 @@ class CalibrationResult:
 class PoseResult:
     """A dataset written by :func:`pose`."""
 
-    dataset_path: Path | None  # dataset.npz (None with no_dataset=True)
+    dataset_path: Path | None  # dataset.npz (None with build_dataset=False)
     posed: int  # photos with a pose in the dataset (or from the tags, without a dataset)
     total: int  # photos in the folder
     out: Path
@@ -60,7 +74,9 @@ class TrainResult:
 class RenderResult:
     """Videos written by :func:`render`."""
 
-    videos: tuple[Path, ...]
+    videos: tuple[Path, ...]  # colour MP4, colour GIF and depth MP4
+    frames: int = 0  # frames in each video
+    step: int = 0  # the training step of the model rendered
 
 
 @dataclass(frozen=True)
@@ -68,16 +84,20 @@ class EvaluationResult:
     """Scores written by :func:`evaluate` (RUN/eval_<split>.json)."""
 
     split: str
-    psnr: float
+    psnr: float  # mean over the split's views (dB), as the command prints it
     ssim: float
-    report_path: Path
+    report_path: Path  # RUN/eval_<split>.json
+    sheet_path: Path | None = None  # RUN/eval_<split>.png (photos beside renders), when written
+    notes: tuple[str, ...] = ()  # printed before the scores (how the views were scored)
+    scores: dict[str, Any] = field(default_factory=dict, compare=False)  # what report_path holds
 
 
 @dataclass(frozen=True)
 class ExportResult:
     """Files written by :func:`export`."""
 
-    files: tuple[Path, ...]
+    files: tuple[Path, ...]  # the mesh, the points and the Gaussians asked for, in that order
+    step: int = 0  # the training step of the model exported
 
 
 # what ``nerfkit train --resume`` may change: the stopping rule and how the run is carried out
@@ -97,7 +117,6 @@ RESUME_APPLIES = (
 def command_parser(command: str) -> argparse.ArgumentParser:
     """The parser of ``nerfkit COMMAND`` (one of the commands the pipeline runs) on its own."""
     from . import calibrate as calibrate_command
-    from . import eval as eval_command
     from . import export as export_command
     from . import poses as poses_command
     from . import render as render_command
@@ -106,7 +125,6 @@ def command_parser(command: str) -> argparse.ArgumentParser:
         "calibrate": calibrate_command,
         "poses": poses_command,
         "render": render_command,
-        "eval": eval_command,
         "export": export_command,
     }
     sub = argparse.ArgumentParser(prog="nerfkit").add_subparsers(dest="command")
@@ -153,6 +171,44 @@ def _run(command: str, **values: Any) -> argparse.Namespace:
     if code == 130:
         raise KeyboardInterrupt
     return args
+
+
+def _check(flag: str, value: Any, parse: Callable[[str], Any]) -> Any:
+    """``value`` checked as the command line checks ``flag`` (``parse``: the flag's argparse
+    type), converted as the flag converts it; None passes as None."""
+    from ..errors import fail
+
+    if value is None:
+        return None
+    try:
+        return parse(str(value))
+    except (argparse.ArgumentTypeError, TypeError, ValueError) as e:
+        raise fail(flag, str(e)) from None
+
+
+def _choice(flag: str, value: str, choices: tuple[str, ...]) -> None:
+    """Refuse ``value`` when it is not one of the ``choices`` of ``flag``."""
+    from ..errors import fail
+
+    if value not in choices:
+        raise fail(flag, f"'{value}' is not one of {', '.join(choices)}")
+
+
+def _settings(cfg: T) -> T:
+    """A settings dataclass checked as its flags are: numbers in their ranges, choices."""
+    from ..config import check_ranges, flag_of
+
+    check_ranges(cfg)
+    for f in dataclasses.fields(cfg):
+        choices = f.metadata.get("choices")
+        if choices is not None:
+            _choice(flag_of(f.name), getattr(cfg, f.name), tuple(choices))
+    return cfg
+
+
+def _say(quiet: bool) -> Callable[[str], None]:
+    """Where a stage's report goes: printed, or nowhere when ``quiet``."""
+    return (lambda text: None) if quiet else print
 
 
 def calibrate(
@@ -324,6 +380,14 @@ def resume(
     return _train_result(resume_run(run, scene, quiet=quiet, changes=changes))
 
 
+def _run_checks(chunk: int) -> int:
+    """``chunk`` (rays rendered at once) checked as ``--chunk`` is."""
+    from ..config import number
+    from ..train.config import MAX_BATCH_RAYS
+
+    return _check("--chunk", chunk, number(int, 0, MAX_BATCH_RAYS))
+
+
 def render(
     run: str | Path,
     *,
@@ -341,12 +405,65 @@ def render(
     return RenderResult(tuple(folder / name for name in names if (folder / name).is_file()))
 
 
-def evaluate(run: str | Path, *, split: str = "val", **options: Any) -> EvaluationResult:
-    """Score a run on a split's held-out views (``nerfkit eval``), writing RUN/eval_<split>.json."""
-    args = _run("eval", run=run, split=split, **options)
-    path = Path(args.run) / f"eval_{args.split}.json"
-    data = json.loads(path.read_text())
-    return EvaluationResult(args.split, float(data["psnr"]), float(data["ssim"]), path)
+def evaluate(
+    run: str | Path,
+    *,
+    split: Split = "val",
+    fit_views: int | None = None,
+    data: str | Path | None = None,
+    device: str = "auto",
+    chunk: int = 0,
+    allow_outside_paths: bool = False,
+    quiet: bool = False,
+) -> EvaluationResult:
+    """Score a run on a split's held-out views (``nerfkit eval``): PSNR and SSIM, written to
+    RUN/eval_<split>.json, with photos beside renders in RUN/eval_<split>.png.
+
+    Args:
+        run: run folder written by :func:`train`.
+        split: which views: "val", "test" or "train".
+        fit_views: also score each view with its pose fitted for this many steps and each half's
+            colour solved on the other half (None: 100 for a capture's run, else 0: off).
+        data: dataset (None: the one the run was trained on).
+        device: "auto", "cpu", "cuda" or "cuda:N".
+        chunk: rays rendered at once (0: the run's render chunk).
+        allow_outside_paths: read dataset images outside the dataset's folder.
+        quiet: print neither the notes nor the summary (the result holds both).
+    """
+    from ..config import number
+    from ..io.atomic import write_json
+    from . import _common
+    from .stages import evaluate as stage
+
+    _choice("--split", split, get_args(Split))
+    fit_views = _check("--fit-views", fit_views, number(int, 0, 100_000))
+    chunk = _run_checks(chunk)
+    say = _say(quiet)
+    opened = _common.open_run(_common.RunToOpen(run, device, chunk))
+    scene = _common.scene_for_run(
+        opened.info, str(data) if data else None, need=split, allow_outside=allow_outside_paths
+    )
+    stage.held_out_views(scene, split)
+    capture = getattr(opened.info.train, "capture", "off") == "on"
+    steps, note = stage.fit_steps(opened.model, opened.info.train.model, capture, fit_views)
+    if note:
+        say(note)
+    sheet: list = []
+    result = stage.scores(opened, scene, split, steps, sheet)
+    json_path, sheet_path = Path(run) / f"eval_{split}.json", Path(run) / f"eval_{split}.png"
+    write_json(json_path, result)
+    stage.write_contact_sheet(sheet_path, sheet, split)
+    say(stage.summary(result))
+    say(f"wrote {json_path}" + (f" and {sheet_path} (photo beside render)" if sheet else ""))
+    return EvaluationResult(
+        split,
+        float(result["psnr"]),
+        float(result["ssim"]),
+        json_path,
+        sheet_path if sheet else None,
+        (note,) if note else (),
+        result,
+    )
 
 
 def export(
@@ -366,9 +483,13 @@ __all__ = [
     "CalibrationResult",
     "EvaluationResult",
     "ExportResult",
+    "Matcher",
+    "PoseMethod",
     "PoseResult",
     "RenderResult",
+    "Split",
     "TrainResult",
+    "VideoPath",
     "calibrate",
     "command_arguments",
     "evaluate",
