@@ -119,12 +119,10 @@ def command_parser(command: str) -> argparse.ArgumentParser:
     from . import calibrate as calibrate_command
     from . import export as export_command
     from . import poses as poses_command
-    from . import render as render_command
 
     modules = {
         "calibrate": calibrate_command,
         "poses": poses_command,
-        "render": render_command,
         "export": export_command,
     }
     sub = argparse.ArgumentParser(prog="nerfkit").add_subparsers(dest="command")
@@ -392,17 +390,102 @@ def render(
     run: str | Path,
     *,
     out: str | Path | None = None,
-    object: bool = False,
-    **options: Any,  # noqa: A002
+    path: VideoPath = "auto",
+    frames: int | None = None,
+    fps: int = 30,
+    object: bool = False,  # noqa: A002 - the flag's name
+    background: str | None = None,
+    data: str | Path | None = None,
+    device: str = "auto",
+    chunk: int = 0,
+    allow_outside_paths: bool = False,
+    force: bool = False,
+    quiet: bool = False,
 ) -> RenderResult:
-    """Render a run's videos (``nerfkit render``): the orbit (or the dataset's path), its
-    depth, and with ``object=True`` the object alone; ``options`` as its flags (``frames``, ``fps``, ...)."""
-    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
+    """Render a run's videos (``nerfkit render``): colour (MP4 and GIF) and depth.
 
-    args = _run("render", run=run, out=out, object=object, **options)
-    folder = Path(args.out) if args.out else Path(args.run) / "videos"
+    Args:
+        run: run folder written by :func:`train`.
+        out: folder of the videos (None: RUN/videos, replaced: it belongs to the run).
+        path: the camera path: the dataset's "test" poses, an "orbit" around the object, a
+            "spiral" across a forward-facing capture's view, or "auto" (the test poses when they
+            are a camera path, else a spiral for a forward-facing capture, else an orbit).
+        frames: frames of an orbit or spiral (None: 120).
+        fps: frames per second.
+        object: render the object alone (object.mp4, object.gif, object_depth.mp4): a capture's
+            table, floor and room left out, zoomed to fill the frame, on white.
+        background: the colour behind the scene (black, white, grey, "r,g,b" or "#rrggbb";
+            None: the run's, white with ``object``).
+        data: dataset (None: the one the run was trained on).
+        device: "auto", "cpu", "cuda" or "cuda:N".
+        chunk: rays rendered at once (0: the run's render chunk).
+        allow_outside_paths: read dataset images outside the dataset's folder.
+        force: replace videos already in ``out``.
+        quiet: print no report (a note on ``frames`` still goes to stderr).
+    """
+    import sys
+
+    from ..config import number
+    from ..data.load import dataset_inputs
+    from ..data.scene import ORBIT_FRAMES
+    from ..errors import fail
+    from ..io.paths import guard_outputs
+    from ..output.images import frame_object, object_aim
+    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES, render_videos
+    from ..train.checkpoint import read_run
+    from . import _common
+    from .stages import render as stage
+
+    _choice("--path", path, get_args(VideoPath))
+    frames = _check("--frames", frames, number(int, 1, 100_000))
+    fps = _check("--fps", fps, number(int, 1, 1000))
+    chunk = _run_checks(chunk)
+    data = str(data) if data else None
+    folder = Path(out) if out else Path(run) / "videos"
     names = OBJECT_VIDEO_FILES if object else VIDEO_FILES
-    return RenderResult(tuple(folder / name for name in names if (folder / name).is_file()))
+    guard_outputs([folder / name for name in names], dataset_inputs(data or read_run(run).train.data), force or not out)
+    opened = _common.open_run(_common.RunToOpen(run, device, chunk))
+    scene = _common.scene_for_run(opened.info, data, allow_outside=allow_outside_paths)
+    kind, note = stage.path_kind(scene, path, frames, object, getattr(opened.model, "ndc", None) is not None)
+    if note:
+        print(note, file=sys.stderr)
+    colour = opened.background(background or ("white" if object else None))
+    alone = stage.leave_object_alone(opened.model) if object else ""
+    # an orbit looks at the trained object, not at the point the cameras' axes meet
+    aim = (
+        object_aim(opened.model, scene.train, scene.up, colour, opened.chunk, opened.autocast)
+        if kind == "orbit"
+        else None
+    )
+    views = scene.render_path(frames or ORBIT_FRAMES, aim, kind)
+    near, far = scene.near, scene.far
+    if object:
+        looked_at = aim if aim is not None else scene.center  # (what the path's cameras look at)
+        framing = frame_object(opened.model, views, colour, opened.chunk, opened.autocast, aim=looked_at)
+        if framing is None:
+            raise fail(
+                run,
+                "renders nothing solid along the video's path, so there is no object to frame",
+                "Render the scene without --object, or train longer",
+            )
+        views, near, far = framing.views, framing.near, framing.far
+        alone += f"; zoomed {framing.zoom:.2f}x)"
+    paths = render_videos(
+        opened.model,
+        views,
+        folder,
+        colour,
+        near,
+        far,
+        fps,
+        opened.chunk,
+        opened.autocast,
+        names=names,
+        metres=scene.tags is not None,
+    )
+    videos = (Path(paths.rgb_mp4), Path(paths.rgb_gif), Path(paths.depth_mp4))
+    _say(quiet)(stage.render_report(len(views), alone, opened.step, paths.seconds_per_frame, list(videos)))
+    return RenderResult(videos, len(views), opened.step)
 
 
 def evaluate(
