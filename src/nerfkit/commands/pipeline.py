@@ -117,13 +117,11 @@ RESUME_APPLIES = (
 def command_parser(command: str) -> argparse.ArgumentParser:
     """The parser of ``nerfkit COMMAND`` (one of the commands the pipeline runs) on its own."""
     from . import calibrate as calibrate_command
-    from . import export as export_command
     from . import poses as poses_command
 
     modules = {
         "calibrate": calibrate_command,
         "poses": poses_command,
-        "export": export_command,
     }
     sub = argparse.ArgumentParser(prog="nerfkit").add_subparsers(dest="command")
     modules[command].register(sub)
@@ -555,11 +553,117 @@ def export(
     mesh: str | Path | None = None,
     points: str | Path | None = None,
     splat: str | Path | None = None,
-    **options: Any,
+    resolution: int = 256,
+    threshold: float | None = None,
+    box_scale: float = 1.0,
+    table_cut: float | None = None,
+    color_views: int | None = None,
+    color_dirs: int = 1,
+    every: int = 1,
+    stride: int = 1,
+    acc_min: float = 0.5,
+    crop: bool = True,
+    data: str | Path | None = None,
+    device: str = "auto",
+    chunk: int = 0,
+    allow_outside_paths: bool = False,
+    force: bool = False,
+    quiet: bool = False,
 ) -> ExportResult:
-    """Export a run as a mesh, a point cloud or (splat runs) Gaussians (``nerfkit export``)."""
-    _run("export", run=run, mesh=mesh, points=points, splat=splat, **options)
-    return ExportResult(tuple(Path(p) for p in (mesh, points, splat) if p is not None and Path(p).is_file()))
+    """Export a run as a mesh, a point cloud or (splat runs) Gaussians (``nerfkit export``).
+
+    Args:
+        run: run folder written by :func:`train`.
+        mesh: write a vertex-coloured triangle mesh here (.ply).
+        points: write a coloured point cloud here (.ply).
+        splat: (splat runs) write the Gaussians here: 3DGS PLY, or a name ending in .splat.
+        resolution: mesh: grid cells per side.
+        threshold: mesh: density of the surface (None: scale-free, see ``nerfkit export --help``).
+        box_scale: scale of the cube meshed and of the box points are cropped to.
+        table_cut: mesh, captures: the fraction of the object's height above the table whose
+            painted density is cleared (None: nerfkit.tabletop.TABLE_CUT).
+        color_views: mesh: training views rendered for the vertex colours (0: along the normals
+            only; None: nerfkit.export.COLOUR_VIEWS).
+        color_dirs: mesh: directions averaged per colour of a vertex no view sees.
+        every: points: use every N-th training view.
+        stride: points: use every N-th pixel in each direction.
+        acc_min: points: keep pixels with opacity above this.
+        crop: points: drop points outside the scene box.
+        data: dataset whose training views colour the mesh and give the points (None: the run's).
+        device: "auto", "cpu", "cuda" or "cuda:N".
+        chunk: rays rendered at once (0: the run's render chunk).
+        allow_outside_paths: read dataset images outside the dataset's folder.
+        force: replace existing output files.
+        quiet: print no report.
+    """
+    from ..config import number
+    from ..data.load import dataset_inputs
+    from ..errors import fail
+    from ..io.paths import guard_outputs
+    from . import _common
+    from .stages import export as stage
+
+    resolution = _check("--resolution", resolution, number(int, 8, 1024))
+    threshold = _check("--threshold", threshold, number(float, above=0))
+    box_scale = _check("--box-scale", box_scale, number(float, above=0))
+    table_cut = _check("--table-cut", table_cut, number(float, 0, 1))
+    color_views = _check("--color-views", color_views, number(int, 0, 10000))
+    color_dirs = _check("--color-dirs", color_dirs, number(int, 1, 64))
+    every = _check("--every", every, number(int, 1))
+    stride = _check("--stride", stride, number(int, 1, 4096))
+    acc_min = _check("--acc-min", acc_min, number(float, 0, 0.999))
+    chunk = _run_checks(chunk)
+    say = _say(quiet)
+    mesh_file, points_file, splat_file = (str(p) if p else None for p in (mesh, points, splat))
+    data = str(data) if data else None
+    stage.check_outputs(mesh_file, points_file, splat_file)
+    opened = _common.open_run(_common.RunToOpen(run, device, chunk))
+    if splat_file and not hasattr(opened.model, "n_gaussians"):
+        raise fail(run, f"is a {opened.info.train.model} run; --splat exports runs of --model splat")
+    if mesh_file and hasattr(opened.model, "n_gaussians"):
+        raise fail(run, "is a splat run: it has no density field to mesh", "Use --splat OUT.ply or --points")
+    guard_outputs(
+        [mesh_file, points_file, splat_file],
+        dataset_inputs(data or opened.info.train.data),
+        force,
+        "--mesh/--points/--splat",
+    )
+    if splat_file:
+        say(stage.export_splat(opened, splat_file))
+    if mesh_file:
+        from ..export import COLOUR_VIEWS
+        from ..tabletop import TABLE_CUT
+
+        say(
+            stage.export_mesh(
+                opened,
+                mesh_file,
+                resolution=resolution,
+                threshold=threshold,
+                box_scale=box_scale,
+                table_cut=TABLE_CUT if table_cut is None else table_cut,
+                color_views=COLOUR_VIEWS if color_views is None else color_views,
+                color_dirs=color_dirs,
+                data=data,
+                allow_outside=allow_outside_paths,
+            )
+        )
+    if points_file:
+        radius = opened.info.bounds.radius * box_scale
+        say(
+            stage.export_points(
+                opened,
+                points_file,
+                every=every,
+                stride=stride,
+                acc_min=acc_min,
+                crop_radius=radius if crop else None,
+                data=data,
+                allow_outside=allow_outside_paths,
+            )
+        )
+    written = tuple(Path(p) for p in (mesh_file, points_file, splat_file) if p)
+    return ExportResult(written, opened.step)
 
 
 __all__ = [
