@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any, Literal, TypeVar, get_args
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
+    from ..capture.calibrate import CalibrateConfig
 
 # the choices of the commands' flags of the same names
 PoseMethod = Literal["auto", "tags", "colmap"]
@@ -116,11 +117,9 @@ RESUME_APPLIES = (
 
 def command_parser(command: str) -> argparse.ArgumentParser:
     """The parser of ``nerfkit COMMAND`` (one of the commands the pipeline runs) on its own."""
-    from . import calibrate as calibrate_command
     from . import poses as poses_command
 
     modules = {
-        "calibrate": calibrate_command,
         "poses": poses_command,
     }
     sub = argparse.ArgumentParser(prog="nerfkit").add_subparsers(dest="command")
@@ -208,16 +207,84 @@ def _say(quiet: bool) -> Callable[[str], None]:
 
 
 def calibrate(
-    photos: str | Path, out: str | Path, *, tag_size: float | None = None, **options: Any
+    photos: str | Path,
+    out: str | Path = "camera.json",
+    *,
+    tag_size: float | None = None,
+    dictionary: str = "DICT_4X4_50",
+    layout: str | Path | None = None,
+    detect_size: int = 2000,
+    jobs: int = 0,
+    cache: bool = True,
+    settings: CalibrateConfig | None = None,
+    all_photos: bool = False,
+    force: bool = False,
+    quiet: bool = False,
 ) -> CalibrationResult:
-    """Calibrate the camera from photos of the printed tag sheet (``nerfkit calibrate``);
-    ``options`` as its flags (``layout``, ``dict``, ``force``, ...)."""
-    args = _run("calibrate", photos=photos, out=out, tag_size=tag_size, **options)
-    path = Path(args.out)
-    path = path / "camera.json" if path.is_dir() else path
-    data = json.loads(path.read_text())
+    """Calibrate the camera from photos of the printed tag sheet (``nerfkit calibrate``).
+
+    Args:
+        photos: folder of photos of the tag sheet, taken from varied angles.
+        out: camera file to write (a folder: its camera.json).
+        tag_size: side of one tag's black square in metres (needed unless ``layout`` gives sizes).
+        dictionary: ArUco dictionary of the tags.
+        layout: sheet layout JSON; None: where the tags sit on the sheet is estimated.
+        detect_size: tags are detected on a copy this many pixels on the long side.
+        jobs: photos processed in parallel (0: up to 4 cores).
+        cache: reuse the detections cached beside ``out``.
+        settings: the calibration options (lens model choice, folds, ...); None: the defaults.
+        all_photos: the report lists every photo, not only skipped ones.
+        force: replace an existing camera file.
+        quiet: print no report.
+    """
+    from ..capture.aruco import get_dictionary, load_layout
+    from ..capture.calibrate import CalibrateConfig, calibrate_records, calibration_json
+    from ..capture.photos import blur_hint, default_jobs, group_by_size, keep_one_lens, require_tags, scan_photos
+    from ..config import number, tag_side
+    from ..errors import fail
+    from ..io.atomic import write_json
+    from ..io.paths import guard_outputs
+    from .stages.calibrate import calibration_report
+
+    tag_size = _check("--tag-size", tag_size, tag_side)
+    detect_size = _check("--detect-size", detect_size, number(int, 64, 100_000))
+    jobs = _check("--jobs", jobs, number(int, 0, 256))
+    cfg = _settings(settings if settings is not None else CalibrateConfig())
+    photos_dir, layout_file = str(photos), str(layout) if layout else None
+    get_dictionary(dictionary)
+    if tag_size is not None and not tag_size > 0:
+        raise fail("--tag-size", f"{tag_size} must be a positive length in metres")
+    sheet = load_layout(layout_file, dictionary, tag_size) if layout_file else None
+    if sheet is None and tag_size is None:
+        raise fail("--tag-size", "is required without --layout", "Measure one tag's black square, e.g. --tag-size 0.06")
+    if not tag_size:
+        assert sheet is not None  # checked above
+        tag_size = sheet.tag_size
+    path = Path(out)
+    if path.is_dir():
+        path = path / "camera.json"
+    guard_outputs([path], [photos_dir, layout_file], force)
+    detections = path.with_name(path.stem + ".detections.json") if cache else None
+
+    records = scan_photos(photos_dir, dictionary, sheet, detect_size, detections, jobs or default_jobs())
+    require_tags(records, photos_dir, dictionary)
+    charuco = sheet is not None and sheet.charuco is not None
+    for r in records:
+        if r.detection is not None and len(r.detection.ids) == 0:
+            r.skip("no tags found" + blur_hint(records, r))
+    size, kept = group_by_size(
+        keep_one_lens([r for r in records if r.detection is not None and (len(r.detection.ids) or charuco)]), turn=True
+    )
+    cal = calibrate_records(kept, size, tag_size, sheet, cfg, dictionary)
+    data = calibration_json(cal, records, dictionary, tag_size, str(Path(photos_dir).resolve()))
+    write_json(path, data)
+    _say(quiet)(calibration_report(cal, records, path, all_photos))
     return CalibrationResult(
-        path, data.get("heldout_rms"), str(data.get("dist_model")), float(data["rms"]), int(data.get("photos_used", 0))
+        path,
+        data.get("heldout_rms"),
+        str(data.get("dist_model")),
+        float(data["rms"]),
+        int(data.get("photos_used", 0)),
     )
 
 
