@@ -111,7 +111,7 @@ class RunToOpen:
     chunk: int = 0
 
 
-def open_run(which: RunToOpen | argparse.Namespace) -> OpenRun:
+def open_run(which: RunToOpen) -> OpenRun:
     """Load ``which.run`` on ``which.device`` with the render chunk of ``which.chunk`` or the run."""
     from ..train.checkpoint import load_run
     from ..train.config import resolve_autocast, resolve_device

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +27,8 @@ if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
     from ..capture.calibrate import CalibrateConfig
+    from ..capture.dataset import DatasetConfig
+    from ..capture.poses import PoseConfig
 
 # the choices of the commands' flags of the same names
 PoseMethod = Literal["auto", "tags", "colmap"]
@@ -113,59 +114,6 @@ RESUME_APPLIES = (
     "eval_pixels",
     "render_chunk",
 )
-
-
-def command_parser(command: str) -> argparse.ArgumentParser:
-    """The parser of ``nerfkit COMMAND`` (one of the commands the pipeline runs) on its own."""
-    from . import poses as poses_command
-
-    modules = {
-        "poses": poses_command,
-    }
-    sub = argparse.ArgumentParser(prog="nerfkit").add_subparsers(dest="command")
-    modules[command].register(sub)
-    return sub.choices[command]
-
-
-def command_arguments(command: str, **values: Any) -> argparse.Namespace:
-    """The parsed arguments ``nerfkit COMMAND`` would have for ``values`` (flag names with
-    ``_`` for ``-``; the rest take the command's defaults), each checked as the command line
-    checks it (numbers in range, choices). Unknown names are a TypeError, as for any function."""
-    from ..errors import fail
-
-    sub = command_parser(command)
-    actions = {a.dest: a for a in sub._actions if a.dest not in (argparse.SUPPRESS, "help")}
-    args = argparse.Namespace(command=command, verbose=bool(values.pop("verbose", False)), func=sub.get_default("func"))
-    for dest, action in actions.items():
-        setattr(args, dest, None if action.default is argparse.SUPPRESS else action.default)
-    for key, value in values.items():
-        if key not in actions:
-            raise TypeError(f"{command}() got an unexpected keyword argument {key!r}")
-        if value is None:  # not given: the command's default
-            continue
-        action = actions[key]
-        flag = action.option_strings[-1] if action.option_strings else key
-        convert = action.type  # a flag's parser: a callable (argparse also allows a registered name)
-        if callable(convert) and not isinstance(value, bool):
-            try:
-                value = convert(str(value))
-            except (argparse.ArgumentTypeError, TypeError, ValueError) as e:
-                raise fail(flag, str(e)) from None
-        if isinstance(value, Path):
-            value = str(value)
-        if value is not None and action.choices is not None and value not in action.choices:
-            raise fail(flag, f"'{value}' is not one of {', '.join(map(str, action.choices))}")
-        setattr(args, key, value)
-    return args
-
-
-def _run(command: str, **values: Any) -> argparse.Namespace:
-    """Run ``nerfkit COMMAND``'s body on :func:`command_arguments`; the arguments it ran with."""
-    args = command_arguments(command, **values)
-    code = args.func(args)
-    if code == 130:
-        raise KeyboardInterrupt
-    return args
 
 
 def _check(flag: str, value: Any, parse: Callable[[str], Any]) -> Any:
@@ -294,26 +242,178 @@ def pose(
     *,
     tag_size: float | None = None,
     camera: str | Path | None = None,
-    method: str = "auto",
-    **options: Any,
+    method: PoseMethod = "auto",
+    matcher: Matcher = "auto",
+    ground: bool = True,
+    sfm_max_size: int = 1000,
+    focal_px: float | None = None,
+    tag_id: int | None = None,
+    layout: str | Path | None = None,
+    single_tag: bool = False,
+    dictionary: str | None = None,
+    build_dataset: bool = True,
+    detect_size: int = 2000,
+    jobs: int = 0,
+    cache: bool = True,
+    max_side: int | None = None,
+    pose_settings: PoseConfig | None = None,
+    dataset_settings: DatasetConfig | None = None,
+    all_photos: bool = False,
+    force: bool = False,
+    quiet: bool = False,
 ) -> PoseResult:
-    """Pose the photos of an object beside a tag (or by SfM) and build its dataset
-    (``nerfkit poses``); ``options`` as its flags (``max_side``, ``layout``, ``force``, ...)."""
-    from ..capture.dataset import POSES_FILE
+    """Pose the photos of an object beside a tag (or by SfM) and build its dataset (``nerfkit poses``).
 
-    args = _run("poses", photos=photos, out=out, tag_size=tag_size, camera=camera, method=method, **options)
-    out = Path(args.out)
+    Args:
+        photos: folder of photos of the object beside the tag.
+        out: dataset folder to write (poses.json, dataset.npz, transforms.json, images/, ...).
+        tag_size: side of the tag's black square in metres (needed unless ``layout`` gives it).
+        camera: camera file from :func:`calibrate`; None: the photos' EXIF focal length.
+        method: "auto" (tag poses, replaced by SfM poses in the tag's frame when SfM agrees),
+            "tags" (the tags alone) or "colmap" (SfM alone; a tag, with ``tag_size``, fixes scale and up).
+        matcher: the photo pairs SfM matches ("auto", "exhaustive", "sequential", "spatial").
+        ground: with method "colmap" and no tag, find the table plane in the SfM points.
+        sfm_max_size: longest side (px) of the images SfM extracts features from.
+        focal_px: focal length in pixels when there is no camera file or EXIF.
+        tag_id: the tag that defines the world (None: the one seen most; never a layout).
+        layout: layout JSON of several tags used jointly (None: the camera file's, or estimated).
+        single_tag: pose from one tag, never a layout.
+        dictionary: ArUco dictionary (None: the camera file's, else DICT_4X4_50).
+        build_dataset: build the dataset (False: only poses.json).
+        detect_size: tags are detected on a copy this many pixels on the long side.
+        jobs: photos processed in parallel and SfM's threads (0: up to 4 cores, SfM on all).
+        cache: reuse the detections cached in ``out``.
+        max_side: the dataset's views' longer side in pixels (0: keep; None: ``dataset_settings``').
+        pose_settings: the posing options (error limits, focal refinement); None: the defaults.
+        dataset_settings: the dataset options (size, splits, near/far, ...); None: the defaults.
+        all_photos: the report lists every photo, not only skipped ones.
+        force: replace the dataset files of an earlier run in ``out``.
+        quiet: print no report.
+    """
+    from ..capture.aruco import get_dictionary, load_layout
+    from ..capture.camera import load_camera
+    from ..capture.dataset import NPZ_FILE, POSES_FILE, DatasetConfig, write_poses_json
+    from ..capture.photos import default_jobs, require_tags, scan_photos
+    from ..capture.poses import PoseConfig, pose_records
+    from ..config import number, tag_side
+    from ..errors import fail
     from ..images import list_images
+    from ..io.paths import guard_outputs
+    from .dataset import report_dataset
+    from .stages import pose as stage
 
-    total = len(list_images(args.photos))
-    dataset = out / "dataset.npz"
-    if args.no_dataset or not dataset.is_file():
-        posed = json.loads((out / POSES_FILE).read_text()).get("photos_posed", 0) if (out / POSES_FILE).is_file() else 0
-        return PoseResult(None, int(posed), total, out)
-    from ..data.npz import load_npz
+    _choice("--method", method, get_args(PoseMethod))
+    _choice("--matcher", matcher, get_args(Matcher))
+    tag_size = _check("--tag-size", tag_size, tag_side)
+    focal_px = _check("--focal-px", focal_px, number(float, above=0))
+    tag_id = _check("--tag-id", tag_id, number(int, 0))
+    sfm_max_size = _check("--sfm-max-size", sfm_max_size, number(int, 64, 100_000))
+    detect_size = _check("--detect-size", detect_size, number(int, 64, 100_000))
+    jobs = _check("--jobs", jobs, number(int, 0, 256))
+    pcfg = _settings(pose_settings if pose_settings is not None else PoseConfig())
+    dcfg = dataset_settings if dataset_settings is not None else DatasetConfig()
+    dcfg = _settings(dataclasses.replace(dcfg, max_side=max_side) if max_side is not None else dcfg)
+    say = _say(quiet)
+    photos_dir, folder = str(photos), Path(out)
+    camera_file, layout_file = (str(camera) if camera else None), (str(layout) if layout else None)
+    if folder.exists() and not folder.is_dir():
+        raise fail(folder, "exists and is not a folder", "--out names the dataset folder to write")
+    outputs = stage.output_names(method, build_dataset)
+    guard_outputs([folder / name for name in outputs], [photos_dir, camera_file, layout_file], force)
+    given_camera = load_camera(camera_file) if camera_file else None
+    dictionary = stage.dictionary_of(dictionary, camera_file)
+    get_dictionary(dictionary)
+    if tag_size is not None and not tag_size > 0:
+        raise fail("--tag-size", f"{tag_size} must be a positive length in metres")
+    workers = jobs or default_jobs()
+    if method == "colmap":
+        from ..sfm import sfm_dataset
 
-    scene = load_npz(dataset)
-    return PoseResult(dataset, sum(len(v) for v in scene.splits.values()), total, out)
+        scene, report = sfm_dataset(
+            photos_dir,
+            folder,
+            dcfg,
+            matcher=matcher,
+            max_image_size=sfm_max_size,
+            tag_size=tag_size,
+            tag_id=tag_id or 0,
+            tag_dict=dictionary,
+            threads=jobs or -1,
+            jobs=workers,
+            ground=ground,
+            camera=given_camera,
+        )
+        say(report.summary())
+        return PoseResult(folder / NPZ_FILE, _views(scene), len(list_images(photos_dir)), folder)
+    sheet = load_layout(layout_file, dictionary, tag_size) if layout_file else None
+    if sheet is None and tag_size is None:
+        raise fail("--tag-size", "is required", "Measure the tag's black square, e.g. --tag-size 0.06")
+    if focal_px is not None and not focal_px > 0:
+        raise fail("--focal-px", f"{focal_px} must be positive")
+
+    detections = folder / "detections.json" if cache else None
+    records = scan_photos(photos_dir, dictionary, sheet, detect_size, detections, workers)
+    require_tags(records, photos_dir, dictionary)
+    cam, frame, side, notes = stage.tag_frame(
+        records,
+        given_camera,
+        sheet,
+        camera_file=camera_file,
+        dictionary=dictionary,
+        focal_px=focal_px,
+        tag_id=tag_id,
+        tag_size=tag_size,
+        single_tag=single_tag,
+        cfg=pcfg,
+    )
+    printed = frame.flattened()  # what the files record and the dataset's tags (the heights: the poses' alone)
+    posed = pose_records(records, cam, frame, pcfg)
+    note = stage.scaled_note(posed, cam)
+    if note:
+        notes.append(note)
+    folder.mkdir(parents=True, exist_ok=True)
+    meta = stage.poses_meta(photos_dir, dictionary, side, printed, frame, notes, pcfg)
+    write_poses_json(folder / POSES_FILE, records, posed, cam, meta)
+    say(stage.poses_report(notes, cam, records, folder / POSES_FILE, all_photos))
+    if not posed:
+        raise fail(
+            photos_dir,
+            "no photo could be posed (see the table above)",
+            "Check --tag-size/--tag-id and that the tag is sharp and fully visible",
+        )
+    total = len(list_images(photos_dir))
+    if not build_dataset:
+        return PoseResult(None, len(posed), total, folder)
+    if method == "auto":
+        scene, summary = stage.chosen_dataset(
+            photos_dir,
+            folder,
+            posed,
+            records,
+            cam if (camera_file or focal_px) else None,  # else SfM starts from the EXIF focal length
+            frame,
+            printed,
+            tag_size=side,
+            dictionary=dictionary,
+            notes=notes,
+            matcher=matcher,
+            sfm_max_size=sfm_max_size,
+            jobs=workers,
+            threads=jobs or -1,
+            pose_cfg=pcfg,
+            dataset_cfg=dcfg,
+            say=say,
+        )
+    else:
+        scene, summary = stage.tag_dataset(posed, folder, dcfg, side, workers, {"notes": notes}, printed.corners())
+    if not quiet:
+        report_dataset(summary, folder)
+    return PoseResult(folder / NPZ_FILE, _views(scene), total, folder)
+
+
+def _views(scene: Any) -> int:
+    """The views of a dataset, every split."""
+    return sum(len(v) for v in scene.splits.values())
 
 
 def train_settings(options: dict[str, Any], config: str | Path | None = None) -> tuple[Any, Any, set[str]]:
@@ -745,7 +845,6 @@ __all__ = [
     "TrainResult",
     "VideoPath",
     "calibrate",
-    "command_arguments",
     "evaluate",
     "export",
     "pose",
