@@ -379,7 +379,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / RECORD_FILE, {"inputs": inputs})
     dictionary = ["--dict", args.dict] if args.dict else []
-    dict_option = {"dict": args.dict} if args.dict else {}
+    dict_option = {"dictionary": args.dict} if args.dict else {}
 
     camera = Path(args.camera) if args.camera else None
     if args.calib:
