@@ -466,7 +466,18 @@ def train(
     """Train a new run on a dataset (``nerfkit train``): ``options`` are training and model
     settings by name (``lr=0.1``, ``resolutions="32,64"``); the ones not given take the
     dataset's kind's (:mod:`nerfkit.presets`). ``config``: start from a run's settings. With
-    neither ``steps`` nor ``minutes`` (nor a config's), it trains for 5 minutes."""
+    neither ``steps`` nor ``minutes`` (nor a config's), it trains for 5 minutes.
+
+    Args:
+        data: the dataset: a course .npz or any format ``nerfkit convert`` reads (None: the config's).
+        out: the run folder to create (None: the config's, else runs/latest).
+        model: "fast", "splat" or "vanilla" (None: the config's, else fast).
+        steps: optimizer steps (None: the config's; 0: until ``minutes`` is spent).
+        minutes: training-time budget in minutes, evaluation excluded.
+        config: a run's config.json (or its folder) whose settings this run starts from.
+        quiet: print no progress or report.
+        options: any other TrainConfig or model setting by its field name (``device="cpu"``).
+    """
     from ..errors import fail
     from ..models import check_config
     from ..train.trainer import check_new_run_folder
@@ -524,7 +535,16 @@ def resume(
     **changes: Any,
 ) -> TrainResult:
     """Continue a run from its newest good checkpoint (``nerfkit train --resume``), with a new
-    stopping rule or the settings ``nerfkit train --resume`` applies (``device``, ``eval_every``, ...)."""
+    stopping rule or the settings ``nerfkit train --resume`` applies (``device``, ``eval_every``, ...).
+
+    Args:
+        run: the run folder to continue.
+        steps: the new step budget (None: the run's).
+        minutes: the new time budget (None: the run's).
+        data: the dataset, when it has moved (None: the one the run records).
+        quiet: print no progress or report.
+        changes: settings of :data:`RESUME_APPLIES` by name; any other is refused.
+    """
     from ..errors import fail
     from ..train.checkpoint import read_run
     from ..train.trainer import resume as resume_run
