@@ -1,8 +1,10 @@
 """The pipeline from Python: calibrate, pose, train, render, evaluate, export.
 
-Each function takes what its command takes, as keyword arguments named as the flags
-(``tag_size=0.06`` for ``--tag-size 0.06``), checks them as the command line is checked,
-and returns a typed result; ``nerfkit capture`` runs these in a row. Example::
+Each function takes typed keyword arguments named as the flags of its command
+(``tag_size=0.06`` for ``--tag-size 0.06``; ``--no-X`` is ``X=False``; choices as strings),
+checks them as the command line is checked, does the stage's work, prints the command's
+report unless ``quiet=True``, and returns a typed result. The commands are these functions
+behind a command line; ``nerfkit capture`` runs them in a row. Example::
 
     from nerfkit import api
 

@@ -100,14 +100,25 @@ class OpenRun:
         )
 
 
-def open_run(args: argparse.Namespace) -> OpenRun:
-    """Load ``args.run`` on ``args.device`` with the render chunk of ``args.chunk`` or the run."""
+@dataclass(frozen=True)
+class RunToOpen:
+    """Which run :func:`open_run` loads, and how: ``run`` (its folder), ``device`` ("auto", "cpu",
+    "cuda" or "cuda:N") and ``chunk`` (rays rendered at once; 0: the run's render chunk).
+    The parsed arguments of a command on a run carry the same three names."""
+
+    run: str | Path
+    device: str = "auto"
+    chunk: int = 0
+
+
+def open_run(which: RunToOpen) -> OpenRun:
+    """Load ``which.run`` on ``which.device`` with the render chunk of ``which.chunk`` or the run."""
     from ..train.checkpoint import load_run
     from ..train.config import resolve_autocast, resolve_device
 
-    device = resolve_device(args.device)
-    model, info, step = load_run(args.run, device)
-    chunk = args.chunk or getattr(info.train, "render_chunk", 0) or 8192
+    device = resolve_device(which.device)
+    model, info, step = load_run(which.run, device)
+    chunk = which.chunk or getattr(info.train, "render_chunk", 0) or 8192
     dtype = resolve_autocast(info.train.precision, device)
     model.set_precision(dtype)
     return OpenRun(model, info, step, device, chunk, dtype)

@@ -683,7 +683,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / RECORD_FILE, {"inputs": inputs})
     dictionary = ["--dict", args.dict] if args.dict else []
-    dict_option = {"dict": args.dict} if args.dict else {}
+    dict_option = {"dictionary": args.dict} if args.dict else {}
 
     photos = args.photos
     if video:  # the frames are the photos of every later step

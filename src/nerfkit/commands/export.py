@@ -5,9 +5,6 @@ from __future__ import annotations
 
 import argparse
 
-# Field points evaluated per call when sampling the density grid and vertex colours.
-POINT_CHUNK = 65536
-
 MEMORY_HINT = "Lower --resolution or --chunk"
 HELP = "export a trained run as a coloured mesh (marching cubes) and/or a point cloud (PLY), or Gaussian splats"
 
@@ -115,133 +112,28 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    """``nerfkit export``: :func:`nerfkit.api.export` with the parsed flags."""
+    from .pipeline import export
 
-    from ..errors import fail
-
-    splat = getattr(args, "splat", None)
-    if not args.mesh and not args.points and not splat:
-        raise fail("export", "nothing to export", "Pass --mesh OUT.ply, --points OUT.ply or --splat OUT.ply")
-    for flag, path in (("--mesh", args.mesh), ("--points", args.points)):
-        if path and not path.lower().endswith(".ply"):
-            raise fail(flag, f"'{path}' should end in .ply")
-    if splat and not splat.lower().endswith((".ply", ".splat")):
-        raise fail("--splat", f"'{splat}' should end in .ply or .splat")
-    outs = [Path(p).resolve() for p in (args.mesh, args.points, splat) if p]
-    if len(set(outs)) < len(outs):
-        raise fail("--mesh/--points/--splat", "name the same file")
-    from ..data.load import dataset_inputs
-    from ..io.paths import guard_outputs
-    from ._common import open_run
-
-    run_ = open_run(args)
-    if splat and not hasattr(run_.model, "n_gaussians"):
-        raise fail(args.run, f"is a {run_.info.train.model} run; --splat exports runs of --model splat")
-    if (args.mesh) and hasattr(run_.model, "n_gaussians"):
-        raise fail(args.run, "is a splat run: it has no density field to mesh", "Use --splat OUT.ply or --points")
-    guard_outputs(
-        [args.mesh, args.points, splat],
-        dataset_inputs(args.data or run_.info.train.data),
-        args.force,
-        "--mesh/--points/--splat",
+    export(
+        args.run,
+        mesh=args.mesh,
+        points=args.points,
+        splat=args.splat,
+        resolution=args.resolution,
+        threshold=args.threshold,
+        box_scale=args.box_scale,
+        table_cut=args.table_cut,
+        color_views=args.color_views,
+        color_dirs=args.color_dirs,
+        every=args.every,
+        stride=args.stride,
+        acc_min=args.acc_min,
+        crop=not args.no_crop,
+        data=args.data,
+        device=args.device,
+        chunk=args.chunk,
+        allow_outside_paths=args.allow_outside_paths,
+        force=args.force,
     )
-    if splat:
-        export_splat(run_, splat)
-    bounds = run_.info.bounds
-    if args.mesh:
-        export_mesh(run_, args)
-    if args.points:
-        export_points(run_, bounds.center, bounds.radius * args.box_scale, args)
     return 0
-
-
-def export_splat(run_, path: str) -> None:
-    from ..splat_files import Gaussians, write_dot_splat, write_splat_ply
-
-    g = Gaussians.from_model(run_.model)
-    if path.lower().endswith(".splat"):
-        write_dot_splat(path, g)
-    else:
-        write_splat_ply(path, g)
-    print(f"{len(g)} Gaussians of step {run_.step} (SH degree {g.sh_degree}) -> {path}")
-
-
-def export_mesh(run_, args) -> None:
-    from ..errors import advice
-    from ..export import ColourViews, mesh_from_model, mesh_region, mesh_threshold, write_mesh_ply
-    from ..output.images import render_image
-    from ..tabletop import cleared_note, object_alone, table_cut_height
-    from ._common import scene_for_run
-
-    model, bounds = run_.model, run_.info.bounds
-    center, radius = mesh_region(model, bounds.center, bounds.radius, args.box_scale)
-    height = table_cut_height(model, args.table_cut)
-    threshold = args.threshold if args.threshold is not None else mesh_threshold(model, radius)
-    views, bg = None, run_.background()
-    ndc = getattr(model, "ndc", None) is not None  # (coloured at the vertices: see mesh_from_model)
-    if args.color_views > 0 and not ndc:
-        with advice("Or pass --color-views 0 to colour the mesh without the dataset"):
-            scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
-        views = ColourViews.pick(scene.train, args.color_views)
-    # a capture's table and room would show through its object's edges
-    alone = object_alone(model).model if views is not None else model
-
-    def render_fn(K, c2w, w, h):
-        out = render_image(alone, K, c2w, w, h, bg, run_.chunk, run_.autocast)
-        return out.rgb, out.depth, out.acc
-
-    mesh = mesh_from_model(
-        model,
-        center,
-        radius,
-        bounds.radius,
-        args.resolution,
-        threshold,
-        args.color_dirs,
-        chunk=POINT_CHUNK,
-        device=run_.device,
-        table_cut=height,
-        views=views,
-        render_fn=render_fn,
-        background=tuple(bg.tolist()),
-    )
-    write_mesh_ply(args.mesh, mesh)
-    cut = ""
-    if model.table_plane() is not None:
-        cut = f"; {cleared_note(height, model.table_tags())}"
-    coloured = (
-        f"coloured from {len(views)} training views"
-        if views is not None
-        else "coloured at the vertices"
-        if ndc
-        else "coloured along the normals"
-    )
-    print(
-        f"mesh of step {run_.step}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces "
-        f"(threshold {threshold:.3g}, {args.resolution}^3 grid over a {2 * radius:.3g}-wide cube{cut}; "
-        f"{coloured}) -> {args.mesh}"
-    )
-
-
-def export_points(run_, center, radius: float, args) -> None:
-    from ..export import crop_to_box, points_from_views, write_points_ply
-    from ..output.images import render_image
-    from ._common import scene_for_run
-
-    scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
-    views = scene.train.subset(list(range(0, len(scene.train), args.every)))
-    bg = run_.background()
-
-    def render_fn(K, c2w, w, h):
-        out = render_image(run_.model, K, c2w, w, h, bg, run_.chunk)
-        return out.rgb, out.depth, out.acc
-
-    pts, cols = points_from_views(render_fn, views, args.acc_min, tuple(bg.tolist()), args.stride)
-    n_all = len(pts)
-    if not args.no_crop:
-        pts, cols = crop_to_box(pts, cols, center, radius)
-    write_points_ply(args.points, pts, cols)
-    print(
-        f"point cloud of step {run_.step}: {len(pts)} points from {len(views)} views "
-        f"({n_all - len(pts)} outside the scene box dropped) -> {args.points}"
-    )

@@ -1,9 +1,10 @@
 """The pipeline from Python (:mod:`nerfkit.api`): calibrate, pose, train, render, evaluate, export.
 
-Each function takes what its command takes, as keyword arguments named as the flags
-(``tag_size=0.06`` for ``--tag-size 0.06``), checks them as the command line is checked,
-and returns a typed result. The commands print what these do; ``nerfkit capture`` is
-these functions in a row. Example::
+Each function takes typed keyword arguments named as the flags of its command
+(``tag_size=0.06`` for ``--tag-size 0.06``; a ``--no-X`` flag is ``X=False``), checks them as
+the command line is checked, does the work, prints the report the command prints (unless
+``quiet``) and returns a typed result. The commands parse their command line into these
+calls; ``nerfkit capture`` is these functions in a row. Example::
 
     from nerfkit import api
 
@@ -17,10 +18,25 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal, TypeVar, get_args
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+    from ..capture.calibrate import CalibrateConfig
+    from ..capture.dataset import DatasetConfig
+    from ..capture.poses import PoseConfig
+
+# the choices of the commands' flags of the same names
+PoseMethod = Literal["auto", "tags", "colmap"]
+Matcher = Literal["auto", "exhaustive", "sequential", "spatial"]
+VideoPath = Literal["auto", "test", "orbit", "spiral"]
+Split = Literal["val", "test", "train"]
+
+T = TypeVar("T", bound="DataclassInstance")
 
 
 @dataclass(frozen=True)
@@ -38,7 +54,7 @@ class CalibrationResult:
 class PoseResult:
     """A dataset written by :func:`pose`."""
 
-    dataset_path: Path | None  # dataset.npz (None with no_dataset=True)
+    dataset_path: Path | None  # dataset.npz (None with build_dataset=False)
     posed: int  # photos with a pose in the dataset (or from the tags, without a dataset)
     total: int  # photos in the folder
     out: Path
@@ -60,7 +76,9 @@ class TrainResult:
 class RenderResult:
     """Videos written by :func:`render`."""
 
-    videos: tuple[Path, ...]
+    videos: tuple[Path, ...]  # colour MP4, colour GIF and depth MP4
+    frames: int = 0  # frames in each video
+    step: int = 0  # the training step of the model rendered
 
 
 @dataclass(frozen=True)
@@ -68,16 +86,20 @@ class EvaluationResult:
     """Scores written by :func:`evaluate` (RUN/eval_<split>.json)."""
 
     split: str
-    psnr: float
+    psnr: float  # mean over the split's views (dB), as the command prints it
     ssim: float
-    report_path: Path
+    report_path: Path  # RUN/eval_<split>.json
+    sheet_path: Path | None = None  # RUN/eval_<split>.png (photos beside renders), when written
+    notes: tuple[str, ...] = ()  # printed before the scores (how the views were scored)
+    scores: dict[str, Any] = field(default_factory=dict, compare=False)  # what report_path holds
 
 
 @dataclass(frozen=True)
 class ExportResult:
     """Files written by :func:`export`."""
 
-    files: tuple[Path, ...]
+    files: tuple[Path, ...]  # the mesh, the points and the Gaussians asked for, in that order
+    step: int = 0  # the training step of the model exported
 
 
 # what ``nerfkit train --resume`` may change: the stopping rule and how the run is carried out
@@ -94,78 +116,123 @@ RESUME_APPLIES = (
 )
 
 
-def command_parser(command: str) -> argparse.ArgumentParser:
-    """The parser of ``nerfkit COMMAND`` (one of the commands the pipeline runs) on its own."""
-    from . import calibrate as calibrate_command
-    from . import eval as eval_command
-    from . import export as export_command
-    from . import poses as poses_command
-    from . import render as render_command
-
-    modules = {
-        "calibrate": calibrate_command,
-        "poses": poses_command,
-        "render": render_command,
-        "eval": eval_command,
-        "export": export_command,
-    }
-    sub = argparse.ArgumentParser(prog="nerfkit").add_subparsers(dest="command")
-    modules[command].register(sub)
-    return sub.choices[command]
-
-
-def command_arguments(command: str, **values: Any) -> argparse.Namespace:
-    """The parsed arguments ``nerfkit COMMAND`` would have for ``values`` (flag names with
-    ``_`` for ``-``; the rest take the command's defaults), each checked as the command line
-    checks it (numbers in range, choices). Unknown names are a TypeError, as for any function."""
+def _check(flag: str, value: Any, parse: Callable[[str], Any]) -> Any:
+    """``value`` checked as the command line checks ``flag`` (``parse``: the flag's argparse
+    type), converted as the flag converts it; None passes as None."""
     from ..errors import fail
 
-    sub = command_parser(command)
-    actions = {a.dest: a for a in sub._actions if a.dest not in (argparse.SUPPRESS, "help")}
-    args = argparse.Namespace(command=command, verbose=bool(values.pop("verbose", False)), func=sub.get_default("func"))
-    for dest, action in actions.items():
-        setattr(args, dest, None if action.default is argparse.SUPPRESS else action.default)
-    for key, value in values.items():
-        if key not in actions:
-            raise TypeError(f"{command}() got an unexpected keyword argument {key!r}")
-        if value is None:  # not given: the command's default
-            continue
-        action = actions[key]
-        flag = action.option_strings[-1] if action.option_strings else key
-        convert = action.type  # a flag's parser: a callable (argparse also allows a registered name)
-        if callable(convert) and not isinstance(value, bool):
-            try:
-                value = convert(str(value))
-            except (argparse.ArgumentTypeError, TypeError, ValueError) as e:
-                raise fail(flag, str(e)) from None
-        if isinstance(value, Path):
-            value = str(value)
-        if value is not None and action.choices is not None and value not in action.choices:
-            raise fail(flag, f"'{value}' is not one of {', '.join(map(str, action.choices))}")
-        setattr(args, key, value)
-    return args
+    if value is None:
+        return None
+    try:
+        return parse(str(value))
+    except (argparse.ArgumentTypeError, TypeError, ValueError) as e:
+        raise fail(flag, str(e)) from None
 
 
-def _run(command: str, **values: Any) -> argparse.Namespace:
-    """Run ``nerfkit COMMAND``'s body on :func:`command_arguments`; the arguments it ran with."""
-    args = command_arguments(command, **values)
-    code = args.func(args)
-    if code == 130:
-        raise KeyboardInterrupt
-    return args
+def _choice(flag: str, value: str, choices: tuple[str, ...]) -> None:
+    """Refuse ``value`` when it is not one of the ``choices`` of ``flag``."""
+    from ..errors import fail
+
+    if value not in choices:
+        raise fail(flag, f"'{value}' is not one of {', '.join(choices)}")
+
+
+def _settings(cfg: T) -> T:
+    """A settings dataclass checked as its flags are: numbers in their ranges, choices."""
+    from ..config import check_ranges, flag_of
+
+    check_ranges(cfg)
+    for f in dataclasses.fields(cfg):
+        choices = f.metadata.get("choices")
+        if choices is not None:
+            _choice(flag_of(f.name), getattr(cfg, f.name), tuple(choices))
+    return cfg
+
+
+def _say(quiet: bool) -> Callable[[str], None]:
+    """Where a stage's report goes: printed, or nowhere when ``quiet``."""
+    return (lambda text: None) if quiet else print
 
 
 def calibrate(
-    photos: str | Path, out: str | Path, *, tag_size: float | None = None, **options: Any
+    photos: str | Path,
+    out: str | Path = "camera.json",
+    *,
+    tag_size: float | None = None,
+    dictionary: str = "DICT_4X4_50",
+    layout: str | Path | None = None,
+    detect_size: int = 2000,
+    jobs: int = 0,
+    cache: bool = True,
+    settings: CalibrateConfig | None = None,
+    all_photos: bool = False,
+    force: bool = False,
+    quiet: bool = False,
 ) -> CalibrationResult:
-    """Calibrate the camera from photos of the printed tag sheet (``nerfkit calibrate``);
-    ``options`` as its flags (``layout``, ``dict``, ``force``, ...)."""
-    args = _run("calibrate", photos=photos, out=out, tag_size=tag_size, **options)
-    path = Path(args.out)
-    path = path / "camera.json" if path.is_dir() else path
-    data = json.loads(path.read_text())
+    """Calibrate the camera from photos of the printed tag sheet (``nerfkit calibrate``).
+
+    Args:
+        photos: folder of photos of the tag sheet, taken from varied angles.
+        out: camera file to write (a folder: its camera.json).
+        tag_size: side of one tag's black square in metres (needed unless ``layout`` gives sizes).
+        dictionary: ArUco dictionary of the tags.
+        layout: sheet layout JSON; None: where the tags sit on the sheet is estimated.
+        detect_size: tags are detected on a copy this many pixels on the long side.
+        jobs: photos processed in parallel (0: up to 4 cores).
+        cache: reuse the detections cached beside ``out``.
+        settings: the calibration options (lens model choice, folds, ...); None: the defaults.
+        all_photos: the report lists every photo, not only skipped ones.
+        force: replace an existing camera file.
+        quiet: print no report.
+    """
+    from ..capture.aruco import get_dictionary, load_layout
+    from ..capture.calibrate import CalibrateConfig, calibrate_records, calibration_json
+    from ..capture.photos import blur_hint, default_jobs, group_by_size, keep_one_lens, require_tags, scan_photos
+    from ..config import number, tag_side
+    from ..errors import fail
+    from ..io.atomic import write_json
+    from ..io.paths import guard_outputs
+    from .stages.calibrate import calibration_report
+
+    tag_size = _check("--tag-size", tag_size, tag_side)
+    detect_size = _check("--detect-size", detect_size, number(int, 64, 100_000))
+    jobs = _check("--jobs", jobs, number(int, 0, 256))
+    cfg = _settings(settings if settings is not None else CalibrateConfig())
+    photos_dir, layout_file = str(photos), str(layout) if layout else None
+    get_dictionary(dictionary)
+    if tag_size is not None and not tag_size > 0:
+        raise fail("--tag-size", f"{tag_size} must be a positive length in metres")
+    sheet = load_layout(layout_file, dictionary, tag_size) if layout_file else None
+    if sheet is None and tag_size is None:
+        raise fail("--tag-size", "is required without --layout", "Measure one tag's black square, e.g. --tag-size 0.06")
+    if not tag_size:
+        assert sheet is not None  # checked above
+        tag_size = sheet.tag_size
+    path = Path(out)
+    if path.is_dir():
+        path = path / "camera.json"
+    guard_outputs([path], [photos_dir, layout_file], force)
+    detections = path.with_name(path.stem + ".detections.json") if cache else None
+
+    records = scan_photos(photos_dir, dictionary, sheet, detect_size, detections, jobs or default_jobs())
+    require_tags(records, photos_dir, dictionary)
+    charuco = sheet is not None and sheet.charuco is not None
+    for r in records:
+        if r.detection is not None and len(r.detection.ids) == 0:
+            r.skip("no tags found" + blur_hint(records, r))
+    size, kept = group_by_size(
+        keep_one_lens([r for r in records if r.detection is not None and (len(r.detection.ids) or charuco)]), turn=True
+    )
+    cal = calibrate_records(kept, size, tag_size, sheet, cfg, dictionary)
+    data = calibration_json(cal, records, dictionary, tag_size, str(Path(photos_dir).resolve()))
+    write_json(path, data)
+    _say(quiet)(calibration_report(cal, records, path, all_photos))
     return CalibrationResult(
-        path, data.get("heldout_rms"), str(data.get("dist_model")), float(data["rms"]), int(data.get("photos_used", 0))
+        path,
+        data.get("heldout_rms"),
+        str(data.get("dist_model")),
+        float(data["rms"]),
+        int(data.get("photos_used", 0)),
     )
 
 
@@ -175,26 +242,178 @@ def pose(
     *,
     tag_size: float | None = None,
     camera: str | Path | None = None,
-    method: str = "auto",
-    **options: Any,
+    method: PoseMethod = "auto",
+    matcher: Matcher = "auto",
+    ground: bool = True,
+    sfm_max_size: int = 1000,
+    focal_px: float | None = None,
+    tag_id: int | None = None,
+    layout: str | Path | None = None,
+    single_tag: bool = False,
+    dictionary: str | None = None,
+    build_dataset: bool = True,
+    detect_size: int = 2000,
+    jobs: int = 0,
+    cache: bool = True,
+    max_side: int | None = None,
+    pose_settings: PoseConfig | None = None,
+    dataset_settings: DatasetConfig | None = None,
+    all_photos: bool = False,
+    force: bool = False,
+    quiet: bool = False,
 ) -> PoseResult:
-    """Pose the photos of an object beside a tag (or by SfM) and build its dataset
-    (``nerfkit poses``); ``options`` as its flags (``max_side``, ``layout``, ``force``, ...)."""
-    from ..capture.dataset import POSES_FILE
+    """Pose the photos of an object beside a tag (or by SfM) and build its dataset (``nerfkit poses``).
 
-    args = _run("poses", photos=photos, out=out, tag_size=tag_size, camera=camera, method=method, **options)
-    out = Path(args.out)
+    Args:
+        photos: folder of photos of the object beside the tag.
+        out: dataset folder to write (poses.json, dataset.npz, transforms.json, images/, ...).
+        tag_size: side of the tag's black square in metres (needed unless ``layout`` gives it).
+        camera: camera file from :func:`calibrate`; None: the photos' EXIF focal length.
+        method: "auto" (tag poses, replaced by SfM poses in the tag's frame when SfM agrees),
+            "tags" (the tags alone) or "colmap" (SfM alone; a tag, with ``tag_size``, fixes scale and up).
+        matcher: the photo pairs SfM matches ("auto", "exhaustive", "sequential", "spatial").
+        ground: with method "colmap" and no tag, find the table plane in the SfM points.
+        sfm_max_size: longest side (px) of the images SfM extracts features from.
+        focal_px: focal length in pixels when there is no camera file or EXIF.
+        tag_id: the tag that defines the world (None: the one seen most; never a layout).
+        layout: layout JSON of several tags used jointly (None: the camera file's, or estimated).
+        single_tag: pose from one tag, never a layout.
+        dictionary: ArUco dictionary (None: the camera file's, else DICT_4X4_50).
+        build_dataset: build the dataset (False: only poses.json).
+        detect_size: tags are detected on a copy this many pixels on the long side.
+        jobs: photos processed in parallel and SfM's threads (0: up to 4 cores, SfM on all).
+        cache: reuse the detections cached in ``out``.
+        max_side: the dataset's views' longer side in pixels (0: keep; None: ``dataset_settings``').
+        pose_settings: the posing options (error limits, focal refinement); None: the defaults.
+        dataset_settings: the dataset options (size, splits, near/far, ...); None: the defaults.
+        all_photos: the report lists every photo, not only skipped ones.
+        force: replace the dataset files of an earlier run in ``out``.
+        quiet: print no report.
+    """
+    from ..capture.aruco import get_dictionary, load_layout
+    from ..capture.camera import load_camera
+    from ..capture.dataset import NPZ_FILE, POSES_FILE, DatasetConfig, write_poses_json
+    from ..capture.photos import default_jobs, require_tags, scan_photos
+    from ..capture.poses import PoseConfig, pose_records
+    from ..config import number, tag_side
+    from ..errors import fail
     from ..images import list_images
+    from ..io.paths import guard_outputs
+    from .dataset import report_dataset
+    from .stages import pose as stage
 
-    total = len(list_images(args.photos))
-    dataset = out / "dataset.npz"
-    if args.no_dataset or not dataset.is_file():
-        posed = json.loads((out / POSES_FILE).read_text()).get("photos_posed", 0) if (out / POSES_FILE).is_file() else 0
-        return PoseResult(None, int(posed), total, out)
-    from ..data.npz import load_npz
+    _choice("--method", method, get_args(PoseMethod))
+    _choice("--matcher", matcher, get_args(Matcher))
+    tag_size = _check("--tag-size", tag_size, tag_side)
+    focal_px = _check("--focal-px", focal_px, number(float, above=0))
+    tag_id = _check("--tag-id", tag_id, number(int, 0))
+    sfm_max_size = _check("--sfm-max-size", sfm_max_size, number(int, 64, 100_000))
+    detect_size = _check("--detect-size", detect_size, number(int, 64, 100_000))
+    jobs = _check("--jobs", jobs, number(int, 0, 256))
+    pcfg = _settings(pose_settings if pose_settings is not None else PoseConfig())
+    dcfg = dataset_settings if dataset_settings is not None else DatasetConfig()
+    dcfg = _settings(dataclasses.replace(dcfg, max_side=max_side) if max_side is not None else dcfg)
+    say = _say(quiet)
+    photos_dir, folder = str(photos), Path(out)
+    camera_file, layout_file = (str(camera) if camera else None), (str(layout) if layout else None)
+    if folder.exists() and not folder.is_dir():
+        raise fail(folder, "exists and is not a folder", "--out names the dataset folder to write")
+    outputs = stage.output_names(method, build_dataset)
+    guard_outputs([folder / name for name in outputs], [photos_dir, camera_file, layout_file], force)
+    given_camera = load_camera(camera_file) if camera_file else None
+    dictionary = stage.dictionary_of(dictionary, camera_file)
+    get_dictionary(dictionary)
+    if tag_size is not None and not tag_size > 0:
+        raise fail("--tag-size", f"{tag_size} must be a positive length in metres")
+    workers = jobs or default_jobs()
+    if method == "colmap":
+        from ..sfm import sfm_dataset
 
-    scene = load_npz(dataset)
-    return PoseResult(dataset, sum(len(v) for v in scene.splits.values()), total, out)
+        scene, report = sfm_dataset(
+            photos_dir,
+            folder,
+            dcfg,
+            matcher=matcher,
+            max_image_size=sfm_max_size,
+            tag_size=tag_size,
+            tag_id=tag_id or 0,
+            tag_dict=dictionary,
+            threads=jobs or -1,
+            jobs=workers,
+            ground=ground,
+            camera=given_camera,
+        )
+        say(report.summary())
+        return PoseResult(folder / NPZ_FILE, _views(scene), len(list_images(photos_dir)), folder)
+    sheet = load_layout(layout_file, dictionary, tag_size) if layout_file else None
+    if sheet is None and tag_size is None:
+        raise fail("--tag-size", "is required", "Measure the tag's black square, e.g. --tag-size 0.06")
+    if focal_px is not None and not focal_px > 0:
+        raise fail("--focal-px", f"{focal_px} must be positive")
+
+    detections = folder / "detections.json" if cache else None
+    records = scan_photos(photos_dir, dictionary, sheet, detect_size, detections, workers)
+    require_tags(records, photos_dir, dictionary)
+    cam, frame, side, notes = stage.tag_frame(
+        records,
+        given_camera,
+        sheet,
+        camera_file=camera_file,
+        dictionary=dictionary,
+        focal_px=focal_px,
+        tag_id=tag_id,
+        tag_size=tag_size,
+        single_tag=single_tag,
+        cfg=pcfg,
+    )
+    printed = frame.flattened()  # what the files record and the dataset's tags (the heights: the poses' alone)
+    posed = pose_records(records, cam, frame, pcfg)
+    note = stage.scaled_note(posed, cam)
+    if note:
+        notes.append(note)
+    folder.mkdir(parents=True, exist_ok=True)
+    meta = stage.poses_meta(photos_dir, dictionary, side, printed, frame, notes, pcfg)
+    write_poses_json(folder / POSES_FILE, records, posed, cam, meta)
+    say(stage.poses_report(notes, cam, records, folder / POSES_FILE, all_photos))
+    if not posed:
+        raise fail(
+            photos_dir,
+            "no photo could be posed (see the table above)",
+            "Check --tag-size/--tag-id and that the tag is sharp and fully visible",
+        )
+    total = len(list_images(photos_dir))
+    if not build_dataset:
+        return PoseResult(None, len(posed), total, folder)
+    if method == "auto":
+        scene, summary = stage.chosen_dataset(
+            photos_dir,
+            folder,
+            posed,
+            records,
+            cam if (camera_file or focal_px) else None,  # else SfM starts from the EXIF focal length
+            frame,
+            printed,
+            tag_size=side,
+            dictionary=dictionary,
+            notes=notes,
+            matcher=matcher,
+            sfm_max_size=sfm_max_size,
+            jobs=workers,
+            threads=jobs or -1,
+            pose_cfg=pcfg,
+            dataset_cfg=dcfg,
+            say=say,
+        )
+    else:
+        scene, summary = stage.tag_dataset(posed, folder, dcfg, side, workers, {"notes": notes}, printed.corners())
+    if not quiet:
+        report_dataset(summary, folder)
+    return PoseResult(folder / NPZ_FILE, _views(scene), total, folder)
+
+
+def _views(scene: Any) -> int:
+    """The views of a dataset, every split."""
+    return sum(len(v) for v in scene.splits.values())
 
 
 def train_settings(options: dict[str, Any], config: str | Path | None = None) -> tuple[Any, Any, set[str]]:
@@ -247,7 +466,18 @@ def train(
     """Train a new run on a dataset (``nerfkit train``): ``options`` are training and model
     settings by name (``lr=0.1``, ``resolutions="32,64"``); the ones not given take the
     dataset's kind's (:mod:`nerfkit.presets`). ``config``: start from a run's settings. With
-    neither ``steps`` nor ``minutes`` (nor a config's), it trains for 5 minutes."""
+    neither ``steps`` nor ``minutes`` (nor a config's), it trains for 5 minutes.
+
+    Args:
+        data: the dataset: a course .npz or any format ``nerfkit convert`` reads (None: the config's).
+        out: the run folder to create (None: the config's, else runs/latest).
+        model: "fast", "splat" or "vanilla" (None: the config's, else fast).
+        steps: optimizer steps (None: the config's; 0: until ``minutes`` is spent).
+        minutes: training-time budget in minutes, evaluation excluded.
+        config: a run's config.json (or its folder) whose settings this run starts from.
+        quiet: print no progress or report.
+        options: any other TrainConfig or model setting by its field name (``device="cpu"``).
+    """
     from ..errors import fail
     from ..models import check_config
     from ..train.trainer import check_new_run_folder
@@ -305,7 +535,16 @@ def resume(
     **changes: Any,
 ) -> TrainResult:
     """Continue a run from its newest good checkpoint (``nerfkit train --resume``), with a new
-    stopping rule or the settings ``nerfkit train --resume`` applies (``device``, ``eval_every``, ...)."""
+    stopping rule or the settings ``nerfkit train --resume`` applies (``device``, ``eval_every``, ...).
+
+    Args:
+        run: the run folder to continue.
+        steps: the new step budget (None: the run's).
+        minutes: the new time budget (None: the run's).
+        data: the dataset, when it has moved (None: the one the run records).
+        quiet: print no progress or report.
+        changes: settings of :data:`RESUME_APPLIES` by name; any other is refused.
+    """
     from ..errors import fail
     from ..train.checkpoint import read_run
     from ..train.trainer import resume as resume_run
@@ -324,29 +563,175 @@ def resume(
     return _train_result(resume_run(run, scene, quiet=quiet, changes=changes))
 
 
+def _run_checks(chunk: int) -> int:
+    """``chunk`` (rays rendered at once) checked as ``--chunk`` is."""
+    from ..config import number
+    from ..train.config import MAX_BATCH_RAYS
+
+    return _check("--chunk", chunk, number(int, 0, MAX_BATCH_RAYS))
+
+
 def render(
     run: str | Path,
     *,
     out: str | Path | None = None,
-    object: bool = False,
-    **options: Any,  # noqa: A002
+    path: VideoPath = "auto",
+    frames: int | None = None,
+    fps: int = 30,
+    object: bool = False,  # noqa: A002 - the flag's name
+    background: str | None = None,
+    data: str | Path | None = None,
+    device: str = "auto",
+    chunk: int = 0,
+    allow_outside_paths: bool = False,
+    force: bool = False,
+    quiet: bool = False,
 ) -> RenderResult:
-    """Render a run's videos (``nerfkit render``): the orbit (or the dataset's path), its
-    depth, and with ``object=True`` the object alone; ``options`` as its flags (``frames``, ``fps``, ...)."""
-    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
+    """Render a run's videos (``nerfkit render``): colour (MP4 and GIF) and depth.
 
-    args = _run("render", run=run, out=out, object=object, **options)
-    folder = Path(args.out) if args.out else Path(args.run) / "videos"
+    Args:
+        run: run folder written by :func:`train`.
+        out: folder of the videos (None: RUN/videos, replaced: it belongs to the run).
+        path: the camera path: the dataset's "test" poses, an "orbit" around the object, a
+            "spiral" across a forward-facing capture's view, or "auto" (the test poses when they
+            are a camera path, else a spiral for a forward-facing capture, else an orbit).
+        frames: frames of an orbit or spiral (None: 120).
+        fps: frames per second.
+        object: render the object alone (object.mp4, object.gif, object_depth.mp4): a capture's
+            table, floor and room left out, zoomed to fill the frame, on white.
+        background: the colour behind the scene (black, white, grey, "r,g,b" or "#rrggbb";
+            None: the run's, white with ``object``).
+        data: dataset (None: the one the run was trained on).
+        device: "auto", "cpu", "cuda" or "cuda:N".
+        chunk: rays rendered at once (0: the run's render chunk).
+        allow_outside_paths: read dataset images outside the dataset's folder.
+        force: replace videos already in ``out``.
+        quiet: print no report (a note on ``frames`` still goes to stderr).
+    """
+    import sys
+
+    from ..config import number
+    from ..data.load import dataset_inputs
+    from ..data.scene import ORBIT_FRAMES
+    from ..errors import fail
+    from ..io.paths import guard_outputs
+    from ..output.images import frame_object, object_aim
+    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES, render_videos
+    from ..train.checkpoint import read_run
+    from . import _common
+    from .stages import render as stage
+
+    _choice("--path", path, get_args(VideoPath))
+    frames = _check("--frames", frames, number(int, 1, 100_000))
+    fps = _check("--fps", fps, number(int, 1, 1000))
+    chunk = _run_checks(chunk)
+    data = str(data) if data else None
+    folder = Path(out) if out else Path(run) / "videos"
     names = OBJECT_VIDEO_FILES if object else VIDEO_FILES
-    return RenderResult(tuple(folder / name for name in names if (folder / name).is_file()))
+    guard_outputs([folder / name for name in names], dataset_inputs(data or read_run(run).train.data), force or not out)
+    opened = _common.open_run(_common.RunToOpen(run, device, chunk))
+    scene = _common.scene_for_run(opened.info, data, allow_outside=allow_outside_paths)
+    kind, note = stage.path_kind(scene, path, frames, object, getattr(opened.model, "ndc", None) is not None)
+    if note:
+        print(note, file=sys.stderr)
+    colour = opened.background(background or ("white" if object else None))
+    alone = stage.leave_object_alone(opened.model) if object else ""
+    # an orbit looks at the trained object, not at the point the cameras' axes meet
+    aim = (
+        object_aim(opened.model, scene.train, scene.up, colour, opened.chunk, opened.autocast)
+        if kind == "orbit"
+        else None
+    )
+    views = scene.render_path(frames or ORBIT_FRAMES, aim, kind)
+    near, far = scene.near, scene.far
+    if object:
+        looked_at = aim if aim is not None else scene.center  # (what the path's cameras look at)
+        framing = frame_object(opened.model, views, colour, opened.chunk, opened.autocast, aim=looked_at)
+        if framing is None:
+            raise fail(
+                run,
+                "renders nothing solid along the video's path, so there is no object to frame",
+                "Render the scene without --object, or train longer",
+            )
+        views, near, far = framing.views, framing.near, framing.far
+        alone += f"; zoomed {framing.zoom:.2f}x)"
+    paths = render_videos(
+        opened.model,
+        views,
+        folder,
+        colour,
+        near,
+        far,
+        fps,
+        opened.chunk,
+        opened.autocast,
+        names=names,
+        metres=scene.tags is not None,
+    )
+    videos = (Path(paths.rgb_mp4), Path(paths.rgb_gif), Path(paths.depth_mp4))
+    _say(quiet)(stage.render_report(len(views), alone, opened.step, paths.seconds_per_frame, list(videos)))
+    return RenderResult(videos, len(views), opened.step)
 
 
-def evaluate(run: str | Path, *, split: str = "val", **options: Any) -> EvaluationResult:
-    """Score a run on a split's held-out views (``nerfkit eval``), writing RUN/eval_<split>.json."""
-    args = _run("eval", run=run, split=split, **options)
-    path = Path(args.run) / f"eval_{args.split}.json"
-    data = json.loads(path.read_text())
-    return EvaluationResult(args.split, float(data["psnr"]), float(data["ssim"]), path)
+def evaluate(
+    run: str | Path,
+    *,
+    split: Split = "val",
+    fit_views: int | None = None,
+    data: str | Path | None = None,
+    device: str = "auto",
+    chunk: int = 0,
+    allow_outside_paths: bool = False,
+    quiet: bool = False,
+) -> EvaluationResult:
+    """Score a run on a split's held-out views (``nerfkit eval``): PSNR and SSIM, written to
+    RUN/eval_<split>.json, with photos beside renders in RUN/eval_<split>.png.
+
+    Args:
+        run: run folder written by :func:`train`.
+        split: which views: "val", "test" or "train".
+        fit_views: also score each view with its pose fitted for this many steps and each half's
+            colour solved on the other half (None: 100 for a capture's run, else 0: off).
+        data: dataset (None: the one the run was trained on).
+        device: "auto", "cpu", "cuda" or "cuda:N".
+        chunk: rays rendered at once (0: the run's render chunk).
+        allow_outside_paths: read dataset images outside the dataset's folder.
+        quiet: print neither the notes nor the summary (the result holds both).
+    """
+    from ..config import number
+    from ..io.atomic import write_json
+    from . import _common
+    from .stages import evaluate as stage
+
+    _choice("--split", split, get_args(Split))
+    fit_views = _check("--fit-views", fit_views, number(int, 0, 100_000))
+    chunk = _run_checks(chunk)
+    say = _say(quiet)
+    opened = _common.open_run(_common.RunToOpen(run, device, chunk))
+    scene = _common.scene_for_run(
+        opened.info, str(data) if data else None, need=split, allow_outside=allow_outside_paths
+    )
+    stage.held_out_views(scene, split)
+    capture = getattr(opened.info.train, "capture", "off") == "on"
+    steps, note = stage.fit_steps(opened.model, opened.info.train.model, capture, fit_views)
+    if note:
+        say(note)
+    sheet: list = []
+    result = stage.scores(opened, scene, split, steps, sheet)
+    json_path, sheet_path = Path(run) / f"eval_{split}.json", Path(run) / f"eval_{split}.png"
+    write_json(json_path, result)
+    stage.write_contact_sheet(sheet_path, sheet, split)
+    say(stage.summary(result))
+    say(f"wrote {json_path}" + (f" and {sheet_path} (photo beside render)" if sheet else ""))
+    return EvaluationResult(
+        split,
+        float(result["psnr"]),
+        float(result["ssim"]),
+        json_path,
+        sheet_path if sheet else None,
+        (note,) if note else (),
+        result,
+    )
 
 
 def export(
@@ -355,22 +740,131 @@ def export(
     mesh: str | Path | None = None,
     points: str | Path | None = None,
     splat: str | Path | None = None,
-    **options: Any,
+    resolution: int = 256,
+    threshold: float | None = None,
+    box_scale: float = 1.0,
+    table_cut: float | None = None,
+    color_views: int | None = None,
+    color_dirs: int = 1,
+    every: int = 1,
+    stride: int = 1,
+    acc_min: float = 0.5,
+    crop: bool = True,
+    data: str | Path | None = None,
+    device: str = "auto",
+    chunk: int = 0,
+    allow_outside_paths: bool = False,
+    force: bool = False,
+    quiet: bool = False,
 ) -> ExportResult:
-    """Export a run as a mesh, a point cloud or (splat runs) Gaussians (``nerfkit export``)."""
-    _run("export", run=run, mesh=mesh, points=points, splat=splat, **options)
-    return ExportResult(tuple(Path(p) for p in (mesh, points, splat) if p is not None and Path(p).is_file()))
+    """Export a run as a mesh, a point cloud or (splat runs) Gaussians (``nerfkit export``).
+
+    Args:
+        run: run folder written by :func:`train`.
+        mesh: write a vertex-coloured triangle mesh here (.ply).
+        points: write a coloured point cloud here (.ply).
+        splat: (splat runs) write the Gaussians here: 3DGS PLY, or a name ending in .splat.
+        resolution: mesh: grid cells per side.
+        threshold: mesh: density of the surface (None: scale-free, see ``nerfkit export --help``).
+        box_scale: scale of the cube meshed and of the box points are cropped to.
+        table_cut: mesh, captures: the fraction of the object's height above the table whose
+            painted density is cleared (None: nerfkit.tabletop.TABLE_CUT).
+        color_views: mesh: training views rendered for the vertex colours (0: along the normals
+            only; None: nerfkit.export.COLOUR_VIEWS).
+        color_dirs: mesh: directions averaged per colour of a vertex no view sees.
+        every: points: use every N-th training view.
+        stride: points: use every N-th pixel in each direction.
+        acc_min: points: keep pixels with opacity above this.
+        crop: points: drop points outside the scene box.
+        data: dataset whose training views colour the mesh and give the points (None: the run's).
+        device: "auto", "cpu", "cuda" or "cuda:N".
+        chunk: rays rendered at once (0: the run's render chunk).
+        allow_outside_paths: read dataset images outside the dataset's folder.
+        force: replace existing output files.
+        quiet: print no report.
+    """
+    from ..config import number
+    from ..data.load import dataset_inputs
+    from ..errors import fail
+    from ..io.paths import guard_outputs
+    from . import _common
+    from .stages import export as stage
+
+    resolution = _check("--resolution", resolution, number(int, 8, 1024))
+    threshold = _check("--threshold", threshold, number(float, above=0))
+    box_scale = _check("--box-scale", box_scale, number(float, above=0))
+    table_cut = _check("--table-cut", table_cut, number(float, 0, 1))
+    color_views = _check("--color-views", color_views, number(int, 0, 10000))
+    color_dirs = _check("--color-dirs", color_dirs, number(int, 1, 64))
+    every = _check("--every", every, number(int, 1))
+    stride = _check("--stride", stride, number(int, 1, 4096))
+    acc_min = _check("--acc-min", acc_min, number(float, 0, 0.999))
+    chunk = _run_checks(chunk)
+    say = _say(quiet)
+    mesh_file, points_file, splat_file = (str(p) if p else None for p in (mesh, points, splat))
+    data = str(data) if data else None
+    stage.check_outputs(mesh_file, points_file, splat_file)
+    opened = _common.open_run(_common.RunToOpen(run, device, chunk))
+    if splat_file and not hasattr(opened.model, "n_gaussians"):
+        raise fail(run, f"is a {opened.info.train.model} run; --splat exports runs of --model splat")
+    if mesh_file and hasattr(opened.model, "n_gaussians"):
+        raise fail(run, "is a splat run: it has no density field to mesh", "Use --splat OUT.ply or --points")
+    guard_outputs(
+        [mesh_file, points_file, splat_file],
+        dataset_inputs(data or opened.info.train.data),
+        force,
+        "--mesh/--points/--splat",
+    )
+    if splat_file:
+        say(stage.export_splat(opened, splat_file))
+    if mesh_file:
+        from ..export import COLOUR_VIEWS
+        from ..tabletop import TABLE_CUT
+
+        say(
+            stage.export_mesh(
+                opened,
+                mesh_file,
+                resolution=resolution,
+                threshold=threshold,
+                box_scale=box_scale,
+                table_cut=TABLE_CUT if table_cut is None else table_cut,
+                color_views=COLOUR_VIEWS if color_views is None else color_views,
+                color_dirs=color_dirs,
+                data=data,
+                allow_outside=allow_outside_paths,
+            )
+        )
+    if points_file:
+        radius = opened.info.bounds.radius * box_scale
+        say(
+            stage.export_points(
+                opened,
+                points_file,
+                every=every,
+                stride=stride,
+                acc_min=acc_min,
+                crop_radius=radius if crop else None,
+                data=data,
+                allow_outside=allow_outside_paths,
+            )
+        )
+    written = tuple(Path(p) for p in (mesh_file, points_file, splat_file) if p)
+    return ExportResult(written, opened.step)
 
 
 __all__ = [
     "CalibrationResult",
     "EvaluationResult",
     "ExportResult",
+    "Matcher",
+    "PoseMethod",
     "PoseResult",
     "RenderResult",
+    "Split",
     "TrainResult",
+    "VideoPath",
     "calibrate",
-    "command_arguments",
     "evaluate",
     "export",
     "pose",

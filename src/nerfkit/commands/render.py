@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+from typing import get_args
 
 from ._common import add_run_args
+from .pipeline import VideoPath
 
 HELP = "render a trained run to MP4/GIF and a depth video"
 MEMORY_HINT = "Lower --chunk (rays rendered at once)"
@@ -23,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_run_args(p)
     p.add_argument(
         "--path",
-        choices=["auto", "test", "orbit", "spiral"],
+        choices=get_args(VideoPath),
         default="auto",
         help="camera path: the dataset's test poses, an orbit around the object, a spiral across a "
         "forward-facing capture's view, or auto (chosen as described above)",
@@ -58,98 +60,21 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
-    from pathlib import Path
+    """``nerfkit render``: :func:`nerfkit.api.render` with the parsed flags."""
+    from .pipeline import render
 
-    from ..data.load import dataset_inputs
-    from ..data.scene import ORBIT_FRAMES
-    from ..errors import fail
-    from ..io.paths import guard_outputs
-    from ..output.images import frame_object, object_aim
-    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES, render_videos
-    from ..tabletop import cleared_note, object_alone
-    from ..train.checkpoint import read_run
-    from ._common import open_run, scene_for_run
-
-    out = Path(args.out) if args.out else Path(args.run) / "videos"
-    dataset = args.data or read_run(args.run).train.data
-    names = OBJECT_VIDEO_FILES if args.object else VIDEO_FILES
-    guard_outputs([out / name for name in names], dataset_inputs(dataset), args.force or not args.out)
-    run_ = open_run(args)
-    scene = scene_for_run(run_.info, args.data, allow_outside=args.allow_outside_paths)
-    kind = scene.video_kind(args.path)
-    if kind == "test" and len(scene.test) == 0:
-        raise fail(scene.source, "has no test poses", "Use --path orbit")
-    if kind == "test" and args.frames and args.frames != len(scene.test):
-        print(
-            f"note: --frames sets the length of an orbit or spiral; the test path is the dataset's "
-            f"{len(scene.test)} poses (--path orbit for {args.frames} frames)",
-            file=sys.stderr,
-        )
-    if kind == "spiral" and not scene.forward_facing:
-        raise fail(
-            "--path spiral",
-            "the training cameras do not all look the same way from about the same "
-            "place, so a spiral across their view would leave them",
-            "Use --path orbit",
-        )
-    if args.object and (kind == "spiral" or getattr(run_.model, "ndc", None) is not None):
-        raise fail(
-            "--object",
-            "a forward-facing scene, seen from one side and held in one volume out to "
-            "infinity, has no object standing apart to frame",
-            "Render it without --object",
-        )
-    background = run_.background(args.background or ("white" if args.object else None))
-    alone = ""
-    if args.object:  # (in place: this model is only rendered)
-        tags = run_.model.table_tags()
-        isolated = object_alone(run_.model, copy=False)
-        if not isolated.left_out:
-            alone = "the object (the model draws nothing around it to leave out"
-        else:
-            alone = f"the object alone ({_listed(isolated.left_out)} left out"
-            if isolated.cut > 0:
-                alone += f"; {cleared_note(isolated.cut, tags)}"
-    # an orbit looks at the trained object, not at the point the cameras' axes meet
-    aim = (
-        object_aim(run_.model, scene.train, scene.up, background, run_.chunk, run_.autocast)
-        if kind == "orbit"
-        else None
+    render(
+        args.run,
+        out=args.out,
+        path=args.path,
+        frames=args.frames,
+        fps=args.fps,
+        object=args.object,
+        background=args.background,
+        data=args.data,
+        device=args.device,
+        chunk=args.chunk,
+        allow_outside_paths=args.allow_outside_paths,
+        force=args.force,
     )
-    views = scene.render_path(args.frames or ORBIT_FRAMES, aim, kind)
-    near, far = scene.near, scene.far
-    if args.object:
-        looked_at = aim if aim is not None else scene.center  # (what the path's cameras look at)
-        framing = frame_object(run_.model, views, background, run_.chunk, run_.autocast, aim=looked_at)
-        if framing is None:
-            raise fail(
-                args.run,
-                "renders nothing solid along the video's path, so there is no object to frame",
-                "Render the scene without --object, or train longer",
-            )
-        views, near, far = framing.views, framing.near, framing.far
-        alone += f"; zoomed {framing.zoom:.2f}x)"
-    paths = render_videos(
-        run_.model,
-        views,
-        out,
-        background,
-        near,
-        far,
-        args.fps,
-        run_.chunk,
-        run_.autocast,
-        names=names,
-        metres=scene.tags is not None,
-    )
-    what = f" of {alone}" if alone else ""
-    print(f"rendered {len(views)} frames{what} at step {run_.step} ({paths.seconds_per_frame:.2f} s/frame):")
-    for p in (paths.rgb_mp4, paths.rgb_gif, paths.depth_mp4):
-        print(f"  {p}")
     return 0
-
-
-def _listed(names: list[str]) -> str:
-    """``a``, ``a and b``, ``a, b and c``."""
-    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]

@@ -1,0 +1,263 @@
+"""The posing stage in small steps: which files it writes, the tag frame it poses in (camera,
+layout, tag), what poses.json records and prints, and the dataset built from the poses."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
+
+if TYPE_CHECKING:
+    from ...capture.aruco import Layout
+    from ...capture.camera import Camera
+    from ...capture.dataset import DatasetConfig
+    from ...capture.poses import PoseConfig
+    from ...data.scene import Scene
+    from ...sfm.colmap import SfmResult
+
+
+def output_names(method: str, build_dataset: bool) -> list[str]:
+    """The files and folders posing with ``method`` writes into its dataset folder (for the
+    guard that refuses to replace them without ``force``)."""
+    from ...capture.dataset import DATASET_OUTPUTS, POSES_FILE
+
+    outputs = [POSES_FILE] + (list(DATASET_OUTPUTS) if build_dataset else [])
+    if method == "colmap" or (method == "auto" and build_dataset):
+        from ...sfm.dataset import REPORT_FILE
+
+        outputs = [*outputs, *DATASET_OUTPUTS, REPORT_FILE, "colmap"]
+        if method == "colmap":
+            outputs.remove(POSES_FILE)
+    return outputs
+
+
+def dictionary_of(dictionary: str | None, camera_file: str | None) -> str:
+    """The ArUco dictionary to detect: ``dictionary``, else the camera file's, else DICT_4X4_50."""
+    if dictionary is None and camera_file:
+        dictionary = json.loads(Path(camera_file).read_text()).get("dictionary")
+    return dictionary or "DICT_4X4_50"
+
+
+def camera_layout(camera_file: str, dictionary: str, records) -> tuple[Layout | None, str]:
+    """(the camera file's layout, a note) when most photos with tags show two or more of its
+    tags; else (None, a note or "")."""
+    import numpy as np
+
+    from ...capture.aruco import layout_from_json
+    from ...capture.poses import several_tags
+    from ...errors import NerfkitError
+
+    spec = json.loads(Path(camera_file).read_text()).get("layout")
+    if not isinstance(spec, dict):
+        return None, ""
+    try:
+        layout = layout_from_json(spec, camera_file, dictionary)
+    except NerfkitError as e:
+        return None, f"the camera file's layout is not usable ({e}); posing from one tag"
+    if len(layout.tags) < 2 or layout.charuco is not None:
+        return None, ""
+    several, with_tags, enough = several_tags(records, set(layout.tags))
+    if not enough:
+        return None, ""
+    return layout, (
+        f"using the camera file's layout of {len(layout.tags)} tags (world: its frame, tag "
+        f"{min(layout.tags, key=lambda t: np.abs(layout.tags[t].mean(0)).sum())} at the origin): "
+        f"{len(several)} of {len(with_tags)} photos with tags show 2 or more of them. Pass --single-tag "
+        "to pose from one tag"
+    )
+
+
+def starting_camera(records, focal_px: float | None) -> tuple[Camera, str]:
+    """(the camera to pose with when no camera file is given, a note): ``focal_px`` with the
+    principal point at the centre, else the photos' EXIF focal length."""
+    from ...capture.camera import camera_from_focal
+    from ...capture.photos import group_by_size
+    from ...capture.poses import exif_camera
+
+    if focal_px:
+        size, _ = group_by_size(records)
+        assert size is not None  # require_tags found readable photos
+        camera = camera_from_focal(focal_px, size[0], size[1], f"--focal-px {focal_px:g}")
+        return camera, f"no --camera: fx = fy = {focal_px:g} px, principal point at the centre, no distortion"
+    return exif_camera(records)
+
+
+def tag_frame(
+    records,
+    camera: Camera | None,
+    layout: Layout | None,
+    *,
+    camera_file: str | None,
+    dictionary: str,
+    focal_px: float | None,
+    tag_id: int | None,
+    tag_size: float | None,
+    single_tag: bool,
+    cfg: PoseConfig,
+) -> tuple[Camera, Layout, float, list[str]]:
+    """(camera, layout, tag side in metres, notes): the frame the photos are posed in. The layout: ``layout``,
+    else the camera file's (when the photos show several of its tags), else one estimated from
+    the photos, else the single tag ``tag_id`` (or the one seen most); never a layout with
+    ``tag_id`` or ``single_tag``. The camera: ``camera``, else :func:`starting_camera`, its focal
+    length fitted to the tags when ``cfg.refine_focal``. The layout's tags get their heights
+    above the sheet (:func:`~nerfkit.capture.poses.sheet_heights`). The tag side: ``tag_size``, else
+    the layout's (as printed)."""
+    from ...capture.aruco import Layout
+    from ...capture.poses import choose_tag, layout_from_photos, refine_focal, sheet_heights
+
+    notes: list[str] = []
+    free = tag_id is None and not single_tag  # a layout may be chosen
+    if layout is None and camera_file and free:
+        layout, note = camera_layout(camera_file, dictionary, records)
+        if note:
+            notes.append(note)
+    if camera is None:
+        camera, note = starting_camera(records, focal_px)
+        notes.append(note)
+    if layout is None:
+        assert tag_size is not None  # the caller requires it without a layout
+        if free:
+            layout, note = layout_from_photos(records, camera, tag_size, cfg)
+            if note:
+                notes.append(note)
+        if layout is None:
+            if tag_id is None:
+                tag_id, note = choose_tag(records)
+                notes.append(note)
+            layout = Layout.single(tag_id, tag_size)
+    elif tag_id is not None:
+        notes.append("--tag-id is ignored with --layout: the layout's frame is the world")
+    side = tag_size or layout.tag_size
+    if cfg.refine_focal:
+        camera, note = refine_focal(records, camera, layout, cfg)
+        if note:
+            notes.append(note)
+    layout, note = sheet_heights(records, camera, layout, cfg)
+    if note:
+        notes.append(note)
+    return camera, layout, side, notes
+
+
+def scaled_note(posed: list, camera: Camera) -> str | None:
+    """A note when photos of another size than the camera's were posed with it scaled."""
+    scaled = sorted({(p.camera.width, p.camera.height) for p in posed} - {(camera.width, camera.height)})
+    if not scaled:
+        return None
+    return f"the camera ({camera.width}x{camera.height}) is scaled to the photos' " + ", ".join(
+        f"{w}x{h}" for w, h in scaled
+    )
+
+
+def poses_meta(
+    photos: str, dictionary: str, tag_size: float, printed: Layout, layout: Layout, notes: list[str], cfg: PoseConfig
+) -> dict[str, Any]:
+    """What poses.json records about the posing besides each photo: the frame, the tags
+    (``printed``: the layout as printed; ``layout``: with the tags' heights) and the notes."""
+    return {
+        "photos_dir": str(Path(photos).resolve()),
+        "dictionary": dictionary,
+        "tag_size": tag_size,
+        "layout": printed.to_json(),
+        "sheet_heights_m": layout.heights_json(),
+        "world": "tag frame: origin at the tag centre, x right and y up along the "
+        "printed tag, z out of the tag toward the cameras (scene up); metres",
+        "notes": notes,
+        "max_error_px": cfg.max_error or "auto: max(3 x held-out error, 1 px, 2% of the tag side)",
+    }
+
+
+def poses_report(notes: list[str], camera: Camera, records: list, written: Path, all_photos: bool) -> str:
+    """The printed report of the tag poses: the notes, the camera, the photos posed or
+    skipped (every one with ``all_photos``) and the poses.json written."""
+    from ...capture.report import photo_summary
+
+    return "\n".join(
+        [
+            *notes,
+            f"camera: {camera.source or 'given'} ({camera.width}x{camera.height}, fx {camera.K[0, 0]:.1f})",
+            photo_summary(records, "posed", full=all_photos),
+            f"wrote {written}",
+        ]
+    )
+
+
+def reference_tag(records, layout) -> int:
+    """The layout's tag seen in the most photos (it fixes the SfM model's frame)."""
+    from collections import Counter
+
+    seen = Counter(
+        int(i) for r in records if r.detection is not None for i in set(r.detection.ids) if int(i) in layout.tags
+    )
+    return seen.most_common(1)[0][0] if seen else layout.ids[0]
+
+
+def tag_dataset(
+    posed: list,
+    out: Path,
+    cfg: DatasetConfig,
+    tag_size: float,
+    jobs: int,
+    extra: dict,
+    tags,
+) -> tuple[Scene, dict]:
+    """(scene, summary) of the dataset built from the tag poses ``posed`` into ``out``."""
+    from ...capture.dataset import build_dataset
+
+    return build_dataset(posed, out, cfg, tag_size, jobs=jobs, extra=extra, tags=tags)
+
+
+def chosen_dataset(
+    photos: str,
+    out: Path,
+    posed: list,
+    records: list,
+    start: Camera | None,
+    layout: Layout,
+    printed: Layout,
+    *,
+    tag_size: float,
+    dictionary: str,
+    notes: list[str],
+    matcher: str,
+    sfm_max_size: int,
+    jobs: int,
+    threads: int,
+    pose_cfg: PoseConfig,
+    dataset_cfg: DatasetConfig,
+    say: Callable[[str], None],
+) -> tuple[Scene, dict]:
+    """(scene, summary) of the dataset of ``--method auto``: the photos posed by SfM in the tag's
+    frame, or by the tags (``posed``) when SfM registers too few, misses the tag or disagrees
+    with the tags; ``say`` is told which and why. ``start``: the camera SfM starts from (None:
+    the photos' EXIF focal length)."""
+    from ...sfm.dataset import REPORT_FILE
+    from ...sfm.tagged import choose_poses
+
+    ref = reference_tag(records, layout)
+    choice = choose_poses(
+        photos,
+        out,
+        posed,
+        start,
+        ref,
+        tag_size,
+        dictionary,
+        tag_corners=None if len(layout.tags) == 1 else layout.tags[ref],
+        matcher=matcher,
+        max_image_size=sfm_max_size,
+        threads=threads,
+        records=records,
+        layout=layout,
+        pose_cfg=pose_cfg,
+    )
+    say(choice.why)
+    extra = {"notes": notes, "pose_choice": choice.to_dict()}
+    if choice.result is not None:
+        from ...sfm.dataset import build_dataset
+
+        return build_dataset(
+            cast("SfmResult", choice.result), out, dataset_cfg, jobs=jobs, extra=extra, tags=printed.corners()
+        )
+    (out / REPORT_FILE).unlink(missing_ok=True)  # an earlier --force run's SfM report would not hold
+    return tag_dataset(posed, out, dataset_cfg, tag_size, jobs, extra, printed.corners())

@@ -1,0 +1,223 @@
+"""The pipeline's stages called from Python with typed arguments (nerfkit.api): the results
+are the files written and the figures the commands print, the commands are the same calls,
+and arguments are checked as the command line checks them."""
+
+from __future__ import annotations
+
+import inspect
+import json
+
+import numpy as np
+import pytest
+
+from nerfkit import api
+from nerfkit.capture import synthetic as S
+from nerfkit.cli import main
+from nerfkit.errors import NerfkitError
+
+TAG = 0.06
+
+
+@pytest.fixture(scope="module")
+def obj():
+    return S.cached_capture("object", 10, 1)
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory, sphere_npz):
+    """A vanilla run of 6 steps on the sphere: enough to render and score."""
+    out = tmp_path_factory.mktemp("api_stages") / "run"
+    tiny = {"n_samples": 4, "width": 8, "depth": 2, "eval_views": 1, "checkpoint_seconds": 1e9}
+    return api.train(sphere_npz, out, model="vanilla", steps=6, device="cpu", quiet=True, **tiny)
+
+
+def photo_folder(folder, cap):
+    folder.mkdir()
+    for name, img in zip(cap.names, cap.images):
+        S.write_photo(folder / name, img)
+    return folder
+
+
+def camera_file(path, cap):
+    keys = {"K": cap.K.tolist(), "dist": cap.dist.tolist(), "width": cap.width, "height": cap.height}
+    path.write_text(json.dumps({**keys, "dictionary": "DICT_4X4_50"}))
+    return path
+
+
+def test_pose_a_tag_capture_from_python(tmp_path, obj, capsys):
+    """Each posed photo's camera within 3 mm of the truth; the dataset holds every posed photo
+    at the asked size; quiet prints nothing; the same call again is refused without force."""
+    from nerfkit.capture.dataset import DatasetConfig
+    from nerfkit.data.npz import load_npz
+
+    photos, cam = photo_folder(tmp_path / "object", obj), camera_file(tmp_path / "camera.json", obj)
+    result = api.pose(
+        photos,
+        tmp_path / "ds",
+        tag_size=TAG,
+        camera=cam,
+        method="tags",
+        max_side=160,
+        dataset_settings=DatasetConfig(points=False, val_every=4),
+        quiet=True,
+    )
+    assert capsys.readouterr().out == ""
+    assert result.out == tmp_path / "ds" and result.dataset_path == tmp_path / "ds" / "dataset.npz"
+    poses = json.loads((tmp_path / "ds" / "poses.json").read_text())
+    used = [p for p in poses["photos"] if p["used"]]
+    assert result.total == len(obj.names) and result.posed == len(used) == poses["photos_posed"] >= 6
+    truth = dict(zip(obj.names, obj.c2w))
+    for p in used:
+        assert np.linalg.norm(np.array(p["c2w"])[:3, 3] - truth[p["file"]][:3, 3]) < 0.003, p["file"]
+    scene = load_npz(result.dataset_path)
+    assert sum(len(v) for v in scene.splits.values()) == result.posed and len(scene.val) >= 1
+    assert max(scene.train.width, scene.train.height) == 160
+    with pytest.raises(NerfkitError, match="--force"):
+        api.pose(photos, tmp_path / "ds", tag_size=TAG, camera=cam, method="tags", quiet=True)
+
+
+def test_pose_without_a_dataset_reports_the_poses_and_prints_what_the_command_prints(tmp_path, obj, capsys):
+    photos, cam = photo_folder(tmp_path / "object", obj), camera_file(tmp_path / "camera.json", obj)
+    result = api.pose(photos, tmp_path / "a", tag_size=TAG, camera=cam, build_dataset=False)
+    by_api = capsys.readouterr().out
+    assert result.dataset_path is None and not (tmp_path / "a" / "dataset.npz").exists()
+    assert result.posed == json.loads((tmp_path / "a" / "poses.json").read_text())["photos_posed"]
+    argv = ["poses", str(photos), "--camera", str(cam), "--tag-size", str(TAG), "--out", str(tmp_path / "b")]
+    assert main([*argv, "--no-dataset"]) == 0
+    by_command = capsys.readouterr().out
+    assert by_api.replace(str(tmp_path / "a"), "OUT") == by_command.replace(str(tmp_path / "b"), "OUT")
+    assert f"wrote {tmp_path / 'a' / 'poses.json'}" in by_api
+
+
+def test_render_a_tiny_run_from_python(tmp_path, tiny_run, capsys):
+    import imageio.v3 as iio
+
+    videos = api.render(tiny_run.run_dir, out=tmp_path / "v", path="orbit", frames=3, fps=5, device="cpu", quiet=True)
+    assert capsys.readouterr().out == ""
+    assert [p.name for p in videos.videos] == ["orbit.mp4", "orbit.gif", "depth.mp4"]
+    assert all(p.parent == tmp_path / "v" for p in videos.videos)
+    assert videos.frames == 3 and videos.step == tiny_run.steps == 6
+    assert len(iio.imread(videos.videos[0])) == 3 and len(iio.imread(videos.videos[2])) == 3
+    with pytest.raises(NerfkitError, match="exists"):  # a folder of its own is not replaced unasked
+        api.render(tiny_run.run_dir, out=tmp_path / "v", path="orbit", frames=3, device="cpu", quiet=True)
+
+
+def test_evaluate_returns_the_psnr_the_command_prints(tiny_run, capsys):
+    scores = api.evaluate(tiny_run.run_dir, split="val", device="cpu", quiet=True)
+    assert capsys.readouterr().out == ""
+    written = json.loads(scores.report_path.read_text())
+    assert scores.report_path == tiny_run.run_dir / "eval_val.json" and scores.scores == written
+    assert scores.psnr == written["psnr"] and scores.ssim == written["ssim"] and scores.split == "val"
+    assert scores.psnr == pytest.approx(np.mean([v["psnr"] for v in written["per_image"]]), abs=1e-3)
+    assert scores.sheet_path == tiny_run.run_dir / "eval_val.png" and scores.sheet_path.is_file()
+    assert main(["eval", str(tiny_run.run_dir), "--device", "cpu"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first == f"val: {written['n_images']} views at step 6: PSNR {scores.psnr:.2f} dB, SSIM {scores.ssim:.3f}"
+    assert main(["eval", str(tiny_run.run_dir), "--device", "cpu", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["psnr"] == scores.psnr  # the command's JSON: the result's
+
+
+def test_export_writes_plys_that_read_back(tmp_path, monkeypatch, capsys):
+    """The analytic unit sphere as a run: the mesh's vertices and the points lie on it."""
+    trimesh = pytest.importorskip("trimesh")
+    pytest.importorskip("skimage")
+    from types import SimpleNamespace
+
+    import torch
+
+    from nerfkit.commands import _common
+    from nerfkit.data.npz import save_npz
+    from nerfkit.data.synthetic import sphere_scene
+    from nerfkit.models.base import SceneBounds
+    from test_export import SphereModel
+
+    save_npz(sphere_scene(n_train=4, n_val=1, size=16), tmp_path / "s.npz")
+    bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
+    train = SimpleNamespace(data=str(tmp_path / "s.npz"), background="black")
+    info = SimpleNamespace(bounds=bounds, run_dir=tmp_path, scene={}, train=train)
+    opened = _common.OpenRun(SphereModel(bounds), info, 7, torch.device("cpu"), 8192, None)
+    asked = []
+    monkeypatch.setattr(_common, "open_run", lambda which: asked.append(which) or opened)
+    mesh, points = tmp_path / "m.ply", tmp_path / "p.ply"
+    result = api.export(
+        tmp_path, mesh=mesh, points=points, resolution=32, threshold=50.0, color_views=0, stride=2, quiet=True
+    )
+    assert capsys.readouterr().out == ""
+    assert result.files == (mesh, points) and result.step == 7
+    assert asked == [_common.RunToOpen(tmp_path, "auto", 0)]
+    read = trimesh.load(mesh, process=False)
+    assert read.is_watertight and np.linalg.norm(read.vertices, axis=1).mean() == pytest.approx(1.0, abs=0.02)
+    cloud = trimesh.load(points)
+    assert len(cloud.vertices) > 20
+    np.testing.assert_allclose(np.linalg.norm(cloud.vertices, axis=1), 1.0, atol=1e-4)
+    with pytest.raises(NerfkitError, match="nothing to export"):
+        api.export(tmp_path)
+    with pytest.raises(NerfkitError, match="should end in .ply"):
+        api.export(tmp_path, mesh=tmp_path / "m.obj")
+
+
+def test_the_stages_check_their_arguments_as_the_command_line_does(tmp_path):
+    with pytest.raises(NerfkitError, match="--method: 'sfm' is not one of auto, tags, colmap"):
+        api.pose(tmp_path, tmp_path / "o", tag_size=TAG, method="sfm")  # type: ignore[arg-type]
+    with pytest.raises(NerfkitError, match="--tag-size: 60.0 is not a printed tag's side in metres"):
+        api.pose(tmp_path, tmp_path / "o", tag_size=60.0)
+    with pytest.raises(NerfkitError, match="--tag-size"):
+        api.calibrate(tmp_path, tmp_path / "c.json", tag_size=-1.0)
+    with pytest.raises(NerfkitError, match="--detect-size"):
+        api.calibrate(tmp_path, tmp_path / "c.json", tag_size=TAG, detect_size=10)
+    with pytest.raises(NerfkitError, match="--split: 'bogus' is not one of val, test, train"):
+        api.evaluate(tmp_path, split="bogus")  # type: ignore[arg-type]
+    with pytest.raises(NerfkitError, match="--fit-views"):
+        api.evaluate(tmp_path, fit_views=-1)
+    with pytest.raises(NerfkitError, match="--resolution"):
+        api.export(tmp_path, mesh=tmp_path / "m.ply", resolution=4)
+    from nerfkit.capture.calibrate import CalibrateConfig
+    from nerfkit.capture.dataset import DatasetConfig
+
+    with pytest.raises(NerfkitError, match="--dist-model: 'k9' is not one of"):
+        api.calibrate(tmp_path, tmp_path / "c.json", tag_size=TAG, settings=CalibrateConfig(dist_model="k9"))
+    with pytest.raises(NerfkitError, match="--max-side"):
+        api.pose(tmp_path, tmp_path / "o", tag_size=TAG, dataset_settings=DatasetConfig(max_side=3))
+    assert not (tmp_path / "o").exists() and not (tmp_path / "c.json").exists()
+
+
+# a command's flag -> the API's argument of another name; --no-X flags are X=True by default
+RENAMED = {"dict": "dictionary", "no_cache": "cache", "no_dataset": "build_dataset", "no_ground": "ground"}
+NEGATED = {"no_cache", "no_dataset", "no_ground", "no_crop"}
+
+
+@pytest.mark.parametrize(
+    ("command", "function", "argv"),
+    [
+        ("calibrate", api.calibrate, ["photos"]),
+        ("poses", api.pose, ["photos", "--out", "o"]),
+        ("render", api.render, ["run"]),
+        ("eval", api.evaluate, ["run"]),
+        ("export", api.export, ["run"]),
+    ],
+)
+def test_the_api_defaults_are_the_commands(command, function, argv):
+    """Every flag of the command is an argument of the API function with the flag's default
+    (a ``--no-X`` flag: ``X=True``; the settings dataclasses' flags: their ``*settings``
+    argument, None), so that a call and a command line without options do the same."""
+    from nerfkit.cli import build_parser
+
+    args = build_parser(command).parse_args([command, *argv])
+    params = inspect.signature(function).parameters
+    skipped = {"command", "func", "verbose", "json", "run", "photos"}
+    for dest, value in vars(args).items():
+        if dest in skipped:
+            continue
+        name = RENAMED.get(dest, dest.removeprefix("no_") if dest in NEGATED else dest)
+        if name not in params:  # a field of a settings dataclass: unset flags are None
+            assert value is None, dest
+            assert any(p.endswith("settings") for p in params), dest
+            continue
+        default = params[name].default
+        if default is inspect.Parameter.empty:  # given on both sides (poses --out)
+            continue
+        expected = (not value) if dest in NEGATED else value
+        if default is None and name in ("table_cut", "color_views"):  # None: the module's constant
+            assert expected is not None
+            continue
+        assert default == expected, (dest, default, expected)
