@@ -6,7 +6,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .pipeline import PoseMethod
 
 HELP = "a phone video or photos of an object -> poses, NeRF and/or Gaussian splat, videos, mesh (in one go)"
 
@@ -407,7 +410,7 @@ def _replace_run(run_dir: Path) -> None:
     shutil.rmtree(run_dir)
 
 
-def _route(args: argparse.Namespace, video: bool) -> str:
+def _route(args: argparse.Namespace, video: bool) -> PoseMethod:
     """How the photos are posed (``nerfkit poses --method``): structure-from-motion alone
     ("colmap") without a tag, or for a video's frames (they carry no focal length for the
     tags to start from) unless a camera is given; else the --method asked for."""
