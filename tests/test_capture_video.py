@@ -15,6 +15,8 @@ from nerfkit.errors import NerfkitError
 cv2 = pytest.importorskip("cv2")
 imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
 
+from conftest import write_mp4 as write_mp4_file  # noqa: E402
+
 W, H, FOCAL = 240, 180, 220.0
 OBJECT = np.array([0.0, 0.0, 0.05])  # a sphere of radius 0.05 resting on the table z = 0
 TARGET = np.array([0.0, 0.0, 0.04])
@@ -55,21 +57,7 @@ def orbit_clip(n: int, blur: set[int]) -> tuple[list[np.ndarray], np.ndarray]:
 
 
 def write_mp4(path, frames, fps: int = 10) -> None:
-    h, w = frames[0].shape[:2]
-    writer = imageio_ffmpeg.write_frames(
-        str(path),
-        (w, h),
-        fps=fps,
-        codec="libx264",
-        pix_fmt_out="yuv420p",
-        macro_block_size=4,
-        output_params=["-crf", "16"],
-        ffmpeg_log_level="error",
-    )
-    writer.send(None)
-    for f in frames:
-        writer.send(np.ascontiguousarray(f))
-    writer.close()
+    write_mp4_file(path, frames, fps=fps, macro_block_size=4)
 
 
 N_FRAMES, KEEP = 48, 24

@@ -11,6 +11,7 @@ import pytest
 cv2 = pytest.importorskip("cv2")
 imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
 
+from conftest import write_mp4 as write_mp4_file  # noqa: E402
 from nerfkit.capture.video import (
     BLURRED,
     DUPLICATE,
@@ -58,21 +59,7 @@ def render_frames(n: int = 120, size=(160, 120), blur=(), pause=(), sigma: float
 
 
 def write_mp4(path, frames, fps: int = FPS) -> None:
-    h, w = frames[0].shape[:2]
-    writer = imageio_ffmpeg.write_frames(
-        str(path),
-        (w, h),
-        fps=fps,
-        codec="libx264",
-        pix_fmt_out="yuv420p",
-        macro_block_size=8,
-        output_params=["-crf", "16"],
-        ffmpeg_log_level="error",
-    )
-    writer.send(None)
-    for f in frames:
-        writer.send(np.ascontiguousarray(f))
-    writer.close()
+    write_mp4_file(path, frames, fps=fps, macro_block_size=8)
 
 
 def with_rotation(src, dst, degrees: int, hevc: bool = False) -> None:

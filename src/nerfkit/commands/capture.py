@@ -552,23 +552,34 @@ def _evaluated(run_dir: Path, args: argparse.Namespace, step) -> bool:
     )
 
 
+def _rendered(run_dir: Path, args: argparse.Namespace, step, what: str, needed: bool) -> None:
+    """The run's orbit videos (``nerfkit render``), kept when newer than its model."""
+    from ..output.videos import VIDEO_FILES
+    from . import pipeline as api
+
+    videos = run_dir / "videos"
+    if all(_newer_than_model(videos / name, run_dir) for name in VIDEO_FILES) and not args.frames:
+        _kept(what, videos)
+        return
+    frames = ["--frames", str(args.frames)] if args.frames else []
+    step(
+        ["render", str(run_dir), "--device", args.device, *frames],
+        lambda: api.render(run_dir, device=args.device, frames=args.frames),
+        needed=needed,
+    )
+
+
 def _fast_outputs(run_dir: Path, args: argparse.Namespace, step) -> tuple[bool, Path | None]:
     """The NeRF's eval, videos (the scene's and the object's alone) and mesh, each kept when
     newer than the model; (whether it is scored, the mesh or None)."""
-    from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES
+    from ..output.videos import OBJECT_VIDEO_FILES
     from . import pipeline as api
 
     # what shows the model as it is now is kept; the rest is made again (it belongs to the run)
     evaluated = _evaluated(run_dir, args, step)
     videos = run_dir / "videos"
     frames = ["--frames", str(args.frames)] if args.frames else []
-    if all(_newer_than_model(videos / name, run_dir) for name in VIDEO_FILES) and not args.frames:
-        _kept("videos", videos)
-    else:
-        step(
-            ["render", str(run_dir), "--device", args.device, *frames],
-            lambda: api.render(run_dir, device=args.device, frames=args.frames),
-        )
+    _rendered(run_dir, args, step, "videos", needed=True)
     # a NeRF with nothing solid to frame still has its scene videos: the capture goes on
     if all(_newer_than_model(videos / name, run_dir) for name in OBJECT_VIDEO_FILES) and not args.frames:
         _kept("videos of the object", videos)
@@ -597,21 +608,11 @@ def _splat_outputs(out: Path, run_dir: Path, args: argparse.Namespace, step) -> 
     OUT/splat.ply, OUT/splat.splat and the object alone, OUT/splat_object.ply; what was
     made, for the summary."""
     from ..capture.splats import object_box, write_object_splat
-    from ..output.videos import VIDEO_FILES
     from ..train.checkpoint import read_run
     from . import pipeline as api
 
     evaluated = _evaluated(run_dir, args, step)
-    videos = run_dir / "videos"
-    frames = ["--frames", str(args.frames)] if args.frames else []
-    if all(_newer_than_model(videos / name, run_dir) for name in VIDEO_FILES) and not args.frames:
-        _kept("videos of the splat", videos)
-    else:
-        step(
-            ["render", str(run_dir), "--device", args.device, *frames],
-            lambda: api.render(run_dir, device=args.device, frames=args.frames),
-            needed=False,
-        )
+    _rendered(run_dir, args, step, "videos of the splat", needed=False)
     files = [out / name for name in SPLAT_FILES]
     for path in files:
         if _newer_than_model(path, run_dir):
