@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..errors import fail
     from ..io.atomic import write_json
-    from ..tabletop import object_alone
+    from ..surroundings import object_alone
     from ..train.evaluate import evaluate_views
     from ..train.view_corrections import ViewFitConfig
     from ._common import open_run, scene_for_run

@@ -170,7 +170,8 @@ def export_mesh(run_, args) -> None:
     from ..errors import advice
     from ..export import ColourViews, mesh_from_model, mesh_region, mesh_threshold, write_mesh_ply
     from ..output.images import render_image
-    from ..tabletop import cleared_note, object_alone, table_cut_height
+    from ..surroundings import object_alone, table_cut_height, table_plane, table_tags
+    from ..tabletop import cleared_note
     from ._common import scene_for_run
 
     model, bounds = run_.model, run_.info.bounds
@@ -207,8 +208,8 @@ def export_mesh(run_, args) -> None:
     )
     write_mesh_ply(args.mesh, mesh)
     cut = ""
-    if model.table_plane() is not None:
-        cut = f"; {cleared_note(height, model.table_tags())}"
+    if table_plane(model) is not None:
+        cut = f"; {cleared_note(height, table_tags(model))}"
     coloured = (
         f"coloured from {len(views)} training views"
         if views is not None

@@ -67,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
     from ..io.paths import guard_outputs
     from ..output.images import frame_object, object_aim
     from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES, render_videos
-    from ..tabletop import cleared_note, object_alone
+    from ..surroundings import object_alone, table_tags
+    from ..tabletop import cleared_note
     from ..train.checkpoint import read_run
     from ._common import open_run, scene_for_run
 
@@ -103,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     background = run_.background(args.background or ("white" if args.object else None))
     alone = ""
     if args.object:  # (in place: this model is only rendered)
-        tags = run_.model.table_tags()
+        tags = table_tags(run_.model)
         isolated = object_alone(run_.model, copy=False)
         if not isolated.left_out:
             alone = "the object (the model draws nothing around it to leave out"
