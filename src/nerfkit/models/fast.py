@@ -13,7 +13,7 @@ Speed comes from counting samples, not steps:
   of the density in each cell skips empty space; rays stop once their transmittance
   falls below ``early_stop_eps``;
 * coarse-to-fine growth of the grid; the box starts around the object (from the
-  dataset's sparse points above its table), else as the cube around the scene's bounding
+  dataset's sparse points on the object, ``SceneBounds.object_box``), else as the cube around the scene's bounding
   sphere, which is loose; at the first growth it shrinks around where opaque training
   rays ended, and a capture's box follows its object out at later growths;
 * memory that follows the content (as Plenoxels): from ``--sparse-from`` vertices a side,
@@ -50,6 +50,7 @@ from ..config import check_ranges
 from ..errors import fail
 from ..estimators.occupancy import OccupancyEstimator, RefreshRule
 from ..fields.grid import EMPTY_RAW, GridField, check_grid_res, resample_grid
+from ..kernels.ops import GridRender
 from ..losses.tv import GridTV, tv_weights
 from ..render.box import GridBox, ray_aabb
 from ..render.volrend import sight_line_loss
@@ -148,7 +149,8 @@ class FastNeRF(NerfModel):
         if self.field.sink_on_device() and self.surroundings is not None:
             self.surroundings.texture_sinks = self.surroundings.new_sinks(self.field.grid.device)
 
-    def _march(self, o: Tensor, d: Tensor, t0: Tensor, t1: Tensor, u: Tensor, **kw):
+    def _march(self, o: Tensor, d: Tensor, t0: Tensor, t1: Tensor, u: Tensor, **kw) -> GridRender:
+        """The grid's render of rays ``o + t d`` from ``t0`` to ``t1`` (lattice jitter ``u``)."""
         c, scale = self.config, self.field.density_scale
         spec = self.estimator.march_spec(self.step_size, c.early_stop_eps, scale, c.near_grad * self.bounds.reach)
         return self.field.render(spec, o, d, t0, t1, u, **kw)

@@ -81,7 +81,8 @@ class SurfaceMemory(nn.Module):
 
 def faces_reached_by(model: FastNeRF) -> list[tuple[int, int]]:
     """The faces of the grid's box that the object reaches (:func:`faces_reached` over the
-    vertices solid at :data:`BOX_FOLLOW_OPACITY`, above a capture's table paint)."""
+    vertices solid at :data:`BOX_FOLLOW_OPACITY`, on the object, not on the paint the
+    surroundings' surface leaves: :meth:`~nerfkit.surroundings.Surroundings.above_paint_grid`)."""
     sigma, axes, _ = model.field.density_volume()
     solid = -np.expm1(-sigma * model.field.voxel) > BOX_FOLLOW_OPACITY
     if model.surroundings is not None:

@@ -16,6 +16,7 @@ above the table the table's paint reaches (:func:`table_cut_height`).
 from __future__ import annotations
 
 import copy as copying
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -24,6 +25,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ..cameras import axes_across
 from ..fields.background import RoomShells, TablePlane, composite_layers, layers_depth, sh16, table_doubt
 from ..kernels.ops import GradSink
 from ..losses import LossTerm, mean_extra, mean_opacity
@@ -221,6 +223,41 @@ def renamed_keys(state: dict) -> dict:
     """A model's ``state_dict`` with the keys of the surroundings' parts from an older model
     file (at the model's top level, :data:`OLD_PARTS`) under ``surroundings.``."""
     return {("surroundings." + k if k.startswith(OLD_PARTS) else k): v for k, v in state.items()}
+
+
+def random_in_ball(n: int, center, radius: float, gen: torch.Generator) -> Tensor:
+    """``n`` points uniformly in a ball (n, 3)."""
+    d = torch.randn(n, 3, generator=gen)
+    d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    r = radius * torch.rand(n, 1, generator=gen) ** (1 / 3)
+    return torch.as_tensor(np.asarray(center, np.float32)) + d * r
+
+
+def random_on_plane(n: int, plane, center, radius: float, gen: torch.Generator) -> Tensor:
+    """``n`` points uniformly on the disc of ``radius`` of the plane ``(n, d)`` nearest ``center``."""
+    nrm = np.asarray(plane[:3], np.float64)
+    c = np.asarray(center, np.float64)
+    foot = c - (c @ nrm + float(plane[3])) * nrm
+    a, b = axes_across(nrm)
+    r = radius * torch.rand(n, generator=gen).double().sqrt()
+    th = 2 * math.pi * torch.rand(n, generator=gen).double()
+    pts = (
+        torch.as_tensor(foot)
+        + (r * th.cos()).unsqueeze(1) * torch.as_tensor(a)
+        + (r * th.sin()).unsqueeze(1) * torch.as_tensor(b)
+    )
+    return pts.float()
+
+
+def random_start(n: int, bounds: Any, center, radius: float, gen: torch.Generator) -> Tensor:
+    """``n`` random starting points (n, 3): uniformly in the ball of ``0.7 radius`` around
+    ``center``, and in a scene with a table (``bounds.table``) a quarter of them on it, on the
+    disc of ``1.5 radius`` around the centre's foot."""
+    n_table = n // 4 if bounds.table is not None else 0
+    pts = random_in_ball(n - n_table, center, 0.7 * radius, gen)
+    if n_table:
+        pts = torch.cat([pts, random_on_plane(n_table, bounds.table, center, 1.5 * radius, gen)])
+    return pts
 
 
 class WithSurroundings(Protocol):
