@@ -569,3 +569,43 @@ def test_rendering_a_view_stops_when_asked_and_leaves_the_model_as_it_was():
         abort=lambda: calls.append(1) or len(calls) > 2,
     )
     assert view is None and len(calls) == 3 and model.training  # two chunks rendered, then stopped
+
+
+def test_a_model_file_from_before_the_field_and_surroundings_modules_loads():
+    """A fast model's state under the keys of files written when the grid, the surface memory
+    and the surroundings (learned background, table, room) sat on the model itself loads
+    under today's names, every tensor in its place."""
+    from nerfkit.data.synthetic import tabletop_scene
+    from nerfkit.models import SceneBounds
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    scene = tabletop_scene(n_train=2, n_val=0, size=16)
+    bounds = SceneBounds.from_scene(scene)
+    config = FastConfig(
+        resolutions="8",
+        upsample_steps="",
+        table=True,
+        table_resolution=32,
+        learn_background=True,
+        room_shells=1,
+        room_resolution=16,
+    )
+    model = FastNeRF(config, bounds)
+    gen = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.copy_(torch.rand(p.shape, generator=gen))
+        model.surfaces.remember(torch.rand(5, 3, generator=gen))
+    old_names = {
+        "field.grid": "grid",
+        "field.vertex_rows": "vertex_rows",
+        "surfaces.pts": "surface_pts",
+        "surfaces.count": "surface_count",
+        "estimator.occ": "occ_cells",
+    }
+    old = {old_names.get(k, k.removeprefix("surroundings.")): v for k, v in model.state_dict().items()}
+    assert {"grid", "vertex_rows", "occ_cells", "bg_coef", "table.fine", "room.fine", "surface_pts"} <= set(old)
+    fresh = FastNeRF(config, bounds)
+    fresh.load_state_dict(old)
+    for k, v in model.state_dict().items():
+        assert torch.equal(fresh.state_dict()[k], v), k
