@@ -126,11 +126,11 @@ def test_a_torch_model_looks_up_its_textures_in_torch(monkeypatch):
     assert sink.dirty and sink.touched.any()
 
 
-
 def behind(model, o, d, t_stop):
     """What the model's surroundings draw behind an empty volume along rays ``o``, ``d``."""
     s = model.surroundings
     return s.behind(o, d, t_stop, None, torch.ones(len(o)), model.field.backend() == "numba")
+
 
 def test_table_coverage_shows_the_room_where_the_table_ends():
     """Rays that hit the plane see ``cover * table + (1 - cover) * room``: opaque at

@@ -17,7 +17,8 @@ TINY = VanillaConfig(n_samples=4, width=8, depth=2, occupancy=False)
 
 def cfg(tmp_path, name, **kw):
     # a checkpoint at every step's check: several are written during the run
-    return presets.without_scene(TrainConfig(
+    return presets.without_scene(
+        TrainConfig(
             data="sphere",
             model="vanilla",
             out=str(tmp_path / name),
@@ -27,7 +28,8 @@ def cfg(tmp_path, name, **kw):
             eval_every=1000,
             checkpoint_seconds=1e-9,
             **kw,
-        ))
+        )
+    )
 
 
 @pytest.mark.slow

@@ -267,7 +267,8 @@ def test_trainer_runs_fast_model_and_resumes_exactly(tmp_path, scene):
     cfg = FastConfig(resolutions="16,24", upsample_steps="20", occ_start=8, occ_every=8)
 
     def tc(name):
-        return presets.without_scene(TrainConfig(
+        return presets.without_scene(
+            TrainConfig(
                 data="sphere",
                 model="fast",
                 out=str(tmp_path / name),
@@ -276,7 +277,8 @@ def test_trainer_runs_fast_model_and_resumes_exactly(tmp_path, scene):
                 seed=0,
                 eval_views=1,
                 checkpoint_seconds=1e9,
-            ))
+            )
+        )
 
     Trainer(scene, tc("a"), cfg, quiet=True).run()
     first = Trainer(scene, tc("b"), cfg, quiet=True).run(stop_after=25)  # after the growth
@@ -295,7 +297,8 @@ def test_each_stage_trains_on_its_multiple_of_the_batch(tmp_path, scene):
     from nerfkit.train.trainer import Trainer
 
     cfg = FastConfig(resolutions="16,20,24", upsample_steps="10,20", stage_rays="1,3", occ_start=8, occ_every=8)
-    tc = presets.without_scene(TrainConfig(
+    tc = presets.without_scene(
+        TrainConfig(
             data="sphere",
             model="fast",
             out=str(tmp_path / "run"),
@@ -304,7 +307,8 @@ def test_each_stage_trains_on_its_multiple_of_the_batch(tmp_path, scene):
             seed=0,
             eval_views=1,
             checkpoint_seconds=1e9,
-        ))
+        )
+    )
     rows = Trainer(scene, tc, cfg, quiet=True).run().rows
     # a row at step s holds step s - 1: the first stage's, then the second's, then the last factor again
     assert [r["rays"] for r in rows if r["split"] == "train"] == [64, 192, 192]
@@ -414,7 +418,8 @@ def test_the_kernels_load_before_the_training_clock_starts(tmp_path, scene, monk
     loads = []
     monkeypatch.setattr(FastNeRF, "load_kernels", lambda self: (loads.append(1), time.sleep(6.0)))
     cfg = FastConfig(resolutions="16", upsample_steps="", occ_start=8, occ_every=8)
-    tc = presets.without_scene(TrainConfig(
+    tc = presets.without_scene(
+        TrainConfig(
             data="sphere",
             model="fast",
             out=str(tmp_path / "run"),
@@ -423,7 +428,8 @@ def test_the_kernels_load_before_the_training_clock_starts(tmp_path, scene, monk
             seed=0,
             eval_views=1,
             checkpoint_seconds=1e9,
-        ))
+        )
+    )
     result = Trainer(scene, tc, cfg).run()
     assert loads == [1] and 1.2 <= result.train_seconds < 6.0 and result.step > 0
     assert "compiled the kernels in 6 s" in capsys.readouterr().err
