@@ -376,16 +376,17 @@ def train_and_score(bench: BenchScene, model_name: str, seconds: float | None, s
     """Train ``model_name`` on ``bench.train`` for ``seconds`` of training (or ``steps``)
     into ``run_dir`` with the defaults ``nerfkit train`` picks, then score the held-out
     views; the run's figures."""
+    from nerfkit import presets
     from nerfkit.models import check_config, model_config_class
     from nerfkit.train.checkpoint import MODEL_FILE
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, capture_settings
+    from nerfkit.train.trainer import Trainer
 
     scene = bench.train
     cfg = TrainConfig(data=scene.source, model=model_name, out=str(run_dir), seed=seed,
                       minutes=0.0 if seconds is None else seconds / 60.0, steps=steps or 0,
                       checkpoint_seconds=1e9)
-    cfg, model_cfg = capture_settings(cfg.validate(), model_config_class(model_name)(), scene)
+    cfg, model_cfg = presets.resolve(cfg.validate(), model_config_class(model_name)(), scene).configs()
     cfg, model_cfg = apply_changes(cfg, model_cfg, changes or {}, label or model_name)
     check_config(model_name, model_cfg)
     load_before = os.getloadavg()

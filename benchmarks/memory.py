@@ -96,16 +96,17 @@ def case_render_fast(args) -> dict:
         from nerfkit.models.fast import FastConfig
     except ImportError as e:
         return {"skipped": f"nerfkit.models.fast does not import ({e})"}
+    from nerfkit import presets
     from nerfkit.output.images import render_image
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, resolved_config
+    from nerfkit.train.trainer import Trainer
 
     scene, _ = _sphere_bounds(size=32)
     out = Path(tempfile.mkdtemp(prefix="nerfkit-mem-"))
     try:
         mcfg = FastConfig(resolutions="64", upsample_steps="")
-        cfg = resolved_config(TrainConfig(data="x", model="fast", out=str(out / "run"), steps=60, eval_every=10**6,
-                                          eval_views=1, checkpoint_seconds=1e9), mcfg)
+        cfg = presets.without_scene(TrainConfig(data="x", model="fast", out=str(out / "run"), steps=60,
+                                                eval_every=10**6, eval_views=1, checkpoint_seconds=1e9))
         trainer = Trainer(scene, cfg, mcfg, quiet=True)
         trainer.run()
         model = trainer.model.eval()
@@ -143,18 +144,19 @@ def case_eval_views(args) -> dict:
 def case_train_steps(args) -> dict:
     import gc
 
+    from nerfkit import presets
     from nerfkit.data.synthetic import sphere_scene
     from nerfkit.models.vanilla import VanillaConfig
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, resolved_config
+    from nerfkit.train.trainer import Trainer
 
     scene = sphere_scene(n_train=20, n_val=2, size=32)
     out = Path(tempfile.mkdtemp(prefix="nerfkit-mem-"))
     try:
         mcfg = VanillaConfig(n_samples=16, width=32, depth=2)
-        cfg = resolved_config(TrainConfig(data="x", model="vanilla", out=str(out / "run"), steps=args.steps,
-                                          batch_rays=256, eval_every=10**6, eval_views=1, checkpoint_seconds=1e9),
-                              mcfg)
+        cfg = presets.without_scene(TrainConfig(data="x", model="vanilla", out=str(out / "run"), steps=args.steps,
+                                                batch_rays=256, eval_every=10**6, eval_views=1,
+                                                checkpoint_seconds=1e9))
         trainer = Trainer(scene, cfg, mcfg, quiet=True)
         trainer.run(stop_after=50)
         gc.collect()

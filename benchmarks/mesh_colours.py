@@ -113,21 +113,29 @@ def main() -> None:
     import torch
 
     from nerfkit.commands._common import open_run, scene_for_run
-    from nerfkit.export import (COLOUR_REACH, COLOUR_VIEW_TOL, ColourViews, extract_mesh, mesh_region, mesh_threshold,
-                                vertex_colors, view_colors)
-    from nerfkit.tabletop import object_alone, table_cut_height
+    from nerfkit.export import (
+        COLOUR_REACH,
+        COLOUR_VIEW_TOL,
+        ColourViews,
+        extract_mesh,
+        mesh_region,
+        mesh_threshold,
+        vertex_colors,
+        view_colors,
+    )
     from nerfkit.output.images import render_image
+    from nerfkit.surroundings import object_alone, table_cut_height, table_plane, table_tags
 
     run = open_run(argparse.Namespace(run=args.run, device="cpu", chunk=0))
     model, bounds = run.model, run.info.bounds
     center, radius = bounds.center, bounds.radius
     if args.region == "model":
         center, radius = mesh_region(model, center, radius)
-    table = model.table_plane() if args.table_cut >= 0 else None
+    table = table_plane(model) if args.table_cut >= 0 else None
     cut = table_cut_height(model, args.table_cut) if table is not None else 0.0
     threshold = args.threshold if args.threshold is not None else mesh_threshold(model, radius)
     mesh = extract_mesh(model.density, center, radius, args.resolution, threshold, table=table, table_cut=cut,
-                        tags=model.table_tags())
+                        tags=table_tags(model))
     scene = scene_for_run(run.info, None, need="val")
     alone = object_alone(model).model
     bg = run.background()

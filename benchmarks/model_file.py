@@ -41,7 +41,7 @@ def main() -> None:
     _, path = load_latest_checkpoint(Path(args.run), model)  # the resume checkpoint: full precision
     bg = torch.tensor(parse_background(info.train.background))
     dtype = resolve_autocast(info.train.precision, torch.device("cpu"))
-    out = {"run": args.run, "checkpoint": path.name, "grid_res": list(model.geom.res),
+    out = {"run": args.run, "checkpoint": path.name, "grid_res": list(model.field.geom.res),
            "occupied_cells": model.occupied_fraction,
            "kept_vertices": float(vertices_touching(model.estimator.occ).float().mean())}
     tmp = Path(tempfile.mkdtemp())

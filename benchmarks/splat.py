@@ -46,17 +46,18 @@ def worker(args) -> dict:
     """Train one model for one budget in this process and return its figures."""
     import torch
 
+    from nerfkit import presets
     from nerfkit.data.load import load_scene
     from nerfkit.models import model_config_class
     from nerfkit.output.images import render_image
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, capture_settings
+    from nerfkit.train.trainer import Trainer
 
     scene = load_scene(args.data)
     model_cfg = model_config_class(args.model)()
     cfg = TrainConfig(data=args.data, model=args.model, out=args.run, minutes=args.seconds / 60.0, seed=args.seed,
                       checkpoint_seconds=1e9)
-    cfg, model_cfg = capture_settings(cfg.validate(), model_cfg, scene)
+    cfg, model_cfg = presets.resolve(cfg.validate(), model_cfg, scene).configs()
 
     class TimedTrainer(Trainer):
         cpu_seconds = 0.0

@@ -60,11 +60,12 @@ def worker(args) -> dict:
     import numpy as np
     import torch
 
+    from nerfkit import presets
     from nerfkit.data.npz import load_npz
     from nerfkit.models import model_config_class
     from nerfkit.output.images import render_image
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, capture_settings
+    from nerfkit.train.trainer import Trainer
 
     warmup = None
     if args.model == "fast":
@@ -78,7 +79,7 @@ def worker(args) -> dict:
     cfg = TrainConfig(data=args.data, model=args.model, out=str(run_dir), minutes=args.seconds / 60.0, seed=args.seed,
                       eval_views=args.eval_views or len(scene.val), checkpoint_seconds=1e9)
     overrides(args.set, model_cfg, cfg)
-    cfg, model_cfg = capture_settings(cfg.validate(), model_cfg, scene)  # the defaults `nerfkit train` picks
+    cfg, model_cfg = presets.resolve(cfg.validate(), model_cfg, scene).configs()  # the defaults `nerfkit train` picks
 
     class TimedTrainer(Trainer):
         """Evaluates at the given training seconds; counts samples and CPU time."""

@@ -126,6 +126,12 @@ def test_a_torch_model_looks_up_its_textures_in_torch(monkeypatch):
     assert sink.dirty and sink.touched.any()
 
 
+def behind(model, o, d, t_stop):
+    """What the model's surroundings draw behind an empty volume along rays ``o``, ``d``."""
+    s = model.surroundings
+    return s.behind(o, d, t_stop, None, torch.ones(len(o)), model.field.backend() == "numba")
+
+
 def test_table_coverage_shows_the_room_where_the_table_ends():
     """Rays that hit the plane see ``cover * table + (1 - cover) * room``: opaque at
     first, the room where the coverage texture has learned the table is not there."""
@@ -148,41 +154,42 @@ def test_table_coverage_shows_the_room_where_the_table_ends():
         SceneBounds.from_scene(scene),
     )
     with torch.no_grad():
-        model.table.fine.fill_(2.0)  # table colour sigmoid(2)
-        model.room.fine[:, 3] = -30.0  # room shells transparent
-        model.bg_coef.zero_()
-        model.bg_coef[:, 0] = -1.0  # room colour sigmoid(-1)
+        model.surroundings.table.fine.fill_(2.0)  # table colour sigmoid(2)
+        model.surroundings.room.fine[:, 3] = -30.0  # room shells transparent
+        model.surroundings.bg_coef.zero_()
+        model.surroundings.bg_coef[:, 0] = -1.0  # room colour sigmoid(-1)
     o = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
     d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])  # down onto the table; up, into the room
-    t = model.table.hit(o, d)
+    t = model.surroundings.table.hit(o, d)
     table, room = torch.sigmoid(torch.tensor(2.0)), torch.sigmoid(torch.tensor(-1.0))
     cover0 = torch.sigmoid(torch.tensor(4.0))
-    out, _, clear = model._background(o, d, t, None)
+    out, _, extras = behind(model, o, d, t)
     torch.testing.assert_close(out[0], (cover0 * table + (1 - cover0) * room).expand(3))
     torch.testing.assert_close(out[1], room.expand(3))
-    torch.testing.assert_close(clear, torch.stack([1 - cover0, torch.tensor(0.0)]))  # the up ray meets no table
+    clear = torch.stack([1 - cover0, torch.tensor(0.0)])  # the up ray meets no table
+    torch.testing.assert_close(extras["table_doubt"], table_doubt(clear))
     model.config.table_cover_weight = 0.0
-    assert model._background(o, d, t, None)[2] is None  # not asked for: the cover prior is off
+    assert behind(model, o, d, t)[2] == {}  # not asked for: the cover prior is off
     model.config.table_cover_weight = 0.05
     with torch.no_grad():
-        model.table.cover.fill_(-30.0)  # no table anywhere
-    torch.testing.assert_close(model._background(o, d, t, None)[0][0], room.expand(3), atol=1e-6, rtol=0)
+        model.surroundings.table.cover.fill_(-30.0)  # no table anywhere
+    torch.testing.assert_close(behind(model, o, d, t)[0][0], room.expand(3), atol=1e-6, rtol=0)
     with torch.no_grad():  # an opaque first room shell hides the colour per direction, not the table
-        model.table.cover.fill_(30.0)
-        model.room.fine[:, :3] = 1.0
-        model.room.fine[:, 3] = 30.0
-    out, depth, _ = model._background(o, d, t, None)
+        model.surroundings.table.cover.fill_(30.0)
+        model.surroundings.room.fine[:, :3] = 1.0
+        model.surroundings.room.fine[:, 3] = 30.0
+    out, depth, _ = behind(model, o, d, t)
     torch.testing.assert_close(out[0], table.expand(3))
     torch.testing.assert_close(out[1], torch.sigmoid(torch.tensor(1.0)).expand(3))
     assert depth is None  # only rendering out of training asks for the layers' depth
     model.eval()
-    depth, met = model._background(o, d, t, None)[1]
-    first_shell = sphere_exit(o[1:], d[1:], model.room.center, model.room.radii[:1])[0, 0]
+    depth, met = behind(model, o, d, t)[1]
+    first_shell = sphere_exit(o[1:], d[1:], model.surroundings.room.center, model.surroundings.room.radii[:1])[0, 0]
     torch.testing.assert_close(depth, torch.stack([t[0], first_shell]))  # the table, then the room
     torch.testing.assert_close(met, torch.ones(2))
     with torch.no_grad():  # a see-through table is still where the ray meets a surface
-        model.table.cover.fill_(1.0)  # coverage 0.73
-    torch.testing.assert_close(model._background(o, d, t, None)[1][0], torch.stack([t[0], first_shell]))
+        model.surroundings.table.cover.fill_(1.0)  # coverage 0.73
+    torch.testing.assert_close(behind(model, o, d, t)[1][0], torch.stack([t[0], first_shell]))
 
 
 def test_table_doubt_is_zero_where_the_table_is_there_or_not_and_one_at_half():
@@ -223,7 +230,7 @@ def test_the_table_cover_prior_costs_in_the_loss_from_its_start():
     (switch,) = [s for s in model.schedules() if s.name == "table cover prior"]
     for m in (plain, model):
         with torch.no_grad():
-            m.grid[:, 0] = EMPTY_RAW  # an empty box: all light reaches the table
+            m.field.grid[:, 0] = EMPTY_RAW  # an empty box: all light reaches the table
         m.train()
     o = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
     d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])  # onto the table; away from it
@@ -231,7 +238,7 @@ def test_the_table_cover_prior_costs_in_the_loss_from_its_start():
     for cover_logit, sign in ((1.0, -1), (-1.0, 1)):  # mostly opaque: pushed up; mostly clear: down
         for m in (plain, model):
             with torch.no_grad():
-                m.table.cover.fill_(cover_logit)
+                m.surroundings.table.cover.fill_(cover_logit)
         outs = [m.render_rays(Rays(o, d), torch.zeros(3), perturb=False) for m in (plain, model)]
         doubt = outs[1].extras["table_doubt"]
         clear = 1 - torch.sigmoid(torch.tensor(cover_logit))
@@ -239,10 +246,10 @@ def test_the_table_cover_prior_costs_in_the_loss_from_its_start():
         torch.testing.assert_close(doubt, torch.stack([through[0] * 4 * clear * (1 - clear), torch.tensor(0.0)]))
         for progress, on in ((0.4, False), (0.6, True)):
             switch.run(StepState(step=0, progress=progress, optimizer=None))
-            assert model.cover_prior_on is on
+            assert model.surroundings.cover_prior_on is on
             gap = model.loss(outs[1], target) - plain.loss(outs[0], target)
             torch.testing.assert_close(gap, weight * doubt.mean() if on else torch.tensor(0.0))
-        sink = model.texture_sinks[model.table.cover]
+        sink = model.surroundings.texture_sinks[model.surroundings.table.cover]
         sink.grad.zero_()
         (weight * doubt.mean()).backward()
         assert sink.dirty and sign * float(sink.grad.sum()) > 0  # descent moves the cover logit by -sign
@@ -334,16 +341,17 @@ def test_capture_orbit_looks_at_the_trained_object_from_the_cameras_height():
     model = FastNeRF(FastConfig(resolutions="24", upsample_steps="", table=True), SceneBounds.from_scene(scene))
     black = torch.zeros(3)
     assert object_aim(model, scene.train, scene.up, black) is None  # nothing opaque yet
-    g = model.geom
+    g = model.field.geom
     xyz = g.lo + g.voxel * torch.stack(
         torch.meshgrid(*[torch.arange(r, dtype=torch.float32) for r in g.res[::-1]], indexing="ij")[::-1], -1
     ).reshape(-1, 3)
     cube = torch.tensor([0.3, -0.2, 0.4])
     with torch.no_grad():
-        model.grid[:, 0] = -30.0
-        rows = model.vertex_rows.long()  # each vertex's feature row
-        model.grid[rows[((xyz - cube).abs() < 0.25).all(1)], 0] = 30.0  # an opaque cube of side 0.5 beside the centre
-        model.grid[rows[((xyz - torch.tensor([-0.5, 0.5, 1.4])).abs() < 0.3).all(1)], 0] = -4.0  # a faint haze above
+        model.field.grid[:, 0] = -30.0
+        rows = model.field.vertex_rows.long()  # each vertex's feature row
+        grid = model.field.grid
+        grid[rows[((xyz - cube).abs() < 0.25).all(1)], 0] = 30.0  # an opaque cube of side 0.5 beside the centre
+        grid[rows[((xyz - torch.tensor([-0.5, 0.5, 1.4])).abs() < 0.3).all(1)], 0] = -4.0  # a faint haze above
     model.refresh_occupancy()
     aim = object_aim(model, scene.train, scene.up, black)
     np.testing.assert_allclose(aim[:2], cube[:2].numpy(), atol=0.1)  # across: the cube's middle
@@ -413,20 +421,20 @@ def test_a_glossy_table_mirrors_its_surroundings():
     w, h = ENV_SIZE
     rows = -1.0 + (2.0 * torch.arange(h) + 1.0) / h  # texel centres, zenith (top row) to horizon
     with torch.no_grad():
-        model.table.fine.fill_(-2.0)
-        model.table.cover.fill_(30.0)
-        model.table.env.view(h, w, 3)[:] = 3.0 * rows.view(h, 1, 1)  # logit 3 v: darker toward the zenith
-        model.table.shine.fill_(30.0)
+        model.surroundings.table.fine.fill_(-2.0)
+        model.surroundings.table.cover.fill_(30.0)
+        model.surroundings.table.env.view(h, w, 3)[:] = 3.0 * rows.view(h, 1, 1)  # logit 3 v: darker toward the zenith
+        model.surroundings.table.shine.fill_(30.0)
     o = torch.tensor([[0.0, 0.0, 1.0], [0.3, 0.0, 1.0], [0.3, 0.0, 1.0]])
     d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.6, -0.8], [-0.6, 0.0, -0.8]])
-    t = model.table.hit(o, d)
-    out = model._background(o, d, t, None)[0]
+    t = model.surroundings.table.hit(o, d)
+    out = behind(model, o, d, t)[0]
     torch.testing.assert_close(out[0], torch.sigmoid(3.0 * rows[0]).expand(3))  # the zenith: the top row
     v = 1.0 - 2.0 * math.asin(0.8) / (0.5 * math.pi)  # mirrored z = +0.8, whichever way around
     torch.testing.assert_close(out[1:], torch.sigmoid(torch.tensor(3.0 * v)).expand(2, 3))
     with torch.no_grad():
-        model.table.shine.fill_(-30.0)
-    torch.testing.assert_close(model._background(o, d, t, None)[0], torch.sigmoid(torch.tensor(-2.0)).expand(3, 3))
+        model.surroundings.table.shine.fill_(-30.0)
+    torch.testing.assert_close(behind(model, o, d, t)[0], torch.sigmoid(torch.tensor(-2.0)).expand(3, 3))
 
 
 def test_the_floor_under_a_table_is_found_and_seen_beyond_the_table_edge():
@@ -451,18 +459,18 @@ def test_the_floor_under_a_table_is_found_and_seen_beyond_the_table_edge():
         resolutions="8", upsample_steps="", table=True, table_resolution=32, learn_background=True, room_shells=0
     )
     model = FastNeRF(config, bounds)
-    assert FastNeRF(replace(config, floor=False), bounds).floor is None
+    assert FastNeRF(replace(config, floor=False), bounds).surroundings.floor is None
     with torch.no_grad():
-        model.table.cover.fill_(-30.0)  # the table ends: nothing of it here
-        model.floor.cover.fill_(30.0)
-        model.floor.fine.view(32, 32, 3)[:, :16] = 3.0  # the floor: bright on the side of -e1, dark beyond
-        model.floor.fine.view(32, 32, 3)[:, 16:] = -3.0
-    e1 = model.floor.axes[:, 0]
+        model.surroundings.table.cover.fill_(-30.0)  # the table ends: nothing of it here
+        model.surroundings.floor.cover.fill_(30.0)
+        model.surroundings.floor.fine.view(32, 32, 3)[:, :16] = 3.0  # the floor: bright on the side of -e1, dark beyond
+        model.surroundings.floor.fine.view(32, 32, 3)[:, 16:] = -3.0
+    e1 = model.surroundings.floor.axes[:, 0]
     o = torch.stack([torch.tensor([0.0, 0.0, 1.0]) - 2.0 * e1, torch.tensor([0.0, 0.0, 1.0]) + 2.0 * e1])
     d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
-    out = model._background(o, d, model.table.hit(o, d), None)[0]
+    out = behind(model, o, d, model.surroundings.table.hit(o, d))[0]
     assert bool((out[0] > 0.9).all()) and bool((out[1] < 0.1).all())
-    torch.testing.assert_close(model.floor.hit(o, d), torch.tensor([3.0, 3.0]))
+    torch.testing.assert_close(model.surroundings.floor.hit(o, d), torch.tensor([3.0, 3.0]))
 
 
 def test_room_shell_gradients_stay_finite_for_missing_tangent_and_polar_rays():
@@ -510,13 +518,13 @@ def test_a_rendered_view_gives_the_depth_of_the_table_beyond_an_empty_volume():
         SceneBounds.from_scene(scene),
     )
     with torch.no_grad():
-        model.grid[:, 0] = -30.0  # no density anywhere
-        model.table.cover.fill_(30.0)  # an opaque table everywhere
+        model.field.grid[:, 0] = -30.0  # no density anywhere
+        model.surroundings.table.cover.fill_(30.0)  # an opaque table everywhere
     views = scene.train
     view = render_image(model, views.K[0], views.c2w[0], 16, 16, torch.zeros(3))
     assert float(view.acc.max()) < 1e-3 and not view.depth.any()  # the volume: nothing
     rays = image_rays(torch.as_tensor(views.K[0]), torch.as_tensor(views.c2w[0]), 16, 16)
-    t = model.table.hit(rays.origins, rays.directions).reshape(16, 16).numpy()
+    t = model.surroundings.table.hit(rays.origins, rays.directions).reshape(16, 16).numpy()
     on_table = np.isfinite(t)
     assert on_table.sum() > 100  # the cameras look down at the table
     np.testing.assert_allclose(view.scene_depth[on_table], t[on_table], rtol=1e-4)
@@ -528,7 +536,7 @@ def test_a_rendered_view_gives_the_depth_of_the_table_beyond_an_empty_volume():
     )
     # a half-seen volume in front: its depth, then the table's for the light that passes it
     with torch.no_grad():
-        model.grid[:, 0] = -1.5
+        model.field.grid[:, 0] = -1.5
     model.eval()
     with torch.no_grad():
         out = model.render_rays(rays, torch.zeros(3), perturb=False)
@@ -561,3 +569,43 @@ def test_rendering_a_view_stops_when_asked_and_leaves_the_model_as_it_was():
         abort=lambda: calls.append(1) or len(calls) > 2,
     )
     assert view is None and len(calls) == 3 and model.training  # two chunks rendered, then stopped
+
+
+def test_a_model_file_from_before_the_field_and_surroundings_modules_loads():
+    """A fast model's state under the keys of files written when the grid, the surface memory
+    and the surroundings (learned background, table, room) sat on the model itself loads
+    under today's names, every tensor in its place."""
+    from nerfkit.data.synthetic import tabletop_scene
+    from nerfkit.models import SceneBounds
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    scene = tabletop_scene(n_train=2, n_val=0, size=16)
+    bounds = SceneBounds.from_scene(scene)
+    config = FastConfig(
+        resolutions="8",
+        upsample_steps="",
+        table=True,
+        table_resolution=32,
+        learn_background=True,
+        room_shells=1,
+        room_resolution=16,
+    )
+    model = FastNeRF(config, bounds)
+    gen = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.copy_(torch.rand(p.shape, generator=gen))
+        model.surfaces.remember(torch.rand(5, 3, generator=gen))
+    old_names = {
+        "field.grid": "grid",
+        "field.vertex_rows": "vertex_rows",
+        "surfaces.pts": "surface_pts",
+        "surfaces.count": "surface_count",
+        "estimator.occ": "occ_cells",
+    }
+    old = {old_names.get(k, k.removeprefix("surroundings.")): v for k, v in model.state_dict().items()}
+    assert {"grid", "vertex_rows", "occ_cells", "bg_coef", "table.fine", "room.fine", "surface_pts"} <= set(old)
+    fresh = FastNeRF(config, bounds)
+    fresh.load_state_dict(old)
+    for k, v in model.state_dict().items():
+        assert torch.equal(fresh.state_dict()[k], v), k

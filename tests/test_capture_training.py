@@ -10,12 +10,14 @@ import numpy as np
 import pytest
 import torch
 
+from nerfkit import presets
 from nerfkit.data.npz import load_npz, save_npz
 from nerfkit.data.scene import Scene
 from nerfkit.data.synthetic import tabletop_scene
 from nerfkit.models.fast import FastConfig
+from nerfkit.surroundings import isolate_object, names, object_alone
 from nerfkit.train.config import TrainConfig
-from nerfkit.train.trainer import Trainer, capture_settings, resolved_config, resume, train
+from nerfkit.train.trainer import Trainer, resume, train
 
 GAINS = np.array([1.0, 1.25, 0.8, 1.1, 0.9, 1.2, 0.85, 1.15, 1.0, 0.95, 1.3, 0.75])
 # (distortion loss off: on these 16-24 grids it blurs the exposure recovery this file checks)
@@ -71,28 +73,28 @@ def test_capture_flag_and_table_survive_the_npz_round_trip(tmp_path, tabletop):
 
 
 def test_auto_capture_settings_follow_the_dataset(tabletop):
-    c, m = capture_settings(TrainConfig(), FastConfig(), tabletop)
+    c, m = presets.resolve(TrainConfig(), FastConfig(), tabletop).configs()
     assert c.capture == "on" and m.learn_background and m.table
-    c, m = capture_settings(TrainConfig(capture="off"), FastConfig(), tabletop)
+    c, m = presets.resolve(TrainConfig(capture="off"), FastConfig(), tabletop).configs()
     assert c.capture == "off" and not m.learn_background and not m.table
     # the distortion loss is on for captures unless a weight is given
-    assert capture_settings(TrainConfig(), FastConfig(), tabletop)[1].distortion_weight == 0.01
-    assert capture_settings(TrainConfig(capture="off"), FastConfig(), tabletop)[1].distortion_weight == 0.0
-    assert capture_settings(TrainConfig(), FastConfig(distortion_weight=0.2), tabletop)[1].distortion_weight == 0.2
+    assert presets.resolve(TrainConfig(), FastConfig(), tabletop).model.distortion_weight == 0.01
+    assert presets.resolve(TrainConfig(capture="off"), FastConfig(), tabletop).model.distortion_weight == 0.0
+    assert presets.resolve(TrainConfig(), FastConfig(distortion_weight=0.2), tabletop).model.distortion_weight == 0.2
     # ... and for forward-facing scenes (content at every depth), not for others
     from nerfkit.data.synthetic import forward_facing_scene, sphere_scene
 
     forward, sphere = forward_facing_scene(n_train=6, n_val=0, size=8), sphere_scene(n_train=6, size=8)
-    assert capture_settings(TrainConfig(), FastConfig(), forward)[1].distortion_weight == 0.01
-    assert capture_settings(TrainConfig(), FastConfig(), forward)[1].room_shells == 0
-    assert capture_settings(TrainConfig(), FastConfig(), sphere)[1].distortion_weight == 0.0
+    assert presets.resolve(TrainConfig(), FastConfig(), forward).model.distortion_weight == 0.01
+    assert presets.resolve(TrainConfig(), FastConfig(), forward).model.room_shells == 0
+    assert presets.resolve(TrainConfig(), FastConfig(), sphere).model.distortion_weight == 0.0
     # the robust photometric loss is for captures only (lego: mse is 1.3 dB better)
-    assert capture_settings(TrainConfig(), FastConfig(), tabletop)[1].rgb_loss == "charbonnier"
-    assert capture_settings(TrainConfig(), FastConfig(), sphere)[1].rgb_loss == "mse"
-    assert capture_settings(TrainConfig(), FastConfig(rgb_loss="mse"), tabletop, {"rgb_loss"})[1].rgb_loss == "mse"
+    assert presets.resolve(TrainConfig(), FastConfig(), tabletop).model.rgb_loss == "charbonnier"
+    assert presets.resolve(TrainConfig(), FastConfig(), sphere).model.rgb_loss == "mse"
+    assert presets.resolve(TrainConfig(), FastConfig(rgb_loss="mse"), tabletop, {"rgb_loss"}).model.rgb_loss == "mse"
     # the view-dependent colour's total variation: captures only (lego's gloss is real and well seen)
-    assert capture_settings(TrainConfig(), FastConfig(), tabletop)[1].tv_view_weight == 1e-8
-    assert capture_settings(TrainConfig(), FastConfig(), sphere)[1].tv_view_weight == 0.0
+    assert presets.resolve(TrainConfig(), FastConfig(), tabletop).model.tv_view_weight == 1e-8
+    assert presets.resolve(TrainConfig(), FastConfig(), sphere).model.tv_view_weight == 0.0
 
 
 def test_the_table_cover_prior_is_on_for_few_photos_that_show_no_floor_past_the_table(tabletop):
@@ -107,7 +109,7 @@ def test_the_table_cover_prior_is_on_for_few_photos_that_show_no_floor_past_the_
     with_floor = replace(tabletop, points=np.concatenate([table, floor]).astype(np.float32))
 
     def weight(scene, train=TrainConfig(), model=FastConfig(), given=None):
-        return capture_settings(train, model, scene, given)[1].table_cover_weight
+        return presets.resolve(train, model, scene, given).model.table_cover_weight
 
     assert TABLE_COVER_WEIGHT > 0
     assert weight(plain) == TABLE_COVER_WEIGHT  # the table fills the photos: table or not
@@ -125,7 +127,7 @@ def test_the_learning_rate_ends_lower_on_captures_for_the_fast_model_only(tablet
     from nerfkit.models.vanilla import VanillaConfig
 
     def final(train, model):
-        return resolved_config(*capture_settings(train, model, tabletop)).lr_final_factor
+        return presets.without_scene(presets.resolve(train, model, tabletop).train).lr_final_factor
 
     assert final(TrainConfig(), FastConfig()) == 0.02
     assert final(TrainConfig(capture="off"), FastConfig()) == 0.1
@@ -214,8 +216,8 @@ def test_capture_training_recovers_exposure_and_beats_plain_training(tmp_path, t
 
 @pytest.mark.slow
 def test_capture_run_resumes_with_its_view_corrections(tmp_path, tabletop):
-    c, m = capture_settings(cfg(tmp_path, "b", steps=80), SMALL, tabletop, SMALL_GIVEN)
-    c = resolved_config(c, m)
+    c, m = presets.resolve(cfg(tmp_path, "b", steps=80), SMALL, tabletop, SMALL_GIVEN).configs()
+    c = presets.without_scene(c)
     Trainer(tabletop, c, m, quiet=True).run(stop_after=60)
     saved = torch.load(sorted((tmp_path / "b" / "checkpoints").glob("*.pt"))[-1], weights_only=True)["views"]
     t = Trainer(tabletop, c, m, resume=True, quiet=True)
@@ -299,19 +301,19 @@ def test_fast_model_starts_in_the_object_box_of_a_scene_with_points(tabletop):
     bounds = SceneBounds.from_scene(with_points)
     assert bounds.object_box is not None
     model = FastNeRF(FastConfig(), bounds)
-    lo, hi = model.geom.lo.numpy(), model.geom.hi.numpy()
+    lo, hi = model.field.geom.lo.numpy(), model.field.geom.hi.numpy()
     assert np.all(lo <= bounds.object_box[0] + 1e-6) and np.all(hi >= bounds.object_box[1] - 1e-6)
     assert np.all(hi - lo < 0.8 * 2 * bounds.radius)  # smaller than the bounding sphere's box
     sphere = FastNeRF(FastConfig(object_box=False), bounds)
-    assert np.all(sphere.geom.hi.numpy() - sphere.geom.lo.numpy() > 0.95 * 2 * bounds.radius)
+    assert np.all(sphere.field.geom.hi.numpy() - sphere.field.geom.lo.numpy() > 0.95 * 2 * bounds.radius)
 
 
 @pytest.mark.slow
 def test_a_run_from_before_colour_mixing_resumes_with_its_corrections(tmp_path, tabletop):
     from nerfkit.io.atomic import atomic_path
 
-    c, m = capture_settings(cfg(tmp_path, "old", steps=80), SMALL, tabletop, SMALL_GIVEN)
-    c = resolved_config(c, m)
+    c, m = presets.resolve(cfg(tmp_path, "old", steps=80), SMALL, tabletop, SMALL_GIVEN).configs()
+    c = presets.without_scene(c)
     assert c.colour_mix  # captures mix colours by default
     Trainer(tabletop, c, m, quiet=True).run(stop_after=60)
     path = sorted((tmp_path / "old" / "checkpoints").glob("*.pt"))[-1]
@@ -422,16 +424,17 @@ def test_eval_scores_the_objects_own_pixels(tmp_path, tabletop):
     from dataclasses import replace
 
     from nerfkit.output.images import render_image
-    from nerfkit.tabletop import object_alone
     from nerfkit.train.evaluate import evaluate_views
     from nerfkit.train.metrics import masked_psnr
     from nerfkit.train.view_corrections import ViewFitConfig
 
-    t = Trainer(tabletop, *capture_settings(cfg(tmp_path, "ob", steps=100), SMALL, tabletop, SMALL_GIVEN), quiet=True)
+    settings = presets.resolve(cfg(tmp_path, "ob", steps=100), SMALL, tabletop, SMALL_GIVEN)
+    t = Trainer(tabletop, *settings.configs(), quiet=True)
     t.run()
     isolated = object_alone(t.model)
     alone = isolated.model
-    assert "table" in isolated.left_out and t.model.table is not None  # a copy: the run's model keeps its table
+    assert "table" in isolated.left_out
+    assert t.model.surroundings.table is not None  # a copy: the run's model keeps its table
     val = tabletop.val
     renders = np.stack(
         [render_image(t.model, val.K[i], val.c2w[i], val.width, val.height, t.background).rgb for i in range(len(val))]
@@ -486,8 +489,10 @@ def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_wh
     the scene's sphere), the sword's cross-section carries on into the new space, and a
     floater at another face or the table's paint crossing a third moves nothing. At the end
     of training a note names the face the object still reaches, and only that one."""
+    from nerfkit.models import grid_growth
     from nerfkit.models.base import SceneBounds, StepState
-    from nerfkit.models.fast import BOX_FOLLOW, EMPTY_RAW, FastNeRF, resample_grid
+    from nerfkit.models.fast import EMPTY_RAW, FastNeRF, resample_grid
+    from nerfkit.models.fast_config import BOX_FOLLOW
 
     box = (np.array([-1.0, -0.8, -0.5], np.float32), np.array([1.0, 0.9, 1.3], np.float32))
 
@@ -508,29 +513,30 @@ def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_wh
             ),
             bounds,
         )
-        lo, v = model.box.lo_array, model.voxel
-        x, y, z = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in enumerate(model.res)), indexing="ij")
+        lo, v = model.field.box.lo_array, model.field.voxel
+        x, y, z = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in enumerate(model.field.res)), indexing="ij")
         post = (x**2 + y**2 < 0.2**2) & (z < 1.0)
         sword = (x < 0) & (held_out | (x > -0.5)) & (y**2 + (z - 0.6) ** 2 < 0.12**2)  # to the x- face
         floater = ((x - 0.6) ** 2 + (y - 0.9) ** 2 + (z - 0.8) ** 2) < 0.15**2  # at the y+ face
         paint = (x > 0.5) & (np.abs(z) < 0.04)  # on the table, to the x+ face
-        rows = model.vertex_rows.long().numpy().reshape(model.res[::-1]).transpose(2, 1, 0)
+        rows = model.field.vertex_rows.long().numpy().reshape(model.field.res[::-1]).transpose(2, 1, 0)
         with torch.no_grad():
-            model.grid[:, 0] = EMPTY_RAW
-            model.grid[rows[post | sword | floater | paint], 0] = 10.0
+            model.field.grid[:, 0] = EMPTY_RAW
+            model.field.grid[rows[post | sword | floater | paint], 0] = 10.0
         return model
 
     def grown(model, stage=1, progress=0.3):
         model.stage = stage  # (the box follows from the second growth on, in the first half of the run)
-        notes = model._grow_next(StepState(step=5 if stage == 0 else 10, progress=progress))
-        lo = model.box.lo_array.astype(np.float64)
-        return lo, lo + model.voxel * (np.array(model.res) - 1), notes
+        notes = grid_growth.grow_next(model, StepState(step=5 if stage == 0 else 10, progress=progress))
+        lo = model.field.box.lo_array.astype(np.float64)
+        return lo, lo + model.field.voxel * (np.array(model.field.res) - 1), notes
 
     def moved_by(notes, face):
         return float(re.search(rf"{face} by ([0-9.e-]+)", notes)[1])
 
     def raw_density(model, points):
-        return resample_grid(model.grid, model.geom, torch.tensor(points, dtype=torch.float32))[:, 0].numpy()
+        field = model.field
+        return resample_grid(field.grid, field.geom, torch.tensor(points, dtype=torch.float32))[:, 0].numpy()
 
     model = model_with_sword(radius=5.0)
     (note,) = model.finish_training()
@@ -538,24 +544,24 @@ def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_wh
     assert model_with_sword(radius=5.0, held_out=False).finish_training() == []  # the sword within the box
     lo, hi, notes = grown(model)
     size = box[1] - box[0]
-    np.testing.assert_allclose(lo[0], box[0][0] - BOX_FOLLOW * size[0], atol=model.voxel)
-    np.testing.assert_allclose([lo[1], lo[2]], box[0][1:], atol=model.voxel)
-    np.testing.assert_allclose(hi, box[1], atol=model.voxel)  # y+ (a floater) and x+ (paint): not moved
-    assert moved_by(notes, "x-") == pytest.approx(BOX_FOLLOW * size[0], abs=model.voxel)
+    np.testing.assert_allclose(lo[0], box[0][0] - BOX_FOLLOW * size[0], atol=model.field.voxel)
+    np.testing.assert_allclose([lo[1], lo[2]], box[0][1:], atol=model.field.voxel)
+    np.testing.assert_allclose(hi, box[1], atol=model.field.voxel)  # y+ (a floater) and x+ (paint): not moved
+    assert moved_by(notes, "x-") == pytest.approx(BOX_FOLLOW * size[0], abs=model.field.voxel)
     assert "y+" not in notes and "x+" not in notes
     raw = raw_density(model, [[-1.6, 0.0, 0.6], [-1.6, 0.5, 0.6], [-1.6, 0.0, 0.2]])
     assert raw[0] > 5 and raw[1] < EMPTY_RAW + 1 and raw[2] < EMPTY_RAW + 1  # the sword goes on, nothing beside it
 
     lo, _, notes = grown(model_with_sword(radius=1.4))  # the sphere reaches x = -1.4 only
-    np.testing.assert_allclose(lo[0], -1.4, atol=model.voxel)
-    assert moved_by(notes, "x-") == pytest.approx(0.4, abs=model.voxel)
+    np.testing.assert_allclose(lo[0], -1.4, atol=model.field.voxel)
+    assert moved_by(notes, "x-") == pytest.approx(0.4, abs=model.field.voxel)
     for model, stage, progress in (
         (model_with_sword(radius=5.0, follows=False), 1, 0.3),
         (model_with_sword(radius=5.0), 0, 0.3),
         (model_with_sword(radius=5.0), 1, 0.6),
     ):
         lo, hi, notes = grown(model, stage, progress)  # switched off; the first growth; late in the run
-        np.testing.assert_allclose(lo, box[0], atol=model.voxel)
+        np.testing.assert_allclose(lo, box[0], atol=model.field.voxel)
         assert "moved out" not in notes
 
 
@@ -606,26 +612,26 @@ def post_on_table(scale: float = 1.0):
         ),
         bounds,
     )
-    lo, v = model.box.lo_array / scale, model.voxel / scale
-    rx, ry, rz = model.res
+    lo, v = model.field.box.lo_array / scale, model.field.voxel / scale
+    rx, ry, rz = model.field.res
     assert len({rx, ry, rz}) == 3  # an axis swap would show
     z, y, x = np.meshgrid(*(lo[a] + v * np.arange(r) for a, r in ((2, rz), (1, ry), (0, rx))), indexing="ij")
     post = (x**2 + y**2 < 0.2**2) & (z < 1.2)  # from under the table up to 1.2
     paint = (x > 0.5) & (x < 0.8) & (y > 0.5) & (y < 0.8) & (np.abs(z) < 0.04)
     speck = np.zeros_like(post)
     speck[np.unravel_index(np.argmin((x + 0.6) ** 2 + (y + 0.5) ** 2 + (z - 0.9) ** 2), z.shape)] = True
-    rows = model.vertex_rows.long().numpy().reshape(-1)
+    rows = model.field.vertex_rows.long().numpy().reshape(-1)
     with torch.no_grad():
-        model.grid[:, 0] = EMPTY_RAW
-        model.grid[rows[(post | paint | speck).reshape(-1)], 0] = 10.0
+        model.field.grid[:, 0] = EMPTY_RAW
+        model.field.grid[rows[(post | paint | speck).reshape(-1)], 0] = 10.0
     model.refresh_occupancy()
     return model, z, post, paint, speck
 
 
 def kept_vertices(model, shape) -> np.ndarray:
     """(Z, Y, X) bool: the grid vertices ``model`` still holds density at."""
-    rows = model.vertex_rows.long().numpy().reshape(-1)
-    return (model.grid[rows, 0] > 0).numpy().reshape(shape)
+    rows = model.field.vertex_rows.long().numpy().reshape(-1)
+    return (model.field.grid[rows, 0] > 0).numpy().reshape(shape)
 
 
 def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surroundings():
@@ -634,9 +640,9 @@ def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surro
     from nerfkit.cameras import Rays
 
     model, z, post, paint, speck = post_on_table()
-    left_out = model.isolate_object(0.15, 25.0)  # (the cut spans the z = 0 and 0.1 layers of vertices)
+    left_out = isolate_object(model, 0.15, 25.0)  # (the cut spans the z = 0 and 0.1 layers of vertices)
     assert left_out == ["table", "room", "background"]  # (no floor: the bounds have none)
-    assert model.table is None and model.room is None and model.bg_coef is None
+    assert model.surroundings is None
     kept = kept_vertices(model, z.shape)
     assert not (kept & paint).any() and not (kept & (z < 0)).any()  # paint and what is under the table: gone
     assert not (kept & speck).any()  # and the speck floating apart from the post
@@ -648,9 +654,7 @@ def test_isolating_the_object_clears_the_table_paint_and_stops_drawing_the_surro
         out = model.render_rays(rays, torch.tensor([1.0, 0.5, 0.25]), perturb=False)
     torch.testing.assert_close(out.rgb[0], torch.tensor([1.0, 0.5, 0.25]))
     assert float(out.acc[1]) > 0.99 and out.scene_depth is None  # the post's top is still there
-    assert model.isolate_object(0.15, 25.0) == [] and model.surroundings() == []  # nothing left around it
-    from nerfkit.tabletop import object_alone
-
+    assert isolate_object(model, 0.15, 25.0) == [] and names(model) == []  # nothing left around it
     assert object_alone(model).model is model  # nothing to leave out: not copied
     with pytest.raises(RuntimeError, match="neither trained nor saved"):
         model.pack_state()
@@ -660,7 +664,8 @@ def test_the_object_alone_is_the_same_in_a_scene_ten_times_larger():
     """object_alone takes the surface's density from the object's box: a scene ten times
     larger, whose density is ten times lower, keeps the same post with its base (at a fixed
     25 per unit the larger post would be haze, and its base cleared as paint)."""
-    from nerfkit.tabletop import TABLE_CUT, box_surface_threshold, object_alone, table_cut_height
+    from nerfkit.surroundings import box_surface_threshold, table_cut_height
+    from nerfkit.tabletop import TABLE_CUT
 
     kept, thresholds = {}, {}
     for scale in (1.0, 10.0):
@@ -670,5 +675,5 @@ def test_the_object_alone_is_the_same_in_a_scene_ten_times_larger():
     np.testing.assert_array_equal(kept[1.0], post & (z >= 0))
     np.testing.assert_array_equal(kept[10.0], kept[1.0])
     assert thresholds[10.0] == pytest.approx(thresholds[1.0] / 10)
-    model.isolate_object(table_cut_height(model, TABLE_CUT), 25.0)  # the larger scene at a fixed level
+    isolate_object(model, table_cut_height(model, TABLE_CUT), 25.0)  # the larger scene at a fixed level
     assert not np.array_equal(kept_vertices(model, z.shape), kept[1.0])

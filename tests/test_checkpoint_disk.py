@@ -5,18 +5,19 @@ from __future__ import annotations
 import pytest
 import torch
 
+from nerfkit import presets
 from nerfkit.models.vanilla import VanillaConfig
 from nerfkit.train import checkpoint
 from nerfkit.train.checkpoint import checkpoint_paths
 from nerfkit.train.config import TrainConfig
-from nerfkit.train.trainer import Trainer, resolved_config, resume, train
+from nerfkit.train.trainer import Trainer, resume, train
 
 TINY = VanillaConfig(n_samples=4, width=8, depth=2, occupancy=False)
 
 
 def cfg(tmp_path, name, **kw):
     # a checkpoint at every step's check: several are written during the run
-    return resolved_config(
+    return presets.without_scene(
         TrainConfig(
             data="sphere",
             model="vanilla",
@@ -27,8 +28,7 @@ def cfg(tmp_path, name, **kw):
             eval_every=1000,
             checkpoint_seconds=1e-9,
             **kw,
-        ),
-        TINY,
+        )
     )
 
 

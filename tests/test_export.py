@@ -12,7 +12,7 @@ trimesh = pytest.importorskip("trimesh")
 pytest.importorskip("skimage")
 
 from nerfkit import export as ex  # noqa: E402
-from nerfkit import tabletop  # noqa: E402
+from nerfkit import surroundings, tabletop  # noqa: E402
 from nerfkit.cameras import Rays, image_rays  # noqa: E402
 from nerfkit.data.synthetic import sphere_color, sphere_scene  # noqa: E402
 from nerfkit.errors import NerfkitError  # noqa: E402
@@ -245,16 +245,16 @@ def test_the_mesh_covers_the_models_own_box_and_the_cut_is_a_fraction_of_its_hei
 
     boxed = SimpleNamespace(
         density_box=lambda: (np.array([0.0, -1.0, -0.1]), np.array([0.2, 0.0, 0.5])),
-        table_plane=lambda: np.array([0.0, 0.0, 1.0, 0.0]),
+        surroundings=SimpleNamespace(plane=np.array([0.0, 0.0, 1.0, 0.0])),
     )
     center, half = ex.mesh_region(boxed, np.zeros(3), 5.0, scale=1.5)
     np.testing.assert_allclose(center, [0.1, -0.5, 0.2])
     assert half == pytest.approx(0.75)  # the longest side, 1.0, over 2, times 1.5
-    assert tabletop.table_cut_height(boxed, 0.05) == pytest.approx(0.025)  # the box's top is 0.5 above the table
-    plain = SimpleNamespace(density_box=lambda: None, table_plane=lambda: None)
+    assert surroundings.table_cut_height(boxed, 0.05) == pytest.approx(0.025)  # the box's top is 0.5 above the table
+    plain = SimpleNamespace(density_box=lambda: None, surroundings=None)
     center, half = ex.mesh_region(plain, np.ones(3), 5.0)
     np.testing.assert_allclose(center, 1.0)
-    assert half == 5.0 and tabletop.table_cut_height(plain, 0.05) == 0.0
+    assert half == 5.0 and surroundings.table_cut_height(plain, 0.05) == 0.0
 
 
 # ----------------------------------------------------------------------------- points

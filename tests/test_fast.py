@@ -94,27 +94,27 @@ def test_rendering_changes_nothing_in_the_model_and_a_schedule_remembers_surface
     for k, v in model.state_dict().items():
         assert torch.equal(v, before[k]), k
     # the job stores the expected end points of the opaque rays: inside the unit sphere
-    n0 = int(model.surface_count)
+    n0 = int(model.surfaces.count)
     opaque = out.acc > 0.5
     run_schedules(
         [j for j in model.schedules() if j.name == "remember surfaces"],
         StepState(30, 0.3, None, batch.rays, out),
         phase="after_step",
     )
-    assert int(model.surface_count) == n0 + int(opaque.sum()) > n0
-    new = model.surface_pts[n0 : int(model.surface_count)]
+    assert int(model.surfaces.count) == n0 + int(opaque.sum()) > n0
+    new = model.surfaces.pts[n0 : int(model.surfaces.count)]
     o, d = batch.rays.origins[opaque], batch.rays.directions[opaque]
     torch.testing.assert_close(new, o + d * (out.depth / out.acc)[opaque].unsqueeze(-1))
     assert new.norm(dim=-1).max() < 1.1
 
 
 def test_growth_shrinks_the_box_around_the_object(scene, trained):
-    lo, hi = trained.geom.lo.numpy(), trained.geom.hi.numpy()
-    assert trained.geom.res == tuple(int(r) for r in trained.geom.res) and trained.stage == 1
+    lo, hi = trained.field.geom.lo.numpy(), trained.field.geom.hi.numpy()
+    assert trained.field.geom.res == tuple(int(r) for r in trained.field.geom.res) and trained.stage == 1
     assert np.all(lo <= -0.95) and np.all(hi >= 0.95)  # the unit sphere is inside
     assert np.all(hi - lo < 3.2)  # the scene bounds' box was [-2, 2]^3
     # the grid holds about 48^3 vertices with cubic voxels
-    assert 0.8 * 48**3 < np.prod(trained.geom.res) < 1.3 * 48**3
+    assert 0.8 * 48**3 < np.prod(trained.field.geom.res) < 1.3 * 48**3
 
 
 @pytest.mark.slow
@@ -127,19 +127,20 @@ def test_sparse_growth_stores_the_vertices_near_the_object_and_renders_as_well(s
     sparse = FastNeRF(FastConfig(**late, sparse_from=40), SceneBounds.from_scene(scene))
     train_loop(dense, scene, 100)
     train_loop(sparse, scene, 100)
-    assert sparse.geom.res == dense.geom.res and dense.stored_vertices == dense.geom.n_vertices
-    assert sparse.stored_vertices < 0.6 * sparse.geom.n_vertices
+    assert sparse.field.geom.res == dense.field.geom.res and dense.field.stored_vertices == dense.field.geom.n_vertices
+    assert sparse.field.stored_vertices < 0.6 * sparse.field.geom.n_vertices
     from nerfkit.models.fast import EMPTY_RAW
 
-    assert sparse.grid[0, 0] == EMPTY_RAW and torch.all(sparse.grid[0, 1:] == 0)  # the shared row is untouched
+    shared = sparse.field.grid[0]
+    assert shared[0] == EMPTY_RAW and torch.all(shared[1:] == 0)  # the shared row is untouched
     # every occupied cell has all its corners stored
     from nerfkit.models.packing import vertices_touching
 
-    assert torch.all(sparse.vertex_rows[vertices_touching(sparse.estimator.occ)] > 0)
+    assert torch.all(sparse.field.vertex_rows[vertices_touching(sparse.estimator.occ)] > 0)
     assert abs(val_psnr(sparse, scene) - val_psnr(dense, scene)) < 0.5
     # vertices without storage hold no density
-    empty = torch.nonzero(sparse.vertex_rows == 0)[:, 0]
-    assert float(sparse.density(sparse.geom.vertex_positions(empty)).detach().max()) < 1e-9
+    empty = torch.nonzero(sparse.field.vertex_rows == 0)[:, 0]
+    assert float(sparse.density(sparse.field.geom.vertex_positions(empty)).detach().max()) < 1e-9
 
 
 def test_a_growth_in_the_last_steps_of_a_run_is_skipped_and_caught_up_on_resume(scene):
@@ -164,16 +165,16 @@ def test_photos_with_finer_detail_get_a_fifth_grid_stage_unless_the_stages_are_g
     capture, on a forward-facing scene, or with the stages given, the stages are as set."""
     from dataclasses import replace
 
+    from nerfkit import presets
     from nerfkit.data.synthetic import forward_facing_scene, sphere_scene
     from nerfkit.models.fast_config import BASE_STAGES, FINE_STAGES
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import capture_settings
 
     def sized(scene, size):
         return replace(scene, train=replace(scene.train, width=size, height=size, images=None))
 
     def stages(scene, model=FastConfig(), capture="auto"):
-        m = capture_settings(TrainConfig(capture=capture), model, scene)[1]
+        m = presets.resolve(TrainConfig(capture=capture), model, scene).configs()[1]
         return m.resolutions, m.upsample_steps
 
     sphere = sphere_scene(n_train=6, size=8)
@@ -193,7 +194,7 @@ def test_photos_with_finer_detail_get_a_fifth_grid_stage_unless_the_stages_are_g
 
 def test_a_vertex_index_outside_the_grid_is_refused_before_the_kernels_see_it(scene, trained):
     state = {k: v.clone() for k, v in trained.state_dict().items()}
-    state["vertex_rows"][7] = trained.grid.shape[0]  # one past the last row
+    state["field.vertex_rows"][7] = trained.field.grid.shape[0]  # one past the last row
     fresh = FastNeRF(FastConfig(**SMALL), SceneBounds.from_scene(scene))
     fresh.load_extra_state(trained.extra_state())
     with pytest.raises(ValueError, match="outside the grid"):
@@ -213,7 +214,7 @@ def test_checkpoint_round_trip_after_growth(scene, trained):
     fresh = FastNeRF(FastConfig(**SMALL), SceneBounds.from_scene(scene))
     fresh.load_extra_state(trained.extra_state())
     fresh.load_state_dict(trained.state_dict())
-    assert fresh.geom.res == trained.geom.res
+    assert fresh.field.geom.res == trained.field.geom.res
     assert torch.equal(fresh.estimator.occ, trained.estimator.occ)
     d = torch.nn.functional.normalize(torch.randn(200, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
     rays = Rays(-4 * d, d)
@@ -234,8 +235,9 @@ def test_torch_path_trains_like_the_compiled_path(scene):
         train_loop(model, scene, 10, batch=256)
         models[kernels] = model
     a, b = models["numba"], models["torch"]
-    assert a.geom.res == b.geom.res and a.stored_vertices == b.stored_vertices < a.geom.n_vertices  # sparse
-    torch.testing.assert_close(a.grid.detach(), b.grid.detach(), atol=2e-4, rtol=1e-3)
+    assert a.field.geom.res == b.field.geom.res
+    assert a.field.stored_vertices == b.field.stored_vertices < a.field.geom.n_vertices  # sparse
+    torch.testing.assert_close(a.field.grid.detach(), b.field.grid.detach(), atol=2e-4, rtol=1e-3)
     assert torch.equal(a.estimator.occ, b.estimator.occ)
 
 
@@ -258,13 +260,14 @@ def test_learned_background_recovers_a_grey_backdrop():
 
 @pytest.mark.slow
 def test_trainer_runs_fast_model_and_resumes_exactly(tmp_path, scene):
+    from nerfkit import presets
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, resolved_config, resume
+    from nerfkit.train.trainer import Trainer, resume
 
     cfg = FastConfig(resolutions="16,24", upsample_steps="20", occ_start=8, occ_every=8)
 
     def tc(name):
-        return resolved_config(
+        return presets.without_scene(
             TrainConfig(
                 data="sphere",
                 model="fast",
@@ -274,8 +277,7 @@ def test_trainer_runs_fast_model_and_resumes_exactly(tmp_path, scene):
                 seed=0,
                 eval_views=1,
                 checkpoint_seconds=1e9,
-            ),
-            cfg,
+            )
         )
 
     Trainer(scene, tc("a"), cfg, quiet=True).run()
@@ -290,11 +292,12 @@ def test_trainer_runs_fast_model_and_resumes_exactly(tmp_path, scene):
 
 
 def test_each_stage_trains_on_its_multiple_of_the_batch(tmp_path, scene):
+    from nerfkit import presets
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, resolved_config
+    from nerfkit.train.trainer import Trainer
 
     cfg = FastConfig(resolutions="16,20,24", upsample_steps="10,20", stage_rays="1,3", occ_start=8, occ_every=8)
-    tc = resolved_config(
+    tc = presets.without_scene(
         TrainConfig(
             data="sphere",
             model="fast",
@@ -304,8 +307,7 @@ def test_each_stage_trains_on_its_multiple_of_the_batch(tmp_path, scene):
             seed=0,
             eval_views=1,
             checkpoint_seconds=1e9,
-        ),
-        cfg,
+        )
     )
     rows = Trainer(scene, tc, cfg, quiet=True).run().rows
     # a row at step s holds step s - 1: the first stage's, then the second's, then the last factor again
@@ -331,16 +333,16 @@ def test_a_non_finite_grid_gradient_is_refused_and_counted(scene, kernels):
     opt = build_optimizer(model, 0.1)
     batch = RaysData(scene.train, "cpu", seed=0).sample(256)
     model.render_rays(batch.rays, torch.zeros(3), perturb=True).rgb.sum().backward()
-    before = model.grid.detach().clone()
-    if model.grid.grad is not None:  # torch path: a dense .grad
-        touched = torch.nonzero(model.grid.grad.abs().sum(1)).squeeze(1)
-        model.grid.grad[touched[0], 0] = float("nan")
+    before = model.field.grid.detach().clone()
+    if model.field.grid.grad is not None:  # torch path: a dense .grad
+        touched = torch.nonzero(model.field.grid.grad.abs().sum(1)).squeeze(1)
+        model.field.grid.grad[touched[0], 0] = float("nan")
     else:
-        touched = torch.nonzero(model.sink.touched).squeeze(1)
-        model.sink.grad[-1, touched[0], 1] = float("inf")
+        touched = torch.nonzero(model.field.sink.touched).squeeze(1)
+        model.field.sink.grad[-1, touched[0], 1] = float("inf")
     opt.step()
     assert opt.nonfinite_rows == 1
-    after = model.grid.detach()
+    after = model.field.grid.detach()
     assert torch.isfinite(after).all()
     assert torch.equal(after[touched[0]], before[touched[0]])  # the bad row is left as it was
     assert not torch.equal(after[touched[1:]], before[touched[1:]])  # the others are updated
@@ -352,9 +354,9 @@ def test_a_non_finite_grid_gradient_is_refused_and_counted(scene, kernels):
 def density_variation(model, channels=(0,)) -> float:
     """Mean over pairs of neighbouring stored vertices of the squared difference of the
     grid's ``channels`` (default: the raw density), summed over the channels."""
-    rx, ry, rz = model.geom.res
-    rows = model.vertex_rows.long().reshape(rz, ry, rx)
-    raw = model.grid.detach()[:, list(channels)]
+    rx, ry, rz = model.field.geom.res
+    rows = model.field.vertex_rows.long().reshape(rz, ry, rx)
+    raw = model.field.grid.detach()[:, list(channels)]
     total, pairs = 0.0, 0
     for dim in range(3):
         a, b = rows.narrow(dim, 0, rows.shape[dim] - 1), rows.narrow(dim, 1, rows.shape[dim] - 1)
@@ -383,8 +385,8 @@ def test_the_view_dependent_colours_total_variation_weighs_only_the_harmonics_ab
     )
     K = (degree + 1) ** 2
     expect = [2.0] + [1.0 + (3.0 if k > 0 else 0.0) for _ in range(3) for k in range(K)]
-    assert m.tv_weights().tolist() == expect
-    assert not FastNeRF(FastConfig(**SMALL), SceneBounds.from_scene(scene)).tv_weights().any()  # off by default
+    assert m.tv.weights.tolist() == expect
+    assert not FastNeRF(FastConfig(**SMALL), SceneBounds.from_scene(scene)).tv.weights.any()  # off by default
 
 
 @pytest.mark.slow
@@ -394,7 +396,7 @@ def test_the_view_dependent_colours_total_variation_smooths_it_alone(scene, trai
     are still reconstructed."""
     smooth = FastNeRF(FastConfig(**SMALL, tv_view_weight=1e-6), SceneBounds.from_scene(scene))
     train_loop(smooth, scene, 100)
-    K = smooth.K
+    K = smooth.field.K
     view = [1 + c * K + k for c in range(3) for k in range(1, K)]
     base = [1 + c * K for c in range(3)]
     assert density_variation(smooth, view) < 0.5 * density_variation(trained, view)
@@ -409,13 +411,14 @@ def test_the_kernels_load_before_the_training_clock_starts(tmp_path, scene, monk
     is 1.2 s of training: had the load counted, the run would report 6 s trained."""
     import time
 
+    from nerfkit import presets
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, resolved_config
+    from nerfkit.train.trainer import Trainer
 
     loads = []
     monkeypatch.setattr(FastNeRF, "load_kernels", lambda self: (loads.append(1), time.sleep(6.0)))
     cfg = FastConfig(resolutions="16", upsample_steps="", occ_start=8, occ_every=8)
-    tc = resolved_config(
+    tc = presets.without_scene(
         TrainConfig(
             data="sphere",
             model="fast",
@@ -425,8 +428,7 @@ def test_the_kernels_load_before_the_training_clock_starts(tmp_path, scene, monk
             seed=0,
             eval_views=1,
             checkpoint_seconds=1e9,
-        ),
-        cfg,
+        )
     )
     result = Trainer(scene, tc, cfg).run()
     assert loads == [1] and 1.2 <= result.train_seconds < 6.0 and result.step > 0

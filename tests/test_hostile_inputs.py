@@ -475,13 +475,13 @@ def test_fast_grid_resolution_is_bounded_in_config_and_checkpoint():
 
     bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1], np.float32))
     model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", kernels="torch"), bounds)
-    shape = tuple(model.grid.shape)
+    shape = tuple(model.field.grid.shape)
     for res in ([4096, 4096, 4096], [100000, 2, 2], [8, 8, True], "8,8,8", [8, 8]):
         state = {**model.extra_state(), "res": res}
         with pytest.raises(NerfkitError) as e:
             model.load_extra_state(state)
         one_line_error(e, "'res'", "model_extra")
-        assert tuple(model.grid.shape) == shape  # refused before anything was replaced
+        assert tuple(model.field.grid.shape) == shape  # refused before anything was replaced
 
 
 # ============================================================================= named pipes, devices, sockets

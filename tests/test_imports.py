@@ -50,8 +50,9 @@ LAYERS: list[tuple[str, set[str]]] = [
     ),
     ("datasets: the Scene type and its file formats", {"data"}),
     (
-        "rendering maths: volume rendering, sampling, kernels, fields, estimators",
-        {"render", "kernels", "fields", "estimators"},
+        "rendering maths: volume rendering, sampling, kernels, fields, estimators, loss terms, "
+        "a capture's surroundings",
+        {"render", "kernels", "fields", "estimators", "losses", "surroundings"},
     ),
     ("figures, videos and the dataset viewer", {"viz"}),
     ("captures, structure from motion, models, mesh and point export", {"capture", "sfm", "models", "export"}),

@@ -135,22 +135,19 @@ def test_viewer_renders_the_model_from_the_browser_camera():
 
 
 class SphereInRoom(SphereModel):
-    """The sphere in front of a grey room that :meth:`isolate_object` takes away."""
+    """The sphere in front of a grey room (its surroundings: a learned background) that
+    :func:`~nerfkit.surroundings.isolate_object` takes away."""
 
     def __init__(self, bounds):
+        from nerfkit.surroundings import Surroundings
+
         super().__init__(bounds)
-        self.room = True
+        room = SimpleNamespace(learn_background=True, room_shells=0, table=False, floor=False)
+        self.surroundings = Surroundings(room, bounds)
 
     def render_rays(self, rays, background, perturb):
         grey = torch.tensor([0.5, 0.5, 0.5])
-        return super().render_rays(rays, grey if self.room else background, perturb)
-
-    def surroundings(self):
-        return ["room"] if self.room else []
-
-    def isolate_object(self, cut, threshold):
-        self.room = False
-        return ["room"]
+        return super().render_rays(rays, grey if self.surroundings is not None else background, perturb)
 
 
 def test_the_viewer_shows_the_object_alone_on_white_without_touching_the_run():
@@ -166,7 +163,7 @@ def test_the_viewer_shows_the_object_alone_on_white_without_touching_the_run():
         alone = viewer.render_for(q, c2w[:3, 3], np.radians(40), 1.0, 32, "RGB", alone=True)
         assert (whole[0, 0] == 128).all() and (alone[0, 0] == 255).all()  # the room, then white
         np.testing.assert_array_equal(alone[12:20, 12:20], whole[12:20, 12:20])  # the same sphere
-        assert watcher.current.model.room  # the run's own model still has its room
+        assert watcher.current.model.surroundings is not None  # the run's own model still has its room
         copy = viewer._alone[1]
         viewer.render_for(q, c2w[:3, 3], np.radians(40), 1.0, 32, "RGB", alone=True)
         assert viewer._alone[1] is copy  # isolated once per checkpoint ...

@@ -87,16 +87,17 @@ def test_compact_model_file_renders_like_the_model(tmp_path, trained):
     save_model(compact_dir, 80, model)
     kept = float(vertices_touching(model.estimator.occ).float().mean())
     dense_size, compact_size = (dense_dir / MODEL_FILE).stat().st_size, (compact_dir / MODEL_FILE).stat().st_size
-    grid_bytes = model.grid.numel() * 4
+    grid_bytes = model.field.grid.numel() * 4
     # the grid shrinks to the kept fraction at 2 bytes a value (+ 1 bit a vertex); the rest is unchanged
-    assert compact_size < dense_size - grid_bytes * (1 - kept / 2) + model.geom.n_vertices / 8 + 4096
+    assert compact_size < dense_size - grid_bytes * (1 - kept / 2) + model.field.geom.n_vertices / 8 + 4096
     compact = _reload(compact_dir, scene)
     dense = _reload(dense_dir, scene)
-    assert torch.equal(compact.estimator.occ, model.estimator.occ) and compact.geom.res == model.geom.res
+    assert torch.equal(compact.estimator.occ, model.estimator.occ) and compact.field.geom.res == model.field.geom.res
     touching = vertices_touching(model.estimator.occ)
-    assert torch.all(compact.vertex_rows[~touching] == 0) and torch.all(compact.vertex_rows[touching] > 0)
-    assert compact.stored_vertices == int(touching.sum()) < model.stored_vertices  # only what renders is kept
-    assert torch.all(compact.grid[0, 0] == EMPTY_RAW) and torch.all(compact.grid[0, 1:] == 0)
+    assert torch.all(compact.field.vertex_rows[~touching] == 0) and torch.all(compact.field.vertex_rows[touching] > 0)
+    kept_rows = compact.field.stored_vertices
+    assert kept_rows == int(touching.sum()) < model.field.stored_vertices  # only what renders is kept
+    assert torch.all(compact.field.grid[0, 0] == EMPTY_RAW) and torch.all(compact.field.grid[0, 1:] == 0)
     v, bg = scene.val, torch.zeros(3)
     for i in range(len(v)):
         a = render_image(dense, v.K[i], v.c2w[i], v.width, v.height, bg).rgb
@@ -123,5 +124,6 @@ def test_resume_checkpoints_keep_optimizer_state_and_are_pruned(tmp_path, traine
     kept = sorted(p.name for p in (tmp_path / "checkpoints").iterdir())
     assert kept == ["step_00000030.pt"]  # only the newest (the default)
     ckpt = torch.load(tmp_path / "checkpoints" / kept[-1], weights_only=True)
-    assert "model_packing" not in ckpt and ckpt["model"]["grid"].dtype == torch.float32  # full precision to resume
+    assert "model_packing" not in ckpt
+    assert ckpt["model"]["field.grid"].dtype == torch.float32  # full precision to resume
     assert ckpt["optimizer"]["state"]  # Adam moments

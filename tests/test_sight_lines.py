@@ -161,9 +161,9 @@ def test_the_opacity_between_two_distances_is_the_closed_form_in_uniform_density
     model = FastNeRF(FastConfig(resolutions="32", upsample_steps="", kernels=kernels), SceneBounds.from_scene(tabletop))
     sigma = 0.8  # per world unit
     with torch.no_grad():
-        raw = np.log(np.expm1(sigma / model.density_scale))  # softplus^-1
-        model.grid[1:, 0] = float(raw)
-    lo, hi = model.geom.lo, model.geom.hi
+        raw = np.log(np.expm1(sigma / model.field.density_scale))  # softplus^-1
+        model.field.grid[1:, 0] = float(raw)
+    lo, hi = model.field.geom.lo, model.field.geom.hi
     centre = (lo + hi) / 2
     o = (centre - torch.tensor([2.0, 0.0, 0.0])).repeat(3, 1)
     d = torch.tensor([1.0, 0.0, 0.0]).repeat(3, 1)
@@ -234,8 +234,9 @@ def test_sight_lines_take_no_part_without_their_weight_and_weigh_in_proportion_t
 
 
 def test_a_capture_trains_with_its_sight_lines_and_resumes_their_draws(tmp_path, tabletop, monkeypatch):
+    from nerfkit import presets
     from nerfkit.train.config import TrainConfig
-    from nerfkit.train.trainer import Trainer, capture_settings, resolved_config
+    from nerfkit.train.trainer import Trainer
 
     points, rows = seen_sphere_points(tabletop)
     scene = Scene(**{**tabletop.__dict__, "points": points, "point_views": rows})
@@ -252,8 +253,8 @@ def test_a_capture_trains_with_its_sight_lines_and_resumes_their_draws(tmp_path,
             checkpoint_seconds=1e9,
             **kw,
         )
-        c, m = capture_settings(base, small, data)
-        return Trainer(data, resolved_config(c, m), m, resume=resume, quiet=True), m
+        c, m = presets.resolve(base, small, data).configs()
+        return Trainer(data, presets.without_scene(c), m, resume=resume, quiet=True), m
 
     t, m = trainer("on")
     assert m.points_weight == 0.02 and len(t.sight) == len(rows)  # a capture's default

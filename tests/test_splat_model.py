@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from nerfkit import presets
 from nerfkit.cli import main
 from nerfkit.data.synthetic import sphere_scene
 from nerfkit.kernels import splat_reference as ref
@@ -18,7 +19,7 @@ from nerfkit.output.images import render_image
 from nerfkit.splat_files import Gaussians, ply_property_names, read_splat_ply
 from nerfkit.train.config import TrainConfig
 from nerfkit.train.optim import build_optimizer
-from nerfkit.train.trainer import Trainer, resolved_config, resume, train
+from nerfkit.train.trainer import Trainer, resume, train
 
 SMALL = dict(init_points=1500, densify_every=20, max_gaussians=6000)
 
@@ -28,7 +29,7 @@ def splat_cfg(tmp_path, name="run", **kw):
         data="sphere", model="splat", out=str(tmp_path / name), steps=120, seed=0, eval_views=1, checkpoint_seconds=1e9
     )
     base.update(kw)
-    return resolved_config(TrainConfig(**base), None)  # splat's training settings, as train() resolves them
+    return presets.without_scene(TrainConfig(**base))  # splat's training settings, as train() resolves them
 
 
 @pytest.fixture(scope="module")
@@ -264,9 +265,10 @@ def test_capture_mode_learns_the_background_and_exposure_without_pose(tmp_path):
 
 
 def _capture(sphere):
-    from nerfkit.train.trainer import capture_settings
+    from nerfkit import presets
 
-    cfg, model_cfg = capture_settings(TrainConfig(model="splat", steps=15, capture="on"), SplatConfig(**SMALL), sphere)
+    train_cfg = TrainConfig(model="splat", steps=15, capture="on")
+    cfg, model_cfg = presets.resolve(train_cfg, SplatConfig(**SMALL), sphere).configs()
     return (model_cfg,)
 
 

@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 import torch
 
+from nerfkit import presets
 from nerfkit.cli import main
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.vanilla import VanillaConfig, VanillaNeRF
 from nerfkit.train.config import TrainConfig
-from nerfkit.train.trainer import Trainer, resolved_config, resume, train, validation_series
+from nerfkit.train.trainer import Trainer, resume, train, validation_series
 
 SMALL = dict(n_samples=16, width=32, depth=4)
 
@@ -31,7 +32,7 @@ def small_cfg(tmp_path, name="run", **kw):
         checkpoint_seconds=1e9,
     )
     base.update(kw)
-    return resolved_config(TrainConfig(**base), None)  # the model's training settings, as train() resolves them
+    return presets.without_scene(TrainConfig(**base))  # the model's training settings, as train() resolves them
 
 
 def background_psnr(scene) -> float:

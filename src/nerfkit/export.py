@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from . import surroundings
 from .data.ply import read_points_ply as read_points_ply  # re-exported: the point cloud's file format
 from .data.ply import write_points_ply as write_points_ply
 from .errors import fail
@@ -458,7 +459,7 @@ def mesh_from_model(
     unit, so its vertices take the field's colour where they are.
 
     A model with a table plane has its table paint (up to ``table_cut`` above it, in world
-    units; ``export`` passes :func:`~nerfkit.tabletop.table_cut_height` of a fraction of
+    units; ``export`` passes :func:`~nerfkit.surroundings.table_cut_height` of a fraction of
     the object's height) and the specks apart from its object cleared
     (:func:`clear_around_object`). ``threshold``: the surface's density (None:
     :func:`mesh_threshold`). ``chunk``: points evaluated at once."""
@@ -474,9 +475,9 @@ def mesh_from_model(
         chunk=chunk,
         device=device,
         progress=progress,
-        table=model.table_plane(),
+        table=surroundings.table_plane(model),
         table_cut=table_cut,
-        tags=model.table_tags(),
+        tags=surroundings.table_tags(model),
     )
     colours, seen = np.zeros((len(mesh.vertices), 3), np.uint8), np.zeros(len(mesh.vertices), bool)
     if views is not None and render_fn is not None and not ndc:

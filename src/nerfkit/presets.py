@@ -17,6 +17,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
+from .scene_extent import FEW_TRAIN_VIEWS
+
 OBJECT, CAPTURE, FORWARD_FACING = "object", "capture", "forward-facing"
 SCENE_KINDS = (OBJECT, CAPTURE, FORWARD_FACING)
 
@@ -67,6 +69,10 @@ class Resolved:
     model: Any  # the model's config
     kind: str
 
+    def configs(self) -> tuple[Any, Any]:
+        """``(train, model)``: what a Trainer is built from."""
+        return self.train, self.model
+
 
 def scene_kind(scene, capture: str = "auto") -> str:
     """What ``scene`` is, with ``--capture`` (auto: as the dataset records; on; off):
@@ -89,11 +95,31 @@ def preset_values(kind: str, model: str) -> tuple[dict, dict]:
     return train, model_values
 
 
+def table_cover_default(scene, capture: bool) -> float:
+    """``--table-cover-weight`` left unset: :data:`~nerfkit.models.fast_config.TABLE_COVER_WEIGHT` on a capture with a
+    table, fewer than :data:`~nerfkit.scene_extent.FEW_TRAIN_VIEWS` training photos and
+    sparse points that show no floor under the table; else 0.
+
+    With few photos a table's coverage under 1 blends the room shells into it in blotches
+    that the photos cannot average out: the prior helps a capture of a couple of dozen
+    training photos, not one of 40 or more (`--table-cover-weight` in BENCHMARKS.md). Where a
+    floor shows past the table's edge (a carpet below it, say) the coverage must learn to turn
+    clear there, and the prior holds it opaque: the floor is painted onto the table's plane,
+    which lowers the held-out score.
+    Without sparse points the floor is unknown: off.
+    """
+    from .models import fast_config
+
+    if not capture or scene.table is None or scene.points is None or not 0 < len(scene.train) < FEW_TRAIN_VIEWS:
+        return 0.0
+    return fast_config.TABLE_COVER_WEIGHT if scene.floor() is None else 0.0
+
+
 def scene_values(kind: str, model_config: Any, scene, given: frozenset[str]) -> dict:
     """The model settings that follow from the scene itself rather than its kind (fast only):
-    a capture's table plane and table cover prior (:func:`~nerfkit.models.fast_config.table_cover_default`),
+    a capture's table plane and table cover prior (:func:`table_cover_default`),
     and the fifth grid stage of an object photographed at high resolution (unless a stage option is given)."""
-    from .models.fast_config import BASE_STAGES, FINE_STAGE_PIXELS, FINE_STAGES, FastConfig, table_cover_default
+    from .models.fast_config import BASE_STAGES, FINE_STAGE_PIXELS, FINE_STAGES, FastConfig
 
     if not isinstance(model_config, FastConfig):
         return {}
@@ -141,6 +167,16 @@ def resolve(train: Any, model_config: Any, scene, user_set: Iterable[str] | None
     return Resolved(dataclasses.replace(train, **train_new), dataclasses.replace(model_config, **model_new), kind)
 
 
+def without_scene(train: Any) -> Any:
+    """``train`` (TrainConfig) with the training settings of its model (:data:`MODEL_TRAINING`)
+    and, with ``--capture on``, a capture's, for the options left at their defaults: for callers
+    that build a Trainer without a scene to resolve by (:func:`resolve` does both)."""
+    kind = CAPTURE if train.capture == "on" else OBJECT
+    values, _ = preset_values(kind, train.model)
+    given = differing_fields(train)
+    return dataclasses.replace(train, **{k: v for k, v in values.items() if k not in given and k != "capture"})
+
+
 __all__ = [
     "CAPTURE",
     "FORWARD_FACING",
@@ -152,4 +188,6 @@ __all__ = [
     "preset_values",
     "resolve",
     "scene_kind",
+    "table_cover_default",
+    "without_scene",
 ]

@@ -9,12 +9,11 @@ both. NumPy and SciPy only: the CLI reads the defaults at start-up.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 # a fixed surface density (per unit): the mesh of a forward-facing model in NDC, and the
-# object alone of a model without a box; captures take box_surface_threshold, scale-free
+# object alone of a model without a box; captures take surroundings.box_surface_threshold,
+# scale-free
 SURFACE_DENSITY = 25.0
 # The mesh's surface by default (surface_threshold): the density at which one 256th of the
 # meshed cube's width is this opaque. A density threshold in world units is not scale-free:
@@ -55,15 +54,6 @@ def box_corners(box) -> np.ndarray:
     """(8, 3) float64 corners of an axis-aligned box ``(lo (3,), hi (3,))``."""
     lo, hi = (np.asarray(v, np.float64) for v in box)
     return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-
-
-def table_cut_height(model, fraction: float) -> float:
-    """``fraction`` of the height of the model's density box's top above its table plane
-    (world units; 0 without a table or a box)."""
-    plane, box = model.table_plane(), model.density_box()
-    if plane is None or box is None:
-        return 0.0
-    return fraction * max(float((box_corners(box) @ plane[:3] + plane[3]).max()), 0.0)
 
 
 def cleared_note(height: float, tags) -> str:
@@ -250,42 +240,3 @@ def clear_around_object(grid: np.ndarray, axes, plane, height: float, threshold:
     """``grid`` with what lies :func:`around_object` set to zero density (in place; returned)."""
     grid[around_object(grid, axes, plane, height, threshold, tags)] = 0.0
     return grid
-
-
-@dataclass
-class ObjectAlone:
-    """A model that draws its object alone (:func:`object_alone`): ``model``, the names of
-    the parts it ``left_out`` (none: the model as it was), and the height ``cut`` above the
-    table up to which the table's paint was cleared (0 without a table)."""
-
-    model: object
-    left_out: list[str]
-    cut: float
-
-
-def box_surface_threshold(model) -> float:
-    """The surface's density for ``model``'s object: :func:`surface_threshold` of its density
-    box (half its largest side; the mesh's default level), or :data:`SURFACE_DENSITY`
-    without a box."""
-    box = model.density_box()
-    if box is None:
-        return SURFACE_DENSITY
-    return surface_threshold(box_radius(box))
-
-
-def object_alone(model, copy: bool = True) -> ObjectAlone:
-    """``model`` (a copy of it, unless ``copy`` is False) drawing its object alone: its
-    :meth:`~nerfkit.models.base.NerfModel.isolate_object`, with the table's paint cleared up
-    to :data:`TABLE_CUT` of the object's height and the specks apart from the object
-    cleared (:func:`around_object`, at :func:`box_surface_threshold`: the mesh's surface,
-    whatever the scene's units). A model with nothing around its object, or
-    a forward-facing one in NDC (whose one volume holds everything), comes back as it is,
-    with nothing left out."""
-    import copy as copying
-
-    if getattr(model, "ndc", None) is not None or not model.surroundings():  # (not copied for nothing)
-        return ObjectAlone(model, [], 0.0)
-    cut = table_cut_height(model, TABLE_CUT)
-    alone = copying.deepcopy(model) if copy else model
-    left_out = alone.isolate_object(cut, box_surface_threshold(model))
-    return ObjectAlone(alone, left_out, cut if "table" in left_out else 0.0)

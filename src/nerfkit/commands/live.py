@@ -298,9 +298,9 @@ class LiveViewer:
         )
 
     def _object_alone(self, run: LoadedRun):
-        """The run's model with only its object (:func:`~nerfkit.tabletop.object_alone`),
+        """The run's model with only its object (:func:`~nerfkit.surroundings.object_alone`),
         made once per loaded checkpoint."""
-        from ..tabletop import object_alone
+        from ..surroundings import object_alone
 
         if self._alone is None or self._alone[0] is not run:
             self._alone = (run, object_alone(run.model).model)

@@ -17,6 +17,7 @@ from torch import Tensor, nn
 from ..cameras import Rays, mean_camera
 from ..render.ndc import NdcSpace
 from ..scene_extent import object_box_from_points, sphere_radius
+from ..surroundings import Surroundings
 
 
 @dataclass
@@ -258,6 +259,9 @@ class NerfModel(nn.Module):
         super().__init__()
         self.bounds = bounds
         self.autocast_dtype: torch.dtype | None = None  # see set_precision
+        # what the model draws around its object (a capture's), or None: nerfkit.surroundings
+        self.surroundings: Surroundings | None = None
+        self.isolated = False  # drawing its object alone, for rendering only
 
     def set_precision(self, dtype: torch.dtype | None) -> None:
         """The autocast dtype the command resolved from ``--precision`` (None: float32), for
@@ -347,31 +351,14 @@ class NerfModel(nn.Module):
         (its density may be anywhere in the scene, or it lives in another space, NDC)."""
         return None
 
-    def table_plane(self) -> np.ndarray | None:
-        """(4,) ``(n, d)`` of the plane where rays stop (a capture's table; unit normal
-        ``n`` toward the cameras), or None."""
-        return None
+    def clear_density(self, where: Callable[[np.ndarray, list[np.ndarray]], np.ndarray]) -> None:
+        """Clear the density where ``where(sigma, axes)`` says ((X, Y, Z) bool over a grid of
+        the density at vertices with positions ``axes``: (X,), (Y,), (Z,)), for an object-only
+        render (:func:`~nerfkit.surroundings.isolate_object`). Default: nothing to clear."""
 
-    def table_tags(self) -> np.ndarray | None:
-        """(n, 4, 3) corners of the printed tags lying on the table (a tag capture's), or
-        None (no table, or no tags recorded)."""
-        return None if self.table_plane() is None else self.bounds.tags
-
-    def surroundings(self) -> list[str]:
-        """The names of the parts the model draws around its object (a capture's table,
-        floor, room, learned background): what :meth:`isolate_object` would leave out."""
-        return []
-
-    def isolate_object(self, cut: float, threshold: float) -> list[str]:
-        """Keep only the object, for a video of it alone: stop drawing what surrounds it (a
-        capture's table, floor, room and learned background) and clear the table's paint
-        and the specks apart from the object from the density
-        (:func:`~nerfkit.tabletop.around_object`: paint up to ``cut`` world units above the
-        table; ``threshold``: the surface's density). Changes the model in place,
-        for rendering only: it can then be neither trained nor saved. Returns the names of
-        the parts left out (:meth:`surroundings`): none when the model draws nothing apart
-        from its volume."""
-        return []
+    def _not_isolated(self) -> None:
+        if self.isolated:
+            raise RuntimeError("a model isolated for an object-only render can be neither trained nor saved")
 
     def pack_state(self) -> tuple[str | None, dict]:
         """What the final model file stores: ``(packing, tensors)``. The default is the plain

@@ -6,12 +6,10 @@ from dataclasses import dataclass
 
 from ..config import check_ranges, option
 from ..errors import fail
+from ..fields.grid import MAX_GRID_SIDE, MAX_GRID_VERTICES
 from .base import RGB_LOSSES
 
 MAX_STAGE_RAYS = 64  # --stage-rays: the largest multiple of --batch-rays
-# Largest grid: each side and the vertex count (512^3 vertices of 4+ float32 channels: 2+ GB).
-MAX_GRID_SIDE = 4096
-MAX_GRID_VERTICES = 512**3
 
 
 def comma_ints(text: str) -> list[int]:
@@ -44,26 +42,6 @@ BOX_FOLLOW_UNTIL = 0.5
 
 # weight of the table cover prior on few-photo captures that show no floor past the table's edge
 TABLE_COVER_WEIGHT = 0.05
-
-
-def table_cover_default(scene, capture: bool) -> float:
-    """``--table-cover-weight`` left unset: :data:`TABLE_COVER_WEIGHT` on a capture with a
-    table, fewer than :data:`~nerfkit.scene_extent.FEW_TRAIN_VIEWS` training photos and
-    sparse points that show no floor under the table; else 0.
-
-    With few photos a table's coverage under 1 blends the room shells into it in blotches
-    that the photos cannot average out: the prior helps a capture of a couple of dozen
-    training photos, not one of 40 or more (`--table-cover-weight` in BENCHMARKS.md). Where a
-    floor shows past the table's edge (a carpet below it, say) the coverage must learn to turn
-    clear there, and the prior holds it opaque: the floor is painted onto the table's plane,
-    which lowers the held-out score.
-    Without sparse points the floor is unknown: off.
-    """
-    from ..scene_extent import FEW_TRAIN_VIEWS
-
-    if not capture or scene.table is None or scene.points is None or not 0 < len(scene.train) < FEW_TRAIN_VIEWS:
-        return 0.0
-    return TABLE_COVER_WEIGHT if scene.floor() is None else 0.0
 
 
 @dataclass

@@ -31,13 +31,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..cameras import Rays, axes_across, image_rays, project_points
+from ..cameras import Rays, image_rays, project_points
 from ..config import check_ranges, option
 from ..errors import fail
 from ..fields.background import sh16
 from ..kernels import splat_reference as ref
 from ..kernels.optim import replace_param
 from ..kernels.splat_ops import SplatRender, render_gaussians, resolve_backend
+from ..surroundings import random_in_ball, random_start
 from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState
 
 PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
@@ -243,10 +244,7 @@ class SplatModel(NerfModel):
             pts, cols, volume = sample_hull(hull, c.init_points, gen)
             scale = self._volume_scale(volume, len(pts))
         else:
-            n_table = c.init_points // 4 if self.bounds.table is not None else 0
-            pts = random_in_ball(c.init_points - n_table, center, 0.7 * radius, gen)
-            if n_table:
-                pts = torch.cat([pts, random_on_plane(n_table, self.bounds.table, center, 1.5 * radius, gen)])
+            pts = random_start(c.init_points, self.bounds, center, radius, gen)
             cols = torch.full_like(pts, 0.5)
             scale = self._volume_scale(4 / 3 * math.pi * (0.7 * radius) ** 3, len(pts))
         device = self.means.device
@@ -558,30 +556,6 @@ def neighbour_scales(points: Tensor, k: int = 3, chunk: int = 1024) -> Tensor:
     good = out[torch.isfinite(out) & (out > 0)]
     fill = float(good.median()) if len(good) else 0.01
     return torch.where(torch.isfinite(out) & (out > 0), out, torch.full_like(out, fill))
-
-
-def random_in_ball(n: int, center, radius: float, gen: torch.Generator) -> Tensor:
-    """``n`` points uniformly in a ball (n, 3)."""
-    d = torch.randn(n, 3, generator=gen)
-    d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    r = radius * torch.rand(n, 1, generator=gen) ** (1 / 3)
-    return torch.as_tensor(np.asarray(center, np.float32)) + d * r
-
-
-def random_on_plane(n: int, plane, center, radius: float, gen: torch.Generator) -> Tensor:
-    """``n`` points uniformly on the disc of ``radius`` of the plane ``(n, d)`` nearest ``center``."""
-    nrm = np.asarray(plane[:3], np.float64)
-    c = np.asarray(center, np.float64)
-    foot = c - (c @ nrm + float(plane[3])) * nrm
-    a, b = axes_across(nrm)
-    r = radius * torch.rand(n, generator=gen).double().sqrt()
-    th = 2 * math.pi * torch.rand(n, generator=gen).double()
-    pts = (
-        torch.as_tensor(foot)
-        + (r * th.cos()).unsqueeze(1) * torch.as_tensor(a)
-        + (r * th.sin()).unsqueeze(1) * torch.as_tensor(b)
-    )
-    return pts.float()
 
 
 def flat_background(images: np.ndarray, bg: np.ndarray, tol: float = 0.05) -> bool:

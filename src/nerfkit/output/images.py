@@ -187,7 +187,7 @@ def frame_object(
     zoom_range: tuple[float, float] = (0.5, 4.0),
     aim: np.ndarray | None = None,
 ) -> Framing | None:
-    """Frame what ``model`` holds (an object alone, :meth:`NerfModel.isolate_object`) in
+    """Frame what ``model`` holds (an object alone, :func:`~nerfkit.surroundings.isolate_object`) in
     every view of a path: one zoom and one shift of the principal point for the whole path
     (so the object turns in place), chosen so the box around the object's pixels
     (opacity > 0.5) in up to ``n_probe`` views spans ``fill`` of the frame, centred. The

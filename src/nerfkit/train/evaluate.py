@@ -11,7 +11,7 @@ gains several times what it gains on the half it was not solved on, and a gain a
 per channel lies between (``eval``'s fitted score in BENCHMARKS.md). A third score lies
 between: the colour alone, at the given pose
 (how much of the difference is the photo's exposure, how much its pose). With a model of
-the object alone (a capture's, :func:`~nerfkit.tabletop.object_alone`), the object's own
+the object alone (a capture's, :func:`~nerfkit.surroundings.object_alone`), the object's own
 pixels are scored too: a capture's score is mostly its table's.
 """
 

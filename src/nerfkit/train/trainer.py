@@ -76,24 +76,6 @@ class TrainResult:
     rows: list[dict] = field(default_factory=list)
 
 
-def capture_settings(cfg: TrainConfig, model_config, scene: Scene, user_set=None):
-    """``(cfg, model_config)`` resolved for ``scene`` by :func:`nerfkit.presets.resolve` (for
-    callers that built the configs in Python: the options that differ from their defaults
-    count as given, unless ``user_set`` names them)."""
-    resolved = presets.resolve(cfg, model_config, scene, user_set)
-    return resolved.train, resolved.model
-
-
-def resolved_config(cfg: TrainConfig, model_config) -> TrainConfig:
-    """``cfg`` with the training settings of its model (:data:`nerfkit.presets.MODEL_TRAINING`)
-    and, with ``--capture on``, a capture's, for the options left at their defaults: for callers
-    that build a Trainer without a scene's preset (:func:`capture_settings` does both)."""
-    kind = presets.CAPTURE if cfg.capture == "on" else presets.OBJECT
-    values, _ = presets.preset_values(kind, cfg.model)
-    given = presets.differing_fields(cfg)
-    return replace(cfg, **{k: v for k, v in values.items() if k not in given and k != "capture"})
-
-
 def validation_series(rows: list[dict], n_val: int, full: int) -> dict[str, tuple[list, list]]:
     """Validation rows (``seconds``, ``psnr``, ``views``, ``pixels``) as curves of like
     scores, keyed by a legend label: periodic evaluations (the first ``--eval-views`` of

@@ -50,7 +50,7 @@ def scores(opened: Any, scene: Any, split: str, steps: int, sheet: list) -> dict
     ``steps`` (0: not), and for a capture the object's own pixels. ``sheet`` gets the contact
     sheet's rows."""
     from ...models.base import NerfModel
-    from ...tabletop import object_alone
+    from ...surroundings import object_alone
     from ...train.evaluate import evaluate_views
     from ...train.view_corrections import ViewFitConfig
 

@@ -56,7 +56,8 @@ def export_mesh(
     from ...errors import advice
     from ...export import ColourViews, mesh_from_model, mesh_region, mesh_threshold, write_mesh_ply
     from ...output.images import render_image
-    from ...tabletop import cleared_note, object_alone, table_cut_height
+    from ...surroundings import object_alone, table_cut_height, table_plane, table_tags
+    from ...tabletop import cleared_note
     from .._common import scene_for_run
 
     model, bounds = opened.model, opened.info.bounds
@@ -93,8 +94,8 @@ def export_mesh(
     )
     write_mesh_ply(path, mesh)
     cut = ""
-    if model.table_plane() is not None:
-        cut = f"; {cleared_note(height, model.table_tags())}"
+    if table_plane(model) is not None:
+        cut = f"; {cleared_note(height, table_tags(model))}"
     coloured = (
         f"coloured from {len(views)} training views"
         if views is not None

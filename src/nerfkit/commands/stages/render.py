@@ -43,9 +43,10 @@ def leave_object_alone(model: Any) -> str:
     """Clear ``model`` (in place: it is only rendered) of all but its object; what the videos
     then show, for the report: "the object alone (the table and floor left out; ...", left
     open for the zoom."""
-    from ...tabletop import cleared_note, object_alone
+    from ...surroundings import object_alone, table_tags
+    from ...tabletop import cleared_note
 
-    tags = model.table_tags()
+    tags = table_tags(model)
     isolated = object_alone(model, copy=False)
     if not isolated.left_out:
         return "the object (the model draws nothing around it to leave out"
