@@ -1442,3 +1442,28 @@ def test_convert_force_never_takes_a_users_folder_for_its_leftover(tmp_path):
     assert main(["convert", str(src), "--to", str(out), "--force"]) == 0
     assert (mine / "notes.txt").read_text() == "mine"
     assert sorted(os.listdir(out)) == names  # and no leftover of nerfkit's own beside it
+
+
+def test_a_stop_swallowed_by_an_import_during_start_up_still_stops_training(tmp_path, sphere_npz, monkeypatch, capsys):
+    # the SIGTERM handler raised KeyboardInterrupt inside an import that caught it (a bare
+    # except): the stop it remembered must still stop the run at its first step, saved
+    from nerfkit.cli import _interrupt
+    from nerfkit.train import trainer as trainer_mod
+
+    build = trainer_mod.Trainer.__init__
+
+    def start_up_then_swallowed_stop(self, *a, **k):
+        build(self, *a, **k)
+        try:
+            _interrupt(signal.SIGTERM, None)
+        except KeyboardInterrupt:
+            pass  # what the import did
+
+    monkeypatch.setattr(trainer_mod.Trainer, "__init__", start_up_then_swallowed_stop)
+    run = tmp_path / "run"
+    argv = ["train", "--data", str(sphere_npz), "--out", str(run), "--steps", "1000", *TRAIN_TINY[2:]]
+    assert main(argv) == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert json.loads((run / "metrics.json").read_text())["step"] == 0
+    monkeypatch.setattr(trainer_mod.Trainer, "__init__", build)  # a later command is not stopped by it
+    assert main([*argv[:4], str(tmp_path / "run2"), *TRAIN_TINY]) == 0

@@ -144,6 +144,9 @@ def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit code (0, 2 for an error, 130 when stopped by Ctrl-C or
     SIGTERM, at any moment: from the first line here, before the heavy imports)."""
     previous = _sigterm_as_ctrl_c()  # first: a signal during the imports below is one line too
+    from .io import stop
+
+    stop.take()  # a stop of an earlier command in this process is not this one's
     argv = sys.argv[1:] if argv is None else argv
     try:
         return _main(argv)
@@ -195,6 +198,9 @@ def _main(argv: list[str]) -> int:
 
 
 def _interrupt(signum, frame):
+    from .io import stop
+
+    stop.request()  # remembered, should an import swallow the exception
     raise KeyboardInterrupt
 
 

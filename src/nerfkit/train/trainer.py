@@ -28,6 +28,7 @@ from ..data.rays import RaysData
 from ..data.scene import Scene
 from ..errors import fail
 from ..images import write_image
+from ..io import stop
 from ..io.atomic import is_temporary, write_json, write_text
 from ..io.lock import LOCK_FILE
 from ..io.paths import guard_run_folder
@@ -426,6 +427,7 @@ class Trainer:
         for s in STOP_SIGNALS:
             if previous[s] is not signal.SIG_IGN:  # ignored by who started us (nohup, a script): it stays so
                 signal.signal(s, on_stop_signal)
+        interrupted = stop.take()  # a stop that came while starting up, its exception swallowed by an import
         start = time.perf_counter()
         self.model.load_kernels()
         loading = time.perf_counter() - start
