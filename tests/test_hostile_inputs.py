@@ -1454,10 +1454,8 @@ def test_a_stop_swallowed_by_an_import_during_start_up_still_stops_training(tmp_
 
     def start_up_then_swallowed_stop(self, *a, **k):
         build(self, *a, **k)
-        try:
+        with contextlib.suppress(KeyboardInterrupt):  # what the import did
             _interrupt(signal.SIGTERM, None)
-        except KeyboardInterrupt:
-            pass  # what the import did
 
     monkeypatch.setattr(trainer_mod.Trainer, "__init__", start_up_then_swallowed_stop)
     run = tmp_path / "run"
