@@ -29,6 +29,16 @@ def add_run_device_args(p: argparse.ArgumentParser) -> None:
     add_outside_flag(p)
 
 
+def run_device_options(args: argparse.Namespace) -> dict:
+    """The API keywords of a run command's --data, --device, --chunk and --allow-outside-paths."""
+    return {
+        "data": args.data,
+        "device": args.device,
+        "chunk": args.chunk,
+        "allow_outside_paths": args.allow_outside_paths,
+    }
+
+
 def add_outside_flag(p: argparse.ArgumentParser) -> None:
     """``--allow-outside-paths``: the opt-in to read dataset files outside the dataset folder."""
     from ..io.paths import OUTSIDE_FLAG

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import get_args
 
-from ._common import add_run_args
+from ._common import add_run_args, run_device_options
 from .pipeline import Split
 from .stages.evaluate import LISTED_VIEWS, summary, write_contact_sheet
 
@@ -56,10 +56,7 @@ def run(args: argparse.Namespace) -> int:
         args.run,
         split=args.split,
         fit_views=args.fit_views,
-        data=args.data,
-        device=args.device,
-        chunk=args.chunk,
-        allow_outside_paths=args.allow_outside_paths,
+        **run_device_options(args),
         quiet=args.json,
     )
     if args.json:

@@ -113,6 +113,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """``nerfkit export``: :func:`nerfkit.api.export` with the parsed flags."""
+    from ._common import run_device_options
     from .pipeline import export
 
     export(
@@ -130,10 +131,7 @@ def run(args: argparse.Namespace) -> int:
         stride=args.stride,
         acc_min=args.acc_min,
         crop=not args.no_crop,
-        data=args.data,
-        device=args.device,
-        chunk=args.chunk,
-        allow_outside_paths=args.allow_outside_paths,
+        **run_device_options(args),
         force=args.force,
     )
     return 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import get_args
 
-from ._common import add_run_args
+from ._common import add_run_args, run_device_options
 from .pipeline import VideoPath
 
 HELP = "render a trained run to MP4/GIF and a depth video"
@@ -71,10 +71,7 @@ def run(args: argparse.Namespace) -> int:
         fps=args.fps,
         object=args.object,
         background=args.background,
-        data=args.data,
-        device=args.device,
-        chunk=args.chunk,
-        allow_outside_paths=args.allow_outside_paths,
+        **run_device_options(args),
         force=args.force,
     )
     return 0
