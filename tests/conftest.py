@@ -105,3 +105,11 @@ def write_mp4(path, frames, fps: int = 10, macro_block_size: int = 8) -> None:
     for f in frames:
         writer.send(np.ascontiguousarray(f))
     writer.close()
+
+
+def sigint_as_a_terminal_gives_it() -> None:
+    """A child's ``preexec_fn``: SIGINT handled by default, as a terminal's Ctrl-C finds it,
+    even when the test run itself was started with SIGINT ignored (a background job)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

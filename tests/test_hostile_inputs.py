@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import sigint_as_a_terminal_gives_it
 from nerfkit.cli import build_parser, main
 from nerfkit.errors import NerfkitError
 from test_safety import one_line
@@ -1243,7 +1244,7 @@ def _run_cli(args, delay=None, sig=None, ignore_sigint=False, timeout=300):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=ignore if ignore_sigint else None,
+        preexec_fn=ignore if ignore_sigint else sigint_as_a_terminal_gives_it,
     )  # noqa: PLW1509
     try:
         if sig is not None:

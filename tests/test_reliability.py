@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import sigint_as_a_terminal_gives_it
 from nerfkit.cli import main
 from nerfkit.errors import NerfkitError
 from nerfkit.images import to_uint8, write_image
@@ -118,6 +119,7 @@ def test_ctrl_c_saves_a_checkpoint_and_exits_cleanly(tmp_path, sphere_npz):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=sigint_as_a_terminal_gives_it,
     )
     wait_for(lambda: (run / "progress").exists() and len(list((run / "progress").glob("*.png"))) >= 2, 120, proc)
     proc.send_signal(signal.SIGINT)
