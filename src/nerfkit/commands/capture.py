@@ -21,7 +21,7 @@ Run the whole capture flow into one folder, as the README's steps do one by one:
   OUT/dataset/      nerfkit poses OBJECT_DIR        (posed, undistorted, split; see "poses" below)
   OUT/run/          nerfkit train --minutes 3       (--model fast, the default: capture settings: table,
                                                      room, pose and colour refinement; one resume
-                                                     checkpoint kept, not two: 0.4 GB less)
+                                                     checkpoint kept beside model.pt)
                     nerfkit eval --split val        (run/eval_val.json and the contact sheet run/eval_val.png)
                     nerfkit render                  (run/videos: orbit.mp4, orbit.gif, depth.mp4)
                     nerfkit render --object         (run/videos: object.mp4, object.gif, object_depth.mp4,
