@@ -1,6 +1,7 @@
 """The table plane and the room behind a real capture's object."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -197,6 +198,18 @@ def test_table_doubt_is_zero_where_the_table_is_there_or_not_and_one_at_half():
     torch.testing.assert_close(table_doubt(c), torch.tensor([0.0, 0.75, 1.0, 0.75, 0.0]))
 
 
+def tiny_table_model(**options):
+    """(bounds, FastConfig) of a fast model of a tiny table-top scene: an 8^3 grid, a 32-texel
+    table and a learned background, with ``options`` changed."""
+    from nerfkit.data.synthetic import tabletop_scene
+    from nerfkit.models import SceneBounds
+    from nerfkit.models.fast import FastConfig
+
+    bounds = SceneBounds.from_scene(tabletop_scene(n_train=2, n_val=0, size=16))
+    config = FastConfig(resolutions="8", upsample_steps="", table=True, table_resolution=32, learn_background=True)
+    return bounds, replace(config, **options)
+
+
 def test_the_table_cover_prior_costs_in_the_loss_from_its_start():
     """``--table-cover-weight`` adds its weight times the mean, over the rays, of the doubt
     about the table (:func:`table_doubt` of the light it lets through) where the light
@@ -205,24 +218,10 @@ def test_the_table_cover_prior_costs_in_the_loss_from_its_start():
     from dataclasses import replace
 
     from nerfkit.cameras import Rays
-    from nerfkit.data.synthetic import tabletop_scene
-    from nerfkit.models import SceneBounds
     from nerfkit.models.base import StepState
-    from nerfkit.models.fast import EMPTY_RAW, FastConfig, FastNeRF
+    from nerfkit.models.fast import EMPTY_RAW, FastNeRF
 
-    scene = tabletop_scene(n_train=2, n_val=0, size=16)
-    bounds = SceneBounds.from_scene(scene)
-    config = FastConfig(
-        resolutions="8",
-        upsample_steps="",
-        table=True,
-        table_resolution=32,
-        learn_background=True,
-        room_shells=0,
-        opacity_weight=0.0,
-        distortion_weight=0.0,
-        table_cover_start=0.5,
-    )
+    bounds, config = tiny_table_model(room_shells=0, opacity_weight=0.0, distortion_weight=0.0, table_cover_start=0.5)
     weight = 0.5
     plain, model = (FastNeRF(replace(config, table_cover_weight=w), bounds) for w in (0.0, weight))
     off = plain.render_rays(Rays(torch.zeros(1, 3), torch.ones(1, 3)), torch.zeros(3), perturb=False)
@@ -575,21 +574,9 @@ def test_a_model_file_from_before_the_field_and_surroundings_modules_loads():
     """A fast model's state under the keys of files written when the grid, the surface memory
     and the surroundings (learned background, table, room) sat on the model itself loads
     under today's names, every tensor in its place."""
-    from nerfkit.data.synthetic import tabletop_scene
-    from nerfkit.models import SceneBounds
-    from nerfkit.models.fast import FastConfig, FastNeRF
+    from nerfkit.models.fast import FastNeRF
 
-    scene = tabletop_scene(n_train=2, n_val=0, size=16)
-    bounds = SceneBounds.from_scene(scene)
-    config = FastConfig(
-        resolutions="8",
-        upsample_steps="",
-        table=True,
-        table_resolution=32,
-        learn_background=True,
-        room_shells=1,
-        room_resolution=16,
-    )
+    bounds, config = tiny_table_model(room_shells=1, room_resolution=16)
     model = FastNeRF(config, bounds)
     gen = torch.Generator().manual_seed(0)
     with torch.no_grad():
