@@ -510,46 +510,15 @@ def test_poses_use_the_camera_files_layout_when_photos_show_several_tags(tmp_pat
     cam["heldout_rms"] = 0.1
     (tmp_path / "camera.json").write_text(json.dumps(cam))
     out = tmp_path / "ds"
-    assert (
-        main(
-            [
-                "poses",
-                str(folder),
-                "--camera",
-                str(tmp_path / "camera.json"),
-                "--tag-size",
-                "0.05",
-                "--out",
-                str(out),
-                "--no-dataset",
-            ]
-        )
-        == 0
-    )
+    argv = ["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", "0.05", "--out", str(out)]
+    assert main([*argv, "--no-dataset"]) == 0
     poses = json.loads((out / "poses.json").read_text())
     assert any("camera file's layout" in n for n in poses["notes"])
     for p in poses["photos"]:
         assert p["used"] and len(p["tags_used"]) > 1, p
         pos, ang = pose_error(np.array(p["c2w"]), sheet.c2w[sheet.names.index(p["file"])])
         assert pos < 0.002 and ang < 0.3
-    assert (
-        main(
-            [
-                "poses",
-                str(folder),
-                "--camera",
-                str(tmp_path / "camera.json"),
-                "--tag-size",
-                "0.05",
-                "--out",
-                str(out),
-                "--no-dataset",
-                "--single-tag",
-                "--force",
-            ]
-        )
-        == 0
-    )
+    assert main([*argv, "--no-dataset", "--single-tag", "--force"]) == 0
     assert all(len(p["tags_used"]) == 1 for p in json.loads((out / "poses.json").read_text())["photos"] if p["used"])
 
 
