@@ -15,6 +15,15 @@ if os.environ.get("PYTEST_XDIST_WORKER"):  # `make test` runs one worker per cor
     torch.set_num_threads(1)
 
 
+def tiny_vanilla(samples: int = 8, width: int = 16, **more) -> list[str]:
+    """`nerfkit train` flags of a tiny course NeRF (2 layers, one eval view) for tests that only
+    need a run; ``more`` adds flags (``batch_rays=64`` -> ``--batch-rays 64``)."""
+    flags = ["--model", "vanilla", "--n-samples", str(samples), "--width", str(width), "--depth", "2"]
+    for name, value in more.items():
+        flags += ["--" + name.replace("_", "-"), str(value)]
+    return [*flags, "--eval-views", "1"]
+
+
 @pytest.fixture(scope="session")
 def sphere():
     """20 training and 2 validation 32x32 views of a textured sphere."""

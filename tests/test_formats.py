@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from conftest import tiny_vanilla
 from nerfkit.cameras import intrinsics_matrix, look_at, opencv_to_opengl
 from nerfkit.cli import main
 from nerfkit.data.blender import focal_from_angle, load_blender
@@ -322,16 +323,7 @@ def test_a_run_sees_rgba_images_on_its_own_background(tmp_path, capsys):
                 "64",
                 "--background",
                 "white",
-                "--model",
-                "vanilla",
-                "--n-samples",
-                "4",
-                "--width",
-                "8",
-                "--depth",
-                "2",
-                "--eval-views",
-                "1",
+                *tiny_vanilla(samples=4, width=8),
             ]
         )
         == 0

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import sigint_as_a_terminal_gives_it
+from conftest import sigint_as_a_terminal_gives_it, tiny_vanilla
 from nerfkit.cli import build_parser, main
 from nerfkit.errors import NerfkitError
 from test_safety import one_line
@@ -1151,22 +1151,7 @@ def _dataset_folder(root: Path) -> Path:
     return ds
 
 
-TRAIN_TINY = [
-    "--steps",
-    "2",
-    "--model",
-    "vanilla",
-    "--n-samples",
-    "4",
-    "--width",
-    "8",
-    "--depth",
-    "2",
-    "--batch-rays",
-    "16",
-    "--eval-views",
-    "1",
-]
+TRAIN_TINY = ["--steps", "2", *tiny_vanilla(samples=4, width=8, batch_rays=16)]
 
 
 @pytest.mark.parametrize(

@@ -8,6 +8,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from conftest import tiny_vanilla
 from nerfkit.cameras import look_at, opengl_to_opencv
 from nerfkit.data.llff import holdout_indices, llff_to_opencv, load_llff, opencv_to_llff
 from nerfkit.data.load import detect_format, load_scene
@@ -196,18 +197,7 @@ def test_a_run_trains_on_the_downscaled_folder_and_keeps_reading_it(scene_dir, t
                 str(run),
                 "--steps",
                 "2",
-                "--model",
-                "vanilla",
-                "--batch-rays",
-                "16",
-                "--n-samples",
-                "4",
-                "--width",
-                "8",
-                "--depth",
-                "2",
-                "--eval-views",
-                "1",
+                *tiny_vanilla(samples=4, width=8, batch_rays=16),
             ]
         )
         == 0

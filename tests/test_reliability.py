@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import sigint_as_a_terminal_gives_it
+from conftest import sigint_as_a_terminal_gives_it, tiny_vanilla
 from nerfkit.cli import main
 from nerfkit.errors import NerfkitError
 from nerfkit.images import to_uint8, write_image
@@ -25,26 +25,7 @@ from nerfkit.train.checkpoint import load_run
 from nerfkit.train.config import TrainConfig
 from nerfkit.train.trainer import train
 
-TINY = [
-    "--model",
-    "vanilla",
-    "--n-samples",
-    "8",
-    "--width",
-    "16",
-    "--depth",
-    "2",
-    "--batch-rays",
-    "128",
-    "--lr",
-    "3e-3",
-    "--seed",
-    "3",
-    "--eval-every",
-    "50",
-    "--eval-views",
-    "1",
-]
+TINY = tiny_vanilla(batch_rays=128, lr="3e-3", seed=3, eval_every=50)
 
 
 def cli(*args: str) -> list[str]:

@@ -23,27 +23,11 @@ import pytest
 import torch
 from PIL import Image
 
+from conftest import tiny_vanilla
 from nerfkit.cli import main
 from nerfkit.errors import NerfkitError
 
-TINY = [
-    "--model",
-    "vanilla",
-    "--n-samples",
-    "8",
-    "--width",
-    "16",
-    "--depth",
-    "2",
-    "--batch-rays",
-    "64",
-    "--lr",
-    "3e-3",
-    "--seed",
-    "3",
-    "--eval-views",
-    "1",
-]
+TINY = tiny_vanilla(batch_rays=64, lr="3e-3", seed=3)
 
 
 def one_line(capsys, *fragments) -> str:

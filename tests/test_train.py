@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import tiny_vanilla
 from nerfkit import presets
 from nerfkit.cli import main
 from nerfkit.models.base import SceneBounds
@@ -292,24 +293,11 @@ def test_progress_bar_in_a_log_file_redraws_rarely(tmp_path, sphere_npz):
                 "train",
                 "--data",
                 str(sphere_npz),
-                "--model",
-                "vanilla",
                 "--out",
                 str(tmp_path / "run"),
                 "--minutes",
                 "0.05",
-                "--batch-rays",
-                "64",
-                "--n-samples",
-                "8",
-                "--width",
-                "16",
-                "--depth",
-                "2",
-                "--eval-views",
-                "1",
-                "--eval-every",
-                "1000000",
+                *tiny_vanilla(batch_rays=64, eval_every=1000000),
             ],
             stderr=f,
             stdout=f,

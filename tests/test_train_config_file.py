@@ -6,22 +6,10 @@ import json
 
 import pytest
 
+from conftest import tiny_vanilla
 from nerfkit.cli import main
 
-TINY = [
-    "--model",
-    "vanilla",
-    "--n-samples",
-    "4",
-    "--width",
-    "8",
-    "--depth",
-    "2",
-    "--eval-views",
-    "1",
-    "--checkpoint-seconds",
-    "1e9",
-]
+TINY = [*tiny_vanilla(samples=4, width=8), "--checkpoint-seconds", "1e9"]
 
 
 def settings(run) -> dict:
