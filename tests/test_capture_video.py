@@ -69,6 +69,7 @@ def test_a_clip_without_tags_is_framed_posed_on_its_table_and_exported_as_a_spla
     from nerfkit.capture.splats import in_box, object_box
     from nerfkit.sfm.dataset import load_sfm_result
     from nerfkit.sfm.frame import compare_poses, reconstruction_c2w
+    from nerfkit.splat_dome import DOME_GAUSSIANS, on_dome
     from nerfkit.splat_files import read_splat_ply
     from nerfkit.train.checkpoint import read_run
 
@@ -103,7 +104,9 @@ def test_a_clip_without_tags_is_framed_posed_on_its_table_and_exported_as_a_spla
     steps = json.loads((out / "splat_run" / "metrics.json").read_text())["step"]
     assert steps == 30 and len(g) > 100 and g.sh_rest.shape[1:] == (15, 3)
     assert (out / "splat.splat").stat().st_size == 32 * len(g)
-    lo, hi, _ = object_box(read_run(out / "splat_run").bounds)
+    bounds = read_run(out / "splat_run").bounds
+    lo, hi, _ = object_box(bounds)
+    assert int(on_dome(g.means, bounds).sum()) == DOME_GAUSSIANS  # the learned background, behind the rest
     alone = read_splat_ply(out / "splat_object.ply")
     inside = in_box(g.means, lo, hi)
     assert 0 < len(alone) == int(inside.sum()) < len(g)
@@ -119,6 +122,7 @@ def test_a_clip_without_tags_is_framed_posed_on_its_table_and_exported_as_a_spla
     )
     assert "an object on a table" in summary and "SuperSplat" in summary and str(out / "splat_object.ply") in summary
     assert f"{scores['psnr']:.2f} dB" in summary and "  NeRF  " not in summary  # no NeRF trained
+    assert f"a far dome of {DOME_GAUSSIANS} Gaussians" in summary
 
     # again: every step kept
     assert main(argv) == 0

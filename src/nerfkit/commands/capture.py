@@ -608,6 +608,8 @@ def _splat_outputs(out: Path, run_dir: Path, args: argparse.Namespace, step) -> 
     OUT/splat.ply, OUT/splat.splat and the object alone, OUT/splat_object.ply; what was
     made, for the summary."""
     from ..capture.splats import object_box, write_object_splat
+    from ..splat_dome import on_dome
+    from ..splat_files import read_splat_ply
     from ..train.checkpoint import read_run
     from . import pipeline as api
 
@@ -623,15 +625,25 @@ def _splat_outputs(out: Path, run_dir: Path, args: argparse.Namespace, step) -> 
                 lambda path=path: api.export(run_dir, splat=path, force=True, device=args.device),
             )
     alone = out / OBJECT_SPLAT_FILE
-    lo, hi, how = object_box(read_run(run_dir).bounds)
+    bounds = read_run(run_dir).bounds
+    lo, hi, how = object_box(bounds)
+    dome = int(on_dome(read_splat_ply(files[0]).means, bounds).sum())
     if _newer_than_model(alone, run_dir):
         _kept("the object's splat", alone)
         kept = None
     else:
         print(f"\n== the object alone: the Gaussians in {how} -> {alone}", flush=True)
         kept = write_object_splat(files[0], alone, (lo, hi))
+        kept = (kept[0], kept[1] - dome)  # (the background's dome is never in the object's box)
         print(f"{kept[0]} of {kept[1]} Gaussians -> {alone}", flush=True)
-    return {"run_dir": run_dir, "evaluated": evaluated, "files": [*files, alone], "object": how, "kept": kept}
+    return {
+        "run_dir": run_dir,
+        "evaluated": evaluated,
+        "files": [*files, alone],
+        "object": how,
+        "kept": kept,
+        "dome": dome,
+    }
 
 
 def run(args: argparse.Namespace) -> int:
@@ -985,7 +997,9 @@ def _splat_lines(splat: dict) -> list[str]:
     else:
         lines.append("  held out  not scored (the eval's error is above)")
     ply, dot, alone = splat["files"]
-    lines.append(f"  files     {ply}: the 3DGS PLY, opened by {PLY_VIEWERS}")
+    dome = splat.get("dome") or 0
+    behind = f" (the learned background behind it as a far dome of {dome} Gaussians)" if dome else ""
+    lines.append(f"  files     {ply}: the 3DGS PLY{behind}, opened by {PLY_VIEWERS}")
     lines.append(f"            {dot}: the same for {DOT_SPLAT_VIEWERS}")
     kept = splat.get("kept")
     lines.append(

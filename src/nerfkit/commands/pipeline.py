@@ -750,6 +750,7 @@ def export(
     stride: int = 1,
     acc_min: float = 0.5,
     crop: bool = True,
+    background_dome: bool = True,
     data: str | Path | None = None,
     device: str = "auto",
     chunk: int = 0,
@@ -776,6 +777,8 @@ def export(
         stride: points: use every N-th pixel in each direction.
         acc_min: points: keep pixels with opacity above this.
         crop: points: drop points outside the scene box.
+        background_dome: splat: a model's learned background follows its Gaussians as a far
+            dome of Gaussians (:mod:`nerfkit.splat_dome`), so that other viewers show it too.
         data: dataset whose training views colour the mesh and give the points (None: the run's).
         device: "auto", "cpu", "cuda" or "cuda:N".
         chunk: rays rendered at once (0: the run's render chunk).
@@ -816,7 +819,7 @@ def export(
         "--mesh/--points/--splat",
     )
     if splat_file:
-        say(stage.export_splat(opened, splat_file))
+        say(stage.export_splat(opened, splat_file, background_dome))
     if mesh_file:
         from ..export import COLOUR_VIEWS
         from ..tabletop import TABLE_CUT
