@@ -45,9 +45,11 @@ tags, as the course does); a video's frames, which carry no focal length, are po
 structure-from-motion with the tag fixing scale and up. Calibration (--calib or --camera)
 is optional in every route.
 
-Each step prints its own report and progress as it goes, and the capture ends with a
-summary: the frames used, the photos posed, each model's held-out scores and the files
-made. OUT/capture.json records what the capture was made from.
+Each stage is headed [k/N] (N: the stages this route runs; structure-from-motion's features,
+matching and mapping are parts of the poses stage) and prints its own report and progress
+as it goes, and the capture ends with a summary: the frames used, the photos posed, each
+model's held-out scores and the files made. OUT/capture.json records what the capture was
+made from.
 
 Run it again with the same inputs and the steps whose results are there are kept: a
 training run cut short (Ctrl-C, a crash) goes on from its last checkpoint; a larger
@@ -220,6 +222,42 @@ def _trained(result) -> None:
 
 def _kept(what: str, path: Path) -> None:
     print(f"\n== {what}: {path} is there from an earlier run, kept (--force redoes it)", flush=True)
+
+
+MODEL_LABELS = {"fast": "NeRF", "splat": "splat"}
+
+
+def stage_plan(video: bool, calib: bool, models: list[str], mesh: bool) -> list[str]:
+    """The stages a capture runs, in order, for its route: the frames of a ``video``, the
+    calibration (``calib``), the poses, then per model (``fast``, ``splat``) its training,
+    evaluation, videos and files (the NeRF's only with its ``mesh``)."""
+    plan = (["frames"] if video else []) + (["calibration"] if calib else []) + ["poses"]
+    for model in models:
+        label = MODEL_LABELS[model]
+        plan += [f"training the {label}", f"evaluation of the {label}", f"rendering the {label}'s videos"]
+        if model == "splat":
+            plan.append("export of the splat files")
+        elif mesh:
+            plan.append("export of the NeRF's mesh")
+    return plan
+
+
+class Headings:
+    """Prints ``[k/N] stage`` as each stage of ``plan`` starts (N: the stages planned), and
+    ``[k/N] stage: part`` as a part of the current one starts."""
+
+    def __init__(self, plan: list[str]):
+        self.plan = plan
+        self.k = 0
+
+    def start(self, name: str) -> None:
+        """The next stage, ``name`` (as :func:`stage_plan` names it), starts."""
+        self.k += 1
+        print(f"\n[{self.k}/{len(self.plan)}] {name}", flush=True)
+
+    def part(self, what: str) -> None:
+        """A part ``what`` of the current stage starts (structure-from-motion's features, ...)."""
+        print(f"\n[{self.k}/{len(self.plan)}] {self.plan[self.k - 1]}: {what}", flush=True)
 
 
 def _digest(data: bytes) -> str:
@@ -492,12 +530,23 @@ def _check_posed(dataset: Path, what: str) -> None:
     )
 
 
-def _train_run(run_dir: Path, dataset: Path, args: argparse.Namespace, step, model: str) -> None:
+def _posed(headings: Headings, photos: str, dataset: Path, **options) -> None:
+    """:func:`nerfkit.api.pose` of ``photos`` into ``dataset``, structure-from-motion's steps
+    (features, matching, mapping) headed as parts of the poses stage."""
+    from ..sfm.colmap import telling_steps
+    from . import pipeline as api
+
+    with telling_steps(headings.part):
+        api.pose(photos, dataset, **options)
+
+
+def _train_run(run_dir: Path, dataset: Path, args: argparse.Namespace, step, model: str, headings: Headings) -> None:
     """Train ``model`` into ``run_dir`` on the dataset, or keep the run there, going on
     from its checkpoint when it was cut short or a larger budget is asked for."""
     from ..train.checkpoint import MODEL_FILE, checkpoint_paths
     from . import pipeline as api
 
+    headings.start(f"training the {MODEL_LABELS[model]}")
     budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
     budget_option = {"steps": args.steps} if args.steps else {"minutes": args.minutes}
     label = "NeRF" if model == "fast" else "splat"
@@ -569,16 +618,18 @@ def _rendered(run_dir: Path, args: argparse.Namespace, step, what: str, needed: 
     )
 
 
-def _fast_outputs(run_dir: Path, args: argparse.Namespace, step) -> tuple[bool, Path | None]:
+def _fast_outputs(run_dir: Path, args: argparse.Namespace, step, headings: Headings) -> tuple[bool, Path | None]:
     """The NeRF's eval, videos (the scene's and the object's alone) and mesh, each kept when
     newer than the model; (whether it is scored, the mesh or None)."""
     from ..output.videos import OBJECT_VIDEO_FILES
     from . import pipeline as api
 
     # what shows the model as it is now is kept; the rest is made again (it belongs to the run)
+    headings.start("evaluation of the NeRF")
     evaluated = _evaluated(run_dir, args, step)
     videos = run_dir / "videos"
     frames = ["--frames", str(args.frames)] if args.frames else []
+    headings.start("rendering the NeRF's videos")
     _rendered(run_dir, args, step, "videos", needed=True)
     # a NeRF with nothing solid to frame still has its scene videos: the capture goes on
     if all(_newer_than_model(videos / name, run_dir) for name in OBJECT_VIDEO_FILES) and not args.frames:
@@ -591,6 +642,7 @@ def _fast_outputs(run_dir: Path, args: argparse.Namespace, step) -> tuple[bool, 
         )
     mesh = None
     if not args.no_mesh:  # a NeRF too faint to mesh is still a NeRF: the capture goes on
+        headings.start("export of the NeRF's mesh")
         mesh = run_dir / MESH_FILE
         if _newer_than_model(mesh, run_dir):
             _kept("mesh", mesh)
@@ -603,7 +655,7 @@ def _fast_outputs(run_dir: Path, args: argparse.Namespace, step) -> tuple[bool, 
     return evaluated, mesh
 
 
-def _splat_outputs(out: Path, run_dir: Path, args: argparse.Namespace, step) -> dict:
+def _splat_outputs(out: Path, run_dir: Path, args: argparse.Namespace, step, headings: Headings) -> dict:
     """The splat's eval and orbit video (in its run folder), and its Gaussians as
     OUT/splat.ply, OUT/splat.splat and the object alone, OUT/splat_object.ply; what was
     made, for the summary."""
@@ -613,8 +665,11 @@ def _splat_outputs(out: Path, run_dir: Path, args: argparse.Namespace, step) -> 
     from ..train.checkpoint import read_run
     from . import pipeline as api
 
+    headings.start("evaluation of the splat")
     evaluated = _evaluated(run_dir, args, step)
+    headings.start("rendering the splat's videos")
     _rendered(run_dir, args, step, "videos of the splat", needed=False)
+    headings.start("export of the splat files")
     files = [out / name for name in SPLAT_FILES]
     for path in files:
         if _newer_than_model(path, run_dir):
@@ -700,12 +755,14 @@ def run(args: argparse.Namespace) -> int:
     write_json(out / RECORD_FILE, {"inputs": inputs})
     dictionary = ["--dict", args.dict] if args.dict else []
     dict_option = {"dictionary": args.dict} if args.dict else {}
+    headings = Headings(stage_plan(video, bool(args.calib), models, not args.no_mesh))
 
     photos = args.photos
     if video:  # the frames are the photos of every later step
         from ..capture.video import select_frames
         from .frames import report_lines
 
+        headings.start("frames")
         photos = str(out / FRAMES_DIR)
         if _frames_there(out / FRAMES_DIR, args.photos, args.clip_frames) and not args.force:
             _kept("frames", out / FRAMES_DIR)
@@ -717,6 +774,7 @@ def run(args: argparse.Namespace) -> int:
 
     camera = Path(args.camera) if args.camera else None
     if args.calib:
+        headings.start("calibration")
         camera = out / CAMERA_FILE
         if camera.exists() and not args.force:
             _kept("calibration", camera)
@@ -728,6 +786,7 @@ def run(args: argparse.Namespace) -> int:
             )
 
     dataset = out / DATASET_DIR
+    headings.start("poses")
     if (dataset / "dataset.npz").exists() and not args.force:
         _kept("dataset", dataset)
     else:  # --force: the folder is the capture's, and poses cut short leaves poses.json
@@ -745,7 +804,8 @@ def run(args: argparse.Namespace) -> int:
                 *(["--camera", str(camera)] if camera else []),
                 *(["--max-side", str(args.max_side)] if args.max_side is not None else []),
             ],
-            lambda: api.pose(
+            lambda: _posed(
+                headings,
                 photos,
                 dataset,
                 tag_size=args.tag_size,
@@ -765,16 +825,16 @@ def run(args: argparse.Namespace) -> int:
         run_dir = out / RUN_DIR
         if args.force:
             _replace_run(run_dir)
-        _train_run(run_dir, dataset, args, step, "fast")
-        evaluated, mesh = _fast_outputs(run_dir, args, step)
+        _train_run(run_dir, dataset, args, step, "fast", headings)
+        evaluated, mesh = _fast_outputs(run_dir, args, step, headings)
     splat = None
     if "splat" in models:
         splat_run = out / SPLAT_RUN_DIR
         if args.force:
             _replace_run(splat_run)
         splat_step = partial(step, prefix="splat ")
-        _train_run(splat_run, dataset, args, splat_step, "splat")
-        splat = _splat_outputs(out, splat_run, args, splat_step)
+        _train_run(splat_run, dataset, args, splat_step, "splat", headings)
+        splat = _splat_outputs(out, splat_run, args, splat_step, headings)
     print()
     print(
         summary(
