@@ -73,10 +73,10 @@ BLURRED = {3, 10, 17, 24, 31, 38, 45}
 
 @pytest.mark.slow
 def test_a_clip_without_tags_is_framed_posed_on_its_table_and_exported_as_a_splat(tmp_path, capsys):
+    from nerfkit.capture.dome import DOME_GAUSSIANS, on_dome
     from nerfkit.capture.splats import in_box, object_box
     from nerfkit.sfm.dataset import load_sfm_result
     from nerfkit.sfm.frame import compare_poses, reconstruction_c2w
-    from nerfkit.splat_dome import DOME_GAUSSIANS, on_dome
     from nerfkit.splat_files import read_splat_ply
     from nerfkit.train.checkpoint import read_run
 

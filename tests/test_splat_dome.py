@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 import torch
 
+from nerfkit.capture.dome import DOME_GAUSSIANS, DOME_SCALE, background_dome, dome_radius, fibonacci_sphere
 from nerfkit.capture.splats import object_box, write_object_splat
 from nerfkit.commands.stages.export import export_splat
 from nerfkit.kernels.splat_reference import quat_to_rotmat
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.splat import SplatConfig, SplatModel
-from nerfkit.splat_dome import DOME_GAUSSIANS, DOME_SCALE, background_dome, dome_radius, fibonacci_sphere
 from nerfkit.splat_files import Gaussians
 from nerfkit.train.metrics import psnr
 

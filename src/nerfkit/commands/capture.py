@@ -659,8 +659,8 @@ def _splat_outputs(out: Path, run_dir: Path, args: argparse.Namespace, step, hea
     """The splat's eval and orbit video (in its run folder), and its Gaussians as
     OUT/splat.ply, OUT/splat.splat and the object alone, OUT/splat_object.ply; what was
     made, for the summary."""
+    from ..capture.dome import on_dome
     from ..capture.splats import object_box, write_object_splat
-    from ..splat_dome import on_dome
     from ..splat_files import read_splat_ply
     from ..train.checkpoint import read_run
     from . import pipeline as api

@@ -778,7 +778,7 @@ def export(
         acc_min: points: keep pixels with opacity above this.
         crop: points: drop points outside the scene box.
         background_dome: splat: a model's learned background follows its Gaussians as a far
-            dome of Gaussians (:mod:`nerfkit.splat_dome`), so that other viewers show it too.
+            dome of Gaussians (:mod:`nerfkit.capture.dome`), so that other viewers show it too.
         data: dataset whose training views colour the mesh and give the points (None: the run's).
         device: "auto", "cpu", "cuda" or "cuda:N".
         chunk: rays rendered at once (0: the run's render chunk).

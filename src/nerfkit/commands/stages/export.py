@@ -30,8 +30,8 @@ def check_outputs(mesh: str | None, points: str | None, splat: str | None) -> No
 def export_splat(opened: Any, path: str, background_dome: bool = True) -> str:
     """Write the Gaussians of the splat run ``opened`` to ``path`` (3DGS PLY, or .splat); with
     ``background_dome``, a model's learned background follows them as a far dome of Gaussians
-    (:mod:`nerfkit.splat_dome`), so that other viewers show it too."""
-    from ...splat_dome import join, model_dome
+    (:mod:`nerfkit.capture.dome`), so that other viewers show it too."""
+    from ...capture.dome import join, model_dome
     from ...splat_files import Gaussians, write_dot_splat, write_splat_ply
 
     g = Gaussians.from_model(opened.model)

@@ -53,7 +53,7 @@ def background_colour(bg_coef: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     directions (n, 3) -> (n, 3) colours in (0, 1), as the splat model renders it."""
     import torch
 
-    from .fields.background import sh16
+    from ..fields.background import sh16
 
     d = torch.as_tensor(np.asarray(dirs, np.float32))
     return torch.sigmoid(sh16(d) @ torch.as_tensor(np.asarray(bg_coef, np.float32)).t()).numpy().astype(np.float64)
@@ -77,7 +77,7 @@ def background_dome(
     (n, 3), log-scales (n, 3) (tangent, tangent, radial), quaternions (n, 4) turning +z to the
     radius, opacity logits (n,), sh_dc (n, 1, 3) the background's colour in each one's
     direction from ``center``, and sh_rest (n, n_rest, 3) zeros."""
-    from .splat_files import SH_C0, Gaussians
+    from ..splat_files import SH_C0, Gaussians
 
     dirs = fibonacci_sphere(n)
     spacing = math.sqrt(4 * math.pi / n)  # radians between neighbouring centres
@@ -114,7 +114,7 @@ def on_dome(means: np.ndarray, bounds) -> np.ndarray:
 
 def join(a, b):
     """The Gaussians of ``a`` followed by those of ``b`` (same SH degree)."""
-    from .splat_files import Gaussians
+    from ..splat_files import Gaussians
 
     names = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
     return Gaussians(*(np.concatenate([getattr(a, k), getattr(b, k)]) for k in names))
