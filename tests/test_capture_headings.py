@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from nerfkit.commands.capture import Headings, stage_plan
+from nerfkit.commands.stages.capture import Headings, stage_plan
 from nerfkit.sfm import colmap
 
 
