@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 
 import numpy as np
 import pytest
@@ -60,12 +61,19 @@ def write_mp4(path, frames, fps: int = 10) -> None:
     write_mp4_file(path, frames, fps=fps, macro_block_size=4)
 
 
+def headings(text: str) -> list[tuple[int, int, str]]:
+    """The capture's stage headings ``[k/N] stage`` in ``text`` (not their parts, ``stage: part``)."""
+    found = re.findall(r"^\[(\d+)/(\d+)\] ([^:\n]+)$", text, re.M)
+    return [(int(k), int(n), name) for k, n, name in found]
+
+
 N_FRAMES, KEEP = 48, 24
 BLURRED = {3, 10, 17, 24, 31, 38, 45}
 
 
 @pytest.mark.slow
 def test_a_clip_without_tags_is_framed_posed_on_its_table_and_exported_as_a_splat(tmp_path, capsys):
+    from nerfkit.capture.dome import DOME_GAUSSIANS, on_dome
     from nerfkit.capture.splats import in_box, object_box
     from nerfkit.sfm.dataset import load_sfm_result
     from nerfkit.sfm.frame import compare_poses, reconstruction_c2w
@@ -79,6 +87,13 @@ def test_a_clip_without_tags_is_framed_posed_on_its_table_and_exported_as_a_spla
     argv = ["capture", str(clip), "--out", str(out), "--model", "splat", "--steps", "30", "--clip-frames", str(KEEP)]
     assert main([*argv, "--frames", "2"]) == 0, capsys.readouterr().err
     text = capsys.readouterr().out
+
+    # each stage headed [k/N] in order, N counted from this route; structure-from-motion's steps under poses
+    plan = ["frames", "poses", "training the splat", "evaluation of the splat", "rendering the splat's videos"]
+    assert headings(text) == [(k + 1, 6, name) for k, name in enumerate([*plan, "export of the splat files"])]
+    parts = re.findall(r"^\[2/6\] poses: (\w+)$", text, re.M)
+    assert parts == ["features", "matching", "mapping"]
+    assert text.index("[2/6] poses\n") < text.index("[2/6] poses: features") < text.index("[3/6] training")
 
     # frames: the shaken ones are never kept, the rest spread along the whole turn
     report = json.loads((out / "frames" / "frames.json").read_text())
@@ -103,7 +118,9 @@ def test_a_clip_without_tags_is_framed_posed_on_its_table_and_exported_as_a_spla
     steps = json.loads((out / "splat_run" / "metrics.json").read_text())["step"]
     assert steps == 30 and len(g) > 100 and g.sh_rest.shape[1:] == (15, 3)
     assert (out / "splat.splat").stat().st_size == 32 * len(g)
-    lo, hi, _ = object_box(read_run(out / "splat_run").bounds)
+    bounds = read_run(out / "splat_run").bounds
+    lo, hi, _ = object_box(bounds)
+    assert int(on_dome(g.means, bounds).sum()) == DOME_GAUSSIANS  # the learned background, behind the rest
     alone = read_splat_ply(out / "splat_object.ply")
     inside = in_box(g.means, lo, hi)
     assert 0 < len(alone) == int(inside.sum()) < len(g)
@@ -119,10 +136,12 @@ def test_a_clip_without_tags_is_framed_posed_on_its_table_and_exported_as_a_spla
     )
     assert "an object on a table" in summary and "SuperSplat" in summary and str(out / "splat_object.ply") in summary
     assert f"{scores['psnr']:.2f} dB" in summary and "  NeRF  " not in summary  # no NeRF trained
+    assert f"a far dome of {DOME_GAUSSIANS} Gaussians" in summary
 
     # again: every step kept
     assert main(argv) == 0
     text = capsys.readouterr().out
+    assert [name for _, _, name in headings(text)] == [*plan, "export of the splat files"]
     assert "frames: " in text and text.count("is there from an earlier run, kept") == 8
     assert "  time  " not in text
 

@@ -28,7 +28,11 @@ points: every --every-th training view is rendered; pixels with opacity > --acc-
 back-projected to their expected depth and coloured by the rendered colour.
 splat (runs of --model splat): the Gaussians as the standard 3DGS PLY (what the INRIA code,
 gsplat, SuperSplat and Brush read), or, for a name ending in .splat, the 32-byte-per-Gaussian
-format of web viewers (colour without view dependence).
+format of web viewers (colour without view dependence). A run that learned its background (a
+colour per direction behind the Gaussians, as captures do) gets it as a dome: a few thousand
+flat, nearly opaque Gaussians on a sphere 100 times beyond the cameras and the far bound,
+each coloured by the background in its direction, so other viewers show what `nerfkit
+render` shows; --no-background-dome leaves it out.
 
 examples:
   nerfkit export runs/lego --mesh lego.ply
@@ -51,6 +55,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mesh", metavar="OUT.ply", help="write a vertex-coloured triangle mesh here")
     p.add_argument("--points", metavar="OUT.ply", help="write a coloured point cloud here")
     p.add_argument("--splat", metavar="OUT.ply", help="(splat runs) write the Gaussians here: 3DGS PLY, or .splat")
+    p.add_argument(
+        "--no-background-dome",
+        dest="background_dome",
+        action="store_false",
+        help="(splat runs with a learned background, as captures) leave out the dome of Gaussians "
+        "that carries the background into the file",
+    )
     g = p.add_argument_group("mesh")
     g.add_argument("--resolution", type=number(int, 8, 1024), default=256, help="grid cells per side (default: 256)")
     g.add_argument(
@@ -131,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
         stride=args.stride,
         acc_min=args.acc_min,
         crop=not args.no_crop,
+        background_dome=args.background_dome,
         **run_device_options(args),
         force=args.force,
     )

@@ -1,4 +1,5 @@
-"""The pipeline from Python (:mod:`nerfkit.api`): calibrate, pose, train, render, evaluate, export.
+"""The pipeline from Python (:mod:`nerfkit.api`): calibrate, pose, train, render, evaluate, export,
+and capture, all of them in a row.
 
 Each function takes typed keyword arguments named as the flags of its command
 (``tag_size=0.06`` for ``--tag-size 0.06``; a ``--no-X`` flag is ``X=False``), checks them as
@@ -750,6 +751,7 @@ def export(
     stride: int = 1,
     acc_min: float = 0.5,
     crop: bool = True,
+    background_dome: bool = True,
     data: str | Path | None = None,
     device: str = "auto",
     chunk: int = 0,
@@ -776,6 +778,8 @@ def export(
         stride: points: use every N-th pixel in each direction.
         acc_min: points: keep pixels with opacity above this.
         crop: points: drop points outside the scene box.
+        background_dome: splat: a model's learned background follows its Gaussians as a far
+            dome of Gaussians (:mod:`nerfkit.capture.dome`), so that other viewers show it too.
         data: dataset whose training views colour the mesh and give the points (None: the run's).
         device: "auto", "cpu", "cuda" or "cuda:N".
         chunk: rays rendered at once (0: the run's render chunk).
@@ -816,7 +820,7 @@ def export(
         "--mesh/--points/--splat",
     )
     if splat_file:
-        say(stage.export_splat(opened, splat_file))
+        say(stage.export_splat(opened, splat_file, background_dome))
     if mesh_file:
         from ..export import COLOUR_VIEWS
         from ..tabletop import TABLE_CUT
@@ -853,8 +857,124 @@ def export(
     return ExportResult(written, opened.step)
 
 
+# the choices of `nerfkit capture --model`
+CaptureModel = Literal["fast", "splat", "both"]
+
+
+@dataclass(frozen=True)
+class CaptureResult:
+    """What :func:`capture` made in its ``out`` folder."""
+
+    out: Path
+    dataset_path: Path  # the posed dataset's folder (OUT/dataset)
+    camera_path: Path | None  # the camera file the photos were posed with (None: EXIF or SfM's own)
+    run_dir: Path | None  # the NeRF's run (None: not trained)
+    mesh: Path | None  # the NeRF's mesh (None: not made)
+    splat_run: Path | None  # the splat's run (None: not trained)
+    splat_files: tuple[Path, ...]  # splat.ply, splat.splat and the object alone, splat_object.ply
+    psnr: dict[str, float]  # held-out PSNR (dB) of each model scored: "NeRF", "splat"
+
+
+def capture(
+    photos: str | Path,
+    out: str | Path,
+    *,
+    tag_size: float | None = None,
+    calib: str | Path | None = None,
+    camera: str | Path | None = None,
+    sheet_tag_size: float | None = None,
+    dictionary: str | None = None,
+    method: PoseMethod = "auto",
+    clip_frames: int = 120,
+    model: CaptureModel = "fast",
+    max_side: int | None = None,
+    minutes: float = 3.0,
+    steps: int | None = None,
+    frames: int | None = None,
+    mesh: bool = True,
+    device: str = "auto",
+    force: bool = False,
+    verbose: bool = False,
+) -> CaptureResult:
+    """A phone video or photos of an object to a NeRF and/or a Gaussian splat in one go
+    (``nerfkit capture``): frames, calibration, poses, training, evaluation, videos and files,
+    each kept for the next call with the same inputs. It prints what each stage prints, under
+    ``[k/N]`` headings, and a summary.
+
+    Args:
+        photos: a folder of photos of the object, or a video filmed slowly around it.
+        out: the folder for everything the capture makes.
+        tag_size: side of the tag's black square beside the object in metres (None: no tag,
+            structure-from-motion poses and the table is found in its points).
+        calib: folder of photos of the printed tag sheet to calibrate the camera from.
+        camera: a camera file from :func:`calibrate` (not with ``calib``).
+        sheet_tag_size: side of the sheet's tags (None: ``tag_size``).
+        dictionary: ArUco dictionary of the tags (None: the camera file's, else DICT_4X4_50).
+        method: how the photos are posed ("auto", "tags", "colmap"; see ``nerfkit capture --help``).
+        clip_frames: a video: frames kept from it, at most.
+        model: "fast" (the NeRF, with its videos and mesh), "splat" or "both".
+        max_side: the dataset's photos' longer side in pixels (0: keep; None: :func:`pose`'s).
+        minutes: training time of each model (unless ``steps``).
+        steps: train this many steps instead of ``minutes``.
+        frames: frames of the orbit videos (None: :func:`render`'s).
+        mesh: make the NeRF's mesh.
+        device: "auto", "cpu", "cuda" or "cuda:N".
+        force: redo every stage, replacing the results of an earlier capture in ``out``.
+        verbose: a stage's error comes with its traceback.
+    """
+    import json
+
+    from ..config import MIN_RESAMPLED_SIDE, number, tag_side
+    from ..errors import fail
+    from .stages import capture as stage
+
+    if calib is not None and camera is not None:
+        raise fail("--camera", "not allowed with --calib", "Calibrate from the sheet's photos or give a camera file")
+    _choice("--method", method, get_args(PoseMethod))
+    _choice("--model", model, get_args(CaptureModel))
+    options = stage.CaptureOptions(
+        photos=str(photos),
+        out=str(out),
+        calib=str(calib) if calib is not None else None,
+        camera=str(camera) if camera is not None else None,
+        tag_size=_check("--tag-size", tag_size, tag_side),
+        sheet_tag_size=_check("--sheet-tag-size", sheet_tag_size, tag_side),
+        dict=dictionary,
+        method=method,
+        clip_frames=_check("--clip-frames", clip_frames, number(int, 10, 10_000)),
+        model=model,
+        max_side=_check("--max-side", max_side, number(int, MIN_RESAMPLED_SIDE, off=0)),
+        minutes=_check("--minutes", minutes, number(float, above=0)),
+        steps=_check("--steps", steps, number(int, 1)),
+        frames=_check("--frames", frames, number(int, 1, 100_000)),
+        no_mesh=not mesh,
+        device=device,
+        force=force,
+        verbose=verbose,
+    )
+    calls = stage.Calls(calibrate, pose, train, resume, evaluate, render, export)
+    made = stage.run_capture(options, calls)
+    splat = made.splat or {}
+    scored = [("NeRF", made.run_dir, made.evaluated), ("splat", splat.get("run_dir"), splat.get("evaluated"))]
+    psnr = {
+        name: float(json.loads((run / "eval_val.json").read_text())["psnr"]) for name, run, ok in scored if run and ok
+    }
+    return CaptureResult(
+        made.out,
+        made.dataset,
+        made.camera,
+        made.run_dir,
+        made.mesh,
+        splat.get("run_dir"),
+        tuple(splat.get("files") or ()),
+        psnr,
+    )
+
+
 __all__ = [
     "CalibrationResult",
+    "CaptureModel",
+    "CaptureResult",
     "EvaluationResult",
     "ExportResult",
     "Matcher",
@@ -865,6 +985,7 @@ __all__ = [
     "TrainResult",
     "VideoPath",
     "calibrate",
+    "capture",
     "evaluate",
     "export",
     "pose",

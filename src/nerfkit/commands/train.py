@@ -9,6 +9,7 @@ import sys
 
 from ..config import add_alternative_dataclass_args, add_dataclass_args, flag_of, foreign_flags
 from .pipeline import RESUME_APPLIES
+from .stages.train import summary_line
 
 MEMORY_HINT = "Lower --batch-rays (rays per step) or --render-chunk (rays per rendered chunk)"
 HELP = "train a NeRF on a dataset (or --resume a run)"
@@ -218,11 +219,3 @@ def run(args: argparse.Namespace) -> int:
         result = api.train(config=args.config, **given)
     print(summary_line(result))
     return 130 if result.interrupted else 0
-
-
-def summary_line(result) -> str:
-    """The line `nerfkit train` ends with, for a :class:`nerfkit.api.TrainResult`."""
-    summary = f"run: {result.run_dir}  steps: {result.steps}  training time: {result.train_seconds:.0f} s"
-    if result.val_psnr is not None:
-        summary += f"  val PSNR: {result.val_psnr:.2f} dB"
-    return summary

@@ -19,6 +19,9 @@ from __future__ import annotations
 import shutil
 import sys
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -135,6 +138,27 @@ def _import_pycolmap():
 def _say(progress: bool, msg: str) -> None:
     if progress:
         print(msg, file=sys.stderr, flush=True)
+
+
+# told "features", "matching" and "mapping" as each step of :func:`run_sfm` starts
+_STEP_STARTED: ContextVar[Callable[[str], None] | None] = ContextVar("sfm_step_started", default=None)
+
+
+@contextmanager
+def telling_steps(started: Callable[[str], None]) -> Iterator[None]:
+    """Within it, ``started(name)`` is called as each step of structure-from-motion starts
+    (``nerfkit capture`` numbers them under its poses heading)."""
+    token = _STEP_STARTED.set(started)
+    try:
+        yield
+    finally:
+        _STEP_STARTED.reset(token)
+
+
+def _started(name: str) -> None:
+    started = _STEP_STARTED.get()
+    if started is not None:
+        started(name)
 
 
 def choose_matcher(matcher: str, n_photos: int, n_guided: int = 0) -> str:
@@ -386,6 +410,7 @@ def run_sfm(
 
     with quiet_colmap(verbose):
         t0 = time.perf_counter()
+        _started("features")
         _say(
             progress, f"sfm: extracting SIFT features from {len(names)} photos (longest side <= {max_image_size} px)..."
         )
@@ -422,6 +447,7 @@ def run_sfm(
         n_pairs = {"exhaustive": len(names) * (len(names) - 1) // 2, "spatial": len(pairs)}.get(
             matcher, len(names) * overlap
         )
+        _started("matching")
         _say(progress, f"sfm: {matcher} matching (~{n_pairs} photo pairs)...")
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = threads
@@ -446,6 +472,7 @@ def run_sfm(
         seconds["matching"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
+        _started("mapping")
         _say(progress, "sfm: incremental mapping...")
         options = pycolmap.IncrementalPipelineOptions()
         options.num_threads = threads

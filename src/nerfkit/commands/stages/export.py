@@ -27,16 +27,24 @@ def check_outputs(mesh: str | None, points: str | None, splat: str | None) -> No
         raise fail("--mesh/--points/--splat", "name the same file")
 
 
-def export_splat(opened: Any, path: str) -> str:
-    """Write the Gaussians of the splat run ``opened`` to ``path`` (3DGS PLY, or .splat)."""
+def export_splat(opened: Any, path: str, background_dome: bool = True) -> str:
+    """Write the Gaussians of the splat run ``opened`` to ``path`` (3DGS PLY, or .splat); with
+    ``background_dome``, a model's learned background follows them as a far dome of Gaussians
+    (:mod:`nerfkit.capture.dome`), so that other viewers show it too."""
+    from ...capture.dome import join, model_dome
     from ...splat_files import Gaussians, write_dot_splat, write_splat_ply
 
     g = Gaussians.from_model(opened.model)
+    dome = model_dome(opened.model, opened.info.bounds) if background_dome else None
+    out = g if dome is None else join(g, dome)
     if path.lower().endswith(".splat"):
-        write_dot_splat(path, g)
+        write_dot_splat(path, out)
     else:
-        write_splat_ply(path, g)
-    return f"{len(g)} Gaussians of step {opened.step} (SH degree {g.sh_degree}) -> {path}"
+        write_splat_ply(path, out)
+    what = f"{len(g)} Gaussians of step {opened.step} (SH degree {g.sh_degree})"
+    if dome is not None:
+        what += f" and {len(dome)} of the learned background's dome (--no-background-dome leaves them out)"
+    return f"{what} -> {path}"
 
 
 def export_mesh(

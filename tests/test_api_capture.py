@@ -1,0 +1,48 @@
+"""`nerfkit.api.capture`: the capture command's flags as typed arguments, checked as the command
+line checks them, before anything is written (the whole run: test_capture_video, test_capture_command)."""
+
+from __future__ import annotations
+
+import inspect
+
+import pytest
+
+from nerfkit import api
+from nerfkit.errors import NerfkitError
+
+
+def test_every_flag_of_capture_is_an_argument_with_its_default():
+    from nerfkit.cli import build_parser
+
+    args = build_parser("capture").parse_args(["capture", "photos", "--out", "o"])
+    params = inspect.signature(api.capture).parameters
+    renamed = {"dict": "dictionary", "no_mesh": "mesh"}
+    checked = set()
+    for dest, value in vars(args).items():
+        if dest in ("command", "func", "verbose", "photos", "out"):
+            continue
+        name = renamed.get(dest, dest)
+        expected = (not value) if dest == "no_mesh" else value
+        assert params[name].default == expected, (dest, params[name].default, expected)
+        checked.add(name)
+    assert set(params) - checked == {"photos", "out", "verbose"}
+
+
+@pytest.mark.parametrize(
+    ("options", "flag"),
+    [
+        ({"clip_frames": 5}, "--clip-frames"),
+        ({"tag_size": -0.06}, "--tag-size"),
+        ({"model": "nerf"}, "--model"),
+        ({"method": "sift"}, "--method"),
+        ({"steps": 0}, "--steps"),
+        ({"max_side": 3}, "--max-side"),
+        ({"calib": "sheet", "camera": "camera.json"}, "--camera"),
+        ({"method": "tags"}, "--method tags"),  # (no --tag-size: no route does it)
+    ],
+)
+def test_capture_refuses_what_the_command_line_refuses_before_writing(tmp_path, options, flag):
+    (tmp_path / "photos").mkdir()
+    with pytest.raises(NerfkitError, match=flag):
+        api.capture(tmp_path / "photos", tmp_path / "out", **options)
+    assert not (tmp_path / "out").exists()
