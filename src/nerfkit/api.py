@@ -1,4 +1,5 @@
-"""The pipeline from Python: calibrate, pose, train, render, evaluate, export.
+"""The pipeline from Python: calibrate, pose, train, render, evaluate, export, and capture
+(all of them in a row).
 
 Each function takes typed keyword arguments named as the flags of its command
 (``tag_size=0.06`` for ``--tag-size 0.06``; ``--no-X`` is ``X=False``; choices as strings),
@@ -12,6 +13,8 @@ behind a command line; ``nerfkit capture`` runs them in a row. Example::
     poses = api.pose("object_photos/", "my_object/", tag_size=0.06, camera=camera.camera_path)
     run = api.train(poses.dataset_path, "runs/my_object", minutes=3)
     print(run.val_psnr, api.render(run.run_dir).videos)
+
+    result = api.capture("clip.mp4", "my_object/", model="both")  # frames, SfM, NeRF and splat
 
 The functions live in :mod:`nerfkit.commands.pipeline`, beside the commands they share
 their checks with; this module is their public name.
