@@ -40,6 +40,8 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
         str(out),
         "--method",
         "tags",
+        "--model",
+        "fast",
         "--max-side",
         "160",
         "--steps",

@@ -24,7 +24,7 @@ Run the whole capture flow into one folder, as the README's steps do one by one:
   OUT/frames/       nerfkit frames CLIP             (a video: sharp frames spread along it, --clip-frames)
   OUT/camera.json   nerfkit calibrate CALIB_DIR     (only with --calib; --camera gives one)
   OUT/dataset/      nerfkit poses OBJECT_DIR        (posed, undistorted, split; see "poses" below)
-  OUT/run/          nerfkit train --minutes 3       (--model fast, the default: capture settings: table,
+  OUT/run/          nerfkit train --minutes 3       (--model fast or both, the default: capture settings: table,
                                                      room, pose and colour refinement; one resume
                                                      checkpoint kept beside model.pt)
                     nerfkit eval --split val        (run/eval_val.json and the contact sheet run/eval_val.png)
@@ -32,7 +32,7 @@ Run the whole capture flow into one folder, as the README's steps do one by one:
                     nerfkit render --object         (run/videos: object.mp4, object.gif, object_depth.mp4,
                                                      the object alone on white)
   OUT/run/mesh.ply  nerfkit export --mesh           (the object, without the table)
-  OUT/splat_run/    nerfkit train --model splat     (--model splat or both: 3D Gaussians from the SfM
+  OUT/splat_run/    nerfkit train --model splat     (--model splat or both, the default: 3D Gaussians from the SfM
                                                      points, then its eval and orbit video)
   OUT/splat.ply     nerfkit export --splat          (the standard 3DGS PLY: SuperSplat, Brush, Polycam,
                                                      Postshot, nerfstudio; and OUT/splat.splat for
@@ -127,10 +127,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--model",
         choices=MODELS,
-        default="fast",
-        help="what to train: fast (default), the NeRF, with the videos and mesh; splat, 3D Gaussians "
+        default="both",
+        help="what to train: fast, the NeRF, with the videos and mesh; splat, 3D Gaussians "
         "written as OUT/splat.ply and OUT/splat.splat, and the object alone as OUT/splat_object.ply; "
-        "both (each trains for --minutes)",
+        "both (the default: each trains for --minutes)",
     )
     p.add_argument(
         "--max-side",

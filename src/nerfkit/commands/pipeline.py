@@ -886,7 +886,7 @@ def capture(
     dictionary: str | None = None,
     method: PoseMethod = "auto",
     clip_frames: int = 120,
-    model: CaptureModel = "fast",
+    model: CaptureModel = "both",
     max_side: int | None = None,
     minutes: float = 3.0,
     steps: int | None = None,
