@@ -20,6 +20,10 @@ beside render) is RUN/eval_val.png, the videos are in RUN/videos::
     python benchmarks/capture_real.py --labubu /path/labubu --steve /path/steve --work OUT
     python benchmarks/capture_real.py --sfm                 # also: poses from SfM, tags ignored
     python benchmarks/capture_real.py --photos 30           # about 30 object photos per capture
+    python benchmarks/capture_real.py --steps 1500          # a step budget (a loaded machine)
+
+``nerfkit capture`` trains the NeRF and the splat (its default, ``--model both``); the splat's
+steps, held-out scores and file size are printed under the table.
 
 With ``--photos N`` only every k-th object photo (in name order, k = round(photos / N)) is
 used, copied into the work folder: a capture of the size users bring (30-50 photos) made
@@ -125,20 +129,34 @@ def calibration_figures(name: str, cam: Path, poses: Path) -> dict:
     }
 
 
-def capture_command(name: str, folder: Path, objects: Path, work: Path, minutes: float, method: str) -> dict:
-    """One capture through ``nerfkit capture``, as a user runs it; its figures and the whole
-    command's time."""
+def splat_figures(out: Path) -> dict:
+    """The splat's figures when the capture trained one (``out/splat_run``): steps, val PSNR/SSIM
+    as rendered, the object's pixels, the size of splat.ply; {} otherwise."""
+    run = out / "splat_run"
+    if not (run / "eval_val.json").exists():
+        return {}
+    e = json.loads((run / "eval_val.json").read_text())
+    m = json.loads((run / "metrics.json").read_text())
+    return {"splat": {"steps": m["step"], "val_psnr": e["psnr"], "val_ssim": e["ssim"],
+                      "object_psnr": (e.get("object") or {}).get("psnr"),
+                      "ply_mb": (out / "splat.ply").stat().st_size / 1e6 if (out / "splat.ply").exists() else None,
+                      "sheet": str(run / "eval_val.png")}}
+
+
+def capture_command(name: str, folder: Path, objects: Path, work: Path, budget: list[str], method: str) -> dict:
+    """One capture through ``nerfkit capture`` (its default models), as a user runs it; its
+    figures and the whole command's time. ``budget``: ``["--minutes", M]`` or ``["--steps", N]``."""
     from nerfkit.cli import main
 
     calib, _, tag = CAPTURES[name]
     out = work / name
     t0 = time.perf_counter()
     if main(["capture", str(objects), "--calib", str(folder / calib), "--tag-size", str(tag), "--out", str(out),
-             "--minutes", str(minutes), "--method", method, "--force"]) != 0:
+             *budget, "--method", method, "--force"]) != 0:
         raise SystemExit(f"{name}: nerfkit capture failed")
     total = time.perf_counter() - t0
     return {**calibration_figures(name, out / "camera.json", out / "dataset"), **run_figures(out / "run"),
-            "total_s": total}
+            **splat_figures(out), "total_s": total}
 
 
 def run_capture(name: str, folder: Path, objects: Path, work: Path, extra: list[str], dataset: bool = False,
@@ -226,6 +244,14 @@ def print_table(rows: list[dict]) -> None:
                     max_width=200))
         for r in trained:
             print(f"{r['capture']}: contact sheet {r['sheet']}, videos {Path(r['run']) / 'videos'}")
+        for r in trained:
+            if "splat" in r:
+                g = r["splat"]
+                obj = "-" if g["object_psnr"] is None else f"{g['object_psnr']:.2f}"
+                size = "" if g["ply_mb"] is None else f", splat.ply {g['ply_mb']:.1f} MB"
+                print(f"{r['capture']} splat: {g['steps']} steps, val {g['val_psnr']:.2f} / {g['val_ssim']:.3f} "
+                      f"as rendered, the object's pixels {obj}{size}; "
+                      f"contact sheet {g['sheet']}")
 
 
 def main() -> int:
@@ -236,6 +262,7 @@ def main() -> int:
     ap.add_argument("--only", choices=list(CAPTURES), help="run one capture")
     ap.add_argument("--dist-model", default="auto", help="passed to nerfkit calibrate (compare with e.g. k1k2p1p2)")
     ap.add_argument("--minutes", type=float, default=3.0, help="training minutes per capture (0: no training)")
+    ap.add_argument("--steps", type=int, help="train this many steps instead of --minutes (a loaded machine)")
     ap.add_argument("--capture", default="auto", choices=["auto", "on", "off"], help="passed to nerfkit train")
     ap.add_argument("--sfm", action="store_true", help="also pose each capture by SfM without its tags, and train on that")
     ap.add_argument("--method", default="auto", choices=["auto", "tags"],
@@ -253,7 +280,8 @@ def main() -> int:
             continue
         objects = object_photos(name, folder, args.work, args.photos)
         if args.minutes > 0 and args.dist_model == "auto" and args.capture == "auto":
-            row = capture_command(name, folder, objects, args.work, args.minutes, args.method)
+            budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
+            row = capture_command(name, folder, objects, args.work, budget, args.method)
         else:  # what `nerfkit capture` has no switch for: the steps one by one
             row = run_capture(name, folder, objects, args.work, ["--dist-model", args.dist_model],
                               dataset=args.minutes > 0, method=args.method)
