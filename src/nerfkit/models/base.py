@@ -140,11 +140,16 @@ def rgb_loss(pred: Tensor, target: Tensor, kind: str = "mse") -> Tensor:
     360). Example: errors of 0.5 and 0.05 pull with forces 1.0 and 0.1 under mse, and
     both with about 1.0 under charbonnier.
     """
+    return rgb_errors(pred, target, kind).mean()
+
+
+def rgb_errors(pred: Tensor, target: Tensor, kind: str = "mse") -> Tensor:
+    """The terms :func:`rgb_loss` averages: (n_rays, 3) per ray and channel."""
     e2 = (pred - target) ** 2
     if kind == "mse":
-        return e2.mean()
+        return e2
     if kind == "charbonnier":
-        return torch.sqrt(e2 + CHARBONNIER_EPS**2).mean()
+        return torch.sqrt(e2 + CHARBONNIER_EPS**2)
     raise ValueError(f"unknown photometric loss {kind!r} (one of {', '.join(RGB_LOSSES)})")
 
 
@@ -286,6 +291,12 @@ class NerfModel(nn.Module):
     def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
         """Photometric MSE; models add their own terms (coarse network, regularisers)."""
         return rgb_loss(out.rgb, target_rgb)
+
+    def see_batch(self, progress: float, image_index: Tensor, uv: Tensor, shape: tuple[int, int, int]) -> None:
+        """Before :meth:`loss` of a ray batch: where its rays come from (``image_index`` (n,)
+        training photo, ``uv`` (n, 2) pixel column and row, of ``shape`` (n_images, width,
+        height)), ``progress`` in [0, 1] of the run: for a model that weighs pixels by where
+        they lie (the fast model's ``--transient-quantile``). Default: ignored."""
 
     def init_from_scene(self, scene, background: Tensor) -> str | None:
         """Start a new run's parameters from the dataset (e.g. Gaussians at its sparse

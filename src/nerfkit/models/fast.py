@@ -51,12 +51,13 @@ from ..errors import fail
 from ..estimators.occupancy import OccupancyEstimator, RefreshRule
 from ..fields.grid import EMPTY_RAW, GridField, check_grid_res, resample_grid
 from ..kernels.ops import GridRender
+from ..losses import robust
 from ..losses.tv import GridTV, tv_weights
 from ..render.box import GridBox, ray_aabb
 from ..render.volrend import sight_line_loss
 from ..surroundings import Surroundings, flat_background, renamed_keys
 from . import grid_growth as growth
-from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState, rgb_loss
+from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState, rgb_errors, rgb_loss
 from .fast_config import FastConfig
 from .packing import pack_grid, unpack_grid, vertices_touching
 
@@ -133,6 +134,9 @@ class FastNeRF(NerfModel):
         self.surfaces = growth.SurfaceMemory()
         weights = tv_weights(self.field.n_channels, self.field.K, c.tv_weight, c.tv_colour, c.tv_view_weight or 0.0)
         self.tv = GridTV(weights)
+        # --transient-quantile: the step's pixels (see_batch) and the photos' cells (not saved)
+        self._batch: tuple | None = None
+        self._transients: robust.TransientMemory | None = None
 
     @property
     def step_size(self) -> float:
@@ -218,7 +222,27 @@ class FastNeRF(NerfModel):
     def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
         terms = [] if self.surroundings is None else self.surroundings.loss_terms()
         terms.append(losses.distortion(self.config.distortion_weight or 0.0, self.bounds.radius))
-        return losses.total(rgb_loss(out.rgb, target_rgb, self.config.rgb_loss or "mse"), terms, out)
+        return losses.total(self._photometric(out.rgb, target_rgb), terms, out)
+
+    def see_batch(self, progress: float, image_index: Tensor, uv: Tensor, shape: tuple[int, int, int]) -> None:
+        self._batch = (progress, image_index, uv, shape) if self.config.transient_quantile else None
+
+    def _photometric(self, rgb: Tensor, target: Tensor) -> Tensor:
+        """``--rgb-loss`` of the step's rays; with ``--transient-quantile``, of a ray batch the
+        trainer said the pixels of (:meth:`see_batch`), weighted by
+        :func:`~nerfkit.losses.robust.robust_weights`."""
+        kind, batch = self.config.rgb_loss or "mse", self._batch
+        self._batch = None
+        if batch is None or rgb.ndim != 2 or len(rgb) != len(batch[1]):
+            return rgb_loss(rgb, target, kind)
+        progress, image_index, uv, (n, w, h) = batch
+        memory = self._transients
+        if memory is None or memory.shape != (n, w, h):
+            memory = self._transients = robust.TransientMemory(n, w, h, rgb.device)
+        per_ray = rgb_errors(rgb, target, kind).mean(-1)
+        trimming = progress >= (self.config.transient_start or 0.0)
+        weights = robust.robust_weights(per_ray, memory, image_index, uv, self.config.transient_quantile, trimming)
+        return robust.weighted_mean(per_ray, weights)
 
     @property
     def uses_sight_lines(self) -> bool:

@@ -199,6 +199,23 @@ class FastConfig:
         "scores higher)",
         choices=list(RGB_LOSSES),
     )
+    transient_quantile: float = option(
+        0.0,
+        "trim transients from the photometric loss (RobustNeRF-style): a ray whose error "
+        "ranks above this quantile of its batch's (e.g. 0.8), in a neighbourhood of its "
+        "photo where most rays drawn so far did too, gets weight 0 (the photographer's "
+        "shadow on the table in some photos); a lone bad pixel among good ones (an edge, "
+        "fine texture) keeps its weight; 0: off",
+        min=0.0,
+        max=1.0,
+    )
+    transient_start: float = option(
+        0.2,
+        "with --transient-quantile: the share of the run before any ray is trimmed "
+        "(the scene must first be fitted for errors to tell transients apart)",
+        min=0.0,
+        max=1.0,
+    )
     # Retired flags (kept as settings, off, for older runs' config.json and Python callers; see
     # BENCHMARKS.md "why the defaults are what they are"): --tv-weight and --tv-colour (every
     # weight tried cost PSNR), --near-grad (no gain held up, and it did not remove haze),

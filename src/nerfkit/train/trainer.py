@@ -308,6 +308,8 @@ class Trainer:
                 out = self.model.render_rays(rays, self.background, perturb=True)
                 if views is not None and views.exposure is not None:
                     out = replace(out, rgb=views.exposure(out.rgb.float(), batch.image_index))
+                shape = (self.rays.n_images, self.rays.width, self.rays.height)
+                self.model.see_batch(self.progress(), batch.image_index, batch.uv, shape)
                 loss = self.model.loss(out, batch.rgb) + self._corrections_penalty() + self._sight_term()
         self._zero_grad()
         finite = bool(torch.isfinite(loss))
