@@ -246,7 +246,7 @@ class FastConfig:
         "in NDC: the disparity axis is scaled by this before the grid's cubic voxels "
         "are laid over it (1: cubes in NDC; below 1: fewer vertices along the depth and, "
         "for the same vertex count, more across the view, where a forward-facing "
-        "scene's detail is; default: 1, and the forward-facing preset's value)",
+        "scene's detail is, and fewer samples a ray)",
         above=0.0,
         max=4.0,
     )
