@@ -157,3 +157,53 @@ def test_ndc_is_refused_for_a_scene_that_is_not_forward_facing():
 
     with pytest.raises(NerfkitError, match="not forward-facing"):
         FastNeRF(FastConfig(space="ndc"), SceneBounds.from_scene(sphere_scene(n_train=20, size=16)))
+
+
+def test_a_scaled_disparity_axis_keeps_world_points_on_their_rays(space):
+    """The grid's space (Z times ndc_depth_scale) is linear: each world point lies on its
+    scaled NDC ray at the same fraction s as on the unscaled one."""
+    from nerfkit.render.ndc import to_grid
+
+    o, d = random_rays(space, n=50, seed=3)
+    on, dn, _ = space.rays(o, d)
+    for t in (2.0, 30.0):
+        p = space.points(o + t * d)
+        s = (p[:, 2] - on[:, 2]) / dn[:, 2]
+        for scale in (0.25, 1.0, 2.0):
+            g = to_grid(p, scale)
+            torch.testing.assert_close(to_grid(on, scale) + s.unsqueeze(-1) * to_grid(dn, scale), g)
+            torch.testing.assert_close(g[:, 2], scale * p[:, 2])
+            torch.testing.assert_close(g[:, :2], p[:, :2])
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.4])
+def test_the_fast_grid_in_ndc_puts_a_wall_at_its_depth_whatever_the_disparity_scale(scale):
+    """A wall (the reference camera's plane z = 3) painted into the grid where it is in the
+    grid's space renders at its world distance; a disparity scale of 0.4 lays about 0.4 times
+    as many vertices along Z for each across X as cubes in NDC do."""
+    from nerfkit.fields.grid import EMPTY_RAW
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    bounds = SceneBounds.from_scene(forward_facing_scene(n_train=6, n_val=0, size=16))
+    model = FastNeRF(FastConfig(resolutions="64", upsample_steps="", ndc_depth_scale=scale, kernels="torch"), bounds)
+    rx, _, rz = model.field.res
+    e = bounds.ndc.extent
+    assert (rz - 1) / (rx - 1) == pytest.approx(scale / e, rel=0.05)
+    ndc, z0 = bounds.ndc, 3.0
+    geom = model.field.geom
+    behind = geom.vertex_positions()[:, 2] >= scale * (1.0 - 2.0 * ndc.near / z0)
+    with torch.no_grad():
+        model.field.grid[1:, 0] = torch.where(behind, 20.0, EMPTY_RAW)
+    model.refresh_occupancy()
+    model.estimator.active = True
+    c2w = torch.tensor(ndc.c2w, dtype=torch.float32)
+    cam = torch.tensor([[0.0, 0.0, 1.0], [0.2, -0.1, 1.0], [-0.15, 0.2, 1.0]])  # reference camera's frame
+    d = cam @ c2w[:3, :3].T
+    o = c2w[:3, 3].expand(3, 3)
+    out = model._render_ndc(o, d, torch.full((3,), 0.5), torch.zeros(3))
+    assert bool((out.acc > 0.99).all())
+    # each ray (o + t d, d's z 1 in the camera's frame) meets the wall at t = 3, within a
+    # voxel of the grid's Z (in depth: dz = dZ z^2 / (2 near))
+    voxel_depth = model.field.voxel / scale * z0**2 / (2.0 * ndc.near)
+    assert voxel_depth < 0.3
+    torch.testing.assert_close(out.depth, torch.full((3,), z0), atol=voxel_depth, rtol=0)

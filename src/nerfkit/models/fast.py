@@ -54,6 +54,7 @@ from ..kernels.ops import GridRender
 from ..losses import robust
 from ..losses.tv import GridTV, tv_weights
 from ..render.box import GridBox, ray_aabb
+from ..render.ndc import to_grid
 from ..render.volrend import sight_line_loss
 from ..surroundings import Surroundings, flat_background, renamed_keys
 from . import grid_growth as growth
@@ -103,8 +104,8 @@ def grid_start(config: FastConfig, bounds: SceneBounds) -> tuple[np.ndarray, np.
             "Use --space box (or auto)",
         )
     if bounds.ndc is not None and config.space != "box":
-        e = bounds.ndc.extent
-        return np.array([-e, -e, -1.0], np.float32), np.array([e, e, 1.0], np.float32)
+        e, z = bounds.ndc.extent, config.ndc_depth_scale
+        return np.array([-e, -e, -z], np.float32), np.array([e, e, z], np.float32)
     if config.object_box and bounds.object_box is not None:
         return bounds.object_box
     c = np.asarray(bounds.center, np.float32)
@@ -198,6 +199,7 @@ class FastNeRF(NerfModel):
         ndc = self.ndc
         assert ndc is not None  # (only called in NDC)
         o, d, forward = ndc.rays(o_w, d_w)
+        o, d = to_grid(o, self.config.ndc_depth_scale), to_grid(d, self.config.ndc_depth_scale)
         t0, t1 = ray_aabb(o, d, self.field.geom.lo, self.field.geom.hi, 0.0, 1.0)
         dist = bool(self.config.distortion_weight)
         out = self._march(o, d, t0, torch.where(forward, t1, t0), u, distortion=dist, view_dirs=d_w)
@@ -210,10 +212,13 @@ class FastNeRF(NerfModel):
 
     def _grid_points(self, points: Tensor) -> Tensor:
         """(n, 3) world points -> where they are in the grid's space (NDC or world)."""
-        return points.float() if self.ndc is None else self.ndc.points(points.float())
+        if self.ndc is None:
+            return points.float()
+        return to_grid(self.ndc.points(points.float()), self.config.ndc_depth_scale)
 
     def query(self, points: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:
-        """Density (per unit of the grid's space: NDC units for a forward-facing model) and colour."""
+        """Density (per unit of the grid's space: for a forward-facing model NDC units, the
+        disparity axis scaled by ``ndc_depth_scale``) and colour."""
         return self.field.query(self._grid_points(points), directions)
 
     def density(self, points: Tensor) -> Tensor:

@@ -258,6 +258,15 @@ class FastConfig:
         "scenes such as LLFF captures); auto picks ndc when every camera looks about the same way",
         choices=["auto", "box", "ndc"],
     )
+    ndc_depth_scale: float = option(
+        1.0,
+        "in NDC: the disparity axis is scaled by this before the grid's cubic voxels "
+        "are laid over it (1: cubes in NDC; below 1: fewer vertices along the depth and, "
+        "for the same vertex count, more across the view, where a forward-facing "
+        "scene's detail is, and fewer samples a ray)",
+        above=0.0,
+        max=4.0,
+    )
     object_box: bool = option(
         True,
         "start from the box around the object that the dataset's sparse points "

@@ -177,3 +177,17 @@ class NdcSpace:
         shift = (self.near - oz) / dz  # where the NDC ray starts
         s = s.clamp(0.0, 1.0 - 1e-6)
         return shift + s * self.near / (dz * (1.0 - s))
+
+
+def to_grid(v: Tensor, depth_scale: float) -> Tensor:
+    """(n, 3) NDC points or ray directions -> the grid's space: Z (the disparity axis)
+    times ``depth_scale``, X and Y as they are.
+
+    The grid's voxels are cubes in its space, so a ``depth_scale`` below 1 lays fewer
+    vertices along the disparity and, for the same vertex count, more across the view.
+    Linear: a straight NDC ray ``o' + s d'`` maps to ``to_grid(o') + s to_grid(d')``, at the
+    same ``s``. Example: ``to_grid([[0.5, -0.2, 0.8]], 0.5)`` -> ``[[0.5, -0.2, 0.4]]``.
+    """
+    if depth_scale == 1.0:
+        return v
+    return v * v.new_tensor([1.0, 1.0, depth_scale])
