@@ -9,6 +9,15 @@ first use, so ``import nerfkit`` (and ``nerfkit --help``) does not pay for torch
 from __future__ import annotations
 
 import importlib
+import os
+
+# OpenMP threads that finish a parallel region sleep instead of spinning. Two OpenMP pools
+# share the cores during training (torch's and the compiled kernels'), and a pool's
+# spinning threads starve the other's work and the main thread: with both spinning, the
+# fast model's step took about twice as long on 2 loaded cores (same results). Set here,
+# before torch or numba load their OpenMP runtimes (which read it once); a value the user
+# set wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 __version__ = "0.1.0"
 
