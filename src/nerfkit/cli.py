@@ -143,6 +143,7 @@ OS_ERROR_HINTS: dict[int | None, str] = {
 def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit code (0, 2 for an error, 130 when stopped by Ctrl-C or
     SIGTERM, at any moment: from the first line here, before the heavy imports)."""
+    previous_int = signal.getsignal(signal.SIGINT)
     previous = _sigterm_as_ctrl_c()  # first: a signal during the imports below is one line too
     from .io import stop
 
@@ -157,6 +158,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+        if previous_int is signal.default_int_handler and signal.getsignal(signal.SIGINT) is _interrupt:
+            signal.signal(signal.SIGINT, previous_int)
 
 
 def _main(argv: list[str]) -> int:
@@ -197,10 +200,25 @@ def _main(argv: list[str]) -> int:
         return 2
 
 
+def _importing(frame) -> bool:
+    """Whether ``frame`` runs inside Python's import machinery (a module being imported)."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
 def _interrupt(signum, frame):
+    """Ctrl-C or SIGTERM: KeyboardInterrupt, but never inside an import, which it could leave
+    half done (numpy without its functions): there the stop waits 50 ms and is tried again."""
     from .io import stop
 
-    stop.request()  # remembered, should an import swallow the exception
+    stop.request()  # remembered, should a library swallow the exception
+    if _importing(frame) and hasattr(signal, "setitimer"):
+        signal.signal(signal.SIGALRM, lambda _s, f: _interrupt(signum, f))
+        signal.setitimer(signal.ITIMER_REAL, 0.05)
+        return
     raise KeyboardInterrupt
 
 
@@ -211,6 +229,8 @@ def _sigterm_as_ctrl_c():
     SIGINT keeps Python's own handler (KeyboardInterrupt), or stays ignored when the
     process was started with it ignored (``nohup``, a script's background job)."""
     try:
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            signal.signal(signal.SIGINT, _interrupt)  # Python's own, but never inside an import
         if signal.getsignal(signal.SIGTERM) is signal.SIG_IGN:
             return None
         return signal.signal(signal.SIGTERM, _interrupt)
