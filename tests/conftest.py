@@ -39,8 +39,8 @@ def sphere_npz(tmp_path_factory, sphere):
 
 def train_loop(model, scene, steps: int, batch: int = 1024, lr: float = 0.3, seed: int = 0, background=(0.0, 0.0, 0.0)):
     """The trainer's protocol, minimal: the model's schedules, the optimizer built from its
-    parameter groups (a job that replaces parameters swaps them into it), a constant lr. Returns the
-    optimizer."""
+    parameter groups (a job that replaces parameters swaps them into it), each batch's pixels
+    told to the model before its loss, a constant lr. Returns the optimizer."""
     import torch
 
     from nerfkit.data.rays import RaysData
@@ -52,10 +52,12 @@ def train_loop(model, scene, steps: int, batch: int = 1024, lr: float = 0.3, see
     bg = torch.tensor(background)
     opt = build_optimizer(model, lr)
     schedules = model.schedules()
+    shape = (rays.n_images, rays.width, rays.height)
     for step in range(steps):
         run_schedules(schedules, StepState(step, step / steps, opt), phase="before_step")
         batch_ = rays.sample(batch)
         out = model.render_rays(batch_.rays, bg, perturb=True)
+        model.see_batch(step / steps, batch_.image_index, batch_.uv, shape)
         loss = model.loss(out, batch_.rgb)
         opt.zero_grad()
         loss.backward()

@@ -8,14 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from nerfkit.data.rays import RaysData
+from conftest import train_loop
 from nerfkit.data.scene import Scene
 from nerfkit.data.synthetic import sphere_scene
 from nerfkit.losses import robust
-from nerfkit.models.base import SceneBounds, StepState, rgb_loss, run_schedules
+from nerfkit.models.base import SceneBounds, rgb_loss
 from nerfkit.models.fast import FastConfig, FastNeRF
 from nerfkit.output.images import render_image
-from nerfkit.train.optim import build_optimizer
 
 
 def test_outlier_candidates_rank_above_the_quantile():
@@ -122,26 +121,6 @@ def blotted(scene: Scene, seed: int = 0) -> tuple[Scene, np.ndarray]:
     return replace(scene, train=replace(v, images=images)), masks
 
 
-def train_seeing_pixels(model, scene, steps: int, batch: int = 1024, lr: float = 0.3):
-    """conftest's train_loop, telling the model each batch's pixels (as the trainer does)."""
-    torch.manual_seed(0)
-    rays = RaysData(scene.train, "cpu", seed=0)
-    bg, opt, schedules = torch.zeros(3), build_optimizer(model, lr), model.schedules()
-    shape = (rays.n_images, rays.width, rays.height)
-    for step in range(steps):
-        run_schedules(schedules, StepState(step, step / steps, opt), phase="before_step")
-        b = rays.sample(batch)
-        out = model.render_rays(b.rays, bg, perturb=True)
-        model.see_batch(step / steps, b.image_index, b.uv, shape)
-        loss = model.loss(out, b.rgb)
-        opt.zero_grad()
-        loss.backward()
-        after = StepState(step, step / steps, opt, b.rays, out)
-        run_schedules(schedules, after, phase="gradients")
-        opt.step()
-        run_schedules(schedules, after, phase="after_step")
-
-
 def test_trimming_keeps_moving_shadows_out_of_the_scene():
     clean = sphere_scene(n_train=20, n_val=3, size=32)
     scene, masks = blotted(clean)
@@ -149,7 +128,7 @@ def test_trimming_keeps_moving_shadows_out_of_the_scene():
     for q in (0.0, 0.8):
         config = FastConfig(resolutions="24,48", upsample_steps="40", transient_quantile=q, transient_start=0.2)
         model = FastNeRF(config, SceneBounds.from_scene(scene))
-        train_seeing_pixels(model, scene, 250)
+        train_loop(model, scene, 250)
         bg, v = torch.zeros(3), clean.train
         sq = []
         for i in range(len(v)):  # the clean photo under each shadow, as the model renders it
