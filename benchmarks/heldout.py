@@ -28,7 +28,8 @@ mean PSNR and SSIM over the held-out views, render frames per second (those view
 warm-up frame), and the size of the saved ``model.pt``. Prints one markdown table; with
 ``--out``, the run folders go to ``OUT/runs/`` and the table to ``OUT/table.md``,
 ``OUT/results.csv`` and ``OUT/results.json`` (rewritten after every run; the JSON also holds
-the SSIM beside each PSNR, the load average around each run, and splat's Gaussians).
+the SSIM beside each PSNR, each held-out view's PSNR, the load average around each run, and
+splat's Gaussians).
 Without ``--out`` the runs go to a temporary folder that is deleted at the end. A run
 folder records the scene it was trained on, without its held-out views, so ``nerfkit eval``
 refuses to score it against the whole dataset: score it here.
@@ -313,7 +314,7 @@ def load_capture(name: str, path: Path) -> BenchScene:
 # -- training and scoring ----------------------------------------------------------------
 def score_views(model, views, background, chunk: int, autocast) -> dict:
     """Render every view (one warm-up frame first, not timed) and score it against its image:
-    ``{"psnr", "ssim"}`` means, ``"n"`` views and ``"fps"`` (renders only)."""
+    ``{"psnr", "ssim"}`` means, ``"n"`` views, ``"fps"`` (renders only) and ``"views"``: each view's PSNR."""
     import torch
 
     from nerfkit.output.images import render_image
@@ -333,7 +334,8 @@ def score_views(model, views, background, chunk: int, autocast) -> dict:
             target = views.images[i].astype(np.float32) / 255.0
             p.append(psnr(rgb, target))
             s.append(ssim(rgb, target))
-    return {"psnr": float(np.mean(p)), "ssim": float(np.mean(s)), "n": len(views), "fps": len(views) / seconds}
+    return {"psnr": float(np.mean(p)), "ssim": float(np.mean(s)), "n": len(views), "fps": len(views) / seconds,
+            "views": [round(float(x), 3) for x in p]}
 
 
 def parse_variant(text: str) -> tuple[str, str, dict]:
@@ -397,7 +399,7 @@ def train_and_score(bench: BenchScene, model_name: str, seconds: float | None, s
     row = {"scene": bench.name, "model": label or model_name, "budget": budget_label(seconds, steps),
            "budget_s": seconds, "budget_steps": steps, "steps": result.step,
            "train_s": round(result.train_seconds, 2), "psnr": main["psnr"], "ssim": main["ssim"], "fps": main["fps"],
-           "model_mb": (run_dir / MODEL_FILE).stat().st_size / 1e6, "n_heldout": main["n"],
+           "model_mb": (run_dir / MODEL_FILE).stat().st_size / 1e6, "n_heldout": main["n"], "psnr_views": main["views"],
            "n_train": len(scene.train), "width": bench.heldout.width, "height": bench.heldout.height,
            "loadavg_before": [round(x, 2) for x in load_before], "loadavg_after": [round(x, 2) for x in load_after]}
     for label, views in bench.extra.items():
