@@ -274,6 +274,33 @@ def test_object_box_keeps_a_thin_part_with_few_points_and_leaves_out_a_lone_stra
     assert lo2[0] > -0.03  # (2% quantiles, the rule before, cut the tip off)
 
 
+def test_object_box_leaves_out_clutter_that_few_photos_frame():
+    """Eight cameras on a ring look at an object at the origin; a chair leg stands above the
+    table past the ring, inside the sphere but in the frames of fewer than half the photos: the box
+    holds the object alone, as without the photos it would not."""
+    from types import SimpleNamespace
+
+    from nerfkit.cameras import look_at
+    from nerfkit.scene_extent import OBJECT_SEEN_SHARE, object_box_from_points, seen_share
+
+    rng = np.random.default_rng(2)
+    table = np.array([0.0, 0.0, 1.0, 0.0])
+    ring = [np.array([np.cos(a), np.sin(a), 0.6]) for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)]
+    c2w = np.stack([look_at(eye, np.zeros(3), np.array([0.0, 0.0, 1.0])) for eye in ring])
+    K = np.array([[100.0, 0, 50], [0, 100.0, 50], [0, 0, 1]])  # 100 x 100 pixels, 53 degrees across
+    views = SimpleNamespace(c2w=c2w, K=np.stack([K] * 8), width=100, height=100)
+    obj = rng.uniform([-0.1, -0.1, 0.05], [0.1, 0.1, 0.2], (300, 3))
+    leg = np.c_[np.full(60, 1.3), rng.uniform(-0.02, 0.02, 60), rng.uniform(0.05, 0.3, 60)]
+    behind = ring[0] + (ring[0] - np.array([0, 0, 0.6])) * 0.5  # behind the first camera: no photo frames it
+    np.testing.assert_allclose(seen_share(np.array([[0.0, 0, 0.1], behind]), views), [1.0, 0.0])
+    assert np.all(seen_share(leg, views) < OBJECT_SEEN_SHARE)  # (the cameras across the ring frame it)
+    pts = np.concatenate([obj, leg])
+    lo, hi = object_box_from_points(pts, table, np.zeros(3), 1.5, views=views)
+    assert np.all(lo <= [-0.1, -0.1, 0.0]) and np.all(hi >= [0.1, 0.1, 0.2])  # the object and its foot
+    assert hi[0] < 0.3  # not the leg
+    assert object_box_from_points(pts, table, np.zeros(3), 1.5)[1][0] > 1.2  # (without the photos: the leg too)
+
+
 def test_fast_model_starts_in_the_object_box_of_a_scene_with_points(tabletop):
     from nerfkit.models.base import SceneBounds
     from nerfkit.models.fast import FastNeRF

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .cameras import project_points
+
 
 def sphere_radius(scene) -> float:
     """Radius of a sphere about the scene's centre that holds the object: the object lies
@@ -26,16 +28,41 @@ MIN_OBJECT_POINTS = 30
 FEW_TRAIN_VIEWS = 30
 
 
+# an object point lies inside the frames of at least this share of the training photos: the
+# photographer keeps the object in every photo, while the room's clutter that also stands
+# above the table (a chair leg, a bag at the floor's edge) shows in a few of them only
+OBJECT_SEEN_SHARE = 0.5
+
+
+def seen_share(points: np.ndarray, views) -> np.ndarray:
+    """(m,) the share of the photos ``views`` (``c2w`` (n, 4, 4), ``K`` (n, 3, 3), ``width``,
+    ``height``) whose frame holds each of ``points`` (m, 3), in front of the camera."""
+    p = np.asarray(points, np.float64)
+    seen = np.zeros(len(p))
+    for K, c2w in zip(views.K, views.c2w, strict=True):
+        uv, z = project_points(K, c2w, p)
+        seen += (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= views.width) & (uv[:, 1] >= 0) & (uv[:, 1] <= views.height)
+    return seen / max(len(views.c2w), 1)
+
+
 def object_points(
-    points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float, lift: float = 0.03
+    points: np.ndarray,
+    table: np.ndarray,
+    center: np.ndarray,
+    radius: float,
+    lift: float = 0.03,
+    views=None,
+    min_seen: float = OBJECT_SEEN_SHARE,
 ) -> np.ndarray:
     """The sparse points (m, 3) of an object standing on a table: those within ``radius``
-    of ``center`` and higher than ``lift x radius`` above the table (``table``: ``(n, d)``;
-    points on it are texture, not object). (k, 3) float64."""
+    of ``center``, higher than ``lift x radius`` above the table (``table``: ``(n, d)``;
+    points on it are texture, not object) and, given the training photos ``views``, inside
+    the frames of at least ``min_seen`` of them (:func:`seen_share`). (k, 3) float64."""
     p = np.asarray(points, np.float64)
     n, d = np.asarray(table[:3], np.float64), float(table[3])
     height = p @ n + d
-    return p[(np.linalg.norm(p - np.asarray(center, np.float64), axis=1) < radius) & (height > lift * radius)]
+    p = p[(np.linalg.norm(p - np.asarray(center, np.float64), axis=1) < radius) & (height > lift * radius)]
+    return p if views is None or len(p) == 0 else p[seen_share(p, views) >= min_seen]
 
 
 # the share of an object's sparse points (with their feet) an object box may leave out on
@@ -53,14 +80,16 @@ def object_box_from_points(
     lift: float = 0.03,
     pad: float = 0.15,
     quantile: float = OBJECT_BOX_QUANTILE,
+    views=None,
 ) -> tuple | None:
     """An axis-aligned box ``(lo, hi)`` around an object standing on a table, from its
-    sparse points (:func:`object_points`) with their feet on the table, from the
+    sparse points (:func:`object_points`, those in the frames of most photos ``views``
+    when given) with their feet on the table, from the
     ``quantile`` to the ``1 - quantile`` quantile per axis, padded by ``pad`` of its size
     plus 5% of ``radius``; kept inside the sphere's box. None with fewer than
     ``min_points`` object points (the sphere's box is used then).
     """
-    obj = object_points(points, table, center, radius, lift)
+    obj = object_points(points, table, center, radius, lift, views)
     if len(obj) < min_points:
         return None
     n, d = np.asarray(table[:3], np.float64), float(table[3])
@@ -73,4 +102,12 @@ def object_box_from_points(
     return lo.astype(np.float32), hi.astype(np.float32)
 
 
-__all__ = ["MIN_OBJECT_POINTS", "OBJECT_BOX_QUANTILE", "object_box_from_points", "object_points", "sphere_radius"]
+__all__ = [
+    "MIN_OBJECT_POINTS",
+    "OBJECT_BOX_QUANTILE",
+    "OBJECT_SEEN_SHARE",
+    "object_box_from_points",
+    "object_points",
+    "seen_share",
+    "sphere_radius",
+]

@@ -325,7 +325,7 @@ def build_dataset(
         "points_from": points_note,
         "object_points": None
         if scene.points is None or table is None
-        else len(object_points(scene.points, table, scene.center, sphere_radius(scene))),
+        else len(object_points(scene.points, table, scene.center, sphere_radius(scene), views=scene.train)),
         "world": "tag frame: origin at the tag centre, x right and y up along the printed tag, z out of the tag "
         "toward the cameras (= up); metres",
     }
@@ -370,7 +370,11 @@ def photo_agreement(scene: Scene) -> Agreement | None:
     if scene.table is None:  # no table to agree on (build_dataset asks only when there is one)
         return None
     radius = sphere_radius(scene)  # the object's box as the model will find it (SceneBounds.from_scene)
-    box = None if scene.points is None else object_box_from_points(scene.points, scene.table, scene.center, radius)
+    box = (
+        None
+        if scene.points is None
+        else object_box_from_points(scene.points, scene.table, scene.center, radius, views=scene.train)
+    )
     return measure_agreement(scene.train, scene.center, scene.table, radius, box)
 
 

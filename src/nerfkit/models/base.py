@@ -63,7 +63,7 @@ class SceneBounds:
         radius = sphere_radius(scene)
         box = floor = None
         if scene.points is not None and scene.table is not None:
-            box = object_box_from_points(scene.points, scene.table, scene.center, radius)
+            box = object_box_from_points(scene.points, scene.table, scene.center, radius, views=scene.train)
             plane = scene.floor()
             if plane is not None:
                 floor = np.array([*plane.normal, plane.offset], np.float32)

@@ -270,7 +270,8 @@ class FastConfig:
     object_box: bool = option(
         True,
         "start from the box around the object that the dataset's sparse points "
-        "give (points above the table), when it has them, instead of the bounding sphere's",
+        "give (points above the table that at least half the training photos frame), "
+        "when it has them, instead of the bounding sphere's",
     )
     near_grad: float = option(
         0.0,
