@@ -267,6 +267,13 @@ class FastConfig:
         above=0.0,
         max=4.0,
     )
+    ndc_square_pixels: bool = option(
+        False,
+        "in NDC: stretch the grid across by the photos' width over their height, so that a "
+        "voxel spans as many pixels across as down (NDC's X and Y both span the photo, so a "
+        "cube of NDC spans more pixels across a landscape photo than down; default: on for "
+        "forward-facing datasets)",
+    )
     object_box: bool = option(
         True,
         "start from the box around the object that the dataset's sparse points "
