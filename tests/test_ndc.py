@@ -248,3 +248,20 @@ def test_the_fast_grid_with_square_pixels_lays_more_vertices_across_a_landscape_
         rx, ry, _ = model.field.res
         assert (rx - 1) / (ry - 1) == pytest.approx(ratio, rel=0.05)
 
+
+def test_the_distortion_loss_in_ndc_measures_the_fraction_of_the_way_to_infinity():
+    """In NDC the distortion loss's distances are the NDC rays' fraction ``s`` (spanning
+    [0, 1) whatever the scene's size): its term is the weight times the mean per-ray
+    distortion, not divided by the scene radius as in a box."""
+    from nerfkit.models.base import RenderOutput
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    fwd = SceneBounds.from_scene(forward_facing_scene(n_train=6, n_val=0, size=8))
+    obj = SceneBounds.from_scene(sphere_scene(n_train=6, size=8))
+    dist = torch.tensor([0.2, 0.4])
+    out = RenderOutput(torch.zeros(2, 3), torch.zeros(2), torch.zeros(2), 0, {"distortion": dist})
+    for bounds, unit in ((fwd, 1.0), (obj, obj.radius)):
+        model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", distortion_weight=0.5), bounds)
+        assert model.distortion_unit == unit
+        torch.testing.assert_close(model.loss(out, torch.zeros(2, 3)), torch.tensor(0.5 * 0.3 / unit))
+    assert fwd.radius > 2.0  # (the two units differ)

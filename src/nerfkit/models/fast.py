@@ -236,8 +236,15 @@ class FastNeRF(NerfModel):
 
     def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
         terms = [] if self.surroundings is None else self.surroundings.loss_terms()
-        terms.append(losses.distortion(self.config.distortion_weight or 0.0, self.bounds.radius))
+        terms.append(losses.distortion(self.config.distortion_weight or 0.0, self.distortion_unit))
         return losses.total(self._photometric(out.rgb, target_rgb), terms, out)
+
+    @property
+    def distortion_unit(self) -> float:
+        """The length the distortion loss measures its distances in: the scene radius, or in
+        NDC 1, the span of a ray's fraction ``s`` from the near plane to infinity (mip-NeRF
+        360's normalised distance), so that a weight means the same in either space."""
+        return self.bounds.radius if self.ndc is None else 1.0
 
     def see_batch(self, progress: float, image_index: Tensor, uv: Tensor, shape: tuple[int, int, int]) -> None:
         self._batch = (progress, image_index, uv, shape) if self.config.transient_quantile else None

@@ -174,7 +174,8 @@ class FastConfig:
     distortion_weight: float = option(
         0.0,
         "weight of mip-NeRF 360's distortion loss (per ray, distances in "
-        "units of the scene radius; with --table the table counts as the "
+        "units of the scene radius, in NDC in the fraction of the way from the near plane to "
+        "infinity; with --table the table counts as the "
         "surface behind the box): it gathers each ray's weight onto one "
         "surface, against haze and floaters (default: "
         "0.01 on capture and forward-facing datasets, else 0)",
