@@ -38,7 +38,9 @@ MODEL_TRAINING: dict[str, dict[str, Any]] = {
 # direction, and for fast textured room shells), a glossy table texture, a robust photometric
 # loss, the sparse points' sight lines and a small total variation of the view-dependent colour;
 # its learning rate ends lower (a table texel is hit by few rays a step). Captures and
-# forward-facing scenes (content at every depth) take the distortion loss.
+# forward-facing scenes (content at every depth) take the distortion loss. A kind whose fast
+# model values name "resolutions" / "upsample_steps" trains with those grid stages
+# (:func:`grid_stages`); the others take the base stages.
 PRESETS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     OBJECT: {},
     CAPTURE: {
