@@ -340,15 +340,18 @@ def score_views(model, views, background, chunk: int, autocast) -> dict:
 
 def parse_variant(text: str) -> tuple[str, str, dict]:
     """``"NAME:FIELD=VALUE,..."`` -> (label, base model, {field: value}); NAME is
-    ``MODEL+SUFFIX`` (``fast+tv``) and each VALUE a Python literal."""
+    ``MODEL+SUFFIX`` (``fast+tv``) and each VALUE a Python literal. A comma starts a new
+    FIELD=VALUE only where a name and ``=`` follow it, so a value may hold commas
+    (``upsample_steps='60,300,1000'``)."""
     import ast
+    import re
 
     label, sep, body = text.partition(":")
     base = label.split("+")[0]
     if not sep or not label or not body:
         raise fail("--variant", f"{text!r} is not NAME:FIELD=VALUE[,FIELD=VALUE...]", "e.g. fast+tv:tv_weight=1e-4")
     changes = {}
-    for item in body.split(","):
+    for item in re.split(r",(?=\s*[A-Za-z_]\w*\s*=)", body):
         field, eq, value = item.partition("=")
         if not eq:
             raise fail("--variant", f"{item!r} in {text!r} is not FIELD=VALUE")

@@ -163,6 +163,9 @@ def test_a_variant_changes_the_named_settings_in_whichever_config_has_them():
     assert TrainConfig().lr != 0.02 and FastConfig().tv_weight != 1e-4
     with pytest.raises(NerfkitError, match="no setting named 'nope'"):
         heldout.apply_changes(TrainConfig(), FastConfig(), {"nope": 1}, label)
+    # a value may hold commas: a comma starts a new setting only before NAME=
+    _, _, changes = heldout.parse_variant("fast+g:upsample_steps='60,300,1000',resolutions='32,64',lr=0.1")
+    assert changes == {"upsample_steps": "60,300,1000", "resolutions": "32,64", "lr": 0.1}
     for bad in ("fast", "fast+x:", "fast+x:tv_weight"):
         with pytest.raises(NerfkitError):
             heldout.parse_variant(bad)

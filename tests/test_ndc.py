@@ -207,3 +207,61 @@ def test_the_fast_grid_in_ndc_puts_a_wall_at_its_depth_whatever_the_disparity_sc
     voxel_depth = model.field.voxel / scale * z0**2 / (2.0 * ndc.near)
     assert voxel_depth < 0.3
     torch.testing.assert_close(out.depth, torch.full((3,), z0), atol=voxel_depth, rtol=0)
+
+
+@pytest.mark.parametrize("square", [False, True])
+def test_square_pixels_make_a_pixel_across_as_long_as_a_pixel_down_in_the_grid(space, square):
+    """One pixel across and one pixel down (same depth, the reference camera's own intrinsics)
+    move a point equally far in the grid's space with ``square_pixels``; without, NDC's X
+    and Y both span the photo, so a pixel across is height / width of a pixel down."""
+    from nerfkit.render.ndc import grid_scale, to_grid
+
+    c2w = torch.tensor(space.c2w, dtype=torch.float64)
+    R, c = c2w[:3, :3], c2w[:3, 3]
+    cam = torch.tensor([[0.3, -0.2, 2.0], [-0.5, 0.4, 7.0]], dtype=torch.float64)  # reference camera's frame
+    z = cam[:, 2:]
+    across = cam + torch.cat([z / space.fx, 0 * z, 0 * z], 1)
+    down = cam + torch.cat([0 * z, z / space.fy, 0 * z], 1)
+    scale = grid_scale(space.width, space.height, 0.3, square)
+    assert scale == ((space.width / space.height if square else 1.0), 1.0, 0.3)
+
+    def grid(p):
+        return to_grid(space.points(p @ R.T + c), scale)
+
+    step_x, step_y = (grid(across) - grid(cam)).norm(dim=1), (grid(down) - grid(cam)).norm(dim=1)
+    want = 1.0 if square else space.height / space.width
+    torch.testing.assert_close(step_x / step_y, torch.full_like(step_x, want))
+
+
+def test_the_fast_grid_with_square_pixels_lays_more_vertices_across_a_landscape_photo():
+    """A forward-facing scene of 4:3 photos: the first grid has about 4/3 as many vertices
+    across as down with ``ndc_square_pixels``, as many without (NDC's box is square)."""
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    scene = forward_facing_scene(n_train=6, n_val=0, size=16)
+    K = scene.train.K.copy()
+    K[:, 0, 2], K[:, 1, 2] = 32 / 2, 24 / 2
+    wide = replace(scene, train=replace(scene.train, width=32, height=24, K=K, images=None))
+    bounds = SceneBounds.from_scene(wide)
+    for square, ratio in ((False, 1.0), (True, 32 / 24)):
+        model = FastNeRF(FastConfig(resolutions="48", upsample_steps="", ndc_square_pixels=square), bounds)
+        rx, ry, _ = model.field.res
+        assert (rx - 1) / (ry - 1) == pytest.approx(ratio, rel=0.05)
+
+
+def test_the_distortion_loss_in_ndc_measures_the_fraction_of_the_way_to_infinity():
+    """In NDC the distortion loss's distances are the NDC rays' fraction ``s`` (spanning
+    [0, 1) whatever the scene's size): its term is the weight times the mean per-ray
+    distortion, not divided by the scene radius as in a box."""
+    from nerfkit.models.base import RenderOutput
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    fwd = SceneBounds.from_scene(forward_facing_scene(n_train=6, n_val=0, size=8))
+    obj = SceneBounds.from_scene(sphere_scene(n_train=6, size=8))
+    dist = torch.tensor([0.2, 0.4])
+    out = RenderOutput(torch.zeros(2, 3), torch.zeros(2), torch.zeros(2), 0, {"distortion": dist})
+    for bounds, unit in ((fwd, 1.0), (obj, obj.radius)):
+        model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", distortion_weight=0.5), bounds)
+        assert model.distortion_unit == unit
+        torch.testing.assert_close(model.loss(out, torch.zeros(2, 3)), torch.tensor(0.5 * 0.3 / unit))
+    assert fwd.radius > 2.0  # (the two units differ)

@@ -121,3 +121,20 @@ def test_every_preset_names_real_settings():
             train, model_values = presets.preset_values(kind, model)
             assert set(train) <= train_fields
             assert set(model_values) <= set(asdict(model_config_class(model)()))
+
+
+def test_a_scene_kind_with_its_own_grid_stages_gets_them_and_the_others_keep_theirs(scenes, monkeypatch):
+    """Stages named in a kind's preset are that kind's (a stage option given still wins);
+    an object keeps the base stages, and at high resolution the fifth."""
+    from nerfkit.models.fast_config import BASE_STAGES, FINE_STAGES
+
+    own = {"resolutions": "16,48", "upsample_steps": "7"}
+    table = {**presets.PRESETS, "capture": {**presets.PRESETS["capture"], "fast": {"model": own}}}
+    monkeypatch.setattr(presets, "PRESETS", table)
+    r = presets.resolve(TrainConfig(steps=10), FastConfig(), scenes["tabletop"], set())
+    assert (r.model.resolutions, r.model.upsample_steps) == ("16,48", "7")
+    r = presets.resolve(TrainConfig(steps=10), FastConfig(resolutions="8,16"), scenes["tabletop"], {"resolutions"})
+    assert (r.model.resolutions, r.model.upsample_steps) == ("8,16", FastConfig().upsample_steps)
+    for name, stages in (("lego", BASE_STAGES), ("object_400", FINE_STAGES)):
+        r = presets.resolve(TrainConfig(steps=10), FastConfig(), scenes[name], set())
+        assert (r.model.resolutions, r.model.upsample_steps) == stages

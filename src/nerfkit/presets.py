@@ -38,7 +38,9 @@ MODEL_TRAINING: dict[str, dict[str, Any]] = {
 # direction, and for fast textured room shells), a glossy table texture, a robust photometric
 # loss, the sparse points' sight lines and a small total variation of the view-dependent colour;
 # its learning rate ends lower (a table texel is hit by few rays a step). Captures and
-# forward-facing scenes (content at every depth) take the distortion loss.
+# forward-facing scenes (content at every depth) take the distortion loss. A kind whose fast
+# model values name "resolutions" / "upsample_steps" trains with those grid stages
+# (:func:`grid_stages`); the others take the base stages.
 PRESETS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     OBJECT: {},
     CAPTURE: {
@@ -59,6 +61,10 @@ PRESETS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     },
     FORWARD_FACING: {"fast": {"model": {"distortion_weight": 0.01}}},
 }
+
+
+# the fast model's grid stages: a kind's preset may name its own (:func:`grid_stages`)
+STAGE_OPTIONS = frozenset({"resolutions", "upsample_steps"})
 
 
 @dataclass(frozen=True)
@@ -115,20 +121,32 @@ def table_cover_default(scene, capture: bool) -> float:
     return fast_config.TABLE_COVER_WEIGHT if scene.floor() is None else 0.0
 
 
+def grid_stages(kind: str, scene) -> tuple[str, str]:
+    """The fast model's grid stages (resolutions, upsample steps) for scene kind ``kind``:
+    the kind's own when its preset (:data:`PRESETS`) names them, else the base stages, with a
+    fifth for an object photographed at high resolution."""
+    from .models.fast_config import BASE_STAGES, FINE_STAGE_PIXELS, FINE_STAGES
+
+    own = preset_values(kind, "fast")[1]
+    if "resolutions" in own or "upsample_steps" in own:
+        return own.get("resolutions", BASE_STAGES[0]), own.get("upsample_steps", BASE_STAGES[1])
+    fine = kind == OBJECT and len(scene.train) > 0 and scene.train.width * scene.train.height > FINE_STAGE_PIXELS
+    return FINE_STAGES if fine else BASE_STAGES
+
+
 def scene_values(kind: str, model_config: Any, scene, given: frozenset[str]) -> dict:
-    """The model settings that follow from the scene itself rather than its kind (fast only):
-    a capture's table plane and table cover prior (:func:`table_cover_default`),
-    and the fifth grid stage of an object photographed at high resolution (unless a stage option is given)."""
-    from .models.fast_config import BASE_STAGES, FINE_STAGE_PIXELS, FINE_STAGES, FastConfig
+    """The model settings that follow from the scene itself rather than its kind alone (fast
+    only): a capture's table plane and table cover prior (:func:`table_cover_default`), and
+    the grid stages (:func:`grid_stages`; unless a stage option is given)."""
+    from .models.fast_config import FastConfig
 
     if not isinstance(model_config, FastConfig):
         return {}
     out: dict[str, Any] = {"table_cover_weight": table_cover_default(scene, kind == CAPTURE)}
     if kind == CAPTURE:
         out["table"] = scene.table is not None
-    if not {"resolutions", "upsample_steps"} & given:
-        fine = kind == OBJECT and len(scene.train) > 0 and scene.train.width * scene.train.height > FINE_STAGE_PIXELS
-        out["resolutions"], out["upsample_steps"] = FINE_STAGES if fine else BASE_STAGES
+    if not STAGE_OPTIONS & given:
+        out["resolutions"], out["upsample_steps"] = grid_stages(kind, scene)
     return out
 
 
@@ -158,6 +176,8 @@ def resolve(train: Any, model_config: Any, scene, user_set: Iterable[str] | None
     kind = scene_kind(scene, train.capture)
     train_values, model_values = preset_values(kind, train.model)
     model_values = {**model_values, **scene_values(kind, model_config, scene, given)}
+    if STAGE_OPTIONS & given:  # the stages go together: one given, the other keeps its default
+        model_values = {k: v for k, v in model_values.items() if k not in STAGE_OPTIONS}
     train_values["capture"] = "on" if kind == CAPTURE else "off"  # what --capture auto resolved to
     train_values["preset"] = kind
     # the model's options that do not apply to it are not its
@@ -185,6 +205,7 @@ __all__ = [
     "PRESETS",
     "Resolved",
     "SCENE_KINDS",
+    "grid_stages",
     "preset_values",
     "resolve",
     "scene_kind",

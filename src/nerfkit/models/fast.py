@@ -54,7 +54,7 @@ from ..kernels.ops import GridRender
 from ..losses import robust
 from ..losses.tv import GridTV, tv_weights
 from ..render.box import GridBox, ray_aabb
-from ..render.ndc import to_grid
+from ..render.ndc import grid_scale, to_grid
 from ..render.volrend import sight_line_loss
 from ..surroundings import Surroundings, flat_background, renamed_keys
 from . import grid_growth as growth
@@ -104,12 +104,19 @@ def grid_start(config: FastConfig, bounds: SceneBounds) -> tuple[np.ndarray, np.
             "Use --space box (or auto)",
         )
     if bounds.ndc is not None and config.space != "box":
-        e, z = bounds.ndc.extent, config.ndc_depth_scale
-        return np.array([-e, -e, -z], np.float32), np.array([e, e, z], np.float32)
+        half = bounds.ndc.extent * np.array(ndc_grid_scale(config, bounds.ndc), np.float32)
+        half[2] = config.ndc_depth_scale  # (Z spans [-1, 1] in NDC whatever the extent)
+        return -half, half
     if config.object_box and bounds.object_box is not None:
         return bounds.object_box
     c = np.asarray(bounds.center, np.float32)
     return c - bounds.radius, c + bounds.radius
+
+
+def ndc_grid_scale(config: FastConfig, ndc) -> tuple[float, float, float]:
+    """The factors (X, Y, Z) from NDC to the grid's space: :func:`~nerfkit.render.ndc.grid_scale`
+    of the reference photo with ``--ndc-depth-scale`` and ``--ndc-square-pixels``."""
+    return grid_scale(ndc.width, ndc.height, config.ndc_depth_scale, bool(config.ndc_square_pixels))
 
 
 class FastNeRF(NerfModel):
@@ -122,6 +129,7 @@ class FastNeRF(NerfModel):
         self.ray_factors = c.stage_ray_factors()
         box = GridBox.fit(*grid_start(c, bounds), self.sizes[0])
         self.ndc = bounds.ndc if c.space != "box" else None
+        self.ndc_scale = None if self.ndc is None else ndc_grid_scale(c, self.ndc)
         self.stage = 0
         # the occupancy grid (saved with the model, so that a resumed run samples as the
         # uninterrupted one would), refreshed after every occ_start steps until occ_warmup,
@@ -199,7 +207,8 @@ class FastNeRF(NerfModel):
         ndc = self.ndc
         assert ndc is not None  # (only called in NDC)
         o, d, forward = ndc.rays(o_w, d_w)
-        o, d = to_grid(o, self.config.ndc_depth_scale), to_grid(d, self.config.ndc_depth_scale)
+        assert self.ndc_scale is not None  # (set with ndc)
+        o, d = to_grid(o, self.ndc_scale), to_grid(d, self.ndc_scale)
         t0, t1 = ray_aabb(o, d, self.field.geom.lo, self.field.geom.hi, 0.0, 1.0)
         dist = bool(self.config.distortion_weight)
         out = self._march(o, d, t0, torch.where(forward, t1, t0), u, distortion=dist, view_dirs=d_w)
@@ -214,11 +223,12 @@ class FastNeRF(NerfModel):
         """(n, 3) world points -> where they are in the grid's space (NDC or world)."""
         if self.ndc is None:
             return points.float()
-        return to_grid(self.ndc.points(points.float()), self.config.ndc_depth_scale)
+        assert self.ndc_scale is not None  # (set with ndc)
+        return to_grid(self.ndc.points(points.float()), self.ndc_scale)
 
     def query(self, points: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:
-        """Density (per unit of the grid's space: for a forward-facing model NDC units, the
-        disparity axis scaled by ``ndc_depth_scale``) and colour."""
+        """Density (per unit of the grid's space: for a forward-facing model NDC units, each
+        axis scaled by :attr:`ndc_scale`) and colour."""
         return self.field.query(self._grid_points(points), directions)
 
     def density(self, points: Tensor) -> Tensor:
@@ -226,8 +236,15 @@ class FastNeRF(NerfModel):
 
     def loss(self, out: RenderOutput, target_rgb: Tensor) -> Tensor:
         terms = [] if self.surroundings is None else self.surroundings.loss_terms()
-        terms.append(losses.distortion(self.config.distortion_weight or 0.0, self.bounds.radius))
+        terms.append(losses.distortion(self.config.distortion_weight or 0.0, self.distortion_unit))
         return losses.total(self._photometric(out.rgb, target_rgb), terms, out)
+
+    @property
+    def distortion_unit(self) -> float:
+        """The length the distortion loss measures its distances in: the scene radius, or in
+        NDC 1, the span of a ray's fraction ``s`` from the near plane to infinity (mip-NeRF
+        360's normalised distance), so that a weight means the same in either space."""
+        return self.bounds.radius if self.ndc is None else 1.0
 
     def see_batch(self, progress: float, image_index: Tensor, uv: Tensor, shape: tuple[int, int, int]) -> None:
         self._batch = (progress, image_index, uv, shape) if self.config.transient_quantile else None

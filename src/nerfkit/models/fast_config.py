@@ -174,7 +174,8 @@ class FastConfig:
     distortion_weight: float = option(
         0.0,
         "weight of mip-NeRF 360's distortion loss (per ray, distances in "
-        "units of the scene radius; with --table the table counts as the "
+        "units of the scene radius, in NDC in the fraction of the way from the near plane to "
+        "infinity; with --table the table counts as the "
         "surface behind the box): it gathers each ray's weight onto one "
         "surface, against haze and floaters (default: "
         "0.01 on capture and forward-facing datasets, else 0)",
@@ -266,6 +267,13 @@ class FastConfig:
         "scene's detail is, and fewer samples a ray)",
         above=0.0,
         max=4.0,
+    )
+    ndc_square_pixels: bool = option(
+        False,
+        "in NDC: stretch the grid across by the photos' width over their height, so that a "
+        "voxel spans as many pixels across as down (NDC's X and Y both span the photo, so a "
+        "cube of NDC spans more pixels across a landscape photo than down; default: on for "
+        "forward-facing datasets)",
     )
     object_box: bool = option(
         True,

@@ -179,15 +179,28 @@ class NdcSpace:
         return shift + s * self.near / (dz * (1.0 - s))
 
 
-def to_grid(v: Tensor, depth_scale: float) -> Tensor:
-    """(n, 3) NDC points or ray directions -> the grid's space: Z (the disparity axis)
-    times ``depth_scale``, X and Y as they are.
+def grid_scale(width: int, height: int, depth_scale: float, square_pixels: bool) -> tuple[float, float, float]:
+    """The factors (X, Y, Z) that take NDC to the grid's space (:func:`to_grid`): Z (the
+    disparity axis) times ``depth_scale``; with ``square_pixels`` X times ``width / height``.
 
-    The grid's voxels are cubes in its space, so a ``depth_scale`` below 1 lays fewer
-    vertices along the disparity and, for the same vertex count, more across the view.
+    NDC's X and Y both span [-1, 1] across the reference photo, so a cube of NDC spans
+    ``width / height`` times more pixels across than down; stretched so, the grid's cubic
+    voxels cover as many pixels each way (for the same vertex count, finer across a
+    landscape photo). Example: ``grid_scale(504, 378, 0.25, True)`` -> ``(1.333..., 1.0, 0.25)``.
+    """
+    return (width / height if square_pixels else 1.0), 1.0, float(depth_scale)
+
+
+def to_grid(v: Tensor, scale: float | tuple[float, float, float]) -> Tensor:
+    """(n, 3) NDC points or ray directions -> the grid's space: each axis times its factor of
+    ``scale`` (:func:`grid_scale`; a number: the Z factor, X and Y as they are).
+
+    The grid's voxels are cubes in its space, so a Z factor below 1 lays fewer vertices
+    along the disparity and, for the same vertex count, more across the view.
     Linear: a straight NDC ray ``o' + s d'`` maps to ``to_grid(o') + s to_grid(d')``, at the
     same ``s``. Example: ``to_grid([[0.5, -0.2, 0.8]], 0.5)`` -> ``[[0.5, -0.2, 0.4]]``.
     """
-    if depth_scale == 1.0:
+    factors = (1.0, 1.0, float(scale)) if isinstance(scale, (int, float)) else tuple(scale)
+    if factors == (1.0, 1.0, 1.0):
         return v
-    return v * v.new_tensor([1.0, 1.0, depth_scale])
+    return v * v.new_tensor(factors)
