@@ -105,11 +105,14 @@ def test_opacity_reset_caps_opacity(sphere):
 
 
 @pytest.mark.slow
-def test_resume_continues_exactly(tmp_path, sphere):
-    cfg = dict(steps=30, eval_every=15)
+@pytest.mark.parametrize("capture", ["off", "on"])
+def test_resume_continues_exactly(tmp_path, sphere, capture):
+    """Also a capture's run, its per-view pose and exposure corrections (poses from step 5)."""
+    cfg = dict(steps=30, eval_every=15, capture=capture, pose_start=5, pose_lr=2e-3)
     model_cfg = SplatConfig(**{**SMALL, "densify_every": 5})  # density control before and after the stop
     train(sphere, splat_cfg(tmp_path, "a", **cfg), model_cfg, quiet=True)
-    first = Trainer(sphere, splat_cfg(tmp_path, "b", **cfg), model_cfg, quiet=True).run(stop_after=12)
+    b_cfg, b_model_cfg = presets.resolve(splat_cfg(tmp_path, "b", **cfg), model_cfg, sphere).configs()  # as train()
+    first = Trainer(sphere, b_cfg, b_model_cfg, quiet=True).run(stop_after=12)
     assert first.step == 12
     resumed = resume(tmp_path / "b", sphere, quiet=True)
     assert resumed.step == 30
@@ -119,6 +122,11 @@ def test_resume_continues_exactly(tmp_path, sphere):
     assert json.loads(a["model_extra"]) == json.loads(b["model_extra"])
     for k in a["model"]:
         torch.testing.assert_close(a["model"][k], b["model"][k], rtol=1e-4, atol=1e-5)
+    assert ("views" in a) == (capture == "on")
+    if capture == "on":
+        assert float(a["views"]["pose.rotation"].abs().max()) > 0
+        for k in a["views"]:
+            torch.testing.assert_close(a["views"][k], b["views"][k], rtol=1e-4, atol=1e-6)
 
 
 def test_export_ply_has_the_3dgs_layout_and_renders_identically(trained, sphere, tmp_path):
@@ -244,7 +252,8 @@ def test_capture_mode_learns_the_background_exposure_and_poses(tmp_path):
     grey = sphere_scene(n_train=12, n_val=2, size=32)
     for split in (grey.train, grey.val):
         split.images[(split.images == 0).all(-1)] = colour
-    trainer = Trainer(grey, splat_cfg(tmp_path, steps=150, capture="on", eval_views=1), *_capture(grey), quiet=True)
+    cfg = splat_cfg(tmp_path, steps=150, capture="on", eval_views=1, pose_lr=2e-3)  # (the preset: off)
+    trainer = Trainer(grey, cfg, *_capture(grey), quiet=True)
     assert trainer.model.bg_coef is not None
     assert trainer.views is not None and trainer.views.pose is not None and trainer.views.exposure is not None
     v = grey.val
@@ -299,7 +308,8 @@ def test_eval_of_a_capture_splat_run_fits_each_held_out_views_pose(tmp_path, sph
     """Splats render whole views, and ``eval`` fits each held-out view's pose from whole
     renders as it does a ray model's: the fitted score is written beside the rendered one."""
     (model_cfg,) = _capture(sphere)
-    run = train(sphere, splat_cfg(tmp_path, data=str(sphere_npz), steps=15, capture="on"), model_cfg, quiet=True)
+    cfg = splat_cfg(tmp_path, data=str(sphere_npz), steps=15, capture="on", pose_lr=2e-3, pose_start=5)
+    run = train(sphere, cfg, model_cfg, quiet=True)
     corrections = json.loads((run.run_dir / "view_corrections.json").read_text())["views"]
     assert len(corrections) == len(sphere.train) and "rotation_deg" in corrections[0]
     capsys.readouterr()
