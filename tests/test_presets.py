@@ -26,6 +26,9 @@ REFERENCE = Path(__file__).resolve().parent / "reference" / "resolved_configs.js
 RETIRED: set[str] = set()
 # defaults changed on purpose since: a run keeps one resume checkpoint beside model.pt
 CHANGED = {"keep_checkpoints": 1}
+# ... and for one scene and model: splat's pose corrections on a capture are off by their
+# preset (the trainer then skipped them for models that render whole views)
+CHANGED_FOR = {f"{scene}/splat": {"pose_lr": 0.0} for scene in ("tabletop", "tabletop_points")}
 
 
 def sized(scene, size):
@@ -60,7 +63,7 @@ def test_the_resolved_settings_of_each_scene_kind_are_those_kept_from_before(sce
         want = reference[f"{name}/{model}"]
         got_train = {k: v for k, v in asdict(r.train).items() if k != "preset"}
         got_model = asdict(r.model)
-        assert got_train == {**want["train"], **CHANGED}, name
+        assert got_train == {**want["train"], **CHANGED, **CHANGED_FOR.get(f"{name}/{model}", {})}, name
         assert got_model == {k: v for k, v in want["model"].items() if k not in RETIRED}, name
         assert (
             r.train.preset

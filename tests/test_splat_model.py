@@ -105,11 +105,14 @@ def test_opacity_reset_caps_opacity(sphere):
 
 
 @pytest.mark.slow
-def test_resume_continues_exactly(tmp_path, sphere):
-    cfg = dict(steps=30, eval_every=15)
+@pytest.mark.parametrize("capture", ["off", "on"])
+def test_resume_continues_exactly(tmp_path, sphere, capture):
+    """Also a capture's run, its per-view pose and exposure corrections (poses from step 5)."""
+    cfg = dict(steps=30, eval_every=15, capture=capture, pose_start=5, pose_lr=2e-3)
     model_cfg = SplatConfig(**{**SMALL, "densify_every": 5})  # density control before and after the stop
     train(sphere, splat_cfg(tmp_path, "a", **cfg), model_cfg, quiet=True)
-    first = Trainer(sphere, splat_cfg(tmp_path, "b", **cfg), model_cfg, quiet=True).run(stop_after=12)
+    b_cfg, b_model_cfg = presets.resolve(splat_cfg(tmp_path, "b", **cfg), model_cfg, sphere).configs()  # as train()
+    first = Trainer(sphere, b_cfg, b_model_cfg, quiet=True).run(stop_after=12)
     assert first.step == 12
     resumed = resume(tmp_path / "b", sphere, quiet=True)
     assert resumed.step == 30
@@ -119,6 +122,11 @@ def test_resume_continues_exactly(tmp_path, sphere):
     assert json.loads(a["model_extra"]) == json.loads(b["model_extra"])
     for k in a["model"]:
         torch.testing.assert_close(a["model"][k], b["model"][k], rtol=1e-4, atol=1e-5)
+    assert ("views" in a) == (capture == "on")
+    if capture == "on":
+        assert float(a["views"]["pose.rotation"].abs().max()) > 0
+        for k in a["views"]:
+            torch.testing.assert_close(a["views"][k], b["views"][k], rtol=1e-4, atol=1e-6)
 
 
 def test_export_ply_has_the_3dgs_layout_and_renders_identically(trained, sphere, tmp_path):
@@ -237,16 +245,17 @@ def test_cli_eval_and_render_a_splat_run(trained, sphere, capsys, tmp_path):
 
 
 @pytest.mark.slow
-def test_capture_mode_learns_the_background_and_exposure_without_pose(tmp_path):
+def test_capture_mode_learns_the_background_exposure_and_poses(tmp_path):
     """A coloured backdrop behind the sphere: the learned background, which starts grey,
     takes its colour where the cameras see it."""
     colour = np.array([200, 60, 100], np.uint8)
     grey = sphere_scene(n_train=12, n_val=2, size=32)
     for split in (grey.train, grey.val):
         split.images[(split.images == 0).all(-1)] = colour
-    trainer = Trainer(grey, splat_cfg(tmp_path, steps=150, capture="on", eval_views=1), *_capture(grey), quiet=True)
+    cfg = splat_cfg(tmp_path, steps=150, capture="on", eval_views=1, pose_lr=2e-3)  # (the preset: off)
+    trainer = Trainer(grey, cfg, *_capture(grey), quiet=True)
     assert trainer.model.bg_coef is not None
-    assert trainer.views is not None and trainer.views.pose is None and trainer.views.exposure is not None
+    assert trainer.views is not None and trainer.views.pose is not None and trainer.views.exposure is not None
     v = grey.val
     with torch.no_grad():
         before = trainer.model._background_image(
@@ -262,6 +271,7 @@ def test_capture_mode_learns_the_background_and_exposure_without_pose(tmp_path):
     assert (before[backdrop].mean(0) - target).abs().max() > 0.25  # the grey it starts from
     torch.testing.assert_close(after[backdrop].mean(0), target, atol=0.05, rtol=0)
     assert float(trainer.views.exposure.log_gain.detach().abs().max()) > 0
+    assert float(trainer.views.pose.rotation.detach().abs().max()) > 0  # (from --pose-start on)
 
 
 def _capture(sphere):
@@ -294,15 +304,17 @@ def test_live_viewer_draws_the_splats_and_renders_a_splat_run(trained, sphere, m
 
 
 @pytest.mark.slow
-def test_eval_of_a_capture_splat_run_scores_as_rendered_and_refuses_pose_fitting(tmp_path, sphere, sphere_npz, capsys):
-    """Splats render whole views, so held-out poses are not fitted: ``eval`` says so instead
-    of failing, and an explicit ``--fit-views`` gets a clear error."""
+def test_eval_of_a_capture_splat_run_fits_each_held_out_views_pose(tmp_path, sphere, sphere_npz, capsys):
+    """Splats render whole views, and ``eval`` fits each held-out view's pose from whole
+    renders as it does a ray model's: the fitted score is written beside the rendered one."""
     (model_cfg,) = _capture(sphere)
-    run = train(sphere, splat_cfg(tmp_path, data=str(sphere_npz), steps=15, capture="on"), model_cfg, quiet=True)
+    cfg = splat_cfg(tmp_path, data=str(sphere_npz), steps=15, capture="on", pose_lr=2e-3, pose_start=5)
+    run = train(sphere, cfg, model_cfg, quiet=True)
+    corrections = json.loads((run.run_dir / "view_corrections.json").read_text())["views"]
+    assert len(corrections) == len(sphere.train) and "rotation_deg" in corrections[0]
     capsys.readouterr()
-    assert main(["eval", str(run.run_dir)]) == 0
-    assert "scored as rendered only" in capsys.readouterr().out
+    assert main(["eval", str(run.run_dir), "--fit-views", "5"]) == 0
+    assert "with each view's pose fitted" in capsys.readouterr().out
     result = json.loads((run.run_dir / "eval_val.json").read_text())
-    assert result["psnr"] > 10 and "fitted" not in result
-    assert main(["eval", str(run.run_dir), "--fit-views", "5"]) != 0
-    assert "--fit-views" in capsys.readouterr().err
+    assert result["psnr"] > 10 and "5 steps" in result["fitted"]["what"]
+    assert all(v["psnr_fitted"] is not None and v["fitted_rotation_deg"] >= 0 for v in result["per_image"])

@@ -57,7 +57,9 @@ PRESETS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                 "tv_view_weight": 1e-8,
             },
         },
-        "splat": {"model": {"learn_background": True}},
+        # splat can learn the pose corrections too (through the camera it renders from); they are
+        # off until they help on the captures (BENCHMARKS.md, why the defaults are what they are)
+        "splat": {"train": {"pose_lr": 0.0}, "model": {"learn_background": True}},
     },
     FORWARD_FACING: {"fast": {"model": {"distortion_weight": 0.01}}},
 }

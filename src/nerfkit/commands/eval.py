@@ -35,7 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="also score each view after fitting its pose to its photo with the scene frozen, for this "
         "many steps, and then each half of the photo with a gain and offset per channel solved on "
         "the other half (least squares; NeRF-W's protocol, both ways) (default: 100 for runs "
-        "trained with --capture, else 0: off; 0 for models that render whole views, such as splat)",
+        "trained with --capture, else 0: off; a model that renders whole views, such as splat, fits "
+        "from whole renders)",
     )
     p.add_argument(
         "--json",

@@ -714,9 +714,7 @@ def evaluate(
     )
     stage.held_out_views(scene, split)
     capture = getattr(opened.info.train, "capture", "off") == "on"
-    steps, note = stage.fit_steps(opened.model, opened.info.train.model, capture, fit_views)
-    if note:
-        say(note)
+    steps = stage.fit_steps(capture, fit_views)
     sheet: list = []
     result = stage.scores(opened, scene, split, steps, sheet)
     json_path, sheet_path = Path(run) / f"eval_{split}.json", Path(run) / f"eval_{split}.png"
@@ -730,7 +728,7 @@ def evaluate(
         float(result["ssim"]),
         json_path,
         sheet_path if sheet else None,
-        (note,) if note else (),
+        (),
         result,
     )
 

@@ -257,7 +257,7 @@ class NerfModel(nn.Module):
     """
 
     # the model renders whole views (splat): the trainer draws one training view per step
-    # (no ray batches, no pose refinement, no sight lines)
+    # (no ray batches, no sight lines; its pose is corrected through the camera it renders from)
     whole_images: bool = False
 
     def __init__(self, bounds: SceneBounds):

@@ -281,7 +281,8 @@ class SplatModel(NerfModel):
 
     def render_view(self, K, c2w, width: int, height: int, background: Tensor) -> RenderOutput:
         """Render one whole view: ``rgb`` (H, W, 3), ``depth`` (H, W) alpha-weighted depth
-        sum, ``acc`` (H, W); differentiable in the Gaussians (colour only)."""
+        sum, ``acc`` (H, W); the colour is differentiable in the Gaussians and in ``c2w``
+        (4, 4) when it is a tensor that requires grad (a pose correction's camera)."""
         device = self.means.device
         if device.type == "cpu" and self.config.torch_threads and torch.get_num_threads() != self.config.torch_threads:
             torch.set_num_threads(self.config.torch_threads)

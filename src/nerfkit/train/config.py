@@ -141,7 +141,11 @@ class TrainConfig:
         cli=False,
     )
     pose_lr: float = option(
-        1e-3, "with --capture: learning rate of the per-view pose corrections (0: off)", min=0, group="real captures"
+        1e-3,
+        "with --capture: learning rate of the per-view pose corrections (0: off; the splat model's are off "
+        "unless this is given)",
+        min=0,
+        group="real captures",
     )
     pose_start: int = option(
         100,

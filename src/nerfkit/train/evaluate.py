@@ -17,6 +17,8 @@ pixels are scored too: a capture's score is mostly its table's.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 
@@ -25,7 +27,7 @@ from ..data.scene import Views
 from ..models.base import NerfModel
 from ..output.images import render_image
 from .metrics import masked_psnr, psnr, ssim
-from .view_corrections import ViewFitConfig, fit_view, least_squares_colour, rounded
+from .view_corrections import ViewFitConfig, fit_view, fit_whole_view, least_squares_colour, rounded
 
 
 def fit_held_out_view(
@@ -51,9 +53,7 @@ def fit_held_out_view(
     """
     device = background.device
     h, w = image.shape[:2]
-    rays = image_rays(
-        torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(c2w, dtype=torch.float32).to(device), w, h
-    )
+    K_t, c2w_t = torch.as_tensor(K, dtype=torch.float32), torch.as_tensor(c2w, dtype=torch.float32).to(device)
     target = torch.from_numpy(image.reshape(-1, 3).astype(np.float32) / 255.0).to(device)
     frozen = [p for p in model.parameters() if p.requires_grad]
     was_training = model.training
@@ -61,14 +61,24 @@ def fit_held_out_view(
     for p in frozen:
         p.requires_grad_(False)
     try:
-        pose, _ = fit_view(
-            lambda r: model.render_rays(r, background, perturb=False).rgb,
-            rays,
-            target,
-            scale,
-            cfg,
-            torch.Generator().manual_seed(seed),
-        )
+        if model.whole_images:  # (splat: the whole view from the corrected camera, every step)
+            whole: Any = model  # (render_view is the whole-view models' own)
+            pose, _ = fit_whole_view(
+                lambda pose: whole.render_view(K_t, pose, w, h, background).rgb.reshape(-1, 3),
+                c2w_t,
+                target,
+                scale,
+                cfg,
+            )
+        else:
+            pose, _ = fit_view(
+                lambda r: model.render_rays(r, background, perturb=False).rgb,
+                image_rays(K_t, c2w_t, w, h),
+                target,
+                scale,
+                cfg,
+                torch.Generator().manual_seed(seed),
+            )
     finally:
         for p in frozen:
             p.requires_grad_(True)

@@ -111,7 +111,7 @@ class Trainer:
         self.bounds = SceneBounds.from_scene(scene) if not resume else read_run(self.run_dir).bounds
         self.model: NerfModel = build_model(cfg.model, model_config, self.bounds).to(self.device)
         self.model.set_precision(self.autocast)  # resolved once, above; the model uses it, never its own
-        # models that render whole views (splat) train on one view per step, without pose refinement
+        # models that render whole views (splat) train on one view per step, posed by its corrected camera
         self.whole_images = self.model.whole_images
         if not resume:
             note = self.model.init_from_scene(scene, self.background)
@@ -138,7 +138,7 @@ class Trainer:
             )
         self.views: ViewCorrections | None = None
         self.view_optimizer: torch.optim.Optimizer | None = None
-        pose = cfg.pose_lr > 0 and not self.whole_images
+        pose = cfg.pose_lr > 0
         if cfg.capture == "on" and (pose or cfg.exposure_lr > 0):
             self.views = ViewCorrections(
                 len(scene.train), self.bounds.radius, pose, cfg.exposure_lr > 0, cfg.colour_mix
@@ -237,14 +237,15 @@ class Trainer:
                     "The checkpoint is from another nerfkit; re-train",
                 )
             missing = set(self.views.state_dict()) - set(ckpt["views"])
-            if not missing <= {"exposure.mix"}:
+            # a run from before --colour-mix, or a splat run from before its pose corrections: these start at zero
+            if not missing <= {"exposure.mix", "pose.rotation", "pose.translation"}:
                 raise fail(
                     path,
                     f"holds other per-view corrections than this run trains ({sorted(missing)} missing)",
                     "The checkpoint is from another nerfkit; re-train",
                 )
             self.views.load_state_dict(ckpt["views"], strict=False)
-            if not missing:  # a run from before --colour-mix starts its mixing (and the views' Adam state) afresh
+            if not missing:  # (else the views' Adam state starts afresh too)
                 assert self.view_optimizer is not None  # (built with the views)
                 self.view_optimizer.load_state_dict(ckpt["views_optimizer"])
         torch.set_rng_state(ckpt["torch_rng"])
@@ -355,11 +356,15 @@ class Trainer:
         return 0.0 if exposure is None else self.cfg.colour_mix_weight * exposure.mix_penalty()
 
     def _render_training_view(self):
-        """One random training view rendered whole (fp32): ``(out, target (H, W, 3))``."""
+        """One random training view rendered whole (fp32) from its corrected camera once
+        poses are corrected: ``(out, target (H, W, 3))``."""
         i = int(torch.randint(self.rays.n_images, (1,), generator=self.rays.generator))
         h, w = self.rays.height, self.rays.width
         target = self.rays.images[i].float() / 255.0
-        out = self.model.render_view(self.rays.K[i], self.rays.c2w[i], w, h, self.background)
+        c2w = self.rays.c2w[i]
+        if self.views is not None and self.views.pose is not None and self.step >= self.cfg.pose_start:
+            c2w = self.views.pose.camera(c2w, i)
+        out = self.model.render_view(self.rays.K[i], c2w, w, h, self.background)
         if self.views is not None and self.views.exposure is not None:
             index = torch.full((h * w,), i, dtype=torch.long, device=self.device)
             out = replace(out, rgb=self.views.exposure(out.rgb.reshape(-1, 3), index).reshape(h, w, 3))

@@ -83,15 +83,23 @@ class PoseCorrection(nn.Module):
         o = rays.origins + self.scale * t[view]
         return Rays(o, d)
 
+    def camera(self, c2w: Tensor, view: int) -> Tensor:
+        """(4, 4) camera-to-world of view ``view`` -> its corrected pose (4, 4), differentiable
+        in the corrections: the camera that sees along the corrected rays of :meth:`forward`.
+
+        A model that renders whole views (splat) renders from it; its projection is plain
+        torch, so the image's gradient reaches the correction through the camera."""
+        w, t = self.centred()
+        R = so3_exp(w[view : view + 1])[0].to(c2w)
+        top = torch.cat([R @ c2w[:3, :3], (c2w[:3, 3] + self.scale * t[view].to(c2w)).unsqueeze(-1)], -1)
+        return torch.cat([top, c2w[3:]], 0)
+
     @torch.no_grad()
     def corrected_c2w(self, c2w: np.ndarray) -> np.ndarray:
         """(n_views, 4, 4) camera-to-world poses with the corrections applied."""
-        w, t = self.centred()
-        R = so3_exp(w).cpu().double().numpy()
-        out = np.array(c2w, np.float64, copy=True)
-        out[:, :3, :3] = R @ out[:, :3, :3]
-        out[:, :3, 3] += self.scale * t.cpu().double().numpy()
-        return out.astype(np.asarray(c2w).dtype)
+        poses = torch.as_tensor(np.asarray(c2w, np.float64))
+        out = torch.stack([self.camera(poses[i], i) for i in range(len(poses))]) if len(poses) else poses
+        return out.numpy().astype(np.asarray(c2w).dtype)
 
     @torch.no_grad()
     def magnitudes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -254,18 +262,43 @@ def fit_view(
     Returns:
         the fitted single-view corrections (apply with view index 0).
     """
+    n = target.shape[0]
+
+    def batch(pose: PoseCorrection) -> tuple[Tensor, Tensor]:
+        idx = torch.randint(0, n, (min(cfg.rays, n),), generator=generator).to(target.device)
+        view = torch.zeros(len(idx), dtype=torch.long, device=target.device)
+        return render_fn(pose(Rays(rays.origins[idx], rays.directions[idx]), view)), idx
+
+    return _fit(batch, target, scale, cfg)
+
+
+def fit_whole_view(
+    render_fn, c2w: Tensor, target: Tensor, scale: float, cfg: ViewFitConfig
+) -> tuple[PoseCorrection, ExposureCorrection]:
+    """:func:`fit_view` for a model that renders whole views (splat): each step renders the
+    view from the corrected camera (:meth:`PoseCorrection.camera`) and compares every pixel.
+
+    Args:
+        render_fn: ``c2w (4, 4) -> (H*W, 3) rgb`` of the frozen scene (differentiable in the camera).
+        c2w: (4, 4) the view's given pose; target: (H*W, 3) the photo's colours.
+    """
+    every = torch.arange(target.shape[0], device=target.device)
+    return _fit(lambda pose: (render_fn(pose.camera(c2w, 0)), every), target, scale, cfg)
+
+
+def _fit(batch, target: Tensor, scale: float, cfg: ViewFitConfig) -> tuple[PoseCorrection, ExposureCorrection]:
+    """Adam on one view's corrections; ``batch(pose) -> (rgb (n, 3), pixel indices (n,))``
+    renders some of its pixels through the pose correction."""
     pose = PoseCorrection(1, scale).to(target.device)
     exposure = ExposureCorrection(1, cfg.colour_mix).to(target.device)
     params = list(pose.parameters()) + (list(exposure.parameters()) if cfg.exposure else [])
     opt = torch.optim.Adam(params, lr=cfg.lr)
-    n = target.shape[0]
     for step in range(cfg.steps):
         for g in opt.param_groups:  # cosine decay to 10%
             g["lr"] = cfg.lr * (0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * step / max(cfg.steps, 1))))
-        idx = torch.randint(0, n, (min(cfg.rays, n),), generator=generator).to(target.device)
-        view = torch.zeros(len(idx), dtype=torch.long, device=target.device)
-        batch = pose(Rays(rays.origins[idx], rays.directions[idx]), view)
-        rgb = exposure(render_fn(batch), view) if cfg.exposure else render_fn(batch)
+        rgb, idx = batch(pose)
+        if cfg.exposure:
+            rgb = exposure(rgb, torch.zeros(len(idx), dtype=torch.long, device=target.device))
         loss = torch.mean((rgb - target[idx]) ** 2)
         opt.zero_grad(set_to_none=True)
         loss.backward()

@@ -9,24 +9,13 @@ from typing import Any, cast
 LISTED_VIEWS = 20
 
 
-def fit_steps(model: Any, model_name: str, capture: bool, fit_views: int | None) -> tuple[int, str | None]:
-    """(steps each held-out view's pose is fitted for, a note or None): ``fit_views``, else 100
-    for a capture's run and 0 otherwise; 0 for a model that renders whole views (a ``fit_views``
-    asked of one is refused)."""
-    from ...errors import fail
-
-    whole = bool(getattr(model, "whole_images", False))
-    if whole and fit_views:
-        raise fail(
-            "--fit-views",
-            f"the {model_name} model renders whole views, so a view's pose cannot be fitted ray batch by ray batch",
-            "Leave out --fit-views",
-        )
+def fit_steps(capture: bool, fit_views: int | None) -> int:
+    """Steps each held-out view's pose is fitted for: ``fit_views``, else 100 for a capture's
+    run and 0 otherwise (a model that renders whole views, splat, fits its pose from whole
+    renders: :func:`~nerfkit.train.view_corrections.fit_whole_view`)."""
     if fit_views is not None:
-        return fit_views, None
-    if whole and capture:
-        return 0, f"note: held-out views are scored as rendered only ({model_name} cannot fit their poses)"
-    return (100 if capture and not whole else 0), None
+        return fit_views
+    return 100 if capture else 0
 
 
 def held_out_views(scene: Any, split: str) -> Any:
