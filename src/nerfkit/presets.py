@@ -130,7 +130,7 @@ def grid_stages(kind: str, scene) -> tuple[str, str]:
     from .models.fast_config import BASE_STAGES, FINE_STAGE_PIXELS, FINE_STAGES
 
     own = preset_values(kind, "fast")[1]
-    if "resolutions" in own or "upsample_steps" in own:
+    if STAGE_OPTIONS & own.keys():
         return own.get("resolutions", BASE_STAGES[0]), own.get("upsample_steps", BASE_STAGES[1])
     fine = kind == OBJECT and len(scene.train) > 0 and scene.train.width * scene.train.height > FINE_STAGE_PIXELS
     return FINE_STAGES if fine else BASE_STAGES

@@ -53,7 +53,7 @@ from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, 
 from .metrics import psnr, psnr_from_mse
 from .optim import build_optimizer
 from .sight_lines import SIGHT_LINES_PER_STEP, SightLines
-from .view_corrections import ViewCorrections
+from .view_corrections import PoseCorrection, ViewCorrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
@@ -303,8 +303,9 @@ class Trainer:
         else:
             batch = self.rays.sample(min(self.model.rays_per_step(self.cfg.batch_rays), MAX_BATCH_RAYS))
             rays, target = batch.rays, batch.rgb
-            if views is not None and views.pose is not None and self.step >= self.cfg.pose_start:
-                rays = views.pose(rays, batch.image_index)
+            pose = self._pose_correction()
+            if pose is not None:
+                rays = pose(rays, batch.image_index)
             with autocast(self.device, self.autocast):
                 out = self.model.render_rays(rays, self.background, perturb=True)
                 if views is not None and views.exposure is not None:
@@ -337,16 +338,21 @@ class Trainer:
         n_rays = target.numel() // 3  # (a whole view: its pixels)
         return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples, "rays": n_rays}
 
+    def _pose_correction(self) -> PoseCorrection | None:
+        """The per-view pose correction once it applies (from ``--pose-start`` on), else None."""
+        views = self.views
+        return views.pose if views is not None and self.step >= self.cfg.pose_start else None
+
     def _sight_term(self) -> Tensor | float:
         """The sparse points' sight lines in the loss (the model's ``sight_loss``), each
         from its view's corrected camera; 0 without them."""
         if self.sight is None:
             return 0.0
         rays, distance, view = self.sight.sample(SIGHT_LINES_PER_STEP, self.sight_generator, self.model.sight_spread())
-        views = self.views
-        if views is not None and views.pose is not None and self.step >= self.cfg.pose_start:
+        pose = self._pose_correction()
+        if pose is not None:
             with torch.no_grad():  # the lines follow the poses; they do not move them
-                rays = views.pose(rays, view)
+                rays = pose(rays, view)
         term = self.model.sight_loss(rays, distance)
         return 0.0 if term is None else term
 
@@ -362,8 +368,9 @@ class Trainer:
         h, w = self.rays.height, self.rays.width
         target = self.rays.images[i].float() / 255.0
         c2w = self.rays.c2w[i]
-        if self.views is not None and self.views.pose is not None and self.step >= self.cfg.pose_start:
-            c2w = self.views.pose.camera(c2w, i)
+        pose = self._pose_correction()
+        if pose is not None:
+            c2w = pose.camera(c2w, i)
         out = self.model.render_view(self.rays.K[i], c2w, w, h, self.background)
         if self.views is not None and self.views.exposure is not None:
             index = torch.full((h * w,), i, dtype=torch.long, device=self.device)
