@@ -286,6 +286,19 @@ def quat_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     )
 
 
+def test_corrected_c2w_of_many_views_is_each_views_camera():
+    g = torch.Generator().manual_seed(3)
+    pose = PoseCorrection(4, scale=0.7)
+    with torch.no_grad():
+        pose.rotation.copy_(0.05 * torch.randn(4, 3, generator=g))
+        pose.translation.copy_(0.05 * torch.randn(4, 3, generator=g))
+    poses = torch.stack([camera([0.5 + i, -1.5, 1.2])[1] for i in range(4)]).double()
+    batched = pose.corrected_c2w(poses.numpy())
+    for i in range(4):
+        np.testing.assert_allclose(batched[i], pose.camera(poses[i], i).detach().numpy(), atol=1e-6)
+    assert not np.allclose(batched, poses.numpy())
+
+
 def test_a_zero_pose_correction_renders_the_view_as_given():
     model = gaussian_cloud()
     K, c2w = splat_camera()

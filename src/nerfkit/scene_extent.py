@@ -84,12 +84,24 @@ def object_box_from_points(
 ) -> tuple | None:
     """An axis-aligned box ``(lo, hi)`` around an object standing on a table, from its
     sparse points (:func:`object_points`, those in the frames of most photos ``views``
-    when given) with their feet on the table, from the
-    ``quantile`` to the ``1 - quantile`` quantile per axis, padded by ``pad`` of its size
-    plus 5% of ``radius``; kept inside the sphere's box. None with fewer than
-    ``min_points`` object points (the sphere's box is used then).
-    """
+    when given): :func:`object_box`."""
     obj = object_points(points, table, center, radius, lift, views)
+    return object_box(obj, table, center, radius, min_points, pad, quantile)
+
+
+def object_box(
+    obj: np.ndarray,
+    table: np.ndarray,
+    center: np.ndarray,
+    radius: float,
+    min_points: int = MIN_OBJECT_POINTS,
+    pad: float = 0.15,
+    quantile: float = OBJECT_BOX_QUANTILE,
+) -> tuple | None:
+    """An axis-aligned box ``(lo, hi)`` around the object points ``obj`` (k, 3) with their
+    feet on the table, from the ``quantile`` to the ``1 - quantile`` quantile per axis,
+    padded by ``pad`` of its size plus 5% of ``radius``; kept inside the sphere's box. None
+    with fewer than ``min_points`` object points (the sphere's box is used then)."""
     if len(obj) < min_points:
         return None
     n, d = np.asarray(table[:3], np.float64), float(table[3])
@@ -106,6 +118,7 @@ __all__ = [
     "MIN_OBJECT_POINTS",
     "OBJECT_BOX_QUANTILE",
     "OBJECT_SEEN_SHARE",
+    "object_box",
     "object_box_from_points",
     "object_points",
     "seen_share",

@@ -36,7 +36,7 @@ from ..errors import advice, fail
 from ..images import common_size
 from ..io.atomic import write_json
 from ..io.paths import resolve_inside
-from ..scene_extent import FEW_TRAIN_VIEWS, MIN_OBJECT_POINTS, object_box_from_points, object_points, sphere_radius
+from ..scene_extent import FEW_TRAIN_VIEWS, MIN_OBJECT_POINTS, object_box, object_points, sphere_radius
 from .camera import Camera, camera_from_dict, nerfkit_K
 from .poses import UP, PosedPhoto
 from .undistort import make_undistorter, output_size, resize_K_nerfkit
@@ -304,6 +304,12 @@ def build_dataset(
     if points is not None:
         scene.points, scene.point_colors = check_points(points.xyz, points.rgb, str(out_dir))
         scene.point_views = point_views(points.seen_by, scene.train.names)
+    # the object's points as the model will find them (SceneBounds.from_scene)
+    obj = (
+        None
+        if scene.points is None or table is None
+        else object_points(scene.points, table, scene.center, sphere_radius(scene), views=scene.train)
+    )
     summary = {
         "views": {s: len(v) for s, v in scene.splits.items()},
         "size": list(out_size),
@@ -323,16 +329,14 @@ def build_dataset(
         "source_size": list(base_size),
         "points": 0 if scene.points is None else len(scene.points),
         "points_from": points_note,
-        "object_points": None
-        if scene.points is None or table is None
-        else len(object_points(scene.points, table, scene.center, sphere_radius(scene), views=scene.train)),
+        "object_points": None if obj is None else len(obj),
         "world": "tag frame: origin at the tag centre, x right and y up along the printed tag, z out of the tag "
         "toward the cameras (= up); metres",
     }
     if len(scene.train):
         summary["coverage"] = write_coverage(scene, out_dir / COVERAGE_PLOT)
     if table is not None:
-        agreement = photo_agreement(scene)
+        agreement = photo_agreement(scene, obj)
         if agreement is not None:
             summary["agreement"] = agreement.as_json()
     write_transforms_json(scene, out_dir, jpeg_quality=cfg.jpeg_quality, extra={**summary, **(extra or {})})
@@ -361,20 +365,19 @@ def write_coverage(scene: Scene, plot_path: Path) -> dict:
     return {**cov.as_json(), "plot": plot_path.name}
 
 
-def photo_agreement(scene: Scene) -> Agreement | None:
+def photo_agreement(scene: Scene, obj: np.ndarray | None = None) -> Agreement | None:
     """How well ``scene``'s training photos agree on its table around the object
     (:func:`~nerfkit.capture.agreement.measure_agreement`, the object's box left out as the
-    model will find it), or None."""
+    model will find it), or None. ``obj``: the object's sparse points when already found
+    (:func:`~nerfkit.scene_extent.object_points` of the scene's points and train views)."""
     from .agreement import measure_agreement
 
     if scene.table is None:  # no table to agree on (build_dataset asks only when there is one)
         return None
     radius = sphere_radius(scene)  # the object's box as the model will find it (SceneBounds.from_scene)
-    box = (
-        None
-        if scene.points is None
-        else object_box_from_points(scene.points, scene.table, scene.center, radius, views=scene.train)
-    )
+    if obj is None and scene.points is not None:
+        obj = object_points(scene.points, scene.table, scene.center, radius, views=scene.train)
+    box = None if obj is None else object_box(obj, scene.table, scene.center, radius)
     return measure_agreement(scene.train, scene.center, scene.table, radius, box)
 
 

@@ -61,7 +61,5 @@ def run(args: argparse.Namespace) -> int:
         quiet=args.json,
     )
     if args.json:
-        for note in result.notes:
-            print(note)
         print(json.dumps(result.scores, indent=2))
     return 0

@@ -91,7 +91,6 @@ class EvaluationResult:
     ssim: float
     report_path: Path  # RUN/eval_<split>.json
     sheet_path: Path | None = None  # RUN/eval_<split>.png (photos beside renders), when written
-    notes: tuple[str, ...] = ()  # printed before the scores (how the views were scored)
     scores: dict[str, Any] = field(default_factory=dict, compare=False)  # what report_path holds
 
 
@@ -697,7 +696,7 @@ def evaluate(
         device: "auto", "cpu", "cuda" or "cuda:N".
         chunk: rays rendered at once (0: the run's render chunk).
         allow_outside_paths: read dataset images outside the dataset's folder.
-        quiet: print neither the notes nor the summary (the result holds both).
+        quiet: do not print the summary (the result holds it).
     """
     from ..config import number
     from ..io.atomic import write_json
@@ -728,7 +727,6 @@ def evaluate(
         float(result["ssim"]),
         json_path,
         sheet_path if sheet else None,
-        (),
         result,
     )
 

@@ -51,6 +51,13 @@ def mean_removed(*params: Tensor) -> tuple[Tensor, ...]:
     return tuple(p if p.shape[0] == 1 else p - p.mean(0) for p in params)
 
 
+def corrected_poses(c2w: Tensor, R: Tensor, shift: Tensor) -> Tensor:
+    """(..., 4, 4) camera-to-world poses, (..., 3, 3) rotations about each camera's centre and
+    (..., 3) world shifts of the centres -> the corrected poses (..., 4, 4)."""
+    top = torch.cat([R @ c2w[..., :3, :3], (c2w[..., :3, 3] + shift).unsqueeze(-1)], -1)
+    return torch.cat([top, c2w[..., 3:, :]], -2)
+
+
 class PoseCorrection(nn.Module):
     """Per-view rigid corrections in the world frame, about each camera's centre.
 
@@ -90,15 +97,14 @@ class PoseCorrection(nn.Module):
         A model that renders whole views (splat) renders from it; its projection is plain
         torch, so the image's gradient reaches the correction through the camera."""
         w, t = self.centred()
-        R = so3_exp(w[view : view + 1])[0].to(c2w)
-        top = torch.cat([R @ c2w[:3, :3], (c2w[:3, 3] + self.scale * t[view].to(c2w)).unsqueeze(-1)], -1)
-        return torch.cat([top, c2w[3:]], 0)
+        return corrected_poses(c2w, so3_exp(w[view : view + 1])[0].to(c2w), self.scale * t[view].to(c2w))
 
     @torch.no_grad()
     def corrected_c2w(self, c2w: np.ndarray) -> np.ndarray:
         """(n_views, 4, 4) camera-to-world poses with the corrections applied."""
         poses = torch.as_tensor(np.asarray(c2w, np.float64))
-        out = torch.stack([self.camera(poses[i], i) for i in range(len(poses))]) if len(poses) else poses
+        w, t = self.centred()
+        out = corrected_poses(poses, so3_exp(w).to(poses), self.scale * t.to(poses))
         return out.numpy().astype(np.asarray(c2w).dtype)
 
     @torch.no_grad()
