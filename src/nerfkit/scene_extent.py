@@ -72,21 +72,12 @@ OBJECT_BOX_QUANTILE = 0.005
 
 
 def object_box_from_points(
-    points: np.ndarray,
-    table: np.ndarray,
-    center: np.ndarray,
-    radius: float,
-    min_points: int = MIN_OBJECT_POINTS,
-    lift: float = 0.03,
-    pad: float = 0.15,
-    quantile: float = OBJECT_BOX_QUANTILE,
-    views=None,
+    points: np.ndarray, table: np.ndarray, center: np.ndarray, radius: float, views=None, lift: float = 0.03, **box
 ) -> tuple | None:
-    """An axis-aligned box ``(lo, hi)`` around an object standing on a table, from its
-    sparse points (:func:`object_points`, those in the frames of most photos ``views``
-    when given): :func:`object_box`."""
-    obj = object_points(points, table, center, radius, lift, views)
-    return object_box(obj, table, center, radius, min_points, pad, quantile)
+    """:func:`object_box` around the object's sparse points among ``points``
+    (:func:`object_points`, those in the frames of most photos ``views`` when given);
+    ``box``: :func:`object_box`'s options."""
+    return object_box(object_points(points, table, center, radius, lift, views), table, center, radius, **box)
 
 
 def object_box(
