@@ -3,6 +3,7 @@ used to start Gaussian splatting."""
 
 from __future__ import annotations
 
+import importlib.util
 import math
 
 import numpy as np
@@ -188,7 +189,7 @@ def test_neighbour_scales_on_a_lattice_are_the_spacing():
     assert neighbour_scales(torch.zeros(1, 3)).shape == (1,)
 
 
-def test_splat_starts_from_the_dataset_points():
+def test_splat_starts_from_the_dataset_points(monkeypatch):
     from nerfkit.models.base import SceneBounds
     from nerfkit.models.splat import SplatConfig, SplatModel
 
@@ -200,11 +201,28 @@ def test_splat_starts_from_the_dataset_points():
     rgb = model.sh_dc.detach()[:, 0] * 0.28209479177387814 + 0.5
     torch.testing.assert_close(rgb, torch.as_tensor(scene.point_colors).float() / 255, atol=1e-5, rtol=0)
     scene.points, scene.point_colors = scene.points[:10], scene.point_colors[:10]  # too few: random in the box
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None)  # (no pycolmap: nothing to triangulate)
     assert "random" in model.init_from_scene(scene, torch.zeros(3))
     model.config.init = "points"
     scene.points = None
     with pytest.raises(NerfkitError, match="no sparse points"):
         model.init_from_scene(scene, torch.zeros(3))
+
+
+@pytest.mark.slow
+def test_splat_without_points_starts_from_points_triangulated_at_the_given_poses(tmp_path):
+    pytest.importorskip("pycolmap")
+    from nerfkit.models.base import SceneBounds
+    from nerfkit.models.splat import SplatConfig, SplatModel
+
+    views, _ = _plane_views(8)
+    scene = Scene(views, Views.empty(200, 150), Views.empty(200, 150), 1.0, 4.0)
+    model = SplatModel(SplatConfig(init_points=400), SceneBounds.from_scene(scene))
+    note = model.init_from_scene(scene, torch.ones(3), tmp_path)  # textured to the border: no hull
+    assert "triangulated from the 8 training photos" in note
+    z = model.means.detach()[:, 2].abs()
+    assert len(z) == 400 and float(z.median()) < 0.01  # on the photographed plane, not in a ball
+    assert list(tmp_path.iterdir()) == []  # COLMAP's scratch folder is gone
 
 
 def test_points_init_subsamples_to_the_requested_count():

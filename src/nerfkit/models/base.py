@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import cast
 
 import numpy as np
@@ -298,9 +299,10 @@ class NerfModel(nn.Module):
         height)), ``progress`` in [0, 1] of the run: for a model that weighs pixels by where
         they lie (the fast model's ``--transient-quantile``). Default: ignored."""
 
-    def init_from_scene(self, scene, background: Tensor) -> str | None:
+    def init_from_scene(self, scene, background: Tensor, work: Path | None = None) -> str | None:
         """Start a new run's parameters from the dataset (e.g. Gaussians at its sparse
-        points); returns a note for the training log, or None. Default: nothing to do."""
+        points); returns a note for the training log, or None. ``work``: a folder for scratch
+        files (the run folder). Default: nothing to do."""
         return None
 
     @property

@@ -16,14 +16,19 @@ Initialisation (:meth:`SplatModel.init_from_scene`): the dataset's sparse points
 has them (structure-from-motion's, or those `nerfkit poses` triangulates from a tag
 capture), each Gaussian as large as the distance to its neighbours (as 3DGS); else the
 visual hull of the training images when their background is the flat ``--background``
-colour (the object's silhouettes carve a grid); else random points in the object's box
-plus the table plane of a tag capture; else random in the scene box.
+colour (the object's silhouettes carve a grid); else points triangulated from the
+training photos at their given poses (COLMAP's point triangulator, as for a tag capture:
+an LLFF scene comes with poses but no points) when pycolmap is installed; else random
+points in the object's box plus the table plane of a tag capture; else random in the
+scene box.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -46,6 +51,8 @@ PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
 MAX_GAUSSIANS = 20_000_000
 # --init auto starts from the dataset's sparse points when it has at least this many
 MIN_INIT_POINTS = 100
+# --init auto triangulates points from the training photos when there are at least this many
+MIN_TRIANGULATE_VIEWS = 3
 
 
 @dataclass
@@ -63,10 +70,11 @@ class SplatConfig:
     init: str = option(
         "auto",
         "initial Gaussians: auto (the dataset's sparse points when it has some, else the "
-        "visual hull when the training images have a flat background, else random in a ball of "
-        "0.7 times the scene's radius, a quarter on the table of a tag capture), points, hull, "
-        "or random",
-        choices=["auto", "points", "hull", "random"],
+        "visual hull when the training images have a flat background, else points triangulated "
+        "from the training photos at their poses when pycolmap is installed, else random in a "
+        "ball of 0.7 times the scene's radius, a quarter on the table of a tag capture), points, "
+        "hull, triangulate or random",
+        choices=["auto", "points", "hull", "triangulate", "random"],
     )
     init_points: int = option(30_000, "number of initial Gaussians", min=1, max=MAX_GAUSSIANS)
     init_opacity: float = option(0.1, "opacity of the initial Gaussians", above=0, max=0.99)
@@ -208,8 +216,9 @@ class SplatModel(NerfModel):
         return torch.cat([self.sh_dc, self.sh_rest], 1)
 
     @torch.no_grad()
-    def init_from_scene(self, scene, background) -> str:
-        """Place the initial Gaussians from the dataset (see the module docstring); says how."""
+    def init_from_scene(self, scene, background, work: Path | None = None) -> str:
+        """Place the initial Gaussians from the dataset (see the module docstring); says how.
+        ``work``: the folder for triangulation's scratch files (the run folder)."""
         c = self.config
         gen = torch.Generator().manual_seed(0)
         center, radius = np.asarray(self.bounds.center, np.float64), float(self.bounds.radius)
@@ -222,16 +231,31 @@ class SplatModel(NerfModel):
                 mode = "points"
             elif not c.learn_background and flat_background(scene.train.images, bg):
                 mode = "hull"
+            elif len(scene.train) >= MIN_TRIANGULATE_VIEWS and importlib.util.find_spec("pycolmap") is not None:
+                mode = "triangulate"
             else:
                 mode = "random"
-        if mode == "points":
-            if n_points == 0:
+        how = {
+            "points": f"the dataset's {n_points} sparse points",
+            "hull": "the training images' visual hull",
+            "random": "random points in the scene's sphere",
+        }.get(mode, "")
+        if mode == "triangulate":
+            xyz, rgb, how = triangulated(scene.train, work)
+            if len(xyz) < MIN_INIT_POINTS and c.init == "auto":
+                mode, how = "random", f"random points in the scene's sphere ({how}: too few)"
+        if mode in ("points", "triangulate"):
+            if mode == "points" and n_points == 0:
                 raise fail(
                     scene.source or "dataset",
                     "has no sparse points to start from",
                     "Use --init random, or build the dataset with its points (nerfkit poses --points)",
                 )
-            pts, cols = points_init(scene.points, scene.point_colors, c.init_points, gen)
+            if mode == "points":
+                xyz, rgb = scene.points, scene.point_colors
+            if len(xyz) == 0:
+                raise fail(scene.source or "dataset", f"{how}: no points", "Use --init random")
+            pts, cols = points_init(xyz, rgb, c.init_points, gen)
             scale = neighbour_scales(pts)
         elif mode == "hull":
             hull = visual_hull(scene.train, bg, center, radius)
@@ -249,11 +273,6 @@ class SplatModel(NerfModel):
             scale = self._volume_scale(4 / 3 * math.pi * (0.7 * radius) ** 3, len(pts))
         device = self.means.device
         self._install(*(t.to(device) for t in initial_gaussians(pts, cols, scale, c.init_opacity)))
-        how = {
-            "points": f"the dataset's {n_points} sparse points",
-            "hull": "the training images' visual hull",
-            "random": "random points in the scene's sphere",
-        }[mode]
         return f"splat: {len(pts)} initial Gaussians from {how}"
 
     @torch.no_grad()
@@ -512,6 +531,21 @@ class SplatModel(NerfModel):
 
 
 # -- initialisation -------------------------------------------------------------------
+def triangulated(views, work: Path | None) -> tuple[np.ndarray, np.ndarray | None, str]:
+    """Sparse points (m, 3), their colours (m, 3) uint8 and a note, triangulated from
+    ``views`` at their poses (:func:`nerfkit.capture.points.triangulate_views`; scratch files
+    in a temporary folder inside ``work``, removed)."""
+    import time
+
+    from ..capture.points import triangulate_views
+
+    start = time.perf_counter()
+    pts = triangulate_views(views, work=work)
+    seconds = time.perf_counter() - start
+    note = f"{len(pts)} points triangulated from the {len(views)} training photos at their poses ({seconds:.0f} s)"
+    return pts.xyz, pts.rgb, note
+
+
 def initial_gaussians(points: Tensor, colors: Tensor, scale: float | Tensor, opacity: float) -> tuple[Tensor, ...]:
     """Isotropic Gaussians at ``points`` (n, 3) with ``colors`` (n, 3) in [0, 1] and one
     ``scale`` or a scale per point (n,):

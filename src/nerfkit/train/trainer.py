@@ -114,7 +114,7 @@ class Trainer:
         # models that render whole views (splat) train on one view per step, posed by its corrected camera
         self.whole_images = self.model.whole_images
         if not resume:
-            note = self.model.init_from_scene(scene, self.background)
+            note = self.model.init_from_scene(scene, self.background, self.run_dir)
             if note:
                 self.log(note)
         self.optimizer = build_optimizer(self.model, cfg.lr)
