@@ -93,7 +93,7 @@ def test_the_command_and_the_api_train_the_same_run(tmp_path, sphere_npz, capsys
 
 
 def test_the_api_checks_its_arguments_as_the_command_line_does(tmp_path):
-    with pytest.raises(TypeError, match="neither training nor the fast model has: bogus"):
+    with pytest.raises(TypeError, match="neither training nor any model has: bogus"):
         api.train("x.npz", tmp_path / "r", bogus=1)
     with pytest.raises(NerfkitError, match="--lr"):
         api.train("x.npz", tmp_path / "r", lr=500.0)

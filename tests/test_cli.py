@@ -5,10 +5,13 @@ from __future__ import annotations
 import functools
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from nerfkit.cli import COMMANDS, main
+
+LEGO = Path(__file__).resolve().parents[1] / "src" / "nerfkit" / "assets" / "lego_200x200.npz"
 
 
 @pytest.mark.parametrize("command", COMMANDS)
@@ -152,7 +155,7 @@ def test_the_fast_model_refuses_sh_degree_3_in_one_line_naming_itself(model, tmp
                 "--sh-degree",
                 "3",
                 "--data",
-                str(tmp_path / "missing.npz"),
+                str(LEGO),  # (no --model: the dataset's kind names it, so the dataset is read first)
                 "--steps",
                 "1",
                 "--out",
@@ -270,11 +273,6 @@ def test_no_flag_is_narrower_than_a_models_own_bounds(model):
             "--width: is a setting of the vanilla model, not of splat. Leave it out, or train with --model vanilla",
         ),
         (
-            ["--init-points", "500"],
-            "--init-points: is a setting of the splat model, not of fast (the default --model). Leave it out, or train "
-            "with --model splat",
-        ),
-        (
             ["--model", "vanilla", "--no-learn-background"],
             "--learn-background: is a setting of the fast and splat models, not of vanilla. "
             "Leave it out, or train with --model fast or --model splat",
@@ -287,6 +285,17 @@ def test_a_flag_of_another_model_is_refused_before_anything_is_read_or_written(f
     assert main(["train", *flags, "--data", str(data), "--steps", "1", "--out", str(tmp_path / "run")]) == 2
     assert capsys.readouterr().err == f"nerfkit train: error: {error}\n"
     assert not (tmp_path / "run").exists()
+
+
+def test_without_a_model_a_flag_the_datasets_model_does_not_take_is_refused(tmp_path, capsys):
+    assert (
+        main(["train", "--init-points", "500", "--data", str(LEGO), "--steps", "1", "--out", str(tmp_path / "r")]) == 2
+    )
+    assert capsys.readouterr().err == (
+        "nerfkit train: error: --init-points: is a setting of the splat model, not of fast (the default --model for "
+        "an object dataset). Leave it out, or train with --model splat\n"
+    )
+    assert not (tmp_path / "r").exists()
 
 
 @pytest.mark.parametrize(

@@ -141,3 +141,41 @@ def test_a_scene_kind_with_its_own_grid_stages_gets_them_and_the_others_keep_the
     for name, stages in (("lego", BASE_STAGES), ("object_400", FINE_STAGES)):
         r = presets.resolve(TrainConfig(steps=10), FastConfig(), scenes[name], set())
         assert (r.model.resolutions, r.model.upsample_steps) == stages
+
+
+def test_a_scene_kind_names_the_model_it_trains_when_none_is_named():
+    everything = ["fast", "splat", "vanilla"]
+    assert presets.default_model(presets.FORWARD_FACING, everything) == "splat"
+    assert presets.default_model(presets.OBJECT, everything) == presets.default_model(presets.CAPTURE, everything)
+    assert presets.default_model(presets.OBJECT, everything) == presets.DEFAULT_MODEL == "fast"
+    assert presets.default_model(presets.FORWARD_FACING, ["fast"]) == "fast"  # splat not installed
+
+
+def test_a_model_setting_the_kinds_model_does_not_take_is_a_clear_error(scenes):
+    from nerfkit.commands.pipeline import kind_model
+    from nerfkit.errors import NerfkitError
+
+    assert kind_model(scenes["forward"], "auto", set()) == "splat"
+    assert kind_model(scenes["forward"], "auto", {"sh_degree"}) == "splat"  # fast and splat both take it
+    assert kind_model(scenes["lego"], "auto", set()) == kind_model(scenes["tabletop"], "auto", set()) == "fast"
+    with pytest.raises(
+        NerfkitError,
+        match="--resolutions: is a setting of the fast model, not of splat .the default "
+        "--model for a forward-facing dataset.. Leave it out, or train with --model fast",
+    ):
+        kind_model(scenes["forward"], "auto", {"resolutions"})
+    with pytest.raises(NerfkitError, match="not of fast .the default --model for an object dataset"):
+        kind_model(scenes["lego"], "auto", {"densify_every"})
+
+
+@pytest.mark.slow
+def test_a_forward_facing_dataset_trains_splat_when_no_model_is_named(tmp_path):
+    import nerfkit.api as api
+    from nerfkit.data.npz import save_npz
+
+    save_npz(forward_facing_scene(n_train=6, n_val=1, size=16), tmp_path / "f.npz")
+    api.train(tmp_path / "f.npz", tmp_path / "run", steps=1, quiet=True)
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert config["train"]["model"] == "splat" and config["train"]["preset"] == "forward-facing"
+    api.train(tmp_path / "f.npz", tmp_path / "fast", model="fast", steps=1, quiet=True)
+    assert json.loads((tmp_path / "fast" / "config.json").read_text())["train"]["model"] == "fast"

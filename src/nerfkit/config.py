@@ -188,6 +188,8 @@ def flag_type(cls: type, name: str) -> Any:
 
 def _help_line(f: dataclasses.Field) -> str:
     default = f.default if f.default is not dataclasses.MISSING else None
+    # a default that the command decides where the dataclass cannot (the dataset's kind's)
+    default = f.metadata.get("default_help", default)
     if default is not None and default != "":
         return f"{f.metadata.get('help', '')} (default: {default})"
     return f.metadata.get("help", "")

@@ -65,6 +65,20 @@ PRESETS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
 }
 
 
+# The model a scene kind trains when --model is not given: fast, except where another scored
+# higher on held-out views at the budgets people use (BENCHMARKS.md, why the defaults are what
+# they are). Forward-facing: splat from points triangulated at the given poses.
+DEFAULT_MODEL = "fast"
+KIND_MODELS = {FORWARD_FACING: "splat"}
+
+
+def default_model(kind: str, available: Iterable[str]) -> str:
+    """The model a run of scene kind ``kind`` trains when none is named: the kind's
+    (:data:`KIND_MODELS`) when it is among the ``available`` models, else :data:`DEFAULT_MODEL`."""
+    name = KIND_MODELS.get(kind, DEFAULT_MODEL)
+    return name if name in set(available) else DEFAULT_MODEL
+
+
 # the fast model's grid stages: a kind's preset may name its own (:func:`grid_stages`)
 STAGE_OPTIONS = frozenset({"resolutions", "upsample_steps"})
 

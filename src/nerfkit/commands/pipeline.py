@@ -18,6 +18,7 @@ calls; ``nerfkit capture`` is these functions in a row. Example::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -480,24 +481,37 @@ def train(
     """
     from ..errors import fail
     from ..models import check_config
+    from ..train.config import TrainConfig
     from ..train.trainer import check_new_run_folder
     from ..train.trainer import train as train_run
     from ._common import load_as_trained
 
     given = {
-        k: v
+        k: str(v) if k in ("data", "out") else v
         for k, v in (("data", data), ("out", out), ("model", model), ("steps", steps), ("minutes", minutes))
         if v is not None
     }
-    cfg, model_cfg, user_set = train_settings(
-        {**options, **{k: str(v) if k in ("data", "out") else v for k, v in given.items()}}, config
-    )
+    # no model named (nor a config's): the dataset's kind chooses it, once the dataset is loaded
+    choose = model is None and config is None
+    train_names = {f.name for f in dataclasses.fields(TrainConfig)}
+    train_only = {k: v for k, v in {**options, **given}.items() if k in train_names}
+    unknown = set(options) - train_names - set().union(*model_fields().values())
+    if choose and unknown:
+        raise TypeError(f"train() got settings that neither training nor any model has: {', '.join(sorted(unknown))}")
+    cfg, model_cfg, user_set = train_settings(train_only if choose else {**options, **given}, config)
     if not cfg.data:
         raise fail(
             "train",
             "no dataset given",
             "Pass --data FILE (try the bundled src/nerfkit/assets/lego_200x200.npz, or run `nerfkit demo`)",
         )
+    check_new_run_folder(Path(cfg.out))  # before loading the dataset: a refusal should be quick
+    scene = None
+    if choose:
+        scene = load_as_trained(cfg, cfg.data, allow_outside=cfg.allow_outside_paths)
+        name = kind_model(scene, cfg.capture, set(options) - set(train_only))
+        cfg, model_cfg, user_set = train_settings({**options, **given, "model": name})
+        user_set.discard("model")
     if cfg.steps == 0 and cfg.minutes == 0:
         cfg = dataclasses.replace(cfg, minutes=5.0)
         if not quiet:
@@ -505,11 +519,45 @@ def train(
 
             print("no --steps or --minutes: training for 5 minutes", file=sys.stderr)
     model_cfg = check_config(cfg.model, model_cfg)  # its own bounds
-    check_new_run_folder(Path(cfg.out))  # before loading the dataset: a refusal should be quick
     # RGBA images are composited on the colour the model renders behind the scene
-    scene = load_as_trained(cfg, cfg.data, allow_outside=cfg.allow_outside_paths)
+    if scene is None:
+        scene = load_as_trained(cfg, cfg.data, allow_outside=cfg.allow_outside_paths)
     result = train_run(scene, cfg, model_cfg, quiet=quiet, user_set=user_set)
     return _train_result(result)
+
+
+def model_fields() -> dict[str, frozenset[str]]:
+    """Each model of this installation -> its setting names."""
+    from ..models import MODEL_NAMES, model_config_class
+
+    fields = {}
+    for m in MODEL_NAMES:
+        with contextlib.suppress(ImportError):  # a model whose optional parts are missing
+            fields[m] = frozenset(f.name for f in dataclasses.fields(model_config_class(m)))
+    return fields
+
+
+def kind_model(scene, capture: str, settings: set[str]) -> str:
+    """The model to train on ``scene`` when none is named: its kind's
+    (:func:`nerfkit.presets.default_model`). A model ``settings`` given that it does not take
+    is refused, naming the models that do (training would ignore it)."""
+    from ..errors import fail
+    from ..presets import default_model, scene_kind
+
+    fields = model_fields()
+    kind = scene_kind(scene, capture)
+    name = default_model(kind, fields)
+    foreign = sorted(settings - fields[name])
+    if foreign:
+        owners = [m for m in fields if foreign[0] in fields[m]]
+        flag = "--" + foreign[0].replace("_", "-")
+        raise fail(
+            flag,
+            f"is a setting of the {' and '.join(owners)} model{'s' * (len(owners) > 1)}, not of {name} (the "
+            f"default --model for a{'n' * (kind[0] in 'aeiou')} {kind} dataset)",
+            f"Leave it out, or train with --model {' or --model '.join(owners)}",
+        )
+    return name
 
 
 def _train_result(result) -> TrainResult:

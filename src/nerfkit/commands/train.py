@@ -207,15 +207,17 @@ def run(args: argparse.Namespace) -> int:
             from ..train.checkpoint import read_settings
 
             model = read_settings(args.config)[0].model
-        model = model or TrainConfig().model
-        if model not in classes:
-            raise fail(
-                "--model",
-                f"model '{model}' is not available in this installation",
-                f"Choose one of: {', '.join(classes)}",
-            )
-        refuse_other_models_flags(args, classes, model)
-        given = {name: getattr(args, name) for name in given_flags(args, TrainConfig, classes[model])}
+        if model is not None:
+            if model not in classes:
+                raise fail(
+                    "--model",
+                    f"model '{model}' is not available in this installation",
+                    f"Choose one of: {', '.join(classes)}",
+                )
+            refuse_other_models_flags(args, classes, model)
+        # no model named: train() chooses the dataset kind's, or the one the model flags given belong to
+        chosen = [classes[model]] if model is not None else list(classes.values())
+        given = {name: getattr(args, name) for name in given_flags(args, TrainConfig, *chosen)}
         result = api.train(config=args.config, **given)
     print(summary_line(result))
     return 130 if result.interrupted else 0

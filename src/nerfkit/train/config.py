@@ -32,7 +32,11 @@ class TrainConfig:
         group="data",
     )
     model: str = option(
-        "fast", "which radiance field to train", choices=list(MODEL_NAMES), group="the options changed first"
+        "fast",
+        "which radiance field to train",
+        choices=list(MODEL_NAMES),
+        group="the options changed first",
+        default_help="the dataset's kind's: splat for a forward-facing scene (LLFF), else fast",
     )
     out: str = option(
         "runs/latest",
