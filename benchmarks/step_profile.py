@@ -2,6 +2,7 @@
 
     python benchmarks/step_profile.py [--data src/nerfkit/assets/lego_200x200.npz] [--steps 1200]
     python benchmarks/step_profile.py --ab OLD_SRC NEW_SRC [--repeats 3] [--steps 600]
+    PYTHONPATH=NEW_SRC python benchmarks/step_profile.py --interleave OLD_SRC [--steps 700]
 
 One run trains the default model exactly as ``nerfkit train --steps N`` would (the scene
 kind's defaults, seed 0, no evaluation, no checkpoints) and times every step with wrappers
@@ -21,8 +22,12 @@ Prints a table of milliseconds per step (wall, the mean over the timed steps, an
 stage) and the step's size (rays, samples per ray, touched grid rows). With ``--ab``, runs
 the profile in fresh processes alternately on two source trees (``PYTHONPATH``), ``--repeats``
 times each, and prints the per-phase medians side by side with the ratio of the step time:
-an A/B that a shared machine's load affects alike. Run under ``nice`` beside other work
-and the absolute figures grow; compare only runs made side by side.
+an A/B that a shared machine's load affects alike. With ``--interleave``, one run of this
+tree takes for each step, at random, the old tree's compiled grid kernels and ray batches
+or its own (they must compute the same: the losses digest then equals a plain
+run's), and prints the median step of each by grid stage: the closest A/B under a load that
+changes from minute to minute. Run under ``nice`` beside other work and the absolute
+figures grow; compare only runs made side by side.
 """
 
 from __future__ import annotations
@@ -262,6 +267,74 @@ def run_worker(src: str, args) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def load_file(path: Path, name: str):
+    """The Python module in ``path``, imported as ``name`` (beside the one of the same file name in use)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, path)
+    if spec is None or spec.loader is None or not path.is_file():
+        raise SystemExit(f"step_profile: cannot load {path}")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # (numba's cache finds a module's globals by its name)
+    spec.loader.exec_module(module)
+    return module
+
+
+def interleaved(old_src: str, data: str, steps: int, seed: int) -> dict:
+    """One training run of this tree whose steps take, each at random, the
+    compiled grid kernels and the ray batch gathering of ``old_src`` or of this tree: the
+    parts whose speed changed, which compute the same, so both halves train one model under
+    the same load. Wall and CPU seconds of each step, by grid stage."""
+    import hashlib
+
+    import numpy as np
+
+    from nerfkit import kernels, presets
+    from nerfkit.data.npz import load_npz
+    from nerfkit.data.rays import RaysData
+    from nerfkit.models import model_config_class
+    from nerfkit.train.config import TrainConfig
+    from nerfkit.train.trainer import Trainer
+
+    old_kernels = load_file(Path(old_src) / "nerfkit" / "kernels" / "grid_numba.py", "step_profile_old_grid_numba")
+    old_kernels.warm_up()
+    old_rays = load_file(Path(old_src) / "nerfkit" / "data" / "rays.py", "nerfkit.data.step_profile_old_rays")
+    new_kernels, new_batch = kernels.numba_kernels(), RaysData._batch
+    parts = {"old": (old_kernels, old_rays.RaysData._batch), "new": (new_kernels, new_batch)}
+    scene = load_npz(data)
+    times: dict[str, dict[int, list]] = {"old": {}, "new": {}}
+    losses = []
+    with tempfile.TemporaryDirectory() as out:
+        cfg = TrainConfig(data=data, model="fast", out=out, steps=steps, seed=seed, checkpoint_seconds=1e9)
+        cfg, model_cfg = presets.resolve(cfg.validate(), model_config_class("fast")(), scene).configs()
+        tr = Trainer(scene, cfg, model_cfg, quiet=True)
+        tr.model.load_kernels()
+        pick = np.random.default_rng(seed)  # (not a fixed pattern: the periodic refreshes would all fall to one side)
+        try:
+            while tr.step < steps:
+                which = "old" if pick.random() < 0.5 else "new"
+                kernels._STATE["module"], RaysData._batch = parts[which]
+                stage, t, c = tr.model.stage, time.perf_counter(), time.process_time()
+                losses.append(tr.train_step()["loss"])
+                times[which].setdefault(stage, []).append((time.perf_counter() - t, time.process_time() - c))
+                tr.step += 1
+        finally:
+            kernels._STATE["module"], RaysData._batch = parts["new"]
+    stages = []
+    for stage in sorted(times["new"]):
+        o, n = np.array(times["old"][stage]), np.array(times["new"][stage])
+        stages.append(
+            {
+                "stage": stage,
+                "steps": [len(o), len(n)],
+                "wall_ms": [1000 * float(np.median(o[:, 0])), 1000 * float(np.median(n[:, 0]))],
+                "cpu_ms": [1000 * float(np.median(o[:, 1])), 1000 * float(np.median(n[:, 1]))],
+            }
+        )
+    digest = hashlib.sha1(np.array(losses).tobytes()).hexdigest()[:16]
+    return {"stages": stages, "loss_digest": digest, "loadavg": os.getloadavg()}
+
+
 def median_result(runs: list[dict]) -> dict:
     keys = {k for r in runs for k in r["phases_ms"]}
     return {
@@ -279,13 +352,31 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--ab", nargs=2, metavar=("OLD_SRC", "NEW_SRC"), help="two source trees (their src/ folders)")
     p.add_argument("--repeats", type=int, default=3, help="with --ab: runs of each tree, alternating")
+    p.add_argument(
+        "--interleave",
+        metavar="OLD_SRC",
+        help="one run of this tree whose steps take at random OLD_SRC's compiled grid kernels and "
+        "ray batches and this tree's (they must compute the same); medians per grid stage",
+    )
     p.add_argument("--json", help="write the results here")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.worker:
         print(json.dumps(profile(args.data, args.steps, args.start, args.seed)))
         return 0
-    if not args.ab:
+    if args.interleave:
+        results = interleaved(args.interleave, args.data, args.steps, args.seed)
+        print("| grid stage | steps old + new | wall ms old / new (ratio) | CPU ms old / new (ratio) |")
+        print("|---|---:|---|---|")
+        for s in results["stages"]:
+            (wo, wn), (co, cn) = s["wall_ms"], s["cpu_ms"]
+            print(
+                f"| {s['stage']} | {s['steps'][0]} + {s['steps'][1]} | {wo:.1f} / {wn:.1f} ({wo / wn:.3f}) | "
+                f"{co:.1f} / {cn:.1f} ({co / cn:.3f}) |"
+            )
+        print(f"losses digest {results['loss_digest']} (equal to a plain run's when old and new compute the same)")
+        print(f"load average {results['loadavg'][0]:.2f}")
+    elif not args.ab:
         r = profile(args.data, args.steps, args.start, args.seed)
         print(table([("ms/step", r)]))
         print("\n".join(stage_lines(r)))
