@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from nerfkit.data.npz import load_npz, save_npz
-from nerfkit.data.rays import RaysData
+from nerfkit.data.rays import RaysData, take_rows
 from nerfkit.errors import NerfkitError
 
 
@@ -69,6 +69,28 @@ def test_rays_data_uv_indexes_the_sampled_pixels(sphere):
     assert len(rays.sample_from_images(7, 10 * rays.n_images).image_index) == 7  # more images asked than there are
     with pytest.raises(ValueError, match="at least one image"):
         rays.sample_from_images(7, 0)
+
+
+def test_a_batch_holds_exactly_what_torch_indexing_of_the_stored_rays_gives(sphere):
+    """The batch gathers through numpy on the CPU (take_rows); torch's own indexing is the reference."""
+    rays = RaysData(sphere.train, seed=3)
+    batch = rays.sample(777)
+    img, uv = batch.image_index, batch.uv
+    pix = uv[:, 1] * rays.width + uv[:, 0]
+    assert torch.equal(batch.rays.origins, rays.c2w[img, :3, 3])
+    assert torch.equal(batch.rays.directions, rays.directions[img, pix])
+    assert torch.equal(batch.rgb, rays.images[img, uv[:, 1], uv[:, 0]].float() / 255.0)
+    assert torch.equal(uv, rays.pixel_uv[pix])
+
+
+@pytest.mark.parametrize("dtype", [torch.uint8, torch.int64, torch.float32, torch.float64])
+def test_take_rows_equals_torch_indexing(dtype):
+    table = (torch.arange(5 * 2 * 3) * 7 % 11).to(dtype).reshape(5, 2, 3)
+    index = torch.tensor([4, 0, 0, 2, 4])
+    for t in (table, table[:, 1, :], table[:, :, 2]):  # strided views too
+        got = take_rows(t, index)
+        assert torch.equal(got, t[index]) and got.dtype == t.dtype and got.is_contiguous()
+    assert take_rows(table, index[:0]).shape == (0, 2, 3)
 
 
 @pytest.mark.parametrize(

@@ -12,6 +12,19 @@ from ..cameras import Rays, pixel_to_ray
 from .scene import Views
 
 
+def take_rows(table: Tensor, index: Tensor) -> Tensor:
+    """``table[index]``: the rows (n, ...) of ``table`` at ``index`` (n,) int64.
+
+    On the CPU through numpy, which gathers on the calling thread: torch's indexing wakes
+    its thread pool for each gather, and on busy cores each wake-up waited about 10 ms (four
+    such gathers a step were a fifth of a training step of the ``fast`` model, 2 loaded
+    cores; ``benchmarks/step_profile.py``).
+    """
+    if table.device.type != "cpu" or index.device.type != "cpu":
+        return table[index]
+    return torch.from_numpy(np.ascontiguousarray(table.numpy()[index.numpy()]))
+
+
 @dataclass
 class RayBatch:
     """Rays with their ground-truth pixels.
@@ -59,9 +72,10 @@ class RaysData:
 
     def _batch(self, img: Tensor, pix: Tensor) -> RayBatch:
         img, pix = img.to(self.device), pix.to(self.device)
-        uv = self.pixel_uv[pix]
-        rgb = self.images[img, uv[:, 1], uv[:, 0]].float() / 255.0
-        rays = Rays(self.c2w[img, :3, 3], self.directions[img, pix])
+        flat = img * (self.height * self.width) + pix
+        uv = take_rows(self.pixel_uv, pix)
+        rgb = take_rows(self.images.reshape(-1, 3), flat).float() / 255.0
+        rays = Rays(take_rows(self.c2w[:, :3, 3], img), take_rows(self.directions.reshape(-1, 3), flat))
         return RayBatch(rays, rgb, img, uv)
 
     def sample(self, n_rays: int) -> RayBatch:

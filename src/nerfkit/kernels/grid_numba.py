@@ -29,43 +29,44 @@ EDGE_SHIFT = 56
 ROW_MASK = (1 << EDGE_SHIFT) - 1
 # how many samples ahead along the ray to prefetch grid rows
 PREFETCH_AHEAD = 4
+# a sparse grid's vertex rows (where a vertex's grid row is) are prefetched this many samples
+# before the grid rows: the grid rows' prefetch reads them, and stalled on their misses
+VERTEX_ROWS_AHEAD = 4
 # when only rendering (no backward pass), samples of smaller weight skip their colour
 SKIP_COLOUR_BELOW = 1e-7
 
 
-def _make_prefetch():
+def _prefetch_codegen(context, builder, signature, args):
+    """A cache-line prefetch of the array element ``args[0][args[1:]]`` (read, high locality)."""
+    from llvmlite import binding, ir
+
+    name = "llvm.prefetch.p0" if binding.llvm_version_info[0] >= 15 else "llvm.prefetch.p0i8"
+    arrty = signature.args[0]
+    ary = context.make_array(arrty)(context, builder, args[0])
+    ij = [context.cast(builder, v, t, types.intp) for v, t in zip(args[1:], signature.args[1:])]
+    ptr = cgutils.get_item_pointer(context, builder, arrty, ary, ij, wraparound=False)
+    i8p = ir.PointerType(ir.IntType(8))
+    i32 = ir.IntType(32)
+    fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), name)
+    builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
+    return context.get_dummy_value()
+
+
+@intrinsic
+def prefetch(typingctx, arr, row, col):
     """``prefetch(arr2d, row, col)``: a hint to pull ``arr2d[row, col]``'s cache line in.
 
     Gathers from the grid are latency-bound; prefetching the cell a few samples ahead
     along the ray overlaps those misses with the shading of the current sample.
     """
-    from llvmlite import binding, ir
-
-    name = "llvm.prefetch.p0" if binding.llvm_version_info[0] >= 15 else "llvm.prefetch.p0i8"
-
-    @intrinsic
-    def prefetch(typingctx, arr, row, col):
-        sig = types.void(arr, row, col)
-
-        def codegen(context, builder, signature, args):
-            arrty = signature.args[0]
-            ary = context.make_array(arrty)(context, builder, args[0])
-            ij = [context.cast(builder, v, t, types.intp) for v, t in zip(args[1:], signature.args[1:])]
-            ptr = cgutils.get_item_pointer(context, builder, arrty, ary, ij, wraparound=False)
-            i8p = ir.PointerType(ir.IntType(8))
-            i32 = ir.IntType(32)
-            fn = cgutils.get_or_insert_function(
-                builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), name
-            )
-            builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
-            return context.get_dummy_value()
-
-        return sig, codegen
-
-    return prefetch
+    return types.void(arr, row, col), _prefetch_codegen
 
 
-prefetch = _make_prefetch()
+@intrinsic
+def prefetch1(typingctx, arr, i):
+    """``prefetch1(arr1d, i)``: :func:`prefetch` of ``arr1d[i]`` (a sparse grid's vertex
+    rows: the grid rows a sample reads are found through them, so they are fetched earlier)."""
+    return types.void(arr, i), _prefetch_codegen
 
 
 @njit(cache=True, fastmath=False, inline="always")
@@ -228,6 +229,10 @@ def render_forward(
     sxy = rx * ry
     cap = s_idx.shape[0]
     inv_step = 1.0 / step
+    cshift = -1  # log2(cf) when cf is a power of two: blocks by a shift, not a division
+    for b in range(31):
+        if (1 << b) == cf:
+            cshift = b
     for r in prange(n):
         ta = t0[r]
         tb = t1[r]
@@ -259,13 +264,25 @@ def render_forward(
             iy, fy = _cell(gy, ry)
             iz, fz = _cell(gz, rz)
             if cf > 1:
-                bx, by, bz = ix // cf, iy // cf, iz // cf
+                if cshift >= 0:
+                    bx, by, bz = ix >> cshift, iy >> cshift, iz >> cshift
+                else:
+                    bx, by, bz = ix // cf, iy // cf, iz // cf
                 if coarse[bz, by, bx] == 0:
                     k = _leap(k, ta, tb, ur, inv_step, ox, oy, oz, idx, idy, idz, bx * cf, by * cf, bz * cf, cf)
                     continue
             if occ[iz, iy, ix] == 0:
                 k = _leap(k, ta, tb, ur, inv_step, ox, oy, oz, idx, idy, idz, ix, iy, iz, 1)
                 continue
+            if voff < 0:
+                tv = t + (PREFETCH_AHEAD + VERTEX_ROWS_AHEAD) * step
+                if tv < tb:
+                    jx, _ = _cell(ox + tv * dx, rx)
+                    jy, _ = _cell(oy + tv * dy, ry)
+                    jz, _ = _cell(oz + tv * dz, rz)
+                    qb = (jz * ry + jy) * rx + jx
+                    for q in range(4):
+                        prefetch1(vidx, qb + (q >> 1) * sxy + (q & 1) * rx)
             tp = t + PREFETCH_AHEAD * step
             if tp < tb:
                 jx, _ = _cell(ox + tp * dx, rx)
@@ -547,6 +564,11 @@ def render_backward(
             wt_pre = 0.0
             wg_pre = 0.0
             for k in range(cnt):
+                kv = k + 2 + VERTEX_ROWS_AHEAD
+                if voff < 0 and kv < cnt:
+                    vb = s_idx[kv, r] & ROW_MASK
+                    for q in range(4):
+                        prefetch1(vidx, vb + (q >> 1) * sxy + (q & 1) * rx)
                 if k + 2 < cnt:
                     qb = s_idx[k + 2, r] & ROW_MASK
                     for q in range(4):
