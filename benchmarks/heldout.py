@@ -1,7 +1,7 @@
 """Every model on every scene, scored on held-out views that no decision was made on.
 
     python benchmarks/heldout.py --lego-blender DIR [--llff DIR] [--capture NAME=DATASET ...]
-                                 [--scenes lego200,lego400,flower,NAME,...] [--models fast,splat]
+                                 [--scenes lego200,lego400,flower,forward,NAME,...] [--models fast,splat]
                                  [--seconds 60,300 | --steps 100,1000] [--out OUT]
 
 For each scene, model and budget B (seconds of training, evaluation excluded) one fresh run
@@ -19,6 +19,11 @@ PSNR and SSIM (``nerfkit.train.metrics``). The scenes:
 * ``lego400``: trained on the Blender train split at 400x400, scored on its 100 val views.
 * ``flower``: an LLFF folder (``--llff``), at ``images_8`` by default (504x378, as the papers
   score it); every 8th photo (0, 8, 16, ...) held out, trained on the rest.
+* ``flower17`` and ``flower17b``: stand-ins for a sparser forward-facing capture (17 train
+  photos, as LLFF scenes with 20 photos have): the same held-out photos as ``flower``, trained
+  on 17 of its 29 training photos chosen evenly (:func:`even_subset`, offsets 0 and 1/2 of a
+  gap, so the two share few photos). ``forward`` in ``--scenes`` names all three: a setting of
+  the forward-facing scene kind is judged on them together, never on ``flower`` alone.
 * each ``--capture NAME=DATASET``: a posed capture dataset (``nerfkit poses``' output),
   trained on its train photos (with the real-capture training ``nerfkit train`` picks for
   it), scored on its val photos as rendered at their given poses.
@@ -65,7 +70,10 @@ from nerfkit.errors import NerfkitError, fail
 REPO = Path(__file__).resolve().parents[1]
 LEGO_NPZ = REPO / "src" / "nerfkit" / "assets" / "lego_200x200.npz"
 LEGO_SCENES = ("lego200", "lego400")
-BUILT_IN = ("lego200", "lego400", "flower")
+# the LLFF subsets: name -> (train photos kept, offset in gaps); all are scored on flower's held-out photos
+FLOWER_SUBSETS = {"flower17": (17, 0.0), "flower17b": (17, 0.5)}
+FORWARD = ("flower", *FLOWER_SUBSETS)
+BUILT_IN = ("lego200", "lego400", *FORWARD)
 COLUMNS = ("scene", "model", "budget", "steps", "train_s", "psnr", "ssim", "fps", "model_mb", "n_heldout", "psnr_npz_val", "ssim_npz_val", "n_train", "width", "height", "loadavg_before", "loadavg_after")
 
 
@@ -112,7 +120,7 @@ def parse_captures(pairs: list[str]) -> dict[str, Path]:
         name = name.strip()
         if not sep or not name or not path:
             raise fail("--capture", f"{pair!r} is not NAME=PATH", "e.g. --capture steve=runs/steve/poses")
-        if name in out or name in BUILT_IN or name == "captures":
+        if name in out or name in BUILT_IN or name in ("captures", "forward"):
             raise fail("--capture", f"the name {name!r} is taken", "Give each capture its own name")
         out[name] = Path(path)
     return out
@@ -124,26 +132,35 @@ def budget_label(seconds: float | None, steps: int | None) -> str:
 
 
 def choose_scenes(asked: list[str] | None, have: dict[str, bool], captures: list[str]) -> list[str]:
-    """The scenes to run, in table order: ``asked`` (``captures`` standing for every capture)
-    or, when None, every scene whose data was given. ``have``: built-in scene -> data given."""
+    """The scenes to run, in table order: ``asked`` (``captures`` standing for every capture,
+    ``forward`` for flower and its subsets) or, when None, every scene whose data was given
+    (not flower's subsets). ``have``: built-in scene -> data given."""
     if asked is None:
-        chosen = [s for s in BUILT_IN if have[s]] + list(captures)
+        chosen = [s for s in BUILT_IN if s not in FLOWER_SUBSETS and have[s]] + list(captures)
         if not chosen:
             raise fail("heldout", "no scene to run", "Give --lego-blender, --llff or --capture NAME=DATASET")
         return chosen
     chosen = []
     for s in asked:
-        names = list(captures) if s == "captures" else [s]
+        names = list(captures) if s == "captures" else list(FORWARD) if s == "forward" else [s]
         for n in names:
             if n in BUILT_IN and not have[n]:
-                flag = "--llff" if n == "flower" else "--lego-blender"
+                flag = "--llff" if n in FORWARD else "--lego-blender"
                 raise fail("--scenes", f"{n} needs its data", f"Give {flag} DIR")
             if n not in BUILT_IN and n not in captures:
                 raise fail("--scenes", f"unknown scene {n!r}",
-                           f"Choose from {', '.join((*BUILT_IN, 'captures', *captures))}")
+                           f"Choose from {', '.join((*BUILT_IN, 'forward', 'captures', *captures))}")
             if n not in chosen:
                 chosen.append(n)
     return chosen
+
+
+def even_subset(n: int, k: int, offset: float = 0.0) -> np.ndarray:
+    """``k`` of the indices ``0..n-1``, evenly spread: ``floor((i + offset) * n / k)`` for
+    ``i < k`` (``0 <= offset < 1``: where in each gap of ``n / k`` the pick falls). Increasing."""
+    if not 0 < k <= n or not 0 <= offset < 1:
+        raise ValueError(f"cannot pick {k} of {n} at offset {offset}")
+    return np.floor((np.arange(k) + offset) * (n / k)).astype(int)
 
 
 def downscale_rgba(image: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -289,14 +306,23 @@ def load_lego400(blender: Path) -> BenchScene:
                       f"{scene.train.width}x{scene.train.height}")
 
 
-def load_flower(folder: Path, downscale: float) -> BenchScene:
+def load_flower(folder: Path, downscale: float, name: str = "flower") -> BenchScene:
+    """``flower`` or one of :data:`FLOWER_SUBSETS` (fewer train photos, the same held-out ones)."""
     from nerfkit.data.llff import HOLDOUT_EVERY, load_llff
 
     scene = load_llff(folder, downscale=downscale if downscale != 1 else None)
     if not scene.val.has_images:
         raise fail(folder, "holds too few photos to hold any out")
-    return BenchScene("flower", without_heldout(scene), scene.val, {},
-                      f"flower: {len(scene.train)} train photos, every {HOLDOUT_EVERY}th held out "
+    kept = ""
+    if name in FLOWER_SUBSETS:
+        k, offset = FLOWER_SUBSETS[name]
+        if len(scene.train) < k:
+            raise fail(folder, f"has {len(scene.train)} training photos, {name} keeps {k}")
+        keep = even_subset(len(scene.train), k, offset)
+        scene = replace(scene, train=scene.train.subset(keep))
+        kept = f" ({', '.join(scene.train.names)})"
+    return BenchScene(name, without_heldout(scene), scene.val, {},
+                      f"{name}: {len(scene.train)} train photos{kept}, every {HOLDOUT_EVERY}th held out "
                       f"({', '.join(scene.val.names)}), {scene.train.width}x{scene.train.height}")
 
 
@@ -424,8 +450,9 @@ def parse_args(argv=None):
                    help="the LLFF photos' divisor (8: images_8, as the papers score it)")
     p.add_argument("--capture", action="append", default=[], metavar="NAME=DATASET",
                    help="a posed capture dataset scored on its val photos (repeatable)")
-    p.add_argument("--scenes", help="comma-separated: lego200, lego400, flower, captures (all of them) or a "
-                                    "capture's NAME (default: every scene whose data is given)")
+    p.add_argument("--scenes", help="comma-separated: lego200, lego400, flower, flower17, flower17b, forward (the "
+                                    "three flower cases), captures (all of them) or a capture's NAME (default: every "
+                                    "scene whose data is given, without flower's subsets)")
     p.add_argument("--models", default="fast,splat", help="comma-separated model names")
     p.add_argument("--seconds", default="60,300", help="training budgets in seconds, comma-separated")
     p.add_argument("--steps", help="training budgets in steps instead, comma-separated (a check of the protocol on "
@@ -458,7 +485,7 @@ def run(args) -> int:
             raise fail("--variant", f"{label}: unknown model {base!r}", f"Choose from {', '.join(MODEL_NAMES)}")
     captures = parse_captures(args.capture)
     have = {"lego200": args.lego_blender is not None, "lego400": args.lego_blender is not None,
-            "flower": args.llff is not None}
+            **{n: args.llff is not None for n in FORWARD}}
     names = choose_scenes(None if args.scenes is None else parse_list(args.scenes, str, "--scenes"), have,
                           list(captures))
     notes: list[str] = []
@@ -468,8 +495,8 @@ def run(args) -> int:
             scenes.append(load_lego200(args.lego_blender, notes))
         elif n == "lego400":
             scenes.append(load_lego400(args.lego_blender))
-        elif n == "flower":
-            scenes.append(load_flower(args.llff, args.llff_downscale))
+        elif n in FORWARD:
+            scenes.append(load_flower(args.llff, args.llff_downscale, n))
         else:
             scenes.append(load_capture(n, captures[n]))
         print(scenes[-1].about, flush=True)

@@ -131,6 +131,11 @@ def test_options():
         heldout.choose_scenes(["chair"], have, [])
     with pytest.raises(NerfkitError, match="no scene"):
         heldout.choose_scenes(None, {k: False for k in have}, [])
+    have = {**have, **dict.fromkeys(heldout.FORWARD, True)}
+    assert heldout.choose_scenes(None, have, []) == ["lego200", "lego400", "flower"]  # the subsets on request
+    assert heldout.choose_scenes(["forward", "flower17"], have, []) == ["flower", "flower17", "flower17b"]
+    with pytest.raises(NerfkitError):
+        heldout.parse_captures(["forward=a"])
     assert heldout.budget_label(60.0, None) == "60 s" and heldout.budget_label(None, 100) == "100 steps"
 
 
@@ -169,3 +174,39 @@ def test_a_variant_changes_the_named_settings_in_whichever_config_has_them():
     for bad in ("fast", "fast+x:", "fast+x:tv_weight"):
         with pytest.raises(NerfkitError):
             heldout.parse_variant(bad)
+
+
+def test_even_subsets_spread_over_the_photos_and_differ_by_offset():
+    assert heldout.even_subset(29, 17).tolist() == [0, 1, 3, 5, 6, 8, 10, 11, 13, 15, 17, 18, 20, 22, 23, 25, 27]
+    a, b = heldout.even_subset(29, 17, 0.0), heldout.even_subset(29, 17, 0.5)
+    assert b[-1] == 28 and len(set(a) & set(b)) == 5  # the two sparse cases share few photos
+    for n, k, off in ((29, 17, 0.0), (29, 17, 0.5), (10, 10, 0.9), (7, 1, 0.5), (100, 3, 0.99)):
+        picks = heldout.even_subset(n, k, off)
+        assert len(picks) == k and picks.min() >= 0 and picks.max() < n and np.all(np.diff(picks) > 0)
+        gaps = np.diff(picks, append=picks[0] + n)
+        assert gaps.max() - gaps.min() <= 1  # even: gaps of floor(n/k) or one more
+    assert heldout.even_subset(5, 5).tolist() == [0, 1, 2, 3, 4]
+    for bad in ((5, 0, 0.0), (5, 6, 0.0), (5, 2, 1.0), (5, 2, -0.1)):
+        with pytest.raises(ValueError):
+            heldout.even_subset(*bad)
+
+
+def test_flower_subsets_train_on_fewer_photos_and_score_the_same_ones(tmp_path):
+    from test_llff import forward_facing_cameras, write_llff
+
+    c2w = forward_facing_cameras(34)  # as many photos as flower: 5 held out, 29 to train on
+    bounds = np.stack([np.full(34, 2.0), np.full(34, 6.0)], axis=1)
+    folder = write_llff(tmp_path / "ff", c2w, bounds)
+    full = heldout.load_flower(folder, 1.0)
+    assert len(full.train.train) == 29 and len(full.heldout) == 5 and len(full.train.val) == 0
+    for name, (k, offset) in heldout.FLOWER_SUBSETS.items():
+        sub = heldout.load_flower(folder, 1.0, name)
+        assert sub.name == name and len(sub.train.train) == k and len(sub.train.val) == 0
+        assert sub.heldout.names == full.heldout.names
+        np.testing.assert_array_equal(sub.heldout.images, full.heldout.images)
+        picks = heldout.even_subset(29, k, offset)
+        assert sub.train.train.names == [full.train.train.names[i] for i in picks]
+        np.testing.assert_array_equal(sub.train.train.c2w, full.train.train.c2w[picks])
+    few = write_llff(tmp_path / "few", c2w[:12], bounds[:12])  # 10 to train on: too few for 17
+    with pytest.raises(NerfkitError, match="keeps 17"):
+        heldout.load_flower(few, 1.0, "flower17")
