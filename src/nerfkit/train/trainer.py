@@ -53,7 +53,7 @@ from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, 
 from .metrics import psnr, psnr_from_mse
 from .optim import build_optimizer
 from .sight_lines import SIGHT_LINES_PER_STEP, SightLines
-from .view_corrections import PoseCorrection, ViewCorrections
+from .view_corrections import PoseCorrection, ViewAdam, ViewCorrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
@@ -143,7 +143,9 @@ class Trainer:
             self.views = ViewCorrections(
                 len(scene.train), self.bounds.radius, pose, cfg.exposure_lr > 0, cfg.colour_mix
             ).to(self.device)
-            self.view_optimizer = torch.optim.Adam(self.views.param_groups(cfg.pose_lr, cfg.exposure_lr))
+            groups = self.views.param_groups(cfg.pose_lr, cfg.exposure_lr)
+            # one view per step: only its corrections step (ViewAdam); a ray batch sees every view
+            self.view_optimizer = ViewAdam(groups) if self.whole_images else torch.optim.Adam(groups)
         self._remember_initial_lr()
         self.step = 0
         self.train_seconds = 0.0
@@ -297,8 +299,9 @@ class Trainer:
         self._set_lr()
         views = self.views
         rays = None
+        seen: Tensor | None = None  # the view a whole-view step rendered
         if self.whole_images:
-            out, target = self._render_training_view()
+            out, target, seen = self._render_training_view()
             loss = self.model.loss(out, target) + self._corrections_penalty()
         else:
             batch = self.rays.sample(min(self.model.rays_per_step(self.cfg.batch_rays), MAX_BATCH_RAYS))
@@ -325,7 +328,9 @@ class Trainer:
         after = replace(state, optimizer=self.optimizer, rays=rays, out=out if rays is not None else None)
         run_schedules(self.schedules, after, phase="gradients")
         self.optimizer.step()
-        if self.view_optimizer is not None:
+        if isinstance(self.view_optimizer, ViewAdam):
+            self.view_optimizer.step(rows=seen)
+        elif self.view_optimizer is not None:
             self.view_optimizer.step()
         skipped = getattr(self.optimizer, "nonfinite_rows", 0)  # grid rows the optimizer refused
         if skipped:
@@ -363,7 +368,7 @@ class Trainer:
 
     def _render_training_view(self):
         """One random training view rendered whole (fp32) from its corrected camera once
-        poses are corrected: ``(out, target (H, W, 3))``."""
+        poses are corrected: ``(out, target (H, W, 3), view (1,) long)``."""
         i = int(torch.randint(self.rays.n_images, (1,), generator=self.rays.generator))
         h, w = self.rays.height, self.rays.width
         target = self.rays.images[i].float() / 255.0
@@ -375,7 +380,7 @@ class Trainer:
         if self.views is not None and self.views.exposure is not None:
             index = torch.full((h * w,), i, dtype=torch.long, device=self.device)
             out = replace(out, rgb=self.views.exposure(out.rgb.reshape(-1, 3), index).reshape(h, w, 3))
-        return out, target
+        return out, target, torch.tensor([i], device=self.device)
 
     def _zero_grad(self) -> None:
         self.optimizer.zero_grad(set_to_none=True)

@@ -220,6 +220,58 @@ class ViewCorrections(nn.Module):
         return rows
 
 
+class ViewAdam(torch.optim.Optimizer):
+    """Adam over per-view parameters (row ``i`` of each: view ``i``'s) that steps only the
+    rows of the views a step saw, each with its own moments and step count.
+
+    A model that renders one whole view per step (splat) sees each view once in ``n_views``
+    steps. A dense Adam then moves every row every step: the rows of unseen views by the
+    momentum of their last visit and by the small gradient the mean removal
+    (:func:`mean_removed`) passes to them, and at each visit by about ``sqrt(n_views)``
+    times the learning rate (the second moment averages the view's rare gradients with
+    the zeros in between). Here a row moves only when its view is rendered, by about
+    ``lr`` as Adam does for a parameter seen every step (as ``torch.optim.SparseAdam``,
+    with a step count per row for the bias correction). Parameters: (n_views, ...) each.
+
+    Args:
+        params: parameters or groups (``lr`` per group); betas, eps: as in Adam.
+    """
+
+    def __init__(self, params, lr: float = 1e-3, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
+        super().__init__(params, dict(lr=lr, betas=betas, eps=eps))
+
+    @torch.no_grad()
+    def step(self, closure=None, rows: Tensor | None = None):
+        """One Adam step of rows ``rows`` ((k,) long, the views seen; None: every row)
+        of each parameter that has a gradient; the other rows and their moments stay."""
+        loss = None
+        if closure is not None:
+            with torch.enable_grad():
+                loss = closure()
+        for group in self.param_groups:
+            beta1, beta2 = group["betas"]
+            for p in group["params"]:
+                if p.grad is None:
+                    continue
+                state = self.state[p]
+                if not state:
+                    state["step"] = torch.zeros(p.shape[0], dtype=torch.float32, device=p.device)
+                    state["exp_avg"] = torch.zeros_like(p)
+                    state["exp_avg_sq"] = torch.zeros_like(p)
+                elif state["step"].dim() == 0:  # a dense Adam's state (an older checkpoint): its count per row
+                    state["step"] = state["step"].expand(p.shape[0]).clone().to(p.device)
+                r = torch.arange(p.shape[0], device=p.device) if rows is None else rows.to(p.device).unique()
+                g = p.grad[r]
+                step = state["step"][r] + 1
+                m = state["exp_avg"][r].mul_(beta1).add_(g, alpha=1 - beta1)
+                v = state["exp_avg_sq"][r].mul_(beta2).addcmul_(g, g, value=1 - beta2)
+                shape = (-1,) + (1,) * (p.dim() - 1)
+                denom = (v / (1 - beta2**step).reshape(shape)).sqrt_().add_(group["eps"])
+                p[r] -= group["lr"] * m / (1 - beta1**step).reshape(shape) / denom
+                state["step"][r], state["exp_avg"][r], state["exp_avg_sq"][r] = step, m, v
+        return loss
+
+
 def least_squares_colour(rgb: np.ndarray, target: np.ndarray, mix: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The colour correction of one view that best maps its render onto its photo (least
     squares, so the lowest MSE): :class:`ExposureCorrection`'s model solved exactly.
