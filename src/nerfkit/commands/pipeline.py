@@ -495,8 +495,8 @@ def train(
     choose = model is None and config is None
     train_names = {f.name for f in dataclasses.fields(TrainConfig)}
     train_only = {k: v for k, v in {**options, **given}.items() if k in train_names}
-    unknown = set(options) - train_names - set().union(*model_fields().values())
-    if choose and unknown:
+    unknown = (set(options) - train_names - set().union(*model_fields().values())) if choose else set()
+    if unknown:
         raise TypeError(f"train() got settings that neither training nor any model has: {', '.join(sorted(unknown))}")
     cfg, model_cfg, user_set = train_settings(train_only if choose else {**options, **given}, config)
     if not cfg.data:

@@ -240,21 +240,20 @@ class SplatModel(NerfModel):
             "hull": "the training images' visual hull",
             "random": "random points in the scene's sphere",
         }.get(mode, "")
+        xyz, rgb = scene.points, scene.point_colors
+        if mode == "points" and n_points == 0:
+            raise fail(
+                scene.source or "dataset",
+                "has no sparse points to start from",
+                "Use --init random, or build the dataset with its points (nerfkit poses --points)",
+            )
         if mode == "triangulate":
             xyz, rgb, how = triangulated(scene.train, work)
             if len(xyz) < MIN_INIT_POINTS and c.init == "auto":
                 mode, how = "random", f"random points in the scene's sphere ({how}: too few)"
-        if mode in ("points", "triangulate"):
-            if mode == "points" and n_points == 0:
-                raise fail(
-                    scene.source or "dataset",
-                    "has no sparse points to start from",
-                    "Use --init random, or build the dataset with its points (nerfkit poses --points)",
-                )
-            if mode == "points":
-                xyz, rgb = scene.points, scene.point_colors
-            if len(xyz) == 0:
+            elif len(xyz) == 0:
                 raise fail(scene.source or "dataset", f"{how}: no points", "Use --init random")
+        if mode in ("points", "triangulate"):
             pts, cols = points_init(xyz, rgb, c.init_points, gen)
             scale = neighbour_scales(pts)
         elif mode == "hull":
