@@ -403,7 +403,7 @@ def apply_changes(cfg, model_cfg, changes: dict, label: str):
 
 
 def train_and_score(bench: BenchScene, model_name: str, seconds: float | None, steps: int | None, run_dir: Path,
-                    seed: int, changes: dict | None = None, label: str | None = None) -> dict:
+                    seed: int, changes: dict | None = None, label: str | None = None) -> dict | None:
     """Train ``model_name`` on ``bench.train`` for ``seconds`` of training (or ``steps``)
     into ``run_dir`` with the defaults ``nerfkit train`` picks, then score the held-out
     views; the run's figures."""
@@ -423,6 +423,8 @@ def train_and_score(bench: BenchScene, model_name: str, seconds: float | None, s
     load_before = os.getloadavg()
     trainer = Trainer(scene, cfg, model_cfg, quiet=True)
     result = trainer.run()
+    if result.interrupted:  # a shortened run is not the budget's row
+        return None
     load_after = os.getloadavg()
     main = score_views(trainer.model, bench.heldout, trainer.background, cfg.render_chunk, trainer.autocast)
     row = {"scene": bench.name, "model": label or model_name, "budget": budget_label(seconds, steps),
@@ -520,6 +522,9 @@ def run(args) -> int:
                     if run_dir.exists():  # this benchmark's own earlier run: redone
                         shutil.rmtree(run_dir)
                     row = train_and_score(bench, model, seconds, steps, run_dir, args.seed, changes, label)
+                    if row is None:
+                        print(f"{bench.name} {label} {budget}: interrupted, not scored; stopping", flush=True)
+                        return 130
                     results.append(row)
                     gc.collect()
                     extra = (f" (npz's 10 val: {row['psnr_npz_val']:.2f})" if "psnr_npz_val" in row else "")
