@@ -55,8 +55,30 @@ KERNELS = {
     "tv_rows": "schedules: gradients",
     "occupancy_from_grid": "schedules: after_step",
 }
+# the splat's compiled rasterizer, and its torch parts (module attributes looked up at call time)
+SPLAT_KERNELS = {
+    "bin_tiles": "tile binning",
+    "rasterize_forward": "rasterise forward",
+    "rasterize_backward": "rasterise backward",
+}
+SPLAT_TORCH = {
+    "covariance_3d": "project",
+    "project_gaussians": "project",
+    "sh_to_rgb": "SH colour",
+    "depth_order": "depth sort",
+}
 ORDER = (
     "schedules: before_step",
+    "project",
+    "SH colour",
+    "depth sort",
+    "tile binning",
+    "rasterise forward",
+    "render, torch side",
+    "loss: SSIM forward",
+    "rasterise backward",
+    "optimizer",
+    "view corrections",
     "draw rays",
     "forward kernel",
     "forward, torch side",
@@ -106,57 +128,118 @@ class PhaseClock:
         return out
 
 
-def profile(data: str, steps: int, start: int, seed: int) -> dict:
-    """Train the default ``fast`` model for ``steps`` steps; phase times of steps ``start`` on."""
+def load_scene(data: str, model: str, points: str | None):
+    """The training scene: a scene ``.npz``, or an LLFF folder as ``heldout.py`` trains flower
+    (every 8th photo held out, ``images_8``). For the splat, an LLFF scene starts from the
+    points triangulated at its poses; with ``points`` (an ``.npz``, written on first use)
+    they are computed once and every run starts from the same ones."""
+    import numpy as np
+
+    from nerfkit.data.npz import load_npz
+
+    if Path(data).is_dir():
+        from heldout import load_flower
+
+        scene = load_flower(Path(data), 8.0).train
+    else:
+        scene = load_npz(data)
+    if model != "splat" or scene.points is not None or points is None:
+        return scene
+    from dataclasses import replace
+
+    if not Path(points).is_file():
+        from nerfkit.capture.points import triangulate_views
+
+        with tempfile.TemporaryDirectory(dir=Path(points).resolve().parent) as work:
+            pts = triangulate_views(scene.train, work=work)
+        np.savez(points, xyz=pts.xyz, rgb=pts.rgb)
+    saved = np.load(points)
+    return replace(scene, points=saved["xyz"], point_colors=saved["rgb"])
+
+
+def wrap_fast(clock: PhaseClock, tr) -> list:
+    """Time the ``fast`` model's compiled grid kernels and its ray batch; returns a list
+    that collects each step's touched grid rows."""
+    from nerfkit.kernels import numba_kernels
+
+    nb = numba_kernels()
+    if nb is None:
+        raise SystemExit("step_profile: the compiled kernels are not available (numba)")
+    for name, label in KERNELS.items():
+        setattr(nb, name, clock.wrap(getattr(nb, name), label))
+    touched: list = []
+    touched_rows = nb.touched_rows
+
+    def count_rows(flags):
+        rows = touched_rows(flags)
+        touched.append(len(rows))
+        return rows
+
+    nb.touched_rows = count_rows
+    tr.rays.sample = clock.wrap(tr.rays.sample, "draw rays")
+    tr.model.render_rays = clock.wrap(tr.model.render_rays, "forward, torch side")
+    return touched
+
+
+def wrap_splat(clock: PhaseClock, tr) -> None:
+    """Time the splat's parts: projection, SH colour, depth sort, tile binning, the compiled
+    rasterizer forward and backward, D-SSIM (forward; its backward is in autograd's time)."""
+    from nerfkit.kernels import splat_kernels
+    from nerfkit.kernels import splat_reference as ref
+    from nerfkit.models import splat
+
+    nb = splat_kernels()
+    if nb is None:
+        raise SystemExit("step_profile: the compiled splat kernels are not available (numba)")
+    for name, label in SPLAT_KERNELS.items():
+        setattr(nb, name, clock.wrap(getattr(nb, name), label))
+    for name, label in SPLAT_TORCH.items():
+        setattr(ref, name, clock.wrap(getattr(ref, name), label))
+    splat.ssim = clock.wrap(splat.ssim, "loss: SSIM forward")
+    tr.model.render_view = clock.wrap(tr.model.render_view, "render, torch side")
+    if tr.view_optimizer is not None:
+        tr.view_optimizer.step = clock.wrap(tr.view_optimizer.step, "view corrections")
+
+
+def profile(data: str, steps: int, start: int, seed: int, model_name: str = "fast", points: str | None = None) -> dict:
+    """Train ``model_name`` for ``steps`` steps; phase times of steps ``start`` on."""
     import numpy as np
     import torch
 
     from nerfkit import presets
-    from nerfkit.data.npz import load_npz
-    from nerfkit.kernels import numba_kernels
     from nerfkit.models import model_config_class
     from nerfkit.train import trainer as trainer_module
     from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import Trainer
 
-    scene = load_npz(data)
+    scene = load_scene(data, model_name, points)
     with tempfile.TemporaryDirectory() as out:
-        cfg = TrainConfig(data=data, model="fast", out=out, steps=steps, seed=seed, checkpoint_seconds=1e9)
-        cfg, model_cfg = presets.resolve(cfg.validate(), model_config_class("fast")(), scene).configs()
+        cfg = TrainConfig(data=data, model=model_name, out=out, steps=steps, seed=seed, checkpoint_seconds=1e9)
+        cfg, model_cfg = presets.resolve(cfg.validate(), model_config_class(model_name)(), scene).configs()
         tr = Trainer(scene, cfg, model_cfg, quiet=True)
         tr.model.load_kernels()
         clock = PhaseClock()
-        nb = numba_kernels()
-        if nb is None:
-            raise SystemExit("step_profile: the compiled kernels are not available (numba)")
-        for name, label in KERNELS.items():
-            setattr(nb, name, clock.wrap(getattr(nb, name), label))
-        touched = []
-        touched_rows = nb.touched_rows
-
-        def count_rows(flags):
-            rows = touched_rows(flags)
-            touched.append(len(rows))
-            return rows
-
-        nb.touched_rows = count_rows
+        splatting = model_name == "splat"
+        touched = [] if splatting else wrap_fast(clock, tr)
+        if splatting:
+            wrap_splat(clock, tr)
         run_schedules = trainer_module.run_schedules
         trainer_module.run_schedules = lambda jobs, state, phase: clock.wrap(run_schedules, f"schedules: {phase}")(
             jobs, state, phase
         )
-        tr.rays.sample = clock.wrap(tr.rays.sample, "draw rays")
         model = tr.model
-        model.render_rays = clock.wrap(model.render_rays, "forward, torch side")
         model.loss = clock.wrap(model.loss, "loss")
         model.gradients_finite = clock.wrap(model.gradients_finite, "finite check")
-        tr.optimizer.step = clock.wrap(tr.optimizer.step, "optimizer, python side")
+        tr.optimizer.step = clock.wrap(tr.optimizer.step, "optimizer" if splatting else "optimizer, python side")
         backward = torch.autograd.backward
         torch.autograd.backward = clock.wrap(backward, "backward, torch side")
         step_fn = clock.wrap(tr.train_step, "rest of the step")
         by_stage: dict[int, dict] = {}
         try:
             while tr.step < steps:
-                stage, touched_before = model.stage, len(touched)
+                # (splat: stages are the SH degrees)
+                stage = model.active_degree if splatting else model.stage
+                touched_before = len(touched)
                 t0 = time.perf_counter()
                 stats = step_fn()
                 wall = time.perf_counter() - t0
@@ -173,10 +256,12 @@ def profile(data: str, steps: int, start: int, seed: int) -> dict:
                     s["cpu"][k] += v
                 s["spr"].append(stats["samples"] / max(stats["rays"], 1))
                 s["rays"].append(stats["rays"])
-                s["rows"].extend(touched[touched_before:][:1])
+                s["rows"].extend([model.n_gaussians] if splatting else touched[touched_before:][:1])
+                s["visible"].append(stats["samples"])
         finally:
             torch.autograd.backward = backward
-        res = model.field.res
+            trainer_module.run_schedules = run_schedules
+        res = [model.n_gaussians] if splatting else model.field.res
     stages = []
     for stage, s in sorted(by_stage.items()):
         n = s["steps"]
@@ -191,6 +276,7 @@ def profile(data: str, steps: int, start: int, seed: int) -> dict:
                 "samples_per_ray": float(np.mean(s["spr"])),
                 "rays": float(np.mean(s["rays"])),
                 "touched_rows": float(np.mean(s["rows"])) if s["rows"] else 0.0,
+                "visible": float(np.mean(s["visible"])),
             }
         )
     total_steps = sum(s["steps"] for s in stages)
@@ -202,10 +288,12 @@ def profile(data: str, steps: int, start: int, seed: int) -> dict:
             cpu_ms[k] += v * s["steps"] / total_steps
     return {
         "data": data,
+        "model": model_name,
         "steps": steps,
         "from": start,
         "final_res": list(res),
         "ms_per_step": sum(s["ms_per_step"] * s["steps"] for s in stages) / total_steps,
+        "median_ms": float(np.median([w for s in by_stage.values() for w in s["wall"]])),
         "phases_ms": dict(phases),
         "cpu_ms": dict(cpu_ms),
         "stages": stages,
@@ -224,6 +312,7 @@ def new_stage() -> dict:
         "spr": [],
         "rays": [],
         "rows": [],
+        "visible": [],
     }
 
 
@@ -241,6 +330,13 @@ def table(results: list[tuple[str, dict]]) -> str:
 
 
 def stage_lines(r: dict) -> list[str]:
+    if r.get("model") == "splat":
+        return [
+            f"  SH degree {s['stage']}: {s['steps']} steps, {s['ms_per_step']:.1f} ms/step "
+            f"(median {s['median_ms']:.1f}), {s['rays']:.0f} pixels, "
+            f"{s['touched_rows']:.0f} Gaussians ({s['visible']:.0f} visible)"
+            for s in r["stages"]
+        ]
     return [
         f"  stage {s['stage']}: {s['steps']} steps, {s['ms_per_step']:.1f} ms/step (median {s['median_ms']:.1f}), "
         f"{s['rays']:.0f} rays, {s['samples_per_ray']:.1f} samples/ray, {s['touched_rows']:.0f} grid rows touched"
@@ -260,7 +356,9 @@ def run_worker(src: str, args) -> dict:
         str(args.steps),
         "--from",
         str(args.start),
-    ]
+        "--model",
+        args.model,
+    ] + (["--points", args.points] if args.points else [])
     out = subprocess.run(cmd + ["--seed", str(args.seed)], env=env, capture_output=True, text=True)
     if out.returncode != 0:
         raise SystemExit(f"step_profile: the run on {src} failed:\n{out.stderr[-3000:]}")
@@ -346,10 +444,19 @@ def median_result(runs: list[dict]) -> dict:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--data", default=str(LEGO), help="a scene .npz (default: the bundled lego 200x200)")
+    p.add_argument(
+        "--data",
+        default=str(LEGO),
+        help="a scene .npz (default: the bundled lego 200x200) or an LLFF folder (as heldout.py trains flower)",
+    )
     p.add_argument("--steps", type=int, default=1200, help="train this many steps (the 60-s run makes about 1200)")
     p.add_argument("--from", dest="start", type=int, default=0, help="time the steps after this one")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--model", default="fast", choices=["fast", "splat"], help="the model to train (its defaults)")
+    p.add_argument(
+        "--points",
+        help="splat on an LLFF folder: an .npz of the points triangulated at its poses (written on first use)",
+    )
     p.add_argument("--ab", nargs=2, metavar=("OLD_SRC", "NEW_SRC"), help="two source trees (their src/ folders)")
     p.add_argument("--repeats", type=int, default=3, help="with --ab: runs of each tree, alternating")
     p.add_argument(
@@ -362,7 +469,7 @@ def main(argv=None) -> int:
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.worker:
-        print(json.dumps(profile(args.data, args.steps, args.start, args.seed)))
+        print(json.dumps(profile(args.data, args.steps, args.start, args.seed, args.model, args.points)))
         return 0
     if args.interleave:
         results = interleaved(args.interleave, args.data, args.steps, args.seed)
@@ -377,7 +484,7 @@ def main(argv=None) -> int:
         print(f"losses digest {results['loss_digest']} (equal to a plain run's when old and new compute the same)")
         print(f"load average {results['loadavg'][0]:.2f}")
     elif not args.ab:
-        r = profile(args.data, args.steps, args.start, args.seed)
+        r = profile(args.data, args.steps, args.start, args.seed, args.model, args.points)
         print(table([("ms/step", r)]))
         print("\n".join(stage_lines(r)))
         print(f"load average {r['loadavg'][0]:.2f}")

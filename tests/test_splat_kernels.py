@@ -10,7 +10,7 @@ import torch
 
 from nerfkit.kernels import splat_kernels
 from nerfkit.kernels import splat_reference as ref
-from nerfkit.kernels.splat_ops import rasterize, render_gaussians
+from nerfkit.kernels.splat_ops import rasterize, render_gaussians, ssim
 
 needs_numba = pytest.mark.skipif(splat_kernels() is None, reason="numba not available")
 
@@ -206,6 +206,35 @@ def test_full_pipeline_gradients_agree_between_backends():
         torch.testing.assert_close(b, a, rtol=1e-9, atol=1e-10)
 
 
+@needs_numba
+@pytest.mark.parametrize("H,W", [(23, 31), (7, 40), (16, 5)])  # (sides shorter than the 11-pixel window too)
+def test_compiled_ssim_matches_reference_value_and_float64_gradient(H, W):
+    g = torch.Generator().manual_seed(H * W)
+    target = torch.rand(H, W, 3, generator=g, dtype=torch.float64)
+    img = (0.6 * target + 0.4 * torch.rand(H, W, 3, generator=g, dtype=torch.float64)).requires_grad_()
+    out = {}
+    for backend in ("torch", "numba"):
+        value = ssim(img, target, backend)
+        out[backend] = (value.detach(), *torch.autograd.grad(3.0 * value, img))
+    torch.testing.assert_close(out["numba"][0], out["torch"][0], rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(out["numba"][1], out["torch"][1], rtol=1e-9, atol=1e-12)
+    assert 0.2 < float(out["torch"][0]) < 0.99 and float(out["torch"][1].abs().max()) > 0
+
+
+@needs_numba
+def test_compiled_ssim_float32_matches_and_equal_images_score_one():
+    g = torch.Generator().manual_seed(3)
+    img = torch.rand(40, 50, 3, generator=g).requires_grad_()
+    target = torch.rand(40, 50, 3, generator=g)
+    (g_ref,) = torch.autograd.grad(ref.ssim_reference(img, target), img)
+    value = ssim(img, target, "numba")
+    (g_nb,) = torch.autograd.grad(value, img)
+    assert value.dtype == torch.float32
+    torch.testing.assert_close(value, ref.ssim_reference(img, target), rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(g_nb, g_ref, rtol=1e-3, atol=1e-7)
+    assert float(ssim(target, target, "numba")) == pytest.approx(1.0, abs=1e-6)
+
+
 def test_gsplat_renders_on_cuda_only_when_installed_and_its_absence_is_said(monkeypatch):
     from nerfkit.kernels import splat_ops
 
@@ -216,3 +245,25 @@ def test_gsplat_renders_on_cuda_only_when_installed_and_its_absence_is_said(monk
     monkeypatch.setattr(splat_ops, "_gsplat", lambda: None)
     with pytest.warns(RuntimeWarning, match="gsplat is not installed.*pip install gsplat"):
         assert not splat_ops.uses_gsplat(torch.device("cuda"), "auto")
+
+
+@needs_numba
+def test_numba_forward_is_the_same_on_any_number_of_lanes():
+    import numpy as np
+
+    nb = splat_kernels()
+    W, H = 70, 45
+    leaves, depths, rects, bg = projected(200, W, H, seed=5, dtype=torch.float32, log_scale=-1.8)
+    tw, th = -(-W // ref.TILE), -(-H // ref.TILE)
+    offsets, ids = nb.bin_tiles(ref.depth_order(depths, rects).numpy(), rects.numpy(), tw, th)
+    outs = []
+    for lanes in (1, 2, 3):
+        bufs = [np.zeros((H, W, 3), np.float32), *(np.zeros((H, W), np.float32) for _ in range(3))]
+        bufs.append(np.zeros((H, W), np.int64))
+        arrays = [t.contiguous().numpy() for t in (*leaves, depths, bg)]
+        nb.rasterize_forward(offsets, ids, *arrays, W, H, tw, *bufs, lanes)
+        outs.append(bufs)
+    assert float(outs[0][2].max()) > 0.5  # (something was drawn)
+    for other in outs[1:]:
+        for a, b in zip(outs[0], other):
+            assert np.array_equal(a, b)

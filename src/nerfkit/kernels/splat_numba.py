@@ -14,6 +14,11 @@ The reference is :func:`nerfkit.kernels.splat_reference.rasterize_reference`; th
   buffer, so no two threads write the same memory; the caller sums the lanes.
 
 Gradient channels per Gaussian (``G_*``): 2D mean x/y, conic a/b/c, opacity, r, g, b.
+
+* :func:`ssim_forward` / :func:`ssim_backward`: the training loss's SSIM and its gradient
+  (reference: :func:`nerfkit.kernels.splat_reference.ssim_reference`), on (C, H, W) planes:
+  the five Gaussian blurs of the forward and the three of the backward are separable
+  passes over whole rows that the compiler vectorizes, one plane per thread.
 """
 
 from __future__ import annotations
@@ -115,66 +120,70 @@ def rasterize_forward(
     out_alpha,
     final_T,
     n_contrib,
+    lanes,
 ):
     """Composite every pixel; outputs (H, W, 3) / (H, W) are written in place.
 
     Per tile, Gaussians in depth order each update only the pixels of their footprint
     that are still open (per-pixel state in small arrays). ``n_contrib[y, x]`` is the index
-    into ``ids`` just past the last Gaussian that contributed (the backward starts there)."""
+    into ``ids`` just past the last Gaussian that contributed (the backward starts there).
+    Lane ``l`` (one per thread) composites tiles ``l, l + lanes, ...``: the image's busy
+    rows fall to every thread (the output does not depend on ``lanes``)."""
     n_tiles = offsets.shape[0] - 1
-    for t in prange(n_tiles):
-        start, end = offsets[t], offsets[t + 1]
-        x0, x1, y0, y1 = _tile_box(t, n_tiles_x, width, height)
-        tw = x1 - x0
-        P = tw * (y1 - y0)
-        T = np.ones(P, means2d.dtype)
-        acc = np.zeros((P, 4), means2d.dtype)
-        last = np.full(P, start, np.int64)
-        done = np.zeros(P, np.bool_)
-        open_pixels = P
-        for k in range(start, end):
-            if open_pixels == 0:
-                break
-            g = ids[k]
-            mx, my = means2d[g, 0], means2d[g, 1]
-            ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
-            op = opac[g]
-            bx0, bx1, by0, by1 = _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1)
-            p_skip = _power_floor(op)
-            for y in range(by0, by1):
-                dy = my - (y + 0.5)
-                for x in range(bx0, bx1):
+    for lane in prange(lanes):
+        for t in range(lane, n_tiles, lanes):
+            start, end = offsets[t], offsets[t + 1]
+            x0, x1, y0, y1 = _tile_box(t, n_tiles_x, width, height)
+            tw = x1 - x0
+            P = tw * (y1 - y0)
+            T = np.ones(P, means2d.dtype)
+            acc = np.zeros((P, 4), means2d.dtype)
+            last = np.full(P, start, np.int64)
+            done = np.zeros(P, np.bool_)
+            open_pixels = P
+            for k in range(start, end):
+                if open_pixels == 0:
+                    break
+                g = ids[k]
+                mx, my = means2d[g, 0], means2d[g, 1]
+                ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
+                op = opac[g]
+                bx0, bx1, by0, by1 = _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1)
+                p_skip = _power_floor(op)
+                for y in range(by0, by1):
+                    dy = my - (y + 0.5)
+                    for x in range(bx0, bx1):
+                        p = (y - y0) * tw + (x - x0)
+                        if done[p]:
+                            continue
+                        dx = mx - (x + 0.5)
+                        power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                        if power > 0.0 or power < p_skip:
+                            continue
+                        alpha = min(ALPHA_MAX, op * math.exp(power))
+                        if alpha < ALPHA_MIN:
+                            continue
+                        test_T = T[p] * (1.0 - alpha)
+                        if test_T < T_MIN:
+                            done[p] = True
+                            open_pixels -= 1
+                            continue
+                        w = alpha * T[p]
+                        acc[p, 0] += w * colors[g, 0]
+                        acc[p, 1] += w * colors[g, 1]
+                        acc[p, 2] += w * colors[g, 2]
+                        acc[p, 3] += w * depths[g]
+                        T[p] = test_T
+                        last[p] = k + 1
+            for y in range(y0, y1):
+                for x in range(x0, x1):
                     p = (y - y0) * tw + (x - x0)
-                    if done[p]:
-                        continue
-                    dx = mx - (x + 0.5)
-                    power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-                    if power > 0.0 or power < p_skip:
-                        continue
-                    alpha = min(ALPHA_MAX, op * math.exp(power))
-                    if alpha < ALPHA_MIN:
-                        continue
-                    test_T = T[p] * (1.0 - alpha)
-                    if test_T < T_MIN:
-                        done[p] = True
-                        open_pixels -= 1
-                        continue
-                    w = alpha * T[p]
-                    acc[p, 0] += w * colors[g, 0]
-                    acc[p, 1] += w * colors[g, 1]
-                    acc[p, 2] += w * colors[g, 2]
-                    acc[p, 3] += w * depths[g]
-                    T[p] = test_T
-                    last[p] = k + 1
-        for y in range(y0, y1):
-            for x in range(x0, x1):
-                p = (y - y0) * tw + (x - x0)
-                for ch in range(3):
-                    out_rgb[y, x, ch] = acc[p, ch] + T[p] * background[y, x, ch]
-                out_depth[y, x] = acc[p, 3]
-                out_alpha[y, x] = 1.0 - T[p]
-                final_T[y, x] = T[p]
-                n_contrib[y, x] = last[p]
+                    for ch in range(3):
+                        out_rgb[y, x, ch] = acc[p, ch] + T[p] * background[y, x, ch]
+                    out_depth[y, x] = acc[p, 3]
+                    out_alpha[y, x] = 1.0 - T[p]
+                    final_T[y, x] = T[p]
+                    n_contrib[y, x] = last[p]
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -302,6 +311,88 @@ def rasterize_backward(
                 grads[lane, g, G_BL] += d_bl
 
 
+@njit(cache=True, inline="always")
+def _blur_plane(src, g, tmp, out):
+    """``out = `` (H, W) ``src`` blurred by the 1D kernel ``g`` (odd length) along W, then
+    along H, zero-padded ('same' size); ``tmp`` (H, W) scratch. The blur is symmetric
+    in ``g``, so it is its own adjoint."""
+    H, W = src.shape
+    r = g.shape[0] // 2
+    tmp[:, :] = 0.0
+    for h in range(H):
+        for k in range(g.shape[0]):
+            gk = g[k]
+            for w in range(max(0, r - k), min(W, W + r - k)):
+                tmp[h, w] += gk * src[h, w + k - r]
+    out[:, :] = 0.0
+    for h in range(H):
+        for k in range(max(0, r - h), min(g.shape[0], H + r - h)):
+            gk = g[k]
+            hh = h + k - r
+            for w in range(W):
+                out[h, w] += gk * tmp[hh, w]
+
+
+@njit(parallel=True, cache=True)
+def ssim_forward(x, y, g, c1, c2, dmaps):
+    """Mean SSIM of images ``x``, ``y`` (C, H, W) with the blur ``g`` (window,), and in
+    ``dmaps`` (3, C, H, W) each pixel's derivative of its SSIM term with respect to its
+    blurred ``x``, blurred ``x^2`` and blurred ``x y`` (for :func:`ssim_backward`)."""
+    C, H, W = x.shape
+    blurred = np.empty((5, C, H, W), x.dtype)  # x, y, x^2, y^2, x y
+    for j in prange(5 * C):
+        m, c = j // C, j % C
+        if m == 0:
+            src = x[c].copy()
+        elif m == 1:
+            src = y[c].copy()
+        elif m == 2:
+            src = x[c] * x[c]
+        elif m == 3:
+            src = y[c] * y[c]
+        else:
+            src = x[c] * y[c]
+        _blur_plane(src, g, np.empty((H, W), x.dtype), blurred[m, c])
+    rows = np.zeros(C * H)
+    for j in prange(C * H):
+        c, h = j // H, j % H
+        mx, my = blurred[0, c, h], blurred[1, c, h]
+        sxx, syy, sxy = blurred[2, c, h], blurred[3, c, h], blurred[4, c, h]
+        d_mu, d_xx, d_xy = dmaps[0, c, h], dmaps[1, c, h], dmaps[2, c, h]
+        total = 0.0
+        for w in range(W):
+            a1 = 2.0 * mx[w] * my[w] + c1
+            a2 = 2.0 * (sxy[w] - mx[w] * my[w]) + c2
+            b1 = mx[w] * mx[w] + my[w] * my[w] + c1
+            b2 = (sxx[w] - mx[w] * mx[w]) + (syy[w] - my[w] * my[w]) + c2
+            inv = 1.0 / (b1 * b2)
+            s = a1 * a2 * inv
+            total += s
+            # d s / d blur(x), d blur(x^2), d blur(x y) (the variances hold the means' squares)
+            d_mu[w] = 2.0 * inv * (my[w] * (a2 - a1) - mx[w] * s * (b2 - b1))
+            d_xx[w] = -s * b1 * inv
+            d_xy[w] = 2.0 * a1 * inv
+        rows[j] = total
+    return rows.sum() / (C * H * W)
+
+
+@njit(parallel=True, cache=True)
+def ssim_backward(x, y, g, dmaps, scale, grad_x):
+    """``grad_x`` (C, H, W) = ``scale`` x d(sum of SSIM terms)/dx, from :func:`ssim_forward`'s
+    ``dmaps``: the blurred derivative maps (the blur is its own adjoint) times 1, 2x, y."""
+    _, C, H, W = dmaps.shape
+    back = np.empty((3, C, H, W), x.dtype)
+    for j in prange(3 * C):
+        m, c = j // C, j % C
+        _blur_plane(dmaps[m, c], g, np.empty((H, W), x.dtype), back[m, c])
+    for j in prange(C * H):
+        c, h = j // H, j % H
+        for w in range(W):
+            grad_x[c, h, w] = scale * (
+                back[0, c, h, w] + 2.0 * x[c, h, w] * back[1, c, h, w] + y[c, h, w] * back[2, c, h, w]
+            )
+
+
 def warm_up() -> None:
     """Compile (or load from the on-disk cache) the kernels for float32 and float64."""
     for dt in (np.float32, np.float64):
@@ -317,6 +408,10 @@ def warm_up() -> None:
         bg = np.zeros((H, W, 3), dt)
         rgb, dep, alp, T = np.zeros((H, W, 3), dt), np.zeros((H, W), dt), np.zeros((H, W), dt), np.zeros((H, W), dt)
         nc = np.zeros((H, W), np.int64)
-        rasterize_forward(offsets, ids, means2d, conics, colors, opac, depths, bg, W, H, 1, rgb, dep, alp, T, nc)
+        rasterize_forward(offsets, ids, means2d, conics, colors, opac, depths, bg, W, H, 1, rgb, dep, alp, T, nc, 2)
         grads = np.zeros((2, n, N_GRAD), dt)
         rasterize_backward(offsets, ids, means2d, conics, colors, opac, depths, bg, W, H, 1, T, nc, rgb, grads)
+        x, gw = np.ascontiguousarray(rgb.transpose(2, 0, 1)), np.full(3, 1 / 3, dt)
+        dmaps = np.empty((3, *x.shape), dt)
+        ssim_forward(x, x, gw, 1e-4, 9e-4, dmaps)
+        ssim_backward(x, x, gw, dmaps, 1.0, np.empty_like(x))

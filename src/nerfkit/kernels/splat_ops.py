@@ -9,12 +9,15 @@ tensors, no numba, or ``backend="torch"``) it is the reference
 
 Only the colour output carries gradients on the compiled path (depth and alpha are for
 display); ``tests/test_splat_kernels.py`` compares values and gradients of the two paths.
+The training loss's SSIM (:func:`ssim`) is compiled on the CPU too (:class:`SSIMFunction`),
+beside its reference :func:`~nerfkit.kernels.splat_reference.ssim_reference`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -51,6 +54,7 @@ class RasterizeFunction(torch.autograd.Function):
             alpha.numpy(),
             final_T.numpy(),
             n_contrib.numpy(),
+            default_lanes(),
         )
         ctx.save_for_backward(*arrays, final_T, n_contrib)
         ctx.bins = (offsets, ids)
@@ -109,6 +113,41 @@ def rasterize(
     if resolve_backend(backend, means2d.device) == "numba":
         return RasterizeFunction.apply(means2d, conics, colors, opacities, depths, background, rects, width, height)
     return ref.rasterize_reference(means2d, conics, colors, opacities, depths, rects, background, width, height)
+
+
+class SSIMFunction(torch.autograd.Function):
+    """The compiled mean SSIM of an image (H, W, 3) against a fixed target (CPU tensors,
+    float32 or float64); the gradient flows to the image only."""
+
+    @staticmethod
+    def forward(ctx, img, target, window, sigma):
+        nb = splat_kernels()
+        x = img.detach().permute(2, 0, 1).contiguous()
+        y = target.detach().to(img.dtype).permute(2, 0, 1).contiguous()
+        g = ref.ssim_window(window, sigma, x).numpy()
+        dmaps = np.empty((3, *x.shape), x.numpy().dtype)
+        value = nb.ssim_forward(x.numpy(), y.numpy(), g, ref.SSIM_C1, ref.SSIM_C2, dmaps)
+        ctx.save_for_backward(x, y)
+        ctx.dmaps, ctx.g = dmaps, g
+        return torch.tensor(value, dtype=img.dtype)
+
+    @staticmethod
+    def backward(ctx, grad):
+        x, y = ctx.saved_tensors
+        grad_x = torch.empty_like(x)
+        splat_kernels().ssim_backward(x.numpy(), y.numpy(), ctx.g, ctx.dmaps, float(grad) / x.numel(), grad_x.numpy())
+        return grad_x.permute(1, 2, 0), None, None, None
+
+
+def ssim(
+    img: Tensor, target: Tensor, backend: str = "auto", window: int = ref.SSIM_WINDOW, sigma: float = ref.SSIM_SIGMA
+) -> Tensor:
+    """Mean SSIM of two (H, W, 3) images in [0, 1], as
+    :func:`~nerfkit.kernels.splat_reference.ssim_reference`: compiled on the CPU (``backend``
+    as :func:`rasterize`) unless ``target`` needs a gradient."""
+    if resolve_backend(backend, img.device) == "numba" and not target.requires_grad:
+        return SSIMFunction.apply(img, target, window, sigma)
+    return ref.ssim_reference(img, target, window, sigma)
 
 
 def resolve_backend(backend: str, device: torch.device) -> str:

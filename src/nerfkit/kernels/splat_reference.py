@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 TILE = 16
@@ -30,6 +31,9 @@ ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
 DILATION = 0.3
+# SSIM (the training loss's D-SSIM): Gaussian window, its sigma, the stabilising constants
+SSIM_WINDOW, SSIM_SIGMA = 11, 1.5
+SSIM_C1, SSIM_C2 = 0.01**2, 0.03**2
 FOV_CLIP = 1.3
 
 SH_C0 = 0.28209479177387814
@@ -291,3 +295,32 @@ def render_reference(
 
 def logit(p: float) -> float:
     return math.log(p / (1 - p))
+
+
+def ssim_reference(img: Tensor, target: Tensor, window: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> Tensor:
+    """Mean SSIM of two (H, W, 3) images in [0, 1] (Gaussian window, separable, 'valid' area
+    as 'same' with zero padding, as 3DGS)."""
+    x = img.permute(2, 0, 1).unsqueeze(0)
+    y = target.permute(2, 0, 1).unsqueeze(0)
+    g = ssim_window(window, sigma, x)
+    C = x.shape[1]
+    kx = g.reshape(1, 1, 1, window).expand(C, 1, 1, window)
+    ky = g.reshape(1, 1, window, 1).expand(C, 1, window, 1)
+
+    def blur(t: Tensor) -> Tensor:
+        t = F.conv2d(t, kx, padding=(0, window // 2), groups=C)
+        return F.conv2d(t, ky, padding=(window // 2, 0), groups=C)
+
+    mu_x, mu_y = blur(x), blur(y)
+    sxx = blur(x * x) - mu_x * mu_x
+    syy = blur(y * y) - mu_y * mu_y
+    sxy = blur(x * y) - mu_x * mu_y
+    c1, c2 = SSIM_C1, SSIM_C2
+    s = ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x * mu_x + mu_y * mu_y + c1) * (sxx + syy + c2))
+    return s.mean()
+
+
+def ssim_window(window: int, sigma: float, like: Tensor) -> Tensor:
+    """(window,) the normalised 1D Gaussian of SSIM's blur, in ``like``'s dtype and device."""
+    g = torch.exp(-((torch.arange(window, dtype=like.dtype, device=like.device) - window // 2) ** 2) / (2 * sigma**2))
+    return g / g.sum()

@@ -33,7 +33,6 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..cameras import Rays, image_rays, project_points
@@ -42,7 +41,7 @@ from ..errors import fail
 from ..fields.background import sh16
 from ..kernels import splat_reference as ref
 from ..kernels.optim import replace_param
-from ..kernels.splat_ops import SplatRender, render_gaussians, resolve_backend
+from ..kernels.splat_ops import SplatRender, render_gaussians, resolve_backend, ssim
 from ..surroundings import random_in_ball, random_start
 from .base import NerfModel, RenderOutput, SceneBounds, Schedule, StepState
 
@@ -344,7 +343,7 @@ class SplatModel(NerfModel):
         w = self.config.ssim_weight
         if w == 0:
             return l1
-        return (1 - w) * l1 + w * (1 - ssim(out.rgb, target_rgb))
+        return (1 - w) * l1 + w * (1 - ssim(out.rgb, target_rgb, self.config.kernels))
 
     # -- optimisation ----------------------------------------------------------------
     def param_groups(self, lr: float) -> list[dict]:
@@ -648,27 +647,3 @@ def sample_hull(hull: dict, n: int, gen: torch.Generator) -> tuple[Tensor, Tenso
     pick = torch.randint(0, len(pts), (n,), generator=gen)
     jitter = (torch.rand(n, 3, generator=gen) - 0.5) * cell
     return pts[pick] + jitter, cols[pick].clamp(0, 1), len(pts) * cell**3
-
-
-def ssim(img: Tensor, target: Tensor, window: int = 11, sigma: float = 1.5) -> Tensor:
-    """Mean SSIM of two (H, W, 3) images in [0, 1] (Gaussian window, separable, 'valid' area
-    as 'same' with zero padding, as 3DGS)."""
-    x = img.permute(2, 0, 1).unsqueeze(0)
-    y = target.permute(2, 0, 1).unsqueeze(0)
-    g = torch.exp(-((torch.arange(window, dtype=x.dtype, device=x.device) - window // 2) ** 2) / (2 * sigma**2))
-    g = g / g.sum()
-    C = x.shape[1]
-    kx = g.reshape(1, 1, 1, window).expand(C, 1, 1, window)
-    ky = g.reshape(1, 1, window, 1).expand(C, 1, window, 1)
-
-    def blur(t: Tensor) -> Tensor:
-        t = F.conv2d(t, kx, padding=(0, window // 2), groups=C)
-        return F.conv2d(t, ky, padding=(window // 2, 0), groups=C)
-
-    mu_x, mu_y = blur(x), blur(y)
-    sxx = blur(x * x) - mu_x * mu_x
-    syy = blur(y * y) - mu_y * mu_y
-    sxy = blur(x * y) - mu_x * mu_y
-    c1, c2 = 0.01**2, 0.03**2
-    s = ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x * mu_x + mu_y * mu_y + c1) * (sxx + syy + c2))
-    return s.mean()
