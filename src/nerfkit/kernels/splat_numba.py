@@ -18,7 +18,8 @@ Gradient channels per Gaussian (``G_*``): 2D mean x/y, conic a/b/c, opacity, r, 
 * :func:`ssim_forward` / :func:`ssim_backward`: the training loss's SSIM and its gradient
   (reference: :func:`nerfkit.kernels.splat_reference.ssim_reference`), on (C, H, W) planes:
   the five Gaussian blurs of the forward and the three of the backward are separable
-  passes over whole rows that the compiler vectorizes, one plane per thread.
+  passes over whole rows that the compiler vectorizes, on one thread (as torch's side of
+  a step: on a loaded machine two threads spent more CPU time waiting than they saved).
 """
 
 from __future__ import annotations
@@ -333,14 +334,14 @@ def _blur_plane(src, g, tmp, out):
                 out[h, w] += gk * tmp[hh, w]
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def ssim_forward(x, y, g, c1, c2, dmaps):
     """Mean SSIM of images ``x``, ``y`` (C, H, W) with the blur ``g`` (window,), and in
     ``dmaps`` (3, C, H, W) each pixel's derivative of its SSIM term with respect to its
     blurred ``x``, blurred ``x^2`` and blurred ``x y`` (for :func:`ssim_backward`)."""
     C, H, W = x.shape
     blurred = np.empty((5, C, H, W), x.dtype)  # x, y, x^2, y^2, x y
-    for j in prange(5 * C):
+    for j in range(5 * C):
         m, c = j // C, j % C
         if m == 0:
             src = x[c].copy()
@@ -354,7 +355,7 @@ def ssim_forward(x, y, g, c1, c2, dmaps):
             src = x[c] * y[c]
         _blur_plane(src, g, np.empty((H, W), x.dtype), blurred[m, c])
     rows = np.zeros(C * H)
-    for j in prange(C * H):
+    for j in range(C * H):
         c, h = j // H, j % H
         mx, my = blurred[0, c, h], blurred[1, c, h]
         sxx, syy, sxy = blurred[2, c, h], blurred[3, c, h], blurred[4, c, h]
@@ -376,16 +377,16 @@ def ssim_forward(x, y, g, c1, c2, dmaps):
     return rows.sum() / (C * H * W)
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def ssim_backward(x, y, g, dmaps, scale, grad_x):
     """``grad_x`` (C, H, W) = ``scale`` x d(sum of SSIM terms)/dx, from :func:`ssim_forward`'s
     ``dmaps``: the blurred derivative maps (the blur is its own adjoint) times 1, 2x, y."""
     _, C, H, W = dmaps.shape
     back = np.empty((3, C, H, W), x.dtype)
-    for j in prange(3 * C):
+    for j in range(3 * C):
         m, c = j // C, j % C
         _blur_plane(dmaps[m, c], g, np.empty((H, W), x.dtype), back[m, c])
-    for j in prange(C * H):
+    for j in range(C * H):
         c, h = j // H, j % H
         for w in range(W):
             grad_x[c, h, w] = scale * (
