@@ -1,6 +1,7 @@
-"""Where a training step of the default ``fast`` run spends its time, phase by phase.
+"""Where a training step of the default ``fast`` run (or ``--model splat``) spends its time, phase by phase.
 
     python benchmarks/step_profile.py [--data src/nerfkit/assets/lego_200x200.npz] [--steps 1200]
+    python benchmarks/step_profile.py --model splat --data LLFF_FOLDER --points OUT/points.npz [--steps 300]
     python benchmarks/step_profile.py --ab OLD_SRC NEW_SRC [--repeats 3] [--steps 600]
     PYTHONPATH=NEW_SRC python benchmarks/step_profile.py --interleave OLD_SRC [--steps 700]
 
@@ -17,6 +18,10 @@ kernel's time is not counted again in the Python function that calls it):
 * ``loss``; ``finite check``; ``optimizer, python side``;
 * ``schedules: before / after``: growth, and the occupancy refreshes with the other
   after-step jobs; ``rest of the step``: what ``train_step`` does around all these.
+* ``--model splat``: ``project`` (3D covariances, EWA projection), ``SH colour``, ``depth
+  sort``, ``tile binning``, ``rasterise forward`` / ``backward`` (the compiled kernels),
+  ``render, torch side``, ``loss: SSIM forward`` (its backward is in autograd's time),
+  ``optimizer``, ``schedules: after_step`` (density control); stages are the SH degrees.
 
 Prints a table of milliseconds per step (wall, the mean over the timed steps, and by grid
 stage) and the step's size (rays, samples per ray, touched grid rows). With ``--ab``, runs
