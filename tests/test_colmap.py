@@ -6,6 +6,9 @@ floor, seen by 12 cameras at 320x240 (known poses, metres).
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -737,3 +740,16 @@ def test_spatial_matching_matches_only_its_pairs_and_poses_as_exhaustive_does(ro
     names, c2w = reconstruction_c2w(result.reconstruction)
     err = compare_poses(c2w, np.stack([truth[n] for n in names]))
     assert err["rot_err_deg_max"] < 1.0 and err["pos_err_rel_median"] < 0.02, err
+
+
+def test_missing_pycolmap_names_the_stage_and_the_install(monkeypatch):
+    """Without pycolmap, reading a model and running SfM each fail with one clear error:
+    where, what needs it, and the pip command (one helper serves both)."""
+    from nerfkit.capture.points import SFM_NEED, SFM_STAGE
+    from nerfkit.data.colmap import import_pycolmap
+
+    monkeypatch.setitem(sys.modules, "pycolmap", None)  # import pycolmap -> ImportError
+    for args, words in (((Path("model"),), "reading COLMAP models"), ((SFM_STAGE, SFM_NEED), "structure-from-motion")):
+        with pytest.raises(NerfkitError) as err:
+            import_pycolmap(*args)
+        assert words in str(err.value) and "pip install 'nerfkit[sfm]'" in str(err.value)

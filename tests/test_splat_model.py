@@ -318,3 +318,17 @@ def test_eval_of_a_capture_splat_run_fits_each_held_out_views_pose(tmp_path, sph
     result = json.loads((run.run_dir / "eval_val.json").read_text())
     assert result["psnr"] > 10 and "5 steps" in result["fitted"]["what"]
     assert all(v["psnr_fitted"] is not None and v["fitted_rotation_deg"] >= 0 for v in result["per_image"])
+
+
+def test_viewer_arrays_rotate_by_the_quaternion():
+    """A quarter turn about z swaps the x and y spreads; a zero quaternion is no rotation."""
+    from nerfkit.viz.splats import splat_arrays
+
+    s = np.log([[0.1, 0.2, 0.3]] * 3)
+    half = np.sqrt(0.5)
+    quats = np.array([[1, 0, 0, 0], [half, 0, 0, half], [0, 0, 0, 0]], np.float32)
+    g = Gaussians(np.zeros((3, 3)), s, quats, np.zeros(3), np.zeros((3, 1, 3)), np.zeros((3, 0, 3)))
+    cov = splat_arrays(g)["covariances"]
+    np.testing.assert_allclose(cov[0], np.diag([0.01, 0.04, 0.09]), atol=1e-7)
+    np.testing.assert_allclose(cov[1], np.diag([0.04, 0.01, 0.09]), atol=1e-7)
+    np.testing.assert_allclose(cov[2], cov[0], atol=1e-7)

@@ -22,11 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.colmap import SparsePoints, reconstruction_points
+from ..data.colmap import SparsePoints, import_pycolmap, reconstruction_points
 from ..data.scene import Views
 from ..errors import fail
 
 EXHAUSTIVE_MAX = 120
+# where and why structure-from-motion asks for pycolmap (its error when it is missing)
+SFM_STAGE, SFM_NEED = "poses --method colmap", "structure-from-motion needs pycolmap"
 
 
 def triangulate_views(
@@ -53,7 +55,7 @@ def triangulate_views(
     Raises:
         NerfkitError without pycolmap or when the views have no images.
     """
-    pycolmap = _import_pycolmap()
+    pycolmap = import_pycolmap(SFM_STAGE, SFM_NEED)
     import cv2
 
     if not views.has_images or len(views) < 2:
@@ -148,16 +150,6 @@ def _posed_reconstruction(pycolmap, db_path: Path, names: list[str], c2w: np.nda
     for f in frames:
         rec.register_frame(f.frame_id)
     return rec
-
-
-def _import_pycolmap():
-    try:
-        import pycolmap
-    except ImportError:
-        raise fail(
-            "poses --method colmap", "structure-from-motion needs pycolmap", "pip install 'nerfkit[sfm]'"
-        ) from None
-    return pycolmap
 
 
 @contextlib.contextmanager

@@ -30,11 +30,12 @@ MODEL_FILES = ("cameras", "images")
 PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
 
 
-def _import_pycolmap(where: object):
+def import_pycolmap(where: object, need: str = "reading COLMAP models needs pycolmap"):
+    """pycolmap, or a clear error at ``where`` (``need``: what needs it) that says how to install it."""
     try:
         import pycolmap
     except ImportError:
-        raise fail(where, "reading COLMAP models needs pycolmap", "pip install 'nerfkit[sfm]'") from None
+        raise fail(where, need, "pip install 'nerfkit[sfm]'") from None
     return pycolmap
 
 
@@ -156,7 +157,7 @@ def _precheck_binary_model(model_dir: Path) -> None:
 def read_model(model_dir: str | Path) -> pycolmap.Reconstruction:
     """Read a COLMAP model folder (binary or text) with pycolmap; NerfkitError when it can't."""
     model_dir = Path(model_dir)
-    pycolmap = _import_pycolmap(model_dir)
+    pycolmap = import_pycolmap(model_dir)
     if not is_model_dir(model_dir):
         raise fail(model_dir, "not a COLMAP model folder", "Expected cameras.bin/images.bin/points3D.bin (or .txt)")
     for f in sorted([*model_dir.glob("*.bin"), *model_dir.glob("*.txt")]):  # what pycolmap and the precheck read
@@ -503,7 +504,7 @@ def scene_to_reconstruction(
     scene's sparse points become 3D points with their colours, each with a track of the
     train views that saw it (:attr:`Scene.point_views`; its features where it projects).
     """
-    pycolmap = _import_pycolmap(scene.source or "scene")
+    pycolmap = import_pycolmap(scene.source or "scene")
     rec = pycolmap.Reconstruction()
     cam_ids: dict[tuple, int] = {}
     seen = _projected_point_views(scene) if "train" in splits else {}

@@ -28,8 +28,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..capture.points import camera_neighbours, match_pairs, quiet_colmap
-from ..data.colmap import write_reconstruction
+from ..capture.points import SFM_NEED, SFM_STAGE, camera_neighbours, match_pairs, quiet_colmap
+from ..data.colmap import import_pycolmap, write_reconstruction
 from ..errors import NerfkitError, fail, problem_of
 from ..images import list_images
 
@@ -123,16 +123,6 @@ class SfmResult:
     def photo(self, name: str) -> Path:
         """The user's photo COLMAP knows as ``name`` (HEIC photos: their own name, not the copy's)."""
         return self.sources.get(name, self.image_dir / name)
-
-
-def _import_pycolmap():
-    try:
-        import pycolmap
-    except ImportError:
-        raise fail(
-            "poses --method colmap", "structure-from-motion needs pycolmap", "pip install 'nerfkit[sfm]'"
-        ) from None
-    return pycolmap
 
 
 def _say(progress: bool, msg: str) -> None:
@@ -362,7 +352,7 @@ def run_sfm(
     Raises:
         NerfkitError when there are no photos or nothing could be reconstructed.
     """
-    pycolmap = _import_pycolmap()
+    pycolmap = import_pycolmap(SFM_STAGE, SFM_NEED)
     image_dir = Path(image_dir)
     photos = list_images(image_dir)
     guides = guides or {}

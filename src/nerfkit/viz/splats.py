@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import torch
 
+from ..kernels.splat_reference import covariance_3d
 from ..splat_files import SH_C0, Gaussians
 
 
@@ -11,26 +13,11 @@ def splat_arrays(g: Gaussians) -> dict:
     """What viser's ``add_gaussian_splats`` takes: ``centers`` (n, 3), ``covariances``
     (n, 3, 3) ``R S S^T R^T``, ``rgbs`` (n, 3) the DC colour in [0, 1], ``opacities`` (n, 1)."""
     q = g.quats.astype(np.float64)
-    q = q / np.linalg.norm(q, axis=1, keepdims=True).clip(1e-12)
-    w, x, y, z = q.T
-    R = np.stack(
-        [
-            1 - 2 * (y * y + z * z),
-            2 * (x * y - w * z),
-            2 * (x * z + w * y),
-            2 * (x * y + w * z),
-            1 - 2 * (x * x + z * z),
-            2 * (y * z - w * x),
-            2 * (x * z - w * y),
-            2 * (y * z + w * x),
-            1 - 2 * (x * x + y * y),
-        ],
-        1,
-    ).reshape(-1, 3, 3)
-    M = R * np.exp(g.log_scales.astype(np.float64))[:, None, :]
+    q[~(np.abs(q) > 0).any(axis=1)] = (1.0, 0.0, 0.0, 0.0)  # a zero quaternion: no rotation
+    cov = covariance_3d(torch.from_numpy(g.log_scales.astype(np.float64)), torch.from_numpy(q)).numpy()
     return {
         "centers": g.means.astype(np.float32),
-        "covariances": (M @ M.transpose(0, 2, 1)).astype(np.float32),
+        "covariances": cov.astype(np.float32),
         "rgbs": np.clip(0.5 + SH_C0 * g.sh_dc.reshape(-1, 3), 0, 1).astype(np.float32),
         "opacities": (1 / (1 + np.exp(-g.opacity_logits.astype(np.float64)))).reshape(-1, 1).astype(np.float32),
     }
