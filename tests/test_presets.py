@@ -29,6 +29,9 @@ CHANGED = {"keep_checkpoints": 1}
 # ... and for one scene and model: splat's pose corrections on a capture are off by their
 # preset (the trainer then skipped them for models that render whole views)
 CHANGED_FOR = {f"{scene}/splat": {"pose_lr": 0.0} for scene in ("tabletop", "tabletop_points")}
+# ... and model settings: forward-facing splat's densification schedule (its preset)
+FORWARD_SPLAT = {"opacity_reset_every": 0.0, "densify_every": 50}
+CHANGED_MODEL_FOR = {"forward/splat": FORWARD_SPLAT}
 
 
 def sized(scene, size):
@@ -64,7 +67,8 @@ def test_the_resolved_settings_of_each_scene_kind_are_those_kept_from_before(sce
         got_train = {k: v for k, v in asdict(r.train).items() if k != "preset"}
         got_model = asdict(r.model)
         assert got_train == {**want["train"], **CHANGED, **CHANGED_FOR.get(f"{name}/{model}", {})}, name
-        assert got_model == {k: v for k, v in want["model"].items() if k not in RETIRED}, name
+        want_model = {k: v for k, v in want["model"].items() if k not in RETIRED}
+        assert got_model == {**want_model, **CHANGED_MODEL_FOR.get(f"{name}/{model}", {})}, name
         assert (
             r.train.preset
             == r.kind
@@ -149,6 +153,27 @@ def test_a_scene_kind_names_the_model_it_trains_when_none_is_named():
     assert presets.default_model(presets.OBJECT, everything) == presets.default_model(presets.CAPTURE, everything)
     assert presets.default_model(presets.OBJECT, everything) == presets.DEFAULT_MODEL == "fast"
     assert presets.default_model(presets.FORWARD_FACING, ["fast"]) == "fast"  # splat not installed
+
+
+def test_forward_facing_splat_densifies_every_50_steps_without_opacity_resets_and_other_kinds_do_not(scenes):
+    from nerfkit.models.splat import SplatConfig
+
+    defaults = SplatConfig()
+    assert (defaults.opacity_reset_every, defaults.densify_every) != (0.0, 50)
+    for name, scene in scenes.items():
+        r = presets.resolve(TrainConfig(model="splat", steps=10), SplatConfig(), scene, set())
+        got = (r.model.opacity_reset_every, r.model.densify_every)
+        if r.kind == presets.FORWARD_FACING:
+            assert got == (0.0, 50), name
+        else:
+            assert got == (defaults.opacity_reset_every, defaults.densify_every), name
+    # a given option still wins on a forward-facing scene
+    r = presets.resolve(
+        TrainConfig(model="splat", steps=10), SplatConfig(densify_every=100), scenes["forward"], {"densify_every"}
+    )
+    assert (r.model.opacity_reset_every, r.model.densify_every) == (0.0, 100)
+    # the fast model on a forward-facing scene keeps its own settings
+    assert "densify_every" not in presets.preset_values(presets.FORWARD_FACING, "fast")[1]
 
 
 def test_a_model_setting_the_kinds_model_does_not_take_is_a_clear_error(scenes):
