@@ -74,7 +74,8 @@ def sh_to_rgb_term_by_term(coeffs, dirs, degree):
         out = out + c2[3] * xz * coeffs[:, 7] + c2[4] * (xx - yy) * coeffs[:, 8]
     if degree > 2:
         out = out + c3[0] * y * (3 * xx - yy) * coeffs[:, 9] + c3[1] * xy * z * coeffs[:, 10]
-        out = out + c3[2] * y * (4 * zz - xx - yy) * coeffs[:, 11] + c3[3] * z * (2 * zz - 3 * xx - 3 * yy) * coeffs[:, 12]
+        out = out + c3[2] * y * (4 * zz - xx - yy) * coeffs[:, 11]
+        out = out + c3[3] * z * (2 * zz - 3 * xx - 3 * yy) * coeffs[:, 12]
         out = out + c3[4] * x * (4 * zz - xx - yy) * coeffs[:, 13] + c3[5] * z * (xx - yy) * coeffs[:, 14]
         out = out + c3[6] * x * (xx - 3 * yy) * coeffs[:, 15]
     return torch.clamp_min(out + 0.5, 0.0)
