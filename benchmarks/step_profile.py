@@ -4,6 +4,7 @@
     python benchmarks/step_profile.py --model splat --data LLFF_FOLDER --points OUT/points.npz [--steps 300]
     python benchmarks/step_profile.py --ab OLD_SRC NEW_SRC [--repeats 3] [--steps 600]
     PYTHONPATH=NEW_SRC python benchmarks/step_profile.py --interleave OLD_SRC [--steps 700]
+    PYTHONPATH=NEW_SRC python benchmarks/step_profile.py --model splat --interleave OLD_SRC [--data ...] [--steps 300]
 
 One run trains the default model exactly as ``nerfkit train --steps N`` would (the scene
 kind's defaults, seed 0, no evaluation, no checkpoints) and times every step with wrappers
@@ -31,7 +32,9 @@ an A/B that a shared machine's load affects alike. With ``--interleave``, one ru
 tree takes for each step, at random, the old tree's compiled grid kernels and ray batches
 or its own (they must compute the same: the losses digest then equals a plain
 run's), and prints the median step of each by grid stage: the closest A/B under a load that
-changes from minute to minute. Run under ``nice`` beside other work and the absolute
+changes from minute to minute. With ``--model splat``, the steps take at random the old
+tree's torch reference (projection, SH colour, depth sort) and compiled rasterizer or this
+tree's (they must compute the same up to rounding), by SH degree. Run under ``nice`` beside other work and the absolute
 figures grow; compare only runs made side by side.
 """
 
@@ -438,6 +441,56 @@ def interleaved(old_src: str, data: str, steps: int, seed: int) -> dict:
     return {"stages": stages, "loss_digest": digest, "loadavg": os.getloadavg()}
 
 
+def interleaved_splat(old_src: str, data: str, points: str | None, steps: int, seed: int) -> dict:
+    """:func:`interleaved` for the splat: one training run of this tree whose steps take, each
+    at random, ``old_src``'s torch reference module (projection, SH colour, depth sort) and
+    compiled rasterizer, or this tree's. Wall and CPU seconds of each step, by SH degree."""
+    import numpy as np
+
+    from nerfkit import kernels, presets
+    from nerfkit.kernels import splat_ops
+    from nerfkit.models import model_config_class
+    from nerfkit.train.config import TrainConfig
+    from nerfkit.train.trainer import Trainer
+
+    old_dir = Path(old_src) / "nerfkit" / "kernels"
+    old_ref = load_file(old_dir / "splat_reference.py", "step_profile_old_splat_reference")
+    old_nb = load_file(old_dir / "splat_numba.py", "step_profile_old_splat_numba")
+    old_nb.warm_up()
+    scene = load_scene(data, "splat", points)
+    times: dict[str, dict[int, list]] = {"old": {}, "new": {}}
+    with tempfile.TemporaryDirectory() as out:
+        cfg = TrainConfig(data=data, model="splat", out=out, steps=steps, seed=seed, checkpoint_seconds=1e9)
+        cfg, model_cfg = presets.resolve(cfg.validate(), model_config_class("splat")(), scene).configs()
+        tr = Trainer(scene, cfg, model_cfg, quiet=True)
+        tr.model.load_kernels()
+        parts = {"old": (old_ref, old_nb), "new": (splat_ops.ref, kernels.splat_kernels())}
+        pick = np.random.default_rng(seed)
+        try:
+            while tr.step < steps:
+                which = "old" if pick.random() < 0.5 else "new"
+                splat_ops.ref, kernels._SPLAT["module"] = parts[which]
+                stage, t, c = tr.model.active_degree, time.perf_counter(), time.process_time()
+                tr.train_step()
+                times[which].setdefault(stage, []).append((time.perf_counter() - t, time.process_time() - c))
+                tr.step += 1
+        finally:
+            splat_ops.ref, kernels._SPLAT["module"] = parts["new"]
+        n = tr.model.n_gaussians
+    stages = []
+    for stage in sorted(set(times["old"]) & set(times["new"])):
+        o, nw = np.array(times["old"][stage]), np.array(times["new"][stage])
+        stages.append(
+            {
+                "stage": stage,
+                "steps": [len(o), len(nw)],
+                "wall_ms": [1000 * float(np.median(o[:, 0])), 1000 * float(np.median(nw[:, 0]))],
+                "cpu_ms": [1000 * float(np.median(o[:, 1])), 1000 * float(np.median(nw[:, 1]))],
+            }
+        )
+    return {"stages": stages, "gaussians": n, "loadavg": os.getloadavg()}
+
+
 def median_result(runs: list[dict]) -> dict:
     keys = {k for r in runs for k in r["phases_ms"]}
     return {
@@ -468,7 +521,8 @@ def main(argv=None) -> int:
         "--interleave",
         metavar="OLD_SRC",
         help="one run of this tree whose steps take at random OLD_SRC's compiled grid kernels and "
-        "ray batches and this tree's (they must compute the same); medians per grid stage",
+        "ray batches and this tree's (they must compute the same); medians per grid stage "
+        "(--model splat: its torch reference and compiled rasterizer; medians per SH degree)",
     )
     p.add_argument("--json", help="write the results here")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
@@ -477,8 +531,13 @@ def main(argv=None) -> int:
         print(json.dumps(profile(args.data, args.steps, args.start, args.seed, args.model, args.points)))
         return 0
     if args.interleave:
-        results = interleaved(args.interleave, args.data, args.steps, args.seed)
-        print("| grid stage | steps old + new | wall ms old / new (ratio) | CPU ms old / new (ratio) |")
+        splatting = args.model == "splat"
+        if splatting:
+            results = interleaved_splat(args.interleave, args.data, args.points, args.steps, args.seed)
+        else:
+            results = interleaved(args.interleave, args.data, args.steps, args.seed)
+        stage_name = "SH degree" if splatting else "grid stage"
+        print(f"| {stage_name} | steps old + new | wall ms old / new (ratio) | CPU ms old / new (ratio) |")
         print("|---|---:|---|---|")
         for s in results["stages"]:
             (wo, wn), (co, cn) = s["wall_ms"], s["cpu_ms"]
@@ -486,7 +545,10 @@ def main(argv=None) -> int:
                 f"| {s['stage']} | {s['steps'][0]} + {s['steps'][1]} | {wo:.1f} / {wn:.1f} ({wo / wn:.3f}) | "
                 f"{co:.1f} / {cn:.1f} ({co / cn:.3f}) |"
             )
-        print(f"losses digest {results['loss_digest']} (equal to a plain run's when old and new compute the same)")
+        if splatting:
+            print(f"{results['gaussians']} Gaussians at the end")
+        else:
+            print(f"losses digest {results['loss_digest']} (equal to a plain run's when old and new compute the same)")
         print(f"load average {results['loadavg'][0]:.2f}")
     elif not args.ab:
         r = profile(args.data, args.steps, args.start, args.seed, args.model, args.points)

@@ -61,6 +61,46 @@ def test_sh_degree_one_matches_inria_signs():
     torch.testing.assert_close(out, torch.tensor([0.0, ref.SH_C1 * 0.8, -ref.SH_C1 * 0.6], dtype=torch.float64))
 
 
+def sh_to_rgb_term_by_term(coeffs, dirs, degree):
+    """INRIA's formula written out, a term per coefficient (what ``sh_to_rgb`` must equal)."""
+    x, y, z = dirs[:, 0:1], dirs[:, 1:2], dirs[:, 2:3]
+    c1, c2, c3 = ref.SH_C1, ref.SH_C2, ref.SH_C3
+    out = ref.SH_C0 * coeffs[:, 0]
+    if degree > 0:
+        out = out - c1 * y * coeffs[:, 1] + c1 * z * coeffs[:, 2] - c1 * x * coeffs[:, 3]
+    if degree > 1:
+        xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+        out = out + c2[0] * xy * coeffs[:, 4] + c2[1] * yz * coeffs[:, 5] + c2[2] * (2 * zz - xx - yy) * coeffs[:, 6]
+        out = out + c2[3] * xz * coeffs[:, 7] + c2[4] * (xx - yy) * coeffs[:, 8]
+    if degree > 2:
+        out = out + c3[0] * y * (3 * xx - yy) * coeffs[:, 9] + c3[1] * xy * z * coeffs[:, 10]
+        out = out + c3[2] * y * (4 * zz - xx - yy) * coeffs[:, 11]
+        out = out + c3[3] * z * (2 * zz - 3 * xx - 3 * yy) * coeffs[:, 12]
+        out = out + c3[4] * x * (4 * zz - xx - yy) * coeffs[:, 13] + c3[5] * z * (xx - yy) * coeffs[:, 14]
+        out = out + c3[6] * x * (xx - 3 * yy) * coeffs[:, 15]
+    return torch.clamp_min(out + 0.5, 0.0)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_sh_colour_equals_the_formula_term_by_term_with_its_gradients(degree):
+    g = torch.Generator().manual_seed(degree)
+    coeffs = (torch.randn(40, 16, 3, generator=g, dtype=torch.float64) * 1.5).requires_grad_()
+    dirs = torch.nn.functional.normalize(torch.randn(40, 3, generator=g, dtype=torch.float64), dim=-1)
+    dirs.requires_grad_()
+    w = torch.randn(40, 3, generator=g, dtype=torch.float64)
+    outs, grads = [], []
+    for fn in (ref.sh_to_rgb, sh_to_rgb_term_by_term):
+        out = fn(coeffs, dirs, degree)
+        outs.append(out)
+        grads.append(torch.autograd.grad((out * w).sum(), (coeffs, dirs), allow_unused=True, materialize_grads=True))
+    assert bool((outs[0] > 0).any()) and bool((outs[0] == 0).any())  # (both sides of the clamp)
+    torch.testing.assert_close(outs[0], outs[1])
+    for a, b in zip(*grads):
+        torch.testing.assert_close(a, b)
+    assert bool((grads[0][0][:, ref.sh_coeffs(degree) :] == 0).all())  # unused coefficients
+    assert bool((grads[0][0][:, : ref.sh_coeffs(degree)] != 0).any())
+
+
 def test_covariance_is_rotated_diagonal():
     log_scales = torch.log(torch.tensor([[1.0, 2.0, 3.0]], dtype=torch.float64))
     half = math.sqrt(0.5)  # 90 degrees about z: x -> y

@@ -60,37 +60,40 @@ def rgb_to_sh_dc(rgb: Tensor) -> Tensor:
     return (rgb - 0.5) / SH_C0
 
 
+def sh_basis(dirs: Tensor, degree: int) -> Tensor:
+    """INRIA's real SH basis at (n, 3) unit directions: (n, (degree + 1)^2), in the order of
+    the coefficients (signs as INRIA's code: ``-C1 y, C1 z, -C1 x`` for degree one)."""
+    x, y, z = dirs.unbind(-1)
+    cols = [torch.full_like(x, SH_C0)]
+    if degree > 0:
+        cols += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
+    if degree > 1:
+        xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+        cols += [SH_C2[0] * xy, SH_C2[1] * yz, SH_C2[2] * (2 * zz - xx - yy), SH_C2[3] * xz, SH_C2[4] * (xx - yy)]
+        if degree > 2:
+            cols += [
+                SH_C3[0] * y * (3 * xx - yy),
+                SH_C3[1] * xy * z,
+                SH_C3[2] * y * (4 * zz - xx - yy),
+                SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy),
+                SH_C3[4] * x * (4 * zz - xx - yy),
+                SH_C3[5] * z * (xx - yy),
+                SH_C3[6] * x * (xx - 3 * yy),
+            ]
+    return torch.stack(cols, -1)
+
+
 def sh_to_rgb(coeffs: Tensor, dirs: Tensor, degree: int) -> Tensor:
     """INRIA's SH colour: (n, K, 3) coefficients, (n, 3) unit directions -> (n, 3).
 
     Uses the first ``(degree + 1)^2`` coefficients; the result is ``max(SH + 0.5, 0)``.
     Example: only a DC of ``(c - 0.5) / C0`` gives colour ``c`` from every direction.
+    The basis (:func:`sh_basis`) times the coefficients is one batched product: its
+    gradient to the coefficients is one tensor (a term per coefficient, each indexing
+    ``coeffs``, made autograd fill a zero tensor of the coefficients' size for each).
     """
-    x, y, z = dirs[:, 0:1], dirs[:, 1:2], dirs[:, 2:3]
-    out = SH_C0 * coeffs[:, 0]
-    if degree > 0:
-        out = out - SH_C1 * y * coeffs[:, 1] + SH_C1 * z * coeffs[:, 2] - SH_C1 * x * coeffs[:, 3]
-    if degree > 1:
-        xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
-        out = (
-            out
-            + SH_C2[0] * xy * coeffs[:, 4]
-            + SH_C2[1] * yz * coeffs[:, 5]
-            + SH_C2[2] * (2 * zz - xx - yy) * coeffs[:, 6]
-            + SH_C2[3] * xz * coeffs[:, 7]
-            + SH_C2[4] * (xx - yy) * coeffs[:, 8]
-        )
-        if degree > 2:
-            out = (
-                out
-                + SH_C3[0] * y * (3 * xx - yy) * coeffs[:, 9]
-                + SH_C3[1] * xy * z * coeffs[:, 10]
-                + SH_C3[2] * y * (4 * zz - xx - yy) * coeffs[:, 11]
-                + SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy) * coeffs[:, 12]
-                + SH_C3[4] * x * (4 * zz - xx - yy) * coeffs[:, 13]
-                + SH_C3[5] * z * (xx - yy) * coeffs[:, 14]
-                + SH_C3[6] * x * (xx - 3 * yy) * coeffs[:, 15]
-            )
+    basis = sh_basis(dirs, degree).to(coeffs.dtype)
+    out = torch.bmm(basis.unsqueeze(1), coeffs[:, : basis.shape[1]]).squeeze(1)
     return torch.clamp_min(out + 0.5, 0.0)
 
 
