@@ -386,6 +386,25 @@ def load_file(path: Path, name: str):
     return module
 
 
+def stage_medians(times: dict) -> list[dict]:
+    """Per stage timed in both trees (``times[tree][stage]``: (wall s, CPU s) per step): the
+    steps each tree took and the median wall and CPU ms of each, old first."""
+    import numpy as np
+
+    stages = []
+    for stage in sorted(set(times["old"]) & set(times["new"])):
+        o, n = np.array(times["old"][stage]), np.array(times["new"][stage])
+        stages.append(
+            {
+                "stage": stage,
+                "steps": [len(o), len(n)],
+                "wall_ms": [1000 * float(np.median(o[:, 0])), 1000 * float(np.median(n[:, 0]))],
+                "cpu_ms": [1000 * float(np.median(o[:, 1])), 1000 * float(np.median(n[:, 1]))],
+            }
+        )
+    return stages
+
+
 def interleaved(old_src: str, data: str, steps: int, seed: int) -> dict:
     """One training run of this tree whose steps take, each at random, the
     compiled grid kernels and the ray batch gathering of ``old_src`` or of this tree: the
@@ -426,17 +445,7 @@ def interleaved(old_src: str, data: str, steps: int, seed: int) -> dict:
                 tr.step += 1
         finally:
             kernels._STATE["module"], RaysData._batch = parts["new"]
-    stages = []
-    for stage in sorted(times["new"]):
-        o, n = np.array(times["old"][stage]), np.array(times["new"][stage])
-        stages.append(
-            {
-                "stage": stage,
-                "steps": [len(o), len(n)],
-                "wall_ms": [1000 * float(np.median(o[:, 0])), 1000 * float(np.median(n[:, 0]))],
-                "cpu_ms": [1000 * float(np.median(o[:, 1])), 1000 * float(np.median(n[:, 1]))],
-            }
-        )
+    stages = stage_medians(times)
     digest = hashlib.sha1(np.array(losses).tobytes()).hexdigest()[:16]
     return {"stages": stages, "loss_digest": digest, "loadavg": os.getloadavg()}
 
@@ -477,17 +486,7 @@ def interleaved_splat(old_src: str, data: str, points: str | None, steps: int, s
         finally:
             splat_ops.ref, kernels._SPLAT["module"] = parts["new"]
         n = tr.model.n_gaussians
-    stages = []
-    for stage in sorted(set(times["old"]) & set(times["new"])):
-        o, nw = np.array(times["old"][stage]), np.array(times["new"][stage])
-        stages.append(
-            {
-                "stage": stage,
-                "steps": [len(o), len(nw)],
-                "wall_ms": [1000 * float(np.median(o[:, 0])), 1000 * float(np.median(nw[:, 0]))],
-                "cpu_ms": [1000 * float(np.median(o[:, 1])), 1000 * float(np.median(nw[:, 1]))],
-            }
-        )
+    stages = stage_medians(times)
     return {"stages": stages, "gaussians": n, "loadavg": os.getloadavg()}
 
 
