@@ -204,3 +204,17 @@ def test_a_forward_facing_dataset_trains_splat_when_no_model_is_named(tmp_path):
     assert config["train"]["model"] == "splat" and config["train"]["preset"] == "forward-facing"
     api.train(tmp_path / "f.npz", tmp_path / "fast", model="fast", steps=1, quiet=True)
     assert json.loads((tmp_path / "fast" / "config.json").read_text())["train"]["model"] == "fast"
+
+
+def test_the_splat_help_names_the_forward_facing_values():
+    """`nerfkit train --model splat --help` gives each forward-facing preset value beside the
+    general default, so a user reading it knows what a forward-facing scene trains with."""
+    import dataclasses
+
+    from nerfkit.models.splat import SplatConfig
+
+    helps = {f.name: f.metadata["help"] for f in dataclasses.fields(SplatConfig)}
+    values = presets.PRESETS[presets.FORWARD_FACING]["splat"]["model"]
+    assert values
+    for name, value in values.items():
+        assert f"forward-facing scenes: {value:g}" in helps[name], name
