@@ -26,6 +26,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from . import reference as grid_reference
+from .reference import SH_C0, SH_C1, SH_C2  # noqa: F401  (the same basis as the grid's, to degree 2)
+
 TILE = 16
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -36,9 +39,6 @@ SSIM_WINDOW, SSIM_SIGMA = 11, 1.5
 SSIM_C1, SSIM_C2 = 0.01**2, 0.03**2
 FOV_CLIP = 1.3
 
-SH_C0 = 0.28209479177387814
-SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
 SH_C3 = (
     -0.5900435899266435,
     2.890611442640554,
@@ -62,25 +62,23 @@ def rgb_to_sh_dc(rgb: Tensor) -> Tensor:
 
 def sh_basis(dirs: Tensor, degree: int) -> Tensor:
     """INRIA's real SH basis at (n, 3) unit directions: (n, (degree + 1)^2), in the order of
-    the coefficients (signs as INRIA's code: ``-C1 y, C1 z, -C1 x`` for degree one)."""
+    the coefficients: the grid's basis (:func:`nerfkit.kernels.reference.sh_basis`, the same
+    signs: ``-C1 y, C1 z, -C1 x`` for degree one) up to degree 2, then degree 3's."""
+    low = grid_reference.sh_basis(dirs, min(degree, 2))
+    if degree < 3:
+        return low
     x, y, z = dirs.unbind(-1)
-    cols = [torch.full_like(x, SH_C0)]
-    if degree > 0:
-        cols += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
-    if degree > 1:
-        xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
-        cols += [SH_C2[0] * xy, SH_C2[1] * yz, SH_C2[2] * (2 * zz - xx - yy), SH_C2[3] * xz, SH_C2[4] * (xx - yy)]
-        if degree > 2:
-            cols += [
-                SH_C3[0] * y * (3 * xx - yy),
-                SH_C3[1] * xy * z,
-                SH_C3[2] * y * (4 * zz - xx - yy),
-                SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy),
-                SH_C3[4] * x * (4 * zz - xx - yy),
-                SH_C3[5] * z * (xx - yy),
-                SH_C3[6] * x * (xx - 3 * yy),
-            ]
-    return torch.stack(cols, -1)
+    xx, yy, zz, xy = x * x, y * y, z * z, x * y
+    third = [
+        SH_C3[0] * y * (3 * xx - yy),
+        SH_C3[1] * xy * z,
+        SH_C3[2] * y * (4 * zz - xx - yy),
+        SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy),
+        SH_C3[4] * x * (4 * zz - xx - yy),
+        SH_C3[5] * z * (xx - yy),
+        SH_C3[6] * x * (xx - 3 * yy),
+    ]
+    return torch.cat([low, torch.stack(third, -1)], -1)
 
 
 def sh_to_rgb(coeffs: Tensor, dirs: Tensor, degree: int) -> Tensor:
