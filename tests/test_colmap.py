@@ -745,11 +745,14 @@ def test_spatial_matching_matches_only_its_pairs_and_poses_as_exhaustive_does(ro
 def test_missing_pycolmap_names_the_stage_and_the_install(monkeypatch):
     """Without pycolmap, reading a model and running SfM each fail with one clear error:
     where, what needs it, and the pip command (one helper serves both)."""
-    from nerfkit.capture.points import SFM_NEED, SFM_STAGE
+    from nerfkit.capture.points import sfm_pycolmap
     from nerfkit.data.colmap import import_pycolmap
 
     monkeypatch.setitem(sys.modules, "pycolmap", None)  # import pycolmap -> ImportError
-    for args, words in (((Path("model"),), "reading COLMAP models"), ((SFM_STAGE, SFM_NEED), "structure-from-motion")):
+    for load, words in (
+        (lambda: import_pycolmap(Path("model")), "reading COLMAP models"),
+        (sfm_pycolmap, "structure-from-motion"),
+    ):
         with pytest.raises(NerfkitError) as err:
-            import_pycolmap(*args)
+            load()
         assert words in str(err.value) and "pip install 'nerfkit[sfm]'" in str(err.value)

@@ -27,8 +27,6 @@ from ..data.scene import Views
 from ..errors import fail
 
 EXHAUSTIVE_MAX = 120
-# where and why structure-from-motion asks for pycolmap (its error when it is missing)
-SFM_STAGE, SFM_NEED = "poses --method colmap", "structure-from-motion needs pycolmap"
 
 
 def triangulate_views(
@@ -55,7 +53,7 @@ def triangulate_views(
     Raises:
         NerfkitError without pycolmap or when the views have no images.
     """
-    pycolmap = import_pycolmap(SFM_STAGE, SFM_NEED)
+    pycolmap = sfm_pycolmap()
     import cv2
 
     if not views.has_images or len(views) < 2:
@@ -150,6 +148,11 @@ def _posed_reconstruction(pycolmap, db_path: Path, names: list[str], c2w: np.nda
     for f in frames:
         rec.register_frame(f.frame_id)
     return rec
+
+
+def sfm_pycolmap():
+    """pycolmap for structure-from-motion, or the clear error that says how to install it."""
+    return import_pycolmap("poses --method colmap", "structure-from-motion needs pycolmap")
 
 
 @contextlib.contextmanager

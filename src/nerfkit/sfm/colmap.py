@@ -28,8 +28,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..capture.points import SFM_NEED, SFM_STAGE, camera_neighbours, match_pairs, quiet_colmap
-from ..data.colmap import import_pycolmap, write_reconstruction
+from ..capture.points import camera_neighbours, match_pairs, quiet_colmap, sfm_pycolmap
+from ..data.colmap import write_reconstruction
 from ..errors import NerfkitError, fail, problem_of
 from ..images import list_images
 
@@ -352,7 +352,7 @@ def run_sfm(
     Raises:
         NerfkitError when there are no photos or nothing could be reconstructed.
     """
-    pycolmap = import_pycolmap(SFM_STAGE, SFM_NEED)
+    pycolmap = sfm_pycolmap()
     image_dir = Path(image_dir)
     photos = list_images(image_dir)
     guides = guides or {}

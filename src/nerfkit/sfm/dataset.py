@@ -208,9 +208,8 @@ def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResul
     Each photo must lie in the recorded photo folder, and the model inside ``folder``
     (``allow_outside``: anywhere).
     """
-    from ..capture.points import SFM_NEED, SFM_STAGE
+    from ..capture.points import sfm_pycolmap
     from ..config import load_json
-    from ..data.colmap import import_pycolmap
     from ..data.validate import short_repr
     from ..errors import advice
     from ..io.paths import resolve_inside
@@ -257,7 +256,7 @@ def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResul
         except (KeyError, TypeError, AttributeError) as e:
             raise fail(path, f"malformed SfM report ({type(e).__name__}: {e})") from None
     try:
-        rec = import_pycolmap(SFM_STAGE, SFM_NEED).Reconstruction(str(model_dir))
+        rec = sfm_pycolmap().Reconstruction(str(model_dir))
     except Exception as e:  # pycolmap raises its own errors for unreadable models
         raise fail(model_dir, f"cannot read the COLMAP model ({type(e).__name__}: {e})", redo) from None
     return SfmResult(
