@@ -229,7 +229,9 @@ def print_table(rows: list[dict]) -> None:
             return "-" if a is None else f"{a['psnr']:.2f} ({a['psnr_exposure_evened']:.2f})"
 
         def took(r):
-            return f"{r['total_s'] / 60:.1f} min (capture)" if "total_s" in r else f"{r['train_s'] / 60:.1f} min (train on)"
+            if "total_s" in r:
+                return f"{r['total_s'] / 60:.1f} min (capture)"
+            return f"{r['train_s'] / 60:.1f} min (train on)"
 
         print()
         print(table([[r["capture"], r["capture_mode"], r["steps"], r["n_val"],
@@ -264,9 +266,11 @@ def main() -> int:
     ap.add_argument("--minutes", type=float, default=3.0, help="training minutes per capture (0: no training)")
     ap.add_argument("--steps", type=int, help="train this many steps instead of --minutes (a loaded machine)")
     ap.add_argument("--capture", default="auto", choices=["auto", "on", "off"], help="passed to nerfkit train")
-    ap.add_argument("--sfm", action="store_true", help="also pose each capture by SfM without its tags, and train on that")
+    ap.add_argument("--sfm", action="store_true",
+                    help="also pose each capture by SfM without its tags, and train on that")
     ap.add_argument("--method", default="auto", choices=["auto", "tags"],
-                    help="nerfkit poses --method for the tag run (auto: SfM poses in the tag's frame when they hold up)")
+                    help="nerfkit poses --method for the tag run "
+                    "(auto: SfM poses in the tag's frame when they hold up)")
     ap.add_argument("--photos", type=int, default=0, metavar="N",
                     help="use about N of each capture's object photos, evenly spaced (default 0: all)")
     args = ap.parse_args()

@@ -114,7 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lego-blender", help="Blender-layout lego folder (transforms_*.json + PNGs)")
     ap.add_argument("--lego-npz", help="the course-layout lego npz to compare with")
     ap.add_argument("--sfm-photos", help="folder of photos to run SfM on")
-    ap.add_argument("--matcher", nargs="+", default=["auto"], help="matchers to try (auto, exhaustive, sequential, spatial)")
+    ap.add_argument("--matcher", nargs="+", default=["auto"],
+                    help="matchers to try (auto, exhaustive, sequential, spatial)")
     ap.add_argument("--max-image-size", type=int, default=1000)
     ap.add_argument("--tag-size", type=float, help="ArUco tag side in metres, to fix scale and up")
     ap.add_argument("--tag-poses", help="poses.json / dataset of `nerfkit poses` on the same photos, to compare with")

@@ -39,7 +39,7 @@ import imageio.v3 as iio
 import numpy as np
 
 from nerfkit.data.llff import opencv_to_llff
-from nerfkit.data.synthetic import FORWARD_SPHERES, BACKDROP_Y, forward_facing_scene
+from nerfkit.data.synthetic import BACKDROP_Y, FORWARD_SPHERES, forward_facing_scene
 
 CONFIGS = {"ndc": [], "box": ["--space", "box"], "box + background": ["--space", "box", "--learn-background"]}
 

@@ -22,9 +22,9 @@ from __future__ import annotations
 import os
 
 import torch
+from ray_grads import camera_rays, lego_like, model_spec, parse_args, print_medians, step, time_interleaved
 
 from nerfkit.kernels.ops import GradSink, GridGeom
-from ray_grads import camera_rays, lego_like, model_spec, parse_args, print_medians, step, time_interleaved
 
 
 class LookupGeom(GridGeom):

@@ -1,7 +1,8 @@
 """Memory, speed and PSNR of the ``fast`` model's grid storage: dense against sparse.
 
     python benchmarks/grid_memory.py OUT [--data src/nerfkit/assets/lego_200x200.npz] [--steps 5000]
-    python benchmarks/grid_memory.py OUT --data lego400.npz --minutes 5 --configs "default=;final 256=--resolutions 32,64,128,256 --upsample-steps 60,300,1500"
+    python benchmarks/grid_memory.py OUT --data lego400.npz --minutes 5 \
+        --configs "default=;final 256=--resolutions 32,64,128,256 --upsample-steps 60,300,1500"
 
 Each configuration is one ``nerfkit train`` run (a child process, one after the other, so
 its peak RSS is its own), then ``nerfkit eval --split val``. Configurations are

@@ -74,7 +74,10 @@ LEGO_SCENES = ("lego200", "lego400")
 FLOWER_SUBSETS = {"flower17": (17, 0.0), "flower17b": (17, 0.5)}
 FORWARD = ("flower", *FLOWER_SUBSETS)
 BUILT_IN = ("lego200", "lego400", *FORWARD)
-COLUMNS = ("scene", "model", "budget", "steps", "train_s", "psnr", "ssim", "fps", "model_mb", "n_heldout", "psnr_npz_val", "ssim_npz_val", "n_train", "width", "height", "loadavg_before", "loadavg_after")
+COLUMNS = (
+    "scene", "model", "budget", "steps", "train_s", "psnr", "ssim", "fps", "model_mb", "n_heldout", "psnr_npz_val",
+    "ssim_npz_val", "n_train", "width", "height", "loadavg_before", "loadavg_after",
+)
 
 
 @dataclass

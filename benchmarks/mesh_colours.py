@@ -107,7 +107,8 @@ def main() -> None:
     ap.add_argument("--reach", type=float, nargs="+", default=[],
                     help="more colour ray reaches to score, as fractions of the scene's radius")
     ap.add_argument("--color-views", type=int, nargs="+", default=[COLOUR_VIEWS],
-                    help=f"training views to colour from (default: export's {COLOUR_VIEWS}; several: one colouring each)")
+                    help=f"training views to colour from (default: export's {COLOUR_VIEWS}; "
+                    "several: one colouring each)")
     args = ap.parse_args()
 
     import torch
@@ -188,7 +189,7 @@ def main() -> None:
     print(f"drawn: PSNR against the photo where the mesh covers the NeRF's solid object, mean over "
           f"{len(nerf_errors)} views; the NeRF's own render there: {np.mean(nerf_errors):.2f}")
     print(f"{'vertex colour':<14} {'pairs':>7} {'PSNR':>6} {'drawn':>6} {'seconds':>8}")
-    for name, (colours, seconds) in colourings.items():
+    for name, (_colours, seconds) in colourings.items():
         e = np.concatenate(pair_errors[name])
         print(f"{name:<14} {len(e):>7} {-10 * np.log10(e.mean()):>6.2f} {np.mean(drawn_errors[name]):>6.2f} "
               f"{seconds:>8.2f}")

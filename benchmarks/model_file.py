@@ -2,7 +2,8 @@
 
 Loads a finished ``fast`` run (its newest checkpoint, full precision), writes its model
 file three ways into a temporary folder — dense float32 (``save_model(compact=False)``),
-compact (occupied vertices, float16), and compact with the density in float32 — reloads each as ``eval``/``render`` would, and
+compact (occupied vertices, float16), and compact with the density in float32 — reloads each
+as ``eval``/``render`` would, and
 scores both on the run's validation views (and test views with images).
 
 Usage::

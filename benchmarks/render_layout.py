@@ -16,9 +16,9 @@ import argparse
 import os
 
 import torch
+from ray_grads import print_medians, time_interleaved
 
 from nerfkit.render.volrend import composite, render_weights
-from ray_grads import print_medians, time_interleaved
 
 
 def padded_step(sig, rgb, t, mask, step) -> None:
@@ -53,8 +53,9 @@ def main() -> None:
         t = torch.rand(n, S, generator=gen).cumsum(1)
         mask = torch.rand(n, S, generator=gen) < keep
         rays = torch.arange(n).unsqueeze(1).expand(n, S)[mask]
-        wall, cpu = time_interleaved({"padded": lambda: padded_step(sig, rgb, t, mask, 0.01),
-                                      "packed": lambda: packed_step(sig, rgb, t, mask, 0.01, rays)},
+        args_ = (sig, rgb, t, mask, 0.01)
+        wall, cpu = time_interleaved({"padded": lambda a=args_: padded_step(*a),
+                                      "packed": lambda a=args_, r=rays: packed_step(*a, r)},
                                      warmup=2, repeats=args.repeats)
         print_medians(f"{n}x{S}, {int(mask.sum()) / n:.1f}/ray", wall, cpu, "padded")
 

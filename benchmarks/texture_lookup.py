@@ -22,11 +22,11 @@ import argparse
 import os
 
 import torch
+from ray_grads import print_medians, time_interleaved
 
 import nerfkit.fields.background as background
 from nerfkit.kernels import numba_kernels
 from nerfkit.kernels.ops import GradSink
-from ray_grads import print_medians, time_interleaved
 
 TEXTURES = {"table": ((512, 512), 3), "shells": ((1024, 1536), 4)}
 

@@ -36,7 +36,8 @@ CURVE_TIMES = [2, 5, 10, 20, 30, 45, 60, 90, 120, 180, 240, 300, 420, 600, 900, 
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("out", help="output folder")
-    p.add_argument("--data", default=str(Path(__file__).resolve().parents[1] / "src" / "nerfkit" / "assets" / "lego_200x200.npz"))
+    lego = Path(__file__).resolve().parents[1] / "src" / "nerfkit" / "assets" / "lego_200x200.npz"
+    p.add_argument("--data", default=str(lego))
     p.add_argument("--models", default="fast,vanilla", help="comma-separated model names")
     p.add_argument("--budgets", default="10,60,600", help="training seconds, comma-separated")
     p.add_argument("--curve-views", type=int, default=0,
@@ -184,7 +185,8 @@ def plot(results: list[dict], path: Path) -> None:
         longest = runs[-1]
         pts = [(c["seconds"], c["psnr"]) for c in longest["curve"] if c["seconds"] > 0]
         if pts:
-            ax.plot(*zip(*pts), "-", color=colour, alpha=0.6, label=f"{model}: during the {longest['budget_s']:g} s run")
+            label = f"{model}: during the {longest['budget_s']:g} s run"
+            ax.plot(*zip(*pts), "-", color=colour, alpha=0.6, label=label)
         ax.plot([r["budget_s"] for r in runs], [r["final_val_psnr"] for r in runs], "o", color=colour, ms=7,
                 label=f"{model}: run with that budget")
     ax.set_xscale("log")
