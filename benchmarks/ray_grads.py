@@ -24,10 +24,11 @@ import time
 
 import torch
 
+from nerfkit.estimators.occupancy import OccupancyEstimator
 from nerfkit.kernels import numba_kernels
 from nerfkit.kernels import reference as ref
 from nerfkit.kernels.ops import GradSink, GridGeom, MarchSpec, cell_density_max, render_grid
-from nerfkit.render.occupancy import OccupancyGrid, ray_aabb
+from nerfkit.render.box import ray_aabb
 
 
 def lego_like(res: int, sh_degree: int, seed: int = 0):
@@ -49,10 +50,9 @@ def model_spec(grid, geom: GridGeom, coarse_factor: int = 8) -> MarchSpec:
     """The fast model's defaults: step half a voxel, density in units of a 32^3 grid's voxel,
     cells skipped below opacity 1e-2, early stop at transmittance 1e-4."""
     step, dscale = 0.5 * geom.voxel, 31 / 2.0
-    occ = OccupancyGrid(geom.lo, geom.voxel, geom.res)
+    occ = OccupancyEstimator(geom.box, coarse_factor=coarse_factor)
     occ.set_from_cell_sigma(cell_density_max(grid, geom, dscale), step, 1e-2)
-    coarse = occ.coarse(coarse_factor).to(torch.uint8).contiguous()
-    return MarchSpec(occ.occ.to(torch.uint8), coarse, coarse_factor, step, 1e-4, dscale)
+    return occ.march_spec(step, 1e-4, dscale)
 
 
 def camera_rays(n: int, seed: int = 1):

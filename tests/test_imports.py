@@ -357,3 +357,35 @@ def test_layers(edges):
                 f"({LAYERS[rank[b]][0].split(':')[0]}): {e.file}:{e.line}"
             )
     assert not wrong, "a lower layer imports a higher one:\n" + "\n".join(sorted(set(wrong)))
+
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _nerfkit_names(path: Path) -> list[tuple[str, str | None]]:
+    """(module, name) for every ``from nerfkit... import name`` and (module, None) for every
+    ``import nerfkit...`` in a script, wherever it stands."""
+    found: list[tuple[str, str | None]] = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").split(".")[0] == ROOT:
+            found += [(node.module or "", a.name) for a in node.names]
+        elif isinstance(node, ast.Import):
+            found += [(a.name, None) for a in node.names if a.name.split(".")[0] == ROOT]
+    return found
+
+
+@pytest.mark.parametrize("script", sorted(BENCHMARKS.glob("*.py")), ids=lambda p: p.name)
+def test_benchmark_scripts_name_what_nerfkit_has(script):
+    """Every module and name a benchmark script takes from nerfkit exists (the scripts are not
+    run by the tests; a rename in the package must not leave them broken)."""
+    import importlib
+
+    missing = []
+    for module, name in _nerfkit_names(script):
+        mod = importlib.import_module(module)
+        if name is not None and not hasattr(mod, name):
+            try:
+                importlib.import_module(f"{module}.{name}")
+            except ModuleNotFoundError:
+                missing.append(f"{module}.{name}")
+    assert not missing, f"{script.name} imports what nerfkit does not have: {missing}"
