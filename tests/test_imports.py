@@ -18,6 +18,7 @@ Edges:
 from __future__ import annotations
 
 import ast
+import importlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -378,8 +379,6 @@ def _nerfkit_names(path: Path) -> list[tuple[str, str | None]]:
 def test_benchmark_scripts_name_what_nerfkit_has(script):
     """Every module and name a benchmark script takes from nerfkit exists (the scripts are not
     run by the tests; a rename in the package must not leave them broken)."""
-    import importlib
-
     missing = []
     for module, name in _nerfkit_names(script):
         mod = importlib.import_module(module)
