@@ -365,12 +365,13 @@ BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 def _nerfkit_names(path: Path) -> list[tuple[str, str | None]]:
     """(module, name) for every ``from nerfkit... import name`` and (module, None) for every
-    ``import nerfkit...`` in a script, wherever it stands."""
+    ``import nerfkit...`` in a script, wherever it stands (:func:`_imports`'s statements)."""
     found: list[tuple[str, str | None]] = []
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
-        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").split(".")[0] == ROOT:
-            found += [(node.module or "", a.name) for a in node.names]
-        elif isinstance(node, ast.Import):
+    for node, _ in _imports(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level == 0 and node.module and node.module.split(".")[0] == ROOT:
+                found += [(node.module, a.name) for a in node.names]
+        else:
             found += [(a.name, None) for a in node.names if a.name.split(".")[0] == ROOT]
     return found
 

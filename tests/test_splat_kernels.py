@@ -10,6 +10,7 @@ import torch
 
 from nerfkit.kernels import splat_kernels
 from nerfkit.kernels import splat_reference as ref
+from nerfkit.kernels.reference import SH_C1, SH_C2
 from nerfkit.kernels.splat_ops import rasterize, render_gaussians, ssim
 
 needs_numba = pytest.mark.skipif(splat_kernels() is None, reason="numba not available")
@@ -58,13 +59,13 @@ def test_sh_degree_one_matches_inria_signs():
     sh[:, 1:4, 0] = torch.eye(3, dtype=torch.float64)
     d = torch.tensor([[0.6, 0.0, 0.8]] * 3, dtype=torch.float64)
     out = ref.sh_to_rgb(sh, d, 1)[:, 0] - 0.5
-    torch.testing.assert_close(out, torch.tensor([0.0, ref.SH_C1 * 0.8, -ref.SH_C1 * 0.6], dtype=torch.float64))
+    torch.testing.assert_close(out, torch.tensor([0.0, SH_C1 * 0.8, -SH_C1 * 0.6], dtype=torch.float64))
 
 
 def sh_to_rgb_term_by_term(coeffs, dirs, degree):
     """INRIA's formula written out, a term per coefficient (what ``sh_to_rgb`` must equal)."""
     x, y, z = dirs[:, 0:1], dirs[:, 1:2], dirs[:, 2:3]
-    c1, c2, c3 = ref.SH_C1, ref.SH_C2, ref.SH_C3
+    c1, c2, c3 = SH_C1, SH_C2, ref.SH_C3
     out = ref.SH_C0 * coeffs[:, 0]
     if degree > 0:
         out = out - c1 * y * coeffs[:, 1] + c1 * z * coeffs[:, 2] - c1 * x * coeffs[:, 3]

@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from . import reference as grid_reference
-from .reference import SH_C0, SH_C1, SH_C2  # noqa: F401  (the same basis as the grid's, to degree 2)
+from .reference import SH_C0  # the grid's basis constants, shared to degree 2
 
 TILE = 16
 ALPHA_MIN = 1.0 / 255.0
