@@ -87,15 +87,15 @@ def main(argv: list[str] | None = None) -> int:
     records = None
     for jobs in [int(j) for j in args.jobs.split(",")]:
         t0 = time.perf_counter()
-        records = scan_photos(folder, "DICT_4X4_50", detect_side=args.detect_size, cache_path=None, jobs=jobs,
-                              progress=False)
+        records = scan_photos(
+            folder, "DICT_4X4_50", detect_side=args.detect_size, cache_path=None, jobs=jobs, progress=False
+        )
         rows.append((f"decode + detect, {jobs} thread(s)", time.perf_counter() - t0))
     cache = Path(args.work) / "cache.json"
     cache.unlink(missing_ok=True)
     scan_photos(folder, "DICT_4X4_50", detect_side=args.detect_size, cache_path=cache, jobs=2, progress=False)
     t0 = time.perf_counter()
-    records = scan_photos(folder, "DICT_4X4_50", detect_side=args.detect_size, cache_path=cache, jobs=2,
-                          progress=False)
+    records = scan_photos(folder, "DICT_4X4_50", detect_side=args.detect_size, cache_path=cache, jobs=2, progress=False)
     rows.append(("re-run with the detection cache", time.perf_counter() - t0))
     size, kept = group_by_size(records)
     t0 = time.perf_counter()
@@ -103,15 +103,19 @@ def main(argv: list[str] | None = None) -> int:
     rows.append(("calibration (estimated layout)", time.perf_counter() - t0))
 
     n_tags = sum(len(r.detection.ids) for r in records)
-    print(f"{len(files)} photos of {size[0]}x{size[1]}, {n_tags} tags detected; JPEG decode + EXIF rotate "
-          f"{decode:.2f} s/photo")
+    print(
+        f"{len(files)} photos of {size[0]}x{size[1]}, {n_tags} tags detected; JPEG decode + EXIF rotate "
+        f"{decode:.2f} s/photo"
+    )
     for name, sec in rows:
         print(f"  {name:<36} {sec:7.2f} s  ({sec / len(files):.3f} s/photo)")
     K = cal.K
     rel = [K[0, 0] / K_true[0, 0] - 1, K[1, 1] / K_true[1, 1] - 1, K[0, 2] - K_true[0, 2], K[1, 2] - K_true[1, 2]]
-    print(f"calibration: rms {cal.rms:.3f} px, {sum(r.used for r in kept)} photos used; fx {rel[0] * 100:+.3f}%, "
-          f"fy {rel[1] * 100:+.3f}%, cx {rel[2]:+.2f} px, cy {rel[3]:+.2f} px off the truth; "
-          f"k1 {cal.dist[0]:+.4f} (true {dist_true[0]:+.4f})")
+    print(
+        f"calibration: rms {cal.rms:.3f} px, {sum(r.used for r in kept)} photos used; fx {rel[0] * 100:+.3f}%, "
+        f"fy {rel[1] * 100:+.3f}%, cx {rel[2]:+.2f} px, cy {rel[3]:+.2f} px off the truth; "
+        f"k1 {cal.dist[0]:+.4f} (true {dist_true[0]:+.4f})"
+    )
     print(f"sanity warnings: {cal.sanity['warnings'] or 'none'}; fx / EXIF fx {cal.sanity.get('fx_over_exif_fx')}")
     return 0 if np.isfinite(cal.rms) else 1
 

@@ -61,11 +61,19 @@ def run_figures(run: Path) -> dict:
     e = json.loads((run / "eval_val.json").read_text())
     m = json.loads((run / "metrics.json").read_text())
     obj = e.get("object") or {}
-    return {"steps": m["step"], "val_psnr": e["psnr"], "val_ssim": e["ssim"], "n_val": e["n_images"],
-            "fitted_psnr": e.get("fitted", {}).get("psnr"), "fitted_ssim": e.get("fitted", {}).get("ssim"),
-            "colour_psnr": e.get("colour_only", {}).get("psnr"),
-            "object_psnr": obj.get("psnr"), "object_fitted": obj.get("psnr_fitted"),
-            "sheet": str(run / "eval_val.png"), "run": str(run)}
+    return {
+        "steps": m["step"],
+        "val_psnr": e["psnr"],
+        "val_ssim": e["ssim"],
+        "n_val": e["n_images"],
+        "fitted_psnr": e.get("fitted", {}).get("psnr"),
+        "fitted_ssim": e.get("fitted", {}).get("ssim"),
+        "colour_psnr": e.get("colour_only", {}).get("psnr"),
+        "object_psnr": obj.get("psnr"),
+        "object_fitted": obj.get("psnr_fitted"),
+        "sheet": str(run / "eval_val.png"),
+        "run": str(run),
+    }
 
 
 def train_capture(name: str, out: Path, minutes: float, capture: str, poses: str = "poses") -> dict:
@@ -77,8 +85,22 @@ def train_capture(name: str, out: Path, minutes: float, capture: str, poses: str
     if (run / "config.json").exists():  # an earlier run of this benchmark: train never replaces one
         shutil.rmtree(run)
     t0 = time.perf_counter()
-    if main(["train", "--data", str(out / poses / "dataset.npz"), "--out", str(run), "--minutes", str(minutes),
-             "--capture", capture]) != 0:
+    if (
+        main(
+            [
+                "train",
+                "--data",
+                str(out / poses / "dataset.npz"),
+                "--out",
+                str(run),
+                "--minutes",
+                str(minutes),
+                "--capture",
+                capture,
+            ]
+        )
+        != 0
+    ):
         raise SystemExit(f"{name}: train failed")
     if main(["eval", str(run), "--split", "val"]) != 0:
         raise SystemExit(f"{name}: eval failed")
@@ -118,14 +140,25 @@ def calibration_figures(name: str, cam: Path, poses: Path) -> dict:
         choice, views = block.get("pose_choice"), sum(block["views"].values())
         agree = block.get("agreement")
     return {
-        "capture": name, "calib_photos": len(c["images"]), "calib_used": c["photos_used"],
-        "model": c["dist_model"], "dist": c["dist"], "heldout": c.get("heldout_rms"), "rms": c["rms"],
-        "fx": c["fx"], "exif_fx": c["sanity"].get("exif_fx"), "photos": len(photos), "detected": len(detected),
-        "posed": sum(x["used"] for x in photos), "second_pass": sum(1 for x in photos if x.get("detection")),
+        "capture": name,
+        "calib_photos": len(c["images"]),
+        "calib_used": c["photos_used"],
+        "model": c["dist_model"],
+        "dist": c["dist"],
+        "heldout": c.get("heldout_rms"),
+        "rms": c["rms"],
+        "fx": c["fx"],
+        "exif_fx": c["sanity"].get("exif_fx"),
+        "photos": len(photos),
+        "detected": len(detected),
+        "posed": sum(x["used"] for x in photos),
+        "second_pass": sum(1 for x in photos if x.get("detection")),
         "why": c["model_selection"]["why"],
         "dropped": [f"{x['file']}: {x['reason']}" for x in detected if not x["used"]],
         "pose_choice": choice["why"] if choice else "the tag's",
-        "in_dataset": views, "tag_kept": len((choice or {}).get("tag_posed") or []), "agreement": agree,
+        "in_dataset": views,
+        "tag_kept": len((choice or {}).get("tag_posed") or []),
+        "agreement": agree,
     }
 
 
@@ -137,10 +170,16 @@ def splat_figures(out: Path) -> dict:
         return {}
     e = json.loads((run / "eval_val.json").read_text())
     m = json.loads((run / "metrics.json").read_text())
-    return {"splat": {"steps": m["step"], "val_psnr": e["psnr"], "val_ssim": e["ssim"],
-                      "object_psnr": (e.get("object") or {}).get("psnr"),
-                      "ply_mb": (out / "splat.ply").stat().st_size / 1e6 if (out / "splat.ply").exists() else None,
-                      "sheet": str(run / "eval_val.png")}}
+    return {
+        "splat": {
+            "steps": m["step"],
+            "val_psnr": e["psnr"],
+            "val_ssim": e["ssim"],
+            "object_psnr": (e.get("object") or {}).get("psnr"),
+            "ply_mb": (out / "splat.ply").stat().st_size / 1e6 if (out / "splat.ply").exists() else None,
+            "sheet": str(run / "eval_val.png"),
+        }
+    }
 
 
 def capture_command(name: str, folder: Path, objects: Path, work: Path, budget: list[str], method: str) -> dict:
@@ -151,16 +190,38 @@ def capture_command(name: str, folder: Path, objects: Path, work: Path, budget: 
     calib, _, tag = CAPTURES[name]
     out = work / name
     t0 = time.perf_counter()
-    if main(["capture", str(objects), "--calib", str(folder / calib), "--tag-size", str(tag), "--out", str(out),
-             *budget, "--method", method, "--force"]) != 0:
+    if (
+        main(
+            [
+                "capture",
+                str(objects),
+                "--calib",
+                str(folder / calib),
+                "--tag-size",
+                str(tag),
+                "--out",
+                str(out),
+                *budget,
+                "--method",
+                method,
+                "--force",
+            ]
+        )
+        != 0
+    ):
         raise SystemExit(f"{name}: nerfkit capture failed")
     total = time.perf_counter() - t0
-    return {**calibration_figures(name, out / "camera.json", out / "dataset"), **run_figures(out / "run"),
-            **splat_figures(out), "total_s": total}
+    return {
+        **calibration_figures(name, out / "camera.json", out / "dataset"),
+        **run_figures(out / "run"),
+        **splat_figures(out),
+        "total_s": total,
+    }
 
 
-def run_capture(name: str, folder: Path, objects: Path, work: Path, extra: list[str], dataset: bool = False,
-                method: str = "auto") -> dict:
+def run_capture(
+    name: str, folder: Path, objects: Path, work: Path, extra: list[str], dataset: bool = False, method: str = "auto"
+) -> dict:
     """Calibrate and pose one capture step by step (``nerfkit calibrate``, ``nerfkit poses``)."""
     from nerfkit.cli import main
 
@@ -171,8 +232,25 @@ def run_capture(name: str, folder: Path, objects: Path, work: Path, extra: list[
     if main(["calibrate", str(folder / calib), "--tag-size", str(tag), "--out", str(cam), "--force", *extra]) != 0:
         raise SystemExit(f"{name}: calibrate failed")
     t_cal = time.perf_counter() - t0
-    if main(["poses", str(objects), "--camera", str(cam), "--tag-size", str(tag), "--out", str(out / "poses"),
-             "--method", method, "--force", *([] if dataset else ["--no-dataset"])]) != 0:
+    if (
+        main(
+            [
+                "poses",
+                str(objects),
+                "--camera",
+                str(cam),
+                "--tag-size",
+                str(tag),
+                "--out",
+                str(out / "poses"),
+                "--method",
+                method,
+                "--force",
+                *([] if dataset else ["--no-dataset"]),
+            ]
+        )
+        != 0
+    ):
         raise SystemExit(f"{name}: poses failed")
     return {**calibration_figures(name, cam, out / "poses"), "calib_s": t_cal}
 
@@ -184,12 +262,31 @@ def sfm_capture(name: str, objects: Path, work: Path) -> dict:
 
     out = work / name
     t0 = time.perf_counter()
-    if main(["poses", str(objects), "--method", "colmap", "--camera", str(out / "camera.json"),
-             "--out", str(out / "sfm"), "--force"]) != 0:
+    if (
+        main(
+            [
+                "poses",
+                str(objects),
+                "--method",
+                "colmap",
+                "--camera",
+                str(out / "camera.json"),
+                "--out",
+                str(out / "sfm"),
+                "--force",
+            ]
+        )
+        != 0
+    ):
         raise SystemExit(f"{name}: poses --method colmap failed")
     rep = json.loads((out / "sfm" / "sfm_report.json").read_text())
-    return {"capture": f"{name} (SfM, no tag)", "registered": rep["n_registered"], "photos": rep["n_photos"],
-            "ground": rep.get("ground"), "sfm_s": time.perf_counter() - t0}
+    return {
+        "capture": f"{name} (SfM, no tag)",
+        "registered": rep["n_registered"],
+        "photos": rep["n_photos"],
+        "ground": rep.get("ground"),
+        "sfm_s": time.perf_counter() - t0,
+    }
 
 
 def print_table(rows: list[dict]) -> None:
@@ -200,15 +297,43 @@ def print_table(rows: list[dict]) -> None:
     rows = [r for r in rows if "registered" not in r]
     for r in rows:
         k = r["dist"]
-        exif = f"{r['fx']:.1f} / {r['exif_fx']:.1f} ({(r['fx'] / r['exif_fx'] - 1) * 100:+.1f}%)" if r["exif_fx"] \
+        exif = (
+            f"{r['fx']:.1f} / {r['exif_fx']:.1f} ({(r['fx'] / r['exif_fx'] - 1) * 100:+.1f}%)"
+            if r["exif_fx"]
             else f"{r['fx']:.1f} / no EXIF"
-        out.append([r["capture"], f"{r['calib_used']}/{r['calib_photos']}", r["photos"], r["detected"],
-                    f"{r['posed']} ({r['posed'] / max(r['detected'], 1) * 100:.0f}%)", r["model"],
-                    " ".join(f"{v:+.3f}" for v in k[:2]) + (f" p {k[2]:+.3f} {k[3]:+.3f}" if any(k[2:4]) else ""),
-                    f"{r['heldout']:.3f}", exif,
-                    "-" if r["in_dataset"] is None else f"{r['in_dataset']} ({r['tag_kept']} tag-posed beside SfM's)"])
-    print(table(out, ["capture", "calib used", "photos", "tag found", "posed", "model", "k1 k2 (p1 p2)",
-                      "held-out px", "fx / EXIF fx", "in the dataset"], max_width=200))
+        )
+        out.append(
+            [
+                r["capture"],
+                f"{r['calib_used']}/{r['calib_photos']}",
+                r["photos"],
+                r["detected"],
+                f"{r['posed']} ({r['posed'] / max(r['detected'], 1) * 100:.0f}%)",
+                r["model"],
+                " ".join(f"{v:+.3f}" for v in k[:2]) + (f" p {k[2]:+.3f} {k[3]:+.3f}" if any(k[2:4]) else ""),
+                f"{r['heldout']:.3f}",
+                exif,
+                "-" if r["in_dataset"] is None else f"{r['in_dataset']} ({r['tag_kept']} tag-posed beside SfM's)",
+            ]
+        )
+    print(
+        table(
+            out,
+            [
+                "capture",
+                "calib used",
+                "photos",
+                "tag found",
+                "posed",
+                "model",
+                "k1 k2 (p1 p2)",
+                "held-out px",
+                "fx / EXIF fx",
+                "in the dataset",
+            ],
+            max_width=200,
+        )
+    )
     for r in rows:
         took = f"; calibration took {r['calib_s']:.1f} s" if "calib_s" in r else ""
         print(f"\n{r['capture']}: {r['why']}{took}; {r['second_pass']} photos found by the second detection pass")
@@ -217,11 +342,17 @@ def print_table(rows: list[dict]) -> None:
         print(f"  the dataset's poses: {r['pose_choice']}")
     for r in sfm:
         g = r["ground"]
-        print(f"\n{r['capture']}: {r['registered']} of {r['photos']} photos registered in {r['sfm_s']:.0f} s; "
-              + ("no table plane found" if g is None else
-                 f"table plane from {g['inliers']} of {g['candidates']} points, {g['tilt_deg']:.1f} deg from up"))
+        print(
+            f"\n{r['capture']}: {r['registered']} of {r['photos']} photos registered in {r['sfm_s']:.0f} s; "
+            + (
+                "no table plane found"
+                if g is None
+                else f"table plane from {g['inliers']} of {g['candidates']} points, {g['tilt_deg']:.1f} deg from up"
+            )
+        )
     trained = [r for r in rows + sfm if "steps" in r]
     if trained:
+
         def pair(a, b):
             return "-" if a is None else f"{a:.2f}" + ("" if b is None else f" / {b:.2f}")
 
@@ -234,16 +365,40 @@ def print_table(rows: list[dict]) -> None:
             return f"{r['train_s'] / 60:.1f} min (train on)"
 
         print()
-        print(table([[r["capture"], r["capture_mode"], r["steps"], r["n_val"],
-                      agreed(r.get("agreement")), f"{r['val_psnr']:.2f}",
-                      f"{r['val_ssim']:.3f}", "-" if r["colour_psnr"] is None else f"{r['colour_psnr']:.2f}",
-                      "-" if r["fitted_psnr"] is None else f"{r['fitted_psnr']:.2f} / {r['fitted_ssim']:.3f}",
-                      pair(r["object_psnr"], r["object_fitted"]), took(r)] for r in trained],
-                    ["capture", "--capture", "steps", "val views", "photos agree on the table (exposure evened)",
-                     "val PSNR", "val SSIM",
-                     "PSNR, colour (other half)", "PSNR / SSIM, pose + colour (other half)", "object's pixels (fitted)",
-                     "time"],
-                    max_width=200))
+        print(
+            table(
+                [
+                    [
+                        r["capture"],
+                        r["capture_mode"],
+                        r["steps"],
+                        r["n_val"],
+                        agreed(r.get("agreement")),
+                        f"{r['val_psnr']:.2f}",
+                        f"{r['val_ssim']:.3f}",
+                        "-" if r["colour_psnr"] is None else f"{r['colour_psnr']:.2f}",
+                        "-" if r["fitted_psnr"] is None else f"{r['fitted_psnr']:.2f} / {r['fitted_ssim']:.3f}",
+                        pair(r["object_psnr"], r["object_fitted"]),
+                        took(r),
+                    ]
+                    for r in trained
+                ],
+                [
+                    "capture",
+                    "--capture",
+                    "steps",
+                    "val views",
+                    "photos agree on the table (exposure evened)",
+                    "val PSNR",
+                    "val SSIM",
+                    "PSNR, colour (other half)",
+                    "PSNR / SSIM, pose + colour (other half)",
+                    "object's pixels (fitted)",
+                    "time",
+                ],
+                max_width=200,
+            )
+        )
         for r in trained:
             print(f"{r['capture']}: contact sheet {r['sheet']}, videos {Path(r['run']) / 'videos'}")
         for r in trained:
@@ -251,9 +406,11 @@ def print_table(rows: list[dict]) -> None:
                 g = r["splat"]
                 obj = "-" if g["object_psnr"] is None else f"{g['object_psnr']:.2f}"
                 size = "" if g["ply_mb"] is None else f", splat.ply {g['ply_mb']:.1f} MB"
-                print(f"{r['capture']} splat: {g['steps']} steps, val {g['val_psnr']:.2f} / {g['val_ssim']:.3f} "
-                      f"as rendered, the object's pixels {obj}{size}; "
-                      f"contact sheet {g['sheet']}")
+                print(
+                    f"{r['capture']} splat: {g['steps']} steps, val {g['val_psnr']:.2f} / {g['val_ssim']:.3f} "
+                    f"as rendered, the object's pixels {obj}{size}; "
+                    f"contact sheet {g['sheet']}"
+                )
 
 
 def main() -> int:
@@ -266,13 +423,22 @@ def main() -> int:
     ap.add_argument("--minutes", type=float, default=3.0, help="training minutes per capture (0: no training)")
     ap.add_argument("--steps", type=int, help="train this many steps instead of --minutes (a loaded machine)")
     ap.add_argument("--capture", default="auto", choices=["auto", "on", "off"], help="passed to nerfkit train")
-    ap.add_argument("--sfm", action="store_true",
-                    help="also pose each capture by SfM without its tags, and train on that")
-    ap.add_argument("--method", default="auto", choices=["auto", "tags"],
-                    help="nerfkit poses --method for the tag run "
-                    "(auto: SfM poses in the tag's frame when they hold up)")
-    ap.add_argument("--photos", type=int, default=0, metavar="N",
-                    help="use about N of each capture's object photos, evenly spaced (default 0: all)")
+    ap.add_argument(
+        "--sfm", action="store_true", help="also pose each capture by SfM without its tags, and train on that"
+    )
+    ap.add_argument(
+        "--method",
+        default="auto",
+        choices=["auto", "tags"],
+        help="nerfkit poses --method for the tag run (auto: SfM poses in the tag's frame when they hold up)",
+    )
+    ap.add_argument(
+        "--photos",
+        type=int,
+        default=0,
+        metavar="N",
+        help="use about N of each capture's object photos, evenly spaced (default 0: all)",
+    )
     args = ap.parse_args()
     rows = []
     for name in CAPTURES:
@@ -287,16 +453,25 @@ def main() -> int:
             budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
             row = capture_command(name, folder, objects, args.work, budget, args.method)
         else:  # what `nerfkit capture` has no switch for: the steps one by one
-            row = run_capture(name, folder, objects, args.work, ["--dist-model", args.dist_model],
-                              dataset=args.minutes > 0, method=args.method)
+            row = run_capture(
+                name,
+                folder,
+                objects,
+                args.work,
+                ["--dist-model", args.dist_model],
+                dataset=args.minutes > 0,
+                method=args.method,
+            )
             if args.minutes > 0:
                 row.update(train_capture(name, args.work / name, args.minutes, args.capture))
         rows.append({**row, "capture_mode": args.capture})
         if args.sfm:
             srow = sfm_capture(name, objects, args.work)
             if args.minutes > 0:
-                srow.update(capture_mode=args.capture,
-                            **train_capture(name, args.work / name, args.minutes, args.capture, poses="sfm"))
+                srow.update(
+                    capture_mode=args.capture,
+                    **train_capture(name, args.work / name, args.minutes, args.capture, poses="sfm"),
+                )
             rows.append(srow)
     print()
     print_table(rows)

@@ -35,8 +35,12 @@ def lego_check(blender_dir: str, npz_path: str) -> dict:
     t0 = time.perf_counter()
     b = load_blender(blender_dir, size=max(ref.train.width, ref.train.height))
     seconds = time.perf_counter() - t0
-    out = {"blender_load_seconds": round(seconds, 2), "size": [b.train.width, b.train.height],
-           "near_far_blender": [b.near, b.far], "near_far_npz": [ref.near, ref.far]}
+    out = {
+        "blender_load_seconds": round(seconds, 2),
+        "size": [b.train.width, b.train.height],
+        "near_far_blender": [b.near, b.far],
+        "near_far_npz": [ref.near, ref.far],
+    }
     for split in ("train", "val"):
         rv, bv = ref.splits[split], b.splits[split]
         if len(rv) == 0:
@@ -45,12 +49,16 @@ def lego_check(blender_dir: str, npz_path: str) -> dict:
         d = np.abs(rv.c2w[:, None] - bv.c2w[None]).max(axis=(2, 3))
         j = d.argmin(1)
         out[split] = {
-            "views_npz": len(rv), "views_blender": len(bv), "matched_blender_index": j.tolist()[:12],
+            "views_npz": len(rv),
+            "views_blender": len(bv),
+            "matched_blender_index": j.tolist()[:12],
             "max_abs_c2w_diff": float(d.min(1).max()),
             "max_abs_K_diff": float(np.abs(rv.K - bv.K[j]).max()),
-            "image_mean_abs_diff_0_255":
-                float(np.abs(rv.images.astype(np.int16) - bv.images[j].astype(np.int16)).mean())
-            if rv.images is not None and bv.images is not None else None,
+            "image_mean_abs_diff_0_255": float(
+                np.abs(rv.images.astype(np.int16) - bv.images[j].astype(np.int16)).mean()
+            )
+            if rv.images is not None and bv.images is not None
+            else None,
         }
     return out
 
@@ -79,16 +87,30 @@ def sfm_check(photos: str, matcher: str, tag_size: float | None, tag_poses: str 
     tag = read_tag_poses(tag_poses) if tag_poses else {}
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        result = run_sfm(photos, tmp, matcher=matcher, max_image_size=max_image_size, progress=True,
-                         guides={colmap_name(Path(n)): c for n, c in tag.items()})
+        result = run_sfm(
+            photos,
+            tmp,
+            matcher=matcher,
+            max_image_size=max_image_size,
+            progress=True,
+            guides={colmap_name(Path(n)): c for n, c in tag.items()},
+        )
         frame = align_reconstruction(result, tag_size=tag_size, progress=True)
         total = time.perf_counter() - t0
         rep = result.report
-        out = {"matcher": rep.matcher, "photos": rep.n_photos, "registered": len(rep.registered),
-               "unregistered": rep.unregistered, "points": rep.n_points,
-               "reprojection_error_px": round(rep.reprojection_error, 3), "models": rep.n_models,
-               "seconds": rep.seconds, "seconds_total_with_alignment": round(total, 1), "camera": rep.camera,
-               "frame": frame}
+        out = {
+            "matcher": rep.matcher,
+            "photos": rep.n_photos,
+            "registered": len(rep.registered),
+            "unregistered": rep.unregistered,
+            "points": rep.n_points,
+            "reprojection_error_px": round(rep.reprojection_error, 3),
+            "models": rep.n_models,
+            "seconds": rep.seconds,
+            "seconds_total_with_alignment": round(total, 1),
+            "camera": rep.camera,
+            "frame": frame,
+        }
         if tag:
             names, c2w = reconstruction_c2w(result.reconstruction)
             common = [i for i, n in enumerate(names) if n in tag]
@@ -97,7 +119,8 @@ def sfm_check(photos: str, matcher: str, tag_size: float | None, tag_poses: str 
                 ref = np.stack([tag[names[i]] for i in common])
                 sim = compare_poses(est, ref, with_scale=True)
                 out["vs_tag_poses"] = {
-                    "photos_in_both": len(common), "tag_posed": len(tag),
+                    "photos_in_both": len(common),
+                    "tag_posed": len(tag),
                     "similarity_aligned": _round(sim),
                     "as_is_metric_frame": _round(compare_poses(est, ref, with_scale=False)) if tag_size else None,
                     "units": "degrees and metres (the tag frame)",
@@ -114,8 +137,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lego-blender", help="Blender-layout lego folder (transforms_*.json + PNGs)")
     ap.add_argument("--lego-npz", help="the course-layout lego npz to compare with")
     ap.add_argument("--sfm-photos", help="folder of photos to run SfM on")
-    ap.add_argument("--matcher", nargs="+", default=["auto"],
-                    help="matchers to try (auto, exhaustive, sequential, spatial)")
+    ap.add_argument(
+        "--matcher", nargs="+", default=["auto"], help="matchers to try (auto, exhaustive, sequential, spatial)"
+    )
     ap.add_argument("--max-image-size", type=int, default=1000)
     ap.add_argument("--tag-size", type=float, help="ArUco tag side in metres, to fix scale and up")
     ap.add_argument("--tag-poses", help="poses.json / dataset of `nerfkit poses` on the same photos, to compare with")
@@ -125,8 +149,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.lego_blender and args.lego_npz:
         report["lego_blender_vs_npz"] = lego_check(args.lego_blender, args.lego_npz)
     if args.sfm_photos:
-        report["sfm"] = [sfm_check(args.sfm_photos, m, args.tag_size, args.tag_poses, args.max_image_size)
-                         for m in args.matcher]
+        report["sfm"] = [
+            sfm_check(args.sfm_photos, m, args.tag_size, args.tag_poses, args.max_image_size) for m in args.matcher
+        ]
     if not report:
         ap.print_help()
         return 2

@@ -73,9 +73,13 @@ def write_capture_scene(folder: Path, dataset: Path, max_angle: float = 20.0, ma
     names, c2w, K, images = [names[i] for i in order], c2w[order], K[order], images[order]
     forward = c2w[:, :3, 2]
     reach = float(np.linalg.norm(c2w[:, :3, 3] - scene.center, axis=1).mean())
-    sweeps = [np.flatnonzero((forward @ forward[i] > np.cos(np.radians(max_angle)))
-                             & (np.linalg.norm(c2w[:, :3, 3] - c2w[i, :3, 3], axis=1) < max_shift * reach))
-              for i in range(len(names))]
+    sweeps = [
+        np.flatnonzero(
+            (forward @ forward[i] > np.cos(np.radians(max_angle)))
+            & (np.linalg.norm(c2w[:, :3, 3] - c2w[i, :3, 3], axis=1) < max_shift * reach)
+        )
+        for i in range(len(names))
+    ]
     sel = max(sweeps, key=len)
     h, w = images.shape[1:3]
     cx, cy = float(K[0, 0, 2]), float(K[0, 1, 2])  # nerfkit convention: the image centre is (w/2, h/2)
@@ -108,10 +112,13 @@ def write_capture_scene(folder: Path, dataset: Path, max_angle: float = 20.0, ma
     np.save(folder / "poses_bounds.npy", rows)
     for i in sel:
         iio.imwrite(folder / "images" / (Path(names[i]).stem + ".png"), images[i, y0:y1, x0:x1])
-    spread = np.degrees(np.arccos(np.clip(forward[sel] @ forward[sel].mean(0) / np.linalg.norm(forward[sel].mean(0)),
-                                          -1, 1))).max()
-    return (f"{len(sel)} photos of {dataset} ({x1 - x0}x{y1 - y0}, cropped to centre the principal point) looking "
-            f"within {spread:.0f} degrees of their mean direction, every 8th held out")
+    spread = np.degrees(
+        np.arccos(np.clip(forward[sel] @ forward[sel].mean(0) / np.linalg.norm(forward[sel].mean(0)), -1, 1))
+    ).max()
+    return (
+        f"{len(sel)} photos of {dataset} ({x1 - x0}x{y1 - y0}, cropped to centre the principal point) looking "
+        f"within {spread:.0f} degrees of their mean direction, every 8th held out"
+    )
 
 
 def run(cmd: list[str]) -> None:
@@ -133,10 +140,13 @@ def main() -> None:
     else:
         if not (scene_dir / "poses_bounds.npy").exists():
             write_scene(scene_dir, args.size, args.views)
-        about = (f"synthetic forward-facing scene, {args.views} photos of {args.size}x{args.size} "
-                 "(every 8th held out)")
-    lines = [f"{about}, fast, {args.minutes:g} min each", "",
-             "| configuration | steps | held-out PSNR | SSIM |", "|---|---:|---:|---:|"]
+        about = f"synthetic forward-facing scene, {args.views} photos of {args.size}x{args.size} (every 8th held out)"
+    lines = [
+        f"{about}, fast, {args.minutes:g} min each",
+        "",
+        "| configuration | steps | held-out PSNR | SSIM |",
+        "|---|---:|---:|---:|",
+    ]
     configs = dict(CONFIGS)
     if args.capture is not None:  # real photos: also with the capture training (exposure, pose corrections)
         configs["ndc + capture training"] = ["--capture", "on"]

@@ -60,14 +60,21 @@ def main() -> None:
     grid, geom = lego_like(args.res, args.sh_degree)
     spec = model_spec(grid, geom)
     o, d = camera_rays(args.rays)
-    cases = {name: (g.requires_grad_(), gm, GradSink(g.shape[0], g.shape[1]))
-             for name, (g, gm) in layouts(grid, geom).items()}
-    wall, cpu = time_interleaved({name: (lambda c=c: step(c[0], c[1], spec, o, d, args.sh_degree, "grid", c[2]))
-                                  for name, c in cases.items()}, args.warmup, args.repeats)
+    cases = {
+        name: (g.requires_grad_(), gm, GradSink(g.shape[0], g.shape[1]))
+        for name, (g, gm) in layouts(grid, geom).items()
+    }
+    wall, cpu = time_interleaved(
+        {name: (lambda c=c: step(c[0], c[1], spec, o, d, args.sh_degree, "grid", c[2])) for name, c in cases.items()},
+        args.warmup,
+        args.repeats,
+    )
     sparse_rows = cases["sparse"][0].shape[0] - 1
-    print(f"grid {args.res}^3, C={grid.shape[1]}, {args.rays} rays, sparse layout stores "
-          f"{sparse_rows / geom.n_vertices:.1%} of the vertices, median of {args.repeats}, "
-          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    print(
+        f"grid {args.res}^3, C={grid.shape[1]}, {args.rays} rays, sparse layout stores "
+        f"{sparse_rows / geom.n_vertices:.1%} of the vertices, median of {args.repeats}, "
+        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
+    )
     print_medians("layout", wall, cpu, "dense")
 
 

@@ -54,25 +54,51 @@ def run_one(name: str, flags: str, args, out: Path) -> dict:
     budget = ["--minutes", str(args.minutes)] if args.minutes else ["--steps", str(args.steps or 5000)]
     if run.exists():
         raise SystemExit(f"{run} exists: give a new OUT folder")
-    cmd = [sys.executable, "-m", "nerfkit", "train", "--model", "fast", "--data", args.data, "--out", str(run),
-           *budget, *shlex.split(flags)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "nerfkit",
+        "train",
+        "--model",
+        "fast",
+        "--data",
+        args.data,
+        "--out",
+        str(run),
+        *budget,
+        *shlex.split(flags),
+    ]
     with open(out / f"{run.name}.log", "w") as log:
         child = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
         _, status, usage = os.wait4(child.pid, 0)  # this child's own peak RSS
         child.returncode = os.waitstatus_to_exitcode(status)
         if child.returncode:
             raise SystemExit(f"{name}: training failed, see {out / f'{run.name}.log'}")
-        subprocess.run([sys.executable, "-m", "nerfkit", "eval", str(run), "--split", "val"], check=True,
-                       stdout=log, stderr=subprocess.STDOUT)
+        subprocess.run(
+            [sys.executable, "-m", "nerfkit", "eval", str(run), "--split", "val"],
+            check=True,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
     ev = json.loads((run / "eval_val.json").read_text())
     metrics = json.loads((run / "metrics.json").read_text())
     stored, total = stored_vertices(run)
     ckpts = sorted((run / "checkpoints").glob("*.pt"))
-    return {"name": name, "flags": flags, "steps": metrics["step"], "seconds": round(metrics["train_seconds"], 1),
-            "psnr": ev["psnr"], "ssim": ev["ssim"], "views": ev["n_images"],
-            "peak_rss_mb": round(usage.ru_maxrss / 1024),
-            "stored": stored, "vertices": total, "checkpoint_mb": round(ckpts[-1].stat().st_size / 1e6),
-            "model_mb": round((run / "model.pt").stat().st_size / 1e6, 1), "load": round(os.getloadavg()[0], 1)}
+    return {
+        "name": name,
+        "flags": flags,
+        "steps": metrics["step"],
+        "seconds": round(metrics["train_seconds"], 1),
+        "psnr": ev["psnr"],
+        "ssim": ev["ssim"],
+        "views": ev["n_images"],
+        "peak_rss_mb": round(usage.ru_maxrss / 1024),
+        "stored": stored,
+        "vertices": total,
+        "checkpoint_mb": round(ckpts[-1].stat().st_size / 1e6),
+        "model_mb": round((run / "model.pt").stat().st_size / 1e6, 1),
+        "load": round(os.getloadavg()[0], 1),
+    }
 
 
 def main(argv=None) -> None:
@@ -85,13 +111,17 @@ def main(argv=None) -> None:
         t = time.time()
         rows.append(run_one(name.strip(), flags.strip(), args, out))
         print(f"{name}: done in {time.time() - t:.0f} s", file=sys.stderr)
-    head = ("| config | steps | train s | val PSNR / SSIM | peak RSS | stored vertices (final grid) | checkpoint | "
-            "model.pt | load |\n|---|---:|---:|---|---:|---|---:|---:|---:|")
+    head = (
+        "| config | steps | train s | val PSNR / SSIM | peak RSS | stored vertices (final grid) | checkpoint | "
+        "model.pt | load |\n|---|---:|---:|---|---:|---|---:|---:|---:|"
+    )
     lines = [head] + [
         f"| {r['name']} | {r['steps']} | {r['seconds']} | {r['psnr']:.3f} / {r['ssim']:.4f} | "
         f"{r['peak_rss_mb']} MB | "
         f"{r['stored'] / 1e6:.2f} M of {r['vertices'] / 1e6:.2f} M ({100 * r['stored'] / r['vertices']:.0f}%) | "
-        f"{r['checkpoint_mb']} MB | {r['model_mb']} MB | {r['load']} |" for r in rows]
+        f"{r['checkpoint_mb']} MB | {r['model_mb']} MB | {r['load']} |"
+        for r in rows
+    ]
     table = "\n".join(lines)
     print(f"data {args.data}, {rows[0]['views'] if rows else 0} val views\n{table}")
     (out / "table.md").write_text(table + "\n")

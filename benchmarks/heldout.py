@@ -75,8 +75,23 @@ FLOWER_SUBSETS = {"flower17": (17, 0.0), "flower17b": (17, 0.5)}
 FORWARD = ("flower", *FLOWER_SUBSETS)
 BUILT_IN = ("lego200", "lego400", *FORWARD)
 COLUMNS = (
-    "scene", "model", "budget", "steps", "train_s", "psnr", "ssim", "fps", "model_mb", "n_heldout", "psnr_npz_val",
-    "ssim_npz_val", "n_train", "width", "height", "loadavg_before", "loadavg_after",
+    "scene",
+    "model",
+    "budget",
+    "steps",
+    "train_s",
+    "psnr",
+    "ssim",
+    "fps",
+    "model_mb",
+    "n_heldout",
+    "psnr_npz_val",
+    "ssim_npz_val",
+    "n_train",
+    "width",
+    "height",
+    "loadavg_before",
+    "loadavg_after",
 )
 
 
@@ -151,8 +166,11 @@ def choose_scenes(asked: list[str] | None, have: dict[str, bool], captures: list
                 flag = "--llff" if n in FORWARD else "--lego-blender"
                 raise fail("--scenes", f"{n} needs its data", f"Give {flag} DIR")
             if n not in BUILT_IN and n not in captures:
-                raise fail("--scenes", f"unknown scene {n!r}",
-                           f"Choose from {', '.join((*BUILT_IN, 'forward', 'captures', *captures))}")
+                raise fail(
+                    "--scenes",
+                    f"unknown scene {n!r}",
+                    f"Choose from {', '.join((*BUILT_IN, 'forward', 'captures', *captures))}",
+                )
             if n not in chosen:
                 chosen.append(n)
     return chosen
@@ -178,8 +196,13 @@ def downscale_rgba(image: np.ndarray, width: int, height: int) -> np.ndarray:
     x = np.asarray(image, np.float32) / 255.0
     if x.ndim != 3 or x.shape[2] not in (3, 4):
         raise ValueError(f"expected an (H, W, 3|4) image, got shape {x.shape}")
-    planes = [np.asarray(Image.fromarray(np.ascontiguousarray(x[..., c]), mode="F").resize(
-        (width, height), Image.Resampling.BOX), np.float32) for c in range(x.shape[2])]
+    planes = [
+        np.asarray(
+            Image.fromarray(np.ascontiguousarray(x[..., c]), mode="F").resize((width, height), Image.Resampling.BOX),
+            np.float32,
+        )
+        for c in range(x.shape[2])
+    ]
     rgb = np.stack(planes[:3], axis=-1)
     if len(planes) == 4:
         rgb = rgb * planes[3][..., None]
@@ -204,22 +227,34 @@ def match_views(a, b) -> list[dict]:
     for i in range(len(a)):
         d = np.abs(b.c2w.astype(np.float64) - a.c2w[i].astype(np.float64)).max(axis=(1, 2))
         j = int(np.argmin(d))
-        rows.append({"index": i, "match": j, "name": b.names[j] if b.names else str(j), "pose_diff": float(d[j]),
-                     "psnr": psnr(a.images[i] / 255.0, b.images[j] / 255.0)})
+        rows.append(
+            {
+                "index": i,
+                "match": j,
+                "name": b.names[j] if b.names else str(j),
+                "pose_diff": float(d[j]),
+                "psnr": psnr(a.images[i] / 255.0, b.images[j] / 255.0),
+            }
+        )
     return rows
 
 
 def markdown_table(results: list[dict]) -> str:
     """The results as a markdown table, rows in the given order; '-' where a figure is missing."""
+
     def num(v, fmt):
         return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
 
-    lines = ["| scene | model | budget | steps | PSNR | SSIM | fps | MB | PSNR, npz's 10 val |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| scene | model | budget | steps | PSNR | SSIM | fps | MB | PSNR, npz's 10 val |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in results:
-        lines.append(f"| {r['scene']} | {r['model']} | {r['budget']} | {r['steps']} | "
-                     f"{num(r['psnr'], '.2f')} | {num(r['ssim'], '.3f')} | {num(r['fps'], '.1f')} | "
-                     f"{num(r['model_mb'], '.2f')} | {num(r.get('psnr_npz_val'), '.2f')} |")
+        lines.append(
+            f"| {r['scene']} | {r['model']} | {r['budget']} | {r['steps']} | "
+            f"{num(r['psnr'], '.2f')} | {num(r['ssim'], '.3f')} | {num(r['fps'], '.1f')} | "
+            f"{num(r['model_mb'], '.2f')} | {num(r.get('psnr_npz_val'), '.2f')} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -228,8 +263,7 @@ def results_csv(results: list[dict]) -> str:
     w = csv.DictWriter(buf, fieldnames=list(COLUMNS), extrasaction="ignore")
     w.writeheader()
     for r in results:
-        w.writerow({k: (" ".join(f"{x:.2f}" for x in v) if isinstance(v, (list, tuple)) else v)
-                    for k, v in r.items()})
+        w.writerow({k: (" ".join(f"{x:.2f}" for x in v) if isinstance(v, (list, tuple)) else v) for k, v in r.items()})
     return buf.getvalue()
 
 
@@ -274,8 +308,9 @@ def blender_views(folder: Path, split: str, width: int, height: int):
     poses = opengl_to_opencv(check_poses(np.stack(c2w), str(where), "transform_matrix").astype(np.float64))
     f = focal_from_angle(float(angle), size[0])
     K = scale_intrinsics(np.array([[f, 0, size[0] / 2], [0, f, size[1] / 2], [0, 0, 1]]), *size, width, height)
-    return Views(poses.astype(np.float32), np.repeat(K[None], len(frames), axis=0), width, height,
-                 np.stack(images), names)
+    return Views(
+        poses.astype(np.float32), np.repeat(K[None], len(frames), axis=0), width, height, np.stack(images), names
+    )
 
 
 def load_lego200(blender: Path, notes: list[str]) -> BenchScene:
@@ -284,18 +319,29 @@ def load_lego200(blender: Path, notes: list[str]) -> BenchScene:
     npz = load_npz(LEGO_NPZ)
     val = blender_views(blender, "val", npz.train.width, npz.train.height)
     if not np.allclose(val.K[0], npz.train.K[0], rtol=1e-4, atol=1e-3):
-        raise fail(blender, f"its val cameras at {val.width}x{val.height} have K {val.K[0].tolist()}, the npz's "
-                   f"{npz.train.K[0].tolist()}", "Is this the lego scene?")
+        raise fail(
+            blender,
+            f"its val cameras at {val.width}x{val.height} have K {val.K[0].tolist()}, the npz's "
+            f"{npz.train.K[0].tolist()}",
+            "Is this the lego scene?",
+        )
     matched = match_views(npz.val, val)
     worst_pose = max(m["pose_diff"] for m in matched)
     psnrs = [m["psnr"] for m in matched]
-    notes.append(f"lego200 check: the npz's {len(npz.val)} val views are the Blender folder's "
-                 f"{', '.join(m['name'] for m in matched)} (poses equal to {worst_pose:.1e}; the images, downscaled "
-                 f"here, agree to {min(psnrs):.1f}-{max(psnrs):.1f} dB PSNR); K equal "
-                 f"(focal {val.K[0, 0, 0]:.3f} px)")
-    return BenchScene("lego200", without_heldout(npz), val, {"npz_val": npz.val},
-                      f"lego200: {len(npz.train)} npz train views, {len(val)} Blender val views downscaled to "
-                      f"{val.width}x{val.height} (and the npz's {len(npz.val)} val views)")
+    notes.append(
+        f"lego200 check: the npz's {len(npz.val)} val views are the Blender folder's "
+        f"{', '.join(m['name'] for m in matched)} (poses equal to {worst_pose:.1e}; the images, downscaled "
+        f"here, agree to {min(psnrs):.1f}-{max(psnrs):.1f} dB PSNR); K equal "
+        f"(focal {val.K[0, 0, 0]:.3f} px)"
+    )
+    return BenchScene(
+        "lego200",
+        without_heldout(npz),
+        val,
+        {"npz_val": npz.val},
+        f"lego200: {len(npz.train)} npz train views, {len(val)} Blender val views downscaled to "
+        f"{val.width}x{val.height} (and the npz's {len(npz.val)} val views)",
+    )
 
 
 def load_lego400(blender: Path) -> BenchScene:
@@ -304,9 +350,14 @@ def load_lego400(blender: Path) -> BenchScene:
     scene = load_blender(blender, test_images=False)
     if not scene.val.has_images:
         raise fail(blender, "has no val views to score", "Give --lego-blender the Blender lego folder")
-    return BenchScene("lego400", without_heldout(scene), scene.val, {},
-                      f"lego400: {len(scene.train)} Blender train views, its {len(scene.val)} val views, "
-                      f"{scene.train.width}x{scene.train.height}")
+    return BenchScene(
+        "lego400",
+        without_heldout(scene),
+        scene.val,
+        {},
+        f"lego400: {len(scene.train)} Blender train views, its {len(scene.val)} val views, "
+        f"{scene.train.width}x{scene.train.height}",
+    )
 
 
 def load_flower(folder: Path, downscale: float, name: str = "flower") -> BenchScene:
@@ -324,9 +375,14 @@ def load_flower(folder: Path, downscale: float, name: str = "flower") -> BenchSc
         keep = even_subset(len(scene.train), k, offset)
         scene = replace(scene, train=scene.train.subset(keep))
         kept = f" ({', '.join(scene.train.names)})"
-    return BenchScene(name, without_heldout(scene), scene.val, {},
-                      f"{name}: {len(scene.train)} train photos{kept}, every {HOLDOUT_EVERY}th held out "
-                      f"({', '.join(scene.val.names)}), {scene.train.width}x{scene.train.height}")
+    return BenchScene(
+        name,
+        without_heldout(scene),
+        scene.val,
+        {},
+        f"{name}: {len(scene.train)} train photos{kept}, every {HOLDOUT_EVERY}th held out "
+        f"({', '.join(scene.val.names)}), {scene.train.width}x{scene.train.height}",
+    )
 
 
 def load_capture(name: str, path: Path) -> BenchScene:
@@ -335,9 +391,14 @@ def load_capture(name: str, path: Path) -> BenchScene:
     scene = load_scene(path)
     if not scene.val.has_images:
         raise fail(path, "has no val photos to score", "Give a posed capture dataset (nerfkit poses' output)")
-    return BenchScene(name, without_heldout(scene), scene.val, {},
-                      f"{name}: {len(scene.train)} train photos, its {len(scene.val)} val photos as rendered, "
-                      f"{scene.train.width}x{scene.train.height}")
+    return BenchScene(
+        name,
+        without_heldout(scene),
+        scene.val,
+        {},
+        f"{name}: {len(scene.train)} train photos, its {len(scene.val)} val photos as rendered, "
+        f"{scene.train.width}x{scene.train.height}",
+    )
 
 
 # -- training and scoring ----------------------------------------------------------------
@@ -350,8 +411,7 @@ def score_views(model, views, background, chunk: int, autocast) -> dict:
     from nerfkit.train.metrics import psnr, ssim
 
     def render(i):
-        return render_image(model, views.K[i], views.c2w[i], views.width, views.height, background, chunk,
-                            autocast).rgb
+        return render_image(model, views.K[i], views.c2w[i], views.width, views.height, background, chunk, autocast).rgb
 
     p, s, seconds = [], [], 0.0
     with torch.no_grad():
@@ -363,8 +423,13 @@ def score_views(model, views, background, chunk: int, autocast) -> dict:
             target = views.images[i].astype(np.float32) / 255.0
             p.append(psnr(rgb, target))
             s.append(ssim(rgb, target))
-    return {"psnr": float(np.mean(p)), "ssim": float(np.mean(s)), "n": len(views), "fps": len(views) / seconds,
-            "views": [round(float(x), 3) for x in p]}
+    return {
+        "psnr": float(np.mean(p)),
+        "ssim": float(np.mean(s)),
+        "n": len(views),
+        "fps": len(views) / seconds,
+        "views": [round(float(x), 3) for x in p],
+    }
 
 
 def parse_variant(text: str) -> tuple[str, str, dict]:
@@ -405,8 +470,16 @@ def apply_changes(cfg, model_cfg, changes: dict, label: str):
     return cfg, model_cfg
 
 
-def train_and_score(bench: BenchScene, model_name: str, seconds: float | None, steps: int | None, run_dir: Path,
-                    seed: int, changes: dict | None = None, label: str | None = None) -> dict | None:
+def train_and_score(
+    bench: BenchScene,
+    model_name: str,
+    seconds: float | None,
+    steps: int | None,
+    run_dir: Path,
+    seed: int,
+    changes: dict | None = None,
+    label: str | None = None,
+) -> dict | None:
     """Train ``model_name`` on ``bench.train`` for ``seconds`` of training (or ``steps``)
     into ``run_dir`` with the defaults ``nerfkit train`` picks, then score the held-out
     views; the run's figures."""
@@ -417,9 +490,15 @@ def train_and_score(bench: BenchScene, model_name: str, seconds: float | None, s
     from nerfkit.train.trainer import Trainer
 
     scene = bench.train
-    cfg = TrainConfig(data=scene.source, model=model_name, out=str(run_dir), seed=seed,
-                      minutes=0.0 if seconds is None else seconds / 60.0, steps=steps or 0,
-                      checkpoint_seconds=1e9)
+    cfg = TrainConfig(
+        data=scene.source,
+        model=model_name,
+        out=str(run_dir),
+        seed=seed,
+        minutes=0.0 if seconds is None else seconds / 60.0,
+        steps=steps or 0,
+        checkpoint_seconds=1e9,
+    )
     cfg, model_cfg = presets.resolve(cfg.validate(), model_config_class(model_name)(), scene).configs()
     cfg, model_cfg = apply_changes(cfg, model_cfg, changes or {}, label or model_name)
     check_config(model_name, model_cfg)
@@ -430,12 +509,26 @@ def train_and_score(bench: BenchScene, model_name: str, seconds: float | None, s
         return None
     load_after = os.getloadavg()
     main = score_views(trainer.model, bench.heldout, trainer.background, cfg.render_chunk, trainer.autocast)
-    row = {"scene": bench.name, "model": label or model_name, "budget": budget_label(seconds, steps),
-           "budget_s": seconds, "budget_steps": steps, "steps": result.step,
-           "train_s": round(result.train_seconds, 2), "psnr": main["psnr"], "ssim": main["ssim"], "fps": main["fps"],
-           "model_mb": (run_dir / MODEL_FILE).stat().st_size / 1e6, "n_heldout": main["n"], "psnr_views": main["views"],
-           "n_train": len(scene.train), "width": bench.heldout.width, "height": bench.heldout.height,
-           "loadavg_before": [round(x, 2) for x in load_before], "loadavg_after": [round(x, 2) for x in load_after]}
+    row = {
+        "scene": bench.name,
+        "model": label or model_name,
+        "budget": budget_label(seconds, steps),
+        "budget_s": seconds,
+        "budget_steps": steps,
+        "steps": result.step,
+        "train_s": round(result.train_seconds, 2),
+        "psnr": main["psnr"],
+        "ssim": main["ssim"],
+        "fps": main["fps"],
+        "model_mb": (run_dir / MODEL_FILE).stat().st_size / 1e6,
+        "n_heldout": main["n"],
+        "psnr_views": main["views"],
+        "n_train": len(scene.train),
+        "width": bench.heldout.width,
+        "height": bench.heldout.height,
+        "loadavg_before": [round(x, 2) for x in load_before],
+        "loadavg_after": [round(x, 2) for x in load_after],
+    }
     for label, views in bench.extra.items():
         other = score_views(trainer.model, views, trainer.background, cfg.render_chunk, trainer.autocast)
         row.update({f"psnr_{label}": other["psnr"], f"ssim_{label}": other["ssim"]})
@@ -447,23 +540,46 @@ def train_and_score(bench: BenchScene, model_name: str, seconds: float | None, s
 # -- command line ------------------------------------------------------------------------
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--lego-blender", type=Path, metavar="DIR",
-                   help="the Blender lego folder (transforms_train/val.json, RGBA PNGs): lego200's 100 val views "
-                        "and lego400")
+    p.add_argument(
+        "--lego-blender",
+        type=Path,
+        metavar="DIR",
+        help="the Blender lego folder (transforms_train/val.json, RGBA PNGs): lego200's 100 val views and lego400",
+    )
     p.add_argument("--llff", type=Path, metavar="DIR", help="the LLFF flower folder (poses_bounds.npy, images_8/)")
-    p.add_argument("--llff-downscale", type=float, default=8.0,
-                   help="the LLFF photos' divisor (8: images_8, as the papers score it)")
-    p.add_argument("--capture", action="append", default=[], metavar="NAME=DATASET",
-                   help="a posed capture dataset scored on its val photos (repeatable)")
-    p.add_argument("--scenes", help="comma-separated: lego200, lego400, flower, flower17, flower17b, forward (the "
-                                    "three flower cases), captures (all of them) or a capture's NAME (default: every "
-                                    "scene whose data is given, without flower's subsets)")
+    p.add_argument(
+        "--llff-downscale",
+        type=float,
+        default=8.0,
+        help="the LLFF photos' divisor (8: images_8, as the papers score it)",
+    )
+    p.add_argument(
+        "--capture",
+        action="append",
+        default=[],
+        metavar="NAME=DATASET",
+        help="a posed capture dataset scored on its val photos (repeatable)",
+    )
+    p.add_argument(
+        "--scenes",
+        help="comma-separated: lego200, lego400, flower, flower17, flower17b, forward (the "
+        "three flower cases), captures (all of them) or a capture's NAME (default: every "
+        "scene whose data is given, without flower's subsets)",
+    )
     p.add_argument("--models", default="fast,splat", help="comma-separated model names")
     p.add_argument("--seconds", default="60,300", help="training budgets in seconds, comma-separated")
-    p.add_argument("--steps", help="training budgets in steps instead, comma-separated (a check of the protocol on "
-                                   "a busy machine, where seconds buy few steps)")
-    p.add_argument("--variant", action="append", default=[], metavar="NAME:FIELD=VALUE,...",
-                   help="also run model NAME's prefix (fast+tv -> fast) with these settings changed (repeatable)")
+    p.add_argument(
+        "--steps",
+        help="training budgets in steps instead, comma-separated (a check of the protocol on "
+        "a busy machine, where seconds buy few steps)",
+    )
+    p.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        metavar="NAME:FIELD=VALUE,...",
+        help="also run model NAME's prefix (fast+tv -> fast) with these settings changed (repeatable)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, help="folder for the runs, table.md, results.csv and results.json")
     return p.parse_args(argv)
@@ -489,10 +605,14 @@ def run(args) -> int:
         if base not in MODEL_NAMES:
             raise fail("--variant", f"{label}: unknown model {base!r}", f"Choose from {', '.join(MODEL_NAMES)}")
     captures = parse_captures(args.capture)
-    have = {"lego200": args.lego_blender is not None, "lego400": args.lego_blender is not None,
-            **{n: args.llff is not None for n in FORWARD}}
-    names = choose_scenes(None if args.scenes is None else parse_list(args.scenes, str, "--scenes"), have,
-                          list(captures))
+    have = {
+        "lego200": args.lego_blender is not None,
+        "lego400": args.lego_blender is not None,
+        **{n: args.llff is not None for n in FORWARD},
+    }
+    names = choose_scenes(
+        None if args.scenes is None else parse_list(args.scenes, str, "--scenes"), have, list(captures)
+    )
     notes: list[str] = []
     scenes = []
     for n in names:  # every held-out view is loaded here, before any training
@@ -530,20 +650,32 @@ def run(args) -> int:
                         return 130
                     results.append(row)
                     gc.collect()
-                    extra = (f" (npz's 10 val: {row['psnr_npz_val']:.2f})" if "psnr_npz_val" in row else "")
-                    print(f"{bench.name} {label} {budget}: {row['steps']} steps, PSNR {row['psnr']:.2f} dB"
-                          f"{extra}, SSIM {row['ssim']:.3f}, {row['fps']:.1f} fps, {row['model_mb']:.2f} MB",
-                          flush=True)
+                    extra = f" (npz's 10 val: {row['psnr_npz_val']:.2f})" if "psnr_npz_val" in row else ""
+                    print(
+                        f"{bench.name} {label} {budget}: {row['steps']} steps, PSNR {row['psnr']:.2f} dB"
+                        f"{extra}, SSIM {row['ssim']:.3f}, {row['fps']:.1f} fps, {row['model_mb']:.2f} MB",
+                        flush=True,
+                    )
                     if temp is None:
                         write_outputs(out, results, scenes, notes)
         order = {b.name: i for i, b in enumerate(scenes)}
-        results.sort(key=lambda r: (order[r["scene"]], r["budget_steps"] or 0, r["budget_s"] or 0,
-                                    [lb for lb, _, _ in runs].index(r["model"])))
+        results.sort(
+            key=lambda r: (
+                order[r["scene"]],
+                r["budget_steps"] or 0,
+                r["budget_s"] or 0,
+                [lb for lb, _, _ in runs].index(r["model"]),
+            )
+        )
         if temp is None:
             write_outputs(out, results, scenes, notes)
         print()
-        print(markdown_table(results) + "\n" + "\n".join(f"- {s.about}" for s in scenes)
-              + "".join(f"\n- {n}" for n in notes))
+        print(
+            markdown_table(results)
+            + "\n"
+            + "\n".join(f"- {s.about}" for s in scenes)
+            + "".join(f"\n- {n}" for n in notes)
+        )
     finally:
         if temp is not None:
             temp.cleanup()
@@ -553,8 +685,13 @@ def run(args) -> int:
 def write_outputs(out: Path, results: list[dict], scenes: list[BenchScene], notes: list[str]) -> None:
     from nerfkit.io.atomic import write_json, write_text
 
-    text = markdown_table(results) + "\n" + "\n".join(f"- {s.about}" for s in scenes) + "".join(
-        f"\n- {n}" for n in notes) + "\n"
+    text = (
+        markdown_table(results)
+        + "\n"
+        + "\n".join(f"- {s.about}" for s in scenes)
+        + "".join(f"\n- {n}" for n in notes)
+        + "\n"
+    )
     write_text(out / "table.md", text)
     write_text(out / "results.csv", results_csv(results))
     write_json(out / "results.json", {"scenes": [s.about for s in scenes], "notes": notes, "runs": results})

@@ -85,8 +85,13 @@ def case_render_vanilla(args) -> dict:
     view = render_image(model, K, scene.train.c2w[0], 800, 800, bg, chunk=chunk)
     seconds = time.perf_counter() - t
     full = 800 * 800 * 16 * 32 * 4 / 1e9  # one activation of the whole image at once, GB
-    return {"base": base, "peak": peak_mb(), "seconds": seconds, "shape": list(view.rgb.shape),
-            "note": f"chunk {chunk} rays, 16 samples, width 32; unchunked, one activation alone is {full:.1f} GB"}
+    return {
+        "base": base,
+        "peak": peak_mb(),
+        "seconds": seconds,
+        "shape": list(view.rgb.shape),
+        "note": f"chunk {chunk} rays, 16 samples, width 32; unchunked, one activation alone is {full:.1f} GB",
+    }
 
 
 def case_render_fast(args) -> dict:
@@ -105,8 +110,17 @@ def case_render_fast(args) -> dict:
     out = Path(tempfile.mkdtemp(prefix="nerfkit-mem-"))
     try:
         mcfg = FastConfig(resolutions="64", upsample_steps="")
-        cfg = presets.without_scene(TrainConfig(data="x", model="fast", out=str(out / "run"), steps=60,
-                                                eval_every=10**6, eval_views=1, checkpoint_seconds=1e9))
+        cfg = presets.without_scene(
+            TrainConfig(
+                data="x",
+                model="fast",
+                out=str(out / "run"),
+                steps=60,
+                eval_every=10**6,
+                eval_views=1,
+                checkpoint_seconds=1e9,
+            )
+        )
         trainer = Trainer(scene, cfg, mcfg, quiet=True)
         trainer.run()
         model = trainer.model.eval()
@@ -137,8 +151,13 @@ def case_eval_views(args) -> dict:
     result = evaluate_views(model, scene.val, torch.zeros(3), chunk=4096, progress=False)
     seconds = time.perf_counter() - t
     images_mb = scene.val.images.nbytes / 1e6
-    return {"base": base, "peak": peak_mb(), "seconds": seconds, "n": result["n_images"],
-            "note": f"{args.views} views of {args.size}x{args.size}; their uint8 images hold {images_mb:.1f} MB"}
+    return {
+        "base": base,
+        "peak": peak_mb(),
+        "seconds": seconds,
+        "n": result["n_images"],
+        "note": f"{args.views} views of {args.size}x{args.size}; their uint8 images hold {images_mb:.1f} MB",
+    }
 
 
 def case_train_steps(args) -> dict:
@@ -154,9 +173,18 @@ def case_train_steps(args) -> dict:
     out = Path(tempfile.mkdtemp(prefix="nerfkit-mem-"))
     try:
         mcfg = VanillaConfig(n_samples=16, width=32, depth=2)
-        cfg = presets.without_scene(TrainConfig(data="x", model="vanilla", out=str(out / "run"), steps=args.steps,
-                                                batch_rays=256, eval_every=10**6, eval_views=1,
-                                                checkpoint_seconds=1e9))
+        cfg = presets.without_scene(
+            TrainConfig(
+                data="x",
+                model="vanilla",
+                out=str(out / "run"),
+                steps=args.steps,
+                batch_rays=256,
+                eval_every=10**6,
+                eval_views=1,
+                checkpoint_seconds=1e9,
+            )
+        )
         trainer = Trainer(scene, cfg, mcfg, quiet=True)
         trainer.run(stop_after=50)
         gc.collect()
@@ -168,9 +196,15 @@ def case_train_steps(args) -> dict:
         at_end = current_mb()
     finally:
         shutil.rmtree(out, ignore_errors=True)
-    return {"base": peak_50, "peak": peak_mb(), "seconds": seconds, "rss_50": at_50, "rss_end": at_end,
-            "note": f"current RSS {at_50:.0f} MB after 50 steps, {at_end:.0f} MB after {args.steps} "
-                    f"({(at_end - at_50) / max(args.steps - 50, 1) * 1024:.1f} KB/step)"}
+    return {
+        "base": peak_50,
+        "peak": peak_mb(),
+        "seconds": seconds,
+        "rss_50": at_50,
+        "rss_end": at_end,
+        "note": f"current RSS {at_50:.0f} MB after 50 steps, {at_end:.0f} MB after {args.steps} "
+        f"({(at_end - at_50) / max(args.steps - 50, 1) * 1024:.1f} KB/step)",
+    }
 
 
 def make_photos(folder: Path, n: int, width: int = 4000, height: int = 3000) -> None:
@@ -210,9 +244,13 @@ def case_photos_folder(args) -> dict:
     records = scan_photos(args.photos_dir, "DICT_4X4_50", jobs=2, progress=False, files=files)
     seconds = time.perf_counter() - t
     all_f32 = args.photos * 4000 * 3000 * 3 * 4 / 1e9
-    return {"base": base, "peak": peak_mb(), "seconds": seconds, "n": len(records),
-            "note": f"{args.photos} JPEGs ({size_mb:.0f} MB on disk), 2 threads; all as float32 would be "
-                    f"{all_f32:.1f} GB"}
+    return {
+        "base": base,
+        "peak": peak_mb(),
+        "seconds": seconds,
+        "n": len(records),
+        "note": f"{args.photos} JPEGs ({size_mb:.0f} MB on disk), 2 threads; all as float32 would be {all_f32:.1f} GB",
+    }
 
 
 # ----------------------------------------------------------------------------- driver

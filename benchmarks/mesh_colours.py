@@ -60,8 +60,9 @@ def visible_pairs(vertices: np.ndarray, view, K: np.ndarray, c2w: np.ndarray, to
     return idx[keep], cols[idx[keep]], rows[idx[keep]]
 
 
-def draw(vertices: np.ndarray, faces: np.ndarray, colours: dict, K: np.ndarray, c2w: np.ndarray, width: int,
-         height: int) -> tuple[dict, np.ndarray]:
+def draw(
+    vertices: np.ndarray, faces: np.ndarray, colours: dict, K: np.ndarray, c2w: np.ndarray, width: int, height: int
+) -> tuple[dict, np.ndarray]:
     """The mesh drawn in one view, each triangle in front of the camera filled with the mean
     of its vertices' colours, far to near (painter's algorithm; triangles of a 256^3 mesh
     are about a pixel): ``({name: (H, W, 3) uint8 image}, (H, W) bool covered)`` for each
@@ -100,15 +101,32 @@ def main() -> None:
     ap.add_argument("--views", type=int, default=10, help="validation views to score against (default: 10)")
     ap.add_argument("--resolution", type=int, default=256)
     ap.add_argument("--threshold", type=float, default=None, help="the surface's density (default: export's)")
-    ap.add_argument("--region", choices=["model", "scene"], default="model",
-                    help="mesh the cube around the model's grid (export's way) or the scene's cube")
-    ap.add_argument("--table-cut", type=float, default=TABLE_CUT,
-                    help="export's --table-cut; negative: leave a capture's table paint and what is under the table")
-    ap.add_argument("--reach", type=float, nargs="+", default=[],
-                    help="more colour ray reaches to score, as fractions of the scene's radius")
-    ap.add_argument("--color-views", type=int, nargs="+", default=[COLOUR_VIEWS],
-                    help=f"training views to colour from (default: export's {COLOUR_VIEWS}; "
-                    "several: one colouring each)")
+    ap.add_argument(
+        "--region",
+        choices=["model", "scene"],
+        default="model",
+        help="mesh the cube around the model's grid (export's way) or the scene's cube",
+    )
+    ap.add_argument(
+        "--table-cut",
+        type=float,
+        default=TABLE_CUT,
+        help="export's --table-cut; negative: leave a capture's table paint and what is under the table",
+    )
+    ap.add_argument(
+        "--reach",
+        type=float,
+        nargs="+",
+        default=[],
+        help="more colour ray reaches to score, as fractions of the scene's radius",
+    )
+    ap.add_argument(
+        "--color-views",
+        type=int,
+        nargs="+",
+        default=[COLOUR_VIEWS],
+        help=f"training views to colour from (default: export's {COLOUR_VIEWS}; several: one colouring each)",
+    )
     args = ap.parse_args()
 
     import torch
@@ -135,8 +153,9 @@ def main() -> None:
     table = table_plane(model) if args.table_cut >= 0 else None
     cut = table_cut_height(model, args.table_cut) if table is not None else 0.0
     threshold = args.threshold if args.threshold is not None else mesh_threshold(model, radius)
-    mesh = extract_mesh(model.density, center, radius, args.resolution, threshold, table=table, table_cut=cut,
-                        tags=table_tags(model))
+    mesh = extract_mesh(
+        model.density, center, radius, args.resolution, threshold, table=table, table_cut=cut, tags=table_tags(model)
+    )
     scene = scene_for_run(run.info, None, need="val")
     alone = object_alone(model).model
     bg = run.background()
@@ -157,8 +176,14 @@ def main() -> None:
             colourings[name] = (colours, time.perf_counter() - t0)
         for n in args.color_views:
             t0 = time.perf_counter()
-            colours, seen = view_colors(render_alone, ColourViews.pick(scene.train, n), mesh.vertices, mesh.normals,
-                                        COLOUR_VIEW_TOL * bounds.radius, tuple(bg.tolist()))
+            colours, seen = view_colors(
+                render_alone,
+                ColourViews.pick(scene.train, n),
+                mesh.vertices,
+                mesh.normals,
+                COLOUR_VIEW_TOL * bounds.radius,
+                tuple(bg.tolist()),
+            )
             colours[~seen] = colourings["along normal"][0][~seen]
             colourings[f"{n} views"] = (colours, time.perf_counter() - t0 + colourings["along normal"][1])
             print(f"{n} views: {seen.mean():.1%} of the vertices seen")
@@ -183,16 +208,22 @@ def main() -> None:
             pair_errors[name].append(((colours[idx] / 255.0 - photo[rows, cols]) ** 2).mean(1))
             drawn_errors[name].append(psnr((images[name][both] / 255.0 - photo[both]) ** 2))
     cleared = f", table paint cleared up to {cut:.3g}" if table is not None else ""
-    print(f"{args.run}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces at threshold {threshold:.3g} "
-          f"({args.region}'s cube, {2 * radius:.3g} wide{cleared}); silhouette IoU with the NeRF's "
-          f"{inter / max(union, 1):.3f}")
-    print(f"drawn: PSNR against the photo where the mesh covers the NeRF's solid object, mean over "
-          f"{len(nerf_errors)} views; the NeRF's own render there: {np.mean(nerf_errors):.2f}")
+    print(
+        f"{args.run}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces at threshold {threshold:.3g} "
+        f"({args.region}'s cube, {2 * radius:.3g} wide{cleared}); silhouette IoU with the NeRF's "
+        f"{inter / max(union, 1):.3f}"
+    )
+    print(
+        f"drawn: PSNR against the photo where the mesh covers the NeRF's solid object, mean over "
+        f"{len(nerf_errors)} views; the NeRF's own render there: {np.mean(nerf_errors):.2f}"
+    )
     print(f"{'vertex colour':<14} {'pairs':>7} {'PSNR':>6} {'drawn':>6} {'seconds':>8}")
     for name, (_colours, seconds) in colourings.items():
         e = np.concatenate(pair_errors[name])
-        print(f"{name:<14} {len(e):>7} {-10 * np.log10(e.mean()):>6.2f} {np.mean(drawn_errors[name]):>6.2f} "
-              f"{seconds:>8.2f}")
+        print(
+            f"{name:<14} {len(e):>7} {-10 * np.log10(e.mean()):>6.2f} {np.mean(drawn_errors[name]):>6.2f} "
+            f"{seconds:>8.2f}"
+        )
 
 
 if __name__ == "__main__":

@@ -42,15 +42,22 @@ def main() -> None:
     _, path = load_latest_checkpoint(Path(args.run), model)  # the resume checkpoint: full precision
     bg = torch.tensor(parse_background(info.train.background))
     dtype = resolve_autocast(info.train.precision, torch.device("cpu"))
-    out = {"run": args.run, "checkpoint": path.name, "grid_res": list(model.field.geom.res),
-           "occupied_cells": model.occupied_fraction,
-           "kept_vertices": float(vertices_touching(model.estimator.occ).float().mean())}
+    out = {
+        "run": args.run,
+        "checkpoint": path.name,
+        "grid_res": list(model.field.geom.res),
+        "occupied_cells": model.occupied_fraction,
+        "kept_vertices": float(vertices_touching(model.estimator.occ).float().mean()),
+    }
     tmp = Path(tempfile.mkdtemp())
     try:
         import nerfkit.models.fast as fast
 
-        for name, compact, density in (("dense", False, None), ("compact", True, torch.float16),
-                                       ("compact_fp32_density", True, torch.float32)):
+        for name, compact, density in (
+            ("dense", False, None),
+            ("compact", True, torch.float16),
+            ("compact_fp32_density", True, torch.float32),
+        ):
             fast.PACKED_DENSITY_DTYPE = density or fast.PACKED_DENSITY_DTYPE
             folder = tmp / name
             folder.mkdir()

@@ -39,9 +39,13 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("data", help="a capture dataset (.npz with a table plane)")
-    ap.add_argument("--extent", type=float, default=None,
-                    help="half-width of the table square, in scene units (default: the object radius times "
-                         f"{EXTENT_RADII}, as `poses` measures it)")
+    ap.add_argument(
+        "--extent",
+        type=float,
+        default=None,
+        help="half-width of the table square, in scene units (default: the object radius times "
+        f"{EXTENT_RADII}, as `poses` measures it)",
+    )
     ap.add_argument("--grid", type=int, default=241, help="points per side of the square (default 241)")
     ap.add_argument("--split", default="val", help="held-out split to score (default val)")
     ap.add_argument("--run", help="a run trained on DATA: also score its renders of the held-out photos")
@@ -56,20 +60,29 @@ def main() -> None:
     train = scene.splits["train"]
     mean, count, dev, seen = consistency(train, pts, bounds.object_box)
     good = count >= MIN_PHOTOS
-    print(f"{args.data}: {good.sum()} table points seen by >= {MIN_PHOTOS} of {len(train)} training photos "
-          f"(median {np.median(count[good]):.0f}), square of half-width {extent:.3f}")
+    print(
+        f"{args.data}: {good.sum()} table points seen by >= {MIN_PHOTOS} of {len(train)} training photos "
+        f"(median {np.median(count[good]):.0f}), square of half-width {extent:.3f}"
+    )
     _, _, dev_b, seen_b = consistency(train, pts, bounds.object_box, blur=3.0)
-    print(f"across the training photos: {psnr(dev[:, good].sum() / seen[:, good].sum()):.2f} dB "
-          f"(blurred by 3 px: {psnr(dev_b[:, good].sum() / seen_b[:, good].sum()):.2f} dB)")
+    print(
+        f"across the training photos: {psnr(dev[:, good].sum() / seen[:, good].sum()):.2f} dB "
+        f"(blurred by 3 px: {psnr(dev_b[:, good].sum() / seen_b[:, good].sum()):.2f} dB)"
+    )
     bright = mean.mean(-1)
     print("\n| table points | share of points | across-view PSNR | share of the disagreement |")
     print("|---|---:|---:|---:|")
-    for name, sel in (("bright (> 0.55)", bright > 0.55), ("mid", (bright >= 0.3) & (bright <= 0.55)),
-                      ("dark (< 0.3)", bright < 0.3)):
+    for name, sel in (
+        ("bright (> 0.55)", bright > 0.55),
+        ("mid", (bright >= 0.3) & (bright <= 0.55)),
+        ("dark (< 0.3)", bright < 0.3),
+    ):
         sel = sel & good
         if sel.any():
-            print(f"| {name} | {sel.sum() / good.sum():.2f} | {psnr(dev[:, sel].sum() / seen[:, sel].sum()):.2f} | "
-                  f"{dev[:, sel].sum() / dev[:, good].sum():.2f} |")
+            print(
+                f"| {name} | {sel.sum() / good.sum():.2f} | {psnr(dev[:, sel].sum() / seen[:, sel].sum()):.2f} | "
+                f"{dev[:, sel].sum() / dev[:, good].sum():.2f} |"
+            )
     held = scene.splits.get(args.split)
     if held is None or not held.has_images:
         return
@@ -84,8 +97,10 @@ def main() -> None:
             continue
         gain = (col[ok] * mean[ok]).sum(0) / np.maximum((mean[ok] ** 2).sum(0), 1e-12)
         name = held.names[i] if held.names else str(i)
-        row = (f"| {name} | {ok.sum()} | {psnr(((col[ok] - mean[ok]) ** 2).mean()):.2f} | "
-               f"{psnr(((col[ok] - gain * mean[ok]) ** 2).mean()):.2f} |")
+        row = (
+            f"| {name} | {ok.sum()} | {psnr(((col[ok] - mean[ok]) ** 2).mean()):.2f} | "
+            f"{psnr(((col[ok] - gain * mean[ok]) ** 2).mean()):.2f} |"
+        )
         if render:
             rendered, _ = sample_photo(render(held, i), held.K[i], held.c2w[i], pts, bounds.object_box)
             row += f" {psnr(((col[ok] - rendered[ok]) ** 2).mean()):.2f} |"
@@ -103,8 +118,16 @@ def run_renderer(run: str):
     opened = open_run(SimpleNamespace(run=run, device="auto", chunk=0))
 
     def render(views, i: int) -> np.ndarray:
-        view = render_image(opened.model, views.K[i], views.c2w[i], views.width, views.height, opened.background(),
-                            opened.chunk, opened.autocast)
+        view = render_image(
+            opened.model,
+            views.K[i],
+            views.c2w[i],
+            views.width,
+            views.height,
+            opened.background(),
+            opened.chunk,
+            opened.autocast,
+        )
         return to_uint8(view.rgb)
 
     return render

@@ -123,15 +123,21 @@ def main() -> None:
     o, d = camera_rays(args.rays)
     sink = GradSink(geom.n_vertices, grid.shape[1])
     modes = ["grid", "grid+rays", "rays"]
-    wall, cpu = time_interleaved({m: (lambda m=m: step(grid, geom, spec, o, d, args.sh_degree, m, sink))
-                                  for m in modes}, args.warmup, args.repeats)
+    wall, cpu = time_interleaved(
+        {m: (lambda m=m: step(grid, geom, spec, o, d, args.sh_degree, m, sink)) for m in modes},
+        args.warmup,
+        args.repeats,
+    )
     with torch.no_grad():
         t0, t1 = ray_aabb(o, d, geom.lo, geom.hi, 0.0, 10.0)
-        n_samples = render_grid(grid, geom, spec, o, d, t0, t1, torch.full((args.rays,), 0.5), args.sh_degree,
-                                None, "numba").n_samples
-    print(f"grid {args.res}^3, C={grid.shape[1]}, {args.rays} rays, ~{n_samples / args.rays:.1f} samples/ray, "
-          f"occupied {float(spec.occ.float().mean()):.1%}, median of {args.repeats}, "
-          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+        n_samples = render_grid(
+            grid, geom, spec, o, d, t0, t1, torch.full((args.rays,), 0.5), args.sh_degree, None, "numba"
+        ).n_samples
+    print(
+        f"grid {args.res}^3, C={grid.shape[1]}, {args.rays} rays, ~{n_samples / args.rays:.1f} samples/ray, "
+        f"occupied {float(spec.occ.float().mean()):.1%}, median of {args.repeats}, "
+        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
+    )
     print_medians("mode", wall, cpu, "grid")
 
 

@@ -45,8 +45,10 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=20)
     args = parser.parse_args()
     gen = torch.Generator().manual_seed(0)
-    print(f"median of {args.repeats}, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs, "
-          f"torch threads {torch.get_num_threads()}")
+    print(
+        f"median of {args.repeats}, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs, "
+        f"torch threads {torch.get_num_threads()}"
+    )
     for n, S, keep in [(1024, 64, 1.0), (1024, 64, 0.06), (4096, 64, 0.06), (4096, 192, 1.0)]:
         sig = torch.rand(n, S, generator=gen).requires_grad_()
         rgb = torch.rand(n, S, 3, generator=gen).requires_grad_()
@@ -54,9 +56,11 @@ def main() -> None:
         mask = torch.rand(n, S, generator=gen) < keep
         rays = torch.arange(n).unsqueeze(1).expand(n, S)[mask]
         args_ = (sig, rgb, t, mask, 0.01)
-        wall, cpu = time_interleaved({"padded": lambda a=args_: padded_step(*a),
-                                      "packed": lambda a=args_, r=rays: packed_step(*a, r)},
-                                     warmup=2, repeats=args.repeats)
+        wall, cpu = time_interleaved(
+            {"padded": lambda a=args_: padded_step(*a), "packed": lambda a=args_, r=rays: packed_step(*a, r)},
+            warmup=2,
+            repeats=args.repeats,
+        )
         print_medians(f"{n}x{S}, {int(mask.sum()) / n:.1f}/ray", wall, cpu, "padded")
 
 

@@ -30,8 +30,9 @@ from pathlib import Path
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("out", help="output folder")
-    p.add_argument("--data", default=str(Path(__file__).resolve().parents[1] / "src" / "nerfkit" / "assets"
-                                         / "lego_200x200.npz"))
+    p.add_argument(
+        "--data", default=str(Path(__file__).resolve().parents[1] / "src" / "nerfkit" / "assets" / "lego_200x200.npz")
+    )
     p.add_argument("--models", default="splat,fast", help="comma-separated model names")
     p.add_argument("--budgets", default="120,600", help="training seconds, comma-separated")
     p.add_argument("--seed", type=int, default=0)
@@ -55,8 +56,14 @@ def worker(args) -> dict:
 
     scene = load_scene(args.data)
     model_cfg = model_config_class(args.model)()
-    cfg = TrainConfig(data=args.data, model=args.model, out=args.run, minutes=args.seconds / 60.0, seed=args.seed,
-                      checkpoint_seconds=1e9)
+    cfg = TrainConfig(
+        data=args.data,
+        model=args.model,
+        out=args.run,
+        minutes=args.seconds / 60.0,
+        seed=args.seed,
+        checkpoint_seconds=1e9,
+    )
     cfg, model_cfg = presets.resolve(cfg.validate(), model_cfg, scene).configs()
 
     class TimedTrainer(Trainer):
@@ -75,8 +82,9 @@ def worker(args) -> dict:
     val = scene.val
 
     def frame(i):
-        return render_image(trainer.model, val.K[i], val.c2w[i], val.width, val.height, bg, cfg.render_chunk,
-                            trainer.autocast)
+        return render_image(
+            trainer.model, val.K[i], val.c2w[i], val.width, val.height, bg, cfg.render_chunk, trainer.autocast
+        )
 
     frame(0)
     times = []
@@ -85,13 +93,23 @@ def worker(args) -> dict:
         frame(k % len(val))
         times.append(time.perf_counter() - t)
     fig = {
-        "model": args.model, "budget_s": args.seconds, "steps": result.step, "train_s": result.train_seconds,
-        "train_cpu_s": trainer.cpu_seconds, "final_val_psnr": result.final_val_psnr,
-        "fps": 1.0 / statistics.median(times), "frame": [val.width, val.height],
+        "model": args.model,
+        "budget_s": args.seconds,
+        "steps": result.step,
+        "train_s": result.train_seconds,
+        "train_cpu_s": trainer.cpu_seconds,
+        "final_val_psnr": result.final_val_psnr,
+        "fps": 1.0 / statistics.median(times),
+        "frame": [val.width, val.height],
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-        "curve": [{"seconds": r["seconds"], "psnr": r["psnr"], "views": r.get("views")} for r in result.rows
-                  if r["split"] == "val"],
-        "loadavg_before": load_before, "loadavg_after": os.getloadavg(), "torch_threads": torch.get_num_threads(),
+        "curve": [
+            {"seconds": r["seconds"], "psnr": r["psnr"], "views": r.get("views")}
+            for r in result.rows
+            if r["split"] == "val"
+        ],
+        "loadavg_before": load_before,
+        "loadavg_after": os.getloadavg(),
+        "torch_threads": torch.get_num_threads(),
     }
     if hasattr(trainer.model, "n_gaussians"):
         from nerfkit.splat_files import Gaussians, write_splat_ply
@@ -103,15 +121,19 @@ def worker(args) -> dict:
 
 
 def table(results: list[dict]) -> str:
-    rows = ["| model | budget (s) | steps | val PSNR (dB) | fps (render) | Gaussians | .ply MB | peak RSS MB | "
-            "CPU s / wall s | load avg |",
-            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    rows = [
+        "| model | budget (s) | steps | val PSNR (dB) | fps (render) | Gaussians | .ply MB | peak RSS MB | "
+        "CPU s / wall s | load avg |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in results:
-        rows.append(f"| {r['model']} | {r['budget_s']:.0f} | {r['steps']} | {r['final_val_psnr']:.2f} | "
-                    f"{r['fps']:.1f} | "
-                    f"{r.get('n_gaussians', '-')} | {r.get('ply_mb', float('nan')):.1f} | {r['peak_rss_mb']:.0f} | "
-                    f"{r['train_cpu_s']:.0f} / {r['train_s']:.0f} | "
-                    f"{r['loadavg_before'][0]:.1f}-{r['loadavg_after'][0]:.1f} |")
+        rows.append(
+            f"| {r['model']} | {r['budget_s']:.0f} | {r['steps']} | {r['final_val_psnr']:.2f} | "
+            f"{r['fps']:.1f} | "
+            f"{r.get('n_gaussians', '-')} | {r.get('ply_mb', float('nan')):.1f} | {r['peak_rss_mb']:.0f} | "
+            f"{r['train_cpu_s']:.0f} / {r['train_s']:.0f} | "
+            f"{r['loadavg_before'][0]:.1f}-{r['loadavg_after'][0]:.1f} |"
+        )
     return "\n".join(rows) + "\n"
 
 
@@ -126,16 +148,32 @@ def main(argv=None) -> int:
     for budget in [float(b) for b in args.budgets.split(",") if b]:
         for model in [m for m in args.models.split(",") if m]:
             run = out / "runs" / f"{model}_{budget:.0f}s"
-            cmd = [sys.executable, __file__, str(out), "--worker", "--model", model, "--seconds", str(budget),
-                   "--run", str(run), "--data", args.data, "--seed", str(args.seed)]
+            cmd = [
+                sys.executable,
+                __file__,
+                str(out),
+                "--worker",
+                "--model",
+                model,
+                "--seconds",
+                str(budget),
+                "--run",
+                str(run),
+                "--data",
+                args.data,
+                "--seed",
+                str(args.seed),
+            ]
             proc = subprocess.run(cmd, capture_output=True, text=True)
             if proc.returncode != 0:
                 print(proc.stderr[-2000:], file=sys.stderr)
                 return 1
             r = json.loads(proc.stdout.strip().splitlines()[-1])
             results.append(r)
-            print(f"{model} {budget:.0f}s: {r['final_val_psnr']:.2f} dB in {r['steps']} steps, {r['fps']:.1f} fps",
-                  flush=True)
+            print(
+                f"{model} {budget:.0f}s: {r['final_val_psnr']:.2f} dB in {r['steps']} steps, {r['fps']:.1f} fps",
+                flush=True,
+            )
             (out / "results.json").write_text(json.dumps(results, indent=1))
     text = table(results)
     (out / "table.md").write_text(text)

@@ -61,10 +61,13 @@ def main() -> None:
         sink = GradSink(tex.shape[0], channels)
         for compiled in (False, True):
             cases[f"{name} {'numba' if compiled else 'torch'}"] = (
-                lambda t=tex, s=size, u=uv, w=weights, k=sink, c=compiled: lookup(t, s, u, w, k, c))
+                lambda t=tex, s=size, u=uv, w=weights, k=sink, c=compiled: lookup(t, s, u, w, k, c)
+            )
     wall, cpu = time_interleaved(cases, args.warmup, args.repeats)
-    print(f"{args.lookups} lookups, forward + backward, median of {args.repeats}, "
-          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    print(
+        f"{args.lookups} lookups, forward + backward, median of {args.repeats}, "
+        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
+    )
     for name in TEXTURES:
         keys = [f"{name} torch", f"{name} numba"]
         print_medians(name, {k: wall[k] for k in keys}, {k: cpu[k] for k in keys}, keys[0])

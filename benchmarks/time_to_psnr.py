@@ -40,13 +40,21 @@ def parse_args(argv=None):
     p.add_argument("--data", default=str(lego))
     p.add_argument("--models", default="fast,vanilla", help="comma-separated model names")
     p.add_argument("--budgets", default="10,60,600", help="training seconds, comma-separated")
-    p.add_argument("--curve-views", type=int, default=0,
-                   help="validation views per evaluation on the curve (0: all for fast, 2 for vanilla)")
+    p.add_argument(
+        "--curve-views",
+        type=int,
+        default=0,
+        help="validation views per evaluation on the curve (0: all for fast, 2 for vanilla)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-cold-compile", action="store_true", help="skip timing a cold numba compile")
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="override a model or training option for every run (repeatable), "
-                        "e.g. --set upsample_steps=60,300,1000")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a model or training option for every run (repeatable), e.g. --set upsample_steps=60,300,1000",
+    )
     # internal: one training run in this process
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--model", help=argparse.SUPPRESS)
@@ -77,8 +85,15 @@ def worker(args) -> dict:
     eval_at = [float(s) for s in args.eval_at.split(",") if s]
     model_cfg = model_config_class(args.model)()
     run_dir = Path(args.out)
-    cfg = TrainConfig(data=args.data, model=args.model, out=str(run_dir), minutes=args.seconds / 60.0, seed=args.seed,
-                      eval_views=args.eval_views or len(scene.val), checkpoint_seconds=1e9)
+    cfg = TrainConfig(
+        data=args.data,
+        model=args.model,
+        out=str(run_dir),
+        minutes=args.seconds / 60.0,
+        seed=args.seed,
+        eval_views=args.eval_views or len(scene.val),
+        checkpoint_seconds=1e9,
+    )
     overrides(args.set, model_cfg, cfg)
     cfg, model_cfg = presets.resolve(cfg.validate(), model_cfg, scene).configs()  # the defaults `nerfkit train` picks
 
@@ -110,8 +125,16 @@ def worker(args) -> dict:
     result = trainer.run()
     # rendering speed: one warm-up frame, then the mean of three
     bg = trainer.background
-    view = lambda i: render_image(trainer.model, scene.val.K[i], scene.val.c2w[i], scene.val.width,  # noqa: E731
-                                  scene.val.height, bg, cfg.render_chunk, trainer.autocast)
+    view = lambda i: render_image(
+        trainer.model,
+        scene.val.K[i],
+        scene.val.c2w[i],
+        scene.val.width,  # noqa: E731
+        scene.val.height,
+        bg,
+        cfg.render_chunk,
+        trainer.autocast,
+    )
     view(0)
     t = time.perf_counter()
     n_frames = min(3, len(scene.val))
@@ -120,16 +143,27 @@ def worker(args) -> dict:
     render_s = (time.perf_counter() - t) / n_frames
     val = [r for r in result.rows if r["split"] == "val"]
     return {
-        "model": args.model, "budget_s": args.seconds, "steps": result.step, "train_s": result.train_seconds,
-        "train_cpu_s": trainer.cpu_seconds, "final_val_psnr": result.final_val_psnr,
-        "samples": trainer.samples, "samples_per_s": trainer.samples / max(result.train_seconds, 1e-9),
-        "render_s_per_frame": render_s, "frame": [scene.val.width, scene.val.height],
+        "model": args.model,
+        "budget_s": args.seconds,
+        "steps": result.step,
+        "train_s": result.train_seconds,
+        "train_cpu_s": trainer.cpu_seconds,
+        "final_val_psnr": result.final_val_psnr,
+        "samples": trainer.samples,
+        "samples_per_s": trainer.samples / max(result.train_seconds, 1e-9),
+        "render_s_per_frame": render_s,
+        "frame": [scene.val.width, scene.val.height],
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         "curve": [{"seconds": r["seconds"], "psnr": r["psnr"], "views": r.get("views")} for r in val],
-        "kernels": warmup, "loadavg_before": load_before, "loadavg_after": os.getloadavg(),
-        "batch_rays": cfg.batch_rays, "mean_rays_per_step": trainer.rays_drawn / max(result.step, 1),
-        "precision": cfg.precision, "torch_threads": torch.get_num_threads(),
-        "model_config": {k: v for k, v in vars(model_cfg).items()}, "val_views": len(scene.val),
+        "kernels": warmup,
+        "loadavg_before": load_before,
+        "loadavg_after": os.getloadavg(),
+        "batch_rays": cfg.batch_rays,
+        "mean_rays_per_step": trainer.rays_drawn / max(result.step, 1),
+        "precision": cfg.precision,
+        "torch_threads": torch.get_num_threads(),
+        "model_config": {k: v for k, v in vars(model_cfg).items()},
+        "val_views": len(scene.val),
         "mean_val_psnr_check": float(np.mean([r["psnr"] for r in val[-1:]])) if val else None,
     }
 
@@ -158,15 +192,23 @@ def cold_compile_seconds() -> float | None:
 
 
 def write_table(results: list[dict], extra: dict, path: Path) -> None:
-    lines = ["| model | budget (s) | steps | rays / step | val PSNR (dB) | train CPU s | Msamples/s | render s/frame "
-             "| peak RSS (MB) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| model | budget (s) | steps | rays / step | val PSNR (dB) | train CPU s | Msamples/s | render s/frame "
+        "| peak RSS (MB) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in results:
-        lines.append(f"| {r['model']} | {r['budget_s']:g} | {r['steps']} | {r.get('mean_rays_per_step', 0):.0f} | "
-                     f"{r['final_val_psnr']:.2f} | "
-                     f"{r['train_cpu_s']:.0f} | {r['samples_per_s'] / 1e6:.2f} | {r['render_s_per_frame']:.3f} | "
-                     f"{r['peak_rss_mb']:.0f} |")
-    lines += ["", f"PSNR on all {results[0]['val_views']} held-out validation views, "
-              f"{results[0]['frame'][0]}x{results[0]['frame'][1]}; training seconds exclude evaluation."]
+        lines.append(
+            f"| {r['model']} | {r['budget_s']:g} | {r['steps']} | {r.get('mean_rays_per_step', 0):.0f} | "
+            f"{r['final_val_psnr']:.2f} | "
+            f"{r['train_cpu_s']:.0f} | {r['samples_per_s'] / 1e6:.2f} | {r['render_s_per_frame']:.3f} | "
+            f"{r['peak_rss_mb']:.0f} |"
+        )
+    lines += [
+        "",
+        f"PSNR on all {results[0]['val_views']} held-out validation views, "
+        f"{results[0]['frame'][0]}x{results[0]['frame'][1]}; training seconds exclude evaluation.",
+    ]
     for k, v in extra.items():
         lines.append(f"- {k}: {v}")
     path.write_text("\n".join(lines) + "\n")
@@ -187,8 +229,14 @@ def plot(results: list[dict], path: Path) -> None:
         if pts:
             label = f"{model}: during the {longest['budget_s']:g} s run"
             ax.plot(*zip(*pts), "-", color=colour, alpha=0.6, label=label)
-        ax.plot([r["budget_s"] for r in runs], [r["final_val_psnr"] for r in runs], "o", color=colour, ms=7,
-                label=f"{model}: run with that budget")
+        ax.plot(
+            [r["budget_s"] for r in runs],
+            [r["final_val_psnr"] for r in runs],
+            "o",
+            color=colour,
+            ms=7,
+            label=f"{model}: run with that budget",
+        )
     ax.set_xscale("log")
     ax.set_xlabel("training seconds (evaluation excluded)")
     ax.set_ylabel("held-out PSNR (dB)")
@@ -222,19 +270,40 @@ def main(argv=None) -> int:
                 shutil.rmtree(run)
             eval_at = [t for t in CURVE_TIMES if t < budget] if budget == budgets[-1] else []
             views = args.curve_views or (2 if model == "vanilla" else 0)
-            cmd = [sys.executable, __file__, str(run), "--worker", "--model", model, "--seconds", str(budget),
-                   "--data", args.data, "--seed", str(args.seed), "--eval-at", ",".join(map(str, eval_at)),
-                   "--eval-views", str(views)] + [f"--set={x}" for x in args.set]
+            cmd = [
+                sys.executable,
+                __file__,
+                str(run),
+                "--worker",
+                "--model",
+                model,
+                "--seconds",
+                str(budget),
+                "--data",
+                args.data,
+                "--seed",
+                str(args.seed),
+                "--eval-at",
+                ",".join(map(str, eval_at)),
+                "--eval-views",
+                str(views),
+            ] + [f"--set={x}" for x in args.set]
             print(f"{model}: {budget:g} s ...", flush=True)
             subprocess.run(cmd, check=True)
             r = json.loads((run / "result.json").read_text())
-            print(f"  {r['steps']} steps ({r.get('mean_rays_per_step', 0):.0f} rays each), "
-                  f"val PSNR {r['final_val_psnr']:.2f} dB, {r['samples_per_s'] / 1e6:.2f} M samples/s, "
-                  f"render {r['render_s_per_frame']:.3f} s/frame", flush=True)
+            print(
+                f"  {r['steps']} steps ({r.get('mean_rays_per_step', 0):.0f} rays each), "
+                f"val PSNR {r['final_val_psnr']:.2f} dB, {r['samples_per_s'] / 1e6:.2f} M samples/s, "
+                f"render {r['render_s_per_frame']:.3f} s/frame",
+                flush=True,
+            )
             results.append(r)
-    extra = {"load average (1, 5, 15 min) at the start of each run":
-             sorted({tuple(round(x, 1) for x in r["loadavg_before"]) for r in results}),
-             "CPU": f"{os.cpu_count()} logical cores"}
+    extra = {
+        "load average (1, 5, 15 min) at the start of each run": sorted(
+            {tuple(round(x, 1) for x in r["loadavg_before"]) for r in results}
+        ),
+        "CPU": f"{os.cpu_count()} logical cores",
+    }
     fast = [r for r in results if r["model"] == "fast" and r.get("kernels")]
     if fast:
         extra["fast kernels warm-up with the numba cache (s)"] = round(fast[0]["kernels"]["warmup_seconds"], 2)

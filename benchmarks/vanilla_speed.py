@@ -50,8 +50,16 @@ def step_times(model, rays, batch, autocast, repeats):
 
 def render_seconds(model, scene, autocast):
     t0 = time.perf_counter()
-    view = render_image(model, scene.val.K[0], scene.val.c2w[0], scene.val.width, scene.val.height, torch.zeros(3),
-                        4096, torch.bfloat16 if autocast else None)
+    view = render_image(
+        model,
+        scene.val.K[0],
+        scene.val.c2w[0],
+        scene.val.width,
+        scene.val.height,
+        torch.zeros(3),
+        4096,
+        torch.bfloat16 if autocast else None,
+    )
     return time.perf_counter() - t0, view
 
 
@@ -88,8 +96,10 @@ def occupancy_table(run, scene, rays, batch, repeats):
             for _ in range(3):  # a few refreshes: the running max settles
                 skip.update_occupancy()
     occupied = skip.estimator.occupied_fraction
-    print(f"\n# trained run {run} (step {step}), bf16, batch {batch}; occupancy grid {cfg.occupancy_res}^3, "
-          f"{occupied:.1%} of cells occupied")
+    print(
+        f"\n# trained run {run} (step {step}), bf16, batch {batch}; occupancy grid {cfg.occupancy_res}^3, "
+        f"{occupied:.1%} of cells occupied"
+    )
     print("| occupancy | samples evaluated per ray | s/step | render s/frame | val[0] PSNR |")
     print("|---|---:|---:|---:|---:|")
     rows = {}
@@ -116,8 +126,10 @@ def main():
     args = ap.parse_args()
     scene = load_npz(args.data)
     rays = RaysData(scene.train, seed=0)
-    print(f"# vanilla NeRF speed, {date.today()}, {platform.processor() or platform.machine()}, "
-          f"{torch.get_num_threads()} threads, torch {torch.__version__}")
+    print(
+        f"# vanilla NeRF speed, {date.today()}, {platform.processor() or platform.machine()}, "
+        f"{torch.get_num_threads()} threads, torch {torch.__version__}"
+    )
     batches = [int(b) for b in args.batches.split(",")]
     if not args.skip_speed:
         speed_table(scene, rays, batches, args.samples, args.repeats, args.render)

@@ -38,16 +38,23 @@ def write_clip(path: Path, width: int, height: int, seconds: float, fps: int = 3
     n = int(seconds * fps)
     pause = set(range(n // 3, n // 3 + fps))
     blur = {10, 11, 12, 100, 101, 102}
-    writer = imageio_ffmpeg.write_frames(str(path), (width, height), fps=fps, codec="libx264", pix_fmt_out="yuv420p",
-                                         macro_block_size=8, output_params=["-preset", "ultrafast", "-crf", "20"],
-                                         ffmpeg_log_level="error")
+    writer = imageio_ffmpeg.write_frames(
+        str(path),
+        (width, height),
+        fps=fps,
+        codec="libx264",
+        pix_fmt_out="yuv420p",
+        macro_block_size=8,
+        output_params=["-preset", "ultrafast", "-crf", "20"],
+        ffmpeg_log_level="error",
+    )
     writer.send(None)
     k = 0
     for i in range(n):
         k += i not in pause
         x = int(k / n * (tw - width - 1))
         y = int((th - height) / 2 * (1 + 0.9 * np.sin(2 * np.pi * k / n)))
-        frame = tex[y:y + height, x:x + width]
+        frame = tex[y : y + height, x : x + width]
         if i in blur:
             frame = cv2.GaussianBlur(frame, (0, 0), 8)
         writer.send(np.ascontiguousarray(frame))
@@ -85,14 +92,20 @@ def main() -> None:
         write_clip(tmp, args.width, args.height, args.seconds)
         tmp.rename(clip)
         print(f"wrote {clip} ({clip.stat().st_size / 1e6:.0f} MB) in {time.perf_counter() - t:.0f} s", file=sys.stderr)
-    r = subprocess.run([sys.executable, "-c", RUN, str(clip), str(out / "frames"), str(args.frames)],
-                       capture_output=True, text=True, check=True)
+    r = subprocess.run(
+        [sys.executable, "-c", RUN, str(clip), str(out / "frames"), str(args.frames)],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     m = json.loads(r.stdout.strip().splitlines()[-1])
     print("| clip | frames read | kept | dropped | seconds | CPU seconds | peak MB (python) | peak MB (ffmpeg) |")
     print("|---|---|---|---|---|---|---|---|")
     dropped = ", ".join(f"{v} {k}" for k, v in m["dropped"].items())
-    print(f"| {m['size'][0]}x{m['size'][1]} {args.seconds:g} s | {m['read']} | {m['kept']} | {dropped} | "
-          f"{m['seconds']:.1f} | {m['cpu']:.1f} | {m['python_mb']:.0f} | {m['ffmpeg_mb']:.0f} |")
+    print(
+        f"| {m['size'][0]}x{m['size'][1]} {args.seconds:g} s | {m['read']} | {m['kept']} | {dropped} | "
+        f"{m['seconds']:.1f} | {m['cpu']:.1f} | {m['python_mb']:.0f} | {m['ffmpeg_mb']:.0f} |"
+    )
 
 
 if __name__ == "__main__":
