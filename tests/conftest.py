@@ -24,6 +24,27 @@ def tiny_vanilla(samples: int = 8, width: int = 16, **more) -> list[str]:
     return [*flags, "--eval-views", "1"]
 
 
+def tiny_vanilla_configs(out, steps: int, data: str = "x", batch_rays: int = 16, **train):
+    """``(TrainConfig, VanillaConfig)`` of a tiny course NeRF run into ``out`` (4 samples, 8 wide,
+    2 layers, one eval view, no timed checkpoints) for tests that drive the trainer in-process;
+    ``train`` sets more TrainConfig fields."""
+    from nerfkit.models.vanilla import VanillaConfig
+    from nerfkit.train.config import TrainConfig
+
+    cfg = TrainConfig(
+        data=data,
+        model="vanilla",
+        out=str(out),
+        steps=steps,
+        batch_rays=batch_rays,
+        lr=1e-3,
+        eval_views=1,
+        checkpoint_seconds=1e9,
+        **train,
+    )
+    return cfg, VanillaConfig(n_samples=4, width=8, depth=2)
+
+
 @pytest.fixture(scope="session")
 def sphere():
     """20 training and 2 validation 32x32 views of a textured sphere."""

@@ -35,6 +35,7 @@ from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from conftest import tiny_vanilla_configs
 from nerfkit.errors import NerfkitError
 
 SCALE = float(os.environ.get("NERFKIT_FUZZ_SCALE", "1"))
@@ -961,26 +962,10 @@ def test_colmap_binary_models_fail_cleanly_when_corrupted(data):
 def tiny_run(tmp_path_factory):
     """A 3-step vanilla run on a tiny sphere (config.json + one checkpoint)."""
     from nerfkit.data.synthetic import sphere_scene
-    from nerfkit.models.vanilla import VanillaConfig
-    from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import train
 
     out = tmp_path_factory.mktemp("fuzz") / "run"
-    train(
-        sphere_scene(n_train=4, n_val=1, size=8),
-        TrainConfig(
-            data="x",
-            model="vanilla",
-            out=str(out),
-            steps=3,
-            batch_rays=16,
-            lr=1e-3,
-            eval_views=1,
-            checkpoint_seconds=1e9,
-        ),
-        VanillaConfig(n_samples=4, width=8, depth=2),
-        quiet=True,
-    )
+    train(sphere_scene(n_train=4, n_val=1, size=8), *tiny_vanilla_configs(out, 3), quiet=True)
     return out
 
 

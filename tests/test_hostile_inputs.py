@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import sigint_as_a_terminal_gives_it, tiny_vanilla
+from conftest import sigint_as_a_terminal_gives_it, tiny_vanilla, tiny_vanilla_configs
 from nerfkit.cli import build_parser, main
 from nerfkit.errors import NerfkitError
 from test_safety import one_line
@@ -262,28 +262,12 @@ def test_colmap_binary_nested_count_is_read_in_a_memory_capped_child(tmp_path):
 def tiny_run(tmp_path_factory):
     from nerfkit.data.npz import save_npz
     from nerfkit.data.synthetic import sphere_scene
-    from nerfkit.models.vanilla import VanillaConfig
-    from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import train
 
     root = tmp_path_factory.mktemp("hostile")
     scene = sphere_scene(n_train=4, n_val=1, size=8)
     save_npz(scene, root / "data.npz")
-    train(
-        scene,
-        TrainConfig(
-            data=str(root / "data.npz"),
-            model="vanilla",
-            out=str(root / "run"),
-            steps=3,
-            batch_rays=16,
-            lr=1e-3,
-            eval_views=1,
-            checkpoint_seconds=1e9,
-        ),
-        VanillaConfig(n_samples=4, width=8, depth=2),
-        quiet=True,
-    )
+    train(scene, *tiny_vanilla_configs(root / "run", 3, data=str(root / "data.npz")), quiet=True)
     return root / "run"
 
 

@@ -23,7 +23,7 @@ import pytest
 import torch
 from PIL import Image
 
-from conftest import tiny_vanilla
+from conftest import tiny_vanilla, tiny_vanilla_configs
 from nerfkit.cli import main
 from nerfkit.errors import NerfkitError
 
@@ -701,22 +701,9 @@ def test_demo_minutes_are_checked_when_parsed():
 
 
 def test_divergence_before_any_checkpoint_does_not_advise_resuming(tmp_path, sphere):
-    from nerfkit.models.vanilla import VanillaConfig
-    from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import Trainer
 
-    cfg = TrainConfig(
-        data="x",
-        model="vanilla",
-        out=str(tmp_path / "run"),
-        steps=100,
-        batch_rays=32,
-        lr=1e-3,
-        eval_views=1,
-        eval_every=1000,
-        checkpoint_seconds=1e9,
-    )
-    trainer = Trainer(sphere, cfg, VanillaConfig(n_samples=4, width=8, depth=2), quiet=True)
+    trainer = Trainer(sphere, *tiny_vanilla_configs(tmp_path / "run", 100, batch_rays=32, eval_every=1000), quiet=True)
     original = trainer.model.render_rays
 
     def poisoned(rays, background, perturb):
@@ -733,22 +720,9 @@ def test_divergence_before_any_checkpoint_does_not_advise_resuming(tmp_path, sph
 def test_a_stop_signal_during_the_final_save_does_not_cut_it_short(tmp_path, sphere):
     # Ctrl-C pressed twice: the second press used to land after the handlers were restored, in
     # the middle of the save, and the run was left without its model.pt, metrics and plots.
-    from nerfkit.models.vanilla import VanillaConfig
-    from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import Trainer
 
-    cfg = TrainConfig(
-        data="x",
-        model="vanilla",
-        out=str(tmp_path / "run"),
-        steps=3,
-        batch_rays=32,
-        lr=1e-3,
-        eval_views=1,
-        eval_every=1000,
-        checkpoint_seconds=1e9,
-    )
-    trainer = Trainer(sphere, cfg, VanillaConfig(n_samples=4, width=8, depth=2), quiet=True)
+    trainer = Trainer(sphere, *tiny_vanilla_configs(tmp_path / "run", 3, batch_rays=32, eval_every=1000), quiet=True)
     original = trainer.save
 
     def save_interrupted():
