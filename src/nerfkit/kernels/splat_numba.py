@@ -131,6 +131,8 @@ def rasterize_forward(
     Lane ``l`` (one per thread) composites tiles ``l, l + lanes, ...``: the image's busy
     rows fall to every thread (the output does not depend on ``lanes``)."""
     n_tiles = offsets.shape[0] - 1
+    f = means2d.dtype.type  # per-pixel arithmetic in the inputs' dtype (a Python float is a float64)
+    zero, half, one, alpha_max = f(0.0), f(0.5), f(1.0), f(ALPHA_MAX)
     for lane in prange(lanes):
         for t in range(lane, n_tiles, lanes):
             start, end = offsets[t], offsets[t + 1]
@@ -150,21 +152,21 @@ def rasterize_forward(
                 ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
                 op = opac[g]
                 bx0, bx1, by0, by1 = _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1)
-                p_skip = _power_floor(op)
+                p_skip = f(_power_floor(op))
                 for y in range(by0, by1):
-                    dy = my - (y + 0.5)
+                    dy = my - (f(y) + half)
                     for x in range(bx0, bx1):
                         p = (y - y0) * tw + (x - x0)
                         if done[p]:
                             continue
-                        dx = mx - (x + 0.5)
-                        power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-                        if power > 0.0 or power < p_skip:
+                        dx = mx - (f(x) + half)
+                        power = -half * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                        if power > zero or power < p_skip:
                             continue
-                        alpha = min(ALPHA_MAX, op * math.exp(power))
+                        alpha = min(alpha_max, op * math.exp(power))
                         if alpha < ALPHA_MIN:
                             continue
-                        test_T = T[p] * (1.0 - alpha)
+                        test_T = T[p] * (one - alpha)
                         if test_T < T_MIN:
                             done[p] = True
                             open_pixels -= 1
@@ -182,7 +184,7 @@ def rasterize_forward(
                     for ch in range(3):
                         out_rgb[y, x, ch] = acc[p, ch] + T[p] * background[y, x, ch]
                     out_depth[y, x] = acc[p, 3]
-                    out_alpha[y, x] = 1.0 - T[p]
+                    out_alpha[y, x] = one - T[p]
                     final_T[y, x] = T[p]
                     n_contrib[y, x] = last[p]
 
@@ -212,6 +214,8 @@ def rasterize_backward(
     each visiting its footprint's pixels (INRIA's recursion, per-pixel state in arrays)."""
     n_tiles = offsets.shape[0] - 1
     lanes = grads.shape[0]
+    f = means2d.dtype.type  # per-pixel arithmetic in the inputs' dtype, as the forward
+    zero, half, one, alpha_max = f(0.0), f(0.5), f(1.0), f(ALPHA_MAX)
     for lane in prange(lanes):
         for t in range(lane, n_tiles, lanes):
             start, end = offsets[t], offsets[t + 1]
@@ -247,8 +251,8 @@ def rasterize_backward(
                 op = opac[g]
                 cr, cg, cbl = colors[g, 0], colors[g, 1], colors[g, 2]
                 bx0, bx1, by0, by1 = _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1)
-                p_skip = _power_floor(op)
-                d_mx = 0.0
+                p_skip = f(_power_floor(op))
+                d_mx = 0.0  # (sums over the footprint: float64)
                 d_my = 0.0
                 d_a = 0.0
                 d_b = 0.0
@@ -258,21 +262,21 @@ def rasterize_backward(
                 d_g = 0.0
                 d_bl = 0.0
                 for y in range(by0, by1):
-                    dy = my - (y + 0.5)
+                    dy = my - (f(y) + half)
                     for x in range(bx0, bx1):
                         p = (y - y0) * tw + (x - x0)
                         if k >= ncon[p]:
                             continue
-                        dx = mx - (x + 0.5)
-                        power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-                        if power > 0.0 or power < p_skip:
+                        dx = mx - (f(x) + half)
+                        power = -half * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                        if power > zero or power < p_skip:
                             continue
                         G = math.exp(power)
                         raw = op * G
-                        alpha = min(ALPHA_MAX, raw)
+                        alpha = min(alpha_max, raw)
                         if alpha < ALPHA_MIN:
                             continue
-                        Tp = T[p] / (1.0 - alpha)
+                        Tp = T[p] / (one - alpha)
                         T[p] = Tp
                         w = alpha * Tp
                         gr, gg, gb = gpix[p, 0], gpix[p, 1], gpix[p, 2]
@@ -280,9 +284,9 @@ def rasterize_backward(
                         d_g += w * gg
                         d_bl += w * gb
                         la = last_alpha[p]
-                        br = la * last_col[p, 0] + (1.0 - la) * behind[p, 0]
-                        bg_ = la * last_col[p, 1] + (1.0 - la) * behind[p, 1]
-                        bb = la * last_col[p, 2] + (1.0 - la) * behind[p, 2]
+                        br = la * last_col[p, 0] + (one - la) * behind[p, 0]
+                        bg_ = la * last_col[p, 1] + (one - la) * behind[p, 1]
+                        bb = la * last_col[p, 2] + (one - la) * behind[p, 2]
                         behind[p, 0] = br
                         behind[p, 1] = bg_
                         behind[p, 2] = bb
@@ -291,16 +295,16 @@ def rasterize_backward(
                         last_col[p, 1] = cg
                         last_col[p, 2] = cbl
                         dl_dalpha = ((cr - br) * gr + (cg - bg_) * gg + (cbl - bb) * gb) * Tp
-                        dl_dalpha -= final_T[y, x] / (1.0 - alpha) * gpix[p, 3]
-                        if raw > ALPHA_MAX:
+                        dl_dalpha -= final_T[y, x] / (one - alpha) * gpix[p, 3]
+                        if raw > alpha_max:
                             continue  # alpha is clamped: no gradient to opacity, mean or conic
                         d_op += G * dl_dalpha
                         dl_dpower = raw * dl_dalpha
                         d_mx += dl_dpower * (-ca * dx - cb * dy)
                         d_my += dl_dpower * (-cc * dy - cb * dx)
-                        d_a += dl_dpower * (-0.5 * dx * dx)
+                        d_a += dl_dpower * (-half * dx * dx)
                         d_b += dl_dpower * (-dx * dy)
-                        d_c += dl_dpower * (-0.5 * dy * dy)
+                        d_c += dl_dpower * (-half * dy * dy)
                 grads[lane, g, G_MX] += d_mx
                 grads[lane, g, G_MY] += d_my
                 grads[lane, g, G_A] += d_a
