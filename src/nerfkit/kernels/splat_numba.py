@@ -252,15 +252,16 @@ def rasterize_backward(
                 cr, cg, cbl = colors[g, 0], colors[g, 1], colors[g, 2]
                 bx0, bx1, by0, by1 = _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1)
                 p_skip = f(_power_floor(op))
-                d_mx = 0.0  # (sums over the footprint: float64)
-                d_my = 0.0
-                d_a = 0.0
-                d_b = 0.0
-                d_c = 0.0
-                d_op = 0.0
-                d_r = 0.0
-                d_g = 0.0
-                d_bl = 0.0
+                # sums over the footprint (<= 256 pixels) in the dtype: float32 adds no error beyond the terms'
+                d_mx = zero
+                d_my = zero
+                d_a = zero
+                d_b = zero
+                d_c = zero
+                d_op = zero
+                d_r = zero
+                d_g = zero
+                d_bl = zero
                 for y in range(by0, by1):
                     dy = my - (f(y) + half)
                     for x in range(bx0, bx1):
