@@ -15,6 +15,12 @@ The reference is :func:`nerfkit.kernels.splat_reference.rasterize_reference`; th
 
 Gradient channels per Gaussian (``G_*``): 2D mean x/y, conic a/b/c, opacity, r, g, b.
 
+The rasterizer's per-pixel arithmetic and SSIM's blurs and map run in the inputs' dtype
+(float32 in training: a Python float or ``int + 0.5`` would make them float64, and
+``math.exp`` the double exp), and the float kernels let the compiler fuse a multiply and
+an add into an FMA (``fastmath={"contract"}``: one rounding instead of two; nothing is
+reordered). ``tests/test_splat_kernels.py`` holds float32 gradients to a float64 run's.
+
 * :func:`ssim_forward` / :func:`ssim_backward`: the training loss's SSIM and its gradient
   (reference: :func:`nerfkit.kernels.splat_reference.ssim_reference`), on (C, H, W) planes:
   the five Gaussian blurs of the forward and the three of the backward are separable
@@ -103,7 +109,7 @@ def _power_floor(op):
     return math.log(ALPHA_MIN / op) - 1e-3
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(parallel=True, cache=True, fastmath={"contract"})
 def rasterize_forward(
     offsets,
     ids,
@@ -189,7 +195,7 @@ def rasterize_forward(
                     n_contrib[y, x] = last[p]
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(parallel=True, cache=True, fastmath={"contract"})
 def rasterize_backward(
     offsets,
     ids,
@@ -341,7 +347,7 @@ def _blur_plane(src, g, tmp, out):
                 orow[w] += gk * trow[w]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"contract"})
 def ssim_forward(x, y, g, c1, c2, dmaps):
     """Mean SSIM of images ``x``, ``y`` (C, H, W) with the blur ``g`` (window,), and in
     ``dmaps`` (3, C, H, W) each pixel's derivative of its SSIM term with respect to its
@@ -386,7 +392,7 @@ def ssim_forward(x, y, g, c1, c2, dmaps):
     return rows.sum() / (C * H * W)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"contract"})
 def ssim_backward(x, y, g, dmaps, scale, grad_x):
     """``grad_x`` (C, H, W) = ``scale`` x d(sum of SSIM terms)/dx, from :func:`ssim_forward`'s
     ``dmaps``: the blurred derivative maps (the blur is its own adjoint) times 1, 2x, y."""
