@@ -137,7 +137,8 @@ def rasterize_forward(
     Lane ``l`` (one per thread) composites tiles ``l, l + lanes, ...``: the image's busy
     rows fall to every thread (the output does not depend on ``lanes``)."""
     n_tiles = offsets.shape[0] - 1
-    f = means2d.dtype.type  # per-pixel arithmetic in the inputs' dtype (a Python float is a float64)
+    f = means2d.dtype.type  # per-pixel arithmetic in the inputs' dtype (a Python float is a float64);
+    # the thresholds ALPHA_MIN and T_MIN stay float64 compares, as before
     zero, half, one, alpha_max = f(0.0), f(0.5), f(1.0), f(ALPHA_MAX)
     for lane in prange(lanes):
         for t in range(lane, n_tiles, lanes):
