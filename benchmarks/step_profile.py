@@ -463,7 +463,8 @@ def interleaved_splat(old_src: str, data: str, points: str | None, steps: int, s
     from nerfkit.train.trainer import Trainer
 
     old_dir = Path(old_src) / "nerfkit" / "kernels"
-    old_ref = load_file(old_dir / "splat_reference.py", "step_profile_old_splat_reference")
+    # (named inside nerfkit.kernels: its relative import of the grid reference resolves)
+    old_ref = load_file(old_dir / "splat_reference.py", "nerfkit.kernels.step_profile_old_splat_reference")
     old_nb = load_file(old_dir / "splat_numba.py", "step_profile_old_splat_numba")
     old_nb.warm_up()
     scene = load_scene(data, "splat", points)

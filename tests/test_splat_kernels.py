@@ -233,6 +233,24 @@ def test_numba_float32_matches_reference_on_a_dense_crowd():
 
 
 @needs_numba
+@pytest.mark.parametrize("seed,n,log_scale", [(4, 400, -1.5), (6, 600, -1.8)])
+def test_numba_float32_gradients_are_near_a_float64_run(seed, n, log_scale):
+    # the float32 kernels compute per pixel, and sum each Gaussian's footprint, in float32:
+    # their gradients stay within float32 rounding of the same kernels' float64 ones (~5e-7 here)
+    W, H = 48, 40
+    leaves, depths, rects, bg = projected(n, W, H, seed=seed, log_scale=log_scale)
+    g = torch.randn(H, W, 3, generator=torch.Generator().manual_seed(9), dtype=torch.float64)
+    grads = {}
+    for dt in (torch.float64, torch.float32):
+        args = [t.to(dt).requires_grad_() for t in leaves]
+        rgb = rasterize(*args, depths.to(dt), rects, bg.to(dt), W, H, "numba")[0]
+        grads[dt] = torch.autograd.grad((rgb * g.to(dt)).sum(), args)
+    for a, b in zip(grads[torch.float32], grads[torch.float64]):
+        assert a.dtype == torch.float32 and float(b.norm()) > 0
+        assert float((a.double() - b).norm() / b.norm()) < 1e-5
+
+
+@needs_numba
 def test_full_pipeline_gradients_agree_between_backends():
     W, H = 32, 24
     params = random_gaussians(40, seed=7)

@@ -15,6 +15,12 @@ The reference is :func:`nerfkit.kernels.splat_reference.rasterize_reference`; th
 
 Gradient channels per Gaussian (``G_*``): 2D mean x/y, conic a/b/c, opacity, r, g, b.
 
+The rasterizer's per-pixel arithmetic and SSIM's blurs and map run in the inputs' dtype
+(float32 in training: a Python float or ``int + 0.5`` would make them float64, and
+``math.exp`` the double exp), and the float kernels let the compiler fuse a multiply and
+an add into an FMA (``fastmath={"contract"}``: one rounding instead of two; nothing is
+reordered). ``tests/test_splat_kernels.py`` holds float32 gradients to a float64 run's.
+
 * :func:`ssim_forward` / :func:`ssim_backward`: the training loss's SSIM and its gradient
   (reference: :func:`nerfkit.kernels.splat_reference.ssim_reference`), on (C, H, W) planes:
   the five Gaussian blurs of the forward and the three of the backward are separable
@@ -103,7 +109,7 @@ def _power_floor(op):
     return math.log(ALPHA_MIN / op) - 1e-3
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(parallel=True, cache=True, fastmath={"contract"})
 def rasterize_forward(
     offsets,
     ids,
@@ -131,6 +137,9 @@ def rasterize_forward(
     Lane ``l`` (one per thread) composites tiles ``l, l + lanes, ...``: the image's busy
     rows fall to every thread (the output does not depend on ``lanes``)."""
     n_tiles = offsets.shape[0] - 1
+    f = means2d.dtype.type  # per-pixel arithmetic in the inputs' dtype (a Python float is a float64);
+    # the thresholds ALPHA_MIN and T_MIN stay float64 compares, as before
+    zero, half, one, alpha_max = f(0.0), f(0.5), f(1.0), f(ALPHA_MAX)
     for lane in prange(lanes):
         for t in range(lane, n_tiles, lanes):
             start, end = offsets[t], offsets[t + 1]
@@ -150,21 +159,21 @@ def rasterize_forward(
                 ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
                 op = opac[g]
                 bx0, bx1, by0, by1 = _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1)
-                p_skip = _power_floor(op)
+                p_skip = f(_power_floor(op))
                 for y in range(by0, by1):
-                    dy = my - (y + 0.5)
+                    dy = my - (f(y) + half)
                     for x in range(bx0, bx1):
                         p = (y - y0) * tw + (x - x0)
                         if done[p]:
                             continue
-                        dx = mx - (x + 0.5)
-                        power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-                        if power > 0.0 or power < p_skip:
+                        dx = mx - (f(x) + half)
+                        power = -half * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                        if power > zero or power < p_skip:
                             continue
-                        alpha = min(ALPHA_MAX, op * math.exp(power))
+                        alpha = min(alpha_max, op * math.exp(power))
                         if alpha < ALPHA_MIN:
                             continue
-                        test_T = T[p] * (1.0 - alpha)
+                        test_T = T[p] * (one - alpha)
                         if test_T < T_MIN:
                             done[p] = True
                             open_pixels -= 1
@@ -182,12 +191,12 @@ def rasterize_forward(
                     for ch in range(3):
                         out_rgb[y, x, ch] = acc[p, ch] + T[p] * background[y, x, ch]
                     out_depth[y, x] = acc[p, 3]
-                    out_alpha[y, x] = 1.0 - T[p]
+                    out_alpha[y, x] = one - T[p]
                     final_T[y, x] = T[p]
                     n_contrib[y, x] = last[p]
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(parallel=True, cache=True, fastmath={"contract"})
 def rasterize_backward(
     offsets,
     ids,
@@ -212,6 +221,8 @@ def rasterize_backward(
     each visiting its footprint's pixels (INRIA's recursion, per-pixel state in arrays)."""
     n_tiles = offsets.shape[0] - 1
     lanes = grads.shape[0]
+    f = means2d.dtype.type  # per-pixel arithmetic in the inputs' dtype, as the forward
+    zero, half, one, alpha_max = f(0.0), f(0.5), f(1.0), f(ALPHA_MAX)
     for lane in prange(lanes):
         for t in range(lane, n_tiles, lanes):
             start, end = offsets[t], offsets[t + 1]
@@ -247,32 +258,33 @@ def rasterize_backward(
                 op = opac[g]
                 cr, cg, cbl = colors[g, 0], colors[g, 1], colors[g, 2]
                 bx0, bx1, by0, by1 = _pixel_box(mx, my, ca, cb, cc, op, x0, x1, y0, y1)
-                p_skip = _power_floor(op)
-                d_mx = 0.0
-                d_my = 0.0
-                d_a = 0.0
-                d_b = 0.0
-                d_c = 0.0
-                d_op = 0.0
-                d_r = 0.0
-                d_g = 0.0
-                d_bl = 0.0
+                p_skip = f(_power_floor(op))
+                # sums over the footprint (<= 256 pixels) in the dtype (float32: as near a float64 run's)
+                d_mx = zero
+                d_my = zero
+                d_a = zero
+                d_b = zero
+                d_c = zero
+                d_op = zero
+                d_r = zero
+                d_g = zero
+                d_bl = zero
                 for y in range(by0, by1):
-                    dy = my - (y + 0.5)
+                    dy = my - (f(y) + half)
                     for x in range(bx0, bx1):
                         p = (y - y0) * tw + (x - x0)
                         if k >= ncon[p]:
                             continue
-                        dx = mx - (x + 0.5)
-                        power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-                        if power > 0.0 or power < p_skip:
+                        dx = mx - (f(x) + half)
+                        power = -half * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                        if power > zero or power < p_skip:
                             continue
                         G = math.exp(power)
                         raw = op * G
-                        alpha = min(ALPHA_MAX, raw)
+                        alpha = min(alpha_max, raw)
                         if alpha < ALPHA_MIN:
                             continue
-                        Tp = T[p] / (1.0 - alpha)
+                        Tp = T[p] / (one - alpha)
                         T[p] = Tp
                         w = alpha * Tp
                         gr, gg, gb = gpix[p, 0], gpix[p, 1], gpix[p, 2]
@@ -280,9 +292,9 @@ def rasterize_backward(
                         d_g += w * gg
                         d_bl += w * gb
                         la = last_alpha[p]
-                        br = la * last_col[p, 0] + (1.0 - la) * behind[p, 0]
-                        bg_ = la * last_col[p, 1] + (1.0 - la) * behind[p, 1]
-                        bb = la * last_col[p, 2] + (1.0 - la) * behind[p, 2]
+                        br = la * last_col[p, 0] + (one - la) * behind[p, 0]
+                        bg_ = la * last_col[p, 1] + (one - la) * behind[p, 1]
+                        bb = la * last_col[p, 2] + (one - la) * behind[p, 2]
                         behind[p, 0] = br
                         behind[p, 1] = bg_
                         behind[p, 2] = bb
@@ -291,16 +303,16 @@ def rasterize_backward(
                         last_col[p, 1] = cg
                         last_col[p, 2] = cbl
                         dl_dalpha = ((cr - br) * gr + (cg - bg_) * gg + (cbl - bb) * gb) * Tp
-                        dl_dalpha -= final_T[y, x] / (1.0 - alpha) * gpix[p, 3]
-                        if raw > ALPHA_MAX:
+                        dl_dalpha -= final_T[y, x] / (one - alpha) * gpix[p, 3]
+                        if raw > alpha_max:
                             continue  # alpha is clamped: no gradient to opacity, mean or conic
                         d_op += G * dl_dalpha
                         dl_dpower = raw * dl_dalpha
                         d_mx += dl_dpower * (-ca * dx - cb * dy)
                         d_my += dl_dpower * (-cc * dy - cb * dx)
-                        d_a += dl_dpower * (-0.5 * dx * dx)
+                        d_a += dl_dpower * (-half * dx * dx)
                         d_b += dl_dpower * (-dx * dy)
-                        d_c += dl_dpower * (-0.5 * dy * dy)
+                        d_c += dl_dpower * (-half * dy * dy)
                 grads[lane, g, G_MX] += d_mx
                 grads[lane, g, G_MY] += d_my
                 grads[lane, g, G_A] += d_a
@@ -323,18 +335,20 @@ def _blur_plane(src, g, tmp, out):
     for h in range(H):
         for k in range(g.shape[0]):
             gk = g[k]
-            for w in range(max(0, r - k), min(W, W + r - k)):
-                tmp[h, w] += gk * src[h, w + k - r]
+            lo, hi = max(0, r - k), min(W, W + r - k)  # tmp[h, w] takes src[h, w + k - r]
+            trow, srow = tmp[h, lo:hi], src[h, lo + k - r : hi + k - r]
+            for i in range(hi - lo):  # (indices from 0: no negative-index wraparound, so it vectorizes)
+                trow[i] += gk * srow[i]
     out[:, :] = 0.0
     for h in range(H):
         for k in range(max(0, r - h), min(g.shape[0], H + r - h)):
             gk = g[k]
-            hh = h + k - r
+            orow, trow = out[h], tmp[h + k - r]
             for w in range(W):
-                out[h, w] += gk * tmp[hh, w]
+                orow[w] += gk * trow[w]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"contract"})
 def ssim_forward(x, y, g, c1, c2, dmaps):
     """Mean SSIM of images ``x``, ``y`` (C, H, W) with the blur ``g`` (window,), and in
     ``dmaps`` (3, C, H, W) each pixel's derivative of its SSIM term with respect to its
@@ -354,6 +368,8 @@ def ssim_forward(x, y, g, c1, c2, dmaps):
         else:
             src = x[c] * y[c]
         _blur_plane(src, g, np.empty((H, W), x.dtype), blurred[m, c])
+    f = x.dtype.type  # per-pixel arithmetic in the images' dtype
+    two, k1, k2 = f(2.0), f(c1), f(c2)
     rows = np.zeros(C * H)
     for j in range(C * H):
         c, h = j // H, j % H
@@ -362,22 +378,22 @@ def ssim_forward(x, y, g, c1, c2, dmaps):
         d_mu, d_xx, d_xy = dmaps[0, c, h], dmaps[1, c, h], dmaps[2, c, h]
         total = 0.0
         for w in range(W):
-            a1 = 2.0 * mx[w] * my[w] + c1
-            a2 = 2.0 * (sxy[w] - mx[w] * my[w]) + c2
-            b1 = mx[w] * mx[w] + my[w] * my[w] + c1
-            b2 = (sxx[w] - mx[w] * mx[w]) + (syy[w] - my[w] * my[w]) + c2
-            inv = 1.0 / (b1 * b2)
+            a1 = two * mx[w] * my[w] + k1
+            a2 = two * (sxy[w] - mx[w] * my[w]) + k2
+            b1 = mx[w] * mx[w] + my[w] * my[w] + k1
+            b2 = (sxx[w] - mx[w] * mx[w]) + (syy[w] - my[w] * my[w]) + k2
+            inv = f(1.0) / (b1 * b2)
             s = a1 * a2 * inv
             total += s
             # d s / d blur(x), d blur(x^2), d blur(x y) (the variances hold the means' squares)
-            d_mu[w] = 2.0 * inv * (my[w] * (a2 - a1) - mx[w] * s * (b2 - b1))
+            d_mu[w] = two * inv * (my[w] * (a2 - a1) - mx[w] * s * (b2 - b1))
             d_xx[w] = -s * b1 * inv
-            d_xy[w] = 2.0 * a1 * inv
+            d_xy[w] = two * a1 * inv
         rows[j] = total
     return rows.sum() / (C * H * W)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"contract"})
 def ssim_backward(x, y, g, dmaps, scale, grad_x):
     """``grad_x`` (C, H, W) = ``scale`` x d(sum of SSIM terms)/dx, from :func:`ssim_forward`'s
     ``dmaps``: the blurred derivative maps (the blur is its own adjoint) times 1, 2x, y."""
