@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from . import reference as grid_reference
-from .reference import SH_C0  # the grid's basis constants, shared to degree 2
+from .reference import SH_C0  # the grid's DC constant (degrees 1-2 come from its sh_basis, below)
 
 TILE = 16
 ALPHA_MIN = 1.0 / 255.0
