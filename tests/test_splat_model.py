@@ -190,6 +190,17 @@ def test_dot_splat_is_32_bytes_a_gaussian(trained, tmp_path):
     np.testing.assert_allclose(rec["scale"][0], torch.exp(model.log_scales[first]).detach().numpy(), rtol=1e-6)
 
 
+def test_dc_colour_conversions_invert_each_other_and_match_the_kernels():
+    from nerfkit.kernels.reference import SH_C0 as KERNEL_C0
+    from nerfkit.splat_files import SH_C0, dc_to_rgb, rgb_to_dc
+
+    assert SH_C0 == KERNEL_C0 == pytest.approx(0.5 / np.sqrt(np.pi), rel=1e-15)  # Y_00 = 1 / (2 sqrt(pi))
+    rgb = np.random.default_rng(0).random((7, 3))
+    assert rgb_to_dc(rgb).shape == (7, 1, 3)
+    np.testing.assert_allclose(dc_to_rgb(rgb_to_dc(rgb)), rgb, atol=1e-15)
+    np.testing.assert_array_equal(dc_to_rgb(np.zeros((2, 1, 3))), np.full((2, 3), 0.5))  # DC 0 is mid-grey
+
+
 def test_export_refuses_a_non_splat_target_and_existing_files(trained, tmp_path, capsys):
     assert main(["export", str(trained.run_dir), "--splat", str(tmp_path / "g.txt")]) != 0
     assert "should end in .ply or .splat" in capsys.readouterr().err

@@ -24,7 +24,17 @@ import numpy as np
 from .errors import fail
 from .io.atomic import atomic_path
 
-SH_C0 = 0.28209479177387814
+SH_C0 = 0.28209479177387814  # kernels.reference.SH_C0 as well; repeated so file I/O needs no torch
+
+
+def dc_to_rgb(sh_dc: np.ndarray) -> np.ndarray:
+    """The colour (n, 3) that DC coefficients (n, 1, 3) show: ``0.5 + C0 * dc`` (not clipped)."""
+    return 0.5 + SH_C0 * sh_dc.reshape(-1, 3)
+
+
+def rgb_to_dc(rgb: np.ndarray) -> np.ndarray:
+    """The DC coefficients (n, 1, 3) that show colour ``rgb`` (n, 3): ``(rgb - 0.5) / C0``."""
+    return ((rgb - 0.5) / SH_C0).reshape(-1, 1, 3)
 
 
 @dataclass
@@ -139,7 +149,7 @@ def write_dot_splat(path: str | Path, g: Gaussians) -> None:
     scales = np.exp(g.log_scales.astype(np.float64))
     alpha = 1 / (1 + np.exp(-g.opacity_logits.astype(np.float64)))
     order = np.argsort(-np.exp(g.log_scales.sum(1)) * alpha, kind="stable")
-    rgb = 0.5 + SH_C0 * g.sh_dc.reshape(-1, 3)
+    rgb = dc_to_rgb(g.sh_dc)
     rgba = np.clip(np.concatenate([rgb, alpha[:, None]], 1) * 255, 0, 255).round().astype(np.uint8)
     q = g.quats / np.linalg.norm(g.quats, axis=1, keepdims=True).clip(1e-12)
     rot = np.clip(q * 128 + 128, 0, 255).round().astype(np.uint8)

@@ -77,7 +77,7 @@ def background_dome(
     (n, 3), log-scales (n, 3) (tangent, tangent, radial), quaternions (n, 4) turning +z to the
     radius, opacity logits (n,), sh_dc (n, 1, 3) the background's colour in each one's
     direction from ``center``, and sh_rest (n, n_rest, 3) zeros."""
-    from ..splat_files import SH_C0, Gaussians
+    from ..splat_files import Gaussians, rgb_to_dc
 
     dirs = fibonacci_sphere(n)
     spacing = math.sqrt(4 * math.pi / n)  # radians between neighbouring centres
@@ -90,7 +90,7 @@ def background_dome(
         np.broadcast_to(log_scales, (n, 3)).astype(f32),
         z_to(dirs).astype(f32),
         np.full(n, math.log(DOME_OPACITY / (1 - DOME_OPACITY)), f32),
-        ((colour - 0.5) / SH_C0).reshape(n, 1, 3).astype(f32),
+        rgb_to_dc(colour).astype(f32),
         np.zeros((n, n_rest, 3), f32),
     )
 

@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from ..kernels.splat_reference import covariance_3d
-from ..splat_files import SH_C0, Gaussians
+from ..splat_files import Gaussians, dc_to_rgb
 
 
 def splat_arrays(g: Gaussians) -> dict:
@@ -18,7 +18,7 @@ def splat_arrays(g: Gaussians) -> dict:
     return {
         "centers": g.means.astype(np.float32),
         "covariances": cov.astype(np.float32),
-        "rgbs": np.clip(0.5 + SH_C0 * g.sh_dc.reshape(-1, 3), 0, 1).astype(np.float32),
+        "rgbs": np.clip(dc_to_rgb(g.sh_dc), 0, 1).astype(np.float32),
         "opacities": (1 / (1 + np.exp(-g.opacity_logits.astype(np.float64)))).reshape(-1, 1).astype(np.float32),
     }
 
