@@ -69,6 +69,7 @@ KERNELS = {
 SPLAT_KERNELS = {
     "project_forward": "project",
     "project_backward": "project backward",
+    "depth_order": "depth sort",
     "bin_tiles": "tile binning",
     "rasterize_forward": "rasterise forward",
     "rasterize_backward": "rasterise backward",

@@ -44,6 +44,55 @@ N_GRAD = 9
 
 
 @njit(cache=True)
+def depth_order(depths, rects):
+    """Indices (m,) int64 of the visible Gaussians (non-empty ``rects``), nearest first, ties
+    in index order: :func:`nerfkit.kernels.splat_reference.depth_order`'s stable sort, as an
+    LSD radix sort (16 bits a pass) of the depths' float64 bits mapped to unsigned integers
+    that order as the floats do (passes whose digit is the same for all are skipped: a
+    float32 depth's low 29 bits are zero)."""
+    n = depths.shape[0]
+    idx = np.empty(n, np.int64)
+    m = 0
+    for g in range(n):
+        if rects[g, 1] > rects[g, 0] and rects[g, 3] > rects[g, 2]:
+            idx[m] = g
+            m += 1
+    vals = np.empty(m, np.float64)
+    for k in range(m):
+        d = np.float64(depths[idx[k]])
+        vals[k] = 0.0 if d == 0.0 else d  # (-0 sorts as 0)
+    bits = vals.view(np.uint64)
+    sign = np.uint64(1) << np.uint64(63)
+    keys = np.empty(m, np.uint64)
+    for k in range(m):
+        b = bits[k]
+        keys[k] = ~b if b & sign else b | sign
+    order = idx[:m].copy()
+    tmp_keys = np.empty(m, np.uint64)
+    tmp_order = np.empty(m, np.int64)
+    count = np.empty(65537, np.int64)
+    mask = np.uint64(0xFFFF)
+    for p in range(4):
+        shift = np.uint64(16 * p)
+        count[:] = 0
+        for k in range(m):
+            count[((keys[k] >> shift) & mask) + 1] += 1
+        if m == 0 or count[((keys[0] >> shift) & mask) + 1] == m:
+            continue  # one digit for all: this pass keeps the order
+        for j in range(65536):
+            count[j + 1] += count[j]
+        for k in range(m):
+            digit = (keys[k] >> shift) & mask
+            at = count[digit]
+            count[digit] = at + 1
+            tmp_keys[at] = keys[k]
+            tmp_order[at] = order[k]
+        keys, tmp_keys = tmp_keys, keys
+        order, tmp_order = tmp_order, order
+    return order
+
+
+@njit(cache=True)
 def bin_tiles(order, rects, n_tiles_x, n_tiles_y):
     """``order`` (m,) Gaussian ids nearest first; ``rects`` (n, 4) int32 ``x0, x1, y0, y1``.
 
@@ -773,7 +822,7 @@ def warm_up() -> None:
         opac = np.full(n, 0.5, dt)
         depths = np.array([1.0, 2.0], dt)
         rects = np.array([[0, 1, 0, 1]] * n, np.int32)
-        offsets, ids = bin_tiles(np.arange(n, dtype=np.int64), rects, 1, 1)
+        offsets, ids = bin_tiles(depth_order(depths, rects), rects, 1, 1)
         H = W = 8
         bg = np.zeros((H, W, 3), dt)
         rgb, dep, alp, T = np.zeros((H, W, 3), dt), np.zeros((H, W), dt), np.zeros((H, W), dt), np.zeros((H, W), dt)

@@ -33,8 +33,8 @@ class RasterizeFunction(torch.autograd.Function):
     def forward(ctx, means2d, conics, colors, opacities, depths, background, rects, width, height):
         nb = splat_kernels()
         tw, th = -(-width // ref.TILE), -(-height // ref.TILE)
-        order = ref.depth_order(depths, rects)
-        offsets, ids = nb.bin_tiles(order.numpy().astype("int64"), rects.contiguous().numpy(), tw, th)
+        r = rects.contiguous().numpy()
+        offsets, ids = nb.bin_tiles(nb.depth_order(depths.detach().contiguous().numpy(), r), r, tw, th)
         dt = means2d.dtype
         arrays = [t.detach().contiguous() for t in (means2d, conics, colors, opacities, depths, background)]
         rgb = torch.empty((height, width, 3), dtype=dt)
