@@ -206,7 +206,8 @@ def wrap_splat(clock: PhaseClock, tr) -> None:
     if nb is None:
         raise SystemExit("step_profile: the compiled splat kernels are not available (numba)")
     for name, label in SPLAT_KERNELS.items():
-        setattr(nb, name, clock.wrap(getattr(nb, name), label))
+        if hasattr(nb, name):  # (an older tree may lack some)
+            setattr(nb, name, clock.wrap(getattr(nb, name), label))
     for name, label in SPLAT_TORCH.items():
         setattr(ref, name, clock.wrap(getattr(ref, name), label))
     splat.ssim = clock.wrap(splat.ssim, "loss: SSIM forward")
