@@ -3,8 +3,15 @@
 The reference is :func:`nerfkit.kernels.splat_reference.rasterize_reference`; the rules
 (tiles, depth order, alpha thresholds, early termination) are the same, see there.
 
+* :func:`project_forward` / :func:`project_backward`: every Gaussian's EWA projection,
+  opacity and SH colour, and their gradients (one pass over the Gaussians each, per
+  Gaussian in float64, on one thread; references: ``project_gaussians``,
+  ``covariance_3d``, ``sh_to_rgb`` of :mod:`nerfkit.kernels.splat_reference`).
+* :func:`depth_order`: the visible Gaussians nearest first (a stable radix sort: the
+  reference's order exactly).
 * :func:`bin_tiles`: per tile, the visible Gaussians in depth order (a bucket sort of
   the globally depth-sorted list, so each tile's list stays sorted).
+* :func:`all_finite`: the training step's check of the gradients, in one pass.
 * :func:`rasterize_forward`: tiles in parallel; per tile, Gaussians front to back each
   update the open pixels of their footprint (the box where alpha can reach 1/255; a tile
   is done when all its pixels are). Writes the final transmittance and the end of the

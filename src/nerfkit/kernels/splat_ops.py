@@ -1,11 +1,14 @@
 """Rendering 3D Gaussians on either path.
 
-Projection and SH colour are plain torch (autograd; cheap even for 10^5 Gaussians); the
-rasterizer, where the time goes, is :class:`RasterizeFunction` on the CPU: the compiled
-kernels of :mod:`nerfkit.kernels.splat_numba` forward and backward. Otherwise (CUDA
-tensors, no numba, or ``backend="torch"``) it is the reference
-:func:`~nerfkit.kernels.splat_reference.rasterize_reference` under autograd. On CUDA with
-``gsplat`` installed, :func:`render_gaussians` hands the whole pipeline to gsplat.
+On the CPU with numba, projection, opacity and SH colour are :class:`ProjectFunction` (one
+compiled pass over the Gaussians forward and one backward, in place of the torch
+reference's few dozen small operations over every Gaussian and autograd's graph of them),
+and the rasterizer, where the time goes, is :class:`RasterizeFunction`:
+the compiled kernels of :mod:`nerfkit.kernels.splat_numba` forward and backward.
+Otherwise (CUDA tensors, no numba, ``backend="torch"``, or a camera that needs a gradient)
+projection and colour are the torch reference and (except on the CPU) so is the
+rasterizer, :func:`~nerfkit.kernels.splat_reference.rasterize_reference` under autograd.
+On CUDA with ``gsplat`` installed, :func:`render_gaussians` hands the whole pipeline to gsplat.
 
 Only the colour output carries gradients on the compiled path (depth and alpha are for
 display); ``tests/test_splat_kernels.py`` compares values and gradients of the two paths.
