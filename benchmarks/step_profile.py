@@ -19,8 +19,9 @@ kernel's time is not counted again in the Python function that calls it):
 * ``loss``; ``finite check``; ``optimizer, python side``;
 * ``schedules: before / after``: growth, and the occupancy refreshes with the other
   after-step jobs; ``rest of the step``: what ``train_step`` does around all these.
-* ``--model splat``: ``project`` (3D covariances, EWA projection), ``SH colour``, ``depth
-  sort``, ``tile binning``, ``rasterise forward`` / ``backward`` (the compiled kernels),
+* ``--model splat``: ``project`` (3D covariances, EWA projection; on the compiled path also
+  the SH colour and opacity, and ``project backward`` their gradients), ``SH colour`` (the
+  torch path), ``depth sort``, ``tile binning``, ``rasterise forward`` / ``backward`` (the compiled kernels),
   ``render, torch side``, ``loss: SSIM forward`` (its backward is in autograd's time),
   ``optimizer``, ``schedules: after_step`` (density control); stages are the SH degrees.
 
@@ -33,9 +34,10 @@ tree takes for each step, at random, the old tree's compiled grid kernels and ra
 or its own (they must compute the same: the losses digest then equals a plain
 run's), and prints the median step of each by grid stage: the closest A/B under a load that
 changes from minute to minute. With ``--model splat``, the steps take at random the old
-tree's torch reference (projection, SH colour, depth sort) and compiled rasterizer or this
-tree's (they must compute the same up to rounding), by SH degree. Run under ``nice`` beside other work and the absolute
-figures grow; compare only runs made side by side.
+tree's splat rendering (its torch reference, compiled kernels and ``splat_ops``), its
+model's ``render_view``, ``loss`` and ``gradients_finite`` and its Adam's ``fused`` flag,
+or this tree's (they must compute the same up to rounding), by SH degree. Run under
+``nice`` beside other work and the absolute figures grow; compare only runs made side by side.
 """
 
 from __future__ import annotations
@@ -65,6 +67,9 @@ KERNELS = {
 }
 # the splat's compiled rasterizer, and its torch parts (module attributes looked up at call time)
 SPLAT_KERNELS = {
+    "project_forward": "project",
+    "project_backward": "project backward",
+    "depth_order": "depth sort",
     "bin_tiles": "tile binning",
     "rasterize_forward": "rasterise forward",
     "rasterize_backward": "rasterise backward",
@@ -85,6 +90,7 @@ ORDER = (
     "render, torch side",
     "loss: SSIM forward",
     "rasterise backward",
+    "project backward",
     "optimizer",
     "view corrections",
     "draw rays",
@@ -200,7 +206,8 @@ def wrap_splat(clock: PhaseClock, tr) -> None:
     if nb is None:
         raise SystemExit("step_profile: the compiled splat kernels are not available (numba)")
     for name, label in SPLAT_KERNELS.items():
-        setattr(nb, name, clock.wrap(getattr(nb, name), label))
+        if hasattr(nb, name):  # (an older tree may lack some)
+            setattr(nb, name, clock.wrap(getattr(nb, name), label))
     for name, label in SPLAT_TORCH.items():
         setattr(ref, name, clock.wrap(getattr(ref, name), label))
     splat.ssim = clock.wrap(splat.ssim, "loss: SSIM forward")
@@ -452,41 +459,63 @@ def interleaved(old_src: str, data: str, steps: int, seed: int) -> dict:
 
 def interleaved_splat(old_src: str, data: str, points: str | None, steps: int, seed: int) -> dict:
     """:func:`interleaved` for the splat: one training run of this tree whose steps take, each
-    at random, ``old_src``'s torch reference module (projection, SH colour, depth sort) and
-    compiled rasterizer, or this tree's. Wall and CPU seconds of each step, by SH degree."""
+    at random, ``old_src``'s way of rendering and stepping (its ``splat_reference``,
+    ``splat_numba`` and ``splat_ops`` modules, its ``SplatModel``'s ``render_view``, ``loss``
+    and ``gradients_finite``, and the ``fused`` flag of its Adam groups) or this tree's.
+    Wall and CPU seconds of each step, by SH degree."""
+    import types
+
     import numpy as np
 
     from nerfkit import kernels, presets
-    from nerfkit.kernels import splat_ops
     from nerfkit.models import model_config_class
     from nerfkit.train.config import TrainConfig
     from nerfkit.train.trainer import Trainer
 
-    old_dir = Path(old_src) / "nerfkit" / "kernels"
-    # (named inside nerfkit.kernels: its relative import of the grid reference resolves)
-    old_ref = load_file(old_dir / "splat_reference.py", "nerfkit.kernels.step_profile_old_splat_reference")
-    old_nb = load_file(old_dir / "splat_numba.py", "step_profile_old_splat_numba")
+    old_dir = Path(old_src) / "nerfkit"
+    # (named inside nerfkit's packages, so their relative imports resolve; the names they
+    # take from this tree are pointed at the old tree's modules here)
+    old_ref = load_file(old_dir / "kernels" / "splat_reference.py", "nerfkit.kernels.step_profile_old_splat_reference")
+    old_nb = load_file(old_dir / "kernels" / "splat_numba.py", "step_profile_old_splat_numba")
     old_nb.warm_up()
+    old_ops = load_file(old_dir / "kernels" / "splat_ops.py", "nerfkit.kernels.step_profile_old_splat_ops")
+    old_ops.ref = old_ref
+    old_model = load_file(old_dir / "models" / "splat.py", "nerfkit.models.step_profile_old_splat")
+    old_model.ref, old_model.render_gaussians, old_model.ssim = old_ref, old_ops.render_gaussians, old_ops.ssim
     scene = load_scene(data, "splat", points)
     times: dict[str, dict[int, list]] = {"old": {}, "new": {}}
+    methods = ("render_view", "loss", "gradients_finite")
     with tempfile.TemporaryDirectory() as out:
         cfg = TrainConfig(data=data, model="splat", out=out, steps=steps, seed=seed, checkpoint_seconds=1e9)
         cfg, model_cfg = presets.resolve(cfg.validate(), model_config_class("splat")(), scene).configs()
         tr = Trainer(scene, cfg, model_cfg, quiet=True)
         tr.model.load_kernels()
-        parts = {"old": (old_ref, old_nb), "new": (splat_ops.ref, kernels.splat_kernels())}
+        model = tr.model
+        fused = {
+            "old": [g.get("fused") for g in old_model.SplatModel.param_groups(model, cfg.lr)],
+            "new": [g.get("fused") for g in model.param_groups(cfg.lr)],
+        }
+        bound = {name: types.MethodType(getattr(old_model.SplatModel, name), model) for name in methods}
+        new_nb = kernels.splat_kernels()
         pick = np.random.default_rng(seed)
         try:
             while tr.step < steps:
                 which = "old" if pick.random() < 0.5 else "new"
-                splat_ops.ref, kernels._SPLAT["module"] = parts[which]
-                stage, t, c = tr.model.active_degree, time.perf_counter(), time.process_time()
+                kernels._SPLAT["module"] = old_nb if which == "old" else new_nb
+                for name in methods:
+                    if which == "old":
+                        setattr(model, name, bound[name])
+                    else:
+                        model.__dict__.pop(name, None)
+                for group, flag in zip(tr.optimizer.param_groups, fused[which]):
+                    group["fused"] = flag
+                stage, t, c = model.active_degree, time.perf_counter(), time.process_time()
                 tr.train_step()
                 times[which].setdefault(stage, []).append((time.perf_counter() - t, time.process_time() - c))
                 tr.step += 1
         finally:
-            splat_ops.ref, kernels._SPLAT["module"] = parts["new"]
-        n = tr.model.n_gaussians
+            kernels._SPLAT["module"] = new_nb
+        n = model.n_gaussians
     stages = stage_medians(times)
     return {"stages": stages, "gaussians": n, "loadavg": os.getloadavg()}
 

@@ -326,3 +326,130 @@ def test_numba_forward_is_the_same_on_any_number_of_lanes():
     for other in outs[1:]:
         for a, b in zip(outs[0], other):
             assert np.array_equal(a, b)
+
+
+def reference_projection(params, degree, w2c, K, W, H, near=0.01):
+    """The torch reference's projection, opacity and SH colour (as render_gaussians wires them)."""
+    means, log_scales, quats, logits, sh = params
+    p = ref.project_gaussians(means, ref.covariance_3d(log_scales, quats), w2c, K, W, H, near)
+    cam = torch.linalg.inv(w2c.to(means))[:3, 3]
+    dirs = means.detach() - cam
+    dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    colors = ref.sh_to_rgb(sh, dirs, degree)
+    return p["means2d"], p["conics"], colors, torch.sigmoid(logits), p["depths"], p["radii"], p["rects"]
+
+
+def compiled_projection(params, degree, w2c, K, W, H, near=0.01):
+    from nerfkit.kernels.splat_ops import ProjectFunction
+
+    means, log_scales, quats, logits, sh = params
+    return ProjectFunction.apply(means, log_scales, quats, logits, sh[:, :1], sh[:, 1:], degree, w2c, K, W, H, near)
+
+
+def crowd_with_edge_cases(n: int, seed: int, dtype=torch.float64):
+    """Gaussians in front of the camera and some behind it, beyond the near plane, far outside
+    the field of view (the clamp of J), and some with colours clamped at zero."""
+    means, log_scales, quats, logits, sh = random_gaussians(n, seed, dtype, spread=1.2, log_scale=-1.5)
+    means[:4, 2] = -3.5  # behind the camera (z = 3 + mz)
+    means[4:6, 2] = -2.995  # nearer than the near plane
+    means[6:10, 0] = torch.tensor([9.0, -9.0, 12.0, -7.0], dtype=dtype)  # outside 1.3 x the half field of view
+    means[10:12, 1] = torch.tensor([8.0, -8.0], dtype=dtype)
+    sh[12:16, 0] = -3.0  # SH + 0.5 < 0: the colour clamps
+    return means, log_scales, quats, logits, sh
+
+
+@needs_numba
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_compiled_projection_matches_the_reference_values_and_float64_gradients(degree):
+    W, H = 40, 30
+    params = crowd_with_edge_cases(200, seed=degree)
+    w2c, K = camera(W, H)
+    results = {}
+    for name, fn in (("torch", reference_projection), ("numba", compiled_projection)):
+        leaves = [p.clone().requires_grad_() for p in params]
+        outs = fn(leaves, degree, w2c, K, W, H)
+        g = torch.Generator().manual_seed(11)
+        loss = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype)).sum() for o in outs[:5])
+        results[name] = (outs, torch.autograd.grad(loss, leaves))
+    (ref_out, ref_grads), (nb_out, nb_grads) = results["torch"], results["numba"]
+    radii = ref_out[5]
+    assert 0 < int((radii > 0).sum()) < len(radii)  # some visible, some culled
+    assert torch.equal(nb_out[5], radii) and torch.equal(nb_out[6], ref_out[6])
+    for a, b in zip(ref_out[:5], nb_out[:5]):
+        torch.testing.assert_close(b.detach(), a.detach(), rtol=1e-10, atol=1e-12)
+    for a, b in zip(ref_grads, nb_grads):
+        torch.testing.assert_close(b, a, rtol=1e-9, atol=1e-10)
+        assert float(a.abs().max()) > 0
+    # the coefficients past the degree get a zero gradient, as autograd gives them
+    assert int(torch.count_nonzero(nb_grads[4][:, (degree + 1) ** 2 :])) == 0
+
+
+@needs_numba
+def test_compiled_projection_float32_is_near_the_float64_reference():
+    W, H = 64, 48
+    params = crowd_with_edge_cases(300, seed=7)
+    w2c, K = camera(W, H)
+    ref_out = reference_projection(params, 3, w2c, K, W, H)
+    f32 = [p.float() for p in params]
+    nb_out = compiled_projection(f32, 3, w2c.float(), K.float(), W, H)
+    assert all(o.dtype == torch.float32 for o in nb_out[:5])
+    visible = ref_out[5] > 0
+    for a, b in zip(ref_out[:5], nb_out[:5]):
+        torch.testing.assert_close(b[visible].double(), a[visible], rtol=1e-5, atol=1e-5)
+    assert float((nb_out[5] != ref_out[5]).float().mean()) < 0.02  # (a radius at a rounding edge may differ)
+
+
+@needs_numba
+def test_render_gaussians_takes_the_dc_and_the_rest_apart_and_a_posed_camera_on_the_reference():
+    W, H = 32, 24
+    params = random_gaussians(40, seed=8)
+    w2c, K = camera(W, H)
+    bg = torch.full((H, W, 3), 0.25, dtype=torch.float64)
+    means, log_scales, quats, logits, sh = params
+    whole = render_gaussians(*params, 3, w2c, K, W, H, bg, 0.01, "numba")
+    split = render_gaussians(
+        means, log_scales, quats, logits, sh[:, :1], 3, w2c, K, W, H, bg, 0.01, "numba", sh_rest=sh[:, 1:]
+    )
+    assert torch.equal(whole.rgb, split.rgb)
+    # a camera that needs a gradient (a pose correction's) renders on the torch projection
+    cam = w2c.clone().requires_grad_()
+    posed = render_gaussians(*params, 3, cam, K, W, H, bg, 0.01, "numba")
+    torch.testing.assert_close(posed.rgb.detach(), whole.rgb, rtol=1e-10, atol=1e-12)
+    (g,) = torch.autograd.grad(posed.rgb.square().sum(), cam)
+    assert float(g[:3].abs().max()) > 0
+
+
+@needs_numba
+def test_all_finite_finds_any_nan_or_infinity():
+    import numpy as np
+
+    nb = splat_kernels()
+    for dt in (np.float32, np.float64):
+        x = np.linspace(-1e30, 1e30, 1001).astype(dt)
+        assert nb.all_finite(x) and nb.all_finite(x[:0])
+        for bad in (np.nan, np.inf, -np.inf):
+            for at in (0, 517, 1000):
+                y = x.copy()
+                y[at] = bad
+                assert not nb.all_finite(y)
+
+
+@needs_numba
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_compiled_depth_order_is_the_reference_stable_sort(dtype):
+    nb = splat_kernels()
+    g = torch.Generator().manual_seed(2)
+    n = 5000
+    depths = (torch.rand(n, generator=g, dtype=torch.float64) * 50 - 5).to(dtype)
+    depths[::7] = depths[3]  # ties: kept in index order
+    depths[1::97] = torch.tensor([-0.0, 0.0, 1e-30, -1e-30, 3e38 if dtype == torch.float32 else 1e300], dtype=dtype)[
+        torch.arange(len(depths[1::97])) % 5
+    ]
+    rects = torch.zeros(n, 4, dtype=torch.int32)
+    rects[:, 1] = 1 + (torch.rand(n, generator=g) < 0.8).int()  # x1 > x0 = 0 (one or two tiles wide)
+    rects[:, 3] = (torch.rand(n, generator=g) < 0.9).int()  # y1 > y0 = 0 for most: those are visible
+    want = ref.depth_order(depths, rects)
+    got = nb.depth_order(depths.numpy(), rects.numpy())
+    assert 0 < len(want) < n
+    assert torch.equal(torch.from_numpy(got), want)
+    assert len(nb.depth_order(depths[:0].numpy(), rects[:0].numpy())) == 0

@@ -92,6 +92,39 @@ def test_density_control_clones_splits_prunes_and_keeps_adam_moments(sphere):
     torch.testing.assert_close(split_scales, torch.full_like(split_scales, 0.5 / 1.6))
 
 
+def test_gradient_check_finds_a_nan_or_infinity_in_any_parameter_on_both_paths(sphere):
+    for kernels in ("auto", "torch"):
+        model = small_model(sphere, init_points=50, kernels=kernels)
+        for p in model.parameters():
+            p.grad = torch.ones_like(p)
+        assert model.gradients_finite()
+        for name in ("means", "sh_rest"):
+            for bad in (float("nan"), float("inf")):
+                grad = getattr(model, name).grad
+                grad.view(-1)[7] = bad
+                assert not model.gradients_finite(), (kernels, name, bad)
+                grad.view(-1)[7] = 0.0
+        assert model.gradients_finite()
+
+
+def test_adam_of_the_gaussians_steps_as_the_unfused_one_up_to_rounding(sphere):
+    model, twin = small_model(sphere, init_points=200), small_model(sphere, init_points=200)
+    start = [p.detach().clone() for p in model.parameters()]
+    assert all(g.get("fused") for g in model.param_groups(1.0))  # (on the CPU)
+    fused = build_optimizer(model, 1.0)
+    plain = torch.optim.Adam([{k: v for k, v in g.items() if k != "fused"} for g in twin.param_groups(1.0)])
+    g = torch.Generator().manual_seed(0)
+    for _ in range(5):
+        for a, b in zip(model.parameters(), twin.parameters()):
+            a.grad = torch.randn(a.shape, generator=g)
+            b.grad = a.grad.clone()
+        fused.step()
+        plain.step()
+    for a, b, s in zip(model.parameters(), twin.parameters(), start):
+        assert not torch.equal(a, s)
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+
+
 def test_opacity_reset_caps_opacity(sphere):
     model = small_model(sphere, init_points=50, init_opacity=0.9)
     opt = build_optimizer(model, 1.0)

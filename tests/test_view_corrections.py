@@ -425,7 +425,11 @@ def test_a_zero_pose_correction_renders_the_view_as_given():
     K, c2w = splat_camera()
     pose = PoseCorrection(4, scale=1.0)
     assert torch.equal(pose.camera(c2w, 2), c2w)
-    assert torch.equal(splat_rgb(model, K, pose.camera(c2w, 2)), splat_rgb(model, K, c2w))
+    # (a camera that needs a gradient projects on the torch reference, the plain one on the
+    # compiled projection: the same render up to float32 rounding)
+    rgb = splat_rgb(model, K, c2w)
+    torch.testing.assert_close(splat_rgb(model, K, pose.camera(c2w, 2)), rgb, rtol=1e-5, atol=1e-6)
+    assert float(rgb.max()) > 0.1
 
 
 def test_the_corrected_camera_sees_what_the_gaussians_moved_back_show_the_given_one():

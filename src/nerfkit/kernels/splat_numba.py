@@ -3,8 +3,15 @@
 The reference is :func:`nerfkit.kernels.splat_reference.rasterize_reference`; the rules
 (tiles, depth order, alpha thresholds, early termination) are the same, see there.
 
+* :func:`project_forward` / :func:`project_backward`: every Gaussian's EWA projection,
+  opacity and SH colour, and their gradients (one pass over the Gaussians each, per
+  Gaussian in float64, on one thread; references: ``project_gaussians``,
+  ``covariance_3d``, ``sh_to_rgb`` of :mod:`nerfkit.kernels.splat_reference`).
+* :func:`depth_order`: the visible Gaussians nearest first (a stable radix sort: the
+  reference's order exactly).
 * :func:`bin_tiles`: per tile, the visible Gaussians in depth order (a bucket sort of
   the globally depth-sorted list, so each tile's list stays sorted).
+* :func:`all_finite`: the training step's check of the gradients, in one pass.
 * :func:`rasterize_forward`: tiles in parallel; per tile, Gaussians front to back each
   update the open pixels of their footprint (the box where alpha can reach 1/255; a tile
   is done when all its pixels are). Writes the final transmittance and the end of the
@@ -41,6 +48,55 @@ ALPHA_MAX = 0.99
 T_MIN = 1e-4
 G_MX, G_MY, G_A, G_B, G_C, G_OP, G_R, G_G, G_BL = range(9)
 N_GRAD = 9
+
+
+@njit(cache=True)
+def depth_order(depths, rects):
+    """Indices (m,) int64 of the visible Gaussians (non-empty ``rects``), nearest first, ties
+    in index order: :func:`nerfkit.kernels.splat_reference.depth_order`'s stable sort, as an
+    LSD radix sort (16 bits a pass) of the depths' float64 bits mapped to unsigned integers
+    that order as the floats do (passes whose digit is the same for all are skipped: a
+    float32 depth's low 29 bits are zero)."""
+    n = depths.shape[0]
+    idx = np.empty(n, np.int64)
+    m = 0
+    for g in range(n):
+        if rects[g, 1] > rects[g, 0] and rects[g, 3] > rects[g, 2]:
+            idx[m] = g
+            m += 1
+    vals = np.empty(m, np.float64)
+    for k in range(m):
+        d = np.float64(depths[idx[k]])
+        vals[k] = 0.0 if d == 0.0 else d  # (-0 sorts as 0)
+    bits = vals.view(np.uint64)
+    sign = np.uint64(1) << np.uint64(63)
+    keys = np.empty(m, np.uint64)
+    for k in range(m):
+        b = bits[k]
+        keys[k] = ~b if b & sign else b | sign
+    order = idx[:m].copy()
+    tmp_keys = np.empty(m, np.uint64)
+    tmp_order = np.empty(m, np.int64)
+    count = np.empty(65537, np.int64)
+    mask = np.uint64(0xFFFF)
+    for p in range(4):
+        shift = np.uint64(16 * p)
+        count[:] = 0
+        for k in range(m):
+            count[((keys[k] >> shift) & mask) + 1] += 1
+        if m == 0 or count[((keys[0] >> shift) & mask) + 1] == m:
+            continue  # one digit for all: this pass keeps the order
+        for j in range(65536):
+            count[j + 1] += count[j]
+        for k in range(m):
+            digit = (keys[k] >> shift) & mask
+            at = count[digit]
+            count[digit] = at + 1
+            tmp_keys[at] = keys[k]
+            tmp_order[at] = order[k]
+        keys, tmp_keys = tmp_keys, keys
+        order, tmp_order = tmp_order, order
+    return order
 
 
 @njit(cache=True)
@@ -324,6 +380,359 @@ def rasterize_backward(
                 grads[lane, g, G_BL] += d_bl
 
 
+# SH basis constants (INRIA's, as :func:`nerfkit.kernels.splat_reference.sh_basis`)
+SH_C0 = 0.28209479177387814
+SH_C1 = 0.4886025119029199
+SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+SH_C3 = (
+    -0.5900435899266435,
+    2.890611442640554,
+    -0.4570457994644658,
+    0.3731763325901154,
+    -0.4570457994644658,
+    1.445305721320277,
+    -0.5900435899266435,
+)
+FOV_CLIP = 1.3
+DILATION = 0.3
+INV_TILE = 1.0 / TILE
+
+
+@njit(cache=True, inline="always")
+def _sh_basis(x, y, z, degree, out):
+    """INRIA's real SH basis of the unit direction ``(x, y, z)`` into ``out[:(degree + 1)^2]``."""
+    out[0] = SH_C0
+    if degree >= 1:
+        out[1] = -SH_C1 * y
+        out[2] = SH_C1 * z
+        out[3] = -SH_C1 * x
+    if degree >= 2:
+        xx, yy, zz = x * x, y * y, z * z
+        out[4] = SH_C2[0] * x * y
+        out[5] = SH_C2[1] * y * z
+        out[6] = SH_C2[2] * (2.0 * zz - xx - yy)
+        out[7] = SH_C2[3] * x * z
+        out[8] = SH_C2[4] * (xx - yy)
+    if degree >= 3:
+        xx, yy, zz = x * x, y * y, z * z
+        out[9] = SH_C3[0] * y * (3.0 * xx - yy)
+        out[10] = SH_C3[1] * x * y * z
+        out[11] = SH_C3[2] * y * (4.0 * zz - xx - yy)
+        out[12] = SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
+        out[13] = SH_C3[4] * x * (4.0 * zz - xx - yy)
+        out[14] = SH_C3[5] * z * (xx - yy)
+        out[15] = SH_C3[6] * x * (xx - 3.0 * yy)
+
+
+@njit(cache=True, inline="always")
+def _rotation(qw, qx, qy, qz, R):
+    """The rotation matrix (3, 3) of the quaternion ``(w, x, y, z)`` (normalised here) into
+    ``R``; returns the quaternion's length."""
+    qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    inv = 1.0 / qn
+    w, x, y, z = qw * inv, qx * inv, qy * inv, qz * inv
+    R[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    R[0, 1] = 2.0 * (x * y - w * z)
+    R[0, 2] = 2.0 * (x * z + w * y)
+    R[1, 0] = 2.0 * (x * y + w * z)
+    R[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    R[1, 2] = 2.0 * (y * z - w * x)
+    R[2, 0] = 2.0 * (x * z - w * y)
+    R[2, 1] = 2.0 * (y * z + w * x)
+    R[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    return qn
+
+
+@njit(cache=True, inline="always")
+def _camera_jacobian(view, tx, ty, tz, fx, fy, limx, limy, near, T):
+    """EWA's ``T = J W`` (2, 3) into ``T`` for the view-space centre ``(tx, ty, tz)``; returns
+    ``(tzc, u, v, uc, vc)``: the clamped depth, ``tx / tzc``, ``ty / tzc`` and those two clamped
+    to the field of view (as :func:`nerfkit.kernels.splat_reference.project_gaussians`)."""
+    tzc = max(tz, near)
+    iz = 1.0 / tzc
+    u, v = tx * iz, ty * iz
+    uc, vc = min(max(u, -limx), limx), min(max(v, -limy), limy)
+    j00, j02 = fx * iz, -fx * uc * iz
+    j11, j12 = fy * iz, -fy * vc * iz
+    for k in range(3):
+        T[0, k] = j00 * view[0, k] + j02 * view[2, k]
+        T[1, k] = j11 * view[1, k] + j12 * view[2, k]
+    return tzc, u, v, uc, vc
+
+
+@njit(cache=True)
+def project_forward(
+    means,
+    log_scales,
+    quats,
+    opacity_logits,
+    sh_dc,
+    sh_rest,
+    degree,
+    view,
+    cam,
+    intr,
+    width,
+    height,
+    near,
+    means2d,
+    conics,
+    colors,
+    opac,
+    depths,
+    radii,
+    rects,
+):
+    """Projection, opacity and SH colour of every Gaussian, as the torch reference
+    (``project_gaussians(means, covariance_3d(log_scales, quats), ...)``, ``sigmoid``,
+    ``sh_to_rgb`` along the direction from the camera centre ``cam``), per Gaussian in
+    float64, written into the outputs (``means2d`` (n, 2), ``conics`` (n, 3), ``colors`` (n, 3),
+    ``opac`` (n,), ``depths`` (n,), ``radii`` (n,) int32, ``rects`` (n, 4) int32).
+
+    ``view`` (3, 4) float64 the world-to-camera rows; ``intr`` (4,) ``fx, fy, cx, cy``;
+    ``sh_dc`` (n, 1, 3), ``sh_rest`` (n, K - 1, 3) with ``(degree + 1)^2 <= K``."""
+    n = means.shape[0]
+    fx, fy, cx, cy = intr[0], intr[1], intr[2], intr[3]
+    limx, limy = FOV_CLIP * 0.5 * width / fx, FOV_CLIP * 0.5 * height / fy
+    tw, th = -(-width // TILE), -(-height // TILE)
+    n_basis = (degree + 1) * (degree + 1)
+    T = np.empty((2, 3))
+    R = np.empty((3, 3))
+    basis = np.empty(16)
+    for i in range(n):
+        m0, m1, m2 = float(means[i, 0]), float(means[i, 1]), float(means[i, 2])
+        tx = view[0, 0] * m0 + view[0, 1] * m1 + view[0, 2] * m2 + view[0, 3]
+        ty = view[1, 0] * m0 + view[1, 1] * m1 + view[1, 2] * m2 + view[1, 3]
+        tz = view[2, 0] * m0 + view[2, 1] * m1 + view[2, 2] * m2 + view[2, 3]
+        tzc, _, _, _, _ = _camera_jacobian(view, tx, ty, tz, fx, fy, limx, limy, near, T)
+        _rotation(float(quats[i, 0]), float(quats[i, 1]), float(quats[i, 2]), float(quats[i, 3]), R)
+        s0, s1, s2 = math.exp(log_scales[i, 0]), math.exp(log_scales[i, 1]), math.exp(log_scales[i, 2])
+        # U = T R diag(s): cov2d = U U^T
+        u00 = (T[0, 0] * R[0, 0] + T[0, 1] * R[1, 0] + T[0, 2] * R[2, 0]) * s0
+        u01 = (T[0, 0] * R[0, 1] + T[0, 1] * R[1, 1] + T[0, 2] * R[2, 1]) * s1
+        u02 = (T[0, 0] * R[0, 2] + T[0, 1] * R[1, 2] + T[0, 2] * R[2, 2]) * s2
+        u10 = (T[1, 0] * R[0, 0] + T[1, 1] * R[1, 0] + T[1, 2] * R[2, 0]) * s0
+        u11 = (T[1, 0] * R[0, 1] + T[1, 1] * R[1, 1] + T[1, 2] * R[2, 1]) * s1
+        u12 = (T[1, 0] * R[0, 2] + T[1, 1] * R[1, 2] + T[1, 2] * R[2, 2]) * s2
+        a = u00 * u00 + u01 * u01 + u02 * u02 + DILATION
+        b = u00 * u10 + u01 * u11 + u02 * u12
+        c = u10 * u10 + u11 * u11 + u12 * u12 + DILATION
+        det = a * c - b * b
+        valid = tz > near and det > 0.0
+        ids = 1.0 / det if valid else 1.0
+        conics[i, 0] = c * ids
+        conics[i, 1] = -b * ids
+        conics[i, 2] = a * ids
+        iz = 1.0 / tzc
+        mx, my = fx * tx * iz + cx, fy * ty * iz + cy
+        means2d[i, 0] = mx
+        means2d[i, 1] = my
+        depths[i] = tz
+        opac[i] = 1.0 / (1.0 + math.exp(-float(opacity_logits[i])))
+        # the screen rectangle (tiles), as the reference
+        mid = 0.5 * (a + c)
+        lam = mid + math.sqrt(max(mid * mid - det, 0.1))
+        r = np.ceil(3.0 * math.sqrt(max(lam, 0.0)))
+        px, py = mx - 0.5, my - 0.5
+        x0 = min(max(np.floor((px - r) * INV_TILE), 0.0), tw)
+        x1 = min(max(np.floor((px + r + TILE - 1) * INV_TILE), 0.0), tw)
+        y0 = min(max(np.floor((py - r) * INV_TILE), 0.0), th)
+        y1 = min(max(np.floor((py + r + TILE - 1) * INV_TILE), 0.0), th)
+        if valid and math.isfinite(r) and x1 > x0 and y1 > y0:
+            radii[i] = int(r)
+            rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3] = int(x0), int(x1), int(y0), int(y1)
+        else:
+            radii[i] = 0
+            rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3] = 0, 0, 0, 0
+        # SH colour along the direction from the camera centre
+        d0, d1, d2 = m0 - cam[0], m1 - cam[1], m2 - cam[2]
+        idn = 1.0 / max(math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-12)
+        _sh_basis(d0 * idn, d1 * idn, d2 * idn, degree, basis)
+        for ch in range(3):
+            acc = basis[0] * sh_dc[i, 0, ch]
+            for k in range(1, n_basis):
+                acc += basis[k] * sh_rest[i, k - 1, ch]
+            colors[i, ch] = max(acc + 0.5, 0.0)
+
+
+@njit(cache=True)
+def project_backward(
+    means,
+    log_scales,
+    quats,
+    opacity_logits,
+    sh_dc,
+    sh_rest,
+    degree,
+    view,
+    cam,
+    intr,
+    width,
+    height,
+    near,
+    g_means2d,
+    g_conics,
+    g_colors,
+    g_opac,
+    g_depths,
+    d_means,
+    d_log_scales,
+    d_quats,
+    d_logits,
+    d_sh_dc,
+    d_sh_rest,
+):
+    """The gradients of :func:`project_forward`'s differentiable outputs (``g_*``, the
+    loss's gradient with respect to each) to its inputs (``d_*``, written in place, every
+    row: zero where nothing depends on it, as autograd gives the reference; ``d_sh_rest``
+    zero past the active degree). Per Gaussian in float64, recomputing the forward."""
+    n = means.shape[0]
+    fx, fy = intr[0], intr[1]
+    limx, limy = FOV_CLIP * 0.5 * width / fx, FOV_CLIP * 0.5 * height / fy
+    n_basis = (degree + 1) * (degree + 1)
+    n_rest = sh_rest.shape[1]
+    T = np.empty((2, 3))
+    R = np.empty((3, 3))
+    U = np.empty((2, 3))
+    dU = np.empty((2, 3))
+    dR = np.empty((3, 3))
+    basis = np.empty(16)
+    for i in range(n):
+        m0, m1, m2 = float(means[i, 0]), float(means[i, 1]), float(means[i, 2])
+        tx = view[0, 0] * m0 + view[0, 1] * m1 + view[0, 2] * m2 + view[0, 3]
+        ty = view[1, 0] * m0 + view[1, 1] * m1 + view[1, 2] * m2 + view[1, 3]
+        tz = view[2, 0] * m0 + view[2, 1] * m1 + view[2, 2] * m2 + view[2, 3]
+        tzc, u, v, uc, vc = _camera_jacobian(view, tx, ty, tz, fx, fy, limx, limy, near, T)
+        qw, qx, qy, qz = float(quats[i, 0]), float(quats[i, 1]), float(quats[i, 2]), float(quats[i, 3])
+        qn = _rotation(qw, qx, qy, qz, R)
+        s = (math.exp(log_scales[i, 0]), math.exp(log_scales[i, 1]), math.exp(log_scales[i, 2]))
+        for r in range(2):
+            for j in range(3):
+                U[r, j] = (T[r, 0] * R[0, j] + T[r, 1] * R[1, j] + T[r, 2] * R[2, j]) * s[j]
+        a = U[0, 0] * U[0, 0] + U[0, 1] * U[0, 1] + U[0, 2] * U[0, 2] + DILATION
+        b = U[0, 0] * U[1, 0] + U[0, 1] * U[1, 1] + U[0, 2] * U[1, 2]
+        c = U[1, 0] * U[1, 0] + U[1, 1] * U[1, 1] + U[1, 2] * U[1, 2] + DILATION
+        det = a * c - b * b
+        valid = tz > near and det > 0.0
+        ids = 1.0 / det if valid else 1.0
+        # conic (c, -b, a) / ds -> a, b, c (and ds = det when valid)
+        gA, gB, gC = float(g_conics[i, 0]), float(g_conics[i, 1]), float(g_conics[i, 2])
+        ga, gb, gc = gC * ids, -gB * ids, gA * ids
+        if valid:
+            g_det = -(gA * c - gB * b + gC * a) * (ids * ids)
+            ga += g_det * c
+            gc += g_det * a
+            gb -= 2.0 * g_det * b
+        # cov2d = U U^T with a = cov2d[0, 0], b = cov2d[0, 1], c = cov2d[1, 1]: dU = (G + G^T) U
+        for j in range(3):
+            dU[0, j] = 2.0 * ga * U[0, j] + gb * U[1, j]
+            dU[1, j] = gb * U[0, j] + 2.0 * gc * U[1, j]
+        # U = T M, M = R diag(s): dM = T^T dU, dT = dU M^T
+        for k in range(3):
+            for j in range(3):
+                dR[k, j] = (T[0, k] * dU[0, j] + T[1, k] * dU[1, j]) * s[j]  # dM[k, j] s_j
+        for j in range(3):
+            dsj = 0.0
+            for k in range(3):
+                dsj += dR[k, j] * R[k, j]  # (dM[k, j] s_j) R[k, j] = dM[k, j] M[k, j]
+            d_log_scales[i, j] = dsj
+        iq = 1.0 / qn
+        w, x, y, z = qw * iq, qx * iq, qy * iq, qz * iq
+        gw = 2.0 * (-z * dR[0, 1] + y * dR[0, 2] + z * dR[1, 0] - x * dR[1, 2] - y * dR[2, 0] + x * dR[2, 1])
+        gx = 2.0 * (
+            y * dR[0, 1]
+            + z * dR[0, 2]
+            + y * dR[1, 0]
+            - 2.0 * x * dR[1, 1]
+            - w * dR[1, 2]
+            + z * dR[2, 0]
+            + w * dR[2, 1]
+            - 2.0 * x * dR[2, 2]
+        )
+        gy = 2.0 * (
+            -2.0 * y * dR[0, 0]
+            + x * dR[0, 1]
+            + w * dR[0, 2]
+            + x * dR[1, 0]
+            + z * dR[1, 2]
+            - w * dR[2, 0]
+            + z * dR[2, 1]
+            - 2.0 * y * dR[2, 2]
+        )
+        gz = 2.0 * (
+            -2.0 * z * dR[0, 0]
+            - w * dR[0, 1]
+            + x * dR[0, 2]
+            + w * dR[1, 0]
+            - 2.0 * z * dR[1, 1]
+            + y * dR[1, 2]
+            + x * dR[2, 0]
+            + y * dR[2, 1]
+        )
+        dot = w * gw + x * gx + y * gy + z * gz
+        d_quats[i, 0] = (gw - w * dot) * iq
+        d_quats[i, 1] = (gx - x * dot) * iq
+        d_quats[i, 2] = (gy - y * dot) * iq
+        d_quats[i, 3] = (gz - z * dot) * iq
+        # dT = dU M^T, then T = J W: the four non-zero entries of J
+        dj00 = dj02 = dj11 = dj12 = 0.0
+        for k in range(3):
+            dT0 = dU[0, 0] * R[k, 0] * s[0] + dU[0, 1] * R[k, 1] * s[1] + dU[0, 2] * R[k, 2] * s[2]
+            dT1 = dU[1, 0] * R[k, 0] * s[0] + dU[1, 1] * R[k, 1] * s[1] + dU[1, 2] * R[k, 2] * s[2]
+            dj00 += dT0 * view[0, k]
+            dj02 += dT0 * view[2, k]
+            dj11 += dT1 * view[1, k]
+            dj12 += dT1 * view[2, k]
+        # J00 = fx / z, J02 = -fx txc / z^2 (txc = uc z), J11 and J12 alike; z = tzc
+        iz = 1.0 / tzc
+        iz2 = iz * iz
+        txc, tyc = uc * tzc, vc * tzc
+        g_tzc = -fx * iz2 * dj00 + 2.0 * fx * txc * iz2 * iz * dj02
+        g_tzc += -fy * iz2 * dj11 + 2.0 * fy * tyc * iz2 * iz * dj12
+        g_txc, g_tyc = -fx * iz2 * dj02, -fy * iz2 * dj12
+        g_uc, g_vc = g_txc * tzc, g_tyc * tzc
+        g_tzc += g_txc * uc + g_tyc * vc
+        g_tx = g_ty = 0.0
+        if -limx <= u <= limx:  # u = tx / z, clamped
+            g_tx += g_uc * iz
+            g_tzc -= g_uc * tx * iz2
+        if -limy <= v <= limy:
+            g_ty += g_vc * iz
+            g_tzc -= g_vc * ty * iz2
+        gmx, gmy = float(g_means2d[i, 0]), float(g_means2d[i, 1])
+        g_tx += gmx * fx * iz
+        g_ty += gmy * fy * iz
+        g_tzc -= (gmx * fx * tx + gmy * fy * ty) * iz2
+        g_tz = float(g_depths[i]) + (g_tzc if tz >= near else 0.0)
+        for j in range(3):
+            d_means[i, j] = view[0, j] * g_tx + view[1, j] * g_ty + view[2, j] * g_tz
+        op = 1.0 / (1.0 + math.exp(-float(opacity_logits[i])))
+        d_logits[i] = g_opac[i] * op * (1.0 - op)
+        # SH: d colour / d coefficient is the basis where the colour is not clamped
+        d0, d1, d2 = m0 - cam[0], m1 - cam[1], m2 - cam[2]
+        idn = 1.0 / max(math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-12)
+        _sh_basis(d0 * idn, d1 * idn, d2 * idn, degree, basis)
+        for ch in range(3):
+            acc = basis[0] * sh_dc[i, 0, ch]
+            for k in range(1, n_basis):
+                acc += basis[k] * sh_rest[i, k - 1, ch]
+            g = float(g_colors[i, ch]) if acc + 0.5 >= 0.0 else 0.0
+            d_sh_dc[i, 0, ch] = basis[0] * g
+            for k in range(1, n_rest + 1):
+                d_sh_rest[i, k - 1, ch] = basis[k] * g if k < n_basis else 0.0
+
+
+@njit(cache=True, fastmath={"reassoc"})
+def all_finite(x):
+    """Whether every value of the flat array ``x`` is finite: ``x - x`` is 0 for a finite
+    value and NaN for an infinite or NaN one, and their sum is NaN when one is (in any order:
+    the compiler may reorder the sum into vector lanes, nothing else)."""
+    acc = x.dtype.type(0.0)
+    for i in range(x.shape[0]):
+        acc += x[i] - x[i]
+    return acc == 0.0
+
+
 @njit(cache=True, inline="always")
 def _blur_plane(src, g, tmp, out):
     """``out = `` (H, W) ``src`` blurred by the 1D kernel ``g`` (odd length) along W, then
@@ -420,7 +829,7 @@ def warm_up() -> None:
         opac = np.full(n, 0.5, dt)
         depths = np.array([1.0, 2.0], dt)
         rects = np.array([[0, 1, 0, 1]] * n, np.int32)
-        offsets, ids = bin_tiles(np.arange(n, dtype=np.int64), rects, 1, 1)
+        offsets, ids = bin_tiles(depth_order(depths, rects), rects, 1, 1)
         H = W = 8
         bg = np.zeros((H, W, 3), dt)
         rgb, dep, alp, T = np.zeros((H, W, 3), dt), np.zeros((H, W), dt), np.zeros((H, W), dt), np.zeros((H, W), dt)
@@ -432,3 +841,20 @@ def warm_up() -> None:
         dmaps = np.empty((3, *x.shape), dt)
         ssim_forward(x, x, gw, 1e-4, 9e-4, dmaps)
         ssim_backward(x, x, gw, dmaps, 1.0, np.empty_like(x))
+        m = 3
+        params = (
+            np.zeros((m, 3), dt),
+            np.zeros((m, 3), dt),
+            np.ones((m, 4), dt),
+            np.zeros(m, dt),
+            np.zeros((m, 1, 3), dt),
+            np.zeros((m, 15, 3), dt),
+        )
+        view, cam, intr = np.eye(4)[:3].copy(), np.zeros(3), np.array([8.0, 8.0, 4.0, 4.0])
+        view[2, 3] = 3.0
+        outs = (np.zeros((m, 2), dt), np.zeros((m, 3), dt), np.zeros((m, 3), dt), np.zeros(m, dt), np.zeros(m, dt))
+        ints = (np.zeros(m, np.int32), np.zeros((m, 4), np.int32))
+        project_forward(*params, 3, view, cam, intr, W, H, 0.01, *outs, *ints)
+        grads_in = (outs[0], outs[1], outs[2], outs[3], outs[4])
+        project_backward(*params, 3, view, cam, intr, W, H, 0.01, *grads_in, *(np.empty_like(p) for p in params))
+        all_finite(outs[0].reshape(-1))

@@ -1,11 +1,14 @@
 """Rendering 3D Gaussians on either path.
 
-Projection and SH colour are plain torch (autograd; cheap even for 10^5 Gaussians); the
-rasterizer, where the time goes, is :class:`RasterizeFunction` on the CPU: the compiled
-kernels of :mod:`nerfkit.kernels.splat_numba` forward and backward. Otherwise (CUDA
-tensors, no numba, or ``backend="torch"``) it is the reference
-:func:`~nerfkit.kernels.splat_reference.rasterize_reference` under autograd. On CUDA with
-``gsplat`` installed, :func:`render_gaussians` hands the whole pipeline to gsplat.
+On the CPU with numba, projection, opacity and SH colour are :class:`ProjectFunction` (one
+compiled pass over the Gaussians forward and one backward, in place of the torch
+reference's few dozen small operations over every Gaussian and autograd's graph of them),
+and the rasterizer, where the time goes, is :class:`RasterizeFunction`:
+the compiled kernels of :mod:`nerfkit.kernels.splat_numba` forward and backward.
+Otherwise (CUDA tensors, no numba, ``backend="torch"``, or a camera that needs a gradient)
+projection and colour are the torch reference and (except on the CPU) so is the
+rasterizer, :func:`~nerfkit.kernels.splat_reference.rasterize_reference` under autograd.
+On CUDA with ``gsplat`` installed, :func:`render_gaussians` hands the whole pipeline to gsplat.
 
 Only the colour output carries gradients on the compiled path (depth and alpha are for
 display); ``tests/test_splat_kernels.py`` compares values and gradients of the two paths.
@@ -33,8 +36,8 @@ class RasterizeFunction(torch.autograd.Function):
     def forward(ctx, means2d, conics, colors, opacities, depths, background, rects, width, height):
         nb = splat_kernels()
         tw, th = -(-width // ref.TILE), -(-height // ref.TILE)
-        order = ref.depth_order(depths, rects)
-        offsets, ids = nb.bin_tiles(order.numpy().astype("int64"), rects.contiguous().numpy(), tw, th)
+        r = rects.contiguous().numpy()
+        offsets, ids = nb.bin_tiles(nb.depth_order(depths.detach().contiguous().numpy(), r), r, tw, th)
         dt = means2d.dtype
         arrays = [t.detach().contiguous() for t in (means2d, conics, colors, opacities, depths, background)]
         rgb = torch.empty((height, width, 3), dtype=dt)
@@ -91,6 +94,59 @@ class RasterizeFunction(torch.autograd.Function):
         g = grads.sum(0)
         g_bg = final_T.unsqueeze(-1) * g_rgb if ctx.needs_input_grad[5] else None
         return g[:, 0:2], g[:, 2:5], g[:, 6:9], g[:, 5], None, g_bg, None, None, None
+
+
+class ProjectFunction(torch.autograd.Function):
+    """Projection, opacity and SH colour of every Gaussian in one compiled pass forward and
+    one backward (:func:`~nerfkit.kernels.splat_numba.project_forward` /
+    ``project_backward``): what :func:`render_gaussians` computes with the torch reference
+    (``project_gaussians``, ``sigmoid``, ``sh_to_rgb``), without autograd's graph of a few
+    dozen small operations over every Gaussian (CPU tensors, float32 or float64; the camera
+    carries no gradient). Returns ``means2d, conics, colors, opacities, depths, radii, rects``."""
+
+    @staticmethod
+    def forward(ctx, means, log_scales, quats, opacity_logits, sh_dc, sh_rest, degree, w2c, K, width, height, near):
+        nb = splat_kernels()
+        n, dt = means.shape[0], means.dtype
+        params = [t.detach().contiguous() for t in (means, log_scales, quats, opacity_logits, sh_dc, sh_rest)]
+        view, cam, intr = camera_arrays(w2c, K, dt)
+        means2d, conics, colors = (torch.empty((n, k), dtype=dt) for k in (2, 3, 3))
+        opacities, depths = torch.empty(n, dtype=dt), torch.empty(n, dtype=dt)
+        radii, rects = torch.empty(n, dtype=torch.int32), torch.empty((n, 4), dtype=torch.int32)
+        outs = (means2d, conics, colors, opacities, depths, radii, rects)
+        nb.project_forward(
+            *(p.numpy() for p in params), degree, view, cam, intr, width, height, near, *(t.numpy() for t in outs)
+        )
+        ctx.save_for_backward(*params)
+        ctx.camera = (degree, view, cam, intr, width, height, near)
+        ctx.mark_non_differentiable(radii, rects)
+        return outs
+
+    @staticmethod
+    def backward(ctx, g_means2d, g_conics, g_colors, g_opacities, g_depths, _radii, _rects):
+        params = ctx.saved_tensors
+        n, dt = params[0].shape[0], params[0].dtype
+        shapes = ((n, 2), (n, 3), (n, 3), (n,), (n,))
+        grads_out = [
+            torch.zeros(shape, dtype=dt) if g is None else g.to(dt).contiguous()
+            for g, shape in zip((g_means2d, g_conics, g_colors, g_opacities, g_depths), shapes)
+        ]
+        grads_in = [torch.empty_like(p) for p in params]
+        splat_kernels().project_backward(
+            *(p.numpy() for p in params), *ctx.camera, *(g.numpy() for g in grads_out), *(g.numpy() for g in grads_in)
+        )
+        return (*grads_in, None, None, None, None, None, None)
+
+
+def camera_arrays(w2c: Tensor, K: Tensor, dtype: torch.dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The compiled projection's camera: ``view`` (3, 4) world-to-camera rows, ``cam`` (3,) the
+    camera centre (as the reference computes it: the inverse in ``dtype``), ``intr`` (4,)
+    ``fx, fy, cx, cy``, all float64 arrays of the values the reference sees in ``dtype``."""
+    w = w2c.detach().to(dtype)
+    cam = torch.linalg.inv(w)[:3, 3]
+    k = K.detach()
+    intr = [float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2])]
+    return w[:3].double().numpy().copy(), cam.double().numpy().copy(), np.array(intr, np.float64)
 
 
 def rasterize(
@@ -191,11 +247,30 @@ def render_gaussians(
     near_plane: float,
     backend: str = "auto",
     track_means2d: bool = False,
+    sh_rest: Tensor | None = None,
 ) -> SplatRender:
     """Render Gaussians (parameters as stored, see :mod:`splat_reference`) into one camera.
 
     ``background`` is (H, W, 3). With ``track_means2d`` the 2D means keep their gradient.
+    ``sh`` (n, K, 3) every SH coefficient, or with ``sh_rest`` (n, K - 1, 3) the DC (n, 1, 3)
+    alone (a model's two parameters, not concatenated for each view). On the compiled path,
+    projection, opacity and colour are :class:`ProjectFunction` (unless the camera ``w2c``
+    or ``K`` needs a gradient: a pose correction's, then the torch reference).
     """
+    numba = resolve_backend(backend, means.device) == "numba" and not uses_gsplat(means.device, backend)
+    if numba and not any(isinstance(t, Tensor) and t.requires_grad for t in (w2c, K)):
+        dc, rest = (sh, sh_rest) if sh_rest is not None else (sh[:, :1], sh[:, 1:])
+        means2d, conics, colors, opacities, depths, radii, rects = ProjectFunction.apply(
+            means, log_scales, quats, opacity_logits, dc, rest, sh_degree, w2c, K, width, height, near_plane
+        )
+        if track_means2d and means2d.requires_grad:
+            means2d.retain_grad()
+        rgb, depth, alpha = rasterize(
+            means2d, conics, colors, opacities, depths, rects, background, width, height, backend
+        )
+        return SplatRender(rgb, depth, alpha, means2d, radii)
+    if sh_rest is not None:
+        sh = torch.cat([sh, sh_rest], 1)
     if uses_gsplat(means.device, backend):
         return _render_gsplat(
             means, log_scales, quats, opacity_logits, sh, sh_degree, w2c, K, width, height, background, near_plane

@@ -39,6 +39,7 @@ from ..cameras import Rays, image_rays, project_points
 from ..config import check_ranges, option
 from ..errors import fail
 from ..fields.background import sh16
+from ..kernels import splat_kernels
 from ..kernels import splat_reference as ref
 from ..kernels.optim import replace_param
 from ..kernels.splat_ops import SplatRender, render_gaussians, resolve_backend, ssim
@@ -313,7 +314,7 @@ class SplatModel(NerfModel):
             self.log_scales,
             self.quats,
             self.opacity_logits,
-            self.sh(),
+            self.sh_dc,
             self.active_degree,
             w2c,
             K,
@@ -323,6 +324,7 @@ class SplatModel(NerfModel):
             self.near_plane,
             self.config.kernels,
             track_means2d=self.training and torch.is_grad_enabled(),
+            sh_rest=self.sh_rest,
         )
         if self.training and torch.is_grad_enabled():
             self._last = (out, width, height)
@@ -369,7 +371,10 @@ class SplatModel(NerfModel):
         ]
         if self.bg_coef is not None:
             groups.append({"params": [self.bg_coef], "lr": lr * 1e-2, "name": "bg_coef"})
-        return [{**g, "eps": 1e-15} for g in groups]  # (3DGS's Adam epsilon)
+        # (3DGS's Adam epsilon; on the CPU torch's fused Adam: one pass over each parameter
+        # instead of six, the same update up to float rounding)
+        fused = {"fused": True} if self.means.device.type == "cpu" else {}
+        return [{**g, "eps": 1e-15, **fused} for g in groups]
 
     def schedules(self) -> list[Schedule]:
         """Before each step: the SH degree for the progress. After each step: densification
@@ -524,6 +529,15 @@ class SplatModel(NerfModel):
 
     def backend(self) -> str:
         return resolve_backend(self.config.kernels, self.means.device)
+
+    def gradients_finite(self) -> bool:
+        """As the base class's, in one compiled pass over each gradient on the CPU
+        (``torch.isfinite(...).all()`` makes four)."""
+        nb = splat_kernels() if self.backend() == "numba" else None
+        if nb is None:
+            return super().gradients_finite()
+        grads = (p.grad.detach().reshape(-1) for p in self.parameters() if p.grad is not None)
+        return all(nb.all_finite(g.numpy()) for g in grads)
 
     def load_kernels(self) -> None:
         self.backend()
