@@ -29,6 +29,8 @@ CHANGED = {"keep_checkpoints": 1}
 # ... and for one scene and model: splat's pose corrections on a capture are off by their
 # preset (the trainer then skipped them for models that render whole views)
 CHANGED_FOR = {f"{scene}/splat": {"pose_lr": 0.0} for scene in ("tabletop", "tabletop_points")}
+# ... and forward-facing splat's learning rate (its preset)
+CHANGED_FOR["forward/splat"] = {"lr": 5.0}
 # ... and model settings: forward-facing splat's densification schedule (its preset)
 FORWARD_SPLAT = {"opacity_reset_every": 0.0, "densify_every": 50}
 CHANGED_MODEL_FOR = {"forward/splat": FORWARD_SPLAT}

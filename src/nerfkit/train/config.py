@@ -64,7 +64,7 @@ class TrainConfig:
     )
     lr: float = option(
         0.3,
-        "base learning rate (vanilla's default: 5e-4; splat's: 8, times 3DGS's own rates)",
+        "base learning rate (vanilla's default: 5e-4; splat's: 8, times 3DGS's own rates; forward-facing scenes: 5)",
         min=0,
         max=100,
         group="optimisation",
