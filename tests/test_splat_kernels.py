@@ -16,6 +16,14 @@ from nerfkit.kernels.splat_ops import rasterize, render_gaussians, ssim
 needs_numba = pytest.mark.skipif(splat_kernels() is None, reason="numba not available")
 
 
+@needs_numba
+def test_the_compiled_kernels_use_the_references_constants():
+    # splat_numba repeats them so that it needs no torch; a drift would show only as rounding-sized errors
+    nb = splat_kernels()
+    assert (nb.TILE, nb.FOV_CLIP, nb.DILATION) == (ref.TILE, ref.FOV_CLIP, ref.DILATION)
+    assert (nb.SH_C0, nb.SH_C1, tuple(nb.SH_C2), tuple(nb.SH_C3)) == (ref.SH_C0, SH_C1, tuple(SH_C2), tuple(ref.SH_C3))
+
+
 def random_gaussians(n: int, seed: int = 0, dtype=torch.float64, spread: float = 0.5, log_scale: float = -2.0):
     g = torch.Generator().manual_seed(seed)
     means = torch.randn(n, 3, generator=g, dtype=dtype) * spread

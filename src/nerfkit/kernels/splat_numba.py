@@ -380,7 +380,8 @@ def rasterize_backward(
                 grads[lane, g, G_BL] += d_bl
 
 
-# SH basis constants (INRIA's, as :func:`nerfkit.kernels.splat_reference.sh_basis`)
+# SH basis constants (INRIA's, as :func:`nerfkit.kernels.splat_reference.sh_basis`), FOV_CLIP and DILATION:
+# the reference's, repeated so the kernels need no torch (a test holds them equal)
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
 SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
