@@ -42,12 +42,11 @@ import math
 import numpy as np
 from numba import njit, prange
 
-TILE = 16
-ALPHA_MIN = 1.0 / 255.0
-ALPHA_MAX = 0.99
-T_MIN = 1e-4
+from ..splat_constants import ALPHA_MAX, ALPHA_MIN, DILATION, FOV_CLIP, SH_C0, SH_C1, SH_C2, SH_C3, T_MIN, TILE
+
 G_MX, G_MY, G_A, G_B, G_C, G_OP, G_R, G_G, G_BL = range(9)
 N_GRAD = 9
+INV_TILE = 1.0 / TILE
 
 
 @njit(cache=True)
@@ -378,25 +377,6 @@ def rasterize_backward(
                 grads[lane, g, G_R] += d_r
                 grads[lane, g, G_G] += d_g
                 grads[lane, g, G_BL] += d_bl
-
-
-# SH basis constants (INRIA's, as :func:`nerfkit.kernels.splat_reference.sh_basis`), FOV_CLIP and DILATION:
-# the reference's, repeated so the kernels need no torch (a test holds them equal)
-SH_C0 = 0.28209479177387814
-SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-SH_C3 = (
-    -0.5900435899266435,
-    2.890611442640554,
-    -0.4570457994644658,
-    0.3731763325901154,
-    -0.4570457994644658,
-    1.445305721320277,
-    -0.5900435899266435,
-)
-FOV_CLIP = 1.3
-DILATION = 0.3
-INV_TILE = 1.0 / TILE
 
 
 @njit(cache=True, inline="always")
