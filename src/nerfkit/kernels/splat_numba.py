@@ -850,6 +850,6 @@ def warm_up() -> None:
         outs = (np.zeros((m, 2), dt), np.zeros((m, 3), dt), np.zeros((m, 3), dt), np.zeros(m, dt), np.zeros(m, dt))
         ints = (np.zeros(m, np.int32), np.zeros((m, 4), np.int32))
         project_forward(*params, 3, view, cam, intr, W, H, 0.01, *outs, *ints)
-        grads_in = (outs[0], outs[1], outs[2], outs[3], outs[4])
-        project_backward(*params, 3, view, cam, intr, W, H, 0.01, *grads_in, *(np.empty_like(p) for p in params))
+        # the forward's five float outputs stand in for their incoming gradients
+        project_backward(*params, 3, view, cam, intr, W, H, 0.01, *outs, *(np.empty_like(p) for p in params))
         all_finite(outs[0].reshape(-1))
