@@ -814,9 +814,13 @@ def ssim_backward(x, y, g, dmaps, scale, grad_x):
             )
 
 
-def warm_up() -> None:
-    """Compile (or load from the on-disk cache) the kernels for float32 and float64."""
-    for dt in (np.float32, np.float64):
+def warm_up(dtypes: tuple = (np.float32,)) -> None:
+    """Compile (or load from the on-disk cache) every kernel for each of ``dtypes``.
+
+    float32 alone by default: training and rendering run in it. Another dtype's versions
+    (the tests' float64) compile, or load, on their first call: eagerly they doubled the
+    first compile into an empty cache and every process's load from it."""
+    for dt in dtypes:
         n = 2
         means2d = np.array([[4.0, 4.0], [6.0, 5.0]], dt)
         conics = np.array([[0.5, 0.0, 0.5]] * n, dt)
