@@ -46,6 +46,7 @@ LAYERS: list[tuple[str, set[str]]] = [
             "ground",
             "tabletop",
             "splat_files",
+            "splat_constants",
             "scene_extent",
         },
     ),

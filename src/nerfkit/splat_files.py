@@ -23,8 +23,7 @@ import numpy as np
 
 from .errors import fail
 from .io.atomic import atomic_path
-
-SH_C0 = 0.28209479177387814  # kernels.reference.SH_C0 as well; repeated so file I/O needs no torch
+from .splat_constants import SH_C0
 
 
 def dc_to_rgb(sh_dc: np.ndarray) -> np.ndarray:

@@ -25,10 +25,8 @@ from torch import Tensor
 from ..render.box import cell_of, grid_coords  # noqa: F401  (re-exported: the kernels' reference rules)
 from ..render.volrend import composite, distortion, render_weights
 
-# Real spherical-harmonic constants (as in Plenoxels / instant-ngp).
-SH_C0 = 0.28209479177387814
-SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+# Real spherical-harmonic constants (as in Plenoxels / instant-ngp / INRIA 3DGS): the splats' too
+from ..splat_constants import SH_C0, SH_C1, SH_C2
 
 
 def sh_dim(degree: int) -> int:

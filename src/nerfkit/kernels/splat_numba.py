@@ -42,12 +42,11 @@ import math
 import numpy as np
 from numba import njit, prange
 
-TILE = 16
-ALPHA_MIN = 1.0 / 255.0
-ALPHA_MAX = 0.99
-T_MIN = 1e-4
+from ..splat_constants import ALPHA_MAX, ALPHA_MIN, DILATION, FOV_CLIP, SH_C0, SH_C1, SH_C2, SH_C3, T_MIN, TILE
+
 G_MX, G_MY, G_A, G_B, G_C, G_OP, G_R, G_G, G_BL = range(9)
 N_GRAD = 9
+INV_TILE = 1.0 / TILE
 
 
 @njit(cache=True)
@@ -380,25 +379,6 @@ def rasterize_backward(
                 grads[lane, g, G_BL] += d_bl
 
 
-# SH basis constants (INRIA's, as :func:`nerfkit.kernels.splat_reference.sh_basis`), FOV_CLIP and DILATION:
-# the reference's, repeated so the kernels need no torch (a test holds them equal)
-SH_C0 = 0.28209479177387814
-SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-SH_C3 = (
-    -0.5900435899266435,
-    2.890611442640554,
-    -0.4570457994644658,
-    0.3731763325901154,
-    -0.4570457994644658,
-    1.445305721320277,
-    -0.5900435899266435,
-)
-FOV_CLIP = 1.3
-DILATION = 0.3
-INV_TILE = 1.0 / TILE
-
-
 @njit(cache=True, inline="always")
 def _sh_basis(x, y, z, degree, out):
     """INRIA's real SH basis of the unit direction ``(x, y, z)`` into ``out[:(degree + 1)^2]``."""
@@ -461,6 +441,50 @@ def _camera_jacobian(view, tx, ty, tz, fx, fy, limx, limy, near, T):
     return tzc, u, v, uc, vc
 
 
+@njit(cache=True, inline="always")
+def _view_point(view, m0, m1, m2):
+    """The world point ``(m0, m1, m2)`` in view space: returns ``(tx, ty, tz)`` from ``view``
+    (3, 4) the world-to-camera rows."""
+    tx = view[0, 0] * m0 + view[0, 1] * m1 + view[0, 2] * m2 + view[0, 3]
+    ty = view[1, 0] * m0 + view[1, 1] * m1 + view[1, 2] * m2 + view[1, 3]
+    tz = view[2, 0] * m0 + view[2, 1] * m1 + view[2, 2] * m2 + view[2, 3]
+    return tx, ty, tz
+
+
+@njit(cache=True, inline="always")
+def _screen_covariance(T, R, s0, s1, s2, tz, near, U):
+    """EWA's 2D covariance ``U U^T + DILATION I`` of ``U = T R diag(s)`` (2, 3), written into
+    ``U``, from :func:`_camera_jacobian`'s ``T`` (2, 3) and :func:`_rotation`'s ``R`` (3, 3).
+    Returns ``(a, b, c, det, valid)``: ``a, b, c`` its entries (0, 0), (0, 1), (1, 1), ``det``
+    its determinant, ``valid`` the centre ``tz`` beyond ``near`` and ``det > 0``."""
+    for r in range(2):
+        U[r, 0] = (T[r, 0] * R[0, 0] + T[r, 1] * R[1, 0] + T[r, 2] * R[2, 0]) * s0
+        U[r, 1] = (T[r, 0] * R[0, 1] + T[r, 1] * R[1, 1] + T[r, 2] * R[2, 1]) * s1
+        U[r, 2] = (T[r, 0] * R[0, 2] + T[r, 1] * R[1, 2] + T[r, 2] * R[2, 2]) * s2
+    a = U[0, 0] * U[0, 0] + U[0, 1] * U[0, 1] + U[0, 2] * U[0, 2] + DILATION
+    b = U[0, 0] * U[1, 0] + U[0, 1] * U[1, 1] + U[0, 2] * U[1, 2]
+    c = U[1, 0] * U[1, 0] + U[1, 1] * U[1, 1] + U[1, 2] * U[1, 2] + DILATION
+    det = a * c - b * b
+    return a, b, c, det, tz > near and det > 0.0
+
+
+@njit(cache=True, inline="always")
+def _sh_colour(sh_dc, sh_rest, i, m0, m1, m2, cam, degree, basis, raw):
+    """Gaussian ``i``'s SH colour seen from the camera centre ``cam`` (3,), the Gaussian at
+    ``(m0, m1, m2)``: the basis of the unit direction into ``basis`` (16,) and per channel
+    ``basis . coefficients`` (before INRIA's ``+ 0.5`` and the clamp at 0) into ``raw`` (3,);
+    ``sh_dc`` (n, 1, 3), ``sh_rest`` (n, K - 1, 3) with ``(degree + 1)^2 <= K``."""
+    d0, d1, d2 = m0 - cam[0], m1 - cam[1], m2 - cam[2]
+    idn = 1.0 / max(math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-12)
+    _sh_basis(d0 * idn, d1 * idn, d2 * idn, degree, basis)
+    n_basis = (degree + 1) * (degree + 1)
+    for ch in range(3):
+        acc = basis[0] * sh_dc[i, 0, ch]
+        for k in range(1, n_basis):
+            acc += basis[k] * sh_rest[i, k - 1, ch]
+        raw[ch] = acc
+
+
 @njit(cache=True)
 def project_forward(
     means,
@@ -496,30 +520,18 @@ def project_forward(
     fx, fy, cx, cy = intr[0], intr[1], intr[2], intr[3]
     limx, limy = FOV_CLIP * 0.5 * width / fx, FOV_CLIP * 0.5 * height / fy
     tw, th = -(-width // TILE), -(-height // TILE)
-    n_basis = (degree + 1) * (degree + 1)
     T = np.empty((2, 3))
     R = np.empty((3, 3))
+    U = np.empty((2, 3))
     basis = np.empty(16)
+    raw = np.empty(3)
     for i in range(n):
         m0, m1, m2 = float(means[i, 0]), float(means[i, 1]), float(means[i, 2])
-        tx = view[0, 0] * m0 + view[0, 1] * m1 + view[0, 2] * m2 + view[0, 3]
-        ty = view[1, 0] * m0 + view[1, 1] * m1 + view[1, 2] * m2 + view[1, 3]
-        tz = view[2, 0] * m0 + view[2, 1] * m1 + view[2, 2] * m2 + view[2, 3]
+        tx, ty, tz = _view_point(view, m0, m1, m2)
         tzc, _, _, _, _ = _camera_jacobian(view, tx, ty, tz, fx, fy, limx, limy, near, T)
         _rotation(float(quats[i, 0]), float(quats[i, 1]), float(quats[i, 2]), float(quats[i, 3]), R)
         s0, s1, s2 = math.exp(log_scales[i, 0]), math.exp(log_scales[i, 1]), math.exp(log_scales[i, 2])
-        # U = T R diag(s): cov2d = U U^T
-        u00 = (T[0, 0] * R[0, 0] + T[0, 1] * R[1, 0] + T[0, 2] * R[2, 0]) * s0
-        u01 = (T[0, 0] * R[0, 1] + T[0, 1] * R[1, 1] + T[0, 2] * R[2, 1]) * s1
-        u02 = (T[0, 0] * R[0, 2] + T[0, 1] * R[1, 2] + T[0, 2] * R[2, 2]) * s2
-        u10 = (T[1, 0] * R[0, 0] + T[1, 1] * R[1, 0] + T[1, 2] * R[2, 0]) * s0
-        u11 = (T[1, 0] * R[0, 1] + T[1, 1] * R[1, 1] + T[1, 2] * R[2, 1]) * s1
-        u12 = (T[1, 0] * R[0, 2] + T[1, 1] * R[1, 2] + T[1, 2] * R[2, 2]) * s2
-        a = u00 * u00 + u01 * u01 + u02 * u02 + DILATION
-        b = u00 * u10 + u01 * u11 + u02 * u12
-        c = u10 * u10 + u11 * u11 + u12 * u12 + DILATION
-        det = a * c - b * b
-        valid = tz > near and det > 0.0
+        a, b, c, det, valid = _screen_covariance(T, R, s0, s1, s2, tz, near, U)
         ids = 1.0 / det if valid else 1.0
         conics[i, 0] = c * ids
         conics[i, 1] = -b * ids
@@ -546,14 +558,9 @@ def project_forward(
             radii[i] = 0
             rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3] = 0, 0, 0, 0
         # SH colour along the direction from the camera centre
-        d0, d1, d2 = m0 - cam[0], m1 - cam[1], m2 - cam[2]
-        idn = 1.0 / max(math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-12)
-        _sh_basis(d0 * idn, d1 * idn, d2 * idn, degree, basis)
+        _sh_colour(sh_dc, sh_rest, i, m0, m1, m2, cam, degree, basis, raw)
         for ch in range(3):
-            acc = basis[0] * sh_dc[i, 0, ch]
-            for k in range(1, n_basis):
-                acc += basis[k] * sh_rest[i, k - 1, ch]
-            colors[i, ch] = max(acc + 0.5, 0.0)
+            colors[i, ch] = max(raw[ch] + 0.5, 0.0)
 
 
 @njit(cache=True)
@@ -598,23 +605,15 @@ def project_backward(
     dU = np.empty((2, 3))
     dR = np.empty((3, 3))
     basis = np.empty(16)
+    raw = np.empty(3)
     for i in range(n):
         m0, m1, m2 = float(means[i, 0]), float(means[i, 1]), float(means[i, 2])
-        tx = view[0, 0] * m0 + view[0, 1] * m1 + view[0, 2] * m2 + view[0, 3]
-        ty = view[1, 0] * m0 + view[1, 1] * m1 + view[1, 2] * m2 + view[1, 3]
-        tz = view[2, 0] * m0 + view[2, 1] * m1 + view[2, 2] * m2 + view[2, 3]
+        tx, ty, tz = _view_point(view, m0, m1, m2)
         tzc, u, v, uc, vc = _camera_jacobian(view, tx, ty, tz, fx, fy, limx, limy, near, T)
         qw, qx, qy, qz = float(quats[i, 0]), float(quats[i, 1]), float(quats[i, 2]), float(quats[i, 3])
         qn = _rotation(qw, qx, qy, qz, R)
         s = (math.exp(log_scales[i, 0]), math.exp(log_scales[i, 1]), math.exp(log_scales[i, 2]))
-        for r in range(2):
-            for j in range(3):
-                U[r, j] = (T[r, 0] * R[0, j] + T[r, 1] * R[1, j] + T[r, 2] * R[2, j]) * s[j]
-        a = U[0, 0] * U[0, 0] + U[0, 1] * U[0, 1] + U[0, 2] * U[0, 2] + DILATION
-        b = U[0, 0] * U[1, 0] + U[0, 1] * U[1, 1] + U[0, 2] * U[1, 2]
-        c = U[1, 0] * U[1, 0] + U[1, 1] * U[1, 1] + U[1, 2] * U[1, 2] + DILATION
-        det = a * c - b * b
-        valid = tz > near and det > 0.0
+        a, b, c, det, valid = _screen_covariance(T, R, s[0], s[1], s[2], tz, near, U)
         ids = 1.0 / det if valid else 1.0
         # conic (c, -b, a) / ds -> a, b, c (and ds = det when valid)
         gA, gB, gC = float(g_conics[i, 0]), float(g_conics[i, 1]), float(g_conics[i, 2])
@@ -710,14 +709,9 @@ def project_backward(
         op = 1.0 / (1.0 + math.exp(-float(opacity_logits[i])))
         d_logits[i] = g_opac[i] * op * (1.0 - op)
         # SH: d colour / d coefficient is the basis where the colour is not clamped
-        d0, d1, d2 = m0 - cam[0], m1 - cam[1], m2 - cam[2]
-        idn = 1.0 / max(math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-12)
-        _sh_basis(d0 * idn, d1 * idn, d2 * idn, degree, basis)
+        _sh_colour(sh_dc, sh_rest, i, m0, m1, m2, cam, degree, basis, raw)
         for ch in range(3):
-            acc = basis[0] * sh_dc[i, 0, ch]
-            for k in range(1, n_basis):
-                acc += basis[k] * sh_rest[i, k - 1, ch]
-            g = float(g_colors[i, ch]) if acc + 0.5 >= 0.0 else 0.0
+            g = float(g_colors[i, ch]) if raw[ch] + 0.5 >= 0.0 else 0.0
             d_sh_dc[i, 0, ch] = basis[0] * g
             for k in range(1, n_rest + 1):
                 d_sh_rest[i, k - 1, ch] = basis[k] * g if k < n_basis else 0.0
@@ -820,9 +814,13 @@ def ssim_backward(x, y, g, dmaps, scale, grad_x):
             )
 
 
-def warm_up() -> None:
-    """Compile (or load from the on-disk cache) the kernels for float32 and float64."""
-    for dt in (np.float32, np.float64):
+def warm_up(dtypes: tuple = (np.float32,)) -> None:
+    """Compile (or load from the on-disk cache) every kernel for each of ``dtypes``.
+
+    float32 alone by default: training and rendering run in it. Another dtype's versions
+    (the tests' float64) compile, or load, on their first call: eagerly they doubled the
+    first compile into an empty cache and every process's load from it."""
+    for dt in dtypes:
         n = 2
         means2d = np.array([[4.0, 4.0], [6.0, 5.0]], dt)
         conics = np.array([[0.5, 0.0, 0.5]] * n, dt)
@@ -856,6 +854,6 @@ def warm_up() -> None:
         outs = (np.zeros((m, 2), dt), np.zeros((m, 3), dt), np.zeros((m, 3), dt), np.zeros(m, dt), np.zeros(m, dt))
         ints = (np.zeros(m, np.int32), np.zeros((m, 4), np.int32))
         project_forward(*params, 3, view, cam, intr, W, H, 0.01, *outs, *ints)
-        grads_in = (outs[0], outs[1], outs[2], outs[3], outs[4])
-        project_backward(*params, 3, view, cam, intr, W, H, 0.01, *grads_in, *(np.empty_like(p) for p in params))
+        # the forward's five float outputs stand in for their incoming gradients
+        project_backward(*params, 3, view, cam, intr, W, H, 0.01, *outs, *(np.empty_like(p) for p in params))
         all_finite(outs[0].reshape(-1))

@@ -13,6 +13,8 @@ in other viewers), in nerfkit's camera convention (OpenCV axes, pixel centres at
   skipped below 1/255 (or when ``power > 0``), and compositing stops before a Gaussian
   that would bring the transmittance below 1e-4.
 
+These numbers live in :mod:`nerfkit.splat_constants` (the compiled kernels import them too).
+
 :func:`rasterize_reference` composites each tile densely (every Gaussian of the tile
 against every pixel of it) with autograd; the compiled kernels in
 :mod:`nerfkit.kernels.splat_numba` must match it in values and gradients.
@@ -26,28 +28,12 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from ..splat_constants import ALPHA_MAX, ALPHA_MIN, DILATION, FOV_CLIP, SH_C0, SH_C3, T_MIN, TILE
 from . import reference as grid_reference
-from .reference import SH_C0  # the grid's DC constant (degrees 1-2 come from its sh_basis, below)
 
-TILE = 16
-ALPHA_MIN = 1.0 / 255.0
-ALPHA_MAX = 0.99
-T_MIN = 1e-4
-DILATION = 0.3
 # SSIM (the training loss's D-SSIM): Gaussian window, its sigma, the stabilising constants
 SSIM_WINDOW, SSIM_SIGMA = 11, 1.5
 SSIM_C1, SSIM_C2 = 0.01**2, 0.03**2
-FOV_CLIP = 1.3
-
-SH_C3 = (
-    -0.5900435899266435,
-    2.890611442640554,
-    -0.4570457994644658,
-    0.3731763325901154,
-    -0.4570457994644658,
-    1.445305721320277,
-    -0.5900435899266435,
-)
 
 
 def sh_coeffs(degree: int) -> int:
