@@ -472,7 +472,8 @@ def train(
     Args:
         data: the dataset: a course .npz or any format ``nerfkit convert`` reads (None: the config's).
         out: the run folder to create (None: the config's, else runs/latest).
-        model: "fast", "splat" or "vanilla" (None: the config's, else fast).
+        model: "fast", "splat" or "vanilla" (None: the config's, else the dataset's kind chooses:
+            :func:`nerfkit.presets.default_model`).
         steps: optimizer steps (None: the config's; 0: until ``minutes`` is spent).
         minutes: training-time budget in minutes, evaluation excluded.
         config: a run's config.json (or its folder) whose settings this run starts from.
