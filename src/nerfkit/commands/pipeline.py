@@ -857,7 +857,11 @@ def export(
     if splat_file and not hasattr(opened.model, "n_gaussians"):
         raise fail(run, f"is a {opened.info.train.model} run; --splat exports runs of --model splat")
     if mesh_file and hasattr(opened.model, "n_gaussians"):
-        raise fail(run, "is a splat run: it has no density field to mesh", "Use --splat OUT.ply or --points")
+        raise fail(
+            run,
+            "is a splat run: it has no density field to mesh",
+            "Use --splat OUT.ply or --points, or train a NeRF (--model fast) to export a mesh",
+        )
     guard_outputs(
         [mesh_file, points_file, splat_file],
         dataset_inputs(data or opened.info.train.data),
