@@ -152,9 +152,10 @@ def test_a_scene_kind_with_its_own_grid_stages_gets_them_and_the_others_keep_the
 def test_a_scene_kind_names_the_model_it_trains_when_none_is_named():
     everything = ["fast", "splat", "vanilla"]
     assert presets.default_model(presets.FORWARD_FACING, everything) == "splat"
-    assert presets.default_model(presets.OBJECT, everything) == presets.default_model(presets.CAPTURE, everything)
-    assert presets.default_model(presets.OBJECT, everything) == presets.DEFAULT_MODEL == "fast"
-    assert presets.default_model(presets.FORWARD_FACING, ["fast"]) == "fast"  # splat not installed
+    assert presets.default_model(presets.OBJECT, everything) == "splat"
+    assert presets.default_model(presets.CAPTURE, everything) == presets.DEFAULT_MODEL == "fast"
+    for kind in (presets.OBJECT, presets.FORWARD_FACING):
+        assert presets.default_model(kind, ["fast", "vanilla"]) == "fast"  # splat not installed
 
 
 def test_forward_facing_splat_densifies_every_50_steps_without_opacity_resets_and_other_kinds_do_not(scenes):
@@ -184,15 +185,18 @@ def test_a_model_setting_the_kinds_model_does_not_take_is_a_clear_error(scenes):
 
     assert kind_model(scenes["forward"], "auto", set()) == "splat"
     assert kind_model(scenes["forward"], "auto", {"sh_degree"}) == "splat"  # fast and splat both take it
-    assert kind_model(scenes["lego"], "auto", set()) == kind_model(scenes["tabletop"], "auto", set()) == "fast"
+    assert kind_model(scenes["lego"], "auto", set()) == "splat"
+    assert kind_model(scenes["tabletop"], "auto", set()) == "fast"
     with pytest.raises(
         NerfkitError,
         match="--resolutions: is a setting of the fast model, not of splat .the default "
         "--model for a forward-facing dataset.. Leave it out, or train with --model fast",
     ):
         kind_model(scenes["forward"], "auto", {"resolutions"})
-    with pytest.raises(NerfkitError, match="not of fast .the default --model for an object dataset"):
-        kind_model(scenes["lego"], "auto", {"densify_every"})
+    with pytest.raises(NerfkitError, match="not of splat .the default --model for an object dataset"):
+        kind_model(scenes["lego"], "auto", {"resolutions"})
+    with pytest.raises(NerfkitError, match="not of fast .the default --model for a capture dataset"):
+        kind_model(scenes["tabletop"], "auto", {"densify_every"})
 
 
 @pytest.mark.slow

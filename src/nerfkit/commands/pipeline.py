@@ -472,7 +472,8 @@ def train(
     Args:
         data: the dataset: a course .npz or any format ``nerfkit convert`` reads (None: the config's).
         out: the run folder to create (None: the config's, else runs/latest).
-        model: "fast", "splat" or "vanilla" (None: the config's, else fast).
+        model: "fast", "splat" or "vanilla" (None: the config's, else the dataset's kind chooses:
+            :func:`nerfkit.presets.default_model`).
         steps: optimizer steps (None: the config's; 0: until ``minutes`` is spent).
         minutes: training-time budget in minutes, evaluation excluded.
         config: a run's config.json (or its folder) whose settings this run starts from.
@@ -856,7 +857,11 @@ def export(
     if splat_file and not hasattr(opened.model, "n_gaussians"):
         raise fail(run, f"is a {opened.info.train.model} run; --splat exports runs of --model splat")
     if mesh_file and hasattr(opened.model, "n_gaussians"):
-        raise fail(run, "is a splat run: it has no density field to mesh", "Use --splat OUT.ply or --points")
+        raise fail(
+            run,
+            "is a splat run: it has no density field to mesh",
+            "Use --splat OUT.ply or --points, or train a NeRF (--model fast) to export a mesh",
+        )
     guard_outputs(
         [mesh_file, points_file, splat_file],
         dataset_inputs(data or opened.info.train.data),
