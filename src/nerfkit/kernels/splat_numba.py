@@ -814,46 +814,45 @@ def ssim_backward(x, y, g, dmaps, scale, grad_x):
             )
 
 
-def warm_up(dtypes: tuple = (np.float32,)) -> None:
-    """Compile (or load from the on-disk cache) every kernel for each of ``dtypes``.
-
-    float32 alone by default: training and rendering run in it. Another dtype's versions
-    (the tests' float64) compile, or load, on their first call: eagerly they doubled the
-    first compile into an empty cache and every process's load from it."""
-    for dt in dtypes:
-        n = 2
-        means2d = np.array([[4.0, 4.0], [6.0, 5.0]], dt)
-        conics = np.array([[0.5, 0.0, 0.5]] * n, dt)
-        colors = np.full((n, 3), 0.5, dt)
-        opac = np.full(n, 0.5, dt)
-        depths = np.array([1.0, 2.0], dt)
-        rects = np.array([[0, 1, 0, 1]] * n, np.int32)
-        offsets, ids = bin_tiles(depth_order(depths, rects), rects, 1, 1)
-        H = W = 8
-        bg = np.zeros((H, W, 3), dt)
-        rgb, dep, alp, T = np.zeros((H, W, 3), dt), np.zeros((H, W), dt), np.zeros((H, W), dt), np.zeros((H, W), dt)
-        nc = np.zeros((H, W), np.int64)
-        rasterize_forward(offsets, ids, means2d, conics, colors, opac, depths, bg, W, H, 1, rgb, dep, alp, T, nc, 2)
-        grads = np.zeros((2, n, N_GRAD), dt)
-        rasterize_backward(offsets, ids, means2d, conics, colors, opac, depths, bg, W, H, 1, T, nc, rgb, grads)
-        x, gw = np.ascontiguousarray(rgb.transpose(2, 0, 1)), np.full(3, 1 / 3, dt)
-        dmaps = np.empty((3, *x.shape), dt)
-        ssim_forward(x, x, gw, 1e-4, 9e-4, dmaps)
-        ssim_backward(x, x, gw, dmaps, 1.0, np.empty_like(x))
-        m = 3
-        params = (
-            np.zeros((m, 3), dt),
-            np.zeros((m, 3), dt),
-            np.ones((m, 4), dt),
-            np.zeros(m, dt),
-            np.zeros((m, 1, 3), dt),
-            np.zeros((m, 15, 3), dt),
-        )
-        view, cam, intr = np.eye(4)[:3].copy(), np.zeros(3), np.array([8.0, 8.0, 4.0, 4.0])
-        view[2, 3] = 3.0
-        outs = (np.zeros((m, 2), dt), np.zeros((m, 3), dt), np.zeros((m, 3), dt), np.zeros(m, dt), np.zeros(m, dt))
-        ints = (np.zeros(m, np.int32), np.zeros((m, 4), np.int32))
-        project_forward(*params, 3, view, cam, intr, W, H, 0.01, *outs, *ints)
-        # the forward's five float outputs stand in for their incoming gradients
-        project_backward(*params, 3, view, cam, intr, W, H, 0.01, *outs, *(np.empty_like(p) for p in params))
-        all_finite(outs[0].reshape(-1))
+def warm_up() -> None:
+    """Compile (or load from the on-disk cache) every kernel for float32, the dtype training
+    and rendering run in. Other dtypes' versions (the tests' float64) compile, or load, on
+    their first call: eagerly they doubled the first compile into an empty cache and every
+    process's load from it."""
+    dt = np.float32
+    n = 2
+    means2d = np.array([[4.0, 4.0], [6.0, 5.0]], dt)
+    conics = np.array([[0.5, 0.0, 0.5]] * n, dt)
+    colors = np.full((n, 3), 0.5, dt)
+    opac = np.full(n, 0.5, dt)
+    depths = np.array([1.0, 2.0], dt)
+    rects = np.array([[0, 1, 0, 1]] * n, np.int32)
+    offsets, ids = bin_tiles(depth_order(depths, rects), rects, 1, 1)
+    H = W = 8
+    bg = np.zeros((H, W, 3), dt)
+    rgb, dep, alp, T = np.zeros((H, W, 3), dt), np.zeros((H, W), dt), np.zeros((H, W), dt), np.zeros((H, W), dt)
+    nc = np.zeros((H, W), np.int64)
+    rasterize_forward(offsets, ids, means2d, conics, colors, opac, depths, bg, W, H, 1, rgb, dep, alp, T, nc, 2)
+    grads = np.zeros((2, n, N_GRAD), dt)
+    rasterize_backward(offsets, ids, means2d, conics, colors, opac, depths, bg, W, H, 1, T, nc, rgb, grads)
+    x, gw = np.ascontiguousarray(rgb.transpose(2, 0, 1)), np.full(3, 1 / 3, dt)
+    dmaps = np.empty((3, *x.shape), dt)
+    ssim_forward(x, x, gw, 1e-4, 9e-4, dmaps)
+    ssim_backward(x, x, gw, dmaps, 1.0, np.empty_like(x))
+    m = 3
+    params = (
+        np.zeros((m, 3), dt),
+        np.zeros((m, 3), dt),
+        np.ones((m, 4), dt),
+        np.zeros(m, dt),
+        np.zeros((m, 1, 3), dt),
+        np.zeros((m, 15, 3), dt),
+    )
+    view, cam, intr = np.eye(4)[:3].copy(), np.zeros(3), np.array([8.0, 8.0, 4.0, 4.0])
+    view[2, 3] = 3.0
+    outs = (np.zeros((m, 2), dt), np.zeros((m, 3), dt), np.zeros((m, 3), dt), np.zeros(m, dt), np.zeros(m, dt))
+    ints = (np.zeros(m, np.int32), np.zeros((m, 4), np.int32))
+    project_forward(*params, 3, view, cam, intr, W, H, 0.01, *outs, *ints)
+    # the forward's five float outputs stand in for their incoming gradients
+    project_backward(*params, 3, view, cam, intr, W, H, 0.01, *outs, *(np.empty_like(p) for p in params))
+    all_finite(outs[0].reshape(-1))
