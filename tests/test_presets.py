@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -224,3 +225,18 @@ def test_the_splat_help_names_the_forward_facing_values():
     assert values
     for name, value in values.items():
         assert f"forward-facing scenes: {value:g}" in helps[name], name
+
+
+def test_the_model_help_names_each_kinds_default_model(capsys):
+    """`nerfkit train --help` says which model each scene kind trains when --model is not given,
+    as :func:`presets.default_model` chooses it."""
+    from nerfkit.cli import main
+    from nerfkit.models import MODEL_NAMES
+
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    # undo the wrapping, which may break a line after a hyphen
+    text = " ".join(re.sub(r"-\s+", "-", capsys.readouterr().out).split())
+    for kind in presets.SCENE_KINDS:
+        model = presets.default_model(kind, MODEL_NAMES)
+        assert re.search(rf"{model} for [\w\- ]*\b{re.escape(kind)}\b", text), (kind, model)

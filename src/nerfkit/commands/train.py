@@ -26,7 +26,7 @@ USAGE = """nerfkit train --data PATH [--out DIR] [--model {vanilla,fast,splat}] 
        nerfkit train --config RUN/config.json [--out DIR] [options]
        nerfkit train --resume RUN [--steps INT | --minutes FLOAT]"""
 MODEL_GROUP = "model '{}'"
-MODEL_BLURBS = {"fast": "the grid (the default model)", "vanilla": "the course's 8x256 MLP", "splat": "Gaussian splats"}
+MODEL_BLURBS = {"fast": "the grid", "vanilla": "the course's 8x256 MLP", "splat": "Gaussian splats"}
 # the TrainConfig group the short --help shows (with -h, --help-all, --resume and --config)
 FIRST_GROUP = "the options changed first"
 

@@ -9,10 +9,19 @@ import torch
 from ..config import MAX_SEED, MIN_DOWNSCALE, check_ranges, option, parse_background
 from ..errors import fail
 from ..models import MODEL_NAMES
+from ..presets import SCENE_KINDS, default_model
 
 # Rays per training step or per rendering chunk: far more than fits any memory is refused
 # when the command line is parsed (a batch that still does not fit is a one-line error).
 MAX_BATCH_RAYS = 1 << 20
+
+
+def kind_models_help() -> str:
+    """What --help says --model defaults to: the model of each scene kind (presets.default_model)."""
+    by_model: dict[str, list[str]] = {}
+    for kind in SCENE_KINDS:
+        by_model.setdefault(default_model(kind, MODEL_NAMES), []).append(kind)
+    return "by the dataset's kind: " + "; ".join(f"{m} for {' and '.join(k)}" for m, k in by_model.items())
 
 
 @dataclass
@@ -36,7 +45,7 @@ class TrainConfig:
         "which radiance field to train",
         choices=list(MODEL_NAMES),
         group="the options changed first",
-        default_help="the dataset's kind's: splat for a forward-facing scene (LLFF), else fast",
+        default_help=kind_models_help(),
     )
     out: str = option(
         "runs/latest",
