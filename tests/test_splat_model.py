@@ -12,6 +12,7 @@ import torch
 from nerfkit import presets
 from nerfkit.cli import main
 from nerfkit.data.synthetic import sphere_scene
+from nerfkit.errors import NerfkitError
 from nerfkit.kernels import splat_reference as ref
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.splat import HULL_MARGIN, SplatConfig, SplatModel, grow, outside_hull, ssim, visual_hull
@@ -144,6 +145,14 @@ def test_hull_prune_removes_a_floater_outside_the_objects_hull_and_nothing_insid
     assert model.n_gaussians == 199
     torch.testing.assert_close(model.means.detach(), kept)
     assert opt.param_groups[0]["params"][0] is model.means
+    # a checkpoint keeps the hull; a corrupt one is refused
+    back = small_model(sphere, init_points=10)
+    back.load_extra_state(json.loads(json.dumps(model.extra_state())))
+    assert back._hull is not None and torch.equal(back._hull["grid"], model._hull["grid"])
+    assert outside_hull(kept, back._hull).tolist() == outside_hull(kept, model._hull).tolist()
+    for bad in ({"shape": [8, 1], "bits": "AA==", "low": [0, 0, 0], "cell": 1.0}, {"bits": "!"}):
+        with pytest.raises(NerfkitError, match="hull"):
+            back.load_extra_state({**model.extra_state(), "hull": bad})
     # off, or without a hull start: no hull
     off = small_model(sphere, init_points=200, hull_prune=False)
     off.init_from_scene(sphere, torch.zeros(3))

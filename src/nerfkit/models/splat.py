@@ -580,6 +580,8 @@ class SplatModel(NerfModel):
         if isinstance(hull, dict):
             try:
                 shape = tuple(int(x) for x in hull["shape"])
+                if len(shape) != 3 or min(shape) < 1 or max(shape) > 1024:
+                    raise ValueError(f"a grid of shape {shape}")
                 bits = np.frombuffer(base64.b64decode(hull["bits"]), np.uint8)
                 grid = np.unpackbits(bits)[: int(np.prod(shape))].reshape(shape).astype(bool)
                 low = np.asarray([float(x) for x in hull["low"]], np.float64).reshape(3)
