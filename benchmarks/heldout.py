@@ -115,6 +115,13 @@ class BenchScene:
 
 
 # -- pure helpers ------------------------------------------------------------------------
+def parse_models(text: str, variants: list[str]) -> list[str]:
+    """``--models``: the plain models to run; empty beside a ``--variant`` runs only the variants."""
+    if variants and not text.replace(",", "").strip():
+        return []
+    return parse_list(text, str, "--models")
+
+
 def parse_list(text: str, kind=str, what: str = "list") -> list:
     """``"a,b"`` -> ``[kind("a"), kind("b")]``, empty items dropped; a NerfkitError for a bad item."""
     out = []
@@ -566,7 +573,11 @@ def parse_args(argv=None):
         "three flower cases), captures (all of them) or a capture's NAME (default: every "
         "scene whose data is given, without flower's subsets)",
     )
-    p.add_argument("--models", default="fast,splat", help="comma-separated model names")
+    p.add_argument(
+        "--models",
+        default="fast,splat",
+        help="comma-separated model names (empty with --variant: only the variants)",
+    )
     p.add_argument("--seconds", default="60,300", help="training budgets in seconds, comma-separated")
     p.add_argument(
         "--steps",
@@ -588,7 +599,7 @@ def parse_args(argv=None):
 def run(args) -> int:
     from nerfkit.models import MODEL_NAMES
 
-    models = parse_list(args.models, str, "--models")
+    models = parse_models(args.models, args.variant)
     for m in models:
         if m not in MODEL_NAMES:
             raise fail("--models", f"unknown model {m!r}", f"Choose from {', '.join(MODEL_NAMES)}")

@@ -118,6 +118,11 @@ def test_options():
         heldout.parse_list("60,abc", float, "--seconds")
     with pytest.raises(NerfkitError):
         heldout.parse_list(" , ", str, "--models")
+    assert heldout.parse_models("fast, splat", []) == ["fast", "splat"]
+    assert heldout.parse_models("splat", ["splat+x:lr=4"]) == ["splat"]
+    assert heldout.parse_models("", ["splat+x:lr=4"]) == []  # only the variant
+    with pytest.raises(NerfkitError):
+        heldout.parse_models("", [])
     assert heldout.parse_captures(["steve=a/b", "labubu=c"]) == {"steve": Path("a/b"), "labubu": Path("c")}
     for bad in (["steve"], ["=a"], ["steve=a", "steve=b"], ["flower=a"]):
         with pytest.raises(NerfkitError):

@@ -35,6 +35,8 @@ CHANGED_FOR["forward/splat"] = {"lr": 5.0}
 # ... and model settings: forward-facing splat's densification schedule (its preset)
 FORWARD_SPLAT = {"opacity_reset_every": 0.0, "densify_every": 50}
 CHANGED_MODEL_FOR = {"forward/splat": FORWARD_SPLAT}
+# model options added since, with their default (splat: pruning to the visual hull)
+ADDED_MODEL = {"splat": {"hull_prune": True}}
 
 
 def sized(scene, size):
@@ -71,7 +73,8 @@ def test_the_resolved_settings_of_each_scene_kind_are_those_kept_from_before(sce
         got_model = asdict(r.model)
         assert got_train == {**want["train"], **CHANGED, **CHANGED_FOR.get(f"{name}/{model}", {})}, name
         want_model = {k: v for k, v in want["model"].items() if k not in RETIRED}
-        assert got_model == {**want_model, **CHANGED_MODEL_FOR.get(f"{name}/{model}", {})}, name
+        added = ADDED_MODEL.get(model, {})
+        assert got_model == {**want_model, **added, **CHANGED_MODEL_FOR.get(f"{name}/{model}", {})}, name
         assert (
             r.train.preset
             == r.kind

@@ -12,9 +12,10 @@ import torch
 from nerfkit import presets
 from nerfkit.cli import main
 from nerfkit.data.synthetic import sphere_scene
+from nerfkit.errors import NerfkitError
 from nerfkit.kernels import splat_reference as ref
 from nerfkit.models.base import SceneBounds
-from nerfkit.models.splat import SplatConfig, SplatModel, ssim
+from nerfkit.models.splat import HULL_MARGIN, SplatConfig, SplatModel, grow, outside_hull, ssim, visual_hull
 from nerfkit.output.images import render_image
 from nerfkit.splat_files import Gaussians, ply_property_names, read_splat_ply
 from nerfkit.train.config import TrainConfig
@@ -90,6 +91,74 @@ def test_density_control_clones_splits_prunes_and_keeps_adam_moments(sphere):
     )
     split_scales = torch.exp(model.log_scales[-4:])
     torch.testing.assert_close(split_scales, torch.full_like(split_scales, 0.5 / 1.6))
+
+
+def test_a_grown_grid_adds_the_six_neighbours_without_wrapping_around():
+    grid = np.zeros((4, 4, 4), bool)
+    grid[1, 2, 3] = True  # on the last z layer: its +z neighbour is outside the grid
+    grown = grow(grid)
+    assert grown.sum() == 6
+    assert all(grown[i] for i in [(1, 2, 3), (0, 2, 3), (2, 2, 3), (1, 1, 3), (1, 3, 3), (1, 2, 2)])
+    assert not grown[1, 2, 0]  # np.roll would have wrapped it here
+    # twice: the cells within L1 distance 2 that lie in the grid
+    ball = {
+        (1 + dx, 2 + dy, 3 + dz)
+        for dx in range(-2, 3)
+        for dy in range(-2, 3)
+        for dz in range(-2, 3)
+        if abs(dx) + abs(dy) + abs(dz) <= 2 and all(0 <= c < 4 for c in (1 + dx, 2 + dy, 3 + dz))
+    }
+    assert set(map(tuple, np.argwhere(grow(grid, 2)).tolist())) == ball and len(ball) == 17
+    assert grow(grid, 0).sum() == 1
+    hull = {"grid": torch.as_tensor(grid), "low": np.array([-1.0, -1.0, -1.0]), "cell": 0.5}
+    # cell (1, 2, 3) spans x [-0.5, 0), y [0, 0.5), z [0.5, 1)
+    means = torch.tensor([[-0.25, 0.25, 0.75], [-0.25, 0.25, 0.25], [-0.25, 0.25, 1.25], [5.0, 5.0, 5.0]])
+    assert outside_hull(means, hull).tolist() == [False, True, True, True]
+
+
+def test_hull_prune_removes_a_floater_outside_the_objects_hull_and_nothing_inside(sphere):
+    model = small_model(sphere, init_points=200)
+    model.init_from_scene(sphere, torch.zeros(3))
+    assert model._hull is not None
+    # no point of the sphere (radius 1 at the origin) is outside
+    g = torch.Generator().manual_seed(0)
+    inner = torch.randn(200, 3, generator=g)
+    inner = 0.9 * inner / inner.norm(dim=1, keepdim=True) * torch.rand(200, 1, generator=g)
+    assert not outside_hull(inner, model._hull).any()
+    # points near a camera, framed by few views: outside; the silhouettes alone keep some of them
+    # (no other view carves them), and the hull start puts Gaussians there
+    carved = visual_hull(sphere.train, np.zeros(3), np.zeros(3), model._hull["cell"] * 32)
+    assert carved is not None
+    raw = {**carved, "grid": torch.as_tensor(grow(carved["grid"], HULL_MARGIN))}
+    near = torch.tensor(
+        np.array([f * c2w[:3, 3] for c2w in sphere.train.c2w for f in (0.6, 0.7, 0.8)]), dtype=torch.float32
+    )
+    assert outside_hull(near, model._hull).all() and not outside_hull(near, raw).all()
+    # the Gaussians in the sphere, a floater above it between the cameras, and one at the centre
+    with torch.no_grad():
+        model.means.copy_(inner)
+        model.means[0] = torch.tensor([0.0, 0.0, 1.8])
+        model.means[1] = torch.tensor([0.0, 0.0, 0.0])
+    kept = model.means[1:].detach().clone()
+    opt = build_optimizer(model, 1.0)
+    model.prune_outside_hull(opt)
+    assert model.n_gaussians == 199
+    torch.testing.assert_close(model.means.detach(), kept)
+    assert opt.param_groups[0]["params"][0] is model.means
+    # a checkpoint keeps the hull; a corrupt one is refused
+    back = small_model(sphere, init_points=10)
+    back.load_extra_state(json.loads(json.dumps(model.extra_state())))
+    assert back._hull is not None and torch.equal(back._hull["grid"], model._hull["grid"])
+    assert outside_hull(kept, back._hull).tolist() == outside_hull(kept, model._hull).tolist()
+    for bad in ({"shape": [8, 1], "bits": "AA==", "low": [0, 0, 0], "cell": 1.0}, {"bits": "!"}):
+        with pytest.raises(NerfkitError, match="hull"):
+            back.load_extra_state({**model.extra_state(), "hull": bad})
+    # off, or without a hull start: no hull
+    off = small_model(sphere, init_points=200, hull_prune=False)
+    off.init_from_scene(sphere, torch.zeros(3))
+    rand = small_model(sphere, init_points=200, init="random")
+    rand.init_from_scene(sphere, torch.zeros(3))
+    assert off._hull is None and rand._hull is None
 
 
 def test_gradient_check_finds_a_nan_or_infinity_in_any_parameter_on_both_paths(sphere):

@@ -25,6 +25,7 @@ scene box.
 
 from __future__ import annotations
 
+import base64
 import importlib.util
 import math
 from dataclasses import dataclass
@@ -53,6 +54,14 @@ MAX_GAUSSIANS = 20_000_000
 MIN_INIT_POINTS = 100
 # --init auto triangulates points from the training photos when there are at least this many
 MIN_TRIANGULATE_VIEWS = 3
+# --hull-prune keeps the Gaussians within this many cells of the visual hull (its 64^3 cells are
+# coarse and carved by 1-pixel-dilated silhouettes: lego, 4000 steps, removing the centres
+# outside the hull grown by 1 cell cost 1.0 dB, by 2 or 3 cells none of the fine detail)
+HULL_MARGIN = 3
+# ... and counts only the hull's cells at least this fraction of the training views see: a cell
+# few views frame (near a camera, off the others' fields of view) is not carved by the rest (lego
+# 200: 704 of the 3978 cells, each framed by 1-6 of the 100 views; the object's by all 100)
+HULL_MIN_SEEN = 0.25
 
 
 @dataclass
@@ -95,6 +104,14 @@ class SplatConfig:
     )
     percent_dense: float = option(
         0.01, "Gaussians larger than this fraction of the scene size are split, smaller ones cloned", above=0
+    )
+    hull_prune: bool = option(
+        True,
+        "with the visual-hull start (--init hull; auto on synthetic objects): remove the Gaussians whose "
+        "centre leaves the hull (its cells a quarter of the views frame, grown by 3 cells) every "
+        "--densify-every steps of the whole run: floaters outside it block held-out views (lego 200, "
+        "100 val views: 4000 steps 33.54 dB against 33.25, 870 steps 31.52 against 31.40; lego 400, 1946 "
+        "steps: 32.28 against 32.12)",
     )
     prune_opacity: float = option(0.005, "prune Gaussians less opaque than this", min=0, max=1)
     prune_screen: float = option(
@@ -173,6 +190,8 @@ class SplatModel(NerfModel):
         # the last training render (its 2D means carry the densification gradient)
         self._last: tuple[SplatRender, int, int] | None = None
         self._image_side = 0  # longest side of the training images (for the screen-size prune)
+        # the visual hull the Gaussians must stay in (--hull-prune; set by a hull start, not saved)
+        self._hull: dict | None = None
         pts = random_in_ball(config.init_points, bounds.center, bounds.radius, torch.Generator().manual_seed(0))
         self._install(
             *initial_gaussians(
@@ -266,6 +285,13 @@ class SplatModel(NerfModel):
                     "Use --init random, or check --background matches the images' background",
                 )
             pts, cols, volume = sample_hull(hull, c.init_points, gen)
+            if c.hull_prune:
+                framed = hull["grid"] & (hull["seen"] >= HULL_MIN_SEEN * len(scene.train))
+                self._hull = {
+                    "grid": torch.as_tensor(grow(framed, HULL_MARGIN)),
+                    "low": hull["low"],
+                    "cell": hull["cell"],
+                }
             scale = self._volume_scale(volume, len(pts))
         else:
             pts = random_start(c.init_points, self.bounds, center, radius, gen)
@@ -402,6 +428,8 @@ class SplatModel(NerfModel):
                 self._record_gradients(out.means2d.grad, out.radii, width, height)
         if densifying and done % c.densify_every == 0:
             self.densify_and_prune(self._image_side, s.optimizer)
+        elif self._hull is not None and done % c.densify_every == 0:
+            self.prune_outside_hull(s.optimizer)
         if c.opacity_reset_every > 0 and self._progress < c.densify_until:
             resets = int(self._progress / c.opacity_reset_every)
             if resets > self.n_resets:
@@ -457,12 +485,25 @@ class SplatModel(NerfModel):
             remove |= torch.exp(self.log_scales).amax(1) > 0.1 * self.extent
             if c.prune_screen > 0 and image_side > 0:
                 remove |= self.max_radii > c.prune_screen * image_side
+        if self._hull is not None:
+            remove |= outside_hull(self.means.detach(), self._hull)
         if bool(remove.all()):
             remove[torch.argmax(self.opacity_logits)] = False  # never prune the last one
         self._keep(~remove, optimizer)
         self.grad_accum.zero_()
         self.grad_count.zero_()
         self.max_radii.zero_()
+
+    @torch.no_grad()
+    def prune_outside_hull(self, optimizer: torch.optim.Optimizer | None = None) -> None:
+        """Remove the Gaussians whose centre is outside the (grown) visual hull (never the last one)."""
+        if self._hull is None:
+            return
+        remove = outside_hull(self.means.detach(), self._hull)
+        if bool(remove.all()):
+            remove[torch.argmax(self.opacity_logits)] = False
+        if bool(remove.any()):
+            self._keep(~remove, optimizer)
 
     @torch.no_grad()
     def reset_opacity(self, optimizer: torch.optim.Optimizer | None = None) -> None:
@@ -505,7 +546,16 @@ class SplatModel(NerfModel):
 
     # -- checkpoints -----------------------------------------------------------------
     def extra_state(self) -> dict:
-        return {"n_gaussians": self.n_gaussians, "active_degree": self.active_degree, "n_resets": self.n_resets}
+        out: dict = {"n_gaussians": self.n_gaussians, "active_degree": self.active_degree, "n_resets": self.n_resets}
+        if self._hull is not None:  # a resumed run prunes with the same hull
+            grid = self._hull["grid"].cpu().numpy()
+            out["hull"] = {
+                "shape": list(grid.shape),
+                "bits": base64.b64encode(np.packbits(grid.reshape(-1)).tobytes()).decode("ascii"),
+                "low": [float(x) for x in self._hull["low"]],
+                "cell": float(self._hull["cell"]),
+            }
+        return out
 
     def load_extra_state(self, state: dict) -> None:
         n = state.get("n_gaussians")
@@ -526,6 +576,23 @@ class SplatModel(NerfModel):
         )
         self.active_degree = int(state.get("active_degree", self.config.sh_degree))
         self.n_resets = int(state.get("n_resets", 0))
+        self._hull = None
+        hull = state.get("hull")
+        if isinstance(hull, dict):
+            try:
+                shape = tuple(int(x) for x in hull["shape"])
+                if len(shape) != 3 or min(shape) < 1 or max(shape) > 1024:
+                    raise ValueError(f"a grid of shape {shape}")
+                bits = np.frombuffer(base64.b64decode(hull["bits"]), np.uint8)
+                grid = np.unpackbits(bits)[: int(np.prod(shape))].reshape(shape).astype(bool)
+                low = np.asarray([float(x) for x in hull["low"]], np.float64).reshape(3)
+                self._hull = {"grid": torch.as_tensor(grid), "low": low, "cell": float(hull["cell"])}
+            except (KeyError, TypeError, ValueError) as e:
+                raise fail(
+                    "checkpoint 'model_extra'",
+                    f"its 'hull' cannot be read ({e})",
+                    "The checkpoint is corrupt or not from nerfkit; delete it or re-train",
+                ) from None
 
     def backend(self) -> str:
         return resolve_backend(self.config.kernels, self.means.device)
@@ -619,7 +686,9 @@ def visual_hull(
     """Carve a ``res``^3 grid over the cube ``center +- radius`` with the views' silhouettes
     (pixels differing from ``bg`` by more than ``tol``). A cell stays when every view that
     sees its centre sees the object there. Returns ``{"points" (m, 3), "colors" (m, 3),
-    "cell": side}`` of the kept cells, or None when none is kept."""
+    "cell": side}`` of the kept cells, the whole ``"grid"`` (res, res, res) of kept cells (x, y, z
+    order), how many views frame each cell (``"seen"``, the same shape) and the grid's corner
+    ``"low"`` (3,), or None when none is kept."""
     ax = np.linspace(-radius, radius, res, endpoint=False) + radius / res
     X, Y, Z = np.meshgrid(ax, ax, ax, indexing="ij")
     pts = np.stack([X, Y, Z], -1).reshape(-1, 3) + center
@@ -641,7 +710,46 @@ def visual_hull(
     keep &= seen > 0
     if not keep.any():
         return None
-    return {"points": pts[keep], "colors": col_sum[keep] / seen[keep, None], "cell": 2 * radius / res}
+    return {
+        "points": pts[keep],
+        "colors": col_sum[keep] / seen[keep, None],
+        "cell": 2 * radius / res,
+        "grid": keep.reshape(res, res, res),
+        "seen": seen.reshape(res, res, res),
+        "low": np.asarray(center, np.float64) - radius,
+    }
+
+
+def grow(grid: np.ndarray, cells: int = 1) -> np.ndarray:
+    """A boolean 3D grid grown ``cells`` times by one cell along each axis (its 6-neighbours)."""
+    out = grid.copy()
+    for _ in range(cells):
+        last = out.copy()
+        for axis in range(3):
+            for shift in (1, -1):
+                out |= np.roll(last, shift, axis) & ~_rolled_edge(grid.shape, axis, shift)
+    return out
+
+
+def _rolled_edge(shape: tuple, axis: int, shift: int) -> np.ndarray:
+    """The cells np.roll by ``shift`` along ``axis`` wraps into (they get no neighbour)."""
+    edge = np.zeros(shape, bool)
+    index = [slice(None)] * 3
+    index[axis] = 0 if shift > 0 else -1  # type: ignore[call-overload]
+    edge[tuple(index)] = True
+    return edge
+
+
+def outside_hull(means: Tensor, hull: dict) -> Tensor:
+    """(n,) True where a centre lies outside ``hull["grid"]`` (cells of side ``hull["cell"]``
+    from the corner ``hull["low"]``), or outside the grid's cube."""
+    grid = hull["grid"].to(means.device)
+    low = torch.as_tensor(hull["low"], dtype=means.dtype, device=means.device)
+    idx = torch.floor((means - low) / float(hull["cell"])).long()
+    res = torch.tensor(grid.shape, device=means.device)
+    in_cube = ((idx >= 0) & (idx < res)).all(1)
+    idx = torch.minimum(idx.clamp_min(0), res - 1)
+    return ~(in_cube & grid[idx[:, 0], idx[:, 1], idx[:, 2]])
 
 
 def _dilate(mask: np.ndarray) -> np.ndarray:
