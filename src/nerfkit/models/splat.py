@@ -190,7 +190,7 @@ class SplatModel(NerfModel):
         # the last training render (its 2D means carry the densification gradient)
         self._last: tuple[SplatRender, int, int] | None = None
         self._image_side = 0  # longest side of the training images (for the screen-size prune)
-        # the visual hull the Gaussians must stay in (--hull-prune; set by a hull start, not saved)
+        # the visual hull the Gaussians must stay in (--hull-prune; set by a hull start, kept in checkpoints)
         self._hull: dict | None = None
         pts = random_in_ball(config.init_points, bounds.center, bounds.radius, torch.Generator().manual_seed(0))
         self._install(
