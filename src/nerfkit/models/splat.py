@@ -487,9 +487,7 @@ class SplatModel(NerfModel):
                 remove |= self.max_radii > c.prune_screen * image_side
         if self._hull is not None:
             remove |= outside_hull(self.means.detach(), self._hull)
-        if bool(remove.all()):
-            remove[torch.argmax(self.opacity_logits)] = False  # never prune the last one
-        self._keep(~remove, optimizer)
+        self._remove(remove, optimizer)
         self.grad_accum.zero_()
         self.grad_count.zero_()
         self.max_radii.zero_()
@@ -497,13 +495,8 @@ class SplatModel(NerfModel):
     @torch.no_grad()
     def prune_outside_hull(self, optimizer: torch.optim.Optimizer | None = None) -> None:
         """Remove the Gaussians whose centre is outside the (grown) visual hull (never the last one)."""
-        if self._hull is None:
-            return
-        remove = outside_hull(self.means.detach(), self._hull)
-        if bool(remove.all()):
-            remove[torch.argmax(self.opacity_logits)] = False
-        if bool(remove.any()):
-            self._keep(~remove, optimizer)
+        if self._hull is not None:
+            self._remove(outside_hull(self.means.detach(), self._hull), optimizer)
 
     @torch.no_grad()
     def reset_opacity(self, optimizer: torch.optim.Optimizer | None = None) -> None:
@@ -536,6 +529,12 @@ class SplatModel(NerfModel):
         self._edit_parameters(lambda t, name: torch.cat([t, new[name]]), rows, optimizer)
         for buf in ("grad_accum", "grad_count", "max_radii"):
             setattr(self, buf, torch.cat([getattr(self, buf), getattr(self, buf).new_zeros(m)]))
+
+    def _remove(self, remove: Tensor, optimizer: torch.optim.Optimizer | None) -> None:
+        """Drop the Gaussians ``remove`` (n,) marks, never the last one (the most opaque stays)."""
+        if bool(remove.all()):
+            remove[torch.argmax(self.opacity_logits)] = False
+        self._keep(~remove, optimizer)
 
     def _keep(self, keep: Tensor, optimizer: torch.optim.Optimizer | None) -> None:
         if bool(keep.all()):
