@@ -30,7 +30,6 @@ import importlib.util
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
 
 import numpy as np
 import torch
@@ -66,11 +65,7 @@ HULL_MIN_SEEN = 0.25
 
 @dataclass
 class SplatConfig:
-    """Options of the ``splat`` model."""
-
-    # --lr multiplies 3DGS's learning rates: runs of a few hundred to a few thousand steps
-    # converge faster with 8x larger steps (lego, 300 steps: 28.1 dB at 8x, 27.4 at 4x, 23.8 at 1x)
-    TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 1, "lr": 8.0, "render_chunk": 65536}
+    """Options of the ``splat`` model (its training settings: ``presets.MODEL_TRAINING``)."""
 
     sh_degree: int = option(3, "largest spherical-harmonic degree of the colour (0-3)", min=0, max=3)
     sh_up_every: float = option(
