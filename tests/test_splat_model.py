@@ -16,7 +16,16 @@ from nerfkit.data.synthetic import sphere_scene
 from nerfkit.errors import NerfkitError
 from nerfkit.kernels import splat_reference as ref
 from nerfkit.models.base import SceneBounds
-from nerfkit.models.splat import HULL_MARGIN, LR_BUDGET_POWER, SplatConfig, SplatModel, grow, outside_hull, ssim, visual_hull
+from nerfkit.models.splat import (
+    HULL_MARGIN,
+    LR_BUDGET_POWER,
+    SplatConfig,
+    SplatModel,
+    grow,
+    outside_hull,
+    ssim,
+    visual_hull,
+)
 from nerfkit.output.images import render_image
 from nerfkit.splat_files import Gaussians, ply_property_names, read_splat_ply
 from nerfkit.train.config import TrainConfig
@@ -214,7 +223,9 @@ def test_budget_factor_is_one_for_short_runs_then_falls_by_the_power_to_the_floo
 
 
 def test_lr_budget_scales_every_learning_rate_by_the_runs_length(tmp_path, sphere):
-    cfg, model_cfg = presets.resolve(splat_cfg(tmp_path, steps=200), SplatConfig(**SMALL, lr_budget=50), sphere).configs()
+    cfg, model_cfg = presets.resolve(
+        splat_cfg(tmp_path, steps=200), SplatConfig(**SMALL, lr_budget=50), sphere
+    ).configs()
     trainer = Trainer(sphere, cfg, model_cfg, quiet=True)
     trainer.step = 40
     trainer._set_lr()
