@@ -35,8 +35,11 @@ CHANGED_FOR["forward/splat"] = {"lr": 5.0}
 # ... and model settings: forward-facing splat's densification schedule (its preset)
 FORWARD_SPLAT = {"opacity_reset_every": 0.0, "densify_every": 50}
 CHANGED_MODEL_FOR = {"forward/splat": FORWARD_SPLAT}
-# model options added since, with their default (splat: pruning to the visual hull)
-ADDED_MODEL = {"splat": {"hull_prune": True}}
+# ... and a capture's splat keeps one learning rate whatever its length
+CHANGED_MODEL_FOR.update({f"{scene}/splat": {"lr_budget": 0} for scene in ("tabletop", "tabletop_points")})
+# model options added since, with their default (splat: pruning to the visual hull, the
+# learning rates by the run's length)
+ADDED_MODEL = {"splat": {"hull_prune": True, "lr_budget": 800}}
 
 
 def sized(scene, size):

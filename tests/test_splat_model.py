@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,12 +16,21 @@ from nerfkit.data.synthetic import sphere_scene
 from nerfkit.errors import NerfkitError
 from nerfkit.kernels import splat_reference as ref
 from nerfkit.models.base import SceneBounds
-from nerfkit.models.splat import HULL_MARGIN, SplatConfig, SplatModel, grow, outside_hull, ssim, visual_hull
+from nerfkit.models.splat import (
+    HULL_MARGIN,
+    LR_BUDGET_POWER,
+    SplatConfig,
+    SplatModel,
+    grow,
+    outside_hull,
+    ssim,
+    visual_hull,
+)
 from nerfkit.output.images import render_image
 from nerfkit.splat_files import Gaussians, ply_property_names, read_splat_ply
 from nerfkit.train.config import TrainConfig
-from nerfkit.train.optim import build_optimizer
-from nerfkit.train.trainer import Trainer, resume, train
+from nerfkit.train.optim import budget_factor, build_optimizer
+from nerfkit.train.trainer import RATE_STEPS, Trainer, resume, train
 
 SMALL = dict(init_points=1500, densify_every=20, max_gaussians=6000)
 
@@ -206,12 +216,40 @@ def test_opacity_reset_caps_opacity(sphere):
     assert float(torch.sigmoid(model.opacity_logits.detach()).max()) <= 0.01 + 1e-6
 
 
+def test_budget_factor_is_one_for_short_runs_then_falls_by_the_power_to_the_floor():
+    assert budget_factor(None, 800, 0.4, 0.5) == budget_factor(800, 800, 0.4, 0.5) == 1.0
+    assert budget_factor(3200, 800, 0.5, 0.1) == pytest.approx(0.5)
+    assert budget_factor(10**7, 800, 0.4, 0.5) == 0.5
+
+
+def test_lr_budget_scales_every_learning_rate_by_the_runs_length(tmp_path, sphere):
+    cfg, model_cfg = presets.resolve(
+        splat_cfg(tmp_path, steps=200), SplatConfig(**SMALL, lr_budget=50), sphere
+    ).configs()
+    trainer = Trainer(sphere, cfg, model_cfg, quiet=True)
+    trainer.step = 40
+    trainer._set_lr()
+    for g in trainer.optimizer.param_groups:
+        decay = g["lr_final_factor"] ** (40 / 200)
+        assert g["lr"] == pytest.approx(g["initial_lr"] * decay * (50 / 200) ** LR_BUDGET_POWER)
+    # a timed run: the steps its minutes buy at the rate so far, unknown (factor 1) at first
+    trainer.cfg = replace(cfg, steps=0, minutes=1.0)
+    trainer.train_seconds = 6.0
+    assert trainer.run_steps() == pytest.approx(40 * 60 / 6)
+    trainer.step = RATE_STEPS - 1
+    assert trainer.run_steps() is None
+    trainer._set_lr()
+    g = trainer.optimizer.param_groups[1]
+    assert g["lr"] == pytest.approx(g["initial_lr"] * g["lr_final_factor"] ** 0.1)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("capture", ["off", "on"])
 def test_resume_continues_exactly(tmp_path, sphere, capture):
     """Also a capture's run, its per-view pose and exposure corrections (poses from step 5)."""
     cfg = dict(steps=30, eval_every=15, capture=capture, pose_start=5, pose_lr=2e-3)
-    model_cfg = SplatConfig(**{**SMALL, "densify_every": 5})  # density control before and after the stop
+    # density control before and after the stop; learning rates scaled by the run's length
+    model_cfg = SplatConfig(**{**SMALL, "densify_every": 5, "lr_budget": 10})
     train(sphere, splat_cfg(tmp_path, "a", **cfg), model_cfg, quiet=True)
     b_cfg, b_model_cfg = presets.resolve(splat_cfg(tmp_path, "b", **cfg), model_cfg, sphere).configs()  # as train()
     first = Trainer(sphere, b_cfg, b_model_cfg, quiet=True).run(stop_after=12)

@@ -26,7 +26,8 @@ SCENE_KINDS = (OBJECT, CAPTURE, FORWARD_FACING)
 # defaults, which are the default model's (fast). vanilla renders small chunks (4096 rays x 64
 # samples x 256 floats is ~270 MB) and scores 4096 pixels per periodic evaluation (whole views
 # took a minute before its occupancy grid starts); splat trains on one whole view per step,
-# with 3DGS's rates times 8 (runs of a few hundred to a few thousand steps converge faster).
+# with 3DGS's rates times 8 (runs of a few hundred to a few thousand steps converge faster;
+# longer runs scale them down: splat's --lr-budget).
 MODEL_TRAINING: dict[str, dict[str, Any]] = {
     "fast": {},
     "vanilla": {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 4096, "eval_pixels": 4096},
@@ -58,8 +59,9 @@ PRESETS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
             },
         },
         # splat can learn the pose corrections too (through the camera it renders from); they are
-        # off until they help on the captures (BENCHMARKS.md, why the defaults are what they are)
-        "splat": {"train": {"pose_lr": 0.0}, "model": {"learn_background": True}},
+        # off until they help on the captures, as is the smaller rate of long runs (BENCHMARKS.md,
+        # why the defaults are what they are)
+        "splat": {"train": {"pose_lr": 0.0}, "model": {"learn_background": True, "lr_budget": 0}},
     },
     # forward-facing splat: no opacity reset and a densification every 50 steps (flower and
     # its two 17-photo subsets +0.4-0.8 dB at equal steps), and lr 5 (+0.1-0.4 dB on each;

@@ -30,7 +30,6 @@ import importlib.util
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
 
 import numpy as np
 import torch
@@ -62,15 +61,14 @@ HULL_MARGIN = 3
 # few views frame (near a camera, off the others' fields of view) is not carved by the rest (lego
 # 200: 704 of the 3978 cells, each framed by 1-6 of the 100 views; the object's by all 100)
 HULL_MIN_SEEN = 0.25
+# --lr-budget: how the learning rates fall with the run's length, and how far at most
+LR_BUDGET_POWER = 0.4
+LR_BUDGET_FLOOR = 0.5
 
 
 @dataclass
 class SplatConfig:
-    """Options of the ``splat`` model."""
-
-    # --lr multiplies 3DGS's learning rates: runs of a few hundred to a few thousand steps
-    # converge faster with 8x larger steps (lego, 300 steps: 28.1 dB at 8x, 27.4 at 4x, 23.8 at 1x)
-    TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 1, "lr": 8.0, "render_chunk": 65536}
+    """Options of the ``splat`` model (its training settings: ``presets.MODEL_TRAINING``)."""
 
     sh_degree: int = option(3, "largest spherical-harmonic degree of the colour (0-3)", min=0, max=3)
     sh_up_every: float = option(
@@ -133,6 +131,13 @@ class SplatConfig:
         "lego, 300 steps: 28.1 dB constant, 27.1 decaying to 0.1)",
         above=0,
         max=1,
+    )
+    lr_budget: int = option(
+        800,
+        "a run longer than this many steps (--steps, or what --minutes buys at the rate so far) "
+        "scales every learning rate by (lr_budget / its steps) ** 0.4, down to half at most: long "
+        "runs end sharper with smaller steps (0: never)",
+        min=0,
     )
     scale_lr: float = option(5e-3, "learning rate of the log-scales (x --lr)", min=0)
     rotation_lr: float = option(1e-3, "learning rate of the quaternions (x --lr)", min=0)
@@ -397,6 +402,8 @@ class SplatModel(NerfModel):
         ]
         if self.bg_coef is not None:
             groups.append({"params": [self.bg_coef], "lr": lr * 1e-2, "name": "bg_coef"})
+        if c.lr_budget:
+            groups = [{**g, "lr_budget": (c.lr_budget, LR_BUDGET_POWER, LR_BUDGET_FLOOR)} for g in groups]
         # (3DGS's Adam epsilon; on the CPU torch's fused Adam: one pass over each parameter
         # instead of six, the same update up to float rounding)
         fused = {"fused": True} if self.means.device.type == "cpu" else {}

@@ -26,7 +26,6 @@ lego, where the course uses 2 and 6).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 import torch
 from torch import Tensor, nn
@@ -49,10 +48,7 @@ OCCUPANCY_DECAY = 0.8
 
 @dataclass
 class VanillaConfig:
-    # 4096 rays x 64 samples x 256 floats is ~270 MB per activation when rendering
-    # periodic validation scores 4096 pixels (every 5th pixel of 2 views of 200x200): before the
-    # occupancy grid starts, two whole views with all 64 samples took about a minute
-    TRAIN_DEFAULTS: ClassVar[dict] = {"batch_rays": 1024, "lr": 5e-4, "render_chunk": 4096, "eval_pixels": 4096}
+    """Options of the ``vanilla`` model (its training settings: ``presets.MODEL_TRAINING``)."""
 
     n_samples: int = option(64, "stratified samples per ray", min=1, max=4096)
     n_importance: int = option(

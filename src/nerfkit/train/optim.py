@@ -10,6 +10,15 @@ from ..kernels.optim import GridAdam, replace_param
 from ..models.base import NerfModel
 
 
+def budget_factor(run_steps: float | None, steps: int, power: float, floor: float) -> float:
+    """A learning-rate factor by the run's length: 1 for a run of at most ``steps`` steps,
+    ``(steps / run_steps) ** power`` for a longer one, never below ``floor``; 1 while the
+    length is unknown (None)."""
+    if run_steps is None or run_steps <= steps:
+        return 1.0
+    return max(floor, (steps / run_steps) ** power)
+
+
 def build_optimizer(model: NerfModel, lr: float) -> torch.optim.Optimizer:
     """Adam over ``model.param_groups(lr)``; when the model gathers some gradients in
     GradSinks (:meth:`~nerfkit.models.base.NerfModel.grad_sinks`), :class:`GridAdam`,
@@ -21,4 +30,4 @@ def build_optimizer(model: NerfModel, lr: float) -> torch.optim.Optimizer:
     return torch.optim.Adam(groups)
 
 
-__all__ = ["build_optimizer", "replace_param"]
+__all__ = ["budget_factor", "build_optimizer", "replace_param"]

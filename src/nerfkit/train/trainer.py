@@ -51,12 +51,14 @@ from .checkpoint import (
 )
 from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
 from .metrics import psnr, psnr_from_mse
-from .optim import build_optimizer
+from .optim import budget_factor, build_optimizer
 from .sight_lines import SIGHT_LINES_PER_STEP, SightLines
 from .view_corrections import PoseCorrection, ViewAdam, ViewCorrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
+# a timed run's length in steps is estimated from its rate after this many steps
+RATE_STEPS = 20
 # the shares of a run (steps or minutes) at which it renders its val views without
 # --eval-every: each tenth, and twice before the first, where the held-out score climbs
 # fastest (on a real capture it is near its last value by the first tenth:
@@ -271,11 +273,26 @@ class Trainer:
     def done(self) -> bool:
         return self.progress() >= 1.0
 
+    def run_steps(self) -> float | None:
+        """The run's length in steps: ``--steps``, or the steps ``--minutes`` buys at the rate
+        so far, whichever ends the run first (None: a timed run's first steps)."""
+        n = float(self.cfg.steps) if self.cfg.steps else None
+        if self.cfg.minutes and self.step >= RATE_STEPS and self.train_seconds > 0:
+            timed = self.step * 60.0 * self.cfg.minutes / self.train_seconds
+            n = timed if n is None else min(n, timed)
+        return n
+
     def _set_lr(self) -> None:
-        """Exponential decay to ``lr_final_factor`` (a group's own, else the config's)."""
+        """Exponential decay to ``lr_final_factor`` (a group's own, else the config's), times
+        :func:`budget_factor` of the run's length for a group with ``lr_budget`` (steps, power,
+        floor)."""
         p = self.progress()
+        run_steps = self.run_steps()
         for g in self._param_groups():
-            g["lr"] = g["initial_lr"] * g.get("lr_final_factor", self.cfg.lr_final_factor) ** p
+            factor = g.get("lr_final_factor", self.cfg.lr_final_factor) ** p
+            if "lr_budget" in g:
+                factor *= budget_factor(run_steps, *g["lr_budget"])
+            g["lr"] = g["initial_lr"] * factor
 
     def _eval_due(self) -> bool:
         """Without ``--eval-every``: each time the run passes one of :data:`EVAL_MARKS`."""
