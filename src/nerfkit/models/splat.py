@@ -135,8 +135,8 @@ class SplatConfig:
     lr_budget: int = option(
         800,
         "a run longer than this many steps (--steps, or what --minutes buys at the rate so far) "
-        "scales every learning rate by (lr_budget / its steps) ** 0.4, down to half at most: long "
-        "runs end sharper with smaller steps (0: never)",
+        f"scales every learning rate by (lr_budget / its steps) ** {LR_BUDGET_POWER}, down to "
+        f"{LR_BUDGET_FLOOR:g} times at most: long runs end sharper with smaller steps (0: never)",
         min=0,
     )
     scale_lr: float = option(5e-3, "learning rate of the log-scales (x --lr)", min=0)
