@@ -1,0 +1,66 @@
+"""Where a run's held-out error lies: in the broad shading or in the fine detail.
+
+Each held-out photo's error (render as the eval renders it, minus the photo) is split by a
+Gaussian blur of ``--sigma`` pixels into its low frequencies (the blurred error: exposure,
+shading, a shadow) and the rest, its high frequencies (edges, texture, grain), and each part
+is printed as a PSNR beside the whole. Two runs side by side show which part one model gets
+right and the other wrong: a model that paints light where the photos disagree scores lower
+in the low band; one that blurs, misplaces or loses texture scores lower in the high band.
+The two parts' mean squared errors add up to about the whole's (they are nearly orthogonal).
+
+    python benchmarks/error_bands.py RUN [RUN ...] [--split val] [--sigma 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import cv2
+import numpy as np
+
+
+def psnr_of(mse: float) -> float:
+    """PSNR (dB) of a mean squared error on [0, 1] colours (inf when it is 0)."""
+    return float("inf") if mse <= 0 else float(-10.0 * np.log10(mse))
+
+
+def error_bands(render: np.ndarray, photo: np.ndarray, sigma: float = 4.0) -> tuple[float, float, float]:
+    """``(whole, low, high)`` PSNRs (dB) of ``render`` against ``photo``, both (H, W, 3) in
+    [0, 1]: of the error ``render - photo``, of that error blurred by a Gaussian of ``sigma``
+    pixels (low frequencies) and of what the blur removed (high frequencies)."""
+    err = render.astype(np.float32) - photo.astype(np.float32)
+    low = cv2.GaussianBlur(err, (0, 0), sigma)
+    high = err - low
+    return psnr_of(float(np.mean(err**2))), psnr_of(float(np.mean(low**2))), psnr_of(float(np.mean(high**2)))
+
+
+def main() -> None:
+    from nerfkit.commands._common import RunToOpen, open_run, scene_for_run
+    from nerfkit.output.images import render_image
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("runs", nargs="+", metavar="RUN", help="run folders (nerfkit train --out)")
+    ap.add_argument("--split", default="val", choices=("val", "test", "train"), help="the views to score")
+    ap.add_argument("--sigma", type=float, default=4.0, help="blur between the bands, in pixels")
+    args = ap.parse_args()
+
+    print(f"| run | view | whole | low (sigma {args.sigma:g} px) | high |")
+    print("|---|---|---:|---:|---:|")
+    for run in args.runs:
+        opened = open_run(RunToOpen(run, "cpu", 16384))
+        views = getattr(scene_for_run(opened.info, None, need=args.split), args.split)
+        bands = []
+        for i in range(len(views)):
+            photo = views.images[i].astype(np.float32) / 255.0
+            view = render_image(
+                opened.model, views.K[i], views.c2w[i], views.width, views.height, opened.background(), opened.chunk
+            )
+            assert view is not None  # (None only when aborted)
+            bands.append(error_bands(np.clip(view.rgb, 0.0, 1.0), photo, args.sigma))
+            print(f"| {run} | {views.names[i]} | " + " | ".join(f"{b:.2f}" for b in bands[-1]) + " |")
+        mean = np.mean(np.array(bands), axis=0)
+        print(f"| {run} | mean of {len(bands)} | " + " | ".join(f"**{b:.2f}**" for b in mean) + " |")
+
+
+if __name__ == "__main__":
+    main()
