@@ -7,8 +7,10 @@ is printed as a PSNR beside the whole. Two runs side by side show which part one
 right and the other wrong: a model that paints light where the photos disagree scores lower
 in the low band; one that blurs, misplaces or loses texture scores lower in the high band.
 The two parts' mean squared errors add up to about the whole's (they are nearly orthogonal).
+With ``--tags``, the high band is also scored apart over the printed tags of a capture (each
+tag's square grown by ``TAG_GROWTH`` about its centre, to take in its paper) and elsewhere.
 
-    python benchmarks/error_bands.py RUN [RUN ...] [--split val] [--sigma 4]
+    python benchmarks/error_bands.py RUN [RUN ...] [--split val] [--sigma 4] [--tags]
 """
 
 from __future__ import annotations
@@ -17,6 +19,9 @@ import argparse
 
 import cv2
 import numpy as np
+
+# --tags: a tag's square grown this much about its centre covers its printed paper's margin
+TAG_GROWTH = 1.5
 
 
 def psnr_of(mse: float) -> float:
@@ -34,6 +39,33 @@ def error_bands(render: np.ndarray, photo: np.ndarray, sigma: float = 4.0) -> tu
     return psnr_of(float(np.mean(err**2))), psnr_of(float(np.mean(low**2))), psnr_of(float(np.mean(high**2)))
 
 
+def tag_mask(K: np.ndarray, c2w: np.ndarray, tags: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(height, width) bool: the pixels of a view (``K``, ``c2w``) over the printed tags
+    ``tags`` (n, 4, 3), each square grown by :data:`TAG_GROWTH` about its centre; tags
+    behind the camera cover nothing."""
+    from nerfkit.cameras import project_points
+
+    mask = np.zeros((height, width), np.uint8)
+    for quad in np.asarray(tags, np.float64):
+        centre = quad.mean(0)
+        uv, z = project_points(K, c2w, centre + TAG_GROWTH * (quad - centre))
+        if (z > 0).all():  # (pixel (col, row) covers [col, col + 1): its centre is at + 0.5)
+            cv2.fillConvexPoly(mask, np.round(uv - 0.5).astype(np.int32), 1)
+    return mask.astype(bool)
+
+
+def masked_high(render: np.ndarray, photo: np.ndarray, mask: np.ndarray, sigma: float = 4.0) -> tuple[float, float]:
+    """``(inside, outside)`` PSNRs (dB) of the high band of ``render - photo`` (as
+    :func:`error_bands`) over the pixels of ``mask`` (H, W) and over the rest (nan: none)."""
+    err = render.astype(np.float32) - photo.astype(np.float32)
+    high = err - cv2.GaussianBlur(err, (0, 0), sigma)
+
+    def part(values: np.ndarray) -> float:
+        return psnr_of(float(np.mean(values**2))) if values.size else float("nan")
+
+    return part(high[mask]), part(high[~mask])
+
+
 def main() -> None:
     from nerfkit.commands._common import RunToOpen, open_run, scene_for_run
     from nerfkit.output.images import render_image
@@ -42,13 +74,18 @@ def main() -> None:
     ap.add_argument("runs", nargs="+", metavar="RUN", help="run folders (nerfkit train --out)")
     ap.add_argument("--split", default="val", choices=("val", "test", "train"), help="the views to score")
     ap.add_argument("--sigma", type=float, default=4.0, help="blur between the bands, in pixels")
+    ap.add_argument("--tags", action="store_true", help="also the high band over the printed tags and elsewhere")
     args = ap.parse_args()
 
-    print(f"| run | view | whole | low (sigma {args.sigma:g} px) | high |")
-    print("|---|---|---:|---:|---:|")
+    tag_columns = " high over the tags | high elsewhere |" if args.tags else ""
+    print(f"| run | view | whole | low (sigma {args.sigma:g} px) | high |" + tag_columns)
+    print("|---|---|---:|---:|---:|" + ("---:|---:|" if args.tags else ""))
     for run in args.runs:
         opened = open_run(RunToOpen(run, "cpu", 16384))
-        views = getattr(scene_for_run(opened.info, None, need=args.split), args.split)
+        scene = scene_for_run(opened.info, None, need=args.split)
+        views = getattr(scene, args.split)
+        if args.tags and scene.tags is None:
+            raise SystemExit(f"{run}: its dataset records no printed tags: leave out --tags")
         bands = []
         for i in range(len(views)):
             photo = views.images[i].astype(np.float32) / 255.0
@@ -56,9 +93,13 @@ def main() -> None:
                 opened.model, views.K[i], views.c2w[i], views.width, views.height, opened.background(), opened.chunk
             )
             assert view is not None  # (None only when aborted)
-            bands.append(error_bands(np.clip(view.rgb, 0.0, 1.0), photo, args.sigma))
+            rgb = np.clip(view.rgb, 0.0, 1.0)
+            bands.append(error_bands(rgb, photo, args.sigma))
+            if args.tags:
+                mask = tag_mask(views.K[i], views.c2w[i], scene.tags, views.width, views.height)
+                bands[-1] += masked_high(rgb, photo, mask, args.sigma)
             print(f"| {run} | {views.names[i]} | " + " | ".join(f"{b:.2f}" for b in bands[-1]) + " |")
-        mean = np.mean(np.array(bands), axis=0)
+        mean = np.nanmean(np.array(bands), axis=0)
         print(f"| {run} | mean of {len(bands)} | " + " | ".join(f"**{b:.2f}**" for b in mean) + " |")
 
 

@@ -49,3 +49,32 @@ def test_the_bands_errors_add_up_to_the_whole():
 def test_psnr_of_no_error_is_infinite():
     assert error_bands.psnr_of(0.0) == math.inf
     assert math.isclose(error_bands.psnr_of(1e-3), 30.0)
+
+
+def test_a_tag_seen_straight_on_covers_its_grown_square_about_the_principal_point():
+    # a 0.1 m tag 1 m under a camera looking straight down (OpenCV axes: z forward, y down)
+    side, f, w, h = 0.1, 400.0, 200, 160
+    K = np.array([[f, 0.0, w / 2], [0.0, f, h / 2], [0.0, 0.0, 1.0]])
+    c2w = np.diag([1.0, -1.0, -1.0, 1.0])
+    c2w[2, 3] = 1.0
+    s = side / 2
+    tags = np.array([[[-s, s, 0.0], [s, s, 0.0], [s, -s, 0.0], [-s, -s, 0.0]]])
+    mask = error_bands.tag_mask(K, c2w, tags, w, h)
+    grown = error_bands.TAG_GROWTH * side * f  # pixels a side
+    assert abs(mask.sum() - grown**2) < 4 * grown  # the square, up to its edge pixels
+    rows, cols = np.nonzero(mask)
+    assert abs(cols.mean() + 0.5 - w / 2) < 1.0 and abs(rows.mean() + 0.5 - h / 2) < 1.0
+    behind = c2w.copy()
+    behind[2, 3] = -1.0  # the tag behind the camera: nothing
+    assert not error_bands.tag_mask(K, behind, tags, w, h).any()
+
+
+def test_masked_high_scores_the_masked_pixels_apart():
+    photo = _photo(4)
+    yy, xx = np.mgrid[:64, :48]
+    board = np.where((yy + xx) % 2 == 0, 0.1, -0.1).astype(np.float32)[..., None]
+    mask = np.zeros((64, 48), bool)
+    mask[16:48, 12:36] = True
+    render = photo + board * mask[..., None]  # fine detail wrong inside the mask only
+    inside, outside = error_bands.masked_high(render, photo, mask)
+    assert inside < 22.0 and outside > inside + 10.0
