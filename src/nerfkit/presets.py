@@ -36,7 +36,7 @@ MODEL_TRAINING: dict[str, dict[str, Any]] = {
 
 # Per scene kind and model: {"train": TrainConfig values, "model": model config values} that
 # differ from the defaults ("*": every model). A capture learns the room (a colour per
-# direction, and for fast textured room shells), a glossy table texture with relief, a robust photometric
+# direction, and for fast textured room shells), a glossy table texture, a robust photometric
 # loss, the sparse points' sight lines and a small total variation of the view-dependent colour;
 # its learning rate ends lower (a table texel is hit by few rays a step). Captures and
 # forward-facing scenes (content at every depth) take the distortion loss. A kind whose fast
@@ -53,7 +53,6 @@ PRESETS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                 "distortion_weight": 0.01,
                 "room_shells": 3,
                 "table_gloss": True,
-                "table_relief": True,
                 "rgb_loss": "charbonnier",
                 "points_weight": 0.02,
                 "tv_view_weight": 1e-8,

@@ -129,8 +129,8 @@ class FastConfig:
     table_relief: bool = option(
         False,
         "with --table: the table also learns a height per texel (a sheet of paper that curls, "
-        "a tag's plane a little off the table's), where rays then meet it "
-        "(default: on for capture datasets)",
+        "a tag's plane a little off the table's), where rays then meet it (off: it lifts "
+        "some captures and costs others a little; BENCHMARKS.md)",
     )
     floor: bool = option(
         True,
