@@ -596,3 +596,43 @@ def test_a_model_file_from_before_the_field_and_surroundings_modules_loads():
     fresh.load_state_dict(old)
     for k, v in model.state_dict().items():
         assert torch.equal(fresh.state_dict()[k], v), k
+
+
+def test_a_raised_table_is_met_at_its_height_along_each_ray():
+    """A relief of constant height h: each ray meets it exactly h above the plane, nearer
+    than the plane by h / cos (the angle to the normal); a relief of 0 moves nothing, and
+    the hit's distance along the ray changes by the same amount in the rendered layer."""
+    from nerfkit.fields.background import RELIEF_UNIT
+
+    table = TablePlane(torch.tensor([0.0, 0.0, 1.0, 0.0]), torch.zeros(3), radius=1.0, resolution=64, relief=True)
+    o = torch.tensor([[0.0, 0.0, 1.0], [0.2, -0.1, 1.0], [0.4, 0.3, 2.0]])
+    d = torch.nn.functional.normalize(torch.tensor([[0.0, 0.0, -1.0], [0.3, 0.2, -1.0], [-0.5, 0.1, -1.0]]), dim=-1)
+    on_plane = o + d * table.hit(o, d).unsqueeze(-1)
+    same, dt = table.raise_hits(on_plane, d, compiled=False)
+    torch.testing.assert_close(same, on_plane)
+    assert torch.all(dt == 0)
+    with torch.no_grad():
+        table.relief.fill_(2.0)  # 2 units: 0.02 of the radius
+    raised, dt = table.raise_hits(on_plane, d, compiled=False)
+    height = 2.0 * RELIEF_UNIT * 1.0
+    torch.testing.assert_close(raised[:, 2], torch.full((3,), height))
+    torch.testing.assert_close(dt, -height / -d[:, 2])
+    torch.testing.assert_close(raised, on_plane + d * dt.unsqueeze(-1))
+
+
+def test_the_relief_learns_from_where_the_texture_is_seen():
+    """The colour seen through a relief depends on its height (the texture is looked up
+    where the ray meets it), so the relief gets a gradient from the photometric error; a
+    table without relief has no such parameter."""
+    table = TablePlane(torch.tensor([0.0, 0.0, 1.0, 0.0]), torch.zeros(3), radius=1.0, resolution=32, relief=True)
+    ramp = torch.linspace(-3.0, 3.0, 32)
+    with torch.no_grad():  # a ramp along both texture axes
+        table.fine.copy_((ramp.view(32, 1) + ramp.view(1, 32)).reshape(-1, 1).expand(-1, 3))
+    o = torch.tensor([[0.1, 0.0, 1.0]])
+    d = torch.nn.functional.normalize(torch.tensor([[0.5, 0.3, -1.0]]), dim=-1)
+    p = o + d * table.hit(o, d).unsqueeze(-1)
+    raised, _ = table.raise_hits(p, d, compiled=False)
+    colour = table.look(raised, compiled=False)[0]
+    colour.sum().backward()
+    assert table.relief.grad is not None and table.relief.grad.abs().sum() > 0
+    assert TablePlane(torch.tensor([0.0, 0.0, 1.0, 0.0]), torch.zeros(3), 1.0, 32).relief is None

@@ -234,6 +234,12 @@ GLOSS_INIT = -3.0
 # sheen of a varnished table is blurry, so a coarse map does as well as finer ones and the
 # finest tried did worse (`--table-gloss` in BENCHMARKS.md)
 ENV_SIZE = (32, 8)
+# a table's relief (``relief=True``): its height per texel, in units of this fraction of the
+# texture's radius, so that a sparse Adam step of the table's learning rate moves it a fraction
+# of a millimetre on a table-top capture (`--table-relief` in BENCHMARKS.md)
+RELIEF_UNIT = 0.01
+# a ray grazing the plane would move far along itself for a small relief: its slope is capped
+RELIEF_MIN_COS = 0.05
 
 
 class TablePlane(nn.Module):
@@ -260,13 +266,17 @@ class TablePlane(nn.Module):
             ``radius``); the coarse texture has 1/16 as many per side.
         gloss: also learn a glossiness per texel and a small map of the surroundings that
             the table mirrors (``ENV_SIZE``).
+        relief: also learn a height above the plane per texel (the coverage's resolution):
+            a sheet of paper that curls, a plane a little off the true table. A ray then
+            meets the table where it meets that height over its hit on the plane (one
+            parallax step, :meth:`raise_hits`).
     """
 
     plane: Tensor
     origin: Tensor
     axes: Tensor
 
-    def __init__(self, plane, center, radius: float, resolution: int = 512, gloss: bool = False):
+    def __init__(self, plane, center, radius: float, resolution: int = 512, gloss: bool = False, relief: bool = False):
         super().__init__()
         plane = torch.as_tensor(plane, dtype=torch.float32).reshape(4)
         n = plane[:3] / plane[:3].norm()
@@ -282,6 +292,11 @@ class TablePlane(nn.Module):
         self.coarse = nn.Parameter(torch.zeros(self.sizes[1] ** 2, 3))
         self.cover_size = max(int(resolution) // 4, 2)
         self.cover = nn.Parameter(torch.full((self.cover_size**2, 1), COVER_INIT))
+        self.relief_unit = RELIEF_UNIT * self.radius
+        if relief:
+            self.relief = nn.Parameter(torch.zeros(self.cover_size**2, 1))
+        else:
+            self.register_parameter("relief", None)
         if gloss:
             self.shine = nn.Parameter(torch.full((self.cover_size**2, 1), GLOSS_INIT))
             self.env = nn.Parameter(torch.zeros(ENV_SIZE[0] * ENV_SIZE[1], 3))
@@ -291,9 +306,26 @@ class TablePlane(nn.Module):
 
     def textures(self) -> list[tuple[nn.Parameter, int]]:
         """``(parameter (side * side, C), side)`` of the fine and coarse colour textures,
-        the coverage texture and the glossiness texture (if any)."""
+        the coverage texture, and the glossiness and relief textures (if any)."""
         out = [(self.fine, self.sizes[0]), (self.coarse, self.sizes[1]), (self.cover, self.cover_size)]
-        return out + ([(self.shine, self.cover_size)] if self.shine is not None else [])
+        return out + [(t, self.cover_size) for t in (self.shine, self.relief) if t is not None]
+
+    def raise_hits(
+        self, points: Tensor, dirs: Tensor, sinks: dict | None = None, compiled: bool = True
+    ) -> tuple[Tensor, Tensor]:
+        """Where rays meet the relief: ``points`` (n, 3) where rays along ``dirs`` (n, 3)
+        meet the plane -> ``(points', dt)``, each moved along its ray by ``dt`` (n,) to the
+        height ``h`` of the relief at ``points``: ``dt = h / (d . n)`` (exact where the relief
+        is flat; the slope ``d . n`` is capped at ``-RELIEF_MIN_COS``). Without a relief:
+        ``points`` and zeros."""
+        if self.relief is None:
+            return points, points.new_zeros(len(points))
+        with torch.autocast(points.device.type, enabled=False):
+            uv = self.texture_coords(points.float())
+            tex = self.relief
+            h = self.relief_unit * sample_texture(tex, self.cover_size, uv, (sinks or {}).get(tex), compiled)[:, 0]
+            dt = h / (dirs.float() @ self.plane[:3]).clamp(max=-RELIEF_MIN_COS)
+            return points.float() + dirs.float() * dt.unsqueeze(-1), dt
 
     def hit(self, origins: Tensor, dirs: Tensor) -> Tensor:
         """(n,) distance to the plane along each ray, ``inf`` for rays that miss it."""

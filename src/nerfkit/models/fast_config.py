@@ -126,6 +126,12 @@ class FastConfig:
         "lies along the reflected ray), for varnished tables and paper with a sheen, "
         "whose look changes with the view (default: on for capture datasets)",
     )
+    table_relief: bool = option(
+        False,
+        "with --table: the table also learns a height per texel (a sheet of paper that curls, "
+        "a tag's plane a little off the table's), where rays then meet it (off: it lifts "
+        "some captures and costs others a little; BENCHMARKS.md)",
+    )
     floor: bool = option(
         True,
         "with --table and --learn-background: a second textured plane for the floor seen "

@@ -72,7 +72,12 @@ class Surroundings(nn.Module):
         self.table = None
         if config.table and bounds.table is not None:
             self.table = TablePlane(
-                bounds.table, bounds.center, bounds.radius, config.table_resolution, gloss=config.table_gloss
+                bounds.table,
+                bounds.center,
+                bounds.radius,
+                config.table_resolution,
+                gloss=config.table_gloss,
+                relief=config.table_relief,
             )
         self.floor = None
         if config.floor and self.table is not None and config.learn_background and bounds.floor is not None:
@@ -189,6 +194,9 @@ class Surroundings(nn.Module):
         (``inf``: misses), ``rgb (n, 1, 3)`` and coverage ``(n, 1)``."""
         hit = torch.isfinite(t_hit).nonzero()[:, 0]
         on_plane = o[hit] + d[hit] * t_hit[hit].unsqueeze(-1)
+        if plane.relief is not None:  # (it moves the hit along the ray, nearer or farther)
+            on_plane, dt = plane.raise_hits(on_plane, d[hit], self.texture_sinks, compiled)
+            t_hit = t_hit.index_put((hit,), t_hit[hit] + dt.to(t_hit.dtype))
         seen, cover, shine = plane.look(on_plane, self.texture_sinks, gloss=gloss and len(hit) > 0, compiled=compiled)
         if shine is not None:
             n = plane.plane[:3].to(d)
