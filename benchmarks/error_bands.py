@@ -20,23 +20,26 @@ import argparse
 import cv2
 import numpy as np
 
+from nerfkit.train.metrics import psnr_from_mse
+
 # --tags: a tag's square grown this much about its centre covers its printed paper's margin
 TAG_GROWTH = 1.5
 
 
-def psnr_of(mse: float) -> float:
-    """PSNR (dB) of a mean squared error on [0, 1] colours (inf when it is 0)."""
-    return float("inf") if mse <= 0 else float(-10.0 * np.log10(mse))
+def split_error(render: np.ndarray, photo: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(err, low, high)`` (H, W, 3) each: the error ``render - photo``, that error blurred by a
+    Gaussian of ``sigma`` pixels (its low frequencies) and what the blur removed (its high)."""
+    err = render.astype(np.float32) - photo.astype(np.float32)
+    low = cv2.GaussianBlur(err, (0, 0), sigma)
+    return err, low, err - low
 
 
 def error_bands(render: np.ndarray, photo: np.ndarray, sigma: float = 4.0) -> tuple[float, float, float]:
     """``(whole, low, high)`` PSNRs (dB) of ``render`` against ``photo``, both (H, W, 3) in
-    [0, 1]: of the error ``render - photo``, of that error blurred by a Gaussian of ``sigma``
-    pixels (low frequencies) and of what the blur removed (high frequencies)."""
-    err = render.astype(np.float32) - photo.astype(np.float32)
-    low = cv2.GaussianBlur(err, (0, 0), sigma)
-    high = err - low
-    return psnr_of(float(np.mean(err**2))), psnr_of(float(np.mean(low**2))), psnr_of(float(np.mean(high**2)))
+    [0, 1]: of the error and of its two bands (:func:`split_error`)."""
+    err, low, high = split_error(render, photo, sigma)
+    whole, low_psnr, high_psnr = (psnr_from_mse(float(np.mean(x**2))) for x in (err, low, high))
+    return whole, low_psnr, high_psnr
 
 
 def tag_mask(K: np.ndarray, c2w: np.ndarray, tags: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -57,11 +60,10 @@ def tag_mask(K: np.ndarray, c2w: np.ndarray, tags: np.ndarray, width: int, heigh
 def masked_high(render: np.ndarray, photo: np.ndarray, mask: np.ndarray, sigma: float = 4.0) -> tuple[float, float]:
     """``(inside, outside)`` PSNRs (dB) of the high band of ``render - photo`` (as
     :func:`error_bands`) over the pixels of ``mask`` (H, W) and over the rest (nan: none)."""
-    err = render.astype(np.float32) - photo.astype(np.float32)
-    high = err - cv2.GaussianBlur(err, (0, 0), sigma)
+    high = split_error(render, photo, sigma)[2]
 
     def part(values: np.ndarray) -> float:
-        return psnr_of(float(np.mean(values**2))) if values.size else float("nan")
+        return psnr_from_mse(float(np.mean(values**2))) if values.size else float("nan")
 
     return part(high[mask]), part(high[~mask])
 

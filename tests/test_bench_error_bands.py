@@ -47,8 +47,8 @@ def test_the_bands_errors_add_up_to_the_whole():
 
 
 def test_psnr_of_no_error_is_infinite():
-    assert error_bands.psnr_of(0.0) == math.inf
-    assert math.isclose(error_bands.psnr_of(1e-3), 30.0)
+    assert error_bands.psnr_from_mse(0.0) == math.inf
+    assert math.isclose(error_bands.psnr_from_mse(1e-3), 30.0)
 
 
 def test_a_tag_seen_straight_on_covers_its_grown_square_about_the_principal_point():

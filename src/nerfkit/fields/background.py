@@ -292,7 +292,6 @@ class TablePlane(nn.Module):
         self.coarse = nn.Parameter(torch.zeros(self.sizes[1] ** 2, 3))
         self.cover_size = max(int(resolution) // 4, 2)
         self.cover = nn.Parameter(torch.full((self.cover_size**2, 1), COVER_INIT))
-        self.relief_unit = RELIEF_UNIT * self.radius
         if relief:
             self.relief = nn.Parameter(torch.zeros(self.cover_size**2, 1))
         else:
@@ -316,14 +315,17 @@ class TablePlane(nn.Module):
         """Where rays meet the relief: ``points`` (n, 3) where rays along ``dirs`` (n, 3)
         meet the plane -> ``(points', dt)``, each moved along its ray by ``dt`` (n,) to the
         height ``h`` of the relief at ``points``: ``dt = h / (d . n)`` (exact where the relief
-        is flat; the slope ``d . n`` is capped at ``-RELIEF_MIN_COS``). Without a relief:
-        ``points`` and zeros."""
-        if self.relief is None:
-            return points, points.new_zeros(len(points))
+        is flat; the slope ``d . n`` is capped at ``-RELIEF_MIN_COS``). A table built with
+        ``relief`` only."""
+        tex = self.relief
+        assert tex is not None, "raise_hits: this table has no relief"
         with torch.autocast(points.device.type, enabled=False):
             uv = self.texture_coords(points.float())
-            tex = self.relief
-            h = self.relief_unit * sample_texture(tex, self.cover_size, uv, (sinks or {}).get(tex), compiled)[:, 0]
+            h = (
+                RELIEF_UNIT
+                * self.radius
+                * sample_texture(tex, self.cover_size, uv, (sinks or {}).get(tex), compiled)[:, 0]
+            )
             dt = h / (dirs.float() @ self.plane[:3]).clamp(max=-RELIEF_MIN_COS)
             return points.float() + dirs.float() * dt.unsqueeze(-1), dt
 
