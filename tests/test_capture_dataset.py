@@ -174,7 +174,7 @@ def test_table_moves_to_the_points_on_the_tag(posed, obj, tmp_path):
     cfg = DatasetConfig(max_side=200, val_every=0, test_every=0)
     scene, summary = build_dataset(posed, out, cfg, TAG, progress=False, points=points, tags=obj.layout.corners()[:1])
     np.testing.assert_allclose(scene.table, [0, 0, 1, -0.0005], atol=1e-7)
-    assert f"the {n} sparse points on the printed tags" in summary["table_from"]
+    assert summary["table_from"] == f"z = +0.50 mm, the median height of the {n} sparse points on the tags"
     for back in (load_npz(out / "dataset.npz"), load_transforms_json(out)):
         np.testing.assert_allclose(back.table, scene.table, atol=1e-7)
         np.testing.assert_allclose(back.tags, [obj.layout.tags[0]], atol=1e-6)  # the tag itself stays put

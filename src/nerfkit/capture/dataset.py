@@ -310,7 +310,7 @@ def build_dataset(
         if lift:
             table = np.array([0.0, 0.0, 1.0, -lift], np.float32)
             scene.table = table
-            table_note = f"z = {lift * 1000:+.2f} mm, the median height of the {on_tags} sparse points on the printed tags"
+            table_note = f"z = {lift * 1000:+.2f} mm, the median height of the {on_tags} sparse points on the tags"
     # the object's points as the model will find them (SceneBounds.from_scene)
     obj = (
         None
