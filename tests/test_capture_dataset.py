@@ -14,16 +14,20 @@ from nerfkit.capture import synthetic as S
 from nerfkit.capture.camera import Camera, nerfkit_K
 from nerfkit.capture.dataset import (
     FEW_TRAIN_VIEWS,
+    MIN_TAG_SURFACE_POINTS,
     DatasetConfig,
     build_dataset,
     estimate_bounds,
     few_views_note,
+    inside_quads,
     photo_agreement,
     split_indices,
+    tag_surface_height,
 )
 from nerfkit.capture.poses import PosedPhoto
 from nerfkit.capture.undistort import make_undistorter
 from nerfkit.cli import main
+from nerfkit.data.colmap import SparsePoints
 from nerfkit.data.nerfstudio import load_transforms_json
 from nerfkit.data.npz import load_npz
 
@@ -152,6 +156,49 @@ def test_dataset_files_load_back_with_the_same_cameras(posed, obj, tmp_path):
     agreement = tj["nerfkit"]["agreement"]
     assert agreement == summary["agreement"] == photo_agreement(a).as_json()
     assert agreement["photos_per_point"] >= 3 and 10 < agreement["psnr"] < 60
+    # too few points triangulated on the tag to move the table off the tag's plane
+    np.testing.assert_array_equal(a.table, [0, 0, 1, 0])
+    assert tj["nerfkit"]["table_from"] == summary["table_from"] == "the tags' plane, z = 0"
+
+
+def test_table_moves_to_the_points_on_the_tag(posed, obj, tmp_path):
+    rng = np.random.default_rng(1)
+    n = MIN_TAG_SURFACE_POINTS + 10
+    half = 0.45 * TAG
+    on_tag = np.c_[rng.uniform(-half, half, (n, 2)), np.full(n, 0.0005)]  # a tag printed on card
+    floor = np.c_[rng.uniform(0.05, 0.1, (50, 2)), np.zeros(50)]
+    xyz = np.concatenate([on_tag, floor]).astype(np.float32)
+    seen = [tuple(obj.names[:3])] * len(xyz)
+    points = SparsePoints(xyz, np.full((len(xyz), 3), 128, np.uint8), np.zeros(len(xyz)), np.full(len(xyz), 3), seen)
+    out = tmp_path / "ds"
+    cfg = DatasetConfig(max_side=200, val_every=0, test_every=0)
+    scene, summary = build_dataset(posed, out, cfg, TAG, progress=False, points=points, tags=obj.layout.corners()[:1])
+    np.testing.assert_allclose(scene.table, [0, 0, 1, -0.0005], atol=1e-7)
+    assert summary["table_from"] == f"z = +0.50 mm, the median height of the {n} sparse points on the tags"
+    for back in (load_npz(out / "dataset.npz"), load_transforms_json(out)):
+        np.testing.assert_allclose(back.table, scene.table, atol=1e-7)
+        np.testing.assert_allclose(back.tags, [obj.layout.tags[0]], atol=1e-6)  # the tag itself stays put
+
+
+def test_inside_quads_either_winding():
+    quad = np.array([[[0.0, 1], [1, 0], [0, -1], [-1, 0]]])  # a diamond
+    xy = np.array([[0.0, 0], [0.4, 0.4], [0.6, 0.6], [2, 0], [0, -0.9]])
+    expected = [True, True, False, False, True]
+    assert inside_quads(xy, quad).tolist() == expected
+    assert inside_quads(xy, quad[:, ::-1]).tolist() == expected
+    assert inside_quads(xy, np.concatenate([quad + [5, 0], quad])).tolist() == expected
+
+
+def test_tag_surface_height_is_the_median_of_the_points_on_the_tags():
+    rng = np.random.default_rng(0)
+    tag = np.array([[[-0.05, 0.05, 0], [0.05, 0.05, 0], [0.05, -0.05, 0], [-0.05, -0.05, 0]]])
+    on = np.c_[rng.uniform(-0.045, 0.045, (40, 2)), 0.001 + rng.normal(0, 1e-4, 40)]  # 1 mm over the tag
+    floor = np.c_[rng.uniform(0.06, 0.2, (200, 2)), np.full(200, -0.002)]  # beside the tag: not counted
+    above = np.c_[rng.uniform(-0.04, 0.04, (100, 2)), rng.uniform(0.01, 0.1, 100)]  # an object on the tag
+    height, count = tag_surface_height(np.concatenate([on, floor, above]), tag)
+    assert count == 40 and height == pytest.approx(np.median(on[:, 2]))
+    few = on[: MIN_TAG_SURFACE_POINTS - 1]
+    assert tag_surface_height(np.concatenate([few, floor]), tag) == (0.0, MIN_TAG_SURFACE_POINTS - 1)
 
 
 @pytest.mark.slow

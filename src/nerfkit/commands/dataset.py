@@ -86,6 +86,8 @@ def report_dataset(s: dict, out) -> int:
     print(f"K: fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f} (pixel centres at +0.5)")
     print(f"near {s['near']:.4f}  far {s['far']:.4f}  centre {s['center']} ({s['center_from']})  up {s['up']}")
     print(f"sparse points: {s['points']} ({s['points_from']})")
+    if s.get("table_from"):
+        print(f"table plane: {s['table_from']}")
     note = no_object_note(s.get("object_points"), s["points"])
     if note:
         print(note)
