@@ -3,7 +3,7 @@
 Pure NumPy geometry, below the datasets (:meth:`nerfkit.data.Scene.floor` asks it) and
 structure from motion (:mod:`nerfkit.sfm.frame` levels a reconstruction with it).
 
-A tag gives a capture its table plane for free (z = 0 of the tag frame). Without a tag,
+A tag gives a capture its table plane for free (level in the tag frame). Without a tag,
 the object still stands on something, and SfM triangulates that surface well: a table
 is textured, flat and in every photo. :func:`find_ground_plane` fits it by RANSAC among
 the sparse points near the point the cameras look at, keeping only planes that:

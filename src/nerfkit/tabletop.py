@@ -73,7 +73,7 @@ def table_paint(grid: np.ndarray, axes, plane, height: float, threshold: float, 
     within ``height`` above it in the columns (along the grid axis nearest the plane's
     normal, widened by two cells) where no density over ``threshold`` rises between
     ``height`` and ``2 * height``. What stands on the table keeps its base, as wide as the
-    object is just above the slab. A capture's table is the plane z = 0, so its columns
+    object is just above the slab. A capture's table is level (z = const), so its columns
     are the grid's; under a tilted plane they would lean by its tilt. Paint that stands up
     off the table counts too: pieces (over ``threshold``) apart from the object that never
     rise ``3 * height`` above the table (:func:`_low_pieces`). Over a printed tag, which is

@@ -214,7 +214,8 @@ def build_dataset(
     ``tags``: (n, 4, 3) corners of the printed tags in the world (:meth:`Layout.corners`),
     recorded with the table when the object stands on the tag's plane.
     ``on_tag_plane``: the world is the tag frame and the object stands on the tag's plane
-    (z = 0), recorded as the scene's table. The scene is marked a real capture.
+    (z = 0), recorded as the scene's table (moved to the sparse points on the tags:
+    :func:`tag_surface_height`). The scene is marked a real capture.
     Returns the Scene (nerfkit conventions) and a summary dict.
     """
     from tqdm import tqdm

@@ -116,7 +116,7 @@ class FastConfig:
     room_lr_ratio: float = option(0.2, "learning rate of the room shells relative to --lr", min=0)
     table: bool = option(
         False,
-        "rays stop at the scene's table plane (a tag capture's tag plane), which shows a "
+        "rays stop at the scene's table plane (a tag capture's tag plane, where `poses` put it), which shows a "
         "learned texture: the box then holds only the object",
     )
     table_gloss: bool = option(
