@@ -419,12 +419,11 @@ def tag_surface_height(points: np.ndarray, tags: np.ndarray) -> tuple[float, int
     tags = np.asarray(tags, np.float64)
     points = np.asarray(points, np.float64)
     side = float(np.linalg.norm(tags - np.roll(tags, -1, axis=1), axis=2).mean())
-    near = np.abs(points[:, 2]) <= TAG_SURFACE_BAND * side
-    on = near & inside_quads(points[:, :2], tags[..., :2])
-    count = int(on.sum())
-    if count < MIN_TAG_SURFACE_POINTS:
-        return 0.0, count
-    return float(np.median(points[on, 2])), count
+    near = points[np.abs(points[:, 2]) <= TAG_SURFACE_BAND * side]
+    on = near[inside_quads(near[:, :2], tags[..., :2])]
+    if len(on) < MIN_TAG_SURFACE_POINTS:
+        return 0.0, len(on)
+    return float(np.median(on[:, 2])), len(on)
 
 
 def _lying_flat(tags) -> np.ndarray | None:
