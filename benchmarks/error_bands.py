@@ -68,10 +68,27 @@ def masked_high(render: np.ndarray, photo: np.ndarray, mask: np.ndarray, sigma: 
     return part(high[mask]), part(high[~mask])
 
 
-def main() -> None:
+def open_split(run: str, split: str):
+    """Open ``run`` for scoring its dataset's ``split``: ``(scene, views, render)``, where
+    ``render(i)`` is view ``i`` as ``eval`` renders it, (H, W, 3) float in [0, 1]."""
     from nerfkit.commands._common import RunToOpen, open_run, scene_for_run
     from nerfkit.output.images import render_image
 
+    opened = open_run(RunToOpen(run, "cpu", 16384))
+    scene = scene_for_run(opened.info, None, need=split)
+    views = getattr(scene, split)
+
+    def render(i: int) -> np.ndarray:
+        view = render_image(
+            opened.model, views.K[i], views.c2w[i], views.width, views.height, opened.background(), opened.chunk
+        )
+        assert view is not None  # (None only when aborted)
+        return np.clip(view.rgb, 0.0, 1.0)
+
+    return scene, views, render
+
+
+def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("runs", nargs="+", metavar="RUN", help="run folders (nerfkit train --out)")
     ap.add_argument("--split", default="val", choices=("val", "test", "train"), help="the views to score")
@@ -83,19 +100,13 @@ def main() -> None:
     print(f"| run | view | whole | low (sigma {args.sigma:g} px) | high |" + tag_columns)
     print("|---|---|---:|---:|---:|" + ("---:|---:|" if args.tags else ""))
     for run in args.runs:
-        opened = open_run(RunToOpen(run, "cpu", 16384))
-        scene = scene_for_run(opened.info, None, need=args.split)
-        views = getattr(scene, args.split)
+        scene, views, render = open_split(run, args.split)
         if args.tags and scene.tags is None:
             raise SystemExit(f"{run}: its dataset records no printed tags: leave out --tags")
         bands = []
         for i in range(len(views)):
             photo = views.images[i].astype(np.float32) / 255.0
-            view = render_image(
-                opened.model, views.K[i], views.c2w[i], views.width, views.height, opened.background(), opened.chunk
-            )
-            assert view is not None  # (None only when aborted)
-            rgb = np.clip(view.rgb, 0.0, 1.0)
+            rgb = render(i)
             bands.append(error_bands(rgb, photo, args.sigma))
             if args.tags:
                 mask = tag_mask(views.K[i], views.c2w[i], scene.tags, views.width, views.height)

@@ -64,8 +64,7 @@ def corrections_of(run: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def main() -> None:
-    from nerfkit.commands._common import RunToOpen, open_run, scene_for_run
-    from nerfkit.output.images import render_image
+    from error_bands import open_split  # (this folder's, beside this script)
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("runs", nargs="+", metavar="RUN", help="run folders (nerfkit train --out) of real captures")
@@ -77,21 +76,15 @@ def main() -> None:
     print("| run | view | average colour | " + " | ".join(f"{k} nearest" for k in ks) + " |")
     print("|---|---|---:|" + "---:|" * len(ks))
     for run in args.runs:
-        opened = open_run(RunToOpen(run, "cpu", 16384))
-        scene = scene_for_run(opened.info, None, need=args.split)
+        scene, views, render = open_split(run, args.split)
         M, b = corrections_of(Path(run))
         train_dirs = view_directions(scene.train.c2w, scene.center)
-        views = getattr(scene, args.split)
         rows = []
         for i in range(len(views)):
             photo = views.images[i].astype(np.float64) / 255.0
-            view = render_image(
-                opened.model, views.K[i], views.c2w[i], views.width, views.height, opened.background(), opened.chunk
-            )
-            assert view is not None  # (None only when aborted)
-            rgb = view.rgb.astype(np.float64)
+            rgb = render(i).astype(np.float64)
             near = view_directions(views.c2w[i : i + 1], scene.center)[0]
-            scores = [psnr_from_mse(float(np.mean((np.clip(rgb, 0, 1) - photo) ** 2)))]
+            scores = [psnr_from_mse(float(np.mean((rgb - photo) ** 2)))]
             for k in ks:
                 Mk, bk = mean_correction(M, b, nearest_views(train_dirs, near, k))
                 guess = np.clip(rgb @ Mk.T + bk, 0.0, 1.0)
