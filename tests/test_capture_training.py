@@ -704,3 +704,27 @@ def test_the_object_alone_is_the_same_in_a_scene_ten_times_larger():
     assert thresholds[10.0] == pytest.approx(thresholds[1.0] / 10)
     isolate_object(model, table_cut_height(model, TABLE_CUT), 25.0)  # the larger scene at a fixed level
     assert not np.array_equal(kept_vertices(model, z.shape), kept[1.0])
+
+
+@pytest.mark.slow
+def test_a_capture_run_renders_new_views_in_the_colour_of_its_nearby_photos(tmp_path, tabletop):
+    """The trained photos' colour corrections go into model.pt by direction and come back
+    with the run; the object drawn alone keeps the scene's own colour."""
+    from nerfkit.train.checkpoint import load_run
+
+    c, m = presets.resolve(cfg(tmp_path, "ap", steps=60), SMALL, tabletop, SMALL_GIVEN).configs()
+    t = Trainer(tabletop, presets.without_scene(c), m, quiet=True)
+    t.run()
+    colour = t.model.appearance
+    assert colour is not None
+    M = t.views.exposure.matrices().detach().double().numpy()
+    np.testing.assert_allclose(colour.matrices, M, atol=1e-6)
+    assert np.abs(colour.matrices - np.eye(3)).max() > 0.01  # the photos' corrections, learned
+    np.testing.assert_allclose(colour.offsets, t.views.exposure.centred()[1].detach().double().numpy(), atol=1e-6)
+    model, _, _ = load_run(tmp_path / "ap")
+    assert model.appearance is not None
+    np.testing.assert_array_equal(model.appearance.matrices, colour.matrices)
+    np.testing.assert_array_equal(model.appearance.directions, colour.directions)
+    assert object_alone(model).model.appearance is None
+    train(tabletop, cfg(tmp_path, "plain", steps=20, capture="off"), SMALL, quiet=True, user_set=SMALL_GIVEN)
+    assert load_run(tmp_path / "plain")[0].appearance is None  # no corrections, no colour by view

@@ -19,6 +19,7 @@ from ..cameras import Rays, mean_camera
 from ..render.ndc import NdcSpace
 from ..scene_extent import object_box_from_points, sphere_radius
 from ..surroundings import Surroundings
+from .appearance import DirectionalColour
 
 
 @dataclass
@@ -268,6 +269,8 @@ class NerfModel(nn.Module):
         # what the model draws around its object (a capture's), or None: nerfkit.surroundings
         self.surroundings: Surroundings | None = None
         self.isolated = False  # drawing its object alone, for rendering only
+        # a capture's: the colour of the training photos near a rendered view (render_image)
+        self.appearance: DirectionalColour | None = None
 
     def set_precision(self, dtype: torch.dtype | None) -> None:
         """The autocast dtype the command resolved from ``--precision`` (None: float32), for

@@ -56,7 +56,9 @@ def render_image(
 ) -> RenderedView | None:
     """Render one view, ``chunk`` rays at a time (peak memory ~ chunk x samples); models
     that render whole views (``whole_images``, e.g. splat) render it at once. None when
-    ``abort()`` turns true between chunks (a viewer's camera moved on)."""
+    ``abort()`` turns true between chunks (a viewer's camera moved on). A model with an
+    ``appearance`` (a capture's) renders in the colour of the training photos taken near
+    ``c2w`` (:class:`~nerfkit.models.appearance.DirectionalColour`)."""
     device = background.device
     if getattr(model, "whole_images", False):
         return _render_whole(model, K, c2w, width, height, background)
@@ -80,11 +82,18 @@ def render_image(
                 scene_acc.append(out.scene_acc.float())
     finally:
         model.train(was_training)
-    rgb_t = torch.cat(rgb).clamp(0, 1).reshape(height, width, 3)
+    rgb_t = in_view_colour(model, torch.cat(rgb), c2w).clamp(0, 1).reshape(height, width, 3)
     view = RenderedView(rgb_t.cpu().numpy(), *_depth_image(torch.cat(depth), torch.cat(acc), width, height))
     if scene_depth:
         view.scene_depth, view.scene_acc = _depth_image(torch.cat(scene_depth), torch.cat(scene_acc), width, height)
     return view
+
+
+def in_view_colour(model: NerfModel, rgb: torch.Tensor, c2w: np.ndarray) -> torch.Tensor:
+    """(..., 3) colours ``model`` rendered at ``c2w`` (4, 4) -> in its ``appearance`` there
+    (as they are without one)."""
+    appearance = getattr(model, "appearance", None)
+    return rgb if appearance is None else appearance.apply(rgb, c2w)
 
 
 def _depth_image(depth: torch.Tensor, acc: torch.Tensor, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -246,7 +255,8 @@ def _render_whole(model, K, c2w, width: int, height: int, background: torch.Tens
     finally:
         model.train(was_training)
     return RenderedView(
-        out.rgb.float().clamp(0, 1).cpu().numpy(), *_depth_image(out.depth.float(), out.acc.float(), width, height)
+        in_view_colour(model, out.rgb.float(), c2w).clamp(0, 1).cpu().numpy(),
+        *_depth_image(out.depth.float(), out.acc.float(), width, height),
     )
 
 

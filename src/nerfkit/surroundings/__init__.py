@@ -273,6 +273,7 @@ class WithSurroundings(Protocol):
 
     surroundings: Surroundings | None
     isolated: bool
+    appearance: Any  # DirectionalColour | None (models.appearance: imported by models, not here)
 
     def density_box(self) -> tuple[np.ndarray, np.ndarray] | None: ...
 
@@ -323,6 +324,7 @@ def isolate_object(model: WithSurroundings, cut: float, threshold: float) -> lis
     if s is None or not left_out:
         return []
     model.isolated = True
+    model.appearance = None  # (drawn alone in the scene's own colour, on a colour of the user's)
     if s.table is not None:
         plane, tags = s.plane, table_tags(model)
         model.clear_density(lambda sigma, axes: around_object(sigma, axes, plane, cut, threshold, tags))

@@ -32,6 +32,7 @@ from ..errors import NerfkitError, fail
 from ..io.atomic import atomic_path, remove_stale_temporaries, write_json
 from ..io.lock import folder_lock
 from ..models import MODEL_NAMES, SceneBounds, build_model, config_from_dict, model_config_class
+from ..models.appearance import DirectionalColour
 from ..models.base import NerfModel
 from .config import TrainConfig
 
@@ -215,7 +216,7 @@ def checkpoint_paths(run_dir: Path) -> list[Path]:
 
 
 def _model_payload(step: int, model: NerfModel) -> dict:
-    return {
+    payload = {
         "format": FORMAT,
         "version": VERSION,
         "model_name": type(model).__name__,
@@ -223,6 +224,9 @@ def _model_payload(step: int, model: NerfModel) -> dict:
         "model": model.state_dict(),
         "model_extra": json.dumps(model.extra_state()),
     }
+    if model.appearance is not None:  # (a capture's run: the colour of a view by its direction)
+        payload["appearance"] = model.appearance.payload()
+    return payload
 
 
 def save_checkpoint(
@@ -316,6 +320,8 @@ def load_latest_checkpoint(run_dir: Path, model: NerfModel, final_model: bool = 
             if not (packing is None or isinstance(packing, str)):
                 raise fail(path, "malformed checkpoint ('model_packing' is not a name)")
             model.load_extra_state(json.loads(ckpt["model_extra"]))  # checks sizes before allocating
+            appearance = ckpt.get("appearance")
+            model.appearance = None if appearance is None else DirectionalColour.from_payload(appearance)
             state = ckpt["model"] if packing is None else model.unpack_state(packing, ckpt["model"])
             # weights must be finite; buffers may hold inf on purpose (e.g. "not measured yet"), never NaN
             params = {name for name, _ in model.named_parameters()}

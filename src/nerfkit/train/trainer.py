@@ -199,7 +199,17 @@ class Trainer:
             state["cuda_rng"] = torch.cuda.get_rng_state(self.device)
         return state
 
+    def refresh_appearance(self) -> None:
+        """The model's colour by view direction from the training photos' current colour
+        corrections (:class:`~nerfkit.models.appearance.DirectionalColour`), for the renders of
+        new views and the files saved; none without them."""
+        views = self.views
+        self.model.appearance = (
+            None if views is None else views.directional_colour(self.scene.train.c2w, self.scene.center)
+        )
+
     def save(self) -> Path:
+        self.refresh_appearance()
         extra = {
             **self._rng_state(),
             "train_seconds": self.train_seconds,
@@ -431,6 +441,7 @@ class Trainer:
         images = val.images
         assert images is not None  # (has_images)
         stride = 1 if n_views is None else eval_stride(val.width, val.height, n, self.cfg.eval_pixels)
+        self.refresh_appearance()
         scores = []
         for i in range(n):
             K, w, h = strided_camera(val.K[i], val.width, val.height, stride)

@@ -9,8 +9,9 @@ floaters to make up for them. As in nerfstudio, each training view gets:
   translation, zero at start), applied to the view's rays;
 * :class:`ExposureCorrection`: a per-channel gain and offset applied to the rendered colour,
   ``rgb * exp(log_gain) + offset`` (with colour mixing, an affine colour transform), with
-  the mean over views held at zero so that the scene keeps the photos' average exposure
-  (the scene is scored with no correction).
+  the mean over views held at zero so that the scene keeps the photos' average exposure;
+  a new view is rendered with the corrections of the photos near it in direction
+  (:meth:`ViewCorrections.directional_colour`).
 
 To score held-out photos fairly, :func:`fit_view` fits the same corrections to one photo
 with the scene frozen (as BARF does) before its PSNR is measured.
@@ -26,6 +27,7 @@ import torch
 from torch import Tensor, nn
 
 from ..cameras import Rays
+from ..models.appearance import DirectionalColour
 
 
 def skew(v: Tensor) -> Tensor:
@@ -195,6 +197,17 @@ class ViewCorrections(nn.Module):
         if self.exposure is not None:
             groups.append({"params": list(self.exposure.parameters()), "lr": exposure_lr})
         return groups
+
+    @torch.no_grad()
+    def directional_colour(self, c2w: np.ndarray, center: np.ndarray) -> DirectionalColour | None:
+        """The views' colour corrections by direction from ``center`` (3,), the views' poses
+        ``c2w`` (n, 4, 4) as given, for rendering new views; None without exposure correction."""
+        if self.exposure is None:
+            return None
+        offsets = self.exposure.centred()[1]
+        return DirectionalColour.of_photos(
+            c2w, self.exposure.matrices().cpu().double().numpy(), offsets.cpu().double().numpy(), center
+        )
 
     @torch.no_grad()
     def report(self, names: list[str] | None) -> list[dict]:

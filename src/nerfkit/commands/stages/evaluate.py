@@ -3,6 +3,7 @@ the printed summary."""
 
 from __future__ import annotations
 
+import math
 from typing import Any, cast
 
 # views listed one by one up to this many; beyond, the lowest and highest few
@@ -47,10 +48,15 @@ def scores(opened: Any, scene: Any, split: str, steps: int, sheet: list) -> dict
     whole = bool(getattr(opened.model, "whole_images", False))
     fit = ViewFitConfig(steps=steps) if steps else None  # (a gain and offset per channel: see evaluate)
     alone = object_alone(opened.model) if capture and not whole else None  # (a copy: memory for a second model)
+    colour = opened.model.appearance
     return {
         "split": split,
         "step": opened.step,
         "data": scene.source,
+        "colour": "the scene's own"
+        if colour is None
+        else "the training photos' colour corrections near each view's direction, weighted by a Gaussian "
+        f"of the angle of {math.degrees(colour.width):.1f} degrees",
         **evaluate_views(
             opened.model,
             scene.splits[split],
