@@ -68,13 +68,16 @@ def masked_high(render: np.ndarray, photo: np.ndarray, mask: np.ndarray, sigma: 
     return part(high[mask]), part(high[~mask])
 
 
-def open_split(run: str, split: str):
+def open_split(run: str, split: str, own_colour: bool = False):
     """Open ``run`` for scoring its dataset's ``split``: ``(scene, views, render)``, where
-    ``render(i)`` is view ``i`` as ``eval`` renders it, (H, W, 3) float in [0, 1]."""
+    ``render(i)`` is view ``i`` as ``eval`` renders it, (H, W, 3) float in [0, 1]; with
+    ``own_colour``, in the scene's own colour (not the training photos' near the view)."""
     from nerfkit.commands._common import RunToOpen, open_run, scene_for_run
     from nerfkit.output.images import render_image
 
     opened = open_run(RunToOpen(run, "cpu", 16384))
+    if own_colour:
+        opened.model.appearance = None
     scene = scene_for_run(opened.info, None, need=split)
     views = getattr(scene, split)
 

@@ -1,14 +1,17 @@
 """How much of a held-out photo's colour its pose alone predicts.
 
 A real capture's training photos each get a colour correction (exposure, white balance,
-colour mixing: ``nerfkit.train.view_corrections.ExposureCorrection``); a held-out photo is
-rendered at the average one. A phone sets its exposure from what it sees, so photos taken
-from nearby look alike. This scores each held-out photo rendered three ways: at the average
-colour (as ``eval`` does), and with the mean correction of the ``k`` training photos whose
-directions from the scene's centre are nearest its own (for each ``--k``): a guess from the
-pose alone, no pixel of the held-out photo used.
+colour mixing: ``nerfkit.train.view_corrections.ExposureCorrection``). A phone sets its
+exposure from what it sees, so photos taken from nearby look alike, and a new view is
+rendered with the corrections of the training photos near it in direction
+(``nerfkit.models.appearance.DirectionalColour``: a Gaussian of the angle, as wide as the
+median angle from a photo to its third nearest). This scores each held-out photo rendered
+in the scene's own colour (the photos' average), with the mean correction of the ``k``
+training photos nearest in direction (for each ``--k``) and with the Gaussian at each of
+``--widths`` (multiples of that spacing; 0.5 is what ``eval`` and the videos use): a guess
+from the pose alone, no pixel of the held-out photo used.
 
-    python benchmarks/neighbour_exposure.py RUN [RUN ...] [--split val] [--k 1,3]
+    python benchmarks/neighbour_exposure.py RUN [RUN ...] [--split val] [--k 1,3] [--widths 0.5,1,1.5]
 
 A run keeps its training photos' corrections in its last checkpoint (``train`` keeps one).
 """
@@ -21,14 +24,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from nerfkit.models.appearance import camera_directions, direction_weights, neighbour_spacing
 from nerfkit.train.metrics import psnr_from_mse
-
-
-def view_directions(c2w: np.ndarray, center: np.ndarray) -> np.ndarray:
-    """(n, 4, 4) camera-to-world poses -> (n, 3) unit directions from ``center`` (3,) to each
-    camera's centre."""
-    d = np.asarray(c2w, np.float64)[:, :3, 3] - np.asarray(center, np.float64)
-    return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def nearest_views(train_dirs: np.ndarray, direction: np.ndarray, k: int) -> np.ndarray:
@@ -63,6 +60,11 @@ def corrections_of(run: Path) -> tuple[np.ndarray, np.ndarray]:
         return ex.matrices().numpy().astype(np.float64), ex.centred()[1].numpy().astype(np.float64)
 
 
+def weighted_correction(M: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The corrections ``M`` (n, 3, 3), ``b`` (n, 3) averaged with weights ``w`` (n,) summing to 1."""
+    return np.einsum("n,nij->ij", w, M), w @ b
+
+
 def main() -> None:
     from error_bands import open_split  # (this folder's, beside this script)
 
@@ -70,29 +72,38 @@ def main() -> None:
     ap.add_argument("runs", nargs="+", metavar="RUN", help="run folders (nerfkit train --out) of real captures")
     ap.add_argument("--split", default="val", choices=("val", "test"), help="the held-out views to score")
     ap.add_argument("--k", default="1,3", help="numbers of nearest training photos, comma-separated")
+    ap.add_argument("--widths", default="0.5,1,1.5", help="the Gaussian's widths, in multiples of the spacing")
     args = ap.parse_args()
     ks = [int(k) for k in args.k.split(",")]
+    widths = [float(w) for w in args.widths.split(",")]
 
-    print("| run | view | average colour | " + " | ".join(f"{k} nearest" for k in ks) + " |")
-    print("|---|---|---:|" + "---:|" * len(ks))
+    heads = ["own colour", *(f"{k} nearest" for k in ks), *(f"Gaussian x{w:g}" for w in widths)]
+    print("| run | view | " + " | ".join(heads) + " |")
+    print("|---|---|" + "---:|" * len(heads))
     for run in args.runs:
-        scene, views, render = open_split(run, args.split)
+        scene, views, render = open_split(run, args.split, own_colour=True)
         M, b = corrections_of(Path(run))
-        train_dirs = view_directions(scene.train.c2w, scene.center)
+        train_dirs = camera_directions(scene.train.c2w, scene.center)
+        spacing = neighbour_spacing(train_dirs)
         rows = []
         for i in range(len(views)):
             photo = views.images[i].astype(np.float64) / 255.0
             rgb = render(i).astype(np.float64)
-            near = view_directions(views.c2w[i : i + 1], scene.center)[0]
-            scores = [psnr_from_mse(float(np.mean((rgb - photo) ** 2)))]
-            for k in ks:
-                Mk, bk = mean_correction(M, b, nearest_views(train_dirs, near, k))
-                guess = np.clip(rgb @ Mk.T + bk, 0.0, 1.0)
-                scores.append(psnr_from_mse(float(np.mean((guess - photo) ** 2))))
+            here = camera_directions(views.c2w[i : i + 1], scene.center)
+            guesses = [(np.eye(3), np.zeros(3))]
+            guesses += [mean_correction(M, b, nearest_views(train_dirs, here[0], k)) for k in ks]
+            guesses += [weighted_correction(M, b, direction_weights(train_dirs, here, w * spacing)[0]) for w in widths]
+            scores = [
+                psnr_from_mse(float(np.mean((np.clip(rgb @ Mk.T + bk, 0.0, 1.0) - photo) ** 2))) for Mk, bk in guesses
+            ]
             rows.append(scores)
             print(f"| {run} | {views.names[i]} | " + " | ".join(f"{s:.2f}" for s in scores) + " |")
         mean = np.mean(np.array(rows), axis=0)
-        print(f"| {run} | mean of {len(rows)} | " + " | ".join(f"**{s:.2f}**" for s in mean) + " |")
+        print(
+            f"| {run} | mean of {len(rows)} (spacing {np.degrees(spacing):.1f} deg) | "
+            + " | ".join(f"**{s:.2f}**" for s in mean)
+            + " |"
+        )
 
 
 if __name__ == "__main__":
