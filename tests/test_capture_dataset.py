@@ -19,7 +19,6 @@ from nerfkit.capture.dataset import (
     build_dataset,
     estimate_bounds,
     few_views_note,
-    inside_quads,
     photo_agreement,
     split_indices,
     tag_surface_height,
@@ -30,6 +29,7 @@ from nerfkit.cli import main
 from nerfkit.data.colmap import SparsePoints
 from nerfkit.data.nerfstudio import load_transforms_json
 from nerfkit.data.npz import load_npz
+from nerfkit.tabletop import inside_quads
 
 TAG = 0.06
 

@@ -121,18 +121,26 @@ def _rising(solid: np.ndarray, above: np.ndarray, height: float, axis: int) -> n
     return ndimage.binary_dilation(band.any(axis=axis, keepdims=True), iterations=2)
 
 
+def inside_quads(xy: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """(m,) bool: which of the points ``xy`` (m, 2) lie inside any of the convex
+    quadrilaterals ``quads`` (n, 4, 2) (corners in order, either winding; the edges count
+    as inside)."""
+    xy = np.asarray(xy, np.float64)
+    inside = np.zeros(len(xy), bool)
+    for q in np.asarray(quads, np.float64):
+        edge, rel = np.roll(q, -1, axis=0) - q, xy[:, None, :] - q  # (4, 2), (m, 4, 2) each edge a -> b
+        cross = edge[:, 0] * rel[..., 1] - edge[:, 1] * rel[..., 0]  # (m, 4)
+        inside |= (cross >= 0).all(-1) | (cross <= 0).all(-1)
+    return inside
+
+
 def _over_tags(tags, axes, axis: int) -> np.ndarray:
     """Which grid columns along ``axis`` stand over a printed tag: the tags' corners (n,
     4, 3), seen down ``axis``, each a convex quadrilateral. Bool over the other two axes."""
     u, v = (np.asarray(axes[a], np.float64) for a in range(3) if a != axis)
     U, V = np.meshgrid(u, v, indexing="ij")
-    over = np.zeros(U.shape, bool)
-    for quad in np.asarray(tags, np.float64):
-        q = np.delete(quad, axis, axis=1)  # (4, 2)
-        e = np.roll(q, -1, axis=0) - q
-        cross = e[:, 0, None, None] * (V - q[:, 1, None, None]) - e[:, 1, None, None] * (U - q[:, 0, None, None])
-        over |= (cross >= 0).all(0) | (cross <= 0).all(0)
-    return over
+    quads = np.delete(np.asarray(tags, np.float64), axis, axis=2)  # (n, 4, 2)
+    return inside_quads(np.stack([U.ravel(), V.ravel()], -1), quads).reshape(U.shape)
 
 
 def _pieces(solid: np.ndarray) -> tuple[np.ndarray, int, int]:

@@ -37,6 +37,7 @@ from ..images import common_size
 from ..io.atomic import write_json
 from ..io.paths import resolve_inside
 from ..scene_extent import FEW_TRAIN_VIEWS, MIN_OBJECT_POINTS, object_box, object_points, sphere_radius
+from ..tabletop import inside_quads
 from .camera import Camera, camera_from_dict, nerfkit_K
 from .poses import UP, PosedPhoto
 from .undistort import make_undistorter, output_size, resize_K_nerfkit
@@ -394,15 +395,6 @@ def photo_agreement(scene: Scene, obj: np.ndarray | None = None) -> Agreement | 
 TAG_SURFACE_BAND = 0.05
 # fewer points than this on the tags leave the table on the tags' plane
 MIN_TAG_SURFACE_POINTS = 30
-
-
-def inside_quads(xy: np.ndarray, quads: np.ndarray) -> np.ndarray:
-    """(m,) bool: which of the points ``xy`` (m, 2) lie inside any of the convex
-    quadrilaterals ``quads`` (n, 4, 2) (corners in order, either winding)."""
-    a, b = quads, np.roll(quads, -1, axis=1)  # (n, 4, 2) each edge a -> b
-    edge, rel = b - a, xy[:, None, None, :] - a[None]  # (n, 4, 2), (m, n, 4, 2)
-    cross = edge[None, ..., 0] * rel[..., 1] - edge[None, ..., 1] * rel[..., 0]  # (m, n, 4)
-    return ((cross >= 0).all(-1) | (cross <= 0).all(-1)).any(-1)
 
 
 def tag_surface_height(points: np.ndarray, tags: np.ndarray) -> tuple[float, int]:
