@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nerfkit.models.appearance import camera_directions, direction_weights, neighbour_spacing
+from nerfkit.models.appearance import DirectionalColour, camera_directions, neighbour_spacing
 from nerfkit.train.metrics import psnr_from_mse
 
 
@@ -60,11 +60,6 @@ def corrections_of(run: Path) -> tuple[np.ndarray, np.ndarray]:
         return ex.matrices().numpy().astype(np.float64), ex.centred()[1].numpy().astype(np.float64)
 
 
-def weighted_correction(M: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The corrections ``M`` (n, 3, 3), ``b`` (n, 3) averaged with weights ``w`` (n,) summing to 1."""
-    return np.einsum("n,nij->ij", w, M), w @ b
-
-
 def main() -> None:
     from error_bands import open_split  # (this folder's, beside this script)
 
@@ -85,6 +80,7 @@ def main() -> None:
         M, b = corrections_of(Path(run))
         train_dirs = camera_directions(scene.train.c2w, scene.center)
         spacing = neighbour_spacing(train_dirs)
+        kernels = [DirectionalColour(train_dirs, M, b, scene.center, w * spacing) for w in widths]
         rows = []
         for i in range(len(views)):
             photo = views.images[i].astype(np.float64) / 255.0
@@ -92,7 +88,7 @@ def main() -> None:
             here = camera_directions(views.c2w[i : i + 1], scene.center)
             guesses = [(np.eye(3), np.zeros(3))]
             guesses += [mean_correction(M, b, nearest_views(train_dirs, here[0], k)) for k in ks]
-            guesses += [weighted_correction(M, b, direction_weights(train_dirs, here, w * spacing)[0]) for w in widths]
+            guesses += [k.correction(views.c2w[i]) for k in kernels]
             scores = [
                 psnr_from_mse(float(np.mean((np.clip(rgb @ Mk.T + bk, 0.0, 1.0) - photo) ** 2))) for Mk, bk in guesses
             ]
