@@ -2,7 +2,7 @@
 #   make demo   set up .venv and run the main job on the bundled lego scene
 #   make test   set up .venv and run the test suite's fast lane (the tests not marked slow)
 #   make test-all   the whole suite, slow end-to-end tests included (what CI runs)
-#   make lint   ruff (lint and format check) over the sources, tests and benchmarks; mypy over the sources
+#   make lint   ruff (lint and format check) over the sources, tests, benchmarks and docs scripts; mypy over the sources
 # TORCH_SPEC picks the PyTorch build; the default is the CPU wheel these machines carry.
 # On a CUDA machine: make demo TORCH_SPEC="torch>=2.4"
 
@@ -35,8 +35,8 @@ test-all: setup
 	$(BIN)/python -m pytest -n auto
 
 lint: setup
-	$(BIN)/ruff check src tests benchmarks
-	$(BIN)/ruff format --check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks docs
+	$(BIN)/ruff format --check src tests benchmarks docs
 	$(BIN)/mypy src/nerfkit
 
 clean:

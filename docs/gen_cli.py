@@ -30,11 +30,12 @@ def help_text(argv: list[str]) -> str:
     os.environ.update(COLUMNS=WIDTH, NO_COLOR="1")
     out = io.StringIO()
     try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
-            try:
-                cli.main(argv)
-            except SystemExit:
-                pass
+        with (
+            contextlib.redirect_stdout(out),
+            contextlib.redirect_stderr(io.StringIO()),
+            contextlib.suppress(SystemExit),
+        ):
+            cli.main(argv)
     finally:
         for k, v in saved.items():
             if v is None:
@@ -50,11 +51,7 @@ def command_names() -> list[str]:
 
     build = getattr(cli, "build_parser", None)
     parser = build() if build is not None else None
-    subs = [
-        a
-        for a in getattr(parser, "_actions", [])
-        if isinstance(a, argparse._SubParsersAction)
-    ]
+    subs = [a for a in getattr(parser, "_actions", []) if isinstance(a, argparse._SubParsersAction)]
     return list(subs[0].choices) if subs else list(getattr(cli, "COMMANDS", []))
 
 
@@ -95,11 +92,7 @@ def main() -> int:
     text = generate()
     if "--check" in sys.argv[1:]:
         same = OUT.exists() and OUT.read_text(encoding="utf-8") == text
-        print(
-            "docs/cli.md is up to date"
-            if same
-            else "docs/cli.md differs: run python docs/gen_cli.py"
-        )
+        print("docs/cli.md is up to date" if same else "docs/cli.md differs: run python docs/gen_cli.py")
         return 0 if same else 1
     OUT.write_text(text, encoding="utf-8")
     print(f"wrote {OUT} ({text.count(chr(10))} lines)")
