@@ -87,6 +87,43 @@ def test_a_persistent_blob_is_trimmed_and_a_lone_bad_pixel_is_not():
     assert bool((w[~inside] == 1).all())
 
 
+def test_debiased_error_is_measured_from_the_photos_mean_of_its_inliers():
+    memory = robust.TransientMemory(2, 8, 8)
+    idx = torch.tensor([0, 0, 1, 1])
+    err = torch.tensor([[0.2, 0.2, 0.2], [0.4, 0.0, 0.2], [-0.1, -0.1, -0.1], [0.9, 0.9, 0.9]])
+    assert memory.debiased(idx, err).tolist() == pytest.approx((err**2).mean(-1).tolist())  # no mean yet
+    inlier = torch.tensor([True, True, True, False])  # the last ray is left out
+    memory.learn_bias(idx, err, inlier)
+    r = robust.MEMORY_RATE
+    assert memory.bias[0].tolist() == pytest.approx([r * 0.3, r * 0.1, r * 0.2])
+    assert memory.bias[1].tolist() == pytest.approx([-r * 0.1] * 3)
+    for _ in range(200):  # the mean converges to the photo's inliers' mean error
+        memory.learn_bias(idx, err, inlier)
+    assert memory.bias[1].tolist() == pytest.approx([-0.1] * 3, abs=1e-4)
+    assert float(memory.debiased(idx, err)[2]) == pytest.approx(0.0, abs=1e-6)
+    assert float(memory.debiased(idx, err)[3]) == pytest.approx(1.0)
+
+
+def test_a_photo_off_in_exposure_is_not_trimmed_but_a_shadow_in_it_is():
+    """Photo 1 is 0.3 brighter than the render everywhere (its colour correction has not caught
+    up), and a 6x6-pixel patch of it is 0.5 darker (a shadow); photo 0 matches. Ranked by the
+    raw error every ray of photo 1 would be an outlier; by the error less the photo's mean,
+    only the shadow's are."""
+    torch.manual_seed(0)
+    memory = robust.TransientMemory(2, 32, 32)
+    for _ in range(80):
+        uv = torch.randint(0, 32, (400, 2))
+        img = torch.randint(0, 2, (400,))
+        shadow = (img == 1) & (uv[:, 0] < 6) & (uv[:, 1] < 6)
+        err = torch.randn(400, 3) * 0.01 - 0.3 * (img == 1).float().unsqueeze(-1)
+        err[shadow] += 0.5
+        w = robust.robust_weights(memory.debiased(img, err), memory, img, uv, 0.8, True, err)
+    assert bool((w[shadow] == 0).all())
+    assert bool((w[~shadow] == 1).all())
+    raw = robust.outlier_candidates((err**2).mean(-1), 0.8)
+    assert float(raw[(img == 1) & ~shadow].float().mean()) > 0.3  # what ranking by the raw error picks
+
+
 def test_fast_loss_trims_only_after_the_warm_up_and_with_the_batch_seen():
     scene = sphere_scene(n_train=2, n_val=1, size=8)
     config = FastConfig(resolutions="8", upsample_steps="", transient_quantile=0.5, transient_start=0.5)

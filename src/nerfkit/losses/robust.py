@@ -15,6 +15,12 @@ drawn there that were inliers. A ray is trimmed when it is an outlier candidate 
 cell's share is at most one half. Trimming starts after a warm-up share of the run, when
 the static scene is fitted well enough that a ranking of residuals means something; the
 memory learns from the first step.
+
+Rays are ranked by their error less their photo's mean error (:meth:`TransientMemory.debiased`).
+A photo whose exposure or white balance the per-photo colour correction has not yet matched
+errs in one direction everywhere; ranked by the raw error, all its rays would rank high, be
+trimmed, and the correction would never learn the difference. A shadow stands out from its
+photo's mean either way.
 """
 
 from __future__ import annotations
@@ -76,6 +82,23 @@ class TransientMemory:
         self.shape = (n_images, width, height)
         _, rows, cols = cell_index(torch.zeros((1, 2)), torch.zeros(1), width, height)
         self.inliers = torch.ones(n_images * rows * cols, device=device)
+        # each photo's running mean signed error per channel (render - photo)
+        self.bias = torch.zeros((n_images, 3), device=device)
+
+    def debiased(self, image_index: Tensor, error: Tensor) -> Tensor:
+        """(n,) squared error of each ray less its photo's mean, averaged over channels, from the
+        signed ``error`` (n, 3) (render - photo) of rays of photos ``image_index`` (n,)."""
+        return ((error.detach().float() - self.bias[image_index.long()]) ** 2).mean(-1)
+
+    def learn_bias(self, image_index: Tensor, error: Tensor, inlier: Tensor) -> None:
+        """Move each photo's mean toward the mean signed ``error`` (n, 3) of its ``inlier`` (n,)
+        bool rays in the batch by :data:`MEMORY_RATE` (outliers left out, so that a shadow does
+        not shift its photo's mean)."""
+        e, idx = error.detach().float()[inlier], image_index.long()[inlier]
+        hits = torch.zeros(len(self.bias), device=e.device).index_add_(0, idx, torch.ones_like(e[:, 0]))
+        sums = torch.zeros_like(self.bias).index_add_(0, idx, e)
+        hit = hits > 0
+        self.bias[hit] += MEMORY_RATE * (sums[hit] / hits[hit].unsqueeze(-1) - self.bias[hit])
 
     def update(self, cells: Tensor, candidate: Tensor) -> Tensor:
         """Move each cell hit by rays in flat ``cells`` (n,) toward the share of them that are not
@@ -96,18 +119,24 @@ def robust_weights(
     uv: Tensor,
     quantile: float,
     trimming: bool,
+    error: Tensor | None = None,
 ) -> Tensor:
     """(n,) weights of a batch's rays (see the module docstring), updating ``memory``.
 
     Args:
         residual: (n,) each ray's photometric error (any measure that ranks them: mean
-            squared error over its channels).
+            squared error over its channels, less its photo's mean: :meth:`TransientMemory.debiased`).
         memory: the training photos' cells.
         image_index: (n,) the photo of each ray; uv: (n, 2) its pixel (column, row).
         quantile: outlier candidates rank above this quantile of the batch's residuals.
         trimming: past the warm-up (else every weight is 1; the memory still learns).
+        error: (n, 3) the rays' signed errors (render - photo): the photos' mean errors that
+            ``residual`` was measured from learn from the batch's inliers
+            (:meth:`TransientMemory.learn_bias`); None: not learnt.
     """
     candidate = outlier_candidates(residual, quantile)
+    if error is not None:
+        memory.learn_bias(image_index, error, ~candidate)
     cells, _, _ = cell_index(uv, image_index, *memory.shape[1:])
     share = memory.update(cells, candidate)
     return trimmed_weights(candidate, share, trimming)

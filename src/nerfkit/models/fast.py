@@ -263,7 +263,10 @@ class FastNeRF(NerfModel):
             memory = self._transients = robust.TransientMemory(n, w, h, rgb.device)
         per_ray = rgb_errors(rgb, target, kind).mean(-1)
         trimming = progress >= (self.config.transient_start or 0.0)
-        weights = robust.robust_weights(per_ray, memory, image_index, uv, self.config.transient_quantile, trimming)
+        error = rgb - target
+        ranked = memory.debiased(image_index, error)
+        q = self.config.transient_quantile
+        weights = robust.robust_weights(ranked, memory, image_index, uv, q, trimming, error)
         return robust.weighted_mean(per_ray, weights)
 
     @property
