@@ -208,11 +208,11 @@ class FastConfig:
     )
     transient_quantile: float = option(
         0.0,
-        "trim transients from the photometric loss (RobustNeRF-style): a ray whose error "
-        "ranks above this quantile of its batch's (e.g. 0.8), in a neighbourhood of its "
-        "photo where most rays drawn so far did too, gets weight 0 (the photographer's "
-        "shadow on the table in some photos); a lone bad pixel among good ones (an edge, "
-        "fine texture) keeps its weight; 0: off",
+        "trim transients from the photometric loss (RobustNeRF-style): a ray whose error, "
+        "less its photo's mean error, ranks above this quantile of its batch's (e.g. 0.8), "
+        "in a neighbourhood of its photo where most rays drawn so far did too, gets "
+        "weight 0 (the photographer's shadow on the table in some photos); a lone bad "
+        "pixel among good ones (an edge, fine texture) keeps its weight; 0: off",
         min=0.0,
         max=1.0,
     )
