@@ -32,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import heldout  # noqa: E402
 
 from nerfkit.errors import NerfkitError, fail  # noqa: E402
+from nerfkit.io.atomic import write_npz  # noqa: E402
 
 # the shadow's half-width and height as shares of the photo's width and height (ranges drawn from)
 HALF_WIDTH = (0.12, 0.22)
@@ -78,10 +79,7 @@ def shadowed_copy(src: Path, dst: Path, share: float, darkness: float, seed: int
     if "images_train" not in arrays:
         raise fail(src, "has no images_train", "Give a posed capture dataset (nerfkit poses' output)")
     arrays["images_train"], which = add_shadows(arrays["images_train"], share, darkness, np.random.default_rng(seed))
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_suffix(".part.npz")
-    np.savez(tmp, **arrays)
-    tmp.replace(dst)
+    write_npz(dst, **arrays)
     return which
 
 

@@ -73,6 +73,18 @@ def cell_index(uv: Tensor, image_index: Tensor, width: int, height: int, cells: 
     return (image_index.long() * rows + r) * cols + c, rows, cols
 
 
+def _toward_batch_means(state: Tensor, index: Tensor, values: Tensor) -> None:
+    """In place: move each row of ``state`` (m, ...) that ``index`` (n,) hits toward the mean of
+    the ``values`` (n, ...) indexed to it, by :data:`MEMORY_RATE` (rows not hit stay)."""
+    hits = torch.zeros(len(state), dtype=state.dtype, device=state.device).index_add_(
+        0, index, torch.ones(len(index), dtype=state.dtype, device=state.device)
+    )
+    sums = torch.zeros_like(state).index_add_(0, index, values.to(state.dtype))
+    hit = hits > 0
+    means = sums[hit] / hits[hit].reshape(-1, *([1] * (state.ndim - 1)))
+    state[hit] += MEMORY_RATE * (means - state[hit])
+
+
 class TransientMemory:
     """Per training photo, a coarse grid of cells each holding the running share of the rays
     drawn in it that were inliers (1 at the start). Not saved with the model: a resumed run
@@ -94,21 +106,14 @@ class TransientMemory:
         """Move each photo's mean toward the mean signed ``error`` (n, 3) of its ``inlier`` (n,)
         bool rays in the batch by :data:`MEMORY_RATE` (outliers left out, so that a shadow does
         not shift its photo's mean)."""
-        e, idx = error.detach().float()[inlier], image_index.long()[inlier]
-        hits = torch.zeros(len(self.bias), device=e.device).index_add_(0, idx, torch.ones_like(e[:, 0]))
-        sums = torch.zeros_like(self.bias).index_add_(0, idx, e)
-        hit = hits > 0
-        self.bias[hit] += MEMORY_RATE * (sums[hit] / hits[hit].unsqueeze(-1) - self.bias[hit])
+        _toward_batch_means(self.bias, image_index.long()[inlier], error.detach().float()[inlier])
 
     def update(self, cells: Tensor, candidate: Tensor) -> Tensor:
         """Move each cell hit by rays in flat ``cells`` (n,) toward the share of them that are not
         outlier ``candidate`` (n,) bool, by :data:`MEMORY_RATE`; returns each ray's cell's share
         (n,) before the update (what the step votes with)."""
         before = self.inliers[cells]
-        hits = torch.zeros_like(self.inliers).index_add_(0, cells, torch.ones_like(before))
-        inl = torch.zeros_like(self.inliers).index_add_(0, cells, (~candidate).float())
-        hit = hits > 0
-        self.inliers[hit] += MEMORY_RATE * (inl[hit] / hits[hit] - self.inliers[hit])
+        _toward_batch_means(self.inliers, cells, (~candidate).float())
         return before
 
 
