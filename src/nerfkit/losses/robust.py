@@ -118,30 +118,26 @@ class TransientMemory:
 
 
 def robust_weights(
-    residual: Tensor,
+    error: Tensor,
     memory: TransientMemory,
     image_index: Tensor,
     uv: Tensor,
     quantile: float,
     trimming: bool,
-    error: Tensor | None = None,
 ) -> Tensor:
-    """(n,) weights of a batch's rays (see the module docstring), updating ``memory``.
+    """(n,) weights of a batch's rays (see the module docstring), updating ``memory``: rays
+    ranked by their error less their photo's mean (:meth:`TransientMemory.debiased`), and each
+    photo's mean learnt from the batch's inliers (:meth:`TransientMemory.learn_bias`).
 
     Args:
-        residual: (n,) each ray's photometric error (any measure that ranks them: mean
-            squared error over its channels, less its photo's mean: :meth:`TransientMemory.debiased`).
-        memory: the training photos' cells.
+        error: (n, 3) the rays' signed errors (render - photo).
+        memory: the training photos' cells and mean errors.
         image_index: (n,) the photo of each ray; uv: (n, 2) its pixel (column, row).
         quantile: outlier candidates rank above this quantile of the batch's residuals.
         trimming: past the warm-up (else every weight is 1; the memory still learns).
-        error: (n, 3) the rays' signed errors (render - photo): the photos' mean errors that
-            ``residual`` was measured from learn from the batch's inliers
-            (:meth:`TransientMemory.learn_bias`); None: not learnt.
     """
-    candidate = outlier_candidates(residual, quantile)
-    if error is not None:
-        memory.learn_bias(image_index, error, ~candidate)
+    candidate = outlier_candidates(memory.debiased(image_index, error), quantile)
+    memory.learn_bias(image_index, error, ~candidate)
     cells, _, _ = cell_index(uv, image_index, *memory.shape[1:])
     share = memory.update(cells, candidate)
     return trimmed_weights(candidate, share, trimming)

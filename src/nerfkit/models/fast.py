@@ -263,10 +263,8 @@ class FastNeRF(NerfModel):
             memory = self._transients = robust.TransientMemory(n, w, h, rgb.device)
         per_ray = rgb_errors(rgb, target, kind).mean(-1)
         trimming = progress >= (self.config.transient_start or 0.0)
-        error = rgb - target
-        ranked = memory.debiased(image_index, error)
         q = self.config.transient_quantile
-        weights = robust.robust_weights(ranked, memory, image_index, uv, q, trimming, error)
+        weights = robust.robust_weights(rgb - target, memory, image_index, uv, q, trimming)
         return robust.weighted_mean(per_ray, weights)
 
     @property
