@@ -140,8 +140,9 @@ class FastConfig:
     )
     table_resolution: int = option(
         512,
-        "texels per side of the table texture (512: a texel about a pixel's "
-        "footprint in photos of a table-top object taken from about half a metre)",
+        "texels per side of the table texture (512: a texel of 1.7-1.9 mm on the benchmark "
+        "captures, 1.4-2.9 pixels' footprint; 1024 sharpened one floor's grain and lost on "
+        "four other captures: benchmarks/table_footprint.py, BENCHMARKS.md)",
         min=2,
         max=MAX_GRID_SIDE,
     )
