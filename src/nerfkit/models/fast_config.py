@@ -111,7 +111,11 @@ class FastConfig:
     )
     room_ratio: float = option(2.5, "radius of each room shell over the one inside it", above=1.0)
     room_resolution: int = option(
-        1024, "texels around each room shell (half as many from bottom to top)", min=8, max=4096
+        1024,
+        "texels around each room shell (half as many from bottom to top); 512 halves a "
+        "capture's model file and scored within 0.07 dB of 1024 on five captures (BENCHMARKS.md)",
+        min=8,
+        max=4096,
     )
     room_lr_ratio: float = option(0.2, "learning rate of the room shells relative to --lr", min=0)
     table: bool = option(
