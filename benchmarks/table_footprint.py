@@ -4,7 +4,7 @@ The ``fast`` model paints a capture's table as a texture of ``--table-resolution
 side (``nerfkit.fields.background.TablePlane``): half of them span the disc of the scene's
 radius about the object's foot, so a texel there is ``4 radius / resolution`` on a side. A
 pixel of a training photo sees a patch of the table whose side depends on the distance and
-the angle (``nerfkit.scene_extent.plane_footprint``). This prints, per posed capture dataset,
+the angle (``nerfkit.fields.background.plane_footprint``). This prints, per posed capture dataset,
 the median side of that patch over the training photos' pixels that meet the table within
 the radius, the texel's side at each resolution, and their ratio: above 1, a texel is coarser
 than a pixel, and the table's finest grain is out of the texture's reach.
@@ -22,13 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import heldout  # noqa: E402
 
 from nerfkit.errors import NerfkitError  # noqa: E402
-from nerfkit.scene_extent import plane_footprint, sphere_radius  # noqa: E402
-
-
-def texel_side(radius: float, resolution: int) -> float:
-    """Side of one table texel within the disc of ``radius`` at ``resolution`` texels a side
-    (half of them span the disc's diameter): ``4 radius / resolution``."""
-    return 4.0 * radius / resolution
+from nerfkit.fields.background import plane_footprint, texel_side
+from nerfkit.scene_extent import sphere_radius  # noqa: E402
 
 
 def footprint_row(name: str, scene, resolutions: list[int]) -> dict:

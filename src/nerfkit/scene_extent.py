@@ -105,38 +105,6 @@ def object_box(
     return lo.astype(np.float32), hi.astype(np.float32)
 
 
-def plane_footprint(views, plane: np.ndarray, center: np.ndarray, radius: float, stride: int = 8) -> float | None:
-    """Median side (scene units) of the patch of ``plane`` one pixel of the photos ``views``
-    sees, over the pixels (every ``stride``-th row and column) whose rays meet the plane
-    within ``radius`` of ``center``'s foot on it; None when no ray does.
-
-    A pixel's patch has the area ``t^2 cos^3(phi) / (fx fy cos(theta))`` for a ray meeting
-    the plane after ``t`` at ``theta`` from its normal, ``phi`` off the optical axis; the side
-    is its square root. ``views``: ``c2w`` (n, 4, 4), ``K`` (n, 3, 3), ``width``, ``height``;
-    ``plane``: (4,) ``(n, d)``, the normal toward the cameras. Example: a camera 1 m straight
-    above the plane with ``fx = fy = 1000`` sees 1 mm a pixel at the image centre."""
-    n, d = np.asarray(plane[:3], np.float64), float(plane[3])
-    foot = np.asarray(center, np.float64) - (np.asarray(center, np.float64) @ n + d) * n
-    rows, cols = np.mgrid[stride // 2 : views.height : stride, stride // 2 : views.width : stride]
-    uv1 = np.stack([cols + 0.5, rows + 0.5, np.ones_like(cols)], -1).reshape(-1, 3).astype(np.float64)
-    sides = []
-    for K, c2w in zip(np.asarray(views.K, np.float64), np.asarray(views.c2w, np.float64), strict=True):
-        cam = uv1 @ np.linalg.inv(K).T  # (m, 3), z = 1: OpenCV axes
-        cos_phi = 1.0 / np.linalg.norm(cam, axis=1)
-        dirs = (cam * cos_phi[:, None]) @ c2w[:3, :3].T
-        o = c2w[:3, 3]
-        toward = dirs @ n  # < 0: the ray goes down onto the plane's front
-        down = toward < -1e-6
-        t = -(o @ n + d) / np.where(down, toward, -1.0)
-        hit = down & (t > 0)
-        on = o + dirs[hit] * t[hit, None]
-        near = np.linalg.norm(on - foot, axis=1) <= radius
-        area = t[hit] ** 2 * cos_phi[hit] ** 3 / (K[0, 0] * K[1, 1] * -toward[hit])
-        sides.append(np.sqrt(area[near]))
-    every = np.concatenate(sides) if sides else np.zeros(0)
-    return float(np.median(every)) if len(every) else None
-
-
 __all__ = [
     "MIN_OBJECT_POINTS",
     "OBJECT_BOX_QUANTILE",
@@ -144,7 +112,6 @@ __all__ = [
     "object_box",
     "object_box_from_points",
     "object_points",
-    "plane_footprint",
     "seen_share",
     "sphere_radius",
 ]

@@ -29,7 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..cameras import axes_across
+from ..cameras import axes_across, pixel_to_ray
 
 
 def sh16(dirs: Tensor) -> Tensor:
@@ -77,6 +77,44 @@ def plane_hit(origins: Tensor, dirs: Tensor, plane: Tensor) -> Tensor:
     t = -height / speed.clamp(max=-1e-12)
     hits = (height > 0) & (speed < -1e-9)
     return torch.where(hits, t, torch.full_like(t, math.inf))
+
+
+def plane_footprint(views, plane, center, radius: float, stride: int = 8) -> float | None:
+    """Median side (scene units) of the patch of ``plane`` one pixel of the photos ``views``
+    sees, over the pixels (every ``stride``-th row and column) whose rays meet the plane
+    (:func:`plane_hit`) within ``radius`` of ``center``'s foot on it; None when no ray does.
+
+    A pixel's patch has the area ``t^2 cos^3(phi) / (fx fy cos(theta))`` for a ray meeting
+    the plane after ``t`` at ``theta`` from its normal, ``phi`` off the optical axis; the side
+    is its square root. ``views``: ``c2w`` (n, 4, 4), ``K`` (n, 3, 3), ``width``, ``height``;
+    ``plane``: (4,) ``(n, d)``, the normal toward the cameras. Example: a camera 1 m straight
+    above the plane with ``fx = fy = 1000`` sees 1 mm a pixel at the image centre."""
+    f64 = torch.float64
+    plane_t = torch.as_tensor(np.asarray(plane, np.float64))
+    normal, c = plane_t[:3], torch.as_tensor(np.asarray(center, np.float64))
+    foot = c - (c @ normal + plane_t[3]) * normal
+    rows, cols = torch.meshgrid(
+        torch.arange(stride // 2, views.height, stride, dtype=f64),
+        torch.arange(stride // 2, views.width, stride, dtype=f64),
+        indexing="ij",
+    )
+    uv = torch.stack([cols, rows], dim=-1).reshape(-1, 2) + 0.5
+    sides = []
+    for K, c2w in zip(
+        torch.as_tensor(np.asarray(views.K, np.float64)),
+        torch.as_tensor(np.asarray(views.c2w, np.float64)),
+        strict=True,
+    ):
+        o, d = pixel_to_ray(K, c2w, uv)
+        t = plane_hit(o, d, plane_t)
+        hit = torch.isfinite(t)
+        t, d = t[hit], d[hit]
+        near = torch.linalg.norm(o[hit] + d * t.unsqueeze(-1) - foot, dim=-1) <= radius
+        cos_phi = d @ c2w[:3, 2]  # (the camera's +z: its optical axis)
+        area = t**2 * cos_phi**3 / (K[0, 0] * K[1, 1] * -(d @ normal))
+        sides.append(area[near].sqrt())
+    every = torch.cat(sides) if sides else torch.zeros(0, dtype=f64)
+    return float(np.median(every.numpy())) if len(every) else None  # (torch.median takes the lower middle)
 
 
 def contract_disc(q: Tensor) -> Tensor:
@@ -240,6 +278,13 @@ ENV_SIZE = (32, 8)
 RELIEF_UNIT = 0.01
 # a ray grazing the plane would move far along itself for a small relief: its slope is capped
 RELIEF_MIN_COS = 0.05
+
+
+def texel_side(radius: float, resolution: int) -> float:
+    """Side of one fine texel of a :class:`TablePlane` of ``radius`` and ``resolution`` texels a
+    side, within the disc of ``radius`` (half the texels span its diameter, see
+    :meth:`TablePlane.texture_coords`): ``4 radius / resolution``."""
+    return 4.0 * radius / resolution
 
 
 class TablePlane(nn.Module):

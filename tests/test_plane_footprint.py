@@ -1,4 +1,4 @@
-"""scene_extent: the pixel footprint on a plane (analytic cases and a numerical Jacobian)."""
+"""fields.background: the pixel footprint on a plane (analytic cases and a numerical Jacobian) and the table's texel."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from nerfkit.cameras import look_at
-from nerfkit.scene_extent import plane_footprint
+from nerfkit.fields.background import plane_footprint
 
 GROUND = np.array([0.0, 0.0, 1.0, 0.0])  # z = 0, its front facing +z
 
@@ -58,3 +58,17 @@ def test_an_oblique_view_matches_the_area_of_the_projected_pixel():
             x, y = np.array(corners).T
             sides.append(np.sqrt(0.5 * abs(x @ np.roll(y, 1) - y @ np.roll(x, 1))))
     assert got is not None and abs(got - np.median(sides)) < 2e-3 * got
+
+
+def test_a_texel_side_is_one_texel_of_the_table_texture_inside_its_disc():
+    import torch
+
+    from nerfkit.fields.background import TablePlane, texel_side
+
+    table = TablePlane(GROUND, np.zeros(3), radius=0.2, resolution=64)
+    step = texel_side(0.2, 64)
+    points = torch.as_tensor(table.origin)[None] + torch.arange(4.0)[:, None] * step * table.axes[:, 0][None]
+    uv = table.texture_coords(points)
+    # texture coordinates span [-1, 1] over 64 texels: one texel is 2 / 64
+    assert torch.allclose(uv[1:, 0] - uv[:-1, 0], torch.full((3,), 2.0 / 64), atol=1e-6)
+    assert torch.allclose(uv[:, 1], torch.zeros(4), atol=1e-6)
