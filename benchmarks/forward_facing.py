@@ -15,8 +15,8 @@ side of the scene), their undistorted images cropped so the
 principal point is centred (LLFF stores one focal length and no principal point), bounds
 from the sparse points each photo sees (1st and 99th depth percentiles, as LLFF's
 ``imgs2poses``). ``nerfkit train`` reads it as any LLFF scene: every 8th photo is held
-out. Each configuration is a fresh ``fast`` run of ``--minutes``, then ``nerfkit eval``
-on the held-out photos:
+out. Each configuration is a fresh ``fast`` run of ``--minutes`` (``--model fast``: a
+forward-facing scene trains ``splat`` by default), then ``nerfkit eval`` on the held-out photos:
 
 * ``ndc``              the default for a forward-facing scene (``--space auto`` picks NDC);
 * ``box``              the grid in the box around the scene's sphere, background black;
@@ -153,7 +153,10 @@ def main() -> None:
     for name, flags in configs.items():
         run_dir = out / name.replace(" + ", "_").replace(" ", "_")
         if not (run_dir / "metrics.json").exists():
-            run(["train", "--data", str(scene_dir), "--out", str(run_dir), "--minutes", str(args.minutes), *flags])
+            run(
+                ["train", "--model", "fast", "--data", str(scene_dir), "--out", str(run_dir)]
+                + ["--minutes", str(args.minutes), *flags]
+            )
         run(["eval", str(run_dir), "--split", "val"])
         e = json.loads((run_dir / "eval_val.json").read_text())
         steps = json.loads((run_dir / "metrics.json").read_text())["step"]
