@@ -1,10 +1,11 @@
 """Synthetic phone captures with known answers, for tests and development checks.
 
-Renders photos of ArUco tag sheets and of a textured object (a sphere) beside a tag,
-through a pinhole camera with OpenCV lens distortion, by casting a ray through every
-(super-sampled) pixel: the pixel is undistorted with ``cv2.undistortPoints``, its ray hit
-with the table plane ``z = 0`` (or a gently waved surface: :func:`cockle`; textures sampled
-with ``cv2.remap``) and the sphere.
+Renders photos of ArUco tag sheets and of a textured object (a sphere, or a glossy drink
+can) beside a tag, through a pinhole camera with OpenCV lens distortion, by casting a ray
+through every (super-sampled) pixel: the pixel is undistorted with ``cv2.undistortPoints``,
+its ray hit with the table plane ``z = 0`` (or a gently waved surface: :func:`cockle`;
+textures sampled with ``cv2.remap``), the sphere and the can, whose label and top mirror a
+room around them (:func:`surroundings`), so that they change colour with the view.
 Tags come from ``cv2.aruco.generateImageMarker``.
 
 World frame: the table is ``z = 0`` and ``+z`` points up toward the cameras; tag frames
@@ -53,9 +54,30 @@ class Sphere:
 
 
 @dataclass
+class Cylinder:
+    """A closed upright cylinder standing on z = 0: a drink can.
+
+    Attributes:
+        center: (2,) x, y of its axis; radius, height: metres.
+        label: (h, w, 3) uint8 wrapped once around its side (columns: the angle about the
+            axis from +x, rows: from the top down).
+        gloss: the share of the mirrored surroundings in the label's colour; top_gloss: in
+            the metal top's.
+    """
+
+    center: np.ndarray
+    radius: float
+    height: float
+    label: np.ndarray
+    gloss: float = 0.3
+    top_gloss: float = 0.7
+
+
+@dataclass
 class SynthScene:
     decals: list[Decal]
     spheres: list[Sphere] = field(default_factory=list)
+    cylinders: list[Cylinder] = field(default_factory=list)
     table: np.ndarray | None = None  # (n, n, 3) uint8 tiling texture
     table_res: float = 0.002
     height: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None  # z of the table and sheet at (x, y)
@@ -171,6 +193,64 @@ def _sphere_color(n: np.ndarray) -> np.ndarray:
     return palette[idx]
 
 
+def cylinder_hits(o: np.ndarray, d: np.ndarray, cyl: Cylinder) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where rays from ``o`` (3,) along ``d`` (m, 3) (any length) first meet ``cyl``: ray
+    parameters ``s`` (m,) (inf: they miss it), unit outward normals (m, 3) there and whether
+    the hit is on the top (m,)."""
+    q = o[:2] - np.asarray(cyl.center, np.float64)
+    a = d[:, 0] ** 2 + d[:, 1] ** 2
+    b = 2 * (d[:, :2] @ q)
+    c = q @ q - cyl.radius**2
+    disc = b * b - 4 * a * c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        side = (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a)
+        top = (cyl.height - o[2]) / d[:, 2]
+    z = o[2] + side * d[:, 2]
+    side = np.where((disc > 0) & (a > 0) & (side > 0) & (z >= 0) & (z <= cyl.height), side, np.inf)
+    xy = q + np.where(np.isfinite(top), top, 0.0)[:, None] * d[:, :2]
+    top = np.where((d[:, 2] < 0) & (top > 0) & (np.sum(xy * xy, 1) <= cyl.radius**2), top, np.inf)
+    on_top = top < side
+    s = np.minimum(side, top)
+    p = q + np.where(np.isfinite(s), s, 0.0)[:, None] * d[:, :2]
+    normal = np.concatenate([p / cyl.radius, np.zeros((len(d), 1))], 1)
+    normal[on_top] = (0.0, 0.0, 1.0)
+    return s, normal, on_top
+
+
+def reflect(d: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Unit directions (m, 3) of rays along ``d`` (m, 3) mirrored by unit normals ``n`` (m, 3)."""
+    u = d / np.linalg.norm(d, axis=1, keepdims=True)
+    return u - 2 * np.sum(u * n, 1, keepdims=True) * n
+
+
+def surroundings(u: np.ndarray) -> np.ndarray:
+    """The room a glossy object mirrors: colours (m, 3) in 0-255 far along unit directions
+    ``u`` (m, 3): a ceiling brighter than the floor, a bright window and dark furniture
+    around the horizon."""
+    up = np.clip(u[:, 2], -1, 1)
+    base = 110 + 90 * (up[:, None] + 1) / 2 * np.array([1.0, 1.0, 1.05])
+    window = np.exp(-np.sum((u - np.array([0.55, 0.45, 0.70])) ** 2, 1) / 0.05)
+    azimuth = np.arctan2(u[:, 1], u[:, 0])
+    furniture = (np.abs(up) < 0.3) * (np.cos(3 * azimuth) > 0.6)
+    return np.clip(base + 150 * window[:, None] - 70 * furniture[:, None], 0, 255)
+
+
+def can_label(seed: int = 0, size: tuple[int, int] = (128, 512)) -> np.ndarray:
+    """A drink can's label (h, w, 3) uint8: red, a white wave around it and dark lettering."""
+    rng = np.random.default_rng(seed)
+    h, w = size
+    img = np.empty((h, w, 3), np.uint8)
+    img[:] = (200, 25, 35)
+    rows, cols = np.mgrid[0:h, 0:w]
+    wave = 0.55 * h + 0.12 * h * np.sin(2 * np.pi * 2 * cols / w)
+    img[np.abs(rows - wave) < 0.05 * h] = (240, 240, 235)
+    for _ in range(14):  # letters: dark blocks in a band
+        x, bw = int(rng.integers(0, w - 20)), int(rng.integers(6, 16))
+        y, bh = int(rng.integers(int(0.15 * h), int(0.35 * h))), int(rng.integers(10, 22))
+        img[y : y + bh, x : x + bw] = (30, 20, 20)
+    return img
+
+
 def render(
     scene: SynthScene,
     rays_cam: np.ndarray,
@@ -241,6 +321,23 @@ def render(
         nrm = (p - sp.center) / sp.radius
         shade = 0.35 + 0.65 * np.clip(nrm @ light, 0, 1)
         out[on] = _sphere_color(nrm) * shade[:, None]
+        depth = np.where(on, s, depth)
+    for cyl in scene.cylinders:
+        flat = d.reshape(-1, 3)
+        s, nrm, on_top = (x.reshape(Hs, Ws, *x.shape[1:]) for x in cylinder_hits(o, flat, cyl))
+        on = s < depth
+        if not on.any():
+            continue
+        p = o + s[on][:, None] * d[on]
+        n_on, top_on = nrm[on], on_top[on]
+        shade = 0.35 + 0.65 * np.clip(n_on @ light, 0, 1)
+        angle = np.arctan2(n_on[:, 1], n_on[:, 0]) % (2 * np.pi)
+        lh, lw = cyl.label.shape[:2]
+        col = np.clip((angle / (2 * np.pi) * lw).astype(int), 0, lw - 1)
+        row = np.clip(((cyl.height - p[:, 2]) / cyl.height * lh).astype(int), 0, lh - 1)
+        diffuse = np.where(top_on[:, None], 175.0, cyl.label[row, col].astype(np.float64)) * shade[:, None]
+        gloss = np.where(top_on, cyl.top_gloss, cyl.gloss)[:, None]
+        out[on] = (1 - gloss) * diffuse + gloss * surroundings(reflect(d[on], n_on))
         depth = np.where(on, s, depth)
     out = cv2.resize(out, (Ws // supersample, Hs // supersample), interpolation=cv2.INTER_AREA)
     if blur > 0:
@@ -405,13 +502,23 @@ def make_object_capture(
     noise: float = 1.0,
     distance=(0.32, 0.42),
     prefix: str = "obj",
+    can: bool = False,
+    table: np.ndarray | None = None,
 ) -> SyntheticCapture:
     """Photos of a textured sphere resting beside one tag (whose frame is the world frame),
-    taken from a ring of viewpoints looking between the tag and the object."""
+    taken from a ring of viewpoints looking between the tag and the object. ``can``: a glossy
+    drink can instead (:class:`Cylinder`, ``object_radius`` wide and ``2 object_center[2]``
+    tall, its axis through the centre); ``table``: the table's tiling texture (default:
+    :func:`table_texture`)."""
     rng = np.random.default_rng(seed)
     decal, layout = tag_sheet([tag_id], tag_size, 1, 0.0, margin=0.012, dictionary=dictionary)
     center = np.asarray(object_center, float)
-    scene = SynthScene([decal], [Sphere(center, object_radius)], table=table_texture(seed))
+    table = table_texture(seed) if table is None else table
+    if can:
+        cyl = Cylinder(center[:2], object_radius, 2 * center[2], can_label(seed))
+        scene = SynthScene([decal], cylinders=[cyl], table=table)
+    else:
+        scene = SynthScene([decal], [Sphere(center, object_radius)], table=table)
     target = np.array([center[0] * 0.6, center[1] * 0.6, center[2] * 0.5])
     poses = orbit_views(n, target, rng, distance)
     rays = camera_rays(np.asarray(K), np.asarray(dist), size[0], size[1], supersample)
