@@ -74,10 +74,11 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
     # where the photos look from: said after posing and again in the summary, beside its chart
     assert text.count("coverage: the photos look from") == 2 and (out / "dataset" / "coverage.png").exists()
     assert f"(chart: {out / 'dataset' / 'coverage.png'})" in text.split("capture done")[1]
-    # how well the photos agree on the table: said after posing and again in the summary
-    assert text.count("agreement: the training photos show the table") == 2
-    # the synthetic sphere's texture gives SfM no points (it starts from the whole region): said twice
+    # the synthetic sphere's texture gives SfM no points (it starts from the whole region): said
+    # twice, and without the object's box how well the photos agree on the table is not measured
     assert text.count("note: the sparse points show no object near the middle of the photos") == 2
+    assert text.count("the photos agree on the table is not measured") == 2
+    assert "agreement: the training photos show the table" not in text
     took = re.search(r"\n  time      (.*); (.*) in all\n", text)  # each step run now, in the order it ran
     assert [part.rsplit(" ", 2)[0] for part in took[1].split(", ")] == [
         "calibrate",
@@ -169,7 +170,15 @@ def test_capture_runs_every_step_keeps_them_resumes_and_force_redoes(tmp_path, c
         (run / "eval_val.json").write_text(json.dumps(scores))
         text = summary(out, tmp_path / "camera.json", out / "dataset", run, None)
         assert ("each photo's overall colour changed (the phone's exposure or white balance" in text) == said
-        assert ("(the agreement above says how much)" in text) == said  # the dataset measured it
+        assert "(the agreement above says how much)" not in text  # the dataset did not measure it
+    # with an agreement measured (a dataset whose object has its box), the summary says it and
+    # points to it
+    tj = json.loads((out / "dataset" / "transforms.json").read_text())
+    tj["nerfkit"]["agreement"] = {"psnr": 19.0, "psnr_exposure_evened": 21.5, "points": 900, "photos_per_point": 6.0}
+    (out / "dataset" / "transforms.json").write_text(json.dumps(tj))
+    text = summary(out, tmp_path / "camera.json", out / "dataset", run, None)
+    assert "agreement: the training photos show the table around the object in the same colours to 19.0 dB" in text
+    assert "(the agreement above says how much)" in text
 
 
 def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_photos(tmp_path, capsys):

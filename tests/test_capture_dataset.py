@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from nerfkit.capture import aruco as A
 from nerfkit.capture import synthetic as S
+from nerfkit.capture.agreement import measure_agreement
 from nerfkit.capture.camera import Camera, nerfkit_K
 from nerfkit.capture.dataset import (
     FEW_TRAIN_VIEWS,
@@ -29,6 +30,7 @@ from nerfkit.cli import main
 from nerfkit.data.colmap import SparsePoints
 from nerfkit.data.nerfstudio import load_transforms_json
 from nerfkit.data.npz import load_npz
+from nerfkit.scene_extent import MIN_OBJECT_POINTS, sphere_radius
 from nerfkit.tabletop import inside_quads
 
 TAG = 0.06
@@ -152,10 +154,20 @@ def test_dataset_files_load_back_with_the_same_cameras(posed, obj, tmp_path):
     assert set(cov["widest_gap"]["nearest_photos"]) <= set(obj.names)
     assert set(cov["widest_gap_of_training_photos"]["nearest_photos"]) <= set(scene.train.names)
     assert cov["widest_gap_of_training_photos"]["radius_deg"] >= cov["widest_gap"]["radius_deg"]
-    # how well the training photos agree on the table: measured on the dataset as written
-    agreement = tj["nerfkit"]["agreement"]
-    assert agreement == summary["agreement"] == photo_agreement(a).as_json()
-    assert agreement["photos_per_point"] >= 3 and 10 < agreement["psnr"] < 60
+    # how well the training photos agree on the table: not measured without an object box (six
+    # photos of the sphere give too few points on it), where the sphere would count as table
+    assert summary["object_points"] < MIN_OBJECT_POINTS
+    assert "agreement" not in tj["nerfkit"] and "agreement" not in summary and photo_agreement(a) is None
+    # given points on the sphere, its box is left out, and the photos agree better than with
+    # the sphere counted as table
+    sphere = obj.scene.spheres[0]
+    u = np.random.default_rng(0).normal(size=(200, 3))
+    u[:, 2] = np.abs(u[:, 2])
+    on_sphere = sphere.center + sphere.radius * u / np.linalg.norm(u, axis=1, keepdims=True)
+    boxed = photo_agreement(a, on_sphere)
+    unboxed = measure_agreement(a.train, a.center, a.table, sphere_radius(a))
+    assert boxed is not None and unboxed is not None and boxed.psnr > unboxed.psnr + 1
+    assert boxed.photos_per_point >= 3 and 10 < boxed.psnr < 60
     # too few points triangulated on the tag to move the table off the tag's plane
     np.testing.assert_array_equal(a.table, [0, 0, 1, 0])
     assert tj["nerfkit"]["table_from"] == summary["table_from"] == "the tags' plane, z = 0"
@@ -242,7 +254,9 @@ def test_center_override_and_dataset_command_rebuild(posed, tmp_path, capsys):
         {"photos_dir": str(posed[0].path.parent), "tag_size": TAG, "layout": layout.to_json()},
     )
     assert main(["dataset", str(out), "--max-side", "320", "--center", "0.1,0.02,0.03", "--near", "0.05"]) == 0
-    assert "agreement: the training photos show the table" in capsys.readouterr().out
+    said = capsys.readouterr().out  # no points on the sphere: no box, and no agreement measured
+    assert "agreement: the training photos show the table" not in said
+    assert "how well the photos agree on the table is not measured" in said
     s = load_npz(out / "dataset.npz")
     np.testing.assert_allclose(s.tags, layout.corners(), atol=1e-7)  # the recorded layout's tag
     np.testing.assert_allclose(s.center, [0.1, 0.02, 0.03], atol=1e-7)

@@ -102,7 +102,8 @@ def no_object_note(n_object: int | None, points: int) -> str | None:
         f"note: the sparse points show no object near the middle of the photos (only {n_object} of the "
         f"{points} rise above the table's plane there). If these photos show the printed sheet alone, give the "
         "object's photos instead (calibrate takes the sheet's). An object with little texture gives few points: "
-        "then the NeRF starts from the whole region around the tag, not a box around the object"
+        "then the NeRF starts from the whole region around the tag, not a box around the object, and how well "
+        "the photos agree on the table is not measured (the object would count as table)"
     )
 
 
@@ -378,7 +379,9 @@ def write_coverage(scene: Scene, plot_path: Path) -> dict:
 def photo_agreement(scene: Scene, obj: np.ndarray | None = None) -> Agreement | None:
     """How well ``scene``'s training photos agree on its table around the object
     (:func:`~nerfkit.capture.agreement.measure_agreement`, the object's box left out as the
-    model will find it), or None. ``obj``: the object's sparse points when already found
+    model will find it), or None; None too without an object box (too few sparse points on
+    the object), where the object, in front of the table in some photos, would count as
+    table. ``obj``: the object's sparse points when already found
     (:func:`~nerfkit.scene_extent.object_points` of the scene's points and train views)."""
     from .agreement import measure_agreement
 
@@ -388,6 +391,8 @@ def photo_agreement(scene: Scene, obj: np.ndarray | None = None) -> Agreement | 
     if obj is None and scene.points is not None:
         obj = object_points(scene.points, scene.table, scene.center, radius, views=scene.train)
     box = None if obj is None else object_box(obj, scene.table, scene.center, radius)
+    if box is None:
+        return None
     return measure_agreement(scene.train, scene.center, scene.table, radius, box)
 
 
