@@ -1,6 +1,6 @@
 """A glossy drink can on a white table, rendered, through `nerfkit capture`: the object's own pixels.
 
-    python benchmarks/synthetic_can.py OUT [--photos 40] [--minutes 3] [--seed 0]
+    python benchmarks/synthetic_can.py OUT [--photos 40] [--minutes 3] [--seed 0] [--gloss 1]
 
 A stand-in for a shiny, thin object (``nerfkit.capture.synthetic``): a red can 6.6 cm wide and
 12.2 cm tall whose label mirrors 30% of a room around it and whose metal top mirrors 70%,
@@ -41,7 +41,7 @@ def white_table(seed: int) -> np.ndarray:
     return np.clip(t - t.reshape(-1, 3).mean(0) + 228.0, 0, 255).astype(np.uint8)
 
 
-def write_capture(out: Path, photos: int, seed: int) -> S.SyntheticCapture:
+def write_capture(out: Path, photos: int, seed: int, gloss: float = 1.0) -> S.SyntheticCapture:
     """The calibration photos (OUT/calib) and the can's (OUT/object); returns the can's capture."""
     f35 = round(S.DEFAULT_K[0, 0] * 43.2666 / np.hypot(*SIZE))
     S.make_calibration_capture(n=20, size=SIZE, tag_size=SHEET_TAG, seed=seed).write(out / "calib", f35=f35)
@@ -55,6 +55,7 @@ def write_capture(out: Path, photos: int, seed: int) -> S.SyntheticCapture:
         can=True,
         table=white_table(seed),
         distance=(0.34, 0.46),
+        gloss=gloss,
     )
     cap.write(out / "object", f35=f35)
     return cap
@@ -79,8 +80,9 @@ def main() -> None:
     ap.add_argument("--photos", type=int, default=40)
     ap.add_argument("--minutes", type=float, default=3.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--gloss", type=float, default=1.0, help="the can's gloss, times the default (0: matte)")
     args = ap.parse_args()
-    cap = write_capture(args.out, args.photos, args.seed)
+    cap = write_capture(args.out, args.photos, args.seed, args.gloss)
     run = args.out / "capture"
     subprocess.run(
         [sys.executable, "-m", "nerfkit", "capture", str(args.out / "object"), "--calib", str(args.out / "calib")]
