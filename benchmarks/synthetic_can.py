@@ -11,7 +11,8 @@ the view-dependent colour and the grid make of a glossy cylinder. Runs
     nerfkit capture OUT/object --calib OUT/calib --tag-size 0.06 --sheet-tag-size 0.05 --model fast
 
 and prints the val photos' PSNR / SSIM, the can's own pixels (``eval``'s object score) and how
-far the cameras ``poses`` found are from the true ones (median, mm and degrees).
+far the dataset's cameras (the tags' or structure-from-motion's, as ``poses`` chose) are from
+the true ones (median, mm and degrees).
 """
 
 from __future__ import annotations
@@ -62,16 +63,18 @@ def write_capture(out: Path, photos: int, seed: int, gloss: float = 1.0) -> S.Sy
 
 
 def pose_errors(cap: S.SyntheticCapture, dataset: Path) -> tuple[float, float, int]:
-    """Median position (mm) and rotation (degrees) error of the cameras ``poses`` placed in
-    ``dataset`` (its poses.json: the tag's frame, metres, as the truth's), and how many."""
-    from nerfkit.capture.dataset import read_poses_json
+    """Median position (mm) and rotation (degrees) error of the cameras in ``dataset`` (its
+    dataset.npz, every split: the poses the model trains and is scored on, the tags' or
+    structure-from-motion's; the tag's frame, metres, as the truth's), and how many."""
+    from nerfkit.data.load import load_scene
 
     truth = dict(zip(cap.names, cap.c2w))
-    posed = [p for p in read_poses_json(dataset)[0] if p.name in truth]
-    est = np.array([p.c2w for p in posed], np.float64)
-    ref = np.array([truth[p.name] for p in posed], np.float64)
+    views = [v for v in load_scene(dataset / "dataset.npz").splits.values() if v is not None and len(v)]
+    names = [n for v in views for n in (v.names or [])]
+    est = np.concatenate([v.c2w for v in views]).astype(np.float64)
+    ref = np.array([truth[n] for n in names], np.float64)
     pos = 1000 * np.linalg.norm(est[:, :3, 3] - ref[:, :3, 3], axis=1)
-    return float(np.median(pos)), float(np.median(rotation_angles_deg(est, ref))), len(posed)
+    return float(np.median(pos)), float(np.median(rotation_angles_deg(est, ref))), len(names)
 
 
 def main() -> None:
