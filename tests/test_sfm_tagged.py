@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -414,3 +415,89 @@ def test_rebuilding_from_sfm_says_what_is_missing(tmp_path, capsys):
     ):  # a photo not in the model, not 4x4, no error
         (tmp_path / REPORT_FILE).write_text(json.dumps({**report, "model": {**model, "tag_posed": bad}}))
         assert "model.tag_posed" in error()
+
+
+def _tracks_scene(n_photos=6, n_points=80, seed=0):
+    """Cameras on a ring looking at points near the origin (OpenCV axes), and each point's
+    pixel in each photo (pinhole, f = 500, COLMAP's pixel centres at +0.5)."""
+    from nerfkit.cameras import look_at
+
+    rng = np.random.default_rng(seed)
+    f, c = 500.0, (320.0, 240.0)
+    c2w = []
+    for k in range(n_photos):
+        a = 2 * np.pi * k / n_photos
+        c2w.append(look_at(np.array([2 * np.cos(a), 2 * np.sin(a), 1.0]), np.zeros(3), np.array([0.0, 0.0, 1.0])))
+    X = rng.uniform(-0.3, 0.3, (n_points, 3))
+    pix = []
+    for m in c2w:
+        w2c = np.linalg.inv(m)
+        q = X @ w2c[:3, :3].T + w2c[:3, 3]
+        pix.append(np.stack([f * q[:, 0] / q[:, 2] + c[0], f * q[:, 1] / q[:, 2] + c[1]], 1) + 0.5)
+    K = np.array([[f, 0, c[0]], [0, f, c[1]], [0, 0, 1.0]])
+    return np.array(c2w), X, np.array(pix), K
+
+
+def _stand_in_sfm(c2w_sfm, pix, K, names):
+    """A pycolmap-like reconstruction with SfM's poses ``c2w_sfm`` and every point seen in
+    every photo at ``pix`` (photos, points, 2)."""
+    from types import SimpleNamespace
+
+    cam = SimpleNamespace(
+        focal_length_x=K[0, 0],
+        cam_from_img=lambda x: (np.asarray(x) - 0.5 - K[:2, 2]) / K[0, 0],
+    )
+    images = {
+        i + 1: SimpleNamespace(
+            name=n,
+            camera_id=1,
+            points2D=[SimpleNamespace(xy=p) for p in pix[i]],
+            cam_from_world=lambda m=np.linalg.inv(c2w_sfm[i])[:3]: SimpleNamespace(matrix=lambda: m),
+        )
+        for i, n in enumerate(names)
+    }
+    points = {
+        j: SimpleNamespace(track=SimpleNamespace(elements=[SimpleNamespace(image_id=i, point2D_idx=j) for i in images]))
+        for j in range(pix.shape[1])
+    }
+    rec = SimpleNamespace(images=images, cameras={1: cam}, points3D=points, reg_image_ids=lambda: list(images))
+    return SimpleNamespace(reconstruction=rec, turns={})
+
+
+def test_retriangulated_errors_are_zero_for_true_cameras_and_grow_with_a_turned_one():
+    from nerfkit.sfm.tagged import retriangulated_errors
+
+    c2w, X, pix, K = _tracks_scene(n_photos=4, n_points=1)
+    w2c = np.stack([np.linalg.inv(m)[:3] for m in c2w])
+    rays = (pix[:, 0] - 0.5 - K[:2, 2]) / K[0, 0]
+    focal = np.full(4, K[0, 0])
+    assert retriangulated_errors(w2c, rays, focal).max() < 1e-6
+    w2c_off = w2c.copy()
+    w2c_off[0] = np.linalg.inv(_turned(c2w[0], 1.0))[:3]  # one camera turned a degree
+    assert retriangulated_errors(w2c_off, rays, focal).max() > 0.3  # a point near the middle: 0.75 px
+    # (0.1, 0, 1) seen from the origin and, behind it, from (0, 0, 2), both looking along +z
+    two = np.stack([np.eye(4)[:3], np.eye(4)[:3]])
+    two[1, 2, 3] = -2.0
+    errors = retriangulated_errors(two, np.array([[0.1, 0.0], [-0.1, 0.0]]), np.full(2, 500.0))
+    assert errors[0] < 1e-6 and np.isinf(errors[1])
+
+
+def test_the_poses_that_fit_sfms_tracks_better_are_named():
+    """The tag poses exact and SfM's turned by half a degree each: the tags fit the tracks
+    better; the other way round, SfM's do. Too few tracks judge nothing."""
+    from nerfkit.capture.poses import PosedPhoto
+    from nerfkit.sfm.tagged import MIN_TRACKS, track_errors
+
+    c2w, X, pix, K = _tracks_scene()
+    rng = np.random.default_rng(1)
+    off = np.array([_turned(m, 0.5 * rng.choice([-1, 1])) for m in c2w])
+    names = [f"p{i}.jpg" for i in range(len(c2w))]
+    calibrated = Camera(K, np.zeros(5), 640, 480)  # OpenCV's pixel centres: the pixels less 0.5
+    for sfm, tags, better in ((off, c2w, "tags"), (c2w, off, "sfm")):
+        posed = [PosedPhoto(n, Path(n), m, 0.1, calibrated) for n, m in zip(names, tags)]
+        errors = track_errors(_stand_in_sfm(sfm, pix, K, names), posed)
+        assert errors is not None
+        assert (errors[1] < errors[0]) == (better == "tags"), errors
+        assert min(errors) < 0.05 < max(errors)
+    few = pix[:, : MIN_TRACKS - 1]
+    assert track_errors(_stand_in_sfm(c2w, few, K, names), posed) is None

@@ -30,6 +30,9 @@ MIN_SHARE = 0.9
 MAX_ROTATION_DEG = 5.0
 # ... and of this share of the median camera distance from the world origin.
 MAX_SHIFT = 0.1
+# SfM's tracks seen in at least this many photos that both posed judge the two sets of poses
+# (:func:`track_errors`); with fewer such tracks the tracks do not judge
+MIN_TRACKS = 50
 
 
 @dataclass
@@ -174,11 +177,23 @@ def choose_poses(
     if reason is not None:
         return PoseChoice(None, f"tag poses: {reason}", agreement)
     assert agreement is not None  # judge() passes no SfM result without an agreement
+    errors = track_errors(result, tag_posed)
+    fit = (
+        ""
+        if errors is None
+        else (
+            f"SfM's feature tracks fit its poses to {errors[0]:.2f} px and the tag poses to {errors[1]:.2f} px (median)"
+        )
+    )
+    if errors is not None and errors[1] <= errors[0]:
+        return PoseChoice(None, f"tag poses: {fit}", {**agreement, "track_px": list(errors)})
     why = (
         f"SfM poses in the tag's frame: {len(names)} photos registered (the tags posed {len(tag_posed)}); "
         f"the tag poses differ from them by a median {agreement['rot_deg_median']:.2f} degrees and "
-        f"{agreement['shift_median'] * 1000:.1f} mm"
+        f"{agreement['shift_median'] * 1000:.1f} mm" + (f"; {fit}" if fit else "")
     )
+    if errors is not None:
+        agreement = {**agreement, "track_px": list(errors)}
     adopted: list[str] = []
     if records is not None:
         adopted, left = adopt_tag_poses(result, tag_posed, records, layout, pose_cfg)
@@ -190,6 +205,65 @@ def choose_poses(
         if left:
             why += "; not adopted: " + "; ".join(f"{n} ({r})" for n, r in left.items())
     return PoseChoice(result, why, agreement, adopted)
+
+
+def retriangulated_errors(w2c: np.ndarray, rays: np.ndarray, focal: np.ndarray) -> np.ndarray:
+    """Reprojection errors (n,) in pixels of one feature track seen along normalised image
+    points ``rays`` (n, 2) by cameras ``w2c`` (n, 3, 4) of focal lengths ``focal`` (n,),
+    its point triangulated again with the cameras held (:func:`~nerfkit.sfm.frame.triangulate`);
+    inf where the point falls behind a camera."""
+    from .frame import triangulate
+
+    X = triangulate(w2c, rays)
+    z = w2c[:, 2, :3] @ X + w2c[:, 2, 3]
+    xy = (w2c[:, :2, :3] @ X + w2c[:, :2, 3]) / np.where(z > 1e-9, z, 1.0)[:, None]
+    return np.where(z > 1e-9, np.linalg.norm(xy - rays, axis=1) * focal, np.inf)
+
+
+def track_errors(result, tag_posed: list, min_views: int = 3) -> tuple[float, float] | None:
+    """Which set of poses explains SfM's own feature tracks better: over the photos that SfM
+    registered and the tags posed (in the same frame, turned alike), each track seen in
+    ``min_views`` of them is triangulated again with SfM's poses and camera held, and with
+    the tag poses and the calibrated camera; returns the median reprojection errors (pixels)
+    ``(sfm, tags)``, or None with fewer than :data:`MIN_TRACKS` such tracks.
+
+    Bundle adjustment fits SfM's poses to exactly these tracks, so the tag poses fit them as
+    well only where they are the better poses: a large, sharp tag on a plain table, where
+    SfM's few, weak matches bend its reconstruction."""
+    import cv2
+
+    from .colmap import colmap_name
+
+    rec = result.reconstruction
+    tags = {colmap_name(Path(p.path)): p for p in tag_posed}
+    images = {i: rec.images[i] for i in rec.reg_image_ids()}
+    images = {
+        i: im for i, im in images.items() if im.name in tags and result.turns.get(im.name, 0) == tags[im.name].turns
+    }
+    sfm_w2c = {i: np.asarray(im.cam_from_world().matrix(), np.float64) for i, im in images.items()}
+    tag_w2c = {i: np.linalg.inv(tags[im.name].c2w)[:3] for i, im in images.items()}
+    sfm_err, tag_err, tracks = [], [], 0
+    for point in rec.points3D.values():
+        seen = [(el.image_id, el.point2D_idx) for el in point.track.elements if el.image_id in images]
+        if len(seen) < min_views:
+            continue
+        tracks += 1
+        xy = np.array([images[i].points2D[k].xy for i, k in seen], np.float64)
+        cams = [rec.cameras[images[i].camera_id] for i, _ in seen]
+        rays = np.array([np.asarray(c.cam_from_img(x), np.float64).reshape(-1)[:2] for c, x in zip(cams, xy)])
+        focal = np.array([c.focal_length_x for c in cams])
+        sfm_err.append(retriangulated_errors(np.stack([sfm_w2c[i] for i, _ in seen]), rays, focal))
+        calibrated = [tags[images[i].name].camera for i, _ in seen]
+        tag_rays = np.array(
+            [  # OpenCV's pixel centres at integers, COLMAP's at +0.5
+                cv2.undistortPoints((x - 0.5).reshape(1, 1, 2), c.K, c.dist).reshape(2) for c, x in zip(calibrated, xy)
+            ]
+        )
+        tag_focal = np.array([c.K[0, 0] for c in calibrated])
+        tag_err.append(retriangulated_errors(np.stack([tag_w2c[i] for i, _ in seen]), tag_rays, tag_focal))
+    if tracks < MIN_TRACKS:
+        return None
+    return float(np.median(np.concatenate(sfm_err))), float(np.median(np.concatenate(tag_err)))
 
 
 def adopt_tag_poses(result, tag_posed: list, records: list, layout, cfg) -> tuple[list[str], dict[str, str]]:
