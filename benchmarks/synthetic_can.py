@@ -27,6 +27,7 @@ import numpy as np
 
 from nerfkit.cameras import rotation_angles_deg
 from nerfkit.capture import synthetic as S
+from nerfkit.capture.camera import FILM_DIAGONAL_MM
 
 TAG = 0.06
 SHEET_TAG = 0.05
@@ -44,7 +45,7 @@ def white_table(seed: int) -> np.ndarray:
 
 def write_capture(out: Path, photos: int, seed: int, gloss: float = 1.0) -> S.SyntheticCapture:
     """The calibration photos (OUT/calib) and the can's (OUT/object); returns the can's capture."""
-    f35 = round(S.DEFAULT_K[0, 0] * 43.2666 / np.hypot(*SIZE))
+    f35 = round(S.DEFAULT_K[0, 0] * FILM_DIAGONAL_MM / np.hypot(*SIZE))
     S.make_calibration_capture(n=20, size=SIZE, tag_size=SHEET_TAG, seed=seed).write(out / "calib", f35=f35)
     cap = S.make_object_capture(
         n=photos,

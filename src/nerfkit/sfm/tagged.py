@@ -177,23 +177,20 @@ def choose_poses(
     if reason is not None:
         return PoseChoice(None, f"tag poses: {reason}", agreement)
     assert agreement is not None  # judge() passes no SfM result without an agreement
-    errors = track_errors(result, tag_posed)
-    fit = (
-        ""
-        if errors is None
-        else (
-            f"SfM's feature tracks fit its poses to {errors[0]:.2f} px and the tag poses to {errors[1]:.2f} px (median)"
-        )
-    )
-    if errors is not None and errors[1] <= errors[0]:
-        return PoseChoice(None, f"tag poses: {fit}", {**agreement, "track_px": list(errors)})
     why = (
         f"SfM poses in the tag's frame: {len(names)} photos registered (the tags posed {len(tag_posed)}); "
         f"the tag poses differ from them by a median {agreement['rot_deg_median']:.2f} degrees and "
-        f"{agreement['shift_median'] * 1000:.1f} mm" + (f"; {fit}" if fit else "")
+        f"{agreement['shift_median'] * 1000:.1f} mm"
     )
+    errors = track_errors(result, tag_posed)
     if errors is not None:
         agreement = {**agreement, "track_px": list(errors)}
+        fit = (
+            f"SfM's feature tracks fit its poses to {errors[0]:.2f} px and the tag poses to {errors[1]:.2f} px (median)"
+        )
+        if errors[1] <= errors[0]:
+            return PoseChoice(None, f"tag poses: {fit}", agreement)
+        why += f"; {fit}"
     adopted: list[str] = []
     if records is not None:
         adopted, left = adopt_tag_poses(result, tag_posed, records, layout, pose_cfg)
