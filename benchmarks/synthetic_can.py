@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 
-from nerfkit.cameras import rotation_angles_deg
 from nerfkit.capture import synthetic as S
 from nerfkit.capture.camera import FILM_DIAGONAL_MM
 
@@ -68,14 +67,14 @@ def pose_errors(cap: S.SyntheticCapture, dataset: Path) -> tuple[float, float, i
     dataset.npz, every split: the poses the model trains and is scored on, the tags' or
     structure-from-motion's; the tag's frame, metres, as the truth's), and how many."""
     from nerfkit.data.load import load_scene
+    from nerfkit.sfm.tagged import pose_agreement
 
-    truth = dict(zip(cap.names, cap.c2w))
     views = [v for v in load_scene(dataset / "dataset.npz").splits.values() if v is not None and len(v)]
-    names = [n for v in views for n in (v.names or [])]
-    est = np.concatenate([v.c2w for v in views]).astype(np.float64)
-    ref = np.array([truth[n] for n in names], np.float64)
-    pos = 1000 * np.linalg.norm(est[:, :3, 3] - ref[:, :3, 3], axis=1)
-    return float(np.median(pos)), float(np.median(rotation_angles_deg(est, ref))), len(names)
+    est = {n: m for v in views for n, m in zip(v.names or [], v.c2w)}
+    apart = pose_agreement(dict(zip(cap.names, cap.c2w)), est)
+    if apart is None:
+        raise SystemExit(f"{dataset}: no photo named as the rendered ones")
+    return 1000 * apart["shift_median"], apart["rot_deg_median"], apart["photos"]
 
 
 def main() -> None:
