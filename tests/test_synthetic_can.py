@@ -1,4 +1,4 @@
-"""The synthetic glossy can: where rays meet it, how they mirror, and that its photos pose."""
+"""The synthetic glossy can: where rays meet it, how they mirror, and that it changes colour with the view."""
 
 import numpy as np
 import pytest
