@@ -39,7 +39,10 @@ CHANGED_MODEL_FOR = {"forward/splat": FORWARD_SPLAT}
 CHANGED_MODEL_FOR.update({f"{scene}/splat": {"lr_budget": 0} for scene in ("tabletop", "tabletop_points")})
 # model options added since, with their default (splat: pruning to the visual hull, the
 # learning rates by the run's length; fast: the table's relief)
-ADDED_MODEL = {"splat": {"hull_prune": True, "lr_budget": 800}, "fast": {"table_relief": False}}
+ADDED_MODEL = {
+    "splat": {"hull_prune": True, "lr_budget": 800},
+    "fast": {"table_relief": False, "object_box_margin": 0.0},
+}
 
 
 def sized(scene, size):

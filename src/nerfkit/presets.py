@@ -15,9 +15,12 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .scene_extent import FEW_TRAIN_VIEWS
+
+if TYPE_CHECKING:
+    from .object_detail import ObjectDetail
 
 OBJECT, CAPTURE, FORWARD_FACING = "object", "capture", "forward-facing"
 SCENE_KINDS = (OBJECT, CAPTURE, FORWARD_FACING)
@@ -99,6 +102,7 @@ class Resolved:
     train: Any  # TrainConfig
     model: Any  # the model's config
     kind: str
+    notes: tuple[str, ...] = ()  # what the scene itself decided, for the run's log
 
     def configs(self) -> tuple[Any, Any]:
         """``(train, model)``: what a Trainer is built from."""
@@ -159,20 +163,51 @@ def grid_stages(kind: str, scene) -> tuple[str, str]:
     return FINE_STAGES if fine else BASE_STAGES
 
 
-def scene_values(kind: str, model_config: Any, scene, given: frozenset[str]) -> dict:
+# a plain object's box (--object-box-margin) is widened by this share of its size on every
+# side, about three times the width of the object itself (BENCHMARKS.md, why the defaults are
+# what they are)
+PLAIN_BOX_MARGIN = 0.65
+
+
+def plain_object(scene) -> ObjectDetail | None:
+    """The detail a capture's photos show on its object (:func:`~nerfkit.object_detail.object_detail`)
+    when its sparse points give an object box and the object is plain; else None."""
+    from .models.base import SceneBounds
+    from .object_detail import object_detail
+
+    if scene.table is None or scene.points is None or not scene.train.has_images:
+        return None
+    box = SceneBounds.from_scene(scene).object_box
+    detail = None if box is None else object_detail(scene.train, scene.table, box)
+    return detail if detail is not None and detail.plain else None
+
+
+def scene_values(kind: str, model_config: Any, scene, given: frozenset[str]) -> tuple[dict, list[str]]:
     """The model settings that follow from the scene itself rather than its kind alone (fast
-    only): a capture's table plane and table cover prior (:func:`table_cover_default`), and
-    the grid stages (:func:`grid_stages`; unless a stage option is given)."""
+    only), and notes on them: a capture's table plane, table cover prior
+    (:func:`table_cover_default`) and, for a plain object (:func:`plain_object`), a box
+    widened by :data:`PLAIN_BOX_MARGIN`; the grid stages (:func:`grid_stages`; unless a stage
+    option is given)."""
     from .models.fast_config import FastConfig
 
     if not isinstance(model_config, FastConfig):
-        return {}
+        return {}, []
     out: dict[str, Any] = {"table_cover_weight": table_cover_default(scene, kind == CAPTURE)}
+    notes = []
     if kind == CAPTURE:
         out["table"] = scene.table is not None
+        told = {"object_box", "object_box_margin"} & given or not model_config.object_box
+        plain = None if told else plain_object(scene)
+        if plain is not None:
+            out["object_box_margin"] = PLAIN_BOX_MARGIN
+            notes.append(
+                f"the object shows no more detail than the table it stands on ({plain.describe()}): its "
+                f"box is widened by {PLAIN_BOX_MARGIN:g} of its size on every side, as a plain object frays "
+                "in a tight one (--object-box-margin 0 keeps it tight)"
+            )
     if not STAGE_OPTIONS & given:
         out["resolutions"], out["upsample_steps"] = grid_stages(kind, scene)
-    return out
+    return out, notes
 
 
 def differing_fields(cfg: Any) -> frozenset[str]:
@@ -200,7 +235,8 @@ def resolve(train: Any, model_config: Any, scene, user_set: Iterable[str] | None
     given = (differing_fields(train) | differing_fields(model_config)) if user_set is None else frozenset(user_set)
     kind = scene_kind(scene, train.capture)
     train_values, model_values = preset_values(kind, train.model)
-    model_values = {**model_values, **scene_values(kind, model_config, scene, given)}
+    from_scene, notes = scene_values(kind, model_config, scene, given)
+    model_values = {**model_values, **from_scene}
     if STAGE_OPTIONS & given:  # the stages go together: one given, the other keeps its default
         model_values = {k: v for k, v in model_values.items() if k not in STAGE_OPTIONS}
     train_values["capture"] = "on" if kind == CAPTURE else "off"  # what --capture auto resolved to
@@ -209,7 +245,8 @@ def resolve(train: Any, model_config: Any, scene, user_set: Iterable[str] | None
     names = {f.name for f in dataclasses.fields(model_config)}
     model_new = {k: v for k, v in model_values.items() if k in names and (k not in given or k == "table" and not v)}
     train_new = {k: v for k, v in train_values.items() if k not in given or k in ("capture", "preset")}
-    return Resolved(dataclasses.replace(train, **train_new), dataclasses.replace(model_config, **model_new), kind)
+    model_cfg = dataclasses.replace(model_config, **model_new)
+    return Resolved(dataclasses.replace(train, **train_new), model_cfg, kind, tuple(notes))
 
 
 def without_scene(train: Any) -> Any:

@@ -107,10 +107,20 @@ def grid_start(config: FastConfig, bounds: SceneBounds) -> tuple[np.ndarray, np.
         half = bounds.ndc.extent * np.array(ndc_grid_scale(config, bounds.ndc), np.float32)
         half[2] = config.ndc_depth_scale  # (Z spans [-1, 1] in NDC whatever the extent)
         return -half, half
-    if config.object_box and bounds.object_box is not None:
-        return bounds.object_box
     c = np.asarray(bounds.center, np.float32)
+    if config.object_box and bounds.object_box is not None:
+        return widened(bounds.object_box, config.object_box_margin, c, bounds.radius)
     return c - bounds.radius, c + bounds.radius
+
+
+def widened(box, margin: float, center: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """``box`` ``(lo, hi)`` (3,) each, widened on every side by ``margin`` times its size
+    along that axis, within the cube of half-side ``radius`` about ``center``."""
+    lo, hi = (np.asarray(b, np.float32) for b in box)
+    if margin <= 0:
+        return lo, hi
+    pad = margin * (hi - lo)
+    return np.maximum(lo - pad, center - radius), np.minimum(hi + pad, center + radius)
 
 
 def ndc_grid_scale(config: FastConfig, ndc) -> tuple[float, float, float]:

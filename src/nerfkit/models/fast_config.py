@@ -292,6 +292,13 @@ class FastConfig:
         "give (points above the table that at least half the training photos frame), "
         "when it has them, instead of the bounding sphere's",
     )
+    object_box_margin: float = option(
+        0.0,
+        "widen the object's box on every side by this share of its size (within the "
+        "bounding sphere's box; default: 0, and 0.65 for a capture whose photos show no more "
+        "detail on the object than on its table: a plain object frays in a tight box)",
+        min=0.0,
+    )
     near_grad: float = option(
         0.0,
         "damp the gradients of samples nearer to the camera than this fraction of the "

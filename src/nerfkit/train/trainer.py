@@ -697,7 +697,10 @@ def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False, use
     check_config(cfg.model, model_config)
     with run_lock(run_dir):
         check_new_run_folder(run_dir)  # again, holding the lock: another process may have just started
-        return Trainer(scene, cfg, model_config, quiet=quiet).run()
+        trainer = Trainer(scene, cfg, model_config, quiet=quiet)
+        for note in resolved.notes:
+            trainer.log(f"note: {note}")
+        return trainer.run()
 
 
 def check_new_run_folder(run_dir: Path) -> None:
