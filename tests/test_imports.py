@@ -48,6 +48,7 @@ LAYERS: list[tuple[str, set[str]]] = [
             "splat_files",
             "splat_constants",
             "scene_extent",
+            "object_detail",
         },
     ),
     ("datasets: the Scene type and its file formats", {"data"}),
