@@ -14,6 +14,7 @@ from nerfkit.models.fast_config import FastConfig
 from nerfkit.object_detail import (
     PLAIN_GRADIENT,
     ObjectDetail,
+    Photos,
     box_outline,
     gradient_magnitude,
     object_detail,
@@ -140,3 +141,24 @@ def test_the_widened_box_grows_by_its_size_on_each_side_within_the_sphere():
     assert hi[2] == pytest.approx(0.5) and lo[2] == pytest.approx(-0.2)
     lo, hi = widened(box, 0.0, np.zeros(3), 1.0)
     assert lo == pytest.approx(box[0]) and hi == pytest.approx(box[1])
+
+
+def test_large_photos_are_looked_at_512_wide_with_the_same_verdict():
+    small = can_views(checked_label(cell=6), n=8)
+    big = Views(
+        small.c2w,
+        small.K * np.array([4.0, 4.0, 1.0])[:, None],
+        4 * small.width,
+        4 * small.height,
+        np.stack([np.kron(im, np.ones((4, 4, 1), np.uint8)) for im in small.images]),
+    )
+    photos = Photos(big)
+    assert (photos.width, photos.height) == (512, 384) and photos.rgb(0).shape == (384, 512, 3)
+    # the same world point lands on the same place of the photo, in its own pixels
+    point = np.array([[0.01, 0.02, 0.05]])
+    uv_big, _ = project_points(big.K[0], big.c2w[0], point)
+    uv_seen, _ = project_points(photos.K[0], photos.c2w[0], point)
+    assert uv_seen == pytest.approx(uv_big * 512 / big.width)
+    a, b = object_detail(small, TABLE, BOX), object_detail(big, TABLE, BOX)
+    assert a is not None and b is not None and a.plain == b.plain is False
+    assert b.on_object == pytest.approx(a.on_object, rel=0.5)

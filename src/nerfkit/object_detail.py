@@ -90,25 +90,63 @@ def table_points(K: np.ndarray, c2w: np.ndarray, uv: np.ndarray, table: np.ndarr
     return o + t[:, None] * d, t > 0
 
 
-def disagreement(
-    views, i: int, pts: np.ndarray, colours: np.ndarray, blurred: list[np.ndarray], neighbours: int
-) -> np.ndarray:
+# photos wider than this are looked at downscaled to it (the figures are per 512th of the width)
+ANALYSIS_WIDTH = 512
+
+
+class Photos:
+    """A split's photos at most :data:`ANALYSIS_WIDTH` wide (``K``, ``c2w``, ``width``,
+    ``height`` to match), each converted to float (:meth:`rgb`) and blurred (:meth:`blurred`)
+    once, when first asked for: a capture of many large photos is not all held at once."""
+
+    def __init__(self, views):
+        self.views = views
+        scale = min(1.0, ANALYSIS_WIDTH / views.width)
+        self.width, self.height = max(1, round(views.width * scale)), max(1, round(views.height * scale))
+        self.K = np.array(views.K, np.float64)
+        self.K[:, 0] *= self.width / views.width
+        self.K[:, 1] *= self.height / views.height
+        self.c2w = np.asarray(views.c2w, np.float64)
+        self._rgb: dict[int, np.ndarray] = {}
+        self._blurred: dict[int, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self.c2w)
+
+    def rgb(self, j: int) -> np.ndarray:
+        """(H, W, 3) float32 in [0, 1]: photo ``j``."""
+        if j not in self._rgb:
+            im = np.asarray(self.views.images[j])[..., :3]
+            if (im.shape[1], im.shape[0]) != (self.width, self.height):
+                im = cv2.resize(im, (self.width, self.height), interpolation=cv2.INTER_AREA)
+            self._rgb[j] = im.astype(np.float32) / 255.0
+        return self._rgb[j]
+
+    def blurred(self, j: int) -> np.ndarray:
+        """(H, W, 3) photo ``j`` blurred by a Gaussian of sigma 2 512ths of its width."""
+        if j not in self._blurred:
+            self._blurred[j] = cv2.GaussianBlur(self.rgb(j), (0, 0), 2.0 * self.width / 512)
+        return self._blurred[j]
+
+
+def disagreement(photos: Photos, i: int, pts: np.ndarray, colours: np.ndarray, neighbours: int) -> np.ndarray:
     """(n,) the median over the ``neighbours`` photos nearest photo ``i`` (by camera position)
     of the mean absolute difference between ``colours`` (n, 3) and what each shows at
-    ``pts`` (n, 3), after that photo's gain (the median ratio of the brightnesses); NaN where
-    no photo shows the point."""
-    centres = views.c2w[:, :3, 3]
+    ``pts`` (n, 3) (blurred), after that photo's gain (the median ratio of the brightnesses);
+    NaN where no photo shows the point."""
+    centres = photos.c2w[:, :3, 3]
     order = np.argsort(np.linalg.norm(centres - centres[i], axis=1))[1 : neighbours + 1]
     diffs = []
     for j in order:
-        uv, z = project_points(views.K[j], views.c2w[j], pts)
+        uv, z = project_points(photos.K[j], photos.c2w[j], pts)
         ok = (z > 0) & (uv[:, 0] >= 0.5) & (uv[:, 1] >= 0.5)
-        ok &= (uv[:, 0] <= views.width - 0.5) & (uv[:, 1] <= views.height - 0.5)
+        ok &= (uv[:, 0] <= photos.width - 0.5) & (uv[:, 1] <= photos.height - 0.5)
         if ok.sum() < 10:
             continue
         map_x = (uv[:, 0:1] - 0.5).astype(np.float32)
         map_y = (uv[:, 1:2] - 0.5).astype(np.float32)
-        seen = cv2.remap(blurred[j], map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
+        seen = cv2.remap(photos.blurred(int(j)), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        seen = seen.reshape(-1, 3)
         gain = np.median(colours[ok].sum(1) / np.maximum(seen[ok].sum(1), 1e-3))
         diff = np.abs(colours - gain * seen).mean(1)
         diff[~ok] = np.nan
@@ -126,22 +164,22 @@ def object_detail(
     """How much detail ``views``' photos (``images`` (n, H, W, 3) uint8, ``K``, ``c2w``,
     ``width``, ``height``) show on the object in ``box`` ``(lo, hi)`` standing on the plane
     ``table``, against the table around it; from ``photos`` photos spread over the set, every
-    ``stride``-th pixel. None without enough pixels of both (fewer than 3 photos, say)."""
+    ``stride``-th pixel (of the photos at most :data:`ANALYSIS_WIDTH` wide). None without
+    enough pixels of both (fewer than 3 photos, say)."""
     n = len(views.c2w)
     if n < 3 or views.images is None:
         return None
-    imgs = [im[..., :3].astype(np.float32) / 255.0 for im in views.images]
-    blurred = [cv2.GaussianBlur(im, (0, 0), 2.0 * views.width / 512) for im in imgs]
+    seen = Photos(views)
     figures = []
-    for i in np.unique(np.linspace(0, n - 1, min(photos, n)).astype(int)):
-        outline = box_outline(views.K[i], views.c2w[i], box, views.width, views.height)
+    for i in (int(i) for i in np.unique(np.linspace(0, n - 1, min(photos, n)).astype(int))):
+        outline = box_outline(seen.K[i], seen.c2w[i], box, seen.width, seen.height)
         rows, cols = np.nonzero(outline[::stride, ::stride])
         rows, cols = rows * stride, cols * stride
         if len(rows) < 50:
             continue
-        pts, ahead = table_points(views.K[i], views.c2w[i], np.stack([cols, rows], 1) + 0.5, table)
-        differ = disagreement(views, int(i), pts, blurred[i][rows, cols], blurred, neighbours)
-        grad = gradient_magnitude(imgs[i])[rows, cols]
+        pts, ahead = table_points(seen.K[i], seen.c2w[i], np.stack([cols, rows], 1) + 0.5, table)
+        differ = disagreement(seen, i, pts, seen.blurred(i)[rows, cols], neighbours)
+        grad = gradient_magnitude(seen.rgb(i))[rows, cols]
         obj = ahead & (differ > DISAGREE)
         tab = ahead & (differ <= DISAGREE)
         if obj.sum() >= 20 and tab.sum() >= 20:
