@@ -99,7 +99,7 @@ class Photos:
     ``height`` to match), each converted to float (:meth:`rgb`) and blurred (:meth:`blurred`)
     once, when first asked for: a capture of many large photos is not all held at once."""
 
-    def __init__(self, views):
+    def __init__(self, views) -> None:
         self.views = views
         scale = min(1.0, ANALYSIS_WIDTH / views.width)
         self.width, self.height = max(1, round(views.width * scale)), max(1, round(views.height * scale))
