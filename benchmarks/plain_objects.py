@@ -125,12 +125,10 @@ def parse_capture(text: str) -> tuple[str, Path, Path | None]:
 
 
 def capture_row(name: str, scene, run: Path | None, photos: int) -> dict:
-    from nerfkit.models.base import SceneBounds
-    from nerfkit.object_detail import object_detail
+    from nerfkit.object_detail import scene_object_detail
 
     row: dict = {"capture": name}
-    box = SceneBounds.from_scene(scene).object_box if scene.table is not None else None
-    detail = None if box is None else object_detail(scene.train, scene.table, box)
+    detail = scene_object_detail(scene)
     if detail is not None:
         row.update(object=detail.on_object, table=detail.on_table, plain=detail.plain)
     if run is not None:

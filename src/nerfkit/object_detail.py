@@ -22,6 +22,8 @@ import cv2
 import numpy as np
 
 from .cameras import project_points
+from .scene_extent import object_box_from_points, sphere_radius
+from .tabletop import box_corners
 
 # an object is plain when the median gradient on it is under both of these: an absolute
 # level (white paper in the dev captures' photos scores 0.0020-0.0029, their objects
@@ -66,11 +68,7 @@ def gradient_magnitude(rgb: np.ndarray) -> np.ndarray:
 def box_outline(K: np.ndarray, c2w: np.ndarray, box, width: int, height: int) -> np.ndarray:
     """(H, W) bool: the pixels inside the outline of ``box`` ``(lo, hi)`` seen by the camera
     ``(K, c2w)`` (OpenCV axes); none when a corner is behind the camera."""
-    lo, hi = (np.asarray(b, np.float64) for b in box)
-    corners = np.array(
-        [[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)]
-    )
-    uv, z = project_points(K, c2w, corners)
+    uv, z = project_points(K, c2w, box_corners(box))
     mask = np.zeros((height, width), np.uint8)
     if (z > 0).all():
         cv2.fillConvexPoly(mask, cv2.convexHull(np.round(uv - 0.5).astype(np.int32)), 1)
@@ -109,9 +107,6 @@ class Photos:
         self.c2w = np.asarray(views.c2w, np.float64)
         self._rgb: dict[int, np.ndarray] = {}
         self._blurred: dict[int, np.ndarray] = {}
-
-    def __len__(self) -> int:
-        return len(self.c2w)
 
     def rgb(self, j: int) -> np.ndarray:
         """(H, W, 3) float32 in [0, 1]: photo ``j``."""
@@ -190,4 +185,21 @@ def object_detail(
     return ObjectDetail(float(on_object), float(on_table), float(share))
 
 
-__all__ = ["PLAIN_GRADIENT", "PLAIN_RATIO", "ObjectDetail", "gradient_magnitude", "object_detail"]
+def scene_object_detail(scene) -> ObjectDetail | None:
+    """:func:`object_detail` of a capture ``scene``'s training photos, for the object in the box
+    its sparse points give (:func:`~nerfkit.scene_extent.object_box_from_points`, as the models'
+    bounds take it); None without a table, sparse points, images or such a box."""
+    if scene.table is None or scene.points is None or not scene.train.has_images:
+        return None
+    box = object_box_from_points(scene.points, scene.table, scene.center, sphere_radius(scene), views=scene.train)
+    return None if box is None else object_detail(scene.train, scene.table, box)
+
+
+__all__ = [
+    "PLAIN_GRADIENT",
+    "PLAIN_RATIO",
+    "ObjectDetail",
+    "gradient_magnitude",
+    "object_detail",
+    "scene_object_detail",
+]

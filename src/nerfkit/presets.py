@@ -170,15 +170,11 @@ PLAIN_BOX_MARGIN = 0.65
 
 
 def plain_object(scene) -> ObjectDetail | None:
-    """The detail a capture's photos show on its object (:func:`~nerfkit.object_detail.object_detail`)
-    when its sparse points give an object box and the object is plain; else None."""
-    from .models.base import SceneBounds
-    from .object_detail import object_detail
+    """The detail a capture's photos show on its object
+    (:func:`~nerfkit.object_detail.scene_object_detail`) when the object is plain; else None."""
+    from .object_detail import scene_object_detail
 
-    if scene.table is None or scene.points is None or not scene.train.has_images:
-        return None
-    box = SceneBounds.from_scene(scene).object_box
-    detail = None if box is None else object_detail(scene.train, scene.table, box)
+    detail = scene_object_detail(scene)
     return detail if detail is not None and detail.plain else None
 
 
