@@ -16,7 +16,7 @@ from nerfkit.data.load import load_scene  # noqa: E402
 from nerfkit.errors import fail  # noqa: E402
 from nerfkit.sfm.colmap import colmap_camera  # noqa: E402
 from nerfkit.sfm.dataset import opencv_camera  # noqa: E402
-from nerfkit.sfm.tagged import judge, pose_agreement  # noqa: E402
+from nerfkit.sfm.tagged import deregister, judge, pose_agreement  # noqa: E402
 from test_colmap import ROOM_K, TAG_SIZE, make_room  # noqa: E402
 
 
@@ -66,6 +66,31 @@ def test_pose_agreement_measures_turns_and_shifts_over_shared_photos():
     assert a["rot_deg_median"] == pytest.approx(2.0, abs=1e-6) and a["rot_deg_max"] == pytest.approx(10.0, abs=1e-6)
     assert a["shift_median"] == pytest.approx(0.01) and a["shift_max"] == pytest.approx(0.01)
     assert pose_agreement(base, {"none": np.eye(4)}) is None
+
+
+def test_photos_whose_two_poses_lie_far_apart_are_named():
+    """A flipped photo (turned 83 degrees, 0.58 m off at 0.4 m) is named; one 9 degrees and
+    0.05 m off (the most a dev capture's photos differ) and photos only in one set are not."""
+    from types import SimpleNamespace
+
+    from nerfkit.sfm.tagged import CLEAR_TAG, FAR_DEG, FAR_SHIFT, clear_tag, far_apart
+
+    tags = {f"p{i}": np.eye(4) for i in range(6)}
+    for i, c in enumerate(tags.values()):
+        c[:3, 3] = [0.4 * np.cos(i), 0.4 * np.sin(i), 0.0]
+    sfm = {n: c.copy() for n, c in tags.items()}
+    sfm["p1"] = _turned(tags["p1"], 83.0, (0.58, 0, 0))
+    sfm["p2"] = _turned(tags["p2"], 9.0, (0.05, 0, 0))
+    sfm["p3"] = _turned(tags["p3"], FAR_DEG + 1, (0, 0, 0))  # turned alone
+    sfm["p4"] = _turned(tags["p4"], 0.0, (FAR_SHIFT * 0.4 + 0.01, 0, 0))  # moved alone
+    sfm["only_sfm"] = np.eye(4)
+    far = far_apart(tags, sfm)
+    assert sorted(far) == ["p1", "p3", "p4"]
+    assert far["p1"] == pytest.approx((83.0, 0.58), abs=1e-6)
+    assert far_apart(tags, {"x": np.eye(4)}) == {}
+    record = lambda **info: SimpleNamespace(info=info)  # noqa: E731
+    assert clear_tag(record(pose_ambiguity=CLEAR_TAG)) and clear_tag(record())  # several tags: no ratio
+    assert not clear_tag(record(pose_ambiguity=1.04)) and not clear_tag(None)
 
 
 def test_sfm_poses_are_used_only_when_they_hold_up():
@@ -282,15 +307,6 @@ def test_photos_sfm_missed_are_posed_from_the_tag_with_sfms_camera(tmp_path):
         assert err < 0.5 and near < 0.003 and far > 3 * near, (name, near, far)
 
 
-def _deregister(rec, name: str) -> None:
-    """Take one photo out of a pycolmap reconstruction (pycolmap 4 registers frames, 3 images)."""
-    image = rec.find_image_with_name(name)
-    if hasattr(rec, "deregister_frame"):
-        rec.deregister_frame(image.frame_id)
-    else:  # pragma: no cover - pycolmap 3
-        rec.deregister_image(image.image_id)
-
-
 @pytest.mark.slow
 def test_a_photo_sfm_misses_keeps_its_tag_pose(room_photos, tmp_path, monkeypatch, capsys):
     """SfM leaves one photo the tag posed unregistered: the dataset still has it, posed from
@@ -303,7 +319,7 @@ def test_a_photo_sfm_misses_keeps_its_tag_pose(room_photos, tmp_path, monkeypatc
 
     def misses_one(*args, **kwargs):
         result = real(*args, **kwargs)
-        _deregister(result.reconstruction, missed)
+        deregister(result.reconstruction, result.reconstruction.find_image_with_name(missed))
         return result
 
     monkeypatch.setattr(colmap, "run_sfm", misses_one)
@@ -346,6 +362,53 @@ def test_a_photo_sfm_misses_keeps_its_tag_pose(room_photos, tmp_path, monkeypatc
     names2, c2w2 = _dataset_poses(tmp_path / "again")
     assert names2 == names
     np.testing.assert_allclose(c2w2, c2w, atol=1e-5)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("clear", [True, False])
+def test_a_photo_sfm_placed_far_from_its_tag_pose_keeps_the_tag_pose(room_photos, tmp_path, monkeypatch, capsys, clear):
+    """SfM puts one photo 60 degrees round the room from where its tag (and the truth) says: the
+    dataset has it posed from the tag, and the report names it with how far apart the two were;
+    were its tag ambiguous (``clear`` False), the photo would be left out."""
+    import nerfkit.sfm.frame as frame
+    import nerfkit.sfm.tagged as tagged
+
+    if not clear:
+        monkeypatch.setattr(tagged, "CLEAR_TAG", np.inf)
+
+    folder, truth = room_photos
+    moved = sorted(truth)[5]
+    real = frame.align_reconstruction
+
+    def moves_one(result, **kwargs):
+        out = real(result, **kwargs)
+        rec = result.reconstruction
+        image = rec.find_image_with_name(moved)
+        turn60 = np.array([0.0, 0.0, np.sin(np.pi / 6), np.cos(np.pi / 6)])  # 60 degrees about z (x, y, z, w)
+        turn = pycolmap.Rigid3d(pycolmap.Rotation3d(turn60), np.zeros(3))
+        rec.frames[image.frame_id].rig_from_world = image.cam_from_world() * turn  # the world turned under it
+        return out
+
+    monkeypatch.setattr(frame, "align_reconstruction", moves_one)
+    args = ["--focal-px", "260", "--tag-size", str(TAG_SIZE), "--val-every", "6", "--test-every", "0"]
+    assert main(["poses", str(folder), *args, "--out", str(tmp_path / "ds")]) == 0
+    out = capsys.readouterr().out
+    assert f"SfM's poses far from the tag poses (one of the two flipped), not used: {moved} (" in out
+    assert "mm, 60 degrees)" in out
+    choice = json.loads((tmp_path / "ds" / "transforms.json").read_text())["nerfkit"]["pose_choice"]
+    assert choice["poses"] == "sfm" and choice["tag_posed"] == ([moved] if clear else [])
+    assert list(choice["far_from_tags"]) == [moved]
+    assert choice["far_from_tags"][moved]["deg"] == pytest.approx(60, abs=2)
+    names, c2w = _dataset_poses(tmp_path / "ds")
+    if not clear:
+        assert f"not adopted: {moved} (its poses lie " in out and "its tag ambiguous" in out
+        assert sorted(names) == sorted(set(truth) - {moved})
+        return
+    assert sorted(names) == sorted(truth)
+    ref = truth[moved].copy()
+    ref[:3, 3] -= np.array([0.8 + TAG_SIZE / 2, -0.2 + TAG_SIZE / 2, 0.0])  # the tag's frame
+    e = pose_agreement({moved: dict(zip(names, c2w))[moved]}, {moved: ref})
+    assert e["rot_deg_max"] < 0.5 and e["shift_max"] < 0.03, e
 
 
 @pytest.mark.slow

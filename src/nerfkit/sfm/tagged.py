@@ -30,6 +30,16 @@ MIN_SHARE = 0.9
 MAX_ROTATION_DEG = 5.0
 # ... and of this share of the median camera distance from the world origin.
 MAX_SHIFT = 0.1
+# A photo whose SfM pose turns more than this many degrees from its tag pose, or lies more than
+# this share of the median camera distance from it, was put on the wrong side of an ambiguity
+# by one of them: a small tag looks alike tilted either way, and SfM can register a photo on
+# the tag's features alone (a synthetic can: one of 71 photos 584 mm and 83 degrees off, where
+# the dev captures' photos differ by at most 49 mm of 262 and 9.4 degrees).
+FAR_DEG = 20.0
+FAR_SHIFT = 0.3
+# Such a photo keeps its tag pose when the tag's other solution fits its corners at least this
+# many times worse (``pose_ambiguity``; several tags: no such doubt); else it is left out.
+CLEAR_TAG = 10.0
 # SfM's tracks seen in at least this many photos that both posed judge the two sets of poses
 # (:func:`track_errors`); with fewer such tracks the tracks do not judge
 MIN_TRACKS = 50
@@ -45,12 +55,15 @@ class PoseChoice:
         agreement: tag poses against SfM poses over the photos both posed (median and max
             rotation difference in degrees and centre distance in metres), or None.
         adopted: the photos SfM missed that keep their tag poses (:func:`adopt_tag_poses`).
+        far: the photos whose SfM and tag poses lay far apart (:func:`far_apart`), name ->
+            ``(degrees, metres)``; SfM's poses of them are not used.
     """
 
     result: object | None
     why: str
     agreement: dict | None = None
     adopted: list[str] = field(default_factory=list)
+    far: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {
@@ -58,6 +71,7 @@ class PoseChoice:
             "why": self.why,
             "agreement": self.agreement,
             "tag_posed": self.adopted,
+            "far_from_tags": {n: {"deg": round(d, 2), "m": round(m, 4)} for n, (d, m) in sorted(self.far.items())},
         }
 
 
@@ -87,6 +101,56 @@ def pose_agreement(tag_c2w: dict[str, np.ndarray], sfm_c2w: dict[str, np.ndarray
         "shift_max": float(shift.max()),
         "distance_median": float(np.median(np.linalg.norm(a[:, :3, 3], axis=1))),
     }
+
+
+def far_apart(tag_c2w: dict[str, np.ndarray], sfm_c2w: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:
+    """The photos in both sets whose two poses turn more than :data:`FAR_DEG` degrees apart or
+    lie more than :data:`FAR_SHIFT` of the median camera distance (from the origin, in the tag
+    poses) apart: name -> ``(degrees, metres)``.
+
+    Args:
+        tag_c2w, sfm_c2w: photo name -> (4, 4) camera-to-world, one world frame.
+    """
+    names = sorted(set(tag_c2w) & set(sfm_c2w))
+    if not names:
+        return {}
+    a = np.stack([tag_c2w[n] for n in names]).astype(np.float64)
+    b = np.stack([sfm_c2w[n] for n in names]).astype(np.float64)
+    rot = rotation_angles_deg(a, b)
+    shift = np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1)
+    distance = float(np.median(np.linalg.norm(a[:, :3, 3], axis=1)))
+    far = (rot > FAR_DEG) | (shift > FAR_SHIFT * distance)
+    return {n: (float(r), float(m)) for n, r, m, f in zip(names, rot, shift, far) if f}
+
+
+def clear_tag(record) -> bool:
+    """Whether a photo's tag pose is beyond doubt: its tag's other solution fits its corners at
+    least :data:`CLEAR_TAG` times worse, or it was solved from several tags (no such ratio);
+    False without its ``PhotoRecord``."""
+    if record is None:
+        return False
+    ambiguity = record.info.get("pose_ambiguity")
+    return ambiguity is None or ambiguity >= CLEAR_TAG
+
+
+def unregister(result, names: set[str]) -> None:
+    """Take the photos ``names`` (the user's file names) out of ``result``'s reconstruction (their
+    points' tracks lose them) and write the model again."""
+    from ..data.colmap import write_reconstruction
+
+    rec = result.reconstruction
+    for i in list(rec.reg_image_ids()):
+        if result.photo(rec.images[i].name).name in names:
+            deregister(rec, rec.images[i])
+    write_reconstruction(rec, result.model_dir)
+
+
+def deregister(rec, image) -> None:
+    """Take ``image`` out of the pycolmap reconstruction ``rec`` (pycolmap 4 registers frames, 3 images)."""
+    if hasattr(rec, "deregister_frame"):
+        rec.deregister_frame(image.frame_id)
+    else:  # pragma: no cover - pycolmap 3
+        rec.deregister_image(image.image_id)
 
 
 def judge(n_tag_posed: int, n_registered: int, in_tag_frame: bool, agreement: dict | None) -> str | None:
@@ -182,7 +246,8 @@ def choose_poses(
         f"the tag poses differ from them by a median {agreement['rot_deg_median']:.2f} degrees and "
         f"{agreement['shift_median'] * 1000:.1f} mm"
     )
-    errors = track_errors(result, tag_posed)
+    far = far_apart({p.name: p.c2w for p in tag_posed}, dict(zip(names, c2w)))
+    errors = track_errors(result, [p for p in tag_posed if p.name not in far])  # a flipped photo fits neither
     if errors is not None:
         agreement = {**agreement, "track_px": list(errors)}
         fit = (
@@ -191,17 +256,29 @@ def choose_poses(
         if errors[1] <= errors[0]:
             return PoseChoice(None, f"tag poses: {fit}", agreement)
         why += f"; {fit}"
+    left: dict[str, str] = {}
+    if far:
+        unregister(result, set(far))
+        by_name = {r.name: r for r in records or []}
+        for n, (deg, m) in far.items():
+            if not clear_tag(by_name.get(n)):
+                left[n] = f"its poses lie {m * 1000:.0f} mm and {deg:.0f} degrees apart, its tag ambiguous"
+        why += "; SfM's poses far from the tag poses (one of the two flipped), not used: " + ", ".join(
+            f"{n} ({m * 1000:.0f} mm, {deg:.0f} degrees)" for n, (deg, m) in sorted(far.items())
+        )
     adopted: list[str] = []
     if records is not None:
-        adopted, left = adopt_tag_poses(result, tag_posed, records, layout, pose_cfg)
+        kept = [p for p in tag_posed if p.name not in left]
+        adopted, refused = adopt_tag_poses(result, kept, records, layout, pose_cfg)
+        left.update(refused)
         if adopted:
             why += (
                 f"; the tag poses are kept for {len(adopted)} photo{'s' * (len(adopted) != 1)} SfM did not "
                 f"register (solved again with SfM's camera): {', '.join(adopted)}"
             )
-        if left:
-            why += "; not adopted: " + "; ".join(f"{n} ({r})" for n, r in left.items())
-    return PoseChoice(result, why, agreement, adopted)
+    if left:
+        why += "; not adopted: " + "; ".join(f"{n} ({r})" for n, r in sorted(left.items()))
+    return PoseChoice(result, why, agreement, adopted, far)
 
 
 def retriangulated_errors(w2c: np.ndarray, rays: np.ndarray, focal: np.ndarray) -> np.ndarray:
