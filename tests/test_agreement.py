@@ -126,3 +126,22 @@ def test_notes_give_advice_only_below_the_bar():
     assert "AE/AF lock" not in light[1]  # evening the exposure out gains 0.5 dB: not worth a word
     both = agreement_notes({"psnr": AGREEMENT_NOTE_DB - 3, "psnr_exposure_evened": AGREEMENT_NOTE_DB - 1})
     assert "shadow" in both[1] and "AE/AF lock" in both[1]
+
+
+def test_sample_bilinear_reads_a_plane_exactly_at_any_point_and_clamps_outside():
+    """A plane f(u, v) = 0.01 u + 0.02 v (pixel centres at +0.5) is read back exactly between
+    pixels, over more points than one cv2.remap call takes; outside, the border pixel's value."""
+    from nerfkit.images import REMAP_CHUNK, sample_bilinear
+
+    h, w = 40, 60
+    v, u = np.mgrid[0:h, 0:w] + 0.5
+    image = np.stack([0.01 * u + 0.02 * v, 1.0 - 0.01 * u], -1).astype(np.float32)
+    rng = np.random.default_rng(0)
+    uv = rng.uniform([0.5, 0.5], [w - 0.5, h - 0.5], (REMAP_CHUNK + 5000, 2))
+    got = sample_bilinear(image, uv)
+    assert got.shape == (len(uv), 2)
+    # (OpenCV weighs the four pixels in steps of 1/32 px: 0.03 of a pixel's rise at most)
+    np.testing.assert_allclose(got[:, 0], 0.01 * uv[:, 0] + 0.02 * uv[:, 1], atol=0.03 * 0.03)
+    np.testing.assert_allclose(got[:, 1], 1.0 - 0.01 * uv[:, 0], atol=0.03 * 0.01)
+    outside = sample_bilinear(image, np.array([[-5.0, 0.5], [w + 9.0, h - 0.5]]))
+    np.testing.assert_allclose(outside, image[[0, h - 1], [0, w - 1]], atol=1e-6)

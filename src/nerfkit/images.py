@@ -31,6 +31,26 @@ def to_uint8(image: np.ndarray) -> np.ndarray:
     return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
+# cv2.remap takes maps shorter than 32767
+REMAP_CHUNK = 30000
+
+
+def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(n, C) ``image`` (H, W, C) float32 at pixels ``uv`` (n, 2), pixel centres at +0.5
+    (nerfkit's convention; OpenCV's are at integers), bilinear; outside the frame, the
+    nearest border pixel's."""
+    import cv2
+
+    maps = (np.asarray(uv, np.float64) - 0.5).astype(np.float32)
+    out = np.empty((len(maps), image.shape[2]), np.float32)
+    for i in range(0, len(maps), REMAP_CHUNK):
+        part = maps[i : i + REMAP_CHUNK]
+        out[i : i + REMAP_CHUNK] = cv2.remap(
+            image, part[:, :1].copy(), part[:, 1:].copy(), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+        ).reshape(len(part), -1)
+    return out
+
+
 def _open(path: Path):
     from PIL import Image, UnidentifiedImageError
 

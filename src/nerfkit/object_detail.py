@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from .cameras import project_points
+from .images import sample_bilinear
 from .scene_extent import object_box_from_points, sphere_radius
 from .tabletop import box_corners
 
@@ -138,10 +139,7 @@ def disagreement(photos: Photos, i: int, pts: np.ndarray, colours: np.ndarray, n
         ok &= (uv[:, 0] <= photos.width - 0.5) & (uv[:, 1] <= photos.height - 0.5)
         if ok.sum() < 10:
             continue
-        map_x = (uv[:, 0:1] - 0.5).astype(np.float32)
-        map_y = (uv[:, 1:2] - 0.5).astype(np.float32)
-        seen = cv2.remap(photos.blurred(int(j)), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        seen = seen.reshape(-1, 3)
+        seen = sample_bilinear(photos.blurred(int(j)), uv)
         gain = np.median(colours[ok].sum(1) / np.maximum(seen[ok].sum(1), 1e-3))
         diff = np.abs(colours - gain * seen).mean(1)
         diff[~ok] = np.nan

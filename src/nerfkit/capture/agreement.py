@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..cameras import axes_across, project_points
+from ..images import sample_bilinear
 
 # below this agreement the photos cannot be matched to the 22 dB that a usable capture's
 # held-out views reach, and the notes give advice (benchmarks/photo_consistency.py; figures in BENCHMARKS.md)
@@ -27,8 +28,6 @@ AGREEMENT_NOTE_DB = 22.0
 EXTENT_RADII = 1.4
 # a point counts when at least this many photos see it
 MIN_PHOTOS = 3
-# cv2.remap takes maps shorter than 32767
-REMAP_CHUNK = 30000
 # rounds of the alternating solve of each photo's exposure: the solve settles within a few rounds, and more
 # change the agreement by a negligible amount (benchmarks/photo_consistency.py)
 EXPOSURE_ROUNDS = 5
@@ -100,14 +99,7 @@ def sample_photo(
     img: np.ndarray = image.astype(np.float32) / 255.0
     if blur > 0:
         img = cv2.GaussianBlur(img, (0, 0), blur)
-    maps = (uv - 0.5).astype(np.float32)  # OpenCV's pixel centres are at integers
-    colours = np.empty((len(points), 3), np.float32)
-    for i in range(0, len(points), REMAP_CHUNK):
-        part = maps[i : i + REMAP_CHUNK]
-        colours[i : i + REMAP_CHUNK] = cv2.remap(
-            img, part[:, :1].copy(), part[:, 1:].copy(), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
-        ).reshape(-1, 3)
-    return colours, seen
+    return sample_bilinear(img, uv), seen
 
 
 def samples(views, points: np.ndarray, box=None, blur: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
