@@ -1435,3 +1435,45 @@ def test_a_stop_swallowed_by_an_import_during_start_up_still_stops_training(tmp_
     assert json.loads((run / "metrics.json").read_text())["step"] == 0
     monkeypatch.setattr(trainer_mod.Trainer, "__init__", build)  # a later command is not stopped by it
     assert main([*argv[:4], str(tmp_path / "run2"), *TRAIN_TINY]) == 0
+
+
+EMPTY_OUTPUTS = [
+    ["train", "--data", "scene.npz", "--steps", "1", "--out", ""],
+    ["convert", "scene.npz", "--to", " "],
+    ["calibrate", "sheet", "--tag-size", "0.05", "--out", ""],
+    ["poses", "photos", "--tag-size", "0.05", "--out", ""],
+    ["capture", "photos", "--tag-size", "0.05", "--out", ""],
+    ["frames", "clip.mp4", "--out", ""],
+    ["render", "run", "--out", ""],
+    ["export", "run", "--points", ""],
+    ["fit-image", "photo.jpg", "--out", ""],
+    ["tags", "--out", ""],
+    ["dataset", "ds", "--out", ""],
+]
+
+
+@pytest.mark.parametrize("argv", EMPTY_OUTPUTS, ids=[a[0] for a in EMPTY_OUTPUTS])
+def test_an_empty_output_path_is_refused_before_anything_is_read_or_written(tmp_path, monkeypatch, capsys, argv):
+    """``--out ""`` (an unset shell variable) would write into the current folder."""
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    flag = next(a for a in argv if a in ("--out", "--to", "--points"))
+    assert capsys.readouterr().err.strip() == f"nerfkit {argv[0]}: error: {flag} is empty: give the path to write"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_api_refuses_an_empty_output_path(tmp_path, monkeypatch):
+    from nerfkit import api
+
+    monkeypatch.chdir(tmp_path)
+    for call in (
+        lambda: api.train("scene.npz", "", steps=1),
+        lambda: api.calibrate("sheet", " ", tag_size=0.05),
+        lambda: api.pose("photos", "", tag_size=0.05),
+        lambda: api.render("run", out=""),
+        lambda: api.export("run", mesh=""),
+        lambda: api.capture("photos", ""),
+    ):
+        with pytest.raises(NerfkitError, match="is empty: give the path to write"):
+            call()
+    assert list(tmp_path.iterdir()) == []

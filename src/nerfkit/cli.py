@@ -176,6 +176,10 @@ def _main(argv: list[str]) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    empty = empty_output(args)
+    if empty:  # (an unset shell variable: '' would write into the current folder)
+        print(f"nerfkit {args.command}: error: {empty} is empty: give the path to write", file=sys.stderr)
+        return 2
     try:
         return int(args.func(args) or 0)
     except NerfkitError as e:
@@ -198,6 +202,24 @@ def _main(argv: list[str]) -> int:
         hint = OS_ERROR_HINTS.get(e.errno, "Check the path and its permissions")
         print(f"nerfkit {args.command}: error: {where}: {e.strerror or e}. {hint}", file=sys.stderr)
         return 2
+
+
+# the options that name what a command writes
+OUTPUT_OPTIONS = {dest: f"--{dest}" for dest in ("out", "to", "png", "mesh", "points", "splat")}
+
+
+def empty_output(args: argparse.Namespace) -> str | None:
+    """The output option given as an empty (or blank) path (:func:`~nerfkit.config.output_path`), or None."""
+    from .config import output_path
+
+    for dest, flag in OUTPUT_OPTIONS.items():
+        value = getattr(args, dest, None)
+        if isinstance(value, str):
+            try:
+                output_path(value)
+            except argparse.ArgumentTypeError:
+                return flag
+    return None
 
 
 def _importing(frame) -> bool:

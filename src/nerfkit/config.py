@@ -122,6 +122,14 @@ def number(
     return parse
 
 
+def output_path(text: str) -> str:
+    """The check of a path a command writes (``--out``, ``--to``, ...): not empty or blank,
+    which would write into the current folder (an unset shell variable)."""
+    if not str(text).strip():
+        raise argparse.ArgumentTypeError("is empty: give the path to write")
+    return str(text)
+
+
 # the longest side (metres) taken as a printed tag's: a larger --tag-size is a length in
 # other units (60 for a 60 mm tag), which would scale the scene a thousandfold
 TAG_SIDE_MAX = 2.0

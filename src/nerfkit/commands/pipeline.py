@@ -189,7 +189,7 @@ def calibrate(
     from ..capture.aruco import get_dictionary, load_layout
     from ..capture.calibrate import CalibrateConfig, calibrate_records, calibration_json
     from ..capture.photos import blur_hint, default_jobs, group_by_size, keep_one_lens, require_tags, scan_photos
-    from ..config import number, tag_side
+    from ..config import number, output_path, tag_side
     from ..errors import fail
     from ..io.atomic import write_json
     from ..io.paths import guard_outputs
@@ -209,7 +209,7 @@ def calibrate(
     if not tag_size:
         assert sheet is not None  # checked above
         tag_size = sheet.tag_size
-    path = Path(out)
+    path = Path(_check("--out", out, output_path))
     if path.is_dir():
         path = path / "camera.json"
     guard_outputs([path], [photos_dir, layout_file], force)
@@ -296,7 +296,7 @@ def pose(
     from ..capture.dataset import NPZ_FILE, POSES_FILE, DatasetConfig, write_poses_json
     from ..capture.photos import default_jobs, require_tags, scan_photos
     from ..capture.poses import PoseConfig, pose_records
-    from ..config import number, tag_side
+    from ..config import number, output_path, tag_side
     from ..errors import fail
     from ..images import list_images
     from ..io.paths import guard_outputs
@@ -315,7 +315,7 @@ def pose(
     dcfg = dataset_settings if dataset_settings is not None else DatasetConfig()
     dcfg = _settings(dataclasses.replace(dcfg, max_side=max_side) if max_side is not None else dcfg)
     say = _say(quiet)
-    photos_dir, folder = str(photos), Path(out)
+    photos_dir, folder = str(photos), Path(_check("--out", out, output_path))
     camera_file, layout_file = (str(camera) if camera else None), (str(layout) if layout else None)
     if folder.exists() and not folder.is_dir():
         raise fail(folder, "exists and is not a folder", "--out names the dataset folder to write")
@@ -480,6 +480,7 @@ def train(
         quiet: print no progress or report.
         options: any other TrainConfig or model setting by its field name (``device="cpu"``).
     """
+    from ..config import output_path
     from ..errors import fail
     from ..models import check_config
     from ..train.config import TrainConfig
@@ -487,6 +488,7 @@ def train(
     from ..train.trainer import train as train_run
     from ._common import load_as_trained
 
+    _check("--out", out, output_path)
     given = {
         k: str(v) if k in ("data", "out") else v
         for k, v in (("data", data), ("out", out), ("model", model), ("steps", steps), ("minutes", minutes))
@@ -659,7 +661,7 @@ def render(
     """
     import sys
 
-    from ..config import number
+    from ..config import number, output_path
     from ..data.load import dataset_inputs
     from ..data.scene import ORBIT_FRAMES
     from ..errors import fail
@@ -675,7 +677,7 @@ def render(
     fps = _check("--fps", fps, number(int, 1, 1000))
     chunk = _run_checks(chunk)
     data = str(data) if data else None
-    folder = Path(out) if out else Path(run) / "videos"
+    folder = Path(_check("--out", out, output_path)) if out is not None else Path(run) / "videos"
     names = OBJECT_VIDEO_FILES if object else VIDEO_FILES
     guard_outputs([folder / name for name in names], dataset_inputs(data or read_run(run).train.data), force or not out)
     opened = _common.open_run(_common.RunToOpen(run, device, chunk))
@@ -832,7 +834,7 @@ def export(
         force: replace existing output files.
         quiet: print no report.
     """
-    from ..config import number
+    from ..config import number, output_path
     from ..data.load import dataset_inputs
     from ..errors import fail
     from ..io.paths import guard_outputs
@@ -850,7 +852,9 @@ def export(
     acc_min = _check("--acc-min", acc_min, number(float, 0, 0.999))
     chunk = _run_checks(chunk)
     say = _say(quiet)
-    mesh_file, points_file, splat_file = (str(p) if p else None for p in (mesh, points, splat))
+    mesh_file, points_file, splat_file = (
+        _check(flag, p, output_path) for flag, p in (("--mesh", mesh), ("--points", points), ("--splat", splat))
+    )
     data = str(data) if data else None
     stage.check_outputs(mesh_file, points_file, splat_file)
     opened = _common.open_run(_common.RunToOpen(run, device, chunk))
@@ -973,7 +977,7 @@ def capture(
     """
     import json
 
-    from ..config import MIN_RESAMPLED_SIDE, number, tag_side
+    from ..config import MIN_RESAMPLED_SIDE, number, output_path, tag_side
     from ..errors import fail
     from .stages import capture as stage
 
@@ -983,7 +987,7 @@ def capture(
     _choice("--model", model, get_args(CaptureModel))
     options = stage.CaptureOptions(
         photos=str(photos),
-        out=str(out),
+        out=_check("--out", out, output_path),
         calib=str(calib) if calib is not None else None,
         camera=str(camera) if camera is not None else None,
         tag_size=_check("--tag-size", tag_size, tag_side),
