@@ -354,6 +354,26 @@ def test_checkpoint_values_that_used_to_crash_or_load_as_garbage(tiny_run, tmp_p
     assert capsys.readouterr().err == ""  # the reason is in the error, not repeated as a warning
 
 
+def _npz_at(path: Path) -> None:
+    with open(path, "wb") as f:
+        np.savez(f, x=np.zeros(3))
+
+
+@pytest.mark.parametrize("write", [lambda p: p.write_text("hello"), _npz_at], ids=["text", "npz"])
+def test_a_checkpoint_replaced_by_another_kind_of_file_says_so(tiny_run, tmp_path, write):
+    """A text file or an npz where the run's checkpoints were: the error says what is wrong and
+    what to do, not the unpickler's KeyError or the zip reader's internals."""
+    from nerfkit.train.checkpoint import load_run
+
+    run = edited_run(tiny_run, tmp_path)
+    for path in [run / "model.pt", *(run / "checkpoints").glob("*.pt")]:
+        write(path)
+    with pytest.raises(NerfkitError) as e:
+        load_run(run)
+    one_line_error(e, "the file is not a PyTorch checkpoint", "no checkpoint could be loaded")
+    assert "KeyError" not in str(e.value) and "inline_container" not in str(e.value)
+
+
 # ============================================================================= files owned by the capture work
 
 

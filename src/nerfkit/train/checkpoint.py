@@ -274,6 +274,21 @@ def run_lock(run_dir: str | Path):
         yield folder
 
 
+def not_a_torch_file(path: Path) -> bool:
+    """Whether ``path`` is neither a zip archive laid out as ``torch.save`` writes it (every
+    member under one folder, a ``data.pkl`` in it) nor a legacy pickle."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = z.namelist()
+    except (zipfile.BadZipFile, OSError):
+        with open(path, "rb") as f:
+            return f.read(1) != b"\x80"  # pickle's PROTO opcode begins every legacy torch file
+    tops = {n.split("/", 1)[0] for n in names}
+    return not (len(tops) == 1 and all("/" in n for n in names) and any(n.endswith("/data.pkl") for n in names))
+
+
 def _read_checkpoint(path: Path, model_name: str) -> dict:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
@@ -281,9 +296,11 @@ def _read_checkpoint(path: Path, model_name: str) -> dict:
         text = " ".join(str(e).split())
         if "central directory" in text or "zip archive" in text or "file is truncated" in text:
             why = "the file is cut short or damaged (a copy or download that did not finish?)"
+        elif not_a_torch_file(path):
+            why = "the file is not a PyTorch checkpoint (it holds something else: text, an array file, ...)"
         else:
             why = f"{type(e).__name__}: {text[:160]}{'...' if len(text) > 160 else ''}"
-        raise fail(path, f"cannot load checkpoint: {why}") from None
+        raise fail(path, f"cannot load checkpoint: {why}", "Put the run's own file back, or train again") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise fail(path, "not a nerfkit checkpoint")
     if ckpt.get("version") != VERSION:
