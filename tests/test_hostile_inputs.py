@@ -1497,3 +1497,20 @@ def test_the_api_refuses_an_empty_output_path(tmp_path, monkeypatch):
         with pytest.raises(NerfkitError, match="is empty: give the path to write"):
             call()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_eval_on_another_dataset_says_so_and_capture_does_not_keep_those_scores(tiny_run, tmp_path, capsys):
+    """``eval --data`` of another scene scores it (a user may mean to) but says it is not the
+    run's dataset and records so; ``capture`` then scores the run again instead of keeping them."""
+    from nerfkit import api
+    from nerfkit.commands.stages.capture import _on_own_dataset
+    from nerfkit.data.npz import save_npz
+    from nerfkit.data.synthetic import sphere_scene
+
+    run = edited_run(tiny_run, tmp_path)
+    save_npz(sphere_scene(n_train=5, n_val=1, size=8), tmp_path / "other.npz")
+    other = api.evaluate(run, data=tmp_path / "other.npz", device="cpu")
+    assert "is not the dataset the run was trained on (views, poses, train_images differ)" in capsys.readouterr().out
+    assert other.scores["runs_own_dataset"] is False and not _on_own_dataset(other.report_path)
+    own = api.evaluate(run, device="cpu", quiet=True)
+    assert own.scores["runs_own_dataset"] is True and _on_own_dataset(own.report_path)

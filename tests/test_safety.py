@@ -912,7 +912,7 @@ def test_a_device_nerfkit_cannot_run_on_is_one_line(trained, tmp_path, capsys, d
 
 def test_an_empty_png_name_is_refused_not_taken_for_the_viewer(trained, capsys):
     assert main(["view", str(trained / "a" / "data.npz"), "--png", ""]) == 2  # it once started the server
-    one_line(capsys, "--png: names no file")
+    one_line(capsys, "--png is empty: give the path to write")
 
 
 def test_a_truncated_model_file_is_named_as_cut_short(trained, tmp_path, capsys):

@@ -751,6 +751,7 @@ def evaluate(
     """
     from ..config import number
     from ..io.atomic import write_json
+    from ..train.checkpoint import dataset_differences
     from . import _common
     from .stages import evaluate as stage
 
@@ -767,6 +768,11 @@ def evaluate(
     steps = stage.fit_steps(capture, fit_views)
     sheet: list = []
     result = stage.scores(opened, scene, split, steps, sheet)
+    differ = dataset_differences(opened.info, scene) if data else []
+    result["runs_own_dataset"] = not differ
+    if differ:
+        parts = ", ".join(d.replace("_sha256", "") for d in differ)
+        say(f"note: {data} is not the dataset the run was trained on ({parts} differ): scores on another dataset")
     json_path, sheet_path = Path(run) / f"eval_{split}.json", Path(run) / f"eval_{split}.png"
     write_json(json_path, result)
     stage.write_contact_sheet(sheet_path, sheet, split)

@@ -179,14 +179,20 @@ def dataset_fingerprint(scene) -> dict:
     }
 
 
+def dataset_differences(info: RunInfo, scene) -> list[str]:
+    """Which parts of the run's recorded dataset fingerprint ``scene`` does not match (empty:
+    the run's own dataset, or a run from before fingerprints were recorded)."""
+    stored = info.scene.get("fingerprint")
+    if not isinstance(stored, dict):
+        return []
+    now = dataset_fingerprint(scene)
+    return [k for k in now if stored.get(k) != now[k]]
+
+
 def check_dataset(info: RunInfo, scene) -> None:
     """Refuse a dataset that is not the one the run was trained on (runs from before
     fingerprints were recorded are not checked)."""
-    stored = info.scene.get("fingerprint")
-    if not isinstance(stored, dict):
-        return
-    now = dataset_fingerprint(scene)
-    differ = [k for k in now if stored.get(k) != now[k]]
+    differ = dataset_differences(info, scene)
     if differ:
         raise fail(
             scene.source or info.train.data,

@@ -310,6 +310,16 @@ def _newer_than_model(path: Path, run_dir: Path) -> bool:
     return path.exists() and model.exists() and path.stat().st_mtime >= model.stat().st_mtime
 
 
+def _on_own_dataset(scores: Path) -> bool:
+    """Whether ``eval``'s ``scores`` were measured on the run's own dataset (not ``eval --data`` of another)."""
+    import json
+
+    try:
+        return json.loads(scores.read_text()).get("runs_own_dataset", True) is True
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def _budget(run_dir: Path) -> tuple[int, float] | None:
     """The training budget a run was given: (steps, minutes), steps 0 when it ran by time."""
     import json
@@ -510,7 +520,7 @@ def _train_run(
 def _evaluated(api: Calls, run_dir: Path, args: CaptureOptions, step) -> bool:
     """Score the run on the held-out photos (kept when newer than its model); whether it is scored."""
 
-    if _newer_than_model(run_dir / "eval_val.json", run_dir):
+    if _newer_than_model(run_dir / "eval_val.json", run_dir) and _on_own_dataset(run_dir / "eval_val.json"):
         _kept("evaluation", run_dir / "eval_val.json")
         return True
     return step(

@@ -133,6 +133,7 @@ def export_points(
     training view rendered, every ``stride``-th pixel with opacity above ``acc_min`` placed at
     its depth; points farther than ``crop_radius`` from the scene's centre along an axis
     dropped (None: kept)."""
+    from ...errors import fail
     from ...export import crop_to_box, points_from_views, write_points_ply
     from ...output.images import render_image
     from .._common import scene_for_run
@@ -147,8 +148,19 @@ def export_points(
 
     pts, cols = points_from_views(render_fn, views, acc_min, tuple(bg.tolist()), stride)
     n_all = len(pts)
+    if n_all == 0:
+        raise fail(
+            opened.info.run_dir,
+            f"at step {opened.step} no pixel of the {len(views)} views rendered is more than {acc_min:g} opaque: "
+            "the run holds no surface yet",
+            "Train it longer (nerfkit train --resume), or lower --acc-min",
+        )
     if crop_radius is not None:
         pts, cols = crop_to_box(pts, cols, opened.info.bounds.center, crop_radius)
+        if len(pts) == 0:
+            raise fail(
+                opened.info.run_dir, f"all {n_all} points lie outside the scene's box", "Pass --no-crop to keep them"
+            )
     write_points_ply(path, pts, cols)
     return (
         f"point cloud of step {opened.step}: {len(pts)} points from {len(views)} views "
