@@ -232,6 +232,39 @@ def test_dataset_cameras_project_the_tag_onto_its_pixels(posed, obj, tmp_path):
     assert len(errs) >= 24 and np.sqrt(np.mean(errs**2)) < 0.3
 
 
+def test_dataset_settings_are_checked_before_any_photo_is_read(tmp_path, capsys):
+    """A malformed --center or --near above --far is refused before posing, so no poses.json is
+    left behind to block the corrected command."""
+    for bad, message in (
+        (["--center", "1,2"], "--center: expected three numbers 'x,y,z', got '1,2'"),
+        (["--near", "5", "--far", "1"], "--near/--far: near=5 and far=1: need near < far"),
+    ):
+        out = tmp_path / "ds"
+        argv = ["poses", str(tmp_path / "no_photos_here"), "--tag-size", "0.06", "--out", str(out), *bad]
+        assert main(argv) == 2
+        assert message in capsys.readouterr().err
+        assert not out.exists()
+
+
+def test_a_center_in_other_units_than_metres_is_refused():
+    """Cameras about 0.4 m from the tag: 0.1,0,0.05 (metres) is taken, 100,100,100 (centimetres
+    or millimetres) is refused with what to give instead."""
+    from nerfkit.cameras import look_at
+    from nerfkit.capture.dataset import given_center
+    from nerfkit.errors import NerfkitError
+
+    c2w = np.stack(
+        [
+            look_at(np.array([0.4 * np.cos(a), 0.4 * np.sin(a), 0.25]), np.zeros(3), np.array([0, 0, 1.0]))
+            for a in range(8)
+        ]
+    )
+    assert given_center("", c2w) is None
+    np.testing.assert_allclose(given_center("0.1,0,0.05", c2w), [0.1, 0, 0.05], atol=1e-7)
+    with pytest.raises(NerfkitError, match="lies 173 m from the cameras.*Give it in metres"):
+        given_center("100,100,100", c2w)
+
+
 @pytest.mark.slow
 def test_center_override_and_dataset_command_rebuild(posed, tmp_path, capsys):
     from nerfkit.capture.dataset import write_poses_json

@@ -123,6 +123,33 @@ def split_indices(n: int, val_every: int, test_every: int) -> list[str]:
     return out
 
 
+def check_settings(cfg: DatasetConfig) -> None:
+    """Refuse a ``--center`` that is not three numbers and ``--near``/``--far`` out of order,
+    before any photo is read or posed (a later error would leave a ``poses.json`` behind)."""
+    parse_center(cfg.center)
+    if cfg.near is not None and cfg.far is not None and not cfg.near < cfg.far:
+        raise fail("--near/--far", f"near={cfg.near:g} and far={cfg.far:g}: need near < far")
+
+
+def given_center(text: str, c2w: np.ndarray) -> np.ndarray | None:
+    """``--center`` (None when not given), refused when it lies farther from the cameras' mean
+    position than twice their spread around it: a centre in other units than the tag's
+    metres (100,100,100 for a centimetre or a millimetre) makes a dataset of empty views."""
+    center = parse_center(text)
+    if center is None:
+        return None
+    mean = c2w[:, :3, 3].mean(0)
+    reach = float(np.linalg.norm(c2w[:, :3, 3] - mean, axis=1).max()) + float(np.linalg.norm(mean))
+    if np.linalg.norm(center - mean) > 2 * reach:
+        raise fail(
+            "--center",
+            f"{text} lies {np.linalg.norm(center - mean):.3g} m from the cameras, which are within "
+            f"{reach:.3g} m of the tag",
+            "Give it in metres in the tag's frame (the tag's centre is 0,0,0), or leave it out to estimate it",
+        )
+    return center
+
+
 def parse_center(text: str) -> np.ndarray | None:
     if not text:
         return None
@@ -252,7 +279,7 @@ def build_dataset(
     c2w = np.stack([p.c2w for p in posed]).astype(np.float64)
     names = [p.name for p in posed]
 
-    center = parse_center(cfg.center)
+    center = given_center(cfg.center, c2w)
     center_note = "given with --center"
     if center is None:
         center = estimate_center(c2w.astype(np.float32)).astype(np.float64)

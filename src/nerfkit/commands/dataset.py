@@ -106,7 +106,14 @@ def report_dataset(s: dict, out) -> int:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..capture.dataset import DATASET_OUTPUTS, POSES_FILE, DatasetConfig, read_poses_json, recorded_tags
+    from ..capture.dataset import (
+        DATASET_OUTPUTS,
+        POSES_FILE,
+        DatasetConfig,
+        check_settings,
+        read_poses_json,
+        recorded_tags,
+    )
     from ..capture.photos import default_jobs
     from ..config import dataclass_from_args
     from ..data.validate import check_number
@@ -114,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.paths import guard_outputs
 
     cfg = dataclass_from_args(DatasetConfig, args)
+    check_settings(cfg)
     src = Path(args.poses)
     folder = src if src.is_dir() else src.parent
     out = Path(args.out) if args.out else folder

@@ -294,6 +294,7 @@ def pose(
     from ..capture.aruco import get_dictionary, load_layout
     from ..capture.camera import load_camera
     from ..capture.dataset import NPZ_FILE, POSES_FILE, DatasetConfig, write_poses_json
+    from ..capture.dataset import check_settings as check_dataset_settings
     from ..capture.photos import default_jobs, require_tags, scan_photos
     from ..capture.poses import PoseConfig, pose_records
     from ..config import number, output_path, tag_side
@@ -314,6 +315,7 @@ def pose(
     pcfg = _settings(pose_settings if pose_settings is not None else PoseConfig())
     dcfg = dataset_settings if dataset_settings is not None else DatasetConfig()
     dcfg = _settings(dataclasses.replace(dcfg, max_side=max_side) if max_side is not None else dcfg)
+    check_dataset_settings(dcfg)
     say = _say(quiet)
     photos_dir, folder = str(photos), Path(_check("--out", out, output_path))
     camera_file, layout_file = (str(camera) if camera else None), (str(layout) if layout else None)
