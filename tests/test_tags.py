@@ -86,3 +86,16 @@ def test_cli_writes_a_two_page_pdf_of_the_paper_size_and_refuses_to_replace_it(t
     assert len(re.findall(rb"/MediaBox", (tmp_path / "one.pdf").read_bytes())) == 1
     assert main(["tags", "--out", str(tmp_path / "t.png")]) == 2
     assert "should end in .pdf" in capsys.readouterr().err
+
+
+def test_tags_too_small_to_find_are_refused(tmp_path, capsys):
+    """A 0.1 mm tag (metres typed as tenths of a millimetre) has cells far under a millimetre."""
+    from nerfkit.commands.tags import MIN_CELL_MM
+
+    assert main(["tags", "--out", str(tmp_path / "t.pdf"), "--tag-size", "0.0001"]) == 2
+    err = capsys.readouterr().err
+    assert "--tag-size: a 0.1 mm tag has 0.017 mm cells" in err and f"Use at least {6 * MIN_CELL_MM / 1000:g}" in err
+    assert main(["tags", "--out", str(tmp_path / "t.pdf"), "--object-tag-size", "0.004"]) == 2
+    assert "--object-tag-size: a 4 mm tag" in capsys.readouterr().err
+    assert not (tmp_path / "t.pdf").exists()
+    assert main(["tags", "--out", str(tmp_path / "t.pdf"), "--tag-size", str(6 * MIN_CELL_MM / 1000)]) == 0

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+# a tag's cells (its bits and black border) narrower than this are lost: a 1 mm cell spans about
+# 7 pixels of a 12-megapixel phone photo (fx ~3000 px) from 40 cm, 3 from a metre
+MIN_CELL_MM = 1.0
 HELP = "printable ArUco tags (PDF): a calibration sheet and a tag to lay beside the object"
 
 DESCRIPTION = """\
@@ -67,6 +70,13 @@ def run(args: argparse.Namespace) -> int:
     d = get_dictionary(args.dict)
     cells = d.markerSize + 2
     sheet_mm, object_mm = 1000 * args.tag_size, 1000 * (args.object_tag_size or 0)
+    for flag, mm in (("--tag-size", sheet_mm), ("--object-tag-size", object_mm)):
+        if 0 < mm < MIN_CELL_MM * cells:
+            raise fail(
+                flag,
+                f"a {mm:g} mm tag has {mm / cells:.2g} mm cells, too small to print sharply or for a phone to find",
+                f"Use at least {MIN_CELL_MM * cells / 1000:g} (metres; a few centimetres is usual)",
+            )
     if sheet_mm > largest_sheet_tag_mm(args.paper):
         raise fail(
             "--tag-size",
