@@ -104,6 +104,24 @@ def test_too_few_photos_are_counted_as_photos_in_every_mode(records, n, per_tag)
         C.calibrate_records(fresh(records)[:n], SIZE, TAG, None, C.CalibrateConfig(per_tag=per_tag))
 
 
+def test_copies_of_one_view_are_refused_not_calibrated(records):
+    """Six copies of two photos (a burst from a tripod) are two views: too few to measure a lens
+    (it once fitted them to 0.000 px with an absurd focal length). Moved by a few pixels,
+    photos still count as one view; the twelve photos of the sheet are twelve."""
+    from dataclasses import replace
+
+    from nerfkit.errors import NerfkitError
+
+    two = fresh(records)[:2]
+    copies = [PhotoRecord(f"{r.name}-{k}", None, r.detection) for r in two for k in range(3)]
+    with pytest.raises(NerfkitError, match="the 6 photos with tags show them from 2 places.*Take 20-50"):
+        C.calibrate_records(copies, SIZE, TAG, None, C.CalibrateConfig())
+    nudged = [replace(r.detection, corners=r.detection.corners + 1.0) for r in two]
+    tol = C.SAME_VIEW * float(np.hypot(*SIZE))
+    assert tol > 1.0 and C.distinct_views([r.detection for r in two] + nudged, tol) == 2
+    assert C.distinct_views([r.detection for r in records], tol) == len(records)
+
+
 def test_outlier_photo_is_dropped_and_the_camera_recalibrated(sheet, records):
     recs = fresh(records)
     bad = recs[3]

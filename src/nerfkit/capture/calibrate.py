@@ -933,6 +933,29 @@ def measure_heights(
     return layout, fit.K
 
 
+# photos whose tags' corners all lie within this share of the image diagonal of another's show
+# the same view (copies, a burst from a tripod) and tell the calibration nothing new
+SAME_VIEW = 0.005
+# Zhang's calibration needs at least three views of a plane for a camera's intrinsics
+MIN_VIEWS = 3
+
+
+def distinct_views(detections: list, tol: float) -> int:
+    """How many of ``detections`` (``ids`` (n,), ``corners`` (n, 4, 2)) show their tags from a
+    different place than every one before: a photo is another's view again when they share a
+    tag and every shared tag's corners lie within ``tol`` pixels of each other's."""
+    kept: list[dict[int, np.ndarray]] = []
+    for det in detections:
+        tags = {int(i): np.asarray(c, np.float64) for i, c in zip(det.ids, det.corners)}
+        seen = any(
+            (shared := tags.keys() & old.keys()) and all(np.abs(tags[i] - old[i]).max() <= tol for i in shared)
+            for old in kept
+        )
+        if not seen:
+            kept.append(tags)
+    return len(kept)
+
+
 def calibrate_records(
     records: list[PhotoRecord],
     size: tuple[int, int] | None,
@@ -968,6 +991,15 @@ def calibrate_records(
 
     enough(with_tags, "photos with tags found")  # (before the fit, which counts tag views, not photos)
     assert size is not None  # None only with no photos (group_by_size), refused just above
+    places = distinct_views([r.detected for r in with_tags], SAME_VIEW * float(np.hypot(*size)))
+    if places < MIN_VIEWS:
+        raise fail(
+            "calibration",
+            f"the {len(with_tags)} photos with tags show them from {places} place{'s' * (places != 1)} "
+            f"(their corners within {SAME_VIEW * 100:g}% of the diagonal of each other): a lens cannot be "
+            f"measured from fewer than {MIN_VIEWS} different views",
+            "Take 20-50 sharp photos of the tag sheet, moving the phone between them: varied angles and distances",
+        )
     by_name = {r.name: r for r in with_tags}
     ids_together = any(len(set(int(i) for i in r.detected.ids)) > 1 for r in with_tags)
 
