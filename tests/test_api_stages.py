@@ -89,6 +89,19 @@ def test_pose_without_a_dataset_reports_the_poses_and_prints_what_the_command_pr
     assert f"wrote {tmp_path / 'a' / 'poses.json'}" in by_api
 
 
+def test_dataset_refuses_a_photo_replaced_since_it_was_posed(tmp_path, obj, capsys):
+    """A photo swapped for another after ``poses --no-dataset``: ``dataset`` would give the new
+    image the old photo's pose; it names the photo and says to pose again."""
+    photos, cam = photo_folder(tmp_path / "object", obj), camera_file(tmp_path / "camera.json", obj)
+    api.pose(photos, tmp_path / "ds", tag_size=TAG, camera=cam, build_dataset=False, quiet=True)
+    names = sorted(p.name for p in photos.iterdir())
+    (photos / names[3]).write_bytes((photos / names[0]).read_bytes() + b"\0")  # another photo, another size
+    assert main(["dataset", str(tmp_path / "ds"), "--out", str(tmp_path / "again")]) == 2
+    err = capsys.readouterr().err
+    assert f"{photos / names[3]}: changed since nerfkit poses posed it (another size)" in err and "--force" in err
+    assert not (tmp_path / "again").exists()
+
+
 def test_render_a_tiny_run_from_python(tmp_path, tiny_run, capsys):
     import imageio.v3 as iio
 

@@ -114,6 +114,26 @@ def _file_key(path: Path) -> list:
     return [st.st_size, st.st_mtime_ns]
 
 
+def resized_since_scanned(cache_path: Path, paths: list[Path]) -> list[Path]:
+    """The photos among ``paths`` whose size in bytes differs from what the detection cache at
+    ``cache_path`` recorded when they were scanned (replaced or edited since); none without
+    a readable cache."""
+    try:
+        photos = json.loads(refuse_special_file(cache_path).read_text()).get("photos")
+    except (OSError, ValueError, AttributeError):
+        return []
+    if not isinstance(photos, dict):
+        return []
+    changed = []
+    for p in paths:
+        entry = photos.get(Path(p).name)
+        key = entry.get("key") if isinstance(entry, dict) else None
+        size = key[0] if isinstance(key, list) and key and isinstance(key[0], int) else None
+        if size is not None and Path(p).is_file() and Path(p).stat().st_size != size:
+            changed.append(Path(p))
+    return changed
+
+
 def _load_cache(cache_path: Path | None, settings: dict) -> tuple[dict, bool]:
     """The cached entries for these settings, and whether the file may be written: a file
     there that is not a detection cache (caches are written whole, so never half) is the

@@ -137,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     )
     with advice("Re-run nerfkit poses"):
         tag_size = check_number(data.get("tag_size"), args.poses, "tag_size", 0.0, expected="the tag size in metres")
-    require_photos([p.path for p in posed])
+    require_photos([p.path for p in posed], folder)
     return build_and_report(
         posed,
         out,
@@ -167,10 +167,12 @@ def recorded_pose_source(folder) -> str:
     return "sfm" if (folder / REPORT_FILE).is_file() else "tags"
 
 
-def require_photos(paths) -> None:
-    """Refuse, naming one, when photos a dataset is built from are gone."""
+def require_photos(paths, folder) -> None:
+    """Refuse, naming one, when photos a dataset is built from are gone, or were replaced
+    since ``nerfkit poses`` scanned them (their sizes against its detection cache in ``folder``)."""
     from pathlib import Path
 
+    from ..capture.photos import resized_since_scanned
     from ..errors import fail
 
     missing = [Path(p) for p in paths if not Path(p).is_file()]
@@ -179,6 +181,14 @@ def require_photos(paths) -> None:
             missing[0].parent,
             f"{len(missing)} posed photos are missing (e.g. {missing[0].name})",
             "The photos moved; re-run nerfkit poses on their new folder",
+        )
+    changed = resized_since_scanned(Path(folder) / "detections.json", [Path(p) for p in paths])
+    if changed:
+        raise fail(
+            changed[0],
+            "changed since nerfkit poses posed it (another size)"
+            + (f", as did {len(changed) - 1} more" if len(changed) > 1 else ""),
+            "Re-run nerfkit poses (with --force) to pose the photos as they are now",
         )
 
 
@@ -202,7 +212,7 @@ def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bo
     outputs = [out / name for name in DATASET_OUTPUTS] + ([] if in_place else [out / REPORT_FILE, model_copy])
     photos = [p.path for p in posed_photos(result)]
     guard_outputs(outputs, [folder / REPORT_FILE, result.model_dir, *photos], force)
-    require_photos(photos)
+    require_photos(photos, folder)
     print(
         f"poses: structure-from-motion, {len(photos)} photos ({result.model_dir}; --pose-source tags for the tag poses)"
     )
