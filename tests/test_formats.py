@@ -120,7 +120,14 @@ def test_blender_resize_scales_K(tmp_path):
         (lambda d: d["frames"][1].pop("transform_matrix"), "frames[1]"),
         (lambda d: d["frames"][0].update(transform_matrix=[[1, 0], [0, 1]]), "shape"),
         (lambda d: d["frames"][0].update(transform_matrix=np.diag([2.0, 2, 2, 1]).tolist()), "not rigid"),
-        (lambda d: d["frames"][0].update(file_path="./train/missing"), "not found"),
+        (
+            lambda d: d["frames"][0].update(file_path="./train/missing"),
+            "frame image not found: looked for 'train/missing' and it with an image suffix",
+        ),
+        (
+            lambda d: d["frames"][0].update(file_path="train/gone.png"),
+            "frame image not found: looked for 'train/gone.png' in",
+        ),
         (lambda d: d.update(frames=[]), "empty"),
     ],
 )
@@ -133,7 +140,7 @@ def test_blender_bad_input_is_one_line(tmp_path, edit, message):
     with pytest.raises(NerfkitError) as e:
         load_blender(tmp_path)
     assert message in str(e.value) and "\n" not in str(e.value)
-    assert "transforms_train.json" in str(e.value) or "missing" in str(e.value)
+    assert "transforms_train.json" in str(e.value) or "missing" in str(e.value) or "gone" in str(e.value)
 
 
 def test_blender_truncated_json(tmp_path):

@@ -395,6 +395,12 @@ def test_camera_file_crashes(tmp_path, text):
     with pytest.raises(NerfkitError) as e:
         load_camera(path)
     one_line_error(e)
+    if text == "DIRECTORY":
+        (path / "camera.json").write_text("{}")
+        with pytest.raises(
+            NerfkitError, match=r"is a folder, not a JSON file\. Name the JSON file itself \(.* holds camera\.json\)"
+        ):
+            load_camera(path)
 
 
 @pytest.mark.parametrize(
@@ -1039,7 +1045,15 @@ def test_a_wrong_folder_points_to_the_right_one(tmp_path, capsys):
     (run / "plots" / "psnr.png").write_bytes(b"x")
     (run / "model.pt").write_bytes(b"x")
     (run / "config.json").write_text(json.dumps({"train": {"data": "/data/lego.npz"}}))
+    killed = tmp_path / "runs" / "killed"  # stopped before its first checkpoint: its config alone
+    killed.mkdir()
+    (killed / "config.json").write_text(json.dumps({"train": {"data": "/data/lego.npz"}}))
     cases = [
+        (
+            ["view", str(killed), "--png", str(tmp_path / "v.png")],
+            "a run's folder whose training stopped before its first checkpoint, so it holds no model: "
+            f"train it again with `nerfkit train --config {killed / 'config.json'} --out NEW_RUN`",
+        ),
         (
             ["train", "--data", str(capture), "--steps", "1", "--out", str(tmp_path / "r")],
             f"its dataset is {capture / 'dataset'}",

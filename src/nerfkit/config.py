@@ -389,6 +389,10 @@ def load_json(
         return json.loads(refuse_special_file(path).read_text())
     except FileNotFoundError:
         raise fail(path, missing, missing_fix) from None
+    except IsADirectoryError:
+        inside = sorted(p.name for p in path.glob("*.json"))[:3]
+        held = f" ({path} holds {', '.join(inside)})" if inside else ""
+        raise fail(path, "is a folder, not a JSON file", f"Name the JSON file itself{held}") from None
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
         raise fail(path, f"not valid JSON ({type(e).__name__}: {e})", invalid_fix) from None
     except (OSError, ValueError) as e:  # a folder, no permission, a NUL byte in the name

@@ -61,10 +61,11 @@ def frame_image_path(folder: Path, file_path: str, where: str, allow_outside: bo
             f"frame image {file_path[:100]!r} is not a usable path ({type(e).__name__}: {e})",
             "Check the frames' file_path entries",
         ) from None
-    looked = Path(file_path).name[:200] + ".png"
+    named = Path(file_path[:200])
+    looked = f"{str(named)!r}" if named.suffix else f"{str(named)!r} and it with an image suffix (.png, .jpg, ...)"
     raise fail(
         where,
-        f"frame image {file_path[:200]!r} not found (looked for {looked!r} beside the json)",
+        f"frame image not found: looked for {looked} in {folder}",
         "Check the frames' file_path entries and that the images were copied",
     )
 

@@ -84,6 +84,17 @@ def is_run_folder(path: Path) -> bool:
     )
 
 
+def _run_config(path: Path) -> dict | None:
+    """The ``train`` settings of the run config ``path/config.json``, or None (no such file, or not a run's)."""
+    import json
+
+    try:
+        train = json.loads((path / "config.json").read_text())["train"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return train if isinstance(train, dict) else None
+
+
 def _folder_hint(path: Path) -> str | None:
     """What to give instead of a folder that holds no dataset: a capture's own dataset, a
     run's dataset, or how to make one from the photos it holds."""
@@ -92,16 +103,16 @@ def _folder_hint(path: Path) -> str | None:
     if (path / "dataset" / "dataset.npz").is_file():
         return f"This is a capture's folder: its dataset is {path / 'dataset'}"
     if is_run_folder(path):
-        import json
-
-        try:
-            data = json.loads((path / "config.json").read_text())["train"]["data"]
-        except (OSError, ValueError, KeyError, TypeError):
-            data = None
+        data = (_run_config(path) or {}).get("data")
         where = f" trained on {data}" if isinstance(data, str) and data else ""
         return (
             f"This is a trained run's folder{where}: pass that dataset, or continue the run with "
             f"`nerfkit train --resume {path}`"
+        )
+    if _run_config(path) is not None:
+        return (
+            "This is a run's folder whose training stopped before its first checkpoint, so it holds no model: "
+            f"train it again with `nerfkit train --config {path / 'config.json'} --out NEW_RUN`"
         )
     if image_files(path):
         return (

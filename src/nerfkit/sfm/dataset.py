@@ -217,7 +217,13 @@ def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResul
     folder = Path(folder)
     path = folder / REPORT_FILE
     redo = "Re-run nerfkit poses --force (or nerfkit dataset --pose-source tags)"
-    data = load_json(path, "no such file", "Run nerfkit poses first", redo)
+    data = load_json(
+        path,
+        "no such file: the folder holds no structure-from-motion model (nerfkit poses left none: "
+        "--method tags, or SfM's poses were not taken)",
+        "Rebuild from the tag poses (nerfkit dataset --pose-source tags), or run nerfkit poses --method auto",
+        redo,
+    )
     model = data.get("model") if isinstance(data, dict) else None
     if not isinstance(model, dict):
         raise fail(path, "records no SfM model to rebuild the dataset from (an older nerfkit wrote it)", redo)
