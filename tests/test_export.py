@@ -408,24 +408,28 @@ class SphereModel(NerfModel):
         return RenderOutput(rgb, (t * hit).float(), hit.float())
 
 
-def test_export_command_writes_both_files(tmp_path, monkeypatch, capsys):
+def open_sphere_run(tmp_path, monkeypatch, model=None, step: int = 7) -> SceneBounds:
+    """A stand-in run in ``tmp_path`` on a saved sphere scene (4 training views, 16 px), whose
+    model is ``model`` (a class taking the bounds; default :class:`SphereModel`), for commands
+    that open a run; returns its bounds."""
     from types import SimpleNamespace
 
-    from nerfkit.cli import main
     from nerfkit.commands import _common
     from nerfkit.data.npz import save_npz
 
-    scene = sphere_scene(n_train=4, n_val=1, size=16)
-    save_npz(scene, tmp_path / "s.npz")
+    save_npz(sphere_scene(n_train=4, n_val=1, size=16), tmp_path / "s.npz")
     bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
-    info = SimpleNamespace(
-        bounds=bounds,
-        run_dir=tmp_path,
-        scene={},
-        train=SimpleNamespace(data=str(tmp_path / "s.npz"), background="black"),
-    )
-    opened = _common.OpenRun(SphereModel(bounds), info, 7, torch.device("cpu"), 8192, None)
+    train = SimpleNamespace(data=str(tmp_path / "s.npz"), background="black")
+    info = SimpleNamespace(bounds=bounds, run_dir=tmp_path, scene={}, train=train)
+    opened = _common.OpenRun((model or SphereModel)(bounds), info, step, torch.device("cpu"), 8192, None)
     monkeypatch.setattr(_common, "open_run", lambda args: opened)
+    return bounds
+
+
+def test_export_command_writes_both_files(tmp_path, monkeypatch, capsys):
+    from nerfkit.cli import main
+
+    bounds = open_sphere_run(tmp_path, monkeypatch)
     rc = main(
         [
             "export",
@@ -482,27 +486,14 @@ def test_export_command_writes_both_files(tmp_path, monkeypatch, capsys):
 def test_points_of_a_run_that_holds_no_surface_yet_are_an_error_not_an_empty_file(tmp_path, monkeypatch, capsys):
     """A run trained a few steps renders nothing opaque: no point passes --acc-min, and export
     says so (train longer, or lower --acc-min) instead of writing a PLY of 0 points."""
-    from types import SimpleNamespace
-
     from nerfkit.cli import main
-    from nerfkit.commands import _common
-    from nerfkit.data.npz import save_npz
 
     class Empty(SphereModel):
         def render_rays(self, rays: Rays, background, perturb):
             out = super().render_rays(rays, background, perturb)
             return RenderOutput(out.rgb * 0 + background, out.depth, out.acc * 0)
 
-    save_npz(sphere_scene(n_train=4, n_val=1, size=16), tmp_path / "s.npz")
-    bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
-    info = SimpleNamespace(
-        bounds=bounds,
-        run_dir=tmp_path,
-        scene={},
-        train=SimpleNamespace(data=str(tmp_path / "s.npz"), background="black"),
-    )
-    opened = _common.OpenRun(Empty(bounds), info, 5, torch.device("cpu"), 8192, None)
-    monkeypatch.setattr(_common, "open_run", lambda args: opened)
+    open_sphere_run(tmp_path, monkeypatch, Empty, step=5)
     assert main(["export", str(tmp_path), "--points", str(tmp_path / "p.ply")]) == 2
     err = capsys.readouterr().err
     assert "at step 5 no pixel of the 4 views rendered is more than 0.5 opaque" in err and "--acc-min" in err
