@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import inspect
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -192,6 +193,52 @@ def test_the_stages_check_their_arguments_as_the_command_line_does(tmp_path):
     with pytest.raises(NerfkitError, match="--max-side"):
         api.pose(tmp_path, tmp_path / "o", tag_size=TAG, dataset_settings=DatasetConfig(max_side=3))
     assert not (tmp_path / "o").exists() and not (tmp_path / "c.json").exists()
+
+
+LEGO = Path(__file__).resolve().parents[1] / "src" / "nerfkit" / "assets" / "lego_200x200.npz"
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda t: api.render(t, fps=None), "--fps: None is not a whole number"),
+        (lambda t: api.export(t, points=t / "p.ply", every=None), "--every: None is not a whole number"),
+        (lambda t: api.calibrate(t, None, tag_size=TAG), "--out: None is not a path"),
+        (lambda t: api.pose(t, None, tag_size=TAG), "out: None is not a path"),
+        (lambda t: api.resume(123), "run: 123 is not a path"),
+        (lambda t: api.evaluate(t, device=None), "--device: None is not text"),
+        (lambda t: api.capture(t, t / "o", steps=5, dictionary=5), "--dictionary: 5 is not text or None"),
+        (lambda t: api.train([LEGO], t / "r", steps=5), r"--data: \[.*\] is not a path or None"),
+        (lambda t: api.train(LEGO, 123, steps=5), "--out: 123 is not a path or None"),
+        (lambda t: api.train(LEGO, t / "r", steps=5, device=None), "--device: None is not text"),
+        (
+            lambda t: api.train(LEGO, t / "r", model="fast", steps=5, resolutions=[32, 64]),
+            "--resolutions: \\[32, 64\\] is not text for the fast model",
+        ),
+        (
+            lambda t: api.train(LEGO, t / "r", steps=5, capture="maybe"),
+            "--capture: 'maybe' is not one of auto, on, off",
+        ),
+        (
+            lambda t: api.train(LEGO, t / "r", steps=5, allow_outside_paths="no"),
+            "--allow-outside-paths: 'no' is not True or False",
+        ),
+        (
+            lambda t: api.train(LEGO, t / "r", model="fast", steps=5, kernels="x"),
+            "--kernels: 'x' is not one of auto, numba, torch",
+        ),
+        (
+            lambda t: api.calibrate(t, t / "c.json", tag_size=TAG, settings={"a": 1}),
+            "settings: .* is not a CalibrateConfig",
+        ),
+    ],
+)
+def test_a_wrong_kind_of_argument_is_named_before_anything_runs(tmp_path, call, message):
+    """Python callers get the command line's checks for the kind of each value too: None where a
+    number goes, a list for a path, text for yes/no, a setting outside its choices; nothing is written."""
+    with pytest.raises(NerfkitError, match=message):
+        call(tmp_path)
+    assert list(tmp_path.iterdir()) == []
 
 
 # a command's flag -> the API's argument of another name; --no-X flags are X=True by default

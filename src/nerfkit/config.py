@@ -180,6 +180,36 @@ def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
     return cfg
 
 
+def check_values(cls: type, values: dict[str, Any], owner: str | None = None) -> None:
+    """Refuse a value of ``values`` (settings of dataclass ``cls`` by field name, as Python
+    gives them) of the wrong kind for its field, as the command line would: a yes/no field
+    takes True or False, a text field text, a number field a number (its range:
+    :func:`check_ranges`), a field with choices one of them; None only where the field allows
+    it. Names ``cls`` does not have are the caller's to refuse."""
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    for name, value in values.items():
+        if name not in fields:
+            continue
+        kind, optional = base_type(hints[name])
+        choices = fields[name].metadata.get("choices")
+        if value is None and optional:
+            continue
+        if kind is bool and not isinstance(value, bool):
+            problem = f"{value!r} is not True or False"
+        elif kind is str and not isinstance(value, str):
+            problem = f"{value!r} is not text"
+        elif kind in (int, float) and (
+            isinstance(value, bool) or not isinstance(value, numbers.Integral if kind is int else numbers.Real)
+        ):
+            problem = _not_a(kind, repr(value))
+        elif choices is not None and value not in choices:
+            problem = f"{value!r} is not one of {', '.join(map(str, choices))}"
+        else:
+            continue
+        raise fail(flag_of(name), problem + (f" for {owner}" if owner else ""))
+
+
 def _field_type(tp: Any, meta: Any) -> Any:
     """The argparse type of a field: numbers are checked (finite, and the field's
     ``min``/``max``/``above`` metadata); other types pass through."""

@@ -20,10 +20,16 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
+import inspect
+import numbers
+import os
+import types
+import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, TypeVar, get_args
+from typing import TYPE_CHECKING, Any, Literal, ParamSpec, TypeVar, get_args
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -39,6 +45,8 @@ VideoPath = Literal["auto", "test", "orbit", "spiral"]
 Split = Literal["val", "test", "train"]
 
 T = TypeVar("T", bound="DataclassInstance")
+P = ParamSpec("P")
+R = TypeVar("R")
 
 
 @dataclass(frozen=True)
@@ -117,6 +125,72 @@ RESUME_APPLIES = (
 )
 
 
+def _accepts(tp: Any, value: Any) -> bool:
+    """Whether ``value`` fits the annotation ``tp``: unions, ``Literal`` choices, None, whole
+    numbers (not True or False), numbers, text, paths (text or ``os.PathLike``), classes."""
+    origin = typing.get_origin(tp)
+    if tp is Any:
+        return True
+    if origin in (typing.Union, types.UnionType):
+        return any(_accepts(a, value) for a in get_args(tp))
+    if origin is Literal:
+        return value in get_args(tp)
+    if tp is None or tp is type(None):
+        return value is None
+    if tp is bool:
+        return isinstance(value, bool)
+    if tp in (int, float):
+        return isinstance(value, numbers.Integral if tp is int else numbers.Real) and not isinstance(value, bool)
+    if tp is Path:
+        return isinstance(value, (str, os.PathLike))
+    if origin is not None:
+        return isinstance(value, origin)
+    return isinstance(value, tp) if isinstance(tp, type) else True
+
+
+def _describe(tp: Any) -> str:
+    """What the annotation ``tp`` asks for, in words (:func:`_accepts`)."""
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        words = list(dict.fromkeys(_describe(a) for a in get_args(tp)))
+        return " or ".join(w for w in words if w != "text") if "a path" in words else " or ".join(words)
+    if origin is Literal:
+        return "one of " + ", ".join(map(str, get_args(tp)))  # as _choice and the command line say it
+    names = {bool: "True or False", int: "a whole number", float: "a number", str: "text", Path: "a path"}
+    return "None" if tp is None or tp is type(None) else names.get(tp, getattr(tp, "__name__", str(tp)))
+
+
+def _checked(func: Callable[P, R]) -> Callable[P, R]:
+    """``func`` with each argument checked against its annotation first (:func:`_accepts`): a
+    wrong kind of value is a NerfkitError naming the flag (``--fps: None is not a whole number``),
+    not a TypeError from deep inside. Annotations that name types only imported for checking
+    are not checked here (the settings objects: :func:`_settings`)."""
+    signature = inspect.signature(func)
+    hints: dict[str, Any] = {}
+    for name, annotation in func.__annotations__.items():
+        with contextlib.suppress(NameError):
+            hints[name] = eval(annotation, func.__globals__) if isinstance(annotation, str) else annotation
+
+    @functools.wraps(func)
+    def checked(*args: P.args, **kwargs: P.kwargs) -> R:
+        from ..config import flag_of
+        from ..errors import fail
+
+        try:
+            bound = signature.bind(*args, **kwargs)
+        except TypeError:
+            return func(*args, **kwargs)  # a missing or unknown argument: Python's own message
+        for name, value in bound.arguments.items():
+            param = signature.parameters[name]
+            if param.kind is param.VAR_KEYWORD or name not in hints or _accepts(hints[name], value):
+                continue
+            shown = flag_of(name) if param.default is not param.empty else name
+            raise fail(shown, f"{value!r} is not {_describe(hints[name])}")
+        return func(*args, **kwargs)
+
+    return checked
+
+
 def _check(flag: str, value: Any, parse: Callable[[str], Any]) -> Any:
     """``value`` checked as the command line checks ``flag`` (``parse``: the flag's argparse
     type), converted as the flag converts it; None passes as None."""
@@ -138,16 +212,19 @@ def _choice(flag: str, value: str, choices: tuple[str, ...]) -> None:
         raise fail(flag, f"'{value}' is not one of {', '.join(choices)}")
 
 
-def _settings(cfg: T) -> T:
-    """A settings dataclass checked as its flags are: numbers in their ranges, choices."""
-    from ..config import check_ranges, flag_of
+def _settings(given: Any, kind: type[T], name: str) -> T:
+    """The settings object ``given`` as argument ``name`` (None: ``kind``'s defaults), checked as
+    its flags are: of the right class, each value of the right kind (:func:`~nerfkit.config.check_values`)
+    and numbers in their ranges."""
+    from ..config import check_ranges, check_values
+    from ..errors import fail
 
-    check_ranges(cfg)
-    for f in dataclasses.fields(cfg):
-        choices = f.metadata.get("choices")
-        if choices is not None:
-            _choice(flag_of(f.name), getattr(cfg, f.name), tuple(choices))
-    return cfg
+    if given is None:
+        return kind()
+    if not isinstance(given, kind):
+        raise fail(name, f"{given!r} is not a {kind.__name__}", f"Pass {kind.__name__}(...) or None")
+    check_values(kind, {f.name: getattr(given, f.name) for f in dataclasses.fields(given)})
+    return check_ranges(given)
 
 
 def _say(quiet: bool) -> Callable[[str], None]:
@@ -155,6 +232,7 @@ def _say(quiet: bool) -> Callable[[str], None]:
     return (lambda text: None) if quiet else print
 
 
+@_checked
 def calibrate(
     photos: str | Path,
     out: str | Path = "camera.json",
@@ -198,7 +276,7 @@ def calibrate(
     tag_size = _check("--tag-size", tag_size, tag_side)
     detect_size = _check("--detect-size", detect_size, number(int, 64, 100_000))
     jobs = _check("--jobs", jobs, number(int, 0, 256))
-    cfg = _settings(settings if settings is not None else CalibrateConfig())
+    cfg = _settings(settings, CalibrateConfig, "settings")
     photos_dir, layout_file = str(photos), str(layout) if layout else None
     get_dictionary(dictionary)
     if tag_size is not None and not tag_size > 0:
@@ -237,6 +315,7 @@ def calibrate(
     )
 
 
+@_checked
 def pose(
     photos: str | Path,
     out: str | Path,
@@ -312,9 +391,10 @@ def pose(
     sfm_max_size = _check("--sfm-max-size", sfm_max_size, number(int, 64, 100_000))
     detect_size = _check("--detect-size", detect_size, number(int, 64, 100_000))
     jobs = _check("--jobs", jobs, number(int, 0, 256))
-    pcfg = _settings(pose_settings if pose_settings is not None else PoseConfig())
-    dcfg = dataset_settings if dataset_settings is not None else DatasetConfig()
-    dcfg = _settings(dataclasses.replace(dcfg, max_side=max_side) if max_side is not None else dcfg)
+    pcfg = _settings(pose_settings, PoseConfig, "pose_settings")
+    dcfg = _settings(dataset_settings, DatasetConfig, "dataset_settings")
+    if max_side is not None:  # (checked with the settings it joins)
+        dcfg = _settings(dataclasses.replace(dcfg, max_side=max_side), DatasetConfig, "--max-side")
     check_dataset_settings(dcfg)
     say = _say(quiet)
     photos_dir, folder = str(photos), Path(_check("--out", out, output_path))
@@ -423,11 +503,12 @@ def train_settings(options: dict[str, Any], config: str | Path | None = None) ->
     """(TrainConfig, model config, names given) for ``options`` (TrainConfig and model settings
     by name), starting from a run's ``config`` (config.json or its run folder) when given: the
     settings ``nerfkit train`` builds from its flags. A name neither config has is a TypeError."""
-    from ..config import check_ranges
+    from ..config import check_ranges, check_values
     from ..errors import fail
     from ..models import MODEL_NAMES, model_config_class
     from ..train.config import TrainConfig
 
+    check_values(TrainConfig, options)
     if config is not None:
         from ..train.checkpoint import read_settings
 
@@ -449,12 +530,14 @@ def train_settings(options: dict[str, Any], config: str | Path | None = None) ->
             f"train() got settings that neither training nor the {cfg.model} model has: {', '.join(sorted(unknown))}"
         )
     model_values = {k: v for k, v in options.items() if k in model_names}
+    check_values(model_class, model_values, owner=f"the {cfg.model} model")
     model_cfg = (
         dataclasses.replace(base_model, **model_values) if base_model is not None else model_class(**model_values)
     )
     return cfg, model_cfg, given | set(options)
 
 
+@_checked
 def train(
     data: str | Path | None = None,
     out: str | Path | None = None,
@@ -578,6 +661,7 @@ def _train_result(result) -> TrainResult:
     )
 
 
+@_checked
 def resume(
     run: str | Path,
     *,
@@ -624,6 +708,7 @@ def _run_checks(chunk: int) -> int:
     return _check("--chunk", chunk, number(int, 0, MAX_BATCH_RAYS))
 
 
+@_checked
 def render(
     run: str | Path,
     *,
@@ -726,6 +811,7 @@ def render(
     return RenderResult(videos, len(views), opened.step)
 
 
+@_checked
 def evaluate(
     run: str | Path,
     *,
@@ -790,6 +876,7 @@ def evaluate(
     )
 
 
+@_checked
 def export(
     run: str | Path,
     *,
@@ -936,6 +1023,7 @@ class CaptureResult:
     psnr: dict[str, float]  # held-out PSNR (dB) of each model scored: "NeRF", "splat"
 
 
+@_checked
 def capture(
     photos: str | Path,
     out: str | Path,

@@ -208,6 +208,8 @@ def eval_stride(width: int, height: int, n_views: int, pixels: int) -> int:
 
 
 def resolve_device(name: str) -> torch.device:
+    if not isinstance(name, str):
+        raise fail("--device", f"{name!r} is not a device", "Use auto, cpu, cuda or cuda:N")
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     try:
