@@ -238,6 +238,18 @@ def test_windows_and_motion():
     assert 0.5 < one < 1.5 and motion(img[:, 2:-2], img[:, 4:]) > 1.5 * one
 
 
+def test_a_clip_read_to_well_short_of_its_header_is_called_cut_short():
+    """A file cut in half decodes its first half only: the header's 3 s against 1.3 s read is
+    said (frames would come from the start only); a whole clip, or one a frame short, is not."""
+    from nerfkit.capture.video import VideoInfo, cut_short
+
+    info = VideoInfo("clip.mp4", 320, 240, 30.0, 3.0, 90, False, 0, "h264")
+    (line,) = cut_short(info, np.arange(38) / 30.0)
+    assert "read to 1.3 s of the 3.0 s its header gives" in line and "cut short" in line
+    assert cut_short(info, np.arange(90) / 30.0) == [] and cut_short(info, np.arange(89) / 30.0) == []
+    assert cut_short(VideoInfo("clip.mp4", 320, 240, 0.0, 0.0, 0, False, 0, "h264"), np.arange(5.0)) == []
+
+
 def test_select_expression_is_balanced():
     expr = select_expression(list(range(150)))
     assert expr.count("eq(n,") == 150 and expr.count("(") == expr.count(")")

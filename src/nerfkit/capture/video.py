@@ -531,6 +531,20 @@ def extract_frames(
             )
 
 
+def cut_short(info: VideoInfo, times: np.ndarray) -> list[str]:
+    """Advice (a list of one line, or none) when the frames decoded at ``times`` (seconds) end
+    before 90% of the duration the header gives: a file cut short decodes its start only."""
+    if info.duration <= 0 or not len(times):
+        return []
+    reached = float(times.max()) + (1.0 / info.fps if info.fps > 0 else 0.0)
+    if reached >= 0.9 * info.duration:
+        return []
+    return [
+        f"the clip could be read to {reached:.1f} s of the {info.duration:.1f} s its header gives: the file looks "
+        "cut short (a copy or download that did not finish?), and the frames come from its start only"
+    ]
+
+
 def select_frames(
     path: str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -595,7 +609,8 @@ def select_frames(
         empty_windows=int(target - len(set(windows[kept].tolist()))),
         score_size=score_size(info.width, info.height, score_side),
         spread=spread,
-        advice=[f"{c} frames {r}: {ADVICE[r]}" for r, c in counts.items() if r in ADVICE and c > n // 4],
+        advice=[f"{c} frames {r}: {ADVICE[r]}" for r, c in counts.items() if r in ADVICE and c > n // 4]
+        + cut_short(info, scores.times),
     )
     with _frames_folder(out_dir, replace=bool(earlier)) as folder:
         extract_frames(path, info, sel.frame_indices, folder, names, progress)
