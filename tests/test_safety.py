@@ -915,6 +915,15 @@ def test_an_empty_png_name_is_refused_not_taken_for_the_viewer(trained, capsys):
     one_line(capsys, "--png is empty: give the path to write")
 
 
+def test_a_png_that_is_a_folder_or_another_format_is_refused(trained, tmp_path, capsys):
+    data = str(trained / "a" / "data.npz")
+    assert main(["view", data, "--png", str(tmp_path), "--force"]) == 2
+    one_line(capsys, f"--png: {tmp_path} is a folder. Name a PNG file, e.g. {tmp_path / 'scene.png'}")
+    assert main(["view", data, "--png", str(tmp_path / "out.jpg")]) == 2
+    one_line(capsys, "should end in .png")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_truncated_model_file_is_named_as_cut_short(trained, tmp_path, capsys):
     run = copy_run(trained, tmp_path)
     shutil.rmtree(run / "checkpoints")

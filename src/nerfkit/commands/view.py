@@ -77,8 +77,12 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import fail
 
     path = Path(args.path)
-    if args.png is not None and not args.png.strip():
-        raise fail("--png", "names no file", "Give the PNG's path, or leave out --png to open the viewer")
+    if args.png is not None:  # (an empty name is refused with every output path: nerfkit.cli)
+        png = Path(args.png)
+        if png.is_dir():
+            raise fail("--png", f"{png} is a folder", f"Name a PNG file, e.g. {png / 'scene.png'}")
+        if png.suffix.lower() != ".png":
+            raise fail("--png", f"'{png}' should end in .png (the picture is a PNG)")
     if is_run_folder(path):
         if args.downscale:
             raise fail("--downscale", "a trained run loads its dataset as it was trained", "Leave out --downscale")
