@@ -174,7 +174,7 @@ def coverage_notes(coverage: dict) -> list[str]:
     lo, hi = coverage["elevations_deg"]
     c, t = coverage["widest_gap"], coverage["widest_gap_of_training_photos"]
     lines = [
-        f"coverage: the photos look from {lo:.0f}-{hi:.0f} degrees above the table; every direction there "
+        f"coverage: the photos look from {lo:.0f} to {hi:.0f} degrees above the horizontal; every direction there "
         f"is within {c['radius_deg']:.0f} degrees of a photo, and within {t['radius_deg']:.0f} of a training "
         "photo"
     ]

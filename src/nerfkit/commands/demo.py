@@ -59,11 +59,13 @@ def run(args: argparse.Namespace) -> int:
     from ..io.atomic import write_json
     from ..models import model_config_class
     from ..output.videos import render_videos
-    from ..train.config import TrainConfig
+    from ..train.checkpoint import load_run
+    from ..train.config import TrainConfig, parse_background, resolve_autocast, resolve_device
     from ..train.evaluate import evaluate_views
     from ..train.trainer import train
 
     t_start = time.perf_counter()
+    device = resolve_device(args.device)  # a device that is not there: refused before anything is said or written
     data = str(bundled_lego())
     scene = load_npz(data)
     out = _fresh_folder(args.out)
@@ -74,10 +76,6 @@ def run(args: argparse.Namespace) -> int:
         scene, cfg, model_config_class(args.model)(), user_set={"data", "model", "out", "minutes", "seed", "device"}
     )  # the rest: the preset's
 
-    from ..train.checkpoint import load_run
-    from ..train.config import parse_background, resolve_autocast, resolve_device
-
-    device = resolve_device(args.device)
     model, info, _ = load_run(out, device)
     bg = torch.tensor(parse_background(info.train.background), device=device)
     autocast = resolve_autocast(info.train.precision, device)
