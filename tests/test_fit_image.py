@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -197,6 +198,39 @@ def test_run_writes_figures_metrics_and_config(tmp_path):
     assert metrics["curve"]["step"] == [0, 20, 40, 60] and len(metrics["curve"]["psnr_db"]) == 4
     config = json.loads((out / "config.json").read_text())
     assert config["L"] == 4 and config["width"] == 64 and config["image"].endswith("pattern.png")
+
+
+def test_ctrl_c_keeps_what_was_fitted(tmp_path, monkeypatch, capsys):
+    """Ctrl-C during a 60-step fit: the run folder holds the fit of the steps done (its curve and
+    progression end there, its config says so) and the command exits 130; before any step,
+    nothing is written."""
+    import nerfkit.fit_image as F
+
+    img = save_png(tmp_path / "pattern.png", smooth_image(24, 40))
+    real, calls = F.autocast, {"n": 0}
+
+    def stops_at(step):
+        def autocast(*args):
+            calls["n"] += 1
+            if calls["n"] == step:
+                raise KeyboardInterrupt
+            return real(*args)
+
+        return autocast
+
+    monkeypatch.setattr(F, "autocast", stops_at(37))
+    argv = ["fit-image", str(img), "--steps", "60", "--eval-every", "20", "--progress-steps", "0,20"]
+    assert main([*argv, "--L", "4", "--width", "32", "--out", str(tmp_path / "run"), "--quiet"]) == 130
+    said = re.search(r"interrupted at step (\d+): what was fitted is written", capsys.readouterr().out)
+    assert said is not None
+    done = int(said.group(1))  # (autocast also wraps the evaluations: fewer steps than calls)
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert 20 < done < 37 and metrics["curve"]["step"] == [0, 20, done] and metrics["final_psnr_db"] > 15
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["steps"] == done
+    calls["n"] = 0
+    monkeypatch.setattr(F, "autocast", stops_at(1))
+    assert main([*argv, "--out", str(tmp_path / "none"), "--quiet"]) == 130
+    assert not (tmp_path / "none").exists()
 
 
 @pytest.mark.slow

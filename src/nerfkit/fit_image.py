@@ -63,7 +63,7 @@ class FitImageConfig:
     depth: int = option(3, "number of hidden Linear+ReLU layers", min=1, max=MAX_DEPTH)
     lr: float = option(1e-2, "Adam learning rate", above=0, max=100)
     batch: int = option(10_000, "random pixels per training step", min=1, max=1 << 24)
-    steps: int = option(2000, "training steps", min=0)
+    steps: int = option(2000, "training steps", min=0, max=100_000_000)
     seed: int = option(
         0, "random seed (weights, pixel sampling, PSNR subset); same seed, same result", min=0, max=MAX_SEED
     )
@@ -345,6 +345,7 @@ class FitResult:
     train_seconds: float
     eval_seconds: float
     model: ImageField = field(repr=False)
+    interrupted: bool = False  # stopped by Ctrl-C: ``config.steps`` is the steps done
 
     def metrics(self) -> dict:
         return {
@@ -438,8 +439,10 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
 
     psnr = evaluate(0)
     train_seconds = 0.0
-    bar = tqdm(range(1, cfg.steps + 1), desc=desc, disable=None if progress else True, unit="step", leave=False)
-    for step in bar:
+    loss_value = 0.0
+
+    def _fit_step(step: int) -> None:
+        nonlocal psnr, train_seconds, loss_value
         t0 = time.perf_counter()
         idx = torch.randint(0, n_pix, (cfg.batch,), device=device, generator=gen)
         with autocast(device, precision):
@@ -452,9 +455,26 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
         if step % cfg.eval_every == 0 or step in shot_steps:
             psnr = evaluate(step)
         if step % 10 == 0 or step == cfg.steps:
-            bar.set_postfix(loss=f"{loss.item():.5f}", psnr=f"{psnr:.2f}dB", refresh=False)
+            loss_value = loss.item()
+            bar.set_postfix(loss=f"{loss_value:.5f}", psnr=f"{psnr:.2f}dB", refresh=False)
+
+    bar = tqdm(range(1, cfg.steps + 1), desc=desc, disable=None if progress else True, unit="step", leave=False)
+    done, interrupted = 0, False
+    try:
+        for step in bar:
+            _fit_step(step)
+            done = step
+    except KeyboardInterrupt:  # keep what was fitted: the figures of the steps done
+        interrupted = True
     bar.close()
-    if cfg.steps and not math.isfinite(loss.item()):
+    if interrupted:
+        if done == 0:
+            raise KeyboardInterrupt
+        cfg = dataclasses.replace(cfg, steps=done)
+        if done not in shot_steps:
+            shot_steps.add(done)
+            psnr = evaluate(done)
+    if cfg.steps and not math.isfinite(loss_value):
         raise fail("training", "the loss became NaN/inf", "Lower --lr")
 
     # The final image at full resolution, and its PSNR on every pixel.
@@ -483,6 +503,7 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
         train_seconds,
         eval_seconds,
         model,
+        interrupted,
     )
 
 
@@ -624,9 +645,12 @@ def run_sweep(
                 "folder": folder.name,
             }
         )
+        interrupted = result.interrupted
         del result
         # Rewritten after every run, so an interrupted sweep keeps what finished.
         _write_sweep_summary(out, done, entries, path, target, cfg.eval_every)
+        if interrupted:  # Ctrl-C: the run it stopped is written with the steps it did; no more runs
+            raise KeyboardInterrupt
     return entries
 
 

@@ -93,11 +93,14 @@ def run(args: argparse.Namespace) -> int:
         )
     else:
         r = run_fit(image, out, cfg, progress=progress)
+        if r.interrupted:
+            print(f"interrupted at step {r.config.steps}: what was fitted is written")
         print(
-            f"final PSNR {r.final_psnr:.2f} dB (every pixel, {r.width}x{r.height}) after {cfg.steps} steps; "
+            f"final PSNR {r.final_psnr:.2f} dB (every pixel, {r.width}x{r.height}) after {r.config.steps} steps; "
             f"{r.steps_per_s:.1f} steps/s on {r.device} ({r.precision}), "
             f"{r.train_seconds:.1f} s training + {r.eval_seconds:.1f} s evaluation"
         )
         print(f"curve: {r.eval_note}, every {cfg.eval_every} steps")
         print(f"wrote {out}/psnr.png, progression.png, final.png, metrics.json, config.json")
+        return 130 if r.interrupted else 0
     return 0
