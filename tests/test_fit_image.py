@@ -233,6 +233,28 @@ def test_ctrl_c_keeps_what_was_fitted(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "none").exists()
 
 
+def test_ctrl_c_stops_a_sweep_after_writing_the_run_it_interrupted(tmp_path, monkeypatch):
+    import nerfkit.fit_image as F
+
+    img = save_png(tmp_path / "pattern.png", smooth_image(16, 16))
+    real, calls = F.autocast, {"n": 0}
+
+    def autocast(*args):
+        calls["n"] += 1
+        if calls["n"] == 12:  # in the first run's training steps
+            raise KeyboardInterrupt
+        return real(*args)
+
+    monkeypatch.setattr(F, "autocast", autocast)
+    cfg = dataclasses.replace(TINY, steps=30, eval_every=10, progress_steps="0")
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(img, tmp_path / "sweep", cfg, parse_sweep(["width=16,32"]), progress=False)
+    runs = json.loads((tmp_path / "sweep" / "sweep.json").read_text())["runs"]
+    assert [r["width"] for r in runs] == [16]  # the second run never started
+    config = json.loads((tmp_path / "sweep" / runs[0]["folder"] / "config.json").read_text())
+    assert 0 < config["steps"] < 30
+
+
 @pytest.mark.slow
 def test_sweep_writes_grid_curves_and_one_entry_per_combination(tmp_path):
     img = save_png(tmp_path / "pattern.png", smooth_image(16, 16))
