@@ -238,6 +238,15 @@ def test_windows_and_motion():
     assert 0.5 < one < 1.5 and motion(img[:, 2:-2], img[:, 4:]) > 1.5 * one
 
 
+def test_a_gif_is_refused_as_a_clip(tmp_path):
+    from PIL import Image
+
+    frames = [Image.fromarray(np.full((16, 16, 3), 8 * k, np.uint8)) for k in range(20)]
+    frames[0].save(tmp_path / "anim.gif", save_all=True, append_images=frames[1:], duration=40)
+    with pytest.raises(NerfkitError, match="anim.gif: is a GIF, not a video. Pass the video the phone recorded"):
+        probe_video(tmp_path / "anim.gif")
+
+
 def test_a_clip_read_to_well_short_of_its_header_is_called_cut_short():
     """A file cut in half decodes its first half only: the header's 3 s against 1.3 s read is
     said (frames would come from the start only); a whole clip, or one a frame short, is not."""

@@ -190,6 +190,8 @@ def probe_video(path: str | os.PathLike, count: bool = False) -> VideoInfo:
     second for a minute of 4K). A file that is not a readable video is a NerfkitError."""
     path = Path(path)
     _check_readable(path)
+    if path.suffix.lower() == ".gif":  # ffmpeg decodes some GIFs' first frame only: a clip read short
+        raise fail(path, "is a GIF, not a video", "Pass the video the phone recorded (MP4, MOV), or convert it to MP4")
     r = subprocess.run([ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", str(path)], capture_output=True, check=False)
     text = r.stderr.decode("utf-8", "replace")
     if "Input #0" not in text:
