@@ -498,3 +498,26 @@ def test_points_of_a_run_that_holds_no_surface_yet_are_an_error_not_an_empty_fil
     err = capsys.readouterr().err
     assert "at step 5 no pixel of the 4 views rendered is more than 0.5 opaque" in err and "--acc-min" in err
     assert not (tmp_path / "p.ply").exists()
+
+
+def test_a_mesh_of_a_run_without_a_surface_says_to_train_longer(tmp_path, monkeypatch, capsys):
+    """The automatic threshold cuts no density of a run that holds no surface: besides a threshold
+    that would mesh the noise, the error says the run is young and how to train it on."""
+    from nerfkit.cli import main
+
+    class Faint(SphereModel):
+        def query(self, points, directions):
+            sigma, rgb = super().query(points, directions)
+            return sigma * 1e-6, rgb
+
+    open_sphere_run(tmp_path, monkeypatch, Faint, step=3)
+    argv = ["export", str(tmp_path), "--mesh", str(tmp_path / "m.ply"), "--resolution", "16", "--color-views", "0"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert (
+        "does not cut the density field" in err
+        and f"train it longer (nerfkit train --resume {tmp_path} --minutes 3)" in err
+    )
+    assert main([*argv, "--threshold", "5"]) == 2
+    assert "train it longer" not in capsys.readouterr().err  # a threshold the user chose: theirs to change
+    assert not (tmp_path / "m.ply").exists()

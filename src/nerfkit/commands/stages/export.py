@@ -3,6 +3,7 @@ a mesh or a point cloud; each returns the line that says what it wrote."""
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 from typing import Any
 
@@ -71,6 +72,15 @@ def export_mesh(
     model, bounds = opened.model, opened.info.bounds
     center, radius = mesh_region(model, bounds.center, bounds.radius, box_scale)
     height = table_cut_height(model, table_cut)
+    # the automatic threshold missing every density: likely a run trained too briefly to hold a surface
+    young = (
+        advice(
+            f"Or, as the run is at step {opened.step}, train it longer (nerfkit train --resume "
+            f"{opened.info.run_dir} --minutes 3): a run trained briefly holds no surface yet"
+        )
+        if threshold is None
+        else contextlib.nullcontext()
+    )
     threshold = threshold if threshold is not None else mesh_threshold(model, radius)
     views, bg = None, opened.background()
     ndc = getattr(model, "ndc", None) is not None  # (coloured at the vertices: see mesh_from_model)
@@ -85,21 +95,22 @@ def export_mesh(
         out = render_image(alone, K, c2w, w, h, bg, opened.chunk, opened.autocast)
         return out.rgb, out.depth, out.acc
 
-    mesh = mesh_from_model(
-        model,
-        center,
-        radius,
-        bounds.radius,
-        resolution,
-        threshold,
-        color_dirs,
-        chunk=POINT_CHUNK,
-        device=opened.device,
-        table_cut=height,
-        views=views,
-        render_fn=render_fn,
-        background=tuple(bg.tolist()),
-    )
+    with young:
+        mesh = mesh_from_model(
+            model,
+            center,
+            radius,
+            bounds.radius,
+            resolution,
+            threshold,
+            color_dirs,
+            chunk=POINT_CHUNK,
+            device=opened.device,
+            table_cut=height,
+            views=views,
+            render_fn=render_fn,
+            background=tuple(bg.tolist()),
+        )
     write_mesh_ply(path, mesh)
     cut = ""
     if table_plane(model) is not None:
