@@ -152,6 +152,17 @@ def tag_side(text: str) -> float:
     return value
 
 
+def fits(kind: Any, value: Any) -> bool:
+    """Whether ``value`` is of a setting's ``kind`` as the command line reads it: True or False
+    for bool, text for str, a whole number for int, a number for float (True and False are
+    neither); other kinds are not judged here."""
+    if kind is bool:
+        return isinstance(value, bool)
+    if kind in (int, float):
+        return isinstance(value, numbers.Integral if kind is int else numbers.Real) and not isinstance(value, bool)
+    return isinstance(value, str) if kind is str else True
+
+
 def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
     """Check every int and float field of dataclass ``cfg`` as its flag is checked when the
     command line is parsed (:func:`number`: finite, the field's ``min``/``max``/``above``),
@@ -166,11 +177,10 @@ def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
         value = getattr(cfg, f.name)
         if kind not in (int, float) or (value is None and optional):
             continue
-        numeric = isinstance(value, numbers.Integral if kind is int else numbers.Real) and not isinstance(value, bool)
         bounds = range_of(f.metadata)
         problem = (
             range_problem(value, kind, min=bounds["min"], max=bounds["max"], above=bounds["above"], off=bounds["off"])
-            if numeric
+            if fits(kind, value)
             else _not_a(kind, str(value))
         )
         if problem:
@@ -195,14 +205,9 @@ def check_values(cls: type, values: dict[str, Any], owner: str | None = None) ->
         choices = fields[name].metadata.get("choices")
         if value is None and optional:
             continue
-        if kind is bool and not isinstance(value, bool):
-            problem = f"{value!r} is not True or False"
-        elif kind is str and not isinstance(value, str):
-            problem = f"{value!r} is not text"
-        elif kind in (int, float) and (
-            isinstance(value, bool) or not isinstance(value, numbers.Integral if kind is int else numbers.Real)
-        ):
-            problem = _not_a(kind, repr(value))
+        if not fits(kind, value):
+            words = {bool: "True or False", str: "text"}
+            problem = f"{value!r} is not {words[kind]}" if kind in words else _not_a(kind, repr(value))
         elif choices is not None and value not in choices:
             problem = f"{value!r} is not one of {', '.join(map(str, choices))}"
         else:
@@ -398,10 +403,8 @@ def dataclass_from_dict(cls: type[T], d: dict, where: str) -> T:
         tp, optional = base_type(hints[k])
         if v is None and optional:
             out[k] = None
-        elif tp is float and isinstance(v, (int, float)) and not isinstance(v, bool):
-            out[k] = float(v)  # finite and in range: check_ranges below
-        elif (tp in (int, str, bool) and type(v) is tp) or tp not in (int, float, str, bool):
-            out[k] = v
+        elif fits(tp, v):
+            out[k] = float(v) if tp is float else v  # (finite and in range: check_ranges below)
         else:
             raise fail(where, f"config key '{k}' should be {tp.__name__}, got {type(v).__name__}")
     return check_ranges(cls(**out), where)

@@ -22,7 +22,6 @@ import contextlib
 import dataclasses
 import functools
 import inspect
-import numbers
 import os
 import types
 import typing
@@ -137,10 +136,10 @@ def _accepts(tp: Any, value: Any) -> bool:
         return value in get_args(tp)
     if tp is None or tp is type(None):
         return value is None
-    if tp is bool:
-        return isinstance(value, bool)
-    if tp in (int, float):
-        return isinstance(value, numbers.Integral if tp is int else numbers.Real) and not isinstance(value, bool)
+    if tp in (bool, int, float, str):
+        from ..config import fits
+
+        return fits(tp, value)
     if tp is Path:
         return isinstance(value, (str, os.PathLike))
     if origin is not None:
