@@ -439,30 +439,23 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
 
     psnr = evaluate(0)
     train_seconds = 0.0
-    loss_value = 0.0
-
-    def _fit_step(step: int) -> None:
-        nonlocal psnr, train_seconds, loss_value
-        t0 = time.perf_counter()
-        idx = torch.randint(0, n_pix, (cfg.batch,), device=device, generator=gen)
-        with autocast(device, precision):
-            rgb = model(pixel_xy(idx, height, width))
-        loss = torch.mean((rgb - colors[idx]) ** 2)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        train_seconds += time.perf_counter() - t0
-        if step % cfg.eval_every == 0 or step in shot_steps:
-            psnr = evaluate(step)
-        if step % 10 == 0 or step == cfg.steps:
-            loss_value = loss.item()
-            bar.set_postfix(loss=f"{loss_value:.5f}", psnr=f"{psnr:.2f}dB", refresh=False)
-
     bar = tqdm(range(1, cfg.steps + 1), desc=desc, disable=None if progress else True, unit="step", leave=False)
     done, interrupted = 0, False
     try:
         for step in bar:
-            _fit_step(step)
+            t0 = time.perf_counter()
+            idx = torch.randint(0, n_pix, (cfg.batch,), device=device, generator=gen)
+            with autocast(device, precision):
+                rgb = model(pixel_xy(idx, height, width))
+            loss = torch.mean((rgb - colors[idx]) ** 2)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            train_seconds += time.perf_counter() - t0
+            if step % cfg.eval_every == 0 or step in shot_steps:
+                psnr = evaluate(step)
+            if step % 10 == 0 or step == cfg.steps:
+                bar.set_postfix(loss=f"{loss.item():.5f}", psnr=f"{psnr:.2f}dB", refresh=False)
             done = step
     except KeyboardInterrupt:  # keep what was fitted: the figures of the steps done
         interrupted = True
@@ -473,8 +466,8 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
         cfg = dataclasses.replace(cfg, steps=done)
         if done not in shot_steps:
             shot_steps.add(done)
-            psnr = evaluate(done)
-    if cfg.steps and not math.isfinite(loss_value):
+            evaluate(done)
+    if cfg.steps and not math.isfinite(loss.item()):
         raise fail("training", "the loss became NaN/inf", "Lower --lr")
 
     # The final image at full resolution, and its PSNR on every pixel.
