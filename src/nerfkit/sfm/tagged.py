@@ -75,50 +75,52 @@ class PoseChoice:
         }
 
 
-def pose_agreement(tag_c2w: dict[str, np.ndarray], sfm_c2w: dict[str, np.ndarray]) -> dict | None:
-    """How far apart two sets of poses in one world frame are, over the photos in both.
+def pose_gaps(
+    tag_c2w: dict[str, np.ndarray], sfm_c2w: dict[str, np.ndarray]
+) -> tuple[list[str], np.ndarray, np.ndarray, float]:
+    """Per photo in both sets of poses (one world frame): ``(names, degrees, metres, distance)``,
+    the rotation between its two poses, the distance between its two camera centres, and the
+    median distance of the first set's cameras from the origin (0 when no photo is in both).
 
     Args:
         tag_c2w, sfm_c2w: photo name -> (4, 4) camera-to-world.
+    """
+    names = sorted(set(tag_c2w) & set(sfm_c2w))
+    if not names:
+        return [], np.zeros(0), np.zeros(0), 0.0
+    a = np.stack([tag_c2w[n] for n in names]).astype(np.float64)
+    b = np.stack([sfm_c2w[n] for n in names]).astype(np.float64)
+    distance = float(np.median(np.linalg.norm(a[:, :3, 3], axis=1)))
+    return names, rotation_angles_deg(a, b), np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1), distance
+
+
+def pose_agreement(tag_c2w: dict[str, np.ndarray], sfm_c2w: dict[str, np.ndarray]) -> dict | None:
+    """How far apart two sets of poses in one world frame are, over the photos in both
+    (:func:`pose_gaps`).
 
     Returns:
         ``{"photos", "rot_deg_median", "rot_deg_max", "shift_median", "shift_max",
         "distance_median"}`` (shifts: camera-centre distances; distance: cameras from the
         origin), or None when no photo is in both.
     """
-    names = sorted(set(tag_c2w) & set(sfm_c2w))
+    names, rot, shift, distance = pose_gaps(tag_c2w, sfm_c2w)
     if not names:
         return None
-    a = np.stack([tag_c2w[n] for n in names]).astype(np.float64)
-    b = np.stack([sfm_c2w[n] for n in names]).astype(np.float64)
-    rot = rotation_angles_deg(a, b)
-    shift = np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1)
     return {
         "photos": len(names),
         "rot_deg_median": float(np.median(rot)),
         "rot_deg_max": float(rot.max()),
         "shift_median": float(np.median(shift)),
         "shift_max": float(shift.max()),
-        "distance_median": float(np.median(np.linalg.norm(a[:, :3, 3], axis=1))),
+        "distance_median": distance,
     }
 
 
 def far_apart(tag_c2w: dict[str, np.ndarray], sfm_c2w: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:
     """The photos in both sets whose two poses turn more than :data:`FAR_DEG` degrees apart or
     lie more than :data:`FAR_SHIFT` of the median camera distance (from the origin, in the tag
-    poses) apart: name -> ``(degrees, metres)``.
-
-    Args:
-        tag_c2w, sfm_c2w: photo name -> (4, 4) camera-to-world, one world frame.
-    """
-    names = sorted(set(tag_c2w) & set(sfm_c2w))
-    if not names:
-        return {}
-    a = np.stack([tag_c2w[n] for n in names]).astype(np.float64)
-    b = np.stack([sfm_c2w[n] for n in names]).astype(np.float64)
-    rot = rotation_angles_deg(a, b)
-    shift = np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1)
-    distance = float(np.median(np.linalg.norm(a[:, :3, 3], axis=1)))
+    poses) apart (:func:`pose_gaps`): name -> ``(degrees, metres)``."""
+    names, rot, shift, distance = pose_gaps(tag_c2w, sfm_c2w)
     far = (rot > FAR_DEG) | (shift > FAR_SHIFT * distance)
     return {n: (float(r), float(m)) for n, r, m, f in zip(names, rot, shift, far) if f}
 
@@ -236,7 +238,8 @@ def choose_poses(
     )
     names, c2w = reconstruction_c2w(result.reconstruction)
     names = [result.photo(n).name for n in names]
-    agreement = pose_agreement({p.name: p.c2w for p in tag_posed}, dict(zip(names, c2w)))
+    tag_c2w, sfm_c2w = {p.name: p.c2w for p in tag_posed}, dict(zip(names, c2w))
+    agreement = pose_agreement(tag_c2w, sfm_c2w)
     reason = judge(len(tag_posed), len(names), result.tag_size is not None, agreement)
     if reason is not None:
         return PoseChoice(None, f"tag poses: {reason}", agreement)
@@ -246,7 +249,7 @@ def choose_poses(
         f"the tag poses differ from them by a median {agreement['rot_deg_median']:.2f} degrees and "
         f"{agreement['shift_median'] * 1000:.1f} mm"
     )
-    far = far_apart({p.name: p.c2w for p in tag_posed}, dict(zip(names, c2w)))
+    far = far_apart(tag_c2w, sfm_c2w)
     errors = track_errors(result, [p for p in tag_posed if p.name not in far])  # a flipped photo fits neither
     if errors is not None:
         agreement = {**agreement, "track_px": list(errors)}
