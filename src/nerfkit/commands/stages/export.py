@@ -48,6 +48,11 @@ def export_splat(opened: Any, path: str, background_dome: bool = True) -> str:
     return f"{what} -> {path}"
 
 
+def train_longer(opened: Any) -> str:
+    """The advice to train the run ``opened`` on: a run that holds no surface yet exports none."""
+    return f"train it longer (nerfkit train --resume {opened.info.run_dir} --minutes 3)"
+
+
 def export_mesh(
     opened: Any,
     path: str,
@@ -75,8 +80,8 @@ def export_mesh(
     # the automatic threshold missing every density: likely a run trained too briefly to hold a surface
     young = (
         advice(
-            f"Or, as the run is at step {opened.step}, train it longer (nerfkit train --resume "
-            f"{opened.info.run_dir} --minutes 3): a run trained briefly holds no surface yet"
+            f"Or, as the run is at step {opened.step}, {train_longer(opened)}: "
+            "a run trained briefly holds no surface yet"
         )
         if threshold is None
         else contextlib.nullcontext()
@@ -164,7 +169,7 @@ def export_points(
             opened.info.run_dir,
             f"at step {opened.step} no pixel of the {len(views)} views rendered is more than {acc_min:g} opaque: "
             "the run holds no surface yet",
-            "Train it longer (nerfkit train --resume), or lower --acc-min",
+            f"Lower --acc-min, or {train_longer(opened)}",
         )
     if crop_radius is not None:
         pts, cols = crop_to_box(pts, cols, opened.info.bounds.center, crop_radius)
