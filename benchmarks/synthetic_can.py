@@ -1,10 +1,12 @@
 """A glossy drink can on a white table, rendered, through `nerfkit capture`: the object's own pixels.
 
-    python benchmarks/synthetic_can.py OUT [--photos 40] [--minutes 3] [--seed 0] [--gloss 1]
+    python benchmarks/synthetic_can.py OUT [--photos 40] [--minutes 3] [--seed 0] [--gloss 1] [--label busy]
 
 A stand-in for a shiny, thin object (``nerfkit.capture.synthetic``): a red can 6.6 cm wide and
 12.2 cm tall whose label mirrors 30% of a room around it and whose metal top mirrors 70%,
-beside one 6 cm tag on a white, faintly mottled table; the photos of a 6-tag sheet calibrate a
+beside one 6 cm tag on a white, faintly mottled table (``--label busy``: a label with white
+script and a band of small letters, as a real drink can's, whose photos show more detail than
+the table's: :func:`busy_label`); the photos of a 6-tag sheet calibrate a
 lens with radial distortion first. Known poses and no exposure changes, so what is left is what
 the view-dependent colour and the grid make of a glossy cylinder. Runs
 
@@ -42,7 +44,31 @@ def white_table(seed: int) -> np.ndarray:
     return np.clip(t - t.reshape(-1, 3).mean(0) + 228.0, 0, 255).astype(np.uint8)
 
 
-def write_capture(out: Path, photos: int, seed: int, gloss: float = 1.0) -> S.SyntheticCapture:
+def busy_label(seed: int = 0, size: tuple[int, int] = (256, 1024)) -> np.ndarray:
+    """A drink can's label (h, w, 3) uint8 with more detail than :func:`~nerfkit.capture.synthetic.can_label`:
+    red, six strokes of thick white script in its upper half, a white wave, and a band of 60
+    small white and dark letters near its foot."""
+    rng = np.random.default_rng(seed)
+    h, w = size
+    img = np.empty((h, w, 3), np.uint8)
+    img[:] = (200, 25, 35)
+    rows, cols = np.mgrid[0:h, 0:w]
+    wave = 0.62 * h + 0.10 * h * np.sin(2 * np.pi * 2 * cols / w)
+    img[np.abs(rows - wave) < 0.04 * h] = (240, 240, 235)
+    t = np.linspace(0.0, 1.0, 400)
+    for k in range(6):  # script: a thick stroke along a sine wave, 10 px wide
+        xs = k * w / 6 + t * w / 7
+        ys = 0.3 * h + 0.12 * h * np.sin(2 * np.pi * (3 * t + 0.3 * k))
+        for x, y in zip(xs.astype(int), ys.astype(int), strict=True):
+            img[max(y - 5, 0) : y + 5, max(x - 5, 0) : x + 5] = (245, 245, 240)
+    for _ in range(60):  # small letters, white and dark
+        x, bw = int(rng.integers(0, w - 12)), int(rng.integers(4, 10))
+        y, bh = int(rng.integers(int(0.75 * h), int(0.9 * h))), int(rng.integers(8, 14))
+        img[y : y + bh, x : x + bw] = (245, 245, 240) if rng.random() < 0.5 else (30, 20, 20)
+    return img
+
+
+def write_capture(out: Path, photos: int, seed: int, gloss: float = 1.0, label: str = "plain") -> S.SyntheticCapture:
     """The calibration photos (OUT/calib) and the can's (OUT/object); returns the can's capture."""
     f35 = round(S.DEFAULT_K[0, 0] * FILM_DIAGONAL_MM / np.hypot(*SIZE))
     S.make_calibration_capture(n=20, size=SIZE, tag_size=SHEET_TAG, seed=seed).write(out / "calib", f35=f35)
@@ -57,6 +83,7 @@ def write_capture(out: Path, photos: int, seed: int, gloss: float = 1.0) -> S.Sy
         table=white_table(seed),
         distance=(0.34, 0.46),
         gloss=gloss,
+        label=busy_label(seed + 1) if label == "busy" else None,
     )
     cap.write(out / "object", f35=f35)
     return cap
@@ -84,8 +111,9 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=3.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--gloss", type=float, default=1.0, help="the can's gloss, times the default (0: matte)")
+    ap.add_argument("--label", choices=("plain", "busy"), default="plain", help="busy: script and letters on the label")
     args = ap.parse_args()
-    cap = write_capture(args.out, args.photos, args.seed, args.gloss)
+    cap = write_capture(args.out, args.photos, args.seed, args.gloss, args.label)
     run = args.out / "capture"
     subprocess.run(
         [sys.executable, "-m", "nerfkit", "capture", str(args.out / "object"), "--calib", str(args.out / "calib")]

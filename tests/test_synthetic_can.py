@@ -72,3 +72,14 @@ def test_the_can_changes_colour_with_the_view():
             rays = S.camera_rays(np.array([[50.0, 0, 4.5], [0, 50.0, 4.5], [0, 0, 1]]), np.zeros(5), 9, 9, 1)
             colours.append(S.render(scene, rays, c2w, 1)[4, 4].astype(float))
         assert (np.abs(colours[0] - colours[1]).max() > 5) == differs
+
+
+def test_an_object_capture_wraps_the_label_it_is_given_around_its_can():
+    label = np.zeros((8, 32, 3), np.uint8)
+    label[:] = (10, 200, 10)  # green
+    K = np.array([[14.0, 0, 8], [0, 14.0, 6], [0, 0, 1]])
+    cap = S.make_object_capture(n=1, size=(16, 12), K=K, can=True, label=label)
+    (can,) = cap.scene.cylinders
+    assert can.label is label
+    default = S.make_object_capture(n=1, size=(16, 12), K=K, can=True)
+    assert np.array_equal(default.scene.cylinders[0].label, S.can_label(1))  # the seed's own label

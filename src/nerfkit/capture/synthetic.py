@@ -505,18 +505,20 @@ def make_object_capture(
     can: bool = False,
     table: np.ndarray | None = None,
     gloss: float = 1.0,
+    label: np.ndarray | None = None,
 ) -> SyntheticCapture:
     """Photos of a textured sphere resting beside one tag (whose frame is the world frame),
     taken from a ring of viewpoints looking between the tag and the object. ``can``: a glossy
     drink can instead (:class:`Cylinder`, ``object_radius`` wide and ``2 object_center[2]``
-    tall, its axis through the centre, its label's and top's gloss times ``gloss``: 0 matte);
-    ``table``: the table's tiling texture (default: :func:`table_texture`)."""
+    tall, its axis through the centre, its label's and top's gloss times ``gloss``: 0 matte;
+    its ``label`` (h, w, 3) uint8, default :func:`can_label`); ``table``: the table's tiling
+    texture (default: :func:`table_texture`)."""
     rng = np.random.default_rng(seed)
     decal, layout = tag_sheet([tag_id], tag_size, 1, 0.0, margin=0.012, dictionary=dictionary)
     center = np.asarray(object_center, float)
     table = table_texture(seed) if table is None else table
     if can:
-        cyl = Cylinder(center[:2], object_radius, 2 * center[2], can_label(seed))
+        cyl = Cylinder(center[:2], object_radius, 2 * center[2], can_label(seed) if label is None else label)
         cyl.gloss, cyl.top_gloss = gloss * cyl.gloss, gloss * cyl.top_gloss
         scene = SynthScene([decal], cylinders=[cyl], table=table)
     else:
