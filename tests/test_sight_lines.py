@@ -268,3 +268,27 @@ def test_a_capture_trains_with_its_sight_lines_and_resumes_their_draws(tmp_path,
     t.run(stop_after=20)
     again, _ = trainer("on", resume=True)
     assert again.step == 20 and torch.equal(again.sight_generator.get_state(), t.sight_generator.get_state())
+
+
+def test_a_line_is_held_empty_to_its_margin_before_its_point_and_stopped_within_its_spread_past_it(tabletop):
+    """A line drawn beside its point may meet the surface deeper than the point (a curved
+    object near its outline): it must stop by the margin plus the spread past its spot."""
+    config = FastConfig(resolutions="64", upsample_steps="", points_weight=1.0)
+    model = FastNeRF(config, SceneBounds.from_scene(tabletop))
+    lo, hi = model.field.geom.lo, model.field.geom.hi
+    centre = (lo + hi) / 2
+    o = (centre - torch.tensor([5.0, 0.0, 0.0])).repeat(2, 1)  # outside the box, looking along +x
+    d = torch.tensor([1.0, 0.0, 0.0]).repeat(2, 1)
+    distance = torch.tensor([5.0, 5.2])  # about the box's centre
+    ends = []
+
+    def opacity_between(o, d, t0, t1, u):
+        ends.append(t1.clone())
+        return torch.zeros(len(o))
+
+    model._opacity_between = opacity_between  # type: ignore[method-assign]
+    model.sight_opacities(Rays(o, d), distance)
+    margin, spread = model.sight_margin(), model.sight_spread()
+    assert 0 < margin < spread < 1.0 < float(hi[0] - centre[0])  # (both ends inside the box)
+    torch.testing.assert_close(ends[0], distance - margin)  # empty up to the margin before
+    torch.testing.assert_close(ends[1], distance + margin + spread)  # stopped within the spread past

@@ -64,7 +64,8 @@ from .packing import pack_grid, unpack_grid, vertices_touching
 
 __all__ = ["EMPTY_RAW", "FastNeRF", "check_grid_res", "resample_grid"]
 
-# A sight line ends this far before its point and is stopped this far past it: SIGHT_MARGIN
+# A sight line ends this far before its point and is stopped this far past it (and the spread,
+# below): SIGHT_MARGIN
 # scene radii (a voxel or two of the finest grid), and at least SIGHT_VOXELS
 # voxels of the grid (a vertex's density spreads over a voxel each way: at the coarse
 # stages a thinner margin would ask one vertex to be empty and solid at once).
@@ -73,6 +74,9 @@ SIGHT_VOXELS = 2.0
 # Each drawn line aims within SIGHT_SPREAD margins of its point (a few pixels of a capture's
 # photos). Aimed at the point itself the lines made specks a voxel or two wide, the fur
 # between them thinner; 5 margins left the object paler (`--points-weight` in BENCHMARKS.md).
+# A drawn line must stop by as far past its spot as it was turned aside, not just the margin:
+# beside a point on a curved surface (a can near its outline) the surface lies deeper than the
+# point, and a stop held to the point's depth grew shards in front of it.
 SIGHT_SPREAD = 2.5
 
 # Model files store the grid sparsely (vertices of occupied cells) under this name, the
@@ -298,8 +302,10 @@ class FastNeRF(NerfModel):
             :meth:`sight_margin` before its point; for the ``m`` lines whose point is
             ``solid`` (inside the box by the margin, and on the object, not on what the
             surroundings draw: :meth:`~nerfkit.surroundings.Surroundings.above_paint`), the
-            opacity up to the margin past it. None for a forward-facing (NDC) model, whose
-            grid is not in world units, or no lines.
+            opacity up to the margin and :meth:`sight_spread` past it (a line drawn beside its
+            point meets a surface that slopes away from the camera up to that much deeper).
+            None for a forward-facing (NDC) model, whose grid is not in world units, or no
+            lines.
         """
         if self.ndc is not None or len(distance) == 0:
             return None
@@ -313,11 +319,13 @@ class FastNeRF(NerfModel):
         u = torch.rand(len(o), device=o.device)
         empty = self._opacity_between(o, d, t0, torch.minimum(t1, distance - margin).clamp(min=t0), u)
         s = solid.nonzero()[:, 0]
-        stopped = self._opacity_between(o[s], d[s], t0[s], torch.minimum(t1[s], distance[s] + margin), u[s])
+        past = distance[s] + margin + self.sight_spread()
+        stopped = self._opacity_between(o[s], d[s], t0[s], torch.minimum(t1[s], past), u[s])
         return empty, stopped, solid
 
     def sight_margin(self) -> float:
-        """How far before its point a sight line must be empty, and past it stopped (world units)."""
+        """How far before its point a sight line must be empty, and past it (with
+        :meth:`sight_spread`) stopped (world units)."""
         return max(SIGHT_MARGIN * self.bounds.radius, SIGHT_VOXELS * float(self.field.voxel))
 
     def sight_spread(self) -> float:
