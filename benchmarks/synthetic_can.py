@@ -50,11 +50,7 @@ def busy_label(seed: int = 0, size: tuple[int, int] = (256, 1024)) -> np.ndarray
     small white and dark letters near its foot."""
     rng = np.random.default_rng(seed)
     h, w = size
-    img = np.empty((h, w, 3), np.uint8)
-    img[:] = (200, 25, 35)
-    rows, cols = np.mgrid[0:h, 0:w]
-    wave = 0.62 * h + 0.10 * h * np.sin(2 * np.pi * 2 * cols / w)
-    img[np.abs(rows - wave) < 0.04 * h] = (240, 240, 235)
+    img = S.red_label(size, 0.62, 0.10, 0.04)
     t = np.linspace(0.0, 1.0, 400)
     for k in range(6):  # script: a thick stroke along a sine wave, 10 px wide
         xs = k * w / 6 + t * w / 7

@@ -235,15 +235,24 @@ def surroundings(u: np.ndarray) -> np.ndarray:
     return np.clip(base + 150 * window[:, None] - 70 * furniture[:, None], 0, 255)
 
 
-def can_label(seed: int = 0, size: tuple[int, int] = (128, 512)) -> np.ndarray:
-    """A drink can's label (h, w, 3) uint8: red, a white wave around it and dark lettering."""
-    rng = np.random.default_rng(seed)
+def red_label(size: tuple[int, int], row: float, swing: float, half_width: float) -> np.ndarray:
+    """A red label (h, w, 3) uint8 with a white wave twice around it: its middle ``row`` of
+    the height down, swinging ``swing`` of the height up and down, ``half_width`` of the
+    height to each side."""
     h, w = size
     img = np.empty((h, w, 3), np.uint8)
     img[:] = (200, 25, 35)
     rows, cols = np.mgrid[0:h, 0:w]
-    wave = 0.55 * h + 0.12 * h * np.sin(2 * np.pi * 2 * cols / w)
-    img[np.abs(rows - wave) < 0.05 * h] = (240, 240, 235)
+    wave = row * h + swing * h * np.sin(2 * np.pi * 2 * cols / w)
+    img[np.abs(rows - wave) < half_width * h] = (240, 240, 235)
+    return img
+
+
+def can_label(seed: int = 0, size: tuple[int, int] = (128, 512)) -> np.ndarray:
+    """A drink can's label (h, w, 3) uint8: red, a white wave around it and dark lettering."""
+    rng = np.random.default_rng(seed)
+    h, w = size
+    img = red_label(size, 0.55, 0.12, 0.05)
     for _ in range(14):  # letters: dark blocks in a band
         x, bw = int(rng.integers(0, w - 20)), int(rng.integers(6, 16))
         y, bh = int(rng.integers(int(0.15 * h), int(0.35 * h))), int(rng.integers(10, 22))
