@@ -338,3 +338,20 @@ def test_a_run_sees_rgba_images_on_its_own_background(tmp_path, capsys):
     scene = scene_for_run(read_run(run), None)  # raises if training saw other pixels
     assert (scene.train.images[:, :7] == 255).all()  # the transparent top rows
     assert (scene_for_run(read_run(run), str(tmp_path / "rgba"), need="val").val.images[:, :7] == 255).all()
+
+
+@pytest.mark.parametrize("damage", ["header", "cut"])
+def test_a_damaged_ply_is_a_clear_error_naming_it_for_points_and_splats(tmp_path, damage):
+    from nerfkit.data.ply import read_points_ply, write_points_ply
+    from nerfkit.splat_files import read_splat_ply
+
+    path = tmp_path / "points.ply"
+    write_points_ply(path, np.random.default_rng(0).normal(size=(50, 3)), np.full((50, 3), 7, np.uint8))
+    xyz, rgb = read_points_ply(path)  # the intact file reads back
+    assert xyz.shape == (50, 3) and rgb is not None and (rgb == 7).all()
+    data = path.read_bytes()
+    # a header plyfile cannot parse, or the binary body cut short
+    path.write_bytes(b"ply\nformat garbage\n" if damage == "header" else data[: len(data) - 100])
+    for read in (read_points_ply, read_splat_ply):
+        with pytest.raises(NerfkitError, match=r"points\.ply: not a readable PLY"):
+            read(path)

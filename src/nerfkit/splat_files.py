@@ -111,13 +111,9 @@ def write_splat_ply(path: str | Path, g: Gaussians) -> None:
 
 def read_splat_ply(path: str | Path) -> Gaussians:
     """Read a 3DGS PLY (any SH degree up to 3); a clear error for anything else."""
-    from plyfile import PlyData
+    from .io.ply import read_vertices
 
-    try:
-        ply = PlyData.read(str(path))
-        v = ply["vertex"]
-    except (OSError, KeyError, ValueError, IndexError) as e:
-        raise fail(path, f"not a readable PLY with a 'vertex' element ({type(e).__name__})") from None
+    v = read_vertices(path, "a readable PLY with a 'vertex' element")
     names = [p.name for p in v.properties]
     n_rest3 = len([p for p in names if p.startswith("f_rest_")])
     if n_rest3 % 3 or n_rest3 // 3 not in (0, 3, 8, 15):

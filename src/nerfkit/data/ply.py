@@ -11,6 +11,7 @@ import numpy as np
 
 from ..errors import fail
 from ..io.atomic import atomic_path
+from ..io.ply import read_vertices
 
 
 def write_points_ply(path: str | Path, points: np.ndarray, colors: np.ndarray | None = None) -> None:
@@ -35,12 +36,9 @@ def write_points_ply(path: str | Path, points: np.ndarray, colors: np.ndarray | 
 def read_points_ply(path: str | Path, where: object = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Read a point cloud PLY's ``x, y, z`` (P, 3) float32 and, when present, its
     ``red, green, blue`` (P, 3) uint8 (e.g. nerfstudio's ``sparse_pc.ply``)."""
+    what = "a readable PLY point cloud with x, y, z"
+    v = read_vertices(path, what, where)
     try:
-        from plyfile import PlyData
-    except ImportError:
-        raise fail(where or path, "reading a PLY point cloud needs plyfile", "pip install plyfile") from None
-    try:
-        v = PlyData.read(str(path))["vertex"]
         xyz = np.stack([np.asarray(v[k], np.float32) for k in ("x", "y", "z")], 1)
         names = {p.name for p in v.properties}
         rgb = (
@@ -48,6 +46,6 @@ def read_points_ply(path: str | Path, where: object = None) -> tuple[np.ndarray,
             if {"red", "green", "blue"} <= names
             else None
         )
-    except (OSError, KeyError, ValueError, IndexError) as e:
-        raise fail(where or path, f"not a readable PLY point cloud with x, y, z ({type(e).__name__})") from None
+    except (KeyError, ValueError, IndexError) as e:
+        raise fail(where or path, f"not {what} ({type(e).__name__})") from None
     return xyz, rgb
