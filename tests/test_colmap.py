@@ -18,6 +18,8 @@ from conftest import dot_centroid_errors, draw_dots  # noqa: E402
 from nerfkit.cameras import intrinsics_matrix, look_at  # noqa: E402
 from nerfkit.cli import main  # noqa: E402
 from nerfkit.data.colmap import (  # noqa: E402
+    CAMERA_MODEL_PARAMS,
+    cameras_bin_problem,
     load_colmap,
     read_model,
     reconstruction_to_scene,
@@ -756,3 +758,21 @@ def test_missing_pycolmap_names_the_stage_and_the_install(monkeypatch):
         with pytest.raises(NerfkitError) as err:
             load()
         assert words in str(err.value) and "pip install 'nerfkit[sfm]'" in str(err.value)
+
+
+def test_a_cameras_bin_cut_short_or_with_bytes_past_its_cameras_is_refused(tmp_path):
+    model = tmp_path / "p" / "sparse" / "0"
+    write_colmap_model(sphere_scene(n_train=3, n_val=1, size=8), model)
+    data = (model / "cameras.bin").read_bytes()
+    assert cameras_bin_problem(data) is None
+    # pycolmap reads a file cut inside a camera's parameters without a word, the rest made up
+    for cut, why in ((data[:-16], "truncated"), (data[:30], "truncated"), (data + b"\0" * 8, "8 bytes follow")):
+        assert why in cameras_bin_problem(cut)
+        (model / "cameras.bin").write_bytes(cut)
+        with pytest.raises(NerfkitError, match=f"cameras.bin: cannot read the COLMAP model: .*{why}"):
+            read_model(model)
+    # the table of parameter counts is pycolmap's
+    import pycolmap
+
+    for model_id, k in CAMERA_MODEL_PARAMS.items():
+        assert len(pycolmap.Camera.create_from_model_id(1, pycolmap.CameraModelId(model_id), 1.0, 8, 8).params) == k

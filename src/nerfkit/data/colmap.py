@@ -80,6 +80,37 @@ except BaseException as e:
 """
 
 
+# COLMAP's camera models: model id -> number of parameters (pycolmap.CameraModelId, ids 0-17)
+CAMERA_MODEL_PARAMS = dict(enumerate((3, 4, 4, 5, 8, 8, 12, 5, 4, 5, 12, 16, 4, 5, 3, 4, 6, 2)))
+
+
+def cameras_bin_problem(data: bytes) -> str | None:
+    """What is wrong with the bytes of a ``cameras.bin``, or None. Each record is
+    ``int32 id, int32 model, uint64 width, uint64 height, double params[k]`` with ``k`` set
+    by the model (:data:`CAMERA_MODEL_PARAMS`), so the file's length is known exactly: one cut
+    short would otherwise be read with the missing parameters filled in (a wrong focal length
+    or principal point, and no error). A model id newer than :data:`CAMERA_MODEL_PARAMS` ends
+    the walk unjudged (None): pycolmap knows it."""
+    import struct
+
+    if len(data) < 8:
+        return "the file is truncated"
+    (count,) = struct.unpack_from("<Q", data)
+    at = 8
+    for i in range(count):
+        if at + 24 > len(data):
+            return f"the file is truncated (camera {i + 1} of {count})"
+        camera_id, model, _, _ = struct.unpack_from("<iiQQ", data, at)
+        if model not in CAMERA_MODEL_PARAMS:
+            return None
+        at += 24 + 8 * CAMERA_MODEL_PARAMS[model]
+        if at > len(data):
+            return f"the file is truncated (camera {camera_id}'s parameters)"
+    if at != len(data):
+        return f"{len(data) - at} bytes follow its {count} cameras"
+    return None
+
+
 def _precheck_binary_model(model_dir: Path) -> None:
     """Read a binary model once in a child process whose memory is capped.
 
@@ -109,6 +140,16 @@ def _precheck_binary_model(model_dir: Path) -> None:
                 ),
                 "The model is truncated or corrupt; re-export it from COLMAP",
             )
+    cameras = model_dir / "cameras.bin"
+    # (a file too large to walk here is left to the capped reader below)
+    small = cameras.is_file() and cameras.stat().st_size <= 64 * 1024**2
+    problem = cameras_bin_problem(cameras.read_bytes()) if small else None
+    if problem is not None:
+        raise fail(
+            cameras,
+            f"cannot read the COLMAP model: {problem}",
+            "The model is truncated or corrupt; re-export it from COLMAP",
+        )
     try:
         import resource
     except ImportError:  # pragma: no cover - Windows
