@@ -80,6 +80,8 @@ except BaseException as e:
 """
 
 
+REEXPORT = "The model is truncated or corrupt; re-export it from COLMAP"
+
 # COLMAP's camera models: model id -> number of parameters (pycolmap.CameraModelId, ids 0-17)
 CAMERA_MODEL_PARAMS = dict(enumerate((3, 4, 4, 5, 8, 8, 12, 5, 4, 5, 12, 16, 4, 5, 3, 4, 6, 2)))
 
@@ -138,7 +140,7 @@ def _precheck_binary_model(model_dir: Path) -> None:
                     if count is not None
                     else "the file is truncated"
                 ),
-                "The model is truncated or corrupt; re-export it from COLMAP",
+                REEXPORT,
             )
     cameras = model_dir / "cameras.bin"
     # (a file too large to walk here is left to the capped reader below)
@@ -148,7 +150,7 @@ def _precheck_binary_model(model_dir: Path) -> None:
         raise fail(
             cameras,
             f"cannot read the COLMAP model: {problem}",
-            "The model is truncated or corrupt; re-export it from COLMAP",
+            REEXPORT,
         )
     try:
         import resource
