@@ -327,3 +327,33 @@ def test_a_run_cut_short_before_its_first_checkpoint_starts_again_with_the_budge
     assert "(and no checkpoint is left to go on from): --force" in capsys.readouterr().out
     assert not _larger_budget(run, Namespace(steps=None, minutes=9.0), need_checkpoint=False)  # the other unit
     assert "its budget is 160 steps, not the 9 minutes" in capsys.readouterr().out
+
+
+def test_frames_chosen_from_a_clip_are_kept_only_while_the_clip_is_unchanged(tmp_path):
+    import os
+
+    from nerfkit.capture.video import REPORT_NAME, clip_stamp
+    from nerfkit.commands.stages.capture import _frames_there
+
+    clip, frames = tmp_path / "clip.mp4", tmp_path / "out" / "frames"
+    clip.write_bytes(b"a clip" * 100)
+    frames.mkdir(parents=True)
+    (frames / "frame_0001.jpg").write_bytes(b"jpeg")
+    report = {
+        "source": str(clip),
+        "source_stamp": clip_stamp(clip),
+        "target": 10,
+        "frames": [{"file": "frame_0001.jpg"}],
+    }
+    (frames / REPORT_NAME).write_text(json.dumps(report))
+    assert _frames_there(frames, str(clip), 10)
+    assert not _frames_there(frames, str(clip), 12)  # other --clip-frames
+    # another clip copied over it (here of the same size, a later time): its frames are chosen again
+    clip.write_bytes(b"b clip" * 100)
+    st = clip.stat()
+    os.utime(clip, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert not _frames_there(frames, str(clip), 10)
+    # a report from before the stamp was recorded: chosen again too
+    del report["source_stamp"]
+    (frames / REPORT_NAME).write_text(json.dumps(report))
+    assert not _frames_there(frames, str(clip), 10)

@@ -98,6 +98,7 @@ class FrameSelection:
     score_size: tuple[int, int] = (0, 0)  # (width, height) of the scored grey frames
     spread: str = "time"  # the windows are evenly spread in time or in camera travel ("motion")
     advice: list[str] = field(default_factory=list)
+    source_stamp: list[int] = field(default_factory=list)  # the clip's size and mtime (ns): clip_stamp
 
     @property
     def kept(self) -> int:
@@ -117,6 +118,13 @@ class FrameSelection:
         for k in ("files", "frame_indices", "timestamps", "sharpness"):
             del d[k]
         return d
+
+
+def clip_stamp(path: str | os.PathLike) -> list[int]:
+    """``[size in bytes, modification time in ns]`` of the clip ``path``: a clip replaced or
+    edited since its frames were chosen has another."""
+    st = Path(path).stat()
+    return [int(st.st_size), int(st.st_mtime_ns)]
 
 
 def is_video(path: str | os.PathLike) -> bool:
@@ -597,6 +605,7 @@ def select_frames(
     windows = windows_of(spread_axis(scores, spread), target)
     sel = FrameSelection(
         source=str(path),
+        source_stamp=clip_stamp(path),
         out_dir=str(out_dir),
         info=info,
         target=target,

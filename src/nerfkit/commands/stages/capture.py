@@ -417,15 +417,17 @@ def _check_arguments(args: CaptureOptions, video: bool) -> None:
 
 
 def _frames_there(frames_dir: Path, clip: str, target: int) -> bool:
-    """Whether ``frames_dir`` holds the frames an earlier capture chose from ``clip`` with ``target``."""
+    """Whether ``frames_dir`` holds the frames an earlier capture chose from ``clip`` with
+    ``target``, the clip unchanged since (its size and modification time)."""
     import json
 
-    from ...capture.video import REPORT_NAME
+    from ...capture.video import REPORT_NAME, clip_stamp
 
     try:
         report = json.loads((frames_dir / REPORT_NAME).read_text())
         return (
             Path(report["source"]).resolve() == Path(clip).resolve()
+            and report["source_stamp"] == clip_stamp(clip)
             and int(report["target"]) == target
             and all((frames_dir / f["file"]).is_file() for f in report["frames"])
         )
