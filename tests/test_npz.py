@@ -178,3 +178,18 @@ def test_header_declaring_a_huge_array_is_refused_before_allocating(tmp_path):
             zf.writestr(n, b)
     with pytest.raises(NerfkitError, match="declares shape"):
         load_npz(path)
+
+
+def test_a_centre_no_ray_reaches_is_refused_and_one_within_reach_is_kept(tmp_path):
+    from dataclasses import replace
+
+    from nerfkit.data.synthetic import sphere_scene
+
+    scene = sphere_scene(n_train=3, n_val=1, size=8)  # cameras 4 from the origin, near 2, far 6
+    for center, ok in (([1000.0, 0, 0], False), ([10.1, 0, 0], False), ([9.0, 0, 0], True), ([0.0, 0, 0], True)):
+        save_npz(replace(scene, center=np.array(center, np.float32)), tmp_path / "s.npz")
+        if ok:
+            np.testing.assert_allclose(load_npz(tmp_path / "s.npz").center, center)
+        else:
+            with pytest.raises(NerfkitError, match=r"s\.npz: 'center' .* no ray reaches the object"):
+                load_npz(tmp_path / "s.npz")

@@ -35,6 +35,7 @@ from .validate import (
     check_poses,
     check_scene,
     check_vector3,
+    check_within_reach,
     near_far_from_cameras,
 )
 
@@ -182,8 +183,9 @@ def load_npz(path: str | Path, need: str = "train") -> Scene:
         near, far = check_near_far(_scalar(arrays, "near", where), _scalar(arrays, "far", where), where)
     else:
         near, far = near_far_from_cameras(ref.c2w, center, where, "Store the depth range as 'near' and 'far'")
-    if "center" in arrays:
+    if "center" in arrays:  # given, not estimated from the cameras: it must lie where rays reach
         center = check_vector3(arrays["center"], where, "center")
+        check_within_reach(ref.c2w, center, near, far, where)
     if "up" in arrays:
         up = check_vector3(arrays["up"], where, "up", unit=True)
     capture = bool(_scalar(arrays, "capture", where)) if "capture" in arrays else False
