@@ -185,7 +185,10 @@ def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_pho
     photos = tmp_path / "object"
     photos.mkdir()
     assert main(["capture", str(tmp_path / "nowhere"), "--tag-size", "0.06", "--out", str(tmp_path / "o")]) == 2
-    assert "is not a folder" in capsys.readouterr().err
+    assert "nowhere: no such file or folder" in capsys.readouterr().err
+    (tmp_path / "a_file").write_text("x")  # a file that is no video
+    assert main(["capture", str(tmp_path / "a_file"), "--tag-size", "0.06", "--out", str(tmp_path / "o")]) == 2
+    assert "a_file: is a file, not a folder of photos or a video" in capsys.readouterr().err
     (tmp_path / "file").write_text("x")
     assert main(["capture", str(photos), "--tag-size", "0.06", "--out", str(tmp_path / "file")]) == 2
     assert "is not a folder" in capsys.readouterr().err

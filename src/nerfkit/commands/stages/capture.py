@@ -652,7 +652,8 @@ def run_capture(args: CaptureOptions, api: Calls) -> Made:
         raise fail(out, "exists and is not a folder", "--out names the folder the capture fills")
     for folder, flag in (((None if video else args.photos), "OBJECT_DIR"), (args.calib, "--calib")):
         if folder and not Path(folder).is_dir():
-            raise fail(folder, "is not a folder", f"{flag} names a folder of photos")
+            what = "is not a folder" if Path(folder).exists() else "no such file or folder"
+            raise fail(folder, what, f"{flag} names a folder of photos")
     if args.calib and Path(args.calib).resolve() == Path(args.photos).resolve():
         raise fail(
             args.calib,
