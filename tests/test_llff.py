@@ -133,7 +133,7 @@ def test_malformed_poses_bounds_are_clear_errors(tmp_path):
     np.save(folder / "poses_bounds.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
     assert "cannot read it as a .npy array" in _error(folder)  # pickles are never loaded
     (folder / "poses_bounds.npy").write_bytes(b"not numpy")
-    assert "poses_bounds.npy" in _error(folder)
+    assert "poses_bounds.npy: is not a .npy file" in _error(folder)  # (not "pickled data")
 
 
 def test_image_problems_are_clear_errors(tmp_path):

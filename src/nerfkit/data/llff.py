@@ -92,6 +92,13 @@ def read_poses_bounds(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """``(poses (N, 3, 5), bounds (N, 2))`` from poses_bounds.npy, checked (one-line errors)."""
     where = str(path)
     try:
+        with open(path, "rb") as f:
+            magic = f.read(6)
+    except OSError as e:
+        raise fail(where, f"cannot be read ({e.strerror or type(e).__name__})") from None
+    if magic != b"\x93NUMPY":  # (np.load takes any other file for a pickle)
+        raise fail(where, "is not a .npy file", "Expected LLFF's poses_bounds.npy: an (N, 17) float array")
+    try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as e:
         raise fail(
