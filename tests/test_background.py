@@ -636,3 +636,46 @@ def test_the_relief_learns_from_where_the_texture_is_seen():
     colour.sum().backward()
     assert table.relief.grad is not None and table.relief.grad.abs().sum() > 0
     assert TablePlane(torch.tensor([0.0, 0.0, 1.0, 0.0]), torch.zeros(3), 1.0, 32).relief is None
+
+
+def _tag(center, side):
+    """A printed tag's corners (4, 3) on z = 0, counter-clockwise from (-x, -y)."""
+    (x, y), h = center, side / 2
+    return np.array([[x - h, y - h, 0], [x + h, y - h, 0], [x + h, y + h, 0], [x - h, y + h, 0]])
+
+
+def test_a_tags_fine_texture_adds_colour_over_its_square_doubled_and_nowhere_else():
+    from nerfkit.kernels.ops import GradSink
+
+    plane, center = torch.tensor([0.0, 0.0, 1.0, 0.0]), torch.zeros(3)
+    tags = np.stack([_tag((0.2, 0.1), 0.1), _tag((-0.3, -0.2), 0.1)])
+    plain = TablePlane(plane, center, radius=1.0, resolution=32)
+    table = TablePlane(plane, center, radius=1.0, resolution=32, tags=tags, tag_texels=16)
+    assert [t.shape for t in table.tag_fine] == [(256, 3), (256, 3)]
+    assert len(table.textures()) == len(plain.textures()) + 2
+    pts = torch.tensor([[0.2, 0.1, 0.0], [0.29, 0.19, 0.0], [0.31, 0.1, 0.0], [-0.3, -0.2, 0.0], [0.0, 0.0, 0.0]])
+    # zero at first: the same colour as a table without tags
+    torch.testing.assert_close(table.colour(pts), plain.colour(pts))
+    with torch.no_grad():
+        table.tag_fine[0].fill_(1.0)  # the first tag's texture: +1 logit everywhere on it
+    logit = torch.logit(table.colour(pts)) - torch.logit(plain.colour(pts))
+    # the first tag's square doubled spans 0.2 +- 0.1, 0.1 +- 0.1: in, in, out (x 0.31), the other tag, far
+    torch.testing.assert_close(logit[:, 0], torch.tensor([1.0, 1.0, 0.0, 0.0, 0.0]), atol=1e-4, rtol=0)
+    # a gradient reaches only the texels of the tag a point lies on
+    sinks = {p: GradSink(p.shape[0], p.shape[1], torch.device("cpu"), lanes=1) for p, _ in table.textures()}
+    table.look(pts[:1], sinks)[0].sum().backward()
+    first, second = (sinks[t] for t in table.tag_fine)
+    assert first.grad.abs().sum() > 0 and second.grad.abs().sum() == 0 and not second.dirty
+
+
+def test_a_tags_texels_are_the_finest_power_of_two_no_smaller_than_a_pixels_footprint():
+    from nerfkit.presets import TAG_MAX_TEXELS, tag_texels_for
+
+    assert tag_texels_for(0.1, 0.68e-3) == 256  # 0.78 mm texels over the 0.2 m square
+    assert tag_texels_for(0.055, 0.81e-3) == 128  # 0.86 mm (256 would be 0.43)
+    assert tag_texels_for(0.06, 1.28e-3) == 64  # 1.9 mm
+    assert tag_texels_for(0.5, 1e-5) == TAG_MAX_TEXELS  # capped
+    assert tag_texels_for(0.01, 2e-3) == 0 and tag_texels_for(0.1, None) == 0  # not even 16, unknown
+    for side, foot in ((0.1, 0.68e-3), (0.055, 0.81e-3), (0.06, 1.28e-3)):
+        n = tag_texels_for(side, foot)
+        assert 2 * side / n >= foot > 2 * side / (2 * n)  # the texel is the footprint's, within a factor of 2

@@ -163,6 +163,44 @@ def grid_stages(kind: str, scene) -> tuple[str, str]:
     return FINE_STAGES if fine else BASE_STAGES
 
 
+# a capture's printed tags get a fine colour texture of at most this many texels a side
+# (--table-tag-texels; BENCHMARKS.md, why the defaults are what they are)
+TAG_MAX_TEXELS = 256
+
+
+def tag_texels_for(side: float, footprint: float | None) -> int:
+    """Texels a side of the fine texture over a printed tag of ``side`` (its square doubled,
+    ``2 side`` across) seen at ``footprint`` (the side of table one training pixel sees; None:
+    unknown, no texture): the largest power of two whose texel is at least the footprint, at
+    most :data:`TAG_MAX_TEXELS`; 0 when not even 16 fit. Example: a 10 cm tag seen at
+    0.68 mm a pixel takes 256 (0.78 mm texels), a 5.5 cm one at 0.81 mm 128, a 6 cm one at
+    1.28 mm 64."""
+    if footprint is None or footprint <= 0 or side <= 0:
+        return 0
+    n = TAG_MAX_TEXELS
+    while n >= 16 and 2.0 * side / n < footprint:
+        n //= 2
+    return n if n >= 16 else 0
+
+
+def tag_texels_default(scene) -> int:
+    """``--table-tag-texels`` left unset on a capture: :func:`tag_texels_for` the median side
+    of its printed tags and the training photos' median pixel footprint on the table within
+    the scene's radius (:func:`~nerfkit.fields.background.plane_footprint`); 0 without tags
+    or a table."""
+    import numpy as np
+
+    from .fields.background import plane_footprint
+    from .scene_extent import sphere_radius
+
+    if scene.table is None or scene.tags is None or not len(scene.tags) or not len(scene.train):
+        return 0
+    tags = np.asarray(scene.tags, np.float64)
+    side = float(np.median(np.linalg.norm(tags[:, 1] - tags[:, 0], axis=1)))
+    radius = sphere_radius(scene)
+    return tag_texels_for(side, plane_footprint(scene.train, scene.table, scene.center, radius))
+
+
 # a plain object's box (--object-box-margin) is widened by this share of its size on every
 # side, about three times the width of the object itself (BENCHMARKS.md, why the defaults are
 # what they are)
@@ -192,6 +230,8 @@ def scene_values(kind: str, model_config: Any, scene, given: frozenset[str]) -> 
     notes = []
     if kind == CAPTURE:
         out["table"] = scene.table is not None
+        if "table_tag_texels" not in given:
+            out["table_tag_texels"] = tag_texels_default(scene)
         told = {"object_box", "object_box_margin"} & given or not model_config.object_box
         plain = None if told else plain_object(scene)
         if plain is not None:

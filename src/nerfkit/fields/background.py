@@ -315,13 +315,27 @@ class TablePlane(nn.Module):
             a sheet of paper that curls, a plane a little off the true table. A ray then
             meets the table where it meets that height over its hit on the plane (one
             parallax step, :meth:`raise_hits`).
+        tags: (n, 4, 3) corners of the printed tags on the plane; with ``tag_texels`` > 0 each
+            gets a fine colour texture of that many texels a side over its square doubled,
+            added to the table's colour there (:meth:`tag_detail`), zero at first.
     """
 
     plane: Tensor
     origin: Tensor
     axes: Tensor
+    tag_frames: Tensor  # (n_tags, 3, 3): each tag's centre, then its two axes over their squared lengths
 
-    def __init__(self, plane, center, radius: float, resolution: int = 512, gloss: bool = False, relief: bool = False):
+    def __init__(
+        self,
+        plane,
+        center,
+        radius: float,
+        resolution: int = 512,
+        gloss: bool = False,
+        relief: bool = False,
+        tags=None,
+        tag_texels: int = 0,
+    ):
         super().__init__()
         plane = torch.as_tensor(plane, dtype=torch.float32).reshape(4)
         n = plane[:3] / plane[:3].norm()
@@ -341,6 +355,15 @@ class TablePlane(nn.Module):
             self.relief = nn.Parameter(torch.zeros(self.cover_size**2, 1))
         else:
             self.register_parameter("relief", None)
+        # a fine colour texture over each printed tag's square doubled (the tag and its white border)
+        self.tag_texels = int(tag_texels) if tags is not None and len(tags) else 0
+        frames = []
+        if self.tag_texels:
+            for q in np.asarray(tags, np.float64).reshape(-1, 4, 3):
+                e1, e2 = q[1] - q[0], q[3] - q[0]
+                frames.append(np.stack([q.mean(0), e1 / (e1 @ e1), e2 / (e2 @ e2)]))
+        self.register_buffer("tag_frames", torch.as_tensor(np.array(frames, np.float32).reshape(-1, 3, 3)))
+        self.tag_fine = nn.ParameterList([nn.Parameter(torch.zeros(self.tag_texels**2, 3)) for _ in range(len(frames))])
         if gloss:
             self.shine = nn.Parameter(torch.full((self.cover_size**2, 1), GLOSS_INIT))
             self.env = nn.Parameter(torch.zeros(ENV_SIZE[0] * ENV_SIZE[1], 3))
@@ -352,7 +375,19 @@ class TablePlane(nn.Module):
         """``(parameter (side * side, C), side)`` of the fine and coarse colour textures,
         the coverage texture, and the glossiness and relief textures (if any)."""
         out = [(self.fine, self.sizes[0]), (self.coarse, self.sizes[1]), (self.cover, self.cover_size)]
-        return out + [(t, self.cover_size) for t in (self.shine, self.relief) if t is not None]
+        out += [(t, self.cover_size) for t in (self.shine, self.relief) if t is not None]
+        return out + [(t, self.tag_texels) for t in self.tag_fine]
+
+    def tag_detail(self, logits: Tensor, points: Tensor, sinks: dict, compiled: bool) -> Tensor:
+        """``logits`` (n, 3) of the colour at ``points`` (n, 3) plus each tag's fine texture
+        where the point lies in that tag's square doubled."""
+        for frame, tex in zip(self.tag_frames, self.tag_fine, strict=True):
+            uv = (points - frame[0]) @ frame[1:].t()  # (n, 2): the tag's square at |u|, |v| < 0.5
+            idx = (uv.abs() < 1.0).all(-1).nonzero()[:, 0]
+            if len(idx):
+                detail = sample_texture(tex, self.tag_texels, uv[idx], sinks.get(tex), compiled)
+                logits = logits.index_add(0, idx, detail)
+        return logits
 
     def raise_hits(
         self, points: Tensor, dirs: Tensor, sinks: dict | None = None, compiled: bool = True
@@ -394,11 +429,12 @@ class TablePlane(nn.Module):
         sinks = sinks or {}
         with torch.autocast(points.device.type, enabled=False):  # texel indices need float32
             uv = self.texture_coords(points.float())
-            colour = torch.sigmoid(
-                cast(
-                    Tensor, sum(sample_texture(t, side, uv, sinks.get(t), compiled) for t, side in self.textures()[:2])
-                )
+            logits = cast(
+                Tensor, sum(sample_texture(t, side, uv, sinks.get(t), compiled) for t, side in self.textures()[:2])
             )
+            if self.tag_texels:
+                logits = self.tag_detail(logits, points.float(), sinks, compiled)
+            colour = torch.sigmoid(logits)
             cover = self._scalar(self.cover, uv, sinks, compiled)
             shine = self._scalar(self.shine, uv, sinks, compiled) if gloss and self.shine is not None else None
         return colour, cover, shine

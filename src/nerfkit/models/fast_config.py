@@ -136,6 +136,15 @@ class FastConfig:
         "a tag's plane a little off the table's), where rays then meet it (off: it lifts "
         "some captures and costs others a little; BENCHMARKS.md)",
     )
+    table_tag_texels: int = option(
+        0,
+        "with --table: a fine colour texture of this many texels a side over each printed tag's "
+        "square doubled (the tag, its border and the sheet's edge), on top of the table's (0: "
+        "none; captures with tags: the finest power of two whose texel is at least the side of "
+        "table one pixel sees, at most 256)",
+        min=0,
+        max=1024,
+    )
     floor: bool = option(
         True,
         "with --table and --learn-background: a second textured plane for the floor seen "

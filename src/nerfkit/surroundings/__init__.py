@@ -78,6 +78,8 @@ class Surroundings(nn.Module):
                 config.table_resolution,
                 gloss=config.table_gloss,
                 relief=config.table_relief,
+                tags=bounds.tags,
+                tag_texels=config.table_tag_texels,
             )
         self.floor = None
         if config.floor and self.table is not None and config.learn_background and bounds.floor is not None:
