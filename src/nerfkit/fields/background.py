@@ -323,7 +323,7 @@ class TablePlane(nn.Module):
     plane: Tensor
     origin: Tensor
     axes: Tensor
-    tag_frames: Tensor  # (n_tags, 3, 3): each tag's centre, then its two axes over their squared lengths
+    tag_frames: Tensor | None  # (n_tags, 3, 3): each tag's centre, then its axes over their squared lengths
 
     def __init__(
         self,
@@ -362,7 +362,9 @@ class TablePlane(nn.Module):
             for q in np.asarray(tags, np.float64).reshape(-1, 4, 3):
                 e1, e2 = q[1] - q[0], q[3] - q[0]
                 frames.append(np.stack([q.mean(0), e1 / (e1 @ e1), e2 / (e2 @ e2)]))
-        self.register_buffer("tag_frames", torch.as_tensor(np.array(frames, np.float32).reshape(-1, 3, 3)))
+        # (no buffer without tags: a model file from before the tags' texture loads as it was)
+        tag_frames = torch.as_tensor(np.array(frames, np.float32).reshape(-1, 3, 3)) if frames else None
+        self.register_buffer("tag_frames", tag_frames)
         self.tag_fine = nn.ParameterList([nn.Parameter(torch.zeros(self.tag_texels**2, 3)) for _ in range(len(frames))])
         if gloss:
             self.shine = nn.Parameter(torch.full((self.cover_size**2, 1), GLOSS_INIT))
@@ -381,6 +383,7 @@ class TablePlane(nn.Module):
     def tag_detail(self, logits: Tensor, points: Tensor, sinks: dict, compiled: bool) -> Tensor:
         """``logits`` (n, 3) of the colour at ``points`` (n, 3) plus each tag's fine texture
         where the point lies in that tag's square doubled."""
+        assert self.tag_frames is not None, "tag_detail: this table has no tags' texture"
         for frame, tex in zip(self.tag_frames, self.tag_fine, strict=True):
             uv = (points - frame[0]) @ frame[1:].t()  # (n, 2): the tag's square at |u|, |v| < 0.5
             idx = (uv.abs() < 1.0).all(-1).nonzero()[:, 0]
