@@ -653,6 +653,9 @@ def test_a_tags_fine_texture_adds_colour_over_its_square_doubled_and_nowhere_els
     table = TablePlane(plane, center, radius=1.0, resolution=32, tags=tags, tag_texels=16)
     assert [t.shape for t in table.tag_fine] == [(256, 3), (256, 3)]
     assert len(table.textures()) == len(plain.textures()) + 2
+    # without tags the state holds nothing new: a model file from before the tags' texture loads
+    assert not [k for k in plain.state_dict() if k.startswith("tag_")]
+    assert sorted(table.state_dict()) == sorted([*plain.state_dict(), "tag_frames", "tag_fine.0", "tag_fine.1"])
     pts = torch.tensor([[0.2, 0.1, 0.0], [0.29, 0.19, 0.0], [0.31, 0.1, 0.0], [-0.3, -0.2, 0.0], [0.0, 0.0, 0.0]])
     # zero at first: the same colour as a table without tags
     torch.testing.assert_close(table.colour(pts), plain.colour(pts))
