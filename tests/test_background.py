@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 import torch
 
+from nerfkit.cameras import plane_hit
 from nerfkit.fields.background import (
     RoomShells,
     TablePlane,
     composite_layers,
     contract_disc,
     layers_depth,
-    plane_hit,
     sh16,
     sphere_exit,
     table_doubt,

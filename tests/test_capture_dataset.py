@@ -21,6 +21,7 @@ from nerfkit.capture.dataset import (
     estimate_bounds,
     few_views_note,
     photo_agreement,
+    plane_hit_distance,
     split_indices,
     tag_surface_height,
 )
@@ -298,3 +299,17 @@ def test_center_override_and_dataset_command_rebuild(posed, tmp_path, capsys):
     small = load_npz(tmp_path / "small" / "dataset.npz")
     ratio = small.train.width / s.train.width
     np.testing.assert_allclose(small.train.K[0, 0, 0], s.train.K[0, 0, 0] * ratio, rtol=2e-2)
+
+
+def test_plane_hit_distance_is_the_nearest_border_ray_to_the_table():
+    # 2x2 image, f = 1: the corners' rays leave the axis at 54.7 degrees, the edges' at 45
+    K = np.array([[1.0, 0.0, 1.0], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
+    down = np.diag([1.0, -1.0, -1.0, 1.0])  # the camera's +z along the world's -z
+    down[2, 3] = 1.0  # one unit above z = 0
+    assert plane_hit_distance(down, K, (2, 2)) == pytest.approx(np.sqrt(2.0))
+    up = down.copy()
+    up[:3, :3] = np.eye(3)  # looking straight up: no border ray meets the table
+    assert plane_hit_distance(up, K, (2, 2)) == np.inf
+    under = down.copy()
+    under[2, 3] = -1.0  # under the table looking down: it sees the table's back, not its top
+    assert plane_hit_distance(under, K, (2, 2)) == np.inf

@@ -15,6 +15,7 @@ Convention (everywhere in nerfkit):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,6 +144,25 @@ def image_rays(K: Tensor, c2w: Tensor, width: int, height: int) -> Rays:
     uv = torch.stack([cols, rows], dim=-1).reshape(-1, 2) + 0.5
     o, d = pixel_to_ray(K.to(c2w.device, torch.float32), c2w.float(), uv)
     return Rays(o, d)
+
+
+def plane_hit(origins: Tensor, dirs: Tensor, plane: Tensor) -> Tensor:
+    """Distance along each ray to the plane ``n . x + d = 0`` from its front side.
+
+    Args:
+        origins, dirs: (n, 3); plane: (4,) ``(nx, ny, nz, d)`` with a unit normal pointing
+            to the side the cameras are on.
+
+    Returns:
+        (n,) ``t > 0`` where the ray meets the plane coming from the front, ``inf`` elsewhere.
+        Example: a ray from (0, 0, 2) straight down meets z = 0 at t = 2.
+    """
+    n, d = plane[:3].to(origins), plane[3].to(origins)
+    height = origins @ n + d  # (n,) signed distance of the origin to the plane
+    speed = dirs @ n  # (n,) rate of approach (negative: heading to the plane)
+    t = -height / speed.clamp(max=-1e-12)
+    hits = (height > 0) & (speed < -1e-9)
+    return torch.where(hits, t, torch.full_like(t, math.inf))
 
 
 def project_points(K: np.ndarray, c2w: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

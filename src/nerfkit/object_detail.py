@@ -20,8 +20,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import torch
 
-from .cameras import project_points
+from .cameras import pixel_to_ray, plane_hit, project_points
 from .images import sample_bilinear
 from .scene_extent import object_box_from_points, sphere_radius
 from .tabletop import box_corners
@@ -78,15 +79,13 @@ def box_outline(K: np.ndarray, c2w: np.ndarray, box, width: int, height: int) ->
 
 def table_points(K: np.ndarray, c2w: np.ndarray, uv: np.ndarray, table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Where the rays through pixels ``uv`` (n, 2) (centres at +0.5) of camera ``(K, c2w)``
-    meet the plane ``table`` ``(n, d)``: points (n, 3), and (n,) bool, in front of the camera."""
-    K, c2w = np.asarray(K, np.float64), np.asarray(c2w, np.float64)
-    cam = np.linalg.solve(K, np.concatenate([uv, np.ones((len(uv), 1))], 1).T).T
-    d = cam @ c2w[:3, :3].T
-    o = c2w[:3, 3]
-    n, off = np.asarray(table[:3], np.float64), float(table[3])
-    denom = d @ n
-    t = -(o @ n + off) / np.where(np.abs(denom) > 1e-12, denom, 1e-12)
-    return o + t[:, None] * d, t > 0
+    meet the plane ``table`` ``(n, d)`` from its front (:func:`~nerfkit.cameras.plane_hit`):
+    points (n, 3) (the camera's centre where a ray misses), and (n,) bool, whether it meets it."""
+    f64 = torch.float64
+    o, d = pixel_to_ray(*(torch.as_tensor(np.asarray(a), dtype=f64) for a in (K, c2w, uv)))
+    t = plane_hit(o, d, torch.as_tensor(np.asarray(table), dtype=f64))
+    hit = torch.isfinite(t)
+    return (o + torch.where(hit, t, 0.0).unsqueeze(-1) * d).numpy(), hit.numpy()
 
 
 # photos wider than this are looked at downscaled to it (the figures are per 512th of the width)

@@ -26,7 +26,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+import torch
 
+from ..cameras import pixel_to_ray, plane_hit
 from ..config import MIN_RESAMPLED_SIDE, load_json, option
 from ..data.nerfstudio import write_transforms_json
 from ..data.npz import save_npz
@@ -164,18 +166,13 @@ def parse_center(text: str) -> np.ndarray | None:
 
 def plane_hit_distance(c2w: np.ndarray, K_nk: np.ndarray, size: tuple[int, int]) -> float:
     """Nearest distance along the image's border rays (corners and edge midpoints) at which
-    a camera sees the plane z = 0, or inf when none of them hits it."""
+    a camera sees the plane z = 0 from above (:func:`~nerfkit.cameras.plane_hit`), or inf
+    when none of them meets it."""
     w, h = size
     uv = np.array([[0, 0], [w / 2, 0], [w, 0], [w, h / 2], [w, h], [w / 2, h], [0, h], [0, h / 2]], np.float64)
-    d_cam = np.column_stack(
-        [(uv[:, 0] - K_nk[0, 2]) / K_nk[0, 0], (uv[:, 1] - K_nk[1, 2]) / K_nk[1, 1], np.ones(len(uv))]
-    )
-    d = d_cam @ c2w[:3, :3].T
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    o = c2w[:3, 3]
-    with np.errstate(divide="ignore"):
-        t = np.where(d[:, 2] < -1e-6, -o[2] / d[:, 2], np.inf)
-    return float(t.min())
+    f64 = torch.float64
+    o, d = pixel_to_ray(torch.as_tensor(K_nk, dtype=f64), torch.as_tensor(c2w, dtype=f64), torch.as_tensor(uv))
+    return float(plane_hit(o, d, torch.tensor([0.0, 0.0, 1.0, 0.0], dtype=f64)).min())
 
 
 def estimate_bounds(

@@ -29,7 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..cameras import axes_across, pixel_to_ray
+from ..cameras import axes_across, pixel_to_ray, plane_hit
 
 
 def sh16(dirs: Tensor) -> Tensor:
@@ -58,25 +58,6 @@ def sh16(dirs: Tensor) -> Tensor:
         ],
         dim=-1,
     )
-
-
-def plane_hit(origins: Tensor, dirs: Tensor, plane: Tensor) -> Tensor:
-    """Distance along each ray to the plane ``n . x + d = 0`` from its front side.
-
-    Args:
-        origins, dirs: (n, 3); plane: (4,) ``(nx, ny, nz, d)`` with a unit normal pointing
-            to the side the cameras are on.
-
-    Returns:
-        (n,) ``t > 0`` where the ray meets the plane coming from the front, ``inf`` elsewhere.
-        Example: a ray from (0, 0, 2) straight down meets z = 0 at t = 2.
-    """
-    n, d = plane[:3].to(origins), plane[3].to(origins)
-    height = origins @ n + d  # (n,) signed distance of the origin to the plane
-    speed = dirs @ n  # (n,) rate of approach (negative: heading to the plane)
-    t = -height / speed.clamp(max=-1e-12)
-    hits = (height > 0) & (speed < -1e-9)
-    return torch.where(hits, t, torch.full_like(t, math.inf))
 
 
 def plane_footprint(views, plane, center, radius: float, stride: int = 8) -> float | None:
