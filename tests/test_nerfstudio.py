@@ -81,7 +81,7 @@ def test_transform_matrix_uses_opengl_axes(tmp_path):
 def test_per_frame_intrinsics_when_views_differ(tmp_path):
     train = random_views(3, seed=3)
     train.K[1, 0, 0] = 40.0
-    scene = Scene(train, Views.empty(32, 24), Views.empty(32, 24), 1.0, 2.0)
+    scene = Scene(train, Views.empty(32, 24), Views.empty(32, 24), 1.0, 6.0)
     data = json.loads(write_transforms_json(scene, tmp_path).read_text())
     assert "fl_x" not in data and data["frames"][1]["fl_x"] == 40.0
     back = load_transforms_json(tmp_path)
@@ -204,3 +204,15 @@ def test_image_file_names_keep_the_photo_name():
     assert image_file_name("IMG_0930.JPG") == "IMG_0930.JPG"
     assert image_file_name("IMG_1.heic") == "IMG_1.heic.png"
     assert image_file_name("dir/x.png") == "x.png"
+
+
+def test_a_stated_centre_no_ray_reaches_is_refused(tmp_path):
+    path = write_transforms_json(make_scene(), tmp_path)  # cameras about 3 from the centre, far 4.5
+    data = json.loads(path.read_text())
+    data["nerfkit"]["center"] = [100.0, 0.0, 0.0]
+    path.write_text(json.dumps(data))
+    with pytest.raises(NerfkitError, match=r"'nerfkit\.center' \[100\.0, 0\.0, 0\.0\] .* no ray reaches the object"):
+        load_transforms_json(path)
+    del data["nerfkit"]["center"]  # estimated from the cameras instead: it loads
+    path.write_text(json.dumps(data))
+    assert np.isfinite(load_transforms_json(path).center).all()

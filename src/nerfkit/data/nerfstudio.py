@@ -48,6 +48,7 @@ from .validate import (
     check_poses,
     check_scene,
     check_vector3,
+    check_within_reach,
     near_far_from_cameras,
     short_repr,
 )
@@ -249,6 +250,8 @@ def _scene_bounds(nk: dict, train: Views, where: str) -> tuple[np.ndarray, np.nd
         near, far = check_near_far(nk.get("near"), nk.get("far"), where)
     else:
         near, far = near_far_from_cameras(train.c2w, center, where, "Store the depth range as nerfkit.near and far")
+    if "center" in nk:  # stated, not estimated from the cameras: it must lie where rays reach
+        check_within_reach(train.c2w, center, near, far, where, "nerfkit.center")
     return center.astype(np.float32), up.astype(np.float32), near, far
 
 

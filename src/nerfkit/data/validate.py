@@ -272,19 +272,22 @@ def check_scene(scene, where: str | None = None, need: str = "train"):
     return scene
 
 
-def check_within_reach(c2w: np.ndarray, center: np.ndarray, near: float, far: float, where: str) -> None:
-    """Refuse a ``center`` (3,) that no ray reaches: the object's sphere about it is at most
-    half the depth range across, so when every camera (``c2w`` (n, 4, 4)) is farther from the
-    centre than ``far`` plus that, every ray ends before the object and training learns nothing."""
+def check_within_reach(
+    c2w: np.ndarray, center: np.ndarray, near: float, far: float, where: str, field: str = "center"
+) -> None:
+    """Refuse a stated ``center`` (3,) (the file's ``field``) that no ray reaches: the object's
+    sphere about it is at most half the depth range across, so when every camera (``c2w``
+    (n, 4, 4)) is farther from the centre than ``far`` plus that, every ray ends before the
+    object and training learns nothing."""
     if len(c2w) == 0:
         return
     dist = np.linalg.norm(np.asarray(c2w, np.float64)[:, :3, 3] - np.asarray(center, np.float64), axis=1)
     if float(dist.min()) > far + 0.5 * (far - near):
         raise fail(
             where,
-            f"'center' {np.round(center, 4).tolist()} is {float(dist.min()):.4g} or more from every camera, but "
+            f"'{field}' {np.round(center, 4).tolist()} is {float(dist.min()):.4g} or more from every camera, but "
             f"rays end at far = {far:.4g}: no ray reaches the object",
-            "Store the object's centre as 'center' (or leave it out to have it estimated), or a larger 'far'",
+            f"Store the object's centre as '{field}' (or leave it out to have it estimated), or a larger 'far'",
         )
 
 
