@@ -238,6 +238,12 @@ def test_capture_refuses_before_any_step_what_a_later_step_would_trip_on(tmp_pat
     assert main([*base, "--calib", str(sheet)]) == 2
     assert "holds camera.json that no `nerfkit capture` recorded in capture.json" in capsys.readouterr().err
     assert (out / "camera.json").read_text() == "{}" and not (out / "capture.json").exists()
+    # a video's frames posed by the tag alone: they have no focal length to start from
+    clip = tmp_path / "clip.mp4"
+    clip.write_bytes(b"not looked at: refused before")
+    assert main(["capture", str(clip), "--tag-size", "0.06", "--method", "tags", "--out", str(tmp_path / "v")]) == 2
+    assert "a video's frames carry no focal length" in capsys.readouterr().err
+    assert not (tmp_path / "v").exists()
 
 
 def test_a_rerun_keeps_results_only_while_what_they_were_made_from_holds(tmp_path):
@@ -276,7 +282,7 @@ def test_a_rerun_keeps_results_only_while_what_they_were_made_from_holds(tmp_pat
     (out / "capture.json").write_text(json.dumps({"inputs": first}))
 
     def check(now):
-        _same_inputs(out, now, camera, made)
+        _same_inputs(out, now, camera, made, [camera, *made, out / "capture.json"])
 
     (photos / "IMG_3.JPG").write_bytes(b"z")  # a photo added
     added = inputs(photos, sheet)
@@ -315,6 +321,38 @@ def test_a_rerun_keeps_results_only_while_what_they_were_made_from_holds(tmp_pat
         check(inputs(photos, None, camera=str(given)))
 
 
+def test_a_capture_replaces_nothing_in_out_that_no_capture_recorded_and_keeps_nothing_of_an_edited_clip(tmp_path):
+    import argparse
+
+    from nerfkit.commands.capture import _inputs, _same_inputs
+    from nerfkit.errors import NerfkitError
+
+    out, clip = tmp_path / "out", tmp_path / "clip.mp4"
+    out.mkdir()
+    clip.write_bytes(b"a clip" * 100)
+    ours = [out / "dataset", out / "capture.json", out / "frames", out / "splat.ply"]
+    made = [out / "dataset" / "dataset.npz"]
+    options = {"calib": None, "camera": None, "tag_size": None, "sheet_tag_size": None, "dict": None}
+    now = _inputs(argparse.Namespace(photos=str(clip), clip_frames=40, method="auto", max_side=None, **options))
+    _same_inputs(out, now, None, made, ours)  # an empty --out
+    (out / "splat.ply").write_text("the user's own splat")
+    with pytest.raises(NerfkitError, match="holds splat.ply that no `nerfkit capture` recorded"):
+        _same_inputs(out, now, None, made, ours)
+    (out / "splat.ply").unlink()
+    (out / "frames").mkdir()  # frames chosen by `nerfkit frames` before
+    with pytest.raises(NerfkitError, match="holds frames that no"):
+        _same_inputs(out, now, None, made, ours)
+    (out / "capture.json").write_text(json.dumps({"inputs": now}))
+    (out / "dataset").mkdir()
+    made[0].write_text("npz")
+    _same_inputs(out, now, None, made, ours)  # recorded, the same clip: kept
+    clip.write_bytes(b"b clip" * 100)  # edited in place, its size kept (a rotation fixed in its header)
+    edited = _inputs(argparse.Namespace(photos=str(clip), clip_frames=40, method="auto", max_side=None, **options))
+    assert edited["photo_files"] == now["photo_files"]  # (its name and size)
+    with pytest.raises(NerfkitError, match="clip_content: 600 bytes, sha1 .* then, 600 bytes, sha1 .* now"):
+        _same_inputs(out, edited, None, made, ours)
+
+
 def test_a_run_cut_short_before_its_first_checkpoint_starts_again_with_the_budget_asked_for(tmp_path, capsys):
     from argparse import Namespace
 
@@ -351,10 +389,11 @@ def test_frames_chosen_from_a_clip_are_kept_only_while_the_clip_is_unchanged(tmp
     (frames / REPORT_NAME).write_text(json.dumps(report))
     assert _frames_there(frames, str(clip), 10)
     assert not _frames_there(frames, str(clip), 12)  # other --clip-frames
-    # another clip copied over it (here of the same size, a later time): its frames are chosen again
-    clip.write_bytes(b"b clip" * 100)
     st = clip.stat()
-    os.utime(clip, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    os.utime(clip, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # touched (copied again): the same clip
+    assert _frames_there(frames, str(clip), 10)
+    # another clip copied over it, or this one edited (here of the same size): its frames are chosen again
+    clip.write_bytes(b"b clip" * 100)
     assert not _frames_there(frames, str(clip), 10)
     # a report from before the stamp was recorded: chosen again too
     del report["source_stamp"]

@@ -121,6 +121,9 @@ def test_hidden_files_beside_photos_are_not_photos(tmp_path):
     (tmp_path / "b.png").unlink()
     with pytest.raises(NerfkitError, match="holds no images"):
         list_images(tmp_path)  # the macOS "._" files alone are no photos
+    (tmp_path / "IMG_0002.MOV").write_bytes(b"x")
+    with pytest.raises(NerfkitError, match=r"holds no images, but a video \(IMG_0002.MOV\)\. Pass the video itself"):
+        list_images(tmp_path)
 
 
 def test_uint8_loading_of_a_photo_makes_no_float_copy(tmp_path):

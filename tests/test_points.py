@@ -233,3 +233,24 @@ def test_points_init_subsamples_to_the_requested_count():
     assert pts.shape == (4, 3) and torch.all(cols == 0.5)
     assert {tuple(p.tolist()) for p in pts} <= {tuple(p) for p in xyz.tolist()}
     assert math.isclose(float(points_init(xyz, None, 100, torch.Generator())[0].sum()), float(xyz.sum()))
+
+
+@pytest.mark.skipif(importlib.util.find_spec("pycolmap") is None, reason="pycolmap not installed")
+def test_colmap_leaves_no_log_files_in_the_temporary_folder(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    def logged(quiet: bool) -> list[str]:
+        folder = tmp_path / str(quiet)
+        folder.mkdir()
+        call = "pycolmap.logging.error('x')"
+        code = "import pycolmap\nfrom nerfkit.capture.points import quiet_colmap\n" + (
+            f"with quiet_colmap(False):\n    {call}" if quiet else call
+        )
+        env = {**os.environ, "TMPDIR": str(folder)}
+        subprocess.run([sys.executable, "-c", code], env=env, check=True, capture_output=True)
+        return [p.name for p in folder.iterdir()]
+
+    assert logged(quiet=False)  # COLMAP's logging library on its own: .HOST.USER.log.ERROR... files
+    assert logged(quiet=True) == []

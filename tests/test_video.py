@@ -257,6 +257,28 @@ def test_a_clip_read_to_well_short_of_its_header_is_called_cut_short():
     assert "read to 1.3 s of the 3.0 s its header gives" in line and "cut short" in line
     assert cut_short(info, np.arange(90) / 30.0) == [] and cut_short(info, np.arange(89) / 30.0) == []
     assert cut_short(VideoInfo("clip.mp4", 320, 240, 0.0, 0.0, 0, False, 0, "h264"), np.arange(5.0)) == []
+    # the file's data reaching its header's end (the sound running on after the picture): whole
+    assert cut_short(info, np.arange(38) / 30.0, data_end=3.0) == []
+    assert cut_short(info, np.arange(38) / 30.0, data_end=1.4) == [line]
+
+
+def test_a_clip_whose_sound_runs_on_is_whole_and_one_cut_in_half_is_not(tmp_path):
+    from nerfkit.capture.video import data_end
+
+    write_mp4(tmp_path / "picture.mp4", render_frames(n=30), fps=10)  # 3 s of picture
+    ffmpeg = [imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y"]
+    sound = ["-f", "lavfi", "-i", "anullsrc=r=8000:cl=mono", "-t", "8", "-c:v", "copy", "-c:a", "aac"]
+    for name, faststart in (("sound.mp4", []), ("fast.mp4", ["-movflags", "+faststart"])):
+        subprocess.run(
+            [*ffmpeg, "-i", str(tmp_path / "picture.mp4"), *sound, *faststart, str(tmp_path / name)], check=True
+        )
+    assert probe_video(tmp_path / "sound.mp4").duration == pytest.approx(8.0, abs=0.1)  # the file's: the sound's
+    assert data_end(tmp_path / "sound.mp4") == pytest.approx(8.0, abs=0.1)
+    sel = select_frames(tmp_path / "sound.mp4", tmp_path / "frames", 12, progress=False)
+    assert sel.read == 30 and not any("cut short" in a for a in sel.advice)
+    whole = (tmp_path / "fast.mp4").read_bytes()  # (its index first: the first half still opens)
+    (tmp_path / "half.mp4").write_bytes(whole[: len(whole) // 2])
+    assert data_end(tmp_path / "half.mp4") < 0.9 * probe_video(tmp_path / "half.mp4").duration
 
 
 def test_select_expression_is_balanced():
@@ -353,3 +375,41 @@ def test_travel_adds_up_consecutive_motion():
     t = travel(thumbs)
     assert t[0] == 0 and t[3] == t[4] == t[2] and np.all(np.diff(t) >= 0)
     assert t[-1] == pytest.approx(3.0, rel=0.5) and t[5] - t[4] == pytest.approx(t[1], rel=0.3)
+
+
+def test_two_takes_of_other_sizes_joined_are_read_whole_in_order(tmp_path):
+    """ffmpeg rebuilds a filter graph when the frames change size mid-stream, and would count
+    them from 0 again: the second take's frames taken for the first's, half the clip lost."""
+    frames = render_frames(n=40)
+    write_mp4(tmp_path / "a.mp4", frames[:20], fps=10)
+    write_mp4(tmp_path / "b.mp4", [cv2.resize(f, (200, 152)) for f in frames[20:]], fps=10)
+    ffmpeg = [imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y"]
+    annexb = ["-c", "copy", "-bsf:v", "h264_mp4toannexb", "-f", "mpegts"]
+    for take in ("a", "b"):
+        subprocess.run(
+            [*ffmpeg, "-i", str(tmp_path / f"{take}.mp4"), *annexb, str(tmp_path / f"{take}.ts")], check=True
+        )
+    joined = ["-i", f"concat:{tmp_path / 'a.ts'}|{tmp_path / 'b.ts'}", "-c", "copy", str(tmp_path / "joined.mp4")]
+    subprocess.run([*ffmpeg, *joined], check=True)
+    sel = select_frames(tmp_path / "joined.mp4", tmp_path / "frames", 40, progress=False, duplicate_motion=0.0)
+    assert sel.read == 40 and sel.frame_indices == list(range(40))  # every frame, each its own
+    assert sel.timestamps[-1] == pytest.approx(3.9, abs=0.15)  # the second take's last frame
+    last = cv2.imread(str(tmp_path / "frames" / sel.files[-1]))[..., ::-1]
+    assert last.shape == (120, 160, 3)  # at the first take's size
+    truth = cv2.resize(cv2.resize(frames[sel.frame_indices[-1]], (200, 152)), (160, 120))
+    assert np.abs(last.astype(float) - truth).mean() < 12  # that frame, not another
+
+
+def test_a_clip_named_with_a_colon_is_read_as_a_file(tmp_path):
+    write_mp4(tmp_path / "take:2.mp4", render_frames(n=20), fps=10)  # ffmpeg would take "take:" for a protocol
+    assert probe_video(tmp_path / "take:2.mp4").frames == 20
+    assert select_frames(tmp_path / "take:2.mp4", tmp_path / "frames", 12, progress=False).read == 20
+
+
+def test_a_very_wide_frame_gets_a_thumbnail_motion_can_measure():
+    from nerfkit.capture.video import frame_scores
+
+    grey = texture(48, 720)[20:26, :, 0]  # a 2000x16 clip scored at 720x6
+    _, _, thumb = frame_scores(grey)
+    assert thumb.shape == (2, 64)
+    assert motion(thumb, np.roll(thumb, 3, axis=1)) > 0

@@ -20,6 +20,8 @@ from .io.atomic import atomic_path
 from .io.paths import files_inside, path_kind, refuse_special_file
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp", ".heic", ".heif"}
+# the clips `nerfkit capture` and `nerfkit frames` take (ffmpeg reads them)
+VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".3gp")
 # PIL refuses larger images as a "decompression bomb"; phone photos are ~12-50 MP.
 MAX_IMAGE_PIXELS = 250_000_000
 
@@ -247,6 +249,14 @@ def list_images(folder: str | Path, allow_outside: bool = False) -> list[Path]:
         raise fail(folder, "no such folder" if not folder.exists() else "is not a folder")
     files = image_files(folder)
     if not files:
+        clips = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
+        if clips:
+            raise fail(
+                folder,
+                f"holds no images, but a video ({', '.join(clips[:3])})",
+                f"Pass the video itself to nerfkit capture ({folder / clips[0]}), or write its frames as photos "
+                "with nerfkit frames",
+            )
         raise fail(folder, "holds no images", f"Expected files ending in {', '.join(sorted(IMAGE_SUFFIXES))}")
     return files_inside(
         folder,

@@ -157,16 +157,18 @@ def sfm_pycolmap():
 
 @contextlib.contextmanager
 def quiet_colmap(verbose: bool) -> Iterator[None]:
-    """Silence COLMAP's INFO/WARNING log lines unless ``verbose``."""
+    """Silence COLMAP's INFO/WARNING log lines unless ``verbose``; what it logs goes to
+    stderr only (its logging library otherwise leaves log files in the temporary folder)."""
     import pycolmap
 
-    old = pycolmap.logging.minloglevel
+    old = pycolmap.logging.minloglevel, pycolmap.logging.logtostderr
+    pycolmap.logging.logtostderr = True
     if not verbose:
         pycolmap.logging.minloglevel = 2
     try:
         yield
     finally:
-        pycolmap.logging.minloglevel = old
+        pycolmap.logging.minloglevel, pycolmap.logging.logtostderr = old
 
 
 def camera_neighbours(c2w: np.ndarray, k: int) -> list[tuple[int, int]]:

@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import fail
+from ..images import VIDEO_SUFFIXES
 
-VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".3gp")
 DEFAULT_TARGET = 120  # frames kept by default
 MIN_FRAMES = 10  # fewer usable frames than this cannot be posed
 SCORE_SIDE = 720  # longest side (pixels) of the grey frames scored in the first pass
@@ -66,7 +66,7 @@ class VideoInfo:
     width: int
     height: int
     fps: float  # average frame rate the header gives (0 when unknown)
-    duration: float  # seconds (0 when unknown)
+    duration: float  # seconds (0 when unknown): the file's, its longest stream's (the sound's, say)
     frames: int  # frame count: counted when ``exact``, else duration * fps
     exact: bool
     rotation: int  # clockwise degrees a player turns the coded frames: 0, 90, 180 or 270
@@ -98,7 +98,7 @@ class FrameSelection:
     score_size: tuple[int, int] = (0, 0)  # (width, height) of the scored grey frames
     spread: str = "time"  # the windows are evenly spread in time or in camera travel ("motion")
     advice: list[str] = field(default_factory=list)
-    source_stamp: list[int] = field(default_factory=list)  # the clip's size and mtime (ns): clip_stamp
+    source_stamp: str = ""  # the clip's size and a digest of its bytes: clip_stamp
 
     @property
     def kept(self) -> int:
@@ -120,11 +120,23 @@ class FrameSelection:
         return d
 
 
-def clip_stamp(path: str | os.PathLike) -> list[int]:
-    """``[size in bytes, modification time in ns]`` of the clip ``path``: a clip replaced or
-    edited since its frames were chosen has another."""
-    st = Path(path).stat()
-    return [int(st.st_size), int(st.st_mtime_ns)]
+def clip_stamp(path: str | os.PathLike) -> str:
+    """The clip ``path``'s size and a digest of its bytes: a clip replaced or edited since its
+    frames were chosen (a rotation fixed in its header keeps its size) has another; one
+    copied again, or touched, keeps it. Reads the whole file (about a second a gigabyte)."""
+    import hashlib
+
+    digest = hashlib.sha1()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            digest.update(chunk)
+    return f"{Path(path).stat().st_size} bytes, sha1 {digest.hexdigest()[:16]}"
+
+
+def ffmpeg_input(path: str | os.PathLike) -> str:
+    """``path`` as ffmpeg's ``-i`` reads it as a file: a name with a colon (``take:2.mp4``)
+    is otherwise taken for a protocol."""
+    return "file:" + str(Path(path).resolve())
 
 
 def is_video(path: str | os.PathLike) -> bool:
@@ -200,7 +212,9 @@ def probe_video(path: str | os.PathLike, count: bool = False) -> VideoInfo:
     _check_readable(path)
     if path.suffix.lower() == ".gif":  # ffmpeg decodes some GIFs' first frame only: a clip read short
         raise fail(path, "is a GIF, not a video", "Pass the video the phone recorded (MP4, MOV), or convert it to MP4")
-    r = subprocess.run([ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", str(path)], capture_output=True, check=False)
+    r = subprocess.run(
+        [ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", ffmpeg_input(path)], capture_output=True, check=False
+    )
     text = r.stderr.decode("utf-8", "replace")
     if "Input #0" not in text:
         why = text.strip().splitlines()[-1] if text.strip() else "ffmpeg could not open it"
@@ -217,7 +231,7 @@ def probe_video(path: str | os.PathLike, count: bool = False) -> VideoInfo:
                 "-hide_banner",
                 "-nostdin",
                 "-i",
-                str(path),
+                ffmpeg_input(path),
                 "-map",
                 "0:v:0",
                 "-c",
@@ -233,6 +247,29 @@ def probe_video(path: str | os.PathLike, count: bool = False) -> VideoInfo:
         if frames:
             info.frames, info.exact = int(frames[-1]), True
     return info
+
+
+def data_end(path: str | os.PathLike) -> float | None:
+    """Seconds into the clip at which the data of all its streams ends, by demuxing it (no
+    decoding); None when ffmpeg does not say. A file cut short ends before its header's
+    duration; a clip whose sound runs on after the picture does not."""
+    cmd = [
+        ffmpeg_exe(),
+        "-hide_banner",
+        "-nostdin",
+        "-i",
+        ffmpeg_input(path),
+        "-map",
+        "0",
+        "-c",
+        "copy",
+        "-f",
+        "null",
+        "-",
+    ]
+    r = subprocess.run(cmd, capture_output=True, check=False)
+    ends = re.findall(r"time=\s*(\d+):(\d+):([\d.]+)", r.stderr.decode("utf-8", "replace"))
+    return int(ends[-1][0]) * 3600 + int(ends[-1][1]) * 60 + float(ends[-1][2]) if ends else None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -257,8 +294,12 @@ def _ffmpeg_frames(path: Path, size: tuple[int, int], pix_fmt: str, filters: lis
         "-hide_banner",
         "-nostdin",
         "-nostats",
+        # a clip whose frames change size or colour range mid-stream (two takes joined) keeps one
+        # filter graph: rebuilt, it would count its frames (showinfo's and select's n) from 0 again
+        "-reinit_filter",
+        "0",
         "-i",
-        str(path),
+        ffmpeg_input(path),
         "-map",
         "0:v:0",
         "-an",
@@ -308,7 +349,8 @@ def frame_scores(grey: np.ndarray, thumb_side: int = THUMB_SIDE) -> tuple[float,
     sharp = float(cv2.Laplacian(grey, cv2.CV_32F).var())
     h, w = grey.shape
     s = thumb_side / max(h, w)
-    thumb = cv2.resize(grey, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)
+    # at least 2 pixels a side: motion() takes a gradient (a 2000x16 clip's would be 64x1)
+    thumb = cv2.resize(grey, (max(2, round(w * s)), max(2, round(h * s))), interpolation=cv2.INTER_AREA)
     return sharp, float(grey.mean()), thumb
 
 
@@ -541,13 +583,15 @@ def extract_frames(
             )
 
 
-def cut_short(info: VideoInfo, times: np.ndarray) -> list[str]:
+def cut_short(info: VideoInfo, times: np.ndarray, data_end: float | None = None) -> list[str]:
     """Advice (a list of one line, or none) when the frames decoded at ``times`` (seconds) end
-    before 90% of the duration the header gives: a file cut short decodes its start only."""
+    before 90% of the duration the header gives: a file cut short decodes its start only.
+    ``data_end``: where the data of all its streams ends (:func:`data_end`); when that
+    reaches the header's duration the file is whole, its sound running on after the picture."""
     if info.duration <= 0 or not len(times):
         return []
     reached = float(times.max()) + (1.0 / info.fps if info.fps > 0 else 0.0)
-    if reached >= 0.9 * info.duration:
+    if reached >= 0.9 * info.duration or (data_end is not None and data_end >= 0.9 * info.duration):
         return []
     return [
         f"the clip could be read to {reached:.1f} s of the {info.duration:.1f} s its header gives: the file looks "
@@ -604,7 +648,7 @@ def select_frames(
     names = [FRAME_NAME.format(k + 1) for k in range(len(kept))]
     windows = windows_of(spread_axis(scores, spread), target)
     sel = FrameSelection(
-        source=str(path),
+        source=str(path.resolve()),
         source_stamp=clip_stamp(path),
         out_dir=str(out_dir),
         info=info,
@@ -621,7 +665,7 @@ def select_frames(
         score_size=score_size(info.width, info.height, score_side),
         spread=spread,
         advice=[f"{c} frames {r}: {ADVICE[r]}" for r, c in counts.items() if r in ADVICE and c > n // 4]
-        + cut_short(info, scores.times),
+        + cut_short(info, scores.times, data_end=data_end(path) if cut_short(info, scores.times) else None),
     )
     with _frames_folder(out_dir, replace=bool(earlier)) as folder:
         extract_frames(path, info, sel.frame_indices, folder, names, progress)

@@ -223,13 +223,15 @@ def _inputs(args: CaptureOptions) -> dict:
     def where(p):
         return str(Path(p).resolve()) if p else None
 
-    from ...capture.video import is_video
+    from ...capture.video import clip_stamp, is_video
 
     video = is_video(args.photos)
+    clip_content = clip_stamp(args.photos) if video and Path(args.photos).is_file() else None
     return {
         "photos": where(args.photos),
         "photo_files": _clip_file(args.photos) if video else _photo_files(args.photos),
-        **({"clip_frames": args.clip_frames} if video else {}),
+        # (its bytes: a clip edited in place, a rotation fixed in its header, keeps its size)
+        **({"clip_frames": args.clip_frames, "clip_content": clip_content} if video else {}),
         "calib": where(args.calib),
         "calib_files": _photo_files(args.calib),
         "camera": where(args.camera),
@@ -243,21 +245,22 @@ def _inputs(args: CaptureOptions) -> dict:
     }
 
 
-def _same_inputs(out: Path, inputs: dict, camera: Path | None, made: list[Path]) -> None:
+def _same_inputs(out: Path, inputs: dict, camera: Path | None, made: list[Path], ours: list[Path]) -> None:
     """Refuse to keep an earlier capture's results when they were made from other inputs
     (``camera``: the capture's camera file, made from CAMERA_INPUTS; ``made``: its dataset
-    and NeRF, made from all of them), or when ``out`` holds such results that no capture
-    recorded. Inputs whose results are not there yet (a step that failed) may change."""
+    and NeRF, made from all of them), or, when no capture recorded its inputs in ``out``, to
+    replace any of the files and folders the capture writes (``ours``) that are there.
+    Inputs whose results are not there yet (a step that failed) may change."""
     import json
 
     from ...errors import fail
 
-    there = [p for p in ([camera] if camera is not None else []) + made if p.exists()]
     try:
         before = json.loads((out / RECORD_FILE).read_text()).get("inputs")
     except (OSError, ValueError, AttributeError):
         before = None
     if not isinstance(before, dict) or "photos" not in before:  # missing, or not a record
+        there = [p for p in ours if p.exists()]
         if there:
             raise fail(
                 out,
@@ -399,6 +402,13 @@ def _check_arguments(args: CaptureOptions, video: bool) -> None:
             "poses from the tag need the tag's size",
             "Measure the tag's black square and pass --tag-size (e.g. 0.06), or leave --method out to pose "
             "by structure-from-motion",
+        )
+    if video and args.method == "tags" and not (args.calib or args.camera):
+        raise fail(
+            "--method tags",
+            "a video's frames carry no focal length for the tag's poses to start from",
+            "Give the phone's camera (--calib SHEET_PHOTOS or --camera camera.json), or leave --method out: "
+            "structure-from-motion poses the frames and the tag sets the scale",
         )
     if args.calib and not (args.sheet_tag_size or args.tag_size):
         raise fail(
@@ -682,6 +692,7 @@ def run_capture(args: CaptureOptions, api: Calls) -> Made:
             inputs,
             out / CAMERA_FILE if args.calib else None,
             [out / DATASET_DIR / "dataset.npz", out / RUN_DIR / "config.json", out / SPLAT_RUN_DIR / "config.json"],
+            ours,
         )
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / RECORD_FILE, {"inputs": inputs})
