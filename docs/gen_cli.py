@@ -89,8 +89,12 @@ def generate() -> str:
 
 
 def main() -> int:
+    args = sys.argv[1:]
+    if args not in ([], ["--check"]):
+        print("usage: python docs/gen_cli.py [--check]  (writes docs/cli.md from the parser; --check: only compare)")
+        return 2
     text = generate()
-    if "--check" in sys.argv[1:]:
+    if args:
         same = OUT.exists() and OUT.read_text(encoding="utf-8") == text
         print("docs/cli.md is up to date" if same else "docs/cli.md differs: run python docs/gen_cli.py")
         return 0 if same else 1

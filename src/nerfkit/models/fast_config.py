@@ -292,8 +292,7 @@ class FastConfig:
         False,
         "in NDC: stretch the grid across by the photos' width over their height, so that a "
         "voxel spans as many pixels across as down (NDC's X and Y both span the photo, so a "
-        "cube of NDC spans more pixels across a landscape photo than down; default: on for "
-        "forward-facing datasets)",
+        "cube of NDC spans more pixels across a landscape photo than down)",
     )
     object_box: bool = option(
         True,
