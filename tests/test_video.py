@@ -323,7 +323,11 @@ def test_cli_errors_say_what_to_do(tmp_path, capsys):
     write_mp4(blurred, render_frames(n=30, blur=set(range(30)), sigma=8))
     code, _, err = frames_cli(capsys, blurred, "--out", tmp_path / "c", "--frames", 10)
     assert code == 2 and "every one of its 30 frames is blurred" in err and "steadier" in err
-    for out in ("a", "b", "c"):
+    plain = tmp_path / "plain.mp4"  # no detail at all: no steadier hand mends it
+    write_mp4(plain, [np.full((120, 160, 3), 128, np.uint8)] * 30)
+    code, _, err = frames_cli(capsys, plain, "--out", tmp_path / "d", "--frames", 10)
+    assert code == 2 and "shows no detail in 30 of its 30 frames" in err and "in focus" in err
+    for out in ("a", "b", "c", "d"):
         assert not (tmp_path / out).exists()  # nothing written for a clip refused
 
 

@@ -39,6 +39,9 @@ SCORE_SIDE = 720  # longest side (pixels) of the grey frames scored in the first
 THUMB_SIDE = 64  # longest side of the thumbnails compared for motion
 BLUR_RATIO = 0.35  # a frame below this fraction of the clip's median sharpness is blurred
 BLUR_FLOOR = 8.0  # ... and any frame below this variance of the Laplacian (grey levels^2, at the scoring size)
+# a clip whose lit frames' median sharpness is under this is flat, not shaken: one colour, a
+# screen recording of a blank page (a clip blurred with an 8-pixel Gaussian scores about 5)
+PLAIN_SHARPNESS = 1.0
 DARK_LEVEL = 12.0  # mean grey level (of 255) below which a frame is too dark
 DUPLICATE_MOTION = 0.2  # thumbnail pixels of apparent motion below which a frame repeats the last kept
 JPEG_QUALITY = 95
@@ -644,7 +647,7 @@ def select_frames(
     )
     counts = {r: int(np.sum(reason == r)) for r in REASONS}
     if len(kept) < min_frames:
-        raise _too_few(path, n, len(kept), counts, min_frames)
+        raise _too_few(path, n, len(kept), counts, min_frames, plain=median < PLAIN_SHARPNESS)
     names = [FRAME_NAME.format(k + 1) for k in range(len(kept))]
     windows = windows_of(spread_axis(scores, spread), target)
     sel = FrameSelection(
@@ -698,10 +701,18 @@ def _frames_folder(out_dir: Path, replace: bool) -> Iterator[Path]:
         raise
 
 
-def _too_few(path: Path, read: int, kept: int, counts: dict[str, int], need: int):
+def _too_few(path: Path, read: int, kept: int, counts: dict[str, int], need: int, plain: bool = False):
     """The NerfkitError for a clip with fewer than ``need`` frames worth keeping: named by
-    the main reason the others were dropped."""
+    the main reason the others were dropped. ``plain``: the lit frames' median sharpness is
+    under :data:`PLAIN_SHARPNESS`: the clip shows no detail at all, which no steadier hand mends."""
     worst = max((DARK, BLURRED, DUPLICATE), key=lambda r: counts[r])
+    if worst == BLURRED and plain:
+        return fail(
+            path,
+            f"shows no detail in {counts[BLURRED]} of its {read} frames (one flat colour); at least {need} frames "
+            "with detail are needed",
+            "Film the object with its table and surroundings in view, in focus",
+        )
     what = {DARK: "too dark", BLURRED: "blurred", DUPLICATE: "near-duplicates (the camera barely moves)"}[worst]
     if counts[worst] == read:
         head = f"every one of its {read} frames is {what}"
