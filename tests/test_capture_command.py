@@ -217,9 +217,11 @@ def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_pho
     assert "holds no images" in capsys.readouterr().err  # it got as far as reading the (empty) folder
     # a step's error, with its traceback under --verbose
     iio.imwrite(nested / "blank.png", np.full((48, 64, 3), 128, np.uint8))  # a photo without a tag
+    (nested / "IMG_0001.MOV").write_bytes(b"a clip beside the photos: not read, said so")
     assert main(["--verbose", "capture", str(nested), "--tag-size", "0.06", "--out", str(tmp_path / "mine")]) == 2
-    err = capsys.readouterr().err
+    out, err = capsys.readouterr()
     assert err.count("Traceback") == 2  # the step's own, and the capture's
+    assert f"note: {nested} also holds 1 video (IMG_0001.MOV), not read" in out
 
 
 def test_capture_refuses_before_any_step_what_a_later_step_would_trip_on(tmp_path, capsys):

@@ -445,6 +445,19 @@ def _frames_there(frames_dir: Path, clip: str, target: int) -> bool:
         return False
 
 
+def _say_videos_beside(folder: Path) -> None:
+    """Say that the videos in a folder of photos are not read (the photos are)."""
+    from ...images import VIDEO_SUFFIXES
+
+    clips = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
+    if clips:
+        print(
+            f"note: {folder} also holds {len(clips)} video{'s' * (len(clips) > 1)} ({', '.join(clips[:3])}), "
+            "not read: the photos are (pass a video itself to nerfkit capture to use it instead)",
+            flush=True,
+        )
+
+
 def _check_posed(dataset: Path, what: str) -> None:
     """Stop the capture when structure-from-motion posed too few of the photos (``what``:
     "frames" or "photos"): a NeRF of part of them would not show the object."""
@@ -683,6 +696,7 @@ def run_capture(args: CaptureOptions, api: Calls) -> Made:
         probe_video(args.photos)
     else:
         list_images(args.photos)
+        _say_videos_beside(Path(args.photos))
     resolve_device(args.device)
     route = _route(args, video)
     inputs = _inputs(args)
