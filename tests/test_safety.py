@@ -539,6 +539,24 @@ def test_one_process_per_run_folder(trained, tmp_path, capsys, sphere_npz):
     assert main(["train", "--resume", str(run), "--steps", "7"]) == 0  # released
 
 
+def test_a_lock_file_that_is_a_link_is_refused_and_what_it_points_to_kept(tmp_path):
+    from nerfkit.errors import NerfkitError
+    from nerfkit.io.lock import LOCK_FILE, folder_lock
+
+    mine = tmp_path / "notes.txt"
+    mine.write_text("the user's notes")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / LOCK_FILE).symlink_to(mine)
+    with pytest.raises(NerfkitError, match=r"\.nerfkit\.lock: is a link or cannot be opened"), folder_lock(out):
+        pass
+    assert mine.read_text() == "the user's notes"  # not emptied
+    (out / LOCK_FILE).unlink()
+    os.mkfifo(out / LOCK_FILE)
+    with pytest.raises(NerfkitError, match="is not a regular file"), folder_lock(out):
+        pass
+
+
 def test_stale_temporaries_of_a_killed_run_are_removed_on_the_next_start(trained, tmp_path):
     run = copy_run(trained, tmp_path)
     stale = [

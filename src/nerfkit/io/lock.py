@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import stat
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -28,7 +29,17 @@ def folder_lock(folder: str | os.PathLike) -> Iterator[Path]:
     """Hold the exclusive lock of ``folder`` (created if needed) for the ``with`` block."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    fd = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o666)
+    try:  # never through a link: truncating it would empty the file it points to
+        fd = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
+    except OSError as e:
+        raise fail(
+            folder / LOCK_FILE,
+            "is a link or cannot be opened as nerfkit's lock file" + (f" ({e.strerror})" if e.strerror else ""),
+            "Remove it (nerfkit makes its own), or choose another folder",
+        ) from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise fail(folder / LOCK_FILE, "is not a regular file", "Remove it (nerfkit makes its own)")
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
