@@ -401,3 +401,19 @@ def test_frames_chosen_from_a_clip_are_kept_only_while_the_clip_is_unchanged(tmp
     del report["source_stamp"]
     (frames / REPORT_NAME).write_text(json.dumps(report))
     assert not _frames_there(frames, str(clip), 10)
+
+
+def test_force_removes_an_earlier_run_but_never_a_folder_no_run_wrote(tmp_path):
+    from nerfkit.commands.stages.capture import _replace_run
+    from nerfkit.errors import NerfkitError
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text("{}")  # the user's, not a run's settings
+    (run / "thesis.txt").write_text("the user's")
+    with pytest.raises(NerfkitError, match="holds files that are not a nerfkit run"):
+        _replace_run(run)
+    assert (run / "thesis.txt").exists()
+    (run / "config.json").write_text(json.dumps({"train": {"steps": 5, "minutes": 0.0}}))
+    _replace_run(run)
+    assert not run.exists()

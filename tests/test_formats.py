@@ -216,6 +216,27 @@ def test_npz_to_transforms_round_trip(tmp_path):
         np.testing.assert_array_equal(b.images, a.images)
 
 
+@pytest.mark.parametrize("fmt", ["transforms", "colmap"])
+def test_force_replaces_an_earlier_conversion_but_never_the_users_files(tmp_path, capsys, fmt):
+    pytest.importorskip("nerfkit.data.nerfstudio" if fmt == "transforms" else "pycolmap")
+    save_npz(sphere_scene(n_train=3, n_val=1, size=16), tmp_path / "s.npz")
+    out = tmp_path / "out"
+    convert = ["convert", str(tmp_path / "s.npz"), "--to", str(out), "--format", fmt]
+    assert main(convert) == 0
+    assert main([*convert, "--force"]) == 0  # its own earlier output: replaced
+    (out / "images" / "holiday.jpg").write_bytes(b"the user's photo")
+    assert main([*convert, "--force"]) == 2
+    err = capsys.readouterr().err
+    assert "holds files that no earlier output of nerfkit's wrote there (holiday.jpg)" in err
+    assert "--force replaces only what nerfkit wrote" in err
+    assert (out / "images" / "holiday.jpg").read_bytes() == b"the user's photo"
+    fresh = tmp_path / "Documents"  # a folder of the user's, named as the output
+    (fresh / "images").mkdir(parents=True)
+    (fresh / "images" / "IMG_1.jpg").write_bytes(b"another photo")
+    assert main(["convert", str(tmp_path / "s.npz"), "--to", str(fresh), "--format", fmt, "--force"]) == 2
+    assert (fresh / "images" / "IMG_1.jpg").exists()
+
+
 def test_convert_sets_the_depth_range(tmp_path, capsys):
     """A depth range given on the command line replaces the dataset's, in both formats."""
     scene = sphere_scene(n_train=4, n_val=2, size=16)

@@ -288,6 +288,15 @@ def test_dataset_replaces_an_existing_dataset_only_with_force(tmp_path, capsys):
     one_line(capsys, "already exists", "--force")
     assert files_under(ds) == before
     (ds / "images" / "IMG_dropped_since.jpg").write_bytes(next((ds / "images").iterdir()).read_bytes())
+    assert main([*argv, "--max-side", "8", "--force"]) == 2  # a file no dataset wrote: the user's, kept
+    one_line(capsys, "holds files that no earlier output of nerfkit's wrote there (IMG_dropped_since.jpg)")
+    assert (ds / "images" / "IMG_dropped_since.jpg").exists() and np.load(ds / "dataset.npz")["images_train"].shape[
+        1:3
+    ] == (16, 16)
+    # as the dataset before wrote it: a photo since dropped from the photo folder
+    record = json.loads((ds / "transforms.json").read_text())
+    record["frames"].append({**record["frames"][0], "file_path": "images/IMG_dropped_since.jpg"})
+    (ds / "transforms.json").write_text(json.dumps(record))
     assert main([*argv, "--max-side", "8", "--force"]) == 0
     assert np.load(ds / "dataset.npz")["images_train"].shape[1:3] == (8, 8)
     # the images folder is the new dataset's alone: a photo of the one before does not stay

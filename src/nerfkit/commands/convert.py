@@ -265,6 +265,24 @@ def write_scene_as(scene, out, fmt: str, text: bool = False) -> list:
     return [out / "transforms.json"]
 
 
+# the files of a COLMAP model folder (pycolmap writes these, as text or binary)
+MODEL_FILE_NAMES = [f"{n}.{ext}" for n in ("cameras", "images", "points3D", "rigs", "frames") for ext in ("bin", "txt")]
+
+
+def model_images(model_dir) -> list[str]:
+    """The image names an earlier COLMAP model at ``model_dir`` holds; none when there is
+    none or it cannot be read."""
+    from ..data.colmap import is_model_dir, read_model
+    from ..errors import NerfkitError
+
+    if not is_model_dir(model_dir):
+        return []
+    try:
+        return [img.name for img in read_model(model_dir).images.values()]
+    except (NerfkitError, OSError, ValueError, RuntimeError):
+        return []
+
+
 def write_colmap_project(scene, out, text: bool = False) -> list:
     """A COLMAP project: ``sparse/0`` (PINHOLE cameras) and ``images/`` (PNG).
 
@@ -277,7 +295,7 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
     from ..data.colmap import write_colmap_model
     from ..errors import fail
     from ..images import IMAGE_SUFFIXES, write_image
-    from ..io.atomic import replacing_folder
+    from ..io.atomic import refuse_foreign_files, replacing_folder
     from ..io.paths import safe_output_name
 
     out = Path(out)
@@ -300,7 +318,10 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
         splits[split] = replace(v, names=names)
     with_images = tuple(k for k, v in scene.splits.items() if v.images is not None and len(v))
     keep = with_images or tuple(scene.splits)
-    # both written afresh: an earlier conversion's extra images or text model do not stay
+    # both written afresh: an earlier conversion's extra images or text model do not stay; files
+    # no earlier conversion wrote there are the user's, and refused
+    refuse_foreign_files(out / "images", model_images(out / "sparse" / "0"), "--to")
+    refuse_foreign_files(out / "sparse" / "0", MODEL_FILE_NAMES, "--to")
     with replacing_folder(out / "images") as images, replacing_folder(out / "sparse" / "0") as model:
         for split in with_images:
             for name, im in zip(splits[split].names, scene.splits[split].images):

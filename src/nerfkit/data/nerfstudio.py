@@ -32,7 +32,7 @@ import numpy as np
 from ..cameras import opencv_to_opengl, opengl_to_opencv
 from ..config import load_json
 from ..errors import fail
-from ..io.atomic import atomic_path, replacing_folder, write_json
+from ..io.atomic import atomic_path, refuse_foreign_files, replacing_folder, write_json
 from ..io.paths import path_kind, refuse_special_file, resolve_inside, safe_output_name
 from .blender import focal_from_angle, frame_image_path
 from .ply import read_points_ply, write_points_ply
@@ -358,6 +358,20 @@ def _save_image(path: Path, image: np.ndarray, jpeg_quality: int) -> None:
             Image.fromarray(image).save(tmp, format="PNG")
 
 
+def written_images(path: Path, image_dir: str) -> list[str]:
+    """The files of ``image_dir`` (relative to it) that the transforms.json at ``path``, an
+    earlier one nerfkit wrote, names; none when there is no such file or it cannot be read."""
+    import json
+
+    try:
+        frames = json.loads(path.read_text())["frames"]
+        paths = [str(f["file_path"]) for f in frames]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+    prefix = Path(image_dir).as_posix().rstrip("/") + "/"
+    return [p[len(prefix) :] for p in paths if p.startswith(prefix)]
+
+
 def write_transforms_json(
     scene: Scene,
     folder: str | Path,
@@ -410,6 +424,7 @@ def write_transforms_json(
     if not frames:
         raise fail(folder, "the scene has no views with images to write")
     if write_images:
+        refuse_foreign_files(folder / image_dir, written_images(folder / "transforms.json", image_dir))
         with replacing_folder(folder / image_dir) as images:
             for fname, image in to_write:
                 _save_image(images / fname, image, jpeg_quality)

@@ -98,6 +98,32 @@ def remove_stale_temporaries(folder: str | os.PathLike) -> int:
     return len(stale)
 
 
+def foreign_files(folder: str | os.PathLike, own) -> list[str]:
+    """The files in ``folder`` (its subfolders too; relative, ``/``-separated) that are not
+    among ``own``, the names an earlier output of nerfkit's recorded there; none when
+    ``folder`` is missing or a link (replacing a link replaces the link alone). nerfkit's
+    own temporaries are never foreign."""
+    folder = Path(folder)
+    if folder.is_symlink() or not folder.is_dir():
+        return []
+    own = set(own)
+    names = (p.relative_to(folder).as_posix() for p in folder.rglob("*") if not p.is_dir() or p.is_symlink())
+    return sorted(n for n in names if n not in own and not is_temporary(Path(n).name))
+
+
+def refuse_foreign_files(folder: str | os.PathLike, own, flag: str = "--out") -> None:
+    """Refuse to replace ``folder``, ``--force`` or not, while it holds files nerfkit did not
+    write there (:func:`foreign_files`): --force replaces an earlier output, never the user's files."""
+    foreign = foreign_files(folder, own)
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        raise fail(
+            folder,
+            f"holds files that no earlier output of nerfkit's wrote there ({shown})",
+            f"Move them away, or choose another {flag}: --force replaces only what nerfkit wrote",
+        )
+
+
 @contextlib.contextmanager
 def replacing_folder(folder: str | os.PathLike) -> Iterator[Path]:
     """Yield ``folder`` to be written afresh. An existing one is moved aside first and

@@ -375,7 +375,7 @@ def _replace_run(run_dir: Path) -> None:
 
     if not run_dir.exists():
         return
-    if not (run_dir / "config.json").is_file():
+    if _budget(run_dir) is None:  # no config.json that a nerfkit run wrote
         raise fail(run_dir, "holds files that are not a nerfkit run", "Move them away, or choose another --out")
     print(f"\n== --force: removing the earlier NeRF {run_dir}", flush=True)
     shutil.rmtree(run_dir)
