@@ -315,6 +315,8 @@ def test_dataset_and_poses_never_write_into_the_photo_folder(tmp_path, capsys):
     before = files_under(project)
     assert main(["dataset", str(ds), "--out", str(project), "--jobs", "1"]) == 2
     one_line(capsys, "holds the input")
+    assert main(["dataset", str(ds), "--out", str(project / "images"), "--jobs", "1"]) == 2  # among the photos
+    one_line(capsys, "is inside the input")
     assert (
         main(
             [
@@ -335,6 +337,30 @@ def test_dataset_and_poses_never_write_into_the_photo_folder(tmp_path, capsys):
     )
     one_line(capsys, "is an input", "never writes its inputs")
     assert files_under(project) == before
+
+
+def test_outputs_never_land_in_a_dataset_folder_or_on_images_it_names_outside_it(tmp_path, capsys):
+    import shutil
+
+    from nerfkit.data.npz import save_npz
+    from nerfkit.data.synthetic import sphere_scene
+
+    ds = tmp_path / "ds"  # as poses writes it: the npz beside its images
+    (ds / "images").mkdir(parents=True)
+    save_npz(sphere_scene(n_train=3, n_val=1, size=8), ds / "dataset.npz")
+    assert main(["view", str(ds / "dataset.npz"), "--png", str(ds / "images" / "view.png")]) == 2
+    one_line(capsys, "is inside the input")
+    # a transforms.json whose images live outside its folder (read with --allow-outside-paths)
+    folder = _transforms_reading(tmp_path, "../shared/images/photo.png")
+    (tmp_path / "shared" / "images").mkdir(parents=True)
+    shutil.copy(folder / "images" / "sphere_0_000.png", tmp_path / "shared" / "images" / "photo.png")
+    before = files_under(tmp_path / "shared")
+    outside = ["--allow-outside-paths", "--force"]
+    assert main(["convert", str(folder), "--to", str(tmp_path / "shared"), *outside]) == 2
+    one_line(capsys, "holds the input")
+    assert main(["view", str(folder), "--png", str(tmp_path / "shared" / "images" / "photo.png"), *outside]) == 2
+    one_line(capsys, "is an input")
+    assert files_under(tmp_path / "shared") == before
 
 
 def test_convert_to_its_own_source_is_refused_even_with_force(tmp_path, capsys):

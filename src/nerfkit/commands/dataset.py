@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     posed, data = read_poses_json(args.poses, allow_outside=args.allow_outside_paths)
     guard_outputs(
         [out / name for name in DATASET_OUTPUTS],
-        [src / POSES_FILE if src.is_dir() else src, *(p.path for p in posed)],
+        [src / POSES_FILE if src.is_dir() else src, *(p.path for p in posed), *{p.path.parent for p in posed}],
         args.force,
     )
     with advice("Re-run nerfkit poses"):
@@ -211,7 +211,8 @@ def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bo
     model_copy = out / "colmap" / "sparse" / "0"
     outputs = [out / name for name in DATASET_OUTPUTS] + ([] if in_place else [out / REPORT_FILE, model_copy])
     photos = [p.path for p in posed_photos(result)]
-    guard_outputs(outputs, [folder / REPORT_FILE, result.model_dir, *photos], force)
+    # the photos' folders too: poses refuses to write among the photos, and so does this
+    guard_outputs(outputs, [folder / REPORT_FILE, result.model_dir, *photos, *{p.parent for p in photos}], force)
     require_photos(photos, folder)
     print(
         f"poses: structure-from-motion, {len(photos)} photos ({result.model_dir}; --pose-source tags for the tag poses)"

@@ -18,7 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import NerfkitError, fail
-from ..io.paths import path_kind, refuse_special_file
+from ..io.paths import dataset_folder, is_within, path_kind, refuse_special_file
 from .npz import load_npz
 from .resample import resample_scene
 from .scene import Scene
@@ -131,6 +131,8 @@ def dataset_inputs(path: str | Path) -> list[Path]:
     out = [path]
     if path.is_file() and path.suffix.lower() != ".npz":
         out.append(path.parent)
+    folder = dataset_folder(path)  # ds/ of ds/dataset.npz beside its images, as train refuses it too
+    out += [folder] if folder is not None and folder not in out else []
     try:
         fmt = detect_format(path)
     except NerfkitError:
@@ -140,7 +142,33 @@ def dataset_inputs(path: str | Path) -> list[Path]:
 
         images = find_image_dir(path if path.is_dir() else path.parent)
         out += [images] if images is not None else []
+    if fmt in ("transforms", "blender"):  # the files its frames name, wherever they are (--allow-outside-paths)
+        out += _named_files(path if path.is_file() else _transforms_file(path))
     return out
+
+
+def _transforms_file(folder: Path) -> Path:
+    """A dataset folder's transforms file: transforms.json, else Blender's transforms_train.json."""
+    return folder / "transforms.json" if (folder / "transforms.json").is_file() else folder / "transforms_train.json"
+
+
+def _named_files(transforms: Path) -> list[Path]:
+    """The images and point file outside its folder that a transforms.json (and, for
+    Blender, its sibling split files) names (read with ``--allow-outside-paths``), resolved;
+    none when it cannot be read."""
+    import json
+
+    names: list[str] = []
+    for f in [transforms, *(transforms.parent / f"transforms_{s}.json" for s in ("train", "val", "test"))]:
+        try:
+            data = json.loads(f.read_text())
+            frames = [fr for fr in data.get("frames", []) if isinstance(fr, dict)]
+            names += [str(fr["file_path"]) for fr in frames if "file_path" in fr]
+            names += [str(data["ply_file_path"])] if isinstance(data.get("ply_file_path"), str) else []
+        except (OSError, ValueError, TypeError, AttributeError):
+            continue
+    named = {(transforms.parent / n).resolve() for n in names}
+    return sorted(p for p in named if not is_within(p, transforms.parent))
 
 
 def load_scene(
