@@ -8,6 +8,7 @@ Every crafted file is made here, in tmp_path; nothing outside it is read or writ
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import shutil
@@ -590,6 +591,37 @@ def test_a_lock_file_that_is_a_link_is_refused_and_what_it_points_to_kept(tmp_pa
     os.mkfifo(out / LOCK_FILE)
     with pytest.raises(NerfkitError, match="is not a regular file"), folder_lock(out):
         pass
+
+
+def test_no_write_goes_through_a_linked_subfolder(trained, tmp_path, capsys, sphere_npz):
+    run = copy_run(trained, tmp_path)
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "loss.png").write_bytes(b"the user's")
+    shutil.rmtree(run / "plots", ignore_errors=True)
+    (run / "plots").symlink_to(mine)
+    assert main(["train", "--resume", str(run), "--steps", "8"]) == 2  # its plots would land in mine/
+    one_line(capsys, "plots: is a link", "Remove the link")
+    (run / "plots").unlink()
+    (run / "videos").symlink_to(mine)
+    assert main(["render", str(run), "--frames", "2"]) == 2
+    one_line(capsys, "videos: is a link")
+    out = tmp_path / "conv"
+    out.mkdir()
+    (out / "sparse").symlink_to(mine)
+    if importlib.util.find_spec("pycolmap") is not None:
+        assert main(["convert", str(sphere_npz), "--to", str(out), "--format", "colmap", "--force"]) == 2
+        one_line(capsys, "sparse: is a link")
+    from nerfkit.images import write_image
+
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    (sweep / "L3").symlink_to(mine)
+    image = tmp_path / "img.png"
+    write_image(image, np.zeros((8, 8, 3), np.uint8))
+    assert main(["fit-image", str(image), "--out", str(sweep), "--sweep", "L=3,4", "--steps", "2"]) == 2
+    one_line(capsys, "L3: is a link")
+    assert files_under(mine) == {mine / "loss.png": b"the user's"}
 
 
 def test_stale_temporaries_of_a_killed_run_are_removed_on_the_next_start(trained, tmp_path):

@@ -296,7 +296,7 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
     from ..errors import fail
     from ..images import IMAGE_SUFFIXES, write_image
     from ..io.atomic import refuse_foreign_files, replacing_folder
-    from ..io.paths import safe_output_name
+    from ..io.paths import refuse_links, safe_output_name
 
     out = Path(out)
     written, splits = [], {}
@@ -320,6 +320,7 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
     keep = with_images or tuple(scene.splits)
     # both written afresh: an earlier conversion's extra images or text model do not stay; files
     # no earlier conversion wrote there are the user's, and refused
+    refuse_links(out, ["sparse"])  # (sparse/0 as a link is replaced as a link)
     refuse_foreign_files(out / "images", model_images(out / "sparse" / "0"), "--to")
     refuse_foreign_files(out / "sparse" / "0", MODEL_FILE_NAMES, "--to")
     with replacing_folder(out / "images") as images, replacing_folder(out / "sparse" / "0") as model:

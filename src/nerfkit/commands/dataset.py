@@ -203,7 +203,7 @@ def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bo
     from ..data.validate import check_tags
     from ..errors import NerfkitError
     from ..io.atomic import write_bytes
-    from ..io.paths import guard_outputs, resolved_path
+    from ..io.paths import guard_outputs, refuse_links, resolved_path
     from ..sfm.dataset import REPORT_FILE, build_dataset, load_sfm_result, posed_photos
 
     result = load_sfm_result(folder, allow_outside=allow_outside)
@@ -213,6 +213,7 @@ def rebuild_from_sfm(folder, out, cfg, jobs: int, force: bool, allow_outside: bo
     photos = [p.path for p in posed_photos(result)]
     # the photos' folders too: poses refuses to write among the photos, and so does this
     guard_outputs(outputs, [folder / REPORT_FILE, result.model_dir, *photos, *{p.parent for p in photos}], force)
+    refuse_links(out, ["colmap", "colmap/sparse"])
     require_photos(photos, folder)
     print(
         f"poses: structure-from-motion, {len(photos)} photos ({result.model_dir}; --pose-source tags for the tag poses)"

@@ -64,9 +64,10 @@ def run(args: argparse.Namespace) -> int:
         parse_sweep,
         run_fit,
         run_sweep,
+        sweep_folder,
         sweep_outputs,
     )
-    from ..io.paths import guard_outputs
+    from ..io.paths import guard_outputs, refuse_links
 
     cfg = dataclass_from_args(FitImageConfig, args)
     image = args.image
@@ -81,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
     combos = parse_sweep(sweep) if sweep else None
     outputs = sweep_outputs(out, combos) if combos else [out / name for name in RUN_FILES]
     guard_outputs(outputs, [image], args.force)
+    if combos:  # each combination's run folder is the sweep's own
+        refuse_links(out, [sweep_folder(out, c).name for c in combos])
     progress = not args.quiet
 
     if combos:

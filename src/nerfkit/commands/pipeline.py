@@ -378,7 +378,7 @@ def pose(
     from ..config import number, output_path, tag_side
     from ..errors import fail
     from ..images import list_images
-    from ..io.paths import guard_outputs
+    from ..io.paths import guard_outputs, refuse_links
     from .dataset import report_dataset
     from .stages import pose as stage
 
@@ -402,6 +402,7 @@ def pose(
         raise fail(folder, "exists and is not a folder", "--out names the dataset folder to write")
     outputs = stage.output_names(method, build_dataset)
     guard_outputs([folder / name for name in outputs], [photos_dir, camera_file, layout_file], force)
+    refuse_links(folder, ["colmap"])  # structure-from-motion's work folder
     given_camera = load_camera(camera_file) if camera_file else None
     dictionary = stage.dictionary_of(dictionary, camera_file)
     get_dictionary(dictionary)
@@ -751,7 +752,7 @@ def render(
     from ..data.load import dataset_inputs
     from ..data.scene import ORBIT_FRAMES
     from ..errors import fail
-    from ..io.paths import guard_outputs
+    from ..io.paths import guard_outputs, refuse_links
     from ..output.images import frame_object, object_aim
     from ..output.videos import OBJECT_VIDEO_FILES, VIDEO_FILES, render_videos
     from ..train.checkpoint import read_run
@@ -764,6 +765,8 @@ def render(
     chunk = _run_checks(chunk)
     data = str(data) if data else None
     folder = Path(_check("--out", out, output_path)) if out is not None else Path(run) / "videos"
+    if out is None:
+        refuse_links(run, ["videos"])
     names = OBJECT_VIDEO_FILES if object else VIDEO_FILES
     guard_outputs([folder / name for name in names], dataset_inputs(data or read_run(run).train.data), force or not out)
     opened = _common.open_run(_common.RunToOpen(run, device, chunk))

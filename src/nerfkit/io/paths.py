@@ -148,6 +148,19 @@ def _occupied(path: Path) -> bool:
         return path.exists()
 
 
+def refuse_links(folder: str | os.PathLike, parts) -> None:
+    """Refuse to write into ``folder`` while one of its ``parts`` (names of subfolders it
+    writes, e.g. a run's ``checkpoints``) is a link: writes through it would land outside."""
+    for part in parts:
+        p = Path(folder) / part
+        if p.is_symlink():
+            raise fail(
+                p,
+                f"is a link (to {os.readlink(p)}): what nerfkit writes there would land outside {folder}",
+                "Remove the link (a folder of nerfkit's own is made in its place)",
+            )
+
+
 def guard_outputs(outputs, inputs, force: bool = False, flag: str = "--out") -> None:
     """Refuse to write ``outputs`` (files or folders a command is about to write) when one
     is an input, inside one, or holds one; and when one exists already, unless ``force``.

@@ -31,6 +31,7 @@ from ..config import dataclass_from_dict, load_json
 from ..errors import NerfkitError, fail
 from ..io.atomic import atomic_path, remove_stale_temporaries, write_json
 from ..io.lock import folder_lock
+from ..io.paths import refuse_links
 from ..models import MODEL_NAMES, SceneBounds, build_model, config_from_dict, model_config_class
 from ..models.appearance import DirectionalColour
 from ..models.base import NerfModel
@@ -271,10 +272,15 @@ def _checkpoint_step(path: Path) -> int:
         return -1
 
 
+# the subfolders a run writes into
+RUN_FOLDERS = ("checkpoints", "plots", "progress", "videos")
+
+
 @contextlib.contextmanager
 def run_lock(run_dir: str | Path):
     """Hold the run folder's lock (one process per run), and remove the temporaries a
     killed process left there."""
+    refuse_links(run_dir, RUN_FOLDERS)
     with folder_lock(run_dir) as folder:
         remove_stale_temporaries(folder)
         yield folder
