@@ -498,6 +498,13 @@ def test_points_of_a_run_that_holds_no_surface_yet_are_an_error_not_an_empty_fil
     err = capsys.readouterr().err
     assert "at step 5 no pixel of the 4 views rendered is more than 0.5 opaque" in err and "--acc-min" in err
     assert not (tmp_path / "p.ply").exists()
+    # asked for a mesh too, written before the points fail: neither is left, nor a temporary
+    (tmp_path / "m.ply").write_bytes(b"an earlier mesh")
+    mesh = ["--mesh", str(tmp_path / "m.ply"), "--resolution", "16", "--threshold", "50", "--color-views", "0"]
+    assert main(["export", str(tmp_path), *mesh, "--points", str(tmp_path / "p.ply"), "--force"]) == 2
+    assert "no pixel of the 4 views rendered" in capsys.readouterr().err  # (the points', after the mesh)
+    assert (tmp_path / "m.ply").read_bytes() == b"an earlier mesh" and not (tmp_path / "p.ply").exists()
+    assert not [p for p in tmp_path.iterdir() if ".tmp." in p.name]
 
 
 def test_a_mesh_of_a_run_without_a_surface_says_to_train_longer(tmp_path, monkeypatch, capsys):

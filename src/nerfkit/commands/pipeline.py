@@ -934,6 +934,7 @@ def export(
     from ..config import number, output_path
     from ..data.load import dataset_inputs
     from ..errors import fail
+    from ..io.atomic import all_or_none
     from ..io.paths import guard_outputs
     from . import _common
     from .stages import export as stage
@@ -969,41 +970,52 @@ def export(
         force,
         "--mesh/--points/--splat",
     )
-    if splat_file:
-        say(stage.export_splat(opened, splat_file, background_dome))
-    if mesh_file:
-        from ..export import COLOUR_VIEWS
-        from ..tabletop import TABLE_CUT
+    targets = [p for p in (mesh_file, points_file, splat_file) if p]
+    said: list[str] = []  # (told once all are written, under their own names)
+    with all_or_none(targets) as pending:  # a failed export leaves none of its files, nor half of them
+        renamed = {str(tmp): str(t) for tmp, t in zip(pending, targets, strict=True)}
+        mesh_file, points_file, splat_file = (
+            str(pending[targets.index(p)]) if p else None for p in (mesh_file, points_file, splat_file)
+        )
+        if splat_file:
+            said.append(stage.export_splat(opened, splat_file, background_dome))
+        if mesh_file:
+            from ..export import COLOUR_VIEWS
+            from ..tabletop import TABLE_CUT
 
-        say(
-            stage.export_mesh(
-                opened,
-                mesh_file,
-                resolution=resolution,
-                threshold=threshold,
-                box_scale=box_scale,
-                table_cut=TABLE_CUT if table_cut is None else table_cut,
-                color_views=COLOUR_VIEWS if color_views is None else color_views,
-                color_dirs=color_dirs,
-                data=data,
-                allow_outside=allow_outside_paths,
+            said.append(
+                stage.export_mesh(
+                    opened,
+                    mesh_file,
+                    resolution=resolution,
+                    threshold=threshold,
+                    box_scale=box_scale,
+                    table_cut=TABLE_CUT if table_cut is None else table_cut,
+                    color_views=COLOUR_VIEWS if color_views is None else color_views,
+                    color_dirs=color_dirs,
+                    data=data,
+                    allow_outside=allow_outside_paths,
+                )
             )
-        )
-    if points_file:
-        radius = opened.info.bounds.radius * box_scale
-        say(
-            stage.export_points(
-                opened,
-                points_file,
-                every=every,
-                stride=stride,
-                acc_min=acc_min,
-                crop_radius=radius if crop else None,
-                data=data,
-                allow_outside=allow_outside_paths,
+        if points_file:
+            radius = opened.info.bounds.radius * box_scale
+            said.append(
+                stage.export_points(
+                    opened,
+                    points_file,
+                    every=every,
+                    stride=stride,
+                    acc_min=acc_min,
+                    crop_radius=radius if crop else None,
+                    data=data,
+                    allow_outside=allow_outside_paths,
+                )
             )
-        )
-    written = tuple(Path(p) for p in (mesh_file, points_file, splat_file) if p)
+    for text in said:
+        for tmp, target in renamed.items():
+            text = text.replace(tmp, target)
+        say(text)
+    written = tuple(Path(p) for p in targets)
     return ExportResult(written, opened.step)
 
 

@@ -65,6 +65,28 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
             tmp_path.unlink()
 
 
+@contextlib.contextmanager
+def all_or_none(paths) -> Iterator[list[Path]]:
+    """Yield a temporary path beside each of ``paths`` (same suffix) for the body to write;
+    when it succeeds they are renamed onto ``paths``, else removed: a command that writes
+    several files leaves all of them, or none and the earlier ones as they were."""
+    targets = [Path(p) for p in paths]
+    pending: list[Path] = []
+    try:
+        for path in targets:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, name = tempfile.mkstemp(prefix=f".{path.name}{TMP_MARK}", suffix=path.suffix, dir=path.parent)
+            os.close(fd)
+            pending.append(Path(name))
+        yield pending
+        for tmp, path in zip(pending, targets, strict=True):
+            os.replace(tmp, path)
+            _fsync_dir(path.parent)
+    finally:
+        for tmp in pending:
+            tmp.unlink(missing_ok=True)
+
+
 def _disk_full(error: BaseException, folder: Path) -> bool:
     if isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT):
         return True
