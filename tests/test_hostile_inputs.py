@@ -308,6 +308,7 @@ def edited_run(tiny_run, tmp_path, edit_config=None, edit_checkpoint=None) -> Pa
         (lambda c: c["bounds"].update(center=[1.0]), "'bounds.center' must be 3 numbers"),
         (lambda c: c["bounds"].update(up=[0, 0, 0]), "'bounds.up' is the zero vector"),
         (lambda c: c["bounds"].update(radius=-1), "'bounds.radius' is -1"),
+        (lambda c: c["bounds"].update(radius=1e14), "'bounds' reach 1e+14 units"),  # a grid over it divides by 0
         (lambda c: c["model"].update(width=-1), "'width' (--width): -1 is below the minimum 1"),
     ],
 )

@@ -193,3 +193,16 @@ def test_a_centre_no_ray_reaches_is_refused_and_one_within_reach_is_kept(tmp_pat
         else:
             with pytest.raises(NerfkitError, match=r"s\.npz: 'center' .* no ray reaches the object"):
                 load_npz(tmp_path / "s.npz")
+
+
+def test_a_scene_reaching_past_float32_training_is_refused(tmp_path):
+    from dataclasses import replace
+
+    from nerfkit.data.synthetic import sphere_scene
+
+    scene = sphere_scene(n_train=3, n_val=1, size=8)  # cameras 4 from the origin
+    far = replace(scene, train=replace(scene.train, c2w=scene.train.c2w * np.float32(1)))
+    far.train.c2w[:, :3, 3] *= 1e7  # 4e7 units out: a grid over it divided by zero
+    save_npz(replace(far, near=2e7, far=6e7, center=np.zeros(3, np.float32)), tmp_path / "far.npz")
+    with pytest.raises(NerfkitError, match=r"far\.npz: its cameras or depth range reach 6e\+07 units"):
+        load_npz(tmp_path / "far.npz")

@@ -218,6 +218,26 @@ def check_plane(v, where: str, field: str) -> np.ndarray:
     return (a / n).astype(np.float32)
 
 
+# the largest coordinate or depth a scene may hold, in its own units: float32 training (a
+# 1e13-unit scene's grid divided by zero) has no precision left for detail far beyond it
+MAX_EXTENT = 1e7
+
+
+def check_extent(scene, where: str) -> None:
+    """Refuse a scene whose cameras, centre or depth range reach past :data:`MAX_EXTENT`."""
+    reach = max(
+        [float(scene.far), float(np.abs(np.asarray(scene.center, np.float64)).max())]
+        + [float(np.abs(np.asarray(v.c2w, np.float64)[:, :3, 3]).max()) for v in scene.splits.values() if len(v)]
+    )
+    if reach > MAX_EXTENT:
+        raise fail(
+            where,
+            f"its cameras or depth range reach {reach:.3g} units from the origin (at most {MAX_EXTENT:.0e} train "
+            "in float32)",
+            "Move the scene to the origin and scale it down: its units are yours to choose",
+        )
+
+
 def check_scene(scene, where: str | None = None, need: str = "train"):
     """Check a loaded :class:`~nerfkit.data.scene.Scene` end to end; return it unchanged.
 
@@ -255,6 +275,7 @@ def check_scene(scene, where: str | None = None, need: str = "train"):
         if v.names is not None and len(v.names) != n:
             raise fail(where, f"the {split} split has {n} views but {len(v.names)} names")
     check_near_far(scene.near, scene.far, where)
+    check_extent(scene, where)
     check_vector3(scene.center, where, "center")
     up = check_vector3(scene.up, where, "up")
     if abs(float(np.linalg.norm(up)) - 1.0) > 1e-3:

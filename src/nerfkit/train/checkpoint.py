@@ -206,7 +206,7 @@ def check_dataset(info: RunInfo, scene) -> None:
 def _check_bounds(b: SceneBounds, where: str) -> None:
     import numpy as np
 
-    from ..data.validate import check_near_far, check_tags, check_vector3
+    from ..data.validate import MAX_EXTENT, check_near_far, check_tags, check_vector3
 
     check_near_far(b.near, b.far, where)
     if b.tags is not None:
@@ -215,6 +215,9 @@ def _check_bounds(b: SceneBounds, where: str) -> None:
     b.up = check_vector3(b.up, where, "bounds.up", unit=True)
     if not (np.isfinite(b.radius) and b.radius > 0):
         raise fail(where, f"'bounds.radius' is {b.radius}, expected a positive number")
+    reach = max(b.far, b.radius, float(np.abs(b.center).max()))
+    if reach > MAX_EXTENT:  # (no dataset reaches so far: check_extent)
+        raise fail(where, f"'bounds' reach {reach:.3g} units, more than the {MAX_EXTENT:.0e} a scene may")
 
 
 def checkpoint_paths(run_dir: Path) -> list[Path]:
@@ -395,7 +398,7 @@ def load_run(run_dir: str | Path, device: torch.device | str = "cpu") -> tuple[N
         model = build_model(info.train.model, info.model_config, info.bounds)
     except NerfkitError as e:
         raise fail(info.run_dir / "config.json", str(e)) from None
-    except (RuntimeError, ValueError, TypeError, OverflowError, MemoryError) as e:  # e.g. a negative width
+    except (RuntimeError, ValueError, TypeError, ArithmeticError, MemoryError) as e:  # e.g. a negative width
         raise fail(
             info.run_dir / "config.json",
             f"its model settings do not build a model "
