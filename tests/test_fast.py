@@ -201,6 +201,13 @@ def test_a_vertex_index_outside_the_grid_is_refused_before_the_kernels_see_it(sc
         fresh.load_state_dict(state)
 
 
+def test_a_grid_of_another_sh_degree_is_refused_not_taken_for_fewer_rows(scene, trained):
+    other = FastNeRF(FastConfig(**{**SMALL, "sh_degree": trained.config.sh_degree + 1}), SceneBounds.from_scene(scene))
+    other.load_extra_state(trained.extra_state())
+    with pytest.raises(RuntimeError, match="channels a vertex"):
+        other.load_state_dict(trained.state_dict())
+
+
 def test_fit_grid_covers_the_box_with_cubic_voxels():
     box = GridBox.fit(np.array([-1.0, -2.0, 0.0]), np.array([1.0, 2.0, 0.5]), 40)
     lo, voxel, res = box.lo_array, box.voxel, box.res

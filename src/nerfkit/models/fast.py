@@ -427,6 +427,11 @@ class FastNeRF(NerfModel):
         state_dict = renamed(state_dict)
         grid = state_dict.get("field.grid")
         if isinstance(grid, Tensor) and grid.shape != self.field.grid.shape and grid.ndim == 2:
+            if grid.shape[1] != self.field.grid.shape[1]:  # (another --sh-degree: other channels, not rows)
+                raise RuntimeError(
+                    f"size mismatch for field.grid: {grid.shape[1]} channels a vertex, the model's settings "
+                    f"give {self.field.grid.shape[1]}"
+                )
             # a model file holds fewer rows than the run had (occupied vertices only)
             self.field.set_rows(torch.zeros(grid.shape, device=self.field.grid.device))
         index = state_dict.get("field.vertex_rows")
