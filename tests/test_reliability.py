@@ -267,3 +267,13 @@ def test_verbose_shows_the_traceback(tmp_path, capsys):
     assert "Traceback" not in capsys.readouterr().err
     assert main(["--verbose", "eval", str(tmp_path / "missing")]) == 2
     assert "Traceback" in capsys.readouterr().err
+
+
+def test_json_files_are_standard_json_with_null_for_a_number_that_is_not_finite(tmp_path):
+    from nerfkit.io.atomic import write_json
+
+    values = {"loss": float("nan"), "rows": [np.float32("inf"), 1.5], "a": np.array([np.nan, 2.0])}
+    write_json(tmp_path / "m.json", values)
+    text = (tmp_path / "m.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text) == {"loss": None, "rows": [None, 1.5], "a": [None, 2.0]}

@@ -105,7 +105,10 @@ class TrainConfig:
         group="evaluation and checkpoints",
     )
     eval_views: int = option(
-        2, "validation views rendered at each periodic evaluation", min=0, group="evaluation and checkpoints"
+        2,
+        "validation views rendered at each periodic evaluation (0: none; the final evaluation renders every one)",
+        min=0,
+        group="evaluation and checkpoints",
     )
     eval_pixels: int = option(
         MAX_BATCH_RAYS,

@@ -570,6 +570,8 @@ class Trainer:
         if any(r["split"] == "val" and r["step"] == self.step for r in self.rows):
             return
         n = None if self.done() else self.cfg.eval_views
+        if n == 0:  # no periodic evaluation: the final one alone
+            return
         if n is None:
             self.notes = list(self.model.finish_training())
             for note in self.notes:
@@ -583,7 +585,8 @@ class Trainer:
         views = len(scores)
         also = ""
         periodic = min(self.cfg.eval_views, views)
-        if n is None and periodic < views and eval_stride(val.width, val.height, periodic, self.cfg.eval_pixels) == 1:
+        whole = eval_stride(val.width, val.height, periodic, self.cfg.eval_pixels) == 1 if periodic else False
+        if n is None and 0 < periodic < views and whole:
             # the periodic evaluations' views, whole as they were: their curve ends here too, so
             # that the final score over every view is not read as the curve falling
             self._add_val_row(float(np.mean(scores[:periodic])), periodic, pixels)
