@@ -88,3 +88,23 @@ def test_the_short_help_fits_a_screen_and_the_full_one_has_every_group(argv, lin
             assert group in out
     else:
         assert "--lr " not in out and "--resolutions" not in out
+
+
+def test_a_config_file_of_another_model_leaves_the_settings_each_model_presets(tmp_path):
+    import dataclasses
+
+    from nerfkit.commands.pipeline import train_settings
+    from nerfkit.models.fast_config import FastConfig
+    from nerfkit.presets import MODEL_TRAINING
+    from nerfkit.train.config import TrainConfig
+
+    fast = dataclasses.replace(TrainConfig(), model="fast", lr=0.3, batch_rays=4096, render_chunk=65536)
+    (tmp_path / "config.json").write_text(
+        json.dumps({"train": dataclasses.asdict(fast), "model": dataclasses.asdict(FastConfig())})
+    )
+    cfg, _, given = train_settings({"model": "vanilla"}, tmp_path / "config.json")
+    assert not given & set(MODEL_TRAINING["vanilla"])  # vanilla's own (lr 5e-4, ...) apply, not fast's 0.3
+    cfg, _, given = train_settings({"model": "vanilla", "lr": 1e-3}, tmp_path / "config.json")
+    assert cfg.lr == 1e-3 and "lr" in given  # one given beside it wins
+    cfg, _, given = train_settings({}, tmp_path / "config.json")
+    assert (cfg.model, cfg.lr) == ("fast", 0.3) and "lr" in given  # the same model: the config's own

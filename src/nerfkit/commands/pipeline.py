@@ -523,6 +523,13 @@ def train_settings(options: dict[str, Any], config: str | Path | None = None) ->
     if base_model is not None and not isinstance(base_model, model_class):  # another model than the config's
         given -= {f.name for f in dataclasses.fields(type(base_model))}
         base_model = None
+    if config is not None and base.model != cfg.model:
+        # the training settings each model presets (its learning rate, its batch) are the new model's
+        from ..presets import MODEL_TRAINING
+
+        preset = {k for values in MODEL_TRAINING.values() for k in values} - set(options)
+        cfg = dataclasses.replace(cfg, **{k: getattr(TrainConfig(), k) for k in preset})
+        given -= preset
     model_names = {f.name for f in dataclasses.fields(model_class)}
     unknown = set(options) - train_names - model_names
     if unknown:
