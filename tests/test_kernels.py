@@ -715,3 +715,13 @@ def test_total_variation_goes_to_the_touched_rows_only_and_matches_the_reference
     torch.testing.assert_close(total[rows], photo[rows] + expect[rows], rtol=1e-5, atol=1e-5)
     assert torch.equal(total[~rows], photo[~rows])
     assert torch.all(expect[0] == 0)  # the empty row is nobody's neighbour
+
+
+def test_kernels_numba_refused_says_why(monkeypatch):
+    from nerfkit import kernels
+
+    monkeypatch.setitem(kernels._STATE, "error", "disabled by NERFKIT_NO_NUMBA")
+    assert "disabled by NERFKIT_NO_NUMBA. Unset it" in str(kernels.numba_refused())
+    monkeypatch.setitem(kernels._SPLAT, "error", "ImportError: No module named 'numba'")
+    said = str(kernels.numba_refused(splat=True))
+    assert "not available (ImportError: No module named 'numba')" in said and "pip install" in said

@@ -19,7 +19,7 @@ from torch import Tensor, nn
 
 from ..data.validate import short_repr
 from ..errors import fail
-from ..kernels import numba_kernels
+from ..kernels import numba_kernels, numba_refused
 from ..kernels import reference as ref
 from ..kernels.ops import GradSink, GridGeom, GridRender, MarchSpec, cell_density_max, render_grid
 from ..render.box import GridBox
@@ -143,7 +143,7 @@ class GridField(nn.Module):
             return "torch"
         if numba_kernels() is None:
             if self.kernels == "numba":
-                raise fail("--kernels numba", "numba is not available", "pip install 'nerfkit[fast]' or use auto")
+                raise numba_refused()
             return "torch"
         return "numba"
 

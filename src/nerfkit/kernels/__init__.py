@@ -58,3 +58,16 @@ def kernel_status() -> dict:
     """``{"numba": bool, "warmup_seconds": float, "error": str | None}`` (loads the kernels)."""
     mod = numba_kernels()
     return {"numba": mod is not None, "warmup_seconds": _STATE["seconds"], "error": _STATE["error"]}
+
+
+def numba_refused(splat: bool = False):
+    """The NerfkitError for ``--kernels numba`` when the compiled kernels (the splat's, with
+    ``splat``) did not load, saying why: switched off by NERFKIT_NO_NUMBA, numba missing, or
+    a compile failure."""
+    from ..errors import fail
+
+    why = (_SPLAT if splat else _STATE)["error"] or "not loaded"
+    if "NERFKIT_NO_NUMBA" in why:
+        return fail("--kernels numba", f"the compiled kernels are {why}", "Unset it, or use --kernels auto")
+    fix = "pip install 'nerfkit[fast]', or use --kernels auto"
+    return fail("--kernels numba", f"the compiled kernels are not available ({why})", fix)

@@ -212,9 +212,9 @@ def resolve_backend(backend: str, device: torch.device) -> str:
         return "torch"
     if splat_kernels() is None:
         if backend == "numba":
-            from ..errors import fail
+            from . import numba_refused
 
-            raise fail("--kernels numba", "numba is not available", "pip install 'nerfkit[fast]' or use auto")
+            raise numba_refused(splat=True)
         return "torch"
     return "numba"
 
