@@ -548,7 +548,9 @@ def test_resume_applies_what_it_can_and_refuses_the_rest(trained, tmp_path, caps
     assert json.loads((run / "metrics.json").read_text())["step"] == 8 and cfg["steps"] == 8  # what it went on with
     before = {p: p.read_bytes() for p in (run / "config.json", run / "metrics.json", run / "model.pt")}
     assert main(["train", "--resume", str(run), "--steps", "5"]) == 0  # past it already: says so, changes nothing
-    assert "at step 8 the run is already past --steps 5: nothing more to train" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "at step 8 the run is already past --steps 5: nothing more to train" in err
+    assert "--steps 0 --minutes M to go on by time" in err  # (a larger --minutes alone would not)
     assert all(p.read_bytes() == b for p, b in before.items())
 
 

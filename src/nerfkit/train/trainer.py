@@ -739,15 +739,19 @@ def resume(
         cfg.out = str(run_dir)
         trainer = Trainer(scene, cfg.validate(), info.model_config, resume=True, quiet=quiet)
         if trainer.done() and _finished_at(Path(run_dir), trainer.step):  # changes nothing, config.json included
+            by_steps = bool(cfg.steps and trainer.step >= cfg.steps)
             limit = (
                 f"--steps {cfg.steps}"
-                if cfg.steps and trainer.step >= cfg.steps
+                if by_steps
                 else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.1f} trained)"
             )
-            trainer.log(
-                f"{run_dir}: at step {trainer.step} the run is already past {limit}: nothing more to train "
-                "(give a larger --steps or --minutes to go on)"
+            more = (
+                "give a larger --steps, or --steps 0 --minutes M to go on by time"
+                if by_steps
+                else "give a larger --minutes, or a --steps past this one"
             )
+            past = f"at step {trainer.step} the run is already past {limit}"
+            trainer.log(f"{run_dir}: {past}: nothing more to train ({more})")
             return trainer.result()
         # the run's config records the stopping rule (and the settings) it now goes on with
         write_run_config(Path(run_dir), trainer.cfg, info.model_config, info.bounds, info.scene)
