@@ -68,7 +68,7 @@ def fit_image(**kw):
         (vanilla, {"width": 64.0}, "--width: '64.0' is not a whole number"),
         (vanilla, {"depth": True}, "--depth: 'True' is not a whole number"),
         (fast, {"sh_degree": 3}, "--sh-degree: 3 is above the maximum 2 (allowed: 0 to 2)"),
-        (fast, {"step_ratio": -1.0}, "--step-ratio: -1.0 must be greater than 0"),
+        (fast, {"step_ratio": -1.0}, "--step-ratio: -1.0 is below the minimum 0.01 (allowed: 0.01 to 4.0)"),
         # no table in the scene: the texture size was only checked when a table was built
         (fast, {"table_resolution": 1}, "--table-resolution: 1 is below the minimum 2 (allowed: 2 to 4096)"),
         (splat, {"sh_degree": 4}, "--sh-degree: 4 is above the maximum 3 (allowed: 0 to 3)"),
@@ -91,7 +91,7 @@ def test_values_in_range_pass():
     from nerfkit.models.fast import FastConfig
     from nerfkit.train.config import TrainConfig
 
-    cfg = FastConfig(sh_degree=0, room_shells=0, distortion_weight=0.0, step_ratio=1e-9)  # (no unset sentinels now)
+    cfg = FastConfig(sh_degree=0, room_shells=0, distortion_weight=0.0, step_ratio=0.01)  # (no unset sentinels now)
     assert check_ranges(cfg) is cfg
     assert train(lr=100, lr_final_factor=1, seed=2**32 - 1).lr == 100
     with pytest.raises(NerfkitError, match="no stopping rule"):  # the rule across fields is kept

@@ -737,7 +737,7 @@ TRAIN = ["train", "--data", "D", "--out", "O", "--steps", "1"]  # --steps: ends 
         ([*TRAIN, "--lr", "inf"], "--lr: 'inf' is not a finite number"),
         ([*TRAIN, "--batch-rays", "100000000"], "--batch-rays: 100000000 is above"),
         ([*TRAIN, "--checkpoint-seconds", "0"], "--checkpoint-seconds: 0 must be greater"),
-        ([*TRAIN, "--step-ratio", "-1"], "--step-ratio: -1 must be greater than 0"),
+        ([*TRAIN, "--step-ratio", "-1"], "--step-ratio: -1 is below the minimum 0.01"),
         ([*TRAIN, "--sh-degree", "4"], "--sh-degree: 4 is above the maximum 3"),  # fast 2, splat 3
         ([*TRAIN, "--model", "vanilla", "--depth", "1"], "--depth: 1 is below the minimum 2"),
         (["calibrate", "D", "--folds", "1"], "--folds: 1 is below the minimum 2"),

@@ -74,7 +74,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     g.add_argument(
         "--box-scale",
-        type=number(float, above=0),
+        type=number(float, above=0, max=100),
         default=1.0,
         help="scale the cube meshed, and the scene box points are cropped to (default: 1)",
     )

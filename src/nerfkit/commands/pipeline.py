@@ -948,7 +948,7 @@ def export(
 
     resolution = _check("--resolution", resolution, number(int, 8, 1024))
     threshold = _check("--threshold", threshold, number(float, above=0))
-    box_scale = _check("--box-scale", box_scale, number(float, above=0))
+    box_scale = _check("--box-scale", box_scale, number(float, above=0, max=100))
     table_cut = _check("--table-cut", table_cut, number(float, 0, 1))
     color_views = _check("--color-views", color_views, number(int, 0, 10000))
     color_dirs = _check("--color-dirs", color_dirs, number(int, 1, 64))

@@ -69,7 +69,8 @@ class FastConfig:
         "BENCHMARKS.md)",
     )
     sh_degree: int = option(1, "spherical-harmonic degree of the view-dependent colour (0, 1 or 2)", min=0, max=2)
-    step_ratio: float = option(0.5, "distance between samples along a ray, in voxels", above=0)
+    # (below a hundredth of a voxel a ray's samples outgrow any memory before they add detail)
+    step_ratio: float = option(0.5, "distance between samples along a ray, in voxels", min=0.01, max=4.0)
     init_alpha: float = option(1e-4, "opacity of one sample of the initial, near-empty density", above=0, max=0.5)
     occ_alpha: float = option(1e-2, "cells whose largest sample opacity is below this are skipped", above=0, max=0.5)
     occ_every: int = option(16, "steps between occupancy-grid refreshes", min=1)
