@@ -228,50 +228,25 @@ def probe_video(path: str | os.PathLike, count: bool = False) -> VideoInfo:
         )
     info = parse_header(text, str(path))
     if count:
-        r = subprocess.run(
-            [
-                ffmpeg_exe(),
-                "-hide_banner",
-                "-nostdin",
-                "-i",
-                ffmpeg_input(path),
-                "-map",
-                "0:v:0",
-                "-c",
-                "copy",
-                "-f",
-                "null",
-                "-",
-            ],
-            capture_output=True,
-            check=False,
-        )
-        frames = re.findall(r"frame=\s*(\d+)", r.stderr.decode("utf-8", "replace"))
+        frames = re.findall(r"frame=\s*(\d+)", _demux(path, "0:v:0"))
         if frames:
             info.frames, info.exact = int(frames[-1]), True
     return info
+
+
+def _demux(path: str | os.PathLike, streams: str) -> str:
+    """ffmpeg's log of demuxing ``streams`` (``-map``: "0:v:0", the first video stream; "0",
+    all) of the clip to nowhere, without decoding: its frame count and where the data ends."""
+    cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", ffmpeg_input(path), "-map", streams]
+    r = subprocess.run([*cmd, "-c", "copy", "-f", "null", "-"], capture_output=True, check=False)
+    return r.stderr.decode("utf-8", "replace")
 
 
 def data_end(path: str | os.PathLike) -> float | None:
     """Seconds into the clip at which the data of all its streams ends, by demuxing it (no
     decoding); None when ffmpeg does not say. A file cut short ends before its header's
     duration; a clip whose sound runs on after the picture does not."""
-    cmd = [
-        ffmpeg_exe(),
-        "-hide_banner",
-        "-nostdin",
-        "-i",
-        ffmpeg_input(path),
-        "-map",
-        "0",
-        "-c",
-        "copy",
-        "-f",
-        "null",
-        "-",
-    ]
-    r = subprocess.run(cmd, capture_output=True, check=False)
-    ends = re.findall(r"time=\s*(\d+):(\d+):([\d.]+)", r.stderr.decode("utf-8", "replace"))
+    ends = re.findall(r"time=\s*(\d+):(\d+):([\d.]+)", _demux(path, "0"))
     return int(ends[-1][0]) * 3600 + int(ends[-1][1]) * 60 + float(ends[-1][2]) if ends else None
 
 
