@@ -487,6 +487,9 @@ def test_fast_grid_resolution_is_bounded_in_config_and_checkpoint():
     with pytest.raises(NerfkitError) as e:
         FastConfig(resolutions="16,100000", upsample_steps="10").stages()
     one_line_error(e, "--resolutions", "'resolutions'", "Use smaller sizes")
+    with pytest.raises(NerfkitError) as e:
+        FastConfig(resolutions="32,16", upsample_steps="10").stages()  # a stage that shrinks the grid
+    one_line_error(e, "--resolutions", "'32,16': a stage's grid must not be smaller than the one before")
 
     bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.0, np.array([0, 0, 1], np.float32))
     model = FastNeRF(FastConfig(resolutions="8", upsample_steps="", kernels="torch"), bounds)

@@ -595,6 +595,13 @@ def test_a_lock_file_that_is_a_link_is_refused_and_what_it_points_to_kept(tmp_pa
         pass
 
 
+def test_an_empty_data_or_background_is_refused_not_taken_for_the_default(trained, capsys):
+    run = str(trained / "run")
+    for argv in (["eval", run, "--data", ""], ["render", run, "--data", " "], ["render", run, "--background", ""]):
+        assert main(argv) == 2
+        one_line(capsys, ": is empty", "leave --")
+
+
 def test_no_write_goes_through_a_linked_subfolder(trained, tmp_path, capsys, sphere_npz):
     run = copy_run(trained, tmp_path)
     mine = tmp_path / "mine"

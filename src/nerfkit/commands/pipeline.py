@@ -190,6 +190,18 @@ def _checked(func: Callable[P, R]) -> Callable[P, R]:
     return checked
 
 
+def _given(flag: str, value: Any) -> str | None:
+    """An optional path or name given as ``flag``, as a string; None when not given. An empty
+    one is refused (it used to fall back to the default without a word)."""
+    from ..errors import fail
+
+    if value is None:
+        return None
+    if str(value).strip() == "":
+        raise fail(flag, "is empty", f"Give a value, or leave {flag} out for the default")
+    return str(value)
+
+
 def _check(flag: str, value: Any, parse: Callable[[str], Any]) -> Any:
     """``value`` checked as the command line checks ``flag`` (``parse``: the flag's argparse
     type), converted as the flag converts it; None passes as None."""
@@ -770,7 +782,7 @@ def render(
     frames = _check("--frames", frames, number(int, 1, 100_000))
     fps = _check("--fps", fps, number(int, 1, 1000))
     chunk = _run_checks(chunk)
-    data = str(data) if data else None
+    data = _given("--data", data)
     folder = Path(_check("--out", out, output_path)) if out is not None else Path(run) / "videos"
     if out is None:
         refuse_links(run, ["videos"])
@@ -781,7 +793,7 @@ def render(
     kind, note = stage.path_kind(scene, path, frames, object, getattr(opened.model, "ndc", None) is not None)
     if note:
         print(note, file=sys.stderr)
-    colour = opened.background(background or ("white" if object else None))
+    colour = opened.background(_given("--background", background) or ("white" if object else None))
     alone = stage.leave_object_alone(opened.model) if object else ""
     # an orbit looks at the trained object, not at the point the cameras' axes meet
     aim = (
@@ -857,9 +869,7 @@ def evaluate(
     chunk = _run_checks(chunk)
     say = _say(quiet)
     opened = _common.open_run(_common.RunToOpen(run, device, chunk))
-    scene = _common.scene_for_run(
-        opened.info, str(data) if data else None, need=split, allow_outside=allow_outside_paths
-    )
+    scene = _common.scene_for_run(opened.info, _given("--data", data), need=split, allow_outside=allow_outside_paths)
     stage.held_out_views(scene, split)
     capture = getattr(opened.info.train, "capture", "off") == "on"
     steps = stage.fit_steps(capture, fit_views)
@@ -960,7 +970,7 @@ def export(
     mesh_file, points_file, splat_file = (
         _check(flag, p, output_path) for flag, p in (("--mesh", mesh), ("--points", points), ("--splat", splat))
     )
-    data = str(data) if data else None
+    data = _given("--data", data)
     stage.check_outputs(mesh_file, points_file, splat_file)
     opened = _common.open_run(_common.RunToOpen(run, device, chunk))
     if splat_file and not hasattr(opened.model, "n_gaussians"):

@@ -351,6 +351,8 @@ class FastConfig:
             raise fail("--resolutions/--upsample-steps", "expected comma-separated integers") from None
         if not sizes or min(sizes) < 4:
             raise fail("--resolutions", f"'{resolutions}' needs sizes >= 4")
+        if any(b < a for a, b in zip(sizes, sizes[1:])):  # a stage upsamples the grid, or keeps it (a box moved)
+            raise fail("--resolutions", f"'{resolutions}': a stage's grid must not be smaller than the one before")
         if max(sizes) ** 3 > MAX_GRID_VERTICES:  # a size is the side of a cube of vertices
             raise fail(
                 "--resolutions",

@@ -111,7 +111,8 @@ class SplatConfig:
         "100 val views: 4000 steps 33.54 dB against 33.25, 870 steps 31.52 against 31.40; lego 400, 1946 "
         "steps: 32.28 against 32.12)",
     )
-    prune_opacity: float = option(0.005, "prune Gaussians less opaque than this", min=0, max=1)
+    # (at 1 every Gaussian would go: none is wholly opaque)
+    prune_opacity: float = option(0.005, "prune Gaussians less opaque than this", min=0, max=0.5)
     prune_screen: float = option(
         0.15, "after the first opacity reset, prune Gaussians wider than this fraction of the image (0: never)", min=0
     )
