@@ -389,18 +389,18 @@ def test_frames_chosen_from_a_clip_are_kept_only_while_the_clip_is_unchanged(tmp
         "frames": [{"file": "frame_0001.jpg"}],
     }
     (frames / REPORT_NAME).write_text(json.dumps(report))
-    assert _frames_there(frames, str(clip), 10)
-    assert not _frames_there(frames, str(clip), 12)  # other --clip-frames
+    assert _frames_there(frames, str(clip), 10, clip_stamp(clip))
+    assert not _frames_there(frames, str(clip), 12, clip_stamp(clip))  # other --clip-frames
     st = clip.stat()
     os.utime(clip, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # touched (copied again): the same clip
-    assert _frames_there(frames, str(clip), 10)
+    assert _frames_there(frames, str(clip), 10, clip_stamp(clip))
     # another clip copied over it, or this one edited (here of the same size): its frames are chosen again
     clip.write_bytes(b"b clip" * 100)
-    assert not _frames_there(frames, str(clip), 10)
+    assert not _frames_there(frames, str(clip), 10, clip_stamp(clip))
     # a report from before the stamp was recorded: chosen again too
     del report["source_stamp"]
     (frames / REPORT_NAME).write_text(json.dumps(report))
-    assert not _frames_there(frames, str(clip), 10)
+    assert not _frames_there(frames, str(clip), 10, clip_stamp(clip))
 
 
 def test_force_removes_an_earlier_run_but_never_a_folder_no_run_wrote(tmp_path):

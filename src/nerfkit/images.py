@@ -239,6 +239,11 @@ def image_files(folder: str | Path) -> list[Path]:
     )
 
 
+def video_names(folder: str | Path) -> list[str]:
+    """The names of the videos (:data:`VIDEO_SUFFIXES`) in ``folder``, sorted."""
+    return sorted(p.name for p in Path(folder).iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
+
+
 def list_images(folder: str | Path, allow_outside: bool = False) -> list[Path]:
     """:func:`image_files` of a folder, for the commands that read them (``poses``,
     ``calibrate``, ``capture``); a clear error when it is no folder or holds none, and for a
@@ -249,7 +254,7 @@ def list_images(folder: str | Path, allow_outside: bool = False) -> list[Path]:
         raise fail(folder, "no such folder" if not folder.exists() else "is not a folder")
     files = image_files(folder)
     if not files:
-        clips = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
+        clips = video_names(folder)
         if clips:
             raise fail(
                 folder,

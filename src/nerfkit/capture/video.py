@@ -625,6 +625,9 @@ def select_frames(
         raise _too_few(path, n, len(kept), counts, min_frames, plain=median < PLAIN_SHARPNESS)
     names = [FRAME_NAME.format(k + 1) for k in range(len(kept))]
     windows = windows_of(spread_axis(scores, spread), target)
+    short = cut_short(info, scores.times)
+    if short:  # read short of the header: unless the sound alone runs on, the file was cut
+        short = cut_short(info, scores.times, data_end=data_end(path))
     sel = FrameSelection(
         source=str(path.resolve()),
         source_stamp=clip_stamp(path),
@@ -642,8 +645,7 @@ def select_frames(
         empty_windows=int(target - len(set(windows[kept].tolist()))),
         score_size=score_size(info.width, info.height, score_side),
         spread=spread,
-        advice=[f"{c} frames {r}: {ADVICE[r]}" for r, c in counts.items() if r in ADVICE and c > n // 4]
-        + cut_short(info, scores.times, data_end=data_end(path) if cut_short(info, scores.times) else None),
+        advice=[f"{c} frames {r}: {ADVICE[r]}" for r, c in counts.items() if r in ADVICE and c > n // 4] + short,
     )
     with _frames_folder(out_dir, replace=bool(earlier)) as folder:
         extract_frames(path, info, sel.frame_indices, folder, names, progress)

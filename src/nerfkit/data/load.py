@@ -156,18 +156,10 @@ def _named_files(transforms: Path) -> list[Path]:
     """The images and point file outside its folder that a transforms.json (and, for
     Blender, its sibling split files) names (read with ``--allow-outside-paths``), resolved;
     none when it cannot be read."""
-    import json
+    from .nerfstudio import named_paths
 
-    names: list[str] = []
-    for f in [transforms, *(transforms.parent / f"transforms_{s}.json" for s in ("train", "val", "test"))]:
-        try:
-            data = json.loads(f.read_text())
-            frames = [fr for fr in data.get("frames", []) if isinstance(fr, dict)]
-            names += [str(fr["file_path"]) for fr in frames if "file_path" in fr]
-            names += [str(data["ply_file_path"])] if isinstance(data.get("ply_file_path"), str) else []
-        except (OSError, ValueError, TypeError, AttributeError):
-            continue
-    named = {(transforms.parent / n).resolve() for n in names}
+    files = [transforms, *(transforms.parent / f"transforms_{s}.json" for s in ("train", "val", "test"))]
+    named = {(transforms.parent / n).resolve() for f in files for n in named_paths(f)}
     return sorted(p for p in named if not is_within(p, transforms.parent))
 
 

@@ -358,18 +358,25 @@ def _save_image(path: Path, image: np.ndarray, jpeg_quality: int) -> None:
             Image.fromarray(image).save(tmp, format="PNG")
 
 
-def written_images(path: Path, image_dir: str) -> list[str]:
-    """The files of ``image_dir`` (relative to it) that the transforms.json at ``path``, an
-    earlier one nerfkit wrote, names; none when there is no such file or it cannot be read."""
+def named_paths(path: Path) -> list[str]:
+    """The file paths, as written, that the transforms file at ``path`` names: its frames'
+    ``file_path`` and its ``ply_file_path``; none when it cannot be read."""
     import json
 
     try:
-        frames = json.loads(path.read_text())["frames"]
-        paths = [str(f["file_path"]) for f in frames]
-    except (OSError, ValueError, KeyError, TypeError):
+        data = json.loads(path.read_text())
+        frames = [f for f in data.get("frames", []) if isinstance(f, dict)]
+        ply = data.get("ply_file_path")
+    except (OSError, ValueError, TypeError, AttributeError):
         return []
+    return [str(f["file_path"]) for f in frames if "file_path" in f] + ([ply] if isinstance(ply, str) else [])
+
+
+def written_images(path: Path, image_dir: str) -> list[str]:
+    """The files of ``image_dir`` (relative to it) that the transforms.json at ``path``, an
+    earlier one nerfkit wrote, names (:func:`named_paths`)."""
     prefix = Path(image_dir).as_posix().rstrip("/") + "/"
-    return [p[len(prefix) :] for p in paths if p.startswith(prefix)]
+    return [p[len(prefix) :] for p in named_paths(path) if p.startswith(prefix)]
 
 
 def write_transforms_json(

@@ -585,8 +585,11 @@ class Trainer:
         views = len(scores)
         also = ""
         periodic = min(self.cfg.eval_views, views)
-        whole = eval_stride(val.width, val.height, periodic, self.cfg.eval_pixels) == 1 if periodic else False
-        if n is None and 0 < periodic < views and whole:
+        if (
+            n is None
+            and 0 < periodic < views
+            and eval_stride(val.width, val.height, periodic, self.cfg.eval_pixels) == 1
+        ):
             # the periodic evaluations' views, whole as they were: their curve ends here too, so
             # that the final score over every view is not read as the curve falling
             self._add_val_row(float(np.mean(scores[:periodic])), periodic, pixels)

@@ -426,18 +426,19 @@ def _check_arguments(args: CaptureOptions, video: bool) -> None:
         )
 
 
-def _frames_there(frames_dir: Path, clip: str, target: int) -> bool:
+def _frames_there(frames_dir: Path, clip: str, target: int, stamp: str | None) -> bool:
     """Whether ``frames_dir`` holds the frames an earlier capture chose from ``clip`` with
-    ``target``, the clip unchanged since (its size and modification time)."""
+    ``target``, the clip unchanged since: its ``stamp`` now (:func:`~nerfkit.capture.video.clip_stamp`,
+    read once per capture, in :func:`_inputs`) is the one they were chosen from."""
     import json
 
-    from ...capture.video import REPORT_NAME, clip_stamp
+    from ...capture.video import REPORT_NAME
 
     try:
         report = json.loads((frames_dir / REPORT_NAME).read_text())
         return (
             Path(report["source"]).resolve() == Path(clip).resolve()
-            and report["source_stamp"] == clip_stamp(clip)
+            and report["source_stamp"] == stamp
             and int(report["target"]) == target
             and all((frames_dir / f["file"]).is_file() for f in report["frames"])
         )
@@ -447,9 +448,9 @@ def _frames_there(frames_dir: Path, clip: str, target: int) -> bool:
 
 def _say_videos_beside(folder: Path) -> None:
     """Say that the videos in a folder of photos are not read (the photos are)."""
-    from ...images import VIDEO_SUFFIXES
+    from ...images import video_names
 
-    clips = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
+    clips = video_names(folder)
     if clips:
         print(
             f"note: {folder} also holds {len(clips)} video{'s' * (len(clips) > 1)} ({', '.join(clips[:3])}), "
@@ -721,7 +722,7 @@ def run_capture(args: CaptureOptions, api: Calls) -> Made:
 
         headings.start("frames")
         photos = str(out / FRAMES_DIR)
-        if _frames_there(out / FRAMES_DIR, args.photos, args.clip_frames) and not args.force:
+        if _frames_there(out / FRAMES_DIR, args.photos, args.clip_frames, inputs["clip_content"]) and not args.force:
             _kept("frames", out / FRAMES_DIR)
         else:  # the folder is the capture's: earlier frames are replaced
             step(
