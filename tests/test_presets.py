@@ -126,6 +126,41 @@ def test_given_options_always_win_and_resolve_changes_nothing_it_is_given(scenes
     assert not presets.resolve(train, FastConfig(table=False), cap, {"table"}).model.table
 
 
+def test_an_option_its_run_leaves_without_effect_is_noted_and_one_that_acts_is_not(scenes):
+    fields = {f for cls in (TrainConfig, FastConfig) for f in asdict(cls())}
+    assert set(presets.NEEDS) <= fields  # real options
+    inert = "does nothing in this run"
+    # lego: no table, no learned background, no capture corrections, no transient trimming
+    every = set(presets.NEEDS)
+    r = presets.resolve(TrainConfig(steps=10), FastConfig(), scenes["lego"], every)
+    flagged = {n for n in every if any(note.startswith(f"--{n.replace('_', '-')} {inert}") for note in r.notes)}
+    assert flagged == every
+    assert not any(
+        inert in note for note in presets.resolve(TrainConfig(steps=10), FastConfig(), scenes["lego"], set()).notes
+    )
+    # a capture with its table and room (its 3 room shells: not given): only the cover prior's
+    # start (its weight given as 0) and the transient start (no trimming) are idle
+    r = presets.resolve(TrainConfig(steps=10), FastConfig(), scenes["tabletop"], every - {"room_shells"})
+    assert sorted(n for n in r.notes if inert in n) == [
+        f"--table-cover-start {inert}: it acts only with --table-cover-weight above 0",
+        f"--transient-start {inert}: it acts only with --transient-quantile above 0",
+    ]
+    trimmed = presets.resolve(
+        TrainConfig(steps=10),
+        FastConfig(transient_quantile=0.8),
+        scenes["tabletop"],
+        {"transient_quantile", "transient_start"},
+    )
+    assert not [n for n in trimmed.notes if inert in n]
+    # --table on a dataset without a table plane is off, and said so; so are the table's own options
+    r = presets.resolve(
+        TrainConfig(steps=10), FastConfig(table=True, table_gloss=True), scenes["forward"], {"table", "table_gloss"}
+    )
+    assert not r.model.table
+    assert any(n.startswith("--table does nothing on this dataset") for n in r.notes)
+    assert any(n.startswith(f"--table-gloss {inert}") for n in r.notes)
+
+
 def test_the_fifth_stage_is_not_added_when_a_stage_option_is_given(scenes):
     r = presets.resolve(TrainConfig(steps=10), FastConfig(resolutions="16,32"), scenes["object_400"], {"resolutions"})
     assert (r.model.resolutions, r.model.upsample_steps) == ("16,32", FastConfig().upsample_steps)

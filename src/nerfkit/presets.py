@@ -13,7 +13,7 @@ Why each default is what it is: BENCHMARKS.md ("why the defaults are what they a
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -261,6 +261,52 @@ def differing_fields(cfg: Any) -> frozenset[str]:
     return frozenset(out)
 
 
+# Options that act only beside another: option -> (the flag it needs, whether a run's resolved
+# (train, model) settings have it). A given option whose need is unmet is noted in the run's log.
+NEEDS: dict[str, tuple[str, Callable[[Any, Any], bool]]] = {
+    **{
+        k: ("--table", lambda t, m: bool(getattr(m, "table", False)))
+        for k in (
+            "table_gloss",
+            "table_relief",
+            "table_tag_texels",
+            "table_resolution",
+            "table_lr_ratio",
+            "opacity_weight",
+            "table_cover_weight",
+            "box_follows",
+        )
+    },
+    "floor": ("--table and --learn-background", lambda t, m: bool(m.table and m.learn_background)),
+    "room_shells": ("--learn-background", lambda t, m: bool(m.learn_background)),
+    **{
+        k: ("--room-shells above 0 (with --learn-background)", lambda t, m: bool(m.learn_background and m.room_shells))
+        for k in ("room_ratio", "room_resolution", "room_lr_ratio")
+    },
+    "table_cover_start": ("--table-cover-weight above 0", lambda t, m: bool(m.table and m.table_cover_weight > 0)),
+    "transient_start": ("--transient-quantile above 0", lambda t, m: m.transient_quantile > 0),
+    **{k: ("--capture on", lambda t, m: t.capture == "on") for k in ("pose_lr", "exposure_lr", "colour_mix")},
+    "pose_start": ("--pose-lr above 0 (with --capture on)", lambda t, m: t.capture == "on" and t.pose_lr > 0),
+    "colour_mix_weight": (
+        "--colour-mix and --exposure-lr above 0 (with --capture on)",
+        lambda t, m: t.capture == "on" and t.colour_mix and t.exposure_lr > 0,
+    ),
+}
+
+
+def unmet_needs(train: Any, model_config: Any, given: Iterable[str]) -> list[str]:
+    """A note for each option in ``given`` that the run's settings leave without effect
+    (:data:`NEEDS`), e.g. ``--table-gloss`` on a run without the table plane."""
+    names = {f.name for f in dataclasses.fields(train)} | {f.name for f in dataclasses.fields(model_config)}
+    notes = []
+    for name in sorted(set(given) & set(NEEDS) & names):
+        need, met = NEEDS[name]
+        if not met(train, model_config):
+            flag = "--" + name.replace("_", "-")
+            notes.append(f"{flag} does nothing in this run: it acts only with {need}")
+    return notes
+
+
 def resolve(train: Any, model_config: Any, scene, user_set: Iterable[str] | None = None) -> Resolved:
     """The run's settings: every option of ``train`` (TrainConfig) and ``model_config`` that is
     not in ``user_set`` (the names of the options the user gave; None: those that differ from
@@ -281,8 +327,17 @@ def resolve(train: Any, model_config: Any, scene, user_set: Iterable[str] | None
     names = {f.name for f in dataclasses.fields(model_config)}
     model_new = {k: v for k, v in model_values.items() if k in names and (k not in given or k == "table" and not v)}
     train_new = {k: v for k, v in train_values.items() if k not in given or k in ("capture", "preset")}
+    if getattr(model_config, "table", False) and getattr(scene, "table", None) is None:
+        model_new["table"] = False  # nothing to stop at
+        if "table" in given:
+            notes.append(
+                "--table does nothing on this dataset: it records no table plane (`nerfkit poses` "
+                "records a tag capture's)"
+            )
     model_cfg = dataclasses.replace(model_config, **model_new)
-    return Resolved(dataclasses.replace(train, **train_new), model_cfg, kind, tuple(notes))
+    train_cfg = dataclasses.replace(train, **train_new)
+    notes += unmet_needs(train_cfg, model_cfg, given)
+    return Resolved(train_cfg, model_cfg, kind, tuple(notes))
 
 
 def without_scene(train: Any) -> Any:
@@ -303,10 +358,12 @@ __all__ = [
     "PRESETS",
     "Resolved",
     "SCENE_KINDS",
+    "NEEDS",
     "grid_stages",
     "preset_values",
     "resolve",
     "scene_kind",
     "table_cover_default",
+    "unmet_needs",
     "without_scene",
 ]
