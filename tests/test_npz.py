@@ -113,6 +113,8 @@ def test_take_rows_equals_torch_indexing(dtype):
         (lambda a: a.pop("c2ws_val"), "'images_val' is present but 'c2ws_val' is missing"),
         (lambda a: a.update(images_train=np.zeros((0, 8, 8, 3), np.uint8), c2ws_train=np.zeros((0, 4, 4))), "is empty"),
         (lambda a: a.update(K=np.array([[0.0, 0, 4], [0, 10, 4], [0, 0, 1]])), "zero or negative focal"),
+        # K of the 4x larger images the 8x8 ones were downscaled from
+        (lambda a: a.update(K=np.array([[40.0, 0, 16], [0, 40, 16], [0, 0, 1]])), "far outside the 8x8 image"),
         (lambda a: a.update(tags=np.zeros((2, 3, 3))), "'tags' must be (n, 4, 3) numbers"),
         (lambda a: a.update(tags=np.full((1, 4, 3), np.nan)), "'tags' holds non-finite"),
     ],

@@ -120,7 +120,8 @@ def check_poses(c2w: ArrayLike, where: str, field: str, tol: float = 1e-3) -> np
 
 
 def check_intrinsics(K: np.ndarray, where: str, field: str, width: int, height: int) -> np.ndarray:
-    """Validate a (3, 3) or (N, 3, 3) pinhole matrix; return it as float32."""
+    """Validate a (3, 3) or (N, 3, 3) pinhole matrix of ``width`` x ``height`` images (its
+    principal point no further outside the image than half its size); return it as float32."""
     K = _array(K, where, field)
     if K.dtype.kind not in "fiu" or K.shape[-2:] != (3, 3) or K.ndim not in (2, 3):
         raise fail(where, f"'{field}' has shape {K.shape} and dtype {K.dtype}, expected a 3x3 float matrix")
@@ -135,6 +136,17 @@ def check_intrinsics(K: np.ndarray, where: str, field: str, width: int, height: 
         or not np.allclose(Ks[:, 0, 1], 0, atol=1e-3 * Ks[:, 0, 0].max())
     ):
         raise fail(where, f"'{field}' is not of the form [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
+    cx, cy = Ks[:, 0, 2], Ks[:, 1, 2]
+    off = (cx < -0.5 * width) | (cx > 1.5 * width) | (cy < -0.5 * height) | (cy > 1.5 * height)
+    if off.any():
+        i = int(np.argmax(off))
+        raise fail(
+            where,
+            f"'{field}' puts the principal point at ({cx[i]:g}, {cy[i]:g}), far outside the "
+            f"{width}x{height} image: intrinsics of images of another size?",
+            "fx, fy, cx and cy are pixels of the images as stored: scale them by the images' size over the "
+            "size they were calibrated at",
+        )
     return K.astype(np.float32)
 
 
