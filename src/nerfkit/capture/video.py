@@ -18,6 +18,7 @@ nerfkit holds at most one full-resolution frame; ffmpeg's decoder a few more (ab
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import re
 import shutil
@@ -126,14 +127,21 @@ class FrameSelection:
 def clip_stamp(path: str | os.PathLike) -> str:
     """The clip ``path``'s size and a digest of its bytes: a clip replaced or edited since its
     frames were chosen (a rotation fixed in its header keeps its size) has another; one
-    copied again, or touched, keeps it. Reads the whole file (about a second a gigabyte)."""
+    copied again, or touched, keeps it. Reads the whole file (about a second a gigabyte) once
+    per process while its size, time and inode stay the same."""
+    st = Path(path).resolve().stat()
+    return _clip_stamp(str(Path(path).resolve()), st.st_size, st.st_mtime_ns, st.st_ino)
+
+
+@functools.lru_cache(maxsize=8)
+def _clip_stamp(path: str, size: int, mtime_ns: int, inode: int) -> str:
     import hashlib
 
     digest = hashlib.sha1()
     with open(path, "rb") as f:
         while chunk := f.read(1 << 20):
             digest.update(chunk)
-    return f"{Path(path).stat().st_size} bytes, sha1 {digest.hexdigest()[:16]}"
+    return f"{size} bytes, sha1 {digest.hexdigest()[:16]}"
 
 
 def ffmpeg_input(path: str | os.PathLike) -> str:
