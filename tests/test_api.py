@@ -103,3 +103,24 @@ def test_the_api_checks_its_arguments_as_the_command_line_does(tmp_path):
         api.render(tmp_path, colour="red")
     with pytest.raises(NerfkitError, match="resume.*lr cannot change"):
         api.resume(tmp_path, lr=0.1)
+
+
+def test_a_run_trains_and_resumes_from_a_thread_other_than_the_main_one(tmp_path, sphere_npz):
+    # signal handlers can be set on the main thread only: a GUI's or a server's worker trains too
+    import threading
+
+    tiny = {"n_samples": 4, "width": 8, "depth": 2, "eval_views": 1, "device": "cpu", "quiet": True}
+    results, errors = [], []
+
+    def work():
+        try:
+            results.append(api.train(sphere_npz, tmp_path / "run", model="vanilla", steps=2, **tiny))
+            results.append(api.resume(tmp_path / "run", steps=4, quiet=True))
+        except Exception as e:  # reported below, on the main thread
+            errors.append(e)
+
+    worker = threading.Thread(target=work)
+    worker.start()
+    worker.join()
+    assert not errors, errors
+    assert [r.steps for r in results] == [2, 4]

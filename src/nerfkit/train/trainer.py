@@ -13,6 +13,7 @@ import json
 import math
 import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -465,13 +466,16 @@ class Trainer:
         from tqdm import tqdm
 
         interrupted = False
-        previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+        # handlers can only be set on the main thread; elsewhere (a GUI's worker, a web handler)
+        # a run stops at its budget
+        main = threading.current_thread() is threading.main_thread()
+        previous = {s: signal.getsignal(s) for s in STOP_SIGNALS} if main else {}
 
         def on_stop_signal(signum, frame):  # finish the current step, then save and stop
             nonlocal interrupted
             interrupted = True
 
-        for s in STOP_SIGNALS:
+        for s in previous:
             if previous[s] is not signal.SIG_IGN:  # ignored by who started us (nohup, a script): it stays so
                 signal.signal(s, on_stop_signal)
         interrupted = stop.take()  # a stop that came while starting up, its exception swallowed by an import
