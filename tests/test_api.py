@@ -124,3 +124,25 @@ def test_a_run_trains_and_resumes_from_a_thread_other_than_the_main_one(tmp_path
     worker.join()
     assert not errors, errors
     assert [r.steps for r in results] == [2, 4]
+
+
+def test_the_api_says_what_is_wrong_with_a_path_before_any_work(tmp_path, sphere_npz):
+    tiny = {"n_samples": 4, "width": 8, "depth": 2, "eval_views": 1, "device": "cpu", "quiet": True}
+    run = api.train(sphere_npz, tmp_path / "run", model="vanilla", steps=1, **tiny).run_dir
+    with pytest.raises(NerfkitError, match=r"^run: is empty"):
+        api.render("")
+    with pytest.raises(NerfkitError, match=r"^photos: is empty"):
+        api.calibrate("", tmp_path / "c.json", tag_size=0.05)
+    with pytest.raises(NerfkitError, match=r"^--data: is empty"):
+        api.resume(run, steps=2, data="")
+    for out in (sphere_npz, sphere_npz / "videos"):  # a file where the folder goes, or in its path
+        with pytest.raises(NerfkitError, match=f"{sphere_npz} is a file, not a folder"):
+            api.render(run, out=out, quiet=True)
+    assert not (run / "videos").exists()  # refused before rendering anything
+    # the system's refusal of a file is one clear error too (a folder where the mesh file goes)
+    (tmp_path / "m.ply").mkdir()
+    with pytest.raises(NerfkitError, match="m.ply.*(folder|directory)"):
+        api.export(run, points=tmp_path / "m.ply", force=True)
+    # a setting of another model
+    with pytest.raises(NerfkitError, match="--sh-degree: is a setting of the fast and splat models, not of vanilla"):
+        api.train(sphere_npz, tmp_path / "o", model="vanilla", steps=1, sh_degree=2)

@@ -220,7 +220,7 @@ def test_capture_refuses_a_missing_folder_a_file_as_out_and_an_out_among_the_pho
     (nested / "IMG_0001.MOV").write_bytes(b"a clip beside the photos: not read, said so")
     assert main(["--verbose", "capture", str(nested), "--tag-size", "0.06", "--out", str(tmp_path / "mine")]) == 2
     out, err = capsys.readouterr()
-    assert err.count("Traceback") == 2  # the step's own, and the capture's
+    assert err.count("Traceback") == 3  # the step's own, and the capture's with its cause chained
     assert f"note: {nested} also holds 1 video (IMG_0001.MOV), not read" in out
 
 

@@ -244,6 +244,12 @@ def test_a_capture_held_the_other_way_from_the_calibration_follows_the_camera_fi
     assert "no photo could be posed" in capsys.readouterr().err
     photos = json.loads((tmp_path / "ds_old" / "poses.json").read_text())["photos"]
     assert all("re-run nerfkit calibrate" in p["reason"] for p in photos if not p["reason"].startswith("no tags"))
+    # the failed try's poses.json does not stand in the way of the next (here with the right camera)
+    argv = ["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", str(TAG)]
+    assert main([*argv, "--out", str(tmp_path / "ds_old"), "--no-dataset"]) == 0
+    assert json.loads((tmp_path / "ds_old" / "poses.json").read_text())["photos_posed"] == len(posed)
+    assert main([*argv, "--out", str(tmp_path / "ds_old"), "--no-dataset"]) == 2  # a good one does, without --force
+    assert "already exists" in capsys.readouterr().err
 
 
 def test_poses_start_from_the_exif_focal_length_without_a_camera_file(tmp_path):

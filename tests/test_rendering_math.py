@@ -316,3 +316,10 @@ def test_the_readme_course_api_imports_and_every_api_name_resolves():
     for name in nerfkit.__all__:
         value = getattr(nerfkit, name)
         assert value.__name__ in (name, f"nerfkit.{name}")  # a function or class, or a module (nerfkit.api)
+
+
+def test_sample_along_rays_refuses_near_at_or_past_far():
+    o, d = torch.zeros(2, 3), torch.tensor([[0.0, 0, 1], [0, 1, 0]])
+    for near, far in ((6.0, 2.0), (2.0, 2.0), (torch.tensor([2.0, 7.0]), torch.tensor([6.0, 6.0]))):
+        with pytest.raises(ValueError, match="near < far"):
+            sample_along_rays(o, d, near, far, n_samples=4, perturb=False)

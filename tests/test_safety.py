@@ -957,7 +957,7 @@ def test_a_newer_checkpoint_wins_over_an_older_final_model(trained, tmp_path):
             ["view", "D", "--png", "folder.png", "--force"],
             ["--png: folder.png is a folder", "Name a PNG file, e.g. folder.png/scene.png"],
         ),
-        (["convert", "D", "--to", "afile/x.npz"], ["afile: File exists", "is a file, not a folder"]),
+        (["convert", "D", "--to", "afile/x.npz"], ["afile/x.npz: cannot be written", "afile is a file, not a folder"]),
         (["render", "RUN", "--out", "v" * 300], ["File name too long", "Use a shorter name"]),
     ],
 )

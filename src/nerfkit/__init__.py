@@ -32,12 +32,15 @@ _API = {
     "positional_encoding": "nerfkit.fields.encoding",
     "sample_along_rays": "nerfkit.render.sampling",
     "volrend": "nerfkit.render.volrend",
-    # the pipeline (nerfkit.api; its train, render and export share their names with the
-    # subpackages nerfkit.train, nerfkit.render and the module nerfkit.export: call them as api.train, ...)
+    # the pipeline (nerfkit.api; its train, render, export and capture share their names with the
+    # subpackages nerfkit.train, nerfkit.render, nerfkit.capture and the module nerfkit.export: call
+    # them as api.train, ...)
     "api": None,
     "calibrate": "nerfkit.api",
     "pose": "nerfkit.api",
     "evaluate": "nerfkit.api",
+    "resume": "nerfkit.api",
+    "CaptureResult": "nerfkit.api",
     "CalibrationResult": "nerfkit.api",
     "PoseResult": "nerfkit.api",
     "TrainResult": "nerfkit.api",

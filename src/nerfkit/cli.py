@@ -8,13 +8,12 @@ Each command module defines ``register(subparsers)``, which adds its parser and 
 from __future__ import annotations
 
 import argparse
-import errno
 import importlib
 import signal
 import sys
 import traceback
 
-from .errors import NerfkitError, is_out_of_memory
+from .errors import NerfkitError, is_out_of_memory, os_error
 
 # In the order --help lists them.
 COMMANDS = [
@@ -128,18 +127,6 @@ def _version() -> str:
     return __version__
 
 
-OS_ERROR_HINTS: dict[int | None, str] = {
-    errno.EACCES: "Check its permissions, or choose another place to write",
-    errno.EPERM: "Check its permissions, or choose another place to write",
-    errno.EROFS: "The file system is read-only: choose another place to write",
-    errno.EISDIR: "It is a folder: name a file there instead",
-    errno.ENOTDIR: "A part of the path is a file, not a folder",
-    errno.EEXIST: "A part of the path is a file, not a folder",
-    errno.ENAMETOOLONG: "Use a shorter name",
-    errno.ENOSPC: "The disk is full: free some space",
-}
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit code (0, 2 for an error, 130 when stopped by Ctrl-C or
     SIGTERM, at any moment: from the first line here, before the heavy imports)."""
@@ -198,9 +185,7 @@ def _main(argv: list[str]) -> int:
     except OSError as e:  # the system refused a file: permissions, a folder where a file goes, a full disk
         if args.verbose:
             traceback.print_exc()
-        where = next((f for f in (e.filename2, e.filename) if f is not None), "a file")  # a rename's target first
-        hint = OS_ERROR_HINTS.get(e.errno, "Check the path and its permissions")
-        print(f"nerfkit {args.command}: error: {where}: {e.strerror or e}. {hint}", file=sys.stderr)
+        print(f"nerfkit {args.command}: error: {os_error(e)}", file=sys.stderr)
         return 2
 
 

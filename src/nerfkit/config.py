@@ -207,7 +207,7 @@ def check_values(cls: type, values: dict[str, Any], owner: str | None = None) ->
             continue
         if not fits(kind, value):
             words = {bool: "True or False", str: "text"}
-            problem = f"{value!r} is not {words[kind]}" if kind in words else _not_a(kind, repr(value))
+            problem = f"{value!r} is not {words[kind]}" if kind in words else _not_a(kind, str(value))
         elif choices is not None and value not in choices:
             problem = f"{value!r} is not one of {', '.join(map(str, choices))}"
         else:

@@ -7,6 +7,7 @@ The CLI turns it into that line on stderr and exit code 2.
 
 from __future__ import annotations
 
+import errno
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -21,6 +22,27 @@ def fail(where: object, problem: str, fix: str | None = None) -> NerfkitError:
     if fix:
         msg += f". {fix}"
     return NerfkitError(msg.replace("\r", " ").replace("\n", " "))
+
+
+# what to do when the system refuses a file, by errno
+OS_ERROR_HINTS: dict[int | None, str] = {
+    errno.EACCES: "Check its permissions, or choose another place to write",
+    errno.EPERM: "Check its permissions, or choose another place to write",
+    errno.EROFS: "The file system is read-only: choose another place to write",
+    errno.EISDIR: "It is a folder: name a file there instead",
+    errno.ENOTDIR: "A part of the path is a file, not a folder",
+    errno.EEXIST: "A part of the path is a file, not a folder",
+    errno.ENAMETOOLONG: "Use a shorter name",
+    errno.ENOSPC: "The disk is full: free some space",
+}
+
+
+def os_error(e: OSError) -> NerfkitError:
+    """The system's refusal of a file (permissions, a folder where a file goes, a full disk)
+    as a NerfkitError naming the file (a rename's target first) and what to do."""
+    where = next((f for f in (e.filename2, e.filename) if f is not None), "a file")
+    hint = OS_ERROR_HINTS.get(e.errno, "Check the path and its permissions")
+    return NerfkitError(f"{where}: {e.strerror or e}. {hint}")
 
 
 def problem_of(error: NerfkitError) -> str:

@@ -19,6 +19,7 @@ This module is where OpenCV pixel coordinates become nerfkit's (+0.5).
 
 from __future__ import annotations
 
+import json
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -476,6 +477,16 @@ def _triangulate(train: Views, out_dir: Path, progress: bool) -> tuple[SparsePoi
 
 
 # ---------------------------------------------------------------- poses.json
+
+
+def posed_none(path: str | Path) -> bool:
+    """Whether ``path`` is a poses.json of `nerfkit poses` that posed no photo: the record of a
+    failed try, which the next one replaces."""
+    try:
+        record = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(record, dict) and record.get("format") == "nerfkit-poses" and record.get("photos_posed") == 0
 
 
 def write_poses_json(path: str | Path, records, posed: list[PosedPhoto], camera: Camera, meta: dict) -> None:

@@ -147,6 +147,11 @@ def _accepts(tp: Any, value: Any) -> bool:
     return isinstance(value, tp) if isinstance(tp, type) else True
 
 
+def _takes_path(tp: Any) -> bool:
+    """Whether the annotation ``tp`` is, or is a union holding, ``Path``."""
+    return tp is Path or any(_takes_path(a) for a in get_args(tp))
+
+
 def _describe(tp: Any) -> str:
     """What the annotation ``tp`` asks for, in words (:func:`_accepts`)."""
     origin = typing.get_origin(tp)
@@ -162,7 +167,8 @@ def _describe(tp: Any) -> str:
 def _checked(func: Callable[P, R]) -> Callable[P, R]:
     """``func`` with each argument checked against its annotation first (:func:`_accepts`): a
     wrong kind of value is a NerfkitError naming the flag (``--fps: None is not a whole number``),
-    not a TypeError from deep inside. Annotations that name types only imported for checking
+    not a TypeError from deep inside; the system's refusal of a file (an OSError) is one too
+    (:func:`~nerfkit.errors.os_error`). Annotations that name types only imported for checking
     are not checked here (the settings objects: :func:`_settings`)."""
     signature = inspect.signature(func)
     hints: dict[str, Any] = {}
@@ -173,7 +179,7 @@ def _checked(func: Callable[P, R]) -> Callable[P, R]:
     @functools.wraps(func)
     def checked(*args: P.args, **kwargs: P.kwargs) -> R:
         from ..config import flag_of
-        from ..errors import fail
+        from ..errors import fail, os_error
 
         try:
             bound = signature.bind(*args, **kwargs)
@@ -185,7 +191,16 @@ def _checked(func: Callable[P, R]) -> Callable[P, R]:
                 continue
             shown = flag_of(name) if param.default is not param.empty else name
             raise fail(shown, f"{value!r} is not {_describe(hints[name])}")
-        return func(*args, **kwargs)
+        for name, value in bound.arguments.items():  # "" is no path (Path("") is the current folder)
+            output = name in ("out", "mesh", "points", "splat")  # (output_path says so, in its words)
+            if isinstance(value, str) and not value.strip() and _takes_path(hints.get(name)) and not output:
+                default = signature.parameters[name].default
+                shown = flag_of(name) if default is not inspect.Parameter.empty else name
+                raise fail(shown, "is empty", "Give a path" + (f", or leave {shown} out" if default is None else ""))
+        try:
+            return func(*args, **kwargs)
+        except OSError as e:  # the system refused a file: the command line's one line, as an error
+            raise os_error(e) from e
 
     return checked
 
@@ -299,7 +314,7 @@ def calibrate(
         assert sheet is not None  # checked above
         tag_size = sheet.tag_size
     path = Path(_check("--out", out, output_path))
-    if path.is_dir():
+    if path.is_dir() or str(out).endswith(("/", os.sep)):  # a folder, or one to make ("cams/")
         path = path / "camera.json"
     guard_outputs([path], [photos_dir, layout_file], force)
     detections = path.with_name(path.stem + ".detections.json") if cache else None
@@ -383,10 +398,11 @@ def pose(
     """
     from ..capture.aruco import get_dictionary, load_layout
     from ..capture.camera import load_camera
-    from ..capture.dataset import NPZ_FILE, POSES_FILE, DatasetConfig, write_poses_json
+    from ..capture.dataset import NPZ_FILE, POSES_FILE, DatasetConfig, posed_none, write_poses_json
     from ..capture.dataset import check_settings as check_dataset_settings
     from ..capture.photos import default_jobs, require_tags, scan_photos
     from ..capture.poses import PoseConfig, pose_records
+    from ..capture.report import reason_counts
     from ..config import number, output_path, tag_side
     from ..errors import fail
     from ..images import list_images
@@ -412,8 +428,9 @@ def pose(
     camera_file, layout_file = (str(camera) if camera else None), (str(layout) if layout else None)
     if folder.exists() and not folder.is_dir():
         raise fail(folder, "exists and is not a folder", "--out names the dataset folder to write")
-    outputs = stage.output_names(method, build_dataset)
-    guard_outputs([folder / name for name in outputs], [photos_dir, camera_file, layout_file], force)
+    outputs = [folder / name for name in stage.output_names(method, build_dataset)]
+    outputs = [p for p in outputs if not (p.name == POSES_FILE and posed_none(p))]  # an earlier failed try's
+    guard_outputs(outputs, [photos_dir, camera_file, layout_file], force)
     refuse_links(folder, ["colmap"])  # structure-from-motion's work folder
     given_camera = load_camera(camera_file) if camera_file else None
     dictionary = stage.dictionary_of(dictionary, camera_file)
@@ -421,6 +438,12 @@ def pose(
     if tag_size is not None and not tag_size > 0:
         raise fail("--tag-size", f"{tag_size} must be a positive length in metres")
     workers = jobs or default_jobs()
+    if method == "colmap" and not build_dataset:
+        raise fail(
+            "--no-dataset",
+            "does not apply to --method colmap: structure-from-motion poses the photos as it builds the dataset",
+            "Leave out --no-dataset, or pose by the tags alone with --method tags",
+        )
     if method == "colmap":
         from ..sfm import sfm_dataset
 
@@ -437,6 +460,7 @@ def pose(
             jobs=workers,
             ground=ground,
             camera=given_camera,
+            progress=not quiet,
         )
         say(report.summary())
         return PoseResult(folder / NPZ_FILE, _views(scene), len(list_images(photos_dir)), folder)
@@ -470,12 +494,20 @@ def pose(
     meta = stage.poses_meta(photos_dir, dictionary, side, printed, frame, notes, pcfg)
     write_poses_json(folder / POSES_FILE, records, posed, cam, meta)
     say(stage.poses_report(notes, cam, records, folder / POSES_FILE, all_photos))
-    if not posed:
+    if not posed:  # (a poses.json that posed none is replaced by the next try without --force)
         raise fail(
             photos_dir,
-            "no photo could be posed (see the table above)",
+            f"no photo could be posed ({reason_counts([r.reason for r in records])}; each photo's reason: "
+            f"{folder / POSES_FILE})",
             "Check --tag-size/--tag-id and that the tag is sharp and fully visible",
         )
+    note = stage.scaled_note(posed, cam)
+    if note:
+        notes.append(note)
+    folder.mkdir(parents=True, exist_ok=True)
+    meta = stage.poses_meta(photos_dir, dictionary, side, printed, frame, notes, pcfg)
+    write_poses_json(folder / POSES_FILE, records, posed, cam, meta)
+    say(stage.poses_report(notes, cam, records, folder / POSES_FILE, all_photos))
     total = len(list_images(photos_dir))
     if not build_dataset:
         return PoseResult(None, len(posed), total, folder)
@@ -498,6 +530,7 @@ def pose(
             pose_cfg=pcfg,
             dataset_cfg=dcfg,
             say=say,
+            progress=not quiet,
         )
     else:
         scene, summary = stage.tag_dataset(posed, folder, dcfg, side, workers, {"notes": notes}, printed.corners())
@@ -544,6 +577,17 @@ def train_settings(options: dict[str, Any], config: str | Path | None = None) ->
         given -= preset
     model_names = {f.name for f in dataclasses.fields(model_class)}
     unknown = set(options) - train_names - model_names
+    owned = {k: sorted(m for m, names in model_fields().items() if k in names) for k in sorted(unknown)}
+    foreign = {k: v for k, v in owned.items() if v}
+    if foreign:
+        from ..config import flag_of
+
+        name, owners = next(iter(foreign.items()))
+        raise fail(
+            flag_of(name),
+            f"is a setting of the {' and '.join(owners)} model{'s' if len(owners) > 1 else ''}, not of {cfg.model}",
+            f"Leave it out, or train with model {' or '.join(repr(m) for m in owners)}",
+        )
     if unknown:
         raise TypeError(
             f"train() got settings that neither training nor the {cfg.model} model has: {', '.join(sorted(unknown))}"
@@ -687,6 +731,7 @@ def resume(
     steps: int | None = None,
     minutes: float | None = None,
     data: str | Path | None = None,
+    allow_outside_paths: bool = False,
     quiet: bool = False,
     **changes: Any,
 ) -> TrainResult:
@@ -698,6 +743,8 @@ def resume(
         steps: the new step budget (None: the run's).
         minutes: the new time budget (None: the run's).
         data: the dataset, when it has moved (None: the one the run records).
+        allow_outside_paths: read dataset images outside the dataset's folder (also when the
+            run was trained so).
         quiet: print no progress or report.
         changes: settings of :data:`RESUME_APPLIES` by name; any other is refused.
     """
@@ -714,7 +761,8 @@ def resume(
             "Resume without them: it applies only " + ", ".join(RESUME_APPLIES),
         )
     info = read_run(run)
-    scene = load_as_trained(info.train, str(data or info.train.data), allow_outside=info.train.allow_outside_paths)
+    allow = allow_outside_paths or info.train.allow_outside_paths
+    scene = load_as_trained(info.train, str(data or info.train.data), allow_outside=allow)
     changes = {**changes, **{k: v for k, v in (("steps", steps), ("minutes", minutes)) if v is not None}}
     return _train_result(resume_run(run, scene, quiet=quiet, changes=changes))
 
@@ -1075,11 +1123,12 @@ def capture(
     device: str = "auto",
     force: bool = False,
     verbose: bool = False,
+    quiet: bool = False,
 ) -> CaptureResult:
     """A phone video or photos of an object to a NeRF and/or a Gaussian splat in one go
     (``nerfkit capture``): frames, calibration, poses, training, evaluation, videos and files,
     each kept for the next call with the same inputs. It prints what each stage prints, under
-    ``[k/N]`` headings, and a summary.
+    ``[k/N]`` headings, and a summary (``quiet``: nothing; a stage's failure is the error raised).
 
     Args:
         photos: a folder of photos of the object, or a video filmed slowly around it.
@@ -1101,7 +1150,9 @@ def capture(
         device: "auto", "cpu", "cuda" or "cuda:N".
         force: redo every stage, replacing the results of an earlier capture in ``out``.
         verbose: a stage's error comes with its traceback.
+        quiet: print nothing (what the stages print is dropped).
     """
+    import io
     import json
 
     from ..config import MIN_RESAMPLED_SIDE, number, output_path, tag_side
@@ -1133,7 +1184,11 @@ def capture(
         verbose=verbose,
     )
     calls = stage.Calls(calibrate, pose, train, resume, evaluate, render, export)
-    made = stage.run_capture(options, calls)
+    if quiet:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            made = stage.run_capture(options, calls)
+    else:
+        made = stage.run_capture(options, calls)
     splat = made.splat or {}
     scored = [("NeRF", made.run_dir, made.evaluated), ("splat", splat.get("run_dir"), splat.get("evaluated"))]
     psnr = {

@@ -162,13 +162,6 @@ def refuse_other_models_flags(args: argparse.Namespace, classes: dict, model: st
         )
 
 
-def api_result(result):
-    """The trainer's result as the API's (:class:`nerfkit.api.TrainResult`)."""
-    from .pipeline import _train_result
-
-    return _train_result(result)
-
-
 def given_flags(args: argparse.Namespace, *classes: type) -> set[str]:
     """The fields of ``classes`` whose flag the command line gave (the user's choices, which the
     scene kind's preset never overrides)."""
@@ -179,8 +172,7 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import fail
     from ..train.checkpoint import read_run
     from ..train.config import TrainConfig
-    from ..train.trainer import resume
-    from ._common import load_as_trained
+    from . import pipeline as api
 
     if args.resume:
         if args.config:
@@ -193,14 +185,8 @@ def run(args: argparse.Namespace) -> int:
         info = read_run(args.resume)
         for k, v in changes.items():
             print(f"resuming with {flag_of(k)} {v} (was {getattr(info.train, k)})", file=sys.stderr)
-        data = args.data or info.train.data
-        scene = load_as_trained(
-            info.train, data, allow_outside=bool(args.allow_outside_paths or info.train.allow_outside_paths)
-        )
-        result = api_result(resume(args.resume, scene, changes=changes))
+        result = api.resume(args.resume, data=args.data, allow_outside_paths=bool(args.allow_outside_paths), **changes)
     else:
-        from . import pipeline as api
-
         classes = _model_config_classes()
         model = args.model
         if model is None and args.config:

@@ -171,6 +171,9 @@ def guard_outputs(outputs, inputs, force: bool = False, flag: str = "--out") -> 
     ins = [Path(i) for i in inputs if i is not None]
     for o in outs:
         ro = resolved_path(o)
+        blocked = next((p for p in ro.parents if p.exists() and not p.is_dir()), None)
+        if blocked is not None:
+            raise fail(o, f"cannot be written: {blocked} is a file, not a folder", f"Choose another {flag}")
         for i in ins:
             ri = resolved_path(i)
             if ro == ri:

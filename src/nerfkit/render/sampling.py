@@ -74,6 +74,8 @@ def sample_along_rays(
             f"sample_along_rays takes (n_rays, 3) origins and directions, got {tuple(rays_o.shape)} "
             f"and {tuple(rays_d.shape)}: reshape them with .reshape(-1, 3)"
         )
+    if not bool((torch.as_tensor(near) < torch.as_tensor(far)).all()):
+        raise ValueError(f"sample_along_rays needs near < far on every ray, got near {near} and far {far}")
     t = stratified_t(near, far, rays_o.shape[0], n_samples, perturb, rays_o.device, generator)
     points = rays_o[:, None, :] + t[..., None] * rays_d[:, None, :]
     return points, t

@@ -98,22 +98,22 @@ def _step(
     import time
     import traceback
 
-    from ...cli import OS_ERROR_HINTS
-    from ...errors import NerfkitError, fail, is_out_of_memory
+    from ...errors import NerfkitError, fail, is_out_of_memory, os_error
 
     print(f"\n== nerfkit {' '.join(argv)}", flush=True)
     start = time.perf_counter()
+    message, cause = "", None
     try:
         call()
         ok = True
     except (NerfkitError, OSError, MemoryError, RuntimeError) as e:
+        cause = e
         if isinstance(e, (MemoryError, RuntimeError)) and not is_out_of_memory(e):
             raise
         if verbose:
             traceback.print_exc()
-        if isinstance(e, OSError) and not isinstance(e, NerfkitError):
-            where = next((f for f in (e.filename2, e.filename) if f is not None), "a file")
-            message = f"{where}: {e.strerror or e}. {OS_ERROR_HINTS.get(e.errno, 'Check the path and its permissions')}"
+        if isinstance(e, OSError):
+            message = str(os_error(e))
         elif isinstance(e, NerfkitError):
             message = str(e)
         else:
@@ -125,9 +125,9 @@ def _step(
     if not ok and needed:
         raise fail(
             f"nerfkit {argv[0]}",
-            "failed (its error is above)",
+            f"failed: {message}",
             "Fix that and run the same `nerfkit capture` again: the steps already done are kept",
-        )
+        ) from cause
     return ok
 
 

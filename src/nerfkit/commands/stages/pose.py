@@ -226,6 +226,7 @@ def chosen_dataset(
     pose_cfg: PoseConfig,
     dataset_cfg: DatasetConfig,
     say: Callable[[str], None],
+    progress: bool = True,
 ) -> tuple[Scene, dict]:
     """(scene, summary) of the dataset of ``--method auto``: the photos posed by SfM in the tag's
     frame, or by the tags (``posed``) when SfM registers too few, misses the tag or disagrees
@@ -250,6 +251,7 @@ def chosen_dataset(
         records=records,
         layout=layout,
         pose_cfg=pose_cfg,
+        progress=progress,
     )
     say(choice.why)
     extra = {"notes": notes, "pose_choice": choice.to_dict()}
@@ -257,7 +259,13 @@ def chosen_dataset(
         from ...sfm.dataset import build_dataset
 
         return build_dataset(
-            cast("SfmResult", choice.result), out, dataset_cfg, jobs=jobs, extra=extra, tags=printed.corners()
+            cast("SfmResult", choice.result),
+            out,
+            dataset_cfg,
+            jobs=jobs,
+            extra=extra,
+            tags=printed.corners(),
+            progress=progress,
         )
     (out / REPORT_FILE).unlink(missing_ok=True)  # an earlier --force run's SfM report would not hold
     return tag_dataset(posed, out, dataset_cfg, tag_size, jobs, extra, printed.corners())
