@@ -526,6 +526,17 @@ def test_poses_use_the_camera_files_layout_when_photos_show_several_tags(tmp_pat
         assert pos < 0.002 and ang < 0.3
     assert main([*argv, "--no-dataset", "--single-tag", "--force"]) == 0
     assert all(len(p["tags_used"]) == 1 for p in json.loads((out / "poses.json").read_text())["photos"] if p["used"])
+    # calibrated with a --tag-size 10% short: the layout takes the --tag-size the poses are given
+    # (the photos show no other tag), so the cameras stand where they are, and it is said
+    cam["layout"] = sheet.layout.scaled(0.9).to_json()
+    (tmp_path / "short.json").write_text(json.dumps(cam))
+    argv[3] = str(tmp_path / "short.json")
+    assert main([*argv, "--no-dataset", "--force"]) == 0
+    poses = json.loads((out / "poses.json").read_text())
+    assert any("layout has tags of 45.0 mm" in n and "scaled to --tag-size" in n for n in poses["notes"])
+    for p in poses["photos"]:
+        pos, ang = pose_error(np.array(p["c2w"]), sheet.c2w[sheet.names.index(p["file"])])
+        assert p["used"] and pos < 0.002 and ang < 0.3
 
 
 @pytest.mark.slow

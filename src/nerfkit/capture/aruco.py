@@ -155,6 +155,10 @@ class Layout:
         describe how the paper lay while it was photographed, not the printed sheet)."""
         return replace(self, tags={t: np.column_stack([c[:, :2], np.zeros(len(c))]) for t, c in self.tags.items()})
 
+    def scaled(self, factor: float) -> Layout:
+        """The same sheet ``factor`` times larger (its corners written out: the spec's sizes no longer hold)."""
+        return replace(self, tags={t: c * factor for t, c in self.tags.items()}, spec={})
+
     def heights_json(self) -> dict | None:
         """Each tag's corners' heights (metres) by id, for a report beside the flattened
         layout; None for a flat layout."""

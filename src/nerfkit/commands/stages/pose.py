@@ -68,6 +68,20 @@ def camera_layout(camera_file: str, dictionary: str, records) -> tuple[Layout | 
     )
 
 
+def sized_layout(layout: Layout, tag_size: float, records) -> tuple[Layout, str]:
+    """(the camera file's ``layout`` at ``--tag-size``, a note) when its tags' side (calibrate's
+    --tag-size) differs from ``tag_size`` by more than 1% and the photos show no tag outside
+    it (so --tag-size measures its tags); else (``layout``, "")."""
+    seen = {int(i) for r in records if r.detection is not None for i in r.detection.ids}
+    if abs(layout.tag_size / tag_size - 1) <= 0.01 or not seen <= set(layout.tags):
+        return layout, ""
+    return layout.scaled(tag_size / layout.tag_size), (
+        f"the camera file's layout has tags of {layout.tag_size * 1000:.1f} mm (calibrate's --tag-size) and "
+        f"--tag-size says {tag_size * 1000:.1f} mm; the photos show only the layout's tags: it is scaled to "
+        "--tag-size (the scene's scale follows it; the lens does not depend on it)"
+    )
+
+
 def starting_camera(records, focal_px: float | None) -> tuple[Camera, str]:
     """(the camera to pose with when no camera file is given, a note): ``focal_px`` with the
     principal point at the centre, else the photos' EXIF focal length."""
@@ -112,6 +126,10 @@ def tag_frame(
         layout, note = camera_layout(camera_file, dictionary, records)
         if note:
             notes.append(note)
+        if layout is not None and tag_size:
+            layout, note = sized_layout(layout, tag_size, records)
+            if note:
+                notes.append(note)
     if camera is None:
         camera, note = starting_camera(records, focal_px)
         notes.append(note)
