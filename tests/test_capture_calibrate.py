@@ -543,3 +543,24 @@ def test_without_distortion_the_simplest_camera_is_still_chosen():
     held = [r["heldout_rms"] for r in sel["candidates"] if r["eligible"]]
     assert sel["models"]["none"]["heldout_rms"] <= 1.05 * min(held)
     assert sel["principal_point"]["chosen"] == "centre" and sel["aspect"]["chosen"] == "square"
+
+
+def test_a_camera_no_lens_makes_is_never_chosen_nor_read():
+    from nerfkit.capture.camera import MAX_ASPECT_OFFSET, MAX_CENTRE_OFFSET, camera_from_dict, implausible
+    from nerfkit.errors import NerfkitError
+
+    w, h = 640, 480
+    cx, cy = (w - 1) / 2, (h - 1) / 2
+
+    def K(fx, fy, x, y):
+        return np.array([[fx, 0, x], [0, fy, y], [0, 0, 1.0]])
+
+    assert implausible(K(500, 500, cx, cy), (w, h)) == ""
+    assert implausible(K(500, 500 / 1.04, cx + 0.1 * w, cy - 0.1 * h), (w, h)) == ""  # an iPhone's 4%, 10% off
+    assert "off the centre" in implausible(K(500, 500, cx, cy + (MAX_CENTRE_OFFSET + 0.01) * h), (w, h))
+    assert "as wide as tall" in implausible(K(500 * (1 + MAX_ASPECT_OFFSET + 0.01), 500, cx, cy), (w, h))
+    # a camera file whose width and height are not those of its K (here 4x larger) is refused
+    data = {"K": K(500, 500, cx, cy).tolist(), "dist": [0] * 5, "width": 4 * w, "height": 4 * h}
+    with pytest.raises(NerfkitError, match="2560x1920 photos is no lens's.*width and height are those K"):
+        camera_from_dict(data, "camera.json")
+    assert camera_from_dict({**data, "width": w, "height": h}, "camera.json").width == w

@@ -241,7 +241,8 @@ def test_a_capture_held_the_other_way_from_the_calibration_follows_the_camera_fi
         )
         == 2
     )
-    assert "no photo could be posed" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "no photo could be posed" in err and "Calibrate with photos of this size, shape and lens" in err
     photos = json.loads((tmp_path / "ds_old" / "poses.json").read_text())["photos"]
     assert all("re-run nerfkit calibrate" in p["reason"] for p in photos if not p["reason"].startswith("no tags"))
     # the failed try's poses.json does not stand in the way of the next (here with the right camera)

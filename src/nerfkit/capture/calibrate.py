@@ -47,7 +47,7 @@ import numpy as np
 from ..config import flag_of, option
 from ..errors import NerfkitError, fail
 from .aruco import Layout, square_corners
-from .camera import FILM_DIAGONAL_MM, exif_fx, image_centre
+from .camera import FILM_DIAGONAL_MM, exif_fx, image_centre, implausible
 from .distortion import distortion_check, fold_spread, frame_displacement, heldout_errors
 from .photos import PhotoRecord, frame_turns
 
@@ -450,6 +450,8 @@ def _try_camera(
             f"(> {limit:.1f} px: {EDGE_FACTOR:g} x {what}, at least 1 px)"
         )
     K = full.K
+    if not rejected:
+        rejected = implausible(K, size)
     return {
         **row,
         "heldout_rms": _rounded(v.heldout),

@@ -141,6 +141,34 @@ def image_centre(width: int, height: int) -> tuple[float, float]:
     return (width - 1) / 2.0, (height - 1) / 2.0
 
 
+# A lens's principal point lies within a few percent of the frame's centre and a phone's pixels
+# are square to a few percent; a fit far beyond either is the noise of too few, or too alike,
+# photos (8 photos of one sheet gave fx/fy 0.81 and a principal point outside the frame).
+MAX_CENTRE_OFFSET = 0.15  # of the frame's width or height
+MAX_ASPECT_OFFSET = 0.10  # |fx / fy - 1|
+
+
+def implausible(K: np.ndarray, size: tuple[int, int]) -> str:
+    """Why a fitted camera ``K`` of ``size`` (w, h) photos is no lens's (its principal point more
+    than :data:`MAX_CENTRE_OFFSET` of the frame off the centre, or pixels more than
+    :data:`MAX_ASPECT_OFFSET` from square), or ""."""
+    w, h = size
+    cx0, cy0 = image_centre(w, h)
+    off = max(abs(K[0, 2] - cx0) / w, abs(K[1, 2] - cy0) / h)
+    if off > MAX_CENTRE_OFFSET:
+        return (
+            f"its principal point ({K[0, 2]:.0f}, {K[1, 2]:.0f}) lies {off:.0%} of the frame off the centre "
+            f"(a lens's lies within {MAX_CENTRE_OFFSET:.0%}): too few or too alike photos"
+        )
+    ratio = K[0, 0] / K[1, 1]
+    if abs(ratio - 1) > MAX_ASPECT_OFFSET:
+        return (
+            f"its pixels are {ratio:.2f} times as wide as tall (a phone's are square to "
+            f"{MAX_ASPECT_OFFSET:.0%}): too few or too alike photos"
+        )
+    return ""
+
+
 def camera_from_focal(fx: float, width: int, height: int, source: str) -> Camera:
     """A distortion-free camera with square pixels and the principal point at the centre."""
     cx, cy = image_centre(width, height)
@@ -163,6 +191,13 @@ def camera_from_dict(data, where: str, source: str | None = None) -> Camera:
     if not np.array_equal(K[2], [0, 0, 1]):
         raise fail(where, f"'K' has the bottom row {short_repr(K[2].tolist())}, expected exactly [0, 0, 1]")
     check_intrinsics(K, where, "K", width, height)  # positive focal lengths, no skew
+    problem = implausible(K, (width, height))
+    if problem:
+        raise fail(
+            where,
+            f"the camera of {width}x{height} photos is no lens's: {problem.replace(': too few or too alike photos', '')}",
+            "Check that width and height are those K was calibrated at, or calibrate again with 20-50 photos",
+        )
     dist = check_numbers(data["dist"], where, "dist").ravel()
     if dist.size not in (0, 4, 5, 8, 12, 14):
         raise fail(where, f"'dist' must hold 4, 5, 8, 12 or 14 OpenCV coefficients, got {dist.size}")

@@ -495,19 +495,15 @@ def pose(
     write_poses_json(folder / POSES_FILE, records, posed, cam, meta)
     say(stage.poses_report(notes, cam, records, folder / POSES_FILE, all_photos))
     if not posed:  # (a poses.json that posed none is replaced by the next try without --force)
+        camera_wrong = camera_file and all("camera" in r.reason for r in records if r.detection is not None)
         raise fail(
             photos_dir,
             f"no photo could be posed ({reason_counts([r.reason for r in records])}; each photo's reason: "
             f"{folder / POSES_FILE})",
-            "Check --tag-size/--tag-id and that the tag is sharp and fully visible",
+            f"Calibrate with photos of this size, shape and lens, or leave out --camera {camera_file}"
+            if camera_wrong
+            else "Check --tag-size/--tag-id and that the tag is sharp and fully visible",
         )
-    note = stage.scaled_note(posed, cam)
-    if note:
-        notes.append(note)
-    folder.mkdir(parents=True, exist_ok=True)
-    meta = stage.poses_meta(photos_dir, dictionary, side, printed, frame, notes, pcfg)
-    write_poses_json(folder / POSES_FILE, records, posed, cam, meta)
-    say(stage.poses_report(notes, cam, records, folder / POSES_FILE, all_photos))
     total = len(list_images(photos_dir))
     if not build_dataset:
         return PoseResult(None, len(posed), total, folder)
