@@ -191,11 +191,11 @@ def camera_from_dict(data, where: str, source: str | None = None) -> Camera:
     if not np.array_equal(K[2], [0, 0, 1]):
         raise fail(where, f"'K' has the bottom row {short_repr(K[2].tolist())}, expected exactly [0, 0, 1]")
     check_intrinsics(K, where, "K", width, height)  # positive focal lengths, no skew
-    problem = implausible(K, (width, height))
+    problem = implausible(K, (width, height)).replace(": too few or too alike photos", "")
     if problem:
         raise fail(
             where,
-            f"the camera of {width}x{height} photos is no lens's: {problem.replace(': too few or too alike photos', '')}",
+            f"the camera of {width}x{height} photos is no lens's: {problem}",
             "Check that width and height are those K was calibrated at, or calibrate again with 20-50 photos",
         )
     dist = check_numbers(data["dist"], where, "dist").ravel()
