@@ -174,6 +174,21 @@ def test_detection_cache_reuses_unchanged_photos(tmp_path, monkeypatch):
     assert len(calls) == 3
 
 
+def test_a_copy_of_a_photo_is_skipped_naming_the_photo_it_copies(tmp_path):
+    import shutil
+
+    cap = S.cached_capture("sheet", 12, 5)
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for n, im in zip(cap.names[:3], cap.images[:3]):
+        S.write_photo(folder / n, im)
+    shutil.copy(folder / cap.names[1], folder / "z_copy.png")  # a copy, sorted last
+    recs = {r.name: r for r in P.scan_photos(folder, "DICT_4X4_50", jobs=1, progress=False)}
+    assert recs["z_copy.png"].detection is None and not recs["z_copy.png"].used
+    assert recs["z_copy.png"].reason.startswith(f"a copy of {cap.names[1]} (the same bytes)")
+    assert all(recs[n].detection is not None and not recs[n].reason for n in cap.names[:3])
+
+
 def test_mixed_sizes_keep_the_main_group_and_explain_the_rest():
     def rec(name, w, h):
         return P.PhotoRecord(name, None, A.Detection(w, h, np.zeros(0, np.int64), np.zeros((0, 4, 2))))
@@ -199,8 +214,8 @@ def test_second_detection_pass_recovers_missed_tags_of_known_ids_only(tmp_path, 
     import cv2
 
     d = A.get_dictionary("DICT_4X4_50")
-    for name, tag in (("a.png", 0), ("b.png", 0), ("c.png", 7)):
-        img = np.full((240, 320, 3), 230, np.uint8)
+    for k, (name, tag) in enumerate((("a.png", 0), ("b.png", 0), ("c.png", 7))):
+        img = np.full((240, 320, 3), 230 - k, np.uint8)  # (b.png is another photo, not a copy of a.png)
         img[70:150, 120:200] = cv2.aruco.generateImageMarker(d, tag, 80)[..., None]
         S.write_photo(tmp_path / name, img)
     first = P.detect

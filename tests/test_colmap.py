@@ -299,6 +299,11 @@ def test_prepare_photos_makes_upright_copies(tmp_path):
         sorted((tmp_path / "in").iterdir()), tmp_path / "work5", progress=False, camera=cam
     )
     assert "5.jpg" not in names and "another lens" in skipped["5.jpg"]
+    # a copy of a photo adds no view (and would leak into the held-out photos)
+    (tmp_path / "in" / "7.jpg").write_bytes((tmp_path / "in" / "0.jpg").read_bytes())
+    _, names, skipped, _, _ = prepare_photos(sorted((tmp_path / "in").iterdir()), tmp_path / "work7", progress=False)
+    assert "0.jpg" in names and "7.jpg" not in names and skipped["7.jpg"].startswith("a copy of 0.jpg")
+    (tmp_path / "in" / "7.jpg").unlink()
     # all upright already: COLMAP reads the input folder itself
     folder2, names2, _, _, _ = prepare_photos([photos[2], photos[2]], tmp_path / "work2", progress=False)
     assert folder2 == tmp_path / "in" and not (tmp_path / "work2").exists()

@@ -244,6 +244,35 @@ def video_names(folder: str | Path) -> list[str]:
     return sorted(p.name for p in Path(folder).iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
 
 
+def copies(paths: list[Path]) -> dict[str, str]:
+    """Each photo of ``paths`` whose bytes are those of an earlier one -> that one's name
+    ("IMG_1 (1).jpg" -> "IMG_1.jpg"): a copy adds no view, and one in the held-out photos
+    would score a view trained on. Files that cannot be read are left to the reader's error."""
+    import hashlib
+
+    first: dict[bytes, str] = {}
+    out = {}
+    for p in paths:
+        digest = hashlib.sha1()
+        try:
+            with open(p, "rb") as f:
+                while chunk := f.read(1 << 20):
+                    digest.update(chunk)
+        except OSError:
+            continue
+        key = digest.digest()
+        if key in first and first[key] != p.name:
+            out[p.name] = first[key]
+        else:
+            first[key] = p.name
+    return out
+
+
+def copy_reason(original: str) -> str:
+    """Why a copy of ``original`` (:func:`copies`) is left out."""
+    return f"a copy of {original} (the same bytes): it adds no view"
+
+
 def list_images(folder: str | Path, allow_outside: bool = False) -> list[Path]:
     """:func:`image_files` of a folder, for the commands that read them (``poses``,
     ``calibrate``, ``capture``); a clear error when it is no folder or holds none, and for a

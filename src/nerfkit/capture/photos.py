@@ -26,6 +26,8 @@ from ..errors import NerfkitError, fail, problem_of
 from ..images import (
     common_frame,
     common_size,
+    copies,
+    copy_reason,
     exif_focal_35mm,
     held_as,
     list_images,
@@ -277,10 +279,13 @@ def scan_photos(
         int(i) for e in entries.values() if "detection" in e and not e.get("second_pass") for i in e["detection"]["ids"]
     } | set(layout.ids if layout is not None else [])
     records = []
+    copied = copies(files)
     for f in files:
         e = entries[f.name]
         rec = PhotoRecord(f.name, f)
-        if "error" in e:
+        if f.name in copied:
+            rec.skip(copy_reason(copied[f.name]))
+        elif "error" in e:
             rec.error = e["error"]
             rec.skip(f"unreadable: {e['error']}")
         else:

@@ -245,10 +245,21 @@ def prepare_photos(
     from dataclasses import replace
 
     from ..capture.camera import common_lens, other_lens
-    from ..images import common_frame, common_size, load_image_uint8, turns_into_frame, write_image
+    from ..images import (
+        common_frame,
+        common_size,
+        copies,
+        copy_reason,
+        load_image_uint8,
+        turns_into_frame,
+        write_image,
+    )
 
-    infos, skipped = [], {}
+    copied = copies(photos)
+    infos, skipped = [], {name: copy_reason(first) for name, first in copied.items()}
     for p in photos:
+        if p.name in copied:
+            continue
         try:
             infos.append(photo_info(p))
         except NerfkitError as e:  # as the tag path records it
