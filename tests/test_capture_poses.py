@@ -721,7 +721,10 @@ def test_the_focal_length_is_refined_on_the_photos_tags_when_they_pin_it():
     # 15% off is not the focus: kept, and said
     far_off = scaled_focal(0.85)
     cam, note = refine_focal(records, far_off, cap.layout, PoseConfig())
-    assert cam is far_off and "the camera's is kept" in note
+    assert cam is far_off and "the camera's is kept" in note and note.startswith("WARNING")
+    # another phone's camera (35% long): said too, however loosely the tags pin the focal length
+    cam, note = refine_focal(records, scaled_focal(1.35), cap.layout, PoseConfig())
+    assert "want a focal length -2" in note and "Another phone, lens or zoom" in note
     # too few photos pin nothing
     cam, note = refine_focal(records[:5], short, cap.layout, PoseConfig())
     assert cam is short and note == ""

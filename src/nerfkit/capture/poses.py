@@ -442,13 +442,14 @@ def refine_focal(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
         f"the tags of {len(obj)} photos want a focal length {change * 100:+.1f}% off the camera's "
         f"({f0:.1f} -> {f:.1f} px, +/- {spread * 100:.2f}%)"
     )
-    if not np.isfinite(f) or spread > FOCAL_MAX_STD or abs(change) <= max(FOCAL_SIGNIFICANT * spread, FOCAL_MIN_CHANGE):
-        return camera, ""
-    if abs(change) > FOCAL_MAX_CHANGE:
+    significant = np.isfinite(f) and abs(change) > max(FOCAL_SIGNIFICANT * spread, FOCAL_MIN_CHANGE)
+    if significant and abs(change) > FOCAL_MAX_CHANGE:  # said however loosely pinned: the poses' scale is off
         return camera, (
-            f"{said}: more than a phone's focus moves it, so the camera's is kept (another lens or "
-            "zoom? the right --tag-size?)"
+            f"WARNING: {said}: more than a phone's focus moves it, so the camera's is kept. Another phone, "
+            "lens or zoom than the calibration's? Calibrate with it, or leave out --camera"
         )
+    if not significant or spread > FOCAL_MAX_STD:
+        return camera, ""
     refined = Camera(
         camera.K.copy(),
         camera.dist.copy(),
