@@ -233,3 +233,15 @@ def test_second_detection_pass_recovers_missed_tags_of_known_ids_only(tmp_path, 
     assert list(recs["b.png"].detection.ids) == [0] and recs["b.png"].info["detection"].startswith("second pass")
     # Tag 7 appears in no first-pass detection: a permissive detector's find is not trusted.
     assert len(recs["c.png"].detection.ids) == 0 and recs["c.png"].info["second_pass_ignored_ids"] == [7]
+
+
+def test_a_sheet_repeating_a_tag_id_is_refused_naming_the_id():
+    from nerfkit.errors import NerfkitError
+
+    def rec(name, ids):
+        corners = np.zeros((len(ids), 4, 2))
+        return P.PhotoRecord(name, None, A.Detection(640, 480, np.array(ids, np.int64), corners))
+
+    with pytest.raises(NerfkitError, match=r"tag 1 appears more than once in 2 of 3 photos with tags"):
+        P.require_tags([rec("a", [0, 1, 1]), rec("b", [1, 2, 1]), rec("c", [0, 2])], "photos", "DICT_4X4_50")
+    P.require_tags([rec("a", [0, 1, 1]), rec("b", [1, 2]), rec("c", [0, 2])], "photos", "DICT_4X4_50")  # one photo

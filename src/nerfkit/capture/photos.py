@@ -311,8 +311,9 @@ def _keep_known_ids(rec: PhotoRecord, known: set[int]) -> None:
         rec.info["second_pass_ignored_ids"] = dropped
 
 
-def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str) -> None:
-    """Raise a helpful NerfkitError when no photo shows any tag of ``dictionary``."""
+def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str, otherwise: str = "") -> None:
+    """Raise a helpful NerfkitError when no photo shows any tag of ``dictionary`` (``otherwise``:
+    a way on without tags, added to the advice)."""
     readable = [r for r in records if r.detection is not None]
     if not readable:
         reasons = "; ".join(f"{r.name}: {r.error}" for r in records[:3])
@@ -321,6 +322,16 @@ def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str
         )
     dets = [r.detection for r in readable if r.detection is not None]  # all of readable
     if any(len(d.ids) or (d.charuco_ids is not None and len(d.charuco_ids)) for d in dets):
+        twice = [sorted({int(i) for i in d.ids if list(d.ids).count(i) > 1}) for d in dets if len(d.ids)]
+        if sum(bool(t) for t in twice) > len(twice) / 2:  # a tag seen twice in a photo is matched nowhere
+            ids = sorted({i for t in twice for i in t})
+            raise fail(
+                folder,
+                f"tag{'s' if len(ids) > 1 else ''} {', '.join(map(str, ids))} appear{'' if len(ids) > 1 else 's'} "
+                f"more than once in {sum(bool(t) for t in twice)} of {len(twice)} photos with tags: a photo's tags "
+                "are told apart by their ids",
+                "Print a sheet whose tags all differ (`nerfkit tags`)",
+            )
         return
     sample = readable[:: max(1, len(readable) // 5)][:5]
     images = []
@@ -341,7 +352,7 @@ def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str
         f"no {dictionary} tags found in any of {len(readable)} photos (also tried "
         f"{tried}, "
         "ArUco original and AprilTag dictionaries)",
-        "Check that the tags are in focus, fully visible and not too small (at least ~30 px wide)",
+        "Check that the tags are in focus, fully visible and not too small (at least ~30 px wide)" + otherwise,
     )
 
 

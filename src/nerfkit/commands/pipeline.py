@@ -472,7 +472,12 @@ def pose(
 
     detections = folder / "detections.json" if cache else None
     records = scan_photos(photos_dir, dictionary, sheet, detect_size, detections, workers)
-    require_tags(records, photos_dir, dictionary)
+    require_tags(
+        records,
+        photos_dir,
+        dictionary,
+        "; photos without a tag are posed by structure-from-motion: --method colmap (metric scale needs a tag)",
+    )
     cam, frame, side, notes = stage.tag_frame(
         records,
         given_camera,
