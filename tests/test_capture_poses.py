@@ -736,3 +736,30 @@ def test_the_focal_length_is_refined_on_the_photos_tags_when_they_pin_it():
     assert cam.K[0, 0] == short.K[0, 0] and note == ""
     lenses = [replace(r, exif_f35=52.0 if i < 3 else 26.0) for i, r in enumerate(records)]  # 9 left: enough
     assert refine_focal(lenses, replace(short, exif_f35=26.0), cap.layout, PoseConfig())[0].K[0, 0] != short.K[0, 0]
+
+
+def test_photos_held_the_other_way_count_in_the_focal_length_fitted_before_posing():
+    # every photo taken portrait with a landscape calibration: turned into its frame first, the
+    # tags refine the focal length as those of the same photos stored landscape do
+    from dataclasses import replace
+
+    from nerfkit.capture.photos import PhotoRecord
+    from nerfkit.capture.poses import PoseConfig
+    from nerfkit.commands.stages.pose import tag_frame
+
+    cap = S.cached_capture("sheet", 12, 5)
+    det = A.make_detector("DICT_4X4_50")
+    K = cap.K.copy()
+    K[[0, 1], [0, 1]] *= 0.96
+    short = Camera(K, cap.dist, cap.width, cap.height, "calibrated", sensor_turns=0)
+
+    def frame(records):
+        opts = dict(camera_file=None, dictionary="DICT_4X4_50", focal_px=None, tag_id=None, tag_size=None)
+        return tag_frame(records, short, cap.layout, **opts, single_tag=False, cfg=PoseConfig())
+
+    stored = [PhotoRecord(n, None, A.detect(im, det)) for n, im in zip(cap.names, cap.images)]
+    held = [replace(r, detection=r.detection.turned(1), orientation=6) for r in stored]  # upright: portrait
+    assert (held[0].detection.width, held[0].detection.height) == (cap.height, cap.width)
+    (cam_a, *_, notes_a), (cam_b, *_, notes_b) = frame(stored), frame(held)
+    assert any("want a focal length +4." in n for n in notes_b)
+    assert cam_b.K[0, 0] == pytest.approx(cam_a.K[0, 0], rel=1e-6)

@@ -528,36 +528,45 @@ def exif_camera(records: list[PhotoRecord]) -> tuple[Camera, str]:
     return cam, note
 
 
+def turn_into_camera_frame(records: list[PhotoRecord], camera: Camera) -> dict[str, str]:
+    """Turn each photo held the other way (its upright size the camera's transposed) into the
+    camera's frame (:func:`~.photos.turn_into_frame`): the frame the camera file records,
+    else the one most such photos were taken in. Returns why each photo that could not be
+    turned was not, by name. Turned photos fit the camera, so a second call turns nothing."""
+    frame = camera.sensor_turns
+    if frame is None:
+        frame = frame_turns([r for r in records if r.detection is not None and not camera.compatible(*r.detected_size)])
+    unturned = {}
+    for r in records:
+        if r.detection is None:
+            continue
+        w, h = r.detected_size
+        if camera.compatible(w, h) and not camera.compatible(h, w):
+            not_turned = turn_into_frame(r, frame)
+            if not_turned and frame is None:  # (so the camera does not record its frame either)
+                not_turned += " (re-run nerfkit calibrate: its camera files record it)"
+            if not_turned:
+                unturned[r.name] = f"{held_as(w, h)} while the camera is {camera.width}x{camera.height}: {not_turned}"
+    return unturned
+
+
 def pose_records(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg: PoseConfig) -> list[PosedPhoto]:
     """Pose every readable photo; marks each record used or skipped with the reason.
 
-    A photo held the other way (its upright size the camera's transposed) is turned into
-    the camera's frame (:func:`~.photos.turn_into_frame`): the frame the camera file
-    records, else the one most photos of the camera's shape were taken in. A photo whose
+    A photo held the other way is turned into the camera's frame
+    (:func:`turn_into_camera_frame`). A photo whose
     EXIF focal length says it was taken with another lens or zoom than the camera's (else
     most photos') is skipped (:func:`~.photos.keep_one_lens`). The camera is scaled to each
     photo's size (a photo resized alike).
     """
     posed = []
     cams: dict[tuple[int, int], Camera] = {}
-    frame = camera.sensor_turns
-    if frame is None:
-        frame = frame_turns([r for r in records if r.detection is not None and not camera.compatible(*r.detected_size)])
+    unturned = turn_into_camera_frame(records, camera)
     for r in keep_one_lens(records, camera.exif_f35):
         if r.detection is None:
             continue
         w, h = r.detected_size
-        why = camera.compatible(w, h)
-        if why and not camera.compatible(h, w):
-            not_turned = turn_into_frame(r, frame)
-            if not_turned and frame is None:  # (so the camera does not record its frame either)
-                not_turned += " (re-run nerfkit calibrate: its camera files record it)"
-            why = (
-                f"{held_as(w, h)} while the camera is {camera.width}x{camera.height}: {not_turned}"
-                if not_turned
-                else None
-            )
-            w, h = r.detected_size
+        why = unturned.get(r.name) or camera.compatible(w, h)
         if why:
             r.skip(why)
             continue

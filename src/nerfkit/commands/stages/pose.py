@@ -118,7 +118,13 @@ def tag_frame(
     above the sheet (:func:`~nerfkit.capture.poses.sheet_heights`). The tag side: ``tag_size``, else
     the layout's (as printed)."""
     from ...capture.aruco import Layout
-    from ...capture.poses import choose_tag, layout_from_photos, refine_focal, sheet_heights
+    from ...capture.poses import (
+        choose_tag,
+        layout_from_photos,
+        refine_focal,
+        sheet_heights,
+        turn_into_camera_frame,
+    )
 
     notes: list[str] = []
     free = tag_id is None and not single_tag  # a layout may be chosen
@@ -133,6 +139,7 @@ def tag_frame(
     if camera is None:
         camera, note = starting_camera(records, focal_px)
         notes.append(note)
+    turn_into_camera_frame(records, camera)  # photos held the other way count in the steps below too
     if layout is None:
         assert tag_size is not None  # the caller requires it without a layout
         if free:
