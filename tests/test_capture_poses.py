@@ -761,5 +761,6 @@ def test_photos_held_the_other_way_count_in_the_focal_length_fitted_before_posin
     held = [replace(r, detection=r.detection.turned(1), orientation=6) for r in stored]  # upright: portrait
     assert (held[0].detection.width, held[0].detection.height) == (cap.height, cap.width)
     (cam_a, *_, notes_a), (cam_b, *_, notes_b) = frame(stored), frame(held)
+    assert any("want a focal length +4." in n for n in notes_a)
     assert any("want a focal length +4." in n for n in notes_b)
     assert cam_b.K[0, 0] == pytest.approx(cam_a.K[0, 0], rel=1e-6)
