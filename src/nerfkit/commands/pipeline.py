@@ -294,7 +294,7 @@ def calibrate(
     from ..capture.calibrate import CalibrateConfig, calibrate_records, calibration_json
     from ..capture.photos import blur_hint, default_jobs, group_by_size, keep_one_lens, require_tags, scan_photos
     from ..config import number, output_path, tag_side
-    from ..errors import fail
+    from ..errors import NerfkitError, fail
     from ..io.atomic import write_json
     from ..io.paths import guard_outputs
     from .stages.calibrate import calibration_report
@@ -328,7 +328,15 @@ def calibrate(
     size, kept = group_by_size(
         keep_one_lens([r for r in records if r.detection is not None and (len(r.detection.ids) or charuco)]), turn=True
     )
-    cal = calibrate_records(kept, size, tag_size, sheet, cfg, dictionary)
+    try:
+        cal = calibrate_records(kept, size, tag_size, sheet, cfg, dictionary)
+    except NerfkitError as e:
+        if layout_file and ("could not calibrate" in str(e) or "cross-validated" in str(e)):
+            raise NerfkitError(
+                f"{e}; or --layout {layout_file} is not the sheet in these photos: leave it out to estimate "
+                "the layout from them"
+            ) from None
+        raise
     data = calibration_json(cal, records, dictionary, tag_size, str(Path(photos_dir).resolve()))
     write_json(path, data)
     _say(quiet)(calibration_report(cal, records, path, all_photos))
