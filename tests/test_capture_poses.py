@@ -764,3 +764,28 @@ def test_photos_held_the_other_way_count_in_the_focal_length_fitted_before_posin
     assert any("want a focal length +4." in n for n in notes_a)
     assert any("want a focal length +4." in n for n in notes_b)
     assert cam_b.K[0, 0] == pytest.approx(cam_a.K[0, 0], rel=1e-6)
+
+
+def test_photos_of_another_sheet_with_the_same_ids_do_not_use_the_camera_files_layout(tmp_path):
+    # The camera file's sheet has its 6 tags in 2 columns; the object photos show a sheet of the
+    # same ids in 3 columns. Posed on the file's layout each photo would keep one tag of its
+    # choice (frames that disagree by centimetres); the layout is found not to fit, and the
+    # sheet's own is estimated from the photos instead.
+    sheet = S.cached_capture("sheet", 12, 5)
+    other = S.make_calibration_capture(n=8, seed=5, cols=3, gap=0.04, prefix="other")
+    folder = tmp_path / "object"
+    other.write(folder)
+    cam = json.loads(write_camera(tmp_path / "camera.json", sheet).read_text())
+    cam["layout"], cam["heldout_rms"] = sheet.layout.to_json(), 0.1
+    (tmp_path / "camera.json").write_text(json.dumps(cam))
+    argv = ["poses", str(folder), "--camera", str(tmp_path / "camera.json"), "--tag-size", "0.05"]
+    assert main([*argv, "--out", str(tmp_path / "ds"), "--no-dataset"]) == 0
+    poses = json.loads((tmp_path / "ds" / "poses.json").read_text())
+    assert any("the camera file's layout does not fit these photos' tags" in n for n in poses["notes"])
+    assert not any("using the camera file's layout" in n for n in poses["notes"])
+    used = [p for p in poses["photos"] if p["used"]]
+    assert len(used) >= 6 and all(len(p["tags_used"]) >= 3 for p in used)  # the whole sheet, not one tag each
+    centres = np.array([np.array(p["c2w"])[:3, 3] for p in used])
+    truth = np.array([other.c2w[other.names.index(p["file"])][:3, 3] for p in used])
+    apart = np.linalg.norm(centres[:, None] - centres[None], axis=-1)  # (in any frame)
+    assert np.abs(apart - np.linalg.norm(truth[:, None] - truth[None], axis=-1)).max() < 0.003

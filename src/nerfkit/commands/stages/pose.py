@@ -82,6 +82,33 @@ def sized_layout(layout: Layout, tag_size: float, records) -> tuple[Layout, str]
     )
 
 
+def layout_misfit(records, camera: Camera, layout: Layout, cfg: PoseConfig, sample: int = 12) -> str:
+    """Why the photos' tags do not sit as ``layout`` says, or "": most of (up to ``sample``)
+    photos that show two or more of its tags fit it only after dropping half of them or more
+    (:func:`~nerfkit.capture.poses.solve_pose_robust`), as photos of another sheet with the
+    same ids do."""
+    from ...capture.poses import detection_limit, solve_pose_robust
+
+    shown = [
+        r
+        for r in records
+        if r.detection is not None
+        and camera.compatible(*r.detected_size) is None
+        and len({int(i) for i in r.detection.ids} & set(layout.tags)) >= 2
+    ]
+    shown = shown[:: max(1, len(shown) // sample)][:sample]
+    bad = 0
+    for r in shown:
+        cam = camera if r.detected_size == (camera.width, camera.height) else camera.scaled_to(*r.detected_size)
+        limit = detection_limit(r.detection, cam, layout, cfg)[0]
+        c2w, err, _, info = solve_pose_robust(r.detection, cam, layout, limit)
+        used, dropped = len(info.get("tags_used", [])), len(info.get("tags_dropped", {}))
+        bad += c2w is None or err > limit or 2 * dropped >= used + dropped
+    if not shown or bad <= len(shown) / 2:
+        return ""
+    return f"{bad} of {len(shown)} photos showing several of its tags fit it only without half of them or more"
+
+
 def starting_camera(records, focal_px: float | None) -> tuple[Camera, str]:
     """(the camera to pose with when no camera file is given, a note): ``focal_px`` with the
     principal point at the centre, else the photos' EXIF focal length."""
@@ -128,18 +155,23 @@ def tag_frame(
 
     notes: list[str] = []
     free = tag_id is None and not single_tag  # a layout may be chosen
+    from_file, file_notes = None, []
     if layout is None and camera_file and free:
-        layout, note = camera_layout(camera_file, dictionary, records)
-        if note:
-            notes.append(note)
-        if layout is not None and tag_size:
-            layout, note = sized_layout(layout, tag_size, records)
-            if note:
-                notes.append(note)
+        from_file, note = camera_layout(camera_file, dictionary, records)
+        file_notes.append(note)
+        if from_file is not None and tag_size:
+            from_file, note = sized_layout(from_file, tag_size, records)
+            file_notes.append(note)
     if camera is None:
         camera, note = starting_camera(records, focal_px)
         notes.append(note)
     turn_into_camera_frame(records, camera)  # photos held the other way count in the steps below too
+    misfit = layout_misfit(records, camera, from_file, cfg) if from_file is not None else ""
+    if misfit:
+        notes.append(f"the camera file's layout does not fit these photos' tags ({misfit}): another sheet? Not used")
+    else:
+        notes += [n for n in file_notes if n]  # (a usable layout's, or why the file has none)
+        layout = layout or from_file
     if layout is None:
         assert tag_size is not None  # the caller requires it without a layout
         if free:
