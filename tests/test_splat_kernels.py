@@ -127,9 +127,9 @@ def test_projection_of_an_isotropic_gaussian_at_the_centre():
     K = torch.tensor([[100.0, 0, 32], [0, 100.0, 32], [0, 0, 1]], dtype=torch.float64)
     p = ref.project_gaussians(means, cov, torch.eye(4, dtype=torch.float64), K, 64, 64, 0.01)
     torch.testing.assert_close(p["means2d"][0], torch.tensor([32.0, 32.0], dtype=torch.float64))
-    var = 25.0 + ref.DILATION
+    var = 25.3  # INRIA's low-pass filter adds 0.3 px^2, written out (not read from the code)
     torch.testing.assert_close(p["conics"][0], torch.tensor([1 / var, 0.0, 1 / var], dtype=torch.float64))
-    assert int(p["radii"][0]) == math.ceil(3 * math.sqrt(var))
+    assert int(p["radii"][0]) == 16  # ceil(3 * sqrt(25.3)) = ceil(15.09)
     assert p["rects"][0].tolist() == [0, 3, 0, 3]  # 16 px tiles touched by x, y in 31.5 +- 16 px
 
 
