@@ -112,6 +112,26 @@ def test_sh_colour_equals_the_formula_term_by_term_with_its_gradients(degree):
     assert bool((grads[0][0][:, : ref.sh_coeffs(degree)] != 0).any())
 
 
+def fibonacci_sphere(n: int) -> torch.Tensor:
+    """n nearly uniform unit directions (equal-area rows of a golden-angle spiral)."""
+    i = torch.arange(n, dtype=torch.float64) + 0.5
+    z = 1 - 2 * i / n
+    phi = math.pi * (1 + 5**0.5) * i
+    r = torch.sqrt(1 - z * z)
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
+
+
+def test_sh_basis_up_to_degree_three_is_orthonormal_on_the_sphere():
+    # the real SH are orthonormal: the integral of Y_i Y_j over the sphere is the identity.
+    # This pins every normalisation constant (SH_C0 .. SH_C3) independently of the code's
+    # own numbers; the term-by-term test above only checks the formula's shape.
+    d = fibonacci_sphere(20000)
+    Y = ref.sh_basis(d, 3)
+    assert Y.shape == (20000, 16)
+    gram = 4 * math.pi * (Y.T @ Y) / len(d)
+    torch.testing.assert_close(gram, torch.eye(16, dtype=torch.float64), atol=1e-4, rtol=0)
+
+
 def test_covariance_is_rotated_diagonal():
     log_scales = torch.log(torch.tensor([[1.0, 2.0, 3.0]], dtype=torch.float64))
     half = math.sqrt(0.5)  # 90 degrees about z: x -> y
