@@ -414,6 +414,33 @@ def test_compiled_projection_matches_the_reference_values_and_float64_gradients(
     assert int(torch.count_nonzero(nb_grads[4][:, (degree + 1) ** 2 :])) == 0
 
 
+@pytest.mark.parametrize("backend", ["torch", pytest.param("numba", marks=needs_numba)])
+def test_projection_beyond_the_field_of_view_uses_the_jacobian_at_the_clamped_x(backend):
+    # sigma 0.2 at (1, 0, 2), f = 100, 64 x 64: x/z = 0.5 lies beyond INRIA's limit
+    # 1.3 * tan(half fov) = 1.3 * 32 / 100 = 0.416, so J is evaluated at x = 0.416 * 2 = 0.832:
+    # J = [[f/z, 0, -f x/z^2], [0, f/z, 0]] = [[50, 0, -20.8], [0, 50, 0]],
+    # cov2d = 0.04 J J^T + 0.3 I = diag(0.04 * (2500 + 20.8^2) + 0.3, 0.04 * 2500 + 0.3).
+    # (Unclamped, J[0, 2] would be -25 and the x variance 125.3.)
+    W = H = 64
+    K = torch.tensor([[100.0, 0, 32], [0, 100.0, 32], [0, 0, 1]], dtype=torch.float64)
+    w2c = torch.eye(4, dtype=torch.float64)
+    params = (
+        torch.tensor([[1.0, 0.0, 2.0]], dtype=torch.float64),
+        torch.full((1, 3), math.log(0.2), dtype=torch.float64),
+        torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=torch.float64),
+        torch.zeros(1, dtype=torch.float64),
+        torch.zeros(1, 16, 3, dtype=torch.float64),
+    )
+    fn = reference_projection if backend == "torch" else compiled_projection
+    means2d, conics, _, _, depths, radii, rects = fn(params, 0, w2c, K, W, H)
+    var_x, var_y = 0.04 * (2500 + 20.8**2) + 0.3, 0.04 * 2500 + 0.3  # 117.6056, 100.3
+    torch.testing.assert_close(means2d[0], torch.tensor([82.0, 32.0], dtype=torch.float64))  # the mean is not clamped
+    torch.testing.assert_close(conics[0], torch.tensor([1 / var_x, 0.0, 1 / var_y], dtype=torch.float64))
+    assert float(depths[0]) == 2.0
+    assert int(radii[0]) == 33  # ceil(3 * sqrt(117.6056)) = ceil(32.53)
+    assert rects[0].tolist() == [3, 4, 0, 4]  # x in 81.5 +- 33 px reaches the last 16 px tile column
+
+
 @needs_numba
 def test_compiled_projection_float32_is_near_the_float64_reference():
     W, H = 64, 48
