@@ -114,18 +114,23 @@ def test_training_gets_no_heldout_view():
 
 def test_options():
     assert heldout.parse_list("60, 300,", float) == [60.0, 300.0]
-    with pytest.raises(NerfkitError):
+    with pytest.raises(NerfkitError, match="--seconds: 'abc' is not a float"):
         heldout.parse_list("60,abc", float, "--seconds")
-    with pytest.raises(NerfkitError):
+    with pytest.raises(NerfkitError, match="--models: ' , ' names nothing"):
         heldout.parse_list(" , ", str, "--models")
     assert heldout.parse_models("fast, splat", []) == ["fast", "splat"]
     assert heldout.parse_models("splat", ["splat+x:lr=4"]) == ["splat"]
     assert heldout.parse_models("", ["splat+x:lr=4"]) == []  # only the variant
-    with pytest.raises(NerfkitError):
+    with pytest.raises(NerfkitError, match="--models: '' names nothing"):
         heldout.parse_models("", [])
     assert heldout.parse_captures(["steve=a/b", "labubu=c"]) == {"steve": Path("a/b"), "labubu": Path("c")}
-    for bad in (["steve"], ["=a"], ["steve=a", "steve=b"], ["flower=a"]):
-        with pytest.raises(NerfkitError):
+    for bad, message in (
+        (["steve"], "'steve' is not NAME=PATH"),
+        (["=a"], "'=a' is not NAME=PATH"),
+        (["steve=a", "steve=b"], "the name 'steve' is taken"),  # twice
+        (["flower=a"], "the name 'flower' is taken"),  # a scene's
+    ):
+        with pytest.raises(NerfkitError, match=f"--capture: {message}"):
             heldout.parse_captures(bad)
     have = {"lego200": True, "lego400": True, "flower": False}
     assert heldout.choose_scenes(None, have, ["steve"]) == ["lego200", "lego400", "steve"]
@@ -139,7 +144,7 @@ def test_options():
     have = {**have, **dict.fromkeys(heldout.FORWARD, True)}
     assert heldout.choose_scenes(None, have, []) == ["lego200", "lego400", "flower"]  # the subsets on request
     assert heldout.choose_scenes(["forward", "flower17"], have, []) == ["flower", "flower17", "flower17b"]
-    with pytest.raises(NerfkitError):
+    with pytest.raises(NerfkitError, match="--capture: the name 'forward' is taken"):  # a group of scenes
         heldout.parse_captures(["forward=a"])
     assert heldout.budget_label(60.0, None) == "60 s" and heldout.budget_label(None, 100) == "100 steps"
 

@@ -282,8 +282,14 @@ def test_parse_sweep_and_background():
         {"L": 10, "lr": 0.01},
         {"L": 10, "lr": 0.001},
     ]
-    for bad in (["seed=1,2"], ["L"], ["L=a"], ["L=1", "L=2"], []):
-        with pytest.raises(NerfkitError):
+    for bad, message in (
+        (["seed=1,2"], "--sweep: cannot sweep 'seed'"),
+        (["L"], "--sweep: cannot read 'L'"),
+        (["L=a"], "--sweep L=a: 'a' is not a whole number"),
+        (["L=1", "L=2"], "--sweep: 'L' is given twice"),
+        ([], "--sweep: no KEY=V1,V2 items"),
+    ):
+        with pytest.raises(NerfkitError, match=message):
             parse_sweep(bad)
     assert parse_background("white") == (1.0, 1.0, 1.0)
     assert parse_background("#ff0080") == pytest.approx((1.0, 0.0, 128 / 255))

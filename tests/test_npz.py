@@ -158,7 +158,7 @@ def test_truncated_npz_is_refused(tmp_path):
     path = write(tmp_path, **course_arrays(size=64))
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2])
-    with pytest.raises(NerfkitError):
+    with pytest.raises(NerfkitError, match=r"scene\.npz: not a valid \.npz file \(File is not a zip file\)"):
         load_npz(path)
 
 
