@@ -1,4 +1,4 @@
-"""Tests of ``nerfkit fit-image``: encoding, model, PSNR, fitting, sweep, files, bad input."""
+"""Tests of ``nerfkit fit-image``: model, PSNR, fitting, sweep, files, bad input (the encoding: test_rendering_math)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,6 @@ from PIL import Image
 
 from nerfkit.cli import main
 from nerfkit.errors import NerfkitError
-from nerfkit.fields.encoding import encoded_dim, positional_encoding
 from nerfkit.fields.image_field import ImageField, grid_xy, pixel_xy
 from nerfkit.fit_image import (
     FitImageConfig,
@@ -66,22 +65,7 @@ def decode(path: Path) -> np.ndarray:
     return np.asarray(Image.open(path))
 
 
-# --- encoding and model ---------------------------------------------------------------
-
-
-def test_encoding_width_is_42_at_L10():
-    assert encoded_dim(2, 10) == 42
-    assert positional_encoding(torch.rand(5, 2), 10).shape == (5, 42)
-    assert ImageField(L=10).hidden[0].in_features == 42
-
-
-def test_encoding_values_at_zero_and_quarter():
-    pe = positional_encoding(torch.zeros(1, 2), 3)[0]
-    # [x, y, then per octave: sin x, sin y, cos x, cos y]
-    assert pe.tolist() == [0, 0, 0, 0, 1, 1, 0, 0, 1, 1, 0, 0, 1, 1]
-    pe = positional_encoding(torch.tensor([[0.25]], dtype=torch.float64), 2)[0]
-    s = math.sqrt(0.5)
-    np.testing.assert_allclose(pe.numpy(), [0.25, s, s, 1.0, 0.0], atol=1e-12)
+# --- model ---------------------------------------------------------------------------
 
 
 def test_image_field_is_the_course_model():
