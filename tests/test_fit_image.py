@@ -23,11 +23,11 @@ from nerfkit.fit_image import (
     load_target,
     parse_background,
     parse_sweep,
-    psnr_from_mse,
     render_image,
     run_fit,
     run_sweep,
 )
+from nerfkit.train.metrics import psnr_from_mse  # (the one fit-image uses)
 
 
 @pytest.fixture(autouse=True, scope="module")
