@@ -311,7 +311,7 @@ def test_compiled_ssim_matches_reference_value_and_float64_gradient(H, W):
 
 
 @needs_numba
-def test_compiled_ssim_float32_matches_and_equal_images_score_one():
+def test_compiled_ssim_float32_matches_the_reference():
     g = torch.Generator().manual_seed(3)
     img = torch.rand(40, 50, 3, generator=g).requires_grad_()
     target = torch.rand(40, 50, 3, generator=g)
@@ -321,7 +321,14 @@ def test_compiled_ssim_float32_matches_and_equal_images_score_one():
     assert value.dtype == torch.float32
     torch.testing.assert_close(value, ref.ssim_reference(img, target), rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(g_nb, g_ref, rtol=1e-3, atol=1e-7)
-    assert float(ssim(target, target, "numba")) == pytest.approx(1.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("backend", ["torch", pytest.param("numba", marks=needs_numba)])
+def test_ssim_is_one_for_equal_images_and_lower_for_noise(backend):
+    g = torch.Generator().manual_seed(0)
+    img = torch.rand(24, 20, 3, generator=g)
+    assert float(ssim(img, img, backend)) == pytest.approx(1.0, abs=1e-6)
+    assert float(ssim(img, (img + 0.3 * torch.randn(24, 20, 3, generator=g)).clamp(0, 1), backend)) < 0.8
 
 
 def test_gsplat_renders_on_cuda_only_when_installed_and_its_absence_is_said(monkeypatch):
