@@ -187,9 +187,14 @@ def test_a_variant_changes_the_named_settings_in_whichever_config_has_them():
 
 
 def test_even_subsets_spread_over_the_photos_and_differ_by_offset():
-    assert heldout.even_subset(29, 17).tolist() == [0, 1, 3, 5, 6, 8, 10, 11, 13, 15, 17, 18, 20, 22, 23, 25, 27]
+    # pick i of k = 17 from n = 29 at offset 0 is floor(29 i / 17) (in integers: exact)
+    assert heldout.even_subset(29, 17).tolist() == [i * 29 // 17 for i in range(17)]
     a, b = heldout.even_subset(29, 17, 0.0), heldout.even_subset(29, 17, 0.5)
-    assert b[-1] == 28 and len(set(a) & set(b)) == 5  # the two sparse cases share few photos
+    assert b.tolist() == [(2 * i + 1) * 29 // 34 for i in range(17)] and b[-1] == 28
+    # The two sparse cases share few photos. With r = 29 i mod 17, b_i = floor(29 i / 17 + 14.5 / 17)
+    # is a_i when r < 2.5, else a_i + 1, which is a_{i+1} when r < 5 (a_{i+1} = a_i + 1 + [r >= 5]):
+    # b_i is one of a's photos exactly when r is 0..4, and r takes each residue once (29, 17 coprime)
+    assert sorted(set(a) & set(b)) == [0, 5, 11, 17, 23]  # i = 0, 3, 6, 10, 13: r = 0, 2, 4, 1, 3
     for n, k, off in ((29, 17, 0.0), (29, 17, 0.5), (10, 10, 0.9), (7, 1, 0.5), (100, 3, 0.99)):
         picks = heldout.even_subset(n, k, off)
         assert len(picks) == k and picks.min() >= 0 and picks.max() < n and np.all(np.diff(picks) > 0)
