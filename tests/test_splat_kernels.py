@@ -26,6 +26,40 @@ def test_the_compiled_kernels_and_the_splat_files_need_no_torch():
     assert out.split() == [repr(ref.SH_C0), "False"]
 
 
+STALE_CACHE_PROBE = """
+import sys
+import numpy as np
+import nerfkit.splat_constants as constants
+constants.DILATION = float(sys.argv[1])  # as if the file said so
+from nerfkit.kernels import splat_numba as nb
+# sigma 0.1 at depth 2, f = 100: a 25 px^2 screen variance, plus the dilation
+params = (np.array([[0.0, 0.0, 2.0]]), np.full((1, 3), np.log(0.1)), np.array([[1.0, 0, 0, 0]]), np.zeros(1),
+          np.zeros((1, 1, 3)), np.zeros((1, 15, 3)))
+view, cam, intr = np.eye(4)[:3].copy(), np.zeros(3), np.array([100.0, 100.0, 32.0, 32.0])
+outs = (np.zeros((1, 2)), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1), np.zeros(1))
+nb.project_forward(*params, 0, view, cam, intr, 64, 64, 0.01, *outs, np.zeros(1, np.int32), np.zeros((1, 4), np.int32))
+print(1 / outs[1][0, 0], sum(nb.project_forward.stats.cache_hits.values()))
+"""
+
+
+@needs_numba
+def test_a_changed_constant_is_not_served_stale_from_numbas_cache(tmp_path):
+    """numba keys its on-disk cache on the kernel's own file, and the kernels bake in the values
+    of nerfkit.splat_constants: a process with another DILATION must compile anew, not load
+    the kernel of the old one (each run in its own process, on a cache folder of its own)."""
+    import os
+
+    def run(dilation: float) -> tuple[float, int]:  # (the screen variance, cache hits)
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+        cmd = [sys.executable, "-c", STALE_CACHE_PROBE, str(dilation)]
+        out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout.split()
+        return float(out[0]), int(out[1])
+
+    assert run(0.3) == (pytest.approx(25.3), 0)  # compiled
+    assert run(0.3) == (pytest.approx(25.3), 1)  # loaded from the cache
+    assert run(0.5) == (pytest.approx(25.5), 0)  # compiled anew: not the cached kernel's 25.3
+
+
 def random_gaussians(n: int, seed: int = 0, dtype=torch.float64, spread: float = 0.5, log_scale: float = -2.0):
     g = torch.Generator().manual_seed(seed)
     means = torch.randn(n, 3, generator=g, dtype=dtype) * spread
