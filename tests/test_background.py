@@ -59,14 +59,27 @@ def test_table_texture_is_sampled_where_rays_hit_and_frames_are_orthonormal():
     assert col[1, 2] > 0.95 and col[1, 0] < 0.55
 
 
-def test_sh16_is_a_basis_of_sixteen_independent_functions():
-    g = torch.Generator().manual_seed(0)
-    d = torch.randn(500, 3, generator=g)
-    d = d / d.norm(dim=1, keepdim=True)
+def fibonacci_sphere(n: int) -> torch.Tensor:
+    """n nearly uniform unit directions (equal-area rows of a golden-angle spiral), float64."""
+    i = torch.arange(n, dtype=torch.float64) + 0.5
+    z = 1 - 2 * i / n
+    phi = math.pi * (1 + 5**0.5) * i
+    r = torch.sqrt(1 - z * z)
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
+
+
+def test_sh16_are_orthogonal_spherical_harmonics_with_their_hand_computed_norms():
+    # the mean of f_i f_j over the sphere: zero off the diagonal (the real SH of degrees 0..3
+    # are orthogonal, within and across degrees), and on it the mean of each f^2 from the
+    # sphere's moments E[x^2a y^2b z^2c] = (2a-1)!! (2b-1)!! (2c-1)!! / (2(a+b+c)+1)!!,
+    # e.g. E[(3z^2 - 1)^2] = 9/5 - 2 + 1 = 4/5, E[x^2 (x^2 - 3y^2)^2] = (15 - 18 + 27)/105
+    d = fibonacci_sphere(20000)
     B = sh16(d)
-    assert B.shape == (500, 16)
-    assert int(torch.linalg.matrix_rank(B.double())) == 16
-    assert np.isclose(float(B[:, 0].min()), 1.0)
+    assert B.shape == (20000, 16)
+    gram = B.T @ B / len(d)
+    norms = [1, 1 / 3, 1 / 3, 1 / 3, 1 / 15, 1 / 15, 1 / 15, 4 / 15, 4 / 5]  # degrees 0, 1, 2
+    norms += [8 / 35, 8 / 35, 4 / 105, 1 / 105, 8 / 21, 8 / 21, 4 / 7]  # degree 3
+    torch.testing.assert_close(gram, torch.diag(torch.tensor(norms, dtype=torch.float64)), atol=1e-4, rtol=0)
 
 
 @pytest.mark.parametrize("side", [9, (12, 5)])

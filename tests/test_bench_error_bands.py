@@ -46,11 +46,6 @@ def test_the_bands_errors_add_up_to_the_whole():
     assert mse[2] > mse[1]  # independent noise is mostly fine detail
 
 
-def test_psnr_of_no_error_is_infinite():
-    assert error_bands.psnr_from_mse(0.0) == math.inf
-    assert math.isclose(error_bands.psnr_from_mse(1e-3), 30.0)
-
-
 def test_a_tag_seen_straight_on_covers_its_grown_square_about_the_principal_point():
     # a 0.1 m tag 1 m under a camera looking straight down (OpenCV axes: z forward, y down)
     side, f, w, h = 0.1, 400.0, 200, 160

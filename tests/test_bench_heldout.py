@@ -114,18 +114,23 @@ def test_training_gets_no_heldout_view():
 
 def test_options():
     assert heldout.parse_list("60, 300,", float) == [60.0, 300.0]
-    with pytest.raises(NerfkitError):
+    with pytest.raises(NerfkitError, match="--seconds: 'abc' is not a float"):
         heldout.parse_list("60,abc", float, "--seconds")
-    with pytest.raises(NerfkitError):
+    with pytest.raises(NerfkitError, match="--models: ' , ' names nothing"):
         heldout.parse_list(" , ", str, "--models")
     assert heldout.parse_models("fast, splat", []) == ["fast", "splat"]
     assert heldout.parse_models("splat", ["splat+x:lr=4"]) == ["splat"]
     assert heldout.parse_models("", ["splat+x:lr=4"]) == []  # only the variant
-    with pytest.raises(NerfkitError):
+    with pytest.raises(NerfkitError, match="--models: '' names nothing"):
         heldout.parse_models("", [])
     assert heldout.parse_captures(["steve=a/b", "labubu=c"]) == {"steve": Path("a/b"), "labubu": Path("c")}
-    for bad in (["steve"], ["=a"], ["steve=a", "steve=b"], ["flower=a"]):
-        with pytest.raises(NerfkitError):
+    for bad, message in (
+        (["steve"], "'steve' is not NAME=PATH"),
+        (["=a"], "'=a' is not NAME=PATH"),
+        (["steve=a", "steve=b"], "the name 'steve' is taken"),  # twice
+        (["flower=a"], "the name 'flower' is taken"),  # a scene's
+    ):
+        with pytest.raises(NerfkitError, match=f"--capture: {message}"):
             heldout.parse_captures(bad)
     have = {"lego200": True, "lego400": True, "flower": False}
     assert heldout.choose_scenes(None, have, ["steve"]) == ["lego200", "lego400", "steve"]
@@ -139,7 +144,7 @@ def test_options():
     have = {**have, **dict.fromkeys(heldout.FORWARD, True)}
     assert heldout.choose_scenes(None, have, []) == ["lego200", "lego400", "flower"]  # the subsets on request
     assert heldout.choose_scenes(["forward", "flower17"], have, []) == ["flower", "flower17", "flower17b"]
-    with pytest.raises(NerfkitError):
+    with pytest.raises(NerfkitError, match="--capture: the name 'forward' is taken"):  # a group of scenes
         heldout.parse_captures(["forward=a"])
     assert heldout.budget_label(60.0, None) == "60 s" and heldout.budget_label(None, 100) == "100 steps"
 
@@ -182,9 +187,14 @@ def test_a_variant_changes_the_named_settings_in_whichever_config_has_them():
 
 
 def test_even_subsets_spread_over_the_photos_and_differ_by_offset():
-    assert heldout.even_subset(29, 17).tolist() == [0, 1, 3, 5, 6, 8, 10, 11, 13, 15, 17, 18, 20, 22, 23, 25, 27]
+    # pick i of k = 17 from n = 29 at offset 0 is floor(29 i / 17) (in integers: exact)
+    assert heldout.even_subset(29, 17).tolist() == [i * 29 // 17 for i in range(17)]
     a, b = heldout.even_subset(29, 17, 0.0), heldout.even_subset(29, 17, 0.5)
-    assert b[-1] == 28 and len(set(a) & set(b)) == 5  # the two sparse cases share few photos
+    assert b.tolist() == [(2 * i + 1) * 29 // 34 for i in range(17)] and b[-1] == 28
+    # The two sparse cases share few photos. With r = 29 i mod 17, b_i = floor(29 i / 17 + 14.5 / 17)
+    # is a_i when r < 2.5, else a_i + 1, which is a_{i+1} when r < 5 (a_{i+1} = a_i + 1 + [r >= 5]):
+    # b_i is one of a's photos exactly when r is 0..4, and r takes each residue once (29, 17 coprime)
+    assert sorted(set(a) & set(b)) == [0, 5, 11, 17, 23]  # i = 0, 3, 6, 10, 13: r = 0, 2, 4, 1, 3
     for n, k, off in ((29, 17, 0.0), (29, 17, 0.5), (10, 10, 0.9), (7, 1, 0.5), (100, 3, 0.99)):
         picks = heldout.even_subset(n, k, off)
         assert len(picks) == k and picks.min() >= 0 and picks.max() < n and np.all(np.diff(picks) > 0)

@@ -37,23 +37,33 @@ def test_paper_is_bright_unsaturated_and_away_from_other_pixels():
     assert not mask[15, 11] and mask[15, 12] and not mask[28, 25] and mask[27, 25] and mask[0, 39]
 
 
+def ramps(height: int, paper_slope: float, object_slope: float, base) -> np.ndarray:
+    """(H, 512, 3) grey levels 0..255 (float: slopes below a level a pixel): brightness rising
+    by ``object_slope`` a pixel over the columns 96..415 and by ``paper_slope`` elsewhere
+    (continuous), on ``base`` (3,) in [0, 1]. At width 512 the gradient is in levels a pixel."""
+    x = np.arange(512, dtype=np.float64)
+    inside = np.clip(x - 96, 0, 320)
+    ramp = paper_slope * (x - inside) + object_slope * inside
+    return (255 * (np.asarray(base) + ramp[None, :, None])).repeat(height, 0).astype(np.float32)
+
+
 def test_a_row_takes_medians_over_the_photos_and_skips_a_photo_without_paper():
-    h, w = 48, 64
-    smooth = np.full((h, w, 3), 230, np.uint8)
-    rough = smooth.copy()
-    rough[:, :32] = (((np.indices((h, 32)).sum(0) // 2) % 2) * 200 + 20)[..., None]  # an object of checks
-    red = np.zeros((h, w, 3), np.uint8)
-    red[...] = (200, 30, 30)  # no paper anywhere
-    views = SimpleNamespace(images=np.stack([smooth, rough, red]))
-    obj = np.zeros((h, w), bool)
-    obj[8:40, 4:28] = True
+    h = 48
+    white, red = (0.7, 0.7, 0.7), (0.6, 0.1, 0.1)  # red: saturated, no paper anywhere
+    # (paper slope, object slope) of each photo: the object's medians are 2, 8 and 4 (x 1e-4)
+    views = SimpleNamespace(
+        images=np.stack([ramps(h, 1e-4, 2e-4, white), ramps(h, 3e-4, 8e-4, white), ramps(h, 9e-4, 4e-4, red)])
+    )
+    obj = np.zeros((h, 512), bool)
+    obj[:, 104:408] = True  # the object's columns (most of the photo), 8 px clear of the ramp's kinks
     row = od.learned_row(views, [obj, obj, obj], np.arange(3))
-    assert row["learned_share"] == pytest.approx(obj.mean())
-    per_photo = [od.median_over(gradient_magnitude(im / 255.0), obj) for im in views.images]
-    assert row["learned"] == pytest.approx(np.median(per_photo))
-    assert per_photo[1] > 0.01 and per_photo[0] == pytest.approx(0.0, abs=1e-6)
-    # the paper's figure comes from the two photos that have paper; it is flat there
-    assert row["paper"] == pytest.approx(0.0, abs=1e-6)
+    assert row["learned_share"] == pytest.approx(304 / 512)
+    # the median of 2, 8, 4 (not the mean 4.67, nor the middle photo's 8)
+    assert row["learned"] == pytest.approx(4e-4, rel=1e-2)
+    # the paper's figure: the median of the two photos with paper, 1 and 3 -> 2 (with the red
+    # photo's 9 it would be 3; counting the red photo as 0 would give 1; taking the object's
+    # pixels for paper, 5)
+    assert row["paper"] == pytest.approx(2e-4, rel=1e-2)
 
 
 def test_the_table_prints_a_dash_for_a_missing_figure_and_parse_rejects_a_bad_capture():

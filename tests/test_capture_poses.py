@@ -521,12 +521,14 @@ def test_poses_use_the_camera_files_layout_when_photos_show_several_tags(tmp_pat
     assert main([*argv, "--no-dataset"]) == 0
     poses = json.loads((out / "poses.json").read_text())
     assert any("camera file's layout" in n for n in poses["notes"])
+    assert sorted(p["file"] for p in poses["photos"]) == sorted(sheet.names[:4])  # the loop below sees all
     for p in poses["photos"]:
         assert p["used"] and len(p["tags_used"]) > 1, p
         pos, ang = pose_error(np.array(p["c2w"]), sheet.c2w[sheet.names.index(p["file"])])
         assert pos < 0.002 and ang < 0.3
     assert main([*argv, "--no-dataset", "--single-tag", "--force"]) == 0
-    assert all(len(p["tags_used"]) == 1 for p in json.loads((out / "poses.json").read_text())["photos"] if p["used"])
+    single = [p for p in json.loads((out / "poses.json").read_text())["photos"] if p["used"]]
+    assert len(single) == 4 and all(len(p["tags_used"]) == 1 for p in single)
     # calibrated with a --tag-size 10% short: the layout takes the --tag-size the poses are given
     # (the photos show no other tag), so the cameras stand where they are, and it is said
     cam["layout"] = sheet.layout.scaled(0.9).to_json()
@@ -608,6 +610,7 @@ def test_poses_estimate_the_layout_from_photos_showing_several_tags_when_none_is
     for tag, corners in estimated.items():
         truth = sheet.layout.tags[tag] @ to_ref[:3, :3].T + to_ref[:3, 3]
         assert np.abs(corners - truth).max() < 5e-4, tag  # half a millimetre
+    assert sorted(p["file"] for p in poses["photos"]) == sorted(sheet.names[:8])  # the loop below sees all
     for p in poses["photos"]:
         assert p["used"] and len(p["tags_used"]) > 1, p
         pos, ang = pose_error(np.array(p["c2w"]), to_ref @ sheet.c2w[sheet.names.index(p["file"])])
@@ -615,7 +618,8 @@ def test_poses_estimate_the_layout_from_photos_showing_several_tags_when_none_is
     assert main([*argv, "--single-tag", "--force"]) == 0
     poses = json.loads((out / "poses.json").read_text())
     assert not any(n.startswith("estimated the layout") for n in poses["notes"])
-    assert all(len(p["tags_used"]) == 1 for p in poses["photos"] if p["used"])
+    single = [p for p in poses["photos"] if p["used"]]
+    assert len(single) == 8 and all(len(p["tags_used"]) == 1 for p in single)
 
 
 def test_an_estimated_layout_leaves_out_a_tag_of_another_size():

@@ -145,7 +145,9 @@ def _npz(scene, tmp_path):
 
 def test_split_every():
     tr, va = split_every(20, 8)
-    assert list(va) == [4, 12] and len(tr) == 18 and not set(tr) & set(va)
+    # every 8th view from the 4th (8 // 2, LLFF-style), of 20: 4 and 12 (20 is past the end)
+    assert list(va) == list(range(8 // 2, 20, 8)) == [4, 12]
+    assert sorted([*tr, *va]) == list(range(20)) and not set(tr) & set(va)
     assert len(split_every(20, 0)[1]) == 0
 
 

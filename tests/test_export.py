@@ -299,10 +299,24 @@ def test_depth_to_points_keeps_opaque_pixels_and_unmixes_background():
     np.testing.assert_allclose(np.linalg.norm(pts, axis=1), 2.0, atol=1e-6)  # depth along unit rays
 
 
-def test_crop_to_box():
-    pts = np.array([[0, 0, 0], [0.9, 0, 0], [1.1, 0, 0]], np.float32)
-    p, c = ex.crop_to_box(pts, np.zeros((3, 3), np.uint8), [0, 0, 0], 1.0)
-    assert len(p) == 2 and len(c) == 2
+def test_crop_to_box_keeps_the_cube_around_its_centre_with_each_points_colour():
+    center = np.array([1.0, -2.0, 0.5])
+    offsets = np.array(
+        [
+            [0.0, 0.0, 0.0],  # the centre: kept
+            [0.9, 0.9, -0.9],  # the cube's corner, 1.56 from the centre (outside the ball): kept
+            [1.1, 0.0, 0.0],  # past the +x face: dropped
+            [0.0, -1.05, 0.0],  # past the -y face: dropped
+            [-1.0, 2.0, -0.5],  # the origin, inside a cube around the origin: dropped
+            [0.0, 0.0, -1.0],  # on the -z face (exact in float32): kept
+            [0.5, 1.5, 0.2],  # one coordinate out: dropped
+        ]
+    )
+    pts = (center + offsets).astype(np.float32)
+    colors = np.array([[10 * i, 255 - i, 3 * i] for i in range(len(pts))], np.uint8)
+    p, c = ex.crop_to_box(pts, colors, center.tolist(), 1.0)
+    np.testing.assert_array_equal(p, pts[[0, 1, 5]])
+    np.testing.assert_array_equal(c, colors[[0, 1, 5]])
 
 
 def two_spheres_render(K, c2w, width, height):

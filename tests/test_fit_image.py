@@ -1,4 +1,4 @@
-"""Tests of ``nerfkit fit-image``: encoding, model, PSNR, fitting, sweep, files, bad input."""
+"""Tests of ``nerfkit fit-image``: model, PSNR, fitting, sweep, files, bad input (the encoding: test_rendering_math)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,6 @@ from PIL import Image
 
 from nerfkit.cli import main
 from nerfkit.errors import NerfkitError
-from nerfkit.fields.encoding import encoded_dim, positional_encoding
 from nerfkit.fields.image_field import ImageField, grid_xy, pixel_xy
 from nerfkit.fit_image import (
     FitImageConfig,
@@ -24,11 +23,11 @@ from nerfkit.fit_image import (
     load_target,
     parse_background,
     parse_sweep,
-    psnr_from_mse,
     render_image,
     run_fit,
     run_sweep,
 )
+from nerfkit.train.metrics import psnr_from_mse  # (the one fit-image uses)
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -66,22 +65,7 @@ def decode(path: Path) -> np.ndarray:
     return np.asarray(Image.open(path))
 
 
-# --- encoding and model ---------------------------------------------------------------
-
-
-def test_encoding_width_is_42_at_L10():
-    assert encoded_dim(2, 10) == 42
-    assert positional_encoding(torch.rand(5, 2), 10).shape == (5, 42)
-    assert ImageField(L=10).hidden[0].in_features == 42
-
-
-def test_encoding_values_at_zero_and_quarter():
-    pe = positional_encoding(torch.zeros(1, 2), 3)[0]
-    # [x, y, then per octave: sin x, sin y, cos x, cos y]
-    assert pe.tolist() == [0, 0, 0, 0, 1, 1, 0, 0, 1, 1, 0, 0, 1, 1]
-    pe = positional_encoding(torch.tensor([[0.25]], dtype=torch.float64), 2)[0]
-    s = math.sqrt(0.5)
-    np.testing.assert_allclose(pe.numpy(), [0.25, s, s, 1.0, 0.0], atol=1e-12)
+# --- model ---------------------------------------------------------------------------
 
 
 def test_image_field_is_the_course_model():
@@ -282,8 +266,14 @@ def test_parse_sweep_and_background():
         {"L": 10, "lr": 0.01},
         {"L": 10, "lr": 0.001},
     ]
-    for bad in (["seed=1,2"], ["L"], ["L=a"], ["L=1", "L=2"], []):
-        with pytest.raises(NerfkitError):
+    for bad, message in (
+        (["seed=1,2"], "--sweep: cannot sweep 'seed'"),
+        (["L"], "--sweep: cannot read 'L'"),
+        (["L=a"], "--sweep L=a: 'a' is not a whole number"),
+        (["L=1", "L=2"], "--sweep: 'L' is given twice"),
+        ([], "--sweep: no KEY=V1,V2 items"),
+    ):
+        with pytest.raises(NerfkitError, match=message):
             parse_sweep(bad)
     assert parse_background("white") == (1.0, 1.0, 1.0)
     assert parse_background("#ff0080") == pytest.approx((1.0, 0.0, 128 / 255))

@@ -295,7 +295,7 @@ def test_frozen_grid_gives_ray_gradients_without_a_sink():
     torch.testing.assert_close(gd.double(), rd, atol=5e-4, rtol=1e-4)
     # training the grid still needs its sink
     g = grid.clone().requires_grad_()
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="a GradSink is needed to train the grid on the compiled path"):
         render_grid(g, geom, spec, *rays, 2, None, "numba")
 
 

@@ -33,12 +33,26 @@ def write(tmp_path, **arrays):
     return path
 
 
+def ring_of_cameras(target, distance: float, n: int = 4) -> np.ndarray:
+    """(n, 4, 4) float32 camera-to-world (OpenCV axes: z forward, y down) on a level ring of
+    radius ``distance`` around ``target``, each looking at it."""
+    c2w = np.tile(np.eye(4, dtype=np.float32), (n, 1, 1))
+    for i, a in enumerate(np.linspace(0, 2 * np.pi, n, endpoint=False)):
+        c, s = np.cos(a), np.sin(a)
+        c2w[i, :3, 0], c2w[i, :3, 1], c2w[i, :3, 2] = (-s, c, 0), (0, 0, -1), (-c, -s, 0)
+        c2w[i, :3, 3] = np.asarray(target) + distance * np.array([c, s, 0])
+    return c2w
+
+
 def test_course_layout_loads_with_focal_meaning_centered_principal_point(tmp_path):
-    scene = load_npz(write(tmp_path, **course_arrays()))
+    # no near/far stored: the cameras, 4 from the point they look at, give 0.5 x 4 and 1.5 x 4
+    target = np.array([1.0, -2.0, 0.5])
+    scene = load_npz(write(tmp_path, **{**course_arrays(), "c2ws_train": ring_of_cameras(target, 4.0)}))
     assert len(scene.train) == 4 and len(scene.val) == 2 and len(scene.test) == 3
     assert not scene.test.has_images
     assert np.allclose(scene.train.K[0], [[10, 0, 4], [0, 10, 4], [0, 0, 1]])
-    assert scene.near < scene.far
+    np.testing.assert_allclose(scene.center, target, atol=1e-5)
+    assert (scene.near, scene.far) == pytest.approx((2.0, 6.0), rel=1e-5)
 
 
 def test_round_trip_keeps_cameras_images_names(tmp_path, sphere):
@@ -158,7 +172,7 @@ def test_truncated_npz_is_refused(tmp_path):
     path = write(tmp_path, **course_arrays(size=64))
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2])
-    with pytest.raises(NerfkitError):
+    with pytest.raises(NerfkitError, match=r"scene\.npz: not a valid \.npz file \(File is not a zip file\)"):
         load_npz(path)
 
 

@@ -18,7 +18,7 @@ def test_resolve_precision_rules():
     assert resolve_precision("bf16", CPU) is torch.bfloat16
     assert resolve_precision("auto", CPU) is (torch.bfloat16 if cpu_has_native_bf16() else None)
     assert resolve_autocast("fp32", CPU) is None  # the trainer's name for the same rule
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="precision must be one of auto, fp32, bf16, got 'fp16'"):
         resolve_precision("fp16", CPU)
 
 

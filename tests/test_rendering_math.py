@@ -292,6 +292,11 @@ def test_positional_encoding_values_and_dims():
     assert e.shape == (1, 27)
     assert torch.allclose(e[0, 3 + 6 * 2 : 3 + 6 * 2 + 3], torch.sin(4 * torch.pi * x[0]), atol=1e-6)
     assert torch.allclose(e[0, 3 + 6 * 2 + 3 : 3 + 6 * 3], torch.cos(4 * torch.pi * x[0]), atol=1e-6)
+    # octaves 0 and 1 of x = 1/4: sin and cos of pi/4, then of pi/2 (float64 in, float64 out)
+    e = positional_encoding(torch.tensor([[0.25]], dtype=torch.float64), 2)[0]
+    s = 0.5**0.5
+    assert e.dtype == torch.float64
+    torch.testing.assert_close(e, torch.tensor([0.25, s, s, 1.0, 0.0], dtype=torch.float64), atol=1e-12, rtol=0)
 
 
 def test_image_rays_row_major_pixel_centres():

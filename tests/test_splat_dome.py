@@ -160,7 +160,8 @@ def test_the_object_crop_and_dot_splat(tmp_path, learned):
     lo, hi, _ = object_box(BOUNDS)
     kept, total = write_object_splat(tmp_path / "splat.ply", tmp_path / "alone.ply", (lo, hi))
     assert total == m.n_gaussians + dome
-    inside = int(np.all((m.means.detach().numpy() >= lo) & (m.means.detach().numpy() <= hi), 1).sum())
     alone = read_ply(tmp_path / "alone.ply")
-    assert kept == len(alone) == inside > 0
-    assert np.linalg.norm(alone.means, axis=1).max() < BOUNDS.radius
+    # the object's Gaussians only, none of the dome's (which ones a box keeps, exactly: the
+    # crop's own test in test_capture_video)
+    model_means = set(map(tuple, m.means.detach().numpy().tolist()))
+    assert kept == len(alone) > 0 and set(map(tuple, alone.means.tolist())) <= model_means

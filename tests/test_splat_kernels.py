@@ -26,6 +26,40 @@ def test_the_compiled_kernels_and_the_splat_files_need_no_torch():
     assert out.split() == [repr(ref.SH_C0), "False"]
 
 
+STALE_CACHE_PROBE = """
+import sys
+import numpy as np
+import nerfkit.splat_constants as constants
+constants.DILATION = float(sys.argv[1])  # as if the file said so
+from nerfkit.kernels import splat_numba as nb
+# sigma 0.1 at depth 2, f = 100: a 25 px^2 screen variance, plus the dilation
+params = (np.array([[0.0, 0.0, 2.0]]), np.full((1, 3), np.log(0.1)), np.array([[1.0, 0, 0, 0]]), np.zeros(1),
+          np.zeros((1, 1, 3)), np.zeros((1, 15, 3)))
+view, cam, intr = np.eye(4)[:3].copy(), np.zeros(3), np.array([100.0, 100.0, 32.0, 32.0])
+outs = (np.zeros((1, 2)), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1), np.zeros(1))
+nb.project_forward(*params, 0, view, cam, intr, 64, 64, 0.01, *outs, np.zeros(1, np.int32), np.zeros((1, 4), np.int32))
+print(1 / outs[1][0, 0], sum(nb.project_forward.stats.cache_hits.values()))
+"""
+
+
+@needs_numba
+def test_a_changed_constant_is_not_served_stale_from_numbas_cache(tmp_path):
+    """numba keys its on-disk cache on the kernel's own file, and the kernels bake in the values
+    of nerfkit.splat_constants: a process with another DILATION must compile anew, not load
+    the kernel of the old one (each run in its own process, on a cache folder of its own)."""
+    import os
+
+    def run(dilation: float) -> tuple[float, int]:  # (the screen variance, cache hits)
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+        cmd = [sys.executable, "-c", STALE_CACHE_PROBE, str(dilation)]
+        out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout.split()
+        return float(out[0]), int(out[1])
+
+    assert run(0.3) == (pytest.approx(25.3), 0)  # compiled
+    assert run(0.3) == (pytest.approx(25.3), 1)  # loaded from the cache
+    assert run(0.5) == (pytest.approx(25.5), 0)  # compiled anew: not the cached kernel's 25.3
+
+
 def random_gaussians(n: int, seed: int = 0, dtype=torch.float64, spread: float = 0.5, log_scale: float = -2.0):
     g = torch.Generator().manual_seed(seed)
     means = torch.randn(n, 3, generator=g, dtype=dtype) * spread
@@ -112,6 +146,26 @@ def test_sh_colour_equals_the_formula_term_by_term_with_its_gradients(degree):
     assert bool((grads[0][0][:, : ref.sh_coeffs(degree)] != 0).any())
 
 
+def fibonacci_sphere(n: int) -> torch.Tensor:
+    """n nearly uniform unit directions (equal-area rows of a golden-angle spiral)."""
+    i = torch.arange(n, dtype=torch.float64) + 0.5
+    z = 1 - 2 * i / n
+    phi = math.pi * (1 + 5**0.5) * i
+    r = torch.sqrt(1 - z * z)
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
+
+
+def test_sh_basis_up_to_degree_three_is_orthonormal_on_the_sphere():
+    # the real SH are orthonormal: the integral of Y_i Y_j over the sphere is the identity.
+    # This pins every normalisation constant (SH_C0 .. SH_C3) independently of the code's
+    # own numbers; the term-by-term test above only checks the formula's shape.
+    d = fibonacci_sphere(20000)
+    Y = ref.sh_basis(d, 3)
+    assert Y.shape == (20000, 16)
+    gram = 4 * math.pi * (Y.T @ Y) / len(d)
+    torch.testing.assert_close(gram, torch.eye(16, dtype=torch.float64), atol=1e-4, rtol=0)
+
+
 def test_covariance_is_rotated_diagonal():
     log_scales = torch.log(torch.tensor([[1.0, 2.0, 3.0]], dtype=torch.float64))
     half = math.sqrt(0.5)  # 90 degrees about z: x -> y
@@ -127,9 +181,9 @@ def test_projection_of_an_isotropic_gaussian_at_the_centre():
     K = torch.tensor([[100.0, 0, 32], [0, 100.0, 32], [0, 0, 1]], dtype=torch.float64)
     p = ref.project_gaussians(means, cov, torch.eye(4, dtype=torch.float64), K, 64, 64, 0.01)
     torch.testing.assert_close(p["means2d"][0], torch.tensor([32.0, 32.0], dtype=torch.float64))
-    var = 25.0 + ref.DILATION
+    var = 25.3  # INRIA's low-pass filter adds 0.3 px^2, written out (not read from the code)
     torch.testing.assert_close(p["conics"][0], torch.tensor([1 / var, 0.0, 1 / var], dtype=torch.float64))
-    assert int(p["radii"][0]) == math.ceil(3 * math.sqrt(var))
+    assert int(p["radii"][0]) == 16  # ceil(3 * sqrt(25.3)) = ceil(15.09)
     assert p["rects"][0].tolist() == [0, 3, 0, 3]  # 16 px tiles touched by x, y in 31.5 +- 16 px
 
 
@@ -291,7 +345,7 @@ def test_compiled_ssim_matches_reference_value_and_float64_gradient(H, W):
 
 
 @needs_numba
-def test_compiled_ssim_float32_matches_and_equal_images_score_one():
+def test_compiled_ssim_float32_matches_the_reference():
     g = torch.Generator().manual_seed(3)
     img = torch.rand(40, 50, 3, generator=g).requires_grad_()
     target = torch.rand(40, 50, 3, generator=g)
@@ -301,7 +355,14 @@ def test_compiled_ssim_float32_matches_and_equal_images_score_one():
     assert value.dtype == torch.float32
     torch.testing.assert_close(value, ref.ssim_reference(img, target), rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(g_nb, g_ref, rtol=1e-3, atol=1e-7)
-    assert float(ssim(target, target, "numba")) == pytest.approx(1.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("backend", ["torch", pytest.param("numba", marks=needs_numba)])
+def test_ssim_is_one_for_equal_images_and_lower_for_noise(backend):
+    g = torch.Generator().manual_seed(0)
+    img = torch.rand(24, 20, 3, generator=g)
+    assert float(ssim(img, img, backend)) == pytest.approx(1.0, abs=1e-6)
+    assert float(ssim(img, (img + 0.3 * torch.randn(24, 20, 3, generator=g)).clamp(0, 1), backend)) < 0.8
 
 
 def test_gsplat_renders_on_cuda_only_when_installed_and_its_absence_is_said(monkeypatch):
@@ -392,6 +453,33 @@ def test_compiled_projection_matches_the_reference_values_and_float64_gradients(
         assert float(a.abs().max()) > 0
     # the coefficients past the degree get a zero gradient, as autograd gives them
     assert int(torch.count_nonzero(nb_grads[4][:, (degree + 1) ** 2 :])) == 0
+
+
+@pytest.mark.parametrize("backend", ["torch", pytest.param("numba", marks=needs_numba)])
+def test_projection_beyond_the_field_of_view_uses_the_jacobian_at_the_clamped_x(backend):
+    # sigma 0.2 at (1, 0, 2), f = 100, 64 x 64: x/z = 0.5 lies beyond INRIA's limit
+    # 1.3 * tan(half fov) = 1.3 * 32 / 100 = 0.416, so J is evaluated at x = 0.416 * 2 = 0.832:
+    # J = [[f/z, 0, -f x/z^2], [0, f/z, 0]] = [[50, 0, -20.8], [0, 50, 0]],
+    # cov2d = 0.04 J J^T + 0.3 I = diag(0.04 * (2500 + 20.8^2) + 0.3, 0.04 * 2500 + 0.3).
+    # (Unclamped, J[0, 2] would be -25 and the x variance 125.3.)
+    W = H = 64
+    K = torch.tensor([[100.0, 0, 32], [0, 100.0, 32], [0, 0, 1]], dtype=torch.float64)
+    w2c = torch.eye(4, dtype=torch.float64)
+    params = (
+        torch.tensor([[1.0, 0.0, 2.0]], dtype=torch.float64),
+        torch.full((1, 3), math.log(0.2), dtype=torch.float64),
+        torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=torch.float64),
+        torch.zeros(1, dtype=torch.float64),
+        torch.zeros(1, 16, 3, dtype=torch.float64),
+    )
+    fn = reference_projection if backend == "torch" else compiled_projection
+    means2d, conics, _, _, depths, radii, rects = fn(params, 0, w2c, K, W, H)
+    var_x, var_y = 0.04 * (2500 + 20.8**2) + 0.3, 0.04 * 2500 + 0.3  # 117.6056, 100.3
+    torch.testing.assert_close(means2d[0], torch.tensor([82.0, 32.0], dtype=torch.float64))  # the mean is not clamped
+    torch.testing.assert_close(conics[0], torch.tensor([1 / var_x, 0.0, 1 / var_y], dtype=torch.float64))
+    assert float(depths[0]) == 2.0
+    assert int(radii[0]) == 33  # ceil(3 * sqrt(117.6056)) = ceil(32.53)
+    assert rects[0].tolist() == [3, 4, 0, 4]  # x in 81.5 +- 33 px reaches the last 16 px tile column
 
 
 @needs_numba

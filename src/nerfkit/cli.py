@@ -223,10 +223,19 @@ def _interrupt(signum, frame):
 
     stop.request()  # remembered, should a library swallow the exception
     if _importing(frame) and hasattr(signal, "setitimer"):
-        signal.signal(signal.SIGALRM, lambda _s, f: _interrupt(signum, f))
+        signal.signal(signal.SIGALRM, lambda _s, f: _retry_stop(signum, f))
         signal.setitimer(signal.ITIMER_REAL, 0.05)
         return
     raise KeyboardInterrupt
+
+
+def _retry_stop(signum, frame):
+    """The retry of a stop that came inside an import: only while nobody took it over (the
+    trainer takes it at its start and stops by itself; raising then would cut its save short)."""
+    from .io import stop
+
+    if stop.pending():
+        _interrupt(signum, frame)
 
 
 def _sigterm_as_ctrl_c():

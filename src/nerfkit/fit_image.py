@@ -38,6 +38,7 @@ from .config import MAX_SEED, check_ranges, flag_type, option, parse_background
 from .errors import fail
 from .images import write_image
 from .io.atomic import write_json
+from .train.metrics import psnr_from_mse
 from .viz.plots import image_grid, plot_curves
 
 if TYPE_CHECKING:  # torch is imported inside functions so the CLI can build its parser quickly
@@ -102,11 +103,6 @@ class FitImageConfig:
 
 # ---------------------------------------------------------------------------------------
 # Small pure helpers
-
-
-def psnr_from_mse(mse: float) -> float:
-    """PSNR in dB of colours in [0, 1]: ``10 log10(1 / mse)`` (inf for a perfect match)."""
-    return math.inf if mse <= 0 else -10.0 * math.log10(mse)
 
 
 def validate_config(cfg: FitImageConfig) -> None:

@@ -14,6 +14,11 @@ def request() -> None:
     _requested = True
 
 
+def pending() -> bool:
+    """Whether a stop was asked for and not yet taken."""
+    return _requested
+
+
 def take() -> bool:
     """Whether a stop was asked for since the last call (and forget it)."""
     global _requested

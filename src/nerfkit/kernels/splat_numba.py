@@ -37,11 +37,14 @@ reordered). ``tests/test_splat_kernels.py`` holds float32 gradients to a float64
 
 from __future__ import annotations
 
+import hashlib
 import math
+from pathlib import Path
 
 import numpy as np
 from numba import njit, prange
 
+from .. import splat_constants
 from ..splat_constants import ALPHA_MAX, ALPHA_MIN, DILATION, FOV_CLIP, SH_C0, SH_C1, SH_C2, SH_C3, T_MIN, TILE
 
 G_MX, G_MY, G_A, G_B, G_C, G_OP, G_R, G_G, G_BL = range(9)
@@ -856,3 +859,34 @@ def warm_up() -> None:
     # the forward's five float outputs stand in for their incoming gradients
     project_backward(*params, 3, view, cam, intr, W, H, 0.01, *outs, *(np.empty_like(p) for p in params))
     all_finite(outs[0].reshape(-1))
+
+
+def constants_fingerprint() -> str:
+    """A digest of :mod:`nerfkit.splat_constants`' values (its upper-case names)."""
+    values = sorted((k, v) for k, v in vars(splat_constants).items() if k.isupper())
+    return hashlib.sha256(repr(values).encode()).hexdigest()
+
+
+def drop_kernels_of_other_constants() -> None:
+    """numba keys its on-disk cache on this file's source alone, but the kernels bake in the
+    values of :mod:`nerfkit.splat_constants`: edited there, they would load stale. So the
+    constants' fingerprint is kept beside numba's cache files (``splat_numba.constants``);
+    when it differs, this module's cache files are deleted (its kernels compile anew)."""
+    path = getattr(getattr(depth_order, "_cache", None), "cache_path", None)  # every kernel's folder
+    if path is None:  # no on-disk cache
+        return
+    try:
+        cache_dir = Path(path)
+        stamp = cache_dir / "splat_numba.constants"
+        fingerprint = constants_fingerprint()
+        if stamp.is_file() and stamp.read_text() == fingerprint:
+            return
+        for old in [*cache_dir.glob("splat_numba.*.nbi"), *cache_dir.glob("splat_numba.*.nbc")]:
+            old.unlink(missing_ok=True)
+        cache_dir.mkdir(parents=True, exist_ok=True)
+        stamp.write_text(fingerprint)
+    except OSError:  # a cache folder that cannot be written: numba caches nothing there either
+        pass
+
+
+drop_kernels_of_other_constants()  # at import: before any kernel loads from the cache
