@@ -564,3 +564,18 @@ def test_a_camera_no_lens_makes_is_never_chosen_nor_read():
     with pytest.raises(NerfkitError, match="2560x1920 photos is no lens's.*width and height are those K"):
         camera_from_dict(data, "camera.json")
     assert camera_from_dict({**data, "width": w, "height": h}, "camera.json").width == w
+
+
+def test_a_tag_of_another_size_among_the_sheets_is_found_from_photos_of_three_tags_or_more():
+    from nerfkit.capture.aruco import Detection
+
+    def det(sides):
+        squares = [np.array([[0, 0], [s, 0], [s, s], [0, s]], float) + 200 * k for k, s in enumerate(sides)]
+        return Detection(640, 480, np.arange(len(sides)), np.stack(squares))
+
+    # tag 3 twice the others' side; perspective (10% between tags) is not another size
+    photos = [det([50, 55, 45, 100]), det([40, 44, 38, 82]), det([60, 54, 66, 118])]
+    odd = C.odd_sized_tags(photos)
+    assert list(odd) == [3] and odd[3] == pytest.approx(np.median([100 / 50, 82 / 40, 118 / 60]))
+    assert C.odd_sized_tags([det([50, 100]), det([40, 80])]) == {}  # two tags: which one is odd is unknown
+    assert C.odd_sized_tags([det([50, 55, 45, 60])]) == {}

@@ -850,6 +850,28 @@ def _layout_sheet_views(records: list[PhotoRecord], layout: Layout) -> list:
     return [(r.name, *layout.match(r.detected)[:2]) for r in records if len(layout.match(r.detected)[0]) >= 4]
 
 
+# A tag whose side in the photos differs from the other tags' (in the same photos) by more
+# than this factor in the median is of another size: perspective across a sheet stays within it.
+ODD_SIZE = 1.4
+
+
+def odd_sized_tags(detections: list) -> dict[int, float]:
+    """Tag id -> its median side over the median side of the other tags in the same photo,
+    for the tags beyond :data:`ODD_SIZE` either way, from the photos showing three tags or more
+    (with two, which one is odd is unknown)."""
+    ratios: dict[int, list[float]] = {}
+    for det in detections:
+        ids = [int(i) for i in det.ids]
+        if len(set(ids)) < 3 or len(set(ids)) != len(ids):
+            continue
+        c = np.asarray(det.corners, np.float64)
+        sides = np.linalg.norm(c - np.roll(c, -1, axis=1), axis=2).mean(axis=1)
+        for k, t in enumerate(ids):
+            ratios.setdefault(t, []).append(float(sides[k] / np.median(np.delete(sides, k))))
+    medians = {t: float(np.median(r)) for t, r in ratios.items()}
+    return {t: m for t, m in medians.items() if not 1 / ODD_SIZE < m < ODD_SIZE}
+
+
 def estimate_layout(
     with_tags: list[PhotoRecord],
     by_name: dict,
@@ -1036,6 +1058,16 @@ def calibrate_records(
         layout = None
     else:
         target = "estimated layout"
+        odd = odd_sized_tags([r.detected for r in with_tags])
+        if odd:
+            for r in with_tags:
+                keep = ~np.isin(r.detected.ids, list(odd))
+                r.detection = replace(r.detected, ids=r.detected.ids[keep], corners=r.detected.corners[keep])
+            notes.append(
+                "left out of the sheet: "
+                + ", ".join(f"tag {t} (it looks {k:.1f} times the size of the others)" for t, k in sorted(odd.items()))
+                + ": a tag of another size (the object's?) cannot share the sheet's --tag-size"
+            )
         layout, K_layout = estimate_layout(with_tags, by_name, size, tag_size, cfg, notes)
         views = _layout_sheet_views(with_tags, layout)
         if not layout.is_planar():  # calibrateCamera can only initialise from planar targets
