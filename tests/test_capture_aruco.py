@@ -197,6 +197,16 @@ def test_mixed_sizes_keep_the_main_group_and_explain_the_rest():
     size, kept = P.group_by_size(recs)
     assert size == (4032, 3024) and [r.name for r in kept] == ["a", "b"]
     assert "portrait 3024x4032" in recs[2].reason and "1920x1080" in recs[3].reason
+    # with resize: a photo of the same shape at another size is kept, its corners resized
+    recs = [rec("a", 4032, 3024), rec("b", 4032, 3024), rec("e", 1008, 756), rec("d", 1920, 1080)]
+    recs[2].detection = A.Detection(
+        1008, 756, np.array([0]), np.array([[[0.0, 0], [99.5, 0], [99.5, 49.5], [0, 49.5]]])
+    )
+    size, kept = P.group_by_size(recs, resize=True)
+    assert [r.name for r in kept] == ["a", "b", "e"] and recs[2].info["resized_from"] == "1008x756"
+    assert (recs[2].detection.width, recs[2].detection.height) == (4032, 3024)
+    np.testing.assert_allclose(recs[2].detection.corners[0, 2], [(99.5 + 0.5) * 4 - 0.5, (49.5 + 0.5) * 4 - 0.5])
+    assert "1920x1080" in recs[3].reason  # another shape
 
 
 def test_the_common_size_does_not_depend_on_the_photos_order():

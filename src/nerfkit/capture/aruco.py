@@ -425,6 +425,17 @@ class Detection:
             )
         return det
 
+    def resized(self, width: int, height: int) -> Detection:
+        """The same detection in the photo resized to ``width`` x ``height`` (pixel centres at
+        integers: a pixel x moves to (x + 0.5) s - 0.5)."""
+        s = np.array([width / self.width, height / self.height])
+
+        def scale(p):
+            return (np.asarray(p, np.float64) + 0.5) * s - 0.5
+
+        charuco = None if self.charuco_corners is None else scale(self.charuco_corners)
+        return Detection(width, height, self.ids, scale(self.corners), self.sharpness, self.charuco_ids, charuco)
+
     @staticmethod
     def from_json(d: dict) -> Detection:
         ids = np.asarray(d["ids"], np.int64).reshape(-1)

@@ -399,14 +399,18 @@ def keep_one_lens(records: list[PhotoRecord], lens: float | None = None) -> list
     return kept
 
 
-def group_by_size(records: list[PhotoRecord], turn: bool = False) -> tuple[tuple[int, int] | None, list[PhotoRecord]]:
+def group_by_size(
+    records: list[PhotoRecord], turn: bool = False, resize: bool = False
+) -> tuple[tuple[int, int] | None, list[PhotoRecord]]:
     """The photo size most detected photos share, and the photos of that size.
 
     A photo of the transposed size was held the other way. With ``turn``, such a photo
     whose EXIF orientation says how it was held is turned into the others' frame
     (:func:`turn_into_frame`) and kept: its pixels are then the sensor's, as the others',
     so one camera fits them all. Without ``turn``, or with no such EXIF (a photo rotated
-    in an editor), it is skipped with the reason.
+    in an editor), it is skipped with the reason. With ``resize``, a photo of the same shape
+    at another size (a phone's other resolution, a copy resized by an app) has its detection
+    resized to the common size and is kept (``info["resized_from"]``); without, it is skipped.
     """
     main = common_size(r.size for r in records if r.detection is not None)
     if main is None:
@@ -424,6 +428,10 @@ def group_by_size(records: list[PhotoRecord], turn: bool = False) -> tuple[tuple
                 kept.append(r)
                 continue
             r.skip(f"{held_as(*r.size)} while most photos are {main[0]}x{main[1]}: {why}")
+        elif resize and abs(r.size[0] * main[1] / (r.size[1] * main[0]) - 1) < 0.01:  # the same shape
+            r.info["resized_from"] = f"{r.size[0]}x{r.size[1]}"
+            r.detection = r.detection.resized(*main)
+            kept.append(r)
         else:
             r.skip(f"size {r.detection.width}x{r.detection.height} differs from most photos ({main[0]}x{main[1]})")
     return main, kept

@@ -326,8 +326,14 @@ def calibrate(
         if r.detection is not None and len(r.detection.ids) == 0:
             r.skip("no tags found" + blur_hint(records, r))
     size, kept = group_by_size(
-        keep_one_lens([r for r in records if r.detection is not None and (len(r.detection.ids) or charuco)]), turn=True
+        keep_one_lens([r for r in records if r.detection is not None and (len(r.detection.ids) or charuco)]),
+        turn=True,
+        resize=True,
     )
+    resized = sorted({r.info["resized_from"] for r in kept if "resized_from" in r.info})
+    if resized and size is not None:
+        n = sum("resized_from" in r.info for r in kept)
+        _say(quiet)(f"{n} photos of {', '.join(resized)}, the shape of the others, are resized to {size[0]}x{size[1]}")
     try:
         cal = calibrate_records(kept, size, tag_size, sheet, cfg, dictionary)
     except NerfkitError as e:
