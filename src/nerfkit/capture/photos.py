@@ -428,8 +428,8 @@ def group_by_size(
                 kept.append(r)
                 continue
             r.skip(f"{held_as(*r.size)} while most photos are {main[0]}x{main[1]}: {why}")
-        elif resize and abs(r.size[0] * main[1] / (r.size[1] * main[0]) - 1) < 0.01:  # the same shape
-            r.info["resized_from"] = f"{r.size[0]}x{r.size[1]}"
+        elif resize and abs(r.detection.width * main[1] / (r.detection.height * main[0]) - 1) < 0.01:  # one shape
+            r.info["resized_from"] = f"{r.detection.width}x{r.detection.height}"
             r.detection = r.detection.resized(*main)
             kept.append(r)
         else:
