@@ -146,3 +146,13 @@ def test_the_api_says_what_is_wrong_with_a_path_before_any_work(tmp_path, sphere
     # a setting of another model
     with pytest.raises(NerfkitError, match="--sh-degree: is a setting of the fast and splat models, not of vanilla"):
         api.train(sphere_npz, tmp_path / "o", model="vanilla", steps=1, sh_degree=2)
+
+
+def test_an_option_of_an_output_not_asked_for_is_said_to_do_nothing(tmp_path, sphere_npz, capsys):
+    tiny = {"n_samples": 4, "width": 8, "depth": 2, "eval_views": 1, "device": "cpu", "quiet": True}
+    run = api.train(sphere_npz, tmp_path / "run", model="vanilla", steps=1, **tiny).run_dir
+    capsys.readouterr()
+    api.export(run, points=tmp_path / "p.ply", resolution=128, color_views=3, stride=2, quiet=True)
+    err = capsys.readouterr().err
+    assert "note: --resolution, --color-views act only with --mesh" in err and "--stride" not in err
+    assert (tmp_path / "p.ply").is_file()

@@ -1011,11 +1011,15 @@ def export(
         force: replace existing output files.
         quiet: print no report.
     """
+    import sys
+
     from ..config import number, output_path
     from ..data.load import dataset_inputs
     from ..errors import fail
+    from ..export import COLOUR_VIEWS
     from ..io.atomic import all_or_none
     from ..io.paths import guard_outputs
+    from ..tabletop import TABLE_CUT
     from . import _common
     from .stages import export as stage
 
@@ -1035,6 +1039,34 @@ def export(
     )
     data = _given("--data", data)
     stage.check_outputs(mesh_file, points_file, splat_file)
+    # options of an output not asked for do nothing: said, not silently dropped
+    for output, what, options in (
+        (
+            mesh_file,
+            "--mesh",
+            [
+                ("--resolution", resolution, (256,)),
+                ("--threshold", threshold, (None,)),
+                ("--table-cut", table_cut, (None, TABLE_CUT)),
+                ("--color-views", color_views, (None, COLOUR_VIEWS)),
+                ("--color-dirs", color_dirs, (1,)),
+            ],
+        ),
+        (
+            points_file,
+            "--points",
+            [
+                ("--every", every, (1,)),
+                ("--stride", stride, (1,)),
+                ("--acc-min", acc_min, (0.5,)),
+                ("--no-crop", crop, (True,)),
+            ],
+        ),
+        (mesh_file or points_file, "--mesh or --points", [("--box-scale", box_scale, (1.0,))]),
+    ):
+        idle = [flag for flag, value, defaults in options if value not in defaults]
+        if output is None and idle:
+            print(f"note: {', '.join(idle)} {'acts' if len(idle) == 1 else 'act'} only with {what}", file=sys.stderr)
     opened = _common.open_run(_common.RunToOpen(run, device, chunk))
     if splat_file and not hasattr(opened.model, "n_gaussians"):
         raise fail(run, f"is a {opened.info.train.model} run; --splat exports runs of --model splat")
