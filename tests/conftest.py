@@ -145,3 +145,16 @@ def sigint_as_a_terminal_gives_it() -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def fibonacci_sphere(n: int) -> torch.Tensor:
+    """n nearly uniform unit directions (equal-area rows of a golden-angle spiral), float64."""
+    import math
+
+    import torch
+
+    i = torch.arange(n, dtype=torch.float64) + 0.5
+    z = 1 - 2 * i / n
+    phi = math.pi * (1 + 5**0.5) * i
+    r = torch.sqrt(1 - z * z)
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import fibonacci_sphere
 from nerfkit.cameras import plane_hit
 from nerfkit.fields.background import (
     RoomShells,
@@ -57,15 +58,6 @@ def test_table_texture_is_sampled_where_rays_hit_and_frames_are_orthonormal():
     col = table.colour(x)
     assert col[0, 0] > 0.95 and col[0, 2] < 0.55
     assert col[1, 2] > 0.95 and col[1, 0] < 0.55
-
-
-def fibonacci_sphere(n: int) -> torch.Tensor:
-    """n nearly uniform unit directions (equal-area rows of a golden-angle spiral), float64."""
-    i = torch.arange(n, dtype=torch.float64) + 0.5
-    z = 1 - 2 * i / n
-    phi = math.pi * (1 + 5**0.5) * i
-    r = torch.sqrt(1 - z * z)
-    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
 
 
 def test_sh16_are_orthogonal_spherical_harmonics_with_their_hand_computed_norms():

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import fibonacci_sphere
 from nerfkit.estimators.occupancy import OccupancyEstimator, coarse_cells
 from nerfkit.kernels import numba_kernels
 from nerfkit.kernels import reference as ref
@@ -17,14 +18,6 @@ from nerfkit.kernels.optim import GridAdam
 from nerfkit.render.box import ray_aabb
 
 needs_numba = pytest.mark.skipif(numba_kernels() is None, reason="numba not available")
-
-
-def fibonacci_sphere(n: int) -> torch.Tensor:
-    i = torch.arange(n, dtype=torch.float64) + 0.5
-    z = 1 - 2 * i / n
-    phi = math.pi * (1 + 5**0.5) * i
-    r = torch.sqrt(1 - z * z)
-    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
 
 
 @pytest.mark.parametrize("degree", [0, 1, 2])

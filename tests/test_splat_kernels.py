@@ -10,6 +10,7 @@ import sys
 import pytest
 import torch
 
+from conftest import fibonacci_sphere
 from nerfkit.kernels import splat_kernels
 from nerfkit.kernels import splat_reference as ref
 from nerfkit.kernels.reference import SH_C1, SH_C2
@@ -144,15 +145,6 @@ def test_sh_colour_equals_the_formula_term_by_term_with_its_gradients(degree):
         torch.testing.assert_close(a, b)
     assert bool((grads[0][0][:, ref.sh_coeffs(degree) :] == 0).all())  # unused coefficients
     assert bool((grads[0][0][:, : ref.sh_coeffs(degree)] != 0).any())
-
-
-def fibonacci_sphere(n: int) -> torch.Tensor:
-    """n nearly uniform unit directions (equal-area rows of a golden-angle spiral)."""
-    i = torch.arange(n, dtype=torch.float64) + 0.5
-    z = 1 - 2 * i / n
-    phi = math.pi * (1 + 5**0.5) * i
-    r = torch.sqrt(1 - z * z)
-    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
 
 
 def test_sh_basis_up_to_degree_three_is_orthonormal_on_the_sphere():
