@@ -156,3 +156,12 @@ def test_an_option_of_an_output_not_asked_for_is_said_to_do_nothing(tmp_path, sp
     err = capsys.readouterr().err
     assert "note: --resolution, --color-views act only with --mesh" in err and "--stride" not in err
     assert (tmp_path / "p.ply").is_file()
+
+
+def test_numpy_scalars_are_taken_as_pythons(tmp_path, sphere_npz):
+    import numpy as np
+
+    tiny = {"n_samples": np.int64(4), "width": 8, "depth": 2, "eval_views": 1, "device": "cpu", "quiet": np.True_}
+    result = api.train(sphere_npz, tmp_path / "run", model="vanilla", steps=np.int32(2), lr=np.float32(1e-3), **tiny)
+    config = json.loads((result.run_dir / "config.json").read_text())
+    assert result.steps == 2 and config["model"]["n_samples"] == 4 and config["train"]["lr"] == pytest.approx(1e-3)

@@ -178,6 +178,8 @@ def _checked(func: Callable[P, R]) -> Callable[P, R]:
 
     @functools.wraps(func)
     def checked(*args: P.args, **kwargs: P.kwargs) -> R:
+        import numpy as np
+
         from ..config import flag_of
         from ..errors import fail, os_error
 
@@ -185,6 +187,12 @@ def _checked(func: Callable[P, R]) -> Callable[P, R]:
             bound = signature.bind(*args, **kwargs)
         except TypeError:
             return func(*args, **kwargs)  # a missing or unknown argument: Python's own message
+        for name, value in bound.arguments.items():  # numpy's scalars as Python's (np.True_, np.int64(3))
+            if isinstance(value, np.generic):
+                bound.arguments[name] = value.item()
+            elif signature.parameters[name].kind is inspect.Parameter.VAR_KEYWORD:
+                bound.arguments[name] = {k: v.item() if isinstance(v, np.generic) else v for k, v in value.items()}
+        args, kwargs = bound.args, bound.kwargs  # type: ignore[assignment]
         for name, value in bound.arguments.items():
             param = signature.parameters[name]
             if param.kind is param.VAR_KEYWORD or name not in hints or _accepts(hints[name], value):
