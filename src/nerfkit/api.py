@@ -23,6 +23,8 @@ their checks with; this module is their public name.
 from __future__ import annotations
 
 from .commands import pipeline as _pipeline
+from .commands import tools as _tools
 from .commands.pipeline import *  # noqa: F403 - this module is the pipeline's public name
+from .commands.tools import *  # noqa: F403 - and the tools' around it
 
-__all__ = _pipeline.__all__
+__all__ = [*_pipeline.__all__, *_tools.__all__]

@@ -1,0 +1,90 @@
+"""The tools around the pipeline from Python (:mod:`nerfkit.api`): tags, frames, convert,
+dataset, fit_image and view.
+
+As :mod:`~nerfkit.commands.pipeline`'s functions, each takes typed keyword arguments named as
+the flags of its command (``object_tag_size=0`` for ``--object-tag-size 0``; ``--dict`` is
+``dictionary``), checks them as the command line is checked (with the pipeline's helpers),
+does the work, prints the report the command prints (unless ``quiet``) and returns a typed
+result; the commands parse their command line into these calls. ``nerfkit demo`` has no
+function: it is :func:`~nerfkit.commands.pipeline.train`, ``render`` and ``evaluate`` on the
+bundled lego scene. Example::
+
+    from nerfkit import api
+
+    sheet = api.tags("tags.pdf", tag_size=0.04)
+    clip = api.frames("clip.mp4", "frames/", frames=80)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, get_args
+
+from .pipeline import _check, _checked, _choice, _say
+
+# the choices of the commands' flags of the same names
+Paper = Literal["a4", "letter"]
+
+
+@dataclass(frozen=True)
+class TagsResult:
+    """A PDF of tags written by :func:`tags`."""
+
+    pdf_path: Path
+    pages: int  # 2 with the tag beside the object, else 1
+    sheet_ids: tuple[int, ...]  # the calibration sheet's tags (page 1)
+    object_tag_id: int | None  # the tag beside the object (page 2; None: no such page)
+
+
+@_checked
+def tags(
+    out: str | Path = "tags.pdf",
+    *,
+    paper: Paper = "a4",
+    dictionary: str = "DICT_4X4_50",
+    tag_size: float = 0.05,
+    object_tag_size: float = 0.1,
+    force: bool = False,
+    quiet: bool = False,
+) -> TagsResult:
+    """Write a PDF of ArUco tags to print at actual size (``nerfkit tags``): page 1 a calibration
+    sheet, page 2 one larger tag to lay beside the object, each with a 100 mm ruler.
+
+    Args:
+        out: the PDF to write.
+        paper: "a4" or "letter".
+        dictionary: ArUco dictionary of the tags.
+        tag_size: side of the sheet's tags' black squares in metres.
+        object_tag_size: side of the tag beside the object in metres (0: no such page).
+        force: replace an existing file.
+        quiet: print no report.
+    """
+    from ..capture.aruco import get_dictionary
+    from ..capture.sheet import tag_sheets
+    from ..config import output_path, tag_side
+    from ..errors import fail
+    from ..io.paths import guard_outputs
+    from .stages import tags as stage
+
+    _choice("--paper", paper, get_args(Paper))
+    tag_size = _check("--tag-size", tag_size, tag_side)
+    object_tag_size = _check("--object-tag-size", object_tag_size, stage.object_side)
+    path = Path(_check("--out", out, output_path))
+    if path.suffix.lower() != ".pdf":
+        raise fail("--out", f"'{path}' should end in .pdf")
+    d = get_dictionary(dictionary)
+    sheet_mm, object_mm = 1000 * tag_size, 1000 * object_tag_size
+    stage.check_sizes(paper, d.markerSize + 2, sheet_mm, object_mm)
+    guard_outputs([path], [], force)
+    pages = tag_sheets(paper, dictionary, sheet_mm, object_mm or None)
+    stage.write_pdf(path, pages, d)
+    _say(quiet)(stage.tags_report(path, paper, dictionary, pages, tag_size, object_tag_size))
+    return TagsResult(path, len(pages), tuple(pages[0].ids), pages[1].ids[0] if len(pages) > 1 else None)
+
+
+__all__ = [
+    "Paper",
+    "TagsResult",
+    "tags",
+]
