@@ -24,6 +24,7 @@ RENAMED = {"dict": "dictionary"}
     ("command", "function", "argv", "given", "api_only"),
     [
         ("tags", api.tags, [], set(), {"quiet"}),
+        ("frames", api.frames, ["clip.mp4", "--out", "f"], {"clip", "out"}, {"quiet"}),
     ],
 )
 def test_every_flag_of_a_tool_is_an_argument_with_its_default(command, function, argv, given, api_only):
@@ -54,8 +55,10 @@ def test_the_choices_of_the_tools_are_the_flags():
     from typing import get_args
 
     from nerfkit.capture.sheet import PAPERS
+    from nerfkit.capture.video import SPREADS
 
     assert set(get_args(api.Paper)) == set(PAPERS)
+    assert get_args(api.Spread) == SPREADS
 
 
 # ----------------------------------------------------------------------------- tags
@@ -143,3 +146,67 @@ def test_tags_refuses_what_the_command_line_refuses(tmp_path, monkeypatch, optio
     with pytest.raises(NerfkitError, match=message):
         api.tags(**{"out": "tags.pdf", **options})
     assert list(tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- frames
+
+
+def sliding_clip(path, n: int = 40, size=(160, 120)) -> None:
+    """An MP4 of ``n`` sharp frames of a camera sliding over a textured plane."""
+    import cv2
+
+    from conftest import write_mp4
+
+    w, h = size
+    rng = np.random.default_rng(0)
+    texture = (cv2.resize(rng.random((h // 4, w // 2, 3)), (w * 2, h), interpolation=cv2.INTER_CUBIC) * 255).astype(
+        np.uint8
+    )
+    for _ in range(60):
+        centre = (int(rng.integers(0, 2 * w)), int(rng.integers(0, h)))
+        cv2.circle(texture, centre, int(rng.integers(3, 15)), tuple(int(c) for c in rng.integers(0, 255, 3)), -1)
+    write_mp4(path, [texture[:, round(i * w / n) :][:, :w].copy() for i in range(n)], fps=10)
+
+
+def without_times(report: str, folder) -> str:
+    return re.sub(r"in [\d.]+ s", "in T s", report.replace(str(folder), "OUT"))
+
+
+def test_frames_writes_the_frames_it_reports_as_the_command_does(tmp_path, capsys):
+    import json
+
+    sliding_clip(tmp_path / "clip.mp4")
+    result = api.frames(tmp_path / "clip.mp4", tmp_path / "a", frames=10)
+    by_api = capsys.readouterr().out
+    report = json.loads((tmp_path / "a" / "frames.json").read_text())
+    assert result.out == tmp_path / "a" and result.report_path == tmp_path / "a" / "frames.json"
+    assert result.read == report["read"] == 40 and 8 <= len(result.files) == report["kept"] <= 10
+    assert [p.name for p in result.files] == [f["file"] for f in report["frames"]]
+    assert all(p.is_file() for p in result.files)
+    assert f"read 40 frames, kept {len(result.files)} (asked for 10)" in by_api
+
+    assert main(["frames", str(tmp_path / "clip.mp4"), "--out", str(tmp_path / "b"), "--frames", "10"]) == 0
+    assert without_times(capsys.readouterr().out, tmp_path / "b") == without_times(by_api, tmp_path / "a")
+    assert [p.read_bytes() for p in result.files] == [(tmp_path / "b" / p.name).read_bytes() for p in result.files]
+
+    with pytest.raises(NerfkitError, match="already holds frames"):
+        api.frames(tmp_path / "clip.mp4", tmp_path / "a", frames=12, quiet=True)
+    again = api.frames(tmp_path / "clip.mp4", tmp_path / "a", frames=12, spread="motion", force=True, quiet=True)
+    assert capsys.readouterr().out == "" and again.read == 40
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"frames": 5}, "--frames: 5 is below the minimum 10"),
+        ({"frames": 12.5}, "--frames: 12.5 is not a whole number"),
+        ({"spread": "space"}, "--spread: 'space' is not one of time, motion"),
+        ({"out": None}, "out: None is not a path"),
+        ({"out": " "}, "--out: is empty"),
+    ],
+)
+def test_frames_refuses_what_the_command_line_refuses(tmp_path, options, message):
+    (tmp_path / "clip.mp4").write_bytes(b"not looked at")
+    with pytest.raises(NerfkitError, match=message):
+        api.frames(**{"clip": tmp_path / "clip.mp4", "out": tmp_path / "f", **options})
+    assert [p.name for p in tmp_path.iterdir()] == ["clip.mp4"]

@@ -25,6 +25,7 @@ from .pipeline import _check, _checked, _choice, _say
 
 # the choices of the commands' flags of the same names
 Paper = Literal["a4", "letter"]
+Spread = Literal["time", "motion"]
 
 
 @dataclass(frozen=True)
@@ -83,8 +84,56 @@ def tags(
     return TagsResult(path, len(pages), tuple(pages[0].ids), pages[1].ids[0] if len(pages) > 1 else None)
 
 
+@dataclass(frozen=True)
+class FramesResult:
+    """The frames of a clip written by :func:`frames`."""
+
+    out: Path
+    files: tuple[Path, ...]  # the frames kept (JPEG, upright, full resolution), in clip order
+    read: int  # frames decoded from the clip
+    report_path: Path  # OUT/frames.json: each kept frame's time and sharpness, and why the others were dropped
+
+
+@_checked
+def frames(
+    clip: str | Path,
+    out: str | Path,
+    *,
+    frames: int = 120,
+    spread: Spread = "time",
+    force: bool = False,
+    quiet: bool = False,
+) -> FramesResult:
+    """Choose sharp, evenly spread frames of a video filmed around an object and write them as
+    JPEG, with frames.json (``nerfkit frames``).
+
+    Args:
+        clip: the video file (MP4, MOV, M4V; H.264 or HEVC).
+        out: folder for the frames (new, empty, or holding earlier frames).
+        frames: frames to keep, at most.
+        spread: spread the windows evenly in "time", or in camera "motion" (a pause takes no window).
+        force: replace the frames an earlier call wrote in ``out``.
+        quiet: print no progress or report.
+    """
+    from ..capture.video import REPORT_NAME, select_frames
+    from ..config import number, output_path
+    from .stages.frames import report_lines
+
+    count = _check("--frames", frames, number(int, 10, 10_000))
+    _choice("--spread", spread, get_args(Spread))
+    folder = _check("--out", out, output_path)
+    selection = select_frames(clip, folder, count, force=force, spread=spread, progress=not quiet)
+    _say(quiet)(report_lines(selection))
+    return FramesResult(
+        Path(selection.out_dir), tuple(selection.paths), selection.read, Path(selection.out_dir) / REPORT_NAME
+    )
+
+
 __all__ = [
+    "FramesResult",
     "Paper",
+    "Spread",
     "TagsResult",
+    "frames",
     "tags",
 ]
