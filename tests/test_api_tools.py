@@ -25,6 +25,7 @@ RENAMED = {"dict": "dictionary"}
     [
         ("tags", api.tags, [], set(), {"quiet"}),
         ("frames", api.frames, ["clip.mp4", "--out", "f"], {"clip", "out"}, {"quiet"}),
+        ("convert", api.convert, ["scene.npz", "--to", "o.npz"], {"src", "to"}, {"quiet"}),
     ],
 )
 def test_every_flag_of_a_tool_is_an_argument_with_its_default(command, function, argv, given, api_only):
@@ -56,9 +57,13 @@ def test_the_choices_of_the_tools_are_the_flags():
 
     from nerfkit.capture.sheet import PAPERS
     from nerfkit.capture.video import SPREADS
+    from nerfkit.cli import build_parser
 
     assert set(get_args(api.Paper)) == set(PAPERS)
     assert get_args(api.Spread) == SPREADS
+    for command, flag, choices in [("convert", "--format", api.ConvertFormat), ("frames", "--spread", api.Spread)]:
+        parser = build_parser(command)._subparsers._group_actions[0].choices[command]
+        assert tuple(parser._option_string_actions[flag].choices) == get_args(choices)
 
 
 # ----------------------------------------------------------------------------- tags
@@ -210,3 +215,60 @@ def test_frames_refuses_what_the_command_line_refuses(tmp_path, options, message
     with pytest.raises(NerfkitError, match=message):
         api.frames(**{"clip": tmp_path / "clip.mp4", "out": tmp_path / "f", **options})
     assert [p.name for p in tmp_path.iterdir()] == ["clip.mp4"]
+
+
+# ----------------------------------------------------------------------------- convert
+
+
+def test_convert_writes_a_dataset_that_reads_back_as_the_command_does(tmp_path, sphere_npz, capsys):
+    import json
+
+    from nerfkit.data.load import load_scene
+
+    result = api.convert(sphere_npz, tmp_path / "a", size=16, near=1.0)
+    by_api = capsys.readouterr().out
+    assert result == api.ConvertResult(
+        tmp_path / "a",
+        "transforms",
+        "npz",
+        (tmp_path / "a" / "transforms.json",),
+        {"train": 20, "val": 2, "test": 4},
+        16,
+        16,
+    )
+    back, resized = load_scene(tmp_path / "a"), load_scene(sphere_npz, size=16)
+    assert (back.near, back.far) == (1.0, resized.far) and back.train.images.shape == (20, 16, 16, 3)
+    np.testing.assert_allclose(back.train.c2w, resized.train.c2w, atol=1e-6)
+    np.testing.assert_allclose(back.train.images, resized.train.images, atol=1 / 255)  # (8-bit PNG)
+
+    assert main(["convert", str(sphere_npz), "--to", str(tmp_path / "b"), "--size", "16", "--near", "1"]) == 0
+    assert capsys.readouterr().out == by_api.replace(str(tmp_path / "a"), str(tmp_path / "b"))
+    written = [json.loads((tmp_path / f / "transforms.json").read_text()) for f in "ab"]
+    assert written[0] == written[1]
+
+    npz = api.convert(sphere_npz, tmp_path / "c.npz", quiet=True)
+    assert capsys.readouterr().out == "" and npz.format == "npz" and npz.files == (tmp_path / "c.npz",)
+    np.testing.assert_array_equal(load_scene(npz.out).val.images, load_scene(sphere_npz).val.images)
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"format": "ply"}, "--format: 'ply' is not one of auto, npz, transforms, colmap"),
+        ({"size": 16, "downscale": 2.0}, "--downscale: not allowed with --size"),
+        ({"size": 0}, "--size: 0 is below the minimum 1"),
+        ({"far": 1e308}, "--far: 1e\\+308 is larger than a dataset file holds"),
+        ({"to": "o.ply"}, "looks like a .ply file"),
+        ({"to": "o.npz", "format": "transforms"}, "--format transforms writes a folder, not an .npz file"),
+        ({"format": "colmap", "near": 1.0}, "--near/--far: a COLMAP model keeps no depth range"),
+        ({"background": "purple"}, "--background: 'purple' is not a colour"),
+        ({"images": "photos"}, "--images: only applies to COLMAP inputs"),
+        ({"images": ""}, "--images: is empty"),
+        ({"to": ""}, "to: is empty"),
+        ({"text": "yes"}, "--text: 'yes' is not True or False"),
+    ],
+)
+def test_convert_refuses_what_the_command_line_refuses(tmp_path, sphere_npz, options, message):
+    with pytest.raises(NerfkitError, match=message):
+        api.convert(**{"src": sphere_npz, "to": tmp_path / "out", **options})
+    assert list(tmp_path.iterdir()) == []

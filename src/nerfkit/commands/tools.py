@@ -21,11 +21,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, get_args
 
-from .pipeline import _check, _checked, _choice, _say
+from .pipeline import _check, _checked, _choice, _given, _say
 
 # the choices of the commands' flags of the same names
 Paper = Literal["a4", "letter"]
 Spread = Literal["time", "motion"]
+ConvertFormat = Literal["auto", "npz", "transforms", "colmap"]
 
 
 @dataclass(frozen=True)
@@ -129,11 +130,96 @@ def frames(
     )
 
 
+@dataclass(frozen=True)
+class ConvertResult:
+    """A dataset written by :func:`convert`."""
+
+    out: Path  # the .npz file or the folder
+    format: str  # what was written: "npz", "transforms" or "colmap"
+    source_format: str  # what was read (nerfkit.data.load.detect_format)
+    files: tuple[Path, ...]  # the npz, OUT/transforms.json (images/ beside it), or OUT/sparse/0 and OUT/images
+    views: dict[str, int]  # views of each split ("train", "val", "test") of the dataset read
+    width: int  # the training views' size in pixels, as written
+    height: int
+
+
+@_checked
+def convert(
+    src: str | Path,
+    to: str | Path,
+    *,
+    format: ConvertFormat = "auto",  # noqa: A002 - the flag's name
+    size: int | None = None,
+    downscale: float | None = None,
+    background: str = "black",
+    near: float | None = None,
+    far: float | None = None,
+    images: str | Path | None = None,
+    text: bool = False,
+    force: bool = False,
+    allow_outside_paths: bool = False,
+    quiet: bool = False,
+) -> ConvertResult:
+    """Convert a dataset to a course npz, a transforms.json folder or a COLMAP project
+    (``nerfkit convert``), optionally resized or with another depth range.
+
+    Args:
+        src: the dataset file or folder (npz, Blender, transforms.json, COLMAP, LLFF).
+        to: the output: a .npz file or a folder.
+        format: "npz", "transforms" (transforms.json and images/), "colmap" (sparse/0 and
+            images/), or "auto" (npz for a name ending in .npz, else transforms).
+        size: resample so the longest image side is this many pixels (K follows).
+        downscale: divide the image size by this (K follows; not with ``size``).
+        background: colour under transparent pixels of RGBA inputs (black, white, grey,
+            "r,g,b" in [0, 1] or "#rrggbb").
+        near: set the depth range's near end (world units).
+        far: set the depth range's far end.
+        images: photo folder of a COLMAP model (None: the project's images/).
+        text: with format "colmap", write the text model instead of binary.
+        force: replace an existing output (never an input).
+        allow_outside_paths: read dataset images outside the dataset's folder.
+        quiet: print no report (a note that ``text`` has no effect still goes to stderr).
+    """
+    import sys
+
+    from ..config import MIN_DOWNSCALE, number, output_path, parse_background
+    from ..data.load import dataset_inputs
+    from ..errors import fail
+    from ..io.paths import guard_outputs
+    from .stages import convert as stage
+
+    _choice("--format", format, get_args(ConvertFormat))
+    size = _check("--size", size, number(int, 1, 100_000))
+    downscale = _check("--downscale", downscale, number(float, MIN_DOWNSCALE))
+    if size is not None and downscale is not None:
+        raise fail("--downscale", "not allowed with --size", "Give one of them")
+    near = _check("--near", near, stage.depth_bound(number(float, 0.0)))
+    far = _check("--far", far, stage.depth_bound(number(float, above=0)))
+    images = _given("--images", images)
+    target = _check("--to", to, output_path)
+    out, fmt = Path(target), stage.output_format(target, format)
+    stage.check_output(out, fmt, near, far)
+    guard_outputs(stage.output_targets(out, fmt), [*dataset_inputs(src), images], force, "--to")
+    scene, src_fmt = stage.read_input(src, parse_background(background), size, downscale, images, allow_outside_paths)
+    stage.set_depth_range(scene, near, far)
+    written = stage.write_scene_as(scene, out, fmt, text=text)
+    _say(quiet)(stage.convert_report(src, src_fmt, out, fmt, scene, written))
+    if text and fmt != "colmap":
+        print("note: --text is for --format colmap's model; ignored", file=sys.stderr)
+    views = {k: len(v) for k, v in scene.splits.items()}
+    return ConvertResult(
+        out, fmt, src_fmt, tuple(Path(p) for p in written), views, scene.train.width, scene.train.height
+    )
+
+
 __all__ = [
+    "ConvertFormat",
+    "ConvertResult",
     "FramesResult",
     "Paper",
     "Spread",
     "TagsResult",
+    "convert",
     "frames",
     "tags",
 ]
