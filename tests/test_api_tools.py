@@ -26,6 +26,7 @@ RENAMED = {"dict": "dictionary"}
         ("tags", api.tags, [], set(), {"quiet"}),
         ("frames", api.frames, ["clip.mp4", "--out", "f"], {"clip", "out"}, {"quiet"}),
         ("convert", api.convert, ["scene.npz", "--to", "o.npz"], {"src", "to"}, {"quiet"}),
+        ("dataset", api.dataset, ["my_object"], {"poses"}, {"quiet"}),
     ],
 )
 def test_every_flag_of_a_tool_is_an_argument_with_its_default(command, function, argv, given, api_only):
@@ -61,7 +62,11 @@ def test_the_choices_of_the_tools_are_the_flags():
 
     assert set(get_args(api.Paper)) == set(PAPERS)
     assert get_args(api.Spread) == SPREADS
-    for command, flag, choices in [("convert", "--format", api.ConvertFormat), ("frames", "--spread", api.Spread)]:
+    for command, flag, choices in [
+        ("convert", "--format", api.ConvertFormat),
+        ("frames", "--spread", api.Spread),
+        ("dataset", "--pose-source", api.PoseSource),
+    ]:
         parser = build_parser(command)._subparsers._group_actions[0].choices[command]
         assert tuple(parser._option_string_actions[flag].choices) == get_args(choices)
 
@@ -272,3 +277,75 @@ def test_convert_refuses_what_the_command_line_refuses(tmp_path, sphere_npz, opt
     with pytest.raises(NerfkitError, match=message):
         api.convert(**{"src": sphere_npz, "to": tmp_path / "out", **options})
     assert list(tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- dataset
+
+
+@pytest.fixture(scope="module")
+def posed(tmp_path_factory):
+    """A folder with the poses.json of 10 synthetic photos of an object beside a tag (no dataset yet)."""
+    import json
+
+    from nerfkit.capture import synthetic as S
+
+    cap, folder = S.cached_capture("object", 10, 1), tmp_path_factory.mktemp("posed")
+    (folder / "photos").mkdir()
+    for name, img in zip(cap.names, cap.images):
+        S.write_photo(folder / "photos" / name, img)
+    camera = {"K": cap.K.tolist(), "dist": cap.dist.tolist(), "width": cap.width, "height": cap.height}
+    (folder / "camera.json").write_text(json.dumps({**camera, "dictionary": "DICT_4X4_50"}))
+    api.pose(folder / "photos", folder / "poses", tag_size=0.06, camera=folder / "camera.json", build_dataset=False)
+    return folder / "poses"
+
+
+def test_dataset_builds_from_the_poses_and_reads_back_as_the_command_does(tmp_path, posed, capsys):
+    import json
+
+    from nerfkit.capture.dataset import DatasetConfig
+    from nerfkit.data.load import load_scene
+
+    capsys.readouterr()
+    result = api.dataset(posed, out=tmp_path / "a", settings=DatasetConfig(max_side=160))
+    by_api = capsys.readouterr().out
+    assert result.dataset_path == tmp_path / "a" / "dataset.npz" and result.pose_source == "tags"
+    scene = load_scene(result.dataset_path)
+    assert result.views == {k: len(v) for k, v in scene.splits.items()} and result.views["train"] >= 5
+    assert sum(result.views.values()) == json.loads((posed / "poses.json").read_text())["photos_posed"]
+    assert max(scene.train.width, scene.train.height) == 160 and (tmp_path / "a" / "transforms.json").is_file()
+    assert f"dataset: {result.views['train']} train, {result.views['val']} val" in by_api
+
+    assert main(["dataset", str(posed), "--out", str(tmp_path / "b"), "--max-side", "160"]) == 0
+    assert capsys.readouterr().out == by_api.replace(str(tmp_path / "a"), str(tmp_path / "b"))
+    again = load_scene(tmp_path / "b" / "dataset.npz")
+    np.testing.assert_array_equal(again.train.images, scene.train.images)
+    np.testing.assert_array_equal(again.train.c2w, scene.train.c2w)
+
+    with pytest.raises(NerfkitError, match="already exists|--force"):
+        api.dataset(posed, out=tmp_path / "a", quiet=True)
+    assert api.dataset(posed / "poses.json", out=tmp_path / "a", force=True, quiet=True).views == result.views
+    assert capsys.readouterr().out == ""
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"pose_source": "exif"}, "--pose-source: 'exif' is not one of auto, tags, sfm"),
+        ({"jobs": -1}, "--jobs: -1 is below the minimum 0"),
+        ({"settings": {"max_side": 160}}, "settings: .* is not a DatasetConfig"),
+        ({"out": ""}, "--out: is empty"),
+        ({"force": 1}, "--force: 1 is not True or False"),
+    ],
+)
+def test_dataset_refuses_what_the_command_line_refuses(tmp_path, posed, options, message):
+    with pytest.raises(NerfkitError, match=message):
+        api.dataset(posed, **{"out": tmp_path / "out", **options})
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_dataset_settings_are_checked_as_their_flags(tmp_path, posed):
+    from nerfkit.capture.dataset import DatasetConfig
+
+    with pytest.raises(NerfkitError, match="--max-side"):
+        api.dataset(posed, out=tmp_path / "out", settings=DatasetConfig(max_side=3))
+    assert not (tmp_path / "out").exists()

@@ -19,14 +19,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, get_args
+from typing import TYPE_CHECKING, Literal, get_args
 
-from .pipeline import _check, _checked, _choice, _given, _say
+from .pipeline import _check, _checked, _choice, _given, _say, _settings
+
+if TYPE_CHECKING:
+    from ..capture.dataset import DatasetConfig
 
 # the choices of the commands' flags of the same names
 Paper = Literal["a4", "letter"]
 Spread = Literal["time", "motion"]
 ConvertFormat = Literal["auto", "npz", "transforms", "colmap"]
+PoseSource = Literal["auto", "tags", "sfm"]
 
 
 @dataclass(frozen=True)
@@ -212,14 +216,76 @@ def convert(
     )
 
 
+@dataclass(frozen=True)
+class DatasetResult:
+    """A dataset (re)built by :func:`dataset`."""
+
+    dataset_path: Path  # OUT/dataset.npz (OUT/transforms.json and OUT/images/ beside it)
+    views: dict[str, int]  # views of each split: "train", "val", "test"
+    pose_source: str  # the poses it was built from: "tags" (poses.json) or "sfm" (OUT/colmap)
+
+
+@_checked
+def dataset(
+    poses: str | Path,
+    *,
+    out: str | Path | None = None,
+    pose_source: PoseSource = "auto",
+    jobs: int = 0,
+    force: bool = False,
+    allow_outside_paths: bool = False,
+    settings: DatasetConfig | None = None,
+    quiet: bool = False,
+) -> DatasetResult:
+    """Build (or rebuild) a dataset from the poses :func:`~nerfkit.commands.pipeline.pose` found
+    (``nerfkit dataset``): undistort, resize and split the photos, and write dataset.npz,
+    transforms.json and images/.
+
+    Args:
+        poses: the folder with poses.json from :func:`~nerfkit.commands.pipeline.pose` (or the file).
+        out: folder to write (None: the same folder).
+        pose_source: "tags" (poses.json), "sfm" (the structure-from-motion model the folder
+            keeps), or "auto" (the ones its dataset was built from).
+        jobs: photos processed in parallel (0: up to 4 cores).
+        force: replace an existing dataset in ``out``.
+        allow_outside_paths: read photos that lie outside the recorded photo folder.
+        settings: the dataset options (size, splits, near/far, ...); None: the defaults.
+        quiet: print no report.
+    """
+    from ..capture.dataset import NPZ_FILE, DatasetConfig, check_settings
+    from ..capture.photos import default_jobs
+    from ..config import number, output_path
+    from .stages import dataset as stage
+
+    _choice("--pose-source", pose_source, get_args(PoseSource))
+    jobs = _check("--jobs", jobs, number(int, 0, 256))
+    cfg = _settings(settings, DatasetConfig, "settings")
+    check_settings(cfg)
+    src = Path(poses)
+    folder = src if src.is_dir() else src.parent
+    target = Path(_check("--out", out, output_path)) if out is not None else folder
+    workers = jobs or default_jobs()
+    source = stage.recorded_pose_source(folder) if pose_source == "auto" else pose_source
+    if source == "sfm":
+        summary = stage.rebuild_from_sfm(folder, target, cfg, workers, force, allow_outside_paths, _say(quiet))
+    else:
+        summary = stage.rebuild_from_tags(str(poses), target, cfg, workers, force, allow_outside_paths)
+    if not quiet:
+        stage.report_dataset(summary, target)
+    return DatasetResult(target / NPZ_FILE, dict(summary["views"]), source)
+
+
 __all__ = [
     "ConvertFormat",
     "ConvertResult",
+    "DatasetResult",
     "FramesResult",
     "Paper",
+    "PoseSource",
     "Spread",
     "TagsResult",
     "convert",
+    "dataset",
     "frames",
     "tags",
 ]
