@@ -27,6 +27,7 @@ RENAMED = {"dict": "dictionary"}
         ("frames", api.frames, ["clip.mp4", "--out", "f"], {"clip", "out"}, {"quiet"}),
         ("convert", api.convert, ["scene.npz", "--to", "o.npz"], {"src", "to"}, {"quiet"}),
         ("dataset", api.dataset, ["my_object"], {"poses"}, {"quiet"}),
+        ("fit-image", api.fit_image, [], set(), set()),  # (its --quiet: no progress bar, the call's: nor report)
     ],
 )
 def test_every_flag_of_a_tool_is_an_argument_with_its_default(command, function, argv, given, api_only):
@@ -348,4 +349,84 @@ def test_dataset_settings_are_checked_as_their_flags(tmp_path, posed):
 
     with pytest.raises(NerfkitError, match="--max-side"):
         api.dataset(posed, out=tmp_path / "out", settings=DatasetConfig(max_side=3))
+    assert not (tmp_path / "out").exists()
+
+
+# ----------------------------------------------------------------------------- fit_image
+
+
+def pattern_png(path, h: int = 12, w: int = 12):
+    """A smooth colour pattern as an 8-bit PNG at ``path``."""
+    import cv2
+
+    y, x = (np.mgrid[0:h, 0:w] + 0.5) / [[[h]], [[w]]]
+    rgb = np.stack([0.5 + 0.4 * np.sin(2 * np.pi * x), 0.5 + 0.4 * np.cos(2 * np.pi * (x + y)), 0.1 + 0.8 * x * y], -1)
+    cv2.imwrite(str(path), (rgb[..., ::-1] * 255 + 0.5).astype(np.uint8))
+    return path
+
+
+SMALL = {"L": 2, "width": 16, "depth": 1, "batch": 64, "steps": 10, "precision": "fp32", "device": "cpu"}
+
+
+def without_speeds(report: str, folder) -> str:
+    report = re.sub(r"[\d.]+ steps/s", "N steps/s", report.replace(str(folder), "OUT"))
+    return re.sub(r"[\d.]+ s (training|evaluation)", r"T s \1", report)
+
+
+def test_fit_image_fits_and_writes_its_run_as_the_command_does(tmp_path, capsys):
+    import json
+
+    from nerfkit.fit_image import FitImageConfig
+
+    image = pattern_png(tmp_path / "p.png")
+    result = api.fit_image(image, out=tmp_path / "a", settings=FitImageConfig(**SMALL))
+    by_api = capsys.readouterr().out
+    metrics = json.loads((tmp_path / "a" / "metrics.json").read_text())
+    assert result.out == tmp_path / "a" and not result.interrupted and result.metrics == metrics
+    assert result.final_psnr == metrics["final_psnr_db"] > 10 and metrics["steps"] == 10
+    assert (metrics["image_width"], metrics["image_height"]) == (12, 12)
+    assert all((tmp_path / "a" / name).is_file() for name in ("psnr.png", "progression.png", "final.png"))
+    assert f"final PSNR {result.final_psnr:.2f} dB (every pixel, 12x12) after 10 steps" in by_api
+
+    flags = [x for k, v in SMALL.items() for x in (f"--{k.replace('_', '-')}", str(v))]
+    assert main(["fit-image", str(image), "--out", str(tmp_path / "b"), *flags, "--quiet"]) == 0
+    assert without_speeds(capsys.readouterr().out, tmp_path / "b") == without_speeds(by_api, tmp_path / "a")
+    assert json.loads((tmp_path / "b" / "metrics.json").read_text())["final_psnr_db"] == result.final_psnr
+
+    swept = api.fit_image(image, out=tmp_path / "s", sweep=["L=0,2"], settings=FitImageConfig(**SMALL), quiet=True)
+    assert capsys.readouterr().out == "" and swept.final_psnr is None
+    assert (
+        [r["L"] for r in swept.sweep]
+        == [0, 2]
+        == [r["L"] for r in json.loads((tmp_path / "s" / "sweep.json").read_text())["runs"]]
+    )
+    assert swept.sweep[1]["final_psnr_db"] == result.final_psnr  # the same fit as L=2 alone
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"sweep": []}, "--sweep: no KEY=V1,V2 items"),
+        ({"sweep": ["L=100"]}, "--sweep L=100: 100 is above the maximum 30"),
+        ({"sweep": ["colour=1"]}, "--sweep: cannot sweep 'colour'"),
+        ({"sweep": "L=2"}, "--sweep: 'L=2' is not"),
+        ({"settings": {"L": 2}}, "settings: .* is not a FitImageConfig"),
+        ({"out": ""}, "--out: is empty"),
+        ({"quiet": "yes"}, "--quiet: 'yes' is not True or False"),
+    ],
+)
+def test_fit_image_refuses_what_the_command_line_refuses(tmp_path, options, message):
+    image = pattern_png(tmp_path / "p.png")
+    with pytest.raises(NerfkitError, match=message):
+        api.fit_image(image, **{"out": tmp_path / "out", **options})
+    assert [p.name for p in tmp_path.iterdir()] == ["p.png"]
+
+
+def test_fit_image_settings_are_checked_as_their_flags(tmp_path):
+    from nerfkit.fit_image import FitImageConfig
+
+    with pytest.raises(NerfkitError, match="--L: 100 is above the maximum 30"):
+        api.fit_image(pattern_png(tmp_path / "p.png"), out=tmp_path / "out", settings=FitImageConfig(L=100))
+    with pytest.raises(NerfkitError, match="--precision: 'fp8' is not one of auto, bf16, fp32"):
+        api.fit_image(tmp_path / "p.png", out=tmp_path / "out", settings=FitImageConfig(precision="fp8"))
     assert not (tmp_path / "out").exists()

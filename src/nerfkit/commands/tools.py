@@ -17,14 +17,15 @@ bundled lego scene. Example::
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, get_args
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 from .pipeline import _check, _checked, _choice, _given, _say, _settings
 
 if TYPE_CHECKING:
     from ..capture.dataset import DatasetConfig
+    from ..fit_image import FitImageConfig
 
 # the choices of the commands' flags of the same names
 Paper = Literal["a4", "letter"]
@@ -275,10 +276,70 @@ def dataset(
     return DatasetResult(target / NPZ_FILE, dict(summary["views"]), source)
 
 
+@dataclass(frozen=True)
+class FitImageResult:
+    """A fit of one image, or a sweep of fits, written by :func:`fit_image`."""
+
+    out: Path  # the run folder (a sweep: the folder of its run folders, sweep.json and its figures)
+    final_psnr: float | None  # one fit: PSNR (dB) of its final image on every pixel (None: a sweep)
+    interrupted: bool  # one fit stopped by Ctrl-C: what it fitted is written, with the steps it did
+    metrics: dict[str, Any] = field(default_factory=dict, compare=False)  # one fit: what OUT/metrics.json holds
+    sweep: tuple[dict[str, Any], ...] = field(default=(), compare=False)  # a sweep: sweep.json's runs
+
+
+@_checked
+def fit_image(
+    image: str | Path | None = None,
+    *,
+    out: str | Path | None = None,
+    sweep: list[str] | tuple[str, ...] | None = None,
+    quiet: bool = False,
+    force: bool = False,
+    settings: FitImageConfig | None = None,
+) -> FitImageResult:
+    """Fit a coordinate MLP (x, y) -> RGB to one image, writing its PSNR curve, progression figure,
+    final image and metrics (``nerfkit fit-image``); with ``sweep``, one fit per combination.
+    Ctrl-C during a sweep raises KeyboardInterrupt once the run it stopped is written.
+
+    Args:
+        image: the image file (None: the bundled astronaut photo).
+        out: run folder (None: runs/fit-image/<image name>, with "-sweep" for a sweep).
+        sweep: "KEY=V1,V2" items, one fit per combination (keys: L, width, depth, lr, batch, steps).
+        quiet: print no progress bar and no report (the command's ``--quiet`` keeps the report).
+        force: replace the results of an earlier fit in ``out``.
+        settings: the model and training options (L, width, steps, ...); None: the defaults.
+    """
+    from .. import fit_image as fitting
+    from ..config import output_path
+    from ..errors import fail
+    from ..io.paths import guard_outputs, refuse_links
+    from .stages.fit_image import fit_report
+
+    cfg = _settings(settings, fitting.FitImageConfig, "settings")
+    if sweep is not None and not sweep:
+        raise fail("--sweep", "no KEY=V1,V2 items", "Example: --sweep L=3,10 width=64,256")
+    combos = fitting.parse_sweep([str(item) for item in sweep]) if sweep else None
+    stem = Path(image).stem if image else fitting.default_image_path().stem
+    folder = Path("runs") / "fit-image" / (stem + ("-sweep" if combos else ""))
+    folder = Path(_check("--out", out, output_path)) if out is not None else folder
+    outputs = fitting.sweep_outputs(folder, combos) if combos else [folder / name for name in fitting.RUN_FILES]
+    guard_outputs(outputs, [image], force)
+    if combos:  # each combination's run folder is the sweep's own
+        refuse_links(folder, [fitting.sweep_folder(folder, c).name for c in combos])
+        entries = fitting.run_sweep(image, folder, cfg, combos, progress=not quiet)
+        result = FitImageResult(folder, None, False, sweep=tuple(entries))
+    else:
+        fitted = fitting.run_fit(image, folder, cfg, progress=not quiet)
+        result = FitImageResult(folder, fitted.final_psnr, fitted.interrupted, metrics=fitted.metrics())
+    _say(quiet)(fit_report(result, cfg.eval_every))
+    return result
+
+
 __all__ = [
     "ConvertFormat",
     "ConvertResult",
     "DatasetResult",
+    "FitImageResult",
     "FramesResult",
     "Paper",
     "PoseSource",
@@ -286,6 +347,7 @@ __all__ = [
     "TagsResult",
     "convert",
     "dataset",
+    "fit_image",
     "frames",
     "tags",
 ]
