@@ -300,6 +300,12 @@ def posed(tmp_path_factory):
     return folder / "poses"
 
 
+def steady(report: str) -> str:
+    """``report`` without its counts of sparse points: pycolmap's triangulation (on all cores)
+    finds a point more or fewer from one run to the next."""
+    return "\n".join(re.sub(r"\d+", "N", line) if "sparse points" in line else line for line in report.splitlines())
+
+
 def test_dataset_builds_from_the_poses_and_reads_back_as_the_command_does(tmp_path, posed, capsys):
     import json
 
@@ -317,7 +323,8 @@ def test_dataset_builds_from_the_poses_and_reads_back_as_the_command_does(tmp_pa
     assert f"dataset: {result.views['train']} train, {result.views['val']} val" in by_api
 
     assert main(["dataset", str(posed), "--out", str(tmp_path / "b"), "--max-side", "160"]) == 0
-    assert capsys.readouterr().out == by_api.replace(str(tmp_path / "a"), str(tmp_path / "b"))
+    by_command = capsys.readouterr().out
+    assert steady(by_command) == steady(by_api.replace(str(tmp_path / "a"), str(tmp_path / "b")))
     again = load_scene(tmp_path / "b" / "dataset.npz")
     np.testing.assert_array_equal(again.train.images, scene.train.images)
     np.testing.assert_array_equal(again.train.c2w, scene.train.c2w)
