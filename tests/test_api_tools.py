@@ -27,6 +27,7 @@ RENAMED = {"dict": "dictionary"}
         ("frames", api.frames, ["clip.mp4", "--out", "f"], {"clip", "out"}, {"quiet"}),
         ("convert", api.convert, ["scene.npz", "--to", "o.npz"], {"src", "to"}, {"quiet"}),
         ("dataset", api.dataset, ["my_object"], {"poses"}, {"quiet"}),
+        ("view", api.view, ["scene.npz"], {"path"}, {"block", "quiet"}),
         ("fit-image", api.fit_image, [], set(), set()),  # (its --quiet: no progress bar, the call's: nor report)
     ],
 )
@@ -437,3 +438,80 @@ def test_fit_image_settings_are_checked_as_their_flags(tmp_path):
     with pytest.raises(NerfkitError, match="--precision: 'fp8' is not one of auto, bf16, fp32"):
         api.fit_image(tmp_path / "p.png", out=tmp_path / "out", settings=FitImageConfig(precision="fp8"))
     assert not (tmp_path / "out").exists()
+
+
+# ----------------------------------------------------------------------------- view
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_view_draws_a_dataset_as_the_command_does(tmp_path, sphere_npz, capsys):
+    import cv2
+
+    result = api.view(sphere_npz, rays_from=2, rays=10, png=tmp_path / "a.png")
+    assert result == api.ViewResult(tmp_path / "a.png", None) and capsys.readouterr().out == f"wrote {result.png}\n"
+    picture = cv2.imread(str(result.png))
+    assert picture.shape[0] > 200 and picture.std() > 5  # a figure, not a blank
+    argv = ["view", str(sphere_npz), "--rays-from", "2", "--rays", "10", "--png", str(tmp_path / "b.png")]
+    assert main(argv) == 0 and capsys.readouterr().out == f"wrote {tmp_path / 'b.png'}\n"
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "b.png")), picture)
+
+
+def test_view_serves_a_dataset_and_returns_its_server(sphere_npz, capsys):
+    from urllib.request import urlopen
+
+    from nerfkit.viz.viewer import viewer_url
+
+    result = api.view(sphere_npz, port=free_port(), rays=4, samples=8)
+    try:
+        assert result.url == viewer_url("127.0.0.1", result.server.get_port()) and result.png is None
+        assert "20 train, 2 val, 4 test cameras" in capsys.readouterr().out
+        with urlopen(result.url, timeout=10) as page:
+            assert page.status == 200
+    finally:
+        result.server.stop()
+
+
+def test_view_of_a_run_serves_its_live_viewer_only_when_it_may_block(tmp_path, monkeypatch):
+    import sys
+    import types
+
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "config.json").write_text("{}")
+    with pytest.raises(NerfkitError, match="renders on the calling thread until Ctrl-C. Pass block=True"):
+        api.view(run)
+    calls = []
+    fake = types.ModuleType("nerfkit.commands.live")
+    fake.serve_run = lambda run_dir, host, port: calls.append((run_dir, host, port))
+    monkeypatch.setitem(sys.modules, "nerfkit.commands.live", fake)
+    assert api.view(run, port=9123, block=True) == api.ViewResult(None, None)
+    assert calls == [(run, "127.0.0.1", 9123)]
+    with pytest.raises(NerfkitError, match="--rays: the live viewer of a trained run draws its cameras"):
+        api.view(run, rays=5, block=True)
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"rays": -1}, "--rays: -1 is below the minimum 0"),
+        ({"samples": 0}, "--samples: 0 is below the minimum 1"),
+        ({"port": 70000}, "--port: 70000 is above the maximum 65535"),
+        ({"rays_from": 20}, "--rays-from: the dataset has 20 training views"),
+        ({"png": "scene.jpg"}, "--png: 'scene.jpg' should end in .png"),
+        ({"png": ""}, "--png: is empty"),
+        ({"host": None}, "--host: None is not text"),
+        ({"downscale": 0.5}, "--downscale: 0.5 is below the minimum"),
+    ],
+)
+def test_view_refuses_what_the_command_line_refuses(tmp_path, sphere_npz, monkeypatch, options, message):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(NerfkitError, match=message):
+        api.view(sphere_npz, **{"png": "scene.png", **options})
+    assert list(tmp_path.iterdir()) == []

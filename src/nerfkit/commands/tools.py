@@ -335,6 +335,97 @@ def fit_image(
     return result
 
 
+@dataclass(frozen=True)
+class ViewResult:
+    """What :func:`view` drew, or where it serves."""
+
+    png: Path | None  # the picture written (None: served)
+    url: str | None  # where the viewer listens (None: a picture, or a viewer already stopped)
+    server: Any = field(default=None, compare=False, repr=False)  # a dataset's viser server: server.stop() ends it
+
+
+@_checked
+def view(
+    path: str | Path,
+    *,
+    rays: int | None = None,
+    samples: int = 64,
+    rays_from: int | None = None,
+    png: str | Path | None = None,
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    force: bool = False,
+    downscale: float | None = None,
+    allow_outside_paths: bool = False,
+    block: bool = False,
+    quiet: bool = False,
+) -> ViewResult:
+    """Show a dataset's cameras, rays and samples in the browser (viser) or draw them as a PNG
+    (``nerfkit view``); a run folder opens the live viewer of the trained model.
+
+    Args:
+        path: dataset file or folder (anything :func:`~nerfkit.commands.pipeline.train` reads), or a run folder.
+        rays: training rays to draw with their samples (None: none; 100 with ``rays_from``).
+        samples: samples per drawn ray.
+        rays_from: draw the rays of this training view only.
+        png: write this static picture (matplotlib) instead of serving.
+        host: address to listen on (127.0.0.1: this machine only).
+        port: port to listen on (viser takes the next free one when it is taken).
+        force: replace an existing ``png``.
+        downscale: divide the dataset's image size by this.
+        allow_outside_paths: read dataset images outside the dataset's folder.
+        block: serve until Ctrl-C, then stop (False: return at once with the server, a dataset's
+            only: a run's live viewer renders on the calling thread, so it needs ``block``).
+        quiet: print no report (a warning that the viewer listens beyond this machine still is).
+    """
+    from ..config import MIN_DOWNSCALE, number, output_path
+    from ..data.load import dataset_inputs, is_run_folder, load_scene
+    from ..io.paths import guard_outputs
+    from .stages import view as stage
+
+    rays = _check("--rays", rays, number(int, 0, 100_000))
+    samples = _check("--samples", samples, number(int, 1, 4096))
+    rays_from = _check("--rays-from", rays_from, number(int, 0))
+    port = _check("--port", port, number(int, 1, 65535))
+    downscale = _check("--downscale", downscale, number(float, MIN_DOWNSCALE))
+    picture = Path(_check("--png", png, output_path)) if png is not None else None
+    stage.check_png(picture)
+    source, say = Path(path), _say(quiet)
+    if is_run_folder(source):
+        stage.serve_run(source, host, port, rays, rays_from, downscale, picture, block)
+        return ViewResult(None, None)
+    if picture:
+        guard_outputs([picture], dataset_inputs(source), force, "--png")
+    scene = load_scene(source, downscale=downscale, allow_outside=allow_outside_paths)
+    tag_size = stage.dataset_tag_size(source)
+    stage.check_rays_from(scene, rays_from)
+    n_rays = rays if rays is not None else 100 if rays_from is not None else 0  # the course: 100
+    if picture:
+        from ..viz.scene_plot import plot_scene
+
+        plot_scene(scene, str(png), n_rays=n_rays, n_samples=samples, tag_size=tag_size, rays_from=rays_from)
+        say(f"wrote {png}")
+        return ViewResult(picture, None)
+    from ..viz.viewer import serve_dataset, viewer_url, wait_until_interrupted
+
+    if host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"warning: listening on {host}: anyone who can reach this machine can see the dataset")
+    server, _ = serve_dataset(
+        scene, host, port, n_rays=n_rays, n_samples=samples, tag_size=tag_size, block=False, rays_from=rays_from
+    )
+    url = viewer_url(host, server.get_port())
+    say(
+        f"{len(scene.train)} train, {len(scene.val)} val, {len(scene.test)} test cameras; near {scene.near:.4g}, "
+        f"far {scene.far:.4g}"
+    )
+    if not block:
+        say(f"viewer at {url} (server.stop() to stop)")
+        return ViewResult(None, url, server)
+    say(f"viewer at {url} (Ctrl-C to stop)")
+    wait_until_interrupted(server)
+    return ViewResult(None, None)
+
+
 __all__ = [
     "ConvertFormat",
     "ConvertResult",
@@ -345,9 +436,11 @@ __all__ = [
     "PoseSource",
     "Spread",
     "TagsResult",
+    "ViewResult",
     "convert",
     "dataset",
     "fit_image",
     "frames",
     "tags",
+    "view",
 ]
