@@ -6,13 +6,14 @@ the flags of its command (``object_tag_size=0`` for ``--object-tag-size 0``; ``-
 ``dictionary``), checks them as the command line is checked (with the pipeline's helpers),
 does the work, prints the report the command prints (unless ``quiet``) and returns a typed
 result; the commands parse their command line into these calls. ``nerfkit demo`` has no
-function: it is :func:`~nerfkit.commands.pipeline.train`, ``render`` and ``evaluate`` on the
-bundled lego scene. Example::
+function of its own: it is :func:`~nerfkit.commands.pipeline.train`, ``render`` and
+``evaluate`` on the bundled lego scene (``nerfkit.commands.demo.bundled_lego()``). Example::
 
     from nerfkit import api
 
     sheet = api.tags("tags.pdf", tag_size=0.04)
     clip = api.frames("clip.mp4", "frames/", frames=80)
+    fit = api.fit_image("photo.jpg", out="runs/photo")
 """
 
 from __future__ import annotations
