@@ -1,5 +1,7 @@
 """The pipeline from Python: calibrate, pose, train, render, evaluate, export, and capture
-(all of them in a row).
+(all of them in a row); and the tools around it: tags, frames, convert, dataset, fit_image
+and view. Every command has its function but ``demo`` (train, render and evaluate on the
+bundled lego scene).
 
 Each function takes typed keyword arguments named as the flags of its command
 (``tag_size=0.06`` for ``--tag-size 0.06``; ``--no-X`` is ``X=False``; choices as strings),
@@ -16,13 +18,18 @@ behind a command line; ``nerfkit capture`` runs them in a row. Example::
 
     result = api.capture("clip.mp4", "my_object/", model="both")  # frames, SfM, NeRF and splat
 
-The functions live in :mod:`nerfkit.commands.pipeline`, beside the commands they share
-their checks with; this module is their public name.
+    api.tags("tags.pdf", tag_size=0.04)  # the sheet to print
+    api.convert("my_object/dataset.npz", "my_object_ns/")  # transforms.json and images/
+
+The functions live in :mod:`nerfkit.commands.pipeline` and :mod:`nerfkit.commands.tools`,
+beside the commands they share their checks with; this module is their public name.
 """
 
 from __future__ import annotations
 
 from .commands import pipeline as _pipeline
+from .commands import tools as _tools
 from .commands.pipeline import *  # noqa: F403 - this module is the pipeline's public name
+from .commands.tools import *  # noqa: F403 - and the tools' around it
 
-__all__ = _pipeline.__all__
+__all__ = [*_pipeline.__all__, *_tools.__all__]

@@ -53,21 +53,12 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
+    """``nerfkit fit-image``: :func:`nerfkit.api.fit_image` with the parsed flags; its ``--quiet``
+    drops the progress bar, not the report."""
     from ..config import dataclass_from_args
-    from ..errors import fail
-    from ..fit_image import (
-        RUN_FILES,
-        FitImageConfig,
-        default_image_path,
-        parse_sweep,
-        run_fit,
-        run_sweep,
-        sweep_folder,
-        sweep_outputs,
-    )
-    from ..io.paths import guard_outputs, refuse_links
+    from ..fit_image import FitImageConfig
+    from .stages.fit_image import fit_report
+    from .tools import fit_image
 
     cfg = dataclass_from_args(FitImageConfig, args)
     image = args.image
@@ -75,35 +66,7 @@ def run(args: argparse.Namespace) -> int:
     # "--sweep L=3,10 photo.jpg": argparse hands the image to --sweep; take it back.
     if sweep and image is None and "=" not in sweep[-1]:
         image = sweep.pop()
-    if sweep is not None and not sweep:
-        raise fail("--sweep", "no KEY=V1,V2 items", "Example: --sweep L=3,10 width=64,256")
-    stem = Path(image).stem if image else default_image_path().stem
-    out = Path(args.out) if args.out else Path("runs") / "fit-image" / (stem + ("-sweep" if sweep else ""))
-    combos = parse_sweep(sweep) if sweep else None
-    outputs = sweep_outputs(out, combos) if combos else [out / name for name in RUN_FILES]
-    guard_outputs(outputs, [image], args.force)
-    if combos:  # each combination's run folder is the sweep's own
-        refuse_links(out, [sweep_folder(out, c).name for c in combos])
-    progress = not args.quiet
-
-    if combos:
-        entries = run_sweep(image, out, cfg, combos, progress=progress)
-        for e in entries:
-            print(f"{e['label']:30s} PSNR {e['final_psnr_db']:6.2f} dB  {e['steps_per_s']:6.1f} steps/s")
-        print(
-            f"wrote {out}/sweep_grid.png, sweep_psnr.png, sweep.json and {len(entries)} "
-            f"run folder{'s' * (len(entries) != 1)}"
-        )
-    else:
-        r = run_fit(image, out, cfg, progress=progress)
-        if r.interrupted:
-            print(f"interrupted at step {r.config.steps}: what was fitted is written")
-        print(
-            f"final PSNR {r.final_psnr:.2f} dB (every pixel, {r.width}x{r.height}) after {r.config.steps} steps; "
-            f"{r.steps_per_s:.1f} steps/s on {r.device} ({r.precision}), "
-            f"{r.train_seconds:.1f} s training + {r.eval_seconds:.1f} s evaluation"
-        )
-        print(f"curve: {r.eval_note}, every {cfg.eval_every} steps")
-        print(f"wrote {out}/psnr.png, progression.png, final.png, metrics.json, config.json")
-        return 130 if r.interrupted else 0
-    return 0
+    result = fit_image(image, out=args.out, sweep=sweep, quiet=args.quiet, force=args.force, settings=cfg)
+    if args.quiet:  # (the call printed nothing)
+        print(fit_report(result, cfg.eval_every))
+    return 130 if result.interrupted else 0

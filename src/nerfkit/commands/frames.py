@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from typing import get_args
+
+from .tools import Spread
 
 HELP = "choose sharp, evenly spread frames from a video (MP4/MOV) and write them as JPEG"
 
@@ -37,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--spread",
-        choices=["time", "motion"],
+        choices=get_args(Spread),
         default="time",
         help="spread the windows evenly in time, or in camera motion measured between frames (a pause "
         "then takes no window; default: time)",
@@ -47,32 +50,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..capture.video import select_frames
+    """``nerfkit frames``: :func:`nerfkit.api.frames` with the parsed flags."""
+    from .tools import frames
 
-    sel = select_frames(args.clip, args.out, args.frames, force=args.force, spread=args.spread)
-    print(report_lines(sel))
+    frames(args.clip, args.out, frames=args.frames, spread=args.spread, force=args.force)
     return 0
-
-
-def report_lines(sel) -> str:
-    """The report of a :class:`~nerfkit.capture.video.FrameSelection`, a few lines of text."""
-    info = sel.info
-    rot = f", turned {info.rotation} degrees upright" if info.rotation else ""
-    lines = [
-        f"{sel.source}: {info.width}x{info.height} {info.codec}{rot}, {info.duration:.1f} s at {info.fps:g} fps",
-        f"  read {sel.read} frames, kept {sel.kept} (asked for {sel.target}), dropped {sel.read - sel.kept}"
-        + (":" if sel.dropped else ""),
-    ]
-    lines += [f"    {n:5d} {reason}" for reason, n in sel.dropped.items()]
-    lines.append(
-        f"  sharpness (variance of the Laplacian at {sel.score_size[0]}x{sel.score_size[1]}): median "
-        f"{sel.median_sharpness:.0f}, frames under {sel.blur_threshold:.0f} counted as blurred"
-    )
-    if sel.empty_windows:
-        lines.append(f"  {sel.empty_windows} of the {sel.target} windows ({sel.spread}) gave no frame")
-    lines += [f"  note: {a}" for a in sel.advice]
-    lines.append(
-        f"wrote {sel.kept} frames ({sel.files[0]} ... {sel.files[-1]}) and frames.json to {sel.out_dir} "
-        f"in {sel.seconds:.1f} s"
-    )
-    return "\n".join(lines)

@@ -429,8 +429,8 @@ def pose(
     from ..errors import fail
     from ..images import list_images
     from ..io.paths import guard_outputs, refuse_links
-    from .dataset import report_dataset
     from .stages import pose as stage
+    from .stages.dataset import report_dataset
 
     _choice("--method", method, get_args(PoseMethod))
     _choice("--matcher", matcher, get_args(Matcher))

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+
+from .stages.view import dataset_tag_size
+
+__all__ = ["dataset_tag_size", "register", "run"]  # (the tag size a capture records: stages.view)
 
 HELP = (
     "view a dataset's cameras, rays and samples, or a trained run live, in the browser (viser); or a dataset as a PNG"
@@ -64,87 +67,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def dataset_tag_size(path: Path) -> float | None:
-    """The tag size a capture dataset records (transforms.json beside it), if any."""
-    from ..data.nerfstudio import nerfkit_block
-
-    v = (nerfkit_block(path if path.is_dir() else path.parent) or {}).get("tag_size")
-    return float(v) if isinstance(v, (int, float)) and v > 0 else None
-
-
 def run(args: argparse.Namespace) -> int:
-    from ..data.load import is_run_folder
-    from ..errors import fail
+    """``nerfkit view``: :func:`nerfkit.api.view` with the parsed flags, serving until Ctrl-C."""
+    from .tools import view
 
-    path = Path(args.path)
-    if args.png is not None:  # (an empty name is refused with every output path: nerfkit.cli)
-        png = Path(args.png)
-        if png.is_dir():
-            raise fail("--png", f"{png} is a folder", f"Name a PNG file, e.g. {png / 'scene.png'}")
-        if png.suffix.lower() != ".png":
-            raise fail("--png", f"'{png}' should end in .png (the picture is a PNG)")
-    if is_run_folder(path):
-        if args.downscale:
-            raise fail("--downscale", "a trained run loads its dataset as it was trained", "Leave out --downscale")
-        if args.rays or args.rays_from is not None:
-            raise fail(
-                "--rays" if args.rays else "--rays-from",
-                "the live viewer of a trained run draws its cameras and renders, not rays",
-                "View the run's dataset for its rays: nerfkit view DATASET --rays N",
-            )
-        if args.png:
-            raise fail(path, "--png draws datasets; this is a trained run", "Pass the run's dataset instead")
-        try:
-            from .live import serve_run
-        except ImportError:
-            raise fail(
-                path,
-                "is a trained run, but the live viewer (nerfkit.commands.live) is not available in this build",
-                "View its dataset instead: nerfkit view DATASET",
-            ) from None
-        serve_run(path, host=args.host, port=args.port)
-        return 0
-
-    from ..data.load import dataset_inputs, load_scene
-
-    if args.png:
-        from ..io.paths import guard_outputs
-
-        guard_outputs([args.png], dataset_inputs(path), args.force, "--png")
-    scene = load_scene(path, downscale=args.downscale, allow_outside=args.allow_outside_paths)
-    tag_size = dataset_tag_size(path)
-    if args.rays_from is not None and args.rays_from >= len(scene.train):
-        raise fail(
-            "--rays-from",
-            f"the dataset has {len(scene.train)} training views (0 to {len(scene.train) - 1}), "
-            f"not a view {args.rays_from}",
-            "Give a training view's number",
-        )
-    n_rays = args.rays if args.rays is not None else 100 if args.rays_from is not None else 0  # the course: 100
-    if args.png:
-        from ..viz.scene_plot import plot_scene
-
-        plot_scene(scene, args.png, n_rays=n_rays, n_samples=args.samples, tag_size=tag_size, rays_from=args.rays_from)
-        print(f"wrote {args.png}")
-        return 0
-    from ..viz.viewer import serve_dataset, viewer_url, wait_until_interrupted
-
-    if args.host not in ("127.0.0.1", "localhost", "::1"):
-        print(f"warning: listening on {args.host}: anyone who can reach this machine can see the dataset")
-    server, _ = serve_dataset(
-        scene,
+    view(
+        args.path,
+        rays=args.rays,
+        samples=args.samples,
+        rays_from=args.rays_from,
+        png=args.png,
         host=args.host,
         port=args.port,
-        n_rays=n_rays,
-        n_samples=args.samples,
-        tag_size=tag_size,
-        block=False,
-        rays_from=args.rays_from,
+        force=args.force,
+        downscale=args.downscale,
+        allow_outside_paths=args.allow_outside_paths,
+        block=True,
     )
-    print(
-        f"{len(scene.train)} train, {len(scene.val)} val, {len(scene.test)} test cameras; near {scene.near:.4g}, "
-        f"far {scene.far:.4g}"
-    )
-    print(f"viewer at {viewer_url(args.host, server.get_port())} (Ctrl-C to stop)")
-    wait_until_interrupted(server)
     return 0

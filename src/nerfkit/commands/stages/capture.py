@@ -718,7 +718,7 @@ def run_capture(args: CaptureOptions, api: Calls) -> Made:
     photos = args.photos
     if video:  # the frames are the photos of every later step
         from ...capture.video import select_frames
-        from ..frames import report_lines
+        from .frames import report_lines
 
         headings.start("frames")
         photos = str(out / FRAMES_DIR)
