@@ -200,7 +200,7 @@ def _checked(func: Callable[P, R]) -> Callable[P, R]:
             shown = flag_of(name) if param.default is not param.empty else name
             raise fail(shown, f"{value!r} is not {_describe(hints[name])}")
         for name, value in bound.arguments.items():  # "" is no path (Path("") is the current folder)
-            output = name in ("out", "mesh", "points", "splat")  # (output_path says so, in its words)
+            output = name in ("out", "to", "png", "mesh", "points", "splat")  # (output_path says so, in its words)
             if isinstance(value, str) and not value.strip() and _takes_path(hints.get(name)) and not output:
                 default = signature.parameters[name].default
                 shown = flag_of(name) if default is not inspect.Parameter.empty else name
