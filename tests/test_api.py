@@ -103,6 +103,11 @@ def test_the_api_checks_its_arguments_as_the_command_line_does(tmp_path):
         api.render(tmp_path, colour="red")
     with pytest.raises(NerfkitError, match="resume.*lr cannot change"):
         api.resume(tmp_path, lr=0.1)
+    with pytest.raises(NerfkitError, match="--focal-px: does nothing with --method colmap"):
+        api.pose(tmp_path / "photos", tmp_path / "ds", method="colmap", focal_px=500.0)
+    with pytest.raises(NerfkitError, match="--no-dataset: does not apply to --method colmap"):
+        api.pose(tmp_path / "photos", tmp_path / "ds", method="colmap", build_dataset=False)
+    assert not (tmp_path / "ds").exists()
 
 
 def test_a_run_trains_and_resumes_from_a_thread_other_than_the_main_one(tmp_path, sphere_npz):

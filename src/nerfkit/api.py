@@ -4,8 +4,13 @@ and view. Every command has its function but ``demo`` (train, render and evaluat
 bundled lego scene).
 
 Each function takes typed keyword arguments named as the flags of its command
-(``tag_size=0.06`` for ``--tag-size 0.06``; ``--no-X`` is ``X=False``; choices as strings),
-checks them as the command line is checked, does the stage's work, prints the command's
+(``tag_size=0.06`` for ``--tag-size 0.06``; ``--no-X`` is ``X=False``, but ``--no-dataset`` is
+``build_dataset=False`` and ``--dict`` is ``dictionary``; choices as strings; a command's option
+groups are one settings object: ``settings=CalibrateConfig(...)``, ``pose_settings=PoseConfig(...)``,
+``dataset_settings=DatasetConfig(...)``, ``fit_image(settings=FitImageConfig(...))``). Four names
+differ from their command's: ``pose`` (``poses``), ``evaluate`` (``eval``), ``fit_image``
+(``fit-image``) and ``resume`` (``train --resume``). Each function checks them as the
+command line is checked, does the stage's work, prints the command's
 report unless ``quiet=True``, and returns a typed result. The commands are these functions
 behind a command line; ``nerfkit capture`` runs them in a row. Example::
 

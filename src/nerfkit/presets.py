@@ -6,7 +6,9 @@ records it), or ``forward-facing`` (every camera looks the same way, as LLFF's).
 has a table of the settings that differ from the dataclasses' own defaults
 (:data:`PRESETS`), and each model one of its training settings (:data:`MODEL_TRAINING`).
 :func:`resolve` applies them, once, to the options the user did not give: a given option
-always wins. The run's config.json records the kind (``preset``) and every resolved value.
+wins (but ``--table`` on a dataset with no table plane, which is turned off with a note), and
+an option left without effect by the others (:data:`NEEDS`) is noted. The run's config.json
+records the kind (``preset``) and every resolved value.
 Why each default is what it is: BENCHMARKS.md ("why the defaults are what they are").
 """
 

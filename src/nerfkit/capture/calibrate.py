@@ -26,7 +26,9 @@ the aspect (square pixels or fx, fy fitted) is fitted and cross-validated on its
 parameter is kept from a camera that was then rejected. A camera is eligible when it passes
 :func:`~.distortion.distortion_check` and its folds agree at the frame's edges within what
 is at stake there (:func:`edge_limit`: twice the larger of its own held-out error and the
-simpler model's held-out error at the photos' edges). From the best eligible camera the
+simpler model's held-out error at the photos' edges), and its K is a lens's
+(:func:`~.camera.implausible`: a fitted principal point within 15% of the frame of the
+centre, fitted pixels within 10% of square). From the best eligible camera the
 choice is simplified (a simpler model, a centred principal point, square pixels: what
 phone cameras have) while the simpler camera holds out within a small margin of the best.
 
@@ -95,14 +97,14 @@ class CalibrateConfig:
         "centre: keep the principal point at the image centre (phone lenses are "
         "nearly centred); free: fit it; auto: chosen with the distortion model and the "
         "aspect, centred unless fitting it lowers the held-out error by more than the "
-        "fraction --select-tolerance",
+        "fraction --select-tolerance and keeps it within 15% of the frame of the centre",
         choices=["auto", *CONSTRAINTS["principal_point"]],
     )
     aspect: str = option(
         "auto",
         "square: fx = fy (phone pixels are square); free: fit both; auto: chosen with the "
         "distortion model and the principal point, square unless fitting both lowers the held-out "
-        "error by more than the fraction --select-tolerance",
+        "error by more than the fraction --select-tolerance and keeps fx / fy within 10% of 1",
         choices=["auto", *CONSTRAINTS["aspect"]],
     )
     outlier_factor: float = option(
@@ -450,8 +452,8 @@ def _try_camera(
             f"(> {limit:.1f} px: {EDGE_FACTOR:g} x {what}, at least 1 px)"
         )
     K = full.K
-    if not rejected:
-        rejected = implausible(K, size)
+    if not rejected:  # (a choice given with --principal-point or --aspect is the user's)
+        rejected = implausible(K, size, cfg.principal_point == "auto", cfg.aspect == "auto")
     return {
         **row,
         "heldout_rms": _rounded(v.heldout),
@@ -523,7 +525,8 @@ def select_camera(
     parameter is ever kept from a camera that was then rejected. A candidate is eligible when
     its fit passes :func:`~.distortion.distortion_check` and its undistortion at the frame's
     edges agrees across folds within :func:`edge_limit` of the simpler eligible model of the
-    same principal point and aspect ("none" always is). From the eligible camera with the
+    same principal point and aspect ("none" always is), and its K is a lens's
+    (:func:`~.camera.implausible`, for the choices left to auto). From the eligible camera with the
     lowest held-out error, the choice is simplified one choice at a time while the simpler
     camera holds out within :func:`margin` of that best one (:func:`simplest`). A model
     given with --dist-model is never replaced, even when it fails the checks.

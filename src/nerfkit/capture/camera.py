@@ -148,20 +148,20 @@ MAX_CENTRE_OFFSET = 0.15  # of the frame's width or height
 MAX_ASPECT_OFFSET = 0.10  # |fx / fy - 1|
 
 
-def implausible(K: np.ndarray, size: tuple[int, int]) -> str:
-    """Why a fitted camera ``K`` of ``size`` (w, h) photos is no lens's (its principal point more
-    than :data:`MAX_CENTRE_OFFSET` of the frame off the centre, or pixels more than
-    :data:`MAX_ASPECT_OFFSET` from square), or ""."""
+def implausible(K: np.ndarray, size: tuple[int, int], centre: bool = True, aspect: bool = True) -> str:
+    """Why a fitted camera ``K`` of ``size`` (w, h) photos is no lens's (with ``centre``, its
+    principal point more than :data:`MAX_CENTRE_OFFSET` of the frame off the centre; with
+    ``aspect``, pixels more than :data:`MAX_ASPECT_OFFSET` from square), or ""."""
     w, h = size
     cx0, cy0 = image_centre(w, h)
     off = max(abs(K[0, 2] - cx0) / w, abs(K[1, 2] - cy0) / h)
-    if off > MAX_CENTRE_OFFSET:
+    if centre and off > MAX_CENTRE_OFFSET:
         return (
             f"its principal point ({K[0, 2]:.0f}, {K[1, 2]:.0f}) lies {off:.0%} of the frame off the centre "
             f"(a lens's lies within {MAX_CENTRE_OFFSET:.0%}): too few or too alike photos"
         )
     ratio = K[0, 0] / K[1, 1]
-    if abs(ratio - 1) > MAX_ASPECT_OFFSET:
+    if aspect and abs(ratio - 1) > MAX_ASPECT_OFFSET:
         return (
             f"its pixels are {ratio:.2f} times as wide as tall (a phone's are square to "
             f"{MAX_ASPECT_OFFSET:.0%}): too few or too alike photos"

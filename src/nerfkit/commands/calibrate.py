@@ -16,14 +16,19 @@ skipped (and why), and sanity checks.
 
 The sheet layout: give it with --layout (a JSON layout file, or an OpenCV GridBoard or
 ChArUco description), or leave it out: nerfkit then estimates where the tags sit on the
-sheet (all tags on one flat sheet), and never treats different tags as the same points.
-Detections are cached beside the output, so re-running is quick.
+sheet (all tags on one flat sheet), and never treats different tags as the same points; a
+tag of another size (its side over 1.4 times the others' in the same photos) is left out,
+and a sheet that repeats an id is refused. Copies of a photo are skipped; photos of the same
+shape at another size are resized to the common size. Detections are cached beside the
+output, so re-running is quick.
 
 The camera is chosen whole by cross-validation over photos: every combination of a
 distortion model (none, k1, k1k2, k1k2p1p2, k1k2p1p2k3), a centred or fitted principal
 point and square or free pixels is fitted on its own; the camera file lists each one
 ("model_selection" -> "candidates": held-out error, its error at the photos' edges, how
-much its folds disagree at the frame's edges, and the verdict) and the one chosen.
+much its folds disagree at the frame's edges, and the verdict) and the one chosen. A
+fitted principal point more than 15% of the frame off centre, or pixels more than 10% from
+square, is no lens's and not chosen (unless --principal-point free / --aspect free).
 
 example:
   nerfkit calibrate calib_photos/ --dict DICT_4X4_50 --tag-size 0.06 --out camera.json

@@ -2,7 +2,8 @@
 and capture, all of them in a row.
 
 Each function takes typed keyword arguments named as the flags of its command
-(``tag_size=0.06`` for ``--tag-size 0.06``; a ``--no-X`` flag is ``X=False``), checks them as
+(``tag_size=0.06`` for ``--tag-size 0.06``; a ``--no-X`` flag is ``X=False``; the exceptions:
+:mod:`nerfkit.api`), checks them as
 the command line is checked, does the work, prints the report the command prints (unless
 ``quiet``) and returns a typed result. The commands parse their command line into these
 calls; ``nerfkit capture`` is these functions in a row. Example::
@@ -402,7 +403,8 @@ def pose(
         matcher: the photo pairs SfM matches ("auto", "exhaustive", "sequential", "spatial").
         ground: with method "colmap" and no tag, find the table plane in the SfM points.
         sfm_max_size: longest side (px) of the images SfM extracts features from.
-        focal_px: focal length in pixels when there is no camera file or EXIF.
+        focal_px: focal length in pixels to pose with instead of the photos' EXIF (not with
+            ``camera`` or ``method="colmap"``).
         tag_id: the tag that defines the world (None: the one seen most; never a layout).
         layout: layout JSON of several tags used jointly (None: the camera file's, or estimated).
         single_tag: pose from one tag, never a layout.
@@ -460,6 +462,13 @@ def pose(
     if tag_size is not None and not tag_size > 0:
         raise fail("--tag-size", f"{tag_size} must be a positive length in metres")
     workers = jobs or default_jobs()
+    if focal_px is not None and (camera_file or method == "colmap"):
+        raise fail(
+            "--focal-px",
+            "does nothing "
+            + ("with --camera: the camera file's focal length is used" if camera_file else "with --method colmap"),
+            "Leave out one of them",
+        )
     if method == "colmap" and not build_dataset:
         raise fail(
             "--no-dataset",
@@ -568,9 +577,13 @@ def _views(scene: Any) -> int:
 
 
 def train_settings(options: dict[str, Any], config: str | Path | None = None) -> tuple[Any, Any, set[str]]:
-    """(TrainConfig, model config, names given) for ``options`` (TrainConfig and model settings
-    by name), starting from a run's ``config`` (config.json or its run folder) when given: the
-    settings ``nerfkit train`` builds from its flags. A name neither config has is a TypeError."""
+    """(TrainConfig, model config, names given): the settings ``nerfkit train`` builds from its
+    flags. A name neither config has is a TypeError; one of another model, a NerfkitError.
+
+    Args:
+        options: TrainConfig and model settings by field name.
+        config: a run's config.json (or its run folder) to start from; None: the defaults.
+    """
     from ..config import check_ranges, check_values
     from ..errors import fail
     from ..models import MODEL_NAMES, model_config_class
@@ -1017,7 +1030,8 @@ def export(
         chunk: rays rendered at once (0: the run's render chunk).
         allow_outside_paths: read dataset images outside the dataset's folder.
         force: replace existing output files.
-        quiet: print no report.
+        quiet: print no report (a note that an option of an output not asked for does nothing
+            still goes to stderr).
     """
     import sys
 

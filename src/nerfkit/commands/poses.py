@@ -12,7 +12,8 @@ HELP = "pose photos of an object beside an ArUco tag and build a NeRF dataset"
 
 DESCRIPTION = """\
 Give every photo a camera-to-world pose from the tag it shows (solvePnP: IPPE_SQUARE for
-one tag, or all tags of a layout jointly: --layout, else the camera file's, else, when
+one tag, or all tags of a layout jointly: --layout, else the camera file's when the
+photos' tags sit as it says (at --tag-size when the photos show only its tags), else, when
 most photos show several tags, one estimated from the photos themselves), with the
 camera's focal length fitted to the photos' tags when they pin it (--no-refine-focal
 keeps it), skip photos with no tag or a bad fit (with the reason), then build the
@@ -91,7 +92,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--camera", help="camera file from `nerfkit calibrate` (default: the photos' EXIF focal length)")
     p.add_argument(
-        "--focal-px", type=number(float, above=0), help="focal length in pixels, when there is no camera file or EXIF"
+        "--focal-px",
+        type=number(float, above=0),
+        help="focal length in pixels to pose with instead of the photos' EXIF (no distortion, principal point "
+        "at the centre); not with --camera or --method colmap",
     )
     p.add_argument("--tag-size", type=tag_side, help="side of the tag's black square in metres, e.g. 0.06")
     p.add_argument("--tag-id", type=number(int, 0), help="the tag that defines the world (default: the one seen most)")
@@ -99,7 +103,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--layout",
         help="layout JSON of several tags to use jointly (their frame is the world); by "
         "default the camera file's layout (e.g. the one calibrate estimated) is used when the photos "
-        "show several of its tags, else, when they show several tags, one estimated from them",
+        "show several of its tags and they sit as it says (scaled to --tag-size when the photos show "
+        "only its tags), else, when they show several tags, one estimated from them",
     )
     p.add_argument(
         "--single-tag",
