@@ -168,6 +168,14 @@ class SplatConfig:
         return self
 
 
+def ray_length_per_z(K: Tensor, width: int, height: int) -> Tensor:
+    """(H, W) length of each pixel's ray (through its centre) per unit of camera depth z:
+    ``|K^-1 (u + 0.5, v + 0.5, 1)|``."""
+    u = (torch.arange(width, dtype=K.dtype, device=K.device) + 0.5 - K[0, 2]) / K[0, 0]
+    v = (torch.arange(height, dtype=K.dtype, device=K.device) + 0.5 - K[1, 2]) / K[1, 1]
+    return torch.sqrt(1.0 + v[:, None] ** 2 + u[None, :] ** 2)
+
+
 class SplatModel(NerfModel):
     """3D Gaussians rendered by tile rasterization (see the module docstring)."""
 
@@ -360,7 +368,10 @@ class SplatModel(NerfModel):
         )
         if self.training and torch.is_grad_enabled():
             self._last = (out, width, height)
-        return RenderOutput(out.rgb, out.depth, out.alpha, int((out.radii > 0).sum()))
+        # the rasterizer weighs each Gaussian's camera z; RenderOutput's depth is along each ray
+        return RenderOutput(
+            out.rgb, out.depth * ray_length_per_z(K, width, height), out.alpha, int((out.radii > 0).sum())
+        )
 
     def render_rays(self, rays: Rays, background: Tensor, perturb: bool) -> RenderOutput:
         raise fail("splat", "renders whole views, not ray batches", "Use render_view (the trainer and render_image do)")
