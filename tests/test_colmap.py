@@ -129,6 +129,14 @@ def test_colmap_project_round_trip_with_images(tmp_path, capsys):
                     np.testing.assert_allclose(b.K[j], a.K[i], rtol=1e-5)
                     np.testing.assert_array_equal(b.images[j], a.images[i])
     assert (back.near, back.far) == pytest.approx((2.0, 6.0), rel=1e-4)  # 0.5x, 1.5x camera distance (no points)
+    # a photo whose EXIF says to turn it is read as COLMAP reads it: as stored
+    from PIL import Image
+
+    name = back.train.names[0]
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.open(tmp_path / "proj" / "images" / name).save(tmp_path / "proj" / "images" / name, exif=exif.tobytes())
+    np.testing.assert_array_equal(load_scene(tmp_path / "proj").train.images[0], back.train.images[0])
     scene.capture, scene.table = True, np.array([0, 0, 1, 0], np.float32)  # a capture's record is not kept: said
     (tmp_path / "scene.npz").unlink()
     assert main(["convert", "--format", "colmap", "--to", str(tmp_path / "proj2"), _npz(scene, tmp_path)]) == 0

@@ -213,13 +213,16 @@ def _to_float(img, background, path) -> np.ndarray:
     return np.ascontiguousarray(arr[..., :3], dtype=np.float32)
 
 
-def load_image_uint8(path: str | Path, background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
-    """Like :func:`load_image` but (H, W, 3) uint8, for OpenCV and for datasets.
+def load_image_uint8(
+    path: str | Path, background: tuple[float, float, float] = (0.0, 0.0, 0.0), upright: bool = True
+) -> np.ndarray:
+    """Like :func:`load_image` but (H, W, 3) uint8, for OpenCV and for datasets. ``upright``:
+    turned by its EXIF orientation (False: the pixels as stored, as COLMAP reads them).
 
     8-bit photos without transparency (nearly every phone photo) go straight to uint8:
     no float32 copy of a 12-MP image (~150 MB each) is made.
     """
-    img = _open_upright(Path(path))
+    img = _open_upright(Path(path)) if upright else _open(Path(path))
     if img.mode not in ("I;16", "I;16B", "I;16L", "I", "F") and not _has_alpha(img):
         return np.array(img if img.mode == "RGB" else img.convert("RGB"), dtype=np.uint8)
     rgb = _to_float(img, background, path)

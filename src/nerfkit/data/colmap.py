@@ -435,7 +435,7 @@ def reconstruction_to_scene(
         K = check_intrinsics(camera_matrix(pin), where, f"camera {im.camera_id}", int(pin.width), int(pin.height))
         if image_dir is not None:
             photo_path = resolve_inside(image_dir, im.name, allow_outside, where)
-            photo = load_image_uint8(photo_path, background)
+            photo = load_image_uint8(photo_path, background, upright=False)  # COLMAP ignores EXIF turns
             if photo.shape[:2] != (cam.height, cam.width):
                 raise fail(
                     photo_path,
