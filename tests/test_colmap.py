@@ -791,3 +791,14 @@ def test_a_cameras_bin_cut_short_or_with_bytes_past_its_cameras_is_refused(tmp_p
 
     for model_id, k in CAMERA_MODEL_PARAMS.items():
         assert len(pycolmap.Camera.create_from_model_id(1, pycolmap.CameraModelId(model_id), 1.0, 8, 8).params) == k
+
+
+def test_points_written_without_sightings_come_back_without_them(tmp_path):
+    # a dataset that does not record which photos saw its points (a transforms.json's) writes a
+    # model whose points have no tracks: they are kept, as points without sight lines
+    scene = _with_points(sphere_scene(n_train=4, n_val=1, size=16, n_test=1), n=5)
+    scene.point_views = None
+    write_colmap_model(scene, tmp_path / "m")
+    back = reconstruction_to_scene(read_model(tmp_path / "m"), None, val_every=0)
+    assert back.point_views is None and len(back.points) == 5
+    np.testing.assert_allclose(np.sort(back.points, axis=0), np.sort(scene.points, axis=0), atol=1e-6)

@@ -485,7 +485,10 @@ def reconstruction_to_scene(
     tr, va = split_every(len(names), val_every)
     all_views = Views(c2w, K, W, H, imgs, names)
     train = all_views.subset(tr)
-    kept = reconstruction_points(rec, min_track=2)  # COLMAP triangulates from 2 views
+    # COLMAP triangulates from 2 views; a model whose points all lack tracks (written from a
+    # dataset that did not record which photos saw them) keeps them, with no sightings
+    trackless = len(rec.points3D) > 0 and all(p.track.length() == 0 for p in rec.points3D.values())
+    kept = reconstruction_points(rec, min_track=0 if trackless else 2)
     known = len(kept) > 0
     return check_scene(
         Scene(
@@ -499,7 +502,7 @@ def reconstruction_to_scene(
             source=source,
             points=kept.xyz if known else None,
             point_colors=kept.rgb if known else None,
-            point_views=point_views(kept.seen_by, train.names) if known else None,
+            point_views=point_views(kept.seen_by, train.names) if known and not trackless else None,
         ),
         where,
     )
