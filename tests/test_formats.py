@@ -186,6 +186,32 @@ def test_blender_to_npz_round_trip(tmp_path):
     assert (back.near, back.far) == pytest.approx((scene.near, scene.far))
 
 
+def test_blender_views_of_one_name_in_each_split_convert_to_transforms_and_colmap(tmp_path):
+    # train/r_0, val/r_0 and test/r_0 share their last component: each gets its own file
+    from nerfkit.io.paths import distinct_names
+
+    assert distinct_names([("train", "train/r_0"), ("val", "val/r_0"), ("val", "val/r_1")]) == [
+        "train_r_0",
+        "val_r_0",
+        "r_1",
+    ]
+    assert distinct_names([("val", "IMG_0.png"), ("test", "IMG_0.png")]) == ["val_IMG_0.png", "test_IMG_0.png"]
+    make_blender(tmp_path / "b")
+    scene = load_scene(tmp_path / "b")
+    for fmt in ("transforms", "colmap"):
+        assert main(["convert", str(tmp_path / "b"), "--to", str(tmp_path / fmt), "--format", fmt]) == 0
+        back = load_scene(tmp_path / fmt)
+        views = {n: img for v in back.splits.values() if len(v) for n, img in zip(v.names, v.images)}
+        for split, v in scene.splits.items():
+            for name, image in zip(v.names, v.images):
+                flat = name.replace("/", "_") + ("" if name.endswith(".png") else ".png")
+                plain = name.rsplit("/", 1)[-1] + ("" if name.endswith(".png") else ".png")
+                for key in (name, flat, plain):  # (transforms.json keeps the name; COLMAP names the file)
+                    if key in views:
+                        np.testing.assert_array_equal(views.pop(key), image)
+        assert not views  # every view read back is one written
+
+
 def test_convert_resize_and_refuses_overwrite(tmp_path, capsys):
     make_blender(tmp_path / "b", size=(40, 30))
     out = tmp_path / "small.npz"

@@ -33,7 +33,7 @@ from ..cameras import opencv_to_opengl, opengl_to_opencv
 from ..config import load_json
 from ..errors import fail
 from ..io.atomic import atomic_path, refuse_foreign_files, replacing_folder, write_json
-from ..io.paths import path_kind, refuse_special_file, resolve_inside, safe_output_name
+from ..io.paths import distinct_names, path_kind, refuse_special_file, resolve_inside, safe_output_name
 from .blender import focal_from_angle, frame_image_path
 from .ply import read_points_ply, write_points_ply
 from .scene import Scene, Views, estimate_center, estimate_up
@@ -402,6 +402,13 @@ def write_transforms_json(
     Ks, sizes = [], []
     seen: set[str] = set()
     to_write = []  # (file name, image)
+    named = [
+        (split, v.names[i] if v.names is not None else f"{split}_{i:04d}.png")
+        for split, v in scene.splits.items()
+        if len(v) and v.has_images
+        for i in range(len(v))
+    ]
+    flat = iter(distinct_names(named))  # (Blender's train/r_0 and val/r_0 would both be r_0)
     for split, v in scene.splits.items():
         if len(v) == 0:
             continue
@@ -411,7 +418,7 @@ def write_transforms_json(
         assert v.images is not None  # has_images
         for i in range(len(v)):
             name = v.names[i] if v.names is not None else f"{split}_{i:04d}.png"
-            fname = image_file_name(name)
+            fname = image_file_name(next(flat))
             if fname in seen:
                 raise fail(folder, f"two views would both be written as '{fname}'", "Give the views distinct names")
             seen.add(fname)

@@ -140,6 +140,29 @@ def safe_output_name(name: str, fallback: str = "view") -> str:
     return base if base not in ("", ".", "..") else fallback
 
 
+def distinct_names(named: list[tuple[str, str]]) -> list[str]:
+    """Plain, distinct file names (:func:`safe_output_name`) for views given as (split, name):
+    names whose last components collide keep their folders joined by "_" (Blender's
+    ``train/r_0`` and ``val/r_0``: ``train_r_0``, ``val_r_0``), or without folders take their
+    split's name first (an LLFF view in val and test); a name still taken gets its index."""
+    from collections import Counter
+
+    plain = [safe_output_name(n, f"{split}_{i:04d}") for i, (split, n) in enumerate(named)]
+    taken = Counter(plain)
+    out: list[str] = []
+    seen: set[str] = set()
+    for i, ((split, name), p) in enumerate(zip(named, plain)):
+        if taken[p] > 1:
+            path = str(name).replace("\\", "/").strip("/")
+            p = safe_output_name(path.replace("/", "_")) if "/" in path else f"{split}_{p}"
+        while p in seen:
+            stem, dot, suffix = p.rpartition(".")
+            p = f"{stem}_{i}.{suffix}" if dot else f"{p}_{i}"
+        seen.add(p)
+        out.append(p)
+    return out
+
+
 def _occupied(path: Path) -> bool:
     """An existing file, or a folder with something in it."""
     try:

@@ -222,17 +222,19 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
     from ...errors import fail
     from ...images import IMAGE_SUFFIXES, write_image
     from ...io.atomic import refuse_foreign_files, replacing_folder
-    from ...io.paths import refuse_links, safe_output_name
+    from ...io.paths import distinct_names, refuse_links
 
     out = Path(out)
     written, splits = [], {}
     seen: set[str] = set()
+    named = [
+        (split, v.names[i] if v.names else f"{split}_{i:04d}")
+        for split, v in scene.splits.items()
+        for i in range(len(v))
+    ]
+    flat = iter(distinct_names(named))  # (Blender's train/r_0 and val/r_0 would both be r_0)
     for split, v in scene.splits.items():
-        names = (
-            [safe_output_name(n, f"{split}_{i:04d}") for i, n in enumerate(v.names)]
-            if v.names
-            else [f"{split}_{i:04d}" for i in range(len(v))]
-        )
+        names = [next(flat) for _ in range(len(v))]
         names = [n if Path(n).suffix.lower() in IMAGE_SUFFIXES else n + ".png" for n in names]
         if v.images is not None:
             names = [str(Path(n).with_suffix(".png")) for n in names]  # pixels are written as PNG
