@@ -202,7 +202,7 @@ def test_blender_views_of_one_name_in_each_split_convert_to_transforms_and_colma
         assert main(["convert", str(tmp_path / "b"), "--to", str(tmp_path / fmt), "--format", fmt]) == 0
         back = load_scene(tmp_path / fmt)
         views = {n: img for v in back.splits.values() if len(v) for n, img in zip(v.names, v.images)}
-        for split, v in scene.splits.items():
+        for v in scene.splits.values():
             for name, image in zip(v.names, v.images):
                 flat = name.replace("/", "_") + ("" if name.endswith(".png") else ".png")
                 plain = name.rsplit("/", 1)[-1] + ("" if name.endswith(".png") else ".png")
