@@ -353,7 +353,8 @@ def _save_image(path: Path, image: np.ndarray, jpeg_quality: int) -> None:
 
     with atomic_path(path) as tmp:
         if path.suffix.lower() in (".jpg", ".jpeg"):
-            Image.fromarray(image).save(tmp, format="JPEG", quality=jpeg_quality)
+            # full-resolution colour (4:4:4): 4:2:0 lost a few dB of each view's colour edges
+            Image.fromarray(image).save(tmp, format="JPEG", quality=jpeg_quality, subsampling=0)
         else:
             Image.fromarray(image).save(tmp, format="PNG")
 
