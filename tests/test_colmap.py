@@ -802,3 +802,12 @@ def test_points_written_without_sightings_come_back_without_them(tmp_path):
     back = reconstruction_to_scene(read_model(tmp_path / "m"), None, val_every=0)
     assert back.point_views is None and len(back.points) == 5
     np.testing.assert_allclose(np.sort(back.points, axis=0), np.sort(scene.points, axis=0), atol=1e-6)
+
+
+def test_names_with_spaces_are_written_to_a_text_model_that_reads_back(tmp_path):
+    scene = sphere_scene(n_train=4, n_val=1, size=16)
+    scene.train.names = [f"my photo {i}" for i in range(4)]
+    scene.val.names = ["my photo 9"]
+    assert main(["convert", _npz(scene, tmp_path), "--to", str(tmp_path / "txt"), "--format", "colmap", "--text"]) == 0
+    back = load_scene(tmp_path / "txt")
+    assert sorted(back.train.names + back.val.names) == [f"my_photo_{i}.png" for i in (0, 1, 2, 3, 9)]

@@ -4,6 +4,7 @@ its depth range set, the dataset written in another format, and the line that sa
 from __future__ import annotations
 
 import argparse
+import re
 from typing import Any
 
 # what a dataset file holds a depth bound in (float32): the largest finite value, and the
@@ -232,7 +233,8 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
         for split, v in scene.splits.items()
         for i in range(len(v))
     ]
-    flat = iter(distinct_names(named))  # (Blender's train/r_0 and val/r_0 would both be r_0)
+    # (Blender's train/r_0 and val/r_0 would both be r_0; images.txt splits its lines at spaces)
+    flat = iter(distinct_names([(split, re.sub(r"\s+", "_", name)) for split, name in named]))
     for split, v in scene.splits.items():
         names = [next(flat) for _ in range(len(v))]
         names = [n if Path(n).suffix.lower() in IMAGE_SUFFIXES else n + ".png" for n in names]
