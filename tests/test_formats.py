@@ -16,6 +16,7 @@ from nerfkit.cameras import intrinsics_matrix, look_at, opencv_to_opengl
 from nerfkit.cli import main
 from nerfkit.data.blender import focal_from_angle, load_blender
 from nerfkit.data.load import detect_format, load_scene
+from nerfkit.data.nerfstudio import write_transforms_json
 from nerfkit.data.npz import load_npz, save_npz
 from nerfkit.data.resample import output_size, resample_scene, scale_intrinsics
 from nerfkit.data.synthetic import render_sphere, sphere_cameras, sphere_scene
@@ -402,3 +403,16 @@ def test_a_damaged_ply_is_a_clear_error_naming_it_for_points_and_splats(tmp_path
     for read in (read_points_ply, read_splat_ply):
         with pytest.raises(NerfkitError, match=r"points\.ply: not a readable PLY"):
             read(path)
+
+
+def test_views_of_two_sizes_are_refused_by_the_writers_whose_readers_take_one(tmp_path, capsys):
+    from dataclasses import replace
+
+    scene = sphere_scene(n_train=4, n_val=2, size=16)
+    scene.val = replace(scene.val, images=scene.val.images[:, :12], height=12)
+    with pytest.raises(NerfkitError, match="the val images are 16x12, the training images 16x16"):
+        save_npz(scene, tmp_path / "x.npz")
+    assert not (tmp_path / "x.npz").exists()
+    write_transforms_json(scene, tmp_path / "ns")  # transforms.json holds a size per frame
+    assert main(["convert", str(tmp_path / "ns"), "--to", str(tmp_path / "cm"), "--format", "colmap"]) == 2
+    assert "the views' images are of 2 sizes (16x12, 16x16)" in capsys.readouterr().err

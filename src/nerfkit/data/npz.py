@@ -221,7 +221,14 @@ def load_npz(path: str | Path, need: str = "train") -> Scene:
 def save_npz(scene: Scene, path: str | Path) -> None:
     """Write a scene in the course layout plus nerfkit's optional keys (atomically)."""
     K = scene.train.K[0]
+    size = (scene.train.width, scene.train.height)
     for split, v in scene.splits.items():
+        if len(v) and v.has_images and (v.width, v.height) != size:
+            raise fail(
+                path,
+                f"the {split} images are {v.width}x{v.height}, the training images {size[0]}x{size[1]}",
+                "The course npz holds one image size; export to transforms.json instead, or resample the images",
+            )
         if len(v) and not np.allclose(v.K, K, rtol=1e-5, atol=1e-4):
             raise fail(
                 path,

@@ -228,6 +228,13 @@ def write_colmap_project(scene, out, text: bool = False) -> list:
     out = Path(out)
     written, splits = [], {}
     seen: set[str] = set()
+    sizes = {(v.width, v.height) for v in scene.splits.values() if len(v) and v.images is not None}
+    if len(sizes) > 1:  # (nerfkit's reader, as a NeRF, takes one size)
+        raise fail(
+            out,
+            f"the views' images are of {len(sizes)} sizes ({', '.join(f'{w}x{h}' for w, h in sorted(sizes))})",
+            "Resample them to one size (nerfkit convert --size), or export to transforms.json",
+        )
     named = [
         (split, v.names[i] if v.names else f"{split}_{i:04d}")
         for split, v in scene.splits.items()
