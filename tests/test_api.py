@@ -157,9 +157,12 @@ def test_an_option_of_an_output_not_asked_for_is_said_to_do_nothing(tmp_path, sp
     tiny = {"n_samples": 4, "width": 8, "depth": 2, "eval_views": 1, "device": "cpu", "quiet": True}
     run = api.train(sphere_npz, tmp_path / "run", model="vanilla", steps=1, **tiny).run_dir
     capsys.readouterr()
-    api.export(run, points=tmp_path / "p.ply", resolution=128, color_views=3, stride=2, quiet=True)
+    api.export(
+        run, points=tmp_path / "p.ply", resolution=128, color_views=3, stride=2, background_dome=False, quiet=True
+    )
     err = capsys.readouterr().err
     assert "note: --resolution, --color-views act only with --mesh" in err and "--stride" not in err
+    assert "note: --no-background-dome acts only with --splat" in err
     assert (tmp_path / "p.ply").is_file()
 
 

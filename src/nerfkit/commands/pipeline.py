@@ -1085,6 +1085,7 @@ def export(
             ],
         ),
         (mesh_file or points_file, "--mesh or --points", [("--box-scale", box_scale, (1.0,))]),
+        (splat_file, "--splat", [("--no-background-dome", background_dome, (True,))]),
     ):
         idle = [flag for flag, value, defaults in options if value not in defaults]
         if output is None and idle:
