@@ -328,3 +328,30 @@ def test_sample_along_rays_refuses_near_at_or_past_far():
     for near, far in ((6.0, 2.0), (2.0, 2.0), (torch.tensor([2.0, 7.0]), torch.tensor([6.0, 6.0]))):
         with pytest.raises(ValueError, match="near < far"):
             sample_along_rays(o, d, near, far, n_samples=4, perturb=False)
+
+
+def test_the_course_functions_refuse_shapes_they_would_misread():
+    from nerfkit.data.rays import RaysData
+    from nerfkit.data.scene import Views
+
+    K = torch.tensor([[100.0, 0, 50], [0, 100.0, 40], [0, 0, 1]])
+    with pytest.raises(ValueError, match=r"uv of shape \(\.\.\., 2\)"):
+        pixel_to_camera(K, torch.tensor([[100.0, 80, 2]]), 1.0)  # homogeneous (u, v, 1) is not taken
+    with pytest.raises(ValueError, match="rgbs"):
+        volrend(torch.rand(4, 8, 1), torch.rand(8, 4, 3), 0.1)
+    with pytest.raises(ValueError, match="step_size"):
+        volrend(torch.ones(3, 3), torch.ones(3, 3, 3), torch.tensor([0.1, 1.0, 10.0]))  # per ray: (n_rays, 1)
+    # a step per sample of the documented (n_rays, n_samples, 1) shape is taken
+    step = torch.full((3, 3, 1), 0.1)
+    torch.testing.assert_close(
+        volrend(torch.ones(3, 3), torch.ones(3, 3, 3), step), volrend(torch.ones(3, 3), torch.ones(3, 3, 3), 0.1)
+    )
+    c2w = np.repeat(np.eye(4, dtype=np.float32)[None], 2, 0)
+    Ks = np.repeat(K.numpy()[None], 2, 0)
+    for images in (
+        np.full((2, 4, 6, 3), 0.5, np.float32),
+        np.zeros((2, 4, 6, 4), np.uint8),
+        np.zeros((2, 6, 4, 3), np.uint8),
+    ):
+        with pytest.raises(ValueError, match=r"RaysData takes images of \(N, H, W, 3\) = \(2, 4, 6, 3\) uint8"):
+            RaysData(Views(c2w, Ks, 6, 4, images))

@@ -78,6 +78,8 @@ def pixel_to_camera(K: Tensor, uv: Tensor, s: Tensor | float) -> Tensor:
     Returns:
         (..., 3) points ``s * K^-1 @ [u, v, 1]``.
     """
+    if uv.shape[-1] != 2:
+        raise ValueError(f"pixel_to_camera takes uv of shape (..., 2), pixel (x, y), got {tuple(uv.shape)}")
     fx, fy = K[..., 0, 0], K[..., 1, 1]
     cx, cy = K[..., 0, 2], K[..., 1, 2]
     skew = K[..., 0, 1]
@@ -122,6 +124,8 @@ def pixel_to_ray(K: Tensor, c2w: Tensor, uv: Tensor) -> tuple[Tensor, Tensor]:
         K: (..., 3, 3) or (3, 3) intrinsics.
         c2w: (..., 4, 4) or (4, 4) camera-to-world (OpenCV axes).
         uv: (..., 2) pixel coordinates (x, y), pixel centres at +0.5.
+        The leading dimensions broadcast as numpy's: N cameras against (N, M) pixels each is
+        ``c2w[:, None]`` (N, 1, 4, 4) with ``uv`` (N, M, 2).
 
     Returns:
         ``(rays_o, rays_d)``, each (..., 3); ``rays_d`` has unit length. ``rays_o`` is the

@@ -52,6 +52,14 @@ class RaysData:
     def __init__(self, views: Views, device: torch.device | str = "cpu", seed: int = 0):
         if not views.has_images:
             raise ValueError("RaysData needs a split with images")
+        images = views.images
+        assert images is not None  # has_images
+        shape = (len(views), views.height, views.width, 3)
+        if images.dtype != np.uint8 or images.shape != shape:
+            raise ValueError(
+                f"RaysData takes images of (N, H, W, 3) = {shape} uint8, got {images.shape} "
+                f"{images.dtype} (floats in [0, 1]: (images * 255 + 0.5).astype(np.uint8))"
+            )
         self.device = torch.device(device)
         self.n_images, self.height, self.width = len(views), views.height, views.width
         self.images = torch.from_numpy(np.ascontiguousarray(views.images)).to(self.device)  # (N, H, W, 3) uint8

@@ -190,15 +190,27 @@ def volrend(
     Args:
         sigmas: (n_rays, n_samples, 1) or (n_rays, n_samples) densities.
         rgbs: (n_rays, n_samples, 3) colours.
-        step_size: scalar or (n_rays, n_samples) interval lengths.
+        step_size: scalar or (n_rays, n_samples[, 1]) interval lengths.
         background: optional colour for light that passes through.
 
     Returns:
         (n_rays, 3) rendered colours.
     """
-    if sigmas.dim() == rgbs.dim():
+    if sigmas.dim() == 3 and sigmas.shape[-1] == 1:
         sigmas = sigmas.squeeze(-1)
+    if sigmas.dim() != 2 or tuple(rgbs.shape) != (*sigmas.shape, 3):
+        raise ValueError(
+            f"volrend takes sigmas (n_rays, n_samples[, 1]) and rgbs (n_rays, n_samples, 3), got "
+            f"{tuple(sigmas.shape)} and {tuple(rgbs.shape)}"
+        )
     n_rays, n_samples = sigmas.shape
+    if isinstance(step_size, Tensor) and step_size.dim() == 3 and step_size.shape[-1] == 1:
+        step_size = step_size.squeeze(-1)
+    if isinstance(step_size, Tensor) and step_size.dim() and tuple(step_size.shape) != (n_rays, n_samples):
+        raise ValueError(
+            f"volrend's step_size is a number or (n_rays, n_samples) = {(n_rays, n_samples)} interval "
+            f"lengths, got {tuple(step_size.shape)}"
+        )
     rays = regular_ray_indices(n_rays, n_samples, sigmas.device)
     step = torch.as_tensor(step_size, dtype=sigmas.dtype, device=sigmas.device)
     deltas = step.expand(n_rays, n_samples).reshape(-1) if step.dim() else step
