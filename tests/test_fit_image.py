@@ -304,6 +304,20 @@ def test_16bit_greyscale_keeps_precision(tmp_path):
     np.testing.assert_array_equal(img[..., 0], img[..., 2])
 
 
+def test_16bit_colour_keeps_precision_and_its_transparency(tmp_path):
+    import cv2
+
+    rgb = np.array([[[0, 1000, 65535], [1001, 30000, 7]]], np.uint16)
+    cv2.imwrite(str(tmp_path / "c16.png"), rgb[..., ::-1])  # (OpenCV writes BGR)
+    img, _ = load_target(tmp_path / "c16.png", "black")
+    np.testing.assert_allclose(img, rgb / 65535.0, atol=1e-6)  # 1000 and 1001 stay apart (8 bits: 3 and 3)
+    rgba = np.concatenate([rgb, np.array([[[65535], [0]]], np.uint16)], -1)
+    cv2.imwrite(str(tmp_path / "c16a.tif"), rgba[..., [2, 1, 0, 3]])
+    img, _ = load_target(tmp_path / "c16a.tif", "1,1,1")
+    np.testing.assert_allclose(img[0, 0], rgb[0, 0] / 65535.0, atol=1e-6)
+    np.testing.assert_allclose(img[0, 1], [1, 1, 1], atol=1e-6)  # transparent: the background
+
+
 def test_exif_rotated_jpeg_is_fitted_upright(tmp_path):
     stored = np.zeros((10, 20, 3), np.uint8)  # landscape as stored
     stored[:, :10] = 255

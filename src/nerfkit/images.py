@@ -180,9 +180,40 @@ def load_image(path: str | Path, background: tuple[float, float, float] = (0.0, 
     """Load an image upright as float32 RGB in [0, 1], shape (H, W, 3).
 
     EXIF orientation is applied; greyscale is replicated to RGB; transparency is
-    composited over ``background``; 16-bit images keep their precision.
+    composited over ``background``; 16-bit images keep their precision (colour ones, which
+    Pillow reads as 8 bits, through OpenCV when it is installed).
     """
-    return _to_float(_open_upright(Path(path)), background, path)
+    img = _open(Path(path))
+    deep = _colour_16bit(Path(path), img)
+    if deep is not None:
+        rgb = deep[..., :3]
+        if deep.shape[-1] == 4:
+            alpha = deep[..., 3:4]
+            rgb = rgb * alpha + np.asarray(background, np.float32) * (1.0 - alpha)
+        return np.ascontiguousarray(rgb, dtype=np.float32)
+    with contextlib.suppress(Exception):  # a broken EXIF block should not stop us
+        from PIL import ImageOps
+
+        img = ImageOps.exif_transpose(img)
+    return _to_float(img, background, path)
+
+
+def _colour_16bit(path: Path, img) -> np.ndarray | None:
+    """(H, W, 3 or 4) float32 RGB(A) in [0, 1] of a 16-bit colour PNG or TIFF stored upright
+    (EXIF orientation 1), read by OpenCV; None for anything else (or without OpenCV)."""
+    if img.mode not in ("RGB", "RGBA") or path.suffix.lower() not in (".png", ".tif", ".tiff"):
+        return None
+    if orientation_tag(img) != 1:
+        return None
+    try:
+        import cv2
+    except ImportError:
+        return None
+    arr = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if arr is None or arr.dtype != np.uint16 or arr.ndim != 3 or arr.shape[-1] not in (3, 4):
+        return None
+    arr = cv2.cvtColor(arr, cv2.COLOR_BGRA2RGBA if arr.shape[-1] == 4 else cv2.COLOR_BGR2RGB)
+    return arr.astype(np.float32) / 65535.0
 
 
 def _to_float(img, background, path) -> np.ndarray:
