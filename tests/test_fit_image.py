@@ -272,7 +272,7 @@ def test_parse_sweep_and_background():
         (["L=a"], "--sweep L=a: 'a' is not a whole number"),
         (["L=1", "L=2"], "--sweep: 'L' is given twice"),
         (["L=3,3"], "--sweep: L=3 is given twice"),
-        (["lr=0.001,0.0010000001"], "--sweep: lr=0.001 is given twice (or as values that print alike)"),
+        (["lr=0.001,0.0010000001"], "--sweep: lr=0.001 is given twice .or as values that print alike."),
         ([], "--sweep: no KEY=V1,V2 items"),
     ):
         with pytest.raises(NerfkitError, match=message):
