@@ -537,8 +537,11 @@ def write_run(out: str | Path, result: FitResult, target: np.ndarray, image_path
     shown = downscale(target, shape)
     size_note = "" if shape == target.shape[:2] else f" (shown at {shape[1]}x{shape[0]})"
     images = [shown] + [img for _, img, _ in result.progression]
+    last = result.curve_steps[-1] if result.curve_steps else None
     titles = [f"original {result.width}x{result.height}{size_note}"] + [
-        f"step {s}: {p:.2f} dB" for s, _, p in result.progression
+        # the last step's tile shows the every-pixel PSNR of the title (the others: the curve's)
+        f"step {s}: {result.final_psnr if s == last else p:.2f} dB"
+        for s, _, p in result.progression
     ]
     image_grid(
         out / "progression.png",
