@@ -173,3 +173,17 @@ def test_numpy_scalars_are_taken_as_pythons(tmp_path, sphere_npz):
     result = api.train(sphere_npz, tmp_path / "run", model="vanilla", steps=np.int32(2), lr=np.float32(1e-3), **tiny)
     config = json.loads((result.run_dir / "config.json").read_text())
     assert result.steps == 2 and config["model"]["n_samples"] == 4 and config["train"]["lr"] == pytest.approx(1e-3)
+
+
+def test_eval_writes_nothing_among_a_datasets_files(tmp_path, sphere_npz):
+    # a run moved into its dataset's folder: eval refuses to write there, as render does
+    import shutil
+
+    api.convert(sphere_npz, tmp_path / "ds", quiet=True)
+    tiny = {"n_samples": 4, "width": 8, "depth": 2, "eval_views": 1, "device": "cpu", "quiet": True}
+    run = api.train(tmp_path / "ds", tmp_path / "run", model="vanilla", steps=1, **tiny).run_dir
+    (run / "eval_val.json").unlink(missing_ok=True)
+    shutil.move(run, tmp_path / "ds" / "run")
+    with pytest.raises(NerfkitError, match="is inside the input"):
+        api.evaluate(tmp_path / "ds" / "run", device="cpu", quiet=True)
+    assert not (tmp_path / "ds" / "run" / "eval_val.json").exists()

@@ -1567,3 +1567,7 @@ def test_eval_on_another_dataset_says_so_and_capture_does_not_keep_those_scores(
     assert other.scores["runs_own_dataset"] is False and not _on_own_dataset(other.report_path)
     own = api.evaluate(run, device="cpu", quiet=True)
     assert own.scores["runs_own_dataset"] is True and _on_own_dataset(own.report_path)
+    # the other dataset's scores are written beside the run's own, which they never replace
+    assert other.report_path == run / "eval_val_other.json" and own.report_path == run / "eval_val.json"
+    api.evaluate(run, data=tmp_path / "other.npz", device="cpu", quiet=True)
+    assert json.loads(own.report_path.read_text())["runs_own_dataset"] is True

@@ -943,7 +943,9 @@ def evaluate(
         quiet: do not print the summary (the result holds it).
     """
     from ..config import number
+    from ..data.load import dataset_inputs
     from ..io.atomic import write_json
+    from ..io.paths import guard_outputs, safe_output_name
     from ..train.checkpoint import dataset_differences
     from . import _common
     from .stages import evaluate as stage
@@ -955,16 +957,23 @@ def evaluate(
     opened = _common.open_run(_common.RunToOpen(run, device, chunk))
     scene = _common.scene_for_run(opened.info, _given("--data", data), need=split, allow_outside=allow_outside_paths)
     stage.held_out_views(scene, split)
+    # a run kept inside its dataset's folder: nothing is written among a dataset's files
+    guard_outputs([Path(run) / f"eval_{split}.json"], dataset_inputs(data or opened.info.train.data), force=True)
     capture = getattr(opened.info.train, "capture", "off") == "on"
     steps = stage.fit_steps(capture, fit_views)
     sheet: list = []
     result = stage.scores(opened, scene, split, steps, sheet)
     differ = dataset_differences(opened.info, scene) if data else []
     result["runs_own_dataset"] = not differ
+    # the run's own score stays: one on another dataset is written beside it, under its name
+    name = f"eval_{split}" + (f"_{safe_output_name(Path(str(data)).stem)}" if differ else "")
+    json_path, sheet_path = Path(run) / f"{name}.json", Path(run) / f"{name}.png"
     if differ:
         parts = ", ".join(d.replace("_sha256", "") for d in differ)
-        say(f"note: {data} is not the dataset the run was trained on ({parts} differ): scores on another dataset")
-    json_path, sheet_path = Path(run) / f"eval_{split}.json", Path(run) / f"eval_{split}.png"
+        say(
+            f"note: {data} is not the dataset the run was trained on ({parts} differ): scores on another "
+            f"dataset, written to {json_path.name}"
+        )
     write_json(json_path, result)
     stage.write_contact_sheet(sheet_path, sheet, split)
     say(stage.summary(result))
