@@ -61,8 +61,8 @@ def run(args: argparse.Namespace) -> int:
     from ..output.videos import render_videos
     from ..train.checkpoint import load_run
     from ..train.config import TrainConfig, parse_background, resolve_autocast, resolve_device
-    from ..train.evaluate import evaluate_views
     from ..train.trainer import train
+    from .pipeline import evaluate
 
     t_start = time.perf_counter()
     device = resolve_device(args.device)  # a device that is not there: refused before anything is said or written
@@ -85,12 +85,8 @@ def run(args: argparse.Namespace) -> int:
     videos = render_videos(
         model, views, out / "videos", bg, scene.near, scene.far, 30, info.train.render_chunk, autocast
     )
-    metrics = {
-        "split": "val",
-        "step": result.step,
-        **evaluate_views(model, scene.val, bg, info.train.render_chunk, autocast),
-    }
-    write_json(out / "eval_val.json", metrics)
+    # scored as `nerfkit eval` scores it: eval_val.json and the photos beside the renders
+    metrics = evaluate(out, split="val", device=args.device, quiet=True).scores
     summary = {
         "model": args.model,
         "steps": result.step,
@@ -112,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
         ("progression", out / "plots" / "progress.png"),
         ("metrics", out / "metrics.csv"),
         ("evaluation", out / "eval_val.json"),
+        ("val views", out / "eval_val.png"),
     ]:
         print(f"  {label:12s} {path}")
     return 0
