@@ -839,7 +839,7 @@ def render(
         frames: frames of an orbit or spiral (None: 120).
         fps: frames per second.
         object: render the object alone (object.mp4, object.gif, object_depth.mp4): a capture's
-            table, floor and room left out, zoomed to fill the frame, on white.
+            table, floor and room left out, on white, centred and framed whole (one zoom for the path).
         background: the colour behind the scene (black, white, grey, "r,g,b" or "#rrggbb";
             None: the run's, white with ``object``).
         data: dataset (None: the one the run was trained on).

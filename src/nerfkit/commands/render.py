@@ -43,7 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="render the object alone into object.mp4, object.gif and object_depth.mp4: a capture's "
         "table, floor and room left out, the table's paint and the specks apart from the object "
-        "cleared from the density (as export --mesh does), on white, zoomed and centred to fill the frame",
+        "cleared from the density (as export --mesh does), on white, centred and framed whole (one zoom for the "
+        "whole path: an object that already fills the frame is drawn smaller)",
     )
     p.add_argument(
         "--background",
