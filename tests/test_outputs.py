@@ -44,6 +44,11 @@ def test_depth_scale_bar_is_the_depth_colours_from_near_to_far():
     # the labels sit below the bar, at both ends
     text = strip[strip.shape[0] // 2 + 2 :]
     assert text[:, : width // 4].max() > 128 and text[:, -width // 4 :].max() > 128
+    # a narrow frame: the two labels never run into each other (a dark gap between them)
+    for narrow in (100, 60, 45):
+        strip = depth_scale(narrow, 2.02, 6.05, metres=False)
+        columns = np.flatnonzero((strip[strip.shape[0] // 2 + 2 :] > 64).any(axis=(0, 2)))
+        assert np.diff(columns).max() > 5, narrow  # a gap wider than between two letters
     assert [depth_label(v, True) for v in (0.214, 0.05, 2.5)] == ["21 cm", "5.0 cm", "2.50 m"]
     assert depth_label(3.14159, False) == "3.14"
 

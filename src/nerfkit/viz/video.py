@@ -57,9 +57,21 @@ def depth_scale(width: int, near: float, far: float, metres: bool, cmap: str = "
     strip[1 : 1 + bar] = to_uint8(ramp)[None]
     scale = max(0.3, (h - bar - 4) / 30)
     thick = 1 if scale < 0.8 else 2
-    left, right = f"near {depth_label(near, metres)}", f"far {depth_label(far, metres)}"
-    if not metres:
-        right += " (scene units)"
+    near_s, far_s = depth_label(near, metres), depth_label(far, metres)
+    # the longest labels that fit side by side (a narrow frame drops the words, then the unit)
+    choices = [
+        (f"near {near_s}", f"far {far_s}" + ("" if metres else " (scene units)")),
+        (f"near {near_s}", f"far {far_s}"),
+    ]
+
+    def fits(left: str, right: str) -> bool:
+        return sum(cv2.getTextSize(t, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)[0][0] for t in (left, right)) + 8 <= width
+
+    for left, right in [*choices, (near_s, far_s)]:
+        if fits(left, right):
+            break
+    while not fits(left, right) and scale > 0.2:  # the numbers alone, smaller
+        scale *= 0.85
     (rw, th), _ = cv2.getTextSize(right, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
     y = min(h - 2, bar + 3 + th)
     for text, x in ((left, 2), (right, max(2, width - rw - 2))):
