@@ -203,8 +203,8 @@ def parse_sweep(tokens: list[str]) -> list[dict[str, int | float]]:
             raise fail(f"--sweep {tok}", str(e)) from None
     if not axes:
         raise fail("--sweep", "no KEY=V1,V2 items", "Example: --sweep L=3,10 width=64,256")
-    for key, values in axes.items():  # each run has its own folder, named after its values
-        labels = [sweep_label({key: v}) for v in values]
+    for key, chosen in axes.items():  # each run has its own folder, named after its values
+        labels = [sweep_label({key: v}) for v in chosen]
         twice = sorted({lab for lab in labels if labels.count(lab) > 1})
         if twice:
             raise fail(
