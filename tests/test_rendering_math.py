@@ -355,3 +355,20 @@ def test_the_course_functions_refuse_shapes_they_would_misread():
     ):
         with pytest.raises(ValueError, match=r"RaysData takes images of \(N, H, W, 3\) = \(2, 4, 6, 3\) uint8"):
             RaysData(Views(c2w, Ks, 6, 4, images))
+
+
+def test_the_course_functions_keep_float64_and_refuse_a_fractional_octave_count():
+    from nerfkit import NeRFMLP, VanillaConfig
+
+    o, d = torch.zeros(2, 3, dtype=torch.float64), torch.tensor([[0.0, 0, 1], [0, 1, 0]], dtype=torch.float64)
+    pts, t = sample_along_rays(o, d, 2.0, 2.0 + 1e-9, n_samples=2, perturb=False)
+    assert t.dtype == pts.dtype == torch.float64 and t[0, 1] - t[0, 0] == pytest.approx(5e-10, rel=1e-6)
+    with pytest.raises(ValueError, match="n_samples must be at least 1"):
+        sample_along_rays(o, d, 2.0, 6.0, n_samples=0)
+    mlp = NeRFMLP(VanillaConfig(width=8, depth=2)).double()
+    sigma, rgb = mlp(torch.zeros(3, 3, dtype=torch.float64), torch.zeros(3, 3, dtype=torch.float64))
+    assert sigma.dtype == rgb.dtype == torch.float64
+    for bad in (2.5, -1):
+        with pytest.raises(ValueError, match="positional_encoding's L"):
+            positional_encoding(torch.zeros(2, 3), bad)
+    assert positional_encoding(torch.zeros(2, 3), np.int64(2)).shape == (2, 15)

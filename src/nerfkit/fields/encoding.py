@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import operator
 
 import torch
 from torch import Tensor
@@ -28,6 +29,12 @@ def positional_encoding(x: Tensor, L: int) -> Tensor:
     Example: a 1-D x = 0 gives [0, 0, 1, 0, 1, ...] (sin 0 = 0, cos 0 = 1); a 3-D x = 0
     gives [0, 0, 0, 0, 0, 0, 1, 1, 1, ...] (x, then sin over D, then cos over D).
     """
+    try:
+        L = operator.index(L)  # a whole number of octaves (encoded_dim counts them so)
+    except TypeError:
+        raise ValueError(f"positional_encoding's L is a whole number of octaves, got {L!r}") from None
+    if L < 0:
+        raise ValueError(f"positional_encoding's L must be 0 or more, got {L}")
     if L == 0:
         return x
     freqs = (2.0 ** torch.arange(L, dtype=x.dtype, device=x.device)) * math.pi  # (L,)

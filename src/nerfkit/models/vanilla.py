@@ -101,7 +101,8 @@ class NeRFMLP(nn.Module):
         ed = positional_encoding(d, self.cfg.dir_freqs)
         c = torch.relu(self.color_hidden(torch.cat([self.feature(h), ed], dim=-1)))
         rgb = torch.sigmoid(self.color_out(c))
-        return sigma.float(), rgb.float()
+        dtype = torch.promote_types(torch.float32, self.color_out.weight.dtype)  # (bf16 under autocast: float32)
+        return sigma.to(dtype), rgb.to(dtype)
 
 
 class VanillaNeRF(NerfModel):

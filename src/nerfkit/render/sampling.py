@@ -18,6 +18,7 @@ def stratified_t(
     perturb: bool,
     device: torch.device | str | None = None,
     generator: torch.Generator | None = None,
+    dtype: torch.dtype = torch.float32,
 ) -> Tensor:
     """Sample distances in ``n_samples`` equal bins between near and far.
 
@@ -32,14 +33,16 @@ def stratified_t(
 
     Example: near=2, far=6, n_samples=4, perturb=False -> [2.5, 3.5, 4.5, 5.5].
     """
-    near = torch.as_tensor(near, dtype=torch.float32, device=device).reshape(-1, 1)
-    far = torch.as_tensor(far, dtype=torch.float32, device=device).reshape(-1, 1)
-    edges = torch.linspace(0.0, 1.0, n_samples + 1, device=near.device)
+    if n_samples < 1:
+        raise ValueError(f"n_samples must be at least 1, got {n_samples}")
+    near = torch.as_tensor(near, dtype=dtype, device=device).reshape(-1, 1)
+    far = torch.as_tensor(far, dtype=dtype, device=device).reshape(-1, 1)
+    edges = torch.linspace(0.0, 1.0, n_samples + 1, device=near.device, dtype=dtype)
     lower, width = edges[:-1], edges[1] - edges[0]
     if perturb:
-        u = torch.rand((n_rays, n_samples), device=near.device, generator=generator)
+        u = torch.rand((n_rays, n_samples), device=near.device, generator=generator, dtype=dtype)
     else:
-        u = torch.full((n_rays, n_samples), 0.5, device=near.device)
+        u = torch.full((n_rays, n_samples), 0.5, device=near.device, dtype=dtype)
     frac = lower + u * width
     return near + (far - near) * frac
 
@@ -74,9 +77,9 @@ def sample_along_rays(
             f"sample_along_rays takes (n_rays, 3) origins and directions, got {tuple(rays_o.shape)} "
             f"and {tuple(rays_d.shape)}: reshape them with .reshape(-1, 3)"
         )
-    if not bool((torch.as_tensor(near) < torch.as_tensor(far)).all()):
+    if not bool((torch.as_tensor(near, dtype=torch.float64) < torch.as_tensor(far, dtype=torch.float64)).all()):
         raise ValueError(f"sample_along_rays needs near < far on every ray, got near {near} and far {far}")
-    t = stratified_t(near, far, rays_o.shape[0], n_samples, perturb, rays_o.device, generator)
+    t = stratified_t(near, far, rays_o.shape[0], n_samples, perturb, rays_o.device, generator, rays_o.dtype)
     points = rays_o[:, None, :] + t[..., None] * rays_d[:, None, :]
     return points, t
 
