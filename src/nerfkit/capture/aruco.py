@@ -95,10 +95,17 @@ def square_corners(size: float) -> np.ndarray:
     return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
 
 
+def quad_sides(corners) -> np.ndarray:
+    """(...) the mean side of each quad of ``corners`` (..., 4, k), in their units (a tag's
+    side in pixels or metres)."""
+    c = np.asarray(corners)
+    return np.linalg.norm(c - np.roll(c, -1, axis=-2), axis=-1).mean(-1)
+
+
 def tag_pose_in_layout(corners: np.ndarray) -> np.ndarray:
     """(4, 4) transform from a tag's own frame to the layout frame, fitted (Kabsch) to its
     (4, 3) layout corners."""
-    size = float(np.mean(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
+    size = float(quad_sides(corners))
     src = square_corners(size)
     mu_s, mu_d = src.mean(0), corners.mean(0)
     U, _, Vt = np.linalg.svd((corners - mu_d).T @ (src - mu_s))
@@ -139,8 +146,7 @@ class Layout:
     @property
     def tag_size(self) -> float:
         """Mean side length of the tags."""
-        sides = [np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean() for c in self.tags.values()]
-        return float(np.mean(sides))
+        return float(np.mean([quad_sides(c) for c in self.tags.values()]))
 
     def max_height(self) -> float:
         """The largest distance of a corner from the plane z = 0."""
@@ -425,6 +431,11 @@ class Detection:
             )
         return det
 
+    def without(self, tags) -> Detection:
+        """The same detection without the tags of ids ``tags``."""
+        keep = ~np.isin(self.ids, list(tags))
+        return replace(self, ids=self.ids[keep], corners=self.corners[keep])
+
     def resized(self, width: int, height: int) -> Detection:
         """The same detection in the photo resized to ``width`` x ``height`` (pixel centres at
         integers: a pixel x moves to (x + 0.5) s - 0.5)."""
@@ -589,7 +600,7 @@ def refine_corners_by_edges(
     (benchmarks/capture_real.py counts the photos posed).
     """
     c = np.asarray(corners, np.float64).copy()
-    side = float(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean())
+    side = float(quad_sides(c))
     reach = max(1.5, 0.45 * side / (marker_bits + 2))  # stay inside the black border
     x0, y0 = np.floor(c.min(0) - reach - 3).astype(int)
     x1, y1 = np.ceil(c.max(0) + reach + 3).astype(int)
@@ -730,7 +741,7 @@ def detect(
         if refined is not None:
             quads[i] = refined
         elif s != 1:  # the detector refined at its scale only
-            side = float(np.linalg.norm(quads[i] - np.roll(quads[i], -1, axis=0), axis=1).mean())
+            side = float(quad_sides(quads[i]))
             module = side / (marker_bits + 2)
             win = int(np.clip(round(0.4 * module), 2, 30))
             quads[i] = _refine(gray, quads[i], win, max_shift=min(0.5 * module, 2.0 / s))

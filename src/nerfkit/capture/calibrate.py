@@ -48,7 +48,7 @@ import numpy as np
 
 from ..config import flag_of, option
 from ..errors import NerfkitError, fail
-from .aruco import Layout, square_corners
+from .aruco import Layout, quad_sides, square_corners
 from .camera import FILM_DIAGONAL_MM, exif_fx, image_centre, implausible
 from .distortion import distortion_check, fold_spread, frame_displacement, heldout_errors
 from .photos import PhotoRecord, frame_turns
@@ -633,7 +633,7 @@ def tag_views(
     for r in records:
         det = r.detected
         ids = list(det.ids)
-        sides = np.linalg.norm(det.corners - np.roll(det.corners, -1, axis=1), axis=2).mean(1)
+        sides = quad_sides(det.corners)
         order = [i for i in np.argsort(-sides) if ids.count(ids[i]) == 1]
         for rank, i in enumerate(order):
             ranked.append((rank, -float(sides[i]), (f"{r.name}#{int(ids[i])}", sq, det.corners[i])))
@@ -867,8 +867,7 @@ def odd_sized_tags(detections: list) -> dict[int, float]:
         ids = [int(i) for i in det.ids]
         if len(set(ids)) < 3 or len(set(ids)) != len(ids):
             continue
-        c = np.asarray(det.corners, np.float64)
-        sides = np.linalg.norm(c - np.roll(c, -1, axis=1), axis=2).mean(axis=1)
+        sides = quad_sides(np.asarray(det.corners, np.float64))
         for k, t in enumerate(ids):
             ratios.setdefault(t, []).append(float(sides[k] / np.median(np.delete(sides, k))))
     medians = {t: float(np.median(r)) for t, r in ratios.items()}
@@ -1064,8 +1063,7 @@ def calibrate_records(
         odd = odd_sized_tags([r.detected for r in with_tags])
         if odd:
             for r in with_tags:
-                keep = ~np.isin(r.detected.ids, list(odd))
-                r.detection = replace(r.detected, ids=r.detected.ids[keep], corners=r.detected.corners[keep])
+                r.detection = r.detected.without(odd)
             notes.append(
                 "left out of the sheet: "
                 + ", ".join(f"tag {t} (it looks {k:.1f} times the size of the others)" for t, k in sorted(odd.items()))

@@ -41,6 +41,7 @@ from ..io.atomic import write_json
 from ..io.paths import resolve_inside
 from ..scene_extent import FEW_TRAIN_VIEWS, MIN_OBJECT_POINTS, object_box, object_points, sphere_radius
 from ..tabletop import inside_quads
+from .aruco import quad_sides
 from .camera import Camera, camera_from_dict, nerfkit_K
 from .poses import UP, PosedPhoto
 from .undistort import make_undistorter, output_size, resize_K_nerfkit
@@ -440,7 +441,7 @@ def tag_surface_height(points: np.ndarray, tags: np.ndarray) -> tuple[float, int
     """
     tags = np.asarray(tags, np.float64)
     points = np.asarray(points, np.float64)
-    side = float(np.linalg.norm(tags - np.roll(tags, -1, axis=1), axis=2).mean())
+    side = float(quad_sides(tags).mean())
     near = points[np.abs(points[:, 2]) <= TAG_SURFACE_BAND * side]
     on = near[inside_quads(near[:, :2], tags[..., :2])]
     if len(on) < MIN_TAG_SURFACE_POINTS:
@@ -454,7 +455,7 @@ def _lying_flat(tags) -> np.ndarray | None:
     if tags is None:
         return None
     t = np.asarray(tags, np.float64)
-    side = np.linalg.norm(t - np.roll(t, -1, axis=1), axis=2).mean(1)
+    side = quad_sides(t)
     flat = np.abs(t[..., 2]).max(1) <= 0.01 * side
     return t[flat].astype(np.float32) if flat.any() else None
 

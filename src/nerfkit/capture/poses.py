@@ -27,7 +27,7 @@ import numpy as np
 from ..config import option
 from ..errors import fail
 from ..images import held_as
-from .aruco import Detection, Layout, square_corners, tag_pose_in_layout
+from .aruco import Detection, Layout, quad_sides, square_corners, tag_pose_in_layout
 from .camera import Camera, camera_from_focal, common_lens, exif_fx, other_lens
 from .photos import PhotoRecord, blur_hint, frame_turns, keep_one_lens, turn_into_frame
 
@@ -191,8 +191,7 @@ def detection_limit(det: Detection, camera: Camera, layout: Layout, cfg: PoseCon
 
 
 def tag_side_px(det: Detection, tag: int) -> float:
-    c = det.corners[list(det.ids).index(tag)]
-    return float(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean())
+    return float(quad_sides(det.corners[list(det.ids).index(tag)]))
 
 
 def tag_errors(det: Detection, c2w: np.ndarray, camera: Camera, layout: Layout, used: list[int]) -> dict[int, float]:
@@ -208,11 +207,6 @@ def tag_errors(det: Detection, c2w: np.ndarray, camera: Camera, layout: Layout, 
     }
 
 
-def without_tag(det: Detection, tag: int) -> Detection:
-    keep = det.ids != tag
-    return Detection(det.width, det.height, det.ids[keep], det.corners[keep], det.sharpness)
-
-
 def solve_pose_robust(det: Detection, camera: Camera, layout: Layout, limit: float):
     """:func:`solve_pose`, then, while the fit exceeds ``limit`` and more than one tag is
     used, drop the tag that fits worst and refit. Dropped tags go to ``info["tags_dropped"]``."""
@@ -221,7 +215,7 @@ def solve_pose_robust(det: Detection, camera: Camera, layout: Layout, limit: flo
     while c2w is not None and err > limit and len(info.get("tags_used", [])) > 1 and layout.charuco is None:
         errs = tag_errors(det, c2w, camera, layout, info["tags_used"])
         worst = max(errs, key=errs.__getitem__)
-        det = without_tag(det, worst)
+        det = det.without([worst])
         c2w2, err2, reason2, info2 = solve_pose(det, camera, layout)
         if c2w2 is None or err2 >= err:
             break
@@ -414,7 +408,7 @@ def refine_focal(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
             continue
         det = r.detection
         for tag in info.get("tags_dropped", {}):  # the tags the pose kept, as it matched them
-            det = without_tag(det, int(tag))
+            det = det.without([int(tag)])
         points, pixels, _ = layout.match(det)
         obj.append(points)
         img.append(((pixels + 0.5) * scale - 0.5).astype(np.float32))
