@@ -17,7 +17,7 @@ import numpy as np
 
 from .errors import fail
 from .io.atomic import atomic_path
-from .io.paths import files_inside, path_kind, refuse_special_file
+from .io.paths import file_sha1, files_inside, path_kind, refuse_special_file
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp", ".heic", ".heif"}
 # the clips `nerfkit capture` and `nerfkit frames` take (ffmpeg reads them)
@@ -164,12 +164,25 @@ def upright_size(img, orientation: int) -> tuple[int, int]:
 
 
 def _open_upright(path: Path):
+    return _upright(_open(path))
+
+
+def _upright(img):
+    """An opened PIL image turned by its EXIF orientation."""
     from PIL import ImageOps
 
-    img = _open(path)
     with contextlib.suppress(Exception):  # a broken EXIF block should not stop us
         img = ImageOps.exif_transpose(img)
     return img
+
+
+def _over(rgba: np.ndarray, background) -> np.ndarray:
+    """(H, W, 3) float32 RGB of float (H, W, 3 or 4) ``rgba`` in [0, 1], composited over ``background``."""
+    if rgba.shape[-1] == 3:
+        return np.ascontiguousarray(rgba, dtype=np.float32)
+    alpha = rgba[..., 3:4]
+    rgb = rgba[..., :3] * alpha + np.asarray(background, np.float32) * (1.0 - alpha)
+    return np.ascontiguousarray(rgb, dtype=np.float32)
 
 
 def _has_alpha(img) -> bool:
@@ -185,17 +198,7 @@ def load_image(path: str | Path, background: tuple[float, float, float] = (0.0, 
     """
     img = _open(Path(path))
     deep = _colour_16bit(Path(path), img)
-    if deep is not None:
-        rgb = deep[..., :3]
-        if deep.shape[-1] == 4:
-            alpha = deep[..., 3:4]
-            rgb = rgb * alpha + np.asarray(background, np.float32) * (1.0 - alpha)
-        return np.ascontiguousarray(rgb, dtype=np.float32)
-    with contextlib.suppress(Exception):  # a broken EXIF block should not stop us
-        from PIL import ImageOps
-
-        img = ImageOps.exif_transpose(img)
-    return _to_float(img, background, path)
+    return _over(deep, background) if deep is not None else _to_float(_upright(img), background, path)
 
 
 def _colour_16bit(path: Path, img) -> np.ndarray | None:
@@ -238,10 +241,7 @@ def _to_float(img, background, path) -> np.ndarray:
     img = img.convert("RGBA" if has_alpha else "RGB")
     arr = np.asarray(img, dtype=np.float32)
     arr /= 255.0
-    if has_alpha:
-        alpha = arr[..., 3:4]
-        arr = arr[..., :3] * alpha + np.asarray(background, np.float32) * (1.0 - alpha)
-    return np.ascontiguousarray(arr[..., :3], dtype=np.float32)
+    return _over(arr, background)
 
 
 def load_image_uint8(
@@ -282,19 +282,13 @@ def copies(paths: list[Path]) -> dict[str, str]:
     """Each photo of ``paths`` whose bytes are those of an earlier one -> that one's name
     ("IMG_1 (1).jpg" -> "IMG_1.jpg"): a copy adds no view, and one in the held-out photos
     would score a view trained on. Files that cannot be read are left to the reader's error."""
-    import hashlib
-
-    first: dict[bytes, str] = {}
+    first: dict[str, str] = {}
     out = {}
     for p in paths:
-        digest = hashlib.sha1()
         try:
-            with open(p, "rb") as f:
-                while chunk := f.read(1 << 20):
-                    digest.update(chunk)
+            key = file_sha1(p)
         except OSError:
             continue
-        key = digest.digest()
         if key in first and first[key] != p.name:
             out[p.name] = first[key]
         else:

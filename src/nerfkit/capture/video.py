@@ -33,6 +33,7 @@ import numpy as np
 
 from ..errors import fail
 from ..images import VIDEO_SUFFIXES
+from ..io.paths import file_sha1
 
 DEFAULT_TARGET = 120  # frames kept by default
 MIN_FRAMES = 10  # fewer usable frames than this cannot be posed
@@ -135,13 +136,7 @@ def clip_stamp(path: str | os.PathLike) -> str:
 
 @functools.lru_cache(maxsize=8)
 def _clip_stamp(path: str, size: int, mtime_ns: int, inode: int) -> str:
-    import hashlib
-
-    digest = hashlib.sha1()
-    with open(path, "rb") as f:
-        while chunk := f.read(1 << 20):
-            digest.update(chunk)
-    return f"{size} bytes, sha1 {digest.hexdigest()[:16]}"
+    return f"{size} bytes, sha1 {file_sha1(path)[:16]}"
 
 
 def ffmpeg_input(path: str | os.PathLike) -> str:

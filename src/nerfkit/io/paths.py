@@ -140,6 +140,17 @@ def safe_output_name(name: str, fallback: str = "view") -> str:
     return base if base not in ("", ".", "..") else fallback
 
 
+def file_sha1(path: str | os.PathLike) -> str:
+    """The SHA-1 of the file's bytes (hex), read a megabyte at a time (about a second a gigabyte)."""
+    import hashlib
+
+    digest = hashlib.sha1()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
 def distinct_names(named: list[tuple[str, str]]) -> list[str]:
     """Plain, distinct file names (:func:`safe_output_name`) for views given as (split, name):
     names whose last components collide keep their folders joined by "_" (Blender's
