@@ -299,13 +299,14 @@ NEEDS: dict[str, tuple[str, Callable[[Any, Any], bool]]] = {
 def unmet_needs(train: Any, model_config: Any, given: Iterable[str]) -> list[str]:
     """A note for each option in ``given`` that the run's settings leave without effect
     (:data:`NEEDS`), e.g. ``--table-gloss`` on a run without the table plane."""
+    from .config import flag_of
+
     names = {f.name for f in dataclasses.fields(train)} | {f.name for f in dataclasses.fields(model_config)}
     notes = []
     for name in sorted(set(given) & set(NEEDS) & names):
         need, met = NEEDS[name]
         if not met(train, model_config):
-            flag = "--" + name.replace("_", "-")
-            notes.append(f"{flag} does nothing in this run: it acts only with {need}")
+            notes.append(f"{flag_of(name)} does nothing in this run: it acts only with {need}")
     return notes
 
 

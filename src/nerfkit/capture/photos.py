@@ -323,12 +323,13 @@ def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str
     dets = [r.detection for r in readable if r.detection is not None]  # all of readable
     if any(len(d.ids) or (d.charuco_ids is not None and len(d.charuco_ids)) for d in dets):
         twice = [sorted({int(i) for i in d.ids if list(d.ids).count(i) > 1}) for d in dets if len(d.ids)]
-        if sum(bool(t) for t in twice) > len(twice) / 2:  # a tag seen twice in a photo is matched nowhere
+        repeating = sum(bool(t) for t in twice)
+        if repeating > len(twice) / 2:  # a tag seen twice in a photo is matched nowhere
             ids = sorted({i for t in twice for i in t})
             raise fail(
                 folder,
                 f"tag{'s' if len(ids) > 1 else ''} {', '.join(map(str, ids))} appear{'' if len(ids) > 1 else 's'} "
-                f"more than once in {sum(bool(t) for t in twice)} of {len(twice)} photos with tags: a photo's tags "
+                f"more than once in {repeating} of {len(twice)} photos with tags: a photo's tags "
                 "are told apart by their ids",
                 "Print a sheet whose tags all differ (`nerfkit tags`)",
             )

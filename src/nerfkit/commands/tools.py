@@ -312,14 +312,11 @@ def fit_image(
     """
     from .. import fit_image as fitting
     from ..config import output_path
-    from ..errors import fail
     from ..io.paths import guard_outputs, refuse_links
     from .stages.fit_image import fit_report
 
     cfg = _settings(settings, fitting.FitImageConfig, "settings")
-    if sweep is not None and not sweep:
-        raise fail("--sweep", "no KEY=V1,V2 items", "Example: --sweep L=3,10 width=64,256")
-    combos = fitting.parse_sweep([str(item) for item in sweep]) if sweep else None
+    combos = fitting.parse_sweep([str(item) for item in sweep]) if sweep is not None else None  # ([]: refused)
     stem = Path(image).stem if image else fitting.default_image_path().stem
     folder = Path("runs") / "fit-image" / (stem + ("-sweep" if combos else ""))
     folder = Path(_check("--out", out, output_path)) if out is not None else folder
