@@ -372,3 +372,35 @@ def test_the_course_functions_keep_float64_and_refuse_a_fractional_octave_count(
         with pytest.raises(ValueError, match="positional_encoding's L"):
             positional_encoding(torch.zeros(2, 3), bad)
     assert positional_encoding(torch.zeros(2, 3), np.int64(2)).shape == (2, 15)
+
+
+def test_the_course_functions_take_numpy_and_give_numpy_back():
+    """numpy in, numpy out, with the values the tensors give; a tensor among the inputs keeps tensors."""
+    gen = torch.Generator().manual_seed(3)
+    c2w = random_c2w(gen, 1)[0]
+    K = torch.tensor([[200.0, 0, 64], [0, 210, 48], [0, 0, 1]], dtype=torch.float64)
+    uv = torch.tensor([[3.5, 7.5], [100.0, 60.0]], dtype=torch.float64)
+    x = torch.randn(2, 3, dtype=torch.float64, generator=gen)
+
+    out = transform(c2w.numpy(), x.numpy())
+    assert isinstance(out, np.ndarray) and out.dtype == np.float64
+    np.testing.assert_array_equal(out, transform(c2w, x).numpy())
+    np.testing.assert_array_equal(pixel_to_camera(K.numpy(), uv.numpy(), 2.0), pixel_to_camera(K, uv, 2.0).numpy())
+    o, d = pixel_to_ray(K.numpy(), c2w.numpy(), uv.numpy())
+    to, td = pixel_to_ray(K, c2w, uv)
+    assert isinstance(o, np.ndarray) and isinstance(d, np.ndarray)
+    np.testing.assert_array_equal(d, td.numpy())
+    np.testing.assert_array_equal(o, to.numpy())
+
+    pts, t = sample_along_rays(o, d, 2.0, 6.0, n_samples=4, perturb=False)
+    assert isinstance(pts, np.ndarray) and t.shape == (2, 4)
+    np.testing.assert_allclose(t[0], [2.5, 3.5, 4.5, 5.5])
+    rgb = volrend(np.full((2, 4), 1e3), np.ones((2, 4, 3)) * 0.25, 1.0)
+    assert isinstance(rgb, np.ndarray)
+    np.testing.assert_allclose(rgb, 0.25)
+    enc = positional_encoding(np.zeros((1, 1)), 1)
+    assert isinstance(enc, np.ndarray)
+    np.testing.assert_array_equal(enc, [[0.0, 0.0, 1.0]])
+
+    # a tensor among the arguments: the results stay tensors
+    assert isinstance(transform(c2w, x.numpy()), torch.Tensor)

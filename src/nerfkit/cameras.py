@@ -22,6 +22,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from nerfkit.arrays import accepts_numpy
+
 # Flips camera y and z: OpenGL camera axes <-> OpenCV camera axes (its own inverse).
 _GL_CV_FLIP = np.diag([1.0, -1.0, -1.0, 1.0])
 
@@ -42,6 +44,7 @@ def intrinsics_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=np.float32)
 
 
+@accepts_numpy
 def transform(c2w: Tensor, x: Tensor) -> Tensor:
     """Apply rigid transforms to points.
 
@@ -66,6 +69,7 @@ def _broadcasts_to(shape: torch.Size, target: torch.Size) -> bool:
         return False
 
 
+@accepts_numpy
 def pixel_to_camera(K: Tensor, uv: Tensor, s: Tensor | float) -> Tensor:
     """Back-project pixels to camera-frame points at depth ``s`` (the z coordinate).
 
@@ -117,6 +121,7 @@ class Rays:
         return Rays(self.origins.to(device), self.directions.to(device))
 
 
+@accepts_numpy
 def pixel_to_ray(K: Tensor, c2w: Tensor, uv: Tensor) -> tuple[Tensor, Tensor]:
     """Rays through pixels.
 

@@ -8,12 +8,15 @@ import operator
 import torch
 from torch import Tensor
 
+from nerfkit.arrays import accepts_numpy
+
 
 def encoded_dim(in_dim: int, L: int) -> int:
     """Width of ``positional_encoding`` output: ``in_dim * (1 + 2 L)``."""
     return in_dim * (1 + 2 * L)
 
 
+@accepts_numpy
 def positional_encoding(x: Tensor, L: int) -> Tensor:
     """Identity plus sin/cos at L octaves.
 

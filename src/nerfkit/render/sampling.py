@@ -9,6 +9,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from nerfkit.arrays import accepts_numpy
+
 
 def stratified_t(
     near: Tensor | float,
@@ -47,6 +49,7 @@ def stratified_t(
     return near + (far - near) * frac
 
 
+@accepts_numpy
 def sample_along_rays(
     rays_o: Tensor,
     rays_d: Tensor,

@@ -23,6 +23,8 @@ import math
 import torch
 from torch import Tensor
 
+from nerfkit.arrays import accepts_numpy
+
 
 def tau_cap(dtype: torch.dtype) -> float:
     """The most optical depth one sample adds to the transmittance sums: ``exp(-cap)`` is
@@ -182,6 +184,7 @@ def sight_line_loss(empty: Tensor, stopped: Tensor) -> Tensor:
     return (empty.float().sum() + (1.0 - stopped.float()).sum()) / n
 
 
+@accepts_numpy
 def volrend(
     sigmas: Tensor, rgbs: Tensor, step_size: Tensor | float, background: Tensor | float | None = None
 ) -> Tensor:
