@@ -164,6 +164,10 @@ def test_an_option_of_an_output_not_asked_for_is_said_to_do_nothing(tmp_path, sp
     assert "note: --resolution, --color-views act only with --mesh" in err and "--stride" not in err
     assert "note: --no-background-dome acts only with --splat" in err
     assert (tmp_path / "p.ply").is_file()
+    # the dataset gives the mesh's colours and the points, not the Gaussians (the note comes first)
+    with pytest.raises(NerfkitError, match="--splat exports runs of --model splat"):
+        api.export(run, splat=tmp_path / "s.ply", data=sphere_npz, quiet=True)
+    assert "note: --data acts only with --mesh or --points" in capsys.readouterr().err
 
 
 def test_numpy_scalars_are_taken_as_pythons(tmp_path, sphere_npz):

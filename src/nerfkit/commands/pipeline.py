@@ -1093,7 +1093,11 @@ def export(
                 ("--no-crop", crop, (True,)),
             ],
         ),
-        (mesh_file or points_file, "--mesh or --points", [("--box-scale", box_scale, (1.0,))]),
+        (
+            mesh_file or points_file,
+            "--mesh or --points",
+            [("--box-scale", box_scale, (1.0,)), ("--data", data, (None,))],
+        ),
         (splat_file, "--splat", [("--no-background-dome", background_dome, (True,))]),
     ):
         idle = [flag for flag, value, defaults in options if value not in defaults]
