@@ -489,10 +489,10 @@ def test_view_of_a_run_serves_its_live_viewer_only_when_it_may_block(tmp_path, m
         api.view(run)
     calls = []
     fake = types.ModuleType("nerfkit.commands.live")
-    fake.serve_run = lambda run_dir, host, port: calls.append((run_dir, host, port))
+    fake.serve_run = lambda run_dir, host, port, **kw: calls.append((run_dir, host, port, kw))
     monkeypatch.setitem(sys.modules, "nerfkit.commands.live", fake)
-    assert api.view(run, port=9123, block=True) == api.ViewResult(None, None)
-    assert calls == [(run, "127.0.0.1", 9123)]
+    assert api.view(run, port=9123, block=True, quiet=True) == api.ViewResult(None, None)
+    assert calls == [(run, "127.0.0.1", 9123, {"allow_outside_paths": False, "quiet": True})]
     with pytest.raises(NerfkitError, match="--rays: the live viewer of a trained run draws its cameras"):
         api.view(run, rays=5, block=True)
 

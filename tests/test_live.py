@@ -207,3 +207,22 @@ def test_progressive_refinement_for_a_resting_camera(monkeypatch):
         assert sent[-1] == (8, 16, 3)
     finally:
         viewer.server.stop()
+
+
+def test_a_splat_runs_gaussians_are_hidden_while_depth_or_the_object_alone_is_shown():
+    """viser draws its Gaussians over the rendered background: shown over colour only."""
+    bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
+    info = SimpleNamespace(bounds=bounds, train=SimpleNamespace(background="black"))
+    watcher = live.RunWatcher(".", lambda d: None)
+    watcher.current = live.LoadedRun(SphereModel(bounds), info, 5, None)
+    viewer = live.LiveViewer(watcher, None, host="127.0.0.1", port=0, max_side=32, watch=False)
+    try:
+        viewer.splats = SimpleNamespace(visible=True)
+        shown = []
+        for mode, alone in (("Depth", False), ("RGB", True), ("RGB", False)):
+            viewer.mode.value, viewer.alone.value = mode, alone
+            viewer.step()
+            shown.append(viewer.splats.visible)
+        assert shown == [False, False, True]
+    finally:
+        viewer.server.stop()

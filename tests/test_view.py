@@ -155,11 +155,11 @@ def run_folder(tmp_path):
 def test_view_of_a_run_folder_calls_the_live_viewer(tmp_path, monkeypatch):
     calls = []
     fake = types.ModuleType("nerfkit.commands.live")
-    fake.serve_run = lambda run_dir, host, port: calls.append((str(run_dir), host, port))
+    fake.serve_run = lambda run_dir, host, port, **kw: calls.append((str(run_dir), host, port, kw))
     monkeypatch.setitem(sys.modules, "nerfkit.commands.live", fake)
     run = run_folder(tmp_path)
     assert main(["view", str(run), "--port", "9123"]) == 0
-    assert calls == [(str(run), "127.0.0.1", 9123)]
+    assert calls == [(str(run), "127.0.0.1", 9123, {"allow_outside_paths": False, "quiet": False})]
 
 
 def test_view_of_a_run_folder_without_the_live_viewer_is_a_clear_error(tmp_path, monkeypatch):
@@ -190,3 +190,102 @@ def test_the_viewer_draws_every_printed_tag_the_dataset_records():
         assert mesh.faces.max() == 11
     finally:
         server.stop()
+
+
+def test_the_frustums_look_along_each_cameras_z_with_its_field_of_view_and_aspect():
+    """OpenCV axes: each frustum's rotation is its camera's (+z forward, toward the scene),
+    its vertical field of view 2 atan(h / 2 fy), its aspect w / h; views named alike in two
+    folders are two cameras."""
+    import viser.transforms as vtf
+
+    from nerfkit.viz.viewer import serve_dataset
+
+    scene = small_scene(w=40, h=20)
+    scene.train.K[:, 1, 1] = 10.0  # fy: a vertical field of view of 90 degrees
+    scene.train.names = [f"{d}/frame.jpg" for d in "abcd"]
+    server, handles = serve_dataset(scene, host="127.0.0.1", port=free_port(), block=False)
+    try:
+        train = handles["frustums"][: len(scene.train)]
+        assert len({h.name for h in train}) == len(scene.train)
+        for h, c2w in zip(train, scene.train.c2w.astype(np.float64)):
+            R = vtf.SO3(np.asarray(h.wxyz)).as_matrix()
+            np.testing.assert_allclose(R, c2w[:3, :3], atol=1e-5)
+            assert (scene.center - c2w[:3, 3]) @ R[:, 2] > 0  # +z looks at the scene
+            assert h.fov == pytest.approx(np.pi / 2) and h.aspect == pytest.approx(2.0)
+    finally:
+        server.stop()
+
+
+def test_the_sliders_reach_the_rays_and_samples_asked_for():
+    from nerfkit.viz.viewer import serve_dataset
+
+    server, handles = serve_dataset(
+        small_scene(), host="127.0.0.1", port=free_port(), n_rays=5000, n_samples=1, block=False
+    )
+    try:
+        assert handles["gui"]["rays"].value == 5000 and handles["gui"]["samples"].value == 1
+        assert handles["samples"].points.shape == (5000, 3)
+    finally:
+        server.stop()
+
+
+def test_a_host_the_machine_cannot_listen_on_is_refused_before_serving():
+    from nerfkit.viz.viewer import listening_port
+
+    with pytest.raises(NerfkitError, match="--host: is empty"):
+        listening_port(" ", 8080)
+    with pytest.raises(NerfkitError, match="--host: 'no.such.host.invalid' does not resolve"):
+        listening_port("no.such.host.invalid", 8080)
+    with pytest.raises(NerfkitError, match="--host: cannot listen on 192.0.2.1"):  # TEST-NET-1: not ours
+        listening_port("192.0.2.1", 8080)
+    with socket.socket() as taken:  # a port in use: the next one
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        got = listening_port("127.0.0.1", port)
+        assert got != port and port < got <= min(port + 100, 65535)
+        if port == 65535:
+            pytest.skip("no port after 65535")
+
+
+def test_a_thumbnail_keeps_its_aspect_without_opencv(monkeypatch):
+    from nerfkit.viz.viewer import _thumbnail
+
+    monkeypatch.setitem(sys.modules, "cv2", None)
+    image = np.zeros((300, 600, 3), np.uint8)
+    image[:, 300:] = 200
+    small = _thumbnail(image, 256)
+    assert small.shape == (128, 256, 3) and small[:, :127].max() == 0 and small[:, 129:].min() == 200
+    assert _thumbnail(image, 1000) is image
+
+
+def test_the_pictures_axes_are_the_worlds_where_up_is_z():
+    from nerfkit.viz.scene_plot import _axis_label, _to_plot
+
+    R = _to_plot(np.array([0.0, 0.0, 1.0]))
+    np.testing.assert_allclose(R, np.eye(3), atol=1e-12)
+    assert [_axis_label(r) for r in R[:2]] == ["x", "y"]
+    R = _to_plot(np.array([0.0, -1.0, 0.0]))  # y down is up (OpenCV-style worlds)
+    assert np.linalg.det(R) == pytest.approx(1.0) and [_axis_label(r) for r in R] == ["x", "z", "-y"]
+    R = _to_plot(np.array([0.3, 0.2, 0.9]))
+    assert _axis_label(R[1]) == "across up" and np.allclose(R @ R.T, np.eye(3))
+
+
+def test_a_run_in_training_before_its_first_checkpoint_opens_the_live_viewer(tmp_path, monkeypatch):
+    from nerfkit import api
+    from nerfkit.io.lock import folder_lock
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text('{"train": {"data": "d.npz"}}')
+    with pytest.raises(NerfkitError, match="folder holds no dataset"):  # stopped: nothing to show
+        api.view(run)
+    training = pytest.raises(NerfkitError, match="is a trained run: its live viewer renders on the calling thread")
+    with folder_lock(run), training:  # training: the live viewer waits for its first checkpoint
+        api.view(run)
+    with pytest.raises(NerfkitError, match="config.json: is a file of a trained run. Pass the run's folder"):
+        (run / "model.pt").write_bytes(b"")
+        api.view(run / "config.json")
+    for options, flag in (({"samples": 8}, "--samples"), ({"force": True}, "--force")):
+        with pytest.raises(NerfkitError, match=flag):
+            api.view(run, **options)

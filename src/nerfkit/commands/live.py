@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from ..errors import NerfkitError, fail
+from ..errors import NerfkitError
 from ..images import to_uint8
 
 if TYPE_CHECKING:
@@ -199,15 +199,16 @@ class LiveViewer:
         chunk: int = 4096,
         watch: bool = True,
     ):
-        import viser
+        from ..viz.viewer import listening_port, require_viser
 
+        viser = require_viser()
         self.watcher = watcher
         self.scene = scene
         self.max_side = max_side
         self.preview = preview
         self.chunk = chunk
         self.watch = watch
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.server = viser.ViserServer(host=host, port=listening_port(host, port), verbose=False)
         self._states: dict[int, _ClientState] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -243,6 +244,13 @@ class LiveViewer:
         from ..viz.splats import add_splats
 
         self.splats = add_splats(self.server, run.model)
+        self._splats_visible()
+
+    def _splats_visible(self) -> None:
+        """viser draws its Gaussians over the rendered background: shown in colour only, as
+        the depth or the object alone would be drawn under them unseen."""
+        if self.splats is not None:
+            self.splats.visible = self.mode.value == "RGB" and not self.alone.value
 
     def _add_training_cameras(self, scene) -> None:
         v = scene.train
@@ -350,6 +358,7 @@ class LiveViewer:
                 self._show_splats()
             elif self.watcher.current is None:
                 self.status.content = self.watcher.status
+        self._splats_visible()
         sides = refinement_sides(self.preview, int(self.res.value))
         now = time.monotonic()
         for cid, client in list(self.server.get_clients().items()):
@@ -404,6 +413,8 @@ def serve_run(
     max_side: int = 256,
     watch: bool = True,
     chunk: int = 4096,
+    allow_outside_paths: bool = False,
+    quiet: bool = False,
 ) -> None:
     """Serve a live viewer of ``run_dir`` until interrupted (Ctrl-C).
 
@@ -413,6 +424,9 @@ def serve_run(
         data: dataset for the training cameras (default: the run's own).
         max_side: longest side of the fully refined image (pixels).
         watch: re-load the newest checkpoint while training writes new ones.
+        allow_outside_paths: read dataset images outside the dataset's folder.
+        quiet: print neither the address nor notes (the warning of a viewer open to the
+            network still goes to stderr).
     """
     from ..train.checkpoint import load_run, read_run
     from ..train.config import resolve_device
@@ -423,18 +437,17 @@ def serve_run(
     dev = resolve_device(device)
     scene = None
     try:
-        scene = scene_for_run(info, data)
+        scene = scene_for_run(info, data, allow_outside=allow_outside_paths)
     except NerfkitError as e:
-        print(f"note: training cameras not shown ({e})", file=sys.stderr)
+        if not quiet:
+            print(f"note: training cameras not shown ({e})", file=sys.stderr)
     watcher = RunWatcher(run_dir, lambda d: load_run(d, dev), dev)
-    try:
-        viewer = LiveViewer(watcher, scene, host, port, max_side, chunk=chunk, watch=watch)
-    except OSError as e:
-        raise fail(f"{host}:{port}", f"cannot listen there ({e.strerror or e})", "Pick another --port") from None
-    port = viewer.server.get_port()  # viser moves to the next free port when this one is taken
+    viewer = LiveViewer(watcher, scene, host, port, max_side, chunk=chunk, watch=watch)
+    port = viewer.server.get_port()  # the first free port from the one asked for
     if host not in LOCAL_HOSTS:
         print(f"warning: listening on {host}: anyone who can reach port {port} can see this scene", file=sys.stderr)
     from ..viz.viewer import viewer_url
 
-    print(f"nerfkit viewer of {run_dir} at {viewer_url(host, port)} (Ctrl-C to stop)", flush=True)
+    if not quiet:
+        print(f"nerfkit viewer of {run_dir} at {viewer_url(host, port)} (Ctrl-C to stop)", flush=True)
     viewer.serve_forever()

@@ -347,7 +347,7 @@ def view(
     path: str | Path,
     *,
     rays: int | None = None,
-    samples: int = 64,
+    samples: int | None = None,
     rays_from: int | None = None,
     png: str | Path | None = None,
     host: str = "127.0.0.1",
@@ -364,20 +364,22 @@ def view(
     Args:
         path: dataset file or folder (anything :func:`~nerfkit.commands.pipeline.train` reads), or a run folder.
         rays: training rays to draw with their samples (None: none; 100 with ``rays_from``).
-        samples: samples per drawn ray.
+        samples: samples per drawn ray (None: 64, as the course).
         rays_from: draw the rays of this training view only.
         png: write this static picture (matplotlib) instead of serving.
         host: address to listen on (127.0.0.1: this machine only).
         port: port to listen on (viser takes the next free one when it is taken).
         force: replace an existing ``png``.
         downscale: divide the dataset's image size by this.
-        allow_outside_paths: read dataset images outside the dataset's folder.
+        allow_outside_paths: read dataset images outside the dataset's folder (a run's too).
         block: serve until Ctrl-C, then stop (False: return at once with the server, a dataset's
             only: a run's live viewer renders on the calling thread, so it needs ``block``).
         quiet: print no report (a warning that the viewer listens beyond this machine still is).
     """
+    import sys
+
     from ..config import MIN_DOWNSCALE, number, output_path
-    from ..data.load import dataset_inputs, is_run_folder, load_scene
+    from ..data.load import dataset_inputs, is_run_folder, is_run_in_training, load_scene
     from ..io.paths import guard_outputs
     from .stages import view as stage
 
@@ -389,15 +391,25 @@ def view(
     picture = Path(_check("--png", png, output_path)) if png is not None else None
     stage.check_png(picture)
     source, say = Path(path), _say(quiet)
-    if is_run_folder(source):
-        stage.serve_run(source, host, port, rays, rays_from, downscale, picture, block)
+    stage.refuse_run_file(source)
+    if is_run_folder(source) or is_run_in_training(source):
+        stage.serve_run(
+            source,
+            host,
+            port,
+            stage.RunOptions(rays, rays_from, samples, downscale, picture, force),
+            block,
+            allow_outside_paths,
+            quiet,
+        )
         return ViewResult(None, None)
-    if picture:
-        guard_outputs([picture], dataset_inputs(source), force, "--png")
     scene = load_scene(source, downscale=downscale, allow_outside=allow_outside_paths)
+    if picture:  # (after the dataset is read: a file that is none is said to be none first)
+        guard_outputs([picture], dataset_inputs(source), force, "--png")
     tag_size = stage.dataset_tag_size(source)
     stage.check_rays_from(scene, rays_from)
     n_rays = rays if rays is not None else 100 if rays_from is not None else 0  # the course: 100
+    samples = 64 if samples is None else samples
     if picture:
         from ..viz.scene_plot import plot_scene
 
@@ -406,11 +418,11 @@ def view(
         return ViewResult(picture, None)
     from ..viz.viewer import serve_dataset, viewer_url, wait_until_interrupted
 
-    if host not in ("127.0.0.1", "localhost", "::1"):
-        print(f"warning: listening on {host}: anyone who can reach this machine can see the dataset")
     server, _ = serve_dataset(
         scene, host, port, n_rays=n_rays, n_samples=samples, tag_size=tag_size, block=False, rays_from=rays_from
     )
+    if host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"warning: listening on {host}: anyone who can reach this machine can see the dataset", file=sys.stderr)
     url = viewer_url(host, server.get_port())
     say(
         f"{len(scene.train)} train, {len(scene.val)} val, {len(scene.test)} test cameras; near {scene.near:.4g}, "

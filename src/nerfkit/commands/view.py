@@ -40,9 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=number(int, 0, 100_000),
         help="training rays to draw with their samples (default: none; 100 with --rays-from)",
     )
-    p.add_argument(
-        "--samples", type=number(int, 1, 4096), default=64, help="samples per drawn ray (default: 64, as the course)"
-    )
+    p.add_argument("--samples", type=number(int, 1, 4096), help="samples per drawn ray (default: 64, as the course)")
     p.add_argument(
         "--rays-from",
         type=number(int, 0),

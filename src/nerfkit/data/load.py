@@ -84,6 +84,14 @@ def is_run_folder(path: Path) -> bool:
     )
 
 
+def is_run_in_training(path: Path) -> bool:
+    """Whether ``path`` is a run's folder that a process is training now, its first checkpoint
+    perhaps not yet written."""
+    from ..io.lock import is_locked
+
+    return path.is_dir() and _run_config(path) is not None and is_locked(path)
+
+
 def _run_config(path: Path) -> dict | None:
     """The ``train`` settings of the run config ``path/config.json``, or None (no such file, or not a run's)."""
     import json

@@ -88,9 +88,24 @@ def sample_rays(
 
 
 def _to_plot(up: np.ndarray) -> np.ndarray:
-    """Rotation (3, 3) taking the scene's up to +z (matplotlib's vertical)."""
-    a, b = axes_across(up)
-    return np.stack([a, b, np.asarray(up, np.float64) / np.linalg.norm(up)])
+    """Rotation (3, 3) taking the scene's up to +z (matplotlib's vertical), and world x, levelled
+    across up, to +x (world y when x is nearly up)."""
+    n = np.asarray(up, np.float64) / np.linalg.norm(up)
+    for axis in np.eye(3)[:2]:
+        a = axis - (axis @ n) * n
+        if np.linalg.norm(a) > 0.1:
+            break
+    a /= np.linalg.norm(a)
+    return np.stack([a, np.cross(n, a), n])
+
+
+def _axis_label(direction: np.ndarray) -> str:
+    """A plot axis's name: the world axis it shows, or "across up" when it shows none."""
+    for name, axis in zip("xyz", np.eye(3)):
+        for sign, mark in ((1, ""), (-1, "-")):
+            if sign * direction @ axis > 0.9998:  # within about a degree
+                return mark + name
+    return "across up"
 
 
 def plot_scene(
@@ -188,8 +203,8 @@ def plot_scene(
     ax.set_zlim(mid[2] - r, mid[2] + r)
     ax.set_box_aspect((1, 1, 1))
     ax.view_init(elev=28, azim=-60)
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
+    ax.set_xlabel(_axis_label(R[0]))
+    ax.set_ylabel(_axis_label(R[1]))
     ax.set_zlabel("up")
     ax.legend(loc="upper left", fontsize=8)
     ax.set_title(

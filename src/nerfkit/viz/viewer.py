@@ -7,6 +7,8 @@ training rays with their stratified samples (the course's visual sanity check).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from ..cameras import axes_across
@@ -28,10 +30,61 @@ def _wxyz(R: np.ndarray) -> np.ndarray:
 
 
 def _thumbnail(image: np.ndarray, max_side: int) -> np.ndarray:
-    import cv2
+    """(h, w, 3) uint8 ``image`` shrunk (Pillow, box filter) to at most ``max_side`` a side."""
+    from PIL import Image
 
     s = max_side / max(image.shape[:2])
-    return image if s >= 1 else cv2.resize(image, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+    if s >= 1:
+        return image
+    size = (max(1, round(image.shape[1] * s)), max(1, round(image.shape[0] * s)))
+    return np.asarray(Image.fromarray(image).resize(size, Image.Resampling.BOX))
+
+
+def require_viser():
+    """The viser module, or a NerfkitError saying how to install it."""
+    from ..errors import fail
+
+    try:
+        import viser
+    except ImportError:
+        raise fail("nerfkit view", "the browser viewer needs viser", "pip install 'nerfkit[viewer]'") from None
+    return viser
+
+
+def listening_port(host: str, port: int, tries: int = 100) -> int:
+    """The first port from ``port`` on that ``host`` can listen on (viser moves to the next
+    free one too, but from its own thread, where a host this machine cannot listen on left the
+    caller waiting). Refuses an empty host, a name that does not resolve, an address that
+    is not this machine's, and no free port among ``tries``."""
+    import errno
+    import socket
+
+    from ..errors import fail
+
+    if not host.strip():
+        raise fail(
+            "--host", "is empty", "Give an address, e.g. 127.0.0.1 (this machine only) or 0.0.0.0 (every network)"
+        )
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    except (socket.gaierror, UnicodeError) as e:
+        raise fail(
+            "--host", f"'{host}' does not resolve to an address ({e})", "Give an address such as 127.0.0.1"
+        ) from None
+    last = port
+    for last in range(port, min(port + tries, 65536)):
+        with socket.socket(family, kind, proto) as sock:
+            try:
+                sock.bind((address[0], last, *address[2:]))
+                return last
+            except OSError as e:
+                if e.errno != errno.EADDRINUSE:
+                    raise fail(
+                        "--host",
+                        f"cannot listen on {host} ({e.strerror or e})",
+                        "Give an address this machine has, e.g. 127.0.0.1",
+                    ) from None
+    raise fail("--port", f"ports {port} to {last} on {host} are all taken", "Pick another --port")
 
 
 def populate(
@@ -87,9 +140,9 @@ def populate(
             c2w = v.c2w[i].astype(np.float64)
             K = v.K[i]
             img = None if v.images is None else _thumbnail(v.images[i], image_max_side)
-            name = v.names[i] if v.names is not None else f"{i:04d}"
+            name = f"{i:04d}" + (f"_{Path(v.names[i]).stem}" if v.names is not None else "")
             h = server.scene.add_camera_frustum(
-                f"/cameras/{split}/{name}",
+                f"/cameras/{split}/{name}",  # the index first: two folders' frame.jpg are two cameras
                 fov=float(2 * np.arctan2(v.height / 2, K[1, 1])),
                 aspect=v.width / v.height,
                 scale=0.1 * scale,
@@ -143,18 +196,27 @@ def serve_dataset(
 ):
     """Start a viser server showing ``scene``; with ``block`` wait until Ctrl-C, then stop.
 
-    Returns ``(server, handles)`` (after stopping, when blocking). viser moves to the next
-    free port when ``port`` is taken: ``server.get_port()`` tells which it got.
+    Returns ``(server, handles)`` (after stopping, when blocking). The server listens on the
+    first free port from ``port`` (:func:`listening_port`): ``server.get_port()`` tells which.
     """
-    import viser
-
-    server = viser.ViserServer(host=host, port=port, verbose=False)
-    handles = populate(server, scene, n_rays, n_samples, tag_size, rays_from=rays_from)
+    viser = require_viser()
+    server = viser.ViserServer(host=host, port=listening_port(host, port), verbose=False)
+    try:
+        handles = populate(server, scene, n_rays, n_samples, tag_size, rays_from=rays_from)
+        with server.gui.add_folder("rays"):  # the sliders reach the counts given, however many
+            n_in = server.gui.add_slider("rays", min=0, max=max(1000, int(n_rays)), step=1, initial_value=int(n_rays))
+            s_in = server.gui.add_slider(
+                "samples per ray",
+                min=min(2, int(n_samples)),
+                max=max(128, int(n_samples)),
+                step=1,
+                initial_value=int(n_samples),
+            )
+            again = server.gui.add_button("new random rays")
+    except BaseException:
+        server.stop()
+        raise
     state = {"seed": 0}
-    with server.gui.add_folder("rays"):
-        n_in = server.gui.add_slider("rays", min=0, max=1000, step=10, initial_value=int(n_rays))
-        s_in = server.gui.add_slider("samples per ray", min=2, max=128, step=2, initial_value=int(n_samples))
-        again = server.gui.add_button("new random rays")
 
     def refresh(_=None) -> None:
         set_rays(server, scene, handles, int(n_in.value), int(s_in.value), state["seed"], rays_from)

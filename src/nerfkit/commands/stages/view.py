@@ -3,6 +3,7 @@ capture records, and the training view whose rays are drawn."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -19,30 +20,64 @@ def check_png(png: Path | None) -> None:
         raise fail("--png", f"'{png}' should end in .png (the picture is a PNG)")
 
 
+@dataclass(frozen=True)
+class RunOptions:
+    """The options of ``view`` that draw datasets, none of which a run's live viewer takes."""
+
+    rays: int | None
+    rays_from: int | None
+    samples: int | None
+    downscale: float | None
+    png: Path | None
+    force: bool
+
+
+def refuse_run_file(path: Path) -> None:
+    """Refuse a run's ``config.json`` (or another of its files) named instead of its folder."""
+    from ...data.load import is_run_folder, is_run_in_training
+    from ...errors import fail
+
+    folder = path.parent
+    if path.is_file() and (is_run_folder(folder) or is_run_in_training(folder)):
+        raise fail(path, "is a file of a trained run", f"Pass the run's folder to view it live: nerfkit view {folder}")
+
+
 def serve_run(
     run: Path,
     host: str,
     port: int,
-    rays: int | None,
-    rays_from: int | None,
-    downscale: float | None,
-    png: Path | None,
+    options: RunOptions,
     block: bool,
+    allow_outside_paths: bool = False,
+    quiet: bool = False,
 ) -> None:
     """Serve the live viewer of the trained ``run`` until Ctrl-C; the options that draw datasets
     are refused, and so is a viewer that would not block (it renders on the calling thread)."""
     from ...errors import fail
 
-    if downscale:
+    if options.downscale:
         raise fail("--downscale", "a trained run loads its dataset as it was trained", "Leave out --downscale")
-    if rays or rays_from is not None:
+    given = [
+        flag
+        for flag, value in (
+            ("--rays", options.rays),
+            ("--rays-from", options.rays_from),
+            ("--samples", options.samples),
+        )
+        if value is not None
+    ]
+    if given:
         raise fail(
-            "--rays" if rays else "--rays-from",
+            given[0],
             "the live viewer of a trained run draws its cameras and renders, not rays",
             "View the run's dataset for its rays: nerfkit view DATASET --rays N",
         )
-    if png:
-        raise fail(run, "--png draws datasets; this is a trained run", "Pass the run's dataset instead")
+    if options.png or options.force:
+        raise fail(
+            run,
+            f"{'--png' if options.png else '--force'} is for a dataset's picture; this is a trained run",
+            "Pass the run's dataset instead",
+        )
     if not block:
         raise fail(
             run,
@@ -57,7 +92,7 @@ def serve_run(
             "is a trained run, but the live viewer (nerfkit.commands.live) is not available in this build",
             "View its dataset instead: nerfkit view DATASET",
         ) from None
-    serve_live(run, host=host, port=port)
+    serve_live(run, host=host, port=port, allow_outside_paths=allow_outside_paths, quiet=quiet)
 
 
 def dataset_tag_size(path: Path) -> float | None:
