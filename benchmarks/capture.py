@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--n", type=int, default=50, help="photos (default: 50)")
     parser.add_argument("--jobs", default="1,2", help="thread counts to time, comma-separated (default: 1,2)")
     parser.add_argument("--detect-size", type=int, default=2000, help="detection copy long side (default: 2000)")
-    parser.add_argument("--work", default="/tmp/nerfkit_bench_capture", help="where the rendered photos are kept")
+    parser.add_argument("--work", required=True, help="where the rendered photos are kept")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
 

@@ -15,12 +15,11 @@ the other half (``nerfkit eval``), the same on the
 object's own pixels, and the whole command's time. The contact sheet (validation photo
 beside render) is RUN/eval_val.png, the videos are in RUN/videos::
 
-    python benchmarks/capture_real.py                       # both dev captures, 3 minutes each
-    python benchmarks/capture_real.py --minutes 0           # calibration and poses only
-    python benchmarks/capture_real.py --labubu /path/labubu --steve /path/steve --work OUT
-    python benchmarks/capture_real.py --sfm                 # also: poses from SfM, tags ignored
-    python benchmarks/capture_real.py --photos 30           # about 30 object photos per capture
-    python benchmarks/capture_real.py --steps 1500          # a step budget (a loaded machine)
+    python benchmarks/capture_real.py --labubu PATH/labubu --steve PATH/steve --work OUT   # 3 minutes each
+    python benchmarks/capture_real.py --steve PATH/steve --work OUT --minutes 0   # calibration, poses only
+    python benchmarks/capture_real.py ... --sfm             # also: poses from SfM, tags ignored
+    python benchmarks/capture_real.py ... --photos 30       # about 30 object photos per capture
+    python benchmarks/capture_real.py ... --steps 1500      # a step budget (a loaded machine)
 
 ``nerfkit capture`` trains the NeRF and the splat (its default, ``--model both``); the splat's
 steps, held-out scores and file size are printed under the table.
@@ -33,8 +32,7 @@ With ``--sfm`` each capture is also posed by structure-from-motion as if it had 
 (``nerfkit poses --method colmap`` with the calibrated camera and no ``--tag-size``: the
 table plane comes from the SfM points) and trained the same way, as a second row.
 
-The capture folders default to ``../shared/data/captures/{labubu,steve}`` relative to the
-repository. Outputs go to --work (default: nerfkit_capture_real in the system's temporary folder).
+Each capture runs when its folder is given (``--labubu``, ``--steve``); outputs go to --work.
 """
 
 from __future__ import annotations
@@ -45,9 +43,6 @@ import shutil
 import sys
 import time
 from pathlib import Path
-
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_ROOT = REPO.parent / "shared" / "data" / "captures"
 
 # name -> (calibration subfolder, object subfolder, tag side in metres)
 CAPTURES = {
@@ -76,9 +71,10 @@ def run_figures(run: Path) -> dict:
     }
 
 
-def train_capture(name: str, out: Path, minutes: float, capture: str, poses: str = "poses") -> dict:
+def train_capture(name: str, out: Path, budget: list[str], capture: str, poses: str = "poses") -> dict:
     """Train, evaluate and render one capture's dataset step by step (``out/<poses>/dataset.npz``:
-    the tag run's, or ``sfm`` for the SfM run's); the figures of the run."""
+    the tag run's, or ``sfm`` for the SfM run's) for ``budget`` (``["--minutes", M]`` or
+    ``["--steps", N]``); the figures of the run."""
     from nerfkit.cli import main
 
     run = out / f"run_{capture}" if poses == "poses" else out / f"run_{poses}_{capture}"
@@ -93,8 +89,7 @@ def train_capture(name: str, out: Path, minutes: float, capture: str, poses: str
                 str(out / poses / "dataset.npz"),
                 "--out",
                 str(run),
-                "--minutes",
-                str(minutes),
+                *budget,
                 "--capture",
                 capture,
             ]
@@ -416,8 +411,8 @@ def print_table(rows: list[dict]) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     for name in CAPTURES:
-        ap.add_argument(f"--{name}", type=Path, default=DEFAULT_ROOT / name, help=f"the {name} capture folder")
-    ap.add_argument("--work", type=Path, default=Path("/tmp/nerfkit_capture_real"))
+        ap.add_argument(f"--{name}", type=Path, help=f"the {name} capture folder (not given: {name} is skipped)")
+    ap.add_argument("--work", type=Path, required=True, help="folder for the datasets, runs and renders")
     ap.add_argument("--only", choices=list(CAPTURES), help="run one capture")
     ap.add_argument("--dist-model", default="auto", help="passed to nerfkit calibrate (compare with e.g. k1k2p1p2)")
     ap.add_argument("--minutes", type=float, default=3.0, help="training minutes per capture (0: no training)")
@@ -445,12 +440,14 @@ def main() -> int:
         folder = getattr(args, name)
         if args.only and name != args.only:
             continue
+        if folder is None:
+            continue
         if not folder.is_dir():
             print(f"skipping {name}: no folder {folder}", file=sys.stderr)
             continue
         objects = object_photos(name, folder, args.work, args.photos)
+        budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
         if args.minutes > 0 and args.dist_model == "auto" and args.capture == "auto":
-            budget = ["--steps", str(args.steps)] if args.steps else ["--minutes", str(args.minutes)]
             row = capture_command(name, folder, objects, args.work, budget, args.method)
         else:  # what `nerfkit capture` has no switch for: the steps one by one
             row = run_capture(
@@ -463,14 +460,14 @@ def main() -> int:
                 method=args.method,
             )
             if args.minutes > 0:
-                row.update(train_capture(name, args.work / name, args.minutes, args.capture))
+                row.update(train_capture(name, args.work / name, budget, args.capture))
         rows.append({**row, "capture_mode": args.capture})
         if args.sfm:
             srow = sfm_capture(name, objects, args.work)
             if args.minutes > 0:
                 srow.update(
                     capture_mode=args.capture,
-                    **train_capture(name, args.work / name, args.minutes, args.capture, poses="sfm"),
+                    **train_capture(name, args.work / name, budget, args.capture, poses="sfm"),
                 )
             rows.append(srow)
     print()

@@ -3,12 +3,12 @@
 Reads data only from the paths given on the command line (nothing is read otherwise)::
 
     # Blender loader vs the course npz: same cameras after OpenGL->OpenCV and 400->200 px?
-    python benchmarks/formats_check.py --lego-blender /work/shared/data/lego_blender \\
+    python benchmarks/formats_check.py --lego-blender PATH/lego_blender \\
         --lego-npz src/nerfkit/assets/lego_200x200.npz
 
     # SfM on phone photos: registration, timings; vs the tag poses of `nerfkit poses` if given
     # (they also choose the pairs of --matcher spatial)
-    python benchmarks/formats_check.py --sfm-photos /work/shared/data/captures/labubu/myscan_resized \\
+    python benchmarks/formats_check.py --sfm-photos PATH/labubu/myscan_resized \\
         --tag-size 0.06 --tag-poses labubu_dataset/ --matcher sequential exhaustive spatial
 
 Prints a JSON report (also written with --out). Timings depend on machine load.

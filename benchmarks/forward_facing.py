@@ -3,7 +3,7 @@
     python benchmarks/forward_facing.py OUT [--size 160] [--views 33] [--minutes 1]
     python benchmarks/forward_facing.py OUT --capture DATASET [--minutes 5]
 
-There is no real LLFF capture on these machines. By default the scene is generated: the
+By default the scene is generated (``heldout.py --scenes forward`` trains the real LLFF flower): the
 synthetic forward-facing scene of ``nerfkit.data.synthetic`` (two textured spheres 3 and
 6 units from the cameras, a textured backdrop 15 units away; cameras within +-0.4 units
 across the view), written as an LLFF folder (``poses_bounds.npy`` + ``images/``, bounds

@@ -46,7 +46,9 @@ def stored_vertices(run: Path) -> tuple[int, int]:
     ckpt = torch.load(sorted((run / "checkpoints").glob("*.pt"))[-1], weights_only=True, map_location="cpu")
     extra = json.loads(ckpt["model_extra"])
     rx, ry, rz = extra["res"]
-    return int(ckpt["model"]["grid"].shape[0]) - 1, rx * ry * rz
+    state = ckpt["model"]
+    grid = state["field.grid"] if "field.grid" in state else state["grid"]  # (the name of older runs)
+    return int(grid.shape[0]) - 1, rx * ry * rz
 
 
 def run_one(name: str, flags: str, args, out: Path) -> dict:

@@ -1,4 +1,4 @@
-"""Peak memory of the memory-hungry paths (issue 6, bounded memory).
+"""Peak memory of the memory-hungry paths.
 
 Each case runs in a fresh child process, which reports its own peak RSS
 (``getrusage(RUSAGE_SELF).ru_maxrss``) right after setup (imports, model, data) and after
@@ -73,13 +73,14 @@ def case_render_vanilla(args) -> dict:
 
     from nerfkit.models.vanilla import VanillaConfig, VanillaNeRF
     from nerfkit.output.images import render_image
+    from nerfkit.presets import MODEL_TRAINING
 
     scene, bounds = _sphere_bounds()
     model = VanillaNeRF(VanillaConfig(n_samples=16, width=32, depth=2), bounds)
     bg = torch.zeros(3)
     K = scene.train.K[0].copy()
     K[:2] *= 800 / scene.train.width
-    chunk = args.chunk or VanillaConfig.TRAIN_DEFAULTS["render_chunk"]
+    chunk = args.chunk or MODEL_TRAINING["vanilla"]["render_chunk"]
     base = peak_mb()
     t = time.perf_counter()
     view = render_image(model, K, scene.train.c2w[0], 800, 800, bg, chunk=chunk)

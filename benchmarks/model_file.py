@@ -1,4 +1,4 @@
-"""Size and accuracy of a run's compact ``model.pt`` against the dense one (issue 13).
+"""Size and accuracy of a run's compact ``model.pt`` against the dense one.
 
 Loads a finished ``fast`` run (its newest checkpoint, full precision), writes its model
 file three ways into a temporary folder — dense float32 (``save_model(compact=False)``),

@@ -120,7 +120,8 @@ def main() -> None:
     e = json.loads((run / "run" / "eval_val.json").read_text())
     steps = json.loads((run / "run" / "metrics.json").read_text())["step"]
     mm, deg, placed = pose_errors(cap, run / "dataset")
-    obj = e.get("object", {}).get("psnr", float("nan"))
+    obj = (e.get("object") or {}).get("psnr")
+    obj = float("nan") if obj is None else obj  # (none when the run drew no opaque object pixel)
     print("\n| photos | posed | camera error: mm / degrees | steps | val PSNR / SSIM | the can's pixels |")
     print("|---:|---:|---|---:|---|---:|")
     scores = f"{e['psnr']:.2f} / {e['ssim']:.3f}"

@@ -16,6 +16,7 @@ import platform
 import statistics
 import time
 from datetime import date
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -116,7 +117,7 @@ def occupancy_table(run, scene, rays, batch, repeats):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default="src/nerfkit/assets/lego_200x200.npz")
+    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[1] / "src/nerfkit/assets/lego_200x200.npz"))
     ap.add_argument("--batches", default="1024", help="comma-separated rays per step (default: 1024)")
     ap.add_argument("--samples", type=int, default=64)
     ap.add_argument("--repeats", type=int, default=5)
