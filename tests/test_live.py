@@ -106,14 +106,18 @@ class SphereModel(NerfModel):
         return RenderOutput(rgb, (t * hit).float(), hit.float())
 
 
-def test_viewer_renders_the_model_from_the_browser_camera():
+def sphere_viewer(model_cls=None, background="black", scene=None, **options) -> live.LiveViewer:
+    """A live viewer (127.0.0.1, a free port, not watching) of a unit sphere model, 4 units from
+    the cameras; ``options`` are the viewer's (max_side, preview)."""
     bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
-    info = SimpleNamespace(bounds=bounds, train=SimpleNamespace(background="white"))
+    info = SimpleNamespace(bounds=bounds, train=SimpleNamespace(background=background))
     watcher = live.RunWatcher(".", lambda d: None)
-    watcher.current = live.LoadedRun(SphereModel(bounds), info, 5, None)
-    viewer = live.LiveViewer(
-        watcher, sphere_scene(n_train=3, n_val=1, size=16), host="127.0.0.1", port=0, max_side=64, watch=False
-    )
+    watcher.current = live.LoadedRun((model_cls or SphereModel)(bounds), info, 5, None)
+    return live.LiveViewer(watcher, scene, host="127.0.0.1", port=0, watch=False, **options)
+
+
+def test_viewer_renders_the_model_from_the_browser_camera():
+    viewer = sphere_viewer(background="white", scene=sphere_scene(n_train=3, n_val=1, size=16), max_side=64)
     try:
         assert viewer.server.get_host() == "127.0.0.1"
         assert len(viewer._frustum_handles) == 3
@@ -151,11 +155,8 @@ class SphereInRoom(SphereModel):
 
 
 def test_the_viewer_shows_the_object_alone_on_white_without_touching_the_run():
-    bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
-    info = SimpleNamespace(bounds=bounds, train=SimpleNamespace(background="black"))
-    watcher = live.RunWatcher(".", lambda d: None)
-    watcher.current = live.LoadedRun(SphereInRoom(bounds), info, 5, None)
-    viewer = live.LiveViewer(watcher, None, host="127.0.0.1", port=0, max_side=32, watch=False)
+    viewer = sphere_viewer(SphereInRoom, max_side=32)
+    watcher, bounds, info = viewer.watcher, viewer.watcher.current.info.bounds, viewer.watcher.current.info
     try:
         c2w = look_at(np.array([0.0, -4.0, 0.0]), np.zeros(3), np.array([0, 0, 1.0]))
         q = live.matrix_to_quat(c2w[:3, :3])
@@ -178,11 +179,7 @@ def test_the_viewer_shows_the_object_alone_on_white_without_touching_the_run():
 
 def test_progressive_refinement_for_a_resting_camera(monkeypatch):
     """Preview first; larger images only once the camera has rested; restart when it moves."""
-    bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
-    info = SimpleNamespace(bounds=bounds, train=SimpleNamespace(background="black"))
-    watcher = live.RunWatcher(".", lambda d: None)
-    watcher.current = live.LoadedRun(SphereModel(bounds), info, 5, None)
-    viewer = live.LiveViewer(watcher, None, host="127.0.0.1", port=0, max_side=64, preview=16, watch=False)
+    viewer = sphere_viewer(max_side=64, preview=16)
     try:
         c2w = look_at(np.array([0.0, -4.0, 1.0]), np.zeros(3), np.array([0, 0, 1.0]))
         sent = []
@@ -211,11 +208,7 @@ def test_progressive_refinement_for_a_resting_camera(monkeypatch):
 
 def test_a_splat_runs_gaussians_are_hidden_while_depth_or_the_object_alone_is_shown():
     """viser draws its Gaussians over the rendered background: shown over colour only."""
-    bounds = SceneBounds(2.0, 6.0, np.zeros(3, np.float32), 1.3, np.array([0, 0, 1.0], np.float32))
-    info = SimpleNamespace(bounds=bounds, train=SimpleNamespace(background="black"))
-    watcher = live.RunWatcher(".", lambda d: None)
-    watcher.current = live.LoadedRun(SphereModel(bounds), info, 5, None)
-    viewer = live.LiveViewer(watcher, None, host="127.0.0.1", port=0, max_side=32, watch=False)
+    viewer = sphere_viewer(max_side=32)
     try:
         viewer.splats = SimpleNamespace(visible=True)
         shown = []
