@@ -1026,10 +1026,10 @@ def test_view_command_passes_localhost_and_warns_for_other_hosts(tmp_path, monke
     monkeypatch.setattr(viewer, "serve_dataset", fake_serve)
     monkeypatch.setattr(viewer, "wait_until_interrupted", lambda server: None)
     assert main(["view", str(tmp_path / "d.npz")]) == 0
-    assert "warning" not in capsys.readouterr().out
+    assert "warning" not in capsys.readouterr().err
     assert main(["view", str(tmp_path / "d.npz"), "--host", "0.0.0.0"]) == 0
     assert calls == ["127.0.0.1", "0.0.0.0"]
-    assert "warning: listening on 0.0.0.0" in capsys.readouterr().out
+    assert "warning: listening on 0.0.0.0" in capsys.readouterr().err
 
 
 def test_a_wrong_folder_points_to_the_right_one(tmp_path, capsys):

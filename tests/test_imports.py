@@ -38,6 +38,7 @@ LAYERS: list[tuple[str, set[str]]] = [
         {
             "nerfkit",
             "errors",
+            "arrays",
             "precision",
             "io",
             "images",

@@ -51,7 +51,7 @@ def require_viser():
     return viser
 
 
-def listening_port(host: str, port: int, tries: int = 100) -> int:
+def listening_port(host: str = "127.0.0.1", port: int = 8080, tries: int = 100) -> int:
     """The first port from ``port`` on that ``host`` can listen on (viser moves to the next
     free one too, but from its own thread, where a host this machine cannot listen on left the
     caller waiting). Refuses an empty host, a name that does not resolve, an address that
