@@ -112,11 +112,13 @@ class Trainer:
         self.background = torch.tensor(parse_background(cfg.background), dtype=torch.float32, device=self.device)
         torch.manual_seed(cfg.seed)
         self.bounds = SceneBounds.from_scene(scene) if not resume else read_run(self.run_dir).bounds
+        # a resumed run with no checkpoint yet (stopped before its first) starts as a new one does
+        fresh = not resume or not checkpoint_paths(self.run_dir)
         self.model: NerfModel = build_model(cfg.model, model_config, self.bounds).to(self.device)
         self.model.set_precision(self.autocast)  # resolved once, above; the model uses it, never its own
         # models that render whole views (splat) train on one view per step, posed by its corrected camera
         self.whole_images = self.model.whole_images
-        if not resume:
+        if fresh:
             note = self.model.init_from_scene(scene, self.background, self.run_dir)
             if note:
                 self.log(note)
@@ -127,13 +129,13 @@ class Trainer:
         sight = self.model.uses_sight_lines
         self.sight = SightLines.from_scene(scene, self.device) if sight and not self.whole_images else None
         self.sight_generator = torch.Generator().manual_seed(cfg.seed + 1)
-        if self.sight is not None and not resume:
+        if self.sight is not None and fresh:
             assert scene.points is not None  # (sight lines come from the sparse points)
             self.log(
                 f"sight lines: {len(self.sight)} from the train photos' cameras to the {len(scene.points)} "
                 "sparse points (--points-weight)"
             )
-        elif sight and scene.points is not None and scene.point_views is None and not resume:
+        elif sight and scene.points is not None and scene.point_views is None and fresh:
             self.log(
                 f"note: {scene.source} has sparse points but does not record which photos saw them, so they "
                 "are not used as sight lines (an older dataset, or not a dataset.npz): rebuild it with "
