@@ -48,6 +48,7 @@ from .checkpoint import (
     run_lock,
     save_checkpoint,
     save_model,
+    set_aside,
     write_run_config,
 )
 from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
@@ -237,6 +238,13 @@ class Trainer:
             self.log(f"{self.run_dir}: no checkpoint yet, starting from step 0")
             return
         ckpt, path = loaded
+        moved = set_aside(self.run_dir, path, int(ckpt["step"]))
+        if moved:  # (else pruning would keep them over the checkpoints this run writes)
+            print(
+                f"warning: {self.run_dir}: moved {', '.join(p.name for p in moved)} to {moved[0].parent} "
+                f"(not loadable, or newer than {path.name}, which training goes on from)",
+                file=sys.stderr,
+            )
         self.model.to(self.device)
         self.optimizer = build_optimizer(self.model, self.cfg.lr)
         self.optimizer.load_state_dict(ckpt["optimizer"])
