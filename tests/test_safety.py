@@ -536,6 +536,39 @@ def test_a_dataset_changed_in_place_is_refused_on_resume_and_eval(trained, tmp_p
     assert not (run / "eval_val.json").exists()
 
 
+def test_changed_intrinsics_or_held_out_images_are_refused_but_an_older_fingerprint_is_not(
+    trained, tmp_path, capsys
+):
+    from nerfkit.data.npz import load_npz, save_npz
+
+    data = tmp_path / "a" / "data.npz"
+    shutil.copytree(trained / "a", data.parent)
+    run = copy_run(trained, tmp_path)
+    cfg = json.loads((run / "config.json").read_text())
+    cfg["train"]["data"] = str(data)
+    (run / "config.json").write_text(json.dumps(cfg))
+    original = load_npz(data)
+    scene = load_npz(data)
+    for views in scene.splits.values():
+        views.K[:, :2, :2] *= 1.2  # focal lengths x1.2 (the npz holds one K), poses and images as they were
+    save_npz(scene, data)
+    assert main(["train", "--resume", str(run), "--steps", "8"]) == 2
+    one_line(capsys, "is not the dataset run", "intrinsics differ")
+    scene = load_npz(data)
+    scene.val.images = 255 - scene.val.images
+    for name, views in scene.splits.items():
+        views.K = original.splits[name].K
+    save_npz(scene, data)
+    assert main(["eval", str(run)]) == 2
+    one_line(capsys, "is not the dataset run", "held_out_images differ")
+    # a run from before these parts were recorded is checked on what it recorded
+    for key in ("intrinsics_sha256", "held_out_images_sha256"):
+        del cfg["scene"]["fingerprint"][key]
+    (run / "config.json").write_text(json.dumps(cfg))
+    save_npz(original, data)
+    assert main(["train", "--resume", str(run), "--steps", "7"]) == 0
+
+
 def test_resume_applies_what_it_can_and_refuses_the_rest(trained, tmp_path, capsys):
     run = copy_run(trained, tmp_path)
     for flags in (["--lr", "1"], ["--model", "fast"], ["--width", "64"], ["--out", str(tmp_path / "x")]):

@@ -164,32 +164,39 @@ def unset_as_default(cls: type, values: Any) -> Any:
 
 
 def dataset_fingerprint(scene) -> dict:
-    """What identifies a dataset: its view counts, image size, and hashes of every pose and
-    of the training images. Stored in the run's config.json, checked on resume and eval."""
+    """What identifies a dataset: its view counts, image size, and hashes of every pose, of
+    every view's intrinsics, of the training images and of the val and test images. Stored in
+    the run's config.json, checked on resume and eval."""
     import hashlib
 
     import numpy as np
 
-    poses = hashlib.sha256()
-    for v in scene.splits.values():
+    poses, intrinsics, held_out = hashlib.sha256(), hashlib.sha256(), hashlib.sha256()
+    for name, v in scene.splits.items():
         poses.update(np.ascontiguousarray(v.c2w, np.float32).tobytes())
+        intrinsics.update(np.ascontiguousarray(v.K, np.float32).tobytes())
+        if name != "train" and v.has_images:
+            held_out.update(name.encode() + np.ascontiguousarray(v.images).tobytes())
     images = hashlib.sha256(np.ascontiguousarray(scene.train.images).tobytes()) if scene.train.has_images else None
     return {
         "views": [len(v) for v in scene.splits.values()],
         "image_size": [scene.train.width, scene.train.height],
         "poses_sha256": poses.hexdigest(),
         "train_images_sha256": images.hexdigest() if images else None,
+        "intrinsics_sha256": intrinsics.hexdigest(),
+        "held_out_images_sha256": held_out.hexdigest(),
     }
 
 
 def dataset_differences(info: RunInfo, scene) -> list[str]:
     """Which parts of the run's recorded dataset fingerprint ``scene`` does not match (empty:
-    the run's own dataset, or a run from before fingerprints were recorded)."""
+    the run's own dataset, or a run from before fingerprints were recorded). Only the parts
+    the run recorded count: a run from before a part was added is not checked on it."""
     stored = info.scene.get("fingerprint")
     if not isinstance(stored, dict):
         return []
     now = dataset_fingerprint(scene)
-    return [k for k in now if stored.get(k) != now[k]]
+    return [k for k in now if k in stored and stored[k] != now[k]]
 
 
 def check_dataset(info: RunInfo, scene) -> None:
