@@ -110,6 +110,28 @@ def test_resume_continues_exactly(tmp_path, sphere):
     assert steps_a == steps_b  # no duplicated or missing rows
 
 
+def test_resume_goes_on_in_the_precision_auto_chose_where_the_run_started(tmp_path, sphere, monkeypatch, capsys):
+    import nerfkit.precision
+
+    tiny = VanillaConfig(n_samples=4, width=8, depth=2)
+    native = {"bf16": False}
+    monkeypatch.setattr(nerfkit.precision, "cpu_has_native_bf16", lambda: native["bf16"])
+    for started, moved in ((False, True), (True, False)):
+        name = f"started_{started}"
+        native["bf16"] = started
+        cfg = small_cfg(tmp_path, name, steps=6, batch_rays=32, eval_views=0, device="cpu", precision="auto")
+        first = Trainer(sphere, cfg, tiny, quiet=True)
+        assert first.autocast == (torch.bfloat16 if started else None)
+        first.run(stop_after=3)
+        native["bf16"] = moved  # resumed on another machine
+        capsys.readouterr()
+        again = Trainer(sphere, cfg, tiny, resume=True, quiet=True)
+        err = capsys.readouterr().err
+        assert again.step == 3 and again.autocast is None  # fp32: as trained, or as this CPU can
+        assert ("trained in bf16, which this cpu does not do natively" in err) == started, err
+        assert len(err.strip().splitlines()) == int(started)
+
+
 @pytest.mark.slow
 def test_resume_keeps_the_default_validation_marks(tmp_path, sphere):
     """Resumed at step 60 of 120, a run validates at the steps a straight run does, no more."""

@@ -81,6 +81,27 @@ class TrainResult:
     rows: list[dict] = field(default_factory=list)
 
 
+def precision_name(dtype: torch.dtype | None) -> str:
+    """How a checkpoint records the precision a run trains in: "bf16" or "fp32"."""
+    return "bf16" if dtype == torch.bfloat16 else "fp32"
+
+
+def resumed_precision(
+    recorded: object, here: torch.dtype | None, device: torch.device
+) -> tuple[torch.dtype | None, str | None]:
+    """The precision a resumed run goes on in, and a warning when it is not the one it trained
+    in: the recorded one (``--precision auto`` chose it where the run started), unless that is
+    bf16 and ``here`` (what auto chooses on this device) is not; older checkpoints: ``here``."""
+    if recorded not in ("bf16", "fp32") or recorded == precision_name(here):
+        return here, None
+    if recorded == "fp32":
+        return None, None
+    return here, (
+        f"trained in bf16, which this {device.type} does not do natively: it goes on in fp32 "
+        "(--precision auto), so no longer exactly as an uninterrupted run"
+    )
+
+
 def validation_series(rows: list[dict], n_val: int, full: int) -> dict[str, tuple[list, list]]:
     """Validation rows (``seconds``, ``psnr``, ``views``, ``pixels``) as curves of like
     scores, keyed by a legend label: periodic evaluations (the first ``--eval-views`` of
@@ -219,6 +240,7 @@ class Trainer:
             "train_seconds": self.train_seconds,
             "rows": json.dumps(self.rows),
             "bad_steps": self.bad_steps,
+            "precision": precision_name(self.autocast),
         }
         if self.views is not None:
             assert self.view_optimizer is not None  # (built with the views)
@@ -253,6 +275,10 @@ class Trainer:
         self.train_seconds = float(ckpt["train_seconds"])
         self.rows = json.loads(ckpt["rows"])
         self.bad_steps = int(ckpt.get("bad_steps", 0))
+        self.autocast, warning = resumed_precision(ckpt.get("precision"), self.autocast, self.device)
+        self.model.set_precision(self.autocast)
+        if warning:
+            print(f"warning: {self.run_dir}: {warning}", file=sys.stderr)
         self._marks_passed = self._marks_reached()  # validated there before the stop
         if self.views is not None:
             if "views" not in ckpt:
