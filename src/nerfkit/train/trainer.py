@@ -241,6 +241,7 @@ class Trainer:
             "rows": json.dumps(self.rows),
             "bad_steps": self.bad_steps,
             "precision": precision_name(self.autocast),
+            "training_state": self.model.training_state(),
         }
         if self.views is not None:
             assert self.view_optimizer is not None  # (built with the views)
@@ -268,6 +269,13 @@ class Trainer:
                 file=sys.stderr,
             )
         self.model.to(self.device)
+        try:
+            training_state = ckpt.get("training_state", {})  # (older checkpoints: none)
+            if not isinstance(training_state, dict):
+                raise ValueError("not a dict")
+            self.model.load_training_state(training_state)
+        except ValueError as e:
+            raise fail(path, f"malformed checkpoint ('training_state': {e})", "Put the run's own file back") from None
         self.optimizer = build_optimizer(self.model, self.cfg.lr)
         self.optimizer.load_state_dict(ckpt["optimizer"])
         self._remember_initial_lr()
