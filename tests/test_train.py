@@ -132,6 +132,22 @@ def test_resume_goes_on_in_the_precision_auto_chose_where_the_run_started(tmp_pa
         assert len(err.strip().splitlines()) == int(started)
 
 
+def test_resume_refuses_steps_below_the_step_reached_and_ends_at_it_with_the_final_evaluation(tmp_path, sphere):
+    from nerfkit.errors import NerfkitError
+
+    tiny = VanillaConfig(n_samples=4, width=8, depth=2)
+    cfg = small_cfg(tmp_path, "r", steps=10, batch_rays=32, eval_every=1)
+    Trainer(sphere, cfg, tiny, quiet=True).run(stop_after=5)
+    with pytest.raises(NerfkitError, match=r"--steps: 3 is below step 5, which run .* has reached.*Pass --steps 5"):
+        resume(tmp_path / "r", sphere, steps=3, quiet=True)
+    ended = resume(tmp_path / "r", sphere, steps=5, quiet=True)
+    metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    last = metrics["rows"][-1]
+    assert metrics["finished"] and ended.step == 5
+    assert (last["split"], last["step"], last["views"]) == ("val", 5, len(sphere.val))  # every view, not one
+    assert ended.final_val_psnr == last["psnr"]
+
+
 @pytest.mark.slow
 def test_resume_keeps_the_default_validation_marks(tmp_path, sphere):
     """Resumed at step 60 of 120, a run validates at the steps a straight run does, no more."""

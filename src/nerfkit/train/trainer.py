@@ -574,6 +574,7 @@ class Trainer:
         the stopping rule, ``interrupted()`` or step ``stop_after``."""
         last_ckpt = time.perf_counter()
         train_psnr = []
+        start = self.step
         if self.step == 0:
             self._record_eval()
         while not self.done() and not interrupted() and (stop_after is None or self.step < stop_after):
@@ -613,11 +614,13 @@ class Trainer:
             if time.perf_counter() - last_ckpt >= self.cfg.checkpoint_seconds:
                 self.save()
                 last_ckpt = time.perf_counter()
+        if self.step == start and self.done():  # resumed at its end: the final evaluation, unless made
+            self._record_eval()
 
     def _record_eval(self) -> None:
-        if any(r["split"] == "val" and r["step"] == self.step for r in self.rows):
-            return
         n = None if self.done() else self.cfg.eval_views
+        if self._scored(final=n is None):
+            return
         if n == 0:  # no periodic evaluation: the final one alone
             return
         if n is None:
@@ -649,6 +652,17 @@ class Trainer:
             + ("" if full else f", {pixels} pixels each")
             + also
             + ")"
+        )
+
+    def _scored(self, final: bool) -> bool:
+        """Whether this step was evaluated (``final``: on every val view, whole)."""
+        val = self.scene.val
+        full = val.width * val.height
+        return any(
+            r["split"] == "val"
+            and r["step"] == self.step
+            and (not final or (r.get("views", len(val)) >= len(val) and r.get("pixels", full) >= full))
+            for r in self.rows
         )
 
     def _add_val_row(self, psnr_db: float, views: int, pixels: int) -> None:
@@ -789,7 +803,14 @@ def resume(
             setattr(cfg, key, value)
         cfg.out = str(run_dir)
         trainer = Trainer(scene, cfg.validate(), info.model_config, resume=True, quiet=quiet)
-        if trainer.done() and _finished_at(Path(run_dir), trainer.step):  # changes nothing, config.json included
+        finished = _finished_at(Path(run_dir), trainer.step)
+        if cfg.steps and trainer.step > cfg.steps and not finished:
+            raise fail(
+                "--steps",
+                f"{cfg.steps} is below step {trainer.step}, which run {run_dir} has reached",
+                f"Pass --steps {trainer.step} to end it there (with its final evaluation), or more to go on",
+            )
+        if trainer.done() and finished:  # changes nothing, config.json included
             by_steps = bool(cfg.steps and trainer.step >= cfg.steps)
             limit = (
                 f"--steps {cfg.steps}"
