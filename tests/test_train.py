@@ -148,6 +148,18 @@ def test_resume_refuses_steps_below_the_step_reached_and_ends_at_it_with_the_fin
     assert ended.final_val_psnr == last["psnr"]
 
 
+def test_a_resumed_run_writes_the_metrics_rows_of_a_straight_one(tmp_path, sphere):
+    """Stopped at step 15, between two train rows: the row at step 20 still averages the PSNR of
+    steps 11 to 20 (the window is in the checkpoint)."""
+    tiny = VanillaConfig(n_samples=4, width=8, depth=2)
+    straight = Trainer(sphere, small_cfg(tmp_path, "a", steps=30, batch_rays=32, eval_views=0), tiny, quiet=True).run()
+    Trainer(sphere, small_cfg(tmp_path, "b", steps=30, batch_rays=32, eval_views=0), tiny, quiet=True).run(stop_after=15)
+    resumed = resume(tmp_path / "b", sphere, quiet=True)
+    rows = [[(r["step"], r["split"], r["psnr"]) for r in run.rows] for run in (straight, resumed)]
+    assert [r[:2] for r in rows[0]] == [r[:2] for r in rows[1]]
+    assert [r[2] for r in rows[1]] == pytest.approx([r[2] for r in rows[0]], abs=1e-4)
+
+
 @pytest.mark.slow
 def test_resume_keeps_the_default_validation_marks(tmp_path, sphere):
     """Resumed at step 60 of 120, a run validates at the steps a straight run does, no more."""

@@ -59,6 +59,8 @@ from .view_corrections import PoseCorrection, ViewAdam, ViewCorrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
+# a metrics train row's PSNR is the mean over this many steps' batches (saved in checkpoints)
+PSNR_WINDOW = 10
 # a timed run's length in steps is estimated from its rate after this many steps
 RATE_STEPS = 20
 # the shares of a run (steps or minutes) at which it renders its val views without
@@ -100,6 +102,13 @@ def resumed_precision(
         f"trained in bf16, which this {device.type} does not do natively: it goes on in fp32 "
         "(--precision auto), so no longer exactly as an uninterrupted run"
     )
+
+
+def psnr_window(saved: object) -> list[float]:
+    """A checkpoint's last training PSNRs (older checkpoints, or anything else: none)."""
+    if not isinstance(saved, list) or not all(isinstance(v, float) and math.isfinite(v) for v in saved):
+        return []
+    return saved[-PSNR_WINDOW:]
 
 
 def validation_series(rows: list[dict], n_val: int, full: int) -> dict[str, tuple[list, list]]:
@@ -179,6 +188,7 @@ class Trainer:
         self.rows: list[dict] = []
         self.notes: list[str] = []  # the model's notes at the end of training (metrics.json)
         self.bad_steps = 0
+        self.train_psnr: list[float] = []  # the last steps' PSNR, averaged in the metrics' train rows
         self._marks_passed = 0
         if resume:
             self._resume()
@@ -240,6 +250,7 @@ class Trainer:
             "train_seconds": self.train_seconds,
             "rows": json.dumps(self.rows),
             "bad_steps": self.bad_steps,
+            "train_psnr": list(self.train_psnr),
             "precision": precision_name(self.autocast),
             "training_state": self.model.training_state(),
         }
@@ -283,6 +294,7 @@ class Trainer:
         self.train_seconds = float(ckpt["train_seconds"])
         self.rows = json.loads(ckpt["rows"])
         self.bad_steps = int(ckpt.get("bad_steps", 0))
+        self.train_psnr = psnr_window(ckpt.get("train_psnr"))
         self.autocast, warning = resumed_precision(ckpt.get("precision"), self.autocast, self.device)
         self.model.set_precision(self.autocast)
         if warning:
@@ -573,7 +585,6 @@ class Trainer:
         """The training steps, with their metrics, evaluations and periodic checkpoints, until
         the stopping rule, ``interrupted()`` or step ``stop_after``."""
         last_ckpt = time.perf_counter()
-        train_psnr = []
         start = self.step
         if self.step == 0:
             self._record_eval()
@@ -585,7 +596,7 @@ class Trainer:
             self.train_seconds += time.perf_counter() - t0
             self.step += 1
             if math.isfinite(stats["psnr"]):
-                train_psnr.append(stats["psnr"])
+                self.train_psnr = [*self.train_psnr, float(stats["psnr"])][-PSNR_WINDOW:]
             if self.step % 10 == 0 or self.done():
                 self.rows.append(
                     {
@@ -593,7 +604,7 @@ class Trainer:
                         "seconds": round(self.train_seconds, 3),
                         "split": "train",
                         "loss": stats["loss"],
-                        "psnr": float(np.mean(train_psnr[-10:] or [float("nan")])),
+                        "psnr": float(np.mean(self.train_psnr or [float("nan")])),
                         "rays": stats["rays"],
                     }
                 )
