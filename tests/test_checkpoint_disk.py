@@ -106,3 +106,17 @@ def test_eval_falls_back_to_model_pt_when_a_newer_checkpoint_does_not_load(tmp_p
     (run / "checkpoints" / "step_00000099.pt").write_bytes(b"PK\x03\x04 cut short")
     model, _, step = checkpoint.load_run(run)
     assert step == 6
+
+
+def test_a_checkpoint_cut_short_is_named_so_and_no_checkpoint_loading_gives_one_fix(tmp_path, sphere):
+    run = tmp_path / "t"
+    train(sphere, cfg(tmp_path, "t", steps=3, checkpoint_seconds=1e9), TINY, quiet=True)
+    for path in [run / "model.pt", *checkpoint_paths(run)]:
+        data = path.read_bytes()
+        path.write_bytes(data[:-30])  # the end of the zip, its list of members, is missing
+    with pytest.raises(checkpoint.NerfkitError) as e:
+        checkpoint.load_run(run)
+    text = str(e.value)
+    assert text.count("the file is cut short or damaged") == 2 and "something else" not in text
+    assert text.endswith("Copy the run again from where it was made, or train it again")
+    assert text.count(". ") == 1  # one fix, at the end

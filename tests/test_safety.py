@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -567,6 +568,25 @@ def test_changed_intrinsics_or_held_out_images_are_refused_but_an_older_fingerpr
     (run / "config.json").write_text(json.dumps(cfg))
     save_npz(original, data)
     assert main(["train", "--resume", str(run), "--steps", "7"]) == 0
+
+
+def test_a_moved_dataset_is_named_with_its_run_and_the_flag_to_give(trained, tmp_path, capsys):
+    run = copy_run(trained, tmp_path)
+    cfg = json.loads((run / "config.json").read_text())
+    cfg["train"]["data"] = str(tmp_path / "gone" / "data.npz")
+    (run / "config.json").write_text(json.dumps(cfg))
+    for argv in (["train", "--resume", str(run), "--steps", "8"], ["eval", str(run)], ["render", str(run)]):
+        assert main(argv) == 2
+        one_line(capsys, f"{run}: its dataset {tmp_path / 'gone' / 'data.npz'} is not there any more", "--data NEW_PATH")
+
+
+def test_a_timed_run_past_its_budget_says_how_long_it_trained(trained, tmp_path, capsys):
+    run = copy_run(trained, tmp_path)
+    metrics = json.loads((run / "metrics.json").read_text())
+    minutes = metrics["train_seconds"] / 60
+    assert main(["train", "--resume", str(run), "--steps", "0", "--minutes", f"{minutes / 2:.3g}"]) == 0
+    said = re.search(r"already past --minutes \S+ \((\S+) trained\)", capsys.readouterr().err)
+    assert said and float(said.group(1)) == pytest.approx(minutes, rel=0.01)
 
 
 def test_resume_applies_what_it_can_and_refuses_the_rest(trained, tmp_path, capsys):

@@ -336,22 +336,41 @@ def not_a_torch_file(path: Path) -> bool:
     return not (len(tops) == 1 and all("/" in n for n in names) and any(n.endswith("/data.pkl") for n in names))
 
 
+def cut_short_zip(path: Path) -> bool:
+    """Whether ``path`` begins as a zip archive (what ``torch.save`` writes) that cannot be
+    opened as one: its end, where a zip lists its members, is missing."""
+    import zipfile
+
+    try:
+        with open(path, "rb") as f:
+            if f.read(4) != b"PK\x03\x04":
+                return False
+    except OSError:
+        return False
+    try:
+        with zipfile.ZipFile(path):
+            return False
+    except (zipfile.BadZipFile, OSError):
+        return True
+
+
 def _read_checkpoint(path: Path, model_name: str) -> dict:
+    """The checkpoint at ``path``; a NerfkitError says what is wrong (the caller says what to do)."""
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - truncated zip, unpickling refused, ...
         text = " ".join(str(e).split())
-        if "central directory" in text or "zip archive" in text or "file is truncated" in text:
-            why = "the file is cut short or damaged (a copy or download that did not finish?)"
+        if "central directory" in text or "zip archive" in text or "file is truncated" in text or cut_short_zip(path):
+            why = "the file is cut short or damaged (a write, copy or download that did not finish?)"
         elif not_a_torch_file(path):
             why = "the file is not a PyTorch checkpoint (it holds something else: text, an array file, ...)"
         else:
             why = f"{type(e).__name__}: {text[:160]}{'...' if len(text) > 160 else ''}"
-        raise fail(path, f"cannot load checkpoint: {why}", "Put the run's own file back, or train again") from None
+        raise fail(path, f"cannot load checkpoint: {why}") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise fail(path, "not a nerfkit checkpoint")
     if ckpt.get("version") != VERSION:
-        raise fail(path, f"checkpoint version {ckpt.get('version')} is not {VERSION}", "Re-train with this nerfkit")
+        raise fail(path, f"checkpoint version {ckpt.get('version')} is not {VERSION} (another nerfkit's)")
     if ckpt.get("model_name") != model_name:
         raise fail(path, f"checkpoint is for model {ckpt.get('model_name')}, this run uses {model_name}")
     step = ckpt.get("step")

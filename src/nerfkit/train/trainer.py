@@ -826,7 +826,7 @@ def resume(
             limit = (
                 f"--steps {cfg.steps}"
                 if by_steps
-                else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.1f} trained)"
+                else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.3g} trained)"
             )
             more = (
                 "give a larger --steps, or --steps 0 --minutes M to go on by time"
