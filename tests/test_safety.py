@@ -580,6 +580,24 @@ def test_a_moved_dataset_is_named_with_its_run_and_the_flag_to_give(trained, tmp
         one_line(capsys, f"{run}: its dataset {tmp_path / 'gone' / 'data.npz'} is not there any more", "--data NEW_PATH")
 
 
+def test_resume_with_data_of_a_moved_dataset_records_where_it_is_now(trained, tmp_path, capsys):
+    run = copy_run(trained, tmp_path)
+    moved = tmp_path / "moved" / "data.npz"
+    moved.parent.mkdir()
+    shutil.copy(trained / "a" / "data.npz", moved)
+    cfg = json.loads((run / "config.json").read_text())
+    cfg["train"]["data"] = str(tmp_path / "gone" / "data.npz")
+    (run / "config.json").write_text(json.dumps(cfg))
+    assert main(["train", "--resume", str(run), "--steps", "5", "--data", str(moved)]) == 0  # past it: trains nothing
+    after = json.loads((run / "config.json").read_text())
+    assert after["train"]["data"] == str(moved.resolve())
+    assert {k: v for k, v in after["train"].items() if k != "data"} == {
+        k: v for k, v in cfg["train"].items() if k != "data"
+    }  # the data path alone
+    assert main(["eval", str(run)]) == 0  # finds it without --data
+    assert main(["train", "--resume", str(run), "--steps", "7"]) == 0
+
+
 def test_a_timed_run_past_its_budget_says_how_long_it_trained(trained, tmp_path, capsys):
     run = copy_run(trained, tmp_path)
     metrics = json.loads((run / "metrics.json").read_text())

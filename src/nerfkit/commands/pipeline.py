@@ -800,7 +800,7 @@ def resume(
     allow = allow_outside_paths or info.train.allow_outside_paths
     scene = load_as_trained(info.train, str(data or run_dataset_path(info)), allow_outside=allow)
     changes = {**changes, **{k: v for k, v in (("steps", steps), ("minutes", minutes)) if v is not None}}
-    return _train_result(resume_run(run, scene, quiet=quiet, changes=changes))
+    return _train_result(resume_run(run, scene, quiet=quiet, changes=changes, data=data or None))
 
 
 def _run_checks(chunk: int) -> int:

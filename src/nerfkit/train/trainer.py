@@ -799,12 +799,18 @@ def resume(
     minutes: float | None = None,
     quiet: bool = False,
     changes: dict | None = None,
+    data: str | Path | None = None,
 ) -> TrainResult:
     """Continue a run from its newest good checkpoint (optionally with a new stopping rule,
-    and the TrainConfig fields in ``changes``) on the dataset it was trained on."""
+    and the TrainConfig fields in ``changes``) on the dataset it was trained on; ``data``:
+    where that dataset is now (recorded in config.json once ``scene`` passes the check)."""
     with run_lock(run_dir):
         info = read_run(run_dir)
         check_dataset(info, scene)
+        if data is not None and str(Path(data).resolve()) != info.train.data:  # moved: later commands find it
+            info.train.data = str(Path(data).resolve())
+            info.scene = {**info.scene, "source": scene.source}
+            write_run_config(Path(run_dir), info.train, info.model_config, info.bounds, info.scene)
         cfg = info.train
         if steps is not None:
             cfg.steps = steps
