@@ -777,7 +777,7 @@ def resume(
     Args:
         run: the run folder to continue.
         steps: the new step budget (None: the run's).
-        minutes: the new time budget (None: the run's).
+        minutes: the new time budget, the run's total training time, not more time (None: the run's).
         data: the dataset, when it has moved (None: the one the run records).
         allow_outside_paths: read dataset images outside the dataset's folder (also when the
             run was trained so).
