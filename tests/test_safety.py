@@ -537,9 +537,7 @@ def test_a_dataset_changed_in_place_is_refused_on_resume_and_eval(trained, tmp_p
     assert not (run / "eval_val.json").exists()
 
 
-def test_changed_intrinsics_or_held_out_images_are_refused_but_an_older_fingerprint_is_not(
-    trained, tmp_path, capsys
-):
+def test_changed_intrinsics_or_held_out_images_are_refused_but_an_older_fingerprint_is_not(trained, tmp_path, capsys):
     from nerfkit.data.npz import load_npz, save_npz
 
     data = tmp_path / "a" / "data.npz"
@@ -577,7 +575,9 @@ def test_a_moved_dataset_is_named_with_its_run_and_the_flag_to_give(trained, tmp
     (run / "config.json").write_text(json.dumps(cfg))
     for argv in (["train", "--resume", str(run), "--steps", "8"], ["eval", str(run)], ["render", str(run)]):
         assert main(argv) == 2
-        one_line(capsys, f"{run}: its dataset {tmp_path / 'gone' / 'data.npz'} is not there any more", "--data NEW_PATH")
+        one_line(
+            capsys, f"{run}: its dataset {tmp_path / 'gone' / 'data.npz'} is not there any more", "--data NEW_PATH"
+        )
 
 
 def test_resume_with_data_of_a_moved_dataset_records_where_it_is_now(trained, tmp_path, capsys):

@@ -152,8 +152,12 @@ def test_a_resumed_run_writes_the_metrics_rows_of_a_straight_one(tmp_path, spher
     """Stopped at step 15, between two train rows: the row at step 20 still averages the PSNR of
     steps 11 to 20 (the window is in the checkpoint)."""
     tiny = VanillaConfig(n_samples=4, width=8, depth=2)
-    straight = Trainer(sphere, small_cfg(tmp_path, "a", steps=30, batch_rays=32, eval_views=0), tiny, quiet=True).run()
-    Trainer(sphere, small_cfg(tmp_path, "b", steps=30, batch_rays=32, eval_views=0), tiny, quiet=True).run(stop_after=15)
+
+    def trainer(name):
+        return Trainer(sphere, small_cfg(tmp_path, name, steps=30, batch_rays=32, eval_views=0), tiny, quiet=True)
+
+    straight = trainer("a").run()
+    trainer("b").run(stop_after=15)
     resumed = resume(tmp_path / "b", sphere, quiet=True)
     rows = [[(r["step"], r["split"], r["psnr"]) for r in run.rows] for run in (straight, resumed)]
     assert [r[:2] for r in rows[0]] == [r[:2] for r in rows[1]]

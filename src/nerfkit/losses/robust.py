@@ -107,7 +107,8 @@ class TransientMemory:
         shape = state.get("shape")
         if not isinstance(shape, Tensor) or shape.shape != (3,) or shape.is_floating_point() or bool((shape < 1).any()):
             raise ValueError("'shape' is not three positive whole numbers")
-        memory = cls(*(int(v) for v in shape), device=device)
+        n, width, height = (int(v) for v in shape)
+        memory = cls(n, width, height, device)
         for name in ("inliers", "bias"):
             value = state.get(name)
             like = getattr(memory, name)
