@@ -109,8 +109,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--resume",
         metavar="RUN",
-        help="continue this run from its newest good checkpoint; --minutes is then the run's total "
-        "training time, not more time, and a timed run does not resume exactly (its progress follows the clock)",
+        help="continue this run from its newest good checkpoint (--minutes: its total; timed runs resume inexactly)",
     )
     p.add_argument(
         "--config",
