@@ -227,6 +227,28 @@ def test_capture_run_resumes_with_its_view_corrections(tmp_path, tabletop):
     assert resume(tmp_path / "b", tabletop, quiet=True).step == 80
 
 
+def test_a_capture_run_trimming_transients_resumes_exactly(tmp_path, tabletop):
+    """With --transient-quantile the photos' memory of transients is in the checkpoint: a run
+    stopped and resumed trims the rays the uninterrupted one does."""
+    small = FastConfig(**{**SMALL.__dict__, "transient_quantile": 0.8, "transient_start": 0.0})
+    given = SMALL_GIVEN | {"transient_quantile", "transient_start"}
+
+    def configs(name):
+        c, m = presets.resolve(cfg(tmp_path, name, steps=30, eval_views=0), small, tabletop, given).configs()
+        return presets.without_scene(c), m
+
+    Trainer(tabletop, *configs("a"), quiet=True).run()
+    Trainer(tabletop, *configs("b"), quiet=True).run(stop_after=15)
+    saved = torch.load(tmp_path / "b" / "checkpoints" / "step_00000015.pt", weights_only=True)
+    assert float(saved["training_state"]["transients.inliers"].min()) < 1  # it learned where outliers lie
+    assert resume(tmp_path / "b", tabletop, quiet=True).step == 30
+    a = torch.load(tmp_path / "a" / "checkpoints" / "step_00000030.pt", weights_only=True)
+    b = torch.load(tmp_path / "b" / "checkpoints" / "step_00000030.pt", weights_only=True)
+    for part in ("model", "views", "training_state"):
+        for k in a[part]:
+            torch.testing.assert_close(a[part][k], b[part][k], rtol=1e-4, atol=1e-5, msg=f"{part} {k}")
+
+
 def test_object_box_holds_the_points_above_the_table_down_to_the_table():
     from nerfkit.models.base import SceneBounds
     from nerfkit.scene_extent import object_box_from_points

@@ -1563,7 +1563,10 @@ def test_eval_on_another_dataset_says_so_and_capture_does_not_keep_those_scores(
     run = edited_run(tiny_run, tmp_path)
     save_npz(sphere_scene(n_train=5, n_val=1, size=8), tmp_path / "other.npz")
     other = api.evaluate(run, data=tmp_path / "other.npz", device="cpu")
-    assert "is not the dataset the run was trained on (views, poses, train_images differ)" in capsys.readouterr().out
+    assert (
+        "is not the dataset the run was trained on (views, poses, train_images, intrinsics differ)"
+        in capsys.readouterr().out
+    )
     assert other.scores["runs_own_dataset"] is False and not _on_own_dataset(other.report_path)
     own = api.evaluate(run, device="cpu", quiet=True)
     assert own.scores["runs_own_dataset"] is True and _on_own_dataset(own.report_path)

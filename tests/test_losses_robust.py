@@ -179,3 +179,15 @@ def test_trimming_keeps_moving_shadows_out_of_the_scene():
     assert errors[0.8] < 0.5 * errors[0.0], errors
     # and the held-out views (no shadows) render at least as well
     assert val[0.8] > val[0.0] + 1.0, val
+
+
+def test_the_memory_of_transients_round_trips_and_refuses_tensors_that_do_not_fit():
+    memory = robust.TransientMemory(2, 32, 16)
+    memory.inliers[3], memory.bias[1, 2] = 0.25, -0.5
+    back = robust.TransientMemory.from_state(memory.state())
+    assert back.shape == (2, 32, 16)
+    torch.testing.assert_close(back.inliers, memory.inliers)
+    torch.testing.assert_close(back.bias, memory.bias)
+    for bad in ({"inliers": torch.ones(3)}, {"bias": torch.full((2, 3), float("nan"))}, {"shape": torch.ones(3)}):
+        with pytest.raises(ValueError):
+            robust.TransientMemory.from_state({**memory.state(), **bad})

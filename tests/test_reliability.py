@@ -229,6 +229,8 @@ def test_broken_newest_checkpoint_falls_back_to_previous(tmp_path, sphere, damag
     assert step == 20
     assert "step_00000999.pt" in capsys.readouterr().err
     good.unlink()
+    assert load_run(run)[2] == 20  # model.pt, though older than the broken file's name says
+    (run / "model.pt").unlink()
     with pytest.raises(NerfkitError, match="no checkpoint could be loaded"):
         load_run(run)
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -534,6 +535,76 @@ def test_a_dataset_changed_in_place_is_refused_on_resume_and_eval(trained, tmp_p
     assert main(["train", "--resume", str(run), "--steps", "8"]) == 2
     one_line(capsys, "is not the dataset run")
     assert not (run / "eval_val.json").exists()
+
+
+def test_changed_intrinsics_or_held_out_images_are_refused_but_an_older_fingerprint_is_not(trained, tmp_path, capsys):
+    from nerfkit.data.npz import load_npz, save_npz
+
+    data = tmp_path / "a" / "data.npz"
+    shutil.copytree(trained / "a", data.parent)
+    run = copy_run(trained, tmp_path)
+    cfg = json.loads((run / "config.json").read_text())
+    cfg["train"]["data"] = str(data)
+    (run / "config.json").write_text(json.dumps(cfg))
+    original = load_npz(data)
+    scene = load_npz(data)
+    for views in scene.splits.values():
+        views.K[:, :2, :2] *= 1.2  # focal lengths x1.2 (the npz holds one K), poses and images as they were
+    save_npz(scene, data)
+    assert main(["train", "--resume", str(run), "--steps", "8"]) == 2
+    one_line(capsys, "is not the dataset run", "intrinsics differ")
+    scene = load_npz(data)
+    scene.val.images = 255 - scene.val.images
+    for name, views in scene.splits.items():
+        views.K = original.splits[name].K
+    save_npz(scene, data)
+    assert main(["eval", str(run)]) == 2
+    one_line(capsys, "is not the dataset run", "held_out_images differ")
+    # a run from before these parts were recorded is checked on what it recorded
+    for key in ("intrinsics_sha256", "held_out_images_sha256"):
+        del cfg["scene"]["fingerprint"][key]
+    (run / "config.json").write_text(json.dumps(cfg))
+    save_npz(original, data)
+    assert main(["train", "--resume", str(run), "--steps", "7"]) == 0
+
+
+def test_a_moved_dataset_is_named_with_its_run_and_the_flag_to_give(trained, tmp_path, capsys):
+    run = copy_run(trained, tmp_path)
+    cfg = json.loads((run / "config.json").read_text())
+    cfg["train"]["data"] = str(tmp_path / "gone" / "data.npz")
+    (run / "config.json").write_text(json.dumps(cfg))
+    for argv in (["train", "--resume", str(run), "--steps", "8"], ["eval", str(run)], ["render", str(run)]):
+        assert main(argv) == 2
+        one_line(
+            capsys, f"{run}: its dataset {tmp_path / 'gone' / 'data.npz'} is not there any more", "--data NEW_PATH"
+        )
+
+
+def test_resume_with_data_of_a_moved_dataset_records_where_it_is_now(trained, tmp_path, capsys):
+    run = copy_run(trained, tmp_path)
+    moved = tmp_path / "moved" / "data.npz"
+    moved.parent.mkdir()
+    shutil.copy(trained / "a" / "data.npz", moved)
+    cfg = json.loads((run / "config.json").read_text())
+    cfg["train"]["data"] = str(tmp_path / "gone" / "data.npz")
+    (run / "config.json").write_text(json.dumps(cfg))
+    assert main(["train", "--resume", str(run), "--steps", "5", "--data", str(moved)]) == 0  # past it: trains nothing
+    after = json.loads((run / "config.json").read_text())
+    assert after["train"]["data"] == str(moved.resolve())
+    assert {k: v for k, v in after["train"].items() if k != "data"} == {
+        k: v for k, v in cfg["train"].items() if k != "data"
+    }  # the data path alone
+    assert main(["eval", str(run)]) == 0  # finds it without --data
+    assert main(["train", "--resume", str(run), "--steps", "7"]) == 0
+
+
+def test_a_timed_run_past_its_budget_says_how_long_it_trained(trained, tmp_path, capsys):
+    run = copy_run(trained, tmp_path)
+    metrics = json.loads((run / "metrics.json").read_text())
+    minutes = metrics["train_seconds"] / 60
+    assert main(["train", "--resume", str(run), "--steps", "0", "--minutes", f"{minutes / 2:.3g}"]) == 0
+    said = re.search(r"already past --minutes \S+ \((\S+) trained\)", capsys.readouterr().err)
+    assert said and float(said.group(1)) == pytest.approx(minutes, rel=0.01)
 
 
 def test_resume_applies_what_it_can_and_refuses_the_rest(trained, tmp_path, capsys):

@@ -261,6 +261,26 @@ def test_resume_continues_exactly(tmp_path, sphere, capture):
             torch.testing.assert_close(a["views"][k], b["views"][k], rtol=1e-4, atol=1e-6)
 
 
+def test_a_run_resumed_before_its_first_checkpoint_starts_from_the_scene_as_a_new_one(tmp_path, sphere):
+    """Killed before its first checkpoint, a run resumes from step 0 with the Gaussians a new
+    run places from the dataset, not random ones."""
+    cfg = dict(steps=4, eval_views=0)
+    model_cfg = SplatConfig(**{**SMALL, "init": "hull"})
+    new = Trainer(sphere, splat_cfg(tmp_path, "a", **cfg), model_cfg, quiet=True)
+    Trainer(sphere, splat_cfg(tmp_path, "b", **cfg), model_cfg, quiet=True)  # config.json, then killed
+    assert not (tmp_path / "b" / "checkpoints").exists()
+    again = Trainer(sphere, splat_cfg(tmp_path, "b", **cfg), model_cfg, resume=True, quiet=True)
+    assert again.step == 0 and again.model.n_gaussians == new.model.n_gaussians
+    for k, v in new.model.state_dict().items():
+        torch.testing.assert_close(again.model.state_dict()[k], v)
+    new.run()
+    assert resume(tmp_path / "b", sphere, quiet=True).step == 4
+    a = torch.load(tmp_path / "a" / "checkpoints" / "step_00000004.pt", weights_only=True)
+    b = torch.load(tmp_path / "b" / "checkpoints" / "step_00000004.pt", weights_only=True)
+    for k in a["model"]:
+        torch.testing.assert_close(a["model"][k], b["model"][k])
+
+
 def test_export_ply_has_the_3dgs_layout_and_renders_identically(trained, sphere, tmp_path):
     from plyfile import PlyData
 

@@ -110,6 +110,60 @@ def test_resume_continues_exactly(tmp_path, sphere):
     assert steps_a == steps_b  # no duplicated or missing rows
 
 
+def test_resume_goes_on_in_the_precision_auto_chose_where_the_run_started(tmp_path, sphere, monkeypatch, capsys):
+    import nerfkit.precision
+
+    tiny = VanillaConfig(n_samples=4, width=8, depth=2)
+    native = {"bf16": False}
+    monkeypatch.setattr(nerfkit.precision, "cpu_has_native_bf16", lambda: native["bf16"])
+    for started, moved in ((False, True), (True, False)):
+        name = f"started_{started}"
+        native["bf16"] = started
+        cfg = small_cfg(tmp_path, name, steps=6, batch_rays=32, eval_views=0, device="cpu", precision="auto")
+        first = Trainer(sphere, cfg, tiny, quiet=True)
+        assert first.autocast == (torch.bfloat16 if started else None)
+        first.run(stop_after=3)
+        native["bf16"] = moved  # resumed on another machine
+        capsys.readouterr()
+        again = Trainer(sphere, cfg, tiny, resume=True, quiet=True)
+        err = capsys.readouterr().err
+        assert again.step == 3 and again.autocast is None  # fp32: as trained, or as this CPU can
+        assert ("trained in bf16, which this cpu does not do natively" in err) == started, err
+        assert len(err.strip().splitlines()) == int(started)
+
+
+def test_resume_refuses_steps_below_the_step_reached_and_ends_at_it_with_the_final_evaluation(tmp_path, sphere):
+    from nerfkit.errors import NerfkitError
+
+    tiny = VanillaConfig(n_samples=4, width=8, depth=2)
+    cfg = small_cfg(tmp_path, "r", steps=10, batch_rays=32, eval_every=1)
+    Trainer(sphere, cfg, tiny, quiet=True).run(stop_after=5)
+    with pytest.raises(NerfkitError, match=r"--steps: 3 is below step 5, which run .* has reached.*Pass --steps 5"):
+        resume(tmp_path / "r", sphere, steps=3, quiet=True)
+    ended = resume(tmp_path / "r", sphere, steps=5, quiet=True)
+    metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    last = metrics["rows"][-1]
+    assert metrics["finished"] and ended.step == 5
+    assert (last["split"], last["step"], last["views"]) == ("val", 5, len(sphere.val))  # every view, not one
+    assert ended.final_val_psnr == last["psnr"]
+
+
+def test_a_resumed_run_writes_the_metrics_rows_of_a_straight_one(tmp_path, sphere):
+    """Stopped at step 15, between two train rows: the row at step 20 still averages the PSNR of
+    steps 11 to 20 (the window is in the checkpoint)."""
+    tiny = VanillaConfig(n_samples=4, width=8, depth=2)
+
+    def trainer(name):
+        return Trainer(sphere, small_cfg(tmp_path, name, steps=30, batch_rays=32, eval_views=0), tiny, quiet=True)
+
+    straight = trainer("a").run()
+    trainer("b").run(stop_after=15)
+    resumed = resume(tmp_path / "b", sphere, quiet=True)
+    rows = [[(r["step"], r["split"], r["psnr"]) for r in run.rows] for run in (straight, resumed)]
+    assert [r[:2] for r in rows[0]] == [r[:2] for r in rows[1]]
+    assert [r[2] for r in rows[1]] == pytest.approx([r[2] for r in rows[0]], abs=1e-4)
+
+
 @pytest.mark.slow
 def test_resume_keeps_the_default_validation_marks(tmp_path, sphere):
     """Resumed at step 60 of 120, a run validates at the steps a straight run does, no more."""

@@ -15,6 +15,7 @@ from nerfkit.train.view_corrections import (
     ViewAdam,
     ViewFitConfig,
     fit_view,
+    row_steps,
     so3_exp,
 )
 
@@ -304,6 +305,23 @@ def test_view_adam_resumes_from_its_state_and_from_a_dense_adams():
     moved.load_state_dict(copy.deepcopy(dense.state_dict()))
     moved.step(rows=torch.tensor([0]))
     assert moved.state[p]["step"].tolist() == [2, 1, 1, 1]
+
+
+def test_view_adam_steps_on_the_parameters_device_after_loading_a_cpu_checkpoint():
+    """torch's load_state_dict moves Adam's moments to the parameter's device but leaves "step"
+    on the CPU the checkpoint was loaded to (CUDA in training; the meta device stands in here)."""
+    p = torch.nn.Parameter(torch.zeros(4, 3))
+    opt = ViewAdam([p], lr=0.1)
+    p.grad = torch.ones(4, 3)
+    opt.step(rows=torch.tensor([1]))
+    q = torch.nn.Parameter(torch.zeros(4, 3, device="meta"))
+    again = ViewAdam([q], lr=0.1)
+    again.load_state_dict(copy.deepcopy(opt.state_dict()))
+    assert again.state[q]["step"].device.type == "cpu"  # (as torch loads it)
+    q.grad = torch.ones(4, 3, device="meta")
+    again.step()
+    assert {t.device.type for t in again.state[q].values()} == {"meta"}
+    assert row_steps(torch.tensor(3.0), q).shape == (4,) and row_steps(torch.tensor(3.0), q).device.type == "meta"
 
 
 def test_one_view_per_step_with_view_adam_recovers_known_pose_offsets():

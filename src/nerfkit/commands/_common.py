@@ -59,7 +59,11 @@ def run_dataset_path(info) -> Path:
         raise fail(info.run_dir, "the run does not record its dataset", "Pass --data")
     path = Path(info.train.data)
     if not path.exists():
-        raise fail(path, "the run's dataset is not there any more", "Pass --data with its new location")
+        raise fail(
+            info.run_dir,
+            f"its dataset {path} is not there any more",
+            "Pass --data NEW_PATH with the dataset's new location",
+        )
     return path
 
 

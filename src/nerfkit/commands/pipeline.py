@@ -777,7 +777,7 @@ def resume(
     Args:
         run: the run folder to continue.
         steps: the new step budget (None: the run's).
-        minutes: the new time budget (None: the run's).
+        minutes: the new time budget, the run's total training time, not more time (None: the run's).
         data: the dataset, when it has moved (None: the one the run records).
         allow_outside_paths: read dataset images outside the dataset's folder (also when the
             run was trained so).
@@ -787,7 +787,7 @@ def resume(
     from ..errors import fail
     from ..train.checkpoint import read_run
     from ..train.trainer import resume as resume_run
-    from ._common import load_as_trained
+    from ._common import load_as_trained, run_dataset_path
 
     refused = sorted(set(changes) - set(RESUME_APPLIES))
     if refused:
@@ -798,9 +798,9 @@ def resume(
         )
     info = read_run(run)
     allow = allow_outside_paths or info.train.allow_outside_paths
-    scene = load_as_trained(info.train, str(data or info.train.data), allow_outside=allow)
+    scene = load_as_trained(info.train, str(data or run_dataset_path(info)), allow_outside=allow)
     changes = {**changes, **{k: v for k, v in (("steps", steps), ("minutes", minutes)) if v is not None}}
-    return _train_result(resume_run(run, scene, quiet=quiet, changes=changes))
+    return _train_result(resume_run(run, scene, quiet=quiet, changes=changes, data=data or None))
 
 
 def _run_checks(chunk: int) -> int:

@@ -106,7 +106,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="show the options changed first and exit; after --model M, every option of M",
     )
     p.add_argument("--help-all", action=ModelHelp, help="show every option of every model and exit")
-    p.add_argument("--resume", metavar="RUN", help="continue this run from its newest good checkpoint")
+    p.add_argument(
+        "--resume",
+        metavar="RUN",
+        help="continue this run from its newest good checkpoint (--minutes: its total; timed runs resume inexactly)",
+    )
     p.add_argument(
         "--config",
         metavar="JSON",

@@ -87,8 +87,8 @@ def _toward_batch_means(state: Tensor, index: Tensor, values: Tensor) -> None:
 
 class TransientMemory:
     """Per training photo, a coarse grid of cells each holding the running share of the rays
-    drawn in it that were inliers (1 at the start). Not saved with the model: a resumed run
-    relearns it (within a few dozen steps), and a rendered model needs none."""
+    drawn in it that were inliers (1 at the start). Saved in resume checkpoints
+    (:meth:`state`), not in the model file: a rendered model needs none."""
 
     def __init__(self, n_images: int, width: int, height: int, device: torch.device | str = "cpu"):
         self.shape = (n_images, width, height)
@@ -96,6 +96,26 @@ class TransientMemory:
         self.inliers = torch.ones(n_images * rows * cols, device=device)
         # each photo's running mean signed error per channel (render - photo)
         self.bias = torch.zeros((n_images, 3), device=device)
+
+    def state(self) -> dict:
+        """The memory as tensors (for a checkpoint): its photos' count and size, cells and means."""
+        return {"shape": torch.tensor(self.shape), "inliers": self.inliers, "bias": self.bias}
+
+    @classmethod
+    def from_state(cls, state: dict, device: torch.device | str = "cpu") -> TransientMemory:
+        """The memory :meth:`state` saved; ValueError when its tensors do not fit one another."""
+        shape = state.get("shape")
+        if not isinstance(shape, Tensor) or shape.shape != (3,) or shape.is_floating_point() or bool((shape < 1).any()):
+            raise ValueError("'shape' is not three positive whole numbers")
+        n, width, height = (int(v) for v in shape)
+        memory = cls(n, width, height, device)
+        for name in ("inliers", "bias"):
+            value = state.get(name)
+            like = getattr(memory, name)
+            if not isinstance(value, Tensor) or value.shape != like.shape or not bool(torch.isfinite(value).all()):
+                raise ValueError(f"'{name}' is not {tuple(like.shape)} finite values")
+            setattr(memory, name, value.to(like))
+        return memory
 
     def debiased(self, image_index: Tensor, error: Tensor) -> Tensor:
         """(n,) squared error of each ray less its photo's mean, averaged over channels, from the

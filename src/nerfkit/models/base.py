@@ -393,3 +393,12 @@ class NerfModel(nn.Module):
 
     def load_extra_state(self, state: dict) -> None:
         """Restore :meth:`extra_state` before ``load_state_dict``."""
+
+    def training_state(self) -> dict:
+        """Tensors that only training uses, saved in resume checkpoints but not in the model
+        file (e.g. the fast model's memory of transients). Default: none."""
+        return {}
+
+    def load_training_state(self, state: dict) -> None:
+        """Restore :meth:`training_state` on resume (an older checkpoint: ``{}``); ValueError
+        for tensors that do not fit."""

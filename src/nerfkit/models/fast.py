@@ -157,7 +157,7 @@ class FastNeRF(NerfModel):
         self.surfaces = growth.SurfaceMemory()
         weights = tv_weights(self.field.n_channels, self.field.K, c.tv_weight, c.tv_colour, c.tv_view_weight or 0.0)
         self.tv = GridTV(weights)
-        # --transient-quantile: the step's pixels (see_batch) and the photos' cells (not saved)
+        # --transient-quantile: the step's pixels (see_batch) and the photos' cells (training_state)
         self._batch: tuple | None = None
         self._transients: robust.TransientMemory | None = None
 
@@ -422,6 +422,14 @@ class FastNeRF(NerfModel):
         self.stage = int(state["stage"])
         self.estimator.active = bool(state["occ_active"])
         self.estimator.set_box(box)
+
+    def training_state(self) -> dict:
+        memory = self._transients
+        return {} if memory is None else {f"transients.{k}": v for k, v in memory.state().items()}
+
+    def load_training_state(self, state: dict) -> None:
+        memory = {k.split(".", 1)[1]: v for k, v in state.items() if k.startswith("transients.")}
+        self._transients = robust.TransientMemory.from_state(memory, self.field.grid.device) if memory else None
 
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
         state_dict = renamed(state_dict)

@@ -6,6 +6,8 @@ A run folder::
     RUN/model.pt                    the final model: parameters and buffers only (what eval/render use),
                                     compact where the model packs its state (fast: occupied vertices, fp16)
     RUN/checkpoints/step_00001234.pt   model, optimizer, RNG streams, metric rows (what --resume uses)
+    RUN/checkpoints/broken/         checkpoints a resume set aside: they did not load, or were newer
+                                    than the one it went on from
     RUN/.nerfkit.lock               held by the one process training the run (earlier versions: RUN/.lock)
     RUN/metrics.csv, metrics.json   one row per logged step (train) or evaluation (val); the
                                     model's notes at the end of training (metrics.json)
@@ -13,7 +15,7 @@ A run folder::
 
 Checkpoints are written atomically and read with ``torch.load(weights_only=True)``,
 so a crafted file cannot run code. A checkpoint that fails to load is reported and the
-previous one is used.
+previous one is used; a resume moves it to ``checkpoints/broken/``.
 """
 
 from __future__ import annotations
@@ -162,32 +164,39 @@ def unset_as_default(cls: type, values: Any) -> Any:
 
 
 def dataset_fingerprint(scene) -> dict:
-    """What identifies a dataset: its view counts, image size, and hashes of every pose and
-    of the training images. Stored in the run's config.json, checked on resume and eval."""
+    """What identifies a dataset: its view counts, image size, and hashes of every pose, of
+    every view's intrinsics, of the training images and of the val and test images. Stored in
+    the run's config.json, checked on resume and eval."""
     import hashlib
 
     import numpy as np
 
-    poses = hashlib.sha256()
-    for v in scene.splits.values():
+    poses, intrinsics, held_out = hashlib.sha256(), hashlib.sha256(), hashlib.sha256()
+    for name, v in scene.splits.items():
         poses.update(np.ascontiguousarray(v.c2w, np.float32).tobytes())
+        intrinsics.update(np.ascontiguousarray(v.K, np.float32).tobytes())
+        if name != "train" and v.has_images:
+            held_out.update(name.encode() + np.ascontiguousarray(v.images).tobytes())
     images = hashlib.sha256(np.ascontiguousarray(scene.train.images).tobytes()) if scene.train.has_images else None
     return {
         "views": [len(v) for v in scene.splits.values()],
         "image_size": [scene.train.width, scene.train.height],
         "poses_sha256": poses.hexdigest(),
         "train_images_sha256": images.hexdigest() if images else None,
+        "intrinsics_sha256": intrinsics.hexdigest(),
+        "held_out_images_sha256": held_out.hexdigest(),
     }
 
 
 def dataset_differences(info: RunInfo, scene) -> list[str]:
     """Which parts of the run's recorded dataset fingerprint ``scene`` does not match (empty:
-    the run's own dataset, or a run from before fingerprints were recorded)."""
+    the run's own dataset, or a run from before fingerprints were recorded). Only the parts
+    the run recorded count: a run from before a part was added is not checked on it."""
     stored = info.scene.get("fingerprint")
     if not isinstance(stored, dict):
         return []
     now = dataset_fingerprint(scene)
-    return [k for k in now if stored.get(k) != now[k]]
+    return [k for k in now if k in stored and stored[k] != now[k]]
 
 
 def check_dataset(info: RunInfo, scene) -> None:
@@ -243,13 +252,34 @@ def save_checkpoint(
     run_dir: Path, step: int, model: NerfModel, optimizer: torch.optim.Optimizer, extra: dict, keep: int = 1
 ) -> Path:
     """Write ``checkpoints/step_XXXXXXXX.pt`` atomically (a temporary file, renamed once complete),
-    then delete all but the ``keep`` newest: a crash at any point leaves a whole checkpoint."""
+    then delete the older ones but the ``keep - 1`` newest: a crash at any point leaves a whole
+    checkpoint, and the one just written is always kept (one of a higher step is never deleted)."""
     path = run_dir / "checkpoints" / f"step_{step:08d}.pt"
     with atomic_path(path) as tmp:
         torch.save({**_model_payload(step, model), "optimizer": optimizer.state_dict(), **extra}, tmp)
-    for old in checkpoint_paths(run_dir)[keep:]:
+    older = [p for p in checkpoint_paths(run_dir) if 0 <= _checkpoint_step(p) < step]
+    for old in older[keep - 1 :]:
         old.unlink(missing_ok=True)
     return path
+
+
+def set_aside(run_dir: Path, loaded: Path, step: int) -> list[Path]:
+    """After a resume from checkpoint ``loaded`` (at ``step``): move the checkpoints tried before
+    it (they did not load) and any of a higher step into ``checkpoints/broken/``, never over a
+    file there, so that pruning keeps the new ones. Returns where they went."""
+    paths = checkpoint_paths(run_dir)
+    first = paths.index(loaded) if loaded in paths else 0
+    aside = [p for i, p in enumerate(paths) if p != loaded and (i < first or _checkpoint_step(p) > step)]
+    folder = run_dir / "checkpoints" / BROKEN_FOLDER
+    moved = []
+    for p in aside:
+        folder.mkdir(exist_ok=True)
+        target, n = folder / p.name, 1
+        while target.exists():
+            target, n = folder / f"{p.stem}.{n}{p.suffix}", n + 1
+        p.rename(target)
+        moved.append(target)
+    return moved
 
 
 def save_model(run_dir: Path, step: int, model: NerfModel, compact: bool = True) -> Path:
@@ -275,8 +305,10 @@ def _checkpoint_step(path: Path) -> int:
         return -1
 
 
+# where a resume moves the checkpoints it could not go on from (inside checkpoints/)
+BROKEN_FOLDER = "broken"
 # the subfolders a run writes into
-RUN_FOLDERS = ("checkpoints", "plots", "progress", "videos")
+RUN_FOLDERS = ("checkpoints", f"checkpoints/{BROKEN_FOLDER}", "plots", "progress", "videos")
 
 
 @contextlib.contextmanager
@@ -304,22 +336,41 @@ def not_a_torch_file(path: Path) -> bool:
     return not (len(tops) == 1 and all("/" in n for n in names) and any(n.endswith("/data.pkl") for n in names))
 
 
+def cut_short_zip(path: Path) -> bool:
+    """Whether ``path`` begins as a zip archive (what ``torch.save`` writes) that cannot be
+    opened as one: its end, where a zip lists its members, is missing."""
+    import zipfile
+
+    try:
+        with open(path, "rb") as f:
+            if f.read(4) != b"PK\x03\x04":
+                return False
+    except OSError:
+        return False
+    try:
+        with zipfile.ZipFile(path):
+            return False
+    except (zipfile.BadZipFile, OSError):
+        return True
+
+
 def _read_checkpoint(path: Path, model_name: str) -> dict:
+    """The checkpoint at ``path``; a NerfkitError says what is wrong (the caller says what to do)."""
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - truncated zip, unpickling refused, ...
         text = " ".join(str(e).split())
-        if "central directory" in text or "zip archive" in text or "file is truncated" in text:
-            why = "the file is cut short or damaged (a copy or download that did not finish?)"
+        if "central directory" in text or "zip archive" in text or "file is truncated" in text or cut_short_zip(path):
+            why = "the file is cut short or damaged (a write, copy or download that did not finish?)"
         elif not_a_torch_file(path):
             why = "the file is not a PyTorch checkpoint (it holds something else: text, an array file, ...)"
         else:
             why = f"{type(e).__name__}: {text[:160]}{'...' if len(text) > 160 else ''}"
-        raise fail(path, f"cannot load checkpoint: {why}", "Put the run's own file back, or train again") from None
+        raise fail(path, f"cannot load checkpoint: {why}") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise fail(path, "not a nerfkit checkpoint")
     if ckpt.get("version") != VERSION:
-        raise fail(path, f"checkpoint version {ckpt.get('version')} is not {VERSION}", "Re-train with this nerfkit")
+        raise fail(path, f"checkpoint version {ckpt.get('version')} is not {VERSION} (another nerfkit's)")
     if ckpt.get("model_name") != model_name:
         raise fail(path, f"checkpoint is for model {ckpt.get('model_name')}, this run uses {model_name}")
     step = ckpt.get("step")
@@ -333,19 +384,23 @@ def load_latest_checkpoint(run_dir: Path, model: NerfModel, final_model: bool = 
 
     Returns the checkpoint dict (optimizer state, RNG streams, ...) and its path, or None
     when the run has no checkpoint. Raises when checkpoints exist but none loads. With
-    ``final_model``, ``RUN/model.pt`` comes first when it is at least as new as the newest
-    checkpoint (it has no optimizer state: for rendering, not for resuming).
+    ``final_model``, ``RUN/model.pt`` comes before every checkpoint of its step or older (it has
+    no optimizer state: for rendering, not for resuming); a newer checkpoint that loads wins
+    (training went on after model.pt was written: resumed, then killed).
     """
-    paths = checkpoint_paths(run_dir)
-    if final_model and (run_dir / MODEL_FILE).is_file():
-        paths = [run_dir / MODEL_FILE, *paths]
-    newest = max((_checkpoint_step(p) for p in checkpoint_paths(run_dir)), default=-1)
+    name = type(model).__name__
+    paths: list[tuple[Path, dict | None]] = [(p, None) for p in checkpoint_paths(run_dir)]
     errors: list[str] = []
-    for path in paths:
+    if final_model and (run_dir / MODEL_FILE).is_file():
         try:
-            ckpt = _read_checkpoint(path, type(model).__name__)
-            if path.name == MODEL_FILE and ckpt["step"] < newest:
-                continue  # training went on after model.pt was written (resumed, then killed)
+            final = _read_checkpoint(run_dir / MODEL_FILE, name)
+            at = next((i for i, (p, _) in enumerate(paths) if _checkpoint_step(p) <= final["step"]), len(paths))
+            paths.insert(at, (run_dir / MODEL_FILE, final))
+        except NerfkitError as e:
+            errors.append(str(e))
+    for path, read in paths:
+        try:
+            ckpt = read if read is not None else _read_checkpoint(path, name)
             if not isinstance(ckpt.get("model_extra"), str) or not isinstance(ckpt.get("model"), dict):
                 raise fail(path, "malformed checkpoint ('model' or 'model_extra' has the wrong type)")
             packing = ckpt.get("model_packing")
@@ -382,7 +437,7 @@ def load_latest_checkpoint(run_dir: Path, model: NerfModel, final_model: bool = 
             if not isinstance(e, NerfkitError):
                 msg = f"{path}: {type(e).__name__}: {msg}"
             errors.append(msg)  # reported once: as warnings if an older one loads, else in the error
-    if paths:
+    if errors:
         raise fail(
             run_dir,
             "no checkpoint could be loaded: " + "; ".join(errors),
@@ -421,6 +476,7 @@ __all__ = [
     "read_run",
     "run_lock",
     "save_checkpoint",
+    "set_aside",
     "save_model",
     "write_run_config",
     "config_from_dict",

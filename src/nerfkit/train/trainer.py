@@ -48,6 +48,7 @@ from .checkpoint import (
     run_lock,
     save_checkpoint,
     save_model,
+    set_aside,
     write_run_config,
 )
 from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
@@ -58,6 +59,8 @@ from .view_corrections import PoseCorrection, ViewAdam, ViewCorrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
+# a metrics train row's PSNR is the mean over this many steps' batches (saved in checkpoints)
+PSNR_WINDOW = 10
 # a timed run's length in steps is estimated from its rate after this many steps
 RATE_STEPS = 20
 # the shares of a run (steps or minutes) at which it renders its val views without
@@ -78,6 +81,34 @@ class TrainResult:
     final_val_psnr: float | None
     interrupted: bool = False
     rows: list[dict] = field(default_factory=list)
+
+
+def precision_name(dtype: torch.dtype | None) -> str:
+    """How a checkpoint records the precision a run trains in: "bf16" or "fp32"."""
+    return "bf16" if dtype == torch.bfloat16 else "fp32"
+
+
+def resumed_precision(
+    recorded: object, here: torch.dtype | None, device: torch.device
+) -> tuple[torch.dtype | None, str | None]:
+    """The precision a resumed run goes on in, and a warning when it is not the one it trained
+    in: the recorded one (``--precision auto`` chose it where the run started), unless that is
+    bf16 and ``here`` (what auto chooses on this device) is not; older checkpoints: ``here``."""
+    if recorded not in ("bf16", "fp32") or recorded == precision_name(here):
+        return here, None
+    if recorded == "fp32":
+        return None, None
+    return here, (
+        f"trained in bf16, which this {device.type} does not do natively: it goes on in fp32 "
+        "(--precision auto), so no longer exactly as an uninterrupted run"
+    )
+
+
+def psnr_window(saved: object) -> list[float]:
+    """A checkpoint's last training PSNRs (older checkpoints, or anything else: none)."""
+    if not isinstance(saved, list) or not all(isinstance(v, float) and math.isfinite(v) for v in saved):
+        return []
+    return saved[-PSNR_WINDOW:]
 
 
 def validation_series(rows: list[dict], n_val: int, full: int) -> dict[str, tuple[list, list]]:
@@ -112,11 +143,13 @@ class Trainer:
         self.background = torch.tensor(parse_background(cfg.background), dtype=torch.float32, device=self.device)
         torch.manual_seed(cfg.seed)
         self.bounds = SceneBounds.from_scene(scene) if not resume else read_run(self.run_dir).bounds
+        # a resumed run with no checkpoint yet (stopped before its first) starts as a new one does
+        fresh = not resume or not checkpoint_paths(self.run_dir)
         self.model: NerfModel = build_model(cfg.model, model_config, self.bounds).to(self.device)
         self.model.set_precision(self.autocast)  # resolved once, above; the model uses it, never its own
         # models that render whole views (splat) train on one view per step, posed by its corrected camera
         self.whole_images = self.model.whole_images
-        if not resume:
+        if fresh:
             note = self.model.init_from_scene(scene, self.background, self.run_dir)
             if note:
                 self.log(note)
@@ -127,13 +160,13 @@ class Trainer:
         sight = self.model.uses_sight_lines
         self.sight = SightLines.from_scene(scene, self.device) if sight and not self.whole_images else None
         self.sight_generator = torch.Generator().manual_seed(cfg.seed + 1)
-        if self.sight is not None and not resume:
+        if self.sight is not None and fresh:
             assert scene.points is not None  # (sight lines come from the sparse points)
             self.log(
                 f"sight lines: {len(self.sight)} from the train photos' cameras to the {len(scene.points)} "
                 "sparse points (--points-weight)"
             )
-        elif sight and scene.points is not None and scene.point_views is None and not resume:
+        elif sight and scene.points is not None and scene.point_views is None and fresh:
             self.log(
                 f"note: {scene.source} has sparse points but does not record which photos saw them, so they "
                 "are not used as sight lines (an older dataset, or not a dataset.npz): rebuild it with "
@@ -155,6 +188,7 @@ class Trainer:
         self.rows: list[dict] = []
         self.notes: list[str] = []  # the model's notes at the end of training (metrics.json)
         self.bad_steps = 0
+        self.train_psnr: list[float] = []  # the last steps' PSNR, averaged in the metrics' train rows
         self._marks_passed = 0
         if resume:
             self._resume()
@@ -216,6 +250,9 @@ class Trainer:
             "train_seconds": self.train_seconds,
             "rows": json.dumps(self.rows),
             "bad_steps": self.bad_steps,
+            "train_psnr": list(self.train_psnr),
+            "precision": precision_name(self.autocast),
+            "training_state": self.model.training_state(),
         }
         if self.views is not None:
             assert self.view_optimizer is not None  # (built with the views)
@@ -235,7 +272,21 @@ class Trainer:
             self.log(f"{self.run_dir}: no checkpoint yet, starting from step 0")
             return
         ckpt, path = loaded
+        moved = set_aside(self.run_dir, path, int(ckpt["step"]))
+        if moved:  # (else pruning would keep them over the checkpoints this run writes)
+            print(
+                f"warning: {self.run_dir}: moved {', '.join(p.name for p in moved)} to {moved[0].parent} "
+                f"(not loadable, or newer than {path.name}, which training goes on from)",
+                file=sys.stderr,
+            )
         self.model.to(self.device)
+        try:
+            training_state = ckpt.get("training_state", {})  # (older checkpoints: none)
+            if not isinstance(training_state, dict):
+                raise ValueError("not a dict")
+            self.model.load_training_state(training_state)
+        except ValueError as e:
+            raise fail(path, f"malformed checkpoint ('training_state': {e})", "Put the run's own file back") from None
         self.optimizer = build_optimizer(self.model, self.cfg.lr)
         self.optimizer.load_state_dict(ckpt["optimizer"])
         self._remember_initial_lr()
@@ -243,6 +294,11 @@ class Trainer:
         self.train_seconds = float(ckpt["train_seconds"])
         self.rows = json.loads(ckpt["rows"])
         self.bad_steps = int(ckpt.get("bad_steps", 0))
+        self.train_psnr = psnr_window(ckpt.get("train_psnr"))
+        self.autocast, warning = resumed_precision(ckpt.get("precision"), self.autocast, self.device)
+        self.model.set_precision(self.autocast)
+        if warning:
+            print(f"warning: {self.run_dir}: {warning}", file=sys.stderr)
         self._marks_passed = self._marks_reached()  # validated there before the stop
         if self.views is not None:
             if "views" not in ckpt:
@@ -529,7 +585,7 @@ class Trainer:
         """The training steps, with their metrics, evaluations and periodic checkpoints, until
         the stopping rule, ``interrupted()`` or step ``stop_after``."""
         last_ckpt = time.perf_counter()
-        train_psnr = []
+        start = self.step
         if self.step == 0:
             self._record_eval()
         while not self.done() and not interrupted() and (stop_after is None or self.step < stop_after):
@@ -540,7 +596,7 @@ class Trainer:
             self.train_seconds += time.perf_counter() - t0
             self.step += 1
             if math.isfinite(stats["psnr"]):
-                train_psnr.append(stats["psnr"])
+                self.train_psnr = [*self.train_psnr, float(stats["psnr"])][-PSNR_WINDOW:]
             if self.step % 10 == 0 or self.done():
                 self.rows.append(
                     {
@@ -548,7 +604,7 @@ class Trainer:
                         "seconds": round(self.train_seconds, 3),
                         "split": "train",
                         "loss": stats["loss"],
-                        "psnr": float(np.mean(train_psnr[-10:] or [float("nan")])),
+                        "psnr": float(np.mean(self.train_psnr or [float("nan")])),
                         "rays": stats["rays"],
                     }
                 )
@@ -569,11 +625,13 @@ class Trainer:
             if time.perf_counter() - last_ckpt >= self.cfg.checkpoint_seconds:
                 self.save()
                 last_ckpt = time.perf_counter()
+        if self.step == start and self.done():  # resumed at its end: the final evaluation, unless made
+            self._record_eval()
 
     def _record_eval(self) -> None:
-        if any(r["split"] == "val" and r["step"] == self.step for r in self.rows):
-            return
         n = None if self.done() else self.cfg.eval_views
+        if self._scored(final=n is None):
+            return
         if n == 0:  # no periodic evaluation: the final one alone
             return
         if n is None:
@@ -605,6 +663,17 @@ class Trainer:
             + ("" if full else f", {pixels} pixels each")
             + also
             + ")"
+        )
+
+    def _scored(self, final: bool) -> bool:
+        """Whether this step was evaluated (``final``: on every val view, whole)."""
+        val = self.scene.val
+        full = val.width * val.height
+        return any(
+            r["split"] == "val"
+            and r["step"] == self.step
+            and (not final or (r.get("views", len(val)) >= len(val) and r.get("pixels", full) >= full))
+            for r in self.rows
         )
 
     def _add_val_row(self, psnr_db: float, views: int, pixels: int) -> None:
@@ -730,12 +799,18 @@ def resume(
     minutes: float | None = None,
     quiet: bool = False,
     changes: dict | None = None,
+    data: str | Path | None = None,
 ) -> TrainResult:
     """Continue a run from its newest good checkpoint (optionally with a new stopping rule,
-    and the TrainConfig fields in ``changes``) on the dataset it was trained on."""
+    and the TrainConfig fields in ``changes``) on the dataset it was trained on; ``data``:
+    where that dataset is now (recorded in config.json once ``scene`` passes the check)."""
     with run_lock(run_dir):
         info = read_run(run_dir)
         check_dataset(info, scene)
+        if data is not None and str(Path(data).resolve()) != info.train.data:  # moved: later commands find it
+            info.train.data = str(Path(data).resolve())
+            info.scene = {**info.scene, "source": scene.source}
+            write_run_config(Path(run_dir), info.train, info.model_config, info.bounds, info.scene)
         cfg = info.train
         if steps is not None:
             cfg.steps = steps
@@ -745,12 +820,19 @@ def resume(
             setattr(cfg, key, value)
         cfg.out = str(run_dir)
         trainer = Trainer(scene, cfg.validate(), info.model_config, resume=True, quiet=quiet)
-        if trainer.done() and _finished_at(Path(run_dir), trainer.step):  # changes nothing, config.json included
+        finished = _finished_at(Path(run_dir), trainer.step)
+        if cfg.steps and trainer.step > cfg.steps and not finished:
+            raise fail(
+                "--steps",
+                f"{cfg.steps} is below step {trainer.step}, which run {run_dir} has reached",
+                f"Pass --steps {trainer.step} to end it there (with its final evaluation), or more to go on",
+            )
+        if trainer.done() and finished:  # changes nothing, config.json included
             by_steps = bool(cfg.steps and trainer.step >= cfg.steps)
             limit = (
                 f"--steps {cfg.steps}"
                 if by_steps
-                else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.1f} trained)"
+                else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.3g} trained)"
             )
             more = (
                 "give a larger --steps, or --steps 0 --minutes M to go on by time"

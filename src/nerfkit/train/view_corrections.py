@@ -271,8 +271,8 @@ class ViewAdam(torch.optim.Optimizer):
                     state["step"] = torch.zeros(p.shape[0], dtype=torch.float32, device=p.device)
                     state["exp_avg"] = torch.zeros_like(p)
                     state["exp_avg_sq"] = torch.zeros_like(p)
-                elif state["step"].dim() == 0:  # a dense Adam's state (an older checkpoint): its count per row
-                    state["step"] = state["step"].expand(p.shape[0]).clone().to(p.device)
+                else:
+                    state["step"] = row_steps(state["step"], p)
                 r = torch.arange(p.shape[0], device=p.device) if rows is None else rows.to(p.device).unique()
                 g = p.grad[r]
                 step = state["step"][r] + 1
@@ -283,6 +283,14 @@ class ViewAdam(torch.optim.Optimizer):
                 p[r] -= group["lr"] * m / (1 - beta1**step).reshape(shape) / denom
                 state["step"][r], state["exp_avg"][r], state["exp_avg_sq"][r] = step, m, v
         return loss
+
+
+def row_steps(step: Tensor, p: Tensor) -> Tensor:
+    """:class:`ViewAdam`'s step counts of parameter ``p``, one per row, on ``p``'s device:
+    torch's ``load_state_dict`` leaves a state named "step" where it was loaded (the CPU of
+    ``map_location="cpu"``), and a dense Adam's state (an older checkpoint) has one count."""
+    step = step.to(p.device)
+    return step.expand(p.shape[0]).clone() if step.dim() == 0 else step
 
 
 def least_squares_colour(rgb: np.ndarray, target: np.ndarray, mix: bool = False) -> tuple[np.ndarray, np.ndarray]:
