@@ -596,6 +596,12 @@ def test_resume_with_data_of_a_moved_dataset_records_where_it_is_now(trained, tm
     }  # the data path alone
     assert main(["eval", str(run)]) == 0  # finds it without --data
     assert main(["train", "--resume", str(run), "--steps", "7"]) == 0
+    # a dataset moved into the run's own folder is refused, as train refuses a run among its data
+    shutil.copy(moved, run / "data.npz")
+    capsys.readouterr()
+    assert main(["train", "--resume", str(run), "--steps", "8", "--data", str(run / "data.npz")]) == 2
+    assert "--data: " in capsys.readouterr().err.splitlines()[-1]  # before anything is trained
+    assert json.loads((run / "config.json").read_text())["train"]["data"] == str(moved.resolve())
 
 
 def test_a_timed_run_past_its_budget_says_how_long_it_trained(trained, tmp_path, capsys):

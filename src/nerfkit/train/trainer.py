@@ -27,7 +27,7 @@ from ..cameras import strided_camera
 from ..data.load import dataset_inputs
 from ..data.rays import RaysData
 from ..data.scene import Scene
-from ..errors import fail
+from ..errors import NerfkitError, fail
 from ..images import write_image
 from ..io import stop
 from ..io.atomic import is_temporary, write_json, write_text
@@ -808,6 +808,15 @@ def resume(
         info = read_run(run_dir)
         check_dataset(info, scene)
         if data is not None and str(Path(data).resolve()) != info.train.data:  # moved: later commands find it
+            try:  # not among its data, as train refuses
+                guard_run_folder(Path(run_dir), str(data), dataset_inputs(data))
+            except NerfkitError:
+                raise fail(
+                    "--data",
+                    f"{data} and the run {run_dir} lie one inside the other",
+                    "Keep the dataset out of the run's folder and the run out of the dataset's: eval and "
+                    "render write into the run",
+                ) from None
             info.train.data = str(Path(data).resolve())
             info.scene = {**info.scene, "source": scene.source}
             write_run_config(Path(run_dir), info.train, info.model_config, info.bounds, info.scene)
