@@ -320,6 +320,19 @@ def test_16bit_colour_keeps_precision_and_its_transparency(tmp_path):
     np.testing.assert_allclose(img[0, 1], [1, 1, 1], atol=1e-6)  # transparent: the background
 
 
+def test_a_floating_point_tiff_is_refused_as_such(tmp_path):
+    import cv2
+
+    from nerfkit.errors import NerfkitError
+
+    cv2.imwrite(str(tmp_path / "f.tif"), np.full((4, 6, 3), 0.5, np.float32))
+    with pytest.raises(NerfkitError, match=r"f.tif: a TIFF whose samples nerfkit cannot read \(floating-point"):
+        load_target(tmp_path / "f.tif", "black")
+    (tmp_path / "t.tif").write_text("not an image")
+    with pytest.raises(NerfkitError, match="t.tif: not an image nerfkit can read"):
+        load_target(tmp_path / "t.tif", "black")
+
+
 def test_exif_rotated_jpeg_is_fitted_upright(tmp_path):
     stored = np.zeros((10, 20, 3), np.uint8)  # landscape as stored
     stored[:, :10] = 255

@@ -85,6 +85,13 @@ def _open(path: Path):
             )
         img.load()
     except UnidentifiedImageError:
+        with open(path, "rb") as f:
+            if f.read(4) in (b"II*\x00", b"MM\x00*"):  # a TIFF, of samples Pillow does not read
+                raise fail(
+                    path,
+                    "a TIFF whose samples nerfkit cannot read (floating-point, or of an unusual layout)",
+                    "Save it as an 8- or 16-bit RGB TIFF or PNG",
+                ) from None
         raise fail(path, "not an image nerfkit can read", "Use JPEG, PNG, TIFF, WebP or HEIC") from None
     except Image.DecompressionBombError as e:
         raise fail(path, f"image is too large ({e})") from None
