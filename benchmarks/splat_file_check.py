@@ -7,7 +7,9 @@ as a standard viewer draws it), beside the run's own ``eval_<split>.json``::
 
 The views (cameras, images, resolution) are the run's dataset loaded as it was trained, so the
 per-view PSNRs compare one for one with the eval's; ``psnr_ply_vs_model`` scores the PLY's render
-against the run's own (its learned background included) at each view. Prints a JSON report.
+against the run's own (its learned background included) at each view, as nerfkit draws it (a
+capture's in the colour of the training photos near the view), and ``psnr_ply_vs_scene_colour``
+against the run's render in the scene's own colour (what a file can carry). Prints a JSON report.
 """
 
 from __future__ import annotations
@@ -65,13 +67,21 @@ def check(run: str, ply: str, split: str) -> dict:
     g = read_splat_ply(ply)
     near_plane = 0.05 * float(info.bounds.near)  # as the splat model's
     t0 = time.perf_counter()
-    rows, same = [], []
+    rows, same, plain = [], [], []
+    appearance = getattr(opened.model, "appearance", None)  # a capture's colour of each new view
     for i in range(len(views)):
         K, c2w, w, h = views.K[i], views.c2w[i], views.width, views.height
         rgb = render_ply(g, K, c2w, w, h, near_plane)
         rows.append(round(psnr(rgb, views.images[i].astype(np.float32) / 255.0), 4))
         own = render_image(opened.model, K, c2w, w, h, opened.background(), opened.chunk).rgb
         same.append(round(psnr(rgb, own), 4))
+        if appearance is not None:
+            opened.model.appearance = None
+            try:
+                scene_colour = render_image(opened.model, K, c2w, w, h, opened.background(), opened.chunk).rgb
+            finally:
+                opened.model.appearance = appearance
+            plain.append(round(psnr(rgb, scene_colour), 4))
     report = {
         "run": run,
         "ply": ply,
@@ -84,6 +94,11 @@ def check(run: str, ply: str, split: str) -> dict:
         "seconds": round(time.perf_counter() - t0, 1),
         "per_view_ply": rows,
         "per_view_ply_vs_model": same,
+        **(
+            {"psnr_ply_vs_scene_colour": round(float(np.mean(plain)), 4), "per_view_ply_vs_scene_colour": plain}
+            if plain
+            else {}
+        ),
     }
     ev = Path(run) / f"eval_{split}.json"
     if ev.is_file():

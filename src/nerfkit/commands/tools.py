@@ -368,7 +368,7 @@ def view(
         rays_from: draw the rays of this training view only.
         png: write this static picture (matplotlib) instead of serving.
         host: address to listen on (127.0.0.1: this machine only).
-        port: port to listen on (viser takes the next free one when it is taken).
+        port: the first port to try (taken: the next free one; refused when 100 in a row are).
         force: replace an existing ``png``.
         downscale: divide the dataset's image size by this.
         allow_outside_paths: read dataset images outside the dataset's folder (a run's too).

@@ -18,9 +18,10 @@ the scene centre; --rays N adds N random training rays with their samples betwee
 and far (as training samples them); --rays-from V draws them from training view V only
 (100 of them unless --rays says). DATASET is anything `nerfkit train --data` reads.
 The server listens on 127.0.0.1 only, unless you pass --host explicitly.
-A run folder (from `nerfkit train`) opens the live viewer of the trained model instead:
-the NeRF rendered from the browser's camera, in colour or depth, the whole scene or (the
-"Object alone" switch) a capture's object without its table and room.
+A run folder (from `nerfkit train`, finished or still training: it follows each new
+checkpoint) opens the live viewer of its model instead: the model rendered from the
+browser's camera, in colour or depth, the whole scene or (the "Object alone" switch) a
+capture's object without its table and room. The options that draw a dataset are refused there.
 
 examples:
   nerfkit view my_object/ --rays 50              then open http://127.0.0.1:8080
@@ -54,7 +55,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="127.0.0.1",
         help="address to listen on (default: 127.0.0.1, this machine only; 0.0.0.0 exposes the viewer to the network)",
     )
-    p.add_argument("--port", type=number(int, 1, 65535), default=8080, help="port (default: 8080)")
+    p.add_argument(
+        "--port",
+        type=number(int, 1, 65535),
+        default=8080,
+        help="first port to try (default: 8080; taken: the next free one)",
+    )
     p.add_argument("--force", action="store_true", help="replace an existing --png file")
     p.add_argument(
         "--downscale",
