@@ -596,6 +596,11 @@ def test_resume_with_data_of_a_moved_dataset_records_where_it_is_now(trained, tm
     }  # the data path alone
     assert main(["eval", str(run)]) == 0  # finds it without --data
     assert main(["train", "--resume", str(run), "--steps", "7"]) == 0
+    # a resume refused for its --steps records no new path (a run stopped before its end: no model.pt)
+    (run / "model.pt").rename(tmp_path / "model.pt")
+    assert main(["train", "--resume", str(run), "--steps", "3", "--data", str(trained / "a" / "data.npz")]) == 2
+    assert json.loads((run / "config.json").read_text())["train"]["data"] == str(moved.resolve())
+    (tmp_path / "model.pt").rename(run / "model.pt")
     # a dataset moved into the run's own folder is refused, as train refuses a run among its data
     shutil.copy(moved, run / "data.npz")
     capsys.readouterr()

@@ -819,7 +819,9 @@ def resume(
                 ) from None
             info.train.data = str(Path(data).resolve())
             info.scene = {**info.scene, "source": scene.source}
-            write_run_config(Path(run_dir), info.train, info.model_config, info.bounds, info.scene)
+            moved = replace(info.train)  # recorded below, once the resume is not refused
+        else:
+            moved = None
         cfg = info.train
         if steps is not None:
             cfg.steps = steps
@@ -836,6 +838,8 @@ def resume(
                 f"{cfg.steps} is below step {trainer.step}, which run {run_dir} has reached",
                 f"Pass --steps {trainer.step} to end it there (with its final evaluation), or more to go on",
             )
+        if moved is not None:  # the dataset's new path, for later commands
+            write_run_config(Path(run_dir), moved, info.model_config, info.bounds, info.scene)
         if trainer.done() and finished:  # changes nothing, config.json included
             by_steps = bool(cfg.steps and trainer.step >= cfg.steps)
             limit = (
