@@ -518,15 +518,21 @@ def test_the_run_records_its_dataset_absolutely_and_eval_uses_it_from_anywhere(t
     assert json.loads(capsys.readouterr().out)["data"] == str(trained / "a" / "data.npz")
 
 
-def test_a_dataset_changed_in_place_is_refused_on_resume_and_eval(trained, tmp_path, capsys):
-    from nerfkit.data.npz import load_npz, save_npz
-
+def run_on_a_copy_of_its_data(trained, tmp_path):
+    """(a copy of the trained run, the copy of its dataset it now records)."""
     data = tmp_path / "a" / "data.npz"
     shutil.copytree(trained / "a", data.parent)
     run = copy_run(trained, tmp_path)
     cfg = json.loads((run / "config.json").read_text())
     cfg["train"]["data"] = str(data)
     (run / "config.json").write_text(json.dumps(cfg))
+    return run, data
+
+
+def test_a_dataset_changed_in_place_is_refused_on_resume_and_eval(trained, tmp_path, capsys):
+    from nerfkit.data.npz import load_npz, save_npz
+
+    run, data = run_on_a_copy_of_its_data(trained, tmp_path)
     scene = load_npz(data)
     scene.train.c2w[0, :3, 3] += 0.01  # one camera moved a centimetre: a different dataset
     save_npz(scene, data)
@@ -540,12 +546,7 @@ def test_a_dataset_changed_in_place_is_refused_on_resume_and_eval(trained, tmp_p
 def test_changed_intrinsics_or_held_out_images_are_refused_but_an_older_fingerprint_is_not(trained, tmp_path, capsys):
     from nerfkit.data.npz import load_npz, save_npz
 
-    data = tmp_path / "a" / "data.npz"
-    shutil.copytree(trained / "a", data.parent)
-    run = copy_run(trained, tmp_path)
-    cfg = json.loads((run / "config.json").read_text())
-    cfg["train"]["data"] = str(data)
-    (run / "config.json").write_text(json.dumps(cfg))
+    run, data = run_on_a_copy_of_its_data(trained, tmp_path)
     original = load_npz(data)
     scene = load_npz(data)
     for views in scene.splits.values():
@@ -561,6 +562,7 @@ def test_changed_intrinsics_or_held_out_images_are_refused_but_an_older_fingerpr
     assert main(["eval", str(run)]) == 2
     one_line(capsys, "is not the dataset run", "held_out_images differ")
     # a run from before these parts were recorded is checked on what it recorded
+    cfg = json.loads((run / "config.json").read_text())
     for key in ("intrinsics_sha256", "held_out_images_sha256"):
         del cfg["scene"]["fingerprint"][key]
     (run / "config.json").write_text(json.dumps(cfg))
