@@ -226,6 +226,8 @@ class LiveViewer:
         self.status = gui.add_markdown("loading...")
         self.frustums = gui.add_checkbox("Training cameras", initial_value=True)
         self.frustums.on_update(lambda _: self._set_frustums_visible(self.frustums.value))
+        self.mode.on_update(lambda _: self._splats_visible())
+        self.alone.on_update(lambda _: self._splats_visible())
         self._frustum_handles: list = []
         self.splats = None  # viser's own Gaussian-splat node, for splat runs
         if scene is not None:
@@ -358,7 +360,6 @@ class LiveViewer:
                 self._show_splats()
             elif self.watcher.current is None:
                 self.status.content = self.watcher.status
-        self._splats_visible()
         sides = refinement_sides(self.preview, int(self.res.value))
         now = time.monotonic()
         for cid, client in list(self.server.get_clients().items()):
