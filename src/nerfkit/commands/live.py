@@ -34,7 +34,6 @@ if TYPE_CHECKING:
     from ..models.base import NerfModel
     from ..train.checkpoint import RunInfo
 
-LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 PREVIEW_SIDE = 64
 SETTLE_SECONDS = 0.25
 
@@ -445,10 +444,10 @@ def serve_run(
     watcher = RunWatcher(run_dir, lambda d: load_run(d, dev), dev)
     viewer = LiveViewer(watcher, scene, host, port, max_side, chunk=chunk, watch=watch)
     port = viewer.server.get_port()  # the first free port from the one asked for
+    from ..viz.viewer import LOCAL_HOSTS, viewer_url
+
     if host not in LOCAL_HOSTS:
         print(f"warning: listening on {host}: anyone who can reach port {port} can see this scene", file=sys.stderr)
-    from ..viz.viewer import viewer_url
-
     if not quiet:
         print(f"nerfkit viewer of {run_dir} at {viewer_url(host, port)} (Ctrl-C to stop)", flush=True)
     viewer.serve_forever()

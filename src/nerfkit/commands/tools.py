@@ -416,12 +416,12 @@ def view(
         plot_scene(scene, str(png), n_rays=n_rays, n_samples=samples, tag_size=tag_size, rays_from=rays_from)
         say(f"wrote {png}")
         return ViewResult(picture, None)
-    from ..viz.viewer import serve_dataset, viewer_url, wait_until_interrupted
+    from ..viz.viewer import LOCAL_HOSTS, serve_dataset, viewer_url, wait_until_interrupted
 
     server, _ = serve_dataset(
         scene, host, port, n_rays=n_rays, n_samples=samples, tag_size=tag_size, block=False, rays_from=rays_from
     )
-    if host not in ("127.0.0.1", "localhost", "::1"):
+    if host not in LOCAL_HOSTS:
         print(f"warning: listening on {host}: anyone who can reach this machine can see the dataset", file=sys.stderr)
     url = viewer_url(host, server.get_port())
     say(

@@ -15,6 +15,9 @@ from ..cameras import axes_across
 from ..data.scene import Scene
 from .scene_plot import SPLIT_COLORS, printed_tags, sample_rays, scene_scale
 
+# the addresses that only this machine reaches (any other --host is warned about)
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
+
 
 def viewer_url(address: str, port: int) -> str:
     """The address to open in a browser for a viewer listening on ``address`` (an IPv6 one
