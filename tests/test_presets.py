@@ -257,18 +257,46 @@ def test_a_forward_facing_dataset_trains_splat_when_no_model_is_named(tmp_path):
     assert json.loads((tmp_path / "fast" / "config.json").read_text())["train"]["model"] == "fast"
 
 
-def test_the_splat_help_names_the_forward_facing_values():
-    """`nerfkit train --model splat --help` gives each forward-facing preset value beside the
-    general default, so a user reading it knows what a forward-facing scene trains with."""
-    import dataclasses
+def _help_all(capsys) -> str:
+    """`nerfkit train --help-all` on one line (argparse's wrapping undone)."""
+    from nerfkit.cli import main
 
-    from nerfkit.models.splat import SplatConfig
+    with pytest.raises(SystemExit):
+        main(["train", "--help-all"])
+    return " ".join(re.sub(r"-\s+", "-", capsys.readouterr().out).split())
 
-    helps = {f.name: f.metadata["help"] for f in dataclasses.fields(SplatConfig)}
-    values = presets.PRESETS[presets.FORWARD_FACING]["splat"]["model"]
-    assert values
-    for name, value in values.items():
-        assert f"forward-facing scenes: {value:g}" in helps[name], name
+
+def test_the_help_names_every_model_value_a_scene_kind_presets_and_one_default_per_option(capsys):
+    """`nerfkit train --help-all` gives each model option a kind's preset changes the kinds'
+    value beside the general default (written from PRESETS, so a preset changed is a help
+    changed), and no option says "(default: ...)" twice."""
+    text = _help_all(capsys)
+    checked = 0
+    for kind in presets.SCENE_KINDS:
+        for model, tables in presets.PRESETS[kind].items():
+            for name, value in tables.get("model", {}).items():
+                if model == "*" or name in presets.STAGE_OPTIONS:
+                    continue
+                shown = ("on" if value else "off") if isinstance(value, bool) else presets._shown(value)
+                flag = "--" + name.replace("_", "-")
+                said = re.search(rf"{re.escape(flag)}[ ,].*?\(default: ([^)]*)\)", text)
+                assert said and re.search(rf"\b{re.escape(shown)} for [\w\- ]*{re.escape(kind)}", said.group(1)), (
+                    flag,
+                    kind,
+                    said and said.group(1),
+                )
+                checked += 1
+    assert checked >= 10
+    assert not re.search(r"\(default: [^)]*\) \(default:", text)
+
+
+def test_kind_default_help_groups_the_kinds_that_share_a_value_and_ends_with_the_general_default():
+    """Analytic cases of the help's wording: a value two kinds share is said once for both."""
+    assert presets.kind_default_help("fast", "distortion_weight", 0.0) == (
+        "0.01 for capture and forward-facing datasets, else 0"
+    )
+    assert presets.kind_default_help("fast", "learn_background", False) == "on for capture datasets, else off"
+    assert presets.kind_default_help("fast", "ray_samples_no_such_option", 1) is None
 
 
 def test_the_model_help_names_each_kinds_default_model(capsys):

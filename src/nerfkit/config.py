@@ -13,6 +13,7 @@ import math
 import numbers
 import types
 import typing
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -229,10 +230,16 @@ def flag_type(cls: type, name: str) -> Any:
     return _field_type(base_type(typing.get_type_hints(cls)[name])[0], f.metadata)
 
 
-def _help_line(f: dataclasses.Field) -> str:
+# (config name, field name, dataclass default) -> what --help says the default is, or None
+DefaultHelp = Callable[[str, str, Any], "str | None"]
+
+
+def _help_line(f: dataclasses.Field, owner: str = "", default_help: DefaultHelp | None = None) -> str:
     default = f.default if f.default is not dataclasses.MISSING else None
     # a default that the command decides where the dataclass cannot (the dataset's kind's)
     default = f.metadata.get("default_help", default)
+    if default_help is not None:
+        default = default_help(owner, f.name, default) or default
     if default is not None and default != "":
         return f"{f.metadata.get('help', '')} (default: {default})"
     return f.metadata.get("help", "")
@@ -264,13 +271,16 @@ def widest_bounds(metas: list[Any]) -> dict[str, float]:
     return out
 
 
-def _add_flag(target: Any, name: str, owners: list[tuple[str, Any, dataclasses.Field]]) -> None:
+def _add_flag(
+    target: Any, name: str, owners: list[tuple[str, Any, dataclasses.Field]], default_help: DefaultHelp | None = None
+) -> None:
     """Add field ``name``'s flag to ``target`` for the (owner, type, field) of every config that has it:
-    parsed within the widest of their bounds, its help each one's text and default."""
+    parsed within the widest of their bounds, its help each one's text and default (as
+    ``default_help`` words it, where it does)."""
     if len({tp for _, tp, _ in owners}) > 1 or len({str(f.metadata.get("choices")) for _, _, f in owners}) > 1:
         raise TypeError(f"{flag_of(name)}: {', '.join(o for o, _, _ in owners)} give it different types or choices")
     _, tp, first = owners[0]
-    helps = [_help_line(f) for _, _, f in owners]
+    helps = [_help_line(f, o, default_help) for o, _, f in owners]
     help_text = helps[0] if len(set(helps)) == 1 else "; ".join(f"{o}: {h}" for (o, _, _), h in zip(owners, helps))
     help_text = help_text.replace("%", "%%")  # argparse %-formats help
     kw: dict[str, Any] = {"dest": name, "default": None, "help": help_text}
@@ -336,7 +346,9 @@ def foreign_flags(args: argparse.Namespace, classes: dict[str, type], chosen: st
     ]
 
 
-def add_alternative_dataclass_args(parser: argparse.ArgumentParser, classes: dict[str, type], title: str) -> None:
+def add_alternative_dataclass_args(
+    parser: argparse.ArgumentParser, classes: dict[str, type], title: str, default_help: DefaultHelp | None = None
+) -> None:
     """Add the flags of alternative dataclasses, of which one is used (a model's config, chosen by
     ``--model``): a group each, titled ``title.format(name)``. A field that several have is one flag,
     in a group of its own named after them all: parsed within the widest of their bounds
@@ -350,7 +362,7 @@ def add_alternative_dataclass_args(parser: argparse.ArgumentParser, classes: dic
         names = tuple(name for name, _, _ in its)
         if names not in groups:  # after the configs' own groups
             groups[names] = parser.add_argument_group(" and ".join(title.format(name) for name in names))
-        _add_flag(groups[names], field, its)
+        _add_flag(groups[names], field, its, default_help)
 
 
 NAMED_COLOURS = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0), "grey": (0.5, 0.5, 0.5), "gray": (0.5, 0.5, 0.5)}

@@ -81,7 +81,7 @@ PRESETS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
 # The model a scene kind trains when --model is not given: the one that scored higher on
 # held-out views at the budgets people use (BENCHMARKS.md, why the defaults are what they are).
 # Synthetic objects: splat from the visual hull; forward-facing: splat from points triangulated
-# at the given poses; captures: fast (the splat lost a 22-photo capture by 1.1 dB).
+# at the given poses; captures: fast (the splat scored lower on the benchmark captures).
 DEFAULT_MODEL = "fast"
 KIND_MODELS = {OBJECT: "splat", FORWARD_FACING: "splat"}
 
@@ -130,6 +130,28 @@ def preset_values(kind: str, model: str) -> tuple[dict, dict]:
     }
     model_values = {**table.get("*", {}).get("model", {}), **table.get(model, {}).get("model", {})}
     return train, model_values
+
+
+def kind_default_help(model: str, field: str, default: Any) -> str | None:
+    """What ``--help`` says model ``model``'s option ``field`` (dataclass default ``default``)
+    defaults to when a scene kind's preset changes it, e.g. ``"3 for capture datasets, else 0"``;
+    None when no kind does. Written from :data:`PRESETS`, so the help cannot drift from them."""
+    by_value: dict[str, list[str]] = {}
+    for kind in SCENE_KINDS:
+        values = preset_values(kind, model)[1]
+        if field in values:
+            by_value.setdefault(_shown(values[field]), []).append(kind)
+    if not by_value:
+        return None
+    kinds = "; ".join(f"{value} for {' and '.join(names)} datasets" for value, names in by_value.items())
+    return f"{kinds}, else {_shown(default)}"
+
+
+def _shown(value: Any) -> str:
+    """A setting as --help shows it: on/off for a switch, a number as written (``:g``)."""
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    return f"{value:g}".replace("e-0", "e-") if isinstance(value, float) else str(value)
 
 
 def table_cover_default(scene, capture: bool) -> float:

@@ -118,8 +118,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "folder names its own); options given beside it change them",
     )
     add_dataclass_args(p, TrainConfig, "training")
+    from ..presets import kind_default_help  # (here: the top-level --help imports no torch)
+
     # a flag that models share (--sh-degree) takes the widest of their bounds; run() checks the chosen model's
-    add_alternative_dataclass_args(p, _model_config_classes(), MODEL_GROUP)
+    add_alternative_dataclass_args(p, _model_config_classes(), MODEL_GROUP, kind_default_help)
     p.set_defaults(func=run)
 
 

@@ -106,7 +106,7 @@ class FastConfig:
         0,
         "with --learn-background: textured spheres around the cameras (each "
         "--room-ratio times the last) that hold the room with its parallax, in front "
-        "of the colour per direction (default: 3 on capture datasets, else 0)",
+        "of the colour per direction",
         min=0,
         max=16,
     )
@@ -123,13 +123,14 @@ class FastConfig:
         False,
         "rays stop at the scene's table plane (a tag capture's tag plane, where `poses` put it), which shows a "
         "learned texture: the box then holds only the object",
+        default_help="on for capture datasets with a table plane, else off",
     )
     table_gloss: bool = option(
         False,
         "with --table: the table also mirrors its surroundings (a learned "
         "glossiness per texel mixes its colour with a small learned map of what "
         "lies along the reflected ray), for varnished tables and paper with a sheen, "
-        "whose look changes with the view (default: on for capture datasets)",
+        "whose look changes with the view",
     )
     table_relief: bool = option(
         False,
@@ -198,8 +199,7 @@ class FastConfig:
         "units of the scene radius, in NDC in the fraction of the way from the near plane to "
         "infinity; with --table the table counts as the "
         "surface behind the box): it gathers each ray's weight onto one "
-        "surface, against haze and floaters (default: "
-        "0.01 on capture and forward-facing datasets, else 0)",
+        "surface, against haze and floaters",
         min=0.0,
     )
     points_weight: float = option(
@@ -208,17 +208,15 @@ class FastConfig:
         "which train photos saw each point (nerfkit poses does): the ray from a "
         "photo's camera to a point it saw is empty up to the point and, for a "
         "point on the object, stopped just past it (as DS-NeRF supervises depth), "
-        "so fur and fabric train solid instead of half see-through (default: "
-        "0.02 on capture datasets, else 0)",
+        "so fur and fabric train solid instead of half see-through",
         min=0.0,
     )
     rgb_loss: str = option(
         "mse",
         "photometric loss: mse, or charbonnier (sqrt(e^2 + 1e-6), as mip-NeRF "
         "360), which lets pixels no consistent scene explains (the photographer's "
-        "shadow, a moving reflection) pull no harder than small errors (default: "
-        "charbonnier on capture datasets, else mse: on a clean synthetic object mse "
-        "scores higher)",
+        "shadow, a moving reflection) pull no harder than small errors (on a clean "
+        "synthetic object mse scores higher)",
         choices=list(RGB_LOSSES),
     )
     transient_quantile: float = option(
@@ -263,7 +261,7 @@ class FastConfig:
         "(the spherical harmonics above degree 0), on the vertices each step's "
         "rays touched: a few photos pin down each vertex's colour from a few "
         "directions only, and its view-dependent part is otherwise free to "
-        "sparkle in new views (default: 1e-8 on capture datasets, else 0)",
+        "sparkle in new views",
         min=0.0,
     )
     distortion_table: bool = option(

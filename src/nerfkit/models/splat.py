@@ -92,7 +92,7 @@ class SplatConfig:
         min=1,
         max=MAX_GAUSSIANS,
     )
-    densify_every: int = option(100, "steps between densification / pruning rounds (forward-facing scenes: 50)", min=1)
+    densify_every: int = option(100, "steps between densification / pruning rounds", min=1)
     densify_from: float = option(0.02, "first densification, as a fraction of the run", min=0, max=1)
     densify_until: float = option(
         0.5, "no densification (and no opacity reset) after this fraction of the run", min=0, max=1
@@ -118,8 +118,7 @@ class SplatConfig:
     )
     opacity_reset_every: float = option(
         0.2,
-        "reset every opacity to at most 0.01 each time this fraction of the run is done (while densifying; 0: never; "
-        "forward-facing scenes: 0)",
+        "reset every opacity to at most 0.01 each time this fraction of the run is done (while densifying; 0: never)",
         min=0,
         max=1,
     )
