@@ -198,6 +198,32 @@ def test_table_coverage_shows_the_room_where_the_table_ends():
     torch.testing.assert_close(behind(model, o, d, t)[1][0], torch.stack([t[0], first_shell]))
 
 
+def test_the_room_behind_the_volume_is_composited_in_float32_under_bf16_autocast():
+    """Training and rendering run under autocast; the learned colour per direction and the
+    layers in front of it (table, floor, room shells) must not be rounded to bf16."""
+    from nerfkit.data.synthetic import tabletop_scene
+    from nerfkit.models import SceneBounds
+    from nerfkit.models.fast import FastConfig, FastNeRF
+
+    scene = tabletop_scene(n_train=2, n_val=0, size=16)
+    config = FastConfig(
+        resolutions="8", upsample_steps="", table=True, table_resolution=32, learn_background=True, room_shells=2
+    )
+    model = FastNeRF(config, SceneBounds.from_scene(scene))
+    g = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        model.surroundings.bg_coef.copy_(torch.randn(model.surroundings.bg_coef.shape, generator=g))
+    o = torch.zeros(32, 3) + torch.tensor([0.0, 0.0, 1.0])
+    d = torch.nn.functional.normalize(torch.randn(32, 3, generator=g), dim=-1)
+    t = model.surroundings.table.hit(o, d)
+    plain = behind(model, o, d, t)[0].detach()
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        far = model.surroundings.far(d, None)
+        under = behind(model, o, d, t)[0].detach()
+    assert far.dtype == torch.float32 and under.dtype == torch.float32
+    torch.testing.assert_close(under, plain, atol=1e-6, rtol=0)
+
+
 def test_table_doubt_is_zero_where_the_table_is_there_or_not_and_one_at_half():
     c = torch.tensor([0.0, 0.25, 0.5, 0.75, 1.0])
     torch.testing.assert_close(table_doubt(c), torch.tensor([0.0, 0.75, 1.0, 0.75, 0.0]))

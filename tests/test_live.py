@@ -219,3 +219,16 @@ def test_a_splat_runs_gaussians_are_hidden_while_depth_or_the_object_alone_is_sh
         assert shown == [False, False, True]
     finally:
         viewer.server.stop()
+
+
+def test_the_live_viewer_draws_in_the_precision_the_run_was_loaded_for(monkeypatch):
+    """The viewer renders as `render` and `eval` do: in the model's resolved autocast dtype."""
+    import nerfkit.output.images as images
+
+    seen = {}
+    monkeypatch.setattr(images, "render_image", lambda *a, **kw: seen.update(kw))
+    model = SimpleNamespace(autocast_dtype=torch.bfloat16)
+    live.render_camera(model, np.eye(3), np.eye(4), 4, 4, torch.zeros(3))
+    assert seen["autocast_dtype"] is torch.bfloat16
+    live.render_camera(SimpleNamespace(autocast_dtype=None), np.eye(3), np.eye(4), 4, 4, torch.zeros(3))
+    assert seen["autocast_dtype"] is None

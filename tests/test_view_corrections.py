@@ -613,3 +613,19 @@ def test_training_a_splat_capture_corrects_one_views_known_pose_error(tmp_path):
 
     before, after = pixels_off(scene.train.c2w[3]), pixels_off(corrected)
     assert before > 1.0 and after < 0.3 * before, (before, after)
+
+
+def test_the_colour_mix_keeps_float32_under_bf16_autocast():
+    """Training renders under autocast; the colour correction's matrix product must not round
+    the corrected colours to bf16 (8 bits of mantissa: an error of several 8-bit levels)."""
+    exposure = ExposureCorrection(3, mix=True)
+    with torch.no_grad():
+        exposure.log_gain.normal_(0, 0.1)
+        exposure.mix.normal_(0, 0.05)
+    rgb = torch.rand(64, 3, generator=torch.Generator().manual_seed(0))
+    view = torch.arange(64) % 3
+    plain = exposure(rgb, view).detach()
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        under = exposure(rgb, view).detach()
+    assert under.dtype == torch.float32
+    torch.testing.assert_close(under, plain, atol=1e-6, rtol=0)

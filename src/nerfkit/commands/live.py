@@ -170,10 +170,13 @@ def render_camera(
     chunk: int = 4096,
     abort: Callable[[], bool] | None = None,
 ):
-    """The view of a camera (:class:`~nerfkit.output.images.RenderedView`), or None if aborted."""
+    """The view of a camera (:class:`~nerfkit.output.images.RenderedView`), or None if aborted;
+    in the precision the run was loaded for (the model's ``autocast_dtype``, as ``render`` and
+    ``eval`` draw it)."""
     from ..output.images import render_image
 
-    return render_image(model, K, c2w, w, h, background, chunk, abort=abort)
+    dtype = getattr(model, "autocast_dtype", None)
+    return render_image(model, K, c2w, w, h, background, chunk, autocast_dtype=dtype, abort=abort)
 
 
 @dataclass
@@ -429,7 +432,7 @@ def serve_run(
             network still goes to stderr).
     """
     from ..train.checkpoint import load_run, read_run
-    from ..train.config import resolve_device
+    from ..train.config import resolve_autocast, resolve_device
     from ._common import scene_for_run
 
     run_dir = Path(run_dir)
@@ -441,7 +444,13 @@ def serve_run(
     except NerfkitError as e:
         if not quiet:
             print(f"note: training cameras not shown ({e})", file=sys.stderr)
-    watcher = RunWatcher(run_dir, lambda d: load_run(d, dev), dev)
+
+    def load(d: Path) -> tuple:
+        model, loaded, step = load_run(d, dev)
+        model.set_precision(resolve_autocast(loaded.train.precision, dev))  # as render and eval draw it
+        return model, loaded, step
+
+    watcher = RunWatcher(run_dir, load, dev)
     viewer = LiveViewer(watcher, scene, host, port, max_side, chunk=chunk, watch=watch)
     port = viewer.server.get_port()  # the first free port from the one asked for
     from ..viz.viewer import LOCAL_HOSTS, viewer_url

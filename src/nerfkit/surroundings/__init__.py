@@ -155,9 +155,11 @@ class Surroundings(nn.Module):
 
     def far(self, d: Tensor, background: Tensor | None) -> Tensor:
         """(n, 3) what is seen infinitely far along ``d``: the learned colour per direction,
-        else the flat ``background``."""
+        else the flat ``background``; in float32 under autocast too (the layers in front are
+        composited in its dtype)."""
         if self.bg_coef is not None:
-            return torch.sigmoid(sh16(d) @ self.bg_coef.t())
+            with torch.autocast(d.device.type, enabled=False):
+                return torch.sigmoid(sh16(d.float()) @ self.bg_coef.float().t())
         return flat_background(d, background)
 
     def behind(

@@ -150,11 +150,13 @@ class ExposureCorrection(nn.Module):
         return M
 
     def forward(self, rgb: Tensor, view: Tensor) -> Tensor:
-        """(n_rays, 3) rendered colours of views ``view`` (n_rays,) -> corrected colours."""
+        """(n_rays, 3) rendered colours of views ``view`` (n_rays,) -> corrected colours, in
+        float32 under autocast too (a bf16 matrix product would round them to 2-3 bits of 8)."""
         g, b = self.centred()
         if self.mix is None:
             return rgb * torch.exp(g[view]) + b[view]
-        return (self.matrices()[view] @ rgb.unsqueeze(-1)).squeeze(-1) + b[view]
+        with torch.autocast(rgb.device.type, enabled=False):
+            return (self.matrices()[view] @ rgb.float().unsqueeze(-1)).squeeze(-1) + b[view]
 
     def mix_penalty(self) -> Tensor:
         """Mean over views of ``|m_i|^2`` (squared Frobenius norm of the colour mixing, mean

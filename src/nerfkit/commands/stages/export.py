@@ -159,7 +159,7 @@ def export_points(
     bg = opened.background()
 
     def render_fn(K, c2w, w, h):
-        out = render_image(opened.model, K, c2w, w, h, bg, opened.chunk)
+        out = render_image(opened.model, K, c2w, w, h, bg, opened.chunk, opened.autocast)
         return out.rgb, out.depth, out.acc
 
     pts, cols = points_from_views(render_fn, views, acc_min, tuple(bg.tolist()), stride)
