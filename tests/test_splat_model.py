@@ -324,6 +324,58 @@ def test_export_ply_has_the_3dgs_layout_and_renders_identically(trained, sphere,
     assert float(a.acc.max()) > 0.9
 
 
+def test_a_splat_file_holds_the_sh_degree_the_run_trained_and_reads_back_the_same_image(sphere, tmp_path):
+    """A degree-1 model's file has 3 higher coefficients per channel (not degree 3's 15, all
+    zero), and installed in a fresh model it renders the same image."""
+    from nerfkit.splat_files import write_splat_ply
+
+    model = small_model(sphere, sh_degree=1)
+    with torch.no_grad():
+        model.sh_rest.normal_(0, 0.1)  # (degree 3's 15 coefficients held; the run uses 3)
+    model.active_degree = 1
+    g = Gaussians.from_model(model)
+    assert g.sh_rest.shape[1:] == (3, 3) and g.sh_degree == 1
+    write_splat_ply(tmp_path / "g.ply", g)
+    back = read_splat_ply(tmp_path / "g.ply")
+    assert back.sh_degree == 1
+    fresh = small_model(sphere, sh_degree=1)
+    fresh.set_gaussians(back)
+    bg = torch.zeros(3)
+    a = render_image(model, sphere.val.K[0], sphere.val.c2w[0], 24, 24, bg)
+    b = render_image(fresh, sphere.val.K[0], sphere.val.c2w[0], 24, 24, bg)
+    np.testing.assert_allclose(a.rgb, b.rgb, atol=1e-6)
+
+
+def test_a_zero_quaternion_read_from_a_file_is_no_rotation(sphere):
+    """Some tools write (0, 0, 0, 0) for a Gaussian without rotation: it renders as the identity
+    would, not as NaN (or a division by zero in the compiled kernel)."""
+    model = small_model(sphere)
+    g = Gaussians.from_model(model)
+    g.quats[:5] = 0.0
+    model.set_gaussians(g)
+    torch.testing.assert_close(model.quats[:5], torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(5, 4))
+    out = render_image(model, sphere.val.K[0], sphere.val.c2w[0], 16, 16, torch.zeros(3))
+    assert np.isfinite(out.rgb).all()
+
+
+@pytest.mark.parametrize("kernels", ["numba", "torch"])
+def test_a_dataset_with_near_zero_renders_gaussians_at_and_behind_the_camera(sphere, kernels):
+    """near = 0 is a valid dataset; the projection's near plane must stay above 0, or a
+    Gaussian at the camera divides by zero (compiled) or turns the loss to NaN (torch)."""
+    bounds = replace(SceneBounds.from_scene(sphere), near=0.0)
+    torch.manual_seed(0)
+    model = SplatModel(SplatConfig(**{**SMALL, "kernels": kernels}), bounds)
+    assert model.near_plane > 0
+    c2w = torch.as_tensor(sphere.val.c2w[0], dtype=torch.float32)
+    with torch.no_grad():  # one Gaussian at the camera, one just behind it
+        model.means[0] = c2w[:3, 3]
+        model.means[1] = c2w[:3, 3] + 0.1 * c2w[:3, 2]
+    out = model.render_view(sphere.val.K[0], sphere.val.c2w[0], 16, 16, torch.zeros(3))
+    out.rgb.sum().backward()
+    assert torch.isfinite(out.rgb).all()
+    assert all(torch.isfinite(p.grad).all() for p in (model.means, model.log_scales, model.quats) if p.grad is not None)
+
+
 def test_dot_splat_is_32_bytes_a_gaussian(trained, tmp_path):
     from nerfkit.train.checkpoint import load_run
 

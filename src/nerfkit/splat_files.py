@@ -61,8 +61,13 @@ class Gaussians:
 
     @staticmethod
     def from_model(model) -> Gaussians:
+        """A splat model's Gaussians, with the higher SH coefficients of its ``sh_degree`` only
+        (the model keeps degree 3's 15; a degree-0 run's file then holds none)."""
+
         def a(t):
             return t.detach().cpu().float().numpy()
+
+        n_rest = (model.config.sh_degree + 1) ** 2 - 1
 
         return Gaussians(
             a(model.means),
@@ -70,8 +75,16 @@ class Gaussians:
             a(model.quats),
             a(model.opacity_logits),
             a(model.sh_dc),
-            a(model.sh_rest),
+            a(model.sh_rest[:, :n_rest]),
         )
+
+
+def rotation_quats(quats: np.ndarray) -> np.ndarray:
+    """(n, 4) wxyz quaternions as read -> a float copy with each zero one (a Gaussian without
+    rotation, as some tools write it) made the identity (1, 0, 0, 0)."""
+    q = np.array(quats, dtype=np.float64)
+    q[~(np.abs(q) > 0).any(axis=1)] = (1.0, 0.0, 0.0, 0.0)
+    return q
 
 
 def ply_property_names(n_rest: int) -> list[str]:

@@ -196,7 +196,9 @@ class SplatModel(NerfModel):
         super().__init__(bounds)
         self.config = config.validate()
         self.extent = 2.2 * float(bounds.radius)  # 3DGS's "cameras_extent" scales lrs and size thresholds
-        self.near_plane = 0.05 * float(bounds.near)
+        # the projection's near plane: Gaussians nearer the camera are not drawn (never 0: a
+        # dataset may say near = 0, and depths are divided by it)
+        self.near_plane = max(0.05 * float(bounds.near), 1e-3 * float(bounds.radius))
         self.active_degree = 0
         self.n_resets = 0
         self._progress = 0.0
@@ -317,15 +319,19 @@ class SplatModel(NerfModel):
     @torch.no_grad()
     def set_gaussians(self, g) -> None:
         """Install raw parameters from a :class:`~nerfkit.splat_files.Gaussians` (e.g. a
-        PLY read back); missing higher SH degrees are zero."""
+        PLY read back); missing higher SH degrees are zero, and a zero quaternion (which some
+        tools write for a Gaussian without rotation) is the identity."""
         n = len(g)
+        from ..splat_files import rotation_quats
+
+        quats = rotation_quats(g.quats).astype(np.float32)
         rest = torch.zeros(n, 15, 3)
         rest[:, : g.sh_rest.shape[1]] = torch.as_tensor(g.sh_rest)
         device = self.means.device
         self._install(
             *(
                 torch.as_tensor(np.asarray(t)).to(device)
-                for t in (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh_dc, rest)
+                for t in (g.means, g.log_scales, quats, g.opacity_logits, g.sh_dc, rest)
             )
         )
         self.active_degree = max(self.active_degree, g.sh_degree)

@@ -6,14 +6,13 @@ import numpy as np
 import torch
 
 from ..kernels.splat_reference import covariance_3d
-from ..splat_files import Gaussians, dc_to_rgb
+from ..splat_files import Gaussians, dc_to_rgb, rotation_quats
 
 
 def splat_arrays(g: Gaussians) -> dict:
     """What viser's ``add_gaussian_splats`` takes: ``centers`` (n, 3), ``covariances``
     (n, 3, 3) ``R S S^T R^T``, ``rgbs`` (n, 3) the DC colour in [0, 1], ``opacities`` (n, 1)."""
-    q = g.quats.astype(np.float64)
-    q[~(np.abs(q) > 0).any(axis=1)] = (1.0, 0.0, 0.0, 0.0)  # a zero quaternion: no rotation
+    q = rotation_quats(g.quats)
     cov = covariance_3d(torch.from_numpy(g.log_scales.astype(np.float64)), torch.from_numpy(q)).numpy()
     return {
         "centers": g.means.astype(np.float32),
