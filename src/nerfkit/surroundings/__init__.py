@@ -3,9 +3,9 @@
 A capture's object stands on a table in a room. A grid model holds the object in its box
 and leaves the rest to :class:`Surroundings`: a learned colour per direction (spherical
 harmonics) far away, ``room_shells`` textured, semi-transparent spheres around the cameras
-(:class:`~nerfkit.fields.background.RoomShells`), the table where rays stop and the floor
-beyond its edge (:class:`~nerfkit.fields.background.TablePlane`), composited in order of
-distance behind the volume.
+(:class:`~nerfkit.surroundings.room.RoomShells`), the table where rays stop and the floor
+beyond its edge (:class:`~nerfkit.surroundings.table.TablePlane`), composited in order of
+distance behind the volume (:mod:`nerfkit.render.layers`).
 
 The functions below are how the rest of nerfkit reaches a model's surroundings
 (:func:`of`, :func:`table_plane`, :func:`table_tags`, :func:`names`), isolates its object
@@ -26,10 +26,13 @@ import torch
 from torch import Tensor, nn
 
 from ..cameras import axes_across
-from ..fields.background import RoomShells, TablePlane, composite_layers, layers_depth, sh16, table_doubt
+from ..fields.background import sh16
 from ..kernels.ops import GradSink
 from ..losses import LossTerm, mean_extra, mean_opacity
+from ..render.layers import composite_layers, layers_depth
 from ..tabletop import SURFACE_DENSITY, TABLE_CUT, around_object, box_corners, box_radius, heights, surface_threshold
+from .room import RoomShells
+from .table import TablePlane, table_doubt
 
 Layer = tuple[Tensor, Tensor, Tensor]  # t (n, k), rgb (n, k, 3), alpha (n, k)
 
