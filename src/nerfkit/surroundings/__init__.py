@@ -30,7 +30,8 @@ from ..fields.background import sh16
 from ..kernels.ops import GradSink
 from ..losses import LossTerm, mean_extra, mean_opacity
 from ..render.layers import composite_layers, layers_depth
-from ..tabletop import SURFACE_DENSITY, TABLE_CUT, around_object, box_corners, box_radius, heights, surface_threshold
+from ..scene_extent import SURFACE_DENSITY, box_corners, box_radius, surface_threshold
+from .clearing import TABLE_CUT, around_object, heights
 from .room import RoomShells
 from .table import TablePlane, table_doubt
 
@@ -320,7 +321,7 @@ def isolate_object(model: WithSurroundings, cut: float, threshold: float) -> lis
     """Keep only the object, for a video of it alone: stop drawing what surrounds it (a
     capture's table, floor, room and learned background) and clear the table's paint and
     the specks apart from the object from the density
-    (:func:`~nerfkit.tabletop.around_object`: paint up to ``cut`` world units above the
+    (:func:`~nerfkit.surroundings.clearing.around_object`: paint up to ``cut`` world units above the
     table; ``threshold``: the surface's density). Changes the model in place, for rendering
     only: it can then be neither trained nor saved. Returns the names of the parts left out
     (:func:`names`): none when the model draws nothing apart from its volume."""
