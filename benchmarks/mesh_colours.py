@@ -94,7 +94,7 @@ def psnr(squared_errors: np.ndarray) -> float:
 
 def main() -> None:
     from nerfkit.export import COLOUR_VIEWS
-    from nerfkit.tabletop import TABLE_CUT
+    from nerfkit.surroundings.clearing import TABLE_CUT
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("run", help="a trained run folder (fast or vanilla)")

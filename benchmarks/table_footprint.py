@@ -1,10 +1,10 @@
 """How fine a capture's table texture is against what one pixel of its photos sees.
 
 The ``fast`` model paints a capture's table as a texture of ``--table-resolution`` texels a
-side (``nerfkit.fields.background.TablePlane``): half of them span the disc of the scene's
+side (``nerfkit.surroundings.table.TablePlane``): half of them span the disc of the scene's
 radius about the object's foot, so a texel there is ``4 radius / resolution`` on a side. A
 pixel of a training photo sees a patch of the table whose side depends on the distance and
-the angle (``nerfkit.fields.background.plane_footprint``). This prints, per posed capture dataset,
+the angle (``nerfkit.surroundings.table.plane_footprint``). This prints, per posed capture dataset,
 the median side of that patch over the training photos' pixels that meet the table within
 the radius, the texel's side at each resolution, and their ratio: above 1, a texel is coarser
 than a pixel, and the table's finest grain is out of the texture's reach.
@@ -22,8 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import heldout  # noqa: E402
 
 from nerfkit.errors import NerfkitError  # noqa: E402
-from nerfkit.fields.background import plane_footprint, texel_side
 from nerfkit.scene_extent import sphere_radius  # noqa: E402
+from nerfkit.surroundings.table import plane_footprint, texel_side
 
 
 def footprint_row(name: str, scene, resolutions: list[int]) -> dict:

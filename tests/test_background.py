@@ -9,16 +9,10 @@ import torch
 
 from conftest import fibonacci_sphere
 from nerfkit.cameras import plane_hit
-from nerfkit.fields.background import (
-    RoomShells,
-    TablePlane,
-    composite_layers,
-    contract_disc,
-    layers_depth,
-    sh16,
-    sphere_exit,
-    table_doubt,
-)
+from nerfkit.fields.background import contract_disc, sh16, sphere_exit
+from nerfkit.render.layers import composite_layers, layers_depth
+from nerfkit.surroundings.room import RoomShells
+from nerfkit.surroundings.table import TablePlane, table_doubt
 
 
 def test_plane_hit_distances_front_side_only():
@@ -437,9 +431,9 @@ def test_a_glossy_table_mirrors_its_surroundings():
     """Where the table's glossiness is 1, a ray looking down at it sees its map of the
     surroundings along the mirrored (upward) direction; where it is 0, its own colour."""
     from nerfkit.data.synthetic import tabletop_scene
-    from nerfkit.fields.background import ENV_SIZE
     from nerfkit.models import SceneBounds
     from nerfkit.models.fast import FastConfig, FastNeRF
+    from nerfkit.surroundings.table import ENV_SIZE
 
     scene = tabletop_scene(n_train=2, n_val=0, size=16)
     model = FastNeRF(
@@ -633,7 +627,7 @@ def test_a_raised_table_is_met_at_its_height_along_each_ray():
     """A relief of constant height h: each ray meets it exactly h above the plane, nearer
     than the plane by h / cos (the angle to the normal); a relief of 0 moves nothing, and
     the hit's distance along the ray changes by the same amount in the rendered layer."""
-    from nerfkit.fields.background import RELIEF_UNIT
+    from nerfkit.surroundings.table import RELIEF_UNIT
 
     table = TablePlane(torch.tensor([0.0, 0.0, 1.0, 0.0]), torch.zeros(3), radius=1.0, resolution=64, relief=True)
     o = torch.tensor([[0.0, 0.0, 1.0], [0.2, -0.1, 1.0], [0.4, 0.3, 2.0]])

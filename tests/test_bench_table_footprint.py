@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from nerfkit.data.synthetic import tabletop_scene
-from nerfkit.fields.background import plane_footprint
 from nerfkit.scene_extent import sphere_radius
+from nerfkit.surroundings.table import plane_footprint
 
 _spec = importlib.util.spec_from_file_location(
     "table_footprint", Path(__file__).resolve().parents[1] / "benchmarks" / "table_footprint.py"

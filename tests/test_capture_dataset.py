@@ -31,8 +31,7 @@ from nerfkit.cli import main
 from nerfkit.data.colmap import SparsePoints
 from nerfkit.data.nerfstudio import load_transforms_json
 from nerfkit.data.npz import load_npz
-from nerfkit.scene_extent import MIN_OBJECT_POINTS, sphere_radius
-from nerfkit.tabletop import inside_quads
+from nerfkit.scene_extent import MIN_OBJECT_POINTS, inside_quads, sphere_radius
 
 TAG = 0.06
 

@@ -517,7 +517,7 @@ def test_eval_scores_the_objects_own_pixels(tmp_path, tabletop):
 
 
 def test_the_largest_piece_reaches_a_face_other_pieces_do_not_count():
-    from nerfkit.tabletop import faces_reached
+    from nerfkit.scene_extent import faces_reached
 
     solid = np.zeros((20, 16, 12), bool)
     solid[8:12, 6:10, 2:8] = True  # the object
@@ -615,7 +615,7 @@ def test_the_box_moves_out_where_the_object_reaches_it_and_the_grid_continues_wh
 
 
 def test_specks_apart_from_the_object_go_a_second_object_and_the_objects_haze_stay():
-    from nerfkit.tabletop import specks
+    from nerfkit.scene_extent import specks
 
     x, y, z = np.meshgrid(*(np.arange(40),) * 3, indexing="ij")
     ball = lambda c, r: (x - c[0]) ** 2 + (y - c[1]) ** 2 + (z - c[2]) ** 2 <= r * r  # noqa: E731
@@ -714,7 +714,7 @@ def test_the_object_alone_is_the_same_in_a_scene_ten_times_larger():
     larger, whose density is ten times lower, keeps the same post with its base (at a fixed
     25 per unit the larger post would be haze, and its base cleared as paint)."""
     from nerfkit.surroundings import box_surface_threshold, table_cut_height
-    from nerfkit.tabletop import TABLE_CUT
+    from nerfkit.surroundings.clearing import TABLE_CUT
 
     kept, thresholds = {}, {}
     for scale in (1.0, 10.0):

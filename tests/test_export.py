@@ -12,11 +12,12 @@ trimesh = pytest.importorskip("trimesh")
 pytest.importorskip("skimage")
 
 from nerfkit import export as ex  # noqa: E402
-from nerfkit import surroundings, tabletop  # noqa: E402
+from nerfkit import scene_extent, surroundings  # noqa: E402
 from nerfkit.cameras import Rays, image_rays  # noqa: E402
 from nerfkit.data.synthetic import sphere_color, sphere_scene  # noqa: E402
 from nerfkit.errors import NerfkitError  # noqa: E402
 from nerfkit.models.base import NerfModel, RenderOutput, SceneBounds  # noqa: E402
+from nerfkit.surroundings import clearing  # noqa: E402
 
 CENTER = np.array([0.1, -0.2, 0.3])
 R = 0.7
@@ -63,7 +64,7 @@ def test_the_default_surface_is_scale_free():
         return density
 
     level = ex.surface_threshold(1.0)
-    assert 1 - np.exp(-level * 2.0 / tabletop.MESH_OPACITY_CELLS) == pytest.approx(tabletop.MESH_OPACITY)
+    assert 1 - np.exp(-level * 2.0 / scene_extent.MESH_OPACITY_CELLS) == pytest.approx(scene_extent.MESH_OPACITY)
     assert ex.surface_threshold(0.1) == pytest.approx(10 * level)
     big = ex.extract_mesh(ball(1.0), CENTER, 1.0, resolution=48, threshold=ex.surface_threshold(1.0))
     small = ex.extract_mesh(ball(0.1), 0.1 * CENTER, 0.1, resolution=48, threshold=ex.surface_threshold(0.1))
@@ -71,9 +72,11 @@ def test_the_default_surface_is_scale_free():
     np.testing.assert_allclose(small.vertices, 0.1 * big.vertices, atol=1e-5)
     r = np.linalg.norm(big.vertices - CENTER, axis=1)
     assert r.mean() == pytest.approx(R - 0.05 * np.log(level / (20.0 - level)), abs=0.003)  # where the density is 9.3
-    assert len(ex.extract_mesh(ball(0.1), 0.1 * CENTER, 0.1, resolution=16, threshold=tabletop.SURFACE_DENSITY).faces)
+    assert len(
+        ex.extract_mesh(ball(0.1), 0.1 * CENTER, 0.1, resolution=16, threshold=scene_extent.SURFACE_DENSITY).faces
+    )
     with pytest.raises(NerfkitError, match="does not cut the density"):  # 25: above the ball's 20
-        ex.extract_mesh(ball(1.0), CENTER, 1.0, resolution=16, threshold=tabletop.SURFACE_DENSITY)
+        ex.extract_mesh(ball(1.0), CENTER, 1.0, resolution=16, threshold=scene_extent.SURFACE_DENSITY)
 
 
 def test_surface_cut_by_the_box_is_closed_there():
@@ -177,7 +180,7 @@ def test_table_paint_is_cleared_and_what_stands_on_the_table_keeps_its_base():
     assert ex.to_trimesh(mesh).is_watertight  # closed where it was cut
     # with no height, only what is under the table goes
     zs = ex.grid_axis(0.0, 1.0, 41)
-    under = tabletop.clear_around_object(
+    under = clearing.clear_around_object(
         ex.sample_density_grid(figure_on_table, [0, 0, 0], 1.0, 41), [zs] * 3, table, 0.0, 50.0
     )
     assert under[:, :, zs < 0].max() == 0 and under[:, :, zs >= 0].max() == 100
@@ -197,9 +200,9 @@ def test_paint_standing_up_off_the_table_apart_from_the_object_is_paint_a_second
     axis = ex.grid_axis(0.0, 1.0, 81)
     x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
     grid = ex.sample_density_grid(scene, [0, 0, 0], 1.0, 81)
-    paint = tabletop.table_paint(grid, [axis] * 3, np.array([0.0, 0.0, 1.0, 0.0]), 0.05, 50.0)
+    paint = clearing.table_paint(grid, [axis] * 3, np.array([0.0, 0.0, 1.0, 0.0]), 0.05, 50.0)
     # the same scene upside down (z -> -z), its table's normal toward -z
-    flipped = tabletop.table_paint(
+    flipped = clearing.table_paint(
         grid[:, :, ::-1].copy(), [axis, axis, -axis[::-1]], np.array([0.0, 0.0, -1.0, 0.0]), 0.05, 50.0
     )
     np.testing.assert_array_equal(flipped[:, :, ::-1], paint)
@@ -230,9 +233,9 @@ def test_paint_on_a_printed_tag_joined_to_the_object_by_haze_is_cleared_a_foot_o
     grid = ex.sample_density_grid(scene, [0, 0, 0], 1.0, 81)
     table = np.array([0.0, 0.0, 1.0, 0.0])
     strip = (x > 0.32) & (x < 0.68) & (y > 0.31) & (y < 0.35) & (z > 0.06) & (z < 0.11)
-    without = (grid > 50) & ~tabletop.table_paint(grid, [axis] * 3, table, 0.05, 50.0)
+    without = (grid > 50) & ~clearing.table_paint(grid, [axis] * 3, table, 0.05, 50.0)
     assert without[strip].all()  # joined to the post, it was kept
-    kept = (grid > 50) & ~tabletop.table_paint(grid, [axis] * 3, table, 0.05, 50.0, np.stack([square, diamond]))
+    kept = (grid > 50) & ~clearing.table_paint(grid, [axis] * 3, table, 0.05, 50.0, np.stack([square, diamond]))
     assert not kept[strip].any()
     assert kept[(np.hypot(x, y) < 0.15) & (z >= 0) & (z < 0.03)].any()  # the post's foot, beside the tag
     foot = kept & (np.hypot(x + 0.6, y + 0.6) < 0.12) & (z >= 0) & (z < 0.1)

@@ -45,7 +45,6 @@ LAYERS: list[tuple[str, set[str]]] = [
             "cameras",
             "config",
             "ground",
-            "tabletop",
             "splat_files",
             "splat_constants",
             "scene_extent",

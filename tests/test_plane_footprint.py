@@ -1,4 +1,4 @@
-"""fields.background: the pixel footprint on a plane (analytic cases and a numerical Jacobian) and the table's texel."""
+"""surroundings.table: the pixel footprint on a plane (analytic cases, a numerical Jacobian) and the table's texel."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from nerfkit.cameras import look_at
-from nerfkit.fields.background import plane_footprint
+from nerfkit.surroundings.table import plane_footprint
 
 GROUND = np.array([0.0, 0.0, 1.0, 0.0])  # z = 0, its front facing +z
 
@@ -63,7 +63,7 @@ def test_an_oblique_view_matches_the_area_of_the_projected_pixel():
 def test_a_texel_side_is_one_texel_of_the_table_texture_inside_its_disc():
     import torch
 
-    from nerfkit.fields.background import TablePlane, texel_side
+    from nerfkit.surroundings.table import TablePlane, texel_side
 
     table = TablePlane(GROUND, np.zeros(3), radius=0.2, resolution=64)
     step = texel_side(0.2, 64)

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from nerfkit.cameras import Rays, image_rays, intrinsics_matrix, look_at
-from nerfkit.fields.background import TablePlane
+from nerfkit.surroundings.table import TablePlane
 from nerfkit.train.view_corrections import (
     ExposureCorrection,
     PoseCorrection,

@@ -37,7 +37,8 @@ from .data.ply import read_points_ply as read_points_ply  # re-exported: the poi
 from .data.ply import write_points_ply as write_points_ply
 from .errors import fail
 from .io.atomic import atomic_path
-from .tabletop import SURFACE_DENSITY, box_radius, clear_around_object, surface_threshold
+from .scene_extent import SURFACE_DENSITY, box_radius, surface_threshold
+from .surroundings.clearing import clear_around_object
 
 DensityFn = Callable[[torch.Tensor], torch.Tensor]
 QueryFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -417,7 +418,7 @@ def crop_to_box(points: np.ndarray, colors: np.ndarray, center, radius: float) -
 def mesh_threshold(model, radius: float) -> float:
     """The default iso-level of ``model``'s mesh over a cube of half-size ``radius``:
     :func:`surface_threshold`, or for a forward-facing model in NDC (its density per NDC
-    unit, its cube in world units) :data:`~nerfkit.tabletop.SURFACE_DENSITY`."""
+    unit, its cube in world units) :data:`~nerfkit.scene_extent.SURFACE_DENSITY`."""
     return SURFACE_DENSITY if getattr(model, "ndc", None) is not None else surface_threshold(radius)
 
 

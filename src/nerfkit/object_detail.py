@@ -24,8 +24,7 @@ import torch
 
 from .cameras import pixel_to_ray, plane_hit, project_points
 from .images import sample_bilinear
-from .scene_extent import object_box_from_points, sphere_radius
-from .tabletop import box_corners
+from .scene_extent import box_corners, object_box_from_points, sphere_radius
 
 # an object is plain when the median gradient on it is under both of these: an absolute
 # level (white paper in the dev captures' photos scores 0.0020-0.0029, their objects

@@ -210,12 +210,12 @@ def tag_texels_for(side: float, footprint: float | None) -> int:
 def tag_texels_default(scene) -> int:
     """``--table-tag-texels`` left unset on a capture: :func:`tag_texels_for` the median side
     of its printed tags and the training photos' median pixel footprint on the table within
-    the scene's radius (:func:`~nerfkit.fields.background.plane_footprint`); 0 without tags
+    the scene's radius (:func:`~nerfkit.surroundings.table.plane_footprint`); 0 without tags
     or a table."""
     import numpy as np
 
-    from .fields.background import plane_footprint
     from .scene_extent import sphere_radius
+    from .surroundings.table import plane_footprint
 
     if scene.table is None or scene.tags is None or not len(scene.tags) or not len(scene.train):
         return 0

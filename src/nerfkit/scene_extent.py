@@ -1,8 +1,12 @@
 """Where a scene's object is, from its cameras and sparse points: a bounding sphere and,
-for an object standing on a table, the box around it.
+for an object standing on a table, the box around it; in a density grid, the mesh's surface
+level (:func:`surface_threshold`), the faces of the grid's box the object reaches
+(:func:`faces_reached`) and the specks floating apart from it (:func:`specks`); and plain
+box geometry (:func:`box_corners`, :func:`box_radius`, :func:`inside_quads`).
 
-Pure numpy on a scene's arrays: imported by the capture tools (dataset summaries) and by
-the models' :class:`~nerfkit.models.base.SceneBounds`, below both.
+Pure numpy on a scene's arrays (SciPy inside the grid functions): imported by the capture
+tools (dataset summaries) and by the models' :class:`~nerfkit.models.base.SceneBounds`,
+below both.
 """
 
 from __future__ import annotations
@@ -105,13 +109,146 @@ def object_box(
     return lo.astype(np.float32), hi.astype(np.float32)
 
 
+# a fixed surface density (per unit): the mesh of a forward-facing model in NDC, and the
+# object alone of a model without a box; captures take surroundings.box_surface_threshold,
+# scale-free
+SURFACE_DENSITY = 25.0
+# The mesh's surface by default (surface_threshold): the density at which one 256th of the
+# meshed cube's width is this opaque. A density threshold in world units is not scale-free:
+# a fixed 25 cut lego's base plate (its surfaces render at a median density of 24) and meshed
+# captures in metres in a haze around them. At 7% the mesh's silhouette in the val views
+# matches the NeRF's best of the levels tried (benchmarks/mesh_colours.py's silhouette IoU;
+# BENCHMARKS.md).
+MESH_OPACITY = 0.07
+MESH_OPACITY_CELLS = 256
+
+
+def surface_threshold(radius: float) -> float:
+    """The default iso-level of a mesh over a cube of half-size ``radius`` (in the units the
+    density is per): the density at which a cell of ``2 radius / MESH_OPACITY_CELLS`` is
+    :data:`MESH_OPACITY` opaque. Scale-free: a scene ten times larger, with a tenth of the
+    density, gives the same mesh ten times larger. Example: lego's cube (half-size 1.64)
+    gives 5.7; a tabletop object's cube of half-size 7.6 cm about 120."""
+    return -float(np.log1p(-MESH_OPACITY)) * MESH_OPACITY_CELLS / (2.0 * radius)
+
+
+# Specks around the object alone (specks): a piece apart from the object holding less than
+# this share of the box's density is cleared, with what lies SPECK_MARGIN cells beyond the
+# pieces kept (stray pieces apart from the object each hold well under this share:
+# benchmarks/capture_real.py --photos 30 renders the object alone)
+SPECK_SHARE = 0.01
+SPECK_MARGIN = 3
+
+
+def box_radius(box) -> float:
+    """Half the largest side of an axis-aligned box ``(lo (3,), hi (3,))``."""
+    lo, hi = (np.asarray(v, np.float64) for v in box)
+    return float((hi - lo).max()) / 2
+
+
+def box_corners(box) -> np.ndarray:
+    """(8, 3) float64 corners of an axis-aligned box ``(lo (3,), hi (3,))``."""
+    lo, hi = (np.asarray(v, np.float64) for v in box)
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
+
+def inside_quads(xy: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """(m,) bool: which of the points ``xy`` (m, 2) lie inside any of the convex
+    quadrilaterals ``quads`` (n, 4, 2) (corners in order, either winding; the edges count
+    as inside)."""
+    xy = np.asarray(xy, np.float64)
+    inside = np.zeros(len(xy), bool)
+    for q in np.asarray(quads, np.float64):
+        edge, rel = np.roll(q, -1, axis=0) - q, xy[:, None, :] - q  # (4, 2), (m, 4, 2) each edge a -> b
+        cross = edge[:, 0] * rel[..., 1] - edge[:, 1] * rel[..., 0]  # (m, 4)
+        inside |= (cross >= 0).all(-1) | (cross <= 0).all(-1)
+    return inside
+
+
+def _pieces(solid: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """The 26-connected pieces of ``solid``: their labels (0: not solid), their count, and
+    the label of the largest (0 when there is none)."""
+    from scipy import ndimage
+
+    labels, count = ndimage.label(solid, structure=np.ones((3, 3, 3), bool))
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    return labels, count, int(np.argmax(sizes))
+
+
+def faces_reached(solid: np.ndarray, min_columns: int = 3) -> list[tuple[int, int]]:
+    """The faces of a grid's box that the object reaches: where its largest solid piece
+    (26-connected) fills at least ``min_columns`` vertices of the face's outer two layers,
+    seen along the face's axis. Other pieces (floaters, paint) do not count.
+
+    Args:
+        solid: (X, Y, Z) bool, the grid's solid vertices (the table's paint left out).
+
+    Returns:
+        ``(axis, side)`` pairs, ``side`` 0 for the face at the low end of ``axis``, 1 for
+        the high end, in axis order.
+    """
+    labels, count, largest = _pieces(solid)
+    if count == 0:
+        return []
+    main = labels == largest
+    faces = []
+    for axis in range(3):
+        n = main.shape[axis]
+        for side, layers in ((0, [0, 1]), (1, [n - 1, n - 2])):
+            if int(np.take(main, layers, axis=axis).any(axis=axis).sum()) >= min_columns:
+                faces.append((axis, side))
+    return faces
+
+
+def specks(
+    grid: np.ndarray, threshold: float, keep_share: float = SPECK_SHARE, margin: int = SPECK_MARGIN
+) -> np.ndarray:
+    """What floats apart from the object: (X, Y, Z) bool.
+
+    The pieces of ``grid > threshold`` (26-connected) are the object (the one holding the
+    most density), a second object (any piece holding at least ``keep_share`` of the
+    grid's density) or specks. Everything more than ``margin`` cells (along any axis) from
+    the object and the second objects is returned: the specks and the faint haze around them.
+
+    Args:
+        grid: (X, Y, Z) density, the table's paint already cleared.
+        threshold: the density that counts as part of a piece (a haze level, below the
+            surface's: a speck's haze joins it).
+        keep_share: a piece holding at least this share of the grid's density is kept.
+        margin: cells kept around the pieces kept.
+    """
+    from scipy import ndimage
+
+    labels, count, _ = _pieces(grid > threshold)
+    if count == 0:
+        return np.zeros(grid.shape, bool)
+    mass = np.asarray(ndimage.sum(grid, labels, np.arange(count + 1)))
+    kept = mass >= keep_share * float(grid.sum())
+    kept[int(np.argmax(mass[1:])) + 1] = True
+    kept[0] = False
+    # (a cube's dilation: 10x faster than the Euclidean distance on a mesh's 256^3 grid)
+    return ~ndimage.binary_dilation(kept[labels], structure=np.ones((3, 3, 3), bool), iterations=margin)
+
+
 __all__ = [
+    "MESH_OPACITY",
+    "MESH_OPACITY_CELLS",
     "MIN_OBJECT_POINTS",
     "OBJECT_BOX_QUANTILE",
     "OBJECT_SEEN_SHARE",
+    "SPECK_MARGIN",
+    "SPECK_SHARE",
+    "SURFACE_DENSITY",
+    "box_corners",
+    "box_radius",
+    "faces_reached",
+    "inside_quads",
     "object_box",
     "object_box_from_points",
     "object_points",
     "seen_share",
+    "specks",
     "sphere_radius",
+    "surface_threshold",
 ]

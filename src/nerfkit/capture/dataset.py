@@ -39,8 +39,7 @@ from ..errors import advice, fail
 from ..images import common_size
 from ..io.atomic import write_json
 from ..io.paths import resolve_inside
-from ..scene_extent import FEW_TRAIN_VIEWS, MIN_OBJECT_POINTS, object_box, object_points, sphere_radius
-from ..tabletop import inside_quads
+from ..scene_extent import FEW_TRAIN_VIEWS, MIN_OBJECT_POINTS, inside_quads, object_box, object_points, sphere_radius
 from .aruco import quad_sides
 from .camera import Camera, camera_from_dict, nerfkit_K
 from .poses import UP, PosedPhoto

@@ -45,7 +45,7 @@ examples:
 def register(sub: argparse._SubParsersAction) -> None:
     from ..config import number
     from ..export import COLOUR_VIEWS
-    from ..tabletop import TABLE_CUT
+    from ..surroundings.clearing import TABLE_CUT
     from ._common import add_run_device_args
 
     p = sub.add_parser(

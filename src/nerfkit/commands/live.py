@@ -82,7 +82,7 @@ def box_depth_range(box, c2w: np.ndarray, near: float, far: float) -> tuple[floa
     """The depths a box ``(lo (3,), hi (3,))`` spans seen from camera ``c2w``: from its
     nearest point (no nearer than ``near``) to its farthest corner; ``(near, far)``
     without a box."""
-    from ..tabletop import box_corners
+    from ..scene_extent import box_corners
 
     if box is None:
         return near, far

@@ -1024,7 +1024,7 @@ def export(
         threshold: mesh: density of the surface (None: scale-free, see ``nerfkit export --help``).
         box_scale: scale of the cube meshed and of the box points are cropped to.
         table_cut: mesh, captures: the fraction of the object's height above the table whose
-            painted density is cleared (None: nerfkit.tabletop.TABLE_CUT).
+            painted density is cleared (None: nerfkit.surroundings.clearing.TABLE_CUT).
         color_views: mesh: training views rendered for the vertex colours (0: along the normals
             only; None: nerfkit.export.COLOUR_VIEWS).
         color_dirs: mesh: directions averaged per colour of a vertex no view sees.
@@ -1050,7 +1050,7 @@ def export(
     from ..export import COLOUR_VIEWS
     from ..io.atomic import all_or_none
     from ..io.paths import guard_outputs
-    from ..tabletop import TABLE_CUT
+    from ..surroundings.clearing import TABLE_CUT
     from . import _common
     from .stages import export as stage
 
@@ -1129,7 +1129,7 @@ def export(
             said.append(stage.export_splat(opened, splat_file, background_dome))
         if mesh_file:
             from ..export import COLOUR_VIEWS
-            from ..tabletop import TABLE_CUT
+            from ..surroundings.clearing import TABLE_CUT
 
             said.append(
                 stage.export_mesh(

@@ -174,7 +174,7 @@ class RenderOutput:
         scene_depth, scene_acc: (n_rays,) as ``depth`` and ``acc`` but of everything the
             rays meet, the surfaces a model draws behind its volume included (a capture's
             table and room: the light the volume passes goes to the one surface it meets,
-            :func:`~nerfkit.fields.background.layers_depth`); None when it draws none
+            :func:`~nerfkit.render.layers.layers_depth`); None when it draws none
             (then ``depth`` and ``acc`` say it) and while training.
     """
 

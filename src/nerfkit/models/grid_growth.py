@@ -20,7 +20,7 @@ from ..fields.grid import GridField, cells_near, resample_grid
 from ..kernels.ops import GridGeom
 from ..kernels.optim import replace_param
 from ..render.box import GridBox
-from ..tabletop import faces_reached
+from ..scene_extent import faces_reached
 from .base import StepState
 from .fast_config import BOX_FOLLOW, BOX_FOLLOW_OPACITY, BOX_FOLLOW_UNTIL
 from .packing import vertices_touching

@@ -3,9 +3,9 @@
 A capture's object stands on a table in a room. A grid model holds the object in its box
 and leaves the rest to :class:`Surroundings`: a learned colour per direction (spherical
 harmonics) far away, ``room_shells`` textured, semi-transparent spheres around the cameras
-(:class:`~nerfkit.fields.background.RoomShells`), the table where rays stop and the floor
-beyond its edge (:class:`~nerfkit.fields.background.TablePlane`), composited in order of
-distance behind the volume.
+(:class:`~nerfkit.surroundings.room.RoomShells`), the table where rays stop and the floor
+beyond its edge (:class:`~nerfkit.surroundings.table.TablePlane`), composited in order of
+distance behind the volume (:mod:`nerfkit.render.layers`).
 
 The functions below are how the rest of nerfkit reaches a model's surroundings
 (:func:`of`, :func:`table_plane`, :func:`table_tags`, :func:`names`), isolates its object
@@ -26,10 +26,14 @@ import torch
 from torch import Tensor, nn
 
 from ..cameras import axes_across
-from ..fields.background import RoomShells, TablePlane, composite_layers, layers_depth, sh16, table_doubt
+from ..fields.background import sh16
 from ..kernels.ops import GradSink
 from ..losses import LossTerm, mean_extra, mean_opacity
-from ..tabletop import SURFACE_DENSITY, TABLE_CUT, around_object, box_corners, box_radius, heights, surface_threshold
+from ..render.layers import composite_layers, layers_depth
+from ..scene_extent import SURFACE_DENSITY, box_corners, box_radius, surface_threshold
+from .clearing import TABLE_CUT, around_object, heights
+from .room import RoomShells
+from .table import TablePlane, table_doubt
 
 Layer = tuple[Tensor, Tensor, Tensor]  # t (n, k), rgb (n, k, 3), alpha (n, k)
 
@@ -319,7 +323,7 @@ def isolate_object(model: WithSurroundings, cut: float, threshold: float) -> lis
     """Keep only the object, for a video of it alone: stop drawing what surrounds it (a
     capture's table, floor, room and learned background) and clear the table's paint and
     the specks apart from the object from the density
-    (:func:`~nerfkit.tabletop.around_object`: paint up to ``cut`` world units above the
+    (:func:`~nerfkit.surroundings.clearing.around_object`: paint up to ``cut`` world units above the
     table; ``threshold``: the surface's density). Changes the model in place, for rendering
     only: it can then be neither trained nor saved. Returns the names of the parts left out
     (:func:`names`): none when the model draws nothing apart from its volume."""

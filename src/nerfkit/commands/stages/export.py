@@ -71,7 +71,7 @@ def export_mesh(
     from ...export import ColourViews, mesh_from_model, mesh_region, mesh_threshold, write_mesh_ply
     from ...output.images import render_image
     from ...surroundings import object_alone, table_cut_height, table_plane, table_tags
-    from ...tabletop import cleared_note
+    from ...surroundings.clearing import cleared_note
     from .._common import scene_for_run
 
     model, bounds = opened.model, opened.info.bounds

@@ -44,7 +44,7 @@ def leave_object_alone(model: Any) -> str:
     then show, for the report: "the object alone (the table and floor left out; ...", left
     open for the zoom."""
     from ...surroundings import object_alone, table_tags
-    from ...tabletop import cleared_note
+    from ...surroundings.clearing import cleared_note
 
     tags = table_tags(model)
     isolated = object_alone(model, copy=False)
