@@ -23,10 +23,10 @@ from nerfkit.data.colmap import (  # noqa: E402
     load_colmap,
     read_model,
     reconstruction_to_scene,
-    split_every,
     write_colmap_model,
     write_reconstruction,
 )
+from nerfkit.data.llff import holdout_indices  # noqa: E402
 from nerfkit.data.load import detect_format, load_scene  # noqa: E402
 from nerfkit.data.synthetic import sphere_scene  # noqa: E402
 from nerfkit.errors import NerfkitError  # noqa: E402
@@ -151,12 +151,13 @@ def _npz(scene, tmp_path):
     return str(tmp_path / "scene.npz")
 
 
-def test_split_every():
-    tr, va = split_every(20, 8)
-    # every 8th view from the 4th (8 // 2, LLFF-style), of 20: 4 and 12 (20 is past the end)
-    assert list(va) == list(range(8 // 2, 20, 8)) == [4, 12]
+def test_colmap_and_llff_hold_out_the_same_views():
+    """Every 8th view from the first, as the papers score LLFF and COLMAP scenes: a scene read
+    either way is scored on the same photos."""
+    tr, va = holdout_indices(20, 8)
+    assert list(va) == [0, 8, 16]
     assert sorted([*tr, *va]) == list(range(20)) and not set(tr) & set(va)
-    assert len(split_every(20, 0)[1]) == 0
+    assert len(holdout_indices(20, 0)[1]) == 0 and len(holdout_indices(1, 8)[1]) == 0
 
 
 def test_distorted_model_is_undistorted(tmp_path):

@@ -20,6 +20,7 @@ import numpy as np
 from ..errors import fail
 from ..images import load_image_uint8
 from ..io.paths import refuse_special_file, resolve_inside, safe_output_name
+from .llff import holdout_indices
 from .scene import Scene, Views, estimate_center, estimate_near_far, estimate_up, point_views
 from .validate import check_intrinsics, check_near_far, check_poses, check_scene
 
@@ -331,15 +332,6 @@ def near_far_from_points(
     return float(near * (1 - margin)), float(far * (1 + margin))
 
 
-def split_every(n: int, val_every: int) -> tuple[np.ndarray, np.ndarray]:
-    """Train and val indices: every ``val_every``-th view (from the 4th) is held out (LLFF-style)."""
-    idx = np.arange(n)
-    if val_every <= 0 or n < 3:
-        return idx, idx[:0]
-    val = idx[(idx % val_every) == val_every // 2]
-    return np.setdiff1d(idx, val), val
-
-
 @dataclass
 class SparsePoints:
     """Triangulated points: ``xyz`` (m, 3) float32 world coordinates, ``rgb`` (m, 3)
@@ -482,7 +474,7 @@ def reconstruction_to_scene(
             "Use a model with its points3D",
         )
     near, far = check_near_far(*nf, where)
-    tr, va = split_every(len(names), val_every)
+    tr, va = holdout_indices(len(names), val_every)
     all_views = Views(c2w, K, W, H, imgs, names)
     train = all_views.subset(tr)
     # COLMAP triangulates from 2 views; a model whose points all lack tracks (written from a

@@ -70,12 +70,14 @@ def opencv_to_llff(c2w: np.ndarray, hwf: np.ndarray) -> np.ndarray:
 
 
 def holdout_indices(n: int, every: int = HOLDOUT_EVERY) -> tuple[np.ndarray, np.ndarray]:
-    """``(train, held_out)`` image indices: every ``every``-th image (0, every, ...) is held out.
+    """``(train, held_out)`` image indices: every ``every``-th image (0, every, ...) is held out,
+    as the NeRF papers score LLFF and COLMAP scenes (the one rule of both loaders).
 
-    A scene of a single image trains on it (nothing is held out).
+    A scene of a single image trains on it, as does ``every`` <= 0 (nothing is held out).
+    Example: ``holdout_indices(20)`` holds out 0, 8 and 16.
     """
     idx = np.arange(n)
-    held = idx[::every] if n > 1 else idx[:0]
+    held = idx[::every] if n > 1 and every > 0 else idx[:0]
     return np.setdiff1d(idx, held), held
 
 
