@@ -265,3 +265,21 @@ def test_the_distortion_loss_in_ndc_measures_the_fraction_of_the_way_to_infinity
         assert model.distortion_unit == unit
         torch.testing.assert_close(model.loss(out, torch.zeros(2, 3)), torch.tensor(0.5 * 0.3 / unit))
     assert fwd.radius > 2.0  # (the two units differ)
+
+
+@pytest.mark.parametrize("capture, ndc", [("auto", True), ("on", False)])
+def test_the_scene_kind_a_run_resolves_decides_whether_it_trains_in_ndc(tmp_path, capture, ndc):
+    """NDC follows the kind the run takes its settings from: a forward-facing scene trained
+    with --capture on is a capture (no NDC), as presets.scene_kind says."""
+    import json
+
+    from nerfkit import api
+    from nerfkit.data.npz import save_npz
+
+    ff = forward_facing_scene(n_train=8, n_val=1, size=16)
+    assert SceneBounds.from_scene(ff, ndc=False).ndc is None and SceneBounds.from_scene(ff).ndc is not None
+    save_npz(ff, tmp_path / "ff.npz")
+    api.train(tmp_path / "ff.npz", tmp_path / "run", model="fast", steps=1, capture=capture, quiet=True)
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert config["train"]["preset"] == ("forward-facing" if ndc else "capture")
+    assert (config["bounds"]["ndc"] is not None) == ndc

@@ -59,7 +59,10 @@ class SceneBounds:
         return self.camera_radius if self.camera_radius is not None else self.far
 
     @staticmethod
-    def from_scene(scene) -> SceneBounds:
+    def from_scene(scene, ndc: bool | None = None) -> SceneBounds:
+        """The bounds of ``scene``; ``ndc``: whether rays live in NDC, as the scene kind the run
+        resolved says (a forward-facing scene's; :mod:`nerfkit.presets`), or None: as the
+        dataset says (forward-facing cameras, and not a capture with a table)."""
         c2w = scene.train.c2w
         dists = np.linalg.norm(c2w[:, :3, 3] - scene.center, axis=1)
         radius = sphere_radius(scene)
@@ -69,12 +72,14 @@ class SceneBounds:
             plane = scene.floor()
             if plane is not None:
                 floor = np.array([*plane.normal, plane.offset], np.float32)
-        ndc = None
-        if not scene.capture and scene.table is None and scene.forward_facing:
-            ndc = NdcSpace.from_camera(
+        if ndc is None:
+            ndc = not scene.capture and scene.table is None and scene.forward_facing
+        space = None
+        if ndc:
+            space = NdcSpace.from_camera(
                 mean_camera(c2w), scene.train.K.mean(0), scene.train.width, scene.train.height, float(scene.near)
             )
-            ndc = ndc.fit_extent(c2w, scene.train.K, scene.train.width, scene.train.height)
+            space = space.fit_extent(c2w, scene.train.K, scene.train.width, scene.train.height)
         return SceneBounds(
             float(scene.near),
             float(scene.far),
@@ -84,7 +89,7 @@ class SceneBounds:
             None if scene.table is None else np.asarray(scene.table, np.float32),
             float(dists.max()),
             box,
-            ndc,
+            space,
             floor,
             None if scene.tags is None else np.asarray(scene.tags, np.float32),
         )

@@ -142,7 +142,10 @@ class Trainer:
         self.autocast = resolve_autocast(cfg.precision, self.device)
         self.background = torch.tensor(parse_background(cfg.background), dtype=torch.float32, device=self.device)
         torch.manual_seed(cfg.seed)
-        self.bounds = SceneBounds.from_scene(scene) if not resume else read_run(self.run_dir).bounds
+        # NDC for the forward-facing kind the run resolved (with --capture on or off too); a
+        # trainer built without resolving (cfg.preset auto) follows the dataset
+        ndc = None if cfg.preset == "auto" else cfg.preset == presets.FORWARD_FACING
+        self.bounds = SceneBounds.from_scene(scene, ndc) if not resume else read_run(self.run_dir).bounds
         # a resumed run with no checkpoint yet (stopped before its first) starts as a new one does
         fresh = not resume or not checkpoint_paths(self.run_dir)
         self.model: NerfModel = build_model(cfg.model, model_config, self.bounds).to(self.device)
