@@ -281,7 +281,7 @@ def render_gaussians(
         means2d.retain_grad()
     cam = torch.linalg.inv(w2c.to(means))[:3, 3]
     # the colour's view direction passes no gradient to the means here or in the compiled kernel;
-    # INRIA's, gsplat's (CUDA) and render_reference's do (a difference left unmeasured)
+    # INRIA's and gsplat's (CUDA) do (a difference left unmeasured)
     dirs = means.detach() - cam
     dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     colors = ref.sh_to_rgb(sh, dirs, sh_degree)

@@ -247,39 +247,6 @@ def composite_pixels(
     return rgb, w @ depths, 1 - T_final
 
 
-def render_reference(
-    means: Tensor,
-    log_scales: Tensor,
-    quats: Tensor,
-    opacity_logits: Tensor,
-    sh: Tensor,
-    sh_degree: int,
-    w2c: Tensor,
-    K: Tensor,
-    width: int,
-    height: int,
-    background: Tensor,
-    near_plane: float = 0.01,
-) -> tuple[Tensor, Tensor, Tensor]:
-    """The whole pipeline in torch: Gaussians (n, ...) -> (rgb (H, W, 3), depth (H, W), alpha (H, W))."""
-    proj = project_gaussians(means, covariance_3d(log_scales, quats), w2c, K, width, height, near_plane)
-    cam = torch.linalg.inv(w2c.to(means))[:3, 3]
-    dirs = means - cam
-    dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    colors = sh_to_rgb(sh, dirs, sh_degree)
-    return rasterize_reference(
-        proj["means2d"],
-        proj["conics"],
-        colors,
-        torch.sigmoid(opacity_logits),
-        proj["depths"],
-        proj["rects"],
-        background,
-        width,
-        height,
-    )
-
-
 def logit(p: float) -> float:
     return math.log(p / (1 - p))
 
