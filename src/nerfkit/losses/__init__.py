@@ -1,6 +1,6 @@
 """Loss terms a model adds to its photometric loss, as functions called from a list.
 
-A term maps a step's :class:`~nerfkit.models.base.RenderOutput` to a scalar tensor, or None
+A term maps a step's :class:`~nerfkit.render.output.RenderOutput` to a scalar tensor, or None
 when it takes no part in that step (its render output is missing, or its switch is off).
 :func:`total` adds the terms of a list in order; :mod:`nerfkit.losses.tv` holds the total
 variation, which a grid adds straight to its gradients.
@@ -9,14 +9,12 @@ variation, which a grid adds straight to its gradients.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 from torch import Tensor
 
-if TYPE_CHECKING:
-    from ..models.base import RenderOutput
+from ..render.output import RenderOutput
 
-LossTerm = Callable[["RenderOutput"], Tensor | None]
+LossTerm = Callable[[RenderOutput], Tensor | None]
 
 
 def total(loss: Tensor, terms: list[LossTerm], out: RenderOutput) -> Tensor:

@@ -7,7 +7,7 @@ hands a model a batch of :class:`~nerfkit.cameras.Rays` and gets a :class:`Rende
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import cast
 
@@ -17,6 +17,7 @@ from torch import Tensor, nn
 
 from ..cameras import Rays, mean_camera
 from ..render.ndc import NdcSpace
+from ..render.output import RenderOutput
 from ..scene_extent import object_box_from_points, sphere_radius
 from ..surroundings import Surroundings
 from .appearance import DirectionalColour
@@ -163,33 +164,6 @@ def rgb_errors(pred: Tensor, target: Tensor, kind: str = "mse") -> Tensor:
 def grads_finite(params) -> bool:
     """True when every ``.grad`` among ``params`` (those that have one) is finite."""
     return all(bool(torch.isfinite(p.grad).all()) for p in params if p.grad is not None)
-
-
-@dataclass
-class RenderOutput:
-    """What a model returns for n_rays rays.
-
-    Attributes:
-        rgb: (n_rays, 3) colour, background already composited.
-        depth: (n_rays,) expected depth sum(w_i t_i) (unnormalised; divide by acc for
-            the depth of the surface that was hit).
-        acc: (n_rays,) opacity sum(w_i).
-        n_samples: number of field evaluations spent (for throughput figures).
-        extras: model-specific tensors the model's own loss uses (e.g. coarse rgb).
-        scene_depth, scene_acc: (n_rays,) as ``depth`` and ``acc`` but of everything the
-            rays meet, the surfaces a model draws behind its volume included (a capture's
-            table and room: the light the volume passes goes to the one surface it meets,
-            :func:`~nerfkit.render.layers.layers_depth`); None when it draws none
-            (then ``depth`` and ``acc`` say it) and while training.
-    """
-
-    rgb: Tensor
-    depth: Tensor
-    acc: Tensor
-    n_samples: int = 0
-    extras: dict[str, Tensor] = field(default_factory=dict)
-    scene_depth: Tensor | None = None
-    scene_acc: Tensor | None = None
 
 
 @dataclass
