@@ -312,3 +312,20 @@ def test_the_model_help_names_each_kinds_default_model(capsys):
     for kind in presets.SCENE_KINDS:
         model = presets.default_model(kind, MODEL_NAMES)
         assert re.search(rf"{model} for [\w\- ]*\b{re.escape(kind)}\b", text), (kind, model)
+
+
+@pytest.mark.parametrize("model", ["fast", "splat"])
+def test_compiled_kernels_asked_for_on_a_gpu_are_refused_not_ignored(model):
+    """--kernels numba runs on the CPU only: asked for on CUDA it is one clear error; auto and
+    torch are fine there, and numba is fine on the CPU."""
+    import torch
+
+    from nerfkit.errors import NerfkitError
+    from nerfkit.models import check_config, model_config_class
+
+    cls = model_config_class(model)
+    with pytest.raises(NerfkitError, match="CPU only"):
+        check_config(model, cls(kernels="numba"), torch.device("cuda"))
+    for kernels in ("auto", "torch"):
+        check_config(model, cls(kernels=kernels), torch.device("cuda"))
+    check_config(model, cls(kernels="numba"), torch.device("cpu"))

@@ -775,8 +775,9 @@ def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False, use
     if cfg.data:
         cfg = replace(cfg, data=str(Path(cfg.data).resolve()))  # eval and --resume must find it from any folder
     # what the trainer would refuse at start (the device, the model's settings), before --out is made
-    resolve_autocast(cfg.precision, resolve_device(cfg.device))
-    check_config(cfg.model, model_config)
+    device = resolve_device(cfg.device)
+    resolve_autocast(cfg.precision, device)
+    check_config(cfg.model, model_config, device)
     with run_lock(run_dir):
         check_new_run_folder(run_dir)  # again, holding the lock: another process may have just started
         trainer = Trainer(scene, cfg, model_config, quiet=quiet)
