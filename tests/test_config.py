@@ -259,3 +259,22 @@ def test_a_tag_size_in_millimetres_is_refused_with_the_metres_it_meant(command, 
     for bad in ("0", "-0.06", "nan"):
         with pytest.raises(argparse.ArgumentTypeError):
             tag_side(bad)
+
+
+def test_a_negated_yes_no_field_is_one_no_flag():
+    """A field True by default and ``negated`` (export's ``crop``) is ``--no-crop`` alone, with
+    the field's help as the flag's; not given, it is None and the dataclass' default stands."""
+    from nerfkit.config import dataclass_from_args
+
+    @dataclasses.dataclass
+    class Cut:
+        crop: bool = option(True, "keep points outside the box (100%)", negated=True)
+
+    parser = argparse.ArgumentParser()
+    add_dataclass_args(parser, Cut)
+    assert parser.parse_args([]).crop is None and dataclass_from_args(Cut, parser.parse_args([])).crop is True
+    assert dataclass_from_args(Cut, parser.parse_args(["--no-crop"])).crop is False
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--crop"])
+    shown = parser.format_help()
+    assert "--no-crop" in shown and "keep points outside the box (100%)" in shown and "default" not in shown

@@ -37,7 +37,9 @@ def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors ar
     """A dataclass field with a default and a help line; ``min``, ``max`` (inclusive) and
     ``above`` (exclusive) bound a number's flag (``off``: a value allowed besides, that
     switches the option off), checked when the command line is parsed
-    (:func:`number`) and for configs built otherwise (:func:`check_ranges`)."""
+    (:func:`number`) and for configs built otherwise (:func:`check_ranges`). A yes/no field
+    that is True by default and ``negated`` has the one flag ``--no-NAME`` (``help``: that
+    flag's), not ``--NAME``/``--no-NAME``."""
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})
 
 
@@ -286,7 +288,10 @@ def _add_flag(
     kw: dict[str, Any] = {"dest": name, "default": None, "help": help_text}
     if "choices" in first.metadata:
         kw["choices"] = first.metadata["choices"]
-    if tp is bool:
+    if tp is bool and first.metadata.get("negated"):  # --no-NAME alone: the default, True, needs no flag
+        kw["help"] = first.metadata.get("help", "").replace("%", "%%")
+        target.add_argument("--no-" + flag_of(name)[2:], action="store_const", const=False, **kw)
+    elif tp is bool:
         target.add_argument(flag_of(name), action=argparse.BooleanOptionalAction, **kw)
     else:
         named = "{" + ",".join(map(str, kw["choices"])) + "}" if "choices" in kw else None  # the choices in --help
