@@ -12,9 +12,14 @@ without that output, the command says the option does nothing.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 from ..config import option
 from ..table_cut import TABLE_CUT
+
+# the choices of `nerfkit render --path` and `nerfkit eval --split`
+VideoPath = Literal["auto", "test", "orbit", "spiral"]
+Split = Literal["val", "test", "train"]
 
 
 @dataclass(frozen=True)
@@ -25,7 +30,7 @@ class ExportOptions:
         True,
         "(splat runs with a learned background, as captures) leave out the dome of Gaussians "
         "that carries the background into the file",
-        negated=True,
+        switch=True,
         needs="--splat",
     )
     resolution: int = option(
@@ -95,4 +100,38 @@ class ExportOptions:
         needs="--points",
         metavar="ACC_MIN",
     )
-    crop: bool = option(True, "keep points outside the scene box", negated=True, group="points", needs="--points")
+    crop: bool = option(True, "keep points outside the scene box", switch=True, group="points", needs="--points")
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    """The options of ``nerfkit render`` (:func:`nerfkit.api.render`) beside its run and output."""
+
+    path: VideoPath = option(
+        "auto",
+        "camera path: the dataset's test poses, an orbit around the object, a spiral across a "
+        "forward-facing capture's view, or auto (chosen as described above)",
+        choices=get_args(VideoPath),
+    )
+    frames: int | None = option(
+        None,
+        "frames of a generated orbit or spiral; the test path has the dataset's own poses",
+        default_help="120, 4 s at 30 fps",
+        min=1,
+        max=100_000,
+        metavar="FRAMES",
+    )
+    fps: int = option(30, "frames per second", min=1, max=1000, metavar="FPS")
+    object: bool = option(
+        False,
+        "render the object alone into object.mp4, object.gif and object_depth.mp4: a capture's "
+        "table, floor and room left out, the table's paint and the specks apart from the object "
+        "cleared from the density (as export --mesh does), on white, centred and framed whole (one zoom for the "
+        "whole path: an object that already fills the frame is drawn smaller)",
+        switch=True,
+    )
+    background: str | None = option(
+        None,
+        "override the run's background colour (with --object: white): black, white, grey, r,g,b in [0, 1] or #rrggbb",
+        metavar="BACKGROUND",
+    )

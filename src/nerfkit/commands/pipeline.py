@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, ParamSpec, TypeVar, get_args
 
-from .options import ExportOptions
+from .options import ExportOptions, RenderOptions, Split, VideoPath
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -43,8 +43,6 @@ if TYPE_CHECKING:
 # the choices of the commands' flags of the same names
 PoseMethod = Literal["auto", "tags", "colmap"]
 Matcher = Literal["auto", "exhaustive", "sequential", "spatial"]
-VideoPath = Literal["auto", "test", "orbit", "spiral"]
-Split = Literal["val", "test", "train"]
 
 T = TypeVar("T", bound="DataclassInstance")
 P = ParamSpec("P")
@@ -834,11 +832,11 @@ def render(
     run: str | Path,
     *,
     out: str | Path | None = None,
-    path: VideoPath = "auto",
-    frames: int | None = None,
-    fps: int = 30,
-    object: bool = False,  # noqa: A002 - the flag's name
-    background: str | None = None,
+    path: VideoPath = RenderOptions.path,
+    frames: int | None = RenderOptions.frames,
+    fps: int = RenderOptions.fps,
+    object: bool = RenderOptions.object,  # noqa: A002 - the flag's name
+    background: str | None = RenderOptions.background,
     data: str | Path | None = None,
     device: str = "auto",
     chunk: int = 0,
@@ -846,7 +844,9 @@ def render(
     force: bool = False,
     quiet: bool = False,
 ) -> RenderResult:
-    """Render a run's videos (``nerfkit render``): colour (MP4 and GIF) and depth.
+    """Render a run's videos (``nerfkit render``): colour (MP4 and GIF) and depth. The defaults
+    and ranges of its options (``path`` to ``background``) are those of
+    :class:`~nerfkit.commands.options.RenderOptions`, as the command's are.
 
     Args:
         run: run folder written by :func:`train`.
@@ -869,7 +869,7 @@ def render(
     """
     import sys
 
-    from ..config import number, output_path
+    from ..config import output_path
     from ..data.load import dataset_inputs
     from ..data.scene import ORBIT_FRAMES
     from ..errors import fail
@@ -880,9 +880,7 @@ def render(
     from . import _common
     from .stages import render as stage
 
-    _choice("--path", path, get_args(VideoPath))
-    frames = _check("--frames", frames, number(int, 1, 100_000))
-    fps = _check("--fps", fps, number(int, 1, 1000))
+    _options(RenderOptions, dict(path=path, frames=frames, fps=fps, object=object, background=background))
     chunk = _run_checks(chunk)
     data = _given("--data", data)
     folder = Path(_check("--out", out, output_path)) if out is not None else Path(run) / "videos"
@@ -1285,6 +1283,7 @@ __all__ = [
     "Matcher",
     "PoseMethod",
     "PoseResult",
+    "RenderOptions",
     "RenderResult",
     "Split",
     "TrainResult",

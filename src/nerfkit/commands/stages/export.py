@@ -35,15 +35,14 @@ def note_idle_options(options: Any, mesh: str | None, points: str | None, splat:
     import dataclasses
     import sys
 
-    from ...config import flag_of
+    from ...config import flag_of, switch_flag
 
     asked = {"--mesh": mesh, "--points": points, "--mesh or --points": mesh or points, "--splat": splat}
     defaults = type(options)()
     idle: dict[str, list[str]] = {needs: [] for needs in asked}
     for f in dataclasses.fields(options):
         if getattr(options, f.name) != getattr(defaults, f.name):
-            flag = flag_of(f.name)
-            idle[f.metadata["needs"]].append("--no-" + flag[2:] if f.metadata.get("negated") else flag)
+            idle[f.metadata["needs"]].append(switch_flag(f) if f.metadata.get("switch") else flag_of(f.name))
     if data is not None:
         idle["--mesh or --points"].append("--data")
     for needs, flags in idle.items():
