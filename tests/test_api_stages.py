@@ -253,7 +253,7 @@ NEGATED = {"no_cache", "no_dataset", "no_ground"}
         ("calibrate", api.calibrate, ["photos"], None),
         ("poses", api.pose, ["photos", "--out", "o"], None),
         ("render", api.render, ["run"], api.RenderOptions),
-        ("eval", api.evaluate, ["run"], None),
+        ("eval", api.evaluate, ["run"], api.EvalOptions),
         ("export", api.export, ["run"], api.ExportOptions),
     ],
 )

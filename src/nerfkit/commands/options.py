@@ -135,3 +135,21 @@ class RenderOptions:
         "override the run's background colour (with --object: white): black, white, grey, r,g,b in [0, 1] or #rrggbb",
         metavar="BACKGROUND",
     )
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """The options of ``nerfkit eval`` (:func:`nerfkit.api.evaluate`) beside its run."""
+
+    split: Split = option("val", "which images", choices=get_args(Split))
+    fit_views: int | None = option(
+        None,
+        "also score each view after fitting its pose to its photo with the scene frozen, for this "
+        "many steps, and then each half of the photo with a gain and offset per channel solved on "
+        "the other half (least squares; NeRF-W's protocol, both ways)",
+        default_help="100 for runs trained with --capture, else 0: off; a model that renders whole views, "
+        "such as splat, fits from whole renders",
+        min=0,
+        max=100_000,
+        metavar="STEPS",
+    )

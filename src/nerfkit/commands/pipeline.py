@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, ParamSpec, TypeVar, get_args
 
-from .options import ExportOptions, RenderOptions, Split, VideoPath
+from .options import EvalOptions, ExportOptions, RenderOptions, Split, VideoPath
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -936,8 +936,8 @@ def render(
 def evaluate(
     run: str | Path,
     *,
-    split: Split = "val",
-    fit_views: int | None = None,
+    split: Split = EvalOptions.split,
+    fit_views: int | None = EvalOptions.fit_views,
     data: str | Path | None = None,
     device: str = "auto",
     chunk: int = 0,
@@ -945,7 +945,9 @@ def evaluate(
     quiet: bool = False,
 ) -> EvaluationResult:
     """Score a run on a split's held-out views (``nerfkit eval``): PSNR and SSIM, written to
-    RUN/eval_<split>.json, with photos beside renders in RUN/eval_<split>.png.
+    RUN/eval_<split>.json, with photos beside renders in RUN/eval_<split>.png. The defaults and
+    ranges of ``split`` and ``fit_views`` are those of
+    :class:`~nerfkit.commands.options.EvalOptions`, as the command's are.
 
     Args:
         run: run folder written by :func:`train`.
@@ -958,7 +960,6 @@ def evaluate(
         allow_outside_paths: read dataset images outside the dataset's folder.
         quiet: do not print the summary (the result holds it).
     """
-    from ..config import number
     from ..data.load import dataset_inputs
     from ..io.atomic import write_json
     from ..io.paths import guard_outputs, safe_output_name
@@ -966,8 +967,7 @@ def evaluate(
     from . import _common
     from .stages import evaluate as stage
 
-    _choice("--split", split, get_args(Split))
-    fit_views = _check("--fit-views", fit_views, number(int, 0, 100_000))
+    _options(EvalOptions, dict(split=split, fit_views=fit_views))
     chunk = _run_checks(chunk)
     say = _say(quiet)
     opened = _common.open_run(_common.RunToOpen(run, device, chunk))
@@ -1277,6 +1277,7 @@ __all__ = [
     "CalibrationResult",
     "CaptureModel",
     "CaptureResult",
+    "EvalOptions",
     "EvaluationResult",
     "ExportOptions",
     "ExportResult",
