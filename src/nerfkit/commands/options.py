@@ -1,4 +1,4 @@
-"""The options of the commands on a trained run, one dataclass per command: each field is one
+"""The options of the commands (those on a trained run, and tools), one dataclass per command: each field is one
 flag (:func:`~nerfkit.config.option`: its default, help and range), so the command's parser
 (:func:`~nerfkit.config.add_dataclass_args`), its Python function in :mod:`nerfkit.api` (whose
 keyword defaults are these fields') and its checks (:func:`~nerfkit.config.check_ranges`) all
@@ -17,9 +17,10 @@ from typing import Literal, get_args
 from ..config import option
 from ..table_cut import TABLE_CUT
 
-# the choices of `nerfkit render --path` and `nerfkit eval --split`
+# the choices of `nerfkit render --path`, `nerfkit eval --split` and `nerfkit frames --spread`
 VideoPath = Literal["auto", "test", "orbit", "spiral"]
 Split = Literal["val", "test", "train"]
+Spread = Literal["time", "motion"]
 
 
 @dataclass(frozen=True)
@@ -152,4 +153,16 @@ class EvalOptions:
         min=0,
         max=100_000,
         metavar="STEPS",
+    )
+
+
+@dataclass(frozen=True)
+class FramesOptions:
+    """The options of ``nerfkit frames`` (:func:`nerfkit.api.frames`) beside its clip and output."""
+
+    frames: int = option(120, "frames to keep, at most", min=10, max=10_000, metavar="N")
+    spread: Spread = option(
+        "time",
+        "spread the windows evenly in time, or in camera motion measured between frames (a pause then takes no window)",
+        choices=get_args(Spread),
     )

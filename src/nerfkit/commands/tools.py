@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, get_args
 
-from .pipeline import _check, _checked, _choice, _given, _say, _settings
+from .options import FramesOptions, Spread
+from .pipeline import _check, _checked, _choice, _given, _options, _say, _settings
 
 if TYPE_CHECKING:
     from ..capture.dataset import DatasetConfig
@@ -30,7 +31,6 @@ if TYPE_CHECKING:
 
 # the choices of the commands' flags of the same names
 Paper = Literal["a4", "letter"]
-Spread = Literal["time", "motion"]
 ConvertFormat = Literal["auto", "npz", "transforms", "colmap"]
 PoseSource = Literal["auto", "tags", "sfm"]
 
@@ -106,13 +106,14 @@ def frames(
     clip: str | Path,
     out: str | Path,
     *,
-    frames: int = 120,
-    spread: Spread = "time",
+    frames: int = FramesOptions.frames,
+    spread: Spread = FramesOptions.spread,
     force: bool = False,
     quiet: bool = False,
 ) -> FramesResult:
     """Choose sharp, evenly spread frames of a video filmed around an object and write them as
-    JPEG, with frames.json (``nerfkit frames``).
+    JPEG, with frames.json (``nerfkit frames``). The defaults and ranges of ``frames`` and
+    ``spread`` are those of :class:`~nerfkit.commands.options.FramesOptions`, as the command's are.
 
     Args:
         clip: the video file (MP4, MOV, M4V; H.264 or HEVC).
@@ -123,13 +124,12 @@ def frames(
         quiet: print no progress or report.
     """
     from ..capture.video import REPORT_NAME, select_frames
-    from ..config import number, output_path
+    from ..config import output_path
     from .stages.frames import report_lines
 
-    count = _check("--frames", frames, number(int, 10, 10_000))
-    _choice("--spread", spread, get_args(Spread))
+    _options(FramesOptions, dict(frames=frames, spread=spread))
     folder = _check("--out", out, output_path)
-    selection = select_frames(clip, folder, count, force=force, spread=spread, progress=not quiet)
+    selection = select_frames(clip, folder, frames, force=force, spread=spread, progress=not quiet)
     _say(quiet)(report_lines(selection))
     return FramesResult(
         Path(selection.out_dir), tuple(selection.paths), selection.read, Path(selection.out_dir) / REPORT_NAME
@@ -441,6 +441,7 @@ __all__ = [
     "ConvertResult",
     "DatasetResult",
     "FitImageResult",
+    "FramesOptions",
     "FramesResult",
     "Paper",
     "PoseSource",
