@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from ..config import option
+from ..config import MIN_DOWNSCALE, option
 from ..table_cut import TABLE_CUT
 
 # the choices of `nerfkit render --path`, `nerfkit eval --split` and `nerfkit frames --spread`
@@ -166,3 +166,37 @@ class FramesOptions:
         "spread the windows evenly in time, or in camera motion measured between frames (a pause then takes no window)",
         choices=get_args(Spread),
     )
+
+
+@dataclass(frozen=True)
+class ViewOptions:
+    """The options of ``nerfkit view`` (:func:`nerfkit.api.view`) beside its dataset and picture."""
+
+    rays: int | None = option(
+        None,
+        "training rays to draw with their samples",
+        default_help="none; 100 with --rays-from",
+        min=0,
+        max=100_000,
+        metavar="RAYS",
+    )
+    samples: int | None = option(
+        None, "samples per drawn ray", default_help="64, as the course", min=1, max=4096, metavar="SAMPLES"
+    )
+    rays_from: int | None = option(
+        None,
+        "draw the rays of training view N only (the course's check that u and v are not swapped: they "
+        "fill that camera's frustum)",
+        min=0,
+        metavar="N",
+    )
+    downscale: float | None = option(
+        None,
+        "divide the dataset's image size by this (an LLFF scene's 4 or 8 reads its images_4 or images_8)",
+        min=MIN_DOWNSCALE,
+        metavar="DOWNSCALE",
+    )
+    port: int = option(8080, "first port to try (taken: the next free one)", min=1, max=65535, metavar="PORT")
+    # the command's --host is its own flag, whose default (this one) a check of every command's
+    # --host sees in the parser (tests/test_hostile_inputs.py)
+    host: str = option("127.0.0.1", "address to listen on", cli=False)

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, get_args
 
-from .options import FramesOptions, Spread
+from .options import FramesOptions, Spread, ViewOptions
 from .pipeline import _check, _checked, _choice, _given, _options, _say, _settings
 
 if TYPE_CHECKING:
@@ -346,20 +346,22 @@ class ViewResult:
 def view(
     path: str | Path,
     *,
-    rays: int | None = None,
-    samples: int | None = None,
-    rays_from: int | None = None,
+    rays: int | None = ViewOptions.rays,
+    samples: int | None = ViewOptions.samples,
+    rays_from: int | None = ViewOptions.rays_from,
     png: str | Path | None = None,
-    host: str = "127.0.0.1",
-    port: int = 8080,
+    host: str = ViewOptions.host,
+    port: int = ViewOptions.port,
     force: bool = False,
-    downscale: float | None = None,
+    downscale: float | None = ViewOptions.downscale,
     allow_outside_paths: bool = False,
     block: bool = False,
     quiet: bool = False,
 ) -> ViewResult:
     """Show a dataset's cameras, rays and samples in the browser (viser) or draw them as a PNG
-    (``nerfkit view``); a run folder opens the live viewer of the trained model.
+    (``nerfkit view``); a run folder opens the live viewer of the trained model. The defaults and
+    ranges of its options (``rays``, ``samples``, ``rays_from``, ``host``, ``port``, ``downscale``)
+    are those of :class:`~nerfkit.commands.options.ViewOptions`, as the command's are.
 
     Args:
         path: dataset file or folder (anything :func:`~nerfkit.commands.pipeline.train` reads), or a run folder.
@@ -378,16 +380,15 @@ def view(
     """
     import sys
 
-    from ..config import MIN_DOWNSCALE, number, output_path
+    from ..config import output_path
     from ..data.load import dataset_inputs, is_run_folder, is_run_in_training, load_scene
     from ..io.paths import guard_outputs
     from .stages import view as stage
 
-    rays = _check("--rays", rays, number(int, 0, 100_000))
-    samples = _check("--samples", samples, number(int, 1, 4096))
-    rays_from = _check("--rays-from", rays_from, number(int, 0))
-    port = _check("--port", port, number(int, 1, 65535))
-    downscale = _check("--downscale", downscale, number(float, MIN_DOWNSCALE))
+    options = _options(
+        ViewOptions, dict(rays=rays, samples=samples, rays_from=rays_from, host=host, port=port, downscale=downscale)
+    )
+    downscale = options.downscale  # (a float, as --downscale gives it)
     picture = Path(_check("--png", png, output_path)) if png is not None else None
     stage.check_png(picture)
     source, say = Path(path), _say(quiet)
@@ -447,6 +448,7 @@ __all__ = [
     "PoseSource",
     "Spread",
     "TagsResult",
+    "ViewOptions",
     "ViewResult",
     "convert",
     "dataset",
