@@ -266,9 +266,9 @@ def _options(kind: type[T], given: dict[str, Any]) -> T:
     """The options dataclass ``kind`` (a command's, :mod:`nerfkit.commands.options`) of the
     ``given`` keyword arguments, checked as its flags are (:func:`_settings`) and converted as
     they convert (a whole number given for a float field: a float)."""
-    options = _settings(kind(**given), kind, kind.__name__)
     from ..config import base_type
 
+    options = _settings(kind(**given), kind, kind.__name__)
     hints = typing.get_type_hints(kind)
     floats = {
         f.name: float(getattr(options, f.name))
