@@ -93,8 +93,9 @@ def psnr(squared_errors: np.ndarray) -> float:
 
 
 def main() -> None:
-    from nerfkit.export import COLOUR_VIEWS
-    from nerfkit.surroundings.clearing import TABLE_CUT
+    from nerfkit.commands.options import ExportOptions
+
+    export_defaults = ExportOptions()
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("run", help="a trained run folder (fast or vanilla)")
@@ -110,7 +111,7 @@ def main() -> None:
     ap.add_argument(
         "--table-cut",
         type=float,
-        default=TABLE_CUT,
+        default=export_defaults.table_cut,
         help="export's --table-cut; negative: leave a capture's table paint and what is under the table",
     )
     ap.add_argument(
@@ -124,8 +125,9 @@ def main() -> None:
         "--color-views",
         type=int,
         nargs="+",
-        default=[COLOUR_VIEWS],
-        help=f"training views to colour from (default: export's {COLOUR_VIEWS}; several: one colouring each)",
+        default=[export_defaults.color_views],
+        help=f"training views to colour from (default: export's {export_defaults.color_views}; "
+        "several: one colouring each)",
     )
     args = ap.parse_args()
 

@@ -21,24 +21,34 @@ RENAMED = {"dict": "dictionary"}
 
 
 @pytest.mark.parametrize(
-    ("command", "function", "argv", "given", "api_only"),
+    ("command", "function", "argv", "given", "api_only", "options"),
     [
-        ("tags", api.tags, [], set(), {"quiet"}),
-        ("frames", api.frames, ["clip.mp4", "--out", "f"], {"clip", "out"}, {"quiet"}),
-        ("convert", api.convert, ["scene.npz", "--to", "o.npz"], {"src", "to"}, {"quiet"}),
-        ("dataset", api.dataset, ["my_object"], {"poses"}, {"quiet"}),
-        ("view", api.view, ["scene.npz"], {"path"}, {"block", "quiet"}),
-        ("fit-image", api.fit_image, [], set(), set()),  # (its --quiet: no progress bar, the call's: nor report)
+        ("tags", api.tags, [], set(), {"quiet"}, None),
+        ("frames", api.frames, ["clip.mp4", "--out", "f"], {"clip", "out"}, {"quiet"}, api.FramesOptions),
+        ("convert", api.convert, ["scene.npz", "--to", "o.npz"], {"src", "to"}, {"quiet"}, None),
+        ("dataset", api.dataset, ["my_object"], {"poses"}, {"quiet"}, None),
+        ("view", api.view, ["scene.npz"], {"path"}, {"block", "quiet"}, api.ViewOptions),
+        ("fit-image", api.fit_image, [], set(), set(), None),  # (its --quiet: no progress bar, the call's: nor report)
     ],
 )
-def test_every_flag_of_a_tool_is_an_argument_with_its_default(command, function, argv, given, api_only):
+def test_every_flag_of_a_tool_is_an_argument_with_its_default(command, function, argv, given, api_only, options):
     """As test_api_capture's: a call without options does what the command line without options
     does. ``given``: the command's required arguments; ``api_only``: the API's own arguments
     (``quiet``: the command line always prints its report). The flags of a settings dataclass
-    are its ``settings`` argument (None: its defaults), as the command line's unset flags are None."""
+    are its ``settings`` argument (None: its defaults), as the command line's unset flags are None;
+    those of the command's ``options`` dataclass are arguments with its defaults, which the
+    command fills in for the flags not given."""
+    import argparse
+    import dataclasses
+
     from nerfkit.cli import build_parser
+    from nerfkit.config import dataclass_from_args
 
     args = build_parser(command).parse_args([command, *argv])
+    if options is not None:  # as the command calls the function
+        flagged = [f for f in dataclasses.fields(options) if f.metadata.get("cli") is not False]
+        assert all(getattr(args, f.name) is None for f in flagged)  # (a field without: the command's own flag)
+        args = argparse.Namespace(**{**vars(args), **dataclasses.asdict(dataclass_from_args(options, args))})
     params = inspect.signature(function).parameters
     checked = set(given)
     for dest, value in vars(args).items():

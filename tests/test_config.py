@@ -259,3 +259,26 @@ def test_a_tag_size_in_millimetres_is_refused_with_the_metres_it_meant(command, 
     for bad in ("0", "-0.06", "nan"):
         with pytest.raises(argparse.ArgumentTypeError):
             tag_side(bad)
+
+
+def test_a_switch_is_one_flag_that_switches_its_default():
+    """A yes/no field marked ``switch`` is one flag with the field's help: ``--no-crop`` for
+    export's ``crop`` (True by default), ``--object`` for render's ``object`` (False); not
+    given, it is None and the dataclass' default stands."""
+    from nerfkit.config import dataclass_from_args
+
+    @dataclasses.dataclass
+    class Cut:
+        crop: bool = option(True, "keep points outside the box (100%)", switch=True)
+        alone: bool = option(False, "the object alone", switch=True)
+
+    parser = argparse.ArgumentParser()
+    add_dataclass_args(parser, Cut)
+    assert dataclass_from_args(Cut, parser.parse_args([])) == Cut(crop=True, alone=False)
+    assert parser.parse_args([]).crop is None
+    assert dataclass_from_args(Cut, parser.parse_args(["--no-crop", "--alone"])) == Cut(crop=False, alone=True)
+    for wrong in ("--crop", "--no-alone"):
+        with pytest.raises(SystemExit):
+            parser.parse_args([wrong])
+    shown = parser.format_help()
+    assert "keep points outside the box (100%)" in shown and "default" not in shown

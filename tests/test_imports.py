@@ -45,6 +45,7 @@ LAYERS: list[tuple[str, set[str]]] = [
             "cameras",
             "config",
             "ground",
+            "table_cut",
             "splat_files",
             "splat_constants",
             "scene_extent",

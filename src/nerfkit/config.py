@@ -37,13 +37,21 @@ def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors ar
     """A dataclass field with a default and a help line; ``min``, ``max`` (inclusive) and
     ``above`` (exclusive) bound a number's flag (``off``: a value allowed besides, that
     switches the option off), checked when the command line is parsed
-    (:func:`number`) and for configs built otherwise (:func:`check_ranges`)."""
+    (:func:`number`) and for configs built otherwise (:func:`check_ranges`). A yes/no field
+    marked ``switch`` has one flag, which switches its default (:func:`switch_flag`; ``help``:
+    that flag's), not ``--NAME``/``--no-NAME``."""
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})
 
 
 def flag_of(name: str) -> str:
     """The command-line flag of config field ``name``: ``principal_point`` -> ``--principal-point``."""
     return "--" + name.replace("_", "-")
+
+
+def switch_flag(f: dataclasses.Field) -> str:
+    """The one flag of a yes/no field marked ``switch`` (:func:`option`): ``--no-NAME`` when it
+    is True by default, ``--NAME`` when False. Example: export's ``crop`` -> ``--no-crop``."""
+    return "--no-" + flag_of(f.name)[2:] if f.default else flag_of(f.name)
 
 
 def base_type(tp: Any) -> tuple[Any, bool]:
@@ -286,7 +294,10 @@ def _add_flag(
     kw: dict[str, Any] = {"dest": name, "default": None, "help": help_text}
     if "choices" in first.metadata:
         kw["choices"] = first.metadata["choices"]
-    if tp is bool:
+    if tp is bool and first.metadata.get("switch"):  # one flag: the default needs none
+        kw["help"] = first.metadata.get("help", "").replace("%", "%%")
+        target.add_argument(switch_flag(first), action="store_const", const=not first.default, **kw)
+    elif tp is bool:
         target.add_argument(flag_of(name), action=argparse.BooleanOptionalAction, **kw)
     else:
         named = "{" + ",".join(map(str, kw["choices"])) + "}" if "choices" in kw else None  # the choices in --help

@@ -49,8 +49,8 @@ QueryFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tenso
 # each scene's best reach, which spans 1.6-3.4% of the radius)
 COLOUR_REACH = 0.02
 
-# a mesh's vertices are coloured from this many of the training views (evenly spread) ...
-COLOUR_VIEWS = 32
+# a mesh's vertices are coloured from some of the training views, evenly spread (how many:
+# `nerfkit export --color-views`, nerfkit.commands.options.ExportOptions) ...
 # ... rendered with the longest side at most this many pixels ...
 COLOUR_VIEW_SIDE = 1024
 # ... where the vertex lies within this fraction of the scene's radius of the rendered depth

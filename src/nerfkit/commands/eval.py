@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from typing import get_args
 
 from ._common import add_run_args, run_device_options
-from .pipeline import Split
 from .stages.evaluate import LISTED_VIEWS, summary, write_contact_sheet
 
 __all__ = ["LISTED_VIEWS", "register", "run", "summary", "write_contact_sheet"]  # the report's pieces live in stages
@@ -16,7 +14,8 @@ MEMORY_HINT = "Lower --chunk (rays rendered at once)"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..config import number
+    from ..config import add_dataclass_args
+    from .options import EvalOptions
 
     p = sub.add_parser(
         "eval",
@@ -26,18 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "with a contact sheet (photos beside renders) in RUN/eval_<split>.png.",
     )
     add_run_args(p)
-    p.add_argument("--split", choices=get_args(Split), default="val", help="which images (default: val)")
-    p.add_argument(
-        "--fit-views",
-        type=number(int, 0, 100_000),
-        default=None,
-        metavar="STEPS",
-        help="also score each view after fitting its pose to its photo with the scene frozen, for this "
-        "many steps, and then each half of the photo with a gain and offset per channel solved on "
-        "the other half (least squares; NeRF-W's protocol, both ways) (default: 100 for runs "
-        "trained with --capture, else 0: off; a model that renders whole views, such as splat, fits "
-        "from whole renders)",
-    )
+    add_dataclass_args(p, EvalOptions)
     p.add_argument(
         "--json",
         action="store_true",
@@ -47,16 +35,19 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """``nerfkit eval``: :func:`nerfkit.api.evaluate` with the parsed flags; with ``--json``,
-    the scores as JSON instead of the summary."""
+    """``nerfkit eval``: :func:`nerfkit.api.evaluate` with the parsed flags (unset options: the
+    defaults of :class:`~nerfkit.commands.options.EvalOptions`); with ``--json``, the scores as
+    JSON instead of the summary."""
+    import dataclasses
     import json
 
+    from ..config import dataclass_from_args
+    from .options import EvalOptions
     from .pipeline import evaluate
 
     result = evaluate(
         args.run,
-        split=args.split,
-        fit_views=args.fit_views,
+        **dataclasses.asdict(dataclass_from_args(EvalOptions, args)),
         **run_device_options(args),
         quiet=args.json,
     )

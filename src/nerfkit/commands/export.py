@@ -43,10 +43,9 @@ examples:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..config import number
-    from ..export import COLOUR_VIEWS
-    from ..surroundings.clearing import TABLE_CUT
+    from ..config import add_dataclass_args
     from ._common import add_run_device_args
+    from .options import ExportOptions
 
     p = sub.add_parser(
         "export", help=HELP, description=HELP + ".", epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -55,76 +54,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mesh", metavar="OUT.ply", help="write a vertex-coloured triangle mesh here")
     p.add_argument("--points", metavar="OUT.ply", help="write a coloured point cloud here")
     p.add_argument("--splat", metavar="OUT.ply", help="(splat runs) write the Gaussians here: 3DGS PLY, or .splat")
-    p.add_argument(
-        "--no-background-dome",
-        dest="background_dome",
-        action="store_false",
-        help="(splat runs with a learned background, as captures) leave out the dome of Gaussians "
-        "that carries the background into the file",
-    )
-    g = p.add_argument_group("mesh")
-    g.add_argument("--resolution", type=number(int, 8, 1024), default=256, help="grid cells per side (default: 256)")
-    g.add_argument(
-        "--threshold",
-        type=number(float, above=0),
-        default=None,
-        help="density of the surface (default: the density at which 1/256 of the meshed cube's width "
-        "is 7%% opaque, whatever the scene's units: lego's about 6, a 15-cm object's in metres about "
-        "120; printed; higher = tighter, fewer floaters)",
-    )
-    g.add_argument(
-        "--box-scale",
-        type=number(float, above=0, max=100),
-        default=1.0,
-        help="scale the cube meshed, and the scene box points are cropped to (default: 1)",
-    )
-    g.add_argument(
-        "--table-cut",
-        type=number(float, 0, 1),
-        default=TABLE_CUT,
-        help="(captures) clear density within this fraction of the object's height above the table, "
-        "where nothing rises out of that slab, and pieces apart from the object lower than three times "
-        "that: the tags and sheet painted into density (0: clear only under the table; default: "
-        "%(default)g)",
-    )
-    g.add_argument(
-        "--color-views",
-        type=number(int, 0, 10000),
-        default=COLOUR_VIEWS,
-        metavar="N",
-        help="training views rendered for the vertex colours (0: colour along the normals only, "
-        "without the dataset; default: %(default)s)",
-    )
-    g.add_argument(
-        "--color-dirs",
-        type=number(int, 1, 64),
-        default=1,
-        metavar="N",
-        help="directions averaged per colour of a vertex no view sees (1 = along the normal; default: 1)",
-    )
+    add_dataclass_args(p, ExportOptions)  # --no-background-dome here; the mesh and points groups
     p.add_argument(
         "--data", help="dataset whose training views the mesh's colours and the points come from (default: the run's)"
     )
-    g = p.add_argument_group("points")
-    g.add_argument("--every", type=number(int, 1), default=1, help="use every N-th training view (default: 1)")
-    g.add_argument(
-        "--stride", type=number(int, 1, 4096), default=1, help="use every N-th pixel in each direction (default: 1)"
-    )
-    g.add_argument(
-        "--acc-min",
-        type=number(float, 0, 0.999),
-        default=0.5,
-        help="keep pixels with opacity above this (default: 0.5)",
-    )
-    g.add_argument("--no-crop", action="store_true", help="keep points outside the scene box")
     p.add_argument("--force", action="store_true", help="replace existing output files")
     add_run_device_args(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """``nerfkit export``: :func:`nerfkit.api.export` with the parsed flags."""
+    """``nerfkit export``: :func:`nerfkit.api.export` with the parsed flags (unset options: the defaults
+    of :class:`~nerfkit.commands.options.ExportOptions`)."""
+    import dataclasses
+
+    from ..config import dataclass_from_args
     from ._common import run_device_options
+    from .options import ExportOptions
     from .pipeline import export
 
     export(
@@ -132,17 +78,7 @@ def run(args: argparse.Namespace) -> int:
         mesh=args.mesh,
         points=args.points,
         splat=args.splat,
-        resolution=args.resolution,
-        threshold=args.threshold,
-        box_scale=args.box_scale,
-        table_cut=args.table_cut,
-        color_views=args.color_views,
-        color_dirs=args.color_dirs,
-        every=args.every,
-        stride=args.stride,
-        acc_min=args.acc_min,
-        crop=not args.no_crop,
-        background_dome=args.background_dome,
+        **dataclasses.asdict(dataclass_from_args(ExportOptions, args)),
         **run_device_options(args),
         force=args.force,
     )

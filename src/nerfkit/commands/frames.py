@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from typing import get_args
-
-from .tools import Spread
 
 HELP = "choose sharp, evenly spread frames from a video (MP4/MOV) and write them as JPEG"
 
@@ -24,34 +21,27 @@ example:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..config import number
+    from ..config import add_dataclass_args
+    from .options import FramesOptions
 
     p = sub.add_parser(
         "frames", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     p.add_argument("clip", metavar="CLIP", help="the video file (MP4, MOV, M4V; H.264 or HEVC)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the frames (new, empty, or earlier frames)")
-    p.add_argument(
-        "--frames",
-        type=number(int, 10, 10_000),
-        default=120,
-        metavar="N",
-        help="frames to keep, at most (default: 120)",
-    )
-    p.add_argument(
-        "--spread",
-        choices=get_args(Spread),
-        default="time",
-        help="spread the windows evenly in time, or in camera motion measured between frames (a pause "
-        "then takes no window; default: time)",
-    )
+    add_dataclass_args(p, FramesOptions)
     p.add_argument("--force", action="store_true", help="replace the frames an earlier run wrote in --out")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """``nerfkit frames``: :func:`nerfkit.api.frames` with the parsed flags."""
+    """``nerfkit frames``: :func:`nerfkit.api.frames` with the parsed flags (unset options: the
+    defaults of :class:`~nerfkit.commands.options.FramesOptions`)."""
+    import dataclasses
+
+    from ..config import dataclass_from_args
+    from .options import FramesOptions
     from .tools import frames
 
-    frames(args.clip, args.out, frames=args.frames, spread=args.spread, force=args.force)
+    frames(args.clip, args.out, **dataclasses.asdict(dataclass_from_args(FramesOptions, args)), force=args.force)
     return 0

@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, ParamSpec, TypeVar, get_args
 
+from .options import EvalOptions, ExportOptions, RenderOptions, Split, VideoPath
+
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
@@ -41,8 +43,6 @@ if TYPE_CHECKING:
 # the choices of the commands' flags of the same names
 PoseMethod = Literal["auto", "tags", "colmap"]
 Matcher = Literal["auto", "exhaustive", "sequential", "spatial"]
-VideoPath = Literal["auto", "test", "orbit", "spiral"]
-Split = Literal["val", "test", "train"]
 
 T = TypeVar("T", bound="DataclassInstance")
 P = ParamSpec("P")
@@ -260,6 +260,22 @@ def _settings(given: Any, kind: type[T], name: str) -> T:
         raise fail(name, f"{given!r} is not a {kind.__name__}", f"Pass {kind.__name__}(...) or None")
     check_values(kind, {f.name: getattr(given, f.name) for f in dataclasses.fields(given)})
     return check_ranges(given)
+
+
+def _options(kind: type[T], given: dict[str, Any]) -> T:
+    """The options dataclass ``kind`` (a command's, :mod:`nerfkit.commands.options`) of the
+    ``given`` keyword arguments, checked as its flags are (:func:`_settings`) and converted as
+    they convert (a whole number given for a float field: a float)."""
+    from ..config import base_type
+
+    options = _settings(kind(**given), kind, kind.__name__)
+    hints = typing.get_type_hints(kind)
+    floats = {
+        f.name: float(getattr(options, f.name))
+        for f in dataclasses.fields(options)
+        if base_type(hints[f.name])[0] is float and getattr(options, f.name) is not None
+    }
+    return dataclasses.replace(options, **floats)
 
 
 def _say(quiet: bool) -> Callable[[str], None]:
@@ -816,11 +832,11 @@ def render(
     run: str | Path,
     *,
     out: str | Path | None = None,
-    path: VideoPath = "auto",
-    frames: int | None = None,
-    fps: int = 30,
-    object: bool = False,  # noqa: A002 - the flag's name
-    background: str | None = None,
+    path: VideoPath = RenderOptions.path,
+    frames: int | None = RenderOptions.frames,
+    fps: int = RenderOptions.fps,
+    object: bool = RenderOptions.object,  # noqa: A002 - the flag's name
+    background: str | None = RenderOptions.background,
     data: str | Path | None = None,
     device: str = "auto",
     chunk: int = 0,
@@ -828,7 +844,9 @@ def render(
     force: bool = False,
     quiet: bool = False,
 ) -> RenderResult:
-    """Render a run's videos (``nerfkit render``): colour (MP4 and GIF) and depth.
+    """Render a run's videos (``nerfkit render``): colour (MP4 and GIF) and depth. The defaults
+    and ranges of its options (``path`` to ``background``) are those of
+    :class:`~nerfkit.commands.options.RenderOptions`, as the command's are.
 
     Args:
         run: run folder written by :func:`train`.
@@ -851,7 +869,7 @@ def render(
     """
     import sys
 
-    from ..config import number, output_path
+    from ..config import output_path
     from ..data.load import dataset_inputs
     from ..data.scene import ORBIT_FRAMES
     from ..errors import fail
@@ -862,9 +880,7 @@ def render(
     from . import _common
     from .stages import render as stage
 
-    _choice("--path", path, get_args(VideoPath))
-    frames = _check("--frames", frames, number(int, 1, 100_000))
-    fps = _check("--fps", fps, number(int, 1, 1000))
+    _options(RenderOptions, dict(path=path, frames=frames, fps=fps, object=object, background=background))
     chunk = _run_checks(chunk)
     data = _given("--data", data)
     folder = Path(_check("--out", out, output_path)) if out is not None else Path(run) / "videos"
@@ -920,8 +936,8 @@ def render(
 def evaluate(
     run: str | Path,
     *,
-    split: Split = "val",
-    fit_views: int | None = None,
+    split: Split = EvalOptions.split,
+    fit_views: int | None = EvalOptions.fit_views,
     data: str | Path | None = None,
     device: str = "auto",
     chunk: int = 0,
@@ -929,7 +945,9 @@ def evaluate(
     quiet: bool = False,
 ) -> EvaluationResult:
     """Score a run on a split's held-out views (``nerfkit eval``): PSNR and SSIM, written to
-    RUN/eval_<split>.json, with photos beside renders in RUN/eval_<split>.png.
+    RUN/eval_<split>.json, with photos beside renders in RUN/eval_<split>.png. The defaults and
+    ranges of ``split`` and ``fit_views`` are those of
+    :class:`~nerfkit.commands.options.EvalOptions`, as the command's are.
 
     Args:
         run: run folder written by :func:`train`.
@@ -942,7 +960,6 @@ def evaluate(
         allow_outside_paths: read dataset images outside the dataset's folder.
         quiet: do not print the summary (the result holds it).
     """
-    from ..config import number
     from ..data.load import dataset_inputs
     from ..io.atomic import write_json
     from ..io.paths import guard_outputs, safe_output_name
@@ -950,8 +967,7 @@ def evaluate(
     from . import _common
     from .stages import evaluate as stage
 
-    _choice("--split", split, get_args(Split))
-    fit_views = _check("--fit-views", fit_views, number(int, 0, 100_000))
+    _options(EvalOptions, dict(split=split, fit_views=fit_views))
     chunk = _run_checks(chunk)
     say = _say(quiet)
     opened = _common.open_run(_common.RunToOpen(run, device, chunk))
@@ -995,17 +1011,17 @@ def export(
     mesh: str | Path | None = None,
     points: str | Path | None = None,
     splat: str | Path | None = None,
-    resolution: int = 256,
-    threshold: float | None = None,
-    box_scale: float = 1.0,
-    table_cut: float | None = None,
-    color_views: int | None = None,
-    color_dirs: int = 1,
-    every: int = 1,
-    stride: int = 1,
-    acc_min: float = 0.5,
-    crop: bool = True,
-    background_dome: bool = True,
+    resolution: int = ExportOptions.resolution,
+    threshold: float | None = ExportOptions.threshold,
+    box_scale: float = ExportOptions.box_scale,
+    table_cut: float = ExportOptions.table_cut,
+    color_views: int = ExportOptions.color_views,
+    color_dirs: int = ExportOptions.color_dirs,
+    every: int = ExportOptions.every,
+    stride: int = ExportOptions.stride,
+    acc_min: float = ExportOptions.acc_min,
+    crop: bool = ExportOptions.crop,
+    background_dome: bool = ExportOptions.background_dome,
     data: str | Path | None = None,
     device: str = "auto",
     chunk: int = 0,
@@ -1014,6 +1030,8 @@ def export(
     quiet: bool = False,
 ) -> ExportResult:
     """Export a run as a mesh, a point cloud or (splat runs) Gaussians (``nerfkit export``).
+    The defaults and ranges of its options (``resolution`` to ``background_dome``) are those of
+    :class:`~nerfkit.commands.options.ExportOptions`, as the command's are.
 
     Args:
         run: run folder written by :func:`train`.
@@ -1024,9 +1042,9 @@ def export(
         threshold: mesh: density of the surface (None: scale-free, see ``nerfkit export --help``).
         box_scale: scale of the cube meshed and of the box points are cropped to.
         table_cut: mesh, captures: the fraction of the object's height above the table whose
-            painted density is cleared (None: nerfkit.surroundings.clearing.TABLE_CUT).
+            painted density is cleared.
         color_views: mesh: training views rendered for the vertex colours (0: along the normals
-            only; None: nerfkit.export.COLOUR_VIEWS).
+            only).
         color_dirs: mesh: directions averaged per colour of a vertex no view sees.
         every: points: use every N-th training view.
         stride: points: use every N-th pixel in each direction.
@@ -1042,27 +1060,28 @@ def export(
         quiet: print no report (a note that an option of an output not asked for does nothing
             still goes to stderr).
     """
-    import sys
-
-    from ..config import number, output_path
+    from ..config import output_path
     from ..data.load import dataset_inputs
     from ..errors import fail
-    from ..export import COLOUR_VIEWS
     from ..io.atomic import all_or_none
     from ..io.paths import guard_outputs
-    from ..surroundings.clearing import TABLE_CUT
     from . import _common
     from .stages import export as stage
 
-    resolution = _check("--resolution", resolution, number(int, 8, 1024))
-    threshold = _check("--threshold", threshold, number(float, above=0))
-    box_scale = _check("--box-scale", box_scale, number(float, above=0, max=100))
-    table_cut = _check("--table-cut", table_cut, number(float, 0, 1))
-    color_views = _check("--color-views", color_views, number(int, 0, 10000))
-    color_dirs = _check("--color-dirs", color_dirs, number(int, 1, 64))
-    every = _check("--every", every, number(int, 1))
-    stride = _check("--stride", stride, number(int, 1, 4096))
-    acc_min = _check("--acc-min", acc_min, number(float, 0, 0.999))
+    given = dict(
+        resolution=resolution,
+        threshold=threshold,
+        box_scale=box_scale,
+        table_cut=table_cut,
+        color_views=color_views,
+        color_dirs=color_dirs,
+        every=every,
+        stride=stride,
+        acc_min=acc_min,
+        crop=crop,
+        background_dome=background_dome,
+    )
+    options = _options(ExportOptions, given)
     chunk = _run_checks(chunk)
     say = _say(quiet)
     mesh_file, points_file, splat_file = (
@@ -1070,39 +1089,7 @@ def export(
     )
     data = _given("--data", data)
     stage.check_outputs(mesh_file, points_file, splat_file)
-    # options of an output not asked for do nothing: said, not silently dropped
-    for output, what, options in (
-        (
-            mesh_file,
-            "--mesh",
-            [
-                ("--resolution", resolution, (256,)),
-                ("--threshold", threshold, (None,)),
-                ("--table-cut", table_cut, (None, TABLE_CUT)),
-                ("--color-views", color_views, (None, COLOUR_VIEWS)),
-                ("--color-dirs", color_dirs, (1,)),
-            ],
-        ),
-        (
-            points_file,
-            "--points",
-            [
-                ("--every", every, (1,)),
-                ("--stride", stride, (1,)),
-                ("--acc-min", acc_min, (0.5,)),
-                ("--no-crop", crop, (True,)),
-            ],
-        ),
-        (
-            mesh_file or points_file,
-            "--mesh or --points",
-            [("--box-scale", box_scale, (1.0,)), ("--data", data, (None,))],
-        ),
-        (splat_file, "--splat", [("--no-background-dome", background_dome, (True,))]),
-    ):
-        idle = [flag for flag, value, defaults in options if value not in defaults]
-        if output is None and idle:
-            print(f"note: {', '.join(idle)} {'acts' if len(idle) == 1 else 'act'} only with {what}", file=sys.stderr)
+    stage.note_idle_options(options, mesh_file, points_file, splat_file, data)
     opened = _common.open_run(_common.RunToOpen(run, device, chunk))
     if splat_file and not hasattr(opened.model, "n_gaussians"):
         raise fail(run, f"is a {opened.info.train.model} run; --splat exports runs of --model splat")
@@ -1126,35 +1113,32 @@ def export(
             str(pending[targets.index(p)]) if p else None for p in (mesh_file, points_file, splat_file)
         )
         if splat_file:
-            said.append(stage.export_splat(opened, splat_file, background_dome))
+            said.append(stage.export_splat(opened, splat_file, options.background_dome))
         if mesh_file:
-            from ..export import COLOUR_VIEWS
-            from ..surroundings.clearing import TABLE_CUT
-
             said.append(
                 stage.export_mesh(
                     opened,
                     mesh_file,
-                    resolution=resolution,
-                    threshold=threshold,
-                    box_scale=box_scale,
-                    table_cut=TABLE_CUT if table_cut is None else table_cut,
-                    color_views=COLOUR_VIEWS if color_views is None else color_views,
-                    color_dirs=color_dirs,
+                    resolution=options.resolution,
+                    threshold=options.threshold,
+                    box_scale=options.box_scale,
+                    table_cut=options.table_cut,
+                    color_views=options.color_views,
+                    color_dirs=options.color_dirs,
                     data=data,
                     allow_outside=allow_outside_paths,
                 )
             )
         if points_file:
-            radius = opened.info.bounds.radius * box_scale
+            radius = opened.info.bounds.radius * options.box_scale
             said.append(
                 stage.export_points(
                     opened,
                     points_file,
-                    every=every,
-                    stride=stride,
-                    acc_min=acc_min,
-                    crop_radius=radius if crop else None,
+                    every=options.every,
+                    stride=options.stride,
+                    acc_min=options.acc_min,
+                    crop_radius=radius if options.crop else None,
                     data=data,
                     allow_outside=allow_outside_paths,
                 )
@@ -1293,11 +1277,14 @@ __all__ = [
     "CalibrationResult",
     "CaptureModel",
     "CaptureResult",
+    "EvalOptions",
     "EvaluationResult",
+    "ExportOptions",
     "ExportResult",
     "Matcher",
     "PoseMethod",
     "PoseResult",
+    "RenderOptions",
     "RenderResult",
     "Split",
     "TrainResult",

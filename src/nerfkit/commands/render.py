@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import argparse
-from typing import get_args
 
 from ._common import add_run_args, run_device_options
-from .pipeline import VideoPath
 
 HELP = "render a trained run to MP4/GIF and a depth video"
 MEMORY_HINT = "Lower --chunk (rays rendered at once)"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..config import number
+    from ..config import add_dataclass_args
+    from .options import RenderOptions
 
     p = sub.add_parser(
         "render",
@@ -23,34 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "capture, else an orbit around the object.",
     )
     add_run_args(p)
-    p.add_argument(
-        "--path",
-        choices=get_args(VideoPath),
-        default="auto",
-        help="camera path: the dataset's test poses, an orbit around the object, a spiral across a "
-        "forward-facing capture's view, or auto (chosen as described above)",
-    )
-    p.add_argument(
-        "--frames",
-        type=number(int, 1, 100_000),
-        default=None,
-        help="frames of a generated orbit or spiral (default: 120, 4 s at 30 fps); the test path "
-        "has the dataset's own poses",
-    )
-    p.add_argument("--fps", type=number(int, 1, 1000), default=30, help="frames per second (default: 30)")
-    p.add_argument(
-        "--object",
-        action="store_true",
-        help="render the object alone into object.mp4, object.gif and object_depth.mp4: a capture's "
-        "table, floor and room left out, the table's paint and the specks apart from the object "
-        "cleared from the density (as export --mesh does), on white, centred and framed whole (one zoom for the "
-        "whole path: an object that already fills the frame is drawn smaller)",
-    )
-    p.add_argument(
-        "--background",
-        help="override the run's background colour (with --object: white): black, "
-        "white, grey, r,g,b in [0, 1] or #rrggbb",
-    )
+    add_dataclass_args(p, RenderOptions)
     p.add_argument("--out", help="output folder (default: RUN/videos)")
     p.add_argument(
         "--force",
@@ -61,17 +33,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """``nerfkit render``: :func:`nerfkit.api.render` with the parsed flags."""
+    """``nerfkit render``: :func:`nerfkit.api.render` with the parsed flags (unset options: the
+    defaults of :class:`~nerfkit.commands.options.RenderOptions`)."""
+    import dataclasses
+
+    from ..config import dataclass_from_args
+    from .options import RenderOptions
     from .pipeline import render
 
     render(
         args.run,
         out=args.out,
-        path=args.path,
-        frames=args.frames,
-        fps=args.fps,
-        object=args.object,
-        background=args.background,
+        **dataclasses.asdict(dataclass_from_args(RenderOptions, args)),
         **run_device_options(args),
         force=args.force,
     )

@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, get_args
 
-from .pipeline import _check, _checked, _choice, _given, _say, _settings
+from .options import FramesOptions, Spread, ViewOptions
+from .pipeline import _check, _checked, _choice, _given, _options, _say, _settings
 
 if TYPE_CHECKING:
     from ..capture.dataset import DatasetConfig
@@ -30,7 +31,6 @@ if TYPE_CHECKING:
 
 # the choices of the commands' flags of the same names
 Paper = Literal["a4", "letter"]
-Spread = Literal["time", "motion"]
 ConvertFormat = Literal["auto", "npz", "transforms", "colmap"]
 PoseSource = Literal["auto", "tags", "sfm"]
 
@@ -106,13 +106,14 @@ def frames(
     clip: str | Path,
     out: str | Path,
     *,
-    frames: int = 120,
-    spread: Spread = "time",
+    frames: int = FramesOptions.frames,
+    spread: Spread = FramesOptions.spread,
     force: bool = False,
     quiet: bool = False,
 ) -> FramesResult:
     """Choose sharp, evenly spread frames of a video filmed around an object and write them as
-    JPEG, with frames.json (``nerfkit frames``).
+    JPEG, with frames.json (``nerfkit frames``). The defaults and ranges of ``frames`` and
+    ``spread`` are those of :class:`~nerfkit.commands.options.FramesOptions`, as the command's are.
 
     Args:
         clip: the video file (MP4, MOV, M4V; H.264 or HEVC).
@@ -123,13 +124,12 @@ def frames(
         quiet: print no progress or report.
     """
     from ..capture.video import REPORT_NAME, select_frames
-    from ..config import number, output_path
+    from ..config import output_path
     from .stages.frames import report_lines
 
-    count = _check("--frames", frames, number(int, 10, 10_000))
-    _choice("--spread", spread, get_args(Spread))
+    _options(FramesOptions, dict(frames=frames, spread=spread))
     folder = _check("--out", out, output_path)
-    selection = select_frames(clip, folder, count, force=force, spread=spread, progress=not quiet)
+    selection = select_frames(clip, folder, frames, force=force, spread=spread, progress=not quiet)
     _say(quiet)(report_lines(selection))
     return FramesResult(
         Path(selection.out_dir), tuple(selection.paths), selection.read, Path(selection.out_dir) / REPORT_NAME
@@ -346,20 +346,22 @@ class ViewResult:
 def view(
     path: str | Path,
     *,
-    rays: int | None = None,
-    samples: int | None = None,
-    rays_from: int | None = None,
+    rays: int | None = ViewOptions.rays,
+    samples: int | None = ViewOptions.samples,
+    rays_from: int | None = ViewOptions.rays_from,
     png: str | Path | None = None,
-    host: str = "127.0.0.1",
-    port: int = 8080,
+    host: str = ViewOptions.host,
+    port: int = ViewOptions.port,
     force: bool = False,
-    downscale: float | None = None,
+    downscale: float | None = ViewOptions.downscale,
     allow_outside_paths: bool = False,
     block: bool = False,
     quiet: bool = False,
 ) -> ViewResult:
     """Show a dataset's cameras, rays and samples in the browser (viser) or draw them as a PNG
-    (``nerfkit view``); a run folder opens the live viewer of the trained model.
+    (``nerfkit view``); a run folder opens the live viewer of the trained model. The defaults and
+    ranges of its options (``rays``, ``samples``, ``rays_from``, ``host``, ``port``, ``downscale``)
+    are those of :class:`~nerfkit.commands.options.ViewOptions`, as the command's are.
 
     Args:
         path: dataset file or folder (anything :func:`~nerfkit.commands.pipeline.train` reads), or a run folder.
@@ -378,16 +380,15 @@ def view(
     """
     import sys
 
-    from ..config import MIN_DOWNSCALE, number, output_path
+    from ..config import output_path
     from ..data.load import dataset_inputs, is_run_folder, is_run_in_training, load_scene
     from ..io.paths import guard_outputs
     from .stages import view as stage
 
-    rays = _check("--rays", rays, number(int, 0, 100_000))
-    samples = _check("--samples", samples, number(int, 1, 4096))
-    rays_from = _check("--rays-from", rays_from, number(int, 0))
-    port = _check("--port", port, number(int, 1, 65535))
-    downscale = _check("--downscale", downscale, number(float, MIN_DOWNSCALE))
+    options = _options(
+        ViewOptions, dict(rays=rays, samples=samples, rays_from=rays_from, host=host, port=port, downscale=downscale)
+    )
+    downscale = options.downscale  # (a float, as --downscale gives it)
     picture = Path(_check("--png", png, output_path)) if png is not None else None
     stage.check_png(picture)
     source, say = Path(path), _say(quiet)
@@ -441,11 +442,13 @@ __all__ = [
     "ConvertResult",
     "DatasetResult",
     "FitImageResult",
+    "FramesOptions",
     "FramesResult",
     "Paper",
     "PoseSource",
     "Spread",
     "TagsResult",
+    "ViewOptions",
     "ViewResult",
     "convert",
     "dataset",

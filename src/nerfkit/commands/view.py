@@ -31,60 +31,39 @@ examples:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..config import MIN_DOWNSCALE, number
+    from ..config import add_dataclass_args
     from ._common import add_outside_flag
+    from .options import ViewOptions
 
     p = sub.add_parser("view", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("path", metavar="DATASET", help="dataset file or folder (or a run folder)")
-    p.add_argument(
-        "--rays",
-        type=number(int, 0, 100_000),
-        help="training rays to draw with their samples (default: none; 100 with --rays-from)",
-    )
-    p.add_argument("--samples", type=number(int, 1, 4096), help="samples per drawn ray (default: 64, as the course)")
-    p.add_argument(
-        "--rays-from",
-        type=number(int, 0),
-        metavar="N",
-        help="draw the rays of training view N only (the "
-        "course's check that u and v are not swapped: they fill that camera's frustum)",
-    )
-    p.add_argument("--png", metavar="FILE", help="write a static PNG (matplotlib) instead of serving, then exit")
+    add_dataclass_args(p, ViewOptions)
     p.add_argument(
         "--host",
-        default="127.0.0.1",
-        help="address to listen on (default: 127.0.0.1, this machine only; 0.0.0.0 exposes the viewer to the network)",
+        default=ViewOptions.host,
+        help="address to listen on (default: %(default)s, this machine only; 0.0.0.0 exposes the viewer to "
+        "the network)",
     )
-    p.add_argument(
-        "--port",
-        type=number(int, 1, 65535),
-        default=8080,
-        help="first port to try (default: 8080; taken: the next free one)",
-    )
+    p.add_argument("--png", metavar="FILE", help="write a static PNG (matplotlib) instead of serving, then exit")
     p.add_argument("--force", action="store_true", help="replace an existing --png file")
-    p.add_argument(
-        "--downscale",
-        type=number(float, MIN_DOWNSCALE),
-        help="divide the dataset's image size by this (an LLFF scene's 4 or 8 reads its images_4 or images_8)",
-    )
     add_outside_flag(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """``nerfkit view``: :func:`nerfkit.api.view` with the parsed flags, serving until Ctrl-C."""
+    """``nerfkit view``: :func:`nerfkit.api.view` with the parsed flags (unset options: the defaults
+    of :class:`~nerfkit.commands.options.ViewOptions`), serving until Ctrl-C."""
+    import dataclasses
+
+    from ..config import dataclass_from_args
+    from .options import ViewOptions
     from .tools import view
 
     view(
         args.path,
-        rays=args.rays,
-        samples=args.samples,
-        rays_from=args.rays_from,
+        **dataclasses.asdict(dataclass_from_args(ViewOptions, args)),
         png=args.png,
-        host=args.host,
-        port=args.port,
         force=args.force,
-        downscale=args.downscale,
         allow_outside_paths=args.allow_outside_paths,
         block=True,
     )

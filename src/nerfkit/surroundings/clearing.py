@@ -12,9 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene_extent import _pieces, inside_quads, specks
-
-# how high above a capture's table its paint is cleared, as a fraction of the object's height
-TABLE_CUT = 0.05
+from ..table_cut import TABLE_CUT as TABLE_CUT  # re-exported: how high the table's paint is cleared
 
 
 def cleared_note(height: float, tags) -> str:

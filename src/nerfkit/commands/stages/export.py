@@ -28,6 +28,28 @@ def check_outputs(mesh: str | None, points: str | None, splat: str | None) -> No
         raise fail("--mesh/--points/--splat", "name the same file")
 
 
+def note_idle_options(options: Any, mesh: str | None, points: str | None, splat: str | None, data: str | None) -> None:
+    """Say on stderr which of ``options`` (an :class:`~nerfkit.commands.options.ExportOptions`)
+    differ from their defaults but act only with an output not asked for (a field's ``needs``),
+    and ``data`` without a mesh or points: said, not silently dropped."""
+    import dataclasses
+    import sys
+
+    from ...config import flag_of, switch_flag
+
+    asked = {"--mesh": mesh, "--points": points, "--mesh or --points": mesh or points, "--splat": splat}
+    defaults = type(options)()
+    idle: dict[str, list[str]] = {needs: [] for needs in asked}
+    for f in dataclasses.fields(options):
+        if getattr(options, f.name) != getattr(defaults, f.name):
+            idle[f.metadata["needs"]].append(switch_flag(f) if f.metadata.get("switch") else flag_of(f.name))
+    if data is not None:
+        idle["--mesh or --points"].append("--data")
+    for needs, flags in idle.items():
+        if flags and not asked[needs]:
+            print(f"note: {', '.join(flags)} {'acts' if len(flags) == 1 else 'act'} only with {needs}", file=sys.stderr)
+
+
 def export_splat(opened: Any, path: str, background_dome: bool = True) -> str:
     """Write the Gaussians of the splat run ``opened`` to ``path`` (3DGS PLY, or .splat); with
     ``background_dome``, a model's learned background follows them as a far dome of Gaussians

@@ -1,0 +1,202 @@
+"""The options of the commands (those on a trained run, and tools), one dataclass per command: each field is one
+flag (:func:`~nerfkit.config.option`: its default, help and range), so the command's parser
+(:func:`~nerfkit.config.add_dataclass_args`), its Python function in :mod:`nerfkit.api` (whose
+keyword defaults are these fields') and its checks (:func:`~nerfkit.config.check_ranges`) all
+read them from here. Plain Python (no NumPy): the command modules, which ``nerfkit --help``
+imports, import :mod:`~nerfkit.commands.pipeline`, which imports this.
+
+A field's ``needs`` metadata names the output it acts on (``export``: "--mesh", ...); given
+without that output, the command says the option does nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal, get_args
+
+from ..config import MIN_DOWNSCALE, option
+from ..table_cut import TABLE_CUT
+
+# the choices of `nerfkit render --path`, `nerfkit eval --split` and `nerfkit frames --spread`
+VideoPath = Literal["auto", "test", "orbit", "spiral"]
+Split = Literal["val", "test", "train"]
+Spread = Literal["time", "motion"]
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """The options of ``nerfkit export`` (:func:`nerfkit.api.export`) beside its outputs and run."""
+
+    background_dome: bool = option(
+        True,
+        "(splat runs with a learned background, as captures) leave out the dome of Gaussians "
+        "that carries the background into the file",
+        switch=True,
+        needs="--splat",
+    )
+    resolution: int = option(
+        256, "grid cells per side", min=8, max=1024, group="mesh", needs="--mesh", metavar="RESOLUTION"
+    )
+    threshold: float | None = option(
+        None,
+        "density of the surface",
+        default_help="the density at which 1/256 of the meshed cube's width is 7% opaque, whatever the "
+        "scene's units: lego's about 6, a 15-cm object's in metres about 120; printed; higher = tighter, "
+        "fewer floaters",
+        above=0,
+        group="mesh",
+        needs="--mesh",
+        metavar="THRESHOLD",
+    )
+    box_scale: float = option(
+        1.0,
+        "scale the cube meshed, and the scene box points are cropped to",
+        above=0,
+        max=100,
+        group="mesh",
+        needs="--mesh or --points",
+        metavar="BOX_SCALE",
+    )
+    table_cut: float = option(
+        TABLE_CUT,
+        "(captures) clear density within this fraction of the object's height above the table, where "
+        "nothing rises out of that slab, and pieces apart from the object lower than three times that: "
+        "the tags and sheet painted into density (0: clear only under the table)",
+        min=0,
+        max=1,
+        group="mesh",
+        needs="--mesh",
+        metavar="TABLE_CUT",
+    )
+    # a mesh's vertices are coloured from this many of the training views, evenly spread
+    # (nerfkit.export: how large they are rendered, and when a view sees a vertex)
+    color_views: int = option(
+        32,
+        "training views rendered for the vertex colours (0: colour along the normals only, without the dataset)",
+        min=0,
+        max=10000,
+        group="mesh",
+        needs="--mesh",
+        metavar="N",
+    )
+    color_dirs: int = option(
+        1,
+        "directions averaged per colour of a vertex no view sees (1 = along the normal)",
+        min=1,
+        max=64,
+        group="mesh",
+        needs="--mesh",
+        metavar="N",
+    )
+    every: int = option(1, "use every N-th training view", min=1, group="points", needs="--points", metavar="EVERY")
+    stride: int = option(
+        1, "use every N-th pixel in each direction", min=1, max=4096, group="points", needs="--points", metavar="STRIDE"
+    )
+    acc_min: float = option(
+        0.5,
+        "keep pixels with opacity above this",
+        min=0,
+        max=0.999,
+        group="points",
+        needs="--points",
+        metavar="ACC_MIN",
+    )
+    crop: bool = option(True, "keep points outside the scene box", switch=True, group="points", needs="--points")
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    """The options of ``nerfkit render`` (:func:`nerfkit.api.render`) beside its run and output."""
+
+    path: VideoPath = option(
+        "auto",
+        "camera path: the dataset's test poses, an orbit around the object, a spiral across a "
+        "forward-facing capture's view, or auto (chosen as described above)",
+        choices=get_args(VideoPath),
+    )
+    frames: int | None = option(
+        None,
+        "frames of a generated orbit or spiral; the test path has the dataset's own poses",
+        default_help="120, 4 s at 30 fps",
+        min=1,
+        max=100_000,
+        metavar="FRAMES",
+    )
+    fps: int = option(30, "frames per second", min=1, max=1000, metavar="FPS")
+    object: bool = option(
+        False,
+        "render the object alone into object.mp4, object.gif and object_depth.mp4: a capture's "
+        "table, floor and room left out, the table's paint and the specks apart from the object "
+        "cleared from the density (as export --mesh does), on white, centred and framed whole (one zoom for the "
+        "whole path: an object that already fills the frame is drawn smaller)",
+        switch=True,
+    )
+    background: str | None = option(
+        None,
+        "override the run's background colour (with --object: white): black, white, grey, r,g,b in [0, 1] or #rrggbb",
+        metavar="BACKGROUND",
+    )
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """The options of ``nerfkit eval`` (:func:`nerfkit.api.evaluate`) beside its run."""
+
+    split: Split = option("val", "which images", choices=get_args(Split))
+    fit_views: int | None = option(
+        None,
+        "also score each view after fitting its pose to its photo with the scene frozen, for this "
+        "many steps, and then each half of the photo with a gain and offset per channel solved on "
+        "the other half (least squares; NeRF-W's protocol, both ways)",
+        default_help="100 for runs trained with --capture, else 0: off; a model that renders whole views, "
+        "such as splat, fits from whole renders",
+        min=0,
+        max=100_000,
+        metavar="STEPS",
+    )
+
+
+@dataclass(frozen=True)
+class FramesOptions:
+    """The options of ``nerfkit frames`` (:func:`nerfkit.api.frames`) beside its clip and output."""
+
+    frames: int = option(120, "frames to keep, at most", min=10, max=10_000, metavar="N")
+    spread: Spread = option(
+        "time",
+        "spread the windows evenly in time, or in camera motion measured between frames (a pause then takes no window)",
+        choices=get_args(Spread),
+    )
+
+
+@dataclass(frozen=True)
+class ViewOptions:
+    """The options of ``nerfkit view`` (:func:`nerfkit.api.view`) beside its dataset and picture."""
+
+    rays: int | None = option(
+        None,
+        "training rays to draw with their samples",
+        default_help="none; 100 with --rays-from",
+        min=0,
+        max=100_000,
+        metavar="RAYS",
+    )
+    samples: int | None = option(
+        None, "samples per drawn ray", default_help="64, as the course", min=1, max=4096, metavar="SAMPLES"
+    )
+    rays_from: int | None = option(
+        None,
+        "draw the rays of training view N only (the course's check that u and v are not swapped: they "
+        "fill that camera's frustum)",
+        min=0,
+        metavar="N",
+    )
+    downscale: float | None = option(
+        None,
+        "divide the dataset's image size by this (an LLFF scene's 4 or 8 reads its images_4 or images_8)",
+        min=MIN_DOWNSCALE,
+        metavar="DOWNSCALE",
+    )
+    port: int = option(8080, "first port to try (taken: the next free one)", min=1, max=65535, metavar="PORT")
+    # the command's --host is its own flag, whose default (this one) a check of every command's
+    # --host sees in the parser (tests/test_hostile_inputs.py)
+    host: str = option("127.0.0.1", "address to listen on", cli=False)
