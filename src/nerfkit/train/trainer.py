@@ -7,8 +7,6 @@ rays (see :mod:`nerfkit.models.base`) and keeps the run folder up to date.
 from __future__ import annotations
 
 import bisect
-import csv
-import io
 import json
 import math
 import signal
@@ -30,14 +28,13 @@ from ..data.scene import Scene
 from ..errors import NerfkitError, fail
 from ..images import write_image
 from ..io import stop
-from ..io.atomic import is_temporary, write_json, write_text
+from ..io.atomic import is_temporary
 from ..io.lock import LOCK_FILE
 from ..io.paths import guard_run_folder
 from ..models import SceneBounds, build_model, check_config
 from ..models.base import NerfModel, StepState, grads_finite, run_schedules
 from ..output.images import render_image
 from ..precision import autocast
-from ..viz.plots import image_grid, plot_curves
 from .checkpoint import (
     MODEL_FILE,
     check_dataset,
@@ -54,6 +51,7 @@ from .checkpoint import (
 from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
 from .metrics import psnr, psnr_from_mse
 from .optim import budget_factor, build_optimizer
+from .reports import eval_rows, scored_at, train_row, write_metrics, write_plots, write_view_corrections
 from .sight_lines import SIGHT_LINES_PER_STEP, SightLines
 from .view_corrections import PoseCorrection, ViewAdam, ViewCorrections
 
@@ -109,25 +107,6 @@ def psnr_window(saved: object) -> list[float]:
     if not isinstance(saved, list) or not all(isinstance(v, float) and math.isfinite(v) for v in saved):
         return []
     return saved[-PSNR_WINDOW:]
-
-
-def validation_series(rows: list[dict], n_val: int, full: int) -> dict[str, tuple[list, list]]:
-    """Validation rows (``seconds``, ``psnr``, ``views``, ``pixels``) as curves of like
-    scores, keyed by a legend label: periodic evaluations (the first ``--eval-views`` of
-    ``n_val`` views, every k-th pixel) apart from the final ones (every view, all ``full``
-    pixels), so that a plot does not join scores of different views into one line."""
-    series: dict[str, tuple[list, list]] = {}
-    for r in rows:
-        views, pixels = min(r.get("views", n_val), n_val), r.get("pixels", full)  # older runs: views as asked
-        which = f"all {views}" if views >= n_val else f"first {views} of {n_val}"
-        label = (
-            f"validation, {which} view{'s' * (views != 1 or views < n_val)}, "
-            f"{'whole images' if pixels >= full else f'{pixels} px per view'}"
-        )
-        xs, ys = series.setdefault(label, ([], []))
-        xs.append(r["seconds"])
-        ys.append(r["psnr"])
-    return series
 
 
 class Trainer:
@@ -598,16 +577,8 @@ class Trainer:
             if math.isfinite(stats["psnr"]):
                 self.train_psnr = [*self.train_psnr, float(stats["psnr"])][-PSNR_WINDOW:]
             if self.step % 10 == 0 or self.done():
-                self.rows.append(
-                    {
-                        "step": self.step,
-                        "seconds": round(self.train_seconds, 3),
-                        "split": "train",
-                        "loss": stats["loss"],
-                        "psnr": float(np.mean(self.train_psnr or [float("nan")])),
-                        "rays": stats["rays"],
-                    }
-                )
+                window = float(np.mean(self.train_psnr or [float("nan")]))
+                self.rows.append(train_row(self.step, self.train_seconds, stats["loss"], window, stats["rays"]))
             bar.update(1)
             bar.set_postfix(
                 loss=f"{stats['loss']:.4f}",
@@ -629,134 +600,31 @@ class Trainer:
             self._record_eval()
 
     def _record_eval(self) -> None:
-        n = None if self.done() else self.cfg.eval_views
-        if self._scored(final=n is None):
+        """Evaluate this step, unless it was (periodic: the first ``--eval-views`` val views,
+        none with 0; at the run's end every view, whole, after the model's last notes)."""
+        final = self.done()
+        if scored_at(self.rows, self.step, self.scene.val, final) or (not final and self.cfg.eval_views == 0):
             return
-        if n == 0:  # no periodic evaluation: the final one alone
-            return
-        if n is None:
+        if final:
             self.notes = list(self.model.finish_training())
             for note in self.notes:
                 self.log(f"note: {note}")
-        scored = self.evaluate(n)
+        scored = self.evaluate(None if final else self.cfg.eval_views)
         if scored is None:
             return
-        scores, pixels = scored
-        val = self.scene.val
-        full = pixels == val.width * val.height
-        views = len(scores)
-        also = ""
-        periodic = min(self.cfg.eval_views, views)
-        if (
-            n is None
-            and 0 < periodic < views
-            and eval_stride(val.width, val.height, periodic, self.cfg.eval_pixels) == 1
-        ):
-            # the periodic evaluations' views, whole as they were: their curve ends here too, so
-            # that the final score over every view is not read as the curve falling
-            self._add_val_row(float(np.mean(scores[:periodic])), periodic, pixels)
-            also = f"; the first {periodic}, as evaluated during training: {self.rows[-1]['psnr']:.2f} dB"
-        self._add_val_row(float(np.mean(scores)), views, pixels)
-        scope = f"all {views} views" if views == len(val) else f"first {views} of {len(val)} views"
-        self.log(
-            f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {self.rows[-1]['psnr']:.2f} dB ({scope}"
-            + ("" if full else f", {pixels} pixels each")
-            + also
-            + ")"
+        rows, message = eval_rows(
+            self.step, self.train_seconds, *scored, final, self.scene.val, self.cfg.eval_views, self.cfg.eval_pixels
         )
-
-    def _scored(self, final: bool) -> bool:
-        """Whether this step was evaluated (``final``: on every val view, whole)."""
-        val = self.scene.val
-        full = val.width * val.height
-        return any(
-            r["split"] == "val"
-            and r["step"] == self.step
-            and (not final or (r.get("views", len(val)) >= len(val) and r.get("pixels", full) >= full))
-            for r in self.rows
-        )
-
-    def _add_val_row(self, psnr_db: float, views: int, pixels: int) -> None:
-        self.rows.append(
-            {
-                "step": self.step,
-                "seconds": round(self.train_seconds, 3),
-                "split": "val",
-                "loss": float("nan"),
-                "psnr": psnr_db,
-                "views": views,
-                "pixels": pixels,
-            }
-        )
+        self.rows += rows
+        self.log(message)
 
     def write_reports(self) -> None:
-        """metrics.csv/json (``finished``: the stopping rule was reached, not cut short;
-        ``notes``: the model's at the end), PSNR and loss curves, the progression figure, and
-        view_corrections.json when the run learns a correction per training view."""
-        write_json(
-            self.run_dir / "metrics.json",
-            {
-                "rows": self.rows,
-                "step": self.step,
-                "train_seconds": self.train_seconds,
-                "finished": self.done(),
-                "notes": self.notes,
-            },
-        )
-        buf = io.StringIO()
-        keys = ["step", "seconds", "split", "loss", "psnr", "views", "pixels", "rays"]
-        writer = csv.DictWriter(buf, fieldnames=keys, extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(self.rows)
-        write_text(self.run_dir / "metrics.csv", buf.getvalue())
+        """metrics.csv/json, view_corrections.json when the run learns a correction per
+        training view, and the plots (:mod:`nerfkit.train.reports`)."""
+        write_metrics(self.run_dir, self.rows, self.step, self.train_seconds, self.done(), self.notes)
         if self.views is not None:
-            write_json(
-                self.run_dir / "view_corrections.json",
-                {
-                    "what": "per training view: pose correction (rotation in degrees, translation in scene units) "
-                    "and exposure gain relative to the average view (with colour mixing also the colour "
-                    "matrix: rendered rgb -> photo rgb, with the gains on its diagonal)",
-                    "views": self.views.report(self.scene.train.names),
-                },
-            )
-        train = [r for r in self.rows if r["split"] == "train"]
-        val = [r for r in self.rows if r["split"] == "val"]
-        plots = self.run_dir / "plots"
-        plot_curves(
-            plots / "psnr.png",
-            {
-                "train (batch)": ([r["seconds"] for r in train], [r["psnr"] for r in train]),
-                **validation_series(val, len(self.scene.val), self.scene.val.width * self.scene.val.height),
-            },
-            "training seconds",
-            "PSNR (dB)",
-            f"{self.cfg.model}: PSNR",
-        )
-        plot_curves(
-            plots / "loss.png",
-            {"train loss": ([r["step"] for r in train], [r["loss"] for r in train])},
-            "step",
-            "loss (photometric + regularisers)",
-            f"{self.cfg.model}: training loss",
-            logy=True,
-        )
-        snaps = sorted((self.run_dir / "progress").glob("step_*.png"))
-        if len(snaps) > 8:  # keep the first, the last and evenly spaced ones between
-            snaps = [snaps[int(round(i))] for i in np.linspace(0, len(snaps) - 1, 8)]
-        if snaps and self.scene.val.has_images:
-            import imageio.v3 as iio
-
-            val_images = self.scene.val.images
-            assert val_images is not None  # (has_images)
-            images = [iio.imread(p) for p in snaps] + [val_images[0]]
-            titles = [f"step {int(p.stem.split('_')[1])}" for p in snaps] + ["ground truth"]
-            image_grid(
-                plots / "progress.png",
-                images,
-                titles,
-                ncols=min(len(images), 5),
-                suptitle="validation view 0 during training",
-            )
+            write_view_corrections(self.run_dir, self.views.report(self.scene.train.names))
+        write_plots(self.run_dir, self.rows, self.cfg.model, self.scene.val)
 
 
 def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False, user_set=None) -> TrainResult:
