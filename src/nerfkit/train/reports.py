@@ -19,6 +19,8 @@ from ..io.atomic import write_json, write_text
 from ..viz.plots import image_grid, plot_curves
 from .config import eval_stride
 
+# a metrics train row's PSNR is the mean over this many steps' batches (saved in checkpoints)
+PSNR_WINDOW = 10
 # metrics.csv's columns, in order (a row's other keys are left out)
 CSV_COLUMNS = ["step", "seconds", "split", "loss", "psnr", "views", "pixels", "rays"]
 

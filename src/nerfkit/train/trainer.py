@@ -40,25 +40,30 @@ from .checkpoint import (
     check_dataset,
     checkpoint_paths,
     dataset_fingerprint,
-    load_latest_checkpoint,
     read_run,
     run_lock,
     save_checkpoint,
     save_model,
-    set_aside,
     write_run_config,
 )
 from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
 from .metrics import psnr, psnr_from_mse
 from .optim import budget_factor, build_optimizer
-from .reports import eval_rows, scored_at, train_row, write_metrics, write_plots, write_view_corrections
+from .reports import PSNR_WINDOW, eval_rows, scored_at, train_row, write_metrics, write_plots, write_view_corrections
+from .resume import (
+    load_for_resume,
+    precision_name,
+    psnr_window,
+    restore_rng,
+    restore_views,
+    resumed_precision,
+    rng_state,
+)
 from .sight_lines import SIGHT_LINES_PER_STEP, SightLines
 from .view_corrections import PoseCorrection, ViewAdam, ViewCorrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
-# a metrics train row's PSNR is the mean over this many steps' batches (saved in checkpoints)
-PSNR_WINDOW = 10
 # a timed run's length in steps is estimated from its rate after this many steps
 RATE_STEPS = 20
 # the shares of a run (steps or minutes) at which it renders its val views without
@@ -79,34 +84,6 @@ class TrainResult:
     final_val_psnr: float | None
     interrupted: bool = False
     rows: list[dict] = field(default_factory=list)
-
-
-def precision_name(dtype: torch.dtype | None) -> str:
-    """How a checkpoint records the precision a run trains in: "bf16" or "fp32"."""
-    return "bf16" if dtype == torch.bfloat16 else "fp32"
-
-
-def resumed_precision(
-    recorded: object, here: torch.dtype | None, device: torch.device
-) -> tuple[torch.dtype | None, str | None]:
-    """The precision a resumed run goes on in, and a warning when it is not the one it trained
-    in: the recorded one (``--precision auto`` chose it where the run started), unless that is
-    bf16 and ``here`` (what auto chooses on this device) is not; older checkpoints: ``here``."""
-    if recorded not in ("bf16", "fp32") or recorded == precision_name(here):
-        return here, None
-    if recorded == "fp32":
-        return None, None
-    return here, (
-        f"trained in bf16, which this {device.type} does not do natively: it goes on in fp32 "
-        "(--precision auto), so no longer exactly as an uninterrupted run"
-    )
-
-
-def psnr_window(saved: object) -> list[float]:
-    """A checkpoint's last training PSNRs (older checkpoints, or anything else: none)."""
-    if not isinstance(saved, list) or not all(isinstance(v, float) and math.isfinite(v) for v in saved):
-        return []
-    return saved[-PSNR_WINDOW:]
 
 
 class Trainer:
@@ -203,16 +180,6 @@ class Trainer:
         for g in self._param_groups():
             g.setdefault("initial_lr", g["lr"])
 
-    def _rng_state(self) -> dict:
-        state = {
-            "torch_rng": torch.get_rng_state(),
-            "sampler_rng": self.rays.rng_state(),
-            "sight_rng": self.sight_generator.get_state(),
-        }
-        if self.device.type == "cuda":
-            state["cuda_rng"] = torch.cuda.get_rng_state(self.device)
-        return state
-
     def refresh_appearance(self) -> None:
         """The model's colour by view direction from the training photos' current colour
         corrections (:class:`~nerfkit.models.appearance.DirectionalColour`), for the renders of
@@ -225,7 +192,7 @@ class Trainer:
     def save(self) -> Path:
         self.refresh_appearance()
         extra = {
-            **self._rng_state(),
+            **rng_state(self.rays, self.sight_generator, self.device),
             "train_seconds": self.train_seconds,
             "rows": json.dumps(self.rows),
             "bad_steps": self.bad_steps,
@@ -240,32 +207,13 @@ class Trainer:
         return save_checkpoint(self.run_dir, self.step, self.model, self.optimizer, extra, self.cfg.keep_checkpoints)
 
     def _resume(self) -> None:
-        loaded = load_latest_checkpoint(self.run_dir, self.model)
+        """Go on from the run's newest good checkpoint (:mod:`nerfkit.train.resume`), or from
+        step 0 when it has none yet."""
+        loaded = load_for_resume(self.run_dir, self.model, self.device)
         if loaded is None:
-            if (self.run_dir / MODEL_FILE).exists():  # trained, its checkpoints gone: never train over it
-                raise fail(
-                    self.run_dir,
-                    "holds a trained model (model.pt) but no checkpoint to continue it from",
-                    "Train a new run with another --out, or delete model.pt to start this run over",
-                )
             self.log(f"{self.run_dir}: no checkpoint yet, starting from step 0")
             return
         ckpt, path = loaded
-        moved = set_aside(self.run_dir, path, int(ckpt["step"]))
-        if moved:  # (else pruning would keep them over the checkpoints this run writes)
-            print(
-                f"warning: {self.run_dir}: moved {', '.join(p.name for p in moved)} to {moved[0].parent} "
-                f"(not loadable, or newer than {path.name}, which training goes on from)",
-                file=sys.stderr,
-            )
-        self.model.to(self.device)
-        try:
-            training_state = ckpt.get("training_state", {})  # (older checkpoints: none)
-            if not isinstance(training_state, dict):
-                raise ValueError("not a dict")
-            self.model.load_training_state(training_state)
-        except ValueError as e:
-            raise fail(path, f"malformed checkpoint ('training_state': {e})", "Put the run's own file back") from None
         self.optimizer = build_optimizer(self.model, self.cfg.lr)
         self.optimizer.load_state_dict(ckpt["optimizer"])
         self._remember_initial_lr()
@@ -280,30 +228,8 @@ class Trainer:
             print(f"warning: {self.run_dir}: {warning}", file=sys.stderr)
         self._marks_passed = self._marks_reached()  # validated there before the stop
         if self.views is not None:
-            if "views" not in ckpt:
-                raise fail(
-                    path,
-                    "holds no per-view corrections, but this run trains them",
-                    "The checkpoint is from another nerfkit; re-train",
-                )
-            missing = set(self.views.state_dict()) - set(ckpt["views"])
-            # a run from before --colour-mix, or a splat run from before its pose corrections: these start at zero
-            if not missing <= {"exposure.mix", "pose.rotation", "pose.translation"}:
-                raise fail(
-                    path,
-                    f"holds other per-view corrections than this run trains ({sorted(missing)} missing)",
-                    "The checkpoint is from another nerfkit; re-train",
-                )
-            self.views.load_state_dict(ckpt["views"], strict=False)
-            if not missing:  # (else the views' Adam state starts afresh too)
-                assert self.view_optimizer is not None  # (built with the views)
-                self.view_optimizer.load_state_dict(ckpt["views_optimizer"])
-        torch.set_rng_state(ckpt["torch_rng"])
-        self.rays.set_rng_state(ckpt["sampler_rng"])
-        if "sight_rng" in ckpt:
-            self.sight_generator.set_state(ckpt["sight_rng"])
-        if "cuda_rng" in ckpt and self.device.type == "cuda":
-            torch.cuda.set_rng_state(ckpt["cuda_rng"], self.device)
+            restore_views(ckpt, path, self.views, self.view_optimizer)
+        restore_rng(ckpt, self.rays, self.sight_generator, self.device)
         self.log(f"resumed from {path.name} (step {self.step}, {self.train_seconds:.0f} s trained)")
 
     # -- schedule ------------------------------------------------------------------
