@@ -39,11 +39,11 @@ from .checkpoint import (
     MODEL_FILE,
     check_dataset,
     checkpoint_paths,
-    dataset_fingerprint,
     read_run,
     run_lock,
     save_checkpoint,
     save_model,
+    scene_record,
     write_run_config,
 )
 from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
@@ -59,8 +59,8 @@ from .resume import (
     resumed_precision,
     rng_state,
 )
-from .sight_lines import SIGHT_LINES_PER_STEP, SightLines
-from .view_corrections import PoseCorrection, ViewAdam, ViewCorrections
+from .sight_lines import SIGHT_LINES_PER_STEP, SightLines, sight_lines_note
+from .view_corrections import PoseCorrection, ViewAdam, build_view_corrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
@@ -116,28 +116,19 @@ class Trainer:
         sight = self.model.uses_sight_lines
         self.sight = SightLines.from_scene(scene, self.device) if sight and not self.whole_images else None
         self.sight_generator = torch.Generator().manual_seed(cfg.seed + 1)
-        if self.sight is not None and fresh:
-            assert scene.points is not None  # (sight lines come from the sparse points)
-            self.log(
-                f"sight lines: {len(self.sight)} from the train photos' cameras to the {len(scene.points)} "
-                "sparse points (--points-weight)"
-            )
-        elif sight and scene.points is not None and scene.point_views is None and fresh:
-            self.log(
-                f"note: {scene.source} has sparse points but does not record which photos saw them, so they "
-                "are not used as sight lines (an older dataset, or not a dataset.npz): rebuild it with "
-                "`nerfkit dataset DATASET_DIR --force`"
-            )
-        self.views: ViewCorrections | None = None
-        self.view_optimizer: torch.optim.Optimizer | None = None
-        pose = cfg.pose_lr > 0
-        if cfg.capture == "on" and (pose or cfg.exposure_lr > 0):
-            self.views = ViewCorrections(
-                len(scene.train), self.bounds.radius, pose, cfg.exposure_lr > 0, cfg.colour_mix
-            ).to(self.device)
-            groups = self.views.param_groups(cfg.pose_lr, cfg.exposure_lr)
-            # one view per step: only its corrections step (ViewAdam); a ray batch sees every view
-            self.view_optimizer = ViewAdam(groups) if self.whole_images else torch.optim.Adam(groups)
+        note = sight_lines_note(scene, self.sight, sight) if fresh else None
+        if note:
+            self.log(note)
+        on = cfg.capture == "on"
+        self.views, self.view_optimizer = build_view_corrections(
+            len(scene.train),
+            self.bounds.radius,
+            cfg.pose_lr if on else 0.0,
+            cfg.exposure_lr if on else 0.0,
+            cfg.colour_mix,
+            self.whole_images,  # one view per step: only its corrections step (ViewAdam)
+            self.device,
+        )
         self._remember_initial_lr()
         self.step = 0
         self.train_seconds = 0.0
@@ -150,23 +141,7 @@ class Trainer:
             self._resume()
         else:
             self.run_dir.mkdir(parents=True, exist_ok=True)
-            write_run_config(
-                self.run_dir,
-                cfg,
-                model_config,
-                self.bounds,
-                {
-                    "source": scene.source,
-                    "width": scene.train.width,
-                    "height": scene.train.height,
-                    "n_train": len(scene.train),
-                    "n_val": len(scene.val),
-                    "n_test": len(scene.test),
-                    "near": scene.near,
-                    "far": scene.far,
-                    "fingerprint": dataset_fingerprint(scene),
-                },
-            )
+            write_run_config(self.run_dir, cfg, model_config, self.bounds, scene_record(scene))
 
     # -- state ---------------------------------------------------------------------
     def _param_groups(self) -> list[dict]:
