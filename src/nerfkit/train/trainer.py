@@ -6,7 +6,6 @@ rays (see :mod:`nerfkit.models.base`) and keeps the run folder up to date.
 
 from __future__ import annotations
 
-import bisect
 import json
 import math
 import signal
@@ -48,7 +47,8 @@ from .checkpoint import (
 )
 from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
 from .metrics import psnr, psnr_from_mse
-from .optim import budget_factor, build_optimizer
+from .optim import build_optimizer, decay_lr
+from .progress import marks_reached, run_length, run_progress
 from .reports import PSNR_WINDOW, eval_rows, scored_at, train_row, write_metrics, write_plots, write_view_corrections
 from .resume import (
     load_for_resume,
@@ -64,13 +64,6 @@ from .view_corrections import PoseCorrection, ViewAdam, build_view_corrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
-# a timed run's length in steps is estimated from its rate after this many steps
-RATE_STEPS = 20
-# the shares of a run (steps or minutes) at which it renders its val views without
-# --eval-every: each tenth, and twice before the first, where the held-out score climbs
-# fastest (on a real capture it is near its last value by the first tenth:
-# benchmarks/capture_real.py)
-EVAL_MARKS = (0.01, 0.03) + tuple(k / 10 for k in range(1, 11))
 # Signals that stop training cleanly (finish the step, save, exit): Ctrl-C, and what
 # `kill`, `timeout`, schedulers and containers send.
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -201,7 +194,7 @@ class Trainer:
         self.model.set_precision(self.autocast)
         if warning:
             print(f"warning: {self.run_dir}: {warning}", file=sys.stderr)
-        self._marks_passed = self._marks_reached()  # validated there before the stop
+        self._marks_passed = marks_reached(self.progress())  # validated there before the stop
         if self.views is not None:
             restore_views(ckpt, path, self.views, self.view_optimizer)
         restore_rng(ckpt, self.rays, self.sight_generator, self.device)
@@ -210,49 +203,27 @@ class Trainer:
     # -- schedule ------------------------------------------------------------------
     def progress(self) -> float:
         """Fraction of the run done, by steps or by training time, whichever is further."""
-        p = 0.0
-        if self.cfg.steps:
-            p = max(p, self.step / self.cfg.steps)
-        if self.cfg.minutes:
-            p = max(p, self.train_seconds / (60.0 * self.cfg.minutes))
-        return min(p, 1.0)
+        return run_progress(self.step, self.train_seconds, self.cfg.steps, self.cfg.minutes)
 
     def done(self) -> bool:
         return self.progress() >= 1.0
 
     def run_steps(self) -> float | None:
-        """The run's length in steps: ``--steps``, or the steps ``--minutes`` buys at the rate
-        so far, whichever ends the run first (None: a timed run's first steps)."""
-        n = float(self.cfg.steps) if self.cfg.steps else None
-        if self.cfg.minutes and self.step >= RATE_STEPS and self.train_seconds > 0:
-            timed = self.step * 60.0 * self.cfg.minutes / self.train_seconds
-            n = timed if n is None else min(n, timed)
-        return n
+        """The run's length in steps (:func:`~nerfkit.train.progress.run_length`)."""
+        return run_length(self.step, self.train_seconds, self.cfg.steps, self.cfg.minutes)
 
     def _set_lr(self) -> None:
-        """Exponential decay to ``lr_final_factor`` (a group's own, else the config's), times
-        :func:`budget_factor` of the run's length for a group with ``lr_budget`` (steps, power,
-        floor)."""
-        p = self.progress()
-        run_steps = self.run_steps()
-        for g in self._param_groups():
-            factor = g.get("lr_final_factor", self.cfg.lr_final_factor) ** p
-            if "lr_budget" in g:
-                factor *= budget_factor(run_steps, *g["lr_budget"])
-            g["lr"] = g["initial_lr"] * factor
+        decay_lr(self._param_groups(), self.progress(), self.run_steps(), self.cfg.lr_final_factor)
 
     def _eval_due(self) -> bool:
-        """Without ``--eval-every``: each time the run passes one of :data:`EVAL_MARKS`."""
+        """Every ``--eval-every`` steps; without it each time the run passes one of
+        :data:`~nerfkit.train.progress.EVAL_MARKS`."""
         if self.cfg.eval_every:
             return self.step % self.cfg.eval_every == 0
-        passed = self._marks_reached()
+        passed = marks_reached(self.progress())
         due = passed > self._marks_passed
         self._marks_passed = passed
         return due
-
-    def _marks_reached(self) -> int:
-        """How many of :data:`EVAL_MARKS` the run's progress has reached."""
-        return bisect.bisect_right(EVAL_MARKS, self.progress() + 1e-9)
 
     # -- one step ------------------------------------------------------------------
     def train_step(self) -> dict:
