@@ -20,19 +20,16 @@ import torch
 from torch import Tensor
 
 from .. import presets
-from ..cameras import strided_camera
 from ..data.load import dataset_inputs
 from ..data.rays import RaysData
 from ..data.scene import Scene
 from ..errors import NerfkitError, fail
-from ..images import write_image
 from ..io import stop
 from ..io.atomic import is_temporary
 from ..io.lock import LOCK_FILE
 from ..io.paths import guard_run_folder
 from ..models import SceneBounds, build_model, check_config
 from ..models.base import NerfModel, StepState, grads_finite, run_schedules
-from ..output.images import render_image
 from ..precision import autocast
 from .checkpoint import (
     MODEL_FILE,
@@ -45,8 +42,9 @@ from .checkpoint import (
     scene_record,
     write_run_config,
 )
-from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
-from .metrics import psnr, psnr_from_mse
+from .config import MAX_BATCH_RAYS, TrainConfig, parse_background, resolve_autocast, resolve_device
+from .evaluate import score_val_views
+from .metrics import psnr_from_mse
 from .optim import build_optimizer, decay_lr
 from .progress import marks_reached, run_length, run_progress
 from .reports import PSNR_WINDOW, eval_rows, scored_at, train_row, write_metrics, write_plots, write_view_corrections
@@ -336,30 +334,21 @@ class Trainer:
 
     # -- evaluation ------------------------------------------------------------------
     def evaluate(self, n_views: int | None = None) -> tuple[list[float], int] | None:
-        """PSNR of each of the first ``n_views`` validation images and the pixels scored per view.
-
-        With ``n_views`` (a periodic evaluation) every k-th pixel of each view is scored on
-        an even grid, k from ``--eval-pixels`` (:func:`eval_stride`); with None every
-        validation image is scored whole.
-        """
-        val = self.scene.val
-        n = len(val) if n_views is None else min(n_views, len(val))
-        if not val.has_images or n == 0:
-            return None
-        images = val.images
-        assert images is not None  # (has_images)
-        stride = 1 if n_views is None else eval_stride(val.width, val.height, n, self.cfg.eval_pixels)
+        """PSNR of each of the first ``n_views`` validation images (None: all, whole) and the
+        pixels scored per view (:func:`~nerfkit.train.evaluate.score_val_views`)."""
         self.refresh_appearance()
-        scores = []
-        for i in range(n):
-            K, w, h = strided_camera(val.K[i], val.width, val.height, stride)
-            view = render_image(self.model, K, val.c2w[i], w, h, self.background, self.cfg.render_chunk, self.autocast)
-            assert view is not None  # (None only when aborted; no abort here)
-            target = images[i][::stride, ::stride].astype(np.float32) / 255.0
-            scores.append(psnr(view.rgb, target))
-            if i == 0:
-                write_image(self.run_dir / "progress" / f"step_{self.step:08d}.png", view.rgb)
-        return scores, w * h
+        cfg = self.cfg
+        first = self.run_dir / "progress" / f"step_{self.step:08d}.png"
+        return score_val_views(
+            self.model,
+            self.scene.val,
+            n_views,
+            self.background,
+            cfg.render_chunk,
+            self.autocast,
+            cfg.eval_pixels,
+            first,
+        )
 
     # -- the loop ------------------------------------------------------------------
     def log(self, msg: str) -> None:
