@@ -8,9 +8,7 @@ from __future__ import annotations
 
 import json
 import math
-import signal
 import sys
-import threading
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -62,9 +60,6 @@ from .view_corrections import PoseCorrection, ViewAdam, build_view_corrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
-# Signals that stop training cleanly (finish the step, save, exit): Ctrl-C, and what
-# `kill`, `timeout`, schedulers and containers send.
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 @dataclass
@@ -359,49 +354,16 @@ class Trainer:
 
     def run(self, stop_after: int | None = None) -> TrainResult:
         """Train until the stopping rule (or Ctrl-C / SIGTERM, or step ``stop_after``), then save."""
-        from tqdm import tqdm
-
-        interrupted = False
-        # handlers can only be set on the main thread; elsewhere (a GUI's worker, a web handler)
-        # a run stops at its budget
-        main = threading.current_thread() is threading.main_thread()
-        previous = {s: signal.getsignal(s) for s in STOP_SIGNALS} if main else {}
-
-        def on_stop_signal(signum, frame):  # finish the current step, then save and stop
-            nonlocal interrupted
-            interrupted = True
-
-        for s in previous:
-            if previous[s] is not signal.SIG_IGN:  # ignored by who started us (nohup, a script): it stays so
-                signal.signal(s, on_stop_signal)
-        interrupted = stop.take()  # a stop that came while starting up, its exception swallowed by an import
-        start = time.perf_counter()
-        self.model.load_kernels()
-        loading = time.perf_counter() - start
-        if loading > 5.0:
-            self.log(f"compiled the kernels in {loading:.0f} s (once: later runs load them from numba's cache)")
-        total = self.cfg.steps if self.cfg.steps else None
-        bar = tqdm(
-            total=total,
-            initial=self.step,
-            desc=f"train {self.cfg.model}",
-            unit="step",
-            dynamic_ncols=True,
-            disable=self.quiet,
-            file=sys.stderr,
-            mininterval=1.0 if sys.stderr.isatty() else 30.0,
-        )  # sparse updates in log files
-        try:
-            self._loop(bar, stop_after, lambda: interrupted)
-            # the handlers stay until all is saved: a second Ctrl-C must not cut the save short
-            self.save()
-            save_model(self.run_dir, self.step, self.model)
-            self.write_reports()
-        finally:
-            bar.close()
-            for s, handler in previous.items():
-                signal.signal(s, handler)
-        if interrupted:
+        with stop.signals_caught() as interrupted:  # until all is saved: a second Ctrl-C must not cut it short
+            bar = self._start()
+            try:
+                self._loop(bar, stop_after, interrupted)
+                self.save()
+                save_model(self.run_dir, self.step, self.model)
+                self.write_reports()
+            finally:
+                bar.close()
+        if interrupted():
             self.log(
                 f"interrupted: checkpoint saved at step {self.step}; continue with "
                 f"`nerfkit train --resume {self.run_dir}`"
@@ -411,7 +373,28 @@ class Trainer:
                     f"the model saved at step {self.step} was not evaluated (no val PSNR is reported): "
                     f"`nerfkit eval {self.run_dir}` scores it"
                 )
-        return self.result(interrupted)
+        return self.result(interrupted())
+
+    def _start(self):
+        """Load the model's kernels (saying so when they took long: compiled) and open the
+        progress bar."""
+        from tqdm import tqdm
+
+        start = time.perf_counter()
+        self.model.load_kernels()
+        loading = time.perf_counter() - start
+        if loading > 5.0:
+            self.log(f"compiled the kernels in {loading:.0f} s (once: later runs load them from numba's cache)")
+        return tqdm(
+            total=self.cfg.steps if self.cfg.steps else None,
+            initial=self.step,
+            desc=f"train {self.cfg.model}",
+            unit="step",
+            dynamic_ncols=True,
+            disable=self.quiet,
+            file=sys.stderr,
+            mininterval=1.0 if sys.stderr.isatty() else 30.0,
+        )  # sparse updates in log files
 
     def result(self, interrupted: bool = False) -> TrainResult:
         """The run so far; its val PSNR only from an evaluation of the current step (one of
