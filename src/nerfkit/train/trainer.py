@@ -31,6 +31,7 @@ from ..models.base import NerfModel, StepState, grads_finite, run_schedules
 from ..precision import autocast
 from .checkpoint import (
     MODEL_FILE,
+    RunInfo,
     check_dataset,
     checkpoint_paths,
     read_run,
@@ -519,21 +520,7 @@ def resume(
     with run_lock(run_dir):
         info = read_run(run_dir)
         check_dataset(info, scene)
-        if data is not None and str(Path(data).resolve()) != info.train.data:  # moved: later commands find it
-            try:  # not among its data, as train refuses
-                guard_run_folder(Path(run_dir), str(data), dataset_inputs(data))
-            except NerfkitError:
-                raise fail(
-                    "--data",
-                    f"{data} and the run {run_dir} lie one inside the other",
-                    "Keep the dataset out of the run's folder and the run out of the dataset's: eval and "
-                    "render write into the run",
-                ) from None
-            info.train.data = str(Path(data).resolve())
-            info.scene = {**info.scene, "source": scene.source}
-            moved = replace(info.train)  # recorded below, once the resume is not refused
-        else:
-            moved = None
+        moved = _record_moved_data(run_dir, info, scene, data)  # written below, once the resume is not refused
         cfg = info.train
         if steps is not None:
             cfg.steps = steps
@@ -553,23 +540,46 @@ def resume(
         if moved is not None:  # the dataset's new path, for later commands
             write_run_config(Path(run_dir), moved, info.model_config, info.bounds, info.scene)
         if trainer.done() and finished:  # changes nothing, config.json included
-            by_steps = bool(cfg.steps and trainer.step >= cfg.steps)
-            limit = (
-                f"--steps {cfg.steps}"
-                if by_steps
-                else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.3g} trained)"
-            )
-            more = (
-                "give a larger --steps, or --steps 0 --minutes M to go on by time"
-                if by_steps
-                else "give a larger --minutes, or a --steps past this one"
-            )
-            past = f"at step {trainer.step} the run is already past {limit}"
-            trainer.log(f"{run_dir}: {past}: nothing more to train ({more})")
+            trainer.log(f"{run_dir}: {_nothing_more(trainer)}")
             return trainer.result()
         # the run's config records the stopping rule (and the settings) it now goes on with
         write_run_config(Path(run_dir), trainer.cfg, info.model_config, info.bounds, info.scene)
         return trainer.run()
+
+
+def _record_moved_data(run_dir: str | Path, info: RunInfo, scene: Scene, data: str | Path | None) -> TrainConfig | None:
+    """When ``data`` (the dataset's path now, if given) is not the path the run recorded:
+    ``info`` takes it (and ``scene``'s source) and a copy of its TrainConfig is returned, for
+    config.json; else None. Refuses a dataset and a run that lie one inside the other."""
+    if data is None or str(Path(data).resolve()) == info.train.data:
+        return None
+    try:  # not among its data, as train refuses
+        guard_run_folder(Path(run_dir), str(data), dataset_inputs(data))
+    except NerfkitError:
+        raise fail(
+            "--data",
+            f"{data} and the run {run_dir} lie one inside the other",
+            "Keep the dataset out of the run's folder and the run out of the dataset's: eval and "
+            "render write into the run",
+        ) from None
+    info.train.data = str(Path(data).resolve())
+    info.scene = {**info.scene, "source": scene.source}
+    return replace(info.train)
+
+
+def _nothing_more(trainer: Trainer) -> str:
+    """Why a resumed run that is already past its stopping rule trains no more, and what to give."""
+    cfg = trainer.cfg
+    by_steps = bool(cfg.steps and trainer.step >= cfg.steps)
+    limit = (
+        f"--steps {cfg.steps}" if by_steps else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.3g} trained)"
+    )
+    more = (
+        "give a larger --steps, or --steps 0 --minutes M to go on by time"
+        if by_steps
+        else "give a larger --minutes, or a --steps past this one"
+    )
+    return f"at step {trainer.step} the run is already past {limit}: nothing more to train ({more})"
 
 
 def _finished_at(run_dir: Path, step: int) -> bool:
