@@ -29,7 +29,8 @@ from nerfkit.output.images import render_image
 from nerfkit.splat_files import Gaussians, ply_property_names, read_splat_ply
 from nerfkit.train.config import TrainConfig
 from nerfkit.train.optim import budget_factor, build_optimizer
-from nerfkit.train.trainer import RATE_STEPS, Trainer, resume, train
+from nerfkit.train.progress import RATE_STEPS
+from nerfkit.train.trainer import Trainer, resume, train
 
 SMALL = dict(init_points=1500, densify_every=20, max_gaussians=6000)
 

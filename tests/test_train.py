@@ -15,7 +15,8 @@ from nerfkit.cli import main
 from nerfkit.models.base import SceneBounds
 from nerfkit.models.vanilla import VanillaConfig, VanillaNeRF
 from nerfkit.train.config import TrainConfig
-from nerfkit.train.trainer import Trainer, resume, train, validation_series
+from nerfkit.train.reports import validation_series
+from nerfkit.train.trainer import Trainer, resume, train
 
 SMALL = dict(n_samples=16, width=32, depth=4)
 

@@ -14,6 +14,7 @@ from nerfkit.train.view_corrections import (
     PoseCorrection,
     ViewAdam,
     ViewFitConfig,
+    build_view_corrections,
     fit_view,
     row_steps,
     so3_exp,
@@ -629,3 +630,14 @@ def test_the_colour_mix_keeps_float32_under_bf16_autocast():
         under = exposure(rgb, view).detach()
     assert under.dtype == torch.float32
     torch.testing.assert_close(under, plain, atol=1e-6, rtol=0)
+
+
+def test_view_corrections_are_built_for_the_parts_with_a_learning_rate():
+    cpu = torch.device("cpu")
+    assert build_view_corrections(4, 1.0, 0.0, 0.0, False, False, cpu) == (None, None)
+    views, optimizer = build_view_corrections(4, 1.0, 0.0, 1e-3, True, False, cpu)
+    assert views is not None and views.pose is None and views.exposure is not None
+    assert type(optimizer) is torch.optim.Adam
+    views, optimizer = build_view_corrections(4, 1.0, 1e-4, 0.0, False, True, cpu)
+    assert views is not None and views.pose is not None and views.exposure is None
+    assert isinstance(optimizer, ViewAdam)  # one view per step: only its rows step

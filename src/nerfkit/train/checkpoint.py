@@ -188,6 +188,22 @@ def dataset_fingerprint(scene) -> dict:
     }
 
 
+def scene_record(scene) -> dict:
+    """What config.json records of the dataset a run trains on: its source, image size, view
+    counts, near and far, and :func:`dataset_fingerprint`."""
+    return {
+        "source": scene.source,
+        "width": scene.train.width,
+        "height": scene.train.height,
+        "n_train": len(scene.train),
+        "n_val": len(scene.val),
+        "n_test": len(scene.test),
+        "near": scene.near,
+        "far": scene.far,
+        "fingerprint": dataset_fingerprint(scene),
+    }
+
+
 def dataset_differences(info: RunInfo, scene) -> list[str]:
     """Which parts of the run's recorded dataset fingerprint ``scene`` does not match (empty:
     the run's own dataset, or a run from before fingerprints were recorded). Only the parts

@@ -17,15 +17,18 @@ pixels are scored too: a capture's score is mostly its table's.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from ..cameras import image_rays, rotation_angles_deg
+from ..cameras import image_rays, rotation_angles_deg, strided_camera
 from ..data.scene import Views
+from ..images import write_image
 from ..models.base import NerfModel
 from ..output.images import render_image
+from .config import eval_stride
 from .metrics import masked_psnr, psnr, ssim
 from .view_corrections import ViewFitConfig, fit_view, fit_whole_view, least_squares_colour, rounded
 
@@ -89,6 +92,41 @@ def fit_held_out_view(
 def photo_halves(width: int) -> tuple[slice, slice]:
     """The left and right halves of an image's columns (the right one takes an odd column)."""
     return slice(0, width // 2), slice(width // 2, width)
+
+
+def score_val_views(
+    model: NerfModel,
+    val: Views,
+    n_views: int | None,
+    background: torch.Tensor,
+    chunk: int,
+    autocast_dtype: torch.dtype | None,
+    eval_pixels: int,
+    first_render: Path,
+) -> tuple[list[float], int] | None:
+    """PSNR of each of the first ``n_views`` ``val`` images and the pixels scored per view
+    (None: ``val`` has no images, or no view is asked for), as training evaluates its model.
+
+    With ``n_views`` (a periodic evaluation) every k-th pixel of each view is scored on an
+    even grid, k from ``eval_pixels`` (:func:`~nerfkit.train.config.eval_stride`); with None
+    every val image is scored whole. View 0's render (H/k, W/k, 3) goes to ``first_render``.
+    """
+    n = len(val) if n_views is None else min(n_views, len(val))
+    if not val.has_images or n == 0:
+        return None
+    images = val.images
+    assert images is not None  # (has_images)
+    stride = 1 if n_views is None else eval_stride(val.width, val.height, n, eval_pixels)
+    scores = []
+    for i in range(n):
+        K, w, h = strided_camera(val.K[i], val.width, val.height, stride)
+        view = render_image(model, K, val.c2w[i], w, h, background, chunk, autocast_dtype)
+        assert view is not None  # (None only when aborted; no abort here)
+        target = images[i][::stride, ::stride].astype(np.float32) / 255.0
+        scores.append(psnr(view.rgb, target))
+        if i == 0:
+            write_image(first_render, view.rgb)
+    return scores, w * h
 
 
 def evaluate_views(

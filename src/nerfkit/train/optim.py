@@ -19,6 +19,18 @@ def budget_factor(run_steps: float | None, steps: int, power: float, floor: floa
     return max(floor, (steps / run_steps) ** power)
 
 
+def decay_lr(groups: list[dict], progress: float, run_steps: float | None, final_factor: float) -> None:
+    """Set each parameter group's ``lr`` at ``progress`` (0..1) of a run of ``run_steps``
+    steps: its ``initial_lr`` decayed exponentially to ``lr_final_factor`` (the group's own,
+    else ``final_factor``), times :func:`budget_factor` of the run's length for a group with
+    ``lr_budget`` (steps, power, floor)."""
+    for g in groups:
+        factor = g.get("lr_final_factor", final_factor) ** progress
+        if "lr_budget" in g:
+            factor *= budget_factor(run_steps, *g["lr_budget"])
+        g["lr"] = g["initial_lr"] * factor
+
+
 def build_optimizer(model: NerfModel, lr: float) -> torch.optim.Optimizer:
     """Adam over ``model.param_groups(lr)``; when the model gathers some gradients in
     GradSinks (:meth:`~nerfkit.models.base.NerfModel.grad_sinks`), :class:`GridAdam`,
@@ -30,4 +42,4 @@ def build_optimizer(model: NerfModel, lr: float) -> torch.optim.Optimizer:
     return torch.optim.Adam(groups)
 
 
-__all__ = ["budget_factor", "build_optimizer", "replace_param"]
+__all__ = ["budget_factor", "build_optimizer", "decay_lr", "replace_param"]

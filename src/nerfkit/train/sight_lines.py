@@ -71,6 +71,24 @@ class SightLines:
         return Rays(origins, directions), distances, self.views[idx]
 
 
+def sight_lines_note(scene: Scene, sight: SightLines | None, weighed: bool) -> str | None:
+    """What a new run says about its sight lines: how many ``sight`` holds (None: none), or,
+    for a model that ``weighed`` them, why a dataset's sparse points give none; else None."""
+    if sight is not None:
+        assert scene.points is not None  # (sight lines come from the sparse points)
+        return (
+            f"sight lines: {len(sight)} from the train photos' cameras to the {len(scene.points)} "
+            "sparse points (--points-weight)"
+        )
+    if weighed and scene.points is not None and scene.point_views is None:
+        return (
+            f"note: {scene.source} has sparse points but does not record which photos saw them, so they "
+            "are not used as sight lines (an older dataset, or not a dataset.npz): rebuild it with "
+            "`nerfkit dataset DATASET_DIR --force`"
+        )
+    return None
+
+
 def spread_lines(
     origins: Tensor, directions: Tensor, distances: Tensor, radius: float, generator: torch.Generator
 ) -> tuple[Tensor, Tensor]:

@@ -6,14 +6,9 @@ rays (see :mod:`nerfkit.models.base`) and keeps the run folder up to date.
 
 from __future__ import annotations
 
-import bisect
-import csv
-import io
 import json
 import math
-import signal
 import sys
-import threading
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -23,54 +18,49 @@ import torch
 from torch import Tensor
 
 from .. import presets
-from ..cameras import strided_camera
 from ..data.load import dataset_inputs
 from ..data.rays import RaysData
 from ..data.scene import Scene
 from ..errors import NerfkitError, fail
-from ..images import write_image
 from ..io import stop
-from ..io.atomic import is_temporary, write_json, write_text
+from ..io.atomic import is_temporary
 from ..io.lock import LOCK_FILE
 from ..io.paths import guard_run_folder
 from ..models import SceneBounds, build_model, check_config
 from ..models.base import NerfModel, StepState, grads_finite, run_schedules
-from ..output.images import render_image
 from ..precision import autocast
-from ..viz.plots import image_grid, plot_curves
 from .checkpoint import (
     MODEL_FILE,
+    RunInfo,
     check_dataset,
     checkpoint_paths,
-    dataset_fingerprint,
-    load_latest_checkpoint,
     read_run,
     run_lock,
     save_checkpoint,
     save_model,
-    set_aside,
+    scene_record,
     write_run_config,
 )
-from .config import MAX_BATCH_RAYS, TrainConfig, eval_stride, parse_background, resolve_autocast, resolve_device
-from .metrics import psnr, psnr_from_mse
-from .optim import budget_factor, build_optimizer
-from .sight_lines import SIGHT_LINES_PER_STEP, SightLines
-from .view_corrections import PoseCorrection, ViewAdam, ViewCorrections
+from .config import MAX_BATCH_RAYS, TrainConfig, parse_background, resolve_autocast, resolve_device
+from .evaluate import score_val_views
+from .metrics import psnr_from_mse
+from .optim import build_optimizer, decay_lr
+from .progress import marks_reached, run_length, run_progress
+from .reports import PSNR_WINDOW, eval_rows, scored_at, train_row, write_metrics, write_plots, write_view_corrections
+from .resume import (
+    load_for_resume,
+    precision_name,
+    psnr_window,
+    restore_rng,
+    restore_views,
+    resumed_precision,
+    rng_state,
+)
+from .sight_lines import SIGHT_LINES_PER_STEP, SightLines, sight_lines_note
+from .view_corrections import PoseCorrection, ViewAdam, build_view_corrections
 
 # Stop after this many consecutive steps with a non-finite loss or gradient.
 MAX_BAD_STEPS = 20
-# a metrics train row's PSNR is the mean over this many steps' batches (saved in checkpoints)
-PSNR_WINDOW = 10
-# a timed run's length in steps is estimated from its rate after this many steps
-RATE_STEPS = 20
-# the shares of a run (steps or minutes) at which it renders its val views without
-# --eval-every: each tenth, and twice before the first, where the held-out score climbs
-# fastest (on a real capture it is near its last value by the first tenth:
-# benchmarks/capture_real.py)
-EVAL_MARKS = (0.01, 0.03) + tuple(k / 10 for k in range(1, 11))
-# Signals that stop training cleanly (finish the step, save, exit): Ctrl-C, and what
-# `kill`, `timeout`, schedulers and containers send.
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 @dataclass
@@ -81,53 +71,6 @@ class TrainResult:
     final_val_psnr: float | None
     interrupted: bool = False
     rows: list[dict] = field(default_factory=list)
-
-
-def precision_name(dtype: torch.dtype | None) -> str:
-    """How a checkpoint records the precision a run trains in: "bf16" or "fp32"."""
-    return "bf16" if dtype == torch.bfloat16 else "fp32"
-
-
-def resumed_precision(
-    recorded: object, here: torch.dtype | None, device: torch.device
-) -> tuple[torch.dtype | None, str | None]:
-    """The precision a resumed run goes on in, and a warning when it is not the one it trained
-    in: the recorded one (``--precision auto`` chose it where the run started), unless that is
-    bf16 and ``here`` (what auto chooses on this device) is not; older checkpoints: ``here``."""
-    if recorded not in ("bf16", "fp32") or recorded == precision_name(here):
-        return here, None
-    if recorded == "fp32":
-        return None, None
-    return here, (
-        f"trained in bf16, which this {device.type} does not do natively: it goes on in fp32 "
-        "(--precision auto), so no longer exactly as an uninterrupted run"
-    )
-
-
-def psnr_window(saved: object) -> list[float]:
-    """A checkpoint's last training PSNRs (older checkpoints, or anything else: none)."""
-    if not isinstance(saved, list) or not all(isinstance(v, float) and math.isfinite(v) for v in saved):
-        return []
-    return saved[-PSNR_WINDOW:]
-
-
-def validation_series(rows: list[dict], n_val: int, full: int) -> dict[str, tuple[list, list]]:
-    """Validation rows (``seconds``, ``psnr``, ``views``, ``pixels``) as curves of like
-    scores, keyed by a legend label: periodic evaluations (the first ``--eval-views`` of
-    ``n_val`` views, every k-th pixel) apart from the final ones (every view, all ``full``
-    pixels), so that a plot does not join scores of different views into one line."""
-    series: dict[str, tuple[list, list]] = {}
-    for r in rows:
-        views, pixels = min(r.get("views", n_val), n_val), r.get("pixels", full)  # older runs: views as asked
-        which = f"all {views}" if views >= n_val else f"first {views} of {n_val}"
-        label = (
-            f"validation, {which} view{'s' * (views != 1 or views < n_val)}, "
-            f"{'whole images' if pixels >= full else f'{pixels} px per view'}"
-        )
-        xs, ys = series.setdefault(label, ([], []))
-        xs.append(r["seconds"])
-        ys.append(r["psnr"])
-    return series
 
 
 class Trainer:
@@ -163,28 +106,19 @@ class Trainer:
         sight = self.model.uses_sight_lines
         self.sight = SightLines.from_scene(scene, self.device) if sight and not self.whole_images else None
         self.sight_generator = torch.Generator().manual_seed(cfg.seed + 1)
-        if self.sight is not None and fresh:
-            assert scene.points is not None  # (sight lines come from the sparse points)
-            self.log(
-                f"sight lines: {len(self.sight)} from the train photos' cameras to the {len(scene.points)} "
-                "sparse points (--points-weight)"
-            )
-        elif sight and scene.points is not None and scene.point_views is None and fresh:
-            self.log(
-                f"note: {scene.source} has sparse points but does not record which photos saw them, so they "
-                "are not used as sight lines (an older dataset, or not a dataset.npz): rebuild it with "
-                "`nerfkit dataset DATASET_DIR --force`"
-            )
-        self.views: ViewCorrections | None = None
-        self.view_optimizer: torch.optim.Optimizer | None = None
-        pose = cfg.pose_lr > 0
-        if cfg.capture == "on" and (pose or cfg.exposure_lr > 0):
-            self.views = ViewCorrections(
-                len(scene.train), self.bounds.radius, pose, cfg.exposure_lr > 0, cfg.colour_mix
-            ).to(self.device)
-            groups = self.views.param_groups(cfg.pose_lr, cfg.exposure_lr)
-            # one view per step: only its corrections step (ViewAdam); a ray batch sees every view
-            self.view_optimizer = ViewAdam(groups) if self.whole_images else torch.optim.Adam(groups)
+        note = sight_lines_note(scene, self.sight, sight) if fresh else None
+        if note:
+            self.log(note)
+        on = cfg.capture == "on"
+        self.views, self.view_optimizer = build_view_corrections(
+            len(scene.train),
+            self.bounds.radius,
+            cfg.pose_lr if on else 0.0,
+            cfg.exposure_lr if on else 0.0,
+            cfg.colour_mix,
+            self.whole_images,  # one view per step: only its corrections step (ViewAdam)
+            self.device,
+        )
         self._remember_initial_lr()
         self.step = 0
         self.train_seconds = 0.0
@@ -197,23 +131,7 @@ class Trainer:
             self._resume()
         else:
             self.run_dir.mkdir(parents=True, exist_ok=True)
-            write_run_config(
-                self.run_dir,
-                cfg,
-                model_config,
-                self.bounds,
-                {
-                    "source": scene.source,
-                    "width": scene.train.width,
-                    "height": scene.train.height,
-                    "n_train": len(scene.train),
-                    "n_val": len(scene.val),
-                    "n_test": len(scene.test),
-                    "near": scene.near,
-                    "far": scene.far,
-                    "fingerprint": dataset_fingerprint(scene),
-                },
-            )
+            write_run_config(self.run_dir, cfg, model_config, self.bounds, scene_record(scene))
 
     # -- state ---------------------------------------------------------------------
     def _param_groups(self) -> list[dict]:
@@ -227,16 +145,6 @@ class Trainer:
         for g in self._param_groups():
             g.setdefault("initial_lr", g["lr"])
 
-    def _rng_state(self) -> dict:
-        state = {
-            "torch_rng": torch.get_rng_state(),
-            "sampler_rng": self.rays.rng_state(),
-            "sight_rng": self.sight_generator.get_state(),
-        }
-        if self.device.type == "cuda":
-            state["cuda_rng"] = torch.cuda.get_rng_state(self.device)
-        return state
-
     def refresh_appearance(self) -> None:
         """The model's colour by view direction from the training photos' current colour
         corrections (:class:`~nerfkit.models.appearance.DirectionalColour`), for the renders of
@@ -249,7 +157,7 @@ class Trainer:
     def save(self) -> Path:
         self.refresh_appearance()
         extra = {
-            **self._rng_state(),
+            **rng_state(self.rays, self.sight_generator, self.device),
             "train_seconds": self.train_seconds,
             "rows": json.dumps(self.rows),
             "bad_steps": self.bad_steps,
@@ -264,32 +172,13 @@ class Trainer:
         return save_checkpoint(self.run_dir, self.step, self.model, self.optimizer, extra, self.cfg.keep_checkpoints)
 
     def _resume(self) -> None:
-        loaded = load_latest_checkpoint(self.run_dir, self.model)
+        """Go on from the run's newest good checkpoint (:mod:`nerfkit.train.resume`), or from
+        step 0 when it has none yet."""
+        loaded = load_for_resume(self.run_dir, self.model, self.device)
         if loaded is None:
-            if (self.run_dir / MODEL_FILE).exists():  # trained, its checkpoints gone: never train over it
-                raise fail(
-                    self.run_dir,
-                    "holds a trained model (model.pt) but no checkpoint to continue it from",
-                    "Train a new run with another --out, or delete model.pt to start this run over",
-                )
             self.log(f"{self.run_dir}: no checkpoint yet, starting from step 0")
             return
         ckpt, path = loaded
-        moved = set_aside(self.run_dir, path, int(ckpt["step"]))
-        if moved:  # (else pruning would keep them over the checkpoints this run writes)
-            print(
-                f"warning: {self.run_dir}: moved {', '.join(p.name for p in moved)} to {moved[0].parent} "
-                f"(not loadable, or newer than {path.name}, which training goes on from)",
-                file=sys.stderr,
-            )
-        self.model.to(self.device)
-        try:
-            training_state = ckpt.get("training_state", {})  # (older checkpoints: none)
-            if not isinstance(training_state, dict):
-                raise ValueError("not a dict")
-            self.model.load_training_state(training_state)
-        except ValueError as e:
-            raise fail(path, f"malformed checkpoint ('training_state': {e})", "Put the run's own file back") from None
         self.optimizer = build_optimizer(self.model, self.cfg.lr)
         self.optimizer.load_state_dict(ckpt["optimizer"])
         self._remember_initial_lr()
@@ -302,80 +191,36 @@ class Trainer:
         self.model.set_precision(self.autocast)
         if warning:
             print(f"warning: {self.run_dir}: {warning}", file=sys.stderr)
-        self._marks_passed = self._marks_reached()  # validated there before the stop
+        self._marks_passed = marks_reached(self.progress())  # validated there before the stop
         if self.views is not None:
-            if "views" not in ckpt:
-                raise fail(
-                    path,
-                    "holds no per-view corrections, but this run trains them",
-                    "The checkpoint is from another nerfkit; re-train",
-                )
-            missing = set(self.views.state_dict()) - set(ckpt["views"])
-            # a run from before --colour-mix, or a splat run from before its pose corrections: these start at zero
-            if not missing <= {"exposure.mix", "pose.rotation", "pose.translation"}:
-                raise fail(
-                    path,
-                    f"holds other per-view corrections than this run trains ({sorted(missing)} missing)",
-                    "The checkpoint is from another nerfkit; re-train",
-                )
-            self.views.load_state_dict(ckpt["views"], strict=False)
-            if not missing:  # (else the views' Adam state starts afresh too)
-                assert self.view_optimizer is not None  # (built with the views)
-                self.view_optimizer.load_state_dict(ckpt["views_optimizer"])
-        torch.set_rng_state(ckpt["torch_rng"])
-        self.rays.set_rng_state(ckpt["sampler_rng"])
-        if "sight_rng" in ckpt:
-            self.sight_generator.set_state(ckpt["sight_rng"])
-        if "cuda_rng" in ckpt and self.device.type == "cuda":
-            torch.cuda.set_rng_state(ckpt["cuda_rng"], self.device)
+            restore_views(ckpt, path, self.views, self.view_optimizer)
+        restore_rng(ckpt, self.rays, self.sight_generator, self.device)
         self.log(f"resumed from {path.name} (step {self.step}, {self.train_seconds:.0f} s trained)")
 
     # -- schedule ------------------------------------------------------------------
     def progress(self) -> float:
         """Fraction of the run done, by steps or by training time, whichever is further."""
-        p = 0.0
-        if self.cfg.steps:
-            p = max(p, self.step / self.cfg.steps)
-        if self.cfg.minutes:
-            p = max(p, self.train_seconds / (60.0 * self.cfg.minutes))
-        return min(p, 1.0)
+        return run_progress(self.step, self.train_seconds, self.cfg.steps, self.cfg.minutes)
 
     def done(self) -> bool:
         return self.progress() >= 1.0
 
     def run_steps(self) -> float | None:
-        """The run's length in steps: ``--steps``, or the steps ``--minutes`` buys at the rate
-        so far, whichever ends the run first (None: a timed run's first steps)."""
-        n = float(self.cfg.steps) if self.cfg.steps else None
-        if self.cfg.minutes and self.step >= RATE_STEPS and self.train_seconds > 0:
-            timed = self.step * 60.0 * self.cfg.minutes / self.train_seconds
-            n = timed if n is None else min(n, timed)
-        return n
+        """The run's length in steps (:func:`~nerfkit.train.progress.run_length`)."""
+        return run_length(self.step, self.train_seconds, self.cfg.steps, self.cfg.minutes)
 
     def _set_lr(self) -> None:
-        """Exponential decay to ``lr_final_factor`` (a group's own, else the config's), times
-        :func:`budget_factor` of the run's length for a group with ``lr_budget`` (steps, power,
-        floor)."""
-        p = self.progress()
-        run_steps = self.run_steps()
-        for g in self._param_groups():
-            factor = g.get("lr_final_factor", self.cfg.lr_final_factor) ** p
-            if "lr_budget" in g:
-                factor *= budget_factor(run_steps, *g["lr_budget"])
-            g["lr"] = g["initial_lr"] * factor
+        decay_lr(self._param_groups(), self.progress(), self.run_steps(), self.cfg.lr_final_factor)
 
     def _eval_due(self) -> bool:
-        """Without ``--eval-every``: each time the run passes one of :data:`EVAL_MARKS`."""
+        """Every ``--eval-every`` steps; without it each time the run passes one of
+        :data:`~nerfkit.train.progress.EVAL_MARKS`."""
         if self.cfg.eval_every:
             return self.step % self.cfg.eval_every == 0
-        passed = self._marks_reached()
+        passed = marks_reached(self.progress())
         due = passed > self._marks_passed
         self._marks_passed = passed
         return due
-
-    def _marks_reached(self) -> int:
-        """How many of :data:`EVAL_MARKS` the run's progress has reached."""
-        return bisect.bisect_right(EVAL_MARKS, self.progress() + 1e-9)
 
     # -- one step ------------------------------------------------------------------
     def train_step(self) -> dict:
@@ -488,30 +333,21 @@ class Trainer:
 
     # -- evaluation ------------------------------------------------------------------
     def evaluate(self, n_views: int | None = None) -> tuple[list[float], int] | None:
-        """PSNR of each of the first ``n_views`` validation images and the pixels scored per view.
-
-        With ``n_views`` (a periodic evaluation) every k-th pixel of each view is scored on
-        an even grid, k from ``--eval-pixels`` (:func:`eval_stride`); with None every
-        validation image is scored whole.
-        """
-        val = self.scene.val
-        n = len(val) if n_views is None else min(n_views, len(val))
-        if not val.has_images or n == 0:
-            return None
-        images = val.images
-        assert images is not None  # (has_images)
-        stride = 1 if n_views is None else eval_stride(val.width, val.height, n, self.cfg.eval_pixels)
+        """PSNR of each of the first ``n_views`` validation images (None: all, whole) and the
+        pixels scored per view (:func:`~nerfkit.train.evaluate.score_val_views`)."""
         self.refresh_appearance()
-        scores = []
-        for i in range(n):
-            K, w, h = strided_camera(val.K[i], val.width, val.height, stride)
-            view = render_image(self.model, K, val.c2w[i], w, h, self.background, self.cfg.render_chunk, self.autocast)
-            assert view is not None  # (None only when aborted; no abort here)
-            target = images[i][::stride, ::stride].astype(np.float32) / 255.0
-            scores.append(psnr(view.rgb, target))
-            if i == 0:
-                write_image(self.run_dir / "progress" / f"step_{self.step:08d}.png", view.rgb)
-        return scores, w * h
+        cfg = self.cfg
+        first = self.run_dir / "progress" / f"step_{self.step:08d}.png"
+        return score_val_views(
+            self.model,
+            self.scene.val,
+            n_views,
+            self.background,
+            cfg.render_chunk,
+            self.autocast,
+            cfg.eval_pixels,
+            first,
+        )
 
     # -- the loop ------------------------------------------------------------------
     def log(self, msg: str) -> None:
@@ -522,49 +358,16 @@ class Trainer:
 
     def run(self, stop_after: int | None = None) -> TrainResult:
         """Train until the stopping rule (or Ctrl-C / SIGTERM, or step ``stop_after``), then save."""
-        from tqdm import tqdm
-
-        interrupted = False
-        # handlers can only be set on the main thread; elsewhere (a GUI's worker, a web handler)
-        # a run stops at its budget
-        main = threading.current_thread() is threading.main_thread()
-        previous = {s: signal.getsignal(s) for s in STOP_SIGNALS} if main else {}
-
-        def on_stop_signal(signum, frame):  # finish the current step, then save and stop
-            nonlocal interrupted
-            interrupted = True
-
-        for s in previous:
-            if previous[s] is not signal.SIG_IGN:  # ignored by who started us (nohup, a script): it stays so
-                signal.signal(s, on_stop_signal)
-        interrupted = stop.take()  # a stop that came while starting up, its exception swallowed by an import
-        start = time.perf_counter()
-        self.model.load_kernels()
-        loading = time.perf_counter() - start
-        if loading > 5.0:
-            self.log(f"compiled the kernels in {loading:.0f} s (once: later runs load them from numba's cache)")
-        total = self.cfg.steps if self.cfg.steps else None
-        bar = tqdm(
-            total=total,
-            initial=self.step,
-            desc=f"train {self.cfg.model}",
-            unit="step",
-            dynamic_ncols=True,
-            disable=self.quiet,
-            file=sys.stderr,
-            mininterval=1.0 if sys.stderr.isatty() else 30.0,
-        )  # sparse updates in log files
-        try:
-            self._loop(bar, stop_after, lambda: interrupted)
-            # the handlers stay until all is saved: a second Ctrl-C must not cut the save short
-            self.save()
-            save_model(self.run_dir, self.step, self.model)
-            self.write_reports()
-        finally:
-            bar.close()
-            for s, handler in previous.items():
-                signal.signal(s, handler)
-        if interrupted:
+        with stop.signals_caught() as interrupted:  # until all is saved: a second Ctrl-C must not cut it short
+            bar = self._start()
+            try:
+                self._loop(bar, stop_after, interrupted)
+                self.save()
+                save_model(self.run_dir, self.step, self.model)
+                self.write_reports()
+            finally:
+                bar.close()
+        if interrupted():
             self.log(
                 f"interrupted: checkpoint saved at step {self.step}; continue with "
                 f"`nerfkit train --resume {self.run_dir}`"
@@ -574,7 +377,28 @@ class Trainer:
                     f"the model saved at step {self.step} was not evaluated (no val PSNR is reported): "
                     f"`nerfkit eval {self.run_dir}` scores it"
                 )
-        return self.result(interrupted)
+        return self.result(interrupted())
+
+    def _start(self):
+        """Load the model's kernels (saying so when they took long: compiled) and open the
+        progress bar."""
+        from tqdm import tqdm
+
+        start = time.perf_counter()
+        self.model.load_kernels()
+        loading = time.perf_counter() - start
+        if loading > 5.0:
+            self.log(f"compiled the kernels in {loading:.0f} s (once: later runs load them from numba's cache)")
+        return tqdm(
+            total=self.cfg.steps if self.cfg.steps else None,
+            initial=self.step,
+            desc=f"train {self.cfg.model}",
+            unit="step",
+            dynamic_ncols=True,
+            disable=self.quiet,
+            file=sys.stderr,
+            mininterval=1.0 if sys.stderr.isatty() else 30.0,
+        )  # sparse updates in log files
 
     def result(self, interrupted: bool = False) -> TrainResult:
         """The run so far; its val PSNR only from an evaluation of the current step (one of
@@ -601,16 +425,8 @@ class Trainer:
             if math.isfinite(stats["psnr"]):
                 self.train_psnr = [*self.train_psnr, float(stats["psnr"])][-PSNR_WINDOW:]
             if self.step % 10 == 0 or self.done():
-                self.rows.append(
-                    {
-                        "step": self.step,
-                        "seconds": round(self.train_seconds, 3),
-                        "split": "train",
-                        "loss": stats["loss"],
-                        "psnr": float(np.mean(self.train_psnr or [float("nan")])),
-                        "rays": stats["rays"],
-                    }
-                )
+                window = float(np.mean(self.train_psnr or [float("nan")]))
+                self.rows.append(train_row(self.step, self.train_seconds, stats["loss"], window, stats["rays"]))
             bar.update(1)
             bar.set_postfix(
                 loss=f"{stats['loss']:.4f}",
@@ -632,134 +448,31 @@ class Trainer:
             self._record_eval()
 
     def _record_eval(self) -> None:
-        n = None if self.done() else self.cfg.eval_views
-        if self._scored(final=n is None):
+        """Evaluate this step, unless it was (periodic: the first ``--eval-views`` val views,
+        none with 0; at the run's end every view, whole, after the model's last notes)."""
+        final = self.done()
+        if scored_at(self.rows, self.step, self.scene.val, final) or (not final and self.cfg.eval_views == 0):
             return
-        if n == 0:  # no periodic evaluation: the final one alone
-            return
-        if n is None:
+        if final:
             self.notes = list(self.model.finish_training())
             for note in self.notes:
                 self.log(f"note: {note}")
-        scored = self.evaluate(n)
+        scored = self.evaluate(None if final else self.cfg.eval_views)
         if scored is None:
             return
-        scores, pixels = scored
-        val = self.scene.val
-        full = pixels == val.width * val.height
-        views = len(scores)
-        also = ""
-        periodic = min(self.cfg.eval_views, views)
-        if (
-            n is None
-            and 0 < periodic < views
-            and eval_stride(val.width, val.height, periodic, self.cfg.eval_pixels) == 1
-        ):
-            # the periodic evaluations' views, whole as they were: their curve ends here too, so
-            # that the final score over every view is not read as the curve falling
-            self._add_val_row(float(np.mean(scores[:periodic])), periodic, pixels)
-            also = f"; the first {periodic}, as evaluated during training: {self.rows[-1]['psnr']:.2f} dB"
-        self._add_val_row(float(np.mean(scores)), views, pixels)
-        scope = f"all {views} views" if views == len(val) else f"first {views} of {len(val)} views"
-        self.log(
-            f"step {self.step:6d}  {self.train_seconds:7.1f} s  val PSNR {self.rows[-1]['psnr']:.2f} dB ({scope}"
-            + ("" if full else f", {pixels} pixels each")
-            + also
-            + ")"
+        rows, message = eval_rows(
+            self.step, self.train_seconds, *scored, final, self.scene.val, self.cfg.eval_views, self.cfg.eval_pixels
         )
-
-    def _scored(self, final: bool) -> bool:
-        """Whether this step was evaluated (``final``: on every val view, whole)."""
-        val = self.scene.val
-        full = val.width * val.height
-        return any(
-            r["split"] == "val"
-            and r["step"] == self.step
-            and (not final or (r.get("views", len(val)) >= len(val) and r.get("pixels", full) >= full))
-            for r in self.rows
-        )
-
-    def _add_val_row(self, psnr_db: float, views: int, pixels: int) -> None:
-        self.rows.append(
-            {
-                "step": self.step,
-                "seconds": round(self.train_seconds, 3),
-                "split": "val",
-                "loss": float("nan"),
-                "psnr": psnr_db,
-                "views": views,
-                "pixels": pixels,
-            }
-        )
+        self.rows += rows
+        self.log(message)
 
     def write_reports(self) -> None:
-        """metrics.csv/json (``finished``: the stopping rule was reached, not cut short;
-        ``notes``: the model's at the end), PSNR and loss curves, the progression figure, and
-        view_corrections.json when the run learns a correction per training view."""
-        write_json(
-            self.run_dir / "metrics.json",
-            {
-                "rows": self.rows,
-                "step": self.step,
-                "train_seconds": self.train_seconds,
-                "finished": self.done(),
-                "notes": self.notes,
-            },
-        )
-        buf = io.StringIO()
-        keys = ["step", "seconds", "split", "loss", "psnr", "views", "pixels", "rays"]
-        writer = csv.DictWriter(buf, fieldnames=keys, extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(self.rows)
-        write_text(self.run_dir / "metrics.csv", buf.getvalue())
+        """metrics.csv/json, view_corrections.json when the run learns a correction per
+        training view, and the plots (:mod:`nerfkit.train.reports`)."""
+        write_metrics(self.run_dir, self.rows, self.step, self.train_seconds, self.done(), self.notes)
         if self.views is not None:
-            write_json(
-                self.run_dir / "view_corrections.json",
-                {
-                    "what": "per training view: pose correction (rotation in degrees, translation in scene units) "
-                    "and exposure gain relative to the average view (with colour mixing also the colour "
-                    "matrix: rendered rgb -> photo rgb, with the gains on its diagonal)",
-                    "views": self.views.report(self.scene.train.names),
-                },
-            )
-        train = [r for r in self.rows if r["split"] == "train"]
-        val = [r for r in self.rows if r["split"] == "val"]
-        plots = self.run_dir / "plots"
-        plot_curves(
-            plots / "psnr.png",
-            {
-                "train (batch)": ([r["seconds"] for r in train], [r["psnr"] for r in train]),
-                **validation_series(val, len(self.scene.val), self.scene.val.width * self.scene.val.height),
-            },
-            "training seconds",
-            "PSNR (dB)",
-            f"{self.cfg.model}: PSNR",
-        )
-        plot_curves(
-            plots / "loss.png",
-            {"train loss": ([r["step"] for r in train], [r["loss"] for r in train])},
-            "step",
-            "loss (photometric + regularisers)",
-            f"{self.cfg.model}: training loss",
-            logy=True,
-        )
-        snaps = sorted((self.run_dir / "progress").glob("step_*.png"))
-        if len(snaps) > 8:  # keep the first, the last and evenly spaced ones between
-            snaps = [snaps[int(round(i))] for i in np.linspace(0, len(snaps) - 1, 8)]
-        if snaps and self.scene.val.has_images:
-            import imageio.v3 as iio
-
-            val_images = self.scene.val.images
-            assert val_images is not None  # (has_images)
-            images = [iio.imread(p) for p in snaps] + [val_images[0]]
-            titles = [f"step {int(p.stem.split('_')[1])}" for p in snaps] + ["ground truth"]
-            image_grid(
-                plots / "progress.png",
-                images,
-                titles,
-                ncols=min(len(images), 5),
-                suptitle="validation view 0 during training",
-            )
+            write_view_corrections(self.run_dir, self.views.report(self.scene.train.names))
+        write_plots(self.run_dir, self.rows, self.cfg.model, self.scene.val)
 
 
 def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False, user_set=None) -> TrainResult:
@@ -811,21 +524,7 @@ def resume(
     with run_lock(run_dir):
         info = read_run(run_dir)
         check_dataset(info, scene)
-        if data is not None and str(Path(data).resolve()) != info.train.data:  # moved: later commands find it
-            try:  # not among its data, as train refuses
-                guard_run_folder(Path(run_dir), str(data), dataset_inputs(data))
-            except NerfkitError:
-                raise fail(
-                    "--data",
-                    f"{data} and the run {run_dir} lie one inside the other",
-                    "Keep the dataset out of the run's folder and the run out of the dataset's: eval and "
-                    "render write into the run",
-                ) from None
-            info.train.data = str(Path(data).resolve())
-            info.scene = {**info.scene, "source": scene.source}
-            moved = replace(info.train)  # recorded below, once the resume is not refused
-        else:
-            moved = None
+        moved = _record_moved_data(run_dir, info, scene, data)  # written below, once the resume is not refused
         cfg = info.train
         if steps is not None:
             cfg.steps = steps
@@ -845,23 +544,46 @@ def resume(
         if moved is not None:  # the dataset's new path, for later commands
             write_run_config(Path(run_dir), moved, info.model_config, info.bounds, info.scene)
         if trainer.done() and finished:  # changes nothing, config.json included
-            by_steps = bool(cfg.steps and trainer.step >= cfg.steps)
-            limit = (
-                f"--steps {cfg.steps}"
-                if by_steps
-                else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.3g} trained)"
-            )
-            more = (
-                "give a larger --steps, or --steps 0 --minutes M to go on by time"
-                if by_steps
-                else "give a larger --minutes, or a --steps past this one"
-            )
-            past = f"at step {trainer.step} the run is already past {limit}"
-            trainer.log(f"{run_dir}: {past}: nothing more to train ({more})")
+            trainer.log(f"{run_dir}: {_nothing_more(trainer)}")
             return trainer.result()
         # the run's config records the stopping rule (and the settings) it now goes on with
         write_run_config(Path(run_dir), trainer.cfg, info.model_config, info.bounds, info.scene)
         return trainer.run()
+
+
+def _record_moved_data(run_dir: str | Path, info: RunInfo, scene: Scene, data: str | Path | None) -> TrainConfig | None:
+    """When ``data`` (the dataset's path now, if given) is not the path the run recorded:
+    ``info`` takes it (and ``scene``'s source) and a copy of its TrainConfig is returned, for
+    config.json; else None. Refuses a dataset and a run that lie one inside the other."""
+    if data is None or str(Path(data).resolve()) == info.train.data:
+        return None
+    try:  # not among its data, as train refuses
+        guard_run_folder(Path(run_dir), str(data), dataset_inputs(data))
+    except NerfkitError:
+        raise fail(
+            "--data",
+            f"{data} and the run {run_dir} lie one inside the other",
+            "Keep the dataset out of the run's folder and the run out of the dataset's: eval and "
+            "render write into the run",
+        ) from None
+    info.train.data = str(Path(data).resolve())
+    info.scene = {**info.scene, "source": scene.source}
+    return replace(info.train)
+
+
+def _nothing_more(trainer: Trainer) -> str:
+    """Why a resumed run that is already past its stopping rule trains no more, and what to give."""
+    cfg = trainer.cfg
+    by_steps = bool(cfg.steps and trainer.step >= cfg.steps)
+    limit = (
+        f"--steps {cfg.steps}" if by_steps else f"--minutes {cfg.minutes:g} ({trainer.train_seconds / 60:.3g} trained)"
+    )
+    more = (
+        "give a larger --steps, or --steps 0 --minutes M to go on by time"
+        if by_steps
+        else "give a larger --minutes, or a --steps past this one"
+    )
+    return f"at step {trainer.step} the run is already past {limit}: nothing more to train ({more})"
 
 
 def _finished_at(run_dir: Path, step: int) -> bool:

@@ -287,6 +287,27 @@ class ViewAdam(torch.optim.Optimizer):
         return loss
 
 
+def build_view_corrections(
+    n_views: int,
+    radius: float,
+    pose_lr: float,
+    exposure_lr: float,
+    colour_mix: bool,
+    one_view_per_step: bool,
+    device: torch.device,
+) -> tuple[ViewCorrections | None, torch.optim.Optimizer | None]:
+    """The corrections of ``n_views`` training views (a pose one with ``pose_lr`` > 0, its
+    translations scaled by the scene's ``radius``; an exposure one, with ``colour_mix``, with
+    ``exposure_lr`` > 0) on ``device``, and their optimizer: :class:`ViewAdam` when a step
+    renders ``one_view_per_step`` (only its row steps), else Adam. Neither: (None, None)."""
+    pose, exposure = pose_lr > 0, exposure_lr > 0
+    if not (pose or exposure):
+        return None, None
+    views = ViewCorrections(n_views, radius, pose, exposure, colour_mix).to(device)
+    groups = views.param_groups(pose_lr, exposure_lr)
+    return views, ViewAdam(groups) if one_view_per_step else torch.optim.Adam(groups)
+
+
 def row_steps(step: Tensor, p: Tensor) -> Tensor:
     """:class:`ViewAdam`'s step counts of parameter ``p``, one per row, on ``p``'s device:
     torch's ``load_state_dict`` leaves a state named "step" where it was loaded (the CPU of

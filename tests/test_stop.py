@@ -1,0 +1,38 @@
+"""Stop signals caught for the length of a block (nerfkit.io.stop.signals_caught)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+
+from nerfkit.io import stop
+
+
+def test_a_stop_signal_in_the_block_sets_the_flag_and_the_handler_comes_back():
+    before = signal.getsignal(signal.SIGTERM)
+    with stop.signals_caught() as interrupted:
+        assert not interrupted()
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert interrupted()
+    assert interrupted() and signal.getsignal(signal.SIGTERM) is before
+
+
+def test_a_stop_asked_for_before_the_block_counts_and_is_taken():
+    stop.request()
+    with stop.signals_caught() as interrupted:
+        assert interrupted() and not stop.pending()
+
+
+def test_off_the_main_thread_no_handler_is_set():
+    seen = []
+
+    def work():
+        with stop.signals_caught((signal.SIGUSR1,)) as interrupted:
+            seen.append((signal.getsignal(signal.SIGUSR1), interrupted()))
+
+    before = signal.getsignal(signal.SIGUSR1)
+    thread = threading.Thread(target=work)
+    thread.start()
+    thread.join()
+    assert seen == [(before, False)]
