@@ -525,3 +525,47 @@ def test_view_refuses_what_the_command_line_refuses(tmp_path, sphere_npz, monkey
     with pytest.raises(NerfkitError, match=message):
         api.view(sphere_npz, **{"png": "scene.png", **options})
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "kwargs, flag", [({"model": "splat"}, "--model"), ({"minutes": 0}, "--minutes"), ({"seed": -1}, "--seed")]
+)
+def test_the_demo_refuses_what_its_command_line_refuses_before_writing_anything(tmp_path, kwargs, flag):
+    with pytest.raises(NerfkitError, match=re.escape(flag)):
+        api.demo(tmp_path / "demo", quiet=True, **kwargs)
+    assert not (tmp_path / "demo").exists()
+
+
+def test_nerfkit_demo_is_api_demo_with_its_flags(monkeypatch, capsys, tmp_path):
+    """The command is the API function: its flags become the call's arguments, and it prints the
+    summary and the files the function returns."""
+    from nerfkit.commands import tools
+
+    calls = []
+
+    def fake(out, **kw):
+        calls.append((out, kw))
+        return tools.DemoResult(tmp_path, {"val_psnr": 1.5}, {"orbit video": tmp_path / "v.mp4"})
+
+    monkeypatch.setattr(tools, "demo", fake)
+    assert main(["demo", "--out", "x", "--minutes", "2", "--seed", "3"]) == 0
+    assert calls == [("x", {"model": "fast", "minutes": 2.0, "device": "auto", "seed": 3})]
+    out = capsys.readouterr().out
+    assert '"val_psnr": 1.5' in out and str(tmp_path / "v.mp4") in out
+
+
+@pytest.mark.slow
+def test_the_demo_trains_renders_and_scores_lego_into_a_fresh_folder(tmp_path):
+    """Seconds of training: the summary agrees with the run's own evaluation, every file it
+    names exists, and a second demo into the same folder goes to a fresh one beside it."""
+    import json
+
+    first = api.demo(tmp_path / "demo", minutes=0.1, quiet=True)
+    assert first.run_dir == tmp_path / "demo"
+    assert all(p.is_file() for p in first.outputs.values()), first.outputs
+    saved = json.loads((first.run_dir / "summary.json").read_text())
+    assert saved == first.summary and saved["steps"] > 0
+    scored = json.loads((first.run_dir / "eval_val.json").read_text())
+    assert saved["val_psnr"] == pytest.approx(scored["psnr"]) and saved["val_psnr"] > 12
+    second = api.demo(tmp_path / "demo", minutes=0.02, quiet=True)
+    assert second.run_dir == tmp_path / "demo-2"

@@ -5,15 +5,15 @@ As :mod:`~nerfkit.commands.pipeline`'s functions, each takes typed keyword argum
 the flags of its command (``object_tag_size=0`` for ``--object-tag-size 0``; ``--dict`` is
 ``dictionary``), checks them as the command line is checked (with the pipeline's helpers),
 does the work, prints the report the command prints (unless ``quiet``) and returns a typed
-result; the commands parse their command line into these calls. ``nerfkit demo`` has no
-function of its own: it is :func:`~nerfkit.commands.pipeline.train`, ``render`` and
-``evaluate`` on the bundled lego scene (``nerfkit.commands.demo.bundled_lego()``). Example::
+result; the commands parse their command line into these calls. :func:`demo` is ``nerfkit
+demo``: training, videos and scores on the bundled lego scene. Example::
 
     from nerfkit import api
 
     sheet = api.tags("tags.pdf", tag_size=0.04)
     clip = api.frames("clip.mp4", "frames/", frames=80)
     fit = api.fit_image("photo.jpg", out="runs/photo")
+    lego = api.demo("runs/demo", minutes=1)
 """
 
 from __future__ import annotations
@@ -33,6 +33,10 @@ if TYPE_CHECKING:
 Paper = Literal["a4", "letter"]
 ConvertFormat = Literal["auto", "npz", "transforms", "colmap"]
 PoseSource = Literal["auto", "tags", "sfm"]
+DemoModel = Literal["fast", "vanilla"]
+
+# the demo's training minutes when none are given: a few minutes on a 2-core CPU for each model
+DEMO_MINUTES: dict[str, float] = {"fast": 3.0, "vanilla": 8.0}
 
 
 @dataclass(frozen=True)
@@ -437,10 +441,118 @@ def view(
     return ViewResult(None, None)
 
 
+@dataclass(frozen=True)
+class DemoResult:
+    """The demo's run (:func:`demo`): its folder, the figures of ``summary.json`` (model, steps,
+    train_seconds, val_psnr, val_ssim, render_seconds_per_frame, total_seconds) and the files
+    written, by what they are."""
+
+    run_dir: Path
+    summary: dict[str, Any]
+    outputs: dict[str, Path]
+
+
+def bundled_lego() -> Path:
+    """The lego scene shipped with nerfkit (200x200, 100 training views; NeRF synthetic
+    dataset, Mildenhall et al. 2020, CC BY 3.0)."""
+    from importlib.resources import files
+
+    return Path(str(files("nerfkit") / "assets" / "lego_200x200.npz"))
+
+
+def fresh_folder(path: str | Path) -> Path:
+    """``path``, or ``path-2``, ``path-3``, ...: the first that holds no run."""
+    p, i = Path(path), 2
+    while (p / "config.json").exists():
+        p, i = Path(f"{path}-{i}"), i + 1
+    return p
+
+
+@_checked
+def demo(
+    out: str | Path = "runs/demo",
+    *,
+    model: DemoModel = "fast",
+    minutes: float | None = None,
+    device: str = "auto",
+    seed: int = 0,
+    quiet: bool = False,
+) -> DemoResult:
+    """The main job on the bundled lego scene (``nerfkit demo``): train ``model`` for
+    ``minutes`` (None: :data:`DEMO_MINUTES`) into ``out`` (a fresh ``out-2``, ... when it holds a
+    run), render the 60 test poses to an MP4, a GIF and a depth video (vanilla: every other
+    pose), score the 10 val views as ``nerfkit eval`` does, and write ``summary.json``."""
+    import time
+
+    import torch
+
+    from ..config import MAX_SEED, number
+    from ..data.npz import load_npz
+    from ..io.atomic import write_json
+    from ..models import model_config_class
+    from ..output.videos import render_videos
+    from ..train.checkpoint import load_run
+    from ..train.config import TrainConfig, parse_background, resolve_autocast, resolve_device
+    from ..train.trainer import train
+    from .pipeline import evaluate
+
+    t_start = time.perf_counter()
+    _choice("--model", model, tuple(DEMO_MINUTES))
+    minutes = _check("--minutes", minutes, number(float, above=0))
+    seed = _check("--seed", seed, number(int, 0, MAX_SEED))
+    dev = resolve_device(device)  # a device that is not there: refused before anything is said or written
+    say = _say(quiet)
+    data = str(bundled_lego())
+    scene = load_npz(data)
+    run_dir = fresh_folder(out)
+    minutes = minutes if minutes is not None else DEMO_MINUTES[model]
+    cfg = TrainConfig(data=data, model=model, out=str(run_dir), minutes=minutes, seed=seed, device=device)
+    say(f"nerfkit demo: training '{model}' on lego for {minutes:g} min into {run_dir}")
+    given = {"data", "model", "out", "minutes", "seed", "device"}  # the rest: the preset's
+    result = train(scene, cfg, model_config_class(model)(), quiet=quiet, user_set=given)
+
+    trained, info, _ = load_run(run_dir, dev)
+    bg = torch.tensor(parse_background(info.train.background), device=dev)
+    autocast = resolve_autocast(info.train.precision, dev)
+    views = scene.render_path()
+    if model == "vanilla":  # the big MLP renders ~10 s per frame on a CPU: half the frames
+        views = views.subset(range(0, len(views), 2))
+    videos = render_videos(
+        trained, views, run_dir / "videos", bg, scene.near, scene.far, 30, info.train.render_chunk, autocast
+    )
+    # scored as `nerfkit eval` scores it: eval_val.json and the photos beside the renders
+    metrics = evaluate(run_dir, split="val", device=device, quiet=True).scores
+    summary = {
+        "model": model,
+        "steps": result.step,
+        "train_seconds": round(result.train_seconds, 1),
+        "val_psnr": metrics["psnr"],
+        "val_ssim": metrics["ssim"],
+        "render_seconds_per_frame": round(videos.seconds_per_frame, 3),
+        "total_seconds": round(time.perf_counter() - t_start, 1),
+    }
+    write_json(run_dir / "summary.json", summary)
+    outputs = {
+        "orbit video": videos.rgb_mp4,
+        "orbit GIF": videos.rgb_gif,
+        "depth video": videos.depth_mp4,
+        "PSNR curve": run_dir / "plots" / "psnr.png",
+        "loss curve": run_dir / "plots" / "loss.png",
+        "progression": run_dir / "plots" / "progress.png",
+        "metrics": run_dir / "metrics.csv",
+        "evaluation": run_dir / "eval_val.json",
+        "val views": run_dir / "eval_val.png",
+    }
+    return DemoResult(run_dir, summary, {k: Path(v) for k, v in outputs.items()})
+
+
 __all__ = [
     "ConvertFormat",
     "ConvertResult",
+    "DEMO_MINUTES",
     "DatasetResult",
+    "DemoModel",
+    "DemoResult",
     "FitImageResult",
     "FramesOptions",
     "FramesResult",
@@ -451,7 +563,9 @@ __all__ = [
     "ViewOptions",
     "ViewResult",
     "convert",
+    "bundled_lego",
     "dataset",
+    "demo",
     "fit_image",
     "frames",
     "tags",
