@@ -24,8 +24,9 @@ import torch
 from nerfkit.data.load import load_scene
 from nerfkit.models import build_model
 from nerfkit.models.packing import vertices_touching
+from nerfkit.precision import resolve_precision
 from nerfkit.train.checkpoint import MODEL_FILE, load_latest_checkpoint, read_run, save_model
-from nerfkit.train.config import parse_background, resolve_autocast
+from nerfkit.train.config import parse_background
 from nerfkit.train.evaluate import evaluate_views
 
 
@@ -41,7 +42,7 @@ def main() -> None:
     model = build_model(info.train.model, info.model_config, info.bounds)
     _, path = load_latest_checkpoint(Path(args.run), model)  # the resume checkpoint: full precision
     bg = torch.tensor(parse_background(info.train.background))
-    dtype = resolve_autocast(info.train.precision, torch.device("cpu"))
+    dtype = resolve_precision(info.train.precision, torch.device("cpu"))
     out = {
         "run": args.run,
         "checkpoint": path.name,

@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from nerfkit.models.vanilla import VanillaConfig
-from nerfkit.precision import autocast, cpu_has_native_bf16, resolve_precision
-from nerfkit.train.config import TrainConfig, resolve_autocast
+from nerfkit.precision import autocast, cpu_has_native_bf16, resolve_device, resolve_precision
+from nerfkit.train.config import TrainConfig
 from nerfkit.train.trainer import Trainer
 
 CPU = torch.device("cpu")
@@ -17,7 +17,6 @@ def test_resolve_precision_rules():
     assert resolve_precision("fp32", CPU) is None
     assert resolve_precision("bf16", CPU) is torch.bfloat16
     assert resolve_precision("auto", CPU) is (torch.bfloat16 if cpu_has_native_bf16() else None)
-    assert resolve_autocast("fp32", CPU) is None  # the trainer's name for the same rule
     with pytest.raises(ValueError, match="precision must be one of auto, fp32, bf16, got 'fp16'"):
         resolve_precision("fp16", CPU)
 
@@ -33,7 +32,6 @@ def test_auto_takes_bf16_only_on_gpus_that_have_it_natively(monkeypatch, capabil
 
 def test_a_gpu_this_machine_lacks_is_refused_and_the_one_asked_for_is_made_current(monkeypatch):
     from nerfkit.errors import NerfkitError
-    from nerfkit.train.config import resolve_device
 
     current = []
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)

@@ -384,7 +384,7 @@ def fit_image(target: np.ndarray, cfg: FitImageConfig, progress: bool = True, de
         raise fail("image", f"expected an (H, W, 3) image, got shape {target.shape}")
     height, width = target.shape[:2]
     n_pix = height * width
-    from .train.config import resolve_device
+    from .precision import resolve_device
 
     device = resolve_device(cfg.device)
     precision = resolve_precision(cfg.precision, device)

@@ -127,12 +127,12 @@ class RunToOpen:
 
 def open_run(which: RunToOpen) -> OpenRun:
     """Load ``which.run`` on ``which.device`` with the render chunk of ``which.chunk`` or the run."""
+    from ..precision import resolve_device, resolve_precision
     from ..train.checkpoint import load_run
-    from ..train.config import resolve_autocast, resolve_device
 
     device = resolve_device(which.device)
     model, info, step = load_run(which.run, device)
     chunk = which.chunk or getattr(info.train, "render_chunk", 0) or 8192
-    dtype = resolve_autocast(info.train.precision, device)
+    dtype = resolve_precision(info.train.precision, device)
     model.set_precision(dtype)
     return OpenRun(model, info, step, device, chunk, dtype)

@@ -431,8 +431,8 @@ def serve_run(
         quiet: print neither the address nor notes (the warning of a viewer open to the
             network still goes to stderr).
     """
+    from ..precision import resolve_device, resolve_precision
     from ..train.checkpoint import load_run, read_run
-    from ..train.config import resolve_autocast, resolve_device
     from ._common import scene_for_run
 
     run_dir = Path(run_dir)
@@ -447,7 +447,7 @@ def serve_run(
 
     def load(d: Path) -> tuple:
         model, loaded, step = load_run(d, dev)
-        model.set_precision(resolve_autocast(loaded.train.precision, dev))  # as render and eval draw it
+        model.set_precision(resolve_precision(loaded.train.precision, dev))  # as render and eval draw it
         return model, loaded, step
 
     watcher = RunWatcher(run_dir, load, dev)

@@ -491,8 +491,9 @@ def demo(
     from ..io.atomic import write_json
     from ..models import model_config_class
     from ..output.videos import render_videos
+    from ..precision import resolve_device, resolve_precision
     from ..train.checkpoint import load_run
-    from ..train.config import TrainConfig, parse_background, resolve_autocast, resolve_device
+    from ..train.config import TrainConfig, parse_background
     from ..train.trainer import train
     from .pipeline import evaluate
 
@@ -513,7 +514,7 @@ def demo(
 
     trained, info, _ = load_run(run_dir, dev)
     bg = torch.tensor(parse_background(info.train.background), device=dev)
-    autocast = resolve_autocast(info.train.precision, dev)
+    autocast = resolve_precision(info.train.precision, dev)
     views = scene.render_path()
     if model == "vanilla":  # the big MLP renders ~10 s per frame on a CPU: half the frames
         views = views.subset(range(0, len(views), 2))

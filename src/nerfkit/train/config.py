@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import torch
-
 from ..config import MAX_SEED, MIN_DOWNSCALE, check_ranges, option, parse_background
 from ..errors import fail
 from ..models import MODEL_NAMES
@@ -208,37 +206,3 @@ def eval_stride(width: int, height: int, n_views: int, pixels: int) -> int:
         if n_views * -(-width // s) * -(-height // s) <= pixels:
             return s
     return side
-
-
-def resolve_device(name: str) -> torch.device:
-    if not isinstance(name, str):
-        raise fail("--device", f"{name!r} is not a device", "Use auto, cpu, cuda or cuda:N")
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        device = torch.device(name)
-    except RuntimeError:
-        raise fail("--device", f"'{name}' is not a device", "Use auto, cpu, cuda or cuda:N") from None
-    if device.type not in ("cpu", "cuda"):
-        raise fail("--device", f"nerfkit runs on the CPU or on CUDA, not on '{name}'", "Use auto, cpu, cuda or cuda:N")
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise fail("--device", "CUDA was asked for but this PyTorch has no CUDA device", "Use --device cpu")
-    if device.type == "cuda" and device.index is not None:
-        count = torch.cuda.device_count()
-        if device.index >= count:
-            raise fail(
-                "--device",
-                f"'{name}' asks for GPU {device.index}, but this machine has {count} "
-                f"(cuda:0{f' to cuda:{count - 1}' if count > 1 else ''})",
-                "Use --device cuda",
-            )
-        torch.cuda.set_device(device)  # what asks for "the current GPU" (bf16 support, gsplat) asks this one
-    return device
-
-
-def resolve_autocast(precision: str, device: torch.device) -> torch.dtype | None:
-    """The autocast dtype for a precision setting, or None for plain fp32
-    (:func:`nerfkit.precision.resolve_precision`: the one rule)."""
-    from ..precision import resolve_precision
-
-    return resolve_precision(precision, device)

@@ -28,7 +28,7 @@ from ..io.lock import LOCK_FILE
 from ..io.paths import guard_run_folder
 from ..models import SceneBounds, build_model, check_config
 from ..models.base import NerfModel, StepState, grads_finite, run_schedules
-from ..precision import autocast
+from ..precision import autocast, resolve_device, resolve_precision
 from .checkpoint import (
     MODEL_FILE,
     RunInfo,
@@ -41,7 +41,7 @@ from .checkpoint import (
     scene_record,
     write_run_config,
 )
-from .config import MAX_BATCH_RAYS, TrainConfig, parse_background, resolve_autocast, resolve_device
+from .config import MAX_BATCH_RAYS, TrainConfig, parse_background
 from .evaluate import score_val_views
 from .metrics import psnr_from_mse
 from .optim import build_optimizer, decay_lr
@@ -82,7 +82,7 @@ class Trainer:
         self.scene, self.cfg, self.quiet = scene, cfg, quiet
         self.run_dir = Path(cfg.out)
         self.device = resolve_device(cfg.device)
-        self.autocast = resolve_autocast(cfg.precision, self.device)
+        self.autocast = resolve_precision(cfg.precision, self.device)
         self.background = torch.tensor(parse_background(cfg.background), dtype=torch.float32, device=self.device)
         torch.manual_seed(cfg.seed)
         # NDC for the forward-facing kind the run resolved (with --capture on or off too); a
@@ -489,7 +489,7 @@ def train(scene: Scene, cfg: TrainConfig, model_config, quiet: bool = False, use
         cfg = replace(cfg, data=str(Path(cfg.data).resolve()))  # eval and --resume must find it from any folder
     # what the trainer would refuse at start (the device, the model's settings), before --out is made
     device = resolve_device(cfg.device)
-    resolve_autocast(cfg.precision, device)
+    resolve_precision(cfg.precision, device)
     check_config(cfg.model, model_config, device)
     with run_lock(run_dir):
         check_new_run_folder(run_dir)  # again, holding the lock: another process may have just started

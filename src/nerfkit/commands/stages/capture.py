@@ -665,7 +665,7 @@ def run_capture(args: CaptureOptions, api: Calls) -> Made:
     from ...images import list_images
     from ...io.atomic import write_json
     from ...io.paths import guard_outputs
-    from ...train.config import resolve_device
+    from ...precision import resolve_device
 
     times: dict[str, float] = {}
     step = partial(_step, verbose=args.verbose, times=times)
