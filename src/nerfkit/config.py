@@ -27,6 +27,9 @@ T = TypeVar("T", bound="DataclassInstance")
 
 # the largest --seed: every random generator nerfkit seeds (numpy, torch) takes it
 MAX_SEED = 2**32 - 1
+# Rays per training step or per rendering chunk: far more than fits any memory is refused
+# when the command line is parsed (a batch that still does not fit is a one-line error).
+MAX_BATCH_RAYS = 1 << 20
 # the smallest --downscale: it divides the image size, so 1 keeps it (and less would enlarge it)
 MIN_DOWNSCALE = 1
 # the smallest side resampled images may have: below it a view holds no scene to train or look at

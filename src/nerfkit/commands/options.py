@@ -14,13 +14,64 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from ..config import MIN_DOWNSCALE, option
+from ..config import MAX_BATCH_RAYS, MIN_DOWNSCALE, option
 from ..table_cut import TABLE_CUT
 
 # the choices of `nerfkit render --path`, `nerfkit eval --split` and `nerfkit frames --spread`
 VideoPath = Literal["auto", "test", "orbit", "spiral"]
 Split = Literal["val", "test", "train"]
 Spread = Literal["time", "motion"]
+
+
+# the range of calibrate's and poses' --detect-size (the long side, in pixels, tags are
+# detected on) and --jobs (photos processed at once), which they word each their own way
+DETECT_SIZE = {"min": 64, "max": 100_000}
+JOBS = {"min": 0, "max": 256}
+
+
+@dataclass(frozen=True)
+class CalibrateOptions:
+    """The options of ``nerfkit calibrate`` (:func:`nerfkit.api.calibrate`) on how it reads the photos."""
+
+    detect_size: int = option(
+        2000,
+        "detect tags on a copy this many pixels on the long side, then refine corners at full resolution",
+        **DETECT_SIZE,
+        metavar="DETECT_SIZE",
+    )
+    jobs: int = option(0, "photos processed in parallel", default_help="up to 4 cores", **JOBS, metavar="JOBS")
+
+
+@dataclass(frozen=True)
+class PosesOptions:
+    """The options of ``nerfkit poses`` (:func:`nerfkit.api.pose`) on how it reads the photos."""
+
+    detect_size: int = option(
+        CalibrateOptions.detect_size, "tag detection size (long side, px)", **DETECT_SIZE, metavar="DETECT_SIZE"
+    )
+    jobs: int = option(
+        CalibrateOptions.jobs,
+        "photos processed in parallel, and structure-from-motion's threads",
+        default_help="up to 4 cores, SfM on all; SfM on several threads differs a little from run to run, "
+        "--jobs 1 repeats exactly",
+        **JOBS,
+        metavar="JOBS",
+    )
+
+
+@dataclass(frozen=True)
+class RunDeviceOptions:
+    """Where a command on a trained run (render, eval, export) renders it, and how many rays at once."""
+
+    device: str = option("auto", "auto, cpu, cuda or cuda:N", metavar="DEVICE")
+    chunk: int = option(
+        0,
+        "rays rendered at once; lower it if memory runs out",
+        default_help="the run's render chunk",
+        min=0,
+        max=MAX_BATCH_RAYS,
+        metavar="CHUNK",
+    )
 
 
 @dataclass(frozen=True)

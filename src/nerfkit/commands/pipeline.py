@@ -31,7 +31,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, ParamSpec, TypeVar, get_args
 
-from .options import EvalOptions, ExportOptions, RenderOptions, Split, VideoPath
+from .options import (
+    CalibrateOptions,
+    EvalOptions,
+    ExportOptions,
+    PosesOptions,
+    RenderOptions,
+    RunDeviceOptions,
+    Split,
+    VideoPath,
+)
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -291,15 +300,17 @@ def calibrate(
     tag_size: float | None = None,
     dictionary: str = "DICT_4X4_50",
     layout: str | Path | None = None,
-    detect_size: int = 2000,
-    jobs: int = 0,
+    detect_size: int = CalibrateOptions.detect_size,
+    jobs: int = CalibrateOptions.jobs,
     cache: bool = True,
     settings: CalibrateConfig | None = None,
     all_photos: bool = False,
     force: bool = False,
     quiet: bool = False,
 ) -> CalibrationResult:
-    """Calibrate the camera from photos of the printed tag sheet (``nerfkit calibrate``).
+    """Calibrate the camera from photos of the printed tag sheet (``nerfkit calibrate``). The
+    defaults and ranges of ``detect_size`` and ``jobs`` are those of
+    :class:`~nerfkit.commands.options.CalibrateOptions`, as the command's are.
 
     Args:
         photos: folder of photos of the tag sheet, taken from varied angles.
@@ -318,15 +329,14 @@ def calibrate(
     from ..capture.aruco import get_dictionary, load_layout
     from ..capture.calibrate import CalibrateConfig, calibrate_records, calibration_json
     from ..capture.photos import blur_hint, default_jobs, group_by_size, keep_one_lens, require_tags, scan_photos
-    from ..config import number, output_path, tag_side
+    from ..config import output_path, tag_side
     from ..errors import NerfkitError, fail
     from ..io.atomic import write_json
     from ..io.paths import guard_outputs
     from .stages.calibrate import calibration_report
 
     tag_size = _check("--tag-size", tag_size, tag_side)
-    detect_size = _check("--detect-size", detect_size, number(int, 64, 100_000))
-    jobs = _check("--jobs", jobs, number(int, 0, 256))
+    detect_size, jobs = dataclasses.astuple(_options(CalibrateOptions, {"detect_size": detect_size, "jobs": jobs}))
     cfg = _settings(settings, CalibrateConfig, "settings")
     photos_dir, layout_file = str(photos), str(layout) if layout else None
     get_dictionary(dictionary)
@@ -397,8 +407,8 @@ def pose(
     single_tag: bool = False,
     dictionary: str | None = None,
     build_dataset: bool = True,
-    detect_size: int = 2000,
-    jobs: int = 0,
+    detect_size: int = PosesOptions.detect_size,
+    jobs: int = PosesOptions.jobs,
     cache: bool = True,
     max_side: int | None = None,
     pose_settings: PoseConfig | None = None,
@@ -408,6 +418,8 @@ def pose(
     quiet: bool = False,
 ) -> PoseResult:
     """Pose the photos of an object beside a tag (or by SfM) and build its dataset (``nerfkit poses``).
+    The defaults and ranges of ``detect_size`` and ``jobs`` are those of
+    :class:`~nerfkit.commands.options.PosesOptions`, as the command's are.
 
     Args:
         photos: folder of photos of the object beside the tag.
@@ -456,8 +468,7 @@ def pose(
     focal_px = _check("--focal-px", focal_px, number(float, above=0))
     tag_id = _check("--tag-id", tag_id, number(int, 0))
     sfm_max_size = _check("--sfm-max-size", sfm_max_size, number(int, 64, 100_000))
-    detect_size = _check("--detect-size", detect_size, number(int, 64, 100_000))
-    jobs = _check("--jobs", jobs, number(int, 0, 256))
+    detect_size, jobs = dataclasses.astuple(_options(PosesOptions, {"detect_size": detect_size, "jobs": jobs}))
     pcfg = _settings(pose_settings, PoseConfig, "pose_settings")
     dcfg = _settings(dataset_settings, DatasetConfig, "dataset_settings")
     if max_side is not None:  # (checked with the settings it joins)
@@ -820,11 +831,9 @@ def resume(
 
 
 def _run_checks(chunk: int) -> int:
-    """``chunk`` (rays rendered at once) checked as ``--chunk`` is."""
-    from ..config import number
-    from ..train.config import MAX_BATCH_RAYS
-
-    return _check("--chunk", chunk, number(int, 0, MAX_BATCH_RAYS))
+    """``chunk`` (rays rendered at once) checked as ``--chunk`` is
+    (:class:`~nerfkit.commands.options.RunDeviceOptions`)."""
+    return _options(RunDeviceOptions, {"chunk": chunk}).chunk
 
 
 @_checked
@@ -838,8 +847,8 @@ def render(
     object: bool = RenderOptions.object,  # noqa: A002 - the flag's name
     background: str | None = RenderOptions.background,
     data: str | Path | None = None,
-    device: str = "auto",
-    chunk: int = 0,
+    device: str = RunDeviceOptions.device,
+    chunk: int = RunDeviceOptions.chunk,
     allow_outside_paths: bool = False,
     force: bool = False,
     quiet: bool = False,
@@ -939,8 +948,8 @@ def evaluate(
     split: Split = EvalOptions.split,
     fit_views: int | None = EvalOptions.fit_views,
     data: str | Path | None = None,
-    device: str = "auto",
-    chunk: int = 0,
+    device: str = RunDeviceOptions.device,
+    chunk: int = RunDeviceOptions.chunk,
     allow_outside_paths: bool = False,
     quiet: bool = False,
 ) -> EvaluationResult:
@@ -1023,8 +1032,8 @@ def export(
     crop: bool = ExportOptions.crop,
     background_dome: bool = ExportOptions.background_dome,
     data: str | Path | None = None,
-    device: str = "auto",
-    chunk: int = 0,
+    device: str = RunDeviceOptions.device,
+    chunk: int = RunDeviceOptions.chunk,
     allow_outside_paths: bool = False,
     force: bool = False,
     quiet: bool = False,
