@@ -23,7 +23,7 @@ RENAMED = {"dict": "dictionary"}
 @pytest.mark.parametrize(
     ("command", "function", "argv", "given", "api_only", "options"),
     [
-        ("tags", api.tags, [], set(), {"quiet"}, None),
+        ("tags", api.tags, [], set(), {"quiet"}, api.TagsOptions),
         ("frames", api.frames, ["clip.mp4", "--out", "f"], {"clip", "out"}, {"quiet"}, api.FramesOptions),
         ("convert", api.convert, ["scene.npz", "--to", "o.npz"], {"src", "to"}, {"quiet"}, None),
         ("dataset", api.dataset, ["my_object"], {"poses"}, {"quiet"}, None),

@@ -42,13 +42,30 @@ def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors ar
     switches the option off), checked when the command line is parsed
     (:func:`number`) and for configs built otherwise (:func:`check_ranges`). A yes/no field
     marked ``switch`` has one flag, which switches its default (:func:`switch_flag`; ``help``:
-    that flag's), not ``--NAME``/``--no-NAME``."""
+    that flag's), not ``--NAME``/``--no-NAME``. ``parse``: the flag's own argparse ``type``
+    (text -> value, raising ArgumentTypeError), which then also checks the field's values given
+    otherwise (:func:`check_ranges`), instead of the bounds; ``flag``: the field's flag when it is
+    not ``--NAME`` (tags' ``dictionary`` is ``--dict``)."""
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})
 
 
 def flag_of(name: str) -> str:
     """The command-line flag of config field ``name``: ``principal_point`` -> ``--principal-point``."""
     return "--" + name.replace("_", "-")
+
+
+def field_flag(f: dataclasses.Field) -> str:
+    """The flag of dataclass field ``f``: its ``flag`` metadata (:func:`option`), else :func:`flag_of` its name."""
+    return f.metadata.get("flag") or flag_of(f.name)
+
+
+def parse_problem(parse: Callable[[str], Any], value: Any) -> str | None:
+    """What argparse ``type`` ``parse`` says is wrong with ``value`` (given as its text), or None."""
+    try:
+        parse(str(value))
+    except (argparse.ArgumentTypeError, TypeError, ValueError) as e:
+        return str(e)
+    return None
 
 
 def switch_flag(f: dataclasses.Field) -> str:
@@ -187,18 +204,24 @@ def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
     for f in dataclasses.fields(cfg):
         kind, optional = base_type(hints[f.name])
         value = getattr(cfg, f.name)
-        if kind not in (int, float) or (value is None and optional):
+        parse = f.metadata.get("parse")
+        if (kind not in (int, float) and parse is None) or (value is None and optional):
             continue
         bounds = range_of(f.metadata)
-        problem = (
-            range_problem(value, kind, min=bounds["min"], max=bounds["max"], above=bounds["above"], off=bounds["off"])
-            if fits(kind, value)
-            else _not_a(kind, str(value))
-        )
+        problem: str | None
+        if kind in (int, float) and not fits(kind, value):
+            problem = _not_a(kind, str(value))
+        elif parse is not None:  # (the flag's own type: its range and words)
+            problem = parse_problem(parse, value)
+        else:
+            problem = range_problem(
+                value, kind, min=bounds["min"], max=bounds["max"], above=bounds["above"], off=bounds["off"]
+            )
         if problem:
             if owner:
                 problem += f" for {owner}"
-            raise fail(flag_of(f.name) if source is None else f"{source}: '{f.name}' ({flag_of(f.name)})", problem)
+            flag = field_flag(f)
+            raise fail(flag if source is None else f"{source}: '{f.name}' ({flag})", problem)
     return cfg
 
 
@@ -224,12 +247,14 @@ def check_values(cls: type, values: dict[str, Any], owner: str | None = None) ->
             problem = f"{value!r} is not one of {', '.join(map(str, choices))}"
         else:
             continue
-        raise fail(flag_of(name), problem + (f" for {owner}" if owner else ""))
+        raise fail(field_flag(fields[name]), problem + (f" for {owner}" if owner else ""))
 
 
 def _field_type(tp: Any, meta: Any) -> Any:
-    """The argparse type of a field: numbers are checked (finite, and the field's
-    ``min``/``max``/``above`` metadata); other types pass through."""
+    """The argparse type of a field: its ``parse`` metadata when it has one; numbers are checked
+    (finite, and the field's ``min``/``max``/``above`` metadata); other types pass through."""
+    if meta.get("parse") is not None:
+        return meta["parse"]
     if tp in (int, float):
         return number(tp, **range_of(meta))
     return tp if tp is str else str
@@ -301,13 +326,15 @@ def _add_flag(
         kw["help"] = first.metadata.get("help", "").replace("%", "%%")
         target.add_argument(switch_flag(first), action="store_const", const=not first.default, **kw)
     elif tp is bool:
-        target.add_argument(flag_of(name), action=argparse.BooleanOptionalAction, **kw)
+        target.add_argument(field_flag(first), action=argparse.BooleanOptionalAction, **kw)
     else:
         named = "{" + ",".join(map(str, kw["choices"])) + "}" if "choices" in kw else None  # the choices in --help
         metavar = first.metadata.get("metavar", named or (tp.__name__.upper() if hasattr(tp, "__name__") else "X"))
         target.add_argument(
-            flag_of(name),
-            type=_field_type(tp, widest_bounds([f.metadata for _, _, f in owners])),
+            field_flag(first),
+            type=_field_type(
+                tp, {**widest_bounds([f.metadata for _, _, f in owners]), "parse": first.metadata.get("parse")}
+            ),
             metavar=metavar,
             **kw,
         )

@@ -14,13 +14,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from ..config import MAX_BATCH_RAYS, MIN_DOWNSCALE, option
+from ..config import MAX_BATCH_RAYS, MIN_DOWNSCALE, option, tag_side
 from ..table_cut import TABLE_CUT
+from .stages.tags import object_side
 
 # the choices of `nerfkit render --path`, `nerfkit eval --split` and `nerfkit frames --spread`
 VideoPath = Literal["auto", "test", "orbit", "spiral"]
 Split = Literal["val", "test", "train"]
 Spread = Literal["time", "motion"]
+# the choices of `nerfkit tags --paper`
+Paper = Literal["a4", "letter"]
 
 
 # the range of calibrate's and poses' --detect-size (the long side, in pixels, tags are
@@ -251,3 +254,23 @@ class ViewOptions:
     # the command's --host is its own flag, whose default (this one) a check of every command's
     # --host sees in the parser (tests/test_hostile_inputs.py)
     host: str = option("127.0.0.1", "address to listen on", cli=False)
+
+
+@dataclass(frozen=True)
+class TagsOptions:
+    """The options of ``nerfkit tags`` (:func:`nerfkit.api.tags`) beside its output."""
+
+    paper: Paper = option("a4", "paper size", choices=get_args(Paper))
+    dictionary: str = option(
+        "DICT_4X4_50", "ArUco dictionary", default_help="DICT_4X4_50, nerfkit's", flag="--dict", metavar="DICT"
+    )
+    tag_size: float = option(
+        0.05, "side of the sheet's tags' black squares in metres", parse=tag_side, metavar="TAG_SIZE"
+    )
+    object_tag_size: float = option(
+        0.1,
+        "side of the tag beside the object in metres",
+        default_help="0.1; 0: no such page",
+        parse=object_side,
+        metavar="OBJECT_TAG_SIZE",
+    )

@@ -18,11 +18,12 @@ demo``: training, videos and scores on the bundled lego scene. Example::
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, get_args
 
-from .options import FramesOptions, Spread, ViewOptions
+from .options import FramesOptions, Paper, Spread, TagsOptions, ViewOptions
 from .pipeline import _check, _checked, _choice, _given, _options, _say, _settings
 
 if TYPE_CHECKING:
@@ -30,7 +31,6 @@ if TYPE_CHECKING:
     from ..fit_image import FitImageConfig
 
 # the choices of the commands' flags of the same names
-Paper = Literal["a4", "letter"]
 ConvertFormat = Literal["auto", "npz", "transforms", "colmap"]
 PoseSource = Literal["auto", "tags", "sfm"]
 DemoModel = Literal["fast", "vanilla"]
@@ -53,15 +53,17 @@ class TagsResult:
 def tags(
     out: str | Path = "tags.pdf",
     *,
-    paper: Paper = "a4",
-    dictionary: str = "DICT_4X4_50",
-    tag_size: float = 0.05,
-    object_tag_size: float = 0.1,
+    paper: Paper = TagsOptions.paper,
+    dictionary: str = TagsOptions.dictionary,
+    tag_size: float = TagsOptions.tag_size,
+    object_tag_size: float = TagsOptions.object_tag_size,
     force: bool = False,
     quiet: bool = False,
 ) -> TagsResult:
     """Write a PDF of ArUco tags to print at actual size (``nerfkit tags``): page 1 a calibration
-    sheet, page 2 one larger tag to lay beside the object, each with a 100 mm ruler.
+    sheet, page 2 one larger tag to lay beside the object, each with a 100 mm ruler. The defaults
+    and checks of its options (``paper`` to ``object_tag_size``) are those of
+    :class:`~nerfkit.commands.options.TagsOptions`, as the command's are.
 
     Args:
         out: the PDF to write.
@@ -74,14 +76,13 @@ def tags(
     """
     from ..capture.aruco import get_dictionary
     from ..capture.sheet import tag_sheets
-    from ..config import output_path, tag_side
+    from ..config import output_path
     from ..errors import fail
     from ..io.paths import guard_outputs
     from .stages import tags as stage
 
-    _choice("--paper", paper, get_args(Paper))
-    tag_size = _check("--tag-size", tag_size, tag_side)
-    object_tag_size = _check("--object-tag-size", object_tag_size, stage.object_side)
+    given = {"paper": paper, "dictionary": dictionary, "tag_size": tag_size, "object_tag_size": object_tag_size}
+    paper, dictionary, tag_size, object_tag_size = dataclasses.astuple(_options(TagsOptions, given))
     path = Path(_check("--out", out, output_path))
     if path.suffix.lower() != ".pdf":
         raise fail("--out", f"'{path}' should end in .pdf")
@@ -560,6 +561,7 @@ __all__ = [
     "Paper",
     "PoseSource",
     "Spread",
+    "TagsOptions",
     "TagsResult",
     "ViewOptions",
     "ViewResult",
