@@ -327,3 +327,27 @@ def test_a_field_may_have_a_flag_of_another_name():
         check_values(Tags, {"dictionary": 3})
     with pytest.raises(NerfkitError, match="--n: 0 is below the minimum 1"):
         check_ranges(Tags(count=0))
+
+
+def test_the_fields_of_an_exclusive_set_are_one_flag_at_most(capsys):
+    """Fields sharing an ``exclusive`` name (convert's ``--size`` and ``--downscale``) are
+    mutually exclusive flags, and :func:`check_exclusive` refuses both given otherwise (a field
+    at its default is not given), naming the later by the earlier, as argparse does."""
+    from nerfkit.config import check_exclusive, dataclass_from_args
+
+    @dataclasses.dataclass
+    class Resize:
+        size: int | None = option(None, "longest side", min=1, exclusive="size", metavar="PX")
+        downscale: float | None = option(None, "divide by", min=1, exclusive="size", metavar="F")
+        quality: int = option(95, "JPEG quality", min=1, max=100)
+
+    parser = argparse.ArgumentParser()
+    add_dataclass_args(parser, Resize)
+    assert "[--size PX | --downscale F]" in parser.format_usage()
+    assert dataclass_from_args(Resize, parser.parse_args(["--downscale", "2"])) == Resize(downscale=2.0)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--size", "200", "--downscale", "2"])
+    assert "--downscale: not allowed with argument --size" in capsys.readouterr().err
+    assert check_exclusive(Resize(size=200, quality=90)) == Resize(size=200, quality=90)
+    with pytest.raises(NerfkitError, match="--downscale: not allowed with --size"):
+        check_exclusive(Resize(size=200, downscale=2.0))

@@ -45,7 +45,9 @@ def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors ar
     that flag's), not ``--NAME``/``--no-NAME``. ``parse``: the flag's own argparse ``type``
     (text -> value, raising ArgumentTypeError), which then also checks the field's values given
     otherwise (:func:`check_ranges`), instead of the bounds; ``flag``: the field's flag when it is
-    not ``--NAME`` (tags' ``dictionary`` is ``--dict``)."""
+    not ``--NAME`` (tags' ``dictionary`` is ``--dict``); ``exclusive``: the name of a set of
+    fields of which one at most is given (convert's ``--size`` and ``--downscale``): one
+    mutually exclusive group of flags, and :func:`check_exclusive` for values given otherwise."""
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})
 
 
@@ -225,6 +227,21 @@ def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
     return cfg
 
 
+def check_exclusive(cfg: T) -> T:
+    """Refuse two fields of dataclass ``cfg`` of the same ``exclusive`` set (:func:`option`) both
+    given (not their defaults), as the command line refuses both flags; returns ``cfg``.
+    Example: convert's ``size=200, downscale=2`` -> ``--downscale: not allowed with --size``."""
+    given: dict[str, dataclasses.Field] = {}
+    for f in dataclasses.fields(cfg):
+        name = f.metadata.get("exclusive")
+        if name is None or getattr(cfg, f.name) == f.default:
+            continue
+        if name in given:
+            raise fail(field_flag(f), f"not allowed with {field_flag(given[name])}", "Give one of them")
+        given[name] = f
+    return cfg
+
+
 def check_values(cls: type, values: dict[str, Any], owner: str | None = None) -> None:
     """Refuse a value of ``values`` (settings of dataclass ``cls`` by field name, as Python
     gives them) of the wrong kind for its field, as the command line would: a yes/no field
@@ -355,16 +372,24 @@ def add_dataclass_args(
 ) -> None:
     """Add one flag per field of dataclass ``cls`` (defaults left unset: None), in the argument
     group its ``group`` metadata names (in the order they first appear), else in ``group_title``'s
-    (or the parser's own options when None). A flag the parser
+    (or the parser's own options when None); the flags of one ``exclusive`` set are mutually
+    exclusive. A flag the parser
     has already is refused (argparse's conflict error); alternative configs that share flags go
     through :func:`add_alternative_dataclass_args`."""
     target = parser.add_argument_group(group_title) if group_title else parser
     groups: dict[str, Any] = {}
+    exclusive: dict[str, Any] = {}  # (one mutually exclusive group of flags per ``exclusive`` name)
     for tp, f in _cli_fields(cls, skip):
         group = f.metadata.get("group")
         if group and group not in groups:
             groups[group] = parser.add_argument_group(group)
-        _add_flag(groups[group] if group else target, f.name, [(cls.__name__, tp, f)])
+        where = groups[group] if group else target
+        name = f.metadata.get("exclusive")
+        if name is not None:
+            if name not in exclusive:
+                exclusive[name] = where.add_mutually_exclusive_group()
+            where = exclusive[name]
+        _add_flag(where, f.name, [(cls.__name__, tp, f)])
 
 
 def _alternative_fields(classes: dict[str, type]) -> dict[str, list[tuple[str, Any, dataclasses.Field]]]:

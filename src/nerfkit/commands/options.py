@@ -14,16 +14,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from ..config import MAX_BATCH_RAYS, MIN_DOWNSCALE, option, tag_side
+from ..config import MAX_BATCH_RAYS, MIN_DOWNSCALE, number, option, tag_side
 from ..table_cut import TABLE_CUT
+from .stages.convert import depth_bound
 from .stages.tags import object_side
 
 # the choices of `nerfkit render --path`, `nerfkit eval --split` and `nerfkit frames --spread`
 VideoPath = Literal["auto", "test", "orbit", "spiral"]
 Split = Literal["val", "test", "train"]
 Spread = Literal["time", "motion"]
-# the choices of `nerfkit tags --paper`
+# the choices of `nerfkit tags --paper` and `nerfkit convert --format`
 Paper = Literal["a4", "letter"]
+ConvertFormat = Literal["auto", "npz", "transforms", "colmap"]
 
 
 # the range of calibrate's and poses' --detect-size (the long side, in pixels, tags are
@@ -273,4 +275,43 @@ class TagsOptions:
         default_help="0.1; 0: no such page",
         parse=object_side,
         metavar="OBJECT_TAG_SIZE",
+    )
+
+
+@dataclass(frozen=True)
+class ConvertOptions:
+    """The options of ``nerfkit convert`` (:func:`nerfkit.api.convert`) on what it writes, beside
+    its input, output and a COLMAP model's photos."""
+
+    format: ConvertFormat = option(
+        "auto", "output format; auto: npz for *.npz, else transforms.json", choices=get_args(ConvertFormat)
+    )
+    size: int | None = option(
+        None,
+        "resample so the longest image side is PX pixels (K follows)",
+        min=1,
+        max=100_000,
+        exclusive="size",
+        metavar="PX",
+    )
+    downscale: float | None = option(
+        None, "divide the image size by F (K follows)", min=MIN_DOWNSCALE, exclusive="size", metavar="F"
+    )
+    background: str = option(
+        "black",
+        "colour under transparent pixels of RGBA inputs: black, white, grey, r,g,b in [0, 1] or #rrggbb",
+        metavar="BACKGROUND",
+    )
+    near: float | None = option(
+        None,
+        "set the depth range's near end (world units; e.g. the course's 2 for lego, where nerfkit's rule "
+        "from the cameras gives 2.02)",
+        parse=depth_bound(number(float, 0.0)),
+        metavar="NEAR",
+    )
+    far: float | None = option(
+        None,
+        "set the depth range's far end (the course's 6 for lego)",
+        parse=depth_bound(number(float, above=0)),
+        metavar="FAR",
     )

@@ -273,11 +273,12 @@ def _settings(given: Any, kind: type[T], name: str) -> T:
 
 def _options(kind: type[T], given: dict[str, Any]) -> T:
     """The options dataclass ``kind`` (a command's, :mod:`nerfkit.commands.options`) of the
-    ``given`` keyword arguments, checked as its flags are (:func:`_settings`) and converted as
+    ``given`` keyword arguments, checked as its flags are (:func:`_settings`; two of one
+    ``exclusive`` set: :func:`~nerfkit.config.check_exclusive`) and converted as
     they convert (a whole number given for a float field: a float)."""
-    from ..config import base_type
+    from ..config import base_type, check_exclusive
 
-    options = _settings(kind(**given), kind, kind.__name__)
+    options = check_exclusive(_settings(kind(**given), kind, kind.__name__))
     hints = typing.get_type_hints(kind)
     floats = {
         f.name: float(getattr(options, f.name))

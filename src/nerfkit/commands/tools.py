@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, get_args
 
-from .options import FramesOptions, Paper, Spread, TagsOptions, ViewOptions
+from .options import ConvertFormat, ConvertOptions, FramesOptions, Paper, Spread, TagsOptions, ViewOptions
 from .pipeline import _check, _checked, _choice, _given, _options, _say, _settings
 
 if TYPE_CHECKING:
@@ -31,7 +31,6 @@ if TYPE_CHECKING:
     from ..fit_image import FitImageConfig
 
 # the choices of the commands' flags of the same names
-ConvertFormat = Literal["auto", "npz", "transforms", "colmap"]
 PoseSource = Literal["auto", "tags", "sfm"]
 DemoModel = Literal["fast", "vanilla"]
 
@@ -159,12 +158,12 @@ def convert(
     src: str | Path,
     to: str | Path,
     *,
-    format: ConvertFormat = "auto",  # noqa: A002 - the flag's name
-    size: int | None = None,
-    downscale: float | None = None,
-    background: str = "black",
-    near: float | None = None,
-    far: float | None = None,
+    format: ConvertFormat = ConvertOptions.format,  # noqa: A002 - the flag's name
+    size: int | None = ConvertOptions.size,
+    downscale: float | None = ConvertOptions.downscale,
+    background: str = ConvertOptions.background,
+    near: float | None = ConvertOptions.near,
+    far: float | None = ConvertOptions.far,
     images: str | Path | None = None,
     text: bool = False,
     force: bool = False,
@@ -172,7 +171,9 @@ def convert(
     quiet: bool = False,
 ) -> ConvertResult:
     """Convert a dataset to a course npz, a transforms.json folder or a COLMAP project
-    (``nerfkit convert``), optionally resized or with another depth range.
+    (``nerfkit convert``), optionally resized or with another depth range. The defaults and
+    checks of its options (``format`` to ``far``) are those of
+    :class:`~nerfkit.commands.options.ConvertOptions`, as the command's are.
 
     Args:
         src: the dataset file or folder (npz, Blender, transforms.json, COLMAP, LLFF).
@@ -193,19 +194,13 @@ def convert(
     """
     import sys
 
-    from ..config import MIN_DOWNSCALE, number, output_path, parse_background
+    from ..config import output_path, parse_background
     from ..data.load import dataset_inputs
-    from ..errors import fail
     from ..io.paths import guard_outputs
     from .stages import convert as stage
 
-    _choice("--format", format, get_args(ConvertFormat))
-    size = _check("--size", size, number(int, 1, 100_000))
-    downscale = _check("--downscale", downscale, number(float, MIN_DOWNSCALE))
-    if size is not None and downscale is not None:
-        raise fail("--downscale", "not allowed with --size", "Give one of them")
-    near = _check("--near", near, stage.depth_bound(number(float, 0.0)))
-    far = _check("--far", far, stage.depth_bound(number(float, above=0)))
+    given = {"format": format, "size": size, "downscale": downscale, "background": background, "near": near, "far": far}
+    format, size, downscale, background, near, far = dataclasses.astuple(_options(ConvertOptions, given))
     images = _given("--images", images)
     target = _check("--to", to, output_path)
     out, fmt = Path(target), stage.output_format(target, format)
@@ -550,6 +545,7 @@ def demo(
 
 __all__ = [
     "ConvertFormat",
+    "ConvertOptions",
     "ConvertResult",
     "DEMO_MINUTES",
     "DatasetResult",
