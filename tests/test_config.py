@@ -338,7 +338,9 @@ def test_the_fields_of_an_exclusive_set_are_one_flag_at_most(capsys):
     @dataclasses.dataclass
     class Resize:
         size: int | None = option(None, "longest side", min=1, exclusive="size", metavar="PX")
-        downscale: float | None = option(None, "divide by", min=1, exclusive="size", metavar="F")
+        downscale: float | None = option(
+            None, "divide by", min=1, exclusive="size", exclusive_fix="Resize one way", metavar="F"
+        )
         quality: int = option(95, "JPEG quality", min=1, max=100)
 
     parser = argparse.ArgumentParser()
@@ -349,5 +351,5 @@ def test_the_fields_of_an_exclusive_set_are_one_flag_at_most(capsys):
         parser.parse_args(["--size", "200", "--downscale", "2"])
     assert "--downscale: not allowed with argument --size" in capsys.readouterr().err
     assert check_exclusive(Resize(size=200, quality=90)) == Resize(size=200, quality=90)
-    with pytest.raises(NerfkitError, match="--downscale: not allowed with --size"):
+    with pytest.raises(NerfkitError, match="--downscale: not allowed with --size. Resize one way"):
         check_exclusive(Resize(size=200, downscale=2.0))

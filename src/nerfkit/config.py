@@ -229,7 +229,8 @@ def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
 
 def check_exclusive(cfg: T) -> T:
     """Refuse two fields of dataclass ``cfg`` of the same ``exclusive`` set (:func:`option`) both
-    given (not their defaults), as the command line refuses both flags; returns ``cfg``.
+    given (not their defaults), as the command line refuses both flags (the later field's
+    ``exclusive_fix`` metadata: what to do, else "Give one of them"); returns ``cfg``.
     Example: convert's ``size=200, downscale=2`` -> ``--downscale: not allowed with --size``."""
     given: dict[str, dataclasses.Field] = {}
     for f in dataclasses.fields(cfg):
@@ -237,7 +238,8 @@ def check_exclusive(cfg: T) -> T:
         if name is None or getattr(cfg, f.name) == f.default:
             continue
         if name in given:
-            raise fail(field_flag(f), f"not allowed with {field_flag(given[name])}", "Give one of them")
+            fix = f.metadata.get("exclusive_fix", "Give one of them")
+            raise fail(field_flag(f), f"not allowed with {field_flag(given[name])}", fix)
         given[name] = f
     return cfg
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from ..config import MAX_BATCH_RAYS, MIN_DOWNSCALE, number, option, tag_side
+from ..config import MAX_BATCH_RAYS, MIN_DOWNSCALE, MIN_RESAMPLED_SIDE, number, option, tag_side
 from ..table_cut import TABLE_CUT
 from .stages.convert import depth_bound
 from .stages.tags import object_side
@@ -26,6 +26,9 @@ Spread = Literal["time", "motion"]
 # the choices of `nerfkit tags --paper` and `nerfkit convert --format`
 Paper = Literal["a4", "letter"]
 ConvertFormat = Literal["auto", "npz", "transforms", "colmap"]
+# the choices of `nerfkit poses --method` (and capture's) and of `nerfkit capture --model`
+PoseMethod = Literal["auto", "tags", "colmap"]
+CaptureModel = Literal["fast", "splat", "both"]
 
 
 # the range of calibrate's and poses' --detect-size (the long side, in pixels, tags are
@@ -212,11 +215,15 @@ class EvalOptions:
     )
 
 
+# the range of the frames kept from a clip: frames' --frames, capture's --clip-frames
+FRAMES_KEPT = {"min": 10, "max": 10_000}
+
+
 @dataclass(frozen=True)
 class FramesOptions:
     """The options of ``nerfkit frames`` (:func:`nerfkit.api.frames`) beside its clip and output."""
 
-    frames: int = option(120, "frames to keep, at most", min=10, max=10_000, metavar="N")
+    frames: int = option(120, "frames to keep, at most", **FRAMES_KEPT, metavar="N")
     spread: Spread = option(
         "time",
         "spread the windows evenly in time, or in camera motion measured between frames (a pause then takes no window)",
@@ -315,3 +322,84 @@ class ConvertOptions:
         parse=depth_bound(number(float, above=0)),
         metavar="FAR",
     )
+
+
+@dataclass(frozen=True)
+class CaptureOptions:
+    """The options of ``nerfkit capture`` (:func:`nerfkit.api.capture`) beside its photos, output
+    and --force."""
+
+    tag_size: float | None = option(
+        None,
+        "side of the black square of the tag beside the object, in metres (e.g. 0.06): the tag then fixes scale and up",
+        default_help="no tag; structure-from-motion poses, the table found in its points",
+        parse=tag_side,
+        metavar="TAG_SIZE",
+    )
+    calib: str | None = option(
+        None,
+        "folder of photos of the printed tag sheet, to calibrate the camera from (without it or --camera: "
+        "the photos' EXIF focal length, no distortion)",
+        exclusive="camera",
+        metavar="CALIB_DIR",
+    )
+    camera: str | None = option(
+        None,
+        "a camera file from an earlier `nerfkit calibrate` of the same phone",
+        exclusive="camera",
+        exclusive_fix="Calibrate from the sheet's photos or give a camera file",
+        metavar="CAMERA",
+    )
+    sheet_tag_size: float | None = option(
+        None,
+        "side of a tag's black square on the calibration sheet",
+        default_help="--tag-size; needed with --calib when there is no --tag-size",
+        parse=tag_side,
+        metavar="SHEET_TAG_SIZE",
+    )
+    dictionary: str | None = option(
+        None,
+        "ArUco dictionary of the tags",
+        default_help="the camera file's, else DICT_4X4_50",
+        flag="--dict",
+        metavar="DICT",
+    )
+    method: PoseMethod = option(
+        "auto",
+        "poses: auto (default): without --tag-size, structure-from-motion; with it, structure-from-motion "
+        "poses in the tag's frame when they hold up; tags: the tag's poses only, as the course does; colmap: "
+        "structure-from-motion alone (a tag, with --tag-size, fixes scale and up)",
+        default_help="",  # (the help says it)
+        choices=get_args(PoseMethod),
+    )
+    clip_frames: int = option(
+        FramesOptions.frames,
+        "a video: frames to keep from it, at most",
+        default_help=f"{FramesOptions.frames}; see `nerfkit frames`",
+        **FRAMES_KEPT,
+        metavar="N",
+    )
+    model: CaptureModel = option(
+        "both",
+        "what to train: fast, the NeRF, with the videos and mesh; splat, 3D Gaussians written as "
+        "OUT/splat.ply and OUT/splat.splat, and the object alone as OUT/splat_object.ply; both (the "
+        "default: each trains for --minutes)",
+        default_help="",  # (the help says it)
+        choices=get_args(CaptureModel),
+    )
+    max_side: int | None = option(
+        None,
+        "the dataset's photos' longer side in pixels (0: keep their size; default: poses', 512)",
+        min=MIN_RESAMPLED_SIDE,
+        off=0,
+        metavar="MAX_SIDE",
+    )
+    minutes: float = option(3.0, "training time of each model", above=0, exclusive="budget", metavar="MINUTES")
+    steps: int | None = option(
+        None, "train this many steps instead of --minutes", min=1, exclusive="budget", metavar="STEPS"
+    )
+    frames: int | None = option(
+        None, "frames of the orbit", default_help="render's, 120", min=1, max=100_000, metavar="FRAMES"
+    )
+    mesh: bool = option(True, "skip the NeRF's mesh", switch=True)
+    device: str = option(RunDeviceOptions.device, "auto, cpu, cuda or cuda:N", metavar="DEVICE")

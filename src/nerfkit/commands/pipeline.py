@@ -33,8 +33,11 @@ from typing import TYPE_CHECKING, Any, Literal, ParamSpec, TypeVar, get_args
 
 from .options import (
     CalibrateOptions,
+    CaptureModel,
+    CaptureOptions,
     EvalOptions,
     ExportOptions,
+    PoseMethod,
     PosesOptions,
     RenderOptions,
     RunDeviceOptions,
@@ -49,8 +52,7 @@ if TYPE_CHECKING:
     from ..capture.dataset import DatasetConfig
     from ..capture.poses import PoseConfig
 
-# the choices of the commands' flags of the same names
-PoseMethod = Literal["auto", "tags", "colmap"]
+# the choices of the commands' flags of the same names (--method: commands/options.py's PoseMethod)
 Matcher = Literal["auto", "exhaustive", "sequential", "spatial"]
 
 T = TypeVar("T", bound="DataclassInstance")
@@ -1161,10 +1163,6 @@ def export(
     return ExportResult(written, opened.step)
 
 
-# the choices of `nerfkit capture --model`
-CaptureModel = Literal["fast", "splat", "both"]
-
-
 @dataclass(frozen=True)
 class CaptureResult:
     """What :func:`capture` made in its ``out`` folder."""
@@ -1184,20 +1182,20 @@ def capture(
     photos: str | Path,
     out: str | Path,
     *,
-    tag_size: float | None = None,
-    calib: str | Path | None = None,
-    camera: str | Path | None = None,
-    sheet_tag_size: float | None = None,
-    dictionary: str | None = None,
-    method: PoseMethod = "auto",
-    clip_frames: int = 120,
-    model: CaptureModel = "both",
-    max_side: int | None = None,
-    minutes: float = 3.0,
-    steps: int | None = None,
-    frames: int | None = None,
-    mesh: bool = True,
-    device: str = "auto",
+    tag_size: float | None = CaptureOptions.tag_size,
+    calib: str | Path | None = CaptureOptions.calib,
+    camera: str | Path | None = CaptureOptions.camera,
+    sheet_tag_size: float | None = CaptureOptions.sheet_tag_size,
+    dictionary: str | None = CaptureOptions.dictionary,
+    method: PoseMethod = CaptureOptions.method,
+    clip_frames: int = CaptureOptions.clip_frames,
+    model: CaptureModel = CaptureOptions.model,
+    max_side: int | None = CaptureOptions.max_side,
+    minutes: float = CaptureOptions.minutes,
+    steps: int | None = CaptureOptions.steps,
+    frames: int | None = CaptureOptions.frames,
+    mesh: bool = CaptureOptions.mesh,
+    device: str = CaptureOptions.device,
     force: bool = False,
     verbose: bool = False,
     quiet: bool = False,
@@ -1206,6 +1204,8 @@ def capture(
     (``nerfkit capture``): frames, calibration, poses, training, evaluation, videos and files,
     each kept for the next call with the same inputs. It prints what each stage prints, under
     ``[k/N]`` headings, and a summary (``quiet``: nothing; a stage's failure is the error raised).
+    The defaults and checks of its options (``tag_size`` to ``device``) are those of
+    :class:`~nerfkit.commands.options.CaptureOptions`, as the command's are.
 
     Args:
         photos: a folder of photos of the object, or a video filmed slowly around it.
@@ -1232,31 +1232,33 @@ def capture(
     import io
     import json
 
-    from ..config import MIN_RESAMPLED_SIDE, number, output_path, tag_side
-    from ..errors import fail
+    from ..config import output_path
     from .stages import capture as stage
 
-    if calib is not None and camera is not None:
-        raise fail("--camera", "not allowed with --calib", "Calibrate from the sheet's photos or give a camera file")
-    _choice("--method", method, get_args(PoseMethod))
-    _choice("--model", model, get_args(CaptureModel))
-    options = stage.CaptureOptions(
+    paths = {"calib": str(calib) if calib is not None else None, "camera": str(camera) if camera is not None else None}
+    given = {
+        **{"tag_size": tag_size, **paths, "sheet_tag_size": sheet_tag_size, "dictionary": dictionary},
+        **{"method": method, "clip_frames": clip_frames, "model": model, "max_side": max_side},
+        **{"minutes": minutes, "steps": steps, "frames": frames, "mesh": mesh, "device": device},
+    }
+    o = _options(CaptureOptions, given)
+    options = stage.CaptureArgs(
         photos=str(photos),
         out=_check("--out", out, output_path),
-        calib=str(calib) if calib is not None else None,
-        camera=str(camera) if camera is not None else None,
-        tag_size=_check("--tag-size", tag_size, tag_side),
-        sheet_tag_size=_check("--sheet-tag-size", sheet_tag_size, tag_side),
-        dict=dictionary,
-        method=method,
-        clip_frames=_check("--clip-frames", clip_frames, number(int, 10, 10_000)),
-        model=model,
-        max_side=_check("--max-side", max_side, number(int, MIN_RESAMPLED_SIDE, off=0)),
-        minutes=_check("--minutes", minutes, number(float, above=0)),
-        steps=_check("--steps", steps, number(int, 1)),
-        frames=_check("--frames", frames, number(int, 1, 100_000)),
-        no_mesh=not mesh,
-        device=device,
+        calib=o.calib,
+        camera=o.camera,
+        tag_size=o.tag_size,
+        sheet_tag_size=o.sheet_tag_size,
+        dict=o.dictionary,
+        method=o.method,
+        clip_frames=o.clip_frames,
+        model=o.model,
+        max_side=o.max_side,
+        minutes=o.minutes,
+        steps=o.steps,
+        frames=o.frames,
+        no_mesh=not o.mesh,
+        device=o.device,
         force=force,
         verbose=verbose,
     )
@@ -1286,6 +1288,7 @@ def capture(
 __all__ = [
     "CalibrationResult",
     "CaptureModel",
+    "CaptureOptions",
     "CaptureResult",
     "EvalOptions",
     "EvaluationResult",
