@@ -12,19 +12,24 @@ from nerfkit.errors import NerfkitError
 
 
 def test_every_flag_of_capture_is_an_argument_with_its_default():
+    """The flags of api.CaptureOptions are unset (None) when not given, and the command fills in
+    its defaults, which are the function's."""
+    import argparse
+    import dataclasses
+
     from nerfkit.cli import build_parser
+    from nerfkit.config import dataclass_from_args
 
     args = build_parser("capture").parse_args(["capture", "photos", "--out", "o"])
+    assert all(getattr(args, f.name) is None for f in dataclasses.fields(api.CaptureOptions))
+    args = argparse.Namespace(**{**vars(args), **dataclasses.asdict(dataclass_from_args(api.CaptureOptions, args))})
     params = inspect.signature(api.capture).parameters
-    renamed = {"dict": "dictionary", "no_mesh": "mesh"}
     checked = set()
     for dest, value in vars(args).items():
         if dest in ("command", "func", "verbose", "photos", "out"):
             continue
-        name = renamed.get(dest, dest)
-        expected = (not value) if dest == "no_mesh" else value
-        assert params[name].default == expected, (dest, params[name].default, expected)
-        checked.add(name)
+        assert params[dest].default == value, (dest, params[dest].default, value)
+        checked.add(dest)
     assert set(params) - checked == {"photos", "out", "verbose", "quiet"}  # (the API alone prints nothing)
 
 

@@ -15,6 +15,7 @@ import pytest
 from nerfkit import api
 from nerfkit.capture import synthetic as S
 from nerfkit.cli import main
+from nerfkit.commands.options import CalibrateOptions, PosesOptions, RunDeviceOptions
 from nerfkit.errors import NerfkitError
 
 TAG = 0.06
@@ -250,17 +251,17 @@ NEGATED = {"no_cache", "no_dataset", "no_ground"}
 @pytest.mark.parametrize(
     ("command", "function", "argv", "options"),
     [
-        ("calibrate", api.calibrate, ["photos"], None),
-        ("poses", api.pose, ["photos", "--out", "o"], None),
-        ("render", api.render, ["run"], api.RenderOptions),
-        ("eval", api.evaluate, ["run"], api.EvalOptions),
-        ("export", api.export, ["run"], api.ExportOptions),
+        ("calibrate", api.calibrate, ["photos"], (CalibrateOptions,)),
+        ("poses", api.pose, ["photos", "--out", "o"], (PosesOptions,)),
+        ("render", api.render, ["run"], (api.RenderOptions, RunDeviceOptions)),
+        ("eval", api.evaluate, ["run"], (api.EvalOptions, RunDeviceOptions)),
+        ("export", api.export, ["run"], (api.ExportOptions, RunDeviceOptions)),
     ],
 )
 def test_the_api_defaults_are_the_commands(command, function, argv, options):
     """Every flag of the command is an argument of the API function with the flag's default
     (a ``--no-X`` flag: ``X=True``; the settings dataclasses' flags: their ``*settings``
-    argument, None; the flags of the command's ``options`` dataclass: its defaults, which the
+    argument, None; the flags of the command's ``options`` dataclasses: their defaults, which the
     command fills in for the flags not given), so that a call and a command line without
     options do the same."""
     import dataclasses
@@ -269,9 +270,9 @@ def test_the_api_defaults_are_the_commands(command, function, argv, options):
     from nerfkit.config import dataclass_from_args
 
     args = build_parser(command).parse_args([command, *argv])
-    if options is not None:  # as the command calls the function
-        filled = dataclass_from_args(options, args)
-        flagged = [f for f in dataclasses.fields(options) if f.metadata.get("cli") is not False]
+    for kind in options:  # as the command calls the function
+        filled = dataclass_from_args(kind, args)
+        flagged = [f for f in dataclasses.fields(kind) if f.metadata.get("cli") is not False]
         assert all(getattr(args, f.name) is None for f in flagged)  # (a field without: the command's own flag)
         args = argparse.Namespace(**{**vars(args), **dataclasses.asdict(filled)})
     params = inspect.signature(function).parameters

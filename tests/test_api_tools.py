@@ -23,9 +23,9 @@ RENAMED = {"dict": "dictionary"}
 @pytest.mark.parametrize(
     ("command", "function", "argv", "given", "api_only", "options"),
     [
-        ("tags", api.tags, [], set(), {"quiet"}, None),
+        ("tags", api.tags, [], set(), {"quiet"}, api.TagsOptions),
         ("frames", api.frames, ["clip.mp4", "--out", "f"], {"clip", "out"}, {"quiet"}, api.FramesOptions),
-        ("convert", api.convert, ["scene.npz", "--to", "o.npz"], {"src", "to"}, {"quiet"}, None),
+        ("convert", api.convert, ["scene.npz", "--to", "o.npz"], {"src", "to"}, {"quiet"}, api.ConvertOptions),
         ("dataset", api.dataset, ["my_object"], {"poses"}, {"quiet"}, None),
         ("view", api.view, ["scene.npz"], {"path"}, {"block", "quiet"}, api.ViewOptions),
         ("fit-image", api.fit_image, [], set(), set(), None),  # (its --quiet: no progress bar, the call's: nor report)

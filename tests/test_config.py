@@ -282,3 +282,74 @@ def test_a_switch_is_one_flag_that_switches_its_default():
             parser.parse_args([wrong])
     shown = parser.format_help()
     assert "keep points outside the box (100%)" in shown and "default" not in shown
+
+
+def test_a_field_parsed_by_its_own_type_is_checked_by_it_everywhere(capsys):
+    """A field with ``parse`` metadata (an argparse type: tags' ``--tag-size``, ``tag_side``) is
+    parsed by it on the command line, and a value given otherwise is checked by it too
+    (:func:`check_ranges`), in its words; the field's bounds are not looked for."""
+    from nerfkit.config import tag_side
+
+    @dataclasses.dataclass
+    class Sheet:
+        side: float = option(0.05, "a tag's side in metres", parse=tag_side)
+
+    parser = argparse.ArgumentParser()
+    add_dataclass_args(parser, Sheet)
+    assert parser.parse_args(["--side", "0.04"]).side == 0.04
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--side", "60"])
+    assert "60 mm is 0.06" in capsys.readouterr().err
+    assert check_ranges(Sheet(0.1)) == Sheet(0.1)
+    with pytest.raises(NerfkitError, match=r"--side: 60 is not a printed tag's side .*60 mm is 0.06"):
+        check_ranges(Sheet(60))
+    with pytest.raises(NerfkitError, match="--side: 'x' is not a number"):
+        check_ranges(Sheet("x"))  # type: ignore[arg-type]
+
+
+def test_a_field_may_have_a_flag_of_another_name():
+    """A field with ``flag`` metadata (tags' ``dictionary``) is that flag, read into the field
+    (:func:`dataclass_from_args`); a wrong value of it is named by that flag."""
+    from nerfkit.config import check_values, dataclass_from_args
+
+    @dataclasses.dataclass
+    class Tags:
+        dictionary: str = option("DICT_4X4_50", "ArUco dictionary", flag="--dict", metavar="DICT")
+        count: int = option(4, "tags", min=1, flag="--n")
+
+    parser = argparse.ArgumentParser()
+    add_dataclass_args(parser, Tags)
+    assert dataclass_from_args(Tags, parser.parse_args(["--dict", "DICT_5X5_50"])) == Tags("DICT_5X5_50")
+    assert "--dict DICT" in parser.format_help() and "--dictionary" not in parser.format_help()
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--dictionary", "DICT_5X5_50"])
+    with pytest.raises(NerfkitError, match="--dict: 3 is not text"):
+        check_values(Tags, {"dictionary": 3})
+    with pytest.raises(NerfkitError, match="--n: 0 is below the minimum 1"):
+        check_ranges(Tags(count=0))
+
+
+def test_the_fields_of_an_exclusive_set_are_one_flag_at_most(capsys):
+    """Fields sharing an ``exclusive`` name (convert's ``--size`` and ``--downscale``) are
+    mutually exclusive flags, and :func:`check_exclusive` refuses both given otherwise (a field
+    at its default is not given), naming the later by the earlier, as argparse does."""
+    from nerfkit.config import check_exclusive, dataclass_from_args
+
+    @dataclasses.dataclass
+    class Resize:
+        size: int | None = option(None, "longest side", min=1, exclusive="size", metavar="PX")
+        downscale: float | None = option(
+            None, "divide by", min=1, exclusive="size", exclusive_fix="Resize one way", metavar="F"
+        )
+        quality: int = option(95, "JPEG quality", min=1, max=100)
+
+    parser = argparse.ArgumentParser()
+    add_dataclass_args(parser, Resize)
+    assert "[--size PX | --downscale F]" in parser.format_usage()
+    assert dataclass_from_args(Resize, parser.parse_args(["--downscale", "2"])) == Resize(downscale=2.0)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--size", "200", "--downscale", "2"])
+    assert "--downscale: not allowed with argument --size" in capsys.readouterr().err
+    assert check_exclusive(Resize(size=200, quality=90)) == Resize(size=200, quality=90)
+    with pytest.raises(NerfkitError, match="--downscale: not allowed with --size. Resize one way"):
+        check_exclusive(Resize(size=200, downscale=2.0))

@@ -27,6 +27,9 @@ T = TypeVar("T", bound="DataclassInstance")
 
 # the largest --seed: every random generator nerfkit seeds (numpy, torch) takes it
 MAX_SEED = 2**32 - 1
+# Rays per training step or per rendering chunk: far more than fits any memory is refused
+# when the command line is parsed (a batch that still does not fit is a one-line error).
+MAX_BATCH_RAYS = 1 << 20
 # the smallest --downscale: it divides the image size, so 1 keeps it (and less would enlarge it)
 MIN_DOWNSCALE = 1
 # the smallest side resampled images may have: below it a view holds no scene to train or look at
@@ -39,13 +42,32 @@ def option(default: Any, help: str, **kwargs) -> Any:  # noqa: A002 - mirrors ar
     switches the option off), checked when the command line is parsed
     (:func:`number`) and for configs built otherwise (:func:`check_ranges`). A yes/no field
     marked ``switch`` has one flag, which switches its default (:func:`switch_flag`; ``help``:
-    that flag's), not ``--NAME``/``--no-NAME``."""
+    that flag's), not ``--NAME``/``--no-NAME``. ``parse``: the flag's own argparse ``type``
+    (text -> value, raising ArgumentTypeError), which then also checks the field's values given
+    otherwise (:func:`check_ranges`), instead of the bounds; ``flag``: the field's flag when it is
+    not ``--NAME`` (tags' ``dictionary`` is ``--dict``); ``exclusive``: the name of a set of
+    fields of which one at most is given (convert's ``--size`` and ``--downscale``): one
+    mutually exclusive group of flags, and :func:`check_exclusive` for values given otherwise."""
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})
 
 
 def flag_of(name: str) -> str:
     """The command-line flag of config field ``name``: ``principal_point`` -> ``--principal-point``."""
     return "--" + name.replace("_", "-")
+
+
+def field_flag(f: dataclasses.Field) -> str:
+    """The flag of dataclass field ``f``: its ``flag`` metadata (:func:`option`), else :func:`flag_of` its name."""
+    return f.metadata.get("flag") or flag_of(f.name)
+
+
+def parse_problem(parse: Callable[[str], Any], value: Any) -> str | None:
+    """What argparse ``type`` ``parse`` says is wrong with ``value`` (given as its text), or None."""
+    try:
+        parse(str(value))
+    except (argparse.ArgumentTypeError, TypeError, ValueError) as e:
+        return str(e)
+    return None
 
 
 def switch_flag(f: dataclasses.Field) -> str:
@@ -184,18 +206,41 @@ def check_ranges(cfg: T, source: object = None, owner: str | None = None) -> T:
     for f in dataclasses.fields(cfg):
         kind, optional = base_type(hints[f.name])
         value = getattr(cfg, f.name)
-        if kind not in (int, float) or (value is None and optional):
+        parse = f.metadata.get("parse")
+        if (kind not in (int, float) and parse is None) or (value is None and optional):
             continue
         bounds = range_of(f.metadata)
-        problem = (
-            range_problem(value, kind, min=bounds["min"], max=bounds["max"], above=bounds["above"], off=bounds["off"])
-            if fits(kind, value)
-            else _not_a(kind, str(value))
-        )
+        problem: str | None
+        if kind in (int, float) and not fits(kind, value):
+            problem = _not_a(kind, str(value))
+        elif parse is not None:  # (the flag's own type: its range and words)
+            problem = parse_problem(parse, value)
+        else:
+            problem = range_problem(
+                value, kind, min=bounds["min"], max=bounds["max"], above=bounds["above"], off=bounds["off"]
+            )
         if problem:
             if owner:
                 problem += f" for {owner}"
-            raise fail(flag_of(f.name) if source is None else f"{source}: '{f.name}' ({flag_of(f.name)})", problem)
+            flag = field_flag(f)
+            raise fail(flag if source is None else f"{source}: '{f.name}' ({flag})", problem)
+    return cfg
+
+
+def check_exclusive(cfg: T) -> T:
+    """Refuse two fields of dataclass ``cfg`` of the same ``exclusive`` set (:func:`option`) both
+    given (not their defaults), as the command line refuses both flags (the later field's
+    ``exclusive_fix`` metadata: what to do, else "Give one of them"); returns ``cfg``.
+    Example: convert's ``size=200, downscale=2`` -> ``--downscale: not allowed with --size``."""
+    given: dict[str, dataclasses.Field] = {}
+    for f in dataclasses.fields(cfg):
+        name = f.metadata.get("exclusive")
+        if name is None or getattr(cfg, f.name) == f.default:
+            continue
+        if name in given:
+            fix = f.metadata.get("exclusive_fix", "Give one of them")
+            raise fail(field_flag(f), f"not allowed with {field_flag(given[name])}", fix)
+        given[name] = f
     return cfg
 
 
@@ -221,12 +266,14 @@ def check_values(cls: type, values: dict[str, Any], owner: str | None = None) ->
             problem = f"{value!r} is not one of {', '.join(map(str, choices))}"
         else:
             continue
-        raise fail(flag_of(name), problem + (f" for {owner}" if owner else ""))
+        raise fail(field_flag(fields[name]), problem + (f" for {owner}" if owner else ""))
 
 
 def _field_type(tp: Any, meta: Any) -> Any:
-    """The argparse type of a field: numbers are checked (finite, and the field's
-    ``min``/``max``/``above`` metadata); other types pass through."""
+    """The argparse type of a field: its ``parse`` metadata when it has one; numbers are checked
+    (finite, and the field's ``min``/``max``/``above`` metadata); other types pass through."""
+    if meta.get("parse") is not None:
+        return meta["parse"]
     if tp in (int, float):
         return number(tp, **range_of(meta))
     return tp if tp is str else str
@@ -298,13 +345,15 @@ def _add_flag(
         kw["help"] = first.metadata.get("help", "").replace("%", "%%")
         target.add_argument(switch_flag(first), action="store_const", const=not first.default, **kw)
     elif tp is bool:
-        target.add_argument(flag_of(name), action=argparse.BooleanOptionalAction, **kw)
+        target.add_argument(field_flag(first), action=argparse.BooleanOptionalAction, **kw)
     else:
         named = "{" + ",".join(map(str, kw["choices"])) + "}" if "choices" in kw else None  # the choices in --help
         metavar = first.metadata.get("metavar", named or (tp.__name__.upper() if hasattr(tp, "__name__") else "X"))
         target.add_argument(
-            flag_of(name),
-            type=_field_type(tp, widest_bounds([f.metadata for _, _, f in owners])),
+            field_flag(first),
+            type=_field_type(
+                tp, {**widest_bounds([f.metadata for _, _, f in owners]), "parse": first.metadata.get("parse")}
+            ),
             metavar=metavar,
             **kw,
         )
@@ -325,16 +374,24 @@ def add_dataclass_args(
 ) -> None:
     """Add one flag per field of dataclass ``cls`` (defaults left unset: None), in the argument
     group its ``group`` metadata names (in the order they first appear), else in ``group_title``'s
-    (or the parser's own options when None). A flag the parser
+    (or the parser's own options when None); the flags of one ``exclusive`` set are mutually
+    exclusive. A flag the parser
     has already is refused (argparse's conflict error); alternative configs that share flags go
     through :func:`add_alternative_dataclass_args`."""
     target = parser.add_argument_group(group_title) if group_title else parser
     groups: dict[str, Any] = {}
+    exclusive: dict[str, Any] = {}  # (one mutually exclusive group of flags per ``exclusive`` name)
     for tp, f in _cli_fields(cls, skip):
         group = f.metadata.get("group")
         if group and group not in groups:
             groups[group] = parser.add_argument_group(group)
-        _add_flag(groups[group] if group else target, f.name, [(cls.__name__, tp, f)])
+        where = groups[group] if group else target
+        name = f.metadata.get("exclusive")
+        if name is not None:
+            if name not in exclusive:
+                exclusive[name] = where.add_mutually_exclusive_group()
+            where = exclusive[name]
+        _add_flag(where, f.name, [(cls.__name__, tp, f)])
 
 
 def _alternative_fields(classes: dict[str, type]) -> dict[str, list[tuple[str, Any, dataclasses.Field]]]:

@@ -16,25 +16,25 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
 
 
 def add_run_device_args(p: argparse.ArgumentParser) -> None:
-    from ..config import number
-    from ..train.config import MAX_BATCH_RAYS
+    """--device and --chunk (:class:`~nerfkit.commands.options.RunDeviceOptions`), and --allow-outside-paths."""
+    from ..config import add_dataclass_args
+    from .options import RunDeviceOptions
 
-    p.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N (default: auto)")
-    p.add_argument(
-        "--chunk",
-        type=number(int, 0, MAX_BATCH_RAYS),
-        default=0,
-        help="rays rendered at once; lower it if memory runs out (default: the run's render chunk)",
-    )
+    add_dataclass_args(p, RunDeviceOptions)
     add_outside_flag(p)
 
 
 def run_device_options(args: argparse.Namespace) -> dict:
-    """The API keywords of a run command's --data, --device, --chunk and --allow-outside-paths."""
+    """The API keywords of a run command's --data, --device, --chunk and --allow-outside-paths
+    (--device and --chunk unset: :class:`~nerfkit.commands.options.RunDeviceOptions`' defaults)."""
+    import dataclasses
+
+    from ..config import dataclass_from_args
+    from .options import RunDeviceOptions
+
     return {
         "data": args.data,
-        "device": args.device,
-        "chunk": args.chunk,
+        **dataclasses.asdict(dataclass_from_args(RunDeviceOptions, args)),
         "allow_outside_paths": args.allow_outside_paths,
     }
 

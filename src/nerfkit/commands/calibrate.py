@@ -37,7 +37,8 @@ example:
 
 def register(sub: argparse._SubParsersAction) -> None:
     from ..capture.calibrate import CalibrateConfig
-    from ..config import add_dataclass_args, number, tag_side
+    from ..config import add_dataclass_args, tag_side
+    from .options import CalibrateOptions
 
     p = sub.add_parser(
         "calibrate", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -51,16 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--layout", help="sheet layout JSON (tag id -> corners/centre, or a GridBoard/ChArUco board)")
     p.add_argument("--out", default="camera.json", help="camera file to write (default: camera.json)")
-    p.add_argument(
-        "--detect-size",
-        type=number(int, 64, 100_000),
-        default=2000,
-        help="detect tags on a copy this many pixels on the long side, then refine corners at full "
-        "resolution (default: 2000)",
-    )
-    p.add_argument(
-        "--jobs", type=number(int, 0, 256), default=0, help="photos processed in parallel (default: up to 4 cores)"
-    )
+    add_dataclass_args(p, CalibrateOptions)  # --detect-size, --jobs
     p.add_argument("--no-cache", action="store_true", help="ignore cached detections")
     p.add_argument("--all-photos", action="store_true", help="list every photo in the summary, not only skipped ones")
     p.add_argument("--force", action="store_true", help="replace an existing camera file")
@@ -69,9 +61,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """``nerfkit calibrate``: :func:`nerfkit.api.calibrate` with the parsed flags."""
+    """``nerfkit calibrate``: :func:`nerfkit.api.calibrate` with the parsed flags (unset options: the
+    defaults of :class:`~nerfkit.commands.options.CalibrateOptions`)."""
+    import dataclasses
+
     from ..capture.calibrate import CalibrateConfig
     from ..config import dataclass_from_args
+    from .options import CalibrateOptions
     from .pipeline import calibrate
 
     calibrate(
@@ -80,8 +76,7 @@ def run(args: argparse.Namespace) -> int:
         tag_size=args.tag_size,
         dictionary=args.dict,
         layout=args.layout,
-        detect_size=args.detect_size,
-        jobs=args.jobs,
+        **dataclasses.asdict(dataclass_from_args(CalibrateOptions, args)),
         cache=not args.no_cache,
         settings=dataclass_from_args(CalibrateConfig, args),
         all_photos=args.all_photos,

@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 
 # the capture's own steps live in the stage; tests and older code import these from here
-from .stages.capture import MODELS
 from .stages.capture import _check_posed as _check_posed
 from .stages.capture import _inputs as _inputs
 from .stages.capture import _larger_budget as _larger_budget
@@ -76,8 +75,8 @@ examples:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..capture.video import DEFAULT_TARGET
-    from ..config import MIN_RESAMPLED_SIDE, number, tag_side
+    from ..config import add_dataclass_args
+    from .options import CaptureOptions
 
     p = sub.add_parser(
         "capture", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -88,63 +87,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="folder of photos of the object, or a video filmed slowly around it (MP4, MOV, M4V; H.264 or HEVC)",
     )
     p.add_argument("--out", required=True, help="folder for everything the capture makes")
-    p.add_argument(
-        "--tag-size",
-        type=tag_side,
-        help="side of the black square of the tag beside the object, in metres (e.g. 0.06): the tag then "
-        "fixes scale and up (default: no tag; structure-from-motion poses, the table found in its points)",
-    )
-    cam = p.add_mutually_exclusive_group()
-    cam.add_argument(
-        "--calib",
-        metavar="CALIB_DIR",
-        help="folder of photos of the printed tag sheet, to calibrate "
-        "the camera from (without it or --camera: the photos' EXIF focal length, no distortion)",
-    )
-    cam.add_argument("--camera", help="a camera file from an earlier `nerfkit calibrate` of the same phone")
-    p.add_argument(
-        "--sheet-tag-size",
-        type=tag_side,
-        help="side of a tag's black square on the calibration sheet (default: --tag-size; needed with --calib "
-        "when there is no --tag-size)",
-    )
-    p.add_argument("--dict", help="ArUco dictionary of the tags (default: the camera file's, else DICT_4X4_50)")
-    p.add_argument(
-        "--method",
-        choices=["auto", "tags", "colmap"],
-        default="auto",
-        help="poses: auto (default): without --tag-size, structure-from-motion; with it, structure-from-motion "
-        "poses in the tag's frame when they hold up; tags: the tag's poses only, as the course does; colmap: "
-        "structure-from-motion alone (a tag, with --tag-size, fixes scale and up)",
-    )
-    p.add_argument(
-        "--clip-frames",
-        type=number(int, 10, 10_000),
-        default=DEFAULT_TARGET,
-        metavar="N",
-        help=f"a video: frames to keep from it, at most (default: {DEFAULT_TARGET}; see `nerfkit frames`)",
-    )
-    p.add_argument(
-        "--model",
-        choices=MODELS,
-        default="both",
-        help="what to train: fast, the NeRF, with the videos and mesh; splat, 3D Gaussians "
-        "written as OUT/splat.ply and OUT/splat.splat, and the object alone as OUT/splat_object.ply; "
-        "both (the default: each trains for --minutes)",
-    )
-    p.add_argument(
-        "--max-side",
-        type=number(int, MIN_RESAMPLED_SIDE, off=0),
-        help="the dataset's photos' longer side in pixels (0: keep their size; default: poses', 512)",
-    )
-    budget = p.add_mutually_exclusive_group()
-    budget.add_argument(
-        "--minutes", type=number(float, above=0), default=3.0, help="training time of each model (default: 3)"
-    )
-    budget.add_argument("--steps", type=number(int, 1), help="train this many steps instead of --minutes")
-    p.add_argument("--frames", type=number(int, 1, 100_000), help="frames of the orbit (default: render's, 120)")
-    p.add_argument("--no-mesh", action="store_true", help="skip the NeRF's mesh")
-    p.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N (default: auto)")
+    add_dataclass_args(p, CaptureOptions)  # --tag-size to --device; --calib | --camera, --minutes | --steps
     p.add_argument(
         "--force",
         action="store_true",
@@ -154,26 +97,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """``nerfkit capture``: :func:`nerfkit.api.capture` with the parsed flags."""
+    """``nerfkit capture``: :func:`nerfkit.api.capture` with the parsed flags (unset options: the
+    defaults of :class:`~nerfkit.commands.options.CaptureOptions`)."""
+    import dataclasses
+
+    from ..config import dataclass_from_args
+    from .options import CaptureOptions
     from .pipeline import capture
 
     capture(
         args.photos,
         args.out,
-        tag_size=args.tag_size,
-        calib=args.calib,
-        camera=args.camera,
-        sheet_tag_size=args.sheet_tag_size,
-        dictionary=args.dict,
-        method=args.method,
-        clip_frames=args.clip_frames,
-        model=args.model,
-        max_side=args.max_side,
-        minutes=args.minutes,
-        steps=args.steps,
-        frames=args.frames,
-        mesh=not args.no_mesh,
-        device=args.device,
+        **dataclasses.asdict(dataclass_from_args(CaptureOptions, args)),
         force=args.force,
         verbose=bool(getattr(args, "verbose", False)),
     )

@@ -3,10 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from typing import get_args
-
-from .stages.convert import depth_bound
-from .tools import ConvertFormat
 
 MEMORY_HINT = "Use --size or --downscale to make the images smaller"
 HELP = "convert a dataset between formats (npz, Blender, transforms.json, COLMAP; LLFF in), optionally resized"
@@ -33,8 +29,9 @@ examples:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..config import MIN_DOWNSCALE, number
+    from ..config import add_dataclass_args
     from ._common import add_outside_flag
+    from .options import ConvertOptions
 
     p = sub.add_parser(
         "convert",
@@ -45,39 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("src", metavar="SRC", help="dataset file or folder")
     p.add_argument("--to", required=True, metavar="OUT", help="output: a .npz file or a folder (see below)")
-    p.add_argument(
-        "--format",
-        choices=get_args(ConvertFormat),
-        default="auto",
-        help="output format; auto: npz for *.npz, else transforms.json (default: auto)",
-    )
-    size = p.add_mutually_exclusive_group()
-    size.add_argument(
-        "--size",
-        type=number(int, 1, 100_000),
-        metavar="PX",
-        help="resample so the longest image side is PX pixels (K follows)",
-    )
-    size.add_argument(
-        "--downscale", type=number(float, MIN_DOWNSCALE), metavar="F", help="divide the image size by F (K follows)"
-    )
-    p.add_argument(
-        "--background",
-        default="black",
-        help="colour under transparent pixels of RGBA inputs: black, white, grey, r,g,b in [0, 1] "
-        "or #rrggbb (default: black)",
-    )
-    p.add_argument(
-        "--near",
-        type=depth_bound(number(float, 0.0)),
-        help="set the depth range's near end (world "
-        "units; e.g. the course's 2 for lego, where nerfkit's rule from the cameras gives 2.02)",
-    )
-    p.add_argument(
-        "--far",
-        type=depth_bound(number(float, above=0)),
-        help="set the depth range's far end (the course's 6 for lego)",
-    )
+    add_dataclass_args(p, ConvertOptions)  # --format, --size | --downscale, --background, --near, --far
     p.add_argument("--images", metavar="DIR", help="photo folder of a COLMAP model (default: the project's images/)")
     p.add_argument("--text", action="store_true", help="with --format colmap: write the text model instead of binary")
     p.add_argument("--force", action="store_true", help="replace an existing output (never an input)")
@@ -86,18 +51,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """``nerfkit convert``: :func:`nerfkit.api.convert` with the parsed flags."""
+    """``nerfkit convert``: :func:`nerfkit.api.convert` with the parsed flags (unset options: the
+    defaults of :class:`~nerfkit.commands.options.ConvertOptions`)."""
+    import dataclasses
+
+    from ..config import dataclass_from_args
+    from .options import ConvertOptions
     from .tools import convert
 
     convert(
         args.src,
         args.to,
-        format=args.format,
-        size=args.size,
-        downscale=args.downscale,
-        background=args.background,
-        near=args.near,
-        far=args.far,
+        **dataclasses.asdict(dataclass_from_args(ConvertOptions, args)),
         images=args.images,
         text=args.text,
         force=args.force,

@@ -14,13 +14,72 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from ..config import MIN_DOWNSCALE, option
+from ..config import MAX_BATCH_RAYS, MIN_DOWNSCALE, MIN_RESAMPLED_SIDE, number, option, tag_side
 from ..table_cut import TABLE_CUT
+from .stages.convert import depth_bound
+from .stages.tags import object_side
 
 # the choices of `nerfkit render --path`, `nerfkit eval --split` and `nerfkit frames --spread`
 VideoPath = Literal["auto", "test", "orbit", "spiral"]
 Split = Literal["val", "test", "train"]
 Spread = Literal["time", "motion"]
+# the choices of `nerfkit tags --paper` and `nerfkit convert --format`
+Paper = Literal["a4", "letter"]
+ConvertFormat = Literal["auto", "npz", "transforms", "colmap"]
+# the choices of `nerfkit poses --method` (and capture's) and of `nerfkit capture --model`
+PoseMethod = Literal["auto", "tags", "colmap"]
+CaptureModel = Literal["fast", "splat", "both"]
+
+
+# the range of calibrate's and poses' --detect-size (the long side, in pixels, tags are
+# detected on) and --jobs (photos processed at once), which they word each their own way
+DETECT_SIZE = {"min": 64, "max": 100_000}
+JOBS = {"min": 0, "max": 256}
+
+
+@dataclass(frozen=True)
+class CalibrateOptions:
+    """The options of ``nerfkit calibrate`` (:func:`nerfkit.api.calibrate`) on how it reads the photos."""
+
+    detect_size: int = option(
+        2000,
+        "detect tags on a copy this many pixels on the long side, then refine corners at full resolution",
+        **DETECT_SIZE,
+        metavar="DETECT_SIZE",
+    )
+    jobs: int = option(0, "photos processed in parallel", default_help="up to 4 cores", **JOBS, metavar="JOBS")
+
+
+@dataclass(frozen=True)
+class PosesOptions:
+    """The options of ``nerfkit poses`` (:func:`nerfkit.api.pose`) on how it reads the photos."""
+
+    detect_size: int = option(
+        CalibrateOptions.detect_size, "tag detection size (long side, px)", **DETECT_SIZE, metavar="DETECT_SIZE"
+    )
+    jobs: int = option(
+        CalibrateOptions.jobs,
+        "photos processed in parallel, and structure-from-motion's threads",
+        default_help="up to 4 cores, SfM on all; SfM on several threads differs a little from run to run, "
+        "--jobs 1 repeats exactly",
+        **JOBS,
+        metavar="JOBS",
+    )
+
+
+@dataclass(frozen=True)
+class RunDeviceOptions:
+    """Where a command on a trained run (render, eval, export) renders it, and how many rays at once."""
+
+    device: str = option("auto", "auto, cpu, cuda or cuda:N", metavar="DEVICE")
+    chunk: int = option(
+        0,
+        "rays rendered at once; lower it if memory runs out",
+        default_help="the run's render chunk",
+        min=0,
+        max=MAX_BATCH_RAYS,
+        metavar="CHUNK",
+    )
 
 
 @dataclass(frozen=True)
@@ -156,11 +215,15 @@ class EvalOptions:
     )
 
 
+# the range of the frames kept from a clip: frames' --frames, capture's --clip-frames
+FRAMES_KEPT = {"min": 10, "max": 10_000}
+
+
 @dataclass(frozen=True)
 class FramesOptions:
     """The options of ``nerfkit frames`` (:func:`nerfkit.api.frames`) beside its clip and output."""
 
-    frames: int = option(120, "frames to keep, at most", min=10, max=10_000, metavar="N")
+    frames: int = option(120, "frames to keep, at most", **FRAMES_KEPT, metavar="N")
     spread: Spread = option(
         "time",
         "spread the windows evenly in time, or in camera motion measured between frames (a pause then takes no window)",
@@ -200,3 +263,143 @@ class ViewOptions:
     # the command's --host is its own flag, whose default (this one) a check of every command's
     # --host sees in the parser (tests/test_hostile_inputs.py)
     host: str = option("127.0.0.1", "address to listen on", cli=False)
+
+
+@dataclass(frozen=True)
+class TagsOptions:
+    """The options of ``nerfkit tags`` (:func:`nerfkit.api.tags`) beside its output."""
+
+    paper: Paper = option("a4", "paper size", choices=get_args(Paper))
+    dictionary: str = option(
+        "DICT_4X4_50", "ArUco dictionary", default_help="DICT_4X4_50, nerfkit's", flag="--dict", metavar="DICT"
+    )
+    tag_size: float = option(
+        0.05, "side of the sheet's tags' black squares in metres", parse=tag_side, metavar="TAG_SIZE"
+    )
+    object_tag_size: float = option(
+        0.1,
+        "side of the tag beside the object in metres",
+        default_help="0.1; 0: no such page",
+        parse=object_side,
+        metavar="OBJECT_TAG_SIZE",
+    )
+
+
+@dataclass(frozen=True)
+class ConvertOptions:
+    """The options of ``nerfkit convert`` (:func:`nerfkit.api.convert`) on what it writes, beside
+    its input, output and a COLMAP model's photos."""
+
+    format: ConvertFormat = option(
+        "auto", "output format; auto: npz for *.npz, else transforms.json", choices=get_args(ConvertFormat)
+    )
+    size: int | None = option(
+        None,
+        "resample so the longest image side is PX pixels (K follows)",
+        min=1,
+        max=100_000,
+        exclusive="size",
+        metavar="PX",
+    )
+    downscale: float | None = option(
+        None, "divide the image size by F (K follows)", min=MIN_DOWNSCALE, exclusive="size", metavar="F"
+    )
+    background: str = option(
+        "black",
+        "colour under transparent pixels of RGBA inputs: black, white, grey, r,g,b in [0, 1] or #rrggbb",
+        metavar="BACKGROUND",
+    )
+    near: float | None = option(
+        None,
+        "set the depth range's near end (world units; e.g. the course's 2 for lego, where nerfkit's rule "
+        "from the cameras gives 2.02)",
+        parse=depth_bound(number(float, 0.0)),
+        metavar="NEAR",
+    )
+    far: float | None = option(
+        None,
+        "set the depth range's far end (the course's 6 for lego)",
+        parse=depth_bound(number(float, above=0)),
+        metavar="FAR",
+    )
+
+
+@dataclass(frozen=True)
+class CaptureOptions:
+    """The options of ``nerfkit capture`` (:func:`nerfkit.api.capture`) beside its photos, output
+    and --force."""
+
+    tag_size: float | None = option(
+        None,
+        "side of the black square of the tag beside the object, in metres (e.g. 0.06): the tag then fixes scale and up",
+        default_help="no tag; structure-from-motion poses, the table found in its points",
+        parse=tag_side,
+        metavar="TAG_SIZE",
+    )
+    calib: str | None = option(
+        None,
+        "folder of photos of the printed tag sheet, to calibrate the camera from (without it or --camera: "
+        "the photos' EXIF focal length, no distortion)",
+        exclusive="camera",
+        metavar="CALIB_DIR",
+    )
+    camera: str | None = option(
+        None,
+        "a camera file from an earlier `nerfkit calibrate` of the same phone",
+        exclusive="camera",
+        exclusive_fix="Calibrate from the sheet's photos or give a camera file",
+        metavar="CAMERA",
+    )
+    sheet_tag_size: float | None = option(
+        None,
+        "side of a tag's black square on the calibration sheet",
+        default_help="--tag-size; needed with --calib when there is no --tag-size",
+        parse=tag_side,
+        metavar="SHEET_TAG_SIZE",
+    )
+    dictionary: str | None = option(
+        None,
+        "ArUco dictionary of the tags",
+        default_help="the camera file's, else DICT_4X4_50",
+        flag="--dict",
+        metavar="DICT",
+    )
+    method: PoseMethod = option(
+        "auto",
+        "poses: auto (default): without --tag-size, structure-from-motion; with it, structure-from-motion "
+        "poses in the tag's frame when they hold up; tags: the tag's poses only, as the course does; colmap: "
+        "structure-from-motion alone (a tag, with --tag-size, fixes scale and up)",
+        default_help="",  # (the help says it)
+        choices=get_args(PoseMethod),
+    )
+    clip_frames: int = option(
+        FramesOptions.frames,
+        "a video: frames to keep from it, at most",
+        default_help=f"{FramesOptions.frames}; see `nerfkit frames`",
+        **FRAMES_KEPT,
+        metavar="N",
+    )
+    model: CaptureModel = option(
+        "both",
+        "what to train: fast, the NeRF, with the videos and mesh; splat, 3D Gaussians written as "
+        "OUT/splat.ply and OUT/splat.splat, and the object alone as OUT/splat_object.ply; both (the "
+        "default: each trains for --minutes)",
+        default_help="",  # (the help says it)
+        choices=get_args(CaptureModel),
+    )
+    max_side: int | None = option(
+        None,
+        "the dataset's photos' longer side in pixels (0: keep their size; default: poses', 512)",
+        min=MIN_RESAMPLED_SIDE,
+        off=0,
+        metavar="MAX_SIDE",
+    )
+    minutes: float = option(3.0, "training time of each model", above=0, exclusive="budget", metavar="MINUTES")
+    steps: int | None = option(
+        None, "train this many steps instead of --minutes", min=1, exclusive="budget", metavar="STEPS"
+    )
+    frames: int | None = option(
+        None, "frames of the orbit", default_help="render's, 120", min=1, max=100_000, metavar="FRAMES"
+    )
+    mesh: bool = option(True, "skip the NeRF's mesh", switch=True)
+    device: str = option(RunDeviceOptions.device, "auto, cpu, cuda or cuda:N", metavar="DEVICE")

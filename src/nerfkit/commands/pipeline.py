@@ -31,7 +31,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, ParamSpec, TypeVar, get_args
 
-from .options import EvalOptions, ExportOptions, RenderOptions, Split, VideoPath
+from .options import (
+    CalibrateOptions,
+    CaptureModel,
+    CaptureOptions,
+    EvalOptions,
+    ExportOptions,
+    PoseMethod,
+    PosesOptions,
+    RenderOptions,
+    RunDeviceOptions,
+    Split,
+    VideoPath,
+)
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -40,8 +52,7 @@ if TYPE_CHECKING:
     from ..capture.dataset import DatasetConfig
     from ..capture.poses import PoseConfig
 
-# the choices of the commands' flags of the same names
-PoseMethod = Literal["auto", "tags", "colmap"]
+# the choices of the commands' flags of the same names (--method: commands/options.py's PoseMethod)
 Matcher = Literal["auto", "exhaustive", "sequential", "spatial"]
 
 T = TypeVar("T", bound="DataclassInstance")
@@ -264,11 +275,12 @@ def _settings(given: Any, kind: type[T], name: str) -> T:
 
 def _options(kind: type[T], given: dict[str, Any]) -> T:
     """The options dataclass ``kind`` (a command's, :mod:`nerfkit.commands.options`) of the
-    ``given`` keyword arguments, checked as its flags are (:func:`_settings`) and converted as
+    ``given`` keyword arguments, checked as its flags are (:func:`_settings`; two of one
+    ``exclusive`` set: :func:`~nerfkit.config.check_exclusive`) and converted as
     they convert (a whole number given for a float field: a float)."""
-    from ..config import base_type
+    from ..config import base_type, check_exclusive
 
-    options = _settings(kind(**given), kind, kind.__name__)
+    options = check_exclusive(_settings(kind(**given), kind, kind.__name__))
     hints = typing.get_type_hints(kind)
     floats = {
         f.name: float(getattr(options, f.name))
@@ -291,15 +303,17 @@ def calibrate(
     tag_size: float | None = None,
     dictionary: str = "DICT_4X4_50",
     layout: str | Path | None = None,
-    detect_size: int = 2000,
-    jobs: int = 0,
+    detect_size: int = CalibrateOptions.detect_size,
+    jobs: int = CalibrateOptions.jobs,
     cache: bool = True,
     settings: CalibrateConfig | None = None,
     all_photos: bool = False,
     force: bool = False,
     quiet: bool = False,
 ) -> CalibrationResult:
-    """Calibrate the camera from photos of the printed tag sheet (``nerfkit calibrate``).
+    """Calibrate the camera from photos of the printed tag sheet (``nerfkit calibrate``). The
+    defaults and ranges of ``detect_size`` and ``jobs`` are those of
+    :class:`~nerfkit.commands.options.CalibrateOptions`, as the command's are.
 
     Args:
         photos: folder of photos of the tag sheet, taken from varied angles.
@@ -318,15 +332,14 @@ def calibrate(
     from ..capture.aruco import get_dictionary, load_layout
     from ..capture.calibrate import CalibrateConfig, calibrate_records, calibration_json
     from ..capture.photos import blur_hint, default_jobs, group_by_size, keep_one_lens, require_tags, scan_photos
-    from ..config import number, output_path, tag_side
+    from ..config import output_path, tag_side
     from ..errors import NerfkitError, fail
     from ..io.atomic import write_json
     from ..io.paths import guard_outputs
     from .stages.calibrate import calibration_report
 
     tag_size = _check("--tag-size", tag_size, tag_side)
-    detect_size = _check("--detect-size", detect_size, number(int, 64, 100_000))
-    jobs = _check("--jobs", jobs, number(int, 0, 256))
+    detect_size, jobs = dataclasses.astuple(_options(CalibrateOptions, {"detect_size": detect_size, "jobs": jobs}))
     cfg = _settings(settings, CalibrateConfig, "settings")
     photos_dir, layout_file = str(photos), str(layout) if layout else None
     get_dictionary(dictionary)
@@ -397,8 +410,8 @@ def pose(
     single_tag: bool = False,
     dictionary: str | None = None,
     build_dataset: bool = True,
-    detect_size: int = 2000,
-    jobs: int = 0,
+    detect_size: int = PosesOptions.detect_size,
+    jobs: int = PosesOptions.jobs,
     cache: bool = True,
     max_side: int | None = None,
     pose_settings: PoseConfig | None = None,
@@ -408,6 +421,8 @@ def pose(
     quiet: bool = False,
 ) -> PoseResult:
     """Pose the photos of an object beside a tag (or by SfM) and build its dataset (``nerfkit poses``).
+    The defaults and ranges of ``detect_size`` and ``jobs`` are those of
+    :class:`~nerfkit.commands.options.PosesOptions`, as the command's are.
 
     Args:
         photos: folder of photos of the object beside the tag.
@@ -456,8 +471,7 @@ def pose(
     focal_px = _check("--focal-px", focal_px, number(float, above=0))
     tag_id = _check("--tag-id", tag_id, number(int, 0))
     sfm_max_size = _check("--sfm-max-size", sfm_max_size, number(int, 64, 100_000))
-    detect_size = _check("--detect-size", detect_size, number(int, 64, 100_000))
-    jobs = _check("--jobs", jobs, number(int, 0, 256))
+    detect_size, jobs = dataclasses.astuple(_options(PosesOptions, {"detect_size": detect_size, "jobs": jobs}))
     pcfg = _settings(pose_settings, PoseConfig, "pose_settings")
     dcfg = _settings(dataset_settings, DatasetConfig, "dataset_settings")
     if max_side is not None:  # (checked with the settings it joins)
@@ -820,11 +834,9 @@ def resume(
 
 
 def _run_checks(chunk: int) -> int:
-    """``chunk`` (rays rendered at once) checked as ``--chunk`` is."""
-    from ..config import number
-    from ..train.config import MAX_BATCH_RAYS
-
-    return _check("--chunk", chunk, number(int, 0, MAX_BATCH_RAYS))
+    """``chunk`` (rays rendered at once) checked as ``--chunk`` is
+    (:class:`~nerfkit.commands.options.RunDeviceOptions`)."""
+    return _options(RunDeviceOptions, {"chunk": chunk}).chunk
 
 
 @_checked
@@ -838,8 +850,8 @@ def render(
     object: bool = RenderOptions.object,  # noqa: A002 - the flag's name
     background: str | None = RenderOptions.background,
     data: str | Path | None = None,
-    device: str = "auto",
-    chunk: int = 0,
+    device: str = RunDeviceOptions.device,
+    chunk: int = RunDeviceOptions.chunk,
     allow_outside_paths: bool = False,
     force: bool = False,
     quiet: bool = False,
@@ -939,8 +951,8 @@ def evaluate(
     split: Split = EvalOptions.split,
     fit_views: int | None = EvalOptions.fit_views,
     data: str | Path | None = None,
-    device: str = "auto",
-    chunk: int = 0,
+    device: str = RunDeviceOptions.device,
+    chunk: int = RunDeviceOptions.chunk,
     allow_outside_paths: bool = False,
     quiet: bool = False,
 ) -> EvaluationResult:
@@ -1023,8 +1035,8 @@ def export(
     crop: bool = ExportOptions.crop,
     background_dome: bool = ExportOptions.background_dome,
     data: str | Path | None = None,
-    device: str = "auto",
-    chunk: int = 0,
+    device: str = RunDeviceOptions.device,
+    chunk: int = RunDeviceOptions.chunk,
     allow_outside_paths: bool = False,
     force: bool = False,
     quiet: bool = False,
@@ -1151,10 +1163,6 @@ def export(
     return ExportResult(written, opened.step)
 
 
-# the choices of `nerfkit capture --model`
-CaptureModel = Literal["fast", "splat", "both"]
-
-
 @dataclass(frozen=True)
 class CaptureResult:
     """What :func:`capture` made in its ``out`` folder."""
@@ -1174,20 +1182,20 @@ def capture(
     photos: str | Path,
     out: str | Path,
     *,
-    tag_size: float | None = None,
-    calib: str | Path | None = None,
-    camera: str | Path | None = None,
-    sheet_tag_size: float | None = None,
-    dictionary: str | None = None,
-    method: PoseMethod = "auto",
-    clip_frames: int = 120,
-    model: CaptureModel = "both",
-    max_side: int | None = None,
-    minutes: float = 3.0,
-    steps: int | None = None,
-    frames: int | None = None,
-    mesh: bool = True,
-    device: str = "auto",
+    tag_size: float | None = CaptureOptions.tag_size,
+    calib: str | Path | None = CaptureOptions.calib,
+    camera: str | Path | None = CaptureOptions.camera,
+    sheet_tag_size: float | None = CaptureOptions.sheet_tag_size,
+    dictionary: str | None = CaptureOptions.dictionary,
+    method: PoseMethod = CaptureOptions.method,
+    clip_frames: int = CaptureOptions.clip_frames,
+    model: CaptureModel = CaptureOptions.model,
+    max_side: int | None = CaptureOptions.max_side,
+    minutes: float = CaptureOptions.minutes,
+    steps: int | None = CaptureOptions.steps,
+    frames: int | None = CaptureOptions.frames,
+    mesh: bool = CaptureOptions.mesh,
+    device: str = CaptureOptions.device,
     force: bool = False,
     verbose: bool = False,
     quiet: bool = False,
@@ -1196,6 +1204,8 @@ def capture(
     (``nerfkit capture``): frames, calibration, poses, training, evaluation, videos and files,
     each kept for the next call with the same inputs. It prints what each stage prints, under
     ``[k/N]`` headings, and a summary (``quiet``: nothing; a stage's failure is the error raised).
+    The defaults and checks of its options (``tag_size`` to ``device``) are those of
+    :class:`~nerfkit.commands.options.CaptureOptions`, as the command's are.
 
     Args:
         photos: a folder of photos of the object, or a video filmed slowly around it.
@@ -1222,31 +1232,33 @@ def capture(
     import io
     import json
 
-    from ..config import MIN_RESAMPLED_SIDE, number, output_path, tag_side
-    from ..errors import fail
+    from ..config import output_path
     from .stages import capture as stage
 
-    if calib is not None and camera is not None:
-        raise fail("--camera", "not allowed with --calib", "Calibrate from the sheet's photos or give a camera file")
-    _choice("--method", method, get_args(PoseMethod))
-    _choice("--model", model, get_args(CaptureModel))
-    options = stage.CaptureOptions(
+    paths = {"calib": str(calib) if calib is not None else None, "camera": str(camera) if camera is not None else None}
+    given = {
+        **{"tag_size": tag_size, **paths, "sheet_tag_size": sheet_tag_size, "dictionary": dictionary},
+        **{"method": method, "clip_frames": clip_frames, "model": model, "max_side": max_side},
+        **{"minutes": minutes, "steps": steps, "frames": frames, "mesh": mesh, "device": device},
+    }
+    o = _options(CaptureOptions, given)
+    options = stage.CaptureArgs(
         photos=str(photos),
         out=_check("--out", out, output_path),
-        calib=str(calib) if calib is not None else None,
-        camera=str(camera) if camera is not None else None,
-        tag_size=_check("--tag-size", tag_size, tag_side),
-        sheet_tag_size=_check("--sheet-tag-size", sheet_tag_size, tag_side),
-        dict=dictionary,
-        method=method,
-        clip_frames=_check("--clip-frames", clip_frames, number(int, 10, 10_000)),
-        model=model,
-        max_side=_check("--max-side", max_side, number(int, MIN_RESAMPLED_SIDE, off=0)),
-        minutes=_check("--minutes", minutes, number(float, above=0)),
-        steps=_check("--steps", steps, number(int, 1)),
-        frames=_check("--frames", frames, number(int, 1, 100_000)),
-        no_mesh=not mesh,
-        device=device,
+        calib=o.calib,
+        camera=o.camera,
+        tag_size=o.tag_size,
+        sheet_tag_size=o.sheet_tag_size,
+        dict=o.dictionary,
+        method=o.method,
+        clip_frames=o.clip_frames,
+        model=o.model,
+        max_side=o.max_side,
+        minutes=o.minutes,
+        steps=o.steps,
+        frames=o.frames,
+        no_mesh=not o.mesh,
+        device=o.device,
         force=force,
         verbose=verbose,
     )
@@ -1276,6 +1288,7 @@ def capture(
 __all__ = [
     "CalibrationResult",
     "CaptureModel",
+    "CaptureOptions",
     "CaptureResult",
     "EvalOptions",
     "EvaluationResult",

@@ -56,6 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     from ..capture.dataset import DatasetConfig
     from ..capture.poses import PoseConfig
     from ..config import add_dataclass_args, number, tag_side
+    from .options import PosesOptions
 
     p = sub.add_parser(
         "poses", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -116,20 +117,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--no-dataset", action="store_true", help="only write poses.json (build later with `nerfkit dataset`)"
     )
-    p.add_argument(
-        "--detect-size",
-        type=number(int, 64, 100_000),
-        default=2000,
-        help="tag detection size (long side, px; default 2000)",
-    )
-    p.add_argument(
-        "--jobs",
-        type=number(int, 0, 256),
-        default=0,
-        help="photos processed in parallel, and structure-from-motion's threads (default: up to 4 cores, "
-        "SfM on all; SfM on several threads differs a little from run to run, --jobs 1 repeats "
-        "exactly)",
-    )
+    add_dataclass_args(p, PosesOptions)  # --detect-size, --jobs
     p.add_argument("--no-cache", action="store_true", help="ignore cached detections")
     p.add_argument("--all-photos", action="store_true", help="list every photo in the summary, not only skipped ones")
     p.add_argument("--force", action="store_true", help="replace the dataset files of an earlier run in --out")
@@ -139,10 +127,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """``nerfkit poses``: :func:`nerfkit.api.pose` with the parsed flags."""
+    """``nerfkit poses``: :func:`nerfkit.api.pose` with the parsed flags (unset options: the defaults
+    of :class:`~nerfkit.commands.options.PosesOptions`)."""
+    import dataclasses
+
     from ..capture.dataset import DatasetConfig
     from ..capture.poses import PoseConfig
     from ..config import dataclass_from_args
+    from .options import PosesOptions
     from .pipeline import pose
 
     pose(
@@ -160,8 +152,7 @@ def run(args: argparse.Namespace) -> int:
         single_tag=args.single_tag,
         dictionary=args.dict,
         build_dataset=not args.no_dataset,
-        detect_size=args.detect_size,
-        jobs=args.jobs,
+        **dataclasses.asdict(dataclass_from_args(PosesOptions, args)),
         cache=not args.no_cache,
         pose_settings=dataclass_from_args(PoseConfig, args),
         dataset_settings=dataclass_from_args(DatasetConfig, args),

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from typing import get_args
 
-from .stages.tags import MIN_CELL_MM, object_side
-from .tools import Paper
+from .stages.tags import MIN_CELL_MM
 
 __all__ = ["MIN_CELL_MM", "register", "run"]
 
@@ -30,38 +28,24 @@ example:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..config import tag_side
+    from ..config import add_dataclass_args
+    from .options import TagsOptions
 
     p = sub.add_parser("tags", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="tags.pdf", help="PDF to write (default: tags.pdf)")
-    p.add_argument("--paper", choices=get_args(Paper), default="a4", help="paper size (default: a4)")
-    p.add_argument("--dict", default="DICT_4X4_50", help="ArUco dictionary (default: DICT_4X4_50, nerfkit's)")
-    p.add_argument(
-        "--tag-size",
-        type=tag_side,
-        default=0.05,
-        help="side of the sheet's tags' black squares in metres (default: 0.05)",
-    )
-    p.add_argument(
-        "--object-tag-size",
-        type=object_side,
-        default=0.1,
-        help="side of the tag beside the object in metres (default: 0.1; 0: no such page)",
-    )
+    add_dataclass_args(p, TagsOptions)  # --paper, --dict, --tag-size, --object-tag-size
     p.add_argument("--force", action="store_true", help="replace an existing file")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """``nerfkit tags``: :func:`nerfkit.api.tags` with the parsed flags."""
+    """``nerfkit tags``: :func:`nerfkit.api.tags` with the parsed flags (unset options: the defaults
+    of :class:`~nerfkit.commands.options.TagsOptions`)."""
+    import dataclasses
+
+    from ..config import dataclass_from_args
+    from .options import TagsOptions
     from .tools import tags
 
-    tags(
-        args.out,
-        paper=args.paper,
-        dictionary=args.dict,
-        tag_size=args.tag_size,
-        object_tag_size=args.object_tag_size,
-        force=args.force,
-    )
+    tags(args.out, **dataclasses.asdict(dataclass_from_args(TagsOptions, args)), force=args.force)
     return 0

@@ -18,11 +18,12 @@ demo``: training, videos and scores on the bundled lego scene. Example::
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, get_args
 
-from .options import FramesOptions, Spread, ViewOptions
+from .options import ConvertFormat, ConvertOptions, FramesOptions, Paper, Spread, TagsOptions, ViewOptions
 from .pipeline import _check, _checked, _choice, _given, _options, _say, _settings
 
 if TYPE_CHECKING:
@@ -30,8 +31,6 @@ if TYPE_CHECKING:
     from ..fit_image import FitImageConfig
 
 # the choices of the commands' flags of the same names
-Paper = Literal["a4", "letter"]
-ConvertFormat = Literal["auto", "npz", "transforms", "colmap"]
 PoseSource = Literal["auto", "tags", "sfm"]
 DemoModel = Literal["fast", "vanilla"]
 
@@ -53,15 +52,17 @@ class TagsResult:
 def tags(
     out: str | Path = "tags.pdf",
     *,
-    paper: Paper = "a4",
-    dictionary: str = "DICT_4X4_50",
-    tag_size: float = 0.05,
-    object_tag_size: float = 0.1,
+    paper: Paper = TagsOptions.paper,
+    dictionary: str = TagsOptions.dictionary,
+    tag_size: float = TagsOptions.tag_size,
+    object_tag_size: float = TagsOptions.object_tag_size,
     force: bool = False,
     quiet: bool = False,
 ) -> TagsResult:
     """Write a PDF of ArUco tags to print at actual size (``nerfkit tags``): page 1 a calibration
-    sheet, page 2 one larger tag to lay beside the object, each with a 100 mm ruler.
+    sheet, page 2 one larger tag to lay beside the object, each with a 100 mm ruler. The defaults
+    and checks of its options (``paper`` to ``object_tag_size``) are those of
+    :class:`~nerfkit.commands.options.TagsOptions`, as the command's are.
 
     Args:
         out: the PDF to write.
@@ -74,14 +75,13 @@ def tags(
     """
     from ..capture.aruco import get_dictionary
     from ..capture.sheet import tag_sheets
-    from ..config import output_path, tag_side
+    from ..config import output_path
     from ..errors import fail
     from ..io.paths import guard_outputs
     from .stages import tags as stage
 
-    _choice("--paper", paper, get_args(Paper))
-    tag_size = _check("--tag-size", tag_size, tag_side)
-    object_tag_size = _check("--object-tag-size", object_tag_size, stage.object_side)
+    given = {"paper": paper, "dictionary": dictionary, "tag_size": tag_size, "object_tag_size": object_tag_size}
+    paper, dictionary, tag_size, object_tag_size = dataclasses.astuple(_options(TagsOptions, given))
     path = Path(_check("--out", out, output_path))
     if path.suffix.lower() != ".pdf":
         raise fail("--out", f"'{path}' should end in .pdf")
@@ -158,12 +158,12 @@ def convert(
     src: str | Path,
     to: str | Path,
     *,
-    format: ConvertFormat = "auto",  # noqa: A002 - the flag's name
-    size: int | None = None,
-    downscale: float | None = None,
-    background: str = "black",
-    near: float | None = None,
-    far: float | None = None,
+    format: ConvertFormat = ConvertOptions.format,  # noqa: A002 - the flag's name
+    size: int | None = ConvertOptions.size,
+    downscale: float | None = ConvertOptions.downscale,
+    background: str = ConvertOptions.background,
+    near: float | None = ConvertOptions.near,
+    far: float | None = ConvertOptions.far,
     images: str | Path | None = None,
     text: bool = False,
     force: bool = False,
@@ -171,7 +171,9 @@ def convert(
     quiet: bool = False,
 ) -> ConvertResult:
     """Convert a dataset to a course npz, a transforms.json folder or a COLMAP project
-    (``nerfkit convert``), optionally resized or with another depth range.
+    (``nerfkit convert``), optionally resized or with another depth range. The defaults and
+    checks of its options (``format`` to ``far``) are those of
+    :class:`~nerfkit.commands.options.ConvertOptions`, as the command's are.
 
     Args:
         src: the dataset file or folder (npz, Blender, transforms.json, COLMAP, LLFF).
@@ -192,19 +194,13 @@ def convert(
     """
     import sys
 
-    from ..config import MIN_DOWNSCALE, number, output_path, parse_background
+    from ..config import output_path, parse_background
     from ..data.load import dataset_inputs
-    from ..errors import fail
     from ..io.paths import guard_outputs
     from .stages import convert as stage
 
-    _choice("--format", format, get_args(ConvertFormat))
-    size = _check("--size", size, number(int, 1, 100_000))
-    downscale = _check("--downscale", downscale, number(float, MIN_DOWNSCALE))
-    if size is not None and downscale is not None:
-        raise fail("--downscale", "not allowed with --size", "Give one of them")
-    near = _check("--near", near, stage.depth_bound(number(float, 0.0)))
-    far = _check("--far", far, stage.depth_bound(number(float, above=0)))
+    given = {"format": format, "size": size, "downscale": downscale, "background": background, "near": near, "far": far}
+    format, size, downscale, background, near, far = dataclasses.astuple(_options(ConvertOptions, given))
     images = _given("--images", images)
     target = _check("--to", to, output_path)
     out, fmt = Path(target), stage.output_format(target, format)
@@ -549,6 +545,7 @@ def demo(
 
 __all__ = [
     "ConvertFormat",
+    "ConvertOptions",
     "ConvertResult",
     "DEMO_MINUTES",
     "DatasetResult",
@@ -560,6 +557,7 @@ __all__ = [
     "Paper",
     "PoseSource",
     "Spread",
+    "TagsOptions",
     "TagsResult",
     "ViewOptions",
     "ViewResult",

@@ -4,14 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..config import MAX_SEED, MIN_DOWNSCALE, check_ranges, option, parse_background
+from ..config import MAX_BATCH_RAYS, MAX_SEED, MIN_DOWNSCALE, check_ranges, option, parse_background
 from ..errors import fail
 from ..models import MODEL_NAMES
 from ..presets import SCENE_KINDS, default_model
-
-# Rays per training step or per rendering chunk: far more than fits any memory is refused
-# when the command line is parsed (a batch that still does not fit is a one-line error).
-MAX_BATCH_RAYS = 1 << 20
 
 
 def kind_models_help() -> str:

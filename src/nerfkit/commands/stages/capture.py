@@ -1,7 +1,7 @@
 """The capture stage (``nerfkit capture``, :func:`nerfkit.api.capture`): a phone video or photos
 to a trained NeRF and/or Gaussian splat in one go (frames, calibrate, poses, train, eval,
 render, export), each step's output kept for the next run; what it decides, prints and
-summarises, in small functions over :class:`CaptureOptions`."""
+summarises, in small functions over :class:`CaptureArgs`."""
 
 from __future__ import annotations
 
@@ -20,7 +20,6 @@ FRAMES_DIR = "frames"
 SPLAT_RUN_DIR = "splat_run"
 SPLAT_FILES = ("splat.ply", "splat.splat")
 OBJECT_SPLAT_FILE = "splat_object.ply"
-MODELS = ("fast", "splat", "both")
 # fewer photos (or frames) registered by structure-from-motion than this share of them, or
 # than MIN_POSED, stop the capture: the rest would train on a part of the object
 MIN_POSED_SHARE = 0.5
@@ -33,7 +32,7 @@ EXPOSURE_NOTE_DB = 0.75
 
 
 @dataclass(frozen=True)
-class CaptureOptions:
+class CaptureArgs:
     """A capture's options, named as ``nerfkit capture``'s flags are parsed (``--dict`` is
     ``dict``, ``--no-mesh`` ``no_mesh``), checked as they are (:func:`nerfkit.api.capture`)."""
 
@@ -217,7 +216,7 @@ def _file_digest(path) -> str | None:
 CAMERA_INPUTS = ("calib", "calib_files", "calib_tag_size", "dict")
 
 
-def _inputs(args: CaptureOptions) -> dict:
+def _inputs(args: CaptureArgs) -> dict:
     """What a capture is made from: a later run must name the same to keep its results."""
 
     def where(p):
@@ -338,7 +337,7 @@ def _budget_text(steps: int, minutes: float) -> str:
     return f"{steps} steps" if steps else f"{minutes:g} minutes"
 
 
-def _larger_budget(run_dir: Path, args: CaptureOptions, need_checkpoint: bool) -> bool:
+def _larger_budget(run_dir: Path, args: CaptureArgs, need_checkpoint: bool) -> bool:
     """Whether the run is to train on to a larger budget asked for now (in its own unit,
     steps or minutes; from a checkpoint when ``need_checkpoint``: a finished run), said so;
     another budget, which it cannot go on to, is said with what --force does."""
@@ -381,7 +380,7 @@ def _replace_run(run_dir: Path) -> None:
     shutil.rmtree(run_dir)
 
 
-def _route(args: CaptureOptions, video: bool) -> PoseMethod:
+def _route(args: CaptureArgs, video: bool) -> PoseMethod:
     """How the photos are posed (``nerfkit poses --method``): structure-from-motion alone
     ("colmap") without a tag, or for a video's frames (they carry no focal length for the
     tags to start from) unless a camera is given; else the --method asked for."""
@@ -392,7 +391,7 @@ def _route(args: CaptureOptions, video: bool) -> PoseMethod:
     return args.method
 
 
-def _check_arguments(args: CaptureOptions, video: bool) -> None:
+def _check_arguments(args: CaptureArgs, video: bool) -> None:
     """Refuse what no route can do, before any step."""
     from ...errors import fail
 
@@ -496,7 +495,7 @@ def _posed(api: Calls, headings: Headings, photos: str, dataset: Path, **options
 
 
 def _train_run(
-    api: Calls, run_dir: Path, dataset: Path, args: CaptureOptions, step, model: str, headings: Headings
+    api: Calls, run_dir: Path, dataset: Path, args: CaptureArgs, step, model: str, headings: Headings
 ) -> None:
     """Train ``model`` into ``run_dir`` on the dataset, or keep the run there, going on
     from its checkpoint when it was cut short or a larger budget is asked for."""
@@ -543,7 +542,7 @@ def _train_run(
         )
 
 
-def _evaluated(api: Calls, run_dir: Path, args: CaptureOptions, step) -> bool:
+def _evaluated(api: Calls, run_dir: Path, args: CaptureArgs, step) -> bool:
     """Score the run on the held-out photos (kept when newer than its model); whether it is scored."""
 
     if _newer_than_model(run_dir / "eval_val.json", run_dir) and _on_own_dataset(run_dir / "eval_val.json"):
@@ -556,7 +555,7 @@ def _evaluated(api: Calls, run_dir: Path, args: CaptureOptions, step) -> bool:
     )
 
 
-def _rendered(api: Calls, run_dir: Path, args: CaptureOptions, step, what: str, needed: bool) -> None:
+def _rendered(api: Calls, run_dir: Path, args: CaptureArgs, step, what: str, needed: bool) -> None:
     """The run's orbit videos (``nerfkit render``), kept when newer than its model."""
     from ...output.videos import VIDEO_FILES
 
@@ -572,9 +571,7 @@ def _rendered(api: Calls, run_dir: Path, args: CaptureOptions, step, what: str, 
     )
 
 
-def _fast_outputs(
-    api: Calls, run_dir: Path, args: CaptureOptions, step, headings: Headings
-) -> tuple[bool, Path | None]:
+def _fast_outputs(api: Calls, run_dir: Path, args: CaptureArgs, step, headings: Headings) -> tuple[bool, Path | None]:
     """The NeRF's eval, videos (the scene's and the object's alone) and mesh, each kept when
     newer than the model; (whether it is scored, the mesh or None)."""
     from ...output.videos import OBJECT_VIDEO_FILES
@@ -610,7 +607,7 @@ def _fast_outputs(
     return evaluated, mesh
 
 
-def _splat_outputs(api: Calls, out: Path, run_dir: Path, args: CaptureOptions, step, headings: Headings) -> dict:
+def _splat_outputs(api: Calls, out: Path, run_dir: Path, args: CaptureArgs, step, headings: Headings) -> dict:
     """The splat's eval and orbit video (in its run folder), and its Gaussians as
     OUT/splat.ply, OUT/splat.splat and the object alone, OUT/splat_object.ply; what was
     made, for the summary."""
@@ -655,7 +652,7 @@ def _splat_outputs(api: Calls, out: Path, run_dir: Path, args: CaptureOptions, s
     }
 
 
-def run_capture(args: CaptureOptions, api: Calls) -> Made:
+def run_capture(args: CaptureArgs, api: Calls) -> Made:
     """The whole capture into ``args.out`` (see ``nerfkit capture --help``): each stage run by
     ``api``, or kept from an earlier capture of the same inputs, headed ``[k/N]``; then the summary."""
     from functools import partial
