@@ -38,9 +38,10 @@ CHANGED_MODEL_FOR = {"forward/splat": FORWARD_SPLAT}
 # ... and a capture's splat keeps one learning rate whatever its length
 CHANGED_MODEL_FOR.update({f"{scene}/splat": {"lr_budget": 0} for scene in ("tabletop", "tabletop_points")})
 # model options added since, with their default (splat: pruning to the visual hull, the
-# learning rates by the run's length; fast: the table's relief, box margin and tags' texture)
+# learning rates by the run's length, the SH direction's gradient; fast: the table's relief,
+# box margin and tags' texture)
 ADDED_MODEL = {
-    "splat": {"hull_prune": True, "lr_budget": 800},
+    "splat": {"hull_prune": True, "lr_budget": 800, "sh_dir_grad": False},
     "fast": {"table_relief": False, "object_box_margin": 0.0, "table_tag_texels": 0},
 }
 

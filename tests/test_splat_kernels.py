@@ -307,7 +307,8 @@ def test_numba_float32_gradients_are_near_a_float64_run(seed, n, log_scale):
 
 
 @needs_numba
-def test_full_pipeline_gradients_agree_between_backends():
+@pytest.mark.parametrize("sh_dir_grad", [False, True])
+def test_full_pipeline_gradients_agree_between_backends(sh_dir_grad):
     W, H = 32, 24
     params = random_gaussians(40, seed=7)
     w2c, K = camera(W, H)
@@ -315,7 +316,7 @@ def test_full_pipeline_gradients_agree_between_backends():
     grads = {}
     for backend in ("torch", "numba"):
         ps = [p.clone().requires_grad_() for p in params]
-        out = render_gaussians(*ps, 3, w2c, K, W, H, bg, 0.01, backend)
+        out = render_gaussians(*ps, 3, w2c, K, W, H, bg, 0.01, backend, sh_dir_grad=sh_dir_grad)
         grads[backend] = torch.autograd.grad(out.rgb.square().sum(), ps)
     for a, b in zip(grads["torch"], grads["numba"]):
         torch.testing.assert_close(b, a, rtol=1e-9, atol=1e-10)
@@ -391,22 +392,24 @@ def test_numba_forward_is_the_same_on_any_number_of_lanes():
             assert np.array_equal(a, b)
 
 
-def reference_projection(params, degree, w2c, K, W, H, near=0.01):
+def reference_projection(params, degree, w2c, K, W, H, near=0.01, dir_grad=False):
     """The torch reference's projection, opacity and SH colour (as render_gaussians wires them)."""
     means, log_scales, quats, logits, sh = params
     p = ref.project_gaussians(means, ref.covariance_3d(log_scales, quats), w2c, K, W, H, near)
     cam = torch.linalg.inv(w2c.to(means))[:3, 3]
-    dirs = means.detach() - cam
+    dirs = (means if dir_grad else means.detach()) - cam
     dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     colors = ref.sh_to_rgb(sh, dirs, degree)
     return p["means2d"], p["conics"], colors, torch.sigmoid(logits), p["depths"], p["radii"], p["rects"]
 
 
-def compiled_projection(params, degree, w2c, K, W, H, near=0.01):
+def compiled_projection(params, degree, w2c, K, W, H, near=0.01, dir_grad=False):
     from nerfkit.kernels.splat_ops import ProjectFunction
 
     means, log_scales, quats, logits, sh = params
-    return ProjectFunction.apply(means, log_scales, quats, logits, sh[:, :1], sh[:, 1:], degree, w2c, K, W, H, near)
+    return ProjectFunction.apply(
+        means, log_scales, quats, logits, sh[:, :1], sh[:, 1:], degree, w2c, K, W, H, near, dir_grad
+    )
 
 
 def crowd_with_edge_cases(n: int, seed: int, dtype=torch.float64):
@@ -422,15 +425,16 @@ def crowd_with_edge_cases(n: int, seed: int, dtype=torch.float64):
 
 
 @needs_numba
+@pytest.mark.parametrize("dir_grad", [False, True])
 @pytest.mark.parametrize("degree", [0, 1, 2, 3])
-def test_compiled_projection_matches_the_reference_values_and_float64_gradients(degree):
+def test_compiled_projection_matches_the_reference_values_and_float64_gradients(degree, dir_grad):
     W, H = 40, 30
     params = crowd_with_edge_cases(200, seed=degree)
     w2c, K = camera(W, H)
     results = {}
     for name, fn in (("torch", reference_projection), ("numba", compiled_projection)):
         leaves = [p.clone().requires_grad_() for p in params]
-        outs = fn(leaves, degree, w2c, K, W, H)
+        outs = fn(leaves, degree, w2c, K, W, H, dir_grad=dir_grad)
         g = torch.Generator().manual_seed(11)
         loss = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype)).sum() for o in outs[:5])
         results[name] = (outs, torch.autograd.grad(loss, leaves))
@@ -445,6 +449,13 @@ def test_compiled_projection_matches_the_reference_values_and_float64_gradients(
         assert float(a.abs().max()) > 0
     # the coefficients past the degree get a zero gradient, as autograd gives them
     assert int(torch.count_nonzero(nb_grads[4][:, (degree + 1) ** 2 :])) == 0
+    if dir_grad:  # the direction's term reaches the means from degree 1 (the DC is constant)
+        leaves = [p.clone().requires_grad_() for p in params]
+        outs = compiled_projection(leaves, degree, w2c, K, W, H)
+        g = torch.Generator().manual_seed(11)
+        loss = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype)).sum() for o in outs[:5])
+        off = torch.autograd.grad(loss, leaves[0])[0]
+        assert torch.equal(off, nb_grads[0]) == (degree == 0)
 
 
 @pytest.mark.parametrize("backend", ["torch", pytest.param("numba", marks=needs_numba)])

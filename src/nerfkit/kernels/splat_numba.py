@@ -409,6 +409,38 @@ def _sh_basis(x, y, z, degree, out):
 
 
 @njit(cache=True, inline="always")
+def _sh_basis_dir_grad(x, y, z, degree, g_basis):
+    """``sum_k g_basis[k] d basis_k / d(x, y, z)`` of :func:`_sh_basis` at the unit direction
+    ``(x, y, z)`` (the direction taken as free, not normalised), returned as a triple
+    (INRIA's ``computeColorFromSH`` backward, dRGBdx/dy/dz)."""
+    gx = gy = gz = 0.0
+    if degree >= 1:
+        gx -= SH_C1 * g_basis[3]
+        gy -= SH_C1 * g_basis[1]
+        gz += SH_C1 * g_basis[2]
+    if degree >= 2:
+        gx += SH_C2[0] * y * g_basis[4] - 2.0 * SH_C2[2] * x * g_basis[6]
+        gx += SH_C2[3] * z * g_basis[7] + 2.0 * SH_C2[4] * x * g_basis[8]
+        gy += SH_C2[0] * x * g_basis[4] + SH_C2[1] * z * g_basis[5]
+        gy += -2.0 * SH_C2[2] * y * g_basis[6] - 2.0 * SH_C2[4] * y * g_basis[8]
+        gz += SH_C2[1] * y * g_basis[5] + 4.0 * SH_C2[2] * z * g_basis[6] + SH_C2[3] * x * g_basis[7]
+    if degree >= 3:
+        xx, yy, zz = x * x, y * y, z * z
+        gx += SH_C3[0] * 6.0 * x * y * g_basis[9] + SH_C3[1] * y * z * g_basis[10]
+        gx += -2.0 * SH_C3[2] * x * y * g_basis[11] - 6.0 * SH_C3[3] * x * z * g_basis[12]
+        gx += SH_C3[4] * (4.0 * zz - 3.0 * xx - yy) * g_basis[13] + 2.0 * SH_C3[5] * x * z * g_basis[14]
+        gx += 3.0 * SH_C3[6] * (xx - yy) * g_basis[15]
+        gy += 3.0 * SH_C3[0] * (xx - yy) * g_basis[9] + SH_C3[1] * x * z * g_basis[10]
+        gy += SH_C3[2] * (4.0 * zz - xx - 3.0 * yy) * g_basis[11] - 6.0 * SH_C3[3] * y * z * g_basis[12]
+        gy += -2.0 * SH_C3[4] * x * y * g_basis[13] - 2.0 * SH_C3[5] * y * z * g_basis[14]
+        gy += -6.0 * SH_C3[6] * x * y * g_basis[15]
+        gz += SH_C3[1] * x * y * g_basis[10] + 8.0 * SH_C3[2] * y * z * g_basis[11]
+        gz += SH_C3[3] * (6.0 * zz - 3.0 * xx - 3.0 * yy) * g_basis[12] + 8.0 * SH_C3[4] * x * z * g_basis[13]
+        gz += SH_C3[5] * (xx - yy) * g_basis[14]
+    return gx, gy, gz
+
+
+@njit(cache=True, inline="always")
 def _rotation(qw, qx, qy, qz, R):
     """The rotation matrix (3, 3) of the quaternion ``(w, x, y, z)`` (normalised here) into
     ``R``; returns the quaternion's length."""
@@ -581,6 +613,7 @@ def project_backward(
     width,
     height,
     near,
+    dir_grad,
     g_means2d,
     g_conics,
     g_colors,
@@ -596,7 +629,9 @@ def project_backward(
     """The gradients of :func:`project_forward`'s differentiable outputs (``g_*``, the
     loss's gradient with respect to each) to its inputs (``d_*``, written in place, every
     row: zero where nothing depends on it, as autograd gives the reference; ``d_sh_rest``
-    zero past the active degree). Per Gaussian in float64, recomputing the forward."""
+    zero past the active degree). Per Gaussian in float64, recomputing the forward. With
+    ``dir_grad`` the colour's view direction ``normalize(mean - cam)`` passes its gradient to
+    the means too (as INRIA's and gsplat's); without, it is held fixed."""
     n = means.shape[0]
     fx, fy = intr[0], intr[1]
     limx, limy = FOV_CLIP * 0.5 * width / fx, FOV_CLIP * 0.5 * height / fy
@@ -608,6 +643,7 @@ def project_backward(
     dU = np.empty((2, 3))
     dR = np.empty((3, 3))
     basis = np.empty(16)
+    g_basis = np.empty(16)
     raw = np.empty(3)
     for i in range(n):
         m0, m1, m2 = float(means[i, 0]), float(means[i, 1]), float(means[i, 2])
@@ -718,6 +754,25 @@ def project_backward(
             d_sh_dc[i, 0, ch] = basis[0] * g
             for k in range(1, n_rest + 1):
                 d_sh_rest[i, k - 1, ch] = basis[k] * g if k < n_basis else 0.0
+        if dir_grad and degree > 0:
+            # dL/dbasis_k = sum over the unclamped channels of g . coefficient_k; then through the
+            # basis to the unit direction d, and d = v / |v| (v = mean - cam): (I - d d^T) / |v|
+            for k in range(1, n_basis):
+                acc = 0.0
+                for ch in range(3):
+                    if raw[ch] + 0.5 >= 0.0:
+                        acc += float(g_colors[i, ch]) * float(sh_rest[i, k - 1, ch])
+                g_basis[k] = acc
+            v0, v1, v2 = m0 - cam[0], m1 - cam[1], m2 - cam[2]
+            norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+            if norm > 1e-12:  # (below, the reference's clamp: no gradient)
+                inv = 1.0 / norm
+                ux, uy, uz = v0 * inv, v1 * inv, v2 * inv
+                gx, gy, gz = _sh_basis_dir_grad(ux, uy, uz, degree, g_basis)
+                radial = ux * gx + uy * gy + uz * gz
+                d_means[i, 0] += (gx - ux * radial) * inv
+                d_means[i, 1] += (gy - uy * radial) * inv
+                d_means[i, 2] += (gz - uz * radial) * inv
 
 
 @njit(cache=True, fastmath={"reassoc"})
@@ -857,7 +912,7 @@ def warm_up() -> None:
     ints = (np.zeros(m, np.int32), np.zeros((m, 4), np.int32))
     project_forward(*params, 3, view, cam, intr, W, H, 0.01, *outs, *ints)
     # the forward's five float outputs stand in for their incoming gradients
-    project_backward(*params, 3, view, cam, intr, W, H, 0.01, *outs, *(np.empty_like(p) for p in params))
+    project_backward(*params, 3, view, cam, intr, W, H, 0.01, False, *outs, *(np.empty_like(p) for p in params))
     all_finite(outs[0].reshape(-1))
 
 

@@ -102,10 +102,27 @@ class ProjectFunction(torch.autograd.Function):
     ``project_backward``): what :func:`render_gaussians` computes with the torch reference
     (``project_gaussians``, ``sigmoid``, ``sh_to_rgb``), without autograd's graph of a few
     dozen small operations over every Gaussian (CPU tensors, float32 or float64; the camera
-    carries no gradient). Returns ``means2d, conics, colors, opacities, depths, radii, rects``."""
+    carries no gradient). Returns ``means2d, conics, colors, opacities, depths, radii, rects``.
+    With ``dir_grad`` the colour's view direction passes its gradient to the means (see
+    :func:`render_gaussians`)."""
 
     @staticmethod
-    def forward(ctx, means, log_scales, quats, opacity_logits, sh_dc, sh_rest, degree, w2c, K, width, height, near):
+    def forward(
+        ctx,
+        means,
+        log_scales,
+        quats,
+        opacity_logits,
+        sh_dc,
+        sh_rest,
+        degree,
+        w2c,
+        K,
+        width,
+        height,
+        near,
+        dir_grad=False,
+    ):
         nb = splat_kernels()
         n, dt = means.shape[0], means.dtype
         params = [t.detach().contiguous() for t in (means, log_scales, quats, opacity_logits, sh_dc, sh_rest)]
@@ -118,7 +135,7 @@ class ProjectFunction(torch.autograd.Function):
             *(p.numpy() for p in params), degree, view, cam, intr, width, height, near, *(t.numpy() for t in outs)
         )
         ctx.save_for_backward(*params)
-        ctx.camera = (degree, view, cam, intr, width, height, near)
+        ctx.camera = (degree, view, cam, intr, width, height, near, bool(dir_grad))
         ctx.mark_non_differentiable(radii, rects)
         return outs
 
@@ -135,7 +152,7 @@ class ProjectFunction(torch.autograd.Function):
         splat_kernels().project_backward(
             *(p.numpy() for p in params), *ctx.camera, *(g.numpy() for g in grads_out), *(g.numpy() for g in grads_in)
         )
-        return (*grads_in, None, None, None, None, None, None)
+        return (*grads_in, None, None, None, None, None, None, None)
 
 
 def camera_arrays(w2c: Tensor, K: Tensor, dtype: torch.dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -248,6 +265,7 @@ def render_gaussians(
     backend: str = "auto",
     track_means2d: bool = False,
     sh_rest: Tensor | None = None,
+    sh_dir_grad: bool = False,
 ) -> SplatRender:
     """Render Gaussians (parameters as stored, see :mod:`splat_reference`) into one camera.
 
@@ -256,12 +274,27 @@ def render_gaussians(
     alone (a model's two parameters, not concatenated for each view). On the compiled path,
     projection, opacity and colour are :class:`ProjectFunction` (unless the camera ``w2c``
     or ``K`` needs a gradient: a pose correction's, then the torch reference).
+    ``sh_dir_grad``: the colour's view direction ``normalize(mean - camera)`` passes its
+    gradient to the means (as INRIA's 3DGS and gsplat, which renders on CUDA here, always do);
+    off, the direction is held fixed on the CPU paths.
     """
     numba = resolve_backend(backend, means.device) == "numba" and not uses_gsplat(means.device, backend)
     if numba and not any(isinstance(t, Tensor) and t.requires_grad for t in (w2c, K)):
         dc, rest = (sh, sh_rest) if sh_rest is not None else (sh[:, :1], sh[:, 1:])
         means2d, conics, colors, opacities, depths, radii, rects = ProjectFunction.apply(
-            means, log_scales, quats, opacity_logits, dc, rest, sh_degree, w2c, K, width, height, near_plane
+            means,
+            log_scales,
+            quats,
+            opacity_logits,
+            dc,
+            rest,
+            sh_degree,
+            w2c,
+            K,
+            width,
+            height,
+            near_plane,
+            sh_dir_grad,
         )
         if track_means2d and means2d.requires_grad:
             means2d.retain_grad()
@@ -280,9 +313,9 @@ def render_gaussians(
     if track_means2d and means2d.requires_grad:
         means2d.retain_grad()
     cam = torch.linalg.inv(w2c.to(means))[:3, 3]
-    # the colour's view direction passes no gradient to the means here or in the compiled kernel;
-    # INRIA's and gsplat's (CUDA) do (a difference left unmeasured)
-    dirs = means.detach() - cam
+    # the colour's view direction passes its gradient to the means only with sh_dir_grad (as the
+    # compiled kernel); INRIA's and gsplat's (CUDA) always do
+    dirs = (means if sh_dir_grad else means.detach()) - cam
     dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     colors = ref.sh_to_rgb(sh, dirs, sh_degree)
     rgb, depth, alpha = rasterize(

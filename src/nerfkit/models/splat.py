@@ -154,6 +154,12 @@ class SplatConfig:
         "operations are small and fastest on one thread; the rasterizer uses every core",
         min=0,
     )
+    sh_dir_grad: bool = option(
+        False,
+        "the colour's view direction (the SH's, mean minus camera) passes its gradient to the means, "
+        "as INRIA's 3DGS and gsplat (on CUDA) do; off, the CPU kernels hold it fixed. Off: at equal "
+        "steps lego 200 +0.01 dB, flower -0.01, the sreeram capture -0.15 (BENCHMARKS.md)",
+    )
     kernels: str = option(
         "auto",
         "auto (compiled numba on the CPU when available; gsplat on CUDA when installed), numba, or torch",
@@ -370,6 +376,7 @@ class SplatModel(NerfModel):
             self.config.kernels,
             track_means2d=self.training and torch.is_grad_enabled(),
             sh_rest=self.sh_rest,
+            sh_dir_grad=self.config.sh_dir_grad,
         )
         if self.training and torch.is_grad_enabled():
             self._last = (out, width, height)
