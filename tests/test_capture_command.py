@@ -344,6 +344,13 @@ def test_a_capture_replaces_nothing_in_out_that_no_capture_recorded_and_keeps_no
     (out / "frames").mkdir()  # frames chosen by `nerfkit frames` before
     with pytest.raises(NerfkitError, match="holds frames that no"):
         _same_inputs(out, now, None, made, ours)
+    (out / "frames").rmdir()
+    for other in ("dataset.npz", "poses.json"):  # what `nerfkit poses --out` wrote there
+        (out / other).write_text("poses' own")
+    with pytest.raises(NerfkitError, match=r"not a capture's \(dataset.npz, poses.json\).*--force"):
+        _same_inputs(out, now, None, made, ours)
+    for other in ("dataset.npz", "poses.json"):
+        (out / other).unlink()
     (out / "capture.json").write_text(json.dumps({"inputs": now}))
     (out / "dataset").mkdir()
     made[0].write_text("npz")

@@ -5,7 +5,7 @@ summarises, in small functions over :class:`CaptureArgs`."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -244,11 +244,14 @@ def _inputs(args: CaptureArgs) -> dict:
     }
 
 
-def _same_inputs(out: Path, inputs: dict, camera: Path | None, made: list[Path], ours: list[Path]) -> None:
+def _same_inputs(
+    out: Path, inputs: dict, camera: Path | None, made: list[Path], ours: list[Path], given: Sequence = ()
+) -> None:
     """Refuse to keep an earlier capture's results when they were made from other inputs
     (``camera``: the capture's camera file, made from CAMERA_INPUTS; ``made``: its dataset
     and NeRF, made from all of them), or, when no capture recorded its inputs in ``out``, to
-    replace any of the files and folders the capture writes (``ours``) that are there.
+    replace any of the files and folders the capture writes (``ours``) that are there, or to
+    write beside anything else there but the inputs ``given`` (photos may sit in the capture's folder).
     Inputs whose results are not there yet (a step that failed) may change."""
     import json
 
@@ -266,6 +269,14 @@ def _same_inputs(out: Path, inputs: dict, camera: Path | None, made: list[Path],
                 f"holds {', '.join(str(p.relative_to(out)) for p in there)} that no `nerfkit capture` "
                 f"recorded in {RECORD_FILE}",
                 "Pass --force to replace them, or choose another --out",
+            )
+        others = _other_entries(out, given)
+        if others:  # another command's outputs (`nerfkit poses`'s dataset) or the user's files
+            shown = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
+            raise fail(
+                out,
+                f"holds files that are not a capture's ({shown}): the capture would be written beside them",
+                "Choose a new or empty --out, or pass --force to write the capture beside them",
             )
         return
     if "calib_tag_size" not in before:  # recorded by an older nerfkit
@@ -287,6 +298,24 @@ def _same_inputs(out: Path, inputs: dict, camera: Path | None, made: list[Path],
             + ")",
             "Pass --force to redo it with these, or choose another --out",
         )
+
+
+def _other_entries(out: Path, given: Sequence) -> list[str]:
+    """The names in ``out`` (a folder, or nothing yet) other than nerfkit's lock and temporaries
+    and those holding (or being) one of the inputs ``given`` (paths or None), sorted."""
+    from ...io.atomic import is_temporary
+    from ...io.lock import LOCK_FILE
+
+    if not out.is_dir():
+        return []
+    inputs = [Path(g).resolve() for g in given if g]
+    return sorted(
+        p.name
+        for p in out.iterdir()
+        if p.name != LOCK_FILE
+        and not is_temporary(p.name)
+        and not any(i == p.resolve() or p.resolve() in i.parents for i in inputs)
+    )
 
 
 def _finished(run_dir: Path) -> bool:
@@ -705,6 +734,7 @@ def run_capture(args: CaptureArgs, api: Calls) -> Made:
             out / CAMERA_FILE if args.calib else None,
             [out / DATASET_DIR / "dataset.npz", out / RUN_DIR / "config.json", out / SPLAT_RUN_DIR / "config.json"],
             ours,
+            [args.photos, args.calib, args.camera],
         )
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / RECORD_FILE, {"inputs": inputs})
