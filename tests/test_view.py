@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import socket
 import sys
 import types
@@ -289,3 +290,15 @@ def test_a_run_in_training_before_its_first_checkpoint_opens_the_live_viewer(tmp
     for options, flag in (({"samples": 8}, "--samples"), ({"force": True}, "--force")):
         with pytest.raises(NerfkitError, match=flag):
             api.view(run, **options)
+
+
+def test_a_picture_asked_of_a_run_names_the_dataset_to_draw_instead(tmp_path):
+    from nerfkit import api
+    from nerfkit.data.npz import save_npz
+    from nerfkit.data.synthetic import sphere_scene
+
+    save_npz(sphere_scene(n_train=4, n_val=1, size=16), tmp_path / "s.npz")
+    api.train(tmp_path / "s.npz", tmp_path / "run", model="fast", steps=1, quiet=True)
+    want = f"nerfkit view {(tmp_path / 's.npz').resolve()} --png {tmp_path / 'v.png'}"
+    with pytest.raises(NerfkitError, match=re.escape(want)):
+        api.view(tmp_path / "run", png=tmp_path / "v.png")

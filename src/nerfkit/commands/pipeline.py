@@ -1104,7 +1104,12 @@ def export(
     stage.note_idle_options(options, mesh_file, points_file, splat_file, data)
     opened = _common.open_run(_common.RunToOpen(run, device, chunk))
     if splat_file and not hasattr(opened.model, "n_gaussians"):
-        raise fail(run, f"is a {opened.info.train.model} run; --splat exports runs of --model splat")
+        raise fail(
+            run,
+            f"is a {opened.info.train.model} run; --splat exports runs of --model splat",
+            f"Train one on the same data: nerfkit train --data {opened.info.train.data or 'DATASET'} "
+            "--model splat --out RUN",
+        )
     if mesh_file and hasattr(opened.model, "n_gaussians"):
         raise fail(
             run,

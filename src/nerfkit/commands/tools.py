@@ -502,6 +502,8 @@ def demo(
     data = str(bundled_lego())
     scene = load_npz(data)
     run_dir = fresh_folder(out)
+    if run_dir != Path(out):
+        say(f"note: {out} holds a run already; this demo goes into {run_dir}")
     minutes = minutes if minutes is not None else DEMO_MINUTES[model]
     cfg = TrainConfig(data=data, model=model, out=str(run_dir), minutes=minutes, seed=seed, device=device)
     say(f"nerfkit demo: training '{model}' on lego for {minutes:g} min into {run_dir}")

@@ -76,7 +76,8 @@ def serve_run(
         raise fail(
             run,
             f"{'--png' if options.png else '--force'} is for a dataset's picture; this is a trained run",
-            "Pass the run's dataset instead",
+            f"Pass the run's dataset instead: nerfkit view {_run_dataset(run) or 'DATASET'}"
+            f"{' --png ' + str(options.png) if options.png else ''}",
         )
     if not block:
         raise fail(
@@ -113,3 +114,14 @@ def check_rays_from(scene: Any, rays_from: int | None) -> None:
             f"the dataset has {len(scene.train)} training views (0 to {len(scene.train) - 1}), not a view {rays_from}",
             "Give a training view's number",
         )
+
+
+def _run_dataset(run: Any) -> str | None:
+    """The dataset ``run`` was trained on, as its config.json records it; None when unknown."""
+    from ...errors import NerfkitError
+    from ...train.checkpoint import read_run
+
+    try:
+        return read_run(run).train.data or None
+    except (NerfkitError, OSError, ValueError):
+        return None
