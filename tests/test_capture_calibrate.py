@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -579,3 +580,24 @@ def test_a_tag_of_another_size_among_the_sheets_is_found_from_photos_of_three_ta
     assert list(odd) == [3] and odd[3] == pytest.approx(np.median([100 / 50, 82 / 40, 118 / 60]))
     assert C.odd_sized_tags([det([50, 100]), det([40, 80])]) == {}  # two tags: which one is odd is unknown
     assert C.odd_sized_tags([det([50, 55, 45, 60])]) == {}
+
+
+@pytest.mark.parametrize(
+    "doc, said",
+    [
+        ({"format": "nerfkit-poses", "version": 1, "camera": "camera.json"}, "the report `nerfkit poses` writes"),
+        ({"version": 5, "settings": {}, "photos": {}}, "a cache of tag detections"),
+        ({"inputs": {"photos": "x"}}, "a capture's record"),
+        ({"train": {}, "model": {}, "bounds": {}}, "a trained run's config.json"),
+    ],
+)
+def test_another_nerfkit_file_given_as_the_camera_is_named_for_what_it_is(tmp_path, doc, said):
+    """A user who passes the wrong JSON to --camera is told what the file is and which one to give."""
+    from nerfkit.capture.camera import load_camera
+    from nerfkit.errors import NerfkitError
+
+    path = tmp_path / "wrong.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(NerfkitError, match=f"is {re.escape(said)}.*not a camera file.*nerfkit calibrate wrote") as e:
+        load_camera(path)
+    assert "by hand" not in str(e.value)

@@ -222,5 +222,28 @@ def load_camera(path: str | Path) -> Camera:
         "Run nerfkit calibrate first, or omit --camera to use the EXIF focal length",
         "Re-run nerfkit calibrate",
     )
+    other = _other_nerfkit_file(data)
+    if other is not None:
+        raise fail(
+            path,
+            f"is {other}, not a camera file",
+            "Give the camera.json that nerfkit calibrate wrote (or run it on the sheet's photos)",
+        )
     with advice("Re-run nerfkit calibrate, or fix the file by hand"):
         return camera_from_dict(data, str(path))
+
+
+def _other_nerfkit_file(data: object) -> str | None:
+    """What ``data`` (a JSON document without a camera's ``K``) is when another nerfkit file:
+    the poses report, a detection cache, a capture's record, a run's config; else None."""
+    if not isinstance(data, dict) or "K" in data:
+        return None
+    if data.get("format") == "nerfkit-poses":
+        return "the report `nerfkit poses` writes (poses.json)"
+    if "photos" in data and "settings" in data:
+        return "a cache of tag detections (*.detections.json)"
+    if set(data) == {"inputs"}:
+        return "a capture's record of its inputs (capture.json)"
+    if "train" in data and "bounds" in data:
+        return "a trained run's config.json"
+    return None
