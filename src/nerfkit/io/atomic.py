@@ -133,15 +133,21 @@ def foreign_files(folder: str | os.PathLike, own) -> list[str]:
     return sorted(n for n in names if n not in own and not is_temporary(Path(n).name))
 
 
+def shown_names(names: list[str], most: int = 3) -> str:
+    """``names`` for a message: the first ``most``, then how many more. Example:
+    ``["a", "b", "c", "d"]`` -> ``"a, b, c and 1 more"``."""
+    more = f" and {len(names) - most} more" if len(names) > most else ""
+    return ", ".join(names[:most]) + more
+
+
 def refuse_foreign_files(folder: str | os.PathLike, own, flag: str = "--out") -> None:
     """Refuse to replace ``folder``, ``--force`` or not, while it holds files nerfkit did not
     write there (:func:`foreign_files`): --force replaces an earlier output, never the user's files."""
     foreign = foreign_files(folder, own)
     if foreign:
-        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
         raise fail(
             folder,
-            f"holds files that no earlier output of nerfkit's wrote there ({shown})",
+            f"holds files that no earlier output of nerfkit's wrote there ({shown_names(foreign)})",
             f"Move them away, or choose another {flag}: --force replaces only what nerfkit wrote",
         )
 

@@ -24,6 +24,14 @@ from ..errors import fail
 LOCK_FILE = ".nerfkit.lock"
 
 
+def left_by_others(folder: Path) -> list[Path]:
+    """The entries of the folder ``folder`` other than nerfkit's lock and its temporaries
+    (:func:`~nerfkit.io.atomic.is_temporary`): what a command must not take for its own."""
+    from .atomic import is_temporary
+
+    return [p for p in folder.iterdir() if p.name != LOCK_FILE and not is_temporary(p.name)]
+
+
 @contextlib.contextmanager
 def folder_lock(folder: str | os.PathLike) -> Iterator[Path]:
     """Hold the exclusive lock of ``folder`` (created if needed) for the ``with`` block."""

@@ -23,8 +23,7 @@ from ..data.rays import RaysData
 from ..data.scene import Scene
 from ..errors import NerfkitError, fail
 from ..io import stop
-from ..io.atomic import is_temporary
-from ..io.lock import LOCK_FILE
+from ..io.lock import left_by_others
 from ..io.paths import guard_run_folder
 from ..models import SceneBounds, build_model, check_config
 from ..models.base import NerfModel, StepState, grads_finite, run_schedules
@@ -505,7 +504,7 @@ def check_new_run_folder(run_dir: Path) -> None:
         raise fail(run_dir, "already holds a run", "Continue it with --resume, or choose another --out")
     if run_dir.is_file():
         raise fail(run_dir, "is a file", "--out names the run folder to create")
-    if run_dir.is_dir() and any(p.name != LOCK_FILE and not is_temporary(p.name) for p in run_dir.iterdir()):
+    if run_dir.is_dir() and left_by_others(run_dir):
         raise fail(run_dir, "holds files that are not a nerfkit run", "Choose a new or empty --out")
 
 

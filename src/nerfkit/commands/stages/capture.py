@@ -256,6 +256,7 @@ def _same_inputs(
     import json
 
     from ...errors import fail
+    from ...io.atomic import shown_names
 
     try:
         before = json.loads((out / RECORD_FILE).read_text()).get("inputs")
@@ -272,10 +273,10 @@ def _same_inputs(
             )
         others = _other_entries(out, given)
         if others:  # another command's outputs (`nerfkit poses`'s dataset) or the user's files
-            shown = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
             raise fail(
                 out,
-                f"holds files that are not a capture's ({shown}): the capture would be written beside them",
+                f"holds files that are not a capture's ({shown_names(others)}): the capture would be written "
+                "beside them",
                 "Choose a new or empty --out, or pass --force to write the capture beside them",
             )
         return
@@ -303,18 +304,13 @@ def _same_inputs(
 def _other_entries(out: Path, given: Sequence) -> list[str]:
     """The names in ``out`` (a folder, or nothing yet) other than nerfkit's lock and temporaries
     and those holding (or being) one of the inputs ``given`` (paths or None), sorted."""
-    from ...io.atomic import is_temporary
-    from ...io.lock import LOCK_FILE
+    from ...io.lock import left_by_others
 
     if not out.is_dir():
         return []
     inputs = [Path(g).resolve() for g in given if g]
     return sorted(
-        p.name
-        for p in out.iterdir()
-        if p.name != LOCK_FILE
-        and not is_temporary(p.name)
-        and not any(i == p.resolve() or p.resolve() in i.parents for i in inputs)
+        p.name for p in left_by_others(out) if not any(i == p.resolve() or p.resolve() in i.parents for i in inputs)
     )
 
 
