@@ -544,7 +544,7 @@ def test_sfm_dataset_metric_from_tag(room, tmp_path):
     folder, truth = room
     from nerfkit.capture.dataset import DatasetConfig
 
-    scene, rep = sfm_dataset(
+    scene, rep, _ = sfm_dataset(
         folder,
         tmp_path / "ds",
         DatasetConfig(val_every=6, test_every=0),
@@ -628,7 +628,7 @@ def test_sfm_turns_photos_held_the_other_way(room, tmp_path):
             assert load_image_uint8(photos / f.name).shape == (320, 240, 3)  # portrait, upright
         else:
             (photos / f.name).write_bytes(f.read_bytes())
-    scene, rep = sfm_dataset(
+    scene, rep, _ = sfm_dataset(
         photos,
         tmp_path / "ds",
         DatasetConfig(val_every=0, test_every=0),

@@ -453,7 +453,7 @@ def pose(
     """
     from ..capture.aruco import get_dictionary, load_layout
     from ..capture.camera import load_camera
-    from ..capture.dataset import NPZ_FILE, POSES_FILE, DatasetConfig, posed_none, write_poses_json
+    from ..capture.dataset import POSES_FILE, DatasetConfig, posed_none, write_poses_json
     from ..capture.dataset import check_settings as check_dataset_settings
     from ..capture.photos import default_jobs, require_tags, scan_photos
     from ..capture.poses import PoseConfig, pose_records
@@ -463,7 +463,6 @@ def pose(
     from ..images import list_images
     from ..io.paths import guard_outputs, refuse_links
     from .stages import pose as stage
-    from .stages.dataset import report_dataset
 
     _choice("--method", method, get_args(PoseMethod))
     _choice("--matcher", matcher, get_args(Matcher))
@@ -508,7 +507,7 @@ def pose(
     if method == "colmap":
         from ..sfm import sfm_dataset
 
-        scene, report = sfm_dataset(
+        scene, report, summary = sfm_dataset(
             photos_dir,
             folder,
             dcfg,
@@ -524,7 +523,7 @@ def pose(
             progress=not quiet,
         )
         say(report.summary())
-        return PoseResult(folder / NPZ_FILE, _views(scene), len(list_images(photos_dir)), folder)
+        return _dataset_built(scene, summary, folder, len(list_images(photos_dir)), quiet)
     sheet = load_layout(layout_file, dictionary, tag_size) if layout_file else None
     if sheet is None and tag_size is None:
         raise fail("--tag-size", "is required", "Measure the tag's black square, e.g. --tag-size 0.06")
@@ -596,6 +595,17 @@ def pose(
         )
     else:
         scene, summary = stage.tag_dataset(posed, folder, dcfg, side, workers, {"notes": notes}, printed.corners())
+    return _dataset_built(scene, summary, folder, total, quiet)
+
+
+def _dataset_built(scene: Any, summary: dict, folder: Path, total: int, quiet: bool) -> PoseResult:
+    """The end of :func:`pose` on every route (the tags, SfM in their frame, SfM alone): what
+    the dataset builder's ``summary`` says was written (the split, K, near/far, the table, the
+    coverage, ...: :func:`~nerfkit.commands.stages.dataset.report_dataset`) unless ``quiet``, and
+    the result (``total``: the photos in the folder)."""
+    from ..capture.dataset import NPZ_FILE
+    from .stages.dataset import report_dataset
+
     if not quiet:
         report_dataset(summary, folder)
     return PoseResult(folder / NPZ_FILE, _views(scene), total, folder)

@@ -317,8 +317,9 @@ def sfm_dataset(
     verbose: bool = False,
     ground: bool = True,
     camera=None,
-) -> tuple[Scene, SfmReport]:
-    """Photos -> SfM -> world frame -> dataset in ``out_dir``.
+) -> tuple[Scene, SfmReport, dict]:
+    """Photos -> SfM -> world frame -> dataset in ``out_dir``: the scene, SfM's report and the
+    dataset builder's summary (what ``nerfkit poses`` says of the dataset, as for the tag path).
 
     The world frame is the tag's (metres, +z up) when ``tag_size`` is given and tag
     ``tag_id`` is seen in at least 3 registered photos, else normalised (see
@@ -347,5 +348,5 @@ def sfm_dataset(
     tags = (
         Layout.single(tag_id, result.tag_size).corners() if result.tag_size is not None else None
     )  # the tag at the origin
-    scene, _ = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress, tags=tags)
-    return scene, result.report
+    scene, summary = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress, tags=tags)
+    return scene, result.report, summary
