@@ -531,10 +531,11 @@ def test_sfm_without_tag_levels_the_scene_on_the_floor(room_sfm, tmp_path):
     # from its axis) is 0.06, 2% of their 4-unit distance 0.08. Levelling on the box's top instead
     # (2.1 units up) or a 5-degree tilt fails. COLMAP's result differs between CPUs: 1% here, 3% on CI.
     np.testing.assert_allclose(c2w[:, 2, 3], s * ref[:, 2, 3], atol=0.14)
-    scene, _ = build_dataset(
+    scene, summary = build_dataset(
         result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160), progress=False
     )
     np.testing.assert_array_equal(scene.table, [0.0, 0.0, 1.0, 0.0])
+    assert summary["table_from"] == "the table plane found in the sparse points, z = 0"  # no tag to say it is
     assert load_scene(tmp_path / "ds").table is not None
 
 

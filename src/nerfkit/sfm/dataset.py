@@ -143,7 +143,7 @@ def build_dataset(
     """
     from dataclasses import replace
 
-    from ..capture.dataset import DatasetConfig
+    from ..capture.dataset import TAG_PLANE, DatasetConfig
     from ..capture.dataset import build_dataset as capture_build_dataset
 
     cfg = cfg or DatasetConfig()
@@ -173,6 +173,7 @@ def build_dataset(
         on_tag_plane=result.tag_size is not None or result.on_ground,
         points=model_points(result) if cfg.points else None,
         tags=tags if result.tag_size is not None else None,
+        table_from=TAG_PLANE if result.tag_size is not None else "the table plane found in the sparse points, z = 0",
     )
     if write_report:
         write_json(Path(out_dir) / REPORT_FILE, {**result.report.to_dict(), "model": saved_model(result, out_dir)})
