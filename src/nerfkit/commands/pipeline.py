@@ -403,9 +403,9 @@ def pose(
     method: PoseMethod = "auto",
     matcher: Matcher = "auto",
     ground: bool = True,
-    sfm_max_size: int = 1000,
-    focal_px: float | None = None,
-    tag_id: int | None = None,
+    sfm_max_size: int = PosesOptions.sfm_max_size,
+    focal_px: float | None = PosesOptions.focal_px,
+    tag_id: int | None = PosesOptions.tag_id,
     layout: str | Path | None = None,
     single_tag: bool = False,
     dictionary: str | None = None,
@@ -421,8 +421,8 @@ def pose(
     quiet: bool = False,
 ) -> PoseResult:
     """Pose the photos of an object beside a tag (or by SfM) and build its dataset (``nerfkit poses``).
-    The defaults and ranges of ``detect_size`` and ``jobs`` are those of
-    :class:`~nerfkit.commands.options.PosesOptions`, as the command's are.
+    The defaults and ranges of ``sfm_max_size``, ``focal_px``, ``tag_id``, ``detect_size`` and
+    ``jobs`` are those of :class:`~nerfkit.commands.options.PosesOptions`, as the command's are.
 
     Args:
         photos: folder of photos of the object beside the tag.
@@ -458,7 +458,7 @@ def pose(
     from ..capture.photos import default_jobs, require_tags, scan_photos
     from ..capture.poses import PoseConfig, pose_records
     from ..capture.report import reason_counts
-    from ..config import number, output_path, tag_side
+    from ..config import output_path, tag_side
     from ..errors import fail
     from ..images import list_images
     from ..io.paths import guard_outputs, refuse_links
@@ -467,10 +467,10 @@ def pose(
     _choice("--method", method, get_args(PoseMethod))
     _choice("--matcher", matcher, get_args(Matcher))
     tag_size = _check("--tag-size", tag_size, tag_side)
-    focal_px = _check("--focal-px", focal_px, number(float, above=0))
-    tag_id = _check("--tag-id", tag_id, number(int, 0))
-    sfm_max_size = _check("--sfm-max-size", sfm_max_size, number(int, 64, 100_000))
-    detect_size, jobs = dataclasses.astuple(_options(PosesOptions, {"detect_size": detect_size, "jobs": jobs}))
+    given = {"focal_px": focal_px, "tag_id": tag_id, "sfm_max_size": sfm_max_size}
+    focal_px, tag_id, sfm_max_size, detect_size, jobs = dataclasses.astuple(
+        _options(PosesOptions, {**given, "detect_size": detect_size, "jobs": jobs})
+    )
     pcfg = _settings(pose_settings, PoseConfig, "pose_settings")
     dcfg = _settings(dataset_settings, DatasetConfig, "dataset_settings")
     if max_side is not None:  # (checked with the settings it joins)
@@ -527,8 +527,6 @@ def pose(
     sheet = load_layout(layout_file, dictionary, tag_size) if layout_file else None
     if sheet is None and tag_size is None:
         raise fail("--tag-size", "is required", "Measure the tag's black square, e.g. --tag-size 0.06")
-    if focal_px is not None and not focal_px > 0:
-        raise fail("--focal-px", f"{focal_px} must be positive")
 
     detections = folder / "detections.json" if cache else None
     records = scan_photos(photos_dir, dictionary, sheet, detect_size, detections, workers)
