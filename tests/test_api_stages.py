@@ -281,6 +281,7 @@ NEGATED = {"no_cache", "no_dataset", "no_ground"}
     [
         ("calibrate", api.calibrate, ["photos"], (CalibrateOptions,)),
         ("poses", api.pose, ["photos", "--out", "o"], (PosesOptions,)),
+        ("frames", api.frames, ["clip", "--out", "o"], (api.FramesOptions,)),
         ("render", api.render, ["run"], (api.RenderOptions, RunDeviceOptions)),
         ("eval", api.evaluate, ["run"], (api.EvalOptions, RunDeviceOptions)),
         ("export", api.export, ["run"], (api.ExportOptions, RunDeviceOptions)),

@@ -237,6 +237,8 @@ FRAMES_KEPT = {"min": 10, "max": 10_000}
 class FramesOptions:
     """The options of ``nerfkit frames`` (:func:`nerfkit.api.frames`) beside its clip and output."""
 
+    # the frames kept from a clip by default, written here only (capture's --clip-frames reads it;
+    # capture.video.select_frames, below the commands, takes the count from its callers)
     frames: int = option(120, "frames to keep, at most", **FRAMES_KEPT, metavar="N")
     spread: Spread = option(
         "time",
