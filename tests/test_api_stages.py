@@ -197,6 +197,34 @@ def test_the_stages_check_their_arguments_as_the_command_line_does(tmp_path):
     assert not (tmp_path / "o").exists() and not (tmp_path / "c.json").exists()
 
 
+@pytest.mark.parametrize(
+    ("flag", "value", "problem"),
+    [
+        ("--sfm-max-size", 10, "10 is below the minimum 64 (allowed: 64 to 100000)"),
+        ("--sfm-max-size", 200_000, "200000 is above the maximum 100000 (allowed: 64 to 100000)"),
+        ("--tag-id", -1, "-1 is below the minimum 0"),
+        ("--focal-px", 0.0, "0.0 must be greater than 0"),
+        ("--focal-px", float("nan"), "'nan' is not a finite number"),
+    ],
+)
+def test_poses_refuses_a_number_out_of_its_range_from_python_as_on_the_command_line(
+    tmp_path, capsys, flag, value, problem
+):
+    """--sfm-max-size, --tag-id and --focal-px have their ranges in PosesOptions: api.pose refuses
+    a value outside one with the command line's words (the flag, what is wrong, what it takes),
+    before any photo is read or anything written."""
+    argv = ["poses", str(tmp_path), flag, str(value), "--tag-size", str(TAG), "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    assert (
+        capsys.readouterr().err.strip()
+        == f"nerfkit poses: error: argument {flag}: {problem} (see nerfkit poses --help)"
+    )
+    with pytest.raises(NerfkitError) as e:
+        api.pose(tmp_path, tmp_path / "o", tag_size=TAG, **{flag[2:].replace("-", "_"): value})
+    assert str(e.value) == f"{flag}: {problem}"
+    assert list(tmp_path.iterdir()) == []
+
+
 LEGO = Path(__file__).resolve().parents[1] / "src" / "nerfkit" / "assets" / "lego_200x200.npz"
 
 
@@ -253,6 +281,7 @@ NEGATED = {"no_cache", "no_dataset", "no_ground"}
     [
         ("calibrate", api.calibrate, ["photos"], (CalibrateOptions,)),
         ("poses", api.pose, ["photos", "--out", "o"], (PosesOptions,)),
+        ("frames", api.frames, ["clip", "--out", "o"], (api.FramesOptions,)),
         ("render", api.render, ["run"], (api.RenderOptions, RunDeviceOptions)),
         ("eval", api.evaluate, ["run"], (api.EvalOptions, RunDeviceOptions)),
         ("export", api.export, ["run"], (api.ExportOptions, RunDeviceOptions)),

@@ -531,10 +531,11 @@ def test_sfm_without_tag_levels_the_scene_on_the_floor(room_sfm, tmp_path):
     # from its axis) is 0.06, 2% of their 4-unit distance 0.08. Levelling on the box's top instead
     # (2.1 units up) or a 5-degree tilt fails. COLMAP's result differs between CPUs: 1% here, 3% on CI.
     np.testing.assert_allclose(c2w[:, 2, 3], s * ref[:, 2, 3], atol=0.14)
-    scene, _ = build_dataset(
+    scene, summary = build_dataset(
         result, tmp_path / "ds", DatasetConfig(val_every=0, test_every=0, max_side=160), progress=False
     )
     np.testing.assert_array_equal(scene.table, [0.0, 0.0, 1.0, 0.0])
+    assert summary["table_from"] == "the table plane found in the sparse points, z = 0"  # no tag to say it is
     assert load_scene(tmp_path / "ds").table is not None
 
 
@@ -544,7 +545,7 @@ def test_sfm_dataset_metric_from_tag(room, tmp_path):
     folder, truth = room
     from nerfkit.capture.dataset import DatasetConfig
 
-    scene, rep = sfm_dataset(
+    scene, rep, _ = sfm_dataset(
         folder,
         tmp_path / "ds",
         DatasetConfig(val_every=6, test_every=0),
@@ -628,7 +629,7 @@ def test_sfm_turns_photos_held_the_other_way(room, tmp_path):
             assert load_image_uint8(photos / f.name).shape == (320, 240, 3)  # portrait, upright
         else:
             (photos / f.name).write_bytes(f.read_bytes())
-    scene, rep = sfm_dataset(
+    scene, rep, _ = sfm_dataset(
         photos,
         tmp_path / "ds",
         DatasetConfig(val_every=0, test_every=0),

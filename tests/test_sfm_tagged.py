@@ -564,3 +564,28 @@ def test_the_poses_that_fit_sfms_tracks_better_are_named():
         assert min(errors) < 0.05 < max(errors)
     few = pix[:, : MIN_TRACKS - 1]
     assert track_errors(_stand_in_sfm(c2w, few, K, names), posed) is None
+
+
+# `nerfkit poses`' routes on the room, beside --tag-size: the tag's poses (the room's focal
+# length given: the photos have no EXIF), and structure-from-motion alone
+ROUTES = {
+    "tags": ["--method", "tags", "--focal-px", "260"],
+    "colmap": ["--method", "colmap", "--matcher", "exhaustive"],
+}
+
+
+@pytest.mark.slow
+def test_every_route_of_poses_ends_with_the_datasets_split_and_coverage(room_photos, tmp_path, capsys):
+    """The tags and SfM alone end with one summary of the dataset: its split, as the dataset
+    holds it, and where the photos look from, beside coverage.png (SfM alone said neither)."""
+    folder, _ = room_photos
+    split = ["--val-every", "6", "--test-every", "0", "--max-side", "80", "--jobs", "1"]
+    for route, flags in ROUTES.items():
+        out = tmp_path / route
+        assert main(["poses", str(folder), *flags, "--tag-size", str(TAG_SIZE), *split, "--out", str(out)]) == 0
+        text = capsys.readouterr().out
+        scene = load_scene(out)
+        assert len(scene.train) >= 8 and len(scene.val) == 2, route
+        assert f"dataset: {len(scene.train)} train, {len(scene.val)} val, 0 test views of " in text, (route, text)
+        assert "\ncoverage: the photos look from " in text, (route, text)
+        assert f"wrote {out}/dataset.npz" in text and "coverage.png" in text.split("\nwrote ")[-1], (route, text)

@@ -53,6 +53,8 @@ POSES_FILE = "poses.json"
 NPZ_FILE = "dataset.npz"
 # the chart of where the photos look from
 COVERAGE_PLOT = "coverage.png"
+# what z = 0 is in a dataset posed in the tags' frame (its summary's table_from)
+TAG_PLANE = "the tags' plane, z = 0"
 # What build_dataset writes into its folder (checked with nerfkit.io.paths.guard_outputs).
 DATASET_OUTPUTS = (NPZ_FILE, "transforms.json", "images", "sparse_pc.ply", COVERAGE_PLOT)
 
@@ -229,6 +231,7 @@ def build_dataset(
     on_tag_plane: bool = True,
     points: SparsePoints | None = None,
     tags: np.ndarray | None = None,
+    table_from: str = TAG_PLANE,
 ) -> tuple[Scene, dict]:
     """Undistort, crop, resize and split ``posed`` photos, then write the dataset files.
 
@@ -242,7 +245,8 @@ def build_dataset(
     recorded with the table when the object stands on the tag's plane.
     ``on_tag_plane``: the world is the tag frame and the object stands on the tag's plane
     (z = 0), recorded as the scene's table (moved to the sparse points on the tags:
-    :func:`tag_surface_height`). The scene is marked a real capture.
+    :func:`tag_surface_height`); ``table_from`` says what that plane is (the summary's and
+    transforms.json's ``table_from``). The scene is marked a real capture.
     Returns the Scene (nerfkit conventions) and a summary dict.
     """
     from tqdm import tqdm
@@ -332,7 +336,7 @@ def build_dataset(
     if points is not None:
         scene.points, scene.point_colors = check_points(points.xyz, points.rgb, str(out_dir))
         scene.point_views = point_views(points.seen_by, scene.train.names)
-    table_note = None if table is None else "the tags' plane, z = 0"
+    table_note = None if table is None else table_from
     if table is not None and scene.points is not None and scene.tags is not None:
         lift, on_tags = tag_surface_height(scene.points, scene.tags)
         if lift:

@@ -35,7 +35,6 @@ from ..errors import fail
 from ..images import VIDEO_SUFFIXES
 from ..io.paths import file_sha1
 
-DEFAULT_TARGET = 120  # frames kept by default
 MIN_FRAMES = 10  # fewer usable frames than this cannot be posed
 SCORE_SIDE = 720  # longest side (pixels) of the grey frames scored in the first pass
 THUMB_SIDE = 64  # longest side of the thumbnails compared for motion
@@ -583,7 +582,7 @@ def cut_short(info: VideoInfo, times: np.ndarray, data_end: float | None = None)
 def select_frames(
     path: str | os.PathLike,
     out_dir: str | os.PathLike,
-    target: int = DEFAULT_TARGET,
+    target: int,
     *,
     force: bool = False,
     progress: bool = True,
@@ -597,6 +596,10 @@ def select_frames(
     write them to ``out_dir`` as frame_00001.jpg... (JPEG quality 95, full resolution,
     upright) with ``frames.json``, the report. ``out_dir`` is the frames' own folder: it
     must be new, empty or hold only earlier frames (replaced, with ``force``).
+
+    ``target`` has no default here: the commands' (``nerfkit frames --frames``, ``nerfkit capture
+    --clip-frames``) is :class:`~nerfkit.commands.options.FramesOptions`' ``frames``, the one
+    place it is written (this module is below the commands and cannot read it).
 
     A clip that is not a video, has fewer than ``min_frames`` frames, or too few sharp,
     lit, moving ones is a NerfkitError saying what to film differently.

@@ -52,8 +52,22 @@ class CalibrateOptions:
 
 @dataclass(frozen=True)
 class PosesOptions:
-    """The options of ``nerfkit poses`` (:func:`nerfkit.api.pose`) on how it reads the photos."""
+    """The options of ``nerfkit poses`` (:func:`nerfkit.api.pose`) on the camera and tag it poses
+    with and how it reads the photos."""
 
+    focal_px: float | None = option(
+        None,
+        "focal length in pixels to pose with instead of the photos' EXIF (no distortion, principal point "
+        "at the centre); not with --camera or --method colmap",
+        above=0,
+        metavar="FOCAL_PX",
+    )
+    tag_id: int | None = option(
+        None, "the tag that defines the world", default_help="the one seen most", min=0, metavar="TAG_ID"
+    )
+    sfm_max_size: int = option(
+        1000, "longest side used for SfM features, px", min=64, max=100_000, metavar="SFM_MAX_SIZE"
+    )
     detect_size: int = option(
         CalibrateOptions.detect_size, "tag detection size (long side, px)", **DETECT_SIZE, metavar="DETECT_SIZE"
     )
@@ -223,6 +237,8 @@ FRAMES_KEPT = {"min": 10, "max": 10_000}
 class FramesOptions:
     """The options of ``nerfkit frames`` (:func:`nerfkit.api.frames`) beside its clip and output."""
 
+    # the frames kept from a clip by default, written here only (capture's --clip-frames reads it;
+    # capture.video.select_frames, below the commands, takes the count from its callers)
     frames: int = option(120, "frames to keep, at most", **FRAMES_KEPT, metavar="N")
     spread: Spread = option(
         "time",

@@ -403,9 +403,9 @@ def pose(
     method: PoseMethod = "auto",
     matcher: Matcher = "auto",
     ground: bool = True,
-    sfm_max_size: int = 1000,
-    focal_px: float | None = None,
-    tag_id: int | None = None,
+    sfm_max_size: int = PosesOptions.sfm_max_size,
+    focal_px: float | None = PosesOptions.focal_px,
+    tag_id: int | None = PosesOptions.tag_id,
     layout: str | Path | None = None,
     single_tag: bool = False,
     dictionary: str | None = None,
@@ -421,8 +421,8 @@ def pose(
     quiet: bool = False,
 ) -> PoseResult:
     """Pose the photos of an object beside a tag (or by SfM) and build its dataset (``nerfkit poses``).
-    The defaults and ranges of ``detect_size`` and ``jobs`` are those of
-    :class:`~nerfkit.commands.options.PosesOptions`, as the command's are.
+    The defaults and ranges of ``sfm_max_size``, ``focal_px``, ``tag_id``, ``detect_size`` and
+    ``jobs`` are those of :class:`~nerfkit.commands.options.PosesOptions`, as the command's are.
 
     Args:
         photos: folder of photos of the object beside the tag.
@@ -453,25 +453,24 @@ def pose(
     """
     from ..capture.aruco import get_dictionary, load_layout
     from ..capture.camera import load_camera
-    from ..capture.dataset import NPZ_FILE, POSES_FILE, DatasetConfig, posed_none, write_poses_json
+    from ..capture.dataset import POSES_FILE, DatasetConfig, posed_none, write_poses_json
     from ..capture.dataset import check_settings as check_dataset_settings
     from ..capture.photos import default_jobs, require_tags, scan_photos
     from ..capture.poses import PoseConfig, pose_records
     from ..capture.report import reason_counts
-    from ..config import number, output_path, tag_side
+    from ..config import output_path, tag_side
     from ..errors import fail
     from ..images import list_images
     from ..io.paths import guard_outputs, refuse_links
     from .stages import pose as stage
-    from .stages.dataset import report_dataset
 
     _choice("--method", method, get_args(PoseMethod))
     _choice("--matcher", matcher, get_args(Matcher))
     tag_size = _check("--tag-size", tag_size, tag_side)
-    focal_px = _check("--focal-px", focal_px, number(float, above=0))
-    tag_id = _check("--tag-id", tag_id, number(int, 0))
-    sfm_max_size = _check("--sfm-max-size", sfm_max_size, number(int, 64, 100_000))
-    detect_size, jobs = dataclasses.astuple(_options(PosesOptions, {"detect_size": detect_size, "jobs": jobs}))
+    given = {"focal_px": focal_px, "tag_id": tag_id, "sfm_max_size": sfm_max_size}
+    focal_px, tag_id, sfm_max_size, detect_size, jobs = dataclasses.astuple(
+        _options(PosesOptions, {**given, "detect_size": detect_size, "jobs": jobs})
+    )
     pcfg = _settings(pose_settings, PoseConfig, "pose_settings")
     dcfg = _settings(dataset_settings, DatasetConfig, "dataset_settings")
     if max_side is not None:  # (checked with the settings it joins)
@@ -508,7 +507,7 @@ def pose(
     if method == "colmap":
         from ..sfm import sfm_dataset
 
-        scene, report = sfm_dataset(
+        scene, report, summary = sfm_dataset(
             photos_dir,
             folder,
             dcfg,
@@ -524,12 +523,10 @@ def pose(
             progress=not quiet,
         )
         say(report.summary())
-        return PoseResult(folder / NPZ_FILE, _views(scene), len(list_images(photos_dir)), folder)
+        return _dataset_built(scene, summary, folder, len(list_images(photos_dir)), quiet)
     sheet = load_layout(layout_file, dictionary, tag_size) if layout_file else None
     if sheet is None and tag_size is None:
         raise fail("--tag-size", "is required", "Measure the tag's black square, e.g. --tag-size 0.06")
-    if focal_px is not None and not focal_px > 0:
-        raise fail("--focal-px", f"{focal_px} must be positive")
 
     detections = folder / "detections.json" if cache else None
     records = scan_photos(photos_dir, dictionary, sheet, detect_size, detections, workers)
@@ -596,6 +593,17 @@ def pose(
         )
     else:
         scene, summary = stage.tag_dataset(posed, folder, dcfg, side, workers, {"notes": notes}, printed.corners())
+    return _dataset_built(scene, summary, folder, total, quiet)
+
+
+def _dataset_built(scene: Any, summary: dict, folder: Path, total: int, quiet: bool) -> PoseResult:
+    """The end of :func:`pose` on every route (the tags, SfM in their frame, SfM alone): what
+    the dataset builder's ``summary`` says was written (the split, K, near/far, the table, the
+    coverage, ...: :func:`~nerfkit.commands.stages.dataset.report_dataset`) unless ``quiet``, and
+    the result (``total``: the photos in the folder)."""
+    from ..capture.dataset import NPZ_FILE
+    from .stages.dataset import report_dataset
+
     if not quiet:
         report_dataset(summary, folder)
     return PoseResult(folder / NPZ_FILE, _views(scene), total, folder)

@@ -55,7 +55,7 @@ examples:
 def register(sub: argparse._SubParsersAction) -> None:
     from ..capture.dataset import DatasetConfig
     from ..capture.poses import PoseConfig
-    from ..config import add_dataclass_args, number, tag_side
+    from ..config import add_dataclass_args, tag_side
     from .options import PosesOptions
 
     p = sub.add_parser(
@@ -85,21 +85,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="with --method colmap and no tag: do not look for the table plane in the SfM points",
     )
-    p.add_argument(
-        "--sfm-max-size",
-        type=number(int, 64, 100_000),
-        default=1000,
-        help="longest side used for SfM features, px (default 1000)",
-    )
     p.add_argument("--camera", help="camera file from `nerfkit calibrate` (default: the photos' EXIF focal length)")
-    p.add_argument(
-        "--focal-px",
-        type=number(float, above=0),
-        help="focal length in pixels to pose with instead of the photos' EXIF (no distortion, principal point "
-        "at the centre); not with --camera or --method colmap",
-    )
     p.add_argument("--tag-size", type=tag_side, help="side of the tag's black square in metres, e.g. 0.06")
-    p.add_argument("--tag-id", type=number(int, 0), help="the tag that defines the world (default: the one seen most)")
     p.add_argument(
         "--layout",
         help="layout JSON of several tags to use jointly (their frame is the world); by "
@@ -117,7 +104,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--no-dataset", action="store_true", help="only write poses.json (build later with `nerfkit dataset`)"
     )
-    add_dataclass_args(p, PosesOptions)  # --detect-size, --jobs
+    add_dataclass_args(p, PosesOptions)  # --focal-px, --tag-id, --sfm-max-size, --detect-size, --jobs
     p.add_argument("--no-cache", action="store_true", help="ignore cached detections")
     p.add_argument("--all-photos", action="store_true", help="list every photo in the summary, not only skipped ones")
     p.add_argument("--force", action="store_true", help="replace the dataset files of an earlier run in --out")
@@ -145,9 +132,6 @@ def run(args: argparse.Namespace) -> int:
         method=args.method,
         matcher=args.matcher,
         ground=not args.no_ground,
-        sfm_max_size=args.sfm_max_size,
-        focal_px=args.focal_px,
-        tag_id=args.tag_id,
         layout=args.layout,
         single_tag=args.single_tag,
         dictionary=args.dict,

@@ -143,7 +143,7 @@ def build_dataset(
     """
     from dataclasses import replace
 
-    from ..capture.dataset import DatasetConfig
+    from ..capture.dataset import TAG_PLANE, DatasetConfig
     from ..capture.dataset import build_dataset as capture_build_dataset
 
     cfg = cfg or DatasetConfig()
@@ -173,6 +173,7 @@ def build_dataset(
         on_tag_plane=result.tag_size is not None or result.on_ground,
         points=model_points(result) if cfg.points else None,
         tags=tags if result.tag_size is not None else None,
+        table_from=TAG_PLANE if result.tag_size is not None else "the table plane found in the sparse points, z = 0",
     )
     if write_report:
         write_json(Path(out_dir) / REPORT_FILE, {**result.report.to_dict(), "model": saved_model(result, out_dir)})
@@ -317,8 +318,9 @@ def sfm_dataset(
     verbose: bool = False,
     ground: bool = True,
     camera=None,
-) -> tuple[Scene, SfmReport]:
-    """Photos -> SfM -> world frame -> dataset in ``out_dir``.
+) -> tuple[Scene, SfmReport, dict]:
+    """Photos -> SfM -> world frame -> dataset in ``out_dir``: the scene, SfM's report and the
+    dataset builder's summary (what ``nerfkit poses`` says of the dataset, as for the tag path).
 
     The world frame is the tag's (metres, +z up) when ``tag_size`` is given and tag
     ``tag_id`` is seen in at least 3 registered photos, else normalised (see
@@ -347,5 +349,5 @@ def sfm_dataset(
     tags = (
         Layout.single(tag_id, result.tag_size).corners() if result.tag_size is not None else None
     )  # the tag at the origin
-    scene, _ = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress, tags=tags)
-    return scene, result.report
+    scene, summary = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress, tags=tags)
+    return scene, result.report, summary
