@@ -18,6 +18,7 @@ import torch
 from torch import Tensor
 
 from .. import presets
+from ..cameras import Rays
 from ..data.load import dataset_inputs
 from ..data.rays import RaysData
 from ..data.scene import Scene
@@ -28,6 +29,7 @@ from ..io.paths import guard_run_folder
 from ..models import SceneBounds, build_model, check_config
 from ..models.base import NerfModel, StepState, grads_finite, run_schedules
 from ..precision import autocast, resolve_device, resolve_precision
+from ..render.output import RenderOutput
 from .checkpoint import (
     MODEL_FILE,
     RunInfo,
@@ -228,51 +230,63 @@ class Trainer:
         for note in run_schedules(self.schedules, state, phase="before_step"):
             self.log(f"step {self.step}: {note}")
         self._set_lr()
-        views = self.views
-        rays = None
-        seen: Tensor | None = None  # the view a whole-view step rendered
-        if self.whole_images:
-            out, target, seen = self._render_training_view()
-            loss = self.model.loss(out, target) + self._corrections_penalty()
-        else:
-            batch = self.rays.sample(min(self.model.rays_per_step(self.cfg.batch_rays), MAX_BATCH_RAYS))
-            rays, target = batch.rays, batch.rgb
-            pose = self._pose_correction()
-            if pose is not None:
-                rays = pose(rays, batch.image_index)
-            with autocast(self.device, self.autocast):
-                out = self.model.render_rays(rays, self.background, perturb=True)
-                if views is not None and views.exposure is not None:
-                    out = replace(out, rgb=views.exposure(out.rgb.float(), batch.image_index))
-                shape = (self.rays.n_images, self.rays.width, self.rays.height)
-                self.model.see_batch(self.progress(), batch.image_index, batch.uv, shape)
-                loss = self.model.loss(out, batch.rgb) + self._corrections_penalty() + self._sight_term()
+        out, target, loss, rays, seen = self._forward()
         self._zero_grad()
-        finite = bool(torch.isfinite(loss))
-        if finite:
-            loss.backward()
-            finite = self.model.gradients_finite() and (views is None or grads_finite(views.parameters()))
-        if not finite:
+        if not self._backward(loss):
             self._zero_grad()
             self._bad_step("non-finite loss or gradient, step skipped")
             return {"loss": float("nan"), "psnr": float("nan"), "samples": 0, "rays": 0}
         after = replace(state, optimizer=self.optimizer, rays=rays, out=out if rays is not None else None)
         run_schedules(self.schedules, after, phase="gradients")
-        self.optimizer.step()
-        if isinstance(self.view_optimizer, ViewAdam):
-            self.view_optimizer.step(rows=seen)
-        elif self.view_optimizer is not None:
-            self.view_optimizer.step()
-        skipped = getattr(self.optimizer, "nonfinite_rows", 0)  # grid rows the optimizer refused
-        if skipped:
-            self._bad_step(f"{skipped} grid rows had non-finite gradients and were not updated")
-        else:
-            self.bad_steps = 0
+        self._step_optimizers(seen)
         for note in run_schedules(self.schedules, after, phase="after_step"):
             self.log(f"step {self.step}: {note}")
         mse = float(torch.mean((out.rgb.detach().float() - target) ** 2))
         n_rays = target.numel() // 3  # (a whole view: its pixels)
         return {"loss": float(loss.detach()), "psnr": psnr_from_mse(mse), "samples": out.n_samples, "rays": n_rays}
+
+    def _forward(self) -> tuple[RenderOutput, Tensor, Tensor, Rays | None, Tensor | None]:
+        """This step's render, its target and loss; the rays of a ray batch (None for a whole
+        view) and the view a whole-view step rendered (None for a ray batch)."""
+        if self.whole_images:
+            out, target, seen = self._render_training_view()
+            return out, target, self.model.loss(out, target) + self._corrections_penalty(), None, seen
+        views = self.views
+        batch = self.rays.sample(min(self.model.rays_per_step(self.cfg.batch_rays), MAX_BATCH_RAYS))
+        rays = batch.rays
+        pose = self._pose_correction()
+        if pose is not None:
+            rays = pose(rays, batch.image_index)
+        with autocast(self.device, self.autocast):
+            out = self.model.render_rays(rays, self.background, perturb=True)
+            if views is not None and views.exposure is not None:
+                out = replace(out, rgb=views.exposure(out.rgb.float(), batch.image_index))
+            shape = (self.rays.n_images, self.rays.width, self.rays.height)
+            self.model.see_batch(self.progress(), batch.image_index, batch.uv, shape)
+            loss = self.model.loss(out, batch.rgb) + self._corrections_penalty() + self._sight_term()
+        return out, batch.rgb, loss, rays, None
+
+    def _backward(self, loss: Tensor) -> bool:
+        """Backpropagate ``loss``; False when it or a gradient is not finite."""
+        if not bool(torch.isfinite(loss)):
+            return False
+        loss.backward()
+        views = self.views
+        return self.model.gradients_finite() and (views is None or grads_finite(views.parameters()))
+
+    def _step_optimizers(self, seen: Tensor | None) -> None:
+        """Step the scene's optimizer and the views' (only the rendered view's rows for a
+        whole-view step); grid rows the optimizer refused count as a bad step."""
+        self.optimizer.step()
+        if isinstance(self.view_optimizer, ViewAdam):
+            self.view_optimizer.step(rows=seen)
+        elif self.view_optimizer is not None:
+            self.view_optimizer.step()
+        skipped = getattr(self.optimizer, "nonfinite_rows", 0)
+        if skipped:
+            self._bad_step(f"{skipped} grid rows had non-finite gradients and were not updated")
+        else:
+            self.bad_steps = 0
 
     def _pose_correction(self) -> PoseCorrection | None:
         """The per-view pose correction once it applies (from ``--pose-start`` on), else None."""
