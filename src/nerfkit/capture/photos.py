@@ -11,7 +11,6 @@ looks at new or changed photos.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import sys
@@ -37,9 +36,22 @@ from ..images import (
 )
 from ..io.atomic import write_json
 from ..io.paths import refuse_special_file
-from .aruco import Detection, Layout, detect, detect_careful, make_detector, marker_bits, suggest_dictionaries
+from .aruco import (
+    SEARCH_DICTIONARIES,
+    Detection,
+    DictionaryFind,
+    DictionarySearch,
+    Layout,
+    detect,
+    detect_careful,
+    make_detector,
+    marker_bits,
+)
 
 CACHE_VERSION = 5  # 5: HEIF photos record the orientation pillow-heif applied
+# Photos spread through a folder that are looked at first: for the dictionary asked for
+# before the scan of all (:func:`probe_sample`), for other dictionaries after it found none.
+SAMPLE_PHOTOS = 5
 
 
 @dataclass
@@ -216,7 +228,8 @@ def scan_photos(
     """Detect tags in every photo of ``folder`` (sorted by name), reusing the cache.
 
     Unreadable photos come back skipped with the reason; :func:`require_tags` checks that
-    some photo shows a tag. Raises NerfkitError when the folder holds no images.
+    some photo shows a tag. Raises NerfkitError when the folder holds no images, or when a
+    sample of the photos shows tags of another dictionary only (:func:`probe_sample`).
     """
     from tqdm import tqdm
 
@@ -247,6 +260,8 @@ def scan_photos(
                 {"version": CACHE_VERSION, "settings": settings, "photos": {k: entries[k] for k in sorted(entries)}},
             )
 
+    if todo and not charuco and not any(e.get("detection", {}).get("ids") for e in entries.values()):
+        probe_sample(todo, folder, dictionary, detect_side, progress)  # none cached shows a tag
     if todo:
         bits = marker_bits(dictionary)
         local = threading.local()  # one detector per thread: OpenCV detectors are not shared
@@ -311,8 +326,11 @@ def _keep_known_ids(rec: PhotoRecord, known: set[int]) -> None:
         rec.info["second_pass_ignored_ids"] = dropped
 
 
-def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str, otherwise: str = "") -> None:
-    """Raise a helpful NerfkitError when no photo shows any tag of ``dictionary`` (``otherwise``:
+def require_tags(
+    records: list[PhotoRecord], folder: str | Path, dictionary: str, otherwise: str = "", progress: bool = True
+) -> None:
+    """Raise a helpful NerfkitError when no photo shows any tag of ``dictionary``: naming the
+    dictionary that finds them (:func:`another_dictionary`), else what to check (``otherwise``:
     a way on without tags, added to the advice)."""
     readable = [r for r in records if r.detection is not None]
     if not readable:
@@ -334,27 +352,123 @@ def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str
                 "Print a sheet whose tags all differ (`nerfkit tags`)",
             )
         return
-    sample = readable[:: max(1, len(readable) // 5)][:5]
-    images = []
-    for r in sample:
-        with contextlib.suppress(NerfkitError):
-            images.append(load_image_uint8(r.path))
-    found = suggest_dictionaries(images)
-    if found:
-        best = ", ".join(f"{name} (ids {', '.join(map(str, ids[:6]))})" for name, ids in found[:3])
-        raise fail(
-            folder,
-            f"no {dictionary} tags found in any of {len(readable)} photos, but other dictionaries find tags: {best}",
-            f"Re-run with --dict {found[0][0]}",
-        )
-    tried = ", ".join(n.replace("_1000", "_*") for n in ("DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X6_1000"))
+    finds, searched = _search_other_dictionaries(readable, dictionary, progress)
+    if finds:
+        raise another_dictionary(folder, dictionary, f"found in any of {len(readable)} photos", finds, searched)
+    tried = ", ".join(n.replace("_1000", "_*") for n in SEARCH_DICTIONARIES)
     raise fail(
         folder,
-        f"no {dictionary} tags found in any of {len(readable)} photos (also tried "
-        f"{tried}, "
-        "ArUco original and AprilTag dictionaries)",
+        f"no {dictionary} tags found in any of {len(readable)} photos (also tried {tried})",
         "Check that the tags are in focus, fully visible and not too small (at least ~30 px wide)" + otherwise,
     )
+
+
+def _search_other_dictionaries(
+    readable: list[PhotoRecord], dictionary: str, progress: bool
+) -> tuple[list[DictionaryFind], int]:
+    """Other dictionaries' tags in a sample of the photos, then, when it shows none, in the
+    rest; and how many photos were searched."""
+    search = DictionarySearch(skip=dictionary)
+    first = spread(len(readable))
+    _say(progress, f"looking for other dictionaries' tags in {len(first)} of the {len(readable)} photos...")
+    _search_photos(search, [readable[i].path for i in first])
+    rest = [r.path for i, r in enumerate(readable) if i not in first]
+    if rest and not search.finds():
+        _say(progress, f"none there: looking in the other {len(rest)} photos...")
+        _search_photos(search, rest)
+    return search.finds(), search.photos
+
+
+def _search_photos(search: DictionarySearch, paths: list[Path]) -> None:
+    """Add each photo that loads to ``search`` (one at a time: only its small copy is kept)."""
+    for path in paths:
+        image = _load_quietly(path)
+        if image is not None:
+            search.add(image)
+
+
+def _load_quietly(path: Path) -> np.ndarray | None:
+    """The upright photo, or None when it cannot be read (its scan says why)."""
+    try:
+        return load_image_uint8(path)
+    except (NerfkitError, MemoryError):
+        return None
+
+
+def probe_sample(
+    files: list[Path], folder: str | Path, dictionary: str, detect_side: int = 2000, progress: bool = True
+) -> None:
+    """Before the slow scan of every photo: refuse at once when a few photos spread through
+    ``files`` show no tag of ``dictionary`` while most of them show another dictionary's
+    (each photo with no tag of ``dictionary`` also gets a careful, slower second pass)."""
+    sample = [files[i] for i in spread(len(files))]
+    detector, bits = make_detector(dictionary), marker_bits(dictionary)
+    search = DictionarySearch(skip=dictionary)
+    for path in sample:
+        image = _load_quietly(path)
+        if image is None:
+            continue
+        if len(detect(image, detector, detect_side, bits).ids):
+            return  # tags of the dictionary asked for: scan as asked
+        if not search.photos:
+            _say(
+                progress,
+                f"looking for {dictionary} and other dictionaries' tags in {len(sample)} of the {len(files)} photos...",
+            )
+        search.add(image)
+    finds = [f for f in search.finds() if _in_most(f, search.photos)]
+    if finds:
+        whole = len(sample) == len(files)
+        looked = (
+            f"in any of the {len(files)} photos"
+            if whole
+            else f"in {search.photos} photos spread through the {len(files)}"
+        )
+        raise another_dictionary(folder, dictionary, looked, finds, search.photos)
+
+
+def _in_most(find: DictionaryFind, searched: int) -> bool:
+    """Whether ``find`` is in at least half of the ``searched`` photos and, of more than one,
+    in two: enough to stop before the scan (a misread is rarely in two photos)."""
+    return 2 * find.photos >= searched and find.photos >= min(2, searched)
+
+
+def another_dictionary(
+    folder: str | Path, dictionary: str, looked: str, finds: list[DictionaryFind], searched: int
+) -> NerfkitError:
+    """The error for photos showing no tag of ``dictionary`` (``looked``: where) but tags of
+    the dictionaries of ``finds`` (best first), found in ``searched`` photos."""
+    best = finds[0]
+    found = f"{best.name} tags are there ({_ids_text(best.ids)}, in {best.photos} of the {searched} photos searched"
+    if best.misreads:
+        found += f"; also {_ids_text(best.misreads)} in fewer, likely misread"
+    found += ")"
+    others = ", ".join(f"{f.name} ones ({_ids_text(f.ids)}, in {f.photos})" for f in finds[1:3])
+    if others:
+        found += f", and {others}"
+    return fail(folder, f"no {dictionary} tags {looked}, but {found}", f"Re-run with --dict {best.name}")
+
+
+def _ids_text(ids: list[int], most: int = 6) -> str:
+    """Ids as words: "id 7", or "ids 0, 1, 2 and 4 more"."""
+    if len(ids) == 1:
+        return f"id {ids[0]}"
+    shown = ", ".join(map(str, ids[:most]))
+    return f"ids {shown}" + (f" and {len(ids) - most} more" if len(ids) > most else "")
+
+
+def spread(count: int, n: int = SAMPLE_PHOTOS) -> list[int]:
+    """Indices of ``n`` of ``count`` items spread evenly through them, first and last
+    included (all of them when there are no more than ``n``)."""
+    if count <= n:
+        return list(range(count))
+    return [int(i) for i in np.linspace(0, count - 1, n).round()]
+
+
+def _say(progress: bool, line: str) -> None:
+    """One line on stderr saying what slow work starts (none without ``progress``)."""
+    if progress:
+        print(line, file=sys.stderr, flush=True)
 
 
 def frame_turns(records: list[PhotoRecord], size: tuple[int, int] | None = None) -> int | None:
