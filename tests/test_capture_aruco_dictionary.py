@@ -90,7 +90,7 @@ def test_a_wrong_dictionary_is_named_from_a_sample_before_the_scan(tmp_path, mon
     folder = folder_of(tmp_path / "photos", [tag_photo("DICT_5X5_100", [60, 77], k) for k in range(12)])
     loaded = count_loads(monkeypatch)
     scanned: list[str] = []
-    monkeypatch.setattr(P, "_detect_one", lambda path, *a: scanned.append(path.name))
+    monkeypatch.setattr(P, "_detect_one", lambda path, *a, **k: scanned.append(path.name))
     with pytest.raises(NerfkitError) as e:
         run(["poses", str(folder), "--tag-size", "0.05", "--out", str(tmp_path / "ds")])
     msg = str(e.value)

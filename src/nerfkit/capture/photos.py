@@ -4,9 +4,10 @@ Every photo becomes a :class:`PhotoRecord`; unreadable files are recorded with t
 instead of stopping the run. Photos where no tag is found get a second, more careful detection pass
 (:func:`~.aruco.detect_careful`); its finds are kept only for tag ids that the first pass
 found in other photos (or that the layout holds), since a permissive detector can read
-false ids in textures. Detections are cached in a JSON file keyed by file name, size
-and modification time (and the detection settings), so re-running on the same folder only
-looks at new or changed photos.
+false ids in textures: so it waits for the first pass over every photo, and is not run when
+that found no tag and there is no layout. Detections are cached in a JSON file keyed by
+file name, size and modification time (and the detection settings), so re-running on the
+same folder only looks at new or changed photos.
 """
 
 from __future__ import annotations
@@ -49,6 +50,9 @@ from .aruco import (
 )
 
 CACHE_VERSION = 5  # 5: HEIF photos record the orientation pillow-heif applied
+# A cache entry's mark: the first pass found no tag in the photo and the careful second
+# pass has not looked yet (it runs once some photo shows a tag; earlier entries have no mark).
+SECOND_PASS_DUE = "second_pass_due"
 # Photos spread through a folder that are looked at first: for the dictionary asked for
 # before the scan of all (:func:`probe_sample`), for other dictionaries after it found none.
 SAMPLE_PHOTOS = 5
@@ -174,9 +178,9 @@ def _load_cache(cache_path: Path | None, settings: dict) -> tuple[dict, bool]:
     return data["photos"], True
 
 
-def _detect_one(path: Path, detector, detect_side: int, bits: int, dictionary: str = "") -> dict:
-    """Load upright, detect (a second, careful pass when no tag is found and ``dictionary``
-    is given); a JSON-ready cache entry (never raises for a bad photo)."""
+def _detect_one(path: Path, detector, detect_side: int, bits: int, careful: bool = False) -> dict:
+    """Load upright and detect; a JSON-ready cache entry (never raises for a bad photo). With
+    ``careful``, a photo with no tag is marked for the second pass (:func:`_second_pass`)."""
     entry: dict = {"key": _file_key(path)}
     try:
         image = load_image_uint8(path)
@@ -188,15 +192,26 @@ def _detect_one(path: Path, detector, detect_side: int, bits: int, dictionary: s
         return entry
     try:
         det = detect(image, detector, detect_side, bits)
-        if dictionary and not len(det.ids) and det.charuco_ids is None:
-            second = detect_careful(image, dictionary, detect_side, bits)
-            if len(second.ids):
-                det, entry["second_pass"] = second, True
         entry["detection"] = det.to_json()
     except Exception as e:  # noqa: BLE001 - one odd photo must not stop the run
         entry["error"] = f"tag detection failed ({type(e).__name__}: {str(e).strip().splitlines()[-1][:120]})"
         return entry
+    if careful and not len(det.ids) and det.charuco_ids is None:
+        entry[SECOND_PASS_DUE] = True
     entry["exif_f35"], entry["orientation"] = _exif_header(path)
+    return entry
+
+
+def _second_pass(path: Path, entry: dict, dictionary: str, detect_side: int, bits: int) -> dict:
+    """``entry`` of a photo the first pass found no tag in, after the careful detector's
+    look (:func:`~.aruco.detect_careful`); when that fails, the first pass's entry stands."""
+    entry = {k: v for k, v in entry.items() if k != SECOND_PASS_DUE}
+    try:
+        second = detect_careful(load_image_uint8(path), dictionary, detect_side, bits)
+    except Exception:  # noqa: BLE001 - one odd photo must not stop the run
+        return entry
+    if len(second.ids):
+        entry["detection"], entry["second_pass"] = second.to_json(), True
     return entry
 
 
@@ -225,14 +240,14 @@ def scan_photos(
     progress: bool = True,
     files: list[Path] | None = None,
 ) -> list[PhotoRecord]:
-    """Detect tags in every photo of ``folder`` (sorted by name), reusing the cache.
+    """Detect tags in every photo of ``folder`` (sorted by name), reusing the cache; then,
+    when some photo shows a tag (or ``layout`` is given), look again with the careful
+    detector at the photos showing none.
 
     Unreadable photos come back skipped with the reason; :func:`require_tags` checks that
     some photo shows a tag. Raises NerfkitError when the folder holds no images, or when a
     sample of the photos shows tags of another dictionary only (:func:`probe_sample`).
     """
-    from tqdm import tqdm
-
     files = list_images(folder) if files is None else files
     charuco = layout is not None and layout.charuco is not None
     settings = {
@@ -262,37 +277,34 @@ def scan_photos(
 
     if todo and not charuco and not any(e.get("detection", {}).get("ids") for e in entries.values()):
         probe_sample(todo, folder, dictionary, detect_side, progress)  # none cached shows a tag
-    if todo:
-        bits = marker_bits(dictionary)
-        local = threading.local()  # one detector per thread: OpenCV detectors are not shared
+    bits = marker_bits(dictionary)
+    local = threading.local()  # one detector per thread: OpenCV detectors are not shared
 
-        def work(f: Path) -> dict:
-            if not hasattr(local, "detector"):
-                local.detector = make_detector(dictionary, layout if charuco else None)
-            return _detect_one(f, local.detector, detect_side, bits, "" if charuco else dictionary)
+    def first_pass(f: Path) -> dict:
+        if not hasattr(local, "detector"):
+            local.detector = make_detector(dictionary, layout if charuco else None)
+        return _detect_one(f, local.detector, detect_side, bits, careful=not charuco)
 
-        bar = tqdm(
-            total=len(todo),
-            desc=f"detecting tags ({len(files) - len(todo)} cached)",
-            unit="photo",
-            disable=None if progress else True,
-            leave=False,
-        )
-        pool = ThreadPoolExecutor(max(1, jobs))
-        try:
-            futures = {pool.submit(work, f): f for f in todo}
-            for i, fut in enumerate(as_completed(futures)):
-                entries[futures[fut].name] = fut.result()
-                bar.update(1)
-                if (i + 1) % 10 == 0:
-                    save()  # an interrupted run keeps what it did
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)
-            bar.close()
+    made = 0  # entries (re)made by this run
+
+    def keep(f: Path, entry: dict) -> None:
+        nonlocal made
+        entries[f.name], made = entry, made + 1
+        if made % 10 == 0:
+            save()  # an interrupted run keeps what it did
+
+    def second_pass(f: Path) -> dict:
+        return _second_pass(f, entries[f.name], dictionary, detect_side, bits)
+
+    try:
+        _in_threads(todo, first_pass, keep, f"detecting tags ({len(files) - len(todo)} cached)", jobs, progress)
+        known = _known_ids(entries, layout)
+        due = [f for f in files if entries[f.name].get(SECOND_PASS_DUE)]
+        if due and known:  # its finds are kept for known ids only: without any, it is not run
+            _in_threads(due, second_pass, keep, f"second pass on {len(due)} photos without tags", jobs, progress)
+    finally:
+        if made:
             save()
-    known = {
-        int(i) for e in entries.values() if "detection" in e and not e.get("second_pass") for i in e["detection"]["ids"]
-    } | set(layout.ids if layout is not None else [])
     records = []
     copied = copies(files)
     for f in files:
@@ -311,6 +323,33 @@ def scan_photos(
                 _keep_known_ids(rec, known)
         records.append(rec)
     return records
+
+
+def _in_threads(paths: list[Path], work, keep, desc: str, jobs: int, progress: bool) -> None:
+    """``work(path)`` for each of ``paths`` in ``jobs`` threads behind a progress bar;
+    ``keep(path, result)`` as each ends."""
+    from tqdm import tqdm
+
+    if not paths:
+        return
+    bar = tqdm(total=len(paths), desc=desc, unit="photo", disable=None if progress else True, leave=False)
+    pool = ThreadPoolExecutor(max(1, jobs))
+    try:
+        futures = {pool.submit(work, p): p for p in paths}
+        for fut in as_completed(futures):
+            keep(futures[fut], fut.result())
+            bar.update(1)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        bar.close()
+
+
+def _known_ids(entries: dict[str, dict], layout: Layout | None) -> set[int]:
+    """The tag ids the first pass found in any photo, and the layout's."""
+    first = {
+        i for e in entries.values() if "detection" in e and not e.get("second_pass") for i in e["detection"]["ids"]
+    }
+    return {int(i) for i in first} | set(layout.ids if layout is not None else [])
 
 
 def _keep_known_ids(rec: PhotoRecord, known: set[int]) -> None:
@@ -398,9 +437,8 @@ def _load_quietly(path: Path) -> np.ndarray | None:
 def probe_sample(
     files: list[Path], folder: str | Path, dictionary: str, detect_side: int = 2000, progress: bool = True
 ) -> None:
-    """Before the slow scan of every photo: refuse at once when a few photos spread through
-    ``files`` show no tag of ``dictionary`` while most of them show another dictionary's
-    (each photo with no tag of ``dictionary`` also gets a careful, slower second pass)."""
+    """Before the scan of every photo: refuse at once when a few photos spread through
+    ``files`` show no tag of ``dictionary`` while most of them show another dictionary's."""
     sample = [files[i] for i in spread(len(files))]
     detector, bits = make_detector(dictionary), marker_bits(dictionary)
     search = DictionarySearch(skip=dictionary)
