@@ -784,14 +784,28 @@ class DictionaryFind:
     Attributes:
         name: the smallest dictionary of the family holding every id of ``ids`` (the --dict to pass).
         ids: the ids seen in at least half as many photos as the most seen one.
-        photos: how many of the photos searched show one of ``ids``.
+        shown_in: the indices (in the order searched) of the photos showing one of ``ids``.
+        searched: how many photos were searched.
         misreads: ids seen in fewer photos (a large dictionary reads some in textures).
     """
 
     name: str
     ids: list[int]
-    photos: int
+    shown_in: list[int]
+    searched: int
     misreads: list[int]
+
+    @property
+    def photos(self) -> int:
+        """How many of the photos searched show one of ``ids``."""
+        return len(self.shown_in)
+
+    @property
+    def in_most(self) -> bool:
+        """Whether at least half of the photos searched show it and, of more than one, two:
+        tags, not a pattern misread as one (a large dictionary's misreads are in one photo or two
+        of thirty)."""
+        return 2 * self.photos >= self.searched and self.photos >= min(2, self.searched)
 
 
 class DictionarySearch:
@@ -802,22 +816,24 @@ class DictionarySearch:
         names = [n for n in SEARCH_DICTIONARIES if n.upper() != dictionary_key(skip)]
         self.detectors = {n: search_detector(n) for n in names}
         self.seen: dict[str, list[set[int]]] = {n: [] for n in names}  # the ids of each photo searched
+        self.names: list[str] = []  # the photos searched, in order
 
     @property
     def photos(self) -> int:
         """How many photos were searched."""
-        return len(next(iter(self.seen.values()), []))
+        return len(self.names)
 
-    def add(self, image: np.ndarray) -> None:
-        """Search one (H, W, 3) RGB or (H, W) photo, on a copy at most ``detect_side`` wide."""
+    def add(self, image: np.ndarray, name: str = "") -> None:
+        """Search one (H, W, 3) RGB or (H, W) photo called ``name``, on a copy at most ``detect_side`` wide."""
         small = reduced(to_gray(image), self.detect_side)
-        for name, det in self.detectors.items():
+        for family, det in self.detectors.items():
             _, got, _ = det.detectMarkers(small)
-            self.seen[name].append(set() if got is None else {int(i) for i in got.ravel()})
+            self.seen[family].append(set() if got is None else {int(i) for i in got.ravel()})
+        self.names.append(name)
 
     def finds(self) -> list[DictionaryFind]:
         """The families that found tags, those seen in the most photos first."""
-        found = [f for f in (_find(name, per_photo) for name, per_photo in self.seen.items()) if f]
+        found = [f for f in (_find(family, per_photo) for family, per_photo in self.seen.items()) if f]
         return sorted(found, key=lambda f: (-f.photos, -len(f.ids)))
 
 
@@ -828,6 +844,6 @@ def _find(family: str, per_photo: list[set[int]]) -> DictionaryFind | None:
         return None
     top = max(counts.values())
     ids = sorted(i for i, n in counts.items() if 2 * n >= top)
-    photos = sum(bool(seen & set(ids)) for seen in per_photo)
+    shown_in = [k for k, seen in enumerate(per_photo) if seen & set(ids)]
     misreads = sorted(set(counts) - set(ids))
-    return DictionaryFind(smallest_dictionary_for(family, max(ids)), ids, photos, misreads)
+    return DictionaryFind(smallest_dictionary_for(family, max(ids)), ids, shown_in, len(per_photo), misreads)

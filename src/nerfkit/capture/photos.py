@@ -35,7 +35,7 @@ from ..images import (
     orientation_tag,
     turns_into_frame,
 )
-from ..io.atomic import write_json
+from ..io.atomic import shown_names, write_json
 from ..io.paths import refuse_special_file
 from .aruco import (
     SEARCH_DICTIONARIES,
@@ -391,31 +391,41 @@ def require_tags(
                 "Print a sheet whose tags all differ (`nerfkit tags`)",
             )
         return
-    finds, searched = _search_other_dictionaries(readable, dictionary, progress)
-    if finds:
-        raise another_dictionary(folder, dictionary, f"found in any of {len(readable)} photos", finds, searched)
+    search = _search_other_dictionaries(readable, dictionary, progress)
+    finds = search.finds()
+    if finds and finds[0].in_most:
+        raise another_dictionary(folder, dictionary, f"found in any of {len(readable)} photos", finds)
     tried = ", ".join(n.replace("_1000", "_*") for n in SEARCH_DICTIONARIES)
+    problem = f"no {dictionary} tags found in any of {len(readable)} photos (also tried {tried})"
+    check = "check that the tags are in focus, fully visible and not too small (at least ~30 px wide)" + otherwise
+    if not finds:
+        raise fail(folder, problem, check[0].upper() + check[1:])
+    few = finds[0]  # in few photos: perhaps a pattern misread as a tag
+    shown = shown_names([search.names[k] for k in few.shown_in])
     raise fail(
         folder,
-        f"no {dictionary} tags found in any of {len(readable)} photos (also tried {tried})",
-        "Check that the tags are in focus, fully visible and not too small (at least ~30 px wide)" + otherwise,
+        f"{problem}; {few.name} reads {_ids_text(few.ids)} in {few.photos} of them ({shown}): a tag, or a "
+        "pattern misread as one",
+        f"If {'it is a tag' if few.photos == 1 else 'they are tags'}, re-run with --dict {few.name}; else {check}",
     )
 
 
-def _search_other_dictionaries(
-    readable: list[PhotoRecord], dictionary: str, progress: bool
-) -> tuple[list[DictionaryFind], int]:
-    """Other dictionaries' tags in a sample of the photos, then, when it shows none, in the
-    rest; and how many photos were searched."""
+def _search_other_dictionaries(readable: list[PhotoRecord], dictionary: str, progress: bool) -> DictionarySearch:
+    """Other dictionaries' tags in a sample of the photos, then, unless most of the sample
+    shows one's, in the rest."""
     search = DictionarySearch(skip=dictionary)
     first = spread(len(readable))
-    _say(progress, f"looking for other dictionaries' tags in {len(first)} of the {len(readable)} photos...")
+    where = f"{len(first)} of them" if len(first) < len(readable) else "them"
+    _say(
+        progress,
+        f"no {dictionary} tags in any of {len(readable)} photos: looking for other dictionaries' tags in {where}...",
+    )
     _search_photos(search, [readable[i].path for i in first])
     rest = [r.path for i, r in enumerate(readable) if i not in first]
-    if rest and not search.finds():
-        _say(progress, f"none there: looking in the other {len(rest)} photos...")
+    if rest and not any(f.in_most for f in search.finds()):
+        _say(progress, f"not in most of them: looking in the other {len(rest)} photos...")
         _search_photos(search, rest)
-    return search.finds(), search.photos
+    return search
 
 
 def _search_photos(search: DictionarySearch, paths: list[Path]) -> None:
@@ -423,7 +433,7 @@ def _search_photos(search: DictionarySearch, paths: list[Path]) -> None:
     for path in paths:
         image = _load_quietly(path)
         if image is not None:
-            search.add(image)
+            search.add(image, path.name)
 
 
 def _load_quietly(path: Path) -> np.ndarray | None:
@@ -453,31 +463,25 @@ def probe_sample(
                 progress,
                 f"looking for {dictionary} and other dictionaries' tags in {len(sample)} of the {len(files)} photos...",
             )
-        search.add(image)
-    finds = [f for f in search.finds() if _in_most(f, search.photos)]
-    if finds:
+        search.add(image, path.name)
+    finds = search.finds()
+    if finds and finds[0].in_most:
         whole = len(sample) == len(files)
         looked = (
             f"in any of the {len(files)} photos"
             if whole
             else f"in {search.photos} photos spread through the {len(files)}"
         )
-        raise another_dictionary(folder, dictionary, looked, finds, search.photos)
+        raise another_dictionary(folder, dictionary, looked, finds)
 
 
-def _in_most(find: DictionaryFind, searched: int) -> bool:
-    """Whether ``find`` is in at least half of the ``searched`` photos and, of more than one,
-    in two: enough to stop before the scan (a misread is rarely in two photos)."""
-    return 2 * find.photos >= searched and find.photos >= min(2, searched)
-
-
-def another_dictionary(
-    folder: str | Path, dictionary: str, looked: str, finds: list[DictionaryFind], searched: int
-) -> NerfkitError:
-    """The error for photos showing no tag of ``dictionary`` (``looked``: where) but tags of
-    the dictionaries of ``finds`` (best first), found in ``searched`` photos."""
+def another_dictionary(folder: str | Path, dictionary: str, looked: str, finds: list[DictionaryFind]) -> NerfkitError:
+    """The error for photos showing no tag of ``dictionary`` (``looked``: where) but, in most
+    of those searched, tags of the dictionaries of ``finds`` (best first)."""
     best = finds[0]
-    found = f"{best.name} tags are there ({_ids_text(best.ids)}, in {best.photos} of the {searched} photos searched"
+    found = (
+        f"{best.name} tags are there ({_ids_text(best.ids)}, in {best.photos} of the {best.searched} photos searched"
+    )
     if best.misreads:
         found += f"; also {_ids_text(best.misreads)} in fewer, likely misread"
     found += ")"
@@ -487,12 +491,9 @@ def another_dictionary(
     return fail(folder, f"no {dictionary} tags {looked}, but {found}", f"Re-run with --dict {best.name}")
 
 
-def _ids_text(ids: list[int], most: int = 6) -> str:
-    """Ids as words: "id 7", or "ids 0, 1, 2 and 4 more"."""
-    if len(ids) == 1:
-        return f"id {ids[0]}"
-    shown = ", ".join(map(str, ids[:most]))
-    return f"ids {shown}" + (f" and {len(ids) - most} more" if len(ids) > most else "")
+def _ids_text(ids: list[int]) -> str:
+    """Ids as words: "id 7", or "ids 0, 1, 2, 3, 4, 5 and 4 more"."""
+    return f"id {ids[0]}" if len(ids) == 1 else "ids " + shown_names([str(i) for i in ids], 6)
 
 
 def spread(count: int, n: int = SAMPLE_PHOTOS) -> list[int]:
