@@ -300,7 +300,7 @@ def test_no_tags_of_the_dictionary_suggests_the_one_that_finds_them(tmp_path):
     with pytest.raises(NerfkitError) as e:
         main_raise(["calibrate", str(folder), "--tag-size", "0.05", "--out", str(tmp_path / "c.json")])
     msg = str(e.value)
-    assert "no DICT_4X4_50 tags found" in msg and "--dict DICT_5X5_100" in msg and "\n" not in msg
+    assert "no DICT_4X4_50 tags in any of the 3 photos" in msg and "--dict DICT_5X5_100" in msg and "\n" not in msg
     blank = tmp_path / "blank"
     blank.mkdir()
     S.write_photo(blank / "a.png", np.full((100, 100, 3), 200, np.uint8))

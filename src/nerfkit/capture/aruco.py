@@ -26,6 +26,7 @@ is also a layout file (its ``"layout"`` entry, e.g. the layout it estimated).
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,8 @@ from ..data.validate import check_count, check_number, check_numbers, short_repr
 from ..errors import advice, fail
 
 # Dictionaries tried when no tag is found, to suggest the right --dict. The _1000
-# dictionaries contain the _50/_100/_250 ones as prefixes, so they find any id.
+# dictionaries contain the _50/_100/_250 ones as prefixes, so they find any id of
+# their family (:func:`smallest_dictionary_for` then names the smallest holding it).
 SEARCH_DICTIONARIES = [
     "DICT_4X4_1000",
     "DICT_5X5_1000",
@@ -62,12 +64,17 @@ def dictionary_names() -> list[str]:
     return sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
 
 
+def dictionary_key(name: str) -> str:
+    """``name`` as OpenCV spells it, upper-cased: "4x4_50" -> "DICT_4X4_50"."""
+    key = name.strip().upper() if isinstance(name, str) else ""
+    return key if key.startswith("DICT_") else "DICT_" + key
+
+
 def get_dictionary(name: str, where: str = "--dict"):
     """The ``cv2.aruco.Dictionary`` called ``name`` (case-insensitive), or a NerfkitError."""
     import cv2
 
-    key = name.strip().upper() if isinstance(name, str) else ""
-    key = key if key.startswith("DICT_") else "DICT_" + key
+    key = dictionary_key(name)
     match = [n for n in dictionary_names() if n.upper() == key]
     if not match:
         raise fail(
@@ -478,13 +485,19 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
 
 
+def reduced(gray: np.ndarray, side: int) -> np.ndarray:
+    """``gray``, or a copy shrunk to ``side`` pixels on its long side when it is larger."""
+    import cv2
+
+    s = min(1.0, side / max(gray.shape))
+    return cv2.resize(gray, None, fx=s, fy=s, interpolation=cv2.INTER_AREA) if s < 1 else gray
+
+
 def sharpness(gray: np.ndarray) -> float:
     """Variance of the Laplacian on a copy at most 1000 px wide: comparable across sizes."""
     import cv2
 
-    s = min(1.0, 1000.0 / max(gray.shape))
-    small = cv2.resize(gray, None, fx=s, fy=s, interpolation=cv2.INTER_AREA) if s < 1 else gray
-    return float(cv2.Laplacian(small, cv2.CV_64F).var())
+    return float(cv2.Laplacian(reduced(gray, 1000), cv2.CV_64F).var())
 
 
 def _refine(gray: np.ndarray, pts: np.ndarray, win: int, max_shift: float) -> np.ndarray:
@@ -757,22 +770,80 @@ def marker_bits(dictionary: str) -> int:
     return int(get_dictionary(dictionary).markerSize)
 
 
-def suggest_dictionaries(images: list[np.ndarray], detect_side: int = 1600) -> list[tuple[str, list[int]]]:
-    """Try the common dictionaries on a few photos; return ``(name, ids found)``, best first."""
+def search_detector(name: str):
+    """A plain ArUco detector for :class:`DictionarySearch` (no corner refinement: ids only)."""
     import cv2
 
-    found = []
-    for name in SEARCH_DICTIONARIES:
-        det = make_detector(name)
-        ids: set[int] = set()
-        for img in images:
-            gray = to_gray(img)
-            s = min(1.0, detect_side / max(gray.shape))
-            small = cv2.resize(gray, None, fx=s, fy=s, interpolation=cv2.INTER_AREA) if s < 1 else gray
+    return cv2.aruco.ArucoDetector(get_dictionary(name), cv2.aruco.DetectorParameters())
+
+
+@dataclass
+class DictionaryFind:
+    """What one dictionary family of :data:`SEARCH_DICTIONARIES` finds in some photos.
+
+    Attributes:
+        name: the smallest dictionary of the family holding every id of ``ids`` (the --dict to pass).
+        ids: the ids seen in at least half as many photos as the most seen one.
+        shown_in: the indices (in the order searched) of the photos showing one of ``ids``.
+        searched: how many photos were searched.
+        misreads: ids seen in fewer photos (a large dictionary reads some in textures).
+    """
+
+    name: str
+    ids: list[int]
+    shown_in: list[int]
+    searched: int
+    misreads: list[int]
+
+    @property
+    def photos(self) -> int:
+        """How many of the photos searched show one of ``ids``."""
+        return len(self.shown_in)
+
+    @property
+    def in_most(self) -> bool:
+        """Whether at least half of the photos searched show it and, of more than one, two:
+        tags, not a pattern misread as one (a large dictionary's misreads are in one photo or two
+        of thirty)."""
+        return 2 * self.photos >= self.searched and self.photos >= min(2, self.searched)
+
+
+class DictionarySearch:
+    """Which tags the dictionaries of :data:`SEARCH_DICTIONARIES` (but ``skip``) find, one photo at a time."""
+
+    def __init__(self, skip: str = "", detect_side: int = 1600):
+        self.detect_side = detect_side
+        names = [n for n in SEARCH_DICTIONARIES if n.upper() != dictionary_key(skip)]
+        self.detectors = {n: search_detector(n) for n in names}
+        self.seen: dict[str, list[set[int]]] = {n: [] for n in names}  # the ids of each photo searched
+        self.names: list[str] = []  # the photos searched, in order
+
+    @property
+    def photos(self) -> int:
+        """How many photos were searched."""
+        return len(self.names)
+
+    def add(self, image: np.ndarray, name: str = "") -> None:
+        """Search one (H, W, 3) RGB or (H, W) photo called ``name``, on a copy at most ``detect_side`` wide."""
+        small = reduced(to_gray(image), self.detect_side)
+        for family, det in self.detectors.items():
             _, got, _ = det.detectMarkers(small)
-            if got is not None:
-                ids.update(int(i) for i in got.ravel())
-        if ids:
-            found.append((smallest_dictionary_for(name, max(ids)), sorted(ids)))
-    found.sort(key=lambda t: -len(t[1]))
-    return found
+            self.seen[family].append(set() if got is None else {int(i) for i in got.ravel()})
+        self.names.append(name)
+
+    def finds(self) -> list[DictionaryFind]:
+        """The families that found tags, those seen in the most photos first."""
+        found = [f for f in (_find(family, per_photo) for family, per_photo in self.seen.items()) if f]
+        return sorted(found, key=lambda f: (-f.photos, -len(f.ids)))
+
+
+def _find(family: str, per_photo: list[set[int]]) -> DictionaryFind | None:
+    """``family``'s find in photos showing ``per_photo`` ids, or None when it found none."""
+    counts = Counter(i for ids in per_photo for i in ids)
+    if not counts:
+        return None
+    top = max(counts.values())
+    ids = sorted(i for i, n in counts.items() if 2 * n >= top)
+    shown_in = [k for k, seen in enumerate(per_photo) if seen & set(ids)]
+    misreads = sorted(set(counts) - set(ids))
+    return DictionaryFind(smallest_dictionary_for(family, max(ids)), ids, shown_in, len(per_photo), misreads)

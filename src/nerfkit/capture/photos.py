@@ -4,14 +4,14 @@ Every photo becomes a :class:`PhotoRecord`; unreadable files are recorded with t
 instead of stopping the run. Photos where no tag is found get a second, more careful detection pass
 (:func:`~.aruco.detect_careful`); its finds are kept only for tag ids that the first pass
 found in other photos (or that the layout holds), since a permissive detector can read
-false ids in textures. Detections are cached in a JSON file keyed by file name, size
-and modification time (and the detection settings), so re-running on the same folder only
-looks at new or changed photos.
+false ids in textures: so it waits for the first pass over every photo, and is not run when
+that found no tag and there is no layout. Detections are cached in a JSON file keyed by
+file name, size and modification time (and the detection settings), so re-running on the
+same folder only looks at new or changed photos.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import sys
@@ -35,11 +35,27 @@ from ..images import (
     orientation_tag,
     turns_into_frame,
 )
-from ..io.atomic import write_json
+from ..io.atomic import shown_names, write_json
 from ..io.paths import refuse_special_file
-from .aruco import Detection, Layout, detect, detect_careful, make_detector, marker_bits, suggest_dictionaries
+from .aruco import (
+    SEARCH_DICTIONARIES,
+    Detection,
+    DictionaryFind,
+    DictionarySearch,
+    Layout,
+    detect,
+    detect_careful,
+    make_detector,
+    marker_bits,
+)
 
 CACHE_VERSION = 5  # 5: HEIF photos record the orientation pillow-heif applied
+# A cache entry's mark: the first pass found no tag in the photo and the careful second
+# pass has not looked yet (it runs once some photo shows a tag; earlier entries have no mark).
+SECOND_PASS_DUE = "second_pass_due"
+# Photos spread through a folder that are looked at first: for the dictionary asked for
+# before the scan of all (:func:`probe_sample`), for other dictionaries after it found none.
+SAMPLE_PHOTOS = 5
 
 
 @dataclass
@@ -162,9 +178,9 @@ def _load_cache(cache_path: Path | None, settings: dict) -> tuple[dict, bool]:
     return data["photos"], True
 
 
-def _detect_one(path: Path, detector, detect_side: int, bits: int, dictionary: str = "") -> dict:
-    """Load upright, detect (a second, careful pass when no tag is found and ``dictionary``
-    is given); a JSON-ready cache entry (never raises for a bad photo)."""
+def _detect_one(path: Path, detector, detect_side: int, bits: int, careful: bool = False) -> dict:
+    """Load upright and detect; a JSON-ready cache entry (never raises for a bad photo). With
+    ``careful``, a photo with no tag is marked for the second pass (:func:`_second_pass`)."""
     entry: dict = {"key": _file_key(path)}
     try:
         image = load_image_uint8(path)
@@ -176,15 +192,26 @@ def _detect_one(path: Path, detector, detect_side: int, bits: int, dictionary: s
         return entry
     try:
         det = detect(image, detector, detect_side, bits)
-        if dictionary and not len(det.ids) and det.charuco_ids is None:
-            second = detect_careful(image, dictionary, detect_side, bits)
-            if len(second.ids):
-                det, entry["second_pass"] = second, True
         entry["detection"] = det.to_json()
     except Exception as e:  # noqa: BLE001 - one odd photo must not stop the run
         entry["error"] = f"tag detection failed ({type(e).__name__}: {str(e).strip().splitlines()[-1][:120]})"
         return entry
+    if careful and not len(det.ids) and det.charuco_ids is None:
+        entry[SECOND_PASS_DUE] = True
     entry["exif_f35"], entry["orientation"] = _exif_header(path)
+    return entry
+
+
+def _second_pass(path: Path, entry: dict, dictionary: str, detect_side: int, bits: int) -> dict:
+    """``entry`` of a photo the first pass found no tag in, after the careful detector's
+    look (:func:`~.aruco.detect_careful`); when that fails, the first pass's entry stands."""
+    entry = {k: v for k, v in entry.items() if k != SECOND_PASS_DUE}
+    try:
+        second = detect_careful(load_image_uint8(path), dictionary, detect_side, bits)
+    except Exception:  # noqa: BLE001 - one odd photo must not stop the run
+        return entry
+    if len(second.ids):
+        entry["detection"], entry["second_pass"] = second.to_json(), True
     return entry
 
 
@@ -213,13 +240,14 @@ def scan_photos(
     progress: bool = True,
     files: list[Path] | None = None,
 ) -> list[PhotoRecord]:
-    """Detect tags in every photo of ``folder`` (sorted by name), reusing the cache.
+    """Detect tags in every photo of ``folder`` (sorted by name), reusing the cache; then,
+    when some photo shows a tag (or ``layout`` is given), look again with the careful
+    detector at the photos showing none.
 
     Unreadable photos come back skipped with the reason; :func:`require_tags` checks that
-    some photo shows a tag. Raises NerfkitError when the folder holds no images.
+    some photo shows a tag. Raises NerfkitError when the folder holds no images, or when a
+    sample of the photos shows tags of another dictionary only (:func:`probe_sample`).
     """
-    from tqdm import tqdm
-
     files = list_images(folder) if files is None else files
     charuco = layout is not None and layout.charuco is not None
     settings = {
@@ -247,37 +275,36 @@ def scan_photos(
                 {"version": CACHE_VERSION, "settings": settings, "photos": {k: entries[k] for k in sorted(entries)}},
             )
 
-    if todo:
-        bits = marker_bits(dictionary)
-        local = threading.local()  # one detector per thread: OpenCV detectors are not shared
+    if todo and not charuco and not any(e.get("detection", {}).get("ids") for e in entries.values()):
+        probe_sample(todo, folder, dictionary, detect_side, progress)  # none cached shows a tag
+    bits = marker_bits(dictionary)
+    local = threading.local()  # one detector per thread: OpenCV detectors are not shared
 
-        def work(f: Path) -> dict:
-            if not hasattr(local, "detector"):
-                local.detector = make_detector(dictionary, layout if charuco else None)
-            return _detect_one(f, local.detector, detect_side, bits, "" if charuco else dictionary)
+    def first_pass(f: Path) -> dict:
+        if not hasattr(local, "detector"):
+            local.detector = make_detector(dictionary, layout if charuco else None)
+        return _detect_one(f, local.detector, detect_side, bits, careful=not charuco)
 
-        bar = tqdm(
-            total=len(todo),
-            desc=f"detecting tags ({len(files) - len(todo)} cached)",
-            unit="photo",
-            disable=None if progress else True,
-            leave=False,
-        )
-        pool = ThreadPoolExecutor(max(1, jobs))
-        try:
-            futures = {pool.submit(work, f): f for f in todo}
-            for i, fut in enumerate(as_completed(futures)):
-                entries[futures[fut].name] = fut.result()
-                bar.update(1)
-                if (i + 1) % 10 == 0:
-                    save()  # an interrupted run keeps what it did
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)
-            bar.close()
+    made = 0  # entries (re)made by this run
+
+    def keep(f: Path, entry: dict) -> None:
+        nonlocal made
+        entries[f.name], made = entry, made + 1
+        if made % 10 == 0:
+            save()  # an interrupted run keeps what it did
+
+    def second_pass(f: Path) -> dict:
+        return _second_pass(f, entries[f.name], dictionary, detect_side, bits)
+
+    try:
+        _in_threads(todo, first_pass, keep, f"detecting tags ({len(files) - len(todo)} cached)", jobs, progress)
+        known = _known_ids(entries, layout)
+        due = [f for f in files if entries[f.name].get(SECOND_PASS_DUE)]
+        if due and known:  # its finds are kept for known ids only: without any, it is not run
+            _in_threads(due, second_pass, keep, f"second pass on {len(due)} photos without tags", jobs, progress)
+    finally:
+        if made:
             save()
-    known = {
-        int(i) for e in entries.values() if "detection" in e and not e.get("second_pass") for i in e["detection"]["ids"]
-    } | set(layout.ids if layout is not None else [])
     records = []
     copied = copies(files)
     for f in files:
@@ -298,6 +325,33 @@ def scan_photos(
     return records
 
 
+def _in_threads(paths: list[Path], work, keep, desc: str, jobs: int, progress: bool) -> None:
+    """``work(path)`` for each of ``paths`` in ``jobs`` threads behind a progress bar;
+    ``keep(path, result)`` as each ends."""
+    from tqdm import tqdm
+
+    if not paths:
+        return
+    bar = tqdm(total=len(paths), desc=desc, unit="photo", disable=None if progress else True, leave=False)
+    pool = ThreadPoolExecutor(max(1, jobs))
+    try:
+        futures = {pool.submit(work, p): p for p in paths}
+        for fut in as_completed(futures):
+            keep(futures[fut], fut.result())
+            bar.update(1)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        bar.close()
+
+
+def _known_ids(entries: dict[str, dict], layout: Layout | None) -> set[int]:
+    """The tag ids the first pass found in any photo, and the layout's."""
+    first = {
+        i for e in entries.values() if "detection" in e and not e.get("second_pass") for i in e["detection"]["ids"]
+    }
+    return {int(i) for i in first} | set(layout.ids if layout is not None else [])
+
+
 def _keep_known_ids(rec: PhotoRecord, known: set[int]) -> None:
     """Drop second-pass tags whose id no first pass saw; note what the second pass found."""
     det = rec.detection
@@ -311,8 +365,11 @@ def _keep_known_ids(rec: PhotoRecord, known: set[int]) -> None:
         rec.info["second_pass_ignored_ids"] = dropped
 
 
-def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str, otherwise: str = "") -> None:
-    """Raise a helpful NerfkitError when no photo shows any tag of ``dictionary`` (``otherwise``:
+def require_tags(
+    records: list[PhotoRecord], folder: str | Path, dictionary: str, otherwise: str = "", progress: bool = True
+) -> None:
+    """Raise a helpful NerfkitError when no photo shows any tag of ``dictionary``: naming the
+    dictionary that finds them (:func:`another_dictionary`), else what to check (``otherwise``:
     a way on without tags, added to the advice)."""
     readable = [r for r in records if r.detection is not None]
     if not readable:
@@ -334,27 +391,123 @@ def require_tags(records: list[PhotoRecord], folder: str | Path, dictionary: str
                 "Print a sheet whose tags all differ (`nerfkit tags`)",
             )
         return
-    sample = readable[:: max(1, len(readable) // 5)][:5]
-    images = []
-    for r in sample:
-        with contextlib.suppress(NerfkitError):
-            images.append(load_image_uint8(r.path))
-    found = suggest_dictionaries(images)
-    if found:
-        best = ", ".join(f"{name} (ids {', '.join(map(str, ids[:6]))})" for name, ids in found[:3])
-        raise fail(
-            folder,
-            f"no {dictionary} tags found in any of {len(readable)} photos, but other dictionaries find tags: {best}",
-            f"Re-run with --dict {found[0][0]}",
-        )
-    tried = ", ".join(n.replace("_1000", "_*") for n in ("DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X6_1000"))
+    search = _search_other_dictionaries(readable, dictionary, progress)
+    finds = search.finds()
+    if finds and finds[0].in_most:
+        raise another_dictionary(folder, dictionary, f"found in any of {len(readable)} photos", finds)
+    tried = ", ".join(n.replace("_1000", "_*") for n in SEARCH_DICTIONARIES)
+    problem = f"no {dictionary} tags found in any of {len(readable)} photos (also tried {tried})"
+    check = "check that the tags are in focus, fully visible and not too small (at least ~30 px wide)" + otherwise
+    if not finds:
+        raise fail(folder, problem, check[0].upper() + check[1:])
+    few = finds[0]  # in few photos: perhaps a pattern misread as a tag
+    shown = shown_names([search.names[k] for k in few.shown_in])
     raise fail(
         folder,
-        f"no {dictionary} tags found in any of {len(readable)} photos (also tried "
-        f"{tried}, "
-        "ArUco original and AprilTag dictionaries)",
-        "Check that the tags are in focus, fully visible and not too small (at least ~30 px wide)" + otherwise,
+        f"{problem}; {few.name} reads {_ids_text(few.ids)} in {few.photos} of them ({shown}): a tag, or a "
+        "pattern misread as one",
+        f"If {'it is a tag' if few.photos == 1 else 'they are tags'}, re-run with --dict {few.name}; else {check}",
     )
+
+
+def _search_other_dictionaries(readable: list[PhotoRecord], dictionary: str, progress: bool) -> DictionarySearch:
+    """Other dictionaries' tags in a sample of the photos, then, unless most of the sample
+    shows one's, in the rest."""
+    search = DictionarySearch(skip=dictionary)
+    first = spread(len(readable))
+    where = f"{len(first)} of them" if len(first) < len(readable) else "them"
+    _say(
+        progress,
+        f"no {dictionary} tags in any of {len(readable)} photos: looking for other dictionaries' tags in {where}...",
+    )
+    _search_photos(search, [readable[i].path for i in first])
+    rest = [r.path for i, r in enumerate(readable) if i not in first]
+    if rest and not any(f.in_most for f in search.finds()):
+        _say(progress, f"not in most of them: looking in the other {len(rest)} photos...")
+        _search_photos(search, rest)
+    return search
+
+
+def _search_photos(search: DictionarySearch, paths: list[Path]) -> None:
+    """Add each photo that loads to ``search`` (one at a time: only its small copy is kept)."""
+    for path in paths:
+        image = _load_quietly(path)
+        if image is not None:
+            search.add(image, path.name)
+
+
+def _load_quietly(path: Path) -> np.ndarray | None:
+    """The upright photo, or None when it cannot be read (its scan says why)."""
+    try:
+        return load_image_uint8(path)
+    except (NerfkitError, MemoryError):
+        return None
+
+
+def probe_sample(
+    files: list[Path], folder: str | Path, dictionary: str, detect_side: int = 2000, progress: bool = True
+) -> None:
+    """Before the scan of every photo: refuse at once when a few photos spread through
+    ``files`` show no tag of ``dictionary`` while most of them show another dictionary's."""
+    sample = [files[i] for i in spread(len(files))]
+    detector, bits = make_detector(dictionary), marker_bits(dictionary)
+    search = DictionarySearch(skip=dictionary)
+    for path in sample:
+        image = _load_quietly(path)
+        if image is None:
+            continue
+        if len(detect(image, detector, detect_side, bits).ids):
+            return  # tags of the dictionary asked for: scan as asked
+        if not search.photos:
+            _say(
+                progress,
+                f"looking for {dictionary} and other dictionaries' tags in {len(sample)} of the {len(files)} photos...",
+            )
+        search.add(image, path.name)
+    finds = search.finds()
+    if finds and finds[0].in_most:
+        whole = len(sample) == len(files)
+        looked = (
+            f"in any of the {len(files)} photos"
+            if whole
+            else f"in {search.photos} photos spread through the {len(files)}"
+        )
+        raise another_dictionary(folder, dictionary, looked, finds)
+
+
+def another_dictionary(folder: str | Path, dictionary: str, looked: str, finds: list[DictionaryFind]) -> NerfkitError:
+    """The error for photos showing no tag of ``dictionary`` (``looked``: where) but, in most
+    of those searched, tags of the dictionaries of ``finds`` (best first)."""
+    best = finds[0]
+    found = (
+        f"{best.name} tags are there ({_ids_text(best.ids)}, in {best.photos} of the {best.searched} photos searched"
+    )
+    if best.misreads:
+        found += f"; also {_ids_text(best.misreads)} in fewer, likely misread"
+    found += ")"
+    others = ", ".join(f"{f.name} ones ({_ids_text(f.ids)}, in {f.photos})" for f in finds[1:3])
+    if others:
+        found += f", and {others}"
+    return fail(folder, f"no {dictionary} tags {looked}, but {found}", f"Re-run with --dict {best.name}")
+
+
+def _ids_text(ids: list[int]) -> str:
+    """Ids as words: "id 7", or "ids 0, 1, 2, 3, 4, 5 and 4 more"."""
+    return f"id {ids[0]}" if len(ids) == 1 else "ids " + shown_names([str(i) for i in ids], 6)
+
+
+def spread(count: int, n: int = SAMPLE_PHOTOS) -> list[int]:
+    """Indices of ``n`` of ``count`` items spread evenly through them, first and last
+    included (all of them when there are no more than ``n``)."""
+    if count <= n:
+        return list(range(count))
+    return [int(i) for i in np.linspace(0, count - 1, n).round()]
+
+
+def _say(progress: bool, line: str) -> None:
+    """One line on stderr saying what slow work starts (none without ``progress``)."""
+    if progress:
+        print(line, file=sys.stderr, flush=True)
 
 
 def frame_turns(records: list[PhotoRecord], size: tuple[int, int] | None = None) -> int | None:
