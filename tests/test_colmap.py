@@ -704,6 +704,41 @@ def test_sfm_with_nothing_to_match_fails_cleanly(tmp_path):
         run_sfm(tmp_path / "p", tmp_path / "out", progress=False, matcher="fast")
 
 
+def test_colmap_calls_run_in_a_child_with_the_options_and_log_level_set_here(tmp_path, capfd):
+    # pycolmap's options do not pickle whole (an empty mask path comes back as ".", a
+    # folder that is not there): the child gets the fields set here, on its own defaults
+    from nerfkit.capture import colmap_calls
+    from nerfkit.capture.points import quiet_colmap
+
+    rng = np.random.default_rng(0)
+    for i in range(2):
+        write_image(tmp_path / "p" / f"{i}.png", rng.random((96, 128, 3)))  # ~40 SIFT features each
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.sift.max_num_features = 1  # (a nested field; a feature may come with a few orientations)
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    db = tmp_path / "database.db"
+    with quiet_colmap(False):
+        colmap_calls.run("extract_features", db, tmp_path / "p", reader_options=reader, extraction_options=extraction)
+    assert "feature_extraction.cc" not in capfd.readouterr().err  # COLMAP's INFO lines stay quiet there too
+    with pycolmap.Database.open(str(db)) as database:
+        counts = [database.num_keypoints_for_image(im.image_id) for im in database.read_all_images()]
+        models = {c.model_name for c in database.read_all_cameras()}
+    assert len(counts) == 2 and all(0 < n <= 5 for n in counts), counts
+    assert models == {"PINHOLE"}
+    with pytest.raises(NerfkitError, match="COLMAP's extract_features: its process ended"):  # one clear line
+        colmap_calls.run("extract_features", db, tmp_path / "p", extraction_options=_DiesWhenPickled())
+
+
+class _DiesWhenPickled:
+    """An argument whose unpickling in the child ends that process (as a crash would)."""
+
+    def __reduce__(self):
+        import os
+
+        return (os._exit, (9,))
+
+
 def test_auto_matching_takes_every_pair_of_few_photos_and_the_guide_poses_beyond():
     from nerfkit.sfm.colmap import EXHAUSTIVE_MAX, choose_matcher
 

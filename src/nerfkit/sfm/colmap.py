@@ -11,7 +11,9 @@ What nerfstudio's ``ns-process-data`` and instant-ngp's ``colmap2nerf`` do:
    photos, else normalised.
 
 The output folder holds ``colmap/database.db`` and the aligned model ``colmap/sparse/0``;
-:func:`nerfkit.sfm.build_dataset` then writes the undistorted dataset.
+:func:`nerfkit.sfm.build_dataset` then writes the undistorted dataset. Steps 1-3 each run in
+a child process (:mod:`nerfkit.capture.colmap_calls`), so that Ctrl-C or SIGTERM ends them
+at once.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..capture import colmap_calls
 from ..capture.points import camera_neighbours, match_pairs, quiet_colmap, sfm_pycolmap
 from ..data.colmap import write_reconstruction
 from ..errors import NerfkitError, fail, problem_of
@@ -407,7 +410,6 @@ def run_sfm(
     db_path = work / "database.db"
     device = pycolmap.Device.cpu
     seconds: dict[str, float] = {}
-    pycolmap.set_random_seed(seed)
 
     with quiet_colmap(verbose):
         t0 = time.perf_counter()
@@ -430,7 +432,8 @@ def run_sfm(
         extraction.num_threads = threads
         extraction.sift.max_num_features = max_features
         try:
-            pycolmap.extract_features(
+            colmap_calls.run(
+                "extract_features",
                 db_path,
                 colmap_dir,
                 image_names=names,
@@ -438,6 +441,7 @@ def run_sfm(
                 reader_options=reader,
                 extraction_options=extraction,
                 device=device,
+                seed=seed,
             )
         except Exception as e:  # noqa: BLE001 - e.g. an unknown camera model name
             raise fail(image_dir, f"feature extraction failed ({e})", "Check --camera-model and the photos") from None
@@ -455,20 +459,27 @@ def run_sfm(
         verification = pycolmap.TwoViewGeometryOptions()
         verification.ransac.random_seed = seed
         if matcher == "spatial":
-            match_pairs(pycolmap, db_path, pairs, matching, verification)
+            match_pairs(pycolmap, db_path, pairs, matching, verification, seed=seed)
         elif matcher == "exhaustive":
-            pycolmap.match_exhaustive(
-                db_path, matching_options=matching, verification_options=verification, device=device
+            colmap_calls.run(
+                "match_exhaustive",
+                db_path,
+                matching_options=matching,
+                verification_options=verification,
+                device=device,
+                seed=seed,
             )
         else:
             pairing = pycolmap.SequentialPairingOptions()
             pairing.overlap = overlap
-            pycolmap.match_sequential(
+            colmap_calls.run(
+                "match_sequential",
                 db_path,
                 matching_options=matching,
                 pairing_options=pairing,
                 verification_options=verification,
                 device=device,
+                seed=seed,
             )
         seconds["matching"] = time.perf_counter() - t0
 
@@ -485,16 +496,16 @@ def run_sfm(
             options.ba_refine_extra_params = False
             options.mapper.abs_pose_refine_focal_length = False
             options.mapper.abs_pose_refine_extra_params = False
-        counter = {"n": 0}
-
-        def on_image() -> None:
-            counter["n"] += 1
-            if progress and (counter["n"] % 10 == 0):
-                print(f"sfm:   {counter['n'] + 2} photos registered", file=sys.stderr, flush=True)
-
-        models = pycolmap.incremental_mapping(
-            db_path, colmap_dir, work / "sparse", options=options, next_image_callback=on_image
+        colmap_calls.run(
+            "incremental_mapping",
+            db_path,
+            colmap_dir,
+            work / "sparse",
+            options=options,
+            next_image_callback=colmap_calls.SayRegistered() if progress else None,
+            seed=seed,
         )
+        models = written_models(pycolmap, work / "sparse")
         seconds["mapping"] = time.perf_counter() - t0
 
     if not models:
@@ -536,6 +547,11 @@ def run_sfm(
     write_reconstruction(rec, model_dir)
     _say(progress, "sfm: " + report.summary().splitlines()[0])
     return SfmResult(rec, model_dir, colmap_dir, report, sources={colmap_name(p): p for p in photos}, turns=turns)
+
+
+def written_models(pycolmap, folder: Path) -> dict[int, pycolmap.Reconstruction]:
+    """The models incremental mapping wrote into ``folder`` (``0``, ``1``, ...), by number."""
+    return {int(d.name): pycolmap.Reconstruction(str(d)) for d in folder.iterdir() if d.is_dir() and d.name.isdigit()}
 
 
 def colmap_camera(camera, refine: bool = False) -> tuple[str, str]:
