@@ -6,6 +6,7 @@ floor, seen by 12 cameras at 320x240 (known poses, metres).
 
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 
@@ -14,7 +15,7 @@ import pytest
 
 pycolmap = pytest.importorskip("pycolmap")
 
-from conftest import dot_centroid_errors, draw_dots  # noqa: E402
+from conftest import dot_centroid_errors, draw_dots, sigint_as_a_terminal_gives_it  # noqa: E402
 from nerfkit.cameras import intrinsics_matrix, look_at  # noqa: E402
 from nerfkit.cli import main  # noqa: E402
 from nerfkit.data.colmap import (  # noqa: E402
@@ -695,14 +696,109 @@ def test_sfm_with_nothing_to_match_fails_cleanly(tmp_path):
     rng = np.random.default_rng(3)
     for i in range(3):
         write_image(tmp_path / "p" / f"{i}.png", rng.random((120, 160, 3)))
+    earlier = tmp_path / "out" / "colmap" / "earlier.txt"  # an earlier run's work folder (--force)
+    earlier.parent.mkdir(parents=True)
+    earlier.write_text("kept")
     with pytest.raises(NerfkitError, match="registered no photos"):
         run_sfm(tmp_path / "p", tmp_path / "out", progress=False)
+    assert sorted(earlier.parent.iterdir()) == [earlier]  # as it was: no half-written one in its place
     for f in sorted((tmp_path / "p").iterdir())[:2]:
         f.unlink()
     with pytest.raises(NerfkitError, match="at least 3"):
         run_sfm(tmp_path / "p", tmp_path / "out", progress=False)
     with pytest.raises(NerfkitError, match="--matcher"):
         run_sfm(tmp_path / "p", tmp_path / "out", progress=False, matcher="fast")
+
+
+def test_colmap_calls_run_in_a_child_with_the_options_and_log_level_set_here(tmp_path, capfd):
+    # pycolmap's options do not pickle whole (an empty mask path comes back as ".", a
+    # folder that is not there): the child gets the fields set here, on its own defaults
+    from nerfkit.capture import colmap_calls
+    from nerfkit.capture.points import quiet_colmap
+
+    rng = np.random.default_rng(0)
+    for i in range(2):
+        write_image(tmp_path / "p" / f"{i}.png", rng.random((96, 128, 3)))  # ~40 SIFT features each
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.sift.max_num_features = 1  # (a nested field; a feature may come with a few orientations)
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    db = tmp_path / "database.db"
+    with quiet_colmap(False):
+        colmap_calls.run("extract_features", db, tmp_path / "p", reader_options=reader, extraction_options=extraction)
+    assert "feature_extraction.cc" not in capfd.readouterr().err  # COLMAP's INFO lines stay quiet there too
+    with pycolmap.Database.open(str(db)) as database:
+        counts = [database.num_keypoints_for_image(im.image_id) for im in database.read_all_images()]
+        models = {c.model_name for c in database.read_all_cameras()}
+    assert len(counts) == 2 and all(0 < n <= 5 for n in counts), counts
+    assert models == {"PINHOLE"}
+    with pytest.raises(NerfkitError, match="COLMAP's extract_features: its process ended"):  # one clear line
+        colmap_calls.run("extract_features", db, tmp_path / "p", extraction_options=_DiesWhenPickled())
+
+
+class _DiesWhenPickled:
+    """An argument whose unpickling in the child ends that process (as a crash would)."""
+
+    def __reduce__(self):
+        import os
+
+        return (os._exit, (9,))
+
+
+def _stopped_poses(folder: Path, out: Path, stage: str, sig: int) -> tuple[int, list[str], float]:
+    """``nerfkit poses FOLDER --method colmap --out OUT`` in a child process, sent ``sig`` 0.5 s
+    after it says that ``stage`` of SfM began. Returns (exit code, its stderr lines, seconds
+    from the signal to its end)."""
+    import subprocess
+    import time
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "nerfkit", "poses", str(folder), "--method", "colmap", "--out", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=sigint_as_a_terminal_gives_it,  # noqa: PLW1509
+    )
+    try:
+        assert proc.stderr is not None
+        lines = []
+        for line in proc.stderr:
+            lines.append(line.rstrip("\n"))
+            if f"sfm: {stage}" in line:
+                break
+        assert lines and stage in lines[-1], lines
+        time.sleep(0.5)  # into the native call (COLMAP's own process starts in about 0.3 s)
+        proc.send_signal(sig)
+        sent = time.monotonic()
+        lines += proc.stderr.read().splitlines()
+        proc.wait(timeout=60)
+        return proc.returncode, lines, time.monotonic() - sent
+    finally:
+        proc.kill()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "stage, sig",
+    [
+        ("extracting", signal.SIGTERM),
+        ("exhaustive matching", signal.SIGTERM),
+        ("incremental mapping", signal.SIGTERM),
+        ("incremental mapping", signal.SIGINT),
+    ],
+    ids=["features-SIGTERM", "matching-SIGTERM", "mapping-SIGTERM", "mapping-SIGINT"],
+)
+def test_a_stop_during_sfm_is_one_line_exit_130_at_once_and_leaves_no_output(room, tmp_path, stage, sig):
+    # pycolmap gives SIGTERM to glog (a native stack dump, then death by the signal), and its
+    # native calls hold up Ctrl-C until a block of work ends (a minute of matching)
+    folder, _ = room
+    out = tmp_path / "out"
+    code, lines, seconds = _stopped_poses(folder, out, stage, sig)
+    assert code == 130, lines
+    assert lines[-1] == "nerfkit poses: interrupted", lines
+    assert all(line.startswith("sfm: ") for line in lines[:-1]), lines  # no trace, no COLMAP log
+    assert seconds < 5, seconds
+    assert not out.exists() or list(out.iterdir()) == []  # no half-written colmap folder
 
 
 def test_auto_matching_takes_every_pair_of_few_photos_and_the_guide_poses_beyond():

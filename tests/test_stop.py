@@ -6,6 +6,8 @@ import os
 import signal
 import threading
 
+import pytest
+
 from nerfkit.io import stop
 
 
@@ -36,3 +38,25 @@ def test_off_the_main_thread_no_handler_is_set():
     thread.start()
     thread.join()
     assert seen == [(before, False)]
+
+
+SIGTERM_AFTER_PYCOLMAP = """
+import os, signal, sys
+signal.signal(signal.SIGTERM, lambda s, f: print("Python's handler"))
+from nerfkit.data.colmap import import_pycolmap
+import_pycolmap("test")
+os.kill(os.getpid(), signal.SIGTERM)
+"""
+
+
+def test_sigterm_stays_pythons_after_pycolmap_is_imported():
+    # pycolmap's import hands SIGTERM to glog: a native stack dump, then death by the signal
+    import importlib.util
+    import subprocess
+    import sys
+
+    if importlib.util.find_spec("pycolmap") is None:
+        pytest.skip("pycolmap not installed")
+    proc = subprocess.run([sys.executable, "-c", SIGTERM_AFTER_PYCOLMAP], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout == "Python's handler\n", proc
+    assert "***" not in proc.stderr, proc.stderr

@@ -25,6 +25,7 @@ import numpy as np
 from ..data.colmap import SparsePoints, import_pycolmap, reconstruction_points
 from ..data.scene import Views
 from ..errors import fail
+from . import colmap_calls
 
 EXHAUSTIVE_MAX = 120
 
@@ -72,10 +73,16 @@ def triangulate_views(
         with quiet_colmap(verbose):
             _extract(pycolmap, db_path, image_dir, names, views, max_features, threads)
             _match(pycolmap, db_path, names, views.c2w, neighbours, threads)
-            rec = _posed_reconstruction(pycolmap, db_path, names, views.c2w)
+            posed = tmp / "posed"
+            posed.mkdir()
+            _posed_reconstruction(pycolmap, db_path, names, views.c2w).write(str(posed))
             options = pycolmap.IncrementalPipelineOptions()
             options.num_threads = threads
-            rec = pycolmap.triangulate_points(rec, db_path, image_dir, tmp / "sparse", options=options)
+            (tmp / "sparse").mkdir()
+            colmap_calls.run(
+                "triangulate_points", db_path, image_dir, tmp / "sparse", options=options, reconstruction=posed
+            )
+            rec = pycolmap.Reconstruction(str(tmp / "sparse"))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     view_names = views.names or [str(i) for i in range(len(views))]
@@ -94,7 +101,8 @@ def _extract(
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = threads
     extraction.sift.max_num_features = max_features
-    pycolmap.extract_features(
+    colmap_calls.run(
+        "extract_features",
         db_path,
         image_dir,
         image_names=names,
@@ -109,7 +117,7 @@ def _match(pycolmap, db_path: Path, names: list[str], c2w: np.ndarray, neighbour
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = threads
     if len(names) <= EXHAUSTIVE_MAX:
-        pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
+        colmap_calls.run("match_exhaustive", db_path, matching_options=matching, device=pycolmap.Device.cpu)
         return
     match_pairs(
         pycolmap,
@@ -194,16 +202,21 @@ def camera_neighbours(c2w: np.ndarray, k: int) -> list[tuple[int, int]]:
     return sorted(pairs)
 
 
-def match_pairs(pycolmap, db_path: Path, pairs: list[tuple[str, str]], matching, verification) -> None:
-    """Match and verify the features of these photo pairs only (a pairs file beside the database)."""
+def match_pairs(
+    pycolmap, db_path: Path, pairs: list[tuple[str, str]], matching, verification, seed: int | None = None
+) -> None:
+    """Match and verify the features of these photo pairs only (a pairs file beside the
+    database), in a child process (:func:`.colmap_calls.run`, with ``seed``)."""
     pairs_file = db_path.parent / "pairs.txt"
     pairs_file.write_text("".join(f"{a} {b}\n" for a, b in pairs))
     pairing = pycolmap.ImportedPairingOptions()
     pairing.match_list_path = str(pairs_file)
-    pycolmap.match_image_pairs(
+    colmap_calls.run(
+        "match_image_pairs",
         db_path,
         matching_options=matching,
         pairing_options=pairing,
         verification_options=verification,
         device=pycolmap.Device.cpu,
+        seed=seed,
     )

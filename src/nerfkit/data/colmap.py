@@ -32,11 +32,16 @@ PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
 
 
 def import_pycolmap(where: object, need: str = "reading COLMAP models needs pycolmap"):
-    """pycolmap, or a clear error at ``where`` (``need``: what needs it) that says how to install it."""
+    """pycolmap, or a clear error at ``where`` (``need``: what needs it) that says how to install it.
+    SIGTERM stays Python's (:func:`nerfkit.io.stop.take_back_sigterm`): nerfkit imports
+    pycolmap here, and elsewhere only once a pycolmap object exists."""
+    from ..io import stop
+
     try:
         import pycolmap
     except ImportError:
         raise fail(where, need, "pip install 'nerfkit[sfm]'") from None
+    stop.take_back_sigterm()  # from the stack dump pycolmap's first import sets for it
     return pycolmap
 
 

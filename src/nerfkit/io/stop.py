@@ -35,6 +35,19 @@ def take() -> bool:
     return asked
 
 
+def take_back_sigterm() -> None:
+    """Put Python's SIGTERM handler back in force. Importing pycolmap installs glog's failure
+    handler for SIGTERM below Python (a stack dump, then death by the signal) while Python
+    still reports its own: the command line's stop, the default (end quietly) or ignored.
+    Off the main thread nothing can be set, and nothing is."""
+    try:
+        handler = signal.getsignal(signal.SIGTERM)
+        if handler is not None:  # (None: not set from Python, so nothing of Python's to put back)
+            signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread
+        pass
+
+
 class StopFlag:
     """Whether a stop signal came, set by the handlers :func:`signals_caught` installs:
     call it (``flag()``)."""

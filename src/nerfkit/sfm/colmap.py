@@ -11,7 +11,9 @@ What nerfstudio's ``ns-process-data`` and instant-ngp's ``colmap2nerf`` do:
    photos, else normalised.
 
 The output folder holds ``colmap/database.db`` and the aligned model ``colmap/sparse/0``;
-:func:`nerfkit.sfm.build_dataset` then writes the undistorted dataset.
+:func:`nerfkit.sfm.build_dataset` then writes the undistorted dataset. Steps 1-3 each run in
+a child process (:mod:`nerfkit.capture.colmap_calls`), so that Ctrl-C or SIGTERM ends them
+at once; ``colmap/`` replaces an earlier run's only when SfM finishes.
 """
 
 from __future__ import annotations
@@ -28,10 +30,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..capture import colmap_calls
 from ..capture.points import camera_neighbours, match_pairs, quiet_colmap, sfm_pycolmap
 from ..data.colmap import write_reconstruction
 from ..errors import NerfkitError, fail, problem_of
 from ..images import list_images
+from ..io.atomic import replacing_folder
 
 if TYPE_CHECKING:  # pragma: no cover
     import pycolmap
@@ -375,167 +379,182 @@ def run_sfm(
             "Take 30-100 overlapping photos around the object",
         )
     work = Path(out_dir) / "colmap"
-    if work.exists():
-        shutil.rmtree(work)
-    (work / "sparse").mkdir(parents=True)
-    colmap_dir, names, left_out, first, turns = prepare_photos(photos, work, progress, camera)
-    if len(names) < 3:
-        unreadable = sum(why.startswith("unreadable") for why in left_out.values())
-        if len(photos) - unreadable < 3:
+    with replacing_folder(work):  # stopped or failed: the earlier folder (or none) stays, not a half-written one
+        (work / "sparse").mkdir(parents=True)
+        colmap_dir, names, left_out, first, turns = prepare_photos(photos, work, progress, camera)
+        if len(names) < 3:
+            unreadable = sum(why.startswith("unreadable") for why in left_out.values())
+            if len(photos) - unreadable < 3:
+                raise fail(
+                    image_dir,
+                    f"{unreadable} of its {len(photos)} photos are unreadable, leaving "
+                    f"{len(photos) - unreadable}; structure-from-motion needs at least 3",
+                    "Replace the broken files (poses lists them)",
+                )
             raise fail(
                 image_dir,
-                f"{unreadable} of its {len(photos)} photos are unreadable, leaving "
-                f"{len(photos) - unreadable}; structure-from-motion needs at least 3",
-                "Replace the broken files (poses lists them)",
+                f"only {len(names)} photos share one size; structure-from-motion needs at least 3",
+                "Take all photos held the same way (portrait or landscape)",
             )
-        raise fail(
-            image_dir,
-            f"only {len(names)} photos share one size; structure-from-motion needs at least 3",
-            "Take all photos held the same way (portrait or landscape)",
-        )
-    assert first is not None  # None only when no photo is kept
-    given = None  # (COLMAP model, params) of the camera file
-    if camera is not None:
-        why = camera.compatible(first.width, first.height)
-        if why:
-            raise fail(
-                image_dir,
-                f"the photos do not fit the camera file: {why}",
-                "Calibrate with photos from the same camera, held the same way",
+        assert first is not None  # None only when no photo is kept
+        given = None  # (COLMAP model, params) of the camera file
+        if camera is not None:
+            why = camera.compatible(first.width, first.height)
+            if why:
+                raise fail(
+                    image_dir,
+                    f"the photos do not fit the camera file: {why}",
+                    "Calibrate with photos from the same camera, held the same way",
+                )
+            given = colmap_camera(camera.scaled_to(first.width, first.height), refine=refine_camera)
+        db_path = work / "database.db"
+        device = pycolmap.Device.cpu
+        seconds: dict[str, float] = {}
+
+        with quiet_colmap(verbose):
+            t0 = time.perf_counter()
+            _started("features")
+            _say(
+                progress,
+                f"sfm: extracting SIFT features from {len(names)} photos (longest side <= {max_image_size} px)...",
             )
-        given = colmap_camera(camera.scaled_to(first.width, first.height), refine=refine_camera)
-    db_path = work / "database.db"
-    device = pycolmap.Device.cpu
-    seconds: dict[str, float] = {}
-    pycolmap.set_random_seed(seed)
+            reader = pycolmap.ImageReaderOptions()
+            reader.camera_model = camera_model
+            if given is not None:
+                reader.camera_model, reader.camera_params = given
+            elif colmap_dir != image_dir and first.f35 and camera_model == "SIMPLE_RADIAL":
+                # The copies lost their EXIF; give COLMAP the focal length it would have read.
+                from ..capture.camera import exif_fx
 
-    with quiet_colmap(verbose):
-        t0 = time.perf_counter()
-        _started("features")
-        _say(
-            progress, f"sfm: extracting SIFT features from {len(names)} photos (longest side <= {max_image_size} px)..."
-        )
-        reader = pycolmap.ImageReaderOptions()
-        reader.camera_model = camera_model
-        if given is not None:
-            reader.camera_model, reader.camera_params = given
-        elif colmap_dir != image_dir and first.f35 and camera_model == "SIMPLE_RADIAL":
-            # The copies lost their EXIF; give COLMAP the focal length it would have read.
-            from ..capture.camera import exif_fx
+                f = exif_fx(first.f35, first.width, first.height)
+                reader.camera_params = f"{f},{first.width / 2},{first.height / 2},0"
+            extraction = pycolmap.FeatureExtractionOptions()
+            extraction.max_image_size = max_image_size
+            extraction.num_threads = threads
+            extraction.sift.max_num_features = max_features
+            try:
+                colmap_calls.run(
+                    "extract_features",
+                    db_path,
+                    colmap_dir,
+                    image_names=names,
+                    camera_mode=(pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.AUTO),
+                    reader_options=reader,
+                    extraction_options=extraction,
+                    device=device,
+                    seed=seed,
+                )
+            except Exception as e:  # noqa: BLE001 - e.g. an unknown camera model name
+                raise fail(
+                    image_dir, f"feature extraction failed ({e})", "Check --camera-model and the photos"
+                ) from None
+            seconds["features"] = time.perf_counter() - t0
 
-            f = exif_fx(first.f35, first.width, first.height)
-            reader.camera_params = f"{f},{first.width / 2},{first.height / 2},0"
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.max_image_size = max_image_size
-        extraction.num_threads = threads
-        extraction.sift.max_num_features = max_features
-        try:
-            pycolmap.extract_features(
+            t0 = time.perf_counter()
+            pairs = spatial_pairs(names, guides, SPATIAL_NEIGHBOURS, overlap) if matcher == "spatial" else []
+            n_pairs = {"exhaustive": len(names) * (len(names) - 1) // 2, "spatial": len(pairs)}.get(
+                matcher, len(names) * overlap
+            )
+            _started("matching")
+            _say(progress, f"sfm: {matcher} matching (~{n_pairs} photo pairs)...")
+            matching = pycolmap.FeatureMatchingOptions()
+            matching.num_threads = threads
+            verification = pycolmap.TwoViewGeometryOptions()
+            verification.ransac.random_seed = seed
+            if matcher == "spatial":
+                match_pairs(pycolmap, db_path, pairs, matching, verification, seed=seed)
+            elif matcher == "exhaustive":
+                colmap_calls.run(
+                    "match_exhaustive",
+                    db_path,
+                    matching_options=matching,
+                    verification_options=verification,
+                    device=device,
+                    seed=seed,
+                )
+            else:
+                pairing = pycolmap.SequentialPairingOptions()
+                pairing.overlap = overlap
+                colmap_calls.run(
+                    "match_sequential",
+                    db_path,
+                    matching_options=matching,
+                    pairing_options=pairing,
+                    verification_options=verification,
+                    device=device,
+                    seed=seed,
+                )
+            seconds["matching"] = time.perf_counter() - t0
+
+            t0 = time.perf_counter()
+            _started("mapping")
+            _say(progress, "sfm: incremental mapping...")
+            options = pycolmap.IncrementalPipelineOptions()
+            options.num_threads = threads
+            options.random_seed = seed
+            options.min_model_size = 3
+            if given is not None and not refine_camera:
+                options.ba_refine_focal_length = False
+                options.ba_refine_principal_point = False
+                options.ba_refine_extra_params = False
+                options.mapper.abs_pose_refine_focal_length = False
+                options.mapper.abs_pose_refine_extra_params = False
+            colmap_calls.run(
+                "incremental_mapping",
                 db_path,
                 colmap_dir,
-                image_names=names,
-                camera_mode=(pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.AUTO),
-                reader_options=reader,
-                extraction_options=extraction,
-                device=device,
+                work / "sparse",
+                options=options,
+                next_image_callback=colmap_calls.SayRegistered() if progress else None,
+                seed=seed,
             )
-        except Exception as e:  # noqa: BLE001 - e.g. an unknown camera model name
-            raise fail(image_dir, f"feature extraction failed ({e})", "Check --camera-model and the photos") from None
-        seconds["features"] = time.perf_counter() - t0
+            models = written_models(pycolmap, work / "sparse")
+            seconds["mapping"] = time.perf_counter() - t0
 
-        t0 = time.perf_counter()
-        pairs = spatial_pairs(names, guides, SPATIAL_NEIGHBOURS, overlap) if matcher == "spatial" else []
-        n_pairs = {"exhaustive": len(names) * (len(names) - 1) // 2, "spatial": len(pairs)}.get(
-            matcher, len(names) * overlap
-        )
-        _started("matching")
-        _say(progress, f"sfm: {matcher} matching (~{n_pairs} photo pairs)...")
-        matching = pycolmap.FeatureMatchingOptions()
-        matching.num_threads = threads
-        verification = pycolmap.TwoViewGeometryOptions()
-        verification.ransac.random_seed = seed
-        if matcher == "spatial":
-            match_pairs(pycolmap, db_path, pairs, matching, verification)
-        elif matcher == "exhaustive":
-            pycolmap.match_exhaustive(
-                db_path, matching_options=matching, verification_options=verification, device=device
+        if not models:
+            why_not = {**registration_report(db_path, names, None, {}), **left_out}
+            reasons = "; ".join(sorted(set(why_not.values())))[:300]
+            raise fail(
+                image_dir,
+                f"structure-from-motion registered no photos ({reasons})",
+                "Take more overlapping photos of a textured scene, or use ArUco tags (--method tags)",
             )
-        else:
-            pairing = pycolmap.SequentialPairingOptions()
-            pairing.overlap = overlap
-            pycolmap.match_sequential(
-                db_path,
-                matching_options=matching,
-                pairing_options=pairing,
-                verification_options=verification,
-                device=device,
-            )
-        seconds["matching"] = time.perf_counter() - t0
-
-        t0 = time.perf_counter()
-        _started("mapping")
-        _say(progress, "sfm: incremental mapping...")
-        options = pycolmap.IncrementalPipelineOptions()
-        options.num_threads = threads
-        options.random_seed = seed
-        options.min_model_size = 3
-        if given is not None and not refine_camera:
-            options.ba_refine_focal_length = False
-            options.ba_refine_principal_point = False
-            options.ba_refine_extra_params = False
-            options.mapper.abs_pose_refine_focal_length = False
-            options.mapper.abs_pose_refine_extra_params = False
-        counter = {"n": 0}
-
-        def on_image() -> None:
-            counter["n"] += 1
-            if progress and (counter["n"] % 10 == 0):
-                print(f"sfm:   {counter['n'] + 2} photos registered", file=sys.stderr, flush=True)
-
-        models = pycolmap.incremental_mapping(
-            db_path, colmap_dir, work / "sparse", options=options, next_image_callback=on_image
+        best_key = max(models, key=lambda k: models[k].num_reg_images())
+        rec = models[best_key]
+        unregistered = {
+            **registration_report(db_path, names, rec, {k: m for k, m in models.items() if k != best_key}),
+            **left_out,
+        }
+        registered = sorted(rec.images[i].name for i in rec.reg_image_ids())
+        cam = next(iter(rec.cameras.values()))
+        report = SfmReport(
+            n_photos=len(photos),
+            registered=registered,
+            unregistered=unregistered,
+            n_points=rec.num_points3D(),
+            reprojection_error=float(rec.compute_mean_reprojection_error()),
+            n_models=len(models),
+            matcher=matcher,
+            seconds={k: round(v, 2) for k, v in seconds.items()},
+            camera={
+                "model": cam.model_name,
+                "width": cam.width,
+                "height": cam.height,
+                "params": [float(p) for p in cam.params],
+            },
         )
-        seconds["mapping"] = time.perf_counter() - t0
-
-    if not models:
-        why_not = {**registration_report(db_path, names, None, {}), **left_out}
-        reasons = "; ".join(sorted(set(why_not.values())))[:300]
-        raise fail(
-            image_dir,
-            f"structure-from-motion registered no photos ({reasons})",
-            "Take more overlapping photos of a textured scene, or use ArUco tags (--method tags)",
-        )
-    best_key = max(models, key=lambda k: models[k].num_reg_images())
-    rec = models[best_key]
-    unregistered = {
-        **registration_report(db_path, names, rec, {k: m for k, m in models.items() if k != best_key}),
-        **left_out,
-    }
-    registered = sorted(rec.images[i].name for i in rec.reg_image_ids())
-    cam = next(iter(rec.cameras.values()))
-    report = SfmReport(
-        n_photos=len(photos),
-        registered=registered,
-        unregistered=unregistered,
-        n_points=rec.num_points3D(),
-        reprojection_error=float(rec.compute_mean_reprojection_error()),
-        n_models=len(models),
-        matcher=matcher,
-        seconds={k: round(v, 2) for k, v in seconds.items()},
-        camera={
-            "model": cam.model_name,
-            "width": cam.width,
-            "height": cam.height,
-            "params": [float(p) for p in cam.params],
-        },
-    )
-    # Keep one model: the largest, as sparse/0.
-    model_dir = work / "sparse" / "0"
-    for sub in (work / "sparse").iterdir():
-        shutil.rmtree(sub) if sub.is_dir() else sub.unlink()
-    write_reconstruction(rec, model_dir)
+        # Keep one model: the largest, as sparse/0.
+        model_dir = work / "sparse" / "0"
+        for sub in (work / "sparse").iterdir():
+            shutil.rmtree(sub) if sub.is_dir() else sub.unlink()
+        write_reconstruction(rec, model_dir)
     _say(progress, "sfm: " + report.summary().splitlines()[0])
     return SfmResult(rec, model_dir, colmap_dir, report, sources={colmap_name(p): p for p in photos}, turns=turns)
+
+
+def written_models(pycolmap, folder: Path) -> dict[int, pycolmap.Reconstruction]:
+    """The models incremental mapping wrote into ``folder`` (``0``, ``1``, ...), by number."""
+    return {int(d.name): pycolmap.Reconstruction(str(d)) for d in folder.iterdir() if d.is_dir() and d.name.isdigit()}
 
 
 def colmap_camera(camera, refine: bool = False) -> tuple[str, str]:
