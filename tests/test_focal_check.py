@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
 
+from nerfkit.capture import synthetic as S
 from nerfkit.capture.camera import Camera
 from nerfkit.capture.focal import (
     FOCAL_AGREE,
@@ -20,6 +22,7 @@ from nerfkit.capture.focal import (
     focal_tolerance,
 )
 from nerfkit.capture.poses import TagFocal
+from nerfkit.cli import main
 
 
 def test_the_tolerance_is_the_floor_or_the_estimates_own_uncertainty():
@@ -117,3 +120,86 @@ def test_the_dev_captures_right_camera_files_agree_and_20_percent_long_ones_do_n
             focal_check(camera, TagFocal(1000 * tags, std, 30)),
         )
         assert [c.disagree for c in (both, *alone)] == [disagree] * 3, capture
+
+
+def _sheet_photos(folder, cap):
+    folder.mkdir()
+    for name, img in zip(cap.names, cap.images):
+        S.write_photo(folder / name, img)
+
+
+def _camera_file(path, cap, factor):
+    K = cap.K.copy()
+    K[[0, 1], [0, 1]] *= factor
+    data = {
+        "K": K.tolist(),
+        "dist": cap.dist.tolist(),
+        "width": cap.width,
+        "height": cap.height,
+        "dictionary": "DICT_4X4_50",
+        "heldout_rms": 0.1,
+        "layout": cap.layout.to_json(),
+    }
+    path.write_text(json.dumps(data))
+    return path
+
+
+@pytest.mark.parametrize("factor", [1.0, 1.2, 1 / 1.2])
+def test_poses_compares_the_camera_files_focal_length_with_the_tags(tmp_path, capsys, factor):
+    # 12 photos of a sheet of tags posed by them alone: a right camera file agrees, one whose
+    # focal length is 20% off (either way) is warned of, in the report and in poses.json
+    cap = S.cached_capture("sheet", 12, 5)
+    _sheet_photos(tmp_path / "photos", cap)
+    camera = _camera_file(tmp_path / "camera.json", cap, factor)
+    out = tmp_path / "ds"
+    argv = ["poses", str(tmp_path / "photos"), "--camera", str(camera), "--tag-size", "0.05", "--out", str(out)]
+    assert main([*argv, "--no-dataset"]) == 0
+    text = capsys.readouterr().out
+    check = json.loads((out / "poses.json").read_text())["focal_check"]
+    assert check["source"] == TAGS and check["photos"] >= 10
+    assert check["camera_px"] == pytest.approx(cap.K[0, 0] * factor, abs=0.01)
+    assert check["ratio"] == pytest.approx(1 / factor, rel=0.01)  # the photos' own: the truth
+    assert check["disagree"] is (factor != 1.0)
+    lines = [line for line in text.splitlines() if "focal length: the camera file's" in line]
+    assert len(lines) == 1 and lines[0].startswith("WARNING") is (factor != 1.0), text
+    # the tags' own note does not warn a second time: the check says it
+    assert sum(line.startswith("WARNING") for line in text.splitlines()) == (factor != 1.0)
+    assert math.isfinite(check["std"]) and check["std"] < 0.01
+
+
+@pytest.mark.slow  # (about 18 s each)
+@pytest.mark.parametrize("method, factor", [("auto", 1.0), ("auto", 1.2), ("colmap", 1.2)])
+def test_poses_compares_the_camera_files_focal_length_with_structure_from_motions(tmp_path, capsys, method, factor):
+    # A textured room with one tag, posed by SfM (--method auto: in the tag's frame; colmap: SfM
+    # alone). SfM finds the photos' own focal length wherever it starts, and a camera file 20% long
+    # is warned of, in the report, transforms.json and sfm_report.json
+    pytest.importorskip("pycolmap")
+    from test_colmap import ROOM_K, TAG_SIZE, make_room
+
+    make_room(tmp_path / "photos")
+    K = ROOM_K.copy()
+    K[[0, 1], [0, 1]] *= factor
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"K": K.tolist(), "dist": [0.0] * 5, "width": 320, "height": 240}))
+    out = tmp_path / "ds"
+    split = ["--val-every", "6", "--test-every", "0", "--matcher", "exhaustive", "--jobs", "1"]
+    argv = ["poses", str(tmp_path / "photos"), "--camera", str(camera), "--tag-size", str(TAG_SIZE), *split]
+    assert main([*argv, "--method", method, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    check = json.loads((out / "transforms.json").read_text())["nerfkit"]["focal_check"]
+    by_sfm = check if method == "colmap" else check["other"]
+    if method == "auto":  # the tags pin it here (a large tag): theirs first, SfM's beside it
+        assert check["source"] == TAGS and check["std"] < 0.01 and by_sfm["source"] == SFM
+        assert check["photos_px"] == pytest.approx(ROOM_K[0, 0], rel=0.01)
+        assert check["ratio"] == pytest.approx(1 / factor, rel=0.01)
+    else:  # SfM's alone
+        assert check["source"] == SFM and check["other"] is None
+    assert by_sfm["photos"] == 12
+    assert by_sfm["photos_px"] == pytest.approx(ROOM_K[0, 0], rel=0.03)  # (12 small photos: SfM drifts 1.5%)
+    assert by_sfm["ratio"] == pytest.approx(1 / factor, rel=0.03)
+    assert check["disagree"] is (factor != 1.0)
+    lines = [line for line in text.splitlines() if "focal length: the camera file's" in line]
+    assert len(lines) == 1 and lines[0].startswith("WARNING") is (factor != 1.0), text
+    assert sum(line.startswith("WARNING") for line in text.splitlines()) == (factor != 1.0)
+    if (out / "sfm_report.json").is_file():  # (SfM's poses taken)
+        assert json.loads((out / "sfm_report.json").read_text())["focal_check"] == check

@@ -72,6 +72,8 @@ class SfmReport:
     frame: str = ""
     camera: dict = field(default_factory=dict)
     ground: dict | None = None  # the table plane found in the points (no tag), see ground.py
+    # the camera file's focal length against the one SfM found (capture.focal.FocalCheck.as_json)
+    focal_check: dict | None = None
 
     def summary(self) -> str:
         """A few lines for the terminal."""
@@ -86,6 +88,10 @@ class SfmReport:
             lines.append(f"  not registered: {name}: {why}")
         if self.frame:
             lines.append(f"  world frame: {self.frame}")
+        if self.focal_check is not None:
+            from ..capture.focal import FocalCheck
+
+            lines.append(FocalCheck.from_json(self.focal_check).line())
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -102,6 +108,7 @@ class SfmReport:
             "frame": self.frame,
             "camera": self.camera,
             "ground": self.ground,
+            "focal_check": self.focal_check,
         }
 
 
@@ -536,6 +543,16 @@ def run_sfm(
     write_reconstruction(rec, model_dir)
     _say(progress, "sfm: " + report.summary().splitlines()[0])
     return SfmResult(rec, model_dir, colmap_dir, report, sources={colmap_name(p): p for p in photos}, turns=turns)
+
+
+def sfm_focal(rec) -> tuple[float, int, int] | None:
+    """``(fx in pixels, width, height)`` of the camera a reconstruction's registered photos share
+    (bundle adjustment's), or None when none is registered."""
+    ids = list(rec.reg_image_ids())
+    if not ids:
+        return None
+    cam = rec.cameras[rec.images[ids[0]].camera_id]
+    return float(cam.focal_length_x), int(cam.width), int(cam.height)
 
 
 def colmap_camera(camera, refine: bool = False) -> tuple[str, str]:
