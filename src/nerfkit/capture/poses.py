@@ -380,21 +380,33 @@ FOCAL_MAX_CHANGE = 0.10
 FOCAL_MAX_STD = 0.01
 
 
-def refine_focal(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg: PoseConfig) -> tuple[Camera, str]:
-    """``camera`` with its focal length fitted to the tags of these photos, and a note ("" when
-    kept as it is, unremarkably).
+@dataclass(frozen=True)
+class TagFocal:
+    """The focal length the tags of some photos want (:func:`tag_focal`).
+
+    Attributes:
+        focal_px: fx in pixels of the camera's size (fy follows at the camera's aspect).
+        std: its standard error, a share of it.
+        photos: how many photos' tags pinned it.
+    """
+
+    focal_px: float
+    std: float
+    photos: int
+
+
+def tag_focal(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg: PoseConfig) -> TagFocal | None:
+    """The focal length the tags of these photos want, or None with fewer than
+    :data:`FOCAL_MIN_PHOTOS` photos (or a ChArUco board, or a fit that fails).
 
     The photos the camera poses within their error limits give their tags' corners; one
     calibration over them (``cv2.calibrateCameraExtended``) frees the focal length alone: the
-    principal point, the aspect ratio and the lens distortion stay the calibration's. Photos of
-    another lens or shape (which :func:`pose_records` skips) are left out. The new
-    focal length is taken when at least :data:`FOCAL_MIN_PHOTOS` photos pin it to
-    :data:`FOCAL_MAX_STD` and it moves by more than :data:`FOCAL_SIGNIFICANT` standard errors and
-    :data:`FOCAL_MIN_CHANGE`, within :data:`FOCAL_MAX_CHANGE`. A ChArUco board: the camera as it is."""
+    principal point, the aspect ratio and the lens distortion stay the camera's. Photos of
+    another lens or shape (which :func:`pose_records` skips) are left out."""
     import cv2
 
     if layout.charuco is not None:
-        return camera, ""
+        return None
     lens = camera.exif_f35 or common_lens(r.exif_f35 for r in records if r.detection is not None)
     obj, img = [], []
     for r in records:  # the photos pose_records would pose: of this camera's lens and shape
@@ -413,7 +425,7 @@ def refine_focal(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
         obj.append(points)
         img.append(((pixels + 0.5) * scale - 0.5).astype(np.float32))
     if len(obj) < FOCAL_MIN_PHOTOS:
-        return camera, ""
+        return None
     flags = (
         cv2.CALIB_USE_INTRINSIC_GUESS
         | cv2.CALIB_FIX_PRINCIPAL_POINT
@@ -428,16 +440,44 @@ def refine_focal(records: list[PhotoRecord], camera: Camera, layout: Layout, cfg
             obj, img, (camera.width, camera.height), camera.K.copy(), camera.dist.copy(), flags=flags
         )
     except cv2.error:
-        return camera, ""
+        return None
     # the aspect ratio fixed, fy is the free parameter and fx follows it
-    change, spread = float(K[1, 1] / camera.K[1, 1]) - 1.0, float(std.ravel()[1] / K[1, 1])
-    f0, f = float(camera.K[0, 0]), float(camera.K[0, 0]) * (1.0 + change)
+    change, spread = float(K[1, 1] / camera.K[1, 1]), float(std.ravel()[1] / K[1, 1])
+    if not (np.isfinite(change) and change > 0):
+        return None
+    return TagFocal(float(camera.K[0, 0]) * change, spread, len(obj))
+
+
+def refine_focal(
+    records: list[PhotoRecord], camera: Camera, layout: Layout, cfg: PoseConfig, warn: bool = True
+) -> tuple[Camera, str]:
+    """``camera`` with its focal length fitted to the tags of these photos, and a note ("" when
+    kept as it is, unremarkably): :func:`focal_refined` of :func:`tag_focal`."""
+    return focal_refined(camera, tag_focal(records, camera, layout, cfg), warn)
+
+
+def focal_refined(camera: Camera, estimate: TagFocal | None, warn: bool = True) -> tuple[Camera, str]:
+    """``camera`` with the focal length its photos' tags want (``estimate``, :func:`tag_focal`),
+    and a note ("" when kept as it is, unremarkably).
+
+    The new focal length is taken when :data:`FOCAL_MIN_PHOTOS` photos or more pin it to
+    :data:`FOCAL_MAX_STD` and it moves by more than :data:`FOCAL_SIGNIFICANT` standard errors and
+    :data:`FOCAL_MIN_CHANGE`, within :data:`FOCAL_MAX_CHANGE`; beyond, the camera is kept with a
+    warning (``warn``; else a plain note: the caller compares the focal lengths itself,
+    :mod:`~nerfkit.capture.focal`). The principal point, aspect ratio and distortion stay the
+    camera's."""
+    if estimate is None:
+        return camera, ""
+    f0, f, spread = float(camera.K[0, 0]), estimate.focal_px, estimate.std
+    change = f / f0 - 1.0
     said = (
-        f"the tags of {len(obj)} photos want a focal length {change * 100:+.1f}% off the camera's "
+        f"the tags of {estimate.photos} photos want a focal length {change * 100:+.1f}% off the camera's "
         f"({f0:.1f} -> {f:.1f} px, +/- {spread * 100:.2f}%)"
     )
     significant = np.isfinite(f) and abs(change) > max(FOCAL_SIGNIFICANT * spread, FOCAL_MIN_CHANGE)
     if significant and abs(change) > FOCAL_MAX_CHANGE:  # said however loosely pinned: the poses' scale is off
+        if not warn:
+            return camera, f"{said}: more than a phone's focus moves it, so the camera's is kept"
         return camera, (
             f"WARNING: {said}: more than a phone's focus moves it, so the camera's is kept. Another phone, "
             "lens or zoom than the calibration's? Calibrate with it, or leave out --camera"

@@ -455,6 +455,7 @@ def pose(
     from ..capture.camera import load_camera
     from ..capture.dataset import POSES_FILE, DatasetConfig, posed_none, write_poses_json
     from ..capture.dataset import check_settings as check_dataset_settings
+    from ..capture.focal import focal_check
     from ..capture.photos import default_jobs, require_tags, scan_photos
     from ..capture.poses import PoseConfig, pose_records
     from ..capture.report import reason_counts
@@ -536,7 +537,7 @@ def pose(
         dictionary,
         "; photos without a tag are posed by structure-from-motion: --method colmap (metric scale needs a tag)",
     )
-    cam, frame, side, notes = stage.tag_frame(
+    cam, frame, side, tags_focal, notes = stage.tag_frame(
         records,
         given_camera,
         sheet,
@@ -554,9 +555,11 @@ def pose(
     if note:
         notes.append(note)
     folder.mkdir(parents=True, exist_ok=True)
-    meta = stage.poses_meta(photos_dir, dictionary, side, printed, frame, notes, pcfg)
+    checked = focal_check(given_camera, tags_focal)  # the camera file's focal length against the tags'
+    meta = stage.poses_meta(photos_dir, dictionary, side, printed, frame, notes, pcfg, checked)
     write_poses_json(folder / POSES_FILE, records, posed, cam, meta)
-    say(stage.poses_report(notes, cam, records, folder / POSES_FILE, all_photos))
+    sfm_next = method == "auto" and build_dataset and bool(posed)  # (it says so with SfM's focal length)
+    say(stage.poses_report(notes, cam, records, folder / POSES_FILE, all_photos, None if sfm_next else checked))
     if not posed:  # (a poses.json that posed none is replaced by the next try without --force)
         camera_wrong = camera_file and all("camera" in r.reason for r in records if r.detection is not None)
         raise fail(
@@ -590,9 +593,12 @@ def pose(
             dataset_cfg=dcfg,
             say=say,
             progress=not quiet,
+            camera_file=given_camera,
+            tags_focal=tags_focal,
         )
     else:
-        scene, summary = stage.tag_dataset(posed, folder, dcfg, side, workers, {"notes": notes}, printed.corners())
+        extra = {"notes": notes, "focal_check": None if checked is None else checked.as_json()}
+        scene, summary = stage.tag_dataset(posed, folder, dcfg, side, workers, extra, printed.corners())
     return _dataset_built(scene, summary, folder, total, quiet)
 
 

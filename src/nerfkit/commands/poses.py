@@ -32,6 +32,10 @@ too. The dataset takes the SfM poses unless SfM registers fewer than 90% of the 
 the tags posed, misses the tag, or disagrees with the tags; the output says which and why
 (--method tags, or --no-dataset: tag poses only, as the course does).
 
+The report compares the focal length of --camera with the one the photos want (their
+tags', or SfM's), and warns when the two are more than 6% apart: the camera file is then
+likely of another phone, lens, zoom, orientation or resolution than the photos.
+
 World frame: the tag's (a layout's own; an estimated layout's most-seen tag's). Origin at
 the tag centre, x to the right and y up along the printed tag, z out of the tag toward the
 cameras; the scene's up is +z. Units: metres.

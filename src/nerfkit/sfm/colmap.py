@@ -76,6 +76,8 @@ class SfmReport:
     frame: str = ""
     camera: dict = field(default_factory=dict)
     ground: dict | None = None  # the table plane found in the points (no tag), see ground.py
+    # the camera file's focal length against the one SfM found (capture.focal.FocalCheck.as_json)
+    focal_check: dict | None = None
 
     def summary(self) -> str:
         """A few lines for the terminal."""
@@ -90,6 +92,10 @@ class SfmReport:
             lines.append(f"  not registered: {name}: {why}")
         if self.frame:
             lines.append(f"  world frame: {self.frame}")
+        if self.focal_check is not None:
+            from ..capture.focal import FocalCheck
+
+            lines.append(FocalCheck.from_json(self.focal_check).line())
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -106,6 +112,7 @@ class SfmReport:
             "frame": self.frame,
             "camera": self.camera,
             "ground": self.ground,
+            "focal_check": self.focal_check,
         }
 
 
@@ -555,6 +562,16 @@ def run_sfm(
 def written_models(pycolmap, folder: Path) -> dict[int, pycolmap.Reconstruction]:
     """The models incremental mapping wrote into ``folder`` (``0``, ``1``, ...), by number."""
     return {int(d.name): pycolmap.Reconstruction(str(d)) for d in folder.iterdir() if d.is_dir() and d.name.isdigit()}
+
+
+def sfm_focal(rec) -> tuple[float, int, int] | None:
+    """``(fx in pixels, width, height)`` of the camera a reconstruction's registered photos share
+    (bundle adjustment's), or None when none is registered."""
+    ids = list(rec.reg_image_ids())
+    if not ids:
+        return None
+    cam = rec.cameras[rec.images[ids[0]].camera_id]
+    return float(cam.focal_length_x), int(cam.width), int(cam.height)
 
 
 def colmap_camera(camera, refine: bool = False) -> tuple[str, str]:

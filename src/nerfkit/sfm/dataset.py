@@ -252,6 +252,8 @@ def load_sfm_result(folder: str | Path, allow_outside: bool = False) -> SfmResul
                 "ground",
             )
             report = SfmReport(**{k: data[k] for k in fields})
+            if isinstance(data.get("focal_check"), dict):  # (none before nerfkit compared focal lengths)
+                report.focal_check = data["focal_check"]
             tag_size = model["tag_size"]
             if tag_size is not None and not (isinstance(tag_size, (int, float)) and tag_size > 0):
                 raise fail(path, f"model.tag_size is {tag_size!r}, expected a length in metres or null")
@@ -329,8 +331,12 @@ def sfm_dataset(
     would). ``cfg`` holds the dataset options
     (size, splits, near/far) shared with the tag path. COLMAP's files stay in
     ``out_dir/colmap`` (database and the aligned model ``sparse/0``). ``camera``: a
-    calibrated camera SfM starts from (see :func:`~nerfkit.sfm.colmap.run_sfm`).
+    calibrated camera SfM starts from (see :func:`~nerfkit.sfm.colmap.run_sfm`); the report
+    compares its focal length with the one SfM finds (:mod:`~nerfkit.capture.focal`).
     """
+    from ..capture.focal import focal_check
+    from .colmap import sfm_focal
+
     result = run_sfm(
         image_dir,
         out_dir,
@@ -343,11 +349,15 @@ def sfm_dataset(
         verbose=verbose,
         camera=camera,
     )
+    shared = sfm_focal(result.reconstruction)
+    checked = focal_check(camera, sfm=None if shared is None else (*shared, result.reconstruction.num_reg_images()))
+    result.report.focal_check = None if checked is None else checked.as_json()
     align_reconstruction(result, tag_size=tag_size, tag_id=tag_id, tag_dict=tag_dict, progress=progress, ground=ground)
     from ..capture.aruco import Layout
 
     tags = (
         Layout.single(tag_id, result.tag_size).corners() if result.tag_size is not None else None
     )  # the tag at the origin
-    scene, summary = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress, tags=tags)
+    extra = {"focal_check": result.report.focal_check} if camera is not None else None
+    scene, summary = build_dataset(result, out_dir, cfg, jobs=jobs, progress=progress, extra=extra, tags=tags)
     return scene, result.report, summary

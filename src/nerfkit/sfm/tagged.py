@@ -57,6 +57,8 @@ class PoseChoice:
         adopted: the photos SfM missed that keep their tag poses (:func:`adopt_tag_poses`).
         far: the photos whose SfM and tag poses lay far apart (:func:`far_apart`), name ->
             ``(degrees, metres)``; SfM's poses of them are not used.
+        focal: SfM's camera, ``(fx, width, height, photos registered)``, whether its poses are
+            used or not (:func:`~nerfkit.sfm.colmap.sfm_focal`); None when SfM failed.
     """
 
     result: object | None
@@ -64,6 +66,7 @@ class PoseChoice:
     agreement: dict | None = None
     adopted: list[str] = field(default_factory=list)
     far: dict[str, tuple[float, float]] = field(default_factory=dict)
+    focal: tuple[float, int, int, int] | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -208,7 +211,7 @@ def choose_poses(
     Returns:
         A :class:`PoseChoice`; SfM failing is a reason to keep the tag poses, not an error.
     """
-    from .colmap import colmap_name, run_sfm
+    from .colmap import colmap_name, run_sfm, sfm_focal
     from .frame import align_reconstruction, reconstruction_c2w
 
     guides = {colmap_name(Path(p.path)): p.c2w for p in tag_posed}  # to choose the pairs SfM matches
@@ -225,6 +228,8 @@ def choose_poses(
         )
     except NerfkitError as e:  # no photos that match, pycolmap missing, ...
         return PoseChoice(None, f"tag poses: structure-from-motion failed ({e})")
+    shared = sfm_focal(result.reconstruction)  # (its focal length, before any photo is taken out)
+    focal = None if shared is None else (*shared, result.reconstruction.num_reg_images())
     several = layout is not None and tag_corners is not None and len(layout.tags) > 1
     align_reconstruction(
         result,
@@ -242,7 +247,7 @@ def choose_poses(
     agreement = pose_agreement(tag_c2w, sfm_c2w)
     reason = judge(len(tag_posed), len(names), result.tag_size is not None, agreement)
     if reason is not None:
-        return PoseChoice(None, f"tag poses: {reason}", agreement)
+        return PoseChoice(None, f"tag poses: {reason}", agreement, focal=focal)
     assert agreement is not None  # judge() passes no SfM result without an agreement
     why = (
         f"SfM poses in the tag's frame: {len(names)} photos registered (the tags posed {len(tag_posed)}); "
@@ -257,7 +262,7 @@ def choose_poses(
             f"SfM's feature tracks fit its poses to {errors[0]:.2f} px and the tag poses to {errors[1]:.2f} px (median)"
         )
         if errors[1] <= errors[0]:
-            return PoseChoice(None, f"tag poses: {fit}", agreement)
+            return PoseChoice(None, f"tag poses: {fit}", agreement, focal=focal)
         why += f"; {fit}"
     left: dict[str, str] = {}
     if far:
@@ -281,7 +286,7 @@ def choose_poses(
             )
     if left:
         why += "; not adopted: " + "; ".join(f"{n} ({r})" for n, r in sorted(left.items()))
-    return PoseChoice(result, why, agreement, adopted, far)
+    return PoseChoice(result, why, agreement, adopted, far, focal)
 
 
 def retriangulated_errors(w2c: np.ndarray, rays: np.ndarray, focal: np.ndarray) -> np.ndarray:

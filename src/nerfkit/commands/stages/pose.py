@@ -12,7 +12,8 @@ if TYPE_CHECKING:
     from ...capture.aruco import Layout
     from ...capture.camera import Camera
     from ...capture.dataset import DatasetConfig
-    from ...capture.poses import PoseConfig
+    from ...capture.focal import FocalCheck
+    from ...capture.poses import PoseConfig, TagFocal
     from ...data.scene import Scene
     from ...sfm.colmap import SfmResult
 
@@ -136,24 +137,28 @@ def tag_frame(
     tag_size: float | None,
     single_tag: bool,
     cfg: PoseConfig,
-) -> tuple[Camera, Layout, float, list[str]]:
-    """(camera, layout, tag side in metres, notes): the frame the photos are posed in. The layout: ``layout``,
+) -> tuple[Camera, Layout, float, TagFocal | None, list[str]]:
+    """(camera, layout, tag side in metres, the tags' focal length, notes): the frame the photos are posed
+    in. The layout: ``layout``,
     else the camera file's (when the photos show several of its tags), else one estimated from
     the photos, else the single tag ``tag_id`` (or the one seen most); never a layout with
     ``tag_id`` or ``single_tag``. The camera: ``camera``, else :func:`starting_camera`, its focal
     length fitted to the tags when ``cfg.refine_focal``. The layout's tags get their heights
     above the sheet (:func:`~nerfkit.capture.poses.sheet_heights`). The tag side: ``tag_size``, else
-    the layout's (as printed)."""
+    the layout's (as printed). The tags' focal length (:func:`~nerfkit.capture.poses.tag_focal`): the
+    one the photos' tags want of ``camera``, a camera file's, to check it by; None without ``camera``."""
     from ...capture.aruco import Layout
     from ...capture.poses import (
         choose_tag,
+        focal_refined,
         layout_from_photos,
-        refine_focal,
         sheet_heights,
+        tag_focal,
         turn_into_camera_frame,
     )
 
     notes: list[str] = []
+    given = camera is not None  # a camera file: its focal length is checked against the photos' (capture.focal)
     free = tag_id is None and not single_tag  # a layout may be chosen
     from_file, file_notes = None, []
     if layout is None and camera_file and free:
@@ -186,14 +191,15 @@ def tag_frame(
     elif tag_id is not None:
         notes.append("--tag-id is ignored with --layout: the layout's frame is the world")
     side = tag_size or layout.tag_size
-    if cfg.refine_focal:
-        camera, note = refine_focal(records, camera, layout, cfg)
+    estimate = tag_focal(records, camera, layout, cfg) if cfg.refine_focal or given else None
+    if cfg.refine_focal:  # (a camera file's too far off is warned of by the focal length check)
+        camera, note = focal_refined(camera, estimate, warn=not given)
         if note:
             notes.append(note)
     layout, note = sheet_heights(records, camera, layout, cfg)
     if note:
         notes.append(note)
-    return camera, layout, side, notes
+    return camera, layout, side, estimate if given else None, notes
 
 
 def scaled_note(posed: list, camera: Camera) -> str | None:
@@ -207,10 +213,18 @@ def scaled_note(posed: list, camera: Camera) -> str | None:
 
 
 def poses_meta(
-    photos: str, dictionary: str, tag_size: float, printed: Layout, layout: Layout, notes: list[str], cfg: PoseConfig
+    photos: str,
+    dictionary: str,
+    tag_size: float,
+    printed: Layout,
+    layout: Layout,
+    notes: list[str],
+    cfg: PoseConfig,
+    focal: FocalCheck | None = None,
 ) -> dict[str, Any]:
     """What poses.json records about the posing besides each photo: the frame, the tags
-    (``printed``: the layout as printed; ``layout``: with the tags' heights) and the notes."""
+    (``printed``: the layout as printed; ``layout``: with the tags' heights), the notes and the
+    camera file's focal length against the tags' (``focal``)."""
     return {
         "photos_dir": str(Path(photos).resolve()),
         "dictionary": dictionary,
@@ -221,18 +235,23 @@ def poses_meta(
         "printed tag, z out of the tag toward the cameras (scene up); metres",
         "notes": notes,
         "max_error_px": cfg.max_error or "auto: max(3 x held-out error, 1 px, 2% of the tag side)",
+        "focal_check": None if focal is None else focal.as_json(),
     }
 
 
-def poses_report(notes: list[str], camera: Camera, records: list, written: Path, all_photos: bool) -> str:
-    """The printed report of the tag poses: the notes, the camera, the photos posed or
-    skipped (every one with ``all_photos``) and the poses.json written."""
+def poses_report(
+    notes: list[str], camera: Camera, records: list, written: Path, all_photos: bool, focal: FocalCheck | None = None
+) -> str:
+    """The printed report of the tag poses: the notes, the camera (and ``focal``, the camera
+    file's focal length against the photos'), the photos posed or skipped (every one with
+    ``all_photos``) and the poses.json written."""
     from ...capture.report import photo_summary
 
     return "\n".join(
         [
             *notes,
             f"camera: {camera.source or 'given'} ({camera.width}x{camera.height}, fx {camera.K[0, 0]:.1f})",
+            *([focal.line()] if focal is not None else []),
             photo_summary(records, "posed", full=all_photos),
             f"wrote {written}",
         ]
@@ -284,11 +303,16 @@ def chosen_dataset(
     dataset_cfg: DatasetConfig,
     say: Callable[[str], None],
     progress: bool = True,
+    camera_file: Camera | None = None,
+    tags_focal: TagFocal | None = None,
 ) -> tuple[Scene, dict]:
     """(scene, summary) of the dataset of ``--method auto``: the photos posed by SfM in the tag's
     frame, or by the tags (``posed``) when SfM registers too few, misses the tag or disagrees
-    with the tags; ``say`` is told which and why. ``start``: the camera SfM starts from (None:
-    the photos' EXIF focal length)."""
+    with the tags; ``say`` is told which and why, and how the focal length SfM found (else the
+    tags', ``tags_focal``) compares with the camera file's (``camera_file``; None: none given;
+    :mod:`~nerfkit.capture.focal`). ``start``: the camera SfM starts from (None: the photos' EXIF
+    focal length)."""
+    from ...capture.focal import focal_check
     from ...sfm.dataset import REPORT_FILE
     from ...sfm.tagged import choose_poses
 
@@ -311,10 +335,15 @@ def chosen_dataset(
         progress=progress,
     )
     say(choice.why)
-    extra = {"notes": notes, "pose_choice": choice.to_dict()}
+    checked = focal_check(camera_file, tags_focal, choice.focal)
+    focal = None if checked is None else checked.as_json()
+    if checked is not None:
+        say(checked.line())
+    extra = {"notes": notes, "pose_choice": choice.to_dict(), "focal_check": focal}
     if choice.result is not None:
         from ...sfm.dataset import build_dataset
 
+        cast("SfmResult", choice.result).report.focal_check = focal  # (sfm_report.json records it too)
         return build_dataset(
             cast("SfmResult", choice.result),
             out,
