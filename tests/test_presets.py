@@ -37,6 +37,8 @@ FORWARD_SPLAT = {"opacity_reset_every": 0.0, "densify_every": 50}
 CHANGED_MODEL_FOR = {"forward/splat": FORWARD_SPLAT}
 # ... and a capture's splat keeps one learning rate whatever its length
 CHANGED_MODEL_FOR.update({f"{scene}/splat": {"lr_budget": 0} for scene in ("tabletop", "tabletop_points")})
+# ... and a capture's table learns its relief
+CHANGED_MODEL_FOR.update({f"{scene}/fast": {"table_relief": True} for scene in ("tabletop", "tabletop_points")})
 # model options added since, with their default (splat: pruning to the visual hull, the
 # learning rates by the run's length, the SH direction's gradient; fast: the table's relief,
 # box margin and tags' texture)

@@ -61,6 +61,9 @@ PRESETS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                 "rgb_loss": "charbonnier",
                 "points_weight": 0.02,
                 "tv_view_weight": 1e-8,
+                # a height per texel of the table: sheets that curl, a tag's plane off the
+                # table's (BENCHMARKS.md, why the defaults are what they are)
+                "table_relief": True,
             },
         },
         # splat can learn the pose corrections too (through the camera it renders from); they are

@@ -135,8 +135,7 @@ class FastConfig:
     table_relief: bool = option(
         False,
         "with --table: the table also learns a height per texel (a sheet of paper that curls, "
-        "a tag's plane a little off the table's), where rays then meet it (off: it lifts "
-        "some captures and costs others a little; BENCHMARKS.md)",
+        "a tag's plane a little off the table's), where rays then meet it",
     )
     table_tag_texels: int = option(
         0,
